@@ -1,0 +1,227 @@
+"""What a component is: the base classes of every registry kind.
+
+A component follows scikit-learn's estimator contract, validated by pydantic:
+
+* ``name`` (class attribute, snake_case) is its key in its kind's registry;
+* parameters are declared once, in a nested frozen pydantic model ``Params`` (unknown
+  keys rejected); ``__init__`` only validates and stores them (no other logic);
+* fitted state lives in attributes ending in ``_``;
+* ``run(inputs, ctx)`` is what a pipeline step calls: it receives finished upstream
+  :class:`~mocapflow.framework.datasets.Dataset` objects keyed by input slot and returns a
+  :class:`~mocapflow.framework.datasets.StepOutput` (tables plus files written into
+  ``ctx.out_dir``). ``inputs`` (class attribute) declares the slots, slot -> required.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from .errors import ConfigError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .database import MotionDatabase
+    from .datasets import Dataset, StepOutput
+    from .motion import Motion
+    from .context import StepContext
+
+
+class Params(BaseModel):
+    """Base of every component's parameter model: frozen, unknown keys rejected."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class Component:
+    """Base of all components. Subclasses set ``kind`` (via their kind base) and ``name``."""
+
+    kind: ClassVar[str] = ""
+    name: ClassVar[str] = ""
+    #: Bump when the component's output changes for the same parameters; part of the
+    #: step fingerprint, so outputs computed by an older version are recomputed.
+    version: ClassVar[str] = "1"
+    #: Input slots of the pipeline step: slot name -> required.
+    inputs: ClassVar[Mapping[str, bool]] = {}
+    #: Whether the component can be a pipeline step (has a ``run``).
+    is_step: ClassVar[bool] = True
+    Params: ClassVar[type[Params]] = Params
+
+    def __init__(self, params: Params | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+        if params is None:
+            params = self.Params(**kwargs)
+        elif isinstance(params, Mapping):
+            params = self.Params(**{**params, **kwargs})
+        elif kwargs:
+            params = params.model_copy(update=kwargs)
+        elif not isinstance(params, self.Params):
+            raise ConfigError(f"{self.key()}: expected {self.Params.__qualname__}, got {type(params).__name__}")
+        self.params = params
+
+    @classmethod
+    def key(cls) -> str:
+        return f"{cls.kind}.{cls.name}"
+
+    def get_params(self) -> dict[str, Any]:
+        """Parameters as a plain dict (JSON-compatible)."""
+        return self.params.model_dump(mode="json")
+
+    def clone(self, **changes: Any) -> Component:
+        """An unfitted copy with some parameters changed."""
+        return type(self)(self.params.model_copy(update=changes) if changes else self.params)
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        """Compute this step's output from finished input datasets (see module doc)."""
+        raise NotImplementedError(f"{self.key()} cannot run as a pipeline step")
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+        return f"{type(self).__name__}({args})"
+
+
+class Format(Component):
+    """A file format (reader and/or writer), or an ingest/export step.
+
+    Readers set ``extensions`` and implement :meth:`read`; writers implement
+    :meth:`write`. Readers raise :class:`~mocapflow.framework.errors.ParseError` naming the
+    file, line and what was expected.
+    """
+
+    kind = "formats"
+    is_step = False
+    #: Lower-case file extensions handled, with the dot (``(".bvh",)``).
+    extensions: ClassVar[tuple[str, ...]] = ()
+    #: What :meth:`read` returns: ``"motion"`` (skeletal) or ``"markers"``.
+    produces: ClassVar[str] = "motion"
+
+    def read(self, path: str | Path) -> Any:
+        raise NotImplementedError(f"{self.key()} cannot read")
+
+    def write(self, obj: Any, path: str | Path) -> None:
+        raise NotImplementedError(f"{self.key()} cannot write")
+
+    @classmethod
+    def can_write(cls) -> bool:
+        return cls.write is not Format.write
+
+
+class FeatureSet(Component):
+    """Per-frame feature vectors of motions.
+
+    Subclasses implement :meth:`transform_motion` (one clip -> ``(T, dim)`` float32) and
+    :attr:`dim`. Feature sets that must be fitted (PCA) set ``requires_fit`` and implement
+    :meth:`fit`, :meth:`save_state` and :meth:`load_state`. Frame ids of the output refer to
+    the frames of the input motions dataset (resample at ingest, ``formats.load`` ``fps``).
+    """
+
+    kind = "features"
+    inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "reference": False}
+    requires_fit: ClassVar[bool] = False
+
+    @property
+    def dim(self) -> int:
+        raise NotImplementedError
+
+    def fit(self, data: MotionDatabase) -> FeatureSet:
+        return self
+
+    def transform_motion(self, motion: Motion) -> np.ndarray:
+        raise NotImplementedError
+
+    def transform(self, data: Motion | MotionDatabase) -> np.ndarray:
+        """Features of one clip or of every frame of a database, shape (n_frames, dim), float32.
+
+        Computed clip by clip, so windows never straddle two clips.
+        """
+        from .motion import Motion
+
+        if isinstance(data, Motion):
+            return np.asarray(self.transform_motion(data), dtype=np.float32)
+        parts = [np.asarray(self.transform_motion(m), dtype=np.float32) for m in data.motions]
+        return np.concatenate(parts, axis=0) if parts else np.zeros((0, self.dim), np.float32)
+
+    def save_state(self, directory: Path) -> None:
+        """Persist fitted state (only for ``requires_fit``)."""
+
+    def load_state(self, directory: Path) -> FeatureSet:
+        return self
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        from .datasets import StepOutput, feature_table
+
+        db = inputs["motions"].motions()
+        if self.requires_fit:
+            ref = inputs["reference"] if "reference" in inputs else None
+            if ref is not None and ref.producer_kind == "features":
+                self.load_state(ref.path)  # reuse a model fitted by another step
+            else:
+                self.fit(ref.motions() if ref is not None else db)
+            self.save_state(ctx.out_dir)
+        parts = ctx.map(self.transform_motion, db.motions, desc=f"{self.key()}")
+        x = np.concatenate([np.asarray(p, np.float32) for p in parts], 0) if parts else np.zeros((0, self.dim), np.float32)
+        clip_id, frame = db.frame_ids
+        return StepOutput({"data": feature_table(clip_id, frame, x)})
+
+
+class Index(Component):
+    """A nearest-neighbour index over feature vectors.
+
+    ``query`` returns ``(dist, ids)``, each of shape (n_queries, k): Euclidean distances
+    (float32, ascending) and row ids into the indexed feature matrix (int64), padded with
+    ``inf`` / ``-1`` where fewer than ``k`` neighbours exist (e.g. within ``radius``).
+    """
+
+    kind = "indexes"
+    inputs: ClassVar[Mapping[str, bool]] = {"features": True}
+
+    def build(self, features: np.ndarray) -> Index:
+        raise NotImplementedError
+
+    def query(self, x: np.ndarray, k: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def save(self, directory: Path) -> None:
+        raise NotImplementedError
+
+    @classmethod
+    def load(cls, directory: Path) -> Index:
+        raise NotImplementedError
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        from .datasets import StepOutput, frame_id_table
+
+        feats = inputs["features"].features()
+        self.build(feats.x)
+        self.save(ctx.out_dir / "index")
+        # row i of the index is frame (clip_id[i], frame[i]); matchers map ids back with it
+        return StepOutput({"data": frame_id_table(feats.clip_id, feats.frame)})
+
+
+class Matcher(Component):
+    """Matches queries against a database; writes tables with :data:`~.schema.MATCHES` columns."""
+
+    kind = "matchers"
+    inputs: ClassVar[Mapping[str, bool]] = {"database": True, "query": True}
+
+
+class Cleaner(Component):
+    """Detects (``detect``) and repairs (``repair``) capture errors per joint and frame."""
+
+    kind = "cleaners"
+    inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "context": False}
+
+    def detect(self, motion: Motion, context: Any = None) -> np.ndarray:
+        """Digression map, shape (T, J) in [0, 1]."""
+        raise NotImplementedError
+
+    def repair(self, motion: Motion, context: Any = None) -> tuple[Motion, Any]:
+        """Cleaned motion and a table of edits."""
+        raise NotImplementedError
+
+
+class Analysis(Component):
+    """A step that fits none of the other kinds (studies, reconstruction, evaluation)."""
+
+    kind = "analyses"

@@ -1,0 +1,72 @@
+"""Every hook of mocapflow, in one place; the docstrings are the contract.
+
+Plugins implement hooks with ``@mocapflow.framework.hookimpl``. Built-in plugins
+(:mod:`mocapflow.plugins`) use exactly the same hooks as third-party packages, which are
+discovered through the entry-point group ``mocapflow``.
+
+Registration hooks are *collecting* hooks: every plugin's result is used (pluggy returns
+a list of lists; the manager flattens it). A component name registered twice in one kind
+is an error naming both plugins. Lifecycle hooks are notifications: their return values are
+ignored and an exception raised by one is reported as a ``PluginError`` naming the plugin.
+"""
+from __future__ import annotations
+
+import pluggy
+
+hookspec = pluggy.HookspecMarker("mocapflow")
+
+
+@hookspec
+def register_formats() -> list[type]:
+    """Return :class:`~mocapflow.framework.components.Format` subclasses (readers/writers and
+    ingest/export steps). Called once when registries are built. Each class carries its own
+    ``name``; the registry key is ``formats.<name>``."""
+
+
+@hookspec
+def register_features() -> list[type]:
+    """Return :class:`~mocapflow.framework.components.FeatureSet` subclasses. Called once when
+    registries are built; keys are ``features.<name>``."""
+
+
+@hookspec
+def register_indexes() -> list[type]:
+    """Return :class:`~mocapflow.framework.components.Index` subclasses. Called once when
+    registries are built; keys are ``indexes.<name>``."""
+
+
+@hookspec
+def register_matchers() -> list[type]:
+    """Return :class:`~mocapflow.framework.components.Matcher` subclasses. Called once when
+    registries are built; keys are ``matchers.<name>``."""
+
+
+@hookspec
+def register_cleaners() -> list[type]:
+    """Return :class:`~mocapflow.framework.components.Cleaner` subclasses. Called once when
+    registries are built; keys are ``cleaners.<name>``."""
+
+
+@hookspec
+def register_analyses() -> list[type]:
+    """Return :class:`~mocapflow.framework.components.Analysis` subclasses: steps that fit none
+    of the other kinds (reconstruction, base poses, studies, evaluation). Keys are
+    ``analyses.<name>``."""
+
+
+@hookspec
+def before_step(step_id: str, component: object, workspace: str) -> None:
+    """Called by the runner just before a step computes (not when it is skipped as
+    up to date). ``component`` is the configured component instance."""
+
+
+@hookspec
+def after_step(step_id: str, component: object, workspace: str, output_dir: str, seconds: float) -> None:
+    """Called after a step's output was committed atomically to ``output_dir``;
+    ``seconds`` is its wall-clock compute time."""
+
+
+@hookspec
+def on_step_error(step_id: str, component: object, error: BaseException) -> None:
+    """Called when a step raised; the run then stops with a ``PipelineError``. Nothing of
+    the failed step's output is left behind."""

@@ -1,0 +1,144 @@
+"""Normalisation, resampling and body-size measures shared by feature sets and cleaners.
+
+All functions take arrays (never per-frame objects) and broadcast over frames.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import quaternions as quat
+from .errors import DataError
+from .joints import CANONICAL_JOINTS
+from .motion import Motion, forward_kinematics
+from .skeleton import Skeleton
+
+UP = np.array([0.0, 1.0, 0.0])
+
+
+def facing_angles(positions: np.ndarray, joints: tuple[str, ...] | list[str] = CANONICAL_JOINTS) -> np.ndarray:
+    """Heading per frame from the hip axis, radians about +y (0 = facing +z).
+
+    Parameters
+    ----------
+    positions : ndarray of shape (T, K, 3), metres
+        Canonical positions (``joints`` names the K columns; needs ``lhip`` and ``rhip``).
+
+    Returns
+    -------
+    ndarray of shape (T,)
+        Angle ``a`` such that rotating by ``-a`` about +y makes the character face +z.
+        The facing direction is ``(lhip - rhip) x up`` projected on the ground plane
+        (a hip axis along +x faces +z).
+    """
+    j = list(joints)
+    across = positions[:, j.index("lhip")] - positions[:, j.index("rhip")]
+    fwd = np.cross(across, UP)
+    return np.arctan2(fwd[:, 0], fwd[:, 2])
+
+
+def rotate_about_y(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v (T, ..., 3)`` by ``angle (T,)`` radians about +y."""
+    c = np.cos(angle).reshape((-1,) + (1,) * (v.ndim - 2))
+    s = np.sin(angle).reshape((-1,) + (1,) * (v.ndim - 2))
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
+
+
+def to_root_frame(positions: np.ndarray, joints: tuple[str, ...] | list[str] = CANONICAL_JOINTS,
+                  root: str = "root") -> np.ndarray:
+    """Positions with the root moved to the origin and the facing direction turned to +z.
+
+    The vertical axis is kept (heights stay heights), so only the root's ground-plane
+    position and heading are removed, as in Krüger et al. 2010 §3.
+
+    Parameters
+    ----------
+    positions : ndarray of shape (T, K, 3), metres
+
+    Returns
+    -------
+    ndarray of shape (T, K, 3), metres
+    """
+    j = list(joints)
+    r = positions[:, j.index(root)]
+    centred = positions - r[:, None, :]
+    return rotate_about_y(centred, -facing_angles(positions, joints))
+
+
+def drop_root_translation(motion: Motion, keep_height: bool = True) -> Motion:
+    """Motion whose root stays above the origin (height kept unless ``keep_height=False``)."""
+    root = np.zeros_like(motion.root_translation)
+    if keep_height:
+        root[:, 1] = motion.root_translation[:, 1]
+    return motion.with_arrays(root_translation=root)
+
+
+def align_facing(motion: Motion) -> Motion:
+    """Motion rotated about +y per frame so that it always faces +z, root over the origin."""
+    pos = motion.canonical_positions()
+    angle = facing_angles(pos)
+    turn = quat.from_axis_angle(np.broadcast_to(UP, (len(angle), 3)), -angle)
+    rot = motion.rotations.copy()
+    rot[:, 0] = quat.mul(turn, rot[:, 0])
+    root = np.zeros_like(motion.root_translation)
+    root[:, 1] = motion.root_translation[:, 1]
+    return motion.with_arrays(rotations=rot, root_translation=root)
+
+
+def resample(motion: Motion, fps: float) -> Motion:
+    """Resample to ``fps``: slerp for rotations, linear for translations.
+
+    Samples are taken at ``k / fps`` seconds for ``k = 0 .. floor(duration_span * fps)``
+    where ``duration_span = (T - 1) / motion.fps`` (the first and last samples are kept in
+    time; the clip never grows past its last frame).
+    """
+    if fps <= 0:
+        raise DataError(f"target fps must be positive, got {fps}")
+    if abs(fps - motion.fps) < 1e-9 or motion.n_frames < 2:
+        return motion.with_arrays(fps=fps)
+    span = (motion.n_frames - 1) / motion.fps
+    n = int(np.floor(span * fps + 1e-9)) + 1
+    src = np.arange(n) * (motion.fps / fps)
+    i0 = np.minimum(np.floor(src).astype(np.int64), motion.n_frames - 1)
+    i1 = np.minimum(i0 + 1, motion.n_frames - 1)
+    w = src - i0
+    rot = quat.slerp(motion.rotations[i0], motion.rotations[i1], np.broadcast_to(w[:, None], (n, motion.n_joints)))
+    root = (1 - w)[:, None] * motion.root_translation[i0] + w[:, None] * motion.root_translation[i1]
+    lt = None
+    if motion.local_translations is not None:
+        lt = (1 - w)[:, None, None] * motion.local_translations[i0] + w[:, None, None] * motion.local_translations[i1]
+    meta = dict(motion.metadata)
+    meta.setdefault("source_fps", motion.fps)
+    meta.setdefault("source_frames", motion.n_frames)
+    return motion.with_arrays(rotations=rot, root_translation=root, local_translations=lt, fps=fps, metadata=meta)
+
+
+def rest_positions(skeleton: Skeleton) -> np.ndarray:
+    """Joint positions of the rest pose (all identity rotations), shape (J, 3), metres."""
+    pos, _ = forward_kinematics(skeleton, np.zeros((1, 3)), quat.identity((1, skeleton.n_joints)))
+    return pos[0]
+
+
+def body_measures(skeleton: Skeleton) -> dict[str, float]:
+    """Body-size measures from the rest pose, metres.
+
+    Returns ``humerus_length`` (mean of left/right shoulder-elbow), ``shoulder_width``
+    (lshoulder-rshoulder), ``hip_width`` (lhip-rhip), ``height`` (headtop or head above
+    the lower ankle), used to make feature thresholds relative to body size.
+    """
+    rest = rest_positions(skeleton)
+    c = skeleton.canonical
+
+    def dist(a: str, b: str) -> float:
+        if a not in c or b not in c:
+            raise DataError(f"skeleton {skeleton.name!r} lacks {a!r} or {b!r} needed for body measures")
+        return float(np.linalg.norm(rest[c[a]] - rest[c[b]]))
+
+    top = c.get("headtop", c.get("head"))
+    feet = min(rest[c["lankle"], 1], rest[c["rankle"], 1]) if "lankle" in c and "rankle" in c else rest[:, 1].min()
+    return {
+        "humerus_length": 0.5 * (dist("lshoulder", "lelbow") + dist("rshoulder", "relbow")),
+        "shoulder_width": dist("lshoulder", "rshoulder"),
+        "hip_width": dist("lhip", "rhip"),
+        "height": float(rest[top, 1] - feet) if top is not None else float("nan"),
+    }

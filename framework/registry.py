@@ -1,0 +1,90 @@
+"""Registries: name -> component class, one per component kind."""
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from .errors import ConfigError, PluginError
+
+#: The component kinds, in the order ``mocapflow plugins`` lists them.
+KINDS: tuple[str, ...] = ("formats", "features", "indexes", "matchers", "cleaners", "analyses")
+
+
+def did_you_mean(name: str, candidates: list[str] | tuple[str, ...] | set[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the closest candidate, or ``""``."""
+    close = difflib.get_close_matches(name, sorted(candidates), n=1, cutoff=0.5)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+@dataclass
+class Registry:
+    """Components of one kind, keyed by their ``name`` class attribute.
+
+    Records which plugin provided each component so that duplicates and errors can
+    name both sides.
+    """
+
+    kind: str
+    _classes: dict[str, type] = field(default_factory=dict)
+    _providers: dict[str, str] = field(default_factory=dict)
+
+    def add(self, cls: type, provider: str) -> None:
+        name = getattr(cls, "name", None)
+        if not isinstance(name, str) or not name.isidentifier() or name != name.lower():
+            raise PluginError(f"plugin {provider!r} registered {cls!r} under {self.kind} without a snake_case `name`")
+        if getattr(cls, "kind", self.kind) != self.kind:
+            raise PluginError(f"plugin {provider!r} registered {cls.__name__} ({cls.kind}) as one of the {self.kind}")
+        if name in self._classes and self._classes[name] is not cls:
+            raise PluginError(
+                f"duplicate {self.kind} component {name!r}: provided by plugin {self._providers[name]!r} "
+                f"and by plugin {provider!r}"
+            )
+        self._classes[name] = cls
+        self._providers[name] = provider
+
+    def get(self, name: str) -> type:
+        try:
+            return self._classes[name]
+        except KeyError:
+            raise ConfigError(f"unknown {self.kind} component {name!r}{did_you_mean(name, self._classes)}") from None
+
+    def provider(self, name: str) -> str:
+        return self._providers[name]
+
+    def names(self) -> list[str]:
+        return sorted(self._classes)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._classes
+
+    def __iter__(self) -> Iterator[tuple[str, type]]:
+        return iter(sorted(self._classes.items()))
+
+    def __len__(self) -> int:
+        return len(self._classes)
+
+
+@dataclass
+class Registries:
+    """All registries of one plugin manager, addressed by kind or by ``kind.name`` keys."""
+
+    by_kind: dict[str, Registry] = field(default_factory=lambda: {k: Registry(k) for k in KINDS})
+
+    def __getitem__(self, kind: str) -> Registry:
+        return self.by_kind[kind]
+
+    def resolve(self, key: str) -> type:
+        """Class for a ``<kind>.<name>`` key, with "did you mean" on typos."""
+        kind, _, name = key.partition(".")
+        if kind not in self.by_kind or not name:
+            every = [f"{k}.{n}" for k, r in self.by_kind.items() for n in r.names()]
+            raise ConfigError(f"unknown component {key!r}: expected '<kind>.<name>' with kind one of {', '.join(KINDS)}{did_you_mean(key, every)}")
+        registry = self.by_kind[kind]
+        if name not in registry:
+            every = [f"{kind}.{n}" for n in registry.names()]
+            raise ConfigError(f"unknown component {key!r}{did_you_mean(key, every)}")
+        return registry.get(name)
+
+    def keys(self) -> list[str]:
+        return [f"{k}.{n}" for k, r in self.by_kind.items() for n in r.names()]

@@ -1,0 +1,73 @@
+"""Arrow schemas of the tables mocapflow writes (Parquet on disk, views in DuckDB).
+
+Conventions, stated once:
+
+* every frame table has ``clip_id`` (int32) and ``frame`` (int32, 0-based within the clip);
+* every segment or match table has ``clip_id, start_frame, end_frame`` where the range is
+  **half-open**: ``end_frame`` is *exclusive* (``end_frame - start_frame`` frames);
+* feature vectors are fixed-size lists of float32;
+* match tables of every matcher share :data:`MATCHES` (extra matcher-specific columns may
+  follow), so SQL composes across matchers.
+"""
+from __future__ import annotations
+
+import pyarrow as pa
+
+CLIPS = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("name", pa.string()),
+        ("path", pa.string()),
+        ("format", pa.string()),
+        ("subject", pa.string()),
+        ("fps", pa.float64()),
+        ("n_frames", pa.int32()),
+        ("skeleton", pa.string()),
+        ("checksum", pa.string()),
+        ("source_fps", pa.float64()),
+        ("source_frames", pa.int32()),
+    ]
+)
+
+REJECTS = pa.schema([("path", pa.string()), ("line", pa.int32()), ("message", pa.string())])
+
+SKELETONS = pa.schema([("skeleton", pa.string()), ("name", pa.string()), ("n_joints", pa.int32()), ("definition", pa.string())])
+
+SEGMENTS = pa.schema([("clip_id", pa.int32()), ("start_frame", pa.int32()), ("end_frame", pa.int32())])
+
+MATCHES = pa.schema(
+    [
+        ("query_id", pa.int32()),
+        ("rank", pa.int32()),
+        ("clip_id", pa.int32()),
+        ("start_frame", pa.int32()),
+        ("end_frame", pa.int32()),
+        ("cost", pa.float64()),
+    ]
+)
+
+#: Optional warping path column of match tables: pairs (query frame, database frame).
+WARPING_PATH = pa.field("path", pa.list_(pa.list_(pa.int32(), 2)))
+
+
+def motion_frames(n_joints_hint: int | None = None) -> pa.Schema:
+    """Schema of a motions dataset's frame table.
+
+    ``rotations`` holds the J*4 local quaternion components (w, x, y, z per joint) of the
+    clip's skeleton (variable length across skeletons); ``positions`` the canonical joint
+    positions (25*3, metres, NaN where a skeleton lacks the joint).
+    """
+    return pa.schema(
+        [
+            ("clip_id", pa.int32()),
+            ("frame", pa.int32()),
+            ("root_translation", pa.list_(pa.float32(), 3)),
+            ("rotations", pa.list_(pa.float32())),
+            ("positions", pa.list_(pa.float32(), 75)),
+        ]
+    )
+
+
+def feature_frames(dim: int) -> pa.Schema:
+    """Schema of a feature table of dimension ``dim``."""
+    return pa.schema([("clip_id", pa.int32()), ("frame", pa.int32()), ("features", pa.list_(pa.float32(), dim))])

@@ -1,0 +1,11 @@
+"""Built-in plugins of mocapflow.
+
+Each module listed here is a pluggy plugin using exactly the hooks of
+:mod:`mocapflow.framework.hookspecs`, as a third-party package would.
+To add a built-in, add its module name to this tuple (one line per module).
+"""
+from __future__ import annotations
+
+BUILTIN_PLUGINS: tuple[str, ...] = (
+    "mocapflow.plugins.formats",
+)
