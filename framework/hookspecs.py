@@ -55,6 +55,16 @@ def register_analyses() -> list[type]:
 
 
 @hookspec
+def register_commands() -> list[type]:
+    """Return CLI command classes added to ``mocapflow`` as sub-commands (``mocapflow search``,
+    ``mocapflow clean``...). Each class has ``name`` (str), ``help`` (one line),
+    ``add_arguments(parser)`` (classmethod, argparse) and ``run(args) -> int`` (classmethod,
+    the exit code; raise :class:`~mocapflow.framework.errors.MocapflowError` subclasses for
+    user errors, the CLI prints them without a traceback unless ``--debug``). Collected
+    once when the CLI starts; a name clash with a built-in command is a ``PluginError``."""
+
+
+@hookspec
 def before_step(step_id: str, component: object, workspace: str) -> None:
     """Called by the runner just before a step computes (not when it is skipped as
     up to date). ``component`` is the configured component instance."""
