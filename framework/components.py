@@ -76,6 +76,15 @@ class Component:
         """Compute this step's output from finished input datasets (see module doc)."""
         raise NotImplementedError(f"{self.key()} cannot run as a pipeline step")
 
+    def source_fingerprint(self, base_dir: Path) -> str:
+        """Digest of external inputs the step reads (files named in its parameters).
+
+        Part of the step fingerprint: a step that reads files returns something that
+        changes when they change (e.g. paths, sizes and modification times), so that an
+        edited file recomputes the step. Default: no external inputs.
+        """
+        return ""
+
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"

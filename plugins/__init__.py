@@ -8,4 +8,7 @@ from __future__ import annotations
 
 BUILTIN_PLUGINS: tuple[str, ...] = (
     "mocapflow.plugins.formats",
+    "mocapflow.plugins.formats.steps",
+    "mocapflow.plugins.analyses.summary",
+    "mocapflow.plugins.analyses.krueger_apps_plugin",
 )

@@ -1,0 +1,177 @@
+"""Pipeline YAML -> pydantic models, remembering where every key came from.
+
+The YAML syntax::
+
+    name: cmu-search
+    workspace: runs/cmu-search        # relative to the YAML file unless absolute
+    executor: local                   # optional; `jobs:` sets the local pool size
+    steps:
+      motions: {uses: formats.load, with: {paths: ["../examples/data/cmu/**/*.amc"], fps: 30}}
+      fe15:    {uses: features.end_effectors, input: motions}
+      tree:    {uses: indexes.kdtree, input: fe15}
+      matches: {uses: matchers.lng, inputs: {database: tree, query: motions}, with: {k: 256}}
+
+Step ids are dataset names (letters, digits, ``_`` and ``-``); ``input`` fills a
+component's first input slot, ``inputs`` names slots explicitly.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from .errors import ConfigError
+
+_STEP_ID = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*$")
+
+
+class StepConfig(BaseModel):
+    """One step of a pipeline as written in YAML."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+
+    uses: str
+    input: str | None = None
+    inputs: dict[str, str] = Field(default_factory=dict)
+    with_: dict[str, Any] = Field(default_factory=dict, alias="with")
+
+    @model_validator(mode="after")
+    def _one_input_form(self) -> StepConfig:
+        if self.input is not None and self.inputs:
+            raise ValueError("give either `input` or `inputs`, not both")
+        return self
+
+
+class PipelineConfig(BaseModel):
+    """A whole pipeline file."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    workspace: str | None = None
+    executor: str = "local"
+    jobs: int = Field(default=1, ge=0, description="local executor workers (0 = all cores)")
+    executor_options: dict[str, Any] = Field(default_factory=dict)
+    steps: dict[str, StepConfig]
+
+    @field_validator("steps")
+    @classmethod
+    def _step_ids(cls, steps: dict[str, StepConfig]) -> dict[str, StepConfig]:
+        if not steps:
+            raise ValueError("a pipeline needs at least one step")
+        for sid in steps:
+            if not _STEP_ID.match(str(sid)):
+                raise ValueError(f"step id {sid!r} must start with a letter or _ and hold only letters, digits, _ and -")
+        return steps
+
+
+class _LineLoader(yaml.SafeLoader):
+    """SafeLoader that records the line of every mapping key (path tuple -> 1-based line)."""
+
+
+def _load_with_lines(text: str, source: str) -> tuple[Any, dict[tuple[str, ...], int]]:
+    lines: dict[tuple[str, ...], int] = {}
+    try:
+        root = yaml.compose(text, Loader=_LineLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{source}:{mark.line + 1}" if mark is not None else source
+        raise ConfigError(f"{where}: invalid YAML: {getattr(exc, 'problem', exc)}") from None
+
+    def walk(node: yaml.Node, path: tuple[str, ...]) -> None:
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                key = (*path, str(k.value))
+                lines[key] = k.start_mark.line + 1
+                walk(v, key)
+        elif isinstance(node, yaml.SequenceNode):
+            for i, v in enumerate(node.value):
+                lines[(*path, str(i))] = v.start_mark.line + 1
+                walk(v, (*path, str(i)))
+
+    if root is not None:
+        walk(root, ())
+    data = yaml.load(text, Loader=_LineLoader) if root is not None else None
+    return data, lines
+
+
+class PipelineSource:
+    """A parsed pipeline with its file name and key lines, for errors that point at the YAML."""
+
+    def __init__(self, config: PipelineConfig, path: Path | None, lines: dict[tuple[str, ...], int]) -> None:
+        self.config = config
+        self.path = path
+        self.lines = lines
+
+    @property
+    def base_dir(self) -> Path:
+        return self.path.parent if self.path is not None else Path.cwd()
+
+    def where(self, *keys: str) -> str:
+        """``file:line`` of the deepest known key along ``keys``."""
+        name = str(self.path) if self.path is not None else "<pipeline>"
+        for n in range(len(keys), 0, -1):
+            line = self.lines.get(tuple(keys[:n]))
+            if line is not None:
+                return f"{name}:{line}"
+        return name
+
+    def error(self, keys: tuple[str, ...], message: str) -> ConfigError:
+        return ConfigError(f"{self.where(*keys)}: {message}")
+
+
+def parse_pipeline(text: str, path: Path | None = None) -> PipelineSource:
+    """Parse YAML text into a :class:`PipelineSource` (structure only; see :mod:`.plan`)."""
+    source = str(path) if path is not None else "<pipeline>"
+    data, lines = _load_with_lines(text, source)
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a pipeline is a mapping with `name` and `steps`")
+    try:
+        config = PipelineConfig.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        keys = tuple(str(p) for p in err["loc"])
+        keys = tuple("with" if k == "with_" else k for k in keys)
+        src = PipelineSource(PipelineConfig.model_construct(name="", steps={}), path, lines)
+        field = ".".join(keys) or "pipeline"
+        raise src.error(keys, f"{field}: {err['msg']}") from None
+    return PipelineSource(config, path, lines)
+
+
+def load_pipeline(path: str | Path) -> PipelineSource:
+    """Read and parse a pipeline YAML file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read pipeline {p}: {exc.strerror or exc}") from None
+    return parse_pipeline(text, p.resolve())
+
+
+def apply_overrides(source: PipelineSource, overrides: list[str] | tuple[str, ...]) -> PipelineSource:
+    """Apply ``step.key=value`` overrides (value parsed as YAML) to the steps' ``with``."""
+    steps = {k: v.model_dump(by_alias=True) for k, v in source.config.steps.items()}
+    for item in overrides:
+        lhs, sep, rhs = item.partition("=")
+        step, dot, key = lhs.strip().partition(".")
+        if not sep or not dot or not key:
+            raise ConfigError(f"--set {item!r}: expected STEP.KEY=VALUE")
+        if step not in steps:
+            from .registry import did_you_mean
+
+            raise ConfigError(f"--set {item!r}: no step {step!r}{did_you_mean(step, list(steps))}")
+        try:
+            value = yaml.safe_load(rhs)
+        except yaml.YAMLError:
+            value = rhs
+        target = steps[step].setdefault("with", {})
+        *parents, last = key.split(".")
+        for part in parents:
+            target = target.setdefault(part, {})
+        target[last] = value
+    data = source.config.model_dump()
+    data["steps"] = steps
+    return PipelineSource(PipelineConfig.model_validate(data), source.path, source.lines)

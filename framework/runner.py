@@ -1,0 +1,224 @@
+"""Running a validated plan: atomic step outputs, provenance, skipping unchanged steps."""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from .config import apply_overrides, load_pipeline
+from .context import StepContext
+from .datasets import MANIFEST, Dataset, StepOutput
+from .errors import ConfigError, MocapflowError, PipelineError
+from .executors import EXECUTORS, Executor
+from .plan import Plan, build_plan
+from .plugins import build_registries, get_plugin_manager
+
+log = logging.getLogger("mocapflow")
+TMP_DIR = ".tmp"
+TRASH_DIR = ".trash"
+
+
+@dataclass
+class StepReport:
+    """What happened to one step: ``status`` is ``"computed"`` or ``"up to date"``."""
+
+    step_id: str
+    component: str
+    status: str
+    seconds: float = 0.0
+    rows: dict[str, int] = field(default_factory=dict)
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+def default_workspace(plan: Plan) -> Path:
+    cfg = plan.source.config
+    ws = Path(cfg.workspace) if cfg.workspace else Path("runs") / cfg.name
+    return ws if ws.is_absolute() else plan.source.base_dir / ws
+
+
+def _write_table(table: pa.Table, path: Path, provenance: dict[str, Any]) -> None:
+    meta = dict(table.schema.metadata or {})
+    meta[b"mocapflow"] = json.dumps(provenance, sort_keys=True, default=str).encode()
+    pq.write_table(table.replace_schema_metadata(meta), path, compression="zstd")
+
+
+class Runner:
+    """Executes a :class:`Plan` into a workspace.
+
+    Parameters
+    ----------
+    plan : Plan
+    workspace : Path
+    executor : Executor
+        Fans out per-clip work (``LocalExecutor(jobs)`` by default).
+    hook : pluggy hook relay or None
+        Lifecycle hooks (``before_step``, ``after_step``, ``on_step_error``).
+    force : bool
+        Recompute every step even when its fingerprint is unchanged.
+    """
+
+    def __init__(self, plan: Plan, workspace: Path, executor: Executor, registries, hook=None, force: bool = False,
+                 echo: Callable[[str], None] | None = None) -> None:
+        self.plan = plan
+        self.workspace = Path(workspace)
+        self.executor = executor
+        self.registries = registries
+        self.hook = hook
+        self.force = force
+        self.echo = echo or (lambda msg: None)
+
+    def _clean_leftovers(self) -> None:
+        """Remove half-written outputs of an interrupted run (never read, never kept)."""
+        for name in (TMP_DIR, TRASH_DIR):
+            shutil.rmtree(self.workspace / name, ignore_errors=True)
+
+    def run(self) -> list[StepReport]:
+        self.workspace.mkdir(parents=True, exist_ok=True)
+        self._clean_leftovers()
+        fingerprints = self.plan.fingerprints()
+        reports = []
+        for step in self.plan.steps:
+            fp = fingerprints[step.step_id]
+            out = self.workspace / step.step_id
+            if not self.force and (out / MANIFEST).is_file():
+                try:
+                    previous = json.loads((out / MANIFEST).read_text()).get("fingerprint")
+                except (OSError, ValueError):
+                    previous = None
+                if previous == fp:
+                    reports.append(StepReport(step.step_id, step.key, "up to date"))
+                    self.echo(f"  {step.step_id:<16} {step.key:<28} up to date")
+                    continue
+            reports.append(self._compute(step, fp, fingerprints))
+        self._clean_leftovers()
+        return reports
+
+    def _compute(self, step, fp: str, fingerprints: dict[str, str]) -> StepReport:
+        tmp = self.workspace / TMP_DIR / f"{step.step_id}-{uuid.uuid4().hex[:8]}"
+        tmp.mkdir(parents=True)
+        ctx = StepContext(step.step_id, tmp, self.plan.source.base_dir, self.workspace, self.registries, self.executor)
+        inputs = {slot: Dataset(self.workspace / up) for slot, up in step.inputs.items()}
+        self.echo(f"  {step.step_id:<16} {step.key:<28} running...")
+        t0 = time.perf_counter()
+        try:
+            if self.hook is not None:
+                self.hook.before_step(step_id=step.step_id, component=step.component, workspace=str(self.workspace))
+            output = step.component.run(inputs, ctx)
+            if not isinstance(output, StepOutput):
+                raise PipelineError(f"{step.key}.run() returned {type(output).__name__}, expected StepOutput")
+            seconds = time.perf_counter() - t0
+            provenance = {
+                "step": step.step_id,
+                "component": step.key,
+                "version": step.component.version,
+                "params": step.component.get_params(),
+                "inputs": {slot: {"step": up, "fingerprint": fingerprints[up]} for slot, up in step.inputs.items()},
+                "fingerprint": fp,
+                "pipeline": self.plan.source.config.name,
+                "seconds": round(seconds, 3),
+                "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "summary": output.summary,
+            }
+            for name, table in output.tables.items():
+                _write_table(table, tmp / f"{name}.parquet", provenance)
+            provenance["tables"] = {name: t.num_rows for name, t in output.tables.items()}
+            # the manifest is written last: a directory without it is never a dataset
+            (tmp / MANIFEST).write_text(json.dumps(provenance, indent=2, sort_keys=True, default=str))
+            self._commit(tmp, self.workspace / step.step_id)
+        except BaseException as exc:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if self.hook is not None and isinstance(exc, Exception):
+                self.hook.on_step_error(step_id=step.step_id, component=step.component, error=exc)
+            if isinstance(exc, MocapflowError):
+                raise PipelineError(f"step {step.step_id!r} ({step.key}) failed: {exc}") from exc
+            raise
+        if self.hook is not None:
+            self.hook.after_step(step_id=step.step_id, component=step.component, workspace=str(self.workspace),
+                                 output_dir=str(self.workspace / step.step_id), seconds=seconds)
+        rows = {name: t.num_rows for name, t in output.tables.items()}
+        self.echo(f"  {step.step_id:<16} {step.key:<28} computed in {seconds:.2f} s ({', '.join(f'{k}: {v} rows' for k, v in rows.items())})")
+        return StepReport(step.step_id, step.key, "computed", seconds, rows, output.summary)
+
+    def _commit(self, tmp: Path, final: Path) -> None:
+        """Swap the finished temporary directory in with renames (atomic on one filesystem)."""
+        if final.exists():
+            trash = self.workspace / TRASH_DIR / f"{final.name}-{uuid.uuid4().hex[:8]}"
+            trash.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(final, trash)
+            os.replace(tmp, final)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            os.replace(tmp, final)
+
+
+def plan_pipeline(path: str | Path, overrides: tuple[str, ...] | list[str] = (), registries=None, pm=None) -> Plan:
+    """Load, override and validate a pipeline file; nothing runs."""
+    source = load_pipeline(path)
+    if overrides:
+        source = apply_overrides(source, overrides)
+    if registries is None:
+        pm = pm or get_plugin_manager()
+        registries = build_registries(pm)
+    return build_plan(source, registries)
+
+
+def make_executor(name: str, jobs: int = 1, options: dict[str, Any] | None = None) -> Executor:
+    try:
+        factory = EXECUTORS[name]
+    except KeyError:
+        from .registry import did_you_mean
+
+        raise ConfigError(f"unknown executor {name!r}{did_you_mean(name, list(EXECUTORS))}; known: {', '.join(EXECUTORS)}") from None
+    return factory(jobs=jobs, **(options or {}))
+
+
+def run_pipeline(
+    path: str | Path,
+    workspace: str | Path | None = None,
+    overrides: tuple[str, ...] | list[str] = (),
+    jobs: int | None = None,
+    force: bool = False,
+    pm=None,
+    executor: Executor | None = None,
+    echo: Callable[[str], None] | None = None,
+) -> list[StepReport]:
+    """Plan and run a pipeline file; returns one :class:`StepReport` per step.
+
+    Parameters
+    ----------
+    path : str or Path
+        The YAML file.
+    workspace : path, optional
+        Overrides the pipeline's ``workspace`` (relative paths are relative to the cwd).
+    overrides : list of ``"step.key=value"``
+    jobs : int, optional
+        Local executor workers (``0`` = all cores); overrides the pipeline's ``jobs``.
+    force : bool
+        Recompute steps even if up to date.
+    pm : pluggy.PluginManager, optional
+        A plugin manager (default: built-ins and entry points).
+    executor : Executor, optional
+        Use this executor instead of the configured one.
+    """
+    pm = pm or get_plugin_manager()
+    registries = build_registries(pm)
+    plan = plan_pipeline(path, overrides, registries=registries)
+    cfg = plan.source.config
+    ws = Path(workspace).resolve() if workspace is not None else default_workspace(plan)
+    own = executor is None
+    ex = executor or make_executor(cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options)
+    try:
+        return Runner(plan, ws, ex, registries, hook=pm.hook, force=force, echo=echo).run()
+    finally:
+        if own:
+            ex.close()

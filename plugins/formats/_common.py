@@ -1,0 +1,82 @@
+"""Helpers shared by the format readers: reading a file's bytes with clear errors,
+metadata common to every clip, and the Euler conventions of the formats."""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.errors import ParseError
+
+
+def read_bytes(path: str | Path) -> bytes:
+    """The file's bytes; a ParseError (line ``None``) for a missing file, a directory,
+    an unreadable or an empty file."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except IsADirectoryError:
+        raise ParseError(p, None, "expected a file, found a directory") from None
+    except FileNotFoundError:
+        raise ParseError(p, None, "file not found") from None
+    except OSError as exc:
+        raise ParseError(p, None, f"cannot read the file ({exc.strerror or exc})") from None
+    if not data.strip():
+        raise ParseError(p, 1, "the file is empty")
+    return data
+
+
+def line_of(data: bytes, offset: int) -> int:
+    """1-based line number of a byte offset (LF ends a line)."""
+    return data.count(b"\n", 0, offset) + 1
+
+
+def check_text(path: str | Path, data: bytes, upto: int | None = None) -> None:
+    """Reject binary garbage: control characters other than whitespace in ``data[:upto]``."""
+    head = data if upto is None else data[:upto]
+    bad = head.translate(None, b"\t\n\r\x0b\x0c" + bytes(range(32, 256)))
+    if bad:
+        off = head.find(bad[:1])
+        raise ParseError(path, line_of(data, off), f"expected text, found binary byte 0x{bad[0]:02x}")
+
+
+def file_metadata(path: str | Path, data: bytes, fmt: str) -> dict:
+    """Metadata every reader records: path, format and the sha1 of the file bytes."""
+    return {"path": str(path), "format": fmt, "checksum": hashlib.sha1(data).hexdigest()}
+
+
+def euler_extrinsic(angles: np.ndarray, order: str, degrees: bool) -> np.ndarray:
+    """Rotations applied about fixed axes in the listed order (Acclaim ASF/AMC convention).
+
+    ``order="xyz"`` means rotate about x first, then y, then z: ``R = Rz Ry Rx``.
+    Equivalent to :func:`quaternions.from_euler` with the order and the angles reversed.
+
+    Parameters
+    ----------
+    angles : ndarray of shape (..., len(order))
+    order : str
+        Axis letters in the listed order.
+    degrees : bool
+    """
+    angles = np.asarray(angles, dtype=float)
+    return quat.from_euler(angles[..., ::-1], order[::-1], degrees=degrees)
+
+
+def euler_extrinsic_inverse(q: np.ndarray, order: str, degrees: bool) -> np.ndarray:
+    """Angles ``(..., len(order))`` with ``euler_extrinsic(angles, order) == ±q``.
+
+    ``order`` may list one, two or three distinct axes; rotations about the missing axes
+    must be zero (they are, for rotations read from a file with those channels). The
+    missing axes are put in the middle of the three-axis decomposition, where their zero
+    angle keeps it away from gimbal lock.
+    """
+    order = order.lower()
+    if not order:
+        return np.zeros(np.shape(q)[:-1] + (0,))
+    missing = [a for a in "xyz" if a not in order]
+    full = order[0] + "".join(missing) + order[1:]
+    ang = quat.to_euler(q, full[::-1], degrees=degrees)[..., ::-1]
+    pick = [full.index(a) for a in order]
+    return ang[..., pick]

@@ -1,0 +1,170 @@
+"""Fast whitespace tokenizer and float parser for text motion files (AMC, BVH, TRC).
+
+This is a kernel module: no validation, no error messages. It imports numba at module
+level, so the readers import it lazily (never at CLI start-up). The slow, obviously
+correct twin is ``tests/naive/formats.py``.
+
+One pass over the bytes yields, per whitespace-separated token: its byte offset, length,
+1-based line number, a 64-bit FNV-1a hash (to compare name tokens without building
+Python strings), whether it is a finite decimal number, and its value. Lines end at LF;
+CR is whitespace, so CRLF, LF and files mixing both count lines alike.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_FNV_OFFSET = np.uint64(14695981039346656037)
+_FNV_PRIME = np.uint64(1099511628211)
+#: Exact powers of ten representable in a double (10**0 .. 10**22).
+_POW10 = np.array([10.0 ** k for k in range(23)])
+
+
+def fnv1a(token: bytes) -> int:
+    """The token hash of :func:`tokenize`, computed in Python for expected names."""
+    h = 14695981039346656037
+    for c in token:
+        h = ((h ^ c) * 1099511628211) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+@njit(cache=True)
+def _parse_number(buf, s, e, pow10):
+    """Parse ``buf[s:e]`` as a decimal float. Returns (ok, value)."""
+    j = s
+    neg = False
+    c = buf[j]
+    if c == 45 or c == 43:  # - +
+        neg = c == 45
+        j += 1
+    mant = np.int64(0)
+    nd = 0
+    exp10 = 0
+    digits = False
+    while j < e and 48 <= buf[j] <= 57:
+        d = buf[j] - 48
+        digits = True
+        if nd < 18:
+            mant = mant * 10 + d
+            if mant != 0:
+                nd += 1
+        else:
+            exp10 += 1
+        j += 1
+    if j < e and buf[j] == 46:  # .
+        j += 1
+        while j < e and 48 <= buf[j] <= 57:
+            d = buf[j] - 48
+            digits = True
+            if nd < 18:
+                mant = mant * 10 + d
+                if mant != 0:
+                    nd += 1
+                exp10 -= 1
+            j += 1
+    if not digits:
+        return False, 0.0
+    if j < e and (buf[j] == 101 or buf[j] == 69):  # e E
+        j += 1
+        eneg = False
+        if j < e and (buf[j] == 45 or buf[j] == 43):
+            eneg = buf[j] == 45
+            j += 1
+        if j >= e:
+            return False, 0.0
+        ex = 0
+        while j < e and 48 <= buf[j] <= 57:
+            if ex < 100000:
+                ex = ex * 10 + (buf[j] - 48)
+            j += 1
+        exp10 += -ex if eneg else ex
+    if j != e:
+        return False, 0.0
+    v = float(mant)
+    # exact mantissa (< 2**53) times an exact power of ten: one correctly rounded operation
+    if exp10 >= 0:
+        if exp10 <= 22:
+            v = v * pow10[exp10]
+        else:
+            v = v * 10.0 ** exp10
+    else:
+        if exp10 >= -22:
+            v = v / pow10[-exp10]
+        else:
+            v = v / 10.0 ** (-exp10)
+    if not np.isfinite(v):
+        return False, 0.0
+    return True, -v if neg else v
+
+
+@njit(cache=True)
+def _tokenize(buf, start, first_line, pow10):
+    n = buf.size
+    cap = (n - start) // 2 + 1
+    starts = np.empty(cap, np.int64)
+    lens = np.empty(cap, np.int64)
+    lines = np.empty(cap, np.int64)
+    hashes = np.empty(cap, np.uint64)
+    values = np.empty(cap, np.float64)
+    isnum = np.empty(cap, np.bool_)
+    line = first_line
+    bad = -1
+    k = 0
+    i = start
+    while i < n:
+        c = buf[i]
+        if c == 10:
+            line += 1
+            i += 1
+            continue
+        if c == 32 or c == 9 or c == 13 or c == 11 or c == 12:
+            i += 1
+            continue
+        if c < 32 or c == 127:
+            bad = i
+            break
+        s = i
+        h = np.uint64(14695981039346656037)
+        while i < n:
+            c = buf[i]
+            if c <= 32 or c == 127:
+                break
+            h = (h ^ np.uint64(c)) * np.uint64(1099511628211)
+            i += 1
+        starts[k] = s
+        lens[k] = i - s
+        lines[k] = line
+        hashes[k] = h
+        ok, v = _parse_number(buf, s, i, pow10)
+        isnum[k] = ok
+        values[k] = v if ok else np.nan
+        k += 1
+    return starts[:k], lens[:k], lines[:k], hashes[:k], values[:k], isnum[:k], bad, line
+
+
+def tokenize(buf: np.ndarray, start: int = 0, first_line: int = 1):
+    """Tokens of ``buf[start:]``.
+
+    Parameters
+    ----------
+    buf : ndarray of uint8
+        The file's bytes.
+    start : int
+        Byte offset where tokenizing starts.
+    first_line : int
+        1-based line number of the line containing ``start``.
+
+    Returns
+    -------
+    starts, lens, lines : ndarray of int64, shape (n_tokens,)
+    hashes : ndarray of uint64, shape (n_tokens,)
+    values : ndarray of float64, shape (n_tokens,)
+        NaN where the token is not a finite decimal number.
+    isnum : ndarray of bool, shape (n_tokens,)
+    bad : int
+        Byte offset of the first control character that is not whitespace (binary
+        garbage), ``-1`` if none; tokenizing stops there.
+    bad_line : int
+        Line number reached (the line of ``bad`` when ``bad >= 0``).
+    """
+    return _tokenize(buf, start, first_line, _POW10)

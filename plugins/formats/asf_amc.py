@@ -1,0 +1,334 @@
+"""Acclaim ASF/AMC motion files (CMU and HDM05 dialects).
+
+AMC files hold one block per frame: a frame-number line, then one line per bone with the
+bone's ``dof`` values (root: the channels of the ASF ``:root order``). Line endings may
+be CRLF, LF or both in one file (HDM05 frame-number lines end in LF, the others CRLF).
+AMC carries no frame rate: CMU and HDM05 are captured at 120 Hz, the default ``fps``.
+
+The mapping from ASF bones to joints and rotations is documented in
+:mod:`mocapflow.plugins.formats._asf`. Parsing is vectorised: the bytes are tokenized
+once (:mod:`._text`) and the regular frame layout is validated with numpy; only a file
+that does not follow the layout of its first frame takes a slower token-by-token path,
+which either reads it (bones in another order per frame) or reports the first bad line.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.components import Format, Params
+from mocapflow.framework.errors import DataError, ParseError
+from mocapflow.framework.motion import Motion
+from mocapflow.framework.skeleton import Skeleton
+
+from ._asf import read_asf as _read_asf_uncached
+from ._asf import write_asf
+from ._common import check_text, euler_extrinsic, euler_extrinsic_inverse, file_metadata, read_bytes
+
+__all__ = ["AmcFormat", "read_amc", "read_asf", "write_amc", "write_asf", "find_asf"]
+
+#: Default frame rate of AMC files (CMU and HDM05 capture at 120 Hz).
+AMC_DEFAULT_FPS = 120.0
+
+_ASF_CACHE: dict[tuple[str, int, int], Skeleton] = {}
+
+
+def read_asf(path: str | Path) -> Skeleton:
+    """Read an ASF skeleton (see :func:`._asf.read_asf`); cached by path, size and mtime."""
+    p = Path(path)
+    try:
+        st = p.stat()
+        key = (str(p.resolve()), st.st_mtime_ns, st.st_size)
+    except OSError:
+        return _read_asf_uncached(p)  # raises the ParseError
+    sk = _ASF_CACHE.get(key)
+    if sk is None:
+        sk = _read_asf_uncached(p)
+        if len(_ASF_CACHE) > 256:
+            _ASF_CACHE.clear()
+        _ASF_CACHE[key] = sk
+    return sk
+
+
+def find_asf(amc_path: str | Path) -> Path:
+    """The ASF of an AMC file: the only ``.asf`` in its folder, else the one whose stem is
+    the longest prefix of the AMC's stem (``01.asf`` for ``01_01.amc``)."""
+    p = Path(amc_path)
+    cands = sorted(q for q in p.parent.glob("*") if q.suffix.lower() == ".asf" and q.is_file())
+    if len(cands) == 1:
+        return cands[0]
+    stem = p.stem.lower()
+    best = [q for q in cands if stem.startswith(q.stem.lower())]
+    if best:
+        return max(best, key=lambda q: len(q.stem))
+    where = f"{len(cands)} .asf files, none a prefix of {p.stem!r}" if cands else "no .asf file"
+    raise ParseError(p, None, f"cannot find the ASF skeleton: its folder has {where}; pass skeleton=")
+
+
+def _subject(path: Path) -> str:
+    m = re.match(r"HDM_([A-Za-z]+)_", path.stem)
+    if m:
+        return m.group(1)
+    return path.parent.name or path.stem.split("_")[0]
+
+
+def _header(path: Path, data: bytes) -> tuple[int, int, str | None]:
+    """Byte offset and line number of the first frame line, and the angle unit if given."""
+    pos = 0
+    ln = 1
+    unit = None
+    n = len(data)
+    while pos < n:
+        end = data.find(b"\n", pos)
+        end = n if end < 0 else end
+        text = data[pos:end].strip()
+        if text[:1].isdigit():
+            if not text.isdigit():
+                raise ParseError(path, ln, f"expected a frame number, found {text[:40].decode('latin-1')!r}")
+            return pos, ln, unit
+        if text and text[:1] not in (b"#", b":"):
+            raise ParseError(path, ln, f"expected a header line or frame number 1, found {text[:40].decode('latin-1')!r}")
+        up = text.upper()
+        if up == b":DEGREES":
+            unit = "deg"
+        elif up == b":RADIANS":
+            unit = "rad"
+        pos = end + 1
+        ln += 1
+    raise ParseError(path, ln - 1, "expected frame blocks after the header, found none")
+
+
+def _layout(path, data, tok, skeleton):
+    """Bone names and value counts of the first frame (the layout every frame should follow)."""
+    starts, lens, lines, _h, values, isnum = tok[:6]
+    n = len(starts)
+    chan_of = {name: len(skeleton.channels[j]) for j, name in enumerate(skeleton.names) if skeleton.channels[j]}
+    bones: list[tuple[str, int, int]] = []  # name, first value column, count
+    i = 1
+    while i < n and not isnum[i]:
+        name = data[starts[i]:starts[i] + lens[i]].decode("latin-1")
+        if name not in chan_of:
+            raise ParseError(path, int(lines[i]), f"bone {name!r} is not defined (with dofs) in the ASF skeleton {skeleton.name!r}")
+        bones.append((name, i + 1, chan_of[name]))
+        i += 1 + chan_of[name]
+    return bones, min(i, n)
+
+
+def _fast_values(data, tok, bones, width):
+    """Per-bone value arrays if every frame follows the first frame's layout, else None."""
+    from ._text import fnv1a
+
+    starts, _l, _ln, hashes, values, isnum = tok[:6]
+    n = len(starts)
+    if width == 0 or n % width:
+        return None
+    t = n // width
+    num = isnum.reshape(t, width)
+    vals = values.reshape(t, width)
+    name_cols = np.array([c - 1 for _, c, _ in bones], dtype=np.int64)
+    value_mask = np.ones(width, bool)
+    value_mask[name_cols] = False
+    if not num[:, value_mask].all():
+        return None
+    expected = np.array([fnv1a(b.encode("latin-1")) for b, _, _ in bones], dtype=np.uint64)
+    if not (hashes.reshape(t, width)[:, name_cols] == expected).all():
+        return None
+    if not np.array_equal(vals[:, 0], vals[0, 0] + np.arange(t)):
+        return None
+    return {b: vals[:, c:c + k] for b, c, k in bones}, t
+
+
+def _slow_values(path, data, tok, bones):
+    """Token-by-token reading with exact error lines; accepts any bone order per frame."""
+    starts, lens, lines, _h, values, isnum = tok[:6]
+    n = len(starts)
+    count = {b: k for b, _, k in bones}
+    order = [b for b, _, _ in bones]
+
+    def text(i: int) -> str:
+        return data[starts[i]:starts[i] + lens[i]].decode("latin-1")
+
+    out: dict[str, list[np.ndarray]] = {b: [] for b in order}
+    i = 0
+    frame = None
+    while i < n:
+        ln = int(lines[i])
+        v = values[i]
+        expect = "an integer frame number" if frame is None else f"frame number {frame + 1}"
+        if not isnum[i] or v != int(v) or (frame is not None and v != frame + 1):
+            raise ParseError(path, ln, f"expected {expect}, found {text(i)!r}")
+        frame = int(v)
+        i += 1
+        seen: set[str] = set()
+        while i < n and not isnum[i]:
+            name, ln = text(i), int(lines[i])
+            if name not in count:
+                raise ParseError(path, ln, f"frame {frame}: bone {name!r} is not in the first frame or has no dofs in the ASF")
+            if name in seen:
+                raise ParseError(path, ln, f"frame {frame}: bone {name!r} appears twice")
+            seen.add(name)
+            k = count[name]
+            j = i + 1
+            while j < n and j - i - 1 < k + 1 and lines[j] == ln:
+                j += 1
+            got = j - i - 1
+            if got != k:
+                raise ParseError(path, ln, f"frame {frame}: expected {k} values for bone {name!r}, found {got}")
+            for m in range(i + 1, j):
+                if not isnum[m]:
+                    raise ParseError(path, ln, f"frame {frame}: expected a finite number for bone {name!r}, found {text(m)!r}")
+            out[name].append(values[i + 1:j])
+            i = j
+        if len(seen) != len(order):
+            missing = [b for b in order if b not in seen]
+            last = int(lines[i - 1])
+            what = "file ends" if i >= n else f"frame {frame + 1} starts"
+            raise ParseError(path, last, f"frame {frame} is incomplete ({what}): expected bones {', '.join(missing[:5])}"
+                             + ("..." if len(missing) > 5 else ""))
+    t = len(out[order[0]]) if order else 0
+    return {b: np.array(out[b]).reshape(t, count[b]) for b in order}, t
+
+
+def read_amc(
+    path: str | Path,
+    skeleton: Skeleton | str | Path | None = None,
+    fps: float = AMC_DEFAULT_FPS,
+) -> Motion:
+    """Read an AMC motion.
+
+    Parameters
+    ----------
+    path : str or Path
+    skeleton : Skeleton, path or None
+        The skeleton (from :func:`read_asf`) or its ASF path; ``None`` finds it with
+        :func:`find_asf`.
+    fps : float
+        Frame rate (AMC files carry none; CMU and HDM05 are 120 Hz).
+
+    Returns
+    -------
+    Motion
+        ``rotations (T, J, 4)``, ``root_translation (T, 3)`` in metres; metadata ``path``,
+        ``format`` ("amc"), ``subject``, ``checksum`` (sha1 of the bytes), ``source_fps``,
+        ``source_frames``, ``skeleton_path``.
+
+    Raises
+    ------
+    ParseError
+        Naming the file, the 1-based line and what was expected.
+    """
+    from ._text import tokenize
+
+    path = Path(path)
+    data = read_bytes(path)
+    skel_path = None
+    if skeleton is None:
+        skeleton = skel_path = find_asf(path)
+    if not isinstance(skeleton, Skeleton):
+        skel_path = Path(skeleton)
+        skeleton = read_asf(skel_path)
+    if not skeleton.channels or skeleton.axes is None:
+        raise DataError(f"skeleton {skeleton.name!r} has no ASF channels/axes; read it with read_asf")
+    check_text(path, data)
+    start, first_line, unit = _header(path, data)
+    degrees = (unit or skeleton.meta.get("units", {}).get("angle", "deg")) == "deg"
+    buf = np.frombuffer(data, dtype=np.uint8)
+    tok = tokenize(buf, start, first_line)
+    bones, width = _layout(path, data, tok, skeleton)
+    fast = _fast_values(data, tok, bones, width)
+    per_bone, t = fast if fast is not None else _slow_values(path, data, tok, bones)
+    if t == 0:
+        raise ParseError(path, first_line, "expected at least one frame")
+    root_t, rot = _to_motion_arrays(skeleton, per_bone, t, degrees)
+    meta = file_metadata(path, data, "amc")
+    meta.update(subject=_subject(path), source_fps=float(fps), source_frames=int(t),
+                skeleton_path=str(skel_path) if skel_path else skeleton.meta.get("path", ""),
+                angle_unit="deg" if degrees else "rad")
+    return Motion(skeleton=skeleton, root_translation=root_t, rotations=rot, fps=fps, name=path.stem, metadata=meta)
+
+
+def _to_motion_arrays(skeleton: Skeleton, per_bone: dict[str, np.ndarray], t: int, degrees: bool):
+    scale = float(skeleton.meta.get("length_scale", 0.0254 / 0.45))
+    rot = np.zeros((t, skeleton.n_joints, 4))
+    rot[..., 0] = 1.0
+    root_t = np.zeros((t, 3))
+    axes = skeleton.axes
+    for j, name in enumerate(skeleton.names):
+        vals = per_bone.get(name)
+        if vals is None:
+            continue
+        ch = skeleton.channels[j]
+        if j == 0:
+            for c, col in zip(ch, vals.T):
+                if c[0] == "T":
+                    root_t[:, "XYZ".index(c[1])] = col * scale
+            ridx = [k for k, c in enumerate(ch) if c[0] == "R"]
+            m = euler_extrinsic(vals[:, ridx], "".join(ch[k][1].lower() for k in ridx), degrees)
+        else:
+            m = euler_extrinsic(vals, "".join(c[1] for c in ch), degrees)
+        c_ = axes[j]
+        rot[:, j] = quat.mul(quat.mul(c_, m), quat.conjugate(c_))
+    return root_t, rot
+
+
+def write_amc(motion: Motion, path: str | Path, precision: int = 10) -> None:
+    """Write a motion whose skeleton came from an ASF file as AMC (``:DEGREES``).
+
+    Parameters
+    ----------
+    motion : Motion
+    path : str or Path
+    precision : int
+        Significant digits per value (10 keeps round trips within 1e-6 of the source).
+    """
+    sk = motion.skeleton
+    if sk.meta.get("format") != "asf" or sk.axes is None or not sk.channels:
+        raise DataError(f"motion {motion.name!r}: its skeleton has no ASF axes/dofs; cannot write AMC")
+    scale = float(sk.meta["length_scale"])
+    cols: list[np.ndarray] = []
+    fmt: list[str] = []
+    g = f"%.{precision}g"
+    for j, name in enumerate(sk.names):
+        ch = sk.channels[j]
+        if not ch:
+            continue
+        c_ = sk.axes[j]
+        m = quat.mul(quat.mul(quat.conjugate(c_), motion.rotations[:, j]), c_)
+        if j == 0:
+            rch = [c for c in ch if c[0] == "R"]
+            ang = euler_extrinsic_inverse(m, "".join(c[1].lower() for c in rch), degrees=True)
+            by = {c: ang[:, k] for k, c in enumerate(rch)}
+            for k, c in enumerate("XYZ"):
+                by[f"T{c}"] = motion.root_translation[:, k] / scale
+            cols += [by[c] for c in ch]
+        else:
+            ang = euler_extrinsic_inverse(m, "".join(c[1] for c in ch), degrees=True)
+            cols += list(ang.T)
+        fmt.append(name + "".join(" " + g for _ in ch))
+    table = np.column_stack([np.arange(1, motion.n_frames + 1)] + cols)
+    frame_fmt = "%d\n" + "\n".join(fmt) + "\n"
+    body = "".join(frame_fmt % tuple(row) for row in table.tolist())
+    Path(path).write_text(":FULLY-SPECIFIED\n:DEGREES\n" + body, encoding="latin-1")
+
+
+class AmcFormat(Format):
+    """Acclaim AMC motions (with the ASF skeleton beside them): reader and writer."""
+
+    name: ClassVar[str] = "amc"
+    extensions: ClassVar[tuple[str, ...]] = (".amc",)
+    produces: ClassVar[str] = "motion"
+
+    class Params(Params):
+        fps: float = Field(AMC_DEFAULT_FPS, gt=0, description="frame rate of the AMC files (they carry none; CMU/HDM05: 120)")
+        asf: str | None = Field(None, description="ASF skeleton path; default: the .asf beside each AMC file")
+
+    def read(self, path: str | Path) -> Motion:
+        return read_amc(path, skeleton=self.params.asf, fps=self.params.fps)
+
+    def write(self, obj: Any, path: str | Path) -> None:
+        write_amc(obj, path)

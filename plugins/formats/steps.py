@@ -1,0 +1,168 @@
+"""The ingest step ``formats.load`` and the export step ``formats.export``.
+
+Readers are looked up in the ``formats`` registry by file extension, so a third-party
+format plugin is picked up by ingest without any change here.
+"""
+from __future__ import annotations
+
+import glob
+import hashlib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+import pyarrow as pa
+from pydantic import Field
+
+from mocapflow.framework import Format, Motion, Params, ParseError, StepContext, StepOutput
+from mocapflow.framework import schema
+from mocapflow.framework.datasets import Dataset
+from mocapflow.framework.errors import MocapflowError, PipelineError
+from mocapflow.framework.joints import missing_required
+from mocapflow.framework.motion_tables import motions_to_tables
+from mocapflow.framework.normalize import resample
+from mocapflow.framework.plugins import hookimpl
+
+
+def _expand(patterns: list[str], base: Path, exclude: list[str]) -> list[Path]:
+    """Files matched by glob patterns (``**`` recursive), sorted, without duplicates."""
+    found: dict[str, Path] = {}
+    for pat in patterns:
+        p = Path(pat).expanduser()
+        full = str(p if p.is_absolute() else base / p)
+        for hit in glob.glob(full, recursive=True):
+            hp = Path(hit)
+            if hp.is_file() or not hp.exists():
+                found.setdefault(str(hp.resolve()), hp.resolve())
+    excluded = set()
+    for pat in exclude:
+        p = Path(pat).expanduser()
+        excluded |= {str(Path(h).resolve()) for h in glob.glob(str(p if p.is_absolute() else base / p), recursive=True)}
+    return [found[k] for k in sorted(found) if k not in excluded]
+
+
+def _read_one(job: tuple[type, dict[str, Any], str, float | None]) -> Motion | tuple[str, int | None, str]:
+    """Read (and resample) one file; a failure comes back as ``(path, line, message)``.
+
+    Module-level so that process pools can pickle it.
+    """
+    cls, params, path, fps = job
+    try:
+        motion = cls(params).read(path)
+        if not isinstance(motion, Motion):
+            return (path, None, f"{cls.key()} produced {type(motion).__name__}, not a skeletal Motion")
+        missing = missing_required(motion.skeleton.canonical)
+        if missing:
+            return (path, None, f"skeleton lacks required joints {', '.join(missing)} (extend framework/joints.py maps)")
+        if "checksum" not in motion.metadata:
+            motion.metadata["checksum"] = hashlib.sha1(Path(path).read_bytes()).hexdigest()
+        motion.metadata.setdefault("path", path)
+        motion.metadata.setdefault("source_fps", motion.fps)
+        motion.metadata.setdefault("source_frames", motion.n_frames)
+        return resample(motion, fps) if fps else motion
+    except ParseError as exc:
+        return (exc.path, exc.line, exc.message)
+    except MocapflowError as exc:
+        return (path, None, str(exc))
+    except (OSError, ValueError) as exc:
+        return (path, None, f"{type(exc).__name__}: {exc}")
+
+
+class LoadMotions(Format):
+    """Ingest motion files (mixed formats) into a motions dataset.
+
+    Tables: ``data`` (one row per frame), ``clips``, ``skeletons``, ``rejects`` (file, line,
+    message of every file that failed; the step goes on unless ``on_error: fail``).
+    """
+
+    name = "load"
+    is_step = True
+    inputs: Mapping[str, bool] = {}
+
+    class Params(Params):
+        paths: list[str] = Field(min_length=1, description="glob patterns (** recursive), relative to the pipeline file")
+        exclude: list[str] = Field(default_factory=list, description="glob patterns of files to leave out")
+        fps: float | None = Field(default=None, gt=0, description="resample every clip to this rate (Hz)")
+        on_error: Literal["record", "fail"] = Field("record", description="record bad files in `rejects`, or stop")
+        readers: dict[str, dict[str, Any]] = Field(default_factory=dict, description="per-format reader parameters, e.g. {amc: {fps: 120}}")
+
+    def _files(self, base: Path) -> list[Path]:
+        return _expand(self.params.paths, base, self.params.exclude)
+
+    def source_fingerprint(self, base_dir: Path) -> str:
+        h = hashlib.sha256()
+        for f in self._files(base_dir):
+            # readers also read skeleton files beside the motions (.asf)
+            for g in [f, *sorted(f.parent.glob("*.asf"))] if f.suffix.lower() == ".amc" else [f]:
+                try:
+                    st = g.stat()
+                    h.update(f"{g}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+                except OSError:
+                    h.update(f"{g}|missing\n".encode())
+        return h.hexdigest()[:24]
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        by_ext: dict[str, type] = {}
+        for _, cls in ctx.registries["formats"]:
+            if getattr(cls, "produces", "") == "motion":
+                for ext in cls.extensions:
+                    by_ext.setdefault(ext.lower(), cls)
+        files = self._files(ctx.base_dir)
+        if not files:
+            raise PipelineError(f"no file matches {self.params.paths} (relative to {ctx.base_dir})")
+        jobs, skipped = [], []
+        for f in files:
+            cls = by_ext.get(f.suffix.lower())
+            if cls is None:
+                skipped.append(str(f))
+                continue
+            jobs.append((cls, self.params.readers.get(cls.name, {}), str(f), self.params.fps))
+        results = ctx.map(_read_one, jobs, desc=f"{ctx.step_id}: reading")
+        motions = [r for r in results if isinstance(r, Motion)]
+        rejects = [r for r in results if not isinstance(r, Motion)]
+        if rejects and self.params.on_error == "fail":
+            path, line, msg = rejects[0]
+            raise ParseError(path, line, msg)
+        tables = motions_to_tables(motions)
+        tables["rejects"] = pa.Table.from_pylist(
+            [{"path": p, "line": ln, "message": m} for p, ln, m in rejects], schema=schema.REJECTS
+        )
+        summary = {
+            "files": len(jobs), "clips": len(motions), "frames": int(sum(m.n_frames for m in motions)),
+            "rejects": len(rejects), "skipped_files": len(skipped),
+        }
+        return StepOutput(tables, summary)
+
+
+class ExportMotions(Format):
+    """Write every clip of a motions dataset to files (BVH or AMC/ASF) in the step folder."""
+
+    name = "export"
+    is_step = True
+    inputs: Mapping[str, bool] = {"motions": True}
+
+    class Params(Params):
+        format: str = Field("bvh", description="registry name of a writer format (bvh, amc...)")
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        writer_cls = ctx.registries["formats"].get(self.params.format)
+        if not writer_cls.can_write():
+            raise PipelineError(f"format {self.params.format!r} has no writer")
+        writer = writer_cls()
+        ext = writer_cls.extensions[0] if writer_cls.extensions else f".{self.params.format}"
+        db = inputs["motions"].motions()
+        rows = []
+        for cid, m in zip(db.clip_ids, ctx.progress(db.motions, total=db.n_clips, desc=f"{ctx.step_id}: writing")):
+            out = ctx.out_dir / f"{int(cid):05d}_{m.name}{ext}"
+            writer.write(m, out)
+            rows.append({"clip_id": int(cid), "name": m.name, "file": out.name})
+        table = pa.Table.from_pylist(rows, schema=pa.schema([("clip_id", pa.int32()), ("name", pa.string()), ("file", pa.string())]))
+        return StepOutput({"data": table}, {"files": len(rows), "format": self.params.format})
+
+
+@hookimpl
+def register_formats() -> list[type]:
+    return [LoadMotions, ExportMotions]
+
+
+__all__ = ["ExportMotions", "LoadMotions"]

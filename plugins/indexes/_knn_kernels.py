@@ -1,0 +1,239 @@
+"""Numba kernels of the float32 kd-tree (no validation: :mod:`.kdtree` validates).
+
+The tree follows Arya & Mount's ANN (the library Krüger et al. 2010 used): sliding-midpoint
+splits, buckets of at most ``leafsize`` points, depth-first search with incremental
+distances to the far cells and the ``(1 + eps)`` pruning rule of ε-approximate search.
+
+Points are stored once, permuted into tree order, as float32 (no float64 copy); squared
+distances are accumulated in float64 so that the ranking matches a float64 reference.
+Ordering of neighbours is lexicographic on ``(distance, row id)``, so ties resolve to the
+smaller row id exactly as a sorted brute force does.
+
+Exclusion: a candidate ``i`` is skipped when ``excl >= 0`` and it lies in the query's group
+(clip) within ``excl`` frames: ``group[i] == qg and |frame[i] - qf| <= excl``.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+_IMAX = np.iinfo(np.int64).max
+
+
+@njit(cache=True)
+def build_tree(data, leafsize):
+    """Sliding-midpoint kd-tree over ``data (n, d)`` float32.
+
+    Returns ``perm`` (row of the input at each tree position) and the node arrays
+    ``start, end, left, right, split_dim, split_val`` (leaves have ``left == -1``).
+    """
+    n, d = data.shape
+    perm = np.arange(n).astype(np.int64)
+    cap = 2 * n + 1
+    start = np.empty(cap, np.int64)
+    end = np.empty(cap, np.int64)
+    left = np.full(cap, -1, np.int64)
+    right = np.full(cap, -1, np.int64)
+    sdim = np.zeros(cap, np.int32)
+    sval = np.zeros(cap, np.float32)
+    start[0] = 0
+    end[0] = n
+    n_nodes = 1
+    stack = np.empty(cap, np.int64)
+    stack[0] = 0
+    top = 1
+    lo = np.empty(d, np.float32)
+    hi = np.empty(d, np.float32)
+    while top > 0:
+        top -= 1
+        node = stack[top]
+        s, e = start[node], end[node]
+        if e - s <= leafsize:
+            continue
+        for j in range(d):
+            lo[j] = np.inf
+            hi[j] = -np.inf
+        for i in range(s, e):
+            row = perm[i]
+            for j in range(d):
+                v = data[row, j]
+                if v < lo[j]:
+                    lo[j] = v
+                if v > hi[j]:
+                    hi[j] = v
+        dim = 0
+        spread = hi[0] - lo[0]
+        for j in range(1, d):
+            if hi[j] - lo[j] > spread:
+                spread = hi[j] - lo[j]
+                dim = j
+        if spread <= 0.0:  # all points identical: one (large) bucket
+            continue
+        cut = np.float32(0.5 * (np.float64(lo[dim]) + np.float64(hi[dim])))
+        # partition perm[s:e] into < cut | >= cut
+        i, k = s, e - 1
+        while i <= k:
+            if data[perm[i], dim] < cut:
+                i += 1
+            else:
+                perm[i], perm[k] = perm[k], perm[i]
+                k -= 1
+        mid = i
+        if mid == s:  # slide the cut down to the minimum: one side gets the minimum points
+            cut = hi[dim]
+            for t in range(s, e):
+                v = data[perm[t], dim]
+                if v > lo[dim] and v < cut:
+                    cut = v
+            i, k = s, e - 1
+            while i <= k:
+                if data[perm[i], dim] < cut:
+                    i += 1
+                else:
+                    perm[i], perm[k] = perm[k], perm[i]
+                    k -= 1
+            mid = i
+        elif mid == e:  # cannot happen for cut <= hi with the < rule, kept for safety
+            continue
+        sdim[node] = dim
+        sval[node] = cut
+        left[node] = n_nodes
+        start[n_nodes], end[n_nodes] = s, mid
+        right[node] = n_nodes + 1
+        start[n_nodes + 1], end[n_nodes + 1] = mid, e
+        stack[top] = n_nodes
+        stack[top + 1] = n_nodes + 1
+        top += 2
+        n_nodes += 2
+    return (perm, start[:n_nodes].copy(), end[:n_nodes].copy(), left[:n_nodes].copy(),
+            right[:n_nodes].copy(), sdim[:n_nodes].copy(), sval[:n_nodes].copy())
+
+
+@njit(cache=True, inline="always")
+def _before(d1, i1, d2, i2):
+    return d1 < d2 or (d1 == d2 and i1 < i2)
+
+
+@njit(cache=True)
+def _heap_replace(hd, hi, dist, idx):
+    """Replace the root of a max-heap on (dist, id) and sift down."""
+    k = hd.shape[0]
+    pos = 0
+    while True:
+        c = 2 * pos + 1
+        if c >= k:
+            break
+        if c + 1 < k and _before(hd[c], hi[c], hd[c + 1], hi[c + 1]):
+            c += 1
+        if _before(dist, idx, hd[c], hi[c]):
+            hd[pos] = hd[c]
+            hi[pos] = hi[c]
+            pos = c
+        else:
+            break
+    hd[pos] = dist
+    hi[pos] = idx
+
+
+@njit(cache=True)
+def _search(node, rd, off, q, data, perm, start, end, left, right, sdim, sval,
+            groups, frames, qg, qf, excl, hd, hi, eps_fac, r2):
+    if left[node] < 0:
+        d = data.shape[1]
+        for t in range(start[node], end[node]):
+            if excl >= 0 and groups[t] == qg and abs(frames[t] - qf) <= excl:
+                continue
+            bound = hd[0] if hd[0] < r2 else r2
+            acc = 0.0
+            for j in range(d):
+                diff = np.float64(data[t, j]) - q[j]
+                acc += diff * diff
+                if acc > bound:
+                    break
+            if acc <= bound and _before(acc, perm[t], hd[0], hi[0]):
+                _heap_replace(hd, hi, acc, perm[t])
+        return 0
+    dim = sdim[node]
+    diff = q[dim] - np.float64(sval[node])
+    if diff < 0.0:
+        near, far = left[node], right[node]
+    else:
+        near, far = right[node], left[node]
+    _search(near, rd, off, q, data, perm, start, end, left, right, sdim, sval,
+            groups, frames, qg, qf, excl, hd, hi, eps_fac, r2)
+    old = off[dim]
+    rd_far = rd - old * old + diff * diff
+    bound = hd[0] if hd[0] < r2 else r2
+    # tiny relative slack: the incremental bound must never prune an exactly tied point
+    if rd_far * eps_fac <= bound * (1.0 + 1e-9):
+        off[dim] = diff
+        _search(far, rd_far, off, q, data, perm, start, end, left, right, sdim, sval,
+                groups, frames, qg, qf, excl, hd, hi, eps_fac, r2)
+        off[dim] = old
+    return 0
+
+
+@njit(cache=True, parallel=True)
+def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, sval,
+               groups, frames, qgroups, qframes, excl):
+    """kNN of every query row; returns squared distances (float64) and row ids, sorted."""
+    m, d = queries.shape
+    out_d = np.full((m, k), np.inf)
+    out_i = np.full((m, k), -1, np.int64)
+    eps_fac = (1.0 + eps) * (1.0 + eps)
+    n_chunks = min(m, 4 * numba.get_num_threads())
+    for c in prange(n_chunks):
+        hd = np.empty(k)
+        hi = np.empty(k, np.int64)
+        off = np.zeros(d)
+        q = np.empty(d)
+        for r in range(c * m // n_chunks, (c + 1) * m // n_chunks):
+            hd[:] = np.inf
+            hi[:] = _IMAX
+            off[:] = 0.0
+            for j in range(d):
+                q[j] = queries[r, j]
+            _search(0, 0.0, off, q, data, perm, start, end, left, right, sdim, sval,
+                    groups, frames, qgroups[r], qframes[r], excl, hd, hi, eps_fac, r2)
+            order = np.argsort(hd, kind="mergesort")  # heap -> ascending; ids break ties below
+            for a in range(k):
+                out_d[r, a] = hd[order[a]]
+                out_i[r, a] = hi[order[a]]
+            # equal distances: ids ascending (mergesort kept heap order, fix it up)
+            for a in range(1, k):
+                b = a
+                while b > 0 and out_d[r, b] == out_d[r, b - 1] and out_i[r, b] < out_i[r, b - 1]:
+                    out_i[r, b], out_i[r, b - 1] = out_i[r, b - 1], out_i[r, b]
+                    b -= 1
+            for a in range(k):
+                if out_i[r, a] == _IMAX:
+                    out_i[r, a] = -1
+                    out_d[r, a] = np.inf
+    return out_d, out_i
+
+
+@njit(cache=True, parallel=True)
+def exact_sqdist(queries, data, rows):
+    """Exact squared distances (float64 accumulation) of ``queries[r]`` to ``data[rows[r, a]]``."""
+    m, c = rows.shape
+    out = np.full((m, c), np.inf)
+    for r in prange(m):
+        for a in range(c):
+            i = rows[r, a]
+            if i < 0:
+                continue
+            acc = 0.0
+            for j in range(data.shape[1]):
+                diff = np.float64(data[i, j]) - np.float64(queries[r, j])
+                acc += diff * diff
+            out[r, a] = acc
+    return out
+
+
+def set_threads(workers: int | None) -> int:
+    """Set numba's thread count for the next parallel call; returns the previous one."""
+    prev = numba.get_num_threads()
+    n = numba.config.NUMBA_NUM_THREADS if workers is None or workers < 1 else min(workers, numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(n)
+    return prev

@@ -1,0 +1,254 @@
+"""``indexes.kdtree``: exact (or ε-approximate) k-nearest-neighbour search over feature vectors.
+
+The kNN index of Krüger et al. 2010 §3.3 (they used ANN). A float32 kd-tree of our own
+(numba, :mod:`._knn_kernels`) so that the features are stored once in float32 and the tree
+can be saved and loaded as plain arrays, without a rebuild. For feature sets of high
+intrinsic dimension a kd-tree degenerates to a slow linear scan; there an exact BLAS brute
+force in blocks (:mod:`._brute`) is faster. With ``method: auto`` a probe at build time
+times both on a sample of the indexed rows and keeps the faster one; ``method_`` and
+``probe_`` say which was chosen and why. Both are exact; only an explicit ``eps > 0`` makes
+a search approximate.
+"""
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from mocapflow.framework import Index, Params, hookimpl
+from mocapflow.framework.errors import ConfigError, DataError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework import Dataset, StepContext, StepOutput
+
+_ARRAYS = ("data_", "perm_", "groups_", "frames_", "sqnorms_", "mean_",
+           "start_", "end_", "left_", "right_", "sdim_", "sval_")
+
+
+class KDTreeIndex(Index):
+    """Exact k-nearest-neighbour index (kd-tree, or BLAS brute force where that is faster).
+
+    Contract (:class:`~mocapflow.framework.Index`): ``build(features)``;
+    ``query(x, k, radius=None) -> (dist, ids)`` with Euclidean ``dist`` float32 of shape
+    (m, k) ascending and row ids int64, padded with ``inf`` / ``-1``; ``save``/``load``.
+    Ties are ordered by row id, so results are deterministic and equal a sorted brute force.
+
+    Extensions (keyword-only):
+
+    * ``build(features, *, groups=None, frames=None)``: per-row group (clip id) and frame,
+      used by ``exclude``; default: one group, frames ``0..n-1``.
+    * ``query(..., eps=0.0)``: ε-approximate search (the k-th distance returned is at most
+      ``(1 + eps)`` times the true one; kd-tree only; the brute force is always exact).
+    * ``query(..., radius=r)``: fixed-radius search capped at ``k`` neighbours (the paper's
+      "fixed radius k-nearest-neighbour search"): only neighbours with ``dist <= r``.
+    * ``query(..., exclude=N, query_groups=g, query_frames=f)``: skip candidates of the
+      query's own group within ``±N`` frames (self-similarity; ``exclude=0`` skips the
+      query frame itself).
+    * ``query_rows(rows, k, ...)``: query with indexed rows themselves, their groups and
+      frames taken from the index (the usual self-similarity call).
+    * ``workers``: threads for batched queries (default all cores). Time single interactive
+      queries with ``workers=1``: waking a second core costs a few ms after an idle spell.
+
+    Attributes
+    ----------
+    method_ : {"kdtree", "brute"}
+        The search method in use (chosen by the probe when ``method: auto``).
+    probe_ : dict
+        Probe timings, ms per query (empty if no probe ran).
+    data_ : ndarray of shape (n, d), float32
+        The features, stored once in tree order (row ``t`` is input row ``perm_[t]``).
+    """
+
+    name: ClassVar[str] = "kdtree"
+
+    class Params(Params):
+        method: Literal["auto", "kdtree", "brute"] = Field(
+            "auto", description="search method; auto probes both at build time and keeps the faster (both exact)")
+        leafsize: int = Field(16, ge=1, le=1024, description="maximum points per kd-tree bucket")
+        probe_queries: int = Field(64, ge=1, description="rows sampled to time the methods (method auto)")
+        probe_k: int = Field(16, ge=1, description="neighbours per probe query")
+        min_probe_rows: int = Field(20000, ge=0, description="below this many rows auto uses the kd-tree without a probe")
+        workers: int = Field(0, ge=0, description="threads for batched queries, 0 = all cores")
+
+    # --- building ---------------------------------------------------------------------
+    def build(self, features: np.ndarray, *, groups: np.ndarray | None = None,
+              frames: np.ndarray | None = None) -> KDTreeIndex:
+        """Index ``features`` (n, d); float32 is stored as is (tree order), others converted once.
+
+        Parameters
+        ----------
+        features : ndarray of shape (n, d)
+        groups, frames : ndarray of shape (n,), int, optional
+            Clip id and frame per row (for ``exclude``).
+        """
+        from . import _knn_kernels as kern
+
+        x = np.asarray(features)
+        if x.ndim != 2 or x.shape[1] < 1:
+            raise DataError(f"{self.key()}: features must be (n, d) with d >= 1, got shape {x.shape}")
+        if x.dtype != np.float32:
+            x = x.astype(np.float32)
+        if not np.isfinite(x).all():
+            raise DataError(f"{self.key()}: features contain NaN or inf (rows {np.flatnonzero(~np.isfinite(x).all(1))[:5].tolist()}...)")
+        n = x.shape[0]
+        g = np.zeros(n, np.int64) if groups is None else np.asarray(groups, np.int64)
+        f = np.arange(n, dtype=np.int64) if frames is None else np.asarray(frames, np.int64)
+        if g.shape != (n,) or f.shape != (n,):
+            raise DataError(f"{self.key()}: groups/frames must have shape ({n},)")
+        x = np.ascontiguousarray(x)
+        perm, start, end, left, right, sdim, sval = kern.build_tree(x, self.params.leafsize) if n else (
+            np.zeros(0, np.int64), *(np.zeros(1, np.int64),) * 2, *(np.full(1, -1, np.int64),) * 2,
+            np.zeros(1, np.int32), np.zeros(1, np.float32))
+        self.data_ = x[perm]
+        self.perm_, self.groups_, self.frames_ = perm, g[perm], f[perm]
+        self.start_, self.end_, self.left_, self.right_, self.sdim_, self.sval_ = start, end, left, right, sdim, sval
+        self.mean_ = self.data_.mean(0, dtype=np.float64).astype(np.float32) if n else np.zeros(x.shape[1], np.float32)
+        c = self.data_ - self.mean_ if n else self.data_
+        self.sqnorms_ = np.einsum("ij,ij->i", c, c).astype(np.float32)
+        del c
+        self.probe_ = {}
+        self.method_ = self.params.method
+        if self.method_ == "auto":
+            self.method_ = self._probe() if n >= max(self.params.min_probe_rows, 1) else "kdtree"
+        return self
+
+    def _probe(self) -> str:
+        n = self.data_.shape[0]
+        rng = np.random.default_rng(0)
+        q = self.data_[rng.choice(n, size=min(self.params.probe_queries, n), replace=False)]
+        k = min(self.params.probe_k, n)
+        times = {}
+        for method in ("kdtree", "brute"):
+            self._search(q[:2], k, None, 0.0, None, None, None, 1, method)  # warm-up (numba compile, caches)
+            t0 = time.perf_counter()
+            self._search(q, k, None, 0.0, None, None, None, 1, method)
+            times[method] = 1000.0 * (time.perf_counter() - t0) / len(q)
+        self.probe_ = {f"{m}_ms_per_query": round(t, 4) for m, t in times.items()}
+        return "brute" if times["brute"] < times["kdtree"] else "kdtree"
+
+    # --- querying ---------------------------------------------------------------------
+    def query(self, x: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
+              exclude: int | None = None, query_groups: np.ndarray | None = None,
+              query_frames: np.ndarray | None = None, workers: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest indexed rows of each query (see the class docstring).
+
+        Parameters
+        ----------
+        x : ndarray of shape (m, d) or (d,)
+        k : int
+        radius : float, optional
+            Only neighbours within this Euclidean distance (padding fills the rest).
+
+        Returns
+        -------
+        dist : ndarray of shape (m, k), float32, ascending
+        ids : ndarray of shape (m, k), int64, rows of the indexed features (-1 = none)
+        """
+        self._check_built()
+        q = np.asarray(x, dtype=np.float32)
+        if q.ndim == 1:
+            q = q[None, :]
+        if q.ndim != 2 or q.shape[1] != self.data_.shape[1]:
+            raise DataError(f"{self.key()}: queries must be (m, {self.data_.shape[1]}), got shape {np.shape(x)}")
+        if int(k) < 1:
+            raise ConfigError(f"{self.key()}: k must be >= 1, got {k}")
+        if eps < 0 or (radius is not None and radius < 0):
+            raise ConfigError(f"{self.key()}: eps and radius must be >= 0")
+        if exclude is not None:
+            if exclude < 0 or query_groups is None or query_frames is None:
+                raise ConfigError(f"{self.key()}: exclude=N needs N >= 0 and query_groups/query_frames")
+            query_groups = np.broadcast_to(np.asarray(query_groups, np.int64), (len(q),))
+            query_frames = np.broadcast_to(np.asarray(query_frames, np.int64), (len(q),))
+        w = self.params.workers if workers is None else workers
+        d2, ids = self._search(np.ascontiguousarray(q), int(k), radius, float(eps), exclude,
+                               query_groups, query_frames, w, self.method_)
+        return np.sqrt(d2).astype(np.float32), ids
+
+    def query_rows(self, rows: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
+                   exclude: int | None = None, workers: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Query with indexed rows (input row ids), excluding their own clip within ±``exclude`` frames."""
+        self._check_built()
+        rows = np.asarray(rows, np.int64)
+        inv = self._inverse_perm()
+        t = inv[rows]
+        return self.query(self.data_[t], k, radius, eps=eps, exclude=exclude, query_groups=self.groups_[t],
+                          query_frames=self.frames_[t], workers=workers)
+
+    def _inverse_perm(self) -> np.ndarray:
+        inv = getattr(self, "_inv", None)
+        if inv is None:
+            inv = np.empty_like(self.perm_)
+            inv[self.perm_] = np.arange(len(self.perm_))
+            self._inv = inv
+        return inv
+
+    def _search(self, q, k, radius, eps, exclude, qg, qf, workers, method):
+        from . import _knn_kernels as kern
+        from ._brute import brute_knn
+
+        m, n = len(q), self.data_.shape[0]
+        if m == 0 or n == 0:
+            return np.full((m, k), np.inf), np.full((m, k), -1, np.int64)
+        r2 = np.inf if radius is None else float(radius) ** 2
+        excl = -1 if exclude is None else int(exclude)
+        if qg is None:
+            qg = qf = np.zeros(m, np.int64)
+        qg, qf = np.ascontiguousarray(qg), np.ascontiguousarray(qf)
+        prev = kern.set_threads(workers)
+        try:
+            if method == "brute":
+                d2, t = brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
+                                  qg, qf, excl, ids=self.perm_)
+                return d2, t
+            return kern.query_tree(q, k, eps, r2, self.data_, self.perm_, self.start_, self.end_, self.left_,
+                                   self.right_, self.sdim_, self.sval_, self.groups_, self.frames_, qg, qf, excl)
+        finally:
+            kern.set_threads(prev)
+
+    def _check_built(self) -> None:
+        if not hasattr(self, "data_"):
+            raise DataError(f"{self.key()}: index not built (call build() or load())")
+
+    # --- persistence ------------------------------------------------------------------
+    def save(self, directory: Path) -> None:
+        """Write the index arrays (``.npy``) and ``index.json``; :meth:`load` does not rebuild."""
+        self._check_built()
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        for a in _ARRAYS:
+            np.save(d / f"{a.rstrip('_')}.npy", getattr(self, a))
+        meta = {"component": self.key(), "params": self.get_params(), "method": self.method_, "probe": self.probe_}
+        (d / "index.json").write_text(json.dumps(meta, indent=1))
+
+    @classmethod
+    def load(cls, directory: Path) -> KDTreeIndex:
+        d = Path(directory)
+        if not (d / "index.json").is_file():
+            raise DataError(f"{d} holds no saved {cls.name} index (no index.json)")
+        meta = json.loads((d / "index.json").read_text())
+        self = cls(meta["params"])
+        for a in _ARRAYS:
+            setattr(self, a, np.load(d / f"{a.rstrip('_')}.npy"))
+        self.method_, self.probe_ = meta["method"], meta["probe"]
+        return self
+
+    # --- pipeline step ----------------------------------------------------------------
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        from mocapflow.framework.datasets import StepOutput, frame_id_table
+
+        feats = inputs["features"].features()
+        self.build(feats.x, groups=feats.clip_id, frames=feats.frame)
+        self.save(ctx.out_dir / "index")
+        summary = {"method": self.method_, "rows": int(feats.x.shape[0]), "dim": int(feats.x.shape[1]), **self.probe_}
+        ctx.log.info("%s: %d x %d, method %s %s", self.key(), *feats.x.shape, self.method_, self.probe_)
+        return StepOutput({"data": frame_id_table(feats.clip_id, feats.frame)}, summary=summary)
+
+
+@hookimpl
+def register_indexes() -> list[type]:
+    return [KDTreeIndex]

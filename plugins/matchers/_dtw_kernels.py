@@ -1,0 +1,165 @@
+"""Numba kernels of exact subsequence DTW (no validation; see :mod:`.sdtw`).
+
+Step pattern and costs are those of the lazy neighborhood graph (Krüger 2010, §4.1), so
+the two matchers are comparable cell for cell. With ``d(i, j)`` the Euclidean distance of
+query frame ``i`` and database row ``j``::
+
+    D(0, j) = d(0, j)                                     (free start: the super-source)
+    D(i, j) = d(i, j) + min(D(i-1, j-1),  # diagonal
+                            D(i,   j-1),  # vertical: database advances, query stays
+                            D(i-1, j))    # horizontal: query advances, database stays
+
+Ties go to the first of diagonal, vertical, horizontal (the LNG kernel uses the same
+order). Steps that advance the database (diagonal, vertical) are forbidden from row
+``j-1`` to ``j`` when ``j`` starts a new clip (``clip_start[j]``), so no path crosses a
+clip boundary. Reference: ``tests/naive/dtw.py``.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, fastmath=False)
+def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
+    """Accumulated cost of the best path ending in every database row.
+
+    Parameters
+    ----------
+    qt : float32 (d, m)
+        The query, transposed (so the distance column vectorises over query frames).
+    x : float32 (n, d)
+        Database rows.
+    clip_start : bool (n,)
+        Row ``j`` does not continue row ``j-1`` (first frame of a clip).
+
+    Returns
+    -------
+    cost : float64 (n,)  ``D(m-1, j)``
+    start : int64 (n,)   first database row of that path
+    length : int32 (n,)  number of cells of that path
+
+    Memory is O(m + n): two columns of the DP and the three outputs.
+    """
+    d, m = qt.shape
+    n = x.shape[0]
+    inf = np.inf
+    cost = np.empty(n, np.float64)
+    start = np.empty(n, np.int64)
+    length = np.empty(n, np.int32)
+    prev_c = np.full(m, inf)
+    prev_s = np.zeros(m, np.int64)
+    prev_l = np.zeros(m, np.int32)
+    cur_c = np.empty(m)
+    cur_s = np.empty(m, np.int64)
+    cur_l = np.empty(m, np.int32)
+    col = np.empty(m, np.float64)
+    for j in range(n):
+        # local distances of row j to every query frame (vectorises over i)
+        for i in range(m):
+            col[i] = 0.0
+        for k in range(d):
+            xk = np.float64(x[j, k])
+            for i in range(m):
+                t = np.float64(qt[k, i]) - xk
+                col[i] += t * t
+        if clip_start[j]:
+            for i in range(m):
+                prev_c[i] = inf
+        cur_c[0] = np.sqrt(col[0])
+        cur_s[0] = j
+        cur_l[0] = 1
+        for i in range(1, m):
+            b = prev_c[i - 1]
+            s = prev_s[i - 1]
+            ln = prev_l[i - 1]
+            if prev_c[i] < b:
+                b = prev_c[i]
+                s = prev_s[i]
+                ln = prev_l[i]
+            if cur_c[i - 1] < b:
+                b = cur_c[i - 1]
+                s = cur_s[i - 1]
+                ln = cur_l[i - 1]
+            cur_c[i] = b + np.sqrt(col[i])
+            cur_s[i] = s
+            cur_l[i] = ln + 1
+        cost[j] = cur_c[m - 1]
+        start[j] = cur_s[m - 1]
+        length[j] = cur_l[m - 1]
+        prev_c, cur_c = cur_c, prev_c
+        prev_s, cur_s = cur_s, prev_s
+        prev_l, cur_l = cur_l, prev_l
+    return cost, start, length
+
+
+@njit(cache=True)
+def dtw_window_path(q, w):  # pragma: no cover - compiled
+    """Warping path of the best alignment of ``q`` onto all of ``w``.
+
+    The path starts in cell (0, 0) and ends in cell (m-1, L-1) of the window; the
+    recursion, start rule and tie order are those of :func:`sdtw_forward` restricted to
+    paths that start at the window's first row, so with ``w`` the rows
+    ``start .. end`` found by the forward pass it reproduces that pass's path and cost.
+
+    Parameters
+    ----------
+    q : float32 (m, d)
+    w : float32 (L, d)  contiguous rows of one clip
+
+    Returns
+    -------
+    path : int64 (p, 2)  (query frame, window row) pairs in order
+    cost : float64
+    """
+    m, d = q.shape
+    n = w.shape[0]
+    inf = np.inf
+    acc = np.full((m, n), inf)
+    step = np.zeros((m, n), np.int8)  # 0 diagonal, 1 vertical, 2 horizontal, 3 start
+    for j in range(n):
+        for i in range(m):
+            s = 0.0
+            for k in range(d):
+                t = np.float64(q[i, k]) - np.float64(w[j, k])
+                s += t * t
+            c = np.sqrt(s)
+            if i == 0:
+                if j == 0:
+                    acc[0, 0] = c
+                    step[0, 0] = 3
+                # the forward pass never takes a vertical step in row 0 (a fresh start
+                # there is always at least as cheap), so neither does the window
+                continue
+            b = inf
+            st = 0
+            if j > 0:
+                b = acc[i - 1, j - 1]
+                st = 0
+                if acc[i, j - 1] < b:
+                    b = acc[i, j - 1]
+                    st = 1
+            if acc[i - 1, j] < b:
+                b = acc[i - 1, j]
+                st = 2
+            acc[i, j] = b + c
+            step[i, j] = st
+    out = np.empty((m + n, 2), np.int64)
+    i = m - 1
+    j = n - 1
+    p = 0
+    while True:
+        out[p, 0] = i
+        out[p, 1] = j
+        p += 1
+        st = step[i, j]
+        if st == 3:
+            break
+        if st == 0:
+            i -= 1
+            j -= 1
+        elif st == 1:
+            j -= 1
+        else:
+            i -= 1
+    return out[:p][::-1].copy(), acc[m - 1, n - 1]

@@ -1,0 +1,146 @@
+"""Global motion matching with the lazy neighborhood graph (Krüger et al. 2010, §4.1).
+
+For a query ``Q = [q_1 .. q_m]``: a fixed-radius kNN search capped at ``k`` gives the
+neighbour set ``S(q_i)`` of every query frame; every reported neighbour is a node; the
+diagonal, vertical and horizontal DTW steps between nodes are the edges (never across a
+clip boundary), each costing the distance of the node it points at; a super-source
+points at all of ``S(q_1)``. Shortest paths in this DAG, relaxed once in topological order
+(:mod:`._lng_kernels`), end in the nodes of ``S(q_m)``; the ranked, non-overlapping
+best of them are the matches. Time and memory O(km) after the kNN search; no dense
+matrix anywhere. With all frames reachable through the neighbour sets the result equals
+subsequence DTW (:mod:`.sdtw`) exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from mocapflow.framework import Params
+from mocapflow.framework.errors import DataError
+
+from .matches import QueryMatches, SearchSpace, select_matches
+from .queries import GlobalMatcher
+
+
+@dataclass(frozen=True)
+class NeighborhoodGraph:
+    """The lazy neighborhood graph of one query after path search.
+
+    Attributes
+    ----------
+    ids : ndarray of int64, shape (m, k)
+        Neighbour rows of each query frame, ascending; ``-1`` past ``count[i]``.
+    dist : ndarray of float32, shape (m, k)
+        Their distances (the locally computed cells of the distance matrix).
+    count : ndarray of int64, shape (m,)
+    cost, start, pred, length : ndarray, shape (m, k)
+        Shortest-path cost from the super-source, first row of that path, predecessor
+        node (flat ``i*k + a``) and number of nodes on it.
+    """
+
+    ids: np.ndarray
+    dist: np.ndarray
+    count: np.ndarray
+    cost: np.ndarray
+    start: np.ndarray
+    pred: np.ndarray
+    length: np.ndarray
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.count.sum())
+
+    def matches(self, *, count: int = 10, max_cost: float | None = None, rank_by: str = "cost") -> QueryMatches:
+        """Ranked non-overlapping matches ending in the last layer (see :func:`.select_matches`)."""
+        from ._lng_kernels import lng_backtrack
+
+        last = self.ids.shape[0] - 1
+        c = int(self.count[last])
+        ends = self.ids[last, :c]
+        keep = select_matches(ends, self.start[last, :c], self.cost[last, :c], self.length[last, :c],
+                              count=count, max_cost=max_cost, rank_by=rank_by)
+        paths = [lng_backtrack(self.ids, self.pred, last, int(a)) for a in keep]
+        return QueryMatches(self.start[last, keep], ends[keep], self.cost[last, keep],
+                            self.length[last, keep].astype(np.int64), paths)
+
+
+def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``S(q_i)`` from the index, re-sorted by row id: ``(ids, dist, count)`` (see :class:`NeighborhoodGraph`)."""
+    dist, ids = index.query(query, k, radius)
+    dist = np.asarray(dist, np.float32)
+    ids = np.asarray(ids, np.int64)
+    if ids.shape != (query.shape[0], k) or dist.shape != ids.shape:
+        raise DataError(f"index returned shapes {dist.shape}, {ids.shape}; expected ({query.shape[0]}, {k})")
+    valid = ids >= 0
+    big = np.iinfo(np.int64).max
+    order = np.argsort(np.where(valid, ids, big), axis=1, kind="stable")
+    ids = np.take_along_axis(ids, order, 1)
+    dist = np.take_along_axis(dist, order, 1)
+    valid = np.take_along_axis(valid, order, 1)
+    count = valid.sum(axis=1).astype(np.int64)
+    ids[~valid] = -1
+    if np.any((np.diff(ids, axis=1) == 0) & valid[:, 1:]):
+        raise DataError("index returned the same row twice for one query frame")
+    return ids, dist, count
+
+
+def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None) -> NeighborhoodGraph:
+    """kNN search, graph construction and path search for one query.
+
+    Parameters
+    ----------
+    query : ndarray of shape (m, d)
+        Query features in the index's feature space.
+    space : SearchSpace
+        With a built ``index`` over its rows.
+    k : int
+        Cap on the neighbours per query frame.
+    radius : float or None
+        Fixed search radius ``r`` (same units as the features); ``None``: plain kNN.
+    """
+    from ._lng_kernels import lng_forward
+
+    if space.index is None:
+        raise DataError("the lazy neighborhood graph needs a built index (SearchSpace.index)")
+    q = np.ascontiguousarray(query, dtype=np.float32)
+    if q.ndim != 2 or q.shape[0] < 1 or not np.isfinite(q).all():
+        raise DataError(f"query must be finite (n_frames >= 1, dim) feature vectors, got shape {q.shape}")
+    ids, dist, count = neighbor_sets(q, space.index, k, radius)
+    if count.any() and ids.max() >= space.n_rows:
+        raise DataError(f"index returned row {ids.max()} but the database has {space.n_rows} rows")
+    cost, start, pred, length = lng_forward(ids, dist, count, space.continues)
+    return NeighborhoodGraph(ids, dist, count, cost, start, pred, length)
+
+
+def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
+                            count: int = 10, max_cost: float | None = None, rank_by: str = "cost") -> QueryMatches:
+    """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`)."""
+    return build_graph(query, space, k=k, radius=radius).matches(count=count, max_cost=max_cost, rank_by=rank_by)
+
+
+class LazyNeighborhoodGraph(GlobalMatcher):
+    """Fast global motion matching by shortest paths in the lazy neighborhood graph.
+
+    ``database`` is an index dataset (``indexes.*``); query motions are turned into
+    features by the database's feature set, query features are used as they are.
+    """
+
+    name = "lng"
+    needs_index: ClassVar[bool] = True
+    needs_features: ClassVar[bool] = False
+
+    class Params(Params):
+        k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
+        radius: float | None = Field(None, gt=0, description="fixed kNN search radius r in feature units; null: unbounded")
+        count: int = Field(10, ge=1, description="matches kept per query")
+        max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
+        rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
+        queries: list[str] = Field(default_factory=list, description="query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); empty: every clip of the query input")
+
+    def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
+        p = self.params
+        return lazy_neighborhood_graph(query, space, k=p.k, radius=p.radius, count=p.count,
+                                       max_cost=p.max_cost, rank_by=p.rank_by)

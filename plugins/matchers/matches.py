@@ -1,0 +1,160 @@
+"""Ranked matches shared by the global matchers (LNG, subsequence DTW, logical search).
+
+A matcher reduces one query to *candidates* (one per database row where a best path
+ends: its accumulated cost, first row and path length) and then keeps ranked,
+non-overlapping matches with :func:`select_matches`, the same rule for every matcher so
+their results compare one to one. Rows are row ids of the index (= of the features
+table); :class:`SearchSpace` maps them to ``(clip_id, frame)``.
+"""
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import pyarrow as pa
+
+from mocapflow.framework import schema
+from mocapflow.framework.errors import DataError
+
+#: Extra columns of a match table after :data:`~mocapflow.framework.schema.MATCHES`.
+MATCH_COLUMNS = schema.MATCHES.append(pa.field("cost_normalized", pa.float64())).append(schema.WARPING_PATH)
+
+
+@dataclass(frozen=True)
+class SearchSpace:
+    """The searched database: index rows, their frame ids, optionally their features.
+
+    Parameters
+    ----------
+    clip_id, frame : ndarray of int32, shape (n,)
+        Frame id of every index row (the index dataset's ``data`` table).
+    index : Index or None
+        A built :class:`~mocapflow.framework.Index` over the rows (LNG).
+    features : ndarray of float32, shape (n, d), or None
+        The indexed vectors (subsequence DTW, plots).
+    """
+
+    clip_id: np.ndarray
+    frame: np.ndarray
+    index: object | None = None
+    features: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        cid = np.asarray(self.clip_id, np.int32)
+        fr = np.asarray(self.frame, np.int32)
+        if cid.shape != fr.shape or cid.ndim != 1:
+            raise DataError(f"clip_id and frame must be 1-d of one length, got {cid.shape} and {fr.shape}")
+        object.__setattr__(self, "clip_id", cid)
+        object.__setattr__(self, "frame", fr)
+        if self.features is not None:
+            x = np.ascontiguousarray(self.features, dtype=np.float32)
+            if x.ndim != 2 or x.shape[0] != len(cid):
+                raise DataError(f"features must be (n_rows={len(cid)}, dim), got {x.shape}")
+            object.__setattr__(self, "features", x)
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.clip_id)
+
+    @cached_property
+    def continues(self) -> np.ndarray:
+        """bool (n,): row ``j`` is the frame after row ``j-1`` in the same clip.
+
+        A path may step from row ``j-1`` to ``j`` only where this holds, so no warping
+        path crosses a clip boundary (or a gap in the rows).
+        """
+        c = np.zeros(self.n_rows, bool)
+        c[1:] = (self.clip_id[1:] == self.clip_id[:-1]) & (self.frame[1:] == self.frame[:-1] + 1)
+        return c
+
+
+@dataclass
+class QueryMatches:
+    """Ranked matches of one query (rows are index rows; ``end`` inclusive)."""
+
+    start: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    end: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    cost: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    length: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    paths: list[np.ndarray] = field(default_factory=list)  # each (p, 2): (query frame, row)
+
+    def __len__(self) -> int:
+        return len(self.cost)
+
+
+def select_matches(end: np.ndarray, start: np.ndarray, cost: np.ndarray, length: np.ndarray, *,
+                   count: int, max_cost: float | None, rank_by: str) -> np.ndarray:
+    """Greedy ranked, non-overlapping choice among candidate path ends.
+
+    Candidates are taken by ascending ranking key (``cost``, or ``cost / length`` for
+    ``rank_by="normalized"``); one is kept when its rows ``[start, end]`` overlap no kept
+    match, until ``count`` are kept or the key passes ``max_cost``.
+
+    Returns
+    -------
+    ndarray of int64
+        Positions into the candidate arrays, best first.
+    """
+    key = cost / np.maximum(length, 1) if rank_by == "normalized" else np.asarray(cost, np.float64)
+    ok = np.isfinite(key)
+    if max_cost is not None:
+        ok &= key <= max_cost
+    cand = np.flatnonzero(ok)
+    kept: list[int] = []
+    lo: list[int] = []  # kept intervals, sorted by start, disjoint
+    hi: list[int] = []
+    chunk = max(64, 32 * count)
+    while cand.size and len(kept) < count:
+        # the chunk best candidates, in order (argpartition keeps this O(n) for sDTW)
+        if cand.size > chunk:
+            part = np.argpartition(key[cand], chunk)[:chunk]
+            head, cand = cand[part], np.delete(cand, part)
+        else:
+            head, cand = cand, cand[:0]
+        head = head[np.lexsort((end[head], key[head]))]
+        for c in head:
+            s, e = int(start[c]), int(end[c])
+            pos = bisect.bisect_right(lo, e)  # kept intervals starting at or before e
+            if pos and hi[pos - 1] >= s:
+                continue
+            lo.insert(pos, s)
+            hi.insert(pos, e)
+            kept.append(int(c))
+            if len(kept) == count:
+                break
+    return np.asarray(kept, np.int64)
+
+
+def matches_table(query_ids: list[int], results: list[QueryMatches], space: SearchSpace) -> pa.Table:
+    """Match table (:data:`MATCH_COLUMNS`) of several queries; frames are within-clip."""
+    qid, rank, s_all, e_all, c_all, l_all, offsets, flat = [], [], [], [], [], [], [0], []
+    for q, r in zip(query_ids, results):
+        n = len(r)
+        qid.append(np.full(n, q, np.int32))
+        rank.append(np.arange(1, n + 1, dtype=np.int32))
+        s_all.append(r.start)
+        e_all.append(r.end)
+        c_all.append(r.cost)
+        l_all.append(r.length)
+        for p in r.paths:
+            flat.append(np.stack([p[:, 0], space.frame[p[:, 1]]], axis=1).astype(np.int32))
+            offsets.append(offsets[-1] + len(p))
+    cat = lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)  # noqa: E731
+    start, end = cat(s_all, np.int64), cat(e_all, np.int64)
+    cost, length = cat(c_all, np.float64), cat(l_all, np.float64)
+    pairs = np.concatenate(flat) if flat else np.zeros((0, 2), np.int32)
+    path = pa.ListArray.from_arrays(pa.array(np.asarray(offsets, np.int32)),
+                                    pa.FixedSizeListArray.from_arrays(pa.array(pairs.reshape(-1)), 2))
+    cols = {
+        "query_id": pa.array(cat(qid, np.int32)),
+        "rank": pa.array(cat(rank, np.int32)),
+        "clip_id": pa.array(space.clip_id[start]),
+        "start_frame": pa.array(space.frame[start]),
+        "end_frame": pa.array((space.frame[end] + 1).astype(np.int32)),
+        "cost": pa.array(cost),
+        "cost_normalized": pa.array(cost / np.maximum(length, 1)),
+        "path": path.cast(schema.WARPING_PATH.type),
+    }
+    return pa.table(cols, schema=MATCH_COLUMNS)

@@ -1,0 +1,234 @@
+"""Queries and databases of the global matchers: how a step's inputs become arrays.
+
+Inputs of a global matcher step (``lng``, ``sdtw``, ``logical``):
+
+``database`` (required)
+    An index dataset (``indexes.*``): its ``data`` table maps index rows to
+    ``(clip_id, frame)``, ``.index()`` loads the persisted index. The feature vectors it
+    was built from are its upstream ``features`` dataset, found through the provenance
+    (``_manifest.json`` ``inputs.features.step``, a sibling in the workspace). A features
+    dataset is accepted too by matchers that need no index (``sdtw``).
+``features`` (optional)
+    The database's features dataset, when it is not the index's upstream.
+``query`` (required)
+    A motions dataset (each clip, or each ``queries`` spec, is turned into features by
+    the database's feature set, re-created from the features dataset's provenance; fitted
+    sets load their state from it) or a features dataset in the same feature space.
+
+A query spec is ``SOURCE[:START-END]``: SOURCE names a clip of the query dataset (its
+name, file name or path) or, failing that, a motion file on disk (relative to the
+pipeline file); START-END is a half-open frame range at the database frame rate, or in
+seconds with an ``s`` suffix (``walk.amc:1.5s-3s``). Features are computed on the whole
+clip first and then cut, so windowed features match the database's frame for frame.
+"""
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pyarrow as pa
+
+from mocapflow.framework import Matcher
+from mocapflow.framework.datasets import Dataset, StepOutput
+from mocapflow.framework.errors import ConfigError, DataError, PipelineError
+
+from .matches import QueryMatches, SearchSpace, matches_table
+
+_RANGE = re.compile(r"^(?P<a>\d+(?:\.\d+)?)(?P<ua>s?)-(?P<b>\d+(?:\.\d+)?)(?P<ub>s?)$")
+
+
+@dataclass(frozen=True)
+class QuerySpec:
+    """A parsed ``SOURCE[:START-END]``; ``start``/``end`` in frames, or seconds if ``seconds``."""
+
+    source: str
+    start: float | None = None
+    end: float | None = None
+    seconds: bool = False
+
+    def frames(self, fps: float, n_frames: int) -> tuple[int, int]:
+        """Half-open frame range within a clip of ``n_frames`` at ``fps``."""
+        if self.start is None:
+            return 0, n_frames
+        scale = fps if self.seconds else 1.0
+        a, b = int(round(self.start * scale)), int(round(self.end * scale))
+        if not 0 <= a < b <= n_frames:
+            raise ConfigError(f"query {self.text()!r}: frames [{a}, {b}) outside the clip's {n_frames} frames")
+        return a, b
+
+    def text(self) -> str:
+        if self.start is None:
+            return self.source
+        u = "s" if self.seconds else ""
+        fmt = (lambda v: f"{v:g}") if self.seconds else (lambda v: str(int(v)))
+        return f"{self.source}:{fmt(self.start)}{u}-{fmt(self.end)}{u}"
+
+
+def parse_query_spec(text: str) -> QuerySpec:
+    """``"walk.amc:30-120"`` -> ``QuerySpec("walk.amc", 30, 120)``; no range: the whole clip."""
+    source, sep, rng = text.rpartition(":")
+    m = _RANGE.match(rng) if sep else None
+    if not m:
+        return QuerySpec(text)
+    if bool(m["ua"]) != bool(m["ub"]):
+        raise ConfigError(f"query {text!r}: give both ends in frames or both in seconds ('1.5s-3s')")
+    secs = bool(m["ua"])
+    a, b = float(m["a"]), float(m["b"])
+    if not secs and (a != int(a) or b != int(b)):
+        raise ConfigError(f"query {text!r}: frame numbers must be integers (or add 's' for seconds)")
+    if b <= a:
+        raise ConfigError(f"query {text!r}: empty range (end is exclusive)")
+    return QuerySpec(source, a, b, secs)
+
+
+@dataclass(frozen=True)
+class Query:
+    """One query: its features and where they came from (``clip_id`` -1 for a file)."""
+
+    name: str
+    features: np.ndarray
+    clip_id: int = -1
+    start_frame: int = 0
+    end_frame: int = 0
+
+
+def upstream(ds: Dataset, slot: str) -> Dataset | None:
+    """The dataset feeding ``slot`` of the step that wrote ``ds`` (a workspace sibling)."""
+    up = ds.manifest.get("inputs", {}).get(slot)
+    step = up.get("step") if isinstance(up, dict) else up
+    if not step or not (ds.path.parent / step).is_dir():
+        return None
+    return Dataset(ds.path.parent / step)
+
+
+def feature_set_of(features: Dataset, registries):
+    """The configured (and, if needed, fitted) feature set that wrote ``features``."""
+    cls = registries.resolve(features.producer)
+    fs = cls(features.manifest.get("params", {}))
+    if getattr(cls, "requires_fit", False):
+        fs.load_state(features.path)
+    return fs
+
+
+def read_motion_file(path: Path, registries, fps: float | None):
+    """Read one motion file with the registered reader for its extension, resampled to ``fps``."""
+    from mocapflow.framework.normalize import resample
+
+    for _, cls in registries["formats"]:
+        if getattr(cls, "produces", "") == "motion" and path.suffix.lower() in cls.extensions:
+            motion = cls().read(path)
+            return resample(motion, fps) if fps else motion
+    raise ConfigError(f"no registered reader for {path.suffix!r} files ({path})")
+
+
+class GlobalMatcher(Matcher):
+    """Shared step logic of the matchers that align whole query segments (see module doc).
+
+    Subclasses set ``needs_index``/``needs_features`` and implement :meth:`match`.
+    """
+
+    inputs: ClassVar[Mapping[str, bool]] = {"database": True, "query": True, "features": False}
+    needs_index: ClassVar[bool] = True
+    needs_features: ClassVar[bool] = False
+
+    def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
+        raise NotImplementedError
+
+    # --- inputs -----------------------------------------------------------------------
+    def features_dataset(self, inputs: Mapping[str, Dataset]) -> Dataset | None:
+        db = inputs["database"]
+        if "features" in inputs:
+            return inputs["features"]
+        return db if db.producer_kind == "features" else upstream(db, "features")
+
+    def search_space(self, inputs: Mapping[str, Dataset], registries=None) -> SearchSpace:
+        db = inputs["database"]
+        if self.needs_index and db.producer_kind != "indexes":
+            raise PipelineError(f"{self.key()}: input 'database' must be an index dataset, got {db.step!r} ({db.producer})")
+        clip_id, frame = db.frame_ids()
+        index = db.index(registries) if self.needs_index else None
+        x = None
+        if self.needs_features:
+            fds = self.features_dataset(inputs)
+            if fds is None:
+                raise PipelineError(f"{self.key()}: cannot find the database features of {db.step!r}; give a 'features' input")
+            fm = fds.features()
+            if not (np.array_equal(fm.clip_id, clip_id) and np.array_equal(fm.frame, frame)):
+                raise DataError(f"{self.key()}: rows of features {fds.step!r} differ from those of {db.step!r}")
+            x = fm.x
+        return SearchSpace(clip_id, frame, index, x)
+
+    def queries(self, inputs: Mapping[str, Dataset], ctx) -> list[Query]:
+        """Query features from the ``query`` input and the ``queries`` parameter."""
+        qds = inputs["query"]
+        specs = [parse_query_spec(s) for s in getattr(self.params, "queries", [])]
+        if "features" in qds.table("data").schema.names:
+            return self._feature_queries(qds, specs)
+        fds = self.features_dataset(inputs)
+        if fds is None:
+            raise PipelineError(f"{self.key()}: query motions need the database's feature set; give a 'features' input")
+        fs = feature_set_of(fds, ctx.registries)
+        mdb = qds.motions()
+        names = {}
+        for pos, m in enumerate(mdb.motions):
+            p = str(m.metadata.get("path") or "")
+            for key in {m.name, Path(p).name, Path(p).stem, p} - {""}:
+                names.setdefault(key, pos)
+        out = []
+        for spec in specs or [QuerySpec(m.name) for m in mdb.motions]:
+            pos = names.get(spec.source)
+            if pos is None:
+                pos = next((i for k, i in names.items() if k.endswith("/" + spec.source)), None)
+            if pos is not None:
+                motion, cid = mdb.motions[pos], int(mdb.clip_ids[pos])
+            else:
+                path = ctx.resolve(spec.source)
+                if not path.is_file():
+                    raise ConfigError(f"{self.key()}: query {spec.source!r} is neither a clip of {qds.step!r} nor a file")
+                motion, cid = read_motion_file(path, ctx.registries, mdb.fps if mdb.n_clips else None), -1
+            a, b = spec.frames(motion.fps, motion.n_frames)
+            x = np.asarray(fs.transform_motion(motion), np.float32)[a:b]
+            out.append(Query(spec.text(), x, cid, a, b))
+        return out
+
+    def _feature_queries(self, qds: Dataset, specs: list[QuerySpec]) -> list[Query]:
+        fm = qds.features()
+        bounds = np.flatnonzero(np.diff(fm.clip_id)) + 1
+        clips = {int(c[0]): (s, len(c)) for c, s in zip(np.split(fm.clip_id, bounds), np.r_[0, bounds])}
+        out = []
+        for spec in specs or [QuerySpec(str(c)) for c in clips]:
+            try:
+                cid = int(spec.source)
+                s, n = clips[cid]
+            except (ValueError, KeyError):
+                raise ConfigError(f"{self.key()}: feature queries are named by clip id; {spec.source!r} is not one of {qds.step!r}") from None
+            a, b = spec.frames(1.0, n) if not spec.seconds else (0, 0)
+            if spec.seconds:
+                raise ConfigError(f"{self.key()}: give feature query ranges in frames ({spec.text()!r})")
+            out.append(Query(spec.text(), fm.x[s + a : s + b], cid, a, b))
+        return out
+
+    # --- the step ---------------------------------------------------------------------
+    def run(self, inputs: Mapping[str, Dataset], ctx) -> StepOutput:
+        space = self.search_space(inputs, ctx.registries)
+        queries = self.queries(inputs, ctx)
+        results = [self.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)]
+        return StepOutput(
+            {"data": matches_table(list(range(len(queries))), results, space), "queries": queries_table(queries)},
+            {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
+        )
+
+
+def queries_table(queries: list[Query]) -> pa.Table:
+    """``query_id, name, clip_id, start_frame, end_frame`` of each query (clip_id -1: a file)."""
+    return pa.table({
+        "query_id": pa.array(np.arange(len(queries), dtype=np.int32)),
+        "name": pa.array([q.name for q in queries], pa.string()),
+        "clip_id": pa.array(np.array([q.clip_id for q in queries], np.int32)),
+        "start_frame": pa.array(np.array([q.start_frame for q in queries], np.int32)),
+        "end_frame": pa.array(np.array([q.end_frame for q in queries], np.int32)),
+    })

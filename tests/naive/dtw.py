@@ -1,0 +1,114 @@
+"""Naive references of the global matchers (``plugins/matchers``): full matrices, explicit graphs.
+
+Both follow Krüger 2010 §4.1 literally. Database rows ``j-1 -> j`` are linked only when
+``continues[j]`` (same clip, consecutive frames).
+"""
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+
+
+def continues_of(clip_id, frame) -> np.ndarray:
+    clip_id, frame = np.asarray(clip_id), np.asarray(frame)
+    c = np.zeros(len(clip_id), bool)
+    for j in range(1, len(clip_id)):
+        c[j] = clip_id[j] == clip_id[j - 1] and frame[j] == frame[j - 1] + 1
+    return c
+
+
+def naive_subsequence_dtw(q, x, continues):
+    """Full (m, n) matrices of subsequence DTW.
+
+    Returns ``(D, start, steps)``: accumulated cost, first row of the best path into each
+    cell, and per cell the predecessor cell (or None for a fresh start in row 0).
+    """
+    q = np.asarray(q, np.float64)
+    x = np.asarray(x, np.float64)
+    m, n = len(q), len(x)
+    D = np.full((m, n), np.inf)
+    S = np.full((m, n), -1)
+    P = [[None] * n for _ in range(m)]
+    for j in range(n):
+        for i in range(m):
+            c = float(np.sqrt(np.sum((q[i] - x[j]) ** 2)))
+            if i == 0:
+                D[i, j], S[i, j] = c, j
+                continue
+            options = []  # in tie order: diagonal, vertical, horizontal
+            if j > 0 and continues[j]:
+                options.append((D[i - 1, j - 1], (i - 1, j - 1)))
+                options.append((D[i, j - 1], (i, j - 1)))
+            options.append((D[i - 1, j], (i - 1, j)))
+            best, cell = min(options, key=lambda o: o[0])  # min keeps the first of equals
+            if np.isfinite(best):
+                D[i, j] = best + c
+                S[i, j] = S[cell]
+                P[i][j] = cell
+    return D, S, P
+
+
+def naive_path(P, i, j):
+    path = [(i, j)]
+    while P[i][j] is not None:
+        i, j = P[i][j]
+        path.append((i, j))
+    return np.array(path[::-1])
+
+
+def naive_lng(neighbors, continues):
+    """Lazy neighborhood graph built edge by edge and solved with Dijkstra.
+
+    Parameters
+    ----------
+    neighbors : list of dict
+        ``neighbors[i][row] = distance`` for every reported neighbour of query frame ``i``.
+    continues : bool array
+
+    Returns
+    -------
+    dict ``row -> (cost, start_row, path)`` for every reachable node of the last layer.
+    """
+    m = len(neighbors)
+    edges: dict = {}
+    source = ("source",)
+    edges[source] = [((0, h), d) for h, d in neighbors[0].items()]
+    for i in range(m):
+        for h in neighbors[i]:
+            out = []
+            nxt = h + 1
+            if i + 1 < m and nxt < len(continues) and continues[nxt] and nxt in neighbors[i + 1]:
+                out.append(((i + 1, nxt), neighbors[i + 1][nxt]))  # diagonal
+            if nxt < len(continues) and continues[nxt] and nxt in neighbors[i]:
+                out.append(((i, nxt), neighbors[i][nxt]))  # vertical
+            if i + 1 < m and h in neighbors[i + 1]:
+                out.append(((i + 1, h), neighbors[i + 1][h]))  # horizontal
+            edges[(i, h)] = out
+    dist = {source: 0.0}
+    prev = {}
+    heap = [(0.0, 0, source)]
+    tick = 1
+    done = set()
+    while heap:
+        d, _, u = heapq.heappop(heap)
+        if u in done:
+            continue
+        done.add(u)
+        for v, w in edges.get(u, []):
+            if d + w < dist.get(v, np.inf):
+                dist[v] = d + w
+                prev[v] = u
+                heapq.heappush(heap, (d + w, tick, v))
+                tick += 1
+    out = {}
+    for h in neighbors[m - 1]:
+        node = (m - 1, h)
+        if node not in dist:
+            continue
+        path = [node]
+        while prev[path[-1]] != source:
+            path.append(prev[path[-1]])
+        path = np.array(path[::-1])
+        out[h] = (dist[node], int(path[0][1]), path)
+    return out

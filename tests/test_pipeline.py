@@ -1,0 +1,152 @@
+from __future__ import annotations
+
+import json
+import textwrap
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from toy_components import ToyPlugin
+
+from mocapflow.framework import ConfigError, PipelineError, get_plugin_manager
+from mocapflow.framework.plugins import build_registries
+from mocapflow.framework.runner import plan_pipeline, run_pipeline
+
+
+def pm():
+    return get_plugin_manager(entry_points=False, extra=[ToyPlugin()])
+
+
+def write(tmp_path: Path, body: str, name: str = "p.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(body))
+    return p
+
+
+CHAIN = """
+name: chain
+workspace: ws
+steps:
+  src: {uses: analyses.toy_source, with: {n: 4}}
+  plus: {uses: analyses.toy_add, input: src, with: {add: 10}}
+  other: {uses: analyses.toy_source, with: {n: 2}}
+  both: {uses: analyses.toy_add, inputs: {source: plus, other: other}}
+"""
+
+
+def calls(ws: Path) -> list[str]:
+    f = ws / "calls.log"
+    return f.read_text().split() if f.exists() else []
+
+
+def plan(path, overrides=()):
+    return plan_pipeline(path, overrides, registries=build_registries(pm()))
+
+
+@pytest.mark.parametrize(
+    "body, line, words",
+    [
+        ("steps:\n  a: {uses: analyses.toy_sourse}\n", 2, ["did you mean 'analyses.toy_source'"]),
+        ("steps:\n  a:\n    uses: analyses.toy_source\n    with: {n: 0}\n", 4, ["'n'", "greater than or equal to 1"]),
+        ("steps:\n  a:\n    uses: analyses.toy_source\n    with:\n      sclae: 2\n", 5, ["unknown parameter 'sclae'", "did you mean 'scale'"]),
+        ("steps:\n  a: {uses: analyses.toy_add}\n", 2, ["missing required input 'source'"]),
+        ("steps:\n  a: {uses: analyses.toy_add, input: sorce}\n  source: {uses: analyses.toy_source}\n", 2, ["unknown step 'sorce'", "did you mean 'source'"]),
+        ("steps:\n  a: {uses: analyses.toy_add, input: b}\n  b: {uses: analyses.toy_add, input: a}\n", 2, ["cycle"]),
+        ("steps:\n  a: {uses: analyses.toy_add, inputs: {sourse: a}}\n", 2, ["no input 'sourse'"]),
+        ("steps:\n  a: {uses: nothing}\n", 2, ["expected '<kind>.<name>'"]),
+        ("steps:\n  a: {uses: analyses.toy_source, wiht: {}}\n", 2, ["wiht"]),
+    ],
+)
+def test_invalid_pipelines_name_file_line_step_and_key(tmp_path, body, line, words):
+    p = write(tmp_path, "name: bad\n" + body)
+    with pytest.raises(ConfigError) as err:
+        plan(p)
+    msg = str(err.value)
+    assert f"{p}:{line + 1}" in msg, msg
+    for w in words:
+        assert w in msg, msg
+
+
+def test_yaml_syntax_error_points_at_line(tmp_path):
+    p = write(tmp_path, "name: x\nsteps:\n  a: {uses: [\n")
+    with pytest.raises(ConfigError, match=r"p\.yaml:\d+: invalid YAML"):
+        plan(p)
+
+
+def test_run_skips_unchanged_and_recomputes_exactly_downstream(tmp_path):
+    p = write(tmp_path, CHAIN)
+    first = run_pipeline(p, pm=pm())
+    ws = tmp_path / "ws"
+    assert [r.status for r in first] == ["computed"] * 4
+    assert pq.read_table(ws / "both" / "data.parquet")["x"].to_pylist() == [11.0, 12.0, 13.0, 14.0]
+    meta = json.loads(pq.read_schema(ws / "plus" / "data.parquet").metadata[b"mocapflow"])
+    assert meta["component"] == "analyses.toy_add" and meta["params"] == {"add": 10.0}
+    assert meta["inputs"]["source"]["step"] == "src"
+    assert (ws / "src" / "note.txt").read_text() == "side file"
+    n = len(calls(ws))
+    again = run_pipeline(p, pm=pm())
+    assert all(r.status == "up to date" for r in again) and len(calls(ws)) == n
+    changed = run_pipeline(p, pm=pm(), overrides=["plus.add=20"])
+    status = {r.step_id: r.status for r in changed}
+    assert status == {"src": "up to date", "other": "up to date", "plus": "computed", "both": "computed"}
+    assert pq.read_table(ws / "both" / "data.parquet")["x"].to_pylist() == [21.0, 22.0, 23.0, 24.0]
+
+
+def test_failed_step_leaves_nothing_and_rerun_completes(tmp_path):
+    body = """
+    name: f
+    workspace: ws
+    steps:
+      src: {uses: analyses.toy_source}
+      boom: {uses: analyses.toy_fail, input: src}
+    """
+    p = write(tmp_path, body)
+    ws = tmp_path / "ws"
+    with pytest.raises(PipelineError, match="step 'boom'.*toy failure"):
+        run_pipeline(p, pm=pm())
+    assert (ws / "src" / "_manifest.json").is_file()
+    assert not (ws / "boom").exists()
+    assert not list((ws / ".tmp").glob("*")) if (ws / ".tmp").exists() else True
+    reports = run_pipeline(p, pm=pm(), overrides=["boom.fail=false"])
+    assert [r.status for r in reports] == ["up to date", "computed"]
+
+
+def test_interrupted_run_leftovers_are_never_read(tmp_path):
+    p = write(tmp_path, CHAIN)
+    ws = tmp_path / "ws"
+    run_pipeline(p, pm=pm())
+    # simulate a kill in the middle of writing a step and during a swap
+    (ws / ".tmp" / "plus-dead").mkdir(parents=True)
+    (ws / ".tmp" / "plus-dead" / "data.parquet").write_bytes(b"garbage")
+    (ws / "both" / "_manifest.json").unlink()  # a dataset without manifest is not finished
+    reports = run_pipeline(p, pm=pm())
+    assert {r.step_id: r.status for r in reports}["both"] == "computed"
+    assert not (ws / ".tmp").exists()
+
+
+def test_overrides_are_validated(tmp_path):
+    p = write(tmp_path, CHAIN)
+    with pytest.raises(ConfigError, match="no step 'plsu'.*did you mean 'plus'"):
+        plan(p, ["plsu.add=1"])
+    with pytest.raises(ConfigError, match="STEP.KEY=VALUE"):
+        plan(p, ["plus=1"])
+    with pytest.raises(ConfigError, match="unknown parameter 'ad'"):
+        plan(p, ["plus.ad=1"])
+
+
+def test_synthetic_motions_through_summary(tmp_path):
+    body = """
+    name: s
+    workspace: ws
+    steps:
+      motions: {uses: analyses.toy_motions, with: {clips: 2, frames: 30}}
+      summary: {uses: analyses.clip_summary, input: motions}
+    """
+    p = write(tmp_path, body)
+    run_pipeline(p, pm=pm())
+    t = pq.read_table(tmp_path / "ws" / "summary" / "data.parquet")
+    assert t["n_frames"].to_pylist() == [30, 30]
+    rom = pq.read_table(tmp_path / "ws" / "summary" / "joint_rom.parquet").to_pylist()
+    # synthetic joints swing by ±30° about three axes: ranges are large but below 180°
+    knee = [r["rom_deg"] for r in rom if r["joint"] == "lknee"]
+    assert len(knee) == 2 and all(20 < k < 180 for k in knee)

@@ -1,0 +1,86 @@
+"""Tiny components registered through a test plugin object (``extra=[ToyPlugin()]``)."""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import pyarrow as pa
+from pydantic import Field
+from synthetic import random_motion
+
+from mocapflow.framework import Analysis, Params, PipelineError, StepOutput, hookimpl
+from mocapflow.framework.motion_tables import motions_to_tables
+
+
+def _log_call(ctx, name: str) -> None:
+    with open(ctx.workspace / "calls.log", "a") as f:
+        f.write(f"{ctx.step_id}:{name}\n")
+
+
+class ToySource(Analysis):
+    """Numbers 0..n-1 times scale."""
+
+    name = "toy_source"
+    inputs: Mapping[str, bool] = {}
+
+    class Params(Params):
+        n: int = Field(5, ge=1)
+        scale: float = 1.0
+
+    def run(self, inputs, ctx):
+        _log_call(ctx, self.name)
+        (ctx.out_dir / "note.txt").write_text("side file")
+        return StepOutput({"data": pa.table({"x": np.arange(self.params.n) * self.params.scale})})
+
+
+class ToyAdd(Analysis):
+    """Adds a constant to the upstream x."""
+
+    name = "toy_add"
+    inputs: Mapping[str, bool] = {"source": True, "other": False}
+
+    class Params(Params):
+        add: float = 1.0
+
+    def run(self, inputs, ctx):
+        _log_call(ctx, self.name)
+        x = inputs["source"].table()["x"].to_numpy()
+        return StepOutput({"data": pa.table({"x": x + self.params.add})})
+
+
+class ToyFail(Analysis):
+    """Writes a partial file, then fails (or not, when ``fail: false``)."""
+
+    name = "toy_fail"
+    inputs: Mapping[str, bool] = {"source": True}
+
+    class Params(Params):
+        fail: bool = True
+
+    def run(self, inputs, ctx):
+        _log_call(ctx, self.name)
+        (ctx.out_dir / "partial.bin").write_bytes(b"half")
+        if self.params.fail:
+            raise PipelineError("toy failure on purpose")
+        return StepOutput({"data": pa.table({"ok": [True]})})
+
+
+class ToyMotions(Analysis):
+    """A motions dataset of synthetic clips (so pipelines run without readers)."""
+
+    name = "toy_motions"
+    inputs: Mapping[str, bool] = {}
+
+    class Params(Params):
+        clips: int = 3
+        frames: int = 40
+
+    def run(self, inputs, ctx):
+        motions = [random_motion(self.params.frames, seed=i) for i in range(self.params.clips)]
+        return StepOutput(motions_to_tables(motions))
+
+
+class ToyPlugin:
+    @hookimpl
+    def register_analyses(self):
+        return [ToySource, ToyAdd, ToyFail, ToyMotions]
