@@ -59,8 +59,7 @@ class Catalog:
         import duckdb
 
         try:
-            result = self._con.execute(sql, params) if params is not None else self._con.execute(sql)
-            return result.to_arrow_table()
+            return self._con.sql(sql, params=params).to_arrow_table()
         except duckdb.Error as exc:
             raise MocapflowError(f"SQL error: {exc}") from None
 
@@ -82,6 +81,12 @@ class Catalog:
         self.close()
 
 
+def CSV_OPTIONS():  # noqa: N802 - a constant built lazily (pyarrow.csv is imported on demand)
+    import pyarrow.csv as pacsv
+
+    return pacsv.WriteOptions(quoting_style="needed", quoting_header="none")
+
+
 def write_table(table: pa.Table, path: str | Path, fmt: str) -> None:
     """Write a query result as CSV or Parquet, atomically (temp file + rename)."""
     import os
@@ -95,7 +100,7 @@ def write_table(table: pa.Table, path: str | Path, fmt: str) -> None:
         # nested columns (feature vectors, paths) are written as their text form
         cols = [c if not (pa.types.is_list(c.type) or pa.types.is_fixed_size_list(c.type) or pa.types.is_struct(c.type))
                 else pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.string()) for c in table.columns]
-        pacsv.write_csv(pa.Table.from_arrays(cols, names=table.column_names), tmp)
+        pacsv.write_csv(pa.Table.from_arrays(cols, names=table.column_names), tmp, CSV_OPTIONS())
     elif fmt == "parquet":
         pq.write_table(table, tmp)
     else:

@@ -107,8 +107,10 @@ def cmd_sql(args: argparse.Namespace, pm) -> int:
 
         import pyarrow.csv as pacsv
 
+        from .catalog import CSV_OPTIONS
+
         buf = io.BytesIO()
-        pacsv.write_csv(table, buf)
+        pacsv.write_csv(table, buf, CSV_OPTIONS())
         sys.stdout.write(buf.getvalue().decode())
     elif args.format == "parquet":
         raise ConfigError("--format parquet needs --output FILE")

@@ -130,7 +130,7 @@ def _defs() -> tuple[FeatureDef, ...]:
             lambda f, s=s: prim.angle_between(f(f"{s}knee"), f(f"{s}hip"), f(f"{s}knee"), f(f"{s}ankle")),
             f"angle({s}knee->{s}hip, {s}knee->{s}ankle)")
     for s, o in (("r", "l"), ("l", "r")):
-        add("L", f"{s}leg_sideways", f"{_side(s)} leg sideways", "leg_sideways", "hw", False,
+        add("L", f"{s}leg_sideways", f"{_side(s)} leg sideways", "leg_sideways", "hl", False,
             lambda f, s=s, o=o: prim.normal_plane_distance(f(f"{o}hip"), f(f"{s}hip"), f(f"{s}hip"), f(f"{s}ankle")),
             f"nplane(normal {o}hip->{s}hip, through {s}hip) -> {s}ankle")
     add("L", "legs_crossed", "legs crossed", "crossed", "hw", False,
@@ -303,7 +303,7 @@ class RelationalFeatures(FeatureSet):
         foot_raised: tuple[float, float] = Field((1.0, 1.2), description="toes height above the lowest joint, humerus lengths")
         foot_fast: tuple[float, float] = Field((2.0, 2.5), description="toes speed, humerus lengths per second")
         bent_angle: tuple[float, float] = Field((120.0, 110.0), description="knee/elbow bent below this angle, degrees (paper: 120)")
-        leg_sideways: tuple[float, float] = Field((0.5, 0.75), description="ankle beyond its hip along the hip axis, hip widths")
+        leg_sideways: tuple[float, float] = Field((0.8, 1.0), description="ankle beyond its hip along the hip axis, humerus lengths (hip widths vary too much across skeletons)")
         crossed: tuple[float, float] = Field((0.0, 0.1), description="right ankle/wrist past the left one along the hip/shoulder axis, hip/shoulder widths")
         hand_front: tuple[float, float] = Field((1.0, 1.2), description="offset of the body plane (root, shoulders) to the front, humerus lengths (paper: 1)")
         hand_raised: tuple[float, float] = Field((0.0, 0.2), description="wrist above the neck along chest->neck, humerus lengths (paper: neck height)")

@@ -28,7 +28,7 @@ from mocapflow.framework.skeleton import Skeleton
 
 from ._asf import read_asf as _read_asf_uncached
 from ._asf import write_asf
-from ._common import check_text, euler_extrinsic, euler_extrinsic_inverse, file_metadata, read_bytes
+from ._common import check_text, euler_extrinsic_inverse, file_metadata, read_bytes
 
 __all__ = ["AmcFormat", "read_amc", "read_asf", "write_amc", "write_asf", "find_asf"]
 
@@ -140,7 +140,7 @@ def _fast_values(data, tok, bones, width):
         return None
     if not np.array_equal(vals[:, 0], vals[0, 0] + np.arange(t)):
         return None
-    return {b: vals[:, c:c + k] for b, c, k in bones}, t
+    return vals, t
 
 
 def _slow_values(path, data, tok, bones):
@@ -191,7 +191,11 @@ def _slow_values(path, data, tok, bones):
             raise ParseError(path, last, f"frame {frame} is incomplete ({what}): expected bones {', '.join(missing[:5])}"
                              + ("..." if len(missing) > 5 else ""))
     t = len(out[order[0]]) if order else 0
-    return {b: np.array(out[b]).reshape(t, count[b]) for b in order}, t
+    width = 1 + sum(1 + k for k in count.values())
+    table = np.zeros((t, width))
+    for b, c, k in bones:
+        table[:, c:c + k] = np.array(out[b]).reshape(t, k)
+    return table, t
 
 
 def read_amc(
@@ -241,10 +245,10 @@ def read_amc(
     tok = tokenize(buf, start, first_line)
     bones, width = _layout(path, data, tok, skeleton)
     fast = _fast_values(data, tok, bones, width)
-    per_bone, t = fast if fast is not None else _slow_values(path, data, tok, bones)
+    table, t = fast if fast is not None else _slow_values(path, data, tok, bones)
     if t == 0:
         raise ParseError(path, first_line, "expected at least one frame")
-    root_t, rot = _to_motion_arrays(skeleton, per_bone, t, degrees)
+    root_t, rot = _to_motion_arrays(skeleton, table, bones, degrees)
     meta = file_metadata(path, data, "amc")
     meta.update(subject=_subject(path), source_fps=float(fps), source_frames=int(t),
                 skeleton_path=str(skel_path) if skel_path else skeleton.meta.get("path", ""),
@@ -252,27 +256,33 @@ def read_amc(
     return Motion(skeleton=skeleton, root_translation=root_t, rotations=rot, fps=fps, name=path.stem, metadata=meta)
 
 
-def _to_motion_arrays(skeleton: Skeleton, per_bone: dict[str, np.ndarray], t: int, degrees: bool):
+def _to_motion_arrays(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool):
+    """Root translation (T, 3) metres and local rotations (T, J, 4) from the frame table.
+
+    ``bones`` lists (name, first column, count) of the table's bone values. Rotations
+    are ``C M C^-1`` with ``M`` the dof rotations about fixed axes in listed order
+    (:func:`._kernels.euler_table_to_quat`).
+    """
+    from ._kernels import euler_table_to_quat
+
     scale = float(skeleton.meta.get("length_scale", 0.0254 / 0.45))
-    rot = np.zeros((t, skeleton.n_joints, 4))
-    rot[..., 0] = 1.0
-    root_t = np.zeros((t, 3))
-    axes = skeleton.axes
-    for j, name in enumerate(skeleton.names):
-        vals = per_bone.get(name)
-        if vals is None:
-            continue
-        ch = skeleton.channels[j]
-        if j == 0:
-            for c, col in zip(ch, vals.T):
-                if c[0] == "T":
-                    root_t[:, "XYZ".index(c[1])] = col * scale
-            ridx = [k for k, c in enumerate(ch) if c[0] == "R"]
-            m = euler_extrinsic(vals[:, ridx], "".join(ch[k][1].lower() for k in ridx), degrees)
-        else:
-            m = euler_extrinsic(vals, "".join(c[1] for c in ch), degrees)
-        c_ = axes[j]
-        rot[:, j] = quat.mul(quat.mul(c_, m), quat.conjugate(c_))
+    n_j = skeleton.n_joints
+    cols = np.full((n_j, 3), -1, dtype=np.int64)
+    axis_id = np.zeros((n_j, 3), dtype=np.int64)
+    root_t = np.zeros((len(table), 3))
+    index = {n: j for j, n in enumerate(skeleton.names)}
+    for name, c0, _k in bones:
+        j = index[name]
+        n_rot = 0
+        for c, ch in enumerate(skeleton.channels[j], start=c0):
+            if ch[0] == "T":  # root translation channel
+                root_t[:, "XYZ".index(ch[1])] = table[:, c] * scale
+            else:
+                cols[j, n_rot] = c
+                axis_id[j, n_rot] = "xyz".index(ch[1].lower())
+                n_rot += 1
+    rot = euler_table_to_quat(np.ascontiguousarray(table), cols, axis_id, np.ascontiguousarray(skeleton.axes),
+                              np.pi / 180.0 if degrees else 1.0, True)
     return root_t, rot
 
 

@@ -18,7 +18,7 @@ _U32 = 2.0 ** -24
 
 def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: np.ndarray, k: int, r2: float,
               groups: np.ndarray, frames: np.ndarray, qgroups: np.ndarray, qframes: np.ndarray,
-              excl: int, ids: np.ndarray | None = None, block_rows: int = 65536, block_queries: int = 64) -> tuple[np.ndarray, np.ndarray]:
+              excl: int, ids: np.ndarray | None = None, block_rows: int = 32768, block_queries: int = 128) -> tuple[np.ndarray, np.ndarray]:
     """Exact kNN by blocks (see module doc).
 
     Parameters
@@ -45,12 +45,13 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
     for q0 in range(0, m, block_queries):
         q_orig = queries[q0:q0 + block_queries]
         q = q_orig - mean
-        qn = np.einsum("ij,ij->i", q, q)
-        tol = 2.0 * (d + 2) * _U32 * (qn.astype(np.float64) + ymax) + 1e-30
         nq = len(q)
-        kth = np.full(nq, np.inf)  # running approximate k-th distance (upper bound on the true one + tol)
-        cand: list[list[np.ndarray]] = [[] for _ in range(nq)]
-        cval: list[list[np.ndarray]] = [[] for _ in range(nq)]
+        qn = np.einsum("ij,ij->i", q, q)
+        tol2 = 2.0 * (2.0 * (d + 2) * _U32 * (qn.astype(np.float64) + ymax)) + 1e-30
+        kth = np.full(nq, np.inf)  # k-th smallest approximate distance among the candidates
+        cr = np.zeros(0, np.int64)  # candidates: query row, stored row, approximate distance
+        cc = np.zeros(0, np.int64)
+        cv = np.zeros(0, np.float32)
         for y0 in range(0, n, block_rows):
             y = data[y0:y0 + block_rows] - mean
             a = q @ y.T
@@ -61,29 +62,33 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
                 bad = (groups[None, y0:y0 + block_rows] == qgroups[q0:q0 + nq, None]) & (
                     np.abs(frames[None, y0:y0 + block_rows] - qframes[q0:q0 + nq, None]) <= excl)
                 a[bad] = np.inf
-            # the block's k-th approximate distance bounds the k-th overall only if it has k rows
-            part = np.partition(a, k - 1, axis=1)[:, k - 1] if a.shape[1] >= k else np.full(nq, np.inf)
-            for r in range(nq):
-                thr = min(kth[r], float(part[r])) + 2.0 * tol[r]
-                thr = min(thr, r2 + 2.0 * tol[r])
-                sel = np.flatnonzero(a[r] <= thr)
-                if sel.size:
-                    cand[r].append(sel + y0)
-                    cval[r].append(a[r, sel])
-                    allv = np.concatenate(cval[r])
-                    if allv.size >= k:
-                        kth[r] = float(np.partition(allv, k - 1)[k - 1])
-                        keep = allv <= kth[r] + 2.0 * tol[r]
-                        kept = np.concatenate(cand[r])[keep]
-                        cand[r], cval[r] = [kept], [allv[keep]]
-        width = max((sum(len(c) for c in cs) for cs in cand), default=0)
+            thr = kth + tol2
+            need = ~np.isfinite(kth)
+            # rows still short of k candidates: the block's k-th value bounds the k-th overall
+            if need.any() and a.shape[1] >= k:
+                part = np.partition(a[need], k - 1, axis=1)[:, k - 1]
+                thr[need] = np.minimum(thr[need], part + tol2[need])
+            thr = np.minimum(thr, r2 + tol2)
+            rr, col = np.nonzero(a <= thr[:, None].astype(np.float32))
+            cr = np.concatenate([cr, rr])
+            cc = np.concatenate([cc, col + y0])
+            cv = np.concatenate([cv, a[rr, col]])
+            # new k-th approximate value per row, then drop candidates that cannot make it
+            order = np.lexsort((cv, cr))
+            cr, cc, cv = cr[order], cc[order], cv[order]
+            counts = np.bincount(cr, minlength=nq)
+            first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            has = counts >= k
+            kth[has] = cv[first[has] + k - 1]
+            keep = cv <= (kth + tol2)[cr]
+            cr, cc, cv = cr[keep], cc[keep], cv[keep]
+        counts = np.bincount(cr, minlength=nq)
+        width = int(counts.max()) if len(cr) else 0
         if width == 0:
             continue
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])
         rows = np.full((nq, width), -1, np.int64)
-        for r in range(nq):
-            if cand[r]:
-                got = np.concatenate(cand[r])
-                rows[r, :len(got)] = got
+        rows[cr, np.arange(len(cr)) - first[cr]] = cc
         ex = kern.exact_sqdist(q_orig, data, rows)
         ex[ex > r2] = np.inf
         mapped = rows if ids is None else np.where(rows < 0, -1, ids[np.maximum(rows, 0)])

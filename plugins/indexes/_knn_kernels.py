@@ -137,10 +137,47 @@ def _heap_replace(hd, hi, dist, idx):
 
 
 @njit(cache=True)
-def _search(node, rd, off, q, data, perm, start, end, left, right, sdim, sval,
-            groups, frames, qg, qf, excl, hd, hi, eps_fac, r2):
-    if left[node] < 0:
-        d = data.shape[1]
+def _search(q, data, perm, start, end, left, right, sdim, sval, groups, frames, qg, qf, excl,
+            hd, hi, eps_fac, r2, st_node, st_rd, st_off, cur_off):
+    """Depth-first search with an explicit stack (numba cannot cache recursive functions).
+
+    Each stacked far cell carries its incremental-distance vector ``off`` (per-dimension
+    distance from the query to the cell) and its squared lower bound ``rd``.
+    """
+    d = data.shape[1]
+    top = 1
+    st_node[0] = 0
+    st_rd[0] = 0.0
+    for j in range(d):
+        st_off[0, j] = 0.0
+    while top > 0:
+        top -= 1
+        node = st_node[top]
+        rd = st_rd[top]
+        bound = hd[0] if hd[0] < r2 else r2
+        # the bound may have shrunk since the cell was stacked; tiny relative slack so that the
+        # incremental bound never prunes an exactly tied point
+        if rd * eps_fac > bound * (1.0 + 1e-9):
+            continue
+        for j in range(d):
+            cur_off[j] = st_off[top, j]
+        while left[node] >= 0:
+            dim = sdim[node]
+            diff = q[dim] - np.float64(sval[node])
+            if diff < 0.0:
+                near, far = left[node], right[node]
+            else:
+                near, far = right[node], left[node]
+            old = cur_off[dim]
+            rd_far = rd - old * old + diff * diff
+            if rd_far * eps_fac <= bound * (1.0 + 1e-9):
+                st_node[top] = far
+                st_rd[top] = rd_far
+                for j in range(d):
+                    st_off[top, j] = cur_off[j]
+                st_off[top, dim] = diff
+                top += 1
+            node = near
         for t in range(start[node], end[node]):
             if excl >= 0 and groups[t] == qg and abs(frames[t] - qf) <= excl:
                 continue
@@ -153,49 +190,31 @@ def _search(node, rd, off, q, data, perm, start, end, left, right, sdim, sval,
                     break
             if acc <= bound and _before(acc, perm[t], hd[0], hi[0]):
                 _heap_replace(hd, hi, acc, perm[t])
-        return 0
-    dim = sdim[node]
-    diff = q[dim] - np.float64(sval[node])
-    if diff < 0.0:
-        near, far = left[node], right[node]
-    else:
-        near, far = right[node], left[node]
-    _search(near, rd, off, q, data, perm, start, end, left, right, sdim, sval,
-            groups, frames, qg, qf, excl, hd, hi, eps_fac, r2)
-    old = off[dim]
-    rd_far = rd - old * old + diff * diff
-    bound = hd[0] if hd[0] < r2 else r2
-    # tiny relative slack: the incremental bound must never prune an exactly tied point
-    if rd_far * eps_fac <= bound * (1.0 + 1e-9):
-        off[dim] = diff
-        _search(far, rd_far, off, q, data, perm, start, end, left, right, sdim, sval,
-                groups, frames, qg, qf, excl, hd, hi, eps_fac, r2)
-        off[dim] = old
-    return 0
 
 
 @njit(cache=True, parallel=True)
 def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, sval,
-               groups, frames, qgroups, qframes, excl):
+               groups, frames, qgroups, qframes, excl, max_depth, n_chunks):
     """kNN of every query row; returns squared distances (float64) and row ids, sorted."""
     m, d = queries.shape
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     eps_fac = (1.0 + eps) * (1.0 + eps)
-    n_chunks = min(m, 4 * numba.get_num_threads())
     for c in prange(n_chunks):
         hd = np.empty(k)
         hi = np.empty(k, np.int64)
-        off = np.zeros(d)
+        st_node = np.empty(max_depth + 2, np.int64)
+        st_rd = np.empty(max_depth + 2)
+        st_off = np.empty((max_depth + 2, d))
+        cur_off = np.empty(d)
         q = np.empty(d)
         for r in range(c * m // n_chunks, (c + 1) * m // n_chunks):
             hd[:] = np.inf
             hi[:] = _IMAX
-            off[:] = 0.0
             for j in range(d):
                 q[j] = queries[r, j]
-            _search(0, 0.0, off, q, data, perm, start, end, left, right, sdim, sval,
-                    groups, frames, qgroups[r], qframes[r], excl, hd, hi, eps_fac, r2)
+            _search(q, data, perm, start, end, left, right, sdim, sval, groups, frames,
+                    qgroups[r], qframes[r], excl, hd, hi, eps_fac, r2, st_node, st_rd, st_off, cur_off)
             order = np.argsort(hd, kind="mergesort")  # heap -> ascending; ids break ties below
             for a in range(k):
                 out_d[r, a] = hd[order[a]]
@@ -211,6 +230,20 @@ def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, s
                     out_i[r, a] = -1
                     out_d[r, a] = np.inf
     return out_d, out_i
+
+
+@njit(cache=True)
+def tree_depth(left, right):
+    """Depth of the deepest node (children are always created after their parent)."""
+    depth = np.zeros(left.shape[0], np.int64)
+    best = 0
+    for node in range(left.shape[0]):
+        if left[node] >= 0:
+            depth[left[node]] = depth[node] + 1
+            depth[right[node]] = depth[node] + 1
+            if depth[node] + 1 > best:
+                best = depth[node] + 1
+    return best
 
 
 @njit(cache=True, parallel=True)
@@ -237,3 +270,7 @@ def set_threads(workers: int | None) -> int:
     n = numba.config.NUMBA_NUM_THREADS if workers is None or workers < 1 else min(workers, numba.config.NUMBA_NUM_THREADS)
     numba.set_num_threads(n)
     return prev
+
+
+def threads() -> int:
+    return numba.get_num_threads()

@@ -104,6 +104,7 @@ class KDTreeIndex(Index):
         perm, start, end, left, right, sdim, sval = kern.build_tree(x, self.params.leafsize) if n else (
             np.zeros(0, np.int64), *(np.zeros(1, np.int64),) * 2, *(np.full(1, -1, np.int64),) * 2,
             np.zeros(1, np.int32), np.zeros(1, np.float32))
+        self._inv = self._depth = None
         self.data_ = x[perm]
         self.perm_, self.groups_, self.frames_ = perm, g[perm], f[perm]
         self.start_, self.end_, self.left_, self.right_, self.sdim_, self.sval_ = start, end, left, right, sdim, sval
@@ -206,9 +207,17 @@ class KDTreeIndex(Index):
                                   qg, qf, excl, ids=self.perm_)
                 return d2, t
             return kern.query_tree(q, k, eps, r2, self.data_, self.perm_, self.start_, self.end_, self.left_,
-                                   self.right_, self.sdim_, self.sval_, self.groups_, self.frames_, qg, qf, excl)
+                                   self.right_, self.sdim_, self.sval_, self.groups_, self.frames_, qg, qf, excl,
+                                   self._max_depth(), min(m, 4 * kern.threads()))
         finally:
             kern.set_threads(prev)
+
+    def _max_depth(self) -> int:
+        from . import _knn_kernels as kern
+
+        if getattr(self, "_depth", None) is None:
+            self._depth = int(kern.tree_depth(self.left_, self.right_))
+        return self._depth
 
     def _check_built(self) -> None:
         if not hasattr(self, "data_"):

@@ -20,7 +20,11 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, fastmath=False)
+# reassociation lets the distance loops vectorise; no "nnan"/"ninf": the DP relies on inf
+_FAST = {"reassoc", "contract", "nsz", "arcp"}
+
+
+@njit(cache=True, fastmath=_FAST)
 def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
     """Accumulated cost of the best path ending in every database row.
 
@@ -53,20 +57,23 @@ def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
     cur_c = np.empty(m)
     cur_s = np.empty(m, np.int64)
     cur_l = np.empty(m, np.int32)
-    col = np.empty(m, np.float64)
+    col = np.empty(m, np.float32)
     for j in range(n):
-        # local distances of row j to every query frame (vectorises over i)
+        # local distances of row j to every query frame, float32 like the index's
+        # (vectorises over i); accumulated in float64 below
         for i in range(m):
             col[i] = 0.0
         for k in range(d):
-            xk = np.float64(x[j, k])
+            xk = x[j, k]
             for i in range(m):
-                t = np.float64(qt[k, i]) - xk
+                t = qt[k, i] - xk
                 col[i] += t * t
+        for i in range(m):
+            col[i] = np.sqrt(col[i])
         if clip_start[j]:
             for i in range(m):
                 prev_c[i] = inf
-        cur_c[0] = np.sqrt(col[0])
+        cur_c[0] = col[0]
         cur_s[0] = j
         cur_l[0] = 1
         for i in range(1, m):
@@ -81,7 +88,7 @@ def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
                 b = cur_c[i - 1]
                 s = cur_s[i - 1]
                 ln = cur_l[i - 1]
-            cur_c[i] = b + np.sqrt(col[i])
+            cur_c[i] = b + col[i]
             cur_s[i] = s
             cur_l[i] = ln + 1
         cost[j] = cur_c[m - 1]
@@ -119,11 +126,11 @@ def dtw_window_path(q, w):  # pragma: no cover - compiled
     step = np.zeros((m, n), np.int8)  # 0 diagonal, 1 vertical, 2 horizontal, 3 start
     for j in range(n):
         for i in range(m):
-            s = 0.0
+            s = np.float32(0.0)  # same float32 arithmetic as sdtw_forward
             for k in range(d):
-                t = np.float64(q[i, k]) - np.float64(w[j, k])
+                t = q[i, k] - w[j, k]
                 s += t * t
-            c = np.sqrt(s)
+            c = np.float64(np.sqrt(s))
             if i == 0:
                 if j == 0:
                     acc[0, 0] = c

@@ -84,6 +84,30 @@ class QueryMatches:
         return len(self.cost)
 
 
+class IntervalSet:
+    """Disjoint closed row intervals ``[start, end]``, sorted; O(log n) overlap tests."""
+
+    def __init__(self) -> None:
+        self._lo: list[int] = []
+        self._hi: list[int] = []
+
+    def overlaps(self, start: int, end: int) -> bool:
+        pos = bisect.bisect_right(self._lo, end)  # intervals starting at or before end
+        return bool(pos) and self._hi[pos - 1] >= start
+
+    def add(self, start: int, end: int) -> bool:
+        """Insert unless it overlaps one already there; whether it was inserted."""
+        if self.overlaps(start, end):
+            return False
+        pos = bisect.bisect_right(self._lo, end)
+        self._lo.insert(pos, start)
+        self._hi.insert(pos, end)
+        return True
+
+    def __len__(self) -> int:
+        return len(self._lo)
+
+
 def select_matches(end: np.ndarray, start: np.ndarray, cost: np.ndarray, length: np.ndarray, *,
                    count: int, max_cost: float | None, rank_by: str) -> np.ndarray:
     """Greedy ranked, non-overlapping choice among candidate path ends.
@@ -103,8 +127,7 @@ def select_matches(end: np.ndarray, start: np.ndarray, cost: np.ndarray, length:
         ok &= key <= max_cost
     cand = np.flatnonzero(ok)
     kept: list[int] = []
-    lo: list[int] = []  # kept intervals, sorted by start, disjoint
-    hi: list[int] = []
+    taken = IntervalSet()
     chunk = max(64, 32 * count)
     while cand.size and len(kept) < count:
         # the chunk best candidates, in order (argpartition keeps this O(n) for sDTW)
@@ -115,12 +138,8 @@ def select_matches(end: np.ndarray, start: np.ndarray, cost: np.ndarray, length:
             head, cand = cand, cand[:0]
         head = head[np.lexsort((end[head], key[head]))]
         for c in head:
-            s, e = int(start[c]), int(end[c])
-            pos = bisect.bisect_right(lo, e)  # kept intervals starting at or before e
-            if pos and hi[pos - 1] >= s:
+            if not taken.add(int(start[c]), int(end[c])):
                 continue
-            lo.insert(pos, s)
-            hi.insert(pos, e)
             kept.append(int(c))
             if len(kept) == count:
                 break

@@ -1,0 +1,202 @@
+"""The conformance suite that every component (built-in or third-party) should pass.
+
+In the spirit of scikit-learn's ``parametrize_with_checks``::
+
+    from mocapflow.framework.testing import parametrize_with_checks
+    from my_plugin import MyFeatures, MyMatcher
+
+    @parametrize_with_checks([MyFeatures, MyMatcher])
+    def test_conformance(component_class, check):
+        check(component_class)
+
+Components whose ``Params`` have required fields may define a class attribute
+``test_params`` (a dict) used to build an instance for the checks that need one.
+Synthetic data for tests (:func:`synthetic_skeleton`, :func:`synthetic_motion`) lives here
+too, so third parties test with the same humanoid as mocapflow itself.
+"""
+from __future__ import annotations
+
+import pickle
+import tempfile
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+from . import quaternions as quat
+from .components import Component, FeatureSet, Format, Index, Params
+from .database import MotionDatabase
+from .joints import CANONICAL_JOINTS
+from .motion import Motion
+from .registry import KINDS
+from .skeleton import Skeleton
+
+
+# joint, parent, offset (metres, y up, facing +z, left = +x)
+_BONES = [
+    ("root", None, (0, 0, 0)),
+    ("lhip", "root", (0.1, -0.05, 0)), ("lknee", "lhip", (0, -0.42, 0)), ("lankle", "lknee", (0, -0.42, 0)), ("ltoes", "lankle", (0, -0.05, 0.12)),
+    ("rhip", "root", (-0.1, -0.05, 0)), ("rknee", "rhip", (0, -0.42, 0)), ("rankle", "rknee", (0, -0.42, 0)), ("rtoes", "rankle", (0, -0.05, 0.12)),
+    ("lowerback", "root", (0, 0.1, 0)), ("upperback", "lowerback", (0, 0.12, 0)), ("chest", "upperback", (0, 0.12, 0)),
+    ("neck", "chest", (0, 0.12, 0)), ("head", "neck", (0, 0.08, 0)), ("headtop", "head", (0, 0.18, 0)),
+    ("lclavicle", "chest", (0.03, 0.08, 0)), ("lshoulder", "lclavicle", (0.15, 0, 0)), ("lelbow", "lshoulder", (0.28, 0, 0)),
+    ("lwrist", "lelbow", (0.25, 0, 0)), ("lfingers", "lwrist", (0.08, 0, 0)),
+    ("rclavicle", "chest", (-0.03, 0.08, 0)), ("rshoulder", "rclavicle", (-0.15, 0, 0)), ("relbow", "rshoulder", (-0.28, 0, 0)),
+    ("rwrist", "relbow", (-0.25, 0, 0)), ("rfingers", "rwrist", (-0.08, 0, 0)),
+]
+
+
+def synthetic_skeleton() -> Skeleton:
+    """A 25-joint T-pose skeleton whose joint names are the canonical names."""
+    names = [b[0] for b in _BONES]
+    parents = [-1 if b[1] is None else names.index(b[1]) for b in _BONES]
+    offsets = np.array([b[2] for b in _BONES], dtype=float)
+    canonical = {n: i for i, n in enumerate(names) if n in CANONICAL_JOINTS}
+    return Skeleton(tuple(names), np.array(parents), offsets, canonical=canonical, name="synthetic")
+
+
+def synthetic_motion(n_frames: int = 60, fps: float = 30.0, seed: int = 0, amplitude_deg: float = 30.0) -> Motion:
+    """Smooth random joint rotations (sums of sines) and a walking root."""
+    rng = np.random.default_rng(seed)
+    sk = synthetic_skeleton()
+    t = np.arange(n_frames) / fps
+    freq = rng.uniform(0.3, 2.0, size=(sk.n_joints, 3))
+    phase = rng.uniform(0, 2 * np.pi, size=(sk.n_joints, 3))
+    angles = amplitude_deg * np.sin(2 * np.pi * freq[None] * t[:, None, None] + phase[None])
+    rot = quat.from_euler(angles, "zxy")
+    root = np.stack([0.3 * t, 0.95 + 0.02 * np.sin(4 * t), 1.2 * t], axis=1)
+    return Motion(sk, root, rot, fps, name=f"synthetic{seed}", metadata={"format": "synthetic"})
+
+
+# --- checks -----------------------------------------------------------------------------
+
+def _instance(cls: type[Component]) -> Component | None:
+    """An instance with default or ``test_params``; None when required params are unknown."""
+    params = getattr(cls, "test_params", None)
+    try:
+        return cls(cls.Params(**(params or {})))
+    except ValidationError:
+        return None
+
+
+def check_declaration(cls: type[Component]) -> None:
+    """Name, kind, version, docstring and input slots are declared properly."""
+    assert issubclass(cls, Component), f"{cls} does not derive from mocapflow.framework.Component"
+    assert cls.kind in KINDS, f"{cls.__name__}.kind {cls.kind!r} is not one of {KINDS}"
+    assert isinstance(cls.name, str) and cls.name.isidentifier() and cls.name == cls.name.lower(), \
+        f"{cls.__name__}.name {cls.name!r} must be a snake_case identifier"
+    assert isinstance(cls.version, str) and cls.version, f"{cls.__name__}.version must be a non-empty str"
+    assert (cls.__doc__ or "").strip(), f"{cls.__name__} needs a docstring (its first line is shown by `mocapflow plugins`)"
+    assert isinstance(cls.inputs, Mapping) and all(isinstance(k, str) and isinstance(v, bool) for k, v in cls.inputs.items()), \
+        f"{cls.__name__}.inputs must map slot names to required flags"
+
+
+def check_params_model(cls: type[Component]) -> None:
+    """``Params`` is a frozen pydantic model that rejects unknown keys."""
+    assert isinstance(cls.Params, type) and issubclass(cls.Params, Params), \
+        f"{cls.__name__}.Params must subclass mocapflow.framework.Params"
+    assert cls.Params.model_config.get("frozen"), f"{cls.__name__}.Params must be frozen"
+    assert cls.Params.model_config.get("extra") == "forbid", f"{cls.__name__}.Params must forbid unknown keys"
+    try:
+        cls.Params(**{**(getattr(cls, "test_params", None) or {}), "surely_not_a_parameter__": 1})
+    except ValidationError:
+        pass
+    else:  # pragma: no cover - reached only by a broken component
+        raise AssertionError(f"{cls.__name__}.Params accepted an unknown key")
+
+
+def check_init_and_clone(cls: type[Component]) -> None:
+    """``__init__`` only stores params; ``get_params`` round-trips; clones and pickles are equal."""
+    inst = _instance(cls)
+    if inst is None:
+        return
+    assert inst.params == cls(inst.get_params()).params, f"{cls.__name__}: get_params() does not round-trip"
+    assert inst.clone().params == inst.params
+    fitted = [k for k in vars(inst) if k.endswith("_") and not k.startswith("_")]
+    assert not fitted, f"{cls.__name__}.__init__ sets fitted attributes {fitted}: fit state belongs to fit()/build()"
+    again = pickle.loads(pickle.dumps(inst))
+    assert again.params == inst.params, f"{cls.__name__} does not survive pickling (needed by process pools)"
+
+
+def check_feature_set(cls: type[Component]) -> None:
+    """Transform gives (T, dim) finite float32, deterministic, clip by clip."""
+    if not issubclass(cls, FeatureSet):
+        return
+    inst = _instance(cls)
+    if inst is None:
+        return
+    db = MotionDatabase([synthetic_motion(50, seed=1), synthetic_motion(1, seed=2), synthetic_motion(20, seed=3)])
+    if cls.requires_fit:
+        inst.fit(db)
+    x = inst.transform(db)
+    assert x.dtype == np.float32 and x.shape == (db.n_frames, inst.dim), f"{cls.__name__}: got {x.dtype} {x.shape}"
+    assert np.all(np.isfinite(x)), f"{cls.__name__}: non-finite features"
+    np.testing.assert_array_equal(x[db.offsets[2]:], inst.transform(db.motions[2]), err_msg="features must not depend on other clips")
+
+
+def check_index(cls: type[Component]) -> None:
+    """Exact kNN equals brute force; results are sorted and padded; save/load keeps answers."""
+    if not issubclass(cls, Index):
+        return
+    inst = _instance(cls)
+    if inst is None or type(inst).query is Index.query:
+        return
+    rng = np.random.default_rng(0)
+    data = rng.normal(size=(300, 6)).astype(np.float32)
+    q = rng.normal(size=(7, 6)).astype(np.float32)
+    inst.build(data)
+    dist, ids = inst.query(q, 5)
+    assert dist.shape == ids.shape == (7, 5)
+    brute = np.sqrt(((q[:, None, :].astype(np.float64) - data[None].astype(np.float64)) ** 2).sum(-1))
+    np.testing.assert_allclose(dist, np.sort(brute, axis=1)[:, :5], rtol=1e-4, atol=1e-4)
+    assert np.all(np.diff(dist, axis=1) >= 0)
+    with tempfile.TemporaryDirectory() as tmp:
+        inst.save(Path(tmp))
+        loaded = type(inst).load(Path(tmp))
+        d2, i2 = loaded.query(q, 5)
+    np.testing.assert_allclose(d2, dist, rtol=1e-6)
+
+
+def check_format_round_trip(cls: type[Component]) -> None:
+    """A writer's output read back by the same format gives the same joint positions."""
+    if not (issubclass(cls, Format) and cls.can_write() and cls.read is not Format.read and cls.produces == "motion"):
+        return
+    inst = _instance(cls)
+    if inst is None or not cls.extensions:
+        return
+    m = synthetic_motion(10, seed=4)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"clip{cls.extensions[0]}"
+        try:
+            inst.write(m, path)
+        except NotImplementedError:
+            return
+        back = inst.read(path)
+    assert back.n_frames == m.n_frames
+    np.testing.assert_allclose(back.canonical_positions(), m.canonical_positions(), atol=1e-4)
+
+
+CHECKS: tuple[Callable[[type[Component]], None], ...] = (
+    check_declaration, check_params_model, check_init_and_clone, check_feature_set, check_index, check_format_round_trip,
+)
+
+
+def check_component(cls: type[Component]) -> None:
+    """Run every check on one component class (raises AssertionError on the first failure)."""
+    for check in CHECKS:
+        check(cls)
+
+
+def parametrize_with_checks(classes: Iterable[type[Component]]) -> Any:
+    """A ``pytest.mark.parametrize`` over (component_class, check) pairs."""
+    import pytest
+
+    classes = list(classes)
+    cases = [(cls, check) for cls in classes for check in CHECKS]
+    ids = [f"{cls.kind}.{cls.name}-{check.__name__}" for cls, check in cases]
+    return pytest.mark.parametrize("component_class, check", cases, ids=ids)
+
+
+__all__ = ["CHECKS", "check_component", "parametrize_with_checks", "synthetic_motion", "synthetic_skeleton"]

@@ -1,0 +1,347 @@
+"""``analyses.reconstruct``: full-body motion from sparse markers (Krüger et al. 2010, §5.2).
+
+The approach of Chai & Hodgins (2005) with the neighbourhood graph replaced by kNN
+searches in a feature space, run around the *newly synthesised* pose:
+
+for every frame ``t`` (in order)
+    1. predict the pose from the synthesised poses ``t-1, t-2`` (constant velocity);
+    2. search the ``k`` nearest database poses around it on the chosen feature set;
+    3. fit a local linear model (local PCA, Gaussian prior on the coefficients) to them;
+    4. take the pose of that model which best explains the markers, the prior and the
+       prediction (temporal smoothness) -- a small linear least-squares problem;
+    5. search again around this synthesised pose and repeat 3-4 (``iterations``).
+
+Pose parameterisation (the design choice)
+    A pose is the vector of **root-normalised canonical joint positions** (root at the
+    origin, facing +z; metres), not joint rotations of one skeleton. Table 3 draws priors
+    from another database (HDM05 for CMU clips) and from other CMU subjects, whose ASF
+    skeletons differ in bone lengths and axes; canonical positions are shared by all of
+    them, the error is measured on positions anyway (as in the paper), and sparse marker
+    constraints are linear in them, so step 4 is closed-form. The heading and the ground
+    position come from the markers: the root marker places the pose, and the heading is the
+    yaw that best aligns the model's marker joints with the observed ones (2-D Procrustes,
+    alternated with step 4). The first frame's heading is found by a search over 24 yaws.
+
+Query features
+    The kNN runs on the rows of any registered feature set (``features.end_effectors``,
+    PCA, windowed...). A synthesised pose has positions but no clip around it, so its query
+    vector is an affine map of the pose fitted by least squares on the prior database
+    (exact for the frame-based position feature sets, the best affine stand-in for the
+    windowed ones); ``feature_fit_r2`` in the summary says how well it fits.
+
+Output Motion
+    The reconstructed positions are turned into joint rotations of the *test clip's*
+    skeleton by aiming every bone at its reconstructed canonical descendants (Kabsch per
+    joint, all frames at once), so ``formats.export`` writes them as BVH/AMC. Errors are
+    measured on the reconstructed positions; ``fk_avg_cm`` reports the exported Motion's.
+
+Tables: ``data``/``clips``/``skeletons`` (a motions dataset of the reconstructions),
+``errors`` (per clip and canonical joint: ``mean_cm, max_cm``) and ``clip_errors`` (per
+clip: ``avg_cm`` mean over joints and frames, ``max_cm`` largest per-frame mean joint error).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import pyarrow as pa
+from pydantic import Field
+
+from mocapflow.framework import (
+    Analysis, DataError, FeatureSet, Index, Motion, MotionDatabase, Params, Skeleton, StepContext, StepOutput,
+)
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.datasets import Dataset
+from mocapflow.framework.joints import CANONICAL_JOINTS
+from mocapflow.framework.normalize import facing_angles, rotate_about_y
+
+#: The paper's 6 markers: the 4 end effectors, the head and the root.
+DEFAULT_MARKERS: tuple[str, ...] = ("root", "head", "lwrist", "rwrist", "lankle", "rankle")
+
+
+def local_poses(positions: np.ndarray, joints: Sequence[str]) -> np.ndarray:
+    """Root-normalised poses: root at the origin, heading (from the hips) turned to +z.
+
+    positions : (T, P, 3) metres -> (T, P, 3) metres.
+    """
+    j = list(joints)
+    centred = positions - positions[:, j.index("root")][:, None, :]
+    return rotate_about_y(centred, -facing_angles(positions, j))
+
+
+def synthetic_markers(motion: Motion, markers: Sequence[str] = DEFAULT_MARKERS, noise: float = 0.001,
+                      rng: np.random.Generator | None = None) -> np.ndarray:
+    """Marker positions from a motion, each coordinate disturbed uniformly in ``±noise`` metres.
+
+    Returns ndarray of shape (T, len(markers), 3), metres (the paper: ±1 mm).
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    pos = motion.canonical_positions(tuple(markers))
+    if np.isnan(pos).any():
+        missing = [m for m, i in zip(markers, motion.skeleton.canonical_indices(tuple(markers))) if i < 0]
+        raise DataError(f"motion {motion.name!r} lacks marker joints {missing}")
+    return pos + rng.uniform(-noise, noise, pos.shape)
+
+
+@dataclass
+class PosePrior:
+    """The prior database as the reconstruction sees it.
+
+    Attributes
+    ----------
+    joints : tuple of str, P canonical joints of the pose vector
+    poses : ndarray of float32, shape (N, P*3), root-normalised positions, metres
+    features : ndarray of float32, shape (N, d), the kNN feature rows
+    index : Index, built on ``features``
+    feature_map : ndarray of shape (P*3 + 1, d), affine map pose -> query features
+    feature_fit_r2 : float, coefficient of determination of that map on the database
+    """
+
+    joints: tuple[str, ...]
+    poses: np.ndarray
+    features: np.ndarray
+    index: Index
+    feature_map: np.ndarray
+    feature_fit_r2: float
+
+    @classmethod
+    def build(cls, poses: np.ndarray, features: np.ndarray, index: Index, joints: Sequence[str]) -> PosePrior:
+        """Fit the query map and build ``index`` on ``features`` (rows aligned with ``poses``)."""
+        poses = np.ascontiguousarray(poses, np.float32).reshape(len(poses), -1)
+        features = np.ascontiguousarray(features, np.float32)
+        if len(poses) != len(features) or len(poses) < 2:
+            raise DataError(f"prior: {len(poses)} poses and {len(features)} feature rows (need equal, >= 2)")
+        if not (np.isfinite(poses).all() and np.isfinite(features).all()):
+            raise DataError("prior: poses or features contain NaN (a prior clip lacks a pose joint?)")
+        x = np.concatenate([poses, np.ones((len(poses), 1), np.float32)], 1).astype(np.float64)
+        f = features.astype(np.float64)
+        gram = x.T @ x
+        gram[np.diag_indices_from(gram)] += 1e-9 * np.trace(gram) / len(gram)  # ridge: poses are rank-deficient
+        fmap = np.linalg.solve(gram, x.T @ f)
+        resid = ((x @ fmap - f) ** 2).sum()
+        total = ((f - f.mean(0)) ** 2).sum()
+        r2 = float(1.0 - resid / total) if total > 0 else 1.0
+        index.build(features)
+        return cls(tuple(joints), poses, features, index, fmap, r2)
+
+    def query_features(self, pose: np.ndarray) -> np.ndarray:
+        """Query vector (1, d) float32 of one pose (P*3,)."""
+        return (pose @ self.feature_map[:-1] + self.feature_map[-1]).astype(np.float32)[None, :]
+
+
+def _yaw_align(model: np.ndarray, observed: np.ndarray) -> float:
+    """Yaw (radians) rotating ``model (M,3)`` onto ``observed (M,3)`` best in the ground plane."""
+    s = np.sum(observed[:, 0] * model[:, 2] - observed[:, 2] * model[:, 0])
+    c = np.sum(observed[:, 0] * model[:, 0] + observed[:, 2] * model[:, 2])
+    return float(np.arctan2(s, c))
+
+
+class ReconstructParams(Params):
+    features: str = Field("end_effectors", description="features component of the kNN search")
+    feature_params: dict = Field(default_factory=dict, description="parameters of that feature set")
+    index: str = Field("kdtree", description="indexes component of the kNN search")
+    markers: tuple[str, ...] = Field(DEFAULT_MARKERS, min_length=1, description="canonical marker joints (root needed)")
+    noise: float = Field(0.001, ge=0, description="uniform marker disturbance, metres (paper: 1 mm)")
+    k: int = Field(64, ge=2, description="neighbours of the local linear model")
+    energy: float = Field(0.95, gt=0, le=1, description="variance kept by the local PCA")
+    max_components: int = Field(20, ge=1, description="cap on local PCA components")
+    marker_sigma: float = Field(0.01, gt=0, description="marker misfit scale, metres (model error dominates the 1 mm noise)")
+    smooth_sigma: float = Field(0.02, gt=0, description="allowed deviation from the constant-velocity prediction, metres")
+    iterations: int = Field(2, ge=1, description="searches per frame (the 2nd around the synthesised pose)")
+    leave_out: Literal["clip", "subject", "none"] = Field(
+        "clip", description="prior clips withheld for each test clip: the same clip (by name), its subject, or none")
+    seed: int = Field(0, description="seed of the marker noise")
+
+
+def _local_model(nb: np.ndarray, energy: float, max_components: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean (D,), orthonormal basis (D, r) and variances (r,) of neighbour poses (K, D)."""
+    mu = nb.mean(0)
+    if len(nb) < 2:
+        return mu, np.zeros((len(mu), 0)), np.zeros(0)
+    _, s, vt = np.linalg.svd(nb - mu, full_matrices=False)
+    var = s * s / (len(nb) - 1)
+    total = var.sum()
+    if total <= 0:
+        return mu, np.zeros((len(mu), 0)), np.zeros(0)
+    r = int(np.searchsorted(np.cumsum(var) / total, energy - 1e-12) + 1)
+    r = min(r, max_components, int((var > 1e-12 * total).sum()))
+    return mu, vt[:r].T, var[:r]
+
+
+def reconstruct_positions(markers: np.ndarray, prior: PosePrior, params: ReconstructParams | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Reconstruct full poses from marker trajectories.
+
+    Parameters
+    ----------
+    markers : ndarray of shape (T, M, 3), metres
+        World positions of ``params.markers`` (which must include ``root``).
+    prior : PosePrior
+    params : ReconstructParams
+
+    Returns
+    -------
+    positions : ndarray of shape (T, P, 3), metres
+        World positions of ``prior.joints``.
+    heading : ndarray of shape (T,), radians
+    """
+    p = params or ReconstructParams()
+    markers = np.asarray(markers, np.float64)
+    joints = list(prior.joints)
+    if "root" not in p.markers or any(m not in joints for m in p.markers):
+        raise DataError(f"markers {list(p.markers)} must include 'root' and lie in the pose joints {joints}")
+    if markers.ndim != 3 or markers.shape[1:] != (len(p.markers), 3):
+        raise DataError(f"markers must be (T, {len(p.markers)}, 3), got {markers.shape}")
+    t_len, n_j = len(markers), len(joints)
+    sel = np.array([[3 * joints.index(m) + a for a in range(3)] for m in p.markers]).ravel()
+    root = markers[:, list(p.markers).index("root")]
+    rel = markers - root[:, None, :]
+    out = np.zeros((t_len, n_j * 3))
+    heading = np.zeros(t_len)
+    if t_len == 0:
+        return out.reshape(0, n_j, 3), heading
+    w_m, w_s = 1.0 / p.marker_sigma**2, 1.0 / p.smooth_sigma**2
+    theta, guess = _initial_pose(rel[0], prior.poses, sel)
+    k = min(p.k, len(prior.poses))
+    for t in range(t_len):
+        if t >= 2:
+            pred = 2 * out[t - 1] - out[t - 2]
+        elif t == 1:
+            pred = out[0]
+        else:
+            pred = None
+        if pred is not None:
+            guess, theta = pred, heading[t - 1]
+        for _ in range(p.iterations):
+            _, ids = prior.index.query(prior.query_features(guess), k)
+            nb = prior.poses[ids[0][ids[0] >= 0]].astype(np.float64)
+            mu, basis, var = _local_model(nb, p.energy, p.max_components)
+            bs = basis[sel]
+            lhs = w_m * bs.T @ bs + np.diag(1.0 / var)
+            if pred is not None:
+                lhs += w_s * np.eye(len(var))
+            for _ in range(2):  # alternate pose coefficients and heading
+                obs = rotate_about_y(rel[t][None], np.array([-theta]))[0].ravel()
+                rhs = w_m * bs.T @ (obs - mu[sel])
+                if pred is not None:
+                    rhs += w_s * basis.T @ (pred - mu)
+                guess = mu + basis @ np.linalg.solve(lhs, rhs) if len(var) else mu.copy()
+                theta = _yaw_align(guess[sel].reshape(-1, 3), rel[t])
+        out[t], heading[t] = guess, theta
+    world = rotate_about_y(out.reshape(t_len, n_j, 3), heading) + root[:, None, :]
+    return world, heading
+
+
+def _initial_pose(rel: np.ndarray, poses: np.ndarray, sel: np.ndarray, n_yaw: int = 24) -> tuple[float, np.ndarray]:
+    """Heading and nearest database pose for the first frame: markers (M,3) relative to the
+    root are compared with every database pose's marker joints under ``n_yaw`` headings."""
+    yaws = np.linspace(0, 2 * np.pi, n_yaw, endpoint=False)
+    cand = rotate_about_y(np.broadcast_to(rel, (n_yaw,) + rel.shape), -yaws).reshape(n_yaw, -1)
+    db = poses[:, sel].astype(np.float64)
+    d2 = (db * db).sum(1)[:, None] - 2 * db @ cand.T + (cand * cand).sum(1)[None, :]
+    row, col = np.unravel_index(int(np.argmin(d2)), d2.shape)
+    pose = poses[row].astype(np.float64)
+    return _yaw_align(pose[sel].reshape(-1, 3), rel), pose
+
+
+def joint_errors(recon: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Per-joint mean and max error (P,), overall average and max per-frame mean, all in cm.
+
+    recon, truth : (T, P, 3) metres; NaN joints of ``truth`` are ignored.
+    """
+    err = np.linalg.norm(recon - truth, axis=-1) * 100.0
+    ok = ~np.isnan(err)
+    with np.errstate(invalid="ignore"):
+        per_joint_mean = np.nanmean(np.where(ok, err, np.nan), 0)
+        per_joint_max = np.nanmax(np.where(ok, err, np.nan), 0)
+        frame_mean = np.nanmean(np.where(ok, err, np.nan), 1)
+    return per_joint_mean, per_joint_max, float(np.nanmean(frame_mean)), float(np.nanmax(frame_mean))
+
+
+def _aim_targets(skeleton: Skeleton, joints: Sequence[str]) -> list[list[tuple[int, np.ndarray]]]:
+    """Per joint: (pose column, rest vector from the joint) of the nearest canonical
+    descendant in each child subtree (the bones that joint's rotation must aim)."""
+    col = {skeleton.canonical[j]: i for i, j in enumerate(joints) if j in skeleton.canonical}
+    children = [skeleton.children(j) for j in range(skeleton.n_joints)]
+    aims: list[list[tuple[int, np.ndarray]]] = []
+    for j in range(skeleton.n_joints):
+        found = []
+        for c in children[j]:
+            frontier = [(c, skeleton.offsets[c])]
+            while frontier:  # breadth first: the nearest canonical joint of this subtree
+                hit = [(n, v) for n, v in frontier if n in col]
+                if hit:
+                    found += [(col[n], v) for n, v in hit]
+                    break
+                frontier = [(g, v + skeleton.offsets[g]) for n, v in frontier for g in children[n]]
+        aims.append([(i, v) for i, v in found if np.linalg.norm(v) > 1e-9])
+    return aims
+
+
+def positions_to_motion(skeleton: Skeleton, positions: np.ndarray, joints: Sequence[str], fps: float,
+                        name: str = "", metadata: dict | None = None) -> Motion:
+    """Joint rotations of ``skeleton`` that place its bones along target positions.
+
+    Every joint is turned, for all frames at once, so that its rest bone vectors point at
+    the target positions of its nearest canonical descendants: the minimal rotation from
+    the inherited direction for one descendant (twist kept from the parent), a Kabsch fit of
+    the directions for several (root, chest). Joints without canonical descendants keep
+    their rest rotation. Bone lengths stay the skeleton's.
+
+    Parameters
+    ----------
+    positions : ndarray of shape (T, P, 3), metres
+        World targets of canonical ``joints`` (must include ``root``, the skeleton's joint 0).
+    """
+    pos = np.asarray(positions, np.float64)
+    t_len = len(pos)
+    if skeleton.canonical.get("root") != 0 or "root" not in joints:
+        raise DataError(f"skeleton {skeleton.name!r}: reconstruction needs the canonical root at joint 0")
+    aims = _aim_targets(skeleton, joints)
+    glob = np.empty((t_len, skeleton.n_joints, 4))
+    world = np.empty((t_len, skeleton.n_joints, 3))
+    local = np.empty_like(glob)
+    world[:, 0] = pos[:, list(joints).index("root")]
+    for j in range(skeleton.n_joints):
+        par = skeleton.parents[j]
+        g_par = quat.identity((t_len,)) if par < 0 else glob[:, par]
+        if par >= 0:
+            world[:, j] = world[:, par] + quat.rotate(g_par, np.broadcast_to(skeleton.offsets[j], (t_len, 3)))
+        if not aims[j]:
+            glob[:, j] = g_par
+        elif len(aims[j]) == 1:
+            col, v = aims[j][0]
+            a = quat.rotate(g_par, np.broadcast_to(v, (t_len, 3)))
+            glob[:, j] = quat.mul(_between(a, pos[:, col] - world[:, j]), g_par)
+        else:
+            h = np.zeros((t_len, 3, 3))
+            for col, v in aims[j]:
+                w = pos[:, col] - world[:, j]
+                w = w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+                h += (v / np.linalg.norm(v))[None, :, None] * w[:, None, :]
+            u, _, vt = np.linalg.svd(h)
+            d = np.sign(np.linalg.det(np.swapaxes(vt, 1, 2) @ np.swapaxes(u, 1, 2)))
+            fix = np.ones((t_len, 3))
+            fix[:, 2] = d
+            rot = np.swapaxes(vt, 1, 2) @ (fix[:, :, None] * np.swapaxes(u, 1, 2))
+            glob[:, j] = quat.from_matrix(rot)
+        local[:, j] = glob[:, j] if par < 0 else quat.mul(quat.conjugate(g_par), glob[:, j])
+    local = quat.make_continuous(quat.normalize(local), axis=0)
+    return Motion(skeleton, world[:, 0], local, fps, name=name, metadata=dict(metadata or {}))
+
+
+def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Minimal rotations (T,4) taking directions ``a`` onto ``b`` (T,3); identity if degenerate."""
+    a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
+    b = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
+    q = np.concatenate([1.0 + (a * b).sum(1, keepdims=True), np.cross(a, b)], 1)
+    # opposite directions: any axis perpendicular to a
+    opp = q[:, 0] < 1e-9
+    if opp.any():
+        perp = np.cross(a[opp], np.array([1.0, 0.0, 0.0]))
+        small = np.linalg.norm(perp, axis=1) < 1e-6
+        perp[small] = np.cross(a[opp][small], np.array([0.0, 1.0, 0.0]))
+        q[opp] = np.concatenate([np.zeros((opp.sum(), 1)), perp], 1)
+    return quat.normalize(q)

@@ -1,0 +1,276 @@
+"""Inverted-list indexes of relational feature segments (Müller et al. 2005, §5.1 and §5.3).
+
+One index per feature set (F_l: 11 features, F_u: 12, F_m: 8). The database is one long
+document: its F-segmentation (maximal runs of equal feature vectors, split at clip
+boundaries) gives the segment sequence ``w_1 .. w_M``; the inverted list ``L(v)`` holds
+the positions ``k`` (0-based here) with ``w_k = v``, sorted ascending. Only non-empty lists
+are stored (at most ``2**f``).
+
+Build time is linear in the number of frames: segmentation is one vectorised pass and the
+lists come from a stable sort of the segment codes, which NumPy performs as a radix sort
+for integer keys of 16 bits or less (every set here has at most 12 bits).
+
+On disk (``<dataset>/index/``): per set ``<set>_segments.parquet`` (segment, clip_id,
+start_frame, end_frame exclusive, code) and ``<set>_lists.parquet`` (code, positions), plus
+``clips.parquet`` (clip_id, offset) and ``meta.json``.
+
+Query API
+---------
+This index does not answer the numeric kNN contract of :class:`Index` (``query`` raises);
+it is queried through :class:`SetIndex` (``positions(code)``, ``union(codes)``,
+``segment frame ranges``) by ``matchers.relational``, which implements exact, fuzzy,
+adaptive fuzzy and m-mismatch hits on top of it. Load it with ``InvertedIndex.load(dir)``
+or ``Dataset.index()``; ``index.sets["lower" | "upper" | "mixed"]`` is a :class:`SetIndex`.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from pydantic import Field
+
+from mocapflow.framework.components import Index, Params
+from mocapflow.framework.errors import ConfigError, DataError, PipelineError
+from mocapflow.plugins.features.relational import FEATURE_IDS, SET_SLICES, SETS
+from mocapflow.plugins.features.segmentation import offsets_from_clip_ids, pack_codes, segment_codes
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework.context import StepContext
+    from mocapflow.framework.datasets import Dataset, StepOutput
+
+
+@dataclass
+class SetIndex:
+    """The inverted lists of one feature set, with the segments they point to.
+
+    Attributes
+    ----------
+    name : str
+        ``lower``, ``upper`` or ``mixed``.
+    columns : ndarray of int, shape (f,)
+        Columns of the 31 relational features in this set (bit ``i`` of a code = ``columns[i]``).
+    seg_start, seg_end : ndarray of int64, shape (M,)
+        Global frame range ``[start, end)`` of each segment.
+    seg_code : ndarray of int64, shape (M,)
+    seg_clip : ndarray of int64, shape (M,)
+        Clip position of each segment.
+    clip_ids : ndarray of int32, shape (n_clips,)
+    clip_offsets : ndarray of int64, shape (n_clips + 1,)
+        Global frame id of each clip's first frame.
+    list_codes : ndarray of int64, shape (n_lists,)
+        Codes with a non-empty list, ascending.
+    list_offsets : ndarray of int64, shape (n_lists + 1,)
+    list_positions : ndarray of int64, shape (M,)
+        Concatenated inverted lists; list ``i`` is ``list_positions[list_offsets[i]:list_offsets[i+1]]``.
+    """
+
+    name: str
+    columns: np.ndarray
+    seg_start: np.ndarray
+    seg_end: np.ndarray
+    seg_code: np.ndarray
+    seg_clip: np.ndarray
+    clip_ids: np.ndarray
+    clip_offsets: np.ndarray
+    list_codes: np.ndarray
+    list_offsets: np.ndarray
+    list_positions: np.ndarray
+
+    @property
+    def n_segments(self) -> int:
+        return len(self.seg_start)
+
+    @property
+    def n_features(self) -> int:
+        return len(self.columns)
+
+    @classmethod
+    def build(cls, name: str, codes: np.ndarray, columns: np.ndarray, clip_ids: np.ndarray,
+              clip_offsets: np.ndarray) -> SetIndex:
+        """Segment frame codes and build the inverted lists (linear time)."""
+        seg = segment_codes(codes, clip_offsets)
+        dtype = np.uint16 if len(columns) <= 16 else np.int64
+        order = np.argsort(seg.code.astype(dtype), kind="stable")  # radix sort: linear
+        sorted_codes = seg.code[order]
+        brk = np.flatnonzero(np.r_[True, sorted_codes[1:] != sorted_codes[:-1]]) if len(order) else np.zeros(0, np.int64)
+        return cls(name, np.asarray(columns, np.int64), seg.start, seg.end, seg.code, seg.clip,
+                   np.asarray(clip_ids, np.int32), np.asarray(clip_offsets, np.int64),
+                   sorted_codes[brk].astype(np.int64), np.append(brk, len(order)).astype(np.int64),
+                   order.astype(np.int64))
+
+    def positions(self, code: int) -> np.ndarray:
+        """The inverted list ``L(code)``: sorted segment positions (empty if absent)."""
+        i = np.searchsorted(self.list_codes, code)
+        if i < len(self.list_codes) and self.list_codes[i] == code:
+            return self.list_positions[self.list_offsets[i]:self.list_offsets[i + 1]]
+        return self.list_positions[:0]
+
+    def union(self, codes: np.ndarray) -> np.ndarray:
+        """``L(V)``: the sorted union of the lists of a set of codes (eq. 11)."""
+        codes = np.asarray(codes, dtype=np.int64)
+        i = np.searchsorted(self.list_codes, codes)
+        ok = i < len(self.list_codes)
+        ok[ok] = self.list_codes[i[ok]] == codes[ok]
+        parts = [self.list_positions[self.list_offsets[j]:self.list_offsets[j + 1]] for j in i[ok]]
+        if not parts:
+            return self.list_positions[:0]
+        if len(parts) == 1:
+            return parts[0]
+        return np.sort(np.concatenate(parts))
+
+    @property
+    def clip_first(self) -> np.ndarray:
+        """True for each clip's first segment, shape (M,)."""
+        first = np.ones(self.n_segments, dtype=bool)
+        first[1:] = self.seg_clip[1:] != self.seg_clip[:-1]
+        return first
+
+    def nbytes(self) -> int:
+        """In-memory size of the index arrays (segments and lists), bytes."""
+        return sum(a.nbytes for a in (self.seg_start, self.seg_end, self.seg_code, self.seg_clip,
+                                      self.list_codes, self.list_offsets, self.list_positions))
+
+    # --- persistence ---------------------------------------------------------------
+    def segments_table(self) -> pa.Table:
+        clip = self.seg_clip
+        first = self.clip_offsets[clip]
+        return pa.table({
+            "segment": pa.array(np.arange(self.n_segments, dtype=np.int32)),
+            "clip_id": pa.array(self.clip_ids[clip].astype(np.int32)),
+            "start_frame": pa.array((self.seg_start - first).astype(np.int32)),
+            "end_frame": pa.array((self.seg_end - first).astype(np.int32)),
+            "code": pa.array(self.seg_code.astype(np.int32)),
+        })
+
+    def lists_table(self) -> pa.Table:
+        return pa.table({
+            "code": pa.array(self.list_codes.astype(np.int32)),
+            "positions": pa.ListArray.from_arrays(pa.array(self.list_offsets.astype(np.int32)),
+                                                  pa.array(self.list_positions.astype(np.int32))),
+        })
+
+    def save(self, directory: Path) -> None:
+        pq.write_table(self.segments_table(), directory / f"{self.name}_segments.parquet")
+        pq.write_table(self.lists_table(), directory / f"{self.name}_lists.parquet")
+
+    @classmethod
+    def load(cls, directory: Path, name: str, columns: np.ndarray, clip_ids: np.ndarray,
+             clip_offsets: np.ndarray) -> SetIndex:
+        seg = pq.read_table(directory / f"{name}_segments.parquet")
+        lists = pq.read_table(directory / f"{name}_lists.parquet")
+        lookup = np.full(int(clip_ids.max()) + 1 if len(clip_ids) else 1, -1, dtype=np.int64)
+        lookup[clip_ids] = np.arange(len(clip_ids))
+        seg_clip = lookup[seg["clip_id"].to_numpy()]
+        first = clip_offsets[seg_clip]
+        col = lists["positions"].combine_chunks() if lists.num_rows else pa.array([], pa.list_(pa.int32()))
+        return cls(name, columns, seg["start_frame"].to_numpy().astype(np.int64) + first,
+                   seg["end_frame"].to_numpy().astype(np.int64) + first, seg["code"].to_numpy().astype(np.int64),
+                   seg_clip, clip_ids, clip_offsets, lists["code"].to_numpy().astype(np.int64),
+                   col.offsets.to_numpy().astype(np.int64), col.values.to_numpy().astype(np.int64))
+
+
+class InvertedIndex(Index):
+    """Inverted-list indexes I_l, I_u, I_m over the relational features (Müller et al. 2005, §5.3).
+
+    Input: a ``features.relational`` dataset. ``sets`` (fitted) maps each set name to a
+    :class:`SetIndex`. The numeric ``query(x, k)`` of the Index contract is not supported;
+    use ``matchers.relational`` or the :class:`SetIndex` API (module docstring).
+    """
+
+    name = "inverted"
+    version = "1"
+    set_names: ClassVar[tuple[str, ...]] = tuple(s[0] for s in SETS)
+
+    class Params(Params):
+        feature_sets: tuple[str, ...] = Field(("lower", "upper", "mixed"), description="feature sets to index (paper: all three)")
+
+    def build(self, features: np.ndarray, clip_id: np.ndarray | None = None, fps: float | None = None) -> InvertedIndex:
+        """Build from the 31 relational features of concatenated clips.
+
+        Parameters
+        ----------
+        features : ndarray of shape (T, 31), bool or 0/1
+        clip_id : ndarray of int, shape (T,), optional
+            Clip id of each frame (rows grouped by clip); default one clip with id 0.
+        fps : float, optional
+            Recorded with the index (for reports).
+        """
+        x = np.asarray(features)
+        if x.ndim != 2 or x.shape[1] != len(FEATURE_IDS):
+            raise DataError(f"inverted index needs the {len(FEATURE_IDS)} relational features, got shape {x.shape}")
+        unknown = set(self.params.feature_sets) - set(self.set_names)
+        if unknown:
+            raise ConfigError(f"indexes.inverted: unknown feature sets {sorted(unknown)}; choose from {self.set_names}")
+        clip_id = np.zeros(len(x), np.int32) if clip_id is None else np.asarray(clip_id, np.int32)
+        offsets = offsets_from_clip_ids(clip_id)
+        ids = clip_id[offsets[:-1]] if len(clip_id) else np.zeros(0, np.int32)
+        self.sets_: dict[str, SetIndex] = {}
+        for name in self.params.feature_sets:
+            cols = np.arange(SET_SLICES[name].start, SET_SLICES[name].stop)
+            self.sets_[name] = SetIndex.build(name, pack_codes(x, cols), cols, ids, offsets)
+        self.fps_ = fps
+        return self
+
+    @property
+    def sets(self) -> dict[str, SetIndex]:
+        if not hasattr(self, "sets_"):
+            raise PipelineError("indexes.inverted: build() or load() the index first")
+        return self.sets_
+
+    def query(self, x: np.ndarray, k: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError("indexes.inverted answers segment queries, not kNN: use matchers.relational "
+                                  "or index.sets[<set>].positions(code)")
+
+    def save(self, directory: Path) -> None:
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        any_set = next(iter(self.sets.values()))
+        pq.write_table(pa.table({"clip_id": pa.array(any_set.clip_ids),
+                                 "offset": pa.array(any_set.clip_offsets[:-1])}), directory / "clips.parquet")
+        meta = {"feature_sets": list(self.sets), "n_frames": int(any_set.clip_offsets[-1]), "fps": self.fps_,
+                "columns": {n: s.columns.tolist() for n, s in self.sets.items()},
+                "feature_ids": list(FEATURE_IDS), "params": self.get_params()}
+        (directory / "meta.json").write_text(json.dumps(meta, indent=1))
+        for s in self.sets.values():
+            s.save(directory)
+
+    @classmethod
+    def load(cls, directory: Path) -> InvertedIndex:
+        directory = Path(directory)
+        if not (directory / "meta.json").is_file():
+            raise PipelineError(f"{directory} holds no inverted index (no meta.json)")
+        meta = json.loads((directory / "meta.json").read_text())
+        clips = pq.read_table(directory / "clips.parquet")
+        ids = clips["clip_id"].to_numpy().astype(np.int32)
+        offsets = np.append(clips["offset"].to_numpy().astype(np.int64), meta["n_frames"])
+        self = cls(meta["params"])
+        self.sets_ = {n: SetIndex.load(directory, n, np.asarray(meta["columns"][n], np.int64), ids, offsets)
+                      for n in meta["feature_sets"]}
+        self.fps_ = meta.get("fps")
+        return self
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        from mocapflow.framework.datasets import StepOutput
+
+        feats = inputs["features"].features()
+        if inputs["features"].producer != "features.relational":
+            raise PipelineError(f"indexes.inverted needs a features.relational dataset, got {inputs['features'].producer}")
+        self.build(feats.x, feats.clip_id)
+        self.save(ctx.out_dir / "index")
+        segs, lists = [], []
+        for name, s in self.sets.items():
+            t = s.segments_table()
+            segs.append(t.add_column(0, "feature_set", pa.array([name] * t.num_rows, pa.string())))
+            lt = s.lists_table()
+            lists.append(lt.add_column(0, "feature_set", pa.array([name] * lt.num_rows, pa.string())))
+        summary = {n: {"segments": s.n_segments, "lists": len(s.list_codes), "bytes": s.nbytes()} for n, s in self.sets.items()}
+        return StepOutput({"data": pa.concat_tables(segs), "lists": pa.concat_tables(lists)}, summary)
+
+
+__all__ = ["InvertedIndex", "SetIndex"]

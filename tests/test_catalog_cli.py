@@ -1,0 +1,85 @@
+from __future__ import annotations
+
+import textwrap
+
+import pyarrow.parquet as pq
+import pytest
+from toy_components import ToyPlugin
+
+from mocapflow.framework import ConfigError, get_plugin_manager
+from mocapflow.framework.catalog import Catalog
+from mocapflow.framework.cli import main
+from mocapflow.framework.runner import run_pipeline
+
+PIPE = """
+name: toy
+workspace: ws
+steps:
+  motions: {uses: analyses.toy_motions, with: {clips: 3, frames: 25}}
+  summary: {uses: analyses.clip_summary, input: motions}
+  my-src: {uses: analyses.toy_source, with: {n: 3}}
+"""
+
+
+@pytest.fixture
+def workspace(tmp_path):
+    p = tmp_path / "p.yaml"
+    p.write_text(textwrap.dedent(PIPE))
+    run_pipeline(p, pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin()]))
+    return tmp_path / "ws"
+
+
+def test_views_and_parameterised_queries(workspace):
+    with Catalog(workspace) as cat:
+        assert {"motions", "clips", "summary", "summary_joint_rom", "my-src", "my_src"} <= set(cat.views)
+        t = cat.query("SELECT clip_id, n_frames FROM clips WHERE n_frames > ? ORDER BY clip_id", [10])
+        assert t.column("n_frames").to_pylist() == [25, 25, 25]
+        n = cat.query("SELECT count(*) AS n FROM motions m JOIN clips c USING (clip_id)").column("n")[0].as_py()
+        assert n == 75
+        assert cat.query("SELECT sum(x) AS s FROM my_src").column("s")[0].as_py() == 3.0
+        with pytest.raises(Exception, match="SQL error"):
+            cat.query("SELECT nope FROM clips")
+
+
+def test_catalog_is_read_only(workspace):
+    before = sorted(p.name for p in workspace.rglob("*"))
+    with Catalog(workspace) as cat:
+        cat.query("SELECT * FROM clips")
+    assert sorted(p.name for p in workspace.rglob("*")) == before
+
+
+def test_missing_workspace_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        Catalog(tmp_path / "nope")
+
+
+def test_cli_sql_table_csv_parquet(workspace, tmp_path, capsys):
+    assert main(["--no-entry-points", "sql", str(workspace), "SELECT name, n_frames FROM clips ORDER BY name"]) == 0
+    out = capsys.readouterr().out
+    assert "synthetic0" in out and "(3 rows)" in out
+    assert main(["sql", str(workspace), "SELECT clip_id FROM clips WHERE clip_id = ?", "--param", "1", "--format", "csv"]) == 0
+    assert capsys.readouterr().out.split() == ["clip_id", "1"]
+    target = tmp_path / "out.parquet"
+    assert main(["sql", str(workspace), "SELECT * FROM summary", "--output", str(target)]) == 0
+    assert pq.read_table(target).num_rows == 3
+
+
+def test_cli_errors_have_no_traceback(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "missing.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot read pipeline" in err and "Traceback" not in err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: b\nsteps:\n  a: {uses: formats.laod}\n")
+    assert main(["plan", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.yaml:3" in err and "did you mean 'formats.load'" in err and "Traceback" not in err
+    assert main(["--debug", "plan", str(bad)]) == 2
+    assert "Traceback" in capsys.readouterr().err
+    assert main(["sql", str(tmp_path), "SELECT 1"]) == 2
+
+
+def test_cli_plugins_lists_components_and_params(capsys):
+    assert main(["--no-entry-points", "plugins"]) == 0
+    out = capsys.readouterr().out
+    assert "mocapflow.plugins.formats.steps" in out and "formats.load" in out
+    assert "paths:" in out and "on_error" in out

@@ -1,0 +1,120 @@
+"""Lazy neighborhood graph: kernel against the explicit graph, and against subsequence DTW."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from naive.dtw import continues_of, naive_lng
+from test_sdtw import make_db
+
+from mocapflow.framework import Index
+from mocapflow.framework.errors import DataError
+from mocapflow.plugins.matchers.lng import build_graph, lazy_neighborhood_graph
+from mocapflow.plugins.matchers.matches import SearchSpace
+from mocapflow.plugins.matchers.sdtw import subsequence_dtw
+
+
+class BruteIndex(Index):
+    """Exact fixed-radius kNN by brute force (the Index contract, for tests)."""
+
+    name = "brute_test"
+
+    def build(self, features):
+        self.x_ = np.asarray(features, np.float64)
+        return self
+
+    def query(self, x, k, radius=None):
+        d = np.linalg.norm(np.asarray(x, np.float64)[:, None, :] - self.x_[None], axis=2)
+        order = np.argsort(d, axis=1, kind="stable")[:, :k]
+        dist = np.take_along_axis(d, order, 1)
+        ids = order.astype(np.int64)
+        if radius is not None:
+            ids[dist > radius] = -1
+            dist[dist > radius] = np.inf
+        pad = k - dist.shape[1]
+        if pad > 0:
+            dist = np.pad(dist, ((0, 0), (0, pad)), constant_values=np.inf)
+            ids = np.pad(ids, ((0, 0), (0, pad)), constant_values=-1)
+        return dist.astype(np.float32), ids
+
+
+def space_of(lengths, seed=0, dim=3):
+    clip_id, frame, x = make_db(lengths, dim=dim, seed=seed)
+    return SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+
+
+@pytest.mark.parametrize("lengths,m,k,radius,seed", [
+    ([30, 1, 25, 9], 6, 8, None, 0),
+    ([40, 40], 10, 12, 1.5, 1),
+    ([1, 1, 1, 1], 3, 4, None, 2),
+    ([60], 1, 5, None, 3),
+    ([20, 30, 15], 15, 30, 2.0, 4),
+])
+def test_kernel_matches_explicit_graph(lengths, m, k, radius, seed):
+    space = space_of(lengths, seed=seed)
+    rng = np.random.default_rng(seed)
+    s = int(rng.integers(0, max(1, space.n_rows - m)))
+    q = space.features[s : s + m] + rng.normal(scale=0.2, size=(min(m, space.n_rows - s), 3)).astype(np.float32)
+    g = build_graph(q, space, k=k, radius=radius)
+    neighbors = [{int(h): float(d) for h, d in zip(g.ids[i, : g.count[i]], g.dist[i, : g.count[i]])} for i in range(len(q))]
+    ref = naive_lng(neighbors, continues_of(space.clip_id, space.frame))
+    last = len(q) - 1
+    reach = {int(h): (c, st) for h, c, st in zip(g.ids[last, : g.count[last]], g.cost[last], g.start[last]) if np.isfinite(c)}
+    assert set(reach) == set(ref)
+    for h, (c, st) in reach.items():
+        assert c == pytest.approx(ref[h][0], rel=1e-9)
+    res = g.matches(count=50)
+    for e, st, path in zip(res.end, res.start, res.paths):
+        rc, rs, rpath = ref[int(e)]
+        assert st == rs
+        np.testing.assert_array_equal(path, rpath)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_equals_subsequence_dtw_with_all_neighbours(seed):
+    space = space_of([35, 2, 50, 20], seed=seed)
+    q = space.features[40:52] * 1.05
+    lng = lazy_neighborhood_graph(q, space, k=space.n_rows, count=6)
+    ref = subsequence_dtw(q, space, count=6)
+    np.testing.assert_allclose(lng.cost, ref.cost, rtol=1e-5)
+    np.testing.assert_array_equal(lng.start, ref.start)
+    np.testing.assert_array_equal(lng.end, ref.end)
+    for a, b in zip(lng.paths, ref.paths):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_no_edge_across_clip_boundary():
+    # two clips that continue each other perfectly: a path would love to cross
+    x = np.linspace(0, 1, 40)[:, None].repeat(2, 1).astype(np.float32)
+    clip_id = np.r_[np.zeros(20), np.ones(20)].astype(np.int32)
+    frame = np.r_[np.arange(20), np.arange(20)].astype(np.int32)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    res = lazy_neighborhood_graph(x[15:25], space, k=40, count=3)
+    for path in res.paths:
+        assert len(set(clip_id[path[:, 1]])) == 1
+    assert res.cost[0] > 0  # the perfect crossing alignment is forbidden
+
+
+def test_radius_limits_neighbours_and_matches():
+    space = space_of([50], seed=9)
+    q = space.features[10:20]
+    g = build_graph(q, space, k=50, radius=0.5)
+    valid = g.ids >= 0
+    assert np.all(g.dist[valid] <= 0.5) and np.all(g.count <= 50)
+    far = build_graph(q + 100, space, k=50, radius=0.5)
+    assert far.n_nodes == 0 and len(far.matches()) == 0
+
+
+def test_index_contract_violations():
+    space = space_of([10])
+
+    class Dup(BruteIndex):
+        def query(self, x, k, radius=None):
+            d, i = super().query(x, k, radius)
+            i[:, 1] = i[:, 0]
+            return d, i
+
+    bad = SearchSpace(space.clip_id, space.frame, Dup().build(space.features))
+    with pytest.raises(DataError):
+        build_graph(space.features[:3], bad, k=4)
+    with pytest.raises(DataError):
+        build_graph(space.features[:3], SearchSpace(space.clip_id, space.frame), k=4)
