@@ -40,12 +40,15 @@ _ASF = {
     "rwrist": "rwrist", "rfingers": "rfingers",
 }
 
-# BVH namings found in the corpus: cgspeed CMU conversions, Bandai-Namco, Xia et al.
-# (deep-motion-editing retarget), PyMO demo. Each canonical joint lists candidates in
-# order of preference; the first present in a skeleton wins.
+# BVH namings found in the corpus: cgspeed CMU conversions (MotionBuilder-style names:
+# LowerBack/Spine/Spine1, LeftShoulder = clavicle; 3dsMax-style names: lowerback/Chest/
+# Chest2, LeftCollar = clavicle, LeftShoulder = upper arm), Bandai-Namco (UpperLeg_L...),
+# Xia et al. (deep-motion-editing retarget, MotionBuilder-style) and the PyMO demo. Each
+# canonical joint lists candidates in order of preference; the first present in a
+# skeleton and not yet taken wins. End sites are named ``<parent>_end`` by the BVH reader.
 _BVH_CANDIDATES: dict[str, tuple[str, ...]] = {
     "root": ("Hips", "hip", "Hip", "pelvis", "Pelvis", "Root", "root"),
-    "lhip": ("LeftUpLeg", "LeftHip", "LHipJoint_end", "lThigh", "LeftThigh", "UpperLeg_L", "l_hip"),
+    "lhip": ("LeftUpLeg", "LeftHip", "lThigh", "LeftThigh", "UpperLeg_L", "l_hip"),
     "lknee": ("LeftLeg", "LeftKnee", "lShin", "LeftShin", "LowerLeg_L", "l_knee"),
     "lankle": ("LeftFoot", "LeftAnkle", "lFoot", "Foot_L", "l_ankle"),
     "ltoes": ("LeftToeBase", "LeftToe", "LeftToes", "Toes_L", "Toe_L", "l_toes"),
@@ -54,22 +57,34 @@ _BVH_CANDIDATES: dict[str, tuple[str, ...]] = {
     "rankle": ("RightFoot", "RightAnkle", "rFoot", "Foot_R", "r_ankle"),
     "rtoes": ("RightToeBase", "RightToe", "RightToes", "Toes_R", "Toe_R", "r_toes"),
     "lowerback": ("LowerBack", "Spine", "Spine0", "abdomen", "Chest0"),
-    "upperback": ("Spine1", "Chest", "chest1"),
-    "chest": ("Spine2", "Chest2", "Spine1", "Chest", "chest"),
-    "neck": ("Neck", "Neck1", "neck"),
+    "upperback": ("Spine1", "Chest", "chest1", "Spine"),
+    "chest": ("Chest2", "Spine2", "Spine1", "Chest", "chest"),
+    "neck": ("lowerneck", "Neck", "Neck1", "neck"),
     "head": ("Head", "head"),
     "headtop": ("Head_end", "head_end", "HeadEnd", "Head_End", "Site_Head"),
-    "lclavicle": ("LeftShoulder", "LeftCollar", "lCollar", "Shoulder_L", "l_clavicle"),
-    "lshoulder": ("LeftArm", "LeftUpArm", "lShldr", "UpperArm_L", "l_shoulder"),
+    "lclavicle": ("LeftCollar", "LeftShoulder", "lCollar", "Shoulder_L", "l_clavicle"),
+    "lshoulder": ("LeftArm", "LeftUpArm", "lShldr", "UpperArm_L", "l_shoulder", "LeftShoulder"),
     "lelbow": ("LeftForeArm", "LeftElbow", "LeftLowArm", "lForeArm", "LowerArm_L", "l_elbow"),
     "lwrist": ("LeftHand", "LeftWrist", "lHand", "Hand_L", "l_wrist"),
-    "lfingers": ("LeftHandIndex1", "LeftFingerBase", "LeftHand_end", "LeftHandEnd", "Hand_L_end", "LeftHandFinger1"),
-    "rclavicle": ("RightShoulder", "RightCollar", "rCollar", "Shoulder_R", "r_clavicle"),
-    "rshoulder": ("RightArm", "RightUpArm", "rShldr", "UpperArm_R", "r_shoulder"),
+    "lfingers": ("LeftHandIndex1", "LFingers", "LeftFingerBase", "LeftHand_end", "LeftHandEnd", "Hand_L_end",
+                 "LeftHandFinger1"),
+    "rclavicle": ("RightCollar", "RightShoulder", "rCollar", "Shoulder_R", "r_clavicle"),
+    "rshoulder": ("RightArm", "RightUpArm", "rShldr", "UpperArm_R", "r_shoulder", "RightShoulder"),
     "relbow": ("RightForeArm", "RightElbow", "RightLowArm", "rForeArm", "LowerArm_R", "r_elbow"),
     "rwrist": ("RightHand", "RightWrist", "rHand", "Hand_R", "r_wrist"),
-    "rfingers": ("RightHandIndex1", "RightFingerBase", "RightHand_end", "RightHandEnd", "Hand_R_end", "RightHandFinger1"),
+    "rfingers": ("RightHandIndex1", "RFingers", "RightFingerBase", "RightHand_end", "RightHandEnd", "Hand_R_end",
+                 "RightHandFinger1"),
 }
+
+# Order in which canonical joints pick their candidates: the trunk top-down (so that
+# chest takes Spine1/Chest2 before upperback falls back to Spine), clavicles before
+# shoulders (3dsMax-style LeftShoulder is the upper arm only when LeftCollar exists).
+_BVH_PICK_ORDER: tuple[str, ...] = (
+    "root", "chest", "upperback", "lowerback", "neck", "head", "headtop",
+    "lhip", "lknee", "lankle", "ltoes", "rhip", "rknee", "rankle", "rtoes",
+    "lclavicle", "lshoulder", "lelbow", "lwrist", "lfingers",
+    "rclavicle", "rshoulder", "relbow", "rwrist", "rfingers",
+)
 
 
 def map_asf(joint_names: list[str] | tuple[str, ...]) -> dict[str, int]:
@@ -83,8 +98,9 @@ def map_bvh(joint_names: list[str] | tuple[str, ...]) -> dict[str, int]:
     index = {n.lower(): i for i, n in enumerate(joint_names)}
     out: dict[str, int] = {}
     used: set[int] = set()
-    for canon, candidates in _BVH_CANDIDATES.items():
-        for cand in candidates:
+    for canon in _BVH_PICK_ORDER:
+        # a skeleton already named with the canonical vocabulary maps to itself
+        for cand in (*_BVH_CANDIDATES[canon], canon):
             i = index.get(cand.lower())
             # chest/upperback share candidates: never give one joint two canonical names
             if i is not None and i not in used:

@@ -8,6 +8,10 @@ from __future__ import annotations
 
 BUILTIN_PLUGINS: tuple[str, ...] = (
     "mocapflow.plugins.formats",
+    "mocapflow.plugins.features.relational_plugin",
+    "mocapflow.plugins.indexes.kdtree",
+    "mocapflow.plugins.features.krueger",
+    "mocapflow.plugins.matchers.matching_plugin",
     "mocapflow.plugins.formats.steps",
     "mocapflow.plugins.analyses.summary",
     "mocapflow.plugins.analyses.krueger_apps_plugin",

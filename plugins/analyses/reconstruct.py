@@ -142,12 +142,14 @@ class ReconstructParams(Params):
     features: str = Field("end_effectors", description="features component of the kNN search")
     feature_params: dict = Field(default_factory=dict, description="parameters of that feature set")
     index: str = Field("kdtree", description="indexes component of the kNN search")
+    index_params: dict = Field(default_factory=lambda: {"workers": 1}, description="parameters of that index "
+                               "(one query per frame: threads only add wake-up latency)")
     markers: tuple[str, ...] = Field(DEFAULT_MARKERS, min_length=1, description="canonical marker joints (root needed)")
     noise: float = Field(0.001, ge=0, description="uniform marker disturbance, metres (paper: 1 mm)")
     k: int = Field(64, ge=2, description="neighbours of the local linear model")
-    energy: float = Field(0.95, gt=0, le=1, description="variance kept by the local PCA")
+    energy: float = Field(0.99, gt=0, le=1, description="variance kept by the local PCA")
     max_components: int = Field(20, ge=1, description="cap on local PCA components")
-    marker_sigma: float = Field(0.01, gt=0, description="marker misfit scale, metres (model error dominates the 1 mm noise)")
+    marker_sigma: float = Field(0.005, gt=0, description="marker misfit scale, metres (model error dominates the 1 mm noise)")
     smooth_sigma: float = Field(0.02, gt=0, description="allowed deviation from the constant-velocity prediction, metres")
     iterations: int = Field(2, ge=1, description="searches per frame (the 2nd around the synthesised pose)")
     leave_out: Literal["clip", "subject", "none"] = Field(
@@ -345,3 +347,117 @@ def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         perp[small] = np.cross(a[opp][small], np.array([0.0, 1.0, 0.0]))
         q[opp] = np.concatenate([np.zeros((opp.sum(), 1)), perp], 1)
     return quat.normalize(q)
+
+
+class PriorDatabase:
+    """Poses and feature rows of candidate prior clips, computed once, so that priors
+    leaving out different clips (Tables 3 and 4) only concatenate and rebuild the index.
+
+    Parameters
+    ----------
+    db : MotionDatabase
+    feature_set : FeatureSet
+        Fitted if it needs fitting; features are computed clip by clip.
+    joints : sequence of str
+        Pose joints; joints some clip lacks are dropped.
+    """
+
+    def __init__(self, db: MotionDatabase, feature_set: FeatureSet, joints: Sequence[str] = CANONICAL_JOINTS) -> None:
+        present = [j for j in joints if all(j in m.skeleton.canonical for m in db.motions)]
+        self.joints = tuple(present)
+        self.names = [m.name for m in db.motions]
+        self.subjects = [str(m.metadata.get("subject", "")) for m in db.motions]
+        self.poses = [local_poses(m.canonical_positions(self.joints), self.joints).reshape(m.n_frames, -1)
+                      .astype(np.float32) for m in db.motions]
+        self.features = [np.asarray(feature_set.transform(m), np.float32) for m in db.motions]
+
+    @property
+    def n_frames(self) -> np.ndarray:
+        return np.array([len(p) for p in self.poses])
+
+    def withheld(self, motion: Motion, leave_out: str) -> np.ndarray:
+        """Mask of clips to leave out for a test clip: same name, same subject, or none."""
+        if leave_out == "subject":
+            subj = str(motion.metadata.get("subject", ""))
+            return np.array([s == subj for s in self.subjects])
+        if leave_out == "clip":
+            return np.array([n == motion.name for n in self.names])
+        return np.zeros(len(self.names), bool)
+
+    def prior(self, keep: np.ndarray, index: Index) -> PosePrior:
+        """A :class:`PosePrior` of the clips where ``keep`` is true (``index`` is built)."""
+        rows = np.flatnonzero(keep)
+        if len(rows) == 0:
+            raise DataError("prior database is empty after leaving out the test clips")
+        return PosePrior.build(np.concatenate([self.poses[i] for i in rows]),
+                               np.concatenate([self.features[i] for i in rows]), index, self.joints)
+
+
+def reconstruct_motion(motion: Motion, prior: PosePrior, params: ReconstructParams | None = None
+                       ) -> tuple[Motion, dict]:
+    """Reconstruct one clip from its synthetic markers; the result and its errors.
+
+    Returns the reconstructed Motion (test clip's skeleton, ``<name>_recon``) and a dict:
+    ``joints``, ``mean_cm``/``max_cm`` per joint, ``avg_cm``, ``max_cm``, ``fk_avg_cm``,
+    ``seconds`` (reconstruction time, excluding the prior).
+    """
+    import time
+
+    p = params or ReconstructParams()
+    markers = synthetic_markers(motion, p.markers, p.noise, np.random.default_rng(p.seed))
+    t0 = time.perf_counter()
+    world, _ = reconstruct_positions(markers, prior, p)
+    seconds = time.perf_counter() - t0
+    truth = motion.canonical_positions(prior.joints)
+    mean, mx, avg, worst = joint_errors(world, truth)
+    out = positions_to_motion(motion.skeleton, world, prior.joints, motion.fps, name=f"{motion.name}_recon",
+                              metadata={**motion.metadata, "reconstructed_from": motion.name})
+    _, _, fk_avg, _ = joint_errors(out.canonical_positions(prior.joints), truth)
+    return out, {"joints": prior.joints, "mean_cm": mean, "max_cm": mx, "avg_cm": avg, "max_frame_cm": worst,
+                 "fk_avg_cm": fk_avg, "seconds": seconds}
+
+
+class Reconstruct(Analysis):
+    """Full-body motion from 6 sparse markers with kNN local linear pose priors (Krüger 2010 §5.2)."""
+
+    name = "reconstruct"
+    inputs: Mapping[str, bool] = {"prior": True, "test": True}
+    Params = ReconstructParams
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        from mocapflow.framework.motion_tables import motions_to_tables
+
+        p = self.params
+        prior_db, test_db = inputs["prior"].motions(), inputs["test"].motions()
+        fs = ctx.registries["features"].get(p.features)(p.feature_params)
+        if fs.requires_fit:
+            fs.fit(prior_db)
+        store = PriorDatabase(prior_db, fs)
+        motions, err_rows, clip_rows, cache = [], [], [], {}
+        for cid, m in zip(test_db.clip_ids, ctx.progress(test_db.motions, total=test_db.n_clips, desc=ctx.step_id)):
+            keep = ~store.withheld(m, p.leave_out)
+            key = keep.tobytes()
+            if key not in cache:  # one index per distinct left-out set
+                cache = {key: store.prior(keep, ctx.registries["indexes"].get(p.index)(p.index_params))}
+            rec, e = reconstruct_motion(m, cache[key], p)
+            motions.append(rec)
+            err_rows += [{"clip_id": int(cid), "name": m.name, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
+                         for j, a, b in zip(e["joints"], e["mean_cm"], e["max_cm"]) if np.isfinite(a)]
+            clip_rows.append({"clip_id": int(cid), "name": m.name, "n_frames": m.n_frames,
+                              "prior_frames": int(store.n_frames[keep].sum()), "avg_cm": e["avg_cm"],
+                              "max_cm": e["max_frame_cm"], "fk_avg_cm": e["fk_avg_cm"],
+                              "frames_per_s": m.n_frames / max(e["seconds"], 1e-9)})
+        tables = motions_to_tables(motions, list(test_db.clip_ids))
+        tables["errors"] = pa.Table.from_pylist(err_rows, schema=pa.schema(
+            [("clip_id", pa.int32()), ("name", pa.string()), ("joint", pa.string()),
+             ("mean_cm", pa.float64()), ("max_cm", pa.float64())]))
+        tables["clip_errors"] = pa.Table.from_pylist(clip_rows, schema=pa.schema(
+            [("clip_id", pa.int32()), ("name", pa.string()), ("n_frames", pa.int32()), ("prior_frames", pa.int64()),
+             ("avg_cm", pa.float64()), ("max_cm", pa.float64()), ("fk_avg_cm", pa.float64()),
+             ("frames_per_s", pa.float64())]))
+        frames = sum(r["n_frames"] for r in clip_rows)
+        summary = {"clips": len(clip_rows), "frames": frames,
+                   "avg_cm": float(np.mean([r["avg_cm"] for r in clip_rows])) if clip_rows else None,
+                   "feature_fit_r2": float(next(iter(cache.values())).feature_fit_r2) if cache else None,
+                   "backend": f"features.{p.features} + indexes.{p.index}"}
+        return StepOutput(tables, summary)

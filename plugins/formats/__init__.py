@@ -1,4 +1,9 @@
-"""Built-in file formats (readers, writers) and the ingest step, as one plugin."""
+"""Built-in file formats (readers, writers) as one plugin.
+
+Readers: ``amc`` (Acclaim ASF/AMC), ``bvh``, ``c3d`` and ``trc`` (markers). Module-level
+functions (``read_amc``, ``read_bvh``...) live in the format modules; numba kernels are
+imported only when a file is read.
+"""
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl
@@ -6,4 +11,7 @@ from mocapflow.framework.plugins import hookimpl
 
 @hookimpl
 def register_formats() -> list[type]:
-    return []
+    from .asf_amc import AmcFormat
+    from .bvh import BvhFormat
+
+    return [AmcFormat, BvhFormat]

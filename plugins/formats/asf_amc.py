@@ -38,6 +38,10 @@ AMC_DEFAULT_FPS = 120.0
 _ASF_CACHE: dict[tuple[str, int, int], Skeleton] = {}
 
 
+class NotAnAsfSkeleton(DataError, NotImplementedError):
+    """AMC can only be written for skeletons read from an ASF file."""
+
+
 def read_asf(path: str | Path) -> Skeleton:
     """Read an ASF skeleton (see :func:`._asf.read_asf`); cached by path, size and mtime."""
     p = Path(path)
@@ -298,7 +302,8 @@ def write_amc(motion: Motion, path: str | Path, precision: int = 10) -> None:
     """
     sk = motion.skeleton
     if sk.meta.get("format") != "asf" or sk.axes is None or not sk.channels:
-        raise DataError(f"motion {motion.name!r}: its skeleton has no ASF axes/dofs; cannot write AMC")
+        raise NotAnAsfSkeleton(f"motion {motion.name!r}: its skeleton did not come from an ASF file (no ASF "
+                               "axes/dofs); writing AMC for other skeletons is not supported, write BVH instead")
     scale = float(sk.meta["length_scale"])
     cols: list[np.ndarray] = []
     fmt: list[str] = []

@@ -124,6 +124,102 @@ class SetIndex:
             return parts[0]
         return np.sort(np.concatenate(parts))
 
+    # --- hits (§5.1, §5.2) -------------------------------------------------------
+    def _same_clip(self, starts: np.ndarray, last: np.ndarray) -> np.ndarray:
+        return self.seg_clip[starts] == self.seg_clip[last]
+
+    def exact(self, codes: np.ndarray) -> np.ndarray:
+        """Exact hits ``H(F[Q])`` (eq. 7): intersection of the shifted lists ``L(v_l) - l``.
+
+        Parameters
+        ----------
+        codes : ndarray of int, shape (L,)
+            The query's feature sequence ``v_1 .. v_L`` as codes of this set.
+
+        Returns
+        -------
+        ndarray of int64, shape (n_hits,)
+            Start segment ``k`` of each hit (0-based; the hit covers segments ``k .. k+L-1``
+            of one clip), ascending.
+        """
+        lists = [self.positions(int(c)) - i for i, c in enumerate(codes)]
+        return self._intersect(lists, len(codes))
+
+    def fuzzy(self, member: np.ndarray) -> np.ndarray:
+        """Fuzzy hits (eq. 11): intersection of shifted unions ``L(V_l) - l``.
+
+        ``member`` is a boolean table of shape (L, 2**f): ``member[l, c]`` iff code ``c`` is
+        an alternative of the l-th query vector. Returns start segments as :meth:`exact`.
+        """
+        lists = [self.union(np.flatnonzero(row)) - i for i, row in enumerate(member)]
+        return self._intersect(lists, len(member))
+
+    def _intersect(self, lists: list[np.ndarray], n_levels: int) -> np.ndarray:
+        if not lists:
+            return np.zeros(0, np.int64)
+        order = np.argsort([len(x) for x in lists], kind="stable")  # shortest first
+        cand = lists[order[0]]
+        for i in order[1:]:
+            if not len(cand):
+                break
+            other = lists[i]
+            j = np.searchsorted(other, cand)
+            ok = j < len(other)
+            ok[ok] = other[j[ok]] == cand[ok]
+            cand = cand[ok]
+        cand = cand[(cand >= 0) & (cand + n_levels - 1 < self.n_segments)]
+        return cand[self._same_clip(cand, cand + n_levels - 1)].astype(np.int64)
+
+    def runs(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Maximal runs of segments whose code is in ``codes``, never crossing a clip boundary.
+
+        Returns
+        -------
+        start, end : ndarray of int64, shape (n_runs,)
+            Segment range ``[start, end)`` of each run, ascending.
+        """
+        p = self.union(codes)
+        if not len(p):
+            return p.astype(np.int64), p.astype(np.int64)
+        first = self.clip_first
+        new = np.r_[True, p[1:] != p[:-1] + 1] | first[p]
+        begin = np.flatnonzero(new)
+        end_idx = np.append(begin[1:], len(p)) - 1
+        return p[begin].astype(np.int64), p[end_idx].astype(np.int64) + 1
+
+    def adaptive(self, member: np.ndarray) -> np.ndarray:
+        """Adaptive fuzzy hits (§5.2): the segmentation is coarsened to maximal runs of each ``V_l``.
+
+        Parameters
+        ----------
+        member : ndarray of bool, shape (L, 2**f)
+            Fuzzy sets with ``V_l`` and ``V_{l+1}`` disjoint (see ``coarsen_fuzzy``).
+
+        Returns
+        -------
+        ndarray of int64, shape (n_hits, L + 1)
+            Segment boundaries ``k_1 < k_2 < ... < k_{L+1}`` of each hit: level ``l`` covers
+            segments ``[k_l, k_{l+1})`` (the paper's example has ``k = (2, 3, 6, 7)`` for its
+            first hit in 1-based numbering; here 0-based).
+        """
+        n_levels = len(member)
+        if n_levels == 0:
+            return np.zeros((0, 1), np.int64)
+        rs, re = self.runs(np.flatnonzero(member[0]))
+        bounds = [rs, re]
+        alive = np.arange(len(rs))
+        end = re
+        first = self.clip_first
+        for level in range(1, n_levels):
+            s2, e2 = self.runs(np.flatnonzero(member[level]))
+            j = np.searchsorted(s2, end)
+            ok = j < len(s2)
+            ok[ok] = s2[j[ok]] == end[ok]
+            ok[ok] = ~first[end[ok]]  # the next run must continue in the same clip
+            alive, end = alive[ok], e2[j[ok]]
+            bounds = [b[ok] for b in bounds] + [end]
+        return np.stack(bounds, axis=1).astype(np.int64) if len(alive) else np.zeros((0, n_levels + 1), np.int64)
+
     @property
     def clip_first(self) -> np.ndarray:
         """True for each clip's first segment, shape (M,)."""

@@ -12,6 +12,7 @@ subsequence DTW (:mod:`.sdtw`) exactly.
 """
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -19,7 +20,7 @@ import numpy as np
 from pydantic import Field
 
 from mocapflow.framework import Params
-from mocapflow.framework.errors import DataError
+from mocapflow.framework.errors import ConfigError, DataError
 
 from .matches import QueryMatches, SearchSpace, select_matches
 from .queries import GlobalMatcher
@@ -67,9 +68,19 @@ class NeighborhoodGraph:
                             self.length[last, keep].astype(np.int64), paths)
 
 
-def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``S(q_i)`` from the index, re-sorted by row id: ``(ids, dist, count)`` (see :class:`NeighborhoodGraph`)."""
-    dist, ids = index.query(query, k, radius)
+def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None,
+                  eps: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``S(q_i)`` from the index, re-sorted by row id: ``(ids, dist, count)`` (see :class:`NeighborhoodGraph`).
+
+    ``eps > 0`` asks the index for an ε-approximate search (an index whose ``query``
+    takes an ``eps`` keyword, like ``indexes.kdtree``); 0 uses the plain Index contract.
+    """
+    if eps > 0:
+        if "eps" not in inspect.signature(index.query).parameters:
+            raise ConfigError(f"{type(index).__name__}.query takes no 'eps': this index cannot search approximately")
+        dist, ids = index.query(query, k, radius, eps=eps)
+    else:
+        dist, ids = index.query(query, k, radius)
     dist = np.asarray(dist, np.float32)
     ids = np.asarray(ids, np.int64)
     if ids.shape != (query.shape[0], k) or dist.shape != ids.shape:
@@ -87,7 +98,8 @@ def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None) -> tup
     return ids, dist, count
 
 
-def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None) -> NeighborhoodGraph:
+def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
+                eps: float = 0.0) -> NeighborhoodGraph:
     """kNN search, graph construction and path search for one query.
 
     Parameters
@@ -100,6 +112,8 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
         Cap on the neighbours per query frame.
     radius : float or None
         Fixed search radius ``r`` (same units as the features); ``None``: plain kNN.
+    eps : float
+        ε of an approximate kNN search (0: exact).
     """
     from ._lng_kernels import lng_forward
 
@@ -108,7 +122,7 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
     q = np.ascontiguousarray(query, dtype=np.float32)
     if q.ndim != 2 or q.shape[0] < 1 or not np.isfinite(q).all():
         raise DataError(f"query must be finite (n_frames >= 1, dim) feature vectors, got shape {q.shape}")
-    ids, dist, count = neighbor_sets(q, space.index, k, radius)
+    ids, dist, count = neighbor_sets(q, space.index, k, radius, eps)
     if count.any() and ids.max() >= space.n_rows:
         raise DataError(f"index returned row {ids.max()} but the database has {space.n_rows} rows")
     cost, start, pred, length = lng_forward(ids, dist, count, space.continues)
@@ -116,9 +130,11 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
 
 
 def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
-                            count: int = 10, max_cost: float | None = None, rank_by: str = "cost") -> QueryMatches:
+                            eps: float = 0.0, count: int = 10, max_cost: float | None = None,
+                            rank_by: str = "cost") -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`)."""
-    return build_graph(query, space, k=k, radius=radius).matches(count=count, max_cost=max_cost, rank_by=rank_by)
+    graph = build_graph(query, space, k=k, radius=radius, eps=eps)
+    return graph.matches(count=count, max_cost=max_cost, rank_by=rank_by)
 
 
 class LazyNeighborhoodGraph(GlobalMatcher):
@@ -135,12 +151,26 @@ class LazyNeighborhoodGraph(GlobalMatcher):
     class Params(Params):
         k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
         radius: float | None = Field(None, gt=0, description="fixed kNN search radius r in feature units; null: unbounded")
+        eps: float = Field(0.0, ge=0, description="approximate kNN: neighbours within (1+eps) of the true ones (paper: 0, 0.1, 0.5)")
         count: int = Field(10, ge=1, description="matches kept per query")
         max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
         rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
         queries: list[str] = Field(default_factory=list, description="query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); empty: every clip of the query input")
+        plots: int = Field(0, ge=0, description="write a Fig. 3-style PNG (plots/q<query>_m<rank>.png) for this many top matches per query")
+        plot_queries: int = Field(16, ge=0, description="plot only the first this many queries")
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         p = self.params
-        return lazy_neighborhood_graph(query, space, k=p.k, radius=p.radius, count=p.count,
+        return lazy_neighborhood_graph(query, space, k=p.k, radius=p.radius, eps=p.eps, count=p.count,
                                        max_cost=p.max_cost, rank_by=p.rank_by)
+
+    def after_match(self, query_id, query, matches, space, ctx) -> None:
+        p = self.params
+        if not p.plots or query_id >= p.plot_queries or not len(matches):
+            return
+        from .plots import plot_neighborhood
+
+        graph = build_graph(query.features, space, k=p.k, radius=p.radius, eps=p.eps)  # cheap next to I/O; keeps match() lean
+        for r in range(min(p.plots, len(matches))):
+            plot_neighborhood(graph, matches, space, ctx.out_dir / "plots" / f"q{query_id}_m{r + 1}.png",
+                              match=r, title=f"{query.name} - match {r + 1}, cost {matches.cost[r]:.3g}")

@@ -125,6 +125,44 @@ def read_motion_file(path: Path, registries, fps: float | None):
     raise ConfigError(f"no registered reader for {path.suffix!r} files ({path})")
 
 
+def motion_queries(specs: list[QuerySpec], mdb, feature_set, registries, resolve, what: str = "query") -> list[Query]:
+    """Features of query segments of the clips of ``mdb`` (or of files on disk).
+
+    Parameters
+    ----------
+    specs : list of QuerySpec
+        Empty: every clip of ``mdb`` whole.
+    mdb : MotionDatabase
+        Clips a spec may name (name, file name, stem or path suffix).
+    feature_set : FeatureSet
+        The database's feature set (configured, fitted).
+    resolve : callable
+        Path of a file spec (relative paths against the pipeline file).
+    """
+    names: dict[str, int] = {}
+    for pos, m in enumerate(mdb.motions):
+        p = str(m.metadata.get("path") or "")
+        for key in {m.name, Path(p).name, Path(p).stem, p} - {""}:
+            names.setdefault(key, pos)
+    fps = mdb.fps if mdb.n_clips else None
+    out = []
+    for spec in specs or [QuerySpec(m.name) for m in mdb.motions]:
+        pos = names.get(spec.source)
+        if pos is None:
+            pos = next((i for k, i in names.items() if k.endswith("/" + spec.source)), None)
+        if pos is not None:
+            motion, cid = mdb.motions[pos], int(mdb.clip_ids[pos])
+        else:
+            path = resolve(spec.source)
+            if not path.is_file():
+                raise ConfigError(f"{what}: query {spec.source!r} is neither a clip nor a file")
+            motion, cid = read_motion_file(path, registries, fps), -1
+        a, b = spec.frames(motion.fps, motion.n_frames)
+        x = np.asarray(feature_set.transform_motion(motion), np.float32)[a:b]
+        out.append(Query(spec.text(), x, cid, a, b))
+    return out
+
+
 class GlobalMatcher(Matcher):
     """Shared step logic of the matchers that align whole query segments (see module doc).
 
@@ -172,28 +210,7 @@ class GlobalMatcher(Matcher):
         if fds is None:
             raise PipelineError(f"{self.key()}: query motions need the database's feature set; give a 'features' input")
         fs = feature_set_of(fds, ctx.registries)
-        mdb = qds.motions()
-        names = {}
-        for pos, m in enumerate(mdb.motions):
-            p = str(m.metadata.get("path") or "")
-            for key in {m.name, Path(p).name, Path(p).stem, p} - {""}:
-                names.setdefault(key, pos)
-        out = []
-        for spec in specs or [QuerySpec(m.name) for m in mdb.motions]:
-            pos = names.get(spec.source)
-            if pos is None:
-                pos = next((i for k, i in names.items() if k.endswith("/" + spec.source)), None)
-            if pos is not None:
-                motion, cid = mdb.motions[pos], int(mdb.clip_ids[pos])
-            else:
-                path = ctx.resolve(spec.source)
-                if not path.is_file():
-                    raise ConfigError(f"{self.key()}: query {spec.source!r} is neither a clip of {qds.step!r} nor a file")
-                motion, cid = read_motion_file(path, ctx.registries, mdb.fps if mdb.n_clips else None), -1
-            a, b = spec.frames(motion.fps, motion.n_frames)
-            x = np.asarray(fs.transform_motion(motion), np.float32)[a:b]
-            out.append(Query(spec.text(), x, cid, a, b))
-        return out
+        return motion_queries(specs, qds.motions(), fs, ctx.registries, ctx.resolve, what=f"{self.key()}: query input {qds.step!r}")
 
     def _feature_queries(self, qds: Dataset, specs: list[QuerySpec]) -> list[Query]:
         fm = qds.features()
@@ -216,11 +233,17 @@ class GlobalMatcher(Matcher):
     def run(self, inputs: Mapping[str, Dataset], ctx) -> StepOutput:
         space = self.search_space(inputs, ctx.registries)
         queries = self.queries(inputs, ctx)
-        results = [self.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)]
+        results = []
+        for qi, q in enumerate(ctx.progress(queries, total=len(queries), desc=ctx.step_id)):
+            results.append(self.match(q.features, space))
+            self.after_match(qi, q, results[-1], space, ctx)
         return StepOutput(
             {"data": matches_table(list(range(len(queries))), results, space), "queries": queries_table(queries)},
             {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
         )
+
+    def after_match(self, query_id: int, query: Query, matches: QueryMatches, space: SearchSpace, ctx) -> None:
+        """Called after each query of a step (plots); default: nothing."""
 
 
 def queries_table(queries: list[Query]) -> pa.Table:

@@ -1,0 +1,26 @@
+"""Plugin registering the relational-feature retrieval components (Müller et al. 2005):
+``features.relational``, ``indexes.inverted`` and ``matchers.relational``."""
+from __future__ import annotations
+
+from mocapflow.framework.plugins import hookimpl
+
+
+@hookimpl
+def register_features() -> list[type]:
+    from .relational import RelationalFeatures
+
+    return [RelationalFeatures]
+
+
+@hookimpl
+def register_indexes() -> list[type]:
+    from mocapflow.plugins.indexes.inverted import InvertedIndex
+
+    return [InvertedIndex]
+
+
+@hookimpl
+def register_matchers() -> list[type]:
+    from mocapflow.plugins.matchers.relational import RelationalMatcher
+
+    return [RelationalMatcher]

@@ -1,0 +1,374 @@
+"""Biovision BVH motion files: reader and writer.
+
+* Any channel order and count per joint: 3 rotation channels, 6 channels (position +
+  rotation) on the root or on any joint, in any order. Rotations are intrinsic in the
+  listed order (``Zrotation Xrotation Yrotation``: ``R = Rz Rx Ry``).
+* ``End Site`` blocks become joints named ``<parent>_end`` (``Head_end`` is the top of
+  the head); a second end site of the same parent gets ``_end2``...
+* Root translation: the root's position channels (absolute positions, as most tools
+  read them); a root without position channels stays at its ``OFFSET``.
+* Position channels on other joints (Bandai-Namco has 6 channels everywhere): when they
+  are constant and equal to the joint's ``OFFSET`` (within 1e-4 file units) they carry
+  nothing and ``Motion.local_translations`` stays ``None``; otherwise it holds them.
+* Units: BVH has none. ``scale="auto"`` takes the rest-pose size ``h`` (the largest
+  extent along one axis of the joints, all rotations zero, in file units) and picks the
+  unit among metres, centimetres, millimetres, inches and CMU ASF units (inches * 0.45,
+  the cgspeed CMU conversions) whose implied size ``h * unit`` is closest to 1.7 m on a
+  log scale. The chosen scale (metres per file unit) and unit name are recorded in
+  ``metadata["scale"]`` / ``metadata["unit"]``; pass a float to force it.
+* ``Frame Time`` gives fps (``metadata["frame_time"]`` keeps the exact value).
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.components import Format, Params
+from mocapflow.framework.errors import DataError, ParseError
+from mocapflow.framework.joints import map_bvh
+from mocapflow.framework.motion import Motion
+from mocapflow.framework.skeleton import Skeleton
+
+from ._common import check_text, file_metadata, line_of, read_bytes
+
+__all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
+
+#: Candidate units of ``scale="auto"``: name -> metres per file unit.
+BVH_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "asf_cmu": 0.0254 / 0.45}
+#: Typical standing height used by ``scale="auto"``, metres.
+TYPICAL_HEIGHT_M = 1.7
+_CHANNELS = {"xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation"}
+_MOTION_RE = re.compile(rb"^[ \t]*MOTION[ \t]*\r?$", re.MULTILINE)
+
+
+class _Joint:
+    __slots__ = ("name", "parent", "offset", "channels", "line")
+
+    def __init__(self, name: str, parent: int, line: int) -> None:
+        self.name, self.parent, self.line = name, parent, line
+        self.offset: list[float] | None = None
+        self.channels: list[str] = []
+
+
+def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
+    words: list[tuple[str, int]] = [(w, ln) for ln, line in enumerate(text.split("\n"), start=1) for w in line.split()]
+    n = len(words)
+    if n == 0 or words[0][0].upper() != "HIERARCHY":
+        raise ParseError(path, words[0][1] if words else 1, "expected 'HIERARCHY' at the start of a BVH file")
+    joints: list[_Joint] = []
+    stack: list[int] = []
+    i = 1
+    last = words[-1][1]
+
+    def take(k: int, what: str) -> list[tuple[str, int]]:
+        if i + k > n:
+            raise ParseError(path, last, f"file ends inside the hierarchy, expected {what}")
+        return words[i:i + k]
+
+    while i < n:
+        w, ln = words[i]
+        key = w.upper()
+        if key in ("ROOT", "JOINT") or (key == "END" and i + 1 < n and words[i + 1][0].upper() == "SITE"):
+            if key == "ROOT" and (stack or joints):
+                raise ParseError(path, ln, "only one ROOT is supported")
+            if key != "ROOT" and not stack:
+                raise ParseError(path, ln, f"expected ROOT, found {w!r}")
+            if key == "END":
+                parent = joints[stack[-1]].name
+                name = f"{parent}_end"
+                k = 2
+                while any(j.name == name for j in joints):
+                    name = f"{parent}_end{k}"
+                    k += 1
+                i += 2
+            else:
+                (name, _l), = take(2, "a joint name")[1:]
+                i += 2
+            joints.append(_Joint(name, stack[-1] if stack else -1, ln))
+            brace, bl = take(1, "'{'")[0]
+            if brace != "{":
+                raise ParseError(path, bl, f"expected '{{' after {name!r}, found {brace!r}")
+            i += 1
+            stack.append(len(joints) - 1)
+        elif key == "OFFSET":
+            if not stack:
+                raise ParseError(path, ln, "OFFSET outside a joint")
+            vals = take(4, "three OFFSET values")[1:]
+            try:
+                joints[stack[-1]].offset = [float(v) for v, _ in vals]
+            except ValueError:
+                raise ParseError(path, ln, f"expected three numbers after OFFSET, found {' '.join(v for v, _ in vals)!r}") from None
+            if not np.all(np.isfinite(joints[stack[-1]].offset)):
+                raise ParseError(path, ln, "expected finite OFFSET values")
+            i += 4
+        elif key == "CHANNELS":
+            if not stack:
+                raise ParseError(path, ln, "CHANNELS outside a joint")
+            cnt_w = take(2, "a channel count")[1][0]
+            if not cnt_w.isdigit():
+                raise ParseError(path, ln, f"expected a channel count after CHANNELS, found {cnt_w!r}")
+            cnt = int(cnt_w)
+            i += 2
+            chans = [c for c, _ in take(cnt, f"{cnt} channel names")]
+            bad = [c for c in chans if c.lower() not in _CHANNELS]
+            if bad or len({c.lower() for c in chans}) != cnt:
+                raise ParseError(path, ln, f"expected {cnt} distinct channels among X/Y/Z position/rotation, found {' '.join(chans)!r}")
+            joints[stack[-1]].channels = chans
+            i += cnt
+        elif w == "}":
+            if not stack:
+                raise ParseError(path, ln, "unbalanced '}'")
+            j = joints[stack.pop()]
+            if j.offset is None:
+                raise ParseError(path, ln, f"joint {j.name!r} has no OFFSET")
+            i += 1
+        else:
+            raise ParseError(path, ln, f"expected ROOT, JOINT, End Site, OFFSET, CHANNELS or '}}', found {w!r}")
+    if stack:
+        raise ParseError(path, last, f"expected '}}' closing {joints[stack[-1]].name!r} before MOTION")
+    if not joints:
+        raise ParseError(path, last, "expected a ROOT joint")
+    return joints
+
+
+def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, float, int, int]:
+    """Frames, frame time, byte offset and line of the first data line after MOTION."""
+    vals: dict[str, str] = {}
+    for key in ("frames:", "frame time:"):
+        end = data.find(b"\n", pos)
+        end = len(data) if end < 0 else end
+        text = data[pos:end].decode("latin-1").strip()
+        if not text.lower().startswith(key) or len(text) == len(key):
+            raise ParseError(path, line, f"expected '{key.capitalize()} <value>', found {text[:40]!r}")
+        vals[key] = text[len(key):].strip()
+        pos, line = end + 1, line + 1
+    try:
+        frames = int(vals["frames:"])
+        dt = float(vals["frame time:"])
+    except ValueError:
+        raise ParseError(path, line - 2, f"expected an integer frame count and a frame time, found {vals}") from None
+    if frames < 1 or not dt > 0 or not np.isfinite(dt):
+        raise ParseError(path, line - 2, f"expected Frames >= 1 and Frame Time > 0, found {frames} and {dt}")
+    return frames, dt, pos, line
+
+
+def _rest_positions(parents: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    pos = np.zeros_like(offsets)
+    for k in range(1, len(parents)):
+        pos[k] = pos[parents[k]] + offsets[k]
+    return pos
+
+
+def _auto_scale(parents: np.ndarray, offsets: np.ndarray) -> tuple[float, str, float]:
+    rest = _rest_positions(parents, offsets)
+    h = float(np.ptp(rest, axis=0).max())
+    if h <= 0:
+        return 1.0, "m", h
+    unit = min(BVH_UNITS, key=lambda u: abs(np.log(h * BVH_UNITS[u] / TYPICAL_HEIGHT_M)))
+    return BVH_UNITS[unit], unit, h
+
+
+def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto") -> Motion:
+    """Read a BVH motion.
+
+    Parameters
+    ----------
+    path : str or Path
+    scale : "auto" or float
+        Metres per file unit; ``"auto"`` guesses it from the rest-pose size (module doc).
+
+    Returns
+    -------
+    Motion
+        Positions in metres; metadata ``path``, ``format`` ("bvh"), ``checksum``,
+        ``source_fps``, ``source_frames``, ``frame_time``, ``scale``, ``unit``, ``subject``.
+
+    Raises
+    ------
+    ParseError
+        Naming the file, the 1-based line and what was expected.
+    """
+    from ._kernels import euler_table_to_quat
+    from ._text import tokenize
+
+    path = Path(path)
+    data = read_bytes(path)
+    check_text(path, data)
+    m = _MOTION_RE.search(data)
+    if m is None:
+        raise ParseError(path, line_of(data, len(data)), "expected a MOTION section")
+    joints = _parse_hierarchy(path, data[:m.start()].decode("latin-1").replace("\r", ""))
+    mline = line_of(data, m.start())
+    frames, dt, dpos, dline = _motion_header(path, data, m.end() + 1, mline + 1)
+    n_ch = sum(len(j.channels) for j in joints)
+    tok = tokenize(np.frombuffer(data, dtype=np.uint8), dpos, dline)
+    _check_motion(path, tok, frames, n_ch, dline)
+    table = tok[4].reshape(frames, n_ch)
+
+    names = tuple(j.name for j in joints)
+    parents = np.array([j.parent for j in joints])
+    offsets = np.array([j.offset for j in joints], dtype=float)
+    if scale == "auto":
+        scl, unit, height = _auto_scale(parents, offsets)
+    else:
+        scl, unit, height = float(scale), "given", float("nan")
+        if not scl > 0:
+            raise DataError(f"scale must be positive or 'auto', got {scale!r}")
+    nj = len(joints)
+    cols = np.full((nj, 3), -1, dtype=np.int64)
+    axis_id = np.zeros((nj, 3), dtype=np.int64)
+    pos_cols = np.full((nj, 3), -1, dtype=np.int64)
+    c = 0
+    for j, jt in enumerate(joints):
+        r = 0
+        for ch in jt.channels:
+            a = "xyz".index(ch[0].lower())
+            if ch[1:].lower() == "rotation":
+                cols[j, r], axis_id[j, r] = c, a
+                r += 1
+            else:
+                pos_cols[j, a] = c
+            c += 1
+    rot = euler_table_to_quat(table, cols, axis_id, quat.identity((nj,)), np.pi / 180.0, False)
+    root_t = np.empty((frames, 3))
+    for a in range(3):
+        root_t[:, a] = table[:, pos_cols[0, a]] if pos_cols[0, a] >= 0 else offsets[0, a]
+    root_t *= scl
+    local_t = None
+    animated = [j for j in range(1, nj) if (pos_cols[j] >= 0).any()]
+    moving = []
+    for j in animated:
+        v = np.where(pos_cols[j] >= 0, table[:, np.maximum(pos_cols[j], 0)], offsets[j])
+        if np.abs(v - offsets[j]).max() > 1e-4 * max(1.0, float(np.abs(offsets[j]).max())):
+            moving.append((j, v))
+    if moving:
+        local_t = np.broadcast_to(offsets * scl, (frames, nj, 3)).copy()
+        for j, v in moving:
+            local_t[:, j] = v * scl
+    skeleton = Skeleton(
+        names=names, parents=parents, offsets=offsets * scl, canonical=map_bvh(names),
+        rotation_orders=tuple("".join(ch[0].lower() for ch in jt.channels if ch[1:].lower() == "rotation") for jt in joints),
+        axes=None, channels=tuple(tuple(jt.channels) for jt in joints), name=path.stem,
+        meta={"format": "bvh", "scale": scl, "unit": unit},
+    )
+    meta = file_metadata(path, data, "bvh")
+    meta.update(subject=path.parent.name, source_fps=1.0 / dt, source_frames=frames, frame_time=dt,
+                scale=scl, unit=unit, rest_size=height)
+    return Motion(skeleton=skeleton, root_translation=root_t, rotations=rot, fps=1.0 / dt, name=path.stem,
+                  metadata=meta, local_translations=local_t)
+
+
+def _check_motion(path: Path, tok: tuple, frames: int, n_ch: int, first_line: int) -> None:
+    """Every data line holds ``n_ch`` finite numbers and there are ``frames`` lines."""
+    starts, lens, lines, _h, _v, isnum, bad, bad_line = tok
+    if bad >= 0:
+        raise ParseError(path, int(bad_line), "expected text, found a binary control byte")
+    if not isnum.all():
+        k = int(np.argmin(isnum))
+        raise ParseError(path, int(lines[k]), f"expected {n_ch} finite numbers per frame, found a non-number")
+    uniq, counts = np.unique(lines, return_counts=True)
+    wrong = np.flatnonzero(counts != n_ch)
+    if wrong.size:
+        k = wrong[0]
+        raise ParseError(path, int(uniq[k]), f"expected {n_ch} values on this frame line, found {int(counts[k])}")
+    if len(uniq) != frames:
+        ln = int(uniq[-1]) if len(uniq) else first_line
+        raise ParseError(path, ln, f"expected {frames} frame lines (Frames:), found {len(uniq)}")
+
+
+def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_order: str = "zyx") -> None:
+    """Write a motion as BVH (file units: metres divided by the source scale, if any).
+
+    Parameters
+    ----------
+    motion : Motion
+    path : str or Path
+    precision : int
+        Significant digits per value.
+    default_order : str
+        Rotation order for joints whose skeleton did not come from a BVH file.
+
+    A skeleton read from BVH keeps its channel layout (order and position channels);
+    others get ``Xposition Yposition Zposition`` on the root and three rotation channels
+    in ``default_order`` on every other joint, except leaves named ``*_end``, which are
+    written as ``End Site``; other leaves get a zero-offset ``End Site`` below them.
+    """
+    sk = motion.skeleton
+    from_bvh = sk.meta.get("format") == "bvh" and len(sk.channels) == sk.n_joints
+    scl = float(sk.meta.get("scale", 1.0)) if from_bvh else 1.0
+    nj = sk.n_joints
+    has_kids = np.zeros(nj, bool)
+    has_kids[sk.parents[1:]] = True
+    chans: list[list[str]] = []
+    for j in range(nj):
+        if from_bvh:
+            chans.append(list(sk.channels[j]))
+        elif j == 0:
+            chans.append(["Xposition", "Yposition", "Zposition"] + [f"{a.upper()}rotation" for a in default_order])
+        elif has_kids[j] or not sk.names[j].lower().endswith("_end"):
+            chans.append([f"{a.upper()}rotation" for a in default_order])
+        else:
+            chans.append([])
+    lt = motion.local_translations
+    cols: list[np.ndarray] = []
+    for j in range(nj):
+        rot_ch = [c for c in chans[j] if c[1:].lower() == "rotation"]
+        ang = quat.to_euler(motion.rotations[:, j], "".join(c[0].lower() for c in rot_ch)) if rot_ch else None
+        r = 0
+        for c in chans[j]:
+            a = "xyz".index(c[0].lower())
+            if c[1:].lower() == "rotation":
+                cols.append(ang[:, r])
+                r += 1
+            elif j == 0:
+                cols.append(motion.root_translation[:, a] / scl)
+            else:
+                cols.append((lt[:, j, a] if lt is not None else np.full(motion.n_frames, sk.offsets[j, a])) / scl)
+    lines = ["HIERARCHY"]
+    g = f"%.{precision}g"
+
+    def emit(j: int, depth: int) -> None:
+        ind = "\t" * depth
+        off = " ".join(g % v for v in sk.offsets[j] / scl)
+        if j > 0 and not chans[j] and not has_kids[j]:
+            lines.extend([f"{ind}End Site", f"{ind}{{", f"{ind}\tOFFSET {off}", f"{ind}}}"])
+            return
+        lines.append(f"{ind}{'ROOT' if j == 0 else 'JOINT'} {sk.names[j]}")
+        lines.extend([f"{ind}{{", f"{ind}\tOFFSET {off}"])
+        if chans[j]:
+            lines.append(f"{ind}\tCHANNELS {len(chans[j])} {' '.join(chans[j])}")
+        for k in sk.children(j):
+            emit(k, depth + 1)
+        if not has_kids[j]:  # a leaf joint with channels: BVH wants an End Site below it
+            lines.extend([f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET 0 0 0", f"{ind}\t}}"])
+        lines.append(f"{ind}}}")
+
+    emit(0, 0)
+    lines += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {g % (1.0 / motion.fps)}"]
+    table = np.column_stack(cols) if cols else np.zeros((motion.n_frames, 0))
+    row = " ".join([g] * table.shape[1])
+    body = "\n".join(row % tuple(r) for r in table.tolist())
+    Path(path).write_text("\n".join(lines) + "\n" + body + "\n", encoding="latin-1")
+
+
+class BvhFormat(Format):
+    """Biovision BVH motions: reader and writer."""
+
+    name: ClassVar[str] = "bvh"
+    extensions: ClassVar[tuple[str, ...]] = (".bvh",)
+    produces: ClassVar[str] = "motion"
+
+    class Params(Params):
+        scale: float | Literal["auto"] = Field(
+            "auto", description="metres per file unit, or 'auto' (guessed from the rest-pose size)")
+
+    def read(self, path: str | Path) -> Motion:
+        return read_bvh(path, scale=self.params.scale)
+
+    def write(self, obj: Any, path: str | Path) -> None:
+        write_bvh(obj, path)

@@ -1,0 +1,122 @@
+"""Numba kernels of ``matchers.relational``: no validation here (the API validates).
+
+Each kernel has a slow reference in ``tests/naive/relational.py``.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def mismatch_scan(codes, clip, member, allowed, m):  # pragma: no cover - compiled
+    """m-mismatch hits by dynamic programming over the segment sequence.
+
+    For every start ``k`` the number of unsatisfied equalities ``w_{k+l} in V_l`` is counted
+    left to right (the DP state is the mismatch count so far), abandoning a start as soon
+    as it exceeds ``m`` or a mismatch falls on a position where none is allowed.
+
+    Parameters
+    ----------
+    codes : int64 (M,)
+        Segment codes.
+    clip : int64 (M,)
+        Clip position of each segment (a hit never spans two clips).
+    member : bool (L, C)
+        ``member[l, c]``: code ``c`` belongs to the query's l-th fuzzy set.
+    allowed : bool (L,)
+        Positions where a mismatch may occur.
+    m : int
+        Maximum number of mismatches.
+
+    Returns
+    -------
+    starts : int64 (n,), mismatches : int64 (n,)
+    """
+    n_seg = codes.shape[0]
+    n_q = member.shape[0]
+    starts = np.empty(max(n_seg - n_q + 1, 0), dtype=np.int64)
+    counts = np.empty_like(starts)
+    n = 0
+    for k in range(n_seg - n_q + 1):
+        if clip[k] != clip[k + n_q - 1]:
+            continue
+        bad = 0
+        ok = True
+        for q in range(n_q):
+            if not member[q, codes[k + q]]:
+                if not allowed[q]:
+                    ok = False
+                    break
+                bad += 1
+                if bad > m:
+                    ok = False
+                    break
+        if ok:
+            starts[n] = k
+            counts[n] = bad
+            n += 1
+    return starts[:n], counts[:n]
+
+
+@njit(cache=True)
+def banded_dtw(a, b, lo, hi):  # pragma: no cover - compiled
+    """DTW between ``a (n, d)`` and ``b (m, d)`` restricted to a band.
+
+    Row ``i`` may only use columns ``lo[i] <= j < hi[i]``; local cost is the Euclidean
+    distance; steps (1,0), (0,1), (1,1). The path runs from (0, 0) to (n-1, m-1).
+
+    Returns
+    -------
+    cost : float (inf when the band admits no path)
+    path : int64 (P, 2), the warping path (empty when no path)
+    cells : int, number of cost-matrix cells evaluated
+    """
+    n, d = a.shape
+    m = b.shape[0]
+    inf = np.inf
+    acc = np.full((n, m), inf)
+    cells = 0
+    for i in range(n):
+        for j in range(max(lo[i], 0), min(hi[i], m)):
+            s = 0.0
+            for c in range(d):
+                diff = a[i, c] - b[j, c]
+                s += diff * diff
+            cost = np.sqrt(s)
+            cells += 1
+            if i == 0 and j == 0:
+                acc[i, j] = cost
+                continue
+            best = inf
+            if i > 0 and acc[i - 1, j] < best:
+                best = acc[i - 1, j]
+            if j > 0 and acc[i, j - 1] < best:
+                best = acc[i, j - 1]
+            if i > 0 and j > 0 and acc[i - 1, j - 1] < best:
+                best = acc[i - 1, j - 1]
+            acc[i, j] = best + cost
+    total = acc[n - 1, m - 1]
+    if not np.isfinite(total):
+        return total, np.zeros((0, 2), dtype=np.int64), cells
+    path = np.empty((n + m, 2), dtype=np.int64)
+    i, j, p = n - 1, m - 1, 0
+    path[0, 0] = i
+    path[0, 1] = j
+    while i > 0 or j > 0:
+        best = inf
+        bi, bj = i, j
+        if i > 0 and j > 0 and acc[i - 1, j - 1] <= best:
+            best = acc[i - 1, j - 1]
+            bi, bj = i - 1, j - 1
+        if i > 0 and acc[i - 1, j] < best:
+            best = acc[i - 1, j]
+            bi, bj = i - 1, j
+        if j > 0 and acc[i, j - 1] < best:
+            best = acc[i, j - 1]
+            bi, bj = i, j - 1
+        i, j = bi, bj
+        p += 1
+        path[p, 0] = i
+        path[p, 1] = j
+    return total, path[: p + 1][::-1].copy(), cells

@@ -1,0 +1,122 @@
+"""indexes.kdtree against the naive brute force (tests/naive/knn.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from naive.knn import knn
+
+from mocapflow.framework.errors import ConfigError, DataError
+from mocapflow.plugins.indexes.kdtree import KDTreeIndex
+
+METHODS = ["kdtree", "brute"]
+
+
+def _clustered(rng, n, d):
+    centres = rng.normal(size=(5, d)) * 5
+    return (centres[rng.integers(0, 5, n)] + 0.05 * rng.normal(size=(n, d))).astype(np.float32)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("kind", ["random", "clustered"])
+def test_knn_equals_brute_force(method, kind):
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(2000, 7)).astype(np.float32) if kind == "random" else _clustered(rng, 2000, 7)
+    q = np.concatenate([x[:20] + 0.01, rng.normal(size=(20, 7)).astype(np.float32)])
+    ix = KDTreeIndex(method=method, leafsize=8).build(x)
+    for k in (1, 16, 300):
+        d, i = ix.query(q, k)
+        d0, i0 = knn(x, q, k)
+        assert d.dtype == np.float32 and i.dtype == np.int64 and d.shape == (len(q), k)
+        np.testing.assert_array_equal(i, i0)
+        np.testing.assert_allclose(d, d0, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_ties_resolve_by_row_id(method):
+    # integer grid with many duplicates: distances tie exactly
+    rng = np.random.default_rng(1)
+    x = rng.integers(0, 3, size=(500, 3)).astype(np.float32)
+    ix = KDTreeIndex(method=method, leafsize=4).build(x)
+    d, i = ix.query(x[:30], 40)
+    d0, i0 = knn(x, x[:30], 40)
+    np.testing.assert_array_equal(i, i0)
+    np.testing.assert_array_equal(d, d0.astype(np.float32))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_radius_caps_and_pads(method):
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(1500, 4)).astype(np.float32)
+    ix = KDTreeIndex(method=method).build(x)
+    d, i = ix.query(x[:25], 50, radius=0.4)
+    d0, i0 = knn(x, x[:25], 50, radius=0.4)
+    np.testing.assert_array_equal(i, i0)
+    assert np.all((d <= 0.4) | (i == -1)) and np.all(np.isinf(d[i == -1]))
+    assert (i == -1).any() and (i != -1).sum(1).min() >= 1
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_exclusion_of_own_clip_window(method):
+    rng = np.random.default_rng(3)
+    # smooth clips: the nearest neighbours of a frame are its own neighbouring frames
+    t = np.arange(600)
+    x = np.stack([np.sin(t / 20), np.cos(t / 13), np.sin(t / 7)], 1).astype(np.float32)
+    groups = t // 200
+    frames = t % 200
+    ix = KDTreeIndex(method=method, leafsize=8).build(x, groups=groups, frames=frames)
+    rows = rng.choice(600, 30, replace=False)
+    d, i = ix.query_rows(rows, 10, exclude=5)
+    d0, i0 = knn(x, x[rows], 10, groups=groups, frames=frames, query_groups=groups[rows],
+                 query_frames=frames[rows], exclude=5)
+    np.testing.assert_array_equal(i, i0)
+    same = groups[i] == groups[rows][:, None]
+    assert not np.any(same & (np.abs(frames[i] - frames[rows][:, None]) <= 5))
+
+
+def test_eps_approximate_bound():
+    rng = np.random.default_rng(4)
+    x = _clustered(rng, 3000, 6)
+    q = rng.normal(size=(40, 6)).astype(np.float32)
+    ix = KDTreeIndex(method="kdtree").build(x)
+    d, _ = ix.query(q, 8, eps=0.5)
+    d0, _ = knn(x, q, 8)
+    assert np.all(d[:, -1] <= 1.5 * d0[:, -1] + 1e-6)
+
+
+def test_save_load_does_not_rebuild(tmp_path, monkeypatch):
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(800, 5)).astype(np.float32)
+    ix = KDTreeIndex(method="kdtree").build(x, groups=np.arange(800) // 100, frames=np.arange(800) % 100)
+    ix.save(tmp_path / "ix")
+    from mocapflow.plugins.indexes import _knn_kernels
+
+    monkeypatch.setattr(_knn_kernels, "build_tree", None)  # load must not call it
+    back = KDTreeIndex.load(tmp_path / "ix")
+    assert back.method_ == "kdtree" and back.data_.dtype == np.float32
+    for a, b in zip(ix.query_rows(np.arange(10), 7, exclude=2), back.query_rows(np.arange(10), 7, exclude=2)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_float32_stored_once_and_auto_reports_method():
+    rng = np.random.default_rng(6)
+    x = rng.normal(size=(3000, 12)).astype(np.float32)
+    ix = KDTreeIndex(min_probe_rows=1000, probe_queries=8).build(x)
+    assert ix.data_.dtype == np.float32 and ix.data_.nbytes == x.nbytes
+    assert ix.method_ in ("kdtree", "brute") and set(ix.probe_) == {"kdtree_ms_per_query", "brute_ms_per_query"}
+    np.testing.assert_array_equal(ix.query(x[:5], 3)[1], knn(x, x[:5], 3)[1])
+
+
+def test_awkward_inputs():
+    one = KDTreeIndex().build(np.ones((1, 3), np.float32))
+    d, i = one.query(np.zeros(3), 4)
+    assert i.tolist() == [[0, -1, -1, -1]] and np.isinf(d[0, 1:]).all()
+    same = KDTreeIndex(leafsize=2).build(np.zeros((50, 2), np.float32))  # constant features
+    assert same.query(np.zeros(2), 5)[1].tolist() == [[0, 1, 2, 3, 4]]
+    with pytest.raises(DataError):
+        same.query(np.zeros(3), 1)
+    with pytest.raises(DataError):
+        KDTreeIndex().build(np.full((3, 2), np.nan, np.float32))
+    with pytest.raises(ConfigError):
+        same.query(np.zeros(2), 1, exclude=3)
+    with pytest.raises(DataError):
+        KDTreeIndex().query(np.zeros(2), 1)

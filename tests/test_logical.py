@@ -1,0 +1,164 @@
+"""Logical (iterated) similarity search, and the matcher steps' run() on hand-made datasets."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from test_lng import BruteIndex
+
+from mocapflow.framework import StepContext, load_registries
+from mocapflow.framework.datasets import MANIFEST, Dataset, feature_table, frame_id_table
+from mocapflow.framework.errors import ConfigError
+from mocapflow.plugins.matchers.lng import LazyNeighborhoodGraph
+from mocapflow.plugins.matchers.logical import LogicalSearch, logical_search
+from mocapflow.plugins.matchers.matches import MATCH_COLUMNS, SearchSpace
+from mocapflow.plugins.matchers.queries import parse_query_spec
+from mocapflow.plugins.matchers.sdtw import SubsequenceDTW
+
+
+class SavedBrute(BruteIndex):
+    name = "saved_brute_test"
+
+    def save(self, directory):
+        directory.mkdir(parents=True, exist_ok=True)
+        np.save(directory / "x.npy", self.x_)
+
+    @classmethod
+    def load(cls, directory):
+        return cls().build(np.load(directory / "x.npy"))
+
+
+def chain_db():
+    """Clips holding a motif drifted by 0, 1, 2, 3 units (far filler around it) and one unrelated clip."""
+    t = np.linspace(0, 2 * np.pi, 20)
+    motif = np.stack([np.sin(t), np.cos(t), t / 3], axis=1)
+    drift = np.array([0.0, 0.0, 1.0])
+    clips = []
+    for c in range(4):
+        filler = 50.0 + 10 * c + np.arange(8)[:, None] * np.ones(3)
+        clips.append(np.concatenate([filler, motif + c * drift, filler + 5]))
+    clips.append(-40.0 + np.cumsum(np.ones((30, 3)), axis=0))
+    x = np.concatenate(clips).astype(np.float32)
+    clip_id = np.concatenate([np.full(len(c), i) for i, c in enumerate(clips)]).astype(np.int32)
+    frame = np.concatenate([np.arange(len(c)) for c in clips]).astype(np.int32)
+    return SearchSpace(clip_id, frame, SavedBrute().build(x), x), motif.astype(np.float32)
+
+
+def test_logical_reaches_what_numerical_misses():
+    space, motif = chain_db()
+    ceiling = 25.0  # one drift step costs 20 (20 frames x 1 unit), two cost 40
+    own = (8, 27)  # the query's own segment in clip 0
+    numerical = logical_search(motif, space, rounds=1, exclude=own, k=64, count=5, max_cost=ceiling)
+    assert sorted(set(space.clip_id[numerical.start])) == [1]
+    logical = logical_search(motif, space, rounds=5, exclude=own, k=64, count=5, max_cost=ceiling)
+    assert sorted(space.clip_id[logical.start]) == [1, 2, 3]
+    assert list(logical.round) == [1, 2, 3]
+    assert list(logical.source) == [-1, 0, 1]  # each found by the previous one
+    for s, e in zip(logical.start, logical.end):
+        assert abs(space.frame[s] - 8) <= 2 and abs(space.frame[e] - 27) <= 2
+
+
+def test_logical_stops_and_deduplicates():
+    space, motif = chain_db()
+    res = logical_search(motif, space, rounds=10, k=64, count=10, max_cost=25.0)
+    iv = sorted(zip(res.start, res.end))
+    assert all(a[1] < b[0] for a, b in zip(iv, iv[1:]))  # no overlaps
+    assert res.round.max() <= 4  # ran out of new segments long before 10 rounds
+    capped = logical_search(motif, space, rounds=10, k=64, count=10, max_cost=25.0, max_matches=2)
+    assert len(capped) == 2
+
+
+def write_dataset(path, component, tables, inputs=None, params=None):
+    path.mkdir(parents=True, exist_ok=True)
+    for name, t in tables.items():
+        pq.write_table(t, path / f"{name}.parquet")
+    manifest = {"step": path.name, "component": component, "params": params or {}, "fingerprint": path.name,
+                "inputs": {k: {"step": v, "fingerprint": v} for k, v in (inputs or {}).items()}}
+    (path / MANIFEST).write_text(json.dumps(manifest))
+    return Dataset(path)
+
+
+@pytest.fixture
+def workspace(tmp_path):
+    space, _ = chain_db()
+    regs = load_registries(entry_points=False)
+    regs["indexes"].add(SavedBrute, "tests")
+    feats = write_dataset(tmp_path / "feats", "features.test", {"data": feature_table(space.clip_id, space.frame, space.features)})
+    idx_dir = tmp_path / "tree"
+    SavedBrute().build(space.features).save(idx_dir / "index")
+    tree = write_dataset(idx_dir, "indexes.saved_brute_test", {"data": frame_id_table(space.clip_id, space.frame)},
+                         inputs={"features": "feats"})
+    return tmp_path, regs, feats, tree
+
+
+def ctx_for(tmp_path, regs, step):
+    out = tmp_path / f".tmp-{step}"
+    out.mkdir()
+    return StepContext(step, out, tmp_path, tmp_path, regs)
+
+
+@pytest.mark.parametrize("cls,params", [
+    (LazyNeighborhoodGraph, {"k": 64, "count": 3, "plots": 1}),
+    (SubsequenceDTW, {"count": 3}),
+    (LogicalSearch, {"k": 64, "count": 3, "max_cost": 25.0, "rank_by": "cost"}),
+])
+def test_run_steps_on_datasets(workspace, cls, params):
+    tmp_path, regs, feats, tree = workspace
+    matcher = cls({**params, "queries": ["0:8-28", "1:8-28"]})
+    out = matcher.run({"database": tree, "query": feats}, ctx_for(tmp_path, regs, cls.name))
+    data, queries = out.tables["data"], out.tables["queries"]
+    assert data.schema.names[: len(MATCH_COLUMNS)] == MATCH_COLUMNS.names
+    assert queries["name"].to_pylist() == ["0:8-28", "1:8-28"]
+    rows = data.to_pylist()
+    assert rows and all(r["end_frame"] > r["start_frame"] for r in rows)
+    for r in rows:  # paths use within-clip frames inside [start, end)
+        frames = [p[1] for p in r["path"]]
+        assert min(frames) == r["start_frame"] and max(frames) == r["end_frame"] - 1
+    if cls is LogicalSearch:  # the query's own segment is excluded
+        assert all(not (r["query_id"] == 0 and r["clip_id"] == 0 and r["start_frame"] < 28) for r in rows)
+        assert set(data["round"].to_pylist()) >= {1, 2}
+    else:
+        best = [r for r in rows if r["rank"] == 1]
+        assert [(r["clip_id"], r["start_frame"], r["end_frame"]) for r in best] == [(0, 8, 28), (1, 8, 28)]
+        assert best[0]["cost"] == pytest.approx(0.0, abs=1e-6)
+    if cls is LazyNeighborhoodGraph:
+        pngs = sorted(p.name for p in (tmp_path / ".tmp-lng" / "plots").iterdir())
+        assert pngs == ["q0_m1.png", "q1_m1.png"]
+
+
+def test_sdtw_runs_on_a_features_dataset_without_index(workspace):
+    tmp_path, regs, feats, tree = workspace
+    out = SubsequenceDTW(count=1, queries=["2:8-28"]).run({"database": feats, "query": feats}, ctx_for(tmp_path, regs, "s"))
+    assert out.tables["data"].to_pylist()[0]["clip_id"] == 2
+
+
+def test_lng_needs_an_index_dataset(workspace):
+    tmp_path, regs, feats, tree = workspace
+    with pytest.raises(Exception, match="index dataset"):
+        LazyNeighborhoodGraph().run({"database": feats, "query": feats}, ctx_for(tmp_path, regs, "l"))
+
+
+@pytest.mark.parametrize("text,expected", [
+    ("walk.amc", ("walk.amc", None, None, False)),
+    ("walk.amc:10-40", ("walk.amc", 10, 40, False)),
+    ("C:/data/walk.amc:1.5s-3s", ("C:/data/walk.amc", 1.5, 3.0, True)),
+    ("odd:name.bvh", ("odd:name.bvh", None, None, False)),
+])
+def test_query_specs(text, expected):
+    s = parse_query_spec(text)
+    assert (s.source, s.start, s.end, s.seconds) == expected
+    assert parse_query_spec(s.text()) == s
+
+
+@pytest.mark.parametrize("text", ["a.amc:40-10", "a.amc:1s-30", "a.amc:1.5-3"])
+def test_bad_query_specs(text):
+    with pytest.raises(ConfigError):
+        parse_query_spec(text)
+
+
+def test_query_range_checked_against_clip():
+    with pytest.raises(ConfigError):
+        parse_query_spec("a:10-50").frames(30.0, 40)
+    assert parse_query_spec("a:1s-2s").frames(30.0, 90) == (30, 60)
