@@ -138,7 +138,7 @@ def check_feature_set(cls: type[Component]) -> None:
 
 def check_index(cls: type[Component]) -> None:
     """Exact kNN equals brute force; results are sorted and padded; save/load keeps answers."""
-    if not issubclass(cls, Index):
+    if not issubclass(cls, Index) or not cls.supports_knn:
         return
     inst = _instance(cls)
     if inst is None or type(inst).query is Index.query:

@@ -9,10 +9,18 @@ Pipeline of one clip (paper section in brackets):
 3. KNN = the K = 5 smallest local minima of each word's distance function, away from the
    word itself (§3.3), found exactly by :mod:`.knn`;
 4. mean-motion-texture T̄ (chordal quaternion mean of every KNN word covering a cell),
-   ``M = |T - T̄|`` as a geodesic angle, each joint's row divided by its mean, and
+   ``M = |T - T̄|`` as a geodesic angle, each joint's row divided by a scale, and
    ``MDM = 1 - exp(-M^2)`` (§3.4);
 5. cells above 0.5 repaired from the median KNN word, blended by a quadratic
    Savitzky-Golay filter (§4, :mod:`.repair`).
+
+Row normalisation (a documented deviation). §3.4 divides "each row of the resulting map M
+by the mean of that row". Read literally (``normalization="mean"``), about half of the
+cells of every clean joint exceed 0.5 (``M > 0.83 x`` its own mean), which contradicts the
+mostly cold maps of Fig. 1 and the precision of Table 1; we measured exactly that. With the
+paper's texture of rotation angles, the natural scale of a joint's row is the joint's mean
+rotation; the default ``"texture"`` divides by the mean geodesic angle of the joint's
+texture row from the rest pose (floored at ``min_scale``), so ``M`` is a relative error.
 
 Contexts (§3.1, §5): ``None`` (the clip itself), a Motion, a list of Motions or a
 :class:`~mocapflow.framework.database.MotionDatabase`; the clip is added to its context
@@ -66,7 +74,11 @@ class MDMParams(Params):
     slope_run: int = Field(default=2, ge=1, description="DTW slope constraint: most consecutive steps in one direction")
     exclusion: int | None = Field(default=None, ge=0, description="minima this close to the source word are discarded (frames; None = N/2)")
     threshold: float = Field(default=0.5, ge=0, le=1, description="MDM value above which a cell is erroneous (§4)")
-    normalization: Literal["mean", "none"] = Field(default="mean", description="divide each joint's row of M by its mean (§3.4)")
+    normalization: Literal["texture", "mean", "none"] = Field(
+        default="texture",
+        description="row scale of M (§3.4): 'texture' = the joint's mean rotation angle in T (see module doc), "
+                    "'mean' = the mean of M's row (literal reading), 'none'")
+    min_scale: float = Field(default=0.1, gt=0, description="floor of the 'texture' row scale, radians (joints that hardly rotate)")
     include_self: bool = Field(default=True, description="search the clip itself as part of its context")
     two_stage: bool = Field(default=False, description="§5: local search first, larger context only around distinct words")
     stage1_groups: tuple[str, ...] = Field(default=("whole",), description="groups of the local first stage")
@@ -153,9 +165,14 @@ def accumulate(neigh: WordNeighbours, n_frames: int, n: int) -> tuple[np.ndarray
     return outer, count
 
 
-def digression_from_outer(q: np.ndarray, outer: np.ndarray, count: np.ndarray,
-                          normalization: str = "mean") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """T̄, the geodesic difference and the MDM from accumulated outer products (§3.4)."""
+def digression_from_outer(q: np.ndarray, outer: np.ndarray, count: np.ndarray, normalization: str = "texture",
+                          min_scale: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """T̄, the geodesic difference and the MDM from accumulated outer products (§3.4).
+
+    ``normalization`` picks the per-joint scale ``M`` is divided by: ``"texture"`` the mean
+    rotation angle of the joint's texture row (at least ``min_scale`` radians), ``"mean"``
+    the mean of ``M``'s own row, ``"none"`` none.
+    """
     covered = count > 0
     mean_q = q.copy()
     if covered.any():
@@ -165,6 +182,9 @@ def digression_from_outer(q: np.ndarray, outer: np.ndarray, count: np.ndarray,
     if normalization == "mean":
         row = diff.mean(axis=0, keepdims=True)
         m = np.where(row > 0, diff / np.where(row > 0, row, 1.0), 0.0)
+    elif normalization == "texture":
+        row = np.maximum(quat.geodesic_angle(q, quat.identity(q.shape[:-1])).mean(axis=0, keepdims=True), min_scale)
+        m = diff / row
     return mean_q, diff, 1.0 - np.exp(-(m ** 2))
 
 
@@ -205,7 +225,7 @@ def digression_map(motion: Motion, context: Any = None, params: MDMParams | None
         outer, count = accumulate(searches[0], tex.n_frames, n)
     else:
         outer, count = _two_stage(tex, full, groups, starts, p, kw, searches)
-    mean_q, diff, mdm = digression_from_outer(tex.q, outer, count, p.normalization)
+    mean_q, diff, mdm = digression_from_outer(tex.q, outer, count, p.normalization, p.min_scale)
     return DigressionResult(tex, mean_q, diff, mdm, searches, time.perf_counter() - t0, sum(s.n_dtw for s in searches))
 
 
@@ -228,7 +248,7 @@ def _two_stage(tex: Texture, full: ContextTextures, groups, starts: np.ndarray, 
     s1 = knn_search(tex.q, local, _subset(groups, first), self_clip=0, word_starts=starts, **kw)
     searches.append(s1)
     outer, count = accumulate(s1, tex.n_frames, n)
-    _, _, mdm1 = digression_from_outer(tex.q, outer, count, p.normalization)
+    _, _, mdm1 = digression_from_outer(tex.q, outer, count, p.normalization, p.min_scale)
     flagged_frames = np.flatnonzero((mdm1 > p.threshold).any(axis=1))
     second = ~first if (~first).any() else first
     distinct = np.array([s for s in starts if np.any((flagged_frames >= s) & (flagged_frames < s + n))], np.int64)

@@ -280,6 +280,7 @@ class InvertedIndex(Index):
     """
 
     name = "inverted"
+    supports_knn = False  # answers feature-sequence queries, not numeric kNN
     version = "1"
     set_names: ClassVar[tuple[str, ...]] = tuple(s[0] for s in SETS)
 

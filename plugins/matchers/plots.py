@@ -62,7 +62,7 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
     same = np.flatnonzero(space.clip_id == clip)
     lo, hi = max(int(same[0]), s - pad), min(int(same[-1]) + 1, e + 1 + pad)
     img = local_distance_window(graph, lo, hi)
-    fig, ax = plt.subplots(figsize=(6, 6 * min(3.0, max(0.4, (hi - lo) / max(m, 1)))), dpi=100)
+    fig, ax = plt.subplots(figsize=(6, 6 * min(1.5, max(0.5, (hi - lo) / max(m, 1)))), dpi=100)
     ax.set_facecolor("#2f4b9a")  # cells never computed
     finite = img[np.isfinite(img)]
     vmax = float(finite.max()) if finite.size else 1.0
