@@ -96,6 +96,8 @@ def map_asf(joint_names: list[str] | tuple[str, ...]) -> dict[str, int]:
 def map_bvh(joint_names: list[str] | tuple[str, ...]) -> dict[str, int]:
     """Canonical map for a BVH skeleton, matching the known namings (case-insensitive)."""
     index = {n.lower(): i for i, n in enumerate(joint_names)}
+    if {"lfemur", "rfemur", "lhumerus", "rhumerus"} <= index.keys():  # Acclaim names (BVH written from ASF)
+        return map_asf(joint_names)
     out: dict[str, int] = {}
     used: set[int] = set()
     for canon in _BVH_PICK_ORDER:

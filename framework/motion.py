@@ -149,10 +149,11 @@ def forward_kinematics(
     rotations: np.ndarray,
     local_translations: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Vectorised forward kinematics.
+    """Forward kinematics in a compiled kernel.
 
-    One batched operation per joint over all frames (joints are topologically ordered),
-    never a Python loop over frames.
+    Joints are topologically ordered, so one pass over frames and joints suffices; the
+    kernel (``_fk_kernels.py``) is checked against a per-frame matrix reference
+    (``tests/naive/kinematics.py``) and against :func:`forward_kinematics_numpy`.
 
     Parameters
     ----------
@@ -167,17 +168,28 @@ def forward_kinematics(
     positions : ndarray of shape (T, J, 3), metres
     global_rotations : ndarray of shape (T, J, 4)
     """
+    # compiled kernel (numba, cached on disk); imported here so that importing mocapflow
+    # (and CLI start-up) never pays for numba
+    from ._fk_kernels import fk
+
+    pos, glob = fk(skeleton.parents, skeleton.offsets, root_translation, rotations, local_translations)
+    pos.setflags(write=False)
+    glob.setflags(write=False)
+    return pos, glob
+
+
+def forward_kinematics_numpy(skeleton: Skeleton, root_translation: np.ndarray, rotations: np.ndarray,
+                             local_translations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The same as :func:`forward_kinematics` with one batched numpy operation per joint over
+    all frames (no numba); kept as a readable second implementation for tests and benchmarks."""
     t, j = rotations.shape[:2]
-    parents = skeleton.parents
     pos = np.empty((t, j, 3))
     glob = np.empty((t, j, 4))
     pos[:, 0] = root_translation
     glob[:, 0] = rotations[:, 0]
     for k in range(1, j):
-        p = parents[k]
+        p = skeleton.parents[k]
         off = skeleton.offsets[k] if local_translations is None else local_translations[:, k]
         pos[:, k] = pos[:, p] + quat.rotate(glob[:, p], np.broadcast_to(off, (t, 3)))
         glob[:, k] = quat.mul(glob[:, p], rotations[:, k])
-    pos.setflags(write=False)
-    glob.setflags(write=False)
     return pos, glob

@@ -125,9 +125,13 @@ class Skeleton:
         )
 
     def fingerprint(self) -> str:
-        """Stable content hash (16 hex digits) used as the skeleton id in tables."""
-        payload = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":")).encode()
-        return hashlib.sha1(payload).hexdigest()[:16]
+        """Stable content hash (16 hex digits) used as the skeleton id in tables (cached)."""
+        cached = self.__dict__.get("_fingerprint")
+        if cached is None:
+            payload = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":")).encode()
+            cached = hashlib.sha1(payload).hexdigest()[:16]
+            object.__setattr__(self, "_fingerprint", cached)
+        return cached
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Skeleton) and self.fingerprint() == other.fingerprint()

@@ -11,6 +11,7 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "mocapflow.plugins.features.relational_plugin",
     "mocapflow.plugins.indexes.kdtree",
     "mocapflow.plugins.features.krueger",
+    "mocapflow.plugins.analyses.correlation",
     "mocapflow.plugins.matchers.matching_plugin",
     "mocapflow.plugins.formats.steps",
     "mocapflow.plugins.analyses.summary",

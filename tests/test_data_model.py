@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 from synthetic import humanoid, random_motion
 
 from mocapflow.framework import DataError, Motion, MotionDatabase, Skeleton
+from mocapflow.framework.motion import forward_kinematics_numpy
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.normalize import body_measures, facing_angles, resample, rest_positions, to_root_frame
 
@@ -46,6 +47,22 @@ def test_fk_matches_per_frame_reference():
     ref = fk_loop(m.skeleton.parents, m.skeleton.offsets, m.root_translation, m.rotations)
     np.testing.assert_allclose(m.positions, ref, atol=1e-12)
     assert not m.positions.flags.writeable
+    pos, glob = forward_kinematics_numpy(m.skeleton, m.root_translation, m.rotations)
+    np.testing.assert_allclose(m.positions, pos, atol=1e-12)
+    np.testing.assert_allclose(m.global_rotations, glob, atol=1e-12)
+
+
+def test_fk_with_per_frame_translations_and_one_frame():
+    m = random_motion(7, seed=8)
+    rng = np.random.default_rng(0)
+    lt = m.skeleton.offsets[None] + rng.normal(scale=0.01, size=(7, m.n_joints, 3))
+    moved = m.with_arrays(local_translations=lt)
+    ref = np.stack([fk_loop(m.skeleton.parents, lt[t], m.root_translation[t:t + 1], m.rotations[t:t + 1])[0] for t in range(7)])
+    np.testing.assert_allclose(moved.positions, ref, atol=1e-12)
+    one = m.slice(3, 4)
+    np.testing.assert_allclose(one.positions[0], m.positions[3], atol=1e-12)
+    empty = m.slice(0, 0)
+    assert empty.positions.shape == (0, m.n_joints, 3)
 
 
 def test_rest_pose_and_body_measures():

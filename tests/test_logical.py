@@ -162,3 +162,33 @@ def test_query_range_checked_against_clip():
     with pytest.raises(ConfigError):
         parse_query_spec("a:10-50").frames(30.0, 40)
     assert parse_query_spec("a:1s-2s").frames(30.0, 90) == (30, 60)
+
+
+def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
+    from conftest import EXAMPLES_DATA, REPO
+
+    if not (EXAMPLES_DATA / "cmu").is_dir():
+        pytest.skip("examples/data/cmu is absent")
+    from mocapflow.framework.cli import main
+    from mocapflow.framework.datasets import read_datasets
+    from mocapflow.framework.runner import run_pipeline
+
+    ws = tmp_path / "ws"
+    run_pipeline(REPO / "pipelines" / "search.yaml", workspace=ws, echo=lambda s: None)
+    ds = read_datasets(ws)
+    lng, exact = ds["matches"].table().to_pylist(), ds["exact"].table().to_pylist()
+    # every query is found in its own clip at cost 0, by both matchers
+    for rows in (lng, exact):
+        best = [r for r in rows if r["rank"] == 1]
+        assert len(best) == 3 and all(r["cost"] == pytest.approx(0.0, abs=1e-6) for r in best)
+    # the LNG's ranked costs agree with exact subsequence DTW where both report the segment
+    key = lambda r: (r["query_id"], r["clip_id"], r["start_frame"], r["end_frame"])  # noqa: E731
+    ref = {key(r): r["cost"] for r in exact}
+    common = [(r["cost"], ref[key(r)]) for r in lng if key(r) in ref]
+    assert len(common) >= 9 and all(a == pytest.approx(b, rel=1e-4, abs=1e-4) for a, b in common)
+    assert sorted(p.name for p in (ws / "matches" / "plots").iterdir())[:2] == ["q0_m1.png", "q0_m2.png"]
+    capsys.readouterr()
+    assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "02_01:0-40", "--count", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "02_01" in out.splitlines()[2] and len(out.splitlines()) == 5
+    assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "nonexistent.amc"]) != 0

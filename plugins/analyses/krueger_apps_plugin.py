@@ -8,5 +8,7 @@ from mocapflow.framework.plugins import hookimpl
 @hookimpl
 def register_analyses() -> list[type]:
     from .fat_graph import FatGraph
+    from .reconstruct import Reconstruct
+    from .reconstruct_eval import ReconstructionEval
 
-    return [FatGraph]
+    return [Reconstruct, ReconstructionEval, FatGraph]

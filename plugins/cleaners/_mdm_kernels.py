@@ -276,6 +276,94 @@ def cdtw(d, i0, j0, n, ln, r, cum, plen, back):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def _better(v, ln_v, bc, bl):  # pragma: no cover - compiled
+    """Whether (cost v, length ln_v) beats the current best (bc, bl): lower cost, then shorter."""
+    return v < bc or (v == bc and ln_v < bl)
+
+
+@njit(cache=True)
+def cdtw_cost(d, i0, j0, n, ln, r, cur, prev, lcur, lprev):  # pragma: no cover - compiled
+    """Cost and length of the optimal constrained-DTW path, keeping two rows only.
+
+    Same recurrence and tie rules as :func:`cdtw` (which also keeps back pointers for the
+    path); work arrays cur, prev (M, 2r+1) float64 and lcur, lprev (M, 2r+1) int64.
+    Returns (cumulative cost, path length).
+    """
+    n_s = 2 * r + 1
+    big = np.int64(2**62)
+    bc_end = _INF
+    bl_end = big
+    for i in range(n):
+        for j in range(ln):
+            c = np.float64(d[i0 + i, j0 + j])
+            if i == 0 and j == 0:
+                for s in range(n_s):
+                    cur[0, s] = _INF
+                    lcur[0, s] = big
+                cur[0, 0] = c
+                lcur[0, 0] = 1
+            else:
+                # diagonal
+                bc = _INF
+                bl = big
+                if i > 0 and j > 0:
+                    for s in range(n_s):
+                        if _better(prev[j - 1, s], lprev[j - 1, s], bc, bl):
+                            bc = prev[j - 1, s]
+                            bl = lprev[j - 1, s]
+                cur[j, 0] = bc + c
+                lcur[j, 0] = bl + 1
+                # horizontal: from diagonal or vertical states of (i, j-1); runs continue
+                bc = _INF
+                bl = big
+                if j > 0 and i < n - 1:
+                    if _better(cur[j - 1, 0], lcur[j - 1, 0], bc, bl):
+                        bc = cur[j - 1, 0]
+                        bl = lcur[j - 1, 0]
+                    for s in range(r + 1, n_s):
+                        if _better(cur[j - 1, s], lcur[j - 1, s], bc, bl):
+                            bc = cur[j - 1, s]
+                            bl = lcur[j - 1, s]
+                cur[j, 1] = bc + c
+                lcur[j, 1] = bl + 1
+                for s in range(2, r + 1):
+                    if j > 0 and i < n - 1:
+                        cur[j, s] = cur[j - 1, s - 1] + c
+                        lcur[j, s] = lcur[j - 1, s - 1] + 1
+                    else:
+                        cur[j, s] = _INF
+                        lcur[j, s] = big
+                # vertical: from diagonal or horizontal states of (i-1, j)
+                bc = _INF
+                bl = big
+                if i > 0 and j < ln - 1:
+                    for s in range(0, r + 1):
+                        if _better(prev[j, s], lprev[j, s], bc, bl):
+                            bc = prev[j, s]
+                            bl = lprev[j, s]
+                cur[j, r + 1] = bc + c
+                lcur[j, r + 1] = bl + 1
+                for s in range(r + 2, n_s):
+                    if i > 0 and j < ln - 1:
+                        cur[j, s] = prev[j, s - 1] + c
+                        lcur[j, s] = lprev[j, s - 1] + 1
+                    else:
+                        cur[j, s] = _INF
+                        lcur[j, s] = big
+            # end cells: the last row, then the last column (same order as cdtw)
+            if i == n - 1 or j == ln - 1:
+                for s in range(n_s):
+                    if cur[j, s] < _INF and _better(cur[j, s], lcur[j, s], bc_end, bl_end):
+                        bc_end = cur[j, s]
+                        bl_end = lcur[j, s]
+        for j in range(ln):
+            for s in range(n_s):
+                prev[j, s] = cur[j, s]
+                lprev[j, s] = lcur[j, s]
+    return bc_end, bl_end
+
+
+@njit(cache=True)
 def cdtw_path(d, i0, j0, n, ln, r):  # pragma: no cover - compiled
     """Constrained DTW with the optimal path.
 
@@ -337,14 +425,15 @@ def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r,
     for t in range(n_c):
         m = max(m, tlen[t])
     for w in prange(n_w):
-        cum = np.empty((n, m, 2 * r + 1))
-        plen = np.empty((n, m, 2 * r + 1), np.int64)
-        back = np.empty((n, m, 2 * r + 1), np.int64)
+        cur = np.empty((m, 2 * r + 1))
+        prev = np.empty((m, 2 * r + 1))
+        lcur = np.empty((m, 2 * r + 1), np.int64)
+        lprev = np.empty((m, 2 * r + 1), np.int64)
         f = np.full(n_c, _INF)
         i0 = starts[w] - row0
         for t in range(n_c):
             if tlen[t] > 0:
-                c, p, _, _, _ = cdtw(d, i0, t, n, tlen[t], r, cum, plen, back)
+                c, p = cdtw_cost(d, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
                 f[t] = c / p
         best_d = np.full(k, _INF)
         best_t = np.full(k, np.int64(2**62))
@@ -363,9 +452,9 @@ def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r,
 
 
 @njit(cache=True)
-def _word_distance(d, i0, t, n, tlen, r, cum, plen, back, memo):  # pragma: no cover - compiled
+def _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, memo):  # pragma: no cover - compiled
     if math.isnan(memo[t]):
-        c, p, _, _, _ = cdtw(d, i0, t, n, tlen[t], r, cum, plen, back)
+        c, p = cdtw_cost(d, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
         memo[t] = c / p
     return memo[t]
 
@@ -386,9 +475,10 @@ def knn_pruned(d, lb, starts, row0, n, tlen, clip_of, self_clip, self_off, radiu
         m = max(m, tlen[t])
     slack = 1.0 - 1e-9  # bounds and distances sum the same terms in another order
     for w in prange(n_w):
-        cum = np.empty((n, m, 2 * r + 1))
-        plen = np.empty((n, m, 2 * r + 1), np.int64)
-        back = np.empty((n, m, 2 * r + 1), np.int64)
+        cur = np.empty((m, 2 * r + 1))
+        prev = np.empty((m, 2 * r + 1))
+        lcur = np.empty((m, 2 * r + 1), np.int64)
+        lprev = np.empty((m, 2 * r + 1), np.int64)
         memo = np.full(n_c, np.nan)
         i0 = starts[w] - row0
         order = np.argsort(lb[w])
@@ -402,16 +492,16 @@ def knn_pruned(d, lb, starts, row0, n, tlen, clip_of, self_clip, self_off, radiu
                 break
             if _excluded(t, clip_of, self_clip, self_pos, radius):
                 continue
-            v = _word_distance(d, i0, t, n, tlen, r, cum, plen, back, memo)
+            v = _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, memo)
             if v > best_d[k - 1]:
                 continue
             u = t - 1
             if u >= 0 and tlen[u] > 0 and clip_of[u] == clip_of[t] and not lb[w, u] * slack > v:
-                if not v < _word_distance(d, i0, u, n, tlen, r, cum, plen, back, memo):
+                if not v < _word_distance(d, i0, u, n, tlen, r, cur, prev, lcur, lprev, memo):
                     continue
             u = t + 1
             if u < n_c and tlen[u] > 0 and clip_of[u] == clip_of[t] and not lb[w, u] * slack > v:
-                if not v <= _word_distance(d, i0, u, n, tlen, r, cum, plen, back, memo):
+                if not v <= _word_distance(d, i0, u, n, tlen, r, cur, prev, lcur, lprev, memo):
                     continue
             _insert_topk(best_d, best_t, k, v, t)
         computed = 0

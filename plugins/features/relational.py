@@ -86,12 +86,12 @@ class _Frames:
     def min_y(self) -> np.ndarray:
         """Height of the lowest joint per frame (the floor the feet stand on)."""
         if self._min_y is None:
-            self._min_y = np.nanmin(self.positions[:, :, 1], axis=1).astype(np.float32)
+            self._min_y = prim.min_height(self.positions)
         return self._min_y
 
     def speed(self, joint: str, reference: str | None = None) -> np.ndarray:
         ref = None if reference is None else self(reference)
-        return prim.speed(self(joint), self.fps, self.offsets, ref).astype(np.float32)
+        return prim.speed(self(joint), self.fps, self.offsets, ref)
 
 
 _UP = np.array([0.0, 1.0, 0.0], dtype=np.float32)

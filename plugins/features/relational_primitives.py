@@ -21,16 +21,28 @@ from __future__ import annotations
 
 import numpy as np
 
-_EPS = 1e-12
+from mocapflow.framework.errors import DataError
 
 
-def _normalize(v: np.ndarray) -> np.ndarray:
-    n = np.sqrt(np.einsum("...i,...i->...", v, v))
-    return v / np.maximum(n, _EPS)[..., None]
+def _points(*arrays: np.ndarray) -> tuple[tuple[np.ndarray, ...], tuple[int, ...]]:
+    """Broadcast point arrays ``(..., 3)`` to a common shape and flatten to ``(N, 3)`` float32."""
+    arrs = [np.asarray(a, dtype=np.float32) for a in arrays]
+    for a in arrs:
+        if a.ndim == 0 or a.shape[-1] != 3:
+            raise DataError(f"points must have shape (..., 3), got {a.shape}")
+    shape = np.broadcast_shapes(*(a.shape for a in arrs))
+    return tuple(np.ascontiguousarray(np.broadcast_to(a, shape)).reshape(-1, 3) for a in arrs), shape[:-1]
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("...i,...i->...", a, b)
+def _scalars(x: float | np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=np.float32), shape)).reshape(-1)
+
+
+def _k():
+    # numba is imported lazily, on the first feature computation, never at start-up
+    from . import _relational_kernels
+
+    return _relational_kernels
 
 
 def plane_distance(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray,
@@ -47,72 +59,89 @@ def plane_distance(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray
 
     Returns
     -------
-    ndarray of shape (...,), metres
-        NaN where a point is NaN; degenerate planes (collinear points) give 0 - offset.
+    ndarray of float32, shape (...,), metres
+        NaN where a point is NaN; degenerate planes (collinear points) give ``-offset``.
     """
-    n = _normalize(np.cross(p2 - p1, p3 - p1))
-    return _dot(q - p1, n) - offset
+    (a, b, c, d), shape = _points(p1, p2, p3, q)
+    out = np.empty(len(a), np.float32)
+    _k().plane_distance(a, b, c, d, _scalars(offset, shape), out)
+    return out.reshape(shape)
 
 
 def normal_plane_distance(a: np.ndarray, b: np.ndarray, anchor: np.ndarray, q: np.ndarray,
                           offset: float | np.ndarray = 0.0) -> np.ndarray:
     """Signed distance of ``q`` from the plane with normal ``b - a`` through ``anchor``, minus ``offset``.
 
-    ``a`` and ``b`` may be joints (shape (..., 3)) or a fixed direction can be given as
-    ``a = 0, b = direction``.
+    ``a`` and ``b`` may be joints (shape (..., 3)) or a fixed direction given as
+    ``a = (0, 0, 0), b = direction``.
 
     Returns
     -------
-    ndarray of shape (...,), metres
+    ndarray of float32, shape (...,), metres
         Positive on the side the normal points to.
     """
-    n = _normalize(np.broadcast_to(b - a, np.broadcast_shapes(np.shape(b - a), np.shape(q))))
-    return _dot(q - anchor, n) - offset
+    (x, y, z, w), shape = _points(a, b, anchor, q)
+    out = np.empty(len(x), np.float32)
+    _k().normal_plane_distance(x, y, z, w, _scalars(offset, shape), out)
+    return out.reshape(shape)
 
 
 def point_segment_distance(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Euclidean distance of point ``q`` from the segment ``[a, b]``, shape (...,), metres."""
-    ab = b - a
-    t = np.clip(_dot(q - a, ab) / np.maximum(_dot(ab, ab), _EPS), 0.0, 1.0)
-    d = q - (a + t[..., None] * ab)
-    return np.sqrt(_dot(d, d))
+    """Euclidean distance of point ``q`` from the segment ``[a, b]``, float32 (...,), metres."""
+    (x, y, z), shape = _points(q, a, b)
+    out = np.empty(len(x), np.float32)
+    _k().point_segment_distance(x, y, z, out)
+    return out.reshape(shape)
 
 
 def segment_segment_distance(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
-    """Smallest distance between the segments ``[a0, a1]`` and ``[b0, b1]``, shape (...,), metres.
+    """Smallest distance between the segments ``[a0, a1]`` and ``[b0, b1]``, float32 (...,), metres.
 
-    Closed form (clamped parameters of the closest points), vectorised; exact also for
-    parallel and degenerate (point) segments because the clamped candidate pairs include
-    every endpoint-to-segment distance.
+    Closed form (clamped parameters of the closest points of the two lines) completed by
+    the four endpoint-to-segment distances, which makes it exact also for parallel and
+    degenerate (point) segments.
     """
-    u, v, w = a1 - a0, b1 - b0, a0 - b0
-    a, b, c, d, e = _dot(u, u), _dot(u, v), _dot(v, v), _dot(u, w), _dot(v, w)
-    den = a * c - b * b
-    # interior candidate: closest points of the infinite lines, clamped to the segments
-    s = np.clip(np.where(den > _EPS, (b * e - c * d) / np.maximum(den, _EPS), 0.0), 0.0, 1.0)
-    t = np.clip(np.where(c > _EPS, (b * s + e) / np.maximum(c, _EPS), 0.0), 0.0, 1.0)
-    s = np.clip(np.where(a > _EPS, (b * t - d) / np.maximum(a, _EPS), 0.0), 0.0, 1.0)
-    diff = w + s[..., None] * u - t[..., None] * v
-    best = np.sqrt(_dot(diff, diff))
-    # endpoint candidates make the result exact where the alternating clamp is not
-    for dist in (point_segment_distance(a0, b0, b1), point_segment_distance(a1, b0, b1),
-                 point_segment_distance(b0, a0, a1), point_segment_distance(b1, a0, a1)):
-        best = np.fmin(best, dist)
-    return best
+    (w, x, y, z), shape = _points(a0, a1, b0, b1)
+    out = np.empty(len(w), np.float32)
+    _k().segment_segment_distance(w, x, y, z, out)
+    return out.reshape(shape)
 
 
 def angle_between(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
-    """Angle in degrees between the directions ``a1 - a0`` and ``b1 - b0``, shape (...,).
+    """Angle in degrees between the directions ``a1 - a0`` and ``b1 - b0``, float32 (...,).
 
     The knee angle is ``angle_between(knee, hip, knee, ankle)``: 180 for a straight leg.
     """
-    cos = _dot(_normalize(a1 - a0), _normalize(b1 - b0))
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    (w, x, y, z), shape = _points(a0, a1, b0, b1)
+    out = np.empty(len(w), np.float32)
+    _k().angle_between(w, x, y, z, out)
+    return out.reshape(shape)
+
+
+def min_height(positions: np.ndarray) -> np.ndarray:
+    """Lowest y coordinate over the joints of each frame, ignoring NaN joints.
+
+    Parameters
+    ----------
+    positions : ndarray of shape (T, J, 3), metres
+
+    Returns
+    -------
+    ndarray of float32, shape (T,) (NaN where every joint is NaN)
+    """
+    p = np.asarray(positions)
+    if p.ndim != 3 or p.shape[2] != 3:
+        raise DataError(f"positions must be (T, J, 3), got {p.shape}")
+    out = np.empty(p.shape[0], np.float32)
+    _k().min_height(p, out)
+    return out
 
 
 def clip_starts(offsets: np.ndarray, n_frames: int) -> np.ndarray:
     """Boolean mask of shape (n_frames,), True at the first frame of each non-empty clip."""
     offsets = np.asarray(offsets, dtype=np.int64)
+    if len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != n_frames or np.any(np.diff(offsets) < 0):
+        raise DataError(f"clip offsets must rise from 0 to {n_frames}")
     mask = np.zeros(n_frames, dtype=bool)
     starts = offsets[:-1][np.diff(offsets) > 0]
     mask[starts] = True
@@ -138,29 +167,18 @@ def speed(p: np.ndarray, fps: float, offsets: np.ndarray | None = None,
 
     Returns
     -------
-    ndarray of shape (T,), m/s
+    ndarray of float32, shape (T,), m/s
     """
-    x = p if reference is None else p - reference
+    x = np.asarray(p, dtype=np.float32)
+    if reference is not None:
+        x = x - np.asarray(reference, dtype=np.float32)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise DataError(f"trajectory must be (T, 3), got {x.shape}")
     t = x.shape[0]
-    if offsets is None:
-        offsets = np.array([0, t])
-    if t == 0:
-        return np.zeros(0)
-    starts = clip_starts(offsets, t)
-    ends = np.zeros(t, dtype=bool)
-    ends[:-1] = starts[1:]
-    ends[-1] = True
-    prev = np.empty_like(x)
-    prev[1:] = x[:-1]
-    prev[0] = x[0]
-    prev[starts] = x[starts]
-    nxt = np.empty_like(x)
-    nxt[:-1] = x[1:]
-    nxt[-1] = x[-1]
-    nxt[ends] = x[ends]
-    steps = 2.0 - starts - ends  # frames spanned by the difference (0 for 1-frame clips)
-    d = np.sqrt(_dot(nxt - prev, nxt - prev))
-    return np.where(steps > 0, d * fps / np.maximum(steps, 1), 0.0)
+    starts = clip_starts(np.array([0, t]) if offsets is None else offsets, t)
+    out = np.empty(t, np.float32)
+    _k().speed(np.ascontiguousarray(x), starts, float(fps), out)
+    return out
 
 
 def threshold(value: np.ndarray, thresh: float | np.ndarray, below: bool = False) -> np.ndarray:
@@ -200,5 +218,5 @@ def hysteresis(on: np.ndarray, stay: np.ndarray, offsets: np.ndarray | None = No
     return np.take_along_axis(on, idx, axis=0) if on.ndim > 1 else on[idx]
 
 
-__all__ = ["angle_between", "clip_starts", "hysteresis", "normal_plane_distance", "plane_distance",
+__all__ = ["angle_between", "clip_starts", "hysteresis", "min_height", "normal_plane_distance", "plane_distance",
            "point_segment_distance", "segment_segment_distance", "speed", "threshold"]

@@ -66,16 +66,13 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
     ax.set_facecolor("#2f4b9a")  # cells never computed
     finite = img[np.isfinite(img)]
     vmax = float(finite.max()) if finite.size else 1.0
-    ax.imshow(np.ma.masked_invalid(img.T), origin="lower", cmap="gray", vmin=0.0, vmax=vmax or 1.0,
-              aspect="auto", interpolation="nearest", extent=(-0.5, m - 0.5, lo - 0.5, hi - 0.5))
+    f0 = int(space.frame[lo]) - lo  # row -> frame within the clip (rows of one clip are contiguous)
+    ax.imshow(np.ma.masked_invalid(img.T), origin="lower", cmap="gray", vmin=0.0, vmax=vmax or 1.0, aspect="auto",
+              interpolation="nearest", extent=(-0.5, m - 0.5, lo + f0 - 0.5, hi + f0 - 0.5))
     for r, p in enumerate(matches.paths):
         if lo <= p[:, 1].min() and p[:, 1].max() < hi:
-            ax.plot(p[:, 0], p[:, 1], color="red", lw=2.5 if r == match else 1.0)
-    f0 = int(space.frame[lo])
-    ticks = ax.get_yticks()
-    ax.set_yticks(ticks)
-    ax.set_yticklabels([str(int(t) - lo + f0) for t in ticks])
-    ax.set_ylim(lo - 0.5, hi - 0.5)
+            ax.plot(p[:, 0], p[:, 1] + f0, color="red", lw=2.5 if r == match else 1.0)
+    ax.set_ylim(lo + f0 - 0.5, hi + f0 - 0.5)
     ax.set_xlabel("query frame")
     ax.set_ylabel(f"database frame (clip {int(clip)})")
     ax.set_title(title or f"match {match + 1}: cost {matches.cost[match]:.3g}", fontsize=9)

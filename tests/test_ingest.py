@@ -1,0 +1,103 @@
+"""The ingest step ``formats.load`` on real files: counts, rejects, resampling, resume."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from conftest import EXAMPLES_DATA, corpus_path
+
+from mocapflow.framework import get_plugin_manager
+from mocapflow.framework.catalog import Catalog
+from mocapflow.framework.runner import run_pipeline
+
+
+def pm():
+    return get_plugin_manager(entry_points=False)
+
+
+def pipeline(tmp_path: Path, paths: list[str], **extra) -> Path:
+    with_ = {"paths": paths, **extra}
+    p = tmp_path / "ingest.yaml"
+    import yaml
+
+    p.write_text(yaml.safe_dump({"name": "ingest", "workspace": str(tmp_path / "ws"),
+                                 "steps": {"motions": {"uses": "formats.load", "with": with_}}}))
+    return p
+
+
+def test_sample_data_ingest_and_resample(tmp_path):
+    p = pipeline(tmp_path, [str(EXAMPLES_DATA / "cmu" / "**" / "*.amc")], fps=30)
+    run_pipeline(p, pm=pm())
+    clips = pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()
+    assert len(clips) == 8 and all(c["fps"] == 30 and c["source_fps"] == 120 for c in clips)
+    for c in clips:
+        assert c["n_frames"] == (c["source_frames"] - 1) // 4 + 1
+        assert c["format"] == "amc" and len(c["checksum"]) == 40 and c["subject"] in {"02", "16", "35"}
+
+
+def test_corrupted_files_land_in_rejects_and_the_rest_finishes(tmp_path):
+    src = EXAMPLES_DATA / "cmu" / "02"
+    bad = tmp_path / "data"
+    bad.mkdir()
+    shutil.copy(src / "02.asf", bad)
+    shutil.copy(src / "02_01.amc", bad / "good.amc")
+    lines = (src / "02_02.amc").read_text().splitlines(keepends=True)
+    (bad / "truncated.amc").write_text("".join(lines[: len(lines) // 2 - 3]))
+    text = (src / "02_03.amc").read_text().split("\n")
+    text[40] = text[40].rsplit(" ", 1)[0] + " nan"
+    (bad / "nanvalue.amc").write_text("\n".join(text))
+    (bad / "garbage.amc").write_bytes(bytes(range(256)) * 40)
+    (bad / "empty.amc").write_text("")
+    p = pipeline(tmp_path, [str(bad / "*.amc")])
+    reports = run_pipeline(p, pm=pm())
+    assert reports[0].summary["clips"] == 1 and reports[0].summary["rejects"] == 4
+    rejects = {Path(r["path"]).name: r for r in pq.read_table(tmp_path / "ws" / "motions" / "rejects.parquet").to_pylist()}
+    assert set(rejects) == {"truncated.amc", "nanvalue.amc", "garbage.amc", "empty.amc"}
+    assert rejects["nanvalue.amc"]["line"] == 41
+    assert rejects["truncated.amc"]["line"] is not None
+    for r in rejects.values():
+        assert r["message"]
+    # on_error: fail stops at the first bad file, naming it
+    p = pipeline(tmp_path, [str(bad / "*.amc")], on_error="fail")
+    from mocapflow.framework import PipelineError
+
+    with pytest.raises(PipelineError, match=r"\.amc:\d+"):
+        run_pipeline(p, pm=pm(), force=True)
+
+
+def test_parallel_ingest_equals_serial(tmp_path):
+    p = pipeline(tmp_path, [str(EXAMPLES_DATA / "cmu" / "**" / "*.amc")])
+    run_pipeline(p, pm=pm(), jobs=1)
+    serial = pq.read_table(tmp_path / "ws" / "motions" / "data.parquet")
+    run_pipeline(p, pm=pm(), jobs=2, force=True)
+    assert pq.read_table(tmp_path / "ws" / "motions" / "data.parquet").equals(serial)
+
+
+def test_changed_file_recomputes(tmp_path):
+    data = tmp_path / "d"
+    shutil.copytree(EXAMPLES_DATA / "cmu" / "02", data)
+    p = pipeline(tmp_path, [str(data / "*.amc")])
+    run_pipeline(p, pm=pm())
+    assert run_pipeline(p, pm=pm())[0].status == "up to date"
+    (data / "02_01.amc").unlink()
+    again = run_pipeline(p, pm=pm())
+    assert again[0].status == "computed" and again[0].summary["clips"] == 3
+
+
+@pytest.mark.slow
+def test_whole_corpus_ingest_has_no_rejects_and_exact_frame_counts(tmp_path):
+    root = corpus_path()
+    p = pipeline(tmp_path, [str(root / "cmu" / "amc" / "**" / "*.amc"), str(root / "hdm05" / "amc" / "**" / "*.amc"),
+                            str(root / "bvh" / "**" / "*.bvh")])
+    run_pipeline(p, pm=pm(), jobs=2)
+    with Catalog(tmp_path / "ws") as cat:
+        assert cat.query("SELECT count(*) AS n FROM rejects").column("n")[0].as_py() == 0
+        amc = cat.query("SELECT count(*) AS clips, sum(n_frames) AS frames FROM clips WHERE format = 'amc'").to_pylist()[0]
+        assert amc == {"clips": 169, "frames": 110109}
+        bvh = cat.query("SELECT count(*) AS n FROM clips WHERE format = 'bvh'").column("n")[0].as_py()
+        assert bvh == len(list((root / "bvh").rglob("*.bvh")))
+        # every frame row is there
+        assert cat.query("SELECT count(*) AS n FROM motions").column("n")[0].as_py() == \
+            cat.query("SELECT sum(n_frames) AS n FROM clips").column("n")[0].as_py()
