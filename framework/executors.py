@@ -2,8 +2,8 @@
 
 An executor is anything with ``map(fn, items, desc) -> list`` and ``close()``. The runner
 never looks inside: ``local`` runs in-process or on a process pool; a cluster executor
-(e.g. ``dask.distributed``) implements the same two methods and registers in
-:data:`EXECUTORS` (or is passed to :class:`~mocapflow.framework.runner.Runner` directly).
+(e.g. ``dask.distributed``) implements the same two methods and is registered through the
+``register_executors`` hook (or passed to :func:`~mocapflow.framework.runner.run_pipeline`).
 ``fn`` must be picklable (a module-level function or a bound method of a picklable
 component) when work leaves the process.
 """
@@ -53,6 +53,3 @@ class LocalExecutor:
             self._pool.shutdown()
             self._pool = None
 
-
-#: Executor factories by name; ``executor:`` in a pipeline or ``--executor`` picks one.
-EXECUTORS: dict[str, Callable[..., Executor]] = {"local": LocalExecutor}

@@ -55,6 +55,15 @@ def register_analyses() -> list[type]:
 
 
 @hookspec
+def register_executors() -> list[type]:
+    """Return executor classes: how steps fan out per-clip work. Each class has ``name``
+    (the value of ``executor:`` in a pipeline), is built as ``cls(jobs=N, **executor_options)``
+    and provides ``map(fn, items, desc) -> list`` (results in input order) and ``close()``.
+    The runner knows nothing else about them, so a cluster executor (e.g. dask.distributed)
+    plugs in without touching it. Names must be unique across plugins."""
+
+
+@hookspec
 def register_commands() -> list[type]:
     """Return CLI command classes added to ``mocapflow`` as sub-commands (``mocapflow search``,
     ``mocapflow clean``...). Each class has ``name`` (str), ``help`` (one line),

@@ -18,8 +18,8 @@ import pyarrow.parquet as pq
 from .config import apply_overrides, load_pipeline
 from .context import StepContext
 from .datasets import MANIFEST, Dataset, StepOutput
-from .errors import ConfigError, MocapflowError, PipelineError
-from .executors import EXECUTORS, Executor
+from .errors import ConfigError, MocapflowError, PipelineError, PluginError
+from .executors import Executor
 from .plan import Plan, build_plan
 from .plugins import build_registries, get_plugin_manager
 
@@ -172,14 +172,27 @@ def plan_pipeline(path: str | Path, overrides: tuple[str, ...] | list[str] = (),
     return build_plan(source, registries)
 
 
-def make_executor(name: str, jobs: int = 1, options: dict[str, Any] | None = None) -> Executor:
-    try:
-        factory = EXECUTORS[name]
-    except KeyError:
+def executor_classes(pm) -> dict[str, type]:
+    """Executor classes registered through the ``register_executors`` hook, by name."""
+    out: dict[str, type] = {}
+    for impl in pm.hook.register_executors.get_hookimpls():
+        for cls in impl.function() or []:
+            if cls.name in out and out[cls.name] is not cls:
+                raise PluginError(f"duplicate executor {cls.name!r} from plugin {pm.get_name(impl.plugin)!r}")
+            out[cls.name] = cls
+    return out
+
+
+def make_executor(pm, name: str, jobs: int = 1, options: dict[str, Any] | None = None) -> Executor:
+    classes = executor_classes(pm)
+    if name not in classes:
         from .registry import did_you_mean
 
-        raise ConfigError(f"unknown executor {name!r}{did_you_mean(name, list(EXECUTORS))}; known: {', '.join(EXECUTORS)}") from None
-    return factory(jobs=jobs, **(options or {}))
+        raise ConfigError(f"unknown executor {name!r}{did_you_mean(name, list(classes))}; known: {', '.join(sorted(classes))}")
+    try:
+        return classes[name](jobs=jobs, **(options or {}))
+    except TypeError as exc:
+        raise ConfigError(f"executor {name!r}: bad executor_options: {exc}") from None
 
 
 def run_pipeline(
@@ -216,7 +229,7 @@ def run_pipeline(
     cfg = plan.source.config
     ws = Path(workspace).resolve() if workspace is not None else default_workspace(plan)
     own = executor is None
-    ex = executor or make_executor(cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options)
+    ex = executor or make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options)
     try:
         return Runner(plan, ws, ex, registries, hook=pm.hook, force=force, echo=echo).run()
     finally:

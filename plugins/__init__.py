@@ -7,6 +7,7 @@ To add a built-in, add its module name to this tuple (one line per module).
 from __future__ import annotations
 
 BUILTIN_PLUGINS: tuple[str, ...] = (
+    "mocapflow.plugins.executors",
     "mocapflow.plugins.formats",
     "mocapflow.plugins.features.relational_plugin",
     "mocapflow.plugins.indexes.kdtree",

@@ -150,3 +150,24 @@ def test_synthetic_motions_through_summary(tmp_path):
     # synthetic joints swing by ±30° about three axes: ranges are large but below 180°
     knee = [r["rom_deg"] for r in rom if r["joint"] == "lknee"]
     assert len(knee) == 2 and all(20 < k < 180 for k in knee)
+
+
+def test_executor_from_a_plugin_without_touching_the_runner(tmp_path):
+    from toy_components import ExecutorPlugin, RecordingExecutor
+
+    body = """
+    name: e
+    workspace: ws
+    executor: recording
+    executor_options: {label: cluster}
+    steps:
+      motions: {uses: analyses.toy_motions, with: {clips: 2, frames: 10}}
+      feats: {uses: analyses.clip_summary, input: motions}
+    """
+    p = write(tmp_path, body)
+    RecordingExecutor.seen.clear()
+    run_pipeline(p, pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin(), ExecutorPlugin()]))
+    assert RecordingExecutor.seen[-1] == "closed"
+    with pytest.raises(ConfigError, match="unknown executor 'recordng'.*did you mean 'recording'"):
+        run_pipeline(write(tmp_path, body.replace("executor: recording", "executor: recordng"), "q.yaml"),
+                     pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin(), ExecutorPlugin()]))

@@ -84,3 +84,26 @@ class ToyPlugin:
     @hookimpl
     def register_analyses(self):
         return [ToySource, ToyAdd, ToyFail, ToyMotions]
+
+
+class RecordingExecutor:
+    """An executor from a plugin: runs in-process and records what it mapped."""
+
+    name = "recording"
+    seen: list[str] = []
+
+    def __init__(self, jobs: int = 1, label: str = "x") -> None:
+        self.label = label
+
+    def map(self, fn, items, desc=""):
+        RecordingExecutor.seen.append(f"{self.label}:{desc}:{len(items)}")
+        return [fn(x) for x in items]
+
+    def close(self) -> None:
+        RecordingExecutor.seen.append("closed")
+
+
+class ExecutorPlugin:
+    @hookimpl
+    def register_executors(self):
+        return [RecordingExecutor]

@@ -74,14 +74,14 @@ def segment_segment_distance(a0, a1, b0, b1, out):  # pragma: no cover - compile
 
 
 @njit(cache=True)
-def angle_between(a0, a1, b0, b1, out):  # pragma: no cover - compiled
+def cos_between(a0, a1, b0, b1, out):  # pragma: no cover - compiled
+    # the cosine, not the angle: thresholding cos against cos(theta) avoids an acos per frame
     for i in range(a0.shape[0]):
         ux, uy, uz = a1[i, 0] - a0[i, 0], a1[i, 1] - a0[i, 1], a1[i, 2] - a0[i, 2]
         vx, vy, vz = b1[i, 0] - b0[i, 0], b1[i, 1] - b0[i, 1], b1[i, 2] - b0[i, 2]
         nu = max(math.sqrt(ux * ux + uy * uy + uz * uz), _EPS)
         nv = max(math.sqrt(vx * vx + vy * vy + vz * vz), _EPS)
-        c = (ux * vx + uy * vy + uz * vz) / (nu * nv)
-        out[i] = math.degrees(math.acos(min(max(c, -1.0), 1.0)))
+        out[i] = min(max((ux * vx + uy * vy + uz * vz) / (nu * nv), -1.0), 1.0)
 
 
 @njit(cache=True)

@@ -63,6 +63,7 @@ class FeatureDef:
     below: bool
     value: Callable[[_Frames], np.ndarray]
     definition: str
+    # for unit "deg" value() returns the cosine of the angle (cheaper than acos)
 
 
 class _Frames:
@@ -127,7 +128,7 @@ def _defs() -> tuple[FeatureDef, ...]:
             lambda f, s=s: f.speed(f"{s}toes"), f"speed of {s}toes")
     for s in "rl":
         add("L", f"{s}knee_bent", f"{_side(s)} knee bent", "bent_angle", "deg", True,
-            lambda f, s=s: prim.angle_between(f(f"{s}knee"), f(f"{s}hip"), f(f"{s}knee"), f(f"{s}ankle")),
+            lambda f, s=s: prim.cos_between(f(f"{s}knee"), f(f"{s}hip"), f(f"{s}knee"), f(f"{s}ankle")),
             f"angle({s}knee->{s}hip, {s}knee->{s}ankle)")
     for s, o in (("r", "l"), ("l", "r")):
         add("L", f"{s}leg_sideways", f"{_side(s)} leg sideways", "leg_sideways", "hl", False,
@@ -155,7 +156,7 @@ def _defs() -> tuple[FeatureDef, ...]:
             f"nplane(normal {o}shoulder->{s}shoulder, through {s}shoulder) -> {s}wrist")
     for s in "rl":
         add("U", f"{s}elbow_bent", f"{_side(s)} elbow bent", "bent_angle", "deg", True,
-            lambda f, s=s: prim.angle_between(f(f"{s}elbow"), f(f"{s}shoulder"), f(f"{s}elbow"), f(f"{s}wrist")),
+            lambda f, s=s: prim.cos_between(f(f"{s}elbow"), f(f"{s}shoulder"), f(f"{s}elbow"), f(f"{s}wrist")),
             f"angle({s}elbow->{s}shoulder, {s}elbow->{s}wrist)")
     for s in "rl":
         add("U", f"{s}hand_fast", f"{_side(s)} hand fast", "hand_fast", "hl/s", False,
@@ -182,8 +183,8 @@ def _defs() -> tuple[FeatureDef, ...]:
             lambda f, s=s: prim.point_segment_distance(f(f"{s}wrist"), f("lhip"), f("rhip")),
             f"distance({s}wrist, segment lhip-rhip)")
     add("M", "torso_bent", "torso bent", "torso_bent_angle", "deg", True,
-        lambda f: np.fmax(prim.angle_between(f("root"), f("neck"), f("lhip"), f("lknee")),
-                          prim.angle_between(f("root"), f("neck"), f("rhip"), f("rknee"))),
+        lambda f: np.fmin(prim.cos_between(f("root"), f("neck"), f("lhip"), f("lknee")),
+                          prim.cos_between(f("root"), f("neck"), f("rhip"), f("rknee"))),
         "max(angle(root->neck, lhip->lknee), angle(root->neck, rhip->rknee))")
     add("M", "root_fast", "root fast", "root_fast", "hl/s", False,
         lambda f: f.speed("root"), "speed of root")
@@ -260,10 +261,14 @@ def relational_features(positions: np.ndarray, fps: float, measures: Mapping[str
         for i, d in enumerate(FEATURES):
             value = d.value(frames)
             base, strict = getattr(params, d.param)
-            scale = _unit_scale(d.unit, m)
-            out[:, i] = prim.threshold(value, base * scale, d.below)
+            if d.unit == "deg":  # value is a cosine: angle < theta iff cos > cos(theta)
+                base, strict, below = np.cos(np.radians(base)), np.cos(np.radians(strict)), not d.below
+            else:
+                scale = _unit_scale(d.unit, m)
+                base, strict, below = base * scale, strict * scale, d.below
+            out[:, i] = prim.threshold(value, base, below)
             if on is not None:
-                on[:, i] = prim.threshold(value, strict * scale, d.below)
+                on[:, i] = prim.threshold(value, strict, below)
     if on is not None:
         out = prim.hysteresis(on & out, out, offsets)
     return out

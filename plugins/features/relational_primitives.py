@@ -107,15 +107,24 @@ def segment_segment_distance(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1:
     return out.reshape(shape)
 
 
+def cos_between(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
+    """Cosine of the angle between the directions ``a1 - a0`` and ``b1 - b0``, float32 (...,).
+
+    Thresholding the cosine (``angle < theta`` iff ``cos > cos(theta)``) is what the
+    features do; :func:`angle_between` gives degrees.
+    """
+    (w, x, y, z), shape = _points(a0, a1, b0, b1)
+    out = np.empty(len(w), np.float32)
+    _k().cos_between(w, x, y, z, out)
+    return out.reshape(shape)
+
+
 def angle_between(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
     """Angle in degrees between the directions ``a1 - a0`` and ``b1 - b0``, float32 (...,).
 
     The knee angle is ``angle_between(knee, hip, knee, ankle)``: 180 for a straight leg.
     """
-    (w, x, y, z), shape = _points(a0, a1, b0, b1)
-    out = np.empty(len(w), np.float32)
-    _k().angle_between(w, x, y, z, out)
-    return out.reshape(shape)
+    return np.degrees(np.arccos(cos_between(a0, a1, b0, b1)))
 
 
 def min_height(positions: np.ndarray) -> np.ndarray:
@@ -218,5 +227,5 @@ def hysteresis(on: np.ndarray, stay: np.ndarray, offsets: np.ndarray | None = No
     return np.take_along_axis(on, idx, axis=0) if on.ndim > 1 else on[idx]
 
 
-__all__ = ["angle_between", "clip_starts", "hysteresis", "min_height", "normal_plane_distance", "plane_distance",
+__all__ = ["angle_between", "clip_starts", "cos_between", "hysteresis", "min_height", "normal_plane_distance", "plane_distance",
            "point_segment_distance", "segment_segment_distance", "speed", "threshold"]

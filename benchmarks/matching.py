@@ -1,0 +1,143 @@
+"""LNG end to end (kNN + graph + path) against exact subsequence DTW (Krüger et al. 2010, §4).
+
+    python benchmarks/matching.py            # 380,813 and 1,038,388-frame databases
+    python benchmarks/matching.py --quick    # a 60,000-frame database, few queries
+
+Databases come from ``benchmarks/corpus.py`` (the real CMU + HDM05 corpus grown by
+realistic augmentation), features are F_E^15 (``features.end_effectors``, joints 5), the
+index is ``indexes.kdtree`` (kd-tree method, one thread, like the paper's ANN runs).
+Queries are random database segments of 30, 64 and 90 frames (1 s, ~2 s, 3 s at 30 Hz).
+Printed per database and query length: median milliseconds per query of
+
+* LNG with exact kNN (k = 256), split into kNN search and graph + path search;
+* LNG with ε-approximate kNN (ε = 0.1, 0.5) and the fraction of queries whose best match is
+  the exact-kNN LNG's (the "recall" of the approximation);
+* our subsequence DTW (numba, one thread; cells per second);
+* dtaidistance's ``subsequence_alignment`` (C, ``use_c=True``, penalty 0) on the same
+  data, when installed (``pip install dtaidistance``; benchmark only), on a few queries;
+
+and the ratios sDTW / LNG. No assertions: the figures are the output.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from corpus import augmented_database  # noqa: E402
+
+from mocapflow.plugins.features.end_effectors import EndEffectorFeatures  # noqa: E402
+from mocapflow.plugins.indexes.kdtree import KDTreeIndex  # noqa: E402
+from mocapflow.plugins.matchers.lng import build_graph, neighbor_sets  # noqa: E402
+from mocapflow.plugins.matchers.matches import SearchSpace  # noqa: E402
+from mocapflow.plugins.matchers.sdtw import subsequence_dtw  # noqa: E402
+
+
+def database_space(n_frames: int, echo=print) -> SearchSpace:
+    t0 = time.perf_counter()
+    db = augmented_database(n_frames, fps=30)
+    t1 = time.perf_counter()
+    x = EndEffectorFeatures(joints=5).transform(db)
+    t2 = time.perf_counter()
+    index = KDTreeIndex(method="kdtree", workers=1).build(x)
+    t3 = time.perf_counter()
+    clip_id, frame = db.frame_ids
+    echo(f"database {n_frames:,} frames, {db.n_clips} clips: load {t1 - t0:.1f} s, F_E^15 {t2 - t1:.1f} s, "
+         f"kd-tree build {t3 - t2:.1f} s")
+    return SearchSpace(clip_id, frame, index, x)
+
+
+def random_queries(space: SearchSpace, length: int, count: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """``count`` random segments of ``length`` frames lying inside one clip."""
+    out = []
+    while len(out) < count:
+        s = int(rng.integers(0, space.n_rows - length))
+        if space.clip_id[s] == space.clip_id[s + length - 1] and space.frame[s + length - 1] - space.frame[s] == length - 1:
+            out.append(space.features[s : s + length])
+    return out
+
+
+def timed(fn, *args, **kwargs):
+    t = time.perf_counter()
+    r = fn(*args, **kwargs)
+    return r, time.perf_counter() - t
+
+
+def lng_once(q, space, k, eps):
+    """(best (start, end) or None, kNN seconds, graph+path seconds)."""
+    _, t_knn = timed(neighbor_sets, q, space.index, k, None, eps)  # kNN alone, for the split
+    t = time.perf_counter()
+    g = build_graph(q, space, k=k, eps=eps)
+    res = g.matches(count=10)
+    total = time.perf_counter() - t
+    best = (int(res.start[0]), int(res.end[0])) if len(res) else None
+    return best, total, t_knn
+
+
+def bench_size(space: SearchSpace, lengths, n_queries, n_exact, k, rng, echo=print) -> None:
+    try:
+        from dtaidistance.subsequence.dtw import subsequence_alignment
+    except ImportError:
+        subsequence_alignment = None
+    # warm the kernels (numba compile) outside the timings
+    w = random_queries(space, 8, 1, rng)[0]
+    lng_once(w, space, 8, 0.0)
+    lng_once(w, space, 8, 0.1)
+    subsequence_dtw(w, SearchSpace(space.clip_id[:500], space.frame[:500], features=space.features[:500]))
+    echo(f"{'m':>4} {'LNG ms':>8} {'kNN ms':>8} {'graph ms':>9} {'eps.1 ms':>9} {'same':>5} {'eps.5 ms':>9} {'same':>5} "
+         f"{'sDTW ms':>9} {'Mcell/s':>8} {'dtai ms':>8} {'sDTW/LNG':>9} {'sDTW/LNG.5':>10} {'dtai/sDTW':>9}")
+    for m in lengths:
+        qs = random_queries(space, m, n_queries, rng)
+        exact = [lng_once(q, space, k, 0.0) for q in qs]
+        t_lng = np.median([e[1] for e in exact])
+        t_knn = np.median([e[2] for e in exact])
+        approx = {}
+        for eps in (0.1, 0.5):
+            runs = [lng_once(q, space, k, eps) for q in qs]
+            same = np.mean([r[0] == e[0] for r, e in zip(runs, exact)])
+            approx[eps] = (np.median([r[1] for r in runs]), same)
+        t_sdtw = np.median([timed(subsequence_dtw, q, space, count=10)[1] for q in qs[:n_exact]])
+        cells = m * space.n_rows / t_sdtw / 1e6
+        t_dtai = float("nan")
+        if subsequence_alignment is not None and space.n_rows * (m + 1) * 8 < 4e9:
+            runs = []
+            for q in qs[: max(1, n_exact // 2)]:
+                t = time.perf_counter()
+                sa = subsequence_alignment(q.astype(np.float64), space.features.astype(np.float64), penalty=0.0, use_c=True)
+                sa.best_match()
+                runs.append(time.perf_counter() - t)
+                del sa
+            t_dtai = float(np.median(runs))
+        echo(f"{m:>4} {t_lng * 1e3:>8.2f} {t_knn * 1e3:>8.2f} {(t_lng - t_knn) * 1e3:>9.2f} "
+             f"{approx[0.1][0] * 1e3:>9.2f} {approx[0.1][1]:>5.2f} {approx[0.5][0] * 1e3:>9.2f} {approx[0.5][1]:>5.2f} "
+             f"{t_sdtw * 1e3:>9.1f} {cells:>8.0f} {t_dtai * 1e3:>8.1f} {t_sdtw / t_lng:>9.1f} "
+             f"{t_sdtw / approx[0.5][0]:>10.1f} {t_dtai / t_sdtw:>9.2f}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="one 60,000-frame database, 8 queries per length")
+    ap.add_argument("--sizes", type=int, nargs="*", default=None, help="database sizes in frames")
+    ap.add_argument("--queries", type=int, default=None, help="LNG queries per length (default 32; quick 8)")
+    ap.add_argument("--exact", type=int, default=None, help="sDTW queries per length (default 6; quick 3)")
+    ap.add_argument("-k", type=int, default=256, help="neighbours per query frame (paper: 256)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    sizes = args.sizes or ([60_000] if args.quick else [380_813, 1_038_388])
+    n_q = args.queries or (8 if args.quick else 32)
+    n_x = args.exact or (3 if args.quick else 6)
+    rng = np.random.default_rng(args.seed)
+    print(f"LNG (kNN k={args.k} + graph + path) vs subsequence DTW; F_E^15; one thread; median ms per query")
+    for n in sizes:
+        space = database_space(n)
+        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
