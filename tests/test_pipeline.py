@@ -171,3 +171,45 @@ def test_executor_from_a_plugin_without_touching_the_runner(tmp_path):
     with pytest.raises(ConfigError, match="unknown executor 'recordng'.*did you mean 'recording'"):
         run_pipeline(write(tmp_path, body.replace("executor: recording", "executor: recordng"), "q.yaml"),
                      pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin(), ExecutorPlugin()]))
+
+
+def test_killed_run_resumes_with_the_same_outputs(tmp_path):
+    """SIGKILL in the middle of a step, then run again: same result, no half-written data read."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    body = """
+    name: k
+    workspace: ws
+    steps:
+      src: {uses: analyses.toy_source, with: {n: 6}}
+      slow: {uses: analyses.toy_slow, input: src, with: {seconds: SECONDS}}
+      after: {uses: analyses.toy_add, input: slow}
+    """
+    p = write(tmp_path, body.replace("SECONDS", "60"))
+    tests_dir = Path(__file__).resolve().parent
+    script = (
+        f"import sys; sys.path.insert(0, {str(tests_dir)!r})\n"
+        "from toy_components import ToyPlugin\n"
+        "from mocapflow.framework import get_plugin_manager\n"
+        "from mocapflow.framework.runner import run_pipeline\n"
+        f"run_pipeline({str(p)!r}, pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin()]))\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script])
+    ws = tmp_path / "ws"
+    deadline = time.time() + 60
+    while not (ws / "slow-started").exists():
+        assert proc.poll() is None and time.time() < deadline, "the run ended before the slow step started"
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert (ws / "src" / "_manifest.json").is_file() and not (ws / "slow").exists()
+    assert list((ws / ".tmp").iterdir()), "the kill should have left a half-written step behind"
+    p.write_text(textwrap.dedent(body.replace("SECONDS", "0")))
+    reports = {r.step_id: r.status for r in run_pipeline(p, pm=pm())}
+    assert reports == {"src": "up to date", "slow": "computed", "after": "computed"}
+    assert pq.read_table(ws / "after" / "data.parquet")["x"].to_pylist() == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    assert not (ws / ".tmp").exists()

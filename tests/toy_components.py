@@ -83,7 +83,7 @@ class ToyMotions(Analysis):
 class ToyPlugin:
     @hookimpl
     def register_analyses(self):
-        return [ToySource, ToyAdd, ToyFail, ToyMotions]
+        return [ToySource, ToyAdd, ToyFail, ToyMotions, ToySlow]
 
 
 class RecordingExecutor:
@@ -107,3 +107,21 @@ class ExecutorPlugin:
     @hookimpl
     def register_executors(self):
         return [RecordingExecutor]
+
+
+class ToySlow(Analysis):
+    """Writes part of its output, signals, then sleeps (to be killed mid-step in tests)."""
+
+    name = "toy_slow"
+    inputs: Mapping[str, bool] = {"source": True}
+
+    class Params(Params):
+        seconds: float = 30.0
+
+    def run(self, inputs, ctx):
+        import time
+
+        (ctx.out_dir / "data.parquet").write_bytes(b"PAR1 half-written")
+        (ctx.workspace / "slow-started").write_text("1")
+        time.sleep(self.params.seconds)
+        return StepOutput({"data": pa.table({"x": inputs["source"].table()["x"]})})
