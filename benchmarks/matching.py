@@ -9,7 +9,8 @@ index is ``indexes.kdtree`` (kd-tree method, one thread, like the paper's ANN ru
 Queries are random database segments of 30, 64 and 90 frames (1 s, ~2 s, 3 s at 30 Hz).
 Printed per database and query length: median milliseconds per query of
 
-* LNG with exact kNN (k = 256), split into kNN search and graph + path search;
+* LNG with exact kNN (k = 256 and 64), split into kNN search and graph + path search
+  (microseconds per query frame);
 * LNG with ε-approximate kNN (ε = 0.1, 0.5) and the fraction of queries whose best match is
   the exact-kNN LNG's (the "recall" of the approximation);
 * our subsequence DTW (numba, one thread; cells per second);
@@ -33,7 +34,8 @@ from corpus import augmented_database  # noqa: E402
 
 from mocapflow.plugins.features.end_effectors import EndEffectorFeatures  # noqa: E402
 from mocapflow.plugins.indexes.kdtree import KDTreeIndex  # noqa: E402
-from mocapflow.plugins.matchers.lng import build_graph, neighbor_sets  # noqa: E402
+from mocapflow.plugins.matchers._lng_kernels import lng_forward  # noqa: E402
+from mocapflow.plugins.matchers.lng import NeighborhoodGraph, neighbor_sets  # noqa: E402
 from mocapflow.plugins.matchers.matches import SearchSpace  # noqa: E402
 from mocapflow.plugins.matchers.sdtw import subsequence_dtw  # noqa: E402
 
@@ -69,41 +71,32 @@ def timed(fn, *args, **kwargs):
 
 
 def lng_once(q, space, k, eps):
-    """(best (start, end) or None, kNN seconds, graph+path seconds)."""
-    _, t_knn = timed(neighbor_sets, q, space.index, k, None, eps)  # kNN alone, for the split
-    t = time.perf_counter()
-    g = build_graph(q, space, k=k, eps=eps)
-    res = g.matches(count=10)
-    total = time.perf_counter() - t
+    """(best (start, end) or None, total seconds, kNN seconds) of one LNG query."""
+    t0 = time.perf_counter()
+    ids, dist, count = neighbor_sets(q, space.index, k, None, eps)
+    t1 = time.perf_counter()
+    cost, start, pred, length = lng_forward(ids, dist, count, space.continues)
+    res = NeighborhoodGraph(ids, dist, count, cost, start, pred, length).matches(count=10)
+    t2 = time.perf_counter()
     best = (int(res.start[0]), int(res.end[0])) if len(res) else None
-    return best, total, t_knn
+    return best, t2 - t0, t1 - t0
 
 
-def bench_size(space: SearchSpace, lengths, n_queries, n_exact, k, rng, echo=print) -> None:
+def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=print) -> None:
     try:
         from dtaidistance.subsequence.dtw import subsequence_alignment
     except ImportError:
         subsequence_alignment = None
+        echo("(dtaidistance not installed: no dtaidistance baseline)")
     # warm the kernels (numba compile) outside the timings
     w = random_queries(space, 8, 1, rng)[0]
     lng_once(w, space, 8, 0.0)
     lng_once(w, space, 8, 0.1)
     subsequence_dtw(w, SearchSpace(space.clip_id[:500], space.frame[:500], features=space.features[:500]))
-    echo(f"{'m':>4} {'LNG ms':>8} {'kNN ms':>8} {'graph ms':>9} {'eps.1 ms':>9} {'same':>5} {'eps.5 ms':>9} {'same':>5} "
-         f"{'sDTW ms':>9} {'Mcell/s':>8} {'dtai ms':>8} {'sDTW/LNG':>9} {'sDTW/LNG.5':>10} {'dtai/sDTW':>9}")
     for m in lengths:
         qs = random_queries(space, m, n_queries, rng)
-        exact = [lng_once(q, space, k, 0.0) for q in qs]
-        t_lng = np.median([e[1] for e in exact])
-        t_knn = np.median([e[2] for e in exact])
-        approx = {}
-        for eps in (0.1, 0.5):
-            runs = [lng_once(q, space, k, eps) for q in qs]
-            same = np.mean([r[0] == e[0] for r, e in zip(runs, exact)])
-            approx[eps] = (np.median([r[1] for r in runs]), same)
-        t_sdtw = np.median([timed(subsequence_dtw, q, space, count=10)[1] for q in qs[:n_exact]])
-        cells = m * space.n_rows / t_sdtw / 1e6
-        t_dtai = float("nan")
+        t_sdtw = float(np.median([timed(subsequence_dtw, q, space, count=10)[1] for q in qs[:n_exact]]))
+        rows = [("sDTW (ours, exact)", t_sdtw, float("nan"), float("nan"), 1.0)]
         if subsequence_alignment is not None and space.n_rows * (m + 1) * 8 < 4e9:
             runs = []
             for q in qs[: max(1, n_exact // 2)]:
@@ -112,11 +105,19 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, k, rng, echo=pri
                 sa.best_match()
                 runs.append(time.perf_counter() - t)
                 del sa
-            t_dtai = float(np.median(runs))
-        echo(f"{m:>4} {t_lng * 1e3:>8.2f} {t_knn * 1e3:>8.2f} {(t_lng - t_knn) * 1e3:>9.2f} "
-             f"{approx[0.1][0] * 1e3:>9.2f} {approx[0.1][1]:>5.2f} {approx[0.5][0] * 1e3:>9.2f} {approx[0.5][1]:>5.2f} "
-             f"{t_sdtw * 1e3:>9.1f} {cells:>8.0f} {t_dtai * 1e3:>8.1f} {t_sdtw / t_lng:>9.1f} "
-             f"{t_sdtw / approx[0.5][0]:>10.1f} {t_dtai / t_sdtw:>9.2f}")
+            rows.append(("dtaidistance subsequence_alignment", float(np.median(runs)), float("nan"), float("nan"), float("nan")))
+        for k in ks:
+            exact = [lng_once(q, space, k, 0.0) for q in qs]
+            for eps in (0.0, 0.1, 0.5):
+                runs = exact if eps == 0 else [lng_once(q, space, k, eps) for q in qs]
+                same = float(np.mean([r[0] == e[0] for r, e in zip(runs, exact)]))
+                t_all = float(np.median([r[1] for r in runs]))
+                t_knn = float(np.median([r[2] for r in runs]))
+                rows.append((f"LNG k={k} eps={eps:g}", t_all, t_knn, t_all - t_knn, same))
+        echo(f"  query {m} frames ({len(qs)} LNG / {min(n_exact, len(qs))} sDTW queries); sDTW {m * space.n_rows / t_sdtw / 1e6:.0f} M cells/s")
+        echo(f"    {'method':<36} {'ms/query':>9} {'kNN ms':>8} {'graph us/frame':>15} {'same best':>9} {'sDTW/this':>10}")
+        for name, t, tk, tg, same in rows:
+            echo(f"    {name:<36} {t * 1e3:>9.2f} {tk * 1e3:>8.2f} {tg * 1e6 / m:>15.1f} {same:>9.2f} {t_sdtw / t:>10.1f}")
 
 
 def main(argv=None) -> int:
@@ -125,14 +126,14 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", type=int, nargs="*", default=None, help="database sizes in frames")
     ap.add_argument("--queries", type=int, default=None, help="LNG queries per length (default 32; quick 8)")
     ap.add_argument("--exact", type=int, default=None, help="sDTW queries per length (default 6; quick 3)")
-    ap.add_argument("-k", type=int, default=256, help="neighbours per query frame (paper: 256)")
+    ap.add_argument("-k", type=int, nargs="*", default=[256, 64], help="neighbours per query frame (paper: 256)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     sizes = args.sizes or ([60_000] if args.quick else [380_813, 1_038_388])
     n_q = args.queries or (8 if args.quick else 32)
     n_x = args.exact or (3 if args.quick else 6)
     rng = np.random.default_rng(args.seed)
-    print(f"LNG (kNN k={args.k} + graph + path) vs subsequence DTW; F_E^15; one thread; median ms per query")
+    print("LNG (kNN + graph + path) vs subsequence DTW; F_E^15; kd-tree; one thread; median ms per query")
     for n in sizes:
         space = database_space(n)
         bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng)

@@ -17,4 +17,5 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "mocapflow.plugins.formats.steps",
     "mocapflow.plugins.analyses.summary",
     "mocapflow.plugins.analyses.krueger_apps_plugin",
+    "mocapflow.plugins.cleaners.plugin",
 )

@@ -10,8 +10,8 @@ kind      what                                                        duration  
 ========  ==========================================================  ============  =========
 spike     single-frame peaks: the joint jumps away and back           1-2 frames    30-60
 offset    rectangular distortion: a constant rotation held            8-24 frames   20-45
-drift     slow drift: a rotation growing linearly, then snapping back 24-48 frames  30-60 end
-freeze    frozen joint: the rotation at onset is held (gap filled by  12-36 frames  (motion)
+drift     slow drift: a rotation growing linearly, then snapping back 24-36 frames  30-60 end
+freeze    frozen joint: the rotation at onset is held (gap filled by  12-24 frames  (motion)
           holding, as after an occlusion)
 noise     heavy jitter: an independent random rotation per frame      12-24 frames  sd 15
 swap      mislabelled markers: a left limb and its right mirror are   12-24 frames  (motion)
@@ -39,8 +39,8 @@ ERROR_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "
 ERROR_RANGES: dict[str, tuple[tuple[int, int], tuple[float, float]]] = {
     "spike": ((1, 2), (30.0, 60.0)),
     "offset": ((8, 24), (20.0, 45.0)),
-    "drift": ((24, 48), (30.0, 60.0)),
-    "freeze": ((12, 36), (0.0, 0.0)),
+    "drift": ((24, 36), (30.0, 60.0)),
+    "freeze": ((12, 24), (0.0, 0.0)),
     "noise": ((12, 24), (15.0, 15.0)),
     "swap": ((12, 24), (0.0, 0.0)),
 }
@@ -113,8 +113,12 @@ def apply_error(rot: np.ndarray, motion: Motion, kind: str, start: int, end: int
 
 
 def inject_errors(motion: Motion, kinds: Sequence[str] = ERROR_KINDS, per_kind: int = 1, seed: int = 0,
-                  min_angle: float = 10.0, margin: int = 24) -> tuple[Motion, np.ndarray, list[InjectedError]]:
+                  min_angle: float = 10.0, margin: int = 12) -> tuple[Motion, np.ndarray, list[InjectedError]]:
     """Corrupt a clean clip with seeded errors at non-overlapping times.
+
+    The clip is cut into equal slots, one error per slot, placed at random inside; when
+    the clip is too short for every error, a seeded random subset that fits is injected
+    (a slot needs the longest duration plus ``margin`` frames).
 
     Parameters
     ----------
@@ -141,6 +145,8 @@ def inject_errors(motion: Motion, kinds: Sequence[str] = ERROR_KINDS, per_kind: 
     t = motion.n_frames
     jobs = [k for k in kinds for _ in range(per_kind)]
     rng.shuffle(jobs)
+    need = max(ERROR_RANGES[k][0][1] for k in jobs) + margin if jobs else 1
+    jobs = jobs[: max(1, (t - margin) // need)]
     # slots: equal stretches of the clip, one error each, placed randomly inside
     slot = (t - margin) // max(1, len(jobs))
     errors: list[InjectedError] = []

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 _EPS = 1e-12
 
@@ -110,3 +110,137 @@ def min_height(positions, out):  # pragma: no cover - compiled
             if y < best:
                 best = y
         out[i] = best if best < np.inf else np.nan
+
+
+# --- all features in one pass ------------------------------------------------------------
+# op codes of the feature program (see relational.py, which compiles the feature table)
+OP_PLANE, OP_NPLANE, OP_PSEG, OP_SEGSEG, OP_COS, OP_HEIGHT, OP_SPEED = 0, 1, 2, 3, 4, 5, 6
+
+
+@njit(cache=True, inline="always")
+def _joint(pos, i, j, fallback):  # pragma: no cover - compiled
+    # substitute a missing joint (NaN) by its fallback (toes -> ankle...), per frame
+    while j >= 0 and math.isnan(pos[i, j, 0]) and fallback[j] >= 0:
+        j = fallback[j]
+    return pos[i, j, 0], pos[i, j, 1], pos[i, j, 2]
+
+
+@njit(cache=True, inline="always")
+def _value(pos, i, lo, hi, miny, fps, op, terms, n_terms, fallback):  # pragma: no cover - compiled
+    """Value of one feature at frame ``i``: min over its terms of the op."""
+    best = np.inf
+    for t in range(n_terms):
+        j0, j1, j2, j3 = terms[t, 0], terms[t, 1], terms[t, 2], terms[t, 3]
+        if op == OP_SPEED:
+            if hi == lo:
+                v = 0.0
+            else:
+                ax, ay, az = _joint(pos, hi, j0, fallback)
+                bx, by, bz = _joint(pos, lo, j0, fallback)
+                if j1 >= 0:  # relative to a reference joint
+                    cx, cy, cz = _joint(pos, hi, j1, fallback)
+                    dx, dy, dz = _joint(pos, lo, j1, fallback)
+                    ax, ay, az = ax - cx, ay - cy, az - cz
+                    bx, by, bz = bx - dx, by - dy, bz - dz
+                ex, ey, ez = ax - bx, ay - by, az - bz
+                v = math.sqrt(ex * ex + ey * ey + ez * ez) * fps / (hi - lo)
+        elif op == OP_HEIGHT:
+            ax, ay, az = _joint(pos, i, j0, fallback)
+            v = ay - miny
+        else:
+            ax, ay, az = _joint(pos, i, j0, fallback)
+            bx, by, bz = _joint(pos, i, j1, fallback)
+            cx, cy, cz = _joint(pos, i, j2, fallback)
+            if op == OP_PSEG:
+                v = _psd(ax, ay, az, bx, by, bz, cx, cy, cz)
+            else:
+                dx, dy, dz = _joint(pos, i, j3, fallback)
+                if op == OP_PLANE:
+                    ux, uy, uz = bx - ax, by - ay, bz - az
+                    wx, wy, wz = cx - ax, cy - ay, cz - az
+                    nx, ny, nz = uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx
+                    norm = max(math.sqrt(nx * nx + ny * ny + nz * nz), _EPS)
+                    v = ((dx - ax) * nx + (dy - ay) * ny + (dz - az) * nz) / norm
+                elif op == OP_NPLANE:
+                    nx, ny, nz = bx - ax, by - ay, bz - az
+                    norm = max(math.sqrt(nx * nx + ny * ny + nz * nz), _EPS)
+                    v = ((dx - cx) * nx + (dy - cy) * ny + (dz - cz) * nz) / norm
+                elif op == OP_COS:
+                    ux, uy, uz = bx - ax, by - ay, bz - az
+                    wx, wy, wz = dx - cx, dy - cy, dz - cz
+                    nu = max(math.sqrt(ux * ux + uy * uy + uz * uz), _EPS)
+                    nw = max(math.sqrt(wx * wx + wy * wy + wz * wz), _EPS)
+                    v = min(max((ux * wx + uy * wy + uz * wz) / (nu * nw), -1.0), 1.0)
+                else:  # OP_SEGSEG
+                    v = _segseg(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz)
+        if v < best or math.isnan(v):
+            best = v
+    return best
+
+
+@njit(cache=True, inline="always")
+def _frame(pos, starts, i):  # pragma: no cover - compiled
+    n = pos.shape[0]
+    miny = np.inf
+    for j in range(pos.shape[1]):
+        y = pos[i, j, 1]
+        if y < miny:
+            miny = y
+    lo = i if starts[i] else i - 1
+    hi = i if (i == n - 1 or starts[i + 1]) else i + 1
+    return lo, hi, miny
+
+
+@njit(cache=True)
+def feature_values(pos, starts, fps, ops, joints, n_terms, fallback, out):  # pragma: no cover - compiled
+    """Raw values ``out (T, F)`` of every feature (distances m, speeds m/s, angles as cosines).
+
+    ``pos`` (T, J, 3); ``starts`` (T,) first frame of each clip; ``ops`` (F,) op codes;
+    ``joints`` (F, 4, 4) joint indices per term (-1 unused); ``n_terms`` (F,);
+    ``fallback`` (J,) joint used where a joint is NaN (-1 none).
+    """
+    for i in range(pos.shape[0]):
+        lo, hi, miny = _frame(pos, starts, i)
+        for f in range(ops.shape[0]):
+            out[i, f] = _value(pos, i, lo, hi, miny, fps, ops[f], joints[f], n_terms[f], fallback)
+
+
+@njit(cache=True, parallel=True)
+def feature_bits(pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, thr, strict, below,
+                 out, out_on):  # pragma: no cover - compiled
+    """Thresholded features in the same pass: ``out[i, f] = value (>= | <) thr[f] * scale[i, unit[f]]``
+    and ``out_on`` the same against ``strict`` (for hysteresis); NaN gives False."""
+    for i in prange(pos.shape[0]):
+        lo, hi, miny = _frame(pos, starts, i)
+        for f in range(ops.shape[0]):
+            v = _value(pos, i, lo, hi, miny, fps, ops[f], joints[f], n_terms[f], fallback)
+            sc = scale[i, unit[f]]
+            if below[f]:
+                out[i, f] = v < thr[f] * sc
+                out_on[i, f] = v < strict[f] * sc
+            else:
+                out[i, f] = v >= thr[f] * sc
+                out_on[i, f] = v >= strict[f] * sc
+
+
+@njit(cache=True, inline="always")
+def _segseg(a0x, a0y, a0z, a1x, a1y, a1z, b0x, b0y, b0z, b1x, b1y, b1z):  # pragma: no cover - compiled
+    ux, uy, uz = a1x - a0x, a1y - a0y, a1z - a0z
+    vx, vy, vz = b1x - b0x, b1y - b0y, b1z - b0z
+    wx, wy, wz = a0x - b0x, a0y - b0y, a0z - b0z
+    a = ux * ux + uy * uy + uz * uz
+    b = ux * vx + uy * vy + uz * vz
+    c = vx * vx + vy * vy + vz * vz
+    d = ux * wx + uy * wy + uz * wz
+    e = vx * wx + vy * wy + vz * wz
+    den = a * c - b * b
+    s = min(max((b * e - c * d) / den, 0.0), 1.0) if den > _EPS else 0.0
+    t = min(max((b * s + e) / c, 0.0), 1.0) if c > _EPS else 0.0
+    s = min(max((b * t - d) / a, 0.0), 1.0) if a > _EPS else 0.0
+    dx, dy, dz = wx + s * ux - t * vx, wy + s * uy - t * vy, wz + s * uz - t * vz
+    best = math.sqrt(dx * dx + dy * dy + dz * dz)
+    best = min(best, _psd(a0x, a0y, a0z, b0x, b0y, b0z, b1x, b1y, b1z))
+    best = min(best, _psd(a1x, a1y, a1z, b0x, b0y, b0z, b1x, b1y, b1z))
+    best = min(best, _psd(b0x, b0y, b0z, a0x, a0y, a0z, a1x, a1y, a1z))
+    best = min(best, _psd(b1x, b1y, b1z, a0x, a0y, a0z, a1x, a1y, a1z))
+    return best

@@ -16,7 +16,7 @@ of slightly shorter "on" runs.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
@@ -25,7 +25,7 @@ import pyarrow as pa
 from pydantic import Field
 
 from mocapflow.framework.components import FeatureSet, Params
-from mocapflow.framework.errors import ConfigError
+from mocapflow.framework.errors import ConfigError, DataError
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.normalize import body_measures
 
@@ -37,8 +37,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.datasets import Dataset, StepOutput
     from mocapflow.framework.motion import Motion
 
-Pair = tuple[float, float]
-
 #: Joints substituted when a skeleton lacks one (positions are NaN there).
 _FALLBACK = {"ltoes": "lankle", "rtoes": "rankle", "lfingers": "lwrist", "rfingers": "rwrist",
              "headtop": "head", "chest": "upperback", "neck": "head"}
@@ -47,12 +45,25 @@ _FALLBACK = {"ltoes": "lankle", "rtoes": "rankle", "lfingers": "lwrist", "rfinge
 SETS: tuple[tuple[str, str, int], ...] = (("lower", "L", 11), ("upper", "U", 12), ("mixed", "M", 8))
 
 
+#: Operations of the feature program, matching the kernel op codes.
+OPS: tuple[str, ...] = ("plane", "nplane", "point_segment", "segment_segment", "cos", "height", "speed")
+
+
 @dataclass(frozen=True)
 class FeatureDef:
-    """One boolean feature: ``value(ctx) >= threshold`` (or ``<`` when ``below``).
+    """One boolean feature: a primitive applied to canonical joints, then thresholded.
 
-    ``param`` names the :class:`RelationalFeatures.Params` threshold pair and ``unit`` the
-    body measure it is multiplied by (``hl``, ``sw``, ``hw``, ``deg`` or ``hl/s``).
+    ``op`` (one of :data:`OPS`) is applied to each tuple of joints in ``terms`` and the
+    minimum over the terms is taken (several terms: "touching any leg", "torso bent").
+    The feature is ``value >= threshold`` (``below``: ``value < threshold``) where the
+    threshold is the :class:`RelationalFeatures.Params` pair named ``param`` times the
+    body measure ``unit`` (``hl`` humerus length, ``sw`` shoulder width, ``hw`` hip width,
+    ``hl/s``; ``deg`` thresholds an angle, computed as its cosine).
+
+    Joints per op: ``plane (p1, p2, p3, q)``; ``nplane (a, b, anchor, q)`` with normal
+    ``a -> b``; ``point_segment (q, a, b)``; ``segment_segment (a0, a1, b0, b1)``;
+    ``cos (a0, a1, b0, b1)``: angle between ``a0 -> a1`` and ``b0 -> b1``; ``height (q)``
+    above the lowest joint of the frame; ``speed (q[, reference])``.
     """
 
     id: str
@@ -61,42 +72,22 @@ class FeatureDef:
     param: str
     unit: str
     below: bool
-    value: Callable[[_Frames], np.ndarray]
-    definition: str
-    # for unit "deg" value() returns the cosine of the angle (cheaper than acos)
+    op: str
+    terms: tuple[tuple[str, ...], ...]
 
-
-class _Frames:
-    """Canonical joint trajectories (float32, fallbacks applied) of concatenated clips."""
-
-    def __init__(self, positions: np.ndarray, fps: float, offsets: np.ndarray) -> None:
-        self.positions = positions
-        self.fps = fps
-        self.offsets = offsets
-        self._cache: dict[str, np.ndarray] = {}
-        self._min_y: np.ndarray | None = None
-
-    def __call__(self, joint: str) -> np.ndarray:
-        if joint not in self._cache:
-            p = np.ascontiguousarray(self.positions[:, CANONICAL_JOINTS.index(joint)], dtype=np.float32)
-            if joint in _FALLBACK and np.isnan(p).any():
-                p = np.where(np.isnan(p), self(_FALLBACK[joint]), p)
-            self._cache[joint] = p
-        return self._cache[joint]
-
-    def min_y(self) -> np.ndarray:
-        """Height of the lowest joint per frame (the floor the feet stand on)."""
-        if self._min_y is None:
-            self._min_y = prim.min_height(self.positions)
-        return self._min_y
-
-    def speed(self, joint: str, reference: str | None = None) -> np.ndarray:
-        ref = None if reference is None else self(reference)
-        return prim.speed(self(joint), self.fps, self.offsets, ref)
-
-
-_UP = np.array([0.0, 1.0, 0.0], dtype=np.float32)
-_O = np.zeros(3, dtype=np.float32)
+    @property
+    def definition(self) -> str:
+        """Human-readable definition (as in docs/relational-features.md)."""
+        if self.op == "cos":
+            body = ", ".join(f"angle({a}->{b}, {c}->{d})" for a, b, c, d in self.terms)
+            return body if len(self.terms) == 1 else f"max({body})"
+        if self.op == "speed":
+            t = self.terms[0]
+            return f"speed({t[0]})" + (f" relative to {t[1]}" if len(t) > 1 else "")
+        if self.op == "height":
+            return f"height({self.terms[0][0]}) above the lowest joint"
+        body = "; ".join(", ".join(t) for t in self.terms)
+        return f"{self.op}({body})" if len(self.terms) == 1 else f"min {self.op}({body})"
 
 
 def _side(r: str) -> str:
@@ -106,88 +97,63 @@ def _side(r: str) -> str:
 def _defs() -> tuple[FeatureDef, ...]:
     out: list[FeatureDef] = []
 
-    def add(set_id: str, name: str, desc: str, param: str, unit: str, below: bool, fn, definition: str) -> None:
+    def add(set_id: str, name: str, desc: str, param: str, unit: str, below: bool, op: str,
+            *terms: tuple[str, ...]) -> None:
         n = sum(d.id[0] == set_id for d in out) + 1
-        out.append(FeatureDef(f"{set_id}{n}", name, desc, param, unit, below, fn, definition))
+        out.append(FeatureDef(f"{set_id}{n}", name, desc, param, unit, below, op, tuple(terms)))
 
     # ---- F_l: lower body -----------------------------------------------------------
     # right foot: plane (root, lankle, lhip) as in the paper's F^r; left foot mirrored
-    # with the point order swapped so that the normal still points forward.
-    add("L", "rfoot_front", "right foot in front", "foot_front", "hl", False,
-        lambda f: prim.plane_distance(f("root"), f("lankle"), f("lhip"), f("rtoes")),
-        "plane(root, lankle, lhip) -> rtoes")
-    add("L", "lfoot_front", "left foot in front", "foot_front", "hl", False,
-        lambda f: prim.plane_distance(f("root"), f("rhip"), f("rankle"), f("ltoes")),
-        "plane(root, rhip, rankle) -> ltoes")
-    for s, o in (("r", "l"), ("l", "r")):
-        add("L", f"{s}foot_raised", f"{_side(s)} foot raised", "foot_raised", "hl", False,
-            lambda f, s=s: f(f"{s}toes")[:, 1] - f.min_y(),
-            f"height of {s}toes above the lowest joint of the frame")
+    # with two points swapped so that the normal still points forward.
+    add("L", "rfoot_front", "right foot in front", "foot_front", "hl", False, "plane", ("root", "lankle", "lhip", "rtoes"))
+    add("L", "lfoot_front", "left foot in front", "foot_front", "hl", False, "plane", ("root", "rhip", "rankle", "ltoes"))
     for s in "rl":
-        add("L", f"{s}foot_fast", f"{_side(s)} foot fast", "foot_fast", "hl/s", False,
-            lambda f, s=s: f.speed(f"{s}toes"), f"speed of {s}toes")
+        add("L", f"{s}foot_raised", f"{_side(s)} foot raised", "foot_raised", "hl", False, "height", (f"{s}toes",))
     for s in "rl":
-        add("L", f"{s}knee_bent", f"{_side(s)} knee bent", "bent_angle", "deg", True,
-            lambda f, s=s: prim.cos_between(f(f"{s}knee"), f(f"{s}hip"), f(f"{s}knee"), f(f"{s}ankle")),
-            f"angle({s}knee->{s}hip, {s}knee->{s}ankle)")
+        add("L", f"{s}foot_fast", f"{_side(s)} foot fast", "foot_fast", "hl/s", False, "speed", (f"{s}toes",))
+    for s in "rl":
+        add("L", f"{s}knee_bent", f"{_side(s)} knee bent", "bent_angle", "deg", True, "cos",
+            (f"{s}knee", f"{s}hip", f"{s}knee", f"{s}ankle"))
     for s, o in (("r", "l"), ("l", "r")):
-        add("L", f"{s}leg_sideways", f"{_side(s)} leg sideways", "leg_sideways", "hl", False,
-            lambda f, s=s, o=o: prim.normal_plane_distance(f(f"{o}hip"), f(f"{s}hip"), f(f"{s}hip"), f(f"{s}ankle")),
-            f"nplane(normal {o}hip->{s}hip, through {s}hip) -> {s}ankle")
-    add("L", "legs_crossed", "legs crossed", "crossed", "hw", False,
-        lambda f: prim.normal_plane_distance(f("rhip"), f("lhip"), f("lankle"), f("rankle")),
-        "nplane(normal rhip->lhip, through lankle) -> rankle")
+        add("L", f"{s}leg_sideways", f"{_side(s)} leg sideways", "leg_sideways", "hl", False, "nplane",
+            (f"{o}hip", f"{s}hip", f"{s}hip", f"{s}ankle"))
+    add("L", "legs_crossed", "legs crossed", "crossed", "hw", False, "nplane", ("rhip", "lhip", "lankle", "rankle"))
 
     # ---- F_u: upper body -----------------------------------------------------------
-    add("U", "rhand_front", "right hand in front", "hand_front", "hl", False,
-        lambda f: prim.plane_distance(f("root"), f("lshoulder"), f("rshoulder"), f("rwrist")),
-        "plane(root, lshoulder, rshoulder) -> rwrist")
-    add("U", "lhand_front", "left hand in front", "hand_front", "hl", False,
-        lambda f: prim.plane_distance(f("root"), f("lshoulder"), f("rshoulder"), f("lwrist")),
-        "plane(root, lshoulder, rshoulder) -> lwrist")
+    add("U", "rhand_front", "right hand in front", "hand_front", "hl", False, "plane",
+        ("root", "lshoulder", "rshoulder", "rwrist"))
+    add("U", "lhand_front", "left hand in front", "hand_front", "hl", False, "plane",
+        ("root", "lshoulder", "rshoulder", "lwrist"))
     for s in "rl":
-        add("U", f"{s}hand_raised", f"{_side(s)} hand raised", "hand_raised", "hl", False,
-            lambda f, s=s: prim.normal_plane_distance(f("chest"), f("neck"), f("neck"), f(f"{s}wrist")),
-            f"nplane(normal chest->neck, through neck) -> {s}wrist")
+        add("U", f"{s}hand_raised", f"{_side(s)} hand raised", "hand_raised", "hl", False, "nplane",
+            ("chest", "neck", "neck", f"{s}wrist"))
     for s, o in (("r", "l"), ("l", "r")):
-        add("U", f"{s}arm_sideways", f"{_side(s)} arm sideways", "arm_sideways", "hl", False,
-            lambda f, s=s, o=o: prim.normal_plane_distance(f(f"{o}shoulder"), f(f"{s}shoulder"), f(f"{s}shoulder"),
-                                                           f(f"{s}wrist")),
-            f"nplane(normal {o}shoulder->{s}shoulder, through {s}shoulder) -> {s}wrist")
+        add("U", f"{s}arm_sideways", f"{_side(s)} arm sideways", "arm_sideways", "hl", False, "nplane",
+            (f"{o}shoulder", f"{s}shoulder", f"{s}shoulder", f"{s}wrist"))
     for s in "rl":
-        add("U", f"{s}elbow_bent", f"{_side(s)} elbow bent", "bent_angle", "deg", True,
-            lambda f, s=s: prim.cos_between(f(f"{s}elbow"), f(f"{s}shoulder"), f(f"{s}elbow"), f(f"{s}wrist")),
-            f"angle({s}elbow->{s}shoulder, {s}elbow->{s}wrist)")
+        add("U", f"{s}elbow_bent", f"{_side(s)} elbow bent", "bent_angle", "deg", True, "cos",
+            (f"{s}elbow", f"{s}shoulder", f"{s}elbow", f"{s}wrist"))
     for s in "rl":
-        add("U", f"{s}hand_fast", f"{_side(s)} hand fast", "hand_fast", "hl/s", False,
-            lambda f, s=s: f.speed(f"{s}wrist", "root"), f"speed of {s}wrist relative to root")
-    add("U", "arms_crossed", "arms crossed", "crossed", "sw", False,
-        lambda f: prim.normal_plane_distance(f("rshoulder"), f("lshoulder"), f("lwrist"), f("rwrist")),
-        "nplane(normal rshoulder->lshoulder, through lwrist) -> rwrist")
-    add("U", "hands_touching", "hands touching", "touch_hands", "hl", True,
-        lambda f: prim.segment_segment_distance(f("rwrist"), f("rfingers"), f("lwrist"), f("lfingers")),
-        "distance(segment rwrist-rfingers, segment lwrist-lfingers)")
+        add("U", f"{s}hand_fast", f"{_side(s)} hand fast", "hand_fast", "hl/s", False, "speed", (f"{s}wrist", "root"))
+    add("U", "arms_crossed", "arms crossed", "crossed", "sw", False, "nplane", ("rshoulder", "lshoulder", "lwrist", "rwrist"))
+    add("U", "hands_touching", "hands touching", "touch_hands", "hl", True, "segment_segment",
+        ("rwrist", "rfingers", "lwrist", "lfingers"))
 
     # ---- F_m: mixed ---------------------------------------------------------------
     legs = (("lhip", "lknee"), ("lknee", "lankle"), ("rhip", "rknee"), ("rknee", "rankle"))
     for s in "rl":
-        add("M", f"{s}hand_leg", f"{_side(s)} hand touching any leg", "touch_leg", "hl", True,
-            lambda f, s=s: np.minimum.reduce([prim.point_segment_distance(f(f"{s}wrist"), f(a), f(b)) for a, b in legs]),
-            f"min distance({s}wrist, segments hip-knee and knee-ankle of both legs)")
+        add("M", f"{s}hand_leg", f"{_side(s)} hand touching any leg", "touch_leg", "hl", True, "point_segment",
+            *((f"{s}wrist", a, b) for a, b in legs))
     for s in "rl":
-        add("M", f"{s}hand_head", f"{_side(s)} hand touching head or neck", "touch_head", "hl", True,
-            lambda f, s=s: prim.point_segment_distance(f(f"{s}wrist"), f("neck"), f("headtop")),
-            f"distance({s}wrist, segment neck-headtop)")
+        add("M", f"{s}hand_head", f"{_side(s)} hand touching head or neck", "touch_head", "hl", True, "point_segment",
+            (f"{s}wrist", "neck", "headtop"))
     for s in "rl":
-        add("M", f"{s}hand_hip", f"{_side(s)} hand touching hip area", "touch_hip", "hl", True,
-            lambda f, s=s: prim.point_segment_distance(f(f"{s}wrist"), f("lhip"), f("rhip")),
-            f"distance({s}wrist, segment lhip-rhip)")
-    add("M", "torso_bent", "torso bent", "torso_bent_angle", "deg", True,
-        lambda f: np.fmin(prim.cos_between(f("root"), f("neck"), f("lhip"), f("lknee")),
-                          prim.cos_between(f("root"), f("neck"), f("rhip"), f("rknee"))),
-        "max(angle(root->neck, lhip->lknee), angle(root->neck, rhip->rknee))")
-    add("M", "root_fast", "root fast", "root_fast", "hl/s", False,
-        lambda f: f.speed("root"), "speed of root")
+        add("M", f"{s}hand_hip", f"{_side(s)} hand touching hip area", "touch_hip", "hl", True, "point_segment",
+            (f"{s}wrist", "lhip", "rhip"))
+    # the paper takes the larger of the two spine-thigh angles, i.e. the smaller cosine
+    add("M", "torso_bent", "torso bent", "torso_bent_angle", "deg", True, "cos",
+        ("root", "neck", "lhip", "lknee"), ("root", "neck", "rhip", "rknee"))
+    add("M", "root_fast", "root fast", "root_fast", "hl/s", False, "speed", ("root",))
     return tuple(out)
 
 
@@ -220,11 +186,6 @@ def feature_set_of(column: int) -> str:
     raise ConfigError(f"feature column {column} out of range 0..30")
 
 
-def _unit_scale(unit: str, measures: Mapping[str, np.ndarray]) -> np.ndarray | float:
-    return {"hl": measures["humerus_length"], "hl/s": measures["humerus_length"], "sw": measures["shoulder_width"],
-            "hw": measures["hip_width"], "deg": 1.0}[unit]
-
-
 def relational_features(positions: np.ndarray, fps: float, measures: Mapping[str, np.ndarray | float],
                         params: RelationalFeatures.Params | None = None,
                         offsets: np.ndarray | None = None) -> np.ndarray:
@@ -249,28 +210,67 @@ def relational_features(positions: np.ndarray, fps: float, measures: Mapping[str
         Columns in Table 1 order (:data:`FEATURE_IDS`).
     """
     params = params or RelationalFeatures.Params()
-    t = positions.shape[0]
+    pos = np.asarray(positions)
+    if pos.ndim != 3 or pos.shape[1:] != (len(CANONICAL_JOINTS), 3):
+        raise DataError(f"positions must be (T, {len(CANONICAL_JOINTS)}, 3) canonical joints, got {pos.shape}")
+    if pos.dtype not in (np.float32, np.float64):
+        pos = pos.astype(np.float64)
+    t = pos.shape[0]
     offsets = np.array([0, t]) if offsets is None else np.asarray(offsets, dtype=np.int64)
-    frames = _Frames(positions, fps, offsets)
-    m = {k: np.asarray(measures[k], dtype=np.float32) for k in ("humerus_length", "shoulder_width", "hip_width")}
+    starts = prim.clip_starts(offsets, t)
+    units = ("deg", "hl", "sw", "hw")
+    scale = np.ones((t, 4), dtype=np.float32)
+    for k, key in ((1, "humerus_length"), (2, "shoulder_width"), (3, "hip_width")):
+        scale[:, k] = np.asarray(measures[key], dtype=np.float32)
+    thr = np.empty(len(FEATURES), np.float32)
+    strict = np.empty_like(thr)
+    below = np.empty(len(FEATURES), bool)
+    unit = np.empty(len(FEATURES), np.int64)
+    for i, d in enumerate(FEATURES):
+        a, b = getattr(params, d.param)
+        if d.unit == "deg":  # the value is a cosine: angle < theta iff cos > cos(theta)
+            thr[i], strict[i], below[i] = np.cos(np.radians(a)), np.cos(np.radians(b)), not d.below
+        else:
+            thr[i], strict[i], below[i] = a, b, d.below
+        unit[i] = units.index(d.unit.removesuffix("/s"))
     out = np.zeros((t, len(FEATURES)), dtype=bool)
-    on = np.zeros_like(out) if params.hysteresis else None
-    if t == 0:
-        return out
-    with np.errstate(invalid="ignore", divide="ignore"):
-        for i, d in enumerate(FEATURES):
-            value = d.value(frames)
-            base, strict = getattr(params, d.param)
-            if d.unit == "deg":  # value is a cosine: angle < theta iff cos > cos(theta)
-                base, strict, below = np.cos(np.radians(base)), np.cos(np.radians(strict)), not d.below
-            else:
-                scale = _unit_scale(d.unit, m)
-                base, strict, below = base * scale, strict * scale, d.below
-            out[:, i] = prim.threshold(value, base, below)
-            if on is not None:
-                on[:, i] = prim.threshold(value, strict, below)
-    if on is not None:
+    on = np.zeros_like(out)
+    if t:
+        from ._relational_kernels import feature_bits
+
+        feature_bits(np.ascontiguousarray(pos), starts, float(fps), *_program(), unit, scale, thr, strict, below, out, on)
+    if params.hysteresis:
         out = prim.hysteresis(on & out, out, offsets)
+    return out
+
+
+def _program() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The feature table as arrays for the kernel: op codes, joint indices, term counts, fallbacks."""
+    ops = np.array([OPS.index(d.op) for d in FEATURES], dtype=np.int64)
+    joints = np.full((len(FEATURES), 4, 4), -1, dtype=np.int64)
+    for i, d in enumerate(FEATURES):
+        for k, term in enumerate(d.terms):
+            joints[i, k, :len(term)] = [CANONICAL_JOINTS.index(j) for j in term]
+    n_terms = np.array([len(d.terms) for d in FEATURES], dtype=np.int64)
+    fallback = np.full(len(CANONICAL_JOINTS), -1, dtype=np.int64)
+    for j, f in _FALLBACK.items():
+        fallback[CANONICAL_JOINTS.index(j)] = CANONICAL_JOINTS.index(f)
+    return ops, joints, n_terms, fallback
+
+
+def feature_values(positions: np.ndarray, fps: float, starts: np.ndarray) -> np.ndarray:
+    """Raw (unthresholded) values of the 31 features, shape (T, 31) float32.
+
+    Distances in metres, speeds in m/s, angles as cosines. One compiled pass over the
+    frames: the kernel interprets the feature table, so :data:`FEATURES` is the single
+    definition. ``starts`` (bool, (T,)) marks each clip's first frame (speeds stay inside
+    clips).
+    """
+    from ._relational_kernels import feature_values as kernel
+
+    out = np.empty((positions.shape[0], len(FEATURES)), dtype=np.float32)
+    if len(out):
+        kernel(np.ascontiguousarray(positions), np.asarray(starts, bool), float(fps), *_program(), out)
     return out
 
 
@@ -371,5 +371,5 @@ class RelationalFeatures(FeatureSet):
     feature_ids: ClassVar[tuple[str, ...]] = FEATURE_IDS
 
 
-__all__ = ["FEATURES", "FEATURE_IDS", "FEATURE_NAMES", "SETS", "SET_SLICES", "FeatureDef", "RelationalFeatures",
-           "feature_column", "feature_set_of", "relational_features", "set_codes"]
+__all__ = ["FEATURES", "FEATURE_IDS", "FEATURE_NAMES", "OPS", "SETS", "SET_SLICES", "FeatureDef", "RelationalFeatures",
+           "feature_column", "feature_set_of", "feature_values", "relational_features", "set_codes"]

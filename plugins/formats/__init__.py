@@ -13,5 +13,7 @@ from mocapflow.framework.plugins import hookimpl
 def register_formats() -> list[type]:
     from .asf_amc import AmcFormat
     from .bvh import BvhFormat
+    from .c3d import C3dFormat
+    from .trc import TrcFormat
 
-    return [AmcFormat, BvhFormat]
+    return [AmcFormat, BvhFormat, C3dFormat, TrcFormat]

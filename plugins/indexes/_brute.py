@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _knn_kernels as kern
-
 _U32 = 2.0 ** -24
 
 
@@ -42,22 +40,27 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     ymax = float(sqnorms.max()) if n else 0.0
+    yraw = float(np.einsum("ij,ij->i", data[:: max(n // 4096, 1)], data[:: max(n // 4096, 1)]).max()) if n else 0.0
+    yraw = max(yraw, float((np.abs(data).max(0).astype(np.float64) ** 2).sum()) if n else 0.0)  # bound on |y|^2
     for q0 in range(0, m, block_queries):
         q_orig = queries[q0:q0 + block_queries]
         q = q_orig - mean
         nq = len(q)
         qn = np.einsum("ij,ij->i", q, q)
-        tol2 = 2.0 * (2.0 * (d + 2) * _U32 * (qn.astype(np.float64) + ymax)) + 1e-30
+        # |q_c - y_c|^2 = |y_c|^2 - 2 q_c.y + (|q_c|^2 + 2 q_c.mean): the GEMM runs on the raw
+        # rows (no centred copy); its rounding is bounded through |q_c| |y|
+        const = (qn + 2.0 * (q @ mean)).astype(np.float32)
+        qn64 = qn.astype(np.float64)
+        tol2 = 4.0 * (d + 4) * _U32 * (qn64 + ymax + 2.0 * np.sqrt(qn64 * yraw)) + 1e-30
         kth = np.full(nq, np.inf)  # k-th smallest approximate distance among the candidates
         cr = np.zeros(0, np.int64)  # candidates: query row, stored row, approximate distance
         cc = np.zeros(0, np.int64)
         cv = np.zeros(0, np.float32)
         for y0 in range(0, n, block_rows):
-            y = data[y0:y0 + block_rows] - mean
-            a = q @ y.T
+            a = q @ data[y0:y0 + block_rows].T
             a *= -2.0
             a += sqnorms[y0:y0 + block_rows][None, :]
-            a += qn[:, None]
+            a += const[:, None]
             if excl >= 0:
                 bad = (groups[None, y0:y0 + block_rows] == qgroups[q0:q0 + nq, None]) & (
                     np.abs(frames[None, y0:y0 + block_rows] - qframes[q0:q0 + nq, None]) <= excl)
@@ -89,7 +92,9 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
         first = np.concatenate([[0], np.cumsum(counts)[:-1]])
         rows = np.full((nq, width), -1, np.int64)
         rows[cr, np.arange(len(cr)) - first[cr]] = cc
-        ex = kern.exact_sqdist(q_orig, data, rows)
+        diff = data[np.maximum(rows, 0)].astype(np.float64) - q_orig[:, None, :].astype(np.float64)
+        ex = np.einsum("ijk,ijk->ij", diff, diff)
+        ex[rows < 0] = np.inf
         ex[ex > r2] = np.inf
         mapped = rows if ids is None else np.where(rows < 0, -1, ids[np.maximum(rows, 0)])
         ids_sort = np.where(mapped < 0, np.iinfo(np.int64).max, mapped)

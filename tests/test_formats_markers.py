@@ -1,0 +1,142 @@
+"""Marker formats: C3D (vectorised, checked against the c3d package's per-frame reader)
+and TRC (reader, writer, gaps, header checks); the Markers data model."""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import corpus_path
+
+from mocapflow.framework.errors import DataError, ParseError
+from mocapflow.framework.markers import Markers, guess_up_axis, to_y_up
+from mocapflow.plugins.formats.trc import read_trc, write_trc
+
+
+def small_markers(t: int = 4, gaps: bool = True) -> Markers:
+    rng = np.random.default_rng(0)
+    pos = rng.uniform(0, 1.8, size=(t, 3, 3))
+    pos[..., 1] += 0.2  # y up, above the floor
+    if gaps:
+        pos[1, 2] = np.nan
+    return Markers(("A", "B.two", "C"), pos, 100.0, name="small", metadata={"first_frame": 1})
+
+
+def test_markers_model() -> None:
+    m = small_markers()
+    assert m.n_frames == 4 and m.n_markers == 3 and m.duration == pytest.approx(0.04)
+    assert m.gaps.sum() == 1 and m.gaps[1, 2]
+    assert m.select(["C", "A"]).labels == ("C", "A")
+    assert m.slice(1, 3).metadata["source_start_frame"] == 1
+    with pytest.raises(DataError):
+        Markers(("A",), np.zeros((2, 2, 3)), 100.0)
+    with pytest.raises(DataError):
+        m.index("Z")
+
+
+def test_to_y_up_is_a_rotation() -> None:
+    m = small_markers(gaps=False)
+    z = Markers(m.labels, np.stack([m.positions[..., 0], -m.positions[..., 2], m.positions[..., 1]], -1), m.fps,
+                metadata={"up_axis": "+z"})
+    assert guess_up_axis(z.positions, "z") == "+z"
+    back = to_y_up(z)
+    np.testing.assert_allclose(back.positions, m.positions, atol=1e-15)
+    assert back.metadata["up_axis"] == "+y"
+    assert to_y_up(m) is m
+
+
+def test_trc_round_trip_with_gaps(tmp_path: Path) -> None:
+    m = small_markers()
+    write_trc(m, tmp_path / "s.trc")
+    back = read_trc(tmp_path / "s.trc")
+    assert back.labels == m.labels and back.fps == 100.0 and back.metadata["up_axis"] == "+y"
+    np.testing.assert_allclose(back.positions, m.positions, atol=1e-9, equal_nan=True)
+    write_trc(m, tmp_path / "m.trc", units="m")
+    np.testing.assert_allclose(read_trc(tmp_path / "m.trc").positions, m.positions, atol=1e-9, equal_nan=True)
+
+
+def test_trc_header_checks(tmp_path: Path) -> None:
+    write_trc(small_markers(), tmp_path / "s.trc")
+    lines = (tmp_path / "s.trc").read_text().splitlines()
+    bad = list(lines)
+    bad[2] = bad[2].replace("\t4\t3\t", "\t5\t3\t")  # NumFrames 5, 4 rows
+    (tmp_path / "f.trc").write_text("\n".join(bad) + "\n")
+    with pytest.raises(ParseError) as e:
+        read_trc(tmp_path / "f.trc")
+    assert e.value.line == len(lines) and "NumFrames" in e.value.message
+    bad = list(lines)
+    bad[2] = bad[2].replace("\t4\t3\t", "\t4\t2\t")
+    (tmp_path / "m.trc").write_text("\n".join(bad) + "\n")
+    with pytest.raises(ParseError, match="NumMarkers") as e:
+        read_trc(tmp_path / "m.trc")
+    assert e.value.line == 4
+    bad = list(lines)
+    bad[7] = bad[7] + "\t1.0\t2.0"
+    (tmp_path / "w.trc").write_text("\n".join(bad) + "\n")
+    with pytest.raises(ParseError, match="fields") as e:
+        read_trc(tmp_path / "w.trc")
+    assert e.value.line == 8
+    (tmp_path / "x.trc").write_text("hello\n")
+    with pytest.raises(ParseError, match="PathFileType"):
+        read_trc(tmp_path / "x.trc")
+
+
+def test_trc_corpus() -> None:
+    for name, frames, markers in [("subject01_walk1.trc", 151, 41), ("subject02_running.trc", 600, 41),
+                                  ("subject01_static.trc", 300, 49)]:
+        m = read_trc(corpus_path("trc", "opensim", name))
+        assert m.positions.shape == (frames, markers, 3) and m.fps == 60.0
+        assert m.metadata["up_axis"] == "+y" and m.labels[0] == "R.ASIS"
+        # pelvis markers about 1 m above the floor (file in mm)
+        assert 0.8 < np.nanmedian(m.positions[:, 0, 1]) < 1.2
+
+
+# --- C3D ---------------------------------------------------------------------------------
+
+C3D_FILES = [("cmu", "85_02.c3d"), ("ezc3d_samples", "Vicon.c3d"), ("ezc3d_samples", "Qualisys.c3d"),
+             ("numediart", "03_rolling.c3d")]
+
+
+@pytest.mark.parametrize("folder, name", C3D_FILES)
+def test_c3d_matches_package_reader(folder: str, name: str) -> None:
+    c3d = pytest.importorskip("c3d")
+    from mocapflow.plugins.formats.c3d import read_c3d
+
+    path = corpus_path("c3d", folder, name)
+    m = read_c3d(path)
+    with warnings.catch_warnings(), open(path, "rb") as handle:
+        warnings.simplefilter("ignore")
+        reader = c3d.Reader(handle)
+        ref = np.array([p.copy() for _, p, _ in reader.read_frames(check_nan=False)], dtype=np.float64)
+    want = ref[..., :3] / 1000.0  # every corpus file is in mm
+    want[ref[..., 3] < 0] = np.nan
+    np.testing.assert_allclose(m.positions, want, atol=1e-9, equal_nan=True)
+    assert m.labels == tuple(str(lb).strip() for lb in reader.point_labels)
+    assert m.fps == reader.point_rate and m.metadata["up_axis"] == "+z"
+    y = read_c3d(path, y_up=True)
+    assert np.nanmin(y.positions[..., 1]) > -0.1  # the floor is near y = 0 after conversion
+
+
+def test_c3d_gaps_and_errors(tmp_path: Path) -> None:
+    pytest.importorskip("c3d")
+    from mocapflow.plugins.formats.c3d import read_c3d
+
+    m = read_c3d(corpus_path("c3d", "ezc3d_samples", "Vicon.c3d"))
+    assert m.gaps.any() and np.isnan(m.positions[m.gaps]).all()
+    data = corpus_path("c3d", "cmu", "85_02.c3d").read_bytes()
+    (tmp_path / "t.c3d").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ParseError, match="truncated C3D: the header announces 810 frames"):
+        read_c3d(tmp_path / "t.c3d")
+    (tmp_path / "g.c3d").write_bytes(b"\x02\x00" + bytes(600))
+    with pytest.raises(ParseError, match="0x50"):
+        read_c3d(tmp_path / "g.c3d")
+    (tmp_path / "e.c3d").write_bytes(b"")
+    with pytest.raises(ParseError, match="empty"):
+        read_c3d(tmp_path / "e.c3d")
+
+
+def test_c3d_registered(registries) -> None:
+    formats = registries["formats"]
+    assert {"amc", "bvh", "c3d", "trc"} <= set(formats.keys())
+    assert formats.get("c3d").produces == "markers" and formats.get("trc").extensions == (".trc",)
