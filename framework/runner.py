@@ -49,7 +49,12 @@ def default_workspace(plan: Plan) -> Path:
 def _write_table(table: pa.Table, path: Path, provenance: dict[str, Any]) -> None:
     meta = dict(table.schema.metadata or {})
     meta[b"mocapflow"] = json.dumps(provenance, sort_keys=True, default=str).encode()
-    pq.write_table(table.replace_schema_metadata(meta), path, compression="zstd")
+    # dictionaries only pay for strings, statistics only for flat columns (DuckDB prunes row
+    # groups on clip_id/frame); both cost seconds on large nested float columns
+    flat = [f.name for f in table.schema if not pa.types.is_nested(f.type)]
+    strings = [f.name for f in table.schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
+    pq.write_table(table.replace_schema_metadata(meta), path, compression="zstd",
+                   use_dictionary=strings or False, write_statistics=flat or False)
 
 
 class Runner:
