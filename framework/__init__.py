@@ -12,6 +12,7 @@ from .database import MotionDatabase
 from .datasets import Dataset, FeatureMatrix, StepOutput
 from .errors import ConfigError, DataError, MocapflowError, ParseError, PipelineError, PluginError
 from .joints import CANONICAL_JOINTS
+from .markers import Markers
 from .motion import Motion, forward_kinematics
 from .plugins import build_registries, get_plugin_manager, hookimpl, load_registries
 from .registry import Registries, Registry
@@ -21,7 +22,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Analysis", "CANONICAL_JOINTS", "Cleaner", "Component", "ConfigError", "DataError", "Dataset",
-    "FeatureMatrix", "FeatureSet", "Format", "Index", "Matcher", "MocapflowError", "Motion",
+    "FeatureMatrix", "FeatureSet", "Format", "Index", "Markers", "Matcher", "MocapflowError", "Motion",
     "MotionDatabase", "Params", "ParseError", "PipelineError", "PluginError", "Registries",
     "Registry", "Skeleton", "StepContext", "StepOutput", "__version__", "build_registries",
     "forward_kinematics", "get_plugin_manager", "hookimpl", "load_registries",

@@ -16,8 +16,8 @@ from mocapflow.plugins.formats.trc import read_trc, write_trc
 
 def small_markers(t: int = 4, gaps: bool = True) -> Markers:
     rng = np.random.default_rng(0)
-    pos = rng.uniform(0, 1.8, size=(t, 3, 3))
-    pos[..., 1] += 0.2  # y up, above the floor
+    pos = rng.uniform(0, 0.4, size=(t, 3, 3))
+    pos[..., 1] = rng.uniform(0.1, 1.8, size=(t, 3))  # y up: a person's height, above the floor
     if gaps:
         pos[1, 2] = np.nan
     return Markers(("A", "B.two", "C"), pos, 100.0, name="small", metadata={"first_frame": 1})
@@ -138,5 +138,17 @@ def test_c3d_gaps_and_errors(tmp_path: Path) -> None:
 
 def test_c3d_registered(registries) -> None:
     formats = registries["formats"]
-    assert {"amc", "bvh", "c3d", "trc"} <= set(formats.keys())
+    assert {"amc", "bvh", "c3d", "trc"} <= {name for name, _ in formats}
     assert formats.get("c3d").produces == "markers" and formats.get("trc").extensions == (".trc",)
+
+
+def test_c3d_missing_package_message(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    from mocapflow.framework.errors import MocapflowError
+    from mocapflow.plugins.formats.c3d import read_c3d
+
+    monkeypatch.setitem(sys.modules, "c3d", None)  # makes `import c3d` raise ImportError
+    (tmp_path / "a.c3d").write_bytes(b"\x02\x50" + bytes(600))
+    with pytest.raises(MocapflowError, match=r"pip install mocapflow\[c3d\]"):
+        read_c3d(tmp_path / "a.c3d")

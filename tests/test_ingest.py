@@ -101,3 +101,21 @@ def test_whole_corpus_ingest_has_no_rejects_and_exact_frame_counts(tmp_path):
         # every frame row is there
         assert cat.query("SELECT count(*) AS n FROM motions").column("n")[0].as_py() == \
             cat.query("SELECT sum(n_frames) AS n FROM clips").column("n")[0].as_py()
+
+
+def test_marker_files_ingest(tmp_path):
+    root = corpus_path()
+    files = sorted((root / "c3d").rglob("*.c3d")) + sorted((root / "trc").rglob("*.trc"))
+    p = tmp_path / "m.yaml"
+    import yaml
+
+    p.write_text(yaml.safe_dump({"name": "m", "workspace": str(tmp_path / "ws"),
+                                 "steps": {"markers": {"uses": "formats.load_markers", "with": {"paths": [str(f) for f in files[:3]]}}}}))
+    run_pipeline(p, pm=pm())
+    with Catalog(tmp_path / "ws") as cat:
+        clips = cat.query("SELECT * FROM markers_clips ORDER BY clip_id").to_pylist()
+        assert len(clips) == 3 and all(c["n_frames"] > 0 and c["n_markers"] == len(c["labels"]) for c in clips)
+        n = cat.query("SELECT count(*) AS n FROM markers").column("n")[0].as_py()
+        assert n == sum(c["n_frames"] for c in clips)
+        sizes = cat.query("SELECT DISTINCT clip_id, len(positions) AS k FROM markers ORDER BY clip_id").to_pylist()
+        assert [s["k"] for s in sizes] == [3 * c["n_markers"] for c in clips]

@@ -5,8 +5,9 @@ level, so the readers import it lazily (never at CLI start-up). The slow, obviou
 correct twin is ``tests/naive/formats.py``.
 
 One pass over the bytes yields, per whitespace-separated token: its byte offset, length,
-1-based line number, a 64-bit FNV-1a hash (to compare name tokens without building
-Python strings), whether it is a finite decimal number, and its value. Lines end at LF;
+1-based line number, whether it is a finite decimal number and its value, and for
+non-numbers a 64-bit FNV-1a hash (to compare name tokens without building Python
+strings; 0 for numbers). Lines end at LF;
 CR is whitespace, so CRLF, LF and files mixing both count lines alike.
 """
 from __future__ import annotations
@@ -30,7 +31,11 @@ def fnv1a(token: bytes) -> int:
 
 @njit(cache=True)
 def _parse_number(buf, s, e, pow10):
-    """Parse ``buf[s:e]`` as a decimal float. Returns (ok, value)."""
+    """Parse the decimal number starting at ``buf[s]`` (not beyond ``e``).
+
+    Returns (ok, value, j): ``j`` is where the number's characters end; ``ok`` says that
+    they form a complete finite number (the caller checks that a token ends at ``j``).
+    """
     j = s
     neg = False
     c = buf[j]
@@ -63,23 +68,21 @@ def _parse_number(buf, s, e, pow10):
                 exp10 -= 1
             j += 1
     if not digits:
-        return False, 0.0
+        return False, 0.0, j
     if j < e and (buf[j] == 101 or buf[j] == 69):  # e E
         j += 1
         eneg = False
         if j < e and (buf[j] == 45 or buf[j] == 43):
             eneg = buf[j] == 45
             j += 1
-        if j >= e:
-            return False, 0.0
+        if j >= e or not 48 <= buf[j] <= 57:
+            return False, 0.0, j
         ex = 0
         while j < e and 48 <= buf[j] <= 57:
             if ex < 100000:
                 ex = ex * 10 + (buf[j] - 48)
             j += 1
         exp10 += -ex if eneg else ex
-    if j != e:
-        return False, 0.0
     v = float(mant)
     # exact mantissa (< 2**53) times an exact power of ten: one correctly rounded operation
     if exp10 >= 0:
@@ -93,8 +96,8 @@ def _parse_number(buf, s, e, pow10):
         else:
             v = v / 10.0 ** (-exp10)
     if not np.isfinite(v):
-        return False, 0.0
-    return True, -v if neg else v
+        return False, 0.0, j
+    return True, -v if neg else v, j
 
 
 @njit(cache=True)
@@ -124,20 +127,26 @@ def _tokenize(buf, start, first_line, pow10):
             bad = i
             break
         s = i
-        h = np.uint64(14695981039346656037)
-        while i < n:
-            c = buf[i]
-            if c <= 32 or c == 127:
-                break
-            h = (h ^ np.uint64(c)) * np.uint64(1099511628211)
-            i += 1
+        # parse a number while scanning; only a token that is not one is scanned again
+        ok, v, i = _parse_number(buf, s, n, pow10)
+        if i < n and not (buf[i] <= 32 or buf[i] == 127):
+            ok = False
+            while i < n:
+                c = buf[i]
+                if c <= 32 or c == 127:
+                    break
+                i += 1
         starts[k] = s
         lens[k] = i - s
         lines[k] = line
-        hashes[k] = h
-        ok, v = _parse_number(buf, s, i, pow10)
         isnum[k] = ok
         values[k] = v if ok else np.nan
+        h = np.uint64(0)
+        if not ok:  # names are compared by hash; numbers never are
+            h = np.uint64(14695981039346656037)
+            for m in range(s, i):
+                h = (h ^ np.uint64(buf[m])) * np.uint64(1099511628211)
+        hashes[k] = h
         k += 1
     return starts[:k], lens[:k], lines[:k], hashes[:k], values[:k], isnum[:k], bad, line
 
@@ -158,6 +167,7 @@ def tokenize(buf: np.ndarray, start: int = 0, first_line: int = 1):
     -------
     starts, lens, lines : ndarray of int64, shape (n_tokens,)
     hashes : ndarray of uint64, shape (n_tokens,)
+        FNV-1a hash of each non-numeric token, 0 for numbers.
     values : ndarray of float64, shape (n_tokens,)
         NaN where the token is not a finite decimal number.
     isnum : ndarray of bool, shape (n_tokens,)

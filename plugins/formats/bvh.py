@@ -16,6 +16,11 @@
   the cgspeed CMU conversions) whose implied size ``h * unit`` is closest to 1.7 m on a
   log scale. The chosen scale (metres per file unit) and unit name are recorded in
   ``metadata["scale"]`` / ``metadata["unit"]``; pass a float to force it.
+* A static root above the real hips (Bandai-Namco: ``joint_Root`` never moves, ``Hips``
+  has position channels) is dropped by default (``collapse_static_root``): the hips become
+  the root, so ``root_translation`` and ``rotations[:, 0]`` carry the body's motion as
+  normalisation and features expect. ``metadata["collapsed_root"]`` names the dropped
+  joint; world positions are unchanged.
 * ``Frame Time`` gives fps (``metadata["frame_time"]`` keeps the exact value).
 """
 from __future__ import annotations
@@ -34,6 +39,7 @@ from mocapflow.framework.joints import map_bvh
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
+from ._bvh_write import write_bvh
 from ._common import check_text, file_metadata, line_of, read_bytes
 
 __all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
@@ -164,7 +170,7 @@ def _rest_positions(parents: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return pos
 
 
-def _auto_scale(parents: np.ndarray, offsets: np.ndarray) -> tuple[float, str, float]:
+def _auto_scale(parents: np.ndarray, offsets: np.ndarray) -> tuple[float, str, float | None]:
     rest = _rest_positions(parents, offsets)
     h = float(np.ptp(rest, axis=0).max())
     if h <= 0:
@@ -173,7 +179,7 @@ def _auto_scale(parents: np.ndarray, offsets: np.ndarray) -> tuple[float, str, f
     return BVH_UNITS[unit], unit, h
 
 
-def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto") -> Motion:
+def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse_static_root: bool = True) -> Motion:
     """Read a BVH motion.
 
     Parameters
@@ -181,12 +187,17 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto") -> Motio
     path : str or Path
     scale : "auto" or float
         Metres per file unit; ``"auto"`` guesses it from the rest-pose size (module doc).
+    collapse_static_root : bool
+        Drop a root joint that never moves when its only child carries the translation
+        (Bandai-Namco's ``joint_Root`` above ``Hips``), so that ``root_translation`` and
+        ``rotations[:, 0]`` describe the body (module doc).
 
     Returns
     -------
     Motion
         Positions in metres; metadata ``path``, ``format`` ("bvh"), ``checksum``,
-        ``source_fps``, ``source_frames``, ``frame_time``, ``scale``, ``unit``, ``subject``.
+        ``source_fps``, ``source_frames``, ``frame_time``, ``scale``, ``unit``, ``subject``,
+        ``collapsed_root`` (name of a dropped static root, or None).
 
     Raises
     ------
@@ -216,7 +227,7 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto") -> Motio
     if scale == "auto":
         scl, unit, height = _auto_scale(parents, offsets)
     else:
-        scl, unit, height = float(scale), "given", float("nan")
+        scl, unit, height = float(scale), "given", None
         if not scl > 0:
             raise DataError(f"scale must be positive or 'auto', got {scale!r}")
     nj = len(joints)
@@ -238,28 +249,44 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto") -> Motio
     root_t = np.empty((frames, 3))
     for a in range(3):
         root_t[:, a] = table[:, pos_cols[0, a]] if pos_cols[0, a] >= 0 else offsets[0, a]
-    root_t *= scl
+    # joint translations (file units) of non-root joints whose position channels move
+    moving: dict[int, np.ndarray] = {}
+    for j in range(1, nj):
+        if (pos_cols[j] >= 0).any():
+            v = np.where(pos_cols[j] >= 0, table[:, np.maximum(pos_cols[j], 0)], offsets[j])
+            if np.abs(v - offsets[j]).max() > 1e-4 * max(1.0, float(np.abs(offsets[j]).max())):
+                moving[j] = v
+    names, collapsed = tuple(jt.name for jt in joints), None
+    chans = [tuple(jt.channels) for jt in joints]
+    if collapse_static_root and 1 in moving and (parents == 0).sum() == 1 \
+            and np.ptp(root_t, axis=0).max() <= 1e-9 and np.abs(rot[:, 0] - rot[0, 0]).max() <= 1e-12:
+        # a static dummy root (Bandai-Namco's joint_Root) above the real, translating hips:
+        # make the hips the root so that root_translation and rotations[:, 0] carry the motion
+        collapsed = names[0]
+        r0 = rot[0, 0].copy()
+        root_t = root_t[0] + quat.rotate(r0, moving.pop(1))
+        rot = rot[:, 1:].copy()
+        rot[:, 0] = quat.mul(r0, rot[:, 0])
+        names, chans = names[1:], chans[1:]
+        parents = np.maximum(parents[1:] - 1, -1)
+        offsets = offsets[1:]
+        moving = {j - 1: v for j, v in moving.items()}
+        nj -= 1
     local_t = None
-    animated = [j for j in range(1, nj) if (pos_cols[j] >= 0).any()]
-    moving = []
-    for j in animated:
-        v = np.where(pos_cols[j] >= 0, table[:, np.maximum(pos_cols[j], 0)], offsets[j])
-        if np.abs(v - offsets[j]).max() > 1e-4 * max(1.0, float(np.abs(offsets[j]).max())):
-            moving.append((j, v))
     if moving:
         local_t = np.broadcast_to(offsets * scl, (frames, nj, 3)).copy()
-        for j, v in moving:
+        for j, v in moving.items():
             local_t[:, j] = v * scl
     skeleton = Skeleton(
         names=names, parents=parents, offsets=offsets * scl, canonical=map_bvh(names),
-        rotation_orders=tuple("".join(ch[0].lower() for ch in jt.channels if ch[1:].lower() == "rotation") for jt in joints),
-        axes=None, channels=tuple(tuple(jt.channels) for jt in joints), name=path.stem,
+        rotation_orders=tuple("".join(ch[0].lower() for ch in c if ch[1:].lower() == "rotation") for c in chans),
+        axes=None, channels=tuple(chans), name=path.stem,
         meta={"format": "bvh", "scale": scl, "unit": unit},
     )
     meta = file_metadata(path, data, "bvh")
     meta.update(subject=path.parent.name, source_fps=1.0 / dt, source_frames=frames, frame_time=dt,
-                scale=scl, unit=unit, rest_size=height)
-    return Motion(skeleton=skeleton, root_translation=root_t, rotations=rot, fps=1.0 / dt, name=path.stem,
+                scale=scl, unit=unit, rest_size=height, collapsed_root=collapsed)
+    return Motion(skeleton=skeleton, root_translation=root_t * scl, rotations=rot, fps=1.0 / dt, name=path.stem,
                   metadata=meta, local_translations=local_t)
 
 
@@ -271,89 +298,19 @@ def _check_motion(path: Path, tok: tuple, frames: int, n_ch: int, first_line: in
     if not isnum.all():
         k = int(np.argmin(isnum))
         raise ParseError(path, int(lines[k]), f"expected {n_ch} finite numbers per frame, found a non-number")
-    uniq, counts = np.unique(lines, return_counts=True)
+    if len(lines) == 0:
+        raise ParseError(path, first_line, f"expected {frames} frame lines (Frames:), found 0")
+    # tokens come in line order: per-line counts with one bincount, no sort
+    per_line = np.bincount(lines - first_line)
+    uniq = np.flatnonzero(per_line) + first_line
+    counts = per_line[per_line > 0]
     wrong = np.flatnonzero(counts != n_ch)
     if wrong.size:
         k = wrong[0]
         raise ParseError(path, int(uniq[k]), f"expected {n_ch} values on this frame line, found {int(counts[k])}")
     if len(uniq) != frames:
-        ln = int(uniq[-1]) if len(uniq) else first_line
+        ln = int(uniq[-1])
         raise ParseError(path, ln, f"expected {frames} frame lines (Frames:), found {len(uniq)}")
-
-
-def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_order: str = "zyx") -> None:
-    """Write a motion as BVH (file units: metres divided by the source scale, if any).
-
-    Parameters
-    ----------
-    motion : Motion
-    path : str or Path
-    precision : int
-        Significant digits per value.
-    default_order : str
-        Rotation order for joints whose skeleton did not come from a BVH file.
-
-    A skeleton read from BVH keeps its channel layout (order and position channels);
-    others get ``Xposition Yposition Zposition`` on the root and three rotation channels
-    in ``default_order`` on every other joint, except leaves named ``*_end``, which are
-    written as ``End Site``; other leaves get a zero-offset ``End Site`` below them.
-    """
-    sk = motion.skeleton
-    from_bvh = sk.meta.get("format") == "bvh" and len(sk.channels) == sk.n_joints
-    scl = float(sk.meta.get("scale", 1.0)) if from_bvh else 1.0
-    nj = sk.n_joints
-    has_kids = np.zeros(nj, bool)
-    has_kids[sk.parents[1:]] = True
-    chans: list[list[str]] = []
-    for j in range(nj):
-        if from_bvh:
-            chans.append(list(sk.channels[j]))
-        elif j == 0:
-            chans.append(["Xposition", "Yposition", "Zposition"] + [f"{a.upper()}rotation" for a in default_order])
-        elif has_kids[j] or not sk.names[j].lower().endswith("_end"):
-            chans.append([f"{a.upper()}rotation" for a in default_order])
-        else:
-            chans.append([])
-    lt = motion.local_translations
-    cols: list[np.ndarray] = []
-    for j in range(nj):
-        rot_ch = [c for c in chans[j] if c[1:].lower() == "rotation"]
-        ang = quat.to_euler(motion.rotations[:, j], "".join(c[0].lower() for c in rot_ch)) if rot_ch else None
-        r = 0
-        for c in chans[j]:
-            a = "xyz".index(c[0].lower())
-            if c[1:].lower() == "rotation":
-                cols.append(ang[:, r])
-                r += 1
-            elif j == 0:
-                cols.append(motion.root_translation[:, a] / scl)
-            else:
-                cols.append((lt[:, j, a] if lt is not None else np.full(motion.n_frames, sk.offsets[j, a])) / scl)
-    lines = ["HIERARCHY"]
-    g = f"%.{precision}g"
-
-    def emit(j: int, depth: int) -> None:
-        ind = "\t" * depth
-        off = " ".join(g % v for v in sk.offsets[j] / scl)
-        if j > 0 and not chans[j] and not has_kids[j]:
-            lines.extend([f"{ind}End Site", f"{ind}{{", f"{ind}\tOFFSET {off}", f"{ind}}}"])
-            return
-        lines.append(f"{ind}{'ROOT' if j == 0 else 'JOINT'} {sk.names[j]}")
-        lines.extend([f"{ind}{{", f"{ind}\tOFFSET {off}"])
-        if chans[j]:
-            lines.append(f"{ind}\tCHANNELS {len(chans[j])} {' '.join(chans[j])}")
-        for k in sk.children(j):
-            emit(k, depth + 1)
-        if not has_kids[j]:  # a leaf joint with channels: BVH wants an End Site below it
-            lines.extend([f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET 0 0 0", f"{ind}\t}}"])
-        lines.append(f"{ind}}}")
-
-    emit(0, 0)
-    lines += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {g % (1.0 / motion.fps)}"]
-    table = np.column_stack(cols) if cols else np.zeros((motion.n_frames, 0))
-    row = " ".join([g] * table.shape[1])
-    body = "\n".join(row % tuple(r) for r in table.tolist())
-    Path(path).write_text("\n".join(lines) + "\n" + body + "\n", encoding="latin-1")
 
 
 class BvhFormat(Format):
@@ -366,9 +323,11 @@ class BvhFormat(Format):
     class Params(Params):
         scale: float | Literal["auto"] = Field(
             "auto", description="metres per file unit, or 'auto' (guessed from the rest-pose size)")
+        collapse_static_root: bool = Field(
+            True, description="drop a never-moving root above the translating hips (Bandai-Namco joint_Root)")
 
     def read(self, path: str | Path) -> Motion:
-        return read_bvh(path, scale=self.params.scale)
+        return read_bvh(path, scale=self.params.scale, collapse_static_root=self.params.collapse_static_root)
 
     def write(self, obj: Any, path: str | Path) -> None:
         write_bvh(obj, path)

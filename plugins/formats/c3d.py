@@ -41,7 +41,7 @@ UNITS_TO_METRES: dict[str, float] = {"mm": 0.001, "cm": 0.01, "m": 1.0, "in": 0.
 def _import_c3d():
     try:
         import c3d
-    except ImportError:  # pragma: no cover - depends on the environment
+    except ImportError:
         raise MocapflowError("reading C3D files needs the optional 'c3d' package: pip install mocapflow[c3d]") from None
     return c3d
 
@@ -137,7 +137,9 @@ def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
     pos = raw[..., :3] * UNITS_TO_METRES[units]
     bad = (raw[..., 3] < 0) | ~np.isfinite(pos).all(-1)
     pos[bad] = np.nan
-    labels = tuple(str(lb).strip() for lb in reader.point_labels)
+    labels = tuple(str(lb).strip() for lb in reader.point_labels)[: pos.shape[1]]
+    # files with fewer POINT:LABELS than points exist; name the rest by index
+    labels += tuple(f"point{k + 1}" for k in range(len(labels), pos.shape[1]))
     # Y_SCREEN names the vertical axis, but its sign is unreliable in real files (Qualisys
     # and numediart say "-Z" with the floor at z = 0 and people above it): sign from data
     y_screen = (_param(reader, "POINT:Y_SCREEN") or "").lower()

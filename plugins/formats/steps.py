@@ -11,10 +11,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework import Format, Motion, Params, ParseError, StepContext, StepOutput
+from mocapflow.framework import Format, Markers, Motion, Params, ParseError, StepContext, StepOutput
 from mocapflow.framework import schema
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.errors import MocapflowError, PipelineError
@@ -39,6 +40,20 @@ def _expand(patterns: list[str], base: Path, exclude: list[str]) -> list[Path]:
         p = Path(pat).expanduser()
         excluded |= {str(Path(h).resolve()) for h in glob.glob(str(p if p.is_absolute() else base / p), recursive=True)}
     return [found[k] for k in sorted(found) if k not in excluded]
+
+
+def _read_markers(job: tuple[type, dict[str, Any], str]) -> Markers | tuple[str, int | None, str]:
+    """Read one marker file; a failure comes back as ``(path, line, message)``."""
+    cls, params, path = job
+    try:
+        markers = cls(params).read(path)
+        if not isinstance(markers, Markers):
+            return (path, None, f"{cls.key()} produced {type(markers).__name__}, not Markers")
+        return markers
+    except ParseError as exc:
+        return (exc.path, exc.line, exc.message)
+    except (MocapflowError, OSError, ValueError) as exc:
+        return (path, None, f"{type(exc).__name__}: {exc}")
 
 
 def _read_one(job: tuple[type, dict[str, Any], str, float | None]) -> Motion | tuple[str, int | None, str]:
@@ -134,6 +149,68 @@ class LoadMotions(Format):
         return StepOutput(tables, summary)
 
 
+class LoadMarkers(Format):
+    """Ingest marker files (C3D, TRC...) into a markers dataset.
+
+    Tables: ``data`` (clip_id, frame, ``positions``: the clip's M*3 marker coordinates in
+    metres as a list of float32, NaN in gaps), ``clips`` (clip_id, name, path, format, fps,
+    n_frames, n_markers, labels, up_axis) and ``rejects``.
+    """
+
+    name = "load_markers"
+    is_step = True
+    inputs: Mapping[str, bool] = {}
+
+    class Params(Params):
+        paths: list[str] = Field(min_length=1, description="glob patterns (** recursive), relative to the pipeline file")
+        exclude: list[str] = Field(default_factory=list, description="glob patterns of files to leave out")
+        on_error: Literal["record", "fail"] = Field("record", description="record bad files in `rejects`, or stop")
+        readers: dict[str, dict[str, Any]] = Field(default_factory=dict, description="per-format reader parameters, e.g. {c3d: {y_up: true}}")
+
+    def source_fingerprint(self, base_dir: Path) -> str:
+        h = hashlib.sha256()
+        for f in _expand(self.params.paths, base_dir, self.params.exclude):
+            st = f.stat()
+            h.update(f"{f}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+        return h.hexdigest()[:24]
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        by_ext = {ext.lower(): cls for _, cls in ctx.registries["formats"]
+                  if getattr(cls, "produces", "") == "markers" for ext in cls.extensions}
+        files = _expand(self.params.paths, ctx.base_dir, self.params.exclude)
+        jobs = [(by_ext[f.suffix.lower()], self.params.readers.get(by_ext[f.suffix.lower()].name, {}), str(f))
+                for f in files if f.suffix.lower() in by_ext]
+        if not jobs:
+            raise PipelineError(f"no marker file matches {self.params.paths} (relative to {ctx.base_dir})")
+        results = ctx.map(_read_markers, jobs, desc=f"{ctx.step_id}: reading")
+        good = [r for r in results if isinstance(r, Markers)]
+        rejects = [r for r in results if not isinstance(r, Markers)]
+        if rejects and self.params.on_error == "fail":
+            raise ParseError(*rejects[0])
+        frames, clips = [], []
+        for cid, mk in enumerate(good):
+            t, m = mk.n_frames, mk.n_markers
+            flat = mk.positions.astype(np.float32).reshape(-1)
+            frames.append(pa.table({
+                "clip_id": pa.array(np.full(t, cid, np.int32)), "frame": pa.array(np.arange(t, dtype=np.int32)),
+                "positions": pa.ListArray.from_arrays(pa.array(np.arange(0, t * m * 3 + 1, m * 3, dtype=np.int32)), pa.array(flat)),
+            }))
+            clips.append({"clip_id": cid, "name": mk.name, "path": str(mk.metadata.get("path", "")),
+                          "format": str(mk.metadata.get("format", "")), "fps": mk.fps, "n_frames": t, "n_markers": m,
+                          "labels": list(mk.labels), "up_axis": str(mk.metadata.get("up_axis", ""))})
+        clip_schema = pa.schema([("clip_id", pa.int32()), ("name", pa.string()), ("path", pa.string()), ("format", pa.string()),
+                                 ("fps", pa.float64()), ("n_frames", pa.int32()), ("n_markers", pa.int32()),
+                                 ("labels", pa.list_(pa.string())), ("up_axis", pa.string())])
+        data = pa.concat_tables(frames) if frames else pa.table({"clip_id": pa.array([], pa.int32()), "frame": pa.array([], pa.int32()),
+                                                                  "positions": pa.array([], pa.list_(pa.float32()))})
+        tables = {
+            "data": data,
+            "clips": pa.Table.from_pylist(clips, schema=clip_schema),
+            "rejects": pa.Table.from_pylist([{"path": p, "line": ln, "message": msg} for p, ln, msg in rejects], schema=schema.REJECTS),
+        }
+        return StepOutput(tables, {"files": len(jobs), "clips": len(good), "rejects": len(rejects)})
+
+
 class ExportMotions(Format):
     """Write every clip of a motions dataset to files (BVH or AMC/ASF) in the step folder."""
 
@@ -162,7 +239,7 @@ class ExportMotions(Format):
 
 @hookimpl
 def register_formats() -> list[type]:
-    return [LoadMotions, ExportMotions]
+    return [LoadMotions, LoadMarkers, ExportMotions]
 
 
-__all__ = ["ExportMotions", "LoadMotions"]
+__all__ = ["ExportMotions", "LoadMarkers", "LoadMotions"]

@@ -1,0 +1,84 @@
+"""BVH writer (see :mod:`mocapflow.plugins.formats.bvh` for the conventions)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.motion import Motion
+
+
+def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_order: str = "zyx") -> None:
+    """Write a motion as BVH (file units: metres divided by the source scale, if any).
+
+    Parameters
+    ----------
+    motion : Motion
+    path : str or Path
+    precision : int
+        Significant digits per value.
+    default_order : str
+        Rotation order for joints whose skeleton did not come from a BVH file.
+
+    A skeleton read from BVH keeps its channel layout (order and position channels);
+    others get ``Xposition Yposition Zposition`` on the root and three rotation channels
+    in ``default_order`` on every other joint, except leaves named ``*_end``, which are
+    written as ``End Site``; other leaves get a zero-offset ``End Site`` below them.
+    """
+    sk = motion.skeleton
+    from_bvh = sk.meta.get("format") == "bvh" and len(sk.channels) == sk.n_joints
+    scl = float(sk.meta.get("scale", 1.0)) if from_bvh else 1.0
+    nj = sk.n_joints
+    has_kids = np.zeros(nj, bool)
+    has_kids[sk.parents[1:]] = True
+    chans: list[list[str]] = []
+    for j in range(nj):
+        if from_bvh:
+            chans.append(list(sk.channels[j]))
+        elif j == 0:
+            chans.append(["Xposition", "Yposition", "Zposition"] + [f"{a.upper()}rotation" for a in default_order])
+        elif has_kids[j] or not sk.names[j].lower().endswith("_end"):
+            chans.append([f"{a.upper()}rotation" for a in default_order])
+        else:
+            chans.append([])
+    lt = motion.local_translations
+    cols: list[np.ndarray] = []
+    for j in range(nj):
+        rot_ch = [c for c in chans[j] if c[1:].lower() == "rotation"]
+        ang = quat.to_euler(motion.rotations[:, j], "".join(c[0].lower() for c in rot_ch)) if rot_ch else None
+        r = 0
+        for c in chans[j]:
+            a = "xyz".index(c[0].lower())
+            if c[1:].lower() == "rotation":
+                cols.append(ang[:, r])
+                r += 1
+            elif j == 0:
+                cols.append(motion.root_translation[:, a] / scl)
+            else:
+                cols.append((lt[:, j, a] if lt is not None else np.full(motion.n_frames, sk.offsets[j, a])) / scl)
+    lines = ["HIERARCHY"]
+    g = f"%.{precision}g"
+
+    def emit(j: int, depth: int) -> None:
+        ind = "\t" * depth
+        off = " ".join(g % v for v in sk.offsets[j] / scl)
+        if j > 0 and not chans[j] and not has_kids[j]:
+            lines.extend([f"{ind}End Site", f"{ind}{{", f"{ind}\tOFFSET {off}", f"{ind}}}"])
+            return
+        lines.append(f"{ind}{'ROOT' if j == 0 else 'JOINT'} {sk.names[j]}")
+        lines.extend([f"{ind}{{", f"{ind}\tOFFSET {off}"])
+        if chans[j]:
+            lines.append(f"{ind}\tCHANNELS {len(chans[j])} {' '.join(chans[j])}")
+        for k in sk.children(j):
+            emit(k, depth + 1)
+        if not has_kids[j]:  # a leaf joint with channels: BVH wants an End Site below it
+            lines.extend([f"{ind}\tEnd Site", f"{ind}\t{{", f"{ind}\t\tOFFSET 0 0 0", f"{ind}\t}}"])
+        lines.append(f"{ind}}}")
+
+    emit(0, 0)
+    lines += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {g % (1.0 / motion.fps)}"]
+    table = np.column_stack(cols) if cols else np.zeros((motion.n_frames, 0))
+    row = " ".join([g] * table.shape[1])
+    body = "\n".join(row % tuple(r) for r in table.tolist())
+    Path(path).write_text("\n".join(lines) + "\n" + body + "\n", encoding="latin-1")
