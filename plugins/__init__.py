@@ -13,6 +13,7 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "mocapflow.plugins.indexes.kdtree",
     "mocapflow.plugins.features.krueger",
     "mocapflow.plugins.analyses.correlation",
+    "mocapflow.plugins.analyses.knn_query",
     "mocapflow.plugins.matchers.matching_plugin",
     "mocapflow.plugins.formats.steps",
     "mocapflow.plugins.analyses.summary",

@@ -8,12 +8,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 _EPS = 1e-12
+# fast-math without the no-NaN/no-inf assumptions: missing joints are NaN and must stay so
+_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
 def _psd(qx, qy, qz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
     ux, uy, uz = bx - ax, by - ay, bz - az
     uu = ux * ux + uy * uy + uz * uz
@@ -23,7 +25,7 @@ def _psd(qx, qy, qz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def plane_distance(p1, p2, p3, q, offset, out):  # pragma: no cover - compiled
     for i in range(q.shape[0]):
         ux, uy, uz = p2[i, 0] - p1[i, 0], p2[i, 1] - p1[i, 1], p2[i, 2] - p1[i, 2]
@@ -33,7 +35,7 @@ def plane_distance(p1, p2, p3, q, offset, out):  # pragma: no cover - compiled
         out[i] = ((q[i, 0] - p1[i, 0]) * nx + (q[i, 1] - p1[i, 1]) * ny + (q[i, 2] - p1[i, 2]) * nz) / norm - offset[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def normal_plane_distance(a, b, anchor, q, offset, out):  # pragma: no cover - compiled
     for i in range(q.shape[0]):
         nx, ny, nz = b[i, 0] - a[i, 0], b[i, 1] - a[i, 1], b[i, 2] - a[i, 2]
@@ -42,13 +44,13 @@ def normal_plane_distance(a, b, anchor, q, offset, out):  # pragma: no cover - c
                   + (q[i, 2] - anchor[i, 2]) * nz) / norm - offset[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def point_segment_distance(q, a, b, out):  # pragma: no cover - compiled
     for i in range(q.shape[0]):
         out[i] = _psd(q[i, 0], q[i, 1], q[i, 2], a[i, 0], a[i, 1], a[i, 2], b[i, 0], b[i, 1], b[i, 2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def segment_segment_distance(a0, a1, b0, b1, out):  # pragma: no cover - compiled
     for i in range(a0.shape[0]):
         ux, uy, uz = a1[i, 0] - a0[i, 0], a1[i, 1] - a0[i, 1], a1[i, 2] - a0[i, 2]
@@ -73,7 +75,7 @@ def segment_segment_distance(a0, a1, b0, b1, out):  # pragma: no cover - compile
         out[i] = best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def cos_between(a0, a1, b0, b1, out):  # pragma: no cover - compiled
     # the cosine, not the angle: thresholding cos against cos(theta) avoids an acos per frame
     for i in range(a0.shape[0]):
@@ -84,7 +86,7 @@ def cos_between(a0, a1, b0, b1, out):  # pragma: no cover - compiled
         out[i] = min(max((ux * vx + uy * vy + uz * vz) / (nu * nv), -1.0), 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def speed(x, starts, fps, out):  # pragma: no cover - compiled
     n = x.shape[0]
     for i in range(n):
@@ -100,7 +102,7 @@ def speed(x, starts, fps, out):  # pragma: no cover - compiled
         out[i] = math.sqrt(dx * dx + dy * dy + dz * dz) * fps / steps
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def min_height(positions, out):  # pragma: no cover - compiled
     """Lowest y over the joints of each frame, ignoring NaN (NaN if all are)."""
     for i in range(positions.shape[0]):
@@ -117,7 +119,7 @@ def min_height(positions, out):  # pragma: no cover - compiled
 OP_PLANE, OP_NPLANE, OP_PSEG, OP_SEGSEG, OP_COS, OP_HEIGHT, OP_SPEED = 0, 1, 2, 3, 4, 5, 6
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
 def _joint(pos, i, j, fallback):  # pragma: no cover - compiled
     # substitute a missing joint (NaN) by its fallback (toes -> ankle...), per frame
     while j >= 0 and math.isnan(pos[i, j, 0]) and fallback[j] >= 0:
@@ -125,12 +127,13 @@ def _joint(pos, i, j, fallback):  # pragma: no cover - compiled
     return pos[i, j, 0], pos[i, j, 1], pos[i, j, 2]
 
 
-@njit(cache=True, inline="always")
-def _value(pos, i, lo, hi, miny, fps, op, terms, n_terms, fallback):  # pragma: no cover - compiled
-    """Value of one feature at frame ``i``: min over its terms of the op."""
+@njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
+def _value(pos, i, lo, hi, miny, fps, op, joints, f, n_terms, fallback):  # pragma: no cover - compiled
+    """Value of feature ``f`` at frame ``i``: min over its terms of the op."""
     best = np.inf
+    # index the full arrays (no slices: a slice per call costs a reference count)
     for t in range(n_terms):
-        j0, j1, j2, j3 = terms[t, 0], terms[t, 1], terms[t, 2], terms[t, 3]
+        j0, j1, j2, j3 = joints[f, t, 0], joints[f, t, 1], joints[f, t, 2], joints[f, t, 3]
         if op == OP_SPEED:
             if hi == lo:
                 v = 0.0
@@ -178,9 +181,11 @@ def _value(pos, i, lo, hi, miny, fps, op, terms, n_terms, fallback):  # pragma: 
     return best
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
 def _frame(pos, starts, i):  # pragma: no cover - compiled
-    n = pos.shape[0]
+    # prange indices are unsigned: keep the arithmetic in int64
+    i = np.int64(i)
+    n = np.int64(pos.shape[0])
     miny = np.inf
     for j in range(pos.shape[1]):
         y = pos[i, j, 1]
@@ -191,7 +196,7 @@ def _frame(pos, starts, i):  # pragma: no cover - compiled
     return lo, hi, miny
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def feature_values(pos, starts, fps, ops, joints, n_terms, fallback, out):  # pragma: no cover - compiled
     """Raw values ``out (T, F)`` of every feature (distances m, speeds m/s, angles as cosines).
 
@@ -202,18 +207,18 @@ def feature_values(pos, starts, fps, ops, joints, n_terms, fallback, out):  # pr
     for i in range(pos.shape[0]):
         lo, hi, miny = _frame(pos, starts, i)
         for f in range(ops.shape[0]):
-            out[i, f] = _value(pos, i, lo, hi, miny, fps, ops[f], joints[f], n_terms[f], fallback)
+            out[i, f] = _value(pos, i, lo, hi, miny, fps, ops[f], joints, f, n_terms[f], fallback)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def feature_bits(pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, thr, strict, below,
                  out, out_on):  # pragma: no cover - compiled
     """Thresholded features in the same pass: ``out[i, f] = value (>= | <) thr[f] * scale[i, unit[f]]``
     and ``out_on`` the same against ``strict`` (for hysteresis); NaN gives False."""
-    for i in prange(pos.shape[0]):
+    for i in range(pos.shape[0]):
         lo, hi, miny = _frame(pos, starts, i)
         for f in range(ops.shape[0]):
-            v = _value(pos, i, lo, hi, miny, fps, ops[f], joints[f], n_terms[f], fallback)
+            v = _value(pos, i, lo, hi, miny, fps, ops[f], joints, f, n_terms[f], fallback)
             sc = scale[i, unit[f]]
             if below[f]:
                 out[i, f] = v < thr[f] * sc
@@ -223,7 +228,7 @@ def feature_bits(pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, 
                 out_on[i, f] = v >= strict[f] * sc
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
 def _segseg(a0x, a0y, a0z, a1x, a1y, a1z, b0x, b0y, b0z, b1x, b1y, b1z):  # pragma: no cover - compiled
     ux, uy, uz = a1x - a0x, a1y - a0y, a1z - a0z
     vx, vy, vz = b1x - b0x, b1y - b0y, b1z - b0z

@@ -8,6 +8,11 @@ length ``hl``, shoulder width ``sw``, hip width ``hw`` from
 :func:`mocapflow.framework.normalize.body_measures`). The exact definitions and thresholds
 are tabulated in ``docs/relational-features.md``.
 
+The table :data:`FEATURES` is the single definition: it is compiled into a small program
+(op code + joint indices per feature) that one numba kernel interprets in a single pass over
+the frames (``_relational_kernels.feature_bits``, about 0.6 s per million frames on one
+core); ``tests/naive/relational.py`` evaluates the same table with plain NumPy geometry.
+
 Every threshold is a pair ``(threshold, strict)``: ``threshold`` is the single decision
 value (the paper's where it gives one, e.g. 120 degrees for "bent" and one humerus length
 for "hand in front"); ``strict`` is the switch-on value used only with ``hysteresis=True``

@@ -32,8 +32,17 @@ def pack_codes(bits: np.ndarray, columns: np.ndarray | list[int] | None = None) 
     cols = np.arange(b.shape[1]) if columns is None else np.asarray(columns, dtype=np.int64)
     if len(cols) > 63:
         raise DataError(f"at most 63 features can be packed into one code, got {len(cols)}")
-    sel = b[:, cols] > 0.5
-    return (sel.astype(np.int64) << np.arange(len(cols), dtype=np.int64)).sum(axis=1)
+    sel = b[:, cols] if b.dtype == bool else b[:, cols] > 0.5
+    if len(cols) == 0:
+        return np.zeros(len(b), np.int64)
+    # one pass: pack the bits little-endian into bytes, then read the bytes as an integer
+    packed = np.packbits(sel, axis=1, bitorder="little")
+    width = {1: np.uint8, 2: np.uint16}.get(packed.shape[1])
+    if width is not None:
+        return np.ascontiguousarray(packed).view(width).reshape(-1).astype(np.int64)
+    pad = np.zeros((len(b), 8), np.uint8)
+    pad[:, :packed.shape[1]] = packed
+    return pad.view("<u8").reshape(-1).astype(np.int64)
 
 
 @dataclass(frozen=True)

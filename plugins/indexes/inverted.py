@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
@@ -122,7 +123,13 @@ class SetIndex:
             return self.list_positions[:0]
         if len(parts) == 1:
             return parts[0]
-        return np.sort(np.concatenate(parts))
+        total = sum(len(x) for x in parts)
+        if total * 8 < self.n_segments:  # few positions: sorting them is cheaper than a bitmap
+            return np.sort(np.concatenate(parts))
+        mark = np.zeros(self.n_segments, dtype=bool)
+        for x in parts:
+            mark[x] = True
+        return np.flatnonzero(mark)
 
     # --- hits (§5.1, §5.2) -------------------------------------------------------
     def _same_clip(self, starts: np.ndarray, last: np.ndarray) -> np.ndarray:
@@ -142,8 +149,7 @@ class SetIndex:
             Start segment ``k`` of each hit (0-based; the hit covers segments ``k .. k+L-1``
             of one clip), ascending.
         """
-        lists = [self.positions(int(c)) - i for i, c in enumerate(codes)]
-        return self._intersect(lists, len(codes))
+        return self._intersect([self.positions(int(c)) for c in codes])
 
     def fuzzy(self, member: np.ndarray) -> np.ndarray:
         """Fuzzy hits (eq. 11): intersection of shifted unions ``L(V_l) - l``.
@@ -151,21 +157,22 @@ class SetIndex:
         ``member`` is a boolean table of shape (L, 2**f): ``member[l, c]`` iff code ``c`` is
         an alternative of the l-th query vector. Returns start segments as :meth:`exact`.
         """
-        lists = [self.union(np.flatnonzero(row)) - i for i, row in enumerate(member)]
-        return self._intersect(lists, len(member))
+        return self._intersect([self.union(np.flatnonzero(row)) for row in member])
 
-    def _intersect(self, lists: list[np.ndarray], n_levels: int) -> np.ndarray:
-        if not lists:
+    def _intersect(self, lists: list[np.ndarray]) -> np.ndarray:
+        n_levels = len(lists)
+        if not n_levels:
             return np.zeros(0, np.int64)
-        order = np.argsort([len(x) for x in lists], kind="stable")  # shortest first
-        cand = lists[order[0]]
+        # start from the shortest list; probe the others by binary search (no shifted copies)
+        order = np.argsort([len(x) for x in lists], kind="stable")
+        cand = lists[order[0]] - order[0]
         for i in order[1:]:
             if not len(cand):
                 break
             other = lists[i]
-            j = np.searchsorted(other, cand)
+            j = np.searchsorted(other, cand + i)
             ok = j < len(other)
-            ok[ok] = other[j[ok]] == cand[ok]
+            ok[ok] = other[j[ok]] == cand[ok] + i
             cand = cand[ok]
         cand = cand[(cand >= 0) & (cand + n_levels - 1 < self.n_segments)]
         return cand[self._same_clip(cand, cand + n_levels - 1)].astype(np.int64)
@@ -190,6 +197,11 @@ class SetIndex:
     def adaptive(self, member: np.ndarray) -> np.ndarray:
         """Adaptive fuzzy hits (§5.2): the segmentation is coarsened to maximal runs of each ``V_l``.
 
+        The runs of ``V_1`` come from the union of its inverted lists; a compiled kernel then
+        follows each candidate: the next run must start exactly where the previous ended
+        (same clip, code in ``V_l``) and is extended segment by segment, so the work after
+        the first level is proportional to the candidates' run lengths, not to the index.
+
         Parameters
         ----------
         member : ndarray of bool, shape (L, 2**f)
@@ -205,24 +217,15 @@ class SetIndex:
         n_levels = len(member)
         if n_levels == 0:
             return np.zeros((0, 1), np.int64)
-        rs, re = self.runs(np.flatnonzero(member[0]))
-        bounds = [rs, re]
-        alive = np.arange(len(rs))
-        end = re
-        first = self.clip_first
-        for level in range(1, n_levels):
-            s2, e2 = self.runs(np.flatnonzero(member[level]))
-            j = np.searchsorted(s2, end)
-            ok = j < len(s2)
-            ok[ok] = s2[j[ok]] == end[ok]
-            ok[ok] = ~first[end[ok]]  # the next run must continue in the same clip
-            alive, end = alive[ok], e2[j[ok]]
-            bounds = [b[ok] for b in bounds] + [end]
-        return np.stack(bounds, axis=1).astype(np.int64) if len(alive) else np.zeros((0, n_levels + 1), np.int64)
+        from mocapflow.plugins.matchers._relational_kernels import adaptive_chain
 
-    @property
+        # candidates: the maximal runs of V_1, from the union of its inverted lists
+        rs, re = self.runs(np.flatnonzero(member[0]))
+        return adaptive_chain(rs, re, self.seg_code, self.clip_first, np.ascontiguousarray(member, dtype=bool))
+
+    @cached_property
     def clip_first(self) -> np.ndarray:
-        """True for each clip's first segment, shape (M,)."""
+        """True for each clip's first segment, shape (M,) (computed once)."""
         first = np.ones(self.n_segments, dtype=bool)
         first[1:] = self.seg_clip[1:] != self.seg_clip[:-1]
         return first

@@ -120,3 +120,38 @@ def banded_dtw(a, b, lo, hi):  # pragma: no cover - compiled
         path[p, 0] = i
         path[p, 1] = j
     return total, path[: p + 1][::-1].copy(), cells
+
+
+@njit(cache=True)
+def adaptive_chain(starts, ends, code, first, member):  # pragma: no cover - compiled
+    """Extend maximal runs of ``V_1`` (``[starts, ends)``) through ``V_2 .. V_L`` (§5.2).
+
+    Level ``l`` must begin exactly where level ``l-1`` ended, inside the same clip
+    (``first[k]`` marks a clip's first segment), and is extended while the codes stay in
+    ``V_l`` (``member[l, code]``). Work is proportional to the candidates' run lengths.
+
+    Returns
+    -------
+    bounds : int64 (n, L + 1)
+        Segment boundaries ``k_1 < ... < k_{L+1}`` of each adaptive fuzzy hit.
+    """
+    n_levels = member.shape[0]
+    n_seg = code.shape[0]
+    out = np.empty((starts.shape[0], n_levels + 1), dtype=np.int64)
+    n = 0
+    for c in range(starts.shape[0]):
+        out[n, 0] = starts[c]
+        pos = ends[c]
+        ok = True
+        for level in range(1, n_levels):
+            out[n, level] = pos
+            if pos >= n_seg or first[pos] or not member[level, code[pos]]:
+                ok = False
+                break
+            pos += 1
+            while pos < n_seg and not first[pos] and member[level, code[pos]]:
+                pos += 1
+        if ok:
+            out[n, n_levels] = pos
+            n += 1
+    return out[:n]

@@ -85,10 +85,11 @@ def coarsen_fuzzy(member: np.ndarray) -> np.ndarray:
     """Merge adjacent fuzzy sets that intersect until neighbours are disjoint (§5.2)."""
     rows: list[np.ndarray] = []
     for row in np.asarray(member, dtype=bool):
-        if rows and np.any(rows[-1] & row):
-            rows[-1] = rows[-1] | row
-        else:
-            rows.append(row.copy())
+        rows.append(row.copy())
+        # a merged set may now meet the set before it: keep conjoining backwards
+        while len(rows) > 1 and np.any(rows[-2] & rows[-1]):
+            last = rows.pop()
+            rows[-1] = rows[-1] | last
     return np.array(rows, dtype=bool).reshape(-1, np.asarray(member).shape[-1])
 
 
@@ -117,6 +118,8 @@ def search_set(idx: SetIndex, member: np.ndarray, mode: Mode, mismatches: int = 
     n_mismatch : ndarray of int64, shape (n,)
     """
     n_levels = len(member)
+    if mode not in ("exact", "fuzzy", "adaptive", "mismatch"):
+        raise ConfigError(f"unknown relational matching mode {mode!r}; choose exact, fuzzy, adaptive or mismatch")
     if mode == "adaptive":
         bounds = idx.adaptive(coarsen_fuzzy(member)) if n_levels else np.zeros((0, 1), np.int64)
         return _level_frames(idx, bounds), np.zeros(len(bounds), np.int64)
@@ -416,6 +419,10 @@ class RelationalMatcher(Matcher):
     def _rows(self, qid: int, index: InvertedIndex, hits: Hits, mdb, query_clip) -> list[dict]:
         any_set = next(iter(index.sets.values()))
         order = np.lexsort((hits.start, hits.clip, hits.cost))
+        # several combinations (scene progressions, combined indexes) can give one span: keep the best
+        if len(order):
+            spans = np.stack([hits.clip[order], hits.start[order], hits.end[order]])
+            order = order[np.sort(np.unique(spans, axis=1, return_index=True)[1])]
         if self.params.max_hits:
             order = order[: self.params.max_hits]
         out = []
