@@ -54,14 +54,19 @@ def database_space(n_frames: int, echo=print) -> SearchSpace:
     return SearchSpace(clip_id, frame, index, x)
 
 
-def random_queries(space: SearchSpace, length: int, count: int, rng: np.random.Generator) -> list[np.ndarray]:
-    """``count`` random segments of ``length`` frames lying inside one clip."""
-    out = []
+def random_segments(space: SearchSpace, length: int, count: int, rng: np.random.Generator) -> list[int]:
+    """First rows of ``count`` random segments of ``length`` frames lying inside one clip."""
+    out: list[int] = []
     while len(out) < count:
         s = int(rng.integers(0, space.n_rows - length))
         if space.clip_id[s] == space.clip_id[s + length - 1] and space.frame[s + length - 1] - space.frame[s] == length - 1:
-            out.append(space.features[s : s + length])
+            out.append(s)
     return out
+
+
+def random_queries(space: SearchSpace, length: int, count: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """``count`` random segments of ``length`` frames lying inside one clip."""
+    return [space.features[s : s + length] for s in random_segments(space, length, count, rng)]
 
 
 def timed(fn, *args, **kwargs):

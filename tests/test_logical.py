@@ -187,8 +187,25 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     common = [(r["cost"], ref[key(r)]) for r in lng if key(r) in ref]
     assert len(common) >= 9 and all(a == pytest.approx(b, rel=1e-4, abs=1e-4) for a, b in common)
     assert sorted(p.name for p in (ws / "matches" / "plots").iterdir())[:2] == ["q0_m1.png", "q0_m2.png"]
+    logical = ds["logical"].table()
+    assert logical.num_rows >= 1 and set(logical["round"].to_pylist()) <= {1, 2, 3}
+    assert all(c <= 0.2 for c in logical["cost_normalized"].to_pylist())
     capsys.readouterr()
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "02_01:0-40", "--count", "3"]) == 0
     out = capsys.readouterr().out
     assert "02_01" in out.splitlines()[2] and len(out.splitlines()) == 5
+    query_file = EXAMPLES_DATA / "cmu" / "16" / "16_15.amc"
+    assert main(["--no-entry-points", "search", "--db", str(ws), "--query", f"{query_file}:1s-3s", "--count", "2"]) == 0
+    best = capsys.readouterr().out.splitlines()[2].split()
+    assert best[:4] == ["1", "16_15", "30", "90"]  # read, resampled to 30 Hz, found where it came from
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "nonexistent.amc"]) != 0
+
+
+def test_query_files_enter_the_fingerprint(tmp_path):
+    f = tmp_path / "walk.amc"
+    f.write_text("x")
+    m = LazyNeighborhoodGraph(queries=["walk.amc:0-10", "some_clip:0-5"])
+    before = m.source_fingerprint(tmp_path)
+    assert before and LazyNeighborhoodGraph(queries=["some_clip"]).source_fingerprint(tmp_path) == ""
+    f.write_text("xy")
+    assert m.source_fingerprint(tmp_path) != before

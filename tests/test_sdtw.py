@@ -99,3 +99,14 @@ def test_bad_query():
         sdtw_costs(np.zeros((3, 5), np.float32), space)
     with pytest.raises(DataError):
         sdtw_costs(np.full((3, 3), np.nan, np.float32), space)
+
+
+def test_min_span_drops_squashed_alignments():
+    clip_id, frame, x = make_db([60, 60], seed=11)
+    space = SearchSpace(clip_id, frame, features=x)
+    q = x[10:30] + 0.5
+    loose = subsequence_dtw(q, space, count=30)
+    tight = subsequence_dtw(q, space, count=30, min_span=0.5)
+    assert np.any(loose.end - loose.start + 1 < 10)  # unconstrained DTW squashes some
+    assert np.all(tight.end - tight.start + 1 >= 10)
+    assert len(tight) > 0 and tight.cost[0] >= loose.cost[0]

@@ -41,26 +41,27 @@ def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
     -------
     cost : float64 (n,)  ``D(m-1, j)``
     start : int64 (n,)   first database row of that path
-    length : int32 (n,)  number of cells of that path
+    length : int64 (n,)  number of cells of that path
 
-    Memory is O(m + n): two columns of the DP and the three outputs.
+    Memory is O(m + n): two columns of the DP and the three outputs. Local distances are
+    computed in float32 (like the index's) and accumulated in float64. The column update
+    is split in a vectorisable diagonal-vs-vertical pass and the serial horizontal chain,
+    both written as selects (no data-dependent branches: about 1.5x faster).
     """
     d, m = qt.shape
     n = x.shape[0]
     inf = np.inf
     cost = np.empty(n, np.float64)
     start = np.empty(n, np.int64)
-    length = np.empty(n, np.int32)
+    length = np.empty(n, np.int64)
     prev_c = np.full(m, inf)
     prev_s = np.zeros(m, np.int64)
-    prev_l = np.zeros(m, np.int32)
+    prev_l = np.zeros(m, np.int64)
     cur_c = np.empty(m)
     cur_s = np.empty(m, np.int64)
-    cur_l = np.empty(m, np.int32)
+    cur_l = np.empty(m, np.int64)
     col = np.empty(m, np.float32)
     for j in range(n):
-        # local distances of row j to every query frame, float32 like the index's
-        # (vectorises over i); accumulated in float64 below
         for i in range(m):
             col[i] = 0.0
         for k in range(d):
@@ -76,24 +77,30 @@ def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
         cur_c[0] = col[0]
         cur_s[0] = j
         cur_l[0] = 1
+        # diagonal vs vertical (ties to diagonal): selects, no dependency along i
         for i in range(1, m):
-            b = prev_c[i - 1]
-            s = prev_s[i - 1]
-            ln = prev_l[i - 1]
-            if prev_c[i] < b:
-                b = prev_c[i]
-                s = prev_s[i]
-                ln = prev_l[i]
-            if cur_c[i - 1] < b:
-                b = cur_c[i - 1]
-                s = cur_s[i - 1]
-                ln = cur_l[i - 1]
-            cur_c[i] = b + col[i]
+            a = prev_c[i - 1]
+            b = prev_c[i]
+            v = b < a
+            cur_c[i] = b if v else a
+            cur_s[i] = prev_s[i] if v else prev_s[i - 1]
+            cur_l[i] = prev_l[i] if v else prev_l[i - 1]
+        # horizontal: the only serial chain, branch-free
+        c = cur_c[0]
+        s = cur_s[0]
+        ln = cur_l[0]
+        for i in range(1, m):
+            b = cur_c[i]
+            h = c < b
+            s = s if h else cur_s[i]
+            ln = (ln if h else cur_l[i]) + 1
+            c = (c if h else b) + np.float64(col[i])
+            cur_c[i] = c
             cur_s[i] = s
-            cur_l[i] = ln + 1
-        cost[j] = cur_c[m - 1]
-        start[j] = cur_s[m - 1]
-        length[j] = cur_l[m - 1]
+            cur_l[i] = ln
+        cost[j] = c
+        start[j] = s
+        length[j] = ln
         prev_c, cur_c = cur_c, prev_c
         prev_s, cur_s = cur_s, prev_s
         prev_l, cur_l = cur_l, prev_l

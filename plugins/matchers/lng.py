@@ -14,16 +14,15 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework import Params
 from mocapflow.framework.errors import ConfigError, DataError
 
-from .matches import QueryMatches, SearchSpace, select_matches
-from .queries import GlobalMatcher
+from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
+from .queries import GlobalMatcher, NeighborParams
 
 
 @dataclass(frozen=True)
@@ -54,7 +53,8 @@ class NeighborhoodGraph:
     def n_nodes(self) -> int:
         return int(self.count.sum())
 
-    def matches(self, *, count: int = 10, max_cost: float | None = None, rank_by: str = "cost") -> QueryMatches:
+    def matches(self, *, count: int = 10, max_cost: float | None = None, rank_by: str = "cost",
+                min_span: float = 0.0) -> QueryMatches:
         """Ranked non-overlapping matches ending in the last layer (see :func:`.select_matches`)."""
         from ._lng_kernels import lng_backtrack
 
@@ -62,7 +62,8 @@ class NeighborhoodGraph:
         c = int(self.count[last])
         ends = self.ids[last, :c]
         keep = select_matches(ends, self.start[last, :c], self.cost[last, :c], self.length[last, :c],
-                              count=count, max_cost=max_cost, rank_by=rank_by)
+                              count=count, max_cost=max_cost, rank_by=rank_by,
+                              min_frames=min_frames_of(min_span, self.ids.shape[0]))
         paths = [lng_backtrack(self.ids, self.pred, last, int(a)) for a in keep]
         return QueryMatches(self.start[last, keep], ends[keep], self.cost[last, keep],
                             self.length[last, keep].astype(np.int64), paths)
@@ -131,10 +132,10 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
 
 def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
                             eps: float = 0.0, count: int = 10, max_cost: float | None = None,
-                            rank_by: str = "cost") -> QueryMatches:
+                            rank_by: str = "cost", min_span: float = 0.0) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`)."""
     graph = build_graph(query, space, k=k, radius=radius, eps=eps)
-    return graph.matches(count=count, max_cost=max_cost, rank_by=rank_by)
+    return graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
 
 
 class LazyNeighborhoodGraph(GlobalMatcher):
@@ -148,21 +149,15 @@ class LazyNeighborhoodGraph(GlobalMatcher):
     needs_index: ClassVar[bool] = True
     needs_features: ClassVar[bool] = False
 
-    class Params(Params):
-        k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
-        radius: float | None = Field(None, gt=0, description="fixed kNN search radius r in feature units; null: unbounded")
-        eps: float = Field(0.0, ge=0, description="approximate kNN: neighbours within (1+eps) of the true ones (paper: 0, 0.1, 0.5)")
-        count: int = Field(10, ge=1, description="matches kept per query")
-        max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
-        rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
-        queries: list[str] = Field(default_factory=list, description="query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); empty: every clip of the query input")
-        plots: int = Field(0, ge=0, description="write a Fig. 3-style PNG (plots/q<query>_m<rank>.png) for this many top matches per query")
+    class Params(NeighborParams):
+        plots: int = Field(0, ge=0, description=(
+            "write a Fig. 3-style PNG (plots/q<query>_m<rank>.png) for this many top matches per query"))
         plot_queries: int = Field(16, ge=0, description="plot only the first this many queries")
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         p = self.params
         return lazy_neighborhood_graph(query, space, k=p.k, radius=p.radius, eps=p.eps, count=p.count,
-                                       max_cost=p.max_cost, rank_by=p.rank_by)
+                                       max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span)
 
     def after_match(self, query_id, query, matches, space, ctx) -> None:
         p = self.params

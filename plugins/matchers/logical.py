@@ -19,13 +19,12 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework import Params
 from mocapflow.framework.datasets import StepOutput
 from mocapflow.framework.errors import DataError
 
 from .lng import lazy_neighborhood_graph
 from .matches import IntervalSet, QueryMatches, SearchSpace, matches_table
-from .queries import GlobalMatcher, queries_table, upstream
+from .queries import GlobalMatcher, NeighborParams, queries_table, upstream
 
 
 @dataclass
@@ -43,7 +42,8 @@ class LogicalMatches(QueryMatches):
 
 def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, max_matches: int = 100,
                    exclude: tuple[int, int] | None = None, k: int = 256, radius: float | None = None, eps: float = 0.0,
-                   count: int = 10, max_cost: float | None = None, rank_by: str = "cost") -> LogicalMatches:
+                   count: int = 10, max_cost: float | None = None, rank_by: str = "cost",
+                   min_span: float = 0.0) -> LogicalMatches:
     """Iterated LNG search.
 
     Parameters
@@ -57,7 +57,7 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
         Stop once this many distinct segments were found.
     exclude : (int, int) or None
         Rows ``[start, end]`` not to report (the query's own segment in the database).
-    k, radius, eps, count, max_cost, rank_by
+    k, radius, eps, count, max_cost, rank_by, min_span
         Per-query LNG parameters (:func:`.lng.lazy_neighborhood_graph`); ``max_cost``
         also decides which matches count as found.
     """
@@ -71,7 +71,8 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
     for r in range(1, rounds + 1):
         new: list[tuple[np.ndarray, int]] = []
         for qx, src in frontier:
-            res = lazy_neighborhood_graph(qx, space, k=k, radius=radius, eps=eps, count=count, max_cost=max_cost, rank_by=rank_by)
+            res = lazy_neighborhood_graph(qx, space, k=k, radius=radius, eps=eps, count=count, max_cost=max_cost,
+                                          rank_by=rank_by, min_span=min_span)
             for i in range(len(res)):
                 s, e = int(res.start[i]), int(res.end[i])
                 if len(rows["start"]) >= max_matches or not found.add(s, e):
@@ -103,22 +104,20 @@ class LogicalSearch(GlobalMatcher):
     needs_index: ClassVar[bool] = True
     needs_features: ClassVar[bool] = True
 
-    class Params(Params):
+    class Params(NeighborParams):
         rounds: int = Field(3, ge=1, description="maximum search rounds (1: numerical search only)")
         max_matches: int = Field(100, ge=1, description="stop once this many distinct segments were found")
-        k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
-        radius: float | None = Field(None, gt=0, description="fixed kNN search radius r in feature units; null: unbounded")
-        eps: float = Field(0.0, ge=0, description="approximate kNN: neighbours within (1+eps) of the true ones")
         count: int = Field(10, ge=1, description="matches kept per query and round")
         max_cost: float | None = Field(None, ge=0, description="matches above this ranking cost are not found (stopping rule)")
-        rank_by: Literal["cost", "normalized"] = Field("normalized", description="rank by accumulated cost or by cost per path cell (comparable across query lengths)")
+        rank_by: Literal["cost", "normalized"] = Field("normalized", description=(
+            "rank by accumulated cost or by cost per path cell (comparable across query lengths)"))
         exclude_query: bool = Field(True, description="do not report the query's own segment when it comes from the database")
-        queries: list[str] = Field(default_factory=list, description="query segments 'clip_or_file[:start-end]'; empty: every clip of the query input")
 
     def search(self, query: np.ndarray, space: SearchSpace, exclude: tuple[int, int] | None = None) -> LogicalMatches:
         p = self.params
         return logical_search(query, space, rounds=p.rounds, max_matches=p.max_matches, exclude=exclude, k=p.k,
-                              radius=p.radius, eps=p.eps, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by)
+                              radius=p.radius, eps=p.eps, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
+                              min_span=p.min_span)
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         return self.search(query, space)

@@ -109,12 +109,14 @@ class IntervalSet:
 
 
 def select_matches(end: np.ndarray, start: np.ndarray, cost: np.ndarray, length: np.ndarray, *,
-                   count: int, max_cost: float | None, rank_by: str) -> np.ndarray:
+                   count: int, max_cost: float | None, rank_by: str, min_frames: int = 1) -> np.ndarray:
     """Greedy ranked, non-overlapping choice among candidate path ends.
 
     Candidates are taken by ascending ranking key (``cost``, or ``cost / length`` for
     ``rank_by="normalized"``); one is kept when its rows ``[start, end]`` overlap no kept
-    match, until ``count`` are kept or the key passes ``max_cost``.
+    match, until ``count`` are kept or the key passes ``max_cost``. Candidates spanning
+    fewer than ``min_frames`` database rows are skipped (a whole query squashed onto a few
+    frames by horizontal steps is a valid but rarely a wanted subsequence-DTW alignment).
 
     Returns
     -------
@@ -125,6 +127,8 @@ def select_matches(end: np.ndarray, start: np.ndarray, cost: np.ndarray, length:
     ok = np.isfinite(key)
     if max_cost is not None:
         ok &= key <= max_cost
+    if min_frames > 1:
+        ok &= (np.asarray(end) - np.asarray(start) + 1) >= min_frames
     cand = np.flatnonzero(ok)
     kept: list[int] = []
     taken = IntervalSet()
@@ -144,6 +148,11 @@ def select_matches(end: np.ndarray, start: np.ndarray, cost: np.ndarray, length:
             if len(kept) == count:
                 break
     return np.asarray(kept, np.int64)
+
+
+def min_frames_of(min_span: float, query_frames: int) -> int:
+    """Database rows a match must span: ``min_span`` times the query length, at least 1."""
+    return max(1, int(np.ceil(min_span * query_frames - 1e-9)))
 
 
 def matches_table(query_ids: list[int], results: list[QueryMatches], space: SearchSpace) -> pa.Table:

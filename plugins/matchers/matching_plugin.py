@@ -51,7 +51,7 @@ class SearchCommand:
     def run(cls, args: argparse.Namespace) -> int:
         import pyarrow as pa
 
-        from mocapflow.framework import load_registries
+        from mocapflow.framework import MotionDatabase, load_registries
         from mocapflow.framework.datasets import read_datasets
         from mocapflow.framework.errors import ConfigError
 
@@ -83,12 +83,16 @@ class SearchCommand:
                 params[key] = val
         matcher = matcher_cls(params)
         space = matcher.search_space({"database": idx, "features": fds}, regs)
-        mdb = mds.motions()
-        query = motion_queries([parse_query_spec(args.query)], mdb, feature_set_of(fds, regs), regs,
-                               lambda p: Path(p).expanduser(), what="--query")[0]
+        spec = parse_query_spec(args.query)
+        clips = mds.table("clips")
+        # a query file needs only the database's frame rate, not its clips
+        mdb = MotionDatabase([]) if Path(spec.source).expanduser().is_file() else mds.motions()
+        fps = float(clips["fps"][0].as_py()) if clips.num_rows else None
+        query = motion_queries([spec], mdb, feature_set_of(fds, regs), regs, lambda p: Path(p).expanduser(),
+                               what="--query", fps=fps)[0]
         res = matcher.match(query.features, space)
         table = matches_table([0], [res], space)
-        names = dict(zip(mds.table("clips")["clip_id"].to_pylist(), mds.table("clips")["name"].to_pylist()))
+        names = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist()))
         print(f"query {query.name} ({len(query.features)} frames), {matcher.key()} on {idx.step!r} "
               f"({space.n_rows} frames): {len(res)} matches")
         print(f"{'rank':>4}  {'clip':<32} {'start':>6} {'end':>6} {'cost':>10} {'per cell':>9}")

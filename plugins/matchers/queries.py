@@ -23,16 +23,18 @@ clip first and then cut, so windowed features match the database's frame for fra
 """
 from __future__ import annotations
 
+import hashlib
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 import pyarrow as pa
+from pydantic import Field
 
-from mocapflow.framework import Matcher
+from mocapflow.framework import Matcher, Params
 from mocapflow.framework.datasets import Dataset, StepOutput
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 
@@ -125,7 +127,8 @@ def read_motion_file(path: Path, registries, fps: float | None):
     raise ConfigError(f"no registered reader for {path.suffix!r} files ({path})")
 
 
-def motion_queries(specs: list[QuerySpec], mdb, feature_set, registries, resolve, what: str = "query") -> list[Query]:
+def motion_queries(specs: list[QuerySpec], mdb, feature_set, registries, resolve, what: str = "query",
+                   fps: float | None = None) -> list[Query]:
     """Features of query segments of the clips of ``mdb`` (or of files on disk).
 
     Parameters
@@ -138,13 +141,15 @@ def motion_queries(specs: list[QuerySpec], mdb, feature_set, registries, resolve
         The database's feature set (configured, fitted).
     resolve : callable
         Path of a file spec (relative paths against the pipeline file).
+    fps : float, optional
+        Rate files are resampled to (default: that of ``mdb``).
     """
     names: dict[str, int] = {}
     for pos, m in enumerate(mdb.motions):
         p = str(m.metadata.get("path") or "")
         for key in {m.name, Path(p).name, Path(p).stem, p} - {""}:
             names.setdefault(key, pos)
-    fps = mdb.fps if mdb.n_clips else None
+    fps = fps if fps is not None else (mdb.fps if mdb.n_clips else None)
     out = []
     for spec in specs or [QuerySpec(m.name) for m in mdb.motions]:
         pos = names.get(spec.source)
@@ -163,6 +168,28 @@ def motion_queries(specs: list[QuerySpec], mdb, feature_set, registries, resolve
     return out
 
 
+class MatchParams(Params):
+    """Parameters shared by the global matchers: which queries, and which matches are kept."""
+
+    count: int = Field(10, ge=1, description="matches kept per query")
+    max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
+    rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
+    min_span: float = Field(0.0, ge=0, le=10, description=(
+        "drop matches spanning fewer database frames than this fraction of the query length (0: all, as in the paper)"))
+    queries: list[str] = Field(default_factory=list, description=(
+        "query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); "
+        "empty: every clip of the query input"))
+
+
+class NeighborParams(MatchParams):
+    """:class:`MatchParams` plus the kNN search of the lazy neighborhood graph."""
+
+    k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
+    radius: float | None = Field(None, gt=0, description="fixed kNN search radius r in feature units; null: unbounded")
+    eps: float = Field(0.0, ge=0, description=(
+        "approximate kNN: neighbours within (1+eps) of the true ones (paper: 0, 0.1, 0.5; needs an index with eps)"))
+
+
 class GlobalMatcher(Matcher):
     """Shared step logic of the matchers that align whole query segments (see module doc).
 
@@ -175,6 +202,18 @@ class GlobalMatcher(Matcher):
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         raise NotImplementedError
+
+    def source_fingerprint(self, base_dir: Path) -> str:
+        """Query files named in ``queries`` (path, size, mtime): an edited file recomputes the step."""
+        h, files = hashlib.sha256(), 0
+        for text in getattr(self.params, "queries", []):
+            p = Path(parse_query_spec(text).source).expanduser()
+            p = p if p.is_absolute() else Path(base_dir) / p
+            if p.is_file():
+                st = p.stat()
+                h.update(f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+                files += 1
+        return h.hexdigest()[:24] if files else ""
 
     # --- inputs -----------------------------------------------------------------------
     def features_dataset(self, inputs: Mapping[str, Dataset]) -> Dataset | None:
@@ -223,9 +262,9 @@ class GlobalMatcher(Matcher):
                 s, n = clips[cid]
             except (ValueError, KeyError):
                 raise ConfigError(f"{self.key()}: feature queries are named by clip id; {spec.source!r} is not one of {qds.step!r}") from None
-            a, b = spec.frames(1.0, n) if not spec.seconds else (0, 0)
             if spec.seconds:
                 raise ConfigError(f"{self.key()}: give feature query ranges in frames ({spec.text()!r})")
+            a, b = spec.frames(1.0, n)
             out.append(Query(spec.text(), fm.x[s + a : s + b], cid, a, b))
         return out
 

@@ -9,16 +9,13 @@ recomputed on its own window only.
 """
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 import numpy as np
-from pydantic import Field
-
-from mocapflow.framework import Params
 from mocapflow.framework.errors import DataError
 
-from .matches import QueryMatches, SearchSpace, select_matches
-from .queries import GlobalMatcher
+from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
+from .queries import GlobalMatcher, MatchParams
 
 
 def validate_query(query: np.ndarray, dim: int) -> np.ndarray:
@@ -46,7 +43,7 @@ def sdtw_costs(query: np.ndarray, space: SearchSpace) -> tuple[np.ndarray, np.nd
         Accumulated Euclidean distance of the best path ending in row ``j``.
     start : ndarray of int64, shape (n,)
         Its first row.
-    length : ndarray of int32, shape (n,)
+    length : ndarray of int64, shape (n,)
         Its number of cells.
     """
     from ._dtw_kernels import sdtw_forward
@@ -58,7 +55,7 @@ def sdtw_costs(query: np.ndarray, space: SearchSpace) -> tuple[np.ndarray, np.nd
 
 
 def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
-                    rank_by: str = "cost") -> QueryMatches:
+                    rank_by: str = "cost", min_span: float = 0.0) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` by exact subsequence DTW.
 
     Parameters
@@ -67,7 +64,7 @@ def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, m
         Query features, in the database's feature space.
     space : SearchSpace
         With ``features``.
-    count, max_cost, rank_by
+    count, max_cost, rank_by, min_span
         See :func:`.matches.select_matches`.
     """
     from ._dtw_kernels import dtw_window_path
@@ -75,7 +72,8 @@ def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, m
     cost, start, length = sdtw_costs(query, space)
     q = validate_query(query, space.features.shape[1])
     ends = np.arange(len(cost), dtype=np.int64)
-    keep = select_matches(ends, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by)
+    keep = select_matches(ends, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
+                          min_frames=min_frames_of(min_span, len(q)))
     paths = []
     for e in keep:
         s = int(start[e])
@@ -96,12 +94,9 @@ class SubsequenceDTW(GlobalMatcher):
     needs_index: ClassVar[bool] = False
     needs_features: ClassVar[bool] = True
 
-    class Params(Params):
-        count: int = Field(10, ge=1, description="matches kept per query")
-        max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
-        rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
-        queries: list[str] = Field(default_factory=list, description="query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); empty: every clip of the query input")
+    Params = MatchParams
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         p = self.params
-        return subsequence_dtw(query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by)
+        return subsequence_dtw(query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
+                               min_span=p.min_span)
