@@ -52,7 +52,7 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ConfigError("plots need matplotlib: pip install 'mocapflow[plots]'") from exc
+        raise ConfigError("plots need matplotlib (a mocapflow dependency): pip install matplotlib") from exc
     if not 0 <= match < len(matches):
         raise ConfigError(f"match {match} out of range: the query has {len(matches)} matches")
     m = graph.ids.shape[0]
