@@ -7,7 +7,8 @@ For each category (input slots ``locomotion`` and ``dance``, motions datasets in
 :func:`.error_injection.inject_errors` (every error kind ``per_kind`` times, seed
 ``seed + clip position``) and analysed against three contexts (§6 "Context
 determination"): ``local`` (the clip alone), ``small`` (plus ``small_size`` other clips of
-the category) and ``large`` (plus up to ``large_size`` others). Context clips are clean.
+the category) and ``large`` (plus up to ``large_size`` others), and ``large_two_stage`` (the
+large context through the two-stage scheme of §5). Context clips are clean.
 
 Detection is scored on the texture joints against the ground-truth mask, per (frame,
 joint) cell and per word (a source word - 15 frames every 5 - is erroneous when any of
@@ -22,7 +23,7 @@ average and maximum, for the corrupted input and for the repaired clip.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -112,12 +113,16 @@ class CleaningEvaluationParams(Params):
     n_test: int = Field(default=4, ge=1, description="test clips per category (the longest ones)")
     small_size: int = Field(default=8, ge=1, description="other clips in the small-scale context (paper: 5-10)")
     large_size: int = Field(default=25, ge=1, description="other clips in the large-scale context (paper: 20-30)")
-    contexts: tuple[str, ...] = Field(default=("local", "small", "large"), description="contexts to evaluate")
+    contexts: tuple[Literal["local", "small", "large", "large_two_stage"], ...] = Field(
+        default=("local", "small", "large", "large_two_stage"),
+        description="contexts to evaluate; large_two_stage = the large context through the §5 two-stage scheme")
     kinds: tuple[str, ...] = Field(default=ERROR_KINDS, description="error kinds injected")
     per_kind: int = Field(default=1, ge=1, description="errors of each kind per test clip")
     min_angle: float = Field(default=10.0, gt=0, description="ground truth: cells moved more than this, degrees")
     seed: int = Field(default=0, description="seed of the error injection")
     repair_context: str = Field(default="small", description="context whose detection is repaired for eq. 2")
+    also_normalizations: tuple[str, ...] = Field(default=("texture",),
+                                                  description="MDM row normalisations also scored (rows 'mdm[<name>]')")
     cleaner: dict[str, Any] = Field(default_factory=dict, description="parameters of cleaners.mdm")
 
 
@@ -150,12 +155,13 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
     """Run the protocol (module doc) on one category's clips; returns (rows, repair rows)."""
     import time
 
-    from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams
+    from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams, digression_from_outer
     from mocapflow.plugins.cleaners.motion_words import motion_texture, source_word_starts
     from mocapflow.plugins.cleaners.repair import repair_texture
 
     cleaner = MDMCleaner(MDMParams(**{"write_bvh": False, "heatmaps": False, **p.cleaner}))
     cp = cleaner.params
+    two_stage = cleaner.clone(two_stage=True)
     joints = tuple(j for j in cp.joints if all(j in c.skeleton.canonical for c in clips))
     clips = [c if abs(c.fps - cp.fps) < 1e-9 else motion_texture(c, joints, cp.fps).motion for c in clips]
     textures = [motion_texture(c, joints, cp.fps).q for c in clips]
@@ -179,11 +185,17 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
         for name, flags in (("baseline_a_limits", lim), ("baseline_b_derivative", der), ("baseline_c_both", lim | der)):
             _add(counts, (name, "-"), scores(flags, truth, starts, cp.source_length))
         for context in p.contexts:
-            ctx_clips = {"local": [], "small": others[: p.small_size], "large": others[: p.large_size]}[context]
+            ctx_clips = {"local": [], "small": others[: p.small_size], "large": others[: p.large_size],
+                         "large_two_stage": others[: p.large_size]}[context]
             t0 = time.perf_counter()
-            res = cleaner.analyse(bad, ctx_clips)
+            res = (two_stage if context == "large_two_stage" else cleaner).analyse(bad, ctx_clips)
             times.setdefault(context, []).append(time.perf_counter() - t0)
             _add(counts, ("mdm", context), scores(res.mdm > cp.threshold, truth, starts, cp.source_length))
+            for norm in p.also_normalizations:
+                # same KNN and T̄, another row scale: only the last step of §3.4 differs
+                _, _, alt = digression_from_outer(res.texture.q, np.zeros((0, 4, 4)), np.zeros((0,), np.int64), norm,
+                                                  cp.min_scale, difference=res.difference, mean_floor=cp.mean_floor)
+                _add(counts, (f"mdm[{norm}]", context), scores(alt > cp.threshold, truth, starts, cp.source_length))
             if context == p.repair_context:
                 new, _ = repair_texture(res, cp.threshold, cp.savgol_window, cp.savgol_order)
                 rep_before.append(repair_errors(tex_clean.q, res.texture.q, truth))

@@ -85,36 +85,41 @@ def pose_distance_block(src, ctx, mask, drop, out):  # pragma: no cover - compil
 
 @njit(cache=True, parallel=True)
 def sliding_row_min(d, tlen, out):  # pragma: no cover - compiled
-    """out[i, t] = min_{j < tlen[t]} d[i, t + j] (inf where tlen[t] == 0)."""
-    n_r, n_c = d.shape
-    for i in prange(n_r):
+    """out[g, i, t] = min_{j < tlen[t]} d[g, i, t + j] (inf where tlen[t] == 0); d (G, rows, C)."""
+    n_g, n_r, n_c = d.shape
+    for gi in prange(n_g * n_r):
+        g = gi // n_r
+        i = gi % n_r
         for t in range(n_c):
             ln = tlen[t]
             if ln == 0:
-                out[i, t] = _INF
+                out[g, i, t] = _INF
                 continue
             best = _INF
             for j in range(ln):
-                v = d[i, t + j]
+                v = d[g, i, t + j]
                 if v < best:
                     best = v
-            out[i, t] = best
+            out[g, i, t] = best
 
 
 @njit(cache=True, parallel=True)
 def word_column_min(d, starts, n, out):  # pragma: no cover - compiled
-    """out[w, c] = min_{i < n} d[starts[w] + i, c]."""
+    """out[g, w, c] = min_{i < n} d[g, starts[w] + i, c]; d (G, rows, C)."""
+    n_g = d.shape[0]
     n_w = starts.shape[0]
-    n_c = d.shape[1]
-    for w in prange(n_w):
+    n_c = d.shape[2]
+    for gw in prange(n_g * n_w):
+        g = gw // n_w
+        w = gw % n_w
         s = starts[w]
         for c in range(n_c):
             best = _INF
             for i in range(n):
-                v = d[s + i, c]
+                v = d[g, s + i, c]
                 if v < best:
                     best = v
-            out[w, c] = best
+            out[g, w, c] = best
 
 
 @njit(cache=True)
@@ -146,29 +151,35 @@ def _min_weighted_mean(vals, n_free, last, wmax):  # pragma: no cover - compiled
 
 @njit(cache=True, parallel=True)
 def lower_bounds(w_rows, v_cols, starts, row0, n, tlen, r, out):  # pragma: no cover - compiled
-    """Lower bound of the word distance for every (word, target start).
+    """Lower bound of the word distance for every (group, word, target start).
 
-    w_rows (rows, C): sliding row minima of the block whose first row is source frame
-    ``row0``; v_cols (S, C): column minima per word; out (S, C) float64.
+    w_rows (G, rows, C): sliding row minima of the block whose first row is source frame
+    ``row0``; v_cols (G, S, C): column minima per word; out (G, S, C) float64.
     """
+    n_g = w_rows.shape[0]
     n_w = starts.shape[0]
     n_c = tlen.shape[0]
     wmax = r + 1.0
-    for w in prange(n_w):
-        buf = np.empty(64)
+    m = n
+    for t in range(n_c):
+        m = max(m, tlen[t])
+    for gw in prange(n_g * n_w):
+        g = gw // n_w
+        w = gw % n_w
+        buf = np.empty(m + 1)
         i0 = starts[w] - row0
         for t in range(n_c):
             ln = tlen[t]
             if ln == 0:
-                out[w, t] = _INF
+                out[g, w, t] = _INF
                 continue
             for i in range(n - 1):
-                buf[i] = w_rows[i0 + i, t]
-            lb_a = _min_weighted_mean(buf, n - 1, w_rows[i0 + n - 1, t], wmax)
+                buf[i] = w_rows[g, i0 + i, t]
+            lb_a = _min_weighted_mean(buf, n - 1, w_rows[g, i0 + n - 1, t], wmax)
             for j in range(ln - 1):
-                buf[j] = v_cols[w, t + j]
-            lb_b = _min_weighted_mean(buf, ln - 1, v_cols[w, t + ln - 1], wmax)
-            out[w, t] = lb_a if lb_a < lb_b else lb_b
+                buf[j] = v_cols[g, w, t + j]
+            lb_b = _min_weighted_mean(buf, ln - 1, v_cols[g, w, t + ln - 1], wmax)
+            out[g, w, t] = lb_a if lb_a < lb_b else lb_b
 
 
 @njit(cache=True)
@@ -294,7 +305,15 @@ def cdtw_cost(d, i0, j0, n, ln, r, cur, prev, lcur, lprev):  # pragma: no cover 
     bc_end = _INF
     bl_end = big
     for i in range(n):
+        # the slope constraint makes cells with j > (r+1) i + r or i > (r+1) j + r unreachable
+        j_lo = max(0, -((r - i) // (r + 1)))
+        j_hi = min(ln - 1, (r + 1) * i + r)
         for j in range(ln):
+            if j < j_lo or j > j_hi:
+                for s in range(n_s):
+                    cur[j, s] = _INF
+                    lcur[j, s] = big
+                continue
             c = np.float64(d[i0 + i, j0 + j])
             if i == 0 and j == 0:
                 for s in range(n_s):
@@ -364,6 +383,104 @@ def cdtw_cost(d, i0, j0, n, ln, r, cur, prev, lcur, lprev):  # pragma: no cover 
 
 
 @njit(cache=True)
+def cdtw_cost_r2(d, i0, j0, n, ln, cost, plen):  # pragma: no cover - compiled
+    """:func:`cdtw_cost` specialised to the paper's slope constraint ``r = 2``.
+
+    Same recurrence, tie rules and result; the five states (diagonal, 1-2 horizontal,
+    1-2 vertical) live in scalars per cell. Work arrays cost (2, 5, M) float64 and plen
+    (2, 5, M) int64 (two rows alternate).
+    """
+    big = np.int64(2**62)
+    bc_end = _INF
+    bl_end = big
+    for i in range(n):
+        cr = i & 1
+        pr = 1 - cr
+        j_lo = max(0, -((2 - i) // 3))
+        j_hi = min(ln - 1, 3 * i + 2)
+        for j in range(ln):
+            if j < j_lo or j > j_hi:
+                for s in range(5):
+                    cost[cr, s, j] = _INF
+                    plen[cr, s, j] = big
+                continue
+            c = np.float64(d[i0 + i, j0 + j])
+            if i == 0 and j == 0:
+                for s in range(5):
+                    cost[cr, s, 0] = _INF
+                    plen[cr, s, 0] = big
+                cost[cr, 0, 0] = c
+                plen[cr, 0, 0] = 1
+            else:
+                # diagonal from any state of (i-1, j-1)
+                bc = _INF
+                bl = big
+                if i > 0 and j > 0:
+                    for s in range(5):
+                        v = cost[pr, s, j - 1]
+                        lv = plen[pr, s, j - 1]
+                        if v < bc or (v == bc and lv < bl):
+                            bc = v
+                            bl = lv
+                cost[cr, 0, j] = bc + c
+                plen[cr, 0, j] = bl + 1
+                # horizontal from (i, j-1): diagonal or vertical states start a run
+                if j > 0 and i < n - 1:
+                    bc = cost[cr, 0, j - 1]
+                    bl = plen[cr, 0, j - 1]
+                    v = cost[cr, 3, j - 1]
+                    lv = plen[cr, 3, j - 1]
+                    if v < bc or (v == bc and lv < bl):
+                        bc = v
+                        bl = lv
+                    v = cost[cr, 4, j - 1]
+                    lv = plen[cr, 4, j - 1]
+                    if v < bc or (v == bc and lv < bl):
+                        bc = v
+                        bl = lv
+                    cost[cr, 1, j] = bc + c
+                    plen[cr, 1, j] = bl + 1
+                    cost[cr, 2, j] = cost[cr, 1, j - 1] + c
+                    plen[cr, 2, j] = plen[cr, 1, j - 1] + 1
+                else:
+                    cost[cr, 1, j] = _INF
+                    plen[cr, 1, j] = big
+                    cost[cr, 2, j] = _INF
+                    plen[cr, 2, j] = big
+                # vertical from (i-1, j): diagonal or horizontal states start a run
+                if i > 0 and j < ln - 1:
+                    bc = cost[pr, 0, j]
+                    bl = plen[pr, 0, j]
+                    v = cost[pr, 1, j]
+                    lv = plen[pr, 1, j]
+                    if v < bc or (v == bc and lv < bl):
+                        bc = v
+                        bl = lv
+                    v = cost[pr, 2, j]
+                    lv = plen[pr, 2, j]
+                    if v < bc or (v == bc and lv < bl):
+                        bc = v
+                        bl = lv
+                    cost[cr, 3, j] = bc + c
+                    plen[cr, 3, j] = bl + 1
+                    cost[cr, 4, j] = cost[pr, 3, j] + c
+                    plen[cr, 4, j] = plen[pr, 3, j] + 1
+                else:
+                    cost[cr, 3, j] = _INF
+                    plen[cr, 3, j] = big
+                    cost[cr, 4, j] = _INF
+                    plen[cr, 4, j] = big
+            if i == n - 1 or j == ln - 1:
+                for s in range(5):
+                    v = cost[cr, s, j]
+                    lv = plen[cr, s, j]
+                    if v < _INF and (v < bc_end or (v == bc_end and lv < bl_end)):
+                        bc_end = v
+                        bl_end = lv
+    return bc_end, bl_end
+
+
+@njit(cache=True)
 def cdtw_path(d, i0, j0, n, ln, r):  # pragma: no cover - compiled
     """Constrained DTW with the optimal path.
 
@@ -416,24 +533,33 @@ def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r,
     clip), those farther than ``radius`` frames from the source word, the ``k`` smallest.
 
     ``self_clip`` is the source clip's position in the context (-1: not in it) and
-    ``self_off`` the context frame of its first frame. out_t (S, k) int64 (-1 = none),
-    out_d (S, k) float64 (inf = none).
+    ``self_off`` the context frame of its first frame. d (G, rows, C) float32; out_t
+    (G, S, k) int64 (-1 = none), out_d (G, S, k) float64 (inf = none).
     """
+    n_g = d.shape[0]
     n_w = starts.shape[0]
     n_c = tlen.shape[0]
     m = 1
     for t in range(n_c):
         m = max(m, tlen[t])
-    for w in prange(n_w):
+    for gw in prange(n_g * n_w):
+        g = gw // n_w
+        w = gw % n_w
+        dg = d[g]
         cur = np.empty((m, 2 * r + 1))
         prev = np.empty((m, 2 * r + 1))
         lcur = np.empty((m, 2 * r + 1), np.int64)
         lprev = np.empty((m, 2 * r + 1), np.int64)
+        cost2 = np.empty((2, 5, m))
+        plen2 = np.empty((2, 5, m), np.int64)
         f = np.full(n_c, _INF)
         i0 = starts[w] - row0
         for t in range(n_c):
             if tlen[t] > 0:
-                c, p = cdtw_cost(d, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
+                if r == 2:
+                    c, p = cdtw_cost_r2(dg, i0, t, n, tlen[t], cost2, plen2)
+                else:
+                    c, p = cdtw_cost(dg, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
                 f[t] = c / p
         best_d = np.full(k, _INF)
         best_t = np.full(k, np.int64(2**62))
@@ -447,14 +573,17 @@ def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r,
                 continue
             _insert_topk(best_d, best_t, k, f[t], t)
         for a in range(k):
-            out_d[w, a] = best_d[a]
-            out_t[w, a] = best_t[a] if best_d[a] < _INF else -1
+            out_d[g, w, a] = best_d[a]
+            out_t[g, w, a] = best_t[a] if best_d[a] < _INF else -1
 
 
 @njit(cache=True)
-def _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, memo):  # pragma: no cover - compiled
+def _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo):  # pragma: no cover
     if math.isnan(memo[t]):
-        c, p = cdtw_cost(d, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
+        if r == 2:
+            c, p = cdtw_cost_r2(d, i0, t, n, tlen[t], cost2, plen2)
+        else:
+            c, p = cdtw_cost(d, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
         memo[t] = c / p
     return memo[t]
 
@@ -467,48 +596,57 @@ def knn_pruned(d, lb, starts, row0, n, tlen, clip_of, self_clip, self_off, radiu
     exceeds the k-th best local minimum found. A start is a local minimum when its distance
     is below its left neighbour's and not above its right neighbour's: a neighbour whose
     bound already exceeds the start's distance needs no DTW (its distance is larger still).
+    d (G, rows, C), lb (G, S, C); outputs as :func:`knn_brute` plus out_n (G, S), the DTWs
+    computed per word.
     """
+    n_g = d.shape[0]
     n_w = starts.shape[0]
     n_c = tlen.shape[0]
     m = 1
     for t in range(n_c):
         m = max(m, tlen[t])
     slack = 1.0 - 1e-9  # bounds and distances sum the same terms in another order
-    for w in prange(n_w):
+    for gw in prange(n_g * n_w):
+        g = gw // n_w
+        w = gw % n_w
+        dg = d[g]
+        lbw = lb[g, w]
         cur = np.empty((m, 2 * r + 1))
         prev = np.empty((m, 2 * r + 1))
         lcur = np.empty((m, 2 * r + 1), np.int64)
         lprev = np.empty((m, 2 * r + 1), np.int64)
+        cost2 = np.empty((2, 5, m))
+        plen2 = np.empty((2, 5, m), np.int64)
         memo = np.full(n_c, np.nan)
         i0 = starts[w] - row0
-        order = np.argsort(lb[w])
+        order = np.argsort(lbw)
         best_d = np.full(k, _INF)
         best_t = np.full(k, np.int64(2**62))
         self_pos = self_off + starts[w]
         for a in range(n_c):
             t = order[a]
-            bound = lb[w, t] * slack
+            bound = lbw[t] * slack
             if bound == _INF or bound > best_d[k - 1]:
                 break
             if _excluded(t, clip_of, self_clip, self_pos, radius):
                 continue
-            v = _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, memo)
+            v = _word_distance(dg, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
             if v > best_d[k - 1]:
                 continue
             u = t - 1
-            if u >= 0 and tlen[u] > 0 and clip_of[u] == clip_of[t] and not lb[w, u] * slack > v:
-                if not v < _word_distance(d, i0, u, n, tlen, r, cur, prev, lcur, lprev, memo):
+            if u >= 0 and tlen[u] > 0 and clip_of[u] == clip_of[t] and not lbw[u] * slack > v:
+                if not v < _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo):
                     continue
             u = t + 1
-            if u < n_c and tlen[u] > 0 and clip_of[u] == clip_of[t] and not lb[w, u] * slack > v:
-                if not v <= _word_distance(d, i0, u, n, tlen, r, cur, prev, lcur, lprev, memo):
+            if u < n_c and tlen[u] > 0 and clip_of[u] == clip_of[t] and not lbw[u] * slack > v:
+                if not v <= _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo):
                     continue
             _insert_topk(best_d, best_t, k, v, t)
         computed = 0
         for t in range(n_c):
             if not math.isnan(memo[t]):
                 computed += 1
-        out_n[w] = computed
+        out_n[g, w] = computed
         for a in range(k):
-            out_d[w, a] = best_d[a]
-            out_t[w, a] = best_t[a] if best_d[a] < _INF else -1
+            out_d[g, w, a] = best_d[a]
+            out_t[g, w, a] = best_t[a] if best_d[a] < _INF else -1

@@ -22,7 +22,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import resample_poly
 
 from mocapflow.framework.errors import DataError
 
@@ -108,12 +107,21 @@ def warp_to_source(ctx_q: np.ndarray, t0: int, path: np.ndarray, n: int) -> np.n
     -------
     ndarray of shape (n, m, 4), unit quaternions.
     """
-    seq = ctx_q[t0 + path[:, 1]]
+    return warp_sequences(ctx_q[t0 + path[:, 1]], n)
+
+
+def warp_sequences(seq: np.ndarray, n: int) -> np.ndarray:
+    """Resample quaternion sequences ``(p, ...)`` along time to ``n`` frames (polyphase
+    filter, scipy's default Kaiser FIR), renormalised to unit quaternions."""
     p = len(seq)
     if p != n:
         g = np.gcd(n, p)
+        # time on the last, contiguous axis: upfirdn is much faster there
+        flat = np.ascontiguousarray(seq.reshape(p, -1).T)
         # 'line' padding: quaternion components are smooth, zero padding would shrink the ends
-        seq = resample_poly(seq, n // g, p // g, axis=0, padtype="line")
+        from scipy.signal import resample_poly  # lazy: scipy.signal costs seconds at import
+        out = resample_poly(flat, n // g, p // g, axis=-1, padtype="line")
+        seq = np.ascontiguousarray(out.T).reshape((n,) + seq.shape[1:])
     norm = np.linalg.norm(seq, axis=-1, keepdims=True)
     return seq / np.where(norm > 0, norm, 1.0)
 
@@ -131,6 +139,7 @@ def knn_search(
     slope_run: int = 2,
     radius: int | None = None,
     method: str = "pruned",
+    warp: str = "polyphase",
     block_rows: int = 192,
 ) -> WordNeighbours:
     """K nearest target words of each source word, per joint group.
@@ -157,6 +166,10 @@ def knn_search(
         Exclusion radius in frames; ``None`` = N // 2 (the paper's N/2).
     method : {"pruned", "brute"}
         Both give the same neighbours; "brute" computes every DTW.
+    warp : {"polyphase", "path"}
+        How a neighbour is brought to the source length: "polyphase" (the paper) resamples
+        the target frames along the DTW path; "path" averages, for each source frame, the
+        target frames the path matches to it (no filter ringing).
     block_rows : int
         Source frames per eq. 1 block (memory: G * block_rows * C * 4 bytes).
 
@@ -169,6 +182,8 @@ def knn_search(
     n, mlen = int(source_length), int(target_length)
     if method not in ("pruned", "brute"):
         raise DataError(f"unknown KNN method {method!r} (use 'pruned' or 'brute')")
+    if warp not in ("polyphase", "path"):
+        raise DataError(f"unknown warp {warp!r} (use 'polyphase' or 'path')")
     if source_q.shape[1:] != context.q.shape[1:]:
         raise DataError(f"source texture {source_q.shape[1:]} and context {context.q.shape[1:]} differ in joints")
     if not 1 <= n <= mlen:
@@ -184,6 +199,7 @@ def knn_search(
     distance = np.full((g_count, s_count, k), np.inf)
     warped = np.zeros((g_count, s_count, k, n, m, 4))
     n_dtw = 0
+    jobs: dict[int, list[tuple[int, int, int, np.ndarray]]] = {}
     src = np.ascontiguousarray(source_q, dtype=np.float64)
     mask = groups.mask.astype(np.uint8)
     drop = groups.drop.astype(np.int64)
@@ -192,32 +208,50 @@ def knn_search(
         d = np.empty((g_count, r1 - r0, len(context.q)), np.float32)
         kern.pose_distance_block(src[r0:r1], context.q, mask, drop, d)
         st = starts[chunk]
+        out_t = np.empty((g_count, len(st), k), np.int64)
+        out_d = np.empty((g_count, len(st), k))
+        if method == "brute":
+            kern.knn_brute(d, st, r0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d)
+            n_dtw += g_count * len(st) * int((tlen > 0).sum())
+        else:
+            w_rows = np.empty_like(d)
+            kern.sliding_row_min(d, tlen, w_rows)
+            v_cols = np.empty((g_count, len(st), d.shape[2]), np.float32)
+            kern.word_column_min(d, st - r0, n, v_cols)
+            lb = np.empty((g_count, len(st), d.shape[2]))
+            kern.lower_bounds(w_rows, v_cols, st, r0, n, tlen, slope_run, lb)
+            out_n = np.empty((g_count, len(st)), np.int64)
+            kern.knn_pruned(d, lb, st, r0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d, out_n)
+            n_dtw += int(out_n.sum())
+        target[:, chunk] = out_t
+        distance[:, chunk] = out_d
         for g in range(g_count):
-            out_t = np.empty((len(st), k), np.int64)
-            out_d = np.empty((len(st), k))
-            if method == "brute":
-                kern.knn_brute(d[g], st, r0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d)
-                n_dtw += len(st) * int((tlen > 0).sum())
-            else:
-                w_rows = np.empty_like(d[g])
-                kern.sliding_row_min(d[g], tlen, w_rows)
-                v_cols = np.empty((len(st), d.shape[2]), np.float32)
-                kern.word_column_min(d[g], st - r0, n, v_cols)
-                lb = np.empty((len(st), d.shape[2]))
-                kern.lower_bounds(w_rows, v_cols, st, r0, n, tlen, slope_run, lb)
-                out_n = np.empty(len(st), np.int64)
-                kern.knn_pruned(d[g], lb, st, r0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d, out_n)
-                n_dtw += int(out_n.sum())
-            target[g, chunk] = out_t
-            distance[g, chunk] = out_d
             for a, w in enumerate(chunk):
                 for b in range(k):
-                    t = int(out_t[a, b])
+                    t = int(out_t[g, a, b])
                     if t < 0:
                         continue
                     _, path = kern.cdtw_path(d[g], int(st[a]) - r0, t, n, int(tlen[t]), slope_run)
-                    warped[g, w, b] = warp_to_source(context.q, t, path, n)
+                    if warp == "path":
+                        warped[g, w, b] = _path_mean(context.q, t, path, n)
+                    else:
+                        jobs.setdefault(len(path), []).append((g, w, b, t + path[:, 1]))
+    for p, items in jobs.items():
+        # one polyphase call per path length instead of one per neighbour
+        frames = np.stack([it[3] for it in items], axis=1)  # (p, B)
+        out = warp_sequences(context.q[frames], n)  # (n, B, m, 4)
+        for c, (g, w, b, _) in enumerate(items):
+            warped[g, w, b] = out[:, c]
     return WordNeighbours(starts, groups, target, distance, warped, n_dtw)
+
+
+def _path_mean(ctx_q: np.ndarray, t0: int, path: np.ndarray, n: int) -> np.ndarray:
+    """Per source frame, the normalised mean of the target frames the path matches to it."""
+    seq = ctx_q[t0 + path[:, 1]]  # (p, m, 4), sign-continuous within the clip
+    acc = np.zeros((n,) + seq.shape[1:])
+    np.add.at(acc, path[:, 0], seq)
+    norm = np.linalg.norm(acc, axis=-1, keepdims=True)
+    return acc / np.where(norm > 0, norm, 1.0)
 
 
 def _word_chunks(starts: np.ndarray, n: int, block_rows: int) -> list[np.ndarray]:

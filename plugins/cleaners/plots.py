@@ -39,7 +39,7 @@ def mdm_heatmap(mdm: np.ndarray, joints: Sequence[str], path: str | Path, fps: f
         matplotlib.use("Agg", force=False)
         import matplotlib.pyplot as plt
     except ImportError as exc:  # pragma: no cover - optional extra
-        raise ConfigError("MDM heatmaps need matplotlib: pip install 'mocapflow[plots]'") from exc
+        raise ConfigError("MDM heatmaps need matplotlib (a mocapflow dependency): pip install matplotlib") from exc
     mdm = np.asarray(mdm, float)
     path = Path(path)
     t, m = mdm.shape

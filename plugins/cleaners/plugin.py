@@ -130,6 +130,8 @@ class CleanCommand:
         parser.add_argument("--report", metavar="DIR", help="write mdm.parquet, edits.parquet, heatmap PNG, summary.json")
         parser.add_argument("--threshold", type=float, default=None, help="MDM threshold (default 0.5)")
         parser.add_argument("--two-stage", action="store_true", help="local search first, context only around distinct words")
+        parser.add_argument("--normalization", choices=("mean", "texture", "none"), default=None,
+                            help="MDM row scale: mean of the row (paper, default) or the joint's mean rotation")
 
     @classmethod
     def run(cls, args: argparse.Namespace) -> int:
@@ -142,6 +144,8 @@ class CleanCommand:
         params: dict[str, Any] = {"write_bvh": False, "heatmaps": bool(args.report), "two_stage": args.two_stage}
         if args.threshold is not None:
             params["threshold"] = args.threshold
+        if args.normalization is not None:
+            params["normalization"] = args.normalization
         cleaner = MDMCleaner(params)
         report = Path(args.report) if args.report else None
         if report is not None:

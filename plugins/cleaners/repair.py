@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from scipy.signal import savgol_filter
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.datasets import fixed_list
@@ -110,6 +109,7 @@ def repair_texture(res: Any, threshold: float = 0.5, window: int = 7, order: int
         rep = np.where(np.sum(rep * track[rows], -1, keepdims=True) < 0, -rep, rep)  # same hemisphere
         track[rows] = rep
         if t_count >= window:
+            from scipy.signal import savgol_filter  # lazy: scipy.signal costs seconds at import
             smooth = savgol_filter(track, window, order, axis=0, mode="interp")
         else:
             smooth = track
@@ -245,6 +245,7 @@ def sparse_reconstruction(sparse: Motion, context: Sequence[Motion], known: Sequ
         prev = pick
     unknown = ~groups.mask[0]
     if len(out) >= params.savgol_window:
+        from scipy.signal import savgol_filter  # lazy: scipy.signal costs seconds at import
         sm = savgol_filter(quat.make_continuous(out, axis=0), params.savgol_window, params.savgol_order, axis=0, mode="interp")
         out[:, unknown] = quat.normalize(sm[:, unknown])
     rot = tex.motion.rotations.copy()

@@ -1,0 +1,163 @@
+"""The MDM cleaner end to end on synthetic motions: detection, repair, contexts, outputs."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from naive.cleaning import synthetic_walk
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.database import MotionDatabase
+from mocapflow.framework.errors import DataError
+from mocapflow.framework.normalize import resample
+from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams, context_motions, digression_map
+from mocapflow.plugins.cleaners.repair import Contact, repair_motion, repair_texture, sparse_reconstruction
+
+
+def _with_offset(motion, joint="lelbow", start=200, stop=206, angle=1.2):
+    rot = motion.rotations.copy()
+    j = motion.skeleton.canonical[joint]
+    rot[start:stop, j] = quat.mul(rot[start:stop, j], quat.from_axis_angle(np.array([0, 0, 1.0]), np.array(angle)))
+    return motion.with_arrays(rotations=rot), j
+
+
+@pytest.fixture(scope="module")
+def corrupted():
+    clean = synthetic_walk(360, seed=3)
+    bad, j = _with_offset(clean)
+    res = digression_map(bad, params=MDMParams(normalization="texture"))
+    return clean, bad, j, res
+
+
+def test_mdm_is_a_map_in_unit_range_and_finds_the_error(corrupted):
+    clean, bad, j, res = corrupted
+    assert res.mdm.shape == (360, 24) and np.all((res.mdm >= 0) & (res.mdm <= 1))
+    c = res.joints.index("lelbow")
+    assert np.all(res.mdm[200:206, c] > 0.9)
+    flagged = res.mdm > 0.5
+    # the error dominates: few flags elsewhere
+    assert flagged[200:206, c].all() and flagged.sum() < 30
+
+
+def test_literal_mean_normalisation_divides_rows_by_their_mean(corrupted):
+    _, bad, _, res = corrupted
+    m = res.difference / np.maximum(res.difference.mean(axis=0, keepdims=True), 0.01)
+    lit = digression_map(bad, params=MDMParams(normalization="mean"))
+    np.testing.assert_allclose(lit.difference, res.difference)
+    np.testing.assert_allclose(lit.mdm, 1 - np.exp(-m ** 2))
+
+
+def test_repair_changes_only_flagged_cells_and_undoes_the_error(corrupted):
+    clean, bad, j, res = corrupted
+    p = MDMParams(normalization="texture")
+    new, flagged = repair_texture(res, p.threshold, p.savgol_window, p.savgol_order)
+    unchanged = ~flagged
+    assert np.array_equal(new[unchanged], res.texture.q[unchanged])
+    cleaned, edits = repair_motion(bad, res, p)
+    err_before = quat.geodesic_angle(bad.rotations[200:206, j], clean.rotations[200:206, j])
+    err_after = quat.geodesic_angle(cleaned.rotations[200:206, j], clean.rotations[200:206, j])
+    assert err_after.max() < 0.2 * err_before.min()
+    changed = np.zeros_like(bad.rotations[..., 0], bool)
+    changed[edits["frame"].to_numpy(), edits["joint"].to_numpy()] = True
+    same = ~changed
+    assert np.array_equal(cleaned.rotations[same], bad.rotations[same])
+    assert set(edits.column_names) >= {"clip_id", "frame", "joint", "joint_name", "old_rotation", "new_rotation"}
+
+
+def test_detect_and_repair_work_at_the_input_rate():
+    clean = synthetic_walk(600, fps=60.0, seed=5)
+    bad, j = _with_offset(clean, start=300, stop=312)
+    cleaner = MDMCleaner(normalization="texture")
+    mdm = cleaner.detect(bad)
+    assert mdm.shape == (600, bad.n_joints)
+    assert mdm[300:312, j].min() > 0.5
+    cleaned, edits = cleaner.repair(bad)
+    assert cleaned.fps == 60.0 and cleaned.n_frames == 600
+    f = edits["frame"].to_numpy()[edits["joint"].to_numpy() == j]
+    assert set(range(300, 312)) <= set(f.tolist())
+    assert len(f) < 0.2 * 600  # a local repair, not a smoothing of the whole track
+    err = quat.geodesic_angle(cleaned.rotations[302:310, j], clean.rotations[302:310, j])
+    assert err.max() < 0.3
+
+
+def test_contexts_and_two_stage():
+    take = synthetic_walk(240, seed=1, name="take")
+    others = [synthetic_walk(240, seed=s, name=f"o{s}") for s in (2, 3)]
+    assert [c.name for c in context_motions(take, MotionDatabase([take, *others]))] == ["take", "o2", "o3"]
+    assert [c.name for c in context_motions(take, others[0])] == ["take", "o2"]
+    with pytest.raises(DataError):
+        context_motions(take, None, include_self=False)
+    with pytest.raises(DataError):
+        context_motions(take, "nonsense")
+    bad, _ = _with_offset(take, start=100, stop=106)
+    one = digression_map(bad, others, MDMParams(normalization="texture"))
+    two = digression_map(bad, others, MDMParams(normalization="texture", two_stage=True))
+    assert len(two.neighbours) == 2 and two.neighbours[0].groups.names == ("whole",)
+    assert two.n_dtw < one.n_dtw
+    c = one.joints.index("lelbow")
+    assert one.mdm[100:106, c].min() > 0.5 and two.mdm[100:106, c].min() > 0.5
+
+
+def test_brute_force_and_pruned_cleaners_agree():
+    bad, _ = _with_offset(synthetic_walk(200, seed=7), start=90, stop=95)
+    a = digression_map(bad, params=MDMParams(knn_method="pruned"))
+    b = digression_map(bad, params=MDMParams(knn_method="brute"))
+    np.testing.assert_array_equal(a.mdm, b.mdm)
+
+
+def test_short_clip_has_an_all_zero_map():
+    res = digression_map(synthetic_walk(10))
+    assert res.mdm.shape == (10, 24) and not res.mdm.any()
+
+
+def test_contact_constraint_picks_the_word_closest_to_the_contact(corrupted):
+    clean, bad, j, res = corrupted
+    p = MDMParams(normalization="texture")
+    m24 = res.texture.motion
+    e = m24.skeleton.canonical["lfingers"]
+    target = clean.positions[203, e] - clean.root_translation[203] + m24.root_translation[203]
+    new_c, _ = repair_texture(res, p.threshold, p.savgol_window, p.savgol_order,
+                              contacts=[Contact("lfingers", 203, tuple(target))])
+    assert new_c.shape == res.texture.q.shape
+
+
+def test_sparse_reconstruction_from_nine_joints():
+    context = [synthetic_walk(360, seed=s) for s in (11, 12)]
+    truth = synthetic_walk(240, seed=13)
+    known = ("neck", "lshoulder", "rshoulder", "lelbow", "relbow", "lhip", "rhip", "lknee", "rknee")
+    rot = truth.rotations.copy()
+    unknown = [truth.skeleton.canonical[j] for j in ("lankle", "rankle", "lowerback", "chest")]
+    rot[:, unknown] = quat.identity((len(rot), len(unknown)))
+    sparse = truth.with_arrays(rotations=rot)
+    out = sparse_reconstruction(sparse, context, known, MDMParams())
+    ref = resample(truth, 24.0)
+    err_out = quat.geodesic_angle(out.rotations[:, unknown], ref.rotations[:, unknown]).mean()
+    err_in = quat.geodesic_angle(resample(sparse, 24.0).rotations[:, unknown], ref.rotations[:, unknown]).mean()
+    assert err_out < 0.5 * err_in
+
+
+def test_heatmap_png(tmp_path, corrupted):
+    pytest.importorskip("matplotlib")
+    from mocapflow.plugins.cleaners.plots import mdm_heatmap
+
+    _, _, _, res = corrupted
+    path = mdm_heatmap(res.mdm, res.joints, tmp_path / "m.png", title="test")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_params_reject_unknown_keys_and_keep_paper_defaults():
+    from pydantic import ValidationError
+
+    p = MDMParams()
+    assert (p.fps, p.source_length, p.source_step, p.target_length, p.k, p.threshold) == (24.0, 15, 5, 20, 5, 0.5)
+    assert [g.drop for g in p.groups] == [3, 1, 1, 1, 1] and len(p.joints) == 24
+    with pytest.raises(ValidationError):
+        MDMParams(word=3)
+
+
+def test_path_mean_warp_also_finds_the_error():
+    bad, _ = _with_offset(synthetic_walk(200, seed=8), start=90, stop=96)
+    res = digression_map(bad, params=MDMParams(warp="path", normalization="texture"))
+    c = res.joints.index("lelbow")
+    assert res.mdm[90:96, c].min() > 0.5
+    with pytest.raises(Exception):
+        MDMParams(warp="cubic")

@@ -1,0 +1,126 @@
+"""Error injection, baselines and the cleaning evaluation harness; the clean pipeline and CLI."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from naive.cleaning import synthetic_walk
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.plugins.analyses.clean_eval import (CleaningEvaluationParams, RotationBaselines, evaluate_category,
+                                                   repair_errors, rotation_vectors, scores)
+from mocapflow.plugins.analyses.error_injection import ERROR_KINDS, apply_error, inject_errors, mirror
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_injection_is_seeded_and_masked():
+    clean = synthetic_walk(480, seed=1)
+    a, mask_a, err_a = inject_errors(clean, seed=4)
+    b, mask_b, err_b = inject_errors(clean, seed=4)
+    assert np.array_equal(a.rotations, b.rotations) and np.array_equal(mask_a, mask_b) and err_a == err_b
+    assert sorted(e.kind for e in err_a) == sorted(ERROR_KINDS)
+    moved = np.rad2deg(quat.geodesic_angle(a.rotations, clean.rotations))
+    assert np.array_equal(mask_a, moved > 10.0)
+    # nothing changes outside the injected joints and intervals
+    touched = np.zeros_like(mask_a)
+    for e in err_a:
+        touched[e.start:e.end, list(e.joints)] = True
+    assert np.all(moved[~touched] < 1e-6)
+    assert mask_a.any()
+
+
+def test_each_kind_touches_only_its_span():
+    clean = synthetic_walk(100, seed=2)
+    c = clean.skeleton.canonical
+    for kind in ERROR_KINDS:
+        rot = clean.rotations.copy()
+        joints = (c["lshoulder"], c["lelbow"], c["rshoulder"], c["relbow"]) if kind == "swap" else (c["lknee"],)
+        apply_error(rot, clean, kind, 40, 50, joints, 40.0, np.random.default_rng(0))
+        diff = quat.geodesic_angle(rot, clean.rotations) > 1e-6
+        assert not diff[:40].any() and not diff[50:].any(), kind
+        if kind != "freeze":
+            assert diff[40:50, list(joints)].any(), kind
+    q = quat.normalize(np.array([0.9, 0.1, 0.3, -0.2]))
+    assert np.allclose(mirror(mirror(q)), q)
+
+
+def test_short_clip_gets_fewer_errors():
+    _, _, errors = inject_errors(synthetic_walk(80), seed=0)
+    assert 1 <= len(errors) < len(ERROR_KINDS)
+
+
+def test_baselines_flag_what_clean_data_never_does():
+    clean = [synthetic_walk(200, seed=s).rotations[:, :4] for s in (1, 2)]
+    base = RotationBaselines(clean)
+    assert not base.limits(clean[0]).any() and not base.derivative(clean[0]).any()
+    bad = clean[0].copy()
+    bad[50, 1] = quat.mul(bad[50, 1], quat.from_axis_angle(np.array([0, 1.0, 0]), np.array(2.5)))
+    assert base.limits(bad)[50, 1] and base.derivative(bad)[50, 1]
+    rv = rotation_vectors(quat.from_axis_angle(np.array([0, 0, 1.0]), np.array(0.7)))
+    assert np.allclose(rv, [0, 0, 0.7])
+
+
+def test_scores_and_repair_errors():
+    truth = np.zeros((30, 2), bool)
+    truth[10:12, 0] = True
+    flagged = np.zeros_like(truth)
+    flagged[11:13, 0] = True
+    s = scores(flagged, truth, np.array([0, 5, 10, 15]), 15)
+    assert (s["tp"], s["fp"], s["fn"]) == (1, 1, 1)
+    assert s["word_tp"] == 3 and s["word_fp"] == 0
+    q = quat.identity((30, 2))
+    other = q.copy()
+    other[10, 0] = quat.from_axis_angle(np.array([1.0, 0, 0]), np.array(0.4))
+    e = repair_errors(q, other, truth)
+    assert e["joint_max"] == pytest.approx(0.04) and e["global_max"] == pytest.approx(0.04)
+
+
+def test_harness_on_synthetic_walks():
+    clips = [synthetic_walk(360, seed=s, name=f"w{s}") for s in range(4)]
+    p = CleaningEvaluationParams(n_test=1, small_size=2, large_size=3, contexts=("local", "small"),
+                                 cleaner={"normalization": "texture"}, also_normalizations=("mean",))
+    rows, rep = evaluate_category("locomotion", clips, p, log=lambda *_: None)
+    by = {(r["method"], r["context"]): r for r in rows}
+    assert set(by) == {("baseline_a_limits", "-"), ("baseline_b_derivative", "-"), ("baseline_c_both", "-"),
+                       ("mdm", "local"), ("mdm", "small"), ("mdm[mean]", "local"), ("mdm[mean]", "small")}
+    assert by[("mdm[mean]", "small")]["recall"] >= by[("mdm", "small")]["recall"] - 0.2
+    assert by[("mdm", "small")]["recall"] > by[("baseline_b_derivative", "-")]["recall"]
+    assert by[("mdm", "small")]["word_recall"] > 0.5
+    stages = {r["stage"]: r for r in rep}
+    assert stages["repaired"]["joint_avg"] < stages["corrupted"]["joint_avg"]
+
+
+def test_clean_pipeline_and_cli(tmp_path):
+    if not (REPO / "examples" / "data" / "cmu" / "16" / "16_15.amc").is_file():
+        pytest.skip("bundled example data missing")
+    pytest.importorskip("matplotlib")
+    from mocapflow.framework.cli import main
+    from mocapflow.framework.datasets import read_datasets
+    from mocapflow.framework.runner import run_pipeline
+
+    ws = tmp_path / "ws"
+    run_pipeline(REPO / "pipelines" / "clean.yaml", workspace=ws, echo=lambda s: None)
+    ds = read_datasets(ws)["mdm"]
+    mdm = ds.table("data")
+    assert set(mdm.column_names) >= {"clip_id", "frame", "joint", "joint_name", "value"}
+    v = mdm["value"].to_numpy()
+    assert v.min() >= 0 and v.max() <= 1
+    assert (ds.path / "16_15.clean.bvh").is_file() and (ds.path / "16_15.mdm.png").is_file()
+    take = REPO / "examples" / "data" / "cmu" / "16" / "16_15.amc"
+    ctx = REPO / "examples" / "data" / "cmu" / "16" / "16_01.amc"
+    out = tmp_path / "clean.bvh"
+    assert main(["clean", str(take), "--context", str(ctx), "--output", str(out), "--report", str(tmp_path / "rep"),
+                 "--normalization", "texture"]) == 0
+    assert out.is_file() and (tmp_path / "rep" / "mdm.parquet").is_file() and (tmp_path / "rep" / "summary.json").is_file()
+    from mocapflow.plugins.formats.bvh import read_bvh
+
+    assert read_bvh(out).n_frames > 0
+
+
+def test_clean_eval_pipeline_plans():
+    from mocapflow.framework.runner import plan_pipeline
+
+    plan = plan_pipeline(REPO / "pipelines" / "clean-eval.yaml")
+    assert [s.key for s in plan.steps][-1] == "analyses.clean_eval"
