@@ -7,7 +7,8 @@ Conventions, stated once:
   **half-open**: ``end_frame`` is *exclusive* (``end_frame - start_frame`` frames);
 * feature vectors are fixed-size lists of float32;
 * match tables of every matcher share :data:`MATCHES` (extra matcher-specific columns may
-  follow), so SQL composes across matchers.
+  follow), so SQL composes across matchers; ``rank`` is 1-based per ``query_id`` (1 = best)
+  and lower ``cost`` is better.
 """
 from __future__ import annotations
 

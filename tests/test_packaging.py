@@ -61,7 +61,7 @@ def test_template_plugin_runs_in_a_pipeline(venv, tmp_path):
     assert "done: 3 computed" in out
     res = _run([str(exe), "sql", str(ws), "SELECT rank, clip_id, cost FROM matches ORDER BY rank", "--format", "csv"]).stdout
     rows = res.split()[1:]
-    assert len(rows) == 3 and rows[0].startswith("0,0,0")  # the query clip matches itself first, at cost 0
+    assert len(rows) == 3 and rows[0].startswith("1,0,0")  # the query clip matches itself first, at cost 0
 
 
 def test_quickstart_from_wheel(venv, tmp_path):

@@ -157,7 +157,7 @@ steps:
     hits = pq.read_table(tmp_path / "ws" / "hits" / "data.parquet").to_pylist()
     clips = {r["clip_id"]: r["name"] for r in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()}
     q0 = [h for h in hits if h["query_id"] == 0]
-    assert q0[0]["rank"] == 0 and clips[q0[0]["clip_id"]] == Path_stem(files[0]) and q0[0]["cost"] == 0.0
+    assert q0[0]["rank"] == 1 and clips[q0[0]["clip_id"]] == Path_stem(files[0]) and q0[0]["cost"] == 0.0
     assert all("kick" in clips[h["clip_id"]] for h in q0)
     assert q0[0]["path"][0] == [q0[0]["start_frame"], q0[0]["start_frame"]]
     assert {clips[h["clip_id"]] for h in hits if h["query_id"] == 1} == {Path_stem(f) for f in files[:2]}

@@ -426,7 +426,7 @@ class RelationalMatcher(Matcher):
         if self.params.max_hits:
             order = order[: self.params.max_hits]
         out = []
-        for rank, h in enumerate(order):
+        for rank, h in enumerate(order, start=1):  # ranks are 1-based in every match table
             pos = int(hits.clip[h])
             first = int(any_set.clip_offsets[pos])
             row = {"query_id": qid, "rank": rank, "clip_id": int(any_set.clip_ids[pos]),

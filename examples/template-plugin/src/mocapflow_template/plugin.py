@@ -67,7 +67,7 @@ class SlidingWindow(Matcher):
         rows.sort(key=lambda r: r[3])
         table = pa.Table.from_pylist(
             [{"query_id": 0, "rank": r, "clip_id": c, "start_frame": s, "end_frame": e, "cost": k}
-             for r, (c, s, e, k) in enumerate(rows[: self.params.top])],
+             for r, (c, s, e, k) in enumerate(rows[: self.params.top], start=1)],
             schema=MATCHES,
         )
         return StepOutput({"data": table}, {"matches": table.num_rows})
