@@ -38,4 +38,4 @@ def test_quickstart_end_to_end(tmp_path):
         mdm = cat.query("SELECT min(value) AS lo, max(value) AS hi FROM clean").to_pylist()[0]
         assert 0.0 <= mdm["lo"] <= mdm["hi"] <= 1.0
     assert len(list((tmp_path / "clean").glob("*.mdm.png"))) == 8
-    assert len(list((tmp_path / "search").glob("*.png"))) >= 1
+    assert len(list((tmp_path / "search").rglob("*.png"))) >= 1
