@@ -125,3 +125,23 @@ def test_plot_writes_png(tmp_path):
     pos = np.random.default_rng(0).normal(size=(3, len(CANONICAL_JOINTS), 3))
     plot_base_poses(pos, CANONICAL_JOINTS, tmp_path / "b.png", "t")
     assert (tmp_path / "b.png").stat().st_size > 1000
+
+
+def test_pipeline_end_to_end(tmp_path):
+    """pipelines/fat-graph.yaml on the bundled sample takes."""
+    from conftest import REPO
+
+    from mocapflow.framework import Dataset, get_plugin_manager
+    from mocapflow.framework.runner import run_pipeline
+
+    run_pipeline(REPO / "pipelines" / "fat-graph.yaml", workspace=tmp_path, jobs=1,
+                 pm=get_plugin_manager(entry_points=False))
+    out = Dataset(tmp_path / "fat_graph")
+    data = out.table("data").to_pydict()
+    bases = out.table("base_poses").to_pydict()
+    n = len(data["frame"])
+    assert n == 656 and min(data["cluster"]) == 0 and sum(bases["n_members"]) == n
+    assert bases["n_neighbours"][0] == max(data["n_neighbours"])  # the first pick has the most neighbours
+    assert (tmp_path / "fat_graph" / "base_poses.png").is_file()
+    seg = out.table("segments").to_pydict()
+    assert sum(e - s for s, e in zip(seg["start_frame"], seg["end_frame"])) == n

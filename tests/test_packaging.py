@@ -64,16 +64,6 @@ def test_template_plugin_runs_in_a_pipeline(venv, tmp_path):
     assert len(rows) == 3 and rows[0].startswith("1,0,0")  # the query clip matches itself first, at cost 0
 
 
-def test_quickstart_from_wheel(venv, tmp_path):
-    exe = venv / "bin" / "mocapflow"
-    ws = tmp_path / "qs"
-    _run([str(exe), "run", str(REPO / "pipelines" / "quickstart.yaml"), "--workspace", str(ws)])
-    again = _run([str(exe), "run", str(REPO / "pipelines" / "quickstart.yaml"), "--workspace", str(ws)]).stdout
-    assert "nothing to do" in again
-    n = _run([str(exe), "sql", str(ws), "SELECT count(*) AS n FROM clips", "--format", "csv"]).stdout.split()
-    assert n == ["n", "8"]
-
-
 def test_template_conformance_suite(venv):
     py = venv / "bin" / "python"
     _run([str(py), "-m", "pytest", "-q", "-p", "no:cacheprovider", str(TEMPLATE / "tests")], cwd=str(TEMPLATE))

@@ -23,7 +23,8 @@ data : one row per frame
 base_poses : one row per base pose, in selection order
     ``cluster, clip_id, frame, n_neighbours, n_members``.
 segments : maximal runs of one cluster within a clip
-    ``clip_id, start_frame, end_frame`` (half-open), ``cluster``.
+    ``clip_id, start_frame, end_frame`` (half-open), ``cluster`` (runs of uncovered frames
+    have cluster -1), so the segments tile every clip.
 transitions : the graph's edges as they occur along the clips
     ``clip_id, frame`` (first frame of the new cluster), ``from_cluster, to_cluster``;
     uncovered frames are skipped.
@@ -46,7 +47,6 @@ from pydantic import Field
 from mocapflow.framework import Analysis, DataError, Index, Params, StepContext, StepOutput
 from mocapflow.framework.datasets import Dataset
 
-from ._fat_graph_kernels import greedy_cover
 
 #: Bones drawn in stick figures, as canonical joint pairs (missing joints are skipped).
 STICK_BONES: tuple[tuple[str, str], ...] = (
@@ -130,6 +130,8 @@ def select_base_poses(x: np.ndarray, radius: float, k: int, index: Index, max_ba
     if ids is None:
         index.build(x)
         ids = radius_neighbours(index, x, radius, k)
+    from ._fat_graph_kernels import greedy_cover  # numba: imported when work starts
+
     bases, cluster, degree = greedy_cover(ids, max_base_poses)
     return BasePoses(bases, cluster, degree)
 
