@@ -121,7 +121,7 @@ class CleaningEvaluationParams(Params):
     min_angle: float = Field(default=10.0, gt=0, description="ground truth: cells moved more than this, degrees")
     seed: int = Field(default=0, description="seed of the error injection")
     repair_context: str = Field(default="small", description="context whose detection is repaired for eq. 2")
-    also_normalizations: tuple[str, ...] = Field(default=("texture",),
+    also_normalizations: tuple[str, ...] = Field(default=("mean", "spread", "texture"),
                                                   description="MDM row normalisations also scored (rows 'mdm[<name>]')")
     cleaner: dict[str, Any] = Field(default_factory=dict, description="parameters of cleaners.mdm")
 
@@ -193,8 +193,9 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
             _add(counts, ("mdm", context), scores(res.mdm > cp.threshold, truth, starts, cp.source_length))
             for norm in p.also_normalizations:
                 # same KNN and T̄, another row scale: only the last step of §3.4 differs
-                _, _, alt = digression_from_outer(res.texture.q, np.zeros((0, 4, 4)), np.zeros((0,), np.int64), norm,
-                                                  cp.min_scale, difference=res.difference, mean_floor=cp.mean_floor)
+                alt = digression_from_outer(res.texture.q, np.zeros((0, 4, 4)), np.zeros((0,), np.int64),
+                                            cp.model_copy(update={"normalization": norm}), difference=res.difference,
+                                            spread=res.spread)[3]
                 _add(counts, (f"mdm[{norm}]", context), scores(alt > cp.threshold, truth, starts, cp.source_length))
             if context == p.repair_context:
                 new, _ = repair_texture(res, cp.threshold, cp.savgol_window, cp.savgol_order)

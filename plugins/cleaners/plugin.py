@@ -130,8 +130,8 @@ class CleanCommand:
         parser.add_argument("--report", metavar="DIR", help="write mdm.parquet, edits.parquet, heatmap PNG, summary.json")
         parser.add_argument("--threshold", type=float, default=None, help="MDM threshold (default 0.5)")
         parser.add_argument("--two-stage", action="store_true", help="local search first, context only around distinct words")
-        parser.add_argument("--normalization", choices=("mean", "texture", "none"), default=None,
-                            help="MDM row scale: mean of the row (paper, default) or the joint's mean rotation")
+        parser.add_argument("--normalization", choices=("mean", "median", "spread", "texture", "none"), default=None,
+                            help="scale of the MDM differences (see cleaners.mdm normalization; mean = the paper)")
 
     @classmethod
     def run(cls, args: argparse.Namespace) -> int:
