@@ -100,10 +100,16 @@ def test_save_load_does_not_rebuild(tmp_path, monkeypatch):
 def test_float32_stored_once_and_auto_reports_method():
     rng = np.random.default_rng(6)
     x = rng.normal(size=(3000, 12)).astype(np.float32)
-    ix = KDTreeIndex(min_probe_rows=1000, probe_queries=8).build(x)
+    ix = KDTreeIndex(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)).build(x)
     assert ix.data_.dtype == np.float32 and ix.data_.nbytes == x.nbytes
-    assert ix.method_ in ("kdtree", "brute") and set(ix.probe_) == {"kdtree_ms_per_query", "brute_ms_per_query"}
-    np.testing.assert_array_equal(ix.query(x[:5], 3)[1], knn(x, x[:5], 3)[1])
+    assert ix.method_ in ("kdtree", "brute") and set(ix.probe_) == {
+        f"{m}_{w}_ms@{k}" for m in ("kdtree", "brute") for w in ("single", "batch") for k in (4, 64)}
+    assert ix.brute_from_k_ in (None, 16)
+    for k in (3, 100):
+        np.testing.assert_array_equal(ix.query(x[:5], k)[1], knn(x, x[:5], k)[1])
+    ix.method_, ix.brute_from_k_ = "kdtree", 16  # switching by k keeps answers exact
+    assert ix.method_for(3) == "kdtree" and ix.method_for(16) == "brute"
+    np.testing.assert_array_equal(ix.query(x[:5], 20)[1], knn(x, x[:5], 20)[1])
 
 
 def test_awkward_inputs():
@@ -120,3 +126,13 @@ def test_awkward_inputs():
         same.query(np.zeros(2), 1, exclude=3)
     with pytest.raises(DataError):
         KDTreeIndex().query(np.zeros(2), 1)
+
+
+def test_brute_force_massive_ties_fall_back_exactly():
+    x = np.zeros((1500, 4), np.float32)
+    x[::7] = 1.0
+    ix = KDTreeIndex(method="brute").build(x)
+    d, i = ix.query(np.zeros((2, 4), np.float32), 5)
+    assert i.tolist() == [[1, 2, 3, 4, 5]] * 2 and not d.any()
+    d, i = ix.query(np.ones((1, 4), np.float32), 3, radius=0.5)
+    assert i.tolist() == [[0, 7, 14]]

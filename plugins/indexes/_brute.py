@@ -1,22 +1,25 @@
 """Exact brute-force kNN in blocks with BLAS (for feature sets of high intrinsic dimension).
 
-Squared distances are first computed in float32 with one GEMM per block
-(``|q|^2 + |y|^2 - 2 q.y``, data centred to keep the norms small). That shortcut has a
-rounding error bounded by ``tol = 2 (d + 2) u (|q|^2 + max|y|^2)`` (``u = 2^-24``), so
-every row whose approximate distance is within ``2 tol`` of the approximate k-th one is kept
-as a candidate and re-ranked with exact float64 distances: the result equals an exact
-search (no silent approximation), at BLAS speed.
+Squared distances are first computed in float32 with one GEMM per block of raw rows, as
+``|y_c|^2 - 2 q_c.y + (|q_c|^2 + 2 q_c.mean)`` (``_c``: centred on the data mean, which keeps
+the terms small without a centred copy of the data). Its rounding error is below
+``tol = 2 (d + 4) u (|q_c|^2 + max|y_c|^2 + 2 |q_c| max|y|)`` (``u = 2^-24``, generous
+constant), so every row whose approximate distance is within ``2 tol`` of the approximate
+k-th one is kept as a candidate and re-ranked with exact float64 distances: the result
+equals an exact search (no silent approximation), at BLAS speed.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from . import _knn_kernels as kern
 
 _U32 = 2.0 ** -24
 
 
 def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: np.ndarray, k: int, r2: float,
               groups: np.ndarray, frames: np.ndarray, qgroups: np.ndarray, qframes: np.ndarray,
-              excl: int, ids: np.ndarray | None = None, block_rows: int = 32768, block_queries: int = 128) -> tuple[np.ndarray, np.ndarray]:
+              excl: int, ids: np.ndarray | None = None, raw_bound: float | None = None, parallel: bool = True, cap: int | None = None, block_rows: int = 32768, block_queries: int = 128) -> tuple[np.ndarray, np.ndarray]:
     """Exact kNN by blocks (see module doc).
 
     Parameters
@@ -29,6 +32,13 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
     ids : ndarray of shape (n,), int64, optional
         Id returned for each stored row (the kd-tree stores rows permuted); ties are
         ordered by these ids. Default: the row numbers.
+    raw_bound : float, optional
+        :func:`raw_sqnorm_bound` of ``data`` (computed once at build time).
+    parallel : bool
+        Scan with numba threads (batches) or on the calling thread (single queries).
+    cap : int, optional
+        Candidate buffer per query (default ``4 k + 256``); queries that overflow it (dense
+        neighbourhoods, massive ties) are answered again with a 4x larger one.
 
     Returns
     -------
@@ -40,55 +50,37 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     ymax = float(sqnorms.max()) if n else 0.0
-    yraw = float(np.einsum("ij,ij->i", data[:: max(n // 4096, 1)], data[:: max(n // 4096, 1)]).max()) if n else 0.0
-    yraw = max(yraw, float((np.abs(data).max(0).astype(np.float64) ** 2).sum()) if n else 0.0)  # bound on |y|^2
+    yraw = raw_bound if raw_bound is not None else (float(raw_sqnorm_bound(data)) if n else 0.0)
+    scan = kern.scan_block if parallel else kern.scan_block_serial
     for q0 in range(0, m, block_queries):
         q_orig = queries[q0:q0 + block_queries]
         q = q_orig - mean
         nq = len(q)
-        qn = np.einsum("ij,ij->i", q, q)
+        qn = np.einsum("ij,ij->i", q, q).astype(np.float64)
         # |q_c - y_c|^2 = |y_c|^2 - 2 q_c.y + (|q_c|^2 + 2 q_c.mean): the GEMM runs on the raw
         # rows (no centred copy); its rounding is bounded through |q_c| |y|
-        const = (qn + 2.0 * (q @ mean)).astype(np.float32)
-        qn64 = qn.astype(np.float64)
-        tol2 = 4.0 * (d + 4) * _U32 * (qn64 + ymax + 2.0 * np.sqrt(qn64 * yraw)) + 1e-30
-        kth = np.full(nq, np.inf)  # k-th smallest approximate distance among the candidates
-        cr = np.zeros(0, np.int64)  # candidates: query row, stored row, approximate distance
-        cc = np.zeros(0, np.int64)
-        cv = np.zeros(0, np.float32)
+        const = qn + 2.0 * (q.astype(np.float64) @ mean.astype(np.float64))
+        tol2 = 4.0 * (d + 4) * _U32 * (qn + ymax + 2.0 * np.sqrt(qn * yraw)) + 1e-30
+        heap = np.full((nq, k), np.inf)
+        cap = cap or 4 * k + 256
+        cand_i = np.empty((nq, cap), np.int64)
+        cand_v = np.empty((nq, cap))
+        cand_n = np.zeros(nq, np.int64)
+        overflow = np.zeros(nq, np.bool_)
+        qg = np.ascontiguousarray(qgroups[q0:q0 + nq])
+        qf = np.ascontiguousarray(qframes[q0:q0 + nq])
         for y0 in range(0, n, block_rows):
-            a = q @ data[y0:y0 + block_rows].T
-            a *= -2.0
-            a += sqnorms[y0:y0 + block_rows][None, :]
-            a += const[:, None]
-            if excl >= 0:
-                bad = (groups[None, y0:y0 + block_rows] == qgroups[q0:q0 + nq, None]) & (
-                    np.abs(frames[None, y0:y0 + block_rows] - qframes[q0:q0 + nq, None]) <= excl)
-                a[bad] = np.inf
-            thr = kth + tol2
-            need = ~np.isfinite(kth)
-            # rows still short of k candidates: the block's k-th value bounds the k-th overall
-            if need.any() and a.shape[1] >= k:
-                part = np.partition(a[need], k - 1, axis=1)[:, k - 1]
-                thr[need] = np.minimum(thr[need], part + tol2[need])
-            thr = np.minimum(thr, r2 + tol2)
-            rr, col = np.nonzero(a <= thr[:, None].astype(np.float32))
-            cr = np.concatenate([cr, rr])
-            cc = np.concatenate([cc, col + y0])
-            cv = np.concatenate([cv, a[rr, col]])
-            # new k-th approximate value per row, then drop candidates that cannot make it
-            order = np.lexsort((cv, cr))
-            cr, cc, cv = cr[order], cc[order], cv[order]
-            counts = np.bincount(cr, minlength=nq)
-            first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-            has = counts >= k
-            kth[has] = cv[first[has] + k - 1]
-            keep = cv <= (kth + tol2)[cr]
-            cr, cc, cv = cr[keep], cc[keep], cv[keep]
+            g = q @ data[y0:y0 + block_rows].T
+            scan(g, sqnorms, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2 + tol2,
+                 excl, groups, frames, qg, qf)
+        keep = (np.arange(cap)[None, :] < cand_n[:, None]) & (cand_v <= (heap[:, 0] + tol2)[:, None])
+        cr, col = np.nonzero(keep)
+        cc = cand_i[cr, col]
+        if overflow.any():
+            bad = overflow[cr]
+            cr, cc = cr[~bad], cc[~bad]
         counts = np.bincount(cr, minlength=nq)
-        width = int(counts.max()) if len(cr) else 0
-        if width == 0:
-            continue
+        width = max(int(counts.max()) if len(cr) else 0, 1)
         first = np.concatenate([[0], np.cumsum(counts)[:-1]])
         rows = np.full((nq, width), -1, np.int64)
         rows[cr, np.arange(len(cr)) - first[cr]] = cc
@@ -105,4 +97,19 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
         w = ex.shape[1]
         out_d[q0:q0 + nq, :w] = ex
         out_i[q0:q0 + nq, :w] = rid
+        redo = np.flatnonzero(overflow)
+        if redo.size:  # a buffer of n rows never overflows, so this terminates
+            d2, i2 = brute_knn(q_orig[redo], data, mean, sqnorms, k, r2, groups, frames, qg[redo], qf[redo], excl,
+                               ids=ids, raw_bound=yraw, parallel=parallel, cap=min(4 * cap, n + 1),
+                               block_rows=block_rows, block_queries=block_queries)
+            out_d[q0 + redo], out_i[q0 + redo] = d2, i2
     return out_d, out_i
+
+
+def raw_sqnorm_bound(data: np.ndarray, block: int = 65536) -> float:
+    """An upper bound on ``max |y|^2`` over the rows (float64 norms, with a rounding margin)."""
+    best = 0.0
+    for a in range(0, len(data), block):
+        y = data[a:a + block].astype(np.float64)
+        best = max(best, float(np.einsum("ij,ij->i", y, y).max()))
+    return best * (1.0 + 1e-6)

@@ -192,43 +192,58 @@ def _search(q, data, perm, start, end, left, right, sdim, sval, groups, frames, 
                 _heap_replace(hd, hi, acc, perm[t])
 
 
+@njit(cache=True)
+def _query_rows(lo, hi, queries, k, eps_fac, r2, data, perm, start, end, left, right, sdim, sval,
+                groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i):
+    d = queries.shape[1]
+    hd = np.empty(k)
+    hi_ = np.empty(k, np.int64)
+    st_node = np.empty(max_depth + 2, np.int64)
+    st_rd = np.empty(max_depth + 2)
+    st_off = np.empty((max_depth + 2, d))
+    cur_off = np.empty(d)
+    q = np.empty(d)
+    for r in range(lo, hi):
+        hd[:] = np.inf
+        hi_[:] = _IMAX
+        for j in range(d):
+            q[j] = queries[r, j]
+        _search(q, data, perm, start, end, left, right, sdim, sval, groups, frames,
+                qgroups[r], qframes[r], excl, hd, hi_, eps_fac, r2, st_node, st_rd, st_off, cur_off)
+        order = np.argsort(hd, kind="mergesort")
+        for a in range(k):
+            out_d[r, a] = hd[order[a]]
+            out_i[r, a] = hi_[order[a]]
+        # equal distances: ids ascending
+        for a in range(1, k):
+            b = a
+            while b > 0 and out_d[r, b] == out_d[r, b - 1] and out_i[r, b] < out_i[r, b - 1]:
+                out_i[r, b], out_i[r, b - 1] = out_i[r, b - 1], out_i[r, b]
+                b -= 1
+        for a in range(k):
+            if out_i[r, a] == _IMAX:
+                out_i[r, a] = -1
+                out_d[r, a] = np.inf
+
+
 @njit(cache=True, parallel=True)
 def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, sval,
                groups, frames, qgroups, qframes, excl, max_depth, n_chunks):
-    """kNN of every query row; returns squared distances (float64) and row ids, sorted."""
-    m, d = queries.shape
+    """kNN of every query row; returns squared distances (float64) and row ids, sorted.
+
+    ``n_chunks <= 1`` runs on the calling thread (single queries: no thread wake-up).
+    """
+    m = queries.shape[0]
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     eps_fac = (1.0 + eps) * (1.0 + eps)
+    if n_chunks <= 1:
+        _query_rows(0, m, queries, k, eps_fac, r2, data, perm, start, end, left, right, sdim, sval,
+                    groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i)
+        return out_d, out_i
     for c in prange(n_chunks):
-        hd = np.empty(k)
-        hi = np.empty(k, np.int64)
-        st_node = np.empty(max_depth + 2, np.int64)
-        st_rd = np.empty(max_depth + 2)
-        st_off = np.empty((max_depth + 2, d))
-        cur_off = np.empty(d)
-        q = np.empty(d)
-        for r in range(c * m // n_chunks, (c + 1) * m // n_chunks):
-            hd[:] = np.inf
-            hi[:] = _IMAX
-            for j in range(d):
-                q[j] = queries[r, j]
-            _search(q, data, perm, start, end, left, right, sdim, sval, groups, frames,
-                    qgroups[r], qframes[r], excl, hd, hi, eps_fac, r2, st_node, st_rd, st_off, cur_off)
-            order = np.argsort(hd, kind="mergesort")  # heap -> ascending; ids break ties below
-            for a in range(k):
-                out_d[r, a] = hd[order[a]]
-                out_i[r, a] = hi[order[a]]
-            # equal distances: ids ascending (mergesort kept heap order, fix it up)
-            for a in range(1, k):
-                b = a
-                while b > 0 and out_d[r, b] == out_d[r, b - 1] and out_i[r, b] < out_i[r, b - 1]:
-                    out_i[r, b], out_i[r, b - 1] = out_i[r, b - 1], out_i[r, b]
-                    b -= 1
-            for a in range(k):
-                if out_i[r, a] == _IMAX:
-                    out_i[r, a] = -1
-                    out_d[r, a] = np.inf
+        _query_rows(c * m // n_chunks, (c + 1) * m // n_chunks, queries, k, eps_fac, r2, data, perm, start,
+                    end, left, right, sdim, sval, groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i)
     return out_d, out_i
 
 
@@ -246,24 +261,6 @@ def tree_depth(left, right):
     return best
 
 
-@njit(cache=True, parallel=True)
-def exact_sqdist(queries, data, rows):
-    """Exact squared distances (float64 accumulation) of ``queries[r]`` to ``data[rows[r, a]]``."""
-    m, c = rows.shape
-    out = np.full((m, c), np.inf)
-    for r in prange(m):
-        for a in range(c):
-            i = rows[r, a]
-            if i < 0:
-                continue
-            acc = 0.0
-            for j in range(data.shape[1]):
-                diff = np.float64(data[i, j]) - np.float64(queries[r, j])
-                acc += diff * diff
-            out[r, a] = acc
-    return out
-
-
 def set_threads(workers: int | None) -> int:
     """Set numba's thread count for the next parallel call; returns the previous one."""
     prev = numba.get_num_threads()
@@ -274,3 +271,81 @@ def set_threads(workers: int | None) -> int:
 
 def threads() -> int:
     return numba.get_num_threads()
+
+
+@njit(cache=True)
+def _maxheap_replace(h, v):
+    k = h.shape[0]
+    pos = 0
+    while True:
+        c = 2 * pos + 1
+        if c >= k:
+            break
+        if c + 1 < k and h[c + 1] > h[c]:
+            c += 1
+        if h[c] > v:
+            h[pos] = h[c]
+            pos = c
+        else:
+            break
+    h[pos] = v
+
+
+@njit(cache=True)
+def _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
+              excl, groups, frames, qg, qf):
+    b = g.shape[1]
+    cap = cand_i.shape[1]
+    h = heap[r]
+    n = cand_n[r]
+    for j in range(b):
+        a = np.float64(sqn[y0 + j]) - 2.0 * np.float64(g[r, j]) + const[r]
+        if a > h[0] + tol2[r] or a > r2tol[r]:
+            continue
+        if excl >= 0 and groups[y0 + j] == qg[r] and abs(frames[y0 + j] - qf[r]) <= excl:
+            continue
+        if a < h[0]:
+            _maxheap_replace(h, a)
+        if n == cap:
+            lim = h[0] + tol2[r]
+            m = 0
+            for t in range(n):
+                if cand_v[r, t] <= lim:
+                    cand_i[r, m] = cand_i[r, t]
+                    cand_v[r, m] = cand_v[r, t]
+                    m += 1
+            n = m
+            if n > cap // 2:  # compaction freed little: stop before it turns quadratic
+                overflow[r] = True
+                break
+        cand_i[r, n] = y0 + j
+        cand_v[r, n] = a
+        n += 1
+    cand_n[r] = n
+
+
+@njit(cache=True, parallel=True)
+def scan_block(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
+               excl, groups, frames, qg, qf):
+    """One data block of the blocked brute force (see :mod:`._brute`), fused in one pass.
+
+    ``g (nq, B)`` holds ``q_c . y`` for rows ``y0 .. y0 + B``; the approximate squared
+    distance is ``sqn[y] - 2 g + const[q]``. ``heap (nq, k)`` (max-heap of approximate
+    values) keeps the running k-th value; a row enters the candidate buffer when it is
+    within ``tol2`` of it. A full buffer is compacted; if that frees less than half of it the
+    query is flagged in ``overflow`` and the caller retries it with a larger buffer.
+    """
+    for r in prange(g.shape[0]):
+        if not overflow[r]:
+            _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
+                      excl, groups, frames, qg, qf)
+
+
+@njit(cache=True)
+def scan_block_serial(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
+                      excl, groups, frames, qg, qf):
+    """:func:`scan_block` on one thread (few queries: waking threads costs more than it saves)."""
+    for r in range(g.shape[0]):
+        if not overflow[r]:
+            _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
+                      excl, groups, frames, qg, qf)

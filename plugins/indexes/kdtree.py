@@ -5,9 +5,12 @@ The kNN index of Krüger et al. 2010 §3.3 (they used ANN). A float32 kd-tree of
 can be saved and loaded as plain arrays, without a rebuild. For feature sets of high
 intrinsic dimension a kd-tree degenerates to a slow linear scan; there an exact BLAS brute
 force in blocks (:mod:`._brute`) is faster. With ``method: auto`` a probe at build time
-times both on a sample of the indexed rows and keeps the faster one; ``method_`` and
-``probe_`` say which was chosen and why. Both are exact; only an explicit ``eps > 0`` makes
-a search approximate.
+times both on a sample of the indexed rows, for 16 and 256 neighbours, and keeps the
+faster one (a kd-tree's cost grows with k, the brute force's hardly: where the tree wins at
+16 and loses at 256, queries from ``brute_from_k_`` neighbours on use the brute force);
+``method_``, ``brute_from_k_`` and ``probe_`` say what was chosen and why, and the step's
+summary repeats them. Both methods are exact (ties ordered by row id); only an explicit
+``eps > 0`` makes a search approximate.
 """
 from __future__ import annotations
 
@@ -58,8 +61,13 @@ class KDTreeIndex(Index):
     ----------
     method_ : {"kdtree", "brute"}
         The search method in use (chosen by the probe when ``method: auto``).
+    brute_from_k_ : int or None
+        With ``method_ == "kdtree"``: from this many neighbours on, the probe found the brute
+        force faster, and it answers those queries (:meth:`method_for`). ε-approximate
+        queries (``eps > 0``) always use the kd-tree.
     probe_ : dict
-        Probe timings, ms per query (empty if no probe ran).
+        Probe timings, ms per query: ``<method>_single_ms`` (median of one-query calls) and
+        ``<method>_batch_ms`` (one call for all probe rows), on one thread; empty if no probe ran.
     data_ : ndarray of shape (n, d), float32
         The features, stored once in tree order (row ``t`` is input row ``perm_[t]``).
     """
@@ -71,7 +79,8 @@ class KDTreeIndex(Index):
             "auto", description="search method; auto probes both at build time and keeps the faster (both exact)")
         leafsize: int = Field(16, ge=1, le=1024, description="maximum points per kd-tree bucket")
         probe_queries: int = Field(64, ge=1, description="rows sampled to time the methods (method auto)")
-        probe_k: int = Field(16, ge=1, description="neighbours per probe query")
+        probe_k: tuple[int, ...] = Field((16, 256), min_length=1,
+                                         description="neighbour counts probed (Table 1: 16 and 256); ascending")
         min_probe_rows: int = Field(20000, ge=0, description="below this many rows auto uses the kd-tree without a probe")
         workers: int = Field(0, ge=0, description="threads for batched queries, 0 = all cores")
 
@@ -96,41 +105,75 @@ class KDTreeIndex(Index):
         if not np.isfinite(x).all():
             raise DataError(f"{self.key()}: features contain NaN or inf (rows {np.flatnonzero(~np.isfinite(x).all(1))[:5].tolist()}...)")
         n = x.shape[0]
-        g = np.zeros(n, np.int64) if groups is None else np.asarray(groups, np.int64)
-        f = np.arange(n, dtype=np.int64) if frames is None else np.asarray(frames, np.int64)
+        # int32 like the clip_id/frame columns: 8 bytes per row beside the 4 d of the features
+        g = np.zeros(n, np.int32) if groups is None else np.asarray(groups).astype(np.int32)
+        f = np.arange(n, dtype=np.int32) if frames is None else np.asarray(frames).astype(np.int32)
         if g.shape != (n,) or f.shape != (n,):
             raise DataError(f"{self.key()}: groups/frames must have shape ({n},)")
         x = np.ascontiguousarray(x)
         perm, start, end, left, right, sdim, sval = kern.build_tree(x, self.params.leafsize) if n else (
             np.zeros(0, np.int64), *(np.zeros(1, np.int64),) * 2, *(np.full(1, -1, np.int64),) * 2,
             np.zeros(1, np.int32), np.zeros(1, np.float32))
-        self._inv = self._depth = None
+        self._inv = self._depth = self._raw_bound = None
         self.data_ = x[perm]
         self.perm_, self.groups_, self.frames_ = perm, g[perm], f[perm]
         self.start_, self.end_, self.left_, self.right_, self.sdim_, self.sval_ = start, end, left, right, sdim, sval
         self.mean_ = self.data_.mean(0, dtype=np.float64).astype(np.float32) if n else np.zeros(x.shape[1], np.float32)
-        c = self.data_ - self.mean_ if n else self.data_
-        self.sqnorms_ = np.einsum("ij,ij->i", c, c).astype(np.float32)
-        del c
+        self.sqnorms_ = np.empty(n, np.float32)
+        for a in range(0, n, 65536):  # in blocks: no transient centred copy of the features
+            c = self.data_[a:a + 65536] - self.mean_
+            self.sqnorms_[a:a + 65536] = np.einsum("ij,ij->i", c, c)
         self.probe_ = {}
-        self.method_ = self.params.method
+        self.method_, self.brute_from_k_ = self.params.method, None
         if self.method_ == "auto":
             self.method_ = self._probe() if n >= max(self.params.min_probe_rows, 1) else "kdtree"
         return self
 
     def _probe(self) -> str:
+        """Time both exact methods on indexed rows; returns the faster at the smallest probed k.
+
+        For each probed ``k`` each method answers ``probe_queries`` rows one at a time
+        (median ms, the interactive case) and all at once (ms per query, the batched case),
+        on one thread; the score is their sum, so a method must do well in both. If the
+        kd-tree wins at small ``k`` but the brute force at a larger one (it costs the same for
+        every ``k``, the tree does not), ``brute_from_k_`` records from which ``k`` on the brute
+        force answers (the geometric mean of the two probed values).
+        """
         n = self.data_.shape[0]
         rng = np.random.default_rng(0)
         q = self.data_[rng.choice(n, size=min(self.params.probe_queries, n), replace=False)]
-        k = min(self.params.probe_k, n)
-        times = {}
-        for method in ("kdtree", "brute"):
-            self._search(q[:2], k, None, 0.0, None, None, None, 1, method)  # warm-up (numba compile, caches)
-            t0 = time.perf_counter()
-            self._search(q, k, None, 0.0, None, None, None, 1, method)
-            times[method] = 1000.0 * (time.perf_counter() - t0) / len(q)
-        self.probe_ = {f"{m}_ms_per_query": round(t, 4) for m, t in times.items()}
-        return "brute" if times["brute"] < times["kdtree"] else "kdtree"
+        winners = []
+        for k in sorted({min(k, n) for k in self.params.probe_k}):
+            score = {}
+            for method in ("kdtree", "brute"):
+                self._search(q[:2], k, None, 0.0, None, None, None, 1, method)  # warm-up (numba compile, caches)
+                single = []
+                for i in range(min(len(q), 16)):
+                    t0 = time.perf_counter()
+                    self._search(q[i:i + 1], k, None, 0.0, None, None, None, 1, method)
+                    single.append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                self._search(q, k, None, 0.0, None, None, None, 1, method)
+                batch = (time.perf_counter() - t0) / len(q)
+                self.probe_[f"{method}_single_ms@{k}"] = round(1000.0 * float(np.median(single)), 4)
+                self.probe_[f"{method}_batch_ms@{k}"] = round(1000.0 * batch, 4)
+                score[method] = float(np.median(single)) + batch
+            winners.append((k, "brute" if score["brute"] < score["kdtree"] else "kdtree"))
+        first = winners[0][1]
+        if first == "kdtree":
+            prev = winners[0][0]
+            for k, w in winners[1:]:
+                if w == "brute":
+                    self.brute_from_k_ = int(round(np.sqrt(prev * k)))
+                    break
+                prev = k
+        return first
+
+    def method_for(self, k: int) -> str:
+        """The method that answers a query for ``k`` neighbours (``"kdtree"`` or ``"brute"``)."""
+        if self.method_ == "kdtree" and self.brute_from_k_ is not None and k >= self.brute_from_k_:
+            return "brute"
+        return self.method_
 
     # --- querying ---------------------------------------------------------------------
     def query(self, x: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
@@ -167,7 +210,8 @@ class KDTreeIndex(Index):
             query_frames = np.broadcast_to(np.asarray(query_frames, np.int64), (len(q),))
         w = self.params.workers if workers is None else workers
         d2, ids = self._search(np.ascontiguousarray(q), int(k), radius, float(eps), exclude,
-                               query_groups, query_frames, w, self.method_)
+                               query_groups, query_frames, w,
+                               "kdtree" if eps > 0 else self.method_for(int(k)))
         return np.sqrt(d2).astype(np.float32), ids
 
     def query_rows(self, rows: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
@@ -190,7 +234,7 @@ class KDTreeIndex(Index):
 
     def _search(self, q, k, radius, eps, exclude, qg, qf, workers, method):
         from . import _knn_kernels as kern
-        from ._brute import brute_knn
+        from ._brute import brute_knn, raw_sqnorm_bound
 
         m, n = len(q), self.data_.shape[0]
         if m == 0 or n == 0:
@@ -203,12 +247,14 @@ class KDTreeIndex(Index):
         prev = kern.set_threads(workers)
         try:
             if method == "brute":
-                d2, t = brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
-                                  qg, qf, excl, ids=self.perm_)
-                return d2, t
+                if getattr(self, "_raw_bound", None) is None:
+                    self._raw_bound = raw_sqnorm_bound(self.data_)
+                return brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
+                                 qg, qf, excl, ids=self.perm_, raw_bound=self._raw_bound,
+                                 parallel=m >= 4 and kern.threads() > 1)
             return kern.query_tree(q, k, eps, r2, self.data_, self.perm_, self.start_, self.end_, self.left_,
                                    self.right_, self.sdim_, self.sval_, self.groups_, self.frames_, qg, qf, excl,
-                                   self._max_depth(), min(m, 4 * kern.threads()))
+                                   self._max_depth(), 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads()))
         finally:
             kern.set_threads(prev)
 
@@ -231,7 +277,8 @@ class KDTreeIndex(Index):
         d.mkdir(parents=True, exist_ok=True)
         for a in _ARRAYS:
             np.save(d / f"{a.rstrip('_')}.npy", getattr(self, a))
-        meta = {"component": self.key(), "params": self.get_params(), "method": self.method_, "probe": self.probe_}
+        meta = {"component": self.key(), "params": self.get_params(), "method": self.method_,
+                "brute_from_k": self.brute_from_k_, "probe": self.probe_}
         (d / "index.json").write_text(json.dumps(meta, indent=1))
 
     @classmethod
@@ -243,7 +290,7 @@ class KDTreeIndex(Index):
         self = cls(meta["params"])
         for a in _ARRAYS:
             setattr(self, a, np.load(d / f"{a.rstrip('_')}.npy"))
-        self.method_, self.probe_ = meta["method"], meta["probe"]
+        self.method_, self.probe_, self.brute_from_k_ = meta["method"], meta["probe"], meta.get("brute_from_k")
         return self
 
     # --- pipeline step ----------------------------------------------------------------
@@ -253,8 +300,10 @@ class KDTreeIndex(Index):
         feats = inputs["features"].features()
         self.build(feats.x, groups=feats.clip_id, frames=feats.frame)
         self.save(ctx.out_dir / "index")
-        summary = {"method": self.method_, "rows": int(feats.x.shape[0]), "dim": int(feats.x.shape[1]), **self.probe_}
-        ctx.log.info("%s: %d x %d, method %s %s", self.key(), *feats.x.shape, self.method_, self.probe_)
+        summary = {"method": self.method_, "brute_from_k": self.brute_from_k_, "rows": int(feats.x.shape[0]),
+                   "dim": int(feats.x.shape[1]), **self.probe_}
+        ctx.log.info("%s: %d x %d, method %s (brute force from k=%s) %s", self.key(), *feats.x.shape, self.method_,
+                     self.brute_from_k_, self.probe_)
         return StepOutput({"data": frame_id_table(feats.clip_id, feats.frame)}, summary=summary)
 
 
