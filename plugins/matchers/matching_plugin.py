@@ -60,7 +60,9 @@ class SearchCommand:
 
         regs = load_registries()
         datasets = read_datasets(args.db)
-        indexes = {k: d for k, d in datasets.items() if d.producer_kind == "indexes"}
+        # only numeric kNN indexes can serve a similarity search (not inverted lists)
+        indexes = {k: d for k, d in datasets.items() if d.producer_kind == "indexes"
+                   and d.producer in regs.keys() and getattr(regs.resolve(d.producer), "supports_knn", True)}
         if args.index:
             if args.index not in indexes:
                 raise ConfigError(f"{args.db}: no index step {args.index!r} (index steps: {', '.join(indexes) or 'none'})")
