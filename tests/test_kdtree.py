@@ -107,9 +107,12 @@ def test_float32_stored_once_and_auto_reports_method():
     assert ix.brute_from_k_ in (None, 16)
     for k in (3, 100):
         np.testing.assert_array_equal(ix.query(x[:5], k)[1], knn(x, x[:5], k)[1])
-    ix.method_, ix.brute_from_k_ = "kdtree", 16  # switching by k keeps answers exact
+    ix.method_, ix.brute_from_k_, ix.large_method_ = "kdtree", 16, "brute"  # switching by k keeps answers exact
     assert ix.method_for(3) == "kdtree" and ix.method_for(16) == "brute"
     np.testing.assert_array_equal(ix.query(x[:5], 20)[1], knn(x, x[:5], 20)[1])
+    ix.method_, ix.large_method_ = "brute", "kdtree"
+    assert ix.method_for(3) == "brute" and ix.method_for(16) == "kdtree"
+    np.testing.assert_array_equal(ix.query(x[:5], 3)[1], knn(x, x[:5], 3)[1])
 
 
 def test_awkward_inputs():
@@ -136,3 +139,80 @@ def test_brute_force_massive_ties_fall_back_exactly():
     assert i.tolist() == [[1, 2, 3, 4, 5]] * 2 and not d.any()
     d, i = ix.query(np.ones((1, 4), np.float32), 3, radius=0.5)
     assert i.tolist() == [[0, 7, 14]]
+    from mocapflow.plugins.indexes._brute import brute_knn  # the blocked path overflows its buffers here
+
+    z = np.zeros(2, np.int64)
+    d2, i = brute_knn(np.zeros((2, 4), np.float32), x, ix.mean_, ix.sqnorms_, 5, np.inf, ix.groups_, ix.frames_,
+                      z, z, -1, ids=ix.perm_, lean_max_rows=0)
+    assert i.tolist() == [[1, 2, 3, 4, 5]] * 2 and not d2.any()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("case", ["plain", "radius", "exclude", "ties", "clip_end"])
+def test_consecutive_queries_seeded_search_is_exact(case, workers):
+    # the kd-tree seeds each query's bound from the previous query's neighbours and their
+    # successor rows: smooth clips (the LNG's case), ties, radius, exclusion, the last rows
+    rng = np.random.default_rng(7)
+    t = np.arange(1200)
+    x = np.stack([np.sin(t / 17), np.cos(t / 11), np.sin(t / 5 + 1)], 1) + 0.01 * rng.normal(size=(1200, 3))
+    x = x.astype(np.float32)
+    if case == "ties":
+        x = np.round(x * 2).astype(np.float32)
+    groups, frames = t // 300, t % 300
+    rows = np.arange(1180, 1200) if case == "clip_end" else np.arange(400, 440)
+    ix = KDTreeIndex(method="kdtree", leafsize=8, workers=workers).build(x, groups=groups, frames=frames)
+    kw = {"radius": 0.3} if case == "radius" else {}
+    ref = {"radius": 0.3} if case == "radius" else {}
+    if case == "exclude":
+        d, i = ix.query_rows(rows, 25, exclude=4)
+        ref = dict(groups=groups, frames=frames, query_groups=groups[rows], query_frames=frames[rows], exclude=4)
+    else:
+        d, i = ix.query(x[rows] + np.float32(0.003), 25, **kw)
+    d0, i0 = knn(x, x[rows] + (0 if case == "exclude" else np.float32(0.003)), 25, **ref)
+    np.testing.assert_array_equal(i, i0)
+    np.testing.assert_allclose(d, d0, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("case", ["clustered", "ties", "radius", "exclude"])
+def test_brute_single_query_lean_path_is_exact(case):
+    # up to 4 queries take the lean brute path (GEMV, partition, exact re-rank), more the blocked one
+    rng = np.random.default_rng(8)
+    x = _clustered(rng, 3000, 9) if case != "ties" else rng.integers(0, 3, size=(3000, 4)).astype(np.float32)
+    groups, frames = np.arange(3000) // 500, np.arange(3000) % 500
+    ix = KDTreeIndex(method="brute").build(x, groups=groups, frames=frames)
+    rows = rng.choice(3000, 12, replace=False)
+    kw, ref = {}, {}
+    if case == "radius":
+        kw = ref = {"radius": 0.12}
+    if case == "exclude":
+        kw = dict(exclude=30, query_groups=groups[rows], query_frames=frames[rows])
+        ref = dict(groups=groups, frames=frames, query_groups=groups[rows], query_frames=frames[rows], exclude=30)
+    d0, i0 = knn(x, x[rows], 40, **ref)
+    for a in range(0, 12, 3):  # three queries per call: the lean path
+        sub = {key: (v[a:a + 3] if key.startswith("query_") else v) for key, v in kw.items()}
+        d, i = ix.query(x[rows[a:a + 3]], 40, **sub)
+        np.testing.assert_array_equal(i, i0[a:a + 3])
+        np.testing.assert_allclose(d, d0[a:a + 3], rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(ix.query(x[rows], 40, **kw)[1], i0)  # the blocked path agrees
+
+
+@pytest.mark.parametrize("case", ["clustered", "ties", "radius", "exclude"])
+def test_blocked_brute_path_equals_naive(case):
+    # databases over lean_max_rows take the blocked path: force it on a small one
+    from mocapflow.plugins.indexes._brute import brute_knn
+
+    rng = np.random.default_rng(9)
+    x = _clustered(rng, 2500, 6) if case != "ties" else rng.integers(0, 3, size=(2500, 3)).astype(np.float32)
+    groups, frames = (np.arange(2500) // 400).astype(np.int32), (np.arange(2500) % 400).astype(np.int32)
+    rows = rng.choice(2500, 20, replace=False)
+    mean = x.mean(0, dtype=np.float64).astype(np.float32)
+    sqn = np.einsum("ij,ij->i", x - mean, x - mean)
+    r2 = 0.15 ** 2 if case == "radius" else np.inf
+    excl = 20 if case == "exclude" else -1
+    d2, i = brute_knn(x[rows], x, mean, sqn, 30, r2, groups, frames, groups[rows].astype(np.int64),
+                      frames[rows].astype(np.int64), excl, lean_max_rows=0, block_rows=700, block_queries=8)
+    ref = dict(groups=groups, frames=frames, query_groups=groups[rows], query_frames=frames[rows], exclude=20) \
+        if case == "exclude" else ({"radius": 0.15} if case == "radius" else {})
+    d0, i0 = knn(x, x[rows], 30, **ref)
+    np.testing.assert_array_equal(i, i0)
+    np.testing.assert_allclose(np.sqrt(d2), d0, rtol=1e-6, atol=1e-6)

@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _knn_kernels as kern
+from . import _brute_kernels as kern
 
 _U32 = 2.0 ** -24
 
 
 def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: np.ndarray, k: int, r2: float,
               groups: np.ndarray, frames: np.ndarray, qgroups: np.ndarray, qframes: np.ndarray,
-              excl: int, ids: np.ndarray | None = None, raw_bound: float | None = None, parallel: bool = True, cap: int | None = None, block_rows: int = 32768, block_queries: int = 128) -> tuple[np.ndarray, np.ndarray]:
+              excl: int, ids: np.ndarray | None = None, raw_bound: float | None = None, parallel: bool = True, cap: int | None = None, block_rows: int = 32768, block_queries: int = 128,
+              lean_max_rows: int = 262144) -> tuple[np.ndarray, np.ndarray]:
     """Exact kNN by blocks (see module doc).
 
     Parameters
@@ -47,6 +48,8 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
     """
     m, d = queries.shape
     n = data.shape[0]
+    if n <= lean_max_rows and cap is None:
+        return lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qframes, excl, ids, raw_bound)
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     ymax = float(sqnorms.max()) if n else 0.0
@@ -103,6 +106,41 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
                                ids=ids, raw_bound=yraw, parallel=parallel, cap=min(4 * cap, n + 1),
                                block_rows=block_rows, block_queries=block_queries)
             out_d[q0 + redo], out_i[q0 + redo] = d2, i2
+    return out_d, out_i
+
+
+def lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qframes, excl, ids=None,
+             raw_bound=None, block_queries=16):
+    """:func:`brute_knn` over a small database, with little per-call work.
+
+    One GEMM per block of queries gives the approximate squared distances of all rows (same
+    error bound as the blocked path); one kernel per query (:func:`.lean_rank`) finds the
+    approximate k-th and re-ranks the rows within ``2 tol`` of it with exact float64
+    distances (summed in dimension order like the kd-tree), ties ordered by id.
+    Exact, like :func:`brute_knn`; memory ``block_queries x n`` float32.
+    """
+    m, d = queries.shape
+    n = data.shape[0]
+    out_d = np.full((m, k), np.inf)
+    out_i = np.full((m, k), -1, np.int64)
+    ymax = float(sqnorms.max())
+    yraw = raw_bound if raw_bound is not None else float(raw_sqnorm_bound(data))
+    ids = np.arange(n, dtype=np.int64) if ids is None else ids
+    for q0 in range(0, m, block_queries):
+        qc = queries[q0:q0 + block_queries] - mean
+        qc64 = qc.astype(np.float64)
+        qn = np.einsum("ij,ij->i", qc64, qc64)
+        const = qn + 2.0 * (qc64 @ mean.astype(np.float64))
+        tol2 = 4.0 * (d + 4) * _U32 * (qn + ymax + 2.0 * np.sqrt(qn * yraw)) + 1e-30
+        a = qc @ data.T  # float32 GEMM, (block, n)
+        a *= -2.0
+        a += sqnorms
+        lim = r2 - const + tol2
+        for r in range(len(qc)):
+            dd, ii = kern.lean_rank(a[r], lim[r], 2.0 * tol2[r], k, queries[q0 + r], data, ids, r2, excl, groups,
+                                    frames, qgroups[q0 + r], qframes[q0 + r])
+            out_d[q0 + r, :len(dd)] = dd
+            out_i[q0 + r, :len(ii)] = ii
     return out_d, out_i
 
 

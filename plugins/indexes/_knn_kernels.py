@@ -193,8 +193,34 @@ def _search(q, data, perm, start, end, left, right, sdim, sval, groups, frames, 
 
 
 @njit(cache=True)
+def _seed_bound(q, prev, shift, data, inv, groups, frames, qg, qf, excl):
+    """Largest squared distance from ``q`` to the rows ``prev + shift`` (input ids), or inf.
+
+    ``prev`` holds the k distinct neighbours of the previous query; if all ``k`` shifted
+    rows exist and none is excluded, at least ``k`` rows lie within the returned value, so
+    it bounds the k-th nearest distance from above and can prune an exact search.
+    """
+    n, d = data.shape
+    worst = 0.0
+    for a in range(prev.shape[0]):
+        row = prev[a] + shift
+        if prev[a] < 0 or row >= n:
+            return np.inf
+        t = inv[row]
+        if excl >= 0 and groups[t] == qg and abs(frames[t] - qf) <= excl:
+            return np.inf
+        acc = 0.0
+        for j in range(d):  # summed exactly as in _search: the seeds themselves pass the bound
+            diff = np.float64(data[t, j]) - q[j]
+            acc += diff * diff
+        if acc > worst:
+            worst = acc
+    return worst
+
+
+@njit(cache=True)
 def _query_rows(lo, hi, queries, k, eps_fac, r2, data, perm, start, end, left, right, sdim, sval,
-                groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i):
+                groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i, inv):
     d = queries.shape[1]
     hd = np.empty(k)
     hi_ = np.empty(k, np.int64)
@@ -208,8 +234,14 @@ def _query_rows(lo, hi, queries, k, eps_fac, r2, data, perm, start, end, left, r
         hi_[:] = _IMAX
         for j in range(d):
             q[j] = queries[r, j]
+        bound = r2
+        if inv.shape[0] > 0 and r > lo:  # exact searches of consecutive queries: seed the bound
+            for shift in (1, 0):  # the successors of the previous neighbours, then themselves
+                b = _seed_bound(q, out_i[r - 1], shift, data, inv, groups, frames, qgroups[r], qframes[r], excl)
+                if b < bound:
+                    bound = b
         _search(q, data, perm, start, end, left, right, sdim, sval, groups, frames,
-                qgroups[r], qframes[r], excl, hd, hi_, eps_fac, r2, st_node, st_rd, st_off, cur_off)
+                qgroups[r], qframes[r], excl, hd, hi_, eps_fac, bound, st_node, st_rd, st_off, cur_off)
         order = np.argsort(hd, kind="mergesort")
         for a in range(k):
             out_d[r, a] = hd[order[a]]
@@ -228,10 +260,13 @@ def _query_rows(lo, hi, queries, k, eps_fac, r2, data, perm, start, end, left, r
 
 @njit(cache=True, parallel=True)
 def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, sval,
-               groups, frames, qgroups, qframes, excl, max_depth, n_chunks):
+               groups, frames, qgroups, qframes, excl, max_depth, n_chunks, inv):
     """kNN of every query row; returns squared distances (float64) and row ids, sorted.
 
     ``n_chunks <= 1`` runs on the calling thread (single queries: no thread wake-up).
+    ``inv`` (input id -> tree position; empty to disable, and it must be empty for
+    ``eps > 0``) lets each query after the first of its chunk start from the bound of
+    :func:`_seed_bound` (exact: consecutive query frames have nearby neighbours).
     """
     m = queries.shape[0]
     out_d = np.full((m, k), np.inf)
@@ -239,11 +274,11 @@ def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, s
     eps_fac = (1.0 + eps) * (1.0 + eps)
     if n_chunks <= 1:
         _query_rows(0, m, queries, k, eps_fac, r2, data, perm, start, end, left, right, sdim, sval,
-                    groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i)
+                    groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i, inv)
         return out_d, out_i
     for c in prange(n_chunks):
         _query_rows(c * m // n_chunks, (c + 1) * m // n_chunks, queries, k, eps_fac, r2, data, perm, start,
-                    end, left, right, sdim, sval, groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i)
+                    end, left, right, sdim, sval, groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i, inv)
     return out_d, out_i
 
 
@@ -265,87 +300,10 @@ def set_threads(workers: int | None) -> int:
     """Set numba's thread count for the next parallel call; returns the previous one."""
     prev = numba.get_num_threads()
     n = numba.config.NUMBA_NUM_THREADS if workers is None or workers < 1 else min(workers, numba.config.NUMBA_NUM_THREADS)
-    numba.set_num_threads(n)
+    if n != prev:  # setting takes locks: skip it on the (usual) unchanged path
+        numba.set_num_threads(n)
     return prev
 
 
 def threads() -> int:
     return numba.get_num_threads()
-
-
-@njit(cache=True)
-def _maxheap_replace(h, v):
-    k = h.shape[0]
-    pos = 0
-    while True:
-        c = 2 * pos + 1
-        if c >= k:
-            break
-        if c + 1 < k and h[c + 1] > h[c]:
-            c += 1
-        if h[c] > v:
-            h[pos] = h[c]
-            pos = c
-        else:
-            break
-    h[pos] = v
-
-
-@njit(cache=True)
-def _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-              excl, groups, frames, qg, qf):
-    b = g.shape[1]
-    cap = cand_i.shape[1]
-    h = heap[r]
-    n = cand_n[r]
-    for j in range(b):
-        a = np.float64(sqn[y0 + j]) - 2.0 * np.float64(g[r, j]) + const[r]
-        if a > h[0] + tol2[r] or a > r2tol[r]:
-            continue
-        if excl >= 0 and groups[y0 + j] == qg[r] and abs(frames[y0 + j] - qf[r]) <= excl:
-            continue
-        if a < h[0]:
-            _maxheap_replace(h, a)
-        if n == cap:
-            lim = h[0] + tol2[r]
-            m = 0
-            for t in range(n):
-                if cand_v[r, t] <= lim:
-                    cand_i[r, m] = cand_i[r, t]
-                    cand_v[r, m] = cand_v[r, t]
-                    m += 1
-            n = m
-            if n > cap // 2:  # compaction freed little: stop before it turns quadratic
-                overflow[r] = True
-                break
-        cand_i[r, n] = y0 + j
-        cand_v[r, n] = a
-        n += 1
-    cand_n[r] = n
-
-
-@njit(cache=True, parallel=True)
-def scan_block(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-               excl, groups, frames, qg, qf):
-    """One data block of the blocked brute force (see :mod:`._brute`), fused in one pass.
-
-    ``g (nq, B)`` holds ``q_c . y`` for rows ``y0 .. y0 + B``; the approximate squared
-    distance is ``sqn[y] - 2 g + const[q]``. ``heap (nq, k)`` (max-heap of approximate
-    values) keeps the running k-th value; a row enters the candidate buffer when it is
-    within ``tol2`` of it. A full buffer is compacted; if that frees less than half of it the
-    query is flagged in ``overflow`` and the caller retries it with a larger buffer.
-    """
-    for r in prange(g.shape[0]):
-        if not overflow[r]:
-            _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-                      excl, groups, frames, qg, qf)
-
-
-@njit(cache=True)
-def scan_block_serial(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-                      excl, groups, frames, qg, qf):
-    """:func:`scan_block` on one thread (few queries: waking threads costs more than it saves)."""
-    for r in range(g.shape[0]):
-        if not overflow[r]:
-            _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-                      excl, groups, frames, qg, qf)

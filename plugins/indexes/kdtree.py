@@ -4,13 +4,20 @@ The kNN index of Krüger et al. 2010 §3.3 (they used ANN). A float32 kd-tree of
 (numba, :mod:`._knn_kernels`) so that the features are stored once in float32 and the tree
 can be saved and loaded as plain arrays, without a rebuild. For feature sets of high
 intrinsic dimension a kd-tree degenerates to a slow linear scan; there an exact BLAS brute
-force in blocks (:mod:`._brute`) is faster. With ``method: auto`` a probe at build time
-times both on a sample of the indexed rows, for 16 and 256 neighbours, and keeps the
-faster one (a kd-tree's cost grows with k, the brute force's hardly: where the tree wins at
-16 and loses at 256, queries from ``brute_from_k_`` neighbours on use the brute force);
-``method_``, ``brute_from_k_`` and ``probe_`` say what was chosen and why, and the step's
-summary repeats them. Both methods are exact (ties ordered by row id); only an explicit
-``eps > 0`` makes a search approximate.
+force in blocks (:mod:`._brute`) is faster (single queries over small databases take its
+lean path: one GEMV, a partition, an exact re-ranking of the few candidates). With
+``method: auto`` a probe at build time times both on a sample of the indexed rows, for 16
+and 256 neighbours, and keeps the faster (a kd-tree's cost grows with k, the brute force's hardly: where one method wins at
+16 and another at 256, queries from ``brute_from_k_`` neighbours on use ``large_method_``);
+``method_``, ``brute_from_k_``, ``large_method_`` and ``probe_`` say what was chosen and
+why, and the step's summary repeats them. Both methods are exact (ties ordered by row id);
+only an explicit ``eps > 0`` makes a search approximate.
+
+Sequences of queries (the lazy neighborhood graph asks for the neighbours of consecutive
+query frames) are cheaper on the kd-tree: each query's search starts with the k-th
+distance from it to the previous query's neighbours and to their successor rows as its
+pruning bound, which is exact (at least k rows lie within it) and much tighter than the
+empty heap's.
 """
 from __future__ import annotations
 
@@ -62,9 +69,11 @@ class KDTreeIndex(Index):
     method_ : {"kdtree", "brute"}
         The search method in use (chosen by the probe when ``method: auto``).
     brute_from_k_ : int or None
-        With ``method_ == "kdtree"``: from this many neighbours on, the probe found the brute
-        force faster, and it answers those queries (:meth:`method_for`). ε-approximate
-        queries (``eps > 0``) always use the kd-tree.
+        From this many neighbours on, the probe found ``large_method_`` faster, and it answers
+        those queries (:meth:`method_for`). ε-approximate queries (``eps > 0``) always use the
+        kd-tree.
+    large_method_ : str
+        The method for ``k >= brute_from_k_`` (default ``"brute"``).
     probe_ : dict
         Probe timings, ms per query: ``<method>_single_ms`` (median of one-query calls) and
         ``<method>_batch_ms`` (one call for all probe rows), on one thread; empty if no probe ran.
@@ -124,7 +133,7 @@ class KDTreeIndex(Index):
             c = self.data_[a:a + 65536] - self.mean_
             self.sqnorms_[a:a + 65536] = np.einsum("ij,ij->i", c, c)
         self.probe_ = {}
-        self.method_, self.brute_from_k_ = self.params.method, None
+        self.method_, self.brute_from_k_, self.large_method_ = self.params.method, None, "brute"
         if self.method_ == "auto":
             self.method_ = self._probe() if n >= max(self.params.min_probe_rows, 1) else "kdtree"
         return self
@@ -142,10 +151,11 @@ class KDTreeIndex(Index):
         n = self.data_.shape[0]
         rng = np.random.default_rng(0)
         q = self.data_[rng.choice(n, size=min(self.params.probe_queries, n), replace=False)]
+        methods = ("kdtree", "brute")
         winners = []
         for k in sorted({min(k, n) for k in self.params.probe_k}):
             score = {}
-            for method in ("kdtree", "brute"):
+            for method in methods:
                 self._search(q[:2], k, None, 0.0, None, None, None, 1, method)  # warm-up (numba compile, caches)
                 single = []
                 for i in range(min(len(q), 16)):
@@ -158,21 +168,20 @@ class KDTreeIndex(Index):
                 self.probe_[f"{method}_single_ms@{k}"] = round(1000.0 * float(np.median(single)), 4)
                 self.probe_[f"{method}_batch_ms@{k}"] = round(1000.0 * batch, 4)
                 score[method] = float(np.median(single)) + batch
-            winners.append((k, "brute" if score["brute"] < score["kdtree"] else "kdtree"))
+            winners.append((k, min(score, key=score.get)))
         first = winners[0][1]
-        if first == "kdtree":
-            prev = winners[0][0]
-            for k, w in winners[1:]:
-                if w == "brute":
-                    self.brute_from_k_ = int(round(np.sqrt(prev * k)))
-                    break
-                prev = k
+        prev = winners[0][0]
+        for k, w in winners[1:]:
+            if w != first:
+                self.brute_from_k_, self.large_method_ = int(round(np.sqrt(prev * k))), w
+                break
+            prev = k
         return first
 
     def method_for(self, k: int) -> str:
         """The method that answers a query for ``k`` neighbours (``"kdtree"`` or ``"brute"``)."""
-        if self.method_ == "kdtree" and self.brute_from_k_ is not None and k >= self.brute_from_k_:
-            return "brute"
+        if self.brute_from_k_ is not None and k >= self.brute_from_k_:
+            return getattr(self, "large_method_", "brute")
         return self.method_
 
     # --- querying ---------------------------------------------------------------------
@@ -234,7 +243,6 @@ class KDTreeIndex(Index):
 
     def _search(self, q, k, radius, eps, exclude, qg, qf, workers, method):
         from . import _knn_kernels as kern
-        from ._brute import brute_knn, raw_sqnorm_bound
 
         m, n = len(q), self.data_.shape[0]
         if m == 0 or n == 0:
@@ -246,15 +254,22 @@ class KDTreeIndex(Index):
         qg, qf = np.ascontiguousarray(qg), np.ascontiguousarray(qf)
         prev = kern.set_threads(workers)
         try:
+            chunks = 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads())
             if method == "brute":
+                from ._brute import brute_knn, raw_sqnorm_bound
+
                 if getattr(self, "_raw_bound", None) is None:
                     self._raw_bound = raw_sqnorm_bound(self.data_)
                 return brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
                                  qg, qf, excl, ids=self.perm_, raw_bound=self._raw_bound,
                                  parallel=m >= 4 and kern.threads() > 1)
+            # consecutive queries seed each other's bound (see the module doc): contiguous chunks,
+            # one per thread, keep most queries seeded
+            seeded = eps == 0.0 and m > 1
             return kern.query_tree(q, k, eps, r2, self.data_, self.perm_, self.start_, self.end_, self.left_,
                                    self.right_, self.sdim_, self.sval_, self.groups_, self.frames_, qg, qf, excl,
-                                   self._max_depth(), 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads()))
+                                   self._max_depth(), min(chunks, kern.threads()) if seeded else chunks,
+                                   self._inverse_perm() if seeded else self.perm_[:0])
         finally:
             kern.set_threads(prev)
 
@@ -278,7 +293,8 @@ class KDTreeIndex(Index):
         for a in _ARRAYS:
             np.save(d / f"{a.rstrip('_')}.npy", getattr(self, a))
         meta = {"component": self.key(), "params": self.get_params(), "method": self.method_,
-                "brute_from_k": self.brute_from_k_, "probe": self.probe_}
+                "brute_from_k": self.brute_from_k_, "large_method": getattr(self, "large_method_", "brute"),
+                "probe": self.probe_}
         (d / "index.json").write_text(json.dumps(meta, indent=1))
 
     @classmethod
@@ -291,6 +307,7 @@ class KDTreeIndex(Index):
         for a in _ARRAYS:
             setattr(self, a, np.load(d / f"{a.rstrip('_')}.npy"))
         self.method_, self.probe_, self.brute_from_k_ = meta["method"], meta["probe"], meta.get("brute_from_k")
+        self.large_method_ = meta.get("large_method", "brute")
         return self
 
     # --- pipeline step ----------------------------------------------------------------
@@ -300,10 +317,11 @@ class KDTreeIndex(Index):
         feats = inputs["features"].features()
         self.build(feats.x, groups=feats.clip_id, frames=feats.frame)
         self.save(ctx.out_dir / "index")
-        summary = {"method": self.method_, "brute_from_k": self.brute_from_k_, "rows": int(feats.x.shape[0]),
+        summary = {"method": self.method_, "brute_from_k": self.brute_from_k_, "large_method": self.large_method_,
+                   "rows": int(feats.x.shape[0]),
                    "dim": int(feats.x.shape[1]), **self.probe_}
-        ctx.log.info("%s: %d x %d, method %s (brute force from k=%s) %s", self.key(), *feats.x.shape, self.method_,
-                     self.brute_from_k_, self.probe_)
+        ctx.log.info("%s: %d x %d, method %s (%s from k=%s) %s", self.key(), *feats.x.shape, self.method_,
+                     self.large_method_, self.brute_from_k_, self.probe_)
         return StepOutput({"data": frame_id_table(feats.clip_id, feats.frame)}, summary=summary)
 
 
