@@ -123,7 +123,7 @@ class KDTreeIndex(Index):
         perm, start, end, left, right, sdim, sval = kern.build_tree(x, self.params.leafsize) if n else (
             np.zeros(0, np.int64), *(np.zeros(1, np.int64),) * 2, *(np.full(1, -1, np.int64),) * 2,
             np.zeros(1, np.int32), np.zeros(1, np.float32))
-        self._inv = self._depth = self._raw_bound = None
+        self._inv = self._depth = self._raw_bound = self._boxes = None
         self.data_ = x[perm]
         self.perm_, self.groups_, self.frames_ = perm, g[perm], f[perm]
         self.start_, self.end_, self.left_, self.right_, self.sdim_, self.sval_ = start, end, left, right, sdim, sval
@@ -267,11 +267,25 @@ class KDTreeIndex(Index):
             # one per thread, keep most queries seeded
             seeded = eps == 0.0 and m > 1
             return kern.query_tree(q, k, eps, r2, self.data_, self.perm_, self.start_, self.end_, self.left_,
-                                   self.right_, self.sdim_, self.sval_, self.groups_, self.frames_, qg, qf, excl,
+                                   self.right_, self.sdim_, self.sval_, *self._node_boxes(), self.groups_,
+                                   self.frames_, qg, qf, excl,
                                    self._max_depth(), min(chunks, kern.threads()) if seeded else chunks,
                                    self._inverse_perm() if seeded else self.perm_[:0])
         finally:
             kern.set_threads(prev)
+
+    def _node_boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-node bounding boxes ``(lo, hi)`` (n_nodes, d) the search prunes on.
+
+        Not saved: they are derived from the stored points and node ranges in one O(n d)
+        pass on first use (30 ms and 10 MB at 380k rows, d = 15), so the on-disk format is
+        unchanged and indexes saved before boxes existed load as they are.
+        """
+        from . import _knn_kernels as kern
+
+        if getattr(self, "_boxes", None) is None:
+            self._boxes = kern.node_boxes(self.data_, self.start_, self.end_, self.left_, self.right_)
+        return self._boxes
 
     def _max_depth(self) -> int:
         from . import _knn_kernels as kern
