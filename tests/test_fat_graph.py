@@ -3,34 +3,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
 
-from mocapflow.framework import Index
 from mocapflow.plugins.analyses._fat_graph_kernels import greedy_cover
 from mocapflow.plugins.analyses.fat_graph import (
     BasePoses, FatGraph, clip_transitions, cluster_runs, select_base_poses,
 )
 from naive.fat_graph import all_pairs_neighbours
+from naive.knn import ckdtree_index_class
 from naive.fat_graph import clip_transitions as naive_transitions
 from naive.fat_graph import greedy_cover as naive_greedy
 
 
-class CKDTreeIndex(Index):
-    """Test adapter: scipy's cKDTree behind the Index contract (radius search capped at k)."""
-
-    name = "ckdtree_test"
-
-    def build(self, features):
-        self.tree_ = cKDTree(np.asarray(features, np.float64))
-        return self
-
-    def query(self, x, k, radius=None):
-        ub = np.inf if radius is None else radius * (1 + 1e-9)
-        d, i = self.tree_.query(np.asarray(x, np.float64), k=k, distance_upper_bound=ub)
-        d, i = d.reshape(len(x), k), i.reshape(len(x), k)
-        bad = ~np.isfinite(d)
-        i = np.where(bad, -1, i).astype(np.int64)
-        return d.astype(np.float32), i
+CKDTreeIndex = ckdtree_index_class()
 
 
 def test_index_adapter_matches_all_pairs():

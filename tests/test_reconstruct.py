@@ -3,9 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
 
-from mocapflow.framework import FeatureSet, Index, Motion, MotionDatabase
+from mocapflow.framework import FeatureSet, Motion, MotionDatabase
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.testing import synthetic_skeleton
@@ -13,22 +12,9 @@ from mocapflow.plugins.analyses.reconstruct import (
     PosePrior, PriorDatabase, ReconstructParams, joint_errors, local_poses, positions_to_motion,
     reconstruct_motion, reconstruct_positions, synthetic_markers,
 )
+from naive.knn import ckdtree_index_class
 
-
-class CKDTreeIndex(Index):
-    """Test adapter: scipy's cKDTree behind the Index contract."""
-
-    name = "ckdtree_test"
-
-    def build(self, features):
-        self.tree_ = cKDTree(np.asarray(features, np.float64))
-        return self
-
-    def query(self, x, k, radius=None):
-        d, i = self.tree_.query(np.asarray(x, np.float64), k=k,
-                                distance_upper_bound=np.inf if radius is None else radius)
-        d, i = d.reshape(len(x), k), i.reshape(len(x), k)
-        return d.astype(np.float32), np.where(np.isfinite(d), i, -1).astype(np.int64)
+CKDTreeIndex = ckdtree_index_class()
 
 
 class EndEffectors15(FeatureSet):

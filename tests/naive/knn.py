@@ -25,3 +25,28 @@ def knn(data, queries, k, radius=None, groups=None, frames=None, query_groups=No
         out_d[r, :len(rows)] = np.sqrt(d2[rows])
         out_i[r, :len(rows)] = rows
     return out_d, out_i
+
+
+def ckdtree_index_class():
+    """scipy's cKDTree behind the Index contract (radius search capped at k, inclusive
+    radius), a reference index for tests of components that take any Index."""
+    from scipy.spatial import cKDTree
+
+    from mocapflow.framework import Index
+
+    class CKDTreeIndex(Index):
+        """Test adapter: scipy's cKDTree behind the Index contract (radius search capped at k)."""
+
+        name = "ckdtree_test"
+
+        def build(self, features):
+            self.tree_ = cKDTree(np.asarray(features, np.float64))
+            return self
+
+        def query(self, x, k, radius=None):
+            ub = np.inf if radius is None else radius * (1 + 1e-9)
+            d, i = self.tree_.query(np.asarray(x, np.float64), k=k, distance_upper_bound=ub)
+            d, i = d.reshape(len(x), k), i.reshape(len(x), k)
+            return d.astype(np.float32), np.where(np.isfinite(d), i, -1).astype(np.int64)
+
+    return CKDTreeIndex
