@@ -9,7 +9,7 @@ import glob
 import hashlib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -42,39 +42,29 @@ def _expand(patterns: list[str], base: Path, exclude: list[str]) -> list[Path]:
     return [found[k] for k in sorted(found) if k not in excluded]
 
 
-def _read_markers(job: tuple[type, dict[str, Any], str]) -> Markers | tuple[str, int | None, str]:
-    """Read one marker file; a failure comes back as ``(path, line, message)``."""
-    cls, params, path = job
-    try:
-        markers = cls(params).read(path)
-        if not isinstance(markers, Markers):
-            return (path, None, f"{cls.key()} produced {type(markers).__name__}, not Markers")
-        return markers
-    except ParseError as exc:
-        return (exc.path, exc.line, exc.message)
-    except (MocapflowError, OSError, ValueError) as exc:
-        return (path, None, f"{type(exc).__name__}: {exc}")
+def _prepare_motion(motion: Motion, path: str, fps: float | None) -> Motion | tuple[str, int | None, str]:
+    """Check the canonical joints, complete the metadata and resample one read motion."""
+    missing = missing_required(motion.skeleton.canonical)
+    if missing:
+        return (path, None, f"skeleton lacks required joints {', '.join(missing)} (extend framework/joints.py maps)")
+    if "checksum" not in motion.metadata:
+        motion.metadata["checksum"] = hashlib.sha1(Path(path).read_bytes()).hexdigest()
+    motion.metadata.setdefault("path", path)
+    motion.metadata.setdefault("source_fps", motion.fps)
+    motion.metadata.setdefault("source_frames", motion.n_frames)
+    return resample(motion, fps) if fps else motion
 
 
-def _read_one(job: tuple[type, dict[str, Any], str, float | None]) -> Motion | tuple[str, int | None, str]:
-    """Read (and resample) one file; a failure comes back as ``(path, line, message)``.
-
-    Module-level so that process pools can pickle it.
-    """
+def _read_file(job: tuple[type, dict[str, Any], str, float | None]) -> Motion | Markers | tuple[str, int | None, str]:
+    """Read one file (motions are also checked and resampled to ``fps``); a failure comes
+    back as ``(path, line, message)``. Module-level so that process pools can pickle it."""
     cls, params, path, fps = job
+    expected = Motion if cls.produces == "motion" else Markers
     try:
-        motion = cls(params).read(path)
-        if not isinstance(motion, Motion):
-            return (path, None, f"{cls.key()} produced {type(motion).__name__}, not a skeletal Motion")
-        missing = missing_required(motion.skeleton.canonical)
-        if missing:
-            return (path, None, f"skeleton lacks required joints {', '.join(missing)} (extend framework/joints.py maps)")
-        if "checksum" not in motion.metadata:
-            motion.metadata["checksum"] = hashlib.sha1(Path(path).read_bytes()).hexdigest()
-        motion.metadata.setdefault("path", path)
-        motion.metadata.setdefault("source_fps", motion.fps)
-        motion.metadata.setdefault("source_frames", motion.n_frames)
-        return resample(motion, fps) if fps else motion
+        obj = cls(params).read(path)
+        if not isinstance(obj, expected):
+            return (path, None, f"{cls.key()} produced {type(obj).__name__}, not {expected.__name__}")
+        return _prepare_motion(obj, path, fps) if isinstance(obj, Motion) else obj
     except ParseError as exc:
         return (exc.path, exc.line, exc.message)
     except MocapflowError as exc:
@@ -83,21 +73,18 @@ def _read_one(job: tuple[type, dict[str, Any], str, float | None]) -> Motion | t
         return (path, None, f"{type(exc).__name__}: {exc}")
 
 
-class LoadMotions(Format):
-    """Ingest motion files (mixed formats) into a motions dataset.
+class _FileIngest(Format):
+    """Shared machinery of the ingest steps: globbing, reader lookup by extension in the
+    ``formats`` registry, per-file fan-out with failures collected as rejects, fingerprints."""
 
-    Tables: ``data`` (one row per frame), ``clips``, ``skeletons``, ``rejects`` (file, line,
-    message of every file that failed; the step goes on unless ``on_error: fail``).
-    """
-
-    name = "load"
     is_step = True
     inputs: Mapping[str, bool] = {}
+    #: which readers the step uses: those whose ``produces`` equals this
+    reads: ClassVar[str] = "motion"
 
     class Params(Params):
         paths: list[str] = Field(min_length=1, description="glob patterns (** recursive), relative to the pipeline file")
         exclude: list[str] = Field(default_factory=list, description="glob patterns of files to leave out")
-        fps: float | None = Field(default=None, gt=0, description="resample every clip to this rate (Hz)")
         on_error: Literal["record", "fail"] = Field("record", description="record bad files in `rejects`, or stop")
         readers: dict[str, dict[str, Any]] = Field(default_factory=dict, description="per-format reader parameters, e.g. {amc: {fps: 120}}")
 
@@ -107,7 +94,7 @@ class LoadMotions(Format):
     def source_fingerprint(self, base_dir: Path) -> str:
         h = hashlib.sha256()
         for f in self._files(base_dir):
-            # readers also read skeleton files beside the motions (.asf)
+            # AMC readers also read the skeleton files beside the motions (.asf)
             for g in [f, *sorted(f.parent.glob("*.asf"))] if f.suffix.lower() == ".amc" else [f]:
                 try:
                     st = g.stat()
@@ -116,40 +103,57 @@ class LoadMotions(Format):
                     h.update(f"{g}|missing\n".encode())
         return h.hexdigest()[:24]
 
-    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+    def _read_all(self, ctx: StepContext, fps: float | None = None) -> tuple[list[Any], list[tuple], int, int]:
+        """``(objects, rejects, files read, files skipped)``; raises on the first reject with
+        ``on_error: fail``."""
         by_ext: dict[str, type] = {}
         for _, cls in ctx.registries["formats"]:
-            if getattr(cls, "produces", "") == "motion":
+            if getattr(cls, "produces", "") == self.reads:
                 for ext in cls.extensions:
                     by_ext.setdefault(ext.lower(), cls)
         files = self._files(ctx.base_dir)
-        if not files:
-            raise PipelineError(f"no file matches {self.params.paths} (relative to {ctx.base_dir})")
-        jobs, skipped = [], []
-        for f in files:
-            cls = by_ext.get(f.suffix.lower())
-            if cls is None:
-                skipped.append(str(f))
-                continue
-            jobs.append((cls, self.params.readers.get(cls.name, {}), str(f), self.params.fps))
-        results = ctx.map(_read_one, jobs, desc=f"{ctx.step_id}: reading")
-        motions = [r for r in results if isinstance(r, Motion)]
-        rejects = [r for r in results if not isinstance(r, Motion)]
+        jobs = [(by_ext[f.suffix.lower()], self.params.readers.get(by_ext[f.suffix.lower()].name, {}), str(f), fps)
+                for f in files if f.suffix.lower() in by_ext]
+        if not jobs:
+            raise PipelineError(f"no {self.reads} file matches {self.params.paths} (relative to {ctx.base_dir})")
+        results = ctx.map(_read_file, jobs, desc=f"{ctx.step_id}: reading")
+        good = [r for r in results if not isinstance(r, tuple)]
+        rejects = [r for r in results if isinstance(r, tuple)]
         if rejects and self.params.on_error == "fail":
-            path, line, msg = rejects[0]
-            raise ParseError(path, line, msg)
+            raise ParseError(*rejects[0])
+        return good, rejects, len(jobs), len(files) - len(jobs)
+
+    @staticmethod
+    def _rejects_table(rejects: list[tuple]) -> pa.Table:
+        return pa.Table.from_pylist([{"path": p, "line": ln, "message": m} for p, ln, m in rejects], schema=schema.REJECTS)
+
+
+class LoadMotions(_FileIngest):
+    """Ingest motion files (mixed formats) into a motions dataset.
+
+    Tables: ``data`` (one row per frame), ``clips``, ``skeletons``, ``rejects`` (file, line,
+    message of every file that failed; the step goes on unless ``on_error: fail``).
+    Files with an extension no motion reader handles are counted as ``skipped_files``.
+    """
+
+    name = "load"
+    reads = "motion"
+
+    class Params(_FileIngest.Params):
+        fps: float | None = Field(default=None, gt=0, description="resample every clip to this rate (Hz)")
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        motions, rejects, n_files, skipped = self._read_all(ctx, self.params.fps)
         tables = motions_to_tables(motions)
-        tables["rejects"] = pa.Table.from_pylist(
-            [{"path": p, "line": ln, "message": m} for p, ln, m in rejects], schema=schema.REJECTS
-        )
+        tables["rejects"] = self._rejects_table(rejects)
         summary = {
-            "files": len(jobs), "clips": len(motions), "frames": int(sum(m.n_frames for m in motions)),
-            "rejects": len(rejects), "skipped_files": len(skipped),
+            "files": n_files, "clips": len(motions), "frames": int(sum(m.n_frames for m in motions)),
+            "rejects": len(rejects), "skipped_files": skipped,
         }
         return StepOutput(tables, summary)
 
 
-class LoadMarkers(Format):
+class LoadMarkers(_FileIngest):
     """Ingest marker files (C3D, TRC...) into a markers dataset.
 
     Tables: ``data`` (clip_id, frame, ``positions``: the clip's M*3 marker coordinates in
@@ -158,35 +162,10 @@ class LoadMarkers(Format):
     """
 
     name = "load_markers"
-    is_step = True
-    inputs: Mapping[str, bool] = {}
-
-    class Params(Params):
-        paths: list[str] = Field(min_length=1, description="glob patterns (** recursive), relative to the pipeline file")
-        exclude: list[str] = Field(default_factory=list, description="glob patterns of files to leave out")
-        on_error: Literal["record", "fail"] = Field("record", description="record bad files in `rejects`, or stop")
-        readers: dict[str, dict[str, Any]] = Field(default_factory=dict, description="per-format reader parameters, e.g. {c3d: {y_up: true}}")
-
-    def source_fingerprint(self, base_dir: Path) -> str:
-        h = hashlib.sha256()
-        for f in _expand(self.params.paths, base_dir, self.params.exclude):
-            st = f.stat()
-            h.update(f"{f}|{st.st_size}|{st.st_mtime_ns}\n".encode())
-        return h.hexdigest()[:24]
+    reads = "markers"
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        by_ext = {ext.lower(): cls for _, cls in ctx.registries["formats"]
-                  if getattr(cls, "produces", "") == "markers" for ext in cls.extensions}
-        files = _expand(self.params.paths, ctx.base_dir, self.params.exclude)
-        jobs = [(by_ext[f.suffix.lower()], self.params.readers.get(by_ext[f.suffix.lower()].name, {}), str(f))
-                for f in files if f.suffix.lower() in by_ext]
-        if not jobs:
-            raise PipelineError(f"no marker file matches {self.params.paths} (relative to {ctx.base_dir})")
-        results = ctx.map(_read_markers, jobs, desc=f"{ctx.step_id}: reading")
-        good = [r for r in results if isinstance(r, Markers)]
-        rejects = [r for r in results if not isinstance(r, Markers)]
-        if rejects and self.params.on_error == "fail":
-            raise ParseError(*rejects[0])
+        good, rejects, n_files, _ = self._read_all(ctx)
         frames, clips = [], []
         for cid, mk in enumerate(good):
             t, m = mk.n_frames, mk.n_markers
@@ -206,9 +185,9 @@ class LoadMarkers(Format):
         tables = {
             "data": data,
             "clips": pa.Table.from_pylist(clips, schema=clip_schema),
-            "rejects": pa.Table.from_pylist([{"path": p, "line": ln, "message": msg} for p, ln, msg in rejects], schema=schema.REJECTS),
+            "rejects": self._rejects_table(rejects),
         }
-        return StepOutput(tables, {"files": len(jobs), "clips": len(good), "rejects": len(rejects)})
+        return StepOutput(tables, {"files": n_files, "clips": len(good), "rejects": len(rejects)})
 
 
 class ExportMotions(Format):
