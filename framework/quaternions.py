@@ -196,3 +196,27 @@ def yaw_angle(q: np.ndarray, forward: np.ndarray | None = None) -> np.ndarray:
     f = np.array([0.0, 0.0, 1.0]) if forward is None else np.asarray(forward, dtype=float)
     v = rotate(q, np.broadcast_to(f, np.shape(q)[:-1] + (3,)))
     return np.arctan2(v[..., 0], v[..., 2])
+
+
+def mean_of_outer(outer: np.ndarray) -> np.ndarray:
+    """Chordal L2 mean from accumulated outer products.
+
+    Parameters
+    ----------
+    outer : ndarray of shape (..., 4, 4)
+        ``sum q q^T`` over the samples (sign-invariant, so antipodal quaternions agree).
+
+    Returns
+    -------
+    ndarray of shape (..., 4)
+        The principal eigenvectors, unit quaternions with ``w >= 0`` (Markley et al. 2007).
+    """
+    _, vecs = np.linalg.eigh(outer)
+    q = vecs[..., :, -1]
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def chordal_mean(q: np.ndarray) -> np.ndarray:
+    """Chordal L2 mean of unit quaternions ``(n, 4)`` -> ``(4,)``."""
+    q = np.asarray(q, dtype=float)
+    return mean_of_outer(q.T @ q)

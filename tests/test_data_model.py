@@ -129,3 +129,16 @@ def test_skeleton_serialisation_round_trip():
     again = Skeleton.from_dict(sk.to_dict())
     assert again == sk and again.fingerprint() == sk.fingerprint()
     assert again.canonical == sk.canonical
+
+
+def test_chordal_mean_is_sign_invariant_and_central():
+    rng = np.random.default_rng(9)
+    centre = quat.normalize(rng.normal(size=4))
+    axes = rng.normal(size=(50, 3))
+    small = quat.from_axis_angle(axes / np.linalg.norm(axes, axis=1, keepdims=True), rng.uniform(0, 0.2, 50))
+    samples = quat.mul(centre, small)
+    flipped = np.where(rng.uniform(size=(50, 1)) < 0.5, -samples, samples)
+    m = quat.chordal_mean(flipped)
+    assert m[0] >= 0
+    assert quat.geodesic_angle(m, centre) < 0.05
+    np.testing.assert_allclose(quat.mean_of_outer(np.einsum("ni,nj->ij", samples, samples)), m, atol=1e-12)

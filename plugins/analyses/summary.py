@@ -26,14 +26,6 @@ from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.plugins import hookimpl
 
 
-def chordal_mean(q: np.ndarray) -> np.ndarray:
-    """Chordal L2 mean of unit quaternions ``(T, 4)``: the principal eigenvector of sum q q^T."""
-    m = q.T @ q
-    w, v = np.linalg.eigh(m)
-    mean = v[:, -1]
-    return mean if mean[0] >= 0 else -mean
-
-
 def joint_range_of_motion(motion: Motion) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Per canonical joint: (rom_deg, mean_deg, names); see the module docstring."""
     names, rom, mean = [], [], []
@@ -42,7 +34,7 @@ def joint_range_of_motion(motion: Motion) -> tuple[np.ndarray, np.ndarray, list[
         if j is None:
             continue
         q = motion.rotations[:, j]
-        centre = chordal_mean(q)
+        centre = quat.chordal_mean(q)
         ang = np.rad2deg(quat.geodesic_angle(q, centre[None, :]))
         # farthest frame from the mean, then the farthest frame from it: a 2-sweep diameter estimate
         far = q[int(np.argmax(ang))]

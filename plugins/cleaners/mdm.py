@@ -55,7 +55,7 @@ from mocapflow.framework.errors import ConfigError, DataError
 from mocapflow.framework.motion import Motion
 
 from .knn import ContextTextures, WordNeighbours, knn_search
-from .motion_words import (DEFAULT_GROUPS, DEFAULT_JOINTS, Texture, chordal_mean, motion_texture, resolve_groups,
+from .motion_words import (DEFAULT_GROUPS, DEFAULT_JOINTS, Texture, motion_texture, resolve_groups,
                            source_word_starts)
 
 
@@ -254,7 +254,7 @@ def digression_from_outer(q: np.ndarray, outer: np.ndarray, count: np.ndarray, p
     else:
         covered = count > 0
         if covered.any():
-            mean_q[covered] = chordal_mean(outer[covered])
+            mean_q[covered] = quat.mean_of_outer(outer[covered])
         diff = np.where(covered, quat.geodesic_angle(q, mean_q), 0.0)
         spread = knn_spread(outer, count)
     scale = row_scale(diff, q, spread, p)

@@ -229,20 +229,3 @@ def target_word_layout(clip_lengths: Sequence[int], source_length: int, target_l
     if not lengths:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     return np.concatenate(lengths), np.concatenate(clips)
-
-
-def chordal_mean(outer: np.ndarray) -> np.ndarray:
-    """Principal eigenvectors of accumulated ``sum q q^T`` matrices, shape (..., 4).
-
-    Parameters
-    ----------
-    outer : ndarray of shape (..., 4, 4)
-
-    Returns
-    -------
-    ndarray of shape (..., 4)
-        Unit quaternions with ``w >= 0``; the chordal L2 mean of the accumulated samples.
-    """
-    _, vecs = np.linalg.eigh(outer)
-    q = vecs[..., :, -1]
-    return np.where(q[..., :1] < 0, -q, q)
