@@ -175,7 +175,7 @@ def test_consecutive_queries_seeded_search_is_exact(case, workers):
 
 @pytest.mark.parametrize("case", ["clustered", "ties", "radius", "exclude"])
 def test_brute_single_query_lean_path_is_exact(case):
-    # up to 4 queries take the lean brute path (GEMV, partition, exact re-rank), more the blocked one
+    # small databases take the lean brute path (GEMV, sampled k-th, exact re-rank)
     rng = np.random.default_rng(8)
     x = _clustered(rng, 3000, 9) if case != "ties" else rng.integers(0, 3, size=(3000, 4)).astype(np.float32)
     groups, frames = np.arange(3000) // 500, np.arange(3000) % 500
@@ -187,13 +187,16 @@ def test_brute_single_query_lean_path_is_exact(case):
     if case == "exclude":
         kw = dict(exclude=30, query_groups=groups[rows], query_frames=frames[rows])
         ref = dict(groups=groups, frames=frames, query_groups=groups[rows], query_frames=frames[rows], exclude=30)
-    d0, i0 = knn(x, x[rows], 40, **ref)
-    for a in range(0, 12, 3):  # three queries per call: the lean path
-        sub = {key: (v[a:a + 3] if key.startswith("query_") else v) for key, v in kw.items()}
-        d, i = ix.query(x[rows[a:a + 3]], 40, **sub)
-        np.testing.assert_array_equal(i, i0[a:a + 3])
-        np.testing.assert_allclose(d, d0[a:a + 3], rtol=1e-6, atol=1e-6)
-    np.testing.assert_array_equal(ix.query(x[rows], 40, **kw)[1], i0)  # the blocked path agrees
+    # k = 1 / 40 / 300: sampled threshold; 400 > n / 8: the full heap; ties overflow the buffer
+    for k in (1, 40, 300, 400):
+        d0, i0 = knn(x, x[rows], k, **ref)
+        for per_call in (1, 3):  # one query per call: one compiled call; three: one GEMM per block
+            for a in range(0, 12, per_call):
+                sub = {key: (v[a:a + per_call] if key.startswith("query_") else v) for key, v in kw.items()}
+                d, i = ix.query(x[rows[a:a + per_call]], k, **sub)
+                np.testing.assert_array_equal(i, i0[a:a + per_call])
+                np.testing.assert_allclose(d, d0[a:a + per_call], rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(ix.query(x[rows], k, **kw)[1], i0)  # the blocked path agrees
 
 
 @pytest.mark.parametrize("case", ["clustered", "ties", "radius", "exclude"])

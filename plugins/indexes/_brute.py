@@ -126,6 +126,13 @@ def lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qfram
     ymax = float(sqnorms.max())
     yraw = raw_bound if raw_bound is not None else float(raw_sqnorm_bound(data))
     ids = np.arange(n, dtype=np.int64) if ids is None else ids
+    if m <= 2:  # interactive queries: one compiled call each, no per-call numpy work
+        for r in range(m):
+            dd, ii = kern.lean_query(queries[r], data, mean, sqnorms, ymax, yraw, k, r2, excl, groups, frames,
+                                     qgroups[r], qframes[r], ids)
+            out_d[r, :len(dd)] = dd
+            out_i[r, :len(ii)] = ii
+        return out_d, out_i
     for q0 in range(0, m, block_queries):
         qc = queries[q0:q0 + block_queries] - mean
         qc64 = qc.astype(np.float64)

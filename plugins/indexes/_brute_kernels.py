@@ -106,53 +106,101 @@ def exact_rank(q, data, cand, ids, k, r2):
             diff = np.float64(data[t, j]) - np.float64(q[j])
             acc += diff * diff
         dist[a] = acc
-    hd = np.full(k, np.inf)
-    hi = np.full(k, _IMAX, np.int64)
+    # sort the few candidates by distance, then ids ascending within equal distances
+    order = np.argsort(dist)
+    sd = dist[order]
+    si = np.empty(c, np.int64)
     for a in range(c):
-        if dist[a] <= r2 and _before(dist[a], ids[cand[a]], hd[0], hi[0]):
-            _heap_replace(hd, hi, dist[a], ids[cand[a]])
-    kept = 0
-    for a in range(k):
-        if hi[a] != _IMAX:
-            kept += 1
-    out_d = np.empty(kept)
-    out_i = np.empty(kept, np.int64)
-    b = 0
-    for a in range(k):
-        if hi[a] != _IMAX:
-            out_d[b] = hd[a]
-            out_i[b] = hi[a]
-            b += 1
-    order = np.argsort(out_d, kind="mergesort")
-    out_d = out_d[order]
-    out_i = out_i[order]
-    for a in range(1, kept):  # equal distances: ids ascending
+        si[a] = ids[cand[order[a]]]
+    for a in range(1, c):
         b = a
-        while b > 0 and out_d[b] == out_d[b - 1] and out_i[b] < out_i[b - 1]:
-            out_i[b], out_i[b - 1] = out_i[b - 1], out_i[b]
+        while b > 0 and sd[b] == sd[b - 1] and si[b] < si[b - 1]:
+            si[b], si[b - 1] = si[b - 1], si[b]
             b -= 1
+    kept = 0
+    while kept < c and kept < k and sd[kept] <= r2:
+        kept += 1
+    out_d = sd[:kept].copy()
+    out_i = si[:kept].copy()
     return out_d, out_i
+
+
+@njit(cache=True)
+def _kth_smallest(vals, c, k):
+    """The ``k``-th smallest of ``vals[:c]`` (``c >= k``) by a bounded max-heap, float64."""
+    h = np.full(k, np.inf)
+    for t in range(c):
+        v = vals[t]
+        if v < h[0]:
+            _maxheap_replace(h, v)
+    return h[0]
 
 
 @njit(cache=True)
 def lean_rank(a, lim, slack, k, q, data, ids, r2, excl, groups, frames, qg, qf):
     """Exact top ``k`` of one query from approximate squared distances ``a`` (n,), float32.
 
-    Excluded rows are dropped, the approximate k-th value is found with a bounded max-heap
-    (one pass, few insertions), and the rows within ``min(lim, kth + slack)`` are re-ranked
-    exactly by :func:`exact_rank` (see :func:`._brute.lean_knn` for the bounds).
+    Excluded rows are set to +inf. The approximate k-th value is then found without a heap
+    pass over all rows: a strided sample (about 1,024 values) gives a
+    threshold expected to keep about ``2 k`` rows; one vectorisable pass keeps the rows at
+    or below it, and a bounded max-heap over those few gives the exact approximate k-th.
+    Should the sample mislead (fewer than ``k`` rows kept), the heap runs over all rows, so
+    the answer never depends on the sample, only the time. The rows within
+    ``min(lim, kth + slack)`` are re-ranked exactly by :func:`exact_rank` (see
+    :func:`._brute.lean_knn` for the bounds).
     """
     n = a.shape[0]
+    if excl >= 0:
+        for t in range(n):
+            if groups[t] == qg and abs(frames[t] - qf) <= excl:
+                a[t] = np.inf
+    if n > 8 * k:
+        stride = max(1, n // 1024)
+        m = (n + stride - 1) // stride
+        sample = np.empty(m)
+        for i in range(m):
+            sample[i] = a[i * stride]
+        # rank of the threshold in the sample: twice the expected share of k, plus a margin
+        r = min(m, 2 * (k * m) // n + 16)
+        tau = _kth_smallest(sample, m, r)
+        # one pass keeps every row that can matter: the k-th is <= tau when at least k rows
+        # are <= tau, so every candidate (<= kth + slack) is <= tau + slack
+        keep = min(lim, tau + slack)
+        # small buffers (large fresh ones cost page faults on every call); overflow -> heap
+        cap = max(8 * k + 256, 4 * r * stride)  # the sample's r-th stands for rank ~ r * stride
+        cand = np.empty(cap, np.int64)
+        vals = np.empty(cap)
+        c = 0
+        below = 0
+        for t in range(n):
+            v = np.float64(a[t])
+            if v <= keep:
+                if c == cap:
+                    below = -1
+                    break
+                cand[c] = t
+                vals[c] = v
+                c += 1
+                if v <= tau:
+                    below += 1
+        if below >= k:
+            kth = _kth_smallest(vals, c, k)
+            if kth + slack < lim:
+                lim = kth + slack
+            b = 0
+            for i in range(c):
+                if vals[i] <= lim:
+                    cand[b] = cand[i]
+                    b += 1
+            return exact_rank(q, data, cand[:b], ids, k, r2)
     h = np.full(k, np.inf)
     for t in range(n):
-        if excl >= 0 and groups[t] == qg and abs(frames[t] - qf) <= excl:
-            a[t] = np.inf
-            continue
         v = np.float64(a[t])
         if v < h[0]:
             _maxheap_replace(h, v)
-    if h[0] + slack < lim:
-        lim = h[0] + slack
+    kth = h[0]
+    if kth + slack < lim:
+        lim = kth + slack
     c = 0
     for t in range(n):
         if a[t] <= lim:
@@ -164,3 +212,29 @@ def lean_rank(a, lim, slack, k, q, data, ids, r2, excl, groups, frames, qg, qf):
             cand[c] = t
             c += 1
     return exact_rank(q, data, cand, ids, k, r2)
+
+
+@njit(cache=True)
+def lean_query(q, data, mean, sqnorms, ymax, yraw, k, r2, excl, groups, frames, qg, qf, ids):
+    """One query of :func:`._brute.lean_knn` in one call (the per-call work is the point).
+
+    The same arithmetic as the batched path: centred query, float32 matrix-vector product
+    (BLAS), approximate squared distances ``|y_c|^2 - 2 q_c.y`` in float32, the error bound
+    ``tol2`` of :mod:`._brute`, then :func:`lean_rank`.
+    """
+    d = data.shape[1]
+    qc = np.empty(d, np.float32)
+    qn = 0.0
+    qm = 0.0
+    for j in range(d):
+        qc[j] = q[j] - mean[j]
+        c64 = np.float64(qc[j])
+        qn += c64 * c64
+        qm += c64 * np.float64(mean[j])
+    const = qn + 2.0 * qm
+    tol2 = 4.0 * (d + 4) * 2.0 ** -24 * (qn + ymax + 2.0 * np.sqrt(qn * yraw)) + 1e-30
+    a = np.dot(data, qc)
+    two = np.float32(2.0)
+    for t in range(a.shape[0]):
+        a[t] = sqnorms[t] - two * a[t]
+    return lean_rank(a, r2 - const + tol2, 2.0 * tol2, k, q, data, ids, r2, excl, groups, frames, qg, qf)

@@ -38,6 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 _ARRAYS = ("data_", "perm_", "groups_", "frames_", "sqnorms_", "mean_",
            "start_", "end_", "left_", "right_", "sdim_", "sval_")
+_ZEROS = np.zeros(4, np.int64)  # query clip/frame ids of interactive queries (never written)
 
 
 class KDTreeIndex(Index):
@@ -123,7 +124,7 @@ class KDTreeIndex(Index):
         perm, start, end, left, right, sdim, sval = kern.build_tree(x, self.params.leafsize) if n else (
             np.zeros(0, np.int64), *(np.zeros(1, np.int64),) * 2, *(np.full(1, -1, np.int64),) * 2,
             np.zeros(1, np.int32), np.zeros(1, np.float32))
-        self._inv = self._depth = self._raw_bound = self._boxes = None
+        self._inv = self._depth = self._raw_bound = self._boxes = self._targs = None
         self.data_ = x[perm]
         self.perm_, self.groups_, self.frames_ = perm, g[perm], f[perm]
         self.start_, self.end_, self.left_, self.right_, self.sdim_, self.sval_ = start, end, left, right, sdim, sval
@@ -250,8 +251,18 @@ class KDTreeIndex(Index):
         r2 = np.inf if radius is None else float(radius) ** 2
         excl = -1 if exclude is None else int(exclude)
         if qg is None:
-            qg = qf = np.zeros(m, np.int64)
+            qg = qf = _ZEROS[:m] if m <= len(_ZEROS) else np.zeros(m, np.int64)
         qg, qf = np.ascontiguousarray(qg), np.ascontiguousarray(qf)
+        if m <= 2 and (method != "brute" or getattr(self, "_raw_bound", None) is not None):
+            # interactive queries run on the calling thread: no thread-pool set-up per call
+            if method == "brute":
+                from ._brute import brute_knn
+
+                return brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
+                                 qg, qf, excl, ids=self.perm_, raw_bound=self._raw_bound, parallel=False)
+            tree, no_seed = self._tree_args()
+            return kern.query_tree(q, k, eps, r2, *tree, qg, qf, excl, self._depth, 1,
+                                   self._inverse_perm() if eps == 0.0 and m > 1 else no_seed)
         prev = kern.set_threads(workers)
         try:
             chunks = 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads())
@@ -273,6 +284,17 @@ class KDTreeIndex(Index):
                                    self._inverse_perm() if seeded else self.perm_[:0])
         finally:
             kern.set_threads(prev)
+
+    def _tree_args(self) -> tuple[tuple, np.ndarray]:
+        """The tree's arrays in :func:`._knn_kernels.query_tree` order (cached: a single query
+        is a few tens of microseconds, so per-call attribute work shows)."""
+        args = getattr(self, "_targs", None)
+        if args is None:
+            self._max_depth()
+            args = self._targs = ((self.data_, self.perm_, self.start_, self.end_, self.left_, self.right_,
+                                   self.sdim_, self.sval_, *self._node_boxes(), self.groups_, self.frames_),
+                                  self.perm_[:0])
+        return args
 
     def _node_boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-node bounding boxes ``(lo, hi)`` (n_nodes, d) the search prunes on.
