@@ -49,7 +49,8 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
     m, d = queries.shape
     n = data.shape[0]
     if n <= lean_max_rows and cap is None:
-        return lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qframes, excl, ids, raw_bound)
+        return lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qframes, excl, ids, raw_bound,
+                        parallel=parallel)
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     ymax = float(sqnorms.max()) if n else 0.0
@@ -110,17 +111,20 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
 
 
 def lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qframes, excl, ids=None,
-             raw_bound=None, block_queries=16):
+             raw_bound=None, block_queries=None, parallel=False):
     """:func:`brute_knn` over a small database, with little per-call work.
 
     One GEMM per block of queries gives the approximate squared distances of all rows (same
     error bound as the blocked path); one kernel per query (:func:`.lean_rank`) finds the
     approximate k-th and re-ranks the rows within ``2 tol`` of it with exact float64
     distances (summed in dimension order like the kd-tree), ties ordered by id.
-    Exact, like :func:`brute_knn`; memory ``block_queries x n`` float32.
+    Exact, like :func:`brute_knn`; memory ``block_queries x n`` float32 (default: about
+    16 MB, 16 to 128 queries). ``parallel`` ranks the rows of a block on numba's threads.
     """
     m, d = queries.shape
     n = data.shape[0]
+    if block_queries is None:
+        block_queries = int(min(128, max(16, (1 << 22) // max(n, 1))))
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     ymax = float(sqnorms.max())
@@ -143,6 +147,10 @@ def lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qfram
         a *= -2.0
         a += sqnorms
         lim = r2 - const + tol2
+        if parallel:
+            kern.lean_rank_rows(a, lim, 2.0 * tol2, k, queries, q0, data, ids, r2, excl, groups, frames,
+                                qgroups, qframes, out_d, out_i)
+            continue
         for r in range(len(qc)):
             dd, ii = kern.lean_rank(a[r], lim[r], 2.0 * tol2[r], k, queries[q0 + r], data, ids, r2, excl, groups,
                                     frames, qgroups[q0 + r], qframes[q0 + r])

@@ -238,3 +238,16 @@ def lean_query(q, data, mean, sqnorms, ymax, yraw, k, r2, excl, groups, frames, 
     for t in range(a.shape[0]):
         a[t] = sqnorms[t] - two * a[t]
     return lean_rank(a, r2 - const + tol2, 2.0 * tol2, k, q, data, ids, r2, excl, groups, frames, qg, qf)
+
+
+@njit(cache=True, parallel=True)
+def lean_rank_rows(a, lim, slack, k, queries, q0, data, ids, r2, excl, groups, frames, qgroups, qframes,
+                   out_d, out_i):
+    """:func:`lean_rank` of every row of a GEMM block ``a`` (b, n), rows spread over threads;
+    results go to ``out_d / out_i[q0 + r]``."""
+    for r in prange(a.shape[0]):
+        dd, ii = lean_rank(a[r], lim[r], slack[r], k, queries[q0 + r], data, ids, r2, excl, groups, frames,
+                           qgroups[q0 + r], qframes[q0 + r])
+        for c in range(dd.shape[0]):
+            out_d[q0 + r, c] = dd[c]
+            out_i[q0 + r, c] = ii[c]
