@@ -118,3 +118,62 @@ def test_index_contract_violations():
         build_graph(space.features[:3], bad, k=4)
     with pytest.raises(DataError):
         build_graph(space.features[:3], SearchSpace(space.clip_id, space.frame), k=4)
+
+
+@pytest.mark.parametrize("seed,k,radius,ties", [(0, 5, None, False), (1, 12, 1.2, False), (2, 3, None, True),
+                                                 (3, 40, None, False)])
+def test_propagate_layer_equals_naive(seed, k, radius, ties):
+    from naive.dtw import naive_propagate
+
+    from mocapflow.plugins.matchers._lng_kernels import propagate_layer
+
+    rng = np.random.default_rng(seed)
+    lengths = [1, 7, 2, 30, 3]
+    clip_id, frame, x = make_db(lengths, dim=3, seed=seed)
+    if ties:  # integer features: many equal distances, resolved by row
+        x = rng.integers(0, 2, size=x.shape).astype(np.float32)
+    cont = continues_of(clip_id, frame)
+    n = len(x)
+    r2 = np.inf if radius is None else radius ** 2
+    for _ in range(10):
+        prev = np.sort(rng.choice(n, size=min(k, n), replace=False)).astype(np.int64)
+        prev = np.concatenate([prev, [-1, -1]])  # padding past the count is ignored
+        q = (x[rng.integers(n)] + rng.normal(0, 0.3, 3)).astype(np.float32)
+        ids, dist = np.zeros(k, np.int64), np.zeros(k, np.float32)
+        cnt = propagate_layer(q, prev, len(prev) - 2, x, cont, k, r2, ids, dist)
+        ref_ids, ref_d = naive_propagate(q, prev[:-2], x, cont, k, r2)
+        assert cnt == len(ref_ids)
+        np.testing.assert_array_equal(ids[:cnt], ref_ids)
+        np.testing.assert_allclose(dist[:cnt], ref_d, rtol=1e-6)
+        assert np.all(ids[cnt:] == -1) and np.all(np.isinf(dist[cnt:]))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_propagated_sets_with_every_row_equal_subsequence_dtw(seed):
+    # k >= n: the first layer holds every row, so every later candidate set does too
+    space = space_of([25, 1, 18, 6], seed=seed)
+    q = np.random.default_rng(seed).normal(size=(9, 3)).astype(np.float32)
+    exact = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5)
+    for every in (1, 4, 100):
+        prop = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5, propagate=every)
+        np.testing.assert_array_equal(prop.start, exact.start)
+        np.testing.assert_array_equal(prop.end, exact.end)
+        np.testing.assert_allclose(prop.cost, exact.cost, rtol=1e-6)
+    ref = subsequence_dtw(q, space, count=5)
+    np.testing.assert_allclose(exact.cost, ref.cost, rtol=1e-5)
+
+
+def test_propagated_sets_keep_exact_layers_and_need_features():
+    space = space_of([40, 40], seed=5)
+    q = space.features[10:22] + np.float32(0.01)
+    g_exact = build_graph(q, space, k=6)
+    g_prop = build_graph(q, space, k=6, propagate=4)
+    for i in (0, 4, 8):  # searched layers are the index's own
+        np.testing.assert_array_equal(g_prop.ids[i], g_exact.ids[i])
+    assert g_prop.count.min() >= 1
+    # the query is a database segment: its own rows stay in the beam, so its match is found
+    best = lazy_neighborhood_graph(q, space, k=6, count=1, propagate=4)
+    assert (best.start[0], best.end[0]) == (10, 21)
+    bare = SearchSpace(space.clip_id, space.frame, space.index)
+    with pytest.raises(DataError, match="features"):
+        build_graph(q, bare, k=6, propagate=4)

@@ -108,3 +108,91 @@ def lng_backtrack(ids, pred, i_end, a_end):  # pragma: no cover - compiled
         p += 1
         node = pred[i, a]
     return out[:p][::-1].copy()
+
+
+@njit(cache=True)
+def propagate_layer(q, prev_ids, prev_count, x, continues, k, r2, out_ids, out_dist):  # pragma: no cover - compiled
+    """Approximate ``S(q_i)`` from ``S(q_{i-1})``: the ``k`` nearest of the candidate rows
+    ``h - 1, h, h + 1, h + 2`` for every ``h`` of the previous layer (within ``h``'s clip),
+    within squared radius ``r2``; ties by ascending row.
+
+    The candidates are every row a warping path through ``h`` can reach in one query frame
+    with at most two database frames per query frame (diagonal, horizontal, and vertical
+    steps), plus ``h - 1`` so that a vertical step into the kept rows has its predecessor.
+    Linear in the candidates: ``prev_ids`` ascending gives them sorted and distinct with no
+    sort, and a partition finds the k-th distance.
+
+    Parameters
+    ----------
+    q : float32 (d,)
+    prev_ids : int64 (k_prev,), ascending; the first ``prev_count`` valid
+    x : float32 (n, d), the database rows
+    continues : bool (n,)
+    k : int
+    r2 : float, squared radius (inf: none)
+    out_ids : int64 (k,), out_dist : float32 (k,)
+        Filled: rows ascending, Euclidean distances; -1 / inf past the count.
+
+    Returns
+    -------
+    count : int
+    """
+    n, d = x.shape
+    cand = np.empty(4 * prev_count, np.int64)
+    c = 0
+    last = -1
+    for a in range(prev_count):
+        h = prev_ids[a]
+        lo = h - 1 if h > 0 and continues[h] else h
+        hi = h
+        if h + 1 < n and continues[h + 1]:
+            hi = h + 1
+            if h + 2 < n and continues[h + 2]:
+                hi = h + 2
+        for r in range(max(lo, last + 1), hi + 1):
+            cand[c] = r
+            c += 1
+        if hi > last:
+            last = hi
+    d2 = np.empty(c)
+    for a in range(c):
+        acc = 0.0
+        for j in range(d):
+            diff = np.float64(x[cand[a], j]) - np.float64(q[j])
+            acc += diff * diff
+        d2[a] = acc
+    kth = r2
+    if c > k:
+        kth = min(r2, np.partition(d2.copy(), k - 1)[k - 1])
+    kept = 0
+    for a in range(c):  # strictly closer first ...
+        if d2[a] < kth:
+            kept += 1
+    room = k - kept
+    for a in range(c):  # ... then rows at the k-th distance, ascending, while room is left
+        take = d2[a] < kth
+        if not take and d2[a] == kth and d2[a] <= r2 and room > 0:
+            take = True
+            room -= 1
+        if take:
+            d2[a] = -1.0 - d2[a]  # mark (distances are >= 0)
+    b = 0
+    for a in range(c):
+        if d2[a] < 0.0:
+            out_ids[b] = cand[a]
+            out_dist[b] = np.float32(np.sqrt(-1.0 - d2[a]))
+            b += 1
+    for a in range(b, out_ids.shape[0]):
+        out_ids[a] = -1
+        out_dist[a] = np.inf
+    return b
+
+
+@njit(cache=True)
+def propagate_sets(query, ids, dist, count, every, x, continues, r2):  # pragma: no cover - compiled
+    """Fill the layers ``i`` with ``i % every != 0`` of ``ids / dist / count`` (m, k) by
+    :func:`propagate_layer` from layer ``i - 1`` (the others hold the index's sets)."""
+    m, k = ids.shape
+    for i in range(1, m):
+        if i % every != 0:
+            count[i] = propagate_layer(query[i], ids[i - 1], count[i - 1], x, continues, k, r2, ids[i], dist[i])

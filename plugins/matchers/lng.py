@@ -70,12 +70,18 @@ class NeighborhoodGraph:
 
 
 def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None,
-                  eps: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  eps: float = 0.0, propagate: int = 0,
+                  space: SearchSpace | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``S(q_i)`` from the index, re-sorted by row id: ``(ids, dist, count)`` (see :class:`NeighborhoodGraph`).
 
     ``eps > 0`` asks the index for an ε-approximate search (an index whose ``query``
     takes an ``eps`` keyword, like ``indexes.kdtree``); 0 uses the plain Index contract.
+    ``propagate = N > 0`` searches the index only for query frames ``0, N, 2N, ...`` and
+    derives the other sets from the previous one (:func:`propagated_sets`; needs
+    ``space`` with features).
     """
+    if propagate > 0:
+        return propagated_sets(query, index, k, radius, eps, propagate, space)
     if eps > 0:
         if "eps" not in inspect.signature(index.query).parameters:
             raise ConfigError(f"{type(index).__name__}.query takes no 'eps': this index cannot search approximately")
@@ -99,8 +105,37 @@ def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None,
     return ids, dist, count
 
 
+def propagated_sets(query: np.ndarray, index, k: int, radius: float | None, eps: float, every: int,
+                    space: SearchSpace | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Approximate neighbour sets by temporal propagation (our extension, not in the paper).
+
+    Query frames ``0, every, 2 every, ...`` get the index's kNN (exact unless ``eps``); every
+    other frame gets the ``k`` nearest (within ``radius``) of the rows a warping path can
+    reach from the previous frame's set: ``h - 1 .. h + 2`` for each of its rows ``h``
+    (:func:`._lng_kernels.propagate_layer`, distances exact). The graph then holds the
+    neighbourhoods of the paths that start near ``q_1``, as a beam of width ``k`` would:
+    the kNN sets themselves are no longer the true ones, but every path cost is exact, and
+    an alignment is lost only when its rows drop out of the ``k`` best of the beam.
+    ``benchmarks/matching.py`` measures the fraction of the exact-kNN alignments kept.
+    """
+    from ._lng_kernels import propagate_sets
+
+    if space is None or space.features is None:
+        raise DataError("propagated kNN sets need the database features (SearchSpace.features)")
+    m = query.shape[0]
+    ids = np.full((m, k), -1, np.int64)
+    dist = np.full((m, k), np.inf, np.float32)
+    count = np.zeros(m, np.int64)
+    r2 = np.inf if radius is None else float(radius) ** 2
+    exact = np.arange(0, m, every)
+    ids[exact], dist[exact], count[exact] = neighbor_sets(query[exact], index, k, radius, eps)
+    propagate_sets(np.ascontiguousarray(query, dtype=np.float32), ids, dist, count, every, space.features,
+                   space.continues, r2)
+    return ids, dist, count
+
+
 def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
-                eps: float = 0.0) -> NeighborhoodGraph:
+                eps: float = 0.0, propagate: int = 0) -> NeighborhoodGraph:
     """kNN search, graph construction and path search for one query.
 
     Parameters
@@ -115,6 +150,9 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
         Fixed search radius ``r`` (same units as the features); ``None``: plain kNN.
     eps : float
         ε of an approximate kNN search (0: exact).
+    propagate : int
+        0: the index's kNN for every query frame (the paper). N > 0: only for every N-th
+        frame, the sets in between propagated along the database (:func:`propagated_sets`).
     """
     from ._lng_kernels import lng_forward
 
@@ -123,7 +161,7 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
     q = np.ascontiguousarray(query, dtype=np.float32)
     if q.ndim != 2 or q.shape[0] < 1 or not np.isfinite(q).all():
         raise DataError(f"query must be finite (n_frames >= 1, dim) feature vectors, got shape {q.shape}")
-    ids, dist, count = neighbor_sets(q, space.index, k, radius, eps)
+    ids, dist, count = neighbor_sets(q, space.index, k, radius, eps, propagate, space)
     if count.any() and ids.max() >= space.n_rows:
         raise DataError(f"index returned row {ids.max()} but the database has {space.n_rows} rows")
     cost, start, pred, length = lng_forward(ids, dist, count, space.continues)
@@ -132,9 +170,9 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
 
 def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
                             eps: float = 0.0, count: int = 10, max_cost: float | None = None,
-                            rank_by: str = "cost", min_span: float = 0.0) -> QueryMatches:
+                            rank_by: str = "cost", min_span: float = 0.0, propagate: int = 0) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`)."""
-    graph = build_graph(query, space, k=k, radius=radius, eps=eps)
+    graph = build_graph(query, space, k=k, radius=radius, eps=eps, propagate=propagate)
     return graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
 
 
@@ -157,7 +195,8 @@ class LazyNeighborhoodGraph(GlobalMatcher):
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         p = self.params
         return lazy_neighborhood_graph(query, space, k=p.k, radius=p.radius, eps=p.eps, count=p.count,
-                                       max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span)
+                                       max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span,
+                                       propagate=p.propagate)
 
     def after_match(self, query_id, query, matches, space, ctx) -> None:
         p = self.params
@@ -165,7 +204,7 @@ class LazyNeighborhoodGraph(GlobalMatcher):
             return
         from .plots import plot_neighborhood
 
-        graph = build_graph(query.features, space, k=p.k, radius=p.radius, eps=p.eps)  # cheap next to I/O; keeps match() lean
+        graph = build_graph(query.features, space, k=p.k, radius=p.radius, eps=p.eps, propagate=p.propagate)  # cheap next to I/O; keeps match() lean
         for r in range(min(p.plots, len(matches))):
             plot_neighborhood(graph, matches, space, ctx.out_dir / "plots" / f"q{query_id}_m{r + 1}.png",
                               match=r, title=f"{query.name} - match {r + 1}, cost {matches.cost[r]:.3g}")

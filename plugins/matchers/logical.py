@@ -43,7 +43,7 @@ class LogicalMatches(QueryMatches):
 def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, max_matches: int = 100,
                    exclude: tuple[int, int] | None = None, k: int = 256, radius: float | None = None, eps: float = 0.0,
                    count: int = 10, max_cost: float | None = None, rank_by: str = "cost",
-                   min_span: float = 0.0) -> LogicalMatches:
+                   min_span: float = 0.0, propagate: int = 0) -> LogicalMatches:
     """Iterated LNG search.
 
     Parameters
@@ -57,7 +57,7 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
         Stop once this many distinct segments were found.
     exclude : (int, int) or None
         Rows ``[start, end]`` not to report (the query's own segment in the database).
-    k, radius, eps, count, max_cost, rank_by, min_span
+    k, radius, eps, count, max_cost, rank_by, min_span, propagate
         Per-query LNG parameters (:func:`.lng.lazy_neighborhood_graph`); ``max_cost``
         also decides which matches count as found.
     """
@@ -72,7 +72,7 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
         new: list[tuple[np.ndarray, int]] = []
         for qx, src in frontier:
             res = lazy_neighborhood_graph(qx, space, k=k, radius=radius, eps=eps, count=count, max_cost=max_cost,
-                                          rank_by=rank_by, min_span=min_span)
+                                          rank_by=rank_by, min_span=min_span, propagate=propagate)
             for i in range(len(res)):
                 s, e = int(res.start[i]), int(res.end[i])
                 if len(rows["start"]) >= max_matches or not found.add(s, e):
@@ -117,7 +117,7 @@ class LogicalSearch(GlobalMatcher):
         p = self.params
         return logical_search(query, space, rounds=p.rounds, max_matches=p.max_matches, exclude=exclude, k=p.k,
                               radius=p.radius, eps=p.eps, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
-                              min_span=p.min_span)
+                              min_span=p.min_span, propagate=p.propagate)
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         return self.search(query, space)

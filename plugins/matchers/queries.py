@@ -188,6 +188,9 @@ class NeighborParams(MatchParams):
     radius: float | None = Field(None, gt=0, description="fixed kNN search radius r in feature units; null: unbounded")
     eps: float = Field(0.0, ge=0, description=(
         "approximate kNN: neighbours within (1+eps) of the true ones (paper: 0, 0.1, 0.5; needs an index with eps)"))
+    propagate: int = Field(0, ge=0, description=(
+        "approximate neighbour sets (our extension): search the index only on every N-th query frame and take the "
+        "k nearest of the rows reachable from the previous frame's set in between; 0: every frame (the paper)"))
 
 
 class GlobalMatcher(Matcher):
@@ -229,7 +232,7 @@ class GlobalMatcher(Matcher):
         clip_id, frame = db.frame_ids()
         index = db.index(registries) if self.needs_index else None
         x = None
-        if self.needs_features:
+        if self.needs_features or getattr(self.params, "propagate", 0):
             fds = self.features_dataset(inputs)
             if fds is None:
                 raise PipelineError(f"{self.key()}: cannot find the database features of {db.step!r}; give a 'features' input")

@@ -112,3 +112,31 @@ def naive_lng(neighbors, continues):
         path = np.array(path[::-1])
         out[h] = (dist[node], int(path[0][1]), path)
     return out
+
+
+def naive_propagate(q, prev_ids, x, continues, k, r2):
+    """Propagated neighbour set of one query frame, spelled out (see ``_lng_kernels.propagate_layer``).
+
+    Candidates: ``h - 1`` (if ``h`` continues it), ``h``, ``h + 1`` (if it continues ``h``),
+    ``h + 2`` (if it continues ``h + 1`` which continues ``h``); the ``k`` nearest by
+    (squared distance, row) within ``r2``; returned ascending by row with distances.
+    """
+    n = len(x)
+    cand = set()
+    for h in prev_ids:
+        h = int(h)
+        cand.add(h)
+        if h > 0 and continues[h]:
+            cand.add(h - 1)
+        if h + 1 < n and continues[h + 1]:
+            cand.add(h + 1)
+            if h + 2 < n and continues[h + 2]:
+                cand.add(h + 2)
+    scored = []
+    for c in sorted(cand):
+        d2 = sum((float(x[c][j]) - float(q[j])) ** 2 for j in range(len(q)))
+        if d2 <= r2:
+            scored.append((d2, c))
+    scored.sort()
+    best = sorted(scored[:k], key=lambda t: t[1])
+    return [c for _, c in best], [float(np.sqrt(d2)) for d2, _ in best]
