@@ -219,3 +219,18 @@ def test_blocked_brute_path_equals_naive(case):
     d0, i0 = knn(x, x[rows], 30, **ref)
     np.testing.assert_array_equal(i, i0)
     np.testing.assert_allclose(np.sqrt(d2), d0, rtol=1e-6, atol=1e-6)
+
+
+def test_kdtree_single_row_queries_take_the_lean_call_exactly():
+    rng = np.random.default_rng(11)
+    x = _clustered(rng, 1500, 5)
+    ix = KDTreeIndex(method="kdtree", leafsize=8).build(x)
+    q = (x[:12] + np.float32(0.002)).astype(np.float32)
+    for k in (1, 16, 200):
+        d0, i0 = knn(x, q, k)
+        for r in range(len(q)):  # the first call builds the cached arguments, later ones use them
+            d, i = ix.query(q[r:r + 1], k)
+            np.testing.assert_array_equal(i[0], i0[r])
+            np.testing.assert_allclose(d[0], d0[r], rtol=1e-6, atol=1e-6)
+    assert ix._interactive(q[:1], 16, None, 0.0, None) is not None  # the lean call was taken
+    assert ix._interactive(q[:1].astype(np.float64), 16, None, 0.0, None) is None

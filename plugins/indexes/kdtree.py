@@ -203,6 +203,9 @@ class KDTreeIndex(Index):
         dist : ndarray of shape (m, k), float32, ascending
         ids : ndarray of shape (m, k), int64, rows of the indexed features (-1 = none)
         """
+        fast = self._interactive(x, k, radius, eps, exclude)
+        if fast is not None:
+            return fast
         self._check_built()
         q = np.asarray(x, dtype=np.float32)
         if q.ndim == 1:
@@ -222,6 +225,23 @@ class KDTreeIndex(Index):
         d2, ids = self._search(np.ascontiguousarray(q), int(k), radius, float(eps), exclude,
                                query_groups, query_frames, w,
                                "kdtree" if eps > 0 else self.method_for(int(k)))
+        return np.sqrt(d2).astype(np.float32), ids
+
+    def _interactive(self, x, k, radius, eps, exclude) -> tuple[np.ndarray, np.ndarray] | None:
+        """The common interactive call (one float32 query row, plain exact kNN on the kd-tree
+        path) with no per-call numpy work: a 16-NN query in 8-d takes ~20 microseconds, so
+        the checks and conversions of the general path would add a third. None: not that call."""
+        if (radius is not None or eps != 0.0 or exclude is not None or type(x) is not np.ndarray
+                or x.dtype != np.float32 or type(k) is not int or k < 1):
+            return None
+        targs = getattr(self, "_targs", None)
+        if targs is None or x.ndim != 2 or x.shape[0] != 1 or x.shape[1] != self.data_.shape[1] \
+                or not x.flags.c_contiguous or self.method_for(k) != "kdtree":
+            return None
+        from . import _knn_kernels as kern
+
+        tree, no_seed = targs
+        d2, ids = kern.query_tree(x, k, 0.0, np.inf, *tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
         return np.sqrt(d2).astype(np.float32), ids
 
     def query_rows(self, rows: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
