@@ -5,7 +5,8 @@ The kNN index of Krüger et al. 2010 §3.3 (they used ANN). A float32 kd-tree of
 can be saved and loaded as plain arrays, without a rebuild. For feature sets of high
 intrinsic dimension a kd-tree degenerates to a slow linear scan; there an exact BLAS brute
 force in blocks (:mod:`._brute`) is faster (single queries over small databases take its
-lean path: one GEMV, a partition, an exact re-ranking of the few candidates). With
+lean path: one compiled call with the GEMV, a sampled k-th threshold, an exact re-ranking of
+the few candidates). With
 ``method: auto`` a probe at build time times both on a sample of the indexed rows, for 16
 and 256 neighbours, and keeps the faster (a kd-tree's cost grows with k, the brute force's hardly: where one method wins at
 16 and another at 256, queries from ``brute_from_k_`` neighbours on use ``large_method_``);
