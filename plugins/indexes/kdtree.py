@@ -274,37 +274,30 @@ class KDTreeIndex(Index):
         if qg is None:
             qg = qf = _ZEROS[:m] if m <= len(_ZEROS) else np.zeros(m, np.int64)
         qg, qf = np.ascontiguousarray(qg), np.ascontiguousarray(qf)
-        if m <= 2 and (method != "brute" or getattr(self, "_raw_bound", None) is not None):
-            # interactive queries run on the calling thread: no thread-pool set-up per call
+        if method == "brute" and getattr(self, "_raw_bound", None) is None:
+            from ._brute import raw_sqnorm_bound
+
+            self._raw_bound = raw_sqnorm_bound(self.data_)
+        # interactive queries (m <= 2) run on the calling thread: no thread-pool set-up per call
+        prev = kern.set_threads(workers) if m > 2 else None
+        try:
             if method == "brute":
                 from ._brute import brute_knn
 
-                return brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
-                                 qg, qf, excl, ids=self.perm_, raw_bound=self._raw_bound, parallel=False)
-            tree, no_seed = self._tree_args()
-            return kern.query_tree(q, k, eps, r2, *tree, qg, qf, excl, self._depth, 1,
-                                   self._inverse_perm() if eps == 0.0 and m > 1 else no_seed)
-        prev = kern.set_threads(workers)
-        try:
-            chunks = 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads())
-            if method == "brute":
-                from ._brute import brute_knn, raw_sqnorm_bound
-
-                if getattr(self, "_raw_bound", None) is None:
-                    self._raw_bound = raw_sqnorm_bound(self.data_)
                 return brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
                                  qg, qf, excl, ids=self.perm_, raw_bound=self._raw_bound,
                                  parallel=m >= 4 and kern.threads() > 1)
             # consecutive queries seed each other's bound (see the module doc): contiguous chunks,
             # one per thread, keep most queries seeded
+            chunks = 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads())
             seeded = eps == 0.0 and m > 1
-            return kern.query_tree(q, k, eps, r2, self.data_, self.perm_, self.start_, self.end_, self.left_,
-                                   self.right_, self.sdim_, self.sval_, *self._node_boxes(), self.groups_,
-                                   self.frames_, qg, qf, excl,
-                                   self._max_depth(), min(chunks, kern.threads()) if seeded else chunks,
-                                   self._inverse_perm() if seeded else self.perm_[:0])
+            tree, no_seed = self._tree_args()
+            return kern.query_tree(q, k, eps, r2, *tree, qg, qf, excl, self._depth,
+                                   min(chunks, kern.threads()) if seeded else chunks,
+                                   self._inverse_perm() if seeded else no_seed)
         finally:
-            kern.set_threads(prev)
+            if prev is not None:
+                kern.set_threads(prev)
 
     def _tree_args(self) -> tuple[tuple, np.ndarray]:
         """The tree's arrays in :func:`._knn_kernels.query_tree` order (cached: a single query
