@@ -88,7 +88,11 @@ class KDTreeIndex(Index):
     class Params(Params):
         method: Literal["auto", "kdtree", "brute"] = Field(
             "auto", description="search method; auto probes both at build time and keeps the faster (both exact)")
-        leafsize: int = Field(16, ge=1, le=1024, description="maximum points per kd-tree bucket")
+        # 64, not ANN's usual 16: with per-node bounding boxes a far bucket is skipped on one
+        # box test and a scanned one is a tight loop, so bigger buckets cost little; measured
+        # 15-40 % faster single queries than 16 across the feature sets at 27 k and 380 k rows
+        # (and 128 no faster)
+        leafsize: int = Field(64, ge=1, le=1024, description="maximum points per kd-tree bucket")
         probe_queries: int = Field(64, ge=1, description="rows sampled to time the methods (method auto)")
         probe_k: tuple[int, ...] = Field((16, 256), min_length=1,
                                          description="neighbour counts probed (Table 1: 16 and 256); ascending")
