@@ -19,7 +19,8 @@ _U32 = 2.0 ** -24
 
 def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: np.ndarray, k: int, r2: float,
               groups: np.ndarray, frames: np.ndarray, qgroups: np.ndarray, qframes: np.ndarray,
-              excl: int, ids: np.ndarray | None = None, raw_bound: float | None = None, parallel: bool = True, cap: int | None = None, block_rows: int = 32768, block_queries: int = 128,
+              excl: int, ids: np.ndarray | None = None, raw_bound: float | None = None, parallel: bool = True,
+              cap: int | None = None, block_rows: int = 32768, block_queries: int = 128, sqnorm_max: float | None = None,
               lean_max_rows: int = 262144) -> tuple[np.ndarray, np.ndarray]:
     """Exact kNN by blocks (see module doc).
 
@@ -35,6 +36,8 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
         ordered by these ids. Default: the row numbers.
     raw_bound : float, optional
         :func:`raw_sqnorm_bound` of ``data`` (computed once at build time).
+    sqnorm_max : float, optional
+        ``sqnorms.max()``, likewise computed once (an O(n) pass per call otherwise).
     parallel : bool
         Scan with numba threads (batches) or on the calling thread (single queries).
     cap : int, optional
@@ -50,10 +53,10 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
     n = data.shape[0]
     if n <= lean_max_rows and cap is None:
         return lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qframes, excl, ids, raw_bound,
-                        parallel=parallel)
+                        parallel=parallel, sqnorm_max=sqnorm_max)
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
-    ymax = float(sqnorms.max()) if n else 0.0
+    ymax = sqnorm_max if sqnorm_max is not None else (float(sqnorms.max()) if n else 0.0)
     yraw = raw_bound if raw_bound is not None else (float(raw_sqnorm_bound(data)) if n else 0.0)
     scan = kern.scan_block if parallel else kern.scan_block_serial
     for q0 in range(0, m, block_queries):
@@ -104,14 +107,14 @@ def brute_knn(queries: np.ndarray, data: np.ndarray, mean: np.ndarray, sqnorms: 
         redo = np.flatnonzero(overflow)
         if redo.size:  # a buffer of n rows never overflows, so this terminates
             d2, i2 = brute_knn(q_orig[redo], data, mean, sqnorms, k, r2, groups, frames, qg[redo], qf[redo], excl,
-                               ids=ids, raw_bound=yraw, parallel=parallel, cap=min(4 * cap, n + 1),
+                               ids=ids, raw_bound=yraw, parallel=parallel, cap=min(4 * cap, n + 1), sqnorm_max=ymax,
                                block_rows=block_rows, block_queries=block_queries)
             out_d[q0 + redo], out_i[q0 + redo] = d2, i2
     return out_d, out_i
 
 
 def lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qframes, excl, ids=None,
-             raw_bound=None, block_queries=None, parallel=False):
+             raw_bound=None, block_queries=None, parallel=False, sqnorm_max=None):
     """:func:`brute_knn` over a small database, with little per-call work.
 
     One GEMM per block of queries gives the approximate squared distances of all rows (same
@@ -127,7 +130,7 @@ def lean_knn(queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qfram
         block_queries = int(min(128, max(16, (1 << 22) // max(n, 1))))
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
-    ymax = float(sqnorms.max())
+    ymax = sqnorm_max if sqnorm_max is not None else float(sqnorms.max())
     yraw = raw_bound if raw_bound is not None else float(raw_sqnorm_bound(data))
     ids = np.arange(n, dtype=np.int64) if ids is None else ids
     if m <= 2:  # interactive queries: one compiled call each, no per-call numpy work

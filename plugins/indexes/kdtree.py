@@ -282,6 +282,7 @@ class KDTreeIndex(Index):
             from ._brute import raw_sqnorm_bound
 
             self._raw_bound = raw_sqnorm_bound(self.data_)
+            self._sqnorm_max = float(self.sqnorms_.max())
         # interactive queries (m <= 2) run on the calling thread: no thread-pool set-up per call
         prev = kern.set_threads(workers) if m > 2 else None
         try:
@@ -290,7 +291,7 @@ class KDTreeIndex(Index):
 
                 return brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
                                  qg, qf, excl, ids=self.perm_, raw_bound=self._raw_bound,
-                                 parallel=m >= 4 and kern.threads() > 1)
+                                 parallel=m >= 4 and kern.threads() > 1, sqnorm_max=self._sqnorm_max)
             # consecutive queries seed each other's bound (see the module doc): contiguous chunks,
             # one per thread, keep most queries seeded
             chunks = 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads())
