@@ -1,9 +1,10 @@
 """Numba kernels of the exact brute force (:mod:`._brute`; no validation).
 
 The blocked scan over GEMM results (:func:`scan_block`), and the lean path for small
-databases: a one-pass k-th selection (:func:`lean_rank`) and the exact float64 re-ranking
-of the candidates (:func:`exact_rank`), ties ordered by id as in the kd-tree
-(:mod:`._knn_kernels`).
+databases: one compiled call per interactive query (:func:`lean_query`), a k-th selection
+from a sampled threshold (:func:`lean_rank`, per block row in parallel by
+:func:`lean_rank_rows`) and the exact float64 re-ranking of the candidates
+(:func:`exact_rank`), ties ordered by id as in the kd-tree (:mod:`._knn_kernels`).
 """
 from __future__ import annotations
 
