@@ -53,26 +53,8 @@ def point_segment_distance(q, a, b, out):  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def segment_segment_distance(a0, a1, b0, b1, out):  # pragma: no cover - compiled
     for i in range(a0.shape[0]):
-        ux, uy, uz = a1[i, 0] - a0[i, 0], a1[i, 1] - a0[i, 1], a1[i, 2] - a0[i, 2]
-        vx, vy, vz = b1[i, 0] - b0[i, 0], b1[i, 1] - b0[i, 1], b1[i, 2] - b0[i, 2]
-        wx, wy, wz = a0[i, 0] - b0[i, 0], a0[i, 1] - b0[i, 1], a0[i, 2] - b0[i, 2]
-        a = ux * ux + uy * uy + uz * uz
-        b = ux * vx + uy * vy + uz * vz
-        c = vx * vx + vy * vy + vz * vz
-        d = ux * wx + uy * wy + uz * wz
-        e = vx * wx + vy * wy + vz * wz
-        den = a * c - b * b
-        s = min(max((b * e - c * d) / den, 0.0), 1.0) if den > _EPS else 0.0
-        t = min(max((b * s + e) / c, 0.0), 1.0) if c > _EPS else 0.0
-        s = min(max((b * t - d) / a, 0.0), 1.0) if a > _EPS else 0.0
-        dx, dy, dz = wx + s * ux - t * vx, wy + s * uy - t * vy, wz + s * uz - t * vz
-        best = math.sqrt(dx * dx + dy * dy + dz * dz)
-        # endpoint candidates make the clamped solution exact (minimum on the boundary)
-        best = min(best, _psd(a0[i, 0], a0[i, 1], a0[i, 2], b0[i, 0], b0[i, 1], b0[i, 2], b1[i, 0], b1[i, 1], b1[i, 2]))
-        best = min(best, _psd(a1[i, 0], a1[i, 1], a1[i, 2], b0[i, 0], b0[i, 1], b0[i, 2], b1[i, 0], b1[i, 1], b1[i, 2]))
-        best = min(best, _psd(b0[i, 0], b0[i, 1], b0[i, 2], a0[i, 0], a0[i, 1], a0[i, 2], a1[i, 0], a1[i, 1], a1[i, 2]))
-        best = min(best, _psd(b1[i, 0], b1[i, 1], b1[i, 2], a0[i, 0], a0[i, 1], a0[i, 2], a1[i, 0], a1[i, 1], a1[i, 2]))
-        out[i] = best
+        out[i] = _segseg(a0[i, 0], a0[i, 1], a0[i, 2], a1[i, 0], a1[i, 1], a1[i, 2],
+                         b0[i, 0], b0[i, 1], b0[i, 2], b1[i, 0], b1[i, 1], b1[i, 2])
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
