@@ -27,6 +27,20 @@ from numba import njit, prange
 _IMAX = np.iinfo(np.int64).max
 
 
+@njit(cache=True, inline="always")
+def _partition(data, perm, s, e, dim, cut):
+    """Reorder ``perm[s:e]`` into rows with ``data[:, dim] < cut`` then the others; returns
+    the first position of the second part."""
+    i, k = s, e - 1
+    while i <= k:
+        if data[perm[i], dim] < cut:
+            i += 1
+        else:
+            perm[i], perm[k] = perm[k], perm[i]
+            k -= 1
+    return i
+
+
 @njit(cache=True)
 def build_tree(data, leafsize):
     """Sliding-midpoint kd-tree over ``data (n, d)`` float32.
@@ -77,29 +91,14 @@ def build_tree(data, leafsize):
         if spread <= 0.0:  # all points identical: one (large) bucket
             continue
         cut = np.float32(0.5 * (np.float64(lo[dim]) + np.float64(hi[dim])))
-        # partition perm[s:e] into < cut | >= cut
-        i, k = s, e - 1
-        while i <= k:
-            if data[perm[i], dim] < cut:
-                i += 1
-            else:
-                perm[i], perm[k] = perm[k], perm[i]
-                k -= 1
-        mid = i
+        mid = _partition(data, perm, s, e, dim, cut)
         if mid == s:  # slide the cut down to the minimum: one side gets the minimum points
             cut = hi[dim]
             for t in range(s, e):
                 v = data[perm[t], dim]
                 if v > lo[dim] and v < cut:
                     cut = v
-            i, k = s, e - 1
-            while i <= k:
-                if data[perm[i], dim] < cut:
-                    i += 1
-                else:
-                    perm[i], perm[k] = perm[k], perm[i]
-                    k -= 1
-            mid = i
+            mid = _partition(data, perm, s, e, dim, cut)
         elif mid == e:  # cannot happen for cut <= hi with the < rule, kept for safety
             continue
         sdim[node] = dim
