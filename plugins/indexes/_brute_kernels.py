@@ -128,10 +128,10 @@ def exact_rank(q, data, cand, ids, k, r2):
 
 @njit(cache=True)
 def _kth_smallest(vals, c, k):
-    """The ``k``-th smallest of ``vals[:c]`` (``c >= k``) by a bounded max-heap, float64."""
+    """The ``k``-th smallest of ``vals[:c]`` by a bounded max-heap, float64 (inf when ``c < k``)."""
     h = np.full(k, np.inf)
     for t in range(c):
-        v = vals[t]
+        v = np.float64(vals[t])
         if v < h[0]:
             _maxheap_replace(h, v)
     return h[0]
@@ -194,12 +194,7 @@ def lean_rank(a, lim, slack, k, q, data, ids, r2, excl, groups, frames, qg, qf):
                     cand[b] = cand[i]
                     b += 1
             return exact_rank(q, data, cand[:b], ids, k, r2)
-    h = np.full(k, np.inf)
-    for t in range(n):
-        v = np.float64(a[t])
-        if v < h[0]:
-            _maxheap_replace(h, v)
-    kth = h[0]
+    kth = _kth_smallest(a, n, k)
     if kth + slack < lim:
         lim = kth + slack
     c = 0
