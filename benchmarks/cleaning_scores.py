@@ -33,32 +33,24 @@ def angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def analyses(category: str, context: str, n_test: int = 4) -> list[dict]:
     """The protocol of ``analyses.clean_eval`` for one category and context, per test clip."""
-    from mocapflow.plugins.analyses.error_injection import ERROR_KINDS, inject_errors
+    from mocapflow.plugins.analyses.clean_eval import (CleaningEvaluationParams, context_clips, corrupted_clips,
+                                                       protocol_clips)
     from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams
-    from mocapflow.plugins.cleaners.motion_words import motion_texture
     from mocapflow.plugins.formats.asf_amc import read_amc
 
     p = MDMParams(write_bvh=False, heatmaps=False)
-    clips = []
-    for f in sorted(f for s in SUBJECTS[category] for f in (DATA / s).glob("*.amc")):
-        m = read_amc(f)
-        clips.append(m if abs(m.fps - p.fps) < 1e-9 else motion_texture(m, p.joints, p.fps).motion)
-    joints = tuple(j for j in p.joints if all(j in c.skeleton.canonical for c in clips))
-    clips.sort(key=lambda c: -c.n_frames)
+    ev = CleaningEvaluationParams(n_test=n_test)
+    files = sorted(f for s in SUBJECTS[category] for f in (DATA / s).glob("*.amc"))
+    clips, joints = protocol_clips([read_amc(f) for f in files], p.joints, p.fps)
     cleaner = MDMCleaner(p)
     out = []
-    for i in range(min(n_test, len(clips))):
-        others = [c for k, c in enumerate(clips) if k != i]
-        bad, mask, errs = inject_errors(clips[i], ERROR_KINDS, 1, seed=i, min_angle=10.0)
-        tex = motion_texture(clips[i], joints, p.fps)
-        ctx = {"local": [], "small": others[:8], "large": others[:25]}[context]
-        res = cleaner.analyse(bad, ctx)
-        col = {int(j): c for c, j in enumerate(tex.joint_index)}
+    for case in corrupted_clips(clips, ev, joints, p.fps):
+        res = cleaner.analyse(case.bad, context_clips(context, case.others, ev))
+        col = {int(j): c for c, j in enumerate(case.clean_texture.joint_index)}
         out.append({"bad": res.texture.q, "mean": res.mean_texture, "diff": res.difference, "spread": res.spread,
-                    "joints": res.joints,
-                    "truth": mask[:, tex.joint_index], "neighbours": res.neighbours,
-                    "errors": [(e.kind, [col[j] for j in e.joints if j in col], e.start, e.end) for e in errs]})
-        print(f"  analysed {clips[i].name} ({res.seconds:.1f} s)", file=sys.stderr, flush=True)
+                    "joints": res.joints, "truth": case.truth, "neighbours": res.neighbours,
+                    "errors": [(e.kind, [col[j] for j in e.joints if j in col], e.start, e.end) for e in case.errors]})
+        print(f"  analysed {case.clean.name} ({res.seconds:.1f} s)", file=sys.stderr, flush=True)
     return out
 
 

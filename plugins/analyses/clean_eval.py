@@ -22,7 +22,8 @@ average and maximum, for the corrupted input and for the repaired clip.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -150,6 +151,49 @@ class CleaningEvaluation(Analysis):
         return StepOutput({"data": data, "repair": repair}, {"rows": rows, "repair": rep})
 
 
+def protocol_clips(clips: list[Motion], joints: Sequence[str], fps: float) -> tuple[list[Motion], tuple[str, ...]]:
+    """The category's clips at the analysis rate, longest first (the first ``n_test`` are the
+    test clips), and the texture joints every clip maps."""
+    from mocapflow.plugins.cleaners.motion_words import motion_texture
+
+    joints = tuple(j for j in joints if all(j in c.skeleton.canonical for c in clips))
+    clips = [c if abs(c.fps - fps) < 1e-9 else motion_texture(c, joints, fps).motion for c in clips]
+    return sorted(clips, key=lambda c: -c.n_frames), joints
+
+
+@dataclass(frozen=True)
+class CorruptedClip:
+    """One test clip of the protocol: ``bad`` is ``clean`` with the injected ``errors``;
+    ``truth`` (T, m) marks the erroneous cells on the texture joints."""
+
+    index: int
+    clean: Motion
+    others: list[Motion]
+    bad: Motion
+    truth: np.ndarray
+    errors: list
+    clean_texture: Any
+
+
+def corrupted_clips(clips: list[Motion], p: CleaningEvaluationParams, joints: Sequence[str],
+                    fps: float) -> Iterator[CorruptedClip]:
+    """The ``n_test`` first of :func:`protocol_clips`, each corrupted with seed ``seed + position``."""
+    from mocapflow.plugins.cleaners.motion_words import motion_texture
+
+    for i in range(min(p.n_test, len(clips))):
+        clean = clips[i]
+        bad, mask, errors = inject_errors(clean, p.kinds, p.per_kind, seed=p.seed + i, min_angle=p.min_angle)
+        tex = motion_texture(clean, joints, fps)
+        yield CorruptedClip(i, clean, [c for k, c in enumerate(clips) if k != i], bad, mask[:, tex.joint_index],
+                            errors, tex)
+
+
+def context_clips(context: str, others: list[Motion], p: CleaningEvaluationParams) -> list[Motion]:
+    """The clips searched besides the test clip itself for a context of the protocol."""
+    return {"local": [], "small": others[: p.small_size], "large": others[: p.large_size],
+            "large_two_stage": others[: p.large_size]}[context]
+
+
 def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationParams,
                       log: Any = print) -> tuple[list[dict], list[dict]]:
     """Run the protocol (module doc) on one category's clips; returns (rows, repair rows)."""
@@ -162,22 +206,14 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
     cleaner = MDMCleaner(MDMParams(**{"write_bvh": False, "heatmaps": False, **p.cleaner}))
     cp = cleaner.params
     two_stage = cleaner.clone(two_stage=True)
-    joints = tuple(j for j in cp.joints if all(j in c.skeleton.canonical for c in clips))
-    clips = [c if abs(c.fps - cp.fps) < 1e-9 else motion_texture(c, joints, cp.fps).motion for c in clips]
+    clips, joints = protocol_clips(clips, cp.joints, cp.fps)
     textures = [motion_texture(c, joints, cp.fps).q for c in clips]
-    order = sorted(range(len(clips)), key=lambda k: -clips[k].n_frames)
-    clips = [clips[k] for k in order]
-    textures = [textures[k] for k in order]
     counts: dict[tuple[str, str], dict[str, int]] = {}
     times: dict[str, list[float]] = {}
     rep_before: list[dict[str, float]] = []
     rep_after: list[dict[str, float]] = []
-    for i in range(min(p.n_test, len(clips))):
-        clean = clips[i]
-        others = [c for k, c in enumerate(clips) if k != i]
-        bad, mask, _ = inject_errors(clean, p.kinds, p.per_kind, seed=p.seed + i, min_angle=p.min_angle)
-        tex_clean = motion_texture(clean, joints, cp.fps)
-        truth = mask[:, tex_clean.joint_index]
+    for case in corrupted_clips(clips, p, joints, cp.fps):
+        i, clean, bad, truth, tex_clean = case.index, case.clean, case.bad, case.truth, case.clean_texture
         starts = source_word_starts(len(truth), cp.source_length, cp.source_step)
         base = RotationBaselines([t for k, t in enumerate(textures) if k != i])
         q_bad = motion_texture(bad, joints, cp.fps).q
@@ -185,8 +221,7 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
         for name, flags in (("baseline_a_limits", lim), ("baseline_b_derivative", der), ("baseline_c_both", lim | der)):
             _add(counts, (name, "-"), scores(flags, truth, starts, cp.source_length))
         for context in p.contexts:
-            ctx_clips = {"local": [], "small": others[: p.small_size], "large": others[: p.large_size],
-                         "large_two_stage": others[: p.large_size]}[context]
+            ctx_clips = context_clips(context, case.others, p)
             t0 = time.perf_counter()
             res = (two_stage if context == "large_two_stage" else cleaner).analyse(bad, ctx_clips)
             times.setdefault(context, []).append(time.perf_counter() - t0)
