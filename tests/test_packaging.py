@@ -22,22 +22,57 @@ def _run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
     return res
 
 
+def _site_dirs() -> list[str]:
+    """The directories this interpreter imports third-party packages from (its
+    site-packages/purelib/platlib, and the user site when enabled), in its own order.
+
+    Taken from the *running* interpreter, whatever it is: a plain install, a venv (whose
+    base interpreter's site-packages lack its packages) or a conda env.
+    """
+    import site
+    import sysconfig
+
+    cands = [*site.getsitepackages(), sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]]
+    if site.ENABLE_USER_SITE:
+        cands.append(site.getusersitepackages())
+    # sys.path also holds the base interpreter's site-packages of a --system-site-packages venv
+    cands += [p for p in sys.path if Path(p).name in ("site-packages", "dist-packages")]
+    out: list[str] = []
+    for c in cands:
+        c = str(Path(c).resolve())
+        if Path(c).is_dir() and c not in out:
+            out.append(c)
+    return out
+
+
 @pytest.fixture(scope="module")
 def venv(tmp_path_factory):
-    """A venv that sees this interpreter's packages (numpy, scipy... stay offline) but gets
-    mocapflow from the freshly built wheel and the template plugin from its own pyproject."""
+    """A fresh venv that gets mocapflow from the freshly built wheel and the template plugin
+    from its own pyproject, and finds this interpreter's third-party packages (numpy,
+    scipy... so that the test stays offline) through a ``.pth`` file.
+
+    The venv has no system site packages: a ``.pth`` line only appends its directory to
+    ``sys.path`` (the ``.pth`` files *inside* it, e.g. this checkout's editable install,
+    are not run), and the venv's own site-packages comes first, so ``mocapflow`` is the
+    wheel's whether pytest runs from a plain interpreter, a venv or a conda env.
+    """
     root = tmp_path_factory.mktemp("venv")
     build = root / "src"
     # build from a copy, so the build leaves nothing behind in the repository
-    shutil.copytree(REPO, build, ignore=shutil.ignore_patterns(".git", "runs", "build", "*.egg-info", "__pycache__", ".pytest_cache"))
+    shutil.copytree(REPO, build, ignore=shutil.ignore_patterns(".git", "runs", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache", "*.whl"))
     wheels = root / "wheels"
     # wheels are built by this interpreter (its setuptools); the venv only installs them
     for project in (build, build / "examples" / "template-plugin"):
         _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(project)])
     env_dir = root / "env"
-    _run([sys.executable, "-m", "venv", "--system-site-packages", str(env_dir)])
+    _run([sys.executable, "-m", "venv", "--without-pip", str(env_dir)])
     py = env_dir / "bin" / "python"
-    _run([str(py), "-m", "pip", "install", "--no-deps", "--force-reinstall", *map(str, sorted(wheels.glob("*.whl")))])
+    # this interpreter's pip installs into the venv (pip >= 22.3 `--python`), before the .pth
+    # exists: the venv then holds nothing else, so nothing outside it is touched
+    _run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps", "--no-index",
+          *map(str, sorted(wheels.glob("*.whl")))])
+    purelib = _run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip()
+    (Path(purelib) / "_host_site_packages.pth").write_text("".join(f"{d}\n" for d in _site_dirs()))
     return env_dir
 
 
