@@ -2,29 +2,61 @@
 
 Errors a user can fix are printed as one line (exit 2 for configuration problems, 1 for
 failures while running); ``--debug`` shows tracebacks.
+
+Start-up is lazy: this module imports only the standard library, :mod:`.errors` and
+pluggy. A built-in command loads the plugins only when it needs the registries (``sql``
+never does); ``--help`` and plugin commands load only the plugins that provide commands
+(built-ins are found by reading their source, see :func:`command_plugin_modules`), so
+listing the commands imports neither NumPy's nor pydantic's world unless those plugins do.
 """
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 import traceback
+import typing
 from pathlib import Path
+
 from .errors import ConfigError, MocapflowError, PluginError
 
 BUILTIN_COMMANDS = ("run", "plan", "plugins", "sql")
+# built-in commands that need the plugin manager (the registries); `sql` reads Parquet only
+_COMMANDS_WITH_PLUGINS = ("run", "plan", "plugins")
 
 
 def _echo(msg: str) -> None:
     print(msg, flush=True)
 
 
+def _warn(msg: str) -> None:
+    print(f"mocapflow: warning: {msg}", file=sys.stderr, flush=True)
+
+
+def _rejects_warnings(reports) -> list[str]:
+    """One line per computed step that rejected input files (their summary says so)."""
+    lines = []
+    for r in reports:
+        n = (r.summary or {}).get("rejects")
+        if isinstance(n, int) and not isinstance(n, bool) and n > 0:
+            files = r.summary.get("files")
+            what = f"{n} of {files} files" if isinstance(files, int) else f"{n} file{'s' * (n != 1)}"
+            lines.append(f"{r.step_id}: {what} rejected: see the rejects view "
+                         f"(mocapflow sql WORKSPACE \"SELECT * FROM {r.step_id.replace('-', '_')}_rejects\")")
+    return lines
+
+
 def cmd_run(args: argparse.Namespace, pm) -> int:
+    from .progress import announce_compilation
     from .runner import run_pipeline
 
     _echo(f"mocapflow: running {args.pipeline}")
-    reports = run_pipeline(args.pipeline, workspace=args.workspace, overrides=args.set, jobs=args.jobs,
-                           force=args.force, pm=pm, echo=_echo)
+    with announce_compilation(_echo):
+        reports = run_pipeline(args.pipeline, workspace=args.workspace, overrides=args.set, jobs=args.jobs,
+                               force=args.force, pm=pm, echo=_echo)
+    for line in _rejects_warnings(reports):
+        _warn(line)
     computed = sum(r.status == "computed" for r in reports)
     fresh = len(reports) - computed
     if computed == 0:
@@ -60,13 +92,32 @@ def cmd_plan(args: argparse.Namespace, pm) -> int:
     return 0
 
 
+def format_annotation(ann: object) -> str:
+    """A parameter's type as a user reads it: ``'record' | 'fail'`` for a Literal (its
+    choices), ``int | None`` for a Union, ``list[float]``, ``dict[str, int]``, a class name."""
+    origin, args = typing.get_origin(ann), typing.get_args(ann)
+    if origin is typing.Literal:
+        return " | ".join(repr(a) for a in args)
+    if ann is type(None):
+        return "None"
+    if origin is typing.Union or type(ann).__name__ == "UnionType":
+        return " | ".join(format_annotation(a) for a in args)
+    if origin is typing.Annotated:
+        return format_annotation(args[0])
+    if origin is not None and args:
+        name = getattr(origin, "__name__", None) or str(origin).replace("typing.", "")
+        return f"{name}[{', '.join('...' if a is Ellipsis else format_annotation(a) for a in args)}]"
+    if isinstance(ann, type):
+        return ann.__name__
+    return str(ann).replace("typing.", "")
+
+
 def _param_rows(cls: type) -> list[str]:
     rows = []
     for name, field in cls.Params.model_fields.items():
         default = "required" if field.is_required() else f"default {field.get_default(call_default_factory=True)!r}"
         desc = f" - {field.description}" if field.description else ""
-        ann = getattr(field.annotation, "__name__", None) or str(field.annotation).replace("typing.", "")
-        rows.append(f"        {name}: {ann} ({default}){desc}")
+        rows.append(f"        {name}: {format_annotation(field.annotation)} ({default}){desc}")
     return rows
 
 
@@ -93,13 +144,20 @@ def cmd_plugins(args: argparse.Namespace, pm) -> int:
 def cmd_sql(args: argparse.Namespace, pm) -> int:
     from .catalog import Catalog, format_table, write_table
 
+    if args.output:  # refuse what cannot be written before the work
+        out = Path(args.output)
+        if out.is_dir():
+            raise ConfigError(f"--output {out} is a directory: give a file name (e.g. {out / 'result.csv'})")
+        if args.format == "table" and out.suffix.lower() not in (".csv", ".parquet", ""):
+            raise ConfigError(f"--output {out}: unknown format {out.suffix!r}; use .csv or .parquet, or --format")
     with Catalog(args.workspace) as cat:
         if not args.query:
             _echo("views: " + ", ".join(sorted(cat.views)))
             return 0
         table = cat.query(args.query, args.param or None)
     if args.output:
-        fmt = args.format if args.format != "table" else Path(args.output).suffix.lstrip(".") or "csv"
+        fmt = args.format if args.format != "table" else Path(args.output).suffix.lstrip(".").lower() or "csv"
+        Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # a new folder is made, as a user expects
         write_table(table, args.output, fmt)
         _echo(f"wrote {table.num_rows} rows to {args.output}")
     elif args.format == "csv":
@@ -120,7 +178,10 @@ def cmd_sql(args: argparse.Namespace, pm) -> int:
 
 
 def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
+    from mocapflow import __version__
+
     parser = argparse.ArgumentParser(prog="mocapflow", description="Searchable, clean motion-capture databases.")
+    parser.add_argument("--version", action="version", version=f"mocapflow {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
     parser.add_argument("--no-entry-points", action="store_true", help="do not load third-party plugins")
     parser.add_argument("--block", action="append", default=[], metavar="PLUGIN", help="do not load this plugin")
@@ -173,17 +234,91 @@ def _plugin_commands(pm) -> list[type]:
     return out
 
 
+def command_plugin_modules() -> list[str]:
+    """The built-in plugin modules that provide CLI commands, found without importing them:
+    a module whose source names the ``register_commands`` hook (its hookimpl must be named
+    so; ``tests/test_startup.py`` checks this against the imported modules). A module whose
+    source cannot be read is included."""
+    from importlib.util import find_spec
+
+    from .plugins import builtin_plugin_modules
+
+    out = []
+    for mod in builtin_plugin_modules():
+        spec = find_spec(mod)
+        try:
+            text = Path(spec.origin).read_text(encoding="utf-8") if spec and spec.origin else None
+        except OSError:
+            text = None
+        if text is None or "register_commands" in text:
+            out.append(mod)
+    return out
+
+
+def _global_options(argv: list[str]) -> tuple[str | None, bool, list[str]]:
+    """``(command, load entry points, blocked plugins)`` read before the parser exists (it
+    depends on the plugins): the first word that is not an option or the value of
+    ``--block``."""
+    command, blocked, i = None, [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--block" and i + 1 < len(argv):
+            blocked.append(argv[i + 1])
+            i += 2
+            continue
+        if a.startswith("--block="):
+            blocked.append(a.split("=", 1)[1])
+        elif command is None and not a.startswith("-"):
+            command = a
+            break
+        i += 1
+    return command, "--no-entry-points" not in argv[: i if command else len(argv)], blocked
+
+
+def _unknown_blocked(blocked: list[str]) -> list[str]:
+    """Names given to ``--block`` that name no built-in plugin module and no entry point."""
+    if not blocked:
+        return []
+    from importlib import metadata
+
+    from .plugins import ENTRY_POINT_GROUP, builtin_plugin_modules
+
+    known = set(builtin_plugin_modules()) | {ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    return [b for b in dict.fromkeys(blocked) if b not in known]
+
+
+def _plugin_manager(command: str | None, entry_points: bool, blocked: list[str]):
+    """All plugins for run/plan/plugins, none for sql (``None``), and for ``--help`` and
+    plugin commands only the plugins that provide commands."""
+    from .plugins import get_plugin_manager
+
+    if command in BUILTIN_COMMANDS:
+        return get_plugin_manager(entry_points=entry_points, blocked=blocked) if command in _COMMANDS_WITH_PLUGINS else None
+    pm = get_plugin_manager(builtins=False, entry_points=entry_points, blocked=blocked)
+    for mod in command_plugin_modules():
+        if mod not in blocked and not pm.has_plugin(mod):
+            pm.register(importlib.import_module(mod), name=mod)
+    return pm
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     debug = "--debug" in argv
     logging.basicConfig(level=logging.DEBUG if debug else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        from .plugins import get_plugin_manager
-
-        pm = get_plugin_manager(entry_points="--no-entry-points" not in argv,
-                                blocked=[argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--block"])
-        parser = build_parser(_plugin_commands(pm))
-        args = parser.parse_args(argv)
+        command, entry_points, blocked = _global_options(argv)
+        for name in _unknown_blocked(blocked):
+            _warn(f"--block {name}: no plugin of that name (built-in plugins are module names, "
+                  "e.g. mocapflow.plugins.indexes.kdtree; third-party ones their entry-point names: "
+                  "see `mocapflow plugins`)")
+        if command in BUILTIN_COMMANDS or (command is None and "--version" in argv):
+            parser = build_parser([])  # the parser of a built-in needs no plugin (`run --help` is quick)
+            args = parser.parse_args(argv)
+            pm = _plugin_manager(command, entry_points, blocked)
+        else:
+            pm = _plugin_manager(command, entry_points, blocked)
+            parser = build_parser(_plugin_commands(pm))
+            args = parser.parse_args(argv)
         if not getattr(args, "func", None):
             parser.print_help()
             return 0

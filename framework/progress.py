@@ -1,9 +1,11 @@
-"""Progress bars for long work (stderr, only when it is a terminal or forced)."""
+"""Progress bars for long work (stderr, only when it is a terminal or forced), and the
+announcement of numba compilations (:func:`announce_compilation`)."""
 from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from typing import TypeVar
 
 T = TypeVar("T")
@@ -33,3 +35,99 @@ def progress(items: Iterable[T], total: int | None = None, desc: str = "", enabl
         sys.stderr.write("\n")
         return
     yield from tqdm(items, total=total, desc=desc, leave=False, file=sys.stderr, dynamic_ncols=True)
+
+
+COMPILING_MESSAGE = ("compiling numba kernels for this machine (once: later runs load them from the cache; "
+                     "this can take a minute)")
+
+
+class _AfterImport:
+    """A ``sys.meta_path`` finder that calls ``callback()`` once module ``name`` has been
+    imported (a post-import hook), so that a listener can be attached to a heavy module
+    without importing it."""
+
+    def __init__(self, name: str, callback: Callable[[], None]) -> None:
+        self.name, self.callback, self._busy = name, callback, False
+
+    def find_spec(self, fullname: str, path=None, target=None):
+        if fullname != self.name or self._busy:
+            return None
+        import importlib.util
+
+        self._busy = True
+        try:
+            spec = importlib.util.find_spec(fullname)
+        finally:
+            self._busy = False
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        spec.loader = _CallbackLoader(spec.loader, self.callback)
+        return spec
+
+
+class _CallbackLoader:
+    """Delegates to the real loader; runs the callback after the module's code ran."""
+
+    def __init__(self, loader, callback: Callable[[], None]) -> None:
+        self._loader, self._callback = loader, callback
+
+    def create_module(self, spec):
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        self._loader.exec_module(module)
+        self._callback()
+
+    def __getattr__(self, name: str):
+        return getattr(self._loader, name)
+
+
+@contextmanager
+def announce_compilation(echo: Callable[[str], None], message: str = COMPILING_MESSAGE) -> Iterator[None]:
+    """Within the block, say ``message`` (once) when numba starts compiling a kernel.
+
+    numba compiles a kernel on its first call and then caches it on disk (``cache=True``);
+    loading from the cache is quick and silent, a compilation is not: a first run on a fresh
+    install would otherwise sit silent for a long time. Only real compilations are
+    announced (numba's ``numba:compile`` event fires on cache misses only), and nothing is
+    imported here: when numba is not imported yet, the listener is attached once it is.
+    Work done in worker processes is not seen.
+    """
+    said: list[bool] = []
+    listeners: list[object] = []
+
+    def attach() -> None:
+        try:
+            from numba.core import event
+        except Exception:  # no numba, or an API we do not know: stay silent, as before
+            return
+
+        class _Announce(event.Listener):
+            def on_start(self, ev) -> None:
+                if not said:
+                    said.append(True)
+                    echo(message)
+
+            def on_end(self, ev) -> None:
+                pass
+
+        listener = _Announce()
+        event.register("numba:compile", listener)
+        listeners.append((event, listener))
+
+    finder = None
+    if "numba" in sys.modules:
+        attach()
+    else:
+        finder = _AfterImport("numba", attach)
+        sys.meta_path.insert(0, finder)
+    try:
+        yield
+    finally:
+        if finder is not None and finder in sys.meta_path:
+            sys.meta_path.remove(finder)
+        for ev_mod, listener in listeners:
+            try:
+                ev_mod.unregister("numba:compile", listener)
+            except Exception:
+                pass

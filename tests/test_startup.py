@@ -29,3 +29,60 @@ def test_cli_help_imports_nothing_heavy():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1:]
     assert out in ([], [""]), f"imported by `mocapflow`: {out}"
+
+
+def _modules_after(code_lines: list[str], cwd: str | None = None) -> set[str]:
+    """The top-level modules (and ``mocapflow.*`` ones) a fresh interpreter holds after ``code``."""
+    code = "\n".join([
+        "import sys, io, contextlib",
+        *code_lines,
+        "print('MODULES', ' '.join(sorted(m for m in sys.modules if '.' not in m or m.startswith('mocapflow.'))))",
+    ])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=cwd).stdout
+    return set(next(line for line in out.splitlines() if line.startswith("MODULES")).split()[1:])
+
+
+def _cli(argv: list[str]) -> list[str]:
+    return [
+        "from mocapflow.framework.cli import main",
+        "with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):",
+        "    try:",
+        f"        main({argv!r})",
+        "    except SystemExit:",
+        "        pass",
+    ]
+
+
+def test_importing_the_framework_is_cheap_and_every_name_resolves():
+    mods = _modules_after(["import mocapflow, mocapflow.framework"])
+    assert not mods & {"numpy", "pyarrow", "pydantic", "scipy", "numba", "duckdb"}, mods
+    import mocapflow
+    import mocapflow.framework as fw
+
+    for name in fw.__all__:  # the lazy facade gives every public name
+        assert getattr(fw, name) is not None, name
+    assert fw.__version__ == mocapflow.__version__
+    assert fw.Motion.__module__ == "mocapflow.framework.motion"
+
+
+def test_cli_help_and_version_import_no_pydantic_scipy_numba():
+    for argv in (["--help"], [], ["--version"], ["run", "--help"]):
+        mods = _modules_after(_cli(argv))
+        assert not mods & {"pydantic", "scipy", "numba", "duckdb", "matplotlib", "yaml"}, (argv, mods)
+    assert "numpy" not in _modules_after(_cli(["--version"]))
+
+
+def test_sql_loads_no_plugin(tmp_path):
+    mods = _modules_after(_cli(["sql", str(tmp_path / "missing"), "SELECT 1"]))
+    assert not any(m.startswith("mocapflow.plugins.") for m in mods), sorted(mods)
+
+
+def test_help_finds_every_builtin_command_provider_without_importing():
+    """`mocapflow --help` imports only the built-ins whose source names register_commands:
+    that guess must agree with the hooks the imported modules implement."""
+    from mocapflow.framework import get_plugin_manager
+    from mocapflow.framework.cli import command_plugin_modules
+
+    pm = get_plugin_manager(entry_points=False)
+    providers = {pm.get_name(impl.plugin) for impl in pm.hook.register_commands.get_hookimpls()}
+    assert providers and providers == set(command_plugin_modules())
