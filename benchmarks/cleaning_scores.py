@@ -10,6 +10,7 @@ where the erroneous cells sit against the clean cells (in row medians).
 
     python benchmarks/cleaning_scores.py                 # locomotion and dance
     python benchmarks/cleaning_scores.py --category dance --context local
+    python benchmarks/cleaning_scores.py --quick         # locomotion, 2 test clips, local context
 
 A threshold-free view: when no threshold of a score reaches a precision, no choice of
 ``robust_factor`` or threshold will. Needs ../shared/data.
@@ -123,13 +124,17 @@ def row_median(s: np.ndarray) -> np.ndarray:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--category", choices=tuple(SUBJECTS), action="append")
-    ap.add_argument("--context", choices=("local", "small", "large"), default="small")
+    ap.add_argument("--context", choices=("local", "small", "large"), default=None, help="default small (quick: local)")
+    ap.add_argument("--quick", action="store_true", help="locomotion only, 2 test clips, the local context")
     args = ap.parse_args(argv)
+    args.context = args.context or ("local" if args.quick else "small")
+    if args.quick and not args.category:
+        args.category = ["locomotion"]
     if not DATA.is_dir():
         print(f"needs the corpus at {DATA}", file=sys.stderr)
         return 2
     for cat in args.category or tuple(SUBJECTS):
-        runs = analyses(cat, args.context)
+        runs = analyses(cat, args.context, n_test=2 if args.quick else 4)
         truth = np.concatenate([c["truth"] for c in runs])
         samples = [sample_scores(c) for c in runs]
         scores = {
