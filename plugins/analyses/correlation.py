@@ -115,25 +115,32 @@ class DistanceCorrelationStudy(Analysis):
         rho = np.full((len(rows), len(cols)), np.nan)
         std = np.full_like(rho, np.nan)
         count = np.zeros(rho.shape, np.int64)
-        it = progress(list(enumerate(rows)), desc="correlation rows") if progress else enumerate(rows)
-        for r, row in it:
-            if row in feats:
-                ix = KDTreeIndex(method="kdtree").build(feats[row], groups=clip_id, frames=frame)
-                nd, nb = ix.query_rows(queries, p.k, exclude=p.exclude_frames)
+        # one unit of progress per (row, neighbours) and (row, column): a row is long
+        # (the neighbours of every sample, then one distance per neighbour and column)
+        units = [(r, c) for r in range(len(rows)) for c in range(-1, len(cols))]
+        desc = f"correlation: {len(rows)} rows x ({len(cols)} columns + neighbours)"
+        for r, c in progress(units, desc=desc) if progress else units:
+            row = rows[r]
+            if c < 0:  # the row's neighbours
+                if row in feats:
+                    ix = KDTreeIndex(method="kdtree").build(feats[row], groups=clip_id, frames=frame)
+                    nd, nb = ix.query_rows(queries, p.k, exclude=p.exclude_frames)
+                else:
+                    nd, nb = self._scan(pm, row, queries, clip_id, frame)
+                per = np.full((len(queries), len(cols)), np.nan)
+                ok = (nb >= 0).all(1)
+                continue
+            col = cols[c]
+            if col == row:
+                per[:, c] = 1.0
             else:
-                nd, nb = self._scan(pm, row, queries, clip_id, frame)
-            per = np.full((len(queries), len(cols)), np.nan)
-            ok = (nb >= 0).all(1)
-            for c, col in enumerate(cols):
-                if col == row:
-                    per[:, c] = 1.0
-                    continue
                 other = np.stack([dist(col, int(q), nb[s]) if ok[s] else np.zeros(p.k) for s, q in enumerate(queries)])
                 per[:, c] = spearman_rows(nd.astype(np.float64), other)
-            per[~ok] = np.nan
-            rho[r] = np.nanmean(per, 0)
-            std[r] = np.nanstd(per, 0)
-            count[r] = np.isfinite(per).sum(0)
+            if c == len(cols) - 1:  # the row is complete
+                per[~ok] = np.nan
+                rho[r] = np.nanmean(per, 0)
+                std[r] = np.nanstd(per, 0)
+                count[r] = np.isfinite(per).sum(0)
         return rows, cols, rho, std, count
 
     def _scan(self, pm: PoseMeasures, row: str, queries, clip_id, frame, chunk: int = 65536):
