@@ -72,30 +72,52 @@ class _LineLoader(yaml.SafeLoader):
     """SafeLoader that records the line of every mapping key (path tuple -> 1-based line)."""
 
 
+def _yaml_error(exc: yaml.YAMLError, source: str) -> ConfigError:
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    where = f"{source}:{mark.line + 1}" if mark is not None else source
+    problem = getattr(exc, "problem", None) or str(exc)
+    if isinstance(exc, yaml.constructor.ConstructorError) and "tag" in problem:
+        problem = f"{problem.replace('could not determine a constructor for the', 'unsupported')}: pipelines are plain YAML (mappings, lists, strings, numbers, booleans)"
+    return ConfigError(f"{where}: invalid YAML: {problem}")
+
+
 def _load_with_lines(text: str, source: str) -> tuple[Any, dict[tuple[str, ...], int]]:
+    """Parse once; construct plain data only (an unknown or Python tag is a ConfigError at its
+    line, never constructed); a key repeated in one mapping is an error too (YAML forbids
+    it; PyYAML would keep the last one silently)."""
     lines: dict[tuple[str, ...], int] = {}
+    loader = _LineLoader(text)
     try:
-        root = yaml.compose(text, Loader=_LineLoader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{source}:{mark.line + 1}" if mark is not None else source
-        raise ConfigError(f"{where}: invalid YAML: {getattr(exc, 'problem', exc)}") from None
+        root = loader.get_single_node()
 
-    def walk(node: yaml.Node, path: tuple[str, ...]) -> None:
-        if isinstance(node, yaml.MappingNode):
-            for k, v in node.value:
-                key = (*path, str(k.value))
-                lines[key] = k.start_mark.line + 1
-                walk(v, key)
-        elif isinstance(node, yaml.SequenceNode):
-            for i, v in enumerate(node.value):
-                lines[(*path, str(i))] = v.start_mark.line + 1
-                walk(v, (*path, str(i)))
+        active: set[int] = set()
 
-    if root is not None:
+        def walk(node: yaml.Node, path: tuple[str, ...]) -> None:
+            if id(node) in active:
+                raise ConfigError(f"{source}:{node.start_mark.line + 1}: an alias refers to a node that contains it")
+            active.add(id(node))
+            if isinstance(node, yaml.MappingNode):
+                for k, v in node.value:
+                    key = (*path, str(k.value))
+                    if key in lines:
+                        raise ConfigError(f"{source}:{k.start_mark.line + 1}: key {k.value!r} appears twice "
+                                          f"(first at line {lines[key]})")
+                    lines[key] = k.start_mark.line + 1
+                    walk(v, key)
+            elif isinstance(node, yaml.SequenceNode):
+                for i, v in enumerate(node.value):
+                    lines[(*path, str(i))] = v.start_mark.line + 1
+                    walk(v, (*path, str(i)))
+            active.discard(id(node))
+
+        if root is None:
+            return None, lines
         walk(root, ())
-    data = yaml.load(text, Loader=_LineLoader) if root is not None else None
-    return data, lines
+        return loader.construct_document(root), lines
+    except yaml.YAMLError as exc:
+        raise _yaml_error(exc, source) from None
+    finally:
+        loader.dispose()
 
 
 class PipelineSource:

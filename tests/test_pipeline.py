@@ -213,3 +213,23 @@ def test_killed_run_resumes_with_the_same_outputs(tmp_path):
     assert reports == {"src": "up to date", "slow": "computed", "after": "computed"}
     assert pq.read_table(ws / "after" / "data.parquet")["x"].to_pylist() == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
     assert not (ws / ".tmp").exists()
+
+
+@pytest.mark.parametrize("body, line, words", [
+    ("steps:\n  a: !!python/object/apply:os.system ['touch PWNED']\n", 3, ["unsupported tag", "python/object/apply"]),
+    ("steps:\n  a:\n    uses: !custom analyses.toy_source\n", 4, ["unsupported tag '!custom'"]),
+    ("steps:\n  a: {uses: analyses.toy_source}\n  a: {uses: analyses.toy_add}\n", 4, ["key 'a' appears twice", "line 3"]),
+    ("steps: &s\n  a: *s\n", 2, ["alias"]),
+])
+def test_yaml_tags_duplicates_and_recursive_aliases_are_config_errors(tmp_path, body, line, words):
+    from mocapflow.framework.cli import main
+
+    p = write(tmp_path, "name: bad\n" + body)
+    with pytest.raises(ConfigError) as err:
+        plan(p)
+    msg = str(err.value)
+    assert f"{p}:{line}" in msg, msg
+    for w in words:
+        assert w in msg, msg
+    assert main(["--no-entry-points", "plan", str(p)]) == 2
+    assert not (tmp_path / "PWNED").exists() and not Path("PWNED").exists()
