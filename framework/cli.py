@@ -163,14 +163,9 @@ def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
 
 
 def _plugin_commands(pm) -> list[type]:
-    out: list[type] = []
-    for impl in pm.hook.register_commands.get_hookimpls():
-        name = pm.get_name(impl.plugin)
-        try:
-            out += list(impl.function() or [])
-        except Exception as exc:
-            raise PluginError(f"plugin {name!r} failed in register_commands(): {exc}") from exc
-    return out
+    from .plugins import plugin_commands
+
+    return plugin_commands(pm)  # a plugin whose hook raises is reported and skipped
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -179,17 +179,11 @@ def plan_pipeline(path: str | Path, overrides: tuple[str, ...] | list[str] = (),
 
 def executor_classes(pm) -> dict[str, type]:
     """Executor classes registered through the ``register_executors`` hook, by name."""
-    out: dict[str, type] = {}
-    for impl in pm.hook.register_executors.get_hookimpls():
-        for cls in impl.function() or []:
-            if cls.name in out and out[cls.name] is not cls:
-                raise PluginError(f"duplicate executor {cls.name!r} from plugin {pm.get_name(impl.plugin)!r}")
-            out[cls.name] = cls
-    return out
+    return dict(build_registries(pm).executors)
 
 
-def make_executor(pm, name: str, jobs: int = 1, options: dict[str, Any] | None = None) -> Executor:
-    classes = executor_classes(pm)
+def make_executor(pm, name: str, jobs: int = 1, options: dict[str, Any] | None = None, registries=None) -> Executor:
+    classes = dict(registries.executors) if registries is not None else executor_classes(pm)
     if name not in classes:
         from .registry import did_you_mean
 
@@ -234,7 +228,7 @@ def run_pipeline(
     cfg = plan.source.config
     ws = Path(workspace).resolve() if workspace is not None else default_workspace(plan)
     own = executor is None
-    ex = executor or make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options)
+    ex = executor or make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options, registries)
     try:
         return Runner(plan, ws, ex, registries, hook=pm.hook, force=force, echo=echo).run()
     finally:

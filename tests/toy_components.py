@@ -125,3 +125,23 @@ class ToySlow(Analysis):
         (ctx.workspace / "slow-started").write_text("1")
         time.sleep(self.params.seconds)
         return StepOutput({"data": pa.table({"x": inputs["source"].table()["x"]})})
+
+
+class RaisingPlugin:
+    """A third-party plugin whose every registration hook raises (``RAISING`` is its
+    entry-point object in the tests)."""
+
+    @hookimpl
+    def register_analyses(self):
+        raise RuntimeError("analyses exploded")
+
+    @hookimpl
+    def register_executors(self):
+        raise RuntimeError("executors exploded")
+
+    @hookimpl
+    def register_commands(self):
+        raise RuntimeError("commands exploded")
+
+
+RAISING = RaisingPlugin()
