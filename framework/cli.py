@@ -24,7 +24,7 @@ def cmd_run(args: argparse.Namespace, pm) -> int:
 
     _echo(f"mocapflow: running {args.pipeline}")
     reports = run_pipeline(args.pipeline, workspace=args.workspace, overrides=args.set, jobs=args.jobs,
-                           force=args.force, pm=pm, echo=_echo)
+                           force=args.force, pm=pm, echo=_echo, wait=args.wait)
     computed = sum(r.status == "computed" for r in reports)
     fresh = len(reports) - computed
     if computed == 0:
@@ -135,6 +135,8 @@ def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--jobs", "-j", type=int, default=None, help="worker processes for per-clip work (0 = all cores)")
     p.add_argument("--force", action="store_true", help="recompute every step")
+    p.add_argument("--wait", type=float, default=0.0, metavar="SECONDS",
+                   help="wait this long for another run holding the workspace (default: refuse at once)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("plan", help="validate a pipeline and show what would run")

@@ -173,6 +173,31 @@ def plugin_commands(pm: pluggy.PluginManager) -> list[type]:
     return [cls for _, classes in results for cls in classes]
 
 
+def call_lifecycle(hook_relay: Any, hook_name: str, **kwargs: Any) -> None:
+    """Call a lifecycle hook (``before_step``...) plugin by plugin, in pluggy's order.
+
+    An implementation that raises becomes a :class:`PluginError` naming its plugin and the
+    hook (the original exception is its ``__cause__``); the implementations after it are
+    not called. Hook wrappers, which pluggy must drive, make the call go through pluggy as
+    a whole; an error is then attributed to every plugin implementing the hook.
+    """
+    caller = getattr(hook_relay, hook_name)
+    impls = caller.get_hookimpls()
+    what = f"{hook_name}({', '.join(f'{k}={v!r}' for k, v in kwargs.items() if k == 'step_id')})"
+    if any(i.wrapper or i.hookwrapper for i in impls):
+        try:
+            caller(**kwargs)
+        except Exception as exc:
+            names = ", ".join(sorted({repr(i.plugin_name) for i in impls}))
+            raise PluginError(f"a plugin failed in {what} (one of {names}): {type(exc).__name__}: {exc}") from exc
+        return
+    for impl in reversed(impls):  # pluggy calls the last registered (and tryfirst) first
+        try:
+            impl.function(*[kwargs[a] for a in impl.argnames])
+        except Exception as exc:
+            raise PluginError(f"plugin {impl.plugin_name!r} failed in {what}: {type(exc).__name__}: {exc}") from exc
+
+
 def load_registries(**kwargs) -> Registries:
     """Shortcut: ``build_registries(get_plugin_manager(**kwargs))``."""
     return build_registries(get_plugin_manager(**kwargs))

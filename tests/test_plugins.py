@@ -176,3 +176,38 @@ def test_hook_docs_are_in_step_with_hookspecs():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     assert (docs / "hooks.md").read_text() == mod.render(), "run `python docs/make_hooks_md.py`"
+
+
+@pytest.mark.parametrize("hook, step, committed", [
+    ("before_step", "plus", False),
+    ("after_step", "plus", True),
+    ("on_step_error", "boom", False),
+])
+def test_lifecycle_hook_errors_are_plugin_errors_naming_the_plugin(tmp_path, hook, step, committed):
+    import textwrap
+
+    from toy_components import HookFailures, ToyPlugin
+
+    from mocapflow.framework.runner import run_pipeline
+
+    p = tmp_path / "p.yaml"
+    p.write_text(textwrap.dedent("""
+        name: hooks
+        workspace: ws
+        steps:
+          src: {uses: analyses.toy_source}
+          plus: {uses: analyses.toy_add, input: src}
+          boom: {uses: analyses.toy_fail, input: plus}
+    """))
+    pm = get_plugin_manager(entry_points=False, extra=[ToyPlugin()])
+    hooks = HookFailures(**{hook: (step,)})
+    pm.register(hooks, name="hooky")
+    with pytest.raises(PluginError) as err:
+        run_pipeline(p, pm=pm)
+    msg = str(err.value)
+    assert f"plugin 'hooky' failed in {hook}(step_id='{step}'): RuntimeError: {hook} hook broke on {step}" in msg, msg
+    if hook == "on_step_error":
+        assert "toy failure on purpose" in msg  # the step's own error is not lost
+    assert isinstance(err.value.__cause__, RuntimeError) or "toy failure" in str(err.value.__cause__)
+    assert (tmp_path / "ws" / step / "_manifest.json").is_file() == committed
+    assert not any((tmp_path / "ws" / ".mocapflow").glob("tmp/*"))
