@@ -123,23 +123,29 @@ def _load_with_lines(text: str, source: str) -> tuple[Any, dict[tuple[str, ...],
 class PipelineSource:
     """A parsed pipeline with its file name and key lines, for errors that point at the YAML."""
 
-    def __init__(self, config: PipelineConfig, path: Path | None, lines: dict[tuple[str, ...], int]) -> None:
+    def __init__(self, config: PipelineConfig, path: Path | None, lines: dict[tuple[str, ...], int],
+                 overrides: dict[tuple[str, ...], str] | None = None) -> None:
         self.config = config
         self.path = path
         self.lines = lines
+        #: key path (``("steps", step, "with", ...)``) -> the ``--set`` item that gave it
+        self.overrides = dict(overrides or {})
 
     @property
     def base_dir(self) -> Path:
         return self.path.parent if self.path is not None else Path.cwd()
 
     def where(self, *keys: str) -> str:
-        """``file:line`` of the deepest known key along ``keys``."""
+        """``file:line`` of the deepest known key along ``keys`` (plus the ``--set`` item
+        when the value came from one)."""
         name = str(self.path) if self.path is not None else "<pipeline>"
+        via = next((f" (--set {self.overrides[tuple(keys[:n])]!r})" for n in range(len(keys), 0, -1)
+                    if tuple(keys[:n]) in self.overrides), "")
         for n in range(len(keys), 0, -1):
             line = self.lines.get(tuple(keys[:n]))
             if line is not None:
-                return f"{name}:{line}"
-        return name
+                return f"{name}:{line}{via}"
+        return name + via
 
     def error(self, keys: tuple[str, ...], message: str) -> ConfigError:
         return ConfigError(f"{self.where(*keys)}: {message}")
@@ -176,6 +182,7 @@ def load_pipeline(path: str | Path) -> PipelineSource:
 def apply_overrides(source: PipelineSource, overrides: list[str] | tuple[str, ...]) -> PipelineSource:
     """Apply ``step.key=value`` overrides (value parsed as YAML) to the steps' ``with``."""
     steps = {k: v.model_dump(by_alias=True) for k, v in source.config.steps.items()}
+    given = dict(source.overrides)
     for item in overrides:
         lhs, sep, rhs = item.partition("=")
         step, dot, key = lhs.strip().partition(".")
@@ -193,7 +200,10 @@ def apply_overrides(source: PipelineSource, overrides: list[str] | tuple[str, ..
         *parents, last = key.split(".")
         for part in parents:
             target = target.setdefault(part, {})
+            if not isinstance(target, dict):
+                raise ConfigError(f"--set {item!r}: {step}.{key.rpartition('.')[0]} is not a mapping")
         target[last] = value
+        given[("steps", step, "with", *key.split("."))] = item
     data = source.config.model_dump()
     data["steps"] = steps
-    return PipelineSource(PipelineConfig.model_validate(data), source.path, source.lines)
+    return PipelineSource(PipelineConfig.model_validate(data), source.path, source.lines, given)

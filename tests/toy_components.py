@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Annotated, Any
 
 import numpy as np
 import pyarrow as pa
@@ -9,6 +10,7 @@ from pydantic import Field
 from synthetic import random_motion
 
 from mocapflow.framework import Analysis, Params, PipelineError, StepOutput, hookimpl
+from mocapflow.framework.components import ParamsOf
 from mocapflow.framework.motion_tables import motions_to_tables
 
 
@@ -192,3 +194,24 @@ class HookFailures:
     @hookimpl
     def on_step_error(self, step_id, error):
         self._maybe("on_step_error", step_id)
+
+
+class ToyNested(Analysis):
+    """Holds the parameters of another component, chosen by a sibling parameter."""
+
+    name = "toy_nested"
+    inputs: Mapping[str, bool] = {}
+
+    class Params(Params):
+        target: str = "toy_source"
+        options: Annotated[dict[str, Any], ParamsOf("analyses.{target}")] = Field(default_factory=dict)
+        fixed: Annotated[dict[str, Any], ParamsOf("analyses.toy_add")] = Field(default_factory=dict)
+
+    def run(self, inputs, ctx):
+        return StepOutput({"data": pa.table({"x": [float(len(self.params.options))]})})
+
+
+class NestedPlugin:
+    @hookimpl
+    def register_analyses(self):
+        return [ToyNested]
