@@ -156,6 +156,16 @@ class Format(Component):
     def write(self, obj: Any, path: str | Path) -> None:
         raise NotImplementedError(f"{self.key()} cannot write")
 
+    def write_atomic(self, obj: Any, path: str | Path) -> None:
+        """:meth:`write` through a temporary file renamed into place
+        (:func:`~.datasets.atomic_path`): never half a file at ``path``, and a failed write
+        leaves the previous one intact. Writers implement :meth:`write`; callers that write
+        outside a step's output folder (which is committed atomically anyway) use this."""
+        from .datasets import atomic_path
+
+        with atomic_path(path) as tmp:
+            self.write(obj, tmp)
+
     @classmethod
     def can_write(cls) -> bool:
         return cls.write is not Format.write

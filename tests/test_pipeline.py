@@ -267,3 +267,27 @@ def test_yaml_tags_duplicates_and_recursive_aliases_are_config_errors(tmp_path, 
         assert w in msg, msg
     assert main(["--no-entry-points", "plan", str(p)]) == 2
     assert not (tmp_path / "PWNED").exists() and not Path("PWNED").exists()
+
+
+def test_atomic_writes_never_leave_half_a_file(tmp_path):
+    from mocapflow.framework import Format
+    from mocapflow.framework.datasets import atomic_path
+
+    target = tmp_path / "take.bvh"
+    target.write_text("previous")
+
+    class HalfWriter(Format):
+        name = "half"
+
+        def write(self, obj, path):
+            assert Path(path).suffix == ".bvh" and Path(path).parent == tmp_path
+            Path(path).write_text("HIER")  # a crash after the first bytes
+            raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        HalfWriter().write_atomic(None, target)
+    assert target.read_text() == "previous" and [p.name for p in tmp_path.iterdir()] == ["take.bvh"]
+    with atomic_path(target) as tmp:
+        tmp.write_text("new")
+        assert target.read_text() == "previous"
+    assert target.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["take.bvh"]
