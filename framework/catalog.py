@@ -5,9 +5,19 @@ Views: ``<step>`` for each dataset's main table, ``<step>_<table>`` for its othe
 motions dataset (in step order) that has them. Step ids containing ``-`` also get a view
 with ``_`` instead, so they can be written without quotes. Views are created through
 DuckDB's relation API; queries take parameters (``?``), never string formatting.
+
+Read-only for real: queries are refused unless every statement is a query (``SELECT``,
+``WITH``, ``FROM``, ``VALUES``, ``DESCRIBE``, ``SHOW``, ``SUMMARIZE``, ``EXPLAIN`` of one),
+so ``COPY``, ``ATTACH``, ``INSTALL``/``LOAD``, ``EXPORT``, ``CREATE``, ``SET`` never run; and
+DuckDB itself is opened with external access disabled except for the datasets' own
+directories (``allowed_directories``) and its configuration locked, so no file outside
+the workspace's datasets can be read and no extension can be installed or loaded.
 """
 from __future__ import annotations
 
+import re
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +25,37 @@ import pyarrow as pa
 
 from .datasets import read_datasets
 from .errors import ConfigError, MocapflowError
+
+_EXPLAIN = re.compile(r"^\s*EXPLAIN(\s+ANALYZE)?\s+", re.IGNORECASE)
+
+
+def check_read_only(sql: str) -> None:
+    """Raise :class:`ConfigError` unless every statement of ``sql`` only reads.
+
+    DuckDB's parser classifies the statements (``SELECT`` covers ``WITH``, ``FROM``,
+    ``VALUES``, ``DESCRIBE``, ``SHOW``, ``SUMMARIZE``); ``EXPLAIN [ANALYZE]`` is allowed in
+    front of a query only, as ``EXPLAIN ANALYZE COPY ...`` executes the copy.
+    """
+    import duckdb
+
+    try:
+        statements = duckdb.extract_statements(sql)
+    except duckdb.Error as exc:
+        raise MocapflowError(f"SQL error: {exc}") from None
+    if not statements:
+        raise ConfigError("SQL: no statement given")
+    for st in statements:
+        kind = st.type.name
+        if kind == "EXPLAIN":
+            inner = _EXPLAIN.sub("", st.query, count=1)
+            if inner != st.query:
+                check_read_only(inner)
+                continue
+        if kind != "SELECT":
+            text = " ".join(st.query.split())
+            raise ConfigError(f"the workspace catalog is read-only: {kind} statements are not allowed "
+                              f"({text[:60]}{'...' if len(text) > 60 else ''}); "
+                              "only queries (SELECT, WITH, FROM, VALUES, DESCRIBE, SHOW, SUMMARIZE, EXPLAIN)")
 
 
 class Catalog:
@@ -35,31 +76,54 @@ class Catalog:
         self.datasets = read_datasets(self.workspace)
         if not self.datasets:
             raise ConfigError(f"workspace {self.workspace} holds no finished dataset")
-        # an in-memory database: nothing is ever written into the workspace
-        self._con = duckdb.connect(":memory:")
+        # an in-memory database that can read the datasets' directories and nothing else;
+        # its spill directory is private (DuckDB allows it implicitly) and removed on close
+        self._spill = tempfile.mkdtemp(prefix="mocapflow-duckdb-")
         self.views: dict[str, Path] = {}
-        ordered = sorted(self.datasets.values(), key=lambda d: d.manifest.get("created", ""))
-        for ds in ordered:
-            for table in ds.table_names():
-                view = ds.step if table == "data" else f"{ds.step}_{table}"
-                path = ds.path / f"{table}.parquet"
-                self._add_view(view, path)
-                if table in ("clips", "rejects") and table not in self.views:
-                    self._add_view(table, path)
+        try:
+            self._con = duckdb.connect(":memory:", config={
+                "autoinstall_known_extensions": False, "autoload_known_extensions": False,
+                "allow_community_extensions": False, "temp_directory": self._spill})
+            allowed = sorted({f"{ds.path.resolve()}/" for ds in self.datasets.values()})
+            self._con.execute("SET allowed_directories = ?", [allowed])
+            self._con.execute("SET enable_external_access = false")
+            self._con.execute("SET lock_configuration = true")
+            ordered = sorted(self.datasets.values(), key=lambda d: d.manifest.get("created", ""))
+            for ds in ordered:
+                for table in ds.table_names():
+                    view = ds.step if table == "data" else f"{ds.step}_{table}"
+                    path = ds.path / f"{table}.parquet"
+                    self._add_view(view, path)
+                    if table in ("clips", "rejects") and table not in self.views:
+                        self._add_view(table, path)
+        except BaseException:
+            shutil.rmtree(self._spill, ignore_errors=True)
+            raise
 
     def _add_view(self, name: str, path: Path) -> None:
-        rel = self._con.read_parquet(str(path))
+        rel = self._con.read_parquet(str(path.resolve()))
         for alias in {name, name.replace("-", "_")}:
             if alias not in self.views:
                 rel.create_view(alias, replace=True)
                 self.views[alias] = path
 
     def query(self, sql: str, params: list[Any] | dict[str, Any] | None = None) -> pa.Table:
-        """Run a query (``?`` or ``$name`` parameters) and return an Arrow table."""
+        """Run a query (``?`` or ``$name`` parameters) and return an Arrow table.
+
+        Raises :class:`ConfigError` for statements that would write or load anything
+        (see the module doc) and :class:`MocapflowError` for SQL errors, including reads
+        of files outside the workspace's datasets.
+        """
         import duckdb
 
+        check_read_only(sql)
         try:
-            return self._con.sql(sql, params=params).to_arrow_table()
+            rel = self._con.sql(sql, params=params)
+            if rel is None:  # pragma: no cover - every allowed statement returns rows
+                raise MocapflowError("SQL: the statement returned no result")
+            return rel.to_arrow_table()
+        except duckdb.PermissionException as exc:
+            raise MocapflowError(f"SQL error: {exc} (the catalog reads only the datasets of {self.workspace})") from None
         except duckdb.Error as exc:
             raise MocapflowError(f"SQL error: {exc}") from None
 
@@ -73,6 +137,7 @@ class Catalog:
 
     def close(self) -> None:
         self._con.close()
+        shutil.rmtree(self._spill, ignore_errors=True)
 
     def __enter__(self) -> Catalog:
         return self

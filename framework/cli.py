@@ -54,7 +54,7 @@ def cmd_run(args: argparse.Namespace, pm) -> int:
     _echo(f"mocapflow: running {args.pipeline}")
     with announce_compilation(_echo):
         reports = run_pipeline(args.pipeline, workspace=args.workspace, overrides=args.set, jobs=args.jobs,
-                               force=args.force, pm=pm, echo=_echo)
+                               force=args.force, pm=pm, echo=_echo, wait=args.wait)
     for line in _rejects_warnings(reports):
         _warn(line)
     computed = sum(r.status == "computed" for r in reports)
@@ -196,6 +196,8 @@ def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--jobs", "-j", type=int, default=None, help="worker processes for per-clip work (0 = all cores)")
     p.add_argument("--force", action="store_true", help="recompute every step")
+    p.add_argument("--wait", type=float, default=0.0, metavar="SECONDS",
+                   help="wait this long for another run holding the workspace (default: refuse at once)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("plan", help="validate a pipeline and show what would run")
@@ -224,14 +226,9 @@ def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
 
 
 def _plugin_commands(pm) -> list[type]:
-    out: list[type] = []
-    for impl in pm.hook.register_commands.get_hookimpls():
-        name = pm.get_name(impl.plugin)
-        try:
-            out += list(impl.function() or [])
-        except Exception as exc:
-            raise PluginError(f"plugin {name!r} failed in register_commands(): {exc}") from exc
-    return out
+    from .plugins import plugin_commands
+
+    return plugin_commands(pm)  # a plugin whose hook raises is reported and skipped
 
 
 def command_plugin_modules() -> list[str]:

@@ -10,10 +10,24 @@ A component follows scikit-learn's estimator contract, validated by pydantic:
   :class:`~mocapflow.framework.datasets.Dataset` objects keyed by input slot and returns a
   :class:`~mocapflow.framework.datasets.StepOutput` (tables plus files written into
   ``ctx.out_dir``). ``inputs`` (class attribute) declares the slots, slot -> required.
+
+What is checked when a pipeline is planned, beyond ``Params``:
+
+* dataset kinds: a step declares the kind of dataset it writes (``output_kind``: one of
+  :data:`DATASET_KINDS` or a plugin's own word) and, per input slot, the kinds it accepts
+  (``input_kinds``); an index over a summary table is refused before anything runs. The
+  kind bases declare the usual ones; a kind left undeclared (``None`` / slot not listed)
+  is not checked.
+* nested parameters: a ``dict`` parameter annotated ``Annotated[dict[str, Any],
+  ParamsOf("kind.name")]`` holds another component's parameters and is validated against
+  that component's ``Params`` (errors name the nested key, with "did you mean").
+* :meth:`Component.check_plan`: anything else a component can tell from its parameters
+  and the pipeline's folder (a glob that matches no file is a warning).
 """
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -29,10 +43,27 @@ if TYPE_CHECKING:  # pragma: no cover
     from .context import StepContext
 
 
+#: Dataset kinds the built-in kind bases declare (``output_kind`` / ``input_kinds``).
+DATASET_KINDS: tuple[str, ...] = ("motions", "markers", "features", "index", "matches", "table")
+
+
 class Params(BaseModel):
     """Base of every component's parameter model: frozen, unknown keys rejected."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+@dataclass(frozen=True)
+class ParamsOf:
+    """Marks a ``dict`` parameter as the parameters of another component (by registry key).
+
+    ``cleaner: Annotated[dict[str, Any], ParamsOf("cleaners.mdm")] = Field(default_factory=dict)``
+    keeps the value a plain dict (only the keys the user gave), and the plan validates it
+    against ``cleaners.mdm``'s ``Params`` before anything runs, through the registries, so
+    the declaring plugin need not import the other one.
+    """
+
+    key: str
 
 
 class Component:
@@ -47,6 +78,11 @@ class Component:
     inputs: ClassVar[Mapping[str, bool]] = {}
     #: Whether the component can be a pipeline step (has a ``run``).
     is_step: ClassVar[bool] = True
+    #: Kind of dataset the step writes (``"motions"``, ``"features"``, ``"index"``...; see
+    #: :data:`DATASET_KINDS`); ``None``: not declared, consumers do not check it.
+    output_kind: ClassVar[str | None] = None
+    #: Input slot -> dataset kinds it accepts; a slot not listed accepts any dataset.
+    input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     Params: ClassVar[type[Params]] = Params
 
     def __init__(self, params: Params | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
@@ -75,6 +111,15 @@ class Component:
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         """Compute this step's output from finished input datasets (see module doc)."""
         raise NotImplementedError(f"{self.key()} cannot run as a pipeline step")
+
+    def check_plan(self, base_dir: Path) -> list[str]:
+        """Plan-time checks beyond ``Params`` (called once per step when a pipeline is planned).
+
+        Raise :class:`ConfigError` for what cannot run; return warnings (one line each,
+        e.g. a glob that matches no file) that the plan reports at the step's line. Must be
+        cheap and must not write anything. Default: nothing to check.
+        """
+        return []
 
     def source_fingerprint(self, base_dir: Path) -> str:
         """Digest of external inputs the step reads (files named in its parameters).
@@ -111,6 +156,16 @@ class Format(Component):
     def write(self, obj: Any, path: str | Path) -> None:
         raise NotImplementedError(f"{self.key()} cannot write")
 
+    def write_atomic(self, obj: Any, path: str | Path) -> None:
+        """:meth:`write` through a temporary file renamed into place
+        (:func:`~.datasets.atomic_path`): never half a file at ``path``, and a failed write
+        leaves the previous one intact. Writers implement :meth:`write`; callers that write
+        outside a step's output folder (which is committed atomically anyway) use this."""
+        from .datasets import atomic_path
+
+        with atomic_path(path) as tmp:
+            self.write(obj, tmp)
+
     @classmethod
     def can_write(cls) -> bool:
         return cls.write is not Format.write
@@ -127,6 +182,9 @@ class FeatureSet(Component):
 
     kind = "features"
     inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "reference": False}
+    output_kind: ClassVar[str | None] = "features"
+    #: ``reference``: motions to fit on, or a features dataset whose fitted model is reused
+    input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {"motions": ("motions",), "reference": ("motions", "features")}
     requires_fit: ClassVar[bool] = False
 
     @property
@@ -184,6 +242,8 @@ class Index(Component):
 
     kind = "indexes"
     inputs: ClassVar[Mapping[str, bool]] = {"features": True}
+    output_kind: ClassVar[str | None] = "index"
+    input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {"features": ("features",)}
     #: False for indexes that answer other queries than numeric kNN (inverted lists);
     #: the conformance suite then skips the kNN checks.
     supports_knn: ClassVar[bool] = True
@@ -216,6 +276,10 @@ class Matcher(Component):
 
     kind = "matchers"
     inputs: ClassVar[Mapping[str, bool]] = {"database": True, "query": True}
+    output_kind: ClassVar[str | None] = "matches"
+    input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "database": ("index", "features"), "query": ("motions", "features"),
+        "features": ("features",), "motions": ("motions",)}
 
 
 class Cleaner(Component):
@@ -223,6 +287,8 @@ class Cleaner(Component):
 
     kind = "cleaners"
     inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "context": False}
+    output_kind: ClassVar[str | None] = "table"
+    input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {"motions": ("motions",), "context": ("motions",)}
 
     def detect(self, motion: Motion, context: Any = None) -> np.ndarray:
         """Digression map, shape (T, J) in [0, 1]."""
@@ -234,6 +300,10 @@ class Cleaner(Component):
 
 
 class Analysis(Component):
-    """A step that fits none of the other kinds (studies, reconstruction, evaluation)."""
+    """A step that fits none of the other kinds (studies, reconstruction, evaluation).
+
+    Analyses are too varied for a default ``output_kind``: declare it (usually
+    ``"table"``; ``"motions"`` for a step that writes clips) so that consumers are checked.
+    """
 
     kind = "analyses"

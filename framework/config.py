@@ -72,52 +72,80 @@ class _LineLoader(yaml.SafeLoader):
     """SafeLoader that records the line of every mapping key (path tuple -> 1-based line)."""
 
 
+def _yaml_error(exc: yaml.YAMLError, source: str) -> ConfigError:
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    where = f"{source}:{mark.line + 1}" if mark is not None else source
+    problem = getattr(exc, "problem", None) or str(exc)
+    if isinstance(exc, yaml.constructor.ConstructorError) and "tag" in problem:
+        problem = f"{problem.replace('could not determine a constructor for the', 'unsupported')}: pipelines are plain YAML (mappings, lists, strings, numbers, booleans)"
+    return ConfigError(f"{where}: invalid YAML: {problem}")
+
+
 def _load_with_lines(text: str, source: str) -> tuple[Any, dict[tuple[str, ...], int]]:
+    """Parse once; construct plain data only (an unknown or Python tag is a ConfigError at its
+    line, never constructed); a key repeated in one mapping is an error too (YAML forbids
+    it; PyYAML would keep the last one silently)."""
     lines: dict[tuple[str, ...], int] = {}
+    loader = _LineLoader(text)
     try:
-        root = yaml.compose(text, Loader=_LineLoader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{source}:{mark.line + 1}" if mark is not None else source
-        raise ConfigError(f"{where}: invalid YAML: {getattr(exc, 'problem', exc)}") from None
+        root = loader.get_single_node()
 
-    def walk(node: yaml.Node, path: tuple[str, ...]) -> None:
-        if isinstance(node, yaml.MappingNode):
-            for k, v in node.value:
-                key = (*path, str(k.value))
-                lines[key] = k.start_mark.line + 1
-                walk(v, key)
-        elif isinstance(node, yaml.SequenceNode):
-            for i, v in enumerate(node.value):
-                lines[(*path, str(i))] = v.start_mark.line + 1
-                walk(v, (*path, str(i)))
+        active: set[int] = set()
 
-    if root is not None:
+        def walk(node: yaml.Node, path: tuple[str, ...]) -> None:
+            if id(node) in active:
+                raise ConfigError(f"{source}:{node.start_mark.line + 1}: an alias refers to a node that contains it")
+            active.add(id(node))
+            if isinstance(node, yaml.MappingNode):
+                for k, v in node.value:
+                    key = (*path, str(k.value))
+                    if key in lines:
+                        raise ConfigError(f"{source}:{k.start_mark.line + 1}: key {k.value!r} appears twice "
+                                          f"(first at line {lines[key]})")
+                    lines[key] = k.start_mark.line + 1
+                    walk(v, key)
+            elif isinstance(node, yaml.SequenceNode):
+                for i, v in enumerate(node.value):
+                    lines[(*path, str(i))] = v.start_mark.line + 1
+                    walk(v, (*path, str(i)))
+            active.discard(id(node))
+
+        if root is None:
+            return None, lines
         walk(root, ())
-    data = yaml.load(text, Loader=_LineLoader) if root is not None else None
-    return data, lines
+        return loader.construct_document(root), lines
+    except yaml.YAMLError as exc:
+        raise _yaml_error(exc, source) from None
+    finally:
+        loader.dispose()
 
 
 class PipelineSource:
     """A parsed pipeline with its file name and key lines, for errors that point at the YAML."""
 
-    def __init__(self, config: PipelineConfig, path: Path | None, lines: dict[tuple[str, ...], int]) -> None:
+    def __init__(self, config: PipelineConfig, path: Path | None, lines: dict[tuple[str, ...], int],
+                 overrides: dict[tuple[str, ...], str] | None = None) -> None:
         self.config = config
         self.path = path
         self.lines = lines
+        #: key path (``("steps", step, "with", ...)``) -> the ``--set`` item that gave it
+        self.overrides = dict(overrides or {})
 
     @property
     def base_dir(self) -> Path:
         return self.path.parent if self.path is not None else Path.cwd()
 
     def where(self, *keys: str) -> str:
-        """``file:line`` of the deepest known key along ``keys``."""
+        """``file:line`` of the deepest known key along ``keys`` (plus the ``--set`` item
+        when the value came from one)."""
         name = str(self.path) if self.path is not None else "<pipeline>"
+        via = next((f" (--set {self.overrides[tuple(keys[:n])]!r})" for n in range(len(keys), 0, -1)
+                    if tuple(keys[:n]) in self.overrides), "")
         for n in range(len(keys), 0, -1):
             line = self.lines.get(tuple(keys[:n]))
             if line is not None:
-                return f"{name}:{line}"
-        return name
+                return f"{name}:{line}{via}"
+        return name + via
 
     def error(self, keys: tuple[str, ...], message: str) -> ConfigError:
         return ConfigError(f"{self.where(*keys)}: {message}")
@@ -154,6 +182,7 @@ def load_pipeline(path: str | Path) -> PipelineSource:
 def apply_overrides(source: PipelineSource, overrides: list[str] | tuple[str, ...]) -> PipelineSource:
     """Apply ``step.key=value`` overrides (value parsed as YAML) to the steps' ``with``."""
     steps = {k: v.model_dump(by_alias=True) for k, v in source.config.steps.items()}
+    given = dict(source.overrides)
     for item in overrides:
         lhs, sep, rhs = item.partition("=")
         step, dot, key = lhs.strip().partition(".")
@@ -171,7 +200,10 @@ def apply_overrides(source: PipelineSource, overrides: list[str] | tuple[str, ..
         *parents, last = key.split(".")
         for part in parents:
             target = target.setdefault(part, {})
+            if not isinstance(target, dict):
+                raise ConfigError(f"--set {item!r}: {step}.{key.rpartition('.')[0]} is not a mapping")
         target[last] = value
+        given[("steps", step, "with", *key.split("."))] = item
     data = source.config.model_dump()
     data["steps"] = steps
-    return PipelineSource(PipelineConfig.model_validate(data), source.path, source.lines)
+    return PipelineSource(PipelineConfig.model_validate(data), source.path, source.lines, given)

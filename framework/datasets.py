@@ -8,8 +8,11 @@ Parquet file's key-value metadata under ``mocapflow``).
 """
 from __future__ import annotations
 
+import contextlib
 import json
-from collections.abc import Mapping
+import os
+import uuid
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -159,6 +162,26 @@ class Dataset:
         return t["clip_id"].to_numpy().astype(np.int32), t["frame"].to_numpy().astype(np.int32)
 
 
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Write a file atomically: yields a temporary path beside ``path`` (same folder, same
+    suffix, so writers that look at the extension still work); when the block ends without
+    error it is renamed over ``path``, otherwise removed. A reader never sees half a file,
+    and a failed write leaves the previous file as it was. The folder must exist.
+
+    >>> with atomic_path("take.bvh") as tmp:      # doctest: +SKIP
+    ...     write_bvh(motion, tmp)
+    """
+    final = Path(path)
+    tmp = final.with_name(f".{final.stem}.{uuid.uuid4().hex[:8]}.tmp{final.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, final)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
 def read_datasets(workspace: str | Path) -> Mapping[str, Dataset]:
     """Every finished dataset of a workspace, by step id."""
     ws = Path(workspace)
@@ -169,5 +192,5 @@ def read_datasets(workspace: str | Path) -> Mapping[str, Dataset]:
     return out
 
 
-__all__ = ["Dataset", "FeatureMatrix", "StepOutput", "feature_table", "fixed_list", "fixed_list_to_numpy",
+__all__ = ["Dataset", "FeatureMatrix", "StepOutput", "atomic_path", "feature_table", "fixed_list", "fixed_list_to_numpy",
            "frame_id_table", "read_datasets", "schema"]

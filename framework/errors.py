@@ -51,3 +51,7 @@ class PluginError(MocapflowError):
 
 class DataError(MocapflowError):
     """Arrays or tables handed to a component do not have the expected shape or content."""
+
+
+class LockError(MocapflowError):
+    """A workspace is in use by another run (the message names it: pid, host, start time)."""

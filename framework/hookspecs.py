@@ -6,8 +6,13 @@ discovered through the entry-point group ``mocapflow``.
 
 Registration hooks are *collecting* hooks: every plugin's result is used (pluggy returns
 a list of lists; the manager flattens it). A component name registered twice in one kind
-is an error naming both plugins. Lifecycle hooks are notifications: their return values are
-ignored and an exception raised by one is reported as a ``PluginError`` naming the plugin.
+is an error naming both plugins. A plugin whose registration hook raises or returns
+something other than a list of valid classes is skipped entirely and reported by name (a
+warning, ``pm.failures``, ``mocapflow plugins``), so the other plugins keep working.
+
+Lifecycle hooks are notifications: their return values are ignored, and an exception raised
+by one stops the run as a ``PluginError`` naming the plugin and the hook (the original
+exception is its cause).
 """
 from __future__ import annotations
 
@@ -76,16 +81,18 @@ def register_commands() -> list[type]:
 @hookspec
 def before_step(step_id: str, component: object, workspace: str) -> None:
     """Called by the runner just before a step computes (not when it is skipped as
-    up to date). ``component`` is the configured component instance."""
+    up to date). ``component`` is the configured component instance. If it raises, the
+    step is not computed."""
 
 
 @hookspec
 def after_step(step_id: str, component: object, workspace: str, output_dir: str, seconds: float) -> None:
     """Called after a step's output was committed atomically to ``output_dir``;
-    ``seconds`` is its wall-clock compute time."""
+    ``seconds`` is its wall-clock compute time. If it raises, the output stays committed."""
 
 
 @hookspec
 def on_step_error(step_id: str, component: object, error: BaseException) -> None:
     """Called when a step raised; the run then stops with a ``PipelineError``. Nothing of
-    the failed step's output is left behind."""
+    the failed step's output is left behind. If it raises, the ``PluginError`` also quotes
+    the step's error."""

@@ -1,18 +1,27 @@
-"""Validating a whole pipeline before anything runs (names, parameters, inputs, cycles)."""
+"""Validating a whole pipeline before anything runs.
+
+Names, parameters (nested ones too, :class:`~.components.ParamsOf`), input slots and the
+kinds of dataset they accept, the executor, cycles, and each component's own
+:meth:`~.components.Component.check_plan` (warnings such as a glob matching no file).
+"""
 from __future__ import annotations
 
 import graphlib
 import hashlib
 import json
+import logging
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
-from .components import Component
+from .components import Component, ParamsOf
 from .config import PipelineSource
 from .errors import ConfigError
 from .registry import Registries, did_you_mean
+
+log = logging.getLogger("mocapflow")
 
 
 @dataclass
@@ -34,6 +43,8 @@ class Plan:
 
     source: PipelineSource
     steps: list[PlannedStep]
+    #: Plan-time warnings (``file:line: step ...: message``), also logged.
+    warnings: list[str] = field(default_factory=list)
 
     def __getitem__(self, step_id: str) -> PlannedStep:
         for s in self.steps:
@@ -67,25 +78,86 @@ class Plan:
         return found
 
 
-def _param_error(source: PipelineSource, step_id: str, cls: type[Component], exc: ValidationError) -> ConfigError:
+def _model_at(model: type[BaseModel] | None, path: tuple[str, ...]) -> type[BaseModel] | None:
+    """The pydantic model that holds the last key of ``path`` (following model-typed fields)."""
+    for part in path:
+        f = model.model_fields.get(part) if model is not None else None
+        ann = f.annotation if f is not None else None
+        model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
+    return model
+
+
+def _param_error(source: PipelineSource, step_id: str, cls: type[Component], exc: ValidationError,
+                 prefix: tuple[str, ...] = (), model: type[BaseModel] | None = None, what: str = "") -> ConfigError:
+    """A ConfigError at the YAML line of the offending key (``prefix``: the path of a nested
+    parameter dict, ``model``: its Params, ``what``: whose parameters they are)."""
     err = exc.errors()[0]
-    loc = tuple(str(p) for p in err["loc"])
+    inner = tuple(str(p) for p in err["loc"])
+    loc = (*prefix, *inner)
     key = ".".join(loc) or "with"
+    of = f" (parameters of {what})" if what else ""
     if err["type"] == "extra_forbidden":
-        known = list(cls.Params.model_fields)
-        msg = f"unknown parameter {key!r} for {cls.key()}{did_you_mean(loc[-1], known)}; known: {', '.join(known) or 'none'}"
+        holder = _model_at(model or cls.Params, inner[:-1])
+        known = list(holder.model_fields) if holder is not None else []
+        msg = f"unknown parameter {key!r} for {cls.key()}{of}{did_you_mean(loc[-1], known)}; known: {', '.join(known) or 'none'}"
     else:
         got = err.get("input")
-        msg = f"parameter {key!r} of {cls.key()}: {err['msg']} (got {got!r})"
-    return source.error(("steps", step_id, "with", *loc[:1]), f"step {step_id!r}: {msg}")
+        msg = f"parameter {key!r} of {cls.key()}{of}: {err['msg']} (got {got!r})"
+    return source.error(("steps", step_id, "with", *loc), f"step {step_id!r}: {msg}")
+
+
+class _Fields(dict):
+    def __missing__(self, key: str) -> str:
+        raise ConfigError(f"ParamsOf key refers to no parameter {key!r}")
+
+
+def _check_nested(source: PipelineSource, step_id: str, cls: type[Component], params: BaseModel,
+                  registries: Registries, prefix: tuple[str, ...] = ()) -> None:
+    """Validate every ``ParamsOf`` dict parameter against its component's ``Params``, recursively.
+
+    The key may name sibling parameters (``ParamsOf("features.{features}")``)."""
+    for name, f in type(params).model_fields.items():
+        marker = next((m for m in f.metadata if isinstance(m, ParamsOf)), None)
+        value = getattr(params, name)
+        if marker is None or not isinstance(value, Mapping):
+            continue
+        here = (*prefix, name)
+        try:
+            key = marker.key.format_map(_Fields({k: getattr(params, k) for k in type(params).model_fields}))
+            target = registries.resolve(key)
+        except ConfigError as exc:
+            raise source.error(("steps", step_id, "with", *here),
+                               f"step {step_id!r}: parameter {'.'.join(here)!r} of {cls.key()} holds component parameters: {exc}") from None
+        try:
+            nested = target.Params(**value)
+        except ValidationError as exc:
+            raise _param_error(source, step_id, cls, exc, here, target.Params, target.key()) from None
+        _check_nested(source, step_id, cls, nested, registries, here)
+
+
+def _check_kinds(source: PipelineSource, steps: dict[str, PlannedStep]) -> None:
+    """Each input slot gets a dataset of a kind it accepts (where both sides declare one)."""
+    for sid, ps in steps.items():
+        cls = type(ps.component)
+        single = source.config.steps[sid].input is not None
+        for slot, up in ps.inputs.items():
+            accepted = cls.input_kinds.get(slot)
+            produced = type(steps[up].component).output_kind
+            if accepted and produced and produced not in accepted:
+                where = ("steps", sid, "input") if single else ("steps", sid, "inputs", slot)
+                raise source.error(where, f"step {sid!r}: input {slot!r} of {cls.key()} takes a {' or '.join(accepted)} "
+                                          f"dataset, but step {up!r} ({steps[up].key}) writes a {produced} dataset")
 
 
 def build_plan(source: PipelineSource, registries: Registries) -> Plan:
     """Validate everything and return a :class:`Plan`; raises :class:`ConfigError`.
 
     Checks, for every step: the component exists (with "did you mean"), it can be a step,
-    its ``with`` parameters validate against its ``Params``, every input slot exists and
-    every required one is filled, every referenced step exists; then the graph has no cycle.
+    its ``with`` parameters validate against its ``Params`` (and nested ``ParamsOf`` dicts
+    against theirs), every input slot exists and every required one is filled, every
+    referenced step exists and writes a kind of dataset the slot accepts; then the executor
+    is registered and the graph has no cycle. Last, each component's ``check_plan`` runs:
+    its warnings are logged and kept in ``Plan.warnings``.
     """
     config = source.config
     steps: dict[str, PlannedStep] = {}
@@ -100,6 +172,7 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
             component = cls(cls.Params(**sc.with_))
         except ValidationError as exc:
             raise _param_error(source, step_id, cls, exc) from None
+        _check_nested(source, step_id, cls, component.params, registries)
         slots = dict(cls.inputs)
         if sc.input is not None:
             if not slots:
@@ -121,6 +194,11 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
             raise source.error(("steps", step_id), f"step {step_id!r}: missing required input {', '.join(map(repr, missing))} for {sc.uses}")
         steps[step_id] = PlannedStep(step_id, component, inputs)
 
+    _check_kinds(source, steps)
+    executors = registries.executors
+    if len(executors) and config.executor not in executors:  # a bare Registries() knows none: not checked
+        raise source.error(("executor",), f"unknown executor {config.executor!r}{did_you_mean(config.executor, executors.names())}; "
+                                          f"registered: {', '.join(executors.names())}")
     sorter = graphlib.TopologicalSorter({sid: set(s.inputs.values()) for sid, s in steps.items()})
     try:
         order = list(sorter.static_order())
@@ -139,7 +217,16 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
                 done.add(sid)
                 remaining.remove(sid)
                 break
-    return Plan(source, [steps[s] for s in ordered])
+    warnings = []
+    for sid in ordered:
+        try:
+            found = steps[sid].component.check_plan(source.base_dir)
+        except ConfigError as exc:
+            raise source.error(("steps", sid, "with"), f"step {sid!r}: {exc}") from None
+        for w in found or []:
+            warnings.append(f"{source.where('steps', sid, 'with')}: step {sid!r}: {w}")
+            log.warning("%s", warnings[-1])
+    return Plan(source, [steps[s] for s in ordered], warnings)
 
 
 def describe(plan: Plan) -> list[dict[str, Any]]:

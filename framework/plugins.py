@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import importlib
+import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
 from importlib import metadata
+from typing import Any
 
 import pluggy
 
@@ -15,6 +17,7 @@ from .registry import KINDS, Registries
 PROJECT = "mocapflow"
 ENTRY_POINT_GROUP = "mocapflow"
 hookimpl = pluggy.HookimplMarker(PROJECT)
+log = logging.getLogger("mocapflow")
 
 
 def builtin_plugin_modules() -> tuple[str, ...]:
@@ -30,6 +33,15 @@ class PluginFailure:
 
     plugin: str
     error: str
+
+
+def _record_failure(pm: pluggy.PluginManager, plugin: str, error: str) -> None:
+    """Add a failure to ``pm.failures`` (once) and warn about it (once)."""
+    failures = pm.__dict__.setdefault("failures", [])
+    if any(f.plugin == plugin and f.error == error for f in failures):
+        return
+    failures.append(PluginFailure(plugin, error))
+    log.warning("plugin %r skipped: %s", plugin, error)
 
 
 def get_plugin_manager(
@@ -53,8 +65,9 @@ def get_plugin_manager(
         Plugin objects (modules or instances with hookimpls) to register too; handy in tests.
 
     A third-party plugin that fails to import is recorded in ``pm.failures`` (a list of
-    :class:`PluginFailure`) rather than raised, so unrelated commands keep working; the
-    registries built from the manager report it.
+    :class:`PluginFailure`) and logged as a warning rather than raised, so unrelated
+    commands keep working; :func:`build_registries` records plugins whose registration
+    hooks fail the same way.
     """
     pm = pluggy.PluginManager(PROJECT)
     pm.add_hookspecs(hookspecs)
@@ -75,40 +88,114 @@ def get_plugin_manager(
                 plugin = ep.load()
                 pm.register(plugin, name=ep.name)
             except Exception as exc:  # a broken third-party plugin must not break the rest
-                pm.failures.append(PluginFailure(ep.name, f"{type(exc).__name__}: {exc}"))  # type: ignore[attr-defined]
+                _record_failure(pm, ep.name, f"failed to load: {type(exc).__name__}: {exc}")
     for obj in extra:
         pm.register(obj)
     return pm
 
 
-def build_registries(pm: pluggy.PluginManager, *, strict: bool = False) -> Registries:
-    """Collect every registration hook into :class:`Registries`.
+def _provider(pm: pluggy.PluginManager, impl: Any) -> str:
+    return pm.get_name(impl.plugin) or repr(impl.plugin)
 
-    Each hook implementation is called separately so that a component is attributed to
-    the plugin that provided it, and a plugin whose hook raises is named in the error.
-    With ``strict`` a plugin that failed to load is an error too.
+
+def collect_classes(pm: pluggy.PluginManager, hook_name: str, check=None) -> tuple[list[tuple[str, list[type]]], dict[str, str]]:
+    """Call one registration hook plugin by plugin.
+
+    Returns ``(results, failed)``: ``(plugin name, classes)`` for every plugin whose hook
+    returned a list of classes that pass ``check(cls, plugin)`` (which raises
+    :class:`PluginError`), and ``plugin name -> what went wrong`` for the others (the hook
+    raised, returned something else, or a class failed the check). Nothing is raised, so
+    one broken plugin never stops the others.
     """
-    if strict and getattr(pm, "failures", None):
-        f = pm.failures[0]
-        raise PluginError(f"plugin {f.plugin!r} failed to load: {f.error}")
-    regs = Registries()
-    for kind in KINDS:
-        hook = getattr(pm.hook, f"register_{kind}")
-        for impl in hook.get_hookimpls():
-            provider = pm.get_name(impl.plugin) or repr(impl.plugin)
-            try:
-                classes = impl.function()
-            except Exception as exc:
-                raise PluginError(f"plugin {provider!r} failed in register_{kind}(): {type(exc).__name__}: {exc}") from exc
+    results: list[tuple[str, list[type]]] = []
+    failed: dict[str, str] = {}
+    for impl in getattr(pm.hook, hook_name).get_hookimpls():
+        provider = _provider(pm, impl)
+        try:
+            classes = impl.function()
             if classes is None:
                 continue
             if not isinstance(classes, (list, tuple)):
-                raise PluginError(f"plugin {provider!r}: register_{kind}() must return a list of classes, got {type(classes).__name__}")
+                raise PluginError(f"{hook_name}() must return a list of classes, got {type(classes).__name__}")
             for cls in classes:
                 if not isinstance(cls, type):
-                    raise PluginError(f"plugin {provider!r}: register_{kind}() returned {cls!r}, not a class")
-                regs[kind].add(cls, provider)
+                    raise PluginError(f"{hook_name}() returned {cls!r}, not a class")
+                if check is not None:
+                    check(cls, provider)
+        except PluginError as exc:
+            failed[provider] = f"{hook_name}(): {exc}"
+        except Exception as exc:
+            failed[provider] = f"failed in {hook_name}(): {type(exc).__name__}: {exc}"
+        else:
+            results.append((provider, list(classes)))
+    return results, failed
+
+
+def build_registries(pm: pluggy.PluginManager, *, strict: bool = False) -> Registries:
+    """Collect every registration hook (components and executors) into :class:`Registries`.
+
+    Each hook implementation is called separately so that a component is attributed to
+    the plugin that provided it. A plugin whose registration hook raises, returns something
+    other than a list of classes, or registers a class without a valid ``name`` or of the
+    wrong kind is skipped entirely (none of its components are registered), recorded in
+    ``pm.failures`` and logged as a warning naming it, so unrelated work goes on. With
+    ``strict`` any failed plugin (including one that failed to import) is a
+    :class:`PluginError`. Two plugins registering one name are always an error naming both.
+    """
+    regs = Registries()
+    pending: list[tuple[object, str, list[type]]] = []
+    failed: dict[str, str] = {}
+    for kind in KINDS:
+        results, bad = collect_classes(pm, f"register_{kind}", regs[kind].check)
+        pending += [(regs[kind], provider, classes) for provider, classes in results]
+        failed.update({p: e for p, e in bad.items() if p not in failed})
+    results, bad = collect_classes(pm, "register_executors", regs.executors.check)
+    pending += [(regs.executors, provider, classes) for provider, classes in results]
+    failed.update({p: e for p, e in bad.items() if p not in failed})
+    for plugin, error in failed.items():
+        _record_failure(pm, plugin, error)
+    if strict and getattr(pm, "failures", None):
+        f = pm.failures[0]
+        raise PluginError(f"plugin {f.plugin!r}: {f.error}")
+    for registry, provider, classes in pending:
+        if provider not in failed:
+            for cls in classes:
+                registry.add(cls, provider)
     return regs
+
+
+def plugin_commands(pm: pluggy.PluginManager) -> list[type]:
+    """CLI command classes of ``register_commands``; a plugin whose hook fails is recorded
+    in ``pm.failures``, warned about and skipped, as in :func:`build_registries`."""
+    results, failed = collect_classes(pm, "register_commands")
+    for plugin, error in failed.items():
+        _record_failure(pm, plugin, error)
+    return [cls for _, classes in results for cls in classes]
+
+
+def call_lifecycle(hook_relay: Any, hook_name: str, **kwargs: Any) -> None:
+    """Call a lifecycle hook (``before_step``...) plugin by plugin, in pluggy's order.
+
+    An implementation that raises becomes a :class:`PluginError` naming its plugin and the
+    hook (the original exception is its ``__cause__``); the implementations after it are
+    not called. Hook wrappers, which pluggy must drive, make the call go through pluggy as
+    a whole; an error is then attributed to every plugin implementing the hook.
+    """
+    caller = getattr(hook_relay, hook_name)
+    impls = caller.get_hookimpls()
+    what = f"{hook_name}({', '.join(f'{k}={v!r}' for k, v in kwargs.items() if k == 'step_id')})"
+    if any(i.wrapper or i.hookwrapper for i in impls):
+        try:
+            caller(**kwargs)
+        except Exception as exc:
+            names = ", ".join(sorted({repr(i.plugin_name) for i in impls}))
+            raise PluginError(f"a plugin failed in {what} (one of {names}): {type(exc).__name__}: {exc}") from exc
+        return
+    for impl in reversed(impls):  # pluggy calls the last registered (and tryfirst) first
+        try:
+            impl.function(*[kwargs[a] for a in impl.argnames])
+        except Exception as exc:
+            raise PluginError(f"plugin {impl.plugin_name!r} failed in {what}: {type(exc).__name__}: {exc}") from exc
 
 
 def load_registries(**kwargs) -> Registries:

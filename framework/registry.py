@@ -29,12 +29,18 @@ class Registry:
     _classes: dict[str, type] = field(default_factory=dict)
     _providers: dict[str, str] = field(default_factory=dict)
 
-    def add(self, cls: type, provider: str) -> None:
+    def check(self, cls: type, provider: str) -> None:
+        """Raise :class:`PluginError` unless ``cls`` may be registered here (a snake_case
+        ``name`` and, if it declares one, this ``kind``)."""
         name = getattr(cls, "name", None)
         if not isinstance(name, str) or not name.isidentifier() or name != name.lower():
             raise PluginError(f"plugin {provider!r} registered {cls!r} under {self.kind} without a snake_case `name`")
         if getattr(cls, "kind", self.kind) != self.kind:
             raise PluginError(f"plugin {provider!r} registered {cls.__name__} ({cls.kind}) as one of the {self.kind}")
+
+    def add(self, cls: type, provider: str) -> None:
+        self.check(cls, provider)
+        name = cls.name
         if name in self._classes and self._classes[name] is not cls:
             raise PluginError(
                 f"duplicate {self.kind} component {name!r}: provided by plugin {self._providers[name]!r} "
@@ -70,6 +76,8 @@ class Registries:
     """All registries of one plugin manager, addressed by kind or by ``kind.name`` keys."""
 
     by_kind: dict[str, Registry] = field(default_factory=lambda: {k: Registry(k) for k in KINDS})
+    #: Executor classes (``register_executors``) by name; not components, so not in ``by_kind``.
+    executors: Registry = field(default_factory=lambda: Registry("executors"))
 
     def __getitem__(self, kind: str) -> Registry:
         return self.by_kind[kind]

@@ -1,4 +1,10 @@
-"""Running a validated plan: atomic step outputs, provenance, skipping unchanged steps."""
+"""Running a validated plan: atomic step outputs, provenance, skipping unchanged steps.
+
+A run holds the workspace's lock (:mod:`.locking`) from start to end, writes temporary
+outputs only inside the runner's own marked folder ``<workspace>/.mocapflow/`` and replaces
+only step folders that are finished mocapflow datasets: nothing the user put in the
+workspace folder is ever modified or deleted.
+"""
 from __future__ import annotations
 
 import json
@@ -20,12 +26,14 @@ from .context import StepContext
 from .datasets import MANIFEST, Dataset, StepOutput
 from .errors import ConfigError, MocapflowError, PipelineError, PluginError
 from .executors import Executor
+from .locking import WorkspaceLock, remove_owned
 from .plan import Plan, build_plan
-from .plugins import build_registries, get_plugin_manager
+from .plugins import build_registries, call_lifecycle, get_plugin_manager
 
 log = logging.getLogger("mocapflow")
-TMP_DIR = ".tmp"
-TRASH_DIR = ".trash"
+#: Inside the runner's own folder (``<workspace>/.mocapflow/``).
+TMP_DIR = "tmp"
+TRASH_DIR = "trash"
 
 
 @dataclass
@@ -70,10 +78,13 @@ class Runner:
         Lifecycle hooks (``before_step``, ``after_step``, ``on_step_error``).
     force : bool
         Recompute every step even when its fingerprint is unchanged.
+    wait : float
+        Seconds to wait for another run holding the workspace before refusing
+        (:class:`~.errors.LockError`); ``0`` refuses at once.
     """
 
     def __init__(self, plan: Plan, workspace: Path, executor: Executor, registries, hook=None, force: bool = False,
-                 echo: Callable[[str], None] | None = None) -> None:
+                 echo: Callable[[str], None] | None = None, wait: float = 0.0) -> None:
         self.plan = plan
         self.workspace = Path(workspace)
         self.executor = executor
@@ -81,15 +92,38 @@ class Runner:
         self.hook = hook
         self.force = force
         self.echo = echo or (lambda msg: None)
+        self.wait = wait
+        self._own: Path | None = None
 
     def _clean_leftovers(self) -> None:
-        """Remove half-written outputs of an interrupted run (never read, never kept)."""
-        for name in (TMP_DIR, TRASH_DIR):
-            shutil.rmtree(self.workspace / name, ignore_errors=True)
+        """Remove half-written outputs of an interrupted run (never read, never kept); only
+        inside the runner's own folder, and only while holding the lock."""
+        remove_owned(self.workspace, TMP_DIR, TRASH_DIR)
+
+    def _check_outputs_are_ours(self) -> None:
+        """Refuse, before anything runs, to replace a folder the runner did not write."""
+        for step in self.plan.steps:
+            out = self.workspace / step.step_id
+            if (out.exists() or out.is_symlink()) and (out.is_symlink() or not out.is_dir() or not (out / MANIFEST).is_file()):
+                raise ConfigError(f"{out} exists and is not a mocapflow dataset (no {MANIFEST}); step {step.step_id!r} "
+                                  "would replace it: move it away, rename the step, or choose another workspace")
+
+    def _notify(self, hook_name: str, **kwargs: Any) -> None:
+        if self.hook is not None:
+            call_lifecycle(self.hook, hook_name, **kwargs)
 
     def run(self) -> list[StepReport]:
-        self.workspace.mkdir(parents=True, exist_ok=True)
-        self._clean_leftovers()
+        self._check_outputs_are_ours()
+        with WorkspaceLock(self.workspace, self.wait, self.plan.source.config.name, self.echo) as lock:
+            self._own = lock.path.parent
+            self._check_outputs_are_ours()  # again: another run may have finished meanwhile
+            self._clean_leftovers()
+            try:
+                return self._run_steps()
+            finally:
+                self._clean_leftovers()
+
+    def _run_steps(self) -> list[StepReport]:
         fingerprints = self.plan.fingerprints()
         reports = []
         for step in self.plan.steps:
@@ -105,19 +139,18 @@ class Runner:
                     self.echo(f"  {step.step_id:<16} {step.key:<28} up to date")
                     continue
             reports.append(self._compute(step, fp, fingerprints))
-        self._clean_leftovers()
         return reports
 
     def _compute(self, step, fp: str, fingerprints: dict[str, str]) -> StepReport:
-        tmp = self.workspace / TMP_DIR / f"{step.step_id}-{uuid.uuid4().hex[:8]}"
+        inputs = {slot: Dataset(self.workspace / up) for slot, up in step.inputs.items()}
+        # a failing lifecycle hook is the plugin's error (PluginError naming it), not the step's
+        self._notify("before_step", step_id=step.step_id, component=step.component, workspace=str(self.workspace))
+        tmp = self._own / TMP_DIR / f"{step.step_id}-{uuid.uuid4().hex[:8]}"
         tmp.mkdir(parents=True)
         ctx = StepContext(step.step_id, tmp, self.plan.source.base_dir, self.workspace, self.registries, self.executor)
-        inputs = {slot: Dataset(self.workspace / up) for slot, up in step.inputs.items()}
         self.echo(f"  {step.step_id:<16} {step.key:<28} running...")
         t0 = time.perf_counter()
         try:
-            if self.hook is not None:
-                self.hook.before_step(step_id=step.step_id, component=step.component, workspace=str(self.workspace))
             output = step.component.run(inputs, ctx)
             if not isinstance(output, StepOutput):
                 raise PipelineError(f"{step.key}.run() returned {type(output).__name__}, expected StepOutput")
@@ -142,14 +175,16 @@ class Runner:
             self._commit(tmp, self.workspace / step.step_id)
         except BaseException as exc:
             shutil.rmtree(tmp, ignore_errors=True)
-            if self.hook is not None and isinstance(exc, Exception):
-                self.hook.on_step_error(step_id=step.step_id, component=step.component, error=exc)
+            if isinstance(exc, Exception):
+                try:
+                    self._notify("on_step_error", step_id=step.step_id, component=step.component, error=exc)
+                except PluginError as hook_exc:
+                    raise PluginError(f"{hook_exc} (while reporting that step {step.step_id!r} failed: {exc})") from exc
             if isinstance(exc, MocapflowError):
                 raise PipelineError(f"step {step.step_id!r} ({step.key}) failed: {exc}") from exc
             raise
-        if self.hook is not None:
-            self.hook.after_step(step_id=step.step_id, component=step.component, workspace=str(self.workspace),
-                                 output_dir=str(self.workspace / step.step_id), seconds=seconds)
+        self._notify("after_step", step_id=step.step_id, component=step.component, workspace=str(self.workspace),
+                     output_dir=str(self.workspace / step.step_id), seconds=seconds)
         rows = {name: t.num_rows for name, t in output.tables.items()}
         self.echo(f"  {step.step_id:<16} {step.key:<28} computed in {seconds:.2f} s ({', '.join(f'{k}: {v} rows' for k, v in rows.items())})")
         return StepReport(step.step_id, step.key, "computed", seconds, rows, output.summary)
@@ -157,7 +192,7 @@ class Runner:
     def _commit(self, tmp: Path, final: Path) -> None:
         """Swap the finished temporary directory in with renames (atomic on one filesystem)."""
         if final.exists():
-            trash = self.workspace / TRASH_DIR / f"{final.name}-{uuid.uuid4().hex[:8]}"
+            trash = self._own / TRASH_DIR / f"{final.name}-{uuid.uuid4().hex[:8]}"
             trash.parent.mkdir(parents=True, exist_ok=True)
             os.replace(final, trash)
             os.replace(tmp, final)
@@ -179,17 +214,11 @@ def plan_pipeline(path: str | Path, overrides: tuple[str, ...] | list[str] = (),
 
 def executor_classes(pm) -> dict[str, type]:
     """Executor classes registered through the ``register_executors`` hook, by name."""
-    out: dict[str, type] = {}
-    for impl in pm.hook.register_executors.get_hookimpls():
-        for cls in impl.function() or []:
-            if cls.name in out and out[cls.name] is not cls:
-                raise PluginError(f"duplicate executor {cls.name!r} from plugin {pm.get_name(impl.plugin)!r}")
-            out[cls.name] = cls
-    return out
+    return dict(build_registries(pm).executors)
 
 
-def make_executor(pm, name: str, jobs: int = 1, options: dict[str, Any] | None = None) -> Executor:
-    classes = executor_classes(pm)
+def make_executor(pm, name: str, jobs: int = 1, options: dict[str, Any] | None = None, registries=None) -> Executor:
+    classes = dict(registries.executors) if registries is not None else executor_classes(pm)
     if name not in classes:
         from .registry import did_you_mean
 
@@ -209,6 +238,7 @@ def run_pipeline(
     pm=None,
     executor: Executor | None = None,
     echo: Callable[[str], None] | None = None,
+    wait: float = 0.0,
 ) -> list[StepReport]:
     """Plan and run a pipeline file; returns one :class:`StepReport` per step.
 
@@ -227,6 +257,9 @@ def run_pipeline(
         A plugin manager (default: built-ins and entry points).
     executor : Executor, optional
         Use this executor instead of the configured one.
+    wait : float
+        Seconds to wait while another run holds the workspace (default: refuse at once
+        with a :class:`~.errors.LockError` naming it).
     """
     pm = pm or get_plugin_manager()
     registries = build_registries(pm)
@@ -234,9 +267,9 @@ def run_pipeline(
     cfg = plan.source.config
     ws = Path(workspace).resolve() if workspace is not None else default_workspace(plan)
     own = executor is None
-    ex = executor or make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options)
+    ex = executor or make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options, registries)
     try:
-        return Runner(plan, ws, ex, registries, hook=pm.hook, force=force, echo=echo).run()
+        return Runner(plan, ws, ex, registries, hook=pm.hook, force=force, echo=echo, wait=wait).run()
     finally:
         if own:
             ex.close()

@@ -6,7 +6,7 @@ import pyarrow.parquet as pq
 import pytest
 from toy_components import ToyPlugin
 
-from mocapflow.framework import ConfigError, get_plugin_manager
+from mocapflow.framework import ConfigError, MocapflowError, get_plugin_manager
 from mocapflow.framework.catalog import Catalog
 from mocapflow.framework.cli import main
 from mocapflow.framework.runner import run_pipeline
@@ -83,3 +83,50 @@ def test_cli_plugins_lists_components_and_params(capsys):
     out = capsys.readouterr().out
     assert "mocapflow.plugins.formats.steps" in out and "formats.load" in out
     assert "paths:" in out and "on_error" in out
+
+
+def _tree(ws):
+    return {str(p.relative_to(ws)): p.read_bytes() for p in sorted(ws.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("sql", [
+    "COPY (SELECT 1 AS x) TO '{ws}/summary/data.parquet'",
+    "COPY summary TO '{ws}/summary/data.parquet' (FORMAT parquet)",
+    "SELECT 1; COPY (SELECT 1) TO '{ws}/summary/data.parquet'",
+    "EXPLAIN ANALYZE COPY (SELECT 1) TO '{ws}/summary/data.parquet'",
+    "ATTACH '{ws}/new.db' AS other",
+    "EXPORT DATABASE '{ws}/exported'",
+    "INSTALL httpfs",
+    "LOAD httpfs",
+    "CREATE TABLE t AS SELECT 1",
+    "SET enable_external_access = true",
+])
+def test_sql_cannot_write_attach_or_load(workspace, sql):
+    before = _tree(workspace)
+    with Catalog(workspace) as cat, pytest.raises(ConfigError, match="read-only"):
+        cat.query(sql.format(ws=workspace))
+    assert _tree(workspace) == before
+
+
+def test_sql_cannot_read_files_outside_the_workspace(workspace, tmp_path):
+    outside = tmp_path / "secret.csv"
+    outside.write_text("a,b\n1,2\n")
+    (workspace / "summary" / "note.csv").write_text("a\n1\n")
+    with Catalog(workspace) as cat:
+        for sql in (f"SELECT * FROM read_csv('{outside}')", f"SELECT * FROM '{outside}'",
+                    f"SELECT * FROM read_csv('{workspace}/../secret.csv')", "SELECT * FROM read_text('/etc/passwd')",
+                    f"SELECT * FROM glob('{tmp_path}/*')"):
+            with pytest.raises(MocapflowError, match="(?s)SQL error.*reads only the datasets"):
+                cat.query(sql)
+        # the datasets themselves stay readable, through the views and by path
+        assert cat.query(f"SELECT count(*) AS n FROM read_parquet('{workspace}/summary/data.parquet')")["n"][0].as_py() == 3
+        assert cat.query("EXPLAIN SELECT * FROM summary").num_rows >= 1
+        assert cat.query("DESCRIBE summary").num_rows > 0
+
+
+def test_cli_sql_copy_is_refused_and_run_stays_honest(workspace, capsys):
+    target = workspace / "summary" / "data.parquet"
+    before = target.read_bytes()
+    assert main(["--no-entry-points", "sql", str(workspace), f"COPY (SELECT 1) TO '{target}'"]) == 2
+    assert "read-only" in capsys.readouterr().err
+    assert target.read_bytes() == before

@@ -106,7 +106,7 @@ def test_failed_step_leaves_nothing_and_rerun_completes(tmp_path):
         run_pipeline(p, pm=pm())
     assert (ws / "src" / "_manifest.json").is_file()
     assert not (ws / "boom").exists()
-    assert not (ws / ".tmp").exists() or not any((ws / ".tmp").iterdir())
+    assert not (ws / ".mocapflow" / "tmp").exists() or not any((ws / ".mocapflow" / "tmp").iterdir())
     reports = run_pipeline(p, pm=pm(), overrides=["boom.fail=false"])
     assert [r.status for r in reports] == ["up to date", "computed"]
 
@@ -115,13 +115,47 @@ def test_interrupted_run_leftovers_are_never_read(tmp_path):
     p = write(tmp_path, CHAIN)
     ws = tmp_path / "ws"
     run_pipeline(p, pm=pm())
+    own = ws / ".mocapflow"
+    assert (own / "CREATED-BY-MOCAPFLOW").is_file()
     # simulate a kill in the middle of writing a step and during a swap
-    (ws / ".tmp" / "plus-dead").mkdir(parents=True)
-    (ws / ".tmp" / "plus-dead" / "data.parquet").write_bytes(b"garbage")
-    (ws / "both" / "_manifest.json").unlink()  # a dataset without manifest is not finished
-    reports = run_pipeline(p, pm=pm())
+    (own / "tmp" / "plus-dead").mkdir(parents=True)
+    (own / "tmp" / "plus-dead" / "data.parquet").write_bytes(b"garbage")
+    (own / "trash" / "both-dead").mkdir(parents=True)
+    reports = run_pipeline(p, pm=pm(), overrides=["plus.add=3"])
     assert {r.step_id: r.status for r in reports}["both"] == "computed"
-    assert not (ws / ".tmp").exists()
+    assert pq.read_table(ws / "both" / "data.parquet")["x"].to_pylist() == [4.0, 5.0, 6.0, 7.0]
+    assert not (own / "tmp").exists() and not (own / "trash").exists()
+
+
+def test_a_run_deletes_and_replaces_only_what_it_created(tmp_path):
+    """``workspace:`` pointing at a folder the user already had: their ``.tmp``, ``.trash``
+    and other files survive every run; a folder named like a step that is not a dataset is
+    refused before anything runs, never replaced."""
+    p = write(tmp_path, CHAIN.replace("workspace: ws", "workspace: mine"))
+    mine = tmp_path / "mine"
+    user = {".tmp/draft.txt": b"mine", ".trash/old.bvh": b"keep", "notes.md": b"n", ".mocapflow-like/x": b"x"}
+    for rel, data in user.items():
+        (mine / rel).parent.mkdir(parents=True, exist_ok=True)
+        (mine / rel).write_bytes(data)
+    run_pipeline(p, pm=pm())
+    run_pipeline(p, pm=pm(), overrides=["plus.add=2"])  # replaces datasets the runner wrote
+    assert {rel: (mine / rel).read_bytes() for rel in user} == user
+    assert (mine / "both" / "_manifest.json").is_file()
+
+    (mine / "other").rename(tmp_path / "other-dataset")
+    (mine / "other").mkdir()
+    (mine / "other" / "thesis.tex").write_text("years of work")
+    with pytest.raises(ConfigError, match=r"mine/other exists and is not a mocapflow dataset.*step 'other'"):
+        run_pipeline(p, pm=pm(), force=True)
+    assert (mine / "other" / "thesis.tex").read_text() == "years of work"
+    assert (mine / "src" / "_manifest.json").is_file() and "calls.log" in {f.name for f in mine.iterdir()}
+
+    foreign = tmp_path / "foreign"
+    (foreign / ".mocapflow").mkdir(parents=True)
+    (foreign / ".mocapflow" / "tmp").mkdir()
+    with pytest.raises(ConfigError, match="was not created by mocapflow"):
+        run_pipeline(p, workspace=foreign, pm=pm())
+    assert (foreign / ".mocapflow" / "tmp").is_dir()
 
 
 def test_overrides_are_validated(tmp_path):
@@ -207,9 +241,53 @@ def test_killed_run_resumes_with_the_same_outputs(tmp_path):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     assert (ws / "src" / "_manifest.json").is_file() and not (ws / "slow").exists()
-    assert list((ws / ".tmp").iterdir()), "the kill should have left a half-written step behind"
+    assert list((ws / ".mocapflow" / "tmp").iterdir()), "the kill should have left a half-written step behind"
     p.write_text(textwrap.dedent(body.replace("SECONDS", "0")))
     reports = {r.step_id: r.status for r in run_pipeline(p, pm=pm())}
     assert reports == {"src": "up to date", "slow": "computed", "after": "computed"}
     assert pq.read_table(ws / "after" / "data.parquet")["x"].to_pylist() == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
-    assert not (ws / ".tmp").exists()
+    assert not (ws / ".mocapflow" / "tmp").exists()
+
+
+@pytest.mark.parametrize("body, line, words", [
+    ("steps:\n  a: !!python/object/apply:os.system ['touch PWNED']\n", 3, ["unsupported tag", "python/object/apply"]),
+    ("steps:\n  a:\n    uses: !custom analyses.toy_source\n", 4, ["unsupported tag '!custom'"]),
+    ("steps:\n  a: {uses: analyses.toy_source}\n  a: {uses: analyses.toy_add}\n", 4, ["key 'a' appears twice", "line 3"]),
+    ("steps: &s\n  a: *s\n", 2, ["alias"]),
+])
+def test_yaml_tags_duplicates_and_recursive_aliases_are_config_errors(tmp_path, body, line, words):
+    from mocapflow.framework.cli import main
+
+    p = write(tmp_path, "name: bad\n" + body)
+    with pytest.raises(ConfigError) as err:
+        plan(p)
+    msg = str(err.value)
+    assert f"{p}:{line}" in msg, msg
+    for w in words:
+        assert w in msg, msg
+    assert main(["--no-entry-points", "plan", str(p)]) == 2
+    assert not (tmp_path / "PWNED").exists() and not Path("PWNED").exists()
+
+
+def test_atomic_writes_never_leave_half_a_file(tmp_path):
+    from mocapflow.framework import Format
+    from mocapflow.framework.datasets import atomic_path
+
+    target = tmp_path / "take.bvh"
+    target.write_text("previous")
+
+    class HalfWriter(Format):
+        name = "half"
+
+        def write(self, obj, path):
+            assert Path(path).suffix == ".bvh" and Path(path).parent == tmp_path
+            Path(path).write_text("HIER")  # a crash after the first bytes
+            raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        HalfWriter().write_atomic(None, target)
+    assert target.read_text() == "previous" and [p.name for p in tmp_path.iterdir()] == ["take.bvh"]
+    with atomic_path(target) as tmp:
+        tmp.write_text("new")
+        assert target.read_text() == "previous"
+    assert target.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["take.bvh"]

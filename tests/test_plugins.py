@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 from importlib import metadata
+from pathlib import Path
 
 import pytest
 
@@ -45,18 +46,92 @@ def test_duplicate_names_both_providers():
     assert "dup-plugin" in str(err.value) and "mocapflow.plugins.analyses.summary" in str(err.value)
 
 
-def test_plugin_raising_in_hook_is_named():
+def test_plugin_raising_in_hook_is_named_skipped_and_the_rest_goes_on(caplog):
     pm = get_plugin_manager(entry_points=False)
     pm.register(BrokenPlugin(), name="broken-one")
+    regs = build_registries(pm)  # no raise: the others are usable
+    assert "end_effectors" in regs["features"] and "local" in regs.executors
+    assert [(f.plugin, "register_features" in f.error and "boom" in f.error) for f in pm.failures] == [("broken-one", True)]
+    assert "plugin 'broken-one' skipped" in caplog.text and "boom" in caplog.text
+    build_registries(pm)
+    assert len(pm.failures) == 1 and caplog.text.count("skipped") == 1  # reported once
     with pytest.raises(PluginError, match="broken-one.*register_features.*boom"):
-        build_registries(pm)
+        build_registries(pm, strict=True)
+
+
+class HalfBrokenPlugin:
+    """Registers a good analysis but fails in another hook: none of it is used."""
+
+    @hookimpl
+    def register_analyses(self):
+        return [Good]
+
+    @hookimpl
+    def register_indexes(self):
+        return "not a list"
+
+
+class Good(Analysis):
+    """A fine component of a broken plugin."""
+
+    name = "good_one"
+
+
+def test_a_broken_plugin_is_skipped_entirely():
+    pm = get_plugin_manager(entry_points=False, extra=[HalfBrokenPlugin()])
+    regs = build_registries(pm)
+    assert "good_one" not in regs["analyses"] and "clip_summary" in regs["analyses"]
+    assert "must return a list of classes" in pm.failures[0].error
 
 
 def test_component_without_name_is_rejected():
     pm = get_plugin_manager(entry_points=False)
     pm.register(NoNamePlugin(), name="nameless")
+    regs = build_registries(pm)
+    assert [f.plugin for f in pm.failures] == ["nameless"] and "snake_case" in pm.failures[0].error
+    assert "clip_summary" in regs["analyses"]
     with pytest.raises(PluginError, match="nameless"):
-        build_registries(pm)
+        build_registries(pm, strict=True)
+
+
+def test_cli_plugins_plan_run_survive_a_plugin_whose_hooks_raise(monkeypatch, tmp_path, capsys, caplog):
+    """A third-party plugin raising in every registration hook (components, executors,
+    commands) is reported by name and skipped; plugins, plan and run work for everyone."""
+    import shutil
+    import textwrap
+
+    from mocapflow.framework.cli import main
+
+    ep = metadata.EntryPoint(name="raising-ep", value="toy_components:RAISING", group="mocapflow")
+    real = metadata.entry_points
+
+    def fake(group=None, **kw):
+        return [ep] if group == "mocapflow" else real(group=group, **kw)
+
+    monkeypatch.setattr(metadata, "entry_points", fake)
+    assert main(["plugins"]) == 0
+    cap = capsys.readouterr()
+    assert "BROKEN plugin 'raising-ep'" in cap.out and "formats.load" in cap.out
+    src = next((Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu").rglob("*.bvh"), None)
+    if src is None:
+        src = next((Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu").rglob("*.amc"))
+        for f in src.parent.glob("*.asf"):
+            shutil.copy(f, tmp_path)
+    shutil.copy(src, tmp_path)
+    p = tmp_path / "p.yaml"
+    p.write_text(textwrap.dedent(f"""
+        name: survive
+        workspace: ws
+        steps:
+          motions: {{uses: formats.load, with: {{paths: ["*{src.suffix}"]}}}}
+          summary: {{uses: analyses.clip_summary, input: motions}}
+    """))
+    assert main(["plan", str(p)]) == 0
+    assert main(["run", str(p)]) == 0
+    cap = capsys.readouterr()
+    assert "computed" in cap.out
+    assert "plugin 'raising-ep' skipped: failed in register_analyses(): RuntimeError: analyses exploded" in caplog.text
+    assert (tmp_path / "ws" / "summary" / "_manifest.json").is_file()
 
 
 def test_fresh_managers_do_not_share_state():
@@ -101,3 +176,38 @@ def test_hook_docs_are_in_step_with_hookspecs():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     assert (docs / "hooks.md").read_text() == mod.render(), "run `python docs/make_hooks_md.py`"
+
+
+@pytest.mark.parametrize("hook, step, committed", [
+    ("before_step", "plus", False),
+    ("after_step", "plus", True),
+    ("on_step_error", "boom", False),
+])
+def test_lifecycle_hook_errors_are_plugin_errors_naming_the_plugin(tmp_path, hook, step, committed):
+    import textwrap
+
+    from toy_components import HookFailures, ToyPlugin
+
+    from mocapflow.framework.runner import run_pipeline
+
+    p = tmp_path / "p.yaml"
+    p.write_text(textwrap.dedent("""
+        name: hooks
+        workspace: ws
+        steps:
+          src: {uses: analyses.toy_source}
+          plus: {uses: analyses.toy_add, input: src}
+          boom: {uses: analyses.toy_fail, input: plus}
+    """))
+    pm = get_plugin_manager(entry_points=False, extra=[ToyPlugin()])
+    hooks = HookFailures(**{hook: (step,)})
+    pm.register(hooks, name="hooky")
+    with pytest.raises(PluginError) as err:
+        run_pipeline(p, pm=pm)
+    msg = str(err.value)
+    assert f"plugin 'hooky' failed in {hook}(step_id='{step}'): RuntimeError: {hook} hook broke on {step}" in msg, msg
+    if hook == "on_step_error":
+        assert "toy failure on purpose" in msg  # the step's own error is not lost
+    assert isinstance(err.value.__cause__, RuntimeError) or "toy failure" in str(err.value.__cause__)
+    assert (tmp_path / "ws" / step / "_manifest.json").is_file() == committed
+    assert not any((tmp_path / "ws" / ".mocapflow").glob("tmp/*"))

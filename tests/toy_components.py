@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Annotated, Any
 
 import numpy as np
 import pyarrow as pa
@@ -9,6 +10,7 @@ from pydantic import Field
 from synthetic import random_motion
 
 from mocapflow.framework import Analysis, Params, PipelineError, StepOutput, hookimpl
+from mocapflow.framework.components import ParamsOf
 from mocapflow.framework.motion_tables import motions_to_tables
 
 
@@ -83,7 +85,7 @@ class ToyMotions(Analysis):
 class ToyPlugin:
     @hookimpl
     def register_analyses(self):
-        return [ToySource, ToyAdd, ToyFail, ToyMotions, ToySlow]
+        return [ToySource, ToyAdd, ToyFail, ToyMotions, ToySlow, ToyGate]
 
 
 class RecordingExecutor:
@@ -125,3 +127,91 @@ class ToySlow(Analysis):
         (ctx.workspace / "slow-started").write_text("1")
         time.sleep(self.params.seconds)
         return StepOutput({"data": pa.table({"x": inputs["source"].table()["x"]})})
+
+
+class RaisingPlugin:
+    """A third-party plugin whose every registration hook raises (``RAISING`` is its
+    entry-point object in the tests)."""
+
+    @hookimpl
+    def register_analyses(self):
+        raise RuntimeError("analyses exploded")
+
+    @hookimpl
+    def register_executors(self):
+        raise RuntimeError("executors exploded")
+
+    @hookimpl
+    def register_commands(self):
+        raise RuntimeError("commands exploded")
+
+
+RAISING = RaisingPlugin()
+
+
+class ToyGate(Analysis):
+    """Says it started (``<workspace>/gate-started``), then waits until the test creates
+    ``<workspace>/gate-open`` (at most ``timeout`` seconds): a step that ends on cue."""
+
+    name = "toy_gate"
+    inputs: Mapping[str, bool] = {}
+
+    class Params(Params):
+        timeout: float = 120.0
+
+    def run(self, inputs, ctx):
+        import time
+
+        (ctx.workspace / "gate-started").write_text("1")
+        deadline = time.monotonic() + self.params.timeout
+        while not (ctx.workspace / "gate-open").exists():
+            if time.monotonic() > deadline:
+                raise PipelineError("toy_gate: nobody opened the gate")
+            time.sleep(0.05)
+        return StepOutput({"data": pa.table({"x": [1.0]})})
+
+
+class HookFailures:
+    """Lifecycle hooks that raise on the steps named in ``fail`` (hook name -> step ids)."""
+
+    def __init__(self, **fail: tuple[str, ...]) -> None:
+        self.fail = fail
+        self.seen: list[str] = []
+
+    def _maybe(self, hook: str, step_id: str) -> None:
+        self.seen.append(f"{hook}:{step_id}")
+        if step_id in self.fail.get(hook, ()):
+            raise RuntimeError(f"{hook} hook broke on {step_id}")
+
+    @hookimpl
+    def before_step(self, step_id, component, workspace):
+        self._maybe("before_step", step_id)
+
+    @hookimpl
+    def after_step(self, step_id, output_dir):
+        self._maybe("after_step", step_id)
+
+    @hookimpl
+    def on_step_error(self, step_id, error):
+        self._maybe("on_step_error", step_id)
+
+
+class ToyNested(Analysis):
+    """Holds the parameters of another component, chosen by a sibling parameter."""
+
+    name = "toy_nested"
+    inputs: Mapping[str, bool] = {}
+
+    class Params(Params):
+        target: str = "toy_source"
+        options: Annotated[dict[str, Any], ParamsOf("analyses.{target}")] = Field(default_factory=dict)
+        fixed: Annotated[dict[str, Any], ParamsOf("analyses.toy_add")] = Field(default_factory=dict)
+
+    def run(self, inputs, ctx):
+        return StepOutput({"data": pa.table({"x": [float(len(self.params.options))]})})
+
+
+class NestedPlugin:
+    @hookimpl
+    def register_analyses(self):
+        return [ToyNested]

@@ -24,14 +24,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.framework.components import Analysis, Params
+from mocapflow.framework.components import Analysis, Params, ParamsOf
 from mocapflow.framework.motion import Motion
 
 from .error_injection import ERROR_KINDS, inject_errors
@@ -124,7 +124,7 @@ class CleaningEvaluationParams(Params):
     repair_context: str = Field(default="small", description="context whose detection is repaired for eq. 2")
     also_normalizations: tuple[str, ...] = Field(default=("mean", "spread", "texture"),
                                                   description="MDM row normalisations also scored (rows 'mdm[<name>]')")
-    cleaner: dict[str, Any] = Field(default_factory=dict, description="parameters of cleaners.mdm")
+    cleaner: Annotated[dict[str, Any], ParamsOf("cleaners.mdm")] = Field(default_factory=dict, description="parameters of cleaners.mdm")
 
 
 class CleaningEvaluation(Analysis):

@@ -50,6 +50,8 @@ class ClipSummary(Analysis):
 
     name = "clip_summary"
     inputs: Mapping[str, bool] = {"motions": True}
+    output_kind = "table"
+    input_kinds = {"motions": ("motions",)}
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         db = inputs["motions"].motions()

@@ -91,6 +91,10 @@ class _FileIngest(Format):
     def _files(self, base: Path) -> list[Path]:
         return _expand(self.params.paths, base, self.params.exclude)
 
+    def check_plan(self, base_dir: Path) -> list[str]:
+        return [f"pattern {pat!r} of `paths` matches no file (relative to {base_dir})"
+                for pat in self.params.paths if not _expand([pat], base_dir, [])]
+
     def source_fingerprint(self, base_dir: Path) -> str:
         h = hashlib.sha256()
         for f in self._files(base_dir):
@@ -138,6 +142,7 @@ class LoadMotions(_FileIngest):
 
     name = "load"
     reads = "motion"
+    output_kind = "motions"
 
     class Params(_FileIngest.Params):
         fps: float | None = Field(default=None, gt=0, description="resample every clip to this rate (Hz)")
@@ -163,6 +168,7 @@ class LoadMarkers(_FileIngest):
 
     name = "load_markers"
     reads = "markers"
+    output_kind = "markers"
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         good, rejects, n_files, _ = self._read_all(ctx)
