@@ -31,7 +31,7 @@ from mocapflow.framework.errors import ParseError
 from mocapflow.framework.joints import map_asf
 from mocapflow.framework.skeleton import Skeleton
 
-from ._common import MAX_DEGREES, MAX_METRES, check_text, euler_extrinsic, read_bytes, text_body
+from ._common import MAX_DEGREES, MAX_METRES, check_text, euler_extrinsic, read_bytes, split_ascii, strict_float, text_body
 
 _ROOT_CHANNELS = {"TX", "TY", "TZ", "RX", "RY", "RZ"}
 _DOFS = {"rx", "ry", "rz"}
@@ -41,7 +41,7 @@ def _floats(path: Path, line: int, words: list[str], n: int, what: str) -> list[
     if len(words) < n:
         raise ParseError(path, line, f"expected {n} numbers for {what}, found {len(words)}")
     try:
-        vals = [float(w) for w in words[:n]]
+        vals = [strict_float(w) for w in words[:n]]
     except ValueError:
         raise ParseError(path, line, f"expected {n} numbers for {what}, found {' '.join(words[:n])!r}") from None
     if not all(np.isfinite(vals)):
@@ -87,10 +87,10 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
     placed: dict[str, int] = {}
     name_line: dict[str, int] = {}
     for ln, raw in enumerate(lines, start=1):
-        text = raw.split("#", 1)[0].strip()
-        if not text:
+        words = split_ascii(raw.split("#", 1)[0])
+        if not words:
             continue
-        words = text.split()
+        text = " ".join(words)
         key = words[0]
         if key.startswith(":"):
             section = key[1:].lower()

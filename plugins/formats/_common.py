@@ -25,6 +25,7 @@ vertical tab and form feed (whitespace) is binary garbage.
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 from pathlib import Path
 
@@ -60,6 +61,36 @@ MAX_FPS = 1.0e5
 
 _BOM = b"\xef\xbb\xbf"
 _LONE_CR = re.compile(rb"\r(?!\n)")
+
+
+_FLOAT = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_INT = re.compile(r"[0-9]+")
+
+
+def strict_float(text: str | bytes) -> float:
+    """A finite decimal number written exactly as the tokenizer reads one (no ``inf``,
+    ``nan``, ``1_0``, surrounding or non-ASCII whitespace); ValueError otherwise."""
+    t = text.decode("latin-1") if isinstance(text, bytes) else text
+    if not _FLOAT.fullmatch(t):
+        raise ValueError(t)
+    v = float(t)
+    if not math.isfinite(v):
+        raise ValueError(t)
+    return v
+
+
+def strict_int(text: str | bytes) -> int:
+    """A non-negative integer written with ASCII digits only; ValueError otherwise."""
+    t = text.decode("latin-1") if isinstance(text, bytes) else text
+    if not _INT.fullmatch(t):
+        raise ValueError(t)
+    return int(t)
+
+
+def split_ascii(text: str) -> list[str]:
+    """Words of a latin-1 line split on ASCII whitespace only (as the tokenizer splits;
+    ``str.split`` would also split on NBSP and NEL)."""
+    return [w.decode("latin-1") for w in text.encode("latin-1").split()]
 
 
 def text_body(data: bytes) -> bytes:

@@ -40,7 +40,8 @@ from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
 from ._bvh_write import write_bvh
-from ._common import MAX_DEGREES, MAX_FPS, MAX_METRES, check_text, file_metadata, line_of, read_bytes, text_body
+from ._common import (MAX_DEGREES, MAX_FPS, MAX_METRES, check_text, file_metadata, line_of, read_bytes, split_ascii,
+                      strict_float, strict_int, text_body)
 
 __all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
 
@@ -53,17 +54,18 @@ _MOTION_RE = re.compile(rb"^[ \t]*MOTION[ \t]*\r?$", re.MULTILINE)
 
 
 class _Joint:
-    __slots__ = ("name", "parent", "offset", "channels", "line", "offset_line")
+    __slots__ = ("name", "parent", "offset", "channels", "line", "offset_line", "channels_line")
 
     def __init__(self, name: str | None, parent: int, line: int) -> None:
         self.name, self.parent, self.line = name, parent, line  # name None: an End Site, named at the end
         self.offset: list[float] | None = None
         self.offset_line = line
+        self.channels_line = 0
         self.channels: list[str] = []
 
 
 def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
-    words: list[tuple[str, int]] = [(w, ln) for ln, line in enumerate(text.split("\n"), start=1) for w in line.split()]
+    words: list[tuple[str, int]] = [(w, ln) for ln, line in enumerate(text.split("\n"), start=1) for w in split_ascii(line)]
     n = len(words)
     if n == 0 or words[0][0].upper() != "HIERARCHY":
         raise ParseError(path, words[0][1] if words else 1, "expected 'HIERARCHY' at the start of a BVH file")
@@ -86,6 +88,8 @@ def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
                 raise ParseError(path, ln, "only one ROOT is supported")
             if key != "ROOT" and not stack:
                 raise ParseError(path, ln, f"expected ROOT, found {w!r}")
+            if stack and joints[stack[-1]].name is None:
+                raise ParseError(path, ln, f"expected only OFFSET and '}}' inside an End Site, found {w!r}")
             if key == "END":
                 name = None
                 i += 2
@@ -107,9 +111,12 @@ def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
             if not stack:
                 raise ParseError(path, ln, "OFFSET outside a joint")
             vals = take(4, "three OFFSET values")[1:]
+            if joints[stack[-1]].offset is not None:
+                raise ParseError(path, ln, f"expected one OFFSET per joint, found a second (the first is at line "
+                                 f"{joints[stack[-1]].offset_line})")
             joints[stack[-1]].offset_line = ln
             try:
-                joints[stack[-1]].offset = [float(v) for v, _ in vals]
+                joints[stack[-1]].offset = [strict_float(v) for v, _ in vals]
             except ValueError:
                 raise ParseError(path, ln, f"expected three numbers after OFFSET, found {' '.join(v for v, _ in vals)!r}") from None
             if not np.all(np.isfinite(joints[stack[-1]].offset)):
@@ -118,10 +125,19 @@ def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
         elif key == "CHANNELS":
             if not stack:
                 raise ParseError(path, ln, "CHANNELS outside a joint")
+            if joints[stack[-1]].name is None:
+                raise ParseError(path, ln, "expected only OFFSET and '}' inside an End Site, found CHANNELS")
+            if joints[stack[-1]].channels_line:
+                raise ParseError(path, ln, f"expected one CHANNELS line per joint, found a second (the first is at "
+                                 f"line {joints[stack[-1]].channels_line})")
+            joints[stack[-1]].channels_line = ln
             cnt_w = take(2, "a channel count")[1][0]
-            if not cnt_w.isdigit():
-                raise ParseError(path, ln, f"expected a channel count after CHANNELS, found {cnt_w!r}")
-            cnt = int(cnt_w)
+            try:
+                cnt = strict_int(cnt_w)
+            except ValueError:
+                raise ParseError(path, ln, f"expected a channel count after CHANNELS, found {cnt_w!r}") from None
+            if cnt > 6:
+                raise ParseError(path, ln, f"expected at most 6 channels per joint, found {cnt}")
             i += 2
             chans = [c for c, _ in take(cnt, f"{cnt} channel names")]
             bad = [c for c in chans if c.lower() not in _CHANNELS]
@@ -161,14 +177,14 @@ def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, f
     for key in ("frames:", "frame time:"):
         end = data.find(b"\n", pos)
         end = len(data) if end < 0 else end
-        text = data[pos:end].decode("latin-1").strip()
+        text = data[pos:end].strip().decode("latin-1")
         if not text.lower().startswith(key) or len(text) == len(key):
             raise ParseError(path, line, f"expected '{key.capitalize()} <value>', found {text[:40]!r}")
-        vals[key] = text[len(key):].strip()
+        vals[key] = text[len(key):].strip(" \t\r\x0b\x0c")
         pos, line = end + 1, line + 1
     try:
-        frames = int(vals["frames:"])
-        dt = float(vals["frame time:"])
+        frames = strict_int(vals["frames:"])
+        dt = strict_float(vals["frame time:"])
     except ValueError:
         raise ParseError(path, line - 2, f"expected an integer frame count and a frame time, found {vals}") from None
     if frames < 1:

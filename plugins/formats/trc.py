@@ -21,7 +21,7 @@ from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.markers import Markers, guess_up_axis, to_y_up
 
-from ._common import MAX_FPS, MAX_METRES, check_text, file_metadata, read_bytes, text_body
+from ._common import MAX_FPS, MAX_METRES, check_text, file_metadata, read_bytes, strict_float, strict_int, text_body
 from .c3d import UNITS_TO_METRES
 
 __all__ = ["TrcFormat", "read_trc", "write_trc"]
@@ -41,36 +41,35 @@ def _lines(data: bytes, n: int) -> tuple[list[str], int]:
     return out, pos
 
 
+_SPACE = " \t\r\x0b\x0c"  # ASCII whitespace of a line (the tokenizer's)
+
+
 def _header_fields(line: str) -> list[str]:
     """Fields of a header line: split on runs of tabs and spaces (OpenSim pads values with
     spaces and separates them with one or more tabs)."""
-    return _WS.split(line.strip())
+    return [f for f in _WS.split(line.strip(_SPACE)) if f]
 
 
 def _key_values(keys_line: str, vals_line: str) -> dict[str, str]:
     keys, vals = _header_fields(keys_line), _header_fields(vals_line)
     if len(keys) != len(vals):  # empty values in a tab-separated line: pair by tab position
-        keys = [k.strip() for k in keys_line.split("\t")]
-        vals = [v.strip() for v in vals_line.split("\t")]
+        keys = [k.strip(_SPACE) for k in keys_line.split("\t")]
+        vals = [v.strip(_SPACE) for v in vals_line.split("\t")]
     return {k: v for k, v in zip(keys, vals) if k}
 
 
-def _field(text: str) -> float:
+def _field(text: bytes) -> float:
     """One data field: empty or NaN is a gap (NaN); otherwise a finite decimal number."""
     t = text.strip()
-    if not t or t.lstrip("+-").lower() == "nan":
+    if not t or t.lstrip(b"+-").lower() == b"nan":
         return np.nan
-    if "_" in t or t.lstrip("+-")[:1].lower() in ("i", "n"):
-        raise ValueError(t)
-    v = float(t)
-    if not np.isfinite(v):
-        raise ValueError(t)
-    return v
+    return strict_float(t)
 
 
-def _slow_row(path: Path, line: int, text: str, width: int) -> list[float]:
-    """Fields of a data row that is not ``width`` plain numbers (gaps, NaN, garbage)."""
-    fields = text.split("\t") if "\t" in text else text.split()
+def _slow_row(path: Path, line: int, text: bytes, width: int) -> list[float]:
+    """Fields of a data row that is not ``width`` plain numbers (gaps, NaN, garbage):
+    tab-separated (an empty field is a gap), or whitespace-separated without tabs."""
+    fields = text.split(b"\t") if b"\t" in text else text.split()
     if len(fields) < width or any(f.strip() for f in fields[width:]):
         n = len(fields) if len(fields) < width else width + sum(1 for f in fields[width:] if f.strip())
         raise ParseError(path, line, f"expected {width} fields (frame, time, 3 x NumMarkers), found {n}")
@@ -78,8 +77,6 @@ def _slow_row(path: Path, line: int, text: str, width: int) -> list[float]:
         row = [_field(f) for f in fields[:width]]
     except ValueError as exc:
         raise ParseError(path, line, f"expected a finite number, an empty field or NaN, found {str(exc)[:40]!r}") from None
-    if not (np.isfinite(row[:2]).all() and abs(row[0]) < 1e9 and row[0] == int(row[0]) and abs(row[1]) < 1e9):
-        raise ParseError(path, line, f"expected an integer frame number and a time, found {fields[0]!r} {fields[1]!r}")
     return row
 
 
@@ -116,8 +113,8 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
         raise ParseError(path, 1, f"expected a TRC header starting with 'PathFileType', found {head[0][:40]!r}")
     info = _key_values(head[1], head[2])
     try:
-        n_frames, n_markers = int(info["NumFrames"]), int(info["NumMarkers"])
-        rate = float(info.get("DataRate") or info["CameraRate"])
+        n_frames, n_markers = strict_int(info["NumFrames"]), strict_int(info["NumMarkers"])
+        rate = strict_float(info.get("DataRate") or info["CameraRate"])
     except (KeyError, ValueError):
         raise ParseError(path, 3, "expected NumFrames, NumMarkers and DataRate values") from None
     if n_frames < 1 or n_markers < 1:
@@ -127,7 +124,7 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
         raise ParseError(path, 3, f"expected Units among {sorted(UNITS_TO_METRES)}, found {units!r}")
     if not 0 < rate <= MAX_FPS:
         raise ParseError(path, 3, f"expected a DataRate in (0, {MAX_FPS:g}] Hz, found {rate}")
-    labels = tuple(lb.strip() for lb in head[3].split("\t")[2:] if lb.strip())
+    labels = tuple(lb.strip(_SPACE) for lb in head[3].split("\t")[2:] if lb.strip(_SPACE))
     if len(labels) != n_markers and "\t" not in head[3]:
         labels = tuple(_header_fields(head[3])[2:])
     if len(labels) != n_markers:
@@ -152,9 +149,9 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
         table[full] = values[idx]
         slow = np.flatnonzero(~full | ~np.logical_and.reduceat(isnum, first))
     for r in slow:
-        s = starts[first[r]]
+        s = body.rfind(b"\n", 0, starts[first[r]]) + 1  # the whole line: a leading tab is an empty field
         e = body.find(b"\n", s)
-        table[r] = _slow_row(path, int(rows[r]), body[s:len(body) if e < 0 else e].decode("latin-1").rstrip("\r"), width)
+        table[r] = _slow_row(path, int(rows[r]), body[s:len(body) if e < 0 else e].rstrip(b"\r"), width)
     bad_head = ~((np.abs(table[:, 0]) < 1e9) & (table[:, 0] == np.round(table[:, 0])) & (np.abs(table[:, 1]) < 1e9))
     if bad_head.any():
         r = int(np.argmax(bad_head))
