@@ -109,6 +109,11 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
     body = text_body(data)
     check_text(path, body)
     head, pos = _lines(body, _HEADER_LINES)
+    last = body.count(b"\n") + 1
+
+    def at(line: int) -> int:  # a header line, or the last line of a file that ends before it
+        return min(line, last)
+
     if not head[0].startswith("PathFileType"):
         raise ParseError(path, 1, f"expected a TRC header starting with 'PathFileType', found {head[0][:40]!r}")
     info = _key_values(head[1], head[2])
@@ -116,19 +121,19 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
         n_frames, n_markers = strict_int(info["NumFrames"]), strict_int(info["NumMarkers"])
         rate = strict_float(info.get("DataRate") or info["CameraRate"])
     except (KeyError, ValueError):
-        raise ParseError(path, 3, "expected NumFrames, NumMarkers and DataRate values") from None
+        raise ParseError(path, at(3), "expected NumFrames, NumMarkers and DataRate values") from None
     if n_frames < 1 or n_markers < 1:
-        raise ParseError(path, 3, f"expected NumFrames >= 1 and NumMarkers >= 1, found {n_frames} and {n_markers}")
+        raise ParseError(path, at(3), f"expected NumFrames >= 1 and NumMarkers >= 1, found {n_frames} and {n_markers}")
     units = info.get("Units", "mm").lower()
     if units not in UNITS_TO_METRES:
-        raise ParseError(path, 3, f"expected Units among {sorted(UNITS_TO_METRES)}, found {units!r}")
+        raise ParseError(path, at(3), f"expected Units among {sorted(UNITS_TO_METRES)}, found {units!r}")
     if not 0 < rate <= MAX_FPS:
-        raise ParseError(path, 3, f"expected a DataRate in (0, {MAX_FPS:g}] Hz, found {rate}")
+        raise ParseError(path, at(3), f"expected a DataRate in (0, {MAX_FPS:g}] Hz, found {rate}")
     labels = tuple(lb.strip(_SPACE) for lb in head[3].split("\t")[2:] if lb.strip(_SPACE))
     if len(labels) != n_markers and "\t" not in head[3]:
         labels = tuple(_header_fields(head[3])[2:])
     if len(labels) != n_markers:
-        raise ParseError(path, 4, f"expected {n_markers} marker labels (NumMarkers), found {len(labels)}")
+        raise ParseError(path, at(4), f"expected {n_markers} marker labels (NumMarkers), found {len(labels)}")
     width = 2 + 3 * n_markers
     tok = tokenize(np.frombuffer(body, dtype=np.uint8), pos, _HEADER_LINES + 1)
     starts, lens, lines, _h, values, isnum = tok[:6]
@@ -136,7 +141,7 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
         raise ParseError(path, int(tok[7]), "expected text, found a binary control byte")
     rows, first, counts = np.unique(lines, return_index=True, return_counts=True)
     if len(rows) != n_frames:
-        where = int(rows[-1]) if len(rows) else _HEADER_LINES
+        where = int(rows[-1]) if len(rows) else at(_HEADER_LINES)
         raise ParseError(path, where, f"expected {n_frames} data rows (NumFrames), found {len(rows)}")
     table = np.full((n_frames, width), np.nan)
     full = counts == width
