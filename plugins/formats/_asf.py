@@ -31,7 +31,7 @@ from mocapflow.framework.errors import ParseError
 from mocapflow.framework.joints import map_asf
 from mocapflow.framework.skeleton import Skeleton
 
-from ._common import check_text, euler_extrinsic, read_bytes
+from ._common import MAX_DEGREES, MAX_METRES, check_text, euler_extrinsic, read_bytes, split_ascii, strict_float, text_body
 
 _ROOT_CHANNELS = {"TX", "TY", "TZ", "RX", "RY", "RZ"}
 _DOFS = {"rx", "ry", "rz"}
@@ -41,12 +41,23 @@ def _floats(path: Path, line: int, words: list[str], n: int, what: str) -> list[
     if len(words) < n:
         raise ParseError(path, line, f"expected {n} numbers for {what}, found {len(words)}")
     try:
-        vals = [float(w) for w in words[:n]]
+        vals = [strict_float(w) for w in words[:n]]
     except ValueError:
         raise ParseError(path, line, f"expected {n} numbers for {what}, found {' '.join(words[:n])!r}") from None
     if not all(np.isfinite(vals)):
         raise ParseError(path, line, f"expected finite numbers for {what}, found {' '.join(words[:n])!r}")
     return vals
+
+
+def _max_angle(asf: dict[str, Any]) -> float:
+    return MAX_DEGREES if asf["units"]["angle"] == "deg" else float(np.deg2rad(MAX_DEGREES))
+
+
+def _bound(path: Path, line: int, vals: list[float], limit: float, what: str, unit: str) -> None:
+    """Reject physically absurd magnitudes (the bounds of ``_common``'s value policy)."""
+    if max(abs(v) for v in vals) > limit:
+        raise ParseError(path, line, f"expected {what} values within {limit:g} {unit} (10 km / 10^6 degrees), "
+                         f"found {' '.join(f'{v:g}' for v in vals)}")
 
 
 def parse_asf(path: str | Path) -> dict[str, Any]:
@@ -59,8 +70,9 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
     """
     path = Path(path)
     data = read_bytes(path)
+    data = text_body(data)
     check_text(path, data)
-    lines = data.decode("latin-1").replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    lines = data.decode("latin-1").replace("\r\n", "\n").split("\n")
     asf: dict[str, Any] = {
         "name": path.stem, "version": "", "units": {"length": None, "angle": "deg", "mass": None},
         "root": {"order": ["TX", "TY", "TZ", "RX", "RY", "RZ"], "axis": "XYZ", "position": [0.0] * 3,
@@ -71,11 +83,14 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
     bone: dict[str, Any] | None = None
     in_limits = False
     seen_sections: set[str] = set()
+    defined: set[str] = set()
+    placed: dict[str, int] = {}
+    name_line: dict[str, int] = {}
     for ln, raw in enumerate(lines, start=1):
-        text = raw.split("#", 1)[0].strip()
-        if not text:
+        words = split_ascii(raw.split("#", 1)[0])
+        if not words:
             continue
-        words = text.split()
+        text = " ".join(words)
         key = words[0]
         if key.startswith(":"):
             section = key[1:].lower()
@@ -115,6 +130,10 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
                 asf["root"]["axis"] = ax
             elif k in {"position", "orientation"}:
                 asf["root"][k] = _floats(path, ln, words[1:], 3, f"root {k}")
+                if k == "position":
+                    _bound(path, ln, asf["root"][k], MAX_METRES / length_scale(asf), "root position", "file units")
+                else:
+                    _bound(path, ln, asf["root"][k], _max_angle(asf), "root orientation", asf["units"]["angle"])
         elif section == "bonedata":
             k = key.lower()
             if k == "begin":
@@ -129,6 +148,8 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
                     if bone[field_] is None:
                         raise ParseError(path, ln, f"bone starting at line {bone['line']} has no {field_}")
                 del bone["line"]
+                reach = [abs(d * bone["length"]) for d in bone["direction"]]
+                _bound(path, ln, reach, MAX_METRES / length_scale(asf), f"bone {bone['name']!r} direction x length", "file units")
                 asf["bones"].append(bone)
                 bone = None
                 continue
@@ -143,13 +164,23 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
             elif k == "name":
                 if len(words) < 2:
                     raise ParseError(path, ln, "expected a bone name")
+                if bone["name"] is not None:
+                    raise ParseError(path, ln, f"expected one name per bone block, found a second ({words[1]!r})")
                 bone["name"] = words[1]
+                if words[1] == "root" or words[1] in defined:
+                    first = f"line {name_line[words[1]]}" if words[1] in defined else "the root"
+                    raise ParseError(path, ln, f"bone name {words[1]!r} is already used by {first}; expected unique bone names")
+                defined.add(words[1])
+                name_line[words[1]] = ln
             elif k == "direction":
                 bone["direction"] = _floats(path, ln, words[1:], 3, "direction")
+                _bound(path, ln, bone["direction"], MAX_METRES / length_scale(asf), "direction", "file units")
             elif k == "length":
                 bone["length"] = _floats(path, ln, words[1:], 1, "length")[0]
+                _bound(path, ln, [bone["length"]], MAX_METRES / length_scale(asf), "length", "file units")
             elif k == "axis":
                 bone["axis"] = _floats(path, ln, words[1:], 3, "axis")
+                _bound(path, ln, bone["axis"], _max_angle(asf), "axis", asf["units"]["angle"])
                 order = words[4].upper() if len(words) > 4 else "XYZ"
                 if sorted(order) != ["X", "Y", "Z"]:
                     raise ParseError(path, ln, f"expected an axis order such as XYZ, found {order!r}")
@@ -167,6 +198,11 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
         elif section == "hierarchy":
             if key.lower() in {"begin", "end"}:
                 continue
+            for child in words[1:]:
+                if child in placed or child == "root":
+                    raise ParseError(path, ln, f"bone {child!r} already has a parent (line {placed.get(child, ln)}); "
+                                     "expected each bone once as a child in :hierarchy")
+                placed[child] = ln
             asf["hierarchy"].setdefault(key, []).extend(words[1:])
         else:
             raise ParseError(path, ln, f"expected an ASF section (':root', ':bonedata'...), found {text!r}")
@@ -175,8 +211,6 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
     if "bonedata" not in seen_sections or "hierarchy" not in seen_sections:
         raise ParseError(path, len(lines), "expected :bonedata and :hierarchy sections")
     names = [b["name"] for b in asf["bones"]]
-    if len(set(names)) != len(names) or "root" in names:
-        raise ParseError(path, None, "bone names must be unique and differ from 'root'")
     known = set(names) | {"root"}
     for parent, children in asf["hierarchy"].items():
         for n in [parent, *children]:

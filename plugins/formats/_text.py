@@ -85,7 +85,9 @@ def _parse_number(buf, s, e, pow10):
         exp10 += -ex if eneg else ex
     v = float(mant)
     # exact mantissa (< 2**53) times an exact power of ten: one correctly rounded operation
-    if exp10 >= 0:
+    if mant == 0:
+        pass  # 0e999 is zero, not 0 * inf
+    elif exp10 >= 0:
         if exp10 <= 22:
             v = v * pow10[exp10]
         else:

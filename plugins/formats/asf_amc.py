@@ -34,7 +34,7 @@ from mocapflow.framework.skeleton import Skeleton
 
 from ._asf import read_asf as _read_asf_uncached
 from ._asf import write_asf
-from ._common import check_text, euler_extrinsic_inverse, file_metadata, read_bytes
+from ._common import MAX_DEGREES, MAX_METRES, check_text, euler_extrinsic_inverse, file_metadata, read_bytes, text_body
 
 __all__ = ["AmcFormat", "read_amc", "read_asf", "write_amc", "write_asf", "find_asf"]
 
@@ -87,20 +87,23 @@ def _subject(path: Path) -> str:
     return path.parent.name or path.stem.split("_")[0]
 
 
-def _header(path: Path, data: bytes) -> tuple[int, int, str | None]:
-    """Byte offset and line number of the first frame line, and the angle unit if given."""
+def _header(path: Path, data: bytes) -> tuple[int, int, str | None, bool]:
+    """Byte offset and line number of the first frame line, the angle unit if given and
+    whether the header says ``:FULLY-SPECIFIED``."""
     pos = 0
     ln = 1
     unit = None
+    full = False
     n = len(data)
     while pos < n:
         end = data.find(b"\n", pos)
         end = n if end < 0 else end
         text = data[pos:end].strip()
         if text[:1].isdigit():
-            if not text.isdigit():
-                raise ParseError(path, ln, f"expected a frame number, found {text[:40].decode('latin-1')!r}")
-            return pos, ln, unit
+            if not text.isdigit() or len(text) > 9:
+                raise ParseError(path, ln, f"expected a frame number (digits only, below 10^9) alone on its line, "
+                                 f"found {text[:40].decode('latin-1')!r}")
+            return pos, ln, unit, full
         if text and text[:1] not in (b"#", b":"):
             raise ParseError(path, ln, f"expected a header line or frame number 1, found {text[:40].decode('latin-1')!r}")
         up = text.upper()
@@ -108,34 +111,59 @@ def _header(path: Path, data: bytes) -> tuple[int, int, str | None]:
             unit = "deg"
         elif up == b":RADIANS":
             unit = "rad"
+        elif up == b":FULLY-SPECIFIED":
+            full = True
         pos = end + 1
         ln += 1
     raise ParseError(path, ln - 1, "expected frame blocks after the header, found none")
 
 
 def _layout(path, data, tok, skeleton):
-    """Bone names and value counts of the first frame (the layout every frame should follow)."""
+    """Bone names and value columns of the first frame (the layout every frame should follow).
+
+    Returns ``[(name, first value column, count)]`` and the table width (frame number
+    and, per bone, its name and values). Only names are checked here (defined, once);
+    value counts and line structure are checked by :func:`_fast_values` or, when that
+    fails, :func:`_slow_values`, completeness by :func:`_check_complete`.
+    """
     starts, lens, lines, _h, values, isnum = tok[:6]
     n = len(starts)
     chan_of = {name: len(skeleton.channels[j]) for j, name in enumerate(skeleton.names) if skeleton.channels[j]}
     bones: list[tuple[str, int, int]] = []  # name, first value column, count
+    seen: set[str] = set()
     i = 1
     while i < n and not isnum[i]:
         name = data[starts[i]:starts[i] + lens[i]].decode("latin-1")
         if name not in chan_of:
             raise ParseError(path, int(lines[i]), f"bone {name!r} is not defined (with dofs) in the ASF skeleton {skeleton.name!r}")
+        if name in seen:
+            raise ParseError(path, int(lines[i]), f"frame 1: bone {name!r} appears twice")
+        seen.add(name)
         bones.append((name, i + 1, chan_of[name]))
         i += 1 + chan_of[name]
-    return bones, min(i, n)
+    if not bones:
+        raise ParseError(path, int(lines[min(i, n) - 1]) if n else 1, "frame 1: expected bone lines after the frame number")
+    return bones, i
+
+
+def _check_complete(path: Path, skeleton: Skeleton, bones: list[tuple[str, int, int]], line: int) -> None:
+    """A ``:FULLY-SPECIFIED`` file lists every bone that has dofs in every frame."""
+    have = {b for b, _, _ in bones}
+    missing = [n for j, n in enumerate(skeleton.names) if skeleton.channels[j] and n not in have]
+    if missing:
+        raise ParseError(path, line, f"frame 1 is incomplete (the file is :FULLY-SPECIFIED): expected bones "
+                         f"{', '.join(missing[:5])}" + ("..." if len(missing) > 5 else ""))
 
 
 def _fast_values(data, tok, bones, width):
-    """Per-bone value arrays if every frame follows the first frame's layout, else None."""
+    """``(table (T, width), token lines (T, width), T)`` if every frame follows the first
+    frame's layout exactly (names, numbers, one line per bone and per frame number,
+    consecutive frame numbers), else None."""
     from ._text import fnv1a
 
-    starts, _l, _ln, hashes, values, isnum = tok[:6]
+    starts, _l, lines, hashes, values, isnum = tok[:6]
     n = len(starts)
-    if width == 0 or n % width:
+    if n == 0 or n % width:
         return None
     t = n // width
     num = isnum.reshape(t, width)
@@ -150,11 +178,20 @@ def _fast_values(data, tok, bones, width):
         return None
     if not np.array_equal(vals[:, 0], vals[0, 0] + np.arange(t)):
         return None
-    return vals, t
+    # a new line starts exactly at each frame number and bone name, nowhere else
+    new_line = np.zeros(width, bool)
+    new_line[0] = True
+    new_line[name_cols] = True
+    if not np.array_equal(np.diff(lines) > 0, np.tile(new_line, t)[1:]):
+        return None
+    return vals, lines.reshape(t, width), t
 
 
 def _slow_values(path, data, tok, bones):
-    """Token-by-token reading with exact error lines; accepts any bone order per frame."""
+    """Token-by-token reading with exact error lines; accepts any bone order per frame.
+
+    Returns ``(table (T, width), token lines (T, width), T)`` in the first frame's layout.
+    """
     starts, lens, lines, _h, values, isnum = tok[:6]
     n = len(starts)
     count = {b: k for b, _, k in bones}
@@ -164,6 +201,8 @@ def _slow_values(path, data, tok, bones):
         return data[starts[i]:starts[i] + lens[i]].decode("latin-1")
 
     out: dict[str, list[np.ndarray]] = {b: [] for b in order}
+    out_lines: dict[str, list[int]] = {b: [] for b in order}
+    frame_lines: list[int] = []
     i = 0
     frame = None
     while i < n:
@@ -172,7 +211,10 @@ def _slow_values(path, data, tok, bones):
         expect = "an integer frame number" if frame is None else f"frame number {frame + 1}"
         if not isnum[i] or v != int(v) or (frame is not None and v != frame + 1):
             raise ParseError(path, ln, f"expected {expect}, found {text(i)!r}")
+        if i + 1 < n and lines[i + 1] == ln:
+            raise ParseError(path, ln, f"expected frame number {int(v)} alone on its line, found {text(i + 1)!r} after it")
         frame = int(v)
+        frame_lines.append(ln)
         i += 1
         seen: set[str] = set()
         while i < n and not isnum[i]:
@@ -181,6 +223,8 @@ def _slow_values(path, data, tok, bones):
                 raise ParseError(path, ln, f"frame {frame}: bone {name!r} is not in the first frame or has no dofs in the ASF")
             if name in seen:
                 raise ParseError(path, ln, f"frame {frame}: bone {name!r} appears twice")
+            if i > 0 and lines[i - 1] == ln:
+                raise ParseError(path, ln, f"frame {frame}: expected bone {name!r} at the start of a line")
             seen.add(name)
             k = count[name]
             j = i + 1
@@ -193,6 +237,7 @@ def _slow_values(path, data, tok, bones):
                 if not isnum[m]:
                     raise ParseError(path, ln, f"frame {frame}: expected a finite number for bone {name!r}, found {text(m)!r}")
             out[name].append(values[i + 1:j])
+            out_lines[name].append(ln)
             i = j
         if len(seen) != len(order):
             missing = [b for b in order if b not in seen]
@@ -200,12 +245,39 @@ def _slow_values(path, data, tok, bones):
             what = "file ends" if i >= n else f"frame {frame + 1} starts"
             raise ParseError(path, last, f"frame {frame} is incomplete ({what}): expected bones {', '.join(missing[:5])}"
                              + ("..." if len(missing) > 5 else ""))
-    t = len(out[order[0]]) if order else 0
+    t = len(frame_lines)
     width = 1 + sum(1 + k for k in count.values())
     table = np.zeros((t, width))
+    line_table = np.zeros((t, width), dtype=np.int64)
+    line_table[:, 0] = frame_lines
     for b, c, k in bones:
         table[:, c:c + k] = np.array(out[b]).reshape(t, k)
-    return table, t
+        line_table[:, c - 1:c + k] = np.array(out_lines[b])[:, None]
+    return table, line_table, t
+
+
+def _check_bounds(path: Path, skeleton: Skeleton, table: np.ndarray, line_table: np.ndarray,
+                  bones: list[tuple[str, int, int]], degrees: bool, scale: float) -> None:
+    """Angles within MAX_DEGREES, root translations within MAX_METRES (``_common``)."""
+    limit = np.full(table.shape[1], np.inf)
+    kind = [""] * table.shape[1]
+    index = {n: j for j, n in enumerate(skeleton.names)}
+    for name, c0, _k in bones:
+        for c, ch in enumerate(skeleton.channels[index[name]], start=c0):
+            if ch[0] == "T":
+                limit[c], kind[c] = MAX_METRES / scale, f"a root translation within {MAX_METRES:g} m"
+            else:
+                limit[c] = MAX_DEGREES if degrees else np.deg2rad(MAX_DEGREES)
+                kind[c] = f"an angle within {limit[c]:g} {'degrees' if degrees else 'radians'}"
+    over = np.abs(table) > limit
+    if over.any():
+        f, c = np.argwhere(over)[0]
+        raise ParseError(path, int(line_table[f, c]), f"frame {table[f, 0]:.0f}: expected {kind[c]}, "
+                         f"found {table[f, c]:g} (bone {_bone_of_col(bones, c)!r})")
+
+
+def _bone_of_col(bones: list[tuple[str, int, int]], c: int) -> str:
+    return next(b for b, c0, k in bones if c0 <= c < c0 + k)
 
 
 def read_amc(
@@ -248,16 +320,21 @@ def read_amc(
         skeleton = read_asf(skel_path)
     if not skeleton.channels or skeleton.axes is None:
         raise DataError(f"skeleton {skeleton.name!r} has no ASF channels/axes; read it with read_asf")
-    check_text(path, data)
-    start, first_line, unit = _header(path, data)
+    body = text_body(data)
+    check_text(path, body)
+    start, first_line, unit, full = _header(path, body)
     degrees = (unit or skeleton.meta.get("units", {}).get("angle", "deg")) == "deg"
-    buf = np.frombuffer(data, dtype=np.uint8)
+    buf = np.frombuffer(body, dtype=np.uint8)
     tok = tokenize(buf, start, first_line)
-    bones, width = _layout(path, data, tok, skeleton)
-    fast = _fast_values(data, tok, bones, width)
-    table, t = fast if fast is not None else _slow_values(path, data, tok, bones)
-    if t == 0:
-        raise ParseError(path, first_line, "expected at least one frame")
+    if tok[6] >= 0:  # check_text already rejects these; never read a cut-off token stream
+        raise ParseError(path, int(tok[7]), "expected text, found a binary control byte")
+    bones, width = _layout(path, body, tok, skeleton)
+    fast = _fast_values(body, tok, bones, width)
+    table, line_table, t = fast if fast is not None else _slow_values(path, body, tok, bones)
+    if full:
+        _check_complete(path, skeleton, bones, int(line_table[0, -1]))
+    scale = float(skeleton.meta.get("length_scale", 0.0254 / 0.45))
+    _check_bounds(path, skeleton, table, line_table, bones, degrees, scale)
     root_t, rot = _to_motion_arrays(skeleton, table, bones, degrees)
     meta = file_metadata(path, data, "amc")
     meta.update(subject=_subject(path), source_fps=float(fps), source_frames=int(t),

@@ -40,7 +40,8 @@ from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
 from ._bvh_write import write_bvh
-from ._common import check_text, file_metadata, line_of, read_bytes
+from ._common import (MAX_DEGREES, MAX_FPS, MAX_METRES, check_text, file_metadata, line_of, read_bytes, split_ascii,
+                      strict_float, strict_int, text_body)
 
 __all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
 
@@ -53,20 +54,23 @@ _MOTION_RE = re.compile(rb"^[ \t]*MOTION[ \t]*\r?$", re.MULTILINE)
 
 
 class _Joint:
-    __slots__ = ("name", "parent", "offset", "channels", "line")
+    __slots__ = ("name", "parent", "offset", "channels", "line", "offset_line", "channels_line")
 
-    def __init__(self, name: str, parent: int, line: int) -> None:
-        self.name, self.parent, self.line = name, parent, line
+    def __init__(self, name: str | None, parent: int, line: int) -> None:
+        self.name, self.parent, self.line = name, parent, line  # name None: an End Site, named at the end
         self.offset: list[float] | None = None
+        self.offset_line = line
+        self.channels_line = 0
         self.channels: list[str] = []
 
 
 def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
-    words: list[tuple[str, int]] = [(w, ln) for ln, line in enumerate(text.split("\n"), start=1) for w in line.split()]
+    words: list[tuple[str, int]] = [(w, ln) for ln, line in enumerate(text.split("\n"), start=1) for w in split_ascii(line)]
     n = len(words)
     if n == 0 or words[0][0].upper() != "HIERARCHY":
         raise ParseError(path, words[0][1] if words else 1, "expected 'HIERARCHY' at the start of a BVH file")
     joints: list[_Joint] = []
+    names: dict[str, int] = {}  # joint name -> line
     stack: list[int] = []
     i = 1
     last = words[-1][1]
@@ -84,29 +88,35 @@ def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
                 raise ParseError(path, ln, "only one ROOT is supported")
             if key != "ROOT" and not stack:
                 raise ParseError(path, ln, f"expected ROOT, found {w!r}")
+            if stack and joints[stack[-1]].name is None:
+                raise ParseError(path, ln, f"expected only OFFSET and '}}' inside an End Site, found {w!r}")
             if key == "END":
-                parent = joints[stack[-1]].name
-                name = f"{parent}_end"
-                k = 2
-                while any(j.name == name for j in joints):
-                    name = f"{parent}_end{k}"
-                    k += 1
+                name = None
                 i += 2
             else:
                 (name, _l), = take(2, "a joint name")[1:]
+                if name in names:
+                    raise ParseError(path, ln, f"joint name {name!r} is already used at line {names[name]}; "
+                                     "expected unique joint names")
+                names[name] = ln
                 i += 2
             joints.append(_Joint(name, stack[-1] if stack else -1, ln))
             brace, bl = take(1, "'{'")[0]
             if brace != "{":
-                raise ParseError(path, bl, f"expected '{{' after {name!r}, found {brace!r}")
+                what = "End Site" if name is None else repr(name)
+                raise ParseError(path, bl, f"expected '{{' after {what}, found {brace!r}")
             i += 1
             stack.append(len(joints) - 1)
         elif key == "OFFSET":
             if not stack:
                 raise ParseError(path, ln, "OFFSET outside a joint")
             vals = take(4, "three OFFSET values")[1:]
+            if joints[stack[-1]].offset is not None:
+                raise ParseError(path, ln, f"expected one OFFSET per joint, found a second (the first is at line "
+                                 f"{joints[stack[-1]].offset_line})")
+            joints[stack[-1]].offset_line = ln
             try:
-                joints[stack[-1]].offset = [float(v) for v, _ in vals]
+                joints[stack[-1]].offset = [strict_float(v) for v, _ in vals]
             except ValueError:
                 raise ParseError(path, ln, f"expected three numbers after OFFSET, found {' '.join(v for v, _ in vals)!r}") from None
             if not np.all(np.isfinite(joints[stack[-1]].offset)):
@@ -115,10 +125,19 @@ def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
         elif key == "CHANNELS":
             if not stack:
                 raise ParseError(path, ln, "CHANNELS outside a joint")
+            if joints[stack[-1]].name is None:
+                raise ParseError(path, ln, "expected only OFFSET and '}' inside an End Site, found CHANNELS")
+            if joints[stack[-1]].channels_line:
+                raise ParseError(path, ln, f"expected one CHANNELS line per joint, found a second (the first is at "
+                                 f"line {joints[stack[-1]].channels_line})")
+            joints[stack[-1]].channels_line = ln
             cnt_w = take(2, "a channel count")[1][0]
-            if not cnt_w.isdigit():
-                raise ParseError(path, ln, f"expected a channel count after CHANNELS, found {cnt_w!r}")
-            cnt = int(cnt_w)
+            try:
+                cnt = strict_int(cnt_w)
+            except ValueError:
+                raise ParseError(path, ln, f"expected a channel count after CHANNELS, found {cnt_w!r}") from None
+            if cnt > 6:
+                raise ParseError(path, ln, f"expected at most 6 channels per joint, found {cnt}")
             i += 2
             chans = [c for c, _ in take(cnt, f"{cnt} channel names")]
             bad = [c for c in chans if c.lower() not in _CHANNELS]
@@ -131,7 +150,8 @@ def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
                 raise ParseError(path, ln, "unbalanced '}'")
             j = joints[stack.pop()]
             if j.offset is None:
-                raise ParseError(path, ln, f"joint {j.name!r} has no OFFSET")
+                what = f"End Site of {joints[j.parent].name!r}" if j.name is None else f"joint {j.name!r}"
+                raise ParseError(path, ln, f"{what} has no OFFSET")
             i += 1
         else:
             raise ParseError(path, ln, f"expected ROOT, JOINT, End Site, OFFSET, CHANNELS or '}}', found {w!r}")
@@ -139,6 +159,15 @@ def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
         raise ParseError(path, last, f"expected '}}' closing {joints[stack[-1]].name!r} before MOTION")
     if not joints:
         raise ParseError(path, last, "expected a ROOT joint")
+    for j in joints:  # End Sites: <parent>_end, _end2... never a name the file uses
+        if j.name is None:
+            parent, k = joints[j.parent].name, 2
+            name = f"{parent}_end"
+            while name in names:
+                name = f"{parent}_end{k}"
+                k += 1
+            j.name = name
+            names[name] = j.line
     return joints
 
 
@@ -148,18 +177,21 @@ def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, f
     for key in ("frames:", "frame time:"):
         end = data.find(b"\n", pos)
         end = len(data) if end < 0 else end
-        text = data[pos:end].decode("latin-1").strip()
+        text = data[pos:end].strip().decode("latin-1")
         if not text.lower().startswith(key) or len(text) == len(key):
             raise ParseError(path, line, f"expected '{key.capitalize()} <value>', found {text[:40]!r}")
-        vals[key] = text[len(key):].strip()
+        vals[key] = text[len(key):].strip(" \t\r\x0b\x0c")
         pos, line = end + 1, line + 1
     try:
-        frames = int(vals["frames:"])
-        dt = float(vals["frame time:"])
+        frames = strict_int(vals["frames:"])
+        dt = strict_float(vals["frame time:"])
     except ValueError:
         raise ParseError(path, line - 2, f"expected an integer frame count and a frame time, found {vals}") from None
-    if frames < 1 or not dt > 0 or not np.isfinite(dt):
-        raise ParseError(path, line - 2, f"expected Frames >= 1 and Frame Time > 0, found {frames} and {dt}")
+    if frames < 1:
+        raise ParseError(path, line - 2, f"expected Frames >= 1, found {frames}")
+    if not 1.0 / MAX_FPS <= dt <= 3600.0:
+        raise ParseError(path, line - 1, f"expected a Frame Time between {1.0 / MAX_FPS:g} s ({MAX_FPS:g} Hz) "
+                         f"and 3600 s, found {dt:g}")
     return frames, dt, pos, line
 
 
@@ -171,9 +203,10 @@ def _rest_positions(parents: np.ndarray, offsets: np.ndarray) -> np.ndarray:
 
 
 def _auto_scale(parents: np.ndarray, offsets: np.ndarray) -> tuple[float, str, float | None]:
-    rest = _rest_positions(parents, offsets)
-    h = float(np.ptp(rest, axis=0).max())
-    if h <= 0:
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd OFFSETs are rejected after scaling
+        rest = _rest_positions(parents, offsets)
+        h = float(np.ptp(rest, axis=0).max())
+    if not 0 < h < np.inf:
         return 1.0, "m", h
     unit = min(BVH_UNITS, key=lambda u: abs(np.log(h * BVH_UNITS[u] / TYPICAL_HEIGHT_M)))
     return BVH_UNITS[unit], unit, h
@@ -209,16 +242,17 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
 
     path = Path(path)
     data = read_bytes(path)
-    check_text(path, data)
-    m = _MOTION_RE.search(data)
+    body = text_body(data)
+    check_text(path, body)
+    m = _MOTION_RE.search(body)
     if m is None:
-        raise ParseError(path, line_of(data, len(data)), "expected a MOTION section")
-    joints = _parse_hierarchy(path, data[:m.start()].decode("latin-1").replace("\r", ""))
-    mline = line_of(data, m.start())
-    frames, dt, dpos, dline = _motion_header(path, data, m.end() + 1, mline + 1)
+        raise ParseError(path, line_of(body, len(body)), "expected a MOTION section")
+    joints = _parse_hierarchy(path, body[:m.start()].decode("latin-1").replace("\r", ""))
+    mline = line_of(body, m.start())
+    frames, dt, dpos, dline = _motion_header(path, body, m.end() + 1, mline + 1)
     n_ch = sum(len(j.channels) for j in joints)
-    tok = tokenize(np.frombuffer(data, dtype=np.uint8), dpos, dline)
-    _check_motion(path, tok, frames, n_ch, dline)
+    tok = tokenize(np.frombuffer(body, dtype=np.uint8), dpos, dline)
+    frame_lines = _check_motion(path, tok, frames, n_ch, dline)
     table = tok[4].reshape(frames, n_ch)
 
     names = tuple(j.name for j in joints)
@@ -228,8 +262,9 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
         scl, unit, height = _auto_scale(parents, offsets)
     else:
         scl, unit, height = float(scale), "given", None
-        if not scl > 0:
+        if not scl > 0 or not np.isfinite(scl):
             raise DataError(f"scale must be positive or 'auto', got {scale!r}")
+    _check_bounds(path, joints, offsets, table, frame_lines, scl)
     nj = len(joints)
     cols = np.full((nj, 3), -1, dtype=np.int64)
     axis_id = np.zeros((nj, 3), dtype=np.int64)
@@ -290,8 +325,27 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
                   metadata=meta, local_translations=local_t)
 
 
-def _check_motion(path: Path, tok: tuple, frames: int, n_ch: int, first_line: int) -> None:
-    """Every data line holds ``n_ch`` finite numbers and there are ``frames`` lines."""
+def _check_bounds(path: Path, joints: list[_Joint], offsets: np.ndarray, table: np.ndarray,
+                  frame_lines: np.ndarray, scl: float) -> None:
+    """OFFSETs and position channels within MAX_METRES, rotations within MAX_DEGREES
+    (the value policy of ``_common``)."""
+    far = np.abs(offsets).max(axis=1) * scl > MAX_METRES
+    if far.any():
+        j = joints[int(np.argmax(far))]
+        raise ParseError(path, j.offset_line, f"expected OFFSET values within {MAX_METRES:g} m (scale {scl:g} m per "
+                         f"file unit), found {' '.join(f'{v:g}' for v in j.offset)}")
+    limit = np.array([MAX_DEGREES if ch[1:].lower() == "rotation" else MAX_METRES / scl
+                      for jt in joints for ch in jt.channels])
+    if table.size and (np.abs(table) > limit).any():
+        f, c = np.argwhere(np.abs(table) > limit)[0]
+        ch = [(jt.name, ch) for jt in joints for ch in jt.channels][c]
+        what = f"within {MAX_DEGREES:g} degrees" if ch[1][1:].lower() == "rotation" else f"within {MAX_METRES:g} m"
+        raise ParseError(path, int(frame_lines[f]), f"expected {ch[0]} {ch[1]} {what}, found {table[f, c]:g}")
+
+
+def _check_motion(path: Path, tok: tuple, frames: int, n_ch: int, first_line: int) -> np.ndarray:
+    """Every data line holds ``n_ch`` finite numbers and there are ``frames`` lines;
+    returns the line number of each frame."""
     starts, lens, lines, _h, _v, isnum, bad, bad_line = tok
     if bad >= 0:
         raise ParseError(path, int(bad_line), "expected text, found a binary control byte")
@@ -311,6 +365,7 @@ def _check_motion(path: Path, tok: tuple, frames: int, n_ch: int, first_line: in
     if len(uniq) != frames:
         ln = int(uniq[-1])
         raise ParseError(path, ln, f"expected {frames} frame lines (Frames:), found {len(uniq)}")
+    return uniq
 
 
 class BvhFormat(Format):

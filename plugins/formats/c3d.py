@@ -7,8 +7,9 @@ as a ``(T, frame_bytes)`` array whose point part is reinterpreted as float32 or 
 the package's per-frame reader.
 
 * Units: ``POINT:UNITS`` (``mm``, ``cm``, ``m``, ``in``) converted to metres.
-* Gaps: a sample whose fourth word (residual) is negative, or whose coordinates are not
-  finite, is NaN.
+* Gaps: a sample whose fourth word (residual) is negative is NaN. A valid sample whose
+  coordinates are not finite or lie beyond 10 km is a ParseError (the value policy of
+  :mod:`._common`), as is a ``POINT:RATE`` outside (0, 100 kHz].
 * Labels: ``POINT:LABELS`` stripped of padding.
 * Axes: kept as in the file. ``metadata["up_axis"]`` (``"+z"``...) takes its axis from
   ``POINT:Y_SCREEN`` when present, else the axis along which the marker cloud spreads most
@@ -30,7 +31,7 @@ from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import MocapflowError, ParseError
 from mocapflow.framework.markers import Markers, guess_up_axis, to_y_up
 
-from ._common import file_metadata, read_bytes
+from ._common import MAX_FPS, MAX_METRES, file_metadata, read_bytes
 
 __all__ = ["C3dFormat", "read_c3d", "UNITS_TO_METRES"]
 
@@ -134,9 +135,19 @@ def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
     units = (_param(reader, "POINT:UNITS") or "mm").lower()
     if units not in UNITS_TO_METRES:
         raise ParseError(path, None, f"expected POINT:UNITS among {sorted(UNITS_TO_METRES)}, found {units!r}")
-    pos = raw[..., :3] * UNITS_TO_METRES[units]
-    bad = (raw[..., 3] < 0) | ~np.isfinite(pos).all(-1)
-    pos[bad] = np.nan
+    rate = float(reader.point_rate)
+    if not 0 < rate <= MAX_FPS:
+        raise ParseError(path, None, f"expected a POINT:RATE in (0, {MAX_FPS:g}] Hz, found {rate:g}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        pos = raw[..., :3] * UNITS_TO_METRES[units]
+        gap = raw[..., 3] < 0
+        wrong = ~gap & ~(np.abs(pos) <= MAX_METRES).all(-1)  # non-finite or beyond 10 km
+    if wrong.any():
+        f, m = np.argwhere(wrong)[0]
+        raise ParseError(path, None, f"frame {int(reader.first_frame) + int(f)}, point {int(m) + 1}: expected a "
+                         f"finite position within {MAX_METRES:g} m or an invalid sample (negative residual), "
+                         f"found {pos[f, m].tolist()}")
+    pos[gap] = np.nan
     labels = tuple(str(lb).strip() for lb in reader.point_labels)[: pos.shape[1]]
     # files with fewer POINT:LABELS than points exist; name the rest by index
     labels += tuple(f"point{k + 1}" for k in range(len(labels), pos.shape[1]))
@@ -148,8 +159,8 @@ def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
     source = "POINT:Y_SCREEN axis, sign from data" if letter else "guessed from data"
     meta = file_metadata(path, data, "c3d")
     meta.update(units=units, first_frame=int(reader.first_frame), up_axis=up, up_axis_source=source,
-                source_fps=float(reader.point_rate), source_frames=int(pos.shape[0]))
-    out = Markers(labels=labels, positions=pos, fps=float(reader.point_rate), name=path.stem, metadata=meta)
+                source_fps=rate, source_frames=int(pos.shape[0]))
+    out = Markers(labels=labels, positions=pos, fps=rate, name=path.stem, metadata=meta)
     return to_y_up(out) if y_up else out
 
 

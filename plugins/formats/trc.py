@@ -10,6 +10,7 @@ the data. Units (``mm``, ``cm``, ``m``, ``in``) are converted to metres. Axes ar
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -20,12 +21,13 @@ from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.markers import Markers, guess_up_axis, to_y_up
 
-from ._common import check_text, file_metadata, read_bytes
+from ._common import MAX_FPS, MAX_METRES, check_text, file_metadata, read_bytes, strict_float, strict_int, text_body
 from .c3d import UNITS_TO_METRES
 
 __all__ = ["TrcFormat", "read_trc", "write_trc"]
 
 _HEADER_LINES = 5
+_WS = re.compile(r"[ \t]+")
 
 
 def _lines(data: bytes, n: int) -> tuple[list[str], int]:
@@ -37,6 +39,45 @@ def _lines(data: bytes, n: int) -> tuple[list[str], int]:
         out.append(data[pos:end].decode("latin-1").rstrip("\r"))
         pos = min(end + 1, len(data))
     return out, pos
+
+
+_SPACE = " \t\r\x0b\x0c"  # ASCII whitespace of a line (the tokenizer's)
+
+
+def _header_fields(line: str) -> list[str]:
+    """Fields of a header line: split on runs of tabs and spaces (OpenSim pads values with
+    spaces and separates them with one or more tabs)."""
+    return [f for f in _WS.split(line.strip(_SPACE)) if f]
+
+
+def _key_values(keys_line: str, vals_line: str) -> dict[str, str]:
+    keys, vals = _header_fields(keys_line), _header_fields(vals_line)
+    if len(keys) != len(vals):  # empty values in a tab-separated line: pair by tab position
+        keys = [k.strip(_SPACE) for k in keys_line.split("\t")]
+        vals = [v.strip(_SPACE) for v in vals_line.split("\t")]
+    return {k: v for k, v in zip(keys, vals) if k}
+
+
+def _field(text: bytes) -> float:
+    """One data field: empty or NaN is a gap (NaN); otherwise a finite decimal number."""
+    t = text.strip()
+    if not t or t.lstrip(b"+-").lower() == b"nan":
+        return np.nan
+    return strict_float(t)
+
+
+def _slow_row(path: Path, line: int, text: bytes, width: int) -> list[float]:
+    """Fields of a data row that is not ``width`` plain numbers (gaps, NaN, garbage):
+    tab-separated (an empty field is a gap), or whitespace-separated without tabs."""
+    fields = text.split(b"\t") if b"\t" in text else text.split()
+    if len(fields) < width or any(f.strip() for f in fields[width:]):
+        n = len(fields) if len(fields) < width else width + sum(1 for f in fields[width:] if f.strip())
+        raise ParseError(path, line, f"expected {width} fields (frame, time, 3 x NumMarkers), found {n}")
+    try:
+        row = [_field(f) for f in fields[:width]]
+    except ValueError as exc:
+        raise ParseError(path, line, f"expected a finite number, an empty field or NaN, found {str(exc)[:40]!r}") from None
+    return row
 
 
 def read_trc(path: str | Path, y_up: bool = False) -> Markers:
@@ -57,64 +98,78 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
     Raises
     ------
     ParseError
-        Naming the file, the 1-based line and what was expected.
+        Naming the file, the 1-based line and what was expected: also for ``inf`` and
+        values beyond 10 km (the value policy of ``_common``); ``NaN`` and empty fields
+        are gaps.
     """
     from ._text import tokenize
 
     path = Path(path)
     data = read_bytes(path)
-    check_text(path, data)
-    head, pos = _lines(data, _HEADER_LINES)
+    body = text_body(data)
+    check_text(path, body)
+    head, pos = _lines(body, _HEADER_LINES)
+    last = body.count(b"\n") + 1
+
+    def at(line: int) -> int:  # a header line, or the last line of a file that ends before it
+        return min(line, last)
+
     if not head[0].startswith("PathFileType"):
         raise ParseError(path, 1, f"expected a TRC header starting with 'PathFileType', found {head[0][:40]!r}")
-    keys = [k.strip() for k in head[1].split("\t")]
-    vals = [v.strip() for v in head[2].split("\t")]
-    info = {k: v for k, v in zip(keys, vals) if k}
+    info = _key_values(head[1], head[2])
     try:
-        n_frames, n_markers = int(info["NumFrames"]), int(info["NumMarkers"])
-        rate = float(info.get("DataRate") or info["CameraRate"])
+        n_frames, n_markers = strict_int(info["NumFrames"]), strict_int(info["NumMarkers"])
+        rate = strict_float(info.get("DataRate") or info["CameraRate"])
     except (KeyError, ValueError):
-        raise ParseError(path, 3, "expected NumFrames, NumMarkers and DataRate values") from None
+        raise ParseError(path, at(3), "expected NumFrames, NumMarkers and DataRate values") from None
+    if n_frames < 1 or n_markers < 1:
+        raise ParseError(path, at(3), f"expected NumFrames >= 1 and NumMarkers >= 1, found {n_frames} and {n_markers}")
     units = info.get("Units", "mm").lower()
     if units not in UNITS_TO_METRES:
-        raise ParseError(path, 3, f"expected Units among {sorted(UNITS_TO_METRES)}, found {units!r}")
-    if not rate > 0:
-        raise ParseError(path, 3, f"expected a positive DataRate, found {rate}")
-    labels = tuple(lb.strip() for lb in head[3].split("\t")[2:] if lb.strip())
+        raise ParseError(path, at(3), f"expected Units among {sorted(UNITS_TO_METRES)}, found {units!r}")
+    if not 0 < rate <= MAX_FPS:
+        raise ParseError(path, at(3), f"expected a DataRate in (0, {MAX_FPS:g}] Hz, found {rate}")
+    labels = tuple(lb.strip(_SPACE) for lb in head[3].split("\t")[2:] if lb.strip(_SPACE))
+    if len(labels) != n_markers and "\t" not in head[3]:
+        labels = tuple(_header_fields(head[3])[2:])
     if len(labels) != n_markers:
-        raise ParseError(path, 4, f"expected {n_markers} marker labels (NumMarkers), found {len(labels)}")
+        raise ParseError(path, at(4), f"expected {n_markers} marker labels (NumMarkers), found {len(labels)}")
     width = 2 + 3 * n_markers
-    tok = tokenize(np.frombuffer(data, dtype=np.uint8), pos, _HEADER_LINES + 1)
+    tok = tokenize(np.frombuffer(body, dtype=np.uint8), pos, _HEADER_LINES + 1)
     starts, lens, lines, _h, values, isnum = tok[:6]
+    if tok[6] >= 0:  # check_text already rejects these; never read a cut-off token stream
+        raise ParseError(path, int(tok[7]), "expected text, found a binary control byte")
     rows, first, counts = np.unique(lines, return_index=True, return_counts=True)
     if len(rows) != n_frames:
-        where = int(rows[-1]) if len(rows) else _HEADER_LINES
+        where = int(rows[-1]) if len(rows) else at(_HEADER_LINES)
         raise ParseError(path, where, f"expected {n_frames} data rows (NumFrames), found {len(rows)}")
     table = np.full((n_frames, width), np.nan)
     full = counts == width
     if full.all() and isnum.all():
         table[:] = values.reshape(n_frames, width)
-    else:  # rows with gaps (empty fields) or NaN: split those rows on tabs
+        slow = np.zeros(0, np.int64)
+    else:  # rows with gaps (empty fields), NaN or garbage: split those rows on tabs
         lo = first[full]
         idx = lo[:, None] + np.arange(width)
         table[full] = values[idx]
-        for r in np.flatnonzero(~full | ~np.logical_and.reduceat(isnum, first)):
-            s = starts[first[r]]
-            e = data.find(b"\n", s)
-            fields = data[s:len(data) if e < 0 else e].decode("latin-1").rstrip("\r\n").split("\t")
-            fields += [""] * (width - len(fields))
-            if len(fields) > width and any(f.strip() for f in fields[width:]):
-                raise ParseError(path, int(rows[r]), f"expected {width} fields (2 + 3 x NumMarkers), found {len(fields)}")
-            try:
-                table[r] = [float(f) if f.strip() else np.nan for f in fields[:width]]
-            except ValueError:
-                raise ParseError(path, int(rows[r]), "expected numbers, empty fields or NaN") from None
-            if not np.isfinite(table[r, :2]).all():
-                raise ParseError(path, int(rows[r]), "expected a frame number and a time")
+        slow = np.flatnonzero(~full | ~np.logical_and.reduceat(isnum, first))
+    for r in slow:
+        s = body.rfind(b"\n", 0, starts[first[r]]) + 1  # the whole line: a leading tab is an empty field
+        e = body.find(b"\n", s)
+        table[r] = _slow_row(path, int(rows[r]), body[s:len(body) if e < 0 else e].rstrip(b"\r"), width)
+    bad_head = ~((np.abs(table[:, 0]) < 1e9) & (table[:, 0] == np.round(table[:, 0])) & (np.abs(table[:, 1]) < 1e9))
+    if bad_head.any():
+        r = int(np.argmax(bad_head))
+        raise ParseError(path, int(rows[r]), f"expected an integer frame number and a time, found {table[r, 0]:g} {table[r, 1]:g}")
     pos3 = table[:, 2:].reshape(n_frames, n_markers, 3) * UNITS_TO_METRES[units]
+    far = np.abs(pos3) > MAX_METRES
+    if far.any():
+        f, m, _a = np.argwhere(far)[0]
+        raise ParseError(path, int(rows[f]), f"expected marker {labels[m]!r} within {MAX_METRES:g} m, "
+                         f"found {pos3[f, m].max():g} m")
     pos3[~np.isfinite(pos3).all(-1)] = np.nan
     meta = file_metadata(path, data, "trc")
-    meta.update(units=units, first_frame=int(table[0, 0]) if n_frames else 1, up_axis=guess_up_axis(pos3),
+    meta.update(units=units, first_frame=int(table[0, 0]), up_axis=guess_up_axis(pos3),
                 up_axis_source="guessed from data", source_fps=rate, source_frames=n_frames)
     out = Markers(labels=labels, positions=pos3, fps=rate, name=path.stem, metadata=meta)
     return to_y_up(out) if y_up else out

@@ -1,0 +1,223 @@
+"""Mutational fuzzer of the format readers on excerpts of the real corpus.
+
+Each case takes the first frames of a real AMC (with its ASF), BVH or TRC file from
+``../shared/data`` (or a whole small C3D file when the optional ``c3d`` package is
+installed), applies one mutation (truncations, byte flips, inserted control bytes,
+NaN/inf/1e308, CR/LF/CRLF mixes, BOMs, runs of blanks, wrong value counts, duplicated,
+deleted and swapped lines, duplicated/undefined bones, huge lines, header values) and
+checks the reader against the slow reference readers of ``tests/naive/readers.py``
+(engine: ``tests/naive/fuzz.py``). Every case runs under a timeout in one of at most two
+worker processes (``nice``); a case past it is a hang, its worker is replaced.
+
+Prints the cases, crashes (exceptions other than ParseError), hangs, wrong acceptances,
+wrong rejections and bad errors (no file or line), per mutation kind and per format, and
+the first examples of each failure. Exit status 1 if any failure.
+
+Usage::
+
+    python benchmarks/fuzz_parsers.py                # 100,000 cases, seed 0
+    python benchmarks/fuzz_parsers.py --quick        # 3,000 cases
+    python benchmarks/fuzz_parsers.py --cases N --seed S --jobs 2 --timeout 20
+"""
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import os
+import sys
+import tempfile
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT.parent / "shared" / "data"
+sys.path.insert(0, str(ROOT / "tests"))
+
+FAILURES = ("crash", "hang", "wrong_accept", "wrong_reject", "bad_error")
+#: Share of cases per format (C3D only with the optional reader).
+WEIGHTS = {"amc": 0.42, "bvh": 0.28, "trc": 0.25, "c3d": 0.05}
+C3D_KINDS = ("truncate", "byte_flip", "control_byte")
+
+
+class Cases:
+    """Case ``i`` of a seed, reproducible on its own: ``(fmt, kind, base, data, asf)``."""
+
+    def __init__(self, seed: int) -> None:
+        from naive import fuzz
+
+        self.fuzz = fuzz
+        self.seed = seed
+        try:
+            import c3d  # noqa: F401
+            with_c3d = True
+        except ImportError:
+            with_c3d = False
+        self.sources = fuzz.corpus_sources(DATA, with_c3d)
+        w = np.array([WEIGHTS[f] for f in self.sources])
+        self.formats, self.weights = list(self.sources), w / w.sum()
+        self._loaded: dict[Path, tuple] = {}
+
+    def make(self, i: int):
+        rng = np.random.default_rng([self.seed, i])
+        fmt = self.formats[int(rng.choice(len(self.formats), p=self.weights))]
+        path = self.sources[fmt][int(rng.integers(0, len(self.sources[fmt])))]
+        if path not in self._loaded:
+            self._loaded[path] = self.fuzz.load_source(fmt, path)
+        data, asf, asf_name = self._loaded[path]
+        kinds = C3D_KINDS if fmt == "c3d" else self.fuzz.KINDS
+        kind = kinds[int(rng.integers(0, len(kinds)))]
+        if fmt == "c3d":
+            base = self.fuzz.Base(fmt, path.name, data)
+        else:
+            base = self.fuzz.excerpt(fmt, path.name, data, rng, asf, asf_name)
+        new, new_asf = self.fuzz.mutate(kind, base, rng)
+        return fmt, kind, base, new, new_asf, path
+
+
+def _worker(seed: int, indices: list[int], conn, slot, folder: str) -> None:
+    os.nice(10)
+    cases = Cases(seed)
+    fuzz = cases.fuzz
+    refs: dict[tuple, dict | None] = {}
+    for i in indices:
+        slot[0], slot[1] = i, time.time()
+        try:
+            fmt, kind, base, data, asf, src = cases.make(i)
+            reference = None
+            if kind in fuzz.SAME:
+                key = (base.fmt, base.name, base.data)
+                if key not in refs:
+                    try:
+                        p = fuzz.write_case(Path(folder) / "ref", base, base.data, base.asf)
+                        refs.clear()
+                        refs[key] = fuzz.arrays(fuzz.read(base.fmt, p))
+                    except Exception:  # noqa: BLE001 - an excerpt the reader refuses: no reference
+                        refs[key] = None
+                reference = refs[key]
+            outcome, detail = fuzz.check(Path(folder) / "case", base, kind, data, asf, reference)
+        except Exception as exc:  # noqa: BLE001 - a bug of the fuzzer itself, reported as such
+            fmt, kind, src = "?", "?", Path("?")
+            outcome, detail = "fuzzer_error", f"{type(exc).__name__}: {exc}"
+        conn.send((i, fmt, kind, outcome, detail, src.name))
+    slot[0] = -1
+    conn.send(None)
+
+
+def run(n_cases: int, seed: int, jobs: int, timeout: float, echo=print) -> dict:
+    """Run cases ``0..n_cases-1``; returns the counts and examples."""
+    ctx = mp.get_context("fork" if sys.platform != "win32" else "spawn")
+    todo = list(range(n_cases))
+    parts = [todo[w::jobs] for w in range(jobs)]
+    counts: Counter = Counter()
+    by_kind: dict[str, Counter] = defaultdict(Counter)
+    by_fmt: dict[str, Counter] = defaultdict(Counter)
+    examples: dict[str, list[str]] = defaultdict(list)
+    done = 0
+    t0 = time.time()
+    shm = Path("/dev/shm")  # a RAM file system when there is one: each case writes and reads files
+    with tempfile.TemporaryDirectory(prefix="mocapflow-fuzz-", dir=shm if shm.is_dir() else None) as tmp:
+        workers: list[dict] = []
+
+        def start(w: int, indices: list[int]) -> None:
+            parent, child = ctx.Pipe(duplex=False)
+            slot = ctx.Array("d", [-1.0, time.time()], lock=False)
+            p = ctx.Process(target=_worker, args=(seed, indices, child, slot, f"{tmp}/w{w}-{len(workers)}"), daemon=True)
+            p.start()
+            child.close()
+            workers.append({"p": p, "conn": parent, "slot": slot, "indices": indices, "alive": True})
+
+        def record(i: int, fmt: str, kind: str, outcome: str, detail: str, src: str) -> None:
+            nonlocal done
+            done += 1
+            counts[outcome] += 1
+            by_kind[kind][outcome] += 1
+            by_fmt[fmt][outcome] += 1
+            if outcome not in ("accepted", "rejected") and len(examples[outcome]) < 8:
+                examples[outcome].append(f"case {i} ({fmt} {src}, {kind}): {detail}")
+
+        for w, part in enumerate(parts):
+            start(w, part)
+        last_echo = time.time()
+        while any(wk["alive"] for wk in workers):
+            for wk in workers:
+                if not wk["alive"]:
+                    continue
+                while wk["conn"].poll():
+                    try:
+                        msg = wk["conn"].recv()
+                    except EOFError:
+                        msg = None
+                    if msg is None:
+                        wk["alive"] = False
+                        break
+                    record(*msg)
+                if wk["alive"] and wk["slot"][0] >= 0 and time.time() - wk["slot"][1] > timeout:
+                    i = int(wk["slot"][0])
+                    wk["p"].kill()
+                    wk["p"].join()
+                    wk["alive"] = False
+                    fmt, kind = "?", "?"
+                    try:
+                        fmt, kind = Cases(seed).make(i)[:2]
+                    except Exception:  # noqa: BLE001
+                        pass
+                    record(i, fmt, kind, "hang", f"no result after {timeout:g} s", "")
+                    rest = wk["indices"][wk["indices"].index(i) + 1:]
+                    if rest:
+                        start(len(workers), rest)
+                elif wk["alive"] and not wk["p"].is_alive() and not wk["conn"].poll():
+                    wk["alive"] = False  # died without a word (killed for memory...)
+                    i = int(wk["slot"][0])
+                    record(i, "?", "?", "crash", f"worker died (exit {wk['p'].exitcode})", "")
+                    rest = wk["indices"][wk["indices"].index(i) + 1:] if i >= 0 else []
+                    if rest:
+                        start(len(workers), rest)
+            if time.time() - last_echo > 30:
+                rate = done / (time.time() - t0)
+                echo(f"  ... {done:,} / {n_cases:,} cases ({rate:,.0f}/s)")
+                last_echo = time.time()
+            time.sleep(0.02)
+    return {"counts": counts, "by_kind": by_kind, "by_fmt": by_fmt, "examples": examples,
+            "cases": done, "seconds": time.time() - t0}
+
+
+def report(res: dict, echo=print) -> int:
+    c = res["counts"]
+    echo(f"cases {res['cases']:,} in {res['seconds']:.0f} s: accepted {c['accepted']:,}, rejected (ParseError) "
+         f"{c['rejected']:,}")
+    echo("crashes {crash}, hangs {hang}, wrong acceptances {wrong_accept}, wrong rejections {wrong_reject}, "
+         "bad errors {bad_error}, fuzzer errors {fuzzer_error}".format(**{k: c[k] for k in (*FAILURES, "fuzzer_error")}))
+    cols = ("accepted", "rejected", *FAILURES)
+    for title, table in (("mutation kind", res["by_kind"]), ("format", res["by_fmt"])):
+        echo(f"\n{title:<16}" + "".join(f"{k:>13}" for k in cols))
+        for key in sorted(table):
+            echo(f"{key:<16}" + "".join(f"{table[key][k]:>13,}" for k in cols))
+    for outcome, lines in res["examples"].items():
+        echo(f"\nfirst {outcome} cases:")
+        for ln in lines:
+            echo("  " + ln)
+    return int(any(c[k] for k in (*FAILURES, "fuzzer_error")))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="3,000 cases")
+    ap.add_argument("--cases", type=int, default=None, help="number of cases (default 100,000)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes (at most 2: the machine is shared)")
+    ap.add_argument("--timeout", type=float, default=20.0, help="seconds per case before it counts as a hang")
+    args = ap.parse_args(argv)
+    if not DATA.exists():
+        print(f"corpus not found at {DATA}", file=sys.stderr)
+        return 1
+    n = args.cases or (3_000 if args.quick else 100_000)
+    jobs = max(1, min(args.jobs, 2))
+    print(f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s")
+    return report(run(n, args.seed, jobs, args.timeout))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
