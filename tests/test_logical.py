@@ -49,7 +49,7 @@ def chain_db():
 def test_logical_reaches_what_numerical_misses():
     space, motif = chain_db()
     ceiling = 25.0  # one drift step costs 20 (20 frames x 1 unit), two cost 40
-    own = (8, 27)  # the query's own segment in clip 0
+    own = (8, 28)  # the query's own segment in clip 0, half-open
     numerical = logical_search(motif, space, rounds=1, exclude=own, k=64, count=5, max_cost=ceiling)
     assert sorted(set(space.clip_id[numerical.start])) == [1]
     logical = logical_search(motif, space, rounds=5, exclude=own, k=64, count=5, max_cost=ceiling)
@@ -57,14 +57,14 @@ def test_logical_reaches_what_numerical_misses():
     assert list(logical.round) == [1, 2, 3]
     assert list(logical.source) == [-1, 0, 1]  # each found by the previous one
     for s, e in zip(logical.start, logical.end):
-        assert (space.frame[s], space.frame[e]) == (8, 27)
+        assert (space.frame[s], space.frame[e - 1]) == (8, 27)
 
 
 def test_logical_stops_and_deduplicates():
     space, motif = chain_db()
     res = logical_search(motif, space, rounds=10, k=64, count=10, max_cost=25.0)
     iv = sorted(zip(res.start, res.end))
-    assert all(a[1] < b[0] for a, b in zip(iv, iv[1:]))  # no overlaps
+    assert all(a[1] <= b[0] for a, b in zip(iv, iv[1:]))  # no overlaps (half-open)
     assert res.round.max() <= 4  # ran out of new segments long before 10 rounds
     capped = logical_search(motif, space, rounds=10, k=64, count=10, max_cost=25.0, max_matches=2)
     assert len(capped) == 2

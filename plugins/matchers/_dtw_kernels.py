@@ -177,3 +177,117 @@ def dtw_window_path(q, w):  # pragma: no cover - compiled
         else:
             i -= 1
     return out[:p][::-1].copy(), acc[m - 1, n - 1]
+
+
+@njit(cache=True, fastmath=_FAST)
+def sdtw_pruned(qt, x, clip_start, seeds, rest, row_seg, seg_slot, tau):  # pragma: no cover - compiled
+    """:func:`sdtw_forward` over the cells an admissible bound cannot rule out.
+
+    A cell ``(i, j)`` is dropped (set to inf) when ``D(i, j) + R[i + 1] > tau``, with
+    ``R = rest[seg_slot[row_seg[j]]]`` (float64 (slots, m+1)) a lower bound of the cost any
+    path in row ``j``'s run of consecutive rows spends on query frames ``i .. m-1``
+    (``R[m] = 0``). Every path through a dropped cell costs more than ``tau``, so every
+    end row whose best path costs at most ``tau`` gets exactly :func:`sdtw_forward`'s cost,
+    start and length (same arithmetic, same tie order); the others get inf / -1 / 0 or a
+    value above ``tau``. Only columns with a live cell are computed: a run of columns
+    starts at a row of ``seeds`` (ascending; it must hold every row ``j`` whose first
+    cell ``d(0, j)`` survives) and ends when a column has no live cell left.
+
+    Returns
+    -------
+    cost : float64 (n,), start : int64 (n,), length : int64 (n,)
+    columns : int   columns computed
+    """
+    d, m = qt.shape
+    n = x.shape[0]
+    inf = np.inf
+    cost = np.full(n, inf)
+    start = np.full(n, -1, np.int64)
+    length = np.zeros(n, np.int64)
+    prev_c = np.full(m, inf)
+    prev_s = np.zeros(m, np.int64)
+    prev_l = np.zeros(m, np.int64)
+    cur_c = np.full(m, inf)
+    cur_s = np.zeros(m, np.int64)
+    cur_l = np.zeros(m, np.int64)
+    col = np.empty(m, np.float32)
+    ns = seeds.shape[0]
+    sp = 0
+    columns = 0
+    while sp < ns:
+        j = seeds[sp]
+        lo = 0
+        for i in range(m):
+            prev_c[i] = inf
+        while j < n:
+            r = rest[seg_slot[row_seg[j]]]
+            seed = sp < ns and seeds[sp] == j
+            if seed:
+                sp += 1
+            if clip_start[j]:
+                for i in range(m):
+                    prev_c[i] = inf
+                if not seed:
+                    break
+            if seed:
+                lo = 0
+            columns += 1
+            for i in range(lo, m):
+                col[i] = 0.0
+            for k in range(d):
+                xk = x[j, k]
+                for i in range(lo, m):
+                    t = qt[k, i] - xk
+                    col[i] += t * t
+            for i in range(lo, m):
+                col[i] = np.sqrt(col[i])
+            for i in range(lo):
+                cur_c[i] = inf
+            if seed:
+                cur_c[0] = col[0]
+                cur_s[0] = j
+                cur_l[0] = 1
+                if cur_c[0] + r[1] > tau:
+                    cur_c[0] = inf
+            elif lo == 0:
+                cur_c[0] = inf
+            for i in range(max(lo, 1), m):
+                a = prev_c[i - 1]
+                b = prev_c[i]
+                v = b < a
+                cur_c[i] = b if v else a
+                cur_s[i] = prev_s[i] if v else prev_s[i - 1]
+                cur_l[i] = prev_l[i] if v else prev_l[i - 1]
+            c = cur_c[0] if lo == 0 else inf
+            s = cur_s[0]
+            ln = cur_l[0]
+            first = -1
+            for i in range(max(lo, 1), m):
+                b = cur_c[i]
+                h = c < b
+                s = s if h else cur_s[i]
+                ln = (ln if h else cur_l[i]) + 1
+                c = (c if h else b) + np.float64(col[i])
+                if c + r[i + 1] > tau:
+                    c = inf
+                elif first < 0:
+                    first = i
+                cur_c[i] = c
+                cur_s[i] = s
+                cur_l[i] = ln
+            if lo == 0 and cur_c[0] < inf:
+                first = 0
+            cost[j] = c if m > 1 else cur_c[0]
+            start[j] = s if m > 1 else cur_s[0]
+            length[j] = ln if m > 1 else cur_l[0]
+            prev_c, cur_c = cur_c, prev_c
+            prev_s, cur_s = cur_s, prev_s
+            prev_l, cur_l = cur_l, prev_l
+            if first < 0:  # nothing alive: the next run starts at the next seed
+                break
+            # a live cell (i, j) reaches column j+1 only at rows >= i (diagonal: i+1, vertical: i)
+            lo = first
+            j += 1
+        while sp < ns and seeds[sp] <= j:
+            sp += 1
+    return cost, start, length, columns

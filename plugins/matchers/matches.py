@@ -69,10 +69,19 @@ class SearchSpace:
         c[1:] = (self.clip_id[1:] == self.clip_id[:-1]) & (self.frame[1:] == self.frame[:-1] + 1)
         return c
 
+    @cached_property
+    def runs(self) -> np.ndarray:
+        """int64 (n,): ordinal of the run of consecutive rows (:attr:`continues`) holding row ``j``."""
+        return (np.cumsum(~self.continues) - 1).astype(np.int64)
+
 
 @dataclass
 class QueryMatches:
-    """Ranked matches of one query (rows are index rows; ``end`` inclusive)."""
+    """Ranked matches of one query: rows ``[start, end)`` (index rows, ``end`` exclusive, as in every table).
+
+    ``length`` is the number of cells of each warping path, ``paths[r]`` its
+    ``(query frame, row)`` pairs.
+    """
 
     start: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     end: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -180,7 +189,7 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
         "rank": pa.array(cat(rank, np.int32)),
         "clip_id": pa.array(space.clip_id[start]),
         "start_frame": pa.array(space.frame[start]),
-        "end_frame": pa.array((space.frame[end] + 1).astype(np.int32)),
+        "end_frame": pa.array((space.frame[end - 1] + 1).astype(np.int32)),
         "cost": pa.array(cost),
         "cost_normalized": pa.array(cost / np.maximum(length, 1)),
         "path": path.cast(schema.WARPING_PATH.type),

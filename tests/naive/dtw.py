@@ -140,3 +140,28 @@ def naive_propagate(q, prev_ids, x, continues, k, r2):
     scored.sort()
     best = sorted(scored[:k], key=lambda t: t[1])
     return [c for _, c in best], [float(np.sqrt(d2)) for d2, _ in best]
+
+
+def naive_pruned_costs(q, x, continues, rest, tau):
+    """Best path cost ending in every row, over the cells the pruning keeps.
+
+    A cell ``(i, j)`` is dropped when its accumulated cost plus ``rest[i + 1]`` (a lower
+    bound of the cost of query frames ``i+1 ..``) exceeds ``tau``; paths run only through
+    kept cells. Returns the last row of the pruned ``D`` (inf where nothing survives).
+    """
+    q = np.asarray(q, np.float64)
+    x = np.asarray(x, np.float64)
+    m, n = len(q), len(x)
+    D = np.full((m, n), np.inf)
+    for j in range(n):
+        for i in range(m):
+            c = float(np.sqrt(np.sum((q[i] - x[j]) ** 2)))
+            if i == 0:
+                v = c
+            else:
+                opts = [D[i - 1, j]]
+                if j > 0 and continues[j]:
+                    opts += [D[i - 1, j - 1], D[i, j - 1]]
+                v = min(opts) + c
+            D[i, j] = v if v + rest[i + 1] <= tau else np.inf
+    return D[-1]
