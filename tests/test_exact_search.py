@@ -5,13 +5,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from naive.dtw import continues_of, naive_pruned_costs
+from naive.dtw import continues_of, naive_blocks, naive_through_cell
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
-from mocapflow.plugins.matchers._dtw_kernels import sdtw_forward, sdtw_pruned
-from mocapflow.plugins.matchers.exact import ExactStats, certified_sdtw, rest_bounds, run_bounds
-from mocapflow.plugins.matchers.lng import lazy_neighborhood_graph, neighbor_sets
+from mocapflow.plugins.matchers._coarse_kernels import block_boxes, coarse_alive, sdtw_ranges
+from mocapflow.plugins.matchers._dtw_kernels import sdtw_forward
+from mocapflow.plugins.matchers.exact import ExactStats, certified_sdtw
+from mocapflow.plugins.matchers.lng import lazy_neighborhood_graph
 from mocapflow.plugins.matchers.matches import SearchSpace
 from mocapflow.plugins.matchers.sdtw import subsequence_dtw
 
@@ -27,45 +28,39 @@ def same(a, b):
         np.testing.assert_array_equal(p, r)
 
 
-@pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (2, [5, 5, 5, 60], 3), (3, [50, 50], 1)])
-def test_pruned_kernel_equals_naive_and_forward(seed, lengths, m):
+@pytest.mark.parametrize("seed,lengths,m,size", [(0, [40, 1, 30, 12], 6, 4), (1, [80], 10, 16), (2, [5, 5, 5, 60], 3, 7),
+                                                (3, [50, 50], 1, 3)])
+def test_coarse_bound_is_admissible(seed, lengths, m, size):
     clip_id, frame, x = make_db(lengths, seed=seed)
     rng = np.random.default_rng(seed)
     q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
     cont = continues_of(clip_id, frame)
-    full, fs, fl = sdtw_forward(np.ascontiguousarray(q.T), x, ~cont)
-    nn1 = np.linalg.norm(q[:, None].astype(float) - x[None].astype(float), axis=2).min(axis=1)
-    rest = rest_bounds(nn1)
-    for tau in (np.inf, float(np.quantile(full, 0.3)), float(full.min()) * 1.001, 0.0):
-        seeds = np.arange(len(x), dtype=np.int64)
-        cost, start, length, cols = sdtw_pruned(np.ascontiguousarray(q.T), x, ~cont, seeds, rest[None],
-                                                np.zeros(len(x), np.int64), np.zeros(1, np.int32), tau)
-        ref = naive_pruned_costs(q, x, cont, rest, tau)
-        np.testing.assert_allclose(cost, ref, rtol=1e-5)
-        ok = full <= tau
-        np.testing.assert_array_equal(cost[ok], full[ok])  # bit for bit where it counts
-        np.testing.assert_array_equal(start[ok], fs[ok])
-        np.testing.assert_array_equal(length[ok], fl[ok])
-        assert np.all(~np.isfinite(cost[~ok]))
-        assert cols <= len(x)
+    bstart, lo, hi, link = block_boxes(x, cont, size)
+    block = naive_blocks(cont, size)
+    np.testing.assert_array_equal(np.searchsorted(bstart, np.arange(len(x)), side="right") - 1, block)
+    through = naive_through_cell(q, x, cont).min(axis=0)  # best path through any cell of row j
+    for tau in (float(np.quantile(through, 0.1)), float(np.quantile(through, 0.5)), float(through.min()) * 1.001):
+        alive = coarse_alive(q, lo, hi, link, tau, 1.0 - 1e-5)
+        # every row on a path of cost <= tau lies in an alive block (pruning: test_certified_prunes_columns)
+        assert np.all(alive[block[through <= tau]])
 
 
-@pytest.mark.parametrize("seed,k", [(0, 3), (1, 10), (2, 1), (3, 500)])
-def test_run_bounds_are_admissible(seed, k):
-    clip_id, frame, x = make_db([30, 1, 20, 45, 7], seed=seed)
-    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+@pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
+def test_sdtw_ranges_equal_forward(seed, lengths, m):
+    clip_id, frame, x = make_db(lengths, seed=seed)
     rng = np.random.default_rng(seed)
-    q = (x[rng.integers(0, len(x), 9)] + rng.normal(0, 0.5, (9, 3))).astype(np.float32)
-    ids, dist, count = neighbor_sets(q, space.index, k, None)
-    rest, slot = run_bounds(ids, dist, count, k, space.runs)
-    d = np.linalg.norm(q[:, None].astype(float) - x[None].astype(float), axis=2)
-    for s in range(space.runs.max() + 1):
-        rows = space.runs == s
-        true = np.cumsum(d[:, rows].min(axis=1)[::-1])[::-1]  # each frame's nearest cell in the run
-        assert np.all(rest[slot[s], :-1] <= true * (1 + 1e-9))
-        assert rest[slot[s], -1] == 0
-    # bounds are tight where the run holds the neighbours: slot 0 is "no neighbour in the run"
-    assert slot.max() <= len(np.unique(space.runs[ids[ids >= 0]]))
+    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+    cont = continues_of(clip_id, frame)
+    qt = np.ascontiguousarray(q.T)
+    full = sdtw_forward(qt, x, ~cont)
+    got = sdtw_ranges(qt, x, ~cont, np.array([[0, len(x)]], np.int64))
+    for a, b in zip(got, full):
+        np.testing.assert_array_equal(a, b)  # bit for bit
+    # a range starting at a clip start equals the full pass inside it; rows outside are untouched
+    a0 = int(np.flatnonzero(~cont)[-1])
+    part = sdtw_ranges(qt, x, ~cont, np.array([[a0, len(x)]], np.int64))
+    np.testing.assert_array_equal(part[0][a0:], full[0][a0:])
+    assert np.all(np.isinf(part[0][:a0])) and np.all(part[1][:a0] == -1)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -77,7 +72,7 @@ def test_certified_equals_sdtw_synthetic(seed, count, min_span, max_cost):
     s = int(rng.integers(0, 150))
     q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
     st = ExactStats()
-    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, k=4, gaps=4, stats=st)
+    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, k=4, gaps=4, block=5, stats=st)
     ref = subsequence_dtw(q, space, count=count, min_span=min_span, max_cost=max_cost)
     same(got, ref)
     via_matcher = lazy_neighborhood_graph(q, space, k=4, count=count, min_span=min_span, max_cost=max_cost, exact=True)

@@ -207,15 +207,14 @@ def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 2
     """
     from .exact import certified_sdtw
 
-    plain = eps == 0 and propagate == 0 and radius is None  # then the graph's sets are exact kNN
-    if exact:
-        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
-                              k=k, gaps=gaps)
     graph = build_graph(query, space, k=k, radius=radius, eps=eps, propagate=propagate, gaps=gaps)
+    if exact:  # the graph's matches (any sets) supply the threshold of the certified search
+        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
+                              graph=graph)
     res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
     if fill and len(res) < count and space.features is not None:
         return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
-                              k=k, gaps=gaps, graph=graph if plain else None)
+                              graph=graph)
     return res
 
 

@@ -70,9 +70,17 @@ class SearchSpace:
         return c
 
     @cached_property
-    def runs(self) -> np.ndarray:
-        """int64 (n,): ordinal of the run of consecutive rows (:attr:`continues`) holding row ``j``."""
-        return (np.cumsum(~self.continues) - 1).astype(np.int64)
+    def _blocks(self) -> dict:
+        return {}
+
+    def blocks(self, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Row blocks of at most ``size`` rows within runs and their feature boxes, cached
+        (:func:`._coarse_kernels.block_boxes`; needs ``features``)."""
+        if size not in self._blocks:
+            from ._coarse_kernels import block_boxes
+
+            self._blocks[size] = block_boxes(self.features, self.continues, int(size))
+        return self._blocks[size]
 
 
 @dataclass
