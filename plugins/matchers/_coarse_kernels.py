@@ -67,35 +67,40 @@ def block_boxes(x, continues, size):  # pragma: no cover - compiled
     return bstart, lo, hi, link
 
 
-@njit(cache=True)
-def coarse_alive(q, lo, hi, link, tau, shrink):  # pragma: no cover - compiled
+@njit(cache=True, fastmath=_FAST)
+def coarse_alive(qt, lo, hi, link, tau, shrink):  # pragma: no cover - compiled
     """Blocks that may hold a cell of a path of cost <= ``tau`` (see module doc).
 
     Parameters
     ----------
-    q : float32 (m, d)
+    qt : float32 (d, m)   the query, transposed
     lo, hi, link : from :func:`block_boxes`
     tau : float
     shrink : float
-        Box distances are multiplied by it (slightly below 1: the fine DP's float32
-        distances may round below the exact ones).
+        Box distances are multiplied by it (below 1: float32 rounding of these and of the
+        fine DP's distances must not lift the bound above a fine cell).
 
     Returns
     -------
     alive : bool (nb,)
     """
-    m, d = q.shape
+    d, m = qt.shape
     nb = lo.shape[0]
     inf = np.inf
     c = np.empty((nb, m), np.float32)
+    acc = np.empty(m, np.float32)
     for b in range(nb):
         for i in range(m):
-            acc = 0.0
-            for k in range(d):
-                v = np.float64(q[i, k])
-                t = max(np.float64(lo[b, k]) - v, v - np.float64(hi[b, k]), 0.0)
-                acc += t * t
-            c[b, i] = np.sqrt(acc) * shrink
+            acc[i] = 0.0
+        for k in range(d):
+            lk = lo[b, k]
+            hk = hi[b, k]
+            for i in range(m):
+                v = qt[k, i]
+                t = max(lk - v, v - hk, np.float32(0.0))
+                acc[i] += t * t
+        for i in range(m):
+            c[b, i] = np.sqrt(acc[i]) * shrink
     f = np.empty((nb, m))
     for b in range(nb):
         f[b, 0] = c[b, 0]

@@ -35,7 +35,7 @@ from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
-_SHRINK = 1.0 - 1e-5
+_SHRINK = 1.0 - 1e-4
 
 
 @dataclass
@@ -105,7 +105,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     while True:
         if np.isfinite(tau):
             bstart, lo, hi, link = space.blocks(block)
-            ranges = alive_ranges(coarse_alive(q, lo, hi, link, tau, _SHRINK), bstart)
+            ranges = alive_ranges(coarse_alive(qt, lo, hi, link, tau, _SHRINK), bstart)
         else:
             ranges = np.array([[0, space.n_rows]], np.int64)
         cost, start, length = sdtw_ranges(qt, space.features, clip_start, ranges)
