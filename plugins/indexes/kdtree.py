@@ -385,4 +385,10 @@ class KDTreeIndex(Index):
 
 @hookimpl
 def register_indexes() -> list[type]:
-    return [KDTreeIndex]
+    from importlib.util import find_spec
+
+    if find_spec("hnswlib") is None:  # indexes.hnsw exists with the 'ann' extra only
+        return [KDTreeIndex]
+    from .hnsw import HNSWIndex
+
+    return [KDTreeIndex, HNSWIndex]

@@ -58,7 +58,7 @@ def alive_ranges(alive: np.ndarray, bstart: np.ndarray) -> np.ndarray:
 
 
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
-                   rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 8, block: int = 16,
+                   rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
                    graph=None, stats: ExactStats | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 

@@ -1,6 +1,6 @@
 """Global motion matching with the lazy neighborhood graph (Krüger et al. 2010, §4.1).
 
-Default (``gaps: 8``, our extension): the graph also holds *gap cells*, rows within
+Default (``gaps: 32``, our extension): the graph also holds *gap cells*, rows within
 ``gaps`` query frames of a neighbour cell, their cost computed exactly on demand
 (:mod:`._gap_kernels`), so another performer's movement is found even where a few of its
 frames are not among the ``k`` nearest; ``gaps: 0`` is the paper's graph. ``exact: true``
@@ -194,7 +194,7 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
 def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
                             eps: float = 0.0, count: int = 10, max_cost: float | None = None,
                             rank_by: str = "cost", min_span: float = 0.5, propagate: int = 0,
-                            gaps: int = 8, exact: bool = False, fill: bool = True) -> QueryMatches:
+                            gaps: int = 32, exact: bool = False, fill: bool = True) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`).
 
     Defaults are the matcher's (gap-tolerant, ``fill``, ``min_span`` 0.5); the paper's LNG

@@ -192,7 +192,7 @@ class NeighborParams(MatchParams):
     propagate: int = Field(0, ge=0, description=(
         "approximate neighbour sets (our extension): search the index only on every N-th query frame and take the "
         "k nearest of the rows reachable from the previous frame's set in between; 0: every frame (the paper)"))
-    gaps: int = Field(8, ge=0, le=1000, description=(
+    gaps: int = Field(32, ge=0, le=1000, description=(
         "gap-tolerant graph (our extension): cells within this many query frames after or before a neighbour cell "
         "join the graph, their distance computed exactly; a path may cross up to 2*gaps query frames without a "
         "neighbour cell; 0: the paper's graph (neighbour cells only)"))
