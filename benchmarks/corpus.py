@@ -153,11 +153,19 @@ def _build_augmented(base: MotionDatabase, n_frames: int, fps: float, seed: int)
     return out
 
 
+def cache_path(n_frames: int, fps: float, seed: int, cache: Path) -> Path:
+    """Cache folder of one augmented database; ``fps`` 30 and 30.0 name the same one."""
+    fps, n_frames, seed = float(fps), int(n_frames), int(seed)
+    key = int(fps) if fps.is_integer() else fps  # 30 and 30.0 hash alike (as 30: the caches made so far)
+    files = corpus_files()
+    tag = hashlib.sha1(json.dumps([_VERSION, n_frames, key, seed, [f.name for f in files]]).encode()).hexdigest()[:12]
+    return Path(cache) / f"augmented_{n_frames}_{fps:g}hz_seed{seed}_{tag}"
+
+
 def augmented_database(n_frames: int, fps: float = 30.0, seed: int = 0, cache: Path | None = CACHE) -> MotionDatabase:
     """A database of exactly ``n_frames`` frames grown from :func:`load_corpus` (see module doc)."""
-    files = corpus_files()
-    tag = hashlib.sha1(json.dumps([_VERSION, n_frames, fps, seed, [f.name for f in files]]).encode()).hexdigest()[:12]
-    path = None if cache is None else Path(cache) / f"augmented_{n_frames}_{int(fps)}hz_seed{seed}_{tag}"
+    fps = float(fps)
+    path = None if cache is None else cache_path(n_frames, fps, seed, cache)
     if path is not None and (path / "done").is_file():
         return _load(path)
     motions = _build_augmented(load_corpus(fps), n_frames, fps, seed)

@@ -38,7 +38,7 @@ from corpus import augmented_database  # noqa: E402
 from mocapflow.plugins.features.end_effectors import EndEffectorFeatures  # noqa: E402
 from mocapflow.plugins.indexes.kdtree import KDTreeIndex  # noqa: E402
 from mocapflow.plugins.matchers._lng_kernels import lng_forward  # noqa: E402
-from mocapflow.plugins.matchers.lng import NeighborhoodGraph, neighbor_sets  # noqa: E402
+from mocapflow.plugins.matchers.lng import NeighborhoodGraph, lazy_neighborhood_graph, neighbor_sets  # noqa: E402
 from mocapflow.plugins.matchers.matches import SearchSpace  # noqa: E402
 from mocapflow.plugins.matchers.sdtw import subsequence_dtw  # noqa: E402
 
@@ -84,9 +84,16 @@ def lng_once(q, space, k, eps, propagate=0):
     ids, dist, count = neighbor_sets(q, space.index, k, None, eps, propagate, space)
     t1 = time.perf_counter()
     cost, start, pred, length = lng_forward(ids, dist, count, space.continues)
-    res = NeighborhoodGraph(ids, dist, count, cost, start, pred, length).matches(count=10)
+    res = NeighborhoodGraph(ids, dist, count, cost, start, pred, length).matches(count=10, min_span=0)
     t2 = time.perf_counter()
     return list(zip(res.start.tolist(), res.end.tolist())), t2 - t0, t1 - t0
+
+
+def matcher_once(q, space, **kw):
+    """(top-10 [(start, end), ...], seconds) of one ``lazy_neighborhood_graph`` call (matcher defaults + ``kw``)."""
+    t0 = time.perf_counter()
+    res = lazy_neighborhood_graph(q, space, count=10, **kw)
+    return list(zip(res.start.tolist(), res.end.tolist())), time.perf_counter() - t0, res
 
 
 def kept(runs, exact) -> tuple[float, float]:
@@ -108,10 +115,27 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
     lng_once(w, space, 8, 0.1)
     lng_once(w, space, 8, 0.0, 4)
     subsequence_dtw(w, SearchSpace(space.clip_id[:500], space.frame[:500], features=space.features[:500]))
+    matcher_once(w, space)
+    matcher_once(w, space, exact=True)
     for m in lengths:
         qs = random_queries(space, m, n_queries, rng)
-        t_sdtw = float(np.median([timed(subsequence_dtw, q, space, count=10)[1] for q in qs[:n_exact]]))
+        ref = [timed(subsequence_dtw, q, space, count=10) for q in qs[:n_exact]]
+        t_sdtw = float(np.median([t for _, t in ref]))
         rows = [("sDTW (ours, exact)", t_sdtw, float("nan"), float("nan"), float("nan"), float("nan"))]
+        # the matcher as a user gets it (gaps 32, fill, min_span 0.5), and the certified-exact mode,
+        # against sDTW's own top-10 (same min_span): alignments found, and identical results
+        sd_sets = [list(zip(r.start.tolist(), r.end.tolist())) for r, _ in ref]
+        for name, kw in (("matcher default (gaps 32, fill)", {}), ("gaps 8, fill", {"gaps": 8}),
+                         ("gaps 16, fill", {"gaps": 16}), ("certified exact", {"exact": True}),
+                         ("default, propagate 8", {"propagate": 8}), ("default, k=64", {"k": 64})):
+            runs = [matcher_once(q, space, **kw) for q in qs[:n_exact]]
+            same, found = kept(runs, [(s,) for s in sd_sets])
+            found = float(np.mean([len(set(r[0]) & set(e)) / max(len(e), 1) for r, e in zip(runs, sd_sets)]))
+            if kw.get("exact"):
+                ident = all(np.array_equal(r[2].cost, e.cost) and np.array_equal(r[2].end, e.end) for r, (e, _) in zip(runs, ref))
+                name += " (identical)" if ident else " (DIFFERS)"
+            t_all = float(np.median([r[1] for r in runs]))
+            rows.append((name + " vs sDTW", t_all, float("nan"), float("nan"), same, found))
         if subsequence_alignment is not None and space.n_rows * (m + 1) * 8 < 4e9:
             runs = []
             for q in qs[: max(1, n_exact // 2)]:

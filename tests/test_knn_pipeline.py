@@ -60,3 +60,15 @@ def test_small_knn_pipeline_end_to_end(tmp_path):
     m = Dataset(ws / "correlation").table("matrix").to_pylist()
     assert [r["row_measure"] for r in m] == ["F_E15", "F_E15x3"] and m[0]["F_E15"] == 1.0
     assert Path(ws / "pca8" / "pca_model.npz").is_file()
+
+
+def test_benchmark_corpus_cache_key_ignores_int_vs_float_fps(tmp_path):
+    import sys
+
+    from conftest import REPO
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from corpus import cache_path
+
+    assert cache_path(1000, 30, 0, tmp_path) == cache_path(1000, 30.0, 0, tmp_path)
+    assert cache_path(1000, 30, 0, tmp_path) != cache_path(1000, 60, 0, tmp_path)

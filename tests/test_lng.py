@@ -62,9 +62,9 @@ def test_kernel_matches_explicit_graph(lengths, m, k, radius, seed):
     assert set(reach) == set(ref)
     for h, (c, st) in reach.items():
         assert c == pytest.approx(ref[h][0], rel=1e-9)
-    res = g.matches(count=50)
+    res = g.matches(count=50, min_span=0)
     for e, st, path in zip(res.end, res.start, res.paths):
-        rc, rs, rpath = ref[int(e)]
+        rc, rs, rpath = ref[int(e) - 1]  # end is exclusive
         assert st == rs
         np.testing.assert_array_equal(path, rpath)
 
@@ -173,7 +173,7 @@ def test_propagated_sets_keep_exact_layers_and_need_features():
     assert g_prop.count.min() >= 1
     # the query is a database segment: its own rows stay in the beam, so its match is found
     best = lazy_neighborhood_graph(q, space, k=6, count=1, propagate=4)
-    assert (best.start[0], best.end[0]) == (10, 21)
+    assert (best.start[0], best.end[0]) == (10, 22)
     bare = SearchSpace(space.clip_id, space.frame, space.index)
     with pytest.raises(DataError, match="features"):
         build_graph(q, bare, k=6, propagate=4)

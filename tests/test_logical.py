@@ -49,7 +49,7 @@ def chain_db():
 def test_logical_reaches_what_numerical_misses():
     space, motif = chain_db()
     ceiling = 25.0  # one drift step costs 20 (20 frames x 1 unit), two cost 40
-    own = (8, 27)  # the query's own segment in clip 0
+    own = (8, 28)  # the query's own segment in clip 0, half-open
     numerical = logical_search(motif, space, rounds=1, exclude=own, k=64, count=5, max_cost=ceiling)
     assert sorted(set(space.clip_id[numerical.start])) == [1]
     logical = logical_search(motif, space, rounds=5, exclude=own, k=64, count=5, max_cost=ceiling)
@@ -57,14 +57,14 @@ def test_logical_reaches_what_numerical_misses():
     assert list(logical.round) == [1, 2, 3]
     assert list(logical.source) == [-1, 0, 1]  # each found by the previous one
     for s, e in zip(logical.start, logical.end):
-        assert (space.frame[s], space.frame[e]) == (8, 27)
+        assert (space.frame[s], space.frame[e - 1]) == (8, 27)
 
 
 def test_logical_stops_and_deduplicates():
     space, motif = chain_db()
     res = logical_search(motif, space, rounds=10, k=64, count=10, max_cost=25.0)
     iv = sorted(zip(res.start, res.end))
-    assert all(a[1] < b[0] for a, b in zip(iv, iv[1:]))  # no overlaps
+    assert all(a[1] <= b[0] for a, b in zip(iv, iv[1:]))  # no overlaps (half-open)
     assert res.round.max() <= 4  # ran out of new segments long before 10 rounds
     capped = logical_search(motif, space, rounds=10, k=64, count=10, max_cost=25.0, max_matches=2)
     assert len(capped) == 2
@@ -199,6 +199,26 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     best = capsys.readouterr().out.splitlines()[2].split()
     assert best[:4] == ["1", "16_15", "30", "90"]  # read, resampled to 30 Hz, found where it came from
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "nonexistent.amc"]) != 0
+    # --exact is subsequence DTW's answer; --out into a folder that does not exist creates it
+    capsys.readouterr()
+    out = tmp_path / "new" / "folder" / "m.csv"
+    args = ["--no-entry-points", "search", "--db", str(ws), "--query", "02_01:10-50", "--count", "4"]
+    assert main(args + ["--exact", "--out", str(out)]) == 0
+    exact_out = capsys.readouterr().out.splitlines()[2:]
+    assert main(args + ["--matcher", "sdtw"]) == 0
+    assert capsys.readouterr().out.splitlines()[2:] == exact_out and len(exact_out) == 4
+    assert out.is_file() and len(out.read_text().splitlines()) == 5 and not list(out.parent.glob(".m.csv*"))
+    assert main(args + ["--min-span", "1.0", "--gaps", "0", "--rank-by", "normalized", "--out", str(out.with_suffix(".parquet"))]) == 0
+    import pyarrow.parquet as pq
+
+    t = pq.read_table(out.with_suffix(".parquet"))
+    assert all(e - s >= 40 for s, e in zip(t["start_frame"].to_pylist(), t["end_frame"].to_pylist()))
+    # the global --block reaches the command: without the kd-tree plugin there is no usable index
+    assert main(["--no-entry-points", "--block", "mocapflow.plugins.indexes.kdtree", "search", "--db", str(ws),
+                 "--query", "02_01:0-40"]) == 2
+    assert "no index step" in capsys.readouterr().err
+    assert main(["--no-entry-points", "search", "--db", str(tmp_path / "missing"), "--query", "02_01:0-40"]) == 2
+    assert "does not exist" in capsys.readouterr().err
 
 
 def test_query_files_enter_the_fingerprint(tmp_path):

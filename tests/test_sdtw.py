@@ -38,14 +38,14 @@ def test_paths_match_naive_and_stay_in_clips():
     clip_id, frame, x = make_db([25, 3, 40, 18], seed=5)
     q = x[30:42].copy()
     space = SearchSpace(clip_id, frame, features=x)
-    res = subsequence_dtw(q, space, count=5)
+    res = subsequence_dtw(q, space, count=5, min_span=0)
     D, S, P = naive_subsequence_dtw(q, x, continues_of(clip_id, frame))
     assert len(res) >= 2
     assert res.cost[0] == pytest.approx(D[-1].min(), rel=1e-9)
     for s, e, c, path in zip(res.start, res.end, res.cost, res.paths):
-        ref = naive_path(P, len(q) - 1, e)
+        ref = naive_path(P, len(q) - 1, e - 1)  # end is exclusive
         np.testing.assert_array_equal(path, ref)
-        assert path[0, 1] == s and path[-1, 1] == e and path[0, 0] == 0 and path[-1, 0] == len(q) - 1
+        assert path[0, 1] == s and path[-1, 1] == e - 1 and path[0, 0] == 0 and path[-1, 0] == len(q) - 1
         assert len(set(clip_id[path[:, 1]])) == 1
         dq, dx = np.diff(path, axis=0).T
         assert set(zip(dq, dx)) <= {(1, 1), (0, 1), (1, 0)}
@@ -54,7 +54,7 @@ def test_paths_match_naive_and_stay_in_clips():
     # ranked and non-overlapping
     assert np.all(np.diff(res.cost) >= 0)
     iv = sorted(zip(res.start, res.end))
-    assert all(a[1] < b[0] for a, b in zip(iv, iv[1:]))
+    assert all(a[1] <= b[0] for a, b in zip(iv, iv[1:]))
 
 
 def test_exact_copy_is_found_at_zero_cost():
@@ -62,7 +62,7 @@ def test_exact_copy_is_found_at_zero_cost():
     q = x[70:85]
     res = subsequence_dtw(q, SearchSpace(clip_id, frame, features=x), count=1)
     assert res.cost[0] == pytest.approx(0.0, abs=1e-9)
-    assert (res.start[0], res.end[0]) == (70, 84)
+    assert (res.start[0], res.end[0]) == (70, 85)
 
 
 def test_constant_signals():
@@ -105,8 +105,8 @@ def test_min_span_drops_squashed_alignments():
     clip_id, frame, x = make_db([60, 60], seed=11)
     space = SearchSpace(clip_id, frame, features=x)
     q = x[10:30] + 0.5
-    loose = subsequence_dtw(q, space, count=30)
-    tight = subsequence_dtw(q, space, count=30, min_span=0.5)
-    assert np.any(loose.end - loose.start + 1 < 10)  # unconstrained DTW squashes some
-    assert np.all(tight.end - tight.start + 1 >= 10)
+    loose = subsequence_dtw(q, space, count=30, min_span=0)
+    tight = subsequence_dtw(q, space, count=30)  # min_span 0.5 by default
+    assert np.any(loose.end - loose.start < 10)  # unconstrained DTW squashes some
+    assert np.all(tight.end - tight.start >= 10)
     assert len(tight) > 0 and tight.cost[0] >= loose.cost[0]

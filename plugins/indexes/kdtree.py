@@ -360,7 +360,10 @@ class KDTreeIndex(Index):
         meta = json.loads((d / "index.json").read_text())
         self = cls(meta["params"])
         for a in _ARRAYS:
-            setattr(self, a, np.load(d / f"{a.rstrip('_')}.npy"))
+            # memory-mapped copy-on-write: nothing is read before a query touches it, and the
+            # arrays stay writable ndarrays (the kernels' one signature)
+            arr = np.load(d / f"{a.rstrip('_')}.npy", mmap_mode="c")
+            setattr(self, a, arr.view(np.ndarray) if isinstance(arr, np.memmap) else arr)
         self.method_, self.probe_, self.brute_from_k_ = meta["method"], meta["probe"], meta.get("brute_from_k")
         self.large_method_ = meta.get("large_method", "brute")
         return self
@@ -382,4 +385,10 @@ class KDTreeIndex(Index):
 
 @hookimpl
 def register_indexes() -> list[type]:
-    return [KDTreeIndex]
+    from importlib.util import find_spec
+
+    if find_spec("hnswlib") is None:  # indexes.hnsw exists with the 'ann' extra only
+        return [KDTreeIndex]
+    from .hnsw import HNSWIndex
+
+    return [KDTreeIndex, HNSWIndex]

@@ -177,3 +177,4 @@ def dtw_window_path(q, w):  # pragma: no cover - compiled
         else:
             i -= 1
     return out[:p][::-1].copy(), acc[m - 1, n - 1]
+

@@ -1,5 +1,12 @@
 """Global motion matching with the lazy neighborhood graph (Krüger et al. 2010, §4.1).
 
+Default (``gaps: 32``, our extension): the graph also holds *gap cells*, rows within
+``gaps`` query frames of a neighbour cell, their cost computed exactly on demand
+(:mod:`._gap_kernels`), so another performer's movement is found even where a few of its
+frames are not among the ``k`` nearest; ``gaps: 0`` is the paper's graph. ``exact: true``
+returns exactly subsequence DTW's matches (:mod:`.exact`); ``fill: true`` (default) falls
+back to that search when the graph holds fewer than ``count`` matches.
+
 For a query ``Q = [q_1 .. q_m]``: a fixed-radius kNN search capped at ``k`` gives the
 neighbour set ``S(q_i)`` of every query frame; every reported neighbour is a node; the
 diagonal, vertical and horizontal DTW steps between nodes are the edges (never across a
@@ -48,14 +55,15 @@ class NeighborhoodGraph:
     start: np.ndarray
     pred: np.ndarray
     length: np.ndarray
+    gap_cells: int = 0
 
     @property
     def n_nodes(self) -> int:
         return int(self.count.sum())
 
     def matches(self, *, count: int = 10, max_cost: float | None = None, rank_by: str = "cost",
-                min_span: float = 0.0) -> QueryMatches:
-        """Ranked non-overlapping matches ending in the last layer (see :func:`.select_matches`)."""
+                min_span: float = 0.5) -> QueryMatches:
+        """Ranked non-overlapping matches ending in the last layer (see :func:`.select_matches`); ``end`` exclusive."""
         from ._lng_kernels import lng_backtrack
 
         last = self.ids.shape[0] - 1
@@ -65,7 +73,7 @@ class NeighborhoodGraph:
                               count=count, max_cost=max_cost, rank_by=rank_by,
                               min_frames=min_frames_of(min_span, self.ids.shape[0]))
         paths = [lng_backtrack(self.ids, self.pred, last, int(a)) for a in keep]
-        return QueryMatches(self.start[last, keep], ends[keep], self.cost[last, keep],
+        return QueryMatches(self.start[last, keep], ends[keep] + 1, self.cost[last, keep],
                             self.length[last, keep].astype(np.int64), paths)
 
 
@@ -135,7 +143,8 @@ def propagated_sets(query: np.ndarray, index, k: int, radius: float | None, eps:
 
 
 def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
-                eps: float = 0.0, propagate: int = 0) -> NeighborhoodGraph:
+                eps: float = 0.0, propagate: int = 0, gaps: int = 0,
+                sets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> NeighborhoodGraph:
     """kNN search, graph construction and path search for one query.
 
     Parameters
@@ -153,6 +162,13 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
     propagate : int
         0: the index's kNN for every query frame (the paper). N > 0: only for every N-th
         frame, the sets in between propagated along the database (:func:`propagated_sets`).
+    gaps : int
+        0: nodes are the neighbour cells only (the paper). G > 0: also the cells within G
+        query frames after or before a neighbour cell, at most two database frames per
+        query frame, each cell's distance computed exactly (:mod:`._gap_kernels`; needs
+        ``space.features``).
+    sets : (ids, dist, count), optional
+        The neighbour sets as :func:`neighbor_sets` returns them, when already searched.
     """
     from ._lng_kernels import lng_forward
 
@@ -161,19 +177,45 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
     q = np.ascontiguousarray(query, dtype=np.float32)
     if q.ndim != 2 or q.shape[0] < 1 or not np.isfinite(q).all():
         raise DataError(f"query must be finite (n_frames >= 1, dim) feature vectors, got shape {q.shape}")
-    ids, dist, count = neighbor_sets(q, space.index, k, radius, eps, propagate, space)
+    ids, dist, count = sets if sets is not None else neighbor_sets(q, space.index, k, radius, eps, propagate, space)
     if count.any() and ids.max() >= space.n_rows:
         raise DataError(f"index returned row {ids.max()} but the database has {space.n_rows} rows")
+    gap_cells = 0
+    if gaps > 0:
+        from ._gap_kernels import gap_layers
+
+        if space.features is None:
+            raise DataError("gap cells need the database features (SearchSpace.features)")
+        ids, dist, count, gap_cells = gap_layers(q, ids, dist, count, space.features, space.continues, int(gaps))
     cost, start, pred, length = lng_forward(ids, dist, count, space.continues)
-    return NeighborhoodGraph(ids, dist, count, cost, start, pred, length)
+    return NeighborhoodGraph(ids, dist, count, cost, start, pred, length, int(gap_cells))
 
 
 def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
                             eps: float = 0.0, count: int = 10, max_cost: float | None = None,
-                            rank_by: str = "cost", min_span: float = 0.0, propagate: int = 0) -> QueryMatches:
-    """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`)."""
-    graph = build_graph(query, space, k=k, radius=radius, eps=eps, propagate=propagate)
-    return graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
+                            rank_by: str = "cost", min_span: float = 0.5, propagate: int = 0,
+                            gaps: int = 32, exact: bool = False, fill: bool = True) -> QueryMatches:
+    """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`).
+
+    Defaults are the matcher's (gap-tolerant, ``fill``, ``min_span`` 0.5); the paper's LNG
+    is ``gaps=0, fill=False, min_span=0``.
+
+    ``exact``: subsequence DTW's matches, certified (:func:`.exact.certified_sdtw`, which
+    uses this graph for its threshold). ``fill``: when the graph holds fewer than
+    ``count`` matches, return the certified-exact search's instead (it then has no
+    threshold and runs the whole DP).
+    """
+    from .exact import certified_sdtw
+
+    graph = build_graph(query, space, k=k, radius=radius, eps=eps, propagate=propagate, gaps=gaps)
+    if exact:  # the graph's matches (any sets) supply the threshold of the certified search
+        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
+                              graph=graph)
+    res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
+    if fill and len(res) < count and space.features is not None:
+        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
+                              graph=graph)
+    return res
 
 
 class LazyNeighborhoodGraph(GlobalMatcher):
@@ -196,7 +238,7 @@ class LazyNeighborhoodGraph(GlobalMatcher):
         p = self.params
         return lazy_neighborhood_graph(query, space, k=p.k, radius=p.radius, eps=p.eps, count=p.count,
                                        max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span,
-                                       propagate=p.propagate)
+                                       propagate=p.propagate, gaps=p.gaps, exact=p.exact, fill=p.fill)
 
     def after_match(self, query_id, query, matches, space, ctx) -> None:
         p = self.params
@@ -204,7 +246,8 @@ class LazyNeighborhoodGraph(GlobalMatcher):
             return
         from .plots import plot_neighborhood
 
-        graph = build_graph(query.features, space, k=p.k, radius=p.radius, eps=p.eps, propagate=p.propagate)  # cheap next to I/O; keeps match() lean
+        graph = build_graph(query.features, space, k=p.k, radius=p.radius, eps=p.eps, propagate=p.propagate,
+                            gaps=p.gaps)  # cheap next to I/O; keeps match() lean
         for r in range(min(p.plots, len(matches))):
             plot_neighborhood(graph, matches, space, ctx.out_dir / "plots" / f"q{query_id}_m{r + 1}.png",
                               match=r, title=f"{query.name} - match {r + 1}, cost {matches.cost[r]:.3g}")

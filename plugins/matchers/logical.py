@@ -43,7 +43,8 @@ class LogicalMatches(QueryMatches):
 def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, max_matches: int = 100,
                    exclude: tuple[int, int] | None = None, k: int = 256, radius: float | None = None, eps: float = 0.0,
                    count: int = 10, max_cost: float | None = None, rank_by: str = "cost",
-                   min_span: float = 0.0, propagate: int = 0) -> LogicalMatches:
+                   min_span: float = 0.5, propagate: int = 0, gaps: int = 0, exact: bool = False,
+                   fill: bool = False) -> LogicalMatches:
     """Iterated LNG search.
 
     Parameters
@@ -56,8 +57,8 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
     max_matches : int
         Stop once this many distinct segments were found.
     exclude : (int, int) or None
-        Rows ``[start, end]`` not to report (the query's own segment in the database).
-    k, radius, eps, count, max_cost, rank_by, min_span, propagate
+        Rows ``[start, end)`` not to report (the query's own segment in the database).
+    k, radius, eps, count, max_cost, rank_by, min_span, propagate, gaps, exact, fill
         Per-query LNG parameters (:func:`.lng.lazy_neighborhood_graph`); ``max_cost``
         also decides which matches count as found.
     """
@@ -65,23 +66,24 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
         raise DataError("logical search needs the database index and features (SearchSpace)")
     found = IntervalSet()
     if exclude is not None:
-        found.add(*exclude)
+        found.add(exclude[0], exclude[1] - 1)
     rows: dict[str, list] = {"start": [], "end": [], "cost": [], "length": [], "paths": [], "round": [], "source": []}
     frontier: list[tuple[np.ndarray, int]] = [(np.asarray(query, np.float32), -1)]
     for r in range(1, rounds + 1):
         new: list[tuple[np.ndarray, int]] = []
         for qx, src in frontier:
             res = lazy_neighborhood_graph(qx, space, k=k, radius=radius, eps=eps, count=count, max_cost=max_cost,
-                                          rank_by=rank_by, min_span=min_span, propagate=propagate)
+                                          rank_by=rank_by, min_span=min_span, propagate=propagate,
+                                          gaps=gaps, exact=exact, fill=fill)
             for i in range(len(res)):
-                s, e = int(res.start[i]), int(res.end[i])
-                if len(rows["start"]) >= max_matches or not found.add(s, e):
+                s, e = int(res.start[i]), int(res.end[i])  # half-open
+                if len(rows["start"]) >= max_matches or not found.add(s, e - 1):
                     continue
                 pos = len(rows["start"])
                 for key, val in (("start", s), ("end", e), ("cost", float(res.cost[i])), ("length", int(res.length[i])),
                                  ("paths", res.paths[i]), ("round", r), ("source", src)):
                     rows[key].append(val)
-                new.append((space.features[s : e + 1], pos))
+                new.append((space.features[s:e], pos))
         if not new or len(rows["start"]) >= max_matches:
             break
         frontier = new
@@ -112,12 +114,14 @@ class LogicalSearch(GlobalMatcher):
         rank_by: Literal["cost", "normalized"] = Field("normalized", description=(
             "rank by accumulated cost or by cost per path cell (comparable across query lengths)"))
         exclude_query: bool = Field(True, description="do not report the query's own segment when it comes from the database")
+        fill: bool = Field(False, description=(
+            "when a round's graph holds fewer than count matches, take the certified-exact search's (whole DP: slow)"))
 
     def search(self, query: np.ndarray, space: SearchSpace, exclude: tuple[int, int] | None = None) -> LogicalMatches:
         p = self.params
         return logical_search(query, space, rounds=p.rounds, max_matches=p.max_matches, exclude=exclude, k=p.k,
                               radius=p.radius, eps=p.eps, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
-                              min_span=p.min_span, propagate=p.propagate)
+                              min_span=p.min_span, propagate=p.propagate, gaps=p.gaps, exact=p.exact, fill=p.fill)
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         return self.search(query, space)
@@ -146,4 +150,4 @@ class LogicalSearch(GlobalMatcher):
         if not self.params.exclude_query or q.clip_id < 0:
             return None
         hit = np.flatnonzero((space.clip_id == q.clip_id) & (space.frame >= q.start_frame) & (space.frame < q.end_frame))
-        return (int(hit[0]), int(hit[-1])) if hit.size else None
+        return (int(hit[0]), int(hit[-1]) + 1) if hit.size else None

@@ -69,10 +69,27 @@ class SearchSpace:
         c[1:] = (self.clip_id[1:] == self.clip_id[:-1]) & (self.frame[1:] == self.frame[:-1] + 1)
         return c
 
+    @cached_property
+    def _blocks(self) -> dict:
+        return {}
+
+    def blocks(self, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Row blocks of at most ``size`` rows within runs and their feature boxes, cached
+        (:func:`._coarse_kernels.block_boxes`; needs ``features``)."""
+        if size not in self._blocks:
+            from ._coarse_kernels import block_boxes
+
+            self._blocks[size] = block_boxes(self.features, self.continues, int(size))
+        return self._blocks[size]
+
 
 @dataclass
 class QueryMatches:
-    """Ranked matches of one query (rows are index rows; ``end`` inclusive)."""
+    """Ranked matches of one query: rows ``[start, end)`` (index rows, ``end`` exclusive, as in every table).
+
+    ``length`` is the number of cells of each warping path, ``paths[r]`` its
+    ``(query frame, row)`` pairs.
+    """
 
     start: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     end: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -180,7 +197,7 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
         "rank": pa.array(cat(rank, np.int32)),
         "clip_id": pa.array(space.clip_id[start]),
         "start_frame": pa.array(space.frame[start]),
-        "end_frame": pa.array((space.frame[end] + 1).astype(np.int32)),
+        "end_frame": pa.array((space.frame[end - 1] + 1).astype(np.int32)),
         "cost": pa.array(cost),
         "cost_normalized": pa.array(cost / np.maximum(length, 1)),
         "path": path.cast(schema.WARPING_PATH.type),

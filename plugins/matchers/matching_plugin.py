@@ -42,6 +42,16 @@ class SearchCommand:
         parser.add_argument("--index", metavar="STEP", help="index step to use when the workspace has several")
         parser.add_argument("--matcher", default="lng", help="matchers.<name>: lng (default), sdtw, logical")
         parser.add_argument("--count", type=int, default=10, help="matches to show (default 10)")
+        parser.add_argument("--min-span", type=float, default=None, metavar="F",
+                            help="drop matches spanning fewer database frames than F x the query (default 0.5; 0: all)")
+        parser.add_argument("--rank-by", choices=("cost", "normalized"), default=None,
+                            help="rank by accumulated cost (default) or cost per path cell")
+        parser.add_argument("--exact", action="store_true",
+                            help="return exactly subsequence DTW's matches (lng: certified, pruned; much faster than sdtw)")
+        parser.add_argument("--gaps", type=int, default=None, metavar="G",
+                            help="lng: query frames a path may cross without a kNN cell (default 8; 0: the paper's graph)")
+        parser.add_argument("--propagate", type=int, default=None, metavar="N",
+                            help="lng: search the index every N-th query frame only, propagate the sets in between")
         parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
         parser.add_argument("--radius", type=float, default=None, help="kNN search radius (lng, logical)")
         parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
@@ -58,7 +68,11 @@ class SearchCommand:
         from .matches import matches_table
         from .queries import feature_set_of, motion_queries, parse_query_spec, upstream
 
-        regs = load_registries()
+        if not Path(args.db).is_dir():
+            raise ConfigError(f"--db {args.db}: the workspace does not exist (run a pipeline with an index step first)")
+        # the global --no-entry-points / --block apply here too
+        regs = load_registries(entry_points=not getattr(args, "no_entry_points", False),
+                               blocked=list(getattr(args, "block", None) or []))
         datasets = read_datasets(args.db)
         # only numeric kNN indexes can serve a similarity search (not inverted lists)
         indexes = {k: d for k, d in datasets.items() if d.producer_kind == "indexes"
@@ -78,7 +92,10 @@ class SearchCommand:
         matcher_cls = regs.resolve(f"matchers.{args.matcher}")
         fields = matcher_cls.Params.model_fields
         params = {"count": args.count}
-        for key, val in (("k", args.k), ("radius", args.radius)):
+        if args.exact and args.matcher == "sdtw":
+            args.exact = False  # sdtw is exact already
+        for key, val in (("k", args.k), ("radius", args.radius), ("min_span", args.min_span), ("rank_by", args.rank_by),
+                         ("gaps", args.gaps), ("propagate", args.propagate), ("exact", args.exact or None)):
             if val is not None:
                 if key not in fields:
                     raise ConfigError(f"matchers.{args.matcher} has no parameter {key!r}")
@@ -102,23 +119,40 @@ class SearchCommand:
             print(f"{row['rank']:>4}  {names.get(row['clip_id'], row['clip_id'])!s:<32.32} {row['start_frame']:>6} "
                   f"{row['end_frame']:>6} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}")
         if args.out:
-            out = Path(args.out)
             table = table.append_column("clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string()))
-            if out.suffix == ".parquet":
-                import pyarrow.parquet as pq
-
-                pq.write_table(table, out)
-            else:
-                import pyarrow.csv as pcsv
-
-                pcsv.write_csv(table.drop_columns(["path"]), out)
+            write_atomic(table, Path(args.out))
         if args.plot:
             if args.matcher != "lng" or not len(res):
                 raise ConfigError("--plot draws the lazy neighborhood graph of the best match: use --matcher lng")
             from .lng import build_graph
             from .plots import plot_neighborhood
 
-            graph = build_graph(query.features, space, k=matcher.params.k, radius=matcher.params.radius)
+            p = matcher.params
+            graph = build_graph(query.features, space, k=p.k, radius=p.radius, eps=p.eps, propagate=p.propagate,
+                                gaps=p.gaps)
             plot_neighborhood(graph, res, space, args.plot, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
             print(f"wrote {args.plot}", file=sys.stderr)
         return 0
+
+
+def write_atomic(table, out: Path) -> None:
+    """Write ``table`` as ``.parquet`` (with paths) or CSV (without), creating the folder; atomic (temp + rename)."""
+    import os
+    import tempfile
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", dir=out.parent)
+    os.close(fd)
+    try:
+        if out.suffix == ".parquet":
+            import pyarrow.parquet as pq
+
+            pq.write_table(table, tmp)
+        else:
+            import pyarrow.csv as pcsv
+
+            pcsv.write_csv(table.drop_columns(["path"]), tmp)
+        os.replace(tmp, out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)

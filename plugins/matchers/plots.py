@@ -57,7 +57,7 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
         raise ConfigError(f"match {match} out of range: the query has {len(matches)} matches")
     m = graph.ids.shape[0]
     pad = m if pad is None else pad
-    s, e = int(matches.start[match]), int(matches.end[match])
+    s, e = int(matches.start[match]), int(matches.end[match]) - 1  # last row (end is exclusive)
     clip = space.clip_id[s]
     same = np.flatnonzero(space.clip_id == clip)
     lo, hi = max(int(same[0]), s - pad), min(int(same[-1]) + 1, e + 1 + pad)

@@ -174,8 +174,9 @@ class MatchParams(Params):
     count: int = Field(10, ge=1, description="matches kept per query")
     max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
     rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
-    min_span: float = Field(0.0, ge=0, le=10, description=(
-        "drop matches spanning fewer database frames than this fraction of the query length (0: all, as in the paper)"))
+    min_span: float = Field(0.5, ge=0, le=10, description=(
+        "drop matches spanning fewer database frames than this fraction of the query length "
+        "(default 0.5: no whole query squashed onto a few frames; 0: all, as in the paper)"))
     queries: list[str] = Field(default_factory=list, description=(
         "query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); "
         "empty: every clip of the query input"))
@@ -191,6 +192,15 @@ class NeighborParams(MatchParams):
     propagate: int = Field(0, ge=0, description=(
         "approximate neighbour sets (our extension): search the index only on every N-th query frame and take the "
         "k nearest of the rows reachable from the previous frame's set in between; 0: every frame (the paper)"))
+    gaps: int = Field(32, ge=0, le=1000, description=(
+        "gap-tolerant graph (our extension): cells within this many query frames after or before a neighbour cell "
+        "join the graph, their distance computed exactly; a path may cross up to 2*gaps query frames without a "
+        "neighbour cell; 0: the paper's graph (neighbour cells only)"))
+    exact: bool = Field(False, description=(
+        "certified-exact: return exactly subsequence DTW's matches, the DP pruned by an admissible bound "
+        "(rank_by cost; needs exact kNN)"))
+    fill: bool = Field(True, description=(
+        "when the graph holds fewer than count matches, return the certified-exact search's instead"))
 
 
 class GlobalMatcher(Matcher):
@@ -232,7 +242,8 @@ class GlobalMatcher(Matcher):
         clip_id, frame = db.frame_ids()
         index = db.index(registries) if self.needs_index else None
         x = None
-        if self.needs_features or getattr(self.params, "propagate", 0):
+        p = self.params
+        if self.needs_features or any(getattr(p, a, 0) for a in ("propagate", "gaps", "exact", "fill")):
             fds = self.features_dataset(inputs)
             if fds is None:
                 raise PipelineError(f"{self.key()}: cannot find the database features of {db.step!r}; give a 'features' input")

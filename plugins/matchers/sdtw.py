@@ -55,7 +55,7 @@ def sdtw_costs(query: np.ndarray, space: SearchSpace) -> tuple[np.ndarray, np.nd
 
 
 def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
-                    rank_by: str = "cost", min_span: float = 0.0) -> QueryMatches:
+                    rank_by: str = "cost", min_span: float = 0.5) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` by exact subsequence DTW.
 
     Parameters
@@ -80,7 +80,7 @@ def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, m
         path, _ = dtw_window_path(q, space.features[s : e + 1])
         path[:, 1] += s
         paths.append(path)
-    return QueryMatches(start[keep], ends[keep], cost[keep], length[keep].astype(np.int64), paths)
+    return QueryMatches(start[keep], ends[keep] + 1, cost[keep], length[keep].astype(np.int64), paths)
 
 
 class SubsequenceDTW(GlobalMatcher):

@@ -140,3 +140,37 @@ def naive_propagate(q, prev_ids, x, continues, k, r2):
     scored.sort()
     best = sorted(scored[:k], key=lambda t: t[1])
     return [c for _, c in best], [float(np.sqrt(d2)) for d2, _ in best]
+
+
+def naive_through_cell(q, x, continues):
+    """Cost of the best subsequence-DTW path through every cell, ``(m, n)``: forward + backward - cell."""
+    q = np.asarray(q, np.float64)
+    x = np.asarray(x, np.float64)
+    m, n = len(q), len(x)
+    c = np.sqrt(((q[:, None, :] - x[None, :, :]) ** 2).sum(axis=2))
+    F = np.full((m, n), np.inf)
+    G = np.full((m, n), np.inf)
+    for j in range(n):
+        for i in range(m):
+            opts = [0.0] if i == 0 else [F[i - 1, j]]
+            if j > 0 and continues[j] and i > 0:
+                opts += [F[i - 1, j - 1], F[i, j - 1]]
+            F[i, j] = min(opts) + c[i, j]
+    for j in range(n - 1, -1, -1):
+        for i in range(m - 1, -1, -1):
+            opts = [0.0] if i == m - 1 else [G[i + 1, j]]
+            if j + 1 < n and continues[j + 1] and i < m - 1:
+                opts += [G[i + 1, j + 1], G[i, j + 1]]
+            G[i, j] = min(opts) + c[i, j]
+    return F + G - c
+
+
+def naive_blocks(continues, size):
+    """Block of every row: at most ``size`` consecutive rows within one run."""
+    block, b, run = [], -1, 0
+    for j in range(len(continues)):
+        if j == 0 or not continues[j] or run == size:
+            b, run = b + 1, 0
+        block.append(b)
+        run += 1
+    return np.array(block)

@@ -1,0 +1,131 @@
+"""Certified-exact search: identical to subsequence DTW (synthetic and real data), pruning checked."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from naive.dtw import continues_of, naive_blocks, naive_through_cell
+from test_lng import BruteIndex
+from test_sdtw import make_db
+
+from mocapflow.plugins.matchers._coarse_kernels import block_boxes, coarse_alive, sdtw_ranges
+from mocapflow.plugins.matchers._dtw_kernels import sdtw_forward
+from mocapflow.plugins.matchers.exact import ExactStats, certified_sdtw
+from mocapflow.plugins.matchers.lng import lazy_neighborhood_graph
+from mocapflow.plugins.matchers.matches import SearchSpace
+from mocapflow.plugins.matchers.sdtw import subsequence_dtw
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+
+
+def same(a, b):
+    np.testing.assert_array_equal(a.start, b.start)
+    np.testing.assert_array_equal(a.end, b.end)
+    np.testing.assert_array_equal(a.cost, b.cost)
+    np.testing.assert_array_equal(a.length, b.length)
+    for p, r in zip(a.paths, b.paths):
+        np.testing.assert_array_equal(p, r)
+
+
+@pytest.mark.parametrize("seed,lengths,m,size", [(0, [40, 1, 30, 12], 6, 4), (1, [80], 10, 16), (2, [5, 5, 5, 60], 3, 7),
+                                                (3, [50, 50], 1, 3)])
+def test_coarse_bound_is_admissible(seed, lengths, m, size):
+    clip_id, frame, x = make_db(lengths, seed=seed)
+    rng = np.random.default_rng(seed)
+    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+    cont = continues_of(clip_id, frame)
+    bstart, lo, hi, link = block_boxes(x, cont, size)
+    block = naive_blocks(cont, size)
+    np.testing.assert_array_equal(np.searchsorted(bstart, np.arange(len(x)), side="right") - 1, block)
+    through = naive_through_cell(q, x, cont).min(axis=0)  # best path through any cell of row j
+    for tau in (float(np.quantile(through, 0.1)), float(np.quantile(through, 0.5)), float(through.min()) * 1.001):
+        alive = coarse_alive(np.ascontiguousarray(q.T), lo, hi, link, tau, 1.0 - 1e-4)
+        # every row on a path of cost <= tau lies in an alive block (pruning: test_certified_prunes_columns)
+        assert np.all(alive[block[through <= tau]])
+
+
+@pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
+def test_sdtw_ranges_equal_forward(seed, lengths, m):
+    clip_id, frame, x = make_db(lengths, seed=seed)
+    rng = np.random.default_rng(seed)
+    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+    cont = continues_of(clip_id, frame)
+    qt = np.ascontiguousarray(q.T)
+    full = sdtw_forward(qt, x, ~cont)
+    got = sdtw_ranges(qt, x, ~cont, np.array([[0, len(x)]], np.int64))
+    for a, b in zip(got, full):
+        np.testing.assert_array_equal(a, b)  # bit for bit
+    # a range starting at a clip start equals the full pass inside it; rows outside are untouched
+    a0 = int(np.flatnonzero(~cont)[-1])
+    part = sdtw_ranges(qt, x, ~cont, np.array([[a0, len(x)]], np.int64))
+    np.testing.assert_array_equal(part[0][a0:], full[0][a0:])
+    assert np.all(np.isinf(part[0][:a0])) and np.all(part[1][:a0] == -1)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("count,min_span,max_cost", [(1, 0.0, None), (5, 0.5, None), (8, 0.5, 12.0), (20, 1.0, None)])
+def test_certified_equals_sdtw_synthetic(seed, count, min_span, max_cost):
+    clip_id, frame, x = make_db([60, 3, 90, 40, 70], seed=seed)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    rng = np.random.default_rng(seed)
+    s = int(rng.integers(0, 150))
+    q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
+    st = ExactStats()
+    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, k=4, gaps=4, block=5, stats=st)
+    ref = subsequence_dtw(q, space, count=count, min_span=min_span, max_cost=max_cost)
+    same(got, ref)
+    via_matcher = lazy_neighborhood_graph(q, space, k=4, count=count, min_span=min_span, max_cost=max_cost, exact=True)
+    same(via_matcher, ref)
+
+
+def test_certified_prunes_columns():
+    # 120 clips, each a noisy copy of a piece of one smooth signal: like a mocap corpus, a
+    # query has a few close matches and many far clips, which the bound rules out
+    rng = np.random.default_rng(4)
+    base = np.cumsum(rng.normal(0, 0.3, (3000, 3)), axis=0)
+    starts = rng.integers(0, 3000 - 40, 120)
+    x = np.concatenate([base[s : s + 40] + rng.normal(0, 0.05, (40, 3)) for s in starts]).astype(np.float32)
+    clip_id = np.repeat(np.arange(120), 40).astype(np.int32)
+    frame = np.tile(np.arange(40), 120).astype(np.int32)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    q = (base[starts[7] + 5 : starts[7] + 25] + rng.normal(0, 0.05, (20, 3))).astype(np.float32)
+    st = ExactStats()
+    same(certified_sdtw(q, space, count=3, k=32, stats=st), subsequence_dtw(q, space, count=3))
+    assert np.isfinite(st.tau) and st.columns < len(x) // 4 and not st.retried
+
+
+def test_normalized_ranking_falls_back_to_the_whole_dp():
+    clip_id, frame, x = make_db([50, 50], seed=6)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    q = x[10:20] * 1.1
+    st = ExactStats()
+    same(certified_sdtw(q, space, count=4, rank_by="normalized", stats=st),
+         subsequence_dtw(q, space, count=4, rank_by="normalized"))
+    assert st.columns == len(x)
+
+
+@pytest.mark.skipif(not (DATA / "hdm05" / "amc").is_dir(), reason="needs the development corpus ../shared/data (HDM05)")
+def test_certified_equals_sdtw_on_hdm05():
+    from mocapflow.framework import MotionDatabase
+    from mocapflow.framework.normalize import resample
+    from mocapflow.plugins.features.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.indexes.kdtree import KDTreeIndex
+
+    files = sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))
+    db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])
+    x = EndEffectorFeatures(joints=5).transform(db)
+    clip_id, frame = db.frame_ids
+    rng = np.random.default_rng(0)
+    queries = []
+    for c in rng.choice(db.n_clips, 6, replace=False):  # one actor's clips hidden: other performers only
+        actor = Path(str(db.motions[c].metadata.get("path"))).parent.name
+        keep = np.array([Path(str(m.metadata.get("path"))).parent.name != actor for m in db.motions])[clip_id]
+        a, b = db.offsets[c], db.offsets[c + 1]
+        lo = int(rng.integers(a, max(a + 1, b - 30)))
+        queries.append((x[lo : min(b, lo + 30)], keep))
+    for q, keep in queries:
+        space = SearchSpace(clip_id[keep], frame[keep], KDTreeIndex(method="kdtree").build(x[keep]), x[keep])
+        for count in (1, 10):
+            same(certified_sdtw(q, space, count=count), subsequence_dtw(q, space, count=count))
