@@ -33,6 +33,7 @@ from pydantic import Field
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.components import Analysis, Params
 from mocapflow.framework.motion import Motion
+from mocapflow.plugins.cleaners.cues import rotation_vectors
 
 from .error_injection import ERROR_KINDS, inject_errors
 
@@ -40,14 +41,6 @@ from .error_injection import ERROR_KINDS, inject_errors
 def _log_norm_sq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """||log(a^-1 b)||^2 per quaternion pair (half-angle convention of eq. 1/2)."""
     return np.arccos(np.clip(np.abs(np.sum(a * b, -1)), 0.0, 1.0)) ** 2
-
-
-def rotation_vectors(q: np.ndarray) -> np.ndarray:
-    """Rotation vectors (axis * angle, radians) of unit quaternions (..., 4), w >= 0."""
-    q = np.where(q[..., :1] < 0, -q, q)
-    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
-    ang = 2.0 * np.arctan2(s, q[..., :1])
-    return np.where(s > 1e-12, q[..., 1:] / np.where(s > 1e-12, s, 1.0) * ang, 2.0 * q[..., 1:])
 
 
 class RotationBaselines:
