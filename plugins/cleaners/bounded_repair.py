@@ -2,8 +2,8 @@
 
 For the cells :meth:`.calibration.Calibration.detect` flags (analysis rate, texture joints):
 
-1. *Swapped limbs*: on the frames where a left/right chain pair is flagged and its mirror
-   cue says the limbs are nearer their consensus once exchanged (the summed gain exceeds
+1. *Swapped limbs*: on the frames where a left/right chain pair is flagged by the mirror
+   cue and that cue says the limbs are nearer their consensus once exchanged (the summed gain exceeds
    ``swap_gain`` radians), both chains are swapped back (left <- mirrored right and the
    reverse), which undoes a marker mislabelling exactly.
 2. *Other flagged runs* (consecutive flagged frames of one joint) take the rotations of
@@ -49,7 +49,9 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
     return out
 
 
-def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int = 0,
+                   mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
 
     Parameters
@@ -62,6 +64,11 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int =
         Least summed mirror gain (radians over the six chain joints) for a swap-back.
     dilate : int
         Frames added on each side of a flagged run before repairing.
+    mirror_flags : ndarray of bool, shape (T, m), optional
+        Cells the mirror cue flagged: only runs holding one are swapped back (default: any
+        flagged cell of the chains).
+    cap : ndarray of shape (T, m), optional
+        Largest edit per cell, radians (on top of the evidence bound); swaps are not capped.
     """
     from .repair import _propose
 
@@ -77,7 +84,7 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int =
         for o in range(1, dilate + 1):
             work[o:] |= flags[:-o]
             work[:-o] |= flags[o:]
-    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work, swap_gain):
+    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work if mirror_flags is None else mirror_flags, swap_gain):
         new[a:b, lc] = mirror(q[a:b, rc])
         new[a:b, rc] = mirror(q[a:b, lc])
         swapped[a:b, np.concatenate([lc, rc])] = True
@@ -100,11 +107,13 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int =
     new[worse] = q[worse]
     edit = quat.geodesic_angle(new, q)
     limit = before + np.asarray(res.spread if res.spread is not None else 0.0)
+    if cap is not None:
+        limit = np.where(swapped, limit, np.minimum(limit, cap))
     over = edit > limit + 1e-9
     if over.any():
         frac = limit[over] / edit[over]
         new[over] = quat.slerp(q[over], new[over], frac)
-    edited = quat.geodesic_angle(new, q) > 1e-9
+    edited = np.any(new != q, axis=-1)  # exact: an angle test near 0 is rounding noise
     return new, edited, swapped & edited
 
 

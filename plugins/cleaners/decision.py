@@ -45,8 +45,13 @@ def _edits(motion: Motion, cleaned: Motion, changed: np.ndarray, texture: Any, c
     return tab.append_column("cue", pa.array(_input_cues(motion, texture, cue, f, j), pa.string()))
 
 
-def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> Any:
-    """Analyse, decide and repair one clip; returns :class:`.mdm.CleanResult`."""
+def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Sequence[Any] = (),
+                 analysis: Any = None, calibration: Any = None) -> Any:
+    """Analyse, decide and repair one clip; returns :class:`.mdm.CleanResult`.
+
+    ``analysis`` (a :class:`.mdm.DigressionResult` of this clip and context) and
+    ``calibration`` (a :class:`.calibration.Calibration` fitted on this context) are reused
+    when given (the evaluation harness runs several decisions on one analysis)."""
     from .bounded_repair import bounded_repair
     from .calibration import calibrate
     from .cues import CUES
@@ -54,7 +59,7 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
     from .repair import apply_to_input, repair_texture
 
     p = cleaner.params
-    res = cleaner.analyse(motion, context)
+    res = analysis if analysis is not None else cleaner.analyse(motion, context)
     cue = np.full(res.mdm.shape, None, dtype=object)
     if p.mode == "paper" or not res.neighbours:
         flags = res.mdm > p.threshold
@@ -64,11 +69,14 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
     else:
         others = context_motions(motion, context, True)[1:]
         ap = p.model_copy(update={"include_self": True})
-        cal = calibrate(motion, others, lambda m, ctx: digression_map(m, ctx, ap), res.joints, p.fps,
+        cal = calibration if calibration is not None else calibrate(motion, others, lambda m, ctx: digression_map(m, ctx, ap), res.joints, p.fps,
                         false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
                         seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues)
         flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints)
-        new24, edited, swapped = bounded_repair(res, flags, p.swap_gain)
+        mirror_flags = flags & (dom == CUES.index("mirror"))
+        local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
+        cap = np.where(local, np.pi, np.deg2rad(p.max_edit))
+        new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap)
         cue[flags] = np.array(CUES, dtype=object)[dom[flags]]
         cue[swapped] = "mirror"
         flags = flags | swapped

@@ -100,6 +100,8 @@ class MDMParams(Params):
     cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range"], ...] = Field(
         default=("digression", "acceleration", "mirror", "freeze"),
         description="calibrated: cues the detector may use (range = baseline (a), off by default)")
+    max_edit: float = Field(default=30.0, gt=0, le=180, description="calibrated: largest edit, degrees, of a cell "
+                            "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
     swap_gain: float = Field(default=0.5, ge=0, description="calibrated: least chain mirror gain (radians over the "
                              "chain pair) for swapping limbs back")
 
