@@ -221,7 +221,8 @@ def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
             raise PluginError(f"plugin command {cls.name!r} ({cls.__module__}) clashes with a built-in command")
         p = sub.add_parser(cls.name, help=getattr(cls, "help", ""))
         cls.add_arguments(p)
-        p.set_defaults(func=lambda a, pm, _cls=cls: _cls.run(a))
+        # the command sees the plugin manager built here (--block, --no-entry-points) as args.plugin_manager
+        p.set_defaults(func=lambda a, pm, _cls=cls: (setattr(a, "plugin_manager", pm), _cls.run(a))[1])
     return parser
 
 

@@ -32,6 +32,15 @@ most precise on locomotion, but it misses most errors in dance, whose neighbours
 widely. ``"texture"`` divides by the joint's mean rotation angle in T (floored at
 ``min_scale``); ``"none"`` keeps radians.
 
+Modes. ``mode="paper"`` is the paper literally (with ``normalization="mean"``, the
+default): cells whose MDM exceeds 0.5 are repaired from the median KNN word and blended
+by Savitzky-Golay (:mod:`.repair`). ``mode="calibrated"`` (the default, issue 14) keeps
+the same analysis but decides with a detector fitted on the user's clean context
+(:mod:`.calibration`: self-supervised, per-joint nulls, cues of :mod:`.cues`, a target
+``false_alarm`` rate) and repairs with bounds (:mod:`.bounded_repair`), so an uncorrupted
+take is left essentially untouched. Its map value is ``1 - 2^(-e^2)`` of the cell's
+evidence ``e`` (0.5 where ``e`` = 1, the decision level).
+
 Contexts (§3.1, §5): ``None`` (the clip itself), a Motion, a list of Motions or a
 :class:`~mocapflow.framework.database.MotionDatabase`; the clip is added to its context
 unless ``include_self`` is off. ``two_stage`` runs the §5 scheme: the stage-1 groups
@@ -72,7 +81,29 @@ def _default_groups() -> tuple[JointGroup, ...]:
 
 
 class MDMParams(Params):
-    """Parameters of the MDM cleaner; defaults are the paper's values."""
+    """Parameters of the MDM cleaner; the analysis defaults are the paper's values, the
+    decision (``mode``) defaults to the calibrated detector."""
+
+    mode: Literal["calibrated", "paper"] = Field(
+        default="calibrated",
+        description="'calibrated': detector fitted on the clean context (self-supervised, target false_alarm) and "
+                    "bounded repair; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)")
+    false_alarm: float = Field(default=0.002, gt=0, lt=1, description="calibrated: share of clean (word, joint) "
+                               "pairs of the calibration clips the detector may flag")
+    null_quantile: float = Field(default=0.99, gt=0.5, lt=1, description="calibrated: quantile of a cue over a "
+                                 "joint's clean calibration cells taken as its null level")
+    calibration_frames: int = Field(default=600, ge=15, description="calibrated: frames (at fps) of context clips "
+                                    "analysed with synthetic errors (the longest first; the take itself without context)")
+    calibration_density: float = Field(default=0.2, gt=0, lt=1, description="calibrated: share of calibration "
+                                       "words given a synthetic error")
+    calibration_seed: int = Field(default=0, description="calibrated: seed of the synthetic errors")
+    cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range"], ...] = Field(
+        default=("digression", "acceleration", "mirror", "freeze"),
+        description="calibrated: cues the detector may use (range = baseline (a), off by default)")
+    max_edit: float = Field(default=30.0, gt=0, le=180, description="calibrated: largest edit, degrees, of a cell "
+                            "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
+    swap_gain: float = Field(default=0.5, ge=0, description="calibrated: least chain mirror gain (radians over the "
+                             "chain pair) for swapping limbs back")
 
     fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
     joints: tuple[str, ...] = Field(default=DEFAULT_JOINTS, description="texture joints (canonical names; absent ones are skipped)")
@@ -85,7 +116,7 @@ class MDMParams(Params):
     exclusion: int | None = Field(default=None, ge=0, description="minima this close to the source word are discarded (frames; None = N/2)")
     threshold: float = Field(default=0.5, ge=0, le=1, description="MDM value above which a cell is erroneous (§4)")
     normalization: Literal["mean", "texture", "median", "spread", "none"] = Field(
-        default="median",
+        default="mean",
         description="scale M = |T - T̄| is divided by (§3.4): 'mean' = the mean of M's row (the paper), 'texture' = "
                     "the joint's mean rotation angle in T, 'median' = robust_factor x the median of M's row, 'spread' "
                     "= spread_factor x the scatter of the KNN samples about T̄ at that cell (see module doc), 'none'")
@@ -338,35 +369,82 @@ def _two_stage(tex: Texture, full: ContextTextures, groups, starts: np.ndarray, 
     return outer, count
 
 
+@dataclass
+class CleanResult:
+    """One clip through :meth:`MDMCleaner.clean` (analysis rate unless said).
+
+    Attributes
+    ----------
+    analysis : DigressionResult
+    flags : ndarray of bool, shape (T, m)
+        Cells the decision flagged.
+    value : ndarray of shape (T, m), in [0, 1]
+        The map shown and stored (> 0.5 = flagged): the MDM (paper) or ``1 - 2^(-e^2)`` of
+        the evidence (calibrated).
+    cue : ndarray of object, shape (T, m)
+        Name of the cue that flagged each flagged cell (``mdm`` in paper mode, ``mirror``
+        for cells swapped back), None elsewhere.
+    repaired : ndarray of shape (T, m, 4)
+        The repaired texture.
+    edited : ndarray of bool, shape (T, m)
+        Cells whose rotation changed.
+    cleaned : Motion
+        The cleaned clip at the input rate.
+    edits : pyarrow.Table
+        One row per changed input cell (:func:`.repair.edits_table` plus ``cue``, ``edit_deg``).
+    calibration : Calibration or None
+    """
+
+    analysis: DigressionResult
+    flags: np.ndarray
+    value: np.ndarray
+    cue: np.ndarray
+    repaired: np.ndarray
+    edited: np.ndarray
+    cleaned: Motion
+    edits: Any
+    calibration: Any = None
+
+    def map_result(self) -> Any:
+        """An object :func:`.repair.map_to_input` takes, carrying ``value`` as its map."""
+        from types import SimpleNamespace
+
+        return SimpleNamespace(mdm=self.value, texture=self.analysis.texture)
+
+
 class MDMCleaner(Cleaner):
     """Self-similarity cleaning with the movement digression map (Aristidou et al. 2018).
 
-    ``detect`` returns the MDM at the input clip's frames for every skeleton joint (0 for
-    joints outside the texture); ``repair`` the cleaned clip and its edits table.
+    ``detect`` returns the map at the input clip's frames for every skeleton joint (0 for
+    joints outside the texture; > 0.5 = flagged); ``repair`` the cleaned clip and its edits
+    table; ``clean`` everything (:class:`CleanResult`).
     """
 
     name = "mdm"
-    version = "1"
+    version = "2"
     Params: ClassVar[type[Params]] = MDMParams
 
     def analyse(self, motion: Motion, context: Any = None) -> DigressionResult:
         """The full analysis at the analysis rate (texture, T̄, MDM, neighbours)."""
         return digression_map(motion, context, self.params)
 
+    def clean(self, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> CleanResult:
+        """Analysis, decision and repair of one clip (see :class:`CleanResult`)."""
+        from .decision import clean_motion
+
+        return clean_motion(self, motion, context, contacts)
+
     def detect(self, motion: Motion, context: Any = None) -> np.ndarray:
-        """Digression map at the input frames, shape (T, J) in [0, 1]."""
+        """Digression map at the input frames, shape (T, J) in [0, 1] (> 0.5 = flagged)."""
         from .repair import map_to_input
 
-        res = self.analyse(motion, context)
-        return map_to_input(res, motion)
+        out = self.clean(motion, context)
+        return map_to_input(out.map_result(), motion)
 
     def repair(self, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> tuple[Motion, Any]:
         """Cleaned motion (input frame rate) and the edits as an Arrow table."""
-        from .repair import repair_motion
-
-        res = self.analyse(motion, context)
-        cleaned, edits = repair_motion(motion, res, self.params, contacts=contacts)
-        return cleaned, edits
+        out = self.clean(motion, context, contacts)
+        return out.cleaned, out.edits
 
     def run(self, inputs, ctx):
         from .plugin import run_cleaner

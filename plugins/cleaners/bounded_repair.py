@@ -1,0 +1,139 @@
+"""Repair of the calibrated cleaner: only flagged cells, bounded, never away from consensus.
+
+For the cells :meth:`.calibration.Calibration.detect` flags (analysis rate, texture joints):
+
+1. *Swapped limbs*: on the frames where a left/right chain pair is flagged by the mirror
+   cue and that cue says the limbs are nearer their consensus once exchanged (the summed gain exceeds
+   ``swap_gain`` radians), both chains are swapped back (left <- mirrored right and the
+   reverse), which undoes a marker mislabelling exactly.
+2. *Other flagged runs* (consecutive flagged frames of one joint) take the rotations of
+   the median KNN word (:func:`.repair._propose`, the paper's §4) corrected by a
+   displacement map: the offset between the KNN word and the take at the two frames that
+   bound the run, interpolated (slerp) across it, so the repair joins the take without a
+   jump and keeps the KNN word's shape (this replaces the Savitzky-Golay blend of the
+   paper; ``mode: paper`` keeps that one).
+3. *Bounds*: a cell keeps its value when the repair would not bring it nearer its KNN
+   consensus T̄; an edit larger than the cell's digression plus its KNN spread (what the
+   evidence supports) is shortened to that along the geodesic. No cell ends farther from
+   T̄ than it was, so no clip ends farther from its consensus.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mocapflow.framework import quaternions as quat
+
+from .cues import chain_columns, mirror, mirror_gain
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Half-open [start, end) runs of True in a 1-D mask."""
+    if not mask.any():
+        return []
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float
+                ) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
+    """(left columns, right columns, start, end) of the runs to swap back: frames whose
+    chain-pair mirror gain exceeds ``swap_gain`` radians, in runs holding a flagged cell of
+    the chains."""
+    out = []
+    gain = mirror_gain(q, mean_q, joints)
+    for lc, rc in chain_columns(list(joints)):
+        cols = np.concatenate([lc, rc])
+        for a, b in _runs(gain[:, cols].max(axis=1) > swap_gain):
+            if flags[a:b][:, cols].any():
+                out.append((lc, rc, a, b))
+    return out
+
+
+def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int = 0,
+                   mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
+
+    Parameters
+    ----------
+    res : DigressionResult
+        The take's analysis (texture, T̄, spread, KNN).
+    flags : ndarray of bool, shape (T, m)
+        Cells to repair.
+    swap_gain : float
+        Least summed mirror gain (radians over the six chain joints) for a swap-back.
+    dilate : int
+        Frames added on each side of a flagged run before repairing.
+    mirror_flags : ndarray of bool, shape (T, m), optional
+        Cells the mirror cue flagged: only runs holding one are swapped back (default: any
+        flagged cell of the chains).
+    cap : ndarray of shape (T, m), optional
+        Largest edit per cell, radians (on top of the evidence bound); swaps are not capped.
+    """
+    from .repair import _propose
+
+    q = res.texture.q
+    mean_q = res.mean_texture
+    t_count, m = q.shape[:2]
+    new = q.copy()
+    swapped = np.zeros((t_count, m), bool)
+    if not flags.any():
+        return new, np.zeros((t_count, m), bool), swapped
+    work = flags.copy()
+    if dilate > 0:
+        for o in range(1, dilate + 1):
+            work[o:] |= flags[:-o]
+            work[:-o] |= flags[o:]
+    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work if mirror_flags is None else mirror_flags, swap_gain):
+        new[a:b, lc] = mirror(q[a:b, rc])
+        new[a:b, rc] = mirror(q[a:b, lc])
+        swapped[a:b, np.concatenate([lc, rc])] = True
+    rest = work & ~swapped
+    if rest.any() and res.neighbours:
+        around = rest.copy()
+        around[1:] |= rest[:-1]
+        around[:-1] |= rest[1:]
+        proposal = np.full((t_count, m, 4), np.nan)
+        n = res.neighbours[0].warped.shape[3]
+        for neigh in res.neighbours:
+            _propose(neigh, n, q, around, proposal, res, ())
+        for j in np.flatnonzero(rest.any(axis=0)):
+            for a, b in _runs(rest[:, j]):
+                _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
+    # bounds: nearer the consensus, never more than the evidence
+    before = quat.geodesic_angle(q, mean_q)
+    after = quat.geodesic_angle(new, mean_q)
+    worse = after >= before - 1e-9
+    new[worse] = q[worse]
+    edit = quat.geodesic_angle(new, q)
+    limit = before + np.asarray(res.spread if res.spread is not None else 0.0)
+    if cap is not None:
+        limit = np.where(swapped, limit, np.minimum(limit, cap))
+    over = edit > limit + 1e-9
+    if over.any():
+        frac = limit[over] / edit[over]
+        new[over] = quat.slerp(q[over], new[over], frac)
+    edited = np.any(new != q, axis=-1)  # exact: an angle test near 0 is rounding noise
+    return new, edited, swapped & edited
+
+
+def _displaced(track: np.ndarray, prop: np.ndarray, out: np.ndarray, a: int, b: int) -> None:
+    """Write the KNN proposal over ``[a, b)`` into ``out``, corrected at both ends to join ``track``."""
+    seg = prop[a:b]
+    ok = ~np.isnan(seg[:, 0])
+    if not ok.any():
+        return
+    t_count = len(track)
+    ident = quat.identity(())
+
+    def offset(f: int) -> np.ndarray:
+        if 0 <= f < t_count and not np.isnan(prop[f, 0]):
+            return quat.normalize(quat.mul(quat.conjugate(prop[f]), track[f]))
+        return ident
+
+    d0, d1 = offset(a - 1), offset(b)
+    u = (np.arange(a, b) - a + 1) / (b - a + 1)
+    corr = quat.slerp(np.broadcast_to(d0, (b - a, 4)), np.broadcast_to(d1, (b - a, 4)), u)
+    rep = quat.normalize(quat.mul(np.where(ok[:, None], seg, track[a:b]), corr))
+    rep = np.where(np.sum(rep * track[a:b], -1, keepdims=True) < 0, -rep, rep)
+    out[a:b] = np.where(ok[:, None], rep, out[a:b])

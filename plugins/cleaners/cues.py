@@ -1,0 +1,223 @@
+"""Per-cell evidence of a capture error ("cues") for the calibrated cleaner (issue 14).
+
+Every cue is a ``(T, m)`` array over the analysis texture (frames x texture joints),
+computed from the texture ``T``, its KNN consensus ``T̄`` (:mod:`.mdm`) and, for the range
+cue, the rotations the clean context visits. Raw cues are angles in radians (or a log
+ratio); the calibrated fusion of :mod:`.calibration` measures each in units of that joint's
+typical value on clean cells.
+
+=============  ===========================================================================
+cue            what it measures (the error kinds it targets)
+=============  ===========================================================================
+digression     geodesic angle between T and T̄ (§3.4 of the paper; offsets, freezes, swaps)
+acceleration   angle between ``T[t]`` and the midpoint of ``T[t-1]`` and ``T[t+1]`` (spikes,
+               jitter, the edges of offsets and swaps, flips)
+expected_acc   the same on T̄: how much acceleration the neighbours show there (fast joints)
+mirror         how much closer the two limbs of a left/right chain pair are to the *mirrored*
+               consensus of their counterparts than to their own, summed over both chains
+               (swapped limbs)
+range          how far the rotation vector leaves the range the clean context visits
+               (baseline a of the paper's §6)
+freeze         log of the consensus' speed over the take's speed, over a 9-frame window
+               (frozen joints)
+spread         scatter of the KNN samples about T̄ (where neighbours disagree a digression
+               means less)
+=============  ===========================================================================
+
+:func:`cue_values` turns them into the five cues of the calibrated detector (:data:`CUES`),
+adding *persistence* (the digression must last 3 frames) and *group agreement* (divided by
+the frame's median over the joints).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from mocapflow.framework import quaternions as quat
+
+#: Raw cues, in the order of :func:`raw_cues`' keys.
+RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirror", "range", "freeze", "spread")
+
+#: Cues of the calibrated detector (:func:`cue_values`), each with its own null and threshold.
+CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range")
+
+#: Cues the default detector uses (the range cue of baseline (a) flags clean takes that
+#: merely leave a small context's range: see docs/cleaning.md).
+DEFAULT_CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze")
+
+#: Limb chains whose left/right exchange the mirror cue looks for (canonical names).
+MIRROR_CHAINS: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
+    (("lshoulder", "lelbow", "lwrist"), ("rshoulder", "relbow", "rwrist")),
+    (("lhip", "lknee", "lankle"), ("rhip", "rknee", "rankle")),
+)
+
+def mirror(q: np.ndarray) -> np.ndarray:
+    """Mirror local rotations across the sagittal (y-z) plane: (w, x, y, z) -> (w, x, -y, -z)."""
+    out = np.array(q, dtype=float, copy=True)
+    out[..., 2:] *= -1.0
+    return out
+
+
+def acceleration(q: np.ndarray) -> np.ndarray:
+    """Angle between each frame and the midpoint of its two neighbours, radians, (T, m); 0 at the ends."""
+    out = np.zeros(q.shape[:2])
+    if len(q) >= 3:
+        mid = quat.slerp(q[:-2], q[2:], np.full(q[1:-1].shape[:-1], 0.5))
+        out[1:-1] = quat.geodesic_angle(q[1:-1], mid)
+    return out
+
+
+def median_residual(q: np.ndarray, half: int = 3) -> np.ndarray:
+    """Angle between each frame and the component-wise running median of the sign-continuous
+    texture over ``2 half + 1`` frames, radians, (T, m): large on spikes of up to ``half``
+    frames, small on smooth motion and on steps."""
+    if len(q) < 2 * half + 1:
+        return np.zeros(q.shape[:2])
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    pad = np.concatenate([np.repeat(q[:1], half, 0), q, np.repeat(q[-1:], half, 0)], 0)
+    med = np.median(sliding_window_view(pad, 2 * half + 1, axis=0), axis=-1)
+    return quat.geodesic_angle(q, quat.normalize(med))
+
+
+def _window_mean(x: np.ndarray, half: int) -> np.ndarray:
+    """Mean over ``[t - half, t + half]`` along time (shrunk at the ends)."""
+    c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
+    t = np.arange(len(x))
+    lo, hi = np.maximum(t - half, 0), np.minimum(t + half + 1, len(x))
+    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+
+
+def speed(q: np.ndarray) -> np.ndarray:
+    """Frame-to-frame rotation angle, radians per frame, (T, m) (the last frame repeats)."""
+    if len(q) < 2:
+        return np.zeros(q.shape[:2])
+    v = quat.geodesic_angle(q[1:], q[:-1])
+    return np.concatenate([v, v[-1:]], axis=0)
+
+
+def chain_columns(joints: Sequence[str]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Texture columns (left, right) of each :data:`MIRROR_CHAINS` pair present in ``joints``."""
+    out = []
+    for left, right in MIRROR_CHAINS:
+        if all(j in joints for j in left + right):
+            out.append((np.array([joints.index(j) for j in left]), np.array([joints.index(j) for j in right])))
+    return out
+
+
+def mirror_gain(q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str], joint_margin: float = np.deg2rad(5.0)
+                ) -> np.ndarray:
+    """Per frame and chain joint: summed over the chain pair, the digression minus the angle
+    to the mirrored consensus of the counterpart (radians; > 0 where swapping back brings the
+    limbs nearer their consensus), kept on the joints that themselves gain more than
+    ``joint_margin`` (a joint that looks the same mirrored carries no evidence). 0 on joints
+    outside the chains."""
+    out = np.zeros(q.shape[:2])
+    for lc, rc in chain_columns(list(joints)):
+        cols = np.concatenate([lc, rc])
+        other = np.concatenate([rc, lc])
+        own = quat.geodesic_angle(q[:, cols], mean_q[:, cols])
+        swapped = quat.geodesic_angle(q[:, cols], mirror(mean_q[:, other]))
+        gain = own - swapped
+        out[:, cols] = np.where(gain > joint_margin, gain.sum(1, keepdims=True), 0.0)
+    return out
+
+
+def rotation_vectors(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (axis * angle, radians) of unit quaternions (..., 4), w >= 0."""
+    q = np.where(q[..., :1] < 0, -q, q)
+    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    ang = 2.0 * np.arctan2(s, q[..., :1])
+    return np.where(s > 1e-12, q[..., 1:] / np.where(s > 1e-12, s, 1.0) * ang, 2.0 * q[..., 1:])
+
+
+def range_excess(q: np.ndarray, low: np.ndarray | None, high: np.ndarray | None) -> np.ndarray:
+    """Norm of the rotation vector's excess outside ``[low, high]`` per component, radians, (T, m)."""
+    if low is None or high is None:
+        return np.zeros(q.shape[:2])
+    rv = rotation_vectors(q)
+    ex = np.maximum(rv - high, 0.0) + np.maximum(low - rv, 0.0)
+    return np.linalg.norm(ex, axis=-1)
+
+
+def rotation_range(textures: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
+    """Per joint and component, the smallest and largest rotation-vector value of clean textures."""
+    if not textures:
+        return None, None
+    rv = np.concatenate([rotation_vectors(t) for t in textures], 0)
+    return rv.min(0), rv.max(0)
+
+
+def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
+             low: np.ndarray | None = None, high: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Every raw cue of :data:`RAW_CUES` for one analysed texture.
+
+    Parameters
+    ----------
+    q, mean_q : ndarray of shape (T, m, 4)
+        Texture and its KNN consensus T̄.
+    spread : ndarray of shape (T, m)
+        KNN scatter about T̄, radians.
+    joints : sequence of str, length m
+    low, high : ndarray of shape (m, 3), optional
+        Rotation-vector range of the clean context (:func:`rotation_range`).
+
+    Returns
+    -------
+    dict of str -> ndarray of shape (T, m)
+    """
+    floor = np.deg2rad(0.2)
+    freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (_window_mean(speed(q), 4) + floor))
+    return {
+        "digression": quat.geodesic_angle(q, mean_q),
+        "acceleration": acceleration(q),
+        "residual": median_residual(q),
+        "expected_residual": median_residual(mean_q),
+        "expected_acc": acceleration(mean_q),
+        "mirror": mirror_gain(q, mean_q, joints),
+        "range": range_excess(q, low, high),
+        "freeze": np.maximum(freeze, 0.0),
+        "spread": np.asarray(spread, float),
+    }
+
+
+def window_min(x: np.ndarray, half: int) -> np.ndarray:
+    """Smallest value over ``[t - half, t + half]`` along time (shrunk at the ends)."""
+    out = x.copy()
+    for o in range(1, half + 1):
+        out[o:] = np.minimum(out[o:], x[:-o])
+        out[:-o] = np.minimum(out[:-o], x[o:])
+    return out
+
+
+def typical(cue: dict[str, np.ndarray], clean: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Per joint, the median of the digression, acceleration and spread over ``clean`` cells
+    (all cells when None), radians, floored at 0.5 degrees: the scale a cue is measured in."""
+    out = {}
+    for name in ("digression", "acceleration", "spread"):
+        x = cue[name] if clean is None else np.where(clean, cue[name], np.nan)
+        med = np.nanmedian(x, axis=0) if np.isfinite(x).any() else np.zeros(x.shape[1])
+        out[name] = np.maximum(np.nan_to_num(med, nan=0.0), np.deg2rad(0.5))
+    return out
+
+
+def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray]) -> np.ndarray:
+    """The calibrated detector's cues :data:`CUES`, shape (T, m, 5), unitless.
+
+    * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
+      flickers), in units of the joint's typical digression, divided by the frame's median
+      over the joints when that exceeds 1 (*group agreement*: when every joint digresses,
+      the motion is rare, not broken);
+    * acceleration: the take's acceleration beyond the consensus', in units of the joint's
+      typical acceleration;
+    * mirror: the chain-pair mirror gain in units of six typical digressions;
+    * freeze: the log speed ratio (consensus over take);
+    * range: the rotation-vector excess over the context's range, in units of 0.1 rad.
+    """
+    d = cue["digression"] / scale["digression"]
+    group = np.maximum(np.median(d, axis=1, keepdims=True), 1.0)
+    dig = window_min(d, 1) / group
+    acc = np.maximum(cue["acceleration"] - cue["expected_acc"], 0.0) / scale["acceleration"]
+    mir = cue["mirror"] / np.maximum(6.0 * np.median(scale["digression"]), 1e-3)
+    return np.stack([dig, acc, mir, cue["freeze"], cue["range"] / 0.1], axis=-1)

@@ -1,0 +1,87 @@
+"""One clip through the MDM cleaner: analysis, decision (paper or calibrated) and repair.
+
+``mode="paper"``: the cells whose MDM exceeds ``threshold`` are repaired by
+:func:`.repair.repair_texture` (median KNN word, Savitzky-Golay blend), as §3.4 and §4 say.
+``mode="calibrated"``: :func:`.calibration.calibrate` fits the detector on the clean
+context, :meth:`.calibration.Calibration.detect` flags the take's cells and
+:func:`.bounded_repair.bounded_repair` repairs them. Both carry the repair to the input
+frames with :func:`.repair.apply_to_input`.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.motion import Motion
+
+
+def _input_cues(motion: Motion, texture: Any, cue: np.ndarray, frames: np.ndarray, joints: np.ndarray) -> list:
+    """Cue of the analysis cell nearest each edited input cell (frame, skeleton joint)."""
+    col = {int(j): c for c, j in enumerate(texture.joint_index)}
+    x = np.rint(frames * (texture.fps / motion.fps)).astype(np.int64).clip(0, len(cue) - 1)
+    out = []
+    for f, j in zip(x.tolist(), joints.tolist()):
+        c = col.get(int(j))
+        v = cue[f, c] if c is not None else None
+        if v is None and c is not None:  # an input frame next to a flagged analysis frame
+            near = [cue[g, c] for g in (f - 1, f + 1) if 0 <= g < len(cue) and cue[g, c] is not None]
+            v = near[0] if near else None
+        out.append(v)
+    return out
+
+
+def _edits(motion: Motion, cleaned: Motion, changed: np.ndarray, texture: Any, cue: np.ndarray) -> pa.Table:
+    from .repair import edits_table
+
+    tab = edits_table(motion, cleaned, changed)
+    f = tab["frame"].to_numpy()
+    j = tab["joint"].to_numpy()
+    deg = np.rad2deg(quat.geodesic_angle(motion.rotations[f, j], cleaned.rotations[f, j])) if len(f) else np.zeros(0)
+    tab = tab.append_column("edit_deg", pa.array(deg.astype(np.float32)))
+    return tab.append_column("cue", pa.array(_input_cues(motion, texture, cue, f, j), pa.string()))
+
+
+def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Sequence[Any] = (),
+                 analysis: Any = None, calibration: Any = None) -> Any:
+    """Analyse, decide and repair one clip; returns :class:`.mdm.CleanResult`.
+
+    ``analysis`` (a :class:`.mdm.DigressionResult` of this clip and context) and
+    ``calibration`` (a :class:`.calibration.Calibration` fitted on this context) are reused
+    when given (the evaluation harness runs several decisions on one analysis)."""
+    from .bounded_repair import bounded_repair
+    from .calibration import calibrate
+    from .cues import CUES
+    from .mdm import CleanResult, context_motions, digression_map
+    from .repair import apply_to_input, repair_texture
+
+    p = cleaner.params
+    res = analysis if analysis is not None else cleaner.analyse(motion, context)
+    cue = np.full(res.mdm.shape, None, dtype=object)
+    if p.mode == "paper" or not res.neighbours:
+        flags = res.mdm > p.threshold
+        new24, edited = repair_texture(res, p.threshold, p.savgol_window, p.savgol_order, contacts)
+        cue[flags] = "mdm"
+        value, cal = res.mdm, None
+    else:
+        others = context_motions(motion, context, True)[1:]
+        ap = p.model_copy(update={"include_self": True})
+        cal = calibration if calibration is not None else calibrate(motion, others, lambda m, ctx: digression_map(m, ctx, ap), res.joints, p.fps,
+                        false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
+                        seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues)
+        flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints)
+        mirror_flags = flags & (dom == CUES.index("mirror"))
+        local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
+        cap = np.where(local, np.pi, np.deg2rad(p.max_edit))
+        new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap)
+        cue[flags] = np.array(CUES, dtype=object)[dom[flags]]
+        cue[swapped] = "mirror"
+        flags = flags | swapped
+        value = 1.0 - np.exp2(-(evidence ** 2))
+        value = np.where(flags, np.maximum(value, 0.5 + 1e-6), np.minimum(value, 0.5))
+    cleaned, changed = apply_to_input(motion, res.texture, new24, edited)
+    return CleanResult(res, flags, value, cue, new24, edited, cleaned, _edits(motion, cleaned, changed, res.texture, cue),
+                       cal)
