@@ -201,5 +201,5 @@ def test_base_poses_and_reconstructions_are_shown(extras_workspace, tmp_path):
     assert p0["clip"] in {"02_01", "16_15", "35_01"} and len(p0["positions"]) == 75 and abs(p0["positions"][0]) < 1e-6
     rec = next(v for v in steps["reconstruction"]["views"] if v["type"] == "derived")
     assert sorted(p["source_clip"] for p in rec["pairs"]) == ["02_01", "16_15"]
-    assert all(p["source_step"] in ("test", "motions") for p in rec["pairs"])
+    assert all(p["source_step"] == "test" for p in rec["pairs"])
     assert "clip_errors" in steps["reconstruction"]["small_tables"]

@@ -141,8 +141,7 @@ class ModelBuilder:
         return key
 
     def build(self, title: str) -> Model:
-        ordered = sorted(self.datasets.values(), key=lambda d: (d.manifest.get("created", ""), d.step))
-        steps = [self.step(ds) for ds in ordered]
+        steps = [self.step(ds) for ds in step_order(self.datasets)]
         self.model.page.update({
             "title": title, "joints": list(CANONICAL_JOINTS),
             "bones": [[CANONICAL_JOINTS.index(a), CANONICAL_JOINTS.index(b)] for a, b in BONES],
@@ -295,14 +294,18 @@ class ModelBuilder:
         return {"type": "base_poses", "motions": step, "poses": poses, "n_base_poses": len(rows)}
 
     def derived(self, ds: Dataset) -> dict[str, Any] | None:
-        mine = ds.table("clips", columns=["clip_id", "name", "checksum", "n_frames"]).to_pylist()
-        pairs = []
+        cols = ["clip_id", "name", "checksum", "n_frames"]
+        mine = ds.table("clips", columns=cols).to_pylist()
+        candidates = []
         for name, ref in ds.manifest.get("inputs", {}).items():
             other = self.datasets.get(ref["step"])
-            if other is None or not other.has_table("clips"):
-                continue
-            theirs = {(r["clip_id"], r["checksum"], r["n_frames"]): r["name"] for r in
-                      other.table("clips", columns=["clip_id", "name", "checksum", "n_frames"]).to_pylist()}
+            if other is not None and other.has_table("clips"):
+                theirs = {(r["clip_id"], r["checksum"], r["n_frames"]): r["name"] for r in other.table("clips", columns=cols).to_pylist()}
+                hits = sum((r["clip_id"], r["checksum"], r["n_frames"]) in theirs for r in mine)
+                candidates.append((-hits, len(theirs), name, other, theirs))
+        pairs = []
+        # the input that holds most of these clips and least else (the test takes, not the prior)
+        for _, _, name, other, theirs in sorted(candidates, key=lambda c: c[:3]):
             for r in mine:
                 src = theirs.get((r["clip_id"], r["checksum"], r["n_frames"]))
                 if src is not None and not any(p["clip_id"] == r["clip_id"] for p in pairs):
@@ -327,3 +330,16 @@ def _relative_path(path: list | None, query: dict[str, Any] | None) -> list[list
     if len(p) and (p[:, 0].max() >= n or p[:, 0].min() < 0):
         p[:, 0] -= start
     return p.tolist()
+
+
+def step_order(datasets: Mapping[str, Dataset]) -> list[Dataset]:
+    """Datasets with every input before its consumers, else in creation order (then by id)."""
+    left = dict(datasets)
+    out: list[Dataset] = []
+    while left:
+        ready = [d for d in left.values()
+                 if not any(v.get("step") in left for v in d.manifest.get("inputs", {}).values())] or list(left.values())
+        first = min(ready, key=lambda d: (d.manifest.get("created", ""), d.step))
+        out.append(first)
+        del left[first.step]
+    return out

@@ -245,7 +245,7 @@ const MocapReport = (() => {
     v.poses.forEach((p) => {
       const cv = h("canvas", { width: 110, height: 150 });
       const fig = h("figure", { class: "pose", on: { click: () => playPose(p).catch(report) } }, cv,
-        h("figcaption", null, `#${p.cluster} ${p.clip} frame ${p.frame}`, h("br"), `${p.n_members} members`));
+        h("figcaption", null, `#${p.cluster} ${p.clip} frame ${p.frame}`, h("br"), `${p.n_members} member${p.n_members === 1 ? "" : "s"}`));
       grid.appendChild(fig);
       if (p.positions) MocapPlayer.drawPose(cv, p.positions, model.bones);
     });
@@ -258,7 +258,7 @@ const MocapReport = (() => {
         caption: (s) => (frames[s] === p.frame ? "the base pose" : "") });
       player.seek(p.frame - a);
     }
-    box.append(grid, stage);
+    box.append(stage, grid);
     return box;
   }
 
