@@ -83,7 +83,7 @@ def _mdm_table(cue=None):
 def test_mdm_grid_without_a_cue_column_falls_back_to_the_threshold():
     g = mdm_grid(_mdm_table(), 1, n_frames=3, threshold=0.5)
     assert g["joints"] == ["lknee", "head"] and g["values"].shape == (3, 2)
-    assert g["values"][0].tolist() == [64, 191] and g["values"][1].tolist() == [159, 0] and g["values"][2].tolist() == [0, 0]
+    np.testing.assert_allclose(g["values"] * g["scale"], [[0.25, 0.75], [0.625, 0.0], [0.0, 0.0]], atol=1e-5)
     assert g["cues"] == [DEFAULT_CUE] and g["cue"][:2].tolist() == [[0, 1], [1, 0]]
     assert g["canonical"][1] == 13 and g["n_flagged"] == 2  # CANONICAL_JOINTS.index("head")
     assert mdm_grid(_mdm_table(), 9, 3, 0.5) is None
@@ -93,6 +93,15 @@ def test_mdm_grid_names_the_cue_that_flagged_each_cell():
     g = mdm_grid(_mdm_table(cue=[None, "mdm", "velocity spike", None, "mdm"]), 1, 2, 0.5)
     assert g["cues"] == ["mdm", "velocity spike"]
     assert g["cue"].tolist() == [[0, 1], [2, 0]]
+    # a flagged cell whose cue is null still shows as flagged, by the threshold
+    g = mdm_grid(_mdm_table(cue=[None, None, "range", None, None]), 1, 2, 0.5)
+    assert g["cues"] == [DEFAULT_CUE, "range"] and g["cue"].tolist() == [[0, 1], [2, 0]]
+
+
+def test_mdm_grid_keeps_values_above_one():
+    t = _mdm_table().set_column(3, "value", pa.array([0.25, 3.5, 0.625, 0.0, 1.0], pa.float32()))
+    g = mdm_grid(t, 1, 2, 0.5)
+    assert abs(g["values"][0, 1] * g["scale"] - 3.5) < 1e-4
 
 
 def test_warping_paths_become_relative_to_the_query():

@@ -50,10 +50,11 @@ def mdm_grid(mdm: pa.Table, clip_id: int, n_frames: int, threshold: float) -> di
     Returns
     -------
     dict or None
-        ``values`` uint8 (T, m) (MDM x 255, rounded), ``cue`` uint8 (T, m) (0 = no cue,
-        ``i`` = ``cues[i - 1]``), ``joints`` (m row names), ``canonical`` (canonical joint
-        index of each row, -1 if none), ``cues`` (names), ``n_flagged``; None if the clip
-        has no MDM rows.
+        ``values`` uint16 (T, m) (the value is ``values * scale``), ``scale``, ``cue`` uint8
+        (T, m) (0 = not flagged, ``i`` = flagged by ``cues[i - 1]``: the ``cue`` column's
+        label, or :data:`DEFAULT_CUE` for a flagged cell without one), ``joints`` (m row
+        names), ``canonical`` (canonical joint index of each row, -1 if none), ``cues``,
+        ``n_flagged`` (cells with a cue); None if the clip has no MDM rows.
     """
     sel = mdm.filter(pc.equal(mdm["clip_id"], clip_id))
     if not sel.num_rows:
@@ -65,23 +66,21 @@ def mdm_grid(mdm: pa.Table, clip_id: int, n_frames: int, threshold: float) -> di
     f = sel["frame"].to_numpy().astype(np.int64)
     ok = (f >= 0) & (f < n_frames)
     v = np.nan_to_num(sel["value"].to_numpy(zero_copy_only=False).astype(np.float64))
-    values = np.zeros((n_frames, len(joints)), np.uint8)
-    values[f[ok], r[ok]] = np.clip(np.rint(v[ok] * 255.0), 0, 255).astype(np.uint8)
+    # uint16 steps of max(1, largest value) / 65535: exact to 2e-5 on an MDM in [0, 1]
+    scale = max(1.0, float(v.max(initial=0.0))) / 65535.0
+    values = np.zeros((n_frames, len(joints)), np.uint16)
+    values[f[ok], r[ok]] = np.clip(np.rint(v[ok] / scale), 0, 65535).astype(np.uint16)
     flagged = (sel["flagged"].to_numpy(zero_copy_only=False).astype(bool) if "flagged" in sel.column_names
                else v > threshold)
-    cue = np.zeros_like(values)
-    if "cue" in sel.column_names:
-        labels = [None if c is None or c is False or c == "" else str(c) for c in sel["cue"].to_pylist()]
-        cues = sorted({c for c in labels if c is not None and c != "True"})
-        if any(c == "True" for c in labels):  # a boolean cue column: flagged by that cue
-            cues = [DEFAULT_CUE] + cues
-        code = {c: i + 1 for i, c in enumerate(cues)}
-        code["True"] = code.get(DEFAULT_CUE, 0)
-        codes = np.array([0 if c is None else code[c] for c in labels], np.uint8)
-    else:
-        cues = [DEFAULT_CUE]
-        codes = flagged.astype(np.uint8)
+    cue = np.zeros(values.shape, np.uint8)
+    # a cell's cue: the cue column's label where it names one, else the threshold if flagged
+    raw = sel["cue"].to_pylist() if "cue" in sel.column_names else [None] * sel.num_rows
+    labels = [str(c) if c not in (None, False, "", "False") else None for c in raw]
+    labels = [DEFAULT_CUE if c == "True" or (c is None and fl) else c for c, fl in zip(labels, flagged)]
+    cues = sorted({c for c in labels if c is not None})
+    code = {c: i + 1 for i, c in enumerate(cues)}
+    codes = np.array([0 if c is None else code[c] for c in labels], np.uint8)
     cue[f[ok], r[ok]] = codes[ok]
     canonical = [CANONICAL_JOINTS.index(n) if n in CANONICAL_JOINTS else -1 for n in joints]
-    return {"values": values, "cue": cue, "joints": joints, "canonical": canonical, "cues": cues,
-            "n_flagged": int(flagged.sum())}
+    return {"values": values, "scale": scale, "cue": cue, "joints": joints, "canonical": canonical, "cues": cues,
+            "n_flagged": int((cue > 0).sum())}

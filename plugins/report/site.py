@@ -59,7 +59,8 @@ def write_data(model: Model, out: Path) -> dict[str, dict[str, Any]]:
         parts, scale = encode_positions(c["positions"])
         name = f"data/{_safe(key)}.js"
         n = write_blob(out / name, key, {"kind": "cleaning", "scale": scale, "n_frames": len(c["positions"]),
-                                         "joints": c["joints"], "canonical": c["canonical"], "cues": c["cues"]},
+                                         "joints": c["joints"], "canonical": c["canonical"], "cues": c["cues"],
+                                         "mdm_scale": c["scale"]},
                        {**parts, "mdm": c["values"], "cue": c["cue"]})
         files[key] = {"file": name, "bytes": n}
     return files

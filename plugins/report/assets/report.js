@@ -184,7 +184,7 @@ const MocapReport = (() => {
       `${c.clip} (${c.n_flagged} flagged, ${c.n_edits} edits)`)));
     async function show(c) {
       const [d, orig] = await Promise.all([R.load(c.data), R.load(c.motion)]);
-      const T = d.meta.n_frames, m = d.meta.joints.length, mdm = d.parts.mdm, cue = d.parts.cue;
+      const T = d.meta.n_frames, m = d.meta.joints.length, mdm = d.parts.mdm, cue = d.parts.cue, ms = d.meta.mdm_scale;
       heat.textContent = "";
       heat.appendChild(h("h3", null, `${c.clip}: movement digression map (${T} frames, ${secs(T, c.fps)})`));
       const cv = h("canvas", { class: "heat-canvas" }), tip = document.getElementById("tooltip");
@@ -193,7 +193,7 @@ const MocapReport = (() => {
       heat.appendChild(cv);
       const ctx = cv.getContext("2d"), img = ctx.createImageData(T, m);
       for (let t = 0; t < T; t++) for (let j = 0; j < m; j++) {
-        const [r, g, b] = JET(mdm[t * m + j] / 255), o = (j * T + t) * 4;
+        const [r, g, b] = JET(Math.min(1, mdm[t * m + j] * ms)), o = (j * T + t) * 4;
         img.data[o] = r; img.data[o + 1] = g; img.data[o + 2] = b; img.data[o + 3] = 255;
       }
       const off = document.createElement("canvas"); off.width = T; off.height = m; off.getContext("2d").putImageData(img, 0, 0);
@@ -214,7 +214,7 @@ const MocapReport = (() => {
       cv.addEventListener("mousemove", (e) => {
         const at = cell(e); if (!at) { tip.hidden = true; return; }
         const [t, j] = at, k = cue[t * m + j];
-        tip.textContent = `joint ${d.meta.joints[j]} \u00B7 frame ${t} (${secs(t, c.fps)}) \u00B7 MDM ${(mdm[t * m + j] / 255).toFixed(3)} \u00B7 ` + (k ? `flagged by: ${d.meta.cues[k - 1]}` : "not flagged");
+        tip.textContent = `joint ${d.meta.joints[j]} \u00B7 frame ${t} (${secs(t, c.fps)}) \u00B7 MDM ${(mdm[t * m + j] * ms).toFixed(3)} \u00B7 ` + (k ? `flagged by: ${d.meta.cues[k - 1]}` : "not flagged");
         tip.hidden = false; tip.style.left = e.pageX + 12 + "px"; tip.style.top = e.pageY + 12 + "px";
       });
       cv.addEventListener("mouseleave", () => { tip.hidden = true; });
