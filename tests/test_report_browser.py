@@ -69,7 +69,26 @@ def test_search_hit_plays_query_and_hit_side_by_side(page, record_property):
     # pausing stops the steps; the scrubber seeks
     page.eval(f"{player}.pause(); {player}.seek(7)")
     assert page.eval(f"{player}.step") == 7 and page.eval(f"{player}.slider.value") == "7"
+    # speed, orbit (drag) and zoom (wheel) change the view
+    page.eval(f"{player}.speedSel.value = '2'; {player}.speedSel.dispatchEvent(new Event('change'))")
+    assert page.eval(f"{player}.speed") == 2
+    yaw, dist = page.eval(f"{player}.yaw"), page.eval(f"{player}.dist")
+    page.eval(f"""(() => {{ const c = {player}.canvas, r = c.getBoundingClientRect(), x = r.x + 100, y = r.y + 100;
+        c.dispatchEvent(new PointerEvent('pointerdown', {{clientX: x, clientY: y, pointerId: 7, bubbles: true}}));
+        c.dispatchEvent(new PointerEvent('pointermove', {{clientX: x + 80, clientY: y + 10, pointerId: 7, bubbles: true}}));
+        c.dispatchEvent(new PointerEvent('pointerup', {{clientX: x + 80, clientY: y + 10, pointerId: 7, bubbles: true}}));
+        c.dispatchEvent(new WheelEvent('wheel', {{deltaY: 300, bubbles: true, cancelable: true}})); }})()""")
+    assert page.eval(f"{player}.yaw") != yaw and page.eval(f"{player}.dist") > dist
     record_property("timings", page.eval("JSON.stringify(MocapReport.timings)"))
+    assert page.errors == []
+
+
+@pytest.mark.parametrize("step", ["nearest", "hits"])
+def test_other_retrievals_play(page, step):
+    n = page.eval("MocapReport.players.length")
+    page.eval(f"document.querySelector('#step-{step} .play-hit').click()")
+    page.wait_for(f"MocapReport.players.length > {n} && MocapReport.players[{n}].playing")
+    assert page.eval(f"MocapReport.players[{n}].tracks.length") == 2
     assert page.errors == []
 
 

@@ -56,12 +56,15 @@ class Model:
         JSON-serialisable (see ``assets/report.js`` for how it is read).
     motions : dict
         ``key -> (T, 25, 3)`` canonical positions in metres, one per played take.
+    fps : dict
+        ``key -> frames per second`` of each of ``motions``.
     cleaning : dict
         ``key -> dict`` of arrays for each cleaned clip (cleaned positions, MDM, cues).
     """
 
     page: dict[str, Any]
     motions: dict[str, np.ndarray] = field(default_factory=dict)
+    fps: dict[str, float] = field(default_factory=dict)
     cleaning: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
@@ -88,12 +91,19 @@ class _Motions:
         self.datasets = datasets
         self._pos: dict[str, dict[int, np.ndarray]] = {}
         self._names: dict[str, dict[int, str]] = {}
+        self._fps: dict[str, dict[int, float]] = {}
 
     def names(self, step: str) -> dict[int, str]:
         if step not in self._names:
-            t = self.datasets[step].table("clips", columns=["clip_id", "name"])
+            t = self.datasets[step].table("clips", columns=["clip_id", "name", "fps"])
             self._names[step] = dict(zip(t["clip_id"].to_pylist(), t["name"].to_pylist()))
+            self._fps[step] = dict(zip(t["clip_id"].to_pylist(), t["fps"].to_pylist()))
         return self._names[step]
+
+    def fps(self, step: str, clip_id: int) -> float:
+        """Frame rate of a clip, frames per second."""
+        self.names(step)
+        return float(self._fps[step].get(int(clip_id)) or 30.0)
 
     def positions(self, step: str, clip_id: int) -> np.ndarray:
         if step not in self._pos:
@@ -138,6 +148,7 @@ class ModelBuilder:
         key = f"m/{step}/{int(clip_id)}"
         if key not in self.model.motions:
             self.model.motions[key] = self.mo.positions(step, clip_id)
+            self.model.fps[key] = self.mo.fps(step, clip_id)
         return key
 
     def build(self, title: str) -> Model:
@@ -229,6 +240,7 @@ class ModelBuilder:
                 queries[qid] = {"id": qid, "name": f"query {qid}", "clip_id": None}
             hits.append({"query_id": qid, "rank": r["rank"], "clip_id": r["clip_id"], "clip": names.get(r["clip_id"], str(r["clip_id"])),
                          "start": r["start_frame"], "end": r["end_frame"], "cost": _scalar(r["cost"]),
+                         "seconds": round((r["end_frame"] - r["start_frame"]) / self.mo.fps(step, r["clip_id"]), 3),
                          "extra": {c: _scalar(r[c]) for c in extra}, "path": _relative_path(path, q),
                          "motion": self.motion_key(step, r["clip_id"])})
         return {"type": "retrieval", "motions": step, "cost_label": "cost", "extra": extra,
@@ -248,6 +260,7 @@ class ModelBuilder:
                                      "start": qf, "end": qf + 1, "motion": self.motion_key(step, qc)})
             hits.append({"query_id": qid, "rank": r.get("rank"), "clip_id": r["clip_id"], "clip": names.get(r["clip_id"]),
                          "start": r["frame"], "end": r["frame"] + 1, "cost": r["distance"], "extra": {}, "path": [[0, 0]],
+                         "seconds": round(1 / self.mo.fps(step, r["clip_id"]), 3),
                          "motion": self.motion_key(step, r["clip_id"])})
         return {"type": "retrieval", "motions": step, "cost_label": "distance", "extra": [], "poses": True,
                 "queries": sorted(queries.values(), key=lambda q: q["id"]), "hits": hits}

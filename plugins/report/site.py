@@ -53,7 +53,8 @@ def write_data(model: Model, out: Path) -> dict[str, dict[str, Any]]:
     for key, pos in model.motions.items():
         parts, scale = encode_positions(pos)
         name = f"data/{_safe(key)}.js"
-        n = write_blob(out / name, key, {"kind": "motion", "scale": scale, "n_frames": len(pos)}, parts)
+        n = write_blob(out / name, key, {"kind": "motion", "scale": scale, "n_frames": len(pos),
+                                         "fps": model.fps.get(key, 30.0)}, parts)
         files[key] = {"file": name, "bytes": n}
     for key, c in model.cleaning.items():
         parts, scale = encode_positions(c["positions"])

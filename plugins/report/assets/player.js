@@ -52,7 +52,10 @@ class MocapPlayer {
   bindCamera() {
     const c = this.canvas;
     let drag = null;
-    c.addEventListener("pointerdown", (e) => { drag = [e.clientX, e.clientY]; c.setPointerCapture(e.pointerId); });
+    c.addEventListener("pointerdown", (e) => {
+      drag = [e.clientX, e.clientY];
+      try { c.setPointerCapture(e.pointerId); } catch (_) { /* synthetic events have no active pointer */ }
+    });
     c.addEventListener("pointermove", (e) => {
       if (!drag) return;
       this.yaw -= (e.clientX - drag[0]) * 0.01;

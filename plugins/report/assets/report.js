@@ -143,7 +143,7 @@ const MocapReport = (() => {
       if (!path || !path.length) { path = []; const n = Math.max(qLen, hitLen); for (let i = 0; i < n; i++) path.push([Math.round(i * (qLen - 1) / Math.max(1, n - 1)), hit.start + Math.round(i * (hitLen - 1) / Math.max(1, n - 1))]); }
       let steps = path.length, hFrames, qFrames;
       if (v.poses) {  // nearest poses: one second around both frames, frame by frame
-        const half = 15, hd = data[0].meta.n_frames, qd = data[1] ? data[1].meta.n_frames : hd;
+        const half = Math.round(data[0].meta.fps / 2), hd = data[0].meta.n_frames, qd = data[1] ? data[1].meta.n_frames : hd;
         steps = 2 * half + 1;
         hFrames = Int32Array.from({ length: steps }, (_, i) => Math.max(0, Math.min(hd - 1, hit.start - half + i)));
         qFrames = Int32Array.from({ length: steps }, (_, i) => Math.max(0, Math.min(qd - 1, q.start - half + i)));
@@ -154,7 +154,7 @@ const MocapReport = (() => {
       const anchor = (d, f, dx) => [dx - d.pos[f * nJ * 3], 0, -d.pos[f * nJ * 3 + 2]];
       const tracks = [{ label: `hit ${hit.rank}: ${hit.clip} [${hit.start}, ${hit.end})`, color: "#c92a2a", pos: data[0].pos, nJ, frames: hFrames, offset: anchor(data[0], hFrames[0], 0.6), highlight: -1 }];
       if (data[1]) tracks.unshift({ label: `query: ${q.name}`, color: "#1c4e80", pos: data[1].pos, nJ, frames: qFrames, offset: anchor(data[1], qFrames[0], -0.6), highlight: -1 });
-      player.setScene({ tracks, steps, fps: 30, caption: (s) => `${v.cost_label} ${fmt(hit.cost)}` + (v.poses ? (s === 15 ? " \u2014 the compared poses" : "") : ` \u2014 path step ${s + 1}: query frame ${qFrames[s]}, hit frame ${hFrames[s]}`) });
+      player.setScene({ tracks, steps, fps: data[0].meta.fps, caption: (s) => `${v.cost_label} ${fmt(hit.cost)}` + (v.poses ? (hFrames[s] === hit.start ? " \u2014 the compared poses" : "") : ` \u2014 path step ${s + 1}: query frame ${qFrames[s]}, hit frame ${hFrames[s]}`) });
       player.play();
     }
     box.appendChild(stage);
@@ -162,7 +162,7 @@ const MocapReport = (() => {
       const hits = v.hits.filter((x) => x.query_id === q.id);
       box.appendChild(h("h3", null, `Query ${q.id}: ${q.name}`, q.clip ? h("span", { class: "note" }, ` \u2014 ${q.clip}, frames [${q.start}, ${q.end})`) : null));
       const t = { columns: ["rank", "clip", "frames", "seconds", v.cost_label].concat(v.extra), n_rows: hits.length,
-        rows: hits.map((x) => [x.rank, x.clip, `[${x.start}, ${x.end})`, ((x.end - x.start) / 30).toFixed(2), x.cost].concat(v.extra.map((c) => x.extra[c]))) };
+        rows: hits.map((x) => [x.rank, x.clip, `[${x.start}, ${x.end})`, x.seconds, x.cost].concat(v.extra.map((c) => x.extra[c]))) };
       box.appendChild(table(t, { extraHead: "play", extra: (i) => h("button", { type: "button", class: "play-hit", on: { click: () => play(hits[i]).catch(report) } }, "\u25B6") }));
     }
     return box;
@@ -252,9 +252,9 @@ const MocapReport = (() => {
     async function playPose(p) {
       const d = await R.load(p.motion);
       if (!player) player = newPlayer(stage);
-      const T = d.meta.n_frames, a = Math.max(0, p.frame - 15), b = Math.min(T, p.frame + 16);
+      const T = d.meta.n_frames, half = Math.round(d.meta.fps / 2), a = Math.max(0, p.frame - half), b = Math.min(T, p.frame + half + 1);
       const frames = Int32Array.from({ length: b - a }, (_, i) => a + i);
-      player.setScene({ steps: b - a, fps: 30, tracks: [{ label: `${p.clip} around frame ${p.frame}`, color: "#1c4e80", pos: d.pos, nJ, frames, offset: [0, 0, 0], highlight: -1 }],
+      player.setScene({ steps: b - a, fps: d.meta.fps, tracks: [{ label: `${p.clip} around frame ${p.frame}`, color: "#1c4e80", pos: d.pos, nJ, frames, offset: [0, 0, 0], highlight: -1 }],
         caption: (s) => (frames[s] === p.frame ? "the base pose" : "") });
       player.seek(p.frame - a);
     }
@@ -274,7 +274,7 @@ const MocapReport = (() => {
       const [a, b] = await Promise.all([R.load(p.motion), R.load(p.source_motion)]);
       if (!player) player = newPlayer(stage);
       const T = Math.min(a.meta.n_frames, b.meta.n_frames), frames = Int32Array.from({ length: T }, (_, i) => i);
-      player.setScene({ steps: T, fps: 30, tracks: [
+      player.setScene({ steps: T, fps: a.meta.fps, tracks: [
         { label: `input ${p.source_clip}`, color: "#c92a2a", pos: b.pos, nJ, frames, offset: [0, 0, 0], highlight: -1, width: 4 },
         { label: `${step.id} ${p.clip}`, color: "#1c7ed6", pos: a.pos, nJ, frames, offset: [0, 0, 0], highlight: -1, width: 2 }],
         caption: (s) => `frame ${s}` });
