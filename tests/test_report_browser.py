@@ -112,3 +112,19 @@ def test_digression_map_hover_and_click_play_around_the_cell(page):
     heat_px = canvas_pixels(page, heat)
     assert len(np.unique(heat_px.reshape(-1, 3) // 32, axis=0)) > 8  # a colour map, not a flat fill
     assert page.errors == []
+
+
+def test_a_take_longer_than_the_map_is_wide_is_shown_by_its_largest_values(page):
+    # 02_04 has 121 frames; a 200 px map has 110 px of plot: bins of one or two frames
+    page.eval("document.querySelector('#step-clean .heatmap').style.width = '150px'")
+    page.eval("[...document.querySelectorAll('#step-clean .pick-clip')].find(b => b.textContent.startsWith('02_04')).click()")
+    page.wait_for("document.querySelector('#step-clean .heatmap h3').textContent.startsWith('02_04')")
+    heat = "document.querySelector('#step-clean .heat-canvas')"
+    assert page.eval(f"{heat}.width") == 200
+    r = page.eval(RECT.replace("+ scrollX", "").replace("+ scrollY", "") % heat)
+    page.eval(f"{heat}.dispatchEvent(new MouseEvent('mousemove', {{clientX: {r['x'] + 0.7 * r['width']}, "
+              f"clientY: {r['y'] + 5}, bubbles: true}}))")
+    tip = page.eval("document.getElementById('tooltip').textContent")
+    assert "largest at" in tip and tip.startswith("joint root")
+    page.eval("document.querySelector('#step-clean .heatmap').style.width = ''")
+    assert page.errors == []

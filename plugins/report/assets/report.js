@@ -188,33 +188,45 @@ const MocapReport = (() => {
       heat.textContent = "";
       heat.appendChild(h("h3", null, `${c.clip}: movement digression map (${T} frames, ${secs(T, c.fps)})`));
       const cv = h("canvas", { class: "heat-canvas" }), tip = document.getElementById("tooltip");
-      const labelW = 90, cellH = 12, W = Math.max(600, Math.min(1400, heat.clientWidth || 1000)), plotW = W - labelW;
+      const labelW = 90, cellH = 12, W = Math.max(200, Math.min(1400, heat.clientWidth || 1000)), plotW = W - labelW;
       cv.width = W; cv.height = m * cellH + 24;
       heat.appendChild(cv);
-      const ctx = cv.getContext("2d"), img = ctx.createImageData(T, m);
-      for (let t = 0; t < T; t++) for (let j = 0; j < m; j++) {
-        const [r, g, b] = JET(Math.min(1, mdm[t * m + j] * ms)), o = (j * T + t) * 4;
-        img.data[o] = r; img.data[o + 1] = g; img.data[o + 2] = b; img.data[o + 3] = 255;
+      // one column per frame, or per bin of frames (its largest value) when the take is longer than the plot is wide
+      const B = Math.min(T, Math.floor(plotW)), lo = (b) => Math.floor((b * T) / B), cw = plotW / B;
+      const ctx = cv.getContext("2d"), img = ctx.createImageData(B, m), peak = new Int32Array(B * m), hit = new Uint8Array(B * m);
+      for (let b = 0; b < B; b++) for (let j = 0; j < m; j++) {
+        let best = lo(b);  // the largest value, a flagged frame first
+        for (let t = lo(b); t < lo(b + 1); t++) {
+          const f = cue[t * m + j] ? 1 : 0, fb = cue[best * m + j] ? 1 : 0;
+          if (f > fb || (f === fb && mdm[t * m + j] > mdm[best * m + j])) best = t;
+          if (f) hit[b * m + j] = 1;
+        }
+        peak[b * m + j] = best;
+        const [r, g, bl] = JET(Math.min(1, mdm[best * m + j] * ms)), o = (j * B + b) * 4;
+        img.data[o] = r; img.data[o + 1] = g; img.data[o + 2] = bl; img.data[o + 3] = 255;
       }
-      const off = document.createElement("canvas"); off.width = T; off.height = m; off.getContext("2d").putImageData(img, 0, 0);
+      const off = document.createElement("canvas"); off.width = B; off.height = m; off.getContext("2d").putImageData(img, 0, 0);
       ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, W, cv.height);
       ctx.imageSmoothingEnabled = false; ctx.drawImage(off, labelW, 0, plotW, m * cellH);
-      const cw = plotW / T;
-      ctx.strokeStyle = "#fff"; ctx.lineWidth = 1;
-      for (let t = 0; t < T; t++) for (let j = 0; j < m; j++) if (cue[t * m + j]) ctx.strokeRect(labelW + t * cw + 0.5, j * cellH + 0.5, Math.max(1, cw - 1), cellH - 1);
+      ctx.strokeStyle = "#fff"; ctx.fillStyle = "#fff"; ctx.lineWidth = 1;
+      for (let b = 0; b < B; b++) for (let j = 0; j < m; j++) if (hit[b * m + j]) {
+        if (cw >= 3) ctx.strokeRect(labelW + b * cw + 0.5, j * cellH + 0.5, cw - 1, cellH - 1);
+        else ctx.fillRect(labelW + b * cw, j * cellH + 1, Math.max(1, cw), 3);  // too narrow to outline: a white tick
+      }
       ctx.fillStyle = "#222"; ctx.font = "10px sans-serif"; ctx.textAlign = "right";
       d.meta.joints.forEach((name, j) => ctx.fillText(name, labelW - 4, j * cellH + 9));
       ctx.textAlign = "center";
-      for (let s = 0; s <= T / c.fps; s += Math.max(0.5, Math.ceil(T / c.fps / 12))) ctx.fillText(s + " s", labelW + s * c.fps * cw, m * cellH + 14);
-      const cell = (e) => {
+      for (let s = 0; s <= T / c.fps; s += Math.max(0.5, Math.ceil(T / c.fps / 12))) ctx.fillText(s + " s", labelW + (s * c.fps * plotW) / T, m * cellH + 14);
+      const cell = (e) => {  // [frame, joint]: in a bin, its frame of largest value
         const r = cv.getBoundingClientRect(), x = (e.clientX - r.left) * (cv.width / r.width) - labelW, y = (e.clientY - r.top) * (cv.height / r.height);
-        const t = Math.floor(x / cw), j = Math.floor(y / cellH);
-        return t >= 0 && t < T && j >= 0 && j < m ? [t, j] : null;
+        const b = Math.floor(x / cw), j = Math.floor(y / cellH);
+        return b >= 0 && b < B && j >= 0 && j < m ? [peak[b * m + j], j, b] : null;
       };
       cv.addEventListener("mousemove", (e) => {
         const at = cell(e); if (!at) { tip.hidden = true; return; }
-        const [t, j] = at, k = cue[t * m + j];
-        tip.textContent = `joint ${d.meta.joints[j]} \u00B7 frame ${t} (${secs(t, c.fps)}) \u00B7 MDM ${(mdm[t * m + j] * ms).toFixed(3)} \u00B7 ` + (k ? `flagged by: ${d.meta.cues[k - 1]}` : "not flagged");
+        const [t, j, b] = at, k = cue[t * m + j];
+        const where = B < T ? `frames ${lo(b)}\u2013${lo(b + 1) - 1}, largest at ${t} (${secs(t, c.fps)})` : `frame ${t} (${secs(t, c.fps)})`;
+        tip.textContent = `joint ${d.meta.joints[j]} \u00B7 ${where} \u00B7 MDM ${(mdm[t * m + j] * ms).toFixed(3)} \u00B7 ` + (k ? `flagged by: ${d.meta.cues[k - 1]}` : "not flagged");
         tip.hidden = false; tip.style.left = e.pageX + 12 + "px"; tip.style.top = e.pageY + 12 + "px";
       });
       cv.addEventListener("mouseleave", () => { tip.hidden = true; });
