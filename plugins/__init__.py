@@ -19,4 +19,5 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "mocapflow.plugins.analyses.summary",
     "mocapflow.plugins.analyses.krueger_apps_plugin",
     "mocapflow.plugins.cleaners.plugin",
+    "mocapflow.plugins.report.plugin",
 )

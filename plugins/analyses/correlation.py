@@ -194,7 +194,7 @@ def plot_heatmap(rows, cols, rho: np.ndarray, path: Path, title: str = "") -> Pa
     ax.set_xlabel("distances by (column)")
     ax.set_ylabel("neighbours by (row)")
     ax.set_title(title, fontsize=9)
-    fig.colorbar(im, ax=ax, fraction=0.03)
+    fig.colorbar(im, ax=ax, fraction=0.03).set_label("mean Spearman \u03c1 (dimensionless)", fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -160,8 +160,14 @@ def clip_transitions(cluster: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarr
     return rows[1:][change], cl[:-1][change], cl[1:][change]
 
 
-def plot_base_poses(positions: np.ndarray, joints: tuple[str, ...], path: Path, title: str = "") -> None:
-    """Stick figures of poses ``(n, J, 3)`` (root frame, metres), side by side, saved as PNG."""
+def plot_base_poses(positions: np.ndarray, joints: tuple[str, ...], path: Path, title: str = "",
+                    labels: list[str] | None = None) -> None:
+    """Stick figures of poses ``(n, J, 3)`` (root frame, metres), side by side, saved as PNG.
+
+    Panels share one scale: x is the lateral offset from the root and y the height relative
+    to the root, both in metres (the figure faces the viewer). ``labels`` (one per pose, e.g. source clip, frame
+    and member count) title the panels; by default they are numbered.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -170,12 +176,13 @@ def plot_base_poses(positions: np.ndarray, joints: tuple[str, ...], path: Path, 
     n = len(positions)
     cols = min(n, 8) or 1
     rows = max(1, -(-n // cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(1.6 * cols, 2.4 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(1.7 * cols + 0.6, 2.6 * rows + 0.7), squeeze=False,
+                             sharex=True, sharey=True)
     j = {name: i for i, name in enumerate(joints)}
     bones = [(j[a], j[b]) for a, b in STICK_BONES if a in j and b in j]
     for i, ax in enumerate(axes.ravel()):
-        ax.set_axis_off()
         if i >= n:
+            ax.set_axis_off()
             continue
         p = positions[i]
         for a, b in bones:
@@ -183,9 +190,13 @@ def plot_base_poses(positions: np.ndarray, joints: tuple[str, ...], path: Path, 
                 # view from the side the character faces (+z towards the viewer): x right, y up
                 ax.plot(p[[a, b], 0], p[[a, b], 1], "-", color="k", lw=1.2)
         ax.set_aspect("equal")
-        ax.set_title(str(i), fontsize=7)
-    if title:
-        fig.suptitle(title, fontsize=9)
+        ax.tick_params(labelsize=6)
+        ax.set_title(labels[i] if labels is not None else str(i), fontsize=6.5)
+    for ax in axes.ravel():
+        ax.label_outer()
+    fig.supxlabel("lateral offset from the root (m); each figure faces the viewer", fontsize=8)
+    fig.supylabel("height relative to the root (m)", fontsize=8)
+    fig.suptitle(title or f"{n} base poses", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -219,7 +230,8 @@ class FatGraph(Analysis):
         offsets = np.append(np.flatnonzero(new_clip), len(clip_id))
         tables = self.tables(res, clip_id, frame, offsets)
         if "motions" in inputs and p.plot_max and len(res.bases):
-            self._plot(inputs["motions"], clip_id, frame, res.bases[: p.plot_max], ctx.out_dir / "base_poses.png")
+            self._plot(inputs["motions"], clip_id, frame, res.bases[: p.plot_max], ctx.out_dir / "base_poses.png",
+                       res.n_members[: p.plot_max])
         summary = {"n_frames": int(len(clip_id)), "n_base_poses": int(len(res.bases)),
                    "n_uncovered": int((res.cluster < 0).sum()), "n_edges": int(tables["edges"].num_rows),
                    "backend": f"indexes.{p.index} + numba greedy"}
@@ -250,16 +262,19 @@ class FatGraph(Analysis):
         return {"data": data, "base_poses": bases, "segments": segments, "transitions": transitions, "edges": edges}
 
     @staticmethod
-    def _plot(motions: Dataset, clip_id: np.ndarray, frame: np.ndarray, bases: np.ndarray, path: Path) -> None:
+    def _plot(motions: Dataset, clip_id: np.ndarray, frame: np.ndarray, bases: np.ndarray, path: Path,
+              n_members: np.ndarray) -> None:
         from mocapflow.framework.joints import CANONICAL_JOINTS
         from mocapflow.framework.normalize import to_root_frame
 
         db = motions.motions()
         where = {int(c): i for i, c in enumerate(db.clip_ids)}
-        poses = []
-        for b in bases:
+        poses, labels = [], []
+        for i, b in enumerate(bases):
             m = db.motions[where[int(clip_id[b])]]
             f = int(frame[b])
             poses.append(m.canonical_positions()[f:f + 1])
+            labels.append(f"#{i} {m.name} frame {f}\n{int(n_members[i])} member{'s' if n_members[i] != 1 else ''}")
         pos = to_root_frame(np.concatenate(poses, 0), CANONICAL_JOINTS)
-        plot_base_poses(pos, CANONICAL_JOINTS, path, title=f"{len(bases)} base poses")
+        plot_base_poses(pos, CANONICAL_JOINTS, path, labels=labels,
+                        title=f"{len(bases)} base poses (of {len(clip_id)} frames): source clip, frame, frames covered")

@@ -34,12 +34,15 @@ class SearchSpace:
         A built :class:`~mocapflow.framework.Index` over the rows (LNG).
     features : ndarray of float32, shape (n, d), or None
         The indexed vectors (subsequence DTW, plots).
+    clip_names : dict of int to str, or None
+        Clip names by clip id (plots label clips by name).
     """
 
     clip_id: np.ndarray
     frame: np.ndarray
     index: object | None = None
     features: np.ndarray | None = None
+    clip_names: dict | None = None
 
     def __post_init__(self) -> None:
         cid = np.asarray(self.clip_id, np.int32)

@@ -1,9 +1,11 @@
 """Fig. 3-style pictures of a lazy neighborhood graph (Krüger et al. 2010).
 
 The distance matrix between a query and one stretch of a database clip, of which only
-the cells found by the kNN search are known (grey, darker = more similar); all other cells
-were never computed (blue). Warping paths of the matches in that stretch are drawn in
-red, the plotted match thicker. Needs matplotlib (the ``plots`` extra), imported lazily.
+the cells of the graph (the kNN search's cells) are known (grey, darker = more similar,
+with a colour bar in feature units); all other cells were never computed (blue). Warping
+paths of the matches in that stretch are drawn in red, the plotted match thick and solid,
+the others thin and dashed, each labelled with its rank; a legend names every mark and
+the database clip is named, not numbered. Needs matplotlib, imported lazily.
 """
 from __future__ import annotations
 
@@ -51,6 +53,7 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
+        from matplotlib.patches import Patch
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise ConfigError("plots need matplotlib (a mocapflow dependency): pip install matplotlib") from exc
     if not 0 <= match < len(matches):
@@ -62,20 +65,37 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
     same = np.flatnonzero(space.clip_id == clip)
     lo, hi = max(int(same[0]), s - pad), min(int(same[-1]) + 1, e + 1 + pad)
     img = local_distance_window(graph, lo, hi)
-    fig, ax = plt.subplots(figsize=(6, 6 * min(1.5, max(0.5, (hi - lo) / max(m, 1)))), dpi=100)
-    ax.set_facecolor("#2f4b9a")  # cells never computed
+    fig, ax = plt.subplots(figsize=(7, 1.6 + 6 * min(1.5, max(0.5, (hi - lo) / max(m, 1)))), dpi=100)
+    never = "#2f4b9a"  # cells never computed
+    ax.set_facecolor(never)
     finite = img[np.isfinite(img)]
     vmax = float(finite.max()) if finite.size else 1.0
     f0 = int(space.frame[lo]) - lo  # row -> frame within the clip (rows of one clip are contiguous)
-    ax.imshow(np.ma.masked_invalid(img.T), origin="lower", cmap="gray", vmin=0.0, vmax=vmax or 1.0, aspect="auto",
-              interpolation="nearest", extent=(-0.5, m - 0.5, lo + f0 - 0.5, hi + f0 - 0.5))
+    im = ax.imshow(np.ma.masked_invalid(img.T), origin="lower", cmap="gray", vmin=0.0, vmax=vmax or 1.0, aspect="auto",
+                   interpolation="nearest", extent=(-0.5, m - 0.5, lo + f0 - 0.5, hi + f0 - 0.5))
+    handles = [Patch(facecolor=never, edgecolor="none",
+                     label=f"not among the k = {graph.ids.shape[1]} nearest neighbours of the query frame (never computed)")]
     for r, p in enumerate(matches.paths):
         if lo <= p[:, 1].min() and p[:, 1].max() < hi:
-            ax.plot(p[:, 0], p[:, 1] + f0, color="red", lw=2.5 if r == match else 1.0)
+            mine = r == match
+            (line,) = ax.plot(p[:, 0], p[:, 1] + f0, color="red" if mine else "#ff8c69", lw=2.5 if mine else 1.2,
+                              ls="-" if mine else "--", label=f"{'this' if mine else 'another'} match: rank {r + 1}, "
+                                                             f"cost {matches.cost[r]:.3g}")
+            handles.append(line)
+            if not mine:
+                mid = p[len(p) // 2]
+                ax.annotate(f"#{r + 1}", (mid[0], mid[1] + f0), color="#ff8c69", fontsize=8, xytext=(-14, 4),
+                            textcoords="offset points")
     ax.set_ylim(lo + f0 - 0.5, hi + f0 - 0.5)
-    ax.set_xlabel("query frame")
-    ax.set_ylabel(f"database frame (clip {int(clip)})")
+    names = getattr(space, "clip_names", None) or {}
+    clip_label = names.get(int(clip), f"clip id {int(clip)}")
+    ax.set_xlabel("query frame (from the query's first frame)")
+    ax.set_ylabel(f"frame of database clip {clip_label}")
     ax.set_title(title or f"match {match + 1}: cost {matches.cost[match]:.3g}", fontsize=9)
+    cb = fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02)
+    cb.set_label("local distance of a graph cell, darker = more similar\n(feature units: metres for end-effector features)",
+                 fontsize=8)
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.09), fontsize=7, frameon=False)
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -251,7 +251,10 @@ class GlobalMatcher(Matcher):
             if not (np.array_equal(fm.clip_id, clip_id) and np.array_equal(fm.frame, frame)):
                 raise DataError(f"{self.key()}: rows of features {fds.step!r} differ from those of {db.step!r}")
             x = fm.x
-        return SearchSpace(clip_id, frame, index, x)
+        mds = upstream(self.features_dataset(inputs) or db, "motions")
+        names = None if mds is None or not mds.has_table("clips") else dict(
+            zip(*(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name"))))
+        return SearchSpace(clip_id, frame, index, x, clip_names=names)
 
     def queries(self, inputs: Mapping[str, Dataset], ctx) -> list[Query]:
         """Query features from the ``query`` input and the ``queries`` parameter."""

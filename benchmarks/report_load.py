@@ -1,0 +1,138 @@
+"""Page weight and load time of ``mocapflow report`` in headless Chromium (issue 17).
+
+Claim: the player's data for a 10-minute take at 30 fps (18 000 frames, 25 joints) loads in
+under a second from ``file://``. A workspace is built around one such take (a bundled CMU
+walk repeated end to end, written as BVH, ingested, F_E^15 kd-tree, one LNG search whose
+hits lie in the long take), its report written, and Chromium opens it ``--rounds`` times:
+
+* page: navigation to the load event of index.html;
+* take: clicking a hit -> the long take's data script loaded and decoded (``MocapReport.timings``);
+* first frame: clicking a hit -> the player's first frame drawn;
+* baseline, same page: the same positions as a JSON array in a script (what a plain JSON
+  export would cost the page), parsed; the ratio is baseline / compact binary.
+
+    python benchmarks/report_load.py            # 10-minute take, 5 rounds
+    python benchmarks/report_load.py --quick    # 2-minute take, 2 rounds
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+
+PIPELINE = """
+name: report-load
+workspace: {ws}
+steps:
+  motions: {{uses: formats.load, with: {{paths: ["{take}"], fps: 30}}}}
+  fe15: {{uses: features.end_effectors, input: motions, with: {{joints: 5}}}}
+  tree: {{uses: indexes.kdtree, input: fe15}}
+  search:
+    uses: matchers.lng
+    inputs: {{database: tree, query: motions}}
+    with: {{queries: ["long_take:1s-2s"], count: 3}}
+"""
+
+
+def long_take(minutes: float, path: Path) -> int:
+    """Write a BVH of a CMU walk repeated for ``minutes`` at 30 fps; returns its frames."""
+    from mocapflow.framework.normalize import resample
+    from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.formats.bvh import write_bvh
+
+    walk = resample(read_amc(str(REPO / "examples" / "data" / "cmu" / "16" / "16_15.amc")), 30.0)
+    n = int(round(minutes * 60 * 30))
+    reps = -(-n // walk.n_frames)
+    step = walk.root_translation[-1] - walk.root_translation[0]
+    step[1] = 0.0
+    root = np.concatenate([walk.root_translation + i * step for i in range(reps)])[:n]
+    rot = np.concatenate([walk.rotations] * reps)[:n]
+    write_bvh(walk.with_arrays(root_translation=root, rotations=rot, name="long_take"), path)
+    return n
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="2-minute take, 2 rounds")
+    ap.add_argument("--minutes", type=float, default=None)
+    ap.add_argument("--rounds", type=int, default=None)
+    args = ap.parse_args()
+    minutes = args.minutes or (2.0 if args.quick else 10.0)
+    rounds = args.rounds or (2 if args.quick else 5)
+
+    from mocapflow.framework import get_plugin_manager
+    from mocapflow.framework.runner import run_pipeline
+    from mocapflow.plugins.report.browser import Browser, find_chromium
+    from mocapflow.plugins.report.plugin import build_report
+
+    if find_chromium() is None:
+        raise SystemExit("no Chromium installed (apt-get install chromium)")
+    tmp = Path(tempfile.mkdtemp(prefix="report-load-"))
+    take = tmp / "long_take.bvh"
+    n = long_take(minutes, take)
+    yaml = tmp / "p.yaml"
+    yaml.write_text(PIPELINE.format(ws=tmp / "ws", take=take))
+    t0 = time.perf_counter()
+    run_pipeline(yaml, workspace=tmp / "ws", pm=get_plugin_manager(entry_points=False))
+    t_run = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    info = build_report(tmp / "ws", tmp / "site")
+    t_report = time.perf_counter() - t0
+    site = tmp / "site"
+    model = json.loads((site / "index.html").read_text().split('id="model">', 1)[1].split("</script>", 1)[0])
+    key = next(k for k in model["data_files"] if k.startswith("m/"))
+    take_bytes = model["data_files"][key]["bytes"]
+    # the baseline: the same positions as a JSON array (4 decimals, i.e. 0.1 mm)
+    from mocapflow.plugins.report.blobs import decode_positions, read_blob
+
+    _, meta, parts = read_blob(site / model["data_files"][key]["file"])
+    pos = decode_positions(parts["root"], parts["rel"], meta["scale"])
+    flat = [None if not np.isfinite(v) else round(float(v), 4) for v in pos.reshape(-1)]
+    (site / "data" / "baseline.js").write_text("window.__baseline = " + json.dumps(flat, separators=(",", ":")) + ";\n")
+    base_bytes = (site / "data" / "baseline.js").stat().st_size
+
+    click = """(async () => {
+      const t0 = performance.now();
+      document.querySelector('#step-search .play-hit').click();
+      while (!(MocapReport.players.length && MocapReport.players[0].frameCount > 0)) await new Promise(r => setTimeout(r, 2));
+      return performance.now() - t0; })()"""
+    baseline = """(async () => {
+      const t0 = performance.now(), s = document.createElement('script');
+      await new Promise((ok, bad) => { s.onload = ok; s.onerror = bad; s.src = 'data/baseline.js'; document.head.appendChild(s); });
+      const a = Float32Array.from(window.__baseline, v => v === null ? NaN : v);
+      return [performance.now() - t0, a.length]; })()"""
+    page_s, take_ms, first_ms, base_ms = [], [], [], []
+    with Browser() as b:
+        for _ in range(rounds):
+            page_s.append(b.open((site / "index.html").as_uri()))
+            b.wait_for("window.MocapReport !== undefined && MocapReport.ready === true")
+            first_ms.append(b.eval(click))
+            take_ms.append(b.eval(f"MocapReport.timings[{json.dumps(key)}].ms"))
+            ms, count = b.eval(baseline)
+            assert count == pos.size
+            base_ms.append(ms)
+        errors = list(b.errors)
+    med = statistics.median
+    kib = lambda x: f"{x / 1024:.0f} KiB"  # noqa: E731
+    print(f"take: {n} frames ({n / 30 / 60:.1f} min at 30 fps), 25 joints; pipeline {t_run:.1f} s, report written in {t_report:.2f} s")
+    print(f"page weight: {kib(info['bytes'])} in {info['files']} files; index.html {kib((site / 'index.html').stat().st_size)}, "
+          f"scripts+css {kib(sum((site / f).stat().st_size for f in ('report.js', 'player.js', 'report.css')))}, "
+          f"the take's data script {kib(take_bytes)} (JSON baseline {kib(base_bytes)}, {base_bytes / take_bytes:.1f}x)")
+    print(f"page load (navigation -> load event), median of {rounds}: {med(page_s) * 1000:.0f} ms")
+    print(f"take load (script -> decoded positions), median of {rounds}: {med(take_ms):.0f} ms "
+          f"(min {min(take_ms):.0f}, max {max(take_ms):.0f})")
+    print(f"click -> first frame drawn, median of {rounds}: {med(first_ms):.0f} ms")
+    print(f"JSON baseline (script -> Float32Array), median of {rounds}: {med(base_ms):.0f} ms; "
+          f"baseline / compact = {med(base_ms) / med(take_ms):.1f}x")
+    print(f"console errors: {errors or 'none'}")
+
+
+if __name__ == "__main__":
+    main()
