@@ -100,7 +100,7 @@ class DaskExecutor:
             with dask.config.set(cfg):
                 self._cluster = distributed.LocalCluster(
                     n_workers=self.jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
-                    dashboard_address=None, silence_logs=40,
+                    dashboard_address="127.0.0.1:0", silence_logs=40,
                     # every worker gets its share of the cores for numba/BLAS (set before their imports)
                     env={var: str(self.threads or threads_per_worker(self.jobs)) for var in
                          ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")})
