@@ -218,17 +218,18 @@ class FeatureSet(Component):
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from .datasets import StepOutput, feature_table
 
-        db = inputs["motions"].motions()
+        motions = inputs["motions"]
         if self.requires_fit:
             ref = inputs["reference"] if "reference" in inputs else None
             if ref is not None and ref.producer_kind == "features":
                 self.load_state(ref.path)  # reuse a model fitted by another step
             else:
-                self.fit(ref.motions() if ref is not None else db)
+                self.fit((ref if ref is not None else motions).motions())
             self.save_state(ctx.out_dir)
-        parts = ctx.map(self.transform_motion, db.motions, desc=f"{self.key()}")
+        # clips go out by reference: each worker reads its own from the Parquet file
+        parts = ctx.map_clips(self.transform_motion, motions, desc=f"{self.key()}")
         x = np.concatenate([np.asarray(p, np.float32) for p in parts], 0) if parts else np.zeros((0, self.dim), np.float32)
-        clip_id, frame = db.frame_ids
+        clip_id, frame = motions.frame_ids()
         return StepOutput({"data": feature_table(clip_id, frame, x)})
 
 

@@ -44,6 +44,13 @@ class StepContext:
         """``[fn(x) for x in items]`` on the executor, in order, with a progress bar."""
         return self.executor.map(fn, items, desc=desc or self.step_id)
 
+    def map_clips(self, fn: Callable[..., Any], motions: Any, desc: str = "", with_ids: bool = False) -> list[Any]:
+        """``[fn(motion) for motion in motions]`` (a motions :class:`Dataset`) on the executor,
+        in clip order; workers read the clips from the Parquet file (:func:`.executors.map_clips`)."""
+        from .executors import map_clips
+
+        return map_clips(self.executor, fn, motions, desc=desc or self.step_id, with_ids=with_ids)
+
     def progress(self, items: Iterable[Any], total: int | None = None, desc: str = "") -> Iterable[Any]:
         """Wrap a loop that runs in this process with a progress bar."""
         return progress(items, total=total, desc=desc or self.step_id)

@@ -1,55 +1,344 @@
-"""Executors: how a step fans out per-item work (per clip, per query).
+"""Executors: how a step fans out per-item work (per clip, per query, per shard).
 
-An executor is anything with ``map(fn, items, desc) -> list`` and ``close()``. The runner
-never looks inside: ``local`` runs in-process or on a process pool; a cluster executor
-(e.g. ``dask.distributed``) implements the same two methods and is registered through the
+An executor is anything with ``map(fn, items, desc) -> list`` (results in input order),
+``close()`` and ``workers`` (how many items it runs at once). The runner never looks
+inside: ``local`` runs in-process or on a process pool; a cluster executor (``dask``,
+:mod:`mocapflow.plugins.dask_executor`) implements the same and is registered through the
 ``register_executors`` hook (or passed to :func:`~mocapflow.framework.runner.run_pipeline`).
-``fn`` must be picklable (a module-level function or a bound method of a picklable
-component) when work leaves the process.
+``fn`` and the items must be picklable when work leaves the process.
+
+Work goes out *by reference*: :func:`map_clips` sends :class:`ClipSlice` items (a motions
+dataset's path, fingerprint and a clip range), and each worker reads those clips from the
+workspace's Parquet file itself (only the row groups it needs, cached per process), so
+no whole motion is pickled to a worker. Results come back to the step, and the runner
+writes them atomically as always: a worker never writes a table of the dataset.
+
+Why ``--jobs 2`` used to be slower than ``--jobs 1`` (measured, docs/scale-out.md): the
+steps pickled every motion to the pool, every worker ran numba's and OpenBLAS's thread
+pools at full width (2 workers x 2 threads on 2 cores), and a pool forked after the parent
+had run a parallel numba kernel died at once (GNU OpenMP is not fork-safe). Workers now
+get ``cores // workers`` threads each (:func:`limit_threads`, before their first kernel)
+and the pool forks only while that is safe, from a forkserver otherwise.
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
+import sys
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from typing import Any, Protocol
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol
 
+import numpy as np
+
+from .errors import PipelineError
 from .progress import progress
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .database import MotionDatabase
+    from .datasets import Dataset
+
+#: Environment variables that size the thread pools of OpenMP, OpenBLAS, MKL, numba, numexpr.
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
+              "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+#: Columns of a motions dataset's ``data`` table that rebuild its motions (positions are derived).
+MOTION_COLUMNS = ("clip_id", "root_translation", "rotations")
+#: Modules a forkserver imports once, so that its workers start warm.
+PRELOAD = ("numpy", "pyarrow.parquet", "numba", "mocapflow.framework", "mocapflow.plugins")
 
 
 class Executor(Protocol):
     name: str
+    workers: int
 
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any], desc: str = "") -> list[Any]: ...
 
     def close(self) -> None: ...
 
 
-class LocalExecutor:
-    """In-process for ``jobs == 1``, else a lazily started process pool of ``jobs`` workers.
+def available_cores() -> int:
+    """Cores this process may run on (the affinity mask where the OS has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
-    Results come back in input order. Small batches stay in-process (a pool costs more
-    than it saves for a handful of items).
+
+def threads_per_worker(workers: int, cores: int | None = None) -> int:
+    """Compute threads per worker so that ``workers x threads <= cores`` (at least 1)."""
+    return max(1, (cores or available_cores()) // max(1, workers))
+
+
+def limit_threads(n: int) -> int:
+    """Size every numeric thread pool of this process to ``n`` threads; returns ``n``.
+
+    Sets the environment (for libraries loaded later), limits already loaded BLAS/OpenMP
+    pools with threadpoolctl and numba's pool (its width if not yet launched, else the
+    threads it uses). Called in each worker before its first task.
+    """
+    n = max(1, int(n))
+    for var in THREAD_ENV:
+        os.environ[var] = str(n)
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - a dependency; env vars still cover later loads
+        pass
+    else:
+        threadpool_limits(n)
+    if "numba" in sys.modules:
+        import numba
+        from numba.np.ufunc import parallel
+
+        if not parallel._is_initialized:
+            numba.config.reload_config()  # the pool is created n wide at its first use
+        else:
+            numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    return n
+
+
+def _fork_is_safe() -> bool:
+    """Fork copies a GNU OpenMP runtime that numba launched, and the child aborts
+    ("fork() called from a process already using GNU OpenMP"); fork only before that."""
+    if sys.platform != "linux" or "fork" not in multiprocessing.get_all_start_methods():
+        return False
+    parallel = sys.modules.get("numba.np.ufunc.parallel")
+    return parallel is None or not parallel._is_initialized
+
+
+def _init_worker(threads: int) -> None:
+    limit_threads(threads)
+
+
+class LocalExecutor:
+    """In-process for ``jobs == 1``, else a process pool of ``jobs`` workers, kept for the run.
+
+    Parameters
+    ----------
+    jobs : int
+        Worker processes (0: one per core).
+    min_items_for_pool : int
+        Smaller batches run in-process (a pool costs more than it saves on a handful).
+    threads : int, optional
+        Numeric threads per worker (default ``cores // jobs``, at least 1).
+    start_method : {"fork", "forkserver", "spawn"}, optional
+        Default: fork while it is safe (see :func:`_fork_is_safe`), else a forkserver that
+        preloads :data:`PRELOAD`.
+
+    Results come back in input order. A worker that dies (killed, out of memory) fails the
+    step with a :class:`~mocapflow.framework.errors.PipelineError`; the runner discards
+    its temporary output, so no half-written dataset remains.
     """
 
     name = "local"
 
-    def __init__(self, jobs: int = 1, min_items_for_pool: int = 4) -> None:
-        self.jobs = max(1, int(jobs)) if jobs and jobs > 0 else (os.cpu_count() or 1)
+    def __init__(self, jobs: int = 1, min_items_for_pool: int = 4, threads: int | None = None,
+                 start_method: str | None = None) -> None:
+        self.jobs = max(1, int(jobs)) if jobs and jobs > 0 else available_cores()
         self.min_items_for_pool = min_items_for_pool
+        self.threads = threads or threads_per_worker(self.jobs)
+        self.start_method = start_method
         self._pool: ProcessPoolExecutor | None = None
+
+    @property
+    def workers(self) -> int:
+        return self.jobs
+
+    def _ensure_pool(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            method = self.start_method or ("fork" if _fork_is_safe() else "forkserver")
+            mp = multiprocessing.get_context(method)
+            if method == "forkserver":
+                mp.set_forkserver_preload(list(PRELOAD))
+            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=mp,
+                                             initializer=_init_worker, initargs=(self.threads,))
+        return self._pool
 
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any], desc: str = "") -> list[Any]:
         items = list(items)
         if self.jobs == 1 or len(items) < self.min_items_for_pool:
-            return [fn(x) for x in progress(items, total=len(items), desc=desc)]
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs)
+            try:
+                return [fn(x) for x in progress(items, total=len(items), desc=desc)]
+            finally:
+                clear_cache()  # the parent keeps no dataset between steps
+        pool = self._ensure_pool()
         chunk = max(1, len(items) // (self.jobs * 4))
-        return list(progress(self._pool.map(fn, items, chunksize=chunk), total=len(items), desc=desc))
+        try:
+            return list(progress(pool.map(fn, items, chunksize=chunk), total=len(items), desc=desc))
+        except BrokenProcessPool:
+            self.close()
+            raise PipelineError(f"a worker process of the local executor died during {desc or 'a step'!r} "
+                                "(killed, out of memory or crashed); the step's output was discarded") from None
 
     def close(self) -> None:
         if self._pool is not None:
-            self._pool.shutdown()
+            self._pool.shutdown(cancel_futures=True)
             self._pool = None
 
+
+# --- work by reference: clips read by the workers themselves ---------------------------------
+
+_CACHE: OrderedDict[tuple, Any] = OrderedDict()
+_CACHE_ENTRIES = 64
+
+
+def cached(key: tuple, load: Callable[[], Any], entries: int = _CACHE_ENTRIES) -> Any:
+    """``load()`` once per process for ``key`` (least recently used entries are dropped).
+
+    Workers keep what every task of a step needs (a dataset's small tables, decoded row
+    groups, a loaded index shard) instead of reading it once per task.
+    """
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    value = load()
+    _CACHE[key] = value
+    while len(_CACHE) > entries:
+        _CACHE.popitem(last=False)
+    return value
+
+
+def clear_cache() -> None:
+    """Forget everything :func:`cached` holds in this process."""
+    _CACHE.clear()
+
+
+@dataclass(frozen=True)
+class DatasetRef:
+    """A finished dataset by path and fingerprint: what a task carries instead of its data."""
+
+    path: str
+    fingerprint: str
+
+    @classmethod
+    def of(cls, dataset: Dataset) -> DatasetRef:
+        return cls(str(dataset.path), dataset.fingerprint)
+
+    def dataset(self) -> Dataset:
+        from .datasets import Dataset
+
+        return Dataset(self.path)
+
+    def motions(self) -> MotionDatabase:
+        """The whole motions dataset, read once per process."""
+        from .motion_tables import database_from_tables
+
+        def load():
+            ds = self.dataset()
+            return database_from_tables(ds.table("clips"), ds.table("skeletons"), ds.table("data", columns=list(MOTION_COLUMNS)))
+
+        return cached(("motions", self.path, self.fingerprint), load)
+
+
+@dataclass(frozen=True)
+class ClipSlice:
+    """Clips ``[start, stop)`` (positions in the ``clips`` table; ``stop=-1``: to the end)
+    of a motions dataset on disk."""
+
+    path: str
+    fingerprint: str
+    start: int
+    stop: int
+
+    def _meta(self):
+        import pyarrow.parquet as pq
+
+        from .datasets import Dataset
+
+        def load():
+            ds = Dataset(self.path)
+            clips, skeletons = ds.table("clips"), ds.table("skeletons")
+            rows = np.concatenate([[0], np.cumsum(clips["n_frames"].to_numpy().astype(np.int64))])
+            md = pq.ParquetFile(ds.path / "data.parquet").metadata
+            groups = np.concatenate([[0], np.cumsum([md.row_group(i).num_rows for i in range(md.num_row_groups)])])
+            return clips, skeletons, rows, groups.astype(np.int64)
+
+        return cached(("clip-meta", self.path, self.fingerprint), load)
+
+    def motions(self) -> MotionDatabase:
+        """The slice's clips as a :class:`MotionDatabase`, reading only the Parquet row
+        groups that hold them (each decoded once per process)."""
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        from .motion_tables import database_from_tables
+
+        clips, skeletons, rows, groups = self._meta()
+        stop = clips.num_rows if self.stop < 0 else self.stop
+        r0, r1 = int(rows[self.start]), int(rows[stop])
+        g0 = int(np.searchsorted(groups, r0, side="right") - 1)
+        g1 = int(np.searchsorted(groups, r1, side="left"))
+        g0 = max(g0, 0)
+        opened: list[pq.ParquetFile] = []
+
+        def read(g: int):
+            if not opened:
+                opened.append(pq.ParquetFile(f"{self.path}/data.parquet", memory_map=True))
+            return opened[0].read_row_group(g, columns=list(MOTION_COLUMNS))
+
+        parts = [cached(("row-group", self.path, self.fingerprint, g), lambda g=g: read(g)) for g in range(g0, g1)]
+        frames = pa.concat_tables(parts).slice(r0 - int(groups[g0]), r1 - r0) if parts else None
+        if frames is None:
+            return database_from_tables(clips.slice(0, 0), skeletons, _empty_frames())
+        return database_from_tables(clips.slice(self.start, stop - self.start), skeletons, frames)
+
+
+def _empty_frames():
+    from . import schema
+
+    return schema.motion_frames().empty_table()
+
+
+def clip_slices(dataset: Dataset, n_slices: int) -> list[ClipSlice]:
+    """Contiguous clip ranges of a motions dataset with about equal frame counts.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        A motions dataset (``clips`` table with ``n_frames``).
+    n_slices : int
+        Wanted number of slices (fewer when there are fewer clips).
+    """
+    frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy().astype(np.int64)
+    n = len(frames)
+    if n == 0:
+        return []
+    k = max(1, min(int(n_slices), n))
+    cum = np.concatenate([[0], np.cumsum(frames)])
+    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, k) / k, side="left")
+    bounds = np.unique(np.clip(np.concatenate([[0], cuts, [n]]), 0, n))
+    ref = DatasetRef.of(dataset)
+    return [ClipSlice(ref.path, ref.fingerprint, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+@dataclass(frozen=True)
+class _SliceTask:
+    """``[fn(motion) ...]`` (or ``fn(motion, clip_id)``) over the clips of one slice."""
+
+    fn: Callable[..., Any]
+    with_ids: bool = False
+
+    def __call__(self, piece: ClipSlice) -> list[Any]:
+        db = piece.motions()
+        if self.with_ids:
+            return [self.fn(m, int(c)) for m, c in zip(db.motions, db.clip_ids)]
+        return [self.fn(m) for m in db.motions]
+
+
+def map_clips(executor: Executor, fn: Callable[..., Any], dataset: Dataset, desc: str = "",
+              with_ids: bool = False, slices_per_worker: int = 4) -> list[Any]:
+    """``[fn(motion) for motion in dataset]`` on ``executor``, in clip order.
+
+    Items are :class:`ClipSlice` references (``slices_per_worker`` per worker, balanced by
+    frames; one slice when the executor has a single worker), so workers read their clips
+    from the Parquet file instead of receiving pickled motions. ``fn`` must be picklable
+    (a module-level function, a bound method of a component, a ``functools.partial``);
+    with ``with_ids`` it is called as ``fn(motion, clip_id)``.
+    """
+    workers = max(1, int(getattr(executor, "workers", 1)))
+    n = 1 if workers == 1 else workers * slices_per_worker
+    pieces = clip_slices(dataset, n)
+    out = executor.map(_SliceTask(fn, with_ids), pieces, desc=desc)
+    return [r for part in out for r in part]

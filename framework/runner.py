@@ -34,6 +34,9 @@ log = logging.getLogger("mocapflow")
 #: Inside the runner's own folder (``<workspace>/.mocapflow/``).
 TMP_DIR = "tmp"
 TRASH_DIR = "trash"
+#: Rows per Parquet row group: a worker reading a clip range decodes only the groups that
+#: hold it (:class:`~mocapflow.framework.executors.ClipSlice`), not the whole table
+ROW_GROUP_ROWS = 65536
 
 
 @dataclass
@@ -62,7 +65,7 @@ def _write_table(table: pa.Table, path: Path, provenance: dict[str, Any]) -> Non
     flat = [f.name for f in table.schema if not pa.types.is_nested(f.type)]
     strings = [f.name for f in table.schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
     pq.write_table(table.replace_schema_metadata(meta), path, compression="zstd",
-                   use_dictionary=strings or False, write_statistics=flat or False)
+                   use_dictionary=strings or False, write_statistics=flat or False, row_group_size=ROW_GROUP_ROWS)
 
 
 class Runner:

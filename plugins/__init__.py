@@ -11,6 +11,7 @@ BUILTIN_PLUGINS: tuple[str, ...] = (
     "mocapflow.plugins.formats",
     "mocapflow.plugins.features.relational_plugin",
     "mocapflow.plugins.indexes.kdtree",
+    "mocapflow.plugins.indexes.sharded",
     "mocapflow.plugins.features.krueger",
     "mocapflow.plugins.analyses.correlation",
     "mocapflow.plugins.analyses.knn_query",

@@ -1,4 +1,6 @@
-"""Built-in executors (``executor: local``), registered through ``register_executors``."""
+"""Built-in executors, registered through ``register_executors``: ``executor: local`` (in-process
+or a process pool) and ``executor: dask`` (a dask.distributed cluster; the optional extra
+``mocapflow[dask]``, imported only when a pipeline uses it)."""
 from __future__ import annotations
 
 from mocapflow.framework.executors import LocalExecutor
@@ -7,4 +9,6 @@ from mocapflow.framework.plugins import hookimpl
 
 @hookimpl
 def register_executors() -> list[type]:
-    return [LocalExecutor]
+    from .dask_executor import DaskExecutor
+
+    return [LocalExecutor, DaskExecutor]

@@ -129,6 +129,14 @@ def clean_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: P
     }
 
 
+def _clean_task(cleaner: Any, context: Any, out_dir: Path, motion: Any, clip_id: int) -> dict[str, Any]:
+    """One clip of :func:`run_cleaner` (module-level: executors pickle it); the context
+    motions are read once per worker process."""
+    out = clean_clip(cleaner, motion, context.motions() if context is not None else None, clip_id, out_dir)
+    out.pop("cleaned")  # the BVH is written; the motion itself need not travel back
+    return out
+
+
 def run_cleaner(cleaner: Any, inputs: Mapping[str, Any], ctx: Any) -> Any:
     """``cleaners.mdm`` as a pipeline step: every clip of ``motions`` against itself plus the
     optional ``context`` dataset. Tables ``data`` (MDM), ``edits``; files per clip. The
@@ -136,12 +144,14 @@ def run_cleaner(cleaner: Any, inputs: Mapping[str, Any], ctx: Any) -> Any:
     identical provenance."""
     from mocapflow.framework.datasets import StepOutput
 
-    db = inputs["motions"].motions()
-    context = inputs["context"].motions() if inputs.get("context") is not None else None
+    from functools import partial
+
+    from mocapflow.framework.executors import DatasetRef
+
+    # clips and context go to the workers by reference (each reads them from the workspace)
+    context = DatasetRef.of(inputs["context"]) if inputs.get("context") is not None else None
     mdms, edits, summary = [], [], []
-    for i, motion in enumerate(ctx.progress(db.motions, total=db.n_clips, desc=ctx.step_id)):
-        out = clean_clip(cleaner, motion, context, int(db.clip_ids[i]), ctx.out_dir)
-        ctx.log.info(f"{ctx.step_id}: {motion.name} in {out['seconds']:.2f} s")
+    for out in ctx.map_clips(partial(_clean_task, cleaner, context, ctx.out_dir), inputs["motions"], with_ids=True):
         mdms.append(out["mdm"])
         edits.append(out["edits"])
         summary.append(out["summary"])

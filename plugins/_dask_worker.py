@@ -1,0 +1,29 @@
+"""Worker-side part of ``executor: dask`` (imports distributed; loaded only when a pipeline uses it)."""
+from __future__ import annotations
+
+from distributed.diagnostics.plugin import WorkerPlugin
+
+from mocapflow.framework.executors import available_cores, limit_threads
+
+
+class ThreadLimit(WorkerPlugin):
+    """Numba/BLAS/OpenMP threads per task, so that the worker threads of one host times
+    the numeric threads per task stay within the host's cores.
+
+    Parameters
+    ----------
+    threads : int or None
+        Fixed threads per task; None: host cores // worker threads on that host.
+    host_threads : dict of str to int
+        Worker threads per host address (from the scheduler, when the plugin is registered).
+    """
+
+    name = "mocapflow-thread-limit"
+
+    def __init__(self, threads: int | None, host_threads: dict[str, int]) -> None:
+        self.threads = threads
+        self.host_threads = host_threads
+
+    def setup(self, worker) -> None:
+        busy = self.host_threads.get(worker.ip, worker.state.nthreads)
+        limit_threads(self.threads or max(1, available_cores() // max(1, busy)))

@@ -1,0 +1,157 @@
+"""``executor: dask``: a step's per-clip, per-query and per-shard work as ``dask.distributed`` tasks.
+
+Usage (pipeline YAML)::
+
+    executor: dask
+    executor_options: {address: "tcp://scheduler:8786"}   # or MOCAPFLOW_DASK_ADDRESS; none: a LocalCluster
+
+or ``mocapflow run PIPELINE.yaml --executor dask`` (``--jobs N``: the LocalCluster's workers).
+Needs the optional extra ``pip install "mocapflow[dask]"`` (dask + distributed).
+
+What travels: the step's function (cloudpickle; a component with its parameters, not its
+data) and small references (:class:`~mocapflow.framework.executors.ClipSlice`: a dataset
+path, its fingerprint and a clip range). Workers read clips, contexts and index shards
+from the workspace's Parquet and ``.npy`` files themselves, so the workspace must be on
+storage every worker sees at the same path (a shared filesystem). Results come back to
+the client, where the runner writes the step's tables atomically, exactly as with
+``local``: a worker never writes a table, so a worker that dies mid-step leaves no
+half-written dataset. Its tasks are rescheduled on the surviving workers by the
+scheduler (``allowed_failures`` deaths per task), then the step fails with a
+:class:`~mocapflow.framework.errors.PipelineError` naming the task.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import uuid
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from mocapflow.framework.errors import ConfigError, PipelineError
+from mocapflow.framework.executors import available_cores, threads_per_worker
+from mocapflow.framework.progress import progress
+
+ADDRESS_ENV = "MOCAPFLOW_DASK_ADDRESS"
+
+
+def _require_distributed():
+    try:
+        import distributed
+    except ImportError:  # the optional extra
+        raise ConfigError('executor "dask" needs dask.distributed: pip install "mocapflow[dask]"') from None
+    return distributed
+
+
+class DaskExecutor:
+    """Runs ``map`` items as tasks on a ``dask.distributed`` cluster.
+
+    Parameters
+    ----------
+    jobs : int
+        Workers of the LocalCluster started when no address is given (0: one per core).
+    address : str, optional
+        Scheduler address (``tcp://host:8786``); default ``$MOCAPFLOW_DASK_ADDRESS``;
+        neither: a LocalCluster of worker processes on 127.0.0.1, closed with the executor.
+    threads : int, optional
+        Numeric (numba/BLAS) threads per task; default: host cores / worker threads on it.
+    retries : int
+        Extra attempts of a task that raised (not of a deterministic error's rerun: a
+        mocapflow error is raised at once, see :meth:`map`).
+    allowed_failures : int, optional
+        LocalCluster only: worker deaths a task may cause before it is declared lost.
+    min_items : int
+        Batches smaller than this run in the client process (no round trip).
+    """
+
+    name = "dask"
+
+    def __init__(self, jobs: int = 0, address: str | None = None, threads: int | None = None, retries: int = 0,
+                 allowed_failures: int | None = None, min_items: int = 1) -> None:
+        self.jobs = int(jobs) if jobs and jobs > 0 else available_cores()
+        self.address = address or os.environ.get(ADDRESS_ENV) or None
+        self.threads = threads
+        self.retries = int(retries)
+        self.allowed_failures = allowed_failures
+        self.min_items = int(min_items)
+        self._client = None
+        self._cluster = None
+
+    # --- connection ---------------------------------------------------------------------
+    @property
+    def client(self):
+        """The ``distributed.Client`` (connects or starts the LocalCluster on first use)."""
+        if self._client is None:
+            self._connect()
+        return self._client
+
+    def _connect(self) -> None:
+        distributed = _require_distributed()
+        import dask
+
+        if self.address:
+            try:
+                self._client = distributed.Client(self.address, timeout="30s")
+            except (OSError, TimeoutError) as exc:
+                raise ConfigError(f"executor dask: cannot reach the scheduler at {self.address}: {exc}") from None
+        else:
+            cfg = {"distributed.scheduler.allowed-failures": self.allowed_failures} if self.allowed_failures is not None else {}
+            # a cluster of our own reports through our errors, not through its INFO log lines
+            logging.getLogger("distributed").setLevel(logging.WARNING)
+            with dask.config.set(cfg):
+                self._cluster = distributed.LocalCluster(
+                    n_workers=self.jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
+                    dashboard_address="127.0.0.1:0", silence_logs=40,
+                    # every worker gets its share of the cores for numba/BLAS (set before their imports)
+                    env={var: str(self.threads or threads_per_worker(self.jobs)) for var in
+                         ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")})
+                self._client = distributed.Client(self._cluster)
+        hosts: dict[str, int] = {}
+        for w in self._client.scheduler_info(n_workers=-1)["workers"].values():
+            hosts[w["host"]] = hosts.get(w["host"], 0) + int(w["nthreads"])
+        from ._dask_worker import ThreadLimit
+
+        self._client.register_plugin(ThreadLimit(self.threads, hosts), name=ThreadLimit.name)
+
+    @property
+    def workers(self) -> int:
+        """Tasks the cluster runs at once (worker threads)."""
+        info = self.client.scheduler_info(n_workers=-1)["workers"]
+        return max(1, sum(int(w["nthreads"]) for w in info.values()))
+
+    # --- work ---------------------------------------------------------------------------
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any], desc: str = "") -> list[Any]:
+        """``[fn(x) for x in items]`` as cluster tasks, results in input order.
+
+        A task's own exception is re-raised as it is (a mocapflow error keeps its type and
+        message); a task lost with its workers (``KilledWorker``) raises PipelineError.
+        """
+        items = list(items)
+        if len(items) < self.min_items:
+            return [fn(x) for x in items]
+        distributed = _require_distributed()
+        client = self.client
+        token = uuid.uuid4().hex[:8]
+        label = "".join(c if c.isalnum() or c in "-_" else "-" for c in (desc or "map"))[:40]
+        futures = client.map(fn, items, key=[f"{label}-{token}-{i}" for i in range(len(items))],
+                             pure=False, retries=self.retries)
+        try:
+            for _ in progress(distributed.as_completed(futures), total=len(futures), desc=desc):
+                pass
+            return client.gather(futures)
+        except distributed.client.FutureCancelledError as exc:
+            raise PipelineError(f"dask: a task of {desc or 'a step'!r} was cancelled: {exc}") from None
+        except Exception as exc:
+            if type(exc).__name__ == "KilledWorker":
+                raise PipelineError(f"dask: the workers running a task of {desc or 'a step'!r} died "
+                                    f"(killed, out of memory or crashed): {exc}; the step's output was discarded") from None
+            raise
+        finally:
+            client.cancel([f for f in futures if not f.done()])
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None

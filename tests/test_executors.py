@@ -1,0 +1,252 @@
+"""The local executor: thread limits in workers, fork safety, clips by reference, dying workers."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl
+from mocapflow.framework.datasets import Dataset
+from mocapflow.framework.executors import (LocalExecutor, clip_slices, limit_threads, map_clips,
+                                           threads_per_worker)
+from mocapflow.framework.runner import run_pipeline
+
+REPO = Path(__file__).resolve().parent.parent
+CMU = REPO / "examples" / "data" / "cmu"
+
+
+def table_bytes(path: Path) -> bytes:
+    """A Parquet table's content as Arrow IPC bytes, provenance metadata (times) left out."""
+    t = pq.read_table(path)
+    t = t.replace_schema_metadata(None)
+    sink = pa.BufferOutputStream()
+    with pa.ipc.new_stream(sink, t.schema) as w:
+        w.write_table(t.combine_chunks())
+    return sink.getvalue().to_pybytes()
+
+
+def workspace_tables(ws: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(ws)): table_bytes(p) for p in sorted(ws.glob("*/*.parquet"))}
+
+
+def _worker_threads(_):
+    import numba
+    from threadpoolctl import threadpool_info
+
+    return numba.get_num_threads(), [p["num_threads"] for p in threadpool_info()], os.environ["OMP_NUM_THREADS"]
+
+
+def test_threads_per_worker_never_oversubscribe():
+    for cores in (1, 2, 3, 8, 16):
+        for workers in (1, 2, 3, 8, 32):
+            t = threads_per_worker(workers, cores)
+            assert t >= 1 and (workers * t <= cores or t == 1)
+
+
+def test_workers_get_their_share_of_the_cores():
+    """Before: every worker ran numba and OpenBLAS as wide as the machine (2 x 2 on 2 cores)."""
+    ex = LocalExecutor(2, min_items_for_pool=1, threads=1)
+    try:
+        out = ex.map(_worker_threads, range(4))
+    finally:
+        ex.close()
+    for numba_threads, blas_threads, omp in out:
+        assert numba_threads == 1 and omp == "1"
+        assert all(n == 1 for n in blas_threads)
+
+
+def test_limit_threads_in_process_restores_nothing_it_should_not(monkeypatch):
+    import numba
+
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
+                "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS"):
+        monkeypatch.setenv(var, os.environ.get(var, ""))
+    before = numba.get_num_threads()
+    try:
+        assert limit_threads(1) == 1
+        assert numba.get_num_threads() == 1
+    finally:
+        numba.set_num_threads(before)
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(None)
+
+
+FORK_SCRIPT = """
+import sys
+import numpy as np
+from numba import njit, prange
+from mocapflow.framework.executors import LocalExecutor
+
+
+@njit(parallel=True)
+def total(x):
+    s = 0.0
+    for i in prange(x.shape[0]):
+        s += x[i]
+    return s
+
+
+def work(n):
+    return total(np.ones(n))
+
+
+if __name__ == "__main__":
+    assert total(np.ones(1000)) == 1000.0  # the parent launches numba's OpenMP pool
+    ex = LocalExecutor(2, min_items_for_pool=1, start_method=sys.argv[1] if len(sys.argv) > 1 else None)
+    try:
+        print(ex.map(work, [10, 20, 30, 40]))
+    finally:
+        ex.close()
+"""
+
+
+def test_pool_after_a_parallel_kernel_in_the_parent_works(tmp_path):
+    """Bug: once the parent had run a parallel numba kernel (GNU OpenMP), workers forked from
+    it aborted at their first parallel kernel ("fork() called from a process already using
+    GNU OpenMP") -> BrokenProcessPool. Now the pool starts from a forkserver then. In a
+    fresh interpreter, so that this process's OpenMP state stays as it is."""
+    script = tmp_path / "fork_after_openmp.py"
+    script.write_text(FORK_SCRIPT)
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "[10.0, 20.0, 30.0, 40.0]" in r.stdout
+    forced = subprocess.run([sys.executable, str(script), "fork"], capture_output=True, text=True, timeout=300)
+    if "GNU OpenMP" in forced.stderr or "died" in forced.stderr:  # the old behaviour, where the layer is omp
+        assert forced.returncode != 0
+
+
+def _die(x):
+    if x == 3:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return x
+
+
+def test_a_killed_worker_is_a_clear_error_and_the_pool_recovers():
+    ex = LocalExecutor(2, min_items_for_pool=1)
+    try:
+        with pytest.raises(PipelineError, match="worker process of the local executor died"):
+            ex.map(_die, range(8), desc="dying")
+        assert ex.map(abs, [-1, -2, -3, -4]) == [1, 2, 3, 4]
+    finally:
+        ex.close()
+
+
+# --- clips by reference ------------------------------------------------------------------
+
+def _motions_workspace(tmp_path: Path, monkeypatch, rows_per_group: int = 24) -> Dataset:
+    """A motions dataset of the bundled CMU takes written with small row groups."""
+    import mocapflow.framework.runner as runner
+
+    monkeypatch.setattr(runner, "ROW_GROUP_ROWS", rows_per_group)
+    p = tmp_path / "m.yaml"
+    p.write_text(f"name: m\nworkspace: ws\nsteps:\n  motions: {{uses: formats.load, with: {{paths: ['{CMU}/**/*.amc'], fps: 10}}}}\n")
+    run_pipeline(p, pm=get_plugin_manager(entry_points=False))
+    return Dataset(tmp_path / "ws" / "motions")
+
+
+def test_clip_slices_read_exactly_the_clips_of_the_dataset(tmp_path, monkeypatch):
+    ds = _motions_workspace(tmp_path, monkeypatch)
+    assert pq.ParquetFile(ds.path / "data.parquet").metadata.num_row_groups > 4
+    whole = ds.motions()
+    for n in (1, 3, 8, 50):
+        pieces = clip_slices(ds, n)
+        assert pieces[0].start == 0 and pieces[-1].stop == whole.n_clips
+        assert all(a.stop == b.start for a, b in zip(pieces, pieces[1:]))
+        got = [(int(c), m) for p in pieces for c, m in zip(p.motions().clip_ids, p.motions().motions)]
+        assert [c for c, _ in got] == whole.clip_ids.tolist()
+        for (_, m), ref in zip(got, whole.motions):
+            assert m.name == ref.name and m.metadata == ref.metadata
+            np.testing.assert_array_equal(m.rotations, ref.rotations)
+            np.testing.assert_array_equal(m.root_translation, ref.root_translation)
+
+
+def _n_frames(motion) -> int:
+    return motion.n_frames
+
+
+def test_map_clips_on_a_pool_equals_in_process(tmp_path, monkeypatch):
+    ds = _motions_workspace(tmp_path, monkeypatch)
+    ex = LocalExecutor(2)
+    try:
+        pooled = map_clips(ex, _n_frames, ds)
+    finally:
+        ex.close()
+    assert pooled == map_clips(LocalExecutor(1), _n_frames, ds) == [m.n_frames for m in ds.motions().motions]
+
+
+# --- whole pipelines -----------------------------------------------------------------------
+
+PIPELINE = f"""
+name: par
+workspace: ws
+steps:
+  motions: {{uses: formats.load, with: {{paths: ["{CMU}/**/*.amc"], fps: 12}}}}
+  fe15: {{uses: features.end_effectors, input: motions}}
+  fe15x3: {{uses: features.end_effectors, input: motions, with: {{samples: 3}}}}
+  relational: {{uses: features.relational, input: motions}}
+  clean: {{uses: cleaners.mdm, inputs: {{motions: motions, context: motions}}, with: {{heatmaps: false}}}}
+"""
+
+
+def test_jobs_2_writes_the_same_tables_and_files_as_jobs_1(tmp_path):
+    out = {}
+    for jobs in (1, 2):
+        d = tmp_path / f"j{jobs}"
+        d.mkdir()
+        (d / "p.yaml").write_text(PIPELINE)
+        run_pipeline(d / "p.yaml", jobs=jobs, pm=get_plugin_manager(entry_points=False))
+        ws = d / "ws"
+        out[jobs] = (workspace_tables(ws), {p.name: p.read_bytes() for p in sorted((ws / "clean").glob("*.bvh"))})
+    assert out[1][0].keys() == out[2][0].keys() and len(out[1][0]) >= 8
+    for name in out[1][0]:
+        assert out[1][0][name] == out[2][0][name], name
+    assert out[1][1] and out[1][1] == out[2][1]
+
+
+class KillerFeatures(FeatureSet):
+    """Kills the worker process it runs in (never the test process)."""
+
+    name = "killer"
+
+    class Params(Params):
+        parent: int = 0
+
+    @property
+    def dim(self) -> int:
+        return 1
+
+    def transform_motion(self, motion):
+        if os.getpid() != self.params.parent:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return np.zeros((motion.n_frames, 1), np.float32)
+
+
+class KillerPlugin:
+    @hookimpl
+    def register_features(self):
+        return [KillerFeatures]
+
+
+def test_a_worker_killed_mid_step_leaves_no_dataset(tmp_path):
+    (tmp_path / "p.yaml").write_text(f"""
+name: k
+workspace: ws
+steps:
+  motions: {{uses: formats.load, with: {{paths: ["{CMU}/**/*.amc"], fps: 10}}}}
+  feats: {{uses: features.killer, input: motions, with: {{parent: {os.getpid()}}}}}
+""")
+    pm = get_plugin_manager(entry_points=False, extra=[KillerPlugin()])
+    with pytest.raises(PipelineError, match="step 'feats'.*worker process .* died"):
+        run_pipeline(tmp_path / "p.yaml", jobs=2, pm=pm)
+    ws = tmp_path / "ws"
+    assert (ws / "motions" / "_manifest.json").is_file()
+    assert not (ws / "feats").exists()
+    assert not any((ws / ".tmp").glob("*")) if (ws / ".tmp").exists() else True
