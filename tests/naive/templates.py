@@ -51,30 +51,20 @@ def subsequence_dtw(c, clip_of):
     K, N = c.shape
     D = np.full((K, N), np.inf)
     S = np.full((K, N), -1)
-
-    def prev(k, j):  # accumulated cost and start of cell (k, j); row -1 is the free start
-        if j < 0:
-            return np.inf, -1
-        if k == -1:
-            return 0.0, None
-        return D[k, j], S[k, j]
-
     for j in range(N):
         for k in range(K):
-            if k == 0:
+            if k == 0:  # a fresh start at template frame 0
                 D[k, j], S[k, j] = c[k, j], j
                 continue
-            options = []
+            options = []  # in tie order: (1,1), (2,1), (1,2)
             for dk, dj, w in ((1, 1, 1.0), (2, 1, 2.0), (1, 2, 1.0)):
-                if k - dk < -1 or (k - dk == -1 and dj != 1):
-                    continue
-                jj = j - dj
-                if k - dk >= 0 and (jj < 0 or clip_of[jj] != clip_of[j]):
-                    continue
-                acc, s = prev(k - dk, jj if k - dk >= 0 else j - 1)
-                if k - dk == -1:
-                    acc, s = 0.0, j
-                options.append((acc + w * c[k, j], s))
-            best = min(options, key=lambda o: o[0])  # min keeps the first of equals
-            D[k, j], S[k, j] = best
+                pk, pj = k - dk, j - dj
+                if pk == -1 and dj == 1:  # from the virtual zero row: start at template frame 1
+                    options.append((w * c[k, j], j))
+                elif pk >= 0 and pj >= 0 and clip_of[pj] == clip_of[j]:
+                    options.append((D[pk, pj] + w * c[k, j], S[pk, pj]))
+            if options:
+                best = min(options, key=lambda o: o[0])  # min keeps the first of equals
+                if np.isfinite(best[0]):
+                    D[k, j], S[k, j] = best
     return D[K - 1] / K, S[K - 1]
