@@ -149,6 +149,7 @@ steps:
     uses: matchers.relational
     inputs: {{database: inverted, query: relational, motions: motions}}
     with:
+      mode: adaptive
       refine: true
       queries: [{{clip: {Path_stem(files[0])}, features: [L3, L4, L7, L8]}}]
       scenes: [{{progressions: [[{{lfoot_raised: 0}}, {{lfoot_raised: 1}}, {{lfoot_raised: 0}}]]}}]

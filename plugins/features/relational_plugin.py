@@ -1,5 +1,6 @@
 """Plugin registering the relational-feature retrieval components (Müller et al. 2005):
-``features.relational``, ``indexes.inverted`` and ``matchers.relational``."""
+``features.relational``, ``indexes.inverted`` and ``matchers.relational``; and the motion
+templates of Müller & Röder 2006: ``matchers.template`` and ``analyses.classify``."""
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl
@@ -22,5 +23,13 @@ def register_indexes() -> list[type]:
 @hookimpl
 def register_matchers() -> list[type]:
     from mocapflow.plugins.matchers.relational import RelationalMatcher
+    from mocapflow.plugins.matchers.template import TemplateMatcher
 
-    return [RelationalMatcher]
+    return [RelationalMatcher, TemplateMatcher]
+
+
+@hookimpl
+def register_analyses() -> list[type]:
+    from mocapflow.plugins.analyses.classify import TemplateClassifier
+
+    return [TemplateClassifier]

@@ -323,6 +323,24 @@ class InvertedIndex(Index):
             raise PipelineError("indexes.inverted: build() or load() the index first")
         return self.sets_
 
+    def frame_bits(self) -> np.ndarray:
+        """The indexed frames' 31 features, (T, 31) bool, expanded from the segments of every set.
+
+        Needs all three sets (the segments of each cover every frame); used by queries that
+        compare frames rather than segments (``matchers.relational`` mode ``auto``).
+        """
+        missing = [n for n, _, _ in SETS if n not in self.sets]
+        if missing:
+            raise ConfigError(f"indexes.inverted: frame features need all three feature sets; this index lacks {missing}")
+        any_set = self.sets[SETS[0][0]]
+        out = np.zeros((int(any_set.clip_offsets[-1]), len(FEATURE_IDS)), bool)
+        for s in self.sets.values():
+            # the segments of a set tile the frames in order: expanding them gives frames 0..T-1
+            codes = np.repeat(s.seg_code, s.seg_end - s.seg_start)
+            for i, c in enumerate(s.columns):
+                out[:, c] = (codes >> i) & 1
+        return out
+
     def query(self, x: np.ndarray, k: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError("indexes.inverted answers segment queries, not kNN: use matchers.relational "
                                   "or index.sets[<set>].positions(code)")

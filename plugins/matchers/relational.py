@@ -43,7 +43,7 @@ from pydantic import Field
 from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, PipelineError
 from mocapflow.framework.schema import MATCHES, WARPING_PATH
-from mocapflow.plugins.features.relational import SET_SLICES, feature_column, feature_set_of
+from mocapflow.plugins.features.relational import FEATURE_IDS, SET_SLICES, feature_column, feature_set_of
 from mocapflow.plugins.features.segmentation import segment
 from mocapflow.plugins.indexes.inverted import InvertedIndex, SetIndex
 
@@ -52,6 +52,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.datasets import Dataset, StepOutput
 
 Mode = Literal["exact", "fuzzy", "adaptive", "mismatch"]
+#: Modes of a query by example: the paper's four plus ``auto`` (features chosen automatically).
+ExampleMode = Literal["auto", "exact", "fuzzy", "adaptive", "mismatch"]
 
 
 @dataclass
@@ -338,7 +340,9 @@ class ExampleQuery(Params):
     clip: str | int = Field(description="clip name (needs the 'motions' input) or clip id in the query dataset")
     start_frame: int = Field(0, ge=0, description="first query frame")
     end_frame: int | None = Field(None, description="end of the query frames (exclusive); default the clip's end")
-    features: tuple[str, ...] = Field(min_length=1, description="selected features: ids (L3, U1, M7) or names (rfoot_raised)")
+    features: tuple[str, ...] = Field((), description="selected features: ids (L3, U1, M7) or names (rfoot_raised); "
+                                      "in mode auto the features the selection may choose from (default all)")
+    examples: tuple[str | int, ...] = Field((), description="mode auto: further example clips (names or ids) of the same motion")
 
 
 class SceneQuery(Params):
@@ -365,7 +369,14 @@ class RelationalMatcher(Matcher):
     class Params(Params):
         queries: tuple[ExampleQuery, ...] = Field((), description="queries by example")
         scenes: tuple[SceneQuery, ...] = Field((), description="scene descriptions (query ids follow the example queries)")
-        mode: Mode = Field("adaptive", description="exact (eq. 7), fuzzy (eq. 11), adaptive (§5.2) or mismatch")
+        mode: ExampleMode = Field("auto", description="auto (features chosen from the example), exact (eq. 7), fuzzy (eq. 11), "
+                                  "adaptive (§5.2) or mismatch")
+        auto_search: Literal["dtw", "adaptive", "mismatch"] = Field("dtw", description="mode auto: subsequence DTW of the "
+                                                                    "example as a template, or the paper's adaptive / mismatch hits")
+        min_run: int = Field(4, ge=1, description="mode auto: runs shorter than this (frames) are flicker")
+        max_features: int = Field(3, ge=1, le=31, description="mode auto with adaptive/mismatch search: features selected")
+        relative_cut: float = Field(0.6, gt=0.0, description="mode auto, dtw: hits cost below this x the median per-clip cost")
+        max_cost: float | None = Field(None, gt=0.0, description="mode auto, dtw: fixed cost cut instead of relative_cut")
         mismatches: int = Field(1, ge=0, description="m of m-mismatch hits")
         mismatch_positions: tuple[int, ...] | None = Field(None, description="query levels (0-based) where mismatches may occur; default any")
         min_overlap: float = Field(0.5, ge=0.0, le=1.0, description="overlap (fraction of the shorter span) for combining hits of several indexes")
@@ -407,14 +418,68 @@ class RelationalMatcher(Matcher):
                 sel &= q.frame < spec.end_frame
             if not sel.any():
                 raise ConfigError(f"query {qid}: no frames of clip {spec.clip!r} in the query dataset")
+            if self.params.mode == "auto":
+                exs = [q.x[q.clip_id == self._clip_id(e, names, qid)] for e in spec.examples]
+                rows += self._auto_rows(qid, index, q.x[sel], spec, exs)
+                continue
+            if not spec.features:
+                raise ConfigError(f"query {qid}: mode {self.params.mode!r} needs 'features' (or use mode auto)")
             hits = self.search(index, q.x[sel], spec.features)
             qpos = q.frame[sel][0]
-            rows += self._rows(qid, index, hits, mdb, (int(cid), int(qpos)))
+            ids = ",".join(FEATURE_IDS[c] for c in sorted({feature_column(f) for f in spec.features}))
+            rows += [{**r, "features": ids} for r in self._rows(qid, index, hits, mdb, (int(cid), int(qpos)))]
         for sid, scene in enumerate(self.params.scenes):
             hits = scene_query(index, [list(p) for p in scene.progressions], [tuple(o) for o in scene.overlaps])
-            rows += self._rows(len(self.params.queries) + sid, index, hits, None, None)
+            ids = ",".join(FEATURE_IDS[c] for c in sorted({feature_column(k) for p in scene.progressions for st in p for k in st}))
+            rows += [{**r, "features": ids} for r in self._rows(len(self.params.queries) + sid, index, hits, None, None)]
         return StepOutput({"data": hits_table(rows, self.params.refine)},
                           {"queries": len(self.params.queries) + len(self.params.scenes), "hits": len(rows)})
+
+    @staticmethod
+    def _clip_id(clip: str | int, names: dict[str, int], qid: int) -> int:
+        cid = clip if isinstance(clip, int) else names.get(clip)
+        if cid is None:
+            raise ConfigError(f"query {qid}: unknown example clip {clip!r}" + ("" if names else " (give 'motions' to use names)"))
+        return int(cid)
+
+    def _auto_rows(self, qid: int, index: InvertedIndex, bits: np.ndarray, spec: ExampleQuery,
+                   examples: list[np.ndarray]) -> list[dict]:
+        """Mode auto: features selected from the example, then DTW or the paper's machinery."""
+        from .relational_auto import auto_hits, auto_template, select_features
+        from .template_model import frame_codes
+
+        cache = getattr(self, "_frames", None)
+        if cache is None or cache[0] is not index:
+            db_bits = index.frame_bits()
+            any_set = next(iter(index.sets.values()))
+            cache = (index, frame_codes(db_bits), db_bits.mean(axis=0) if len(db_bits) else np.zeros(31), any_set)
+            self._frames = cache
+        _, codes, background, any_set = cache
+        allowed = sorted({feature_column(f) for f in spec.features}) if spec.features else None
+        if self.params.auto_search == "dtw":
+            t = auto_template(bits, background, examples, self.params.min_run)
+            if allowed is not None:
+                keep = np.intersect1d(t.columns, allowed)
+                t.columns = keep if len(keep) else np.asarray(allowed, np.int64)
+            s, e, c, _ = auto_hits(t, codes, any_set.clip_offsets, self.params.relative_cut, self.params.max_cost)
+            used = t.columns
+            hits = Hits(np.searchsorted(any_set.clip_offsets, s, side="right") - 1, s, e, c,
+                        sets="+".join(sorted({feature_set_of(int(x)) for x in used})), n_levels=t.n_frames)
+        else:
+            used, sm, _ = select_features(bits, background, examples, self.params.min_run, max_features=self.params.max_features,
+                                          allowed=allowed)
+            if not len(used):
+                return []
+            mode = self.params.auto_search
+            hits = example_query(index, sm, sorted(int(x) for x in used), mode, self.params.mismatches,
+                                 self.params.mismatch_positions, self.params.min_overlap)
+        rows = self._rows(qid, index, hits, None, None)
+        ids = ",".join(FEATURE_IDS[int(x)] for x in sorted(used))
+        for r in rows:
+            r.update(mode="auto", features=ids)
+            if self.params.auto_search == "dtw":
+                r["dtw_cost"] = r["cost"]
+        return rows
 
     def _rows(self, qid: int, index: InvertedIndex, hits: Hits, mdb, query_clip) -> list[dict]:
         any_set = next(iter(index.sets.values()))
@@ -434,7 +499,7 @@ class RelationalMatcher(Matcher):
                    "cost": float(hits.cost[h]), "mode": self.params.mode if query_clip else "scene",
                    "feature_sets": hits.sets, "n_segments": hits.n_levels,
                    "mismatches": int(hits.extra.get("mismatches", np.zeros(len(hits), np.int64))[h]),
-                   "dtw_cost": None, "path": None}
+                   "dtw_cost": None, "path": None, "features": hits.sets}
             if mdb is not None and query_clip is not None and hits.levels is not None:
                 row.update(self._refine(mdb, query_clip, pos, hits.levels[h] - first, hits.query_levels, index))
             out.append(row)
@@ -457,7 +522,7 @@ def hits_table(rows: list[dict], with_path: bool = False) -> pa.Table:
     """Rows -> a match table (:data:`~mocapflow.framework.schema.MATCHES` + relational columns)."""
     fields = list(MATCHES) + [pa.field("mode", pa.string()), pa.field("feature_sets", pa.string()),
                               pa.field("n_segments", pa.int32()), pa.field("mismatches", pa.int32()),
-                              pa.field("dtw_cost", pa.float64())]
+                              pa.field("dtw_cost", pa.float64()), pa.field("features", pa.string())]
     if with_path:
         fields.append(WARPING_PATH)
     schema = pa.schema(fields)

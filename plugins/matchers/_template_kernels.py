@@ -1,0 +1,156 @@
+"""Numba kernels of ``matchers.template``: no validation here (the API validates).
+
+Each kernel has a slow reference in ``tests/naive/templates.py``.
+
+Subsequence DTW of a motion template against the database
+--------------------------------------------------------
+Template rows ``k = 0..K-1`` (template frames), database columns ``j`` (frames). The local
+cost ``c[k, j]`` is looked up from the frame's 31-bit feature code split into the lower
+(11 bits), upper (12) and mixed (8) parts: ``c = tab[lo, k] + tab[2048 + up, k] +
+tab[6144 + mid, k]`` (the tables hold the template's per-part costs for every code, so
+don't-care cells cost nothing whatever the frame's bits). Step sizes (1,1), (2,1), (1,2)
+(Müller & Röder 2006) with weights 1, 2, 1 on the reached cell, so each template frame is
+charged exactly once and ``D[K-1, j] / K`` is a mean local cost in [0, 1]; the database side
+can stretch or compress the template by up to a factor 2. A path may start at any column
+(at template frame 0, or at frame 1 by the (2,1) step) and never crosses a clip boundary.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+#: Offsets of the three code parts in the lookup table (lower 2**11, upper 2**12, mixed 2**8).
+PART_OFFSETS = (0, 2048, 6144)
+TABLE_ROWS = 6400
+
+
+@njit(cache=True)
+def dtw_path(a, b):  # pragma: no cover - compiled
+    """Global DTW between ``a (n, f)`` and ``b (m, f)``, local cost mean |a - b| over features.
+
+    Steps (1,0), (0,1), (1,1); the path runs from (0, 0) to (n-1, m-1).
+
+    Returns
+    -------
+    cost : float
+        Accumulated cost of the optimal path.
+    path : int64 (P, 2)
+        (row of ``a``, row of ``b``) pairs in order.
+    """
+    n, f = a.shape
+    m = b.shape[0]
+    acc = np.empty((n, m))
+    for i in range(n):
+        for j in range(m):
+            s = 0.0
+            for c in range(f):
+                s += abs(a[i, c] - b[j, c])
+            s /= max(f, 1)
+            if i == 0 and j == 0:
+                acc[i, j] = s
+                continue
+            best = np.inf
+            if i > 0 and j > 0:
+                best = acc[i - 1, j - 1]
+            if i > 0 and acc[i - 1, j] < best:
+                best = acc[i - 1, j]
+            if j > 0 and acc[i, j - 1] < best:
+                best = acc[i, j - 1]
+            acc[i, j] = best + s
+    path = np.empty((n + m, 2), dtype=np.int64)
+    i, j, p = n - 1, m - 1, 0
+    path[0, 0] = i
+    path[0, 1] = j
+    while i > 0 or j > 0:
+        if i == 0:
+            j -= 1
+        elif j == 0:
+            i -= 1
+        else:
+            d, u, l = acc[i - 1, j - 1], acc[i - 1, j], acc[i, j - 1]
+            if d <= u and d <= l:
+                i -= 1
+                j -= 1
+            elif u <= l:
+                i -= 1
+            else:
+                j -= 1
+        p += 1
+        path[p, 0] = i
+        path[p, 1] = j
+    return acc[n - 1, m - 1], path[: p + 1][::-1].copy()
+
+
+@njit(cache=True)
+def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start):  # pragma: no cover - compiled
+    """Subsequence DTW over the frames ``[lo_frame, hi_frame)`` of one clip (module doc)."""
+    n_rows = table.shape[1]
+    inf = np.inf
+    d1 = np.full(n_rows, inf)  # column j-1
+    d2 = np.full(n_rows, inf)  # column j-2
+    s1 = np.zeros(n_rows, np.int64)
+    s2 = np.zeros(n_rows, np.int64)
+    d0 = np.empty(n_rows)
+    s0 = np.empty(n_rows, np.int64)
+    col = np.empty(n_rows)
+    last_code = -1
+    for j in range(lo_frame, hi_frame):
+        code = codes[j]
+        if code != last_code:  # runs of equal codes share their local-cost column
+            a = code & 2047
+            b = 2048 + ((code >> 11) & 4095)
+            c = 6144 + ((code >> 23) & 255)
+            for k in range(n_rows):
+                col[k] = table[a, k] + table[b, k] + table[c, k]
+            last_code = code
+        # template frame 0: a fresh start
+        d0[0] = col[0]
+        s0[0] = j
+        for k in range(1, n_rows):
+            ck = col[k]
+            best = d1[k - 1] + ck
+            bs = s1[k - 1]
+            if k >= 2:
+                v = d1[k - 2] + 2.0 * ck
+            else:
+                v = 2.0 * ck  # (2,1) from the virtual row before the template: start at frame 1
+            if v < best:
+                best = v
+                bs = s1[k - 2] if k >= 2 else j
+            v = d2[k - 1] + ck
+            if v < best:
+                best = v
+                bs = s2[k - 1]
+            d0[k] = best
+            s0[k] = bs
+        cost[j] = d0[n_rows - 1] / n_rows
+        start[j] = s0[n_rows - 1]
+        # rotate the columns
+        for k in range(n_rows):
+            d2[k] = d1[k]
+            s2[k] = s1[k]
+            d1[k] = d0[k]
+            s1[k] = s0[k]
+
+
+@njit(cache=True, parallel=True)
+def template_sdtw(codes, table, chunk_lo, chunk_hi, cost, start):  # pragma: no cover - compiled
+    """Subsequence DTW of one template over many clips, in parallel over clip ranges.
+
+    Parameters
+    ----------
+    codes : int64 (N,)
+        31-bit feature code per database frame (bit i = feature column i).
+    table : float32/float64 (6400, K)
+        Per-part local costs (module doc).
+    chunk_lo, chunk_hi : int64 (C,)
+        Frame ranges, each inside one clip (clips, or clip pieces when the caller
+        pre-selects candidate regions).
+    cost : float64 (N,), out
+        ``D[K-1, j] / K`` (mean local cost of the best path ending at frame j); frames
+        outside every range are left untouched.
+    start : int64 (N,), out
+        First database frame of that path.
+    """
+    for r in prange(chunk_lo.shape[0]):
+        _sdtw_range(codes, table, chunk_lo[r], chunk_hi[r], cost, start)

@@ -1,0 +1,247 @@
+"""``matchers.template``: motion templates learned from labelled examples (Müller & Röder 2006).
+
+The step fits one template per class from the relational feature matrices of labelled
+example clips (:mod:`.template_model`), stores them in its output (``templates.npz``, like
+``features.pca`` stores its model) and retrieves every template in the database by
+subsequence DTW whose local cost ignores don't-care cells. A later step reuses fitted
+templates by naming this step as its ``reference`` input::
+
+    templates: {uses: matchers.template, inputs: {database: relational, motions: motions},
+                with: {train: "HDM_(bd|bk)_"}}
+    again:     {uses: matchers.template, inputs: {database: other, motions: m2, reference: templates}}
+
+Labels come from clip names (``label_pattern``, a regular expression with a group
+``label``); the training clips are those whose names match ``train``.
+"""
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+import pyarrow as pa
+from pydantic import Field
+
+from mocapflow.framework.components import Matcher, Params
+from mocapflow.framework.errors import ConfigError, DataError, PipelineError
+from mocapflow.framework.schema import MATCHES
+
+from .template_model import (MotionTemplate, fit_class_template, frame_codes, load_templates,
+                             save_templates, template_costs, template_hits)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework.context import StepContext
+    from mocapflow.framework.datasets import Dataset, StepOutput
+
+#: HDM05 cut names ``HDM_<actor>_<class>_<nnn>_<rate>``.
+HDM05_LABEL = r"^HDM_[A-Za-z]+_(?P<label>[A-Za-z0-9]+)_\d+"
+
+
+def clip_labels(names: list[str], pattern: str) -> list[str | None]:
+    """Class label of each clip name (the ``label`` group of ``pattern``; None if no match)."""
+    rx = re.compile(pattern)
+    if "label" not in rx.groupindex:
+        raise ConfigError(f"label_pattern {pattern!r} needs a named group (?P<label>...)")
+    out = []
+    for n in names:
+        m = rx.search(n)
+        out.append(m.group("label") if m else None)
+    return out
+
+
+def feature_ids(columns: np.ndarray) -> str:
+    from mocapflow.plugins.features.relational import FEATURE_IDS
+
+    return ",".join(FEATURE_IDS[int(c)] for c in columns)
+
+
+def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None,
+                    columns: Literal["key", "all"] = "key") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template in a database.
+
+    ``codes`` (N,) :func:`.template_model.frame_codes`; ``offsets`` (n_clips + 1,) clip offsets.
+    """
+    use = t if columns == "key" else _all_columns(t)
+    cost, start = template_costs(codes, use.table(), np.stack([offsets[:-1], offsets[1:]], axis=1))
+    return template_hits(cost, start, t.threshold if threshold is None else threshold)
+
+
+def _all_columns(t: MotionTemplate) -> MotionTemplate:
+    return MotionTemplate(t.label, t.mean, np.arange(t.mean.shape[1]), t.delta, t.threshold, t.n_examples, t.example_costs)
+
+
+class TemplateMatcher(Matcher):
+    """Motion templates: fit per class from labelled clips, retrieve with don't-care DTW.
+
+    Inputs: ``database`` (a ``features.relational`` dataset: the frames searched and the
+    examples), ``motions`` (clip names: labels and training selection) and optionally
+    ``reference`` (a ``matchers.template`` step whose templates are reused). Output: the
+    shared match table (``query_id`` = template number) plus ``label``, ``threshold`` and
+    ``features``; a ``templates`` table; ``templates.npz`` and ``template_<label>.png``.
+    """
+
+    name = "template"
+    version = "1"
+    inputs = {"database": True, "motions": True, "reference": False}
+
+    class Params(Params):
+        label_pattern: str = Field(HDM05_LABEL, description="regular expression on clip names with a group (?P<label>...)")
+        train: str = Field(".", description="regular expression: clips whose names match are training examples")
+        classes: tuple[str, ...] = Field((), description="labels to learn (default: every label of the training clips)")
+        features: Literal["key", "all"] = Field("key", description="retrieve on the template's key features or on all 31")
+        delta: float = Field(0.2, gt=0.0, lt=0.5, description="don't care where the examples' average is in (delta, 1 - delta)")
+        iterations: int = Field(2, ge=0, le=10, description="re-alignment rounds after the first average")
+        margin: float = Field(0.25, ge=0.0, description="threshold = (1 + margin) x the largest leave-one-out example cost")
+        threshold: float | None = Field(None, gt=0.0, le=1.0, description="fixed cost threshold for every template (default: calibrated)")
+        max_hits: int | None = Field(None, ge=1, description="keep the best max_hits per template")
+        plots: bool = Field(True, description="write template_<label>.png per template")
+
+    def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray) -> list[MotionTemplate]:
+        """Templates from labelled clips.
+
+        Parameters
+        ----------
+        bits : ndarray of shape (N, 31), 0/1
+        offsets : ndarray of int, shape (n_clips + 1,)
+        labels : list of str or None, one per clip
+        train : ndarray of bool, shape (n_clips,)
+            Training clips.
+        """
+        lab = np.array([x if x is not None else "" for x in labels], dtype=object)
+        use = train & (lab != "")
+        if not use.any():
+            raise DataError("matchers.template: no training clip matches both 'train' and 'label_pattern'")
+        classes = list(self.params.classes) or sorted(set(lab[use]))
+        bg = np.concatenate([bits[offsets[i]:offsets[i + 1]] for i in np.flatnonzero(use)]).mean(axis=0)
+        out = []
+        for c in classes:
+            ex = [bits[offsets[i]:offsets[i + 1]] for i in np.flatnonzero(use & (lab == c))]
+            if not ex:
+                raise DataError(f"matchers.template: class {c!r} has no training clip")
+            out.append(fit_class_template(c, ex, bg, self.params.features, self.params.delta, self.params.iterations,
+                                          True, self.params.margin))
+        return out
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        from mocapflow.framework.datasets import StepOutput
+
+        db_ds = inputs["database"]
+        if db_ds.producer != "features.relational":
+            raise PipelineError(f"matchers.template needs database=features.relational, got {db_ds.producer}")
+        feats = db_ds.features()
+        clips = inputs["motions"].table("clips", columns=["clip_id", "name"])
+        name_of = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist()))
+        bits, clip_ids, offsets = _clip_layout(feats)
+        names = [name_of.get(int(c), str(c)) for c in clip_ids]
+        if "reference" in inputs:
+            ref = inputs["reference"]
+            if ref.producer != "matchers.template":
+                raise PipelineError(f"matchers.template: reference must be a matchers.template step, got {ref.producer}")
+            templates, _ = load_templates(ref.path)
+        else:
+            rx = re.compile(self.params.train)
+            train = np.array([bool(rx.search(n)) for n in names])
+            templates = self.fit(bits, offsets, clip_labels(names, self.params.label_pattern), train)
+        save_templates(templates, ctx.out_dir, {"label_pattern": self.params.label_pattern, "train": self.params.train})
+        codes = frame_codes(bits)
+        rows = []
+        for qid, t in enumerate(templates):
+            s, e, c = search_template(t, codes, offsets, self.params.threshold, self.params.features)
+            if self.params.max_hits:
+                s, e, c = s[: self.params.max_hits], e[: self.params.max_hits], c[: self.params.max_hits]
+            pos = np.searchsorted(offsets, s, side="right") - 1
+            for rank, (a, b, cc, p) in enumerate(zip(s, e, c, pos), start=1):
+                rows.append({"query_id": qid, "rank": rank, "clip_id": int(clip_ids[p]), "start_frame": int(a - offsets[p]),
+                             "end_frame": int(b - offsets[p]), "cost": float(cc), "label": t.label,
+                             "threshold": float(self.params.threshold or t.threshold), "features": feature_ids(t.columns)})
+        if self.params.plots:
+            for t in templates:
+                plot_template(t, ctx.out_dir / f"template_{_safe(t.label)}.png", fps=_fps(inputs["motions"]))
+        return StepOutput({"data": template_hits_table(rows), "templates": templates_table(templates)},
+                          {"templates": len(templates), "hits": len(rows)})
+
+
+def _safe(label: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", label)
+
+
+def _fps(motions: Dataset) -> float | None:
+    try:
+        t = motions.table("clips", columns=["fps"])
+        v = t["fps"].to_pylist()
+        return float(v[0]) if v else None
+    except Exception:  # noqa: BLE001 - a clips table without fps: plot template frames instead of seconds
+        return None
+
+
+def _clip_layout(feats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frames grouped by clip (in the order they appear): bits (N, 31), clip ids, offsets."""
+    cid = np.asarray(feats.clip_id)
+    order = np.lexsort((np.asarray(feats.frame), cid)) if len(cid) and np.any(np.diff(cid) < 0) else np.arange(len(cid))
+    cid = cid[order]
+    bits = np.asarray(feats.x)[order] > 0.5
+    brk = np.flatnonzero(np.r_[True, cid[1:] != cid[:-1]]) if len(cid) else np.zeros(0, np.int64)
+    return bits, cid[brk], np.append(brk, len(cid)).astype(np.int64)
+
+
+def template_hits_table(rows: list[dict]) -> pa.Table:
+    fields = list(MATCHES) + [pa.field("label", pa.string()), pa.field("threshold", pa.float64()),
+                              pa.field("features", pa.string())]
+    schema = pa.schema(fields)
+    return pa.table({f.name: pa.array([r[f.name] for r in rows], f.type) for f in schema}, schema=schema)
+
+
+def templates_table(templates: list[MotionTemplate]) -> pa.Table:
+    """One row per template: label, frames, examples, threshold, key features, don't-care share."""
+    return pa.table({
+        "template_id": pa.array(list(range(len(templates))), pa.int32()),
+        "label": pa.array([t.label for t in templates], pa.string()),
+        "n_frames": pa.array([t.n_frames for t in templates], pa.int32()),
+        "n_examples": pa.array([t.n_examples for t in templates], pa.int32()),
+        "threshold": pa.array([float(t.threshold) for t in templates], pa.float64()),
+        "features": pa.array([feature_ids(t.columns) for t in templates], pa.string()),
+        "dont_care_fraction": pa.array([t.dont_care_fraction() for t in templates], pa.float64()),
+    })
+
+
+def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None) -> Path:
+    """PNG of one template: features x time, colour = fraction of examples with the feature
+    on, don't-care cells hatched, key features marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    from mocapflow.plugins.features.relational import FEATURE_IDS, FEATURE_NAMES
+
+    k = t.n_frames
+    scale = 1.0 / fps if fps else 1.0
+    m = t.mean
+    fig, ax = plt.subplots(figsize=(min(4 + k * 0.06, 14), 8), dpi=100)
+    im = ax.imshow(t.mean.T, aspect="auto", origin="upper", cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest",
+                   extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5))
+    dc = np.ma.masked_where(~((m.T > t.delta) & (m.T < 1 - t.delta)), np.ones_like(m.T))
+    ax.imshow(dc, aspect="auto", origin="upper", cmap="Greys", vmin=0, vmax=1.5, alpha=0.55, interpolation="nearest",
+              extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5))
+    key = set(int(c) for c in t.columns)
+    ax.set_yticks(range(31))
+    ax.set_yticklabels([f"{'* ' if i in key else ''}{FEATURE_IDS[i]} {FEATURE_NAMES[i]}" for i in range(31)], fontsize=6)
+    ax.set_xlabel("template time (s)" if fps else "template frame")
+    ax.set_ylabel("relational feature (* = key feature used for retrieval)")
+    ax.set_title(f"motion template '{t.label}': {t.n_examples} examples, {k} frames, threshold {t.threshold:.3f}", fontsize=9)
+    cb = fig.colorbar(im, ax=ax)
+    cb.set_label("fraction of aligned examples with the feature on (0-1)")
+    ax.legend(handles=[Patch(facecolor="0.6", alpha=0.7, label=f"don't care ({t.delta:g} < value < {1 - t.delta:g})")],
+              loc="upper right", fontsize=7, framealpha=0.9)
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+__all__ = ["HDM05_LABEL", "TemplateMatcher", "clip_labels", "plot_template", "search_template", "template_hits_table",
+           "templates_table"]

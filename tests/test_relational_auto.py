@@ -1,0 +1,106 @@
+"""matchers.relational mode auto: flicker removal, feature selection, frame bits from the
+index, and queries by example without a feature list (HDM05 where available)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mocapflow.plugins.indexes.inverted import InvertedIndex
+from mocapflow.plugins.matchers.relational_auto import auto_hits, auto_template, runs, select_features, smooth_runs
+from mocapflow.plugins.matchers.template_model import frame_codes
+
+HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
+
+
+def test_smooth_runs_absorbs_short_inner_runs_shortest_first():
+    x = np.array([0] * 6 + [1] * 2 + [0] * 5 + [1] * 8 + [0] + [1] * 6 + [0] * 6, bool)
+    y = smooth_runs(x, 3)
+    vals, lens = runs(y)
+    assert vals.tolist() == [False, True, False] and lens.tolist() == [13, 15, 6]
+    assert smooth_runs(x, 1).tolist() == x.tolist()  # nothing is shorter than one frame
+
+
+def test_smooth_runs_edges_and_constants():
+    assert smooth_runs(np.array([1, 0, 0, 0, 0, 0], bool), 3).tolist() == [False] * 6  # flicker at the cut
+    assert smooth_runs(np.zeros(5, bool), 3).tolist() == [False] * 5
+    assert smooth_runs(np.zeros(0, bool), 3).tolist() == []
+
+
+def test_select_features_prefers_rare_stable_progressions():
+    t = 60
+    bits = np.zeros((t, 31), np.float32)
+    bits[20:40, 3] = 1                      # a stable progression of a rare feature: chosen first
+    bits[10:50, 6] = 1                      # a progression of a common feature: lower score
+    bits[:, 0] = 1                          # constant: dropped
+    bits[::2, 9] = 1                        # flicker at every frame: smoothed away -> constant -> dropped
+    bits[np.r_[5:9, 15:19, 25:29, 35:39, 45:49, 55:59], 12] = 1  # 11 runs: more than max_runs
+    bg = np.full(31, 0.3)
+    bg[3] = 0.01
+    cols, sm, scores = select_features(bits, bg, min_run=3, max_runs=7, max_features=3)
+    assert cols.tolist() == [3, 6]
+    assert scores[0] == scores[9] == scores[12] == 0
+    assert sm[:, 9].sum() in (0, t)
+    # with an example whose feature 6 has another run count, only feature 3 survives
+    ex = bits.copy()
+    ex[:, 6] = 0
+    assert select_features(bits, bg, [ex], min_run=3)[0].tolist() == [3]
+    assert select_features(bits, bg, allowed=[6, 0], min_run=3)[0].tolist() == [6]
+
+
+def test_frame_bits_from_the_index_are_the_features():
+    rng = np.random.default_rng(0)
+    bits = rng.random((200, 31)) < 0.2
+    clip = np.repeat([4, 7, 9], [50, 100, 50]).astype(np.int32)
+    idx = InvertedIndex().build(bits, clip)
+    np.testing.assert_array_equal(idx.frame_bits(), bits)
+
+
+def test_auto_template_retrieves_the_example_pattern():
+    rng = np.random.default_rng(1)
+    q = np.zeros((40, 31), np.float32)
+    q[10:25, 3] = 1
+    q[12, 3] = 0  # flicker inside the on phase
+    db = (rng.random((400, 31)) < 0.02).astype(np.float32)
+    db[100:150, 3] = 0
+    db[110:135, 3] = 1  # a slower performance of the same progression
+    offsets = np.array([0, 200, 400])
+    bg = db.mean(axis=0)
+    t = auto_template(q, bg, min_run=3)
+    assert 3 in t.columns
+    s, e, c, cut = auto_hits(t, frame_codes(db), offsets, max_cost=0.1)
+    assert cut == 0.1 and len(s)
+    assert s[0] <= 110 and e[0] >= 135 and c[0] <= 0.1
+
+
+@pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
+def test_auto_query_by_example_on_hdm05(tmp_path):
+    import pyarrow.parquet as pq
+
+    from mocapflow.framework.runner import run_pipeline
+
+    kicks = sorted(str(p) for p in HDM05.glob("*/*kickLFront*.amc"))
+    squats = sorted(str(p) for p in HDM05.glob("*/*squat*.amc"))
+    files = kicks[:4] + squats[:4]
+    yaml = tmp_path / "r.yaml"
+    yaml.write_text(f"""name: r
+workspace: ws
+steps:
+  motions: {{uses: formats.load, with: {{paths: {files!r}, fps: 30}}}}
+  relational: {{uses: features.relational, input: motions}}
+  inverted: {{uses: indexes.inverted, input: relational}}
+  hits:
+    uses: matchers.relational
+    inputs: {{database: inverted, query: relational, motions: motions}}
+    with:
+      queries: [{{clip: {Path(kicks[0]).stem}}}, {{clip: {Path(squats[0]).stem}, examples: [{Path(squats[2]).stem}]}}]
+""")
+    run_pipeline(yaml)
+    hits = pq.read_table(tmp_path / "ws" / "hits" / "data.parquet").to_pylist()
+    clips = {r["clip_id"]: r["name"] for r in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()}
+    for qid, word in ((0, "kick"), (1, "squat")):
+        mine = sorted((h for h in hits if h["query_id"] == qid), key=lambda h: h["rank"])
+        assert mine and all(h["mode"] == "auto" and h["features"] for h in mine)
+        assert all(word in clips[h["clip_id"]] for h in mine[:3])
+    assert "L4" in next(h for h in hits if h["query_id"] == 0)["features"]  # left foot raised: HDM05 kicks are left kicks

@@ -1,0 +1,165 @@
+"""Motion templates (matchers.template, analyses.classify): kernels against tests/naive/templates.py,
+learning, don't-care cells, retrieval of planted occurrences, storage, and the pipeline on HDM05."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mocapflow.plugins.analyses.classify import decide
+from mocapflow.plugins.matchers._template_kernels import dtw_path
+from mocapflow.plugins.matchers.template_model import (MotionTemplate, cost_table, fit_class_template, fit_template,
+                                                       frame_codes, load_templates, save_templates, template_costs,
+                                                       template_hits)
+
+from naive import templates as naive
+
+HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
+
+
+def _table_cost(table, codes):
+    """c[k, j] from the lookup table, straight from its definition."""
+    lo, up, mid = codes & 2047, 2048 + ((codes >> 11) & 4095), 6144 + ((codes >> 23) & 255)
+    return (table[lo] + table[up] + table[mid]).T.astype(np.float64)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_dtw_path_matches_naive(seed):
+    rng = np.random.default_rng(seed)
+    a = rng.random((int(rng.integers(1, 9)), 5))
+    b = rng.random((int(rng.integers(1, 9)), 5))
+    cost, path = dtw_path(a, b)
+    ncost, npath = naive.dtw_path(a, b)
+    assert cost == pytest.approx(ncost)
+    np.testing.assert_array_equal(path, npath)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cost_table_matches_naive_local_cost(seed):
+    rng = np.random.default_rng(seed)
+    q = rng.choice([0.0, 0.5, 1.0], size=(6, 31)).astype(np.float32)
+    q[2] = 0.5  # a frame that cares about nothing costs nothing
+    bits = rng.random((40, 31)) < 0.3
+    got = _table_cost(cost_table(q), frame_codes(bits))
+    np.testing.assert_allclose(got, naive.local_cost(q, bits), atol=1e-6)
+    assert np.all(got[2] == 0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_subsequence_dtw_matches_naive(seed):
+    rng = np.random.default_rng(seed)
+    k = int(rng.integers(1, 7))
+    lengths = rng.integers(1, 15, size=int(rng.integers(1, 5)))  # one-frame clips included
+    offsets = np.concatenate([[0], np.cumsum(lengths)])
+    n = int(offsets[-1])
+    codes = rng.integers(0, 1 << 31, size=n, dtype=np.int64)
+    codes[3:6] = codes[2]  # runs of equal codes (the kernel reuses their cost column)
+    table = rng.random((6400, k)).astype(np.float32)  # continuous costs: no ties
+    cost, start = template_costs(codes, table, np.stack([offsets[:-1], offsets[1:]], 1))
+    clip_of = np.repeat(np.arange(len(lengths)), lengths)
+    ncost, nstart = naive.subsequence_dtw(_table_cost(table, codes), clip_of)
+    np.testing.assert_allclose(cost, ncost, rtol=1e-5)
+    fin = np.isfinite(ncost)
+    np.testing.assert_array_equal(start[fin], nstart[fin])
+    assert np.all(clip_of[start[fin]] == clip_of[fin])  # paths never cross a clip boundary
+
+
+def test_subsequence_dtw_binary_template_matches_naive_costs():
+    rng = np.random.default_rng(7)
+    q = rng.choice([0.0, 0.5, 1.0], size=(5, 31)).astype(np.float32)
+    bits = rng.random((60, 31)) < 0.5
+    offsets = np.array([0, 25, 60])
+    cost, _ = template_costs(frame_codes(bits), cost_table(q), np.stack([offsets[:-1], offsets[1:]], 1))
+    ncost, _ = naive.subsequence_dtw(naive.local_cost(q, bits), np.repeat([0, 1], [25, 35]))
+    np.testing.assert_allclose(cost, ncost, atol=1e-6)
+
+
+def _pattern(n_frames: int, phase: tuple[float, float]) -> np.ndarray:
+    """A 31-feature clip: feature 3 on during ``phase`` (fractions of the clip), 20 always on."""
+    x = np.zeros((n_frames, 31), np.float32)
+    t = np.arange(n_frames) / n_frames
+    x[(t >= phase[0]) & (t < phase[1]), 3] = 1
+    x[:, 20] = 1
+    return x
+
+
+def test_fit_template_from_warped_copies_is_the_pattern():
+    ex = [_pattern(40, (0.25, 0.5)), _pattern(60, (0.25, 0.5)), _pattern(50, (0.25, 0.5))]
+    t = fit_template("a", ex, delta=0.2)
+    q = t.quantized()
+    k = t.n_frames
+    assert k in (40, 50, 60)  # one example's time axis (the medoid; all fit perfectly here)
+    assert set(np.unique(q)) <= {0.0, 1.0}  # the examples agree everywhere: no don't care
+    on = np.flatnonzero(q[:, 3] == 1)
+    assert 0.2 * k <= on[0] <= 0.3 * k and 0.45 * k <= on[-1] + 1 <= 0.55 * k
+    assert np.all(q[:, 20] == 1) and np.all(q[:, 0] == 0)
+
+
+def test_disagreeing_examples_give_dont_care():
+    ex = [_pattern(40, (0.25, 0.5)) for _ in range(4)]
+    for i in (0, 1):
+        ex[i][:, 7] = 1  # half the examples have feature 7 on throughout
+    t = fit_template("a", ex, delta=0.2)
+    assert np.all(t.quantized()[:, 7] == 0.5)
+    assert t.dont_care_fraction() == pytest.approx(1 / 31)
+
+
+def test_template_hits_find_planted_occurrences():
+    rng = np.random.default_rng(3)
+    ex = [_pattern(n, (0.3, 0.6)) for n in (30, 36, 42)]
+    t = fit_class_template("a", ex, features="all")
+    noise = (rng.random((300, 31)) < 0.02).astype(np.float32)
+    db = noise.copy()
+    db[50:85] = _pattern(35, (0.3, 0.6))
+    db[200:245] = _pattern(45, (0.3, 0.6))
+    cost, start = template_costs(frame_codes(db), t.table(), np.array([[0, 300]]))
+    s, e, c = template_hits(cost, start, t.threshold)
+    found = sorted(zip(s.tolist(), e.tolist()))
+    assert len(found) == 2
+    for (a, b), (ta, tb) in zip(found, [(50, 85), (200, 245)]):
+        # the constant lead-in may be compressed (up to 2x): the span overlaps the planted one
+        assert (min(b, tb) - max(a, ta)) / (max(b, tb) - min(a, ta)) >= 0.7
+    assert np.all(c <= t.threshold)
+
+
+def test_key_features_drop_background_and_keep_progressions():
+    ex = [_pattern(n, (0.3, 0.6)) for n in (30, 36, 42)]
+    bg = np.full(31, 0.0)
+    bg[20] = 1.0  # feature 20 is on in every motion of the database: not characteristic
+    t = fit_class_template("a", ex, background=bg, features="key")
+    assert 3 in t.columns and 20 not in t.columns and 0 not in t.columns
+
+
+def test_templates_save_load_roundtrip(tmp_path):
+    t = fit_class_template("kick", [_pattern(n, (0.3, 0.6)) for n in (30, 36)])
+    save_templates([t], tmp_path, {"label_pattern": "x"})
+    (u,), meta = load_templates(tmp_path)
+    assert meta == {"label_pattern": "x"} and isinstance(u, MotionTemplate)
+    np.testing.assert_array_equal(u.mean, t.mean)
+    np.testing.assert_array_equal(u.columns, t.columns)
+    assert (u.label, u.threshold, u.delta, u.n_examples) == (t.label, t.threshold, t.delta, t.n_examples)
+
+
+def test_decide_confidence():
+    costs = np.array([[0.1, 0.2, 0.4], [0.3, np.inf, np.inf], [np.inf, np.inf, np.inf]])
+    best, c1, second, conf = decide(costs)
+    assert best.tolist()[:2] == [0, 0] and second[0] == 1
+    assert conf[0] == pytest.approx(0.5) and conf[1] == 1.0 and conf[2] == 0.0
+
+
+@pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
+def test_templates_pipeline_on_hdm05(tmp_path):
+    from mocapflow.framework import get_plugin_manager
+    from mocapflow.framework.catalog import Catalog
+    from mocapflow.framework.runner import run_pipeline
+
+    path = Path(__file__).resolve().parent.parent / "pipelines" / "templates.yaml"
+    run_pipeline(path, workspace=tmp_path, pm=get_plugin_manager(entry_points=False))
+    with Catalog(tmp_path) as cat:
+        assert cat.query("SELECT count(*) AS n FROM templates_templates").column("n")[0].as_py() == 11
+        acc = cat.query("SELECT avg(correct::INT) AS a FROM classify WHERE held_out").column("a")[0].as_py()
+        assert acc >= 0.9  # the held-out actor dg (docs/templates.md)
+        top = cat.query("SELECT h.label, c.name FROM templates h JOIN clips c USING (clip_id) WHERE h.rank = 1").to_pylist()
+        assert all(r["label"] in r["name"] for r in top)
+    assert len(list((tmp_path / "templates").glob("template_*.png"))) == 11
