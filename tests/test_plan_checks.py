@@ -133,14 +133,14 @@ def test_undeclared_kinds_are_not_checked(tmp_path):
 def test_unknown_executor_is_a_plan_time_error(tmp_path):
     p = write(tmp_path, """
     name: x
-    executor: dask
+    executor: daks
     steps:
       a: {uses: analyses.toy_source}
     """)
-    with pytest.raises(ConfigError, match=rf"{p}:3: unknown executor 'dask'; registered: local"):
+    with pytest.raises(ConfigError, match=rf"{p}:3: unknown executor 'daks' \(did you mean 'dask'\?\); registered: .*local"):
         plan(p)
     assert main(["--no-entry-points", "plan", str(p)]) == 2
-    with pytest.raises(ConfigError, match="unknown executor 'dask'"):
+    with pytest.raises(ConfigError, match="unknown executor 'daks'"):
         run_pipeline(p, pm=pm())
     assert not (tmp_path / "runs").exists()
 
