@@ -212,3 +212,16 @@ def test_base_poses_and_reconstructions_are_shown(extras_workspace, tmp_path):
     assert sorted(p["source_clip"] for p in rec["pairs"]) == ["02_01", "16_15"]
     assert all(p["source_step"] == "test" for p in rec["pairs"])
     assert "clip_errors" in steps["reconstruction"]["small_tables"]
+
+
+def test_hits_and_queries_are_named_from_their_own_motions(extras_workspace, tmp_path):
+    from mocapflow.plugins.report.plugin import build_report
+
+    build_report(extras_workspace, tmp_path / "r")
+    view = next(s for s in page_model(tmp_path / "r")["steps"] if s["id"] == "probe_search")["views"][0]
+    (q,) = view["queries"]
+    # clip id 0 is 35_01 in 'probe' but 02_01 in 'motions'
+    assert (q["clip_id"], q["clip"], view["query_motions"], view["motions"]) == (0, "35_01", "probe", "motions")
+    best = view["hits"][0]
+    assert (best["clip"], best["start"], best["cost"]) == ("35_01", 0, 0.0)
+    assert best["motion"] == f"m/motions/{best['clip_id']}" and q["motion"] == "m/probe/0"
