@@ -182,6 +182,7 @@ class ModelBuilder:
             "created": m.get("created"), "seconds": m.get("seconds"), "fingerprint": m.get("fingerprint"),
             "pipeline": m.get("pipeline"), "params": m.get("params", {}), "summary": m.get("summary", {}),
             "inputs": {k: v.get("step") for k, v in m.get("inputs", {}).items()},
+            "input_fingerprints": {k: v.get("fingerprint") for k, v in m.get("inputs", {}).items()},
             "tables": {t: int(n) for t, n in m.get("tables", {}).items()},
             "images": sorted(str(p.relative_to(ds.path)) for p in ds.path.rglob("*.png")),
             "views": [],
