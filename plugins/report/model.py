@@ -188,7 +188,7 @@ class ModelBuilder:
             "views": [],
         }
         names = ds.table_names()
-        data_cols = ds.table("data").column_names if "data" in names else []
+        data_cols = _columns(ds, "data") if "data" in names else []
         try:
             if all(c in data_cols for c in MATCH_COLS):
                 out["views"].append(self.retrieval(ds))
@@ -342,6 +342,13 @@ class ModelBuilder:
                                   "motion": self.motion_key(ds.step, r["clip_id"]),
                                   "source_motion": self.motion_key(other.step, r["clip_id"])})
         return {"type": "derived", "pairs": pairs} if pairs else None
+
+
+def _columns(ds: Dataset, table: str) -> list[str]:
+    """Column names of one of a dataset's tables, from its Parquet footer (no data read)."""
+    import pyarrow.parquet as pq
+
+    return pq.ParquetFile(ds.path / f"{table}.parquet").schema_arrow.names
 
 
 def _relative_path(path: list | None, query: dict[str, Any] | None) -> list[list[int]] | None:
