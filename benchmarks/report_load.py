@@ -13,6 +13,7 @@ hits lie in the long take), its report written, and Chromium opens it ``--rounds
 
     python benchmarks/report_load.py            # 10-minute take, 5 rounds
     python benchmarks/report_load.py --quick    # 2-minute take, 2 rounds
+    python benchmarks/report_load.py --workspace runs/quickstart   # an existing workspace's report
 """
 from __future__ import annotations
 
@@ -63,7 +64,10 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="2-minute take, 2 rounds")
     ap.add_argument("--minutes", type=float, default=None)
     ap.add_argument("--rounds", type=int, default=None)
+    ap.add_argument("--workspace", help="measure the report of this workspace (its first search hit) instead")
     args = ap.parse_args()
+    if args.workspace:
+        return measure_workspace(Path(args.workspace), args.rounds or 5)
     minutes = args.minutes or (2.0 if args.quick else 10.0)
     rounds = args.rounds or (2 if args.quick else 5)
 
@@ -131,6 +135,35 @@ def main() -> None:
     print(f"click -> first frame drawn, median of {rounds}: {med(first_ms):.0f} ms")
     print(f"JSON baseline (script -> Float32Array), median of {rounds}: {med(base_ms):.0f} ms; "
           f"baseline / compact = {med(base_ms) / med(take_ms):.1f}x")
+    print(f"console errors: {errors or 'none'}")
+
+
+def measure_workspace(ws: Path, rounds: int) -> None:
+    """Page weight, page load and click-to-first-frame of an existing workspace's report."""
+    from mocapflow.plugins.report.browser import Browser
+    from mocapflow.plugins.report.plugin import build_report
+
+    site = Path(tempfile.mkdtemp(prefix="report-load-")) / "site"
+    info = build_report(ws, site)
+    sizes = {sub: sum(p.stat().st_size for p in (site / sub).rglob("*") if p.is_file()) for sub in ("data", "img")}
+    click = """(async () => {
+      const t0 = performance.now();
+      document.querySelector('.play-hit').click();
+      while (!(MocapReport.players.length && MocapReport.players[0].frameCount > 0)) await new Promise(r => setTimeout(r, 2));
+      return performance.now() - t0; })()"""
+    page_s, first_ms = [], []
+    with Browser() as b:
+        for _ in range(rounds):
+            page_s.append(b.open((site / "index.html").as_uri()))
+            b.wait_for("window.MocapReport !== undefined && MocapReport.ready === true")
+            first_ms.append(b.eval(click))
+        errors = list(b.errors)
+    print(f"{ws}: page weight {info['bytes'] / 1024:.0f} KiB in {info['files']} files; index.html "
+          f"{(site / 'index.html').stat().st_size / 1024:.0f} KiB, data {sizes['data'] / 1024:.0f} KiB, "
+          f"plots {sizes['img'] / 1024:.0f} KiB")
+    print(f"page load, median of {rounds}: {statistics.median(page_s) * 1000:.0f} ms "
+          f"(min {min(page_s) * 1000:.0f}, max {max(page_s) * 1000:.0f}); first hit click -> first frame "
+          f"{statistics.median(first_ms):.0f} ms")
     print(f"console errors: {errors or 'none'}")
 
 

@@ -28,6 +28,16 @@ steps:
     uses: analyses.fat_graph
     inputs: {{features: fe15, motions: motions}}
     with: {{radius: 0.3, k: 64}}
+  probe:
+    uses: formats.load
+    with: {{paths: ["{cmu}/35/35_01.amc"], fps: 30}}
+  tree:
+    uses: indexes.kdtree
+    input: fe15
+  probe_search:
+    uses: matchers.lng
+    inputs: {{database: tree, query: probe}}
+    with: {{queries: ["35_01:0-30"], count: 3}}
   reconstruction:
     uses: analyses.reconstruct
     inputs: {{prior: motions, test: test}}
@@ -51,7 +61,8 @@ def quickstart_workspace(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def extras_workspace(tmp_path_factory) -> Path:
-    """Fat-graph base poses and reconstructions of bundled CMU takes."""
+    """Fat-graph base poses, reconstructions, and a search whose queries come from another
+    motions dataset than the database (clip ids that mean other clips there)."""
     root = tmp_path_factory.getbasetemp()
     ws = root / "report-extras"
     yaml = root / "report-extras.yaml"

@@ -123,6 +123,7 @@ def quickstart_site(quickstart_workspace, tmp_path_factory):
 
 def test_quickstart_report_lists_clips_steps_and_provenance(quickstart_site, quickstart_workspace):
     from mocapflow.framework.catalog import Catalog
+    from mocapflow.framework.datasets import Dataset
 
     m = page_model(quickstart_site)
     with Catalog(quickstart_workspace) as cat:
@@ -134,6 +135,7 @@ def test_quickstart_report_lists_clips_steps_and_provenance(quickstart_site, qui
     assert set(steps) == {"motions", "summary", "fe15", "tree", "nearest", "search", "relational", "inverted", "hits", "clean"}
     s = steps["search"]
     assert s["component"] == "matchers.lng" and s["params"]["count"] == 5 and s["inputs"] == {"database": "tree", "query": "motions"}
+    assert s["input_fingerprints"]["query"] == Dataset(quickstart_workspace / "motions").fingerprint
     assert s["images"] == ["plots/q0_m1.png"] and (quickstart_site / "img" / "search" / "plots" / "q0_m1.png").is_file()
 
 
@@ -212,3 +214,25 @@ def test_base_poses_and_reconstructions_are_shown(extras_workspace, tmp_path):
     assert sorted(p["source_clip"] for p in rec["pairs"]) == ["02_01", "16_15"]
     assert all(p["source_step"] == "test" for p in rec["pairs"])
     assert "clip_errors" in steps["reconstruction"]["small_tables"]
+
+
+def test_hits_and_queries_are_named_from_their_own_motions(extras_workspace, tmp_path):
+    from mocapflow.plugins.report.plugin import build_report
+
+    build_report(extras_workspace, tmp_path / "r")
+    view = next(s for s in page_model(tmp_path / "r")["steps"] if s["id"] == "probe_search")["views"][0]
+    (q,) = view["queries"]
+    # clip id 0 is 35_01 in 'probe' but 02_01 in 'motions'
+    assert (q["clip_id"], q["clip"], view["query_motions"], view["motions"]) == (0, "35_01", "probe", "motions")
+    best = view["hits"][0]
+    assert (best["clip"], best["start"], best["cost"]) == ("35_01", 0, 0.0)
+    assert best["motion"] == f"m/motions/{best['clip_id']}" and q["motion"] == "m/probe/0"
+
+
+def test_cli_errors_name_the_workspace(tmp_path, capsys):
+    from mocapflow.framework.cli import main
+
+    assert main(["report", str(tmp_path / "nowhere")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["report", str(tmp_path)]) == 2
+    assert "no finished dataset" in capsys.readouterr().err

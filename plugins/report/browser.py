@@ -73,13 +73,21 @@ class Browser:
 
         args = [self.executable, *FLAGS, f"--user-data-dir={self._profile}", f"--window-size={self.size[0]},{self.size[1]}",
                 "about:blank"]
-        self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        # a file, not a pipe: nobody reads Chromium's chatter, and a full pipe would block it
+        self._log = open(Path(self._profile) / "stderr.log", "wb")
+        self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=self._log,
                                      pass_fds=(3, 4, to_browser_r, from_browser_w), preexec_fn=fds)
         os.close(to_browser_r)
         os.close(from_browser_w)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
-        target = self.send("Target.createTarget", {"url": "about:blank"})["targetId"]
+        try:
+            target = self.send("Target.createTarget", {"url": "about:blank"})["targetId"]
+        except BrowserError as exc:
+            self._log.flush()
+            tail = (Path(self._profile) / "stderr.log").read_text(errors="replace")[-600:].strip()
+            self.__exit__()
+            raise BrowserError(f"{self.executable} did not start: {exc}" + (f"; it said: {tail}" if tail else "")) from None
         self.session = self.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
         for domain in ("Runtime", "Log", "Page"):
             self.send(f"{domain}.enable", session=self.session)
@@ -90,7 +98,7 @@ class Browser:
     def __exit__(self, *exc: object) -> None:
         try:
             self.send("Browser.close", timeout=10)
-        except BrowserError:
+        except (BrowserError, OSError):  # already gone
             pass
         try:
             self.proc.wait(timeout=15)
@@ -98,6 +106,7 @@ class Browser:
             self.proc.kill()
             self.proc.wait()
         os.close(self._to_browser)
+        self._log.close()
         shutil.rmtree(self._profile, ignore_errors=True)
 
     def _read(self) -> None:
@@ -146,7 +155,10 @@ class Browser:
         msg = {"id": mid, "method": method, "params": params or {}}
         if session:
             msg["sessionId"] = session
-        os.write(self._to_browser, json.dumps(msg).encode() + b"\0")
+        try:
+            os.write(self._to_browser, json.dumps(msg).encode() + b"\0")
+        except OSError as exc:
+            raise BrowserError(f"{method}: the browser is gone ({exc})") from None
         try:
             reply = q.get(timeout=timeout or self.timeout)
         except queue.Empty:

@@ -117,22 +117,36 @@ class _Motions:
         return self._pos[step][int(clip_id)]
 
 
-def motions_input(ds: Dataset, datasets: Mapping[str, Dataset]) -> str | None:
-    """Step id of the motions dataset behind ``ds`` (itself, an input, or further upstream)."""
-    seen, todo = set(), [ds.step]
+def motions_input(step: str, datasets: Mapping[str, Dataset]) -> str | None:
+    """Step id of the nearest motions dataset (one with ``clips``) at or upstream of ``step``."""
+    seen, todo = set(), [step]
     while todo:
-        step = todo.pop(0)
-        if step in seen or step not in datasets:
+        cur = todo.pop(0)
+        if cur in seen or cur not in datasets:
             continue
-        seen.add(step)
-        d = datasets[step]
-        if d.has_table("clips") and (d is not ds or d.producer_kind == "formats"):
-            return step
+        seen.add(cur)
+        d = datasets[cur]
+        if d.has_table("clips"):
+            return cur
         ins = d.manifest.get("inputs", {})
-        # the query/motions side first: it names the clips a matcher reports
-        for name in sorted(ins, key=lambda n: (n not in ("motions", "query", "test"), n)):
-            todo.append(ins[name]["step"])
+        todo += [ins[name]["step"] for name in sorted(ins)]
     return None
+
+
+def slot_motions(ds: Dataset, datasets: Mapping[str, Dataset], slots: tuple[str, ...]) -> str | None:
+    """The motions dataset behind the first of ``slots`` that ``ds`` has as an input."""
+    ins = ds.manifest.get("inputs", {})
+    for slot in slots:
+        if slot in ins:
+            found = motions_input(ins[slot]["step"], datasets)
+            if found is not None:
+                return found
+    return None
+
+
+#: Input slots naming the searched database, then the queries, in order of preference.
+HIT_SLOTS = ("database", "index", "motions", "query")
+QUERY_SLOTS = ("query", "motions", "database", "index")
 
 
 class ModelBuilder:
@@ -158,7 +172,6 @@ class ModelBuilder:
             "bones": [[CANONICAL_JOINTS.index(a), CANONICAL_JOINTS.index(b)] for a, b in BONES],
             "clips": small_table(self.clips, max_rows=100000), "rejects": small_table(self.rejects, max_rows=100000),
             "steps": steps,
-            "motions": {k: {"name": k, "n_frames": int(len(v))} for k, v in self.model.motions.items()},
         })
         return self.model
 
@@ -169,12 +182,13 @@ class ModelBuilder:
             "created": m.get("created"), "seconds": m.get("seconds"), "fingerprint": m.get("fingerprint"),
             "pipeline": m.get("pipeline"), "params": m.get("params", {}), "summary": m.get("summary", {}),
             "inputs": {k: v.get("step") for k, v in m.get("inputs", {}).items()},
+            "input_fingerprints": {k: v.get("fingerprint") for k, v in m.get("inputs", {}).items()},
             "tables": {t: int(n) for t, n in m.get("tables", {}).items()},
             "images": sorted(str(p.relative_to(ds.path)) for p in ds.path.rglob("*.png")),
             "views": [],
         }
         names = ds.table_names()
-        data_cols = ds.table("data").column_names if "data" in names else []
+        data_cols = _columns(ds, "data") if "data" in names else []
         try:
             if all(c in data_cols for c in MATCH_COLS):
                 out["views"].append(self.retrieval(ds))
@@ -216,54 +230,55 @@ class ModelBuilder:
                       "clip_id": cid, "start": start, "end": int(end) if end is not None else n}
         return out
 
-    def retrieval(self, ds: Dataset) -> dict[str, Any]:
-        step = motions_input(ds, self.datasets)
-        if step is None:
+    def _steps(self, ds: Dataset) -> tuple[str, str]:
+        hit_step = slot_motions(ds, self.datasets, HIT_SLOTS)
+        query_step = slot_motions(ds, self.datasets, QUERY_SLOTS)
+        if hit_step is None or query_step is None:
             raise KeyError("no motions dataset upstream")
+        return hit_step, query_step
+
+    def retrieval(self, ds: Dataset) -> dict[str, Any]:
+        step, qstep = self._steps(ds)
         t = ds.table("data")
         cols = t.column_names
         extra = [c for c in cols if c not in MATCH_COLS and c != "path"
                  and not pa.types.is_nested(t.schema.field(c).type)]
-        specs = self._query_specs(ds, step)
-        names = self.mo.names(step)
+        names, qnames = self.mo.names(step), self.mo.names(qstep)
         queries = {}
-        for qid, q in specs.items():
-            if q.get("clip_id") is not None and q.get("start") is not None and int(q["clip_id"]) in names:
-                queries[qid] = {**q, "id": qid, "clip": names[int(q["clip_id"])],
-                                "motion": self.motion_key(step, q["clip_id"])}
+        for qid, q in self._query_specs(ds, qstep).items():
+            queries[qid] = {**q, "id": qid}
+            # a query from a file (clip_id -1) or a scene description has no take to play
+            if q.get("clip_id") is not None and q.get("start") is not None and int(q["clip_id"]) in qnames:
+                queries[qid].update(clip=qnames[int(q["clip_id"])], motion=self.motion_key(qstep, q["clip_id"]))
         hits = []
         paths = t["path"].to_pylist() if "path" in cols else [None] * t.num_rows
         for r, path in zip(t.select([c for c in cols if c != "path"]).to_pylist(), paths):
             qid = int(r["query_id"])
-            q = queries.get(qid)
-            if qid not in queries:
-                queries[qid] = {"id": qid, "name": f"query {qid}", "clip_id": None}
+            q = queries.setdefault(qid, {"id": qid, "name": f"query {qid}", "clip_id": None})
             hits.append({"query_id": qid, "rank": r["rank"], "clip_id": r["clip_id"], "clip": names.get(r["clip_id"], str(r["clip_id"])),
                          "start": r["start_frame"], "end": r["end_frame"], "cost": _scalar(r["cost"]),
                          "seconds": round((r["end_frame"] - r["start_frame"]) / self.mo.fps(step, r["clip_id"]), 3),
-                         "extra": {c: _scalar(r[c]) for c in extra}, "path": _relative_path(path, q),
+                         "extra": {c: _scalar(r[c]) for c in extra},
+                         "path": _relative_path(path, q if q.get("motion") else None),
                          "motion": self.motion_key(step, r["clip_id"])})
-        return {"type": "retrieval", "motions": step, "cost_label": "cost", "extra": extra,
+        return {"type": "retrieval", "motions": step, "query_motions": qstep, "cost_label": "cost", "extra": extra,
                 "queries": sorted(queries.values(), key=lambda q: q["id"]), "hits": hits}
 
     def nearest(self, ds: Dataset) -> dict[str, Any]:
-        step = motions_input(ds, self.datasets)
-        if step is None:
-            raise KeyError("no motions dataset upstream")
-        names = self.mo.names(step)
-        rows = ds.table("data").to_pylist()
+        step, qstep = self._steps(ds)
+        names, qnames = self.mo.names(step), self.mo.names(qstep)
         queries, hits = {}, []
-        for r in rows:
+        for r in ds.table("data").to_pylist():
             qid = int(r.get("query_id", len(queries)))
             qc, qf = int(r["query_clip_id"]), int(r["query_frame"])
-            queries.setdefault(qid, {"id": qid, "name": f"{names.get(qc, qc)} frame {qf}", "clip_id": qc, "clip": names.get(qc),
-                                     "start": qf, "end": qf + 1, "motion": self.motion_key(step, qc)})
+            queries.setdefault(qid, {"id": qid, "name": f"{qnames.get(qc, qc)} frame {qf}", "clip_id": qc, "clip": qnames.get(qc),
+                                     "start": qf, "end": qf + 1, "motion": self.motion_key(qstep, qc)})
             hits.append({"query_id": qid, "rank": r.get("rank"), "clip_id": r["clip_id"], "clip": names.get(r["clip_id"]),
                          "start": r["frame"], "end": r["frame"] + 1, "cost": r["distance"], "extra": {}, "path": [[0, 0]],
                          "seconds": round(1 / self.mo.fps(step, r["clip_id"]), 3),
                          "motion": self.motion_key(step, r["clip_id"])})
-        return {"type": "retrieval", "motions": step, "cost_label": "distance", "extra": [], "poses": True,
-                "queries": sorted(queries.values(), key=lambda q: q["id"]), "hits": hits}
+        return {"type": "retrieval", "motions": step, "query_motions": qstep, "cost_label": "distance", "extra": [],
+                "poses": True, "queries": sorted(queries.values(), key=lambda q: q["id"]), "hits": hits}
 
     # --- cleaning ---------------------------------------------------------------------------
     def cleaning(self, ds: Dataset) -> dict[str, Any]:
@@ -291,7 +306,7 @@ class ModelBuilder:
 
     # --- base poses, derived motions ---------------------------------------------------------
     def base_poses(self, ds: Dataset) -> dict[str, Any]:
-        step = ds.manifest.get("inputs", {}).get("motions", {}).get("step") or motions_input(ds, self.datasets)
+        step = slot_motions(ds, self.datasets, ("motions", "features"))
         rows = ds.table("base_poses").to_pylist()
         names = self.mo.names(step) if step else {}
         poses = []
@@ -327,6 +342,13 @@ class ModelBuilder:
                                   "motion": self.motion_key(ds.step, r["clip_id"]),
                                   "source_motion": self.motion_key(other.step, r["clip_id"])})
         return {"type": "derived", "pairs": pairs} if pairs else None
+
+
+def _columns(ds: Dataset, table: str) -> list[str]:
+    """Column names of one of a dataset's tables, from its Parquet footer (no data read)."""
+    import pyarrow.parquet as pq
+
+    return pq.ParquetFile(ds.path / f"{table}.parquet").schema_arrow.names
 
 
 def _relative_path(path: list | None, query: dict[str, Any] | None) -> list[list[int]] | None:

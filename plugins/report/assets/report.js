@@ -95,7 +95,8 @@ const MocapReport = (() => {
   }
 
   function provenance(step) {
-    const ins = Object.entries(step.inputs).map(([k, v]) => h("li", null, `${k}: `, h("a", { href: "#step-" + v }, v)));
+    const ins = Object.entries(step.inputs).map(([k, v]) => h("li", null, `${k}: `, h("a", { href: "#step-" + v }, v),
+      h("span", { class: "note" }, ` (fingerprint ${step.input_fingerprints[k]})`)));
     const rows = [["component", `${step.component} (version ${step.version})`], ["computed", `${step.created} in ${step.seconds} s`],
       ["pipeline", step.pipeline], ["fingerprint", step.fingerprint],
       ["tables", Object.entries(step.tables).map(([k, v]) => `${k}: ${v} rows`).join(", ")]];
