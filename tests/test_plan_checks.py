@@ -165,3 +165,9 @@ def test_glob_matching_no_file_warns_at_plan_time(tmp_path, caplog, capsys):
     caplog.clear()
     assert main(["--no-entry-points", "plan", str(p)]) == 0
     assert "matches no file" in caplog.text and "plan is valid" in capsys.readouterr().out
+
+
+def test_typos_in_model_typed_parameters_suggest_from_the_nested_model():
+    p = REPO / "pipelines" / "reconstruct.yaml"
+    with pytest.raises(ConfigError, match=r"unknown parameter 'reconstruct.kk'.*did you mean 'k'\?\); known: features, feature_params"):
+        plan(p, ["evaluation.reconstruct.kk=3"])
