@@ -85,7 +85,11 @@ class Catalog:
                 "autoinstall_known_extensions": False, "autoload_known_extensions": False,
                 "allow_community_extensions": False, "temp_directory": self._spill})
             allowed = sorted({f"{ds.path.resolve()}/" for ds in self.datasets.values()})
-            self._con.execute("SET allowed_directories = ?", [allowed])
+            try:
+                self._con.execute("SET allowed_directories = ?", [allowed])
+            except duckdb.Error as exc:  # never fall back to a catalog that can read everything
+                raise ConfigError(f"the workspace catalog needs duckdb >= 1.2 (allowed_directories), found "
+                                  f"{duckdb.__version__}: pip install -U duckdb ({exc})") from None
             self._con.execute("SET enable_external_access = false")
             self._con.execute("SET lock_configuration = true")
             ordered = sorted(self.datasets.values(), key=lambda d: d.manifest.get("created", ""))

@@ -135,6 +135,10 @@ def _check_nested(source: PipelineSource, step_id: str, cls: type[Component], pa
         _check_nested(source, step_id, cls, nested, registries, here)
 
 
+def _a(word: str) -> str:
+    return f"{'an' if word[:1] in 'aeiou' else 'a'} {word}"
+
+
 def _check_kinds(source: PipelineSource, steps: dict[str, PlannedStep]) -> None:
     """Each input slot gets a dataset of a kind it accepts (where both sides declare one)."""
     for sid, ps in steps.items():
@@ -145,8 +149,8 @@ def _check_kinds(source: PipelineSource, steps: dict[str, PlannedStep]) -> None:
             produced = type(steps[up].component).output_kind
             if accepted and produced and produced not in accepted:
                 where = ("steps", sid, "input") if single else ("steps", sid, "inputs", slot)
-                raise source.error(where, f"step {sid!r}: input {slot!r} of {cls.key()} takes a {' or '.join(accepted)} "
-                                          f"dataset, but step {up!r} ({steps[up].key}) writes a {produced} dataset")
+                raise source.error(where, f"step {sid!r}: input {slot!r} of {cls.key()} takes {_a(' or '.join(accepted))} "
+                                          f"dataset, but step {up!r} ({steps[up].key}) writes {_a(produced)} dataset")
 
 
 def build_plan(source: PipelineSource, registries: Registries) -> Plan:

@@ -99,12 +99,12 @@ def test_nested_key_may_name_a_sibling_parameter(tmp_path):
      fe: {uses: features.end_effectors, input: motions}
      tree: {uses: indexes.kdtree, input: fe}
      again: {uses: features.end_effectors, input: tree}
-     """, 6, ["takes a motions dataset", "writes a index dataset"]),
+     """, 6, ["takes a motions dataset", "writes an index dataset"]),
     # a matcher whose database is a motions dataset
     ("""
      motions: {uses: formats.load, with: {paths: ["AMC"]}}
      lng: {uses: matchers.lng, inputs: {database: motions, query: motions}}
-     """, 4, ["input 'database' of matchers.lng takes a index or features dataset", "writes a motions dataset"]),
+     """, 4, ["input 'database' of matchers.lng takes an index or features dataset", "writes a motions dataset"]),
 ])
 def test_inputs_of_the_wrong_kind_are_refused_at_plan_time(tmp_path, body, line, words):
     p = write(tmp_path, "name: k\nsteps:\n" + textwrap.indent(textwrap.dedent(body).strip("\n"), "  ").replace("AMC", str(AMC[0])) + "\n")
@@ -165,3 +165,9 @@ def test_glob_matching_no_file_warns_at_plan_time(tmp_path, caplog, capsys):
     caplog.clear()
     assert main(["--no-entry-points", "plan", str(p)]) == 0
     assert "matches no file" in caplog.text and "plan is valid" in capsys.readouterr().out
+
+
+def test_typos_in_model_typed_parameters_suggest_from_the_nested_model():
+    p = REPO / "pipelines" / "reconstruct.yaml"
+    with pytest.raises(ConfigError, match=r"unknown parameter 'reconstruct.kk'.*did you mean 'k'\?\); known: features, feature_params"):
+        plan(p, ["evaluation.reconstruct.kk=3"])
