@@ -25,6 +25,7 @@ import argparse
 import multiprocessing as mp
 import os
 import resource
+import signal
 import sys
 import tempfile
 import time
@@ -220,6 +221,8 @@ def main(argv: list[str] | None = None) -> int:
     if not DATA.exists():
         print(f"corpus not found at {DATA}", file=sys.stderr)
         return 1
+    # a terminated run still removes its case folder and its workers
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     n = args.cases or (3_000 if args.quick else 100_000)
     jobs = max(1, min(args.jobs, 2))
     print(f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s")
