@@ -80,7 +80,7 @@ class Cases:
 
 
 def _worker(seed: int, indices: list[int], conn, slot, folder: str) -> None:
-    os.nice(10)
+    os.nice(max(0, 10 - os.nice(0)))  # at least nice 10; not more when started with `nice -n 10`
     cases = Cases(seed)
     fuzz = cases.fuzz
     refs: dict[tuple, dict | None] = {}
