@@ -140,53 +140,63 @@ def run(n_cases: int, seed: int, jobs: int, timeout: float, echo=print) -> dict:
             if outcome not in ("accepted", "rejected") and len(examples[outcome]) < 8:
                 examples[outcome].append(f"case {i} ({fmt} {src}, {kind}): {detail}")
 
-        for w, part in enumerate(parts):
-            start(w, part)
-        last_echo = time.time()
-        while any(wk["alive"] for wk in workers):
+        try:
+            _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, lambda: done)
+        finally:  # workers first: they write into the case folder that is removed next
             for wk in workers:
-                if not wk["alive"]:
-                    continue
-                while wk["conn"].poll():
-                    try:
-                        msg = wk["conn"].recv()
-                    except EOFError:
-                        msg = None
-                    if msg is None:
-                        wk["alive"] = False
-                        break
-                    record(*msg)
-                if wk["alive"] and wk["slot"][0] >= 0 and time.time() - wk["slot"][1] > timeout:
-                    i = int(wk["slot"][0])
+                if wk["p"].is_alive():
                     wk["p"].kill()
-                    wk["p"].join()
-                    wk["alive"] = False
-                    fmt, kind = "?", "?"
-                    try:
-                        fmt, kind = Cases(seed).make(i)[:2]
-                    except Exception:  # noqa: BLE001
-                        pass
-                    record(i, fmt, kind, "hang", f"no result after {timeout:g} s", "")
-                    rest = wk["indices"][wk["indices"].index(i) + 1:]
-                    if rest:
-                        start(len(workers), rest)
-                elif wk["alive"] and not wk["p"].is_alive() and not wk["conn"].poll():
-                    wk["alive"] = False  # died without a word (killed for memory...)
-                    i = int(wk["slot"][0])
-                    record(i, "?", "?", "crash", f"worker died (exit {wk['p'].exitcode})", "")
-                    rest = wk["indices"][wk["indices"].index(i) + 1:] if i >= 0 else []
-                    if rest:
-                        start(len(workers), rest)
-            if time.time() - last_echo > 30:
-                rate = done / (time.time() - t0)
-                echo(f"  ... {done:,} / {n_cases:,} cases ({rate:,.0f}/s)")
-                last_echo = time.time()
-            time.sleep(0.02)
-        for wk in workers:
-            wk["p"].join()
+                wk["p"].join()
     cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return {"cpu": cpu.ru_utime + cpu.ru_stime, "counts": counts, "by_kind": by_kind, "by_fmt": by_fmt, "examples": examples,
-            "cases": done, "seconds": time.time() - t0}
+    return {"cpu": cpu.ru_utime + cpu.ru_stime, "counts": counts, "by_kind": by_kind, "by_fmt": by_fmt,
+            "examples": examples, "cases": done, "seconds": time.time() - t0}
+
+
+def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, done) -> None:
+    """Start the workers, collect their results, replace a worker whose case runs past
+    ``timeout`` (a hang) or that dies."""
+    for w, part in enumerate(parts):
+        start(w, part)
+    last_echo = time.time()
+    while any(wk["alive"] for wk in workers):
+        for wk in workers:
+            if not wk["alive"]:
+                continue
+            while wk["conn"].poll():
+                try:
+                    msg = wk["conn"].recv()
+                except EOFError:
+                    msg = None
+                if msg is None:
+                    wk["alive"] = False
+                    break
+                record(*msg)
+            if wk["alive"] and wk["slot"][0] >= 0 and time.time() - wk["slot"][1] > timeout:
+                i = int(wk["slot"][0])
+                wk["p"].kill()
+                wk["p"].join()
+                wk["alive"] = False
+                fmt, kind = "?", "?"
+                try:
+                    fmt, kind = Cases(seed).make(i)[:2]
+                except Exception:  # noqa: BLE001
+                    pass
+                record(i, fmt, kind, "hang", f"no result after {timeout:g} s", "")
+                rest = wk["indices"][wk["indices"].index(i) + 1:]
+                if rest:
+                    start(len(workers), rest)
+            elif wk["alive"] and not wk["p"].is_alive() and not wk["conn"].poll():
+                wk["alive"] = False  # died without a word (killed for memory...)
+                i = int(wk["slot"][0])
+                record(i, "?", "?", "crash", f"worker died (exit {wk['p'].exitcode})", "")
+                rest = wk["indices"][wk["indices"].index(i) + 1:] if i >= 0 else []
+                if rest:
+                    start(len(workers), rest)
+        if time.time() - last_echo > 30:
+            n = done()
+            echo(f"  ... {n:,} / {n_cases:,} cases ({n / (time.time() - t0):,.0f}/s)")
+            last_echo = time.time()
+        time.sleep(0.02)
 
 
 def report(res: dict, echo=print) -> int:
