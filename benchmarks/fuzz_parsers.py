@@ -24,6 +24,8 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
+import resource
+import signal
 import sys
 import tempfile
 import time
@@ -78,7 +80,7 @@ class Cases:
 
 
 def _worker(seed: int, indices: list[int], conn, slot, folder: str) -> None:
-    os.nice(10)
+    os.nice(max(0, 10 - os.nice(0)))  # at least nice 10; not more when started with `nice -n 10`
     cases = Cases(seed)
     fuzz = cases.fuzz
     refs: dict[tuple, dict | None] = {}
@@ -138,56 +140,72 @@ def run(n_cases: int, seed: int, jobs: int, timeout: float, echo=print) -> dict:
             if outcome not in ("accepted", "rejected") and len(examples[outcome]) < 8:
                 examples[outcome].append(f"case {i} ({fmt} {src}, {kind}): {detail}")
 
-        for w, part in enumerate(parts):
-            start(w, part)
-        last_echo = time.time()
-        while any(wk["alive"] for wk in workers):
+        try:
+            _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, lambda: done)
+        finally:  # workers first: they write into the case folder that is removed next
             for wk in workers:
-                if not wk["alive"]:
-                    continue
-                while wk["conn"].poll():
-                    try:
-                        msg = wk["conn"].recv()
-                    except EOFError:
-                        msg = None
-                    if msg is None:
-                        wk["alive"] = False
-                        break
-                    record(*msg)
-                if wk["alive"] and wk["slot"][0] >= 0 and time.time() - wk["slot"][1] > timeout:
-                    i = int(wk["slot"][0])
+                if wk["p"].is_alive():
                     wk["p"].kill()
-                    wk["p"].join()
+                wk["p"].join()
+    cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"cpu": cpu.ru_utime + cpu.ru_stime, "counts": counts, "by_kind": by_kind, "by_fmt": by_fmt,
+            "examples": examples, "cases": done, "seconds": time.time() - t0}
+
+
+def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, done) -> None:
+    """Start the workers, collect their results, replace a worker whose case runs past
+    ``timeout`` (a hang) or that dies."""
+    for w, part in enumerate(parts):
+        start(w, part)
+    last_echo = time.time()
+    while any(wk["alive"] for wk in workers):
+        for wk in workers:
+            if not wk["alive"]:
+                continue
+            while wk["conn"].poll():
+                try:
+                    msg = wk["conn"].recv()
+                except EOFError:
+                    msg = None
+                if msg is None:
                     wk["alive"] = False
-                    fmt, kind = "?", "?"
-                    try:
-                        fmt, kind = Cases(seed).make(i)[:2]
-                    except Exception:  # noqa: BLE001
-                        pass
-                    record(i, fmt, kind, "hang", f"no result after {timeout:g} s", "")
-                    rest = wk["indices"][wk["indices"].index(i) + 1:]
-                    if rest:
-                        start(len(workers), rest)
-                elif wk["alive"] and not wk["p"].is_alive() and not wk["conn"].poll():
-                    wk["alive"] = False  # died without a word (killed for memory...)
-                    i = int(wk["slot"][0])
-                    record(i, "?", "?", "crash", f"worker died (exit {wk['p'].exitcode})", "")
-                    rest = wk["indices"][wk["indices"].index(i) + 1:] if i >= 0 else []
-                    if rest:
-                        start(len(workers), rest)
-            if time.time() - last_echo > 30:
-                rate = done / (time.time() - t0)
-                echo(f"  ... {done:,} / {n_cases:,} cases ({rate:,.0f}/s)")
-                last_echo = time.time()
-            time.sleep(0.02)
-    return {"counts": counts, "by_kind": by_kind, "by_fmt": by_fmt, "examples": examples,
-            "cases": done, "seconds": time.time() - t0}
+                    break
+                record(*msg)
+            if wk["alive"] and wk["slot"][0] >= 0 and time.time() - wk["slot"][1] > timeout:
+                i = int(wk["slot"][0])
+                wk["p"].kill()
+                wk["p"].join()
+                wk["alive"] = False
+                fmt, kind = "?", "?"
+                try:
+                    fmt, kind = Cases(seed).make(i)[:2]
+                except Exception:  # noqa: BLE001
+                    pass
+                record(i, fmt, kind, "hang", f"no result after {timeout:g} s", "")
+                rest = wk["indices"][wk["indices"].index(i) + 1:]
+                if rest:
+                    start(len(workers), rest)
+            elif wk["alive"] and not wk["p"].is_alive() and not wk["conn"].poll():
+                wk["alive"] = False  # died without a word (killed for memory...)
+                i = int(wk["slot"][0])
+                record(i, "?", "?", "crash", f"worker died (exit {wk['p'].exitcode})", "")
+                rest = wk["indices"][wk["indices"].index(i) + 1:] if i >= 0 else []
+                if rest:
+                    start(len(workers), rest)
+        if time.time() - last_echo > 30:
+            n = done()
+            echo(f"  ... {n:,} / {n_cases:,} cases ({n / (time.time() - t0):,.0f}/s)")
+            last_echo = time.time()
+        time.sleep(0.02)
 
 
 def report(res: dict, echo=print) -> int:
     c = res["counts"]
     echo(f"cases {res['cases']:,} in {res['seconds']:.0f} s: accepted {c['accepted']:,}, rejected (ParseError) "
          f"{c['rejected']:,}")
+    per = res["cpu"] / max(res["cases"], 1)
+    echo(f"worker CPU {res['cpu']:.0f} s ({1000 * per:.1f} ms per case; on two idle cores 100,000 cases would take "
+         f"{per * 100_000 / 2 / 60:.0f} min)")
     echo("crashes {crash}, hangs {hang}, wrong acceptances {wrong_accept}, wrong rejections {wrong_reject}, "
          "bad errors {bad_error}, fuzzer errors {fuzzer_error}".format(**{k: c[k] for k in (*FAILURES, "fuzzer_error")}))
     cols = ("accepted", "rejected", *FAILURES)
@@ -213,6 +231,8 @@ def main(argv: list[str] | None = None) -> int:
     if not DATA.exists():
         print(f"corpus not found at {DATA}", file=sys.stderr)
         return 1
+    # a terminated run still removes its case folder and its workers
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     n = args.cases or (3_000 if args.quick else 100_000)
     jobs = max(1, min(args.jobs, 2))
     print(f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s")

@@ -199,8 +199,10 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
             if key.lower() in {"begin", "end"}:
                 continue
             for child in words[1:]:
-                if child in placed or child == "root":
-                    raise ParseError(path, ln, f"bone {child!r} already has a parent (line {placed.get(child, ln)}); "
+                if child == "root":
+                    raise ParseError(path, ln, "expected bones as children in :hierarchy, found 'root' (it has no parent)")
+                if child in placed:
+                    raise ParseError(path, ln, f"bone {child!r} already has a parent (line {placed[child]}); "
                                      "expected each bone once as a child in :hierarchy")
                 placed[child] = ln
             asf["hierarchy"].setdefault(key, []).extend(words[1:])

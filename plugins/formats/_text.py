@@ -95,8 +95,12 @@ def _parse_number(buf, s, e, pow10):
     else:
         if exp10 >= -22:
             v = v / pow10[-exp10]
-        else:
-            v = v / 10.0 ** (-exp10)
+        else:  # in steps, so that 1e-320 is the subnormal it is, not 1 / inf = 0
+            k = -exp10
+            while k > 0 and v != 0.0:
+                step = min(k, 300)
+                v = v / 10.0 ** step
+                k -= step
     if not np.isfinite(v):
         return False, 0.0, j
     return True, -v if neg else v, j

@@ -40,7 +40,7 @@ from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
 from ._bvh_write import write_bvh
-from ._common import (MAX_DEGREES, MAX_FPS, MAX_METRES, check_text, file_metadata, line_of, read_bytes, split_ascii,
+from ._common import (MAX_DEGREES, MAX_FPS, MAX_METRES, check_text, file_metadata, line_of, read_bytes,
                       strict_float, strict_int, text_body)
 
 __all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
@@ -64,8 +64,10 @@ class _Joint:
         self.channels: list[str] = []
 
 
-def _parse_hierarchy(path: Path, text: str) -> list[_Joint]:
-    words: list[tuple[str, int]] = [(w, ln) for ln, line in enumerate(text.split("\n"), start=1) for w in split_ascii(line)]
+def _parse_hierarchy(path: Path, text: bytes) -> list[_Joint]:
+    # bytes.split: ASCII whitespace only, as the tokenizer of the motion section
+    words: list[tuple[str, int]] = [(w.decode("latin-1"), ln) for ln, line in enumerate(text.split(b"\n"), start=1)
+                                    for w in line.split()]
     n = len(words)
     if n == 0 or words[0][0].upper() != "HIERARCHY":
         raise ParseError(path, words[0][1] if words else 1, "expected 'HIERARCHY' at the start of a BVH file")
@@ -247,7 +249,7 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
     m = _MOTION_RE.search(body)
     if m is None:
         raise ParseError(path, line_of(body, len(body)), "expected a MOTION section")
-    joints = _parse_hierarchy(path, body[:m.start()].decode("latin-1").replace("\r", ""))
+    joints = _parse_hierarchy(path, body[:m.start()])
     mline = line_of(body, m.start())
     frames, dt, dpos, dline = _motion_header(path, body, m.end() + 1, mline + 1)
     n_ch = sum(len(j.channels) for j in joints)

@@ -49,6 +49,14 @@ def number(word: bytes) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def numbers(words: list[bytes]) -> list[float] | None:
+    """The values of words that are all plain finite numbers, else None."""
+    if not all(map(_NUMBER.fullmatch, words)):
+        return None
+    vals = list(map(float, words))
+    return vals if all(map(math.isfinite, vals)) else None
+
+
 def text_lines(data: bytes) -> list[bytes]:
     """The file's lines without line ends, after the BOM and binary checks."""
     if not data.strip():
@@ -86,26 +94,26 @@ def read_amc(data: bytes, skeleton) -> dict:
         raise Reject(i + 1, "expected a frame number of at most 9 digits")
     degrees = (unit or skeleton.meta.get("units", {}).get("angle", "deg")) == "deg"
     frames: list[dict[str, list[float]]] = []
-    numbers: list[float] = []
+    frame_numbers: list[float] = []
     for ln in range(i, len(lines)):
         words = lines[ln].split()
         if not words:
             continue
         v = number(words[0])
         if v is not None:  # a frame-number line
-            if len(words) != 1 or v != int(v) or (numbers and v != numbers[-1] + 1):
+            if len(words) != 1 or v != int(v) or (frame_numbers and v != frame_numbers[-1] + 1):
                 raise Reject(ln + 1, "expected the next frame number alone on its line")
             if frames:
                 _close_frame(frames, ln)
-            numbers.append(v)
+            frame_numbers.append(v)
             frames.append({})
             continue
         name = words[0].decode("latin-1")
         allowed = dofs if len(frames) == 1 else frames[0]
         if name not in allowed or name in frames[-1]:
             raise Reject(ln + 1, f"bone {name!r} not expected here")
-        vals = [number(w) for w in words[1:]]
-        if len(vals) != dofs[name] or any(x is None for x in vals):
+        vals = numbers(words[1:])
+        if vals is None or len(vals) != dofs[name]:
             raise Reject(ln + 1, f"expected {dofs[name]} numbers for {name!r}")
         frames[-1][name] = vals
     _close_frame(frames, len(lines))
@@ -199,8 +207,8 @@ def read_bvh(data: bytes, scale: float = 1.0) -> dict:
         ws = lines[k].split()
         if not ws:
             continue
-        vals = [number(w) for w in ws]
-        if len(vals) != n_ch or any(v is None for v in vals):
+        vals = numbers(ws)
+        if vals is None or len(vals) != n_ch:
             raise Reject(k + 1, f"expected {n_ch} numbers")
         rows.append(vals)
     if len(rows) != int(frames):
@@ -339,8 +347,8 @@ def read_trc(data: bytes) -> dict:
         words = line.split()
         if not words:
             continue
-        vals = [number(w) for w in words]
-        if len(vals) != width or any(v is None for v in vals):
+        vals = numbers(words) if len(words) == width else None
+        if vals is None:
             fields = line.split(b"\t") if b"\t" in line else words
             if len(fields) < width or any(f.strip() for f in fields[width:]):
                 raise Reject(k + 1, f"expected {width} fields")
