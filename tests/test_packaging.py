@@ -78,13 +78,16 @@ def venv(tmp_path_factory):
 
 def test_wheel_contents_import_from_the_venv(venv):
     py = venv / "bin" / "python"
-    out = _run([str(py), "-c", "import mocapflow.framework as f, mocapflow.plugins as p; print(f.__file__); print(p.__file__)"]).stdout
-    assert all(str(venv) in line for line in out.split()), out
+    out = _run([str(py), "-c", "import mocapflow, mocapflow.framework as f, mocapflow.plugins as p; "
+                               "print(mocapflow.__file__); print(f.__file__); print(p.__file__)"]).stdout
+    assert len(out.split()) == 3 and all(str(venv) in line for line in out.split()), out
 
 
 def test_cli_help_and_plugins_from_wheel(venv):
     exe = venv / "bin" / "mocapflow"
     assert "run" in _run([str(exe), "--help"]).stdout
+    version = _run([str(venv / "bin" / "python"), "-c", "import mocapflow; print(mocapflow.__version__)"]).stdout.strip()
+    assert _run([str(exe), "--version"]).stdout.strip() == f"mocapflow {version}"
     out = _run([str(exe), "plugins"]).stdout
     assert "template" in out and "features.joint_speed" in out and "matchers.sliding_window" in out
 
