@@ -65,12 +65,16 @@ def venv(tmp_path_factory):
     for project in (build, build / "examples" / "template-plugin"):
         _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(project)])
     env_dir = root / "env"
-    _run([sys.executable, "-m", "venv", "--without-pip", str(env_dir)])
+    # this interpreter's pip installs into the venv (pip >= 22.3 `--python`; else the venv's
+    # own pip), before the .pth exists: the venv then holds nothing else, so nothing outside
+    # it is touched
+    from importlib.metadata import version
+
+    pip_python = tuple(int(x) for x in version("pip").split(".")[:2] if x.isdigit()) >= (22, 3)
+    _run([sys.executable, "-m", "venv", *(["--without-pip"] if pip_python else []), str(env_dir)])
     py = env_dir / "bin" / "python"
-    # this interpreter's pip installs into the venv (pip >= 22.3 `--python`), before the .pth
-    # exists: the venv then holds nothing else, so nothing outside it is touched
-    _run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps", "--no-index",
-          *map(str, sorted(wheels.glob("*.whl")))])
+    pip = [sys.executable, "-m", "pip", "--python", str(py)] if pip_python else [str(py), "-m", "pip"]
+    _run([*pip, "install", "--no-deps", "--no-index", *map(str, sorted(wheels.glob("*.whl")))])
     purelib = _run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip()
     (Path(purelib) / "_host_site_packages.pth").write_text("".join(f"{d}\n" for d in _site_dirs()))
     return env_dir
