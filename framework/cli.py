@@ -180,7 +180,7 @@ def cmd_sql(args: argparse.Namespace, pm) -> int:
 
 
 def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
-    from mocapflow import __version__
+    from . import __version__
 
     parser = argparse.ArgumentParser(prog="mocapflow", description="Searchable, clean motion-capture databases.")
     parser.add_argument("--version", action="version", version=f"mocapflow {__version__}")
