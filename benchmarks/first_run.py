@@ -11,6 +11,7 @@ several variants was compiled more than once (different dtypes, layouts or argum
     python benchmarks/first_run.py                    # cold + warm quickstart
     python benchmarks/first_run.py --quick            # the quickstart's first steps only
     python benchmarks/first_run.py --baseline HEAD~3  # the same, also for a git revision, same run
+    python benchmarks/first_run.py --steps nearest search   # these steps and their inputs only
 
 ``--baseline REV`` exports that revision (``git archive``) to a temporary folder and runs the
 same measurement with it importable as ``mocapflow`` (ratios of this tree vs REV, same run,
@@ -48,13 +49,29 @@ def _source_tree(rev: str, into: Path) -> Path:
     return into / "path"
 
 
-def _pipeline(src_root: Path, quick: bool, tmp: Path) -> Path:
-    """The quickstart (or its first steps), with the workspace in ``tmp``."""
+def _with_inputs(steps: dict, wanted) -> set[str]:
+    """``wanted`` and every step they read from, transitively."""
+    keep, todo = set(), list(wanted)
+    while todo:
+        name = todo.pop()
+        if name in keep:
+            continue
+        if name not in steps:
+            raise SystemExit(f"no step {name!r} in the quickstart: {', '.join(steps)}")
+        keep.add(name)
+        step = steps[name]
+        todo += [step["input"]] if "input" in step else list((step.get("inputs") or {}).values())
+    return keep
+
+
+def _pipeline(src_root: Path, steps: tuple[str, ...] | None, tmp: Path) -> Path:
+    """The quickstart (or some of its steps and their inputs), with the workspace in ``tmp``."""
     import yaml
 
     spec = yaml.safe_load((src_root / "pipelines" / "quickstart.yaml").read_text())
-    if quick:
-        spec["steps"] = {k: v for k, v in spec["steps"].items() if k in QUICK_STEPS}
+    if steps:
+        keep = _with_inputs(spec["steps"], steps)
+        spec["steps"] = {k: v for k, v in spec["steps"].items() if k in keep}
     spec["workspace"] = str(tmp / "ws")
     for step in spec["steps"].values():  # paths are relative to the pipeline's folder
         paths = (step.get("with") or {}).get("paths")
@@ -88,10 +105,10 @@ def _cache_counts(cache: Path) -> tuple[int, int, list[tuple[str, int]]]:
     return len(nbi), sum(per_fn.values()), dup
 
 
-def measure(label: str, src_root: Path, pythonpath: Path | None, quick: bool) -> dict:
+def measure(label: str, src_root: Path, pythonpath: Path | None, steps: tuple[str, ...] | None) -> dict:
     with tempfile.TemporaryDirectory(prefix="mocapflow-first-run-") as tmp_s:
         tmp = Path(tmp_s)
-        pipeline = _pipeline(src_root, quick, tmp)
+        pipeline = _pipeline(src_root, steps, tmp)
         cache = tmp / "numba-cache"
         cold_wall, cold, out = _run(pipeline, cache, pythonpath, force=False)
         warm_wall, warm, _ = _run(pipeline, cache, pythonpath, force=True)
@@ -112,16 +129,18 @@ def measure(label: str, src_root: Path, pythonpath: Path | None, quick: bool) ->
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help=f"only the steps {', '.join(QUICK_STEPS)}")
+    ap.add_argument("--steps", nargs="+", metavar="STEP", help="only these quickstart steps (and their inputs)")
     ap.add_argument("--baseline", metavar="REV", help="also measure this git revision, in the same run")
     args = ap.parse_args(argv)
-    print(f"quickstart{' (quick: ' + ', '.join(QUICK_STEPS) + ')' if args.quick else ''}, cold numba cache, "
+    steps = tuple(args.steps) if args.steps else (QUICK_STEPS if args.quick else None)
+    print(f"quickstart{' (' + ', '.join(steps) + ' and their inputs)' if steps else ''}, cold numba cache, "
           f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
     results = {}
     if args.baseline:
         with tempfile.TemporaryDirectory(prefix="mocapflow-baseline-") as base_s:
             path = _source_tree(args.baseline, Path(base_s))
-            results["baseline"] = measure(f"baseline {args.baseline}", Path(base_s) / "src", path, args.quick)
-    results["this tree"] = measure("this tree", ROOT, None, args.quick)
+            results["baseline"] = measure(f"baseline {args.baseline}", Path(base_s) / "src", path, steps)
+    results["this tree"] = measure("this tree", ROOT, None, steps)
     if "baseline" in results:
         b, t = results["baseline"], results["this tree"]
         print(f"\nthis tree vs {args.baseline}: cold first run {b['cold'] / t['cold']:.2f}x faster "

@@ -31,8 +31,12 @@ __all__ = sorted([*_EXPORTS, "__version__"])
 
 def __getattr__(name: str) -> Any:
     if name == "__version__":
-        from mocapflow import __version__
+        try:
+            from mocapflow import __version__
+        except ImportError:  # an editable install older than the top-level package: its metadata
+            from importlib.metadata import version
 
+            return version("mocapflow")
         return __version__
     module = _EXPORTS.get(name)
     if module is None:

@@ -30,6 +30,10 @@ def _echo(msg: str) -> None:
     print(msg, flush=True)
 
 
+def _err(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
 def _warn(msg: str) -> None:
     print(f"mocapflow: warning: {msg}", file=sys.stderr, flush=True)
 
@@ -48,13 +52,11 @@ def _rejects_warnings(reports) -> list[str]:
 
 
 def cmd_run(args: argparse.Namespace, pm) -> int:
-    from .progress import announce_compilation
     from .runner import run_pipeline
 
     _echo(f"mocapflow: running {args.pipeline}")
-    with announce_compilation(_echo):
-        reports = run_pipeline(args.pipeline, workspace=args.workspace, overrides=args.set, jobs=args.jobs,
-                               force=args.force, pm=pm, echo=_echo, wait=args.wait)
+    reports = run_pipeline(args.pipeline, workspace=args.workspace, overrides=args.set, jobs=args.jobs,
+                           force=args.force, pm=pm, echo=_echo, wait=args.wait)
     for line in _rejects_warnings(reports):
         _warn(line)
     computed = sum(r.status == "computed" for r in reports)
@@ -178,7 +180,7 @@ def cmd_sql(args: argparse.Namespace, pm) -> int:
 
 
 def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
-    from mocapflow import __version__
+    from . import __version__
 
     parser = argparse.ArgumentParser(prog="mocapflow", description="Searchable, clean motion-capture databases.")
     parser.add_argument("--version", action="version", version=f"mocapflow {__version__}")
@@ -320,7 +322,11 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 0
-        return int(args.func(args, pm) or 0)
+        from .progress import announce_compilation
+
+        # `run` reports progress on stdout; other commands keep stdout for their results
+        with announce_compilation(_echo if args.command == "run" else _err):
+            return int(args.func(args, pm) or 0)
     except KeyboardInterrupt:
         print("mocapflow: interrupted; finished steps are kept, run again to resume", file=sys.stderr)
         return 130

@@ -132,3 +132,27 @@ def test_sql_output_into_a_new_folder(rejecting_pipeline, capsys):
     # a folder given as the output file is refused before any work
     assert main(["sql", str(ws), "SELECT 1", "--output", str(out.parent)]) == 2
     assert "is a directory" in capsys.readouterr().err
+
+
+def test_every_command_announces_compilation_on_stderr(monkeypatch, capsys):
+    """A plugin command (`mocapflow search`...) whose first call compiles kernels says so,
+    on stderr: its stdout is its result."""
+    numba = pytest.importorskip("numba")
+    import mocapflow.framework.cli as cli
+
+    class Compiles:
+        name, help = "compiles", "compiles a kernel"
+
+        @classmethod
+        def add_arguments(cls, parser):
+            pass
+
+        @classmethod
+        def run(cls, args):
+            print(numba.njit(cache=False)(lambda x: x + 1)(41))
+            return 0
+
+    monkeypatch.setattr(cli, "_plugin_commands", lambda pm: [Compiles])
+    assert main(["--no-entry-points", "compiles"]) == 0
+    out = capsys.readouterr()
+    assert out.out == "42\n" and COMPILING_MESSAGE in out.err

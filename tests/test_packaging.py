@@ -65,12 +65,16 @@ def venv(tmp_path_factory):
     for project in (build, build / "examples" / "template-plugin"):
         _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(project)])
     env_dir = root / "env"
-    _run([sys.executable, "-m", "venv", "--without-pip", str(env_dir)])
+    # this interpreter's pip installs into the venv (pip >= 22.3 `--python`; else the venv's
+    # own pip), before the .pth exists: the venv then holds nothing else, so nothing outside
+    # it is touched
+    from importlib.metadata import version
+
+    pip_python = tuple(int(x) for x in version("pip").split(".")[:2] if x.isdigit()) >= (22, 3)
+    _run([sys.executable, "-m", "venv", *(["--without-pip"] if pip_python else []), str(env_dir)])
     py = env_dir / "bin" / "python"
-    # this interpreter's pip installs into the venv (pip >= 22.3 `--python`), before the .pth
-    # exists: the venv then holds nothing else, so nothing outside it is touched
-    _run([sys.executable, "-m", "pip", "--python", str(py), "install", "--no-deps", "--no-index",
-          *map(str, sorted(wheels.glob("*.whl")))])
+    pip = [sys.executable, "-m", "pip", "--python", str(py)] if pip_python else [str(py), "-m", "pip"]
+    _run([*pip, "install", "--no-deps", "--no-index", *map(str, sorted(wheels.glob("*.whl")))])
     purelib = _run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip()
     (Path(purelib) / "_host_site_packages.pth").write_text("".join(f"{d}\n" for d in _site_dirs()))
     return env_dir
@@ -78,13 +82,16 @@ def venv(tmp_path_factory):
 
 def test_wheel_contents_import_from_the_venv(venv):
     py = venv / "bin" / "python"
-    out = _run([str(py), "-c", "import mocapflow.framework as f, mocapflow.plugins as p; print(f.__file__); print(p.__file__)"]).stdout
-    assert all(str(venv) in line for line in out.split()), out
+    out = _run([str(py), "-c", "import mocapflow, mocapflow.framework as f, mocapflow.plugins as p; "
+                               "print(mocapflow.__file__); print(f.__file__); print(p.__file__)"]).stdout
+    assert len(out.split()) == 3 and all(str(venv) in line for line in out.split()), out
 
 
 def test_cli_help_and_plugins_from_wheel(venv):
     exe = venv / "bin" / "mocapflow"
     assert "run" in _run([str(exe), "--help"]).stdout
+    version = _run([str(venv / "bin" / "python"), "-c", "import mocapflow; print(mocapflow.__version__)"]).stdout.strip()
+    assert _run([str(exe), "--version"]).stdout.strip() == f"mocapflow {version}"
     out = _run([str(exe), "plugins"]).stdout
     assert "template" in out and "features.joint_speed" in out and "matchers.sliding_window" in out
 

@@ -341,7 +341,7 @@ def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, s
     out_i = np.full((m, k), -1, np.int64)
     eps_fac = (1.0 + eps) * (1.0 + eps)
     if n_chunks <= 1:
-        _query_rows(0, m, queries, k, eps_fac, r2, data, perm, start, end, left, right, sdim, sval, blo, bhi,
+        _query_rows(np.int64(0), m, queries, k, eps_fac, r2, data, perm, start, end, left, right, sdim, sval, blo, bhi,
                     groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i, inv)
         return out_d, out_i
     for c in prange(n_chunks):

@@ -277,7 +277,8 @@ class KDTreeIndex(Index):
         excl = -1 if exclude is None else int(exclude)
         if qg is None:
             qg = qf = _ZEROS[:m] if m <= len(_ZEROS) else np.zeros(m, np.int64)
-        qg, qf = np.ascontiguousarray(qg), np.ascontiguousarray(qf)
+        # writable int64: a read-only (Arrow) array would compile a second kernel variant
+        qg, qf = np.require(qg, np.int64, ("C", "W")), np.require(qf, np.int64, ("C", "W"))
         if method == "brute" and getattr(self, "_raw_bound", None) is None:
             from ._brute import raw_sqnorm_bound
 
