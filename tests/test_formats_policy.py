@@ -323,3 +323,18 @@ def test_corpus_opensim_trc_with_runs_of_tabs(tmp_path: Path) -> None:
     got = read_trc(write(tmp_path / src.name, b"\n".join(lines)))
     np.testing.assert_array_equal(got.positions, want.positions)
     assert got.labels == want.labels and got.n_frames == 151
+
+
+# --- every error names a line of the file (found by the fuzzer) --------------------------------
+
+def test_bvh_cut_after_the_motion_header_names_a_line(tmp_path: Path) -> None:
+    head = tiny_bvh([REST] * 3).split("Frame Time")[0]
+    raises_at(read_bvh, write(tmp_path / "a.bvh", head.rstrip("\n")), head.count("\n"), r"'Frame Time: <value>', the file ends")
+    text = tiny_bvh([]).rstrip("\n")
+    raises_at(read_bvh, write(tmp_path / "b.bvh", text), text.count("\n") + 1, r"frame lines .* after this line, found none")
+
+
+def test_asf_undefined_bone_with_a_non_ascii_blank_names_its_line(tmp_path: Path) -> None:
+    text = TINY_ASF.replace("    a b\n", "    a \xa0b\n")
+    raises_at(read_asf, write(tmp_path / "n.asf", text.encode("latin-1")), text.splitlines().index("    a \xa0b") + 1,
+              r"hierarchy names bone '\\xa0b'")

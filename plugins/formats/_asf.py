@@ -223,7 +223,7 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
 
 def _line_of_word(lines: list[str], word: str) -> int | None:
     for ln in range(len(lines), 0, -1):
-        if word in lines[ln - 1].split():
+        if word in split_ascii(lines[ln - 1]):
             return ln
     return None
 

@@ -176,12 +176,14 @@ def _parse_hierarchy(path: Path, text: bytes) -> list[_Joint]:
 def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, float, int, int]:
     """Frames, frame time, byte offset and line of the first data line after MOTION."""
     vals: dict[str, str] = {}
-    for key in ("frames:", "frame time:"):
+    last = line_of(data, len(data))
+    for key, shown in (("frames:", "Frames:"), ("frame time:", "Frame Time:")):
         end = data.find(b"\n", pos)
         end = len(data) if end < 0 else end
         text = data[pos:end].strip().decode("latin-1")
         if not text.lower().startswith(key) or len(text) == len(key):
-            raise ParseError(path, line, f"expected '{key.capitalize()} <value>', found {text[:40]!r}")
+            what = "the file ends" if pos >= len(data) else f"found {text[:40]!r}"
+            raise ParseError(path, min(line, last), f"expected '{shown} <value>', {what}")
         vals[key] = text[len(key):].strip(" \t\r\x0b\x0c")
         pos, line = end + 1, line + 1
     try:
@@ -355,7 +357,7 @@ def _check_motion(path: Path, tok: tuple, frames: int, n_ch: int, first_line: in
         k = int(np.argmin(isnum))
         raise ParseError(path, int(lines[k]), f"expected {n_ch} finite numbers per frame, found a non-number")
     if len(lines) == 0:
-        raise ParseError(path, first_line, f"expected {frames} frame lines (Frames:), found 0")
+        raise ParseError(path, first_line - 1, f"expected {frames} frame lines (Frames:) after this line, found none")
     # tokens come in line order: per-line counts with one bincount, no sort
     per_line = np.bincount(lines - first_line)
     uniq = np.flatnonzero(per_line) + first_line
