@@ -104,7 +104,8 @@ def kept(runs, exact) -> tuple[float, float]:
 
 
 def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=print, propagate=(8, 1000),
-               ann: SearchSpace | None = None) -> None:
+               ann: SearchSpace | None = None, gaps=()) -> None:
+    gap_variants = [(f"gaps {g}, fill", {"gaps": g}) for g in gaps]
     try:
         from dtaidistance.subsequence.dtw import subsequence_alignment
     except ImportError:
@@ -126,10 +127,12 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
         # the matcher as a user gets it (gaps 32, fill, min_span 0.5), and the certified-exact mode,
         # against sDTW's own top-10 (same min_span): alignments found, and identical results
         sd_sets = [list(zip(r.start.tolist(), r.end.tolist())) for r, _ in ref]
-        for name, kw in (("matcher default (gaps 32, fill)", {}), ("gaps 8, fill", {"gaps": 8}),
-                         ("gaps 16, fill", {"gaps": 16}), ("certified exact", {"exact": True}),
-                         ("default, propagate 8", {"propagate": 8}), ("default, k=64", {"k": 64}))
-                         + ((("default, indexes.hnsw", {"ann": True}),) if ann is not None else ()):
+        variants = [("matcher default (gaps 32, fill)", {}), ("certified exact", {"exact": True}),
+                    ("default, propagate 8", {"propagate": 8}), ("default, k=64", {"k": 64})]
+        variants += gap_variants
+        if ann is not None:
+            variants += [("default, indexes.hnsw", {"ann": True})]
+        for name, kw in variants:
             sp = ann if kw.pop("ann", False) else space
             runs = [matcher_once(q, sp, **kw) for q in qs[:n_exact]]
             same, found = kept(runs, [(s,) for s in sd_sets])
@@ -175,6 +178,8 @@ def main(argv=None) -> int:
     ap.add_argument("-k", type=int, nargs="*", default=[256, 64], help="neighbours per query frame (paper: 256)")
     ap.add_argument("--propagate", type=int, nargs="*", default=[8, 1000],
                     help="LNG rows with propagated neighbour sets: index search every N query frames (>= length: first frame only)")
+    ap.add_argument("--gaps", type=int, nargs="*", default=[],
+                    help="also the default matcher with these gap depths (default: only its own, 32)")
     ap.add_argument("--ann", action="store_true",
                     help="also the default matcher through indexes.hnsw (ef 256; built on all cores, needs the ann extra)")
     ap.add_argument("--seed", type=int, default=0)
@@ -193,7 +198,7 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             ann = SearchSpace(space.clip_id, space.frame, HNSWIndex(ef=256, threads=0).build(space.features), space.features)
             print(f"indexes.hnsw build (all cores) {time.perf_counter() - t:.1f} s")
-        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng, propagate=args.propagate, ann=ann)
+        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng, propagate=args.propagate, ann=ann, gaps=args.gaps)
     return 0
 
 
