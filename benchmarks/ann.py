@@ -74,7 +74,7 @@ def usearch_lib():
 
         def query(self, q, k, ef):
             self.ix.expansion_search = max(ef, k)
-            return np.asarray(self.ix.search(q, k, threads=1).keys)
+            return np.atleast_2d(np.asarray(self.ix.search(q, k, threads=1).keys))
 
         def save(self, path):
             self.ix.save(str(path))
@@ -114,9 +114,11 @@ def faiss_lib():
     return F()
 
 
-def libraries():
+def libraries(names=("hnswlib", "usearch", "faiss")):
     out = []
     for make in (hnswlib_lib, usearch_lib, faiss_lib):
+        if make.__name__[:-4] not in names:
+            continue
         try:
             out.append(make())
         except ImportError as exc:
@@ -138,7 +140,7 @@ def one_by_one(fn, qs):
     return np.asarray(out), float(np.median(ts))
 
 
-def bench(label, x, n_queries, ks, efs, rng, echo=print):
+def bench(label, x, n_queries, ks, efs, rng, libs=("hnswlib", "usearch", "faiss"), echo=print):
     from mocapflow.plugins.indexes.kdtree import KDTreeIndex
 
     sd = x.std(axis=0).mean()
@@ -152,7 +154,7 @@ def bench(label, x, n_queries, ks, efs, rng, echo=print):
         echo(f"  exact kd-tree k={k}: {exact[k][1] * 1e3:.3f} ms/query")
     echo(f"  {'library':<8} {'k':>4} {'ef':>5} {'recall':>7} {'ms/query':>9} {'kd-tree/this':>12} "
          f"{'build s':>8} {'MB':>7} {'save/load':>9} {'seeded':>6}")
-    for lib in libraries():
+    for lib in libraries(libs):
         t = time.perf_counter()
         lib.build(x, 0)
         t_build = time.perf_counter() - t
@@ -184,6 +186,9 @@ def main(argv=None) -> int:
     ap.add_argument("--db", type=int, default=None, help="augmented database size (default 380,813)")
     ap.add_argument("--queries", type=int, default=None)
     ap.add_argument("--sets", nargs="*", default=["F_E15", "F_E15x3"], choices=["F_E15", "F_E15x3"])
+    ap.add_argument("--libs", nargs="*", default=["hnswlib", "usearch", "faiss"])
+    ap.add_argument("--ef", type=int, nargs="*", default=[64, 256, 512, 1024], help="search breadths")
+    ap.add_argument("-k", type=int, nargs="*", default=[256, 16])
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     from corpus import augmented_database, load_corpus
@@ -194,7 +199,7 @@ def main(argv=None) -> int:
     sets = {"F_E15": EndEffectorFeatures(joints=5), "F_E15x3": EndEffectorFeatures(joints=5, samples=3)}
     for name in args.sets:
         x = np.ascontiguousarray(sets[name].transform(db), np.float32)
-        bench(name, x, n_q, (256, 16), (64, 256, 512, 1024), rng)
+        bench(name, x, n_q, args.k, args.ef, rng, args.libs)
     return 0
 
 

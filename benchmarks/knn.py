@@ -22,7 +22,7 @@ all cores in another child process (best of 3 calls per method, methods interlea
 1,000 queries on the small corpus). Query frames are random frames of the database
 itself. Differences under ~20 % are noise on this machine.
 
-    python benchmarks/knn.py --quick            # corpus + 380k database, fewer queries
+    python benchmarks/knn.py --quick            # corpus + 380k, three feature sets, 30 queries
     python benchmarks/knn.py                    # corpus, 380,813 and 1,038,388 frames
     python benchmarks/knn.py --db 1038388 --queries 50
 """
@@ -41,7 +41,11 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-FEATURE_SETS = ("F_pca8", "F_pca16", "F_pca25", "F_E15", "F_E30", "F_E39", "F_E15x3", "F_E15x5", "F_E30x3")
+ALL_SETS = ("F_pca8", "F_pca16", "F_pca25", "F_E15", "F_E30", "F_E39", "F_E15x3", "F_E15x5", "F_E30x3")
+#: --quick measures these (the issue's cells: F_E15, the 45-d and the 90-d windowed sets); the
+#: children read the choice from the environment
+QUICK_SETS = ("F_E15", "F_E15x3", "F_E30x3")
+FEATURE_SETS = tuple(s for s in os.environ.get("MOCAPFLOW_KNN_SETS", ",".join(ALL_SETS)).split(",") if s in ALL_SETS)
 PAPER = {  # Table 1, ms per query (Pentium-era PC, ANN library)
     ("hdm05", 16): (0.19, 1.33, 2.86, 1.11, 3.87, 5.27, 7.95, 14.01, 18.98),
     ("hdm05", 256): (1.03, 4.99, 8.68, 4.53, 12.50, 16.37, 23.70, 36.22, 46.71),
@@ -199,7 +203,7 @@ def report(db_name: str, single: dict, batch: dict) -> None:
                     for f in FEATURE_SETS}
             print(f"{'ratio best/us':12s}" + "".join(f"{best[f] / res[f]['ms'][f'mocapflow@{k}']:9.2f}" for f in FEATURE_SETS))
             if paper and mode.startswith("single"):
-                print(f"{'paper 2010':12s}" + "".join(f"{v:9.2f}" for v in PAPER[(paper, k)]))
+                print(f"{'paper 2010':12s}" + "".join(f"{PAPER[(paper, k)][ALL_SETS.index(f)]:9.2f}" for f in FEATURE_SETS))
     print("\nbuild s / memory MB (mocapflow vs cKDTree):  " + "  ".join(
         f"{f}: {single[f]['build_s']['mocapflow']:.2f}/{single[f]['build_s']['cKDTree']:.2f}s "
         f"{single[f]['memory_mb']['mocapflow']:.0f}/{single[f]['memory_mb']['cKDTree']:.0f}MB" for f in FEATURE_SETS))
@@ -207,7 +211,8 @@ def report(db_name: str, single: dict, batch: dict) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="corpus and the 380k database only, fewer queries")
+    ap.add_argument("--quick", action="store_true",
+                    help="corpus and the 380k database, F_E15 / F_E15x3 / F_E30x3 only, 30 queries (a few minutes)")
     ap.add_argument("--queries", type=int, default=None, help="query frames per feature set (default 200, quick 50)")
     ap.add_argument("--db", action="append", choices=["corpus", "380813", "1038388"],
                     help="run only these databases (repeatable)")
@@ -220,10 +225,12 @@ def main() -> None:
         print(json.dumps(measure(db_name, mode, int(nq), Path(cache))))
         return
     dbs = args.db or (["corpus", "380813"] if args.quick else ["corpus", "380813", "1038388"])
-    nq = args.queries or (50 if args.quick else 200)
+    nq = args.queries or (30 if args.quick else 200)
+    if args.quick:
+        os.environ.setdefault("MOCAPFLOW_KNN_SETS", ",".join(QUICK_SETS))
     for db in dbs:
         single = child(db, "single", nq, CACHE)
-        batch = child(db, "batch", max(nq, 1000 if db == "corpus" else 200), CACHE)
+        batch = child(db, "batch", max(nq, 200 if args.quick else 1000 if db == "corpus" else 200), CACHE)
         report(db, single, batch)
 
 

@@ -103,7 +103,9 @@ def kept(runs, exact) -> tuple[float, float]:
     return float(np.mean(same)), float(np.mean(found))
 
 
-def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=print, propagate=(8, 1000)) -> None:
+def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=print, propagate=(8, 1000),
+               ann: SearchSpace | None = None, gaps=()) -> None:
+    gap_variants = [(f"gaps {g}, fill", {"gaps": g}) for g in gaps]
     try:
         from dtaidistance.subsequence.dtw import subsequence_alignment
     except ImportError:
@@ -125,10 +127,14 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
         # the matcher as a user gets it (gaps 32, fill, min_span 0.5), and the certified-exact mode,
         # against sDTW's own top-10 (same min_span): alignments found, and identical results
         sd_sets = [list(zip(r.start.tolist(), r.end.tolist())) for r, _ in ref]
-        for name, kw in (("matcher default (gaps 32, fill)", {}), ("gaps 8, fill", {"gaps": 8}),
-                         ("gaps 16, fill", {"gaps": 16}), ("certified exact", {"exact": True}),
-                         ("default, propagate 8", {"propagate": 8}), ("default, k=64", {"k": 64})):
-            runs = [matcher_once(q, space, **kw) for q in qs[:n_exact]]
+        variants = [("matcher default (gaps 32, fill)", {}), ("certified exact", {"exact": True}),
+                    ("default, propagate 8", {"propagate": 8}), ("default, k=64", {"k": 64})]
+        variants += gap_variants
+        if ann is not None:
+            variants += [("default, indexes.hnsw", {"ann": True})]
+        for name, kw in variants:
+            sp = ann if kw.pop("ann", False) else space
+            runs = [matcher_once(q, sp, **kw) for q in qs[:n_exact]]
             same, found = kept(runs, [(s,) for s in sd_sets])
             found = float(np.mean([len(set(r[0]) & set(e)) / max(len(e), 1) for r, e in zip(runs, sd_sets)]))
             if kw.get("exact"):
@@ -172,6 +178,10 @@ def main(argv=None) -> int:
     ap.add_argument("-k", type=int, nargs="*", default=[256, 64], help="neighbours per query frame (paper: 256)")
     ap.add_argument("--propagate", type=int, nargs="*", default=[8, 1000],
                     help="LNG rows with propagated neighbour sets: index search every N query frames (>= length: first frame only)")
+    ap.add_argument("--gaps", type=int, nargs="*", default=[],
+                    help="also the default matcher with these gap depths (default: only its own, 32)")
+    ap.add_argument("--ann", action="store_true",
+                    help="also the default matcher through indexes.hnsw (ef 256; built on all cores, needs the ann extra)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     sizes = args.sizes or ([60_000] if args.quick else [380_813, 1_038_388])
@@ -181,7 +191,14 @@ def main(argv=None) -> int:
     print("LNG (kNN + graph + path) vs subsequence DTW; F_E^15; kd-tree; one thread; median ms per query")
     for n in sizes:
         space = database_space(n)
-        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng, propagate=args.propagate)
+        ann = None
+        if args.ann:
+            from mocapflow.plugins.indexes.hnsw import HNSWIndex
+
+            t = time.perf_counter()
+            ann = SearchSpace(space.clip_id, space.frame, HNSWIndex(ef=256, threads=0).build(space.features), space.features)
+            print(f"indexes.hnsw build (all cores) {time.perf_counter() - t:.1f} s")
+        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng, propagate=args.propagate, ann=ann, gaps=args.gaps)
     return 0
 
 

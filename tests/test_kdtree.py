@@ -93,6 +93,8 @@ def test_save_load_does_not_rebuild(tmp_path, monkeypatch):
     monkeypatch.setattr(_knn_kernels, "build_tree", None)  # load must not call it
     back = KDTreeIndex.load(tmp_path / "ix")
     assert back.method_ == "kdtree" and back.data_.dtype == np.float32
+    # memory-mapped, not read into memory: the features are views of the saved file
+    assert isinstance(back.data_.base, np.memmap) and back.data_.flags.writeable
     for a, b in zip(ix.query_rows(np.arange(10), 7, exclude=2), back.query_rows(np.arange(10), 7, exclude=2)):
         np.testing.assert_array_equal(a, b)
 

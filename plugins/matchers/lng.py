@@ -201,9 +201,9 @@ def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 2
     is ``gaps=0, fill=False, min_span=0``.
 
     ``exact``: subsequence DTW's matches, certified (:func:`.exact.certified_sdtw`, which
-    uses this graph for its threshold). ``fill``: when the graph holds fewer than
-    ``count`` matches, return the certified-exact search's instead (it then has no
-    threshold and runs the whole DP).
+    takes its threshold from this graph's matches). ``fill``: when the graph holds fewer
+    than ``count`` matches, return the certified-exact search's instead (its threshold
+    is then a guess it verifies, widening to the whole DP if needed).
     """
     from .exact import certified_sdtw
 
