@@ -163,3 +163,42 @@ def test_templates_pipeline_on_hdm05(tmp_path):
         top = cat.query("SELECT h.label, c.name FROM templates h JOIN clips c USING (clip_id) WHERE h.rank = 1").to_pylist()
         assert all(r["label"] in r["name"] for r in top)
     assert len(list((tmp_path / "templates").glob("template_*.png"))) == 11
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_hit_selection_matches_naive(seed):
+    rng = np.random.default_rng(seed)
+    n = 300
+    cost = np.round(rng.random(n), 2)  # ties included
+    cost[rng.random(n) < 0.1] = np.inf
+    start = np.maximum(np.arange(n) - rng.integers(0, 40, n), 0)
+    for thr, gap in ((0.3, 0.5), (0.6, 0.0), (1.0, 0.9)):
+        got = template_hits(cost, start, thr, gap)
+        want = naive.template_hits(cost, start, thr, gap)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+
+
+def test_prefilter_keeps_every_hit_through_an_anchor():
+    from mocapflow.plugins.indexes.inverted import InvertedIndex
+    from mocapflow.plugins.matchers.template import search_template
+    from mocapflow.plugins.matchers.template_prefilter import candidate_ranges, choose_anchor
+
+    rng = np.random.default_rng(5)
+    ex = [_pattern(n, (0.3, 0.6)) for n in (30, 36, 42)]
+    t = fit_class_template("a", ex, features="all")
+    db = (rng.random((3000, 31)) < 0.002).astype(np.float32)
+    for s0, n in ((100, 35), (900, 45), (2500, 30)):
+        db[s0:s0 + n] = _pattern(n, (0.3, 0.6))
+    offsets = np.array([0, 1000, 2000, 3000])
+    idx = InvertedIndex().build(db, np.repeat([0, 1, 2], 1000).astype(np.int32))
+    name, bits, frac = choose_anchor(t, idx)
+    assert name == "lower" and bits.get(3) == 1 and frac < 0.1  # feature 3 on: the rare stretch of the template
+    ranges, covered = candidate_ranges(t, idx)
+    assert covered < 0.5 and np.all(ranges[:, 1] > ranges[:, 0])
+    assert all(np.searchsorted(offsets, a, "right") == np.searchsorted(offsets, b - 1, "right") for a, b in ranges)
+    full = search_template(t, frame_codes(db), offsets)
+    pre = search_template(t, frame_codes(db), offsets, index=idx)
+    for f, p in zip(full, pre):
+        np.testing.assert_array_equal(f, p)
+    assert len(full[0]) == 3

@@ -68,3 +68,18 @@ def subsequence_dtw(c, clip_of):
                 if np.isfinite(best[0]):
                     D[k, j], S[k, j] = best
     return D[K - 1] / K, S[K - 1]
+
+
+def template_hits(cost, start, threshold, min_gap=0.5):
+    """Local minima with cost <= threshold, cheapest first, greedy overlap suppression."""
+    c = np.asarray(cost, float)
+    cand = [j for j in range(len(c)) if c[j] <= threshold and (j == 0 or c[j - 1] >= c[j])
+            and (j + 1 == len(c) or c[j + 1] > c[j])]
+    cand.sort(key=lambda j: c[j])  # stable: equal costs keep frame order
+    acc = []
+    for j in cand:
+        s, e = int(start[j]), j + 1
+        if all(min(e, e2) - max(s, s2) <= min_gap * min(e - s, e2 - s2) for s2, e2, _ in acc):
+            acc.append((s, e, c[j]))
+    return (np.array([a[0] for a in acc], np.int64), np.array([a[1] for a in acc], np.int64),
+            np.array([a[2] for a in acc], float))
