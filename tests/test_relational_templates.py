@@ -202,3 +202,21 @@ def test_prefilter_keeps_every_hit_through_an_anchor():
     for f, p in zip(full, pre):
         np.testing.assert_array_equal(f, p)
     assert len(full[0]) == 3
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_two_pass_search_matches_the_full_pass(seed):
+    from mocapflow.plugins.matchers.template_model import search_costs
+
+    rng = np.random.default_rng(seed)
+    lengths = rng.integers(1, 80, size=6)
+    offsets = np.concatenate([[0], np.cumsum(lengths)])
+    codes = rng.integers(0, 1 << 31, size=int(offsets[-1]), dtype=np.int64)
+    table = rng.random((6400, int(rng.integers(1, 9)))).astype(np.float32)
+    ranges = np.stack([offsets[:-1], offsets[1:]], 1)
+    cost, start = template_costs(codes, table, ranges)
+    thr = float(np.quantile(cost[np.isfinite(cost)], 0.5)) if np.isfinite(cost).any() else 1.0
+    s, e, c, cost2 = search_costs(codes, table, ranges, thr)
+    np.testing.assert_allclose(cost2, cost)  # the branch-free cost pass: same values
+    for got, want in zip((s, e, c), naive.template_hits(cost, start, thr, 0.5, ranges)):
+        np.testing.assert_array_equal(got, want)

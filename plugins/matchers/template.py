@@ -28,8 +28,8 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 from mocapflow.framework.schema import MATCHES
 
-from .template_model import (MotionTemplate, fit_class_template, frame_codes, load_templates,
-                             save_templates, template_costs, template_hits)
+from .template_model import (MotionTemplate, fit_class_template, frame_codes, load_templates, save_templates,
+                             search_costs, template_costs, template_hits)
 
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.context import StepContext
@@ -95,14 +95,28 @@ def feature_ids(columns: np.ndarray) -> str:
     return ",".join(FEATURE_IDS[int(c)] for c in columns)
 
 
+def template_cost_array(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, columns: Literal["key", "all"] = "key",
+                        index=None, anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """End-frame costs and path starts (N,) of one template; with ``index`` (an
+    ``InvertedIndex`` of the same frames) only the candidate regions around the template's
+    anchor are searched (:mod:`.template_prefilter`), the other frames cost inf."""
+    use = t if columns == "key" else _all_columns(t)
+    if index is not None:
+        from .template_prefilter import candidate_ranges
+
+        ranges, _ = candidate_ranges(use, index, anchor_features)
+    else:
+        ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
+    return template_costs(codes, use.table(), ranges)
+
+
 def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None,
                     columns: Literal["key", "all"] = "key", index=None,
                     anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template in a database.
 
     ``codes`` (N,) :func:`.template_model.frame_codes`; ``offsets`` (n_clips + 1,) clip
-    offsets. With ``index`` (an ``InvertedIndex`` of the same frames) only the candidate
-    regions around the template's anchor are searched (:mod:`.template_prefilter`).
+    offsets; ``index``: see :func:`template_cost_array`.
     """
     use = t if columns == "key" else _all_columns(t)
     if index is not None:
@@ -111,8 +125,31 @@ def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, t
         ranges, _ = candidate_ranges(use, index, anchor_features)
     else:
         ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
-    cost, start = template_costs(codes, use.table(), ranges)
-    return template_hits(cost, start, t.threshold if threshold is None else threshold)
+    return search_costs(codes, use.table(), ranges, t.threshold if threshold is None else threshold)[:3]
+
+
+def rival_filter(start: np.ndarray, end: np.ndarray, cost: np.ndarray, rivals: np.ndarray) -> np.ndarray:
+    """Which hits no other template beats: ``rivals`` (N,) is, per frame, the least end-frame
+    cost of the other templates; a hit ``[s, e)`` is beaten when a rival path ending within
+    half its length of ``e`` is cheaper. Returns a boolean mask over the hits."""
+    keep = np.ones(len(start), bool)
+    n = len(rivals)
+    for h, (s, e, c) in enumerate(zip(start, end, cost)):
+        half = (e - s) // 2
+        lo, hi = max(e - 1 - half, 0), min(e + half, n)
+        keep[h] = not (hi > lo and rivals[lo:hi].min() < c)
+    return keep
+
+
+def others_min(costs: np.ndarray) -> np.ndarray:
+    """Per template and frame the least cost of the other templates, (T, N), from (T, N)."""
+    if len(costs) < 2:
+        return np.full_like(costs, np.inf)
+    order = np.argsort(costs, axis=0, kind="stable")[:2]
+    best = np.take_along_axis(costs, order[:1], axis=0)[0]
+    second = np.take_along_axis(costs, order[1:2], axis=0)[0]
+    rows = np.arange(len(costs))[:, None]
+    return np.where(order[0][None, :] == rows, second[None, :], best[None, :])
 
 
 def _all_columns(t: MotionTemplate) -> MotionTemplate:
@@ -149,6 +186,7 @@ class TemplateMatcher(Matcher):
         negatives: bool = Field(True, description="calibrate thresholds against the other classes' training clips too")
         anchor_features: int = Field(2, ge=1, le=3, description="with an 'index' input: features of the anchor constellation "
                                      "whose inverted lists pre-select the searched regions")
+        rivals: bool = Field(False, description="drop a hit when another template matches the same stretch more cheaply")
         plots: bool = Field(True, description="write template_<label>.png per template")
 
     def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
@@ -191,9 +229,14 @@ class TemplateMatcher(Matcher):
             if int(next(iter(index.sets.values())).clip_offsets[-1]) != len(codes):
                 raise PipelineError("matchers.template: the index was built on other frames than 'database'")
         rows = []
+        arrays = [template_cost_array(t, codes, offsets, self.params.features, index, self.params.anchor_features)
+                  for t in templates]
+        rivals = others_min(np.array([a[0] for a in arrays])) if self.params.rivals and arrays else None
         for qid, t in enumerate(templates):
-            s, e, c = search_template(t, codes, offsets, self.params.threshold, self.params.features, index,
-                                      self.params.anchor_features)
+            s, e, c = template_hits(*arrays[qid], self.params.threshold or t.threshold)
+            if rivals is not None:
+                keep = rival_filter(s, e, c, rivals[qid])
+                s, e, c = s[keep], e[keep], c[keep]
             if self.params.max_hits:
                 s, e, c = s[: self.params.max_hits], e[: self.params.max_hits], c[: self.params.max_hits]
             pos = np.searchsorted(offsets, s, side="right") - 1
@@ -288,5 +331,5 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     return out
 
 
-__all__ = ["HDM05_LABEL", "TemplateMatcher", "clip_labels", "plot_template", "search_template", "template_hits_table",
-           "templates_table"]
+__all__ = ["HDM05_GROUP", "HDM05_LABEL", "TemplateMatcher", "clip_labels", "fit_templates", "others_min", "plot_template",
+           "rival_filter", "search_template", "template_cost_array", "template_hits_table", "templates_table"]

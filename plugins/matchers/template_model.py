@@ -226,6 +226,49 @@ def template_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray) -> 
     return cost, start
 
 
+def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, threshold: float,
+                 min_gap: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Hits of one template over frame ranges in two passes: end-frame costs only
+    (``sdtw_cost``), then the merged windows around candidate ends again with path starts.
+
+    Returns ``(start, end, cost)`` as :func:`template_hits` and the cost array (N,). The
+    hits equal those of :func:`template_costs` + :func:`template_hits` except that a range
+    boundary counts as an inf neighbour (a start may differ only between equal-cost paths).
+    """
+    from ._template_kernels import sdtw_cost, template_sdtw
+
+    n = len(codes)
+    cost = np.full(n, np.inf)
+    r = np.asarray(ranges, np.int64).reshape(-1, 2)
+    if len(r) and table.shape[1]:
+        sdtw_cost(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), np.ascontiguousarray(r[:, 0]),
+                  np.ascontiguousarray(r[:, 1]), cost)
+    from ._template_kernels import greedy_hits, range_minima
+
+    if not 0.0 <= min_gap < 1.0:
+        raise DataError(f"min_gap must be in [0, 1), got {min_gap}")
+    order = np.argsort(r[:, 0], kind="stable")
+    r = r[order]
+    cand = range_minima(cost, np.ascontiguousarray(r[:, 0]), np.ascontiguousarray(r[:, 1]), float(threshold))
+    full_start = np.zeros(n, np.int64)
+    if len(cand):
+        # windows [end - 2K + 1, end] (inside the candidate's range) hold every path ending at a
+        # candidate; overlapping windows are merged and searched again, with path starts
+        which = np.searchsorted(r[:, 0], cand, side="right") - 1
+        lo = np.maximum(r[which, 0], cand - 2 * table.shape[1] + 1)
+        hi = cand + 1
+        new = np.r_[True, (lo[1:] > hi[:-1]) | (which[1:] != which[:-1])]
+        first = np.flatnonzero(new)
+        wlo = np.ascontiguousarray(lo[first])
+        whi = np.ascontiguousarray(np.maximum.reduceat(hi, first))
+        scratch_cost = np.empty(n)
+        scratch_start = np.empty(n, np.int64)
+        template_sdtw(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), wlo, whi, scratch_cost, scratch_start)
+        full_start[cand] = scratch_start[cand]
+    ends = greedy_hits(cand, cost, full_start, float(min_gap), n)
+    return full_start[ends], ends + 1, cost[ends], cost
+
+
 def template_hits(cost: np.ndarray, start: np.ndarray, threshold: float, min_gap: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits from end-frame costs: local minima with cost <= threshold, greedy suppression.
 
@@ -374,5 +417,5 @@ def fit_class_template(label: str, examples: list[np.ndarray], background: np.nd
     return tmpl
 
 
-__all__ = ["calibrate_threshold", "pairwise_costs", "clip_min_costs", "fit_class_template", "key_columns", "MODEL_FILE", "MotionTemplate", "align_average", "cost_table", "fit_template", "frame_codes",
+__all__ = ["search_costs", "calibrate_threshold", "pairwise_costs", "clip_min_costs", "fit_class_template", "key_columns", "MODEL_FILE", "MotionTemplate", "align_average", "cost_table", "fit_template", "frame_codes",
            "load_templates", "save_templates", "template_costs", "template_hits"]

@@ -70,11 +70,15 @@ def subsequence_dtw(c, clip_of):
     return D[K - 1] / K, S[K - 1]
 
 
-def template_hits(cost, start, threshold, min_gap=0.5):
-    """Local minima with cost <= threshold, cheapest first, greedy overlap suppression."""
+def template_hits(cost, start, threshold, min_gap=0.5, ranges=None):
+    """Local minima with cost <= threshold, cheapest first, greedy overlap suppression.
+
+    With ``ranges`` ((R, 2) frame ranges) minima are taken inside each range, the frames
+    beyond its ends counting as inf."""
     c = np.asarray(cost, float)
-    cand = [j for j in range(len(c)) if c[j] <= threshold and (j == 0 or c[j - 1] >= c[j])
-            and (j + 1 == len(c) or c[j + 1] > c[j])]
+    ranges = [(0, len(c))] if ranges is None else [tuple(r) for r in ranges]
+    cand = [j for lo, hi in ranges for j in range(lo, hi) if c[j] <= threshold and (j == lo or c[j - 1] >= c[j])
+            and (j + 1 == hi or c[j + 1] > c[j])]
     cand.sort(key=lambda j: c[j])  # stable: equal costs keep frame order
     acc = []
     for j in cand:
