@@ -220,3 +220,35 @@ def test_two_pass_search_matches_the_full_pass(seed):
     np.testing.assert_allclose(cost2, cost)  # the branch-free cost pass: same values
     for got, want in zip((s, e, c), naive.template_hits(cost, start, thr, 0.5, ranges)):
         np.testing.assert_array_equal(got, want)
+
+
+def test_clip_labels_and_groups():
+    from mocapflow.framework.errors import ConfigError
+    from mocapflow.plugins.matchers.template import HDM05_GROUP, HDM05_LABEL, clip_labels
+
+    names = ["HDM_bd_kickLFront1Reps_001_120", "HDM_dg_squat1Reps_025_120", "01_02"]
+    assert clip_labels(names, HDM05_LABEL) == ["kickLFront1Reps", "squat1Reps", None]
+    assert clip_labels(names, HDM05_GROUP, "group") == ["bd", "dg", None]
+    with pytest.raises(ConfigError, match="named group"):
+        clip_labels(names, r"HDM_(\w+)")
+
+
+def test_calibrate_threshold_between_positives_and_negatives():
+    from mocapflow.plugins.matchers.template_model import calibrate_threshold
+
+    assert calibrate_threshold([0.1, 0.2], [0.5, 0.6]) == pytest.approx(0.35)  # midway: F1 = 1
+    assert calibrate_threshold([0.1, 0.2], None, margin=0.5) == pytest.approx(0.3)
+    assert calibrate_threshold([np.inf], [0.1]) == 0.1  # no finite positive: the fallback
+    # overlapping classes: the cut keeping both positives beats the one losing one (F1 0.8 vs 0.67)
+    assert 0.3 < calibrate_threshold([0.1, 0.3], [0.2, 0.9]) < 0.9
+
+
+def test_rivals_drop_hits_another_template_matches_better():
+    from mocapflow.plugins.matchers.template import others_min, rival_filter
+
+    costs = np.array([[0.1, 0.5, 0.2, 0.9], [0.3, 0.4, 0.1, 0.8], [0.2, 0.6, 0.7, 0.1]])
+    om = others_min(costs)
+    np.testing.assert_allclose(om, [[0.2, 0.4, 0.1, 0.1], [0.1, 0.5, 0.2, 0.1], [0.1, 0.4, 0.1, 0.8]])
+    # a hit [0, 3) of template 0 with cost 0.2 ends at frame 2, where template 1 costs 0.1
+    keep = rival_filter(np.array([0, 2]), np.array([3, 3]), np.array([0.2, 0.05]), om[0])
+    assert keep.tolist() == [False, True]
