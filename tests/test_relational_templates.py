@@ -252,3 +252,26 @@ def test_rivals_drop_hits_another_template_matches_better():
     # a hit [0, 3) of template 0 with cost 0.2 ends at frame 2, where template 1 costs 0.1
     keep = rival_filter(np.array([0, 2]), np.array([3, 3]), np.array([0.2, 0.05]), om[0])
     assert keep.tolist() == [False, True]
+
+
+@pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
+def test_fitted_templates_are_reused_through_reference(tmp_path):
+    import pyarrow.parquet as pq
+
+    from mocapflow.framework.runner import run_pipeline
+
+    files = sorted(str(p) for c in ("kickLFront", "squat1") for p in HDM05.glob(f"*/*{c}*.amc"))
+    yaml = tmp_path / "t.yaml"
+    yaml.write_text(f"""name: t
+workspace: ws
+steps:
+  motions: {{uses: formats.load, with: {{paths: {files!r}, fps: 30}}}}
+  relational: {{uses: features.relational, input: motions}}
+  fit: {{uses: matchers.template, inputs: {{database: relational, motions: motions}}, with: {{train: "^HDM_(bd|bk)_", plots: false}}}}
+  reuse: {{uses: matchers.template, inputs: {{database: relational, motions: motions, reference: fit}}, with: {{plots: false}}}}
+""")
+    run_pipeline(yaml)
+    ws = tmp_path / "ws"
+    a, b = (pq.read_table(ws / s / "data.parquet").to_pylist() for s in ("fit", "reuse"))
+    assert a == b and len(a) >= 12  # the same templates: the same hits (each class finds its 6 cuts at least)
+    assert pq.read_table(ws / "reuse" / "templates.parquet")["label"].to_pylist() == ["kickLFront1Reps", "squat1Reps"]
