@@ -11,7 +11,10 @@ Prints:
 3. queries: exact and adaptive fuzzy queries of 5, 10 and 20 segments, 1,000 random
    queries each (paper Table 3: 10,000 queries, 16-294 ms in Matlab).
 
-Usage: ``python benchmarks/relational.py [--quick] [--frames N] [--fps 30]``
+4. with ``--templates`` (only): motion templates and mode ``auto`` leave-one-actor-out, and
+   their speed on a 1 M-frame tiled database (``relational_templates.py``).
+
+Usage: ``python benchmarks/relational.py [--quick] [--frames N] [--fps 30] [--templates]``
 """
 from __future__ import annotations
 
@@ -211,6 +214,27 @@ def query_bench(index: InvertedIndex, n_queries: int, seed: int = 0) -> None:
                   f"p95 {np.percentile(times, 95):.3f} ms; hits median {int(np.median(nh))}, max {max(nh)}")
 
 
+def templates_main(fps: float, n_frames: int) -> None:
+    """Motion templates (Müller & Röder 2006) and mode auto: figures and speed."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import relational_templates as rt
+
+    t = time.perf_counter()
+    db = load_hdm05(fps)
+    bits = relational_features(db.canonical_positions(), db.fps, _measures(db), None, db.offsets)
+    names = [m.name for m in db.motions]
+    print(f"loaded {db.n_clips} HDM05 cuts ({db.n_frames} frames at {fps:g} Hz) with features in {time.perf_counter() - t:.1f} s")
+    rt.report(bits, db.offsets, names)
+    big_pos, big_off, big_meas, how = augmented_positions(db, n_frames, tiled=True)
+    big_pos, big_off = big_pos[:n_frames], np.minimum(big_off[big_off < n_frames].tolist() + [n_frames], n_frames)
+    big_meas = {k: v[:n_frames] for k, v in big_meas.items()}
+    big_bits = relational_features(big_pos, db.fps, big_meas, None, big_off)
+    print(f"\nlarge database: {how}, {len(big_bits):,} frames")
+    rt.speed(bits, db.offsets, names, big_bits, np.asarray(big_off, np.int64))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small run (2 clips per class, 200 k frames, 100 queries)")
@@ -218,8 +242,12 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=30.0, help="resampling rate (default 30 Hz)")
     ap.add_argument("--tiled", action="store_true", help="build the large database by tiling HDM05 (fast) "
                     "instead of benchmarks/corpus.py's augmented CMU + HDM05 corpus")
+    ap.add_argument("--templates", action="store_true", help="only the motion-template and automatic-selection figures "
+                    "(leave-one-actor-out) and their speed on a 1 M-frame tiled database (relational_templates.py)")
     args = ap.parse_args()
     n_frames = args.frames or (200_000 if args.quick else 1_300_000)
+    if args.templates:
+        return templates_main(args.fps, args.frames or (200_000 if args.quick else 1_000_000))
     t = time.perf_counter()
     db = load_hdm05(args.fps, per_class=2 if args.quick else None)
     print(f"loaded {db.n_clips} HDM05 clips ({db.n_frames} frames at {args.fps:g} Hz) in {time.perf_counter() - t:.1f} s")

@@ -163,3 +163,115 @@ def test_templates_pipeline_on_hdm05(tmp_path):
         top = cat.query("SELECT h.label, c.name FROM templates h JOIN clips c USING (clip_id) WHERE h.rank = 1").to_pylist()
         assert all(r["label"] in r["name"] for r in top)
     assert len(list((tmp_path / "templates").glob("template_*.png"))) == 11
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_hit_selection_matches_naive(seed):
+    rng = np.random.default_rng(seed)
+    n = 300
+    cost = np.round(rng.random(n), 2)  # ties included
+    cost[rng.random(n) < 0.1] = np.inf
+    start = np.maximum(np.arange(n) - rng.integers(0, 40, n), 0)
+    for thr, gap in ((0.3, 0.5), (0.6, 0.0), (1.0, 0.9)):
+        got = template_hits(cost, start, thr, gap)
+        want = naive.template_hits(cost, start, thr, gap)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+
+
+def test_prefilter_keeps_every_hit_through_an_anchor():
+    from mocapflow.plugins.indexes.inverted import InvertedIndex
+    from mocapflow.plugins.matchers.template import search_template
+    from mocapflow.plugins.matchers.template_prefilter import candidate_ranges, choose_anchor
+
+    rng = np.random.default_rng(5)
+    ex = [_pattern(n, (0.3, 0.6)) for n in (30, 36, 42)]
+    t = fit_class_template("a", ex, features="all")
+    db = (rng.random((3000, 31)) < 0.002).astype(np.float32)
+    for s0, n in ((100, 35), (900, 45), (2500, 30)):
+        db[s0:s0 + n] = _pattern(n, (0.3, 0.6))
+    offsets = np.array([0, 1000, 2000, 3000])
+    idx = InvertedIndex().build(db, np.repeat([0, 1, 2], 1000).astype(np.int32))
+    name, bits, frac = choose_anchor(t, idx)
+    assert name == "lower" and bits.get(3) == 1 and frac < 0.1  # feature 3 on: the rare stretch of the template
+    ranges, covered = candidate_ranges(t, idx)
+    assert covered < 0.5 and np.all(ranges[:, 1] > ranges[:, 0])
+    assert all(np.searchsorted(offsets, a, "right") == np.searchsorted(offsets, b - 1, "right") for a, b in ranges)
+    full = search_template(t, frame_codes(db), offsets)
+    pre = search_template(t, frame_codes(db), offsets, index=idx)
+    for f, p in zip(full, pre):
+        np.testing.assert_array_equal(f, p)
+    assert len(full[0]) == 3
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_two_pass_search_matches_the_full_pass(seed):
+    from mocapflow.plugins.matchers.template_model import search_costs
+
+    rng = np.random.default_rng(seed)
+    lengths = rng.integers(1, 80, size=6)
+    offsets = np.concatenate([[0], np.cumsum(lengths)])
+    codes = rng.integers(0, 1 << 31, size=int(offsets[-1]), dtype=np.int64)
+    table = rng.random((6400, int(rng.integers(1, 9)))).astype(np.float32)
+    ranges = np.stack([offsets[:-1], offsets[1:]], 1)
+    cost, start = template_costs(codes, table, ranges)
+    thr = float(np.quantile(cost[np.isfinite(cost)], 0.5)) if np.isfinite(cost).any() else 1.0
+    s, e, c, cost2 = search_costs(codes, table, ranges, thr)
+    np.testing.assert_allclose(cost2, cost)  # the branch-free cost pass: same values
+    for got, want in zip((s, e, c), naive.template_hits(cost, start, thr, 0.5, ranges)):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_clip_labels_and_groups():
+    from mocapflow.framework.errors import ConfigError
+    from mocapflow.plugins.matchers.template import HDM05_GROUP, HDM05_LABEL, clip_labels
+
+    names = ["HDM_bd_kickLFront1Reps_001_120", "HDM_dg_squat1Reps_025_120", "01_02"]
+    assert clip_labels(names, HDM05_LABEL) == ["kickLFront1Reps", "squat1Reps", None]
+    assert clip_labels(names, HDM05_GROUP, "group") == ["bd", "dg", None]
+    with pytest.raises(ConfigError, match="named group"):
+        clip_labels(names, r"HDM_(\w+)")
+
+
+def test_calibrate_threshold_between_positives_and_negatives():
+    from mocapflow.plugins.matchers.template_model import calibrate_threshold
+
+    assert calibrate_threshold([0.1, 0.2], [0.5, 0.6]) == pytest.approx(0.35)  # midway: F1 = 1
+    assert calibrate_threshold([0.1, 0.2], None, margin=0.5) == pytest.approx(0.3)
+    assert calibrate_threshold([np.inf], [0.1]) == 0.1  # no finite positive: the fallback
+    # overlapping classes: the cut keeping both positives beats the one losing one (F1 0.8 vs 0.67)
+    assert 0.3 < calibrate_threshold([0.1, 0.3], [0.2, 0.9]) < 0.9
+
+
+def test_rivals_drop_hits_another_template_matches_better():
+    from mocapflow.plugins.matchers.template import others_min, rival_filter
+
+    costs = np.array([[0.1, 0.5, 0.2, 0.9], [0.3, 0.4, 0.1, 0.8], [0.2, 0.6, 0.7, 0.1]])
+    om = others_min(costs)
+    np.testing.assert_allclose(om, [[0.2, 0.4, 0.1, 0.1], [0.1, 0.5, 0.2, 0.1], [0.1, 0.4, 0.1, 0.8]])
+    # a hit [0, 3) of template 0 with cost 0.2 ends at frame 2, where template 1 costs 0.1
+    keep = rival_filter(np.array([0, 2]), np.array([3, 3]), np.array([0.2, 0.05]), om[0])
+    assert keep.tolist() == [False, True]
+
+
+@pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
+def test_fitted_templates_are_reused_through_reference(tmp_path):
+    import pyarrow.parquet as pq
+
+    from mocapflow.framework.runner import run_pipeline
+
+    files = sorted(str(p) for c in ("kickLFront", "squat1") for p in HDM05.glob(f"*/*{c}*.amc"))
+    yaml = tmp_path / "t.yaml"
+    yaml.write_text(f"""name: t
+workspace: ws
+steps:
+  motions: {{uses: formats.load, with: {{paths: {files!r}, fps: 30}}}}
+  relational: {{uses: features.relational, input: motions}}
+  fit: {{uses: matchers.template, inputs: {{database: relational, motions: motions}}, with: {{train: "^HDM_(bd|bk)_", plots: false}}}}
+  reuse: {{uses: matchers.template, inputs: {{database: relational, motions: motions, reference: fit}}, with: {{plots: false}}}}
+""")
+    run_pipeline(yaml)
+    ws = tmp_path / "ws"
+    a, b = (pq.read_table(ws / s / "data.parquet").to_pylist() for s in ("fit", "reuse"))
+    assert a == b and len(a) >= 12  # the same templates: the same hits (each class finds its 6 cuts at least)
+    assert pq.read_table(ws / "reuse" / "templates.parquet")["label"].to_pylist() == ["kickLFront1Reps", "squat1Reps"]

@@ -83,6 +83,14 @@ class SetIndex:
     list_offsets: np.ndarray
     list_positions: np.ndarray
 
+    @cached_property
+    def list_frames(self) -> np.ndarray:
+        """Frames covered by each inverted list (aligned with ``list_codes``), int64."""
+        lengths = (self.seg_end - self.seg_start)[self.list_positions]
+        if not len(lengths):
+            return np.zeros(len(self.list_codes), np.int64)
+        return np.add.reduceat(lengths, self.list_offsets[:-1]) * (np.diff(self.list_offsets) > 0)
+
     @property
     def n_segments(self) -> int:
         return len(self.seg_start)

@@ -82,16 +82,16 @@ def dtw_path(a, b):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start):  # pragma: no cover - compiled
-    """Subsequence DTW over the frames ``[lo_frame, hi_frame)`` of one clip (module doc)."""
+def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start, base=0):  # pragma: no cover - compiled
+    """Subsequence DTW over the frames ``[lo_frame, hi_frame)`` of one clip (module doc);
+    the results of frame ``j`` go to ``cost[j - base]`` and ``start[j - base]``.
+
+    Three accumulated-cost columns (j, j-1, j-2) in a ring buffer; the local-cost column is
+    recomputed only when the frame code changes.
+    """
     n_rows = table.shape[1]
-    inf = np.inf
-    d1 = np.full(n_rows, inf)  # column j-1
-    d2 = np.full(n_rows, inf)  # column j-2
-    s1 = np.zeros(n_rows, np.int64)
-    s2 = np.zeros(n_rows, np.int64)
-    d0 = np.empty(n_rows)
-    s0 = np.empty(n_rows, np.int64)
+    d = np.full((3, n_rows), np.inf)
+    st = np.zeros((3, n_rows), np.int64)
     col = np.empty(n_rows)
     last_code = -1
     for j in range(lo_frame, hi_frame):
@@ -103,34 +103,49 @@ def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start):  # pragma: no co
             for k in range(n_rows):
                 col[k] = table[a, k] + table[b, k] + table[c, k]
             last_code = code
+        r = j - lo_frame
+        cur, p1, p2 = r % 3, (r + 2) % 3, (r + 1) % 3
+        d0, s0, d1, s1, d2, s2 = d[cur], st[cur], d[p1], st[p1], d[p2], st[p2]
+        if r == 0:
+            for k in range(n_rows):
+                d1[k] = np.inf
+                d2[k] = np.inf
+        elif r == 1:
+            for k in range(n_rows):
+                d2[k] = np.inf
         # template frame 0: a fresh start
         d0[0] = col[0]
         s0[0] = j
-        for k in range(1, n_rows):
+        if n_rows > 1:  # template frame 1: (1,1) from frame 0, (2,1) from the virtual row, (1,2)
+            ck = col[1]
+            best = d1[0] + ck
+            bs = s1[0]
+            v = 2.0 * ck
+            if v < best:
+                best = v
+                bs = j
+            v = d2[0] + ck
+            if v < best:
+                best = v
+                bs = s2[0]
+            d0[1] = best
+            s0[1] = bs
+        for k in range(2, n_rows):
             ck = col[k]
             best = d1[k - 1] + ck
             bs = s1[k - 1]
-            if k >= 2:
-                v = d1[k - 2] + 2.0 * ck
-            else:
-                v = 2.0 * ck  # (2,1) from the virtual row before the template: start at frame 1
+            v = d1[k - 2] + 2.0 * ck
             if v < best:
                 best = v
-                bs = s1[k - 2] if k >= 2 else j
+                bs = s1[k - 2]
             v = d2[k - 1] + ck
             if v < best:
                 best = v
                 bs = s2[k - 1]
             d0[k] = best
             s0[k] = bs
-        cost[j] = d0[n_rows - 1] / n_rows
-        start[j] = s0[n_rows - 1]
-        # rotate the columns
-        for k in range(n_rows):
-            d2[k] = d1[k]
-            s2[k] = s1[k]
-            d1[k] = d0[k]
-            s1[k] = s0[k]
+        cost[j - base] = d0[n_rows - 1] / n_rows
+        start[j - base] = s0[n_rows - 1]
 
 
 @njit(cache=True, parallel=True)
@@ -153,4 +168,110 @@ def template_sdtw(codes, table, chunk_lo, chunk_hi, cost, start):  # pragma: no 
         First database frame of that path.
     """
     for r in prange(chunk_lo.shape[0]):
-        _sdtw_range(codes, table, chunk_lo[r], chunk_hi[r], cost, start)
+        _sdtw_range(codes, table, chunk_lo[r], chunk_hi[r], cost, start, 0)
+
+
+@njit(cache=True, parallel=True)
+def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost):  # pragma: no cover - compiled
+    """End-frame costs only (no path starts), branch-free minima: the fast first pass of a
+    search. Same recurrence and values as :func:`template_sdtw`."""
+    n_rows = table.shape[1]
+    for r in prange(chunk_lo.shape[0]):
+        d0 = np.empty(n_rows)
+        d1 = np.full(n_rows, np.inf)
+        d2 = np.full(n_rows, np.inf)
+        col = np.empty(n_rows)
+        last_code = -1
+        for j in range(chunk_lo[r], chunk_hi[r]):
+            code = codes[j]
+            if code != last_code:
+                a = code & 2047
+                b = 2048 + ((code >> 11) & 4095)
+                c = 6144 + ((code >> 23) & 255)
+                for k in range(n_rows):
+                    col[k] = table[a, k] + table[b, k] + table[c, k]
+                last_code = code
+            d0[0] = col[0]
+            if n_rows > 1:
+                ck = col[1]
+                d0[1] = min(min(d1[0] + ck, 2.0 * ck), d2[0] + ck)
+            for k in range(2, n_rows):
+                ck = col[k]
+                d0[k] = min(min(d1[k - 1] + ck, d1[k - 2] + 2.0 * ck), d2[k - 1] + ck)
+            cost[j] = d0[n_rows - 1] / n_rows
+            d0, d1, d2 = d2, d0, d1
+
+
+@njit(cache=True)
+def select_hits(cost, start, threshold, min_gap):  # pragma: no cover - compiled
+    """Hits from end-frame costs: local minima with cost <= threshold, cheapest first, a
+    candidate dropped when it overlaps an accepted hit by more than ``min_gap`` of the
+    shorter span.
+
+    Returns
+    -------
+    ends : int64 (h,)
+        End frames (inclusive) of the accepted hits, by ascending cost.
+    """
+    n = cost.shape[0]
+    lo = np.zeros(1, np.int64)
+    hi = np.full(1, n, np.int64)
+    return greedy_hits(range_minima(cost, lo, hi, threshold), cost, start, min_gap, n)
+
+
+@njit(cache=True)
+def range_minima(cost, lo, hi, threshold):  # pragma: no cover - compiled
+    """Frames ``j`` inside the ranges ``[lo, hi)`` with ``cost[j] <= threshold``, not above
+    the previous frame and below the next (frames outside the range count as inf)."""
+    total = 0
+    for r in range(lo.shape[0]):
+        total += hi[r] - lo[r]
+    cand = np.empty(total, np.int64)
+    m = 0
+    for r in range(lo.shape[0]):
+        for j in range(lo[r], hi[r]):
+            c = cost[j]
+            if not c <= threshold:  # also rejects NaN and inf
+                continue
+            if j > lo[r] and cost[j - 1] < c:
+                continue
+            if j + 1 < hi[r] and cost[j + 1] <= c:
+                continue
+            cand[m] = j
+            m += 1
+    return cand[:m]
+
+
+@njit(cache=True)
+def greedy_hits(cand, cost, start, min_gap, n):  # pragma: no cover - compiled
+    """The greedy overlap suppression of :func:`select_hits` over given candidate ends
+    (ascending frames); ``n`` frames in all. Returns the accepted ends by ascending cost."""
+    m = cand.shape[0]
+    order = np.argsort(cost[cand], kind="mergesort")
+    # accepted hits by first frame: with min_gap < 1 two accepted hits never share a start,
+    # and any accepted hit overlapping [s, e) starts in [s - longest, e)
+    by_start = np.full(n + 1, -1, np.int64)
+    acc_s = np.empty(m, np.int64)
+    acc_e = np.empty(m, np.int64)
+    out = np.empty(m, np.int64)
+    h = 0
+    longest = 0
+    for r in range(m):
+        j = cand[order[r]]
+        s, e = start[j], j + 1
+        ok = True
+        for f in range(max(s - longest, 0), e):
+            o = by_start[f]
+            if o >= 0:
+                ov = min(e, acc_e[o]) - max(s, acc_s[o])
+                if ov > min_gap * min(e - s, acc_e[o] - acc_s[o]):
+                    ok = False
+                    break
+        if ok:
+            acc_s[h] = s
+            acc_e[h] = e
+            by_start[s] = h
+            longest = max(longest, e - s)
+            out[h] = j
+            h += 1
+    return out[:h]

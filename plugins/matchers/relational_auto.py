@@ -22,9 +22,8 @@ Two searches use the selection (``auto_search``):
     key features (:func:`~.template_model.key_columns`: features running through a
     progression in the query, or departing from the database's typical value) and is
     retrieved by subsequence DTW; with further examples a proper template is fitted
-    (cells where they disagree are don't care) and its threshold calibrated. Without a
-    calibrated threshold a hit is a clip stretch whose cost is below ``relative_cut`` times
-    the median per-clip cost of the database (or below ``max_cost``).
+    (cells where they disagree are don't care). A hit is a clip stretch whose cost is below
+    ``relative_cut`` times the median per-clip cost of the database (or below ``max_cost``).
 ``adaptive`` / ``mismatch``
     The smoothed bits of the ``max_features`` best-scoring features (steps 1-4) run
     through the paper's machinery (adaptive fuzzy or m-mismatch hits).
@@ -128,14 +127,14 @@ def select_features(bits: np.ndarray, background: np.ndarray, examples: list[np.
 def auto_template(bits: np.ndarray, background: np.ndarray, examples: list[np.ndarray] | None = None,
                   min_run: int = 4):
     """The motion template of ``auto_search: dtw``: the smoothed query on its key features,
-    or (with examples) a template fitted on query and examples with a calibrated threshold."""
+    or (with examples) a template fitted on query and examples (don't care where they disagree)."""
     from .template_model import MotionTemplate, fit_class_template, key_columns
 
     sm = np.stack([smooth_runs(np.asarray(x) > 0.5, min_run) for x in np.asarray(bits).T], axis=1)
     if examples:
         exs = [sm.astype(np.float32)] + [np.stack([smooth_runs(np.asarray(c) > 0.5, min_run) for c in np.asarray(e).T], axis=1)
                                          .astype(np.float32) for e in examples]
-        return fit_class_template("query", exs, background, "key")
+        return fit_class_template("query", exs, background, "key", calibrate=False)
     t = MotionTemplate("query", sm.astype(np.float32), np.arange(sm.shape[1]), 0.2, np.inf, 1)
     t.columns = key_columns(t, background)
     return t
@@ -145,16 +144,14 @@ def auto_hits(template, codes: np.ndarray, offsets: np.ndarray, relative_cut: fl
               max_cost: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Hits ``(start, end, cost)`` of an auto template and the cost cut used.
 
-    The cut is ``max_cost`` if given, else the template's calibrated threshold if finite,
-    else ``relative_cut`` x the median over clips of each clip's least cost.
+    The cut is ``max_cost`` if given, else ``relative_cut`` x the median over clips of each
+    clip's least cost (a few examples of one performer give no usable calibration).
     """
     from .template_model import template_costs, template_hits
 
     cost, start = template_costs(codes, template.table(), np.stack([offsets[:-1], offsets[1:]], axis=1))
     if max_cost is not None:
         cut = float(max_cost)
-    elif np.isfinite(template.threshold):
-        cut = float(template.threshold)
     else:
         nonempty = offsets[1:] > offsets[:-1]
         per_clip = np.minimum.reduceat(cost, offsets[:-1][nonempty]) if nonempty.any() else np.zeros(0)

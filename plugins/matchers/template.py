@@ -28,8 +28,8 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 from mocapflow.framework.schema import MATCHES
 
-from .template_model import (MotionTemplate, fit_class_template, frame_codes, load_templates,
-                             save_templates, template_costs, template_hits)
+from .template_model import (MotionTemplate, fit_class_template, frame_codes, load_templates, save_templates,
+                             search_costs, template_costs, template_hits)
 
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.context import StepContext
@@ -37,17 +37,55 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: HDM05 cut names ``HDM_<actor>_<class>_<nnn>_<rate>``.
 HDM05_LABEL = r"^HDM_[A-Za-z]+_(?P<label>[A-Za-z0-9]+)_\d+"
+#: The HDM05 actor.
+HDM05_GROUP = r"^HDM_(?P<group>[A-Za-z]+)_"
 
 
-def clip_labels(names: list[str], pattern: str) -> list[str | None]:
-    """Class label of each clip name (the ``label`` group of ``pattern``; None if no match)."""
+def clip_labels(names: list[str], pattern: str, group: str = "label") -> list[str | None]:
+    """The ``group`` of ``pattern`` in each clip name (class label, actor; None if no match)."""
     rx = re.compile(pattern)
-    if "label" not in rx.groupindex:
-        raise ConfigError(f"label_pattern {pattern!r} needs a named group (?P<label>...)")
+    if group not in rx.groupindex:
+        raise ConfigError(f"pattern {pattern!r} needs a named group (?P<{group}>...)")
     out = []
     for n in names:
         m = rx.search(n)
-        out.append(m.group("label") if m else None)
+        out.append(m.group(group) if m else None)
+    return out
+
+
+def fit_templates(bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
+                  groups: list[str | None] | None = None, classes: list[str] | None = None, features: str = "key",
+                  delta: float = 0.2, iterations: int = 2, margin: float = 0.25, negatives: bool = True) -> list[MotionTemplate]:
+    """One template per class from labelled training clips.
+
+    Parameters
+    ----------
+    bits : ndarray of shape (N, 31), 0/1
+    offsets : ndarray of int, shape (n_clips + 1,)
+    labels : list of str or None, one per clip
+    train : ndarray of bool, shape (n_clips,)
+        Training clips.
+    groups : list, optional
+        Group of each clip (e.g. actor) for leave-one-group-out threshold calibration.
+    negatives : bool
+        Calibrate each threshold against the training clips of the other classes too.
+    """
+    lab = np.array([x if x is not None else "" for x in labels], dtype=object)
+    use = np.asarray(train, bool) & (lab != "")
+    if not use.any():
+        raise DataError("matchers.template: no training clip matches both 'train' and 'label_pattern'")
+    classes = classes or sorted(set(lab[use]))
+    clip = [bits[offsets[i]:offsets[i + 1]] for i in range(len(offsets) - 1)]
+    bg = np.concatenate([clip[i] for i in np.flatnonzero(use)]).mean(axis=0)
+    grp = np.array([g if g is not None else "" for g in groups], dtype=object) if groups is not None else None
+    out = []
+    for c in classes:
+        mine = np.flatnonzero(use & (lab == c))
+        if not len(mine):
+            raise DataError(f"matchers.template: class {c!r} has no training clip")
+        neg = [clip[i] for i in np.flatnonzero(use & (lab != c))] if negatives else None
+        out.append(fit_class_template(c, [clip[i] for i in mine], bg, features, delta, iterations, True, margin,
+                                      None if grp is None else list(grp[mine]), neg))
     return out
 
 
@@ -57,15 +95,61 @@ def feature_ids(columns: np.ndarray) -> str:
     return ",".join(FEATURE_IDS[int(c)] for c in columns)
 
 
+def template_cost_array(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, columns: Literal["key", "all"] = "key",
+                        index=None, anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """End-frame costs and path starts (N,) of one template; with ``index`` (an
+    ``InvertedIndex`` of the same frames) only the candidate regions around the template's
+    anchor are searched (:mod:`.template_prefilter`), the other frames cost inf."""
+    use = t if columns == "key" else _all_columns(t)
+    if index is not None:
+        from .template_prefilter import candidate_ranges
+
+        ranges, _ = candidate_ranges(use, index, anchor_features)
+    else:
+        ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
+    return template_costs(codes, use.table(), ranges)
+
+
 def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None,
-                    columns: Literal["key", "all"] = "key") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    columns: Literal["key", "all"] = "key", index=None,
+                    anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template in a database.
 
-    ``codes`` (N,) :func:`.template_model.frame_codes`; ``offsets`` (n_clips + 1,) clip offsets.
+    ``codes`` (N,) :func:`.template_model.frame_codes`; ``offsets`` (n_clips + 1,) clip
+    offsets; ``index``: see :func:`template_cost_array`.
     """
     use = t if columns == "key" else _all_columns(t)
-    cost, start = template_costs(codes, use.table(), np.stack([offsets[:-1], offsets[1:]], axis=1))
-    return template_hits(cost, start, t.threshold if threshold is None else threshold)
+    if index is not None:
+        from .template_prefilter import candidate_ranges
+
+        ranges, _ = candidate_ranges(use, index, anchor_features)
+    else:
+        ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
+    return search_costs(codes, use.table(), ranges, t.threshold if threshold is None else threshold)[:3]
+
+
+def rival_filter(start: np.ndarray, end: np.ndarray, cost: np.ndarray, rivals: np.ndarray) -> np.ndarray:
+    """Which hits no other template beats: ``rivals`` (N,) is, per frame, the least end-frame
+    cost of the other templates; a hit ``[s, e)`` is beaten when a rival path ending within
+    half its length of ``e`` is cheaper. Returns a boolean mask over the hits."""
+    keep = np.ones(len(start), bool)
+    n = len(rivals)
+    for h, (s, e, c) in enumerate(zip(start, end, cost)):
+        half = (e - s) // 2
+        lo, hi = max(e - 1 - half, 0), min(e + half, n)
+        keep[h] = not (hi > lo and rivals[lo:hi].min() < c)
+    return keep
+
+
+def others_min(costs: np.ndarray) -> np.ndarray:
+    """Per template and frame the least cost of the other templates, (T, N), from (T, N)."""
+    if len(costs) < 2:
+        return np.full_like(costs, np.inf)
+    order = np.argsort(costs, axis=0, kind="stable")[:2]
+    best = np.take_along_axis(costs, order[:1], axis=0)[0]
+    second = np.take_along_axis(costs, order[1:2], axis=0)[0]
+    rows = np.arange(len(costs))[:, None]
+    return np.where(order[0][None, :] == rows, second[None, :], best[None, :])
 
 
 def _all_columns(t: MotionTemplate) -> MotionTemplate:
@@ -77,14 +161,15 @@ class TemplateMatcher(Matcher):
 
     Inputs: ``database`` (a ``features.relational`` dataset: the frames searched and the
     examples), ``motions`` (clip names: labels and training selection) and optionally
-    ``reference`` (a ``matchers.template`` step whose templates are reused). Output: the
+    ``reference`` (a ``matchers.template`` step whose templates are reused) and ``index``
+    (an ``indexes.inverted`` step on the same frames: candidate regions from its lists). Output: the
     shared match table (``query_id`` = template number) plus ``label``, ``threshold`` and
     ``features``; a ``templates`` table; ``templates.npz`` and ``template_<label>.png``.
     """
 
     name = "template"
     version = "1"
-    inputs = {"database": True, "motions": True, "reference": False}
+    inputs = {"database": True, "motions": True, "reference": False, "index": False}
 
     class Params(Params):
         label_pattern: str = Field(HDM05_LABEL, description="regular expression on clip names with a group (?P<label>...)")
@@ -96,33 +181,20 @@ class TemplateMatcher(Matcher):
         margin: float = Field(0.25, ge=0.0, description="threshold = (1 + margin) x the largest leave-one-out example cost")
         threshold: float | None = Field(None, gt=0.0, le=1.0, description="fixed cost threshold for every template (default: calibrated)")
         max_hits: int | None = Field(None, ge=1, description="keep the best max_hits per template")
+        group_pattern: str | None = Field(HDM05_GROUP, description="regular expression with a group (?P<group>...) "
+                                          "(e.g. the actor): thresholds are calibrated leaving one group out at a time")
+        negatives: bool = Field(True, description="calibrate thresholds against the other classes' training clips too")
+        anchor_features: int = Field(2, ge=1, le=3, description="with an 'index' input: features of the anchor constellation "
+                                     "whose inverted lists pre-select the searched regions")
+        rivals: bool = Field(False, description="drop a hit when another template matches the same stretch more cheaply")
         plots: bool = Field(True, description="write template_<label>.png per template")
 
-    def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray) -> list[MotionTemplate]:
-        """Templates from labelled clips.
-
-        Parameters
-        ----------
-        bits : ndarray of shape (N, 31), 0/1
-        offsets : ndarray of int, shape (n_clips + 1,)
-        labels : list of str or None, one per clip
-        train : ndarray of bool, shape (n_clips,)
-            Training clips.
-        """
-        lab = np.array([x if x is not None else "" for x in labels], dtype=object)
-        use = train & (lab != "")
-        if not use.any():
-            raise DataError("matchers.template: no training clip matches both 'train' and 'label_pattern'")
-        classes = list(self.params.classes) or sorted(set(lab[use]))
-        bg = np.concatenate([bits[offsets[i]:offsets[i + 1]] for i in np.flatnonzero(use)]).mean(axis=0)
-        out = []
-        for c in classes:
-            ex = [bits[offsets[i]:offsets[i + 1]] for i in np.flatnonzero(use & (lab == c))]
-            if not ex:
-                raise DataError(f"matchers.template: class {c!r} has no training clip")
-            out.append(fit_class_template(c, ex, bg, self.params.features, self.params.delta, self.params.iterations,
-                                          True, self.params.margin))
-        return out
+    def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
+            groups: list[str | None] | None = None) -> list[MotionTemplate]:
+        """Templates from labelled clips (:func:`fit_templates` with this step's parameters)."""
+        p = self.params
+        return fit_templates(bits, offsets, labels, train, groups, list(p.classes) or None, p.features, p.delta,
+                             p.iterations, p.margin, p.negatives)
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.datasets import StepOutput
@@ -143,12 +215,28 @@ class TemplateMatcher(Matcher):
         else:
             rx = re.compile(self.params.train)
             train = np.array([bool(rx.search(n)) for n in names])
-            templates = self.fit(bits, offsets, clip_labels(names, self.params.label_pattern), train)
+            groups = clip_labels(names, self.params.group_pattern, "group") if self.params.group_pattern else None
+            templates = self.fit(bits, offsets, clip_labels(names, self.params.label_pattern), train, groups)
         save_templates(templates, ctx.out_dir, {"label_pattern": self.params.label_pattern, "train": self.params.train})
         codes = frame_codes(bits)
+        index = None
+        if "index" in inputs:
+            from mocapflow.plugins.indexes.inverted import InvertedIndex
+
+            if inputs["index"].producer != "indexes.inverted":
+                raise PipelineError(f"matchers.template: index must be an indexes.inverted step, got {inputs['index'].producer}")
+            index = InvertedIndex.load(inputs["index"].path / "index")
+            if int(next(iter(index.sets.values())).clip_offsets[-1]) != len(codes):
+                raise PipelineError("matchers.template: the index was built on other frames than 'database'")
         rows = []
+        arrays = [template_cost_array(t, codes, offsets, self.params.features, index, self.params.anchor_features)
+                  for t in templates]
+        rivals = others_min(np.array([a[0] for a in arrays])) if self.params.rivals and arrays else None
         for qid, t in enumerate(templates):
-            s, e, c = search_template(t, codes, offsets, self.params.threshold, self.params.features)
+            s, e, c = template_hits(*arrays[qid], self.params.threshold or t.threshold)
+            if rivals is not None:
+                keep = rival_filter(s, e, c, rivals[qid])
+                s, e, c = s[keep], e[keep], c[keep]
             if self.params.max_hits:
                 s, e, c = s[: self.params.max_hits], e[: self.params.max_hits], c[: self.params.max_hits]
             pos = np.searchsorted(offsets, s, side="right") - 1
@@ -243,5 +331,5 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     return out
 
 
-__all__ = ["HDM05_LABEL", "TemplateMatcher", "clip_labels", "plot_template", "search_template", "template_hits_table",
-           "templates_table"]
+__all__ = ["HDM05_GROUP", "HDM05_LABEL", "TemplateMatcher", "clip_labels", "fit_templates", "others_min", "plot_template",
+           "rival_filter", "search_template", "template_cost_array", "template_hits_table", "templates_table"]

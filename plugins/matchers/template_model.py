@@ -79,8 +79,14 @@ class MotionTemplate:
         return float((q == 0.5).mean()) if q.size else 1.0
 
     def table(self) -> np.ndarray:
-        """Per-part local-cost lookup table (6400, K) float32 for the search kernel."""
-        return cost_table(self.quantized())
+        """Per-part local-cost lookup table (6400, K) float32 for the search kernel (cached
+        for the current columns and delta)."""
+        key = (self.columns.tobytes(), self.delta, self.mean.shape)
+        cached = getattr(self, "_table", None)
+        if cached is None or cached[0] != key:
+            cached = (key, cost_table(self.quantized()))
+            self._table = cached
+        return cached[1]
 
 
 def cost_table(q: np.ndarray) -> np.ndarray:
@@ -93,17 +99,17 @@ def cost_table(q: np.ndarray) -> np.ndarray:
     """
     from ._template_kernels import PART_OFFSETS, TABLE_ROWS
 
-    q = np.asarray(q)
-    care = q != 0.5
-    n = np.maximum(care.sum(axis=1), 1).astype(np.float64)
+    q = np.asarray(q, np.float64)
+    care = (q != 0.5).astype(np.float64)
+    n = np.maximum(care.sum(axis=1), 1.0)
     table = np.zeros((TABLE_ROWS, len(q)), np.float64)
     for off, (lo, hi) in zip(PART_OFFSETS, ((0, 11), (11, 23), (23, 31))):
         width = hi - lo
         codes = np.arange(1 << width)
-        bits = (codes[:, None] >> np.arange(width)[None, :]) & 1  # (C, width)
-        # mismatches of every code against every template frame on this part's cared bits
-        diff = np.abs(bits[:, None, :] - q[None, :, lo:hi]) * care[None, :, lo:hi]
-        table[off:off + len(codes)] = diff.sum(axis=2) / n[None, :]
+        bits = ((codes[:, None] >> np.arange(width)[None, :]) & 1).astype(np.float64)  # (C, width)
+        # |bit - q| on a cared cell is q + bit (1 - 2q) for q in {0, 1}: one matrix product per part
+        c, w = care[:, lo:hi], (care * (1 - 2 * q))[:, lo:hi]
+        table[off:off + len(codes)] = ((c * q[:, lo:hi]).sum(axis=1)[None, :] + bits @ w.T) / n[None, :]
     return table.astype(np.float32)
 
 
@@ -126,8 +132,23 @@ def align_average(template: np.ndarray, example: np.ndarray) -> tuple[np.ndarray
     return sums / counts[:, None], float(cost) / k
 
 
+def pairwise_costs(examples: list[np.ndarray], columns: np.ndarray) -> np.ndarray:
+    """DTW cost per path step between every two examples, (n, n) symmetric, zero diagonal."""
+    from ._template_kernels import dtw_path
+
+    n = len(examples)
+    pair = np.zeros((n, n))
+    for a in range(n):
+        for b in range(a + 1, n):
+            c, p = dtw_path(np.ascontiguousarray(examples[a][:, columns], np.float64),
+                            np.ascontiguousarray(examples[b][:, columns], np.float64))
+            pair[a, b] = pair[b, a] = c / len(p)
+    return pair
+
+
 def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | None = None,
-                 delta: float = 0.25, iterations: int = 2, length: str = "medoid") -> MotionTemplate:
+                 delta: float = 0.2, iterations: int = 2, length: str = "medoid",
+                 pair: np.ndarray | None = None) -> MotionTemplate:
     """Learn one class template from its examples' relational feature matrices.
 
     Parameters
@@ -140,6 +161,10 @@ def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | N
         Don't-care band (values in (delta, 1 - delta)).
     iterations : int
         Re-alignment rounds after the first average.
+    length : "medoid" or "median"
+        Time axis: the medoid example's, or resampled to the median example length.
+    pair : ndarray of shape (n, n), optional
+        :func:`pairwise_costs` of the examples (computed when omitted).
     """
     if not examples:
         raise DataError(f"template {label!r}: no examples")
@@ -147,15 +172,8 @@ def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | N
     if any(len(x) < 2 for x in xs):
         raise DataError(f"template {label!r}: every example needs at least 2 frames")
     cols = np.arange(xs[0].shape[1]) if columns is None else np.asarray(columns, np.int64)
-    n = len(xs)
-    if n > 1:
-        from ._template_kernels import dtw_path
-
-        pair = np.zeros((n, n))
-        for a in range(n):
-            for b in range(a + 1, n):
-                c, p = dtw_path(xs[a][:, cols], xs[b][:, cols])
-                pair[a, b] = pair[b, a] = c / len(p)
+    if len(xs) > 1:
+        pair = pairwise_costs(xs, cols) if pair is None else pair
         ref = int(np.argmin(pair.sum(axis=1)))
     else:
         ref = 0
@@ -167,7 +185,7 @@ def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | N
         new = np.zeros_like(tmpl)
         new[:, cols] = np.mean(warped, axis=0)
         tmpl = new
-    return MotionTemplate(label, tmpl.astype(np.float32), cols, float(delta), np.inf, n)
+    return MotionTemplate(label, tmpl.astype(np.float32), cols, float(delta), np.inf, len(xs))
 
 
 def resample_rows(x: np.ndarray, n: int) -> np.ndarray:
@@ -208,31 +226,63 @@ def template_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray) -> 
     return cost, start
 
 
+def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, threshold: float,
+                 min_gap: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Hits of one template over frame ranges in two passes: end-frame costs only
+    (``sdtw_cost``), then the merged windows around candidate ends again with path starts.
+
+    Returns ``(start, end, cost)`` as :func:`template_hits` and the cost array (N,). The
+    hits equal those of :func:`template_costs` + :func:`template_hits` except that a range
+    boundary counts as an inf neighbour (a start may differ only between equal-cost paths).
+    """
+    from ._template_kernels import sdtw_cost, template_sdtw
+
+    n = len(codes)
+    cost = np.full(n, np.inf)
+    r = np.asarray(ranges, np.int64).reshape(-1, 2)
+    if len(r) and table.shape[1]:
+        sdtw_cost(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), np.ascontiguousarray(r[:, 0]),
+                  np.ascontiguousarray(r[:, 1]), cost)
+    from ._template_kernels import greedy_hits, range_minima
+
+    if not 0.0 <= min_gap < 1.0:
+        raise DataError(f"min_gap must be in [0, 1), got {min_gap}")
+    order = np.argsort(r[:, 0], kind="stable")
+    r = r[order]
+    cand = range_minima(cost, np.ascontiguousarray(r[:, 0]), np.ascontiguousarray(r[:, 1]), float(threshold))
+    full_start = np.zeros(n, np.int64)
+    if len(cand):
+        # windows [end - 2K + 1, end] (inside the candidate's range) hold every path ending at a
+        # candidate; overlapping windows are merged and searched again, with path starts
+        which = np.searchsorted(r[:, 0], cand, side="right") - 1
+        lo = np.maximum(r[which, 0], cand - 2 * table.shape[1] + 1)
+        hi = cand + 1
+        new = np.r_[True, (lo[1:] > hi[:-1]) | (which[1:] != which[:-1])]
+        first = np.flatnonzero(new)
+        wlo = np.ascontiguousarray(lo[first])
+        whi = np.ascontiguousarray(np.maximum.reduceat(hi, first))
+        scratch_cost = np.empty(n)
+        scratch_start = np.empty(n, np.int64)
+        template_sdtw(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), wlo, whi, scratch_cost, scratch_start)
+        full_start[cand] = scratch_start[cand]
+    ends = greedy_hits(cand, cost, full_start, float(min_gap), n)
+    return full_start[ends], ends + 1, cost[ends], cost
+
+
 def template_hits(cost: np.ndarray, start: np.ndarray, threshold: float, min_gap: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits from end-frame costs: local minima with cost <= threshold, greedy suppression.
 
-    A candidate is dropped when it overlaps an accepted hit by more than ``min_gap`` of the
-    shorter span. Returns ``(start, end exclusive, cost)`` global frames, by ascending cost.
+    A candidate is dropped when it overlaps an accepted (cheaper) hit by more than
+    ``min_gap`` (< 1) of the shorter span. Returns ``(start, end exclusive, cost)`` global
+    frames, by ascending cost (compiled: ``_template_kernels.select_hits``).
     """
-    c = np.asarray(cost)
-    prev = np.r_[np.inf, c[:-1]]
-    nxt = np.r_[c[1:], np.inf]
-    cand = np.flatnonzero((c <= threshold) & (c <= prev) & (c < nxt) & np.isfinite(c))
-    cand = cand[np.argsort(c[cand], kind="stable")]
-    s_out, e_out, c_out = [], [], []
-    for j in cand:
-        s, e = int(start[j]), int(j) + 1
-        ok = True
-        for s2, e2 in zip(s_out, e_out):
-            ov = min(e, e2) - max(s, s2)
-            if ov > min_gap * min(e - s, e2 - s2):
-                ok = False
-                break
-        if ok:
-            s_out.append(s)
-            e_out.append(e)
-            c_out.append(float(c[j]))
-    return np.array(s_out, np.int64), np.array(e_out, np.int64), np.array(c_out, np.float64)
+    from ._template_kernels import select_hits
+
+    if not 0.0 <= min_gap < 1.0:
+        raise DataError(f"min_gap must be in [0, 1), got {min_gap}")
+    c = np.ascontiguousarray(cost, np.float64)
+    ends = select_hits(c, np.ascontiguousarray(start, np.int64), float(threshold), float(min_gap)) if len(c) else np.zeros(0, np.int64)
+    return np.asarray(start)[ends].astype(np.int64), ends + 1, c[ends]
 
 
 def save_templates(templates: list[MotionTemplate], directory: Path, meta: dict | None = None) -> None:
@@ -286,42 +336,86 @@ def clip_min_costs(codes: np.ndarray, offsets: np.ndarray, table: np.ndarray) ->
     return out
 
 
+def calibrate_threshold(positive: np.ndarray, negative: np.ndarray | None = None, margin: float = 0.25) -> float:
+    """A cost threshold from held-out costs of class examples and of other clips.
+
+    Without negatives: ``(1 + margin)`` times the largest finite positive cost. With
+    negatives: the cut maximising F1 (positives below it found, negatives below it false
+    hits), placed midway between the neighbouring costs; ties go to the larger cut.
+    """
+    pos = np.asarray(positive, float)
+    pos = pos[np.isfinite(pos)]
+    if not len(pos):
+        return 0.1
+    neg = np.zeros(0) if negative is None else np.asarray(negative, float)
+    neg = neg[np.isfinite(neg)]
+    if not len(neg):
+        return float((1 + margin) * pos.max())
+    values = np.unique(np.concatenate([pos, neg]))
+    best, cut = -1.0, float(pos.max())
+    for a, b in zip(values, np.append(values[1:], values[-1] * (1 + margin) + 1e-9)):
+        tp = (pos <= a).sum()
+        fp = (neg <= a).sum()
+        f1 = 2 * tp / (2 * tp + fp + (len(pos) - tp))
+        if f1 >= best:
+            best, cut = f1, 0.5 * (a + b)
+    return float(cut)
+
+
 def fit_class_template(label: str, examples: list[np.ndarray], background: np.ndarray | None = None,
                        features: str = "key", delta: float = 0.2, iterations: int = 2,
-                       calibrate: bool = True, margin: float = 0.25) -> MotionTemplate:
+                       calibrate: bool = True, margin: float = 0.25, groups: list | None = None,
+                       negatives: list[np.ndarray] | None = None) -> MotionTemplate:
     """A class template with its key features and a calibrated threshold.
 
-    ``features``: ``"key"`` (:func:`key_columns` against ``background``) or ``"all"``.
-    With ``calibrate`` (and at least 2 examples) each example is left out in turn, a
-    template is fitted on the others and the left-out example's least cost recorded
-    (``example_costs``); the threshold is ``(1 + margin)`` times their maximum. Without it
-    (or with one example) the threshold is ``margin`` of the mean local cost scale, i.e.
-    ``margin * 0.4`` (a fixed cut at one mismatching feature in ~2.5 per frame... of the
-    cared-for ones on average).
+    Parameters
+    ----------
+    examples : list of ndarray of shape (T_i, 31), 0/1
+    background : ndarray of shape (31,), optional
+        On-fraction of each feature over the training database (key features).
+    features : "key" or "all"
+        Retrieve on :func:`key_columns` or on all 31 features.
+    calibrate : bool
+        Threshold from held-out costs (:func:`calibrate_threshold`): each group of examples
+        (``groups``, e.g. the actor; default each example) is left out in turn, a template is
+        fitted on the others and the left-out examples' least costs recorded
+        (``example_costs``); ``negatives`` (clips of other classes) give the false-hit side.
+        Without calibration, or with one group, the threshold is ``(1 + margin)`` x 0.08
+        (one cared-for feature wrong in ~10 per frame), a fixed fallback.
     """
     xs = [np.asarray(x, np.float32) for x in examples]
     bg = np.mean(np.concatenate(xs), axis=0) if background is None else np.asarray(background)
+    all_cols = np.arange(xs[0].shape[1])
+    pair = pairwise_costs(xs, all_cols) if len(xs) > 1 else None
 
-    def one(exs: list[np.ndarray]) -> MotionTemplate:
-        t = fit_template(label, exs, delta=delta, iterations=iterations)
+    def one(idx: list[int]) -> MotionTemplate:
+        sub = None if pair is None else pair[np.ix_(idx, idx)]
+        t = fit_template(label, [xs[i] for i in idx], delta=delta, iterations=iterations, pair=sub)
         if features == "key":
             t.columns = key_columns(t, bg)
         return t
 
-    tmpl = one(xs)
-    if calibrate and len(xs) >= 2:
-        costs = []
-        for i in range(len(xs)):
-            t = one(xs[:i] + xs[i + 1:])
-            x = xs[i]
-            costs.append(clip_min_costs(frame_codes(x), np.array([0, len(x)]), t.table())[0])
-        tmpl.example_costs = np.array(costs)
-        finite = tmpl.example_costs[np.isfinite(tmpl.example_costs)]
-        tmpl.threshold = float((1 + margin) * finite.max()) if len(finite) else 0.1
+    tmpl = one(list(range(len(xs))))
+    g = np.arange(len(xs)) if groups is None else np.asarray(groups)
+    uniq = list(dict.fromkeys(g.tolist()))
+    if calibrate and len(uniq) >= 2:
+        costs = np.full(len(xs), np.inf)
+        for grp in uniq:
+            out = np.flatnonzero(g == grp)
+            t = one([i for i in range(len(xs)) if g[i] != grp])
+            table = t.table()
+            for i in out:
+                costs[i] = clip_min_costs(frame_codes(xs[i]), np.array([0, len(xs[i])]), table)[0]
+        tmpl.example_costs = costs
+        neg = None
+        if negatives:
+            lengths = [len(x) for x in negatives]
+            neg = clip_min_costs(frame_codes(np.concatenate(negatives)), np.concatenate([[0], np.cumsum(lengths)]), tmpl.table())
+        tmpl.threshold = calibrate_threshold(costs, neg, margin)
     else:
-        tmpl.threshold = 0.1
+        tmpl.threshold = float((1 + margin) * 0.08)
     return tmpl
 
 
-__all__ = ["clip_min_costs", "fit_class_template", "key_columns", "MODEL_FILE", "MotionTemplate", "align_average", "cost_table", "fit_template", "frame_codes",
+__all__ = ["search_costs", "calibrate_threshold", "pairwise_costs", "clip_min_costs", "fit_class_template", "key_columns", "MODEL_FILE", "MotionTemplate", "align_average", "cost_table", "fit_template", "frame_codes",
            "load_templates", "save_templates", "template_costs", "template_hits"]

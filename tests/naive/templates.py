@@ -68,3 +68,22 @@ def subsequence_dtw(c, clip_of):
                 if np.isfinite(best[0]):
                     D[k, j], S[k, j] = best
     return D[K - 1] / K, S[K - 1]
+
+
+def template_hits(cost, start, threshold, min_gap=0.5, ranges=None):
+    """Local minima with cost <= threshold, cheapest first, greedy overlap suppression.
+
+    With ``ranges`` ((R, 2) frame ranges) minima are taken inside each range, the frames
+    beyond its ends counting as inf."""
+    c = np.asarray(cost, float)
+    ranges = [(0, len(c))] if ranges is None else [tuple(r) for r in ranges]
+    cand = [j for lo, hi in ranges for j in range(lo, hi) if c[j] <= threshold and (j == lo or c[j - 1] >= c[j])
+            and (j + 1 == hi or c[j + 1] > c[j])]
+    cand.sort(key=lambda j: c[j])  # stable: equal costs keep frame order
+    acc = []
+    for j in cand:
+        s, e = int(start[j]), j + 1
+        if all(min(e, e2) - max(s, s2) <= min_gap * min(e - s, e2 - s2) for s2, e2, _ in acc):
+            acc.append((s, e, c[j]))
+    return (np.array([a[0] for a in acc], np.int64), np.array([a[1] for a in acc], np.int64),
+            np.array([a[2] for a in acc], float))
