@@ -52,6 +52,31 @@ def test_mirror_gain_sees_a_swap_only_where_it_is():
     assert gain[40:60, left + right].max(1).min() > 0.2 and np.all(gain[:40] == 0) and np.all(gain[60:] == 0)
 
 
+def test_swap_back_needs_a_swap_and_undoes_it():
+    from mocapflow.plugins.cleaners.bounded_repair import swap_frames
+
+    walk = synthetic_walk(120, seed=2)
+    names = [None] * walk.n_joints
+    for name, j in walk.skeleton.canonical.items():
+        names[j] = name
+    q = quat.make_continuous(walk.rotations, axis=0)
+    c = walk.skeleton.canonical
+    left = [c[j] for j in ("lshoulder", "lelbow", "lwrist")]
+    right = [c[j] for j in ("rshoulder", "relbow", "rwrist")]
+    bad = q.copy()
+    bad[40:60, left] = cues.mirror(q[40:60, right])
+    bad[40:60, right] = cues.mirror(q[40:60, left])
+    flags = np.ones(q.shape[:2], bool)
+    runs = swap_frames(bad, q, names, flags, 0.3)
+    arm = [(a, b) for lc, rc, a, b in runs if set(lc.tolist()) == set(left)]
+    assert arm and arm[0][0] <= 41 and arm[0][1] >= 59
+    # the clean walk against a consensus that looks mirrored: swapping back would add jumps, refused
+    fake = q.copy()
+    fake[40:60, left] = cues.mirror(q[40:60, right])
+    fake[40:60, right] = cues.mirror(q[40:60, left])
+    assert not [r for r in swap_frames(q, fake, names, flags, 0.3) if set(r[0].tolist()) == set(left)]
+
+
 def test_density_injection_is_seeded_and_reaches_the_density():
     clean = synthetic_walk(480, seed=1)
     a, mask_a, err_a = inject_at_density(clean, 0.125, seed=3)

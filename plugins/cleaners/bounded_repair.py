@@ -3,7 +3,7 @@
 For the cells :meth:`.calibration.Calibration.detect` flags (analysis rate, texture joints):
 
 1. *Swapped limbs*: on the frames where a left/right chain pair is flagged by the mirror
-   cue and that cue says the limbs are nearer their consensus once exchanged (the summed gain exceeds
+   cue, swapping back makes the chains smoother at both ends of the run, and that cue says the limbs are nearer their consensus once exchanged (the summed gain exceeds
    ``swap_gain`` radians), both chains are swapped back (left <- mirrored right and the
    reverse), which undoes a marker mislabelling exactly.
 2. *Other flagged runs* (consecutive flagged frames of one joint) take the rotations of
@@ -11,7 +11,8 @@ For the cells :meth:`.calibration.Calibration.detect` flags (analysis rate, text
    displacement map: the offset between the KNN word and the take at the two frames that
    bound the run, interpolated (slerp) across it, so the repair joins the take without a
    jump and keeps the KNN word's shape (this replaces the Savitzky-Golay blend of the
-   paper; ``mode: paper`` keeps that one).
+   paper; ``mode: paper`` keeps that one). Cells the mirror cue flagged whose swap-back
+   did not hold up are left as they are.
 3. *Bounds*: a cell keeps its value when the repair would not bring it nearer its KNN
    consensus T̄; an edit larger than the cell's digression plus its KNN spread (what the
    evidence supports) is shortened to that along the geodesic. No cell ends farther from
@@ -23,7 +24,7 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 
-from .cues import chain_columns, mirror, mirror_gain
+from .cues import acceleration, chain_columns, mirror, mirror_gain
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -34,17 +35,32 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
+def _edge_roughness(q: np.ndarray, cols: np.ndarray, a: int, b: int) -> float:
+    """Summed acceleration (radians) of the ``cols`` joints on the frames that bound ``[a, b)``."""
+    frames = [f for f in (a - 1, a, b - 1, b) if 0 <= f < len(q)]
+    acc = acceleration(q[:, cols])
+    return float(acc[frames].sum())
+
+
 def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float
                 ) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
     """(left columns, right columns, start, end) of the runs to swap back: frames whose
     chain-pair mirror gain exceeds ``swap_gain`` radians, in runs holding a flagged cell of
-    the chains."""
+    the chains, and only where swapping back makes the chains smoother at the run's two
+    ends (a mislabelling starts and stops with a jump; a clean limb that merely resembles
+    its mirror does not, and swapping it would create the jumps)."""
     out = []
     gain = mirror_gain(q, mean_q, joints)
     for lc, rc in chain_columns(list(joints)):
         cols = np.concatenate([lc, rc])
         for a, b in _runs(gain[:, cols].max(axis=1) > swap_gain):
-            if flags[a:b][:, cols].any():
+            if not flags[a:b][:, cols].any():
+                continue
+            back = q.copy()
+            back[a:b, lc] = mirror(q[a:b, rc])
+            back[a:b, rc] = mirror(q[a:b, lc])
+            back = quat.make_continuous(back[:, cols], axis=0)
+            if _edge_roughness(back, np.arange(len(cols)), a, b) < _edge_roughness(q, cols, a, b):
                 out.append((lc, rc, a, b))
     return out
 
@@ -89,6 +105,8 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int =
         new[a:b, rc] = mirror(q[a:b, lc])
         swapped[a:b, np.concatenate([lc, rc])] = True
     rest = work & ~swapped
+    if mirror_flags is not None:
+        rest &= ~mirror_flags  # the evidence was for a swap that did not hold up: leave them
     if rest.any() and res.neighbours:
         around = rest.copy()
         around[1:] |= rest[:-1]

@@ -66,9 +66,13 @@ def word_joint(mask: np.ndarray, n: int = 15, step: int = 5) -> np.ndarray:
 
 
 def fit_levels(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndarray], false_alarm: float,
-               passes: int = 3, use: Sequence[bool] | None = None) -> np.ndarray:
+               use: Sequence[bool] | None = None, max_steps: int = 40) -> np.ndarray:
     """Per-cue weights ``lambda`` (K,) maximising the (word, joint) recall of the injected
     errors with at most ``false_alarm`` of the clean (word, joint) pairs flagged.
+
+    Greedy on the false-alarm budget: from every cue off (``lambda`` = inf), each step takes
+    the move (one cue to a lower grid value) with the most newly found erroneous pairs per
+    newly flagged clean pair that stays within the budget, until no move finds more.
 
     Parameters
     ----------
@@ -83,34 +87,37 @@ def fit_levels(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndar
     wj_truth = [word_joint(t) for t in truth]
     ratio = [v / levels for v in values]
     n_clean = max(sum(int((~w).sum()) for w in wj_truth), 1)
-    n_err = max(sum(int(w.sum()) for w in wj_truth), 1)
+    budget = false_alarm * n_clean
 
-    def evaluate(lam: np.ndarray) -> tuple[float, float]:
+    def counts(lam: np.ndarray) -> tuple[int, int]:
         tp = fp = 0
         for r, w in zip(ratio, wj_truth):
             f = word_joint((r / lam).max(axis=-1) > 1.0)
             tp += int((f & w).sum())
             fp += int((f & ~w).sum())
-        return tp / n_err, fp / n_clean
+        return tp, fp
 
-    lam = np.full(levels.shape[1], np.inf)
-    for _ in range(passes):
-        changed = False
-        for k in range(len(lam)):
+    k_count = levels.shape[1]
+    lam = np.full(k_count, np.inf)
+    tp, fp = 0, 0
+    for _ in range(max_steps):
+        best = None
+        for k in range(k_count):
             if use is not None and not use[k]:
                 continue
-            best = (evaluate(lam)[0], -lam[k], lam[k])
-            for g in _GRID:
+            for g in _GRID[_GRID < lam[k]]:
                 trial = lam.copy()
                 trial[k] = g
-                rec, fa = evaluate(trial)
-                if fa <= false_alarm and (rec, -g) > best[:2]:
-                    best = (rec, -g, g)
-            if best[2] != lam[k]:
-                lam[k] = best[2]
-                changed = True
-        if not changed:
+                t2, f2 = counts(trial)
+                if f2 > budget or t2 <= tp:
+                    continue
+                gain = (t2 - tp) / (max(f2 - fp, 0) + 0.5)
+                if best is None or gain > best[0]:
+                    best = (gain, k, g, t2, f2)
+        if best is None:
             break
+        _, k, g, tp, fp = best
+        lam[k] = g
     return lam
 
 

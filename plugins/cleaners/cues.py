@@ -37,7 +37,8 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 
 #: Raw cues, in the order of :func:`raw_cues`' keys.
-RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirror", "range", "freeze", "spread")
+RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "residual", "expected_residual", "expected_acc", "mirror",
+                             "range", "freeze", "speed", "expected_speed", "spread")
 
 #: Cues of the calibrated detector (:func:`cue_values`), each with its own null and threshold.
 CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range")
@@ -178,6 +179,8 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
         "mirror": mirror_gain(q, mean_q, joints),
         "range": range_excess(q, low, high),
         "freeze": np.maximum(freeze, 0.0),
+        "speed": speed(q),
+        "expected_speed": speed(mean_q),
         "spread": np.asarray(spread, float),
     }
 
