@@ -37,30 +37,58 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 def _edge_roughness(q: np.ndarray, cols: np.ndarray, a: int, b: int) -> float:
     """Summed acceleration (radians) of the ``cols`` joints on the frames that bound ``[a, b)``."""
-    frames = [f for f in (a - 1, a, b - 1, b) if 0 <= f < len(q)]
-    acc = acceleration(q[:, cols])
-    return float(acc[frames].sum())
+    total = 0.0
+    for f in (a - 1, a, b - 1, b):
+        if 1 <= f < len(q) - 1:
+            total += float(acceleration(q[f - 1:f + 2][:, cols])[1].sum())
+    return total
 
 
-def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float
-                ) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
-    """(left columns, right columns, start, end) of the runs to swap back: frames whose
-    chain-pair mirror gain exceeds ``swap_gain`` radians, in runs holding a flagged cell of
-    the chains, and only where swapping back makes the chains smoother at the run's two
-    ends (a mislabelling starts and stops with a jump; a clean limb that merely resembles
-    its mirror does not, and swapping it would create the jumps)."""
+def _swapped(q: np.ndarray, lc: np.ndarray, rc: np.ndarray, a: int, b: int) -> np.ndarray:
+    back = q.copy()
+    back[a:b, lc] = mirror(q[a:b, rc])
+    back[a:b, rc] = mirror(q[a:b, lc])
+    return back
+
+
+def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
+    out: list[list[int]] = []
+    for a, b in runs:
+        if out and a - out[-1][1] <= gap:
+            out[-1][1] = b
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
+def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float,
+                slack: int = 8) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
+    """(left columns, right columns, start, end) of the runs to swap back.
+
+    Candidates are the runs (gaps of up to ``slack`` frames merged) where the chain-pair
+    mirror gain exceeds ``swap_gain`` radians and a chain cell is flagged. A mislabelling
+    starts and stops with a jump that swapping back removes, so each candidate's ends are
+    moved by up to ``slack`` frames to where the swapped-back chains are smoothest, and the
+    swap is kept only when they are then smoother at both ends than the take (a clean limb
+    that merely resembles its mirror has no jump there; swapping it would create them)."""
     out = []
     gain = mirror_gain(q, mean_q, joints)
+    t = len(q)
     for lc, rc in chain_columns(list(joints)):
         cols = np.concatenate([lc, rc])
-        for a, b in _runs(gain[:, cols].max(axis=1) > swap_gain):
-            if not flags[a:b][:, cols].any():
+        for a0, b0 in _merge(_runs(gain[:, cols].max(axis=1) > swap_gain), slack):
+            if not flags[a0:b0][:, cols].any():
                 continue
-            back = q.copy()
-            back[a:b, lc] = mirror(q[a:b, rc])
-            back[a:b, rc] = mirror(q[a:b, lc])
-            back = quat.make_continuous(back[:, cols], axis=0)
-            if _edge_roughness(back, np.arange(len(cols)), a, b) < _edge_roughness(q, cols, a, b):
+            best = None
+            for a in range(max(0, a0 - slack), min(a0 + slack, b0 - 1) + 1):
+                for b in range(max(a + 1, b0 - slack), min(t, b0 + slack) + 1):
+                    back = quat.make_continuous(_swapped(q, lc, rc, a, b)[max(0, a - 2):min(t, b + 2)][:, cols], axis=0)
+                    lo = max(0, a - 2)
+                    after = _edge_roughness(back, np.arange(len(cols)), a - lo, b - lo)
+                    if best is None or after < best[0]:
+                        best = (after, a, b)
+            after, a, b = best
+            if after < _edge_roughness(q, cols, a, b):
                 out.append((lc, rc, a, b))
     return out
 

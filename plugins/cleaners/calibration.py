@@ -54,6 +54,18 @@ _FLOORS = np.array([1.0, 1.0, 0.2, 0.3, 0.5])  # least null level per cue (units
 _GRID = np.array([0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, 5.0, 6.4, 8.0, 12.0, np.inf])
 
 
+def _grow(seed: np.ndarray, weak: np.ndarray) -> np.ndarray:
+    """``seed`` (T, m) extended in time, per column, along consecutive ``weak`` cells."""
+    out = seed.copy()
+    for j in range(seed.shape[1]):
+        col = weak[:, j] | seed[:, j]
+        d = np.diff(np.concatenate([[0], col.astype(np.int8), [0]]))
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+            if seed[a:b, j].any():
+                out[a:b, j] = True
+    return out
+
+
 def word_joint(mask: np.ndarray, n: int = 15, step: int = 5) -> np.ndarray:
     """(word, joint) pairs holding a True cell: shape (S, m) over the source words."""
     from .motion_words import source_word_starts
@@ -166,12 +178,21 @@ class Calibration:
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.nan_to_num(cue_values(cue, scale) / (self.levels * self.weights), nan=0.0, posinf=0.0)
 
-    def detect(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str]
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Flags (T, m) bool, fused evidence (T, m) and the index of the deciding cue (T, m)."""
+    def detect(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
+               grow: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Flags (T, m) bool, fused evidence (T, m) and the index of the deciding cue (T, m).
+
+        ``grow`` < 1: hysteresis in time, a flagged run of a joint is extended along the
+        neighbouring cells whose evidence exceeds ``grow`` (the whole error, not only its
+        strongest cells; the mirror cue is not grown, swaps have their own intervals)."""
         ev = self.evidence(q, mean_q, spread, joints)
         best = ev.max(axis=-1)
-        return best > 1.0, best, np.argmax(ev, axis=-1)
+        dom = np.argmax(ev, axis=-1)
+        flags = best > 1.0
+        if grow < 1.0:
+            weak = (best > grow) & (dom != CUES.index("mirror"))
+            flags = _grow(flags, weak)
+        return flags, best, dom
 
     def summary(self) -> dict:
         """JSON-friendly description (weight per cue, calibration figures, clips)."""
@@ -261,7 +282,7 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
     return CalibrationMaterial(cue_list, truth_list, names, source, low, high)
 
 
-def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.002, null_quantile: float = 0.99,
+def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, null_quantile: float = 0.99,
                     cues: Sequence[str] = DEFAULT_CUES) -> Calibration:
     """Null scales and levels, and the cue weights, from :func:`calibration_material`
     (steps 3-4 of the module doc).
@@ -292,7 +313,7 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.002, n
 
 
 def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
-              false_alarm: float = 0.002, frames: int = 600, density: float = 0.2, seed: int = 0,
+              false_alarm: float = 0.004, frames: int = 600, density: float = 0.2, seed: int = 0,
               null_quantile: float = 0.99, cues: Sequence[str] = DEFAULT_CUES,
               texture: Callable | None = None) -> Calibration:
     """:func:`calibration_material` then :func:`fit_calibration` (the module doc's steps)."""

@@ -18,8 +18,8 @@ mirror         how much closer the two limbs of a left/right chain pair are to t
                (swapped limbs)
 range          how far the rotation vector leaves the range the clean context visits
                (baseline a of the paper's §6)
-freeze         log of the consensus' speed over the take's speed, over a 9-frame window
-               (frozen joints)
+freeze         log of the consensus' mean speed over the take's largest speed, over a
+               9-frame window (frozen joints)
 spread         scatter of the KNN samples about T̄ (where neighbours disagree a digression
                means less)
 =============  ===========================================================================
@@ -169,7 +169,9 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
     dict of str -> ndarray of shape (T, m)
     """
     floor = np.deg2rad(0.2)
-    freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (_window_mean(speed(q), 4) + floor))
+    # the take's fastest frame in the window: a frozen joint has none, a slow clean one has some
+    still = -window_min(-speed(q), 4)
+    freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (still + floor))
     return {
         "digression": quat.geodesic_angle(q, mean_q),
         "acceleration": acceleration(q),

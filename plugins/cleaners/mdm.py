@@ -88,7 +88,7 @@ class MDMParams(Params):
         default="calibrated",
         description="'calibrated': detector fitted on the clean context (self-supervised, target false_alarm) and "
                     "bounded repair; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)")
-    false_alarm: float = Field(default=0.002, gt=0, lt=1, description="calibrated: share of clean (word, joint) "
+    false_alarm: float = Field(default=0.004, gt=0, lt=1, description="calibrated: share of clean (word, joint) "
                                "pairs of the calibration clips the detector may flag")
     null_quantile: float = Field(default=0.99, gt=0.5, lt=1, description="calibrated: quantile of a cue over a "
                                  "joint's clean calibration cells taken as its null level")
