@@ -37,8 +37,7 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 
 #: Raw cues, in the order of :func:`raw_cues`' keys.
-RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "residual", "expected_residual", "expected_acc", "mirror",
-                             "range", "freeze", "speed", "expected_speed", "spread")
+RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirror", "range", "freeze", "spread")
 
 #: Cues of the calibrated detector (:func:`cue_values`), each with its own null and threshold.
 CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range")
@@ -67,19 +66,6 @@ def acceleration(q: np.ndarray) -> np.ndarray:
         mid = quat.slerp(q[:-2], q[2:], np.full(q[1:-1].shape[:-1], 0.5))
         out[1:-1] = quat.geodesic_angle(q[1:-1], mid)
     return out
-
-
-def median_residual(q: np.ndarray, half: int = 3) -> np.ndarray:
-    """Angle between each frame and the component-wise running median of the sign-continuous
-    texture over ``2 half + 1`` frames, radians, (T, m): large on spikes of up to ``half``
-    frames, small on smooth motion and on steps."""
-    if len(q) < 2 * half + 1:
-        return np.zeros(q.shape[:2])
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    pad = np.concatenate([np.repeat(q[:1], half, 0), q, np.repeat(q[-1:], half, 0)], 0)
-    med = np.median(sliding_window_view(pad, 2 * half + 1, axis=0), axis=-1)
-    return quat.geodesic_angle(q, quat.normalize(med))
 
 
 def _window_mean(x: np.ndarray, half: int) -> np.ndarray:
@@ -175,14 +161,10 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
     return {
         "digression": quat.geodesic_angle(q, mean_q),
         "acceleration": acceleration(q),
-        "residual": median_residual(q),
-        "expected_residual": median_residual(mean_q),
         "expected_acc": acceleration(mean_q),
         "mirror": mirror_gain(q, mean_q, joints),
         "range": range_excess(q, low, high),
         "freeze": np.maximum(freeze, 0.0),
-        "speed": speed(q),
-        "expected_speed": speed(mean_q),
         "spread": np.asarray(spread, float),
     }
 
