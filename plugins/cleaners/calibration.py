@@ -17,8 +17,9 @@ detector is fitted, for each take, on material the user already trusts: the clea
 4. *Fusion*: a cell's evidence of cue ``k`` is its value over ``lambda_k`` times the
    joint's null level; the cell is flagged when its largest evidence exceeds 1, and that
    cue is reported. The weights ``lambda_k`` are fitted on the injected errors
-   (:func:`fit_levels`): coordinate ascent of the (word, joint) recall under the constraint
-   that at most ``false_alarm`` of the clean (word, joint) pairs are flagged. No label comes
+   (:func:`fit_levels`): a greedy allocation of the false-alarm budget that raises the
+   (word, joint) recall under the constraint that at most ``false_alarm`` of the clean
+   (word, joint) pairs are flagged. No label comes
    from the user.
 5. *Do no harm on a different take*: the take's own typical values replace the context's
    where they are larger (a faster take than its context is not an error everywhere), and
