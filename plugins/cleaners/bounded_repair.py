@@ -93,7 +93,7 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
     return out
 
 
-def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int = 0,
+def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int = 0,
                    mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).

@@ -105,7 +105,7 @@ class MDMParams(Params):
         description="calibrated: cues the detector may use (range = baseline (a), off by default)")
     max_edit: float = Field(default=30.0, gt=0, le=180, description="calibrated: largest edit, degrees, of a cell "
                             "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
-    swap_gain: float = Field(default=0.5, ge=0, description="calibrated: least chain mirror gain (radians over the "
+    swap_gain: float = Field(default=0.1, ge=0, description="calibrated: least chain mirror gain (radians over the "
                              "chain pair) for swapping limbs back")
 
     fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
