@@ -159,9 +159,10 @@ def test_paper_mode_is_the_literal_mdm(walks):
 
 
 def _cli(tmp_path, *extra):
+    from pathlib import Path
+
     from mocapflow.framework.cli import main
 
-    from pathlib import Path
     repo = Path(__file__).resolve().parent.parent
     take = repo / "examples" / "data" / "cmu" / "16" / "16_15.amc"
     if not take.is_file():
@@ -187,6 +188,20 @@ def test_clean_writes_amc_with_its_asf_into_a_new_folder_and_a_report(tmp_path):
     summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
     assert {"flagged_per_joint", "largest_edits", "calibration", "edited_share"} <= set(summary)
     assert "seconds" not in summary
+
+
+def test_clean_honours_block(tmp_path, capsys):
+    """With the formats plugin blocked, the command finds no reader: it used the CLI's
+    plugin manager, not a default one."""
+    from pathlib import Path
+
+    from mocapflow.framework.cli import main
+
+    take = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu" / "16" / "16_15.amc"
+    if not take.is_file():
+        pytest.skip("bundled example data missing")
+    code = main(["--block", "mocapflow.plugins.formats", "clean", str(take), "--output", str(tmp_path / "c.bvh")])
+    assert code == 2 and "no registered reader" in capsys.readouterr().err
 
 
 def test_clean_uses_the_plugin_manager_the_cli_built():
