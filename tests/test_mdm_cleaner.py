@@ -66,7 +66,7 @@ def test_repair_changes_only_flagged_cells_and_undoes_the_error(corrupted):
 def test_detect_and_repair_work_at_the_input_rate():
     clean = synthetic_walk(600, fps=60.0, seed=5)
     bad, j = _with_offset(clean, start=300, stop=312)
-    cleaner = MDMCleaner(normalization="texture")
+    cleaner = MDMCleaner(mode="paper", normalization="texture")
     mdm = cleaner.detect(bad)
     assert mdm.shape == (600, bad.n_joints)
     assert mdm[300:312, j].min() > 0.5

@@ -99,7 +99,8 @@ def test_digression_map_reports_the_spread(spiked):
     assert np.all(lit.spread >= 0) and np.all(lit.spread <= np.pi)
 
 
-def test_default_is_the_robust_row_scale_and_the_paper_stays_available():
+def test_default_decides_calibrated_and_the_paper_stays_available():
     p = MDMParams()
-    assert p.normalization == "median" and p.robust_factor == 2.5 and p.threshold == 0.5
-    assert MDMParams(normalization="mean").normalization == "mean"
+    assert p.mode == "calibrated" and p.normalization == "mean" and p.threshold == 0.5
+    assert MDMParams(mode="paper").mode == "paper"
+    assert MDMParams(normalization="median").robust_factor == 2.5

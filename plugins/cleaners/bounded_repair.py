@@ -3,7 +3,7 @@
 For the cells :meth:`.calibration.Calibration.detect` flags (analysis rate, texture joints):
 
 1. *Swapped limbs*: on the frames where a left/right chain pair is flagged by the mirror
-   cue and that cue says the limbs are nearer their consensus once exchanged (the summed gain exceeds
+   cue, swapping back makes the chains smoother at both ends of the run, and that cue says the limbs are nearer their consensus once exchanged (the summed gain exceeds
    ``swap_gain`` radians), both chains are swapped back (left <- mirrored right and the
    reverse), which undoes a marker mislabelling exactly.
 2. *Other flagged runs* (consecutive flagged frames of one joint) take the rotations of
@@ -11,7 +11,8 @@ For the cells :meth:`.calibration.Calibration.detect` flags (analysis rate, text
    displacement map: the offset between the KNN word and the take at the two frames that
    bound the run, interpolated (slerp) across it, so the repair joins the take without a
    jump and keeps the KNN word's shape (this replaces the Savitzky-Golay blend of the
-   paper; ``mode: paper`` keeps that one).
+   paper; ``mode: paper`` keeps that one). Cells the mirror cue flagged whose swap-back
+   did not hold up are left as they are.
 3. *Bounds*: a cell keeps its value when the repair would not bring it nearer its KNN
    consensus T̄; an edit larger than the cell's digression plus its KNN spread (what the
    evidence supports) is shortened to that along the geodesic. No cell ends farther from
@@ -23,7 +24,7 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 
-from .cues import chain_columns, mirror, mirror_gain
+from .cues import acceleration, chain_columns, mirror, mirror_gain
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -34,22 +35,65 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
 
 
-def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float
-                ) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
-    """(left columns, right columns, start, end) of the runs to swap back: frames whose
-    chain-pair mirror gain exceeds ``swap_gain`` radians, in runs holding a flagged cell of
-    the chains."""
+def _edge_roughness(q: np.ndarray, cols: np.ndarray, a: int, b: int) -> float:
+    """Summed acceleration (radians) of the ``cols`` joints on the frames that bound ``[a, b)``."""
+    total = 0.0
+    for f in (a - 1, a, b - 1, b):
+        if 1 <= f < len(q) - 1:
+            total += float(acceleration(q[f - 1:f + 2][:, cols])[1].sum())
+    return total
+
+
+def _swapped(q: np.ndarray, lc: np.ndarray, rc: np.ndarray, a: int, b: int) -> np.ndarray:
+    back = q.copy()
+    back[a:b, lc] = mirror(q[a:b, rc])
+    back[a:b, rc] = mirror(q[a:b, lc])
+    return back
+
+
+def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
+    out: list[list[int]] = []
+    for a, b in runs:
+        if out and a - out[-1][1] <= gap:
+            out[-1][1] = b
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
+def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float,
+                slack: int = 8) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
+    """(left columns, right columns, start, end) of the runs to swap back.
+
+    Candidates are the runs (gaps of up to ``slack`` frames merged) where the chain-pair
+    mirror gain exceeds ``swap_gain`` radians and a chain cell is flagged. A mislabelling
+    starts and stops with a jump that swapping back removes, so each candidate's ends are
+    moved by up to ``slack`` frames to where the swapped-back chains are smoothest, and the
+    swap is kept only when they are then smoother at both ends than the take (a clean limb
+    that merely resembles its mirror has no jump there; swapping it would create them)."""
     out = []
     gain = mirror_gain(q, mean_q, joints)
+    t = len(q)
     for lc, rc in chain_columns(list(joints)):
         cols = np.concatenate([lc, rc])
-        for a, b in _runs(gain[:, cols].max(axis=1) > swap_gain):
-            if flags[a:b][:, cols].any():
+        for a0, b0 in _merge(_runs(gain[:, cols].max(axis=1) > swap_gain), slack):
+            if not flags[a0:b0][:, cols].any():
+                continue
+            best = None
+            for a in range(max(0, a0 - slack), min(a0 + slack, b0 - 1) + 1):
+                for b in range(max(a + 1, b0 - slack), min(t, b0 + slack) + 1):
+                    back = quat.make_continuous(_swapped(q, lc, rc, a, b)[max(0, a - 2):min(t, b + 2)][:, cols], axis=0)
+                    lo = max(0, a - 2)
+                    after = _edge_roughness(back, np.arange(len(cols)), a - lo, b - lo)
+                    if best is None or after < best[0]:
+                        best = (after, a, b)
+            after, a, b = best
+            if after < _edge_roughness(q, cols, a, b):
                 out.append((lc, rc, a, b))
     return out
 
 
-def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int = 0,
+def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int = 0,
                    mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
@@ -89,6 +133,8 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.5, dilate: int =
         new[a:b, rc] = mirror(q[a:b, lc])
         swapped[a:b, np.concatenate([lc, rc])] = True
     rest = work & ~swapped
+    if mirror_flags is not None:
+        rest &= ~mirror_flags  # the evidence was for a swap that did not hold up: leave them
     if rest.any() and res.neighbours:
         around = rest.copy()
         around[1:] |= rest[:-1]

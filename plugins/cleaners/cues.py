@@ -18,8 +18,8 @@ mirror         how much closer the two limbs of a left/right chain pair are to t
                (swapped limbs)
 range          how far the rotation vector leaves the range the clean context visits
                (baseline a of the paper's §6)
-freeze         log of the consensus' speed over the take's speed, over a 9-frame window
-               (frozen joints)
+freeze         log of the consensus' mean speed over the take's largest speed, over a
+               9-frame window (frozen joints)
 spread         scatter of the KNN samples about T̄ (where neighbours disagree a digression
                means less)
 =============  ===========================================================================
@@ -66,19 +66,6 @@ def acceleration(q: np.ndarray) -> np.ndarray:
         mid = quat.slerp(q[:-2], q[2:], np.full(q[1:-1].shape[:-1], 0.5))
         out[1:-1] = quat.geodesic_angle(q[1:-1], mid)
     return out
-
-
-def median_residual(q: np.ndarray, half: int = 3) -> np.ndarray:
-    """Angle between each frame and the component-wise running median of the sign-continuous
-    texture over ``2 half + 1`` frames, radians, (T, m): large on spikes of up to ``half``
-    frames, small on smooth motion and on steps."""
-    if len(q) < 2 * half + 1:
-        return np.zeros(q.shape[:2])
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    pad = np.concatenate([np.repeat(q[:1], half, 0), q, np.repeat(q[-1:], half, 0)], 0)
-    med = np.median(sliding_window_view(pad, 2 * half + 1, axis=0), axis=-1)
-    return quat.geodesic_angle(q, quat.normalize(med))
 
 
 def _window_mean(x: np.ndarray, half: int) -> np.ndarray:
@@ -168,12 +155,12 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
     dict of str -> ndarray of shape (T, m)
     """
     floor = np.deg2rad(0.2)
-    freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (_window_mean(speed(q), 4) + floor))
+    # the take's fastest frame in the window: a frozen joint has none, a slow clean one has some
+    still = -window_min(-speed(q), 4)
+    freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (still + floor))
     return {
         "digression": quat.geodesic_angle(q, mean_q),
         "acceleration": acceleration(q),
-        "residual": median_residual(q),
-        "expected_residual": median_residual(mean_q),
         "expected_acc": acceleration(mean_q),
         "mirror": mirror_gain(q, mean_q, joints),
         "range": range_excess(q, low, high),

@@ -10,6 +10,7 @@ frames with :func:`.repair.apply_to_input`.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -17,6 +18,49 @@ import pyarrow as pa
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.motion import Motion
+
+
+@dataclass
+class CleanResult:
+    """One clip through :meth:`MDMCleaner.clean` (analysis rate unless said).
+
+    Attributes
+    ----------
+    analysis : DigressionResult (:mod:`.mdm`)
+    flags : ndarray of bool, shape (T, m)
+        Cells the decision flagged.
+    value : ndarray of shape (T, m), in [0, 1]
+        The map shown and stored (> 0.5 = flagged): the MDM (paper) or ``1 - 2^(-e^2)`` of
+        the evidence (calibrated).
+    cue : ndarray of object, shape (T, m)
+        Name of the cue that flagged each flagged cell (``mdm`` in paper mode, ``mirror``
+        for cells swapped back), None elsewhere.
+    repaired : ndarray of shape (T, m, 4)
+        The repaired texture.
+    edited : ndarray of bool, shape (T, m)
+        Cells whose rotation changed.
+    cleaned : Motion
+        The cleaned clip at the input rate.
+    edits : pyarrow.Table
+        One row per changed input cell (:func:`.repair.edits_table` plus ``cue``, ``edit_deg``).
+    calibration : Calibration or None
+    """
+
+    analysis: Any
+    flags: np.ndarray
+    value: np.ndarray
+    cue: np.ndarray
+    repaired: np.ndarray
+    edited: np.ndarray
+    cleaned: Motion
+    edits: Any
+    calibration: Any = None
+
+    def map_result(self) -> Any:
+        """An object :func:`.repair.map_to_input` takes, carrying ``value`` as its map."""
+        from types import SimpleNamespace
+
+        return SimpleNamespace(mdm=self.value, texture=self.analysis.texture)
 
 
 def _input_cues(motion: Motion, texture: Any, cue: np.ndarray, frames: np.ndarray, joints: np.ndarray) -> list:
@@ -55,7 +99,7 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
     from .bounded_repair import bounded_repair
     from .calibration import calibrate
     from .cues import CUES
-    from .mdm import CleanResult, context_motions, digression_map
+    from .mdm import context_motions, digression_map
     from .repair import apply_to_input, repair_texture
 
     p = cleaner.params

@@ -52,7 +52,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -64,6 +64,9 @@ from mocapflow.framework.errors import ConfigError, DataError
 from mocapflow.framework.motion import Motion
 
 from .knn import ContextTextures, WordNeighbours, knn_search
+
+if TYPE_CHECKING:
+    from .decision import CleanResult
 from .motion_words import (DEFAULT_GROUPS, DEFAULT_JOINTS, Texture, motion_texture, resolve_groups,
                            source_word_starts)
 
@@ -88,7 +91,7 @@ class MDMParams(Params):
         default="calibrated",
         description="'calibrated': detector fitted on the clean context (self-supervised, target false_alarm) and "
                     "bounded repair; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)")
-    false_alarm: float = Field(default=0.002, gt=0, lt=1, description="calibrated: share of clean (word, joint) "
+    false_alarm: float = Field(default=0.004, gt=0, lt=1, description="calibrated: share of clean (word, joint) "
                                "pairs of the calibration clips the detector may flag")
     null_quantile: float = Field(default=0.99, gt=0.5, lt=1, description="calibrated: quantile of a cue over a "
                                  "joint's clean calibration cells taken as its null level")
@@ -102,7 +105,7 @@ class MDMParams(Params):
         description="calibrated: cues the detector may use (range = baseline (a), off by default)")
     max_edit: float = Field(default=30.0, gt=0, le=180, description="calibrated: largest edit, degrees, of a cell "
                             "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
-    swap_gain: float = Field(default=0.5, ge=0, description="calibrated: least chain mirror gain (radians over the "
+    swap_gain: float = Field(default=0.1, ge=0, description="calibrated: least chain mirror gain (radians over the "
                              "chain pair) for swapping limbs back")
 
     fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
@@ -369,49 +372,6 @@ def _two_stage(tex: Texture, full: ContextTextures, groups, starts: np.ndarray, 
     return outer, count
 
 
-@dataclass
-class CleanResult:
-    """One clip through :meth:`MDMCleaner.clean` (analysis rate unless said).
-
-    Attributes
-    ----------
-    analysis : DigressionResult
-    flags : ndarray of bool, shape (T, m)
-        Cells the decision flagged.
-    value : ndarray of shape (T, m), in [0, 1]
-        The map shown and stored (> 0.5 = flagged): the MDM (paper) or ``1 - 2^(-e^2)`` of
-        the evidence (calibrated).
-    cue : ndarray of object, shape (T, m)
-        Name of the cue that flagged each flagged cell (``mdm`` in paper mode, ``mirror``
-        for cells swapped back), None elsewhere.
-    repaired : ndarray of shape (T, m, 4)
-        The repaired texture.
-    edited : ndarray of bool, shape (T, m)
-        Cells whose rotation changed.
-    cleaned : Motion
-        The cleaned clip at the input rate.
-    edits : pyarrow.Table
-        One row per changed input cell (:func:`.repair.edits_table` plus ``cue``, ``edit_deg``).
-    calibration : Calibration or None
-    """
-
-    analysis: DigressionResult
-    flags: np.ndarray
-    value: np.ndarray
-    cue: np.ndarray
-    repaired: np.ndarray
-    edited: np.ndarray
-    cleaned: Motion
-    edits: Any
-    calibration: Any = None
-
-    def map_result(self) -> Any:
-        """An object :func:`.repair.map_to_input` takes, carrying ``value`` as its map."""
-        from types import SimpleNamespace
-
-        return SimpleNamespace(mdm=self.value, texture=self.analysis.texture)
-
-
 class MDMCleaner(Cleaner):
     """Self-similarity cleaning with the movement digression map (Aristidou et al. 2018).
 
@@ -428,7 +388,7 @@ class MDMCleaner(Cleaner):
         """The full analysis at the analysis rate (texture, T̄, MDM, neighbours)."""
         return digression_map(motion, context, self.params)
 
-    def clean(self, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> CleanResult:
+    def clean(self, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> "CleanResult":
         """Analysis, decision and repair of one clip (see :class:`CleanResult`)."""
         from .decision import clean_motion
 

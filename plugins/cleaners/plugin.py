@@ -233,7 +233,7 @@ class CleanCommand:
         parser.add_argument("--mode", choices=("calibrated", "paper"), default=None,
                             help="calibrated (default): detector fitted on the context; paper: MDM > threshold")
         parser.add_argument("--false-alarm", type=float, default=None,
-                            help="calibrated: share of clean (word, joint) pairs that may be flagged (default 0.002)")
+                            help="calibrated: share of clean (word, joint) pairs that may be flagged (default 0.004)")
         parser.add_argument("--threshold", type=float, default=None, help="paper: MDM threshold (default 0.5)")
         parser.add_argument("--two-stage", action="store_true", help="local search first, context only around distinct words")
         parser.add_argument("--normalization", choices=("mean", "median", "spread", "texture", "none"), default=None,

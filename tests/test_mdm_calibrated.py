@@ -1,0 +1,237 @@
+"""The calibrated cleaner (issue 14): cues against naive references, calibration, bounded
+repair, the paper mode kept, the density injector, and what ``mocapflow clean`` writes."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from naive.cleaning import synthetic_walk
+from naive.cleaning_cues import naive_acceleration, naive_mirror_gain, naive_window_min, naive_word_joint
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.plugins.analyses.error_injection import inject_at_density
+from mocapflow.plugins.cleaners import cues
+from mocapflow.plugins.cleaners.calibration import fit_levels, word_joint
+from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams
+
+
+def _rand_quats(rng, shape):
+    return quat.make_continuous(quat.normalize(rng.standard_normal(shape + (4,))), axis=0)
+
+
+def test_cues_match_naive_references():
+    rng = np.random.default_rng(0)
+    q = _rand_quats(rng, (12, 7))
+    np.testing.assert_allclose(cues.acceleration(q), naive_acceleration(q), atol=1e-7)
+    x = rng.random((11, 3))
+    for half in (1, 2):
+        np.testing.assert_array_equal(cues.window_min(x, half), naive_window_min(x, half))
+    joints = ["lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist", "head"]
+    mq = _rand_quats(rng, (12, 7))
+    np.testing.assert_allclose(cues.mirror_gain(q, mq, joints), naive_mirror_gain(q, mq, joints, cues.MIRROR_CHAINS,
+                                                                                  np.deg2rad(5.0)), atol=1e-7)
+    mask = rng.random((40, 3)) > 0.95
+    for t in (40, 37, 15, 9):
+        np.testing.assert_array_equal(word_joint(mask[:t]), naive_word_joint(mask[:t], 15, 5))
+
+
+def test_mirror_gain_sees_a_swap_only_where_it_is():
+    walk = synthetic_walk(120, seed=2)
+    q = walk.rotations
+    joints = [None] * walk.n_joints
+    for name, j in walk.skeleton.canonical.items():
+        joints[j] = name
+    c = walk.skeleton.canonical
+    bad = q.copy()
+    left = [c[j] for j in ("lshoulder", "lelbow", "lwrist")]
+    right = [c[j] for j in ("rshoulder", "relbow", "rwrist")]
+    bad[40:60, left] = cues.mirror(q[40:60, right])
+    bad[40:60, right] = cues.mirror(q[40:60, left])
+    gain = cues.mirror_gain(bad, q, joints)  # the clean motion as the consensus
+    assert gain[40:60, left + right].max(1).min() > 0.2 and np.all(gain[:40] == 0) and np.all(gain[60:] == 0)
+
+
+def test_swap_back_needs_a_swap_and_undoes_it():
+    from mocapflow.plugins.cleaners.bounded_repair import swap_frames
+
+    walk = synthetic_walk(120, seed=2)
+    names = [None] * walk.n_joints
+    for name, j in walk.skeleton.canonical.items():
+        names[j] = name
+    q = quat.make_continuous(walk.rotations, axis=0)
+    c = walk.skeleton.canonical
+    left = [c[j] for j in ("lshoulder", "lelbow", "lwrist")]
+    right = [c[j] for j in ("rshoulder", "relbow", "rwrist")]
+    bad = q.copy()
+    bad[40:60, left] = cues.mirror(q[40:60, right])
+    bad[40:60, right] = cues.mirror(q[40:60, left])
+    flags = np.ones(q.shape[:2], bool)
+    runs = swap_frames(bad, q, names, flags, 0.3)
+    arm = [(a, b) for lc, rc, a, b in runs if set(lc.tolist()) == set(left)]
+    assert arm and arm[0][0] <= 41 and arm[0][1] >= 59
+    # the clean walk against a consensus that looks mirrored: swapping back would add jumps, refused
+    fake = q.copy()
+    fake[40:60, left] = cues.mirror(q[40:60, right])
+    fake[40:60, right] = cues.mirror(q[40:60, left])
+    assert not [r for r in swap_frames(q, fake, names, flags, 0.3) if set(r[0].tolist()) == set(left)]
+
+
+def test_density_injection_is_seeded_and_reaches_the_density():
+    clean = synthetic_walk(480, seed=1)
+    a, mask_a, err_a = inject_at_density(clean, 0.125, seed=3)
+    b, mask_b, err_b = inject_at_density(clean, 0.125, seed=3)
+    assert np.array_equal(a.rotations, b.rotations) and err_a == err_b and np.array_equal(mask_a, mask_b)
+    share = word_joint(mask_a).any(1).mean()
+    assert 0.125 <= share < 0.3
+    spans = sorted((e.start, e.end) for e in err_a)
+    assert all(s1 >= e0 for (_, e0), (s1, _) in zip(spans, spans[1:]))  # never overlapping
+    for e in err_a:
+        lo, hi = {"spike": (1, 3), "offset": (6, 18), "freeze": (12, 24), "noise": (8, 16), "swap": (12, 24)}[e.kind]
+        assert lo <= e.end - e.start <= hi
+        if e.kind == "spike":
+            assert 30 <= e.magnitude <= 90
+
+
+def test_fit_levels_respects_the_false_alarm_budget():
+    rng = np.random.default_rng(4)
+    values, truth = [], []
+    for _ in range(3):
+        v = rng.random((200, 4, 2))
+        t = np.zeros((200, 4), bool)
+        t[50:53, 1] = True
+        v[50:53, 1, 0] = 5.0  # cue 0 separates this error
+        values.append(v)
+        truth.append(t)
+    levels = np.ones((4, 2))
+    lam = fit_levels(values, levels, truth, false_alarm=0.01)
+    flagged = [word_joint((v / (levels * lam)).max(-1) > 1) for v in values]
+    wt = [word_joint(t) for t in truth]
+    fa = sum((f & ~w).sum() for f, w in zip(flagged, wt)) / sum((~w).sum() for w in wt)
+    rec = sum((f & w).sum() for f, w in zip(flagged, wt)) / sum(w.sum() for w in wt)
+    assert fa <= 0.01 and rec == 1.0 and np.isfinite(lam[0])
+
+
+@pytest.fixture(scope="module")
+def walks():
+    clean = synthetic_walk(240, seed=5, name="take")
+    rot = clean.rotations.copy()
+    j = clean.skeleton.canonical["lknee"]
+    rot[120:122, j] = quat.mul(rot[120:122, j], quat.from_axis_angle(np.array([1.0, 0, 0]), np.array(np.deg2rad(60.0))))
+    return clean, clean.with_arrays(rotations=rot, name="take"), j
+
+
+def test_calibrated_cleaner_leaves_a_clean_take_alone_and_repairs_a_spike(walks):
+    clean, bad, j = walks
+    context = [synthetic_walk(240, seed=s, name=f"ctx{s}") for s in (6, 7)]
+    cleaner = MDMCleaner(write_bvh=False, heatmaps=False)
+    assert cleaner.params.mode == "calibrated"
+    ok = cleaner.clean(clean, context)
+    n_cells = clean.n_frames * len(ok.analysis.joints)
+    assert ok.edits.num_rows <= 0.01 * n_cells
+    assert ok.edits.num_rows == 0 or ok.edits["edit_deg"].to_numpy().max() <= 30.0 + 1e-3
+    out = cleaner.clean(bad, context)
+    assert out.calibration.source == "context" and out.calibration.clips == ["ctx6", "ctx7"]
+    c = out.analysis.joints.index("lknee")
+    assert out.flags[120:122, c].any()
+    assert set(out.cue[out.flags].tolist()) <= set(cues.CUES)
+    err0 = quat.geodesic_angle(bad.rotations[120:122, j], clean.rotations[120:122, j])
+    err1 = quat.geodesic_angle(out.cleaned.rotations[120:122, j], clean.rotations[120:122, j])
+    assert err1.max() < 0.5 * err0.min()
+    # never farther from the KNN consensus than before, on any cell
+    res = out.analysis
+    before = quat.geodesic_angle(res.texture.q, res.mean_texture)
+    after = quat.geodesic_angle(out.repaired, res.mean_texture)
+    assert np.all(after <= before + 1e-9)
+    assert np.array_equal(out.repaired[~out.edited], res.texture.q[~out.edited])
+    assert {"cue", "edit_deg"} <= set(out.edits.column_names)
+
+
+def test_paper_mode_is_the_literal_mdm(walks):
+    _, bad, _ = walks
+    paper = MDMCleaner(mode="paper", write_bvh=False, heatmaps=False)
+    assert paper.params.normalization == "mean" and paper.params.threshold == 0.5
+    out = paper.clean(bad)
+    res = out.analysis
+    m = res.difference / np.maximum(res.difference.mean(axis=0, keepdims=True), 0.01)
+    np.testing.assert_allclose(res.mdm, 1 - np.exp(-m ** 2))
+    np.testing.assert_array_equal(out.flags, res.mdm > 0.5)
+
+
+def _cli(tmp_path, *extra):
+    from pathlib import Path
+
+    from mocapflow.framework.cli import main
+
+    repo = Path(__file__).resolve().parent.parent
+    take = repo / "examples" / "data" / "cmu" / "16" / "16_15.amc"
+    if not take.is_file():
+        pytest.skip("bundled example data missing")
+    return main(["clean", str(take), *extra])
+
+
+def test_clean_refuses_an_unknown_output_kind_before_the_work(tmp_path, capsys):
+    assert _cli(tmp_path, "--output", str(tmp_path / "x.fbx")) == 2
+    assert ".bvh or .amc" in capsys.readouterr().err
+    assert not (tmp_path / "x.fbx").exists()
+
+
+def test_clean_writes_amc_with_its_asf_into_a_new_folder_and_a_report(tmp_path):
+    pytest.importorskip("matplotlib")
+    from mocapflow.plugins.formats.asf_amc import read_amc
+
+    dest = tmp_path / "new" / "deeper" / "clean.amc"
+    assert _cli(tmp_path, "--output", str(dest), "--report", str(tmp_path / "rep")) == 0
+    assert dest.is_file() and dest.with_suffix(".asf").is_file()
+    assert read_amc(dest).n_frames > 0
+    assert not list(dest.parent.glob(".*tmp*"))
+    summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    assert {"flagged_per_joint", "largest_edits", "calibration", "edited_share"} <= set(summary)
+    assert "seconds" not in summary
+
+
+def test_clean_honours_block(tmp_path, capsys):
+    """With the formats plugin blocked, the command finds no reader: it used the CLI's
+    plugin manager, not a default one."""
+    from pathlib import Path
+
+    from mocapflow.framework.cli import main
+
+    take = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu" / "16" / "16_15.amc"
+    if not take.is_file():
+        pytest.skip("bundled example data missing")
+    code = main(["--block", "mocapflow.plugins.formats", "clean", str(take), "--output", str(tmp_path / "c.bvh")])
+    assert code == 2 and "no registered reader" in capsys.readouterr().err
+
+
+def test_clean_uses_the_plugin_manager_the_cli_built():
+    import argparse
+
+    from mocapflow.plugins.cleaners.plugin import _plugin_manager
+
+    sentinel = object()
+    assert _plugin_manager(argparse.Namespace(plugin_manager=sentinel)) is sentinel
+    pm = _plugin_manager(argparse.Namespace(block=["mocapflow.plugins.matchers.plugin"], no_entry_points=True))
+    assert pm.is_blocked("mocapflow.plugins.matchers.plugin")
+
+
+def test_cleaner_provenance_is_deterministic(tmp_path):
+    """Two identical runs give identical step summaries (no timings, no temporary paths)."""
+    pytest.importorskip("matplotlib")
+    from types import SimpleNamespace
+
+    from mocapflow.framework.database import MotionDatabase
+    from mocapflow.plugins.cleaners.plugin import run_cleaner
+
+    db = MotionDatabase([synthetic_walk(120, seed=9, name="w")])
+    inputs = {"motions": SimpleNamespace(motions=lambda: db)}
+    cleaner = MDMCleaner()
+    outs = []
+    for k in range(2):
+        out_dir = tmp_path / f"run{k}" / ".tmp-step"
+        out_dir.mkdir(parents=True)
+        ctx = SimpleNamespace(progress=lambda it, **_: it, step_id="mdm", out_dir=out_dir,
+                              log=SimpleNamespace(info=lambda *_: None))
+        outs.append(json.dumps(run_cleaner(cleaner, inputs, ctx).summary, sort_keys=True))
+    assert outs[0] == outs[1]
+    assert str(tmp_path) not in outs[0]
