@@ -47,6 +47,9 @@ THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUM
               "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
 #: Columns of a motions dataset's ``data`` table that rebuild its motions (positions are derived).
 MOTION_COLUMNS = ("clip_id", "root_translation", "rotations")
+#: Rows per Parquet row group of the tables the runner writes: a worker reading a clip range
+#: decodes only the groups that hold it (:class:`ClipSlice`), not the whole table.
+ROW_GROUP_ROWS = 65536
 #: Modules a forkserver imports once, so that its workers start warm.
 PRELOAD = ("numpy", "pyarrow.parquet", "numba", "mocapflow.framework", "mocapflow.plugins")
 
