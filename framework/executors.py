@@ -19,7 +19,7 @@ pools at full width (2 workers x 2 threads on 2 cores), and a pool forked after 
 had run a parallel numba kernel died at once (GNU OpenMP is not fork-safe). Workers now
 get ``cores // workers`` threads each (:func:`limit_threads`, before their first kernel),
 the pool forks only while that is safe (from a forkserver otherwise), after numba's
-one-time start-up ran in the parent (:func:`warm_numba`), so that workers inherit it.
+one-time start-up ran in the parent (:func:`warm_up`), so that workers inherit it.
 """
 from __future__ import annotations
 
@@ -112,14 +112,17 @@ def _fork_is_safe() -> bool:
     return parallel is None or not parallel._is_initialized
 
 
-def warm_numba() -> None:
-    """Pay numba's one-time start-up (its target context and BLAS bindings, about 0.5 s of
-    CPU) in this process by running one small serial kernel (forward kinematics).
+def warm_up() -> None:
+    """Pay the one-time start-up costs every worker would pay again at its first task, in
+    this process, before the pool forks: numba's (its target context and BLAS bindings,
+    about 0.5 s of CPU; one small serial kernel, forward kinematics) and pyarrow's dataset
+    layer that reading any Parquet table imports (about 0.3 s).
 
-    Called before the pool forks, so that every worker inherits it instead of paying it
-    again at its first task (measured: a forked worker's first file read 0.57 s -> 0.06 s).
-    Serial kernels only: a parallel one would launch OpenMP and make the fork unsafe.
+    Measured: a forked worker's first file read 0.57 s -> 0.06 s. Serial kernels only: a
+    parallel one would launch OpenMP and make the fork unsafe.
     """
+    import pyarrow.dataset  # noqa: F401
+
     from .testing import synthetic_motion
 
     synthetic_motion(2).positions
@@ -170,7 +173,7 @@ class LocalExecutor:
             if method == "forkserver":
                 mp.set_forkserver_preload(list(PRELOAD))
             elif method == "fork":
-                warm_numba()
+                warm_up()
             self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=mp,
                                              initializer=_init_worker, initargs=(self.threads,))
         return self._pool
@@ -300,8 +303,12 @@ class ClipSlice:
         parts = [cached(("row-group", self.path, self.fingerprint, g), lambda g=g: read(g)) for g in range(g0, g1)]
         frames = pa.concat_tables(parts).slice(r0 - int(groups[g0]), r1 - r0) if parts else None
         if frames is None:
-            return database_from_tables(clips.slice(0, 0), skeletons, _empty_frames())
-        return database_from_tables(clips.slice(self.start, stop - self.start), skeletons, frames)
+            return database_from_tables(clips.slice(0, 0), skeletons.slice(0, 0), _empty_frames())
+        mine = clips.slice(self.start, stop - self.start)
+        # only the skeletons of these clips: each definition is JSON parsed when rebuilt
+        used = set(mine["skeleton"].to_pylist())
+        keep = [i for i, k in enumerate(skeletons["skeleton"].to_pylist()) if k in used]
+        return database_from_tables(mine, skeletons.take(keep), frames)
 
 
 def _empty_frames():
