@@ -86,20 +86,20 @@ def limit_threads(n: int) -> int:
     n = max(1, int(n))
     for var in THREAD_ENV:
         os.environ[var] = str(n)
+    if "numba" in sys.modules:
+        import numba
+        from numba.np.ufunc import parallel
+
+        if not parallel._is_initialized:
+            numba.config.reload_config()  # what numba.config.NUMBA_NUM_THREADS (and kd-trees) read
+        # numba's pool was sized at import; limit the threads this (task-running) thread uses
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # pragma: no cover - a dependency; env vars still cover later loads
         pass
     else:
         threadpool_limits(n)
-    if "numba" in sys.modules:
-        import numba
-        from numba.np.ufunc import parallel
-
-        if not parallel._is_initialized:
-            numba.config.reload_config()  # the pool is created n wide at its first use
-        else:
-            numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
     return n
 
 
