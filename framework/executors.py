@@ -17,8 +17,9 @@ Why ``--jobs 2`` used to be slower than ``--jobs 1`` (measured, docs/scale-out.m
 steps pickled every motion to the pool, every worker ran numba's and OpenBLAS's thread
 pools at full width (2 workers x 2 threads on 2 cores), and a pool forked after the parent
 had run a parallel numba kernel died at once (GNU OpenMP is not fork-safe). Workers now
-get ``cores // workers`` threads each (:func:`limit_threads`, before their first kernel)
-and the pool forks only while that is safe, from a forkserver otherwise.
+get ``cores // workers`` threads each (:func:`limit_threads`, before their first kernel),
+the pool forks only while that is safe (from a forkserver otherwise), after numba's
+one-time start-up ran in the parent (:func:`warm_up`), so that workers inherit it.
 """
 from __future__ import annotations
 
@@ -46,6 +47,9 @@ THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUM
               "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
 #: Columns of a motions dataset's ``data`` table that rebuild its motions (positions are derived).
 MOTION_COLUMNS = ("clip_id", "root_translation", "rotations")
+#: Rows per Parquet row group of the tables the runner writes: a worker reading a clip range
+#: decodes only the groups that hold it (:class:`ClipSlice`), not the whole table.
+ROW_GROUP_ROWS = 65536
 #: Modules a forkserver imports once, so that its workers start warm.
 PRELOAD = ("numpy", "pyarrow.parquet", "numba", "mocapflow.framework", "mocapflow.plugins")
 
@@ -82,20 +86,20 @@ def limit_threads(n: int) -> int:
     n = max(1, int(n))
     for var in THREAD_ENV:
         os.environ[var] = str(n)
+    if "numba" in sys.modules:
+        import numba
+        from numba.np.ufunc import parallel
+
+        if not parallel._is_initialized:
+            numba.config.reload_config()  # what numba.config.NUMBA_NUM_THREADS (and kd-trees) read
+        # numba's pool was sized at import; limit the threads this (task-running) thread uses
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # pragma: no cover - a dependency; env vars still cover later loads
         pass
     else:
         threadpool_limits(n)
-    if "numba" in sys.modules:
-        import numba
-        from numba.np.ufunc import parallel
-
-        if not parallel._is_initialized:
-            numba.config.reload_config()  # the pool is created n wide at its first use
-        else:
-            numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
     return n
 
 
@@ -106,6 +110,22 @@ def _fork_is_safe() -> bool:
         return False
     parallel = sys.modules.get("numba.np.ufunc.parallel")
     return parallel is None or not parallel._is_initialized
+
+
+def warm_up() -> None:
+    """Pay the one-time start-up costs every worker would pay again at its first task, in
+    this process, before the pool forks: numba's (its target context and BLAS bindings,
+    about 0.5 s of CPU; one small serial kernel, forward kinematics) and pyarrow's dataset
+    layer that reading any Parquet table imports (about 0.3 s).
+
+    Measured: a forked worker's first file read 0.57 s -> 0.06 s. Serial kernels only: a
+    parallel one would launch OpenMP and make the fork unsafe.
+    """
+    import pyarrow.dataset  # noqa: F401
+
+    from .testing import synthetic_motion
+
+    synthetic_motion(2).positions
 
 
 def _init_worker(threads: int) -> None:
@@ -152,6 +172,8 @@ class LocalExecutor:
             mp = multiprocessing.get_context(method)
             if method == "forkserver":
                 mp.set_forkserver_preload(list(PRELOAD))
+            elif method == "fork":
+                warm_up()
             self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=mp,
                                              initializer=_init_worker, initargs=(self.threads,))
         return self._pool
@@ -281,8 +303,12 @@ class ClipSlice:
         parts = [cached(("row-group", self.path, self.fingerprint, g), lambda g=g: read(g)) for g in range(g0, g1)]
         frames = pa.concat_tables(parts).slice(r0 - int(groups[g0]), r1 - r0) if parts else None
         if frames is None:
-            return database_from_tables(clips.slice(0, 0), skeletons, _empty_frames())
-        return database_from_tables(clips.slice(self.start, stop - self.start), skeletons, frames)
+            return database_from_tables(clips.slice(0, 0), skeletons.slice(0, 0), _empty_frames())
+        mine = clips.slice(self.start, stop - self.start)
+        # only the skeletons of these clips: each definition is JSON parsed when rebuilt
+        used = set(mine["skeleton"].to_pylist())
+        keep = [i for i, k in enumerate(skeletons["skeleton"].to_pylist()) if k in used]
+        return database_from_tables(mine, skeletons.take(keep), frames)
 
 
 def _empty_frames():
@@ -306,9 +332,14 @@ def clip_slices(dataset: Dataset, n_slices: int) -> list[ClipSlice]:
     if n == 0:
         return []
     k = max(1, min(int(n_slices), n))
-    cum = np.concatenate([[0], np.cumsum(frames)])
-    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, k) / k, side="left")
-    bounds = np.unique(np.clip(np.concatenate([[0], cuts, [n]]), 0, n))
+    if k == n:  # one clip per slice
+        bounds = np.arange(n + 1)
+    else:  # cut at the clip boundary nearest to each k-th of the frames
+        cum = np.concatenate([[0], np.cumsum(frames)])
+        want = cum[-1] * np.arange(1, k) / k
+        right = np.clip(np.searchsorted(cum, want, side="left"), 1, n)
+        cuts = np.where(cum[right] - want <= want - cum[right - 1], right, right - 1)
+        bounds = np.unique(np.clip(np.concatenate([[0], cuts, [n]]), 0, n))
     ref = DatasetRef.of(dataset)
     return [ClipSlice(ref.path, ref.fingerprint, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
@@ -340,5 +371,9 @@ def map_clips(executor: Executor, fn: Callable[..., Any], dataset: Dataset, desc
     workers = max(1, int(getattr(executor, "workers", 1)))
     n = 1 if workers == 1 else workers * slices_per_worker
     pieces = clip_slices(dataset, n)
-    out = executor.map(_SliceTask(fn, with_ids), pieces, desc=desc)
-    return [r for part in out for r in part]
+    # largest slices first (a long clip started last would finish alone); results back in clip order
+    frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy()
+    order = sorted(range(len(pieces)), key=lambda i: -int(frames[pieces[i].start:pieces[i].stop].sum()))
+    out = executor.map(_SliceTask(fn, with_ids), [pieces[i] for i in order], desc=desc)
+    by_slice = dict(zip(order, out))
+    return [r for i in range(len(pieces)) for r in by_slice[i]]

@@ -25,7 +25,7 @@ from .config import apply_overrides, load_pipeline
 from .context import StepContext
 from .datasets import MANIFEST, Dataset, StepOutput
 from .errors import ConfigError, MocapflowError, PipelineError, PluginError
-from .executors import Executor
+from .executors import ROW_GROUP_ROWS, Executor
 from .locking import WorkspaceLock, remove_owned
 from .plan import Plan, build_plan
 from .plugins import build_registries, call_lifecycle, get_plugin_manager
@@ -34,9 +34,6 @@ log = logging.getLogger("mocapflow")
 #: Inside the runner's own folder (``<workspace>/.mocapflow/``).
 TMP_DIR = "tmp"
 TRASH_DIR = "trash"
-#: Rows per Parquet row group: a worker reading a clip range decodes only the groups that
-#: hold it (:class:`~mocapflow.framework.executors.ClipSlice`), not the whole table
-ROW_GROUP_ROWS = 65536
 
 
 @dataclass

@@ -22,13 +22,14 @@ scheduler (``allowed_failures`` deaths per task), then the step fails with a
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import os
 import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from mocapflow.framework.errors import ConfigError, PipelineError
-from mocapflow.framework.executors import available_cores, threads_per_worker
+from mocapflow.framework.executors import PRELOAD, available_cores, threads_per_worker
 from mocapflow.framework.progress import progress
 
 ADDRESS_ENV = "MOCAPFLOW_DASK_ADDRESS"
@@ -94,10 +95,19 @@ class DaskExecutor:
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"executor dask: cannot reach the scheduler at {self.address}: {exc}") from None
         else:
-            cfg = {"distributed.scheduler.allowed-failures": self.allowed_failures} if self.allowed_failures is not None else {}
+            cfg: dict[str, Any] = {} if self.allowed_failures is None else {"distributed.scheduler.allowed-failures": self.allowed_failures}
+            forkserver = "forkserver" in multiprocessing.get_all_start_methods()
+            if forkserver:
+                # workers fork from one server that imported distributed, numpy, pyarrow, numba and
+                # mocapflow once, instead of each spawning a fresh interpreter that imports them all
+                cfg["distributed.worker.multiprocessing-method"] = "forkserver"
             # a cluster of our own reports through our errors, not through its INFO log lines
             logging.getLogger("distributed").setLevel(logging.WARNING)
             with dask.config.set(cfg):
+                if forkserver:
+                    from distributed.utils import get_mp_context
+
+                    get_mp_context().set_forkserver_preload(["distributed", *PRELOAD])
                 self._cluster = distributed.LocalCluster(
                     n_workers=self.jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
                     dashboard_address="127.0.0.1:0", silence_logs=40,

@@ -14,8 +14,7 @@ import pytest
 
 from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl
 from mocapflow.framework.datasets import Dataset
-from mocapflow.framework.executors import (LocalExecutor, clip_slices, limit_threads, map_clips,
-                                           threads_per_worker)
+from mocapflow.framework.executors import LocalExecutor, clip_slices, map_clips, threads_per_worker
 from mocapflow.framework.runner import run_pipeline
 
 REPO = Path(__file__).resolve().parent.parent
@@ -60,23 +59,6 @@ def test_workers_get_their_share_of_the_cores():
     for numba_threads, blas_threads, omp in out:
         assert numba_threads == 1 and omp == "1"
         assert all(n == 1 for n in blas_threads)
-
-
-def test_limit_threads_in_process_restores_nothing_it_should_not(monkeypatch):
-    import numba
-
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
-                "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS"):
-        monkeypatch.setenv(var, os.environ.get(var, ""))
-    before = numba.get_num_threads()
-    try:
-        assert limit_threads(1) == 1
-        assert numba.get_num_threads() == 1
-    finally:
-        numba.set_num_threads(before)
-        from threadpoolctl import threadpool_limits
-
-        threadpool_limits(None)
 
 
 FORK_SCRIPT = """
@@ -192,6 +174,8 @@ steps:
   fe15: {{uses: features.end_effectors, input: motions}}
   fe15x3: {{uses: features.end_effectors, input: motions, with: {{samples: 3}}}}
   relational: {{uses: features.relational, input: motions}}
+  tree: {{uses: indexes.kdtree, input: fe15}}
+  search: {{uses: matchers.lng, inputs: {{database: tree, query: motions}}, with: {{k: 32, count: 3, queries: ["16_15:10-40", "02_01:5-30", "02_02:0-25", "35_01:5-30", "16_01:3-33"]}}}}
   clean: {{uses: cleaners.mdm, inputs: {{motions: motions, context: motions}}, with: {{heatmaps: false}}}}
 """
 

@@ -289,10 +289,18 @@ class GlobalMatcher(Matcher):
     def run(self, inputs: Mapping[str, Dataset], ctx) -> StepOutput:
         space = self.search_space(inputs, ctx.registries)
         queries = self.queries(inputs, ctx)
-        results = []
-        for qi, q in enumerate(ctx.progress(queries, total=len(queries), desc=ctx.step_id)):
-            results.append(self.match(q.features, space))
-            self.after_match(qi, q, results[-1], space, ctx)
+        if getattr(ctx.executor, "workers", 1) > 1 and len(queries) > 1:
+            # one task per query; each worker loads the search space once, from the workspace files
+            from functools import partial
+
+            from mocapflow.framework.executors import DatasetRef
+
+            refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
+            results = ctx.map(partial(_match_task, self, refs), [q.features for q in queries], desc=ctx.step_id)
+        else:
+            results = [self.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)]
+        for qi, q in enumerate(queries):
+            self.after_match(qi, q, results[qi], space, ctx)
         return StepOutput(
             {"data": matches_table(list(range(len(queries))), results, space), "queries": queries_table(queries)},
             {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
@@ -300,6 +308,20 @@ class GlobalMatcher(Matcher):
 
     def after_match(self, query_id: int, query: Query, matches: QueryMatches, space: SearchSpace, ctx) -> None:
         """Called after each query of a step (plots); default: nothing."""
+
+
+def _match_task(matcher: GlobalMatcher, refs: dict, features: np.ndarray) -> QueryMatches:
+    """One query of :meth:`GlobalMatcher.run` on an executor worker (module-level: pickled);
+    the search space (index, frame ids, features) is loaded once per worker process."""
+    from mocapflow.framework.executors import cached
+    from mocapflow.framework.plugins import load_registries
+
+    import json
+
+    key = ("search-space", matcher.key(), json.dumps(matcher.get_params(), sort_keys=True),
+           tuple(sorted((s, r.path, r.fingerprint) for s, r in refs.items())))
+    space = cached(key, lambda: matcher.search_space({s: r.dataset() for s, r in refs.items()}, load_registries()))
+    return matcher.match(features, space)
 
 
 def queries_table(queries: list[Query]) -> pa.Table:

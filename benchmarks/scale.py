@@ -1,0 +1,278 @@
+"""Scale-out figures (issue 16): the local pool, the Dask executor and the sharded kNN index.
+
+Every ratio is against a baseline measured in the same run. Pipelines run as a user runs
+them (``python -m mocapflow.framework.cli run``, a fresh interpreter each time, so start-up,
+imports and numba cache loading count), configurations interleaved, each repeated and
+its best wall time kept (the machine is shared: the best of N is the least disturbed).
+CPU seconds (user + system of the run and all its worker processes) are printed beside
+wall times: they show the work, unlike wall time they hardly depend on the other load.
+
+1. ingest + features of the whole ../shared/data motion corpus (AMC + BVH, 30 Hz:
+   formats.load, F_E^15, F^{5x3}, F^{5x5}, relational features): ``--jobs 2`` vs ``--jobs 1``;
+2. cleaning the 8 bundled CMU takes (cleaners.mdm, each against all 8): same;
+3. ``executor: dask`` (LocalCluster, 2 worker processes) vs ``--jobs 1`` on both, and its
+   overhead on the quickstart;
+4. ``indexes.sharded`` (2 shards of F_E^15 kd-trees) vs one kd-tree at 1,038,388 frames
+   (the corpus grown as in benchmarks/corpus.py): identical kNN, build and batch-query
+   throughput with 2 worker processes vs 1, bytes per row, the figures docs/scale-out.md
+   projects from.
+
+    python benchmarks/scale.py            # everything (about 5 minutes on 2 idle cores)
+    python benchmarks/scale.py --quick    # fewer repeats, 200,000 frames for the index
+    python benchmarks/scale.py --only local,index
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+DATA = Path(os.environ.get("MOCAPFLOW_DATA", REPO.parent / "shared" / "data"))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+FEATURES = """
+name: scale-features
+steps:
+  motions: {{uses: formats.load, with: {{paths: ["{data}/**/*.amc", "{data}/**/*.bvh"], fps: 30}}}}
+  fe15: {{uses: features.end_effectors, input: motions, with: {{joints: 5}}}}
+  fe15x3: {{uses: features.end_effectors, input: motions, with: {{joints: 5, samples: 3}}}}
+  fe15x5: {{uses: features.end_effectors, input: motions, with: {{joints: 5, samples: 5}}}}
+  relational: {{uses: features.relational, input: motions}}
+"""
+CLEANING = """
+name: scale-cleaning
+steps:
+  takes: {{uses: formats.load, with: {{paths: ["{repo}/examples/data/cmu/**/*.amc"], fps: 24}}}}
+  clean: {{uses: cleaners.mdm, inputs: {{motions: takes, context: takes}}, with: {{heatmaps: false}}}}
+"""
+
+
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def run_once(yaml: Path, ws: Path, jobs: int, executor: str = "local") -> dict:
+    """One cold ``mocapflow run`` (fresh interpreter): wall s, CPU s (with workers), step s."""
+    p = yaml
+    if executor != "local":  # a copy beside the original, so that its relative paths hold
+        p = yaml.parent / f".{yaml.stem}-{executor}-{jobs}.yaml"
+        p.write_text(yaml.read_text().replace("\nsteps:", f"\nexecutor: {executor}\njobs: {jobs}\nsteps:", 1))
+    env = dict(os.environ, MOCAPFLOW_PROGRESS="0")
+    c0, t0 = _children_cpu(), time.perf_counter()
+    try:
+        r = subprocess.run([sys.executable, "-m", "mocapflow.framework.cli", "run", str(p), "--workspace", str(ws),
+                            "--jobs", str(jobs), "--force"], capture_output=True, text=True, env=env)
+    finally:
+        if p != yaml:
+            p.unlink()
+    wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
+    if r.returncode != 0:
+        raise SystemExit(f"{p.name} failed:\n{r.stdout[-2000:]}\n{r.stderr[-3000:]}")
+    steps = sum(json.loads(m.read_text())["seconds"] for m in ws.glob("*/_manifest.json"))
+    return {"wall": wall, "cpu": cpu, "steps": steps}
+
+
+def child_run(yaml: Path, ws: Path, jobs: int) -> None:
+    """In a fresh interpreter: run the pipeline on ``LocalExecutor(jobs)`` and print the CPU
+    seconds of this process and of each pool worker (read from /proc before the pool closes)."""
+    from mocapflow.framework.executors import LocalExecutor
+    from mocapflow.framework.runner import run_pipeline
+
+    ex = LocalExecutor(jobs)
+    tick = os.sysconf("SC_CLK_TCK")
+    workers: list[float] = []
+    try:
+        run_pipeline(yaml, workspace=ws, force=True, executor=ex)
+        for pid in list(getattr(ex._pool, "_processes", None) or {}):
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            workers.append((int(fields[11]) + int(fields[12])) / tick)
+    finally:
+        ex.close()
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    print(json.dumps({"parent": r.ru_utime + r.ru_stime, "workers": workers}))
+
+
+def critical_path(yaml: Path, tmp: Path, jobs: int) -> dict:
+    """CPU seconds of the client and of its busiest worker: on ``jobs`` idle cores the run
+    takes about ``parent + max(workers)`` (the client mostly waits while workers compute)."""
+    r = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child-run", str(yaml), str(tmp / f"cp-{jobs}"), str(jobs)],
+                       capture_output=True, text=True, env=dict(os.environ, MOCAPFLOW_PROGRESS="0"))
+    if r.returncode != 0:
+        raise SystemExit(r.stderr[-3000:])
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    out["path"] = out["parent"] + max(out["workers"], default=0.0)
+    return out
+
+
+def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int) -> dict:
+    best: dict[int, dict] = {}
+    for _ in range(repeats):
+        for jobs in (1, 2):
+            r = critical_path(yaml, tmp, jobs)
+            if jobs not in best or r["path"] < best[jobs]["path"]:
+                best[jobs] = r
+    one, two = best[1], best[2]
+    print(f"  CPU critical path ({name}): --jobs 1 {one['path']:.2f} s; --jobs 2 client {two['parent']:.2f} s + busiest "
+          f"worker {max(two['workers'], default=0):.2f} s (workers {', '.join(f'{w:.2f}' for w in two['workers'])}) "
+          f"= {two['path']:.2f} s -> {one['path'] / two['path']:.2f}x on 2 idle cores")
+    return {"jobs1": one, "jobs2": two, "ratio": one["path"] / two["path"]}
+
+
+def compare(name: str, yaml: Path, tmp: Path, configs: list[tuple[str, int]], repeats: int) -> dict:
+    """Interleaved repeats of each (executor, jobs); the best wall (and its CPU) of each."""
+    best: dict[tuple[str, int], dict] = {}
+    for _ in range(repeats):
+        for ex, jobs in configs:
+            ws = tmp / f"ws-{yaml.stem}-{ex}-{jobs}"
+            r = run_once(yaml, ws, jobs, ex)
+            if (ex, jobs) not in best or r["wall"] < best[(ex, jobs)]["wall"]:
+                best[(ex, jobs)] = r
+    base = best[configs[0]]
+    print(f"\n{name}  (best of {repeats}; load average before: {os.getloadavg()[0]:.1f})")
+    print(f"  {'configuration':<22} {'wall s':>8} {'steps s':>8} {'CPU s':>7} {'wall ratio':>11} {'steps ratio':>12}")
+    for (ex, jobs), r in best.items():
+        label = f"{ex} --jobs {jobs}" if ex == "local" else f"{ex} ({jobs} workers)"
+        cpu = f"{r['cpu']:7.2f}" if ex == "local" else "   n/a*"
+        print(f"  {label:<22} {r['wall']:8.2f} {r['steps']:8.2f} {cpu} "
+              f"{base['wall'] / r['wall']:10.2f}x {base['steps'] / r['steps']:11.2f}x")
+    if any(ex != "local" for ex, _ in configs):
+        print("  * dask workers fork from a forkserver the run never waits for: their CPU time is not counted")
+    return {f"{ex}:{jobs}": r for (ex, jobs), r in best.items()}
+
+
+# --- the sharded index ---------------------------------------------------------------------
+
+def _rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def index_figures(n_frames: int, n_queries: int, k: int, tmp: Path) -> dict:
+    from corpus import augmented_database
+
+    from mocapflow.framework.executors import LocalExecutor
+    from mocapflow.plugins.features.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.indexes.kdtree import KDTreeIndex
+    from mocapflow.plugins.indexes.sharded import ShardedIndex
+
+    t0 = time.perf_counter()
+    db = augmented_database(n_frames, fps=30)
+    x = EndEffectorFeatures(joints=5).transform(db)
+    groups, frames = db.frame_ids
+    print(f"\nsharded index: {len(x):,} frames of F_E^15 ({x.shape[1]} dims) ready in {time.perf_counter() - t0:.1f} s")
+    params = {"method": "kdtree", "workers": 1}  # one thread per process: the workers are the parallelism
+    t0 = time.perf_counter()
+    one = KDTreeIndex(params).build(x, groups=groups, frames=frames)
+    t_one = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sh = ShardedIndex(shards=2, index_params=params).build(x, groups=groups, frames=frames)
+    t_sh = time.perf_counter() - t0
+    sh.save(tmp / "sharded")
+    one.save(tmp / "one")
+    bytes_row = sum(p.stat().st_size for p in (tmp / "one").glob("*.npy")) / len(x)
+    rng = np.random.default_rng(0)
+    q = (x[rng.choice(len(x), n_queries, replace=False)] + rng.normal(0, 0.01, (n_queries, x.shape[1]))).astype(np.float32)
+    a = one.query(q, k)
+    b = sh.query(q, k)
+    same = bool(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]))
+    ar, br = one.query(q, k, 0.15), sh.query(q, k, 0.15)
+    same_r = bool(np.array_equal(ar[0], br[0]) and np.array_equal(ar[1], br[1]))
+    loaded = ShardedIndex.load(tmp / "sharded")
+    out = {"frames": len(x), "identical_knn": same, "identical_radius": same_r, "bytes_per_row": bytes_row,
+           "build_one_s": t_one, "build_two_shards_serial_s": t_sh}
+    for workers in (1, 2):
+        ex = LocalExecutor(workers, min_items_for_pool=1, threads=1)
+        try:
+            if workers == 1:
+                from mocapflow.framework.executors import limit_threads
+
+                limit_threads(1)
+            loaded.query(q[:8], k, executor=ex)  # warm-up: each worker loads its shards once
+            best = np.inf
+            for _ in range(3):
+                t0 = time.perf_counter()
+                got = loaded.query(q, k, executor=ex)
+                best = min(best, time.perf_counter() - t0)
+            assert np.array_equal(got[1], a[1])
+        finally:
+            ex.close()
+        out[f"batch_s_{workers}w"] = best
+    t0 = time.perf_counter()
+    for _ in range(3):
+        one.query(q, k)
+    out["batch_s_one_index"] = (time.perf_counter() - t0) / 3
+    shard_t = {}
+    for s, shard in enumerate(sh.shards_):  # per-shard figures the projections use
+        t0 = time.perf_counter()
+        shard.query(q, k)
+        shard_t[s] = time.perf_counter() - t0
+    out["shard_rows"] = [int(b - a) for a, b in zip(sh.offsets_[:-1], sh.offsets_[1:])]
+    out["shard_query_s"] = list(shard_t.values())
+    out["peak_rss_mb"] = _rss_mb()
+    print(f"  identical to one kd-tree: kNN {same}, radius 0.15 {same_r} ({n_queries} queries, k={k})")
+    print(f"  build: one index {t_one:.2f} s, 2 shards one after the other {t_sh:.2f} s; {bytes_row:.1f} bytes/row on disk")
+    print(f"  batch of {n_queries} queries, k={k}: one index {out['batch_s_one_index']:.3f} s (1 thread); "
+          f"sharded on 1 worker {out['batch_s_1w']:.3f} s, on 2 workers {out['batch_s_2w']:.3f} s "
+          f"-> {out['batch_s_1w'] / out['batch_s_2w']:.2f}x throughput")
+    print(f"  per shard ({out['shard_rows']} rows): {[round(t, 3) for t in out['shard_query_s']]} s per batch; peak RSS {out['peak_rss_mb']:.0f} MB")
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="fewer repeats, a 200k-frame index")
+    ap.add_argument("--only", default="local,dask,index", help="comma-separated sections: local, dask, index")
+    ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    ap.add_argument("--child-run", nargs=3, metavar=("YAML", "WS", "JOBS"), help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child_run:
+        return child_run(Path(args.child_run[0]), Path(args.child_run[1]), int(args.child_run[2]))
+    sections = set(args.only.split(","))
+    repeats = args.repeats or (1 if args.quick else 3)
+    print(f"mocapflow scale benchmark; {os.cpu_count()} cores; load average {os.getloadavg()}")
+    if not DATA.is_dir():
+        raise SystemExit(f"the corpus is not at {DATA} (set MOCAPFLOW_DATA)")
+    results: dict = {}
+    with tempfile.TemporaryDirectory(prefix="mocapflow-scale-") as tmpname:
+        tmp = Path(tmpname)
+        feats, clean = tmp / "features.yaml", tmp / "cleaning.yaml"
+        feats.write_text(FEATURES.format(data=DATA))
+        clean.write_text(CLEANING.format(repo=REPO))
+        quick_yaml = REPO / "pipelines" / "quickstart.yaml"
+        try:
+            import distributed  # noqa: F401
+            has_dask = "dask" in sections
+        except ImportError:
+            has_dask = False
+            print("dask section skipped: the dask extra is not installed (pip install 'mocapflow[dask]')")
+        configs = [("local", 1)] + ([("local", 2)] if "local" in sections else []) + ([("dask", 2)] if has_dask else [])
+        if len(configs) > 1:
+            results["features"] = compare("ingest + features, whole corpus", feats, tmp, configs, repeats)
+            results["cleaning"] = compare("cleaning 8 takes (cleaners.mdm)", clean, tmp, configs, repeats)
+        if "local" in sections:
+            print("\nwall time on a shared machine measures the other load as much as ours; the CPU each process spent does not:")
+            results["features_cpu_path"] = report_critical_path("ingest + features", feats, tmp, repeats)
+            results["cleaning_cpu_path"] = report_critical_path("cleaning 8 takes", clean, tmp, repeats)
+        if has_dask:
+            results["quickstart"] = compare("quickstart (dask overhead)", quick_yaml, tmp, [("local", 1), ("dask", 2)], repeats)
+            q = results["quickstart"]
+            print(f"  dask overhead on the quickstart: {q['dask:2']['wall'] - q['local:1']['wall']:+.2f} s wall")
+        if "index" in sections:
+            n = 200_000 if args.quick else 1_038_388
+            results["index"] = index_figures(n, 500 if args.quick else 2000, 16, tmp)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()
