@@ -183,30 +183,31 @@ def child(db_name: str, mode: str, n_queries: int, cache: Path) -> dict:
 
 
 def report(db_name: str, single: dict, batch: dict) -> None:
-    names = [n.split("@")[0] for n in single[FEATURE_SETS[0]]["ms"] if n.endswith("@16")]
-    print(f"\n=== {db_name}: {single[FEATURE_SETS[0]]['rows']:,} frames at 30 Hz ===")
+    sets = [f for f in ALL_SETS if f in single]  # what the children measured
+    names = [n.split("@")[0] for n in single[sets[0]]["ms"] if n.endswith("@16")]
+    print(f"\n=== {db_name}: {single[sets[0]]['rows']:,} frames at 30 Hz ===")
     def chosen(r: dict) -> str:
         short = {"kdtree": "kd", "brute": "bf"}
         big = short[r.get("large_method", "brute")]
         return short[r["method"]] + (f"({big} from k={r['brute_from_k']})" if r.get("brute_from_k") else "")
 
     print("method chosen by mocapflow's probe (kd = kd-tree, bf = blocked BLAS brute force): "
-          + "  ".join(f"{f}={chosen(single[f])}" for f in FEATURE_SETS))
+          + "  ".join(f"{f}={chosen(single[f])}" for f in sets))
     paper = {"380813": "hdm05", "1038388": "cmu"}.get(db_name)
     for mode, res in (("single query, 1 thread", single), ("batch, all cores", batch)):
         for k in (16, 256):
             print(f"\n{mode}, {k}-NN, ms per query")
-            print(f"{'':12s}" + "".join(f"{f:>9s}" for f in FEATURE_SETS))
+            print(f"{'':12s}" + "".join(f"{f:>9s}" for f in sets))
             for n in names:
-                print(f"{n:12s}" + "".join(f"{res[f]['ms'][f'{n}@{k}']:9.3f}" for f in FEATURE_SETS))
+                print(f"{n:12s}" + "".join(f"{res[f]['ms'][f'{n}@{k}']:9.3f}" for f in sets))
             best = {f: min(v for kk, v in res[f]["ms"].items() if kk.endswith(f"@{k}") and not kk.startswith("mocapflow"))
-                    for f in FEATURE_SETS}
-            print(f"{'ratio best/us':12s}" + "".join(f"{best[f] / res[f]['ms'][f'mocapflow@{k}']:9.2f}" for f in FEATURE_SETS))
+                    for f in sets}
+            print(f"{'ratio best/us':12s}" + "".join(f"{best[f] / res[f]['ms'][f'mocapflow@{k}']:9.2f}" for f in sets))
             if paper and mode.startswith("single"):
-                print(f"{'paper 2010':12s}" + "".join(f"{PAPER[(paper, k)][ALL_SETS.index(f)]:9.2f}" for f in FEATURE_SETS))
+                print(f"{'paper 2010':12s}" + "".join(f"{PAPER[(paper, k)][ALL_SETS.index(f)]:9.2f}" for f in sets))
     print("\nbuild s / memory MB (mocapflow vs cKDTree):  " + "  ".join(
         f"{f}: {single[f]['build_s']['mocapflow']:.2f}/{single[f]['build_s']['cKDTree']:.2f}s "
-        f"{single[f]['memory_mb']['mocapflow']:.0f}/{single[f]['memory_mb']['cKDTree']:.0f}MB" for f in FEATURE_SETS))
+        f"{single[f]['memory_mb']['mocapflow']:.0f}/{single[f]['memory_mb']['cKDTree']:.0f}MB" for f in sets))
 
 
 def main() -> None:

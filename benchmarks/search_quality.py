@@ -21,7 +21,7 @@ exact kd-tree; ``min_span`` 0.5, the matchers' default):
 
 Methods: ``sdtw`` (exact reference), ``paper`` (LNG, ``gaps 0``, no fill), ``gaps G`` (the
 gap-tolerant graph alone, no fill), ``default`` (``matchers.lng`` as configured by default:
-gaps 8, fill), ``exact`` (certified-exact mode), larger ``k`` and propagated sets.
+gaps 32, fill), ``exact`` (certified-exact mode), larger ``k`` and propagated sets.
 No assertions: the figures are the output.
 """
 from __future__ import annotations
