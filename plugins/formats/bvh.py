@@ -65,9 +65,13 @@ class _Joint:
 
 
 def _parse_hierarchy(path: Path, text: bytes) -> list[_Joint]:
-    # bytes.split: ASCII whitespace only, as the tokenizer of the motion section
-    words: list[tuple[str, int]] = [(w.decode("latin-1"), ln) for ln, line in enumerate(text.split(b"\n"), start=1)
-                                    for w in line.split()]
+    # split on ASCII whitespace only, as the tokenizer of the motion section (str.split also
+    # splits on NBSP and NEL, so it serves only files without them)
+    lines = text.decode("latin-1").split("\n")
+    if b"\xa0" in text or b"\x85" in text:
+        lines = [[w.decode("latin-1") for w in ln.split()] for ln in text.split(b"\n")]
+    words: list[tuple[str, int]] = [(w, ln) for ln, line in enumerate(lines, start=1)
+                                    for w in (line if isinstance(line, list) else line.split())]
     n = len(words)
     if n == 0 or words[0][0].upper() != "HIERARCHY":
         raise ParseError(path, words[0][1] if words else 1, "expected 'HIERARCHY' at the start of a BVH file")

@@ -109,10 +109,8 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
     body = text_body(data)
     check_text(path, body)
     head, pos = _lines(body, _HEADER_LINES)
-    last = body.count(b"\n") + 1
-
     def at(line: int) -> int:  # a header line, or the last line of a file that ends before it
-        return min(line, last)
+        return min(line, body.count(b"\n") + 1)
 
     if not head[0].startswith("PathFileType"):
         raise ParseError(path, 1, f"expected a TRC header starting with 'PathFileType', found {head[0][:40]!r}")
