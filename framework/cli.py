@@ -301,6 +301,17 @@ def _plugin_manager(command: str | None, entry_points: bool, blocked: list[str])
     return pm
 
 
+def _register_remaining_builtins(pm, blocked: list[str]) -> None:
+    """A plugin command, once chosen, sees every built-in plugin that is not blocked (formats,
+    features, indexes, ...), exactly like ``run``; only ``--help`` stays limited to the
+    plugins that provide commands."""
+    from .plugins import builtin_plugin_modules
+
+    for mod in builtin_plugin_modules():
+        if mod not in blocked and not pm.has_plugin(mod):
+            pm.register(importlib.import_module(mod), name=mod)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     debug = "--debug" in argv
@@ -322,6 +333,8 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 0
+        if command not in BUILTIN_COMMANDS:
+            _register_remaining_builtins(pm, blocked)
         from .progress import announce_compilation
 
         # `run` reports progress on stdout; other commands keep stdout for their results
