@@ -231,7 +231,9 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
         out_dir = tmp_path / f"run{k}" / ".tmp-step"
         out_dir.mkdir(parents=True)
         ctx = SimpleNamespace(progress=lambda it, **_: it, step_id="mdm", out_dir=out_dir,
-                              log=SimpleNamespace(info=lambda *_: None))
+                              log=SimpleNamespace(info=lambda *_: None),
+                              map_clips=lambda fn, ds, with_ids=False, **_: [
+                                  fn(m, int(i)) for i, m in zip(ds.motions().clip_ids, ds.motions().motions)])
         outs.append(json.dumps(run_cleaner(cleaner, inputs, ctx).summary, sort_keys=True))
     assert outs[0] == outs[1]
     assert str(tmp_path) not in outs[0]
