@@ -47,9 +47,9 @@ class SearchCommand:
         parser.add_argument("--rank-by", choices=("cost", "normalized"), default=None,
                             help="rank by accumulated cost (default) or cost per path cell")
         parser.add_argument("--exact", action="store_true",
-                            help="return exactly subsequence DTW's matches (lng: certified, pruned; much faster than sdtw)")
+                            help="return exactly subsequence DTW's matches (lng: a certified pruned DP, identical to sdtw)")
         parser.add_argument("--gaps", type=int, default=None, metavar="G",
-                            help="lng: query frames a path may cross without a kNN cell (default 8; 0: the paper's graph)")
+                            help="lng: query frames a path may cross without a kNN cell (default: the matcher's, 32; 0: the paper's graph)")
         parser.add_argument("--propagate", type=int, default=None, metavar="N",
                             help="lng: search the index every N-th query frame only, propagate the sets in between")
         parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
