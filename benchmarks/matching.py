@@ -127,7 +127,8 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
         # the matcher as a user gets it (gaps 32, fill, min_span 0.5), and the certified-exact mode,
         # against sDTW's own top-10 (same min_span): alignments found, and identical results
         sd_sets = [list(zip(r.start.tolist(), r.end.tolist())) for r, _ in ref]
-        variants = [("matcher default (gaps 32, fill)", {}), ("certified exact", {"exact": True}),
+        variants = [("matcher default", {}), ("gaps 32, fill, propagate 0", {"propagate": 0}),
+                    ("gaps 32, fill, propagate 2", {"propagate": 2}), ("certified exact", {"exact": True}),
                     ("default, propagate 8", {"propagate": 8}), ("default, k=64", {"k": 64})]
         variants += gap_variants
         if ann is not None:
