@@ -59,7 +59,7 @@ def alive_ranges(alive: np.ndarray, bstart: np.ndarray) -> np.ndarray:
 
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
-                   graph=None, stats: ExactStats | None = None) -> QueryMatches:
+                   graph=None, stats: ExactStats | None = None, full_from: float = 0.5) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -78,6 +78,10 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         The LNG of this query, when already built (any sets: it only supplies ``tau``).
     stats : ExactStats, optional
         Filled with what the search did.
+    full_from : float
+        When the alive rows of a pass reach this share of the database, that pass is the
+        whole DP with no threshold (the last pass: a pruned pass, then retries, would cost
+        more than sDTW itself). Speed only; the result is sDTW's either way.
     """
     from ._coarse_kernels import coarse_alive, sdtw_ranges
     from ._dtw_kernels import dtw_window_path
@@ -106,6 +110,9 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         if np.isfinite(tau):
             bstart, lo, hi, link = space.blocks(block)
             ranges = alive_ranges(coarse_alive(qt, lo, hi, link, tau, _SHRINK), bstart)
+            if (ranges[:, 1] - ranges[:, 0]).sum() >= full_from * space.n_rows:
+                tau = ceiling
+                ranges = np.array([[0, space.n_rows]], np.int64)
         else:
             ranges = np.array([[0, space.n_rows]], np.int64)
         cost, start, length = sdtw_ranges(qt, space.features, clip_start, ranges)
