@@ -36,6 +36,8 @@ from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
 _SHRINK = 1.0 - 1e-4
+#: default of ``certified_sdtw(full_from=)``: share of alive rows from which a pass is the whole DP
+FULL_FROM = 0.5
 
 
 @dataclass
@@ -59,7 +61,7 @@ def alive_ranges(alive: np.ndarray, bstart: np.ndarray) -> np.ndarray:
 
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
-                   graph=None, stats: ExactStats | None = None, full_from: float = 0.5) -> QueryMatches:
+                   graph=None, stats: ExactStats | None = None, full_from: float | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -78,8 +80,8 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         The LNG of this query, when already built (any sets: it only supplies ``tau``).
     stats : ExactStats, optional
         Filled with what the search did.
-    full_from : float
-        When the alive rows of a pass reach this share of the database, that pass is the
+    full_from : float, optional
+        (Default :data:`FULL_FROM`.) When the alive rows of a pass reach this share of the database, that pass is the
         whole DP with no threshold (the last pass: a pruned pass, then retries, would cost
         more than sDTW itself). Speed only; the result is sDTW's either way.
     """
@@ -92,6 +94,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         raise DataError("certified-exact search needs the database index and features (SearchSpace)")
     q = validate_query(query, space.features.shape[1])
     st = stats if stats is not None else ExactStats()
+    full_from = FULL_FROM if full_from is None else float(full_from)
     ceiling = np.inf if (max_cost is None or rank_by != "cost") else float(max_cost)
     tau = np.inf
     if rank_by == "cost":
