@@ -91,8 +91,14 @@ def lng_once(q, space, k, eps, propagate=0):
 
 def matcher_once(q, space, **kw):
     """(top-10 [(start, end), ...], seconds) of one ``lazy_neighborhood_graph`` call (matcher defaults + ``kw``)."""
-    t0 = time.perf_counter()
-    res = lazy_neighborhood_graph(q, space, count=10, **kw)
+    from mocapflow.plugins.matchers import exact
+
+    full_from, exact.FULL_FROM = exact.FULL_FROM, kw.pop("full_from", exact.FULL_FROM)
+    try:
+        t0 = time.perf_counter()
+        res = lazy_neighborhood_graph(q, space, count=10, **kw)
+    finally:
+        exact.FULL_FROM = full_from
     return list(zip(res.start.tolist(), res.end.tolist())), time.perf_counter() - t0, res
 
 
@@ -127,7 +133,10 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
         # the matcher as a user gets it (gaps 32, fill, min_span 0.5), and the certified-exact mode,
         # against sDTW's own top-10 (same min_span): alignments found, and identical results
         sd_sets = [list(zip(r.start.tolist(), r.end.tolist())) for r, _ in ref]
-        variants = [("matcher default (gaps 32, fill)", {}), ("certified exact", {"exact": True}),
+        variants = [("matcher default", {}), ("gaps 32, fill, propagate 0", {"propagate": 0}),
+                    ("gaps 32, fill, propagate 2", {"propagate": 2}), ("certified exact", {"exact": True}),
+                    ("previous default (propagate 0, no full_from)", {"propagate": 0, "full_from": 2.0}),
+                    ("certified exact, no full_from (before)", {"exact": True, "full_from": 2.0}),
                     ("default, propagate 8", {"propagate": 8}), ("default, k=64", {"k": 64})]
         variants += gap_variants
         if ann is not None:

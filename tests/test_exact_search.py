@@ -95,6 +95,24 @@ def test_certified_prunes_columns():
     assert np.isfinite(st.tau) and st.columns < len(x) // 4 and not st.retried
 
 
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("full_from", [0.0, 0.3, 1.0, 2.0])
+def test_whole_dp_once_alive_rows_pass_full_from(seed, full_from):
+    # full_from only decides when the pruned DP gives way to the whole one: same matches
+    clip_id, frame, x = make_db([60, 3, 90, 40, 70], seed=seed)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    rng = np.random.default_rng(seed)
+    s = int(rng.integers(0, 150))
+    q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
+    for count, max_cost in ((5, None), (8, 12.0)):
+        st = ExactStats()
+        got = certified_sdtw(q, space, count=count, max_cost=max_cost, k=4, gaps=4, block=5, stats=st,
+                             full_from=full_from)
+        same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
+        if full_from == 0.0:  # the first pass is the whole DP, and the last
+            assert st.passes == 1 and st.columns == len(x)
+
+
 def test_normalized_ranking_falls_back_to_the_whole_dp():
     clip_id, frame, x = make_db([50, 50], seed=6)
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)

@@ -36,6 +36,8 @@ from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
 _SHRINK = 1.0 - 1e-4
+#: default of ``certified_sdtw(full_from=)``: share of alive rows from which a pass is the whole DP
+FULL_FROM = 0.5
 
 
 @dataclass
@@ -59,7 +61,7 @@ def alive_ranges(alive: np.ndarray, bstart: np.ndarray) -> np.ndarray:
 
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
-                   graph=None, stats: ExactStats | None = None) -> QueryMatches:
+                   graph=None, stats: ExactStats | None = None, full_from: float | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -78,6 +80,10 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         The LNG of this query, when already built (any sets: it only supplies ``tau``).
     stats : ExactStats, optional
         Filled with what the search did.
+    full_from : float, optional
+        (Default :data:`FULL_FROM`.) When the alive rows of a pass reach this share of the database, that pass is the
+        whole DP with no threshold (the last pass: a pruned pass, then retries, would cost
+        more than sDTW itself). Speed only; the result is sDTW's either way.
     """
     from ._coarse_kernels import coarse_alive, sdtw_ranges
     from ._dtw_kernels import dtw_window_path
@@ -88,6 +94,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         raise DataError("certified-exact search needs the database index and features (SearchSpace)")
     q = validate_query(query, space.features.shape[1])
     st = stats if stats is not None else ExactStats()
+    full_from = FULL_FROM if full_from is None else float(full_from)
     ceiling = np.inf if (max_cost is None or rank_by != "cost") else float(max_cost)
     tau = np.inf
     if rank_by == "cost":
@@ -106,6 +113,9 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         if np.isfinite(tau):
             bstart, lo, hi, link = space.blocks(block)
             ranges = alive_ranges(coarse_alive(qt, lo, hi, link, tau, _SHRINK), bstart)
+            if (ranges[:, 1] - ranges[:, 0]).sum() >= full_from * space.n_rows:
+                tau = ceiling
+                ranges = np.array([[0, space.n_rows]], np.int64)
         else:
             ranges = np.array([[0, space.n_rows]], np.int64)
         cost, start, length = sdtw_ranges(qt, space.features, clip_start, ranges)

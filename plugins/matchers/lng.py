@@ -193,12 +193,13 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
 
 def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
                             eps: float = 0.0, count: int = 10, max_cost: float | None = None,
-                            rank_by: str = "cost", min_span: float = 0.5, propagate: int = 0,
+                            rank_by: str = "cost", min_span: float = 0.5, propagate: int = 2,
                             gaps: int = 32, exact: bool = False, fill: bool = True) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`).
 
-    Defaults are the matcher's (gap-tolerant, ``fill``, ``min_span`` 0.5); the paper's LNG
-    is ``gaps=0, fill=False, min_span=0``.
+    Defaults are the matcher's (gap-tolerant, index searched on every second query frame
+    with propagated sets between, ``fill``, ``min_span`` 0.5); the paper's LNG is
+    ``gaps=0, propagate=0, fill=False, min_span=0``.
 
     ``exact``: subsequence DTW's matches, certified (:func:`.exact.certified_sdtw`, which
     takes its threshold from this graph's matches). ``fill``: when the graph holds fewer

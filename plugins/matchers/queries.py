@@ -189,9 +189,10 @@ class NeighborParams(MatchParams):
     radius: float | None = Field(None, gt=0, description="fixed kNN search radius r in feature units; null: unbounded")
     eps: float = Field(0.0, ge=0, description=(
         "approximate kNN: neighbours within (1+eps) of the true ones (paper: 0, 0.1, 0.5; needs an index with eps)"))
-    propagate: int = Field(0, ge=0, description=(
+    propagate: int = Field(2, ge=0, description=(
         "approximate neighbour sets (our extension): search the index only on every N-th query frame and take the "
-        "k nearest of the rows reachable from the previous frame's set in between; 0: every frame (the paper)"))
+        "k nearest of the rows reachable from the previous frame's set in between; 0: every frame (the paper); "
+        "default 2: half the kNN searches at the gap-tolerant graph's quality (docs/global-matching.md)"))
     gaps: int = Field(32, ge=0, le=1000, description=(
         "gap-tolerant graph (our extension): cells within this many query frames after or before a neighbour cell "
         "join the graph, their distance computed exactly; a path may cross up to 2*gaps query frames without a "
