@@ -51,7 +51,7 @@ MATCHES = pa.schema(
 WARPING_PATH = pa.field("path", pa.list_(pa.list_(pa.int32(), 2)))
 
 
-def motion_frames(n_joints_hint: int | None = None) -> pa.Schema:
+def motion_frames() -> pa.Schema:
     """Schema of a motions dataset's frame table.
 
     ``rotations`` holds the J*4 local quaternion components (w, x, y, z per joint) of the
