@@ -10,3 +10,19 @@ runs from the root, and would hide ``mocapflow.framework`` and ``mocapflow.plugi
 live in ``framework/`` and ``plugins/``.
 """
 __version__ = "0.1.0"
+
+#: The Python API (:mod:`mocapflow.api`), imported on first use.
+_API = ("read", "write", "features", "Database", "clean", "registries")
+__all__ = [*_API, "Motion", "__version__"]
+
+
+def __getattr__(name: str):
+    if name in _API:
+        from . import api
+
+        return getattr(api, name)
+    if name == "Motion":
+        from mocapflow.framework.motion import Motion
+
+        return Motion
+    raise AttributeError(f"module 'mocapflow' has no attribute {name!r}")

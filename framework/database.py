@@ -81,9 +81,6 @@ class MotionDatabase:
         pos = np.searchsorted(self.offsets, g, side="right") - 1
         return pos, g - self.offsets[pos]
 
-    def global_id(self, clip_position: int, frame: int | np.ndarray) -> np.ndarray:
-        return self.offsets[clip_position] + np.asarray(frame)
-
     # --- arrays -------------------------------------------------------------------------
     def canonical_positions(self, joints: tuple[str, ...] | list[str] = CANONICAL_JOINTS) -> np.ndarray:
         """Canonical joint positions of all frames, shape (n_frames, len(joints), 3), metres."""

@@ -23,6 +23,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from . import schema
+from .schema import fixed_list, fixed_list_to_numpy
 from .errors import DataError, PipelineError
 
 MANIFEST = "_manifest.json"
@@ -54,21 +55,6 @@ class FeatureMatrix:
 
 def frame_id_table(clip_id: np.ndarray, frame: np.ndarray) -> pa.Table:
     return pa.table({"clip_id": pa.array(np.asarray(clip_id, np.int32)), "frame": pa.array(np.asarray(frame, np.int32))})
-
-
-def fixed_list(x: np.ndarray) -> pa.FixedSizeListArray:
-    """``(n, d)`` array -> fixed-size-list array without copying per row."""
-    x = np.ascontiguousarray(x)
-    return pa.FixedSizeListArray.from_arrays(pa.array(x.reshape(-1)), x.shape[1])
-
-
-def fixed_list_to_numpy(col: pa.ChunkedArray | pa.Array, dtype: Any = np.float32) -> np.ndarray:
-    """Fixed-size-list column -> ``(n, d)`` array."""
-    if isinstance(col, pa.ChunkedArray):
-        col = col.combine_chunks() if col.num_chunks != 1 else col.chunk(0)
-    d = col.type.list_size
-    flat = col.flatten().to_numpy(zero_copy_only=False)
-    return np.asarray(flat, dtype=dtype).reshape(-1, d)
 
 
 def feature_table(clip_id: np.ndarray, frame: np.ndarray, x: np.ndarray) -> pa.Table:

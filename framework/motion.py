@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -131,6 +132,12 @@ class Motion:
         return out
 
     # --- editing ------------------------------------------------------------------------
+    def write(self, path: str | Path) -> None:
+        """Write with the registered format for the extension of ``path`` (``.bvh``, ``.amc`` ...), atomically."""
+        from mocapflow.api import write
+
+        write(self, path)
+
     def slice(self, start: int, stop: int) -> Motion:
         """Frames ``[start, stop)`` as a new clip (metadata records the offset)."""
         meta = dict(self.metadata, source_start_frame=int(self.metadata.get("source_start_frame", 0)) + int(start))

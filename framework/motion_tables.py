@@ -9,9 +9,9 @@ import pyarrow as pa
 
 from . import schema
 from .database import MotionDatabase
-from .datasets import fixed_list
 from .joints import CANONICAL_JOINTS
 from .motion import Motion
+from .schema import fixed_list
 from .skeleton import Skeleton
 
 

@@ -65,14 +65,6 @@ def to_root_frame(positions: np.ndarray, joints: tuple[str, ...] | list[str] = C
     return rotate_about_y(centred, -facing_angles(positions, joints))
 
 
-def drop_root_translation(motion: Motion, keep_height: bool = True) -> Motion:
-    """Motion whose root stays above the origin (height kept unless ``keep_height=False``)."""
-    root = np.zeros_like(motion.root_translation)
-    if keep_height:
-        root[:, 1] = motion.root_translation[:, 1]
-    return motion.with_arrays(root_translation=root)
-
-
 def align_facing(motion: Motion) -> Motion:
     """Motion rotated about +y per frame so that it always faces +z, root over the origin."""
     pos = motion.canonical_positions()

@@ -12,7 +12,6 @@ import json
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
@@ -67,15 +66,6 @@ class Plan:
             out[s.step_id] = hashlib.sha256(blob).hexdigest()[:24]
         return out
 
-    def downstream(self, step_id: str) -> set[str]:
-        """Steps that (transitively) consume ``step_id``'s output."""
-        found: set[str] = set()
-        frontier = {step_id}
-        while frontier:
-            nxt = {s.step_id for s in self.steps if set(s.inputs.values()) & frontier} - found
-            found |= nxt
-            frontier = nxt
-        return found
 
 
 def _model_at(model: type[BaseModel] | None, path: tuple[str, ...]) -> type[BaseModel] | None:
@@ -231,11 +221,3 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
             warnings.append(f"{source.where('steps', sid, 'with')}: step {sid!r}: {w}")
             log.warning("%s", warnings[-1])
     return Plan(source, [steps[s] for s in ordered], warnings)
-
-
-def describe(plan: Plan) -> list[dict[str, Any]]:
-    """Rows describing a plan (for ``mocapflow plan``)."""
-    return [
-        {"step": s.step_id, "uses": s.key, "inputs": s.inputs, "params": s.component.get_params()}
-        for s in plan.steps
-    ]

@@ -12,6 +12,9 @@ Conventions, stated once:
 """
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
 import pyarrow as pa
 
 CLIPS = pa.schema(
@@ -51,7 +54,7 @@ MATCHES = pa.schema(
 WARPING_PATH = pa.field("path", pa.list_(pa.list_(pa.int32(), 2)))
 
 
-def motion_frames(n_joints_hint: int | None = None) -> pa.Schema:
+def motion_frames() -> pa.Schema:
     """Schema of a motions dataset's frame table.
 
     ``rotations`` holds the J*4 local quaternion components (w, x, y, z per joint) of the
@@ -72,3 +75,18 @@ def motion_frames(n_joints_hint: int | None = None) -> pa.Schema:
 def feature_frames(dim: int) -> pa.Schema:
     """Schema of a feature table of dimension ``dim``."""
     return pa.schema([("clip_id", pa.int32()), ("frame", pa.int32()), ("features", pa.list_(pa.float32(), dim))])
+
+
+def fixed_list(x: np.ndarray) -> pa.FixedSizeListArray:
+    """``(n, d)`` array -> fixed-size-list array without copying per row."""
+    x = np.ascontiguousarray(x)
+    return pa.FixedSizeListArray.from_arrays(pa.array(x.reshape(-1)), x.shape[1])
+
+
+def fixed_list_to_numpy(col: pa.ChunkedArray | pa.Array, dtype: Any = np.float32) -> np.ndarray:
+    """Fixed-size-list column -> ``(n, d)`` array."""
+    if isinstance(col, pa.ChunkedArray):
+        col = col.combine_chunks() if col.num_chunks != 1 else col.chunk(0)
+    d = col.type.list_size
+    flat = col.flatten().to_numpy(zero_copy_only=False)
+    return np.asarray(flat, dtype=dtype).reshape(-1, d)

@@ -10,13 +10,16 @@ the database clip is named, not numbered. Needs matplotlib, imported lazily.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mocapflow.framework.errors import ConfigError
 
-from .lng import NeighborhoodGraph
 from .matches import QueryMatches, SearchSpace
+
+if TYPE_CHECKING:  # annotations only: lng.py imports this module (lazily)
+    from .lng import NeighborhoodGraph
 
 
 def local_distance_window(graph: NeighborhoodGraph, lo: int, hi: int) -> np.ndarray:
