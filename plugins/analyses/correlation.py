@@ -177,12 +177,12 @@ class DistanceCorrelationStudy(Analysis):
 
 def plot_heatmap(rows, cols, rho: np.ndarray, path: Path, title: str = "") -> Path | None:
     """Write the correlation matrix as an annotated heatmap PNG (needs matplotlib: extra ``plots``)."""
-    try:
-        import matplotlib
+    from mocapflow.framework.errors import ConfigError
+    from mocapflow.framework.plotting import pyplot
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # optional extra: the tables hold the numbers
+    try:
+        plt = pyplot("correlation heatmaps")
+    except ConfigError:  # the tables hold the numbers
         return None
     fig, ax = plt.subplots(figsize=(1.0 + 0.62 * len(cols), 1.0 + 0.5 * len(rows)))
     im = ax.imshow(rho, vmin=0.0, vmax=1.0, cmap="viridis")

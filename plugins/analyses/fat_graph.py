@@ -168,10 +168,9 @@ def plot_base_poses(positions: np.ndarray, joints: tuple[str, ...], path: Path, 
     to the root, both in metres (the figure faces the viewer). ``labels`` (one per pose, e.g. source clip, frame
     and member count) title the panels; by default they are numbered.
     """
-    import matplotlib
+    from mocapflow.framework.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("base-pose plots")
 
     n = len(positions)
     cols = min(n, 8) or 1

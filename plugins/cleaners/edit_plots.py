@@ -10,7 +10,6 @@ from typing import Any
 import numpy as np
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.framework.errors import ConfigError
 
 
 def most_edited(edits: Any, n: int = 4) -> list[tuple[int, str, int]]:
@@ -44,13 +43,9 @@ def before_after_plot(before: Any, after: Any, edits: Any, path: str | Path, n: 
     -------
     Path
     """
-    try:
-        import matplotlib
+    from mocapflow.framework.plotting import pyplot
 
-        matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-    except ImportError as exc:  # pragma: no cover - optional extra
-        raise ConfigError("before/after plots need matplotlib (a mocapflow dependency): pip install matplotlib") from exc
+    plt = pyplot("before/after plots")
     path = Path(path)
     joints = most_edited(edits, n)
     rows = max(len(joints), 1)

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapflow.framework.errors import ConfigError
 
 
 def mdm_heatmap(mdm: np.ndarray, joints: Sequence[str], path: str | Path, fps: float = 24.0,
@@ -36,13 +35,9 @@ def mdm_heatmap(mdm: np.ndarray, joints: Sequence[str], path: str | Path, fps: f
     -------
     Path
     """
-    try:
-        import matplotlib
+    from mocapflow.framework.plotting import pyplot
 
-        matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-    except ImportError as exc:  # pragma: no cover - optional extra
-        raise ConfigError("MDM heatmaps need matplotlib (a mocapflow dependency): pip install matplotlib") from exc
+    plt = pyplot("MDM heatmaps")
     mdm = np.asarray(mdm, float)
     path = Path(path)
     t, m = mdm.shape

@@ -51,14 +51,10 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
     pad : int or None
         Database frames shown before and after the match (default: the query length).
     """
-    try:
-        import matplotlib
+    from mocapflow.framework.plotting import pyplot
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.patches import Patch
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ConfigError("plots need matplotlib (a mocapflow dependency): pip install matplotlib") from exc
+    plt = pyplot("LNG plots")
+    from matplotlib.patches import Patch
     if not 0 <= match < len(matches):
         raise ConfigError(f"match {match} out of range: the query has {len(matches)} matches")
     m = graph.ids.shape[0]

@@ -297,10 +297,9 @@ def templates_table(templates: list[MotionTemplate]) -> pa.Table:
 def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None) -> Path:
     """PNG of one template: features x time, colour = fraction of examples with the feature
     on, don't-care cells hatched, key features marked."""
-    import matplotlib
+    from mocapflow.framework.plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot("template plots")
     from matplotlib.patches import Patch
 
     from mocapflow.plugins.features.relational import FEATURE_IDS, FEATURE_NAMES
