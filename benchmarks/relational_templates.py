@@ -28,8 +28,7 @@ from mocapflow.plugins.analyses.classify import classify_clips
 from mocapflow.plugins.indexes.inverted import InvertedIndex
 from mocapflow.plugins.matchers.relational import example_query, search_set, subset_member
 from mocapflow.plugins.matchers.relational_auto import auto_template, select_features
-from mocapflow.plugins.matchers.template import (fit_templates, others_min, rival_filter, search_template,
-                                                 template_cost_array)
+from mocapflow.plugins.matchers.template import cutoff_hits, fit_templates, search_template
 from mocapflow.plugins.matchers.template_model import (clip_min_costs, fit_class_template, fit_template, frame_codes,
                                                        resample_rows, template_hits)
 
@@ -51,25 +50,21 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], **kw
     classes = sorted(set(cls))
     codes = frame_codes(bits)
     score = np.full((len(names), len(classes)), np.inf)   # held-out clip x template (key features)
-    thr = np.zeros((len(names), len(classes)))
-    rival_hit = np.zeros((len(names), len(classes)), bool)
+    hit = {m: np.zeros((len(names), len(classes)), bool) for m in ("threshold", "rivals")}
+    bounds = {m: np.zeros((len(names), len(classes))) for m in ("threshold", "rivals")}
     pred_all, pred_key = np.empty(len(names), object), np.empty(len(names), object)
     for held in sorted(set(act)):
         train = act != held
         temps, _ = _fit_fold(bits, offsets, cls, train, **kw)
         te = np.flatnonzero(~train)
-        arrays = [template_cost_array(t, codes, offsets) for t in temps]
-        rivals = others_min(np.array([a[0] for a in arrays]))
         for j, t in enumerate(temps):
-            per_clip = clip_min_costs(codes, offsets, t.table())
-            score[te, j] = per_clip[te]
-            thr[te, j] = t.threshold
-            s, e, c = template_hits(*arrays[j], t.threshold)
-            keep = rival_filter(s, e, c, rivals[j])
-            clip_of = np.searchsorted(offsets, s[keep], side="right") - 1
-            held_hits = np.zeros(len(names), bool)
-            held_hits[clip_of] = True
-            rival_hit[te, j] = held_hits[te]
+            score[te, j] = clip_min_costs(codes, offsets, t.table())[te]
+        for mode in hit:  # the cut-off lists the matcher reports (cutoff_hits), scored on the held-out cuts
+            for j, (s, _, _, bound) in enumerate(cutoff_hits(temps, codes, offsets, mode)):
+                found = np.zeros(len(names), bool)
+                found[np.searchsorted(offsets, s, side="right") - 1] = True
+                hit[mode][te, j] = found[te]
+                bounds[mode][te, j] = bound
         sub = np.concatenate([bits[offsets[i]:offsets[i + 1]] for i in te])
         sub_off = np.concatenate([[0], np.cumsum(np.diff(offsets)[te])])
         pred_all[te] = np.array(classes)[classify_clips(temps, sub, sub_off, "all").argmin(axis=1)]
@@ -81,11 +76,11 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], **kw
         tp = np.cumsum(y[order])
         prec, rec = tp / np.arange(1, len(y) + 1), tp / y.sum()
         best_r = float(rec[prec >= 0.8].max()) if np.any(prec >= 0.8) else 0.0
-        hit = score[:, j] <= thr[:, j]
-        p_thr = float((hit & y).sum() / max(hit.sum(), 1))
-        r_thr = float((hit & y).sum() / y.sum())
-        hr = rival_hit[:, j]
-        rows[c] = (best_r, p_thr, r_thr, int(hit.sum()), float((hr & y).sum() / max(hr.sum(), 1)), float((hr & y).sum() / y.sum()))
+        row = [best_r]
+        for mode in ("threshold", "rivals"):
+            h = hit[mode][:, j]
+            row += [float((h & y).sum() / max(h.sum(), 1)), float((h & y).sum() / y.sum()), int(h.sum())]
+        rows[c] = tuple(row)
     return {"rows": rows, "acc_all": float(np.mean(pred_all == cls)), "acc_key": float(np.mean(pred_key == cls)),
             "confusions": [(names[i], pred_all[i]) for i in np.flatnonzero(pred_all != cls)]}
 
@@ -197,14 +192,14 @@ def report(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
     t0 = time.perf_counter()
     res = templates_loao(bits, offsets, names)
     print(f"\n== motion templates, leave-one-actor-out ({time.perf_counter() - t0:.1f} s) ==")
-    print("class".ljust(30) + "best R at P>=0.8   threshold: P     R  hits   + rivals: P     R")
-    for c, (r, p, rr, h, pr, rr2) in res["rows"].items():
-        print(f"{c:30s}{r:16.2f}{p:17.2f}{rr:6.2f}{h:6d}{pr:16.2f}{rr2:6.2f}")
+    print("class".ljust(30) + "ranking: best R at P>=0.8 | cut-off threshold: P     R  hits | cut-off rivals (default): P     R  hits")
+    for c, (r, p, rr, h, pr, rr2, h2) in res["rows"].items():
+        print(f"{c:30s}{r:26.2f}{p:22.2f}{rr:6.2f}{h:6d}{pr:29.2f}{rr2:6.2f}{h2:6d}")
     ok_rank = sum(v[0] >= 0.9 for v in res["rows"].values())
     ok_thr = sum(v[1] >= 0.8 and v[2] >= 0.9 for v in res["rows"].values())
     ok_riv = sum(v[4] >= 0.8 and v[5] >= 0.9 for v in res["rows"].values())
-    print(f"classes with R >= 0.9 at P >= 0.8: ranking {ok_rank} of 11, calibrated threshold {ok_thr} of 11, "
-          f"threshold + rivals {ok_riv} of 11 (target 9)")
+    print(f"classes with R >= 0.9 at P >= 0.8: ranking {ok_rank} of 11, cut-off threshold {ok_thr} of 11, "
+          f"cut-off rivals {ok_riv} of 11 (target 9)")
     print(f"classification accuracy (held-out actor): all features {res['acc_all']:.3f}, key features {res['acc_key']:.3f} "
           f"(target 0.9); wrong: {res['confusions']}")
     t0 = time.perf_counter()

@@ -192,7 +192,7 @@ def test_prefilter_keeps_every_hit_through_an_anchor():
         db[s0:s0 + n] = _pattern(n, (0.3, 0.6))
     offsets = np.array([0, 1000, 2000, 3000])
     idx = InvertedIndex().build(db, np.repeat([0, 1, 2], 1000).astype(np.int32))
-    name, bits, frac = choose_anchor(t, idx)
+    name, bits, frac, _ = choose_anchor(t, idx)
     assert name == "lower" and bits.get(3) == 1 and frac < 0.1  # feature 3 on: the rare stretch of the template
     ranges, covered = candidate_ranges(t, idx)
     assert covered < 0.5 and np.all(ranges[:, 1] > ranges[:, 0])
@@ -216,10 +216,53 @@ def test_two_pass_search_matches_the_full_pass(seed):
     ranges = np.stack([offsets[:-1], offsets[1:]], 1)
     cost, start = template_costs(codes, table, ranges)
     thr = float(np.quantile(cost[np.isfinite(cost)], 0.5)) if np.isfinite(cost).any() else 1.0
-    s, e, c, cost2 = search_costs(codes, table, ranges, thr)
-    np.testing.assert_allclose(cost2, cost)  # the branch-free cost pass: same values
-    for got, want in zip((s, e, c), naive.template_hits(cost, start, thr, 0.5, ranges)):
-        np.testing.assert_array_equal(got, want)
+    for abandon in (False, True):
+        s, e, c, cost2 = search_costs(codes, table, ranges, thr, abandon=abandon)
+        if abandon:  # abandoned cells: exact at or below the threshold, inf or exact above
+            low = cost <= thr
+            np.testing.assert_allclose(cost2[low], cost[low])
+            assert np.all((cost2[~low] == np.inf) | np.isclose(cost2[~low], cost[~low]))
+        else:
+            np.testing.assert_allclose(cost2, cost)  # the branch-free cost pass: same values
+        for got, want in zip((s, e, c), naive.template_hits(cost, start, thr, 0.5, ranges)):
+            np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_early_abandoning_cost_pass_matches_naive(seed):
+    from mocapflow.plugins.matchers._template_kernels import sdtw_cost
+
+    rng = np.random.default_rng(100 + seed)
+    k = int(rng.integers(1, 12))
+    lengths = rng.integers(1, 60, size=int(rng.integers(1, 6)))
+    offsets = np.concatenate([[0], np.cumsum(lengths)])
+    n = int(offsets[-1])
+    codes = rng.integers(0, 1 << 31, size=n, dtype=np.int64)
+    codes[4:9] = codes[3]  # runs of equal codes: the local costs are reused, possibly for more rows
+    table = (rng.random((6400, k)) ** 3).astype(np.float32)  # many cheap cells: long live bands
+    clip_of = np.repeat(np.arange(len(lengths)), lengths)
+    ncost, _ = naive.subsequence_dtw(_table_cost(table, codes), clip_of)
+    fin = ncost[np.isfinite(ncost)]
+    for bound in ([0.0, np.inf] + ([float(np.quantile(fin, q)) for q in (0.05, 0.3, 0.7)] if len(fin) else [])):
+        cost = np.full(n, np.inf)
+        sdtw_cost(codes, table, offsets[:-1].copy(), offsets[1:].copy(), cost, bound)
+        low = ncost <= bound
+        np.testing.assert_allclose(cost[low], ncost[low], rtol=1e-6)
+        above = ~low
+        assert np.all((cost[above] == np.inf) | np.isclose(cost[above], ncost[above], rtol=1e-6))
+        assert np.all(cost[above] > bound)
+
+
+def test_window_minima_matches_naive():
+    from mocapflow.plugins.matchers._template_kernels import window_minima
+
+    rng = np.random.default_rng(3)
+    cost = rng.random(50)
+    cost[rng.random(50) < 0.2] = np.inf
+    lo = rng.integers(0, 50, 20)
+    hi = np.minimum(lo + rng.integers(0, 10, 20), 50)
+    want = [cost[a:b].min() if b > a else np.inf for a, b in zip(lo, hi)]
+    np.testing.assert_array_equal(window_minima(cost, lo, hi), want)
 
 
 def test_clip_labels_and_groups():

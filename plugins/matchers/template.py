@@ -128,6 +128,40 @@ def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, t
     return search_costs(codes, use.table(), ranges, t.threshold if threshold is None else threshold)[:3]
 
 
+def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.ndarray,
+                cutoff: Literal["rivals", "threshold"] = "rivals", columns: Literal["key", "all"] = "key",
+                index=None, anchor_features: int = 2, threshold: float | None = None, rho: float = 1.0,
+                guard: float = 1.0, min_gap: float = 0.5) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+    """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
+    frames, ascending cost) under a cut-off rule (:mod:`.template_cutoff`).
+
+    ``cutoff="threshold"``: cost <= the template's threshold; ``"rivals"``: cost <= its
+    acceptance bound and no other template cheaper on the stretch (all-feature costs,
+    factor ``rho``). ``threshold`` overrides the bound of every template.
+    """
+    from .template_cutoff import acceptance_bound, rival_mask
+
+    out = []
+    for qid, t in enumerate(templates):
+        use = t if columns == "key" else _all_columns(t)
+        if threshold is not None:
+            bound = float(threshold)
+        else:
+            bound = acceptance_bound(t, guard) if cutoff == "rivals" else float(t.threshold)
+        if index is not None:
+            from .template_prefilter import candidate_ranges
+
+            ranges, _ = candidate_ranges(use, index, anchor_features, widen="path")
+        else:
+            ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
+        s, e, c, _ = search_costs(codes, use.table(), ranges, bound, min_gap)
+        if cutoff == "rivals":
+            keep = rival_mask(templates, qid, s, e, codes, offsets, rho)
+            s, e, c = s[keep], e[keep], c[keep]
+        out.append((s, e, c, bound))
+    return out
+
+
 def rival_filter(start: np.ndarray, end: np.ndarray, cost: np.ndarray, rivals: np.ndarray) -> np.ndarray:
     """Which hits no other template beats: ``rivals`` (N,) is, per frame, the least end-frame
     cost of the other templates; a hit ``[s, e)`` is beaten when a rival path ending within
@@ -168,7 +202,7 @@ class TemplateMatcher(Matcher):
     """
 
     name = "template"
-    version = "1"
+    version = "2"
     inputs = {"database": True, "motions": True, "reference": False, "index": False}
 
     class Params(Params):
@@ -186,7 +220,12 @@ class TemplateMatcher(Matcher):
         negatives: bool = Field(True, description="calibrate thresholds against the other classes' training clips too")
         anchor_features: int = Field(2, ge=1, le=3, description="with an 'index' input: features of the anchor constellation "
                                      "whose inverted lists pre-select the searched regions")
-        rivals: bool = Field(False, description="drop a hit when another template matches the same stretch more cheaply")
+        cutoff: Literal["rivals", "threshold"] = Field("rivals", description="rivals: a hit below the template's acceptance "
+                                                        "bound that no other template beats on the stretch (all-feature costs); "
+                                                        "threshold: every hit below the calibrated threshold")
+        rho: float = Field(1.0, gt=0.0, description="cutoff rivals: keep a hit when its all-feature cost <= rho x the best rival's")
+        guard: float = Field(1.0, ge=0.0, description="cutoff rivals: acceptance bound = max(threshold, (1 + guard) x the "
+                                                      "largest leave-one-group-out example cost)")
         plots: bool = Field(True, description="write template_<label>.png per template")
 
     def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
@@ -229,21 +268,17 @@ class TemplateMatcher(Matcher):
             if int(next(iter(index.sets.values())).clip_offsets[-1]) != len(codes):
                 raise PipelineError("matchers.template: the index was built on other frames than 'database'")
         rows = []
-        arrays = [template_cost_array(t, codes, offsets, self.params.features, index, self.params.anchor_features)
-                  for t in templates]
-        rivals = others_min(np.array([a[0] for a in arrays])) if self.params.rivals and arrays else None
-        for qid, t in enumerate(templates):
-            s, e, c = template_hits(*arrays[qid], self.params.threshold or t.threshold)
-            if rivals is not None:
-                keep = rival_filter(s, e, c, rivals[qid])
-                s, e, c = s[keep], e[keep], c[keep]
-            if self.params.max_hits:
-                s, e, c = s[: self.params.max_hits], e[: self.params.max_hits], c[: self.params.max_hits]
+        prm = self.params
+        lists = cutoff_hits(templates, codes, offsets, prm.cutoff, prm.features, index, prm.anchor_features, prm.threshold,
+                            prm.rho, prm.guard)
+        for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists)):
+            if prm.max_hits:
+                s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]
             pos = np.searchsorted(offsets, s, side="right") - 1
             for rank, (a, b, cc, p) in enumerate(zip(s, e, c, pos), start=1):
                 rows.append({"query_id": qid, "rank": rank, "clip_id": int(clip_ids[p]), "start_frame": int(a - offsets[p]),
                              "end_frame": int(b - offsets[p]), "cost": float(cc), "label": t.label,
-                             "threshold": float(self.params.threshold or t.threshold), "features": feature_ids(t.columns)})
+                             "threshold": bound, "features": feature_ids(t.columns)})
         if self.params.plots:
             for t in templates:
                 plot_template(t, ctx.out_dir / f"template_{_safe(t.label)}.png", fps=_fps(inputs["motions"]))

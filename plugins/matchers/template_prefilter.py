@@ -1,13 +1,16 @@
 """Candidate regions for template retrieval from the inverted lists (``matchers.template`` with an index).
 
 A template's *anchor* is a constellation of one or two of its key features of one feature
-set that holds (cared for, constant) over a stretch of at least ``min_run`` template frames
-and is rare in the database: the database frames where it holds are the union of the
-inverted lists of every code agreeing with it (``SetIndex.union``). A path of the template
-spans at most ``2 K - 1`` database frames (steps (1,2) stretch by at most 2), so every path
-that passes through an anchor segment lies inside that segment widened by ``2 K`` frames on
-both sides; subsequence DTW runs only there. A match whose frames never show the anchor is
-missed: the benchmark reports hits lost against the full scan.
+set that holds (cared for, constant) over a stretch ``[a, b]`` of at least ``min_run``
+template frames and is rare in the database: the database frames where it holds are the
+union of the inverted lists of every code agreeing with it (``SetIndex.union``). A path
+advances at most 2 database frames per template frame (step (1,2)). ``widen="anchor"``
+(default): a path that maps one of the template frames ``a..b`` onto a frame of an anchor
+segment ``[s, e)`` starts at or after ``s - 2 b`` and ends before ``e + 2 (K - 1 - a)``;
+only there does subsequence DTW run (about ``L + 2 K`` frames per segment of length L).
+``widen="path"`` (the first design): every path with *any* frame in the segment lies in
+``[s - 2 K, e + 2 K)`` (``L + 4 K`` frames). A match whose anchor frames do not show the
+anchor is missed: the benchmark reports hits lost against the full scan.
 """
 from __future__ import annotations
 
@@ -23,8 +26,9 @@ from .template_model import MotionTemplate
 def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3):
     """The rarest constellation of the template's key features (module doc).
 
-    Returns ``(set name, {local bit: value}, database fraction)`` or None when no key
-    feature is cared for over ``min_run`` frames.
+    Returns ``(set name, {local bit: value}, database fraction, (a, b))`` with ``a..b`` the
+    template frames of the stretch (inclusive), or None when no key feature is cared for
+    over ``min_run`` frames. Of equally rare constellations the longest stretch is taken.
     """
     q = t.quantized()
     best = None
@@ -51,22 +55,25 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
                     sel = np.ones(len(idx.list_codes), bool)
                     for b, val in bits.items():
                         sel &= ((idx.list_codes >> b) & 1) == val
-                    frac = counts[sel].sum() / total
-                    if best is None or frac < best[2]:
-                        best = (name, bits, float(frac))
+                    frac = float(counts[sel].sum() / total)
+                    run = (int(s), int(s + n - 1))
+                    if best is None or (frac, -n) < (best[2], -(best[3][1] - best[3][0] + 1)):
+                        best = (name, bits, frac, run)
     return best
 
 
-def candidate_ranges(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3) -> tuple[np.ndarray, float]:
+def candidate_ranges(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3,
+                     widen: str = "anchor") -> tuple[np.ndarray, float]:
     """Frame ranges ``(R, 2)`` (global, each inside one clip) to search, and the fraction of
-    the database they cover (1.0 and the whole clips when the template has no anchor)."""
+    the database they cover (1.0 and the whole clips when the template has no anchor);
+    ``widen``: "anchor" or "path" (module doc)."""
     any_set = next(iter(index.sets.values()))
     offsets = any_set.clip_offsets
     whole = np.stack([offsets[:-1], offsets[1:]], axis=1)
     anchor = choose_anchor(t, index, max_features, min_run)
     if anchor is None:
         return whole, 1.0
-    name, bits, _ = anchor
+    name, bits, _, (row_a, row_b) = anchor
     idx = index.sets[name]
     sel = np.ones(len(idx.list_codes), bool)
     for b, val in bits.items():
@@ -74,10 +81,11 @@ def candidate_ranges(t: MotionTemplate, index, max_features: int = 2, min_run: i
     pos = idx.union(idx.list_codes[sel])
     if not len(pos):
         return np.zeros((0, 2), np.int64), 0.0
-    width = 2 * t.n_frames
+    k = t.n_frames
+    left, right = (2 * row_b + 1, 2 * (k - 1 - row_a) + 1) if widen == "anchor" else (2 * k, 2 * k)
     clip = idx.seg_clip[pos]
-    lo = np.maximum(idx.seg_start[pos] - width, offsets[clip])
-    hi = np.minimum(idx.seg_end[pos] + width, offsets[clip + 1])
+    lo = np.maximum(idx.seg_start[pos] - left, offsets[clip])
+    hi = np.minimum(idx.seg_end[pos] + right, offsets[clip + 1])
     # merge overlapping ranges of one clip (positions, hence lo within a clip, are sorted)
     run_hi = np.maximum.accumulate(hi)
     new = np.r_[True, (lo[1:] > run_hi[:-1]) | (clip[1:] != clip[:-1])]
