@@ -245,7 +245,11 @@ def test_early_abandoning_cost_pass_matches_naive(seed):
     fin = ncost[np.isfinite(ncost)]
     for bound in ([0.0, np.inf] + ([float(np.quantile(fin, q)) for q in (0.05, 0.3, 0.7)] if len(fin) else [])):
         cost = np.full(n, np.inf)
-        sdtw_cost(codes, table, offsets[:-1].copy(), offsets[1:].copy(), cost, bound)
+        # a bound per range: this one for every range but the first, which gets none
+        bounds = np.full(len(lengths), bound)
+        bounds[0] = np.inf
+        sdtw_cost(codes, table, offsets[:-1].copy(), offsets[1:].copy(), cost, bounds)
+        np.testing.assert_allclose(cost[:lengths[0]], ncost[:lengths[0]], rtol=1e-6)
         low = ncost <= bound
         np.testing.assert_allclose(cost[low], ncost[low], rtol=1e-6)
         above = ~low
@@ -318,3 +322,53 @@ steps:
     a, b = (pq.read_table(ws / s / "data.parquet").to_pylist() for s in ("fit", "reuse"))
     assert a == b and len(a) >= 12  # the same templates: the same hits (each class finds its 6 cuts at least)
     assert pq.read_table(ws / "reuse" / "templates.parquet")["label"].to_pylist() == ["kickLFront1Reps", "squat1Reps"]
+
+
+def test_forward_min_matches_naive():
+    from mocapflow.plugins.matchers.template_cutoff import forward_min
+
+    rng = np.random.default_rng(11)
+    offsets = np.array([0, 7, 8, 30, 64])
+    cost = rng.random(64)
+    cost[rng.random(64) < 0.2] = np.inf
+    for w in (1, 2, 3, 5, 8, 13, 40):
+        want = [cost[j:min(j + w, offsets[np.searchsorted(offsets, j, "right")])].min() for j in range(64)]
+        np.testing.assert_array_equal(forward_min(cost, offsets, w), want)
+
+
+def _two_class_setup():
+    """Templates of two patterns (feature 3 on early / feature 5 on late) and a database
+    holding both motions; template 0's loose bound also accepts the other pattern."""
+    ex_a = [_pattern(n, (0.1, 0.5)) for n in (30, 34, 38)]
+    ex_b = []
+    for n in (30, 34, 38):
+        x = np.zeros((n, 31), np.float32)
+        x[:, 20] = 1
+        x[int(0.5 * n):int(0.9 * n), 5] = 1
+        ex_b.append(x)
+    ta = fit_class_template("a", ex_a, features="all")
+    tb = fit_class_template("b", ex_b, features="all")
+    db = np.concatenate([ex_a[1], ex_b[1], ex_a[0], ex_b[2]])
+    offsets = np.array([0, 34, 68, 98, 136])
+    return [ta, tb], frame_codes(db), offsets
+
+
+def test_rival_cutoff_keeps_each_motion_for_its_own_template():
+    from mocapflow.plugins.matchers.template import cutoff_hits
+    from mocapflow.plugins.matchers.template_cutoff import RivalTable, rival_mask
+
+    temps, codes, offsets = _two_class_setup()
+
+    def clip_of(starts):
+        return np.searchsorted(offsets, starts, side="right") - 1
+
+    loose = cutoff_hits(temps, codes, offsets, "threshold", threshold=0.6)
+    assert set(clip_of(loose[0][0]).tolist()) >= {0, 1, 2}  # a loose bound: template a also hits b's motion
+    got = cutoff_hits(temps, codes, offsets, "rivals", threshold=0.6)
+    assert set(clip_of(got[0][0]).tolist()) == {0, 2} and set(clip_of(got[1][0]).tolist()) == {1, 3}
+    table = RivalTable.build(temps, codes, offsets)
+    for which, (s, e, _, _) in enumerate(loose):  # the lookup table and the window scans agree
+        np.testing.assert_array_equal(table.mask(which, s, e, offsets), rival_mask(temps, which, s, e, codes, offsets))
+    with_table = cutoff_hits(temps, codes, offsets, "rivals", threshold=0.6, rival_table=table)
+    for a, b in zip(got, with_table):
+        np.testing.assert_array_equal(a[0], b[0])

@@ -209,22 +209,24 @@ def _remaining_bound(codes, table, lo, hi, g):  # pragma: no cover - compiled
 
 
 @njit(cache=True, parallel=True)
-def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost, bound):  # pragma: no cover - compiled
+def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost, bounds):  # pragma: no cover - compiled
     """End-frame costs only (no path starts), branch-free minima, early abandoning: the
     fast first pass of a search. Same recurrence as :func:`template_sdtw`.
 
-    ``bound`` (mean cost; ``inf``: none): accumulated costs only grow along a path, so a
-    cell whose cost plus a lower bound of the rest of any path (:func:`_remaining_bound`)
-    exceeds ``bound * K`` cannot lie on a path ending at or below ``bound``: it is abandoned
+    ``bounds`` (float64 (C,), a mean cost per range; ``inf``: none): accumulated costs only
+    grow along a path, so a cell whose cost plus a lower bound of the rest of any path
+    (:func:`_remaining_bound`) exceeds ``bound * K`` cannot lie on a path ending at or below
+    the range's ``bound``: it is abandoned
     (inf), and a range whose whole-path bound exceeds it is skipped. Each column is
     computed only up to the highest row a live cell of the previous two columns can reach
     (+1 and +2 rows), and the local costs only for those rows. End costs ``<= bound`` are
     exact (the same minima, in the same order); the others are inf or exact.
     """
     n_rows = table.shape[1]
-    finite = bound < np.inf
-    limit = bound * n_rows * (1.0 + 1e-9) + 1e-12  # rounding slack: never abandon a cell on a path ending at bound
     for r in prange(chunk_lo.shape[0]):
+        bound = bounds[r]
+        finite = bound < np.inf
+        limit = bound * n_rows * (1.0 + 1e-9) + 1e-12  # rounding slack: never abandon a cell on a path ending at bound
         g = np.zeros(n_rows)
         if finite and _remaining_bound(codes, table, chunk_lo[r], chunk_hi[r], g) > limit:
             for j in range(chunk_lo[r], chunk_hi[r]):

@@ -131,18 +131,24 @@ def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, t
 def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.ndarray,
                 cutoff: Literal["rivals", "threshold"] = "rivals", columns: Literal["key", "all"] = "key",
                 index=None, anchor_features: int = 2, threshold: float | None = None, rho: float = 1.0,
-                guard: float = 1.0, min_gap: float = 0.5) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+                guard: float = 1.0, min_gap: float = 0.5, only: list[int] | None = None,
+                rival_table=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
     frames, ascending cost) under a cut-off rule (:mod:`.template_cutoff`).
 
     ``cutoff="threshold"``: cost <= the template's threshold; ``"rivals"``: cost <= its
     acceptance bound and no other template cheaper on the stretch (all-feature costs,
-    factor ``rho``). ``threshold`` overrides the bound of every template.
+    factor ``rho``). ``threshold`` overrides the bound of every template. ``only``: search
+    these templates (indices) only, the others still competing as rivals. ``rival_table``:
+    a :class:`.template_cutoff.RivalTable` of the same frames answers the rival check by
+    lookups (many queries on one database) instead of scanning the hits' windows.
     """
     from .template_cutoff import acceptance_bound, rival_mask
 
     out = []
     for qid, t in enumerate(templates):
+        if only is not None and qid not in only:
+            continue
         use = t if columns == "key" else _all_columns(t)
         if threshold is not None:
             bound = float(threshold)
@@ -156,7 +162,8 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
             ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
         s, e, c, _ = search_costs(codes, use.table(), ranges, bound, min_gap)
         if cutoff == "rivals":
-            keep = rival_mask(templates, qid, s, e, codes, offsets, rho)
+            keep = (rival_table.mask(qid, s, e, offsets, rho) if rival_table is not None
+                    else rival_mask(templates, qid, s, e, codes, offsets, rho))
             s, e, c = s[keep], e[keep], c[keep]
         out.append((s, e, c, bound))
     return out
@@ -269,8 +276,13 @@ class TemplateMatcher(Matcher):
                 raise PipelineError("matchers.template: the index was built on other frames than 'database'")
         rows = []
         prm = self.params
+        table = None
+        if prm.cutoff == "rivals" and len(templates) > 1:  # every template is a query: the rivals' costs once
+            from .template_cutoff import RivalTable
+
+            table = RivalTable.build(templates, codes, offsets)
         lists = cutoff_hits(templates, codes, offsets, prm.cutoff, prm.features, index, prm.anchor_features, prm.threshold,
-                            prm.rho, prm.guard)
+                            prm.rho, prm.guard, rival_table=table)
         for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists)):
             if prm.max_hits:
                 s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]

@@ -244,7 +244,7 @@ def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, thres
     r = np.asarray(ranges, np.int64).reshape(-1, 2)
     if len(r) and table.shape[1]:
         sdtw_cost(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), np.ascontiguousarray(r[:, 0]),
-                  np.ascontiguousarray(r[:, 1]), cost, float(threshold) if abandon else np.inf)
+                  np.ascontiguousarray(r[:, 1]), cost, np.full(len(r), float(threshold) if abandon else np.inf))
     from ._template_kernels import greedy_hits, range_minima
 
     if not 0.0 <= min_gap < 1.0:
