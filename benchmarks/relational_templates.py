@@ -98,9 +98,12 @@ def _ranking_metrics(costs: np.ndarray, rel: np.ndarray) -> tuple[float, float]:
     return ap, float(tp[reach[0]] / (reach[0] + 1)) if len(reach) else 0.0
 
 
-def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str], cuts=(0.4, 0.5, 0.6, 0.7, 0.8),
-                        min_run: int = 4) -> dict:
+def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str], min_run: int = 4) -> dict:
     """Automatic selection from one example (module doc); dtw and the paper's machinery."""
+    from itertools import product
+
+    from mocapflow.plugins.matchers.relational_auto import relative_cost_cut
+
     cls, act = _meta(names)
     n = len(names)
     codes = frame_codes(bits)
@@ -111,27 +114,30 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
         cost[q] = clip_min_costs(codes, offsets, t.table())
     rel = (cls[:, None] == cls[None, :]) & ~np.eye(n, dtype=bool)
     masked = np.where(np.eye(n, dtype=bool), np.inf, cost)
-    med = np.array([np.median(masked[q][np.isfinite(masked[q])]) for q in range(n)])
 
     def hits_pr(q, cut):
-        hit = masked[q] <= cut * med[q]
+        hit = masked[q] <= relative_cost_cut(masked[q], *cut)
         return (float((hit & rel[q]).sum() / max(hit.sum(), 1)), float((hit & rel[q]).sum() / rel[q].sum()))
 
-    # the relative cut per fold: the best number of classes meeting P >= 0.7, R >= 0.9 on the other actors' queries
-    chosen = np.zeros(n)
-    for held in sorted(set(act)):
-        tr = np.flatnonzero(act != held)
+    # the cut's parameters per fold: the most classes meeting P >= 0.7, R >= 0.9 on the other actors' queries
+    designs = {"dtw": list(product(np.round(np.arange(0.5, 1.5, 0.05), 2), (0.25, 0.5, 0.75, 1.0))),  # blend (default)
+               "dtw, cut x median (first design)": [(a, 0.0) for a in (0.4, 0.5, 0.6, 0.7, 0.8)]}
+    out = {"cuts": {}}
+    for key, grid in designs.items():
+        chosen = np.zeros((n, 2))
+        for held in sorted(set(act)):
+            tr = np.flatnonzero(act != held)
 
-        def n_good(cut):
-            pr = np.array([hits_pr(q, cut) for q in tr])
-            return sum((pr[cls[tr] == c, 0].mean() >= 0.7) & (pr[cls[tr] == c, 1].mean() >= 0.9) for c in set(cls)) \
-                + 1e-3 * pr.mean(axis=0).sum()
-        chosen[act == held] = max(cuts, key=n_good)
-    out = {"dtw": {}}
-    for q in range(n):
-        ap, p9 = _ranking_metrics(masked[q], rel[q])
-        out["dtw"].setdefault(cls[q], []).append((ap, p9) + hits_pr(q, chosen[q]))
-    out["cuts"] = sorted(set(chosen.tolist()))
+            def n_good(cut):
+                pr = np.array([hits_pr(q, cut) for q in tr])
+                return sum((pr[cls[tr] == c, 0].mean() >= 0.7) & (pr[cls[tr] == c, 1].mean() >= 0.9) for c in set(cls)) \
+                    + 1e-3 * pr.mean(axis=0).sum()
+            chosen[act == held] = max(grid, key=n_good)
+        out[key] = {}
+        for q in range(n):
+            ap, p9 = _ranking_metrics(masked[q], rel[q])
+            out[key].setdefault(cls[q], []).append((ap, p9) + hits_pr(q, tuple(chosen[q])))
+        out["cuts"][key] = sorted({tuple(float(x) for x in c) for c in chosen})
     # other actors only: one example, and two (the actor's other take as the extra example)
     out["dtw, other actors"], out["dtw + 1 example, other actors"] = {}, {}
     for q in range(n):
@@ -205,9 +211,10 @@ def report(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
     t0 = time.perf_counter()
     auto = auto_single_example(bits, offsets, names)
     print(f"\n== automatic feature selection from a single example ({time.perf_counter() - t0:.1f} s; "
-          f"dtw relative cut chosen per fold: {auto['cuts']}) ==")
+          f"cut (relative_cut, low_weight) chosen per fold: {auto['cuts']}) ==")
     print("search".ljust(32) + "mAP    P@R0.9  hits P   hits R   classes P@R0.9>=0.7   classes hits P>=0.7,R>=0.9")
-    for key in ("dtw", "adaptive", "mismatch1", "mismatch2", "dtw, other actors", "dtw + 1 example, other actors"):
+    for key in ("dtw", "dtw, cut x median (first design)", "adaptive", "mismatch1", "mismatch2", "dtw, other actors",
+                "dtw + 1 example, other actors"):
         per = {c: np.mean(v, axis=0) for c, v in auto[key].items()}
         allv = np.concatenate([np.array(v) for v in auto[key].values()])
         print(f"{key:32s}{allv[:, 0].mean():.3f}{allv[:, 1].mean():8.2f}{allv[:, 2].mean():9.2f}{allv[:, 3].mean():9.2f}"
