@@ -267,6 +267,9 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
         tb, (fs, fe, _, _) = best_of(lambda: search_costs(codes, t.table(), whole, t.threshold, abandon=False))
         tt, (s, e, _) = best_of(lambda: search_template(t, codes, big_offsets, index=index))
         tr, lists = best_of(lambda: cutoff_hits(temps, codes, big_offsets, "rivals", index=index, only=[j], rival_table=table))
+        r2, frac2 = candidate_ranges(t, index, anchors=2)
+        t2, (s2, e2, _, _) = best_of(lambda: search_costs(codes, t.table(), r2, t.threshold))
+        miss2 = len(set(zip(fs.tolist(), fe.tolist())) - set(zip(s2.tolist(), e2.tolist())))
         _, frac = candidate_ranges(t, index)
         full = set(zip(fs.tolist(), fe.tolist()))
         miss = len(full - set(zip(s.tolist(), e.tolist())))
@@ -276,7 +279,8 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
         lost.append(miss / max(len(full), 1))
         print(f"  {t.label:30s} K={t.n_frames:4d}: baseline {tb * 1e3:6.1f} ms | threshold {tt * 1e3:6.1f} ms (x{tb / tt:4.1f}, "
               f"{len(s)} hits, {miss} of the baseline's {len(fs)} lost; {100 * frac:4.1f} % of frames searched) | "
-              f"rivals {tr * 1e3:6.1f} ms (x{tb / tr:4.1f}, {len(lists[0][0])} hits)")
+              f"rivals {tr * 1e3:6.1f} ms (x{tb / tr:4.1f}, {len(lists[0][0])} hits) | threshold, 2 anchors "
+              f"{t2 * 1e3:6.1f} ms (x{tb / t2:4.1f}, {100 * frac2:4.1f} %, {miss2} lost)")
     # reference measured in the same run: the paper's adaptive fuzzy query (5 levels, 6 of 12 upper features free)
     rng = np.random.default_rng(0)
     up = index.sets["upper"]

@@ -372,3 +372,24 @@ def test_rival_cutoff_keeps_each_motion_for_its_own_template():
     with_table = cutoff_hits(temps, codes, offsets, "rivals", threshold=0.6, rival_table=table)
     for a, b in zip(got, with_table):
         np.testing.assert_array_equal(a[0], b[0])
+
+
+def test_intersect_ranges_matches_naive():
+    from mocapflow.plugins.matchers._template_kernels import intersect_ranges
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        a = np.zeros(200, bool)
+        b = np.zeros(200, bool)
+        a[rng.integers(0, 200, 30)] = True
+        b[rng.integers(0, 200, 30)] = True
+        a |= np.roll(a, 1) | np.roll(a, 2)
+        b |= np.roll(b, 3)
+
+        def as_ranges(m):
+            edges = np.flatnonzero(np.diff(np.r_[0, m.astype(int), 0]))
+            return edges[0::2].astype(np.int64), edges[1::2].astype(np.int64)
+        lo, hi = intersect_ranges(*as_ranges(a), *as_ranges(b))
+        want_lo, want_hi = as_ranges(a & b)
+        np.testing.assert_array_equal(lo, want_lo)
+        np.testing.assert_array_equal(hi, want_hi)

@@ -132,7 +132,7 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
                 cutoff: Literal["rivals", "threshold"] = "rivals", columns: Literal["key", "all"] = "key",
                 index=None, anchor_features: int = 2, threshold: float | None = None, rho: float = 1.0,
                 guard: float = 1.0, min_gap: float = 0.5, only: list[int] | None = None,
-                rival_table=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+                rival_table=None, anchors: int = 1) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
     frames, ascending cost) under a cut-off rule (:mod:`.template_cutoff`).
 
@@ -142,6 +142,8 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
     these templates (indices) only, the others still competing as rivals. ``rival_table``:
     a :class:`.template_cutoff.RivalTable` of the same frames answers the rival check by
     lookups (many queries on one database) instead of scanning the hits' windows.
+    ``anchors``: candidate regions from one anchor or the intersection of two
+    (:func:`.template_prefilter.candidate_ranges`).
     """
     from .template_cutoff import acceptance_bound, rival_mask
 
@@ -157,7 +159,7 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
         if index is not None:
             from .template_prefilter import candidate_ranges
 
-            ranges, _ = candidate_ranges(use, index, anchor_features, widen="path")
+            ranges, _ = candidate_ranges(use, index, anchor_features, widen="path", anchors=anchors)
         else:
             ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
         s, e, c, _ = search_costs(codes, use.table(), ranges, bound, min_gap)
@@ -227,6 +229,8 @@ class TemplateMatcher(Matcher):
         negatives: bool = Field(True, description="calibrate thresholds against the other classes' training clips too")
         anchor_features: int = Field(2, ge=1, le=3, description="with an 'index' input: features of the anchor constellation "
                                      "whose inverted lists pre-select the searched regions")
+        anchors: int = Field(1, ge=1, le=2, description="with an 'index' input: 2 searches only where the anchors of two "
+                             "feature sets both occur (faster, loses more hits: docs/templates.md)")
         cutoff: Literal["rivals", "threshold"] = Field("rivals", description="rivals: a hit below the template's acceptance "
                                                         "bound that no other template beats on the stretch (all-feature costs); "
                                                         "threshold: every hit below the calibrated threshold")
@@ -282,7 +286,7 @@ class TemplateMatcher(Matcher):
 
             table = RivalTable.build(templates, codes, offsets)
         lists = cutoff_hits(templates, codes, offsets, prm.cutoff, prm.features, index, prm.anchor_features, prm.threshold,
-                            prm.rho, prm.guard, rival_table=table)
+                            prm.rho, prm.guard, rival_table=table, anchors=prm.anchors)
         for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists)):
             if prm.max_hits:
                 s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]

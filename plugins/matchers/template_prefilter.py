@@ -25,7 +25,7 @@ from mocapflow.plugins.features.relational import SET_SLICES
 from .template_model import MotionTemplate
 
 
-def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3):
+def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3, sets: tuple[str, ...] | None = None):
     """The rarest constellation of the template's key features (module doc).
 
     Returns ``(set name, {local bit: value}, database fraction, (a, b))`` with ``a..b`` the
@@ -35,7 +35,7 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
     q = t.quantized()
     best = None
     for name, sl in SET_SLICES.items():
-        if name not in index.sets:
+        if name not in index.sets or (sets is not None and name not in sets):
             continue
         idx = index.sets[name]
         cols = [int(c) for c in t.columns if sl.start <= c < sl.stop]
@@ -65,24 +65,42 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
 
 
 def candidate_ranges(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3,
-                     widen: str = "path") -> tuple[np.ndarray, float]:
+                     widen: str = "path", anchors: int = 1) -> tuple[np.ndarray, float]:
     """Frame ranges ``(R, 2)`` (global, each inside one clip) to search, and the fraction of
     the database they cover (1.0 and the whole clips when the template has no anchor);
-    ``widen``: "anchor" or "path" (module doc)."""
+    ``widen``: "anchor" or "path" (module doc). ``anchors=2``: also the rarest anchor of
+    another feature set, and only the frames inside the ranges of both are searched (a
+    match must show both anchors)."""
+    from ._template_kernels import intersect_ranges
+
     any_set = next(iter(index.sets.values()))
     offsets = any_set.clip_offsets
     whole = np.stack([offsets[:-1], offsets[1:]], axis=1)
     anchor = choose_anchor(t, index, max_features, min_run)
     if anchor is None:
         return whole, 1.0
+    ranges = _anchor_ranges(t, index, anchor, widen, offsets)
+    if anchors >= 2:
+        other = choose_anchor(t, index, max_features, min_run, tuple(n for n in index.sets if n != anchor[0]))
+        if other is not None:
+            r2 = _anchor_ranges(t, index, other, widen, offsets)
+            lo, hi = intersect_ranges(np.ascontiguousarray(ranges[:, 0]), np.ascontiguousarray(ranges[:, 1]),
+                                      np.ascontiguousarray(r2[:, 0]), np.ascontiguousarray(r2[:, 1]))
+            ranges = np.stack([lo, hi], axis=1)
+    ranges = ranges[ranges[:, 1] - ranges[:, 0] >= max(t.n_frames // 2, 1)]
+    return ranges.astype(np.int64), float((ranges[:, 1] - ranges[:, 0]).sum() / max(int(offsets[-1]), 1))
+
+
+def _anchor_ranges(t: MotionTemplate, index, anchor, widen: str, offsets: np.ndarray) -> np.ndarray:
+    """Merged, sorted ranges (R, 2) around the segments where one anchor holds."""
     name, bits, _, (row_a, row_b) = anchor
     idx = index.sets[name]
     sel = np.ones(len(idx.list_codes), bool)
-    for b, val in bits.items():
-        sel &= ((idx.list_codes >> b) & 1) == val
+    for bit, val in bits.items():
+        sel &= ((idx.list_codes >> bit) & 1) == val
     pos = idx.union(idx.list_codes[sel])
     if not len(pos):
-        return np.zeros((0, 2), np.int64), 0.0
+        return np.zeros((0, 2), np.int64)
     k = t.n_frames
     left, right = (2 * row_b + 1, 2 * (k - 1 - row_a) + 1) if widen == "anchor" else (2 * k, 2 * k)
     clip = idx.seg_clip[pos]
@@ -92,9 +110,7 @@ def candidate_ranges(t: MotionTemplate, index, max_features: int = 2, min_run: i
     run_hi = np.maximum.accumulate(hi)
     new = np.r_[True, (lo[1:] > run_hi[:-1]) | (clip[1:] != clip[:-1])]
     first = np.flatnonzero(new)
-    ranges = np.stack([lo[first], np.maximum.reduceat(hi, first)], axis=1)
-    ranges = ranges[ranges[:, 1] - ranges[:, 0] >= max(t.n_frames // 2, 1)]
-    return ranges.astype(np.int64), float((ranges[:, 1] - ranges[:, 0]).sum() / max(int(offsets[-1]), 1))
+    return np.stack([lo[first], np.maximum.reduceat(hi, first)], axis=1).astype(np.int64)
 
 
 __all__ = ["candidate_ranges", "choose_anchor"]
