@@ -206,8 +206,10 @@ class TemplateMatcher(Matcher):
     examples), ``motions`` (clip names: labels and training selection) and optionally
     ``reference`` (a ``matchers.template`` step whose templates are reused) and ``index``
     (an ``indexes.inverted`` step on the same frames: candidate regions from its lists). Output: the
-    shared match table (``query_id`` = template number) plus ``label``, ``threshold`` and
-    ``features``; a ``templates`` table; ``templates.npz`` and ``template_<label>.png``.
+    shared match table (``query_id`` = template number) plus ``label``, ``threshold`` (the
+    cost bound the hit passed: the acceptance bound with ``cutoff: rivals``, the calibrated
+    threshold otherwise) and ``features``; a ``templates`` table; ``templates.npz`` and
+    ``template_<label>.png``. Which hits are reported: ``cutoff`` (:mod:`.template_cutoff`).
     """
 
     name = "template"
