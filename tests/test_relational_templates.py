@@ -230,7 +230,7 @@ def test_two_pass_search_matches_the_full_pass(seed):
 
 @pytest.mark.parametrize("seed", range(8))
 def test_early_abandoning_cost_pass_matches_naive(seed):
-    from mocapflow.plugins.matchers._template_kernels import sdtw_cost
+    from mocapflow.plugins.matchers._template_kernels import sdtw_cost, template_sdtw
 
     rng = np.random.default_rng(100 + seed)
     k = int(rng.integers(1, 12))
@@ -241,7 +241,7 @@ def test_early_abandoning_cost_pass_matches_naive(seed):
     codes[4:9] = codes[3]  # runs of equal codes: the local costs are reused, possibly for more rows
     table = (rng.random((6400, k)) ** 3).astype(np.float32)  # many cheap cells: long live bands
     clip_of = np.repeat(np.arange(len(lengths)), lengths)
-    ncost, _ = naive.subsequence_dtw(_table_cost(table, codes), clip_of)
+    ncost, nstart = naive.subsequence_dtw(_table_cost(table, codes), clip_of)
     fin = ncost[np.isfinite(ncost)]
     for bound in ([0.0, np.inf] + ([float(np.quantile(fin, q)) for q in (0.05, 0.3, 0.7)] if len(fin) else [])):
         cost = np.full(n, np.inf)
@@ -255,6 +255,13 @@ def test_early_abandoning_cost_pass_matches_naive(seed):
         above = ~low
         assert np.all((cost[above] == np.inf) | np.isclose(cost[above], ncost[above], rtol=1e-6))
         assert np.all(cost[above] > bound)
+        # the pass with path starts abandons the same way: exact costs and starts at or below the bound
+        c2, s2 = np.full(n, np.inf), np.full(n, -1, np.int64)
+        template_sdtw(codes, table, offsets[:-1].copy(), offsets[1:].copy(), c2, s2, bound)
+        np.testing.assert_allclose(c2[low], ncost[low], rtol=1e-6)
+        fin_low = low & np.isfinite(ncost)
+        np.testing.assert_array_equal(s2[fin_low], nstart[fin_low])
+        assert np.all((c2[above] == np.inf) | np.isclose(c2[above], ncost[above], rtol=1e-6))
 
 
 def test_window_minima_matches_naive():
