@@ -297,17 +297,6 @@ def test_calibrate_threshold_between_positives_and_negatives():
     assert 0.3 < calibrate_threshold([0.1, 0.3], [0.2, 0.9]) < 0.9
 
 
-def test_rivals_drop_hits_another_template_matches_better():
-    from mocapflow.plugins.matchers.template import others_min, rival_filter
-
-    costs = np.array([[0.1, 0.5, 0.2, 0.9], [0.3, 0.4, 0.1, 0.8], [0.2, 0.6, 0.7, 0.1]])
-    om = others_min(costs)
-    np.testing.assert_allclose(om, [[0.2, 0.4, 0.1, 0.1], [0.1, 0.5, 0.2, 0.1], [0.1, 0.4, 0.1, 0.8]])
-    # a hit [0, 3) of template 0 with cost 0.2 ends at frame 2, where template 1 costs 0.1
-    keep = rival_filter(np.array([0, 2]), np.array([3, 3]), np.array([0.2, 0.05]), om[0])
-    assert keep.tolist() == [False, True]
-
-
 @pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
 def test_fitted_templates_are_reused_through_reference(tmp_path):
     import pyarrow.parquet as pq

@@ -28,8 +28,7 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 from mocapflow.framework.schema import MATCHES
 
-from .template_model import (MotionTemplate, fit_class_template, frame_codes, load_templates, save_templates,
-                             search_costs, template_costs, template_hits)
+from .template_model import MotionTemplate, fit_class_template, frame_codes, load_templates, save_templates, search_costs
 
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.context import StepContext
@@ -95,28 +94,14 @@ def feature_ids(columns: np.ndarray) -> str:
     return ",".join(FEATURE_IDS[int(c)] for c in columns)
 
 
-def template_cost_array(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, columns: Literal["key", "all"] = "key",
-                        index=None, anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """End-frame costs and path starts (N,) of one template; with ``index`` (an
-    ``InvertedIndex`` of the same frames) only the candidate regions around the template's
-    anchor are searched (:mod:`.template_prefilter`), the other frames cost inf."""
-    use = t if columns == "key" else _all_columns(t)
-    if index is not None:
-        from .template_prefilter import candidate_ranges
-
-        ranges, _ = candidate_ranges(use, index, anchor_features)
-    else:
-        ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
-    return template_costs(codes, use.table(), ranges)
-
-
 def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None,
                     columns: Literal["key", "all"] = "key", index=None,
                     anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template in a database.
 
     ``codes`` (N,) :func:`.template_model.frame_codes`; ``offsets`` (n_clips + 1,) clip
-    offsets; ``index``: see :func:`template_cost_array`.
+    offsets; ``index``: an ``InvertedIndex`` of the same frames: only the candidate regions
+    around the template's anchor are searched (:mod:`.template_prefilter`).
     """
     use = t if columns == "key" else _all_columns(t)
     if index is not None:
@@ -169,30 +154,6 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
             s, e, c = s[keep], e[keep], c[keep]
         out.append((s, e, c, bound))
     return out
-
-
-def rival_filter(start: np.ndarray, end: np.ndarray, cost: np.ndarray, rivals: np.ndarray) -> np.ndarray:
-    """Which hits no other template beats: ``rivals`` (N,) is, per frame, the least end-frame
-    cost of the other templates; a hit ``[s, e)`` is beaten when a rival path ending within
-    half its length of ``e`` is cheaper. Returns a boolean mask over the hits."""
-    keep = np.ones(len(start), bool)
-    n = len(rivals)
-    for h, (s, e, c) in enumerate(zip(start, end, cost)):
-        half = (e - s) // 2
-        lo, hi = max(e - 1 - half, 0), min(e + half, n)
-        keep[h] = not (hi > lo and rivals[lo:hi].min() < c)
-    return keep
-
-
-def others_min(costs: np.ndarray) -> np.ndarray:
-    """Per template and frame the least cost of the other templates, (T, N), from (T, N)."""
-    if len(costs) < 2:
-        return np.full_like(costs, np.inf)
-    order = np.argsort(costs, axis=0, kind="stable")[:2]
-    best = np.take_along_axis(costs, order[:1], axis=0)[0]
-    second = np.take_along_axis(costs, order[1:2], axis=0)[0]
-    rows = np.arange(len(costs))[:, None]
-    return np.where(order[0][None, :] == rows, second[None, :], best[None, :])
 
 
 def _all_columns(t: MotionTemplate) -> MotionTemplate:
@@ -383,5 +344,5 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     return out
 
 
-__all__ = ["HDM05_GROUP", "HDM05_LABEL", "TemplateMatcher", "clip_labels", "fit_templates", "others_min", "plot_template",
-           "rival_filter", "search_template", "template_cost_array", "template_hits_table", "templates_table"]
+__all__ = ["HDM05_GROUP", "HDM05_LABEL", "TemplateMatcher", "clip_labels", "cutoff_hits", "fit_templates", "plot_template",
+           "search_template", "template_hits_table", "templates_table"]
