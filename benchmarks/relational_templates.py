@@ -24,12 +24,12 @@ import time
 
 import numpy as np
 
-from mocapflow.plugins.analyses.classify import classify_clips
-from mocapflow.plugins.indexes.inverted import InvertedIndex
-from mocapflow.plugins.matchers.relational import example_query, search_set, subset_member
-from mocapflow.plugins.matchers.relational_auto import auto_template, select_features
-from mocapflow.plugins.matchers.template import cutoff_hits, fit_templates, search_template
-from mocapflow.plugins.matchers.template_model import (clip_min_costs, fit_class_template, fit_template, frame_codes,
+from mocapflow.plugins.relational.auto import auto_template, select_features
+from mocapflow.plugins.relational.classify import classify_clips
+from mocapflow.plugins.relational.inverted import InvertedIndex
+from mocapflow.plugins.relational.matcher import example_query, search_set, subset_member
+from mocapflow.plugins.relational.template import cutoff_hits, fit_templates, search_template
+from mocapflow.plugins.relational.template_model import (clip_min_costs, fit_class_template, fit_template, frame_codes,
                                                        resample_rows, template_hits)
 
 
@@ -102,7 +102,7 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
     """Automatic selection from one example (module doc); dtw and the paper's machinery."""
     from itertools import product
 
-    from mocapflow.plugins.matchers.relational_auto import relative_cost_cut
+    from mocapflow.plugins.relational.auto import relative_cost_cut
 
     cls, act = _meta(names)
     n = len(names)
@@ -230,8 +230,8 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
     three actors): the first design (full scan, no abandoning) as the same-run baseline, the
     threshold cut-off (inverted-list candidate regions + early abandoning) and the default
     rivals cut-off (the same search at the acceptance bound + the rival check)."""
-    from mocapflow.plugins.matchers.template_model import search_costs
-    from mocapflow.plugins.matchers.template_prefilter import candidate_ranges
+    from mocapflow.plugins.relational.template_model import search_costs
+    from mocapflow.plugins.relational.template_prefilter import candidate_ranges
 
     if temps is None:
         cls, _ = _meta(names)
@@ -247,7 +247,7 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
     whole = np.stack([big_offsets[:-1], big_offsets[1:]], axis=1)
     search_template(temps[0], codes, big_offsets, index=index)  # compile outside the timing
     cutoff_hits(temps, codes, big_offsets, "rivals", index=index, only=[0])
-    from mocapflow.plugins.matchers.template_cutoff import RivalTable
+    from mocapflow.plugins.relational.template_cutoff import RivalTable
 
     t0 = time.perf_counter()
     table = RivalTable.build(temps, codes, big_offsets)

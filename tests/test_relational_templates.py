@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapflow.plugins.analyses.classify import decide
-from mocapflow.plugins.matchers._template_kernels import dtw_path
-from mocapflow.plugins.matchers.template_model import (MotionTemplate, cost_table, fit_class_template, fit_template,
+from mocapflow.plugins.relational.classify import decide
+from mocapflow.plugins.relational._template_kernels import dtw_path
+from mocapflow.plugins.relational.template_model import (MotionTemplate, cost_table, fit_class_template, fit_template,
                                                        frame_codes, load_templates, save_templates, template_costs,
                                                        template_hits)
 
@@ -185,9 +185,9 @@ def test_hit_selection_matches_naive(seed):
 
 
 def test_prefilter_keeps_every_hit_through_an_anchor():
-    from mocapflow.plugins.indexes.inverted import InvertedIndex
-    from mocapflow.plugins.matchers.template import search_template
-    from mocapflow.plugins.matchers.template_prefilter import candidate_ranges, choose_anchor
+    from mocapflow.plugins.relational.inverted import InvertedIndex
+    from mocapflow.plugins.relational.template import search_template
+    from mocapflow.plugins.relational.template_prefilter import candidate_ranges, choose_anchor
 
     rng = np.random.default_rng(5)
     ex = [_pattern(n, (0.3, 0.6)) for n in (30, 36, 42)]
@@ -211,7 +211,7 @@ def test_prefilter_keeps_every_hit_through_an_anchor():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_two_pass_search_matches_the_full_pass(seed):
-    from mocapflow.plugins.matchers.template_model import search_costs
+    from mocapflow.plugins.relational.template_model import search_costs
 
     rng = np.random.default_rng(seed)
     lengths = rng.integers(1, 80, size=6)
@@ -235,7 +235,7 @@ def test_two_pass_search_matches_the_full_pass(seed):
 
 @pytest.mark.parametrize("seed", range(8))
 def test_early_abandoning_cost_pass_matches_naive(seed):
-    from mocapflow.plugins.matchers._template_kernels import sdtw_cost, template_sdtw
+    from mocapflow.plugins.relational._template_kernels import sdtw_cost, template_sdtw
 
     rng = np.random.default_rng(100 + seed)
     k = int(rng.integers(1, 12))
@@ -270,7 +270,7 @@ def test_early_abandoning_cost_pass_matches_naive(seed):
 
 
 def test_window_minima_matches_naive():
-    from mocapflow.plugins.matchers._template_kernels import window_minima
+    from mocapflow.plugins.relational._template_kernels import window_minima
 
     rng = np.random.default_rng(3)
     cost = rng.random(50)
@@ -283,7 +283,7 @@ def test_window_minima_matches_naive():
 
 def test_clip_labels_and_groups():
     from mocapflow.framework.errors import ConfigError
-    from mocapflow.plugins.matchers.template import HDM05_GROUP, HDM05_LABEL, clip_labels
+    from mocapflow.plugins.relational.template import HDM05_GROUP, HDM05_LABEL, clip_labels
 
     names = ["HDM_bd_kickLFront1Reps_001_120", "HDM_dg_squat1Reps_025_120", "01_02"]
     assert clip_labels(names, HDM05_LABEL) == ["kickLFront1Reps", "squat1Reps", None]
@@ -293,7 +293,7 @@ def test_clip_labels_and_groups():
 
 
 def test_calibrate_threshold_between_positives_and_negatives():
-    from mocapflow.plugins.matchers.template_model import calibrate_threshold
+    from mocapflow.plugins.relational.template_model import calibrate_threshold
 
     assert calibrate_threshold([0.1, 0.2], [0.5, 0.6]) == pytest.approx(0.35)  # midway: F1 = 1
     assert calibrate_threshold([0.1, 0.2], None, margin=0.5) == pytest.approx(0.3)
@@ -326,7 +326,7 @@ steps:
 
 
 def test_forward_min_matches_naive():
-    from mocapflow.plugins.matchers.template_cutoff import forward_min
+    from mocapflow.plugins.relational.template_cutoff import forward_min
 
     rng = np.random.default_rng(11)
     offsets = np.array([0, 7, 8, 30, 64])
@@ -355,8 +355,8 @@ def _two_class_setup():
 
 
 def test_rival_cutoff_keeps_each_motion_for_its_own_template():
-    from mocapflow.plugins.matchers.template import cutoff_hits
-    from mocapflow.plugins.matchers.template_cutoff import RivalTable, rival_mask
+    from mocapflow.plugins.relational.template import cutoff_hits
+    from mocapflow.plugins.relational.template_cutoff import RivalTable, rival_mask
 
     temps, codes, offsets = _two_class_setup()
 
@@ -376,7 +376,7 @@ def test_rival_cutoff_keeps_each_motion_for_its_own_template():
 
 
 def test_intersect_ranges_matches_naive():
-    from mocapflow.plugins.matchers._template_kernels import intersect_ranges
+    from mocapflow.plugins.relational._template_kernels import intersect_ranges
 
     rng = np.random.default_rng(4)
     for _ in range(20):
