@@ -38,6 +38,8 @@ from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
 _SHRINK = 1.0 - 1e-4
 #: default of ``certified_sdtw(full_from=)``: share of alive rows from which a pass is the whole DP
 FULL_FROM = 0.5
+#: default of ``certified_sdtw(top=)``: rows per block of the first (coarsest) bound
+TOP_BLOCK = 256
 
 
 @dataclass
@@ -48,6 +50,8 @@ class ExactStats:
     columns: int = 0
     passes: int = 0
     retried: bool = False
+    coarse_blocks: int = 0
+    guess_columns: int = 0
 
 
 def alive_ranges(alive: np.ndarray, bstart: np.ndarray) -> np.ndarray:
@@ -59,23 +63,111 @@ def alive_ranges(alive: np.ndarray, bstart: np.ndarray) -> np.ndarray:
     return np.stack([bstart[first], bstart[stop]], axis=1).astype(np.int64)
 
 
+def block_ranges(mask: np.ndarray) -> np.ndarray:
+    """Index ranges ``[a, b)`` (int64 (r, 2)) of the runs of true entries of ``mask``."""
+    if not mask.any():
+        return np.zeros((0, 2), np.int64)
+    edge = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    return np.stack([np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)], axis=1).astype(np.int64)
+
+
+def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Union of the row ranges ``[lo, hi)`` as sorted disjoint ranges, int64 (r, 2)."""
+    if not len(lo):
+        return np.zeros((0, 2), np.int64)
+    o = np.argsort(lo, kind="stable")
+    lo, hi = lo[o], np.maximum.accumulate(hi[o])
+    new = np.r_[True, lo[1:] > hi[:-1]]
+    first = np.flatnonzero(new)
+    last = np.r_[first[1:] - 1, len(lo) - 1]
+    return np.stack([lo[first], hi[last]], axis=1).astype(np.int64)
+
+
+def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, per_frame: int = 0) -> float:
+    """A threshold from real alignments around the nearest neighbours of three query frames.
+
+    Query frames first, middle and last get their ``per_frame`` (default ``2 count``)
+    nearest rows from the index; a match through row ``h`` at query frame ``i`` lies
+    within ``h - 2i .. h + 2(m - 1 - i)`` when it takes at most two database frames per
+    query frame, so the fine DP runs over those windows (merged). Returns the
+    ``count``-th cost of their selection, or inf when it holds fewer.
+    """
+    from ._coarse_kernels import sdtw_ranges_compact
+
+    m, n = len(q), space.n_rows
+    frames = np.unique(np.array([0, m // 2, m - 1]))
+    kk = min(n, per_frame or 2 * count)
+    _, ids = space.index.query(np.ascontiguousarray(q[frames]), kk)
+    ids = np.asarray(ids, np.int64)
+    fi = np.broadcast_to(frames[:, None], ids.shape)
+    ok = ids >= 0
+    h, fi = ids[ok], fi[ok]
+    ranges = merged_ranges(np.maximum(h - 2 * fi - 2, 0), np.minimum(h + 2 * (m - 1 - fi) + 3, n))
+    rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
+    st.guess_columns += len(rows)
+    keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
+                          min_frames=min_frames)
+    return float(cost[keep[-1]]) if len(keep) == count else np.inf
+
+
+def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) -> float:
+    """A threshold from real alignments: the fine DP over the blocks of lowest bound.
+
+    The ``count`` blocks of lowest bound (with their linked neighbours, so that a match
+    straddling a block edge is seen) get the fine DP; if its selection holds ``count``
+    matches the last one's cost is returned, else four times more blocks are tried. Any
+    value is safe (the caller verifies it); a low one prunes more.
+    """
+    from ._coarse_kernels import sdtw_ranges_compact
+
+    bstart, _, _, link = blocks
+    nb = len(lb)
+    order = np.argsort(lb, kind="stable")
+    take = count
+    while True:
+        sel = order[: min(take, nb)]
+        sel = sel[np.isfinite(lb[sel])]
+        mark = np.zeros(nb + 1, bool)
+        mark[sel] = True
+        mark[sel[link[sel]] - 1] = True  # the linked block before
+        nxt = sel + 1
+        nxt = nxt[nxt < nb]
+        mark[nxt[link[nxt]]] = True  # the linked block after
+        br = block_ranges(mark[:nb])
+        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, bstart[br])
+        st.guess_columns += len(rows)
+        keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
+                              min_frames=min_frames)
+        if len(keep) == count:
+            return float(cost[keep[-1]])
+        if take >= nb:
+            return np.inf
+        take *= 4
+
+
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
-                   graph=None, stats: ExactStats | None = None, full_from: float | None = None) -> QueryMatches:
+                   top: int = TOP_BLOCK, graph=None, stats: ExactStats | None = None,
+                   full_from: float | None = None, seeds: bool = True) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
     ----------
     query : ndarray of shape (m, d)
     space : SearchSpace
-        With ``index`` and ``features``.
+        With ``features`` (and ``index`` when ``graph`` is not given and ``top`` is 0).
     count, max_cost, rank_by, min_span
         As :func:`.matches.select_matches`; ``rank_by="normalized"`` has no admissible
         cost bound here and runs the whole DP.
     k, gaps
-        kNN sets and gap band of the LNG that supplies ``tau`` (:func:`.lng.build_graph`).
+        kNN sets and gap band of the LNG that supplies ``tau`` when ``top`` is 0
+        (:func:`.lng.build_graph`).
     block : int
-        Rows per block of the coarse bound.
+        Rows per block of the fine coarse bound (the last level before the fine DP).
+    top : int
+        Rows per block of the first, coarsest bound (rounded up to a multiple of ``block``), whose
+        lowest-bound blocks also supply ``tau`` (:func:`_guess_tau`) unless ``graph``
+        holds ``count`` matches; 0: one level (``block``), ``tau`` from the LNG.
     graph : NeighborhoodGraph, optional
         The LNG of this query, when already built (any sets: it only supplies ``tau``).
     stats : ExactStats, optional
@@ -85,54 +177,80 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         whole DP with no threshold (the last pass: a pruned pass, then retries, would cost
         more than sDTW itself). Speed only; the result is sDTW's either way.
     """
-    from ._coarse_kernels import coarse_alive, sdtw_ranges
+    from ._coarse_kernels import coarse_bounds, sdtw_ranges_compact
     from ._dtw_kernels import dtw_window_path
     from .lng import build_graph
     from .sdtw import validate_query
 
-    if space.features is None or space.index is None:
-        raise DataError("certified-exact search needs the database index and features (SearchSpace)")
+    if space.features is None or (space.index is None and graph is None and not top):
+        raise DataError("certified-exact search needs the database features (and an index without top blocks)")
+    top = -(-int(top) // block) * block if top else 0  # a multiple of block: its blocks tile the top ones
     q = validate_query(query, space.features.shape[1])
     st = stats if stats is not None else ExactStats()
     full_from = FULL_FROM if full_from is None else float(full_from)
+    min_frames = min_frames_of(min_span, len(q))
     ceiling = np.inf if (max_cost is None or rank_by != "cost") else float(max_cost)
+    qt = np.ascontiguousarray(q.T)
+    n = space.n_rows
+    levels = [space.blocks(top), space.blocks(block)] if top else [space.blocks(block)]
+    lb_top = None
     tau = np.inf
     if rank_by == "cost":
-        if graph is None:
-            graph = build_graph(q, space, k=min(k, space.n_rows), gaps=gaps)
-        found = graph.matches(count=count, max_cost=max_cost, rank_by="cost", min_span=min_span)
-        if len(found) == count:
+        if graph is None and not top:
+            graph = build_graph(q, space, k=min(k, n), gaps=gaps)
+        found = graph.matches(count=count, max_cost=max_cost, rank_by="cost", min_span=min_span) \
+            if graph is not None else None
+        if found is not None and len(found) == count:
             tau = float(found.cost[-1])
-        elif len(found):  # a guess, verified below: too few matches under it doubles it
+        elif top and space.index is not None and seeds:
+            tau = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st)
+        if not np.isfinite(tau) and top:
+            bs = levels[0]
+            lb_top = coarse_bounds(qt, bs[1], bs[2], bs[3], np.array([[0, len(bs[1])]], np.int64), _SHRINK)
+            st.coarse_blocks += len(bs[1])
+            tau = _guess_tau(qt, space, lb_top, bs, count, max_cost, rank_by, min_frames, st)
+        if not np.isfinite(tau) and found is not None and len(found):  # a guess, verified below: too few matches under it doubles it
             tau = 2.0 * float(found.cost[-1])
     tau = min(tau, ceiling)
-    qt = np.ascontiguousarray(q.T)
-    clip_start = ~space.continues
     tries = 0
     while True:
+        ranges = np.array([[0, n]], np.int64)
         if np.isfinite(tau):
-            bstart, lo, hi, link = space.blocks(block)
-            ranges = alive_ranges(coarse_alive(qt, lo, hi, link, tau, _SHRINK), bstart)
-            if (ranges[:, 1] - ranges[:, 0]).sum() >= full_from * space.n_rows:
+            br = None  # block ranges of the current level still in play (None: all)
+            for li, (bstart, lo, hi, link) in enumerate(levels):
+                if br is None:
+                    if li == 0 and lb_top is not None:
+                        lb = lb_top
+                    else:
+                        lb = coarse_bounds(qt, lo, hi, link, np.array([[0, len(lo)]], np.int64), _SHRINK)
+                        st.coarse_blocks += len(lo)
+                        if li == 0 and top:
+                            lb_top = lb
+                else:
+                    lb = coarse_bounds(qt, lo, hi, link, br, _SHRINK)
+                    st.coarse_blocks += int((br[:, 1] - br[:, 0]).sum())
+                alive = block_ranges(lb <= tau)
+                ranges = bstart[alive]
+                if li + 1 < len(levels):  # the next level's blocks tile these rows exactly
+                    br = np.searchsorted(levels[li + 1][0], ranges)
+            if (ranges[:, 1] - ranges[:, 0]).sum() >= full_from * n:
                 tau = ceiling
-                ranges = np.array([[0, space.n_rows]], np.int64)
-        else:
-            ranges = np.array([[0, space.n_rows]], np.int64)
-        cost, start, length = sdtw_ranges(qt, space.features, clip_start, ranges)
+                ranges = np.array([[0, n]], np.int64)
+        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
         st.tau, st.passes = tau, st.passes + 1
-        st.columns += int((ranges[:, 1] - ranges[:, 0]).sum())
-        ends = np.flatnonzero(cost <= tau).astype(np.int64)
-        keep = select_matches(ends, start[ends], cost[ends], length[ends], count=count, max_cost=max_cost,
-                              rank_by=rank_by, min_frames=min_frames_of(min_span, len(q)))
+        st.columns += len(rows)
+        sel = np.flatnonzero(cost <= tau)
+        keep = select_matches(rows[sel], start[sel], cost[sel], length[sel], count=count, max_cost=max_cost,
+                              rank_by=rank_by, min_frames=min_frames)
         if len(keep) == count or tau >= ceiling:
             break
         tries += 1
         tau, st.retried = (min(2.0 * tau, ceiling) if tries < 4 and tau > 0 else ceiling), True
-    keep = ends[keep]
+    keep = sel[keep]
+    out_end = rows[keep]
     paths = []
-    for e in keep:
-        s = int(start[e])
+    for e, s in zip(out_end.tolist(), start[keep].tolist()):
         path, _ = dtw_window_path(q, space.features[s : e + 1])
         path[:, 1] += s
         paths.append(path)
-    return QueryMatches(start[keep], keep + 1, cost[keep], length[keep].astype(np.int64), paths)
+    return QueryMatches(start[keep], out_end + 1, cost[keep], length[keep].astype(np.int64), paths)
