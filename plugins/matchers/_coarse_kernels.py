@@ -229,9 +229,8 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
     inf = np.inf
     lb = np.full(nb, inf)
     acc = np.empty(m, np.float32)
-    gp = np.empty(m)
-    g = np.empty(m)
-    t = np.empty(m)
+    tf = np.empty(m)
+    tg = np.empty(m)
     for r in range(branges.shape[0]):
         b0 = branges[r, 0]
         nr = branges[r, 1] - b0
@@ -251,39 +250,41 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
                     acc[i] += e * e
             for i in range(m):
                 c[bb, i] = np.float64(np.sqrt(acc[i])) * shrink
+        # forward F over blocks 0, 1, .. and backward G over blocks nr-1, nr-2, .. in one
+        # loop: two independent serial chains along the query run side by side
         f = np.empty((nr, m))
-        for bb in range(nr):
-            if bb > 0 and link[b0 + bb]:
-                t[0] = inf
+        g = np.empty((nr, m))
+        for step in range(nr):
+            bf = step
+            bg = nr - 1 - step
+            if bf > 0 and link[b0 + bf]:
+                tf[0] = inf
                 for i in range(1, m):  # diagonal and vertical: no dependency along i
-                    t[i] = min(f[bb - 1, i - 1], f[bb - 1, i])
+                    tf[i] = min(f[bf - 1, i - 1], f[bf - 1, i])
             else:
                 for i in range(m):
-                    t[i] = inf
-            v = c[bb, 0]
-            f[bb, 0] = v
-            for i in range(1, m):  # horizontal: the serial chain
-                v = min(v, t[i]) + c[bb, i]
-                f[bb, i] = v
-        for i in range(m):
-            gp[i] = inf
-        for bb in range(nr - 1, -1, -1):
-            if bb + 1 < nr and link[b0 + bb + 1]:
+                    tf[i] = inf
+            if bg + 1 < nr and link[b0 + bg + 1]:
                 for i in range(m - 1):
-                    t[i] = min(gp[i + 1], gp[i])
+                    tg[i] = min(g[bg + 1, i + 1], g[bg + 1, i])
             else:
                 for i in range(m - 1):
-                    t[i] = inf
-            v = c[bb, m - 1]  # a free end: going on vertically only adds cost
-            g[m - 1] = v
-            for i in range(m - 2, -1, -1):
-                v = min(v, t[i]) + c[bb, i]
-                g[i] = v
+                    tg[i] = inf
+            vf = c[bf, 0]
+            f[bf, 0] = vf
+            vg = c[bg, m - 1]  # a free end: going on vertically only adds cost
+            g[bg, m - 1] = vg
+            for i in range(1, m):  # horizontal: the serial chains
+                vf = min(vf, tf[i]) + c[bf, i]
+                f[bf, i] = vf
+                j = m - 1 - i
+                vg = min(vg, tg[j]) + c[bg, j]
+                g[bg, j] = vg
+        for bb in range(nr):
             low = inf
             for i in range(m):
-                low = min(low, f[bb, i] + g[i] - c[bb, i])
+                low = min(low, f[bb, i] + g[bb, i] - c[bb, i])
             lb[b0 + bb] = low
-            gp, g = g, gp
     return lb
 
 

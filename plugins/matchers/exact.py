@@ -25,7 +25,7 @@ distance is far below a match's cost per frame, and half the queries kept every 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,6 +38,10 @@ from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
 _SHRINK = 1.0 - 1e-4
 #: default of ``certified_sdtw(full_from=)``: share of alive rows from which a pass is the whole DP
 FULL_FROM = 0.5
+#: query frames whose nearest neighbours seed the threshold's windows (:func:`_seed_tau`)
+SEED_FRAMES = 5
+#: neighbours per seed frame, times ``count``
+SEED_K = 6
 #: default of ``certified_sdtw(top=)``: rows per block of the first (coarsest) bound
 TOP_BLOCK = 256
 
@@ -52,6 +56,7 @@ class ExactStats:
     retried: bool = False
     coarse_blocks: int = 0
     guess_columns: int = 0
+    level_blocks: list = field(default_factory=list)
 
 
 def alive_ranges(alive: np.ndarray, bstart: np.ndarray) -> np.ndarray:
@@ -83,11 +88,11 @@ def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.stack([lo[first], hi[last]], axis=1).astype(np.int64)
 
 
-def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, per_frame: int = 0) -> float:
-    """A threshold from real alignments around the nearest neighbours of three query frames.
+def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
+    """A threshold from real alignments around the nearest neighbours of a few query frames.
 
-    Query frames first, middle and last get their ``per_frame`` (default ``2 count``)
-    nearest rows from the index; a match through row ``h`` at query frame ``i`` lies
+    :data:`SEED_FRAMES` query frames spread over the query (first and last included) get
+    their ``SEED_K * count`` nearest rows from the index; a match through row ``h`` at query frame ``i`` lies
     within ``h - 2i .. h + 2(m - 1 - i)`` when it takes at most two database frames per
     query frame, so the fine DP runs over those windows (merged). Returns the
     ``count``-th cost of their selection, or inf when it holds fewer.
@@ -95,8 +100,8 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, per_frame:
     from ._coarse_kernels import sdtw_ranges_compact
 
     m, n = len(q), space.n_rows
-    frames = np.unique(np.array([0, m // 2, m - 1]))
-    kk = min(n, per_frame or 2 * count)
+    frames = np.unique(np.linspace(0, m - 1, SEED_FRAMES).round().astype(np.int64))
+    kk = min(n, SEED_K * count)
     _, ids = space.index.query(np.ascontiguousarray(q[frames]), kk)
     ids = np.asarray(ids, np.int64)
     fi = np.broadcast_to(frames[:, None], ids.shape)
@@ -148,7 +153,8 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
                    top: int = TOP_BLOCK, graph=None, stats: ExactStats | None = None,
-                   full_from: float | None = None, seeds: bool = True) -> QueryMatches:
+                   full_from: float | None = None, seeds: bool = True,
+                   levels: tuple[int, ...] | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -168,6 +174,12 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         Rows per block of the first, coarsest bound (rounded up to a multiple of ``block``), whose
         lowest-bound blocks also supply ``tau`` (:func:`_guess_tau`) unless ``graph``
         holds ``count`` matches; 0: one level (``block``), ``tau`` from the LNG.
+    levels : tuple of int, optional
+        Block sizes from coarsest to finest (each rounded up to a multiple of the next),
+        overriding ``(top, block)``; e.g. ``(512, 64, 8)``.
+    seeds : bool
+        Take ``tau`` from the windows around the index's neighbours of three query frames
+        (:func:`_seed_tau`) before the lowest-bound blocks.
     graph : NeighborhoodGraph, optional
         The LNG of this query, when already built (any sets: it only supplies ``tau``).
     stats : ExactStats, optional
@@ -184,7 +196,10 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
 
     if space.features is None or (space.index is None and graph is None and not top):
         raise DataError("certified-exact search needs the database features (and an index without top blocks)")
-    top = -(-int(top) // block) * block if top else 0  # a multiple of block: its blocks tile the top ones
+    sizes = [int(b) for b in (levels if levels else ((top, block) if top else (block,)))]
+    for a in range(len(sizes) - 2, -1, -1):  # each a multiple of the next: its blocks tile the coarser ones
+        sizes[a] = -(-sizes[a] // sizes[a + 1]) * sizes[a + 1]
+    top = sizes[0] if len(sizes) > 1 else 0
     q = validate_query(query, space.features.shape[1])
     st = stats if stats is not None else ExactStats()
     full_from = FULL_FROM if full_from is None else float(full_from)
@@ -192,7 +207,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     ceiling = np.inf if (max_cost is None or rank_by != "cost") else float(max_cost)
     qt = np.ascontiguousarray(q.T)
     n = space.n_rows
-    levels = [space.blocks(top), space.blocks(block)] if top else [space.blocks(block)]
+    levels = [space.blocks(b) for b in sizes]
     lb_top = None
     tau = np.inf
     if rank_by == "cost":
@@ -229,6 +244,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                 else:
                     lb = coarse_bounds(qt, lo, hi, link, br, _SHRINK)
                     st.coarse_blocks += int((br[:, 1] - br[:, 0]).sum())
+                    st.level_blocks.append(int((br[:, 1] - br[:, 0]).sum()))
                 alive = block_ranges(lb <= tau)
                 ranges = bstart[alive]
                 if li + 1 < len(levels):  # the next level's blocks tile these rows exactly
