@@ -42,8 +42,9 @@ FULL_FROM = 0.5
 SEED_FRAMES = 5
 #: neighbours per seed frame, times ``count``
 SEED_K = 6
-#: default of ``certified_sdtw(top=)``: rows per block of the first (coarsest) bound
-TOP_BLOCK = 256
+#: default block sizes of ``certified_sdtw``, coarsest first (benchmarks/matching.py: best of
+#: (128, 16), (256, 32, 8), (512, 64, 8), (512, 64, 16, 4), (1024, 128, 16, 4) at 380 k and 1 M rows)
+LEVELS = (512, 64, 16, 4)
 
 
 @dataclass
@@ -152,7 +153,7 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
 
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
-                   top: int = TOP_BLOCK, graph=None, stats: ExactStats | None = None,
+                   top: int | None = None, graph=None, stats: ExactStats | None = None,
                    full_from: float | None = None, seeds: bool = True,
                    levels: tuple[int, ...] | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
@@ -168,17 +169,17 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     k, gaps
         kNN sets and gap band of the LNG that supplies ``tau`` when ``top`` is 0
         (:func:`.lng.build_graph`).
-    block : int
-        Rows per block of the fine coarse bound (the last level before the fine DP).
-    top : int
-        Rows per block of the first, coarsest bound (rounded up to a multiple of ``block``), whose
-        lowest-bound blocks also supply ``tau`` (:func:`_guess_tau`) unless ``graph``
-        holds ``count`` matches; 0: one level (``block``), ``tau`` from the LNG.
+    block, top : int
+        With ``top`` given: two levels, blocks of ``top`` rows (rounded up to a multiple of
+        ``block``) then of ``block`` rows; ``top = 0``: one level of ``block`` rows with ``tau``
+        from the LNG (the first certified mode). Default (``top`` None): :data:`LEVELS`.
     levels : tuple of int, optional
         Block sizes from coarsest to finest (each rounded up to a multiple of the next),
-        overriding ``(top, block)``; e.g. ``(512, 64, 8)``.
+        overriding ``(top, block)``; e.g. ``(256, 32, 8)``. The lowest-bound blocks of the
+        coarsest level supply ``tau`` when neither ``graph`` nor the seeds do
+        (:func:`_guess_tau`).
     seeds : bool
-        Take ``tau`` from the windows around the index's neighbours of three query frames
+        Take ``tau`` from the windows around the index's neighbours of a few query frames
         (:func:`_seed_tau`) before the lowest-bound blocks.
     graph : NeighborhoodGraph, optional
         The LNG of this query, when already built (any sets: it only supplies ``tau``).
@@ -194,12 +195,14 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     from .lng import build_graph
     from .sdtw import validate_query
 
-    if space.features is None or (space.index is None and graph is None and not top):
-        raise DataError("certified-exact search needs the database features (and an index without top blocks)")
-    sizes = [int(b) for b in (levels if levels else ((top, block) if top else (block,)))]
+    if not levels:
+        levels = LEVELS if top is None else ((top, block) if top else (block,))
+    sizes = [int(b) for b in levels]
     for a in range(len(sizes) - 2, -1, -1):  # each a multiple of the next: its blocks tile the coarser ones
         sizes[a] = -(-sizes[a] // sizes[a + 1]) * sizes[a + 1]
     top = sizes[0] if len(sizes) > 1 else 0
+    if space.features is None or (space.index is None and graph is None and not top):
+        raise DataError("certified-exact search needs the database features (and an index with one level)")
     q = validate_query(query, space.features.shape[1])
     st = stats if stats is not None else ExactStats()
     full_from = FULL_FROM if full_from is None else float(full_from)
