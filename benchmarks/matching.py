@@ -130,7 +130,7 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
     subsequence_dtw(w, SearchSpace(space.clip_id[:500], space.frame[:500], features=space.features[:500]))
     matcher_once(w, space)
     matcher_once(w, space, exact=False)
-    for lev in ((512, 64, 16, 4), (128, 16)):
+    for lev in ((256, 32, 8), (128, 16)):
         matcher_once(w, space, levels=lev)
     for m in lengths:
         qs = random_queries(space, m, n_queries, rng)
@@ -140,8 +140,8 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
         # the matcher as a user gets it (gaps 32, fill, min_span 0.5), and the certified-exact mode,
         # against sDTW's own top-10 (same min_span): alignments found, and identical results
         sd_sets = [list(zip(r.start.tolist(), r.end.tolist())) for r, _ in ref]
-        variants = [("matcher default (certified exact)", {"exact": True}),
-                    ("exact, levels 512/64/16/4", {"exact": True, "levels": (512, 64, 16, 4)}),
+        variants = [("matcher default (certified, 512/64/16/4)", {"exact": True}),
+                    ("exact, levels 256/32/8", {"exact": True, "levels": (256, 32, 8)}),
                     ("exact, levels 128/16", {"exact": True, "levels": (128, 16)}),
                     ("exact, 1 level, tau from LNG (before)", {"exact": True, "top": 0}),
                     ("graph gaps 32 fill prop 2 (old default)", {"exact": False}),

@@ -96,11 +96,15 @@ def test_certified_levels_equal_sdtw(seed, levels, seeds):
     s = int(rng.integers(0, 150))
     q = (x[s : s + 12] + rng.normal(0, 0.3, (12, 3))).astype(np.float32)
     for count, max_cost in ((1, None), (6, None), (9, 10.0)):
-        got = certified_sdtw(q, space, count=count, max_cost=max_cost, k=4, gaps=4, levels=levels, seeds=seeds)
+        got = certified_sdtw(q, space, count=count, max_cost=max_cost, k=4, gaps=4, levels=levels, seeds=seeds,
+                             direct_cells=0)
         same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
     # no index: the lowest-bound blocks supply tau
     bare = SearchSpace(clip_id, frame, None, x)
-    same(certified_sdtw(q, bare, count=5, levels=(8, 4)), subsequence_dtw(q, space, count=5))
+    same(certified_sdtw(q, bare, count=5, levels=(8, 4), direct_cells=0), subsequence_dtw(q, space, count=5))
+    st = ExactStats()  # a small search runs the whole DP at once
+    same(certified_sdtw(q, space, count=5, stats=st), subsequence_dtw(q, space, count=5))
+    assert st.columns == len(x) and st.passes == 1 and st.coarse_blocks == 0
 
 
 @pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
@@ -130,7 +134,8 @@ def test_certified_equals_sdtw_synthetic(seed, count, min_span, max_cost):
     s = int(rng.integers(0, 150))
     q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
     st = ExactStats()
-    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, k=4, gaps=4, block=5, stats=st)
+    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, k=4, gaps=4, block=5, stats=st,
+                         direct_cells=0)
     ref = subsequence_dtw(q, space, count=count, min_span=min_span, max_cost=max_cost)
     same(got, ref)
     via_matcher = lazy_neighborhood_graph(q, space, k=4, count=count, min_span=min_span, max_cost=max_cost, exact=True)
@@ -149,7 +154,7 @@ def test_certified_prunes_columns():
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
     q = (base[starts[7] + 5 : starts[7] + 25] + rng.normal(0, 0.05, (20, 3))).astype(np.float32)
     st = ExactStats()
-    same(certified_sdtw(q, space, count=3, k=32, stats=st), subsequence_dtw(q, space, count=3))
+    same(certified_sdtw(q, space, count=3, k=32, stats=st, direct_cells=0), subsequence_dtw(q, space, count=3))
     assert np.isfinite(st.tau) and st.columns < len(x) // 4 and not st.retried
 
 
@@ -165,7 +170,7 @@ def test_whole_dp_once_alive_rows_pass_full_from(seed, full_from):
     for count, max_cost in ((5, None), (8, 12.0)):
         st = ExactStats()
         got = certified_sdtw(q, space, count=count, max_cost=max_cost, k=4, gaps=4, block=5, stats=st,
-                             full_from=full_from)
+                             full_from=full_from, direct_cells=0)
         same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
         if full_from == 0.0:  # the first pass is the whole DP, and the last
             assert st.passes == 1 and st.columns == len(x)
@@ -204,4 +209,4 @@ def test_certified_equals_sdtw_on_hdm05():
     for q, keep in queries:
         space = SearchSpace(clip_id[keep], frame[keep], KDTreeIndex(method="kdtree").build(x[keep]), x[keep])
         for count in (1, 10):
-            same(certified_sdtw(q, space, count=count), subsequence_dtw(q, space, count=count))
+            same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))
