@@ -93,6 +93,19 @@ def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.stack([lo[first], hi[last]], axis=1).astype(np.int64)
 
 
+def _query_params(index) -> frozenset:
+    """Keyword names of ``index.query`` (cached per index class)."""
+    import inspect
+
+    cls = type(index)
+    if cls not in _QUERY_PARAMS:
+        _QUERY_PARAMS[cls] = frozenset(inspect.signature(index.query).parameters)
+    return _QUERY_PARAMS[cls]
+
+
+_QUERY_PARAMS: dict = {}
+
+
 def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
     """A threshold from real alignments around the nearest neighbours of a few query frames.
 
@@ -107,7 +120,11 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
     m, n = len(q), space.n_rows
     frames = np.unique(np.linspace(0, m - 1, SEED_FRAMES).round().astype(np.int64))
     kk = min(n, SEED_K * count)
-    _, ids = space.index.query(np.ascontiguousarray(q[frames]), kk)
+    qs = np.ascontiguousarray(q[frames])
+    if "workers" in _query_params(space.index):  # a few queries: waking threads costs more than it saves
+        _, ids = space.index.query(qs, kk, workers=1)
+    else:
+        _, ids = space.index.query(qs, kk)
     ids = np.asarray(ids, np.int64)
     fi = np.broadcast_to(frames[:, None], ids.shape)
     ok = ids >= 0
