@@ -11,8 +11,11 @@ every fine path through a cell of block ``b`` at query frame ``i`` costs at leas
 ``F(i, b) + G(i, b) - c(i, b)``; blocks where that exceeds ``tau`` for every ``i`` hold no
 cell of any path of cost <= ``tau`` (:func:`coarse_alive`). The fine DP then runs over the
 remaining blocks only (:func:`sdtw_ranges`), with the arithmetic and tie order of
-:func:`._dtw_kernels.sdtw_forward`. Reference: ``tests/naive/dtw.py``; proof in
-``docs/global-matching.md``.
+:func:`._dtw_kernels.sdtw_forward`. The search itself uses the ranged forms:
+:func:`coarse_bounds` (the bound per block over block ranges, for a hierarchy of levels;
+tested against :func:`coarse_alive` and the naive best path through every row) and
+:func:`sdtw_ranges_compact` (tested bit for bit against :func:`sdtw_ranges`).
+Reference: ``tests/naive/dtw.py``; proof in ``docs/global-matching.md``.
 """
 from __future__ import annotations
 

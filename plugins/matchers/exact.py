@@ -5,23 +5,30 @@ costs, paths; any ``rank_by: cost`` setting) while running the DP only where a l
 cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``,
 "Certified-exact mode"):
 
-1. the gap-tolerant LNG (:mod:`.lng`) finds real alignments with their exact costs; the
-   ``count``-th cost of its selection is the threshold ``tau`` (capped by ``max_cost``);
-2. a coarse subsequence DTW over blocks of ``block`` consecutive rows, each cell costing
-   the query frame's distance to the block's bounding box, bounds every fine path from
-   below (forward + backward, :func:`._coarse_kernels.coarse_alive`); blocks where the
-   bound exceeds ``tau`` at every query frame are skipped;
-3. the fine DP (:func:`._coarse_kernels.sdtw_ranges`, the arithmetic of ``sdtw_forward``)
-   runs over the remaining blocks; every end row whose best path costs <= ``tau`` gets
-   exactly sDTW's cost, start and length;
+1. a threshold ``tau`` from real alignments with their exact costs: a given graph's
+   ``count``-th match, else the fine DP over windows around the index's nearest rows of
+   :data:`SEED_FRAMES` query frames (:func:`_seed_tau`), else over the blocks of lowest
+   coarse bound (:func:`_guess_tau`); capped by ``max_cost``. Any value is safe (step 4);
+2. a coarse subsequence DTW over blocks of consecutive rows, each cell costing the query
+   frame's distance to the block's bounding box, bounds every fine path from below
+   (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level
+   (:data:`LEVELS`: blocks of 512, 64, 16, 4 rows), each level only over the runs of
+   blocks still alive (bound <= ``tau``) at the level above;
+3. the fine DP (:func:`._coarse_kernels.sdtw_ranges_compact`, the arithmetic of
+   ``sdtw_forward``) runs over the rows still alive; every end row whose best path costs
+   <= ``tau`` gets exactly sDTW's cost, start and length;
 4. the same greedy selection on those candidates yields ``count`` matches, which are then
    sDTW's; if it yields fewer, ``tau`` is doubled (three times at most), then set to
-   ``max_cost`` (or unbounded: the whole DP, plain sDTW).
+   ``max_cost`` (or unbounded: the whole DP, plain sDTW). Below :data:`DIRECT_CELLS` DP
+   cells, and once half the rows are alive (:data:`FULL_FROM`), the whole DP runs at once.
 
 Measured and dropped: the bound suggested first (the sum of the remaining query frames'
 1-NN distances, or per run of rows the k-th neighbour distance, with the first row's
 surviving cells from a radius query): with k = 256 on 380,813 rows the k-th neighbour
 distance is far below a match's cost per frame, and half the queries kept every row.
+Also dropped (2026-12-02): ``tau`` from the full gap-tolerant graph (its kNN search alone
+cost more than this whole search), ``tau`` from the lowest-bound blocks alone (loose: the
+whole DP in most queries at 1 M rows), boxes in PCA-rotated coordinates (no tighter).
 """
 from __future__ import annotations
 
@@ -46,6 +53,8 @@ DIRECT_CELLS = 2_000_000
 SEED_FRAMES = 5
 #: neighbours per seed frame, times ``count``
 SEED_K = 6
+#: database frames per query frame a seed window allows on either side of its neighbour
+SEED_SLOPE = 2.0
 #: default block sizes of ``certified_sdtw``, coarsest first (benchmarks/matching.py: best of
 #: (128, 16), (256, 32, 8), (512, 64, 8), (512, 64, 16, 4), (1024, 128, 16, 4) at 380 k and 1 M rows)
 LEVELS = (512, 64, 16, 4)
@@ -62,15 +71,6 @@ class ExactStats:
     coarse_blocks: int = 0
     guess_columns: int = 0
     level_blocks: list = field(default_factory=list)
-
-
-def alive_ranges(alive: np.ndarray, bstart: np.ndarray) -> np.ndarray:
-    """Row ranges ``[a, b)`` (int64 (r, 2)) covering the runs of consecutive alive blocks."""
-    if not alive.any():
-        return np.zeros((0, 2), np.int64)
-    edge = np.diff(np.r_[0, alive.astype(np.int8), 0])
-    first, stop = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)
-    return np.stack([bstart[first], bstart[stop]], axis=1).astype(np.int64)
 
 
 def block_ranges(mask: np.ndarray) -> np.ndarray:
@@ -129,7 +129,9 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
     fi = np.broadcast_to(frames[:, None], ids.shape)
     ok = ids >= 0
     h, fi = ids[ok], fi[ok]
-    ranges = merged_ranges(np.maximum(h - 2 * fi - 2, 0), np.minimum(h + 2 * (m - 1 - fi) + 3, n))
+    sl = SEED_SLOPE
+    ranges = merged_ranges(np.maximum(h - (sl * fi).astype(np.int64) - 2, 0),
+                           np.minimum(h + (sl * (m - 1 - fi)).astype(np.int64) + 3, n))
     rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
     st.guess_columns += len(rows)
     keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
