@@ -34,9 +34,9 @@ class SearchCommand:
                             help="return exactly subsequence DTW's matches (lng: a certified pruned DP, identical to "
                                  "sdtw; the default of lng); --no-exact: lng answers from its neighborhood graph")
         parser.add_argument("--gaps", type=int, default=None, metavar="G",
-                            help="lng: query frames a path may cross without a kNN cell (default: the matcher's, 32; 0: the paper's graph)")
+                            help="lng --no-exact: query frames a path may cross without a kNN cell (default: the matcher's, 32; 0: the paper's graph)")
         parser.add_argument("--propagate", type=int, default=None, metavar="N",
-                            help="lng: search the index every N-th query frame only, propagate the sets in between")
+                            help="lng --no-exact: search the index every N-th query frame only, propagate the sets in between")
         parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
         parser.add_argument("--radius", type=float, default=None, help="kNN search radius (lng, logical)")
         parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
