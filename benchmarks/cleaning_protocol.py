@@ -1,6 +1,6 @@
 """The cleaning protocol of issue 14 on ../shared/data: detection, repair and clean takes.
 
-Runs :func:`mocapflow.plugins.analyses.clean_eval.evaluate_category` (errors at the
+Runs :func:`mocapflow.plugins.selfsim.clean_eval.evaluate_category` (errors at the
 paper's density on held-out subjects / trials, module doc there) and prints, per category
 and context, recall / precision per word, per (word, joint) and per cell for the
 calibrated cleaner (``mdm``), the paper (``mdm[paper]``) and the baselines; eq. 2 before
@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     if not DATA.is_dir():
         print(f"needs the corpus at {DATA}", file=sys.stderr)
         return 2
-    from mocapflow.plugins.analyses.clean_eval import CleaningEvaluationParams, evaluate_category
+    from mocapflow.plugins.selfsim.clean_eval import CleaningEvaluationParams, evaluate_category
     from mocapflow.plugins.formats.asf_amc import read_amc
 
     cleaner = {}

@@ -35,12 +35,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from corpus import augmented_database  # noqa: E402
 
-from mocapflow.plugins.features.end_effectors import EndEffectorFeatures  # noqa: E402
-from mocapflow.plugins.indexes.kdtree import KDTreeIndex  # noqa: E402
-from mocapflow.plugins.matchers._lng_kernels import lng_forward  # noqa: E402
-from mocapflow.plugins.matchers.lng import NeighborhoodGraph, lazy_neighborhood_graph, neighbor_sets  # noqa: E402
-from mocapflow.plugins.matchers.matches import SearchSpace  # noqa: E402
-from mocapflow.plugins.matchers.sdtw import subsequence_dtw  # noqa: E402
+from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures  # noqa: E402
+from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
+from mocapflow.plugins.similarity._lng_kernels import lng_forward  # noqa: E402
+from mocapflow.plugins.similarity.lng import NeighborhoodGraph, lazy_neighborhood_graph, neighbor_sets  # noqa: E402
+from mocapflow.plugins.similarity.matches import SearchSpace  # noqa: E402
+from mocapflow.plugins.similarity.sdtw import subsequence_dtw  # noqa: E402
 
 
 def database_space(n_frames: int, echo=print) -> SearchSpace:
@@ -91,7 +91,7 @@ def lng_once(q, space, k, eps, propagate=0):
 
 def matcher_once(q, space, **kw):
     """(top-10 [(start, end), ...], seconds) of one ``lazy_neighborhood_graph`` call (matcher defaults + ``kw``)."""
-    from mocapflow.plugins.matchers import exact
+    from mocapflow.plugins.similarity import exact
 
     full_from, exact.FULL_FROM = exact.FULL_FROM, kw.pop("full_from", exact.FULL_FROM)
     try:
@@ -202,7 +202,7 @@ def main(argv=None) -> int:
         space = database_space(n)
         ann = None
         if args.ann:
-            from mocapflow.plugins.indexes.hnsw import HNSWIndex
+            from mocapflow.plugins.similarity.hnsw import HNSWIndex
 
             t = time.perf_counter()
             ann = SearchSpace(space.clip_id, space.frame, HNSWIndex(ef=256, threads=0).build(space.features), space.features)

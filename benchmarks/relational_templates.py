@@ -24,13 +24,13 @@ import time
 
 import numpy as np
 
-from mocapflow.plugins.analyses.classify import classify_clips
-from mocapflow.plugins.indexes.inverted import InvertedIndex
-from mocapflow.plugins.matchers.relational import example_query, search_set, subset_member
-from mocapflow.plugins.matchers.relational_auto import auto_template, select_features
-from mocapflow.plugins.matchers.template import (fit_templates, others_min, rival_filter, search_template,
+from mocapflow.plugins.relational.classify import classify_clips
+from mocapflow.plugins.relational.inverted import InvertedIndex
+from mocapflow.plugins.relational.matcher import example_query, search_set, subset_member
+from mocapflow.plugins.relational.auto import auto_template, select_features
+from mocapflow.plugins.relational.template import (fit_templates, others_min, rival_filter, search_template,
                                                  template_cost_array)
-from mocapflow.plugins.matchers.template_model import (clip_min_costs, fit_class_template, fit_template, frame_codes,
+from mocapflow.plugins.relational.template_model import (clip_min_costs, fit_class_template, fit_template, frame_codes,
                                                        resample_rows, template_hits)
 
 
@@ -226,7 +226,7 @@ def report(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
 def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 3, temps=None) -> None:
     """Template queries with candidate regions from the inverted lists, against the full scan
     (best of ``repeats`` each; templates from all three actors)."""
-    from mocapflow.plugins.matchers.template_prefilter import candidate_ranges
+    from mocapflow.plugins.relational.template_prefilter import candidate_ranges
 
     if temps is None:
         cls, _ = _meta(names)

@@ -39,10 +39,10 @@ from corpus import DATA  # noqa: E402
 
 from mocapflow.framework import MotionDatabase  # noqa: E402
 from mocapflow.framework.normalize import resample  # noqa: E402
-from mocapflow.plugins.indexes.kdtree import KDTreeIndex  # noqa: E402
-from mocapflow.plugins.matchers.lng import lazy_neighborhood_graph  # noqa: E402
-from mocapflow.plugins.matchers.matches import SearchSpace  # noqa: E402
-from mocapflow.plugins.matchers.sdtw import subsequence_dtw  # noqa: E402
+from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
+from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph  # noqa: E402
+from mocapflow.plugins.similarity.matches import SearchSpace  # noqa: E402
+from mocapflow.plugins.similarity.sdtw import subsequence_dtw  # noqa: E402
 
 #: method label -> keyword arguments of lazy_neighborhood_graph (None: subsequence DTW)
 METHODS = {
@@ -182,7 +182,7 @@ def recall_own_clip_hidden(db, x, lengths, n_queries, methods, rng, echo=print) 
 
 
 def main(argv=None) -> int:
-    from mocapflow.plugins.features.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help=f"methods {', '.join(QUICK)}; 16 recall queries per length")

@@ -9,12 +9,12 @@ from naive.dtw import continues_of, naive_blocks, naive_through_cell
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
-from mocapflow.plugins.matchers._coarse_kernels import block_boxes, coarse_alive, sdtw_ranges
-from mocapflow.plugins.matchers._dtw_kernels import sdtw_forward
-from mocapflow.plugins.matchers.exact import ExactStats, certified_sdtw
-from mocapflow.plugins.matchers.lng import lazy_neighborhood_graph
-from mocapflow.plugins.matchers.matches import SearchSpace
-from mocapflow.plugins.matchers.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_alive, sdtw_ranges
+from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward
+from mocapflow.plugins.similarity.exact import ExactStats, certified_sdtw
+from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.matches import SearchSpace
+from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
@@ -127,9 +127,9 @@ def test_normalized_ranking_falls_back_to_the_whole_dp():
 def test_certified_equals_sdtw_on_hdm05():
     from mocapflow.framework import MotionDatabase
     from mocapflow.framework.normalize import resample
-    from mocapflow.plugins.features.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
     from mocapflow.plugins.formats.asf_amc import read_amc
-    from mocapflow.plugins.indexes.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
 
     files = sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))
     db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])

@@ -6,7 +6,7 @@ import pytest
 from naive.knn import knn
 
 from mocapflow.framework.errors import ConfigError, DataError
-from mocapflow.plugins.indexes.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.kdtree import KDTreeIndex
 
 METHODS = ["kdtree", "brute"]
 
@@ -88,7 +88,7 @@ def test_save_load_does_not_rebuild(tmp_path, monkeypatch):
     x = rng.normal(size=(800, 5)).astype(np.float32)
     ix = KDTreeIndex(method="kdtree").build(x, groups=np.arange(800) // 100, frames=np.arange(800) % 100)
     ix.save(tmp_path / "ix")
-    from mocapflow.plugins.indexes import _knn_kernels
+    from mocapflow.plugins.similarity import _knn_kernels
 
     monkeypatch.setattr(_knn_kernels, "build_tree", None)  # load must not call it
     back = KDTreeIndex.load(tmp_path / "ix")
@@ -141,7 +141,7 @@ def test_brute_force_massive_ties_fall_back_exactly():
     assert i.tolist() == [[1, 2, 3, 4, 5]] * 2 and not d.any()
     d, i = ix.query(np.ones((1, 4), np.float32), 3, radius=0.5)
     assert i.tolist() == [[0, 7, 14]]
-    from mocapflow.plugins.indexes._brute import brute_knn  # the blocked path overflows its buffers here
+    from mocapflow.plugins.similarity._brute import brute_knn  # the blocked path overflows its buffers here
 
     z = np.zeros(2, np.int64)
     d2, i = brute_knn(np.zeros((2, 4), np.float32), x, ix.mean_, ix.sqnorms_, 5, np.inf, ix.groups_, ix.frames_,
@@ -204,7 +204,7 @@ def test_brute_single_query_lean_path_is_exact(case):
 @pytest.mark.parametrize("case", ["clustered", "ties", "radius", "exclude"])
 def test_blocked_brute_path_equals_naive(case):
     # databases over lean_max_rows take the blocked path: force it on a small one
-    from mocapflow.plugins.indexes._brute import brute_knn
+    from mocapflow.plugins.similarity._brute import brute_knn
 
     rng = np.random.default_rng(9)
     x = _clustered(rng, 2500, 6) if case != "ties" else rng.integers(0, 3, size=(2500, 3)).astype(np.float32)

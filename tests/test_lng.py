@@ -8,9 +8,9 @@ from test_sdtw import make_db
 
 from mocapflow.framework import Index
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.matchers.lng import build_graph, lazy_neighborhood_graph
-from mocapflow.plugins.matchers.matches import SearchSpace
-from mocapflow.plugins.matchers.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity.lng import build_graph, lazy_neighborhood_graph
+from mocapflow.plugins.similarity.matches import SearchSpace
+from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
 
 class BruteIndex(Index):
@@ -125,7 +125,7 @@ def test_index_contract_violations():
 def test_propagate_layer_equals_naive(seed, k, radius, ties):
     from naive.dtw import naive_propagate
 
-    from mocapflow.plugins.matchers._lng_kernels import propagate_layer
+    from mocapflow.plugins.similarity._lng_kernels import propagate_layer
 
     rng = np.random.default_rng(seed)
     lengths = [1, 7, 2, 30, 3]

@@ -9,10 +9,10 @@ from test_lng import BruteIndex, space_of
 from test_sdtw import make_db
 
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.matchers._gap_kernels import gap_layers
-from mocapflow.plugins.matchers.lng import build_graph, lazy_neighborhood_graph, neighbor_sets
-from mocapflow.plugins.matchers.matches import SearchSpace
-from mocapflow.plugins.matchers.sdtw import sdtw_costs
+from mocapflow.plugins.similarity._gap_kernels import gap_layers
+from mocapflow.plugins.similarity.lng import build_graph, lazy_neighborhood_graph, neighbor_sets
+from mocapflow.plugins.similarity.matches import SearchSpace
+from mocapflow.plugins.similarity.sdtw import sdtw_costs
 
 
 @pytest.mark.parametrize("lengths,m,k,gaps,seed", [

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapflow.plugins.indexes.inverted import InvertedIndex
-from mocapflow.plugins.matchers.relational_auto import auto_hits, auto_template, runs, select_features, smooth_runs
-from mocapflow.plugins.matchers.template_model import frame_codes
+from mocapflow.plugins.relational.inverted import InvertedIndex
+from mocapflow.plugins.relational.auto import auto_hits, auto_template, runs, select_features, smooth_runs
+from mocapflow.plugins.relational.template_model import frame_codes
 
 HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
 

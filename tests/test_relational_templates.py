@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapflow.plugins.analyses.classify import decide
-from mocapflow.plugins.matchers._template_kernels import dtw_path
-from mocapflow.plugins.matchers.template_model import (MotionTemplate, cost_table, fit_class_template, fit_template,
+from mocapflow.plugins.relational.classify import decide
+from mocapflow.plugins.relational._template_kernels import dtw_path
+from mocapflow.plugins.relational.template_model import (MotionTemplate, cost_table, fit_class_template, fit_template,
                                                        frame_codes, load_templates, save_templates, template_costs,
                                                        template_hits)
 
@@ -180,9 +180,9 @@ def test_hit_selection_matches_naive(seed):
 
 
 def test_prefilter_keeps_every_hit_through_an_anchor():
-    from mocapflow.plugins.indexes.inverted import InvertedIndex
-    from mocapflow.plugins.matchers.template import search_template
-    from mocapflow.plugins.matchers.template_prefilter import candidate_ranges, choose_anchor
+    from mocapflow.plugins.relational.inverted import InvertedIndex
+    from mocapflow.plugins.relational.template import search_template
+    from mocapflow.plugins.relational.template_prefilter import candidate_ranges, choose_anchor
 
     rng = np.random.default_rng(5)
     ex = [_pattern(n, (0.3, 0.6)) for n in (30, 36, 42)]
@@ -206,7 +206,7 @@ def test_prefilter_keeps_every_hit_through_an_anchor():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_two_pass_search_matches_the_full_pass(seed):
-    from mocapflow.plugins.matchers.template_model import search_costs
+    from mocapflow.plugins.relational.template_model import search_costs
 
     rng = np.random.default_rng(seed)
     lengths = rng.integers(1, 80, size=6)
@@ -224,7 +224,7 @@ def test_two_pass_search_matches_the_full_pass(seed):
 
 def test_clip_labels_and_groups():
     from mocapflow.framework.errors import ConfigError
-    from mocapflow.plugins.matchers.template import HDM05_GROUP, HDM05_LABEL, clip_labels
+    from mocapflow.plugins.relational.template import HDM05_GROUP, HDM05_LABEL, clip_labels
 
     names = ["HDM_bd_kickLFront1Reps_001_120", "HDM_dg_squat1Reps_025_120", "01_02"]
     assert clip_labels(names, HDM05_LABEL) == ["kickLFront1Reps", "squat1Reps", None]
@@ -234,7 +234,7 @@ def test_clip_labels_and_groups():
 
 
 def test_calibrate_threshold_between_positives_and_negatives():
-    from mocapflow.plugins.matchers.template_model import calibrate_threshold
+    from mocapflow.plugins.relational.template_model import calibrate_threshold
 
     assert calibrate_threshold([0.1, 0.2], [0.5, 0.6]) == pytest.approx(0.35)  # midway: F1 = 1
     assert calibrate_threshold([0.1, 0.2], None, margin=0.5) == pytest.approx(0.3)
@@ -244,7 +244,7 @@ def test_calibrate_threshold_between_positives_and_negatives():
 
 
 def test_rivals_drop_hits_another_template_matches_better():
-    from mocapflow.plugins.matchers.template import others_min, rival_filter
+    from mocapflow.plugins.relational.template import others_min, rival_filter
 
     costs = np.array([[0.1, 0.5, 0.2, 0.9], [0.3, 0.4, 0.1, 0.8], [0.2, 0.6, 0.7, 0.1]])
     om = others_min(costs)
