@@ -4,6 +4,8 @@ Features are defined on canonical joints so that they hold across skeletons. A s
 skeleton maps each canonical name it has to one of its joints (``Skeleton.canonical``),
 through the naming dialects (:class:`JointMap`) that plugins register; the built-in ones
 (Acclaim, the common BVH namings) live in :mod:`mocapflow.plugins.formats.joint_maps`.
+This module holds the contract and the matching rule; the registered dialects are kept by
+:mod:`mocapflow.framework.plugins`.
 
 Joint *positions* are the points where a segment starts: ``lknee`` is the knee centre,
 ``lwrist`` the wrist centre, ``ltoes`` the ball of the foot, ``headtop`` the top of the
@@ -102,36 +104,16 @@ class JointMap:
         return out
 
 
-_REGISTERED: dict[str, JointMap] = {}
-
-
-def install_joint_maps(maps: Iterable[JointMap]) -> None:
-    """Make dialects known to :func:`canonical_map` in this process (called by
-    :func:`~mocapflow.framework.plugins.build_registries` with every registered map)."""
-    for m in maps:
-        _REGISTERED[m.name] = m
-
-
-def registered_joint_maps() -> tuple[JointMap, ...]:
-    """The dialects registered in this process; loads the installed plugins' registries the
-    first time (so a reader called on its own sees the plugins' dialects too)."""
-    if not _REGISTERED:
-        from .plugins import load_registries
-
-        load_registries()
-    return tuple(_REGISTERED.values())
-
-
-def canonical_map(joint_names: Sequence[str], fmt: str | None = None,
-                  maps: Iterable[JointMap] | None = None) -> dict[str, int]:
+def canonical_map(joint_names: Sequence[str], fmt: str | None, maps: Iterable[JointMap]) -> dict[str, int]:
     """Canonical map of a skeleton: canonical joint -> index into ``joint_names``.
 
-    Every dialect that applies (``maps``, default: the registered ones) is tried; the map
-    with the most required joints wins, then one whose signature matched, then the one
-    with the most joints, then the first registered.
+    Every dialect of ``maps`` that applies (readers pass
+    :func:`~mocapflow.framework.plugins.registered_joint_maps`) is tried; the map with the
+    most required joints wins, then one whose signature matched, then the one with the
+    most joints, then the first registered.
     """
     best: tuple[tuple[int, int, int, int], dict[str, int]] | None = None
-    for order, m in enumerate(registered_joint_maps() if maps is None else maps):
+    for order, m in enumerate(maps):
         if not m.applies(joint_names, fmt):
             continue
         mapped = m.apply(joint_names)

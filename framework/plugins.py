@@ -12,7 +12,7 @@ import pluggy
 
 from . import hookspecs
 from .errors import PluginError
-from .joints import JointMap, install_joint_maps
+from .joints import JointMap
 from .registry import KINDS, Registries
 
 PROJECT = "mocapflow"
@@ -174,6 +174,25 @@ def build_registries(pm: pluggy.PluginManager, *, strict: bool = False) -> Regis
                 regs.joint_map_providers[m.name] = provider
     install_joint_maps(regs.joint_maps.values())
     return regs
+
+
+_JOINT_MAPS: dict[str, JointMap] = {}
+
+
+def install_joint_maps(maps: Iterable[JointMap]) -> None:
+    """Make dialects known to :func:`registered_joint_maps` in this process (called by
+    :func:`build_registries` with every registered map)."""
+    for m in maps:
+        _JOINT_MAPS[m.name] = m
+
+
+def registered_joint_maps() -> tuple[JointMap, ...]:
+    """The skeleton naming dialects registered in this process (what readers map skeletons
+    with); builds the installed plugins' registries the first time, so a reader called on
+    its own sees the plugins' dialects too."""
+    if not _JOINT_MAPS:
+        load_registries()
+    return tuple(_JOINT_MAPS.values())
 
 
 def collect_joint_maps(pm: pluggy.PluginManager) -> tuple[list[tuple[str, list[Any]]], dict[str, str]]:

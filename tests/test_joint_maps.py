@@ -6,7 +6,7 @@ import types
 
 import pytest
 
-from mocapflow.framework import hookimpl, joints
+from mocapflow.framework import hookimpl, plugins
 from mocapflow.framework.errors import PluginError
 from mocapflow.framework.joints import JointMap, canonical_map
 from mocapflow.framework.plugins import build_registries, get_plugin_manager
@@ -39,7 +39,7 @@ def _plugin(*maps):
 
 @pytest.fixture
 def fresh_maps(monkeypatch):
-    monkeypatch.setattr(joints, "_REGISTERED", {})
+    monkeypatch.setattr(plugins, "_JOINT_MAPS", {})
 
 
 def test_builtin_dialects():

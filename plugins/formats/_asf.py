@@ -29,6 +29,7 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import ParseError
 from mocapflow.framework.joints import canonical_map
+from mocapflow.framework.plugins import registered_joint_maps
 from mocapflow.framework.quaternions import euler_extrinsic
 from mocapflow.framework.skeleton import Skeleton
 
@@ -281,7 +282,7 @@ def build_skeleton(asf: dict[str, Any]) -> Skeleton:
     meta["length_scale"] = scale
     return Skeleton(
         names=tuple(names), parents=np.array(parents), offsets=np.array(offsets),
-        canonical=canonical_map(names, "amc"), rotation_orders=tuple(orders), axes=np.array(axes),
+        canonical=canonical_map(names, "amc", registered_joint_maps()), rotation_orders=tuple(orders), axes=np.array(axes),
         channels=tuple(channels), name=asf["name"], meta=meta,
     )
 
