@@ -94,7 +94,8 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
 
 
 def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int = 0,
-                   mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None
+                   mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None,
+                   swap_level: float | None = None, swap_max: int = 72, mirror_swaps: bool = True
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
 
@@ -113,6 +114,12 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
         flagged cell of the chains).
     cap : ndarray of shape (T, m), optional
         Largest edit per cell, radians (on top of the evidence bound); swaps are not capped.
+    swap_level : float, optional
+        Swaps found by their edges (:func:`.swaps.swap_edges`, this level, intervals up to
+        ``swap_max`` frames) are swapped back whatever the flags; None = off.
+    mirror_swaps : bool
+        Also swap back the runs the mirror cue flagged (:func:`swap_frames`) where no edge
+        swap of that chain pair overlaps them.
     """
     from .repair import _propose
 
@@ -121,14 +128,25 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     t_count, m = q.shape[:2]
     new = q.copy()
     swapped = np.zeros((t_count, m), bool)
-    if not flags.any():
+    edge_swaps = []
+    if swap_level is not None:
+        from .swaps import swap_edges
+
+        edge_swaps = swap_edges(q, res.joints, swap_level, max_len=swap_max)
+    if not flags.any() and not edge_swaps:
         return new, np.zeros((t_count, m), bool), swapped
     work = flags.copy()
     if dilate > 0:
         for o in range(1, dilate + 1):
             work[o:] |= flags[:-o]
             work[:-o] |= flags[o:]
-    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work if mirror_flags is None else mirror_flags, swap_gain):
+    runs = list(edge_swaps)
+    if mirror_swaps:
+        for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work if mirror_flags is None else mirror_flags,
+                                        swap_gain):
+            if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in edge_swaps):
+                runs.append((lc, rc, a, b))
+    for lc, rc, a, b in runs:
         new[a:b, lc] = mirror(q[a:b, rc])
         new[a:b, rc] = mirror(q[a:b, lc])
         swapped[a:b, np.concatenate([lc, rc])] = True
@@ -149,13 +167,18 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     # bounds: nearer the consensus, never more than the evidence
     before = quat.geodesic_angle(q, mean_q)
     after = quat.geodesic_angle(new, mean_q)
-    worse = after >= before - 1e-9
+    # an edge swap is verified by its jumps, not by T̄ (the consensus adapts to a swapped
+    # limb in mid-interval): kept whole, never shortened cell by cell
+    exempt = np.zeros((t_count, m), bool)
+    for lc, rc, a, b in edge_swaps:
+        exempt[a:b, np.concatenate([lc, rc])] = True
+    worse = (after >= before - 1e-9) & ~exempt
     new[worse] = q[worse]
     edit = quat.geodesic_angle(new, q)
     limit = before + np.asarray(res.spread if res.spread is not None else 0.0)
     if cap is not None:
         limit = np.where(swapped, limit, np.minimum(limit, cap))
-    over = edit > limit + 1e-9
+    over = (edit > limit + 1e-9) & ~exempt
     if over.any():
         frac = limit[over] / edit[over]
         new[over] = quat.slerp(q[over], new[over], frac)

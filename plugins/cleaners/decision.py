@@ -120,7 +120,9 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         mirror_flags = flags & (dom == CUES.index("mirror"))
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
         cap = np.where(local, np.pi, np.deg2rad(p.max_edit))
-        new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap)
+        new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap,
+                                                swap_level=p.swap_level, swap_max=p.swap_max,
+                                                mirror_swaps=p.mirror_swaps)
         cue[flags] = np.array(CUES, dtype=object)[dom[flags]]
         cue[swapped] = "mirror"
         flags = flags | swapped

@@ -107,6 +107,12 @@ class MDMParams(Params):
                             "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
     swap_gain: float = Field(default=0.1, ge=0, description="calibrated: least chain mirror gain (radians over the "
                              "chain pair) for swapping limbs back")
+    swap_level: float | None = Field(default=3.0, gt=0, description="calibrated: least edge benefit (units of the "
+                                     "chains' typical acceleration) at both ends of a swap found by its edges "
+                                     "(cleaners/swaps.py); None = only the mirror cue's swaps")
+    swap_max: int = Field(default=72, ge=2, description="calibrated: longest swap found by its edges, frames at fps")
+    mirror_swaps: bool = Field(default=True, description="calibrated: also swap back the runs the mirror cue flags "
+                               "where no edge swap overlaps")
 
     fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
     joints: tuple[str, ...] = Field(default=DEFAULT_JOINTS, description="texture joints (canonical names; absent ones are skipped)")
