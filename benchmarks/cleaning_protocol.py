@@ -50,8 +50,10 @@ def pooled(results: list[tuple[list[dict], list[dict], list[dict]]]) -> tuple[li
     rows = []
     for group in zip(*(r[0] for r in results)):
         row = dict(group[0])
-        for k in ("tp", "fp", "fn", "word_tp", "word_fp", "word_fn", "wj_tp", "wj_fp", "wj_fn", "n_clips"):
-            row[k] = sum(g[k] for g in group)
+        for k in ("tp", "fp", "fn", "word_tp", "word_fp", "word_fn", "wj_tp", "wj_fp", "wj_fn", "n_clips",
+                  "fp_sub", "wj_fp_sub", "word_fp_sub"):
+            if k in row:
+                row[k] = sum(g[k] for g in group)
         row.update(_ratios(row))
         row["seconds_per_clip"] = float(np.mean([g["seconds_per_clip"] for g in group]))
         rows.append(row)
@@ -60,10 +62,12 @@ def pooled(results: list[tuple[list[dict], list[dict], list[dict]]]) -> tuple[li
         row = dict(group[0])
         w = np.array([g["n_clips"] for g in group], float)
         for k in ("global_before", "global_after", "share_global_lower", "cells_before", "cells_after",
-                  "clean_edited_share"):
+                  "clean_edited_share", "global_before_ng", "global_after_ng", "share_global_lower_ng"):
             row[k] = float(np.average([g[k] for g in group], weights=w))
-        for k in ("clean_edited_share_max", "clean_max_edit_deg"):
+        for k in ("clean_edited_share_max", "clean_max_edit_deg", "clean_max_edit_deg_ng"):
             row[k] = max(g[k] for g in group)
+        for k in ("glitch_cells", "clean_glitch_edits"):
+            row[k] = sum(g[k] for g in group)
         row["n_clips"] = int(w.sum())
         rep.append(row)
     kinds: dict[tuple, dict] = {}
@@ -89,7 +93,7 @@ def install_cache(folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     original = mdm.digression_map
     decision_only = {"mode", "false_alarm", "null_quantile", "calibration_frames", "calibration_density",
-                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "write_bvh", "heatmaps", "threshold",
+                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "write_bvh", "heatmaps", "threshold",
                      "savgol_window", "savgol_order", "include_self"}
 
     def cached(motion, context=None, params=None):
@@ -171,12 +175,23 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {r['method']:22s} {r['context']:6s} {r['word_recall']:5.3f}/{r['word_precision']:5.3f} "
                   f"{r['wj_recall']:5.3f}/{r['wj_precision']:5.3f} {r['recall']:5.3f}/{r['precision']:5.3f} "
                   f"{f[0]:5.3f}/{f[1]:5.3f}/{f[2]:5.3f} {r['seconds_per_clip']:6.2f}")
+        for r in rows:
+            if "wj_precision_dc" in r and r["method"].startswith("mdm"):
+                print(f"  {r['method']:22s} {r['context']:6s} precision with cells moved < min_angle as don't care: "
+                      f"word {r['word_precision_dc']:5.3f}, (w,j) {r['wj_precision_dc']:5.3f}, "
+                      f"cell {r['precision_dc']:5.3f}")
         print(f"  {'method':12s} {'context':6s} {'global before->after':>22s} {'clips lower':>11s} "
               f"{'err cells before->after':>24s} {'clean edited (mean/max)':>24s} {'clean max edit':>14s}")
         for r in rep:
             print(f"  {r['method']:12s} {r['context']:6s} {r['global_before']:9.4f} -> {r['global_after']:8.4f} "
                   f"{r['share_global_lower']:11.2f} {r['cells_before']:10.4f} -> {r['cells_after']:9.4f} "
                   f"{r['clean_edited_share']:11.4f}/{r['clean_edited_share_max']:.4f} {r['clean_max_edit_deg']:12.1f} deg")
+        for r in rep:
+            if "share_global_lower_ng" in r:
+                print(f"  {r['method']:12s} {r['context']:6s} source glitches left out ({r['glitch_cells']} cells of the "
+                      f"clean references): global {r['global_before_ng']:.4f} -> {r['global_after_ng']:.4f}, lower on "
+                      f"{r['share_global_lower_ng']:.2f}; clean takes: largest edit outside them "
+                      f"{r['clean_max_edit_deg_ng']:.1f} deg, {r['clean_glitch_edits']} edits on them")
         for r in kinds:
             if r["method"] == "mdm":
                 ratio = r["eq2_after"] / r["eq2_before"] if r["eq2_before"] > 0 else float("nan")

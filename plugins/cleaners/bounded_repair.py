@@ -95,7 +95,8 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
 
 def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int = 0,
                    mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None,
-                   swap_level: float | None = None, swap_max: int = 72, mirror_swaps: bool = True
+                   swap_level: float | None = None, swap_max: int = 72, mirror_swaps: bool = True,
+                   offset_level: float | None = None, extra: dict | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
 
@@ -120,6 +121,14 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     mirror_swaps : bool
         Also swap back the runs the mirror cue flagged (:func:`swap_frames`) where no edge
         swap of that chain pair overlaps them.
+    offset_level : float, optional
+        Flagged runs whose two ends are consistent jumps of at least this many typical
+        accelerations of the joint (and 8 degrees) are repaired by taking the offset out
+        over the whole interval between the jumps (:mod:`.offsets`) instead of the KNN word,
+        when that lowers the run's mean digression; None = off.
+    extra : dict, optional
+        Receives ``"offset"``: bool (T, m), the cells repaired as offsets (some may lie
+        outside ``flags``: the interval between the jumps).
     """
     from .repair import _propose
 
@@ -128,6 +137,8 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     t_count, m = q.shape[:2]
     new = q.copy()
     swapped = np.zeros((t_count, m), bool)
+    if extra is not None:
+        extra["offset"] = np.zeros((t_count, m), bool)
     edge_swaps = []
     if swap_level is not None:
         from .swaps import swap_edges
@@ -151,6 +162,7 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
         new[a:b, rc] = mirror(q[a:b, lc])
         swapped[a:b, np.concatenate([lc, rc])] = True
     rest = work & ~swapped
+    offset = np.zeros((t_count, m), bool)
     if mirror_flags is not None:
         rest &= ~mirror_flags  # the evidence was for a swap that did not hold up: leave them
     if rest.any() and res.neighbours:
@@ -163,6 +175,8 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
             _propose(neigh, n, q, around, proposal, res, ())
         for j in np.flatnonzero(rest.any(axis=0)):
             for a, b in _runs(rest[:, j]):
+                if offset_level is not None and _offset_run(q, mean_q, new, j, a, b, offset_level, offset):
+                    continue
                 _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
     # bounds: nearer the consensus, never more than the evidence
     before = quat.geodesic_angle(q, mean_q)
@@ -172,6 +186,7 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     exempt = np.zeros((t_count, m), bool)
     for lc, rc, a, b in edge_swaps:
         exempt[a:b, np.concatenate([lc, rc])] = True
+    exempt |= offset  # verified by its two jumps and its run's mean digression (_offset_run)
     worse = (after >= before - 1e-9) & ~exempt
     new[worse] = q[worse]
     edit = quat.geodesic_angle(new, q)
@@ -183,7 +198,32 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
         frac = limit[over] / edit[over]
         new[over] = quat.slerp(q[over], new[over], frac)
     edited = np.any(new != q, axis=-1)  # exact: an angle test near 0 is rounding noise
+    if extra is not None:
+        extra["offset"] = offset & edited
     return new, edited, swapped & edited
+
+
+def _offset_run(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, j: int, a0: int, b0: int, level: float,
+                offset: np.ndarray) -> bool:
+    """Repair the flagged run ``[a0, b0)`` of joint ``j`` as an offset (:mod:`.offsets`) when
+    its ends are found and the repair lowers the interval's mean digression; True if done."""
+    from .cues import acceleration
+    from .offsets import offset_interval, remove_offset
+
+    acc = np.median(acceleration(q[:, j:j + 1])[1:-1, 0]) if len(q) > 2 else 0.0
+    found = offset_interval(q[:, j], a0, b0, max(level * 2.0 * acc, np.deg2rad(8.0)))
+    if found is None:
+        return False
+    a, b, off_a, off_b = found
+    if offset[a:b, j].any():
+        return True  # an earlier run of this joint already took this interval
+    rep = remove_offset(q[:, j], a, b, off_a, off_b)
+    before = quat.geodesic_angle(q[a:b, j], mean_q[a:b, j]).mean()
+    if quat.geodesic_angle(rep, mean_q[a:b, j]).mean() >= before:
+        return False
+    new[a:b, j] = rep
+    offset[a:b, j] = True
+    return True
 
 
 def _displaced(track: np.ndarray, prop: np.ndarray, out: np.ndarray, a: int, b: int) -> None:

@@ -89,6 +89,17 @@ def _edits(motion: Motion, cleaned: Motion, changed: np.ndarray, texture: Any, c
     return tab.append_column("cue", pa.array(_input_cues(motion, texture, cue, f, j), pa.string()))
 
 
+def cue_of_run(cue: np.ndarray, grown: np.ndarray) -> np.ndarray:
+    """For the cells of ``grown`` (T, m), the cue of the nearest flagged cell of the same joint
+    (the run they extend), values for ``cue[grown]``."""
+    out = []
+    for f, j in zip(*np.nonzero(grown)):
+        col = cue[:, j]
+        have = np.flatnonzero(col != None)  # noqa: E711 - object array: elementwise comparison with None
+        out.append(col[have[np.argmin(np.abs(have - f))]] if len(have) else None)
+    return np.array(out, dtype=object)
+
+
 def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Sequence[Any] = (),
                  analysis: Any = None, calibration: Any = None) -> Any:
     """Analyse, decide and repair one clip; returns :class:`.mdm.CleanResult`.
@@ -118,14 +129,18 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                         seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues)
         flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints)
         mirror_flags = flags & (dom == CUES.index("mirror"))
+        extra: dict = {}
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
         cap = np.where(local, np.pi, np.deg2rad(p.max_edit))
         new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap,
                                                 swap_level=p.swap_level, swap_max=p.swap_max,
-                                                mirror_swaps=p.mirror_swaps)
+                                                mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
+                                                extra=extra)
         cue[flags] = np.array(CUES, dtype=object)[dom[flags]]
+        grown = extra["offset"] & ~flags  # the rest of an offset interval, between its two jumps
+        cue[grown] = cue_of_run(cue, grown)
         cue[swapped] = "mirror"
-        flags = flags | swapped
+        flags = flags | swapped | extra["offset"]
         value = 1.0 - np.exp2(-(evidence ** 2))
         value = np.where(flags, np.maximum(value, 0.5 + 1e-6), np.minimum(value, 0.5))
     cleaned, changed = apply_to_input(motion, res.texture, new24, edited)

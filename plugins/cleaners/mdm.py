@@ -110,6 +110,10 @@ class MDMParams(Params):
     swap_level: float | None = Field(default=3.0, gt=0, description="calibrated: least edge benefit (units of the "
                                      "chains' typical acceleration) at both ends of a swap found by its edges "
                                      "(cleaners/swaps.py); None = only the mirror cue's swaps")
+    offset_level: float | None = Field(default=6.0, gt=0, description="calibrated: flagged runs whose ends are "
+                                       "two consistent jumps of at least this many typical accelerations of the joint "
+                                       "(and 8 degrees) are repaired by taking the offset out (cleaners/offsets.py); "
+                                       "None = always the KNN word")
     swap_max: int = Field(default=72, ge=2, description="calibrated: longest swap found by its edges, frames at fps")
     mirror_swaps: bool = Field(default=True, description="calibrated: also swap back the runs the mirror cue flags "
                                "where no edge swap overlaps")
