@@ -134,7 +134,7 @@ def repair_errors(clean: np.ndarray, other: np.ndarray, truth: np.ndarray) -> di
             "joint_avg": float(per.mean()) if len(per) else nan, "joint_max": float(per.max()) if len(per) else nan}
 
 
-def source_glitches(q: np.ndarray, far: float = 90.0, back: float = 45.0, typical: float = 30.0,
+def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typical: float = 30.0,
                     step: float = 45.0, pad: int = 2) -> np.ndarray:
     """Cells of a "clean" reference that are capture glitches of the source itself, (T, m) bool.
 

@@ -96,7 +96,8 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
 def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int = 0,
                    mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None,
                    swap_level: float | None = None, swap_max: int = 72, mirror_swaps: bool = True,
-                   offset_level: float | None = None, extra: dict | None = None
+                   offset_level: float | None = None, extra: dict | None = None,
+                   interp: np.ndarray | None = None, interp_max: int = 0, merge_gap: int = 0
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
 
@@ -129,6 +130,13 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     extra : dict, optional
         Receives ``"offset"``: bool (T, m), the cells repaired as offsets (some may lie
         outside ``flags``: the interval between the jumps).
+    interp, interp_max : ndarray of bool (T, m), int
+        Runs of at most ``interp_max`` frames made only of ``interp`` cells (the
+        acceleration cue's: a spike or a burst of jitter) that are no offset are
+        interpolated (slerp) between the frames that bound them instead of taking the KNN word.
+    merge_gap : int
+        Flagged runs of one joint at most this many frames apart are repaired as one run
+        (the gap included: a burst of jitter flags its extreme frames only).
     """
     from .repair import _propose
 
@@ -165,6 +173,11 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     offset = np.zeros((t_count, m), bool)
     if mirror_flags is not None:
         rest &= ~mirror_flags  # the evidence was for a swap that did not hold up: leave them
+    if merge_gap > 0:
+        for j in np.flatnonzero(rest.any(axis=0)):
+            for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:]):
+                if a2 - b <= merge_gap and not swapped[b:a2, j].any():
+                    rest[b:a2, j] = True
     if rest.any() and res.neighbours:
         around = rest.copy()
         around[1:] |= rest[:-1]
@@ -176,6 +189,11 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
         for j in np.flatnonzero(rest.any(axis=0)):
             for a, b in _runs(rest[:, j]):
                 if offset_level is not None and _offset_run(q, mean_q, new, j, a, b, offset_level, offset):
+                    continue
+                if interp is not None and b - a <= interp_max and interp[a:b, j].all() and a > 0 and b < t_count:
+                    u = (np.arange(a, b) - a + 1) / (b - a + 1)
+                    new[a:b, j] = quat.slerp(np.broadcast_to(q[a - 1, j], (b - a, 4)),
+                                             np.broadcast_to(q[b, j], (b - a, 4)), u)
                     continue
                 _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
     # bounds: nearer the consensus, never more than the evidence

@@ -135,11 +135,17 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap,
                                                 swap_level=p.swap_level, swap_max=p.swap_max,
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
-                                                extra=extra)
+                                                extra=extra, interp=dom == CUES.index("acceleration"),
+                                                interp_max=p.interp_max, merge_gap=p.merge_gap)
         cue[flags] = np.array(CUES, dtype=object)[dom[flags]]
         grown = extra["offset"] & ~flags  # the rest of an offset interval, between its two jumps
         cue[grown] = cue_of_run(cue, grown)
         cue[swapped] = "mirror"
+        if p.flag_rule == "repaired":
+            # a flag whose repair did not hold up (not nearer the consensus, a swap that did not
+            # smooth its ends) is no claim the cleaner acts on
+            cue[flags & ~edited] = None
+            flags = flags & edited
         flags = flags | swapped | extra["offset"]
         value = 1.0 - np.exp2(-(evidence ** 2))
         value = np.where(flags, np.maximum(value, 0.5 + 1e-6), np.minimum(value, 0.5))

@@ -114,6 +114,14 @@ class MDMParams(Params):
                                        "two consistent jumps of at least this many typical accelerations of the joint "
                                        "(and 8 degrees) are repaired by taking the offset out (cleaners/offsets.py); "
                                        "None = always the KNN word")
+    flag_rule: Literal["evidence", "repaired"] = Field(
+        default="repaired", description="calibrated: cells reported flagged: every cell whose evidence exceeds its level "
+        "('evidence'), or only those the bounded repair changed ('repaired'; swaps and offsets always)")
+    interp_max: int = Field(default=0, ge=0, description="calibrated: runs of up to this many frames flagged by the "
+                            "acceleration cue (and no offset) are interpolated between their neighbours instead of "
+                            "taking the KNN word; 0 = off")
+    merge_gap: int = Field(default=3, ge=0, description="calibrated: flagged runs of one joint at most this many "
+                           "frames apart are repaired as one (the gap included); 0 = off")
     swap_max: int = Field(default=72, ge=2, description="calibrated: longest swap found by its edges, frames at fps")
     mirror_swaps: bool = Field(default=True, description="calibrated: also swap back the runs the mirror cue flags "
                                "where no edge swap overlaps")
