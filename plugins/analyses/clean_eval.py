@@ -146,7 +146,11 @@ def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typica
     degrees in 1/120 s: no ankle or wrist turns that far, that fast. An excursion counts
     only when it is entered or left by a step of more than ``step`` degrees in one frame
     (at the texture's 24 fps; raised arms reach 90 degrees too, but gradually). Each
-    excursion is grown while the angle stays above ``back`` degrees, plus ``pad`` frames. The protocol
+    excursion is grown while the angle stays above ``back`` degrees, plus ``pad`` frames.
+    A joint whose median angle to its mean pose is not below ``typical`` and that turns
+    more than ``2 step`` degrees in one frame is a broken track throughout (the head of
+    salsa take 60_06: median 47 degrees from its mean pose, steps of up to 165 degrees in
+    1/24 s) and is marked whole. The protocol
     scores repairs of these cells apart (the cleaner is right to repair them, and eq. 2
     against this reference counts that as damage)."""
     from mocapflow.plugins.cleaners.bounded_repair import _runs
@@ -155,9 +159,12 @@ def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typica
     for j in range(q.shape[1]):
         w, v = np.linalg.eigh(np.einsum("ti,tk->ik", q[:, j], q[:, j]))
         ang = np.rad2deg(quat.geodesic_angle(q[:, j], np.broadcast_to(v[:, -1], q[:, j].shape)))
+        sp = np.rad2deg(quat.geodesic_angle(q[1:, j], q[:-1, j]))
+        if np.median(ang) >= typical and len(sp) and sp.max() > 2 * step:
+            out[:, j] = True  # broken throughout: far from any pose it holds, and turning > 90 degrees in a frame
+            continue
         if np.median(ang) >= typical or not (ang > far).any():
             continue
-        sp = np.rad2deg(quat.geodesic_angle(q[1:, j], q[:-1, j]))
         for a, b in _runs(ang > back):
             if (ang[a:b] > far).any() and (sp[max(0, a - 2):b + 1] > step).any():
                 out[max(0, a - pad):b + pad, j] = True

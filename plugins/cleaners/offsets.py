@@ -54,7 +54,7 @@ def offset_interval(track: np.ndarray, a0: int, b0: int, level: float, window: i
     level : float
         Least jump at both ends, radians (the predicted offset's angle).
     window : int
-        Frames searched before ``a0`` and after ``b0`` for the ends.
+        Frames searched before ``a0`` and after ``b0`` for the ends (inside the run too).
     agree : float
         The two end offsets may differ by at most this share of the smaller one.
 
@@ -66,13 +66,14 @@ def offset_interval(track: np.ndarray, a0: int, b0: int, level: float, window: i
     fwd = _forward_offsets(track)
     bwd = _backward_offsets(track)
     fa, fb = _angle(fwd), _angle(bwd)
-    starts = np.arange(max(2, a0 - window), min(a0, t - 3) + 1)
-    ends = np.arange(max(b0, 1), min(b0 + window, t - 2) + 1)  # b: first clean frame after
+    # the run may hold an end (an acceleration-flagged jump is one frame of the offset)
+    starts = np.arange(max(2, a0 - window), min(b0 - 1, t - 3) + 1)
+    ends = np.arange(max(a0 + 1, 1), min(b0 + window, t - 2) + 1)  # b: first clean frame after
     starts = starts[fa[starts] > level] if len(starts) else starts
     ends = ends[fb[ends - 1] > level] if len(ends) else ends
     best = None
-    for a in starts.tolist():
-        for b in ends[ends > a].tolist():
+    for a in starts[starts <= a0 + 1].tolist():
+        for b in ends[(ends > a) & (ends >= b0 - 1)].tolist():  # the interval covers the run (up to its edge frames)
             d = float(quat.geodesic_angle(fwd[a], bwd[b - 1]))
             small = min(fa[a], fb[b - 1])
             if d > agree * small:
