@@ -62,7 +62,7 @@ def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
 
 
 def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float,
-                slack: int = 8) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
+                slack: int = 8, skip: list | None = None) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
     """(left columns, right columns, start, end) of the runs to swap back.
 
     Candidates are the runs (gaps of up to ``slack`` frames merged) where the chain-pair
@@ -79,11 +79,14 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
         for a0, b0 in _merge(_runs(gain[:, cols].max(axis=1) > swap_gain), slack):
             if not flags[a0:b0][:, cols].any():
                 continue
+            if skip and any(lc[0] == l2[0] and a0 < b2 + slack and a2 < b0 + slack for l2, _, a2, b2 in skip):
+                continue  # an edge swap of this chain pair is there already
             best = None
             for a in range(max(0, a0 - slack), min(a0 + slack, b0 - 1) + 1):
                 for b in range(max(a + 1, b0 - slack), min(t, b0 + slack) + 1):
-                    back = quat.make_continuous(_swapped(q, lc, rc, a, b)[max(0, a - 2):min(t, b + 2)][:, cols], axis=0)
                     lo = max(0, a - 2)
+                    # the window around [a, b) only: the same as swapping the whole take, without its copy
+                    back = quat.make_continuous(_swapped(q[lo:min(t, b + 2)], lc, rc, a - lo, b - lo)[:, cols], axis=0)
                     after = _edge_roughness(back, np.arange(len(cols)), a - lo, b - lo)
                     if best is None or after < best[0]:
                         best = (after, a, b)
@@ -162,7 +165,7 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     runs = list(edge_swaps)
     if mirror_swaps:
         for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work if mirror_flags is None else mirror_flags,
-                                        swap_gain):
+                                        swap_gain, skip=edge_swaps):
             if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in edge_swaps):
                 runs.append((lc, rc, a, b))
     for lc, rc, a, b in runs:
