@@ -89,6 +89,24 @@ def _edits(motion: Motion, cleaned: Motion, changed: np.ndarray, texture: Any, c
     return tab.append_column("cue", pa.array(_input_cues(motion, texture, cue, f, j), pa.string()))
 
 
+def _agreeing(flags: np.ndarray, dom: np.ndarray, ev: np.ndarray, level: float) -> np.ndarray:
+    """``flags`` without the runs of one joint flagged by the digression alone that no other
+    cue backs: no cell of the run (+-1 frame) has acceleration or freeze evidence above
+    ``level`` (an offset has jumps at its ends, a freeze its stillness; a rare clean pose
+    neither)."""
+    from .bounded_repair import _runs
+    from .cues import CUES
+
+    out = flags.copy()
+    other = np.maximum(ev[..., CUES.index("acceleration")], ev[..., CUES.index("freeze")])
+    dig = CUES.index("digression")
+    for j in np.flatnonzero(flags.any(axis=0)):
+        for a, b in _runs(flags[:, j]):
+            if np.all(dom[a:b, j] == dig) and not (other[max(0, a - 1):b + 1, j] > level).any():
+                out[a:b, j] = False
+    return out
+
+
 def cue_of_run(cue: np.ndarray, grown: np.ndarray) -> np.ndarray:
     """For the cells of ``grown`` (T, m), the cue of the nearest flagged cell of the same joint
     (the run they extend), values for ``cue[grown]``."""
@@ -128,6 +146,9 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                         false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
                         seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues)
         flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints)
+        if p.agree is not None:
+            flags = _agreeing(flags, dom, cal.evidence(res.texture.q, res.mean_texture, res.spread, res.joints),
+                              p.agree)
         mirror_flags = flags & (dom == CUES.index("mirror"))
         extra: dict = {}
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])

@@ -122,6 +122,9 @@ class MDMParams(Params):
                             "taking the KNN word; 0 = off")
     merge_gap: int = Field(default=3, ge=0, description="calibrated: flagged runs of one joint at most this many "
                            "frames apart are repaired as one (the gap included); 0 = off")
+    agree: float | None = Field(default=0.3, gt=0, description="calibrated: runs flagged by the digression alone "
+                                "are kept only where the acceleration or freeze evidence exceeds this somewhere in "
+                                "the run (+-1 frame); None = off")
     swap_max: int = Field(default=72, ge=2, description="calibrated: longest swap found by its edges, frames at fps")
     mirror_swaps: bool = Field(default=True, description="calibrated: also swap back the runs the mirror cue flags "
                                "where no edge swap overlaps")
