@@ -104,3 +104,17 @@ def test_source_glitches_marks_a_flip_not_a_raised_arm():
     assert g[70:85, a].all() and not g[:60, a].any() and not g[95:, a].any()
     assert not g[:, s].any()
     assert not source_glitches(q).any()
+
+
+def test_digression_only_runs_need_another_cue():
+    from mocapflow.plugins.cleaners.cues import CUES
+    from mocapflow.plugins.cleaners.decision import _agreeing
+
+    flags = np.zeros((20, 2), bool)
+    flags[3:6, 0] = flags[10:13, 0] = flags[3:6, 1] = True
+    dom = np.full((20, 2), CUES.index("digression"))
+    dom[4, 1] = CUES.index("acceleration")  # a mixed run is never dropped
+    ev = np.zeros((20, 2, len(CUES)))
+    ev[13, 0, CUES.index("acceleration")] = 0.5  # the second run has a jump next to it
+    out = _agreeing(flags, dom, ev, 0.3)
+    assert not out[3:6, 0].any() and out[10:13, 0].all() and out[3:6, 1].all()
