@@ -4,7 +4,10 @@
 :func:`.repair.repair_texture` (median KNN word, Savitzky-Golay blend), as §3.4 and §4 say.
 ``mode="calibrated"``: :func:`.calibration.calibrate` fits the detector on the clean
 context, :meth:`.calibration.Calibration.detect` flags the take's cells and
-:func:`.bounded_repair.bounded_repair` repairs them. Both carry the repair to the input
+:func:`.bounded_repair.bounded_repair` repairs them (swaps found by their edges,
+:mod:`.swaps`; offsets between two consistent jumps, :mod:`.offsets`; the KNN word
+otherwise). ``agree`` drops runs only the digression flagged that no other cue backs;
+``flag_rule: repaired`` reports only the flags whose repair held up. Both carry the repair to the input
 frames with :func:`.repair.apply_to_input`.
 """
 from __future__ import annotations
