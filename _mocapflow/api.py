@@ -84,7 +84,7 @@ class Database:
                  feature_params: dict | None = None, index_params: dict | None = None) -> None:
         from mocapflow.framework.database import MotionDatabase
         from mocapflow.framework.normalize import resample
-        from mocapflow.plugins.matchers.matches import SearchSpace
+        from mocapflow.plugins.similarity.matches import SearchSpace
 
         regs = registries()
         self.fps = fps
@@ -106,7 +106,7 @@ class Database:
         import pyarrow as pa
 
         from mocapflow.framework.normalize import resample
-        from mocapflow.plugins.matchers.matches import matches_table
+        from mocapflow.plugins.similarity.matches import matches_table
 
         q = _motions(query)[0]
         q = resample(q, self.fps) if self.fps else q

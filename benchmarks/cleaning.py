@@ -37,8 +37,8 @@ def _load(path: str, fps: float = 24.0):
 
 
 def _search(tex, ctx_q, self_clip, method):
-    from mocapflow.plugins.cleaners.knn import ContextTextures, knn_search
-    from mocapflow.plugins.cleaners.motion_words import DEFAULT_GROUPS, resolve_groups, source_word_starts
+    from mocapflow.plugins.selfsim.knn import ContextTextures, knn_search
+    from mocapflow.plugins.selfsim.motion_words import DEFAULT_GROUPS, resolve_groups, source_word_starts
 
     ctx = ContextTextures.from_arrays(ctx_q)
     groups = resolve_groups(tex.joints, DEFAULT_GROUPS)
@@ -56,8 +56,8 @@ def main(argv: list[str] | None = None) -> int:
     if not CMU.is_dir():
         print(f"corpus not found at {CMU}", file=sys.stderr)
         return 1
-    from mocapflow.plugins.cleaners.mdm import MDMParams, digression_map
-    from mocapflow.plugins.cleaners.motion_words import motion_texture
+    from mocapflow.plugins.selfsim.mdm import MDMParams, digression_map
+    from mocapflow.plugins.selfsim.motion_words import motion_texture
 
     take_s = 10.0 if args.quick else 20.0
     ctx_s = 120.0 if args.quick else 600.0
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  MDM analysis, brute KNN  : {t_brute:7.2f} s  ({ref.n_dtw} DTWs)")
     print(f"  speed-up pruned/brute    : {t_brute / t_fast:7.2f} x   DTWs avoided {1 - res.n_dtw / ref.n_dtw:.1%}")
     print(f"  KNN identical to brute force: {same}")
-    from mocapflow.plugins.cleaners.mdm import MDMCleaner
+    from mocapflow.plugins.selfsim.mdm import MDMCleaner
 
     c0 = time.process_time()
     MDMCleaner(mode="paper", write_bvh=False, heatmaps=False).clean(take)

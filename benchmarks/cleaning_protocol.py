@@ -1,6 +1,6 @@
 """The cleaning protocol of issue 14 on ../shared/data: detection, repair and clean takes.
 
-Runs :func:`mocapflow.plugins.analyses.clean_eval.evaluate_category` (errors at the
+Runs :func:`mocapflow.plugins.selfsim.clean_eval.evaluate_category` (errors at the
 paper's density on held-out subjects / trials, module doc there) and prints, per category
 and context, recall / precision per word, per (word, joint) and per cell for the
 calibrated cleaner (``mdm``), the paper (``mdm[paper]``) and the baselines; eq. 2 before
@@ -45,7 +45,7 @@ def pooled(results: list[tuple[list[dict], list[dict], list[dict]]]) -> tuple[li
     as maxima); kind rows summed."""
     if len(results) == 1:
         return results[0]
-    from mocapflow.plugins.analyses.clean_eval import _ratios
+    from mocapflow.plugins.selfsim.clean_eval import _ratios
 
     rows = []
     for group in zip(*(r[0] for r in results)):
@@ -84,11 +84,11 @@ def pooled(results: list[tuple[list[dict], list[dict], list[dict]]]) -> tuple[li
 
 
 def install_cache(folder: Path) -> None:
-    """Memoise :func:`mocapflow.plugins.cleaners.mdm.digression_map` on disk (module doc)."""
+    """Memoise :func:`mocapflow.plugins.selfsim.mdm.digression_map` on disk (module doc)."""
     import hashlib
     import pickle
 
-    from mocapflow.plugins.cleaners import mdm
+    from mocapflow.plugins.selfsim import mdm
 
     folder.mkdir(parents=True, exist_ok=True)
     original = mdm.digression_map
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     if not DATA.is_dir():
         print(f"needs the corpus at {DATA}", file=sys.stderr)
         return 2
-    from mocapflow.plugins.analyses.clean_eval import CleaningEvaluationParams, evaluate_category
+    from mocapflow.plugins.selfsim.clean_eval import CleaningEvaluationParams, evaluate_category
     from mocapflow.plugins.formats.asf_amc import read_amc
 
     cleaner = {}

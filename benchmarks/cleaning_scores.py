@@ -34,9 +34,9 @@ def angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def analyses(category: str, context: str, n_test: int = 4) -> list[dict]:
     """The protocol of ``analyses.clean_eval`` for one category and context, per test clip."""
-    from mocapflow.plugins.analyses.clean_eval import (CleaningEvaluationParams, context_clips, corrupted_clips,
+    from mocapflow.plugins.selfsim.clean_eval import (CleaningEvaluationParams, context_clips, corrupted_clips,
                                                        protocol_clips)
-    from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams
+    from mocapflow.plugins.selfsim.mdm import MDMCleaner, MDMParams
     from mocapflow.plugins.formats.asf_amc import read_amc
 
     p = MDMParams(write_bvh=False, heatmaps=False)
@@ -89,7 +89,7 @@ def swap_aware(c: dict, scale: float = 0.1) -> np.ndarray:
     """Row-median z of the default score plus a mislabelled-limb cue (not in the paper): how
     much closer a left/right joint is to the *mirrored* KNN mean of its counterpart than to
     its own KNN mean (radians, positive part), in units of ``scale``, times 3."""
-    from mocapflow.plugins.analyses.error_injection import mirror
+    from mocapflow.plugins.selfsim.error_injection import mirror
 
     names = list(c["joints"])
     other = [names.index(("r" if n[0] == "l" else "l") + n[1:]) if n[0] in "lr" and

@@ -34,9 +34,9 @@ VARIANTS = {
 
 def _kernel_args(n_clips: int) -> tuple:
     """The exact arguments the relational feature set passes to ``feature_bits``."""
-    import mocapflow.plugins.features._relational_kernels as kern
+    import mocapflow.plugins.relational._feature_kernels as kern
     from mocapflow.framework import MotionDatabase
-    from mocapflow.plugins.features.relational import RelationalFeatures
+    from mocapflow.plugins.relational.features import RelationalFeatures
     from mocapflow.plugins.formats.asf_amc import read_amc
 
     captured: dict[str, tuple] = {}
@@ -51,7 +51,7 @@ def _kernel_args(n_clips: int) -> tuple:
 
 
 def _module(without: tuple[str, ...]) -> types.ModuleType:
-    import mocapflow.plugins.features._relational_kernels as kern
+    import mocapflow.plugins.relational._feature_kernels as kern
 
     lines = Path(kern.__file__).read_text().replace("cache=True", "cache=False").splitlines(True)
     for i, line in enumerate(lines):

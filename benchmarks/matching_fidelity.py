@@ -43,10 +43,10 @@ from matching import random_queries, random_segments  # noqa: E402
 
 from mocapflow.framework import MotionDatabase  # noqa: E402
 from mocapflow.framework.normalize import resample  # noqa: E402
-from mocapflow.plugins.indexes.kdtree import KDTreeIndex  # noqa: E402
-from mocapflow.plugins.matchers.lng import build_graph  # noqa: E402
-from mocapflow.plugins.matchers.matches import SearchSpace, select_matches  # noqa: E402
-from mocapflow.plugins.matchers.sdtw import sdtw_costs, subsequence_dtw  # noqa: E402
+from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
+from mocapflow.plugins.similarity.lng import build_graph  # noqa: E402
+from mocapflow.plugins.similarity.matches import SearchSpace, select_matches  # noqa: E402
+from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw  # noqa: E402
 
 
 def load(corpus: str) -> MotionDatabase:
@@ -179,7 +179,7 @@ def query_by_example(db: MotionDatabase, feature_sets: dict, k: int, min_span: f
 
 
 def main(argv=None) -> int:
-    from mocapflow.plugins.features.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
         if corpus == "hdm05" and not args.no_qbe:
             sets = {"F15": EndEffectorFeatures(joints=5)}
             if not args.quick:
-                from mocapflow.plugins.features.pca import PosePCA
+                from mocapflow.plugins.similarity.pca import PosePCA
 
                 sets.update({"F30": EndEffectorFeatures(joints=10), "F15x3": EndEffectorFeatures(joints=5, samples=3),
                              "Fpca16": PosePCA(n_components=16)})

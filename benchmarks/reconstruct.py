@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from corpus import load_corpus  # noqa: E402
 
 from mocapflow.framework import MotionDatabase, load_registries  # noqa: E402
-from mocapflow.plugins.analyses.reconstruct import PriorDatabase, ReconstructParams, reconstruct_motion  # noqa: E402
-from mocapflow.plugins.analyses.reconstruct_eval import (  # noqa: E402
+from mocapflow.plugins.similarity.reconstruct import PriorDatabase, ReconstructParams, reconstruct_motion  # noqa: E402
+from mocapflow.plugins.similarity.reconstruct_eval import (  # noqa: E402
     DEFAULT_TESTS, FEATURE_SETS, size_sweep, table3, table4,
 )
 

@@ -26,11 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from mocapflow.framework.database import MotionDatabase
-from mocapflow.framework.normalize import body_measures, resample
-from mocapflow.plugins.features.relational import FEATURE_IDS, relational_features
-from mocapflow.plugins.features.segmentation import segment
-from mocapflow.plugins.indexes.inverted import InvertedIndex
-from mocapflow.plugins.matchers.relational import example_query, search_set, subset_member
+from mocapflow.framework.normalize import resample
+from mocapflow.plugins.relational.body import body_measures
+from mocapflow.plugins.relational.features import FEATURE_IDS, relational_features
+from mocapflow.plugins.relational.segmentation import segment
+from mocapflow.plugins.relational.inverted import InvertedIndex
+from mocapflow.plugins.relational.matcher import example_query, search_set, subset_member
 
 HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
 

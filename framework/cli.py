@@ -320,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
         command, entry_points, blocked = _global_options(argv)
         for name in _unknown_blocked(blocked):
             _warn(f"--block {name}: no plugin of that name (built-in plugins are module names, "
-                  "e.g. mocapflow.plugins.indexes.kdtree; third-party ones their entry-point names: "
+                  "e.g. mocapflow.plugins.similarity.kdtree; third-party ones their entry-point names: "
                   "see `mocapflow plugins`)")
         if command in BUILTIN_COMMANDS or (command is None and "--version" in argv):
             parser = build_parser([])  # the parser of a built-in needs no plugin (`run --help` is quick)

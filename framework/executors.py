@@ -3,7 +3,7 @@
 An executor is anything with ``map(fn, items, desc) -> list`` (results in input order),
 ``close()`` and ``workers`` (how many items it runs at once). The runner never looks
 inside: ``local`` runs in-process or on a process pool; a cluster executor (``dask``,
-:mod:`mocapflow.plugins.dask_executor`) implements the same and is registered through the
+:mod:`mocapflow.plugins.executors.dask_cluster`) implements the same and is registered through the
 ``register_executors`` hook (or passed to :func:`~mocapflow.framework.runner.run_pipeline`).
 ``fn`` and the items must be picklable when work leaves the process.
 

@@ -60,6 +60,17 @@ def register_analyses() -> list[type]:
 
 
 @hookspec
+def register_joint_maps() -> list:
+    """Return skeleton naming dialects (:class:`~mocapflow.framework.joints.JointMap`
+    instances): for each canonical joint, the source joint names that stand for it. Readers
+    map every skeleton through the dialect that maps the most required joints
+    (:func:`~mocapflow.framework.joints.canonical_map`), so a plugin adds support for a
+    new skeleton naming (Mixamo, a studio's rig...) without touching the core. Dialect
+    names must be unique across plugins; a plugin returning anything else is skipped and
+    reported like a failed registration hook."""
+
+
+@hookspec
 def register_executors() -> list[type]:
     """Return executor classes: how steps fan out per-clip work. Each class has ``name``
     (the value of ``executor:`` in a pipeline), is built as ``cls(jobs=N, **executor_options)``

@@ -1,13 +1,18 @@
 """The canonical joint vocabulary and the maps from common source namings to it.
 
 Features are defined on canonical joints so that they hold across skeletons. A source
-skeleton maps each canonical name it has to one of its joints (``Skeleton.canonical``).
+skeleton maps each canonical name it has to one of its joints (``Skeleton.canonical``),
+through the naming dialects (:class:`JointMap`) that plugins register; the built-in ones
+(Acclaim, the common BVH namings) live in :mod:`mocapflow.plugins.formats.joint_maps`.
 
 Joint *positions* are the points where a segment starts: ``lknee`` is the knee centre,
 ``lwrist`` the wrist centre, ``ltoes`` the ball of the foot, ``headtop`` the top of the
 head (an ASF/BVH end site).
 """
 from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 
 #: Canonical joints, in a fixed order used by every canonical position array.
 CANONICAL_JOINTS: tuple[str, ...] = (
@@ -25,93 +30,117 @@ REQUIRED_JOINTS: tuple[str, ...] = (
     "head", "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist",
 )
 
-# Acclaim ASF skeletons (CMU and HDM05 share bone names). A skeleton joint sits at the
-# *start* of the ASF bone of the same name (see plugins/formats/asf_amc.py), so the knee
-# is the start of the tibia and the wrist the start of the "wrist" bone.
-_ASF = {
-    "root": "root",
-    "lhip": "lfemur", "lknee": "ltibia", "lankle": "lfoot", "ltoes": "ltoes",
-    "rhip": "rfemur", "rknee": "rtibia", "rankle": "rfoot", "rtoes": "rtoes",
-    "lowerback": "lowerback", "upperback": "upperback", "chest": "thorax",
-    "neck": "lowerneck", "head": "head", "headtop": "head_end",
-    "lclavicle": "lclavicle", "lshoulder": "lhumerus", "lelbow": "lradius",
-    "lwrist": "lwrist", "lfingers": "lfingers",
-    "rclavicle": "rclavicle", "rshoulder": "rhumerus", "relbow": "rradius",
-    "rwrist": "rwrist", "rfingers": "rfingers",
-}
+@dataclass(frozen=True)
+class JointMap:
+    """A skeleton naming dialect: for each canonical joint, the source joint names that
+    stand for it, in order of preference.
 
-# BVH namings found in the corpus: cgspeed CMU conversions (MotionBuilder-style names:
-# LowerBack/Spine/Spine1, LeftShoulder = clavicle; 3dsMax-style names: lowerback/Chest/
-# Chest2, LeftCollar = clavicle, LeftShoulder = upper arm), Bandai-Namco (UpperLeg_L...),
-# Xia et al. (deep-motion-editing retarget, MotionBuilder-style) and the PyMO demo. Each
-# canonical joint lists candidates in order of preference; the first present in a
-# skeleton and not yet taken wins. End sites are named ``<parent>_end`` by the BVH reader.
-_BVH_CANDIDATES: dict[str, tuple[str, ...]] = {
-    "root": ("Hips", "hip", "Hip", "pelvis", "Pelvis", "Root", "root"),
-    "lhip": ("LeftUpLeg", "LeftHip", "lThigh", "LeftThigh", "UpperLeg_L", "l_hip"),
-    "lknee": ("LeftLeg", "LeftKnee", "lShin", "LeftShin", "LowerLeg_L", "l_knee"),
-    "lankle": ("LeftFoot", "LeftAnkle", "lFoot", "Foot_L", "l_ankle"),
-    "ltoes": ("LeftToeBase", "LeftToe", "LeftToes", "Toes_L", "Toe_L", "l_toes"),
-    "rhip": ("RightUpLeg", "RightHip", "rThigh", "RightThigh", "UpperLeg_R", "r_hip"),
-    "rknee": ("RightLeg", "RightKnee", "rShin", "RightShin", "LowerLeg_R", "r_knee"),
-    "rankle": ("RightFoot", "RightAnkle", "rFoot", "Foot_R", "r_ankle"),
-    "rtoes": ("RightToeBase", "RightToe", "RightToes", "Toes_R", "Toe_R", "r_toes"),
-    "lowerback": ("LowerBack", "Spine", "Spine0", "abdomen", "Chest0"),
-    "upperback": ("Spine1", "Chest", "chest1", "Spine"),
-    "chest": ("Chest2", "Spine2", "Spine1", "Chest", "chest"),
-    "neck": ("lowerneck", "Neck", "Neck1", "neck"),
-    "head": ("Head", "head"),
-    "headtop": ("Head_end", "head_end", "HeadEnd", "Head_End", "Site_Head"),
-    "lclavicle": ("LeftCollar", "LeftShoulder", "lCollar", "Shoulder_L", "l_clavicle"),
-    "lshoulder": ("LeftArm", "LeftUpArm", "lShldr", "UpperArm_L", "l_shoulder", "LeftShoulder"),
-    "lelbow": ("LeftForeArm", "LeftElbow", "LeftLowArm", "lForeArm", "LowerArm_L", "l_elbow"),
-    "lwrist": ("LeftHand", "LeftWrist", "lHand", "Hand_L", "l_wrist"),
-    "lfingers": ("LeftHandIndex1", "LFingers", "LeftFingerBase", "LeftHand_end", "LeftHandEnd", "Hand_L_end",
-                 "LeftHandFinger1"),
-    "rclavicle": ("RightCollar", "RightShoulder", "rCollar", "Shoulder_R", "r_clavicle"),
-    "rshoulder": ("RightArm", "RightUpArm", "rShldr", "UpperArm_R", "r_shoulder", "RightShoulder"),
-    "relbow": ("RightForeArm", "RightElbow", "RightLowArm", "rForeArm", "LowerArm_R", "r_elbow"),
-    "rwrist": ("RightHand", "RightWrist", "rHand", "Hand_R", "r_wrist"),
-    "rfingers": ("RightHandIndex1", "RFingers", "RightFingerBase", "RightHand_end", "RightHandEnd", "Hand_R_end",
-                 "RightHandFinger1"),
-}
+    Plugins register dialects through the ``register_joint_maps`` hook
+    (:mod:`mocapflow.framework.hookspecs`); readers turn a skeleton's joint names into its
+    canonical map with :func:`canonical_map`, which tries every dialect that applies and
+    keeps the one mapping the most required joints.
 
-# Order in which canonical joints pick their candidates: the trunk top-down (so that
-# chest takes Spine1/Chest2 before upperback falls back to Spine), clavicles before
-# shoulders (3dsMax-style LeftShoulder is the upper arm only when LeftCollar exists).
-_BVH_PICK_ORDER: tuple[str, ...] = (
-    "root", "chest", "upperback", "lowerback", "neck", "head", "headtop",
-    "lhip", "lknee", "lankle", "ltoes", "rhip", "rknee", "rankle", "rtoes",
-    "lclavicle", "lshoulder", "lelbow", "lwrist", "lfingers",
-    "rclavicle", "rshoulder", "relbow", "rwrist", "rfingers",
-)
+    Parameters
+    ----------
+    name : str
+        Unique name of the dialect (``"acclaim"``, ``"bvh_common"``, ``"mixamo"``...).
+    candidates : mapping of str to tuple of str
+        Canonical joint -> source names, preferred first. Canonical joints not listed stay
+        unmapped.
+    formats : tuple of str
+        Registry names of the formats whose skeletons may use it (``("bvh",)``); empty: all.
+    signature : frozenset of str
+        Lower-case joint names that must all be present for the dialect to apply (empty:
+        always applies).
+    pick_order : tuple of str
+        Canonical joints in the order in which they choose (a joint taken by one is not
+        given to another); default: the order of ``candidates``.
+    self_named : bool
+        Also accept the canonical name itself as the last candidate (skeletons already named
+        with the canonical vocabulary).
+    case_sensitive : bool
+        Match names exactly rather than case-insensitively.
+    """
 
+    name: str
+    candidates: Mapping[str, tuple[str, ...]]
+    formats: tuple[str, ...] = ()
+    signature: frozenset[str] = frozenset()
+    pick_order: tuple[str, ...] = ()
+    self_named: bool = False
+    case_sensitive: bool = False
 
-def map_asf(joint_names: list[str] | tuple[str, ...]) -> dict[str, int]:
-    """Canonical map for an Acclaim (CMU/HDM05) skeleton given its joint names."""
-    index = {n: i for i, n in enumerate(joint_names)}
-    return {c: index[s] for c, s in _ASF.items() if s in index}
+    def __post_init__(self) -> None:
+        unknown = sorted(set(self.candidates) - set(CANONICAL_JOINTS))
+        if unknown or not self.name:
+            raise ValueError(f"joint map {self.name!r}: unknown canonical joints {unknown}" if unknown
+                             else "a joint map needs a name")
 
+    def applies(self, joint_names: Sequence[str], fmt: str | None = None) -> bool:
+        """Whether the dialect may map a skeleton of format ``fmt`` with these joint names."""
+        if fmt is not None and self.formats and fmt not in self.formats:
+            return False
+        return self.signature <= {n.lower() for n in joint_names}
 
-def map_bvh(joint_names: list[str] | tuple[str, ...]) -> dict[str, int]:
-    """Canonical map for a BVH skeleton, matching the known namings (case-insensitive)."""
-    index = {n.lower(): i for i, n in enumerate(joint_names)}
-    if {"lfemur", "rfemur", "lhumerus", "rhumerus"} <= index.keys():  # Acclaim names (BVH written from ASF)
-        return map_asf(joint_names)
-    out: dict[str, int] = {}
-    used: set[int] = set()
-    for canon in _BVH_PICK_ORDER:
-        # a skeleton already named with the canonical vocabulary maps to itself
-        for cand in (*_BVH_CANDIDATES[canon], canon):
-            i = index.get(cand.lower())
-            # chest/upperback share candidates: never give one joint two canonical names
-            if i is not None and i not in used:
-                out[canon] = i
-                used.add(i)
-                break
-    return out
+    def apply(self, joint_names: Sequence[str]) -> dict[str, int]:
+        """Canonical joint -> index into ``joint_names`` (joints without a candidate absent)."""
+        key = (lambda s: s) if self.case_sensitive else str.lower
+        index: dict[str, int] = {}
+        for i, n in enumerate(joint_names):
+            index.setdefault(key(n), i)
+        out: dict[str, int] = {}
+        used: set[int] = set()
+        for canon in self.pick_order or tuple(self.candidates):
+            names = (*self.candidates.get(canon, ()), *((canon,) if self.self_named else ()))
+            for cand in names:
+                i = index.get(key(cand))
+                # dialects may list one name for two joints: never give a joint two names
+                if i is not None and i not in used:
+                    out[canon] = i
+                    used.add(i)
+                    break
+        return out
 
 
-def missing_required(canonical: dict[str, int]) -> list[str]:
+_REGISTERED: dict[str, JointMap] = {}
+
+
+def install_joint_maps(maps: Iterable[JointMap]) -> None:
+    """Make dialects known to :func:`canonical_map` in this process (called by
+    :func:`~mocapflow.framework.plugins.build_registries` with every registered map)."""
+    for m in maps:
+        _REGISTERED[m.name] = m
+
+
+def registered_joint_maps() -> tuple[JointMap, ...]:
+    """The dialects registered in this process; loads the installed plugins' registries the
+    first time (so a reader called on its own sees the plugins' dialects too)."""
+    if not _REGISTERED:
+        from .plugins import load_registries
+
+        load_registries()
+    return tuple(_REGISTERED.values())
+
+
+def canonical_map(joint_names: Sequence[str], fmt: str | None = None,
+                  maps: Iterable[JointMap] | None = None) -> dict[str, int]:
+    """Canonical map of a skeleton: canonical joint -> index into ``joint_names``.
+
+    Every dialect that applies (``maps``, default: the registered ones) is tried; the map
+    with the most required joints wins, then one whose signature matched, then the one
+    with the most joints, then the first registered.
+    """
+    best: tuple[tuple[int, int, int, int], dict[str, int]] | None = None
+    for order, m in enumerate(registered_joint_maps() if maps is None else maps):
+        if not m.applies(joint_names, fmt):
+            continue
+        mapped = m.apply(joint_names)
+        score = (len(mapped) - len(missing_required(mapped)), bool(m.signature), len(mapped), -order)
+        if best is None or score > best[0]:
+            best = (score, mapped)
+    return {} if best is None else best[1]
+
+
+def missing_required(canonical: Mapping[str, int]) -> list[str]:
     """Required canonical joints absent from a canonical map."""
     return [j for j in REQUIRED_JOINTS if j not in canonical]

@@ -1,6 +1,10 @@
-"""Normalisation, resampling and body-size measures shared by feature sets and cleaners.
+"""Motion geometry shared by several built-in packages: the facing direction, the root
+frame (root position and heading removed), facing alignment and resampling.
 
-All functions take arrays (never per-frame objects) and broadcast over frames.
+These stay in the core because the similarity, relational, self-similarity and report
+packages all use them; what belongs to one paper lives in that paper's package (Müller's
+body-size measures: :mod:`mocapflow.plugins.relational.body`). All functions take arrays
+(never per-frame objects) and broadcast over frames.
 """
 from __future__ import annotations
 
@@ -9,8 +13,7 @@ import numpy as np
 from . import quaternions as quat
 from .errors import DataError
 from .joints import CANONICAL_JOINTS
-from .motion import Motion, forward_kinematics
-from .skeleton import Skeleton
+from .motion import Motion
 
 UP = np.array([0.0, 1.0, 0.0])
 
@@ -103,34 +106,3 @@ def resample(motion: Motion, fps: float) -> Motion:
     meta.setdefault("source_fps", motion.fps)
     meta.setdefault("source_frames", motion.n_frames)
     return motion.with_arrays(rotations=rot, root_translation=root, local_translations=lt, fps=fps, metadata=meta)
-
-
-def rest_positions(skeleton: Skeleton) -> np.ndarray:
-    """Joint positions of the rest pose (all identity rotations), shape (J, 3), metres."""
-    pos, _ = forward_kinematics(skeleton, np.zeros((1, 3)), quat.identity((1, skeleton.n_joints)))
-    return pos[0]
-
-
-def body_measures(skeleton: Skeleton) -> dict[str, float]:
-    """Body-size measures from the rest pose, metres.
-
-    Returns ``humerus_length`` (mean of left/right shoulder-elbow), ``shoulder_width``
-    (lshoulder-rshoulder), ``hip_width`` (lhip-rhip), ``height`` (headtop or head above
-    the lower ankle), used to make feature thresholds relative to body size.
-    """
-    rest = rest_positions(skeleton)
-    c = skeleton.canonical
-
-    def dist(a: str, b: str) -> float:
-        if a not in c or b not in c:
-            raise DataError(f"skeleton {skeleton.name!r} lacks {a!r} or {b!r} needed for body measures")
-        return float(np.linalg.norm(rest[c[a]] - rest[c[b]]))
-
-    top = c.get("headtop", c.get("head"))
-    feet = min(rest[c["lankle"], 1], rest[c["rankle"], 1]) if "lankle" in c and "rankle" in c else rest[:, 1].min()
-    return {
-        "humerus_length": 0.5 * (dist("lshoulder", "lelbow") + dist("rshoulder", "relbow")),
-        "shoulder_width": dist("lshoulder", "rshoulder"),
-        "hip_width": dist("lhip", "rhip"),
-        "height": float(rest[top, 1] - feet) if top is not None else float("nan"),
-    }

@@ -12,6 +12,7 @@ import pluggy
 
 from . import hookspecs
 from .errors import PluginError
+from .joints import JointMap, install_joint_maps
 from .registry import KINDS, Registries
 
 PROJECT = "mocapflow"
@@ -152,6 +153,8 @@ def build_registries(pm: pluggy.PluginManager, *, strict: bool = False) -> Regis
     results, bad = collect_classes(pm, "register_executors", regs.executors.check)
     pending += [(regs.executors, provider, classes) for provider, classes in results]
     failed.update({p: e for p, e in bad.items() if p not in failed})
+    maps, bad = collect_joint_maps(pm)
+    failed.update({p: e for p, e in bad.items() if p not in failed})
     for plugin, error in failed.items():
         _record_failure(pm, plugin, error)
     if strict and getattr(pm, "failures", None):
@@ -161,7 +164,37 @@ def build_registries(pm: pluggy.PluginManager, *, strict: bool = False) -> Regis
         if provider not in failed:
             for cls in classes:
                 registry.add(cls, provider)
+    for provider, jmaps in maps:
+        if provider not in failed:
+            for m in jmaps:
+                if m.name in regs.joint_maps:
+                    raise PluginError(f"joint map {m.name!r} registered by both {regs.joint_map_providers[m.name]!r} "
+                                      f"and {provider!r}")
+                regs.joint_maps[m.name] = m
+                regs.joint_map_providers[m.name] = provider
+    install_joint_maps(regs.joint_maps.values())
     return regs
+
+
+def collect_joint_maps(pm: pluggy.PluginManager) -> tuple[list[tuple[str, list[Any]]], dict[str, str]]:
+    """Call ``register_joint_maps`` plugin by plugin, as :func:`collect_classes` does for
+    classes: ``(plugin name, maps)`` for plugins that returned a list of
+    :class:`~mocapflow.framework.joints.JointMap`, ``plugin -> what went wrong`` otherwise."""
+    results: list[tuple[str, list[Any]]] = []
+    failed: dict[str, str] = {}
+    for impl in pm.hook.register_joint_maps.get_hookimpls():
+        provider = _provider(pm, impl)
+        try:
+            maps = impl.function()
+            if maps is None:
+                continue
+            if not isinstance(maps, (list, tuple)) or not all(isinstance(m, JointMap) for m in maps):
+                raise PluginError(f"must return a list of JointMap, got {maps!r:.80}")
+        except Exception as exc:
+            failed[provider] = f"failed in register_joint_maps(): {type(exc).__name__}: {exc}"
+        else:
+            results.append((provider, list(maps)))
+    return results, failed
 
 
 def plugin_commands(pm: pluggy.PluginManager) -> list[type]:

@@ -188,14 +188,6 @@ def make_continuous(q: np.ndarray, axis: int = 0) -> np.ndarray:
     return np.moveaxis(q, 0, axis)
 
 
-def yaw_angle(q: np.ndarray, forward: np.ndarray | None = None) -> np.ndarray:
-    """Heading angle (radians) about the vertical +y axis of the rotated ``forward`` vector.
-
-    ``forward`` defaults to +z (the facing direction of CMU/HDM05/BVH rest poses).
-    """
-    f = np.array([0.0, 0.0, 1.0]) if forward is None else np.asarray(forward, dtype=float)
-    v = rotate(q, np.broadcast_to(f, np.shape(q)[:-1] + (3,)))
-    return np.arctan2(v[..., 0], v[..., 2])
 
 
 def mean_of_outer(outer: np.ndarray) -> np.ndarray:
@@ -220,3 +212,38 @@ def chordal_mean(q: np.ndarray) -> np.ndarray:
     """Chordal L2 mean of unit quaternions ``(n, 4)`` -> ``(4,)``."""
     q = np.asarray(q, dtype=float)
     return mean_of_outer(q.T @ q)
+
+
+def euler_extrinsic(angles: np.ndarray, order: str, degrees: bool) -> np.ndarray:
+    """Rotations applied about fixed axes in the listed order (Acclaim ASF/AMC convention).
+
+    ``order="xyz"`` means rotate about x first, then y, then z: ``R = Rz Ry Rx``.
+    Equivalent to :func:`from_euler` with the order and the angles reversed.
+
+    Parameters
+    ----------
+    angles : ndarray of shape (..., len(order))
+    order : str
+        Axis letters in the listed order.
+    degrees : bool
+    """
+    angles = np.asarray(angles, dtype=float)
+    return from_euler(angles[..., ::-1], order[::-1], degrees=degrees)
+
+
+def euler_extrinsic_inverse(q: np.ndarray, order: str, degrees: bool) -> np.ndarray:
+    """Angles ``(..., len(order))`` with ``euler_extrinsic(angles, order) == ±q``.
+
+    ``order`` may list one, two or three distinct axes; rotations about the missing axes
+    must be zero (they are, for rotations read from a file with those channels). The
+    missing axes are put in the middle of the three-axis decomposition, where their zero
+    angle keeps it away from gimbal lock.
+    """
+    order = order.lower()
+    if not order:
+        return np.zeros(np.shape(q)[:-1] + (0,))
+    missing = [a for a in "xyz" if a not in order]
+    full = order[0] + "".join(missing) + order[1:]
+    ang = to_euler(q, full[::-1], degrees=degrees)[..., ::-1]
+    pick = [full.index(a) for a in order]
+    return ang[..., pick]

@@ -78,6 +78,9 @@ class Registries:
     by_kind: dict[str, Registry] = field(default_factory=lambda: {k: Registry(k) for k in KINDS})
     #: Executor classes (``register_executors``) by name; not components, so not in ``by_kind``.
     executors: Registry = field(default_factory=lambda: Registry("executors"))
+    #: Skeleton naming dialects (``register_joint_maps``) by name, and the plugin of each.
+    joint_maps: dict = field(default_factory=dict)
+    joint_map_providers: dict = field(default_factory=dict)
 
     def __getitem__(self, kind: str) -> Registry:
         return self.by_kind[kind]

@@ -2,23 +2,20 @@
 
 Each module listed here is a pluggy plugin using exactly the hooks of
 :mod:`mocapflow.framework.hookspecs`, as a third-party package would.
-To add a built-in, add its module name to this tuple (one line per module).
+Built-ins are packaged by capability (one package per paper, plus formats, executors,
+generic analyses and the report); each package registers its components from its own
+``plugin`` module. To add a built-in package, add its ``plugin`` module here. A package never
+imports another package's modules (``tests/test_package_boundaries.py``): cross-package use
+goes through :mod:`mocapflow.framework` or the registries.
 """
 from __future__ import annotations
 
 BUILTIN_PLUGINS: tuple[str, ...] = (
-    "mocapflow.plugins.executors",
-    "mocapflow.plugins.formats",
-    "mocapflow.plugins.features.relational_plugin",
-    "mocapflow.plugins.indexes.kdtree",
-    "mocapflow.plugins.indexes.sharded",
-    "mocapflow.plugins.features.krueger",
-    "mocapflow.plugins.analyses.correlation",
-    "mocapflow.plugins.analyses.knn_query",
-    "mocapflow.plugins.matchers.matching_plugin",
-    "mocapflow.plugins.formats.steps",
-    "mocapflow.plugins.analyses.summary",
-    "mocapflow.plugins.analyses.krueger_apps_plugin",
-    "mocapflow.plugins.cleaners.plugin",
+    "mocapflow.plugins.executors.plugin",
+    "mocapflow.plugins.formats.plugin",
+    "mocapflow.plugins.similarity.plugin",
+    "mocapflow.plugins.relational.plugin",
+    "mocapflow.plugins.selfsim.plugin",
+    "mocapflow.plugins.analyses.plugin",
     "mocapflow.plugins.report.plugin",
 )

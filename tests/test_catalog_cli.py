@@ -81,7 +81,7 @@ def test_cli_errors_have_no_traceback(tmp_path, capsys):
 def test_cli_plugins_lists_components_and_params(capsys):
     assert main(["--no-entry-points", "plugins"]) == 0
     out = capsys.readouterr().out
-    assert "mocapflow.plugins.formats.steps" in out and "formats.load" in out
+    assert "mocapflow.plugins.formats.plugin" in out and "formats.load" in out
     assert "paths:" in out and "on_error" in out
 
 

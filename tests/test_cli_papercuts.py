@@ -39,7 +39,7 @@ def test_block_of_an_unknown_plugin_warns(capsys):
     assert main(["--block", "mocapflow.plugins.no_such_plugin", "--no-entry-points", "plugins"]) == 0
     err = capsys.readouterr().err
     assert "--block mocapflow.plugins.no_such_plugin: no plugin of that name" in err
-    assert main(["--block", "mocapflow.plugins.indexes.kdtree", "--no-entry-points", "plugins"]) == 0
+    assert main(["--block", "mocapflow.plugins.similarity.plugin", "--no-entry-points", "plugins"]) == 0
     captured = capsys.readouterr()
     assert "warning" not in captured.err and "indexes.kdtree" not in captured.out
 

@@ -9,7 +9,8 @@ from synthetic import humanoid, random_motion
 from mocapflow.framework import DataError, Motion, MotionDatabase, Skeleton
 from mocapflow.framework.motion import forward_kinematics_numpy
 from mocapflow.framework import quaternions as quat
-from mocapflow.framework.normalize import body_measures, facing_angles, resample, rest_positions, to_root_frame
+from mocapflow.framework.normalize import facing_angles, resample, to_root_frame
+from mocapflow.plugins.relational.body import body_measures, rest_positions
 
 ORDERS = ["xyz", "xzy", "yxz", "yzx", "zxy", "zyx"]
 

@@ -12,7 +12,7 @@ distributed = pytest.importorskip("distributed", reason="the dask extra is not i
 
 from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl  # noqa: E402
 from mocapflow.framework.runner import run_pipeline  # noqa: E402
-from mocapflow.plugins.dask_executor import DaskExecutor  # noqa: E402
+from mocapflow.plugins.executors.dask_cluster import DaskExecutor  # noqa: E402
 
 from test_executors import table_bytes, workspace_tables  # noqa: E402
 

@@ -7,7 +7,7 @@ from naive.formats import euler_table_to_quat as naive_euler
 from naive.formats import tokenize as naive_tokenize
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.formats._common import euler_extrinsic, euler_extrinsic_inverse
+from mocapflow.framework.quaternions import euler_extrinsic, euler_extrinsic_inverse
 from mocapflow.plugins.formats._kernels import euler_table_to_quat
 from mocapflow.plugins.formats._text import fnv1a, tokenize
 

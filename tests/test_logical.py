@@ -11,11 +11,11 @@ from test_lng import BruteIndex
 from mocapflow.framework import StepContext, load_registries
 from mocapflow.framework.datasets import MANIFEST, Dataset, feature_table, frame_id_table
 from mocapflow.framework.errors import ConfigError
-from mocapflow.plugins.matchers.lng import LazyNeighborhoodGraph
-from mocapflow.plugins.matchers.logical import LogicalSearch, logical_search
-from mocapflow.plugins.matchers.matches import MATCH_COLUMNS, SearchSpace
-from mocapflow.plugins.matchers.queries import parse_query_spec
-from mocapflow.plugins.matchers.sdtw import SubsequenceDTW
+from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
+from mocapflow.plugins.similarity.logical import LogicalSearch, logical_search
+from mocapflow.plugins.similarity.matches import MATCH_COLUMNS, SearchSpace
+from mocapflow.plugins.similarity.queries import parse_query_spec
+from mocapflow.plugins.similarity.sdtw import SubsequenceDTW
 
 
 class SavedBrute(BruteIndex):
@@ -207,16 +207,22 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     exact_out = capsys.readouterr().out.splitlines()[2:]
     assert main(args + ["--matcher", "sdtw"]) == 0
     assert capsys.readouterr().out.splitlines()[2:] == exact_out and len(exact_out) == 4
+    assert main(args) == 0  # lng's default is the certified search: sdtw's answer too
+    assert capsys.readouterr().out.splitlines()[2:] == exact_out
+    assert main(args + ["--no-exact"]) == 0  # the graph answers (same best match here)
+    graph_out = capsys.readouterr().out.splitlines()[2:]
+    assert len(graph_out) == 4 and graph_out[0] == exact_out[0]
     assert out.is_file() and len(out.read_text().splitlines()) == 5 and not list(out.parent.glob(".m.csv*"))
     assert main(args + ["--min-span", "1.0", "--gaps", "0", "--rank-by", "normalized", "--out", str(out.with_suffix(".parquet"))]) == 0
     import pyarrow.parquet as pq
 
     t = pq.read_table(out.with_suffix(".parquet"))
     assert all(e - s >= 40 for s, e in zip(t["start_frame"].to_pylist(), t["end_frame"].to_pylist()))
-    # the global --block reaches the command: without the kd-tree plugin there is no usable index
-    assert main(["--no-entry-points", "--block", "mocapflow.plugins.indexes.kdtree", "search", "--db", str(ws),
-                 "--query", "02_01:0-40"]) == 2
-    assert "no index step" in capsys.readouterr().err
+    # the global --block reaches the commands: blocking the similarity package removes `search`
+    with pytest.raises(SystemExit) as exit_:
+        main(["--no-entry-points", "--block", "mocapflow.plugins.similarity.plugin", "search", "--db", str(ws),
+              "--query", "02_01:0-40"])
+    assert exit_.value.code == 2 and "invalid choice: 'search'" in capsys.readouterr().err
     assert main(["--no-entry-points", "search", "--db", str(tmp_path / "missing"), "--query", "02_01:0-40"]) == 2
     assert "does not exist" in capsys.readouterr().err
 

@@ -10,10 +10,10 @@ from naive.cleaning import synthetic_walk
 from naive.cleaning_cues import naive_acceleration, naive_mirror_gain, naive_window_min, naive_word_joint
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.analyses.error_injection import inject_at_density
-from mocapflow.plugins.cleaners import cues
-from mocapflow.plugins.cleaners.calibration import fit_levels, word_joint
-from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams
+from mocapflow.plugins.selfsim.error_injection import inject_at_density
+from mocapflow.plugins.selfsim import cues
+from mocapflow.plugins.selfsim.calibration import fit_levels, word_joint
+from mocapflow.plugins.selfsim.mdm import MDMCleaner, MDMParams
 
 
 def _rand_quats(rng, shape):
@@ -53,7 +53,7 @@ def test_mirror_gain_sees_a_swap_only_where_it_is():
 
 
 def test_swap_back_needs_a_swap_and_undoes_it():
-    from mocapflow.plugins.cleaners.bounded_repair import swap_frames
+    from mocapflow.plugins.selfsim.bounded_repair import swap_frames
 
     walk = synthetic_walk(120, seed=2)
     names = [None] * walk.n_joints
@@ -200,14 +200,14 @@ def test_clean_honours_block(tmp_path, capsys):
     take = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu" / "16" / "16_15.amc"
     if not take.is_file():
         pytest.skip("bundled example data missing")
-    code = main(["--block", "mocapflow.plugins.formats", "clean", str(take), "--output", str(tmp_path / "c.bvh")])
+    code = main(["--block", "mocapflow.plugins.formats.plugin", "clean", str(take), "--output", str(tmp_path / "c.bvh")])
     assert code == 2 and "no registered reader" in capsys.readouterr().err
 
 
 def test_clean_uses_the_plugin_manager_the_cli_built():
     import argparse
 
-    from mocapflow.plugins.cleaners.plugin import _plugin_manager
+    from mocapflow.plugins.selfsim.clean_command import _plugin_manager
 
     sentinel = object()
     assert _plugin_manager(argparse.Namespace(plugin_manager=sentinel)) is sentinel
@@ -221,7 +221,7 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     from types import SimpleNamespace
 
     from mocapflow.framework.database import MotionDatabase
-    from mocapflow.plugins.cleaners.plugin import run_cleaner
+    from mocapflow.plugins.selfsim.clean_command import run_cleaner
 
     db = MotionDatabase([synthetic_walk(120, seed=9, name="w")])
     inputs = {"motions": SimpleNamespace(motions=lambda: db)}

@@ -9,8 +9,8 @@ from mocapflow.framework import quaternions as quat
 from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.normalize import resample
-from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams, context_motions, digression_map
-from mocapflow.plugins.cleaners.repair import Contact, repair_motion, repair_texture, sparse_reconstruction
+from mocapflow.plugins.selfsim.mdm import MDMCleaner, MDMParams, context_motions, digression_map
+from mocapflow.plugins.selfsim.repair import Contact, repair_motion, repair_texture, sparse_reconstruction
 
 
 def _with_offset(motion, joint="lelbow", start=200, stop=206, angle=1.2):
@@ -137,7 +137,7 @@ def test_sparse_reconstruction_from_nine_joints():
 
 def test_heatmap_png(tmp_path, corrupted):
     pytest.importorskip("matplotlib")
-    from mocapflow.plugins.cleaners.plots import mdm_heatmap
+    from mocapflow.plugins.selfsim.plots import mdm_heatmap
 
     _, _, _, res = corrupted
     path = mdm_heatmap(res.mdm, res.joints, tmp_path / "m.png", title="test")

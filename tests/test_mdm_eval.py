@@ -8,9 +8,9 @@ import pytest
 from naive.cleaning import synthetic_walk
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.analyses.clean_eval import (CleaningEvaluationParams, RotationBaselines, evaluate_category,
+from mocapflow.plugins.selfsim.clean_eval import (CleaningEvaluationParams, RotationBaselines, evaluate_category,
                                                    repair_errors, rotation_vectors, scores)
-from mocapflow.plugins.analyses.error_injection import ERROR_KINDS, apply_error, inject_errors, mirror
+from mocapflow.plugins.selfsim.error_injection import ERROR_KINDS, apply_error, inject_errors, mirror
 
 REPO = Path(__file__).resolve().parent.parent
 

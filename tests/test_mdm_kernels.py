@@ -6,9 +6,9 @@ import pytest
 from naive.cleaning import naive_cdtw, naive_distance_function, naive_knn, naive_pose_distance, synthetic_walk
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.cleaners import _mdm_kernels as kern
-from mocapflow.plugins.cleaners.knn import ContextTextures, knn_search
-from mocapflow.plugins.cleaners.motion_words import (DEFAULT_GROUPS, JointGroups, motion_texture, pose_distance,
+from mocapflow.plugins.selfsim import _mdm_kernels as kern
+from mocapflow.plugins.selfsim.knn import ContextTextures, knn_search
+from mocapflow.plugins.selfsim.motion_words import (DEFAULT_GROUPS, JointGroups, motion_texture, pose_distance,
                                                      resolve_groups, source_word_starts, target_word_layout)
 
 

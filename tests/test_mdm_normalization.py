@@ -7,7 +7,7 @@ from naive.cleaning import synthetic_walk
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.cleaners.mdm import MDMParams, digression_from_outer, digression_map, knn_spread, row_scale
+from mocapflow.plugins.selfsim.mdm import MDMParams, digression_from_outer, digression_map, knn_spread, row_scale
 
 
 def _random_quats(rng, n, spread):

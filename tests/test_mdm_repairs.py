@@ -7,9 +7,9 @@ from naive.cleaning import synthetic_walk
 from naive.cleaning_repairs import naive_edge_benefit, naive_forward_offset
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.cleaners import cues
-from mocapflow.plugins.cleaners.offsets import _forward_offsets, offset_interval, remove_offset
-from mocapflow.plugins.cleaners.swaps import edge_benefit, swap_edges
+from mocapflow.plugins.selfsim import cues
+from mocapflow.plugins.selfsim.offsets import _forward_offsets, offset_interval, remove_offset
+from mocapflow.plugins.selfsim.swaps import edge_benefit, swap_edges
 
 
 def _walk():
@@ -66,8 +66,8 @@ def test_offset_interval_recovers_a_partly_flagged_offset():
 
 
 def test_cleaner_repairs_a_swap_found_by_its_edges_alone():
-    from mocapflow.plugins.cleaners.decision import clean_motion
-    from mocapflow.plugins.cleaners.mdm import MDMCleaner, MDMParams
+    from mocapflow.plugins.selfsim.decision import clean_motion
+    from mocapflow.plugins.selfsim.mdm import MDMCleaner, MDMParams
 
     walk = synthetic_walk(200, seed=4)
     ctx = [synthetic_walk(200, seed=s, name=f"c{s}") for s in (5, 6)]
@@ -88,7 +88,7 @@ def test_cleaner_repairs_a_swap_found_by_its_edges_alone():
 
 
 def test_source_glitches_marks_a_flip_not_a_raised_arm():
-    from mocapflow.plugins.analyses.clean_eval import source_glitches
+    from mocapflow.plugins.selfsim.clean_eval import source_glitches
 
     q, names, c = _walk()
     tex = q.copy()
@@ -107,8 +107,8 @@ def test_source_glitches_marks_a_flip_not_a_raised_arm():
 
 
 def test_digression_only_runs_need_another_cue():
-    from mocapflow.plugins.cleaners.cues import CUES
-    from mocapflow.plugins.cleaners.decision import _agreeing
+    from mocapflow.plugins.selfsim.cues import CUES
+    from mocapflow.plugins.selfsim.decision import _agreeing
 
     flags = np.zeros((20, 2), bool)
     flags[3:6, 0] = flags[10:13, 0] = flags[3:6, 1] = True

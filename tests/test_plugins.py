@@ -43,7 +43,7 @@ def test_duplicate_names_both_providers():
     pm.register(DupPlugin(), name="dup-plugin")
     with pytest.raises(PluginError) as err:
         build_registries(pm)
-    assert "dup-plugin" in str(err.value) and "mocapflow.plugins.analyses.summary" in str(err.value)
+    assert "dup-plugin" in str(err.value) and "mocapflow.plugins.analyses.plugin" in str(err.value)
 
 
 def test_plugin_raising_in_hook_is_named_skipped_and_the_rest_goes_on(caplog):
@@ -142,7 +142,7 @@ def test_fresh_managers_do_not_share_state():
 
 
 def test_blocked_builtin_is_not_loaded():
-    pm = get_plugin_manager(entry_points=False, blocked=["mocapflow.plugins.analyses.summary"])
+    pm = get_plugin_manager(entry_points=False, blocked=["mocapflow.plugins.analyses.plugin"])
     assert "clip_summary" not in build_registries(pm)["analyses"]
 
 

@@ -8,7 +8,7 @@ from mocapflow.framework import FeatureSet, Motion, MotionDatabase
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.testing import synthetic_skeleton
-from mocapflow.plugins.analyses.reconstruct import (
+from mocapflow.plugins.similarity.reconstruct import (
     PosePrior, PriorDatabase, ReconstructParams, joint_errors, local_poses, positions_to_motion,
     reconstruct_motion, reconstruct_positions, synthetic_markers,
 )

@@ -11,9 +11,9 @@ from naive.relational import motion_from_positions, pose_array
 
 from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import ConfigError
-from mocapflow.framework.normalize import body_measures
-from mocapflow.plugins.features import relational_primitives as prim
-from mocapflow.plugins.features.relational import (FEATURE_IDS, FEATURES, RelationalFeatures, feature_column,
+from mocapflow.plugins.relational.body import body_measures
+from mocapflow.plugins.relational import primitives as prim
+from mocapflow.plugins.relational.features import (FEATURE_IDS, FEATURES, RelationalFeatures, feature_column,
                                                    feature_values, relational_features, set_codes)
 
 RNG = np.random.default_rng(7)

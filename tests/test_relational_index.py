@@ -6,9 +6,9 @@ import pytest
 from naive import relational as naive
 
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.features.segmentation import offsets_from_clip_ids, pack_codes, segment, segment_codes
-from mocapflow.plugins.indexes.inverted import InvertedIndex, SetIndex
-from mocapflow.plugins.matchers.relational import coarsen_fuzzy, search_set
+from mocapflow.plugins.relational.segmentation import offsets_from_clip_ids, pack_codes, segment, segment_codes
+from mocapflow.plugins.relational.inverted import InvertedIndex, SetIndex
+from mocapflow.plugins.relational.matcher import coarsen_fuzzy, search_set
 
 RNG = np.random.default_rng(3)
 
@@ -104,7 +104,7 @@ def test_hits_match_naive_on_random_indexes(seed):
         coarse = coarsen_fuzzy(member)
         csets = [set(np.flatnonzero(r)) for r in coarse]
         assert [tuple(b) for b in idx.adaptive(coarse).tolist()] == naive.adaptive_hits(w, clip, csets)
-        from mocapflow.plugins.matchers._relational_kernels import mismatch_scan
+        from mocapflow.plugins.relational._match_kernels import mismatch_scan
 
         allowed = RNG.random(length) < 0.7
         for m in (0, 1, 2):

@@ -9,11 +9,11 @@ from conftest import corpus_path
 from naive import relational as naive
 
 from mocapflow.framework.errors import ConfigError
-from mocapflow.plugins.features.relational import FEATURE_IDS, feature_column
-from mocapflow.plugins.features.segmentation import pack_codes, segment_codes
-from mocapflow.plugins.indexes.inverted import InvertedIndex
-from mocapflow.plugins.matchers._relational_kernels import banded_dtw
-from mocapflow.plugins.matchers.relational import combine, dtw_band, example_query, scene_query
+from mocapflow.plugins.relational.features import FEATURE_IDS, feature_column
+from mocapflow.plugins.relational.segmentation import pack_codes, segment_codes
+from mocapflow.plugins.relational.inverted import InvertedIndex
+from mocapflow.plugins.relational._match_kernels import banded_dtw
+from mocapflow.plugins.relational.matcher import combine, dtw_band, example_query, scene_query
 
 RNG = np.random.default_rng(11)
 

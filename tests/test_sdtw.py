@@ -6,8 +6,8 @@ import pytest
 from naive.dtw import continues_of, naive_path, naive_subsequence_dtw
 
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.matchers.matches import SearchSpace, select_matches
-from mocapflow.plugins.matchers.sdtw import sdtw_costs, subsequence_dtw
+from mocapflow.plugins.similarity.matches import SearchSpace, select_matches
+from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw
 
 
 def make_db(lengths, dim=3, seed=0, walk=True):

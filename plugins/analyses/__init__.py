@@ -1,1 +1,1 @@
-"""Built-in analyses plugins."""
+"""Generic analyses of a motions dataset. :mod:`.plugin` registers them."""

@@ -23,7 +23,6 @@ from mocapflow.framework import Analysis, Motion, StepContext, StepOutput
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.joints import CANONICAL_JOINTS
-from mocapflow.framework.plugins import hookimpl
 
 
 def joint_range_of_motion(motion: Motion) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -74,8 +73,3 @@ class ClipSummary(Analysis):
         rom_t = pa.Table.from_pylist(rom_rows, schema=pa.schema([
             ("clip_id", pa.int32()), ("joint", pa.string()), ("rom_deg", pa.float64()), ("mean_deg", pa.float64())]))
         return StepOutput({"data": data, "joint_rom": rom_t}, {"clips": len(rows)})
-
-
-@hookimpl
-def register_analyses() -> list[type]:
-    return [ClipSummary]

@@ -9,7 +9,7 @@ from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
 
-from ._common import euler_extrinsic_inverse
+from mocapflow.framework.quaternions import euler_extrinsic_inverse
 
 
 class NotAnAsfSkeleton(DataError, NotImplementedError):

@@ -28,10 +28,11 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import ParseError
-from mocapflow.framework.joints import map_asf
+from mocapflow.framework.joints import canonical_map
+from mocapflow.framework.quaternions import euler_extrinsic
 from mocapflow.framework.skeleton import Skeleton
 
-from ._common import MAX_DEGREES, MAX_METRES, check_text, euler_extrinsic, read_bytes, split_ascii, strict_float, text_body
+from ._common import MAX_DEGREES, MAX_METRES, check_text, read_bytes, split_ascii, strict_float, text_body
 
 _ROOT_CHANNELS = {"TX", "TY", "TZ", "RX", "RY", "RZ"}
 _DOFS = {"rx", "ry", "rz"}
@@ -280,7 +281,7 @@ def build_skeleton(asf: dict[str, Any]) -> Skeleton:
     meta["length_scale"] = scale
     return Skeleton(
         names=tuple(names), parents=np.array(parents), offsets=np.array(offsets),
-        canonical=map_asf(names), rotation_orders=tuple(orders), axes=np.array(axes),
+        canonical=canonical_map(names, "amc"), rotation_orders=tuple(orders), axes=np.array(axes),
         channels=tuple(channels), name=asf["name"], meta=meta,
     )
 

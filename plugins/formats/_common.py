@@ -31,7 +31,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import ParseError
 
 
@@ -132,36 +131,3 @@ def file_metadata(path: str | Path, data: bytes, fmt: str) -> dict:
     return {"path": str(path), "format": fmt, "checksum": hashlib.sha1(data).hexdigest()}
 
 
-def euler_extrinsic(angles: np.ndarray, order: str, degrees: bool) -> np.ndarray:
-    """Rotations applied about fixed axes in the listed order (Acclaim ASF/AMC convention).
-
-    ``order="xyz"`` means rotate about x first, then y, then z: ``R = Rz Ry Rx``.
-    Equivalent to :func:`quaternions.from_euler` with the order and the angles reversed.
-
-    Parameters
-    ----------
-    angles : ndarray of shape (..., len(order))
-    order : str
-        Axis letters in the listed order.
-    degrees : bool
-    """
-    angles = np.asarray(angles, dtype=float)
-    return quat.from_euler(angles[..., ::-1], order[::-1], degrees=degrees)
-
-
-def euler_extrinsic_inverse(q: np.ndarray, order: str, degrees: bool) -> np.ndarray:
-    """Angles ``(..., len(order))`` with ``euler_extrinsic(angles, order) == ±q``.
-
-    ``order`` may list one, two or three distinct axes; rotations about the missing axes
-    must be zero (they are, for rotations read from a file with those channels). The
-    missing axes are put in the middle of the three-axis decomposition, where their zero
-    angle keeps it away from gimbal lock.
-    """
-    order = order.lower()
-    if not order:
-        return np.zeros(np.shape(q)[:-1] + (0,))
-    missing = [a for a in "xyz" if a not in order]
-    full = order[0] + "".join(missing) + order[1:]
-    ang = quat.to_euler(q, full[::-1], degrees=degrees)[..., ::-1]
-    pick = [full.index(a) for a in order]
-    return ang[..., pick]

@@ -35,7 +35,7 @@ from pydantic import Field
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import DataError, ParseError
-from mocapflow.framework.joints import map_bvh
+from mocapflow.framework.joints import canonical_map
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
@@ -321,7 +321,7 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
         for j, v in moving.items():
             local_t[:, j] = v * scl
     skeleton = Skeleton(
-        names=names, parents=parents, offsets=offsets * scl, canonical=map_bvh(names),
+        names=names, parents=parents, offsets=offsets * scl, canonical=canonical_map(names, "bvh"),
         rotation_orders=tuple("".join(ch[0].lower() for ch in c if ch[1:].lower() == "rotation") for c in chans),
         axes=None, channels=tuple(chans), name=path.stem,
         meta={"format": "bvh", "scale": scl, "unit": unit},

@@ -22,7 +22,6 @@ from mocapflow.framework.errors import MocapflowError, PipelineError
 from mocapflow.framework.joints import missing_required
 from mocapflow.framework.motion_tables import motions_to_tables
 from mocapflow.framework.normalize import resample
-from mocapflow.framework.plugins import hookimpl
 
 
 def _expand(patterns: list[str], base: Path, exclude: list[str]) -> list[Path]:
@@ -46,7 +45,7 @@ def _prepare_motion(motion: Motion, path: str, fps: float | None) -> Motion | tu
     """Check the canonical joints, complete the metadata and resample one read motion."""
     missing = missing_required(motion.skeleton.canonical)
     if missing:
-        return (path, None, f"skeleton lacks required joints {', '.join(missing)} (extend framework/joints.py maps)")
+        return (path, None, f"skeleton lacks required joints {', '.join(missing)} (add its naming dialect from a plugin: the register_joint_maps hook)")
     if "checksum" not in motion.metadata:
         motion.metadata["checksum"] = hashlib.sha1(Path(path).read_bytes()).hexdigest()
     motion.metadata.setdefault("path", path)
@@ -220,11 +219,4 @@ class ExportMotions(Format):
             rows.append({"clip_id": int(cid), "name": m.name, "file": out.name})
         table = pa.Table.from_pylist(rows, schema=pa.schema([("clip_id", pa.int32()), ("name", pa.string()), ("file", pa.string())]))
         return StepOutput({"data": table}, {"files": len(rows), "format": self.params.format})
-
-
-@hookimpl
-def register_formats() -> list[type]:
-    return [LoadMotions, LoadMarkers, ExportMotions]
-
-
 __all__ = ["ExportMotions", "LoadMarkers", "LoadMotions"]

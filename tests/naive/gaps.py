@@ -1,4 +1,4 @@
-"""Naive reference of the gap-tolerant lazy neighborhood graph (``plugins/matchers/_gap_kernels.py``).
+"""Naive reference of the gap-tolerant lazy neighborhood graph (``plugins/similarity/_gap_kernels.py``).
 
 The node set spelled out from its definition: row ``h`` is a node of layer ``i`` when it is
 a neighbour of query frame ``i`` (depth 0), or when a node ``(i-1, g)`` of forward depth

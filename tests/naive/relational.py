@@ -1,9 +1,9 @@
 """Slow, obviously correct references for the relational-retrieval kernels (Müller et al. 2005).
 
-NumPy / pure-Python twins of ``plugins/features/_relational_kernels.py`` (geometric
-primitives, the one-pass feature program), ``plugins/features/segmentation.py``,
-the inverted-list hits of ``plugins/indexes/inverted.py`` and the kernels of
-``plugins/matchers/_relational_kernels.py`` (m-mismatch scan, banded DTW).
+NumPy / pure-Python twins of ``plugins/relational/_feature_kernels.py`` (geometric
+primitives, the one-pass feature program), ``plugins/relational/segmentation.py``,
+the inverted-list hits of ``plugins/relational/inverted.py`` and the kernels of
+``plugins/relational/_match_kernels.py`` (m-mismatch scan, banded DTW).
 """
 from __future__ import annotations
 

@@ -1,0 +1,26 @@
+"""Registration of the built-in file formats (the ``formats`` package): readers and writers
+``amc`` (Acclaim ASF/AMC), ``bvh``, ``c3d`` and ``trc`` (markers), and the ingest steps that
+use them (``formats.load``, ``formats.load_markers``, ``formats.export``), and the skeleton
+naming dialects of :mod:`.joint_maps`.
+numba kernels are imported only when a file is read."""
+from __future__ import annotations
+
+from mocapflow.framework.plugins import hookimpl
+
+
+@hookimpl
+def register_formats() -> list[type]:
+    from .asf_amc import AmcFormat
+    from .bvh import BvhFormat
+    from .c3d import C3dFormat
+    from .steps import ExportMotions, LoadMarkers, LoadMotions
+    from .trc import TrcFormat
+
+    return [AmcFormat, BvhFormat, C3dFormat, TrcFormat, LoadMotions, LoadMarkers, ExportMotions]
+
+
+@hookimpl
+def register_joint_maps() -> list:
+    from .joint_maps import JOINT_MAPS
+
+    return list(JOINT_MAPS)

@@ -1,0 +1,2 @@
+"""Self-similarity cleaning after Aristidou et al. 2018: motion words, digression maps,
+the MDM cleaner and its evaluation protocol. :mod:`.plugin` registers them."""

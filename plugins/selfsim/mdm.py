@@ -1,0 +1,433 @@
+"""The movement digression map (MDM) cleaner of Aristidou et al. 2018 (``cleaners.mdm``).
+
+Pipeline of one clip (paper section in brackets):
+
+1. resample to 24 fps, drop the root translation, align the facing direction, take the
+   texture of the 24 most informative joints (§3.1, §5 Implementation);
+2. source words of 15 frames every 5 frames, target words of 20 frames at every context
+   frame, compared per joint group by constrained DTW over eq. 1 (§3.2, Appendix);
+3. KNN = the K = 5 smallest local minima of each word's distance function, away from the
+   word itself (§3.3), found exactly by :mod:`.knn`;
+4. mean-motion-texture T̄ (chordal quaternion mean of every KNN word covering a cell),
+   ``M = |T - T̄|`` as a geodesic angle, each joint's row divided by a scale, and
+   ``MDM = 1 - exp(-M^2)`` (§3.4);
+5. cells above 0.5 repaired from the median KNN word, blended by a quadratic
+   Savitzky-Golay filter (§4, :mod:`.repair`).
+
+Row normalisation. §3.4 divides "each row of the resulting map M by the mean of that
+row"; that is ``normalization="mean"`` (the mean floored at ``mean_floor`` = 0.01 rad so
+that numerically-zero rows, e.g. a joint the capture never rotates, are not scaled up to 1
+everywhere). Read literally it flags every cell whose difference exceeds 0.83 times its
+joint's mean difference, whatever the joint's noise: on clean CMU takes 30-45 % of the
+cells far from any error exceed 0.5 (measured), cell precision ~0.03 (docs/cleaning.md).
+The default is therefore ``"median"``: the row is divided by ``robust_factor`` (2.5) times
+its *median*, a robust estimate of how far a clean cell of that joint typically is from
+its KNN mean (errors are a few percent of a row and cannot move the median, while they
+inflate the mean), so a cell is flagged when it digresses more than ~2 times its joint's
+typical digression. Same analysis, same KNN, only the scale differs; on the evaluation
+harness cell precision rises 2-3x on locomotion and dance at a lower recall. ``"spread"``
+divides each cell by ``spread_factor`` times the scatter of the KNN samples about T̄ at that
+cell (:func:`knn_spread`; where the neighbours disagree, a digression means less): the
+most precise on locomotion, but it misses most errors in dance, whose neighbours scatter
+widely. ``"texture"`` divides by the joint's mean rotation angle in T (floored at
+``min_scale``); ``"none"`` keeps radians.
+
+Modes. ``mode="paper"`` is the paper literally (with ``normalization="mean"``, the
+default): cells whose MDM exceeds 0.5 are repaired from the median KNN word and blended
+by Savitzky-Golay (:mod:`.repair`). ``mode="calibrated"`` (the default, issue 14) keeps
+the same analysis but decides with a detector fitted on the user's clean context
+(:mod:`.calibration`: self-supervised, per-joint nulls, cues of :mod:`.cues`, a target
+``false_alarm`` rate) and repairs with bounds (:mod:`.bounded_repair`), so an uncorrupted
+take is left essentially untouched. Its map value is ``1 - 2^(-e^2)`` of the cell's
+evidence ``e`` (0.5 where ``e`` = 1, the decision level).
+
+Contexts (§3.1, §5): ``None`` (the clip itself), a Motion, a list of Motions or a
+:class:`~mocapflow.framework.database.MotionDatabase`; the clip is added to its context
+unless ``include_self`` is off. ``two_stage`` runs the §5 scheme: the stage-1 groups
+against the clip alone, then the other groups against the whole context only around
+distinct stage-1 words.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import Field
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.components import Cleaner, Params
+from mocapflow.framework.database import MotionDatabase
+from mocapflow.framework.errors import ConfigError, DataError
+from mocapflow.framework.motion import Motion
+
+from .knn import ContextTextures, WordNeighbours, knn_search
+
+if TYPE_CHECKING:
+    from .decision import CleanResult
+from .motion_words import (DEFAULT_GROUPS, DEFAULT_JOINTS, Texture, motion_texture, resolve_groups,
+                           source_word_starts)
+
+
+class JointGroup(Params):
+    """A joint group of motion-words."""
+
+    name: str = Field(description="group name (whole, upper, lower, left, right...)")
+    joints: tuple[str, ...] = Field(default=(), description="canonical joints; empty = every texture joint")
+    drop: int = Field(default=1, ge=0, description="largest joint distances left out of eq. 1")
+
+
+def _default_groups() -> tuple[JointGroup, ...]:
+    return tuple(JointGroup(name=n, joints=j, drop=d) for n, j, d in DEFAULT_GROUPS)
+
+
+class MDMParams(Params):
+    """Parameters of the MDM cleaner; the analysis defaults are the paper's values, the
+    decision (``mode``) defaults to the calibrated detector."""
+
+    mode: Literal["calibrated", "paper"] = Field(
+        default="calibrated",
+        description="'calibrated': detector fitted on the clean context (self-supervised, target false_alarm) and "
+                    "bounded repair; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)")
+    false_alarm: float = Field(default=0.004, gt=0, lt=1, description="calibrated: share of clean (word, joint) "
+                               "pairs of the calibration clips the detector may flag")
+    null_quantile: float = Field(default=0.99, gt=0.5, lt=1, description="calibrated: quantile of a cue over a "
+                                 "joint's clean calibration cells taken as its null level")
+    calibration_frames: int = Field(default=600, ge=15, description="calibrated: frames (at fps) of context clips "
+                                    "analysed with synthetic errors (the longest first; the take itself without context)")
+    calibration_density: float = Field(default=0.2, gt=0, lt=1, description="calibrated: share of calibration "
+                                       "words given a synthetic error")
+    calibration_seed: int = Field(default=0, description="calibrated: seed of the synthetic errors")
+    cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range"], ...] = Field(
+        default=("digression", "acceleration", "mirror", "freeze"),
+        description="calibrated: cues the detector may use (range = baseline (a), off by default)")
+    max_edit: float = Field(default=30.0, gt=0, le=180, description="calibrated: largest edit, degrees, of a cell "
+                            "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
+    swap_gain: float = Field(default=0.1, ge=0, description="calibrated: least chain mirror gain (radians over the "
+                             "chain pair) for swapping limbs back")
+    swap_level: float | None = Field(default=3.0, gt=0, description="calibrated: least edge benefit (units of the "
+                                     "chains' typical acceleration) at both ends of a swap found by its edges "
+                                     "(cleaners/swaps.py); None = only the mirror cue's swaps")
+    offset_level: float | None = Field(default=6.0, gt=0, description="calibrated: flagged runs whose ends are "
+                                       "two consistent jumps of at least this many typical accelerations of the joint "
+                                       "(and 8 degrees) are repaired by taking the offset out (cleaners/offsets.py); "
+                                       "None = always the KNN word")
+    flag_rule: Literal["evidence", "repaired"] = Field(
+        default="repaired", description="calibrated: cells reported flagged: every cell whose evidence exceeds its level "
+        "('evidence'), or only those the bounded repair changed ('repaired'; swaps and offsets always)")
+    interp_max: int = Field(default=0, ge=0, description="calibrated: runs of up to this many frames flagged by the "
+                            "acceleration cue (and no offset) are interpolated between their neighbours instead of "
+                            "taking the KNN word; 0 = off")
+    merge_gap: int = Field(default=3, ge=0, description="calibrated: flagged runs of one joint at most this many "
+                           "frames apart are repaired as one (the gap included); 0 = off")
+    agree: float | None = Field(default=0.3, gt=0, description="calibrated: runs flagged by the digression alone "
+                                "are kept only where the acceleration or freeze evidence exceeds this somewhere in "
+                                "the run (+-1 frame); None = off")
+    swap_max: int = Field(default=72, ge=2, description="calibrated: longest swap found by its edges, frames at fps")
+    mirror_swaps: bool = Field(default=True, description="calibrated: also swap back the runs the mirror cue flags "
+                               "where no edge swap overlaps")
+
+    fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
+    joints: tuple[str, ...] = Field(default=DEFAULT_JOINTS, description="texture joints (canonical names; absent ones are skipped)")
+    groups: tuple[JointGroup, ...] = Field(default_factory=_default_groups, description="joint groups of the motion-words")
+    source_length: int = Field(default=15, ge=2, description="source word length N, frames")
+    source_step: int = Field(default=5, ge=1, description="frames between source words")
+    target_length: int = Field(default=20, ge=2, description="target word length M, frames")
+    k: int = Field(default=5, ge=1, description="nearest neighbours per word")
+    slope_run: int = Field(default=2, ge=1, description="DTW slope constraint: most consecutive steps in one direction")
+    exclusion: int | None = Field(default=None, ge=0, description="minima this close to the source word are discarded (frames; None = N/2)")
+    threshold: float = Field(default=0.5, ge=0, le=1, description="MDM value above which a cell is erroneous (§4)")
+    normalization: Literal["mean", "texture", "median", "spread", "none"] = Field(
+        default="mean",
+        description="scale M = |T - T̄| is divided by (§3.4): 'mean' = the mean of M's row (the paper), 'texture' = "
+                    "the joint's mean rotation angle in T, 'median' = robust_factor x the median of M's row, 'spread' "
+                    "= spread_factor x the scatter of the KNN samples about T̄ at that cell (see module doc), 'none'")
+    min_scale: float = Field(default=0.1, gt=0, description="floor of the 'texture' row scale, radians (joints that hardly rotate)")
+    mean_floor: float = Field(default=0.01, ge=0, description="floor of the 'mean' row scale, radians: a joint whose "
+                              "difference is numerically zero everywhere is not blown up to 1")
+    robust_factor: float = Field(default=2.5, gt=0, description="'median': the row median is multiplied by this "
+                                 "(a cell is flagged above 0.83 x this x its joint's median difference)")
+    spread_factor: float = Field(default=3.0, gt=0, description="'spread': the KNN scatter is multiplied by this "
+                                 "(a cell is flagged above 0.83 x this x the scatter of its neighbours)")
+    noise_floor: float = Field(default=0.035, ge=0, description="'median'/'spread': floor of the noise scale, radians "
+                               "(2 degrees; cells whose neighbours agree exactly, joints that never rotate)")
+    include_self: bool = Field(default=True, description="search the clip itself as part of its context")
+    two_stage: bool = Field(default=False, description="§5: local search first, larger context only around distinct words")
+    stage1_groups: tuple[str, ...] = Field(default=("whole",), description="groups of the local first stage")
+    knn_method: Literal["pruned", "brute"] = Field(default="pruned", description="exact KNN search: pruned (fast) or brute force")
+    warp: Literal["polyphase", "path"] = Field(default="polyphase", description="neighbour to source length: polyphase "
+                                               "resampling of the warped target (§3.2) or per-frame mean along the path")
+    savgol_window: int = Field(default=7, ge=3, description="Savitzky-Golay window of the repair blending, frames at fps")
+    savgol_order: int = Field(default=2, ge=1, description="Savitzky-Golay polynomial order (quadratic)")
+    write_bvh: bool = Field(default=True, description="write each cleaned clip as BVH into the step folder")
+    heatmaps: bool = Field(default=True, description="write an MDM heatmap PNG per clip into the step folder")
+
+    def groups_tuple(self) -> tuple[tuple[str, tuple[str, ...], int], ...]:
+        return tuple((g.name, g.joints, g.drop) for g in self.groups)
+
+
+@dataclass
+class DigressionResult:
+    """Everything :func:`digression_map` computed for one clip (at the analysis rate).
+
+    Attributes
+    ----------
+    texture : Texture
+    mean_texture : ndarray of shape (T, m, 4)
+        T̄; equal to the texture where no KNN word covers a cell.
+    difference : ndarray of shape (T, m)
+        Geodesic angle between T and T̄, radians (before row normalisation).
+    mdm : ndarray of shape (T, m), values in [0, 1]
+    neighbours : list of WordNeighbours
+        One per search (two with ``two_stage``; the later one wins where it covers).
+    seconds : float
+    n_dtw : int
+    spread : ndarray of shape (T, m)
+        Scatter of the KNN samples about T̄ per cell, radians (:func:`knn_spread`).
+    """
+
+    texture: Texture
+    mean_texture: np.ndarray
+    difference: np.ndarray
+    mdm: np.ndarray
+    neighbours: list[WordNeighbours] = field(default_factory=list)
+    seconds: float = 0.0
+    n_dtw: int = 0
+    spread: np.ndarray | None = None
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return self.texture.joints
+
+
+def context_motions(motion: Motion, context: Any, include_self: bool = True) -> list[Motion]:
+    """The clips to search for ``motion``: itself (first) and the context without duplicates
+    of it (same object, or same name and length)."""
+    if context is None:
+        others: list[Motion] = []
+    elif isinstance(context, Motion):
+        others = [context]
+    elif isinstance(context, MotionDatabase):
+        others = list(context.motions)
+    elif isinstance(context, Sequence) and not isinstance(context, str):
+        others = list(context)
+        if not all(isinstance(c, Motion) for c in others):
+            raise DataError("a cleaning context list must hold Motions only")
+    else:
+        raise DataError(f"cleaning context must be a Motion, a list of Motions or a MotionDatabase, got {type(context).__name__}")
+    others = [c for c in others if c is not motion and not (c.name == motion.name and c.n_frames == motion.n_frames)]
+    if not include_self and not others:
+        raise DataError(f"motion {motion.name!r}: include_self is off and the context is empty")
+    return ([motion] if include_self else []) + others
+
+
+def accumulate(neigh: WordNeighbours, n_frames: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of ``q q^T`` of every KNN word over the cells it covers, and how many.
+
+    Returns
+    -------
+    outer : ndarray of shape (T, m, 4, 4)
+    count : ndarray of shape (T, m), int64
+    """
+    m = neigh.warped.shape[4]
+    outer = np.zeros((n_frames, m, 4, 4))
+    count = np.zeros((n_frames, m), np.int64)
+    frames = neigh.starts[:, None] + np.arange(n)[None, :]  # (S, N)
+    for g in range(neigh.groups.n_groups):
+        valid = (neigh.target[g] >= 0).astype(float)  # (S, K)
+        jm = neigh.groups.mask[g]
+        w = neigh.warped[g][..., jm, :]  # (S, K, N, mg, 4)
+        o = np.einsum("sk,skija,skijb->sijab", valid, w, w)
+        c = valid.sum(1).astype(np.int64)
+        cols = np.flatnonzero(jm)[None, :]
+        for i in range(n):
+            # word starts are distinct, so one word offset never hits a frame twice
+            rows = frames[:, i][:, None]
+            outer[rows, cols] += o[:, i]
+            count[rows, cols] += c[:, None]
+    return outer, count
+
+
+def knn_spread(outer: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Scatter of the KNN samples around their chordal mean, per cell (radians).
+
+    The largest eigenvalue of ``sum q q^T`` over ``n`` unit quaternions is ``n`` times the
+    mean of ``cos^2(theta_i / 2)``, ``theta_i`` the rotation angle from the chordal mean to
+    sample ``i``; ``2 arcsin(sqrt(1 - lambda / n))`` is then the RMS-style angle
+    (``sqrt(mean sin^2(theta_i / 2))`` mapped back to an angle) of the samples about T̄, in the
+    convention of :func:`~mocapflow.framework.quaternions.geodesic_angle`.
+
+    Parameters
+    ----------
+    outer : ndarray of shape (T, m, 4, 4)
+    count : ndarray of shape (T, m)
+
+    Returns
+    -------
+    ndarray of shape (T, m)
+        0 where no sample covers the cell.
+    """
+    out = np.zeros(count.shape)
+    covered = count > 0
+    if covered.any():
+        lam = np.linalg.eigvalsh(outer[covered])[..., -1] / count[covered]
+        out[covered] = 2.0 * np.arcsin(np.sqrt(np.clip(1.0 - lam, 0.0, 1.0)))
+    return out
+
+
+def row_scale(diff: np.ndarray, q: np.ndarray, spread: np.ndarray | None, p: MDMParams) -> np.ndarray:
+    """The scale ``M = |T - T̄|`` is divided by (§3.4), broadcastable to (T, m); see
+    :class:`MDMParams` ``normalization``."""
+    if p.normalization == "mean":
+        return np.maximum(diff.mean(axis=0, keepdims=True), p.mean_floor)
+    if p.normalization == "texture":
+        return np.maximum(quat.geodesic_angle(q, quat.identity(q.shape[:-1])).mean(axis=0, keepdims=True), p.min_scale)
+    if p.normalization == "median":
+        return p.robust_factor * np.maximum(np.median(diff, axis=0, keepdims=True), p.noise_floor)
+    if p.normalization == "spread":
+        if spread is None:
+            raise DataError("normalization 'spread' needs the KNN spread")
+        return p.spread_factor * np.sqrt(spread ** 2 + p.noise_floor ** 2)
+    return np.ones((1, diff.shape[1]))
+
+
+def digression_from_outer(q: np.ndarray, outer: np.ndarray, count: np.ndarray, params: MDMParams | None = None,
+                          difference: np.ndarray | None = None, spread: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """T̄, the geodesic difference, the KNN spread and the MDM from accumulated outer products (§3.4).
+
+    ``params.normalization`` picks the scale ``M`` is divided by (:func:`row_scale`). Given
+    ``difference`` and ``spread`` (T, m), the mean is skipped (``outer`` and ``count`` are
+    ignored and T̄ is returned as ``q``): another normalisation of the same analysis.
+    """
+    p = params or MDMParams()
+    mean_q = q.copy()
+    if difference is not None:
+        diff = difference
+    else:
+        covered = count > 0
+        if covered.any():
+            mean_q[covered] = quat.mean_of_outer(outer[covered])
+        diff = np.where(covered, quat.geodesic_angle(q, mean_q), 0.0)
+        spread = knn_spread(outer, count)
+    scale = row_scale(diff, q, spread, p)
+    m = np.where(scale > 0, diff / np.where(scale > 0, scale, 1.0), 0.0)
+    return mean_q, diff, spread, 1.0 - np.exp(-(m ** 2))
+
+
+def digression_map(motion: Motion, context: Any = None, params: MDMParams | None = None) -> DigressionResult:
+    """The MDM of ``motion`` against ``context`` (see module doc).
+
+    Parameters
+    ----------
+    motion : Motion
+    context : None, Motion, list of Motion or MotionDatabase
+    params : MDMParams
+
+    Returns
+    -------
+    DigressionResult
+    """
+    p = params or MDMParams()
+    t0 = time.perf_counter()
+    clips = context_motions(motion, context, p.include_self)
+    joints = tuple(j for j in p.joints if all(j in c.skeleton.canonical for c in clips))
+    if not joints:
+        raise DataError(f"motion {motion.name!r}: no texture joint is mapped by every context clip")
+    tex = motion_texture(motion, joints, p.fps)
+    ctx_tex = [tex.q if c is motion else motion_texture(c, joints, p.fps).q for c in clips]
+    self_clip = 0 if p.include_self else -1
+    groups = resolve_groups(joints, p.groups_tuple())
+    n = p.source_length
+    starts = source_word_starts(tex.n_frames, n, p.source_step)
+    kw = dict(source_length=n, target_length=p.target_length, k=p.k, slope_run=p.slope_run, radius=p.exclusion,
+              method=p.knn_method, warp=p.warp)
+    full = ContextTextures.from_arrays(ctx_tex, [c.name for c in clips])
+    searches: list[WordNeighbours] = []
+    if len(starts) == 0:
+        outer = np.zeros(tex.q.shape[:2] + (4, 4))
+        count = np.zeros(tex.q.shape[:2], np.int64)
+    elif not p.two_stage:
+        searches.append(knn_search(tex.q, full, groups, self_clip=self_clip, word_starts=starts, **kw))
+        outer, count = accumulate(searches[0], tex.n_frames, n)
+    else:
+        outer, count = _two_stage(tex, full, groups, starts, p, kw, searches)
+    mean_q, diff, spread, mdm = digression_from_outer(tex.q, outer, count, p)
+    return DigressionResult(tex, mean_q, diff, mdm, searches, time.perf_counter() - t0, sum(s.n_dtw for s in searches),
+                            spread)
+
+
+def _subset(groups, keep: np.ndarray):
+    from .motion_words import JointGroups
+
+    return JointGroups(tuple(n for n, k in zip(groups.names, keep) if k), groups.mask[keep], groups.drop[keep])
+
+
+def _two_stage(tex: Texture, full: ContextTextures, groups, starts: np.ndarray, p: MDMParams, kw: dict,
+               searches: list[WordNeighbours]) -> tuple[np.ndarray, np.ndarray]:
+    """§5: stage-1 groups against the clip alone; the other groups against the whole context
+    for the words that overlap a cell flagged by stage 1. Stage 2 replaces stage 1 on the
+    cells it covers."""
+    n = p.source_length
+    first = np.isin(groups.names, p.stage1_groups)
+    if not first.any():
+        raise ConfigError(f"two_stage: none of stage1_groups {p.stage1_groups} is a joint group ({groups.names})")
+    local = ContextTextures.from_arrays([tex.q], [full.names[0]])
+    s1 = knn_search(tex.q, local, _subset(groups, first), self_clip=0, word_starts=starts, **kw)
+    searches.append(s1)
+    outer, count = accumulate(s1, tex.n_frames, n)
+    mdm1 = digression_from_outer(tex.q, outer, count, p)[3]
+    flagged_frames = np.flatnonzero((mdm1 > p.threshold).any(axis=1))
+    second = ~first if (~first).any() else first
+    distinct = np.array([s for s in starts if np.any((flagged_frames >= s) & (flagged_frames < s + n))], np.int64)
+    if len(distinct) == 0:
+        return outer, count
+    s2 = knn_search(tex.q, full, _subset(groups, second), self_clip=0, word_starts=distinct, **kw)
+    searches.append(s2)
+    o2, c2 = accumulate(s2, tex.n_frames, n)
+    take = c2 > 0
+    outer[take] = o2[take]
+    count[take] = c2[take]
+    return outer, count
+
+
+class MDMCleaner(Cleaner):
+    """Self-similarity cleaning with the movement digression map (Aristidou et al. 2018).
+
+    ``detect`` returns the map at the input clip's frames for every skeleton joint (0 for
+    joints outside the texture; > 0.5 = flagged); ``repair`` the cleaned clip and its edits
+    table; ``clean`` everything (:class:`CleanResult`).
+    """
+
+    name = "mdm"
+    version = "2"
+    Params: ClassVar[type[Params]] = MDMParams
+
+    def analyse(self, motion: Motion, context: Any = None) -> DigressionResult:
+        """The full analysis at the analysis rate (texture, T̄, MDM, neighbours)."""
+        return digression_map(motion, context, self.params)
+
+    def clean(self, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> "CleanResult":
+        """Analysis, decision and repair of one clip (see :class:`CleanResult`)."""
+        from .decision import clean_motion
+
+        return clean_motion(self, motion, context, contacts)
+
+    def detect(self, motion: Motion, context: Any = None) -> np.ndarray:
+        """Digression map at the input frames, shape (T, J) in [0, 1] (> 0.5 = flagged)."""
+        from .repair import map_to_input
+
+        out = self.clean(motion, context)
+        return map_to_input(out.map_result(), motion)
+
+    def repair(self, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> tuple[Motion, Any]:
+        """Cleaned motion (input frame rate) and the edits as an Arrow table."""
+        out = self.clean(motion, context, contacts)
+        return out.cleaned, out.edits
+
+    def run(self, inputs, ctx):
+        from .clean_command import run_cleaner
+
+        return run_cleaner(self, inputs, ctx)
