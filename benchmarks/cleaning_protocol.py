@@ -106,7 +106,10 @@ def install_cache(folder: Path) -> None:
                             sort_keys=True).encode())
         path = folder / f"{h.hexdigest()}.pkl"
         if path.exists():
-            return pickle.loads(path.read_bytes())
+            try:
+                return pickle.loads(path.read_bytes())
+            except Exception:  # noqa: BLE001 - a stale entry (e.g. written by moved modules) is recomputed
+                pass
         res = original(motion, context, p)
         tmp = path.with_suffix(".tmp")
         tmp.write_bytes(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
