@@ -21,6 +21,7 @@ wall times: they show the work, unlike wall time they hardly depend on the other
     python benchmarks/scale.py            # everything (about 5 minutes on 2 idle cores)
     python benchmarks/scale.py --quick    # fewer repeats, 200,000 frames for the index
     python benchmarks/scale.py --only local,index
+    python benchmarks/scale.py --context  # also the cleaning against 103 takes (slow)
 """
 from __future__ import annotations
 
@@ -96,7 +97,7 @@ def child_run(yaml: Path, ws: Path, jobs: int) -> None:
     from mocapflow.framework.executors import LocalExecutor
     from mocapflow.framework.runner import run_pipeline
 
-    ex = LocalExecutor(jobs)
+    ex = LocalExecutor(jobs, **json.loads(os.environ.get("MOCAPFLOW_SCALE_OPTIONS", "{}")))
     tick = os.sysconf("SC_CLK_TCK")
     workers: list[float] = []
     try:
@@ -130,16 +131,21 @@ def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int) -> dict
             if jobs not in best or r["path"] < best[jobs]["path"]:
                 best[jobs] = r
     one, two = best[1], best[2]
-    print(f"  CPU critical path ({name}): --jobs 1 {one['path']:.2f} s; --jobs 2 client {two['parent']:.2f} s + busiest "
-          f"worker {max(two['workers'], default=0):.2f} s (workers {', '.join(f'{w:.2f}' for w in two['workers'])}) "
-          f"= {two['path']:.2f} s -> {one['path'] / two['path']:.2f}x on 2 idle cores, if --jobs 1 ran on one core "
-          f"(parallel numba kernels give it more: then compare the wall times above)")
-    return {"jobs1": one, "jobs2": two, "ratio": one["path"] / two["path"]}
+    print(f"  CPU critical path ({name}; load average {_load()}): --jobs 1 {one['path']:.2f} s; --jobs 2 client "
+          f"{two['parent']:.2f} s + busiest worker {max(two['workers'], default=0):.2f} s (workers "
+          f"{', '.join(f'{w:.2f}' for w in two['workers'])}) = {two['path']:.2f} s -> {one['path'] / two['path']:.2f}x on "
+          f"2 idle cores, if --jobs 1 ran on one core (parallel numba kernels give it more: then compare the wall times above)")
+    # Amdahl: the client's CPU with --jobs 2 is the serial part (start-up, planning, writing tables)
+    serial = min(1.0, two["parent"] / one["path"])
+    print(f"    serial fraction (client CPU with --jobs 2 / --jobs 1 CPU) {serial:.0%}: Amdahl bound on 2 cores "
+          f"{1 / (serial + (1 - serial) / 2):.2f}x; 1.7x needs <= {2 / 1.7 - 1:.0%}")
+    return {"jobs1": one, "jobs2": two, "ratio": one["path"] / two["path"], "serial_fraction": serial}
 
 
 def compare(name: str, yaml: Path, tmp: Path, configs: list[tuple[str, int]], repeats: int) -> dict:
     """Interleaved repeats of each (executor, jobs); the best wall (and its CPU) of each."""
     best: dict[tuple[str, int], dict] = {}
+    load0 = _load()
     for _ in range(repeats):
         for ex, jobs in configs:
             ws = tmp / f"ws-{yaml.stem}-{ex}-{jobs}"
@@ -147,7 +153,7 @@ def compare(name: str, yaml: Path, tmp: Path, configs: list[tuple[str, int]], re
             if (ex, jobs) not in best or r["wall"] < best[(ex, jobs)]["wall"]:
                 best[(ex, jobs)] = r
     base = best[configs[0]]
-    print(f"\n{name}  (best of {repeats}; load average before: {os.getloadavg()[0]:.1f})")
+    print(f"\n{name}  (best of {repeats}; load average before: {load0}, after: {_load()})")
     print(f"  {'configuration':<22} {'wall s':>8} {'steps s':>8} {'CPU s':>7} {'wall ratio':>11} {'steps ratio':>12}")
     for (ex, jobs), r in best.items():
         label = f"{ex} --jobs {jobs}" if ex == "local" else f"{ex} ({jobs} workers)"
@@ -163,6 +169,35 @@ def compare(name: str, yaml: Path, tmp: Path, configs: list[tuple[str, int]], re
 
 def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _load() -> str:
+    return Path("/proc/loadavg").read_text().split(" ", 3)[:3].__str__().replace("'", "")
+
+
+def _proc_cpu(pids) -> list[float]:
+    """CPU seconds (user + system) of processes, from /proc."""
+    tick, out = os.sysconf("SC_CLK_TCK"), []
+    for pid in pids:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        out.append((int(fields[11]) + int(fields[12])) / tick)
+    return out
+
+
+def _best_batch(fn, ex, repeats: int = 3) -> tuple[float, dict]:
+    """Best wall time of ``fn()`` over repeats, and the CPU seconds the client and each pool
+    worker spent in that best repeat (what the batch costs on idle cores)."""
+    best, busy = np.inf, {}
+    for _ in range(repeats):
+        pids = list(getattr(getattr(ex, "_pool", None), "_processes", None) or {})
+        w0, c0 = _proc_cpu(pids), time.process_time()
+        t0 = time.perf_counter()
+        fn()
+        t = time.perf_counter() - t0
+        if t < best:
+            best = t
+            busy = {"client": time.process_time() - c0, "workers": [b - a for a, b in zip(w0, _proc_cpu(pids))]}
+    return best, busy
 
 
 def index_figures(n_frames: int, n_queries: int, k: int, tmp: Path) -> dict:
@@ -198,41 +233,54 @@ def index_figures(n_frames: int, n_queries: int, k: int, tmp: Path) -> dict:
     loaded = ShardedIndex.load(tmp / "sharded")
     out = {"frames": len(x), "identical_knn": same, "identical_radius": same_r, "bytes_per_row": bytes_row,
            "build_one_s": t_one, "build_two_shards_serial_s": t_sh}
-    for workers in (1, 2):
-        ex = LocalExecutor(workers, min_items_for_pool=1, threads=1)
-        try:
-            if workers == 1:
-                from mocapflow.framework.executors import limit_threads
+    # numba threads instead of processes: one kd-tree with 2 threads (before this process is
+    # limited to one thread below)
+    out["batch_s_one_index_2threads"], out["busy_one_index_2threads"] = _best_batch(lambda: one.query(q, k, workers=2), None)
+    from mocapflow.framework.executors import limit_threads
 
-                limit_threads(1)
-            loaded.query(q[:8], k, executor=ex)  # warm-up: each worker loads its shards once
-            best = np.inf
-            for _ in range(3):
-                t0 = time.perf_counter()
-                got = loaded.query(q, k, executor=ex)
-                best = min(best, time.perf_counter() - t0)
-            assert np.array_equal(got[1], a[1])
+    limit_threads(1)
+    # one process: the whole batch in this process, one numba thread (the baseline of the target)
+    out["batch_s_1w"], out["busy_1w"] = _best_batch(lambda: loaded.query(q, k), None)
+    for fan_out in ("queries", "shards"):
+        loaded.params = loaded.params.model_copy(update={"fan_out": fan_out})
+        ex = LocalExecutor(2, min_items_for_pool=1, threads=1)
+        try:
+            loaded.query(q[:8], k, executor=ex)  # warm-up: each worker loads the shards once
+            best, busy = _best_batch(lambda: loaded.query(q, k, executor=ex), ex)
+            got = loaded.query(q, k, executor=ex)
+            assert np.array_equal(got[1], a[1]) and np.array_equal(got[0], a[0])
         finally:
             ex.close()
-        out[f"batch_s_{workers}w"] = best
-    t0 = time.perf_counter()
-    for _ in range(3):
-        one.query(q, k)
-    out["batch_s_one_index"] = (time.perf_counter() - t0) / 3
-    shard_t = {}
+        out[f"batch_s_2w_{fan_out}"], out[f"busy_2w_{fan_out}"] = best, busy
+    loaded.params = loaded.params.model_copy(update={"fan_out": "queries"})
+    out["batch_s_2w"] = out["batch_s_2w_queries"]
+    out["batch_s_one_index"], out["busy_one_index"] = _best_batch(lambda: one.query(q, k, workers=1), None)
+    shard_t, shard_cpu = {}, {}
     for s, shard in enumerate(sh.shards_):  # per-shard figures the projections use
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         shard.query(q, k)
-        shard_t[s] = time.perf_counter() - t0
+        shard_t[s], shard_cpu[s] = time.perf_counter() - t0, time.process_time() - c0
+    out["shard_query_cpu_s"] = list(shard_cpu.values())
     out["shard_rows"] = [int(b - a) for a, b in zip(sh.offsets_[:-1], sh.offsets_[1:])]
     out["shard_query_s"] = list(shard_t.values())
     out["peak_rss_mb"] = _rss_mb()
     print(f"  identical to one kd-tree: kNN {same}, radius 0.15 {same_r} ({n_queries} queries, k={k})")
     print(f"  build: one index {t_one:.2f} s, 2 shards one after the other {t_sh:.2f} s; {bytes_row:.1f} bytes/row on disk")
-    print(f"  batch of {n_queries} queries, k={k}: one index {out['batch_s_one_index']:.3f} s (1 thread); "
-          f"sharded on 1 worker {out['batch_s_1w']:.3f} s, on 2 workers {out['batch_s_2w']:.3f} s "
-          f"-> {out['batch_s_1w'] / out['batch_s_2w']:.2f}x throughput")
-    print(f"  per shard ({out['shard_rows']} rows): {[round(t, 3) for t in out['shard_query_s']]} s per batch; peak RSS {out['peak_rss_mb']:.0f} MB")
+    bq, bs = out["busy_2w_queries"], out["busy_2w_shards"]
+    print(f"  batch of {n_queries} queries, k={k} (load average {_load()}):")
+    print("    (wall s, then CPU s of each process: on idle cores a batch takes about client + busiest worker)")
+    print(f"    one kd-tree, 1 thread {out['batch_s_one_index']:.3f} s (CPU {out['busy_one_index']['client']:.3f} s); "
+          f"2 numba threads {out['batch_s_one_index_2threads']:.3f} s (CPU {out['busy_one_index_2threads']['client']:.3f} s "
+          f"over both threads) -> {out['batch_s_one_index'] / out['batch_s_one_index_2threads']:.2f}x wall")
+    base_cpu = out["busy_1w"]["client"]
+    print(f"    sharded, 1 process {out['batch_s_1w']:.3f} s (CPU {base_cpu:.3f} s)")
+    for fan_out, busy in (("queries", bq), ("shards", bs)):
+        t = out[f"batch_s_2w_{fan_out}"]
+        print(f"    sharded, 2 processes, fan_out {fan_out}: {t:.3f} s -> {out['batch_s_1w'] / t:.2f}x throughput; "
+              f"CPU busy: client {busy['client']:.3f} s, workers {', '.join(f'{w:.3f}' for w in busy['workers'])} s "
+              f"-> {base_cpu / (busy['client'] + max(busy['workers'], default=0)):.2f}x on 2 idle cores")
+    print(f"  per shard ({out['shard_rows']} rows): {[round(t, 3) for t in out['shard_query_s']]} s per batch "
+          f"(CPU {[round(t, 3) for t in out['shard_query_cpu_s']]} s); peak RSS {out['peak_rss_mb']:.0f} MB")
     return out
 
 
@@ -241,6 +289,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="fewer repeats, a 200k-frame index")
     ap.add_argument("--only", default="local,dask,index", help="comma-separated sections: local, dask, index")
     ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--context", action="store_true", help="also clean the 8 takes against the 103 CMU takes "
+                    "(minutes per run since the issue-14 cleaner)")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--child-run", nargs=3, metavar=("YAML", "WS", "JOBS"), help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -269,12 +319,14 @@ def main() -> None:
         if len(configs) > 1:
             results["features"] = compare("ingest + features, whole corpus", feats, tmp, configs, repeats)
             results["cleaning"] = compare("cleaning 8 takes (cleaners.mdm)", clean, tmp, configs, repeats)
-            results["cleaning_context"] = compare("cleaning 8 takes against the 103 CMU takes", cleanctx, tmp, configs, repeats)
+            if args.context:
+                results["cleaning_context"] = compare("cleaning 8 takes against the 103 CMU takes", cleanctx, tmp, configs, repeats)
         if "local" in sections:
             print("\nwall time on a shared machine measures the other load as much as ours; the CPU each process spent does not:")
             results["features_cpu_path"] = report_critical_path("ingest + features", feats, tmp, repeats)
             results["cleaning_cpu_path"] = report_critical_path("cleaning 8 takes", clean, tmp, repeats)
-            results["cleaning_context_cpu_path"] = report_critical_path("cleaning against 103 takes", cleanctx, tmp, repeats)
+            if args.context:
+                results["cleaning_context_cpu_path"] = report_critical_path("cleaning against 103 takes", cleanctx, tmp, repeats)
         if has_dask:
             results["quickstart"] = compare("quickstart (dask overhead)", quick_yaml, tmp, [("local", 1), ("dask", 2)], repeats)
             q = results["quickstart"]

@@ -56,6 +56,15 @@ def test_the_dask_executor_is_registered_and_maps_in_order(cluster, monkeypatch)
     assert cluster.scheduler_info["workers"]  # closing the executor leaves a cluster it did not start
 
 
+def test_batches_go_out_in_chunks_and_come_back_in_order(cluster):
+    for per_worker, n in ((0, 7), (1, 7), (3, 1), (4, 20), (16, 5)):
+        ex = DaskExecutor(address=cluster.scheduler_address, chunks_per_worker=per_worker)
+        try:
+            assert ex.map(_square, list(range(n))) == [x * x for x in range(n)], (per_worker, n)
+        finally:
+            ex.close()
+
+
 def _worker_threads(_):
     import numba
 

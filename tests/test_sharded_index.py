@@ -104,6 +104,32 @@ def test_saved_shards_answer_on_workers_loaded_once_per_process(tmp_path):
         ex.close()
 
 
+@pytest.mark.parametrize("fan_out", ["queries", "shards"])
+def test_both_fan_outs_on_workers_equal_one_kdtree(tmp_path, fan_out):
+    """Query blocks (each worker asks every shard and merges) and shard tasks (each worker
+    one shard, merged by the caller) give the unsharded answers, exclusion and radius too."""
+    x, g, f = clips_data(seed=7)
+    one = KDTreeIndex(method="kdtree", leafsize=4).build(x, groups=g, frames=f)
+    ShardedIndex(shards=3, fan_out=fan_out, index_params={"leafsize": 4}).build(x, groups=g, frames=f).save(tmp_path / "i")
+    loaded = ShardedIndex.load(tmp_path / "i")
+    assert loaded.params.fan_out == fan_out
+    rows = np.arange(0, len(x), 3)
+    ex = LocalExecutor(2, min_items_for_pool=1)
+    try:
+        for radius in (None, 1.5):
+            a, b = one.query(x[rows], 6, radius), loaded.query(x[rows], 6, radius, executor=ex)
+            np.testing.assert_array_equal(a[1], b[1])
+            np.testing.assert_array_equal(a[0], b[0])
+            a = one.query(x[rows], 6, radius, exclude=4, query_groups=g[rows], query_frames=f[rows])
+            b = loaded.query(x[rows], 6, radius, exclude=4, query_groups=g[rows], query_frames=f[rows], executor=ex)
+            np.testing.assert_array_equal(a[1], b[1])
+            np.testing.assert_array_equal(a[0], b[0])
+        a, b = one.query(x[:1], 6), loaded.query(x[:1], 6, executor=ex)  # a single query stays in-process
+        np.testing.assert_array_equal(a[1], b[1])
+    finally:
+        ex.close()
+
+
 def test_sharded_index_in_pipelines_gives_the_same_searches(tmp_path):
     (tmp_path / "p.yaml").write_text(f"""
 name: sharded

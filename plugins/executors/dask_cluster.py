@@ -10,7 +10,8 @@ Needs the optional extra ``pip install "mocapflow[dask]"`` (dask + distributed).
 
 What travels: the step's function (cloudpickle; a component with its parameters, not its
 data) and small references (:class:`~mocapflow.framework.executors.ClipSlice`: a dataset
-path, its fingerprint and a clip range). Workers read clips, contexts and index shards
+path, its fingerprint and a clip range), a batch of them as contiguous chunks (about
+``chunks_per_worker`` tasks per worker thread, not one task per item). Workers read clips, contexts and index shards
 from the workspace's Parquet and ``.npy`` files themselves, so the workspace must be on
 storage every worker sees at the same path (a shared filesystem). Results come back to
 the client, where the runner writes the step's tables atomically, exactly as with
@@ -21,6 +22,7 @@ scheduler (``allowed_failures`` deaths per task), then the step fails with a
 """
 from __future__ import annotations
 
+import functools
 import logging
 import multiprocessing
 import os
@@ -43,6 +45,11 @@ def _require_distributed():
     return distributed
 
 
+def _apply_all(fn: Callable[[Any], Any], chunk: Sequence[Any]) -> list[Any]:
+    """One task: ``fn`` over a contiguous run of items, in order."""
+    return [fn(x) for x in chunk]
+
+
 class DaskExecutor:
     """Runs ``map`` items as tasks on a ``dask.distributed`` cluster.
 
@@ -62,18 +69,24 @@ class DaskExecutor:
         LocalCluster only: worker deaths a task may cause before it is declared lost.
     min_items : int
         Batches smaller than this run in the client process (no round trip).
+    chunks_per_worker : int
+        A batch goes out as about this many tasks per worker thread, each a contiguous run
+        of items (a task per item costs the scheduler and the comms a round trip each: 201
+        files read one task each took 22.8 s where the local pool took 8.5 s); 0: one task
+        per item.
     """
 
     name = "dask"
 
     def __init__(self, jobs: int = 0, address: str | None = None, threads: int | None = None, retries: int = 0,
-                 allowed_failures: int | None = None, min_items: int = 1) -> None:
+                 allowed_failures: int | None = None, min_items: int = 1, chunks_per_worker: int = 4) -> None:
         self.jobs = int(jobs) if jobs and jobs > 0 else available_cores()
         self.address = address or os.environ.get(ADDRESS_ENV) or None
         self.threads = threads
         self.retries = int(retries)
         self.allowed_failures = allowed_failures
         self.min_items = int(min_items)
+        self.chunks_per_worker = int(chunks_per_worker)
         self._client = None
         self._cluster = None
 
@@ -142,12 +155,15 @@ class DaskExecutor:
         client = self.client
         token = uuid.uuid4().hex[:8]
         label = "".join(c if c.isalnum() or c in "-_" else "-" for c in (desc or "map"))[:40]
-        futures = client.map(fn, items, key=[f"{label}-{token}-{i}" for i in range(len(items))],
+        n = len(items) if self.chunks_per_worker <= 0 else min(len(items), self.workers * self.chunks_per_worker)
+        cuts = [len(items) * i // n for i in range(n + 1)]
+        chunks = [items[a:b] for a, b in zip(cuts[:-1], cuts[1:])]
+        futures = client.map(functools.partial(_apply_all, fn), chunks, key=[f"{label}-{token}-{i}" for i in range(n)],
                              pure=False, retries=self.retries)
         try:
             for _ in progress(distributed.as_completed(futures), total=len(futures), desc=desc):
                 pass
-            return client.gather(futures)
+            return [r for part in client.gather(futures) for r in part]
         except distributed.client.FutureCancelledError as exc:
             raise PipelineError(f"dask: a task of {desc or 'a step'!r} was cancelled: {exc}") from None
         except Exception as exc:
