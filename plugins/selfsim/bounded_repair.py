@@ -62,7 +62,7 @@ def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
 
 
 def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float,
-                slack: int = 8) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
+                slack: int = 8, skip: list | None = None) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
     """(left columns, right columns, start, end) of the runs to swap back.
 
     Candidates are the runs (gaps of up to ``slack`` frames merged) where the chain-pair
@@ -79,11 +79,14 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
         for a0, b0 in _merge(_runs(gain[:, cols].max(axis=1) > swap_gain), slack):
             if not flags[a0:b0][:, cols].any():
                 continue
+            if skip and any(lc[0] == l2[0] and a0 < b2 + slack and a2 < b0 + slack for l2, _, a2, b2 in skip):
+                continue  # an edge swap of this chain pair is there already
             best = None
             for a in range(max(0, a0 - slack), min(a0 + slack, b0 - 1) + 1):
                 for b in range(max(a + 1, b0 - slack), min(t, b0 + slack) + 1):
-                    back = quat.make_continuous(_swapped(q, lc, rc, a, b)[max(0, a - 2):min(t, b + 2)][:, cols], axis=0)
                     lo = max(0, a - 2)
+                    # the window around [a, b) only: the same as swapping the whole take, without its copy
+                    back = quat.make_continuous(_swapped(q[lo:min(t, b + 2)], lc, rc, a - lo, b - lo)[:, cols], axis=0)
                     after = _edge_roughness(back, np.arange(len(cols)), a - lo, b - lo)
                     if best is None or after < best[0]:
                         best = (after, a, b)
@@ -94,7 +97,10 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
 
 
 def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int = 0,
-                   mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None
+                   mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None,
+                   swap_level: float | None = None, swap_max: int = 72, mirror_swaps: bool = True,
+                   offset_level: float | None = None, extra: dict | None = None,
+                   interp: np.ndarray | None = None, interp_max: int = 0, merge_gap: int = 0
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
 
@@ -113,6 +119,27 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
         flagged cell of the chains).
     cap : ndarray of shape (T, m), optional
         Largest edit per cell, radians (on top of the evidence bound); swaps are not capped.
+    swap_level : float, optional
+        Swaps found by their edges (:func:`.swaps.swap_edges`, this level, intervals up to
+        ``swap_max`` frames) are swapped back whatever the flags; None = off.
+    mirror_swaps : bool
+        Also swap back the runs the mirror cue flagged (:func:`swap_frames`) where no edge
+        swap of that chain pair overlaps them.
+    offset_level : float, optional
+        Flagged runs whose two ends are consistent jumps of at least this many typical
+        accelerations of the joint (and 8 degrees) are repaired by taking the offset out
+        over the whole interval between the jumps (:mod:`.offsets`) instead of the KNN word,
+        when that lowers the run's mean digression; None = off.
+    extra : dict, optional
+        Receives ``"offset"``: bool (T, m), the cells repaired as offsets (some may lie
+        outside ``flags``: the interval between the jumps).
+    interp, interp_max : ndarray of bool (T, m), int
+        Runs of at most ``interp_max`` frames made only of ``interp`` cells (the
+        acceleration cue's: a spike or a burst of jitter) that are no offset are
+        interpolated (slerp) between the frames that bound them instead of taking the KNN word.
+    merge_gap : int
+        Flagged runs of one joint at most this many frames apart are repaired as one run
+        (the gap included: a burst of jitter flags its extreme frames only).
     """
     from .repair import _propose
 
@@ -121,20 +148,39 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     t_count, m = q.shape[:2]
     new = q.copy()
     swapped = np.zeros((t_count, m), bool)
-    if not flags.any():
+    if extra is not None:
+        extra["offset"] = np.zeros((t_count, m), bool)
+    edge_swaps = []
+    if swap_level is not None:
+        from .swaps import swap_edges
+
+        edge_swaps = swap_edges(q, res.joints, swap_level, max_len=swap_max)
+    if not flags.any() and not edge_swaps:
         return new, np.zeros((t_count, m), bool), swapped
     work = flags.copy()
     if dilate > 0:
         for o in range(1, dilate + 1):
             work[o:] |= flags[:-o]
             work[:-o] |= flags[o:]
-    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work if mirror_flags is None else mirror_flags, swap_gain):
+    runs = list(edge_swaps)
+    if mirror_swaps:
+        for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work if mirror_flags is None else mirror_flags,
+                                        swap_gain, skip=edge_swaps):
+            if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in edge_swaps):
+                runs.append((lc, rc, a, b))
+    for lc, rc, a, b in runs:
         new[a:b, lc] = mirror(q[a:b, rc])
         new[a:b, rc] = mirror(q[a:b, lc])
         swapped[a:b, np.concatenate([lc, rc])] = True
     rest = work & ~swapped
+    offset = np.zeros((t_count, m), bool)
     if mirror_flags is not None:
         rest &= ~mirror_flags  # the evidence was for a swap that did not hold up: leave them
+    if merge_gap > 0:
+        for j in np.flatnonzero(rest.any(axis=0)):
+            for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:]):
+                if a2 - b <= merge_gap and not swapped[b:a2, j].any():
+                    rest[b:a2, j] = True
     if rest.any() and res.neighbours:
         around = rest.copy()
         around[1:] |= rest[:-1]
@@ -145,22 +191,60 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
             _propose(neigh, n, q, around, proposal, res, ())
         for j in np.flatnonzero(rest.any(axis=0)):
             for a, b in _runs(rest[:, j]):
+                if offset_level is not None and _offset_run(q, mean_q, new, j, a, b, offset_level, offset):
+                    continue
+                if interp is not None and b - a <= interp_max and interp[a:b, j].all() and a > 0 and b < t_count:
+                    u = (np.arange(a, b) - a + 1) / (b - a + 1)
+                    new[a:b, j] = quat.slerp(np.broadcast_to(q[a - 1, j], (b - a, 4)),
+                                             np.broadcast_to(q[b, j], (b - a, 4)), u)
+                    continue
                 _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
     # bounds: nearer the consensus, never more than the evidence
     before = quat.geodesic_angle(q, mean_q)
     after = quat.geodesic_angle(new, mean_q)
-    worse = after >= before - 1e-9
+    # an edge swap is verified by its jumps, not by T̄ (the consensus adapts to a swapped
+    # limb in mid-interval): kept whole, never shortened cell by cell
+    exempt = np.zeros((t_count, m), bool)
+    for lc, rc, a, b in edge_swaps:
+        exempt[a:b, np.concatenate([lc, rc])] = True
+    exempt |= offset  # verified by its two jumps and its run's mean digression (_offset_run)
+    worse = (after >= before - 1e-9) & ~exempt
     new[worse] = q[worse]
     edit = quat.geodesic_angle(new, q)
     limit = before + np.asarray(res.spread if res.spread is not None else 0.0)
     if cap is not None:
         limit = np.where(swapped, limit, np.minimum(limit, cap))
-    over = edit > limit + 1e-9
+    over = (edit > limit + 1e-9) & ~exempt
     if over.any():
         frac = limit[over] / edit[over]
         new[over] = quat.slerp(q[over], new[over], frac)
     edited = np.any(new != q, axis=-1)  # exact: an angle test near 0 is rounding noise
+    if extra is not None:
+        extra["offset"] = offset & edited
     return new, edited, swapped & edited
+
+
+def _offset_run(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, j: int, a0: int, b0: int, level: float,
+                offset: np.ndarray) -> bool:
+    """Repair the flagged run ``[a0, b0)`` of joint ``j`` as an offset (:mod:`.offsets`) when
+    its ends are found and the repair lowers the interval's mean digression; True if done."""
+    from .cues import acceleration
+    from .offsets import offset_interval, remove_offset
+
+    acc = np.median(acceleration(q[:, j:j + 1])[1:-1, 0]) if len(q) > 2 else 0.0
+    found = offset_interval(q[:, j], a0, b0, max(level * 2.0 * acc, np.deg2rad(8.0)))
+    if found is None:
+        return False
+    a, b, off_a, off_b = found
+    if offset[a:b, j].any():
+        return True  # an earlier run of this joint already took this interval
+    rep = remove_offset(q[:, j], a, b, off_a, off_b)
+    before = quat.geodesic_angle(q[a:b, j], mean_q[a:b, j]).mean()
+    if quat.geodesic_angle(rep, mean_q[a:b, j]).mean() >= before:
+        return False
+    new[a:b, j] = rep
+    offset[a:b, j] = True
+    return True
 
 
 def _displaced(track: np.ndarray, prop: np.ndarray, out: np.ndarray, a: int, b: int) -> None:

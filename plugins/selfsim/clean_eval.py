@@ -81,25 +81,42 @@ class RotationBaselines:
         return out
 
 
-def scores(flagged: np.ndarray, truth: np.ndarray, starts: np.ndarray, n: int) -> dict[str, float]:
+def scores(flagged: np.ndarray, truth: np.ndarray, starts: np.ndarray, n: int,
+           moved: np.ndarray | None = None) -> dict[str, float]:
     """Cell, word and (word, joint) true/false positive and false negative counts of
-    ``flagged`` against ``truth`` (T, m); ``starts`` are the source words (length ``n``)."""
+    ``flagged`` against ``truth`` (T, m); ``starts`` are the source words (length ``n``).
+
+    ``moved`` (T, m), optional: the cells the injection changed at all. False positives on
+    cells (pairs, words) that were changed but by no more than the ground truth's
+    ``min_angle`` are also counted apart (``*fp_sub``): e.g. the hip of a swapped leg moved
+    4 degrees, which a swap-back restores exactly. Precision with those left out is the
+    ``*_precision_dc`` ("don't care") figure; the plain precision counts them as false."""
     tp = int((flagged & truth).sum())
     fp = int((flagged & ~truth).sum())
     fn = int((~flagged & truth).sum())
     jt = np.array([truth[s:s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
     jf = np.array([flagged[s:s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
     wt, wf = jt.any(1), jf.any(1)
-    return {"tp": tp, "fp": fp, "fn": fn, "word_tp": int((wt & wf).sum()), "word_fp": int((~wt & wf).sum()),
-            "word_fn": int((wt & ~wf).sum()), "wj_tp": int((jt & jf).sum()), "wj_fp": int((~jt & jf).sum()),
-            "wj_fn": int((jt & ~jf).sum())}
+    out = {"tp": tp, "fp": fp, "fn": fn, "word_tp": int((wt & wf).sum()), "word_fp": int((~wt & wf).sum()),
+           "word_fn": int((wt & ~wf).sum()), "wj_tp": int((jt & jf).sum()), "wj_fp": int((~jt & jf).sum()),
+           "wj_fn": int((jt & ~jf).sum())}
+    if moved is not None:
+        jm = np.array([moved[s:s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
+        out.update({"fp_sub": int((flagged & ~truth & moved).sum()), "wj_fp_sub": int((~jt & jf & jm).sum()),
+                    "word_fp_sub": int((~wt & wf & jm.any(1)).sum())})
+    return out
 
 
 def _ratios(c: Mapping[str, int]) -> dict[str, float]:
     def div(a: int, b: int) -> float:
         return float(a) / b if b else float("nan")
 
-    return {"recall": div(c["tp"], c["tp"] + c["fn"]), "precision": div(c["tp"], c["tp"] + c["fp"]),
+    dc = {}
+    if "fp_sub" in c:
+        dc = {"precision_dc": div(c["tp"], c["tp"] + c["fp"] - c["fp_sub"]),
+              "wj_precision_dc": div(c["wj_tp"], c["wj_tp"] + c["wj_fp"] - c["wj_fp_sub"]),
+              "word_precision_dc": div(c["word_tp"], c["word_tp"] + c["word_fp"] - c["word_fp_sub"])}
+    return {**dc, "recall": div(c["tp"], c["tp"] + c["fn"]), "precision": div(c["tp"], c["tp"] + c["fp"]),
             "word_recall": div(c["word_tp"], c["word_tp"] + c["word_fn"]),
             "word_precision": div(c["word_tp"], c["word_tp"] + c["word_fp"]),
             "wj_recall": div(c["wj_tp"], c["wj_tp"] + c["wj_fn"]),
@@ -115,6 +132,43 @@ def repair_errors(clean: np.ndarray, other: np.ndarray, truth: np.ndarray) -> di
     nan = float("nan")
     return {"global_avg": float(glob.mean()) if len(glob) else nan, "global_max": float(glob.max()) if len(glob) else nan,
             "joint_avg": float(per.mean()) if len(per) else nan, "joint_max": float(per.max()) if len(per) else nan}
+
+
+def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typical: float = 30.0,
+                    step: float = 45.0, pad: int = 2) -> np.ndarray:
+    """Cells of a "clean" reference that are capture glitches of the source itself, (T, m) bool.
+
+    A joint whose rotation normally stays near its mean pose over the take (median angle
+    to its chordal mean below ``typical`` degrees) but leaves it by more than ``far``
+    degrees: the salsa takes hold ankles turned 160-176 degrees for 0.6-0.9 s (60_01
+    lankle 24-fps frames 143-166 and rankle 161-181, 60_02 lankle 261-275) and wrists out
+    130 degrees and back within 0.1 s (61_05 lwrist 191), reached by steps of up to 110
+    degrees in 1/120 s: no ankle or wrist turns that far, that fast. An excursion counts
+    only when it is entered or left by a step of more than ``step`` degrees in one frame
+    (at the texture's 24 fps; raised arms reach 90 degrees too, but gradually). Each
+    excursion is grown while the angle stays above ``back`` degrees, plus ``pad`` frames.
+    A joint whose median angle to its mean pose is not below ``typical`` and that turns
+    more than ``2 step`` degrees in one frame is a broken track throughout (the head of
+    salsa take 60_06: median 47 degrees from its mean pose, steps of up to 165 degrees in
+    1/24 s) and is marked whole. The protocol
+    scores repairs of these cells apart (the cleaner is right to repair them, and eq. 2
+    against this reference counts that as damage)."""
+    from .bounded_repair import _runs
+
+    out = np.zeros(q.shape[:2], bool)
+    for j in range(q.shape[1]):
+        w, v = np.linalg.eigh(np.einsum("ti,tk->ik", q[:, j], q[:, j]))
+        ang = np.rad2deg(quat.geodesic_angle(q[:, j], np.broadcast_to(v[:, -1], q[:, j].shape)))
+        sp = np.rad2deg(quat.geodesic_angle(q[1:, j], q[:-1, j]))
+        if np.median(ang) >= typical and len(sp) and sp.max() > 2 * step:
+            out[:, j] = True  # broken throughout: far from any pose it holds, and turning > 90 degrees in a frame
+            continue
+        if np.median(ang) >= typical or not (ang > far).any():
+            continue
+        for a, b in _runs(ang > back):
+            if (ang[a:b] > far).any() and (sp[max(0, a - 2):b + 1] > step).any():
+                out[max(0, a - pad):b + pad, j] = True
+    return out
 
 
 class CleaningEvaluationParams(Params):
@@ -231,6 +285,20 @@ def context_clips(context: str, others: list[Motion], p: CleaningEvaluationParam
             "large_two_stage": others[: p.large_size]}[context]
 
 
+def _glitch_part(clean: np.ndarray, other: np.ndarray, glitch: np.ndarray) -> float:
+    """The share of :func:`_eq2`'s global figure that lies on the source-glitch cells."""
+    cell = _log_norm_sq(clean, other)
+    return float((cell * glitch).sum(1).mean()) if len(cell) else 0.0
+
+
+def _input_mask(mask: np.ndarray, texture: Any, motion: Motion) -> np.ndarray:
+    """An analysis-rate (T, m) mask at the input frames and skeleton joints, (T_in, J)."""
+    out = np.zeros((motion.n_frames, motion.n_joints), bool)
+    x = np.rint(np.arange(motion.n_frames) * (texture.fps / motion.fps)).astype(np.int64).clip(0, len(mask) - 1)
+    out[:, texture.joint_index] = mask[x]
+    return out
+
+
 def _eq2(clean: np.ndarray, other: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """Eq. 2 of a whole clip (per-frame sum over joints, mean over frames) and on its erroneous cells (mean)."""
     cell = _log_norm_sq(clean, other)
@@ -265,8 +333,10 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
         base = RotationBaselines([t for k, t in enumerate(textures) if k != i])
         q_bad = motion_texture(case.bad, joints, cp.fps).q
         lim, der = base.limits(q_bad), base.derivative(q_bad)
+        glitch = source_glitches(case.clean_texture.q)
+        moved = (quat.geodesic_angle(case.clean_texture.q, q_bad) > 1e-6) | (glitch & ~truth)
         for name, flags in (("baseline_a_limits", lim), ("baseline_b_derivative", der), ("baseline_c_both", lim | der)):
-            _add(counts, (name, "-"), scores(flags, truth, starts, cp.source_length))
+            _add(counts, (name, "-"), scores(flags, truth, starts, cp.source_length, moved))
         for context in p.contexts:
             ctx = context_clips(context, case.others, p)
             two = context == "large_two_stage"
@@ -278,17 +348,26 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
                 out = clean_motion(cl, case.bad, ctx, analysis=analysis)
                 if method == "mdm":
                     times.setdefault(context, []).append(time.perf_counter() - t0)
-                _add(counts, (method, context), scores(out.flags, truth, starts, cp.source_length))
+                _add(counts, (method, context), scores(out.flags, truth, starts, cp.source_length, moved))
                 clean_run = clean_motion(cl, case.clean, ctx, calibration=out.calibration
                                          if out.calibration is not None and out.calibration.source == "context" else None)
                 g0, e0 = _eq2(case.clean_texture.q, analysis.texture.q, truth)
                 g1, e1 = _eq2(case.clean_texture.q, out.repaired, truth)
                 n_in = case.clean.n_frames * len(case.clean_texture.joint_index)
+                # the same with the source's own glitches left out (source_glitches)
+                g0n = g0 - _glitch_part(case.clean_texture.q, analysis.texture.q, glitch)
+                g1n = g1 - _glitch_part(case.clean_texture.q, out.repaired, glitch)
+                ce = clean_run.edits
+                gl_in = _input_mask(glitch, case.clean_texture, case.clean)
+                outside = ~gl_in[ce["frame"].to_numpy(), ce["joint"].to_numpy()] if ce.num_rows else np.zeros(0, bool)
                 repair.setdefault((method, context), []).append({
                     "global_before": g0, "global_after": g1, "cells_before": e0, "cells_after": e1,
                     "clean_edited_share": clean_run.edits.num_rows / max(n_in, 1),
                     "clean_max_edit_deg": float(clean_run.edits["edit_deg"].to_numpy().max())
-                    if clean_run.edits.num_rows else 0.0})
+                    if clean_run.edits.num_rows else 0.0,
+                    "global_before_ng": g0n, "global_after_ng": g1n, "glitch_cells": int(glitch.sum()),
+                    "clean_max_edit_deg_ng": float(ce["edit_deg"].to_numpy()[outside].max()) if outside.any() else 0.0,
+                    "clean_glitch_edits": int((~outside).sum())})
                 _kind_rows(kinds, category, method, context, case, out)
             log(f"clean_eval {category} clip {case.clean.name} context {context}: {times[context][-1]:.2f} s")
     n = len(cases)
@@ -307,7 +386,13 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
                     "cells_after": float(np.nanmean(col["cells_after"])),
                     "clean_edited_share": float(col["clean_edited_share"].mean()),
                     "clean_edited_share_max": float(col["clean_edited_share"].max()),
-                    "clean_max_edit_deg": float(col["clean_max_edit_deg"].max())})
+                    "clean_max_edit_deg": float(col["clean_max_edit_deg"].max()),
+                    "global_before_ng": float(col["global_before_ng"].mean()),
+                    "global_after_ng": float(col["global_after_ng"].mean()),
+                    "share_global_lower_ng": float(np.mean(col["global_after_ng"] < col["global_before_ng"])),
+                    "glitch_cells": int(col["glitch_cells"].sum()),
+                    "clean_max_edit_deg_ng": float(col["clean_max_edit_deg_ng"].max()),
+                    "clean_glitch_edits": int(col["clean_glitch_edits"].sum())})
     kind_rows = [{"category": key[0], "method": key[1], "context": key[2], "kind": key[3], **val}
                  for key, val in kinds.items()]
     return rows, rep, kind_rows

@@ -4,7 +4,10 @@
 :func:`.repair.repair_texture` (median KNN word, Savitzky-Golay blend), as §3.4 and §4 say.
 ``mode="calibrated"``: :func:`.calibration.calibrate` fits the detector on the clean
 context, :meth:`.calibration.Calibration.detect` flags the take's cells and
-:func:`.bounded_repair.bounded_repair` repairs them. Both carry the repair to the input
+:func:`.bounded_repair.bounded_repair` repairs them (swaps found by their edges,
+:mod:`.swaps`; offsets between two consistent jumps, :mod:`.offsets`; the KNN word
+otherwise). ``agree`` drops runs only the digression flagged that no other cue backs;
+``flag_rule: repaired`` reports only the flags whose repair held up. Both carry the repair to the input
 frames with :func:`.repair.apply_to_input`.
 """
 from __future__ import annotations
@@ -89,6 +92,35 @@ def _edits(motion: Motion, cleaned: Motion, changed: np.ndarray, texture: Any, c
     return tab.append_column("cue", pa.array(_input_cues(motion, texture, cue, f, j), pa.string()))
 
 
+def _agreeing(flags: np.ndarray, dom: np.ndarray, ev: np.ndarray, level: float) -> np.ndarray:
+    """``flags`` without the runs of one joint flagged by the digression alone that no other
+    cue backs: no cell of the run (+-1 frame) has acceleration or freeze evidence above
+    ``level`` (an offset has jumps at its ends, a freeze its stillness; a rare clean pose
+    neither)."""
+    from .bounded_repair import _runs
+    from .cues import CUES
+
+    out = flags.copy()
+    other = np.maximum(ev[..., CUES.index("acceleration")], ev[..., CUES.index("freeze")])
+    dig = CUES.index("digression")
+    for j in np.flatnonzero(flags.any(axis=0)):
+        for a, b in _runs(flags[:, j]):
+            if np.all(dom[a:b, j] == dig) and not (other[max(0, a - 1):b + 1, j] > level).any():
+                out[a:b, j] = False
+    return out
+
+
+def cue_of_run(cue: np.ndarray, grown: np.ndarray) -> np.ndarray:
+    """For the cells of ``grown`` (T, m), the cue of the nearest flagged cell of the same joint
+    (the run they extend), values for ``cue[grown]``."""
+    out = []
+    for f, j in zip(*np.nonzero(grown)):
+        col = cue[:, j]
+        have = np.flatnonzero(col != None)  # noqa: E711 - object array: elementwise comparison with None
+        out.append(col[have[np.argmin(np.abs(have - f))]] if len(have) else None)
+    return np.array(out, dtype=object)
+
+
 def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Sequence[Any] = (),
                  analysis: Any = None, calibration: Any = None) -> Any:
     """Analyse, decide and repair one clip; returns :class:`.mdm.CleanResult`.
@@ -117,13 +149,28 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                         false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
                         seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues)
         flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints)
+        if p.agree is not None:
+            flags = _agreeing(flags, dom, cal.evidence(res.texture.q, res.mean_texture, res.spread, res.joints),
+                              p.agree)
         mirror_flags = flags & (dom == CUES.index("mirror"))
+        extra: dict = {}
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
         cap = np.where(local, np.pi, np.deg2rad(p.max_edit))
-        new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap)
+        new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap,
+                                                swap_level=p.swap_level, swap_max=p.swap_max,
+                                                mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
+                                                extra=extra, interp=dom == CUES.index("acceleration"),
+                                                interp_max=p.interp_max, merge_gap=p.merge_gap)
         cue[flags] = np.array(CUES, dtype=object)[dom[flags]]
+        grown = extra["offset"] & ~flags  # the rest of an offset interval, between its two jumps
+        cue[grown] = cue_of_run(cue, grown)
         cue[swapped] = "mirror"
-        flags = flags | swapped
+        if p.flag_rule == "repaired":
+            # a flag whose repair did not hold up (not nearer the consensus, a swap that did not
+            # smooth its ends) is no claim the cleaner acts on
+            cue[flags & ~edited] = None
+            flags = flags & edited
+        flags = flags | swapped | extra["offset"]
         value = 1.0 - np.exp2(-(evidence ** 2))
         value = np.where(flags, np.maximum(value, 0.5 + 1e-6), np.minimum(value, 0.5))
     cleaned, changed = apply_to_input(motion, res.texture, new24, edited)

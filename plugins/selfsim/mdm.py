@@ -107,6 +107,27 @@ class MDMParams(Params):
                             "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
     swap_gain: float = Field(default=0.1, ge=0, description="calibrated: least chain mirror gain (radians over the "
                              "chain pair) for swapping limbs back")
+    swap_level: float | None = Field(default=3.0, gt=0, description="calibrated: least edge benefit (units of the "
+                                     "chains' typical acceleration) at both ends of a swap found by its edges "
+                                     "(cleaners/swaps.py); None = only the mirror cue's swaps")
+    offset_level: float | None = Field(default=6.0, gt=0, description="calibrated: flagged runs whose ends are "
+                                       "two consistent jumps of at least this many typical accelerations of the joint "
+                                       "(and 8 degrees) are repaired by taking the offset out (cleaners/offsets.py); "
+                                       "None = always the KNN word")
+    flag_rule: Literal["evidence", "repaired"] = Field(
+        default="repaired", description="calibrated: cells reported flagged: every cell whose evidence exceeds its level "
+        "('evidence'), or only those the bounded repair changed ('repaired'; swaps and offsets always)")
+    interp_max: int = Field(default=0, ge=0, description="calibrated: runs of up to this many frames flagged by the "
+                            "acceleration cue (and no offset) are interpolated between their neighbours instead of "
+                            "taking the KNN word; 0 = off")
+    merge_gap: int = Field(default=3, ge=0, description="calibrated: flagged runs of one joint at most this many "
+                           "frames apart are repaired as one (the gap included); 0 = off")
+    agree: float | None = Field(default=0.3, gt=0, description="calibrated: runs flagged by the digression alone "
+                                "are kept only where the acceleration or freeze evidence exceeds this somewhere in "
+                                "the run (+-1 frame); None = off")
+    swap_max: int = Field(default=72, ge=2, description="calibrated: longest swap found by its edges, frames at fps")
+    mirror_swaps: bool = Field(default=True, description="calibrated: also swap back the runs the mirror cue flags "
+                               "where no edge swap overlaps")
 
     fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
     joints: tuple[str, ...] = Field(default=DEFAULT_JOINTS, description="texture joints (canonical names; absent ones are skipped)")
