@@ -6,27 +6,19 @@ feature sets, indexes, matchers and cleaners are available here under their name
 """
 from __future__ import annotations
 
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 
-@lru_cache(maxsize=1)
 def registries():
     """The registries of every installed plugin (built once per process)."""
-    from mocapflow.framework.plugins import load_registries
+    from mocapflow.framework.plugins import default_registries
 
-    return load_registries()
+    return default_registries()
 
 
 def _format_for(path: Path, *, writing: bool):
-    from mocapflow.framework.errors import ConfigError
-
-    ext = path.suffix.lower()
-    for _, cls in registries()["formats"]:
-        if ext in cls.extensions and getattr(cls, "produces", "motion") == "motion" and (not writing or cls.can_write()):
-            return cls()
-    raise ConfigError(f"{path}: no registered {'writer' if writing else 'reader'} for {ext or 'extensionless'!r} files")
+    return registries().motion_format(path, writing=writing)
 
 
 def read(path: str | Path):

@@ -134,9 +134,11 @@ class Motion:
     # --- editing ------------------------------------------------------------------------
     def write(self, path: str | Path) -> None:
         """Write with the registered format for the extension of ``path`` (``.bvh``, ``.amc`` ...), atomically."""
-        from mocapflow.api import write
+        from .plugins import default_registries
 
-        write(self, path)
+        path = Path(path).expanduser()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        default_registries().motion_format(path, writing=True).write_atomic(self, path)
 
     def slice(self, start: int, stop: int) -> Motion:
         """Frames ``[start, stop)`` as a new clip (metadata records the offset)."""

@@ -253,3 +253,14 @@ def call_lifecycle(hook_relay: Any, hook_name: str, **kwargs: Any) -> None:
 def load_registries(**kwargs) -> Registries:
     """Shortcut: ``build_registries(get_plugin_manager(**kwargs))``."""
     return build_registries(get_plugin_manager(**kwargs))
+
+
+_DEFAULT: list[Registries] = []
+
+
+def default_registries() -> Registries:
+    """The registries of every installed plugin, built once per process (the Python API
+    and :meth:`Motion.write` use them)."""
+    if not _DEFAULT:
+        _DEFAULT.append(load_registries())
+    return _DEFAULT[0]

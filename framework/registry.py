@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 from dataclasses import dataclass, field
 
 from .errors import ConfigError, PluginError
@@ -96,6 +98,17 @@ class Registries:
             every = [f"{kind}.{n}" for n in registry.names()]
             raise ConfigError(f"unknown component {key!r}{did_you_mean(key, every)}")
         return registry.get(name)
+
+    def motion_format(self, path: str | Path, *, writing: bool = False) -> Any:
+        """An instance of the registered motion format for the extension of ``path``
+        (a writer when ``writing``); :class:`ConfigError` when none handles it."""
+        ext = Path(path).suffix.lower()
+        for _, cls in self.by_kind["formats"]:
+            if ext in cls.extensions and getattr(cls, "produces", "motion") == "motion" and (
+                    not writing or cls.can_write()):
+                return cls()
+        raise ConfigError(f"{path}: no registered {'writer' if writing else 'reader'} for "
+                          f"{ext or 'extensionless'!r} files")
 
     def keys(self) -> list[str]:
         return [f"{k}.{n}" for k, r in self.by_kind.items() for n in r.names()]
