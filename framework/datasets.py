@@ -116,9 +116,10 @@ class Dataset:
     # --- typed views ----------------------------------------------------------------
     def features(self) -> FeatureMatrix:
         """The feature matrix of a features dataset."""
-        t = self.table("data")
-        if "features" not in t.column_names:
+        names = pq.read_schema(self.path / "data.parquet").names if self.has_table("data") else []
+        if "features" not in names:
             raise PipelineError(f"dataset {self.path.name!r} ({self.producer}) holds no feature vectors")
+        t = self.table("data", columns=["clip_id", "frame", "features"])
         return FeatureMatrix(
             t["clip_id"].to_numpy().astype(np.int32),
             t["frame"].to_numpy().astype(np.int32),
@@ -131,7 +132,8 @@ class Dataset:
 
         if not self.has_table("clips"):
             raise PipelineError(f"dataset {self.path.name!r} ({self.producer}) holds no motions")
-        return database_from_tables(self.table("clips"), self.table("skeletons"), self.table("data"))
+        return database_from_tables(self.table("clips"), self.table("skeletons"),
+                                    self.table("data", columns=list(schema.MOTION_COLUMNS)))
 
     def index(self, registries=None):  # -> Index
         """Load the persisted index of an index dataset (no rebuild)."""
