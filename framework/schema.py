@@ -4,7 +4,7 @@ Conventions, stated once:
 
 * every frame table has ``clip_id`` (int32) and ``frame`` (int32, 0-based within the clip);
 * ``clip_id`` is the clip's identity, not its rank: a 31-bit hash of the source file's path
-  relative to the pipeline folder (:func:`clip_id_of`), so adding, removing or breaking one
+  relative to the ingest root (:func:`clip_id_of`), so adding, removing or breaking one
   file never renumbers another. Ids are sparse and unordered; tables list clips in path
   order, and code that needs a position looks it up (never ``clip_id`` as an array index);
 * every segment or match table has ``clip_id, start_frame, end_frame`` where the range is
@@ -113,7 +113,7 @@ def motion_frames() -> pa.Schema:
 
 def clip_id_of(key: str) -> int:
     """Stable clip id of a source file: the first 31 bits of SHA-1 of ``key`` (its path
-    relative to the pipeline folder, POSIX separators), a non-negative int32 (-1 stays free
+    relative to the ingest root, POSIX separators), a non-negative int32 (-1 stays free
     for "not a clip"). Collisions are resolved by :func:`clip_ids_of`."""
     import hashlib
 

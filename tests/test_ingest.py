@@ -131,7 +131,7 @@ def test_clip_ids_are_stable_when_a_file_starts_failing(tmp_path):
     p = pipeline(tmp_path, ["d/*.amc"])
     run_pipeline(p, pm=pm())
     before = {r["name"]: r["clip_id"] for r in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()}
-    assert before["02_02"] == clip_id_of("d/02_02.amc")  # relative to the pipeline folder
+    assert before["02_02"] == clip_id_of("02_02.amc")  # relative to the patterns' folder, d/
     assert [c["name"] for c in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()] == sorted(before)
     (data / "02_01.amc").write_text("")  # the first file (rank 0) breaks
     run_pipeline(p, pm=pm())

@@ -107,13 +107,24 @@ class _FileIngest(Format):
                     h.update(f"{g}|missing\n".encode())
         return h.hexdigest()[:24]
 
-    @staticmethod
-    def clip_ids(files: list[Path], base_dir: Path) -> list[int]:
+    def ingest_root(self, base_dir: Path) -> str:
+        """The folder clip ids are relative to: the common folder of the patterns' literal
+        parts (``../examples/data/cmu`` for ``../examples/data/cmu/**/*.amc``), so that the
+        id of a take is the same whichever pipeline reads it, from wherever."""
+        roots = []
+        for pat in self.params.paths:
+            p = Path(pat).expanduser()
+            parts = (p if p.is_absolute() else base_dir / p).parts
+            lit = next((i for i, part in enumerate(parts) if glob.has_magic(part)), len(parts) - 1)
+            roots.append(os.path.realpath(Path(*parts[:lit]) if lit else Path(parts[0])))
+        return os.path.commonpath(roots)
+
+    def clip_ids(self, files: list[Path], base_dir: Path) -> list[int]:
         """Stable clip id of each file: :func:`~mocapflow.framework.schema.clip_ids_of` its
-        path relative to the pipeline folder (POSIX separators), so the id survives moving
-        the project and does not depend on which other files match or parse."""
-        base = os.path.realpath(base_dir)
-        return schema.clip_ids_of([Path(os.path.relpath(f, base)).as_posix() for f in files])
+        path relative to :meth:`ingest_root` (POSIX separators, e.g. ``02/02_01.amc``), so the
+        id does not depend on which other files match or parse, nor on where the pipeline is."""
+        root = self.ingest_root(base_dir)
+        return schema.clip_ids_of([Path(os.path.relpath(os.path.realpath(f), root)).as_posix() for f in files])
 
     def _read_all(self, ctx: StepContext, fps: float | None = None) -> tuple[list[Any], list[int], list[tuple], int, int]:
         """``(objects, their clip ids, rejects as (clip_id, path, line, message), files read,
