@@ -107,6 +107,13 @@ class Dataset:
     def has_table(self, name: str) -> bool:
         return (self.path / f"{name}.parquet").is_file()
 
+    def schema(self, name: str = "data") -> pa.Schema:
+        """The Arrow schema of one table (its footer only: no column is decoded)."""
+        p = self.path / f"{name}.parquet"
+        if not p.is_file():
+            raise PipelineError(f"dataset {self.path.name!r} has no table {name!r} (has {', '.join(self.table_names())})")
+        return pq.read_schema(p)
+
     def table(self, name: str = "data", columns: list[str] | None = None) -> pa.Table:
         p = self.path / f"{name}.parquet"
         if not p.is_file():
@@ -116,9 +123,9 @@ class Dataset:
     # --- typed views ----------------------------------------------------------------
     def features(self) -> FeatureMatrix:
         """The feature matrix of a features dataset."""
-        t = self.table("data")
-        if "features" not in t.column_names:
+        if "features" not in (self.schema("data").names if self.has_table("data") else []):
             raise PipelineError(f"dataset {self.path.name!r} ({self.producer}) holds no feature vectors")
+        t = self.table("data", columns=["clip_id", "frame", "features"])
         return FeatureMatrix(
             t["clip_id"].to_numpy().astype(np.int32),
             t["frame"].to_numpy().astype(np.int32),
@@ -131,7 +138,8 @@ class Dataset:
 
         if not self.has_table("clips"):
             raise PipelineError(f"dataset {self.path.name!r} ({self.producer}) holds no motions")
-        return database_from_tables(self.table("clips"), self.table("skeletons"), self.table("data"))
+        return database_from_tables(self.table("clips"), self.table("skeletons"),
+                                    self.table("data", columns=list(schema.MOTION_COLUMNS)))
 
     def index(self, registries=None):  # -> Index
         """Load the persisted index of an index dataset (no rebuild)."""

@@ -9,7 +9,7 @@ import pyarrow as pa
 
 from . import schema
 from .database import MotionDatabase
-from .joints import CANONICAL_JOINTS
+from .errors import DataError
 from .motion import Motion
 from .schema import fixed_list
 from .skeleton import Skeleton
@@ -48,26 +48,30 @@ def skeletons_table(skeletons: Sequence[Skeleton]) -> pa.Table:
 
 
 def frames_table(clip_id: int, motion: Motion) -> pa.Table:
-    """Frame rows of one clip (:func:`.schema.motion_frames`)."""
+    """Frame rows of one clip (:func:`.schema.motion_frames`; no forward kinematics)."""
     t, j = motion.n_frames, motion.n_joints
     rot = motion.rotations.astype(np.float32).reshape(t, j * 4)
     rot_arr = pa.ListArray.from_arrays(pa.array(np.arange(0, t * j * 4 + 1, j * 4, dtype=np.int32)), pa.array(rot.reshape(-1)))
-    pos = motion.canonical_positions(CANONICAL_JOINTS).astype(np.float32).reshape(t, -1)
     return pa.Table.from_arrays(
         [
             pa.array(np.full(t, clip_id, np.int32)),
             pa.array(np.arange(t, dtype=np.int32)),
             fixed_list(motion.root_translation.astype(np.float32)),
             rot_arr,
-            fixed_list(pos),
         ],
         schema=schema.motion_frames(),
     )
 
 
 def motions_to_tables(motions: Sequence[Motion], clip_ids: Sequence[int] | None = None) -> dict[str, pa.Table]:
-    """``{"data": frames, "clips": ..., "skeletons": ...}`` for a list of motions."""
-    ids = list(range(len(motions))) if clip_ids is None else list(clip_ids)
+    """``{"data": frames, "clips": ..., "skeletons": ...}`` for a list of motions.
+
+    ``clip_ids`` (distinct; any order) default to ``0..n-1`` like :class:`MotionDatabase`'s;
+    ingest passes the stable ids of the files (:func:`.schema.clip_ids_of`).
+    """
+    ids = list(range(len(motions))) if clip_ids is None else [int(c) for c in clip_ids]
+    if len(ids) != len(motions) or len(set(ids)) != len(ids):
+        raise DataError(f"need {len(motions)} distinct clip ids, got {len(set(ids))} distinct of {len(ids)}")
     frames = [frames_table(i, m) for i, m in zip(ids, motions)]
     data = pa.concat_tables(frames) if frames else schema.motion_frames().empty_table()
     return {
@@ -80,12 +84,14 @@ def motions_to_tables(motions: Sequence[Motion], clip_ids: Sequence[int] | None 
 def database_from_tables(clips: pa.Table, skeletons: pa.Table, frames: pa.Table) -> MotionDatabase:
     """Rebuild a :class:`MotionDatabase` from the tables of a motions dataset."""
     skel = {row["skeleton"]: Skeleton.from_dict(json.loads(row["definition"])) for row in skeletons.to_pylist()}
-    clip_col = frames["clip_id"].to_numpy()
     root = np.asarray(frames["root_translation"].combine_chunks().flatten().to_numpy(), np.float64).reshape(-1, 3)
     rot_flat = np.asarray(frames["rotations"].combine_chunks().flatten().to_numpy(), np.float64)
     motions, ids = [], []
-    # frames are stored clip by clip, in clips-table order
-    starts = np.searchsorted(clip_col, clips["clip_id"].to_numpy(), side="left") if len(clip_col) else []
+    # frames are stored clip by clip, in clips-table order (clip ids are hashes, not sorted)
+    n_frames = clips["n_frames"].to_numpy().astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(n_frames)[:-1]]).astype(np.int64)
+    if int(n_frames.sum()) != frames.num_rows:
+        raise DataError(f"clips table counts {int(n_frames.sum())} frames, data table has {frames.num_rows}")
     rot_offset = 0
     for row, start in zip(clips.to_pylist(), starts):
         s = skel[row["skeleton"]]

@@ -3,6 +3,10 @@
 Conventions, stated once:
 
 * every frame table has ``clip_id`` (int32) and ``frame`` (int32, 0-based within the clip);
+* ``clip_id`` is the clip's identity, not its rank: a 31-bit hash of the source file's path
+  relative to the ingest root (:func:`clip_id_of`), so adding, removing or breaking one
+  file never renumbers another. Ids are sparse and unordered; tables list clips in path
+  order, and code that needs a position looks it up (never ``clip_id`` as an array index);
 * every segment or match table has ``clip_id, start_frame, end_frame`` where the range is
   **half-open**: ``end_frame`` is *exclusive* (``end_frame - start_frame`` frames);
 * feature vectors are fixed-size lists of float32;
@@ -33,7 +37,36 @@ CLIPS = pa.schema(
     ]
 )
 
-REJECTS = pa.schema([("path", pa.string()), ("line", pa.int32()), ("message", pa.string())])
+#: Files that failed to read, with the id they would have had (``clip_id_of`` of their path).
+REJECTS = pa.schema([("clip_id", pa.int32()), ("path", pa.string()), ("line", pa.int32()), ("message", pa.string())])
+
+#: ``clips`` table of a markers dataset (``labels``: the marker names, in ``positions`` order).
+MARKER_CLIPS = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("name", pa.string()),
+        ("path", pa.string()),
+        ("format", pa.string()),
+        ("fps", pa.float64()),
+        ("n_frames", pa.int32()),
+        ("n_markers", pa.int32()),
+        ("labels", pa.list_(pa.string())),
+        ("up_axis", pa.string()),
+    ]
+)
+
+#: ``data`` table of a markers dataset: the clip's M*3 coordinates (metres, NaN in gaps), x y z
+#: per marker in the order of that clip's ``clips.labels``.
+MARKER_FRAMES = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("frame", pa.int32()),
+        pa.field("positions", pa.list_(pa.float32()), metadata={"layout": "x,y,z per marker, in clips.labels order (metres)"}),
+    ]
+)
+
+#: ``data`` table of ``formats.export``: one row per written file.
+EXPORTS = pa.schema([("clip_id", pa.int32()), ("name", pa.string()), ("file", pa.string())])
 
 SKELETONS = pa.schema([("skeleton", pa.string()), ("name", pa.string()), ("n_joints", pa.int32()), ("definition", pa.string())])
 
@@ -54,22 +87,58 @@ MATCHES = pa.schema(
 WARPING_PATH = pa.field("path", pa.list_(pa.list_(pa.int32(), 2)))
 
 
+#: Columns of a motions dataset's ``data`` table that rebuild its motions (``frame`` is implied).
+MOTION_COLUMNS = ("clip_id", "root_translation", "rotations")
+
+
 def motion_frames() -> pa.Schema:
     """Schema of a motions dataset's frame table.
 
-    ``rotations`` holds the J*4 local quaternion components (w, x, y, z per joint) of the
-    clip's skeleton (variable length across skeletons); ``positions`` the canonical joint
-    positions (25*3, metres, NaN where a skeleton lacks the joint).
+    ``rotations`` holds the J*4 local quaternion components (w, x, y, z per joint, joints in
+    the order of the clip's skeleton definition in ``skeletons``; variable length across
+    skeletons). Joint positions are not stored: they are derived by forward kinematics
+    (``Motion.positions``) where a step needs them, so FK runs once per use, from the
+    stored rotations, and not also at ingest (issue 12).
     """
     return pa.schema(
         [
             ("clip_id", pa.int32()),
             ("frame", pa.int32()),
-            ("root_translation", pa.list_(pa.float32(), 3)),
-            ("rotations", pa.list_(pa.float32())),
-            ("positions", pa.list_(pa.float32(), 75)),
+            pa.field("root_translation", pa.list_(pa.float32(), 3), metadata={"layout": "x,y,z of the root (metres)"}),
+            pa.field("rotations", pa.list_(pa.float32()),
+                     metadata={"layout": "w,x,y,z per joint, in the order of skeletons.definition joints"}),
         ]
     )
+
+
+def clip_id_of(key: str) -> int:
+    """Stable clip id of a source file: the first 31 bits of SHA-1 of ``key`` (its path
+    relative to the ingest root, POSIX separators), a non-negative int32 (-1 stays free
+    for "not a clip"). Collisions are resolved by :func:`clip_ids_of`."""
+    import hashlib
+
+    return int.from_bytes(hashlib.sha1(key.encode("utf-8")).digest()[:4], "big") & 0x7FFFFFFF
+
+
+def clip_ids_of(keys: list[str]) -> list[int]:
+    """Stable ids of distinct ``keys`` (:func:`clip_id_of`), collisions resolved
+    deterministically: 31 bits give a collision among 10 000 files with probability about
+    2 %, so rather than fail, the key that sorts later rehashes ``key + "#1"``, ``"#2"``...
+    until its id is free. Only colliding keys depend on each other; which files *parse*
+    never matters, since ids are given to every matched file before reading.
+    """
+    if len(set(keys)) != len(keys):
+        raise ValueError("clip_ids_of needs distinct keys")
+    taken: dict[int, str] = {}
+    out: dict[str, int] = {}
+    for key in sorted(keys):
+        cid, salt = clip_id_of(key), 0
+        while cid in taken:
+            salt += 1
+            cid = clip_id_of(f"{key}#{salt}")
+        taken[cid] = key
+        out[key] = cid
+    return [out[k] for k in keys]
 
 
 def feature_frames(dim: int) -> pa.Schema:

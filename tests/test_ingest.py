@@ -119,3 +119,46 @@ def test_marker_files_ingest(tmp_path):
         assert n == sum(c["n_frames"] for c in clips)
         sizes = cat.query("SELECT DISTINCT clip_id, len(positions) AS k FROM markers ORDER BY clip_id").to_pylist()
         assert [s["k"] for s in sizes] == [3 * c["n_markers"] for c in clips]
+
+
+def test_clip_ids_are_stable_when_a_file_starts_failing(tmp_path):
+    """clip_id comes from the file's path, not its rank: breaking one file renumbers no
+    other clip, and the broken file is recorded in ``rejects`` with the id it would have."""
+    from mocapflow.framework.schema import clip_id_of
+
+    data = tmp_path / "d"
+    shutil.copytree(EXAMPLES_DATA / "cmu" / "02", data)
+    p = pipeline(tmp_path, ["d/*.amc"])
+    run_pipeline(p, pm=pm())
+    before = {r["name"]: r["clip_id"] for r in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()}
+    assert before["02_02"] == clip_id_of("02_02.amc")  # relative to the patterns' folder, d/
+    assert [c["name"] for c in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()] == sorted(before)
+    (data / "02_01.amc").write_text("")  # the first file (rank 0) breaks
+    run_pipeline(p, pm=pm())
+    after = {r["name"]: r["clip_id"] for r in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()}
+    assert after == {k: v for k, v in before.items() if k != "02_01"}
+    (reject,) = pq.read_table(tmp_path / "ws" / "motions" / "rejects.parquet").to_pylist()
+    assert Path(reject["path"]).name == "02_01.amc" and reject["clip_id"] == before["02_01"]
+    frames = pq.read_table(tmp_path / "ws" / "motions" / "data.parquet")
+    assert set(frames["clip_id"].to_pylist()) == set(after.values()) and "positions" not in frames.column_names
+
+
+def test_clip_id_collisions_are_resolved_deterministically():
+    from mocapflow.framework.schema import clip_id_of, clip_ids_of
+
+    # two keys whose 31-bit hashes collide, found by search once: key + "#1" rehash for the later one
+    keys = [f"k{i}" for i in range(200_000)]
+    seen: dict[int, str] = {}
+    pair = None
+    for k in keys:
+        c = clip_id_of(k)
+        if c in seen:
+            pair = (seen[c], k)
+            break
+        seen[c] = k
+    assert pair is not None
+    a, b = sorted(pair)
+    ids = clip_ids_of([b, "other", a])
+    assert ids[2] == clip_id_of(a) and ids[0] == clip_id_of(f"{b}#1") and len(set(ids)) == 3
+    assert clip_ids_of([a, b]) == [ids[2], ids[0]]  # order of the input does not matter
+    assert all(0 <= c < 2**31 for c in ids)

@@ -18,7 +18,7 @@ steps:
   poses:
     uses: analyses.nearest_poses
     inputs: {{index: tree, motions: motions}}
-    with: {{queries: ["{clip}:10", "0:5"], k: 16, exclude_frames: 0}}
+    with: {{queries: ["{clip}:10", "{clip_id}:5"], k: 16, exclude_frames: 0}}
   correlation:
     uses: analyses.distance_correlation
     input: motions
@@ -42,11 +42,16 @@ def test_small_knn_pipeline_end_to_end(tmp_path):
 
         pytest.skip("no bundled sample takes")
     y = tmp_path / "p.yaml"
-    y.write_text(SMALL.format(ws=tmp_path / "ws", data=EXAMPLES_DATA, clip=files[0].stem))
+    from mocapflow.framework.schema import clip_id_of
+
+    # a query by clip id: the stable id of the second take (hash of its path below cmu/02/)
+    cid = clip_id_of(files[1].name)
+    y.write_text(SMALL.format(ws=tmp_path / "ws", data=EXAMPLES_DATA, clip=files[0].stem, clip_id=cid))
     run_pipeline(y)
     ws = tmp_path / "ws"
     poses = Dataset(ws / "poses").table()
     assert poses.num_rows == 32 and set(poses["rank"].to_pylist()) == set(range(16))
+    assert {r["query_clip_id"] for r in poses.to_pylist() if r["query_id"] == 1} == {cid}
     q0 = [r for r in poses.to_pylist() if r["query_id"] == 0]
     assert all(not (r["clip_id"] == r["query_clip_id"] and r["frame"] == r["query_frame"]) for r in q0)
     d = [r["distance"] for r in q0]

@@ -149,12 +149,12 @@ def test_search_hits_carry_their_warping_path_and_play_real_motion(quickstart_si
     assert (q["clip"], q["start"], q["end"]) == ("16_15", 30, 60)
     best = view["hits"][0]
     assert best["clip"] == "16_15" and best["cost"] == 0.0 and best["path"][0] == [0, 30] and len(best["path"]) == 30
-    # the data file of the query's take decodes to the motions dataset's positions
+    # the data file of the query's take decodes to the canonical positions of its stored motion
+    from mocapflow.framework.joints import CANONICAL_JOINTS
+
     key, meta, parts = read_blob(quickstart_site / m["data_files"][q["motion"]]["file"])
-    ds = Dataset(quickstart_workspace / "motions")
-    t = ds.table("data", columns=["clip_id", "frame", "positions"])
-    sel = np.asarray(t["clip_id"].to_numpy()) == q["clip_id"]
-    want = np.asarray(t["positions"].to_pylist(), np.float64)[sel].reshape(-1, 25, 3)
+    db = Dataset(quickstart_workspace / "motions").motions()
+    want = db.motions[db.clip_ids.tolist().index(q["clip_id"])].canonical_positions(CANONICAL_JOINTS)
     got = decode_positions(parts["root"], parts["rel"], meta["scale"])
     ok = np.isfinite(want)
     assert key == q["motion"] and got.shape == want.shape and np.abs(got[ok] - want[ok]).max() < 1e-4
@@ -222,11 +222,15 @@ def test_hits_and_queries_are_named_from_their_own_motions(extras_workspace, tmp
     build_report(extras_workspace, tmp_path / "r")
     view = next(s for s in page_model(tmp_path / "r")["steps"] if s["id"] == "probe_search")["views"][0]
     (q,) = view["queries"]
-    # clip id 0 is 35_01 in 'probe' but 02_01 in 'motions'
-    assert (q["clip_id"], q["clip"], view["query_motions"], view["motions"]) == (0, "35_01", "probe", "motions")
+    from mocapflow.framework.schema import clip_id_of
+
+    # the query is named from 'probe', whose ingest root is cmu/35 (motions': cmu), so 35_01 has
+    # another clip id there; an id names a clip only together with its motions dataset
+    assert (q["clip"], view["query_motions"], view["motions"]) == ("35_01", "probe", "motions")
     best = view["hits"][0]
     assert (best["clip"], best["start"], best["cost"]) == ("35_01", 0, 0.0)
-    assert best["motion"] == f"m/motions/{best['clip_id']}" and q["motion"] == "m/probe/0"
+    assert (q["clip_id"], best["clip_id"]) == (clip_id_of("35_01.amc"), clip_id_of("35/35_01.amc"))
+    assert best["motion"] == f"m/motions/{best['clip_id']}" and q["motion"] == f"m/probe/{q['clip_id']}"
 
 
 def test_cli_errors_name_the_workspace(tmp_path, capsys):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Literal
@@ -106,9 +107,28 @@ class _FileIngest(Format):
                     h.update(f"{g}|missing\n".encode())
         return h.hexdigest()[:24]
 
-    def _read_all(self, ctx: StepContext, fps: float | None = None) -> tuple[list[Any], list[tuple], int, int]:
-        """``(objects, rejects, files read, files skipped)``; raises on the first reject with
-        ``on_error: fail``."""
+    def ingest_root(self, base_dir: Path) -> str:
+        """The folder clip ids are relative to: the common folder of the patterns' literal
+        parts (``../examples/data/cmu`` for ``../examples/data/cmu/**/*.amc``), so that the
+        id of a take is the same whichever pipeline reads it, from wherever."""
+        roots = []
+        for pat in self.params.paths:
+            p = Path(pat).expanduser()
+            parts = (p if p.is_absolute() else base_dir / p).parts
+            lit = next((i for i, part in enumerate(parts) if glob.has_magic(part)), len(parts) - 1)
+            roots.append(os.path.realpath(Path(*parts[:lit]) if lit else Path(parts[0])))
+        return os.path.commonpath(roots)
+
+    def clip_ids(self, files: list[Path], base_dir: Path) -> list[int]:
+        """Stable clip id of each file: :func:`~mocapflow.framework.schema.clip_ids_of` its
+        path relative to :meth:`ingest_root` (POSIX separators, e.g. ``02/02_01.amc``), so the
+        id does not depend on which other files match or parse, nor on where the pipeline is."""
+        root = self.ingest_root(base_dir)
+        return schema.clip_ids_of([Path(os.path.relpath(os.path.realpath(f), root)).as_posix() for f in files])
+
+    def _read_all(self, ctx: StepContext, fps: float | None = None) -> tuple[list[Any], list[int], list[tuple], int, int]:
+        """``(objects, their clip ids, rejects as (clip_id, path, line, message), files read,
+        files skipped)``; raises on the first reject with ``on_error: fail``."""
         by_ext: dict[str, type] = {}
         for _, cls in ctx.registries["formats"]:
             if getattr(cls, "produces", "") == self.reads:
@@ -119,16 +139,20 @@ class _FileIngest(Format):
                 for f in files if f.suffix.lower() in by_ext]
         if not jobs:
             raise PipelineError(f"no {self.reads} file matches {self.params.paths} (relative to {ctx.base_dir})")
+        # ids of every readable file before reading: a file that fails keeps its would-be id
+        ids = self.clip_ids([Path(j[2]) for j in jobs], ctx.base_dir)
         results = ctx.map(_read_file, jobs, desc=f"{ctx.step_id}: reading")
         good = [r for r in results if not isinstance(r, tuple)]
-        rejects = [r for r in results if isinstance(r, tuple)]
+        good_ids = [c for c, r in zip(ids, results) if not isinstance(r, tuple)]
+        rejects = [(c, *r) for c, r in zip(ids, results) if isinstance(r, tuple)]
         if rejects and self.params.on_error == "fail":
-            raise ParseError(*rejects[0])
-        return good, rejects, len(jobs), len(files) - len(jobs)
+            raise ParseError(*rejects[0][1:])
+        return good, good_ids, rejects, len(jobs), len(files) - len(jobs)
 
     @staticmethod
     def _rejects_table(rejects: list[tuple]) -> pa.Table:
-        return pa.Table.from_pylist([{"path": p, "line": ln, "message": m} for p, ln, m in rejects], schema=schema.REJECTS)
+        return pa.Table.from_pylist([{"clip_id": c, "path": p, "line": ln, "message": m} for c, p, ln, m in rejects],
+                                    schema=schema.REJECTS)
 
 
 class LoadMotions(_FileIngest):
@@ -147,8 +171,8 @@ class LoadMotions(_FileIngest):
         fps: float | None = Field(default=None, gt=0, description="resample every clip to this rate (Hz)")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        motions, rejects, n_files, skipped = self._read_all(ctx, self.params.fps)
-        tables = motions_to_tables(motions)
+        motions, ids, rejects, n_files, skipped = self._read_all(ctx, self.params.fps)
+        tables = motions_to_tables(motions, ids)
         tables["rejects"] = self._rejects_table(rejects)
         summary = {
             "files": n_files, "clips": len(motions), "frames": int(sum(m.n_frames for m in motions)),
@@ -170,26 +194,22 @@ class LoadMarkers(_FileIngest):
     output_kind = "markers"
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        good, rejects, n_files, _ = self._read_all(ctx)
+        good, ids, rejects, n_files, _ = self._read_all(ctx)
         frames, clips = [], []
-        for cid, mk in enumerate(good):
+        for cid, mk in zip(ids, good):
             t, m = mk.n_frames, mk.n_markers
             flat = mk.positions.astype(np.float32).reshape(-1)
-            frames.append(pa.table({
-                "clip_id": pa.array(np.full(t, cid, np.int32)), "frame": pa.array(np.arange(t, dtype=np.int32)),
-                "positions": pa.ListArray.from_arrays(pa.array(np.arange(0, t * m * 3 + 1, m * 3, dtype=np.int32)), pa.array(flat)),
-            }))
+            frames.append(pa.Table.from_arrays([
+                pa.array(np.full(t, cid, np.int32)), pa.array(np.arange(t, dtype=np.int32)),
+                pa.ListArray.from_arrays(pa.array(np.arange(0, t * m * 3 + 1, m * 3, dtype=np.int32)), pa.array(flat)),
+            ], schema=schema.MARKER_FRAMES))
             clips.append({"clip_id": cid, "name": mk.name, "path": str(mk.metadata.get("path", "")),
                           "format": str(mk.metadata.get("format", "")), "fps": mk.fps, "n_frames": t, "n_markers": m,
                           "labels": list(mk.labels), "up_axis": str(mk.metadata.get("up_axis", ""))})
-        clip_schema = pa.schema([("clip_id", pa.int32()), ("name", pa.string()), ("path", pa.string()), ("format", pa.string()),
-                                 ("fps", pa.float64()), ("n_frames", pa.int32()), ("n_markers", pa.int32()),
-                                 ("labels", pa.list_(pa.string())), ("up_axis", pa.string())])
-        data = pa.concat_tables(frames) if frames else pa.table({"clip_id": pa.array([], pa.int32()), "frame": pa.array([], pa.int32()),
-                                                                  "positions": pa.array([], pa.list_(pa.float32()))})
+        data = pa.concat_tables(frames) if frames else schema.MARKER_FRAMES.empty_table()
         tables = {
             "data": data,
-            "clips": pa.Table.from_pylist(clips, schema=clip_schema),
+            "clips": pa.Table.from_pylist(clips, schema=schema.MARKER_CLIPS),
             "rejects": self._rejects_table(rejects),
         }
         return StepOutput(tables, {"files": n_files, "clips": len(good), "rejects": len(rejects)})
@@ -214,9 +234,9 @@ class ExportMotions(Format):
         db = inputs["motions"].motions()
         rows = []
         for cid, m in zip(db.clip_ids, ctx.progress(db.motions, total=db.n_clips, desc=f"{ctx.step_id}: writing")):
-            out = ctx.out_dir / f"{int(cid):05d}_{m.name}{ext}"
+            out = ctx.out_dir / f"{int(cid):010d}_{m.name}{ext}"
             writer.write(m, out)
             rows.append({"clip_id": int(cid), "name": m.name, "file": out.name})
-        table = pa.Table.from_pylist(rows, schema=pa.schema([("clip_id", pa.int32()), ("name", pa.string()), ("file", pa.string())]))
+        table = pa.Table.from_pylist(rows, schema=schema.EXPORTS)
         return StepOutput({"data": table}, {"files": len(rows), "format": self.params.format})
 __all__ = ["ExportMotions", "LoadMarkers", "LoadMotions"]

@@ -271,9 +271,10 @@ class SetIndex:
              clip_offsets: np.ndarray) -> SetIndex:
         seg = pq.read_table(directory / f"{name}_segments.parquet")
         lists = pq.read_table(directory / f"{name}_lists.parquet")
-        lookup = np.full(int(clip_ids.max()) + 1 if len(clip_ids) else 1, -1, dtype=np.int64)
-        lookup[clip_ids] = np.arange(len(clip_ids))
-        seg_clip = lookup[seg["clip_id"].to_numpy()]
+        # clip ids are sparse hashes (schema.clip_id_of): positions by sorted lookup, not by index
+        order = np.argsort(clip_ids, kind="stable")
+        seg_ids = seg["clip_id"].to_numpy()
+        seg_clip = order[np.searchsorted(clip_ids[order], seg_ids)] if len(clip_ids) else np.zeros(len(seg_ids), np.int64)
         first = clip_offsets[seg_clip]
         col = lists["positions"].combine_chunks() if lists.num_rows else pa.array([], pa.list_(pa.int32()))
         return cls(name, columns, seg["start_frame"].to_numpy().astype(np.int64) + first,

@@ -281,7 +281,10 @@ def _fps(motions: Dataset) -> float | None:
 def _clip_layout(feats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frames grouped by clip (in the order they appear): bits (N, 31), clip ids, offsets."""
     cid = np.asarray(feats.clip_id)
-    order = np.lexsort((np.asarray(feats.frame), cid)) if len(cid) and np.any(np.diff(cid) < 0) else np.arange(len(cid))
+    # clips in order of first appearance (clip ids are hashes: sorting by id would reorder
+    # the clips away from the dataset's, and the inverted index's, frame order)
+    _, first, inv = np.unique(cid, return_index=True, return_inverse=True)
+    order = np.lexsort((np.asarray(feats.frame), first[inv].reshape(-1))) if len(cid) else np.arange(0)
     cid = cid[order]
     bits = np.asarray(feats.x)[order] > 0.5
     brk = np.flatnonzero(np.r_[True, cid[1:] != cid[:-1]]) if len(cid) else np.zeros(0, np.int64)

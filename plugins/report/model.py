@@ -106,15 +106,15 @@ class _Motions:
         return float(self._fps[step].get(int(clip_id)) or 30.0)
 
     def positions(self, step: str, clip_id: int) -> np.ndarray:
+        """Canonical joint positions (T, 25, 3) of a clip, metres: forward kinematics of the
+        stored rotations (motions datasets store no positions; issue 12, FK once)."""
         if step not in self._pos:
-            t = self.datasets[step].table("data", columns=["clip_id", "frame", "positions"])
-            cid = t["clip_id"].to_numpy()
-            pos = fixed_list_to_numpy(t["positions"]).reshape(len(cid), -1, 3)
-            order = np.lexsort((t["frame"].to_numpy(), cid))
-            cid, pos = cid[order], pos[order]
-            cuts = np.flatnonzero(np.diff(cid)) + 1
-            self._pos[step] = {int(c[0]): p for c, p in zip(np.split(cid, cuts), np.split(pos, cuts)) if len(c)}
-        return self._pos[step][int(clip_id)]
+            db = self.datasets[step].motions()
+            self._pos[step] = {int(c): m for c, m in zip(db.clip_ids, db.motions)}
+        got = self._pos[step][int(clip_id)]
+        if not isinstance(got, np.ndarray):  # FK only of the clips the report shows
+            got = self._pos[step][int(clip_id)] = got.canonical_positions(CANONICAL_JOINTS).astype(np.float32)
+        return got
 
 
 def motions_input(step: str, datasets: Mapping[str, Dataset]) -> str | None:

@@ -33,7 +33,7 @@ def workspace_tables(workspace: Path):
             if ds.has_table("clips"):
                 t = cat.relation(f"{step}_clips").project(
                     "clip_id, name, subject, format, fps, n_frames, round(n_frames / fps, 3) AS duration_s, "
-                    "source_fps, source_frames, path").order("clip_id").to_arrow_table()
+                    "source_fps, source_frames, path").order("path, clip_id").to_arrow_table()
                 clips.append(t.add_column(0, "step", pa.array([step] * t.num_rows, pa.string())))
             if ds.has_table("rejects"):
                 t = cat.relation(f"{step}_rejects").project("path, line, message").to_arrow_table()

@@ -261,7 +261,7 @@ class GlobalMatcher(Matcher):
         """Query features from the ``query`` input and the ``queries`` parameter."""
         qds = inputs["query"]
         specs = [parse_query_spec(s) for s in getattr(self.params, "queries", [])]
-        if "features" in qds.table("data").schema.names:
+        if "features" in qds.schema("data").names:
             return self._feature_queries(qds, specs)
         fds = self.features_dataset(inputs)
         if fds is None:

@@ -88,7 +88,7 @@ class SearchCommand:
         matcher = matcher_cls(params)
         space = matcher.search_space({"database": idx, "features": fds}, regs)
         spec = parse_query_spec(args.query)
-        clips = mds.table("clips")
+        clips = mds.table("clips", columns=["clip_id", "name", "fps"])
         # a query file needs only the database's frame rate, not its clips
         mdb = MotionDatabase([]) if Path(spec.source).expanduser().is_file() else mds.motions()
         fps = float(clips["fps"][0].as_py()) if clips.num_rows else None
