@@ -14,6 +14,7 @@ from pydantic import Field
 
 from mocapflow.framework import FeatureSet, Matcher, Motion, Params, StepContext, StepOutput, hookimpl
 from mocapflow.framework.datasets import Dataset
+from mocapflow.framework.errors import ConfigError
 from mocapflow.framework.schema import MATCHES
 
 END_EFFECTORS = ("lwrist", "rwrist", "lankle", "rankle", "head")
@@ -47,13 +48,17 @@ class SlidingWindow(Matcher):
     inputs: Mapping[str, bool] = {"database": True, "query": True}
 
     class Params(Params):
-        query_clip: int = Field(0, ge=0, description="clip_id of the query in the query dataset")
+        query_clip: int = Field(0, ge=0, description="position of the query clip in the query dataset "
+                                "(0: its first clip; clip ids are stable hashes of the file paths)")
         top: int = Field(5, ge=1, description="number of matches")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         db = inputs["database"].features()
         q = inputs["query"].features()
-        query = q.x[q.clip_id == self.params.query_clip]
+        order = q.clip_id[np.sort(np.unique(q.clip_id, return_index=True)[1])]  # clips in dataset order
+        if self.params.query_clip >= len(order):
+            raise ConfigError(f"query_clip {self.params.query_clip}: the query dataset has {len(order)} clips")
+        query = q.x[q.clip_id == order[self.params.query_clip]]
         n = len(query)
         rows = []
         for cid in np.unique(db.clip_id):
