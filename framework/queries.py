@@ -1,6 +1,11 @@
-"""Queries and databases of the global matchers: how a step's inputs become arrays.
+"""The default matcher step: how a step's inputs become a search space and query arrays.
 
-Inputs of a global matcher step (``lng``, ``sdtw``, ``logical``):
+:meth:`~mocapflow.framework.components.Matcher.run` is :func:`run_matcher`: it builds the
+:class:`~.matching.SearchSpace` (:func:`search_space`), the query features
+(:func:`step_queries`), calls ``matcher.match(query, space)`` per query (on the executor's
+workers when there are several) and writes ``data`` (:data:`~.schema.MATCH_TABLE`) and
+``queries`` (:data:`~.schema.QUERIES`). Inputs of such a step (``lng``, ``sdtw``,
+``logical``, a third party's):
 
 ``database`` (required)
     An index dataset (``indexes.*``): its ``data`` table maps index rows to
@@ -28,17 +33,18 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
 
-from mocapflow.framework import Matcher, Params
-from mocapflow.framework.datasets import Dataset, StepOutput
-from mocapflow.framework.errors import ConfigError, DataError, PipelineError
+from . import schema
+from .datasets import Dataset, StepOutput
+from .errors import ConfigError, DataError, PipelineError
+from .matching import QueryMatches, SearchSpace, matches_table
 
-from .matches import QueryMatches, SearchSpace, matches_table
+if TYPE_CHECKING:  # pragma: no cover
+    from .components import Matcher
 
 _RANGE = re.compile(r"^(?P<a>\d+(?:\.\d+)?)(?P<ua>s?)-(?P<b>\d+(?:\.\d+)?)(?P<ub>s?)$")
 
@@ -118,7 +124,7 @@ def feature_set_of(features: Dataset, registries):
 
 def read_motion_file(path: Path, registries, fps: float | None):
     """Read one motion file with the registered reader for its extension, resampled to ``fps``."""
-    from mocapflow.framework.normalize import resample
+    from .normalize import resample
 
     for _, cls in registries["formats"]:
         if getattr(cls, "produces", "") == "motion" and path.suffix.lower() in cls.extensions:
@@ -168,156 +174,119 @@ def motion_queries(specs: list[QuerySpec], mdb, feature_set, registries, resolve
     return out
 
 
-class MatchParams(Params):
-    """Parameters shared by the global matchers: which queries, and which matches are kept."""
+def query_files_fingerprint(queries: Any, base_dir: Path) -> str:
+    """Digest of the query files named in ``queries`` (path, size, mtime); "" when none.
 
-    count: int = Field(10, ge=1, description="matches kept per query")
-    max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
-    rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
-    min_span: float = Field(0.5, ge=0, le=10, description=(
-        "drop matches spanning fewer database frames than this fraction of the query length "
-        "(default 0.5: no whole query squashed onto a few frames; 0: all, as in the paper)"))
-    queries: list[str] = Field(default_factory=list, description=(
-        "query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); "
-        "empty: every clip of the query input"))
-
-
-class NeighborParams(MatchParams):
-    """:class:`MatchParams` plus the kNN search of the lazy neighborhood graph."""
-
-    k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
-    radius: float | None = Field(None, gt=0, description="fixed kNN search radius r in feature units; null: unbounded")
-    eps: float = Field(0.0, ge=0, description=(
-        "approximate kNN: neighbours within (1+eps) of the true ones (paper: 0, 0.1, 0.5; needs an index with eps)"))
-    propagate: int = Field(2, ge=0, description=(
-        "approximate neighbour sets (our extension): search the index only on every N-th query frame and take the "
-        "k nearest of the rows reachable from the previous frame's set in between; 0: every frame (the paper); "
-        "default 2: half the kNN searches at the gap-tolerant graph's quality (docs/global-matching.md)"))
-    gaps: int = Field(32, ge=0, le=1000, description=(
-        "gap-tolerant graph (our extension): cells within this many query frames after or before a neighbour cell "
-        "join the graph, their distance computed exactly; a path may cross up to 2*gaps query frames without a "
-        "neighbour cell; 0: the paper's graph (neighbour cells only)"))
-    exact: bool = Field(False, description=(
-        "certified-exact: return exactly subsequence DTW's matches, the DP pruned by an admissible bound "
-        "(rank_by cost; needs exact kNN)"))
-    fill: bool = Field(True, description=(
-        "when the graph holds fewer than count matches, return the certified-exact search's instead"))
-
-
-class GlobalMatcher(Matcher):
-    """Shared step logic of the matchers that align whole query segments (see module doc).
-
-    Subclasses set ``needs_index``/``needs_features`` and implement :meth:`match`.
+    Entries that are not query-spec strings (another matcher's structured queries) are skipped.
     """
+    h, files = hashlib.sha256(), 0
+    for text in queries or ():
+        if not isinstance(text, str):
+            continue
+        p = Path(parse_query_spec(text).source).expanduser()
+        p = p if p.is_absolute() else Path(base_dir) / p
+        if p.is_file():
+            st = p.stat()
+            h.update(f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+            files += 1
+    return h.hexdigest()[:24] if files else ""
 
-    inputs: ClassVar[Mapping[str, bool]] = {"database": True, "query": True, "features": False}
-    needs_index: ClassVar[bool] = True
-    needs_features: ClassVar[bool] = False
 
-    def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
-        raise NotImplementedError
+def features_dataset(inputs: Mapping[str, Dataset]) -> Dataset | None:
+    """The database's features dataset: the ``features`` input, the database itself, or the
+    index's upstream features (provenance)."""
+    db = inputs["database"]
+    if "features" in inputs:
+        return inputs["features"]
+    return db if db.producer_kind == "features" else upstream(db, "features")
 
-    def source_fingerprint(self, base_dir: Path) -> str:
-        """Query files named in ``queries`` (path, size, mtime): an edited file recomputes the step."""
-        h, files = hashlib.sha256(), 0
-        for text in getattr(self.params, "queries", []):
-            p = Path(parse_query_spec(text).source).expanduser()
-            p = p if p.is_absolute() else Path(base_dir) / p
-            if p.is_file():
-                st = p.stat()
-                h.update(f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode())
-                files += 1
-        return h.hexdigest()[:24] if files else ""
 
-    # --- inputs -----------------------------------------------------------------------
-    def features_dataset(self, inputs: Mapping[str, Dataset]) -> Dataset | None:
-        db = inputs["database"]
-        if "features" in inputs:
-            return inputs["features"]
-        return db if db.producer_kind == "features" else upstream(db, "features")
-
-    def search_space(self, inputs: Mapping[str, Dataset], registries=None) -> SearchSpace:
-        db = inputs["database"]
-        if self.needs_index and db.producer_kind != "indexes":
-            raise PipelineError(f"{self.key()}: input 'database' must be an index dataset, got {db.step!r} ({db.producer})")
-        clip_id, frame = db.frame_ids()
-        index = db.index(registries) if self.needs_index else None
-        x = None
-        p = self.params
-        if self.needs_features or any(getattr(p, a, 0) for a in ("propagate", "gaps", "exact", "fill")):
-            fds = self.features_dataset(inputs)
-            if fds is None:
-                raise PipelineError(f"{self.key()}: cannot find the database features of {db.step!r}; give a 'features' input")
-            fm = fds.features()
-            if not (np.array_equal(fm.clip_id, clip_id) and np.array_equal(fm.frame, frame)):
-                raise DataError(f"{self.key()}: rows of features {fds.step!r} differ from those of {db.step!r}")
-            x = fm.x
-        mds = upstream(self.features_dataset(inputs) or db, "motions")
-        names = None if mds is None or not mds.has_table("clips") else dict(
-            zip(*(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name"))))
-        return SearchSpace(clip_id, frame, index, x, clip_names=names)
-
-    def queries(self, inputs: Mapping[str, Dataset], ctx) -> list[Query]:
-        """Query features from the ``query`` input and the ``queries`` parameter."""
-        qds = inputs["query"]
-        specs = [parse_query_spec(s) for s in getattr(self.params, "queries", [])]
-        if "features" in qds.table("data").schema.names:
-            return self._feature_queries(qds, specs)
-        fds = self.features_dataset(inputs)
+def search_space(matcher: Matcher, inputs: Mapping[str, Dataset], registries: Any = None) -> SearchSpace:
+    """The :class:`SearchSpace` of a step: rows of ``database``, its index when the matcher
+    ``needs_index``, the features when :meth:`~.components.Matcher.uses_features`, clip names."""
+    db = inputs["database"]
+    if matcher.needs_index and db.producer_kind != "indexes":
+        raise PipelineError(f"{matcher.key()}: input 'database' must be an index dataset, got {db.step!r} ({db.producer})")
+    clip_id, frame = db.frame_ids()
+    index = db.index(registries) if matcher.needs_index else None
+    x = None
+    if matcher.uses_features():
+        fds = features_dataset(inputs)
         if fds is None:
-            raise PipelineError(f"{self.key()}: query motions need the database's feature set; give a 'features' input")
-        fs = feature_set_of(fds, ctx.registries)
-        return motion_queries(specs, qds.motions(), fs, ctx.registries, ctx.resolve, what=f"{self.key()}: query input {qds.step!r}")
-
-    def _feature_queries(self, qds: Dataset, specs: list[QuerySpec]) -> list[Query]:
-        fm = qds.features()
-        bounds = np.flatnonzero(np.diff(fm.clip_id)) + 1
-        clips = {int(c[0]): (s, len(c)) for c, s in zip(np.split(fm.clip_id, bounds), np.r_[0, bounds])}
-        out = []
-        for spec in specs or [QuerySpec(str(c)) for c in clips]:
-            try:
-                cid = int(spec.source)
-                s, n = clips[cid]
-            except (ValueError, KeyError):
-                raise ConfigError(f"{self.key()}: feature queries are named by clip id; {spec.source!r} is not one of {qds.step!r}") from None
-            if spec.seconds:
-                raise ConfigError(f"{self.key()}: give feature query ranges in frames ({spec.text()!r})")
-            a, b = spec.frames(1.0, n)
-            out.append(Query(spec.text(), fm.x[s + a : s + b], cid, a, b))
-        return out
-
-    # --- the step ---------------------------------------------------------------------
-    def run(self, inputs: Mapping[str, Dataset], ctx) -> StepOutput:
-        space = self.search_space(inputs, ctx.registries)
-        queries = self.queries(inputs, ctx)
-        if getattr(ctx.executor, "workers", 1) > 1 and len(queries) > 1:
-            # one task per query; each worker loads the search space once, from the workspace files
-            from functools import partial
-
-            from mocapflow.framework.executors import DatasetRef
-
-            refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
-            results = ctx.map(partial(_match_task, self, refs), [q.features for q in queries], desc=ctx.step_id)
-        else:
-            results = [self.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)]
-        for qi, q in enumerate(queries):
-            self.after_match(qi, q, results[qi], space, ctx)
-        return StepOutput(
-            {"data": matches_table(list(range(len(queries))), results, space), "queries": queries_table(queries)},
-            {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
-        )
-
-    def after_match(self, query_id: int, query: Query, matches: QueryMatches, space: SearchSpace, ctx) -> None:
-        """Called after each query of a step (plots); default: nothing."""
+            raise PipelineError(f"{matcher.key()}: cannot find the database features of {db.step!r}; give a 'features' input")
+        fm = fds.features()
+        if not (np.array_equal(fm.clip_id, clip_id) and np.array_equal(fm.frame, frame)):
+            raise DataError(f"{matcher.key()}: rows of features {fds.step!r} differ from those of {db.step!r}")
+        x = fm.x
+    mds = upstream(features_dataset(inputs) or db, "motions")
+    names = None if mds is None or not mds.has_table("clips") else dict(
+        zip(*(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name"))))
+    return SearchSpace(clip_id, frame, index, x, clip_names=names)
 
 
-def _match_task(matcher: GlobalMatcher, refs: dict, features: np.ndarray) -> QueryMatches:
-    """One query of :meth:`GlobalMatcher.run` on an executor worker (module-level: pickled);
+def step_queries(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> list[Query]:
+    """Query features from the ``query`` input and the matcher's ``queries`` parameter."""
+    qds = inputs["query"]
+    specs = [parse_query_spec(s) for s in getattr(matcher.params, "queries", [])]
+    if "features" in qds.table("data").schema.names:
+        return feature_queries(qds, specs, matcher.key())
+    fds = features_dataset(inputs)
+    if fds is None:
+        raise PipelineError(f"{matcher.key()}: query motions need the database's feature set; give a 'features' input")
+    fs = feature_set_of(fds, ctx.registries)
+    return motion_queries(specs, qds.motions(), fs, ctx.registries, ctx.resolve, what=f"{matcher.key()}: query input {qds.step!r}")
+
+
+def feature_queries(qds: Dataset, specs: list[QuerySpec], what: str) -> list[Query]:
+    """Queries cut from a features dataset (specs name clips by id; ranges in frames)."""
+    fm = qds.features()
+    bounds = np.flatnonzero(np.diff(fm.clip_id)) + 1
+    clips = {int(c[0]): (s, len(c)) for c, s in zip(np.split(fm.clip_id, bounds), np.r_[0, bounds])}
+    out = []
+    for spec in specs or [QuerySpec(str(c)) for c in clips]:
+        try:
+            cid = int(spec.source)
+            s, n = clips[cid]
+        except (ValueError, KeyError):
+            raise ConfigError(f"{what}: feature queries are named by clip id; {spec.source!r} is not one of {qds.step!r}") from None
+        if spec.seconds:
+            raise ConfigError(f"{what}: give feature query ranges in frames ({spec.text()!r})")
+        a, b = spec.frames(1.0, n)
+        out.append(Query(spec.text(), fm.x[s + a : s + b], cid, a, b))
+    return out
+
+
+def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> StepOutput:
+    """The default matcher step (see module doc)."""
+    space = matcher.search_space(inputs, ctx.registries)
+    queries = matcher.queries(inputs, ctx)
+    if getattr(ctx.executor, "workers", 1) > 1 and len(queries) > 1:
+        # one task per query; each worker loads the search space once, from the workspace files
+        from functools import partial
+
+        from .executors import DatasetRef
+
+        refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
+        results = ctx.map(partial(_match_task, matcher, refs), [q.features for q in queries], desc=ctx.step_id)
+    else:
+        results = [matcher.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)]
+    for qi, q in enumerate(queries):
+        if not isinstance(results[qi], QueryMatches):
+            raise PipelineError(f"{matcher.key()}.match returned {type(results[qi]).__name__}, not QueryMatches")
+        matcher.after_match(qi, q, results[qi], space, ctx)
+    return StepOutput(
+        {"data": matches_table(list(range(len(queries))), results, space), "queries": queries_table(queries)},
+        {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
+    )
+
+
+def _match_task(matcher: Matcher, refs: dict, features: np.ndarray) -> QueryMatches:
+    """One query of :func:`run_matcher` on an executor worker (module-level: pickled);
     the search space (index, frame ids, features) is loaded once per worker process."""
-    from mocapflow.framework.executors import cached
-    from mocapflow.framework.plugins import load_registries
-
     import json
+
+    from .executors import cached
+    from .plugins import load_registries
 
     key = ("search-space", matcher.key(), json.dumps(matcher.get_params(), sort_keys=True),
            tuple(sorted((s, r.path, r.fingerprint) for s, r in refs.items())))
@@ -326,11 +295,16 @@ def _match_task(matcher: GlobalMatcher, refs: dict, features: np.ndarray) -> Que
 
 
 def queries_table(queries: list[Query]) -> pa.Table:
-    """``query_id, name, clip_id, start_frame, end_frame`` of each query (clip_id -1: a file)."""
+    """:data:`~.schema.QUERIES` of each query (clip_id -1: a file)."""
     return pa.table({
         "query_id": pa.array(np.arange(len(queries), dtype=np.int32)),
         "name": pa.array([q.name for q in queries], pa.string()),
         "clip_id": pa.array(np.array([q.clip_id for q in queries], np.int32)),
         "start_frame": pa.array(np.array([q.start_frame for q in queries], np.int32)),
         "end_frame": pa.array(np.array([q.end_frame for q in queries], np.int32)),
-    })
+    }, schema=schema.QUERIES)
+
+
+__all__ = ["Query", "QuerySpec", "feature_queries", "feature_set_of", "features_dataset", "motion_queries",
+           "parse_query_spec", "queries_table", "query_files_fingerprint", "read_motion_file", "run_matcher",
+           "search_space", "step_queries", "upstream"]

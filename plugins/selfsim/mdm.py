@@ -406,7 +406,11 @@ class MDMCleaner(Cleaner):
         out = self.clean(motion, context, contacts)
         return out.cleaned, out.edits
 
-    def run(self, inputs, ctx):
-        from .clean_command import run_cleaner
+    def clean_clip(self, motion: Motion, context: Any, clip_id: int, out_dir: Any) -> Any:
+        """One clip of the default step (analysis once; BVH, heatmap and plots into ``out_dir``)."""
+        from mocapflow.framework.cleaning import CleanedClip
 
-        return run_cleaner(self, inputs, ctx)
+        from .clean_command import clean_clip
+
+        out = clean_clip(self, motion, context, clip_id, out_dir)
+        return CleanedClip(out["mdm"], out["edits"], out["cleaned"], out["summary"])

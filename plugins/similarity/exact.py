@@ -30,8 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapflow.framework.errors import DataError
+from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
+from .matcher_base import block_boxes_of
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
@@ -111,7 +112,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     tries = 0
     while True:
         if np.isfinite(tau):
-            bstart, lo, hi, link = space.blocks(block)
+            bstart, lo, hi, link = block_boxes_of(space, block)
             ranges = alive_ranges(coarse_alive(qt, lo, hi, link, tau, _SHRINK), bstart)
             if (ranges[:, 1] - ranges[:, 0]).sum() >= full_from * space.n_rows:
                 tau = ceiling

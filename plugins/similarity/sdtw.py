@@ -13,9 +13,9 @@ from typing import ClassVar
 
 import numpy as np
 from mocapflow.framework.errors import DataError
+from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
-from .queries import GlobalMatcher, MatchParams
+from .matcher_base import GlobalMatcher
 
 
 def validate_query(query: np.ndarray, dim: int) -> np.ndarray:
