@@ -51,6 +51,20 @@ class CleanedClip:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
+def check_take(motion: Motion, what: str = "cleaning") -> None:
+    """Raise :class:`DataError` unless ``motion`` is a Motion with finite rotations and root
+    translation (a NaN would otherwise surface as a linear-algebra error deep in a cleaner)."""
+    from .motion import Motion
+
+    if not isinstance(motion, Motion):
+        raise DataError(f"{what}: expected a Motion, got {type(motion).__name__}")
+    for name, arr in (("rotations", motion.rotations), ("root_translation", motion.root_translation)):
+        bad = ~np.isfinite(np.asarray(arr, np.float64).reshape(motion.n_frames, -1)).all(axis=1)
+        if bad.any():
+            raise DataError(f"{what}: motion {motion.name!r} has NaN or inf {name} at frame {int(np.argmax(bad))} "
+                            f"({int(bad.sum())} frames); fill or cut them first")
+
+
 def digression_table(value: np.ndarray, motion: Motion, clip_id: int = 0, *, joints: np.ndarray | None = None,
                      threshold: float = 0.5, cue: np.ndarray | None = None) -> pa.Table:
     """:data:`~.schema.DIGRESSIONS` rows of one clip, frame-major.
@@ -160,4 +174,4 @@ def run_cleaner(cleaner: Cleaner, inputs: Mapping[str, Any], ctx: Any) -> StepOu
     return StepOutput(tables, {"clips": summary})
 
 
-__all__ = ["CleanedClip", "clean_clip", "digression_table", "edits_table", "run_cleaner", "with_clip_id"]
+__all__ = ["CleanedClip", "check_take", "clean_clip", "digression_table", "edits_table", "run_cleaner", "with_clip_id"]

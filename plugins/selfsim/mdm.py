@@ -390,7 +390,11 @@ class MDMCleaner(Cleaner):
 
     def clean(self, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> "CleanResult":
         """Analysis, decision and repair of one clip (see :class:`CleanResult`)."""
+        from mocapflow.framework.cleaning import check_take
+
         from .decision import clean_motion
+
+        check_take(motion, self.key())
 
         return clean_motion(self, motion, context, contacts)
 
