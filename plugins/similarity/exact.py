@@ -71,7 +71,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     space : SearchSpace
         With ``index`` and ``features``.
     count, max_cost, rank_by, min_span
-        As :func:`.matches.select_matches`; ``rank_by="normalized"`` has no admissible
+        As :func:`mocapflow.framework.matching.select_matches`; ``rank_by="normalized"`` has no admissible
         cost bound here and runs the whole DP.
     k, gaps
         kNN sets and gap band of the LNG that supplies ``tau`` (:func:`.lng.build_graph`).

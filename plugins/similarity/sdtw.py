@@ -65,7 +65,7 @@ def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, m
     space : SearchSpace
         With ``features``.
     count, max_cost, rank_by, min_span
-        See :func:`.matches.select_matches`.
+        See :func:`mocapflow.framework.matching.select_matches`.
     """
     from ._dtw_kernels import dtw_window_path
 
