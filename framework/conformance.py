@@ -192,19 +192,26 @@ class _Plugin:
 
 def run_test_pipeline(cls: type[Component], spec: Mapping[str, Any], workspace: Path,
                       inputs: Mapping[str, str] | None = None) -> Any:
-    """Run ``spec`` (``steps``: upstream steps; ``inputs``/``with``: the tested step) and return
-    the tested step's dataset. A ``motions`` step of :class:`SyntheticMotions` is provided."""
+    """Run ``spec`` and return the tested step's dataset.
+
+    ``spec``: ``steps`` (upstream steps, pipeline syntax), ``inputs`` / ``with`` (the tested
+    step's), optionally ``plugins`` (plugin objects registering the other components the
+    steps use; built-ins are always there, entry points are not loaded). A ``motions`` step
+    of :class:`SyntheticMotions` (clips ``synthetic0`` .. ``synthetic3``) is provided; the
+    tested class is registered if no plugin registers it.
+    """
     import yaml
 
     from .datasets import Dataset
     from .plugins import build_registries, get_plugin_manager
     from .runner import run_pipeline
 
-    base = build_registries(get_plugin_manager(entry_points=False))
+    plugins = list(spec.get("plugins", ()))  # the tested package's plugin module(s), for its other components
+    base = build_registries(get_plugin_manager(entry_points=False, extra=plugins))
     extra: dict[str, list[type]] = {"analyses": [SyntheticMotions]}
     if cls.name not in base[cls.kind]:
         extra.setdefault(cls.kind, []).append(cls)
-    pm = get_plugin_manager(entry_points=False, extra=[_Plugin(extra)])
+    pm = get_plugin_manager(entry_points=False, extra=[*plugins, _Plugin(extra)])
     steps = {"motions": {"uses": SyntheticMotions.key()}, **spec.get("steps", {}),
              "tested": {"uses": cls.key(), "inputs": dict(inputs or spec["inputs"]), "with": dict(spec.get("with", {}))}}
     workspace.mkdir(parents=True, exist_ok=True)
