@@ -90,13 +90,18 @@ def lng_once(q, space, k, eps, propagate=0):
 
 
 def matcher_once(q, space, **kw):
-    """(top-10 [(start, end), ...], seconds) of one ``lazy_neighborhood_graph`` call (matcher defaults + ``kw``)."""
+    """(top-10 [(start, end), ...], seconds, result) of one ``lazy_neighborhood_graph`` call (matcher defaults +
+    ``kw``); with ``levels`` or ``top`` in ``kw``, of :func:`certified_sdtw` with those settings."""
     from mocapflow.plugins.similarity import exact
 
     full_from, exact.FULL_FROM = exact.FULL_FROM, kw.pop("full_from", exact.FULL_FROM)
     try:
         t0 = time.perf_counter()
-        res = lazy_neighborhood_graph(q, space, count=10, **kw)
+        if "levels" in kw or "top" in kw:
+            kw.pop("exact", None)
+            res = exact.certified_sdtw(q, space, count=10, **kw)
+        else:
+            res = lazy_neighborhood_graph(q, space, count=10, **kw)
     finally:
         exact.FULL_FROM = full_from
     return list(zip(res.start.tolist(), res.end.tolist())), time.perf_counter() - t0, res
@@ -111,7 +116,7 @@ def kept(runs, exact) -> tuple[float, float]:
 
 def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=print, propagate=(8, 1000),
                ann: SearchSpace | None = None, gaps=()) -> None:
-    gap_variants = [(f"gaps {g}, fill", {"gaps": g}) for g in gaps]
+    gap_variants = [(f"graph gaps {g}, fill", {"gaps": g, "exact": False}) for g in gaps]
     try:
         from dtaidistance.subsequence.dtw import subsequence_alignment
     except ImportError:
@@ -124,7 +129,9 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
     lng_once(w, space, 8, 0.0, 4)
     subsequence_dtw(w, SearchSpace(space.clip_id[:500], space.frame[:500], features=space.features[:500]))
     matcher_once(w, space)
-    matcher_once(w, space, exact=True)
+    matcher_once(w, space, exact=False)
+    for lev in ((256, 32, 8), (128, 16)):
+        matcher_once(w, space, levels=lev)
     for m in lengths:
         qs = random_queries(space, m, n_queries, rng)
         ref = [timed(subsequence_dtw, q, space, count=10) for q in qs[:n_exact]]
@@ -133,14 +140,17 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
         # the matcher as a user gets it (gaps 32, fill, min_span 0.5), and the certified-exact mode,
         # against sDTW's own top-10 (same min_span): alignments found, and identical results
         sd_sets = [list(zip(r.start.tolist(), r.end.tolist())) for r, _ in ref]
-        variants = [("matcher default", {}), ("gaps 32, fill, propagate 0", {"propagate": 0}),
-                    ("gaps 32, fill, propagate 2", {"propagate": 2}), ("certified exact", {"exact": True}),
-                    ("previous default (propagate 0, no full_from)", {"propagate": 0, "full_from": 2.0}),
-                    ("certified exact, no full_from (before)", {"exact": True, "full_from": 2.0}),
-                    ("default, propagate 8", {"propagate": 8}), ("default, k=64", {"k": 64})]
+        variants = [("matcher default (certified, 512/64/16/4)", {"exact": True}),
+                    ("exact, levels 256/32/8", {"exact": True, "levels": (256, 32, 8)}),
+                    ("exact, levels 128/16", {"exact": True, "levels": (128, 16)}),
+                    ("exact, 1 level, tau from LNG (before)", {"exact": True, "top": 0}),
+                    ("graph gaps 32 fill prop 2 (old default)", {"exact": False}),
+                    ("graph gaps 32, fill, propagate 0", {"exact": False, "propagate": 0}),
+                    ("graph, propagate 8", {"exact": False, "propagate": 8}),
+                    ("graph, k=64", {"exact": False, "k": 64})]
         variants += gap_variants
         if ann is not None:
-            variants += [("default, indexes.hnsw", {"ann": True})]
+            variants += [("default, indexes.hnsw", {"ann": True}), ("graph, indexes.hnsw", {"ann": True, "exact": False})]
         for name, kw in variants:
             sp = ann if kw.pop("ann", False) else space
             runs = [matcher_once(q, sp, **kw) for q in qs[:n_exact]]
@@ -172,10 +182,11 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
                 t_all = float(np.median([r[1] for r in runs]))
                 t_knn = float(np.median([r[2] for r in runs]))
                 rows.append((name, t_all, t_knn, t_all - t_knn, same, found))
-        echo(f"  query {m} frames ({len(qs)} LNG / {min(n_exact, len(qs))} sDTW queries); sDTW {m * space.n_rows / t_sdtw / 1e6:.0f} M cells/s")
-        echo(f"    {'method':<36} {'ms/query':>9} {'kNN ms':>8} {'graph us/frame':>15} {'same best':>9} {'top-10 kept':>11} {'sDTW/this':>10}")
+        echo(f"  query {m} frames ({len(qs)} LNG / {min(n_exact, len(qs))} sDTW queries); sDTW {m * space.n_rows / t_sdtw / 1e6:.0f} M cells/s; "
+             f"load average {open('/proc/loadavg').read().split()[0]}")
+        echo(f"    {'method':<40} {'ms/query':>9} {'kNN ms':>8} {'graph us/frame':>15} {'same best':>9} {'top-10 kept':>11} {'sDTW/this':>10}")
         for name, t, tk, tg, same, found in rows:
-            echo(f"    {name:<36} {t * 1e3:>9.2f} {tk * 1e3:>8.2f} {tg * 1e6 / m:>15.1f} {same:>9.2f} {found:>11.2f} {t_sdtw / t:>10.1f}")
+            echo(f"    {name:<40} {t * 1e3:>9.2f} {tk * 1e3:>8.2f} {tg * 1e6 / m:>15.1f} {same:>9.2f} {found:>11.2f} {t_sdtw / t:>10.1f}")
 
 
 def main(argv=None) -> int:

@@ -9,7 +9,8 @@ from naive.dtw import continues_of, naive_blocks, naive_through_cell
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
-from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_alive, sdtw_ranges
+from mocapflow.plugins.similarity._coarse_kernels import (block_boxes, coarse_alive, coarse_bounds, sdtw_ranges,
+                                                        sdtw_ranges_compact)
 from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward
 from mocapflow.plugins.similarity.exact import ExactStats, certified_sdtw
 from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
@@ -45,6 +46,67 @@ def test_coarse_bound_is_admissible(seed, lengths, m, size):
         assert np.all(alive[block[through <= tau]])
 
 
+@pytest.mark.parametrize("seed,lengths,m,size", [(0, [40, 1, 30, 12], 6, 4), (1, [80], 10, 16), (2, [5, 5, 5, 60], 3, 7),
+                                                (3, [50, 50], 1, 3)])
+def test_coarse_bounds_are_admissible_and_match_alive(seed, lengths, m, size):
+    clip_id, frame, x = make_db(lengths, seed=seed)
+    rng = np.random.default_rng(seed)
+    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+    qt = np.ascontiguousarray(q.T)
+    cont = continues_of(clip_id, frame)
+    bstart, lo, hi, link = block_boxes(x, cont, size)
+    block = naive_blocks(cont, size)
+    through = naive_through_cell(q, x, cont).min(axis=0)
+    nb = len(lo)
+    lb = coarse_bounds(qt, lo, hi, link, np.array([[0, nb]], np.int64), 1.0 - 1e-4)
+    # a lower bound of the best path through every row of the block
+    assert np.all(lb[block] <= through * (1 + 1e-9))
+    for tau in (float(np.quantile(through, 0.2)), float(np.quantile(through, 0.7))):
+        np.testing.assert_array_equal(lb <= tau, coarse_alive(qt, lo, hi, link, tau, 1.0 - 1e-4))
+        # restricted to the alive runs (started afresh), the bound still keeps every row of a path <= tau
+        alive = lb <= tau
+        edge = np.diff(np.r_[0, alive.astype(np.int8), 0])
+        br = np.stack([np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)], axis=1).astype(np.int64)
+        sub = coarse_bounds(qt, lo, hi, link, br, 1.0 - 1e-4)
+        assert np.all(sub[block[through <= tau]] <= tau) and np.all(np.isinf(sub[~alive]))
+
+
+@pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
+def test_sdtw_ranges_compact_equals_ranges(seed, lengths, m):
+    clip_id, frame, x = make_db(lengths, seed=seed)
+    rng = np.random.default_rng(seed)
+    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+    cont = continues_of(clip_id, frame)
+    qt = np.ascontiguousarray(q.T)
+    ranges = np.array([[0, 7], [9, 30], [31, len(x)]], np.int64)
+    full = sdtw_ranges(qt, x, ~cont, ranges)
+    rows, *got = sdtw_ranges_compact(qt, x, ~cont, ranges)
+    np.testing.assert_array_equal(rows, np.r_[0:7, 9:30, 31:len(x)])
+    for a, b in zip(got, full):
+        np.testing.assert_array_equal(a, b[rows])  # bit for bit
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("levels,seeds", [((512, 64, 16, 4), True), ((8, 4), True), ((12, 5, 2), False), ((6,), True)])
+def test_certified_levels_equal_sdtw(seed, levels, seeds):
+    # any block hierarchy, tau from the seeds or from the lowest-bound blocks: sDTW's matches
+    clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25], seed=seed)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    rng = np.random.default_rng(seed)
+    s = int(rng.integers(0, 150))
+    q = (x[s : s + 12] + rng.normal(0, 0.3, (12, 3))).astype(np.float32)
+    for count, max_cost in ((1, None), (6, None), (9, 10.0)):
+        got = certified_sdtw(q, space, count=count, max_cost=max_cost, k=4, gaps=4, levels=levels, seeds=seeds,
+                             direct_cells=0)
+        same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
+    # no index: the lowest-bound blocks supply tau
+    bare = SearchSpace(clip_id, frame, None, x)
+    same(certified_sdtw(q, bare, count=5, levels=(8, 4), direct_cells=0), subsequence_dtw(q, space, count=5))
+    st = ExactStats()  # a small search runs the whole DP at once
+    same(certified_sdtw(q, space, count=5, stats=st), subsequence_dtw(q, space, count=5))
+    assert st.columns == len(x) and st.passes == 1 and st.coarse_blocks == 0
+
+
 @pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
 def test_sdtw_ranges_equal_forward(seed, lengths, m):
     clip_id, frame, x = make_db(lengths, seed=seed)
@@ -72,7 +134,8 @@ def test_certified_equals_sdtw_synthetic(seed, count, min_span, max_cost):
     s = int(rng.integers(0, 150))
     q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
     st = ExactStats()
-    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, k=4, gaps=4, block=5, stats=st)
+    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, k=4, gaps=4, block=5, stats=st,
+                         direct_cells=0)
     ref = subsequence_dtw(q, space, count=count, min_span=min_span, max_cost=max_cost)
     same(got, ref)
     via_matcher = lazy_neighborhood_graph(q, space, k=4, count=count, min_span=min_span, max_cost=max_cost, exact=True)
@@ -91,7 +154,7 @@ def test_certified_prunes_columns():
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
     q = (base[starts[7] + 5 : starts[7] + 25] + rng.normal(0, 0.05, (20, 3))).astype(np.float32)
     st = ExactStats()
-    same(certified_sdtw(q, space, count=3, k=32, stats=st), subsequence_dtw(q, space, count=3))
+    same(certified_sdtw(q, space, count=3, k=32, stats=st, direct_cells=0), subsequence_dtw(q, space, count=3))
     assert np.isfinite(st.tau) and st.columns < len(x) // 4 and not st.retried
 
 
@@ -107,7 +170,7 @@ def test_whole_dp_once_alive_rows_pass_full_from(seed, full_from):
     for count, max_cost in ((5, None), (8, 12.0)):
         st = ExactStats()
         got = certified_sdtw(q, space, count=count, max_cost=max_cost, k=4, gaps=4, block=5, stats=st,
-                             full_from=full_from)
+                             full_from=full_from, direct_cells=0)
         same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
         if full_from == 0.0:  # the first pass is the whole DP, and the last
             assert st.passes == 1 and st.columns == len(x)
@@ -146,4 +209,4 @@ def test_certified_equals_sdtw_on_hdm05():
     for q, keep in queries:
         space = SearchSpace(clip_id[keep], frame[keep], KDTreeIndex(method="kdtree").build(x[keep]), x[keep])
         for count in (1, 10):
-            same(certified_sdtw(q, space, count=count), subsequence_dtw(q, space, count=count))
+            same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))

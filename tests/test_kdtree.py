@@ -104,9 +104,11 @@ def test_float32_stored_once_and_auto_reports_method():
     x = rng.normal(size=(3000, 12)).astype(np.float32)
     ix = KDTreeIndex(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)).build(x)
     assert ix.data_.dtype == np.float32 and ix.data_.nbytes == x.nbytes
-    assert ix.method_ in ("kdtree", "brute") and set(ix.probe_) == {
-        f"{m}_{w}_ms@{k}" for m in ("kdtree", "brute") for w in ("single", "batch") for k in (4, 64)}
+    assert ix.method_ in ("kdtree", "brute") and set(ix.probe_) == {f"tree_share@{k}" for k in (4, 64)}
     assert ix.brute_from_k_ in (None, 16)
+    # the choice counts work, never times it: the same data gives the same choice and counts
+    again = KDTreeIndex(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)).build(x)
+    assert (again.method_, again.brute_from_k_, again.probe_) == (ix.method_, ix.brute_from_k_, ix.probe_)
     for k in (3, 100):
         np.testing.assert_array_equal(ix.query(x[:5], k)[1], knn(x, x[:5], k)[1])
     ix.method_, ix.brute_from_k_, ix.large_method_ = "kdtree", 16, "brute"  # switching by k keeps answers exact
@@ -236,3 +238,33 @@ def test_kdtree_single_row_queries_take_the_lean_call_exactly():
             np.testing.assert_allclose(d[0], d0[r], rtol=1e-6, atol=1e-6)
     assert ix._interactive(q[:1], 16, None, 0.0, None) is not None  # the lean call was taken
     assert ix._interactive(q[:1].astype(np.float64), 16, None, 0.0, None) is None
+
+
+def test_tree_work_counts_the_buckets_within_the_kth_distance():
+    # the auto cost model's counts against a plain reading of the tree: every leaf whose
+    # points' box lies within the k-th neighbour distance, and every node visited on the way
+    from mocapflow.plugins.similarity import _knn_kernels as kern
+
+    rng = np.random.default_rng(11)
+    x = rng.normal(size=(2000, 5)).astype(np.float32)
+    ix = KDTreeIndex(method="kdtree", leafsize=16).build(x)
+    q = x[:7].astype(np.float64)
+    d2 = knn(x, x[:7], 9)[0].astype(np.float64) ** 2
+    _, _, start, end, left, right, _, _, blo, bhi = ix._tree_args()[0][:10]
+    pts, nds = kern.tree_work(q, d2[:, -1] * (1 + 1e-9), start, end, left, right, blo, bhi, ix._max_depth())
+    for r in range(len(q)):
+        def gap(node):
+            g = np.maximum(np.maximum(blo[node] - q[r], q[r] - bhi[node]), 0.0)
+            return float((g.astype(np.float64) ** 2).sum())
+        want_pts, want_nodes, todo = 0, 0, [0]
+        while todo:
+            node = todo.pop()
+            want_nodes += 1
+            if gap(node) > d2[r, -1] * (1 + 1e-9):
+                continue
+            if left[node] < 0:
+                want_pts += end[node] - start[node]
+            else:
+                todo += [left[node], right[node]]
+        assert (pts[r], nds[r]) == (want_pts, want_nodes)
+        assert want_pts >= 9  # the k neighbours lie in buckets within reach

@@ -207,6 +207,11 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     exact_out = capsys.readouterr().out.splitlines()[2:]
     assert main(args + ["--matcher", "sdtw"]) == 0
     assert capsys.readouterr().out.splitlines()[2:] == exact_out and len(exact_out) == 4
+    assert main(args) == 0  # lng's default is the certified search: sdtw's answer too
+    assert capsys.readouterr().out.splitlines()[2:] == exact_out
+    assert main(args + ["--no-exact"]) == 0  # the graph answers (same best match here)
+    graph_out = capsys.readouterr().out.splitlines()[2:]
+    assert len(graph_out) == 4 and graph_out[0] == exact_out[0]
     assert out.is_file() and len(out.read_text().splitlines()) == 5 and not list(out.parent.glob(".m.csv*"))
     assert main(args + ["--min-span", "1.0", "--gaps", "0", "--rank-by", "normalized", "--out", str(out.with_suffix(".parquet"))]) == 0
     import pyarrow.parquet as pq

@@ -104,3 +104,14 @@ steps:
         assert mine and all(h["mode"] == "auto" and h["features"] for h in mine)
         assert all(word in clips[h["clip_id"]] for h in mine[:3])
     assert "L4" in next(h for h in hits if h["query_id"] == 0)["features"]  # left foot raised: HDM05 kicks are left kicks
+
+
+def test_relative_cost_cut_blends_low_quantile_and_median():
+    from mocapflow.plugins.relational.auto import relative_cost_cut
+
+    per_clip = np.array([0.01, 0.02, 0.3, 0.4, 0.5, 0.6, np.inf])  # the inf (no path fits) is left out
+    assert relative_cost_cut(per_clip, 0.6, low_weight=0.0) == pytest.approx(0.6 * 0.35)  # the first design
+    low = float(np.quantile(per_clip[:-1], 0.05))
+    assert relative_cost_cut(per_clip, 1.0, low_weight=1.0) == pytest.approx(low)
+    assert relative_cost_cut(per_clip, 1.1, 0.75) == pytest.approx(1.1 * low ** 0.75 * 0.35 ** 0.25)
+    assert relative_cost_cut(np.array([np.inf]), 1.1) == 0.0

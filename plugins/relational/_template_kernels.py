@@ -148,8 +148,96 @@ def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start, base=0):  # pragm
         start[j - base] = s0[n_rows - 1]
 
 
+@njit(cache=True)
+def _sdtw_range_bounded(codes, table, lo_frame, hi_frame, cost, start, bound):  # pragma: no cover - compiled
+    """:func:`_sdtw_range` with early abandoning (the results of frame ``j`` go to
+    ``cost[j]`` and ``start[j]``). ``bound`` (mean cost, ``inf``: none): cells above
+    ``bound * K`` are abandoned and each column is computed only up to the highest row the
+    live cells of the previous two can reach (as :func:`sdtw_cost`); costs and starts of
+    the ends ``<= bound`` are exact (an abandoned cell is never on, nor tied with, a path
+    ending there), the other ends are inf or exact.
+    """
+    n_rows = table.shape[1]
+    finite = bound < np.inf
+    limit = bound * n_rows * (1.0 + 1e-9) + 1e-12
+    d0 = np.full(n_rows, np.inf)
+    d1 = np.full(n_rows, np.inf)
+    d2 = np.full(n_rows, np.inf)
+    s0 = np.zeros(n_rows, np.int64)
+    s1 = np.zeros(n_rows, np.int64)
+    s2 = np.zeros(n_rows, np.int64)
+    col = np.empty(n_rows)
+    top0 = -1
+    top1 = -1
+    top2 = -1
+    live1 = n_rows - 1 if not finite else -1
+    live2 = live1
+    last_code = -1
+    valid = 0
+    for j in range(lo_frame, hi_frame):
+        code = codes[j]
+        if code != last_code:  # runs of equal codes share their local-cost column
+            last_code = code
+            valid = 0
+        reach = max(live1 + 2, live2 + 1, 1)
+        if reach > n_rows - 1:
+            reach = n_rows - 1
+        if valid <= reach:
+            a = code & 2047
+            b = 2048 + ((code >> 11) & 4095)
+            c = 6144 + ((code >> 23) & 255)
+            for k in range(valid, reach + 1):
+                col[k] = table[a, k] + table[b, k] + table[c, k]
+            valid = reach + 1
+        # template frame 0: a fresh start
+        v = col[0]
+        d0[0] = v if v <= limit else np.inf
+        s0[0] = j
+        if reach >= 1:  # template frame 1: (1,1) from frame 0, (2,1) from the virtual row, (1,2)
+            ck = col[1]
+            best = d1[0] + ck
+            bs = s1[0]
+            v = 2.0 * ck
+            if v < best:
+                best = v
+                bs = j
+            v = d2[0] + ck
+            if v < best:
+                best = v
+                bs = s2[0]
+            d0[1] = best if best <= limit else np.inf
+            s0[1] = bs
+        for k in range(2, reach + 1):
+            ck = col[k]
+            best = d1[k - 1] + ck
+            bs = s1[k - 1]
+            v = d1[k - 2] + 2.0 * ck
+            if v < best:
+                best = v
+                bs = s1[k - 2]
+            v = d2[k - 1] + ck
+            if v < best:
+                best = v
+                bs = s2[k - 1]
+            d0[k] = best if best <= limit else np.inf
+            s0[k] = bs
+        for k in range(reach + 1, top0 + 1):  # stale cells of this buffer's old column
+            d0[k] = np.inf
+        top0 = reach
+        live = reach
+        if finite:
+            while live >= 0 and not d0[live] < np.inf:
+                live -= 1
+        cost[j] = d0[n_rows - 1] / n_rows if reach == n_rows - 1 else np.inf
+        start[j] = s0[n_rows - 1]
+        d0, d1, d2 = d2, d0, d1
+        s0, s1, s2 = s2, s0, s1
+        top0, top1, top2 = top2, top0, top1
+        live2, live1 = live1, live
+
+
 @njit(cache=True, parallel=True)
-def template_sdtw(codes, table, chunk_lo, chunk_hi, cost, start):  # pragma: no cover - compiled
+def template_sdtw(codes, table, chunk_lo, chunk_hi, cost, start, bound=np.inf):  # pragma: no cover - compiled
     """Subsequence DTW of one template over many clips, in parallel over clip ranges.
 
     Parameters
@@ -166,40 +254,155 @@ def template_sdtw(codes, table, chunk_lo, chunk_hi, cost, start):  # pragma: no 
         outside every range are left untouched.
     start : int64 (N,), out
         First database frame of that path.
+    bound : float
+        Early abandoning above this mean cost (:func:`_sdtw_range_bounded`); ``inf``: none.
     """
     for r in prange(chunk_lo.shape[0]):
-        _sdtw_range(codes, table, chunk_lo[r], chunk_hi[r], cost, start, 0)
+        if bound < np.inf:
+            _sdtw_range_bounded(codes, table, chunk_lo[r], chunk_hi[r], cost, start, bound)
+        else:  # the plain kernel: no bookkeeping of live rows
+            _sdtw_range(codes, table, chunk_lo[r], chunk_hi[r], cost, start, 0)
+
+
+@njit(cache=True)
+def _remaining_bound(codes, table, lo, hi, g):  # pragma: no cover - compiled
+    """Lower bounds of the cost still to come for the frames ``[lo, hi)`` of one range.
+
+    ``m[k]`` = least local cost of template row ``k`` over the codes of the range; ``g[k]``
+    (out, (K,)) = least cost of finishing a path from row ``k`` (exclusive) to row ``K - 1``
+    when every cell of row ``k'`` costs ``m[k']``: the recurrence of the search collapsed
+    over frames (``g[k] = min(m[k+1] + g[k+1], 2 m[k+2] + g[k+2])``, a (2,1) step skips a
+    row but charges the next twice). Returns the bound of a whole path (from a fresh start
+    at row 0 or, by the virtual row, at row 1).
+    """
+    n_rows = table.shape[1]
+    m = np.full(n_rows, np.inf)
+    last = -1
+    for j in range(lo, hi):
+        code = codes[j]
+        if code == last:
+            continue
+        last = code
+        a = code & 2047
+        b = 2048 + ((code >> 11) & 4095)
+        c = 6144 + ((code >> 23) & 255)
+        for k in range(n_rows):
+            v = table[a, k] + table[b, k] + table[c, k]
+            if v < m[k]:
+                m[k] = v
+    g[n_rows - 1] = 0.0
+    if n_rows > 1:
+        g[n_rows - 2] = m[n_rows - 1]
+    for k in range(n_rows - 3, -1, -1):
+        g[k] = min(m[k + 1] + g[k + 1], 2.0 * m[k + 2] + g[k + 2])
+    total = m[0] + g[0]
+    if n_rows > 1:
+        total = min(total, 2.0 * m[1] + g[1])
+    return total
+
+
+@njit(cache=True)
+def _cost_range_plain(codes, table, lo, hi, cost):  # pragma: no cover - compiled
+    """:func:`sdtw_cost` of one range without a bound: every row of every column, branch-free."""
+    n_rows = table.shape[1]
+    d0 = np.empty(n_rows)
+    d1 = np.full(n_rows, np.inf)
+    d2 = np.full(n_rows, np.inf)
+    col = np.empty(n_rows)
+    last_code = -1
+    for j in range(lo, hi):
+        code = codes[j]
+        if code != last_code:
+            a = code & 2047
+            b = 2048 + ((code >> 11) & 4095)
+            c = 6144 + ((code >> 23) & 255)
+            for k in range(n_rows):
+                col[k] = table[a, k] + table[b, k] + table[c, k]
+            last_code = code
+        d0[0] = col[0]
+        if n_rows > 1:
+            ck = col[1]
+            d0[1] = min(min(d1[0] + ck, 2.0 * ck), d2[0] + ck)
+        for k in range(2, n_rows):
+            ck = col[k]
+            d0[k] = min(min(d1[k - 1] + ck, d1[k - 2] + 2.0 * ck), d2[k - 1] + ck)
+        cost[j] = d0[n_rows - 1] / n_rows
+        d0, d1, d2 = d2, d0, d1
 
 
 @njit(cache=True, parallel=True)
-def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost):  # pragma: no cover - compiled
-    """End-frame costs only (no path starts), branch-free minima: the fast first pass of a
-    search. Same recurrence and values as :func:`template_sdtw`."""
+def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost, bounds):  # pragma: no cover - compiled
+    """End-frame costs only (no path starts), branch-free minima, early abandoning: the
+    fast first pass of a search. Same recurrence as :func:`template_sdtw`.
+
+    ``bounds`` (float64 (C,), a mean cost per range; ``inf``: none): accumulated costs only
+    grow along a path, so a cell whose cost plus a lower bound of the rest of any path
+    (:func:`_remaining_bound`) exceeds ``bound * K`` cannot lie on a path ending at or below
+    the range's ``bound``: it is abandoned
+    (inf), and a range whose whole-path bound exceeds it is skipped. Each column is
+    computed only up to the highest row a live cell of the previous two columns can reach
+    (+1 and +2 rows), and the local costs only for those rows. End costs ``<= bound`` are
+    exact (the same minima, in the same order); the others are inf or exact.
+    """
     n_rows = table.shape[1]
     for r in prange(chunk_lo.shape[0]):
-        d0 = np.empty(n_rows)
+        bound = bounds[r]
+        finite = bound < np.inf
+        if not finite:  # no bound: the plain kernel, no bookkeeping of live rows
+            _cost_range_plain(codes, table, chunk_lo[r], chunk_hi[r], cost)
+            continue
+        limit = bound * n_rows * (1.0 + 1e-9) + 1e-12  # rounding slack: never abandon a cell on a path ending at bound
+        g = np.zeros(n_rows)
+        if finite and _remaining_bound(codes, table, chunk_lo[r], chunk_hi[r], g) > limit:
+            for j in range(chunk_lo[r], chunk_hi[r]):
+                cost[j] = np.inf
+            continue
+        d0 = np.full(n_rows, np.inf)
         d1 = np.full(n_rows, np.inf)
         d2 = np.full(n_rows, np.inf)
         col = np.empty(n_rows)
+        top0, top1, top2 = -1, -1, -1  # highest row written (above it: inf) per buffer
+        live1, live2 = -1, -1          # highest live row of the previous two columns
         last_code = -1
+        valid = 0                      # local costs of rows < valid are those of last_code
         for j in range(chunk_lo[r], chunk_hi[r]):
             code = codes[j]
             if code != last_code:
+                last_code = code
+                valid = 0
+            reach = max(live1 + 2, live2 + 1, 1)
+            if reach > n_rows - 1:
+                reach = n_rows - 1
+            if valid <= reach:
                 a = code & 2047
                 b = 2048 + ((code >> 11) & 4095)
                 c = 6144 + ((code >> 23) & 255)
-                for k in range(n_rows):
+                for k in range(valid, reach + 1):
                     col[k] = table[a, k] + table[b, k] + table[c, k]
-                last_code = code
-            d0[0] = col[0]
-            if n_rows > 1:
+                valid = reach + 1
+            # branch-free rows (a select, no jumps: vectorisable), the live top found afterwards
+            v = col[0]
+            d0[0] = v if v + g[0] <= limit else np.inf
+            if reach >= 1:
                 ck = col[1]
-                d0[1] = min(min(d1[0] + ck, 2.0 * ck), d2[0] + ck)
-            for k in range(2, n_rows):
+                v = min(min(d1[0] + ck, 2.0 * ck), d2[0] + ck)
+                d0[1] = v if v + g[1] <= limit else np.inf
+            for k in range(2, reach + 1):
                 ck = col[k]
-                d0[k] = min(min(d1[k - 1] + ck, d1[k - 2] + 2.0 * ck), d2[k - 1] + ck)
-            cost[j] = d0[n_rows - 1] / n_rows
+                v = min(min(d1[k - 1] + ck, d1[k - 2] + 2.0 * ck), d2[k - 1] + ck)
+                d0[k] = v if v + g[k] <= limit else np.inf
+            live = reach
+            while live >= 0 and not d0[live] < np.inf:
+                live -= 1
+            if not finite:
+                live = reach  # no bound: every row stays live (inf cells included), as without abandoning
+            for k in range(reach + 1, top0 + 1):  # stale cells of this buffer's old column
+                d0[k] = np.inf
+            top0 = reach
+            cost[j] = d0[n_rows - 1] / n_rows if reach == n_rows - 1 else np.inf
             d0, d1, d2 = d2, d0, d1
+            top0, top1, top2 = top2, top0, top1
+            live2, live1 = live1, live
 
 
 @njit(cache=True)
@@ -275,3 +478,36 @@ def greedy_hits(cand, cost, start, min_gap, n):  # pragma: no cover - compiled
             out[h] = j
             h += 1
     return out[:h]
+
+
+@njit(cache=True)
+def window_minima(cost, lo, hi):  # pragma: no cover - compiled
+    """Least ``cost`` over each frame window ``[lo_i, hi_i)`` (inf for an empty one), (n,)."""
+    out = np.full(lo.shape[0], np.inf)
+    for i in range(lo.shape[0]):
+        m = np.inf
+        for j in range(lo[i], hi[i]):
+            if cost[j] < m:
+                m = cost[j]
+        out[i] = m
+    return out
+
+
+@njit(cache=True)
+def intersect_ranges(alo, ahi, blo, bhi):  # pragma: no cover - compiled
+    """Intersection of two sorted lists of disjoint frame ranges ``[lo, hi)``: (lo, hi) int64."""
+    out_lo = np.empty(alo.shape[0] + blo.shape[0], np.int64)
+    out_hi = np.empty(alo.shape[0] + blo.shape[0], np.int64)
+    i, j, m = 0, 0, 0
+    while i < alo.shape[0] and j < blo.shape[0]:
+        lo = max(alo[i], blo[j])
+        hi = min(ahi[i], bhi[j])
+        if lo < hi:
+            out_lo[m] = lo
+            out_hi[m] = hi
+            m += 1
+        if ahi[i] < bhi[j]:
+            i += 1
+        else:
+            j += 1
+    return out_lo[:m], out_hi[:m]

@@ -363,7 +363,7 @@ class RelationalMatcher(Matcher):
     """
 
     name = "relational"
-    version = "1"
+    version = "2"
     inputs = {"database": True, "query": True, "motions": False}
     #: Conformance (mocapflow.framework.testing): a query by example on synthetic clips.
     test_pipeline = {
@@ -383,7 +383,10 @@ class RelationalMatcher(Matcher):
                                                                     "example as a template, or the paper's adaptive / mismatch hits")
         min_run: int = Field(4, ge=1, description="mode auto: runs shorter than this (frames) are flicker")
         max_features: int = Field(3, ge=1, le=31, description="mode auto with adaptive/mismatch search: features selected")
-        relative_cut: float = Field(0.6, gt=0.0, description="mode auto, dtw: hits cost below this x the median per-clip cost")
+        relative_cut: float = Field(1.1, gt=0.0, description="mode auto, dtw: hits cost below this x q^w x median^(1-w) of the "
+                                    "database's per-clip least costs (q: their 5 % quantile, w: low_weight)")
+        low_weight: float = Field(0.75, ge=0.0, le=1.0, description="mode auto, dtw: weight w of the low quantile in the cut "
+                                  "(0: relative_cut x the median, the first design)")
         max_cost: float | None = Field(None, gt=0.0, description="mode auto, dtw: fixed cost cut instead of relative_cut")
         mismatches: int = Field(1, ge=0, description="m of m-mismatch hits")
         mismatch_positions: tuple[int, ...] | None = Field(None, description="query levels (0-based) where mismatches may occur; default any")
@@ -469,7 +472,8 @@ class RelationalMatcher(Matcher):
             if allowed is not None:
                 keep = np.intersect1d(t.columns, allowed)
                 t.columns = keep if len(keep) else np.asarray(allowed, np.int64)
-            s, e, c, _ = auto_hits(t, codes, any_set.clip_offsets, self.params.relative_cut, self.params.max_cost)
+            s, e, c, _ = auto_hits(t, codes, any_set.clip_offsets, self.params.relative_cut, self.params.max_cost,
+                                   self.params.low_weight)
             used = t.columns
             hits = Hits(np.searchsorted(any_set.clip_offsets, s, side="right") - 1, s, e, c,
                         sets="+".join(sorted({feature_set_of(int(x)) for x in used})), n_levels=t.n_frames)

@@ -28,8 +28,7 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 from mocapflow.framework.schema import MATCHES
 
-from .template_model import (MotionTemplate, fit_class_template, frame_codes, load_templates, save_templates,
-                             search_costs, template_costs, template_hits)
+from .template_model import MotionTemplate, fit_class_template, frame_codes, load_templates, save_templates, search_costs
 
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.context import StepContext
@@ -95,28 +94,14 @@ def feature_ids(columns: np.ndarray) -> str:
     return ",".join(FEATURE_IDS[int(c)] for c in columns)
 
 
-def template_cost_array(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, columns: Literal["key", "all"] = "key",
-                        index=None, anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """End-frame costs and path starts (N,) of one template; with ``index`` (an
-    ``InvertedIndex`` of the same frames) only the candidate regions around the template's
-    anchor are searched (:mod:`.template_prefilter`), the other frames cost inf."""
-    use = t if columns == "key" else _all_columns(t)
-    if index is not None:
-        from .template_prefilter import candidate_ranges
-
-        ranges, _ = candidate_ranges(use, index, anchor_features)
-    else:
-        ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
-    return template_costs(codes, use.table(), ranges)
-
-
 def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None,
                     columns: Literal["key", "all"] = "key", index=None,
                     anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template in a database.
 
     ``codes`` (N,) :func:`.template_model.frame_codes`; ``offsets`` (n_clips + 1,) clip
-    offsets; ``index``: see :func:`template_cost_array`.
+    offsets; ``index``: an ``InvertedIndex`` of the same frames: only the candidate regions
+    around the template's anchor are searched (:mod:`.template_prefilter`).
     """
     use = t if columns == "key" else _all_columns(t)
     if index is not None:
@@ -128,28 +113,47 @@ def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, t
     return search_costs(codes, use.table(), ranges, t.threshold if threshold is None else threshold)[:3]
 
 
-def rival_filter(start: np.ndarray, end: np.ndarray, cost: np.ndarray, rivals: np.ndarray) -> np.ndarray:
-    """Which hits no other template beats: ``rivals`` (N,) is, per frame, the least end-frame
-    cost of the other templates; a hit ``[s, e)`` is beaten when a rival path ending within
-    half its length of ``e`` is cheaper. Returns a boolean mask over the hits."""
-    keep = np.ones(len(start), bool)
-    n = len(rivals)
-    for h, (s, e, c) in enumerate(zip(start, end, cost)):
-        half = (e - s) // 2
-        lo, hi = max(e - 1 - half, 0), min(e + half, n)
-        keep[h] = not (hi > lo and rivals[lo:hi].min() < c)
-    return keep
+def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.ndarray,
+                cutoff: Literal["rivals", "threshold"] = "rivals", columns: Literal["key", "all"] = "key",
+                index=None, anchor_features: int = 2, threshold: float | None = None, rho: float = 1.0,
+                guard: float = 1.0, min_gap: float = 0.5, only: list[int] | None = None,
+                rival_table=None, anchors: int = 1) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+    """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
+    frames, ascending cost) under a cut-off rule (:mod:`.template_cutoff`).
 
+    ``cutoff="threshold"``: cost <= the template's threshold; ``"rivals"``: cost <= its
+    acceptance bound and no other template cheaper on the stretch (all-feature costs,
+    factor ``rho``). ``threshold`` overrides the bound of every template. ``only``: search
+    these templates (indices) only, the others still competing as rivals. ``rival_table``:
+    a :class:`.template_cutoff.RivalTable` of the same frames answers the rival check by
+    lookups (many queries on one database) instead of scanning the hits' windows.
+    ``anchors``: candidate regions from one anchor or the intersection of two
+    (:func:`.template_prefilter.candidate_ranges`).
+    """
+    from .template_cutoff import acceptance_bound, rival_mask
 
-def others_min(costs: np.ndarray) -> np.ndarray:
-    """Per template and frame the least cost of the other templates, (T, N), from (T, N)."""
-    if len(costs) < 2:
-        return np.full_like(costs, np.inf)
-    order = np.argsort(costs, axis=0, kind="stable")[:2]
-    best = np.take_along_axis(costs, order[:1], axis=0)[0]
-    second = np.take_along_axis(costs, order[1:2], axis=0)[0]
-    rows = np.arange(len(costs))[:, None]
-    return np.where(order[0][None, :] == rows, second[None, :], best[None, :])
+    out = []
+    for qid, t in enumerate(templates):
+        if only is not None and qid not in only:
+            continue
+        use = t if columns == "key" else _all_columns(t)
+        if threshold is not None:
+            bound = float(threshold)
+        else:
+            bound = acceptance_bound(t, guard) if cutoff == "rivals" else float(t.threshold)
+        if index is not None:
+            from .template_prefilter import candidate_ranges
+
+            ranges, _ = candidate_ranges(use, index, anchor_features, widen="path", anchors=anchors)
+        else:
+            ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
+        s, e, c, _ = search_costs(codes, use.table(), ranges, bound, min_gap)
+        if cutoff == "rivals":
+            keep = (rival_table.mask(qid, s, e, offsets, rho) if rival_table is not None
+                    else rival_mask(templates, qid, s, e, codes, offsets, rho))
+            s, e, c = s[keep], e[keep], c[keep]
+        out.append((s, e, c, bound))
+    return out
 
 
 def _all_columns(t: MotionTemplate) -> MotionTemplate:
@@ -163,12 +167,14 @@ class TemplateMatcher(Matcher):
     examples), ``motions`` (clip names: labels and training selection) and optionally
     ``reference`` (a ``matchers.template`` step whose templates are reused) and ``index``
     (an ``indexes.inverted`` step on the same frames: candidate regions from its lists). Output: the
-    shared match table (``query_id`` = template number) plus ``label``, ``threshold`` and
-    ``features``; a ``templates`` table; ``templates.npz`` and ``template_<label>.png``.
+    shared match table (``query_id`` = template number) plus ``label``, ``threshold`` (the
+    cost bound the hit passed: the acceptance bound with ``cutoff: rivals``, the calibrated
+    threshold otherwise) and ``features``; a ``templates`` table; ``templates.npz`` and
+    ``template_<label>.png``. Which hits are reported: ``cutoff`` (:mod:`.template_cutoff`).
     """
 
     name = "template"
-    version = "1"
+    version = "2"
     inputs = {"database": True, "motions": True, "reference": False, "index": False}
     #: Conformance (mocapflow.framework.testing): one template from synthetic clips.
     test_pipeline = {
@@ -194,7 +200,14 @@ class TemplateMatcher(Matcher):
         negatives: bool = Field(True, description="calibrate thresholds against the other classes' training clips too")
         anchor_features: int = Field(2, ge=1, le=3, description="with an 'index' input: features of the anchor constellation "
                                      "whose inverted lists pre-select the searched regions")
-        rivals: bool = Field(False, description="drop a hit when another template matches the same stretch more cheaply")
+        anchors: int = Field(1, ge=1, le=2, description="with an 'index' input: 2 searches only where the anchors of two "
+                             "feature sets both occur (faster, loses more hits: docs/templates.md)")
+        cutoff: Literal["rivals", "threshold"] = Field("rivals", description="rivals: a hit below the template's acceptance "
+                                                        "bound that no other template beats on the stretch (all-feature costs); "
+                                                        "threshold: every hit below the calibrated threshold")
+        rho: float = Field(1.0, gt=0.0, description="cutoff rivals: keep a hit when its all-feature cost <= rho x the best rival's")
+        guard: float = Field(1.0, ge=0.0, description="cutoff rivals: acceptance bound = max(threshold, (1 + guard) x the "
+                                                      "largest leave-one-group-out example cost)")
         plots: bool = Field(True, description="write template_<label>.png per template")
 
     def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
@@ -237,21 +250,22 @@ class TemplateMatcher(Matcher):
             if int(next(iter(index.sets.values())).clip_offsets[-1]) != len(codes):
                 raise PipelineError("matchers.template: the index was built on other frames than 'database'")
         rows = []
-        arrays = [template_cost_array(t, codes, offsets, self.params.features, index, self.params.anchor_features)
-                  for t in templates]
-        rivals = others_min(np.array([a[0] for a in arrays])) if self.params.rivals and arrays else None
-        for qid, t in enumerate(templates):
-            s, e, c = template_hits(*arrays[qid], self.params.threshold or t.threshold)
-            if rivals is not None:
-                keep = rival_filter(s, e, c, rivals[qid])
-                s, e, c = s[keep], e[keep], c[keep]
-            if self.params.max_hits:
-                s, e, c = s[: self.params.max_hits], e[: self.params.max_hits], c[: self.params.max_hits]
+        prm = self.params
+        table = None
+        if prm.cutoff == "rivals" and len(templates) > 1:  # every template is a query: the rivals' costs once
+            from .template_cutoff import RivalTable
+
+            table = RivalTable.build(templates, codes, offsets)
+        lists = cutoff_hits(templates, codes, offsets, prm.cutoff, prm.features, index, prm.anchor_features, prm.threshold,
+                            prm.rho, prm.guard, rival_table=table, anchors=prm.anchors)
+        for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists)):
+            if prm.max_hits:
+                s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]
             pos = np.searchsorted(offsets, s, side="right") - 1
             for rank, (a, b, cc, p) in enumerate(zip(s, e, c, pos), start=1):
                 rows.append({"query_id": qid, "rank": rank, "clip_id": int(clip_ids[p]), "start_frame": int(a - offsets[p]),
                              "end_frame": int(b - offsets[p]), "cost": float(cc), "label": t.label,
-                             "threshold": float(self.params.threshold or t.threshold), "features": feature_ids(t.columns)})
+                             "threshold": bound, "features": feature_ids(t.columns)})
         if self.params.plots:
             for t in templates:
                 plot_template(t, ctx.out_dir / f"template_{_safe(t.label)}.png", fps=_fps(inputs["motions"]))
@@ -338,5 +352,5 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     return out
 
 
-__all__ = ["HDM05_GROUP", "HDM05_LABEL", "TemplateMatcher", "clip_labels", "fit_templates", "others_min", "plot_template",
-           "rival_filter", "search_template", "template_cost_array", "template_hits_table", "templates_table"]
+__all__ = ["HDM05_GROUP", "HDM05_LABEL", "TemplateMatcher", "clip_labels", "cutoff_hits", "fit_templates", "plot_template",
+           "search_template", "template_hits_table", "templates_table"]

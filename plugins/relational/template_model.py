@@ -227,13 +227,15 @@ def template_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray) -> 
 
 
 def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, threshold: float,
-                 min_gap: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 min_gap: float = 0.5, abandon: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Hits of one template over frame ranges in two passes: end-frame costs only
-    (``sdtw_cost``), then the merged windows around candidate ends again with path starts.
+    (``sdtw_cost``, abandoning cells above ``threshold`` when ``abandon``), then the merged
+    windows around candidate ends again with path starts.
 
-    Returns ``(start, end, cost)`` as :func:`template_hits` and the cost array (N,). The
-    hits equal those of :func:`template_costs` + :func:`template_hits` except that a range
-    boundary counts as an inf neighbour (a start may differ only between equal-cost paths).
+    Returns ``(start, end, cost)`` as :func:`template_hits` and the cost array (N,; with
+    ``abandon`` exact where ``<= threshold``, inf or exact elsewhere). The hits equal those
+    of :func:`template_costs` + :func:`template_hits` except that a range boundary counts as
+    an inf neighbour (a start may differ only between equal-cost paths).
     """
     from ._template_kernels import sdtw_cost, template_sdtw
 
@@ -242,7 +244,7 @@ def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, thres
     r = np.asarray(ranges, np.int64).reshape(-1, 2)
     if len(r) and table.shape[1]:
         sdtw_cost(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), np.ascontiguousarray(r[:, 0]),
-                  np.ascontiguousarray(r[:, 1]), cost)
+                  np.ascontiguousarray(r[:, 1]), cost, np.full(len(r), float(threshold) if abandon else np.inf))
     from ._template_kernels import greedy_hits, range_minima
 
     if not 0.0 <= min_gap < 1.0:
@@ -263,6 +265,8 @@ def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, thres
         whi = np.ascontiguousarray(np.maximum.reduceat(hi, first))
         scratch_cost = np.empty(n)
         scratch_start = np.empty(n, np.int64)
+        # no abandoning here: the windows hold the candidates' paths, where most cells are live
+        # (measured: the bounded kernel's bookkeeping costs more than it saves for 2 of 4 templates)
         template_sdtw(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), wlo, whi, scratch_cost, scratch_start)
         full_start[cand] = scratch_start[cand]
     ends = greedy_hits(cand, cost, full_start, float(min_gap), n)

@@ -11,8 +11,11 @@ every fine path through a cell of block ``b`` at query frame ``i`` costs at leas
 ``F(i, b) + G(i, b) - c(i, b)``; blocks where that exceeds ``tau`` for every ``i`` hold no
 cell of any path of cost <= ``tau`` (:func:`coarse_alive`). The fine DP then runs over the
 remaining blocks only (:func:`sdtw_ranges`), with the arithmetic and tie order of
-:func:`._dtw_kernels.sdtw_forward`. Reference: ``tests/naive/dtw.py``; proof in
-``docs/global-matching.md``.
+:func:`._dtw_kernels.sdtw_forward`. The search itself uses the ranged forms:
+:func:`coarse_bounds` (the bound per block over block ranges, for a hierarchy of levels;
+tested against :func:`coarse_alive` and the naive best path through every row) and
+:func:`sdtw_ranges_compact` (tested bit for bit against :func:`sdtw_ranges`).
+Reference: ``tests/naive/dtw.py``; proof in ``docs/global-matching.md``.
 """
 from __future__ import annotations
 
@@ -200,3 +203,165 @@ def sdtw_ranges(qt, x, clip_start, ranges):  # pragma: no cover - compiled
             prev_s, cur_s = cur_s, prev_s
             prev_l, cur_l = cur_l, prev_l
     return cost, start, length
+
+
+@njit(cache=True, fastmath=_FAST)
+def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - compiled
+    """Lower bound ``min_i F(i, b) + G(i, b) - c(i, b)`` of every path through block ``b``.
+
+    Like :func:`coarse_alive`, but over the block ranges ``[a, b)`` of ``branges`` only,
+    each started afresh (its first block is taken as unlinked: no path of cost <= ``tau``
+    enters it from a block ruled out at a coarser level), and returning the bound itself
+    (so blocks can be ranked, and tested against any ``tau``). Same recursion; each column
+    update is split, as in ``sdtw_forward``, into a vectorisable min over the previous
+    block and the serial chain along the query.
+
+    Parameters
+    ----------
+    qt : float32 (d, m)
+    lo, hi, link : from :func:`block_boxes`
+    branges : int64 (r, 2)   block index ranges, ascending and disjoint
+    shrink : float           as :func:`coarse_alive`
+
+    Returns
+    -------
+    lb : float64 (nb,)       inf for blocks outside every range
+    """
+    d, m = qt.shape
+    nb = lo.shape[0]
+    inf = np.inf
+    lb = np.full(nb, inf)
+    acc = np.empty(m, np.float32)
+    tf = np.empty(m)
+    tg = np.empty(m)
+    for r in range(branges.shape[0]):
+        b0 = branges[r, 0]
+        nr = branges[r, 1] - b0
+        if nr <= 0:
+            continue
+        c = np.empty((nr, m))
+        for bb in range(nr):
+            b = b0 + bb
+            for i in range(m):
+                acc[i] = 0.0
+            for k in range(d):
+                lk = lo[b, k]
+                hk = hi[b, k]
+                for i in range(m):
+                    v = qt[k, i]
+                    e = max(lk - v, v - hk, np.float32(0.0))
+                    acc[i] += e * e
+            for i in range(m):
+                c[bb, i] = np.float64(np.sqrt(acc[i])) * shrink
+        # forward F over blocks 0, 1, .. and backward G over blocks nr-1, nr-2, .. in one
+        # loop: two independent serial chains along the query run side by side
+        f = np.empty((nr, m))
+        g = np.empty((nr, m))
+        for step in range(nr):
+            bf = step
+            bg = nr - 1 - step
+            if bf > 0 and link[b0 + bf]:
+                tf[0] = inf
+                for i in range(1, m):  # diagonal and vertical: no dependency along i
+                    tf[i] = min(f[bf - 1, i - 1], f[bf - 1, i])
+            else:
+                for i in range(m):
+                    tf[i] = inf
+            if bg + 1 < nr and link[b0 + bg + 1]:
+                for i in range(m - 1):
+                    tg[i] = min(g[bg + 1, i + 1], g[bg + 1, i])
+            else:
+                for i in range(m - 1):
+                    tg[i] = inf
+            vf = c[bf, 0]
+            f[bf, 0] = vf
+            vg = c[bg, m - 1]  # a free end: going on vertically only adds cost
+            g[bg, m - 1] = vg
+            for i in range(1, m):  # horizontal: the serial chains
+                vf = min(vf, tf[i]) + c[bf, i]
+                f[bf, i] = vf
+                j = m - 1 - i
+                vg = min(vg, tg[j]) + c[bg, j]
+                g[bg, j] = vg
+        for bb in range(nr):
+            low = inf
+            for i in range(m):
+                low = min(low, f[bb, i] + g[bb, i] - c[bb, i])
+            lb[b0 + bb] = low
+    return lb
+
+
+@njit(cache=True, fastmath=_FAST)
+def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compiled
+    """:func:`sdtw_ranges` returning only the rows inside the ranges (no O(n) arrays).
+
+    Returns
+    -------
+    rows : int64 (p,)   the rows of the ranges, in order
+    cost : float64 (p,), start : int64 (p,), length : int64 (p,)
+        :func:`sdtw_ranges`'s values at those rows (same arithmetic, bit for bit).
+    """
+    d, m = qt.shape
+    inf = np.inf
+    p = 0
+    for r in range(ranges.shape[0]):
+        p += ranges[r, 1] - ranges[r, 0]
+    rows = np.empty(p, np.int64)
+    cost = np.empty(p)
+    start = np.empty(p, np.int64)
+    length = np.empty(p, np.int64)
+    prev_c = np.full(m, inf)
+    prev_s = np.zeros(m, np.int64)
+    prev_l = np.zeros(m, np.int64)
+    cur_c = np.empty(m)
+    cur_s = np.empty(m, np.int64)
+    cur_l = np.empty(m, np.int64)
+    col = np.empty(m, np.float32)
+    o = 0
+    for r in range(ranges.shape[0]):
+        for i in range(m):
+            prev_c[i] = inf
+        for j in range(ranges[r, 0], ranges[r, 1]):
+            for i in range(m):
+                col[i] = 0.0
+            for k in range(d):
+                xk = x[j, k]
+                for i in range(m):
+                    t = qt[k, i] - xk
+                    col[i] += t * t
+            for i in range(m):
+                col[i] = np.sqrt(col[i])
+            if clip_start[j]:
+                for i in range(m):
+                    prev_c[i] = inf
+            cur_c[0] = col[0]
+            cur_s[0] = j
+            cur_l[0] = 1
+            for i in range(1, m):
+                a = prev_c[i - 1]
+                b = prev_c[i]
+                v = b < a
+                cur_c[i] = b if v else a
+                cur_s[i] = prev_s[i] if v else prev_s[i - 1]
+                cur_l[i] = prev_l[i] if v else prev_l[i - 1]
+            c = cur_c[0]
+            s = cur_s[0]
+            ln = cur_l[0]
+            for i in range(1, m):
+                b = cur_c[i]
+                h = c < b
+                s = s if h else cur_s[i]
+                ln = (ln if h else cur_l[i]) + 1
+                c = (c if h else b) + np.float64(col[i])
+                cur_c[i] = c
+                cur_s[i] = s
+                cur_l[i] = ln
+            rows[o] = j
+            cost[o] = c
+            start[o] = s
+            length[o] = ln
+            o += 1
+            prev_c, cur_c = cur_c, prev_c
+            prev_s, cur_s = cur_s, prev_s
+            prev_l, cur_l = cur_l, prev_l
+    return rows, cost, start, length

@@ -375,3 +375,38 @@ def set_threads(workers: int | None) -> int:
 
 def threads() -> int:
     return numba.get_num_threads()
+
+
+@njit(cache=True)
+def tree_work(queries, r2, start, end, left, right, blo, bhi, max_depth):  # pragma: no cover - compiled
+    """Work a search with known k-th distances cannot avoid: per query, the nodes whose
+    bounding box lies within ``r2[q]`` (the squared k-th neighbour distance) and the points
+    of the buckets among them.
+
+    Any exact search must open every bucket whose box is closer than the k-th neighbour
+    (it may hold a closer point), so these counts are the search's work up to the share
+    wasted while its bound is still loose; they depend on the data only (the ``method:
+    auto`` cost model counts them instead of timing the search). Returns
+    ``(points, nodes)``, int64 (m,) each.
+    """
+    m, d = queries.shape
+    points = np.zeros(m, np.int64)
+    nodes = np.zeros(m, np.int64)
+    stack = np.empty(max_depth + 2, np.int64)
+    for r in range(m):
+        q = queries[r]
+        top = 1
+        stack[0] = 0
+        while top > 0:
+            top -= 1
+            node = stack[top]
+            nodes[r] += 1
+            if _box_dist(q, blo, bhi, node, d) > r2[r]:
+                continue
+            if left[node] < 0:
+                points[r] += end[node] - start[node]
+            else:
+                stack[top] = left[node]
+                stack[top + 1] = right[node]
+                top += 2
+    return points, nodes

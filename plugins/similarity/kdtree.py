@@ -7,8 +7,9 @@ intrinsic dimension a kd-tree degenerates to a slow linear scan; there an exact 
 force in blocks (:mod:`._brute`) is faster (single queries over small databases take its
 lean path: one compiled call with the GEMV, a sampled k-th threshold, an exact re-ranking of
 the few candidates). With
-``method: auto`` a probe at build time times both on a sample of the indexed rows, for 16
-and 256 neighbours, and keeps the faster (a kd-tree's cost grows with k, the brute force's hardly: where one method wins at
+``method: auto`` a probe at build time counts, on a sample of the indexed rows, for 16
+and 256 neighbours, the tree work an exact search cannot skip and keeps the tree while it
+is below a share of the rows (a deterministic cost model, :data:`BRUTE_FROM_SHARE`) (a kd-tree's cost grows with k, the brute force's hardly: where one method wins at
 16 and another at 256, queries from ``brute_from_k_`` neighbours on use ``large_method_``);
 ``method_``, ``brute_from_k_``, ``large_method_`` and ``probe_`` say what was chosen and
 why, and the step's summary repeats them. Both methods are exact (ties ordered by row id);
@@ -23,7 +24,6 @@ empty heap's.
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Literal
@@ -36,6 +36,14 @@ from mocapflow.framework.errors import ConfigError, DataError
 
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework import Dataset, StepContext, StepOutput
+
+#: ``method: auto`` picks the kd-tree while the tree work a k-NN query cannot skip (points of
+#: the buckets within the k-th neighbour distance, plus nodes) stays below this share of the
+#: rows a brute force scans. Measured (380,813 rows, one thread, loaded 2-core machine): a
+#: tree query costs 3-8 ns per counted point and dimension (its depth-first search does up to
+#: ~2x the unavoidable work in 90-d), a single brute-force query 3-11 ns per row and
+#: dimension and a batched one far less, so the break-even lies near a quarter of the rows.
+BRUTE_FROM_SHARE = 0.25
 
 _ARRAYS = ("data_", "perm_", "groups_", "frames_", "sqnorms_", "mean_",
            "start_", "end_", "left_", "right_", "sdim_", "sval_")
@@ -71,14 +79,14 @@ class KDTreeIndex(Index):
     method_ : {"kdtree", "brute"}
         The search method in use (chosen by the probe when ``method: auto``).
     brute_from_k_ : int or None
-        From this many neighbours on, the probe found ``large_method_`` faster, and it answers
+        From this many neighbours on, the probe's cost model chose ``large_method_``, and it answers
         those queries (:meth:`method_for`). ε-approximate queries (``eps > 0``) always use the
         kd-tree.
     large_method_ : str
         The method for ``k >= brute_from_k_`` (default ``"brute"``).
     probe_ : dict
-        Probe timings, ms per query: ``<method>_single_ms`` (median of one-query calls) and
-        ``<method>_batch_ms`` (one call for all probe rows), on one thread; empty if no probe ran.
+        Probe counts: ``tree_share@<k>``, the kd-tree's unavoidable work per query as a share
+        of the rows (:meth:`_probe`); empty if no probe ran.
     data_ : ndarray of shape (n, d), float32
         The features, stored once in tree order (row ``t`` is input row ``perm_[t]``).
     """
@@ -87,13 +95,15 @@ class KDTreeIndex(Index):
 
     class Params(Params):
         method: Literal["auto", "kdtree", "brute"] = Field(
-            "auto", description="search method; auto probes both at build time and keeps the faster (both exact)")
+            "auto", description=(
+                "search method; auto counts the kd-tree's unavoidable work on sampled rows at build time and keeps "
+                "it unless that reaches a quarter of the rows (deterministic; both methods exact)"))
         # 64, not ANN's usual 16: with per-node bounding boxes a far bucket is skipped on one
         # box test and a scanned one is a tight loop, so bigger buckets cost little; measured
         # 15-40 % faster single queries than 16 across the feature sets at 27 k and 380 k rows
         # (and 128 no faster)
         leafsize: int = Field(64, ge=1, le=1024, description="maximum points per kd-tree bucket")
-        probe_queries: int = Field(64, ge=1, description="rows sampled to time the methods (method auto)")
+        probe_queries: int = Field(64, ge=1, description="rows sampled to count the methods' work (method auto)")
         probe_k: tuple[int, ...] = Field((16, 256), min_length=1,
                                          description="neighbour counts probed (Table 1: 16 and 256); ascending")
         min_probe_rows: int = Field(20000, ge=0, description="below this many rows auto uses the kd-tree without a probe")
@@ -145,36 +155,33 @@ class KDTreeIndex(Index):
         return self
 
     def _probe(self) -> str:
-        """Time both exact methods on indexed rows; returns the faster at the smallest probed k.
+        """Choose the method by counting work on a sample of the indexed rows (deterministic).
 
-        For each probed ``k`` each method answers ``probe_queries`` rows one at a time
-        (median ms, the interactive case) and all at once (ms per query, the batched case),
-        on one thread; the score is their sum, so a method must do well in both. If the
-        kd-tree wins at small ``k`` but the brute force at a larger one (it costs the same for
-        every ``k``, the tree does not), ``brute_from_k_`` records from which ``k`` on the brute
-        force answers (the geometric mean of the two probed values).
+        For each probed ``k``: the exact k-th neighbour distance of ``probe_queries`` sampled
+        rows, then the nodes and bucket points of the tree within that distance
+        (:func:`._knn_kernels.tree_work`: the work no exact tree search can skip); their
+        mean share of the ``n`` rows a brute force scans is ``probe_["tree_share@k"]``. The
+        kd-tree answers where that share is below :data:`BRUTE_FROM_SHARE`. The counts
+        depend on the data only, never on the machine's load (the timing probe this
+        replaces chose a kd-tree on a quiet machine and brute force on a busy one). If the
+        tree wins at small ``k`` but not at a larger one, ``brute_from_k_`` records from which
+        ``k`` on the brute force answers (the geometric mean of the two probed values).
         """
+        from . import _knn_kernels as kern
+
         n = self.data_.shape[0]
         rng = np.random.default_rng(0)
-        q = self.data_[rng.choice(n, size=min(self.params.probe_queries, n), replace=False)]
-        methods = ("kdtree", "brute")
+        q = self.data_[np.sort(rng.choice(n, size=min(self.params.probe_queries, n), replace=False))]
+        tree, _ = self._tree_args()
+        _, _, start, end, left, right, _, _, blo, bhi = tree[:10]
         winners = []
         for k in sorted({min(k, n) for k in self.params.probe_k}):
-            score = {}
-            for method in methods:
-                self._search(q[:2], k, None, 0.0, None, None, None, 1, method)  # warm-up (numba compile, caches)
-                single = []
-                for i in range(min(len(q), 16)):
-                    t0 = time.perf_counter()
-                    self._search(q[i:i + 1], k, None, 0.0, None, None, None, 1, method)
-                    single.append(time.perf_counter() - t0)
-                t0 = time.perf_counter()
-                self._search(q, k, None, 0.0, None, None, None, 1, method)
-                batch = (time.perf_counter() - t0) / len(q)
-                self.probe_[f"{method}_single_ms@{k}"] = round(1000.0 * float(np.median(single)), 4)
-                self.probe_[f"{method}_batch_ms@{k}"] = round(1000.0 * batch, 4)
-                score[method] = float(np.median(single)) + batch
-            winners.append((k, min(score, key=score.get)))
+            d2, _ = self._search(q, k, None, 0.0, None, None, None, 0, "brute")  # exact, batched
+            points, nodes = kern.tree_work(q.astype(np.float64), d2[:, -1] * (1.0 + 1e-9), start, end, left, right,
+                                           blo, bhi, self._max_depth())
+            share = float(points.mean() + nodes.mean()) / n
+            self.probe_[f"tree_share@{k}"] = round(share, 6)
+            winners.append((k, "kdtree" if share < BRUTE_FROM_SHARE else "brute"))
         first = winners[0][1]
         prev = winners[0][0]
         for k, w in winners[1:]:

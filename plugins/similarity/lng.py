@@ -1,11 +1,13 @@
 """Global motion matching with the lazy neighborhood graph (Krüger et al. 2010, §4.1).
 
-Default (``gaps: 32``, our extension): the graph also holds *gap cells*, rows within
-``gaps`` query frames of a neighbour cell, their cost computed exactly on demand
-(:mod:`._gap_kernels`), so another performer's movement is found even where a few of its
-frames are not among the ``k`` nearest; ``gaps: 0`` is the paper's graph. ``exact: true``
-returns exactly subsequence DTW's matches (:mod:`.exact`); ``fill: true`` (default) falls
-back to that search when the graph holds fewer than ``count`` matches.
+Default (``exact: true``): exactly subsequence DTW's matches by a certified, pruned
+coarse-to-fine DP (:mod:`.exact`), measured faster than both sDTW and the graph
+(docs/global-matching.md). ``exact: false`` searches the graph: with ``gaps: 32`` (our
+extension) it also holds *gap cells*, rows within ``gaps`` query frames of a neighbour
+cell, their cost computed exactly on demand (:mod:`._gap_kernels`), so another performer's
+movement is found even where a few of its frames are not among the ``k`` nearest;
+``gaps: 0`` is the paper's graph; ``fill: true`` falls back to the certified search when
+the graph holds fewer than ``count`` matches.
 
 For a query ``Q = [q_1 .. q_m]``: a fixed-radius kNN search capped at ``k`` gives the
 neighbour set ``S(q_i)`` of every query frame; every reported neighbour is a node; the
@@ -194,24 +196,26 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
 def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
                             eps: float = 0.0, count: int = 10, max_cost: float | None = None,
                             rank_by: str = "cost", min_span: float = 0.5, propagate: int = 2,
-                            gaps: int = 32, exact: bool = False, fill: bool = True) -> QueryMatches:
+                            gaps: int = 32, exact: bool = True, fill: bool = True) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`).
 
-    Defaults are the matcher's (gap-tolerant, index searched on every second query frame
-    with propagated sets between, ``fill``, ``min_span`` 0.5); the paper's LNG is
-    ``gaps=0, propagate=0, fill=False, min_span=0``.
+    Defaults are the matcher's: ``exact`` (below), ``min_span`` 0.5. With ``exact=False``
+    the graph itself answers (gap-tolerant, index searched on every second query frame
+    with propagated sets between, ``fill``); the paper's LNG is ``exact=False, gaps=0,
+    propagate=0, fill=False, min_span=0``.
 
-    ``exact``: subsequence DTW's matches, certified (:func:`.exact.certified_sdtw`, which
-    takes its threshold from this graph's matches). ``fill``: when the graph holds fewer
-    than ``count`` matches, return the certified-exact search's instead (its threshold
-    is then a guess it verifies, widening to the whole DP if needed).
+    ``exact``: subsequence DTW's matches, certified (:func:`.exact.certified_sdtw`: a
+    coarse-to-fine DP pruned by an admissible bound, its threshold from the index's
+    neighbours of a few query frames; no graph is built, it would cost more than it
+    saves). ``fill`` (``exact=False``): when the graph holds fewer than ``count`` matches,
+    return the certified-exact search's instead (the graph's matches supply its threshold
+    when there are ``count`` of them; it is verified either way).
     """
     from .exact import certified_sdtw
 
+    if exact:
+        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
     graph = build_graph(query, space, k=k, radius=radius, eps=eps, propagate=propagate, gaps=gaps)
-    if exact:  # the graph's matches (any sets) supply the threshold of the certified search
-        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
-                              graph=graph)
     res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
     if fill and len(res) < count and space.features is not None:
         return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
@@ -231,6 +235,11 @@ class LazyNeighborhoodGraph(GlobalMatcher):
     needs_features: ClassVar[bool] = False
 
     class Params(NeighborParams):
+        exact: bool = Field(True, description=(
+            "certified-exact (default): exactly subsequence DTW's matches by a coarse-to-fine DP pruned with an "
+            "admissible bound, no graph built (measured faster than the graph: docs/global-matching.md); false: the "
+            "lazy neighborhood graph answers (k, gaps, propagate, fill; the paper's LNG: exact false, gaps 0, "
+            "propagate 0, fill false)"))
         plots: int = Field(0, ge=0, description=(
             "write a Fig. 3-style PNG (plots/q<query>_m<rank>.png) for this many top matches per query"))
         plot_queries: int = Field(16, ge=0, description="plot only the first this many queries")

@@ -32,10 +32,10 @@ class NeighborParams(MatchParams):
         "join the graph, their distance computed exactly; a path may cross up to 2*gaps query frames without a "
         "neighbour cell; 0: the paper's graph (neighbour cells only)"))
     exact: bool = Field(False, description=(
-        "certified-exact: return exactly subsequence DTW's matches, the DP pruned by an admissible bound "
-        "(rank_by cost; needs exact kNN)"))
+        "certified-exact: return exactly subsequence DTW's matches by a coarse-to-fine DP pruned with an "
+        "admissible bound, no graph built (rank_by cost; other rankings run the whole DP)"))
     fill: bool = Field(True, description=(
-        "when the graph holds fewer than count matches, return the certified-exact search's instead"))
+        "exact false: when the graph holds fewer than count matches, return the certified-exact search's instead"))
 
 
 class GlobalMatcher(Matcher):

@@ -30,12 +30,13 @@ class SearchCommand:
                             help="drop matches spanning fewer database frames than F x the query (default 0.5; 0: all)")
         parser.add_argument("--rank-by", choices=("cost", "normalized"), default=None,
                             help="rank by accumulated cost (default) or cost per path cell")
-        parser.add_argument("--exact", action="store_true",
-                            help="return exactly subsequence DTW's matches (lng: a certified pruned DP, identical to sdtw)")
+        parser.add_argument("--exact", action=argparse.BooleanOptionalAction, default=None,
+                            help="return exactly subsequence DTW's matches (lng: a certified pruned DP, identical to "
+                                 "sdtw; the default of lng); --no-exact: lng answers from its neighborhood graph")
         parser.add_argument("--gaps", type=int, default=None, metavar="G",
-                            help="lng: query frames a path may cross without a kNN cell (default: the matcher's, 32; 0: the paper's graph)")
+                            help="lng --no-exact: query frames a path may cross without a kNN cell (default: the matcher's, 32; 0: the paper's graph)")
         parser.add_argument("--propagate", type=int, default=None, metavar="N",
-                            help="lng: search the index every N-th query frame only, propagate the sets in between")
+                            help="lng --no-exact: search the index every N-th query frame only, propagate the sets in between")
         parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
         parser.add_argument("--radius", type=float, default=None, help="kNN search radius (lng, logical)")
         parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
@@ -77,9 +78,9 @@ class SearchCommand:
         fields = matcher_cls.Params.model_fields
         params = {"count": args.count}
         if args.exact and args.matcher == "sdtw":
-            args.exact = False  # sdtw is exact already
+            args.exact = None  # sdtw is exact already
         for key, val in (("k", args.k), ("radius", args.radius), ("min_span", args.min_span), ("rank_by", args.rank_by),
-                         ("gaps", args.gaps), ("propagate", args.propagate), ("exact", args.exact or None)):
+                         ("gaps", args.gaps), ("propagate", args.propagate), ("exact", args.exact)):
             if val is not None:
                 if key not in fields:
                     raise ConfigError(f"matchers.{args.matcher} has no parameter {key!r}")
