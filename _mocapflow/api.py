@@ -75,8 +75,8 @@ class Database:
     def __init__(self, motions, features: str = "end_effectors", index: str = "kdtree", *, fps: float | None = 30.0,
                  feature_params: dict | None = None, index_params: dict | None = None) -> None:
         from mocapflow.framework.database import MotionDatabase
+        from mocapflow.framework.matching import SearchSpace
         from mocapflow.framework.normalize import resample
-        from mocapflow.plugins.similarity.matches import SearchSpace
 
         regs = registries()
         self.fps = fps
@@ -97,8 +97,8 @@ class Database:
         """
         import pyarrow as pa
 
+        from mocapflow.framework.matching import matches_table
         from mocapflow.framework.normalize import resample
-        from mocapflow.plugins.similarity.matches import matches_table
 
         q = _motions(query)[0]
         q = resample(q, self.fps) if self.fps else q

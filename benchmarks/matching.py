@@ -39,7 +39,7 @@ from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures  # no
 from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
 from mocapflow.plugins.similarity._lng_kernels import lng_forward  # noqa: E402
 from mocapflow.plugins.similarity.lng import NeighborhoodGraph, lazy_neighborhood_graph, neighbor_sets  # noqa: E402
-from mocapflow.plugins.similarity.matches import SearchSpace  # noqa: E402
+from mocapflow.framework.matching import SearchSpace  # noqa: E402
 from mocapflow.plugins.similarity.sdtw import subsequence_dtw  # noqa: E402
 
 

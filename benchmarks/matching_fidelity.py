@@ -45,7 +45,7 @@ from mocapflow.framework import MotionDatabase  # noqa: E402
 from mocapflow.framework.normalize import resample  # noqa: E402
 from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
 from mocapflow.plugins.similarity.lng import build_graph  # noqa: E402
-from mocapflow.plugins.similarity.matches import SearchSpace, select_matches  # noqa: E402
+from mocapflow.framework.matching import SearchSpace, select_matches  # noqa: E402
 from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw  # noqa: E402
 
 

@@ -42,7 +42,7 @@ from mocapflow.framework import MotionDatabase  # noqa: E402
 from mocapflow.framework.normalize import resample  # noqa: E402
 from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
 from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph  # noqa: E402
-from mocapflow.plugins.similarity.matches import SearchSpace  # noqa: E402
+from mocapflow.framework.matching import SearchSpace  # noqa: E402
 from mocapflow.plugins.similarity.sdtw import subsequence_dtw  # noqa: E402
 
 #: method label -> keyword arguments of lazy_neighborhood_graph (None: subsequence DTW)

@@ -14,12 +14,14 @@ from typing import TYPE_CHECKING, Any
 # public name -> the submodule that defines it
 _EXPORTS: dict[str, str] = {
     **dict.fromkeys(("Analysis", "Cleaner", "Component", "FeatureSet", "Format", "Index", "Matcher", "Params"), "components"),
+    "CleanedClip": "cleaning",
     "StepContext": "context",
     "MotionDatabase": "database",
     **dict.fromkeys(("Dataset", "FeatureMatrix", "StepOutput"), "datasets"),
     **dict.fromkeys(("ConfigError", "DataError", "MocapflowError", "ParseError", "PipelineError", "PluginError"), "errors"),
     "CANONICAL_JOINTS": "joints",
     "Markers": "markers",
+    **dict.fromkeys(("MatchParams", "QueryMatches", "SearchSpace"), "matching"),
     **dict.fromkeys(("Motion", "forward_kinematics"), "motion"),
     **dict.fromkeys(("build_registries", "get_plugin_manager", "hookimpl", "load_registries"), "plugins"),
     **dict.fromkeys(("Registries", "Registry"), "registry"),
@@ -52,12 +54,14 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # for type checkers and IDEs; never executed
     from .components import Analysis, Cleaner, Component, FeatureSet, Format, Index, Matcher, Params
+    from .cleaning import CleanedClip
     from .context import StepContext
     from .database import MotionDatabase
     from .datasets import Dataset, FeatureMatrix, StepOutput
     from .errors import ConfigError, DataError, MocapflowError, ParseError, PipelineError, PluginError
     from .joints import CANONICAL_JOINTS
     from .markers import Markers
+    from .matching import MatchParams, QueryMatches, SearchSpace
     from .motion import Motion, forward_kinematics
     from .plugins import build_registries, get_plugin_manager, hookimpl, load_registries
     from .registry import Registries, Registry

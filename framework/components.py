@@ -273,18 +273,99 @@ class Index(Component):
 
 
 class Matcher(Component):
-    """Matches queries against a database; writes tables with :data:`~.schema.MATCHES` columns."""
+    """Matches queries against a database; writes tables with :data:`~.schema.MATCHES` columns.
+
+    A matcher that aligns whole query segments implements only :meth:`match` (one query's
+    features against a :class:`~.matching.SearchSpace`, returning ranked
+    :class:`~.matching.QueryMatches`) and sets :attr:`needs_index` / :attr:`needs_features`;
+    the default :meth:`run` (:func:`.queries.run_matcher`) does the rest: the search space
+    from ``database`` (an index dataset, or features when no index is needed), the queries
+    from ``query`` and the ``queries`` parameter (:class:`~.matching.MatchParams`), the
+    ``data`` table (:data:`~.schema.MATCH_TABLE`) and the ``queries`` table
+    (:data:`~.schema.QUERIES`). Matchers with other inputs (inverted lists, templates)
+    override :meth:`run` and write :data:`~.schema.MATCHES` plus their own columns.
+    """
 
     kind = "matchers"
-    inputs: ClassVar[Mapping[str, bool]] = {"database": True, "query": True}
+    inputs: ClassVar[Mapping[str, bool]] = {"database": True, "query": True, "features": False}
     output_kind: ClassVar[str | None] = "matches"
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {
         "database": ("index", "features"), "query": ("motions", "features"),
         "features": ("features",), "motions": ("motions",)}
+    #: The default step loads the ``database`` index (``SearchSpace.index``).
+    needs_index: ClassVar[bool] = True
+    #: The default step loads the database features (``SearchSpace.features``).
+    needs_features: ClassVar[bool] = False
+
+    def match(self, query: np.ndarray, space: Any) -> Any:
+        """Ranked matches of one query.
+
+        Parameters
+        ----------
+        query : ndarray of float32, shape (m, d)
+            Query features, in the database's feature space (``m >= 1``).
+        space : SearchSpace
+            The searched rows (:class:`~.matching.SearchSpace`).
+
+        Returns
+        -------
+        QueryMatches
+            Best first, rows ``[start, end)`` of ``space``, one warping path per match.
+            Bad input (wrong dimension, NaN, no index where one is needed) raises a
+            :class:`~.errors.DataError` or :class:`~.errors.ConfigError`.
+        """
+        raise NotImplementedError(f"{self.key()} does not implement match(query, space)")
+
+    def uses_features(self) -> bool:
+        """Whether the default step loads the database features (default :attr:`needs_features`)."""
+        return self.needs_features
+
+    def search_space(self, inputs: Mapping[str, Dataset], registries: Any = None) -> Any:
+        """The :class:`~.matching.SearchSpace` of the step's inputs (:func:`.queries.search_space`)."""
+        from .queries import search_space
+
+        return search_space(self, inputs, registries)
+
+    def features_dataset(self, inputs: Mapping[str, Dataset]) -> Dataset | None:
+        """The database's features dataset (:func:`.queries.features_dataset`)."""
+        from .queries import features_dataset
+
+        return features_dataset(inputs)
+
+    def queries(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> list[Any]:
+        """The step's :class:`~.queries.Query` list (:func:`.queries.step_queries`)."""
+        from .queries import step_queries
+
+        return step_queries(self, inputs, ctx)
+
+    def after_match(self, query_id: int, query: Any, matches: Any, space: Any, ctx: StepContext) -> None:
+        """Called by the default step after each query (plots); default: nothing."""
+
+    def source_fingerprint(self, base_dir: Path) -> str:
+        """Query files named in ``queries`` (path, size, mtime): an edited file recomputes the step."""
+        from .queries import query_files_fingerprint
+
+        return query_files_fingerprint(getattr(self.params, "queries", ()), base_dir)
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        """The default step: :meth:`match` per query (:func:`.queries.run_matcher`)."""
+        if type(self).match is Matcher.match:
+            raise NotImplementedError(f"{self.key()} implements neither match(query, space) nor run()")
+        from .queries import run_matcher
+
+        return run_matcher(self, inputs, ctx)
 
 
 class Cleaner(Component):
-    """Detects (``detect``) and repairs (``repair``) capture errors per joint and frame."""
+    """Detects (:meth:`detect`) and repairs (:meth:`repair`) capture errors per joint and frame.
+
+    A cleaner implements :meth:`detect` and :meth:`repair`; the default :meth:`run`
+    (:func:`.cleaning.run_cleaner`) cleans every clip of ``motions`` against the optional
+    ``context`` clips through :meth:`clean_clip` and writes ``data``
+    (:data:`~.schema.DIGRESSIONS`) and ``edits`` (:data:`~.schema.EDITS`). A cleaner whose
+    detection and repair share one analysis overrides :meth:`clean_clip` to run it once.
+    ``context`` is None, a Motion, a list of Motions or a MotionDatabase.
+    """
 
     kind = "cleaners"
     inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "context": False}
@@ -292,12 +373,32 @@ class Cleaner(Component):
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {"motions": ("motions",), "context": ("motions",)}
 
     def detect(self, motion: Motion, context: Any = None) -> np.ndarray:
-        """Digression map, shape (T, J) in [0, 1]."""
-        raise NotImplementedError
+        """Digression map at the input frames, shape (T, J) in [0, 1] (> 0.5: an error).
+
+        ``J`` is the skeleton's joint count; joints the cleaner does not analyse are 0.
+        Bad input (a context of the wrong type, a clip too short) raises
+        :class:`~.errors.DataError`.
+        """
+        raise NotImplementedError(f"{self.key()} cannot detect")
 
     def repair(self, motion: Motion, context: Any = None) -> tuple[Motion, Any]:
-        """Cleaned motion and a table of edits."""
-        raise NotImplementedError
+        """Cleaned motion (same skeleton, frames and rate) and its edits table
+        (:data:`~.schema.EDITS`, :func:`.cleaning.edits_table`)."""
+        raise NotImplementedError(f"{self.key()} cannot repair")
+
+    def clean_clip(self, motion: Motion, context: Any, clip_id: int, out_dir: Path | None) -> Any:
+        """One clip of the step: a :class:`.cleaning.CleanedClip` (tables, cleaned motion,
+        JSON summary); files may be written into ``out_dir``. Default: :meth:`detect`, then
+        :meth:`repair` (:func:`.cleaning.clean_clip`)."""
+        from .cleaning import clean_clip
+
+        return clean_clip(self, motion, context, clip_id)
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        """The default step: :meth:`clean_clip` per clip (:func:`.cleaning.run_cleaner`)."""
+        from .cleaning import run_cleaner
+
+        return run_cleaner(self, inputs, ctx)
 
 
 class Analysis(Component):

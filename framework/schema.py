@@ -12,7 +12,8 @@ Conventions, stated once:
 * feature vectors are fixed-size lists of float32;
 * match tables of every matcher share :data:`MATCHES` (extra matcher-specific columns may
   follow), so SQL composes across matchers; ``rank`` is 1-based per ``query_id`` (1 = best)
-  and lower ``cost`` is better.
+  and lower ``cost`` is better;
+* cleaners write :data:`DIGRESSIONS` (``data``) and :data:`EDITS` (``edits``) tables.
 """
 from __future__ import annotations
 
@@ -85,6 +86,29 @@ MATCHES = pa.schema(
 
 #: Optional warping path column of match tables: pairs (query frame, database frame).
 WARPING_PATH = pa.field("path", pa.list_(pa.list_(pa.int32(), 2)))
+
+#: Match table of the matchers that align whole query segments (the default
+#: :meth:`~.components.Matcher.run`, :func:`.matching.matches_table`): :data:`MATCHES`, the
+#: cost per warping-path cell, the warping path (database frames within the clip).
+MATCH_TABLE = MATCHES.append(pa.field("cost_normalized", pa.float64())).append(WARPING_PATH)
+
+#: Query table beside a match table: where each query came from (``clip_id`` -1: a file;
+#: frames half-open within that clip).
+QUERIES = pa.schema([("query_id", pa.int32()), ("name", pa.string()), ("clip_id", pa.int32()),
+                     ("start_frame", pa.int32()), ("end_frame", pa.int32())])
+
+#: Digression table of a cleaner (one row per input frame and analysed joint): ``value``
+#: in [0, 1] (> 0.5: the cell is an error), ``flagged`` the decision, ``cue`` what flagged
+#: it (null where nothing did). ``joint`` indexes the clip's skeleton joints.
+DIGRESSIONS = pa.schema([("clip_id", pa.int32()), ("frame", pa.int32()), ("joint", pa.int32()),
+                         ("joint_name", pa.string()), ("value", pa.float32()), ("flagged", pa.bool_()),
+                         ("cue", pa.string())])
+
+#: Edit table of a cleaner (one row per changed input cell): local rotations before and
+#: after (w, x, y, z), the geodesic angle between them in degrees, the cue behind the edit.
+EDITS = pa.schema([("clip_id", pa.int32()), ("frame", pa.int32()), ("joint", pa.int32()),
+                   ("joint_name", pa.string()), ("old_rotation", pa.list_(pa.float64(), 4)),
+                   ("new_rotation", pa.list_(pa.float64(), 4)), ("edit_deg", pa.float32()), ("cue", pa.string())])
 
 
 #: Columns of a motions dataset's ``data`` table that rebuild its motions (``frame`` is implied).

@@ -11,6 +11,9 @@ In the spirit of scikit-learn's ``parametrize_with_checks``::
 
 Components whose ``Params`` have required fields may define a class attribute
 ``test_params`` (a dict) used to build an instance for the checks that need one.
+Matchers and cleaners are checked by :mod:`.conformance` (synthetic search space with a
+brute-force :class:`ReferenceIndex`; a matcher with its own step declares
+``test_pipeline``, see :func:`check_matcher_pipeline`).
 Synthetic data for tests (:func:`synthetic_skeleton`, :func:`synthetic_motion`) lives here
 too, so third parties test with the same humanoid as mocapflow itself.
 """
@@ -27,6 +30,7 @@ from pydantic import ValidationError
 
 from . import quaternions as quat
 from .components import Component, FeatureSet, Format, Index, Params
+from .conformance import ReferenceIndex, check_cleaner, check_matcher, check_matcher_pipeline, synthetic_space
 from .database import MotionDatabase
 from .joints import CANONICAL_JOINTS
 from .motion import Motion
@@ -180,6 +184,7 @@ def check_format_round_trip(cls: type[Component]) -> None:
 
 CHECKS: tuple[Callable[[type[Component]], None], ...] = (
     check_declaration, check_params_model, check_init_and_clone, check_feature_set, check_index, check_format_round_trip,
+    check_matcher, check_matcher_pipeline, check_cleaner,
 )
 
 
@@ -199,4 +204,5 @@ def parametrize_with_checks(classes: Iterable[type[Component]]) -> Any:
     return pytest.mark.parametrize("component_class, check", cases, ids=ids)
 
 
-__all__ = ["CHECKS", "check_component", "parametrize_with_checks", "synthetic_motion", "synthetic_skeleton"]
+__all__ = ["CHECKS", "ReferenceIndex", "check_cleaner", "check_component", "check_matcher", "check_matcher_pipeline",
+           "parametrize_with_checks", "synthetic_motion", "synthetic_skeleton", "synthetic_space"]

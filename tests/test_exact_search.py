@@ -14,7 +14,7 @@ from mocapflow.plugins.similarity._coarse_kernels import (block_boxes, coarse_al
 from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward
 from mocapflow.plugins.similarity.exact import ExactStats, certified_sdtw
 from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
-from mocapflow.plugins.similarity.matches import SearchSpace
+from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"

@@ -9,7 +9,7 @@ hnswlib = pytest.importorskip("hnswlib", reason="indexes.hnsw needs the 'ann' ex
 from mocapflow.framework.testing import parametrize_with_checks  # noqa: E402
 from mocapflow.plugins.similarity.hnsw import HNSWIndex  # noqa: E402
 from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph  # noqa: E402
-from mocapflow.plugins.similarity.matches import SearchSpace  # noqa: E402
+from mocapflow.framework.matching import SearchSpace  # noqa: E402
 
 
 @parametrize_with_checks([HNSWIndex])

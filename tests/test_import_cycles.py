@@ -109,7 +109,7 @@ def test_cycle_finder_finds_a_cycle():
 def test_graph_sees_relative_imports():
     g = import_graph()
     assert "mocapflow.framework.schema" in g["mocapflow.framework.motion_tables"]
-    assert "mocapflow.plugins.similarity.matches" in g["mocapflow.plugins.similarity.plots"]
+    assert "mocapflow.plugins.similarity.lng" in g["mocapflow.plugins.similarity.logical"]
 
 
 def test_no_import_cycles_but_the_known_ones():

@@ -9,7 +9,7 @@ from test_sdtw import make_db
 from mocapflow.framework import Index
 from mocapflow.framework.errors import DataError
 from mocapflow.plugins.similarity.lng import build_graph, lazy_neighborhood_graph
-from mocapflow.plugins.similarity.matches import SearchSpace
+from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
 

@@ -13,8 +13,8 @@ from mocapflow.framework.datasets import MANIFEST, Dataset, feature_table, frame
 from mocapflow.framework.errors import ConfigError
 from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
 from mocapflow.plugins.similarity.logical import LogicalSearch, logical_search
-from mocapflow.plugins.similarity.matches import MATCH_COLUMNS, SearchSpace
-from mocapflow.plugins.similarity.queries import parse_query_spec
+from mocapflow.framework.matching import MATCH_COLUMNS, SearchSpace
+from mocapflow.framework.queries import parse_query_spec
 from mocapflow.plugins.similarity.sdtw import SubsequenceDTW
 
 

@@ -221,7 +221,6 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     from types import SimpleNamespace
 
     from mocapflow.framework.database import MotionDatabase
-    from mocapflow.plugins.selfsim.clean_command import run_cleaner
 
     db = MotionDatabase([synthetic_walk(120, seed=9, name="w")])
     inputs = {"motions": SimpleNamespace(motions=lambda: db)}
@@ -234,6 +233,6 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
                               log=SimpleNamespace(info=lambda *_: None),
                               map_clips=lambda fn, ds, with_ids=False, **_: [
                                   fn(m, int(i)) for i, m in zip(ds.motions().clip_ids, ds.motions().motions)])
-        outs.append(json.dumps(run_cleaner(cleaner, inputs, ctx).summary, sort_keys=True))
+        outs.append(json.dumps(cleaner.run(inputs, ctx).summary, sort_keys=True))
     assert outs[0] == outs[1]
     assert str(tmp_path) not in outs[0]

@@ -6,7 +6,7 @@ import pytest
 from naive.dtw import continues_of, naive_path, naive_subsequence_dtw
 
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.similarity.matches import SearchSpace, select_matches
+from mocapflow.framework.matching import SearchSpace, select_matches
 from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw
 
 

@@ -365,6 +365,14 @@ class RelationalMatcher(Matcher):
     name = "relational"
     version = "2"
     inputs = {"database": True, "query": True, "motions": False}
+    #: Conformance (mocapflow.framework.testing): a query by example on synthetic clips.
+    test_pipeline = {
+        "steps": {"feat": {"uses": "features.relational", "input": "motions"},
+                  "inv": {"uses": "indexes.inverted", "input": "feat"}},
+        "inputs": {"database": "inv", "query": "feat", "motions": "motions"},
+        "with": {"queries": [{"clip": "synthetic2", "start_frame": 10, "end_frame": 50}]},
+        "bad_inputs": {"database": "feat", "query": "feat", "motions": "motions"},
+    }
 
     class Params(Params):
         queries: tuple[ExampleQuery, ...] = Field((), description="queries by example")

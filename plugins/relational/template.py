@@ -176,6 +176,14 @@ class TemplateMatcher(Matcher):
     name = "template"
     version = "2"
     inputs = {"database": True, "motions": True, "reference": False, "index": False}
+    #: Conformance (mocapflow.framework.testing): one template from synthetic clips.
+    test_pipeline = {
+        "steps": {"feat": {"uses": "features.relational", "input": "motions"},
+                  "inv": {"uses": "indexes.inverted", "input": "feat"}},
+        "inputs": {"database": "feat", "motions": "motions"},
+        "with": {"label_pattern": r"^(?P<label>synthetic)\d", "group_pattern": None, "plots": False},
+        "bad_inputs": {"database": "inv", "motions": "motions"},
+    }
 
     class Params(Params):
         label_pattern: str = Field(HDM05_LABEL, description="regular expression on clip names with a group (?P<label>...)")

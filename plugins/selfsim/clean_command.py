@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import json
 import re
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -107,38 +106,6 @@ def clean_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: P
                     "flagged_cells": int(out.flags.sum()), "edited_cells": edits.num_rows,
                     **change_report(out, motion), **files},
     }
-
-
-def _clean_task(cleaner: Any, context: Any, out_dir: Path, motion: Any, clip_id: int) -> dict[str, Any]:
-    """One clip of :func:`run_cleaner` (module-level: executors pickle it); the context
-    motions are read once per worker process."""
-    out = clean_clip(cleaner, motion, context.motions() if context is not None else None, clip_id, out_dir)
-    out.pop("cleaned")  # the BVH is written; the motion itself need not travel back
-    return out
-
-
-def run_cleaner(cleaner: Any, inputs: Mapping[str, Any], ctx: Any) -> Any:
-    """``cleaners.mdm`` as a pipeline step: every clip of ``motions`` against itself plus the
-    optional ``context`` dataset. Tables ``data`` (MDM), ``edits``; files per clip. The
-    summary (stored in the provenance) holds no timing and no path, so identical runs give
-    identical provenance."""
-    from mocapflow.framework.datasets import StepOutput
-
-    from functools import partial
-
-    from mocapflow.framework.executors import DatasetRef
-
-    # clips and context go to the workers by reference (each reads them from the workspace)
-    context = DatasetRef.of(inputs["context"]) if inputs.get("context") is not None else None
-    mdms, edits, summary = [], [], []
-    for out in ctx.map_clips(partial(_clean_task, cleaner, context, ctx.out_dir), inputs["motions"], with_ids=True):
-        mdms.append(out["mdm"])
-        edits.append(out["edits"])
-        summary.append(out["summary"])
-    data = pa.concat_tables(mdms) if mdms else None
-    ed = pa.concat_tables(edits) if edits else None
-    tables = {k: v for k, v in (("data", data), ("edits", ed)) if v is not None}
-    return StepOutput(tables, {"clips": summary})
 
 
 def _plugin_manager(args: argparse.Namespace, pm: Any = None) -> Any:

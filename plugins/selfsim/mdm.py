@@ -411,7 +411,11 @@ class MDMCleaner(Cleaner):
 
     def clean(self, motion: Motion, context: Any = None, contacts: Sequence[Any] = ()) -> "CleanResult":
         """Analysis, decision and repair of one clip (see :class:`CleanResult`)."""
+        from mocapflow.framework.cleaning import check_take
+
         from .decision import clean_motion
+
+        check_take(motion, self.key())
 
         return clean_motion(self, motion, context, contacts)
 
@@ -427,7 +431,11 @@ class MDMCleaner(Cleaner):
         out = self.clean(motion, context, contacts)
         return out.cleaned, out.edits
 
-    def run(self, inputs, ctx):
-        from .clean_command import run_cleaner
+    def clean_clip(self, motion: Motion, context: Any, clip_id: int, out_dir: Any) -> Any:
+        """One clip of the default step (analysis once; BVH, heatmap and plots into ``out_dir``)."""
+        from mocapflow.framework.cleaning import CleanedClip
 
-        return run_cleaner(self, inputs, ctx)
+        from .clean_command import clean_clip
+
+        out = clean_clip(self, motion, context, clip_id, out_dir)
+        return CleanedClip(out["mdm"], out["edits"], out["cleaned"], out["summary"])

@@ -37,8 +37,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mocapflow.framework.errors import DataError
+from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
+from .matcher_base import block_boxes_of
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
@@ -187,7 +188,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     space : SearchSpace
         With ``features`` (and ``index`` when ``graph`` is not given and ``top`` is 0).
     count, max_cost, rank_by, min_span
-        As :func:`.matches.select_matches`; ``rank_by="normalized"`` has no admissible
+        As :func:`mocapflow.framework.matching.select_matches`; ``rank_by="normalized"`` has no admissible
         cost bound here and runs the whole DP.
     k, gaps
         kNN sets and gap band of the LNG that supplies ``tau`` when ``top`` is 0
@@ -237,7 +238,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     qt = np.ascontiguousarray(q.T)
     n = space.n_rows
     direct = n * len(q) <= (DIRECT_CELLS if direct_cells is None else direct_cells)
-    levels = [] if direct else [space.blocks(b) for b in sizes]
+    levels = [] if direct else [block_boxes_of(space, b) for b in sizes]
     lb_top = None
     tau = np.inf
     if rank_by == "cost" and not direct:

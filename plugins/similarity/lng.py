@@ -29,9 +29,9 @@ import numpy as np
 from pydantic import Field
 
 from mocapflow.framework.errors import ConfigError, DataError
+from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
-from .queries import GlobalMatcher, NeighborParams
+from .matcher_base import GlobalMatcher, NeighborParams
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,11 @@ from pydantic import Field
 
 from mocapflow.framework.datasets import StepOutput
 from mocapflow.framework.errors import DataError
+from mocapflow.framework.matching import IntervalSet, QueryMatches, SearchSpace, matches_table
+from mocapflow.framework.queries import queries_table, upstream
 
 from .lng import lazy_neighborhood_graph
-from .matches import IntervalSet, QueryMatches, SearchSpace, matches_table
-from .queries import GlobalMatcher, NeighborParams, queries_table, upstream
+from .matcher_base import GlobalMatcher, NeighborParams
 
 
 @dataclass

@@ -16,7 +16,7 @@ import numpy as np
 
 from mocapflow.framework.errors import ConfigError
 
-from .matches import QueryMatches, SearchSpace
+from mocapflow.framework.matching import QueryMatches, SearchSpace
 
 if TYPE_CHECKING:  # annotations only: lng.py imports this module (lazily)
     from .lng import NeighborhoodGraph

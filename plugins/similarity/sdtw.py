@@ -13,9 +13,9 @@ from typing import ClassVar
 
 import numpy as np
 from mocapflow.framework.errors import DataError
+from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matches import QueryMatches, SearchSpace, min_frames_of, select_matches
-from .queries import GlobalMatcher, MatchParams
+from .matcher_base import GlobalMatcher
 
 
 def validate_query(query: np.ndarray, dim: int) -> np.ndarray:
@@ -65,7 +65,7 @@ def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, m
     space : SearchSpace
         With ``features``.
     count, max_cost, rank_by, min_span
-        See :func:`.matches.select_matches`.
+        See :func:`mocapflow.framework.matching.select_matches`.
     """
     from ._dtw_kernels import dtw_window_path
 

@@ -50,8 +50,8 @@ class SearchCommand:
         from mocapflow.framework.datasets import read_datasets
         from mocapflow.framework.errors import ConfigError
 
-        from .matches import matches_table
-        from .queries import feature_set_of, motion_queries, parse_query_spec, upstream
+        from mocapflow.framework.matching import matches_table
+        from mocapflow.framework.queries import feature_set_of, motion_queries, parse_query_spec, upstream
 
         if not Path(args.db).is_dir():
             raise ConfigError(f"--db {args.db}: the workspace does not exist (run a pipeline with an index step first)")

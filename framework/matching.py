@@ -1,7 +1,13 @@
-"""Ranked matches shared by the global matchers (LNG, subsequence DTW, logical search).
+"""The matcher contract: search spaces, ranked matches and the shared match table.
 
-A matcher reduces one query to *candidates* (one per database row where a best path
-ends: its accumulated cost, first row and path length) and then keeps ranked,
+A matcher that aligns whole query segments implements one method,
+:meth:`~mocapflow.framework.components.Matcher.match` ``(query, space) -> QueryMatches``;
+the default :meth:`~mocapflow.framework.components.Matcher.run` (:mod:`.queries`) turns the
+step's inputs into a :class:`SearchSpace` and query feature arrays, calls it per query and
+writes :func:`matches_table` (:data:`~.schema.MATCH_TABLE`).
+
+A matcher typically reduces one query to *candidates* (one per database row where a best
+path ends: its accumulated cost, first row and path length) and then keeps ranked,
 non-overlapping matches with :func:`select_matches`, the same rule for every matcher so
 their results compare one to one. Rows are row ids of the index (= of the features
 table); :class:`SearchSpace` maps them to ``(clip_id, frame)``.
@@ -9,22 +15,31 @@ table); :class:`SearchSpace` maps them to ``(clip_id, frame)``.
 from __future__ import annotations
 
 import bisect
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any, Literal
 
 import numpy as np
 import pyarrow as pa
+from pydantic import Field
 
-from mocapflow.framework import schema
-from mocapflow.framework.errors import DataError
+from . import schema
+from .components import Params
+from .errors import DataError
 
-#: Extra columns of a match table after :data:`~mocapflow.framework.schema.MATCHES`.
-MATCH_COLUMNS = schema.MATCHES.append(pa.field("cost_normalized", pa.float64())).append(schema.WARPING_PATH)
+#: Columns of a match table (:data:`~mocapflow.framework.schema.MATCH_TABLE`).
+MATCH_COLUMNS = schema.MATCH_TABLE
 
 
 @dataclass(frozen=True)
 class SearchSpace:
     """The searched database: index rows, their frame ids, optionally their features.
+
+    Any :class:`~mocapflow.framework.Index` serves a space (:meth:`neighbors` is its
+    ``query``); a matcher that needs no index (subsequence DTW) reads ``features``.
+    Derived arrays an algorithm needs once per space (block bounds...) are kept with
+    :meth:`memo`, so one space serves every query of a step.
 
     Parameters
     ----------
@@ -73,17 +88,20 @@ class SearchSpace:
         return c
 
     @cached_property
-    def _blocks(self) -> dict:
+    def _memo(self) -> dict:
         return {}
 
-    def blocks(self, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Row blocks of at most ``size`` rows within runs and their feature boxes, cached
-        (:func:`._coarse_kernels.block_boxes`; needs ``features``)."""
-        if size not in self._blocks:
-            from ._coarse_kernels import block_boxes
+    def memo(self, key: Hashable, compute: Callable[[], Any]) -> Any:
+        """``compute()`` once per space and ``key`` (an algorithm's derived arrays)."""
+        if key not in self._memo:
+            self._memo[key] = compute()
+        return self._memo[key]
 
-            self._blocks[size] = block_boxes(self.features, self.continues, int(size))
-        return self._blocks[size]
+    def neighbors(self, x: np.ndarray, k: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The index's kNN of ``x`` (m, d): ``(dist, ids)`` each (m, k), as :meth:`.Index.query`."""
+        if self.index is None:
+            raise DataError("this search space has no index (SearchSpace.index)")
+        return self.index.query(np.ascontiguousarray(x, dtype=np.float32), k, radius)
 
 
 @dataclass
@@ -102,6 +120,15 @@ class QueryMatches:
 
     def __len__(self) -> int:
         return len(self.cost)
+
+    def validate(self, space: SearchSpace, what: str = "matches") -> None:
+        """Raise :class:`DataError` unless the arrays agree and the rows lie in ``space``."""
+        n = len(self.cost)
+        if not (len(self.start) == len(self.end) == len(self.length) == n) or (self.paths and len(self.paths) != n):
+            raise DataError(f"{what}: start, end, cost, length (and paths) must have one length")
+        s, e = np.asarray(self.start), np.asarray(self.end)
+        if n and (s.min() < 0 or e.max() > space.n_rows or np.any(e <= s)):
+            raise DataError(f"{what}: rows [start, end) must lie within the {space.n_rows} rows and be non-empty")
 
 
 class IntervalSet:
@@ -176,7 +203,14 @@ def min_frames_of(min_span: float, query_frames: int) -> int:
 
 
 def matches_table(query_ids: list[int], results: list[QueryMatches], space: SearchSpace) -> pa.Table:
-    """Match table (:data:`MATCH_COLUMNS`) of several queries; frames are within-clip."""
+    """Match table (:data:`~.schema.MATCH_TABLE`) of several queries; frames are within-clip.
+
+    Each result needs ``paths`` (one per match); ``query_ids[i]`` labels ``results[i]``.
+    """
+    for q, r in zip(query_ids, results):
+        r.validate(space, f"query {q}")
+        if len(r.paths) != len(r):
+            raise DataError(f"query {q}: {len(r)} matches but {len(r.paths)} warping paths")
     qid, rank, s_all, e_all, c_all, l_all, offsets, flat = [], [], [], [], [], [], [0], []
     for q, r in zip(query_ids, results):
         n = len(r)
@@ -189,7 +223,9 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
         for p in r.paths:
             flat.append(np.stack([p[:, 0], space.frame[p[:, 1]]], axis=1).astype(np.int32))
             offsets.append(offsets[-1] + len(p))
-    cat = lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)  # noqa: E731
+    def cat(xs: list, dt: Any) -> np.ndarray:
+        return np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)
+
     start, end = cat(s_all, np.int64), cat(e_all, np.int64)
     cost, length = cat(c_all, np.float64), cat(l_all, np.float64)
     pairs = np.concatenate(flat) if flat else np.zeros((0, 2), np.int32)
@@ -205,4 +241,22 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
         "cost_normalized": pa.array(cost / np.maximum(length, 1)),
         "path": path.cast(schema.WARPING_PATH.type),
     }
-    return pa.table(cols, schema=MATCH_COLUMNS)
+    return pa.table(cols, schema=schema.MATCH_TABLE)
+
+
+class MatchParams(Params):
+    """Parameters of a matcher on the default step: which queries, and which matches are kept."""
+
+    count: int = Field(10, ge=1, description="matches kept per query")
+    max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
+    rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
+    min_span: float = Field(0.5, ge=0, le=10, description=(
+        "drop matches spanning fewer database frames than this fraction of the query length "
+        "(default 0.5: no whole query squashed onto a few frames; 0: all, as in the paper)"))
+    queries: list[str] = Field(default_factory=list, description=(
+        "query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); "
+        "empty: every clip of the query input"))
+
+
+__all__ = ["MATCH_COLUMNS", "IntervalSet", "MatchParams", "QueryMatches", "SearchSpace", "matches_table",
+           "min_frames_of", "select_matches"]

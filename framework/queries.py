@@ -1,0 +1,310 @@
+"""The default matcher step: how a step's inputs become a search space and query arrays.
+
+:meth:`~mocapflow.framework.components.Matcher.run` is :func:`run_matcher`: it builds the
+:class:`~.matching.SearchSpace` (:func:`search_space`), the query features
+(:func:`step_queries`), calls ``matcher.match(query, space)`` per query (on the executor's
+workers when there are several) and writes ``data`` (:data:`~.schema.MATCH_TABLE`) and
+``queries`` (:data:`~.schema.QUERIES`). Inputs of such a step (``lng``, ``sdtw``,
+``logical``, a third party's):
+
+``database`` (required)
+    An index dataset (``indexes.*``): its ``data`` table maps index rows to
+    ``(clip_id, frame)``, ``.index()`` loads the persisted index. The feature vectors it
+    was built from are its upstream ``features`` dataset, found through the provenance
+    (``_manifest.json`` ``inputs.features.step``, a sibling in the workspace). A features
+    dataset is accepted too by matchers that need no index (``sdtw``).
+``features`` (optional)
+    The database's features dataset, when it is not the index's upstream.
+``query`` (required)
+    A motions dataset (each clip, or each ``queries`` spec, is turned into features by
+    the database's feature set, re-created from the features dataset's provenance; fitted
+    sets load their state from it) or a features dataset in the same feature space.
+
+A query spec is ``SOURCE[:START-END]``: SOURCE names a clip of the query dataset (its
+name, file name or path) or, failing that, a motion file on disk (relative to the
+pipeline file); START-END is a half-open frame range at the database frame rate, or in
+seconds with an ``s`` suffix (``walk.amc:1.5s-3s``). Features are computed on the whole
+clip first and then cut, so windowed features match the database's frame for frame.
+"""
+from __future__ import annotations
+
+import hashlib
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pyarrow as pa
+
+from . import schema
+from .datasets import Dataset, StepOutput
+from .errors import ConfigError, DataError, PipelineError
+from .matching import QueryMatches, SearchSpace, matches_table
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .components import Matcher
+
+_RANGE = re.compile(r"^(?P<a>\d+(?:\.\d+)?)(?P<ua>s?)-(?P<b>\d+(?:\.\d+)?)(?P<ub>s?)$")
+
+
+@dataclass(frozen=True)
+class QuerySpec:
+    """A parsed ``SOURCE[:START-END]``; ``start``/``end`` in frames, or seconds if ``seconds``."""
+
+    source: str
+    start: float | None = None
+    end: float | None = None
+    seconds: bool = False
+
+    def frames(self, fps: float, n_frames: int) -> tuple[int, int]:
+        """Half-open frame range within a clip of ``n_frames`` at ``fps``."""
+        if self.start is None:
+            return 0, n_frames
+        scale = fps if self.seconds else 1.0
+        a, b = int(round(self.start * scale)), int(round(self.end * scale))
+        if not 0 <= a < b <= n_frames:
+            raise ConfigError(f"query {self.text()!r}: frames [{a}, {b}) outside the clip's {n_frames} frames")
+        return a, b
+
+    def text(self) -> str:
+        if self.start is None:
+            return self.source
+        u = "s" if self.seconds else ""
+        fmt = (lambda v: f"{v:g}") if self.seconds else (lambda v: str(int(v)))
+        return f"{self.source}:{fmt(self.start)}{u}-{fmt(self.end)}{u}"
+
+
+def parse_query_spec(text: str) -> QuerySpec:
+    """``"walk.amc:30-120"`` -> ``QuerySpec("walk.amc", 30, 120)``; no range: the whole clip."""
+    source, sep, rng = text.rpartition(":")
+    m = _RANGE.match(rng) if sep else None
+    if not m:
+        return QuerySpec(text)
+    if bool(m["ua"]) != bool(m["ub"]):
+        raise ConfigError(f"query {text!r}: give both ends in frames or both in seconds ('1.5s-3s')")
+    secs = bool(m["ua"])
+    a, b = float(m["a"]), float(m["b"])
+    if not secs and (a != int(a) or b != int(b)):
+        raise ConfigError(f"query {text!r}: frame numbers must be integers (or add 's' for seconds)")
+    if b <= a:
+        raise ConfigError(f"query {text!r}: empty range (end is exclusive)")
+    return QuerySpec(source, a, b, secs)
+
+
+@dataclass(frozen=True)
+class Query:
+    """One query: its features and where they came from (``clip_id`` -1 for a file)."""
+
+    name: str
+    features: np.ndarray
+    clip_id: int = -1
+    start_frame: int = 0
+    end_frame: int = 0
+
+
+def upstream(ds: Dataset, slot: str) -> Dataset | None:
+    """The dataset feeding ``slot`` of the step that wrote ``ds`` (a workspace sibling)."""
+    up = ds.manifest.get("inputs", {}).get(slot)
+    step = up.get("step") if isinstance(up, dict) else up
+    if not step or not (ds.path.parent / step).is_dir():
+        return None
+    return Dataset(ds.path.parent / step)
+
+
+def feature_set_of(features: Dataset, registries):
+    """The configured (and, if needed, fitted) feature set that wrote ``features``."""
+    cls = registries.resolve(features.producer)
+    fs = cls(features.manifest.get("params", {}))
+    if getattr(cls, "requires_fit", False):
+        fs.load_state(features.path)
+    return fs
+
+
+def read_motion_file(path: Path, registries, fps: float | None):
+    """Read one motion file with the registered reader for its extension, resampled to ``fps``."""
+    from .normalize import resample
+
+    for _, cls in registries["formats"]:
+        if getattr(cls, "produces", "") == "motion" and path.suffix.lower() in cls.extensions:
+            motion = cls().read(path)
+            return resample(motion, fps) if fps else motion
+    raise ConfigError(f"no registered reader for {path.suffix!r} files ({path})")
+
+
+def motion_queries(specs: list[QuerySpec], mdb, feature_set, registries, resolve, what: str = "query",
+                   fps: float | None = None) -> list[Query]:
+    """Features of query segments of the clips of ``mdb`` (or of files on disk).
+
+    Parameters
+    ----------
+    specs : list of QuerySpec
+        Empty: every clip of ``mdb`` whole.
+    mdb : MotionDatabase
+        Clips a spec may name (name, file name, stem or path suffix).
+    feature_set : FeatureSet
+        The database's feature set (configured, fitted).
+    resolve : callable
+        Path of a file spec (relative paths against the pipeline file).
+    fps : float, optional
+        Rate files are resampled to (default: that of ``mdb``).
+    """
+    names: dict[str, int] = {}
+    for pos, m in enumerate(mdb.motions):
+        p = str(m.metadata.get("path") or "")
+        for key in {m.name, Path(p).name, Path(p).stem, p} - {""}:
+            names.setdefault(key, pos)
+    fps = fps if fps is not None else (mdb.fps if mdb.n_clips else None)
+    out = []
+    for spec in specs or [QuerySpec(m.name) for m in mdb.motions]:
+        pos = names.get(spec.source)
+        if pos is None:
+            pos = next((i for k, i in names.items() if k.endswith("/" + spec.source)), None)
+        if pos is not None:
+            motion, cid = mdb.motions[pos], int(mdb.clip_ids[pos])
+        else:
+            path = resolve(spec.source)
+            if not path.is_file():
+                raise ConfigError(f"{what}: query {spec.source!r} is neither a clip nor a file")
+            motion, cid = read_motion_file(path, registries, fps), -1
+        a, b = spec.frames(motion.fps, motion.n_frames)
+        x = np.asarray(feature_set.transform_motion(motion), np.float32)[a:b]
+        out.append(Query(spec.text(), x, cid, a, b))
+    return out
+
+
+def query_files_fingerprint(queries: Any, base_dir: Path) -> str:
+    """Digest of the query files named in ``queries`` (path, size, mtime); "" when none.
+
+    Entries that are not query-spec strings (another matcher's structured queries) are skipped.
+    """
+    h, files = hashlib.sha256(), 0
+    for text in queries or ():
+        if not isinstance(text, str):
+            continue
+        p = Path(parse_query_spec(text).source).expanduser()
+        p = p if p.is_absolute() else Path(base_dir) / p
+        if p.is_file():
+            st = p.stat()
+            h.update(f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+            files += 1
+    return h.hexdigest()[:24] if files else ""
+
+
+def features_dataset(inputs: Mapping[str, Dataset]) -> Dataset | None:
+    """The database's features dataset: the ``features`` input, the database itself, or the
+    index's upstream features (provenance)."""
+    db = inputs["database"]
+    if "features" in inputs:
+        return inputs["features"]
+    return db if db.producer_kind == "features" else upstream(db, "features")
+
+
+def search_space(matcher: Matcher, inputs: Mapping[str, Dataset], registries: Any = None) -> SearchSpace:
+    """The :class:`SearchSpace` of a step: rows of ``database``, its index when the matcher
+    ``needs_index``, the features when :meth:`~.components.Matcher.uses_features`, clip names."""
+    db = inputs["database"]
+    if matcher.needs_index and db.producer_kind != "indexes":
+        raise PipelineError(f"{matcher.key()}: input 'database' must be an index dataset, got {db.step!r} ({db.producer})")
+    clip_id, frame = db.frame_ids()
+    index = db.index(registries) if matcher.needs_index else None
+    x = None
+    if matcher.uses_features():
+        fds = features_dataset(inputs)
+        if fds is None:
+            raise PipelineError(f"{matcher.key()}: cannot find the database features of {db.step!r}; give a 'features' input")
+        fm = fds.features()
+        if not (np.array_equal(fm.clip_id, clip_id) and np.array_equal(fm.frame, frame)):
+            raise DataError(f"{matcher.key()}: rows of features {fds.step!r} differ from those of {db.step!r}")
+        x = fm.x
+    mds = upstream(features_dataset(inputs) or db, "motions")
+    names = None if mds is None or not mds.has_table("clips") else dict(
+        zip(*(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name"))))
+    return SearchSpace(clip_id, frame, index, x, clip_names=names)
+
+
+def step_queries(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> list[Query]:
+    """Query features from the ``query`` input and the matcher's ``queries`` parameter."""
+    qds = inputs["query"]
+    specs = [parse_query_spec(s) for s in getattr(matcher.params, "queries", [])]
+    if "features" in qds.schema("data").names:
+        return feature_queries(qds, specs, matcher.key())
+    fds = features_dataset(inputs)
+    if fds is None:
+        raise PipelineError(f"{matcher.key()}: query motions need the database's feature set; give a 'features' input")
+    fs = feature_set_of(fds, ctx.registries)
+    return motion_queries(specs, qds.motions(), fs, ctx.registries, ctx.resolve, what=f"{matcher.key()}: query input {qds.step!r}")
+
+
+def feature_queries(qds: Dataset, specs: list[QuerySpec], what: str) -> list[Query]:
+    """Queries cut from a features dataset (specs name clips by id; ranges in frames)."""
+    fm = qds.features()
+    bounds = np.flatnonzero(np.diff(fm.clip_id)) + 1
+    clips = {int(c[0]): (s, len(c)) for c, s in zip(np.split(fm.clip_id, bounds), np.r_[0, bounds])}
+    out = []
+    for spec in specs or [QuerySpec(str(c)) for c in clips]:
+        try:
+            cid = int(spec.source)
+            s, n = clips[cid]
+        except (ValueError, KeyError):
+            raise ConfigError(f"{what}: feature queries are named by clip id; {spec.source!r} is not one of {qds.step!r}") from None
+        if spec.seconds:
+            raise ConfigError(f"{what}: give feature query ranges in frames ({spec.text()!r})")
+        a, b = spec.frames(1.0, n)
+        out.append(Query(spec.text(), fm.x[s + a : s + b], cid, a, b))
+    return out
+
+
+def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> StepOutput:
+    """The default matcher step (see module doc)."""
+    space = matcher.search_space(inputs, ctx.registries)
+    queries = matcher.queries(inputs, ctx)
+    if getattr(ctx.executor, "workers", 1) > 1 and len(queries) > 1:
+        # one task per query; each worker loads the search space once, from the workspace files
+        from functools import partial
+
+        from .executors import DatasetRef
+
+        refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
+        results = ctx.map(partial(_match_task, matcher, refs), [q.features for q in queries], desc=ctx.step_id)
+    else:
+        results = [matcher.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)]
+    for qi, q in enumerate(queries):
+        if not isinstance(results[qi], QueryMatches):
+            raise PipelineError(f"{matcher.key()}.match returned {type(results[qi]).__name__}, not QueryMatches")
+        matcher.after_match(qi, q, results[qi], space, ctx)
+    return StepOutput(
+        {"data": matches_table(list(range(len(queries))), results, space), "queries": queries_table(queries)},
+        {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
+    )
+
+
+def _match_task(matcher: Matcher, refs: dict, features: np.ndarray) -> QueryMatches:
+    """One query of :func:`run_matcher` on an executor worker (module-level: pickled);
+    the search space (index, frame ids, features) is loaded once per worker process."""
+    import json
+
+    from .executors import cached
+    from .plugins import load_registries
+
+    key = ("search-space", matcher.key(), json.dumps(matcher.get_params(), sort_keys=True),
+           tuple(sorted((s, r.path, r.fingerprint) for s, r in refs.items())))
+    space = cached(key, lambda: matcher.search_space({s: r.dataset() for s, r in refs.items()}, load_registries()))
+    return matcher.match(features, space)
+
+
+def queries_table(queries: list[Query]) -> pa.Table:
+    """:data:`~.schema.QUERIES` of each query (clip_id -1: a file)."""
+    return pa.table({
+        "query_id": pa.array(np.arange(len(queries), dtype=np.int32)),
+        "name": pa.array([q.name for q in queries], pa.string()),
+        "clip_id": pa.array(np.array([q.clip_id for q in queries], np.int32)),
+        "start_frame": pa.array(np.array([q.start_frame for q in queries], np.int32)),
+        "end_frame": pa.array(np.array([q.end_frame for q in queries], np.int32)),
+    }, schema=schema.QUERIES)
+
+
+__all__ = ["Query", "QuerySpec", "feature_queries", "feature_set_of", "features_dataset", "motion_queries",
+           "parse_query_spec", "queries_table", "query_files_fingerprint", "read_motion_file", "run_matcher",
+           "search_space", "step_queries", "upstream"]
