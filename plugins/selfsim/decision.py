@@ -131,7 +131,7 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
     from .bounded_repair import bounded_repair
     from .calibration import calibrate
     from .cues import CUES
-    from .mdm import context_motions, digression_map
+    from .motion_words import context_motions
     from .repair import apply_to_input, repair_texture
 
     p = cleaner.params
@@ -144,8 +144,8 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         value, cal = res.mdm, None
     else:
         others = context_motions(motion, context, True)[1:]
-        ap = p.model_copy(update={"include_self": True})
-        cal = calibration if calibration is not None else calibrate(motion, others, lambda m, ctx: digression_map(m, ctx, ap), res.joints, p.fps,
+        analyser = cleaner.clone(include_self=True)  # the calibration analyses each clip with itself included
+        cal = calibration if calibration is not None else calibrate(motion, others, analyser.analyse, res.joints, p.fps,
                         false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
                         seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues)
         flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints)

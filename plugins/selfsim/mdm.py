@@ -59,7 +59,6 @@ from pydantic import Field
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.components import Cleaner, Params
-from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import ConfigError, DataError
 from mocapflow.framework.motion import Motion
 
@@ -67,7 +66,7 @@ from .knn import ContextTextures, WordNeighbours, knn_search
 
 if TYPE_CHECKING:
     from .decision import CleanResult
-from .motion_words import (DEFAULT_GROUPS, DEFAULT_JOINTS, Texture, motion_texture, resolve_groups,
+from .motion_words import (DEFAULT_GROUPS, DEFAULT_JOINTS, Texture, context_motions, motion_texture, resolve_groups,
                            source_word_starts)
 
 
@@ -200,27 +199,6 @@ class DigressionResult:
     @property
     def joints(self) -> tuple[str, ...]:
         return self.texture.joints
-
-
-def context_motions(motion: Motion, context: Any, include_self: bool = True) -> list[Motion]:
-    """The clips to search for ``motion``: itself (first) and the context without duplicates
-    of it (same object, or same name and length)."""
-    if context is None:
-        others: list[Motion] = []
-    elif isinstance(context, Motion):
-        others = [context]
-    elif isinstance(context, MotionDatabase):
-        others = list(context.motions)
-    elif isinstance(context, Sequence) and not isinstance(context, str):
-        others = list(context)
-        if not all(isinstance(c, Motion) for c in others):
-            raise DataError("a cleaning context list must hold Motions only")
-    else:
-        raise DataError(f"cleaning context must be a Motion, a list of Motions or a MotionDatabase, got {type(context).__name__}")
-    others = [c for c in others if c is not motion and not (c.name == motion.name and c.n_frames == motion.n_frames)]
-    if not include_self and not others:
-        raise DataError(f"motion {motion.name!r}: include_self is off and the context is empty")
-    return ([motion] if include_self else []) + others
 
 
 def accumulate(neigh: WordNeighbours, n_frames: int, n: int) -> tuple[np.ndarray, np.ndarray]:

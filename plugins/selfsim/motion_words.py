@@ -33,10 +33,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from mocapflow.framework import quaternions as quat
+from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import ConfigError, DataError
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.normalize import align_facing, resample
@@ -229,3 +231,24 @@ def target_word_layout(clip_lengths: Sequence[int], source_length: int, target_l
     if not lengths:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     return np.concatenate(lengths), np.concatenate(clips)
+
+
+def context_motions(motion: Motion, context: Any, include_self: bool = True) -> list[Motion]:
+    """The clips to search for ``motion``: itself (first) and the context without duplicates
+    of it (same object, or same name and length)."""
+    if context is None:
+        others: list[Motion] = []
+    elif isinstance(context, Motion):
+        others = [context]
+    elif isinstance(context, MotionDatabase):
+        others = list(context.motions)
+    elif isinstance(context, Sequence) and not isinstance(context, str):
+        others = list(context)
+        if not all(isinstance(c, Motion) for c in others):
+            raise DataError("a cleaning context list must hold Motions only")
+    else:
+        raise DataError(f"cleaning context must be a Motion, a list of Motions or a MotionDatabase, got {type(context).__name__}")
+    others = [c for c in others if c is not motion and not (c.name == motion.name and c.n_frames == motion.n_frames)]
+    if not include_self and not others:
+        raise DataError(f"motion {motion.name!r}: include_self is off and the context is empty")
+    return ([motion] if include_self else []) + others
