@@ -172,7 +172,7 @@ def bench(label, x, n_queries, ks, efs, rng, libs=("hnswlib", "usearch", "faiss"
                 for ef in efs:
                     if ef < k:
                         continue
-                    got, tq = one_by_one(lambda q, k=k, ef=ef: lib.query(q, k, ef), qs)
+                    got, tq = one_by_one(lambda q, k=k, ef=ef, lib=lib: lib.query(q, k, ef), qs)
                     echo(f"  {lib.name:<8} {k:>4} {ef:>5} {recall(got, exact[k][0]):>7.4f} {tq * 1e3:>9.3f} "
                          f"{exact[k][1] / tq:>12.2f} {t_build:>8.1f} {size:>7.1f} {str(loaded):>9} {str(seeded):>6}")
         del lib

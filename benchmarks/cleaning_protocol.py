@@ -108,7 +108,7 @@ def install_cache(folder: Path) -> None:
         if path.exists():
             try:
                 return pickle.loads(path.read_bytes())
-            except Exception:  # noqa: BLE001 - a stale entry (e.g. written by moved modules) is recomputed
+            except Exception:
                 pass
         res = original(motion, context, p)
         tmp = path.with_suffix(".tmp")

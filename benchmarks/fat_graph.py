@@ -21,11 +21,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from corpus import augmented_database  # noqa: E402
+from corpus import augmented_database
 
-from mocapflow.framework import load_registries  # noqa: E402
-from mocapflow.plugins.similarity._fat_graph_kernels import greedy_cover  # noqa: E402
-from mocapflow.plugins.similarity.fat_graph import FatGraphParams, radius_neighbours  # noqa: E402
+from mocapflow.framework import load_registries
+from mocapflow.plugins.similarity._fat_graph_kernels import greedy_cover
+from mocapflow.plugins.similarity.fat_graph import FatGraphParams, radius_neighbours
 
 
 def quadratic_neighbours(x: np.ndarray, radius: float, k: int, block: int = 2048) -> np.ndarray:

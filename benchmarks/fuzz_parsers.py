@@ -53,7 +53,7 @@ class Cases:
         self.fuzz = fuzz
         self.seed = seed
         try:
-            import c3d  # noqa: F401
+            import c3d  # noqa: F401 - only checks that the optional reader is installed
             with_c3d = True
         except ImportError:
             with_c3d = False
@@ -96,11 +96,11 @@ def _worker(seed: int, indices: list[int], conn, slot, folder: str) -> None:
                         p = fuzz.write_case(Path(folder) / "ref", base, base.data, base.asf)
                         refs.clear()
                         refs[key] = fuzz.arrays(fuzz.read(base.fmt, p))
-                    except Exception:  # noqa: BLE001 - an excerpt the reader refuses: no reference
+                    except Exception:
                         refs[key] = None
                 reference = refs[key]
             outcome, detail = fuzz.check(Path(folder) / "case", base, kind, data, asf, reference)
-        except Exception as exc:  # noqa: BLE001 - a bug of the fuzzer itself, reported as such
+        except Exception as exc:
             fmt, kind, src = "?", "?", Path("?")
             outcome, detail = "fuzzer_error", f"{type(exc).__name__}: {exc}"
         conn.send((i, fmt, kind, outcome, detail, src.name))
@@ -179,7 +179,7 @@ def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, 
                 fmt, kind = "?", "?"
                 try:
                     fmt, kind = Cases(seed).make(i)[:2]
-                except Exception:  # noqa: BLE001
+                except Exception:
                     pass
                 record(i, fmt, kind, "hang", f"no result after {timeout:g} s", "")
                 rest = wk["indices"][wk["indices"].index(i) + 1:]

@@ -33,14 +33,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from corpus import augmented_database  # noqa: E402
+from corpus import augmented_database
 
-from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures  # noqa: E402
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
-from mocapflow.plugins.similarity._lng_kernels import lng_forward  # noqa: E402
-from mocapflow.plugins.similarity.lng import NeighborhoodGraph, lazy_neighborhood_graph, neighbor_sets  # noqa: E402
-from mocapflow.framework.matching import SearchSpace  # noqa: E402
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw  # noqa: E402
+from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity._lng_kernels import lng_forward
+from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.graph import NeighborhoodGraph, neighbor_sets
+from mocapflow.framework.matching import SearchSpace
+from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
 
 def database_space(n_frames: int, echo=print) -> SearchSpace:

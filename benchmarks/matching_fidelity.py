@@ -38,15 +38,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from corpus import DATA  # noqa: E402
-from matching import random_queries, random_segments  # noqa: E402
+from corpus import DATA
+from matching import random_queries, random_segments
 
-from mocapflow.framework import MotionDatabase  # noqa: E402
-from mocapflow.framework.normalize import resample  # noqa: E402
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
-from mocapflow.plugins.similarity.lng import build_graph  # noqa: E402
-from mocapflow.framework.matching import SearchSpace, select_matches  # noqa: E402
-from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw  # noqa: E402
+from mocapflow.framework import MotionDatabase
+from mocapflow.framework.normalize import resample
+from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.graph import build_graph
+from mocapflow.framework.matching import SearchSpace, select_matches
+from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw
 
 
 def load(corpus: str) -> MotionDatabase:

@@ -20,11 +20,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from corpus import load_corpus  # noqa: E402
+from corpus import load_corpus
 
-from mocapflow.framework import MotionDatabase, load_registries  # noqa: E402
-from mocapflow.plugins.similarity.reconstruct import PriorDatabase, ReconstructParams, reconstruct_motion  # noqa: E402
-from mocapflow.plugins.similarity.reconstruct_eval import (  # noqa: E402
+from mocapflow.framework import MotionDatabase, load_registries
+from mocapflow.plugins.similarity.reconstruct import PriorDatabase, ReconstructParams, reconstruct_motion
+from mocapflow.plugins.similarity.reconstruct_eval import (
     DEFAULT_TESTS, FEATURE_SETS, size_sweep, table3, table4,
 )
 
@@ -44,8 +44,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     reg = load_registries(entry_points=False)
-    make_index = lambda: reg["indexes"].get("kdtree")({"workers": 1})  # noqa: E731
-    make_features = lambda comp, params: reg["features"].get(comp)(params)  # noqa: E731
+    make_index = lambda: reg["indexes"].get("kdtree")({"workers": 1})  # noqa: E731 - a one-line helper local to this function
+    make_features = lambda comp, params: reg["features"].get(comp)(params)  # noqa: E731 - a one-line helper local to this function
     params = ReconstructParams()
 
     t0 = time.perf_counter()

@@ -30,7 +30,7 @@ from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.matcher import example_query, search_set, subset_member
 from mocapflow.plugins.relational.template import cutoff_hits, fit_templates, search_template
 from mocapflow.plugins.relational.template_model import (clip_min_costs, fit_class_template, fit_template, frame_codes,
-                                                       resample_rows, template_hits)
+                                                       resample_rows)
 
 
 def _meta(names: list[str]) -> tuple[np.ndarray, np.ndarray]:

@@ -124,7 +124,7 @@ def main() -> None:
             base_ms.append(ms)
         errors = list(b.errors)
     med = statistics.median
-    kib = lambda x: f"{x / 1024:.0f} KiB"  # noqa: E731
+    kib = lambda x: f"{x / 1024:.0f} KiB"  # noqa: E731 - a one-line helper local to this function
     print(f"take: {n} frames ({n / 30 / 60:.1f} min at 30 fps), 25 joints; pipeline {t_run:.1f} s, report written in {t_report:.2f} s")
     print(f"page weight: {kib(info['bytes'])} in {info['files']} files; index.html {kib((site / 'index.html').stat().st_size)}, "
           f"scripts+css {kib(sum((site / f).stat().st_size for f in ('report.js', 'player.js', 'report.css')))}, "

@@ -310,7 +310,7 @@ def main() -> None:
         cleanctx.write_text(CLEANING_CONTEXT.format(repo=REPO, data=DATA))
         quick_yaml = REPO / "pipelines" / "quickstart.yaml"
         try:
-            import distributed  # noqa: F401
+            import distributed  # noqa: F401 - only checks that the dask extra is installed
             has_dask = "dask" in sections
         except ImportError:
             has_dask = False

@@ -36,14 +36,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from corpus import DATA  # noqa: E402
+from corpus import DATA
 
-from mocapflow.framework import MotionDatabase  # noqa: E402
-from mocapflow.framework.normalize import resample  # noqa: E402
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex  # noqa: E402
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph  # noqa: E402
-from mocapflow.framework.matching import SearchSpace  # noqa: E402
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw  # noqa: E402
+from mocapflow.framework import MotionDatabase
+from mocapflow.framework.normalize import resample
+from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
+from mocapflow.framework.matching import SearchSpace
+from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
 #: method label -> keyword arguments of lazy_neighborhood_graph (None: subsequence DTW)
 METHODS = {

@@ -150,7 +150,7 @@ class Catalog:
         self.close()
 
 
-def CSV_OPTIONS():  # noqa: N802 - a constant built lazily (pyarrow.csv is imported on demand)
+def CSV_OPTIONS():
     import pyarrow.csv as pacsv
 
     return pacsv.WriteOptions(quoting_style="needed", quoting_header="none")

@@ -27,14 +27,14 @@ What is checked when a pipeline is planned, beyond ``Params``:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
 
 from .errors import ConfigError
+from .params import Params as Params  # re-exported: components declare Params here
+from .params import ParamsOf as ParamsOf
 
 if TYPE_CHECKING:  # pragma: no cover
     from .database import MotionDatabase
@@ -45,25 +45,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Dataset kinds the built-in kind bases declare (``output_kind`` / ``input_kinds``).
 DATASET_KINDS: tuple[str, ...] = ("motions", "markers", "features", "index", "matches", "table")
-
-
-class Params(BaseModel):
-    """Base of every component's parameter model: frozen, unknown keys rejected."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-
-@dataclass(frozen=True)
-class ParamsOf:
-    """Marks a ``dict`` parameter as the parameters of another component (by registry key).
-
-    ``cleaner: Annotated[dict[str, Any], ParamsOf("cleaners.mdm")] = Field(default_factory=dict)``
-    keeps the value a plain dict (only the keys the user gave), and the plan validates it
-    against ``cleaners.mdm``'s ``Params`` before anything runs, through the registries, so
-    the declaring plugin need not import the other one.
-    """
-
-    key: str
 
 
 class Component:

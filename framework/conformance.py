@@ -125,7 +125,7 @@ def _same(a: Any, b: Any, who: str) -> None:
 def check_matcher(cls: type[Component]) -> None:
     """``match(query, space)`` on a synthetic space: valid, found, deterministic, clear errors."""
     from .matching import QueryMatches, matches_table
-    from .testing import _instance
+    from .synthetic import _instance
 
     if not issubclass(cls, Matcher) or cls.match is Matcher.match:
         return
@@ -172,7 +172,7 @@ def check_matcher(cls: type[Component]) -> None:
 
 
 class SyntheticMotions(Analysis):
-    """Synthetic clips (:func:`~.testing.synthetic_motion`) as a motions dataset, for pipelines in tests."""
+    """Synthetic clips (:func:`~.synthetic.synthetic_motion`) as a motions dataset, for pipelines in tests."""
 
     name = "conformance_motions"
     inputs: ClassVar[Mapping[str, bool]] = {}
@@ -181,7 +181,7 @@ class SyntheticMotions(Analysis):
     def run(self, inputs: Mapping[str, Any], ctx: Any) -> Any:
         from .datasets import StepOutput
         from .motion_tables import motions_to_tables
-        from .testing import synthetic_motion
+        from .synthetic import synthetic_motion
 
         clips = [synthetic_motion(n, seed=s) for s, n in enumerate((90, 60, 90, 75))]
         return StepOutput(motions_to_tables(clips), {"clips": len(clips)})
@@ -256,7 +256,7 @@ def check_cleaner(cls: type[Component]) -> None:
     """detect / repair / clean_clip on a synthetic clip: shapes, schemas, determinism, clear errors."""
     from .cleaning import CleanedClip
     from .motion import Motion
-    from .testing import _instance, synthetic_motion
+    from .synthetic import _instance, synthetic_motion
 
     if not issubclass(cls, Cleaner) or cls.detect is Cleaner.detect:
         return

@@ -25,7 +25,7 @@ import pyarrow as pa
 from pydantic import Field
 
 from . import schema
-from .components import Params
+from .params import Params
 from .errors import DataError
 
 #: Columns of a match table (:data:`~mocapflow.framework.schema.MATCH_TABLE`).

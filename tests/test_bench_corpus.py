@@ -9,7 +9,7 @@ from conftest import REPO, corpus_path
 from mocapflow.framework.testing import synthetic_motion
 
 sys.path.insert(0, str(REPO / "benchmarks"))
-import corpus  # noqa: E402
+import corpus
 
 
 def _check_mirror(m):

@@ -10,11 +10,11 @@ import pytest
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed (pip install 'mocapflow[dask]')")
 
-from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl  # noqa: E402
-from mocapflow.framework.runner import run_pipeline  # noqa: E402
-from mocapflow.plugins.executors.dask_cluster import DaskExecutor  # noqa: E402
+from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
+from mocapflow.framework.runner import run_pipeline  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
+from mocapflow.plugins.executors.dask_cluster import DaskExecutor  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 
-from test_executors import table_bytes, workspace_tables  # noqa: E402
+from test_executors import table_bytes, workspace_tables  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 
 REPO = Path(__file__).resolve().parent.parent
 CMU = REPO / "examples" / "data" / "cmu"

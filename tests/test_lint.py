@@ -23,3 +23,18 @@ def test_ruff_check_passes():
     out = subprocess.run([*cmd, "check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
 
+
+
+def test_every_noqa_says_why():
+    """Every noqa comment names its codes and is followed by its reason (``- why``)."""
+    import re
+
+    bare = []
+    for path in sorted(ROOT.rglob("*.py")):
+        if {"runs", ".git"} & set(path.relative_to(ROOT).parts) or "egg-info" in str(path):
+            continue
+        for n, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+            m = re.search(r"#\s*noqa\b(.*)$", line)
+            if m and not re.match(r":\s*[A-Z]+[0-9]+(?:,\s*[A-Z]+[0-9]+)*\s+[-—–(:]?\s*\w", m.group(1)):
+                bare.append(f"{path.relative_to(ROOT)}:{n}: {line.strip()}")
+    assert not bare, "\n".join(bare)

@@ -8,7 +8,8 @@ from test_sdtw import make_db
 
 from mocapflow.framework import Index
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.similarity.lng import build_graph, lazy_neighborhood_graph
+from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.graph import build_graph
 from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 

@@ -10,7 +10,8 @@ from test_sdtw import make_db
 
 from mocapflow.framework.errors import DataError
 from mocapflow.plugins.similarity._gap_kernels import gap_layers
-from mocapflow.plugins.similarity.lng import build_graph, lazy_neighborhood_graph, neighbor_sets
+from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.graph import build_graph, neighbor_sets
 from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.sdtw import sdtw_costs
 

@@ -182,7 +182,7 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
         best = [r for r in rows if r["rank"] == 1]
         assert len(best) == 3 and all(r["cost"] == pytest.approx(0.0, abs=1e-6) for r in best)
     # the LNG's ranked costs agree with exact subsequence DTW where both report the segment
-    key = lambda r: (r["query_id"], r["clip_id"], r["start_frame"], r["end_frame"])  # noqa: E731
+    key = lambda r: (r["query_id"], r["clip_id"], r["start_frame"], r["end_frame"])  # noqa: E731 - a one-line helper local to this function
     ref = {key(r): r["cost"] for r in exact}
     common = [(r["cost"], ref[key(r)]) for r in lng if key(r) in ref]
     assert len(common) >= 9 and all(a == pytest.approx(b, rel=1e-4, abs=1e-4) for a, b in common)

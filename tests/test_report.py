@@ -57,7 +57,7 @@ def test_blob_parts_are_aligned_and_read_back(tmp_path):
 # --- cleaned takes and MDM grids -----------------------------------------------------------
 def test_edits_applied_to_the_original_give_the_cleaners_take():
     from mocapflow.plugins.selfsim.mdm import MDMCleaner
-    from mocapflow.plugins.selfsim.clean_command import clean_clip
+    from mocapflow.plugins.selfsim.clean_clip import clean_clip
 
     walk = synthetic_walk(240, seed=5)
     rot = walk.rotations.copy()

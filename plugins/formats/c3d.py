@@ -53,7 +53,7 @@ def _param(reader, key: str) -> str | None:
         return None
     try:
         return p.string_value.strip()
-    except Exception:  # noqa: BLE001 - a parameter of another type: treat as absent
+    except Exception:
         return None
 
 
@@ -130,7 +130,7 @@ def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
             raw = _points(path, data, reader)
     except ParseError:
         raise
-    except Exception as exc:  # noqa: BLE001 - the package raises assorted errors on bad files
+    except Exception as exc:
         raise ParseError(path, None, f"expected a valid C3D header and parameter section ({exc})") from None
     units = (_param(reader, "POINT:UNITS") or "mm").lower()
     if units not in UNITS_TO_METRES:

@@ -67,11 +67,11 @@ def dtw_path(a, b):  # pragma: no cover - compiled
         elif j == 0:
             i -= 1
         else:
-            d, u, l = acc[i - 1, j - 1], acc[i - 1, j], acc[i, j - 1]
-            if d <= u and d <= l:
+            d, u, left = acc[i - 1, j - 1], acc[i - 1, j], acc[i, j - 1]
+            if d <= u and d <= left:
                 i -= 1
                 j -= 1
-            elif u <= l:
+            elif u <= left:
                 i -= 1
             else:
                 j -= 1

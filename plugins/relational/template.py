@@ -282,7 +282,7 @@ def _fps(motions: Dataset) -> float | None:
         t = motions.table("clips", columns=["fps"])
         v = t["fps"].to_pylist()
         return float(v[0]) if v else None
-    except Exception:  # noqa: BLE001 - a clips table without fps: plot template frames instead of seconds
+    except Exception:
         return None
 
 

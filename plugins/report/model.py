@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from mocapflow.framework.datasets import Dataset, fixed_list_to_numpy
+from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.normalize import to_root_frame
 

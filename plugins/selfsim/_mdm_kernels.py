@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit, prange
 
 # the constrained DTW kernels live in their own module; re-exported for the callers here
-from ._cdtw_kernels import cdtw, cdtw_cost, cdtw_cost_r2, cdtw_path  # noqa: F401
+from ._cdtw_kernels import cdtw, cdtw_cost, cdtw_cost_r2, cdtw_path  # noqa: F401 - re-exported: the cleaner calls the cDTW kernels through this module
 
 _INF = np.inf
 

@@ -413,7 +413,7 @@ class MDMCleaner(Cleaner):
         """One clip of the default step (analysis once; BVH, heatmap and plots into ``out_dir``)."""
         from mocapflow.framework.cleaning import CleanedClip
 
-        from .clean_command import clean_clip
+        from .clean_clip import clean_clip
 
         out = clean_clip(self, motion, context, clip_id, out_dir)
         return CleanedClip(out["mdm"], out["edits"], out["cleaned"], out["summary"])

@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._knn_kernels import _IMAX, _before, _heap_replace
 
 
 @njit(cache=True)

@@ -192,7 +192,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         cost bound here and runs the whole DP.
     k, gaps
         kNN sets and gap band of the LNG that supplies ``tau`` when ``top`` is 0
-        (:func:`.lng.build_graph`).
+        (:func:`.graph.build_graph`).
     block, top : int
         With ``top`` given: two levels, blocks of ``top`` rows (rounded up to a multiple of
         ``block``) then of ``block`` rows; ``top = 0``: one level of ``block`` rows with ``tau``
@@ -219,7 +219,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     """
     from ._coarse_kernels import coarse_bounds, sdtw_ranges_compact
     from ._dtw_kernels import dtw_window_path
-    from .lng import build_graph
+    from .graph import build_graph
     from .sdtw import validate_query
 
     if not levels:

@@ -19,7 +19,7 @@ from mocapflow.framework.errors import ConfigError
 from mocapflow.framework.matching import QueryMatches, SearchSpace
 
 if TYPE_CHECKING:  # annotations only: lng.py imports this module (lazily)
-    from .lng import NeighborhoodGraph
+    from .graph import NeighborhoodGraph
 
 
 def local_distance_window(graph: NeighborhoodGraph, lo: int, hi: int) -> np.ndarray:
@@ -40,7 +40,7 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
     Parameters
     ----------
     graph : NeighborhoodGraph
-        From :func:`.lng.build_graph`.
+        From :func:`.graph.build_graph`.
     matches : QueryMatches
         Its matches (``graph.matches(...)``).
     space : SearchSpace

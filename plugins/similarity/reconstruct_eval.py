@@ -153,8 +153,8 @@ class ReconstructionEval(Analysis):
         cmu_db = inputs["cmu"].motions()
         hdm_db = inputs["hdm05"].motions() if "hdm05" in inputs else None
         reg = ctx.registries
-        make_index = lambda: reg["indexes"].get(p.index)(p.index_params)  # noqa: E731
-        make_features = lambda comp, params: reg["features"].get(comp)(params)  # noqa: E731
+        make_index = lambda: reg["indexes"].get(p.index)(p.index_params)  # noqa: E731 - a one-line helper local to this function
+        make_features = lambda comp, params: reg["features"].get(comp)(params)  # noqa: E731 - a one-line helper local to this function
         fe15 = make_features(*FEATURE_SETS["F_E^15"])
         cmu = PriorDatabase(cmu_db, fe15)
         hdm = PriorDatabase(hdm_db, fe15) if hdm_db is not None else None

@@ -109,7 +109,7 @@ class SearchCommand:
         if args.plot:
             if args.matcher != "lng" or not len(res):
                 raise ConfigError("--plot draws the lazy neighborhood graph of the best match: use --matcher lng")
-            from .lng import build_graph
+            from .graph import build_graph
             from .plots import plot_neighborhood
 
             p = matcher.params

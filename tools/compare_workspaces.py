@@ -1,6 +1,6 @@
 """Compare every Parquet table of two workspaces of the same pipeline (issue 12 §3).
 
-    python benchmarks/compare_workspaces.py OLD_WORKSPACE NEW_WORKSPACE
+    python tools/compare_workspaces.py OLD_WORKSPACE NEW_WORKSPACE
 
 Clip ids are mapped from old to new through the ``clips`` tables (same ``path``), so that a
 change of id values alone is reported once ("clip ids remapped"), not as a difference in
