@@ -9,6 +9,7 @@ The source of this package lives in ``_mocapflow/`` and not in a ``mocapflow/`` 
 runs from the root, and would hide ``mocapflow.framework`` and ``mocapflow.plugins``, which
 live in ``framework/`` and ``plugins/``.
 """
+
 __version__ = "0.1.0"
 
 #: The Python API (:mod:`mocapflow.api`), imported on first use.

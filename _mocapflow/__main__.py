@@ -1,4 +1,5 @@
 """``python -m mocapflow``: the command-line interface."""
+
 import sys
 
 from mocapflow.framework.cli import main

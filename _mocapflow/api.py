@@ -4,6 +4,7 @@ Every call goes through the registries (built once, lazily, by
 :func:`mocapflow.framework.plugins.load_registries`), so a third-party plugin's formats,
 feature sets, indexes, matchers and cleaners are available here under their names too.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -72,8 +73,16 @@ class Database:
         Resample every clip (and each query) to this rate, Hz (the pipelines use 30); None keeps them.
     """
 
-    def __init__(self, motions, features: str = "end_effectors", index: str = "kdtree", *, fps: float | None = 30.0,
-                 feature_params: dict | None = None, index_params: dict | None = None) -> None:
+    def __init__(
+        self,
+        motions,
+        features: str = "end_effectors",
+        index: str = "kdtree",
+        *,
+        fps: float | None = 30.0,
+        feature_params: dict | None = None,
+        index_params: dict | None = None,
+    ) -> None:
         from mocapflow.framework.database import MotionDatabase
         from mocapflow.framework.matching import SearchSpace
         from mocapflow.framework.normalize import resample
@@ -105,7 +114,9 @@ class Database:
         m = registries()["matchers"].get(matcher)({"count": count, **params})
         res = m.match(self.feature_set.transform(q), self.space)
         table = matches_table([0], [res], self.space)
-        return table.append_column("clip", pa.array([self.clip_names[c] for c in table["clip_id"].to_pylist()], pa.string()))
+        return table.append_column(
+            "clip", pa.array([self.clip_names[c] for c in table["clip_id"].to_pylist()], pa.string())
+        )
 
 
 def clean(take, context=(), **params: Any):

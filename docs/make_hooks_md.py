@@ -1,4 +1,5 @@
 """Regenerate docs/hooks.md from framework/hookspecs.py: ``python docs/make_hooks_md.py``."""
+
 from __future__ import annotations
 
 import inspect
@@ -9,8 +10,15 @@ from mocapflow.framework import hookspecs
 
 
 def render() -> str:
-    out = ["# Hooks", "", "Generated from `framework/hookspecs.py` by `docs/make_hooks_md.py` (its docstrings are the "
-           "contract; `tests/test_plugins.py` keeps this page in step).", "", textwrap.dedent(hookspecs.__doc__).strip(), ""]
+    out = [
+        "# Hooks",
+        "",
+        "Generated from `framework/hookspecs.py` by `docs/make_hooks_md.py` (its docstrings are the "
+        "contract; `tests/test_plugins.py` keeps this page in step).",
+        "",
+        textwrap.dedent(hookspecs.__doc__).strip(),
+        "",
+    ]
     for name, fn in inspect.getmembers(hookspecs, inspect.isfunction):
         if hasattr(fn, "mocapflow_spec"):
             out += [f"## `{name}{inspect.signature(fn)}`", "", textwrap.dedent("    " + fn.__doc__).strip(), ""]

@@ -6,6 +6,7 @@ first use (PEP 562), so ``mocapflow --help`` or a plugin module that only needs
 ``hookimpl`` does not pay for NumPy, PyArrow and pydantic. The plugin manager is built by
 :func:`get_plugin_manager`.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -13,12 +14,16 @@ from typing import TYPE_CHECKING, Any
 
 # public name -> the submodule that defines it
 _EXPORTS: dict[str, str] = {
-    **dict.fromkeys(("Analysis", "Cleaner", "Component", "FeatureSet", "Format", "Index", "Matcher", "Params"), "components"),
+    **dict.fromkeys(
+        ("Analysis", "Cleaner", "Component", "FeatureSet", "Format", "Index", "Matcher", "Params"), "components"
+    ),
     "CleanedClip": "cleaning",
     "StepContext": "context",
     "MotionDatabase": "database",
     **dict.fromkeys(("Dataset", "FeatureMatrix", "StepOutput"), "datasets"),
-    **dict.fromkeys(("ConfigError", "DataError", "MocapflowError", "ParseError", "PipelineError", "PluginError"), "errors"),
+    **dict.fromkeys(
+        ("ConfigError", "DataError", "MocapflowError", "ParseError", "PipelineError", "PluginError"), "errors"
+    ),
     "CANONICAL_JOINTS": "joints",
     "Markers": "markers",
     **dict.fromkeys(("MatchParams", "QueryMatches", "SearchSpace"), "matching"),

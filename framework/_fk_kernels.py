@@ -1,4 +1,5 @@
 """Compiled forward-kinematics kernel (numba). No validation here: see motion.forward_kinematics."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,7 +7,9 @@ from numba import njit
 
 
 @njit(cache=True, fastmath=False)
-def fk_kernel(parents, offsets, per_frame_offsets, root_translation, rotations, pos, glob):  # pragma: no cover - compiled
+def fk_kernel(
+    parents, offsets, per_frame_offsets, root_translation, rotations, pos, glob
+):  # pragma: no cover - compiled
     """Fill ``pos (T,J,3)`` and ``glob (T,J,4)``.
 
     ``per_frame_offsets`` is ``(T,J,3)`` or ``(0,0,3)`` to use the static ``offsets (J,3)``.
@@ -40,12 +43,28 @@ def fk_kernel(parents, offsets, per_frame_offsets, root_translation, rotations, 
             glob[t, j, 3] = w * bz + x * by - y * bx + z * bw
 
 
-def fk(parents: np.ndarray, offsets: np.ndarray, root_translation: np.ndarray, rotations: np.ndarray,
-       local_translations: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def fk(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    root_translation: np.ndarray,
+    rotations: np.ndarray,
+    local_translations: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray]:
     t, j = rotations.shape[:2]
     pos = np.empty((t, j, 3))
     glob = np.empty((t, j, 4))
-    per_frame = np.zeros((0, 0, 3)) if local_translations is None else np.ascontiguousarray(local_translations, dtype=np.float64)
-    fk_kernel(np.ascontiguousarray(parents, dtype=np.int64), np.ascontiguousarray(offsets, dtype=np.float64), per_frame,
-              np.ascontiguousarray(root_translation, dtype=np.float64), np.ascontiguousarray(rotations, dtype=np.float64), pos, glob)
+    per_frame = (
+        np.zeros((0, 0, 3))
+        if local_translations is None
+        else np.ascontiguousarray(local_translations, dtype=np.float64)
+    )
+    fk_kernel(
+        np.ascontiguousarray(parents, dtype=np.int64),
+        np.ascontiguousarray(offsets, dtype=np.float64),
+        per_frame,
+        np.ascontiguousarray(root_translation, dtype=np.float64),
+        np.ascontiguousarray(rotations, dtype=np.float64),
+        pos,
+        glob,
+    )
     return pos, glob

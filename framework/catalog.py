@@ -13,6 +13,7 @@ DuckDB itself is opened with external access disabled except for the datasets' o
 directories (``allowed_directories``) and its configuration locked, so no file outside
 the workspace's datasets can be read and no extension can be installed or loaded.
 """
+
 from __future__ import annotations
 
 import re
@@ -53,9 +54,11 @@ def check_read_only(sql: str) -> None:
                 continue
         if kind != "SELECT":
             text = " ".join(st.query.split())
-            raise ConfigError(f"the workspace catalog is read-only: {kind} statements are not allowed "
-                              f"({text[:60]}{'...' if len(text) > 60 else ''}); "
-                              "only queries (SELECT, WITH, FROM, VALUES, DESCRIBE, SHOW, SUMMARIZE, EXPLAIN)")
+            raise ConfigError(
+                f"the workspace catalog is read-only: {kind} statements are not allowed "
+                f"({text[:60]}{'...' if len(text) > 60 else ''}); "
+                "only queries (SELECT, WITH, FROM, VALUES, DESCRIBE, SHOW, SUMMARIZE, EXPLAIN)"
+            )
 
 
 class Catalog:
@@ -81,15 +84,23 @@ class Catalog:
         self._spill = tempfile.mkdtemp(prefix="mocapflow-duckdb-")
         self.views: dict[str, Path] = {}
         try:
-            self._con = duckdb.connect(":memory:", config={
-                "autoinstall_known_extensions": False, "autoload_known_extensions": False,
-                "allow_community_extensions": False, "temp_directory": self._spill})
+            self._con = duckdb.connect(
+                ":memory:",
+                config={
+                    "autoinstall_known_extensions": False,
+                    "autoload_known_extensions": False,
+                    "allow_community_extensions": False,
+                    "temp_directory": self._spill,
+                },
+            )
             allowed = sorted({f"{ds.path.resolve()}/" for ds in self.datasets.values()})
             try:
                 self._con.execute("SET allowed_directories = ?", [allowed])
             except duckdb.Error as exc:  # never fall back to a catalog that can read everything
-                raise ConfigError(f"the workspace catalog needs duckdb >= 1.2 (allowed_directories), found "
-                                  f"{duckdb.__version__}: pip install -U duckdb ({exc})") from None
+                raise ConfigError(
+                    f"the workspace catalog needs duckdb >= 1.2 (allowed_directories), found "
+                    f"{duckdb.__version__}: pip install -U duckdb ({exc})"
+                ) from None
             self._con.execute("SET enable_external_access = false")
             self._con.execute("SET lock_configuration = true")
             ordered = sorted(self.datasets.values(), key=lambda d: d.manifest.get("created", ""))
@@ -127,7 +138,9 @@ class Catalog:
                 raise MocapflowError("SQL: the statement returned no result")
             return rel.to_arrow_table()
         except duckdb.PermissionException as exc:
-            raise MocapflowError(f"SQL error: {exc} (the catalog reads only the datasets of {self.workspace})") from None
+            raise MocapflowError(
+                f"SQL error: {exc} (the catalog reads only the datasets of {self.workspace})"
+            ) from None
         except duckdb.Error as exc:
             raise MocapflowError(f"SQL error: {exc}") from None
 
@@ -167,8 +180,12 @@ def write_table(table: pa.Table, path: str | Path, fmt: str) -> None:
     tmp = out.with_name(f".{out.name}.tmp")
     if fmt == "csv":
         # nested columns (feature vectors, paths) are written as their text form
-        cols = [c if not (pa.types.is_list(c.type) or pa.types.is_fixed_size_list(c.type) or pa.types.is_struct(c.type))
-                else pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.string()) for c in table.columns]
+        cols = [
+            c
+            if not (pa.types.is_list(c.type) or pa.types.is_fixed_size_list(c.type) or pa.types.is_struct(c.type))
+            else pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.string())
+            for c in table.columns
+        ]
         pacsv.write_csv(pa.Table.from_arrays(cols, names=table.column_names), tmp, CSV_OPTIONS())
     elif fmt == "parquet":
         pq.write_table(table, tmp)

@@ -9,6 +9,7 @@ step :func:`run_cleaner` cleans every clip of its ``motions`` input against the 
 summary (stored in the provenance) holds no timing and no path, so identical runs give
 identical provenance.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -61,12 +62,21 @@ def check_take(motion: Motion, what: str = "cleaning") -> None:
     for name, arr in (("rotations", motion.rotations), ("root_translation", motion.root_translation)):
         bad = ~np.isfinite(np.asarray(arr, np.float64).reshape(motion.n_frames, -1)).all(axis=1)
         if bad.any():
-            raise DataError(f"{what}: motion {motion.name!r} has NaN or inf {name} at frame {int(np.argmax(bad))} "
-                            f"({int(bad.sum())} frames); fill or cut them first")
+            raise DataError(
+                f"{what}: motion {motion.name!r} has NaN or inf {name} at frame {int(np.argmax(bad))} "
+                f"({int(bad.sum())} frames); fill or cut them first"
+            )
 
 
-def digression_table(value: np.ndarray, motion: Motion, clip_id: int = 0, *, joints: np.ndarray | None = None,
-                     threshold: float = 0.5, cue: np.ndarray | None = None) -> pa.Table:
+def digression_table(
+    value: np.ndarray,
+    motion: Motion,
+    clip_id: int = 0,
+    *,
+    joints: np.ndarray | None = None,
+    threshold: float = 0.5,
+    cue: np.ndarray | None = None,
+) -> pa.Table:
     """:data:`~.schema.DIGRESSIONS` rows of one clip, frame-major.
 
     Parameters
@@ -87,21 +97,33 @@ def digression_table(value: np.ndarray, motion: Motion, clip_id: int = 0, *, joi
     cols = np.arange(motion.n_joints) if joints is None else np.asarray(joints, np.int64)
     vals = v[:, cols]
     flagged = vals.reshape(-1) > threshold
-    cues = np.full(len(flagged), None, dtype=object) if cue is None else np.where(flagged, np.asarray(cue).reshape(-1), None)
+    cues = (
+        np.full(len(flagged), None, dtype=object)
+        if cue is None
+        else np.where(flagged, np.asarray(cue).reshape(-1), None)
+    )
     names = np.array(motion.skeleton.names, dtype=object)[cols]
-    return pa.table({
-        "clip_id": pa.array(np.full(t * len(cols), clip_id, np.int32)),
-        "frame": pa.array(np.repeat(np.arange(t, dtype=np.int32), len(cols))),
-        "joint": pa.array(np.tile(cols.astype(np.int32), t)),
-        "joint_name": pa.array(np.tile(names, t).tolist(), pa.string()),
-        "value": pa.array(vals.reshape(-1).astype(np.float32)),
-        "flagged": pa.array(flagged),
-        "cue": pa.array(cues.tolist(), pa.string()),
-    }, schema=schema.DIGRESSIONS)
+    return pa.table(
+        {
+            "clip_id": pa.array(np.full(t * len(cols), clip_id, np.int32)),
+            "frame": pa.array(np.repeat(np.arange(t, dtype=np.int32), len(cols))),
+            "joint": pa.array(np.tile(cols.astype(np.int32), t)),
+            "joint_name": pa.array(np.tile(names, t).tolist(), pa.string()),
+            "value": pa.array(vals.reshape(-1).astype(np.float32)),
+            "flagged": pa.array(flagged),
+            "cue": pa.array(cues.tolist(), pa.string()),
+        },
+        schema=schema.DIGRESSIONS,
+    )
 
 
-def edits_table(motion: Motion, cleaned: Motion, changed: np.ndarray | None = None, clip_id: int = 0,
-                cue: list | np.ndarray | None = None) -> pa.Table:
+def edits_table(
+    motion: Motion,
+    cleaned: Motion,
+    changed: np.ndarray | None = None,
+    clip_id: int = 0,
+    cue: list | np.ndarray | None = None,
+) -> pa.Table:
     """:data:`~.schema.EDITS` rows: one per changed (frame, joint), frame-major.
 
     ``changed`` (T, J) bool defaults to the cells whose rotation differs; ``cue`` gives one
@@ -118,16 +140,19 @@ def edits_table(motion: Motion, cleaned: Motion, changed: np.ndarray | None = No
     deg = np.rad2deg(geodesic_angle(old, new)) if len(f) else np.zeros(0)
     names = np.array(motion.skeleton.names, dtype=object)
     cues = [None] * len(f) if cue is None else list(cue)
-    return pa.table({
-        "clip_id": pa.array(np.full(len(f), clip_id, np.int32)),
-        "frame": pa.array(f.astype(np.int32)),
-        "joint": pa.array(j.astype(np.int32)),
-        "joint_name": pa.array(names[j].tolist() if len(j) else [], pa.string()),
-        "old_rotation": schema.fixed_list(np.asarray(old, np.float64)),
-        "new_rotation": schema.fixed_list(np.asarray(new, np.float64)),
-        "edit_deg": pa.array(np.asarray(deg, np.float32)),
-        "cue": pa.array(cues, pa.string()),
-    }, schema=schema.EDITS)
+    return pa.table(
+        {
+            "clip_id": pa.array(np.full(len(f), clip_id, np.int32)),
+            "frame": pa.array(f.astype(np.int32)),
+            "joint": pa.array(j.astype(np.int32)),
+            "joint_name": pa.array(names[j].tolist() if len(j) else [], pa.string()),
+            "old_rotation": schema.fixed_list(np.asarray(old, np.float64)),
+            "new_rotation": schema.fixed_list(np.asarray(new, np.float64)),
+            "edit_deg": pa.array(np.asarray(deg, np.float32)),
+            "cue": pa.array(cues, pa.string()),
+        },
+        schema=schema.EDITS,
+    )
 
 
 def with_clip_id(table: pa.Table, clip_id: int) -> pa.Table:
@@ -141,9 +166,16 @@ def clean_clip(cleaner: Cleaner, motion: Motion, context: Any, clip_id: int) -> 
     cleaned, edits = cleaner.repair(motion, context)
     digressions = digression_table(value, motion, clip_id)
     edits = with_clip_id(edits, clip_id)
-    return CleanedClip(digressions, edits, cleaned,
-                       {"clip": motion.name, "flagged_cells": int(digressions["flagged"].to_numpy().sum()),
-                        "edited_cells": edits.num_rows})
+    return CleanedClip(
+        digressions,
+        edits,
+        cleaned,
+        {
+            "clip": motion.name,
+            "flagged_cells": int(digressions["flagged"].to_numpy().sum()),
+            "edited_cells": edits.num_rows,
+        },
+    )
 
 
 def _clean_task(cleaner: Cleaner, context: Any, out_dir: Path, motion: Motion, clip_id: int) -> CleanedClip:

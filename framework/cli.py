@@ -9,6 +9,7 @@ never does); ``--help`` and plugin commands load only the plugins that provide c
 (built-ins are found by reading their source, see :func:`command_plugin_modules`), so
 listing the commands imports neither NumPy's nor pydantic's world unless those plugins do.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,8 +47,10 @@ def _rejects_warnings(reports) -> list[str]:
         if isinstance(n, int) and not isinstance(n, bool) and n > 0:
             files = r.summary.get("files")
             what = f"{n} of {files} files" if isinstance(files, int) else f"{n} file{'s' * (n != 1)}"
-            lines.append(f"{r.step_id}: {what} rejected: see the rejects view "
-                         f"(mocapflow sql WORKSPACE \"SELECT * FROM {r.step_id.replace('-', '_')}_rejects\")")
+            lines.append(
+                f"{r.step_id}: {what} rejected: see the rejects view "
+                f'(mocapflow sql WORKSPACE "SELECT * FROM {r.step_id.replace("-", "_")}_rejects")'
+            )
     return lines
 
 
@@ -55,8 +58,16 @@ def cmd_run(args: argparse.Namespace, pm) -> int:
     from .runner import run_pipeline
 
     _echo(f"mocapflow: running {args.pipeline}")
-    reports = run_pipeline(args.pipeline, workspace=args.workspace, overrides=args.set, jobs=args.jobs,
-                           force=args.force, pm=pm, echo=_echo, wait=args.wait)
+    reports = run_pipeline(
+        args.pipeline,
+        workspace=args.workspace,
+        overrides=args.set,
+        jobs=args.jobs,
+        force=args.force,
+        pm=pm,
+        echo=_echo,
+        wait=args.wait,
+    )
     for line in _rejects_warnings(reports):
         _warn(line)
     computed = sum(r.status == "computed" for r in reports)
@@ -83,7 +94,11 @@ def cmd_plan(args: argparse.Namespace, pm) -> int:
         state = "would compute"
         if manifest.is_file():
             try:
-                state = "up to date" if json.loads(manifest.read_text()).get("fingerprint") == fps[s.step_id] else "would recompute"
+                state = (
+                    "up to date"
+                    if json.loads(manifest.read_text()).get("fingerprint") == fps[s.step_id]
+                    else "would recompute"
+                )
             except ValueError:
                 pass
         ins = ", ".join(f"{k}<-{v}" for k, v in s.inputs.items()) or "-"
@@ -198,8 +213,13 @@ def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--jobs", "-j", type=int, default=None, help="worker processes for per-clip work (0 = all cores)")
     p.add_argument("--force", action="store_true", help="recompute every step")
-    p.add_argument("--wait", type=float, default=0.0, metavar="SECONDS",
-                   help="wait this long for another run holding the workspace (default: refuse at once)")
+    p.add_argument(
+        "--wait",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="wait this long for another run holding the workspace (default: refuse at once)",
+    )
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("plan", help="validate a pipeline and show what would run")
@@ -293,7 +313,11 @@ def _plugin_manager(command: str | None, entry_points: bool, blocked: list[str])
     from .plugins import get_plugin_manager
 
     if command in BUILTIN_COMMANDS:
-        return get_plugin_manager(entry_points=entry_points, blocked=blocked) if command in _COMMANDS_WITH_PLUGINS else None
+        return (
+            get_plugin_manager(entry_points=entry_points, blocked=blocked)
+            if command in _COMMANDS_WITH_PLUGINS
+            else None
+        )
     pm = get_plugin_manager(builtins=False, entry_points=entry_points, blocked=blocked)
     for mod in command_plugin_modules():
         if mod not in blocked and not pm.has_plugin(mod):
@@ -319,9 +343,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         command, entry_points, blocked = _global_options(argv)
         for name in _unknown_blocked(blocked):
-            _warn(f"--block {name}: no plugin of that name (built-in plugins are module names, "
-                  "e.g. mocapflow.plugins.similarity.kdtree; third-party ones their entry-point names: "
-                  "see `mocapflow plugins`)")
+            _warn(
+                f"--block {name}: no plugin of that name (built-in plugins are module names, "
+                "e.g. mocapflow.plugins.similarity.kdtree; third-party ones their entry-point names: "
+                "see `mocapflow plugins`)"
+            )
         if command in BUILTIN_COMMANDS or (command is None and "--version" in argv):
             parser = build_parser([])  # the parser of a built-in needs no plugin (`run --help` is quick)
             args = parser.parse_args(argv)
@@ -352,7 +378,10 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             traceback.print_exc()
         else:
-            print(f"mocapflow: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)
+            print(
+                f"mocapflow: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)",
+                file=sys.stderr,
+            )
         return 3
 
 

@@ -24,6 +24,7 @@ What is checked when a pipeline is planned, beyond ``Params``:
 * :meth:`Component.check_plan`: anything else a component can tell from its parameters
   and the pipeline's folder (a glob that matches no file is a warning).
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -165,7 +166,10 @@ class FeatureSet(Component):
     inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "reference": False}
     output_kind: ClassVar[str | None] = "features"
     #: ``reference``: motions to fit on, or a features dataset whose fitted model is reused
-    input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {"motions": ("motions",), "reference": ("motions", "features")}
+    input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "motions": ("motions",),
+        "reference": ("motions", "features"),
+    }
     requires_fit: ClassVar[bool] = False
 
     @property
@@ -209,7 +213,11 @@ class FeatureSet(Component):
             self.save_state(ctx.out_dir)
         # clips go out by reference: each worker reads its own from the Parquet file
         parts = ctx.map_clips(self.transform_motion, motions, desc=f"{self.key()}")
-        x = np.concatenate([np.asarray(p, np.float32) for p in parts], 0) if parts else np.zeros((0, self.dim), np.float32)
+        x = (
+            np.concatenate([np.asarray(p, np.float32) for p in parts], 0)
+            if parts
+            else np.zeros((0, self.dim), np.float32)
+        )
         clip_id, frame = motions.frame_ids()
         return StepOutput({"data": feature_table(clip_id, frame, x)})
 
@@ -271,8 +279,11 @@ class Matcher(Component):
     inputs: ClassVar[Mapping[str, bool]] = {"database": True, "query": True, "features": False}
     output_kind: ClassVar[str | None] = "matches"
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "database": ("index", "features"), "query": ("motions", "features"),
-        "features": ("features",), "motions": ("motions",)}
+        "database": ("index", "features"),
+        "query": ("motions", "features"),
+        "features": ("features",),
+        "motions": ("motions",),
+    }
     #: The default step loads the ``database`` index (``SearchSpace.index``).
     needs_index: ClassVar[bool] = True
     #: The default step loads the database features (``SearchSpace.features``).

@@ -14,6 +14,7 @@ The YAML syntax::
 Step ids are dataset names (letters, digits, ``_`` and ``-``); ``input`` fills a
 component's first input slot, ``inputs`` names slots explicitly.
 """
+
 from __future__ import annotations
 
 import re
@@ -64,7 +65,9 @@ class PipelineConfig(BaseModel):
             raise ValueError("a pipeline needs at least one step")
         for sid in steps:
             if not _STEP_ID.match(str(sid)):
-                raise ValueError(f"step id {sid!r} must start with a letter or _ and hold only letters, digits, _ and -")
+                raise ValueError(
+                    f"step id {sid!r} must start with a letter or _ and hold only letters, digits, _ and -"
+                )
         return steps
 
 
@@ -100,8 +103,10 @@ def _load_with_lines(text: str, source: str) -> tuple[Any, dict[tuple[str, ...],
                 for k, v in node.value:
                     key = (*path, str(k.value))
                     if key in lines:
-                        raise ConfigError(f"{source}:{k.start_mark.line + 1}: key {k.value!r} appears twice "
-                                          f"(first at line {lines[key]})")
+                        raise ConfigError(
+                            f"{source}:{k.start_mark.line + 1}: key {k.value!r} appears twice "
+                            f"(first at line {lines[key]})"
+                        )
                     lines[key] = k.start_mark.line + 1
                     walk(v, key)
             elif isinstance(node, yaml.SequenceNode):
@@ -123,8 +128,13 @@ def _load_with_lines(text: str, source: str) -> tuple[Any, dict[tuple[str, ...],
 class PipelineSource:
     """A parsed pipeline with its file name and key lines, for errors that point at the YAML."""
 
-    def __init__(self, config: PipelineConfig, path: Path | None, lines: dict[tuple[str, ...], int],
-                 overrides: dict[tuple[str, ...], str] | None = None) -> None:
+    def __init__(
+        self,
+        config: PipelineConfig,
+        path: Path | None,
+        lines: dict[tuple[str, ...], int],
+        overrides: dict[tuple[str, ...], str] | None = None,
+    ) -> None:
         self.config = config
         self.path = path
         self.lines = lines
@@ -139,8 +149,14 @@ class PipelineSource:
         """``file:line`` of the deepest known key along ``keys`` (plus the ``--set`` item
         when the value came from one)."""
         name = str(self.path) if self.path is not None else "<pipeline>"
-        via = next((f" (--set {self.overrides[tuple(keys[:n])]!r})" for n in range(len(keys), 0, -1)
-                    if tuple(keys[:n]) in self.overrides), "")
+        via = next(
+            (
+                f" (--set {self.overrides[tuple(keys[:n])]!r})"
+                for n in range(len(keys), 0, -1)
+                if tuple(keys[:n]) in self.overrides
+            ),
+            "",
+        )
         for n in range(len(keys), 0, -1):
             line = self.lines.get(tuple(keys[:n]))
             if line is not None:

@@ -13,6 +13,7 @@ with ``bad_inputs`` (a clear error). Cleaners (:func:`check_cleaner`) are run on
 clip: digression map (T, J) in [0, 1], edits in :data:`~.schema.EDITS`, the step's tables
 in :data:`~.schema.DIGRESSIONS` / :data:`~.schema.EDITS`, determinism, bad input.
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -97,8 +98,13 @@ def synthetic_space(dim: int = 6, seed: int = 0, index: bool = True, features: b
     a, b = QUERY_FRAMES
     rows = np.flatnonzero(clip_id == QUERY_CLIP)[a:b]
     query = (x[rows] + rng.normal(scale=0.01, size=(len(rows), dim))).astype(np.float32)
-    space = SearchSpace(clip_id, frame, ReferenceIndex().build(x) if index else None, x if features else None,
-                        clip_names={i: f"clip{i}" for i in range(len(SPACE_CLIPS))})
+    space = SearchSpace(
+        clip_id,
+        frame,
+        ReferenceIndex().build(x) if index else None,
+        x if features else None,
+        clip_names={i: f"clip{i}" for i in range(len(SPACE_CLIPS))},
+    )
     return space, query
 
 
@@ -111,15 +117,18 @@ def _raises_clear(fn: Any, what: str, who: str) -> None:
     except MocapflowError:
         return
     except Exception as exc:  # the point of the check: anything but a MocapflowError fails it
-        raise AssertionError(f"{who}: {what} raised {type(exc).__name__}: {exc} (expected a MocapflowError subclass)") from exc
+        raise AssertionError(
+            f"{who}: {what} raised {type(exc).__name__}: {exc} (expected a MocapflowError subclass)"
+        ) from exc
     raise AssertionError(f"{who}: {what} raised nothing (expected a MocapflowError subclass)")
 
 
 def _same(a: Any, b: Any, who: str) -> None:
     for f in ("start", "end", "cost", "length"):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f"{who}: two runs differ in {f}")
-    assert len(a.paths) == len(b.paths) and all(np.array_equal(p, q) for p, q in zip(a.paths, b.paths)), \
+    assert len(a.paths) == len(b.paths) and all(np.array_equal(p, q) for p, q in zip(a.paths, b.paths)), (
         f"{who}: two runs differ in their warping paths"
+    )
 
 
 def check_matcher(cls: type[Component]) -> None:
@@ -144,13 +153,17 @@ def check_matcher(cls: type[Component]) -> None:
         assert p.ndim == 2 and p.shape[1] == 2, f"{who}: path {r} must be (n, 2) (query frame, row)"
         # starts at query frame 0 (a logical search's later rounds align other queries' frames)
         assert p[0, 0] == 0, f"{who}: path {r} does not start at the first query frame"
-        assert p[0, 1] == res.start[r] and p[-1, 1] == res.end[r] - 1, f"{who}: path {r} does not span rows [start, end)"
+        assert p[0, 1] == res.start[r] and p[-1, 1] == res.end[r] - 1, (
+            f"{who}: path {r} does not span rows [start, end)"
+        )
         assert np.all(np.diff(p, axis=0) >= 0), f"{who}: path {r} is not monotone"
     table = matches_table([0], [res], space)
     assert table.schema.equals(schema.MATCH_TABLE), f"{who}: match table schema differs from schema.MATCH_TABLE"
     a, b = QUERY_FRAMES
     rows = np.flatnonzero(space.clip_id == QUERY_CLIP)[[a, b - 1]]
-    assert np.any((res.start <= rows[1]) & (res.end > rows[0])), f"{who}: the query's own segment is not among its matches"
+    assert np.any((res.start <= rows[1]) & (res.end > rows[0])), (
+        f"{who}: the query's own segment is not among its matches"
+    )
     _same(res, inst.match(query.copy(), space), who)
     d = query.shape[1]
     _raises_clear(lambda: inst.match(np.zeros((0, d), np.float32), space), "an empty query", who)
@@ -159,14 +172,18 @@ def check_matcher(cls: type[Component]) -> None:
     bad[3, 1] = np.nan
     _raises_clear(lambda: inst.match(bad, space), "a query with NaN", who)
     # a space lacking the index or the features: a clear error, or valid matches (a setting may not need it)
-    for what, sp in (("a space without an index", synthetic_space(index=False)[0]),
-                     ("a space without features", synthetic_space(features=False)[0])):
+    for what, sp in (
+        ("a space without an index", synthetic_space(index=False)[0]),
+        ("a space without features", synthetic_space(features=False)[0]),
+    ):
         try:
             r = inst.match(query, sp)
         except MocapflowError:
             continue
         except Exception as exc:
-            raise AssertionError(f"{who}: {what} raised {type(exc).__name__}: {exc} (expected a MocapflowError subclass)") from exc
+            raise AssertionError(
+                f"{who}: {what} raised {type(exc).__name__}: {exc} (expected a MocapflowError subclass)"
+            ) from exc
         assert isinstance(r, QueryMatches), f"{who}: {what} gave {type(r).__name__}"
         r.validate(sp, f"{who} ({what})")
 
@@ -198,8 +215,9 @@ class _Plugin:
             setattr(self, f"register_{kind}", hookimpl(lambda classes=classes: list(classes)))
 
 
-def run_test_pipeline(cls: type[Component], spec: Mapping[str, Any], workspace: Path,
-                      inputs: Mapping[str, str] | None = None) -> Any:
+def run_test_pipeline(
+    cls: type[Component], spec: Mapping[str, Any], workspace: Path, inputs: Mapping[str, str] | None = None
+) -> Any:
     """Run ``spec`` and return the tested step's dataset.
 
     ``spec``: ``steps`` (upstream steps, pipeline syntax), ``inputs`` / ``with`` (the tested
@@ -220,8 +238,11 @@ def run_test_pipeline(cls: type[Component], spec: Mapping[str, Any], workspace: 
     if cls.name not in base[cls.kind]:
         extra.setdefault(cls.kind, []).append(cls)
     pm = get_plugin_manager(entry_points=False, extra=[*plugins, _Plugin(extra)])
-    steps = {"motions": {"uses": SyntheticMotions.key()}, **spec.get("steps", {}),
-             "tested": {"uses": cls.key(), "inputs": dict(inputs or spec["inputs"]), "with": dict(spec.get("with", {}))}}
+    steps = {
+        "motions": {"uses": SyntheticMotions.key()},
+        **spec.get("steps", {}),
+        "tested": {"uses": cls.key(), "inputs": dict(inputs or spec["inputs"]), "with": dict(spec.get("with", {}))},
+    }
     workspace.mkdir(parents=True, exist_ok=True)
     path = workspace / "pipeline.yaml"
     path.write_text(yaml.safe_dump({"name": "conformance", "workspace": "ws", "steps": steps}, sort_keys=False))
@@ -245,8 +266,11 @@ def check_matcher_pipeline(cls: type[Component]) -> None:
         assert head.equals(schema.MATCHES), f"{who}: the match table does not start with schema.MATCHES ({t1.schema})"
         assert t1.equals(t2), f"{who}: two runs of the synthetic pipeline differ"
         if spec.get("bad_inputs"):
-            _raises_clear(lambda: run_test_pipeline(cls, spec, Path(tmp) / "bad", spec["bad_inputs"]),
-                          f"inputs {spec['bad_inputs']}", who)
+            _raises_clear(
+                lambda: run_test_pipeline(cls, spec, Path(tmp) / "bad", spec["bad_inputs"]),
+                f"inputs {spec['bad_inputs']}",
+                who,
+            )
 
 
 # --- cleaners ---------------------------------------------------------------------------
@@ -266,19 +290,31 @@ def check_cleaner(cls: type[Component]) -> None:
     who = cls.key()
     m = synthetic_motion(72, fps=24.0, seed=5)
     value = np.asarray(inst.detect(m))
-    assert value.shape == (m.n_frames, m.n_joints), f"{who}.detect: shape {value.shape}, expected {(m.n_frames, m.n_joints)}"
+    assert value.shape == (m.n_frames, m.n_joints), (
+        f"{who}.detect: shape {value.shape}, expected {(m.n_frames, m.n_joints)}"
+    )
     assert np.all(np.isfinite(value)) and value.min() >= 0 and value.max() <= 1, f"{who}.detect: values outside [0, 1]"
     np.testing.assert_array_equal(value, inst.detect(m), err_msg=f"{who}.detect: two runs differ")
     cleaned, edits = inst.repair(m)
-    assert isinstance(cleaned, Motion) and cleaned.rotations.shape == m.rotations.shape, f"{who}.repair: not a Motion like its input"
-    assert isinstance(edits, pa.Table) and edits.schema.equals(schema.EDITS), f"{who}.repair: edits schema {edits.schema}"
+    assert isinstance(cleaned, Motion) and cleaned.rotations.shape == m.rotations.shape, (
+        f"{who}.repair: not a Motion like its input"
+    )
+    assert isinstance(edits, pa.Table) and edits.schema.equals(schema.EDITS), (
+        f"{who}.repair: edits schema {edits.schema}"
+    )
     f, j = edits["frame"].to_numpy(), edits["joint"].to_numpy()
-    np.testing.assert_allclose(schema.fixed_list_to_numpy(edits["old_rotation"], np.float64), m.rotations[f, j],
-                               err_msg=f"{who}.repair: old_rotation is not the input's")
+    np.testing.assert_allclose(
+        schema.fixed_list_to_numpy(edits["old_rotation"], np.float64),
+        m.rotations[f, j],
+        err_msg=f"{who}.repair: old_rotation is not the input's",
+    )
     untouched = np.ones(m.rotations.shape[:2], bool)
     untouched[f, j] = False
-    np.testing.assert_array_equal(cleaned.rotations[untouched], m.rotations[untouched],
-                                  err_msg=f"{who}.repair: a cell changed that has no edits row")
+    np.testing.assert_array_equal(
+        cleaned.rotations[untouched],
+        m.rotations[untouched],
+        err_msg=f"{who}.repair: a cell changed that has no edits row",
+    )
     again, edits2 = inst.repair(m)
     assert edits.equals(edits2) and np.array_equal(again.rotations, cleaned.rotations), f"{who}.repair: two runs differ"
     out = inst.clean_clip(m, None, 7, None)
@@ -298,10 +334,19 @@ def check_cleaner(cls: type[Component]) -> None:
     except Exception as exc:
         raise AssertionError(f"{who}: a clip of 3 frames raised {type(exc).__name__}: {exc}") from exc
     else:
-        assert v.shape == (3, short.n_joints) and np.all((v >= 0) & (v <= 1)), f"{who}.detect: bad map of a 3-frame clip"
+        assert v.shape == (3, short.n_joints) and np.all((v >= 0) & (v <= 1)), (
+            f"{who}.detect: bad map of a 3-frame clip"
+        )
     bad = m.with_arrays(rotations=np.where(np.arange(m.n_frames)[:, None, None] == 10, np.nan, m.rotations))
     _raises_clear(lambda: inst.detect(bad), "a clip with NaN rotations", who)
 
 
-__all__ = ["ReferenceIndex", "SyntheticMotions", "check_cleaner", "check_matcher", "check_matcher_pipeline",
-           "run_test_pipeline", "synthetic_space"]
+__all__ = [
+    "ReferenceIndex",
+    "SyntheticMotions",
+    "check_cleaner",
+    "check_matcher",
+    "check_matcher_pipeline",
+    "run_test_pipeline",
+    "synthetic_space",
+]

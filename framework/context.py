@@ -1,4 +1,5 @@
 """What a running step can see: :class:`StepContext`."""
+
 from __future__ import annotations
 
 import logging

@@ -1,4 +1,5 @@
 """Many clips as one frame-wise concatenated document (Müller 2005, §5)."""
+
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence

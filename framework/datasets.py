@@ -6,6 +6,7 @@ Parquet file per table (``data.parquet`` is the main one; a motions dataset also
 a fitted model, PNG plots) and ``_manifest.json`` with the provenance (also stored in each
 Parquet file's key-value metadata under ``mocapflow``).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -54,7 +55,9 @@ class FeatureMatrix:
 
 
 def frame_id_table(clip_id: np.ndarray, frame: np.ndarray) -> pa.Table:
-    return pa.table({"clip_id": pa.array(np.asarray(clip_id, np.int32)), "frame": pa.array(np.asarray(frame, np.int32))})
+    return pa.table(
+        {"clip_id": pa.array(np.asarray(clip_id, np.int32)), "frame": pa.array(np.asarray(frame, np.int32))}
+    )
 
 
 def feature_table(clip_id: np.ndarray, frame: np.ndarray, x: np.ndarray) -> pa.Table:
@@ -111,13 +114,17 @@ class Dataset:
         """The Arrow schema of one table (its footer only: no column is decoded)."""
         p = self.path / f"{name}.parquet"
         if not p.is_file():
-            raise PipelineError(f"dataset {self.path.name!r} has no table {name!r} (has {', '.join(self.table_names())})")
+            raise PipelineError(
+                f"dataset {self.path.name!r} has no table {name!r} (has {', '.join(self.table_names())})"
+            )
         return pq.read_schema(p)
 
     def table(self, name: str = "data", columns: list[str] | None = None) -> pa.Table:
         p = self.path / f"{name}.parquet"
         if not p.is_file():
-            raise PipelineError(f"dataset {self.path.name!r} has no table {name!r} (has {', '.join(self.table_names())})")
+            raise PipelineError(
+                f"dataset {self.path.name!r} has no table {name!r} (has {', '.join(self.table_names())})"
+            )
         return pq.read_table(p, columns=columns, memory_map=True)
 
     # --- typed views ----------------------------------------------------------------
@@ -138,8 +145,9 @@ class Dataset:
 
         if not self.has_table("clips"):
             raise PipelineError(f"dataset {self.path.name!r} ({self.producer}) holds no motions")
-        return database_from_tables(self.table("clips"), self.table("skeletons"),
-                                    self.table("data", columns=list(schema.MOTION_COLUMNS)))
+        return database_from_tables(
+            self.table("clips"), self.table("skeletons"), self.table("data", columns=list(schema.MOTION_COLUMNS))
+        )
 
     def index(self, registries=None):  # -> Index
         """Load the persisted index of an index dataset (no rebuild)."""
@@ -186,5 +194,15 @@ def read_datasets(workspace: str | Path) -> Mapping[str, Dataset]:
     return out
 
 
-__all__ = ["Dataset", "FeatureMatrix", "StepOutput", "atomic_path", "feature_table", "fixed_list", "fixed_list_to_numpy",
-           "frame_id_table", "read_datasets", "schema"]
+__all__ = [
+    "Dataset",
+    "FeatureMatrix",
+    "StepOutput",
+    "atomic_path",
+    "feature_table",
+    "fixed_list",
+    "fixed_list_to_numpy",
+    "frame_id_table",
+    "read_datasets",
+    "schema",
+]

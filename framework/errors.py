@@ -3,6 +3,7 @@
 Every error mocapflow raises on purpose derives from :class:`MocapflowError`, so a
 caller (and the CLI) can tell a user-facing problem from a bug with one ``except``.
 """
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -21,6 +21,7 @@ get ``cores // workers`` threads each (:func:`limit_threads`, before their first
 the pool forks only while that is safe (from a forkserver otherwise), after numba's
 one-time start-up ran in the parent (:func:`warm_up`), so that workers inherit it.
 """
+
 from __future__ import annotations
 
 import multiprocessing
@@ -43,8 +44,14 @@ if TYPE_CHECKING:  # pragma: no cover
     from .datasets import Dataset
 
 #: Environment variables that size the thread pools of OpenMP, OpenBLAS, MKL, numba, numexpr.
-THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
-              "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+THREAD_ENV = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "NUMBA_NUM_THREADS",
+    "VECLIB_MAXIMUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+)
 #: Columns of a motions dataset's ``data`` table that rebuild its motions (positions are derived).
 MOTION_COLUMNS = ("clip_id", "root_translation", "rotations")
 #: Rows per Parquet row group of the tables the runner writes: a worker reading a clip range
@@ -154,8 +161,9 @@ class LocalExecutor:
 
     name = "local"
 
-    def __init__(self, jobs: int = 1, min_items_for_pool: int = 4, threads: int | None = None,
-                 start_method: str | None = None) -> None:
+    def __init__(
+        self, jobs: int = 1, min_items_for_pool: int = 4, threads: int | None = None, start_method: str | None = None
+    ) -> None:
         self.jobs = max(1, int(jobs)) if jobs and jobs > 0 else available_cores()
         self.min_items_for_pool = min_items_for_pool
         self.threads = threads or threads_per_worker(self.jobs)
@@ -174,8 +182,9 @@ class LocalExecutor:
                 mp.set_forkserver_preload(list(PRELOAD))
             elif method == "fork":
                 warm_up()
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=mp,
-                                             initializer=_init_worker, initargs=(self.threads,))
+            self._pool = ProcessPoolExecutor(
+                max_workers=self.jobs, mp_context=mp, initializer=_init_worker, initargs=(self.threads,)
+            )
         return self._pool
 
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any], desc: str = "") -> list[Any]:
@@ -191,8 +200,10 @@ class LocalExecutor:
             return list(progress(pool.map(fn, items, chunksize=chunk), total=len(items), desc=desc))
         except BrokenProcessPool:
             self.close()
-            raise PipelineError(f"a worker process of the local executor died during {desc or 'a step'!r} "
-                                "(killed, out of memory or crashed); the step's output was discarded") from None
+            raise PipelineError(
+                f"a worker process of the local executor died during {desc or 'a step'!r} "
+                "(killed, out of memory or crashed); the step's output was discarded"
+            ) from None
 
     def close(self) -> None:
         if self._pool is not None:
@@ -249,7 +260,9 @@ class DatasetRef:
 
         def load():
             ds = self.dataset()
-            return database_from_tables(ds.table("clips"), ds.table("skeletons"), ds.table("data", columns=list(MOTION_COLUMNS)))
+            return database_from_tables(
+                ds.table("clips"), ds.table("skeletons"), ds.table("data", columns=list(MOTION_COLUMNS))
+            )
 
         return cached(("motions", self.path, self.fingerprint), load)
 
@@ -358,8 +371,14 @@ class _SliceTask:
         return [self.fn(m) for m in db.motions]
 
 
-def map_clips(executor: Executor, fn: Callable[..., Any], dataset: Dataset, desc: str = "",
-              with_ids: bool = False, slices_per_worker: int = 4) -> list[Any]:
+def map_clips(
+    executor: Executor,
+    fn: Callable[..., Any],
+    dataset: Dataset,
+    desc: str = "",
+    with_ids: bool = False,
+    slices_per_worker: int = 4,
+) -> list[Any]:
     """``[fn(motion) for motion in dataset]`` on ``executor``, in clip order.
 
     Items are :class:`ClipSlice` references (``slices_per_worker`` per worker, balanced by
@@ -373,7 +392,7 @@ def map_clips(executor: Executor, fn: Callable[..., Any], dataset: Dataset, desc
     pieces = clip_slices(dataset, n)
     # largest slices first (a long clip started last would finish alone); results back in clip order
     frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy()
-    order = sorted(range(len(pieces)), key=lambda i: -int(frames[pieces[i].start:pieces[i].stop].sum()))
+    order = sorted(range(len(pieces)), key=lambda i: -int(frames[pieces[i].start : pieces[i].stop].sum()))
     out = executor.map(_SliceTask(fn, with_ids), [pieces[i] for i in order], desc=desc)
     by_slice = dict(zip(order, out))
     return [r for i in range(len(pieces)) for r in by_slice[i]]

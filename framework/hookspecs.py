@@ -14,6 +14,7 @@ Lifecycle hooks are notifications: their return values are ignored, and an excep
 by one stops the run as a ``PluginError`` naming the plugin and the hook (the original
 exception is its cause).
 """
+
 from __future__ import annotations
 
 import pluggy

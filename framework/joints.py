@@ -11,6 +11,7 @@ Joint *positions* are the points where a segment starts: ``lknee`` is the knee c
 ``lwrist`` the wrist centre, ``ltoes`` the ball of the foot, ``headtop`` the top of the
 head (an ASF/BVH end site).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
@@ -19,18 +20,50 @@ from dataclasses import dataclass
 #: Canonical joints, in a fixed order used by every canonical position array.
 CANONICAL_JOINTS: tuple[str, ...] = (
     "root",
-    "lhip", "lknee", "lankle", "ltoes",
-    "rhip", "rknee", "rankle", "rtoes",
-    "lowerback", "upperback", "chest", "neck", "head", "headtop",
-    "lclavicle", "lshoulder", "lelbow", "lwrist", "lfingers",
-    "rclavicle", "rshoulder", "relbow", "rwrist", "rfingers",
+    "lhip",
+    "lknee",
+    "lankle",
+    "ltoes",
+    "rhip",
+    "rknee",
+    "rankle",
+    "rtoes",
+    "lowerback",
+    "upperback",
+    "chest",
+    "neck",
+    "head",
+    "headtop",
+    "lclavicle",
+    "lshoulder",
+    "lelbow",
+    "lwrist",
+    "lfingers",
+    "rclavicle",
+    "rshoulder",
+    "relbow",
+    "rwrist",
+    "rfingers",
 )
 
 #: Canonical joints every ingested skeleton must provide (features rely on them).
 REQUIRED_JOINTS: tuple[str, ...] = (
-    "root", "lhip", "lknee", "lankle", "rhip", "rknee", "rankle",
-    "head", "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist",
+    "root",
+    "lhip",
+    "lknee",
+    "lankle",
+    "rhip",
+    "rknee",
+    "rankle",
+    "head",
+    "lshoulder",
+    "lelbow",
+    "lwrist",
+    "rshoulder",
+    "relbow",
+    "rwrist",
 )
+
 
 @dataclass(frozen=True)
 class JointMap:
@@ -75,8 +108,11 @@ class JointMap:
     def __post_init__(self) -> None:
         unknown = sorted(set(self.candidates) - set(CANONICAL_JOINTS))
         if unknown or not self.name:
-            raise ValueError(f"joint map {self.name!r}: unknown canonical joints {unknown}" if unknown
-                             else "a joint map needs a name")
+            raise ValueError(
+                f"joint map {self.name!r}: unknown canonical joints {unknown}"
+                if unknown
+                else "a joint map needs a name"
+            )
 
     def applies(self, joint_names: Sequence[str], fmt: str | None = None) -> bool:
         """Whether the dialect may map a skeleton of format ``fmt`` with these joint names."""

@@ -15,6 +15,7 @@ says so and takes the lock over. Where ``flock`` is unavailable (no :mod:`fcntl`
 filesystem without locks) the record alone decides: the lock is taken over when its holder
 ran on this host and is no longer alive.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -37,8 +38,10 @@ log = logging.getLogger("mocapflow")
 RUNNER_DIR = ".mocapflow"
 MARKER = "CREATED-BY-MOCAPFLOW"
 LOCK_FILE = "lock"
-_MARKER_TEXT = ("This folder was created by the mocapflow runner for its temporary files and its lock.\n"
-                "mocapflow deletes what is inside tmp/ and trash/ here; it never deletes anything else.\n")
+_MARKER_TEXT = (
+    "This folder was created by the mocapflow runner for its temporary files and its lock.\n"
+    "mocapflow deletes what is inside tmp/ and trash/ here; it never deletes anything else.\n"
+)
 
 
 def runner_dir(workspace: str | Path, create: bool = True) -> Path | None:
@@ -51,8 +54,10 @@ def runner_dir(workspace: str | Path, create: bool = True) -> Path | None:
     for _ in range(2):
         if d.exists() or d.is_symlink():
             if d.is_symlink() or not d.is_dir() or not (d / MARKER).is_file():
-                raise ConfigError(f"{d} exists but was not created by mocapflow (no {MARKER} inside); the runner keeps "
-                                  "its temporary files there and will not touch it: move it away or choose another workspace")
+                raise ConfigError(
+                    f"{d} exists but was not created by mocapflow (no {MARKER} inside); the runner keeps "
+                    "its temporary files there and will not touch it: move it away or choose another workspace"
+                )
             return d
         if not create:
             return None
@@ -125,8 +130,14 @@ class WorkspaceLock:
         Seconds between attempts while waiting.
     """
 
-    def __init__(self, workspace: str | Path, wait: float = 0.0, pipeline: str = "",
-                 echo: Callable[[str], None] | None = None, poll: float = 0.2) -> None:
+    def __init__(
+        self,
+        workspace: str | Path,
+        wait: float = 0.0,
+        pipeline: str = "",
+        echo: Callable[[str], None] | None = None,
+        poll: float = 0.2,
+    ) -> None:
         self.workspace = Path(workspace)
         self.wait = float(wait)
         self.pipeline = pipeline
@@ -147,8 +158,13 @@ class WorkspaceLock:
             return {"pid": None, "host": "?", "started": "?"}
 
     def _write(self, fd: int) -> None:
-        me = {"pid": os.getpid(), "host": socket.gethostname(), "proc_start": _proc_start(os.getpid()),
-              "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "pipeline": self.pipeline}
+        me = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "proc_start": _proc_start(os.getpid()),
+            "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "pipeline": self.pipeline,
+        }
         os.ftruncate(fd, 0)
         os.lseek(fd, 0, os.SEEK_SET)
         os.write(fd, json.dumps(me).encode())
@@ -188,18 +204,30 @@ class WorkspaceLock:
                 if got:
                     break
                 if time.monotonic() >= deadline:
-                    hint = "wait for it to finish, or pass a longer --wait SECONDS" if self.wait else \
-                        "wait for it to finish, or pass --wait SECONDS to wait for it"
-                    raise LockError(f"workspace {self.workspace} is in use by another run ({describe_holder(holder)}); {hint}")
+                    hint = (
+                        "wait for it to finish, or pass a longer --wait SECONDS"
+                        if self.wait
+                        else "wait for it to finish, or pass --wait SECONDS to wait for it"
+                    )
+                    raise LockError(
+                        f"workspace {self.workspace} is in use by another run ({describe_holder(holder)}); {hint}"
+                    )
                 if not waiting:
-                    self.echo(f"  workspace {self.workspace} is in use by {describe_holder(holder)}; waiting "
-                              f"{'as long as it takes' if self.wait == float('inf') else f'up to {self.wait:g} s'}...")
+                    self.echo(
+                        f"  workspace {self.workspace} is in use by {describe_holder(holder)}; waiting "
+                        f"{'as long as it takes' if self.wait == float('inf') else f'up to {self.wait:g} s'}..."
+                    )
                     waiting = True
                 time.sleep(self.poll)
             if holder:
                 state = "is no longer running" if not holder_alive(holder) else "no longer holds it"
-                log.warning("workspace %s: taking over the lock of a run that did not finish (%s, which %s); "
-                            "its unfinished outputs are discarded", self.workspace, describe_holder(holder), state)
+                log.warning(
+                    "workspace %s: taking over the lock of a run that did not finish (%s, which %s); "
+                    "its unfinished outputs are discarded",
+                    self.workspace,
+                    describe_holder(holder),
+                    state,
+                )
             self._write(fd)
         except BaseException:
             os.close(fd)

@@ -12,6 +12,7 @@ axes
     record the up axis in ``metadata["up_axis"]`` (``"+y"``, ``"+z"``...) and convert to y-up
     only when asked (see :func:`to_y_up`).
 """
+
 from __future__ import annotations
 
 import warnings

@@ -12,6 +12,7 @@ non-overlapping matches with :func:`select_matches`, the same rule for every mat
 their results compare one to one. Rows are row ids of the index (= of the features
 table); :class:`SearchSpace` maps them to ``(clip_id, frame)``.
 """
+
 from __future__ import annotations
 
 import bisect
@@ -155,8 +156,17 @@ class IntervalSet:
         return len(self._lo)
 
 
-def select_matches(end: np.ndarray, start: np.ndarray, cost: np.ndarray, length: np.ndarray, *,
-                   count: int, max_cost: float | None, rank_by: str, min_frames: int = 1) -> np.ndarray:
+def select_matches(
+    end: np.ndarray,
+    start: np.ndarray,
+    cost: np.ndarray,
+    length: np.ndarray,
+    *,
+    count: int,
+    max_cost: float | None,
+    rank_by: str,
+    min_frames: int = 1,
+) -> np.ndarray:
     """Greedy ranked, non-overlapping choice among candidate path ends.
 
     Candidates are taken by ascending ranking key (``cost``, or ``cost / length`` for
@@ -223,14 +233,16 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
         for p in r.paths:
             flat.append(np.stack([p[:, 0], space.frame[p[:, 1]]], axis=1).astype(np.int32))
             offsets.append(offsets[-1] + len(p))
+
     def cat(xs: list, dt: Any) -> np.ndarray:
         return np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)
 
     start, end = cat(s_all, np.int64), cat(e_all, np.int64)
     cost, length = cat(c_all, np.float64), cat(l_all, np.float64)
     pairs = np.concatenate(flat) if flat else np.zeros((0, 2), np.int32)
-    path = pa.ListArray.from_arrays(pa.array(np.asarray(offsets, np.int32)),
-                                    pa.FixedSizeListArray.from_arrays(pa.array(pairs.reshape(-1)), 2))
+    path = pa.ListArray.from_arrays(
+        pa.array(np.asarray(offsets, np.int32)), pa.FixedSizeListArray.from_arrays(pa.array(pairs.reshape(-1)), 2)
+    )
     cols = {
         "query_id": pa.array(cat(qid, np.int32)),
         "rank": pa.array(cat(rank, np.int32)),
@@ -249,14 +261,34 @@ class MatchParams(Params):
 
     count: int = Field(10, ge=1, description="matches kept per query")
     max_cost: float | None = Field(None, ge=0, description="ceiling on the ranking cost; worse matches are dropped")
-    rank_by: Literal["cost", "normalized"] = Field("cost", description="rank by accumulated cost or by cost per path cell")
-    min_span: float = Field(0.5, ge=0, le=10, description=(
-        "drop matches spanning fewer database frames than this fraction of the query length "
-        "(default 0.5: no whole query squashed onto a few frames; 0: all, as in the paper)"))
-    queries: list[str] = Field(default_factory=list, description=(
-        "query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); "
-        "empty: every clip of the query input"))
+    rank_by: Literal["cost", "normalized"] = Field(
+        "cost", description="rank by accumulated cost or by cost per path cell"
+    )
+    min_span: float = Field(
+        0.5,
+        ge=0,
+        le=10,
+        description=(
+            "drop matches spanning fewer database frames than this fraction of the query length "
+            "(default 0.5: no whole query squashed onto a few frames; 0: all, as in the paper)"
+        ),
+    )
+    queries: list[str] = Field(
+        default_factory=list,
+        description=(
+            "query segments 'clip_or_file[:start-end]' (frames, end exclusive; or seconds with 's'); "
+            "empty: every clip of the query input"
+        ),
+    )
 
 
-__all__ = ["MATCH_COLUMNS", "IntervalSet", "MatchParams", "QueryMatches", "SearchSpace", "matches_table",
-           "min_frames_of", "select_matches"]
+__all__ = [
+    "MATCH_COLUMNS",
+    "IntervalSet",
+    "MatchParams",
+    "QueryMatches",
+    "SearchSpace",
+    "matches_table",
+    "min_frames_of",
+    "select_matches",
+]

@@ -27,6 +27,7 @@ word (motion-word)
 canonical joint
     A joint of the shared vocabulary in :mod:`.joints`, mapped from each source skeleton.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -77,7 +78,9 @@ class Motion:
         root = np.asarray(self.root_translation, dtype=np.float64)
         t, j = rot.shape[:2] if rot.ndim == 3 else (-1, -1)
         if rot.ndim != 3 or rot.shape[2] != 4 or j != self.skeleton.n_joints:
-            raise DataError(f"motion {self.name!r}: rotations must be (T, {self.skeleton.n_joints}, 4), got {rot.shape}")
+            raise DataError(
+                f"motion {self.name!r}: rotations must be (T, {self.skeleton.n_joints}, 4), got {rot.shape}"
+            )
         if root.shape != (t, 3):
             raise DataError(f"motion {self.name!r}: root_translation must be ({t}, 3), got {root.shape}")
         if not self.fps > 0:
@@ -144,8 +147,13 @@ class Motion:
         """Frames ``[start, stop)`` as a new clip (metadata records the offset)."""
         meta = dict(self.metadata, source_start_frame=int(self.metadata.get("source_start_frame", 0)) + int(start))
         lt = None if self.local_translations is None else self.local_translations[start:stop]
-        return replace(self, root_translation=self.root_translation[start:stop], rotations=self.rotations[start:stop],
-                       local_translations=lt, metadata=meta)
+        return replace(
+            self,
+            root_translation=self.root_translation[start:stop],
+            rotations=self.rotations[start:stop],
+            local_translations=lt,
+            metadata=meta,
+        )
 
     def with_arrays(self, **changes: Any) -> Motion:
         """Copy with some fields replaced (``rotations=...``, ``fps=...``)."""
@@ -187,8 +195,12 @@ def forward_kinematics(
     return pos, glob
 
 
-def forward_kinematics_numpy(skeleton: Skeleton, root_translation: np.ndarray, rotations: np.ndarray,
-                             local_translations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def forward_kinematics_numpy(
+    skeleton: Skeleton,
+    root_translation: np.ndarray,
+    rotations: np.ndarray,
+    local_translations: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """The same as :func:`forward_kinematics` with one batched numpy operation per joint over
     all frames (no numba); kept as a readable second implementation for tests and benchmarks."""
     t, j = rotations.shape[:2]

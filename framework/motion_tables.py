@@ -1,4 +1,5 @@
 """Motions <-> Arrow tables (the on-disk form of a motions dataset)."""
+
 from __future__ import annotations
 
 import json
@@ -42,7 +43,10 @@ def skeletons_table(skeletons: Sequence[Skeleton]) -> pa.Table:
     for s in skeletons:
         seen.setdefault(s.fingerprint(), s)
     return pa.Table.from_pylist(
-        [{"skeleton": k, "name": s.name, "n_joints": s.n_joints, "definition": json.dumps(s.to_dict())} for k, s in seen.items()],
+        [
+            {"skeleton": k, "name": s.name, "n_joints": s.n_joints, "definition": json.dumps(s.to_dict())}
+            for k, s in seen.items()
+        ],
         schema=schema.SKELETONS,
     )
 
@@ -51,7 +55,9 @@ def frames_table(clip_id: int, motion: Motion) -> pa.Table:
     """Frame rows of one clip (:func:`.schema.motion_frames`; no forward kinematics)."""
     t, j = motion.n_frames, motion.n_joints
     rot = motion.rotations.astype(np.float32).reshape(t, j * 4)
-    rot_arr = pa.ListArray.from_arrays(pa.array(np.arange(0, t * j * 4 + 1, j * 4, dtype=np.int32)), pa.array(rot.reshape(-1)))
+    rot_arr = pa.ListArray.from_arrays(
+        pa.array(np.arange(0, t * j * 4 + 1, j * 4, dtype=np.int32)), pa.array(rot.reshape(-1))
+    )
     return pa.Table.from_arrays(
         [
             pa.array(np.full(t, clip_id, np.int32)),

@@ -6,6 +6,7 @@ packages all use them; what belongs to one paper lives in that paper's package (
 body-size measures: :mod:`mocapflow.plugins.relational.body`). All functions take arrays
 (never per-frame objects) and broadcast over frames.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,8 +48,9 @@ def rotate_about_y(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
 
 
-def to_root_frame(positions: np.ndarray, joints: tuple[str, ...] | list[str] = CANONICAL_JOINTS,
-                  root: str = "root") -> np.ndarray:
+def to_root_frame(
+    positions: np.ndarray, joints: tuple[str, ...] | list[str] = CANONICAL_JOINTS, root: str = "root"
+) -> np.ndarray:
     """Positions with the root moved to the origin and the facing direction turned to +z.
 
     The vertical axis is kept (heights stay heights), so only the root's ground-plane

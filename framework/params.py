@@ -2,6 +2,7 @@
 and the marker for parameters that hold another component's parameters. A module of its
 own so that modules the components use (matching, queries) can declare parameter models
 without importing the components."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass

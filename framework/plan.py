@@ -4,6 +4,7 @@ Names, parameters (nested ones too, :class:`~.components.ParamsOf`), input slots
 kinds of dataset they accept, the executor, cycles, and each component's own
 :meth:`~.components.Component.check_plan` (warnings such as a glob matching no file).
 """
+
 from __future__ import annotations
 
 import graphlib
@@ -67,7 +68,6 @@ class Plan:
         return out
 
 
-
 def _model_at(model: type[BaseModel] | None, path: tuple[str, ...]) -> type[BaseModel] | None:
     """The pydantic model that holds the last key of ``path`` (following model-typed fields)."""
     for part in path:
@@ -77,8 +77,15 @@ def _model_at(model: type[BaseModel] | None, path: tuple[str, ...]) -> type[Base
     return model
 
 
-def _param_error(source: PipelineSource, step_id: str, cls: type[Component], exc: ValidationError,
-                 prefix: tuple[str, ...] = (), model: type[BaseModel] | None = None, what: str = "") -> ConfigError:
+def _param_error(
+    source: PipelineSource,
+    step_id: str,
+    cls: type[Component],
+    exc: ValidationError,
+    prefix: tuple[str, ...] = (),
+    model: type[BaseModel] | None = None,
+    what: str = "",
+) -> ConfigError:
     """A ConfigError at the YAML line of the offending key (``prefix``: the path of a nested
     parameter dict, ``model``: its Params, ``what``: whose parameters they are)."""
     err = exc.errors()[0]
@@ -101,8 +108,14 @@ class _Fields(dict):
         raise ConfigError(f"ParamsOf key refers to no parameter {key!r}")
 
 
-def _check_nested(source: PipelineSource, step_id: str, cls: type[Component], params: BaseModel,
-                  registries: Registries, prefix: tuple[str, ...] = ()) -> None:
+def _check_nested(
+    source: PipelineSource,
+    step_id: str,
+    cls: type[Component],
+    params: BaseModel,
+    registries: Registries,
+    prefix: tuple[str, ...] = (),
+) -> None:
     """Validate every ``ParamsOf`` dict parameter against its component's ``Params``, recursively.
 
     The key may name sibling parameters (``ParamsOf("features.{features}")``)."""
@@ -116,8 +129,10 @@ def _check_nested(source: PipelineSource, step_id: str, cls: type[Component], pa
             key = marker.key.format_map(_Fields({k: getattr(params, k) for k in type(params).model_fields}))
             target = registries.resolve(key)
         except ConfigError as exc:
-            raise source.error(("steps", step_id, "with", *here),
-                               f"step {step_id!r}: parameter {'.'.join(here)!r} of {cls.key()} holds component parameters: {exc}") from None
+            raise source.error(
+                ("steps", step_id, "with", *here),
+                f"step {step_id!r}: parameter {'.'.join(here)!r} of {cls.key()} holds component parameters: {exc}",
+            ) from None
         try:
             nested = target.Params(**value)
         except ValidationError as exc:
@@ -139,8 +154,11 @@ def _check_kinds(source: PipelineSource, steps: dict[str, PlannedStep]) -> None:
             produced = type(steps[up].component).output_kind
             if accepted and produced and produced not in accepted:
                 where = ("steps", sid, "input") if single else ("steps", sid, "inputs", slot)
-                raise source.error(where, f"step {sid!r}: input {slot!r} of {cls.key()} takes {_a(' or '.join(accepted))} "
-                                          f"dataset, but step {up!r} ({steps[up].key}) writes {_a(produced)} dataset")
+                raise source.error(
+                    where,
+                    f"step {sid!r}: input {slot!r} of {cls.key()} takes {_a(' or '.join(accepted))} "
+                    f"dataset, but step {up!r} ({steps[up].key}) writes {_a(produced)} dataset",
+                )
 
 
 def build_plan(source: PipelineSource, registries: Registries) -> Plan:
@@ -161,7 +179,10 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
         except ConfigError as exc:
             raise source.error(("steps", step_id, "uses"), f"step {step_id!r}: {exc}") from None
         if not getattr(cls, "is_step", True):
-            raise source.error(("steps", step_id, "uses"), f"step {step_id!r}: {sc.uses} is a file format, not a step; use formats.load")
+            raise source.error(
+                ("steps", step_id, "uses"),
+                f"step {step_id!r}: {sc.uses} is a file format, not a step; use formats.load",
+            )
         try:
             component = cls(cls.Params(**sc.with_))
         except ValidationError as exc:
@@ -176,23 +197,33 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
             inputs = dict(sc.inputs)
         for slot, upstream in inputs.items():
             if slot not in slots:
-                raise source.error(("steps", step_id, "inputs", slot),
-                                   f"step {step_id!r}: {sc.uses} has no input {slot!r}{did_you_mean(slot, list(slots))}; slots: {', '.join(slots) or 'none'}")
+                raise source.error(
+                    ("steps", step_id, "inputs", slot),
+                    f"step {step_id!r}: {sc.uses} has no input {slot!r}{did_you_mean(slot, list(slots))}; slots: {', '.join(slots) or 'none'}",
+                )
             if upstream not in config.steps:
-                raise source.error(("steps", step_id, "input" if sc.input is not None else "inputs"),
-                                   f"step {step_id!r}: input {slot!r} refers to unknown step {upstream!r}{did_you_mean(upstream, list(config.steps))}")
+                raise source.error(
+                    ("steps", step_id, "input" if sc.input is not None else "inputs"),
+                    f"step {step_id!r}: input {slot!r} refers to unknown step {upstream!r}{did_you_mean(upstream, list(config.steps))}",
+                )
             if upstream == step_id:
                 raise source.error(("steps", step_id), f"step {step_id!r} uses its own output as input")
         missing = [s for s, required in slots.items() if required and s not in inputs]
         if missing:
-            raise source.error(("steps", step_id), f"step {step_id!r}: missing required input {', '.join(map(repr, missing))} for {sc.uses}")
+            raise source.error(
+                ("steps", step_id),
+                f"step {step_id!r}: missing required input {', '.join(map(repr, missing))} for {sc.uses}",
+            )
         steps[step_id] = PlannedStep(step_id, component, inputs)
 
     _check_kinds(source, steps)
     executors = registries.executors
     if len(executors) and config.executor not in executors:  # a bare Registries() knows none: not checked
-        raise source.error(("executor",), f"unknown executor {config.executor!r}{did_you_mean(config.executor, executors.names())}; "
-                                          f"registered: {', '.join(executors.names())}")
+        raise source.error(
+            ("executor",),
+            f"unknown executor {config.executor!r}{did_you_mean(config.executor, executors.names())}; "
+            f"registered: {', '.join(executors.names())}",
+        )
     sorter = graphlib.TopologicalSorter({sid: set(s.inputs.values()) for sid, s in steps.items()})
     try:
         order = list(sorter.static_order())

@@ -1,5 +1,6 @@
 """Headless matplotlib for the PNGs that steps and commands write (imported lazily: matplotlib
 is never loaded at start-up)."""
+
 from __future__ import annotations
 
 from typing import Any

@@ -1,4 +1,5 @@
 """Building the plugin manager and the registries (never on import)."""
+
 from __future__ import annotations
 
 import importlib
@@ -99,7 +100,9 @@ def _provider(pm: pluggy.PluginManager, impl: Any) -> str:
     return pm.get_name(impl.plugin) or repr(impl.plugin)
 
 
-def collect_classes(pm: pluggy.PluginManager, hook_name: str, check=None) -> tuple[list[tuple[str, list[type]]], dict[str, str]]:
+def collect_classes(
+    pm: pluggy.PluginManager, hook_name: str, check=None
+) -> tuple[list[tuple[str, list[type]]], dict[str, str]]:
     """Call one registration hook plugin by plugin.
 
     Returns ``(results, failed)``: ``(plugin name, classes)`` for every plugin whose hook
@@ -168,8 +171,9 @@ def build_registries(pm: pluggy.PluginManager, *, strict: bool = False) -> Regis
         if provider not in failed:
             for m in jmaps:
                 if m.name in regs.joint_maps:
-                    raise PluginError(f"joint map {m.name!r} registered by both {regs.joint_map_providers[m.name]!r} "
-                                      f"and {provider!r}")
+                    raise PluginError(
+                        f"joint map {m.name!r} registered by both {regs.joint_map_providers[m.name]!r} and {provider!r}"
+                    )
                 regs.joint_maps[m.name] = m
                 regs.joint_map_providers[m.name] = provider
     install_joint_maps(regs.joint_maps.values())

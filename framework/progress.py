@@ -1,5 +1,6 @@
 """Progress bars for long work (stderr, only when it is a terminal or forced), and the
 announcement of numba compilations (:func:`announce_compilation`)."""
+
 from __future__ import annotations
 
 import os
@@ -37,8 +38,9 @@ def progress(items: Iterable[T], total: int | None = None, desc: str = "", enabl
     yield from tqdm(items, total=total, desc=desc, leave=False, file=sys.stderr, dynamic_ncols=True)
 
 
-COMPILING_MESSAGE = ("compiling numba kernels for this machine (once: later runs load them from the cache; "
-                     "this can take a minute)")
+COMPILING_MESSAGE = (
+    "compiling numba kernels for this machine (once: later runs load them from the cache; this can take a minute)"
+)
 
 
 class _AfterImport:

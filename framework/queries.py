@@ -26,6 +26,7 @@ pipeline file); START-END is a half-open frame range at the database frame rate,
 seconds with an ``s`` suffix (``walk.amc:1.5s-3s``). Features are computed on the whole
 clip first and then cut, so windowed features match the database's frame for frame.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -133,8 +134,9 @@ def read_motion_file(path: Path, registries, fps: float | None):
     raise ConfigError(f"no registered reader for {path.suffix!r} files ({path})")
 
 
-def motion_queries(specs: list[QuerySpec], mdb, feature_set, registries, resolve, what: str = "query",
-                   fps: float | None = None) -> list[Query]:
+def motion_queries(
+    specs: list[QuerySpec], mdb, feature_set, registries, resolve, what: str = "query", fps: float | None = None
+) -> list[Query]:
     """Features of query segments of the clips of ``mdb`` (or of files on disk).
 
     Parameters
@@ -206,21 +208,28 @@ def search_space(matcher: Matcher, inputs: Mapping[str, Dataset], registries: An
     ``needs_index``, the features when :meth:`~.components.Matcher.uses_features`, clip names."""
     db = inputs["database"]
     if matcher.needs_index and db.producer_kind != "indexes":
-        raise PipelineError(f"{matcher.key()}: input 'database' must be an index dataset, got {db.step!r} ({db.producer})")
+        raise PipelineError(
+            f"{matcher.key()}: input 'database' must be an index dataset, got {db.step!r} ({db.producer})"
+        )
     clip_id, frame = db.frame_ids()
     index = db.index(registries) if matcher.needs_index else None
     x = None
     if matcher.uses_features():
         fds = features_dataset(inputs)
         if fds is None:
-            raise PipelineError(f"{matcher.key()}: cannot find the database features of {db.step!r}; give a 'features' input")
+            raise PipelineError(
+                f"{matcher.key()}: cannot find the database features of {db.step!r}; give a 'features' input"
+            )
         fm = fds.features()
         if not (np.array_equal(fm.clip_id, clip_id) and np.array_equal(fm.frame, frame)):
             raise DataError(f"{matcher.key()}: rows of features {fds.step!r} differ from those of {db.step!r}")
         x = fm.x
     mds = upstream(features_dataset(inputs) or db, "motions")
-    names = None if mds is None or not mds.has_table("clips") else dict(
-        zip(*(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name"))))
+    names = (
+        None
+        if mds is None or not mds.has_table("clips")
+        else dict(zip(*(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name"))))
+    )
     return SearchSpace(clip_id, frame, index, x, clip_names=names)
 
 
@@ -234,7 +243,9 @@ def step_queries(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> l
     if fds is None:
         raise PipelineError(f"{matcher.key()}: query motions need the database's feature set; give a 'features' input")
     fs = feature_set_of(fds, ctx.registries)
-    return motion_queries(specs, qds.motions(), fs, ctx.registries, ctx.resolve, what=f"{matcher.key()}: query input {qds.step!r}")
+    return motion_queries(
+        specs, qds.motions(), fs, ctx.registries, ctx.resolve, what=f"{matcher.key()}: query input {qds.step!r}"
+    )
 
 
 def feature_queries(qds: Dataset, specs: list[QuerySpec], what: str) -> list[Query]:
@@ -248,7 +259,9 @@ def feature_queries(qds: Dataset, specs: list[QuerySpec], what: str) -> list[Que
             cid = int(spec.source)
             s, n = clips[cid]
         except (ValueError, KeyError):
-            raise ConfigError(f"{what}: feature queries are named by clip id; {spec.source!r} is not one of {qds.step!r}") from None
+            raise ConfigError(
+                f"{what}: feature queries are named by clip id; {spec.source!r} is not one of {qds.step!r}"
+            ) from None
         if spec.seconds:
             raise ConfigError(f"{what}: give feature query ranges in frames ({spec.text()!r})")
         a, b = spec.frames(1.0, n)
@@ -269,7 +282,9 @@ def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> St
         refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
         results = ctx.map(partial(_match_task, matcher, refs), [q.features for q in queries], desc=ctx.step_id)
     else:
-        results = [matcher.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)]
+        results = [
+            matcher.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)
+        ]
     for qi, q in enumerate(queries):
         if not isinstance(results[qi], QueryMatches):
             raise PipelineError(f"{matcher.key()}.match returned {type(results[qi]).__name__}, not QueryMatches")
@@ -288,23 +303,43 @@ def _match_task(matcher: Matcher, refs: dict, features: np.ndarray) -> QueryMatc
     from .executors import cached
     from .plugins import load_registries
 
-    key = ("search-space", matcher.key(), json.dumps(matcher.get_params(), sort_keys=True),
-           tuple(sorted((s, r.path, r.fingerprint) for s, r in refs.items())))
+    key = (
+        "search-space",
+        matcher.key(),
+        json.dumps(matcher.get_params(), sort_keys=True),
+        tuple(sorted((s, r.path, r.fingerprint) for s, r in refs.items())),
+    )
     space = cached(key, lambda: matcher.search_space({s: r.dataset() for s, r in refs.items()}, load_registries()))
     return matcher.match(features, space)
 
 
 def queries_table(queries: list[Query]) -> pa.Table:
     """:data:`~.schema.QUERIES` of each query (clip_id -1: a file)."""
-    return pa.table({
-        "query_id": pa.array(np.arange(len(queries), dtype=np.int32)),
-        "name": pa.array([q.name for q in queries], pa.string()),
-        "clip_id": pa.array(np.array([q.clip_id for q in queries], np.int32)),
-        "start_frame": pa.array(np.array([q.start_frame for q in queries], np.int32)),
-        "end_frame": pa.array(np.array([q.end_frame for q in queries], np.int32)),
-    }, schema=schema.QUERIES)
+    return pa.table(
+        {
+            "query_id": pa.array(np.arange(len(queries), dtype=np.int32)),
+            "name": pa.array([q.name for q in queries], pa.string()),
+            "clip_id": pa.array(np.array([q.clip_id for q in queries], np.int32)),
+            "start_frame": pa.array(np.array([q.start_frame for q in queries], np.int32)),
+            "end_frame": pa.array(np.array([q.end_frame for q in queries], np.int32)),
+        },
+        schema=schema.QUERIES,
+    )
 
 
-__all__ = ["Query", "QuerySpec", "feature_queries", "feature_set_of", "features_dataset", "motion_queries",
-           "parse_query_spec", "queries_table", "query_files_fingerprint", "read_motion_file", "run_matcher",
-           "search_space", "step_queries", "upstream"]
+__all__ = [
+    "Query",
+    "QuerySpec",
+    "feature_queries",
+    "feature_set_of",
+    "features_dataset",
+    "motion_queries",
+    "parse_query_spec",
+    "queries_table",
+    "query_files_fingerprint",
+    "read_motion_file",
+    "run_matcher",
+    "search_space",
+    "step_queries",
+    "upstream",
+]

@@ -1,4 +1,5 @@
 """Registries: name -> component class, one per component kind."""
+
 from __future__ import annotations
 
 import difflib
@@ -92,7 +93,9 @@ class Registries:
         kind, _, name = key.partition(".")
         if kind not in self.by_kind or not name:
             every = [f"{k}.{n}" for k, r in self.by_kind.items() for n in r.names()]
-            raise ConfigError(f"unknown component {key!r}: expected '<kind>.<name>' with kind one of {', '.join(KINDS)}{did_you_mean(key, every)}")
+            raise ConfigError(
+                f"unknown component {key!r}: expected '<kind>.<name>' with kind one of {', '.join(KINDS)}{did_you_mean(key, every)}"
+            )
         registry = self.by_kind[kind]
         if name not in registry:
             every = [f"{kind}.{n}" for n in registry.names()]
@@ -104,11 +107,15 @@ class Registries:
         (a writer when ``writing``); :class:`ConfigError` when none handles it."""
         ext = Path(path).suffix.lower()
         for _, cls in self.by_kind["formats"]:
-            if ext in cls.extensions and getattr(cls, "produces", "motion") == "motion" and (
-                    not writing or cls.can_write()):
+            if (
+                ext in cls.extensions
+                and getattr(cls, "produces", "motion") == "motion"
+                and (not writing or cls.can_write())
+            ):
                 return cls()
-        raise ConfigError(f"{path}: no registered {'writer' if writing else 'reader'} for "
-                          f"{ext or 'extensionless'!r} files")
+        raise ConfigError(
+            f"{path}: no registered {'writer' if writing else 'reader'} for {ext or 'extensionless'!r} files"
+        )
 
     def keys(self) -> list[str]:
         return [f"{k}.{n}" for k, r in self.by_kind.items() for n in r.names()]

@@ -5,6 +5,7 @@ outputs only inside the runner's own marked folder ``<workspace>/.mocapflow/`` a
 only step folders that are finished mocapflow datasets: nothing the user put in the
 workspace folder is ever modified or deleted.
 """
+
 from __future__ import annotations
 
 import json
@@ -61,8 +62,14 @@ def _write_table(table: pa.Table, path: Path, provenance: dict[str, Any]) -> Non
     # groups on clip_id/frame); both cost seconds on large nested float columns
     flat = [f.name for f in table.schema if not pa.types.is_nested(f.type)]
     strings = [f.name for f in table.schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
-    pq.write_table(table.replace_schema_metadata(meta), path, compression="zstd",
-                   use_dictionary=strings or False, write_statistics=flat or False, row_group_size=ROW_GROUP_ROWS)
+    pq.write_table(
+        table.replace_schema_metadata(meta),
+        path,
+        compression="zstd",
+        use_dictionary=strings or False,
+        write_statistics=flat or False,
+        row_group_size=ROW_GROUP_ROWS,
+    )
 
 
 class Runner:
@@ -83,8 +90,17 @@ class Runner:
         (:class:`~.errors.LockError`); ``0`` refuses at once.
     """
 
-    def __init__(self, plan: Plan, workspace: Path, executor: Executor, registries, hook=None, force: bool = False,
-                 echo: Callable[[str], None] | None = None, wait: float = 0.0) -> None:
+    def __init__(
+        self,
+        plan: Plan,
+        workspace: Path,
+        executor: Executor,
+        registries,
+        hook=None,
+        force: bool = False,
+        echo: Callable[[str], None] | None = None,
+        wait: float = 0.0,
+    ) -> None:
         self.plan = plan
         self.workspace = Path(workspace)
         self.executor = executor
@@ -104,9 +120,13 @@ class Runner:
         """Refuse, before anything runs, to replace a folder the runner did not write."""
         for step in self.plan.steps:
             out = self.workspace / step.step_id
-            if (out.exists() or out.is_symlink()) and (out.is_symlink() or not out.is_dir() or not (out / MANIFEST).is_file()):
-                raise ConfigError(f"{out} exists and is not a mocapflow dataset (no {MANIFEST}); step {step.step_id!r} "
-                                  "would replace it: move it away, rename the step, or choose another workspace")
+            if (out.exists() or out.is_symlink()) and (
+                out.is_symlink() or not out.is_dir() or not (out / MANIFEST).is_file()
+            ):
+                raise ConfigError(
+                    f"{out} exists and is not a mocapflow dataset (no {MANIFEST}); step {step.step_id!r} "
+                    "would replace it: move it away, rename the step, or choose another workspace"
+                )
 
     def _notify(self, hook_name: str, **kwargs: Any) -> None:
         if self.hook is not None:
@@ -183,10 +203,18 @@ class Runner:
             if isinstance(exc, MocapflowError):
                 raise PipelineError(f"step {step.step_id!r} ({step.key}) failed: {exc}") from exc
             raise
-        self._notify("after_step", step_id=step.step_id, component=step.component, workspace=str(self.workspace),
-                     output_dir=str(self.workspace / step.step_id), seconds=seconds)
+        self._notify(
+            "after_step",
+            step_id=step.step_id,
+            component=step.component,
+            workspace=str(self.workspace),
+            output_dir=str(self.workspace / step.step_id),
+            seconds=seconds,
+        )
         rows = {name: t.num_rows for name, t in output.tables.items()}
-        self.echo(f"  {step.step_id:<16} {step.key:<28} computed in {seconds:.2f} s ({', '.join(f'{k}: {v} rows' for k, v in rows.items())})")
+        self.echo(
+            f"  {step.step_id:<16} {step.key:<28} computed in {seconds:.2f} s ({', '.join(f'{k}: {v} rows' for k, v in rows.items())})"
+        )
         return StepReport(step.step_id, step.key, "computed", seconds, rows, output.summary)
 
     def _commit(self, tmp: Path, final: Path) -> None:
@@ -222,7 +250,9 @@ def make_executor(pm, name: str, jobs: int = 1, options: dict[str, Any] | None =
     if name not in classes:
         from .registry import did_you_mean
 
-        raise ConfigError(f"unknown executor {name!r}{did_you_mean(name, list(classes))}; known: {', '.join(sorted(classes))}")
+        raise ConfigError(
+            f"unknown executor {name!r}{did_you_mean(name, list(classes))}; known: {', '.join(sorted(classes))}"
+        )
     try:
         return classes[name](jobs=jobs, **(options or {}))
     except TypeError as exc:
@@ -267,7 +297,9 @@ def run_pipeline(
     cfg = plan.source.config
     ws = Path(workspace).resolve() if workspace is not None else default_workspace(plan)
     own = executor is None
-    ex = executor or make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options, registries)
+    ex = executor or make_executor(
+        pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options, registries
+    )
     try:
         return Runner(plan, ws, ex, registries, hook=pm.hook, force=force, echo=echo, wait=wait).run()
     finally:

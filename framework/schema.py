@@ -15,6 +15,7 @@ Conventions, stated once:
   and lower ``cost`` is better;
 * cleaners write :data:`DIGRESSIONS` (``data``) and :data:`EDITS` (``edits``) tables.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -62,14 +63,18 @@ MARKER_FRAMES = pa.schema(
     [
         ("clip_id", pa.int32()),
         ("frame", pa.int32()),
-        pa.field("positions", pa.list_(pa.float32()), metadata={"layout": "x,y,z per marker, in clips.labels order (metres)"}),
+        pa.field(
+            "positions", pa.list_(pa.float32()), metadata={"layout": "x,y,z per marker, in clips.labels order (metres)"}
+        ),
     ]
 )
 
 #: ``data`` table of ``formats.export``: one row per written file.
 EXPORTS = pa.schema([("clip_id", pa.int32()), ("name", pa.string()), ("file", pa.string())])
 
-SKELETONS = pa.schema([("skeleton", pa.string()), ("name", pa.string()), ("n_joints", pa.int32()), ("definition", pa.string())])
+SKELETONS = pa.schema(
+    [("skeleton", pa.string()), ("name", pa.string()), ("n_joints", pa.int32()), ("definition", pa.string())]
+)
 
 SEGMENTS = pa.schema([("clip_id", pa.int32()), ("start_frame", pa.int32()), ("end_frame", pa.int32())])
 
@@ -94,21 +99,45 @@ MATCH_TABLE = MATCHES.append(pa.field("cost_normalized", pa.float64())).append(W
 
 #: Query table beside a match table: where each query came from (``clip_id`` -1: a file;
 #: frames half-open within that clip).
-QUERIES = pa.schema([("query_id", pa.int32()), ("name", pa.string()), ("clip_id", pa.int32()),
-                     ("start_frame", pa.int32()), ("end_frame", pa.int32())])
+QUERIES = pa.schema(
+    [
+        ("query_id", pa.int32()),
+        ("name", pa.string()),
+        ("clip_id", pa.int32()),
+        ("start_frame", pa.int32()),
+        ("end_frame", pa.int32()),
+    ]
+)
 
 #: Digression table of a cleaner (one row per input frame and analysed joint): ``value``
 #: in [0, 1] (> 0.5: the cell is an error), ``flagged`` the decision, ``cue`` what flagged
 #: it (null where nothing did). ``joint`` indexes the clip's skeleton joints.
-DIGRESSIONS = pa.schema([("clip_id", pa.int32()), ("frame", pa.int32()), ("joint", pa.int32()),
-                         ("joint_name", pa.string()), ("value", pa.float32()), ("flagged", pa.bool_()),
-                         ("cue", pa.string())])
+DIGRESSIONS = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("frame", pa.int32()),
+        ("joint", pa.int32()),
+        ("joint_name", pa.string()),
+        ("value", pa.float32()),
+        ("flagged", pa.bool_()),
+        ("cue", pa.string()),
+    ]
+)
 
 #: Edit table of a cleaner (one row per changed input cell): local rotations before and
 #: after (w, x, y, z), the geodesic angle between them in degrees, the cue behind the edit.
-EDITS = pa.schema([("clip_id", pa.int32()), ("frame", pa.int32()), ("joint", pa.int32()),
-                   ("joint_name", pa.string()), ("old_rotation", pa.list_(pa.float64(), 4)),
-                   ("new_rotation", pa.list_(pa.float64(), 4)), ("edit_deg", pa.float32()), ("cue", pa.string())])
+EDITS = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("frame", pa.int32()),
+        ("joint", pa.int32()),
+        ("joint_name", pa.string()),
+        ("old_rotation", pa.list_(pa.float64(), 4)),
+        ("new_rotation", pa.list_(pa.float64(), 4)),
+        ("edit_deg", pa.float32()),
+        ("cue", pa.string()),
+    ]
+)
 
 
 #: Columns of a motions dataset's ``data`` table that rebuild its motions (``frame`` is implied).
@@ -129,8 +158,11 @@ def motion_frames() -> pa.Schema:
             ("clip_id", pa.int32()),
             ("frame", pa.int32()),
             pa.field("root_translation", pa.list_(pa.float32(), 3), metadata={"layout": "x,y,z of the root (metres)"}),
-            pa.field("rotations", pa.list_(pa.float32()),
-                     metadata={"layout": "w,x,y,z per joint, in the order of skeletons.definition joints"}),
+            pa.field(
+                "rotations",
+                pa.list_(pa.float32()),
+                metadata={"layout": "w,x,y,z per joint, in the order of skeletons.definition joints"},
+            ),
         ]
     )
 

@@ -1,4 +1,5 @@
 """Skeletons: the immutable joint hierarchy shared by the frames of a clip."""
+
 from __future__ import annotations
 
 import hashlib
@@ -58,7 +59,9 @@ class Skeleton:
         offsets = np.asarray(self.offsets, dtype=np.float64)
         n = len(names)
         if parents.shape != (n,) or offsets.shape != (n, 3):
-            raise DataError(f"skeleton {self.name!r}: parents {parents.shape} / offsets {offsets.shape} do not match {n} joints")
+            raise DataError(
+                f"skeleton {self.name!r}: parents {parents.shape} / offsets {offsets.shape} do not match {n} joints"
+            )
         if n == 0 or parents[0] != -1 or np.any(parents[1:] >= np.arange(1, n)) or np.any(parents[1:] < 0):
             raise DataError(f"skeleton {self.name!r}: joints must be in topological order with the root first")
         parents.setflags(write=False)

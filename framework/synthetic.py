@@ -2,6 +2,7 @@
 skeleton named with the canonical joints and smooth random motions of it. Public through
 :mod:`mocapflow.framework.testing`; a module of its own so that the executors (which warm
 workers up with it) and the conformance checks need not import the test helpers."""
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -20,14 +21,30 @@ if TYPE_CHECKING:  # annotations only
 # joint, parent, offset (metres, y up, facing +z, left = +x)
 _BONES = [
     ("root", None, (0, 0, 0)),
-    ("lhip", "root", (0.1, -0.05, 0)), ("lknee", "lhip", (0, -0.42, 0)), ("lankle", "lknee", (0, -0.42, 0)), ("ltoes", "lankle", (0, -0.05, 0.12)),
-    ("rhip", "root", (-0.1, -0.05, 0)), ("rknee", "rhip", (0, -0.42, 0)), ("rankle", "rknee", (0, -0.42, 0)), ("rtoes", "rankle", (0, -0.05, 0.12)),
-    ("lowerback", "root", (0, 0.1, 0)), ("upperback", "lowerback", (0, 0.12, 0)), ("chest", "upperback", (0, 0.12, 0)),
-    ("neck", "chest", (0, 0.12, 0)), ("head", "neck", (0, 0.08, 0)), ("headtop", "head", (0, 0.18, 0)),
-    ("lclavicle", "chest", (0.03, 0.08, 0)), ("lshoulder", "lclavicle", (0.15, 0, 0)), ("lelbow", "lshoulder", (0.28, 0, 0)),
-    ("lwrist", "lelbow", (0.25, 0, 0)), ("lfingers", "lwrist", (0.08, 0, 0)),
-    ("rclavicle", "chest", (-0.03, 0.08, 0)), ("rshoulder", "rclavicle", (-0.15, 0, 0)), ("relbow", "rshoulder", (-0.28, 0, 0)),
-    ("rwrist", "relbow", (-0.25, 0, 0)), ("rfingers", "rwrist", (-0.08, 0, 0)),
+    ("lhip", "root", (0.1, -0.05, 0)),
+    ("lknee", "lhip", (0, -0.42, 0)),
+    ("lankle", "lknee", (0, -0.42, 0)),
+    ("ltoes", "lankle", (0, -0.05, 0.12)),
+    ("rhip", "root", (-0.1, -0.05, 0)),
+    ("rknee", "rhip", (0, -0.42, 0)),
+    ("rankle", "rknee", (0, -0.42, 0)),
+    ("rtoes", "rankle", (0, -0.05, 0.12)),
+    ("lowerback", "root", (0, 0.1, 0)),
+    ("upperback", "lowerback", (0, 0.12, 0)),
+    ("chest", "upperback", (0, 0.12, 0)),
+    ("neck", "chest", (0, 0.12, 0)),
+    ("head", "neck", (0, 0.08, 0)),
+    ("headtop", "head", (0, 0.18, 0)),
+    ("lclavicle", "chest", (0.03, 0.08, 0)),
+    ("lshoulder", "lclavicle", (0.15, 0, 0)),
+    ("lelbow", "lshoulder", (0.28, 0, 0)),
+    ("lwrist", "lelbow", (0.25, 0, 0)),
+    ("lfingers", "lwrist", (0.08, 0, 0)),
+    ("rclavicle", "chest", (-0.03, 0.08, 0)),
+    ("rshoulder", "rclavicle", (-0.15, 0, 0)),
+    ("relbow", "rshoulder", (-0.28, 0, 0)),
+    ("rwrist", "relbow", (-0.25, 0, 0)),
+    ("rfingers", "rwrist", (-0.08, 0, 0)),
 ]
 
 
@@ -54,6 +71,7 @@ def synthetic_motion(n_frames: int = 60, fps: float = 30.0, seed: int = 0, ampli
 
 
 # --- checks -----------------------------------------------------------------------------
+
 
 def _instance(cls: type[Component]) -> Component | None:
     """An instance with default or ``test_params``; None when required params are unknown."""

@@ -17,6 +17,7 @@ brute-force :class:`ReferenceIndex`; a matcher with its own step declares
 Synthetic data for tests (:func:`synthetic_skeleton`, :func:`synthetic_motion`) lives here
 too, so third parties test with the same humanoid as mocapflow itself.
 """
+
 from __future__ import annotations
 
 import pickle
@@ -39,18 +40,23 @@ def check_declaration(cls: type[Component]) -> None:
     """Name, kind, version, docstring and input slots are declared properly."""
     assert issubclass(cls, Component), f"{cls} does not derive from mocapflow.framework.Component"
     assert cls.kind in KINDS, f"{cls.__name__}.kind {cls.kind!r} is not one of {KINDS}"
-    assert isinstance(cls.name, str) and cls.name.isidentifier() and cls.name == cls.name.lower(), \
+    assert isinstance(cls.name, str) and cls.name.isidentifier() and cls.name == cls.name.lower(), (
         f"{cls.__name__}.name {cls.name!r} must be a snake_case identifier"
+    )
     assert isinstance(cls.version, str) and cls.version, f"{cls.__name__}.version must be a non-empty str"
-    assert (cls.__doc__ or "").strip(), f"{cls.__name__} needs a docstring (its first line is shown by `mocapflow plugins`)"
-    assert isinstance(cls.inputs, Mapping) and all(isinstance(k, str) and isinstance(v, bool) for k, v in cls.inputs.items()), \
-        f"{cls.__name__}.inputs must map slot names to required flags"
+    assert (cls.__doc__ or "").strip(), (
+        f"{cls.__name__} needs a docstring (its first line is shown by `mocapflow plugins`)"
+    )
+    assert isinstance(cls.inputs, Mapping) and all(
+        isinstance(k, str) and isinstance(v, bool) for k, v in cls.inputs.items()
+    ), f"{cls.__name__}.inputs must map slot names to required flags"
 
 
 def check_params_model(cls: type[Component]) -> None:
     """``Params`` is a frozen pydantic model that rejects unknown keys."""
-    assert isinstance(cls.Params, type) and issubclass(cls.Params, Params), \
+    assert isinstance(cls.Params, type) and issubclass(cls.Params, Params), (
         f"{cls.__name__}.Params must subclass mocapflow.framework.Params"
+    )
     assert cls.Params.model_config.get("frozen"), f"{cls.__name__}.Params must be frozen"
     assert cls.Params.model_config.get("extra") == "forbid", f"{cls.__name__}.Params must forbid unknown keys"
     try:
@@ -87,7 +93,9 @@ def check_feature_set(cls: type[Component]) -> None:
     x = inst.transform(db)
     assert x.dtype == np.float32 and x.shape == (db.n_frames, inst.dim), f"{cls.__name__}: got {x.dtype} {x.shape}"
     assert np.all(np.isfinite(x)), f"{cls.__name__}: non-finite features"
-    np.testing.assert_array_equal(x[db.offsets[2]:], inst.transform(db.motions[2]), err_msg="features must not depend on other clips")
+    np.testing.assert_array_equal(
+        x[db.offsets[2] :], inst.transform(db.motions[2]), err_msg="features must not depend on other clips"
+    )
 
 
 def check_index(cls: type[Component]) -> None:
@@ -133,8 +141,15 @@ def check_format_round_trip(cls: type[Component]) -> None:
 
 
 CHECKS: tuple[Callable[[type[Component]], None], ...] = (
-    check_declaration, check_params_model, check_init_and_clone, check_feature_set, check_index, check_format_round_trip,
-    check_matcher, check_matcher_pipeline, check_cleaner,
+    check_declaration,
+    check_params_model,
+    check_init_and_clone,
+    check_feature_set,
+    check_index,
+    check_format_round_trip,
+    check_matcher,
+    check_matcher_pipeline,
+    check_cleaner,
 )
 
 
@@ -154,5 +169,15 @@ def parametrize_with_checks(classes: Iterable[type[Component]]) -> Any:
     return pytest.mark.parametrize("component_class, check", cases, ids=ids)
 
 
-__all__ = ["CHECKS", "ReferenceIndex", "check_cleaner", "check_component", "check_matcher", "check_matcher_pipeline",
-           "parametrize_with_checks", "synthetic_motion", "synthetic_skeleton", "synthetic_space"]
+__all__ = [
+    "CHECKS",
+    "ReferenceIndex",
+    "check_cleaner",
+    "check_component",
+    "check_matcher",
+    "check_matcher_pipeline",
+    "parametrize_with_checks",
+    "synthetic_motion",
+    "synthetic_skeleton",
+    "synthetic_space",
+]

@@ -1,4 +1,5 @@
-"""``ruff check`` passes over the repository with the rules configured in pyproject.toml."""
+"""``ruff check`` and ``ruff format --check`` pass over the repository with the settings of
+pyproject.toml; every noqa comment says why."""
 from __future__ import annotations
 
 import shutil
@@ -23,6 +24,14 @@ def test_ruff_check_passes():
     out = subprocess.run([*cmd, "check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
 
+
+
+def test_ruff_format_is_applied():
+    cmd = _ruff()
+    if cmd is None:
+        pytest.skip("ruff is not installed (pip install -e '.[test]' installs it)")
+    out = subprocess.run([*cmd, "format", "--check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True)
+    assert out.returncode == 0, "run `ruff format .`\n" + out.stdout + out.stderr
 
 
 def test_every_noqa_says_why():

@@ -7,6 +7,7 @@ change of id values alone is reported once ("clip ids remapped"), not as a diffe
 every table. Then per table: columns added/removed, type changes, row counts, and, for the
 columns both have, the rows (nested lists flattened; floats with ``--rtol``/``--atol``).
 """
+
 from __future__ import annotations
 
 import argparse

@@ -4,6 +4,7 @@
 * ``matchers.sliding_window``: brute-force matching of a query clip against every window
   of the same length in the database, by mean Euclidean feature distance.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -48,8 +49,12 @@ class SlidingWindow(Matcher):
     inputs: Mapping[str, bool] = {"database": True, "query": True}
 
     class Params(Params):
-        query_clip: int = Field(0, ge=0, description="position of the query clip in the query dataset "
-                                "(0: its first clip; clip ids are stable hashes of the file paths)")
+        query_clip: int = Field(
+            0,
+            ge=0,
+            description="position of the query clip in the query dataset "
+            "(0: its first clip; clip ids are stable hashes of the file paths)",
+        )
         top: int = Field(5, ge=1, description="number of matches")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
@@ -71,8 +76,10 @@ class SlidingWindow(Matcher):
             rows.append((int(cid), best, best + n, float(cost[best])))
         rows.sort(key=lambda r: r[3])
         table = pa.Table.from_pylist(
-            [{"query_id": 0, "rank": r, "clip_id": c, "start_frame": s, "end_frame": e, "cost": k}
-             for r, (c, s, e, k) in enumerate(rows[: self.params.top], start=1)],
+            [
+                {"query_id": 0, "rank": r, "clip_id": c, "start_frame": s, "end_frame": e, "cost": k}
+                for r, (c, s, e, k) in enumerate(rows[: self.params.top], start=1)
+            ],
             schema=MATCHES,
         )
         return StepOutput({"data": table}, {"matches": table.num_rows})
