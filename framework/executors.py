@@ -52,8 +52,6 @@ THREAD_ENV = (
     "VECLIB_MAXIMUM_THREADS",
     "NUMEXPR_NUM_THREADS",
 )
-#: Columns of a motions dataset's ``data`` table that rebuild its motions (positions are derived).
-MOTION_COLUMNS = ("clip_id", "root_translation", "rotations")
 #: Rows per Parquet row group of the tables the runner writes: a worker reading a clip range
 #: decodes only the groups that hold it (:class:`ClipSlice`), not the whole table.
 ROW_GROUP_ROWS = 65536
@@ -256,15 +254,7 @@ class DatasetRef:
 
     def motions(self) -> MotionDatabase:
         """The whole motions dataset, read once per process."""
-        from .motion_tables import database_from_tables
-
-        def load():
-            ds = self.dataset()
-            return database_from_tables(
-                ds.table("clips"), ds.table("skeletons"), ds.table("data", columns=list(MOTION_COLUMNS))
-            )
-
-        return cached(("motions", self.path, self.fingerprint), load)
+        return cached(("motions", self.path, self.fingerprint), lambda: self.dataset().motions())
 
 
 @dataclass(frozen=True)
@@ -298,6 +288,7 @@ class ClipSlice:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
+        from . import schema
         from .motion_tables import database_from_tables
 
         clips, skeletons, rows, groups = self._meta()
@@ -311,7 +302,7 @@ class ClipSlice:
         def read(g: int):
             if not opened:
                 opened.append(pq.ParquetFile(f"{self.path}/data.parquet", memory_map=True))
-            return opened[0].read_row_group(g, columns=list(MOTION_COLUMNS))
+            return opened[0].read_row_group(g, columns=list(schema.MOTION_COLUMNS))
 
         parts = [cached(("row-group", self.path, self.fingerprint, g), lambda g=g: read(g)) for g in range(g0, g1)]
         frames = pa.concat_tables(parts).slice(r0 - int(groups[g0]), r1 - r0) if parts else None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import importlib
 import logging
 from collections.abc import Iterable
@@ -195,7 +196,7 @@ def registered_joint_maps() -> tuple[JointMap, ...]:
     with); builds the installed plugins' registries the first time, so a reader called on
     its own sees the plugins' dialects too."""
     if not _JOINT_MAPS:
-        load_registries()
+        default_registries()  # installs them; the same build the facade uses later
     return tuple(_JOINT_MAPS.values())
 
 
@@ -259,12 +260,8 @@ def load_registries(**kwargs) -> Registries:
     return build_registries(get_plugin_manager(**kwargs))
 
 
-_DEFAULT: list[Registries] = []
-
-
+@functools.lru_cache(maxsize=1)
 def default_registries() -> Registries:
-    """The registries of every installed plugin, built once per process (the Python API
-    and :meth:`Motion.write` use them)."""
-    if not _DEFAULT:
-        _DEFAULT.append(load_registries())
-    return _DEFAULT[0]
+    """The registries of every installed plugin, built once per process (the Python API,
+    :meth:`Motion.write` and the readers' joint maps use them)."""
+    return load_registries()

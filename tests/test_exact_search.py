@@ -9,8 +9,8 @@ from naive.dtw import continues_of, naive_blocks, naive_through_cell
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
-from mocapflow.plugins.similarity._coarse_kernels import (block_boxes, coarse_alive, coarse_bounds, sdtw_ranges,
-                                                        sdtw_ranges_compact)
+from naive.coarse import coarse_alive, sdtw_ranges
+from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_bounds, sdtw_ranges_compact
 from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward
 from mocapflow.plugins.similarity.exact import ExactStats, certified_sdtw
 from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph

@@ -97,9 +97,12 @@ class _FileIngest(Format):
 
     def source_fingerprint(self, base_dir: Path) -> str:
         h = hashlib.sha256()
+        skeletons: dict[Path, list[Path]] = {}  # one listing per folder, not one per take
         for f in self._files(base_dir):
             # AMC readers also read the skeleton files beside the motions (.asf)
-            for g in [f, *sorted(f.parent.glob("*.asf"))] if f.suffix.lower() == ".amc" else [f]:
+            if f.suffix.lower() == ".amc" and f.parent not in skeletons:
+                skeletons[f.parent] = sorted(f.parent.glob("*.asf"))
+            for g in [f, *skeletons[f.parent]] if f.suffix.lower() == ".amc" else [f]:
                 try:
                     st = g.stat()
                     h.update(f"{g}|{st.st_size}|{st.st_mtime_ns}\n".encode())

@@ -9,12 +9,11 @@ one (query frame, block) merged, is a coarse path of no larger cost. With ``F`` 
 forward DP (paths from a free start) and ``G`` the backward one (paths to a free end),
 every fine path through a cell of block ``b`` at query frame ``i`` costs at least
 ``F(i, b) + G(i, b) - c(i, b)``; blocks where that exceeds ``tau`` for every ``i`` hold no
-cell of any path of cost <= ``tau`` (:func:`coarse_alive`). The fine DP then runs over the
-remaining blocks only (:func:`sdtw_ranges`), with the arithmetic and tie order of
-:func:`._dtw_kernels.sdtw_forward`. The search itself uses the ranged forms:
-:func:`coarse_bounds` (the bound per block over block ranges, for a hierarchy of levels;
-tested against :func:`coarse_alive` and the naive best path through every row) and
-:func:`sdtw_ranges_compact` (tested bit for bit against :func:`sdtw_ranges`).
+cell of any path of cost <= ``tau``. The search uses :func:`coarse_bounds` (the bound per
+block over block ranges, for a hierarchy of levels) and then the fine DP over the remaining
+blocks only, :func:`sdtw_ranges_compact`, with the arithmetic and tie order of
+:func:`._dtw_kernels.sdtw_forward`. The whole-array forms of both (``coarse_alive``,
+``sdtw_ranges``) are the tests' oracles in ``tests/naive/coarse.py``.
 Reference: ``tests/naive/dtw.py``; proof in ``docs/global-matching.md``.
 """
 from __future__ import annotations
@@ -71,145 +70,10 @@ def block_boxes(x, continues, size):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FAST)
-def coarse_alive(qt, lo, hi, link, tau, shrink):  # pragma: no cover - compiled
-    """Blocks that may hold a cell of a path of cost <= ``tau`` (see module doc).
-
-    Parameters
-    ----------
-    qt : float32 (d, m)   the query, transposed
-    lo, hi, link : from :func:`block_boxes`
-    tau : float
-    shrink : float
-        Box distances are multiplied by it (below 1: float32 rounding of these and of the
-        fine DP's distances must not lift the bound above a fine cell).
-
-    Returns
-    -------
-    alive : bool (nb,)
-    """
-    d, m = qt.shape
-    nb = lo.shape[0]
-    inf = np.inf
-    c = np.empty((nb, m), np.float32)
-    acc = np.empty(m, np.float32)
-    for b in range(nb):
-        for i in range(m):
-            acc[i] = 0.0
-        for k in range(d):
-            lk = lo[b, k]
-            hk = hi[b, k]
-            for i in range(m):
-                v = qt[k, i]
-                t = max(lk - v, v - hk, np.float32(0.0))
-                acc[i] += t * t
-        for i in range(m):
-            c[b, i] = np.sqrt(acc[i]) * shrink
-    f = np.empty((nb, m))
-    for b in range(nb):
-        f[b, 0] = c[b, 0]
-        linked = link[b]
-        for i in range(1, m):
-            best = f[b, i - 1]
-            if linked:
-                best = min(best, f[b - 1, i - 1], f[b - 1, i])
-            f[b, i] = best + c[b, i]
-    alive = np.zeros(nb, np.bool_)
-    g_next = np.full(m, inf)
-    g = np.empty(m)
-    for b in range(nb - 1, -1, -1):
-        linked_next = b + 1 < nb and link[b + 1]
-        g[m - 1] = c[b, m - 1]  # a free end: going on vertically only adds cost
-        for i in range(m - 2, -1, -1):
-            best = g[i + 1]
-            if linked_next:
-                best = min(best, g_next[i + 1], g_next[i])
-            g[i] = best + c[b, i]
-        for i in range(m):
-            if f[b, i] + g[i] - c[b, i] <= tau:
-                alive[b] = True
-                break
-        for i in range(m):
-            g_next[i] = g[i]
-    return alive
-
-
-@njit(cache=True, fastmath=_FAST)
-def sdtw_ranges(qt, x, clip_start, ranges):  # pragma: no cover - compiled
-    """:func:`._dtw_kernels.sdtw_forward` over the row ranges ``[a, b)`` of ``ranges`` only.
-
-    Each range starts afresh (no path enters it from before); rows outside every range get
-    cost inf, start -1, length 0. Same arithmetic and tie order as ``sdtw_forward``, so an
-    end row whose best path lies inside its range gets exactly ``sdtw_forward``'s values.
-
-    Returns
-    -------
-    cost : float64 (n,), start : int64 (n,), length : int64 (n,)
-    """
-    d, m = qt.shape
-    n = x.shape[0]
-    inf = np.inf
-    cost = np.full(n, inf)
-    start = np.full(n, -1, np.int64)
-    length = np.zeros(n, np.int64)
-    prev_c = np.full(m, inf)
-    prev_s = np.zeros(m, np.int64)
-    prev_l = np.zeros(m, np.int64)
-    cur_c = np.empty(m)
-    cur_s = np.empty(m, np.int64)
-    cur_l = np.empty(m, np.int64)
-    col = np.empty(m, np.float32)
-    for r in range(ranges.shape[0]):
-        for i in range(m):
-            prev_c[i] = inf
-        for j in range(ranges[r, 0], ranges[r, 1]):
-            for i in range(m):
-                col[i] = 0.0
-            for k in range(d):
-                xk = x[j, k]
-                for i in range(m):
-                    t = qt[k, i] - xk
-                    col[i] += t * t
-            for i in range(m):
-                col[i] = np.sqrt(col[i])
-            if clip_start[j]:
-                for i in range(m):
-                    prev_c[i] = inf
-            cur_c[0] = col[0]
-            cur_s[0] = j
-            cur_l[0] = 1
-            for i in range(1, m):
-                a = prev_c[i - 1]
-                b = prev_c[i]
-                v = b < a
-                cur_c[i] = b if v else a
-                cur_s[i] = prev_s[i] if v else prev_s[i - 1]
-                cur_l[i] = prev_l[i] if v else prev_l[i - 1]
-            c = cur_c[0]
-            s = cur_s[0]
-            ln = cur_l[0]
-            for i in range(1, m):
-                b = cur_c[i]
-                h = c < b
-                s = s if h else cur_s[i]
-                ln = (ln if h else cur_l[i]) + 1
-                c = (c if h else b) + np.float64(col[i])
-                cur_c[i] = c
-                cur_s[i] = s
-                cur_l[i] = ln
-            cost[j] = c
-            start[j] = s
-            length[j] = ln
-            prev_c, cur_c = cur_c, prev_c
-            prev_s, cur_s = cur_s, prev_s
-            prev_l, cur_l = cur_l, prev_l
-    return cost, start, length
-
-
-@njit(cache=True, fastmath=_FAST)
 def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - compiled
     """Lower bound ``min_i F(i, b) + G(i, b) - c(i, b)`` of every path through block ``b``.
 
-    Like :func:`coarse_alive`, but over the block ranges ``[a, b)`` of ``branges`` only,
+    Like the whole-array ``coarse_alive`` of ``tests/naive/coarse.py``, but over the block ranges ``[a, b)`` of ``branges`` only,
     each started afresh (its first block is taken as unlinked: no path of cost <= ``tau``
     enters it from a block ruled out at a coarser level), and returning the bound itself
     (so blocks can be ranked, and tested against any ``tau``). Same recursion; each column
@@ -221,7 +85,7 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
     qt : float32 (d, m)
     lo, hi, link : from :func:`block_boxes`
     branges : int64 (r, 2)   block index ranges, ascending and disjoint
-    shrink : float           as :func:`coarse_alive`
+    shrink : float           box distances are multiplied by it (just below 1: a margin for float rounding)
 
     Returns
     -------
@@ -293,13 +157,13 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
 
 @njit(cache=True, fastmath=_FAST)
 def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compiled
-    """:func:`sdtw_ranges` returning only the rows inside the ranges (no O(n) arrays).
+    """The fine DP over row ranges, returning only the rows inside them (no O(n) arrays).
 
     Returns
     -------
     rows : int64 (p,)   the rows of the ranges, in order
     cost : float64 (p,), start : int64 (p,), length : int64 (p,)
-        :func:`sdtw_ranges`'s values at those rows (same arithmetic, bit for bit).
+        the whole-array DP's values at those rows (same arithmetic, bit for bit; ``tests/naive/coarse.py``).
     """
     d, m = qt.shape
     inf = np.inf
