@@ -43,8 +43,9 @@ def _fit_fold(bits, offsets, cls, train, features="key", **kw):
     return fit_templates(bits, offsets, list(cls), train, list(act), classes, features, **kw), classes
 
 
-def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], **kw) -> dict:
-    """Leave-one-actor-out template retrieval and classification (module doc)."""
+def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], search_kw: dict | None = None, **kw) -> dict:
+    """Leave-one-actor-out template retrieval and classification (module doc); ``search_kw``
+    go to :func:`cutoff_hits` (e.g. ``step``: the coarse-rate search)."""
     cls, act = _meta(names)
     _fit_fold.names = names
     classes = sorted(set(cls))
@@ -60,7 +61,7 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], **kw
         for j, t in enumerate(temps):
             score[te, j] = clip_min_costs(codes, offsets, t.table())[te]
         for mode in hit:  # the cut-off lists the matcher reports (cutoff_hits), scored on the held-out cuts
-            for j, (s, _, _, bound) in enumerate(cutoff_hits(temps, codes, offsets, mode)):
+            for j, (s, _, _, bound) in enumerate(cutoff_hits(temps, codes, offsets, mode, **(search_kw or {}))):
                 found = np.zeros(len(names), bool)
                 found[np.searchsorted(offsets, s, side="right") - 1] = True
                 hit[mode][te, j] = found[te]

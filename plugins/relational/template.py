@@ -117,7 +117,8 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
                 cutoff: Literal["rivals", "threshold"] = "rivals", columns: Literal["key", "all"] = "key",
                 index=None, anchor_features: int = 2, threshold: float | None = None, rho: float = 1.0,
                 guard: float = 1.0, min_gap: float = 0.5, only: list[int] | None = None,
-                rival_table=None, anchors: int = 1) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+                rival_table=None, anchors: int = 1, step: int | str = 1, coarse_frames: int = 30,
+                coarse=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
     frames, ascending cost) under a cut-off rule (:mod:`.template_cutoff`).
 
@@ -128,9 +129,15 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
     a :class:`.template_cutoff.RivalTable` of the same frames answers the rival check by
     lookups (many queries on one database) instead of scanning the hits' windows.
     ``anchors``: candidate regions from one anchor or the intersection of two
-    (:func:`.template_prefilter.candidate_ranges`).
+    (:func:`.template_prefilter.candidate_ranges`). ``step``: search every ``step``-th frame
+    (``"auto"``: per template, :func:`.template_coarse.template_step` with ``coarse_frames``),
+    the rival check at the full rate (:mod:`.template_coarse`); ``coarse``: a
+    :class:`.template_coarse.CoarseCodes` of ``codes`` reused between calls.
     """
+    from .template_coarse import CoarseCodes, coarse_search, template_step
     from .template_cutoff import acceptance_bound, rival_mask
+
+    coarse = coarse if coarse is not None else CoarseCodes(codes, offsets)
 
     out = []
     for qid, t in enumerate(templates):
@@ -147,7 +154,7 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
             ranges, _ = candidate_ranges(use, index, anchor_features, widen="path", anchors=anchors)
         else:
             ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
-        s, e, c, _ = search_costs(codes, use.table(), ranges, bound, min_gap)
+        s, e, c = coarse_search(use, coarse, ranges, bound, min_gap, template_step(t, step, coarse_frames))
         if cutoff == "rivals":
             keep = (rival_table.mask(qid, s, e, offsets, rho) if rival_table is not None
                     else rival_mask(templates, qid, s, e, codes, offsets, rho))
