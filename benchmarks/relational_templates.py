@@ -268,6 +268,24 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
             cpu[key] = c
         return b, out
 
+    from mocapflow.plugins.relational.template_coarse import CoarseCodes, template_step
+
+    coarse = CoarseCodes(codes, big_offsets)
+    t0 = time.perf_counter()
+    for st in (2, 3, 4):
+        coarse.get(st)
+    print(f"  coarse codes at steps 2, 3, 4 (once per database): {(time.perf_counter() - t0) * 1e3:.0f} ms")
+    steps = {"2": 2, "3": 3, "auto": "auto"}
+    coarse_t = {k: [] for k in steps}
+    for j, t in enumerate(temps):
+        line = []
+        for k, st in steps.items():
+            tc, lc = best_of(lambda: cutoff_hits(temps, codes, big_offsets, "rivals", index=index, only=[j], rival_table=table,
+                                                 step=st, coarse=coarse), "coarse")
+            coarse_t[k].append(tc)
+            line.append(f"step {k} ({template_step(t, st)}) {tc * 1e3:5.1f} ms CPU {cpu['coarse'] * 1e3:4.0f} "
+                        f"({len(lc[0][0])} hits)")
+        print(f"  {t.label:30s} rivals, coarse search: " + " | ".join(line))
     for j, t in enumerate(temps):
         tb, (fs, fe, _, _) = best_of(lambda: search_costs(codes, t.table(), whole, t.threshold, abandon=False))
         tt, (s, e, _) = best_of(lambda: search_template(t, codes, big_offsets, index=index), "threshold")
@@ -304,5 +322,7 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
           f"(docs/relational-features.md: 1.6 ms on an idle machine)")
     print(f"  threshold: median {np.median(times) * 1e3:.1f} ms, max {np.max(times) * 1e3:.1f} ms; rivals: median "
           f"{np.median(riv_t) * 1e3:.1f} ms, max {np.max(riv_t) * 1e3:.1f} ms; baseline median {np.median(base_t) * 1e3:.1f} ms; "
+          f"coarse rivals median/max: " + ", ".join(f"step {k} {np.median(v) * 1e3:.1f}/{np.max(v) * 1e3:.1f} ms"
+                                                     for k, v in coarse_t.items()) + "; "
           f"hits lost to the candidate regions: mean {100 * np.mean(lost):.1f} % (target <= 50 ms per query); "
           f"load average {open('/proc/loadavg').read().split()[0]}")

@@ -18,7 +18,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -181,7 +181,7 @@ class TemplateMatcher(Matcher):
     """
 
     name = "template"
-    version = "2"
+    version = "3"
     inputs = {"database": True, "motions": True, "reference": False, "index": False}
     #: Conformance (mocapflow.framework.testing): one template from synthetic clips.
     test_pipeline = {
@@ -215,6 +215,10 @@ class TemplateMatcher(Matcher):
         rho: float = Field(1.0, gt=0.0, description="cutoff rivals: keep a hit when its all-feature cost <= rho x the best rival's")
         guard: float = Field(1.0, ge=0.0, description="cutoff rivals: acceptance bound = max(threshold, (1 + guard) x the "
                                                       "largest leave-one-group-out example cost)")
+        step: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field("auto", description="search every step-th frame of template and clips (the "
+                                            "rival check stays at the full rate); auto: K // coarse_frames, 1 to 4 "
+                                            "(docs/templates.md); 1: the full-rate search")
+        coarse_frames: int = Field(30, ge=1, description="step auto: template frames per coarse template frame")
         plots: bool = Field(True, description="write template_<label>.png per template")
 
     def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
@@ -264,7 +268,8 @@ class TemplateMatcher(Matcher):
 
             table = RivalTable.build(templates, codes, offsets)
         lists = cutoff_hits(templates, codes, offsets, prm.cutoff, prm.features, index, prm.anchor_features, prm.threshold,
-                            prm.rho, prm.guard, rival_table=table, anchors=prm.anchors)
+                            prm.rho, prm.guard, rival_table=table, anchors=prm.anchors, step=prm.step,
+                            coarse_frames=prm.coarse_frames)
         for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists)):
             if prm.max_hits:
                 s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]

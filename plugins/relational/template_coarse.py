@@ -47,8 +47,13 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
     """The template's rows ``0, step, 2 step, ...`` (at least one row)."""
     if step <= 1:
         return t
-    return MotionTemplate(t.label, np.ascontiguousarray(t.mean[::step]), t.columns, t.delta, t.threshold, t.n_examples,
-                          t.example_costs)
+    key = (step, t.columns.tobytes(), t.delta, t.mean.shape)
+    cached = getattr(t, "_coarse", None)
+    if cached is None or cached[0] != key:  # kept on the template: its lookup table is cached on it in turn
+        cached = (key, MotionTemplate(t.label, np.ascontiguousarray(t.mean[::step]), t.columns, t.delta, t.threshold,
+                                      t.n_examples, t.example_costs))
+        t._coarse = cached
+    return cached[1]
 
 
 def template_step(t: MotionTemplate, step: int | str, coarse_frames: int = 30, max_step: int = 4) -> int:
