@@ -101,8 +101,10 @@ def _ranking_metrics(costs: np.ndarray, rel: np.ndarray) -> tuple[float, float]:
     return ap, float(tp[reach[0]] / (reach[0] + 1)) if len(reach) else 0.0
 
 
-def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str], min_run: int = 4) -> dict:
-    """Automatic selection from one example (module doc); dtw and the paper's machinery."""
+def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str], min_run: int = 4,
+                        features: str = "all", weighting: float = 0.5, paper: bool = True) -> dict:
+    """Automatic selection from one example (module doc); dtw (template on ``features``,
+    surprise ``weighting``) and, with ``paper``, the paper's machinery."""
     from itertools import product
 
     from mocapflow.plugins.relational.auto import relative_cost_cut
@@ -113,7 +115,7 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
     bg = bits.mean(axis=0)
     cost = np.zeros((n, n))
     for q in range(n):
-        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, None, min_run)
+        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, None, min_run, features, weighting)
         cost[q] = clip_min_costs(codes, offsets, t.table())
     rel = (cls[:, None] == cls[None, :]) & ~np.eye(n, dtype=bool)
     masked = np.where(np.eye(n, dtype=bool), np.inf, cost)
@@ -148,13 +150,16 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
         mate = np.flatnonzero(rel[q] & (act == act[q]))
         c1 = masked[q].copy()
         c1[mate] = np.inf
-        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, [bits[offsets[m]:offsets[m + 1]] for m in mate], min_run)
+        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, [bits[offsets[m]:offsets[m + 1]] for m in mate], min_run,
+                          features, weighting)
         c2 = clip_min_costs(codes, offsets, t.table())
         c2[q] = np.inf
         c2[mate] = np.inf
         for key, c in (("dtw, other actors", c1), ("dtw + 1 example, other actors", c2)):
             ap, p9 = _ranking_metrics(c, other)
             out[key].setdefault(cls[q], []).append((ap, p9, np.nan, np.nan))
+    if not paper:
+        return out
     # the paper's machinery on the selected features
     index = InvertedIndex().build(bits, np.repeat(np.arange(n), np.diff(offsets)).astype(np.int32))
     for mode, mm in (("adaptive", 0), ("mismatch", 1), ("mismatch", 2)):
@@ -213,16 +218,27 @@ def report(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
           f"cut-off rivals step 1 {ok_riv} of 11, step auto (default) {ok_crs} of 11 (target 9)")
     print(f"classification accuracy (held-out actor): all features {res['acc_all']:.3f}, key features {res['acc_key']:.3f} "
           f"(target 0.9); wrong: {res['confusions']}")
+    report_auto(bits, offsets, names)
+
+
+def report_auto(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
+    """Print the automatic-selection figures (module doc)."""
     t0 = time.perf_counter()
     auto = auto_single_example(bits, offsets, names)
+    for label, f, w in (("dtw, key features unweighted (previous)", "key", 0.0), ("dtw, all features unweighted", "all", 0.0),
+                        ("dtw, key features, weights^0.5", "key", 0.5), ("dtw, all features, weights^1", "all", 1.0)):
+        other = auto_single_example(bits, offsets, names, features=f, weighting=w, paper=False)
+        auto[label] = other["dtw"]
+        auto["cuts"][label] = other["cuts"]["dtw"]
     print(f"\n== automatic feature selection from a single example ({time.perf_counter() - t0:.1f} s; "
           f"cut (relative_cut, low_weight) chosen per fold: {auto['cuts']}) ==")
-    print("search".ljust(32) + "mAP    P@R0.9  hits P   hits R   classes P@R0.9>=0.7   classes hits P>=0.7,R>=0.9")
-    for key in ("dtw", "dtw, cut x median (first design)", "adaptive", "mismatch1", "mismatch2", "dtw, other actors",
-                "dtw + 1 example, other actors"):
+    print("search (default: dtw, all features, surprise weights^0.5)".ljust(42) + "mAP    P@R0.9  hits P   hits R   classes P@R0.9>=0.7   classes hits P>=0.7,R>=0.9")
+    for key in ("dtw", "dtw, cut x median (first design)", "dtw, key features unweighted (previous)",
+                "dtw, all features unweighted", "dtw, key features, weights^0.5", "dtw, all features, weights^1", "adaptive",
+                "mismatch1", "mismatch2", "dtw, other actors", "dtw + 1 example, other actors"):
         per = {c: np.mean(v, axis=0) for c, v in auto[key].items()}
         allv = np.concatenate([np.array(v) for v in auto[key].values()])
-        print(f"{key:32s}{allv[:, 0].mean():.3f}{allv[:, 1].mean():8.2f}{allv[:, 2].mean():9.2f}{allv[:, 3].mean():9.2f}"
+        print(f"{key:42s}{allv[:, 0].mean():.3f}{allv[:, 1].mean():8.2f}{allv[:, 2].mean():9.2f}{allv[:, 3].mean():9.2f}"
               f"{sum(v[1] >= 0.7 for v in per.values()):14d}{sum(v[2] >= 0.7 and v[3] >= 0.9 for v in per.values()):26d}")
     print("per class (dtw): AP / P@R0.9 / hits P / hits R")
     for c, v in auto["dtw"].items():

@@ -125,23 +125,42 @@ def select_features(bits: np.ndarray, background: np.ndarray, examples: list[np.
     return cols.astype(np.int64), sm, scores
 
 
+def surprise_weights(quantized: np.ndarray, background: np.ndarray, power: float = 0.5) -> np.ndarray:
+    """Per-cell weights (K, 31) of an auto template's local cost: the surprise of the cell's
+    value under the database's on-fraction ``p_f`` (``-log2 p_f`` for a 1, ``-log2 (1 - p_f)``
+    for a 0), to the power ``power`` (0: unweighted). A mismatch on a cell whose value is rare
+    in the database (a hand raised, a foot off the floor) costs more than one on a value most
+    frames share, so the template weights its distinctive cells without a feature choice;
+    the background needs no labels."""
+    p = np.clip(np.asarray(background, np.float64), 1e-3, 1 - 1e-3)
+    s = np.where(np.asarray(quantized) >= 0.75, -np.log2(p), -np.log2(1 - p))
+    return (s ** power).astype(np.float64) if power else np.ones_like(s)
+
+
 def auto_template(bits: np.ndarray, background: np.ndarray, examples: list[np.ndarray] | None = None,
-                  min_run: int = 4):
-    """The motion template of ``auto_search: dtw``: the smoothed query on its key features,
-    or (with examples) a template fitted on query and examples (don't care where they disagree)."""
+                  min_run: int = 4, features: str = "all", weighting: float = 0.5):
+    """The motion template of ``auto_search: dtw``: the smoothed query, or (with examples) a
+    template fitted on query and examples (don't care where they disagree); on all features
+    (``features="all"``, default) or its key features (``"key"``, the first design), its local
+    cost weighted by :func:`surprise_weights` to the power ``weighting`` (0: unweighted, the
+    first design). Measured leave-one-actor-out in docs/templates.md."""
     from .template_model import MotionTemplate, fit_class_template, key_columns
 
     sm = np.stack([smooth_runs(np.asarray(x) > 0.5, min_run) for x in np.asarray(bits).T], axis=1)
     if examples:
         exs = [sm.astype(np.float32)] + [np.stack([smooth_runs(np.asarray(c) > 0.5, min_run) for c in np.asarray(e).T], axis=1)
                                          .astype(np.float32) for e in examples]
-        return fit_class_template("query", exs, background, "key", calibrate=False)
-    t = MotionTemplate("query", sm.astype(np.float32), np.arange(sm.shape[1]), 0.2, np.inf, 1)
-    t.columns = key_columns(t, background)
+        t = fit_class_template("query", exs, background, features, calibrate=False)
+    else:
+        t = MotionTemplate("query", sm.astype(np.float32), np.arange(sm.shape[1]), 0.2, np.inf, 1)
+        if features == "key":
+            t.columns = key_columns(t, background)
+    if weighting:
+        t.weights = surprise_weights(t.quantized(), background, weighting)
     return t
 
 
-def relative_cost_cut(per_clip: np.ndarray, relative_cut: float = 1.1, low_weight: float = 0.75,
+def relative_cost_cut(per_clip: np.ndarray, relative_cut: float = 1.15, low_weight: float = 0.75,
                       low_quantile: float = 0.05) -> float:
     """The cost cut of an auto template from the database's per-clip least costs (one
     example gives no calibration, module doc): ``relative_cut x q^w x median^(1 - w)`` with
@@ -158,7 +177,7 @@ def relative_cost_cut(per_clip: np.ndarray, relative_cut: float = 1.1, low_weigh
     return float(relative_cut * low ** low_weight * med ** (1.0 - low_weight))
 
 
-def auto_hits(template, codes: np.ndarray, offsets: np.ndarray, relative_cut: float = 1.1,
+def auto_hits(template, codes: np.ndarray, offsets: np.ndarray, relative_cut: float = 1.15,
               max_cost: float | None = None, low_weight: float = 0.75,
               low_quantile: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Hits ``(start, end, cost)`` of an auto template and the cost cut used.
@@ -181,4 +200,4 @@ def auto_hits(template, codes: np.ndarray, offsets: np.ndarray, relative_cut: fl
     return s, e, c, cut
 
 
-__all__ = ["auto_hits", "auto_template", "relative_cost_cut", "runs", "select_features", "smooth_runs"]
+__all__ = ["auto_hits", "auto_template", "relative_cost_cut", "runs", "select_features", "smooth_runs", "surprise_weights"]

@@ -383,11 +383,15 @@ class RelationalMatcher(Matcher):
                                                                     "example as a template, or the paper's adaptive / mismatch hits")
         min_run: int = Field(4, ge=1, description="mode auto: runs shorter than this (frames) are flicker")
         max_features: int = Field(3, ge=1, le=31, description="mode auto with adaptive/mismatch search: features selected")
-        relative_cut: float = Field(1.1, gt=0.0, description="mode auto, dtw: hits cost below this x q^w x median^(1-w) of the "
+        relative_cut: float = Field(1.15, gt=0.0, description="mode auto, dtw: hits cost below this x q^w x median^(1-w) of the "
                                     "database's per-clip least costs (q: their 5 % quantile, w: low_weight)")
         low_weight: float = Field(0.75, ge=0.0, le=1.0, description="mode auto, dtw: weight w of the low quantile in the cut "
                                   "(0: relative_cut x the median, the first design)")
         max_cost: float | None = Field(None, gt=0.0, description="mode auto, dtw: fixed cost cut instead of relative_cut")
+        auto_features: Literal["all", "key"] = Field("all", description="mode auto, dtw: the example template on all 31 "
+                                                     "features or on its key features (the first design)")
+        auto_weighting: float = Field(0.5, ge=0.0, le=4.0, description="mode auto, dtw: a mismatch costs the surprise of the "
+                                      "example's value under the database's on-fraction, to this power (0: unweighted)")
         mismatches: int = Field(1, ge=0, description="m of m-mismatch hits")
         mismatch_positions: tuple[int, ...] | None = Field(None, description="query levels (0-based) where mismatches may occur; default any")
         min_overlap: float = Field(0.5, ge=0.0, le=1.0, description="overlap (fraction of the shorter span) for combining hits of several indexes")
@@ -468,7 +472,8 @@ class RelationalMatcher(Matcher):
         _, codes, background, any_set = cache
         allowed = sorted({feature_column(f) for f in spec.features}) if spec.features else None
         if self.params.auto_search == "dtw":
-            t = auto_template(bits, background, examples, self.params.min_run)
+            t = auto_template(bits, background, examples, self.params.min_run, self.params.auto_features,
+                              self.params.auto_weighting)
             if allowed is not None:
                 keep = np.intersect1d(t.columns, allowed)
                 t.columns = keep if len(keep) else np.asarray(allowed, np.int64)

@@ -58,7 +58,7 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
     return cached[1]
 
 
-def template_step(t: MotionTemplate, step: int | str, coarse_frames: int = 15, max_step: int = 4) -> int:
+def template_step(t: MotionTemplate, step: int | str, coarse_frames: int = 10, max_step: int = 4) -> int:
     """The decimation step for one template: ``step`` itself, or for ``"auto"``
     ``clip(K // coarse_frames, 1, max_step)``."""
     if step == "auto":
