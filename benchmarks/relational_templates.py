@@ -120,28 +120,38 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
     rel = (cls[:, None] == cls[None, :]) & ~np.eye(n, dtype=bool)
     masked = np.where(np.eye(n, dtype=bool), np.inf, cost)
 
-    def hits_pr(q, cut):
-        hit = masked[q] <= relative_cost_cut(masked[q], *cut)
-        return (float((hit & rel[q]).sum() / max(hit.sum(), 1)), float((hit & rel[q]).sum() / rel[q].sum()))
-
     # the cut's parameters per fold: the most classes meeting P >= 0.7, R >= 0.9 on the other actors' queries
     designs = {"dtw": list(product(np.round(np.arange(0.5, 1.5, 0.05), 2), (0.25, 0.5, 0.75, 1.0))),  # blend (default)
                "dtw, cut x median (first design)": [(a, 0.0) for a in (0.4, 0.5, 0.6, 0.7, 0.8)]}
     out = {"cuts": {}}
+    # mutual check (auto_mutual: clip): hit h of q kept only when q is a hit of h's whole clip as a query
+    designs["dtw + mutual (whole clips)"] = designs["dtw"]
+    mutual = {"dtw + mutual (whole clips)"}
+
+    def hit_row(q, cut, key):
+        hit = masked[q] <= relative_cost_cut(masked[q], *cut)
+        if key in mutual:
+            hit &= np.array([masked[h, q] <= relative_cost_cut(masked[h], *cut) if hit[h] else False for h in range(n)])
+        return hit
+
+    def hits_pr(q, cut, key="dtw"):
+        hit = hit_row(q, cut, key)
+        return (float((hit & rel[q]).sum() / max(hit.sum(), 1)), float((hit & rel[q]).sum() / rel[q].sum()))
+
     for key, grid in designs.items():
         chosen = np.zeros((n, 2))
         for held in sorted(set(act)):
             tr = np.flatnonzero(act != held)
 
             def n_good(cut):
-                pr = np.array([hits_pr(q, cut) for q in tr])
+                pr = np.array([hits_pr(q, cut, key) for q in tr])
                 return sum((pr[cls[tr] == c, 0].mean() >= 0.7) & (pr[cls[tr] == c, 1].mean() >= 0.9) for c in set(cls)) \
                     + 1e-3 * pr.mean(axis=0).sum()
             chosen[act == held] = max(grid, key=n_good)
         out[key] = {}
         for q in range(n):
             ap, p9 = _ranking_metrics(masked[q], rel[q])
-            out[key].setdefault(cls[q], []).append((ap, p9) + hits_pr(q, tuple(chosen[q])))
+            out[key].setdefault(cls[q], []).append((ap, p9) + hits_pr(q, tuple(chosen[q]), key))
         out["cuts"][key] = sorted({tuple(float(x) for x in c) for c in chosen})
     # other actors only: one example, and two (the actor's other take as the extra example)
     out["dtw, other actors"], out["dtw + 1 example, other actors"] = {}, {}
@@ -233,17 +243,17 @@ def report_auto(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None
     print(f"\n== automatic feature selection from a single example ({time.perf_counter() - t0:.1f} s; "
           f"cut (relative_cut, low_weight) chosen per fold: {auto['cuts']}) ==")
     print("search (default: dtw, all features, surprise weights^0.5)".ljust(42) + "mAP    P@R0.9  hits P   hits R   classes P@R0.9>=0.7   classes hits P>=0.7,R>=0.9")
-    for key in ("dtw", "dtw, cut x median (first design)", "dtw, key features unweighted (previous)",
+    for key in ("dtw", "dtw + mutual (whole clips)", "dtw, cut x median (first design)", "dtw, key features unweighted (previous)",
                 "dtw, all features unweighted", "dtw, key features, weights^0.5", "dtw, all features, weights^1", "adaptive",
                 "mismatch1", "mismatch2", "dtw, other actors", "dtw + 1 example, other actors"):
         per = {c: np.mean(v, axis=0) for c, v in auto[key].items()}
         allv = np.concatenate([np.array(v) for v in auto[key].values()])
         print(f"{key:42s}{allv[:, 0].mean():.3f}{allv[:, 1].mean():8.2f}{allv[:, 2].mean():9.2f}{allv[:, 3].mean():9.2f}"
               f"{sum(v[1] >= 0.7 for v in per.values()):14d}{sum(v[2] >= 0.7 and v[3] >= 0.9 for v in per.values()):26d}")
-    print("per class (dtw): AP / P@R0.9 / hits P / hits R")
+    print("per class: AP / P@R0.9 / hits P / hits R (dtw) | hits P / hits R (dtw + mutual)")
     for c, v in auto["dtw"].items():
-        m = np.mean(v, axis=0)
-        print(f"  {c:30s} {m[0]:.2f} / {m[1]:.2f} / {m[2]:.2f} / {m[3]:.2f}")
+        m, mm = np.mean(v, axis=0), np.mean(auto["dtw + mutual (whole clips)"][c], axis=0)
+        print(f"  {c:30s} {m[0]:.2f} / {m[1]:.2f} / {m[2]:.2f} / {m[3]:.2f} | {mm[2]:.2f} / {mm[3]:.2f}")
 
 
 def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 3, temps=None) -> None:

@@ -151,3 +151,22 @@ def test_surprise_weights_and_auto_template_weighting():
     t = auto_template(bits, bg, None, 2, "all", 0.5)
     assert t.weights is not None and t.weights.shape == (12, 31) and len(t.columns) == 31
     assert auto_template(bits, bg, None, 2, "key", 0.0).weights is None
+
+
+def test_mutual_clips_rejects_a_longer_motion_that_contains_the_query():
+    from mocapflow.plugins.relational.auto import mutual_clips
+
+    rng = np.random.default_rng(0)
+
+    def motion(n):  # runs of 5 frames: no flicker for min_run 4
+        return np.repeat(rng.random((n, 31)) < 0.3, 5, axis=0)
+
+    hop = motion(6)
+    noise = [motion(8) for _ in range(8)]
+    long_clip = np.concatenate([motion(10), hop, motion(10)])  # the hop inside a longer motion
+    clips = [hop.copy(), long_clip] + noise
+    db = np.concatenate(clips).astype(np.uint8)
+    offsets = np.concatenate([[0], np.cumsum([len(c) for c in clips])]).astype(np.int64)
+    codes = frame_codes(db)
+    keep = mutual_clips(hop, np.array([0, 1]), db, codes, offsets, db.mean(axis=0), relative_cut=1.3)
+    assert keep.tolist() == [True, False]

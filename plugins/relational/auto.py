@@ -200,4 +200,32 @@ def auto_hits(template, codes: np.ndarray, offsets: np.ndarray, relative_cut: fl
     return s, e, c, cut
 
 
-__all__ = ["auto_hits", "auto_template", "relative_cost_cut", "runs", "select_features", "smooth_runs", "surprise_weights"]
+def mutual_clips(query_bits: np.ndarray, hit_clips: np.ndarray, db_bits: np.ndarray, codes: np.ndarray,
+                 offsets: np.ndarray, background: np.ndarray, min_run: int = 4, features: str = "all",
+                 weighting: float = 0.5, relative_cut: float = 1.15, low_weight: float = 0.75) -> np.ndarray:
+    """The mutual check of ``auto_mutual: clip`` (bool per entry of ``hit_clips``): the hit's
+    whole clip, made an auto template in turn, must find the query among its own hits (the
+    query's least cost <= the :func:`relative_cost_cut` of that template's per-clip least
+    costs over the database, the hit clip itself left out). A short query (one hop) matches
+    a stretch inside a longer motion (a jog); the jog clip as a query does not match the hop.
+    Only for databases of cut motions (one motion per clip): a long take as a query matches
+    almost nothing. Needs no labels; costs one search of the database per distinct hit clip.
+
+    ``query_bits`` (T, 31); ``hit_clips`` (h,) clip positions; ``db_bits`` (N, 31), ``codes``
+    (N,) and ``offsets`` (n_clips + 1,) the database.
+    """
+    from .template_model import clip_min_costs, frame_codes
+
+    q_codes = frame_codes(np.asarray(query_bits) > 0.5)
+    q_off = np.array([0, len(q_codes)], np.int64)
+    keep = np.zeros(len(hit_clips), bool)
+    for i, h in enumerate(np.asarray(hit_clips, np.int64)):
+        t = auto_template(db_bits[offsets[h]:offsets[h + 1]], background, None, min_run, features, weighting)
+        per_clip = clip_min_costs(codes, offsets, t.table())
+        per_clip[h] = np.inf
+        own = clip_min_costs(q_codes, q_off, t.table())[0]
+        keep[i] = bool(np.isfinite(own) and own <= relative_cost_cut(per_clip, relative_cut, low_weight))
+    return keep
+
+
+__all__ = ["auto_hits", "mutual_clips", "auto_template", "relative_cost_cut", "runs", "select_features", "smooth_runs", "surprise_weights"]
