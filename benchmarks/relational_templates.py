@@ -305,7 +305,7 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
     for st in (2, 3, 4):
         coarse.get(st)
     print(f"  coarse codes at steps 2, 3, 4 (once per database): {(time.perf_counter() - t0) * 1e3:.0f} ms")
-    steps = {"2": (2, 10), "3": (3, 10), "auto/15": ("auto", 15), "auto/10 (default)": ("auto", 10)}
+    steps = {"3": (3, 7), "4": (4, 7), "auto/10": ("auto", 10), "auto/7 (default)": ("auto", 7)}
     coarse_t, coarse_cpu = {k: [] for k in steps}, {}
     for j, t in enumerate(temps):
         line = []

@@ -117,7 +117,7 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
                 cutoff: Literal["rivals", "threshold"] = "rivals", columns: Literal["key", "all"] = "key",
                 index=None, anchor_features: int = 2, threshold: float | None = None, rho: float = 1.0,
                 guard: float = 1.0, min_gap: float = 0.5, only: list[int] | None = None,
-                rival_table=None, anchors: int = 1, step: int | str = 1, coarse_frames: int = 10,
+                rival_table=None, anchors: int = 1, step: int | str = 1, coarse_frames: int = 7,
                 coarse=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
     frames, ascending cost) under a cut-off rule (:mod:`.template_cutoff`).
@@ -218,7 +218,7 @@ class TemplateMatcher(Matcher):
         step: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field("auto", description="search every step-th frame of template and clips (the "
                                             "rival check stays at the full rate); auto: K // coarse_frames, 1 to 4 "
                                             "(docs/templates.md); 1: the full-rate search")
-        coarse_frames: int = Field(10, ge=1, description="step auto: template frames per coarse template frame")
+        coarse_frames: int = Field(7, ge=1, description="step auto: template frames per coarse template frame")
         plots: bool = Field(True, description="write template_<label>.png per template")
 
     def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,

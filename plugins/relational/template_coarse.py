@@ -15,9 +15,11 @@ back to full-rate frames and the rival check of the ``rivals`` cut-off runs at t
 on them, so which class wins a stretch is decided as before.
 
 ``step="auto"`` (default of the step): per template ``s = clip(K // coarse_frames, 1, max_step)``
-(``coarse_frames`` 15, ``max_step`` 4): at least 15 coarse rows unless capped, so short
-templates (hop: 22 frames at 30 Hz) keep the full rate; measured leave-one-actor-out a
-uniform step of 6 (5 Hz; rotate's 32 frames become 6 rows) loses two classes, steps 2-4 none.
+(``coarse_frames`` 7, ``max_step`` 4): at least 7 coarse rows, at most a quarter of the rate
+(hop, 22 frames at 30 Hz: s = 3; every other HDM05 template: 4). Measured
+leave-one-actor-out, a uniform step of 6 (5 Hz; rotate's 32 frames become 6 rows) loses two
+classes, steps 2-4 none; a class's list depends only on its own step (the rival check runs
+at the full rate), so ``auto`` inherits that.
 """
 from __future__ import annotations
 
@@ -58,7 +60,7 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
     return cached[1]
 
 
-def template_step(t: MotionTemplate, step: int | str, coarse_frames: int = 10, max_step: int = 4) -> int:
+def template_step(t: MotionTemplate, step: int | str, coarse_frames: int = 7, max_step: int = 4) -> int:
     """The decimation step for one template: ``step`` itself, or for ``"auto"``
     ``clip(K // coarse_frames, 1, max_step)``."""
     if step == "auto":
