@@ -18,13 +18,15 @@ same motion) :func:`select_features` chooses the features that characterise it:
 Two searches use the selection (``auto_search``):
 
 ``dtw`` (default)
-    The smoothed query is a motion template of one example (:mod:`.template_model`) on its
-    key features (:func:`~.template_model.key_columns`: features running through a
-    progression in the query, or departing from the database's typical value) and is
-    retrieved by subsequence DTW; with further examples a proper template is fitted
-    (cells where they disagree are don't care). A hit is a clip stretch whose cost is below
-    a cut relative to the database's per-clip costs (:func:`relative_cost_cut`: a blend of
-    their 5 % quantile and median) or below ``max_cost``.
+    The smoothed query is a motion template of one example (:mod:`.template_model`) on all
+    31 features, its mismatches weighted by :func:`surprise_weights` (how rare the
+    example's value is in the database), or (first design) on its key features
+    (:func:`~.template_model.key_columns`) unweighted, and is retrieved by subsequence DTW;
+    with further examples a proper template is fitted (cells where they disagree are don't
+    care). A hit is a clip stretch whose cost is below a cut relative to the database's
+    per-clip costs (:func:`relative_cost_cut`: a blend of their 5 % quantile and median) or
+    below ``max_cost``; optionally the hit's clip must find the query in turn
+    (:func:`mutual_clips`, databases of cut motions).
 ``adaptive`` / ``mismatch``
     The smoothed bits of the ``max_features`` best-scoring features (steps 1-4) run
     through the paper's machinery (adaptive fuzzy or m-mismatch hits).
