@@ -98,9 +98,11 @@ def matcher_once(q, space, **kw):
     full_from, exact.FULL_FROM = exact.FULL_FROM, kw.pop("full_from", exact.FULL_FROM)
     try:
         t0 = time.perf_counter()
-        if "levels" in kw or "top" in kw:
+        if "levels" in kw or "top" in kw or "approx" in kw:
             kw.pop("exact", None)
-            res = exact.certified_sdtw(q, space, count=10, **kw)
+            st = exact.ExactStats()
+            res = exact.certified_sdtw(q, space, count=10, stats=st, **kw)
+            res.work = (1.2 * st.coarse_blocks + st.columns + st.guess_columns) / space.n_rows  # of sDTW's cells
         else:
             res = lazy_neighborhood_graph(q, space, count=10, **kw)
     finally:
@@ -115,8 +117,22 @@ def kept(runs, exact) -> tuple[float, float]:
     return float(np.mean(same)), float(np.mean(found))
 
 
+def spearman_same_end(runs, ref) -> float:
+    """Spearman's rho of sDTW's and the method's costs over sDTW's top-10 ends the method also returns."""
+    from scipy.stats import spearmanr
+
+    a, b = [], []
+    for r, (e, _) in zip(runs, ref):
+        got = {int(x): float(c) for x, c in zip(r[2].end, r[2].cost)}
+        for x, c in zip(e.end.tolist(), e.cost.tolist()):
+            if x in got:
+                a.append(c)
+                b.append(got[x])
+    return float(spearmanr(a, b).statistic) if len(a) > 2 else float("nan")
+
+
 def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=print, propagate=(8, 1000),
-               ann: SearchSpace | None = None, gaps=()) -> None:
+               ann: SearchSpace | None = None, gaps=(), approx=(), certified_only=False) -> None:
     gap_variants = [(f"graph gaps {g}, fill", {"gaps": g, "exact": False}) for g in gaps]
     try:
         from dtaidistance.subsequence.dtw import subsequence_alignment
@@ -150,6 +166,10 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
                     ("graph, propagate 8", {"exact": False, "propagate": 8}),
                     ("graph, k=64", {"exact": False, "k": 64})]
         variants += gap_variants
+        approx_variants = [(f"bounded approx, eps {e:g}", {"exact": True, "approx": e}) for e in approx]
+        if certified_only:
+            variants = [variants[0], ("certified exact (work counted)", {"exact": True, "approx": 0.0})]
+        variants += approx_variants
         if ann is not None:
             variants += [("default, indexes.hnsw", {"ann": True}), ("graph, indexes.hnsw", {"ann": True, "exact": False})]
         for name, kw in variants:
@@ -157,9 +177,15 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
             runs = [matcher_once(q, sp, **kw) for q in qs[:n_exact]]
             same, found = kept(runs, [(s,) for s in sd_sets])
             found = float(np.mean([len(set(r[0]) & set(e)) / max(len(e), 1) for r, e in zip(runs, sd_sets)]))
-            if kw.get("exact"):
+            approx_run = kw.get("approx", 0.0) > 0
+            if kw.get("exact") and not approx_run:
                 ident = all(np.array_equal(r[2].cost, e.cost) and np.array_equal(r[2].end, e.end) for r, (e, _) in zip(runs, ref))
                 name += " (identical)" if ident else " (DIFFERS)"
+            if hasattr(runs[0][2], "work"):
+                w = [1.0 / r[2].work for r in runs]
+                name += f" work 1/{np.median(w):.1f}"
+            if approx_run:
+                name += f" rho {spearman_same_end(runs, ref):.4f}"
             t_all = float(np.median([r[1] for r in runs]))
             rows.append((name + " vs sDTW", t_all, float("nan"), float("nan"), same, found))
         if subsequence_alignment is not None and space.n_rows * (m + 1) * 8 < 4e9:
@@ -185,9 +211,9 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
                 rows.append((name, t_all, t_knn, t_all - t_knn, same, found))
         echo(f"  query {m} frames ({len(qs)} LNG / {min(n_exact, len(qs))} sDTW queries); sDTW {m * space.n_rows / t_sdtw / 1e6:.0f} M cells/s; "
              f"load average {open('/proc/loadavg').read().split()[0]}")
-        echo(f"    {'method':<40} {'ms/query':>9} {'kNN ms':>8} {'graph us/frame':>15} {'same best':>9} {'top-10 kept':>11} {'sDTW/this':>10}")
+        echo(f"    {'method':<62} {'ms/query':>9} {'kNN ms':>8} {'graph us/frame':>15} {'same best':>9} {'top-10 kept':>11} {'sDTW/this':>10}")
         for name, t, tk, tg, same, found in rows:
-            echo(f"    {name:<40} {t * 1e3:>9.2f} {tk * 1e3:>8.2f} {tg * 1e6 / m:>15.1f} {same:>9.2f} {found:>11.2f} {t_sdtw / t:>10.1f}")
+            echo(f"    {name:<62} {t * 1e3:>9.2f} {tk * 1e3:>8.2f} {tg * 1e6 / m:>15.1f} {same:>9.2f} {found:>11.2f} {t_sdtw / t:>10.1f}")
 
 
 def main(argv=None) -> int:
@@ -203,6 +229,10 @@ def main(argv=None) -> int:
                     help="also the default matcher with these gap depths (default: only its own, 32)")
     ap.add_argument("--ann", action="store_true",
                     help="also the default matcher through indexes.hnsw (ef 256; built on all cores, needs the ann extra)")
+    ap.add_argument("--approx", type=float, nargs="*", default=[],
+                    help="also the bounded approximation (certified search pruning at (1+eps) LB > tau) with these eps")
+    ap.add_argument("--certified-only", action="store_true",
+                    help="only sDTW, the default, the certified search (with counted work) and the --approx variants")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     sizes = args.sizes or ([60_000] if args.quick else [380_813, 1_038_388])
@@ -219,7 +249,8 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             ann = SearchSpace(space.clip_id, space.frame, HNSWIndex(ef=256, threads=0).build(space.features), space.features)
             print(f"indexes.hnsw build (all cores) {time.perf_counter() - t:.1f} s")
-        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng, propagate=args.propagate, ann=ann, gaps=args.gaps)
+        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng, propagate=args.propagate, ann=ann, gaps=args.gaps,
+                   approx=args.approx, certified_only=args.certified_only)
     return 0
 
 

@@ -68,9 +68,12 @@ METHODS = {
     "graph": dict(),  # the gap-tolerant graph's own defaults (the matcher default until 2026-12-02)
     "default": None,
     "exact": dict(exact=True),
+    # the certified search forced to prune (no whole DP on these small databases), and its bounded approximation
+    "pruned": dict(exact=True, direct_cells=0),
+    **{f"approx{e:g}": dict(exact=True, approx=e, direct_cells=0) for e in (0.1, 0.25, 0.5, 1.0, 2.0, np.inf)},
 }
 # every entry above but sdtw/default/exact is a configuration of the graph (exact: false)
-METHODS = {k: (dict(v, exact=False) if k not in ("sdtw", "default", "exact") else v) for k, v in METHODS.items()}
+METHODS = {k: (dict(v, exact=False) if not (k in ("sdtw", "default") or (v or {}).get("exact")) else v) for k, v in METHODS.items()}
 METHODS["default"] = dict()  # matchers.lng as configured by default (certified exact since 2026-12-02)
 QUICK = ("sdtw", "paper k256", "gaps8", "default", "exact")
 

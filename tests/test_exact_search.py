@@ -210,3 +210,54 @@ def test_certified_equals_sdtw_on_hdm05():
         space = SearchSpace(clip_id[keep], frame[keep], KDTreeIndex(method="kdtree").build(x[keep]), x[keep])
         for count in (1, 10):
             same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))
+
+
+def _window_cost(q, x, s, e):
+    """Exact DTW cost of the best warping path from row ``s`` to row ``e`` (both ends pinned), naive."""
+    w = x[s : e + 1]
+    D = np.full((len(q), len(w)), np.inf)
+    for j in range(len(w)):
+        for i in range(len(q)):
+            c = float(np.sqrt(np.sum((np.float64(q[i]) - np.float64(w[j])) ** 2)))
+            if i == 0:
+                D[i, j] = c if j == 0 else D[i, j - 1] + c
+                continue
+            best = D[i - 1, j]
+            if j > 0:
+                best = min(best, D[i - 1, j - 1], D[i, j - 1])
+            D[i, j] = best + c
+    return D[-1, -1]
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("approx", [0.0, 0.1, 0.5, 2.0, np.inf])
+def test_bounded_approximation_guarantee(seed, approx):
+    # what docs/global-matching.md "Bounded approximation" promises: real alignments with their
+    # exact costs, the count-th cost within (1 + approx) of sDTW's, sDTW's result when sDTW's
+    # count-th cost is at most tau / (1 + approx); approx 0 is the certified-exact search
+    clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25, 50], seed=seed)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    cont = continues_of(clip_id, frame)
+    rng = np.random.default_rng(seed)
+    s0 = int(rng.integers(0, 200))
+    q = (x[s0 : s0 + 10] + rng.normal(0, 0.4, (10, 3))).astype(np.float32)
+    best_end = sdtw_forward(np.ascontiguousarray(q.T), x, ~cont)[0]  # sDTW's cost of the best path ending at each row
+    for count, levels in ((1, (16, 4)), (5, (8, 4)), (8, (12, 5, 2))):
+        st = ExactStats()
+        got = certified_sdtw(q, space, count=count, min_span=0.0, levels=levels, direct_cells=0, approx=approx,
+                             stats=st)
+        ref = subsequence_dtw(q, space, count=count, min_span=0.0)
+        if approx == 0.0:
+            same(got, ref)
+            continue
+        assert len(got) == len(ref) == count
+        assert np.all(np.diff(got.cost) >= 0)
+        o = np.argsort(got.start)
+        assert np.all(got.start[o][1:] >= got.end[o][:-1])  # non-overlapping
+        for s, e, c, p in zip(got.start, got.end, got.cost, got.paths):
+            assert c >= best_end[e - 1] - 1e-9  # never below sDTW's best path into that end row
+            np.testing.assert_allclose(c, _window_cost(q, x, s, e - 1), rtol=1e-5)  # a real alignment, exact cost
+            assert p[0, 1] == s and p[-1, 1] == e - 1
+        assert got.cost[-1] <= (1.0 + approx) * ref.cost[-1] * (1 + 1e-9)
+        if ref.cost[-1] * (1.0 + approx) <= st.tau:
+            same(got, ref)

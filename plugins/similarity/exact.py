@@ -107,7 +107,7 @@ def _query_params(index) -> frozenset:
 _QUERY_PARAMS: dict = {}
 
 
-def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
+def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> tuple[float, np.ndarray]:
     """A threshold from real alignments around the nearest neighbours of a few query frames.
 
     :data:`SEED_FRAMES` query frames spread over the query (first and last included) get
@@ -137,7 +137,18 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
     st.guess_columns += len(rows)
     keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
                           min_frames=min_frames)
-    return float(cost[keep[-1]]) if len(keep) == count else np.inf
+    return (float(cost[keep[-1]]) if len(keep) == count else np.inf), (rows, cost, start, length)
+
+
+def merged_candidates(a: tuple, b: tuple) -> tuple:
+    """Candidates ``(rows, cost, start, length)`` of two fine DP passes, one per row: the lower
+    cost (``a``'s on ties), rows ascending. Both are costs of real paths into their row."""
+    rows, cost, start, length = (np.concatenate([u, v]) for u, v in zip(a, b))
+    src = np.r_[np.zeros(len(a[0]), np.int8), np.ones(len(b[0]), np.int8)]
+    o = np.lexsort((src, cost, rows))
+    first = np.r_[True, rows[o][1:] != rows[o][:-1]]
+    o = o[first]
+    return rows[o], cost[o], start[o], length[o]
 
 
 def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) -> float:
@@ -179,7 +190,8 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
                    top: int | None = None, graph=None, stats: ExactStats | None = None,
                    full_from: float | None = None, seeds: bool = True,
-                   levels: tuple[int, ...] | None = None, direct_cells: int | None = None) -> QueryMatches:
+                   levels: tuple[int, ...] | None = None, direct_cells: int | None = None,
+                   approx: float = 0.0) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -216,6 +228,13 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     direct_cells : int, optional
         (Default :data:`DIRECT_CELLS`.) Up to this many DP cells (rows x query frames) the
         whole DP runs at once, with no threshold. Speed only.
+    approx : float
+        Bounded approximation (0: certified exact). A block is pruned when ``(1 + approx) *
+        LB > tau``, so every path left out costs more than ``tau / (1 + approx)``; what a user
+        can rely on (docs/global-matching.md, "Bounded approximation"): every match is a real
+        alignment with its exact cost, the ``count``-th cost is at most ``(1 + approx)`` times
+        sDTW's, and the result is sDTW's whenever sDTW's ``count``-th cost is at most
+        ``tau / (1 + approx)``.
     """
     from ._coarse_kernels import coarse_bounds, sdtw_ranges_compact
     from ._dtw_kernels import dtw_window_path
@@ -237,10 +256,14 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     ceiling = np.inf if (max_cost is None or rank_by != "cost") else float(max_cost)
     qt = np.ascontiguousarray(q.T)
     n = space.n_rows
+    scale = 1.0 + float(approx)  # alive when scale * LB <= tau
+    if not scale >= 1.0:
+        raise DataError(f"approx must be >= 0, got {approx}")
     direct = n * len(q) <= (DIRECT_CELLS if direct_cells is None else direct_cells)
     levels = [] if direct else [block_boxes_of(space, b) for b in sizes]
     lb_top = None
     tau = np.inf
+    seeded = None  # the seed windows' candidates, whose selection gave tau: an approximate pass keeps them
     if rank_by == "cost" and not direct:
         if graph is None and not top:
             graph = build_graph(q, space, k=min(k, n), gaps=gaps)
@@ -249,7 +272,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         if found is not None and len(found) == count:
             tau = float(found.cost[-1])
         elif top and space.index is not None and seeds:
-            tau = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st)
+            tau, seeded = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st)
         if not np.isfinite(tau) and top:
             bs = levels[0]
             lb_top = coarse_bounds(qt, bs[1], bs[2], bs[3], np.array([[0, len(bs[1])]], np.int64), _SHRINK)
@@ -261,7 +284,9 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     tries = 0
     while True:
         ranges = np.array([[0, n]], np.int64)
-        if np.isfinite(tau) and not direct:
+        if np.isfinite(tau) and not direct and np.isinf(scale) and seeded is not None:
+            ranges = np.zeros((0, 2), np.int64)  # approx inf: the seed windows alone (no bound computed)
+        elif np.isfinite(tau) and not direct:
             br = None  # block ranges of the current level still in play (None: all)
             for li, (bstart, lo, hi, link) in enumerate(levels):
                 if br is None:
@@ -276,7 +301,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                     lb = coarse_bounds(qt, lo, hi, link, br, _SHRINK)
                     st.coarse_blocks += int((br[:, 1] - br[:, 0]).sum())
                     st.level_blocks.append(int((br[:, 1] - br[:, 0]).sum()))
-                alive = block_ranges(lb <= tau)
+                alive = block_ranges(lb * scale <= tau)
                 ranges = bstart[alive]
                 if li + 1 < len(levels):  # the next level's blocks tile these rows exactly
                     br = np.searchsorted(levels[li + 1][0], ranges)
@@ -286,6 +311,11 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
         st.tau, st.passes = tau, st.passes + 1
         st.columns += len(rows)
+        whole = len(ranges) == 1 and ranges[0, 0] == 0 and ranges[0, 1] == n
+        if scale > 1.0 and seeded is not None and not whole:
+            # the (1 + approx) pruning may rule out the very windows that gave tau: their candidates
+            # (real paths, cost >= the true best into their row) join, so count matches <= tau remain
+            rows, cost, start, length = merged_candidates((rows, cost, start, length), seeded)
         sel = np.flatnonzero(cost <= tau)
         keep = select_matches(rows[sel], start[sel], cost[sel], length[sel], count=count, max_cost=max_cost,
                               rank_by=rank_by, min_frames=min_frames)
