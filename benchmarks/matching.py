@@ -44,7 +44,7 @@ from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
 
-def database_space(n_frames: int, echo=print) -> SearchSpace:
+def database_space(n_frames: int, echo=print, names: list | None = None) -> SearchSpace:
     t0 = time.perf_counter()
     db = augmented_database(n_frames, fps=30)
     t1 = time.perf_counter()
@@ -53,6 +53,10 @@ def database_space(n_frames: int, echo=print) -> SearchSpace:
     index = KDTreeIndex(method="kdtree", workers=1).build(x)
     t3 = time.perf_counter()
     clip_id, frame = db.frame_ids
+    if names is not None:  # each clip's source clip (augmented copies are named <source>[_mirrored][_v<n>])
+        import re
+
+        names.extend(re.sub(r"(_mirrored)?(_v\d+)?$", "", m.name) for m in db)
     echo(f"database {n_frames:,} frames, {db.n_clips} clips: load {t1 - t0:.1f} s, F_E^15 {t2 - t1:.1f} s, "
          f"kd-tree build {t3 - t2:.1f} s")
     return SearchSpace(clip_id, frame, index, x)
@@ -216,6 +220,60 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
             echo(f"    {name:<62} {t * 1e3:>9.2f} {tk * 1e3:>8.2f} {tg * 1e6 / m:>15.1f} {same:>9.2f} {found:>11.2f} {t_sdtw / t:>10.1f}")
 
 
+#: methods of the hidden-source benchmark: label -> certified_sdtw keywords
+HIDDEN_METHODS = {
+    "default (certified exact)": {},
+    "approx 0.15 (chosen LOAO)": {"approx": 0.15},
+    "approx 0.5": {"approx": 0.5},
+    "approx inf (seed windows only)": {"approx": np.inf},
+    "seed windows only, 5 x 20 x count": {"approx": np.inf, "seed_k": 20},
+}
+
+
+def bench_hidden(space: SearchSpace, sources: list, lengths, n_queries, rng, echo=print) -> None:
+    """Recall of sDTW's top-10 and Spearman's rho with the query's source clip hidden: every
+    augmented copy of the clip the query was cut from is removed from the database (its own kd-tree),
+    so only other performances count (issue 13's quality targets, at scale); with the time ratios."""
+    from scipy.stats import spearmanr
+
+    from mocapflow.plugins.similarity.exact import certified_sdtw
+
+    src = np.asarray(sources)[space.clip_id]
+    echo(f"  query's source clip hidden (all its augmented copies); {n_queries} queries per length; "
+         f"load average {open('/proc/loadavg').read().split()[0]}")
+    echo(f"    {'query':>6} {'method':<36} {'recall':>7} {'rho':>7} {'full':>5} {'work 1/x':>9} {'sDTW/this':>9}")
+    for m in lengths:
+        stats = {k: {"hit": [], "a": [], "b": [], "t": [], "full": [], "w": []} for k in HIDDEN_METHODS}
+        t_ref = []
+        for s in random_segments(space, m, n_queries, rng):
+            keep = src != src[s]
+            sub = SearchSpace(space.clip_id[keep], space.frame[keep],
+                              KDTreeIndex(method="kdtree", workers=1).build(space.features[keep]), space.features[keep])
+            q = space.features[s : s + m]
+            certified_sdtw(q[:8], sub, count=3)  # the sub-space's block boxes, outside the timings
+            ref, t = timed(subsequence_dtw, q, sub, count=10)
+            t_ref.append(t)
+            for name, kw in HIDDEN_METHODS.items():
+                from mocapflow.plugins.similarity.exact import ExactStats
+
+                st = ExactStats()
+                res, t = timed(certified_sdtw, q, sub, count=10, stats=st, **kw)
+                r = stats[name]
+                r["t"].append(t)
+                r["full"].append(len(res) == 10)
+                r["w"].append(sub.n_rows / max(1.2 * st.coarse_blocks + st.columns + st.guess_columns, 1))
+                got = {int(e): float(c) for e, c in zip(res.end, res.cost)}
+                for e, c in zip(ref.end.tolist(), ref.cost.tolist()):
+                    r["hit"].append(e in got)
+                    if e in got:
+                        r["a"].append(c)
+                        r["b"].append(got[e])
+        for name, r in stats.items():
+            rho = spearmanr(r["a"], r["b"]).statistic if len(r["a"]) > 2 else float("nan")
+            echo(f"    {m:>4} f {name:<36} {np.mean(r['hit']):>7.3f} {rho:>7.4f} {np.mean(r['full']):>5.2f} "
+                 f"{np.median(r['w']):>9.1f} {np.median(t_ref) / np.median(r['t']):>9.1f}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one 60,000-frame database, 8 queries per length")
@@ -233,6 +291,8 @@ def main(argv=None) -> int:
                     help="also the bounded approximation (certified search pruning at (1+eps) LB > tau) with these eps")
     ap.add_argument("--certified-only", action="store_true",
                     help="only sDTW, the default, the certified search (with counted work) and the --approx variants")
+    ap.add_argument("--hidden", type=int, default=0,
+                    help="only the hidden-source benchmark (recall, rho, speed) with this many queries per length")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     sizes = args.sizes or ([60_000] if args.quick else [380_813, 1_038_388])
@@ -241,6 +301,11 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     print("LNG (kNN + graph + path) vs subsequence DTW; F_E^15; kd-tree; one thread; median ms per query")
     for n in sizes:
+        if args.hidden:
+            names: list = []
+            space = database_space(n, names=names)
+            bench_hidden(space, names, (30, 90), args.hidden, rng)
+            continue
         space = database_space(n)
         ann = None
         if args.ann:

@@ -261,3 +261,23 @@ def test_bounded_approximation_guarantee(seed, approx):
         assert got.cost[-1] <= (1.0 + approx) * ref.cost[-1] * (1 + 1e-9)
         if ref.cost[-1] * (1.0 + approx) <= st.tau:
             same(got, ref)
+
+
+def test_matcher_default_is_exactly_sdtw_on_a_pruned_search():
+    # what the default promises (matchers.lng: exact true, approx 0): subsequence DTW's matches,
+    # here on a database large enough (> DIRECT_CELLS) that the pruned coarse-to-fine search runs
+    from mocapflow.plugins.similarity.exact import DIRECT_CELLS
+    from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
+
+    p = LazyNeighborhoodGraph.Params()
+    assert p.exact and p.approx == 0.0
+    clip_id, frame, x = make_db([500] * 90, seed=5)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    q = (x[1000:1050] + np.random.default_rng(5).normal(0, 0.2, (50, 3))).astype(np.float32)
+    assert len(x) * len(q) > DIRECT_CELLS
+    st = ExactStats()
+    got = certified_sdtw(q, space, count=p.count, min_span=p.min_span, approx=p.approx, stats=st)
+    same(got, subsequence_dtw(q, space, count=p.count, min_span=p.min_span))
+    same(lazy_neighborhood_graph(q, space, count=p.count, min_span=p.min_span, approx=p.approx),
+         subsequence_dtw(q, space, count=p.count, min_span=p.min_span))
+    assert st.coarse_blocks > 0 and st.columns < len(x)

@@ -22,6 +22,13 @@ cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``,
    ``max_cost`` (or unbounded: the whole DP, plain sDTW). Below :data:`DIRECT_CELLS` DP
    cells, and once half the rows are alive (:data:`FULL_FROM`), the whole DP runs at once.
 
+``approx > 0`` is the bounded approximation: a block is pruned when ``(1 + approx) * LB >
+tau``; every match is still a real alignment with its exact cost, the ``count``-th cost is
+at most ``(1 + approx)`` times sDTW's, and the result is sDTW's whenever sDTW's ``count``-th
+cost is at most ``tau / (1 + approx)`` (``approx = inf``: the seed windows alone). Measured
+(docs/global-matching.md): with the recall constraint (>= 0.95 of sDTW's top-10, chosen leave
+one actor out: 0.15) it saves 0-30 % of the time, so the default stays exact.
+
 Measured and dropped: the bound suggested first (the sum of the remaining query frames'
 1-NN distances, or per run of rows the k-th neighbour distance, with the first row's
 surviving cells from a radius query): with k = 256 on 380,813 rows the k-th neighbour
@@ -107,7 +114,8 @@ def _query_params(index) -> frozenset:
 _QUERY_PARAMS: dict = {}
 
 
-def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> tuple[float, np.ndarray]:
+def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=None,
+              k_per=None) -> tuple[float, tuple]:
     """A threshold from real alignments around the nearest neighbours of a few query frames.
 
     :data:`SEED_FRAMES` query frames spread over the query (first and last included) get
@@ -119,8 +127,8 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> tuple[f
     from ._coarse_kernels import sdtw_ranges_compact
 
     m, n = len(q), space.n_rows
-    frames = np.unique(np.linspace(0, m - 1, SEED_FRAMES).round().astype(np.int64))
-    kk = min(n, SEED_K * count)
+    frames = np.unique(np.linspace(0, m - 1, n_frames or SEED_FRAMES).round().astype(np.int64))
+    kk = min(n, (k_per or SEED_K) * count)
     qs = np.ascontiguousarray(q[frames])
     if "workers" in _query_params(space.index):  # a few queries: waking threads costs more than it saves
         _, ids = space.index.query(qs, kk, workers=1)
@@ -191,7 +199,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                    top: int | None = None, graph=None, stats: ExactStats | None = None,
                    full_from: float | None = None, seeds: bool = True,
                    levels: tuple[int, ...] | None = None, direct_cells: int | None = None,
-                   approx: float = 0.0) -> QueryMatches:
+                   approx: float = 0.0, seed_frames: int | None = None, seed_k: int | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -235,6 +243,9 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         alignment with its exact cost, the ``count``-th cost is at most ``(1 + approx)`` times
         sDTW's, and the result is sDTW's whenever sDTW's ``count``-th cost is at most
         ``tau / (1 + approx)``.
+    seed_frames, seed_k : int, optional
+        (Defaults :data:`SEED_FRAMES`, :data:`SEED_K`.) Query frames searched for the seeds, and
+        neighbours per frame (times ``count``).
     """
     from ._coarse_kernels import coarse_bounds, sdtw_ranges_compact
     from ._dtw_kernels import dtw_window_path
@@ -272,7 +283,8 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         if found is not None and len(found) == count:
             tau = float(found.cost[-1])
         elif top and space.index is not None and seeds:
-            tau, seeded = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st)
+            tau, seeded = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, seed_frames,
+                                     seed_k)
         if not np.isfinite(tau) and top:
             bs = levels[0]
             lb_top = coarse_bounds(qt, bs[1], bs[2], bs[3], np.array([[0, len(bs[1])]], np.int64), _SHRINK)
