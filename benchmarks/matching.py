@@ -227,6 +227,8 @@ HIDDEN_METHODS = {
     "approx 0.5": {"approx": 0.5},
     "approx inf (seed windows only)": {"approx": np.inf},
     "seed windows only, 5 x 20 x count": {"approx": np.inf, "seed_k": 20},
+    "certified, levels 512/64/16/4/2": {"levels": (512, 64, 16, 4, 2)},
+    "certified, levels 256/32/8/2": {"levels": (256, 32, 8, 2)},
 }
 
 
@@ -293,6 +295,8 @@ def main(argv=None) -> int:
                     help="only sDTW, the default, the certified search (with counted work) and the --approx variants")
     ap.add_argument("--hidden", type=int, default=0,
                     help="only the hidden-source benchmark (recall, rho, speed) with this many queries per length")
+    ap.add_argument("--hidden-methods", nargs="*", default=None,
+                    help="only the hidden-source methods whose label contains one of these words")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     sizes = args.sizes or ([60_000] if args.quick else [380_813, 1_038_388])
@@ -300,6 +304,9 @@ def main(argv=None) -> int:
     n_x = args.exact or (3 if args.quick else 6)
     rng = np.random.default_rng(args.seed)
     print("LNG (kNN + graph + path) vs subsequence DTW; F_E^15; kd-tree; one thread; median ms per query")
+    if args.hidden_methods:
+        for k in [k for k in HIDDEN_METHODS if not any(w in k for w in args.hidden_methods)]:
+            del HIDDEN_METHODS[k]
     for n in sizes:
         if args.hidden:
             names: list = []
