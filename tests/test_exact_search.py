@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from naive.dtw import continues_of, naive_blocks, naive_through_cell
+from naive.dtw import continues_of, naive_blocks, naive_through_cell, naive_window_cost
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
@@ -212,23 +212,6 @@ def test_certified_equals_sdtw_on_hdm05():
             same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))
 
 
-def _window_cost(q, x, s, e):
-    """Exact DTW cost of the best warping path from row ``s`` to row ``e`` (both ends pinned), naive."""
-    w = x[s : e + 1]
-    D = np.full((len(q), len(w)), np.inf)
-    for j in range(len(w)):
-        for i in range(len(q)):
-            c = float(np.sqrt(np.sum((np.float64(q[i]) - np.float64(w[j])) ** 2)))
-            if i == 0:
-                D[i, j] = c if j == 0 else D[i, j - 1] + c
-                continue
-            best = D[i - 1, j]
-            if j > 0:
-                best = min(best, D[i - 1, j - 1], D[i, j - 1])
-            D[i, j] = best + c
-    return D[-1, -1]
-
-
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("approx", [0.0, 0.1, 0.5, 2.0, np.inf])
 def test_bounded_approximation_guarantee(seed, approx):
@@ -256,7 +239,7 @@ def test_bounded_approximation_guarantee(seed, approx):
         assert np.all(got.start[o][1:] >= got.end[o][:-1])  # non-overlapping
         for s, e, c, p in zip(got.start, got.end, got.cost, got.paths):
             assert c >= best_end[e - 1] - 1e-9  # never below sDTW's best path into that end row
-            np.testing.assert_allclose(c, _window_cost(q, x, s, e - 1), rtol=1e-5)  # a real alignment, exact cost
+            np.testing.assert_allclose(c, naive_window_cost(q, x[s:e]), rtol=1e-5)  # a real alignment, exact cost
             assert p[0, 1] == s and p[-1, 1] == e - 1
         assert got.cost[-1] <= (1.0 + approx) * ref.cost[-1] * (1 + 1e-9)
         if ref.cost[-1] * (1.0 + approx) <= st.tau:
