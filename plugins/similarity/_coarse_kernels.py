@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-_FAST = {"reassoc", "contract", "nsz", "arcp"}  # as _dtw_kernels.sdtw_forward (same arithmetic)
+from ._dtw_kernels import _FAST, sdtw_column  # same fastmath flags: the same arithmetic
 
 
 @njit(cache=True)
@@ -159,14 +159,18 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
 def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compiled
     """The fine DP over row ranges, returning only the rows inside them (no O(n) arrays).
 
+    Each range ``[a, b)`` of ``ranges`` (int64 (r, 2), ascending and disjoint) starts afresh:
+    no path enters it from before. The columns are :func:`._dtw_kernels.sdtw_column`, the
+    whole-array DP's, so an end row whose best path lies inside its range gets exactly
+    ``sdtw_forward``'s values (bit for bit; ``tests/test_exact_search.py``).
+
     Returns
     -------
     rows : int64 (p,)   the rows of the ranges, in order
     cost : float64 (p,), start : int64 (p,), length : int64 (p,)
-        the whole-array DP's values at those rows (same arithmetic, bit for bit; ``tests/naive/coarse.py``).
+        the best path ending in each of those rows, inside its range
     """
     d, m = qt.shape
-    inf = np.inf
     p = 0
     for r in range(ranges.shape[0]):
         p += ranges[r, 1] - ranges[r, 0]
@@ -174,7 +178,7 @@ def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compil
     cost = np.empty(p)
     start = np.empty(p, np.int64)
     length = np.empty(p, np.int64)
-    prev_c = np.full(m, inf)
+    prev_c = np.full(m, np.inf)
     prev_s = np.zeros(m, np.int64)
     prev_l = np.zeros(m, np.int64)
     cur_c = np.empty(m)
@@ -183,47 +187,11 @@ def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compil
     col = np.empty(m, np.float32)
     o = 0
     for r in range(ranges.shape[0]):
-        for i in range(m):
-            prev_c[i] = inf
-        for j in range(ranges[r, 0], ranges[r, 1]):
-            for i in range(m):
-                col[i] = 0.0
-            for k in range(d):
-                xk = x[j, k]
-                for i in range(m):
-                    t = qt[k, i] - xk
-                    col[i] += t * t
-            for i in range(m):
-                col[i] = np.sqrt(col[i])
-            if clip_start[j]:
-                for i in range(m):
-                    prev_c[i] = inf
-            cur_c[0] = col[0]
-            cur_s[0] = j
-            cur_l[0] = 1
-            for i in range(1, m):
-                a = prev_c[i - 1]
-                b = prev_c[i]
-                v = b < a
-                cur_c[i] = b if v else a
-                cur_s[i] = prev_s[i] if v else prev_s[i - 1]
-                cur_l[i] = prev_l[i] if v else prev_l[i - 1]
-            c = cur_c[0]
-            s = cur_s[0]
-            ln = cur_l[0]
-            for i in range(1, m):
-                b = cur_c[i]
-                h = c < b
-                s = s if h else cur_s[i]
-                ln = (ln if h else cur_l[i]) + 1
-                c = (c if h else b) + np.float64(col[i])
-                cur_c[i] = c
-                cur_s[i] = s
-                cur_l[i] = ln
+        a = ranges[r, 0]
+        for j in range(a, ranges[r, 1]):
             rows[o] = j
-            cost[o] = c
-            start[o] = s
-            length[o] = ln
+            cost[o], start[o], length[o] = sdtw_column(qt, x, j, j == a or clip_start[j], prev_c, prev_s, prev_l,
+                                                       cur_c, cur_s, cur_l, col)
             o += 1
             prev_c, cur_c = cur_c, prev_c
             prev_s, cur_s = cur_s, prev_s
