@@ -11,17 +11,16 @@ every fine path through a cell of block ``b`` at query frame ``i`` costs at leas
 ``F(i, b) + G(i, b) - c(i, b)``; blocks where that exceeds ``tau`` for every ``i`` hold no
 cell of any path of cost <= ``tau``. The search uses :func:`coarse_bounds` (the bound per
 block over block ranges, for a hierarchy of levels) and then the fine DP over the remaining
-blocks only, :func:`sdtw_ranges_compact`, with the arithmetic and tie order of
-:func:`._dtw_kernels.sdtw_forward`. The whole-array forms of both (``coarse_alive``,
-``sdtw_ranges``) are the tests' oracles in ``tests/naive/coarse.py``.
-Reference: ``tests/naive/dtw.py``; proof in ``docs/global-matching.md``.
+blocks only, :func:`._dtw_kernels.sdtw_ranges_compact` (the columns of
+:func:`._dtw_kernels.sdtw_forward`). References written from the definitions (full
+matrices, brute-force boxes): ``tests/naive/coarse.py``; proof in ``docs/global-matching.md``.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from ._dtw_kernels import _FAST, sdtw_column  # same fastmath flags: the same arithmetic
+from ._dtw_kernels import _FAST  # the fine DP's fastmath flags: the same float32 box arithmetic
 
 
 @njit(cache=True)
@@ -153,47 +152,3 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
                 low = min(low, f[bb, i] + g[bb, i] - c[bb, i])
             lb[b0 + bb] = low
     return lb
-
-
-@njit(cache=True, fastmath=_FAST)
-def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compiled
-    """The fine DP over row ranges, returning only the rows inside them (no O(n) arrays).
-
-    Each range ``[a, b)`` of ``ranges`` (int64 (r, 2), ascending and disjoint) starts afresh:
-    no path enters it from before. The columns are :func:`._dtw_kernels.sdtw_column`, the
-    whole-array DP's, so an end row whose best path lies inside its range gets exactly
-    ``sdtw_forward``'s values (bit for bit; ``tests/test_exact_search.py``).
-
-    Returns
-    -------
-    rows : int64 (p,)   the rows of the ranges, in order
-    cost : float64 (p,), start : int64 (p,), length : int64 (p,)
-        the best path ending in each of those rows, inside its range
-    """
-    d, m = qt.shape
-    p = 0
-    for r in range(ranges.shape[0]):
-        p += ranges[r, 1] - ranges[r, 0]
-    rows = np.empty(p, np.int64)
-    cost = np.empty(p)
-    start = np.empty(p, np.int64)
-    length = np.empty(p, np.int64)
-    prev_c = np.full(m, np.inf)
-    prev_s = np.zeros(m, np.int64)
-    prev_l = np.zeros(m, np.int64)
-    cur_c = np.empty(m)
-    cur_s = np.empty(m, np.int64)
-    cur_l = np.empty(m, np.int64)
-    col = np.empty(m, np.float32)
-    o = 0
-    for r in range(ranges.shape[0]):
-        a = ranges[r, 0]
-        for j in range(a, ranges[r, 1]):
-            rows[o] = j
-            cost[o], start[o], length[o] = sdtw_column(qt, x, j, j == a or clip_start[j], prev_c, prev_s, prev_l,
-                                                       cur_c, cur_s, cur_l, col)
-            o += 1
-            prev_c, cur_c = cur_c, prev_c
-            prev_s, cur_s = cur_s, prev_s
-            prev_l, cur_l = cur_l, prev_l
-    return rows, cost, start, length

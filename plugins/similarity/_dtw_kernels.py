@@ -137,6 +137,53 @@ def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
     return cost, start, length
 
 
+@njit(cache=True, fastmath=_FAST)
+def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compiled
+    """The fine DP over row ranges, returning only the rows inside them (no O(n) arrays).
+
+    Each range ``[a, b)`` of ``ranges`` (int64 (r, 2), ascending and disjoint) starts afresh:
+    no path enters it from before. The columns are :func:`sdtw_column`, the
+    whole-array DP's, so an end row whose best path lies inside its range gets exactly
+    ``sdtw_forward``'s values (bit for bit; ``tests/test_exact_search.py``). Used by the
+    certified search (:mod:`.exact`) on the rows its coarse bound keeps. It lives here, in
+    ``sdtw_column``'s module, because Numba's cache invalidates on the caller's file only:
+    an inlined column edited in another module would leave a stale compiled caller.
+
+    Returns
+    -------
+    rows : int64 (p,)   the rows of the ranges, in order
+    cost : float64 (p,), start : int64 (p,), length : int64 (p,)
+        the best path ending in each of those rows, inside its range
+    """
+    d, m = qt.shape
+    p = 0
+    for r in range(ranges.shape[0]):
+        p += ranges[r, 1] - ranges[r, 0]
+    rows = np.empty(p, np.int64)
+    cost = np.empty(p)
+    start = np.empty(p, np.int64)
+    length = np.empty(p, np.int64)
+    prev_c = np.full(m, np.inf)
+    prev_s = np.zeros(m, np.int64)
+    prev_l = np.zeros(m, np.int64)
+    cur_c = np.empty(m)
+    cur_s = np.empty(m, np.int64)
+    cur_l = np.empty(m, np.int64)
+    col = np.empty(m, np.float32)
+    o = 0
+    for r in range(ranges.shape[0]):
+        a = ranges[r, 0]
+        for j in range(a, ranges[r, 1]):
+            rows[o] = j
+            cost[o], start[o], length[o] = sdtw_column(qt, x, j, j == a or clip_start[j], prev_c, prev_s, prev_l,
+                                                       cur_c, cur_s, cur_l, col)
+            o += 1
+            prev_c, cur_c = cur_c, prev_c
+            prev_s, cur_s = cur_s, prev_s
+            prev_l, cur_l = cur_l, prev_l
+    return rows, cost, start, length
+
+
 @njit(cache=True)
 def dtw_window_path(q, w):  # pragma: no cover - compiled
     """Warping path of the best alignment of ``q`` onto all of ``w``.

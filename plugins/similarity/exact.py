@@ -14,7 +14,7 @@ cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``,
    (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level
    (:data:`LEVELS`: blocks of 512, 64, 16, 4 rows), each level only over the runs of
    blocks still alive (bound <= ``tau``) at the level above;
-3. the fine DP (:func:`._coarse_kernels.sdtw_ranges_compact`, the arithmetic of
+3. the fine DP (:func:`._dtw_kernels.sdtw_ranges_compact`, the arithmetic of
    ``sdtw_forward``) runs over the rows still alive; every end row whose best path costs
    <= ``tau`` gets exactly sDTW's cost, start and length;
 4. the same greedy selection on those candidates yields ``count`` matches, which are then
@@ -124,7 +124,7 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=N
     query frame, so the fine DP runs over those windows (merged). Returns the
     ``count``-th cost of their selection, or inf when it holds fewer.
     """
-    from ._coarse_kernels import sdtw_ranges_compact
+    from ._dtw_kernels import sdtw_ranges_compact
 
     m, n = len(q), space.n_rows
     frames = np.unique(np.linspace(0, m - 1, n_frames or SEED_FRAMES).round().astype(np.int64))
@@ -167,7 +167,7 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
     matches the last one's cost is returned, else four times more blocks are tried. Any
     value is safe (the caller verifies it); a low one prunes more.
     """
-    from ._coarse_kernels import sdtw_ranges_compact
+    from ._dtw_kernels import sdtw_ranges_compact
 
     bstart, _, _, link = blocks
     nb = len(lb)
@@ -247,8 +247,8 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         (Defaults :data:`SEED_FRAMES`, :data:`SEED_K`.) Query frames searched for the seeds, and
         neighbours per frame (times ``count``).
     """
-    from ._coarse_kernels import coarse_bounds, sdtw_ranges_compact
-    from ._dtw_kernels import dtw_window_path
+    from ._coarse_kernels import coarse_bounds
+    from ._dtw_kernels import dtw_window_path, sdtw_ranges_compact
     from .graph import build_graph
     from .sdtw import validate_query
 
