@@ -24,6 +24,18 @@ from numba import njit
 _FAST = {"reassoc", "contract", "nsz", "arcp"}
 
 
+@njit(cache=True, inline="always")
+def column_buffers(m):  # pragma: no cover - compiled
+    """The two DP columns of :func:`sdtw_column` and its distance scratch, for a query of ``m`` frames.
+
+    Returns ``prev_c, prev_s, prev_l`` (column ``j - 1``: inf, as before the first row),
+    ``cur_c, cur_s, cur_l`` (filled by the column) and ``col``: float64 / int64 / int64 (m,)
+    each, ``col`` float32 (m,).
+    """
+    return (np.full(m, np.inf), np.zeros(m, np.int64), np.zeros(m, np.int64),
+            np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.float32))
+
+
 @njit(cache=True, fastmath=_FAST, inline="always")
 def sdtw_column(qt, x, j, fresh, prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col):  # pragma: no cover - compiled
     """One column of the DP: database row ``j`` from column ``j - 1`` (the recurrence above).
@@ -116,18 +128,12 @@ def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
     Memory is O(m + n): two columns of the DP and the three outputs; each column is
     :func:`sdtw_column`.
     """
-    d, m = qt.shape
+    m = qt.shape[1]
     n = x.shape[0]
     cost = np.empty(n, np.float64)
     start = np.empty(n, np.int64)
     length = np.empty(n, np.int64)
-    prev_c = np.full(m, np.inf)
-    prev_s = np.zeros(m, np.int64)
-    prev_l = np.zeros(m, np.int64)
-    cur_c = np.empty(m)
-    cur_s = np.empty(m, np.int64)
-    cur_l = np.empty(m, np.int64)
-    col = np.empty(m, np.float32)
+    prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col = column_buffers(m)
     for j in range(n):
         cost[j], start[j], length[j] = sdtw_column(qt, x, j, clip_start[j], prev_c, prev_s, prev_l, cur_c, cur_s,
                                                    cur_l, col)
@@ -155,7 +161,7 @@ def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compil
     cost : float64 (p,), start : int64 (p,), length : int64 (p,)
         the best path ending in each of those rows, inside its range
     """
-    d, m = qt.shape
+    m = qt.shape[1]
     p = 0
     for r in range(ranges.shape[0]):
         p += ranges[r, 1] - ranges[r, 0]
@@ -163,13 +169,7 @@ def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compil
     cost = np.empty(p)
     start = np.empty(p, np.int64)
     length = np.empty(p, np.int64)
-    prev_c = np.full(m, np.inf)
-    prev_s = np.zeros(m, np.int64)
-    prev_l = np.zeros(m, np.int64)
-    cur_c = np.empty(m)
-    cur_s = np.empty(m, np.int64)
-    cur_l = np.empty(m, np.int64)
-    col = np.empty(m, np.float32)
+    prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col = column_buffers(m)
     o = 0
     for r in range(ranges.shape[0]):
         a = ranges[r, 0]
