@@ -72,10 +72,11 @@ def block_boxes(x, continues, size):  # pragma: no cover - compiled
 def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - compiled
     """Lower bound ``min_i F(i, b) + G(i, b) - c(i, b)`` of every path through block ``b``.
 
-    Like the whole-array ``coarse_alive`` of ``tests/naive/coarse.py``, but over the block ranges ``[a, b)`` of ``branges`` only,
-    each started afresh (its first block is taken as unlinked: no path of cost <= ``tau``
-    enters it from a block ruled out at a coarser level), and returning the bound itself
-    (so blocks can be ranked, and tested against any ``tau``). Same recursion; each column
+    Over the block ranges ``[a, b)`` of ``branges`` only, each started afresh (its first
+    block is taken as unlinked: no path of cost <= ``tau`` enters it from a block ruled out
+    at a coarser level); the bound itself is returned (so blocks can be ranked, and tested
+    against any ``tau``). Reference: ``naive_coarse_bounds`` in ``tests/naive/coarse.py``
+    (float64, cell by cell). Same recursion as the fine DP; each column
     update is split, as in ``sdtw_forward``, into a vectorisable min over the previous
     block and the serial chain along the query.
 
