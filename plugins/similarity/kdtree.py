@@ -355,10 +355,30 @@ class KDTreeIndex(Index):
         d.mkdir(parents=True, exist_ok=True)
         for a in _ARRAYS:
             np.save(d / f"{a.rstrip('_')}.npy", getattr(self, a))
+        # the rows in dataset order (features, clip id, frame) beside the tree: `mocapflow
+        # search` memory-maps them instead of decoding the features Parquet (1 s at 1 M rows)
+        inv = self._inverse_perm()
+        for name, arr in (("rows_features", self.data_), ("rows_clip_id", self.groups_), ("rows_frame", self.frames_)):
+            np.save(d / f"{name}.npy", arr[inv])
         meta = {"component": self.key(), "params": self.get_params(), "method": self.method_,
                 "brute_from_k": self.brute_from_k_, "large_method": getattr(self, "large_method_", "brute"),
                 "probe": self.probe_}
         (d / "index.json").write_text(json.dumps(meta, indent=1))
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(features, clip_id, frame)`` of the indexed rows in dataset order, memory-mapped
+        (copy-on-write) from the sidecar files :meth:`save` writes (``None`` for an index saved
+        before them, or one never saved): what a search space needs, with nothing copied.
+
+        Returns
+        -------
+        tuple of ndarray (n, d) float32, (n,) int32, (n,) int32, or None
+        """
+        d = getattr(self, "_dir", None)
+        if d is None or not all((d / f"rows_{n}.npy").is_file() for n in ("features", "clip_id", "frame")):
+            return None
+        # copy-on-write like the tree arrays: writable ndarrays (the kernels' one signature), never written
+        return tuple(np.load(d / f"rows_{n}.npy", mmap_mode="c").view(np.ndarray) for n in ("features", "clip_id", "frame"))
 
     @classmethod
     def load(cls, directory: Path) -> KDTreeIndex:
@@ -374,6 +394,7 @@ class KDTreeIndex(Index):
             setattr(self, a, arr.view(np.ndarray) if isinstance(arr, np.memmap) else arr)
         self.method_, self.probe_, self.brute_from_k_ = meta["method"], meta["probe"], meta.get("brute_from_k")
         self.large_method_ = meta.get("large_method", "brute")
+        self._dir = d
         return self
 
     # --- pipeline step ----------------------------------------------------------------
