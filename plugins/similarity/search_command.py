@@ -77,7 +77,7 @@ class SearchCommand:
         if args.serve:
             from .search_server import serve
 
-            return serve(args)
+            return serve(args, SearchSession)
         if not args.query:
             raise ConfigError("--query is required (except with --serve)")
         if args.server:

@@ -117,14 +117,13 @@ def warm_up(session) -> float:
     return time.perf_counter() - t0
 
 
-def serve(args: argparse.Namespace) -> int:
-    """``mocapflow search --db WS --serve``: answer searches on ``WS/.search.sock``."""
+def serve(args: argparse.Namespace, session_cls) -> int:
+    """``mocapflow search --db WS --serve``: answer searches on ``WS/.search.sock`` with
+    ``session_cls`` (:class:`~.search_command.SearchSession`, passed in: no import cycle)."""
     from mocapflow.framework.errors import ConfigError
 
-    from .search_command import SearchSession
-
     def make_session():
-        return SearchSession(args.db, args.index, entry_points=not getattr(args, "no_entry_points", False),
+        return session_cls(args.db, args.index, entry_points=not getattr(args, "no_entry_points", False),
                              blocked=list(getattr(args, "block", None) or []))
 
     path = socket_path(args.db)
@@ -153,6 +152,16 @@ def serve(args: argparse.Namespace) -> int:
     print(f"mocapflow: search server on {path} ({box[0].idx.step!r}, warm in {warm:.2f} s); Ctrl-C stops it",
           file=sys.stderr, flush=True)
     served = 0
+
+    def stop(*_):
+        raise KeyboardInterrupt
+
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):  # also when started in the background (SIGINT ignored)
+            signal.signal(sig, stop)  # a service manager's stop cleans up as Ctrl-C does
     try:
         while True:
             try:
