@@ -7,8 +7,11 @@ context, :meth:`.calibration.Calibration.detect` flags the take's cells and
 :func:`.bounded_repair.bounded_repair` repairs them (swaps found by their edges,
 :mod:`.swaps`; offsets between two consistent jumps, :mod:`.offsets`; the KNN word
 otherwise). ``agree`` drops runs only the digression flagged that no other cue backs;
-``flag_rule: repaired`` reports only the flags whose repair held up. Both carry the repair to the input
-frames with :func:`.repair.apply_to_input`.
+``flag_rule: repaired`` reports only the flags whose repair held up. Session 4 (docs/cleaning.md):
+``acc_persist`` caps the acceleration cue of isolated kinks at the take (fitted without it),
+``acc_body`` drops the acceleration flags of whole-body jolts, ``freeze_still`` grows freeze
+flags over the still interval, ``flag_min_deg`` reports only edits of an error's size. Both
+modes carry the repair to the input frames with :func:`.repair.apply_to_input`.
 """
 from __future__ import annotations
 
