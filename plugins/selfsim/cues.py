@@ -206,8 +206,8 @@ def persistent(x: np.ndarray, factor: float) -> np.ndarray:
     return np.minimum(x, factor * nb)
 
 
-def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = None
-               ) -> np.ndarray:
+def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = None,
+               jitter_half: int = 3) -> np.ndarray:
     """The calibrated detector's cues :data:`CUES`, shape (T, m, 6), unitless.
 
     * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
@@ -219,7 +219,7 @@ def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_per
     * mirror: the chain-pair mirror gain in units of six typical digressions;
     * freeze: the log speed ratio (consensus over take);
     * range: the rotation-vector excess over the context's range, in units of 0.1 rad;
-    * jitter: the median, over the 7 frames centred on the cell, of the acceleration cue
+    * jitter: the median, over the ``2 jitter_half + 1`` frames centred on the cell, of the acceleration cue
       (before ``acc_persist``): high-frequency energy that lasts (jitter, tremor-like noise)
       where a clean joint has at most an isolated kink. Its null is the context's, like
       every cue's (:mod:`.calibration`).
@@ -228,7 +228,7 @@ def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_per
     group = np.maximum(np.median(d, axis=1, keepdims=True), 1.0)
     dig = window_min(d, 1) / group
     acc = np.maximum(cue["acceleration"] - cue["expected_acc"], 0.0) / scale["acceleration"]
-    jit = window_median(acc, 3)
+    jit = window_median(acc, jitter_half)
     if acc_persist is not None:
         acc = persistent(acc, acc_persist)
     mir = cue["mirror"] / np.maximum(6.0 * np.median(scale["digression"]), 1e-3)

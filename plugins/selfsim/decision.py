@@ -189,7 +189,8 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         cal = calibration if calibration is not None else calibrate(motion, others, analyser.analyse, res.joints, p.fps,
                         false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
                         seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues,
-                        acc_persist=p.acc_persist if p.acc_persist_fit else None)
+                        acc_persist=p.acc_persist if p.acc_persist_fit else None,
+                        jitter_half=p.jitter_half)
         if p.acc_persist is not None and not p.acc_persist_fit:
             # the persistence rule only removes flags: fitted without it, applied to the take
             cal = dataclasses.replace(cal, acc_persist=p.acc_persist)

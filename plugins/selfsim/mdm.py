@@ -130,6 +130,8 @@ class MDMParams(Params):
     acc_persist_fit: bool = Field(default=False, description="calibrated: fit the cue weights with acc_persist "
                                   "applied (True) or fit without it and apply it to the take only (False: the rule "
                                   "then only removes flags)")
+    jitter_half: int = Field(default=4, ge=1, description="calibrated: the jitter cue is the median of the "
+                             "acceleration cue over 2 jitter_half + 1 frames")
     acc_body: int | None = Field(default=3, ge=2, description="calibrated: at frames where at least this many "
                                  "joints are flagged by the acceleration cue (a jolt of the whole body), those "
                                  "flags are dropped; None = off")
