@@ -93,7 +93,7 @@ def install_cache(folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     original = mdm.digression_map
     decision_only = {"mode", "false_alarm", "null_quantile", "calibration_frames", "calibration_density",
-                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "write_bvh", "heatmaps", "threshold",
+                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
                      "savgol_window", "savgol_order", "include_self"}
 
     def cached(motion, context=None, params=None):

@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 from naive.cleaning import synthetic_walk
-from naive.cleaning_cues import naive_acceleration, naive_mirror_gain, naive_window_min, naive_word_joint
+from naive.cleaning_cues import (naive_acceleration, naive_mirror_gain, naive_persistent, naive_window_median,
+                                 naive_window_min, naive_word_joint)
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.plugins.selfsim.error_injection import inject_at_density
@@ -31,9 +32,36 @@ def test_cues_match_naive_references():
     mq = _rand_quats(rng, (12, 7))
     np.testing.assert_allclose(cues.mirror_gain(q, mq, joints), naive_mirror_gain(q, mq, joints, cues.MIRROR_CHAINS,
                                                                                   np.deg2rad(5.0)), atol=1e-7)
+    for half in (1, 3):
+        np.testing.assert_allclose(cues.window_median(x, half), naive_window_median(x, half))
+    for factor in (1.5, 2.0):
+        np.testing.assert_allclose(cues.persistent(x, factor), naive_persistent(x, factor))
     mask = rng.random((40, 3)) > 0.95
     for t in (40, 37, 15, 9):
         np.testing.assert_array_equal(word_joint(mask[:t]), naive_word_joint(mask[:t], 15, 5))
+
+
+def test_persistence_keeps_spikes_and_steps_and_cuts_isolated_kinks():
+    x = np.zeros((30, 3))
+    x[9:12, 0] = [0.5, 1.0, 0.5]  # a spike: half its acceleration on each side
+    x[19:21, 1] = [0.5, 0.5]  # a step (the edge of an offset): two equal frames
+    x[5, 2] = 1.0  # a kink of a clean fast joint: one frame
+    p = cues.persistent(x, 2.0)
+    assert p[10, 0] == 1.0 and np.all(p[19:21, 1] == 0.5) and p[5, 2] == 0.0
+
+
+def test_jitter_cue_lasts_where_a_kink_does_not():
+    rng = np.random.default_rng(3)
+    acc = np.zeros((60, 2))
+    acc[20:34, 0] = rng.uniform(2.0, 4.0, 14)  # jitter: acceleration on every frame
+    acc[40, 1] = 8.0  # an isolated kink
+    cue = {"digression": np.full((60, 2), 0.1), "acceleration": acc, "expected_acc": np.zeros((60, 2)),
+           "mirror": np.zeros((60, 2)), "freeze": np.zeros((60, 2)), "range": np.zeros((60, 2))}
+    scale = {"digression": np.full(2, 0.1), "acceleration": np.ones(2), "spread": np.ones(2)}
+    v = cues.cue_values(cue, scale)
+    jit = v[..., cues.CUES.index("jitter")]
+    assert jit[24:30, 0].min() >= 2.0 and jit[:, 1].max() == 0.0
+    assert cues.cue_values(cue, scale, 2.0)[40, 1, cues.CUES.index("acceleration")] == 0.0
 
 
 def test_mirror_gain_sees_a_swap_only_where_it_is():

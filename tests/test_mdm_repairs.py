@@ -78,9 +78,12 @@ def test_cleaner_repairs_a_swap_found_by_its_edges_alone():
     out = clean_motion(cl, bad, ctx)
     tex = out.analysis.texture
     cols = [list(tex.joint_index).index(j) for j in left + right]
-    assert out.flags[80:100][:, cols].all()
-    assert set(out.cue[80:100][:, cols].ravel()) == {"mirror"}
     clean_tex = quat.make_continuous(walk.rotations, axis=0)[:, tex.joint_index]
+    # every cell the swap moved by an error's size is reported, and only as a swap (cells it
+    # moved less are swapped back too, not claimed: flag_min_deg)
+    moved = np.rad2deg(quat.geodesic_angle(tex.q[80:100][:, cols], clean_tex[80:100][:, cols])) >= 10.0
+    assert moved.sum() > 0.5 * moved.size and out.flags[80:100][:, cols][moved].all()
+    assert set(out.cue[80:100][:, cols][out.flags[80:100][:, cols]].ravel()) == {"mirror"}
     err = np.rad2deg(quat.geodesic_angle(out.repaired[80:100][:, cols], clean_tex[80:100][:, cols]))
     assert err.max() < 1.0
     # and the clean walk is left alone by the swap search
@@ -118,3 +121,35 @@ def test_digression_only_runs_need_another_cue():
     ev[13, 0, CUES.index("acceleration")] = 0.5  # the second run has a jump next to it
     out = _agreeing(flags, dom, ev, 0.3)
     assert not out[3:6, 0].any() and out[10:13, 0].all() and out[3:6, 1].all()
+
+
+def test_a_whole_body_jolt_is_no_joint_error():
+    from mocapflow.plugins.selfsim.cues import CUES
+    from mocapflow.plugins.selfsim.decision import _body_jolts_dropped
+
+    acc, dig = CUES.index("acceleration"), CUES.index("digression")
+    flags = np.zeros((10, 5), bool)
+    dom = np.full((10, 5), acc)
+    flags[4, :3] = True  # three joints jolt at once
+    flags[7, 1] = True  # one joint's spike
+    flags[4, 4], dom[4, 4] = True, dig  # another cue at the jolt frame is kept
+    out = _body_jolts_dropped(flags, dom, 3)
+    assert not out[4, :3].any() and out[7, 1] and out[4, 4]
+    assert np.array_equal(_body_jolts_dropped(flags, dom, 4), flags)
+
+
+def test_a_freeze_flag_grows_over_the_whole_still_interval():
+    from mocapflow.plugins.selfsim.cues import CUES
+    from mocapflow.plugins.selfsim.decision import _freezes_grown
+
+    walk = synthetic_walk(60, seed=1)
+    q = quat.make_continuous(walk.rotations, axis=0)[:, :3].copy()
+    q[20:35, 1] = q[20, 1]  # joint 1 frozen over frames 20-34
+    fz = CUES.index("freeze")
+    flags = np.zeros((60, 3), bool)
+    dom = np.full((60, 3), CUES.index("digression"))
+    flags[26:29, 1], dom[26:29, 1] = True, fz  # the freeze cue sees the middle only
+    flags[40, 0] = True  # a digression flag elsewhere is untouched
+    out, dom2 = _freezes_grown(flags, dom, q, np.deg2rad(0.05))
+    assert out[20:35, 1].all() and not out[:20, 1].any() and not out[35:, 1].any()
+    assert np.all(dom2[20:35, 1] == fz) and out[40, 0] and out.sum() == 16

@@ -51,7 +51,7 @@ CALIBRATION_RANGES: dict[str, tuple[tuple[int, int], tuple[float, float]]] = {
 CALIBRATION_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap")
 
 
-_FLOORS = np.array([1.0, 1.0, 0.2, 0.3, 0.5])  # least null level per cue (units of cue_values)
+_FLOORS = np.array([1.0, 1.0, 0.2, 0.3, 0.5, 0.5])  # least null level per cue (units of cue_values)
 _GRID = np.array([0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, 5.0, 6.4, 8.0, 12.0, np.inf])
 
 
@@ -157,6 +157,8 @@ class Calibration:
     source : str
         ``context`` (leave-one-clip-out on the context) or ``self`` (the take itself).
     clips : list of str
+    acc_persist : float or None
+        Persistence factor of the acceleration cue (:func:`.cues.persistent`).
     """
 
     scales: dict[str, np.ndarray]
@@ -170,6 +172,8 @@ class Calibration:
     false_alarm: float
     source: str
     clips: list[str] = field(default_factory=list)
+    acc_persist: float | None = None
+    jitter_half: int = 3
 
     def evidence(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str]) -> np.ndarray:
         """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags)."""
@@ -177,7 +181,7 @@ class Calibration:
         own = typical(cue)
         scale = {k: np.maximum(v, own[k]) for k, v in self.scales.items()}
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.nan_to_num(cue_values(cue, scale) / (self.levels * self.weights), nan=0.0, posinf=0.0)
+            return np.nan_to_num(cue_values(cue, scale, self.acc_persist, self.jitter_half) / (self.levels * self.weights), nan=0.0, posinf=0.0)
 
     def detect(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
                grow: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -284,7 +288,8 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
 
 
 def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, null_quantile: float = 0.99,
-                    cues: Sequence[str] = DEFAULT_CUES) -> Calibration:
+                    cues: Sequence[str] = DEFAULT_CUES, acc_persist: float | None = None,
+                    jitter_half: int = 3) -> Calibration:
     """Null scales and levels, and the cue weights, from :func:`calibration_material`
     (steps 3-4 of the module doc).
 
@@ -296,12 +301,17 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
         Quantile of a cue over a joint's clean calibration cells taken as its null level.
     cues : sequence of str
         Cues of :data:`.cues.CUES` the detector may use.
+    acc_persist : float or None
+        Persistence factor of the acceleration cue (:func:`.cues.persistent`; None = off).
+    jitter_half : int
+        Half window of the jitter cue (:func:`.cues.cue_values`).
     """
     cue_list, truth_list = material.cues, material.truth
     clean = [~t for t in truth_list]
     scales = {k: np.median(np.stack([typical(c, ok)[k] for c, ok in zip(cue_list, clean)]), axis=0)
               for k in ("digression", "acceleration", "spread")}
-    values = [cue_values(c, {k: np.maximum(v, typical(c)[k]) for k, v in scales.items()}) for c in cue_list]
+    values = [cue_values(c, {k: np.maximum(v, typical(c)[k]) for k, v in scales.items()}, acc_persist, jitter_half)
+              for c in cue_list]
     stacked = np.concatenate([np.where(ok[..., None], v, np.nan) for v, ok in zip(values, clean)], 0)
     levels = np.maximum(np.nan_to_num(np.nanquantile(stacked, null_quantile, axis=0), nan=0.0), _FLOORS)
     lam = fit_levels(values, levels, truth_list, false_alarm, use=[c in cues for c in CUES])
@@ -310,14 +320,15 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
     rec = sum(int((f & t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int(t.sum()) for t in wj_t), 1)
     fa = sum(int((f & ~t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int((~t).sum()) for t in wj_t), 1)
     return Calibration(scales, levels, lam, material.low, material.high, int(sum(t.size for t in truth_list)),
-                       int(sum(t.sum() for t in truth_list)), rec, fa, material.source, list(material.names))
+                       int(sum(t.sum() for t in truth_list)), rec, fa, material.source, list(material.names), acc_persist, jitter_half)
 
 
 def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
               false_alarm: float = 0.004, frames: int = 600, density: float = 0.2, seed: int = 0,
               null_quantile: float = 0.99, cues: Sequence[str] = DEFAULT_CUES,
-              texture: Callable | None = None) -> Calibration:
+              texture: Callable | None = None, acc_persist: float | None = None,
+              jitter_half: int = 3) -> Calibration:
     """:func:`calibration_material` then :func:`fit_calibration` (the module doc's steps)."""
     mat = calibration_material(take, others, analyse, joints, fps, frames=frames, density=density, seed=seed,
                                texture=texture)
-    return fit_calibration(mat, false_alarm, null_quantile, cues)
+    return fit_calibration(mat, false_alarm, null_quantile, cues, acc_persist, jitter_half)

@@ -24,7 +24,7 @@ spread         scatter of the KNN samples about T̄ (where neighbours disagree a
                means less)
 =============  ===========================================================================
 
-:func:`cue_values` turns them into the five cues of the calibrated detector (:data:`CUES`),
+:func:`cue_values` turns them into the six cues of the calibrated detector (:data:`CUES`),
 adding *persistence* (the digression must last 3 frames) and *group agreement* (divided by
 the frame's median over the joints).
 """
@@ -40,11 +40,11 @@ from mocapflow.framework import quaternions as quat
 RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirror", "range", "freeze", "spread")
 
 #: Cues of the calibrated detector (:func:`cue_values`), each with its own null and threshold.
-CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range")
+CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range", "jitter")
 
 #: Cues the default detector uses (the range cue of baseline (a) flags clean takes that
 #: merely leave a small context's range: see docs/cleaning.md).
-DEFAULT_CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze")
+DEFAULT_CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "jitter")
 
 #: Limb chains whose left/right exchange the mirror cue looks for (canonical names).
 MIRROR_CHAINS: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
@@ -189,8 +189,26 @@ def typical(cue: dict[str, np.ndarray], clean: np.ndarray | None = None) -> dict
     return out
 
 
-def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray]) -> np.ndarray:
-    """The calibrated detector's cues :data:`CUES`, shape (T, m, 5), unitless.
+def persistent(x: np.ndarray, factor: float) -> np.ndarray:
+    """``x`` (T, m) capped at ``factor`` times the larger of its two neighbours in time.
+
+    An injected spike of amplitude A at frame t shows an acceleration of about A at t and
+    A / 2 at t - 1 and t + 1 (the neighbours' midpoints hold half the spike); a step (the
+    edge of an offset or a swap) shows D / 2 at two consecutive frames; jitter lasts. A
+    clean fast joint's sharp turn (a knee at heel strike) is a kink: large at one frame,
+    little beside it. With ``factor`` 2 a spike keeps its whole value and an isolated kink
+    is cut down to twice its neighbours'."""
+    if len(x) < 2:
+        return x
+    nb = np.zeros_like(x)
+    nb[1:] = x[:-1]
+    nb[:-1] = np.maximum(nb[:-1], x[1:])
+    return np.minimum(x, factor * nb)
+
+
+def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = None,
+               jitter_half: int = 3) -> np.ndarray:
+    """The calibrated detector's cues :data:`CUES`, shape (T, m, 6), unitless.
 
     * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
       flickers), in units of the joint's typical digression, divided by the frame's median
@@ -200,11 +218,27 @@ def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray]) -> np.n
       typical acceleration;
     * mirror: the chain-pair mirror gain in units of six typical digressions;
     * freeze: the log speed ratio (consensus over take);
-    * range: the rotation-vector excess over the context's range, in units of 0.1 rad.
+    * range: the rotation-vector excess over the context's range, in units of 0.1 rad;
+    * jitter: the median, over the ``2 jitter_half + 1`` frames centred on the cell, of the acceleration cue
+      (before ``acc_persist``): high-frequency energy that lasts (jitter, tremor-like noise)
+      where a clean joint has at most an isolated kink. Its null is the context's, like
+      every cue's (:mod:`.calibration`).
     """
     d = cue["digression"] / scale["digression"]
     group = np.maximum(np.median(d, axis=1, keepdims=True), 1.0)
     dig = window_min(d, 1) / group
     acc = np.maximum(cue["acceleration"] - cue["expected_acc"], 0.0) / scale["acceleration"]
+    jit = window_median(acc, jitter_half)
+    if acc_persist is not None:
+        acc = persistent(acc, acc_persist)
     mir = cue["mirror"] / np.maximum(6.0 * np.median(scale["digression"]), 1e-3)
-    return np.stack([dig, acc, mir, cue["freeze"], cue["range"] / 0.1], axis=-1)
+    return np.stack([dig, acc, mir, cue["freeze"], cue["range"] / 0.1, jit], axis=-1)
+
+
+def window_median(x: np.ndarray, half: int) -> np.ndarray:
+    """Median over ``[t - half, t + half]`` along time, (T, m); the ends padded by reflection."""
+    if len(x) <= half:
+        return np.median(x, axis=0, keepdims=True).repeat(len(x), 0)
+    pad = np.concatenate([x[half:0:-1], x, x[-2:-half - 2:-1]], axis=0)
+    win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1, axis=0)
+    return np.median(win, axis=-1)

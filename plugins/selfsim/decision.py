@@ -7,11 +7,15 @@ context, :meth:`.calibration.Calibration.detect` flags the take's cells and
 :func:`.bounded_repair.bounded_repair` repairs them (swaps found by their edges,
 :mod:`.swaps`; offsets between two consistent jumps, :mod:`.offsets`; the KNN word
 otherwise). ``agree`` drops runs only the digression flagged that no other cue backs;
-``flag_rule: repaired`` reports only the flags whose repair held up. Both carry the repair to the input
-frames with :func:`.repair.apply_to_input`.
+``flag_rule: repaired`` reports only the flags whose repair held up. Session 4 (docs/cleaning.md):
+``acc_persist`` caps the acceleration cue of isolated kinks at the take (fitted without it),
+``acc_body`` drops the acceleration flags of whole-body jolts, ``freeze_still`` grows freeze
+flags over the still interval, ``flag_min_deg`` reports only edits of an error's size. Both
+modes carry the repair to the input frames with :func:`.repair.apply_to_input`.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -102,12 +106,49 @@ def _agreeing(flags: np.ndarray, dom: np.ndarray, ev: np.ndarray, level: float) 
 
     out = flags.copy()
     other = np.maximum(ev[..., CUES.index("acceleration")], ev[..., CUES.index("freeze")])
+    other = np.maximum(other, ev[..., CUES.index("jitter")])
     dig = CUES.index("digression")
     for j in np.flatnonzero(flags.any(axis=0)):
         for a, b in _runs(flags[:, j]):
             if np.all(dom[a:b, j] == dig) and not (other[max(0, a - 1):b + 1, j] > level).any():
                 out[a:b, j] = False
     return out
+
+
+def _body_jolts_dropped(flags: np.ndarray, dom: np.ndarray, least: int) -> np.ndarray:
+    """``flags`` without the acceleration flags of the frames where at least ``least`` joints
+    are flagged by the acceleration cue: a jolt of the whole body (a stumble, a landing, a
+    capture-wide timing glitch) is no joint error, and a KNN word cannot repair it. Swaps,
+    whose edges make six chain joints jump at once, are found by their edges (:mod:`.swaps`),
+    not by these flags."""
+    from .cues import CUES
+
+    acc = flags & (dom == CUES.index("acceleration"))
+    jolt = acc.sum(axis=1) >= least
+    return flags & ~(acc & jolt[:, None])
+
+
+def _freezes_grown(flags: np.ndarray, dom: np.ndarray, q: np.ndarray, still: float) -> tuple[np.ndarray, np.ndarray]:
+    """Runs flagged by the freeze cue grown over the whole interval where the joint is still
+    (moves less than ``still`` radians per frame): a frozen joint (a marker lost, its last
+    value held) is exactly still from its first frozen frame to its last, and the freeze cue
+    sees only the middle of it. Returns the grown flags and deciding cues."""
+    from .bounded_repair import _runs
+    from .cues import CUES, speed
+
+    fz = CUES.index("freeze")
+    v = speed(q)
+    calm = v < still
+    calm[1:] |= calm[:-1]  # the frame after a still step holds the same pose
+    out, dom = flags.copy(), dom.copy()
+    seed = flags & (dom == fz)
+    for j in np.flatnonzero(seed.any(axis=0)):
+        for a, b in _runs(calm[:, j]):
+            if seed[a:b, j].any() and b - a >= 3:
+                new = ~out[a:b, j]
+                out[a:b, j] = True
+                dom[a:b, j][new] = fz
+    return out, dom
 
 
 def cue_of_run(cue: np.ndarray, grown: np.ndarray) -> np.ndarray:
@@ -147,11 +188,20 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         analyser = cleaner.clone(include_self=True)  # the calibration analyses each clip with itself included
         cal = calibration if calibration is not None else calibrate(motion, others, analyser.analyse, res.joints, p.fps,
                         false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
-                        seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues)
+                        seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues,
+                        acc_persist=p.acc_persist if p.acc_persist_fit else None,
+                        jitter_half=p.jitter_half)
+        if p.acc_persist is not None and not p.acc_persist_fit:
+            # the persistence rule only removes flags: fitted without it, applied to the take
+            cal = dataclasses.replace(cal, acc_persist=p.acc_persist)
         flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints)
         if p.agree is not None:
             flags = _agreeing(flags, dom, cal.evidence(res.texture.q, res.mean_texture, res.spread, res.joints),
                               p.agree)
+        if p.acc_body is not None:
+            flags = _body_jolts_dropped(flags, dom, p.acc_body)
+        if p.freeze_still is not None:
+            flags, dom = _freezes_grown(flags, dom, res.texture.q, np.deg2rad(p.freeze_still))
         mirror_flags = flags & (dom == CUES.index("mirror"))
         extra: dict = {}
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
@@ -171,6 +221,20 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             cue[flags & ~edited] = None
             flags = flags & edited
         flags = flags | swapped | extra["offset"]
+        if p.flag_min_deg is not None:
+            # a change below the size of an error is a correction, not a claim: the swapped-back
+            # hip of a swapped leg moves a few degrees (restored exactly, still edited)
+            small = quat.geodesic_angle(new24, res.texture.q) < np.deg2rad(p.flag_min_deg)
+            if p.flag_min_scope == "swaps":
+                small &= swapped
+            cue[flags & small] = None
+            flags = flags & ~small
+            if p.flag_min_revert:
+                # no silent edits: a cell not claimed is left as it was, except the joints of a
+                # swapped-back chain and offset intervals (restored whole)
+                back = small & edited & ~swapped & ~extra["offset"]
+                new24 = np.where(back[..., None], res.texture.q, new24)
+                edited = edited & ~back
         value = 1.0 - np.exp2(-(evidence ** 2))
         value = np.where(flags, np.maximum(value, 0.5 + 1e-6), np.minimum(value, 0.5))
     cleaned, changed = apply_to_input(motion, res.texture, new24, edited)

@@ -99,8 +99,8 @@ class MDMParams(Params):
     calibration_density: float = Field(default=0.2, gt=0, lt=1, description="calibrated: share of calibration "
                                        "words given a synthetic error")
     calibration_seed: int = Field(default=0, description="calibrated: seed of the synthetic errors")
-    cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range"], ...] = Field(
-        default=("digression", "acceleration", "mirror", "freeze"),
+    cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], ...] = Field(
+        default=("digression", "acceleration", "mirror", "freeze", "jitter"),
         description="calibrated: cues the detector may use (range = baseline (a), off by default)")
     max_edit: float = Field(default=30.0, gt=0, le=180, description="calibrated: largest edit, degrees, of a cell "
                             "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
@@ -124,6 +124,27 @@ class MDMParams(Params):
     agree: float | None = Field(default=0.3, gt=0, description="calibrated: runs flagged by the digression alone "
                                 "are kept only where the acceleration or freeze evidence exceeds this somewhere in "
                                 "the run (+-1 frame); None = off")
+    acc_persist: float | None = Field(default=1.5, gt=0, description="calibrated: the acceleration cue of a cell "
+                                      "is capped at this many times the larger of its two neighbours' (isolated "
+                                      "kinks of clean fast joints drop; spikes, steps, jitter keep it); None = off")
+    acc_persist_fit: bool = Field(default=False, description="calibrated: fit the cue weights with acc_persist "
+                                  "applied (True) or fit without it and apply it to the take only (False: the rule "
+                                  "then only removes flags)")
+    jitter_half: int = Field(default=4, ge=1, description="calibrated: the jitter cue is the median of the "
+                             "acceleration cue over 2 jitter_half + 1 frames")
+    acc_body: int | None = Field(default=3, ge=2, description="calibrated: at frames where at least this many "
+                                 "joints are flagged by the acceleration cue (a jolt of the whole body), those "
+                                 "flags are dropped; None = off")
+    freeze_still: float | None = Field(default=0.05, gt=0, description="calibrated: runs the freeze cue flags are "
+                                      "grown over the interval where the joint moves less than this many degrees "
+                                      "per frame (the whole frozen interval); None = off")
+    flag_min_deg: float | None = Field(default=10.0, ge=0, description="calibrated: cells the repair changes by "
+                                       "less than this many degrees are edited but not reported flagged (a "
+                                       "correction smaller than an error); None = every repaired cell")
+    flag_min_revert: bool = Field(default=False, description="calibrated: cells flag_min_deg leaves unreported "
+                                  "keep their value (no silent edit), except swapped-back chains and offsets")
+    flag_min_scope: Literal["all", "swaps"] = Field(default="all", description="calibrated: cells flag_min_deg "
+                                                    "applies to: every repaired cell or the swapped-back ones")
     swap_max: int = Field(default=72, ge=2, description="calibrated: longest swap found by its edges, frames at fps")
     mirror_swaps: bool = Field(default=True, description="calibrated: also swap back the runs the mirror cue flags "
                                "where no edge swap overlaps")

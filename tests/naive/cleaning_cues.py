@@ -74,3 +74,32 @@ def naive_word_joint(mask: np.ndarray, n: int, step: int) -> np.ndarray:
     if starts[-1] != t - n:
         starts.append(t - n)
     return np.array([[bool(mask[s:s + n, j].any()) for j in range(mask.shape[1])] for s in starts])
+
+
+def naive_persistent(x: np.ndarray, factor: float) -> np.ndarray:
+    """Each cell capped at ``factor`` times the larger of its neighbours in time (0 beyond the ends)."""
+    out = np.zeros_like(x)
+    for t in range(x.shape[0]):
+        for j in range(x.shape[1]):
+            prev = x[t - 1, j] if t > 0 else 0.0
+            nxt = x[t + 1, j] if t + 1 < x.shape[0] else 0.0
+            out[t, j] = min(x[t, j], factor * max(prev, nxt))
+    return out
+
+
+def naive_window_median(x: np.ndarray, half: int) -> np.ndarray:
+    """Median over ``[t - half, t + half]``, indices beyond the ends reflected (-1 -> 1, T -> T - 2)."""
+    n = x.shape[0]
+    out = np.zeros_like(x)
+    for t in range(n):
+        idx = []
+        for i in range(t - half, t + half + 1):
+            if i < 0:
+                i = -i
+            elif i >= n:
+                i = 2 * (n - 1) - i
+            idx.append(i)
+        for j in range(x.shape[1]):
+            vals = sorted(float(x[i, j]) for i in idx)
+            out[t, j] = vals[half]
+    return out
