@@ -1,8 +1,9 @@
 """Executors: how a step fans out per-item work (per clip, per query, per shard).
 
 An executor is anything with ``map(fn, items, desc) -> list`` (results in input order),
-``close()`` and ``workers`` (how many items it runs at once). The runner never looks
-inside: ``local`` runs in-process or on a process pool; a cluster executor (``dask``,
+``close()`` and ``workers`` (how many items it runs at once), and optionally ``start()``
+(begin bringing workers up without blocking: the runner calls it before planning, so that
+a cluster's start-up overlaps the client's). The runner never looks inside: ``local`` runs in-process or on a process pool; a cluster executor (``dask``,
 :mod:`mocapflow.plugins.executors.dask_cluster`) implements the same and is registered through the
 ``register_executors`` hook (or passed to :func:`~mocapflow.framework.runner.run_pipeline`).
 ``fn`` and the items must be picklable when work leaves the process.
