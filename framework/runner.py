@@ -301,9 +301,9 @@ def run_pipeline(
     ex = executor
     if own and cfg.executor in dict(registries.executors):  # an unknown one: build_plan says so
         ex = make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options, registries)
-        start = getattr(ex, "start", None)
-        if start is not None:  # workers come up (a cluster's start-up) while the client plans
-            start()
+    start = getattr(ex, "start", None)
+    if start is not None:  # workers come up (a cluster's start-up) while the client plans
+        start()
     try:
         plan = build_plan(source, registries)
         ws = Path(workspace).resolve() if workspace is not None else default_workspace(plan)
