@@ -169,7 +169,7 @@ def compare(name: str, yaml: Path, tmp: Path, configs: list[tuple[str, int]], re
         cpu = f"{r['cpu']:7.2f}" if ex.startswith("local") else "   n/a*"
         print(f"  {label:<22} {r['wall']:8.2f} {r['steps']:8.2f} {cpu} "
               f"{base['wall'] / r['wall']:10.2f}x {base['steps'] / r['steps']:11.2f}x")
-    if any(ex != "local" for ex, _ in configs):
+    if any(not ex.startswith("local") for ex, _ in configs):
         print("  * dask workers fork from a forkserver the run never waits for: their CPU time is not counted")
     return {f"{ex}:{jobs}": r for (ex, jobs), r in best.items()}
 
