@@ -1,8 +1,9 @@
 """Executors: how a step fans out per-item work (per clip, per query, per shard).
 
 An executor is anything with ``map(fn, items, desc) -> list`` (results in input order),
-``close()`` and ``workers`` (how many items it runs at once). The runner never looks
-inside: ``local`` runs in-process or on a process pool; a cluster executor (``dask``,
+``close()`` and ``workers`` (how many items it runs at once), and optionally ``start()``
+(begin bringing workers up without blocking: the runner calls it before planning, so that
+a cluster's start-up overlaps the client's). The runner never looks inside: ``local`` runs in-process or on a process pool; a cluster executor (``dask``,
 :mod:`mocapflow.plugins.executors.dask_cluster`) implements the same and is registered through the
 ``register_executors`` hook (or passed to :func:`~mocapflow.framework.runner.run_pipeline`).
 ``fn`` and the items must be picklable when work leaves the process.
@@ -133,8 +134,14 @@ def warm_up() -> None:
     synthetic_motion(2).positions
 
 
-def _init_worker(threads: int) -> None:
+def _init_worker(threads: int, warm: bool = False) -> None:
     limit_threads(threads)
+    if warm:  # forked before the parent warmed up (LocalExecutor.start): each worker pays its own
+        warm_up()
+
+
+def _started() -> int:
+    return os.getpid()
 
 
 class LocalExecutor:
@@ -151,6 +158,11 @@ class LocalExecutor:
     start_method : {"fork", "forkserver", "spawn"}, optional
         Default: fork while it is safe (see :func:`_fork_is_safe`), else a forkserver that
         preloads :data:`PRELOAD`.
+    prestart : bool
+        :meth:`start` (the runner calls it before planning) forks the pool at once and each
+        worker warms itself up (:func:`warm_up`) while the client plans, lists and
+        fingerprints; otherwise the pool forks at the first batch, after the parent warmed
+        up, and the workers inherit that (docs/scale-out.md compares both).
 
     Results come back in input order. A worker that dies (killed, out of memory) fails the
     step with a :class:`~mocapflow.framework.errors.PipelineError`; the runner discards
@@ -160,28 +172,44 @@ class LocalExecutor:
     name = "local"
 
     def __init__(
-        self, jobs: int = 1, min_items_for_pool: int = 4, threads: int | None = None, start_method: str | None = None
+        self,
+        jobs: int = 1,
+        min_items_for_pool: int = 4,
+        threads: int | None = None,
+        start_method: str | None = None,
+        prestart: bool = False,
     ) -> None:
         self.jobs = max(1, int(jobs)) if jobs and jobs > 0 else available_cores()
         self.min_items_for_pool = min_items_for_pool
         self.threads = threads or threads_per_worker(self.jobs)
         self.start_method = start_method
+        self.prestart = bool(prestart)
         self._pool: ProcessPoolExecutor | None = None
 
     @property
     def workers(self) -> int:
         return self.jobs
 
-    def _ensure_pool(self) -> ProcessPoolExecutor:
+    def start(self) -> None:
+        """With ``prestart``: fork every worker now; each warms itself up in the background."""
+        if self.prestart and self.jobs > 1 and self._pool is None:
+            pool = self._ensure_pool(warm_parent=False)
+            for _ in range(self.jobs):  # a process per pending task: all of them start now
+                pool.submit(_started)
+
+    def _ensure_pool(self, warm_parent: bool = True) -> ProcessPoolExecutor:
         if self._pool is None:
             method = self.start_method or ("fork" if _fork_is_safe() else "forkserver")
             mp = multiprocessing.get_context(method)
             if method == "forkserver":
                 mp.set_forkserver_preload(list(PRELOAD))
-            elif method == "fork":
+            elif method == "fork" and warm_parent:
                 warm_up()
             self._pool = ProcessPoolExecutor(
-                max_workers=self.jobs, mp_context=mp, initializer=_init_worker, initargs=(self.threads,)
+                max_workers=self.jobs,
+                mp_context=mp,
+                initializer=_init_worker,
+                initargs=(self.threads, method == "fork" and not warm_parent),
             )
         return self._pool
 

@@ -293,15 +293,23 @@ def run_pipeline(
     """
     pm = pm or get_plugin_manager()
     registries = build_registries(pm)
-    plan = plan_pipeline(path, overrides, registries=registries)
-    cfg = plan.source.config
-    ws = Path(workspace).resolve() if workspace is not None else default_workspace(plan)
+    source = load_pipeline(path)
+    if overrides:
+        source = apply_overrides(source, overrides)
+    cfg = source.config
     own = executor is None
-    ex = executor or make_executor(
-        pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options, registries
-    )
+    ex = executor
+    if own and cfg.executor in dict(registries.executors):  # an unknown one: build_plan says so
+        ex = make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options, registries)
+    start = getattr(ex, "start", None)
+    if start is not None:  # workers come up (a cluster's start-up) while the client plans
+        start()
     try:
+        plan = build_plan(source, registries)
+        ws = Path(workspace).resolve() if workspace is not None else default_workspace(plan)
+        if ex is None:
+            ex = make_executor(pm, cfg.executor, cfg.jobs if jobs is None else jobs, cfg.executor_options, registries)
         return Runner(plan, ws, ex, registries, hook=pm.hook, force=force, echo=echo, wait=wait).run()
     finally:
-        if own:
+        if own and ex is not None:
             ex.close()

@@ -182,17 +182,35 @@ steps:
 
 def test_jobs_2_writes_the_same_tables_and_files_as_jobs_1(tmp_path):
     out = {}
-    for jobs in (1, 2):
+    for jobs in (1, 2, "2-prestart"):
         d = tmp_path / f"j{jobs}"
         d.mkdir()
         (d / "p.yaml").write_text(PIPELINE)
-        run_pipeline(d / "p.yaml", jobs=jobs, pm=get_plugin_manager(entry_points=False))
+        # prestart: the pool forks before planning and each worker warms itself up
+        ex = LocalExecutor(2, prestart=True) if jobs == "2-prestart" else None
+        try:
+            run_pipeline(d / "p.yaml", jobs=2 if ex else jobs, pm=get_plugin_manager(entry_points=False), executor=ex)
+        finally:
+            if ex is not None:
+                ex.close()
         ws = d / "ws"
         out[jobs] = (workspace_tables(ws), {p.name: p.read_bytes() for p in sorted((ws / "clean").glob("*.bvh"))})
     assert out[1][0].keys() == out[2][0].keys() and len(out[1][0]) >= 8
-    for name in out[1][0]:
-        assert out[1][0][name] == out[2][0][name], name
-    assert out[1][1] and out[1][1] == out[2][1]
+    for other in (2, "2-prestart"):
+        for name in out[1][0]:
+            assert out[1][0][name] == out[other][0][name], (other, name)
+        assert out[1][1] and out[1][1] == out[other][1]
+
+
+def test_prestart_forks_every_worker_before_the_first_batch():
+    ex = LocalExecutor(2, min_items_for_pool=1, threads=1, prestart=True)
+    try:
+        ex.start()
+        assert len(ex._pool._processes) == 2  # forked at start(), warming up while the client plans
+        out = ex.map(_worker_threads, range(4))
+    finally:
+        ex.close()
+    assert all(t[0] == 1 and t[2] == "1" for t in out)
 
 
 class KillerFeatures(FeatureSet):

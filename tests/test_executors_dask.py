@@ -65,6 +65,32 @@ def test_batches_go_out_in_chunks_and_come_back_in_order(cluster):
             ex.close()
 
 
+def test_start_connects_in_the_background_and_map_waits_for_it(cluster):
+    ex = DaskExecutor(address=cluster.scheduler_address)
+    try:
+        ex.start()  # returns at once; the runner plans meanwhile
+        ex.start()  # idempotent
+        assert ex.map(_square, list(range(9))) == [x * x for x in range(9)]
+    finally:
+        ex.close()
+
+
+def test_a_failed_background_start_is_raised_by_the_first_map(monkeypatch):
+    from mocapflow.framework.errors import ConfigError
+
+    def unreachable(self):
+        raise ConfigError("executor dask: cannot reach the scheduler at tcp://nowhere:8786")
+
+    monkeypatch.setattr(DaskExecutor, "_connect", unreachable)
+    ex = DaskExecutor(address="tcp://nowhere:8786")
+    ex.start()
+    try:
+        with pytest.raises(ConfigError, match="cannot reach the scheduler"):
+            ex.map(_square, [1, 2])
+    finally:
+        ex.close()  # nothing to close, no error
+
+
 def _worker_threads(_):
     import numba
 

@@ -162,3 +162,32 @@ def test_clip_id_collisions_are_resolved_deterministically():
     assert ids[2] == clip_id_of(a) and ids[0] == clip_id_of(f"{b}#1") and len(set(ids)) == 3
     assert clip_ids_of([a, b]) == [ids[2], ids[0]]  # order of the input does not matter
     assert all(0 <= c < 2**31 for c in ids)
+
+
+def test_rows_built_in_the_workers_equal_motions_to_tables(tmp_path, monkeypatch):
+    """formats.load builds each clip's rows where the file is read (issue 16): the tables are
+    exactly motions_to_tables of the motions read and checked one by one, and the inputs are
+    listed once by the fingerprint, whose listing the run reuses."""
+    from mocapflow.framework.motion_tables import motions_to_tables
+    from mocapflow.plugins.formats import steps
+
+    files = sorted((EXAMPLES_DATA / "cmu").glob("**/*.amc"))
+    p = pipeline(tmp_path, [str(EXAMPLES_DATA / "cmu" / "**" / "*.amc"), str(EXAMPLES_DATA / "**" / "*.bvh")], fps=30)
+    calls = []
+    real = steps._expand
+    monkeypatch.setattr(steps, "_expand", lambda *a: calls.append(a) or real(*a))
+    run_pipeline(p, pm=pm(), jobs=1)
+    assert len(calls) == 1  # check_plan globs pattern by pattern; the fingerprint lists, the run reuses it
+    ws = tmp_path / "ws" / "motions"
+    from mocapflow.framework.plugins import build_registries
+
+    reg = build_registries(pm())
+    step = steps.LoadMotions({"paths": [str(EXAMPLES_DATA / "cmu" / "**" / "*.amc"), str(EXAMPLES_DATA / "**" / "*.bvh")], "fps": 30})
+    listed = step._files(p.parent)
+    by_ext = {e: c for _, c in reg["formats"] if getattr(c, "produces", "") == "motion" for e in c.extensions}
+    motions = [steps._read_file((by_ext[f.suffix.lower()], {}, str(f), 30.0)) for f in listed]
+    assert files and all(not isinstance(m, tuple) for m in motions)
+    want = motions_to_tables(motions, step.clip_ids(listed, p.parent))
+    for name in ("data", "clips", "skeletons"):
+        got = pq.read_table(ws / f"{name}.parquet").replace_schema_metadata(None)
+        assert got.equals(want[name].replace_schema_metadata(None)), name

@@ -26,6 +26,7 @@ import functools
 import logging
 import multiprocessing
 import os
+import threading
 import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -89,11 +90,38 @@ class DaskExecutor:
         self.chunks_per_worker = int(chunks_per_worker)
         self._client = None
         self._cluster = None
+        self._starting: threading.Thread | None = None
+        self._start_error: BaseException | None = None
 
     # --- connection ---------------------------------------------------------------------
+    def start(self) -> None:
+        """Begin connecting (or starting the LocalCluster) in a background thread and return
+        at once: the runner calls this before it plans, so that the scheduler's and the
+        workers' start-up (their interpreters, imports, numba) overlaps the client's own
+        (registries, plan, fingerprints, listing inputs). The first :meth:`map` waits for it."""
+        if self._client is None and self._starting is None:
+            self._starting = threading.Thread(target=self._connect_in_background, name="mocapflow-dask-start", daemon=True)
+            self._starting.start()
+
+    def _connect_in_background(self) -> None:
+        try:
+            self._connect()
+        except BaseException as exc:  # re-raised in the caller's thread by _wait_started
+            self._start_error = exc
+
+    def _wait_started(self) -> None:
+        if self._starting is not None:
+            self._starting.join()
+            self._starting = None
+            err, self._start_error = self._start_error, None
+            if err is not None:
+                raise err
+
     @property
     def client(self):
-        """The ``distributed.Client`` (connects or starts the LocalCluster on first use)."""
+        """The ``distributed.Client`` (connects or starts the LocalCluster on first use, or
+        waits for :meth:`start`)."""
+        self._wait_started()
         if self._client is None:
             self._connect()
         return self._client
@@ -175,6 +203,10 @@ class DaskExecutor:
             client.cancel([f for f in futures if not f.done()])
 
     def close(self) -> None:
+        try:
+            self._wait_started()
+        except Exception:  # nothing was started, or it failed: nothing to close
+            pass
         if self._client is not None:
             self._client.close()
             self._client = None

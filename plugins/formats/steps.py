@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -19,27 +20,28 @@ from pydantic import Field
 from mocapflow.framework import Format, Markers, Motion, Params, ParseError, StepContext, StepOutput
 from mocapflow.framework import schema
 from mocapflow.framework.datasets import Dataset
-from mocapflow.framework.errors import MocapflowError, PipelineError
+from mocapflow.framework.errors import DataError, MocapflowError, PipelineError
 from mocapflow.framework.joints import missing_required
-from mocapflow.framework.motion_tables import motions_to_tables
+from mocapflow.framework.motion_tables import clip_row, clips_table, frames_table
 from mocapflow.framework.normalize import resample
+
+
+def _glob(pattern: str, base: Path) -> list[str]:
+    """Real paths of the files a glob pattern (``**`` recursive) matches, relative to ``base``."""
+    p = Path(pattern).expanduser()
+    # os.path.realpath on strings: Path.resolve cost more than the glob itself (201 files: 17 ms)
+    return [os.path.realpath(h) for h in glob.glob(str(p if p.is_absolute() else base / p), recursive=True)
+            if os.path.isfile(h) or not os.path.exists(h)]
 
 
 def _expand(patterns: list[str], base: Path, exclude: list[str]) -> list[Path]:
     """Files matched by glob patterns (``**`` recursive), sorted, without duplicates."""
-    found: dict[str, Path] = {}
-    for pat in patterns:
-        p = Path(pat).expanduser()
-        full = str(p if p.is_absolute() else base / p)
-        for hit in glob.glob(full, recursive=True):
-            hp = Path(hit)
-            if hp.is_file() or not hp.exists():
-                found.setdefault(str(hp.resolve()), hp.resolve())
+    found = {h for pat in patterns for h in _glob(pat, base)}
     excluded = set()
     for pat in exclude:
         p = Path(pat).expanduser()
-        excluded |= {str(Path(h).resolve()) for h in glob.glob(str(p if p.is_absolute() else base / p), recursive=True)}
-    return [found[k] for k in sorted(found) if k not in excluded]
+        excluded |= {os.path.realpath(h) for h in glob.glob(str(p if p.is_absolute() else base / p), recursive=True)}
+    return [Path(k) for k in sorted(found - excluded)]
 
 
 def _prepare_motion(motion: Motion, path: str, fps: float | None) -> Motion | tuple[str, int | None, str]:
@@ -73,6 +75,27 @@ def _read_file(job: tuple[type, dict[str, Any], str, float | None]) -> Motion | 
         return (path, None, f"{type(exc).__name__}: {exc}")
 
 
+def _read_motion_rows(job: tuple[type, dict[str, Any], str, float | None, int]) -> tuple | dict[str, Any]:
+    """Read one motion file and turn it into its rows of the motions dataset, in the worker:
+    ``{"frames": its frame rows (Arrow, float32), "clip": its clips row, "skeleton": (key,
+    name, n_joints, JSON definition)}``, or a reject ``(path, line, message)``.
+
+    What travels back is the compact on-disk form (float32 Arrow buffers, half the bytes of
+    a pickled float64 motion), and the client only concatenates: building the tables (0.42 s
+    of the client's serial time for the corpus) runs in the workers.
+    """
+    *read, clip_id = job
+    motion = _read_file(tuple(read))
+    if isinstance(motion, tuple):
+        return motion
+    s = motion.skeleton
+    return {
+        "frames": frames_table(clip_id, motion),
+        "clip": clip_row(clip_id, motion),
+        "skeleton": (s.fingerprint(), s.name, s.n_joints, json.dumps(s.to_dict())),
+    }
+
+
 class _FileIngest(Format):
     """Shared machinery of the ingest steps: globbing, reader lookup by extension in the
     ``formats`` registry, per-file fan-out with failures collected as rejects, fingerprints."""
@@ -89,16 +112,24 @@ class _FileIngest(Format):
         readers: dict[str, dict[str, Any]] = Field(default_factory=dict, description="per-format reader parameters, e.g. {amc: {fps: 120}}")
 
     def _files(self, base: Path) -> list[Path]:
+        """The input files; the listing :meth:`source_fingerprint` made is reused once, by
+        the run that follows it (the runner fingerprints every step before running it), so
+        the files read are the files fingerprinted, and a run lists its inputs once."""
+        listed = self.__dict__.pop("_listed", None)
+        if listed is not None and listed[0] == str(base):
+            return listed[1]
         return _expand(self.params.paths, base, self.params.exclude)
 
     def check_plan(self, base_dir: Path) -> list[str]:
         return [f"pattern {pat!r} of `paths` matches no file (relative to {base_dir})"
-                for pat in self.params.paths if not _expand([pat], base_dir, [])]
+                for pat in self.params.paths if not _glob(pat, base_dir)]
 
     def source_fingerprint(self, base_dir: Path) -> str:
         h = hashlib.sha256()
         skeletons: dict[Path, list[Path]] = {}  # one listing per folder, not one per take
-        for f in self._files(base_dir):
+        files = _expand(self.params.paths, base_dir, self.params.exclude)  # always afresh: this is the check
+        self.__dict__["_listed"] = (str(base_dir), files)
+        for f in files:
             # AMC readers also read the skeleton files beside the motions (.asf)
             if f.suffix.lower() == ".amc" and f.parent not in skeletons:
                 skeletons[f.parent] = sorted(f.parent.glob("*.asf"))
@@ -129,9 +160,10 @@ class _FileIngest(Format):
         root = self.ingest_root(base_dir)
         return schema.clip_ids_of([Path(os.path.relpath(os.path.realpath(f), root)).as_posix() for f in files])
 
-    def _read_all(self, ctx: StepContext, fps: float | None = None) -> tuple[list[Any], list[int], list[tuple], int, int]:
+    def _read_all(self, ctx: StepContext, fps: float | None = None, rows: bool = False) -> tuple[list[Any], list[int], list[tuple], int, int]:
         """``(objects, their clip ids, rejects as (clip_id, path, line, message), files read,
-        files skipped)``; raises on the first reject with ``on_error: fail``."""
+        files skipped)``; raises on the first reject with ``on_error: fail``. With ``rows``
+        (motions) the objects are :func:`_read_motion_rows`'s dataset rows, not motions."""
         by_ext: dict[str, type] = {}
         for _, cls in ctx.registries["formats"]:
             if getattr(cls, "produces", "") == self.reads:
@@ -144,7 +176,10 @@ class _FileIngest(Format):
             raise PipelineError(f"no {self.reads} file matches {self.params.paths} (relative to {ctx.base_dir})")
         # ids of every readable file before reading: a file that fails keeps its would-be id
         ids = self.clip_ids([Path(j[2]) for j in jobs], ctx.base_dir)
-        results = ctx.map(_read_file, jobs, desc=f"{ctx.step_id}: reading")
+        if rows:
+            results = ctx.map(_read_motion_rows, [(*j, c) for j, c in zip(jobs, ids)], desc=f"{ctx.step_id}: reading")
+        else:
+            results = ctx.map(_read_file, jobs, desc=f"{ctx.step_id}: reading")
         good = [r for r in results if not isinstance(r, tuple)]
         good_ids = [c for c, r in zip(ids, results) if not isinstance(r, tuple)]
         rejects = [(c, *r) for c, r in zip(ids, results) if isinstance(r, tuple)]
@@ -174,11 +209,22 @@ class LoadMotions(_FileIngest):
         fps: float | None = Field(default=None, gt=0, description="resample every clip to this rate (Hz)")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        motions, ids, rejects, n_files, skipped = self._read_all(ctx, self.params.fps)
-        tables = motions_to_tables(motions, ids)
-        tables["rejects"] = self._rejects_table(rejects)
+        # the same tables as motions_to_tables(motions, ids), built clip by clip in the workers
+        got, ids, rejects, n_files, skipped = self._read_all(ctx, self.params.fps, rows=True)
+        if len(set(ids)) != len(ids):
+            raise DataError(f"need {len(ids)} distinct clip ids, got {len(set(ids))} distinct of {len(ids)}")
+        skeletons: dict[str, dict[str, Any]] = {}
+        for g in got:  # first occurrence order, as skeletons_table
+            key, name, n_joints, definition = g["skeleton"]
+            skeletons.setdefault(key, {"skeleton": key, "name": name, "n_joints": n_joints, "definition": definition})
+        tables = {
+            "data": pa.concat_tables([g["frames"] for g in got]) if got else schema.motion_frames().empty_table(),
+            "clips": clips_table([g["clip"] for g in got]),
+            "skeletons": pa.Table.from_pylist(list(skeletons.values()), schema=schema.SKELETONS),
+            "rejects": self._rejects_table(rejects),
+        }
         summary = {
-            "files": n_files, "clips": len(motions), "frames": int(sum(m.n_frames for m in motions)),
+            "files": n_files, "clips": len(got), "frames": int(sum(g["clip"]["n_frames"] for g in got)),
             "rejects": len(rejects), "skipped_files": skipped,
         }
         return StepOutput(tables, summary)
