@@ -44,7 +44,7 @@ from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
 
-def database_space(n_frames: int, echo=print) -> SearchSpace:
+def database_space(n_frames: int, echo=print, names: list | None = None) -> SearchSpace:
     t0 = time.perf_counter()
     db = augmented_database(n_frames, fps=30)
     t1 = time.perf_counter()
@@ -53,6 +53,10 @@ def database_space(n_frames: int, echo=print) -> SearchSpace:
     index = KDTreeIndex(method="kdtree", workers=1).build(x)
     t3 = time.perf_counter()
     clip_id, frame = db.frame_ids
+    if names is not None:  # each clip's source clip (augmented copies are named <source>[_mirrored][_v<n>])
+        import re
+
+        names.extend(re.sub(r"(_mirrored)?(_v\d+)?$", "", m.name) for m in db)
     echo(f"database {n_frames:,} frames, {db.n_clips} clips: load {t1 - t0:.1f} s, F_E^15 {t2 - t1:.1f} s, "
          f"kd-tree build {t3 - t2:.1f} s")
     return SearchSpace(clip_id, frame, index, x)
@@ -98,9 +102,11 @@ def matcher_once(q, space, **kw):
     full_from, exact.FULL_FROM = exact.FULL_FROM, kw.pop("full_from", exact.FULL_FROM)
     try:
         t0 = time.perf_counter()
-        if "levels" in kw or "top" in kw:
+        if "levels" in kw or "top" in kw or "approx" in kw:
             kw.pop("exact", None)
-            res = exact.certified_sdtw(q, space, count=10, **kw)
+            st = exact.ExactStats()
+            res = exact.certified_sdtw(q, space, count=10, stats=st, **kw)
+            res.work = (1.2 * st.coarse_blocks + st.columns + st.guess_columns) / space.n_rows  # of sDTW's cells
         else:
             res = lazy_neighborhood_graph(q, space, count=10, **kw)
     finally:
@@ -115,8 +121,22 @@ def kept(runs, exact) -> tuple[float, float]:
     return float(np.mean(same)), float(np.mean(found))
 
 
+def spearman_same_end(runs, ref) -> float:
+    """Spearman's rho of sDTW's and the method's costs over sDTW's top-10 ends the method also returns."""
+    from scipy.stats import spearmanr
+
+    a, b = [], []
+    for r, (e, _) in zip(runs, ref):
+        got = {int(x): float(c) for x, c in zip(r[2].end, r[2].cost)}
+        for x, c in zip(e.end.tolist(), e.cost.tolist()):
+            if x in got:
+                a.append(c)
+                b.append(got[x])
+    return float(spearmanr(a, b).statistic) if len(a) > 2 else float("nan")
+
+
 def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=print, propagate=(8, 1000),
-               ann: SearchSpace | None = None, gaps=()) -> None:
+               ann: SearchSpace | None = None, gaps=(), approx=(), certified_only=False) -> None:
     gap_variants = [(f"graph gaps {g}, fill", {"gaps": g, "exact": False}) for g in gaps]
     try:
         from dtaidistance.subsequence.dtw import subsequence_alignment
@@ -150,6 +170,10 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
                     ("graph, propagate 8", {"exact": False, "propagate": 8}),
                     ("graph, k=64", {"exact": False, "k": 64})]
         variants += gap_variants
+        approx_variants = [(f"bounded approx, eps {e:g}", {"exact": True, "approx": e}) for e in approx]
+        if certified_only:
+            variants = [variants[0], ("certified exact (work counted)", {"exact": True, "approx": 0.0})]
+        variants += approx_variants
         if ann is not None:
             variants += [("default, indexes.hnsw", {"ann": True}), ("graph, indexes.hnsw", {"ann": True, "exact": False})]
         for name, kw in variants:
@@ -157,9 +181,15 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
             runs = [matcher_once(q, sp, **kw) for q in qs[:n_exact]]
             same, found = kept(runs, [(s,) for s in sd_sets])
             found = float(np.mean([len(set(r[0]) & set(e)) / max(len(e), 1) for r, e in zip(runs, sd_sets)]))
-            if kw.get("exact"):
+            approx_run = kw.get("approx", 0.0) > 0
+            if kw.get("exact") and not approx_run:
                 ident = all(np.array_equal(r[2].cost, e.cost) and np.array_equal(r[2].end, e.end) for r, (e, _) in zip(runs, ref))
                 name += " (identical)" if ident else " (DIFFERS)"
+            if hasattr(runs[0][2], "work"):
+                w = [1.0 / r[2].work for r in runs]
+                name += f" work 1/{np.median(w):.1f}"
+            if approx_run:
+                name += f" rho {spearman_same_end(runs, ref):.4f}"
             t_all = float(np.median([r[1] for r in runs]))
             rows.append((name + " vs sDTW", t_all, float("nan"), float("nan"), same, found))
         if subsequence_alignment is not None and space.n_rows * (m + 1) * 8 < 4e9:
@@ -185,9 +215,65 @@ def bench_size(space: SearchSpace, lengths, n_queries, n_exact, ks, rng, echo=pr
                 rows.append((name, t_all, t_knn, t_all - t_knn, same, found))
         echo(f"  query {m} frames ({len(qs)} LNG / {min(n_exact, len(qs))} sDTW queries); sDTW {m * space.n_rows / t_sdtw / 1e6:.0f} M cells/s; "
              f"load average {open('/proc/loadavg').read().split()[0]}")
-        echo(f"    {'method':<40} {'ms/query':>9} {'kNN ms':>8} {'graph us/frame':>15} {'same best':>9} {'top-10 kept':>11} {'sDTW/this':>10}")
+        echo(f"    {'method':<62} {'ms/query':>9} {'kNN ms':>8} {'graph us/frame':>15} {'same best':>9} {'top-10 kept':>11} {'sDTW/this':>10}")
         for name, t, tk, tg, same, found in rows:
-            echo(f"    {name:<40} {t * 1e3:>9.2f} {tk * 1e3:>8.2f} {tg * 1e6 / m:>15.1f} {same:>9.2f} {found:>11.2f} {t_sdtw / t:>10.1f}")
+            echo(f"    {name:<62} {t * 1e3:>9.2f} {tk * 1e3:>8.2f} {tg * 1e6 / m:>15.1f} {same:>9.2f} {found:>11.2f} {t_sdtw / t:>10.1f}")
+
+
+#: methods of the hidden-source benchmark: label -> certified_sdtw keywords
+HIDDEN_METHODS = {
+    "default (certified exact)": {},
+    "approx 0.15 (chosen LOAO)": {"approx": 0.15},
+    "approx 0.5": {"approx": 0.5},
+    "approx inf (seed windows only)": {"approx": np.inf},
+    "seed windows only, 5 x 20 x count": {"approx": np.inf, "seed_k": 20},
+    "certified, levels 512/64/16/4/2": {"levels": (512, 64, 16, 4, 2)},
+    "certified, levels 256/32/8/2": {"levels": (256, 32, 8, 2)},
+}
+
+
+def bench_hidden(space: SearchSpace, sources: list, lengths, n_queries, rng, echo=print) -> None:
+    """Recall of sDTW's top-10 and Spearman's rho with the query's source clip hidden: every
+    augmented copy of the clip the query was cut from is removed from the database (its own kd-tree),
+    so only other performances count (issue 13's quality targets, at scale); with the time ratios."""
+    from scipy.stats import spearmanr
+
+    from mocapflow.plugins.similarity.exact import certified_sdtw
+
+    src = np.asarray(sources)[space.clip_id]
+    echo(f"  query's source clip hidden (all its augmented copies); {n_queries} queries per length; "
+         f"load average {open('/proc/loadavg').read().split()[0]}")
+    echo(f"    {'query':>6} {'method':<36} {'recall':>7} {'rho':>7} {'full':>5} {'work 1/x':>9} {'sDTW/this':>9}")
+    for m in lengths:
+        stats = {k: {"hit": [], "a": [], "b": [], "t": [], "full": [], "w": []} for k in HIDDEN_METHODS}
+        t_ref = []
+        for s in random_segments(space, m, n_queries, rng):
+            keep = src != src[s]
+            sub = SearchSpace(space.clip_id[keep], space.frame[keep],
+                              KDTreeIndex(method="kdtree", workers=1).build(space.features[keep]), space.features[keep])
+            q = space.features[s : s + m]
+            certified_sdtw(q[:8], sub, count=3)  # the sub-space's block boxes, outside the timings
+            ref, t = timed(subsequence_dtw, q, sub, count=10)
+            t_ref.append(t)
+            for name, kw in HIDDEN_METHODS.items():
+                from mocapflow.plugins.similarity.exact import ExactStats
+
+                st = ExactStats()
+                res, t = timed(certified_sdtw, q, sub, count=10, stats=st, **kw)
+                r = stats[name]
+                r["t"].append(t)
+                r["full"].append(len(res) == 10)
+                r["w"].append(sub.n_rows / max(1.2 * st.coarse_blocks + st.columns + st.guess_columns, 1))
+                got = {int(e): float(c) for e, c in zip(res.end, res.cost)}
+                for e, c in zip(ref.end.tolist(), ref.cost.tolist()):
+                    r["hit"].append(e in got)
+                    if e in got:
+                        r["a"].append(c)
+                        r["b"].append(got[e])
+        for name, r in stats.items():
+            rho = spearmanr(r["a"], r["b"]).statistic if len(r["a"]) > 2 else float("nan")
+            echo(f"    {m:>4} f {name:<36} {np.mean(r['hit']):>7.3f} {rho:>7.4f} {np.mean(r['full']):>5.2f} "
+                 f"{np.median(r['w']):>9.1f} {np.median(t_ref) / np.median(r['t']):>9.1f}")
 
 
 def main(argv=None) -> int:
@@ -203,6 +289,14 @@ def main(argv=None) -> int:
                     help="also the default matcher with these gap depths (default: only its own, 32)")
     ap.add_argument("--ann", action="store_true",
                     help="also the default matcher through indexes.hnsw (ef 256; built on all cores, needs the ann extra)")
+    ap.add_argument("--approx", type=float, nargs="*", default=[],
+                    help="also the bounded approximation (certified search pruning at (1+eps) LB > tau) with these eps")
+    ap.add_argument("--certified-only", action="store_true",
+                    help="only sDTW, the default, the certified search (with counted work) and the --approx variants")
+    ap.add_argument("--hidden", type=int, default=0,
+                    help="only the hidden-source benchmark (recall, rho, speed) with this many queries per length")
+    ap.add_argument("--hidden-methods", nargs="*", default=None,
+                    help="only the hidden-source methods whose label contains one of these words")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     sizes = args.sizes or ([60_000] if args.quick else [380_813, 1_038_388])
@@ -210,7 +304,15 @@ def main(argv=None) -> int:
     n_x = args.exact or (3 if args.quick else 6)
     rng = np.random.default_rng(args.seed)
     print("LNG (kNN + graph + path) vs subsequence DTW; F_E^15; kd-tree; one thread; median ms per query")
+    if args.hidden_methods:
+        for k in [k for k in HIDDEN_METHODS if not any(w in k for w in args.hidden_methods)]:
+            del HIDDEN_METHODS[k]
     for n in sizes:
+        if args.hidden:
+            names: list = []
+            space = database_space(n, names=names)
+            bench_hidden(space, names, (30, 90), args.hidden, rng)
+            continue
         space = database_space(n)
         ann = None
         if args.ann:
@@ -219,7 +321,8 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             ann = SearchSpace(space.clip_id, space.frame, HNSWIndex(ef=256, threads=0).build(space.features), space.features)
             print(f"indexes.hnsw build (all cores) {time.perf_counter() - t:.1f} s")
-        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng, propagate=args.propagate, ann=ann, gaps=args.gaps)
+        bench_size(space, (30, 64, 90), n_q, n_x, args.k, rng, propagate=args.propagate, ann=ann, gaps=args.gaps,
+                   approx=args.approx, certified_only=args.certified_only)
     return 0
 
 

@@ -43,15 +43,18 @@ def _fit_fold(bits, offsets, cls, train, features="key", **kw):
     return fit_templates(bits, offsets, list(cls), train, list(act), classes, features, **kw), classes
 
 
-def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], **kw) -> dict:
-    """Leave-one-actor-out template retrieval and classification (module doc)."""
+def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], search_kw: dict | None = None, **kw) -> dict:
+    """Leave-one-actor-out template retrieval and classification (module doc); ``search_kw``
+    go to :func:`cutoff_hits` (e.g. ``step``: the coarse-rate search)."""
     cls, act = _meta(names)
     _fit_fold.names = names
     classes = sorted(set(cls))
     codes = frame_codes(bits)
     score = np.full((len(names), len(classes)), np.inf)   # held-out clip x template (key features)
-    hit = {m: np.zeros((len(names), len(classes)), bool) for m in ("threshold", "rivals")}
-    bounds = {m: np.zeros((len(names), len(classes))) for m in ("threshold", "rivals")}
+    # rivals at the full rate (step 1) and with the step's default coarse-rate search (step auto)
+    modes = {"threshold": ("threshold", {}), "rivals": ("rivals", {}), "coarse": ("rivals", {"step": "auto"})}
+    hit = {m: np.zeros((len(names), len(classes)), bool) for m in modes}
+    bounds = {m: np.zeros((len(names), len(classes))) for m in modes}
     pred_all, pred_key = np.empty(len(names), object), np.empty(len(names), object)
     for held in sorted(set(act)):
         train = act != held
@@ -59,8 +62,8 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], **kw
         te = np.flatnonzero(~train)
         for j, t in enumerate(temps):
             score[te, j] = clip_min_costs(codes, offsets, t.table())[te]
-        for mode in hit:  # the cut-off lists the matcher reports (cutoff_hits), scored on the held-out cuts
-            for j, (s, _, _, bound) in enumerate(cutoff_hits(temps, codes, offsets, mode)):
+        for mode, (rule, kw_m) in modes.items():  # the cut-off lists the matcher reports (cutoff_hits), on the held-out cuts
+            for j, (s, _, _, bound) in enumerate(cutoff_hits(temps, codes, offsets, rule, **{**kw_m, **(search_kw or {})})):
                 found = np.zeros(len(names), bool)
                 found[np.searchsorted(offsets, s, side="right") - 1] = True
                 hit[mode][te, j] = found[te]
@@ -77,7 +80,7 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str], **kw
         prec, rec = tp / np.arange(1, len(y) + 1), tp / y.sum()
         best_r = float(rec[prec >= 0.8].max()) if np.any(prec >= 0.8) else 0.0
         row = [best_r]
-        for mode in ("threshold", "rivals"):
+        for mode in modes:
             h = hit[mode][:, j]
             row += [float((h & y).sum() / max(h.sum(), 1)), float((h & y).sum() / y.sum()), int(h.sum())]
         rows[c] = tuple(row)
@@ -98,8 +101,10 @@ def _ranking_metrics(costs: np.ndarray, rel: np.ndarray) -> tuple[float, float]:
     return ap, float(tp[reach[0]] / (reach[0] + 1)) if len(reach) else 0.0
 
 
-def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str], min_run: int = 4) -> dict:
-    """Automatic selection from one example (module doc); dtw and the paper's machinery."""
+def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str], min_run: int = 4,
+                        features: str = "all", weighting: float = 0.5, paper: bool = True) -> dict:
+    """Automatic selection from one example (module doc); dtw (template on ``features``,
+    surprise ``weighting``) and, with ``paper``, the paper's machinery."""
     from itertools import product
 
     from mocapflow.plugins.relational.auto import relative_cost_cut
@@ -110,33 +115,43 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
     bg = bits.mean(axis=0)
     cost = np.zeros((n, n))
     for q in range(n):
-        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, None, min_run)
+        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, None, min_run, features, weighting)
         cost[q] = clip_min_costs(codes, offsets, t.table())
     rel = (cls[:, None] == cls[None, :]) & ~np.eye(n, dtype=bool)
     masked = np.where(np.eye(n, dtype=bool), np.inf, cost)
-
-    def hits_pr(q, cut):
-        hit = masked[q] <= relative_cost_cut(masked[q], *cut)
-        return (float((hit & rel[q]).sum() / max(hit.sum(), 1)), float((hit & rel[q]).sum() / rel[q].sum()))
 
     # the cut's parameters per fold: the most classes meeting P >= 0.7, R >= 0.9 on the other actors' queries
     designs = {"dtw": list(product(np.round(np.arange(0.5, 1.5, 0.05), 2), (0.25, 0.5, 0.75, 1.0))),  # blend (default)
                "dtw, cut x median (first design)": [(a, 0.0) for a in (0.4, 0.5, 0.6, 0.7, 0.8)]}
     out = {"cuts": {}}
+    # mutual check (auto_mutual: clip): hit h of q kept only when q is a hit of h's whole clip as a query
+    designs["dtw + mutual (whole clips)"] = designs["dtw"]
+    mutual = {"dtw + mutual (whole clips)"}
+
+    def hit_row(q, cut, key):
+        hit = masked[q] <= relative_cost_cut(masked[q], *cut)
+        if key in mutual:
+            hit &= np.array([masked[h, q] <= relative_cost_cut(masked[h], *cut) if hit[h] else False for h in range(n)])
+        return hit
+
+    def hits_pr(q, cut, key="dtw"):
+        hit = hit_row(q, cut, key)
+        return (float((hit & rel[q]).sum() / max(hit.sum(), 1)), float((hit & rel[q]).sum() / rel[q].sum()))
+
     for key, grid in designs.items():
         chosen = np.zeros((n, 2))
         for held in sorted(set(act)):
             tr = np.flatnonzero(act != held)
 
             def n_good(cut):
-                pr = np.array([hits_pr(q, cut) for q in tr])
+                pr = np.array([hits_pr(q, cut, key) for q in tr])
                 return sum((pr[cls[tr] == c, 0].mean() >= 0.7) & (pr[cls[tr] == c, 1].mean() >= 0.9) for c in set(cls)) \
                     + 1e-3 * pr.mean(axis=0).sum()
             chosen[act == held] = max(grid, key=n_good)
         out[key] = {}
         for q in range(n):
             ap, p9 = _ranking_metrics(masked[q], rel[q])
-            out[key].setdefault(cls[q], []).append((ap, p9) + hits_pr(q, tuple(chosen[q])))
+            out[key].setdefault(cls[q], []).append((ap, p9) + hits_pr(q, tuple(chosen[q]), key))
         out["cuts"][key] = sorted({tuple(float(x) for x in c) for c in chosen})
     # other actors only: one example, and two (the actor's other take as the extra example)
     out["dtw, other actors"], out["dtw + 1 example, other actors"] = {}, {}
@@ -145,13 +160,16 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
         mate = np.flatnonzero(rel[q] & (act == act[q]))
         c1 = masked[q].copy()
         c1[mate] = np.inf
-        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, [bits[offsets[m]:offsets[m + 1]] for m in mate], min_run)
+        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, [bits[offsets[m]:offsets[m + 1]] for m in mate], min_run,
+                          features, weighting)
         c2 = clip_min_costs(codes, offsets, t.table())
         c2[q] = np.inf
         c2[mate] = np.inf
         for key, c in (("dtw, other actors", c1), ("dtw + 1 example, other actors", c2)):
             ap, p9 = _ranking_metrics(c, other)
             out[key].setdefault(cls[q], []).append((ap, p9, np.nan, np.nan))
+    if not paper:
+        return out
     # the paper's machinery on the selected features
     index = InvertedIndex().build(bits, np.repeat(np.arange(n), np.diff(offsets)).astype(np.int32))
     for mode, mm in (("adaptive", 0), ("mismatch", 1), ("mismatch", 2)):
@@ -198,31 +216,44 @@ def report(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
     t0 = time.perf_counter()
     res = templates_loao(bits, offsets, names)
     print(f"\n== motion templates, leave-one-actor-out ({time.perf_counter() - t0:.1f} s) ==")
-    print("class".ljust(30) + "ranking: best R at P>=0.8 | cut-off threshold: P     R  hits | cut-off rivals (default): P     R  hits")
-    for c, (r, p, rr, h, pr, rr2, h2) in res["rows"].items():
-        print(f"{c:30s}{r:26.2f}{p:22.2f}{rr:6.2f}{h:6d}{pr:29.2f}{rr2:6.2f}{h2:6d}")
+    print("class".ljust(30) + "ranking: best R at P>=0.8 | cut-off threshold: P     R  hits | cut-off rivals, step 1: P     R  hits"
+          " | rivals, step auto (default): P     R  hits")
+    for c, (r, p, rr, h, pr, rr2, h2, pc, rc, hc) in res["rows"].items():
+        print(f"{c:30s}{r:26.2f}{p:22.2f}{rr:6.2f}{h:6d}{pr:26.2f}{rr2:6.2f}{h2:6d}{pc:33.2f}{rc:6.2f}{hc:6d}")
     ok_rank = sum(v[0] >= 0.9 for v in res["rows"].values())
     ok_thr = sum(v[1] >= 0.8 and v[2] >= 0.9 for v in res["rows"].values())
     ok_riv = sum(v[4] >= 0.8 and v[5] >= 0.9 for v in res["rows"].values())
+    ok_crs = sum(v[7] >= 0.8 and v[8] >= 0.9 for v in res["rows"].values())
     print(f"classes with R >= 0.9 at P >= 0.8: ranking {ok_rank} of 11, cut-off threshold {ok_thr} of 11, "
-          f"cut-off rivals {ok_riv} of 11 (target 9)")
+          f"cut-off rivals step 1 {ok_riv} of 11, step auto (default) {ok_crs} of 11 (target 9)")
     print(f"classification accuracy (held-out actor): all features {res['acc_all']:.3f}, key features {res['acc_key']:.3f} "
           f"(target 0.9); wrong: {res['confusions']}")
+    report_auto(bits, offsets, names)
+
+
+def report_auto(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
+    """Print the automatic-selection figures (module doc)."""
     t0 = time.perf_counter()
     auto = auto_single_example(bits, offsets, names)
+    for label, f, w in (("dtw, key features unweighted (previous)", "key", 0.0), ("dtw, all features unweighted", "all", 0.0),
+                        ("dtw, key features, weights^0.5", "key", 0.5), ("dtw, all features, weights^1", "all", 1.0)):
+        other = auto_single_example(bits, offsets, names, features=f, weighting=w, paper=False)
+        auto[label] = other["dtw"]
+        auto["cuts"][label] = other["cuts"]["dtw"]
     print(f"\n== automatic feature selection from a single example ({time.perf_counter() - t0:.1f} s; "
           f"cut (relative_cut, low_weight) chosen per fold: {auto['cuts']}) ==")
-    print("search".ljust(32) + "mAP    P@R0.9  hits P   hits R   classes P@R0.9>=0.7   classes hits P>=0.7,R>=0.9")
-    for key in ("dtw", "dtw, cut x median (first design)", "adaptive", "mismatch1", "mismatch2", "dtw, other actors",
-                "dtw + 1 example, other actors"):
+    print("search (default: dtw, all features, surprise weights^0.5)".ljust(42) + "mAP    P@R0.9  hits P   hits R   classes P@R0.9>=0.7   classes hits P>=0.7,R>=0.9")
+    for key in ("dtw", "dtw + mutual (whole clips)", "dtw, cut x median (first design)", "dtw, key features unweighted (previous)",
+                "dtw, all features unweighted", "dtw, key features, weights^0.5", "dtw, all features, weights^1", "adaptive",
+                "mismatch1", "mismatch2", "dtw, other actors", "dtw + 1 example, other actors"):
         per = {c: np.mean(v, axis=0) for c, v in auto[key].items()}
         allv = np.concatenate([np.array(v) for v in auto[key].values()])
-        print(f"{key:32s}{allv[:, 0].mean():.3f}{allv[:, 1].mean():8.2f}{allv[:, 2].mean():9.2f}{allv[:, 3].mean():9.2f}"
+        print(f"{key:42s}{allv[:, 0].mean():.3f}{allv[:, 1].mean():8.2f}{allv[:, 2].mean():9.2f}{allv[:, 3].mean():9.2f}"
               f"{sum(v[1] >= 0.7 for v in per.values()):14d}{sum(v[2] >= 0.7 and v[3] >= 0.9 for v in per.values()):26d}")
-    print("per class (dtw): AP / P@R0.9 / hits P / hits R")
+    print("per class: AP / P@R0.9 / hits P / hits R (dtw) | hits P / hits R (dtw + mutual)")
     for c, v in auto["dtw"].items():
-        m = np.mean(v, axis=0)
-        print(f"  {c:30s} {m[0]:.2f} / {m[1]:.2f} / {m[2]:.2f} / {m[3]:.2f}")
+        m, mm = np.mean(v, axis=0), np.mean(auto["dtw + mutual (whole clips)"][c], axis=0)
+        print(f"  {c:30s} {m[0]:.2f} / {m[1]:.2f} / {m[2]:.2f} / {m[3]:.2f} | {mm[2]:.2f} / {mm[3]:.2f}")
 
 
 def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 3, temps=None) -> None:
@@ -267,6 +298,25 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
             cpu[key] = c
         return b, out
 
+    from mocapflow.plugins.relational.template_coarse import CoarseCodes, template_step
+
+    coarse = CoarseCodes(codes, big_offsets)
+    t0 = time.perf_counter()
+    for st in (2, 3, 4):
+        coarse.get(st)
+    print(f"  coarse codes at steps 2, 3, 4 (once per database): {(time.perf_counter() - t0) * 1e3:.0f} ms")
+    steps = {"3": (3, 7), "4": (4, 7), "auto/10": ("auto", 10), "auto/7 (default)": ("auto", 7)}
+    coarse_t, coarse_cpu = {k: [] for k in steps}, {}
+    for j, t in enumerate(temps):
+        line = []
+        for k, (st, cf) in steps.items():
+            tc, lc = best_of(lambda: cutoff_hits(temps, codes, big_offsets, "rivals", index=index, only=[j], rival_table=table,
+                                                 step=st, coarse_frames=cf, coarse=coarse), "coarse")
+            coarse_t[k].append(tc)
+            coarse_cpu.setdefault(k, []).append(cpu["coarse"])
+            line.append(f"step {k} ({template_step(t, st, cf)}) {tc * 1e3:5.1f} ms CPU {cpu['coarse'] * 1e3:4.0f} "
+                        f"({len(lc[0][0])} hits)")
+        print(f"  {t.label:30s} rivals, coarse search: " + " | ".join(line))
     for j, t in enumerate(temps):
         tb, (fs, fe, _, _) = best_of(lambda: search_costs(codes, t.table(), whole, t.threshold, abandon=False))
         tt, (s, e, _) = best_of(lambda: search_template(t, codes, big_offsets, index=index), "threshold")
@@ -303,5 +353,8 @@ def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 
           f"(docs/relational-features.md: 1.6 ms on an idle machine)")
     print(f"  threshold: median {np.median(times) * 1e3:.1f} ms, max {np.max(times) * 1e3:.1f} ms; rivals: median "
           f"{np.median(riv_t) * 1e3:.1f} ms, max {np.max(riv_t) * 1e3:.1f} ms; baseline median {np.median(base_t) * 1e3:.1f} ms; "
+          "coarse rivals median/max wall (CPU): " + ", ".join(
+              f"step {k} {np.median(v) * 1e3:.1f}/{np.max(v) * 1e3:.1f} ms ({np.median(coarse_cpu[k]) * 1e3:.0f}/"
+              f"{np.max(coarse_cpu[k]) * 1e3:.0f})" for k, v in coarse_t.items()) + "; "
           f"hits lost to the candidate regions: mean {100 * np.mean(lost):.1f} % (target <= 50 ms per query); "
           f"load average {open('/proc/loadavg').read().split()[0]}")

@@ -68,9 +68,15 @@ METHODS = {
     "graph": dict(),  # the gap-tolerant graph's own defaults (the matcher default until 2026-12-02)
     "default": None,
     "exact": dict(exact=True),
+    # the certified search forced to prune (no whole DP on these small databases), and its bounded approximation
+    "pruned": dict(exact=True, direct_cells=0),
+    **{f"approx{e:g}": dict(exact=True, approx=e, direct_cells=0) for e in (0.1, 0.15, 0.25, 0.5, 1.0, 2.0, np.inf)},
+    # the seed windows alone (approx inf) with denser seeds: query frames x neighbours per frame (x count)
+    **{f"seeds{f}x{k}": dict(exact=True, approx=np.inf, direct_cells=0, seed_frames=f, seed_k=k)
+       for f, k in ((5, 20), (10, 6), (10, 20), (20, 20), (30, 50))},
 }
 # every entry above but sdtw/default/exact is a configuration of the graph (exact: false)
-METHODS = {k: (dict(v, exact=False) if k not in ("sdtw", "default", "exact") else v) for k, v in METHODS.items()}
+METHODS = {k: (dict(v, exact=False) if not (k in ("sdtw", "default") or (v or {}).get("exact")) else v) for k, v in METHODS.items()}
 METHODS["default"] = dict()  # matchers.lng as configured by default (certified exact since 2026-12-02)
 QUICK = ("sdtw", "paper k256", "gaps8", "default", "exact")
 
@@ -186,6 +192,65 @@ def recall_own_clip_hidden(db, x, lengths, n_queries, methods, rng, echo=print) 
                  f"{np.mean(r['full']):>9.3f} {np.median(t_ref) / np.median(r['t']):>9.2f}")
 
 
+def _recall(x, clip_id, frame, starts, m_len, kw, cache) -> tuple[float, float, list, list]:
+    """Share of sDTW's top-10 ends found by ``lazy_neighborhood_graph(**kw)``, and Spearman's rho of
+    the costs over them, for the queries ``starts`` ((clip, first row) pairs; own clip hidden)."""
+    from scipy.stats import spearmanr
+
+    hit, ca, cb = [], [], []
+    for c, s in starts:
+        if c not in cache:
+            cache[c] = subspace(x, clip_id, frame, clip_id != c)
+        space = cache[c]
+        q = x[s : s + m_len]
+        ref = subsequence_dtw(q, space, count=10)
+        res = lazy_neighborhood_graph(q, space, count=10, **kw)
+        ends = {int(e): float(cc) for e, cc in zip(res.end, res.cost)}
+        for re_, rc in zip(ref.end, ref.cost):
+            hit.append(int(re_) in ends)
+            if hit[-1]:
+                ca.append(float(rc))
+                cb.append(ends[int(re_)])
+    rho = spearmanr(ca, cb).statistic if len(ca) > 2 and len(set(ca)) > 1 else 1.0
+    return float(np.mean(hit)), float(rho), ca, cb
+
+
+def choose_approx_loao(db, x, actors, grid, n_queries, rng, echo=print) -> None:
+    """``approx`` chosen leave one actor out: per held-out actor, the largest value of ``grid``
+    whose recall of sDTW's top-10 is >= 0.95 and rho >= 0.99 for 1 s and 3 s queries from the
+    *other* actors' clips (own clip hidden), then measured on the held-out actor's queries."""
+    clip_id, frame = db.frame_ids
+    acts = np.asarray(actors)
+    echo(f"  approx chosen leave one actor out (grid {', '.join(f'{e:g}' for e in grid)}; recall >= 0.95, rho >= 0.99 "
+         f"on the other actors' queries; {n_queries} queries per length and set; pruned search forced)")
+    echo(f"    {'held out':<9} {'chosen':>7} {'tune recall 1s/3s':>18} {'held-out recall 1s/3s':>22} {'rho 1s/3s':>16}")
+    cache: dict = {}
+
+    def draw(clips, m_len):
+        out = []
+        while len(out) < n_queries:
+            c = int(rng.choice(clips))
+            a, b = db.offsets[c], db.offsets[c + 1]
+            if b - a >= m_len:
+                out.append((c, int(rng.integers(a, b - m_len + 1))))
+        return out
+
+    for actor in sorted(set(actors)):
+        mine, others = np.flatnonzero(acts == actor), np.flatnonzero(acts != actor)
+        tune = {m: draw(others, m) for m in (30, 90)}
+        test = {m: draw(mine, m) for m in (30, 90)}
+        chosen, tune_rec = 0.0, (1.0, 1.0)
+        for e in sorted(grid):
+            kw = dict(exact=True, approx=e, direct_cells=0)
+            r = [_recall(x, clip_id, frame, tune[m], m, kw, cache)[:2] for m in (30, 90)]
+            if all(rec >= 0.95 and rho >= 0.99 for rec, rho in r):
+                chosen, tune_rec = e, (r[0][0], r[1][0])
+        kw = dict(exact=True, approx=chosen, direct_cells=0)
+        r = [_recall(x, clip_id, frame, test[m], m, kw, cache)[:2] for m in (30, 90)]
+        echo(f"    {actor:<9} {chosen:>7g} {tune_rec[0]:>8.3f} / {tune_rec[1]:.3f} {r[0][0]:>12.3f} / {r[1][0]:.3f} "
+             f"{r[0][1]:>7.4f} / {r[1][1]:.4f}")
+
+
 def main(argv=None) -> int:
     from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
 
@@ -196,6 +261,8 @@ def main(argv=None) -> int:
     ap.add_argument("--count", type=int, default=20, help="matches per query-by-example query")
     ap.add_argument("--no-qbe", action="store_true")
     ap.add_argument("--no-recall", action="store_true")
+    ap.add_argument("--choose-approx", type=float, nargs="*", default=None,
+                    help="choose the bounded approximation's approx from this grid leave one actor out (then exit)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     methods = args.methods or list(QUICK if args.quick else METHODS)
@@ -206,6 +273,10 @@ def main(argv=None) -> int:
     x = EndEffectorFeatures(joints=5).transform(db)
     print(f"hdm05 cuts: {db.n_clips} clips, {db.n_frames:,} frames at 30 Hz, {len(set(classes))} classes; F_E^15, "
           f"kd-tree, one thread")
+    if args.choose_approx is not None:
+        choose_approx_loao(db, x, actors, args.choose_approx or [0.05, 0.1, 0.25, 0.5], n_q,
+                           np.random.default_rng(args.seed))
+        return 0
     # compile the kernels outside the timings
     warm = subspace(x, *db.frame_ids, np.arange(db.n_frames) < db.offsets[3])
     for m in methods:

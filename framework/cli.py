@@ -244,7 +244,7 @@ def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
         p = sub.add_parser(cls.name, help=getattr(cls, "help", ""))
         cls.add_arguments(p)
         # the command sees the plugin manager built here (--block, --no-entry-points) as args.plugin_manager
-        p.set_defaults(func=lambda a, pm, _cls=cls: (setattr(a, "plugin_manager", pm), _cls.run(a))[1])
+        p.set_defaults(func=lambda a, pm, _cls=cls: (setattr(a, "plugin_manager", pm), _cls.run(a))[1], command_cls=cls)
     return parser
 
 
@@ -359,7 +359,9 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 0
-        if command not in BUILTIN_COMMANDS:
+        # a command that builds the registries it needs itself (`loads_plugins = True`, e.g.
+        # `search`, which may only forward the query to a search server) skips the rest
+        if command not in BUILTIN_COMMANDS and not getattr(getattr(args, "command_cls", None), "loads_plugins", False):
             _register_remaining_builtins(pm, blocked)
         from .progress import announce_compilation
 

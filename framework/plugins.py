@@ -136,7 +136,9 @@ def collect_classes(
     return results, failed
 
 
-def build_registries(pm: pluggy.PluginManager, *, strict: bool = False) -> Registries:
+def build_registries(
+    pm: pluggy.PluginManager, *, strict: bool = False, kinds: Iterable[str] | None = None
+) -> Registries:
     """Collect every registration hook (components and executors) into :class:`Registries`.
 
     Each hook implementation is called separately so that a component is attributed to
@@ -146,17 +148,26 @@ def build_registries(pm: pluggy.PluginManager, *, strict: bool = False) -> Regis
     ``pm.failures`` and logged as a warning naming it, so unrelated work goes on. With
     ``strict`` any failed plugin (including one that failed to import) is a
     :class:`PluginError`. Two plugins registering one name are always an error naming both.
+
+    ``kinds`` (e.g. ``("formats", "features", "indexes", "matchers")``) calls only those
+    kinds' hooks (``"executors"`` for ``register_executors``; joint maps always), so a
+    command that needs a few kinds imports only the modules behind them (``mocapflow
+    search``: no cleaner, analysis or executor module); the other registries stay empty.
     """
+    wanted = None if kinds is None else set(kinds)
     regs = Registries()
     pending: list[tuple[object, str, list[type]]] = []
     failed: dict[str, str] = {}
     for kind in KINDS:
+        if wanted is not None and kind not in wanted:
+            continue
         results, bad = collect_classes(pm, f"register_{kind}", regs[kind].check)
         pending += [(regs[kind], provider, classes) for provider, classes in results]
         failed.update({p: e for p, e in bad.items() if p not in failed})
-    results, bad = collect_classes(pm, "register_executors", regs.executors.check)
-    pending += [(regs.executors, provider, classes) for provider, classes in results]
-    failed.update({p: e for p, e in bad.items() if p not in failed})
+    if wanted is None or "executors" in wanted:
+        results, bad = collect_classes(pm, "register_executors", regs.executors.check)
+        pending += [(regs.executors, provider, classes) for provider, classes in results]
+        failed.update({p: e for p, e in bad.items() if p not in failed})
     maps, bad = collect_joint_maps(pm)
     failed.update({p: e for p, e in bad.items() if p not in failed})
     for plugin, error in failed.items():
@@ -255,9 +266,9 @@ def call_lifecycle(hook_relay: Any, hook_name: str, **kwargs: Any) -> None:
             raise PluginError(f"plugin {impl.plugin_name!r} failed in {what}: {type(exc).__name__}: {exc}") from exc
 
 
-def load_registries(**kwargs) -> Registries:
-    """Shortcut: ``build_registries(get_plugin_manager(**kwargs))``."""
-    return build_registries(get_plugin_manager(**kwargs))
+def load_registries(*, kinds: Iterable[str] | None = None, **kwargs) -> Registries:
+    """Shortcut: ``build_registries(get_plugin_manager(**kwargs), kinds=kinds)``."""
+    return build_registries(get_plugin_manager(**kwargs), kinds=kinds)
 
 
 @functools.lru_cache(maxsize=1)

@@ -5,13 +5,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from naive.dtw import continues_of, naive_blocks, naive_through_cell
+from naive.dtw import continues_of, naive_blocks, naive_through_cell, naive_window_cost
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
-from naive.coarse import coarse_alive, sdtw_ranges
-from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_bounds, sdtw_ranges_compact
-from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward
+from naive.coarse import naive_boxes, naive_coarse_bounds, naive_sdtw_ranges
+from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_bounds
+from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward, sdtw_ranges_compact
 from mocapflow.plugins.similarity.exact import ExactStats, certified_sdtw
 from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
 from mocapflow.framework.matching import SearchSpace
@@ -29,61 +29,113 @@ def same(a, b):
         np.testing.assert_array_equal(p, r)
 
 
-@pytest.mark.parametrize("seed,lengths,m,size", [(0, [40, 1, 30, 12], 6, 4), (1, [80], 10, 16), (2, [5, 5, 5, 60], 3, 7),
-                                                (3, [50, 50], 1, 3)])
-def test_coarse_bound_is_admissible(seed, lengths, m, size):
-    clip_id, frame, x = make_db(lengths, seed=seed)
+def tie_db(lengths, seed):
+    """One-dimensional small integers: many equal-cost paths, every distance and sum exact in float32 and float64."""
+    clip_id = np.concatenate([np.full(n, c) for c, n in enumerate(lengths)]).astype(np.int32)
+    frame = np.concatenate([np.arange(n) for n in lengths]).astype(np.int32)
+    return clip_id, frame, np.random.default_rng(seed).integers(0, 3, (len(clip_id), 1)).astype(np.float32)
+
+
+def query_of(x, m, seed, ties=False):
     rng = np.random.default_rng(seed)
-    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+    if ties:
+        return rng.integers(0, 3, (m, 1)).astype(np.float32)
+    return (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, x.shape[1]))).astype(np.float32)
+
+
+# random walks; a 1-row clip (single-row blocks); blocks of 1 row; queries longer than blocks and clips; ties
+BOUND_CASES = [(0, [40, 1, 30, 12], 6, 4, False), (1, [80], 10, 16, False), (2, [5, 5, 5, 60], 3, 7, False),
+               (3, [50, 50], 1, 3, False), (4, [7, 1, 1, 20], 12, 1, False), (5, [30, 2, 25], 9, 5, True),
+               (6, [60], 4, 60, True)]
+
+
+@pytest.mark.parametrize("seed,lengths,m,size,ties", BOUND_CASES)
+def test_block_boxes_equal_naive(seed, lengths, m, size, ties):
+    clip_id, frame, x = (tie_db if ties else make_db)(lengths, seed=seed)
     cont = continues_of(clip_id, frame)
     bstart, lo, hi, link = block_boxes(x, cont, size)
-    block = naive_blocks(cont, size)
+    block, nlo, nhi, nlink = naive_boxes(x, cont, size)
     np.testing.assert_array_equal(np.searchsorted(bstart, np.arange(len(x)), side="right") - 1, block)
-    through = naive_through_cell(q, x, cont).min(axis=0)  # best path through any cell of row j
-    for tau in (float(np.quantile(through, 0.1)), float(np.quantile(through, 0.5)), float(through.min()) * 1.001):
-        alive = coarse_alive(np.ascontiguousarray(q.T), lo, hi, link, tau, 1.0 - 1e-4)
-        # every row on a path of cost <= tau lies in an alive block (pruning: test_certified_prunes_columns)
-        assert np.all(alive[block[through <= tau]])
+    np.testing.assert_array_equal(lo, nlo)
+    np.testing.assert_array_equal(hi, nhi)
+    np.testing.assert_array_equal(link, nlink)
 
 
-@pytest.mark.parametrize("seed,lengths,m,size", [(0, [40, 1, 30, 12], 6, 4), (1, [80], 10, 16), (2, [5, 5, 5, 60], 3, 7),
-                                                (3, [50, 50], 1, 3)])
-def test_coarse_bounds_are_admissible_and_match_alive(seed, lengths, m, size):
-    clip_id, frame, x = make_db(lengths, seed=seed)
-    rng = np.random.default_rng(seed)
-    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+@pytest.mark.parametrize("seed,lengths,m,size,ties", BOUND_CASES)
+def test_coarse_bounds_equal_naive_and_are_admissible(seed, lengths, m, size, ties):
+    clip_id, frame, x = (tie_db if ties else make_db)(lengths, seed=seed)
+    q = query_of(x, m, seed, ties)
     qt = np.ascontiguousarray(q.T)
     cont = continues_of(clip_id, frame)
     bstart, lo, hi, link = block_boxes(x, cont, size)
     block = naive_blocks(cont, size)
-    through = naive_through_cell(q, x, cont).min(axis=0)
     nb = len(lo)
-    lb = coarse_bounds(qt, lo, hi, link, np.array([[0, nb]], np.int64), 1.0 - 1e-4)
+    shrink = 1.0 - 1e-4
+    lb = coarse_bounds(qt, lo, hi, link, np.array([[0, nb]], np.int64), shrink)
+    np.testing.assert_allclose(lb, naive_coarse_bounds(q, x, cont, size, shrink=shrink), rtol=1e-5, atol=1e-6)
     # a lower bound of the best path through every row of the block
+    through = naive_through_cell(q, x, cont).min(axis=0)
     assert np.all(lb[block] <= through * (1 + 1e-9))
-    for tau in (float(np.quantile(through, 0.2)), float(np.quantile(through, 0.7))):
-        np.testing.assert_array_equal(lb <= tau, coarse_alive(qt, lo, hi, link, tau, 1.0 - 1e-4))
+    for tau in (float(np.quantile(through, 0.2)), float(np.quantile(through, 0.7)), float(through.min()) * 1.001):
         # restricted to the alive runs (started afresh), the bound still keeps every row of a path <= tau
         alive = lb <= tau
+        assert np.all(alive[block[through <= tau]])
         edge = np.diff(np.r_[0, alive.astype(np.int8), 0])
         br = np.stack([np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)], axis=1).astype(np.int64)
-        sub = coarse_bounds(qt, lo, hi, link, br, 1.0 - 1e-4)
+        sub = coarse_bounds(qt, lo, hi, link, br, shrink)
+        np.testing.assert_allclose(sub, naive_coarse_bounds(q, x, cont, size, br, shrink), rtol=1e-5, atol=1e-6)
         assert np.all(sub[block[through <= tau]] <= tau) and np.all(np.isinf(sub[~alive]))
 
 
-@pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
-def test_sdtw_ranges_compact_equals_ranges(seed, lengths, m):
-    clip_id, frame, x = make_db(lengths, seed=seed)
-    rng = np.random.default_rng(seed)
-    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+def check_ranges_against_naive(q, x, cont, ranges, exact_costs):
+    rows, cost, start, length = sdtw_ranges_compact(np.ascontiguousarray(q.T), x, ~cont, ranges)
+    nrows, ncost, nstart, nlength = naive_sdtw_ranges(q, x, cont, ranges)
+    np.testing.assert_array_equal(rows, nrows)
+    if exact_costs:
+        np.testing.assert_array_equal(cost, ncost)
+    else:
+        np.testing.assert_allclose(cost, ncost, rtol=1e-6)
+    np.testing.assert_array_equal(start, nstart)
+    np.testing.assert_array_equal(length, nlength)
+
+
+# random walks; ties; 1-row ranges and clips; queries longer than every range
+RANGE_CASES = [(0, [40, 1, 30, 12], 6, False), (1, [80], 10, False), (3, [50, 50], 1, False), (4, [40, 1, 30, 12], 7, True),
+               (5, [3, 90], 25, True), (6, [20, 20, 20], 30, False)]
+
+
+@pytest.mark.parametrize("seed,lengths,m,ties", RANGE_CASES)
+def test_sdtw_ranges_compact_equals_naive(seed, lengths, m, ties):
+    clip_id, frame, x = (tie_db if ties else make_db)(lengths, seed=seed)
+    q = query_of(x, m, seed, ties)
     cont = continues_of(clip_id, frame)
-    qt = np.ascontiguousarray(q.T)
-    ranges = np.array([[0, 7], [9, 30], [31, len(x)]], np.int64)
-    full = sdtw_ranges(qt, x, ~cont, ranges)
-    rows, *got = sdtw_ranges_compact(qt, x, ~cont, ranges)
-    np.testing.assert_array_equal(rows, np.r_[0:7, 9:30, 31:len(x)])
-    for a, b in zip(got, full):
-        np.testing.assert_array_equal(a, b[rows])  # bit for bit
+    n = len(x)
+    rng = np.random.default_rng(seed)
+    cuts = np.sort(rng.choice(np.arange(1, n - 1), 6, replace=False))
+    for ranges in ([[0, 7], [9, 30], [31, n]], [[0, n]], [[0, 1], [1, 2], [5, 6], [n - 1, n]],
+                   [[cuts[0], cuts[1]], [cuts[2], cuts[3]], [cuts[4], cuts[5] + 1]]):
+        check_ranges_against_naive(q, x, cont, np.array(ranges, np.int64), exact_costs=ties)
+
+
+@pytest.mark.skipif(not (DATA / "hdm05" / "amc").is_dir(), reason="needs the development corpus ../shared/data (HDM05)")
+def test_coarse_kernels_equal_naive_on_hdm05():
+    from mocapflow.framework import MotionDatabase
+    from mocapflow.framework.normalize import resample
+    from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+
+    files = sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))[:2]
+    db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])
+    x = EndEffectorFeatures(joints=5).transform(db)
+    clip_id, frame = db.frame_ids
+    assert db.n_clips == 2  # so one clip boundary
+    cont = continues_of(clip_id, frame)
+    n = len(x)
+    q = x[n // 2 : n // 2 + 24] + np.float32(0.05)
+    check_ranges_against_naive(q, x, cont, np.array([[0, n // 3], [n // 3 + 10, n]], np.int64), exact_costs=False)
+    bstart, lo, hi, link = block_boxes(x, cont, 16)
+    lb = coarse_bounds(np.ascontiguousarray(q.T), lo, hi, link, np.array([[0, len(lo)]], np.int64), 1.0 - 1e-4)
+    np.testing.assert_allclose(lb, naive_coarse_bounds(q, x, cont, 16, shrink=1.0 - 1e-4), rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -108,21 +160,22 @@ def test_certified_levels_equal_sdtw(seed, levels, seeds):
 
 
 @pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
-def test_sdtw_ranges_equal_forward(seed, lengths, m):
+def test_sdtw_ranges_compact_equals_forward(seed, lengths, m):
+    # both kernels run sdtw_column: over one whole range, sdtw_forward's values bit for bit
     clip_id, frame, x = make_db(lengths, seed=seed)
-    rng = np.random.default_rng(seed)
-    q = (x[rng.integers(0, len(x), m)] + rng.normal(0, 0.2, (m, 3))).astype(np.float32)
+    q = query_of(x, m, seed)
     cont = continues_of(clip_id, frame)
     qt = np.ascontiguousarray(q.T)
     full = sdtw_forward(qt, x, ~cont)
-    got = sdtw_ranges(qt, x, ~cont, np.array([[0, len(x)]], np.int64))
+    rows, *got = sdtw_ranges_compact(qt, x, ~cont, np.array([[0, len(x)]], np.int64))
+    np.testing.assert_array_equal(rows, np.arange(len(x)))
     for a, b in zip(got, full):
-        np.testing.assert_array_equal(a, b)  # bit for bit
-    # a range starting at a clip start equals the full pass inside it; rows outside are untouched
+        np.testing.assert_array_equal(a, b)
+    # a range starting at a clip start equals the full pass inside it
     a0 = int(np.flatnonzero(~cont)[-1])
-    part = sdtw_ranges(qt, x, ~cont, np.array([[a0, len(x)]], np.int64))
-    np.testing.assert_array_equal(part[0][a0:], full[0][a0:])
-    assert np.all(np.isinf(part[0][:a0])) and np.all(part[1][:a0] == -1)
+    rows, *part = sdtw_ranges_compact(qt, x, ~cont, np.array([[a0, len(x)]], np.int64))
+    for a, b in zip(part, full):
+        np.testing.assert_array_equal(a, b[a0:])
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -210,3 +263,57 @@ def test_certified_equals_sdtw_on_hdm05():
         space = SearchSpace(clip_id[keep], frame[keep], KDTreeIndex(method="kdtree").build(x[keep]), x[keep])
         for count in (1, 10):
             same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("approx", [0.0, 0.1, 0.5, 2.0, np.inf])
+def test_bounded_approximation_guarantee(seed, approx):
+    # what docs/global-matching.md "Bounded approximation" promises: real alignments with their
+    # exact costs, the count-th cost within (1 + approx) of sDTW's, sDTW's result when sDTW's
+    # count-th cost is at most tau / (1 + approx); approx 0 is the certified-exact search
+    clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25, 50], seed=seed)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    cont = continues_of(clip_id, frame)
+    rng = np.random.default_rng(seed)
+    s0 = int(rng.integers(0, 200))
+    q = (x[s0 : s0 + 10] + rng.normal(0, 0.4, (10, 3))).astype(np.float32)
+    best_end = sdtw_forward(np.ascontiguousarray(q.T), x, ~cont)[0]  # sDTW's cost of the best path ending at each row
+    for count, levels in ((1, (16, 4)), (5, (8, 4)), (8, (12, 5, 2))):
+        st = ExactStats()
+        got = certified_sdtw(q, space, count=count, min_span=0.0, levels=levels, direct_cells=0, approx=approx,
+                             stats=st)
+        ref = subsequence_dtw(q, space, count=count, min_span=0.0)
+        if approx == 0.0:
+            same(got, ref)
+            continue
+        assert len(got) == len(ref) == count
+        assert np.all(np.diff(got.cost) >= 0)
+        o = np.argsort(got.start)
+        assert np.all(got.start[o][1:] >= got.end[o][:-1])  # non-overlapping
+        for s, e, c, p in zip(got.start, got.end, got.cost, got.paths):
+            assert c >= best_end[e - 1] - 1e-9  # never below sDTW's best path into that end row
+            np.testing.assert_allclose(c, naive_window_cost(q, x[s:e]), rtol=1e-5)  # a real alignment, exact cost
+            assert p[0, 1] == s and p[-1, 1] == e - 1
+        assert got.cost[-1] <= (1.0 + approx) * ref.cost[-1] * (1 + 1e-9)
+        if ref.cost[-1] * (1.0 + approx) <= st.tau:
+            same(got, ref)
+
+
+def test_matcher_default_is_exactly_sdtw_on_a_pruned_search():
+    # what the default promises (matchers.lng: exact true, approx 0): subsequence DTW's matches,
+    # here on a database large enough (> DIRECT_CELLS) that the pruned coarse-to-fine search runs
+    from mocapflow.plugins.similarity.exact import DIRECT_CELLS
+    from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
+
+    p = LazyNeighborhoodGraph.Params()
+    assert p.exact and p.approx == 0.0
+    clip_id, frame, x = make_db([500] * 90, seed=5)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    q = (x[1000:1050] + np.random.default_rng(5).normal(0, 0.2, (50, 3))).astype(np.float32)
+    assert len(x) * len(q) > DIRECT_CELLS
+    st = ExactStats()
+    got = certified_sdtw(q, space, count=p.count, min_span=p.min_span, approx=p.approx, stats=st)
+    same(got, subsequence_dtw(q, space, count=p.count, min_span=p.min_span))
+    same(lazy_neighborhood_graph(q, space, count=p.count, min_span=p.min_span, approx=p.approx),
+         subsequence_dtw(q, space, count=p.count, min_span=p.min_span))
+    assert st.coarse_blocks > 0 and st.columns < len(x)

@@ -119,6 +119,35 @@ def test_float32_stored_once_and_auto_reports_method():
     np.testing.assert_array_equal(ix.query(x[:5], 3)[1], knn(x, x[:5], 3)[1])
 
 
+def test_batches_switch_to_brute_force_by_the_batched_cost_model():
+    from mocapflow.plugins.similarity import kdtree
+
+    rng = np.random.default_rng(7)
+    x = rng.normal(size=(4000, 10)).astype(np.float32)
+    ix = KDTreeIndex(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)).build(x)
+    ix.method_, ix.brute_from_k_ = "kdtree", None
+    # the switch follows the saved probe counts and d only (share x d against the constant)
+    ix.probe_ = {"tree_share@4": 0.1, "tree_share@64": kdtree.BATCH_BRUTE_FROM_WORK / 10}
+    assert ix.batch_brute_from_k() == 16  # between the probed k: their geometric mean
+    ix.probe_ = {"tree_share@4": kdtree.BATCH_BRUTE_FROM_WORK / 10, "tree_share@64": 1.0}
+    assert ix.batch_brute_from_k() == 4
+    ix.probe_ = {"tree_share@4": 0.01, "tree_share@64": 0.05}
+    assert ix.batch_brute_from_k() is None
+    ix.probe_ = {"tree_share@4": 0.1, "tree_share@64": 1.0}
+    m = kdtree.BATCH_QUERIES
+    assert ix.method_for(3, m) == "kdtree" and ix.method_for(16, m) == "brute" and ix.method_for(16, m - 1) == "kdtree"
+    # a batch answered by brute force equals the naive reference and the one-by-one tree answers
+    q = x[rng.choice(len(x), m + 3, replace=False)] + 0.01
+    d, i = ix.query(q, 20)
+    np.testing.assert_array_equal(i, knn(x, q, 20)[1])
+    for r in range(0, len(q), 9):
+        np.testing.assert_array_equal(ix.query(q[r:r + 1], 20)[1][0], i[r])
+    # an index that is not `auto` keeps its method
+    fixed = KDTreeIndex(method="kdtree").build(x)
+    fixed.probe_ = ix.probe_
+    assert fixed.method_for(16, m) == "kdtree"
+
+
 def test_awkward_inputs():
     one = KDTreeIndex().build(np.ones((1, 3), np.float32))
     d, i = one.query(np.zeros(3), 4)

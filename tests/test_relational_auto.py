@@ -115,3 +115,58 @@ def test_relative_cost_cut_blends_low_quantile_and_median():
     assert relative_cost_cut(per_clip, 1.0, low_weight=1.0) == pytest.approx(low)
     assert relative_cost_cut(per_clip, 1.1, 0.75) == pytest.approx(1.1 * low ** 0.75 * 0.35 ** 0.25)
     assert relative_cost_cut(np.array([np.inf]), 1.1) == 0.0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_weighted_cost_table_matches_naive_local_cost(seed):
+    from mocapflow.plugins.relational.template_model import cost_table, frame_codes
+
+    from naive import templates as naive_templates
+
+    rng = np.random.default_rng(seed)
+    q = rng.choice([0.0, 0.5, 1.0], size=(5, 31)).astype(np.float32)
+    w = rng.random((5, 31)) * 3
+    bits = rng.random((20, 31)) < 0.3
+    codes = frame_codes(bits)
+    table = cost_table(q, w)
+    lo, up, mid = codes & 2047, 2048 + ((codes >> 11) & 4095), 6144 + ((codes >> 23) & 255)
+    got = (table[lo] + table[up] + table[mid]).T.astype(np.float64)
+    np.testing.assert_allclose(got, naive_templates.local_cost(q, bits, w), atol=1e-5)
+
+
+def test_surprise_weights_and_auto_template_weighting():
+    from mocapflow.plugins.relational.auto import auto_template, surprise_weights
+
+    bg = np.full(31, 0.5)
+    bg[0], bg[1] = 0.125, 0.875
+    q = np.zeros((2, 31))
+    q[0, 0] = q[1, 1] = 1.0
+    w = surprise_weights(q, bg, 1.0)
+    assert w[0, 0] == pytest.approx(3.0)  # a rare 'on': -log2(1/8)
+    assert w[1, 1] == pytest.approx(-np.log2(0.875))  # a common 'on' costs little
+    assert w[0, 1] == pytest.approx(3.0)  # 'off' where the database is mostly on
+    assert np.all(surprise_weights(q, bg, 0.0) == 1.0)
+    bits = np.zeros((12, 31))
+    bits[4:8, 0] = 1
+    t = auto_template(bits, bg, None, 2, "all", 0.5)
+    assert t.weights is not None and t.weights.shape == (12, 31) and len(t.columns) == 31
+    assert auto_template(bits, bg, None, 2, "key", 0.0).weights is None
+
+
+def test_mutual_clips_rejects_a_longer_motion_that_contains_the_query():
+    from mocapflow.plugins.relational.auto import mutual_clips
+
+    rng = np.random.default_rng(0)
+
+    def motion(n):  # runs of 5 frames: no flicker for min_run 4
+        return np.repeat(rng.random((n, 31)) < 0.3, 5, axis=0)
+
+    hop = motion(6)
+    noise = [motion(8) for _ in range(8)]
+    long_clip = np.concatenate([motion(10), hop, motion(10)])  # the hop inside a longer motion
+    clips = [hop.copy(), long_clip] + noise
+    db = np.concatenate(clips).astype(np.uint8)
+    offsets = np.concatenate([[0], np.cumsum([len(c) for c in clips])]).astype(np.int64)
+    codes = frame_codes(db)
+    keep = mutual_clips(hop, np.array([0, 1]), db, codes, offsets, db.mean(axis=0), relative_cut=1.3)
+    assert keep.tolist() == [True, False]

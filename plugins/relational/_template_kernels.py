@@ -494,6 +494,25 @@ def window_minima(cost, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def rival_window_minima(own, best, second, arg, which, lo, hi):  # pragma: no cover - compiled
+    """Per window ``[lo_i, hi_i)`` the least ``own`` cost and the least rival cost: ``best``
+    where another template holds it (``arg != which``), else ``second``. Both (n,) float64."""
+    out_own = np.full(lo.shape[0], np.inf)
+    out_other = np.full(lo.shape[0], np.inf)
+    for i in range(lo.shape[0]):
+        m, r = np.inf, np.inf
+        for j in range(lo[i], hi[i]):
+            if own[j] < m:
+                m = own[j]
+            v = second[j] if arg[j] == which else best[j]
+            if v < r:
+                r = v
+        out_own[i] = m
+        out_other[i] = r
+    return out_own, out_other
+
+
+@njit(cache=True)
 def intersect_ranges(alo, ahi, blo, bhi):  # pragma: no cover - compiled
     """Intersection of two sorted lists of disjoint frame ranges ``[lo, hi)``: (lo, hi) int64."""
     out_lo = np.empty(alo.shape[0] + blo.shape[0], np.int64)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -117,7 +117,8 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
                 cutoff: Literal["rivals", "threshold"] = "rivals", columns: Literal["key", "all"] = "key",
                 index=None, anchor_features: int = 2, threshold: float | None = None, rho: float = 1.0,
                 guard: float = 1.0, min_gap: float = 0.5, only: list[int] | None = None,
-                rival_table=None, anchors: int = 1) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+                rival_table=None, anchors: int = 1, step: int | str = 1, coarse_frames: int = 7,
+                coarse=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
     frames, ascending cost) under a cut-off rule (:mod:`.template_cutoff`).
 
@@ -128,9 +129,15 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
     a :class:`.template_cutoff.RivalTable` of the same frames answers the rival check by
     lookups (many queries on one database) instead of scanning the hits' windows.
     ``anchors``: candidate regions from one anchor or the intersection of two
-    (:func:`.template_prefilter.candidate_ranges`).
+    (:func:`.template_prefilter.candidate_ranges`). ``step``: search every ``step``-th frame
+    (``"auto"``: per template, :func:`.template_coarse.template_step` with ``coarse_frames``),
+    the rival check at the full rate (:mod:`.template_coarse`); ``coarse``: a
+    :class:`.template_coarse.CoarseCodes` of ``codes`` reused between calls.
     """
+    from .template_coarse import CoarseCodes, coarse_search, template_step
     from .template_cutoff import acceptance_bound, rival_mask
+
+    coarse = coarse if coarse is not None else CoarseCodes(codes, offsets)
 
     out = []
     for qid, t in enumerate(templates):
@@ -147,7 +154,7 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
             ranges, _ = candidate_ranges(use, index, anchor_features, widen="path", anchors=anchors)
         else:
             ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
-        s, e, c, _ = search_costs(codes, use.table(), ranges, bound, min_gap)
+        s, e, c = coarse_search(use, coarse, ranges, bound, min_gap, template_step(t, step, coarse_frames))
         if cutoff == "rivals":
             keep = (rival_table.mask(qid, s, e, offsets, rho) if rival_table is not None
                     else rival_mask(templates, qid, s, e, codes, offsets, rho))
@@ -174,7 +181,7 @@ class TemplateMatcher(Matcher):
     """
 
     name = "template"
-    version = "2"
+    version = "3"
     inputs = {"database": True, "motions": True, "reference": False, "index": False}
     #: Conformance (mocapflow.framework.testing): one template from synthetic clips.
     test_pipeline = {
@@ -208,6 +215,10 @@ class TemplateMatcher(Matcher):
         rho: float = Field(1.0, gt=0.0, description="cutoff rivals: keep a hit when its all-feature cost <= rho x the best rival's")
         guard: float = Field(1.0, ge=0.0, description="cutoff rivals: acceptance bound = max(threshold, (1 + guard) x the "
                                                       "largest leave-one-group-out example cost)")
+        step: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field("auto", description="search every step-th frame of template and clips (the "
+                                            "rival check stays at the full rate); auto: K // coarse_frames, 1 to 4 "
+                                            "(docs/templates.md); 1: the full-rate search")
+        coarse_frames: int = Field(7, ge=1, description="step auto: template frames per coarse template frame")
         plots: bool = Field(True, description="write template_<label>.png per template")
 
     def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
@@ -257,7 +268,8 @@ class TemplateMatcher(Matcher):
 
             table = RivalTable.build(templates, codes, offsets)
         lists = cutoff_hits(templates, codes, offsets, prm.cutoff, prm.features, index, prm.anchor_features, prm.threshold,
-                            prm.rho, prm.guard, rival_table=table, anchors=prm.anchors)
+                            prm.rho, prm.guard, rival_table=table, anchors=prm.anchors, step=prm.step,
+                            coarse_frames=prm.coarse_frames)
         for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists)):
             if prm.max_hits:
                 s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]

@@ -174,14 +174,14 @@ class RivalTable:
     def mask(self, which: int, start: np.ndarray, end: np.ndarray, offsets: np.ndarray, rho: float = 1.0) -> np.ndarray:
         """:func:`rival_mask` by lookups (the rival's path may end up to its own ``K``
         after the window: ``cover``)."""
-        from ._template_kernels import window_minima
+        from ._template_kernels import rival_window_minima
 
         if len(self.own) < 2 or not len(start):
             return np.ones(len(start), bool)
         lo, hi = end_windows(start, end, offsets)
         lo, hi = np.ascontiguousarray(lo, np.int64), np.ascontiguousarray(hi, np.int64)
-        own = window_minima(self.own[which].astype(np.float64), lo, hi)
-        other = window_minima(np.where(self.arg == which, self.second, self.best).astype(np.float64), lo, hi)
+        # only the hits' windows are read (no whole-database temporaries: the check is lookups)
+        own, other = rival_window_minima(self.own[which], self.best, self.second, self.arg, int(which), lo, hi)
         return own <= rho * other
 
 

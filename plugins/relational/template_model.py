@@ -60,6 +60,10 @@ class MotionTemplate:
     threshold: float
     n_examples: int
     example_costs: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: optional per-cell weights (K, 31) of the local cost (mode auto's surprise weights,
+    #: :func:`.auto.surprise_weights`); None: every cared-for cell counts 1. Not stored by
+    #: :func:`save_templates` (class templates are unweighted).
+    weights: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -81,27 +85,31 @@ class MotionTemplate:
     def table(self) -> np.ndarray:
         """Per-part local-cost lookup table (6400, K) float32 for the search kernel (cached
         for the current columns and delta)."""
-        key = (self.columns.tobytes(), self.delta, self.mean.shape)
+        key = (self.columns.tobytes(), self.delta, self.mean.shape, None if self.weights is None else id(self.weights))
         cached = getattr(self, "_table", None)
         if cached is None or cached[0] != key:
-            cached = (key, cost_table(self.quantized()))
+            cached = (key, cost_table(self.quantized(), self.weights))
             self._table = cached
         return cached[1]
 
 
-def cost_table(q: np.ndarray) -> np.ndarray:
+def cost_table(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Lookup table of a quantised template ``q (K, 31)`` (0, 1, 0.5 = don't care).
 
     Row ``offset_p + c`` holds, per template frame, the cost contribution of code ``c`` of
     part ``p`` (lower bits 0-10, upper 11-22, mixed 23-30): the number of cared-for bits of
     the part that differ from the template, divided by the number of cared-for features
-    of the frame (all parts); a frame with none costs 0.
+    of the frame (all parts); a frame with none costs 0. With ``weights`` (K, 31) >= 0 the
+    counts are weighted sums (a mismatch of cell (k, f) costs ``weights[k, f]``, divided by
+    the frame's total cared-for weight), still a mean in [0, 1].
     """
     from ._template_kernels import PART_OFFSETS, TABLE_ROWS
 
     q = np.asarray(q, np.float64)
     care = (q != 0.5).astype(np.float64)
-    n = np.maximum(care.sum(axis=1), 1.0)
+    if weights is not None:
+        care = care * np.asarray(weights, np.float64)
+    n = np.where(care.sum(axis=1) > 0, care.sum(axis=1), 1.0)
     table = np.zeros((TABLE_ROWS, len(q)), np.float64)
     for off, (lo, hi) in zip(PART_OFFSETS, ((0, 11), (11, 23), (23, 31))):
         width = hi - lo

@@ -41,8 +41,12 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
         cols = [int(c) for c in t.columns if sl.start <= c < sl.stop]
         counts = idx.list_frames
         total = max(int(idx.seg_end[-1] - idx.seg_start[0]) if idx.n_segments else 1, 1)
+        list_bits = {c: ((idx.list_codes >> (c - sl.start)) & 1).astype(np.int64) for c in cols}
         for r in range(1, max_features + 1):
             for combo in combinations(cols, r):
+                # frames per value of the combination's bits (value i of bit c at bit position i)
+                hist = np.bincount(sum(list_bits[c] << i for i, c in enumerate(combo)), weights=counts,
+                                   minlength=1 << r)
                 v = q[:, list(combo)]
                 ok = np.all(v != 0.5, axis=1)
                 # stretches of constant cared values over the combination
@@ -54,10 +58,7 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
                     if n < min_run or not ok[s]:
                         continue
                     bits = {c - sl.start: int(v[s, i]) for i, c in enumerate(combo)}
-                    sel = np.ones(len(idx.list_codes), bool)
-                    for b, val in bits.items():
-                        sel &= ((idx.list_codes >> b) & 1) == val
-                    frac = float(counts[sel].sum() / total)
+                    frac = float(hist[sum(int(v[s, i]) << i for i in range(r))] / total)
                     run = (int(s), int(s + n - 1))
                     if best is None or (frac, -n) < (best[2], -(best[3][1] - best[3][0] + 1)):
                         best = (name, bits, frac, run)

@@ -11,17 +11,16 @@ every fine path through a cell of block ``b`` at query frame ``i`` costs at leas
 ``F(i, b) + G(i, b) - c(i, b)``; blocks where that exceeds ``tau`` for every ``i`` hold no
 cell of any path of cost <= ``tau``. The search uses :func:`coarse_bounds` (the bound per
 block over block ranges, for a hierarchy of levels) and then the fine DP over the remaining
-blocks only, :func:`sdtw_ranges_compact`, with the arithmetic and tie order of
-:func:`._dtw_kernels.sdtw_forward`. The whole-array forms of both (``coarse_alive``,
-``sdtw_ranges``) are the tests' oracles in ``tests/naive/coarse.py``.
-Reference: ``tests/naive/dtw.py``; proof in ``docs/global-matching.md``.
+blocks only, :func:`._dtw_kernels.sdtw_ranges_compact` (the columns of
+:func:`._dtw_kernels.sdtw_forward`). References written from the definitions (full
+matrices, brute-force boxes): ``tests/naive/coarse.py``; proof in ``docs/global-matching.md``.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-_FAST = {"reassoc", "contract", "nsz", "arcp"}  # as _dtw_kernels.sdtw_forward (same arithmetic)
+from ._dtw_kernels import _FAST  # the fine DP's fastmath flags: the same float32 box arithmetic
 
 
 @njit(cache=True)
@@ -73,10 +72,11 @@ def block_boxes(x, continues, size):  # pragma: no cover - compiled
 def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - compiled
     """Lower bound ``min_i F(i, b) + G(i, b) - c(i, b)`` of every path through block ``b``.
 
-    Like the whole-array ``coarse_alive`` of ``tests/naive/coarse.py``, but over the block ranges ``[a, b)`` of ``branges`` only,
-    each started afresh (its first block is taken as unlinked: no path of cost <= ``tau``
-    enters it from a block ruled out at a coarser level), and returning the bound itself
-    (so blocks can be ranked, and tested against any ``tau``). Same recursion; each column
+    Over the block ranges ``[a, b)`` of ``branges`` only, each started afresh (its first
+    block is taken as unlinked: no path of cost <= ``tau`` enters it from a block ruled out
+    at a coarser level); the bound itself is returned (so blocks can be ranked, and tested
+    against any ``tau``). Reference: ``naive_coarse_bounds`` in ``tests/naive/coarse.py``
+    (float64, cell by cell). Same recursion as the fine DP; each column
     update is split, as in ``sdtw_forward``, into a vectorisable min over the previous
     block and the serial chain along the query.
 
@@ -153,79 +153,3 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
                 low = min(low, f[bb, i] + g[bb, i] - c[bb, i])
             lb[b0 + bb] = low
     return lb
-
-
-@njit(cache=True, fastmath=_FAST)
-def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compiled
-    """The fine DP over row ranges, returning only the rows inside them (no O(n) arrays).
-
-    Returns
-    -------
-    rows : int64 (p,)   the rows of the ranges, in order
-    cost : float64 (p,), start : int64 (p,), length : int64 (p,)
-        the whole-array DP's values at those rows (same arithmetic, bit for bit; ``tests/naive/coarse.py``).
-    """
-    d, m = qt.shape
-    inf = np.inf
-    p = 0
-    for r in range(ranges.shape[0]):
-        p += ranges[r, 1] - ranges[r, 0]
-    rows = np.empty(p, np.int64)
-    cost = np.empty(p)
-    start = np.empty(p, np.int64)
-    length = np.empty(p, np.int64)
-    prev_c = np.full(m, inf)
-    prev_s = np.zeros(m, np.int64)
-    prev_l = np.zeros(m, np.int64)
-    cur_c = np.empty(m)
-    cur_s = np.empty(m, np.int64)
-    cur_l = np.empty(m, np.int64)
-    col = np.empty(m, np.float32)
-    o = 0
-    for r in range(ranges.shape[0]):
-        for i in range(m):
-            prev_c[i] = inf
-        for j in range(ranges[r, 0], ranges[r, 1]):
-            for i in range(m):
-                col[i] = 0.0
-            for k in range(d):
-                xk = x[j, k]
-                for i in range(m):
-                    t = qt[k, i] - xk
-                    col[i] += t * t
-            for i in range(m):
-                col[i] = np.sqrt(col[i])
-            if clip_start[j]:
-                for i in range(m):
-                    prev_c[i] = inf
-            cur_c[0] = col[0]
-            cur_s[0] = j
-            cur_l[0] = 1
-            for i in range(1, m):
-                a = prev_c[i - 1]
-                b = prev_c[i]
-                v = b < a
-                cur_c[i] = b if v else a
-                cur_s[i] = prev_s[i] if v else prev_s[i - 1]
-                cur_l[i] = prev_l[i] if v else prev_l[i - 1]
-            c = cur_c[0]
-            s = cur_s[0]
-            ln = cur_l[0]
-            for i in range(1, m):
-                b = cur_c[i]
-                h = c < b
-                s = s if h else cur_s[i]
-                ln = (ln if h else cur_l[i]) + 1
-                c = (c if h else b) + np.float64(col[i])
-                cur_c[i] = c
-                cur_s[i] = s
-                cur_l[i] = ln
-            rows[o] = j
-            cost[o] = c
-            start[o] = s
-            length[o] = ln
-            o += 1
-            prev_c, cur_c = cur_c, prev_c
-            prev_s, cur_s = cur_s, prev_s
-            prev_l, cur_l = cur_l, prev_l
-    return rows, cost, start, length

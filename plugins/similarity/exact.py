@@ -14,13 +14,20 @@ cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``,
    (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level
    (:data:`LEVELS`: blocks of 512, 64, 16, 4 rows), each level only over the runs of
    blocks still alive (bound <= ``tau``) at the level above;
-3. the fine DP (:func:`._coarse_kernels.sdtw_ranges_compact`, the arithmetic of
+3. the fine DP (:func:`._dtw_kernels.sdtw_ranges_compact`, the arithmetic of
    ``sdtw_forward``) runs over the rows still alive; every end row whose best path costs
    <= ``tau`` gets exactly sDTW's cost, start and length;
 4. the same greedy selection on those candidates yields ``count`` matches, which are then
    sDTW's; if it yields fewer, ``tau`` is doubled (three times at most), then set to
    ``max_cost`` (or unbounded: the whole DP, plain sDTW). Below :data:`DIRECT_CELLS` DP
    cells, and once half the rows are alive (:data:`FULL_FROM`), the whole DP runs at once.
+
+``approx > 0`` is the bounded approximation: a block is pruned when ``(1 + approx) * LB >
+tau``; every match is still a real alignment with its exact cost, the ``count``-th cost is
+at most ``(1 + approx)`` times sDTW's, and the result is sDTW's whenever sDTW's ``count``-th
+cost is at most ``tau / (1 + approx)`` (``approx = inf``: the seed windows alone). Measured
+(docs/global-matching.md): with the recall constraint (>= 0.95 of sDTW's top-10, chosen leave
+one actor out: 0.15) it saves 0-30 % of the time, so the default stays exact.
 
 Measured and dropped: the bound suggested first (the sum of the remaining query frames'
 1-NN distances, or per run of rows the k-th neighbour distance, with the first row's
@@ -107,7 +114,8 @@ def _query_params(index) -> frozenset:
 _QUERY_PARAMS: dict = {}
 
 
-def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
+def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=None,
+              k_per=None) -> tuple[float, tuple]:
     """A threshold from real alignments around the nearest neighbours of a few query frames.
 
     :data:`SEED_FRAMES` query frames spread over the query (first and last included) get
@@ -116,11 +124,11 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
     query frame, so the fine DP runs over those windows (merged). Returns the
     ``count``-th cost of their selection, or inf when it holds fewer.
     """
-    from ._coarse_kernels import sdtw_ranges_compact
+    from ._dtw_kernels import sdtw_ranges_compact
 
     m, n = len(q), space.n_rows
-    frames = np.unique(np.linspace(0, m - 1, SEED_FRAMES).round().astype(np.int64))
-    kk = min(n, SEED_K * count)
+    frames = np.unique(np.linspace(0, m - 1, n_frames or SEED_FRAMES).round().astype(np.int64))
+    kk = min(n, (k_per or SEED_K) * count)
     qs = np.ascontiguousarray(q[frames])
     if "workers" in _query_params(space.index):  # a few queries: waking threads costs more than it saves
         _, ids = space.index.query(qs, kk, workers=1)
@@ -137,7 +145,18 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st) -> float:
     st.guess_columns += len(rows)
     keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
                           min_frames=min_frames)
-    return float(cost[keep[-1]]) if len(keep) == count else np.inf
+    return (float(cost[keep[-1]]) if len(keep) == count else np.inf), (rows, cost, start, length)
+
+
+def merged_candidates(a: tuple, b: tuple) -> tuple:
+    """Candidates ``(rows, cost, start, length)`` of two fine DP passes, one per row: the lower
+    cost (``a``'s on ties), rows ascending. Both are costs of real paths into their row."""
+    rows, cost, start, length = (np.concatenate([u, v]) for u, v in zip(a, b))
+    src = np.r_[np.zeros(len(a[0]), np.int8), np.ones(len(b[0]), np.int8)]
+    o = np.lexsort((src, cost, rows))
+    first = np.r_[True, rows[o][1:] != rows[o][:-1]]
+    o = o[first]
+    return rows[o], cost[o], start[o], length[o]
 
 
 def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) -> float:
@@ -148,7 +167,7 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
     matches the last one's cost is returned, else four times more blocks are tried. Any
     value is safe (the caller verifies it); a low one prunes more.
     """
-    from ._coarse_kernels import sdtw_ranges_compact
+    from ._dtw_kernels import sdtw_ranges_compact
 
     bstart, _, _, link = blocks
     nb = len(lb)
@@ -179,7 +198,8 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
                    top: int | None = None, graph=None, stats: ExactStats | None = None,
                    full_from: float | None = None, seeds: bool = True,
-                   levels: tuple[int, ...] | None = None, direct_cells: int | None = None) -> QueryMatches:
+                   levels: tuple[int, ...] | None = None, direct_cells: int | None = None,
+                   approx: float = 0.0, seed_frames: int | None = None, seed_k: int | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -216,9 +236,19 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     direct_cells : int, optional
         (Default :data:`DIRECT_CELLS`.) Up to this many DP cells (rows x query frames) the
         whole DP runs at once, with no threshold. Speed only.
+    approx : float
+        Bounded approximation (0: certified exact). A block is pruned when ``(1 + approx) *
+        LB > tau``, so every path left out costs more than ``tau / (1 + approx)``; what a user
+        can rely on (docs/global-matching.md, "Bounded approximation"): every match is a real
+        alignment with its exact cost, the ``count``-th cost is at most ``(1 + approx)`` times
+        sDTW's, and the result is sDTW's whenever sDTW's ``count``-th cost is at most
+        ``tau / (1 + approx)``.
+    seed_frames, seed_k : int, optional
+        (Defaults :data:`SEED_FRAMES`, :data:`SEED_K`.) Query frames searched for the seeds, and
+        neighbours per frame (times ``count``).
     """
-    from ._coarse_kernels import coarse_bounds, sdtw_ranges_compact
-    from ._dtw_kernels import dtw_window_path
+    from ._coarse_kernels import coarse_bounds
+    from ._dtw_kernels import dtw_window_path, sdtw_ranges_compact
     from .graph import build_graph
     from .sdtw import validate_query
 
@@ -237,10 +267,14 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     ceiling = np.inf if (max_cost is None or rank_by != "cost") else float(max_cost)
     qt = np.ascontiguousarray(q.T)
     n = space.n_rows
+    scale = 1.0 + float(approx)  # alive when scale * LB <= tau
+    if not scale >= 1.0:
+        raise DataError(f"approx must be >= 0, got {approx}")
     direct = n * len(q) <= (DIRECT_CELLS if direct_cells is None else direct_cells)
     levels = [] if direct else [block_boxes_of(space, b) for b in sizes]
     lb_top = None
     tau = np.inf
+    seeded = None  # the seed windows' candidates, whose selection gave tau: an approximate pass keeps them
     if rank_by == "cost" and not direct:
         if graph is None and not top:
             graph = build_graph(q, space, k=min(k, n), gaps=gaps)
@@ -249,7 +283,8 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         if found is not None and len(found) == count:
             tau = float(found.cost[-1])
         elif top and space.index is not None and seeds:
-            tau = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st)
+            tau, seeded = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, seed_frames,
+                                     seed_k)
         if not np.isfinite(tau) and top:
             bs = levels[0]
             lb_top = coarse_bounds(qt, bs[1], bs[2], bs[3], np.array([[0, len(bs[1])]], np.int64), _SHRINK)
@@ -261,7 +296,9 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     tries = 0
     while True:
         ranges = np.array([[0, n]], np.int64)
-        if np.isfinite(tau) and not direct:
+        if np.isfinite(tau) and not direct and np.isinf(scale) and seeded is not None:
+            ranges = np.zeros((0, 2), np.int64)  # approx inf: the seed windows alone (no bound computed)
+        elif np.isfinite(tau) and not direct:
             br = None  # block ranges of the current level still in play (None: all)
             for li, (bstart, lo, hi, link) in enumerate(levels):
                 if br is None:
@@ -276,7 +313,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                     lb = coarse_bounds(qt, lo, hi, link, br, _SHRINK)
                     st.coarse_blocks += int((br[:, 1] - br[:, 0]).sum())
                     st.level_blocks.append(int((br[:, 1] - br[:, 0]).sum()))
-                alive = block_ranges(lb <= tau)
+                alive = block_ranges(lb * scale <= tau)
                 ranges = bstart[alive]
                 if li + 1 < len(levels):  # the next level's blocks tile these rows exactly
                     br = np.searchsorted(levels[li + 1][0], ranges)
@@ -286,6 +323,11 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
         st.tau, st.passes = tau, st.passes + 1
         st.columns += len(rows)
+        whole = len(ranges) == 1 and ranges[0, 0] == 0 and ranges[0, 1] == n
+        if scale > 1.0 and seeded is not None and not whole:
+            # the (1 + approx) pruning may rule out the very windows that gave tau: their candidates
+            # (real paths, cost >= the true best into their row) join, so count matches <= tau remain
+            rows, cost, start, length = merged_candidates((rows, cost, start, length), seeded)
         sel = np.flatnonzero(cost <= tau)
         keep = select_matches(rows[sel], start[sel], cost[sel], length[sel], count=count, max_cost=max_cost,
                               rank_by=rank_by, min_frames=min_frames)

@@ -44,6 +44,14 @@ if TYPE_CHECKING:  # pragma: no cover
 #: ~2x the unavoidable work in 90-d), a single brute-force query 3-11 ns per row and
 #: dimension and a batched one far less, so the break-even lies near a quarter of the rows.
 BRUTE_FROM_SHARE = 0.25
+#: Batches (at least :data:`BATCH_QUERIES` queries in one call) go to the brute force sooner:
+#: there one GEMM serves a block of queries, so a scanned row costs about the same whatever
+#: ``d`` (measured 380,813 rows, k = 16 and 256, d = 45 and 90, both cores: 12-15 ms per query
+#: at d = 45 and 90 alike), while a tree query still costs per counted point *and* dimension
+#: (1.85 ms per unit of ``share x d`` there). Break-even: ``share x d`` near 7; the tree answers
+#: a batch while ``tree_share@k x d`` stays below this.
+BATCH_BRUTE_FROM_WORK = 7.0
+BATCH_QUERIES = 32
 
 _ARRAYS = ("data_", "perm_", "groups_", "frames_", "sqnorms_", "mean_",
            "start_", "end_", "left_", "right_", "sdim_", "sval_")
@@ -191,11 +199,42 @@ class KDTreeIndex(Index):
             prev = k
         return first
 
-    def method_for(self, k: int) -> str:
-        """The method that answers a query for ``k`` neighbours (``"kdtree"`` or ``"brute"``)."""
+    def method_for(self, k: int, m: int = 1) -> str:
+        """The method that answers ``m`` queries for ``k`` neighbours (``"kdtree"`` or ``"brute"``).
+
+        Single queries follow the build-time choice (``method_``, ``brute_from_k_``); batches
+        of at least :data:`BATCH_QUERIES` of an ``auto`` index also switch to the brute force
+        from :meth:`batch_brute_from_k` on (the same probe counts, the batched cost model;
+        not for radius queries, whose tree work the unbounded probe overstates).
+        """
         if self.brute_from_k_ is not None and k >= self.brute_from_k_:
-            return getattr(self, "large_method_", "brute")
-        return self.method_
+            method = getattr(self, "large_method_", "brute")
+        else:
+            method = self.method_
+        if method == "kdtree" and m >= BATCH_QUERIES:
+            bk = self.batch_brute_from_k()
+            if bk is not None and k >= bk:
+                return "brute"
+        return method
+
+    def batch_brute_from_k(self) -> int | None:
+        """From which ``k`` on a batch is answered by brute force (``None``: never).
+
+        Derived from the probe's counts (``probe_``, saved with the index) and the dimension:
+        deterministic, and indexes saved before this rule get it too. A ``k`` between two
+        probed values switches at their geometric mean, as :meth:`_probe` does.
+        """
+        probe = getattr(self, "probe_", None) or {}
+        shares = sorted((int(key.split("@")[1]), v) for key, v in probe.items() if key.startswith("tree_share@"))
+        if self.params.method != "auto" or not shares:
+            return None
+        d = self.data_.shape[1]
+        prev = None
+        for k, share in shares:
+            if share * d >= BATCH_BRUTE_FROM_WORK:
+                return k if prev is None else int(round(np.sqrt(prev * k)))
+            prev = k
+        return None
 
     # --- querying ---------------------------------------------------------------------
     def query(self, x: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
@@ -236,7 +275,7 @@ class KDTreeIndex(Index):
         w = self.params.workers if workers is None else workers
         d2, ids = self._search(np.ascontiguousarray(q), int(k), radius, float(eps), exclude,
                                query_groups, query_frames, w,
-                               "kdtree" if eps > 0 else self.method_for(int(k)))
+                               "kdtree" if eps > 0 else self.method_for(int(k), len(q) if radius is None else 1))
         return np.sqrt(d2).astype(np.float32), ids
 
     def _interactive(self, x, k, radius, eps, exclude) -> tuple[np.ndarray, np.ndarray] | None:
@@ -355,10 +394,30 @@ class KDTreeIndex(Index):
         d.mkdir(parents=True, exist_ok=True)
         for a in _ARRAYS:
             np.save(d / f"{a.rstrip('_')}.npy", getattr(self, a))
+        # the rows in dataset order (features, clip id, frame) beside the tree: `mocapflow
+        # search` memory-maps them instead of decoding the features Parquet (1 s at 1 M rows)
+        inv = self._inverse_perm()
+        for name, arr in (("rows_features", self.data_), ("rows_clip_id", self.groups_), ("rows_frame", self.frames_)):
+            np.save(d / f"{name}.npy", arr[inv])
         meta = {"component": self.key(), "params": self.get_params(), "method": self.method_,
                 "brute_from_k": self.brute_from_k_, "large_method": getattr(self, "large_method_", "brute"),
                 "probe": self.probe_}
         (d / "index.json").write_text(json.dumps(meta, indent=1))
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(features, clip_id, frame)`` of the indexed rows in dataset order, memory-mapped
+        (copy-on-write) from the sidecar files :meth:`save` writes (``None`` for an index saved
+        before them, or one never saved): what a search space needs, with nothing copied.
+
+        Returns
+        -------
+        tuple of ndarray (n, d) float32, (n,) int32, (n,) int32, or None
+        """
+        d = getattr(self, "_dir", None)
+        if d is None or not all((d / f"rows_{n}.npy").is_file() for n in ("features", "clip_id", "frame")):
+            return None
+        # copy-on-write like the tree arrays: writable ndarrays (the kernels' one signature), never written
+        return tuple(np.load(d / f"rows_{n}.npy", mmap_mode="c").view(np.ndarray) for n in ("features", "clip_id", "frame"))
 
     @classmethod
     def load(cls, directory: Path) -> KDTreeIndex:
@@ -374,6 +433,7 @@ class KDTreeIndex(Index):
             setattr(self, a, arr.view(np.ndarray) if isinstance(arr, np.memmap) else arr)
         self.method_, self.probe_, self.brute_from_k_ = meta["method"], meta["probe"], meta.get("brute_from_k")
         self.large_method_ = meta.get("large_method", "brute")
+        self._dir = d
         return self
 
     # --- pipeline step ----------------------------------------------------------------

@@ -35,7 +35,9 @@ from .matcher_base import GlobalMatcher, NeighborParams
 def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
                             eps: float = 0.0, count: int = 10, max_cost: float | None = None,
                             rank_by: str = "cost", min_span: float = 0.5, propagate: int = 2,
-                            gaps: int = 32, exact: bool = True, fill: bool = True) -> QueryMatches:
+                            gaps: int = 32, exact: bool = True, fill: bool = True, approx: float = 0.0,
+                            direct_cells: int | None = None, seed_frames: int | None = None,
+                            seed_k: int | None = None) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` (see :func:`build_graph`, :func:`.select_matches`).
 
     Defaults are the matcher's: ``exact`` (below), ``min_span`` 0.5. With ``exact=False``
@@ -48,12 +50,16 @@ def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 2
     neighbours of a few query frames; no graph is built, it would cost more than it
     saves). ``fill`` (``exact=False``): when the graph holds fewer than ``count`` matches,
     return the certified-exact search's instead (the graph's matches supply its threshold
-    when there are ``count`` of them; it is verified either way).
+    when there are ``count`` of them; it is verified either way). ``approx`` (``exact``
+    only): the bounded approximation of :func:`.exact.certified_sdtw` (0: certified exact);
+    ``direct_cells``, ``seed_frames``, ``seed_k``: as there (benchmarks force the pruned
+    search on small databases, or vary the seeds).
     """
     from .exact import certified_sdtw
 
     if exact:
-        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
+        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
+                              approx=approx, direct_cells=direct_cells, seed_frames=seed_frames, seed_k=seed_k)
     graph = build_graph(query, space, k=k, radius=radius, eps=eps, propagate=propagate, gaps=gaps)
     res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
     if fill and len(res) < count and space.features is not None:
@@ -87,7 +93,8 @@ class LazyNeighborhoodGraph(GlobalMatcher):
         p = self.params
         return lazy_neighborhood_graph(query, space, k=p.k, radius=p.radius, eps=p.eps, count=p.count,
                                        max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span,
-                                       propagate=p.propagate, gaps=p.gaps, exact=p.exact, fill=p.fill)
+                                       propagate=p.propagate, gaps=p.gaps, exact=p.exact, fill=p.fill,
+                                       approx=p.approx)
 
     def after_match(self, query_id, query, matches, space, ctx) -> None:
         p = self.params

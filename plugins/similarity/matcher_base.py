@@ -34,6 +34,11 @@ class NeighborParams(MatchParams):
     exact: bool = Field(False, description=(
         "certified-exact: return exactly subsequence DTW's matches by a coarse-to-fine DP pruned with an "
         "admissible bound, no graph built (rank_by cost; other rankings run the whole DP)"))
+    approx: float = Field(0.0, ge=0, description=(
+        "exact true: bounded approximation of the certified search (our extension); a block of rows is pruned when "
+        "(1 + approx) x its lower bound exceeds the threshold, so the count-th cost is at most (1 + approx) x subsequence "
+        "DTW's and every match is a real alignment with its exact cost; 0 (default): exactly subsequence DTW "
+        "(docs/global-matching.md, 'Bounded approximation')"))
     fill: bool = Field(True, description=(
         "exact false: when the graph holds fewer than count matches, return the certified-exact search's instead"))
 

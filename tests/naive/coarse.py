@@ -1,145 +1,121 @@
-"""Whole-array forms of the certified search's kernels, kept as oracles of the ranged ones in
-:mod:`mocapflow.plugins.similarity._coarse_kernels` (same arithmetic, so the tests compare
-bit for bit): ``coarse_alive`` (blocks that may hold a cell of a path of cost <= tau, over all
-blocks) and ``sdtw_ranges`` (the fine DP over row ranges, with O(n) outputs)."""
+"""Naive references of the certified search's kernels (:mod:`mocapflow.plugins.similarity._coarse_kernels`).
+
+Written from the definitions, not from the kernels: full matrices in float64, the
+textbook recurrences cell by cell, blocks and boxes found by brute force. They share no
+code and no arithmetic with the kernels (which use float32 distances, fastmath and
+column buffers), so the tests compare costs with a tolerance, and starts and lengths
+exactly where no float rounding can change a decision (ties on integer-valued data, where
+every sum is exact in both, or random data).
+
+- :func:`naive_coarse_bounds`: the coarse lower bound ``min_i F(i, b) + G(i, b) - c(i, b)``
+  of every block (``coarse_bounds``);
+- :func:`naive_sdtw_ranges`: subsequence DTW restricted to row ranges, each started afresh
+  (``sdtw_ranges_compact``), by running the full-matrix DP of :mod:`naive.dtw` on each
+  range's rows alone.
+"""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
-
-from mocapflow.plugins.similarity._coarse_kernels import _FAST
+from naive.dtw import naive_blocks, naive_path, naive_subsequence_dtw
 
 
-@njit(cache=True, fastmath=_FAST)
-def coarse_alive(qt, lo, hi, link, tau, shrink):  # pragma: no cover - compiled
-    """Blocks that may hold a cell of a path of cost <= ``tau`` (see module doc).
+def naive_boxes(x, continues, size):
+    """Blocks and their bounding boxes, by brute force.
+
+    Returns
+    -------
+    block : int (n,)          block of every row (:func:`naive.dtw.naive_blocks`)
+    lo, hi : float64 (nb, d)  minimum and maximum over the block's rows, per dimension
+    link : bool (nb,)         the block's first row continues the previous block's last row
+    """
+    x = np.asarray(x, np.float64)
+    block = naive_blocks(continues, size)
+    nb = int(block.max()) + 1
+    lo = np.array([x[block == b].min(axis=0) for b in range(nb)])
+    hi = np.array([x[block == b].max(axis=0) for b in range(nb)])
+    first = [int(np.flatnonzero(block == b)[0]) for b in range(nb)]
+    link = np.array([j > 0 and bool(continues[j]) for j in first])
+    return block, lo, hi, link
+
+
+def naive_box_distance(q, lo, hi):
+    """Euclidean distance of every query frame to every box, ``(m, nb)``: to the box's nearest point."""
+    q = np.asarray(q, np.float64)
+    nearest = np.clip(q[:, None, :], lo[None, :, :], hi[None, :, :])  # the box's point closest to q[i]
+    return np.sqrt(((q[:, None, :] - nearest) ** 2).sum(axis=2))
+
+
+def naive_coarse_bounds(q, x, continues, size, branges=None, shrink=1.0):
+    """Coarse lower bound of the best path through each block, from the definition.
+
+    Subsequence DTW on the (query frame, block) grid with box distances as cell costs:
+    ``F`` the forward DP (free start in query frame 0), ``G`` the backward one (free end in
+    the last query frame), block ``b`` following ``b - 1`` only when linked and in the same
+    range (a range's first block starts afresh). The bound of block ``b`` is
+    ``min_i F(i, b) + G(i, b) - c(i, b)``.
 
     Parameters
     ----------
-    qt : float32 (d, m)   the query, transposed
-    lo, hi, link : from :func:`block_boxes`
-    tau : float
-    shrink : float
-        Box distances are multiplied by it (below 1: float32 rounding of these and of the
-        fine DP's distances must not lift the bound above a fine cell).
+    q : (m, d) query; x : (n, d) database rows; continues : bool (n,)
+    size : int                 rows per block at most
+    branges : (r, 2) or None   block ranges ``[a, b)``; None: all blocks, one range
+    shrink : float             box distances are multiplied by it
 
     Returns
     -------
-    alive : bool (nb,)
+    lb : float64 (nb,)   inf for blocks outside every range
     """
-    d, m = qt.shape
-    nb = lo.shape[0]
-    inf = np.inf
-    c = np.empty((nb, m), np.float32)
-    acc = np.empty(m, np.float32)
-    for b in range(nb):
-        for i in range(m):
-            acc[i] = 0.0
-        for k in range(d):
-            lk = lo[b, k]
-            hk = hi[b, k]
+    _, lo, hi, link = naive_boxes(x, continues, size)
+    nb = len(lo)
+    c = naive_box_distance(q, lo, hi) * shrink  # (m, nb)
+    m = len(c)
+    if branges is None:
+        branges = [(0, nb)]
+    lb = np.full(nb, np.inf)
+    for a, z in branges:
+        F = np.full((m, z - a), np.inf)
+        G = np.full((m, z - a), np.inf)
+        for bb in range(z - a):  # forward, block by block
+            after = bb > 0 and link[a + bb]
             for i in range(m):
-                v = qt[k, i]
-                t = max(lk - v, v - hk, np.float32(0.0))
-                acc[i] += t * t
-        for i in range(m):
-            c[b, i] = np.sqrt(acc[i]) * shrink
-    f = np.empty((nb, m))
-    for b in range(nb):
-        f[b, 0] = c[b, 0]
-        linked = link[b]
-        for i in range(1, m):
-            best = f[b, i - 1]
-            if linked:
-                best = min(best, f[b - 1, i - 1], f[b - 1, i])
-            f[b, i] = best + c[b, i]
-    alive = np.zeros(nb, np.bool_)
-    g_next = np.full(m, inf)
-    g = np.empty(m)
-    for b in range(nb - 1, -1, -1):
-        linked_next = b + 1 < nb and link[b + 1]
-        g[m - 1] = c[b, m - 1]  # a free end: going on vertically only adds cost
-        for i in range(m - 2, -1, -1):
-            best = g[i + 1]
-            if linked_next:
-                best = min(best, g_next[i + 1], g_next[i])
-            g[i] = best + c[b, i]
-        for i in range(m):
-            if f[b, i] + g[i] - c[b, i] <= tau:
-                alive[b] = True
-                break
-        for i in range(m):
-            g_next[i] = g[i]
-    return alive
+                options = [0.0] if i == 0 else [F[i - 1, bb]]  # free start / horizontal
+                if after and i > 0:
+                    options += [F[i - 1, bb - 1], F[i, bb - 1]]  # diagonal, vertical
+                F[i, bb] = min(options) + c[i, a + bb]
+        for bb in range(z - a - 1, -1, -1):  # backward
+            before = bb + 1 < z - a and link[a + bb + 1]
+            for i in range(m - 1, -1, -1):
+                options = [0.0] if i == m - 1 else [G[i + 1, bb]]  # free end / horizontal
+                if before and i < m - 1:
+                    options += [G[i + 1, bb + 1], G[i, bb + 1]]
+                G[i, bb] = min(options) + c[i, a + bb]
+        for bb in range(z - a):
+            lb[a + bb] = min(F[i, bb] + G[i, bb] - c[i, a + bb] for i in range(m))
+    return lb
 
 
-@njit(cache=True, fastmath=_FAST)
-def sdtw_ranges(qt, x, clip_start, ranges):  # pragma: no cover - compiled
-    """:func:`._dtw_kernels.sdtw_forward` over the row ranges ``[a, b)`` of ``ranges`` only.
+def naive_sdtw_ranges(q, x, continues, ranges):
+    """Subsequence DTW over the row ranges ``[a, b)`` only, each started afresh.
 
-    Each range starts afresh (no path enters it from before); rows outside every range get
-    cost inf, start -1, length 0. Same arithmetic and tie order as ``sdtw_forward``, so an
-    end row whose best path lies inside its range gets exactly ``sdtw_forward``'s values.
+    Every range is cut out and searched on its own with the full-matrix DP
+    :func:`naive.dtw.naive_subsequence_dtw` (its first row made a clip start), so no path
+    enters a range from before it.
 
     Returns
     -------
-    cost : float64 (n,), start : int64 (n,), length : int64 (n,)
+    rows : int (p,)   the rows of the ranges, in order
+    cost : float64 (p,), start : int (p,), length : int (p,)
+        best path ending in each row: its cost, first row (database index), cells
     """
-    d, m = qt.shape
-    n = x.shape[0]
-    inf = np.inf
-    cost = np.full(n, inf)
-    start = np.full(n, -1, np.int64)
-    length = np.zeros(n, np.int64)
-    prev_c = np.full(m, inf)
-    prev_s = np.zeros(m, np.int64)
-    prev_l = np.zeros(m, np.int64)
-    cur_c = np.empty(m)
-    cur_s = np.empty(m, np.int64)
-    cur_l = np.empty(m, np.int64)
-    col = np.empty(m, np.float32)
-    for r in range(ranges.shape[0]):
-        for i in range(m):
-            prev_c[i] = inf
-        for j in range(ranges[r, 0], ranges[r, 1]):
-            for i in range(m):
-                col[i] = 0.0
-            for k in range(d):
-                xk = x[j, k]
-                for i in range(m):
-                    t = qt[k, i] - xk
-                    col[i] += t * t
-            for i in range(m):
-                col[i] = np.sqrt(col[i])
-            if clip_start[j]:
-                for i in range(m):
-                    prev_c[i] = inf
-            cur_c[0] = col[0]
-            cur_s[0] = j
-            cur_l[0] = 1
-            for i in range(1, m):
-                a = prev_c[i - 1]
-                b = prev_c[i]
-                v = b < a
-                cur_c[i] = b if v else a
-                cur_s[i] = prev_s[i] if v else prev_s[i - 1]
-                cur_l[i] = prev_l[i] if v else prev_l[i - 1]
-            c = cur_c[0]
-            s = cur_s[0]
-            ln = cur_l[0]
-            for i in range(1, m):
-                b = cur_c[i]
-                h = c < b
-                s = s if h else cur_s[i]
-                ln = (ln if h else cur_l[i]) + 1
-                c = (c if h else b) + np.float64(col[i])
-                cur_c[i] = c
-                cur_s[i] = s
-                cur_l[i] = ln
-            cost[j] = c
-            start[j] = s
-            length[j] = ln
-            prev_c, cur_c = cur_c, prev_c
-            prev_s, cur_s = cur_s, prev_s
-            prev_l, cur_l = cur_l, prev_l
-    return cost, start, length
+    rows, cost, start, length = [], [], [], []
+    m = len(q)
+    for a, z in ranges:
+        cont = np.array(continues[a:z], bool)
+        cont[0] = False
+        D, S, P = naive_subsequence_dtw(q, x[a:z], cont)
+        for j in range(z - a):
+            rows.append(a + j)
+            cost.append(D[m - 1, j])
+            start.append(a + S[m - 1, j])
+            length.append(len(naive_path(P, m - 1, j)))
+    return np.array(rows), np.array(cost), np.array(start), np.array(length)

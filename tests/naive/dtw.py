@@ -174,3 +174,22 @@ def naive_blocks(continues, size):
         block.append(b)
         run += 1
     return np.array(block)
+
+
+def naive_window_cost(q, w):
+    """DTW cost of the best warping path from row 0 to the last row of ``w`` (both ends pinned),
+    same steps as subsequence DTW; the bounded approximation's matches are checked against it."""
+    q = np.asarray(q, np.float64)
+    w = np.asarray(w, np.float64)
+    D = np.full((len(q), len(w)), np.inf)
+    for j in range(len(w)):
+        for i in range(len(q)):
+            c = float(np.sqrt(np.sum((q[i] - w[j]) ** 2)))
+            if i == 0:
+                D[i, j] = c if j == 0 else D[i, j - 1] + c
+                continue
+            best = D[i - 1, j]
+            if j > 0:
+                best = min(best, D[i - 1, j - 1], D[i, j - 1])
+            D[i, j] = best + c
+    return D[-1, -1]

@@ -26,18 +26,21 @@ def dtw_path(a, b):
     return acc[n, m], np.array(path[::-1])
 
 
-def local_cost(template, bits):
-    """c[k, j] = mean over the cared-for features of row k of |template - bit| (0 if none).
+def local_cost(template, bits, weights=None):
+    """c[k, j] = mean over the cared-for features of row k of |template - bit| (0 if none);
+    with ``weights`` (K, 31) the weighted mean.
 
     ``template`` (K, 31) in {0, 0.5, 1}, 0.5 meaning don't care; ``bits`` (N, 31) 0/1.
     """
     t = np.asarray(template, float)
     care = t != 0.5
+    w = np.ones(t.shape) if weights is None else np.asarray(weights, float)
     out = np.zeros((len(t), len(bits)))
     for k in range(len(t)):
-        n = care[k].sum()
-        if n:
-            out[k] = np.abs(t[k, care[k]][None, :] - np.asarray(bits, float)[:, care[k]]).sum(axis=1) / n
+        for j in range(len(bits)):
+            total = sum(w[k, f] for f in range(t.shape[1]) if care[k, f])
+            if total > 0:
+                out[k, j] = sum(w[k, f] * abs(t[k, f] - float(bits[j][f])) for f in range(t.shape[1]) if care[k, f]) / total
     return out
 
 
