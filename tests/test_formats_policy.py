@@ -4,7 +4,6 @@ policy of ``plugins/formats/_common.py``), duplicated ASF/BVH names, BOM and CR-
 line ends, OpenSim TRC headers with runs of tabs."""
 from __future__ import annotations
 
-import re
 import shutil
 import struct
 import warnings
@@ -15,36 +14,14 @@ import pytest
 from conftest import EXAMPLES_DATA, corpus_path
 from test_formats_amc import TINY_ASF, tiny_amc
 from test_formats_bvh import REST, tiny_bvh
+from test_formats_errors import FRAMES, raises_at, write
+from test_formats_errors import tiny  # noqa: F401 - a pytest fixture, used by argument name
 from test_formats_markers import small_markers
 
-from mocapflow.framework.errors import ParseError
 from mocapflow.plugins.formats import _common
 from mocapflow.plugins.formats.asf_amc import read_amc, read_asf
 from mocapflow.plugins.formats.bvh import read_bvh
 from mocapflow.plugins.formats.trc import read_trc, write_trc
-
-FRAMES = [(0, 0, 0, 0, 0, 0, 1, 2, 3), (0, 0, 0, 0, 0, 0, 4, 5, 6), (0, 0, 0, 0, 0, 0, 7, 8, 9)]
-
-
-def raises_at(fn, path: Path, line: int | None, match: str) -> ParseError:
-    with pytest.raises(ParseError) as info:
-        fn(path)
-    err = info.value
-    assert err.path == str(path) and err.line == line, (err.path, err.line, err.message)
-    assert re.search(match, err.message), err.message
-    return err
-
-
-@pytest.fixture
-def tiny(tmp_path: Path) -> Path:
-    (tmp_path / "tiny.asf").write_text(TINY_ASF)
-    return tmp_path
-
-
-def write(path: Path, data: str | bytes) -> Path:
-    path.write_bytes(data.encode() if isinstance(data, str) else data)
-    return path
-
 
 # --- AMC: short bone lines, 0x7F, duplicated bones --------------------------------------------
 

@@ -209,6 +209,14 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     assert capsys.readouterr().out.splitlines()[2:] == exact_out and len(exact_out) == 4
     assert main(args) == 0  # lng's default is the certified search: sdtw's answer too
     assert capsys.readouterr().out.splitlines()[2:] == exact_out
+    # --approx 0 is the certified search itself; any --approx keeps count matches, the best one here
+    assert main(args + ["--approx", "0"]) == 0
+    assert capsys.readouterr().out.splitlines()[2:] == exact_out
+    assert main(args + ["--approx", "0.5"]) == 0
+    approx_out = capsys.readouterr().out.splitlines()[2:]
+    assert len(approx_out) == 4 and approx_out[0] == exact_out[0]
+    assert main(args + ["--approx", "0.5", "--no-exact"]) == 2
+    assert "--approx" in capsys.readouterr().err
     assert main(args + ["--no-exact"]) == 0  # the graph answers (same best match here)
     graph_out = capsys.readouterr().out.splitlines()[2:]
     assert len(graph_out) == 4 and graph_out[0] == exact_out[0]

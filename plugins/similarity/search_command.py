@@ -53,6 +53,9 @@ class SearchCommand:
         parser.add_argument("--exact", action=argparse.BooleanOptionalAction, default=None,
                             help="return exactly subsequence DTW's matches (lng: a certified pruned DP, identical to "
                                  "sdtw; the default of lng); --no-exact: lng answers from its neighborhood graph")
+        parser.add_argument("--approx", type=float, default=None, metavar="EPS",
+                            help="lng --exact: bounded approximation: prune a block when (1+EPS) x its lower bound exceeds "
+                                 "the threshold; the count-th cost is at most (1+EPS) x sDTW's (default 0: exact; inf: seed windows only)")
         parser.add_argument("--gaps", type=int, default=None, metavar="G",
                             help="lng --no-exact: query frames a path may cross without a kNN cell (default: the matcher's, 32; 0: the paper's graph)")
         parser.add_argument("--propagate", type=int, default=None, metavar="N",
@@ -195,8 +198,11 @@ class SearchSession:
         fields = matcher_cls.Params.model_fields
         params = {"count": args.count}
         exact = None if args.exact and args.matcher == "sdtw" else args.exact  # sdtw is exact already
+        if args.approx is not None and args.exact is False:
+            raise ConfigError("--approx bounds the certified search: it needs --exact, not --no-exact")
         for key, val in (("k", args.k), ("radius", args.radius), ("min_span", args.min_span), ("rank_by", args.rank_by),
-                         ("gaps", args.gaps), ("propagate", args.propagate), ("exact", exact)):
+                         ("gaps", args.gaps), ("propagate", args.propagate), ("exact", exact),
+                         ("approx", args.approx)):
             if val is not None:
                 if key not in fields:
                     raise ConfigError(f"matchers.{args.matcher} has no parameter {key!r}")

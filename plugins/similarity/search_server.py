@@ -27,7 +27,7 @@ from pathlib import Path
 
 SOCKET_NAME = ".search.sock"
 # request options the server takes from the client (the rest: its own plugin selection)
-_FORWARDED = ("query", "index", "matcher", "count", "min_span", "rank_by", "exact", "gaps", "propagate", "k",
+_FORWARDED = ("query", "index", "matcher", "count", "min_span", "rank_by", "exact", "approx", "gaps", "propagate", "k",
               "radius", "plot", "out")
 
 
