@@ -54,6 +54,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--old", required=True, help="git revision of the baseline kernels")
     ap.add_argument("--rounds", type=int, default=12, help="alternating rounds (default 12)")
+    ap.add_argument("--quick", action="store_true", help="3 rounds: a smoke run")
     args = ap.parse_args()
     from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward, sdtw_ranges_compact
 
@@ -85,7 +86,7 @@ def main() -> None:
                     label = f"{label} {len(keep)} x {width} rows"
                 t = {"old": [], "new": []}
                 outs = {side: kernels[kernel](*call) for side, kernels in (("old", old), ("new", new))}  # compiled
-                for r in range(args.rounds):
+                for r in range(3 if args.quick else args.rounds):
                     for side in ("old", "new") if r % 2 == 0 else ("new", "old"):
                         dt, outs[side] = timed((old if side == "old" else new)[kernel], *call)
                         t[side].append(dt)
