@@ -103,7 +103,7 @@ def warm_up(session) -> float:
 
     t0 = time.perf_counter()
     args = argparse.Namespace(matcher="lng", count=10, k=None, radius=None, min_span=None, rank_by=None, exact=None,
-                              gaps=None, propagate=None)
+                              approx=None, gaps=None, propagate=None)
     matcher = session.matcher(args)
     space = session.space(matcher)
     if space.features is not None and space.n_rows >= 30:
