@@ -81,7 +81,8 @@ def _handle(session_box: list, raw: bytes, make_session) -> dict:
     out, err = io.StringIO(), io.StringIO()
     try:
         req = json.loads(raw.decode())
-        args = argparse.Namespace(**req["args"])
+        # an option the client did not send (an older client) is unset
+        args = argparse.Namespace(**{k: req["args"].get(k) for k in _FORWARDED})
         if args.index and args.index != session_box[0].idx.step:
             return {"rc": None}
         if session_box[0].is_stale():
