@@ -8,7 +8,10 @@ CPU seconds (user + system of the run and all its worker processes) are printed 
 wall times: they show the work, unlike wall time they hardly depend on the other load.
 
 1. ingest + features of the whole ../shared/data motion corpus (AMC + BVH, 30 Hz:
-   formats.load, F_E^15, F^{5x3}, F^{5x5}, relational features): ``--jobs 2`` vs ``--jobs 1``;
+   formats.load, F_E^15, F^{5x3}, F^{5x5}, relational features): ``--jobs 2`` vs ``--jobs 1``,
+   both layouts of ``--jobs 2`` in the same run: the client as worker 0 beside a pool of 1
+   (the default) and a pool of 2 while the client waits (``client_works: false``, the
+   baseline of session 5); CPU critical paths per batch from ``LocalExecutor.batches``;
 2. cleaning the 8 bundled CMU takes (cleaners.mdm, each against all 8), and the same 8
    against the 103 CMU takes of the corpus as context: same;
 3. ``executor: dask`` (LocalCluster, 2 worker processes) vs ``--jobs 1`` on both, and its
@@ -75,8 +78,10 @@ def run_once(yaml: Path, ws: Path, jobs: int, executor: str = "local") -> dict:
     p = yaml
     if executor != "local":  # a copy beside the original, so that its relative paths hold
         p = yaml.parent / f".{yaml.stem}-{executor}-{jobs}.yaml"
-        name, _, opts = executor.partition("+")  # local+prestart: LocalExecutor(prestart=True)
-        extra = f"executor_options: {{{opts}: true}}\n" if opts else ""
+        # local+prestart: LocalExecutor(prestart=True); local+client_works=false: the option set to false
+        name, _, opts = executor.partition("+")
+        key, _, value = opts.partition("=")
+        extra = f"executor_options: {{{key}: {value or 'true'}}}\n" if opts else ""
         p.write_text(yaml.read_text().replace("\nsteps:", f"\nexecutor: {name}\njobs: {jobs}\n{extra}steps:", 1))
     env = dict(os.environ, MOCAPFLOW_PROGRESS="0")
     c0, t0 = _children_cpu(), time.perf_counter()
@@ -102,6 +107,7 @@ def child_run(yaml: Path, ws: Path, jobs: int) -> None:
     ex = LocalExecutor(jobs, **json.loads(os.environ.get("MOCAPFLOW_SCALE_OPTIONS", "{}")))
     tick = os.sysconf("SC_CLK_TCK")
     workers: list[float] = []
+    t0 = time.perf_counter()
     try:
         run_pipeline(yaml, workspace=ws, force=True, executor=ex)
         for pid in list(getattr(ex._pool, "_processes", None) or {}):
@@ -110,7 +116,8 @@ def child_run(yaml: Path, ws: Path, jobs: int) -> None:
     finally:
         ex.close()
     r = resource.getrusage(resource.RUSAGE_SELF)
-    print(json.dumps({"parent": r.ru_utime + r.ru_stime, "workers": workers}))
+    print(json.dumps({"parent": r.ru_utime + r.ru_stime, "workers": workers, "batches": ex.batches,
+                      "wall": time.perf_counter() - t0}))
 
 
 def critical_path(yaml: Path, tmp: Path, jobs: int, options: dict | None = None) -> dict:
@@ -122,33 +129,48 @@ def critical_path(yaml: Path, tmp: Path, jobs: int, options: dict | None = None)
     if r.returncode != 0:
         raise SystemExit(r.stderr[-3000:])
     out = json.loads(r.stdout.strip().splitlines()[-1])
-    out["path"] = out["parent"] + max(out["workers"], default=0.0)
+    # per batch: the client's own chunks and each pool process run side by side, the batch
+    # ends with the busiest of them; the rest of the client's CPU is serial
+    own = sum(b["client_s"] for b in out["batches"])
+    out["serial"] = out["parent"] - own
+    out["path"] = out["serial"] + sum(max([b["client_s"], *b["workers_s"]]) for b in out["batches"])
+    out["path_s4"] = out["parent"] + max(out["workers"], default=0.0)  # session 4's formula (client waits)
+    out["total"] = out["parent"] + sum(out["workers"])
     return out
 
 
 def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestart: bool = False) -> dict:
+    """Best (shortest critical path) of ``repeats`` interleaved child runs of each layout:
+    ``--jobs 1``; ``--jobs 2`` with a pool of 2 and the client waiting (``client_works:
+    false``, the layout up to session 4); ``--jobs 2`` with the client as worker 0 and a
+    pool of 1 (the default); optionally the pool started before planning."""
     best: dict = {}
-    runs = [(1, {}), (2, {})] + ([("2+prestart", {"prestart": True})] if prestart else [])
+    runs = [("1", 1, {}), ("pool", 2, {"client_works": False}), ("client", 2, {})]
+    runs += [("prestart", 2, {"prestart": True})] if prestart else []
+    load0 = _load()
     for _ in range(repeats):
-        for key, opts in runs:
-            r = critical_path(yaml, tmp, 2 if key == "2+prestart" else key, opts)
+        for key, jobs, opts in runs:
+            r = critical_path(yaml, tmp, jobs, opts)
             if key not in best or r["path"] < best[key]["path"]:
                 best[key] = r
-    if prestart:
-        pre = best["2+prestart"]
-        print(f"  CPU ({name}), --jobs 2 with the pool started before planning (each worker warms itself up): client "
-              f"{pre['parent']:.2f} s + busiest worker {max(pre['workers'], default=0):.2f} s (workers "
-              f"{', '.join(f'{w:.2f}' for w in pre['workers'])}) = {pre['path']:.2f} s (overlap not counted)")
-    one, two = best[1], best[2]
-    print(f"  CPU critical path ({name}; load average {_load()}): --jobs 1 {one['path']:.2f} s; --jobs 2 client "
-          f"{two['parent']:.2f} s + busiest worker {max(two['workers'], default=0):.2f} s (workers "
-          f"{', '.join(f'{w:.2f}' for w in two['workers'])}) = {two['path']:.2f} s -> {one['path'] / two['path']:.2f}x on "
-          f"2 idle cores, if --jobs 1 ran on one core (parallel numba kernels give it more: then compare the wall times above)")
-    # Amdahl: the client's CPU with --jobs 2 is the serial part (start-up, planning, writing tables)
-    serial = min(1.0, two["parent"] / one["path"])
-    print(f"    serial fraction (client CPU with --jobs 2 / --jobs 1 CPU) {serial:.0%}: Amdahl bound on 2 cores "
-          f"{1 / (serial + (1 - serial) / 2):.2f}x; 1.7x needs <= {2 / 1.7 - 1:.0%}")
-    return {"jobs1": one, "jobs2": two, "ratio": one["path"] / two["path"], "serial_fraction": serial}
+    one = best["1"]["path"]
+    print(f"  CPU critical path ({name}; best of {repeats}; load average before {load0}, after {_load()}):")
+    print(f"    --jobs 1: {one:.2f} s (one process, wall {best['1']['wall']:.2f} s)")
+    labels = {"pool": "--jobs 2, pool of 2, client waits", "client": "--jobs 2, client is worker 0 + pool of 1",
+              "prestart": "--jobs 2, client is worker 0 + pool of 1 forked before planning"}
+    for key in [k for k, _, _ in runs[1:]]:
+        r = best[key]
+        serial = min(1.0, r["serial"] / one)
+        print(f"    {labels[key]}: client serial {r['serial']:.2f} s (+ {r['parent'] - r['serial']:.2f} s in its own chunks) "
+              f"+ per-batch busiest {r['path'] - r['serial']:.2f} s = {r['path']:.2f} s -> {one / r['path']:.2f}x on 2 idle "
+              f"cores; total CPU {r['total']:.2f} s (--jobs 1: {best['1']['total']:.2f} s); pool processes "
+              f"{', '.join(f'{w:.2f}' for w in r['workers'])} s; wall {r['wall']:.2f} s")
+        print(f"      serial fraction {serial:.0%}: Amdahl bound on 2 cores {1 / (serial + (1 - serial) / 2):.2f}x "
+              f"(1.7x needs <= {2 / 1.7 - 1:.0%}); session 4's formula (client + busiest process) {r['path_s4']:.2f} s")
+    out = {k: best[k] for k in best}
+    out["ratio_pool"] = one / best["pool"]["path"]
+    out["ratio_client"] = one / best["client"]["path"]
+    return out
 
 
 def compare(name: str, yaml: Path, tmp: Path, configs: list[tuple[str, int]], repeats: int) -> dict:
@@ -163,11 +185,11 @@ def compare(name: str, yaml: Path, tmp: Path, configs: list[tuple[str, int]], re
                 best[(ex, jobs)] = r
     base = best[configs[0]]
     print(f"\n{name}  (best of {repeats}; load average before: {load0}, after: {_load()})")
-    print(f"  {'configuration':<22} {'wall s':>8} {'steps s':>8} {'CPU s':>7} {'wall ratio':>11} {'steps ratio':>12}")
+    print(f"  {'configuration':<36} {'wall s':>8} {'steps s':>8} {'CPU s':>7} {'wall ratio':>11} {'steps ratio':>12}")
     for (ex, jobs), r in best.items():
         label = f"{ex} --jobs {jobs}" if ex.startswith("local") else f"{ex} ({jobs} workers)"
         cpu = f"{r['cpu']:7.2f}" if ex.startswith("local") else "   n/a*"
-        print(f"  {label:<22} {r['wall']:8.2f} {r['steps']:8.2f} {cpu} "
+        print(f"  {label:<36} {r['wall']:8.2f} {r['steps']:8.2f} {cpu} "
               f"{base['wall'] / r['wall']:10.2f}x {base['steps'] / r['steps']:11.2f}x")
     if any(not ex.startswith("local") for ex, _ in configs):
         print("  * dask workers fork from a forkserver the run never waits for: their CPU time is not counted")
@@ -326,7 +348,7 @@ def main() -> None:
         except ImportError:
             has_dask = False
             print("dask section skipped: the dask extra is not installed (pip install 'mocapflow[dask]')")
-        configs = ([("local", 1)] + ([("local", 2)] if "local" in sections else [])
+        configs = ([("local", 1)] + ([("local+client_works=false", 2), ("local", 2)] if "local" in sections else [])
                    + ([("local+prestart", 2)] if "local" in sections and args.prestart else []) + ([("dask", 2)] if has_dask else []))
         if len(configs) > 1:
             results["features"] = compare("ingest + features, whole corpus", feats, tmp, configs, repeats)

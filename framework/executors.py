@@ -21,6 +21,12 @@ had run a parallel numba kernel died at once (GNU OpenMP is not fork-safe). Work
 get ``cores // workers`` threads each (:func:`limit_threads`, before their first kernel),
 the pool forks only while that is safe (from a forkserver otherwise), after numba's
 one-time start-up ran in the parent (:func:`warm_up`), so that workers inherit it.
+
+The client is worker 0 (``client_works``, default): with ``jobs = N`` the pool has N - 1
+processes and the client works through the same batch's chunks instead of waiting. It
+has paid its start-up already (interpreter, registries, numba's target context, the
+kernels it loaded), so one worker's start-up leaves both the critical path and the
+total CPU; while it works, its numeric threads are a worker's share too.
 """
 
 from __future__ import annotations
@@ -28,10 +34,12 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
+import time
 from collections import OrderedDict
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -145,16 +153,18 @@ def _started() -> int:
 
 
 class LocalExecutor:
-    """In-process for ``jobs == 1``, else a process pool of ``jobs`` workers, kept for the run.
+    """In-process for ``jobs == 1``, else ``jobs`` workers kept for the run: by default the
+    client itself and a process pool of ``jobs - 1`` (``client_works``), else a pool of ``jobs``.
 
     Parameters
     ----------
     jobs : int
-        Worker processes (0: one per core).
+        Workers (0: one per core), the client included when ``client_works``.
     min_items_for_pool : int
         Smaller batches run in-process (a pool costs more than it saves on a handful).
     threads : int, optional
-        Numeric threads per worker (default ``cores // jobs``, at least 1).
+        Numeric threads per worker (default ``cores // jobs``, at least 1); the client uses
+        as many while it works through a batch's chunks, its full width otherwise.
     start_method : {"fork", "forkserver", "spawn"}, optional
         Default: fork while it is safe (see :func:`_fork_is_safe`), else a forkserver that
         preloads :data:`PRELOAD`.
@@ -163,10 +173,19 @@ class LocalExecutor:
         worker warms itself up (:func:`warm_up`) while the client plans, lists and
         fingerprints; otherwise the pool forks at the first batch, after the parent warmed
         up, and the workers inherit that (docs/scale-out.md compares both).
+    client_works : bool
+        The client is worker 0: it has paid its start-up (imports, registries, numba's
+        target context, loaded kernels) and would otherwise wait, so a batch is cut into
+        chunks that the pool's ``jobs - 1`` processes and the client take from the same
+        list; one worker's start-up and its CPU leave the run (docs/scale-out.md,
+        session 5). ``False``: a pool of ``jobs`` processes, the client waits.
 
-    Results come back in input order. A worker that dies (killed, out of memory) fails the
-    step with a :class:`~mocapflow.framework.errors.PipelineError`; the runner discards
-    its temporary output, so no half-written dataset remains.
+    Results come back in input order, and a failing batch raises the error of its first
+    failing item in input order, as in-process (the client's own chunks included: chunks
+    after a failure are not started, those before it still run). A worker that dies
+    (killed, out of memory) fails the step with a
+    :class:`~mocapflow.framework.errors.PipelineError`; the runner discards its temporary
+    output, so no half-written dataset remains.
     """
 
     name = "local"
@@ -178,23 +197,33 @@ class LocalExecutor:
         threads: int | None = None,
         start_method: str | None = None,
         prestart: bool = False,
+        client_works: bool = True,
     ) -> None:
         self.jobs = max(1, int(jobs)) if jobs and jobs > 0 else available_cores()
         self.min_items_for_pool = min_items_for_pool
         self.threads = threads or threads_per_worker(self.jobs)
         self.start_method = start_method
         self.prestart = bool(prestart)
+        self.client_works = bool(client_works)
+        #: per pooled batch: ``{"desc", "items", "client_s", "workers_s"}``, CPU seconds of the
+        #: client's own chunks and of each pool process during the batch (benchmarks/scale.py)
+        self.batches: list[dict[str, Any]] = []
         self._pool: ProcessPoolExecutor | None = None
 
     @property
     def workers(self) -> int:
         return self.jobs
 
+    @property
+    def processes(self) -> int:
+        """Pool processes: ``jobs - 1`` when the client works, else ``jobs``."""
+        return self.jobs - 1 if self.client_works else self.jobs
+
     def start(self) -> None:
         """With ``prestart``: fork every worker now; each warms itself up in the background."""
         if self.prestart and self.jobs > 1 and self._pool is None:
             pool = self._ensure_pool(warm_parent=False)
-            for _ in range(self.jobs):  # a process per pending task: all of them start now
+            for _ in range(self.processes):  # a process per pending task: all of them start now
                 pool.submit(_started)
 
     def _ensure_pool(self, warm_parent: bool = True) -> ProcessPoolExecutor:
@@ -206,7 +235,7 @@ class LocalExecutor:
             elif method == "fork" and warm_parent:
                 warm_up()
             self._pool = ProcessPoolExecutor(
-                max_workers=self.jobs,
+                max_workers=self.processes,
                 mp_context=mp,
                 initializer=_init_worker,
                 initargs=(self.threads, method == "fork" and not warm_parent),
@@ -221,9 +250,10 @@ class LocalExecutor:
             finally:
                 clear_cache()  # the parent keeps no dataset between steps
         pool = self._ensure_pool()
-        chunk = max(1, len(items) // (self.jobs * 4))
         try:
-            return list(progress(pool.map(fn, items, chunksize=chunk), total=len(items), desc=desc))
+            if self.client_works:
+                return self._map_with_client(pool, fn, items, desc)
+            return self._map_on_pool(pool, fn, items, desc)
         except BrokenProcessPool:
             self.close()
             raise PipelineError(
@@ -231,10 +261,151 @@ class LocalExecutor:
                 "(killed, out of memory or crashed); the step's output was discarded"
             ) from None
 
+    def _map_on_pool(self, pool: ProcessPoolExecutor, fn, items: list[Any], desc: str) -> list[Any]:
+        chunk = max(1, len(items) // (self.jobs * 4))
+        out = pool.map(fn, items, chunksize=chunk)
+        cpu0 = _pool_cpu(pool)  # after the submissions: a forked pool starts its processes there
+        try:
+            return list(progress(out, total=len(items), desc=desc))
+        finally:
+            self._record(desc, len(items), 0.0, cpu0, _pool_cpu(pool))
+
+    def _map_with_client(self, pool: ProcessPoolExecutor, fn, items: list[Any], desc: str) -> list[Any]:
+        """The batch in chunks, all submitted to the pool; the client claims, in order, each
+        chunk that no pool process has taken yet (``Future.cancel`` succeeds exactly when
+        the pool has not started it) and runs it itself, so every chunk runs once."""
+        size = max(1, len(items) // (self.jobs * 8))  # finer than the pool alone: a chunk is the tail
+        bounds = [(a, min(a + size, len(items))) for a in range(0, len(items), size)]
+        futures = [pool.submit(_apply_chunk, fn, items[a:b]) for a, b in bounds]
+        cpu0 = _pool_cpu(pool)  # a forked pool starts its processes at the first submission
+        results: list[list[Any] | None] = [None] * len(bounds)
+        errors: dict[int, BaseException] = {}
+        own = 0.0
+
+        def drive():
+            nonlocal own
+            mine, reported = set(), set()
+
+            def collect(wait_for: list[int]):
+                # the chunks the pool has finished; first block until those of wait_for are done
+                pending = {futures[j]: j for j in wait_for}
+                for f in as_completed(pending):
+                    yield from take(pending[f])
+                for j, f in enumerate(futures):
+                    if j not in mine and j not in reported and f.done() and not f.cancelled():
+                        yield from take(j)
+
+            def take(j: int):
+                if j in reported:
+                    return
+                reported.add(j)
+                exc = futures[j].exception()
+                if isinstance(exc, BrokenProcessPool):
+                    raise exc
+                if exc is not None:
+                    errors[j] = exc
+                else:
+                    results[j] = futures[j].result()
+                yield from range(bounds[j][1] - bounds[j][0])
+
+            with _client_threads(self.threads):
+                for j in range(len(bounds)):
+                    if errors and j > min(errors):
+                        break  # as in-process: nothing after the first failing item starts
+                    if not futures[j].cancel():
+                        continue  # a pool process has it
+                    mine.add(j)
+                    reported.add(j)
+                    c0 = time.process_time()
+                    try:
+                        results[j] = _apply_chunk(fn, items[bounds[j][0] : bounds[j][1]])
+                    except Exception as exc:  # raised below in input order, like a worker's
+                        errors[j] = exc
+                    finally:
+                        own += time.process_time() - c0
+                    if j not in errors:
+                        yield from range(bounds[j][1] - bounds[j][0])
+                    yield from collect([])
+            last = min(errors) if errors else len(bounds) - 1
+            for f in futures[last + 1 :]:
+                f.cancel()
+            yield from collect([j for j in range(last + 1) if j not in mine and j not in reported])
+
+        try:
+            for _ in progress(drive(), total=len(items), desc=desc):
+                pass
+        finally:
+            for f in futures:  # an error or an interrupt: what the pool has not started never starts
+                f.cancel()
+            clear_cache()  # the client keeps no dataset between steps
+            self._record(desc, len(items), own, cpu0, _pool_cpu(pool))
+        if errors:
+            raise errors[min(errors)]
+        return [r for part in results for r in part]  # type: ignore[union-attr]
+
+    def _record(self, desc: str, n: int, client_s: float, cpu0: dict[int, float], cpu1: dict[int, float]) -> None:
+        workers = [cpu1[p] - cpu0.get(p, 0.0) for p in cpu1]
+        self.batches.append({"desc": desc, "items": n, "client_s": client_s, "workers_s": workers})
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
+
+
+def _apply_chunk(fn: Callable[[Any], Any], chunk: Sequence[Any]) -> list[Any]:
+    return [fn(x) for x in chunk]
+
+
+def _pool_cpu(pool: ProcessPoolExecutor) -> dict[int, float]:
+    """CPU seconds (user + system) of each live process of ``pool``, from ``/proc`` (Linux;
+    empty elsewhere): what benchmarks/scale.py reads per batch."""
+    out: dict[int, float] = {}
+    try:
+        tick = os.sysconf("SC_CLK_TCK")
+        for pid in list(getattr(pool, "_processes", None) or {}):
+            with open(f"/proc/{pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            out[pid] = (int(fields[11]) + int(fields[12])) / tick
+    except (OSError, ValueError, IndexError):
+        pass
+    return out
+
+
+@contextmanager
+def _client_threads(n: int) -> Iterator[None]:
+    """The client's numeric threads at a worker's share (``n``) while it works through
+    chunks, restored afterwards (its own kernels between batches use the whole machine).
+
+    Unlike :func:`limit_threads`, numba's pool keeps its width (only the threads this thread
+    uses change); called after the pool's processes exist: it launches numba's threading
+    layer, after which forking is unsafe (:func:`_fork_is_safe`).
+    """
+    import numba
+
+    env = {var: os.environ.get(var) for var in THREAD_ENV}
+    before = numba.get_num_threads()
+    limiter = None
+    try:
+        for var in THREAD_ENV:
+            os.environ[var] = str(n)
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+        try:
+            from threadpoolctl import threadpool_limits
+        except ImportError:  # pragma: no cover - a dependency
+            pass
+        else:
+            limiter = threadpool_limits(n)
+        yield
+    finally:
+        if limiter is not None:
+            limiter.restore_original_limits()
+        numba.set_num_threads(before)
+        for var, value in env.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
 
 
 # --- work by reference: clips read by the workers themselves ---------------------------------

@@ -1,10 +1,13 @@
-"""The local executor: thread limits in workers, fork safety, clips by reference, dying workers."""
+"""The local executor: thread limits in workers, fork safety, clips by reference, dying workers,
+the client as worker 0 (errors, interrupts, order)."""
 from __future__ import annotations
 
 import os
 import signal
 import subprocess
 import sys
+import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -49,11 +52,13 @@ def test_threads_per_worker_never_oversubscribe():
             assert t >= 1 and (workers * t <= cores or t == 1)
 
 
-def test_workers_get_their_share_of_the_cores():
-    """Before: every worker ran numba and OpenBLAS as wide as the machine (2 x 2 on 2 cores)."""
-    ex = LocalExecutor(2, min_items_for_pool=1, threads=1)
+@pytest.mark.parametrize("client_works", [True, False])
+def test_workers_get_their_share_of_the_cores(client_works):
+    """Before: every worker ran numba and OpenBLAS as wide as the machine (2 x 2 on 2 cores).
+    The client, while it works as worker 0, uses a worker's share too."""
+    ex = LocalExecutor(2, min_items_for_pool=1, threads=1, client_works=client_works)
     try:
-        out = ex.map(_worker_threads, range(4))
+        out = ex.map(_worker_threads, range(16))
     finally:
         ex.close()
     for numba_threads, blas_threads, omp in out:
@@ -105,20 +110,81 @@ def test_pool_after_a_parallel_kernel_in_the_parent_works(tmp_path):
         assert forced.returncode != 0
 
 
-def _die(x):
-    if x == 3:
+def _die(parent, x):
+    if os.getpid() != parent:  # only a pool process: the client works through chunks too
         os.kill(os.getpid(), signal.SIGKILL)
     return x
 
 
-def test_a_killed_worker_is_a_clear_error_and_the_pool_recovers():
-    ex = LocalExecutor(2, min_items_for_pool=1)
+@pytest.mark.parametrize("client_works", [True, False])
+def test_a_killed_worker_is_a_clear_error_and_the_pool_recovers(client_works):
+    ex = LocalExecutor(2, min_items_for_pool=1, client_works=client_works)
     try:
         with pytest.raises(PipelineError, match="worker process of the local executor died"):
-            ex.map(_die, range(8), desc="dying")
+            ex.map(partial(_die, os.getpid()), range(8), desc="dying")
         assert ex.map(abs, [-1, -2, -3, -4]) == [1, 2, 3, 4]
     finally:
         ex.close()
+
+
+# --- the client as worker 0 ------------------------------------------------------------------
+
+def _where(parent, x):
+    time.sleep(0.02)  # long enough that the pool process takes its share
+    return x, os.getpid() == parent
+
+
+def test_the_client_and_the_pool_share_a_batch_in_order():
+    ex = LocalExecutor(2, min_items_for_pool=1)
+    try:
+        assert ex.processes == 1
+        out = ex.map(partial(_where, os.getpid()), range(40))
+    finally:
+        ex.close()
+    assert [x for x, _ in out] == list(range(40))
+    assert {by_client for _, by_client in out} == {True, False}  # each chunk ran once, on one side
+    assert ex.batches[-1]["client_s"] > 0 and len(ex.batches[-1]["workers_s"]) == 1
+
+
+def _fail(x):
+    time.sleep(0.01)
+    if x in (13, 17, 30):
+        raise ValueError(f"item {x}")
+    return x
+
+
+@pytest.mark.parametrize("jobs, client_works", [(1, True), (2, True), (2, False), (3, True)])
+def test_a_failing_batch_raises_its_first_failing_item_wherever_it_ran(jobs, client_works):
+    """The client's own chunks fail like a worker's: the error of the first failing item in
+    input order, as in-process, and the pool stays usable."""
+    ex = LocalExecutor(jobs, min_items_for_pool=1, client_works=client_works)
+    try:
+        with pytest.raises(ValueError, match="^item 13$"):
+            ex.map(_fail, range(40))
+        assert ex.map(_fail, range(8)) == list(range(8))
+    finally:
+        ex.close()
+
+
+def _interrupt(parent, x):
+    if os.getpid() == parent:
+        raise KeyboardInterrupt
+    time.sleep(0.02)
+    return x
+
+
+def test_an_interrupt_in_the_clients_chunk_is_clean():
+    import numba
+
+    before = numba.get_num_threads(), os.environ.get("OMP_NUM_THREADS")
+    ex = LocalExecutor(2, min_items_for_pool=1, threads=1)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ex.map(partial(_interrupt, os.getpid()), range(16))
+        assert ex.map(abs, [-1, -2, -3, -4]) == [1, 2, 3, 4]  # the pool survives
+    finally:
+        ex.close()
+    assert (numba.get_num_threads(), os.environ.get("OMP_NUM_THREADS")) == before  # the client's threads restored
 
 
 # --- clips by reference ------------------------------------------------------------------
@@ -182,12 +248,14 @@ steps:
 
 def test_jobs_2_writes_the_same_tables_and_files_as_jobs_1(tmp_path):
     out = {}
-    for jobs in (1, 2, "2-prestart"):
+    for jobs in (1, 2, "2-prestart", "2-pool"):
         d = tmp_path / f"j{jobs}"
         d.mkdir()
         (d / "p.yaml").write_text(PIPELINE)
-        # prestart: the pool forks before planning and each worker warms itself up
-        ex = LocalExecutor(2, prestart=True) if jobs == "2-prestart" else None
+        # 2: the client is worker 0 beside one pool process; prestart: the pool forks before
+        # planning and warms itself up; pool: two pool processes while the client waits
+        options = {"2-prestart": {"prestart": True}, "2-pool": {"client_works": False}}.get(jobs)
+        ex = LocalExecutor(2, **options) if options else None
         try:
             run_pipeline(d / "p.yaml", jobs=2 if ex else jobs, pm=get_plugin_manager(entry_points=False), executor=ex)
         finally:
@@ -196,17 +264,19 @@ def test_jobs_2_writes_the_same_tables_and_files_as_jobs_1(tmp_path):
         ws = d / "ws"
         out[jobs] = (workspace_tables(ws), {p.name: p.read_bytes() for p in sorted((ws / "clean").glob("*.bvh"))})
     assert out[1][0].keys() == out[2][0].keys() and len(out[1][0]) >= 8
-    for other in (2, "2-prestart"):
+    for other in (2, "2-prestart", "2-pool"):
         for name in out[1][0]:
             assert out[1][0][name] == out[other][0][name], (other, name)
         assert out[1][1] and out[1][1] == out[other][1]
 
 
-def test_prestart_forks_every_worker_before_the_first_batch():
-    ex = LocalExecutor(2, min_items_for_pool=1, threads=1, prestart=True)
+@pytest.mark.parametrize("client_works", [True, False])
+def test_prestart_forks_every_worker_before_the_first_batch(client_works):
+    ex = LocalExecutor(2, min_items_for_pool=1, threads=1, prestart=True, client_works=client_works)
     try:
         ex.start()
-        assert len(ex._pool._processes) == 2  # forked at start(), warming up while the client plans
+        # forked at start(), warming up while the client plans
+        assert len(ex._pool._processes) == (1 if client_works else 2)
         out = ex.map(_worker_threads, range(4))
     finally:
         ex.close()
