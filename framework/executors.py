@@ -33,11 +33,13 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import queue
 import sys
+import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -182,7 +184,7 @@ class LocalExecutor:
 
     Results come back in input order, and a failing batch raises the error of its first
     failing item in input order, as in-process (the client's own chunks included: chunks
-    after a failure are not started, those before it still run). A worker that dies
+    are claimed in order and none is claimed after a failure). A worker that dies
     (killed, out of memory) fails the step with a
     :class:`~mocapflow.framework.errors.PipelineError`; the runner discards its temporary
     output, so no half-written dataset remains.
@@ -271,72 +273,103 @@ class LocalExecutor:
             self._record(desc, len(items), 0.0, cpu0, _pool_cpu(pool))
 
     def _map_with_client(self, pool: ProcessPoolExecutor, fn, items: list[Any], desc: str) -> list[Any]:
-        """The batch in chunks, all submitted to the pool; the client claims, in order, each
-        chunk that no pool process has taken yet (``Future.cancel`` succeeds exactly when
-        the pool has not started it) and runs it itself, so every chunk runs once."""
+        """The batch in chunks taken in order from one list by the client (which runs them
+        itself) and by a feeder thread that keeps the pool's processes supplied (one chunk
+        each, plus one queued while more than ``jobs`` remain, so that the last chunks go to
+        whoever is free). Nothing is submitted that is not meant to run: no cancellations."""
         size = max(1, len(items) // (self.jobs * 8))  # finer than the pool alone: a chunk is the tail
         bounds = [(a, min(a + size, len(items))) for a in range(0, len(items), size)]
-        futures = [pool.submit(_apply_chunk, fn, items[a:b]) for a, b in bounds]
-        cpu0 = _pool_cpu(pool)  # a forked pool starts its processes at the first submission
+        todo, lock, stop = deque(range(len(bounds))), threading.Lock(), threading.Event()
+        done: queue.SimpleQueue = queue.SimpleQueue()  # (chunk, future) the pool finished; None: feeder ended
         results: list[list[Any] | None] = [None] * len(bounds)
         errors: dict[int, BaseException] = {}
         own = 0.0
 
-        def drive():
-            nonlocal own
-            mine, reported = set(), set()
+        def claim() -> int | None:
+            with lock:  # chunks are claimed in order: all chunks before a failing one are claimed
+                return None if stop.is_set() or not todo else todo.popleft()
 
-            def collect(wait_for: list[int]):
-                # the chunks the pool has finished; first block until those of wait_for are done
-                pending = {futures[j]: j for j in wait_for}
-                for f in as_completed(pending):
-                    yield from take(pending[f])
-                for j, f in enumerate(futures):
-                    if j not in mine and j not in reported and f.done() and not f.cancelled():
-                        yield from take(j)
-
-            def take(j: int):
-                if j in reported:
+        def submit(inflight: dict, want: int) -> None:
+            while len(inflight) < want + (1 if len(todo) > self.jobs else 0):
+                j = claim()
+                if j is None:
                     return
-                reported.add(j)
-                exc = futures[j].exception()
-                if isinstance(exc, BrokenProcessPool):
-                    raise exc
-                if exc is not None:
-                    errors[j] = exc
-                else:
-                    results[j] = futures[j].result()
-                yield from range(bounds[j][1] - bounds[j][0])
+                inflight[pool.submit(_apply_chunk, fn, items[bounds[j][0] : bounds[j][1]])] = j
 
+        def feed(inflight: dict) -> None:
+            try:
+                while True:
+                    submit(inflight, self.processes)
+                    if not inflight:
+                        return
+                    finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                    for f in finished:
+                        if f.exception() is not None:
+                            stop.set()  # as in-process: nothing after a failing item starts
+                        done.put((inflight.pop(f), f))
+            except BaseException as exc:  # a broken or closed pool: the client raises it
+                stop.set()
+                done.put((-1, exc))
+            finally:
+                done.put(None)
+
+        first: dict = {}
+        submit(first, self.processes)  # in this thread: a forked pool starts its processes here
+        cpu0 = _pool_cpu(pool)
+        feeder = threading.Thread(target=feed, args=(first,), name="mocapflow-feeder", daemon=True)
+        feeder.start()
+
+        def take(item) -> Iterator[int]:
+            j, f = item
+            if j < 0:
+                raise f
+            exc = f.exception()
+            if isinstance(exc, BrokenProcessPool):
+                raise exc
+            if exc is not None:
+                errors[j] = exc
+            else:
+                results[j] = f.result()
+            yield from range(bounds[j][1] - bounds[j][0])
+
+        def drive() -> Iterator[int]:
+            nonlocal own
+            ended = False
             with _client_threads(self.threads):
-                for j in range(len(bounds)):
-                    if errors and j > min(errors):
-                        break  # as in-process: nothing after the first failing item starts
-                    if not futures[j].cancel():
-                        continue  # a pool process has it
-                    mine.add(j)
-                    reported.add(j)
+                while (j := claim()) is not None:
                     c0 = time.process_time()
                     try:
                         results[j] = _apply_chunk(fn, items[bounds[j][0] : bounds[j][1]])
                     except Exception as exc:  # raised below in input order, like a worker's
                         errors[j] = exc
+                        stop.set()
                     finally:
                         own += time.process_time() - c0
-                    if j not in errors:
-                        yield from range(bounds[j][1] - bounds[j][0])
-                    yield from collect([])
-            last = min(errors) if errors else len(bounds) - 1
-            for f in futures[last + 1 :]:
-                f.cancel()
-            yield from collect([j for j in range(last + 1) if j not in mine and j not in reported])
+                    yield from range(bounds[j][1] - bounds[j][0])
+                    while not ended:  # what the pool finished meanwhile: the bar moves
+                        try:
+                            item = done.get_nowait()
+                        except queue.Empty:
+                            break
+                        if item is None:
+                            ended = True
+                        else:
+                            yield from take(item)
+            while not ended:
+                try:
+                    item = done.get(timeout=0.2)  # a timeout: Ctrl-C is seen while waiting
+                except queue.Empty:
+                    continue
+                if item is None:
+                    ended = True
+                else:
+                    yield from take(item)
 
         try:
             for _ in progress(drive(), total=len(items), desc=desc):
                 pass
         finally:
-            for f in futures:  # an error or an interrupt: what the pool has not started never starts
-                f.cancel()
+            stop.set()  # an error or an interrupt: nothing more is claimed nor submitted
             clear_cache()  # the client keeps no dataset between steps
             self._record(desc, len(items), own, cpu0, _pool_cpu(pool))
         if errors:
