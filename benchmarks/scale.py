@@ -10,8 +10,9 @@ wall times: they show the work, unlike wall time they hardly depend on the other
 1. ingest + features of the whole ../shared/data motion corpus (AMC + BVH, 30 Hz:
    formats.load, F_E^15, F^{5x3}, F^{5x5}, relational features): ``--jobs 2`` vs ``--jobs 1``,
    both layouts of ``--jobs 2`` in the same run: the client as worker 0 beside a pool of 1
-   (the default) and a pool of 2 while the client waits (``client_works: false``, the
-   baseline of session 5); CPU critical paths per batch from ``LocalExecutor.batches``;
+   (``client_works: true``) and a pool of 2 while the client waits (``client_works:
+   false``, the default with a forked pool); CPU critical paths per batch from
+   ``LocalExecutor.batches``;
 2. cleaning the 8 bundled CMU takes (cleaners.mdm, each against all 8), and the same 8
    against the 103 CMU takes of the corpus as context: same;
 3. ``executor: dask`` (LocalCluster, 2 worker processes) vs ``--jobs 1`` on both, and its
@@ -145,8 +146,8 @@ def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestar
     false``, the layout up to session 4); ``--jobs 2`` with the client as worker 0 and a
     pool of 1 (the default); optionally the pool started before planning."""
     best: dict = {}
-    runs = [("1", 1, {}), ("pool", 2, {"client_works": False}), ("client", 2, {})]
-    runs += [("prestart", 2, {"prestart": True})] if prestart else []
+    runs = [("1", 1, {}), ("pool", 2, {"client_works": False}), ("client", 2, {"client_works": True})]
+    runs += [("prestart", 2, {"prestart": True, "client_works": True})] if prestart else []
     load0 = _load()
     for _ in range(repeats):
         for key, jobs, opts in runs:
@@ -348,7 +349,7 @@ def main() -> None:
         except ImportError:
             has_dask = False
             print("dask section skipped: the dask extra is not installed (pip install 'mocapflow[dask]')")
-        configs = ([("local", 1)] + ([("local+client_works=false", 2), ("local", 2)] if "local" in sections else [])
+        configs = ([("local", 1)] + ([("local+client_works=false", 2), ("local+client_works=true", 2)] if "local" in sections else [])
                    + ([("local+prestart", 2)] if "local" in sections and args.prestart else []) + ([("dask", 2)] if has_dask else []))
         if len(configs) > 1:
             results["features"] = compare("ingest + features, whole corpus", feats, tmp, configs, repeats)

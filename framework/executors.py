@@ -22,11 +22,13 @@ get ``cores // workers`` threads each (:func:`limit_threads`, before their first
 the pool forks only while that is safe (from a forkserver otherwise), after numba's
 one-time start-up ran in the parent (:func:`warm_up`), so that workers inherit it.
 
-The client is worker 0 (``client_works``, default): with ``jobs = N`` the pool has N - 1
+The client can be worker 0 (``client_works``): with ``jobs = N`` the pool has N - 1
 processes and the client works through the same batch's chunks instead of waiting. It
 has paid its start-up already (interpreter, registries, numba's target context, the
-kernels it loaded), so one worker's start-up leaves both the critical path and the
-total CPU; while it works, its numeric threads are a worker's share too.
+kernels it loaded), so one worker's start-up leaves the run; while it works, its numeric
+threads are a worker's share too. By default it does so only where workers pay their own
+start-up (forkserver, spawn, ``prestart``): a pool forked after :func:`warm_up` inherits
+it, and there the measured critical path did not shorten.
 """
 
 from __future__ import annotations
@@ -175,12 +177,16 @@ class LocalExecutor:
         worker warms itself up (:func:`warm_up`) while the client plans, lists and
         fingerprints; otherwise the pool forks at the first batch, after the parent warmed
         up, and the workers inherit that (docs/scale-out.md compares both).
-    client_works : bool
-        The client is worker 0: it has paid its start-up (imports, registries, numba's
-        target context, loaded kernels) and would otherwise wait, so a batch is cut into
-        chunks that the pool's ``jobs - 1`` processes and the client take from the same
-        list; one worker's start-up and its CPU leave the run (docs/scale-out.md,
-        session 5). ``False``: a pool of ``jobs`` processes, the client waits.
+    client_works : bool, optional
+        ``True``: the client is worker 0: it has paid its start-up (imports, registries,
+        numba's target context, loaded kernels) and would otherwise wait, so a batch is cut
+        into chunks that the pool's ``jobs - 1`` processes and the client take from the
+        same list; one worker's start-up leaves the run. ``False``: a pool of ``jobs``
+        processes, the client waits. Default (``None``): ``True`` where each worker pays its
+        own start-up (a forkserver or spawned pool, ``prestart``), ``False`` for a pool
+        forked after :func:`warm_up`, whose workers inherit it: there the client's share of
+        a batch, beside the unpickling of the pool's results on its core, measured no faster
+        (docs/scale-out.md, session 5).
 
     Results come back in input order, and a failing batch raises the error of its first
     failing item in input order, as in-process (the client's own chunks included: chunks
@@ -199,14 +205,15 @@ class LocalExecutor:
         threads: int | None = None,
         start_method: str | None = None,
         prestart: bool = False,
-        client_works: bool = True,
+        client_works: bool | None = None,
     ) -> None:
         self.jobs = max(1, int(jobs)) if jobs and jobs > 0 else available_cores()
         self.min_items_for_pool = min_items_for_pool
         self.threads = threads or threads_per_worker(self.jobs)
         self.start_method = start_method
         self.prestart = bool(prestart)
-        self.client_works = bool(client_works)
+        self.client_works = client_works
+        self._client = bool(client_works)  # resolved when the pool starts (see client_works)
         #: per pooled batch: ``{"desc", "items", "client_s", "workers_s"}``, CPU seconds of the
         #: client's own chunks and of each pool process during the batch (benchmarks/scale.py)
         self.batches: list[dict[str, Any]] = []
@@ -219,7 +226,12 @@ class LocalExecutor:
     @property
     def processes(self) -> int:
         """Pool processes: ``jobs - 1`` when the client works, else ``jobs``."""
-        return self.jobs - 1 if self.client_works else self.jobs
+        return self.jobs - 1 if self._client else self.jobs
+
+    def _client_works(self, method: str, warm_parent: bool) -> bool:
+        if self.client_works is not None:
+            return bool(self.client_works)
+        return method != "fork" or not warm_parent  # workers that pay their own start-up
 
     def start(self) -> None:
         """With ``prestart``: fork every worker now; each warms itself up in the background."""
@@ -236,6 +248,7 @@ class LocalExecutor:
                 mp.set_forkserver_preload(list(PRELOAD))
             elif method == "fork" and warm_parent:
                 warm_up()
+            self._client = self._client_works(method, warm_parent)
             self._pool = ProcessPoolExecutor(
                 max_workers=self.processes,
                 mp_context=mp,
@@ -251,9 +264,10 @@ class LocalExecutor:
                 return [fn(x) for x in progress(items, total=len(items), desc=desc)]
             finally:
                 clear_cache()  # the parent keeps no dataset between steps
+        c0 = time.process_time()
         pool = self._ensure_pool()
         try:
-            if self.client_works:
+            if self._client:
                 return self._map_with_client(pool, fn, items, desc)
             return self._map_on_pool(pool, fn, items, desc)
         except BrokenProcessPool:
@@ -262,6 +276,9 @@ class LocalExecutor:
                 f"a worker process of the local executor died during {desc or 'a step'!r} "
                 "(killed, out of memory or crashed); the step's output was discarded"
             ) from None
+        finally:
+            if self.batches:  # the client's CPU during the whole batch (pool start-up included)
+                self.batches[-1]["map_s"] = time.process_time() - c0
 
     def _map_on_pool(self, pool: ProcessPoolExecutor, fn, items: list[Any], desc: str) -> list[Any]:
         chunk = max(1, len(items) // (self.jobs * 4))

@@ -135,12 +135,12 @@ def _where(parent, x):
 
 
 def test_the_client_and_the_pool_share_a_batch_in_order():
-    ex = LocalExecutor(2, min_items_for_pool=1)
+    ex = LocalExecutor(2, min_items_for_pool=1, client_works=True)
     try:
-        assert ex.processes == 1
         out = ex.map(partial(_where, os.getpid()), range(40))
     finally:
         ex.close()
+    assert ex.processes == 1
     assert [x for x, _ in out] == list(range(40))
     assert {by_client for _, by_client in out} == {True, False}  # each chunk ran once, on one side
     assert ex.batches[-1]["client_s"] > 0 and len(ex.batches[-1]["workers_s"]) == 1
@@ -177,7 +177,7 @@ def test_an_interrupt_in_the_clients_chunk_is_clean():
     import numba
 
     before = numba.get_num_threads(), os.environ.get("OMP_NUM_THREADS")
-    ex = LocalExecutor(2, min_items_for_pool=1, threads=1)
+    ex = LocalExecutor(2, min_items_for_pool=1, threads=1, client_works=True)
     try:
         with pytest.raises(KeyboardInterrupt):
             ex.map(partial(_interrupt, os.getpid()), range(16))
@@ -248,13 +248,15 @@ steps:
 
 def test_jobs_2_writes_the_same_tables_and_files_as_jobs_1(tmp_path):
     out = {}
-    for jobs in (1, 2, "2-prestart", "2-pool"):
+    for jobs in (1, 2, "2-client", "2-prestart", "2-pool"):
         d = tmp_path / f"j{jobs}"
         d.mkdir()
         (d / "p.yaml").write_text(PIPELINE)
-        # 2: the client is worker 0 beside one pool process; prestart: the pool forks before
-        # planning and warms itself up; pool: two pool processes while the client waits
-        options = {"2-prestart": {"prestart": True}, "2-pool": {"client_works": False}}.get(jobs)
+        # 2: the default layout; client: the client is worker 0 beside one pool process;
+        # prestart: the pool forks before planning and warms itself up; pool: two pool
+        # processes while the client waits
+        options = {"2-client": {"client_works": True}, "2-prestart": {"prestart": True},
+                   "2-pool": {"client_works": False}}.get(jobs)
         ex = LocalExecutor(2, **options) if options else None
         try:
             run_pipeline(d / "p.yaml", jobs=2 if ex else jobs, pm=get_plugin_manager(entry_points=False), executor=ex)
@@ -264,7 +266,7 @@ def test_jobs_2_writes_the_same_tables_and_files_as_jobs_1(tmp_path):
         ws = d / "ws"
         out[jobs] = (workspace_tables(ws), {p.name: p.read_bytes() for p in sorted((ws / "clean").glob("*.bvh"))})
     assert out[1][0].keys() == out[2][0].keys() and len(out[1][0]) >= 8
-    for other in (2, "2-prestart", "2-pool"):
+    for other in (2, "2-client", "2-prestart", "2-pool"):
         for name in out[1][0]:
             assert out[1][0][name] == out[other][0][name], (other, name)
         assert out[1][1] and out[1][1] == out[other][1]
@@ -272,6 +274,7 @@ def test_jobs_2_writes_the_same_tables_and_files_as_jobs_1(tmp_path):
 
 @pytest.mark.parametrize("client_works", [True, False])
 def test_prestart_forks_every_worker_before_the_first_batch(client_works):
+    """(By default a prestarted pool leaves the client working: its workers warm up themselves.)"""
     ex = LocalExecutor(2, min_items_for_pool=1, threads=1, prestart=True, client_works=client_works)
     try:
         ex.start()
@@ -322,3 +325,11 @@ steps:
     assert (ws / "motions" / "_manifest.json").is_file()
     assert not (ws / "feats").exists()
     assert not any((ws / ".tmp").glob("*")) if (ws / ".tmp").exists() else True
+
+
+def test_the_client_works_by_default_only_where_workers_pay_their_own_start_up():
+    ex = LocalExecutor(2)
+    assert ex._client_works("fork", warm_parent=True) is False  # forked after warm_up: inherited
+    assert ex._client_works("fork", warm_parent=False) is True  # prestart
+    assert ex._client_works("forkserver", warm_parent=True) is True
+    assert LocalExecutor(2, client_works=True)._client_works("fork", True) is True
