@@ -27,8 +27,8 @@ processes and the client works through the same batch's chunks instead of waitin
 has paid its start-up already (interpreter, registries, numba's target context, the
 kernels it loaded), so one worker's start-up leaves the run; while it works, its numeric
 threads are a worker's share too. By default it does so only where workers pay their own
-start-up (forkserver, spawn, ``prestart``): a pool forked after :func:`warm_up` inherits
-it, and there the measured critical path did not shorten.
+start-up (a forkserver or spawned pool): a forked pool inherits the client's, and there
+the measured critical path did not shorten.
 """
 
 from __future__ import annotations
@@ -182,11 +182,11 @@ class LocalExecutor:
         numba's target context, loaded kernels) and would otherwise wait, so a batch is cut
         into chunks that the pool's ``jobs - 1`` processes and the client take from the
         same list; one worker's start-up leaves the run. ``False``: a pool of ``jobs``
-        processes, the client waits. Default (``None``): ``True`` where each worker pays its
-        own start-up (a forkserver or spawned pool, ``prestart``), ``False`` for a pool
-        forked after :func:`warm_up`, whose workers inherit it: there the client's share of
-        a batch, beside the unpickling of the pool's results on its core, measured no faster
-        (docs/scale-out.md, session 5).
+        processes, the client waits. Default (``None``): ``True`` for a forkserver or
+        spawned pool (each worker imports and warms up on its own), ``False`` for a forked
+        one, whose workers inherit the client's start-up: there the client's share of a
+        batch, beside the unpickling of the pool's results on its core, measured no faster,
+        and with ``prestart`` slower (docs/scale-out.md, session 5).
 
     Results come back in input order, and a failing batch raises the error of its first
     failing item in input order, as in-process (the client's own chunks included: chunks
@@ -231,7 +231,7 @@ class LocalExecutor:
     def _client_works(self, method: str, warm_parent: bool) -> bool:
         if self.client_works is not None:
             return bool(self.client_works)
-        return method != "fork" or not warm_parent  # workers that pay their own start-up
+        return method != "fork"  # workers that import and warm up on their own (measured, session 5)
 
     def start(self) -> None:
         """With ``prestart``: fork every worker now; each warms itself up in the background."""
