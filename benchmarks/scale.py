@@ -140,7 +140,8 @@ def critical_path(yaml: Path, tmp: Path, jobs: int, options: dict | None = None)
     return out
 
 
-def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestart: bool = False) -> dict:
+def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestart: bool = False,
+                         extra: dict | None = None) -> dict:
     """Best (shortest critical path) of ``repeats`` interleaved child runs of each layout:
     ``--jobs 1``; ``--jobs 2`` with a pool of 2 and the client waiting (``client_works:
     false``, the layout up to session 4); ``--jobs 2`` with the client as worker 0 and a
@@ -148,6 +149,7 @@ def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestar
     best: dict = {}
     runs = [("1", 1, {}), ("pool", 2, {"client_works": False}), ("client", 2, {"client_works": True})]
     runs += [("prestart", 2, {"prestart": True, "client_works": True})] if prestart else []
+    runs = [(k, j, {**(extra or {}), **o} if j > 1 else o) for k, j, o in runs]  # --executor-options
     load0 = _load()
     for _ in range(repeats):
         for key, jobs, opts in runs:
@@ -326,6 +328,8 @@ def main() -> None:
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--prestart", action="store_true", help="also --jobs 2 with the pool forked before planning "
                     "(LocalExecutor(prestart=True))")
+    ap.add_argument("--executor-options", type=json.loads, default=None, metavar="JSON",
+                    help='more LocalExecutor options for the --jobs 2 CPU runs, e.g. \'{"start_method": "forkserver"}\'')
     ap.add_argument("--child-run", nargs=3, metavar=("YAML", "WS", "JOBS"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child_run:
@@ -358,8 +362,9 @@ def main() -> None:
                 results["cleaning_context"] = compare("cleaning 8 takes against the 103 CMU takes", cleanctx, tmp, configs, repeats)
         if "local" in sections:
             print("\nwall time on a shared machine measures the other load as much as ours; the CPU each process spent does not:")
-            results["features_cpu_path"] = report_critical_path("ingest + features", feats, tmp, repeats, args.prestart)
-            results["cleaning_cpu_path"] = report_critical_path("cleaning 8 takes", clean, tmp, repeats, args.prestart)
+            opts = args.executor_options
+            results["features_cpu_path"] = report_critical_path("ingest + features", feats, tmp, repeats, args.prestart, opts)
+            results["cleaning_cpu_path"] = report_critical_path("cleaning 8 takes", clean, tmp, repeats, args.prestart, opts)
             if args.context:
                 results["cleaning_context_cpu_path"] = report_critical_path("cleaning against 103 takes", cleanctx, tmp, repeats)
         if has_dask:
