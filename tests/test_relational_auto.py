@@ -248,3 +248,28 @@ def test_default_mutual_check_keeps_true_hits_in_a_long_take_of_hdm05_cuts():
     assert len(found["off"]) >= len(classes) // 2     # the test is not vacuous
     assert found["off"] <= found["auto"]              # no true hit in the take is rejected
     assert not found["clip"]                          # the whole-take check would reject them
+
+
+def test_reverse_costs_cut_out_the_hit_and_sample_the_database():
+    """reverse_costs: the per-range costs are the clips' least costs with the reverse frames
+    cut out of their clip (checked against clip_min_costs on split offsets); with max_clips
+    a sample of the other clips, whose costs are a subset of the full ones."""
+    from mocapflow.plugins.relational.auto import auto_template, reverse_costs
+    from mocapflow.plugins.relational.template_model import clip_min_costs
+
+    rng = np.random.default_rng(3)
+    clips = [_runs_motion(rng, int(k)) for k in rng.integers(4, 12, size=30)]
+    db = np.concatenate(clips).astype(np.uint8)
+    offsets = np.concatenate([[0], np.cumsum([len(c) for c in clips])]).astype(np.int64)
+    codes, bg = frame_codes(db), db.mean(axis=0)
+    q = clips[0]
+    lo, hi = int(offsets[5] + 5), int(offsets[5] + 20)  # a window inside clip 5
+    own, per = reverse_costs(db[lo:hi], lo, hi, frame_codes(q), codes, offsets, bg, max_clips=None)
+    t = auto_template(db[lo:hi], bg)
+    split = np.unique(np.concatenate([offsets, [lo, hi]]))
+    ref = clip_min_costs(codes, split, t.table())
+    ref = np.delete(ref, np.searchsorted(split, lo))  # the window itself is left out
+    np.testing.assert_allclose(np.sort(per), np.sort(ref))
+    assert own == pytest.approx(clip_min_costs(frame_codes(q), np.array([0, len(q)]), t.table())[0])
+    own_s, per_s = reverse_costs(db[lo:hi], lo, hi, frame_codes(q), codes, offsets, bg, max_clips=10)
+    assert own_s == own and len(per_s) == 10 + 2 and np.isin(per_s, per).all()

@@ -206,26 +206,42 @@ def auto_hits(template, codes: np.ndarray, offsets: np.ndarray, relative_cut: fl
 
 def reverse_costs(rev_bits: np.ndarray, lo: int, hi: int, query_codes: np.ndarray, codes: np.ndarray,
                   offsets: np.ndarray, background: np.ndarray, min_run: int = 4, features: str = "all",
-                  weighting: float = 0.5) -> tuple[float, np.ndarray]:
+                  weighting: float = 0.5, max_clips: int | None = 256) -> tuple[float, np.ndarray]:
     """The reverse query of the mutual check: ``rev_bits`` (a hit's clip or a window of it,
     database frames ``[lo, hi)``) made an auto template. Returns the query's least cost under
-    it and the least cost per database range, the ranges being the clips with ``[lo, hi)``
-    cut out (the rest of a long take stays searchable; paths never cross the cut)."""
-    from .template_model import clip_min_costs
+    it and the least cost per database range: every other clip, and the rest of the clip
+    holding ``[lo, hi)`` on either side (a long take stays searchable; paths never cross the
+    cut). Only the cut's quantiles of these costs are used, so with more than ``max_clips``
+    other clips a fixed random sample of ``max_clips`` of them (seed 0) stands for the
+    database: each reverse search then costs about max_clips clips, not the whole database
+    (None: every clip)."""
+    from .template_model import template_costs
 
     t = auto_template(rev_bits, background, None, min_run, features, weighting)
-    split = np.unique(np.concatenate([offsets, [lo, hi]])).astype(np.int64)
-    per_range = clip_min_costs(codes, split, t.table())
-    per_range[np.searchsorted(split, lo)] = np.inf  # the range [lo, hi) itself: the hit's own frames
-    own = clip_min_costs(query_codes, np.array([0, len(query_codes)], np.int64), t.table())[0]
-    return float(own), per_range
+    table = t.table()
+    h = int(np.searchsorted(offsets, lo, side="right") - 1)  # the clip holding the reverse frames
+    others = np.delete(np.arange(len(offsets) - 1), h)
+    if max_clips is not None and len(others) > max_clips:
+        others = np.sort(np.random.default_rng(0).choice(others, max_clips, replace=False))
+    ranges = np.concatenate([np.stack([offsets[others], offsets[others + 1]], axis=1),
+                             [[offsets[h], lo], [hi, offsets[h + 1]]]]).astype(np.int64)
+    ranges = ranges[ranges[:, 1] > ranges[:, 0]]
+    ranges = ranges[np.argsort(ranges[:, 0], kind="stable")]
+    per_range = np.zeros(0)
+    if len(ranges):
+        cost, _ = template_costs(codes, table, ranges)
+        # cost is inf outside the ranges, so the minimum from one range's start to the next one's is the range's
+        per_range = np.minimum.reduceat(cost, ranges[:, 0])
+    own, _ = template_costs(query_codes, table, np.array([[0, len(query_codes)]], np.int64))
+    return float(own.min()) if len(own) else float("inf"), per_range
 
 
 def _reverse_finds_query(rev_bits, lo, hi, q_codes, codes, offsets, background, min_run, features, weighting,
-                         relative_cut, low_weight) -> bool:
+                         relative_cut, low_weight, max_clips=256) -> bool:
     """Whether the reverse query (:func:`reverse_costs`) finds the query: its least cost <=
     the :func:`relative_cost_cut` of the per-range costs."""
-    own, per_range = reverse_costs(rev_bits, lo, hi, q_codes, codes, offsets, background, min_run, features, weighting)
+    own, per_range = reverse_costs(rev_bits, lo, hi, q_codes, codes, offsets, background, min_run, features, weighting,
+                                   max_clips)
     return bool(np.isfinite(own) and own <= relative_cost_cut(per_range, relative_cut, low_weight))
 
 
@@ -255,8 +271,8 @@ def mutual_clips(query_bits: np.ndarray, hit_clips: np.ndarray, db_bits: np.ndar
 def mutual_check(query_bits: np.ndarray, hit_start: np.ndarray, hit_end: np.ndarray, db_bits: np.ndarray,
                  codes: np.ndarray, offsets: np.ndarray, background: np.ndarray, mode: str = "auto",
                  ratio: float = 3.0, window: float | None = None, min_run: int = 4, features: str = "all",
-                 weighting: float = 0.5, relative_cut: float = 1.3,
-                 low_weight: float = 0.75) -> tuple[np.ndarray, np.ndarray]:
+                 weighting: float = 0.5, relative_cut: float = 1.3, low_weight: float = 0.75,
+                 max_clips: int | None = 256) -> tuple[np.ndarray, np.ndarray]:
     """The reverse check of ``auto_mutual`` per hit: ``(keep, checked)``, bool of shape (h,).
 
     ``mode="clip"``: every hit's whole clip is the reverse query (:func:`mutual_clips`).
@@ -267,7 +283,8 @@ def mutual_check(query_bits: np.ndarray, hit_start: np.ndarray, hit_end: np.ndar
     reverse query is a window of ``T x (1 + window)`` frames centred on the hit, inside its
     clip (the window's frames left out of the reverse search, the rest of the take kept). Unchecked hits are kept (``checked`` False: the matcher applies the plain cut to
     them). ``hit_start``/``hit_end`` are global frames (end exclusive); other arguments as
-    :func:`mutual_clips`. ``ratio`` was chosen leave-one-actor-out (docs/templates.md).
+    :func:`mutual_clips`; ``max_clips``: :func:`reverse_costs`. ``ratio`` was chosen
+    leave-one-actor-out (docs/templates.md).
     """
     from .template_model import frame_codes
 
@@ -279,7 +296,7 @@ def mutual_check(query_bits: np.ndarray, hit_start: np.ndarray, hit_end: np.ndar
     q_codes = frame_codes(np.asarray(query_bits) > 0.5)
     keep, checked = np.ones(len(s), bool), np.zeros(len(s), bool)
     whole: dict[int, bool] = {}  # one reverse search per distinct short clip
-    args = (q_codes, codes, offsets, background, min_run, features, weighting, relative_cut, low_weight)
+    args = (q_codes, codes, offsets, background, min_run, features, weighting, relative_cut, low_weight, max_clips)
     for i, (a, b, h) in enumerate(zip(s, e, clip)):
         lo, hi = int(offsets[h]), int(offsets[h + 1])
         if mode == "clip" or hi - lo <= ratio * n_q:
@@ -299,7 +316,7 @@ def auto_dtw_hits(template, query_bits: np.ndarray, db_bits: np.ndarray, codes: 
                   background: np.ndarray, mutual: str = "auto", relative_cut: float | None = None,
                   max_cost: float | None = None, low_weight: float = 0.75, ratio: float = 3.0,
                   window: float | None = None, min_run: int = 4, features: str = "all",
-                  weighting: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  weighting: float = 0.5, max_clips: int | None = 256) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end, cost)`` of ``auto_search: dtw`` with the mutual check (the matcher's
     code path): :func:`auto_hits` at the checked cut (``relative_cut``, default 1.3 with a
     check, 1.15 with ``mutual="off"``), :func:`mutual_check` (``mutual`` auto or clip), and
@@ -311,7 +328,7 @@ def auto_dtw_hits(template, query_bits: np.ndarray, db_bits: np.ndarray, codes: 
     if mutual == "off" or not len(s):
         return s, e, c
     keep, checked = mutual_check(query_bits, s, e, db_bits, codes, offsets, background, mutual, ratio, window,
-                                 min_run, features, weighting, checked_cut, low_weight)
+                                 min_run, features, weighting, checked_cut, low_weight, max_clips)
     keep &= checked | (c <= (cut if max_cost is not None else cut * plain / checked_cut))
     return s[keep], e[keep], c[keep]
 

@@ -402,6 +402,9 @@ class RelationalMatcher(Matcher):
         mutual_window: float | None = Field(None, ge=0.0, description="mode auto, auto_mutual auto: in a longer clip "
                                             "the reverse query is a window of the query's length x (1 + this) around "
                                             "the hit; None: such hits are not checked (and get the plain cut)")
+        mutual_sample: int | None = Field(256, ge=8, description="mode auto, mutual check: the reverse search covers a "
+                                          "fixed random sample of this many clips (its cut needs only the quantiles "
+                                          "of their costs); None: every clip")
         auto_weighting: float = Field(0.5, ge=0.0, le=4.0, description="mode auto, dtw: a mismatch costs the surprise of the "
                                       "example's value under the database's on-fraction, to this power (0: unweighted)")
         mismatches: int = Field(1, ge=0, description="m of m-mismatch hits")
@@ -492,7 +495,7 @@ class RelationalMatcher(Matcher):
             pr = self.params
             s, e, c = auto_dtw_hits(t, bits, db_bits, codes, any_set.clip_offsets, background, pr.auto_mutual,
                                     pr.relative_cut, pr.max_cost, pr.low_weight, pr.mutual_ratio, pr.mutual_window,
-                                    pr.min_run, pr.auto_features, pr.auto_weighting)
+                                    pr.min_run, pr.auto_features, pr.auto_weighting, pr.mutual_sample)
             used = t.columns
             hits = Hits(np.searchsorted(any_set.clip_offsets, s, side="right") - 1, s, e, c,
                         sets="+".join(sorted({feature_set_of(int(x)) for x in used})), n_levels=t.n_frames)
