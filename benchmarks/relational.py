@@ -14,7 +14,7 @@ Prints:
 4. with ``--templates`` (only): motion templates and mode ``auto`` leave-one-actor-out, and
    their speed on a 1 M-frame tiled database (``relational_templates.py``).
 
-Usage: ``python benchmarks/relational.py [--quick] [--frames N] [--fps 30] [--templates]``
+Usage: ``python benchmarks/relational.py [--quick] [--frames N] [--fps 30] [--templates | --auto]``
 """
 from __future__ import annotations
 
@@ -214,7 +214,7 @@ def query_bench(index: InvertedIndex, n_queries: int, seed: int = 0) -> None:
                   f"p95 {np.percentile(times, 95):.3f} ms; hits median {int(np.median(nh))}, max {max(nh)}")
 
 
-def templates_main(fps: float, n_frames: int) -> None:
+def templates_main(fps: float, n_frames: int, auto_only: bool = False) -> None:
     """Motion templates (Müller & Röder 2006) and mode auto: figures and speed."""
     import sys
 
@@ -226,6 +226,8 @@ def templates_main(fps: float, n_frames: int) -> None:
     bits = relational_features(db.canonical_positions(), db.fps, _measures(db), None, db.offsets)
     names = [m.name for m in db.motions]
     print(f"loaded {db.n_clips} HDM05 cuts ({db.n_frames} frames at {fps:g} Hz) with features in {time.perf_counter() - t:.1f} s")
+    if auto_only:
+        return rt.report_auto(bits, db.offsets, names)
     rt.report(bits, db.offsets, names)
     big_pos, big_off, big_meas, how = augmented_positions(db, n_frames, tiled=True)
     big_pos, big_off = big_pos[:n_frames], np.minimum(big_off[big_off < n_frames].tolist() + [n_frames], n_frames)
@@ -244,7 +246,11 @@ def main() -> None:
                     "instead of benchmarks/corpus.py's augmented CMU + HDM05 corpus")
     ap.add_argument("--templates", action="store_true", help="only the motion-template and automatic-selection figures "
                     "(leave-one-actor-out) and their speed on a 1 M-frame tiled database (relational_templates.py)")
+    ap.add_argument("--auto", action="store_true", help="only the automatic-selection figures of --templates "
+                    "(mode auto, leave-one-actor-out on the HDM05 cuts; no templates, no speed)")
     args = ap.parse_args()
+    if args.auto:
+        return templates_main(args.fps, 0, auto_only=True)
     n_frames = args.frames or (200_000 if args.quick else 1_300_000)
     if args.templates:
         return templates_main(args.fps, args.frames or (200_000 if args.quick else 1_000_000))

@@ -102,9 +102,11 @@ def _ranking_metrics(costs: np.ndarray, rel: np.ndarray) -> tuple[float, float]:
 
 
 def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str], min_run: int = 4,
-                        features: str = "all", weighting: float = 0.5, paper: bool = True) -> dict:
+                        features: str = "all", weighting: float = 0.5, paper: bool = True, mutual_auto: bool | None = None) -> dict:
     """Automatic selection from one example (module doc); dtw (template on ``features``,
-    surprise ``weighting``) and, with ``paper``, the paper's machinery."""
+    surprise ``weighting``), with ``paper`` the paper's machinery, with ``mutual_auto``
+    (default: as ``paper``) the ``auto_mutual: auto`` designs (:func:`mutual_auto_designs`)."""
+    mutual_auto = paper if mutual_auto is None else mutual_auto
     from itertools import product
 
     from mocapflow.plugins.relational.auto import relative_cost_cut
@@ -153,6 +155,10 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
             ap, p9 = _ranking_metrics(masked[q], rel[q])
             out[key].setdefault(cls[q], []).append((ap, p9) + hits_pr(q, tuple(chosen[q]), key))
         out["cuts"][key] = sorted({tuple(float(x) for x in c) for c in chosen})
+    if mutual_auto:  # auto_mutual: auto, c (and the window) chosen per fold
+        more = mutual_auto_designs(bits, offsets, names, masked, rel, min_run, features, weighting)
+        out["cuts"].update(more.pop("cuts"))
+        out.update(more)
     # other actors only: one example, and two (the actor's other take as the extra example)
     out["dtw, other actors"], out["dtw + 1 example, other actors"] = {}, {}
     for q in range(n):
@@ -187,6 +193,148 @@ def auto_single_example(bits: np.ndarray, offsets: np.ndarray, names: list[str],
             out[key].setdefault(cls[q], []).append((ap, p9, float((hit & rel[q]).sum() / max(hit.sum(), 1)),
                                                     float((hit & rel[q]).sum() / rel[q].sum())))
     return out
+
+
+#: ``mutual_ratio`` c values tried per fold (inf: every clip checked whole, i.e. ``auto_mutual: clip``)
+MUTUAL_RATIOS = (1.5, 2.0, 3.0, 4.0, 6.0, 8.0, np.inf)
+#: ``mutual_window`` m values tried (None: hits in clips longer than c x the query are not checked)
+MUTUAL_WINDOWS = (None, 0.5, 1.0)
+
+
+def _window_reverse(bits, offsets, min_run, features, weighting, m, min_ratio):
+    """For every pair (query q, clip h) with h longer than ``min_ratio`` x q: q's least cost under
+    the auto template of a window of q's length x (1 + m) centred on q's best path in h, and the
+    5 % quantile / median of that template's per-range least costs (the window cut out of h,
+    as the matcher: :func:`~mocapflow.plugins.relational.auto.reverse_costs`); nan elsewhere."""
+    from mocapflow.plugins.relational.auto import reverse_costs
+    from mocapflow.plugins.relational.template_model import template_costs
+
+    n, L = len(offsets) - 1, np.diff(offsets)
+    codes = frame_codes(bits)
+    bg = bits.mean(axis=0)
+    ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
+    own, lo_q, med = (np.full((n, n), np.nan) for _ in range(3))
+    for q in range(n):
+        t = auto_template(bits[offsets[q]:offsets[q + 1]], bg, None, min_run, features, weighting)
+        cost, start = template_costs(codes, t.table(), ranges)
+        for h in np.flatnonzero(L > min_ratio * L[q]):
+            seg = cost[offsets[h]:offsets[h + 1]]
+            if not np.isfinite(seg).any():
+                continue
+            end = offsets[h] + int(np.argmin(seg))
+            a, b = int(start[end]), end + 1
+            width = max(int(round(L[q] * (1 + m))), b - a)
+            wlo = int(np.clip((a + b) // 2 - width // 2, offsets[h], max(offsets[h], offsets[h + 1] - width)))
+            whi = min(offsets[h + 1], wlo + width)
+            own[q, h], per = reverse_costs(bits[wlo:whi], wlo, whi, codes[offsets[q]:offsets[q + 1]], codes, offsets, bg,
+                                           min_run, features, weighting)
+            fin = per[np.isfinite(per)]
+            if len(fin):
+                lo_q[q, h], med[q, h] = np.quantile(fin, 0.05), np.median(fin)
+    return own, lo_q, med
+
+
+def mutual_auto_designs(bits, offsets, names, masked, rel, min_run=4, features="all", weighting=0.5) -> dict:
+    """``auto_mutual: auto`` on the cut database, vectorised over the clip-cost matrix
+    ``masked`` (query x clip, diagonal inf): a hit in a clip of at most c x the query's
+    length is kept when the clip finds the query too (the whole clip's row of ``masked``);
+    in a longer clip it is checked on a window (``MUTUAL_WINDOWS`` m) or not at all and
+    then must pass the plain cut (relative_cut x 1.15 / 1.3, as the matcher). Per fold
+    (relative_cut, low_weight, c) are chosen on the other actors' queries: the most classes
+    at P >= 0.7, R >= 0.9, then the smallest c (the weakest assumption of one motion per
+    clip), then the best mean P + R. Returns the per-class rows and the choices."""
+    from itertools import product
+
+    cls, act = _meta(names)
+    n, L = len(names), np.diff(offsets)
+    fin = np.where(np.isfinite(masked), masked, np.nan)
+    q05, med = np.nanquantile(fin, 0.05, axis=1), np.nanmedian(fin, axis=1)
+    grid = list(product(MUTUAL_RATIOS, np.round(np.arange(0.9, 1.6, 0.05), 2), (0.5, 0.75, 1.0)))
+    out = {"cuts": {}}
+    for m in MUTUAL_WINDOWS:
+        key = "dtw + mutual auto" + ("" if m is None else f", window m={m:g}")
+        win = None if m is None else _window_reverse(bits, offsets, min_run, features, weighting, m, min(MUTUAL_RATIOS))
+
+        def hit_matrix(c, rc, lw, win=win):
+            cut = rc * q05 ** lw * med ** (1 - lw)
+            h = masked <= cut[:, None]
+            short = L[None, :] <= c * L[:, None]
+            if win is None:
+                far = masked <= (cut * 1.15 / 1.3)[:, None]
+            else:
+                own, lo_w, med_w = win
+                with np.errstate(invalid="ignore"):
+                    far = h & (own <= rc * lo_w ** lw * med_w ** (1 - lw))
+            return np.where(short, h & h.T, far)
+
+        def pr(hm, qs):
+            tp = (hm & rel)[qs].sum(axis=1)
+            return np.stack([tp / np.maximum(hm[qs].sum(axis=1), 1), tp / rel[qs].sum(axis=1)], axis=1)
+
+        def score(p, qs):
+            good = sum((p[cls[qs] == c_, 0].mean() >= 0.7) & (p[cls[qs] == c_, 1].mean() >= 0.9) for c_ in set(cls))
+            return good, p.mean(axis=0).sum()
+
+        chosen = {}
+        for held in sorted(set(act)):
+            tr = np.flatnonzero(act != held)
+            best = max(grid, key=lambda g: (lambda sc: (sc[0], -g[0], sc[1]))(score(pr(hit_matrix(*g), tr), tr)))
+            chosen[held] = best
+        out[key] = {}
+        for held, g in chosen.items():
+            te = np.flatnonzero(act == held)
+            p = pr(hit_matrix(*g), te)
+            for i, q in enumerate(te):
+                ap, p9 = _ranking_metrics(masked[q], rel[q])
+                out[key].setdefault(cls[q], []).append((ap, p9, p[i, 0], p[i, 1]))
+        out["cuts"][key] = {h: tuple(float(x) for x in g) for h, g in chosen.items()}
+        if m is None:  # the matcher's fixed defaults, no per-fold choice
+            from mocapflow.plugins.relational.matcher import RelationalMatcher
+
+            c_def = RelationalMatcher.Params.model_fields["mutual_ratio"].default
+            p = pr(hit_matrix(c_def, 1.3, 0.75), np.arange(n))
+            out["dtw + mutual auto, fixed defaults"] = {}
+            for q in range(n):
+                ap, p9 = _ranking_metrics(masked[q], rel[q])
+                out["dtw + mutual auto, fixed defaults"].setdefault(cls[q], []).append((ap, p9, p[q, 0], p[q, 1]))
+    return out
+
+
+def long_take_check(bits, offsets, names, ratio: float = 3.0, min_run: int = 4) -> dict:
+    """Mode auto on a long take: per fold the held-out actor's 22 cuts concatenated into one
+    clip (a take holding 22 motions), the other actors' 44 cuts as separate clips; every
+    cut of the other actors is a query (the matcher's code path, :func:`auto_dtw_hits`). Per
+    ``auto_mutual`` (off / auto / clip): recall = the held-out cuts of the query's class
+    (2) found inside the take (a hit overlapping them), precision = such hits / all hits
+    inside the take, and P / R over the separate cuts (relevant: the other cuts of the class
+    among them). Returns {mode: (take P, take R, cuts P, cuts R)}."""
+    from mocapflow.plugins.relational.auto import auto_dtw_hits
+
+    cls, act = _meta(names)
+    res = {m: [] for m in ("off", "auto", "clip")}
+    for held in sorted(set(act)):
+        te, tr = np.flatnonzero(act == held), np.flatnonzero(act != held)
+        order = np.concatenate([te, tr])
+        sub = np.concatenate([bits[offsets[i]:offsets[i + 1]] for i in order])
+        lens = np.diff(offsets)[order]
+        cut_off = np.concatenate([[0], np.cumsum(lens)]).astype(np.int64)
+        db_off = np.concatenate([[0], cut_off[len(te):]]).astype(np.int64)  # the held-out cuts: one clip
+        codes, bg = frame_codes(sub), sub.mean(axis=0)
+        for qi, q in enumerate(order[len(te):], start=len(te)):
+            qb = sub[cut_off[qi]:cut_off[qi + 1]]
+            t = auto_template(qb, bg, None, min_run)
+            for mode in res:
+                s, e, _ = auto_dtw_hits(t, qb, sub, codes, db_off, bg, mode, ratio=ratio, min_run=min_run)
+                in_take = e <= db_off[1]
+                which = np.searchsorted(cut_off, (s + e) // 2, side="right") - 1  # the cut a hit's middle lies in
+                good_take = cls[order[which[in_take]]] == cls[q]
+                found_take = {int(w) for w in which[in_take][good_take]}
+                clip = np.searchsorted(db_off, s[~in_take], side="right") - 1
+                hit_cuts = {int(c) + len(te) - 1 for c in clip} - {qi}
+                rel_cuts = {j for j in range(len(te), len(order)) if cls[order[j]] == cls[q] and j != qi}
+                res[mode].append((good_take.sum() / max(in_take.sum(), 1), len(found_take) / 2,
+                                  len(hit_cuts & rel_cuts) / max(len(hit_cuts), 1), len(hit_cuts & rel_cuts) / len(rel_cuts)))
+    return {m: tuple(np.mean(v, axis=0)) for m, v in res.items()}
 
 
 def speed(bits: np.ndarray, offsets: np.ndarray, names: list[str], big_bits: np.ndarray, big_offsets: np.ndarray,
@@ -243,17 +391,25 @@ def report_auto(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None
     print(f"\n== automatic feature selection from a single example ({time.perf_counter() - t0:.1f} s; "
           f"cut (relative_cut, low_weight) chosen per fold: {auto['cuts']}) ==")
     print("search (default: dtw, all features, surprise weights^0.5)".ljust(42) + "mAP    P@R0.9  hits P   hits R   classes P@R0.9>=0.7   classes hits P>=0.7,R>=0.9")
-    for key in ("dtw", "dtw + mutual (whole clips)", "dtw, cut x median (first design)", "dtw, key features unweighted (previous)",
+    mutual_keys = ["dtw + mutual auto", "dtw + mutual auto, fixed defaults"] + [f"dtw + mutual auto, window m={m:g}" for m in MUTUAL_WINDOWS if m is not None]
+    for key in ("dtw", "dtw + mutual (whole clips)", *mutual_keys, "dtw, cut x median (first design)", "dtw, key features unweighted (previous)",
                 "dtw, all features unweighted", "dtw, key features, weights^0.5", "dtw, all features, weights^1", "adaptive",
                 "mismatch1", "mismatch2", "dtw, other actors", "dtw + 1 example, other actors"):
         per = {c: np.mean(v, axis=0) for c, v in auto[key].items()}
         allv = np.concatenate([np.array(v) for v in auto[key].values()])
         print(f"{key:42s}{allv[:, 0].mean():.3f}{allv[:, 1].mean():8.2f}{allv[:, 2].mean():9.2f}{allv[:, 3].mean():9.2f}"
               f"{sum(v[1] >= 0.7 for v in per.values()):14d}{sum(v[2] >= 0.7 and v[3] >= 0.9 for v in per.values()):26d}")
-    print("per class: AP / P@R0.9 / hits P / hits R (dtw) | hits P / hits R (dtw + mutual)")
+    t0 = time.perf_counter()
+    take = long_take_check(bits, offsets, names)
+    print(f"long take (held-out actor's 22 cuts as one clip; other actors' cuts as queries and separate clips; "
+          f"{time.perf_counter() - t0:.1f} s): auto_mutual: take P / take R / cuts P / cuts R")
+    for m, v in take.items():
+        print(f"  {m:5s} " + " / ".join(f"{x:.2f}" for x in v))
+    print("per class: AP / P@R0.9 / hits P / hits R (dtw) | hits P / hits R (dtw + mutual clip) | (dtw + mutual auto, default)")
     for c, v in auto["dtw"].items():
         m, mm = np.mean(v, axis=0), np.mean(auto["dtw + mutual (whole clips)"][c], axis=0)
-        print(f"  {c:30s} {m[0]:.2f} / {m[1]:.2f} / {m[2]:.2f} / {m[3]:.2f} | {mm[2]:.2f} / {mm[3]:.2f}")
+        ma = np.mean(auto["dtw + mutual auto"][c], axis=0)
+        print(f"  {c:30s} {m[0]:.2f} / {m[1]:.2f} / {m[2]:.2f} / {m[3]:.2f} | {mm[2]:.2f} / {mm[3]:.2f} | {ma[2]:.2f} / {ma[3]:.2f}")
 
 
 def prefilter_speed(bits, offsets, names, big_bits, big_offsets, repeats: int = 3, temps=None) -> None:

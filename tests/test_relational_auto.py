@@ -170,3 +170,106 @@ def test_mutual_clips_rejects_a_longer_motion_that_contains_the_query():
     codes = frame_codes(db)
     keep = mutual_clips(hop, np.array([0, 1]), db, codes, offsets, db.mean(axis=0), relative_cut=1.3)
     assert keep.tolist() == [True, False]
+
+
+def _runs_motion(rng, n):  # runs of 5 frames: no flicker for min_run 4
+    return np.repeat(rng.random((n, 31)) < 0.3, 5, axis=0)
+
+
+def test_mutual_check_auto_keeps_hits_inside_a_long_take():
+    """auto_mutual auto: a clip of at most ratio x the query is checked whole (the short
+    motion containing the query is rejected, as with clip); inside a long take (many motions)
+    the hit is not checked and kept, where the whole-clip check rejects it."""
+    from mocapflow.plugins.relational.auto import mutual_check
+
+    rng = np.random.default_rng(0)
+    hop = _runs_motion(rng, 6)                                           # 30 frames
+    medium = np.concatenate([_runs_motion(rng, 3), hop, _runs_motion(rng, 3)])  # 60 frames <= 3 x 30
+    take = np.concatenate([_runs_motion(rng, 8) for _ in range(20)] + [hop] + [_runs_motion(rng, 8) for _ in range(20)])
+    clips = [hop.copy(), medium, take] + [_runs_motion(rng, 8) for _ in range(8)]
+    db = np.concatenate(clips).astype(np.uint8)
+    offsets = np.concatenate([[0], np.cumsum([len(c) for c in clips])]).astype(np.int64)
+    codes, bg = frame_codes(db), db.mean(axis=0)
+    in_medium = offsets[1] + 15
+    in_take = offsets[2] + 20 * 40
+    s = np.array([0, in_medium, in_take])
+    e = s + len(hop)
+    keep, checked = mutual_check(hop, s, e, db, codes, offsets, bg, "auto", ratio=3.0)
+    assert checked.tolist() == [True, True, False] and keep.tolist() == [True, False, True]
+    keep_clip, checked_clip = mutual_check(hop, s, e, db, codes, offsets, bg, "clip")
+    assert checked_clip.all() and keep_clip.tolist() == [True, False, False]  # clip rejects the take's hop
+    # a window of the take around the hit (query length x 2) finds the hop again
+    keep_w, checked_w = mutual_check(hop, s, e, db, codes, offsets, bg, "auto", ratio=3.0, window=1.0)
+    assert checked_w.all() and keep_w.tolist() == [True, False, True]
+
+
+def _hdm05_bits(files):
+    from mocapflow.framework.database import MotionDatabase
+    from mocapflow.framework.normalize import resample
+    from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.relational.body import body_measures
+    from mocapflow.plugins.relational.features import relational_features
+
+    db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])
+    per = [body_measures(m.skeleton) for m in db.motions]
+    meas = {k: np.repeat([p[k] for p in per], np.diff(db.offsets)).astype(np.float32)
+            for k in ("humerus_length", "shoulder_width", "hip_width")}
+    return relational_features(db.canonical_positions(), db.fps, meas, None, db.offsets), np.asarray(db.offsets, np.int64)
+
+
+@pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
+def test_default_mutual_check_keeps_true_hits_in_a_long_take_of_hdm05_cuts():
+    """A long take made by concatenating one actor's HDM05 cuts (one of each class), next to
+    the other two actors' cuts as separate clips (as in the benchmark's database of 66 cuts,
+    which the relative cut needs): with the default auto_mutual (auto) every true hit that
+    the search without the check finds inside the take is kept; the whole-clip check
+    (auto_mutual: clip) rejects them all."""
+    from mocapflow.plugins.relational.auto import auto_dtw_hits
+
+    classes = sorted({p.stem.split("_")[2] for p in HDM05.glob("dg/*.amc")})
+    take_files = [sorted(HDM05.glob(f"dg/*_{c}_*.amc"))[0] for c in classes]
+    cut_files = [f for a in ("bd", "bk") for c in classes for f in sorted(HDM05.glob(f"{a}/*_{c}_*.amc"))]
+    if len(classes) < 8 or len(cut_files) < 4 * len(classes):
+        pytest.skip("HDM05 cuts of actors bd, bk and dg not all present")
+    bits, off = _hdm05_bits(take_files + cut_files)
+    n_take = len(take_files)
+    offsets = np.concatenate([[0], off[n_take:]])  # the dg cuts become one clip (a take)
+    true_span = np.stack([off[:n_take], off[1:n_take + 1]], axis=1)
+    codes, bg = frame_codes(bits), bits.mean(axis=0)
+    found = {m: set() for m in ("off", "auto", "clip")}
+    for i in range(len(classes)):
+        q = n_take + 2 * i  # the bd cut of class i
+        qb = bits[off[q]:off[q + 1]]
+        t = auto_template(qb, bg)
+        for mode in found:
+            s, e, _ = auto_dtw_hits(t, qb, bits, codes, offsets, bg, mode)
+            if any(a < true_span[i, 1] and b > true_span[i, 0] for a, b in zip(s, e)):
+                found[mode].add(i)
+    assert len(found["off"]) >= len(classes) // 2     # the test is not vacuous
+    assert found["off"] <= found["auto"]              # no true hit in the take is rejected
+    assert not found["clip"]                          # the whole-take check would reject them
+
+
+def test_reverse_costs_cut_out_the_hit_and_sample_the_database():
+    """reverse_costs: the per-range costs are the clips' least costs with the reverse frames
+    cut out of their clip (checked against clip_min_costs on split offsets); with max_clips
+    a sample of the other clips, whose costs are a subset of the full ones."""
+    from mocapflow.plugins.relational.auto import auto_template, reverse_costs
+    from mocapflow.plugins.relational.template_model import clip_min_costs
+
+    rng = np.random.default_rng(3)
+    clips = [_runs_motion(rng, int(k)) for k in rng.integers(4, 12, size=30)]
+    db = np.concatenate(clips).astype(np.uint8)
+    offsets = np.concatenate([[0], np.cumsum([len(c) for c in clips])]).astype(np.int64)
+    codes, bg = frame_codes(db), db.mean(axis=0)
+    q = clips[0]
+    lo, hi = int(offsets[5] + 5), int(offsets[5] + 20)  # a window inside clip 5
+    own, per = reverse_costs(db[lo:hi], lo, hi, frame_codes(q), codes, offsets, bg, max_clips=None)
+    t = auto_template(db[lo:hi], bg)
+    split = np.unique(np.concatenate([offsets, [lo, hi]]))
+    ref = clip_min_costs(codes, split, t.table())
+    ref = np.delete(ref, np.searchsorted(split, lo))  # the window itself is left out
+    np.testing.assert_allclose(np.sort(per), np.sort(ref))
+    assert own == pytest.approx(clip_min_costs(frame_codes(q), np.array([0, len(q)]), t.table())[0])
+    own_s, per_s = reverse_costs(db[lo:hi], lo, hi, frame_codes(q), codes, offsets, bg, max_clips=10)
+    assert own_s == own and len(per_s) == 10 + 2 and np.isin(per_s, per).all()

@@ -25,8 +25,9 @@ Two searches use the selection (``auto_search``):
     with further examples a proper template is fitted (cells where they disagree are don't
     care). A hit is a clip stretch whose cost is below a cut relative to the database's
     per-clip costs (:func:`relative_cost_cut`: a blend of their 5 % quantile and median) or
-    below ``max_cost``; optionally the hit's clip must find the query in turn
-    (:func:`mutual_clips`, databases of cut motions).
+    below ``max_cost``; a hit's clip must find the query in turn where it is short next to
+    the query (:func:`mutual_check`, ``auto_mutual: auto``, default: a cut motion; hits
+    inside long takes are not checked) or always (``clip``: databases of cut motions).
 ``adaptive`` / ``mismatch``
     The smoothed bits of the ``max_features`` best-scoring features (steps 1-4) run
     through the paper's machinery (adaptive fuzzy or m-mismatch hits).
@@ -203,6 +204,47 @@ def auto_hits(template, codes: np.ndarray, offsets: np.ndarray, relative_cut: fl
     return s, e, c, cut
 
 
+def reverse_costs(rev_bits: np.ndarray, lo: int, hi: int, query_codes: np.ndarray, codes: np.ndarray,
+                  offsets: np.ndarray, background: np.ndarray, min_run: int = 4, features: str = "all",
+                  weighting: float = 0.5, max_clips: int | None = 256) -> tuple[float, np.ndarray]:
+    """The reverse query of the mutual check: ``rev_bits`` (a hit's clip or a window of it,
+    database frames ``[lo, hi)``) made an auto template. Returns the query's least cost under
+    it and the least cost per database range: every other clip, and the rest of the clip
+    holding ``[lo, hi)`` on either side (a long take stays searchable; paths never cross the
+    cut). Only the cut's quantiles of these costs are used, so with more than ``max_clips``
+    other clips a fixed random sample of ``max_clips`` of them (seed 0) stands for the
+    database: each reverse search then costs about max_clips clips, not the whole database
+    (None: every clip)."""
+    from .template_model import template_costs
+
+    t = auto_template(rev_bits, background, None, min_run, features, weighting)
+    table = t.table()
+    h = int(np.searchsorted(offsets, lo, side="right") - 1)  # the clip holding the reverse frames
+    others = np.delete(np.arange(len(offsets) - 1), h)
+    if max_clips is not None and len(others) > max_clips:
+        others = np.sort(np.random.default_rng(0).choice(others, max_clips, replace=False))
+    ranges = np.concatenate([np.stack([offsets[others], offsets[others + 1]], axis=1),
+                             [[offsets[h], lo], [hi, offsets[h + 1]]]]).astype(np.int64)
+    ranges = ranges[ranges[:, 1] > ranges[:, 0]]
+    ranges = ranges[np.argsort(ranges[:, 0], kind="stable")]
+    per_range = np.zeros(0)
+    if len(ranges):
+        cost, _ = template_costs(codes, table, ranges)
+        # cost is inf outside the ranges, so the minimum from one range's start to the next one's is the range's
+        per_range = np.minimum.reduceat(cost, ranges[:, 0])
+    own, _ = template_costs(query_codes, table, np.array([[0, len(query_codes)]], np.int64))
+    return float(own.min()) if len(own) else float("inf"), per_range
+
+
+def _reverse_finds_query(rev_bits, lo, hi, q_codes, codes, offsets, background, min_run, features, weighting,
+                         relative_cut, low_weight, max_clips=256) -> bool:
+    """Whether the reverse query (:func:`reverse_costs`) finds the query: its least cost <=
+    the :func:`relative_cost_cut` of the per-range costs."""
+    own, per_range = reverse_costs(rev_bits, lo, hi, q_codes, codes, offsets, background, min_run, features, weighting,
+                                   max_clips)
+    return bool(np.isfinite(own) and own <= relative_cost_cut(per_range, relative_cut, low_weight))
+
+
 def mutual_clips(query_bits: np.ndarray, hit_clips: np.ndarray, db_bits: np.ndarray, codes: np.ndarray,
                  offsets: np.ndarray, background: np.ndarray, min_run: int = 4, features: str = "all",
                  weighting: float = 0.5, relative_cut: float = 1.15, low_weight: float = 0.75) -> np.ndarray:
@@ -212,23 +254,83 @@ def mutual_clips(query_bits: np.ndarray, hit_clips: np.ndarray, db_bits: np.ndar
     costs over the database, the hit clip itself left out). A short query (one hop) matches
     a stretch inside a longer motion (a jog); the jog clip as a query does not match the hop.
     Only for databases of cut motions (one motion per clip): a long take as a query matches
-    almost nothing. Needs no labels; costs one search of the database per distinct hit clip.
+    almost nothing (:func:`mutual_check` with ``mode="auto"`` is the safe default). Needs no
+    labels; costs one search of the database per distinct hit clip.
 
     ``query_bits`` (T, 31); ``hit_clips`` (h,) clip positions; ``db_bits`` (N, 31), ``codes``
     (N,) and ``offsets`` (n_clips + 1,) the database.
     """
-    from .template_model import clip_min_costs, frame_codes
+    from .template_model import frame_codes
 
     q_codes = frame_codes(np.asarray(query_bits) > 0.5)
-    q_off = np.array([0, len(q_codes)], np.int64)
-    keep = np.zeros(len(hit_clips), bool)
-    for i, h in enumerate(np.asarray(hit_clips, np.int64)):
-        t = auto_template(db_bits[offsets[h]:offsets[h + 1]], background, None, min_run, features, weighting)
-        per_clip = clip_min_costs(codes, offsets, t.table())
-        per_clip[h] = np.inf
-        own = clip_min_costs(q_codes, q_off, t.table())[0]
-        keep[i] = bool(np.isfinite(own) and own <= relative_cost_cut(per_clip, relative_cut, low_weight))
-    return keep
+    return np.array([_reverse_finds_query(db_bits[offsets[h]:offsets[h + 1]], int(offsets[h]), int(offsets[h + 1]), q_codes,
+                                          codes, offsets, background, min_run, features, weighting, relative_cut, low_weight)
+                     for h in np.asarray(hit_clips, np.int64)], bool)
 
 
-__all__ = ["auto_hits", "mutual_clips", "auto_template", "relative_cost_cut", "runs", "select_features", "smooth_runs", "surprise_weights"]
+def mutual_check(query_bits: np.ndarray, hit_start: np.ndarray, hit_end: np.ndarray, db_bits: np.ndarray,
+                 codes: np.ndarray, offsets: np.ndarray, background: np.ndarray, mode: str = "auto",
+                 ratio: float = 3.0, window: float | None = None, min_run: int = 4, features: str = "all",
+                 weighting: float = 0.5, relative_cut: float = 1.3, low_weight: float = 0.75,
+                 max_clips: int | None = 256) -> tuple[np.ndarray, np.ndarray]:
+    """The reverse check of ``auto_mutual`` per hit: ``(keep, checked)``, bool of shape (h,).
+
+    ``mode="clip"``: every hit's whole clip is the reverse query (:func:`mutual_clips`).
+    ``mode="auto"`` (default): only where the hit's clip is short next to the query (at most
+    ``ratio`` x the query's T frames: a cut motion, whose one motion the whole clip is);
+    in a longer clip (a long take holding many motions, where the whole clip as a query
+    would find almost nothing) the hit is not checked (``window`` None, default) or the
+    reverse query is a window of ``T x (1 + window)`` frames centred on the hit, inside its
+    clip (the window's frames left out of the reverse search, the rest of the take kept). Unchecked hits are kept (``checked`` False: the matcher applies the plain cut to
+    them). ``hit_start``/``hit_end`` are global frames (end exclusive); other arguments as
+    :func:`mutual_clips`; ``max_clips``: :func:`reverse_costs`. ``ratio`` was chosen
+    leave-one-actor-out (docs/templates.md).
+    """
+    from .template_model import frame_codes
+
+    if mode not in ("clip", "auto"):
+        raise DataError(f"auto_mutual must be clip or auto here, got {mode!r}")
+    s, e = np.asarray(hit_start, np.int64), np.asarray(hit_end, np.int64)
+    clip = np.searchsorted(offsets, s, side="right") - 1
+    n_q = len(query_bits)
+    q_codes = frame_codes(np.asarray(query_bits) > 0.5)
+    keep, checked = np.ones(len(s), bool), np.zeros(len(s), bool)
+    whole: dict[int, bool] = {}  # one reverse search per distinct short clip
+    args = (q_codes, codes, offsets, background, min_run, features, weighting, relative_cut, low_weight, max_clips)
+    for i, (a, b, h) in enumerate(zip(s, e, clip)):
+        lo, hi = int(offsets[h]), int(offsets[h + 1])
+        if mode == "clip" or hi - lo <= ratio * n_q:
+            if h not in whole:
+                whole[h] = _reverse_finds_query(db_bits[lo:hi], lo, hi, *args)
+            keep[i], checked[i] = whole[h], True
+        elif window is not None:
+            width = max(int(round(n_q * (1.0 + window))), int(b - a))
+            wlo = int(np.clip((a + b) // 2 - width // 2, lo, max(lo, hi - width)))
+            whi = min(hi, wlo + width)
+            keep[i] = _reverse_finds_query(db_bits[wlo:whi], wlo, whi, *args)
+            checked[i] = True
+    return keep, checked
+
+
+def auto_dtw_hits(template, query_bits: np.ndarray, db_bits: np.ndarray, codes: np.ndarray, offsets: np.ndarray,
+                  background: np.ndarray, mutual: str = "auto", relative_cut: float | None = None,
+                  max_cost: float | None = None, low_weight: float = 0.75, ratio: float = 3.0,
+                  window: float | None = None, min_run: int = 4, features: str = "all",
+                  weighting: float = 0.5, max_clips: int | None = 256) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hits ``(start, end, cost)`` of ``auto_search: dtw`` with the mutual check (the matcher's
+    code path): :func:`auto_hits` at the checked cut (``relative_cut``, default 1.3 with a
+    check, 1.15 with ``mutual="off"``), :func:`mutual_check` (``mutual`` auto or clip), and
+    for hits left unchecked (long clips under ``auto`` without ``window``) the plain cut
+    (``relative_cut``, default 1.15; with ``max_cost`` the same fixed cut)."""
+    plain = relative_cut or 1.15
+    checked_cut = relative_cut or (1.3 if mutual != "off" else 1.15)  # a checked hit may cost more
+    s, e, c, cut = auto_hits(template, codes, offsets, checked_cut, max_cost, low_weight)
+    if mutual == "off" or not len(s):
+        return s, e, c
+    keep, checked = mutual_check(query_bits, s, e, db_bits, codes, offsets, background, mutual, ratio, window,
+                                 min_run, features, weighting, checked_cut, low_weight, max_clips)
+    keep &= checked | (c <= (cut if max_cost is not None else cut * plain / checked_cut))
+    return s[keep], e[keep], c[keep]
+
+
+__all__ = ["auto_dtw_hits", "auto_hits", "mutual_check", "mutual_clips", "auto_template", "relative_cost_cut", "reverse_costs", "runs", "select_features", "smooth_runs", "surprise_weights"]

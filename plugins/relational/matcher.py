@@ -385,15 +385,26 @@ class RelationalMatcher(Matcher):
         max_features: int = Field(3, ge=1, le=31, description="mode auto with adaptive/mismatch search: features selected")
         relative_cut: float | None = Field(None, gt=0.0, description="mode auto, dtw: hits cost below this x q^w x "
                                            "median^(1-w) of the database's per-clip least costs (q: their 5 % quantile, "
-                                           "w: low_weight); default 1.15, 1.3 with auto_mutual: clip")
+                                           "w: low_weight); default 1.3 for hits the mutual check passes, 1.15 for "
+                                           "unchecked ones (auto_mutual off, or long clips under auto)")
         low_weight: float = Field(0.75, ge=0.0, le=1.0, description="mode auto, dtw: weight w of the low quantile in the cut "
                                   "(0: relative_cut x the median, the first design)")
         max_cost: float | None = Field(None, gt=0.0, description="mode auto, dtw: fixed cost cut instead of relative_cut")
         auto_features: Literal["all", "key"] = Field("all", description="mode auto, dtw: the example template on all 31 "
                                                      "features or on its key features (the first design)")
-        auto_mutual: Literal["off", "clip"] = Field("off", description="mode auto, dtw: clip keeps a hit only when its whole "
-                                                    "clip as a query finds the query clip too (databases of cut motions; one "
-                                                    "search per hit clip; docs/templates.md)")
+        auto_mutual: Literal["auto", "clip", "off"] = Field("auto", description="mode auto, dtw: reverse check of each "
+                                                            "hit (the hit's clip as a query must find the query clip too): "
+                                                            "clip on every hit (databases of cut motions), auto only where "
+                                                            "the hit's clip is at most mutual_ratio x the query's length "
+                                                            "(long takes: mutual_window or no check), off; docs/templates.md")
+        mutual_ratio: float = Field(3.0, gt=0.0, description="mode auto, auto_mutual auto: a hit's clip of at most this "
+                                    "x the query's frames is checked as a whole")
+        mutual_window: float | None = Field(None, ge=0.0, description="mode auto, auto_mutual auto: in a longer clip "
+                                            "the reverse query is a window of the query's length x (1 + this) around "
+                                            "the hit; None: such hits are not checked (and get the plain cut)")
+        mutual_sample: int | None = Field(256, ge=8, description="mode auto, mutual check: the reverse search covers a "
+                                          "fixed random sample of this many clips (its cut needs only the quantiles "
+                                          "of their costs); None: every clip")
         auto_weighting: float = Field(0.5, ge=0.0, le=4.0, description="mode auto, dtw: a mismatch costs the surprise of the "
                                       "example's value under the database's on-fraction, to this power (0: unweighted)")
         mismatches: int = Field(1, ge=0, description="m of m-mismatch hits")
@@ -464,16 +475,16 @@ class RelationalMatcher(Matcher):
     def _auto_rows(self, qid: int, index: InvertedIndex, bits: np.ndarray, spec: ExampleQuery,
                    examples: list[np.ndarray]) -> list[dict]:
         """Mode auto: features selected from the example, then DTW or the paper's machinery."""
-        from .auto import auto_hits, auto_template, select_features
+        from .auto import auto_dtw_hits, auto_template, select_features
         from .template_model import frame_codes
 
         cache = getattr(self, "_frames", None)
         if cache is None or cache[0] is not index:
             db_bits = index.frame_bits()
             any_set = next(iter(index.sets.values()))
-            cache = (index, frame_codes(db_bits), db_bits.mean(axis=0) if len(db_bits) else np.zeros(31), any_set)
+            cache = (index, frame_codes(db_bits), db_bits.mean(axis=0) if len(db_bits) else np.zeros(31), any_set, db_bits)
             self._frames = cache
-        _, codes, background, any_set = cache
+        _, codes, background, any_set, db_bits = cache
         allowed = sorted({feature_column(f) for f in spec.features}) if spec.features else None
         if self.params.auto_search == "dtw":
             t = auto_template(bits, background, examples, self.params.min_run, self.params.auto_features,
@@ -481,18 +492,10 @@ class RelationalMatcher(Matcher):
             if allowed is not None:
                 keep = np.intersect1d(t.columns, allowed)
                 t.columns = keep if len(keep) else np.asarray(allowed, np.int64)
-            rel_cut = self.params.relative_cut or (1.3 if self.params.auto_mutual == "clip" else 1.15)
-            s, e, c, _ = auto_hits(t, codes, any_set.clip_offsets, rel_cut, self.params.max_cost, self.params.low_weight)
-            if self.params.auto_mutual == "clip" and len(s):
-                from .auto import mutual_clips
-
-                hit_clip = np.searchsorted(any_set.clip_offsets, s, side="right") - 1
-                uniq = np.unique(hit_clip)
-                ok = mutual_clips(bits, uniq, index.frame_bits(), codes, any_set.clip_offsets, background,
-                                  self.params.min_run, self.params.auto_features, self.params.auto_weighting,
-                                  rel_cut, self.params.low_weight)
-                keep = np.isin(hit_clip, uniq[ok])
-                s, e, c = s[keep], e[keep], c[keep]
+            pr = self.params
+            s, e, c = auto_dtw_hits(t, bits, db_bits, codes, any_set.clip_offsets, background, pr.auto_mutual,
+                                    pr.relative_cut, pr.max_cost, pr.low_weight, pr.mutual_ratio, pr.mutual_window,
+                                    pr.min_run, pr.auto_features, pr.auto_weighting, pr.mutual_sample)
             used = t.columns
             hits = Hits(np.searchsorted(any_set.clip_offsets, s, side="right") - 1, s, e, c,
                         sets="+".join(sorted({feature_set_of(int(x)) for x in used})), n_levels=t.n_frames)
