@@ -10,7 +10,10 @@ otherwise). ``agree`` drops runs only the digression flagged that no other cue b
 ``flag_rule: repaired`` reports only the flags whose repair held up. Session 4 (docs/cleaning.md):
 ``acc_persist`` caps the acceleration cue of isolated kinks at the take (fitted without it),
 ``acc_body`` drops the acceleration flags of whole-body jolts, ``freeze_still`` grows freeze
-flags over the still interval, ``flag_min_deg`` reports only edits of an error's size. Both
+flags over the still interval (session 5: ``freeze_moving``, only where the consensus moves),
+``flag_min_deg`` reports only edits of an error's size; session 5 ``shrink_full`` scales the edit
+of a weakly evidenced acceleration/jitter run by its evidence and ``accept_margin`` (off) keeps a
+run only on a consensus gain above the clean scatter (:mod:`.run_acceptance`). Both
 modes carry the repair to the input frames with :func:`.repair.apply_to_input`.
 """
 from __future__ import annotations

@@ -138,10 +138,10 @@ class MDMParams(Params):
     freeze_still: float | None = Field(default=0.05, gt=0, description="calibrated: runs the freeze cue flags are "
                                       "grown over the interval where the joint moves less than this many degrees "
                                       "per frame (the whole frozen interval); None = off")
-    freeze_moving: float | None = Field(default=None, gt=0, description="calibrated: the freeze_still growth "
+    freeze_moving: float | None = Field(default=0.1, gt=0, description="calibrated: the freeze_still growth "
                                         "covers only frames where the KNN consensus moves at least this many degrees "
                                         "per frame (a joint the consensus holds still too is genuinely still); None = off")
-    shrink_full: float | None = Field(default=None, gt=1, description="calibrated: an edited run whose strongest "
+    shrink_full: float | None = Field(default=1.5, gt=1, description="calibrated: an edited run whose strongest "
                                       "evidence E is below this has its edit scaled by (E - 1) / (shrink_full - 1) "
                                       "(cleaners/run_acceptance.py); None = off")
     shrink_cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], ...] = Field(
