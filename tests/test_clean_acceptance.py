@@ -82,3 +82,24 @@ def test_freeze_growth_stops_where_the_consensus_is_still_too():
     assert grown[20:35, 1].all()
     moving, _ = _freezes_grown(flags, dom, q, np.deg2rad(0.05), mean_q, np.deg2rad(0.05))
     assert moving[20:26, 1].all() and not moving[31:35, 1].any()
+
+
+def test_unclaimed_short_runs_are_left_as_they_were():
+    from types import SimpleNamespace
+
+    from mocapflow.plugins.selfsim.decision import _run_checks
+
+    q = _walk(30, 3)
+    new = q.copy()
+    new[5, 0] = _rot(q[5, 0], 5.0)  # one frame, below flag_min_deg: no claim
+    new[10:13, 1] = _rot(q[10:13, 1], 5.0)  # three frames, no claim
+    new[20, 2] = _rot(q[20, 2], 20.0)  # a claim
+    p = SimpleNamespace(shrink_full=None, accept_margin=None, unclaimed_revert=True, flag_min_deg=10.0,
+                        unclaimed_frames=2)
+    res = SimpleNamespace(texture=SimpleNamespace(q=q), mean_texture=q)
+    none = np.zeros((30, 3), bool)
+    out, edited = _run_checks(p, res, None, new, none, np.zeros((30, 3)), np.zeros((30, 3), int), none, none)
+    assert not edited[5, 0] and edited[10:13, 1].all() and edited[20, 2] and edited.sum() == 4
+    p.unclaimed_frames = None
+    out, edited = _run_checks(p, res, None, new, none, np.zeros((30, 3)), np.zeros((30, 3), int), none, none)
+    assert edited.sum() == 1 and np.array_equal(out[:, :2], q[:, :2])

@@ -174,6 +174,15 @@ def _run_checks(p: Any, res: Any, cal: Any, new24: np.ndarray, flags: np.ndarray
         eligible = flags & np.isin(dom, [CUES.index(c) for c in p.shrink_cues])
         new24 = shrink_weak_runs(q, new24, edited, exclude, evidence, eligible, p.shrink_full)
         edited = np.any(new24 != q, axis=-1)
+    if p.unclaimed_revert and p.flag_min_deg is not None:
+        from .run_acceptance import edit_runs
+
+        size = quat.geodesic_angle(new24, q)
+        for j, a, b in edit_runs(edited, exclude):
+            short = p.unclaimed_frames is None or b - a <= p.unclaimed_frames
+            if short and size[a:b, j].max() < np.deg2rad(p.flag_min_deg):
+                new24[a:b, j] = q[a:b, j]
+        edited = np.any(new24 != q, axis=-1)
     if p.accept_margin is not None:
         # a joint's typical clean distance to T̄: the calibration's, or the take's own when larger
         own = np.median(quat.geodesic_angle(q, res.mean_texture), axis=0)
@@ -245,7 +254,7 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
                                                 extra=extra, interp=dom == CUES.index("acceleration"),
                                                 interp_max=p.interp_max, merge_gap=p.merge_gap)
-        if p.shrink_full is not None or p.accept_margin is not None:
+        if p.shrink_full is not None or p.accept_margin is not None or p.unclaimed_revert:
             new24, edited = _run_checks(p, res, cal, new24, flags, evidence, dom, swapped, extra["offset"])
             swapped &= edited
             extra["offset"] &= edited

@@ -149,6 +149,10 @@ class MDMParams(Params):
     accept_margin: float | None = Field(default=None, ge=0, description="calibrated: an edited run is kept only when "
                                         "the squared distance to the KNN consensus it removes exceeds this many times "
                                         "its cells' summed squared typical clean digression; None = off")
+    unclaimed_revert: bool = Field(default=False, description="calibrated: a run (not a swap nor an offset) the "
+                                   "repair changes nowhere by flag_min_deg or more is left as it was (no silent run)")
+    unclaimed_frames: int | None = Field(default=None, ge=1, description="calibrated: unclaimed_revert only for "
+                                         "runs of at most this many frames; None = any length")
     accept_offsets: bool = Field(default=False, description="calibrated: accept_margin also tests offset intervals")
     flag_min_deg: float | None = Field(default=10.0, ge=0, description="calibrated: cells the repair changes by "
                                        "less than this many degrees are edited but not reported flagged (a "
