@@ -62,7 +62,8 @@ def pooled(results: list[tuple[list[dict], list[dict], list[dict]]]) -> tuple[li
         row = dict(group[0])
         w = np.array([g["n_clips"] for g in group], float)
         for k in ("global_before", "global_after", "share_global_lower", "cells_before", "cells_after",
-                  "clean_edited_share", "global_before_ng", "global_after_ng", "share_global_lower_ng"):
+                  "clean_edited_share", "global_before_ng", "global_after_ng", "share_global_lower_ng",
+                  "share_global_not_higher", "share_global_unchanged", "share_global_not_higher_ng"):
             row[k] = float(np.average([g[k] for g in group], weights=w))
         for k in ("clean_edited_share_max", "clean_max_edit_deg", "clean_max_edit_deg_ng"):
             row[k] = max(g[k] for g in group)
@@ -93,7 +94,7 @@ def install_cache(folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     original = mdm.digression_map
     decision_only = {"mode", "false_alarm", "null_quantile", "calibration_frames", "calibration_density",
-                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
+                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "freeze_moving", "shrink_full", "shrink_cues", "accept_margin", "accept_offsets", "unclaimed_revert", "unclaimed_frames", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
                      "savgol_window", "savgol_order", "include_self"}
 
     def cached(motion, context=None, params=None):
@@ -189,6 +190,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {r['method']:12s} {r['context']:6s} {r['global_before']:9.4f} -> {r['global_after']:8.4f} "
                   f"{r['share_global_lower']:11.2f} {r['cells_before']:10.4f} -> {r['cells_after']:9.4f} "
                   f"{r['clean_edited_share']:11.4f}/{r['clean_edited_share_max']:.4f} {r['clean_max_edit_deg']:12.1f} deg")
+        for r in rep:
+            if "share_global_not_higher" in r:
+                print(f"  {r['method']:12s} {r['context']:6s} clips whose global error fell {r['share_global_lower']:.2f}, "
+                      f"did not rise {r['share_global_not_higher']:.2f} (left exactly as they were "
+                      f"{r['share_global_unchanged']:.2f}); glitches out: fell {r['share_global_lower_ng']:.2f}, "
+                      f"did not rise {r['share_global_not_higher_ng']:.2f}")
         for r in rep:
             if "share_global_lower_ng" in r:
                 print(f"  {r['method']:12s} {r['context']:6s} source glitches left out ({r['glitch_cells']} cells of the "

@@ -10,7 +10,10 @@ otherwise). ``agree`` drops runs only the digression flagged that no other cue b
 ``flag_rule: repaired`` reports only the flags whose repair held up. Session 4 (docs/cleaning.md):
 ``acc_persist`` caps the acceleration cue of isolated kinks at the take (fitted without it),
 ``acc_body`` drops the acceleration flags of whole-body jolts, ``freeze_still`` grows freeze
-flags over the still interval, ``flag_min_deg`` reports only edits of an error's size. Both
+flags over the still interval (session 5: ``freeze_moving``, only where the consensus moves),
+``flag_min_deg`` reports only edits of an error's size; session 5 ``shrink_full`` scales the edit
+of a weakly evidenced acceleration/jitter run by its evidence and ``accept_margin`` (off) keeps a
+run only on a consensus gain above the clean scatter (:mod:`.run_acceptance`). Both
 modes carry the repair to the input frames with :func:`.repair.apply_to_input`.
 """
 from __future__ import annotations
@@ -128,18 +131,24 @@ def _body_jolts_dropped(flags: np.ndarray, dom: np.ndarray, least: int) -> np.nd
     return flags & ~(acc & jolt[:, None])
 
 
-def _freezes_grown(flags: np.ndarray, dom: np.ndarray, q: np.ndarray, still: float) -> tuple[np.ndarray, np.ndarray]:
+def _freezes_grown(flags: np.ndarray, dom: np.ndarray, q: np.ndarray, still: float, mean_q: np.ndarray | None = None,
+                   moving: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Runs flagged by the freeze cue grown over the whole interval where the joint is still
     (moves less than ``still`` radians per frame): a frozen joint (a marker lost, its last
     value held) is exactly still from its first frozen frame to its last, and the freeze cue
-    sees only the middle of it. Returns the grown flags and deciding cues."""
+    sees only the middle of it. With ``mean_q`` and ``moving`` (radians per frame), only
+    over the frames where the KNN consensus moves at least that much (its mean speed over
+    +-2 frames): where the consensus holds the joint still too, the stillness is the
+    motion's. Returns the grown flags and deciding cues."""
     from .bounded_repair import _runs
-    from .cues import CUES, speed
+    from .cues import CUES, _window_mean, speed
 
     fz = CUES.index("freeze")
     v = speed(q)
     calm = v < still
     calm[1:] |= calm[:-1]  # the frame after a still step holds the same pose
+    if mean_q is not None and moving is not None:
+        calm &= _window_mean(speed(mean_q), 2) >= moving
     out, dom = flags.copy(), dom.copy()
     seed = flags & (dom == fz)
     for j in np.flatnonzero(seed.any(axis=0)):
@@ -149,6 +158,39 @@ def _freezes_grown(flags: np.ndarray, dom: np.ndarray, q: np.ndarray, still: flo
                 out[a:b, j] = True
                 dom[a:b, j][new] = fz
     return out, dom
+
+
+def _run_checks(p: Any, res: Any, cal: Any, new24: np.ndarray, flags: np.ndarray, evidence: np.ndarray,
+                dom: np.ndarray, swapped: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``shrink_full`` and ``accept_margin`` (:mod:`.run_acceptance`) on the bounded repair;
+    returns the repair and its edited cells."""
+    from .cues import CUES
+    from .run_acceptance import accept_runs, shrink_weak_runs
+
+    q = res.texture.q
+    edited = np.any(new24 != q, axis=-1)
+    exclude = swapped | offset
+    if p.shrink_full is not None:
+        eligible = flags & np.isin(dom, [CUES.index(c) for c in p.shrink_cues])
+        new24 = shrink_weak_runs(q, new24, edited, exclude, evidence, eligible, p.shrink_full)
+        edited = np.any(new24 != q, axis=-1)
+    if p.unclaimed_revert and p.flag_min_deg is not None:
+        from .run_acceptance import edit_runs
+
+        size = quat.geodesic_angle(new24, q)
+        for j, a, b in edit_runs(edited, exclude):
+            short = p.unclaimed_frames is None or b - a <= p.unclaimed_frames
+            if short and size[a:b, j].max() < np.deg2rad(p.flag_min_deg):
+                new24[a:b, j] = q[a:b, j]
+        edited = np.any(new24 != q, axis=-1)
+    if p.accept_margin is not None:
+        # a joint's typical clean distance to T̄: the calibration's, or the take's own when larger
+        own = np.median(quat.geodesic_angle(q, res.mean_texture), axis=0)
+        tau = np.maximum(cal.scales["digression"], own)
+        new24, _ = accept_runs(q, new24, res.mean_texture, edited, swapped if p.accept_offsets else exclude,
+                               tau, p.accept_margin)
+        edited = np.any(new24 != q, axis=-1)
+    return new24, edited
 
 
 def cue_of_run(cue: np.ndarray, grown: np.ndarray) -> np.ndarray:
@@ -201,7 +243,8 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         if p.acc_body is not None:
             flags = _body_jolts_dropped(flags, dom, p.acc_body)
         if p.freeze_still is not None:
-            flags, dom = _freezes_grown(flags, dom, res.texture.q, np.deg2rad(p.freeze_still))
+            flags, dom = _freezes_grown(flags, dom, res.texture.q, np.deg2rad(p.freeze_still), res.mean_texture,
+                                        None if p.freeze_moving is None else np.deg2rad(p.freeze_moving))
         mirror_flags = flags & (dom == CUES.index("mirror"))
         extra: dict = {}
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
@@ -211,6 +254,10 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
                                                 extra=extra, interp=dom == CUES.index("acceleration"),
                                                 interp_max=p.interp_max, merge_gap=p.merge_gap)
+        if p.shrink_full is not None or p.accept_margin is not None or p.unclaimed_revert:
+            new24, edited = _run_checks(p, res, cal, new24, flags, evidence, dom, swapped, extra["offset"])
+            swapped &= edited
+            extra["offset"] &= edited
         cue[flags] = np.array(CUES, dtype=object)[dom[flags]]
         grown = extra["offset"] & ~flags  # the rest of an offset interval, between its two jumps
         cue[grown] = cue_of_run(cue, grown)

@@ -138,6 +138,22 @@ class MDMParams(Params):
     freeze_still: float | None = Field(default=0.05, gt=0, description="calibrated: runs the freeze cue flags are "
                                       "grown over the interval where the joint moves less than this many degrees "
                                       "per frame (the whole frozen interval); None = off")
+    freeze_moving: float | None = Field(default=0.1, gt=0, description="calibrated: the freeze_still growth "
+                                        "covers only frames where the KNN consensus moves at least this many degrees "
+                                        "per frame (a joint the consensus holds still too is genuinely still); None = off")
+    shrink_full: float | None = Field(default=1.5, gt=1, description="calibrated: an edited run whose strongest "
+                                      "evidence E is below this has its edit scaled by (E - 1) / (shrink_full - 1) "
+                                      "(cleaners/run_acceptance.py); None = off")
+    shrink_cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], ...] = Field(
+        default=("acceleration", "jitter"), description="calibrated: deciding cues of the runs shrink_full applies to")
+    accept_margin: float | None = Field(default=None, ge=0, description="calibrated: an edited run is kept only when "
+                                        "the squared distance to the KNN consensus it removes exceeds this many times "
+                                        "its cells' summed squared typical clean digression; None = off")
+    unclaimed_revert: bool = Field(default=False, description="calibrated: a run (not a swap nor an offset) the "
+                                   "repair changes nowhere by flag_min_deg or more is left as it was (no silent run)")
+    unclaimed_frames: int | None = Field(default=None, ge=1, description="calibrated: unclaimed_revert only for "
+                                         "runs of at most this many frames; None = any length")
+    accept_offsets: bool = Field(default=False, description="calibrated: accept_margin also tests offset intervals")
     flag_min_deg: float | None = Field(default=10.0, ge=0, description="calibrated: cells the repair changes by "
                                        "less than this many degrees are edited but not reported flagged (a "
                                        "correction smaller than an error); None = every repaired cell")
