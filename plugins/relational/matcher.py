@@ -395,7 +395,7 @@ class RelationalMatcher(Matcher):
         auto_mutual: Literal["auto", "clip", "off"] = Field("auto", description="mode auto, dtw: reverse check of each "
                                                             "hit (the hit's clip as a query must find the query clip too): "
                                                             "clip on every hit (databases of cut motions), auto only where "
-                                                            "the hit's clip is at most mutual_ratio x the query's length "
+                                                            "the hit's clip is at most mutual_ratio x the query's length, for an example that is a whole clip "
                                                             "(long takes: mutual_window or no check), off; docs/templates.md")
         mutual_ratio: float = Field(3.0, gt=0.0, description="mode auto, auto_mutual auto: a hit's clip of at most this "
                                     "x the query's frames is checked as a whole")
@@ -450,7 +450,9 @@ class RelationalMatcher(Matcher):
                 raise ConfigError(f"query {qid}: no frames of clip {spec.clip!r} in the query dataset")
             if self.params.mode == "auto":
                 exs = [q.x[q.clip_id == self._clip_id(e, names, qid)] for e in spec.examples]
-                rows += self._auto_rows(qid, index, q.x[sel], spec, exs)
+                # the reverse check compares clip with clip: it presumes the example is a whole cut
+                whole = int(sel.sum()) >= 0.8 * int((q.clip_id == cid).sum())
+                rows += self._auto_rows(qid, index, q.x[sel], spec, exs, whole)
                 continue
             if not spec.features:
                 raise ConfigError(f"query {qid}: mode {self.params.mode!r} needs 'features' (or use mode auto)")
@@ -473,8 +475,11 @@ class RelationalMatcher(Matcher):
         return int(cid)
 
     def _auto_rows(self, qid: int, index: InvertedIndex, bits: np.ndarray, spec: ExampleQuery,
-                   examples: list[np.ndarray]) -> list[dict]:
-        """Mode auto: features selected from the example, then DTW or the paper's machinery."""
+                   examples: list[np.ndarray], whole: bool = True) -> list[dict]:
+        """Mode auto: features selected from the example, then DTW or the paper's machinery.
+        ``whole``: the example covers (at least 80 % of) its clip; ``auto_mutual: auto`` checks
+        hits only then, since a piece of a take is no cut whose clip could be compared with
+        the hit's clip (``clip`` checks regardless)."""
         from .auto import auto_dtw_hits, auto_template, select_features
         from .template_model import frame_codes
 
@@ -493,7 +498,8 @@ class RelationalMatcher(Matcher):
                 keep = np.intersect1d(t.columns, allowed)
                 t.columns = keep if len(keep) else np.asarray(allowed, np.int64)
             pr = self.params
-            s, e, c = auto_dtw_hits(t, bits, db_bits, codes, any_set.clip_offsets, background, pr.auto_mutual,
+            mutual = "off" if pr.auto_mutual == "auto" and not whole else pr.auto_mutual
+            s, e, c = auto_dtw_hits(t, bits, db_bits, codes, any_set.clip_offsets, background, mutual,
                                     pr.relative_cut, pr.max_cost, pr.low_weight, pr.mutual_ratio, pr.mutual_window,
                                     pr.min_run, pr.auto_features, pr.auto_weighting, pr.mutual_sample)
             used = t.columns
