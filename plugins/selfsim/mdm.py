@@ -143,7 +143,7 @@ class MDMParams(Params):
                                         "per frame (a joint the consensus holds still too is genuinely still); None = off")
     shrink_full: float | None = Field(default=1.5, gt=1, description="calibrated: an edited run whose strongest "
                                       "evidence E is below this has its edit scaled by (E - 1) / (shrink_full - 1) "
-                                      "(cleaners/run_acceptance.py); None = off")
+                                      "(selfsim/run_acceptance.py); None = off")
     shrink_cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], ...] = Field(
         default=("acceleration", "jitter"), description="calibrated: deciding cues of the runs shrink_full applies to")
     accept_margin: float | None = Field(default=None, ge=0, description="calibrated: an edited run is kept only when "
