@@ -191,7 +191,7 @@ def run_cleaner(cleaner: Cleaner, inputs: Mapping[str, Any], ctx: Any) -> StepOu
     ``context`` dataset. Tables ``data`` (digressions), ``edits``; files per clip; summary
     ``{"clips": [clip summaries]}``."""
     from .datasets import StepOutput
-    from .executors import DatasetRef
+    from .clip_refs import DatasetRef
 
     # clips and context go to the workers by reference (each reads them from the workspace)
     context = DatasetRef.of(inputs["context"]) if inputs.get("context") is not None else None

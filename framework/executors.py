@@ -8,7 +8,7 @@ a cluster's start-up overlaps the client's). The runner never looks inside: ``lo
 ``register_executors`` hook (or passed to :func:`~mocapflow.framework.runner.run_pipeline`).
 ``fn`` and the items must be picklable when work leaves the process.
 
-Work goes out *by reference*: :func:`map_clips` sends :class:`ClipSlice` items (a motions
+Work goes out *by reference* (:mod:`mocapflow.framework.clip_refs`): :func:`map_clips` sends :class:`~mocapflow.framework.clip_refs.ClipSlice` items (a motions
 dataset's path, fingerprint and a clip range), and each worker reads those clips from the
 workspace's Parquet file itself (only the row groups it needs, cached per process), so
 no whole motion is pickled to a worker. Results come back to the step, and the runner
@@ -39,21 +39,19 @@ import queue
 import sys
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
-import numpy as np
 
+from .clip_refs import _SliceTask, clear_cache, clip_slices
 from .errors import PipelineError
 from .progress import progress
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .database import MotionDatabase
     from .datasets import Dataset
 
 #: Environment variables that size the thread pools of OpenMP, OpenBLAS, MKL, numba, numexpr.
@@ -456,159 +454,6 @@ def _client_threads(n: int) -> Iterator[None]:
                 os.environ.pop(var, None)
             else:
                 os.environ[var] = value
-
-
-# --- work by reference: clips read by the workers themselves ---------------------------------
-
-_CACHE: OrderedDict[tuple, Any] = OrderedDict()
-_CACHE_ENTRIES = 64
-
-
-def cached(key: tuple, load: Callable[[], Any], entries: int = _CACHE_ENTRIES) -> Any:
-    """``load()`` once per process for ``key`` (least recently used entries are dropped).
-
-    Workers keep what every task of a step needs (a dataset's small tables, decoded row
-    groups, a loaded index shard) instead of reading it once per task.
-    """
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
-    value = load()
-    _CACHE[key] = value
-    while len(_CACHE) > entries:
-        _CACHE.popitem(last=False)
-    return value
-
-
-def clear_cache() -> None:
-    """Forget everything :func:`cached` holds in this process."""
-    _CACHE.clear()
-
-
-@dataclass(frozen=True)
-class DatasetRef:
-    """A finished dataset by path and fingerprint: what a task carries instead of its data."""
-
-    path: str
-    fingerprint: str
-
-    @classmethod
-    def of(cls, dataset: Dataset) -> DatasetRef:
-        return cls(str(dataset.path), dataset.fingerprint)
-
-    def dataset(self) -> Dataset:
-        from .datasets import Dataset
-
-        return Dataset(self.path)
-
-    def motions(self) -> MotionDatabase:
-        """The whole motions dataset, read once per process."""
-        return cached(("motions", self.path, self.fingerprint), lambda: self.dataset().motions())
-
-
-@dataclass(frozen=True)
-class ClipSlice:
-    """Clips ``[start, stop)`` (positions in the ``clips`` table; ``stop=-1``: to the end)
-    of a motions dataset on disk."""
-
-    path: str
-    fingerprint: str
-    start: int
-    stop: int
-
-    def _meta(self):
-        import pyarrow.parquet as pq
-
-        from .datasets import Dataset
-
-        def load():
-            ds = Dataset(self.path)
-            clips, skeletons = ds.table("clips"), ds.table("skeletons")
-            rows = np.concatenate([[0], np.cumsum(clips["n_frames"].to_numpy().astype(np.int64))])
-            md = pq.ParquetFile(ds.path / "data.parquet").metadata
-            groups = np.concatenate([[0], np.cumsum([md.row_group(i).num_rows for i in range(md.num_row_groups)])])
-            return clips, skeletons, rows, groups.astype(np.int64)
-
-        return cached(("clip-meta", self.path, self.fingerprint), load)
-
-    def motions(self) -> MotionDatabase:
-        """The slice's clips as a :class:`MotionDatabase`, reading only the Parquet row
-        groups that hold them (each decoded once per process)."""
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
-        from . import schema
-        from .motion_tables import database_from_tables
-
-        clips, skeletons, rows, groups = self._meta()
-        stop = clips.num_rows if self.stop < 0 else self.stop
-        r0, r1 = int(rows[self.start]), int(rows[stop])
-        g0 = int(np.searchsorted(groups, r0, side="right") - 1)
-        g1 = int(np.searchsorted(groups, r1, side="left"))
-        g0 = max(g0, 0)
-        opened: list[pq.ParquetFile] = []
-
-        def read(g: int):
-            if not opened:
-                opened.append(pq.ParquetFile(f"{self.path}/data.parquet", memory_map=True))
-            return opened[0].read_row_group(g, columns=list(schema.MOTION_COLUMNS))
-
-        parts = [cached(("row-group", self.path, self.fingerprint, g), lambda g=g: read(g)) for g in range(g0, g1)]
-        frames = pa.concat_tables(parts).slice(r0 - int(groups[g0]), r1 - r0) if parts else None
-        if frames is None:
-            return database_from_tables(clips.slice(0, 0), skeletons.slice(0, 0), _empty_frames())
-        mine = clips.slice(self.start, stop - self.start)
-        # only the skeletons of these clips: each definition is JSON parsed when rebuilt
-        used = set(mine["skeleton"].to_pylist())
-        keep = [i for i, k in enumerate(skeletons["skeleton"].to_pylist()) if k in used]
-        return database_from_tables(mine, skeletons.take(keep), frames)
-
-
-def _empty_frames():
-    from . import schema
-
-    return schema.motion_frames().empty_table()
-
-
-def clip_slices(dataset: Dataset, n_slices: int) -> list[ClipSlice]:
-    """Contiguous clip ranges of a motions dataset with about equal frame counts.
-
-    Parameters
-    ----------
-    dataset : Dataset
-        A motions dataset (``clips`` table with ``n_frames``).
-    n_slices : int
-        Wanted number of slices (fewer when there are fewer clips).
-    """
-    frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy().astype(np.int64)
-    n = len(frames)
-    if n == 0:
-        return []
-    k = max(1, min(int(n_slices), n))
-    if k == n:  # one clip per slice
-        bounds = np.arange(n + 1)
-    else:  # cut at the clip boundary nearest to each k-th of the frames
-        cum = np.concatenate([[0], np.cumsum(frames)])
-        want = cum[-1] * np.arange(1, k) / k
-        right = np.clip(np.searchsorted(cum, want, side="left"), 1, n)
-        cuts = np.where(cum[right] - want <= want - cum[right - 1], right, right - 1)
-        bounds = np.unique(np.clip(np.concatenate([[0], cuts, [n]]), 0, n))
-    ref = DatasetRef.of(dataset)
-    return [ClipSlice(ref.path, ref.fingerprint, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-
-
-@dataclass(frozen=True)
-class _SliceTask:
-    """``[fn(motion) ...]`` (or ``fn(motion, clip_id)``) over the clips of one slice."""
-
-    fn: Callable[..., Any]
-    with_ids: bool = False
-
-    def __call__(self, piece: ClipSlice) -> list[Any]:
-        db = piece.motions()
-        if self.with_ids:
-            return [self.fn(m, int(c)) for m, c in zip(db.motions, db.clip_ids)]
-        return [self.fn(m) for m in db.motions]
 
 
 def map_clips(

@@ -277,7 +277,7 @@ def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> St
         # one task per query; each worker loads the search space once, from the workspace files
         from functools import partial
 
-        from .executors import DatasetRef
+        from .clip_refs import DatasetRef
 
         refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
         results = ctx.map(partial(_match_task, matcher, refs), [q.features for q in queries], desc=ctx.step_id)
@@ -300,7 +300,7 @@ def _match_task(matcher: Matcher, refs: dict, features: np.ndarray) -> QueryMatc
     the search space (index, frame ids, features) is loaded once per worker process."""
     import json
 
-    from .executors import cached
+    from .clip_refs import cached
     from .plugins import load_registries
 
     key = (

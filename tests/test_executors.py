@@ -17,7 +17,8 @@ import pytest
 
 from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl
 from mocapflow.framework.datasets import Dataset
-from mocapflow.framework.executors import LocalExecutor, clip_slices, map_clips, threads_per_worker
+from mocapflow.framework.clip_refs import clip_slices
+from mocapflow.framework.executors import LocalExecutor, map_clips, threads_per_worker
 from mocapflow.framework.runner import run_pipeline
 
 REPO = Path(__file__).resolve().parent.parent

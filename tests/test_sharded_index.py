@@ -74,7 +74,7 @@ def test_sharded_brute_force_shards_and_eps_zero_match_too():
 
 
 def _shard_identity(task: _ShardQuery):
-    from mocapflow.framework.executors import cached
+    from mocapflow.framework.clip_refs import cached
 
     task(np.zeros((1, 4), np.float32))
     obj = cached(("index-shard", task.directory, task.stamp), lambda: None)

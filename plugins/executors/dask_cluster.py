@@ -9,7 +9,7 @@ or ``mocapflow run PIPELINE.yaml --executor dask`` (``--jobs N``: the LocalClust
 Needs the optional extra ``pip install "mocapflow[dask]"`` (dask + distributed).
 
 What travels: the step's function (cloudpickle; a component with its parameters, not its
-data) and small references (:class:`~mocapflow.framework.executors.ClipSlice`: a dataset
+data) and small references (:class:`~mocapflow.framework.clip_refs.ClipSlice`: a dataset
 path, its fingerprint and a clip range), a batch of them as contiguous chunks (about
 ``chunks_per_worker`` tasks per worker thread, not one task per item). Workers read clips, contexts and index shards
 from the workspace's Parquet and ``.npy`` files themselves, so the workspace must be on

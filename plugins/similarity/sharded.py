@@ -25,7 +25,7 @@ every shard; ``query_rows`` takes global row ids. With an executor of several wo
   idle cores at best, 0.97x measured under load. It is the layout for shards that do not fit
   one worker's memory.
 
-Each shard is loaded once per process (:func:`~mocapflow.framework.executors.cached`),
+Each shard is loaded once per process (:func:`~mocapflow.framework.clip_refs.cached`),
 never once per task.
 """
 from __future__ import annotations
@@ -105,7 +105,7 @@ class _ShardQuery:
     kwargs: dict
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        from mocapflow.framework.executors import cached
+        from mocapflow.framework.clip_refs import cached
         from mocapflow.framework.plugins import load_registries
 
         def load():
@@ -351,7 +351,7 @@ class ShardedIndex(Index):
     # --- pipeline step ----------------------------------------------------------------
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.datasets import StepOutput, frame_id_table
-        from mocapflow.framework.executors import DatasetRef
+        from mocapflow.framework.clip_refs import DatasetRef
 
         clip_id, frame = inputs["features"].frame_ids()
         cls = self._shard_class(ctx.registries)
@@ -419,7 +419,7 @@ class _BlockQuery:
 def _answer_block(task: _BlockQuery) -> tuple[np.ndarray, np.ndarray]:
     """Every shard's answer to one block, merged here (exact), on the worker; the sharded
     index is loaded once per process (memory-mapped shards: the page cache is shared)."""
-    from mocapflow.framework.executors import cached
+    from mocapflow.framework.clip_refs import cached
 
     index = cached(("sharded-index", task.directory, task.stamp), lambda: ShardedIndex.load(Path(task.directory)))
     return index.query(task.q, task.k, task.radius, **task.kwargs)
