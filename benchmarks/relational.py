@@ -30,7 +30,7 @@ from mocapflow.framework.normalize import resample
 from mocapflow.plugins.relational.body import body_measures
 from mocapflow.plugins.relational.features import FEATURE_IDS, relational_features
 from mocapflow.plugins.relational.inverted import InvertedIndex
-from mocapflow.plugins.relational.matcher import example_query, search_set, subset_member
+from mocapflow.plugins.relational.queries import example_query, search_set, subset_member
 
 HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
 

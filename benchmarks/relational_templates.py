@@ -27,7 +27,7 @@ import numpy as np
 from mocapflow.plugins.relational.auto import auto_template, select_features
 from mocapflow.plugins.relational.classify import classify_clips
 from mocapflow.plugins.relational.inverted import InvertedIndex
-from mocapflow.plugins.relational.matcher import example_query, search_set, subset_member
+from mocapflow.plugins.relational.queries import example_query, search_set, subset_member
 from mocapflow.plugins.relational.template import cutoff_hits, fit_templates, search_template
 from mocapflow.plugins.relational.template_model import (clip_min_costs, fit_class_template, fit_template, frame_codes,
                                                        resample_rows)

@@ -66,7 +66,7 @@ def test_coarse_template_rows_and_steps():
 
 
 def test_rival_window_minima_matches_definition():
-    from mocapflow.plugins.relational._template_kernels import rival_window_minima
+    from mocapflow.plugins.relational._hit_kernels import rival_window_minima
 
     rng = np.random.default_rng(1)
     own, best, second = (rng.random(60).astype(np.float32) for _ in range(3))

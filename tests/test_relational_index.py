@@ -8,7 +8,7 @@ from naive import relational as naive
 from mocapflow.framework.errors import DataError
 from mocapflow.plugins.relational.segmentation import offsets_from_clip_ids, pack_codes, segment, segment_codes
 from mocapflow.plugins.relational.inverted import InvertedIndex, SetIndex
-from mocapflow.plugins.relational.matcher import coarsen_fuzzy, search_set
+from mocapflow.plugins.relational.queries import coarsen_fuzzy, search_set
 
 RNG = np.random.default_rng(3)
 

@@ -13,7 +13,8 @@ from mocapflow.plugins.relational.features import FEATURE_IDS, feature_column
 from mocapflow.plugins.relational.segmentation import pack_codes, segment_codes
 from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational._match_kernels import banded_dtw
-from mocapflow.plugins.relational.matcher import combine, dtw_band, example_query, scene_query
+from mocapflow.plugins.relational.matcher import dtw_band
+from mocapflow.plugins.relational.queries import combine, example_query, scene_query
 
 RNG = np.random.default_rng(11)
 

@@ -270,7 +270,7 @@ def test_early_abandoning_cost_pass_matches_naive(seed):
 
 
 def test_window_minima_matches_naive():
-    from mocapflow.plugins.relational._template_kernels import window_minima
+    from mocapflow.plugins.relational._hit_kernels import window_minima
 
     rng = np.random.default_rng(3)
     cost = rng.random(50)
@@ -376,7 +376,7 @@ def test_rival_cutoff_keeps_each_motion_for_its_own_template():
 
 
 def test_intersect_ranges_matches_naive():
-    from mocapflow.plugins.relational._template_kernels import intersect_ranges
+    from mocapflow.plugins.relational._hit_kernels import intersect_ranges
 
     rng = np.random.default_rng(4)
     for _ in range(20):

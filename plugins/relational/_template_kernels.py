@@ -24,6 +24,16 @@ PART_OFFSETS = (0, 2048, 6144)
 TABLE_ROWS = 6400
 
 
+@njit(cache=True, inline="always")
+def _fill_costs(code, table, col, lo, hi):  # pragma: no cover - compiled
+    """Local costs ``col[k]`` of template rows ``lo <= k < hi`` for one frame code (module doc)."""
+    a = code & 2047
+    b = 2048 + ((code >> 11) & 4095)
+    c = 6144 + ((code >> 23) & 255)
+    for k in range(lo, hi):
+        col[k] = table[a, k] + table[b, k] + table[c, k]
+
+
 @njit(cache=True)
 def dtw_path(a, b):  # pragma: no cover - compiled
     """Global DTW between ``a (n, f)`` and ``b (m, f)``, local cost mean |a - b| over features.
@@ -97,11 +107,7 @@ def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start, base=0):  # pragm
     for j in range(lo_frame, hi_frame):
         code = codes[j]
         if code != last_code:  # runs of equal codes share their local-cost column
-            a = code & 2047
-            b = 2048 + ((code >> 11) & 4095)
-            c = 6144 + ((code >> 23) & 255)
-            for k in range(n_rows):
-                col[k] = table[a, k] + table[b, k] + table[c, k]
+            _fill_costs(code, table, col, 0, n_rows)
             last_code = code
         r = j - lo_frame
         cur, p1, p2 = r % 3, (r + 2) % 3, (r + 1) % 3
@@ -183,11 +189,7 @@ def _sdtw_range_bounded(codes, table, lo_frame, hi_frame, cost, start, bound):  
         if reach > n_rows - 1:
             reach = n_rows - 1
         if valid <= reach:
-            a = code & 2047
-            b = 2048 + ((code >> 11) & 4095)
-            c = 6144 + ((code >> 23) & 255)
-            for k in range(valid, reach + 1):
-                col[k] = table[a, k] + table[b, k] + table[c, k]
+            _fill_costs(code, table, col, valid, reach + 1)
             valid = reach + 1
         # template frame 0: a fresh start
         v = col[0]
@@ -313,11 +315,7 @@ def _cost_range_plain(codes, table, lo, hi, cost):  # pragma: no cover - compile
     for j in range(lo, hi):
         code = codes[j]
         if code != last_code:
-            a = code & 2047
-            b = 2048 + ((code >> 11) & 4095)
-            c = 6144 + ((code >> 23) & 255)
-            for k in range(n_rows):
-                col[k] = table[a, k] + table[b, k] + table[c, k]
+            _fill_costs(code, table, col, 0, n_rows)
             last_code = code
         d0[0] = col[0]
         if n_rows > 1:
@@ -374,11 +372,7 @@ def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost, bounds):  # pragma: no cov
             if reach > n_rows - 1:
                 reach = n_rows - 1
             if valid <= reach:
-                a = code & 2047
-                b = 2048 + ((code >> 11) & 4095)
-                c = 6144 + ((code >> 23) & 255)
-                for k in range(valid, reach + 1):
-                    col[k] = table[a, k] + table[b, k] + table[c, k]
+                _fill_costs(code, table, col, valid, reach + 1)
                 valid = reach + 1
             # branch-free rows (a select, no jumps: vectorisable), the live top found afterwards
             v = col[0]
@@ -403,130 +397,3 @@ def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost, bounds):  # pragma: no cov
             d0, d1, d2 = d2, d0, d1
             top0, top1, top2 = top2, top0, top1
             live2, live1 = live1, live
-
-
-@njit(cache=True)
-def select_hits(cost, start, threshold, min_gap):  # pragma: no cover - compiled
-    """Hits from end-frame costs: local minima with cost <= threshold, cheapest first, a
-    candidate dropped when it overlaps an accepted hit by more than ``min_gap`` of the
-    shorter span.
-
-    Returns
-    -------
-    ends : int64 (h,)
-        End frames (inclusive) of the accepted hits, by ascending cost.
-    """
-    n = cost.shape[0]
-    lo = np.zeros(1, np.int64)
-    hi = np.full(1, n, np.int64)
-    return greedy_hits(range_minima(cost, lo, hi, threshold), cost, start, min_gap, n)
-
-
-@njit(cache=True)
-def range_minima(cost, lo, hi, threshold):  # pragma: no cover - compiled
-    """Frames ``j`` inside the ranges ``[lo, hi)`` with ``cost[j] <= threshold``, not above
-    the previous frame and below the next (frames outside the range count as inf)."""
-    total = 0
-    for r in range(lo.shape[0]):
-        total += hi[r] - lo[r]
-    cand = np.empty(total, np.int64)
-    m = 0
-    for r in range(lo.shape[0]):
-        for j in range(lo[r], hi[r]):
-            c = cost[j]
-            if not c <= threshold:  # also rejects NaN and inf
-                continue
-            if j > lo[r] and cost[j - 1] < c:
-                continue
-            if j + 1 < hi[r] and cost[j + 1] <= c:
-                continue
-            cand[m] = j
-            m += 1
-    return cand[:m]
-
-
-@njit(cache=True)
-def greedy_hits(cand, cost, start, min_gap, n):  # pragma: no cover - compiled
-    """The greedy overlap suppression of :func:`select_hits` over given candidate ends
-    (ascending frames); ``n`` frames in all. Returns the accepted ends by ascending cost."""
-    m = cand.shape[0]
-    order = np.argsort(cost[cand], kind="mergesort")
-    # accepted hits by first frame: with min_gap < 1 two accepted hits never share a start,
-    # and any accepted hit overlapping [s, e) starts in [s - longest, e)
-    by_start = np.full(n + 1, -1, np.int64)
-    acc_s = np.empty(m, np.int64)
-    acc_e = np.empty(m, np.int64)
-    out = np.empty(m, np.int64)
-    h = 0
-    longest = 0
-    for r in range(m):
-        j = cand[order[r]]
-        s, e = start[j], j + 1
-        ok = True
-        for f in range(max(s - longest, 0), e):
-            o = by_start[f]
-            if o >= 0:
-                ov = min(e, acc_e[o]) - max(s, acc_s[o])
-                if ov > min_gap * min(e - s, acc_e[o] - acc_s[o]):
-                    ok = False
-                    break
-        if ok:
-            acc_s[h] = s
-            acc_e[h] = e
-            by_start[s] = h
-            longest = max(longest, e - s)
-            out[h] = j
-            h += 1
-    return out[:h]
-
-
-@njit(cache=True)
-def window_minima(cost, lo, hi):  # pragma: no cover - compiled
-    """Least ``cost`` over each frame window ``[lo_i, hi_i)`` (inf for an empty one), (n,)."""
-    out = np.full(lo.shape[0], np.inf)
-    for i in range(lo.shape[0]):
-        m = np.inf
-        for j in range(lo[i], hi[i]):
-            if cost[j] < m:
-                m = cost[j]
-        out[i] = m
-    return out
-
-
-@njit(cache=True)
-def rival_window_minima(own, best, second, arg, which, lo, hi):  # pragma: no cover - compiled
-    """Per window ``[lo_i, hi_i)`` the least ``own`` cost and the least rival cost: ``best``
-    where another template holds it (``arg != which``), else ``second``. Both (n,) float64."""
-    out_own = np.full(lo.shape[0], np.inf)
-    out_other = np.full(lo.shape[0], np.inf)
-    for i in range(lo.shape[0]):
-        m, r = np.inf, np.inf
-        for j in range(lo[i], hi[i]):
-            if own[j] < m:
-                m = own[j]
-            v = second[j] if arg[j] == which else best[j]
-            if v < r:
-                r = v
-        out_own[i] = m
-        out_other[i] = r
-    return out_own, out_other
-
-
-@njit(cache=True)
-def intersect_ranges(alo, ahi, blo, bhi):  # pragma: no cover - compiled
-    """Intersection of two sorted lists of disjoint frame ranges ``[lo, hi)``: (lo, hi) int64."""
-    out_lo = np.empty(alo.shape[0] + blo.shape[0], np.int64)
-    out_hi = np.empty(alo.shape[0] + blo.shape[0], np.int64)
-    i, j, m = 0, 0, 0
-    while i < alo.shape[0] and j < blo.shape[0]:
-        lo = max(alo[i], blo[j])
-        hi = min(ahi[i], bhi[j])
-        if lo < hi:
-            out_lo[m] = lo
-            out_hi[m] = hi
-            m += 1
-        if ahi[i] < bhi[j]:
-            i += 1
-        else:
-            j += 1
-    return out_lo[:m], out_hi[:m]

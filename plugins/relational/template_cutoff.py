@@ -64,7 +64,8 @@ def window_min_costs(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, 
     window, or one value), inf or exact above (early abandoning). Subsequence DTW runs only
     on the windows widened by the longest path (``2K - 1`` frames) to the left, merged (a
     merged range abandons above the largest bound of its windows)."""
-    from ._template_kernels import sdtw_cost, window_minima
+    from ._hit_kernels import window_minima
+    from ._template_kernels import sdtw_cost
 
     n = len(lo)
     if not n:
@@ -174,7 +175,7 @@ class RivalTable:
     def mask(self, which: int, start: np.ndarray, end: np.ndarray, offsets: np.ndarray, rho: float = 1.0) -> np.ndarray:
         """:func:`rival_mask` by lookups (the rival's path may end up to its own ``K``
         after the window: ``cover``)."""
-        from ._template_kernels import rival_window_minima
+        from ._hit_kernels import rival_window_minima
 
         if len(self.own) < 2 or not len(start):
             return np.ones(len(start), bool)

@@ -253,7 +253,7 @@ def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, thres
     if len(r) and table.shape[1]:
         sdtw_cost(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), np.ascontiguousarray(r[:, 0]),
                   np.ascontiguousarray(r[:, 1]), cost, np.full(len(r), float(threshold) if abandon else np.inf))
-    from ._template_kernels import greedy_hits, range_minima
+    from ._hit_kernels import greedy_hits, range_minima
 
     if not 0.0 <= min_gap < 1.0:
         raise DataError(f"min_gap must be in [0, 1), got {min_gap}")
@@ -288,7 +288,7 @@ def template_hits(cost: np.ndarray, start: np.ndarray, threshold: float, min_gap
     ``min_gap`` (< 1) of the shorter span. Returns ``(start, end exclusive, cost)`` global
     frames, by ascending cost (compiled: ``_template_kernels.select_hits``).
     """
-    from ._template_kernels import select_hits
+    from ._hit_kernels import select_hits
 
     if not 0.0 <= min_gap < 1.0:
         raise DataError(f"min_gap must be in [0, 1), got {min_gap}")

@@ -72,7 +72,7 @@ def candidate_ranges(t: MotionTemplate, index, max_features: int = 2, min_run: i
     ``widen``: "anchor" or "path" (module doc). ``anchors=2``: also the rarest anchor of
     another feature set, and only the frames inside the ranges of both are searched (a
     match must show both anchors)."""
-    from ._template_kernels import intersect_ranges
+    from ._hit_kernels import intersect_ranges
 
     any_set = next(iter(index.sets.values()))
     offsets = any_set.clip_offsets

@@ -1,4 +1,4 @@
-"""Slow, obviously correct references for ``plugins/relational/_template_kernels.py``.
+"""Slow, obviously correct references for ``plugins/relational/_template_kernels.py`` and ``_hit_kernels.py``.
 
 Full matrices straight from the recurrences (motion templates, Müller & Röder 2006).
 """
