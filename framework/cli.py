@@ -159,6 +159,8 @@ def cmd_plugins(args: argparse.Namespace, pm) -> int:
 
 
 def cmd_sql(args: argparse.Namespace, pm) -> int:
+    if not Path(args.workspace).exists():  # the common typo, answered before pyarrow and duckdb load
+        raise ConfigError(f"workspace {args.workspace} does not exist (run a pipeline first)")
     from .catalog import Catalog, format_table, write_table
 
     if args.output:  # refuse what cannot be written before the work
