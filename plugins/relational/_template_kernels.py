@@ -91,6 +91,18 @@ def dtw_path(a, b):  # pragma: no cover - compiled
     return acc[n - 1, m - 1], path[: p + 1][::-1].copy()
 
 
+@njit(cache=True, inline="always")
+def _best_step(a, sa, b, sb, c, sc):  # pragma: no cover - compiled
+    """The least of three step costs with its path start; the first wins a tie (the
+    order of the module doc's steps: (1,1), (2,1), (1,2))."""
+    best, bs = a, sa
+    if b < best:
+        best, bs = b, sb
+    if c < best:
+        best, bs = c, sc
+    return best, bs
+
+
 @njit(cache=True)
 def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start, base=0):  # pragma: no cover - compiled
     """Subsequence DTW over the frames ``[lo_frame, hi_frame)`` of one clip (module doc);
@@ -124,30 +136,12 @@ def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start, base=0):  # pragm
         s0[0] = j
         if n_rows > 1:  # template frame 1: (1,1) from frame 0, (2,1) from the virtual row, (1,2)
             ck = col[1]
-            best = d1[0] + ck
-            bs = s1[0]
-            v = 2.0 * ck
-            if v < best:
-                best = v
-                bs = j
-            v = d2[0] + ck
-            if v < best:
-                best = v
-                bs = s2[0]
+            best, bs = _best_step(d1[0] + ck, s1[0], 2.0 * ck, j, d2[0] + ck, s2[0])
             d0[1] = best
             s0[1] = bs
         for k in range(2, n_rows):
             ck = col[k]
-            best = d1[k - 1] + ck
-            bs = s1[k - 1]
-            v = d1[k - 2] + 2.0 * ck
-            if v < best:
-                best = v
-                bs = s1[k - 2]
-            v = d2[k - 1] + ck
-            if v < best:
-                best = v
-                bs = s2[k - 1]
+            best, bs = _best_step(d1[k - 1] + ck, s1[k - 1], d1[k - 2] + 2.0 * ck, s1[k - 2], d2[k - 1] + ck, s2[k - 1])
             d0[k] = best
             s0[k] = bs
         cost[j - base] = d0[n_rows - 1] / n_rows
@@ -197,30 +191,12 @@ def _sdtw_range_bounded(codes, table, lo_frame, hi_frame, cost, start, bound):  
         s0[0] = j
         if reach >= 1:  # template frame 1: (1,1) from frame 0, (2,1) from the virtual row, (1,2)
             ck = col[1]
-            best = d1[0] + ck
-            bs = s1[0]
-            v = 2.0 * ck
-            if v < best:
-                best = v
-                bs = j
-            v = d2[0] + ck
-            if v < best:
-                best = v
-                bs = s2[0]
+            best, bs = _best_step(d1[0] + ck, s1[0], 2.0 * ck, j, d2[0] + ck, s2[0])
             d0[1] = best if best <= limit else np.inf
             s0[1] = bs
         for k in range(2, reach + 1):
             ck = col[k]
-            best = d1[k - 1] + ck
-            bs = s1[k - 1]
-            v = d1[k - 2] + 2.0 * ck
-            if v < best:
-                best = v
-                bs = s1[k - 2]
-            v = d2[k - 1] + ck
-            if v < best:
-                best = v
-                bs = s2[k - 1]
+            best, bs = _best_step(d1[k - 1] + ck, s1[k - 1], d1[k - 2] + 2.0 * ck, s1[k - 2], d2[k - 1] + ck, s2[k - 1])
             d0[k] = best if best <= limit else np.inf
             s0[k] = bs
         for k in range(reach + 1, top0 + 1):  # stale cells of this buffer's old column
