@@ -256,7 +256,8 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             from .holds import fill_holds
 
             fill24, filled, holds = fill_holds(res.texture.q, res.texture.q, flags & (dom == CUES.index("freeze")),
-                                               p.freeze_hold, p.freeze_fill, res.mean_texture)
+                                               p.freeze_hold, p.freeze_fill, res.mean_texture,
+                                               p.freeze_guard)
             flags_hold = flags & holds
             flags = flags & ~holds
         mirror_flags = flags & (dom == CUES.index("mirror"))

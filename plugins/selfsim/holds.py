@@ -79,7 +79,7 @@ def consensus_fill(track: np.ndarray, mean: np.ndarray, a: int, b: int) -> np.nd
 
 
 def fill_holds(q: np.ndarray, new: np.ndarray, seeds: np.ndarray, min_frames: int, how: str = "hermite",
-               mean_q: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               mean_q: np.ndarray | None = None, guard: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``new`` (T, m, 4) with every hold of the take ``q`` that holds a ``seeds`` cell filled.
 
     Parameters
@@ -92,6 +92,11 @@ def fill_holds(q: np.ndarray, new: np.ndarray, seeds: np.ndarray, min_frames: in
         Shortest hold filled (frames at the analysis rate).
     how : {"hermite", "slerp", "consensus"}
         :func:`hermite_fill`, :func:`slerp_fill` or :func:`consensus_fill` (needs ``mean_q``).
+    mean_q : ndarray (T, m, 4), optional
+        The KNN consensus T̄.
+    guard : bool
+        Keep a fill only when the hold's summed squared distance to ``mean_q`` does not
+        rise (the clip-level "never farther from the consensus" rule, per hold).
 
     Returns
     -------
@@ -114,11 +119,16 @@ def fill_holds(q: np.ndarray, new: np.ndarray, seeds: np.ndarray, min_frames: in
         for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
             if seeds[a:b, j].any() and 0 < a and b < t and b - a >= 2:
                 if how == "hermite":
-                    out[a + 1:b, j] = hermite_fill(q[:, j], a, b)
+                    fill = hermite_fill(q[:, j], a, b)
                 elif how == "slerp":
-                    out[a + 1:b, j] = slerp_fill(q[:, j], a, b)
+                    fill = slerp_fill(q[:, j], a, b)
                 else:
-                    out[a + 1:b, j] = consensus_fill(q[:, j], mean_q[:, j], a, b)
+                    fill = consensus_fill(q[:, j], mean_q[:, j], a, b)
+                if guard and mean_q is not None:
+                    d0 = float((quat.geodesic_angle(q[a + 1:b, j], mean_q[a + 1:b, j]) ** 2).sum())
+                    if float((quat.geodesic_angle(fill, mean_q[a + 1:b, j]) ** 2).sum()) > d0:
+                        continue  # the hold would end farther from its consensus than it was
+                out[a + 1:b, j] = fill
                 filled[a + 1:b, j] = True
                 holds[a:b, j] = True
     return out, filled, holds

@@ -96,6 +96,8 @@ class MDMParams(Params):
         "between the two frames that bound it (selfsim/holds.py): a Hermite curve with the take's velocities, the "
         "geodesic, or the KNN consensus joined to both ends without the nearer-consensus bound; off = the bounded "
         "repair")
+    freeze_guard: bool = Field(default=False, description="calibrated, with freeze_fill: a filled hold is kept "
+                               "only when its summed squared distance to the KNN consensus does not rise")
     cue_fa: dict[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], float] = Field(
         default_factory=dict, description="calibrated: per cue, a false-alarm rate of its own (share of clean "
         "calibration (word, joint) pairs the cue alone may flag): its weight is at most that level, even where the "
