@@ -119,3 +119,16 @@ def test_calibrated_cleaner_fills_a_frozen_joint():
     err1 = quat.geodesic_angle(out.cleaned.rotations[100:118, j], clean.rotations[100:118, j])
     assert out.flags[100:118, c].any() and set(out.cue[100:118, c][out.flags[100:118, c]]) == {"freeze"}
     assert (err1 ** 2).sum() < 0.5 * (err0 ** 2).sum()
+
+
+def test_spike_runs_find_an_excursion_by_its_two_jumps_not_a_kink():
+    from mocapflow.plugins.selfsim.spikes import spike_runs
+
+    t = 60
+    q = np.stack([_track(t, rate=0.03), _track(t, axis=(1, 0, 0), rate=0.03)], axis=1)
+    off = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.array(np.deg2rad(40.0)))
+    q[30:32, 0] = quat.mul(q[30:32, 0], off)  # a 2-frame spike: away and back
+    turn = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.array(np.deg2rad(40.0)))
+    q[30:, 1] = quat.mul(q[30:, 1], turn)  # one jump that stays: no excursion
+    found = spike_runs(q, 6.0)
+    assert found[30:32, 0].all() and found[:, 0].sum() == 2 and not found[:, 1].any()

@@ -245,6 +245,13 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                               p.agree)
         if p.acc_body is not None:
             flags = _body_jolts_dropped(flags, dom, p.acc_body)
+        if p.spike_level is not None:
+            # short excursions found by their two jumps (selfsim/spikes.py), repaired as offsets
+            from .spikes import spike_runs
+
+            spk = spike_runs(res.texture.q, p.spike_level) & ~flags
+            flags = flags | spk
+            dom = np.where(spk, CUES.index("acceleration"), dom)
         if p.freeze_still is not None:
             flags, dom = _freezes_grown(flags, dom, res.texture.q, np.deg2rad(p.freeze_still), res.mean_texture,
                                         None if p.freeze_moving is None else np.deg2rad(p.freeze_moving))

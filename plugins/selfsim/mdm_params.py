@@ -98,6 +98,10 @@ class MDMParams(Params):
         "repair")
     freeze_guard: bool = Field(default=False, description="calibrated, with freeze_fill: a filled hold is kept "
                                "only when its summed squared distance to the KNN consensus does not rise")
+    spike_level: float | None = Field(default=None, gt=0, description="calibrated: excursions of at most 3 frames "
+                                      "whose two end jumps both exceed this many times twice the joint's median "
+                                      "acceleration (and 8 degrees) and agree are flagged and repaired as offsets "
+                                      "(selfsim/spikes.py); None = off")
     cue_fa: dict[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], float] = Field(
         default_factory=dict, description="calibrated: per cue, a false-alarm rate of its own (share of clean "
         "calibration (word, joint) pairs the cue alone may flag): its weight is at most that level, even where the "
