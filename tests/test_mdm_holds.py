@@ -132,3 +132,18 @@ def test_spike_runs_find_an_excursion_by_its_two_jumps_not_a_kink():
     q[30:, 1] = quat.mul(q[30:, 1], turn)  # one jump that stays: no excursion
     found = spike_runs(q, 6.0)
     assert found[30:32, 0].all() and found[:, 0].sum() == 2 and not found[:, 1].any()
+
+
+def test_repair_spikes_takes_the_offset_out_over_exactly_the_excursion():
+    from mocapflow.plugins.selfsim.spikes import repair_spikes, spike_runs
+
+    t = 60
+    clean = np.stack([_track(t, rate=0.03)], axis=1)
+    q = clean.copy()
+    off = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.array(np.deg2rad(40.0)))
+    q[30:32, 0] = quat.mul(q[30:32, 0], off)
+    runs = spike_runs(q, 6.0)
+    new = q.copy()
+    done = repair_spikes(q, clean, new, runs)
+    assert done[30:32, 0].all() and done.sum() == 2
+    assert quat.geodesic_angle(new[:, 0], clean[:, 0]).max() < 1e-6

@@ -250,8 +250,11 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             from .spikes import spike_runs
 
             spk = spike_runs(res.texture.q, p.spike_level) & ~flags
-            flags = flags | spk
-            dom = np.where(spk, CUES.index("acceleration"), dom)
+            if p.spike_exact:
+                spk_only = spk  # repaired over exactly the excursion, after the other repairs
+            else:
+                flags = flags | spk
+                dom = np.where(spk, CUES.index("acceleration"), dom)
         if p.freeze_still is not None:
             flags, dom = _freezes_grown(flags, dom, res.texture.q, np.deg2rad(p.freeze_still), res.mean_texture,
                                         None if p.freeze_moving is None else np.deg2rad(p.freeze_moving))
@@ -276,6 +279,15 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
                                                 extra=extra, interp=dom == CUES.index("acceleration"),
                                                 interp_max=p.interp_max, merge_gap=p.merge_gap)
+        if p.spike_level is not None and p.spike_exact and spk_only.any():
+            from .spikes import repair_spikes
+
+            spk_only &= ~edited & ~swapped
+            done = repair_spikes(res.texture.q, res.mean_texture, new24, spk_only)
+            edited = edited | done
+            extra["offset"] = extra["offset"] | done
+            dom = np.where(done, CUES.index("acceleration"), dom)
+            flags = flags | done
         if p.shrink_full is not None or p.accept_margin is not None or p.unclaimed_revert:
             new24, edited = _run_checks(p, res, cal, new24, flags, evidence, dom, swapped, extra["offset"])
             swapped &= edited

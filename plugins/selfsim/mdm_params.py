@@ -102,6 +102,9 @@ class MDMParams(Params):
                                       "whose two end jumps both exceed this many times twice the joint's median "
                                       "acceleration (and 8 degrees) and agree are flagged and repaired as offsets "
                                       "(selfsim/spikes.py); None = off")
+    spike_exact: bool = Field(default=False, description="calibrated, with spike_level: the excursions are "
+                              "repaired as offsets over exactly the frames their two jumps bound (not grown, not "
+                              "through the other repairs)")
     cue_fa: dict[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], float] = Field(
         default_factory=dict, description="calibrated: per cue, a false-alarm rate of its own (share of clean "
         "calibration (word, joint) pairs the cue alone may flag): its weight is at most that level, even where the "

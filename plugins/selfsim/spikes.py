@@ -21,6 +21,25 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 
 
+def repair_spikes(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, runs: np.ndarray) -> np.ndarray:
+    """``new`` (T, m, 4) with each run of ``runs`` (T, m) repaired as an offset over exactly that
+    run (:func:`.offsets.remove_offset` with its two end estimates), where that lowers the
+    run's mean digression; returns the cells repaired (T, m) bool. The interval is not grown:
+    a spike is the excursion its two jumps bound."""
+    from .bounded_repair import _runs
+    from .offsets import _backward_offsets, _forward_offsets, remove_offset
+
+    done = np.zeros(runs.shape, bool)
+    for j in np.flatnonzero(runs.any(axis=0)):
+        fwd, bwd = _forward_offsets(q[:, j]), _backward_offsets(q[:, j])
+        for a, b in _runs(runs[:, j]):
+            rep = remove_offset(q[:, j], a, b, fwd[a], bwd[b - 1])
+            if quat.geodesic_angle(rep, mean_q[a:b, j]).mean() < quat.geodesic_angle(q[a:b, j], mean_q[a:b, j]).mean():
+                new[a:b, j] = rep
+                done[a:b, j] = True
+    return done
+
+
 def spike_runs(q: np.ndarray, level: float, max_len: int = 3, agree: float = 0.35, min_deg: float = 8.0
                ) -> np.ndarray:
     """Cells of the excursions of at most ``max_len`` frames found by their two jumps, (T, m) bool.
