@@ -63,9 +63,10 @@ def pooled(results: list[tuple[list[dict], list[dict], list[dict]]]) -> tuple[li
         w = np.array([g["n_clips"] for g in group], float)
         for k in ("global_before", "global_after", "share_global_lower", "cells_before", "cells_after",
                   "clean_edited_share", "global_before_ng", "global_after_ng", "share_global_lower_ng",
-                  "share_global_not_higher", "share_global_unchanged", "share_global_not_higher_ng"):
+                  "share_global_not_higher", "share_global_unchanged", "share_global_not_higher_ng",
+                  "clean_edited_share_ng"):
             row[k] = float(np.average([g[k] for g in group], weights=w))
-        for k in ("clean_edited_share_max", "clean_max_edit_deg", "clean_max_edit_deg_ng"):
+        for k in ("clean_edited_share_max", "clean_max_edit_deg", "clean_max_edit_deg_ng", "clean_edited_share_max_ng"):
             row[k] = max(g[k] for g in group)
         for k in ("glitch_cells", "clean_glitch_edits"):
             row[k] = sum(g[k] for g in group)
@@ -94,7 +95,7 @@ def install_cache(folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     original = mdm.digression_map
     decision_only = {"mode", "false_alarm", "null_quantile", "calibration_frames", "calibration_density",
-                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "freeze_moving", "shrink_full", "shrink_cues", "accept_margin", "accept_offsets", "unclaimed_revert", "unclaimed_frames", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
+                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "freeze_moving", "shrink_full", "shrink_cues", "accept_margin", "accept_offsets", "unclaimed_revert", "unclaimed_frames", "freeze_hold", "freeze_fill", "freeze_guard", "spike_level", "spike_exact", "cue_fa", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
                      "savgol_window", "savgol_order", "include_self"}
 
     def cached(motion, context=None, params=None):
@@ -201,7 +202,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  {r['method']:12s} {r['context']:6s} source glitches left out ({r['glitch_cells']} cells of the "
                       f"clean references): global {r['global_before_ng']:.4f} -> {r['global_after_ng']:.4f}, lower on "
                       f"{r['share_global_lower_ng']:.2f}; clean takes: largest edit outside them "
-                      f"{r['clean_max_edit_deg_ng']:.1f} deg, {r['clean_glitch_edits']} edits on them")
+                      f"{r['clean_max_edit_deg_ng']:.1f} deg, {r['clean_glitch_edits']} edits on them; edited outside "
+                      f"them (mean/max) {r['clean_edited_share_ng']:.4f}/{r['clean_edited_share_max_ng']:.4f}")
         for r in kinds:
             if r["method"] == "mdm":
                 ratio = r["eq2_after"] / r["eq2_before"] if r["eq2_before"] > 0 else float("nan")

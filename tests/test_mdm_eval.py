@@ -9,7 +9,8 @@ from naive.cleaning import synthetic_walk
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.plugins.selfsim.clean_eval import (CleaningEvaluationParams, RotationBaselines, evaluate_category,
-                                                   repair_errors, rotation_vectors, scores)
+                                                   repair_errors, scores)
+from mocapflow.plugins.selfsim.cues import rotation_vectors
 from mocapflow.plugins.selfsim.error_injection import ERROR_KINDS, apply_error, inject_errors, mirror
 
 REPO = Path(__file__).resolve().parent.parent

@@ -159,6 +159,8 @@ class Calibration:
     clips : list of str
     acc_persist : float or None
         Persistence factor of the acceleration cue (:func:`.cues.persistent`).
+    jitter_half, freeze_hold
+        Definition of the jitter and freeze cues (:func:`.cues.cue_values`).
     """
 
     scales: dict[str, np.ndarray]
@@ -174,6 +176,7 @@ class Calibration:
     clips: list[str] = field(default_factory=list)
     acc_persist: float | None = None
     jitter_half: int = 3
+    freeze_hold: int | None = None
 
     def evidence(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str]) -> np.ndarray:
         """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags)."""
@@ -181,7 +184,8 @@ class Calibration:
         own = typical(cue)
         scale = {k: np.maximum(v, own[k]) for k, v in self.scales.items()}
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.nan_to_num(cue_values(cue, scale, self.acc_persist, self.jitter_half) / (self.levels * self.weights), nan=0.0, posinf=0.0)
+            return np.nan_to_num(cue_values(cue, scale, self.acc_persist, self.jitter_half,
+                                                 self.freeze_hold) / (self.levels * self.weights), nan=0.0, posinf=0.0)
 
     def detect(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
                grow: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -287,9 +291,29 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
     return CalibrationMaterial(cue_list, truth_list, names, source, low, high)
 
 
+def cue_floor(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndarray], k: int, false_alarm: float
+              ) -> float:
+    """The lowest grid weight at which cue ``k`` *alone* flags at most ``false_alarm`` of the
+    clean (word, joint) pairs of the calibration clips (inf when none does).
+
+    The greedy allocation of :func:`fit_levels` spends the shared budget where it finds the
+    most errors per false alarm and may leave a cue unused whose errors another cue finds
+    on *these* clips (the jitter cue, when the acceleration already finds the calibration
+    noise); a floor gives such a cue a level of its own, with its own calibrated
+    false-alarm rate (session 6)."""
+    wj_truth = [word_joint(t) for t in truth]
+    n_clean = max(sum(int((~w).sum()) for w in wj_truth), 1)
+    for g in _GRID[np.isfinite(_GRID)]:
+        fp = sum(int((word_joint(v[..., k] / (levels[:, k] * g) > 1.0) & ~w).sum()) for v, w in zip(values, wj_truth))
+        if fp <= false_alarm * n_clean:
+            return float(g)
+    return float("inf")
+
+
 def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, null_quantile: float = 0.99,
                     cues: Sequence[str] = DEFAULT_CUES, acc_persist: float | None = None,
-                    jitter_half: int = 3) -> Calibration:
+                    jitter_half: int = 3, freeze_hold: int | None = None,
+                    cue_fa: dict[str, float] | None = None) -> Calibration:
     """Null scales and levels, and the cue weights, from :func:`calibration_material`
     (steps 3-4 of the module doc).
 
@@ -305,30 +329,41 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
         Persistence factor of the acceleration cue (:func:`.cues.persistent`; None = off).
     jitter_half : int
         Half window of the jitter cue (:func:`.cues.cue_values`).
+    freeze_hold : int or None
+        The freeze cue only on holds of at least that many frames (:func:`.cues.cue_values`;
+        None = the windowed speed ratio).
+    cue_fa : dict of str -> float, optional
+        Per cue, a false-alarm rate of its own: the cue's weight is at most its
+        :func:`cue_floor` (it may then add up to that share of clean pairs to the budget).
     """
     cue_list, truth_list = material.cues, material.truth
     clean = [~t for t in truth_list]
     scales = {k: np.median(np.stack([typical(c, ok)[k] for c, ok in zip(cue_list, clean)]), axis=0)
               for k in ("digression", "acceleration", "spread")}
-    values = [cue_values(c, {k: np.maximum(v, typical(c)[k]) for k, v in scales.items()}, acc_persist, jitter_half)
-              for c in cue_list]
+    values = [cue_values(c, {k: np.maximum(v, typical(c)[k]) for k, v in scales.items()}, acc_persist, jitter_half,
+                         freeze_hold) for c in cue_list]
     stacked = np.concatenate([np.where(ok[..., None], v, np.nan) for v, ok in zip(values, clean)], 0)
     levels = np.maximum(np.nan_to_num(np.nanquantile(stacked, null_quantile, axis=0), nan=0.0), _FLOORS)
     lam = fit_levels(values, levels, truth_list, false_alarm, use=[c in cues for c in CUES])
+    for name, fa in (cue_fa or {}).items():
+        if name in cues:
+            k = CUES.index(name)
+            lam[k] = min(lam[k], cue_floor(values, levels, truth_list, k, fa))
     wj_t = [word_joint(t) for t in truth_list]
     wj_f = [word_joint((v / (levels * lam)).max(-1) > 1.0) for v in values]
     rec = sum(int((f & t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int(t.sum()) for t in wj_t), 1)
     fa = sum(int((f & ~t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int((~t).sum()) for t in wj_t), 1)
     return Calibration(scales, levels, lam, material.low, material.high, int(sum(t.size for t in truth_list)),
-                       int(sum(t.sum() for t in truth_list)), rec, fa, material.source, list(material.names), acc_persist, jitter_half)
+                       int(sum(t.sum() for t in truth_list)), rec, fa, material.source, list(material.names), acc_persist, jitter_half, freeze_hold)
 
 
 def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
               false_alarm: float = 0.004, frames: int = 600, density: float = 0.2, seed: int = 0,
               null_quantile: float = 0.99, cues: Sequence[str] = DEFAULT_CUES,
               texture: Callable | None = None, acc_persist: float | None = None,
-              jitter_half: int = 3) -> Calibration:
+              jitter_half: int = 3, freeze_hold: int | None = None,
+              cue_fa: dict[str, float] | None = None) -> Calibration:
     """:func:`calibration_material` then :func:`fit_calibration` (the module doc's steps)."""
     mat = calibration_material(take, others, analyse, joints, fps, frames=frames, density=density, seed=seed,
                                texture=texture)
-    return fit_calibration(mat, false_alarm, null_quantile, cues, acc_persist, jitter_half)
+    return fit_calibration(mat, false_alarm, null_quantile, cues, acc_persist, jitter_half, freeze_hold, cue_fa)

@@ -22,6 +22,10 @@ freeze         log of the consensus' mean speed over the take's largest speed, o
                9-frame window (frozen joints)
 spread         scatter of the KNN samples about T̄ (where neighbours disagree a digression
                means less)
+hold           length (frames) of the *hold* holding the cell: consecutive frames turning
+               less than :data:`HOLD_SPEED` (0 elsewhere; frozen joints, session 6)
+held_freeze    log of the consensus' mean speed over the take's own speed at the cell
+               (what ``freeze`` is once a hold says the joint is still)
 =============  ===========================================================================
 
 :func:`cue_values` turns them into the six cues of the calibrated detector (:data:`CUES`),
@@ -37,7 +41,13 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 
 #: Raw cues, in the order of :func:`raw_cues`' keys.
-RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirror", "range", "freeze", "spread")
+RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirror", "range", "freeze", "spread",
+                              "hold", "held_freeze")
+
+#: A joint turning less than this per frame (radians) is *held*: a lost marker's last value
+#: held by the capture software is exactly still, while capture noise moves a clean joint by
+#: more (the ``freeze_still`` default of the cleaner, session 4).
+HOLD_SPEED: float = float(np.deg2rad(0.05))
 
 #: Cues of the calibrated detector (:func:`cue_values`), each with its own null and threshold.
 CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range", "jitter")
@@ -158,7 +168,10 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
     # the take's fastest frame in the window: a frozen joint has none, a slow clean one has some
     still = -window_min(-speed(q), 4)
     freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (still + floor))
+    v = speed(q)
     return {
+        "hold": hold_lengths(v)[0],
+        "held_freeze": np.maximum(np.log((_window_mean(speed(mean_q), 4) + floor) / (v + floor)), 0.0),
         "digression": quat.geodesic_angle(q, mean_q),
         "acceleration": acceleration(q),
         "expected_acc": acceleration(mean_q),
@@ -167,6 +180,39 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
         "freeze": np.maximum(freeze, 0.0),
         "spread": np.asarray(spread, float),
     }
+
+
+def hold_lengths(v: np.ndarray, still: float = HOLD_SPEED) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell, the length of the hold it lies in, and whether that hold touches an end.
+
+    Parameters
+    ----------
+    v : ndarray of shape (T, m)
+        Frame-to-frame speed, radians per frame (:func:`speed`: ``v[t]`` is the step t -> t+1).
+    still : float
+        Radians per frame below which a step is still.
+
+    Returns
+    -------
+    length : ndarray of shape (T, m), float
+        Frames of the hold holding the cell (a frame is held when the step into it or out of
+        it is still: a held value is the same pose on both sides of a still step), 0 on cells
+        in no hold.
+    edge : ndarray of bool, shape (T, m)
+        Cells of holds that include the first or the last frame.
+    """
+    calm = v < still  # step t -> t+1 still (speed() repeats the last step into the last frame)
+    held = calm.copy()
+    held[1:] |= calm[:-1]
+    length = np.zeros(v.shape, float)
+    edge = np.zeros(v.shape, bool)
+    t = len(v)
+    for j in range(v.shape[1]):
+        d = np.diff(np.concatenate([[0], held[:, j].astype(np.int8), [0]]))
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+            length[a:b, j] = b - a
+            edge[a:b, j] = a == 0 or b == t
+    return length, edge
 
 
 def window_min(x: np.ndarray, half: int) -> np.ndarray:
@@ -207,7 +253,7 @@ def persistent(x: np.ndarray, factor: float) -> np.ndarray:
 
 
 def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = None,
-               jitter_half: int = 3) -> np.ndarray:
+               jitter_half: int = 3, freeze_hold: int | None = None) -> np.ndarray:
     """The calibrated detector's cues :data:`CUES`, shape (T, m, 6), unitless.
 
     * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
@@ -217,7 +263,10 @@ def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_per
     * acceleration: the take's acceleration beyond the consensus', in units of the joint's
       typical acceleration;
     * mirror: the chain-pair mirror gain in units of six typical digressions;
-    * freeze: the log speed ratio (consensus over take);
+    * freeze: the log speed ratio (consensus over take); with ``freeze_hold`` (session 6)
+      only on the cells of a hold of at least ``freeze_hold`` frames (``hold``), where it is
+      the consensus' speed over the take's own (``held_freeze``): a frozen joint is held,
+      a slow clean one (a stance ankle) still turns;
     * range: the rotation-vector excess over the context's range, in units of 0.1 rad;
     * jitter: the median, over the ``2 jitter_half + 1`` frames centred on the cell, of the acceleration cue
       (before ``acc_persist``): high-frequency energy that lasts (jitter, tremor-like noise)
@@ -232,7 +281,11 @@ def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_per
     if acc_persist is not None:
         acc = persistent(acc, acc_persist)
     mir = cue["mirror"] / np.maximum(6.0 * np.median(scale["digression"]), 1e-3)
-    return np.stack([dig, acc, mir, cue["freeze"], cue["range"] / 0.1, jit], axis=-1)
+    frz = cue["freeze"]
+    if freeze_hold is not None:
+        held = cue["hold"] >= freeze_hold
+        frz = np.where(held, cue["held_freeze"], 0.0)
+    return np.stack([dig, acc, mir, frz, cue["range"] / 0.1, jit], axis=-1)
 
 
 def window_median(x: np.ndarray, half: int) -> np.ndarray:

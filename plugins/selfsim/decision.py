@@ -13,7 +13,9 @@ otherwise). ``agree`` drops runs only the digression flagged that no other cue b
 flags over the still interval (session 5: ``freeze_moving``, only where the consensus moves),
 ``flag_min_deg`` reports only edits of an error's size; session 5 ``shrink_full`` scales the edit
 of a weakly evidenced acceleration/jitter run by its evidence and ``accept_margin`` (off) keeps a
-run only on a consensus gain above the clean scatter (:mod:`.run_acceptance`). Both
+run only on a consensus gain above the clean scatter (:mod:`.run_acceptance`); session 6
+``freeze_hold`` counts the freeze cue only on holds (frames turning less than 0.05 degrees per
+frame) and ``freeze_fill`` repairs a flagged hold as a gap (:mod:`.holds`). Both
 modes carry the repair to the input frames with :func:`.repair.apply_to_input`.
 """
 from __future__ import annotations
@@ -232,7 +234,8 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                         false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
                         seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues,
                         acc_persist=p.acc_persist if p.acc_persist_fit else None,
-                        jitter_half=p.jitter_half)
+                        jitter_half=p.jitter_half, freeze_hold=p.freeze_hold,
+                        cue_fa=dict(p.cue_fa))
         if p.acc_persist is not None and not p.acc_persist_fit:
             # the persistence rule only removes flags: fitted without it, applied to the take
             cal = dataclasses.replace(cal, acc_persist=p.acc_persist)
@@ -242,9 +245,31 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                               p.agree)
         if p.acc_body is not None:
             flags = _body_jolts_dropped(flags, dom, p.acc_body)
+        if p.spike_level is not None:
+            # short excursions found by their two jumps (selfsim/spikes.py), repaired as offsets
+            from .spikes import spike_runs
+
+            spk = spike_runs(res.texture.q, p.spike_level) & ~flags
+            if p.spike_exact:
+                spk_only = spk  # repaired over exactly the excursion, after the other repairs
+            else:
+                flags = flags | spk
+                dom = np.where(spk, CUES.index("acceleration"), dom)
         if p.freeze_still is not None:
             flags, dom = _freezes_grown(flags, dom, res.texture.q, np.deg2rad(p.freeze_still), res.mean_texture,
                                         None if p.freeze_moving is None else np.deg2rad(p.freeze_moving))
+        holds = np.zeros(flags.shape, bool)
+        if p.freeze_fill != "off" and p.freeze_hold is not None:
+            # a held joint is a gap: filled from its two sides (selfsim/holds.py), not moved towards a
+            # consensus chosen on the frozen take; the other repairs leave its cells alone (a clean hold
+            # merged into a spike's run would hide the spike's two jumps from the offset repair)
+            from .holds import fill_holds
+
+            fill24, filled, holds = fill_holds(res.texture.q, res.texture.q, flags & (dom == CUES.index("freeze")),
+                                               p.freeze_hold, p.freeze_fill, res.mean_texture,
+                                               p.freeze_guard)
+            flags_hold = flags & holds
+            flags = flags & ~holds
         mirror_flags = flags & (dom == CUES.index("mirror"))
         extra: dict = {}
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
@@ -254,11 +279,28 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
                                                 extra=extra, interp=dom == CUES.index("acceleration"),
                                                 interp_max=p.interp_max, merge_gap=p.merge_gap)
+        if p.spike_level is not None and p.spike_exact and spk_only.any():
+            from .spikes import repair_spikes
+
+            spk_only &= ~edited & ~swapped
+            done = repair_spikes(res.texture.q, res.mean_texture, new24, spk_only)
+            edited = edited | done
+            extra["offset"] = extra["offset"] | done
+            dom = np.where(done, CUES.index("acceleration"), dom)
+            flags = flags | done
         if p.shrink_full is not None or p.accept_margin is not None or p.unclaimed_revert:
             new24, edited = _run_checks(p, res, cal, new24, flags, evidence, dom, swapped, extra["offset"])
             swapped &= edited
             extra["offset"] &= edited
+        if holds.any():
+            filled = filled & ~swapped & ~extra["offset"]  # a swap found by its edges wins
+            new24 = np.where(filled[..., None], fill24, new24)
+            edited = edited | filled
+            flags = flags | (flags_hold & ~swapped & ~extra["offset"])
+        else:
+            filled = holds
         cue[flags] = np.array(CUES, dtype=object)[dom[flags]]
+        cue[filled] = "freeze"
         grown = extra["offset"] & ~flags  # the rest of an offset interval, between its two jumps
         cue[grown] = cue_of_run(cue, grown)
         cue[swapped] = "mirror"
@@ -267,7 +309,7 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             # smooth its ends) is no claim the cleaner acts on
             cue[flags & ~edited] = None
             flags = flags & edited
-        flags = flags | swapped | extra["offset"]
+        flags = flags | swapped | extra["offset"] | filled
         if p.flag_min_deg is not None:
             # a change below the size of an error is a correction, not a claim: the swapped-back
             # hip of a swapped leg moves a few degrees (restored exactly, still edited)

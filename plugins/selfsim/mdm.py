@@ -52,10 +52,9 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from pydantic import Field
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.components import Cleaner, Params
@@ -66,142 +65,10 @@ from .knn import ContextTextures, WordNeighbours, knn_search
 
 if TYPE_CHECKING:
     from .decision import CleanResult
-from .motion_words import (DEFAULT_GROUPS, DEFAULT_JOINTS, Texture, context_motions, motion_texture, resolve_groups,
-                           source_word_starts)
+from .mdm_params import JointGroup, MDMParams
+from .motion_words import Texture, context_motions, motion_texture, resolve_groups, source_word_starts
 
-
-class JointGroup(Params):
-    """A joint group of motion-words."""
-
-    name: str = Field(description="group name (whole, upper, lower, left, right...)")
-    joints: tuple[str, ...] = Field(default=(), description="canonical joints; empty = every texture joint")
-    drop: int = Field(default=1, ge=0, description="largest joint distances left out of eq. 1")
-
-
-def _default_groups() -> tuple[JointGroup, ...]:
-    return tuple(JointGroup(name=n, joints=j, drop=d) for n, j, d in DEFAULT_GROUPS)
-
-
-class MDMParams(Params):
-    """Parameters of the MDM cleaner; the analysis defaults are the paper's values, the
-    decision (``mode``) defaults to the calibrated detector."""
-
-    mode: Literal["calibrated", "paper"] = Field(
-        default="calibrated",
-        description="'calibrated': detector fitted on the clean context (self-supervised, target false_alarm) and "
-                    "bounded repair; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)")
-    false_alarm: float = Field(default=0.004, gt=0, lt=1, description="calibrated: share of clean (word, joint) "
-                               "pairs of the calibration clips the detector may flag")
-    null_quantile: float = Field(default=0.99, gt=0.5, lt=1, description="calibrated: quantile of a cue over a "
-                                 "joint's clean calibration cells taken as its null level")
-    calibration_frames: int = Field(default=600, ge=15, description="calibrated: frames (at fps) of context clips "
-                                    "analysed with synthetic errors (the longest first; the take itself without context)")
-    calibration_density: float = Field(default=0.2, gt=0, lt=1, description="calibrated: share of calibration "
-                                       "words given a synthetic error")
-    calibration_seed: int = Field(default=0, description="calibrated: seed of the synthetic errors")
-    cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], ...] = Field(
-        default=("digression", "acceleration", "mirror", "freeze", "jitter"),
-        description="calibrated: cues the detector may use (range = baseline (a), off by default)")
-    max_edit: float = Field(default=30.0, gt=0, le=180, description="calibrated: largest edit, degrees, of a cell "
-                            "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
-    swap_gain: float = Field(default=0.1, ge=0, description="calibrated: least chain mirror gain (radians over the "
-                             "chain pair) for swapping limbs back")
-    swap_level: float | None = Field(default=3.0, gt=0, description="calibrated: least edge benefit (units of the "
-                                     "chains' typical acceleration) at both ends of a swap found by its edges "
-                                     "(cleaners/swaps.py); None = only the mirror cue's swaps")
-    offset_level: float | None = Field(default=6.0, gt=0, description="calibrated: flagged runs whose ends are "
-                                       "two consistent jumps of at least this many typical accelerations of the joint "
-                                       "(and 8 degrees) are repaired by taking the offset out (cleaners/offsets.py); "
-                                       "None = always the KNN word")
-    flag_rule: Literal["evidence", "repaired"] = Field(
-        default="repaired", description="calibrated: cells reported flagged: every cell whose evidence exceeds its level "
-        "('evidence'), or only those the bounded repair changed ('repaired'; swaps and offsets always)")
-    interp_max: int = Field(default=0, ge=0, description="calibrated: runs of up to this many frames flagged by the "
-                            "acceleration cue (and no offset) are interpolated between their neighbours instead of "
-                            "taking the KNN word; 0 = off")
-    merge_gap: int = Field(default=3, ge=0, description="calibrated: flagged runs of one joint at most this many "
-                           "frames apart are repaired as one (the gap included); 0 = off")
-    agree: float | None = Field(default=0.3, gt=0, description="calibrated: runs flagged by the digression alone "
-                                "are kept only where the acceleration or freeze evidence exceeds this somewhere in "
-                                "the run (+-1 frame); None = off")
-    acc_persist: float | None = Field(default=1.5, gt=0, description="calibrated: the acceleration cue of a cell "
-                                      "is capped at this many times the larger of its two neighbours' (isolated "
-                                      "kinks of clean fast joints drop; spikes, steps, jitter keep it); None = off")
-    acc_persist_fit: bool = Field(default=False, description="calibrated: fit the cue weights with acc_persist "
-                                  "applied (True) or fit without it and apply it to the take only (False: the rule "
-                                  "then only removes flags)")
-    jitter_half: int = Field(default=4, ge=1, description="calibrated: the jitter cue is the median of the "
-                             "acceleration cue over 2 jitter_half + 1 frames")
-    acc_body: int | None = Field(default=3, ge=2, description="calibrated: at frames where at least this many "
-                                 "joints are flagged by the acceleration cue (a jolt of the whole body), those "
-                                 "flags are dropped; None = off")
-    freeze_still: float | None = Field(default=0.05, gt=0, description="calibrated: runs the freeze cue flags are "
-                                      "grown over the interval where the joint moves less than this many degrees "
-                                      "per frame (the whole frozen interval); None = off")
-    freeze_moving: float | None = Field(default=0.1, gt=0, description="calibrated: the freeze_still growth "
-                                        "covers only frames where the KNN consensus moves at least this many degrees "
-                                        "per frame (a joint the consensus holds still too is genuinely still); None = off")
-    shrink_full: float | None = Field(default=1.5, gt=1, description="calibrated: an edited run whose strongest "
-                                      "evidence E is below this has its edit scaled by (E - 1) / (shrink_full - 1) "
-                                      "(selfsim/run_acceptance.py); None = off")
-    shrink_cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], ...] = Field(
-        default=("acceleration", "jitter"), description="calibrated: deciding cues of the runs shrink_full applies to")
-    accept_margin: float | None = Field(default=None, ge=0, description="calibrated: an edited run is kept only when "
-                                        "the squared distance to the KNN consensus it removes exceeds this many times "
-                                        "its cells' summed squared typical clean digression; None = off")
-    unclaimed_revert: bool = Field(default=False, description="calibrated: a run (not a swap nor an offset) the "
-                                   "repair changes nowhere by flag_min_deg or more is left as it was (no silent run)")
-    unclaimed_frames: int | None = Field(default=None, ge=1, description="calibrated: unclaimed_revert only for "
-                                         "runs of at most this many frames; None = any length")
-    accept_offsets: bool = Field(default=False, description="calibrated: accept_margin also tests offset intervals")
-    flag_min_deg: float | None = Field(default=10.0, ge=0, description="calibrated: cells the repair changes by "
-                                       "less than this many degrees are edited but not reported flagged (a "
-                                       "correction smaller than an error); None = every repaired cell")
-    flag_min_revert: bool = Field(default=False, description="calibrated: cells flag_min_deg leaves unreported "
-                                  "keep their value (no silent edit), except swapped-back chains and offsets")
-    flag_min_scope: Literal["all", "swaps"] = Field(default="all", description="calibrated: cells flag_min_deg "
-                                                    "applies to: every repaired cell or the swapped-back ones")
-    swap_max: int = Field(default=72, ge=2, description="calibrated: longest swap found by its edges, frames at fps")
-    mirror_swaps: bool = Field(default=True, description="calibrated: also swap back the runs the mirror cue flags "
-                               "where no edge swap overlaps")
-
-    fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
-    joints: tuple[str, ...] = Field(default=DEFAULT_JOINTS, description="texture joints (canonical names; absent ones are skipped)")
-    groups: tuple[JointGroup, ...] = Field(default_factory=_default_groups, description="joint groups of the motion-words")
-    source_length: int = Field(default=15, ge=2, description="source word length N, frames")
-    source_step: int = Field(default=5, ge=1, description="frames between source words")
-    target_length: int = Field(default=20, ge=2, description="target word length M, frames")
-    k: int = Field(default=5, ge=1, description="nearest neighbours per word")
-    slope_run: int = Field(default=2, ge=1, description="DTW slope constraint: most consecutive steps in one direction")
-    exclusion: int | None = Field(default=None, ge=0, description="minima this close to the source word are discarded (frames; None = N/2)")
-    threshold: float = Field(default=0.5, ge=0, le=1, description="MDM value above which a cell is erroneous (§4)")
-    normalization: Literal["mean", "texture", "median", "spread", "none"] = Field(
-        default="mean",
-        description="scale M = |T - T̄| is divided by (§3.4): 'mean' = the mean of M's row (the paper), 'texture' = "
-                    "the joint's mean rotation angle in T, 'median' = robust_factor x the median of M's row, 'spread' "
-                    "= spread_factor x the scatter of the KNN samples about T̄ at that cell (see module doc), 'none'")
-    min_scale: float = Field(default=0.1, gt=0, description="floor of the 'texture' row scale, radians (joints that hardly rotate)")
-    mean_floor: float = Field(default=0.01, ge=0, description="floor of the 'mean' row scale, radians: a joint whose "
-                              "difference is numerically zero everywhere is not blown up to 1")
-    robust_factor: float = Field(default=2.5, gt=0, description="'median': the row median is multiplied by this "
-                                 "(a cell is flagged above 0.83 x this x its joint's median difference)")
-    spread_factor: float = Field(default=3.0, gt=0, description="'spread': the KNN scatter is multiplied by this "
-                                 "(a cell is flagged above 0.83 x this x the scatter of its neighbours)")
-    noise_floor: float = Field(default=0.035, ge=0, description="'median'/'spread': floor of the noise scale, radians "
-                               "(2 degrees; cells whose neighbours agree exactly, joints that never rotate)")
-    include_self: bool = Field(default=True, description="search the clip itself as part of its context")
-    two_stage: bool = Field(default=False, description="§5: local search first, larger context only around distinct words")
-    stage1_groups: tuple[str, ...] = Field(default=("whole",), description="groups of the local first stage")
-    knn_method: Literal["pruned", "brute"] = Field(default="pruned", description="exact KNN search: pruned (fast) or brute force")
-    warp: Literal["polyphase", "path"] = Field(default="polyphase", description="neighbour to source length: polyphase "
-                                               "resampling of the warped target (§3.2) or per-frame mean along the path")
-    savgol_window: int = Field(default=7, ge=3, description="Savitzky-Golay window of the repair blending, frames at fps")
-    savgol_order: int = Field(default=2, ge=1, description="Savitzky-Golay polynomial order (quadratic)")
-    write_bvh: bool = Field(default=True, description="write each cleaned clip as BVH into the step folder")
-    heatmaps: bool = Field(default=True, description="write an MDM heatmap PNG per clip into the step folder")
-
-    def groups_tuple(self) -> tuple[tuple[str, tuple[str, ...], int], ...]:
-        return tuple((g.name, g.joints, g.drop) for g in self.groups)
+__all__ = ["DigressionResult", "JointGroup", "MDMCleaner", "MDMParams", "context_motions", "digression_map"]
 
 
 @dataclass
