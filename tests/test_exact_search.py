@@ -46,7 +46,7 @@ def query_of(x, m, seed, ties=False):
 # random walks; a 1-row clip (single-row blocks); blocks of 1 row; queries longer than blocks and clips; ties
 BOUND_CASES = [(0, [40, 1, 30, 12], 6, 4, False), (1, [80], 10, 16, False), (2, [5, 5, 5, 60], 3, 7, False),
                (3, [50, 50], 1, 3, False), (4, [7, 1, 1, 20], 12, 1, False), (5, [30, 2, 25], 9, 5, True),
-               (6, [60], 4, 60, True)]
+               (6, [60], 4, 60, True), (7, [45, 30], 150, 8, False)]  # long query: float32 chains' margin
 
 
 @pytest.mark.parametrize("seed,lengths,m,size,ties", BOUND_CASES)
