@@ -320,3 +320,19 @@ def test_matcher_default_is_exactly_sdtw_on_a_pruned_search():
     same(lazy_neighborhood_graph(q, space, count=p.count, min_span=p.min_span, approx=p.approx),
          subsequence_dtw(q, space, count=p.count, min_span=p.min_span))
     assert st.coarse_blocks > 0 and st.columns < len(x)
+
+
+@pytest.mark.parametrize("seed_eps", [0.0, 1.0, 4.0])
+def test_certified_with_approximate_seeds_equals_sdtw(seed_eps, monkeypatch):
+    # the seeds' neighbours may be approximate (exact.SEED_EPS, kd-tree eps): they only supply tau
+    import mocapflow.plugins.similarity.exact as exact
+    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+
+    monkeypatch.setattr(exact, "SEED_EPS", seed_eps)
+    clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25, 120, 80], seed=5)
+    space = SearchSpace(clip_id, frame, KDTreeIndex(method="kdtree").build(x), x)
+    rng = np.random.default_rng(5)
+    for s in rng.integers(0, 400, 4):
+        q = (x[s : s + 14] + rng.normal(0, 0.3, (14, 3))).astype(np.float32)
+        for count in (1, 6):
+            same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))

@@ -61,6 +61,11 @@ DIRECT_CELLS = 2_000_000
 SEED_FRAMES = 5
 #: neighbours per seed frame, times ``count``
 SEED_K = 6
+#: the seeds' neighbours are searched epsilon-approximately (when the index takes ``eps``): they
+#: only supply ``tau``, which the pass verifies; the exact 60-NN search was a fifth of a query's
+#: time at 1 M rows (measured, docs/global-matching.md "fourth round": 3-20 % faster at 1.0, the
+#: same ``tau`` median and work; 2.0 loosened ``tau`` in some queries)
+SEED_EPS = 1.0
 #: database frames per query frame a seed window allows on either side of its neighbour
 SEED_SLOPE = 2.0
 #: default block sizes of ``certified_sdtw``, coarsest first (benchmarks/matching.py: best of
@@ -130,10 +135,13 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=N
     frames = np.unique(np.linspace(0, m - 1, n_frames or SEED_FRAMES).round().astype(np.int64))
     kk = min(n, (k_per or SEED_K) * count)
     qs = np.ascontiguousarray(q[frames])
-    if "workers" in _query_params(space.index):  # a few queries: waking threads costs more than it saves
-        _, ids = space.index.query(qs, kk, workers=1)
-    else:
-        _, ids = space.index.query(qs, kk)
+    kw = {}
+    params = _query_params(space.index)
+    if "workers" in params:  # a few queries: waking threads costs more than it saves
+        kw["workers"] = 1
+    if "eps" in params and SEED_EPS > 0:  # any tau is safe: approximate neighbours only seed it
+        kw["eps"] = SEED_EPS
+    _, ids = space.index.query(qs, kk, **kw)
     ids = np.asarray(ids, np.int64)
     fi = np.broadcast_to(frames[:, None], ids.shape)
     ok = ids >= 0
