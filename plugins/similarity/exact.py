@@ -7,8 +7,9 @@ cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``,
 
 1. a threshold ``tau`` from real alignments with their exact costs: a given graph's
    ``count``-th match, else the fine DP over windows around the index's nearest rows of
-   :data:`SEED_FRAMES` query frames (:func:`_seed_tau`), else over the blocks of lowest
-   coarse bound (:func:`_guess_tau`); capped by ``max_cost``. Any value is safe (step 4);
+   :data:`SEED_FRAMES` query frames (:func:`_seed_tau`; searched with ``eps`` :data:`SEED_EPS`),
+   else over the blocks of lowest coarse bound (:func:`_guess_tau`); capped by ``max_cost``.
+   Any value is safe (step 4);
 2. a coarse subsequence DTW over blocks of consecutive rows, each cell costing the query
    frame's distance to the block's bounding box, bounds every fine path from below
    (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level
