@@ -2,6 +2,7 @@
 
     python benchmarks/ann_tuning.py                 # 380,813 frames, F_E^15, 200 single queries
     python benchmarks/ann_tuning.py --db 1038388 --libs hnswlib
+    python benchmarks/ann_tuning.py --quick         # the real corpus (27,596 frames), 50 queries
 
 Beyond ``benchmarks/ann.py`` (M = 16 graphs): graph degree and vector types, an inverted
 file, and the exact kd-tree's own epsilon search, each against ``indexes.kdtree``'s exact
@@ -96,21 +97,24 @@ def candidates(x, libs):
 
 
 def main(argv=None) -> int:
-    from corpus import augmented_database
+    from corpus import augmented_database, load_corpus
 
     from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
     from mocapflow.plugins.similarity.kdtree import KDTreeIndex
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="the real corpus only, 50 queries")
     ap.add_argument("--db", type=int, default=380_813)
-    ap.add_argument("--queries", type=int, default=200)
+    ap.add_argument("--queries", type=int, default=None, help="default 200 (quick 50)")
     ap.add_argument("-k", type=int, default=256)
     ap.add_argument("--libs", nargs="*", default=["hnswlib", "usearch", "faiss", "kdtree"])
     args = ap.parse_args(argv)
-    x = np.ascontiguousarray(EndEffectorFeatures(joints=5).transform(augmented_database(args.db, fps=30)))
+    db = load_corpus(30.0) if args.quick else augmented_database(args.db, fps=30)
+    x = np.ascontiguousarray(EndEffectorFeatures(joints=5).transform(db))
+    n_q = args.queries or (50 if args.quick else 200)
     rng = np.random.default_rng(0)
     sd = x.std(axis=0).mean()
-    qs = (x[rng.integers(0, len(x), args.queries)] + rng.normal(0, 0.01 * sd, (args.queries, x.shape[1]))).astype(np.float32)
+    qs = (x[rng.integers(0, len(x), n_q)] + rng.normal(0, 0.01 * sd, (n_q, x.shape[1]))).astype(np.float32)
     k = args.k
     tree = KDTreeIndex(method="kdtree", workers=1).build(x)
     tree.query(qs[:2], k)

@@ -4,6 +4,7 @@
     python benchmarks/certified_ab.py --size 1038388 --seed-eps 0 0.5 1 2          # the seeds' kd-tree eps
     python benchmarks/certified_ab.py --size 380813 --levels 512/64/16/4 512/128/32/8
     ... --hidden                                                                    # the query's source hidden
+    python benchmarks/certified_ab.py --quick       # 60,000 rows, 2 queries, two hierarchies: a smoke run
 
 Database: ``benchmarks/corpus.py``'s augmented corpus at ``--size`` frames, F_E^15
 (``features.end_effectors`` joints 5), ``indexes.kdtree``; queries: random segments of 30, 64
@@ -150,6 +151,7 @@ def whole(queries, settings, apply, label, rounds):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="60,000 rows, 2 queries per length, 2 rounds")
     ap.add_argument("--size", type=int, default=380_813)
     ap.add_argument("--queries", type=int, default=4, help="per query length")
     ap.add_argument("--hidden", action="store_true", help="the query's source clip hidden")
@@ -159,6 +161,10 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=6)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
+    if args.quick:
+        args.size, args.queries, args.rounds = 60_000, 2, 2
+        if not (args.kernel_old or args.seed_eps or args.levels):
+            args.levels = ["512/64/16/4", "256/32/8"]
     x, clip_id, frame, src = database(args.size)
     queries = spaces(x, clip_id, frame, src, (30, 64, 90), args.queries, args.hidden, np.random.default_rng(args.seed))
     print(f"{args.size:,} rows, {'source hidden' if args.hidden else 'own source'}, {args.queries} queries per length; "
