@@ -336,3 +336,21 @@ def test_certified_with_approximate_seeds_equals_sdtw(seed_eps, monkeypatch):
         q = (x[s : s + 14] + rng.normal(0, 0.3, (14, 3))).astype(np.float32)
         for count in (1, 6):
             same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_alive_runs_equals_block_ranges(seed):
+    # the scan over the evaluated ranges only == block_ranges on the whole (nb,) mask, adjacent ranges merged
+    from mocapflow.plugins.similarity._coarse_kernels import alive_runs
+    from mocapflow.plugins.similarity.exact import block_ranges
+
+    rng = np.random.default_rng(seed)
+    nb = int(rng.integers(1, 80))
+    cuts = np.unique(np.r_[0, np.sort(rng.integers(0, nb + 1, 8)), nb])
+    pairs = np.stack([cuts[:-1], cuts[1:]], axis=1)
+    br = pairs[rng.random(len(pairs)) < 0.7].astype(np.int64)  # some ranges adjacent, some apart
+    lb = np.full(nb, np.inf)
+    for a, b in br:
+        lb[a:b] = rng.choice([0.5, 1.0, 2.0, 3.0, np.inf], b - a)
+    for scale, tau in ((1.0, 1.0), (1.0, 2.5), (1.5, 2.0), (1.0, 0.1), (2.0, 1e9)):
+        np.testing.assert_array_equal(alive_runs(lb, br.reshape(-1, 2), scale, tau), block_ranges(lb * scale <= tau))

@@ -95,6 +95,11 @@ def block_ranges(mask: np.ndarray) -> np.ndarray:
     return np.stack([np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)], axis=1).astype(np.int64)
 
 
+def clip_starts(space: SearchSpace) -> np.ndarray:
+    """bool (n,): row ``j`` starts a clip (``~space.continues``), computed once per space."""
+    return space.memo(("similarity.clip_starts",), lambda: ~space.continues)
+
+
 def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Union of the row ranges ``[lo, hi)`` as sorted disjoint ranges, int64 (r, 2)."""
     if not len(lo):
@@ -150,7 +155,7 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=N
     sl = SEED_SLOPE
     ranges = merged_ranges(np.maximum(h - (sl * fi).astype(np.int64) - 2, 0),
                            np.minimum(h + (sl * (m - 1 - fi)).astype(np.int64) + 3, n))
-    rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
+    rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
     st.guess_columns += len(rows)
     keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
                           min_frames=min_frames)
@@ -192,7 +197,7 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
         nxt = nxt[nxt < nb]
         mark[nxt[link[nxt]]] = True  # the linked block after
         br = block_ranges(mark[:nb])
-        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, bstart[br])
+        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), bstart[br])
         st.guess_columns += len(rows)
         keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
                               min_frames=min_frames)
@@ -256,7 +261,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         (Defaults :data:`SEED_FRAMES`, :data:`SEED_K`.) Query frames searched for the seeds, and
         neighbours per frame (times ``count``).
     """
-    from ._coarse_kernels import coarse_bounds
+    from ._coarse_kernels import alive_runs, coarse_bounds
     from ._dtw_kernels import dtw_window_path, sdtw_ranges_compact
     from .graph import build_graph
     from .sdtw import validate_query
@@ -310,6 +315,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         elif np.isfinite(tau) and not direct:
             br = None  # block ranges of the current level still in play (None: all)
             for li, (bstart, lo, hi, link) in enumerate(levels):
+                evaluated = np.array([[0, len(lo)]], np.int64) if br is None else br
                 if br is None:
                     if li == 0 and lb_top is not None:
                         lb = lb_top
@@ -322,14 +328,14 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                     lb = coarse_bounds(qt, lo, hi, link, br, _SHRINK)
                     st.coarse_blocks += int((br[:, 1] - br[:, 0]).sum())
                     st.level_blocks.append(int((br[:, 1] - br[:, 0]).sum()))
-                alive = block_ranges(lb * scale <= tau)
+                alive = alive_runs(lb, evaluated, scale, tau)
                 ranges = bstart[alive]
                 if li + 1 < len(levels):  # the next level's blocks tile these rows exactly
                     br = np.searchsorted(levels[li + 1][0], ranges)
             if (ranges[:, 1] - ranges[:, 0]).sum() >= full_from * n:
                 tau = ceiling
                 ranges = np.array([[0, n]], np.int64)
-        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
+        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
         st.tau, st.passes = tau, st.passes + 1
         st.columns += len(rows)
         whole = len(ranges) == 1 and ranges[0, 0] == 0 and ranges[0, 1] == n
