@@ -340,7 +340,9 @@ def test_certified_with_approximate_seeds_equals_sdtw(seed_eps, monkeypatch):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_alive_runs_equals_block_ranges(seed):
-    # the scan over the evaluated ranges only == block_ranges on the whole (nb,) mask, adjacent ranges merged
+    # the scan over the evaluated ranges only == the runs block by block (and block_ranges), adjacent ranges merged
+    from naive.coarse import naive_alive_runs
+
     from mocapflow.plugins.similarity._coarse_kernels import alive_runs
     from mocapflow.plugins.similarity.exact import block_ranges
 
@@ -353,4 +355,6 @@ def test_alive_runs_equals_block_ranges(seed):
     for a, b in br:
         lb[a:b] = rng.choice([0.5, 1.0, 2.0, 3.0, np.inf], b - a)
     for scale, tau in ((1.0, 1.0), (1.0, 2.5), (1.5, 2.0), (1.0, 0.1), (2.0, 1e9)):
-        np.testing.assert_array_equal(alive_runs(lb, br.reshape(-1, 2), scale, tau), block_ranges(lb * scale <= tau))
+        got = alive_runs(lb, br.reshape(-1, 2), scale, tau)
+        np.testing.assert_array_equal(got, naive_alive_runs(lb, scale, tau))
+        np.testing.assert_array_equal(got, block_ranges(lb * scale <= tau))
