@@ -46,7 +46,7 @@ def query_of(x, m, seed, ties=False):
 # random walks; a 1-row clip (single-row blocks); blocks of 1 row; queries longer than blocks and clips; ties
 BOUND_CASES = [(0, [40, 1, 30, 12], 6, 4, False), (1, [80], 10, 16, False), (2, [5, 5, 5, 60], 3, 7, False),
                (3, [50, 50], 1, 3, False), (4, [7, 1, 1, 20], 12, 1, False), (5, [30, 2, 25], 9, 5, True),
-               (6, [60], 4, 60, True)]
+               (6, [60], 4, 60, True), (7, [45, 30], 150, 8, False)]  # long query: float32 chains' margin
 
 
 @pytest.mark.parametrize("seed,lengths,m,size,ties", BOUND_CASES)
@@ -72,7 +72,10 @@ def test_coarse_bounds_equal_naive_and_are_admissible(seed, lengths, m, size, ti
     nb = len(lo)
     shrink = 1.0 - 1e-4
     lb = coarse_bounds(qt, lo, hi, link, np.array([[0, nb]], np.int64), shrink)
-    np.testing.assert_allclose(lb, naive_coarse_bounds(q, x, cont, size, shrink=shrink), rtol=1e-5, atol=1e-6)
+    naive = naive_coarse_bounds(q, x, cont, size, shrink=shrink)
+    rtol = 1e-5 + 4 * m * 2.0**-24  # the kernel's float32 margin (coarse_bounds docstring)
+    np.testing.assert_allclose(lb, naive, rtol=rtol, atol=1e-6)
+    assert np.all(lb <= naive * (1 + 1e-9) + 1e-12)  # the margin is taken below, never above
     # a lower bound of the best path through every row of the block
     through = naive_through_cell(q, x, cont).min(axis=0)
     assert np.all(lb[block] <= through * (1 + 1e-9))
@@ -83,7 +86,7 @@ def test_coarse_bounds_equal_naive_and_are_admissible(seed, lengths, m, size, ti
         edge = np.diff(np.r_[0, alive.astype(np.int8), 0])
         br = np.stack([np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)], axis=1).astype(np.int64)
         sub = coarse_bounds(qt, lo, hi, link, br, shrink)
-        np.testing.assert_allclose(sub, naive_coarse_bounds(q, x, cont, size, br, shrink), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(sub, naive_coarse_bounds(q, x, cont, size, br, shrink), rtol=rtol, atol=1e-6)
         assert np.all(sub[block[through <= tau]] <= tau) and np.all(np.isinf(sub[~alive]))
 
 
@@ -317,3 +320,41 @@ def test_matcher_default_is_exactly_sdtw_on_a_pruned_search():
     same(lazy_neighborhood_graph(q, space, count=p.count, min_span=p.min_span, approx=p.approx),
          subsequence_dtw(q, space, count=p.count, min_span=p.min_span))
     assert st.coarse_blocks > 0 and st.columns < len(x)
+
+
+@pytest.mark.parametrize("seed_eps", [0.0, 1.0, 4.0])
+def test_certified_with_approximate_seeds_equals_sdtw(seed_eps, monkeypatch):
+    # the seeds' neighbours may be approximate (exact.SEED_EPS, kd-tree eps): they only supply tau
+    import mocapflow.plugins.similarity.exact as exact
+    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+
+    monkeypatch.setattr(exact, "SEED_EPS", seed_eps)
+    clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25, 120, 80], seed=5)
+    space = SearchSpace(clip_id, frame, KDTreeIndex(method="kdtree").build(x), x)
+    rng = np.random.default_rng(5)
+    for s in rng.integers(0, 400, 4):
+        q = (x[s : s + 14] + rng.normal(0, 0.3, (14, 3))).astype(np.float32)
+        for count in (1, 6):
+            same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_alive_runs_equals_block_ranges(seed):
+    # the scan over the evaluated ranges only == the runs block by block (and block_ranges), adjacent ranges merged
+    from naive.coarse import naive_alive_runs
+
+    from mocapflow.plugins.similarity._coarse_kernels import alive_runs
+    from mocapflow.plugins.similarity.exact import block_ranges
+
+    rng = np.random.default_rng(seed)
+    nb = int(rng.integers(1, 80))
+    cuts = np.unique(np.r_[0, np.sort(rng.integers(0, nb + 1, 8)), nb])
+    pairs = np.stack([cuts[:-1], cuts[1:]], axis=1)
+    br = pairs[rng.random(len(pairs)) < 0.7].astype(np.int64)  # some ranges adjacent, some apart
+    lb = np.full(nb, np.inf)
+    for a, b in br:
+        lb[a:b] = rng.choice([0.5, 1.0, 2.0, 3.0, np.inf], b - a)
+    for scale, tau in ((1.0, 1.0), (1.0, 2.5), (1.5, 2.0), (1.0, 0.1), (2.0, 1e9)):
+        got = alive_runs(lb, br.reshape(-1, 2), scale, tau)
+        np.testing.assert_array_equal(got, naive_alive_runs(lb, scale, tau))
+        np.testing.assert_array_equal(got, block_ranges(lb * scale <= tau))

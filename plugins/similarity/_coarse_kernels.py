@@ -80,6 +80,13 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
     update is split, as in ``sdtw_forward``, into a vectorisable min over the previous
     block and the serial chain along the query.
 
+    Float32 throughout (box distances, chains, bound), the box distances over the query
+    padded to whole 16-lane vectors, an isolated block's bound as its row sum (every path
+    through it stays in it): 1.1-1.6x the float64 kernel (docs/global-matching.md, "Issue 13,
+    fourth round"). Still admissible: a float32 sum of ``m`` non-negative terms, and ``F + G -
+    c`` (>= max(F, G)), exceed their exact values by at most ``(2m + 3) u`` relative (``u`` =
+    2^-24), so the box distances are shrunk by a further ``1 - 4 m u`` on top of ``shrink``.
+
     Parameters
     ----------
     qt : float32 (d, m)
@@ -92,64 +99,131 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
     lb : float64 (nb,)       inf for blocks outside every range
     """
     d, m = qt.shape
+    mp = -(-m // 16) * 16  # query frames padded to whole vectors: no scalar remainder loops
+    qp = np.empty((d, mp), np.float32)
+    for k in range(d):
+        for i in range(mp):
+            qp[k, i] = qt[k, min(i, m - 1)]
     nb = lo.shape[0]
     inf = np.inf
     lb = np.full(nb, inf)
-    acc = np.empty(m, np.float32)
-    tf = np.empty(m)
-    tg = np.empty(m)
+    acc = np.empty(mp, np.float32)
+    tf = np.empty(mp, np.float32)
+    tg = np.empty(mp, np.float32)
+    inf32 = np.float32(np.inf)
+    sh = np.float32(shrink * (1.0 - 4.0 * m * 2.0 ** -24))  # float32 rounding margin (docstring)
+    # the chains never cross a block that does not continue the one before: each range runs as
+    # its linked stretches (clips, at most), in buffers sized for the longest, which stay in
+    # cache (one buffer per range cost 2-3x the time at 380 k rows: page faults, cache misses)
+    big = 0
+    for r in range(branges.shape[0]):
+        s0 = branges[r, 0]
+        for bb in range(s0 + 1, branges[r, 1]):
+            if not link[bb]:
+                big = max(big, bb - s0)
+                s0 = bb
+        big = max(big, branges[r, 1] - s0)
+    c = np.empty((big, mp), np.float32)
+    f = np.empty((big, mp), np.float32)
+    g = np.empty((big, mp), np.float32)
     for r in range(branges.shape[0]):
         b0 = branges[r, 0]
-        nr = branges[r, 1] - b0
-        if nr <= 0:
-            continue
-        c = np.empty((nr, m))
-        for bb in range(nr):
-            b = b0 + bb
-            for i in range(m):
-                acc[i] = 0.0
-            for k in range(d):
-                lk = lo[b, k]
-                hk = hi[b, k]
+        while b0 < branges[r, 1]:
+            nr = 1
+            while b0 + nr < branges[r, 1] and link[b0 + nr]:
+                nr += 1
+            for bb in range(nr):
+                b = b0 + bb
+                for i in range(mp):
+                    acc[i] = 0.0
+                for k in range(d):
+                    lk = lo[b, k]
+                    hk = hi[b, k]
+                    for i in range(mp):
+                        v = qp[k, i]
+                        e = max(lk - v, v - hk, np.float32(0.0))
+                        acc[i] += e * e
+                for i in range(mp):
+                    c[bb, i] = np.sqrt(acc[i]) * sh
+            if nr == 1:  # an isolated block: every path stays in it, F + G - c is the row sum
+                low = np.float32(0.0)
                 for i in range(m):
-                    v = qt[k, i]
-                    e = max(lk - v, v - hk, np.float32(0.0))
-                    acc[i] += e * e
-            for i in range(m):
-                c[bb, i] = np.float64(np.sqrt(acc[i])) * shrink
-        # forward F over blocks 0, 1, .. and backward G over blocks nr-1, nr-2, .. in one
-        # loop: two independent serial chains along the query run side by side
-        f = np.empty((nr, m))
-        g = np.empty((nr, m))
-        for step in range(nr):
-            bf = step
-            bg = nr - 1 - step
-            if bf > 0 and link[b0 + bf]:
-                tf[0] = inf
-                for i in range(1, m):  # diagonal and vertical: no dependency along i
-                    tf[i] = min(f[bf - 1, i - 1], f[bf - 1, i])
-            else:
-                for i in range(m):
-                    tf[i] = inf
-            if bg + 1 < nr and link[b0 + bg + 1]:
-                for i in range(m - 1):
-                    tg[i] = min(g[bg + 1, i + 1], g[bg + 1, i])
-            else:
-                for i in range(m - 1):
-                    tg[i] = inf
-            vf = c[bf, 0]
-            f[bf, 0] = vf
-            vg = c[bg, m - 1]  # a free end: going on vertically only adds cost
-            g[bg, m - 1] = vg
-            for i in range(1, m):  # horizontal: the serial chains
-                vf = min(vf, tf[i]) + c[bf, i]
-                f[bf, i] = vf
-                j = m - 1 - i
-                vg = min(vg, tg[j]) + c[bg, j]
-                g[bg, j] = vg
-        for bb in range(nr):
-            low = inf
-            for i in range(m):
-                low = min(low, f[bb, i] + g[bb, i] - c[bb, i])
-            lb[b0 + bb] = low
+                    low += c[0, i]
+                lb[b0] = low
+                b0 += 1
+                continue
+            # forward F over blocks 0, 1, .. and backward G over blocks nr-1, nr-2, .. in one
+            # loop: two independent serial chains along the query run side by side
+            for step in range(nr):
+                bf = step
+                bg = nr - 1 - step
+                if bf > 0 and link[b0 + bf]:
+                    tf[0] = inf32
+                    for i in range(1, m):  # diagonal and vertical: no dependency along i
+                        tf[i] = min(f[bf - 1, i - 1], f[bf - 1, i])
+                else:
+                    for i in range(m):
+                        tf[i] = inf32
+                if bg + 1 < nr and link[b0 + bg + 1]:
+                    for i in range(m - 1):
+                        tg[i] = min(g[bg + 1, i + 1], g[bg + 1, i])
+                else:
+                    for i in range(m - 1):
+                        tg[i] = inf32
+                vf = c[bf, 0]
+                f[bf, 0] = vf
+                vg = c[bg, m - 1]  # a free end: going on vertically only adds cost
+                g[bg, m - 1] = vg
+                for i in range(1, m):  # horizontal: the serial chains
+                    vf = min(vf, tf[i]) + c[bf, i]
+                    f[bf, i] = vf
+                    j = m - 1 - i
+                    vg = min(vg, tg[j]) + c[bg, j]
+                    g[bg, j] = vg
+                # a block's bound as soon as both its chains are in (the buffers are still in L1)
+                if bf >= bg:
+                    low = inf32
+                    for i in range(m):
+                        low = min(low, f[bf, i] + g[bf, i] - c[bf, i])
+                    lb[b0 + bf] = low
+                if bg < bf:
+                    low = inf32
+                    for i in range(m):
+                        low = min(low, f[bg, i] + g[bg, i] - c[bg, i])
+                    lb[b0 + bg] = low
+            b0 += nr
     return lb
+
+
+@njit(cache=True)
+def alive_runs(lb, branges, scale, tau):  # pragma: no cover - compiled
+    """Maximal runs ``[a, b)`` (int64 (r, 2)) of blocks with ``lb * scale <= tau``, inside ``branges``.
+
+    What ``exact.block_ranges(lb * scale <= tau)`` returns when ``lb`` is inf outside the
+    ranges (as :func:`coarse_bounds` leaves it), scanning only the ranges: no (nb,) temporaries
+    (at 1 M rows the 4-row level has 262 k blocks, of which a query evaluates a few thousand).
+    Runs of adjacent ranges that touch are merged, so every run is maximal (the next level
+    starts each run afresh: a path may not cross a run's ends). Reference: ``block_ranges``.
+    """
+    cap = 1
+    for r in range(branges.shape[0]):
+        cap += (branges[r, 1] - branges[r, 0] + 1) // 2
+    out = np.empty((cap, 2), np.int64)
+    k = 0
+    for r in range(branges.shape[0]):
+        j = branges[r, 0]
+        z = branges[r, 1]
+        while j < z:
+            if lb[j] * scale <= tau:
+                a = j
+                while j < z and lb[j] * scale <= tau:
+                    j += 1
+                if k > 0 and out[k - 1, 1] == a:
+                    out[k - 1, 1] = j
+                else:
+                    out[k, 0] = a
+                    out[k, 1] = j
+                    k += 1
+            else:
+                j += 1
+    return out[:k].copy()

@@ -7,8 +7,9 @@ cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``,
 
 1. a threshold ``tau`` from real alignments with their exact costs: a given graph's
    ``count``-th match, else the fine DP over windows around the index's nearest rows of
-   :data:`SEED_FRAMES` query frames (:func:`_seed_tau`), else over the blocks of lowest
-   coarse bound (:func:`_guess_tau`); capped by ``max_cost``. Any value is safe (step 4);
+   :data:`SEED_FRAMES` query frames (:func:`_seed_tau`; searched with ``eps`` :data:`SEED_EPS`),
+   else over the blocks of lowest coarse bound (:func:`_guess_tau`); capped by ``max_cost``.
+   Any value is safe (step 4);
 2. a coarse subsequence DTW over blocks of consecutive rows, each cell costing the query
    frame's distance to the block's bounding box, bounds every fine path from below
    (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level
@@ -61,6 +62,11 @@ DIRECT_CELLS = 2_000_000
 SEED_FRAMES = 5
 #: neighbours per seed frame, times ``count``
 SEED_K = 6
+#: the seeds' neighbours are searched epsilon-approximately (when the index takes ``eps``): they
+#: only supply ``tau``, which the pass verifies; the exact 60-NN search was a fifth of a query's
+#: time at 1 M rows (measured, docs/global-matching.md "fourth round": 3-20 % faster at 1.0, the
+#: same ``tau`` median and work; 2.0 loosened ``tau`` in some queries)
+SEED_EPS = 1.0
 #: database frames per query frame a seed window allows on either side of its neighbour
 SEED_SLOPE = 2.0
 #: default block sizes of ``certified_sdtw``, coarsest first (benchmarks/matching.py: best of
@@ -87,6 +93,11 @@ def block_ranges(mask: np.ndarray) -> np.ndarray:
         return np.zeros((0, 2), np.int64)
     edge = np.diff(np.r_[0, mask.astype(np.int8), 0])
     return np.stack([np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)], axis=1).astype(np.int64)
+
+
+def clip_starts(space: SearchSpace) -> np.ndarray:
+    """bool (n,): row ``j`` starts a clip (``~space.continues``), computed once per space."""
+    return space.memo(("similarity.clip_starts",), lambda: ~space.continues)
 
 
 def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -130,10 +141,13 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=N
     frames = np.unique(np.linspace(0, m - 1, n_frames or SEED_FRAMES).round().astype(np.int64))
     kk = min(n, (k_per or SEED_K) * count)
     qs = np.ascontiguousarray(q[frames])
-    if "workers" in _query_params(space.index):  # a few queries: waking threads costs more than it saves
-        _, ids = space.index.query(qs, kk, workers=1)
-    else:
-        _, ids = space.index.query(qs, kk)
+    kw = {}
+    params = _query_params(space.index)
+    if "workers" in params:  # a few queries: waking threads costs more than it saves
+        kw["workers"] = 1
+    if "eps" in params and SEED_EPS > 0:  # any tau is safe: approximate neighbours only seed it
+        kw["eps"] = SEED_EPS
+    _, ids = space.index.query(qs, kk, **kw)
     ids = np.asarray(ids, np.int64)
     fi = np.broadcast_to(frames[:, None], ids.shape)
     ok = ids >= 0
@@ -141,7 +155,7 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=N
     sl = SEED_SLOPE
     ranges = merged_ranges(np.maximum(h - (sl * fi).astype(np.int64) - 2, 0),
                            np.minimum(h + (sl * (m - 1 - fi)).astype(np.int64) + 3, n))
-    rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
+    rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
     st.guess_columns += len(rows)
     keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
                           min_frames=min_frames)
@@ -183,7 +197,7 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
         nxt = nxt[nxt < nb]
         mark[nxt[link[nxt]]] = True  # the linked block after
         br = block_ranges(mark[:nb])
-        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, bstart[br])
+        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), bstart[br])
         st.guess_columns += len(rows)
         keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
                               min_frames=min_frames)
@@ -247,7 +261,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         (Defaults :data:`SEED_FRAMES`, :data:`SEED_K`.) Query frames searched for the seeds, and
         neighbours per frame (times ``count``).
     """
-    from ._coarse_kernels import coarse_bounds
+    from ._coarse_kernels import alive_runs, coarse_bounds
     from ._dtw_kernels import dtw_window_path, sdtw_ranges_compact
     from .graph import build_graph
     from .sdtw import validate_query
@@ -301,6 +315,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         elif np.isfinite(tau) and not direct:
             br = None  # block ranges of the current level still in play (None: all)
             for li, (bstart, lo, hi, link) in enumerate(levels):
+                evaluated = np.array([[0, len(lo)]], np.int64) if br is None else br
                 if br is None:
                     if li == 0 and lb_top is not None:
                         lb = lb_top
@@ -313,14 +328,14 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                     lb = coarse_bounds(qt, lo, hi, link, br, _SHRINK)
                     st.coarse_blocks += int((br[:, 1] - br[:, 0]).sum())
                     st.level_blocks.append(int((br[:, 1] - br[:, 0]).sum()))
-                alive = block_ranges(lb * scale <= tau)
+                alive = alive_runs(lb, evaluated, scale, tau)
                 ranges = bstart[alive]
                 if li + 1 < len(levels):  # the next level's blocks tile these rows exactly
                     br = np.searchsorted(levels[li + 1][0], ranges)
             if (ranges[:, 1] - ranges[:, 0]).sum() >= full_from * n:
                 tau = ceiling
                 ranges = np.array([[0, n]], np.int64)
-        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, ~space.continues, ranges)
+        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
         st.tau, st.passes = tau, st.passes + 1
         st.columns += len(rows)
         whole = len(ranges) == 1 and ranges[0, 0] == 0 and ranges[0, 1] == n

@@ -119,3 +119,16 @@ def naive_sdtw_ranges(q, x, continues, ranges):
             start.append(a + S[m - 1, j])
             length.append(len(naive_path(P, m - 1, j)))
     return np.array(rows), np.array(cost), np.array(start), np.array(length)
+
+
+def naive_alive_runs(lb, scale, tau):
+    """Maximal runs ``[a, b)`` of consecutive blocks with ``lb * scale <= tau``, one block at a time
+    (``_coarse_kernels.alive_runs``, which scans only the evaluated ranges, outside of which ``lb`` is inf)."""
+    runs = []
+    for b, v in enumerate(lb):
+        if v * scale <= tau:
+            if runs and runs[-1][1] == b:
+                runs[-1][1] = b + 1
+            else:
+                runs.append([b, b + 1])
+    return np.array(runs, dtype=np.int64).reshape(-1, 2)
