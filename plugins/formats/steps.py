@@ -96,54 +96,28 @@ def _read_motion_rows(job: tuple[type, dict[str, Any], str, float | None, int]) 
     }
 
 
-def _read_group(task: tuple[bool, list[tuple]]) -> list:
-    """Read a group of files in one task (``_read_motion_rows`` or ``_read_file`` each)."""
-    rows, jobs = task
-    fn = _read_motion_rows if rows else _read_file
-    return [fn(j) for j in jobs]
+def _map_largest_first(ctx: StepContext, fn, items: list, paths: list[str]) -> list:
+    """``ctx.map(fn, items)``, results in input order, the largest files submitted first.
 
-
-def _balanced_groups(weights: list[int], n_groups: int) -> list[list[int]]:
-    """Indices cut into ``n_groups`` groups of about equal total weight, the heaviest group
-    first: longest-processing-time order (each index, heaviest first, joins the lightest
-    group so far), within 4/3 of the best split."""
-    import heapq
-
-    heap = [(0, g) for g in range(max(1, min(n_groups, len(weights))))]
-    groups: list[list[int]] = [[] for _ in heap]
-    for i in sorted(range(len(weights)), key=lambda i: -weights[i]):
-        total, g = heapq.heappop(heap)
-        groups[g].append(i)
-        heapq.heappush(heap, (total + weights[i], g))
-    tot = [sum(weights[i] for i in g) for g in groups]
-    return [groups[g] for g in sorted(range(len(groups)), key=lambda g: -tot[g]) if groups[g]]
-
-
-def _map_balanced(ctx: StepContext, items: list, paths: list[str], rows: bool, per_worker: int = 4) -> list:
-    """``[read(item) for item in items]`` on the step's executor, in input order.
-
-    With several workers the files go out in groups of about equal bytes (``per_worker``
-    groups per worker, heaviest first), not in file-name chunks of equal counts: the
-    corpus' AMC files range from 65 KB to 4.2 MB, so a chunk of 25 long takes could hold
-    a third of the work and finish alone while the other workers idle. One worker reads
-    the files one by one in input order, as before.
+    With several workers the batch goes out in chunks taken in order; in file-name order a
+    chunk of long takes could come last and finish alone while the other workers idle (the
+    corpus' AMC files range from 65 KB to 4.2 MB). Largest first (longest-processing-time order)
+    leaves the small files for the end, where they fill the gaps. One worker reads in
+    input order, as before.
     """
-    fn = _read_motion_rows if rows else _read_file
-    workers = int(getattr(ctx.executor, "workers", 1))
-    if workers <= 1 or len(items) < 2:
+    if int(getattr(ctx.executor, "workers", 1)) <= 1 or len(items) < 2:
         return ctx.map(fn, items, desc=f"{ctx.step_id}: reading")
     sizes = []
     for p in paths:
         try:
             sizes.append(os.stat(p).st_size)
-        except OSError:  # read (and rejected) like any other file
+        except OSError:  # read (and rejected) like any other: its place in the order does not matter
             sizes.append(0)
-    groups = _balanced_groups(sizes, workers * per_worker)
-    out = ctx.map(_read_group, [(rows, [items[i] for i in g]) for g in groups], desc=f"{ctx.step_id}: reading")
+    order = sorted(range(len(items)), key=lambda i: -sizes[i])
+    out = ctx.map(fn, [items[i] for i in order], desc=f"{ctx.step_id}: reading")
     results: list = [None] * len(items)
-    for g, part in zip(groups, out):
-        for i, r in zip(g, part):
-            results[i] = r
+    for i, r in zip(order, out):
+        results[i] = r
     return results
 
 
@@ -228,7 +202,7 @@ class _FileIngest(Format):
         # ids of every readable file before reading: a file that fails keeps its would-be id
         ids = self.clip_ids([Path(j[2]) for j in jobs], ctx.base_dir)
         items = [(*j, c) for j, c in zip(jobs, ids)] if rows else jobs
-        results = _map_balanced(ctx, items, [j[2] for j in jobs], rows)
+        results = _map_largest_first(ctx, _read_motion_rows if rows else _read_file, items, [j[2] for j in jobs])
         good = [r for r in results if not isinstance(r, tuple)]
         good_ids = [c for c, r in zip(ids, results) if not isinstance(r, tuple)]
         rejects = [(c, *r) for c, r in zip(ids, results) if isinstance(r, tuple)]
