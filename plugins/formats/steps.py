@@ -96,31 +96,6 @@ def _read_motion_rows(job: tuple[type, dict[str, Any], str, float | None, int]) 
     }
 
 
-def _map_largest_first(ctx: StepContext, fn, items: list, paths: list[str]) -> list:
-    """``ctx.map(fn, items)``, results in input order, the largest files submitted first.
-
-    With several workers the batch goes out in chunks taken in order; in file-name order a
-    chunk of long takes could come last and finish alone while the other workers idle (the
-    corpus' AMC files range from 65 KB to 4.2 MB). Largest first (longest-processing-time order)
-    leaves the small files for the end, where they fill the gaps. One worker reads in
-    input order, as before.
-    """
-    if int(getattr(ctx.executor, "workers", 1)) <= 1 or len(items) < 2:
-        return ctx.map(fn, items, desc=f"{ctx.step_id}: reading")
-    sizes = []
-    for p in paths:
-        try:
-            sizes.append(os.stat(p).st_size)
-        except OSError:  # read (and rejected) like any other: its place in the order does not matter
-            sizes.append(0)
-    order = sorted(range(len(items)), key=lambda i: -sizes[i])
-    out = ctx.map(fn, [items[i] for i in order], desc=f"{ctx.step_id}: reading")
-    results: list = [None] * len(items)
-    for i, r in zip(order, out):
-        results[i] = r
-    return results
-
-
 class _FileIngest(Format):
     """Shared machinery of the ingest steps: globbing, reader lookup by extension in the
     ``formats`` registry, per-file fan-out with failures collected as rejects, fingerprints."""
@@ -201,8 +176,10 @@ class _FileIngest(Format):
             raise PipelineError(f"no {self.reads} file matches {self.params.paths} (relative to {ctx.base_dir})")
         # ids of every readable file before reading: a file that fails keeps its would-be id
         ids = self.clip_ids([Path(j[2]) for j in jobs], ctx.base_dir)
-        items = [(*j, c) for j, c in zip(jobs, ids)] if rows else jobs
-        results = _map_largest_first(ctx, _read_motion_rows if rows else _read_file, items, [j[2] for j in jobs])
+        if rows:
+            results = ctx.map(_read_motion_rows, [(*j, c) for j, c in zip(jobs, ids)], desc=f"{ctx.step_id}: reading")
+        else:
+            results = ctx.map(_read_file, jobs, desc=f"{ctx.step_id}: reading")
         good = [r for r in results if not isinstance(r, tuple)]
         good_ids = [c for c, r in zip(ids, results) if not isinstance(r, tuple)]
         rejects = [(c, *r) for c, r in zip(ids, results) if isinstance(r, tuple)]
