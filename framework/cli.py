@@ -54,6 +54,23 @@ def _rejects_warnings(reports) -> list[str]:
     return lines
 
 
+def _local_jobs(args: argparse.Namespace) -> int:
+    """The local workers this run will fork (``--jobs``, else the pipeline's ``jobs:`` with
+    ``executor: local``), read without importing NumPy; 1 when unknown or another executor."""
+    try:
+        import yaml
+
+        with open(args.pipeline, encoding="utf-8") as f:
+            doc = yaml.safe_load(f)
+        doc = doc if isinstance(doc, dict) else {}
+        if doc.get("executor", "local") != "local":
+            return 1
+        jobs = args.jobs if args.jobs is not None else doc.get("jobs", 1)
+        return int(jobs) if isinstance(jobs, int) and not isinstance(jobs, bool) else 1
+    except (OSError, ValueError, yaml.YAMLError):  # the runner reports a bad file properly
+        return 1
+
+
 def cmd_run(args: argparse.Namespace, pm) -> int:
     from .runner import run_pipeline
 
@@ -351,6 +368,10 @@ def main(argv: list[str] | None = None) -> int:
         if command in BUILTIN_COMMANDS or (command is None and "--version" in argv):
             parser = build_parser([])  # the parser of a built-in needs no plugin (`run --help` is quick)
             args = parser.parse_args(argv)
+            if command == "run":  # before the plugins import NumPy: BLAS sized for the workers as it loads
+                from .threads import size_blas_for_workers
+
+                size_blas_for_workers(_local_jobs(args))
             pm = _plugin_manager(command, entry_points, blocked)
         else:
             pm = _plugin_manager(command, entry_points, blocked)
