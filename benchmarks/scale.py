@@ -44,7 +44,7 @@ if __name__ == "__main__" and "--child-run" in sys.argv:  # as the CLI does, bef
 
     size_blas_for_workers(int(sys.argv[sys.argv.index("--child-run") + 3]))
 
-import numpy as np  # noqa: E402 - after sizing BLAS for the child run's workers
+import numpy as np  # after sizing BLAS for the child run's workers
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("MOCAPFLOW_DATA", REPO.parent / "shared" / "data"))
