@@ -55,15 +55,23 @@ def _rejects_warnings(reports) -> list[str]:
 
 
 def _local_jobs(args: argparse.Namespace) -> int:
-    """The local workers this run will fork (``--jobs``, else the pipeline's ``jobs:`` with
-    ``executor: local``), read without importing NumPy; 1 when unknown or another executor."""
+    """The worker processes this run will start on this host (``--jobs``, else the
+    pipeline's ``jobs:``) with ``executor: local``, or ``executor: dask`` without a scheduler
+    address (a LocalCluster beside the client), read without importing NumPy; 1 when
+    unknown, for a remote cluster or another executor."""
+    import os
+
     try:
         import yaml
 
         with open(args.pipeline, encoding="utf-8") as f:
             doc = yaml.safe_load(f)
         doc = doc if isinstance(doc, dict) else {}
-        if doc.get("executor", "local") != "local":
+        executor, options = doc.get("executor", "local"), doc.get("executor_options") or {}
+        remote = executor == "dask" and (
+            not isinstance(options, dict) or options.get("address") or os.environ.get("MOCAPFLOW_DASK_ADDRESS")
+        )
+        if executor not in ("local", "dask") or remote:
             return 1
         jobs = args.jobs if args.jobs is not None else doc.get("jobs", 1)
         return int(jobs) if isinstance(jobs, int) and not isinstance(jobs, bool) else 1
