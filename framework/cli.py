@@ -361,8 +361,22 @@ def _register_remaining_builtins(pm, blocked: list[str]) -> None:
             pm.register(importlib.import_module(mod), name=mod)
 
 
+def _exit_without_a_last_collection() -> None:
+    """Registered at exit: the interpreter's last garbage collection walks every object of
+    a run (0.2 s of the 2.3-2.6 s of an ingest + features run, measured in session 6 of
+    issue 16); frozen objects are skipped. The process ends anyway: outputs, manifests and
+    the workspace lock are closed before, and other exit handlers still run."""
+    import gc
+
+    gc.freeze()
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    import atexit
+
+    atexit.unregister(_exit_without_a_last_collection)  # once, however often main() runs
+    atexit.register(_exit_without_a_last_collection)  # first registered, so it runs last
     debug = "--debug" in argv
     logging.basicConfig(level=logging.DEBUG if debug else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:

@@ -82,3 +82,20 @@ def test_the_cli_reads_the_workers_of_a_run_without_numpy(tmp_path: Path, yaml: 
 
 def test_a_missing_pipeline_file_is_left_to_the_runner(tmp_path: Path):
     assert cli._local_jobs(argparse.Namespace(pipeline=str(tmp_path / "none.yaml"), jobs=2)) == 1
+
+
+def test_the_cli_skips_the_last_collection_at_exit():
+    """The interpreter's final garbage collection of a run's objects is skipped (gc.freeze at
+    exit, after the other exit handlers): the run's outputs are closed before."""
+    script = (
+        "import atexit, gc, sys\n"
+        "atexit.register(lambda: print('frozen', gc.get_freeze_count() > 0, flush=True))\n"
+        "from mocapflow.framework import cli\n"
+        "try:\n"
+        "    cli.main(['--version'])\n"
+        "except SystemExit as exc:\n"
+        "    print('rc', exc.code, flush=True)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert "rc 0" in r.stdout
+    assert "frozen True" in r.stdout
