@@ -54,31 +54,6 @@ def _rejects_warnings(reports) -> list[str]:
     return lines
 
 
-def _local_jobs(args: argparse.Namespace) -> int:
-    """The worker processes this run will start on this host (``--jobs``, else the
-    pipeline's ``jobs:``) with ``executor: local``, or ``executor: dask`` without a scheduler
-    address (a LocalCluster beside the client), read without importing NumPy; 1 when
-    unknown, for a remote cluster or another executor."""
-    import os
-
-    try:
-        import yaml
-
-        with open(args.pipeline, encoding="utf-8") as f:
-            doc = yaml.safe_load(f)
-        doc = doc if isinstance(doc, dict) else {}
-        executor, options = doc.get("executor", "local"), doc.get("executor_options") or {}
-        remote = executor == "dask" and (
-            not isinstance(options, dict) or options.get("address") or os.environ.get("MOCAPFLOW_DASK_ADDRESS")
-        )
-        if executor not in ("local", "dask") or remote:
-            return 1
-        jobs = args.jobs if args.jobs is not None else doc.get("jobs", 1)
-        return int(jobs) if isinstance(jobs, int) and not isinstance(jobs, bool) else 1
-    except (OSError, ValueError, yaml.YAMLError):  # the runner reports a bad file properly
-        return 1
-
-
 def cmd_run(args: argparse.Namespace, pm) -> int:
     from .runner import run_pipeline
 
@@ -362,10 +337,8 @@ def _register_remaining_builtins(pm, blocked: list[str]) -> None:
 
 
 def _exit_without_a_last_collection() -> None:
-    """Registered at exit: the interpreter's last garbage collection walks every object of
-    a run (0.2 s of the 2.3-2.6 s of an ingest + features run, measured in session 6 of
-    issue 16); frozen objects are skipped. The process ends anyway: outputs, manifests and
-    the workspace lock are closed before, and other exit handlers still run."""
+    """At exit: the interpreter's last garbage collection walked every object of a run (0.2 s
+    of a 2.5 s ingest, docs/scale-out.md session 6); outputs and the lock are closed before."""
     import gc
 
     gc.freeze()
@@ -391,9 +364,9 @@ def main(argv: list[str] | None = None) -> int:
             parser = build_parser([])  # the parser of a built-in needs no plugin (`run --help` is quick)
             args = parser.parse_args(argv)
             if command == "run":  # before the plugins import NumPy: BLAS sized for the workers as it loads
-                from .threads import size_blas_for_workers
+                from .threads import size_blas_for_workers, workers_on_this_host
 
-                size_blas_for_workers(_local_jobs(args))
+                size_blas_for_workers(workers_on_this_host(args.pipeline, args.jobs))
             pm = _plugin_manager(command, entry_points, blocked)
         else:
             pm = _plugin_manager(command, entry_points, blocked)

@@ -94,6 +94,29 @@ def size_blas_for_workers(jobs: int, cores: int | None = None) -> bool:
     return True
 
 
+def workers_on_this_host(pipeline: str, jobs: int | None) -> int:
+    """The worker processes a run will start on this host: ``jobs`` (``--jobs``), else the
+    pipeline's ``jobs:``, with ``executor: local`` or ``executor: dask`` without a scheduler
+    address (a LocalCluster beside the client); 1 when unknown, for a remote cluster or
+    another executor. Reads the YAML with PyYAML alone: NumPy is not imported yet."""
+    try:
+        import yaml
+
+        with open(pipeline, encoding="utf-8") as f:
+            doc = yaml.safe_load(f)
+        doc = doc if isinstance(doc, dict) else {}
+        executor, options = doc.get("executor", "local"), doc.get("executor_options") or {}
+        remote = executor == "dask" and (
+            not isinstance(options, dict) or options.get("address") or os.environ.get("MOCAPFLOW_DASK_ADDRESS")
+        )
+        if executor not in ("local", "dask") or remote:
+            return 1
+        n = jobs if jobs is not None else doc.get("jobs", 1)
+        return int(n) if isinstance(n, int) and not isinstance(n, bool) else 1
+    except (OSError, ValueError, yaml.YAMLError):  # the runner reports a bad file properly
+        return 1
+
+
 @contextmanager
 def _client_threads(n: int) -> Iterator[None]:
     """The client's numeric threads at a worker's share (``n``) while it works through

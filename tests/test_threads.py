@@ -5,7 +5,6 @@ limited at run time in every forked worker (which measured slower)."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
@@ -14,8 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from mocapflow.framework import cli
-from mocapflow.framework.threads import BLAS_ENV, size_blas_for_workers
+from mocapflow.framework.threads import BLAS_ENV, size_blas_for_workers, workers_on_this_host
 
 PROBE = """
 import json, os, sys
@@ -77,11 +75,11 @@ def test_too_late_once_numpy_is_loaded():
 def test_the_cli_reads_the_workers_of_a_run_without_numpy(tmp_path: Path, yaml: str, jobs, want: int):
     p = tmp_path / "p.yaml"
     p.write_text(yaml)
-    assert cli._local_jobs(argparse.Namespace(pipeline=str(p), jobs=jobs)) == want
+    assert workers_on_this_host(str(p), jobs) == want
 
 
 def test_a_missing_pipeline_file_is_left_to_the_runner(tmp_path: Path):
-    assert cli._local_jobs(argparse.Namespace(pipeline=str(tmp_path / "none.yaml"), jobs=2)) == 1
+    assert workers_on_this_host(str(tmp_path / "none.yaml"), 2) == 1
 
 
 def test_the_cli_skips_the_last_collection_at_exit():
