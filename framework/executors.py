@@ -43,26 +43,24 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any, Protocol
 
 
 from .clip_refs import _SliceTask, clear_cache, clip_slices
 from .errors import PipelineError
 from .progress import progress
+from .threads import (  # noqa: F401 - re-exported: the executors API of sessions 1-5
+    THREAD_ENV,
+    _client_threads,
+    available_cores,
+    limit_threads,
+    size_blas_for_workers,
+    threads_per_worker,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from .datasets import Dataset
 
-#: Environment variables that size the thread pools of OpenMP, OpenBLAS, MKL, numba, numexpr.
-THREAD_ENV = (
-    "OMP_NUM_THREADS",
-    "OPENBLAS_NUM_THREADS",
-    "MKL_NUM_THREADS",
-    "NUMBA_NUM_THREADS",
-    "VECLIB_MAXIMUM_THREADS",
-    "NUMEXPR_NUM_THREADS",
-)
 #: Rows per Parquet row group of the tables the runner writes: a worker reading a clip range
 #: decodes only the groups that hold it (:class:`ClipSlice`), not the whole table.
 ROW_GROUP_ROWS = 65536
@@ -77,46 +75,6 @@ class Executor(Protocol):
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any], desc: str = "") -> list[Any]: ...
 
     def close(self) -> None: ...
-
-
-def available_cores() -> int:
-    """Cores this process may run on (the affinity mask where the OS has one)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
-
-
-def threads_per_worker(workers: int, cores: int | None = None) -> int:
-    """Compute threads per worker so that ``workers x threads <= cores`` (at least 1)."""
-    return max(1, (cores or available_cores()) // max(1, workers))
-
-
-def limit_threads(n: int) -> int:
-    """Size every numeric thread pool of this process to ``n`` threads; returns ``n``.
-
-    Sets the environment (for libraries loaded later), limits already loaded BLAS/OpenMP
-    pools with threadpoolctl and numba's pool (its width if not yet launched, else the
-    threads it uses). Called in each worker before its first task.
-    """
-    n = max(1, int(n))
-    for var in THREAD_ENV:
-        os.environ[var] = str(n)
-    if "numba" in sys.modules:
-        import numba
-        from numba.np.ufunc import parallel
-
-        if not parallel._is_initialized:
-            numba.config.reload_config()  # what numba.config.NUMBA_NUM_THREADS (and kd-trees) read
-        # numba's pool was sized at import; limit the threads this (task-running) thread uses
-        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - a dependency; env vars still cover later loads
-        pass
-    else:
-        threadpool_limits(n)
-    return n
 
 
 def _fork_is_safe() -> bool:
@@ -418,42 +376,6 @@ def _pool_cpu(pool: ProcessPoolExecutor) -> dict[int, float]:
     except (OSError, ValueError, IndexError):
         pass
     return out
-
-
-@contextmanager
-def _client_threads(n: int) -> Iterator[None]:
-    """The client's numeric threads at a worker's share (``n``) while it works through
-    chunks, restored afterwards (its own kernels between batches use the whole machine).
-
-    Unlike :func:`limit_threads`, numba's pool keeps its width (only the threads this thread
-    uses change); called after the pool's processes exist: it launches numba's threading
-    layer, after which forking is unsafe (:func:`_fork_is_safe`).
-    """
-    import numba
-
-    env = {var: os.environ.get(var) for var in THREAD_ENV}
-    before = numba.get_num_threads()
-    limiter = None
-    try:
-        for var in THREAD_ENV:
-            os.environ[var] = str(n)
-        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-        try:
-            from threadpoolctl import threadpool_limits
-        except ImportError:  # pragma: no cover - a dependency
-            pass
-        else:
-            limiter = threadpool_limits(n)
-        yield
-    finally:
-        if limiter is not None:
-            limiter.restore_original_limits()
-        numba.set_num_threads(before)
-        for var, value in env.items():
-            if value is None:
-                os.environ.pop(var, None)
-            else:
-                os.environ[var] = value
 
 
 def map_clips(
