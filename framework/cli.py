@@ -347,11 +347,13 @@ def _exit_without_a_last_collection() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    import atexit
+    if argv is None:  # the console script: this process ends with the command
+        import atexit
 
-    atexit.unregister(_exit_without_a_last_collection)  # once, however often main() runs
-    atexit.register(_exit_without_a_last_collection)  # first registered, so it runs last
+        # a caller's own process (main(argv) from Python, the tests) keeps its exit as it was
+        atexit.unregister(_exit_without_a_last_collection)  # once, however often main() runs
+        atexit.register(_exit_without_a_last_collection)  # first registered, so it runs last
+        argv = sys.argv[1:]
     debug = "--debug" in argv
     logging.basicConfig(level=logging.DEBUG if debug else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:

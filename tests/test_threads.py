@@ -82,18 +82,29 @@ def test_a_missing_pipeline_file_is_left_to_the_runner(tmp_path: Path):
     assert workers_on_this_host(str(tmp_path / "none.yaml"), 2) == 1
 
 
-def test_the_cli_skips_the_last_collection_at_exit():
-    """The interpreter's final garbage collection of a run's objects is skipped (gc.freeze at
-    exit, after the other exit handlers): the run's outputs are closed before."""
+def _exit_state(call: str) -> str:
     script = (
         "import atexit, gc, sys\n"
         "atexit.register(lambda: print('frozen', gc.get_freeze_count() > 0, flush=True))\n"
         "from mocapflow.framework import cli\n"
+        "sys.argv = ['mocapflow', '--version']\n"
         "try:\n"
-        "    cli.main(['--version'])\n"
+        f"    {call}\n"
         "except SystemExit as exc:\n"
         "    print('rc', exc.code, flush=True)\n"
     )
-    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
-    assert "rc 0" in r.stdout
-    assert "frozen True" in r.stdout
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+
+
+def test_the_cli_skips_the_last_collection_at_exit():
+    """The console script's final garbage collection of a run's objects is skipped (gc.freeze
+    at exit, after the other exit handlers): the run's outputs are closed before."""
+    out = _exit_state("cli.main()")
+    assert "rc 0" in out
+    assert "frozen True" in out
+
+
+def test_main_called_from_python_leaves_the_callers_exit_alone():
+    out = _exit_state("cli.main(['--version'])")
+    assert "rc 0" in out
+    assert "frozen False" in out
