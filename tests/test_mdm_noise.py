@@ -91,3 +91,16 @@ def test_spike_keep_repairs_a_departure_from_the_consensus_not_a_turn_it_shares(
     new = q.copy()
     assert repair_spikes(q, clean, new, runs, keep=0.5)[30:32, 0].all()
     assert quat.geodesic_angle(new[:, 0], clean[:, 0]).max() < 1e-6
+
+
+def test_glitch_returns_marks_a_jump_and_return_not_a_turn():
+    from mocapflow.plugins.selfsim.clean_scores import glitch_returns
+
+    t = 50
+    ax = np.array([0.3, 1.0, -0.2]) / np.linalg.norm([0.3, 1.0, -0.2])
+    q = np.repeat(quat.from_axis_angle(np.broadcast_to(ax, (t, 3)), 0.02 * np.arange(t))[:, None], 2, axis=1)
+    z = np.array([0.0, 0.0, 1.0])
+    q[20:26, 0] = quat.mul(q[20:26, 0], quat.from_axis_angle(z, np.array(np.deg2rad(80.0))))  # away and back
+    q[20:, 1] = quat.mul(q[20:, 1], quat.from_axis_angle(z, np.array(np.deg2rad(80.0))))  # away, stays
+    g = glitch_returns(q)
+    assert g[20:26, 0].all() and not g[:17, 0].any() and not g[29:, 0].any() and not g[:, 1].any()

@@ -272,8 +272,9 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             flags = flags & ~holds
         noisy = np.zeros(flags.shape, bool)
         if p.noise_fix != "off":
-            # a noise run is smoothed toward T̄ by its own measured amplitude (selfsim/noise.py), not
-            # replaced by the KNN word: a clean fast joint the jitter cue fires on is left as it was
+            # a noise run's edit is bounded by its own measured noise amplitude (selfsim/noise.py):
+            # 'lowpass' smooths it toward T̄, 'capped' caps the KNN word's edit; a clean fast joint
+            # the jitter cue fires on has no amplitude beyond its null and is left as it was
             noisy = flags & np.isin(dom, [CUES.index(c) for c in p.noise_cues])
             if p.noise_fix == "lowpass":
                 flags = flags & ~noisy
@@ -307,7 +308,8 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             from .spikes import repair_spikes
 
             spk_only &= ~edited & ~swapped
-            done = repair_spikes(res.texture.q, res.mean_texture, new24, spk_only, p.spike_keep)
+            done = repair_spikes(res.texture.q, res.mean_texture, new24, spk_only, p.spike_keep,
+                                 np.deg2rad(p.spike_least_deg))
             edited = edited | done
             extra["offset"] = extra["offset"] | done
             dom = np.where(done, CUES.index("acceleration"), dom)

@@ -106,8 +106,10 @@ class MDMParams(Params):
                               "repaired as offsets over exactly the frames their two jumps bound (not grown, not "
                               "through the other repairs)")
     spike_keep: float | None = Field(default=None, gt=0, le=1, description="calibrated, with spike_exact: an "
-                                     "excursion is repaired only when its mean digression is at least 8 degrees and "
+                                     "excursion is repaired only when its mean digression is at least spike_least_deg and "
                                      "the repair leaves at most this share of it (selfsim/spikes.py); None = any drop")
+    spike_least_deg: float = Field(default=8.0, ge=0, description="calibrated, with spike_keep: least mean "
+                                   "digression of an excursion, degrees")
     noise_fix: Literal["off", "lowpass", "capped"] = Field(default="off", description="calibrated: runs the "
                                                            "noise_cues decided are repaired by a low-pass toward the KNN "
                                                            "consensus ('lowpass') or by the KNN word ('capped'), each "
