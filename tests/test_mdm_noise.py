@@ -104,3 +104,19 @@ def test_glitch_returns_marks_a_jump_and_return_not_a_turn():
     q[20:, 1] = quat.mul(q[20:, 1], quat.from_axis_angle(z, np.array(np.deg2rad(80.0))))  # away, stays
     g = glitch_returns(q)
     assert g[20:26, 0].all() and not g[:17, 0].any() and not g[29:, 0].any() and not g[:, 1].any()
+
+
+def test_word_null_matches_the_naive_reference():
+    from naive.cleaning import synthetic_walk
+    from naive.cleaning_noise import naive_word_null
+
+    from mocapflow.plugins.selfsim.mdm import MDMCleaner
+
+    take = synthetic_walk(96, seed=5, name="take")
+    context = [synthetic_walk(96, seed=s, name=f"ctx{s}") for s in (6, 7)]
+    res = MDMCleaner().analyse(take, context)
+    fast = noise.word_null(res, 2)
+    slow = naive_word_null(res, 2)
+    np.testing.assert_array_equal(np.isnan(fast), np.isnan(slow))
+    np.testing.assert_allclose(fast[~np.isnan(fast)], slow[~np.isnan(slow)], atol=1e-7)
+    assert np.isfinite(fast).mean() > 0.9

@@ -285,8 +285,14 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         if p.noise_fix == "capped" and noisy.any():
             from .noise import noise_cap
 
-            cap = np.where(noisy, np.minimum(cap, noise_cap(res.texture.q, res.mean_texture, p.noise_half,
-                                                             p.noise_factor)), cap)
+            if p.noise_null == "words":
+                from .noise import lowpassed, word_null
+
+                amp = lowpassed(res.texture.q, res.mean_texture, p.noise_half)[1]
+                ncap = np.maximum(amp - p.noise_factor * np.nan_to_num(word_null(res, p.noise_half), nan=np.inf), 0.0)
+            else:
+                ncap = noise_cap(res.texture.q, res.mean_texture, p.noise_half, p.noise_factor)
+            cap = np.where(noisy, np.minimum(cap, ncap), cap)
         new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap,
                                                 swap_level=p.swap_level, swap_max=p.swap_max,
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,

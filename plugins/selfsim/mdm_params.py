@@ -116,6 +116,9 @@ class MDMParams(Params):
                                                            "cell's edit bounded by its noise amplitude (selfsim/noise.py)")
     noise_cues: tuple[Literal["acceleration", "jitter"], ...] = Field(default=("jitter",), description="calibrated, "
                                                                        "with noise_fix: deciding cues of the runs it repairs")
+    noise_null: Literal["take", "words"] = Field(default="take", description="calibrated, with noise_fix capped: the "
+                                                 "null amplitude is the joint's median over the take or, per cell, the "
+                                                 "median over the KNN words at that frame (noise.word_null)")
     noise_half: int = Field(default=2, ge=1, description="calibrated, with noise_fix: half window, frames")
     noise_factor: float = Field(default=2.0, ge=0, description="calibrated, with noise_fix: a cell moves by at most its "
                                 "noise amplitude beyond this many times the joint's median amplitude over the take")

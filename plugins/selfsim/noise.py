@@ -85,6 +85,48 @@ def noise_cap(q: np.ndarray, mean_q: np.ndarray, half: int = 2, factor: float = 
     return np.maximum(amp - factor * null, 0.0)
 
 
+def word_null(res, half: int = 2) -> np.ndarray:
+    """Per cell, the median over the KNN words of *their* noise amplitude against T̄ at that
+    frame, radians, (T, m) (NaN where no word covers the cell).
+
+    T̄ averages the warped KNN words and is smoother than any of them: a fast clean joint's
+    deviation from it has high-frequency energy, and so has each clean KNN word's. The
+    words of the frame's nearest word centre (first joint group holding the joint, every
+    valid neighbour) are scored with :func:`lowpassed` against T̄ over the word's frames."""
+    mean_q = res.mean_texture
+    t_count, m = mean_q.shape[:2]
+    out = np.full((t_count, m), np.nan)
+    if not res.neighbours:
+        return out
+    neigh = res.neighbours[0]
+    n = neigh.warped.shape[3]
+    starts = neigh.starts
+    centres = starts + (n - 1) / 2.0
+    amp_of: dict[tuple[int, int], np.ndarray] = {}
+    for f in range(t_count):
+        cover = np.flatnonzero((starts <= f) & (f < starts + n))
+        if not len(cover):
+            continue
+        w = int(cover[np.argmin(np.abs(centres[cover] - f))])
+        s0 = int(starts[w])
+        for j in range(m):
+            holders = np.flatnonzero(neigh.groups.mask[:, j])
+            if not len(holders):
+                continue
+            g = int(holders[0])
+            if (g, w) not in amp_of:
+                valid = neigh.target[g, w] >= 0
+                words = neigh.warped[g, w][valid]  # (k, N, m, 4)
+                if not len(words):
+                    amp_of[(g, w)] = np.full((n, m), np.nan)
+                else:
+                    ref = np.broadcast_to(mean_q[s0:s0 + n], words.shape)
+                    amps = np.stack([lowpassed(wd, r, half)[1] for wd, r in zip(words, ref)])
+                    amp_of[(g, w)] = np.median(amps, axis=0)
+            out[f, j] = amp_of[(g, w)][f - s0, j]
+    return out
+
+
 def noise_repair(q: np.ndarray, mean_q: np.ndarray, mask: np.ndarray, half: int = 2,
                  factor: float = 2.0, floor: float = AMP_FLOOR) -> tuple[np.ndarray, np.ndarray]:
     """Noise repair of the ``mask`` cells (see the module docstring).

@@ -71,3 +71,40 @@ def naive_noise_repair(q: np.ndarray, mean_q: np.ndarray, mask: np.ndarray, half
                 new[t, j] = cand
                 edited[t, j] = True
     return new, edited
+
+
+def naive_word_null(res, half: int) -> np.ndarray:
+    """Per cell (f, j): the words covering f, the one whose centre is nearest (first on ties),
+    the first joint group holding j, and over that group's valid neighbours the median of
+    each neighbour's amplitude (as in :func:`naive_noise_repair`) against T̄ at f."""
+    mean_q = res.mean_texture
+    t_count, m = mean_q.shape[:2]
+    out = np.full((t_count, m), np.nan)
+    neigh = res.neighbours[0]
+    n = neigh.warped.shape[3]
+    for f in range(t_count):
+        best = None
+        for w, s in enumerate(neigh.starts):
+            if s <= f < s + n and (best is None or abs(s + (n - 1) / 2 - f) < abs(neigh.starts[best] + (n - 1) / 2 - f)):
+                best = w
+        if best is None:
+            continue
+        s0 = int(neigh.starts[best])
+        for j in range(m):
+            gs = [g for g in range(neigh.groups.mask.shape[0]) if neigh.groups.mask[g, j]]
+            if not gs:
+                continue
+            amps = []
+            for k in range(neigh.warped.shape[2]):
+                if neigh.target[gs[0], best, k] < 0:
+                    continue
+                word = neigh.warped[gs[0], best, k][:, j:j + 1]
+                ref = mean_q[s0:s0 + n, j:j + 1]
+                d = [_log(_unit(_mul(_conj(list(ref[t, 0])), list(word[t, 0])))) for t in range(n)]
+                win = [range(max(0, t - half), min(n, t + half + 1)) for t in range(n)]
+                sm = [[sum(d[i][c] for i in wn) / len(wn) for c in range(3)] for wn in win]
+                r2 = [sum((d[t][c] - sm[t][c]) ** 2 for c in range(3)) for t in range(n)]
+                amps.append(math.sqrt(sum(r2[i] for i in win[f - s0]) / len(win[f - s0])))
+            if amps:
+                out[f, j] = float(np.median(amps))
+    return out
