@@ -95,7 +95,7 @@ def install_cache(folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     original = mdm.digression_map
     decision_only = {"mode", "false_alarm", "null_quantile", "calibration_frames", "calibration_density",
-                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "freeze_moving", "shrink_full", "shrink_cues", "accept_margin", "accept_offsets", "unclaimed_revert", "unclaimed_frames", "freeze_hold", "freeze_fill", "freeze_guard", "spike_level", "spike_exact", "cue_fa", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
+                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "freeze_moving", "shrink_full", "shrink_cues", "accept_margin", "accept_offsets", "unclaimed_revert", "unclaimed_frames", "freeze_hold", "freeze_fill", "freeze_guard", "spike_level", "spike_exact", "spike_keep", "spike_least_deg", "noise_fix", "noise_null", "noise_cues", "noise_half", "noise_factor", "cue_fa", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
                      "savgol_window", "savgol_order", "include_self"}
 
     def cached(motion, context=None, params=None):
@@ -132,6 +132,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", help="also write every row to this JSON file")
     ap.add_argument("--seed", type=int, action="append", help="injection seed (repeatable: the clips are scored "
                     "once per seed, pooled; default 0)")
+    ap.add_argument("--glitch-returns", action="store_true", help="count jump-and-return excursions of the clean "
+                    "references as source glitches too (the '_ng' figures; the strict ones do not change)")
     ap.add_argument("--cache", type=Path, help="memoise the KNN analyses in this folder (module doc)")
     args = ap.parse_args(argv)
     if args.cache:
@@ -150,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         except json.JSONDecodeError:
             cleaner[k] = v
     contexts = tuple(args.contexts.split(",")) if args.contexts else (("small",) if args.quick else ("local", "small"))
-    kw = {"contexts": contexts, "cleaner": cleaner}
+    kw = {"contexts": contexts, "cleaner": cleaner, "glitch_returns": args.glitch_returns}
     if args.quick:
         kw["n_test"] = 6
     if args.tune:

@@ -45,7 +45,7 @@ from mocapflow.framework import quaternions as quat
 from mocapflow.framework.components import Analysis, Params, ParamsOf
 from mocapflow.framework.motion import Motion
 from .clean_scores import (RotationBaselines, _log_norm_sq, _ratios, repair_errors, scores,  # noqa: F401 - re-exported
-                           source_glitches)
+                           glitch_returns, source_glitches)
 from .error_injection import PROTOCOL_KINDS, inject_at_density
 
 
@@ -69,6 +69,8 @@ class CleaningEvaluationParams(Params):
         default=("local", "small"),
         description="contexts to evaluate; large_two_stage = the large context through the §5 two-stage scheme")
     min_angle: float = Field(default=10.0, gt=0, description="ground truth: cells moved more than this, degrees")
+    glitch_returns: bool = Field(default=False, description="the source glitches also hold jump-and-return "
+                                 "excursions (clean_scores.glitch_returns); the strict figures do not change")
     seed: int = Field(default=0, description="seed of the error injection (clip k gets seed + k)")
     paper: bool = Field(default=True, description="also score mode 'paper' on the same analyses (rows 'mdm[paper]')")
     cleaner: Annotated[dict[str, Any], ParamsOf("cleaners.mdm")] = Field(default_factory=dict, description="parameters of cleaners.mdm")
@@ -212,6 +214,8 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
         q_bad = motion_texture(case.bad, joints, cp.fps).q
         lim, der = base.limits(q_bad), base.derivative(q_bad)
         glitch = source_glitches(case.clean_texture.q)
+        if p.glitch_returns:
+            glitch |= glitch_returns(case.clean_texture.q)
         moved = (quat.geodesic_angle(case.clean_texture.q, q_bad) > 1e-6) | (glitch & ~truth)
         for name, flags in (("baseline_a_limits", lim), ("baseline_b_derivative", der), ("baseline_c_both", lim | der)):
             _add(counts, (name, "-"), scores(flags, truth, starts, cp.source_length, moved))

@@ -137,3 +137,26 @@ def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typica
             if (ang[a:b] > far).any() and (sp[max(0, a - 2):b + 1] > step).any():
                 out[max(0, a - pad):b + pad, j] = True
     return out
+
+
+def glitch_returns(q: np.ndarray, step: float = 45.0, back: float = 20.0, max_len: int = 12, pad: int = 2
+                   ) -> np.ndarray:
+    """Jump-and-return glitches of a "clean" reference, (T, m) bool (session 6, round 2).
+
+    A step of more than ``step`` degrees in one 24-fps frame out of a pose and, within
+    ``max_len`` frames, another one back to within ``back`` degrees of that pose: salsa take
+    60_07's neck (24-fps frames 307-317: 84 degrees away by a 107-degree step in 1/120 s and
+    back 0.25 s later), which :func:`source_glitches` misses because the excursion stays under
+    60 degrees from the joint's mean pose. On the protocol's clean references it adds 60_07
+    neck, 60_02 left shoulder and 61_07 / 61_11 right toes, and nothing on locomotion. Marks the
+    frames from the first step to the return, plus ``pad``."""
+    out = np.zeros(q.shape[:2], bool)
+    for j in range(q.shape[1]):
+        sp = np.rad2deg(quat.geodesic_angle(q[1:, j], q[:-1, j]))
+        big = np.flatnonzero(sp > step)
+        for a in big:
+            for b in big[(big > a) & (big <= a + max_len)]:
+                if np.rad2deg(quat.geodesic_angle(q[a, j], q[b + 1, j])) < back:
+                    out[max(0, a + 1 - pad):b + 1 + pad, j] = True
+                    break
+    return out

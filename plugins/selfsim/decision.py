@@ -270,20 +270,52 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                                                p.freeze_guard)
             flags_hold = flags & holds
             flags = flags & ~holds
+        noisy = np.zeros(flags.shape, bool)
+        if p.noise_fix != "off":
+            # a noise run's edit is bounded by its own measured noise amplitude (selfsim/noise.py):
+            # 'lowpass' smooths it toward T̄, 'capped' caps the KNN word's edit; a clean fast joint
+            # the jitter cue fires on has no amplitude beyond its null and is left as it was
+            noisy = flags & np.isin(dom, [CUES.index(c) for c in p.noise_cues])
+            if p.noise_fix == "lowpass":
+                flags = flags & ~noisy
         mirror_flags = flags & (dom == CUES.index("mirror"))
         extra: dict = {}
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
         cap = np.where(local, np.pi, np.deg2rad(p.max_edit))
+        if p.noise_fix == "capped" and noisy.any():
+            from .noise import noise_cap
+
+            if p.noise_null == "words":
+                from .noise import lowpassed, word_null
+
+                amp = lowpassed(res.texture.q, res.mean_texture, p.noise_half)[1]
+                ncap = np.maximum(amp - p.noise_factor * np.nan_to_num(word_null(res, p.noise_half), nan=np.inf), 0.0)
+            else:
+                ncap = noise_cap(res.texture.q, res.mean_texture, p.noise_half, p.noise_factor)
+            cap = np.where(noisy, np.minimum(cap, ncap), cap)
         new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap,
                                                 swap_level=p.swap_level, swap_max=p.swap_max,
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
                                                 extra=extra, interp=dom == CUES.index("acceleration"),
                                                 interp_max=p.interp_max, merge_gap=p.merge_gap)
+        if p.noise_fix == "capped" and noisy.any():
+            still = noisy & (cap <= 0) & ~swapped & ~extra["offset"]  # no noise beyond the null: as it was
+            new24 = np.where(still[..., None], res.texture.q, new24)
+            edited = edited & ~still
+        elif noisy.any():
+            from .noise import noise_repair
+
+            noisy &= ~edited & ~swapped & ~extra["offset"]
+            smooth, done = noise_repair(res.texture.q, res.mean_texture, noisy, p.noise_half, p.noise_factor)
+            new24 = np.where(done[..., None], smooth, new24)
+            edited = edited | done
+            flags = flags | noisy
         if p.spike_level is not None and p.spike_exact and spk_only.any():
             from .spikes import repair_spikes
 
             spk_only &= ~edited & ~swapped
-            done = repair_spikes(res.texture.q, res.mean_texture, new24, spk_only)
+            done = repair_spikes(res.texture.q, res.mean_texture, new24, spk_only, p.spike_keep,
+                                 np.deg2rad(p.spike_least_deg))
             edited = edited | done
             extra["offset"] = extra["offset"] | done
             dom = np.where(done, CUES.index("acceleration"), dom)

@@ -105,6 +105,23 @@ class MDMParams(Params):
     spike_exact: bool = Field(default=False, description="calibrated, with spike_level: the excursions are "
                               "repaired as offsets over exactly the frames their two jumps bound (not grown, not "
                               "through the other repairs)")
+    spike_keep: float | None = Field(default=None, gt=0, le=1, description="calibrated, with spike_exact: an "
+                                     "excursion is repaired only when its mean digression is at least spike_least_deg and "
+                                     "the repair leaves at most this share of it (selfsim/spikes.py); None = any drop")
+    spike_least_deg: float = Field(default=8.0, ge=0, description="calibrated, with spike_keep: least mean "
+                                   "digression of an excursion, degrees")
+    noise_fix: Literal["off", "lowpass", "capped"] = Field(default="off", description="calibrated: runs the "
+                                                           "noise_cues decided are repaired by a low-pass toward the KNN "
+                                                           "consensus ('lowpass') or by the KNN word ('capped'), each "
+                                                           "cell's edit bounded by its noise amplitude (selfsim/noise.py)")
+    noise_cues: tuple[Literal["acceleration", "jitter"], ...] = Field(default=("jitter",), description="calibrated, "
+                                                                       "with noise_fix: deciding cues of the runs it repairs")
+    noise_null: Literal["take", "words"] = Field(default="take", description="calibrated, with noise_fix capped: the "
+                                                 "null amplitude is the joint's median over the take or, per cell, the "
+                                                 "median over the KNN words at that frame (noise.word_null)")
+    noise_half: int = Field(default=2, ge=1, description="calibrated, with noise_fix: half window, frames")
+    noise_factor: float = Field(default=2.0, ge=0, description="calibrated, with noise_fix: a cell moves by at most its "
+                                "noise amplitude beyond this many times the joint's median amplitude over the take")
     cue_fa: dict[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], float] = Field(
         default_factory=dict, description="calibrated: per cue, a false-alarm rate of its own (share of clean "
         "calibration (word, joint) pairs the cue alone may flag): its weight is at most that level, even where the "

@@ -21,11 +21,17 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 
 
-def repair_spikes(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, runs: np.ndarray) -> np.ndarray:
+def repair_spikes(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, runs: np.ndarray,
+                  keep: float | None = None, least: float = np.deg2rad(8.0)) -> np.ndarray:
     """``new`` (T, m, 4) with each run of ``runs`` (T, m) repaired as an offset over exactly that
     run (:func:`.offsets.remove_offset` with its two end estimates), where that lowers the
     run's mean digression; returns the cells repaired (T, m) bool. The interval is not grown:
-    a spike is the excursion its two jumps bound."""
+    a spike is the excursion its two jumps bound.
+
+    With ``keep`` (session 6 round 2) the excursion must also *be* a departure from the
+    consensus: its mean digression at least ``least`` radians and the repair leaving at most
+    ``keep`` of it. A clean knee turn at heel strike has two agreeing jumps too, but its KNN
+    words turn with it: little digression, and removing the "offset" hardly lowers it."""
     from .bounded_repair import _runs
     from .offsets import _backward_offsets, _forward_offsets, remove_offset
 
@@ -34,7 +40,11 @@ def repair_spikes(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, runs: np.n
         fwd, bwd = _forward_offsets(q[:, j]), _backward_offsets(q[:, j])
         for a, b in _runs(runs[:, j]):
             rep = remove_offset(q[:, j], a, b, fwd[a], bwd[b - 1])
-            if quat.geodesic_angle(rep, mean_q[a:b, j]).mean() < quat.geodesic_angle(q[a:b, j], mean_q[a:b, j]).mean():
+            before = quat.geodesic_angle(q[a:b, j], mean_q[a:b, j]).mean()
+            after = quat.geodesic_angle(rep, mean_q[a:b, j]).mean()
+            if keep is not None and (before < least or after > keep * before):
+                continue
+            if after < before:
                 new[a:b, j] = rep
                 done[a:b, j] = True
     return done
