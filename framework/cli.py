@@ -391,6 +391,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("mocapflow: interrupted; finished steps are kept, run again to resume", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `mocapflow sql ... | head`: the reader has what it wanted
+        import os
+
+        # Python flushes stdout again at exit: point it at /dev/null so that does not fail too
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell tool killed by the closed pipe returns
     except MocapflowError as exc:
         if debug:
             traceback.print_exc()

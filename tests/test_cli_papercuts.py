@@ -156,3 +156,28 @@ def test_every_command_announces_compilation_on_stderr(monkeypatch, capsys):
     assert main(["--no-entry-points", "compiles"]) == 0
     out = capsys.readouterr()
     assert out.out == "42\n" and COMPILING_MESSAGE in out.err
+
+
+def test_sql_into_a_pipe_closed_early_ends_quietly(rejecting_pipeline):
+    """`mocapflow sql WS "..." | head -1`: the reader closes the pipe; no internal error, the
+    shell's status of a tool stopped by a closed pipe (141). The closed pipe is simulated (a
+    real one races with the reader: small outputs often fit in its buffer)."""
+    ws = rejecting_pipeline.parent / "ws"
+    if not (ws / "motions").is_dir():
+        assert main(["--no-entry-points", "run", str(rejecting_pipeline)]) == 0
+    script = (
+        "import sys\n"
+        "from mocapflow.framework.cli import main\n"
+        "class Closed:\n"
+        "    def write(self, s): raise BrokenPipeError(32, 'Broken pipe')\n"
+        "    def flush(self): pass\n"
+        "    def fileno(self): return sys.__stdout__.fileno()\n"
+        "sys.stdout = Closed()\n"
+        f"rc = main(['sql', {str(ws)!r}, 'SELECT * FROM range(10)'])\n"
+        "sys.stdout = sys.__stdout__\n"
+        "print('rc', rc, file=sys.stderr)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                       env=dict(os.environ, MOCAPFLOW_PROGRESS="0"))
+    assert "rc 141" in r.stderr, r.stderr
+    assert "error" not in r.stderr, r.stderr
