@@ -161,3 +161,48 @@ def test_path_mean_warp_also_finds_the_error():
     assert res.mdm[90:96, c].min() > 0.5
     with pytest.raises(Exception):
         MDMParams(warp="cubic")
+
+
+def _glitched_start(fps: float, joint: str = "lelbow", frames: int = 2, angle: float = 1.6):
+    """A walk whose ``joint`` is broken in its first ``frames`` input frames (as CMU 16_15's
+    left arm), with the repaired texture taken from the clean walk and the texture cells that
+    saw the glitch flagged."""
+    from mocapflow.plugins.selfsim.motion_words import motion_texture
+
+    clean = synthetic_walk(240, fps=fps, seed=7)
+    bad, j = _with_offset(clean, joint=joint, start=0, stop=frames, angle=angle)
+    tex = motion_texture(bad)
+    new24 = motion_texture(clean).q.copy()
+    c = tex.joints.index(joint)
+    flagged = np.zeros(tex.q.shape[:2], bool)
+    flagged[:, c] = quat.geodesic_angle(tex.q[:, c], new24[:, c]) > 1e-6
+    new24[~flagged] = tex.q[~flagged]  # the repair edits only the flagged cells
+    return clean, bad, j, tex, new24, flagged
+
+
+def test_carry_guard_never_turns_a_clean_input_frame_away_from_the_repair():
+    from mocapflow.plugins.selfsim.repair import apply_to_input
+
+    clean, bad, j, tex, new24, flagged = _glitched_start(120.0)
+    assert flagged.sum() == 1  # one 24-fps sample (input frame 0) caught the 2-frame glitch
+    plain, changed_plain = apply_to_input(bad, tex, new24, flagged)
+    guarded, changed = apply_to_input(bad, tex, new24, flagged, guard=True)
+    err = lambda m: quat.geodesic_angle(m.rotations[:, j], clean.rotations[:, j])  # noqa: E731
+    # the unguarded carry turns the clean frames 2-4 the glitch's way; the guard leaves them
+    assert err(plain)[2:5].min() > 0.3 and err(bad)[2:5].max() < 1e-6  # 0.96, 0.64, 0.32 rad
+    assert not changed[2:, j].any() and np.array_equal(guarded.rotations[2:], bad.rotations[2:])
+    # the broken frames are repaired (frame 0 is the sample: exactly; frame 1 nearer)
+    assert err(guarded)[0] < 1e-6 and err(guarded)[1] < 0.5 * err(bad)[1]
+    assert changed[:2, j].all() and changed.sum() == 2 and changed_plain.sum() > 2
+    assert np.array_equal(guarded.rotations[:, np.arange(bad.n_joints) != j], bad.rotations[:, np.arange(bad.n_joints) != j])
+
+
+@pytest.mark.parametrize("joint", ["lelbow", "root"])
+def test_carry_guard_changes_nothing_at_the_analysis_rate(joint):
+    from mocapflow.plugins.selfsim.repair import apply_to_input
+
+    clean, bad, j, tex, new24, flagged = _glitched_start(24.0, joint=joint, frames=6, angle=0.8)
+    plain, changed_plain = apply_to_input(bad, tex, new24, flagged)
+    guarded, changed = apply_to_input(bad, tex, new24, flagged, guard=True)
+    assert changed_plain[:6, j].all() and np.array_equal(changed, changed_plain)
+    assert np.array_equal(guarded.rotations, plain.rotations)

@@ -358,6 +358,7 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                 edited = edited & ~back
         value = 1.0 - np.exp2(-(evidence ** 2))
         value = np.where(flags, np.maximum(value, 0.5 + 1e-6), np.minimum(value, 0.5))
-    cleaned, changed = apply_to_input(motion, res.texture, new24, edited)
+    # the calibrated modes never turn an input frame away from its repaired pose (repair.py)
+    cleaned, changed = apply_to_input(motion, res.texture, new24, edited, guard=p.mode != "paper")
     return CleanResult(res, flags, value, cue, new24, edited, cleaned, _edits(motion, cleaned, changed, res.texture, cue),
                        cal)

@@ -12,7 +12,11 @@
   original motion and nothing else changes.
 * The repair is computed at the analysis rate (24 fps) and carried to the input frames as
   a per-joint correction ``q_in * delta`` interpolated in time, applied only to input
-  frames next to a flagged analysis frame.
+  frames next to a flagged analysis frame. With ``guard`` (the calibrated mode) an input
+  frame keeps its carried correction only when it lands nearer the repaired pose at that
+  time than the frame was: a correction computed on an analysis sample that caught a glitch
+  shorter than one analysis frame would otherwise turn the clean input frames beside it
+  the other way (seen on CMU 16_15, whose left arm is broken in its first two 120-fps frames).
 * :func:`sparse_reconstruction`: full body from a subset of joints (§4, Fig. 8).
 """
 from __future__ import annotations
@@ -165,8 +169,31 @@ def repair_motion(motion: Motion, res: Any, params: Any, contacts: Sequence[Cont
     return cleaned, edits_table(motion, cleaned, changed)
 
 
-def apply_to_input(motion: Motion, texture: Any, new24: np.ndarray, flagged: np.ndarray) -> tuple[Motion, np.ndarray]:
-    """Carry a repaired texture to the input frames; returns the motion and changed (T_in, J)."""
+#: Guard slack, radians: a carried correction that ends this much farther from the repaired
+#: pose than the input frame was is refused (rounding of an exact carry stays far below it).
+GUARD_SLACK = 1e-6
+
+
+def apply_to_input(motion: Motion, texture: Any, new24: np.ndarray, flagged: np.ndarray,
+                   guard: bool = False) -> tuple[Motion, np.ndarray]:
+    """Carry a repaired texture to the input frames; returns the motion and changed (T_in, J).
+
+    Parameters
+    ----------
+    motion : Motion
+        The input take, ``T_in`` frames at its own rate.
+    texture : Texture
+        Its analysis texture, ``T`` frames of ``m`` joints (``texture.q``, shape (T, m, 4)).
+    new24 : ndarray, shape (T, m, 4)
+        The repaired texture (equal to ``texture.q`` where nothing was edited).
+    flagged : ndarray of bool, shape (T, m)
+        The edited analysis cells.
+    guard : bool
+        Keep an input frame's carried correction only when the frame lands nearer (by
+        :data:`GUARD_SLACK`) the repaired pose interpolated at its time than it was; the
+        other frames stay as they were. At the analysis rate (each input frame an analysis
+        frame) every carried frame *is* the repaired pose, so the guard changes nothing there.
+    """
     q24 = texture.q
     delta = quat.mul(quat.conjugate(q24), new24)  # right correction: new = old * delta
     x = _analysis_times(motion, texture.fps)
@@ -174,6 +201,9 @@ def apply_to_input(motion: Motion, texture: Any, new24: np.ndarray, flagged: np.
     i1 = np.minimum(i0 + 1, len(q24) - 1)
     w = x - i0
     rot = motion.rotations.copy()
+    # the input frames in the texture's frame (heading removed from the root), where the
+    # repaired poses live; a right correction commutes with that left turn
+    local = _texture_frame(motion).rotations if guard else None
     changed = np.zeros((motion.n_frames, motion.n_joints), bool)
     for c, j in enumerate(texture.joint_index):
         hit = (flagged[i0, c] & (w < 1.0)) | (flagged[i1, c] & (w > 0.0))
@@ -182,9 +212,22 @@ def apply_to_input(motion: Motion, texture: Any, new24: np.ndarray, flagged: np.
         d0 = np.where(flagged[i0, c][:, None], delta[i0, c], quat.identity((len(x),)))
         d1 = np.where(flagged[i1, c][:, None], delta[i1, c], quat.identity((len(x),)))
         d = quat.slerp(d0, d1, w)
+        if guard:
+            target = quat.slerp(new24[i0[hit], c], new24[i1[hit], c], w[hit])
+            was = quat.geodesic_angle(local[hit, j], target)
+            now = quat.geodesic_angle(quat.mul(local[hit, j], d[hit]), target)
+            hit[np.flatnonzero(hit)[now > was + GUARD_SLACK]] = False
         rot[hit, j] = quat.normalize(quat.mul(motion.rotations[hit, j], d[hit]))
         changed[hit, j] = True
     return motion.with_arrays(rotations=rot), changed
+
+
+def _texture_frame(motion: Motion) -> Motion:
+    """``motion`` at its own rate in the texture's frame: facing-aligned as
+    :func:`.motion_words.motion_texture` does when the skeleton maps both hips."""
+    from mocapflow.framework.normalize import align_facing
+
+    return align_facing(motion) if {"lhip", "rhip"} <= set(motion.skeleton.canonical) else motion
 
 
 def edits_table(motion: Motion, cleaned: Motion, changed: np.ndarray, clip_id: int = 0) -> pa.Table:
