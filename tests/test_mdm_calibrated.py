@@ -264,3 +264,20 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
         outs.append(json.dumps(cleaner.run(inputs, ctx).summary, sort_keys=True))
     assert outs[0] == outs[1]
     assert str(tmp_path) not in outs[0]
+
+
+def test_calibration_budget_is_counted_at_the_analysis_rate():
+    # the budget is in analysis frames: the same clips whatever rate the context was read at
+    from mocapflow.framework.normalize import resample
+    from mocapflow.plugins.selfsim.calibration import calibration_clips
+
+    walks = [synthetic_walk(n, fps=24.0, seed=s, name=f"w{s}") for s, n in enumerate((300, 260, 200, 120))]
+    take = synthetic_walk(100, seed=9)
+    at24, source = calibration_clips(take, walks, 600, 24.0)
+    assert source == "context" and [c.name for c in at24] == ["w0", "w1", "w2"]  # 300 + 260 < 600 <= 760
+    fast = [resample(w, 120.0) for w in walks]  # five times the frames, the same seconds
+    at120, _ = calibration_clips(take, fast, 600, 24.0)
+    assert [c.name for c in at120] == ["w0", "w1", "w2"]
+    mixed, _ = calibration_clips(take, [fast[0], walks[1], fast[2], walks[3]], 600, 24.0)
+    assert [c.name for c in mixed] == ["w0", "w1", "w2"]
+    assert calibration_clips(take, [], 600, 24.0) == ([take], "self")

@@ -211,17 +211,19 @@ class Calibration:
                 "weights": {name: (None if not np.isfinite(w) else float(w)) for name, w in zip(CUES, self.weights)}}
 
 
-def calibration_clips(take, others: Sequence, frames: int) -> tuple[list, str]:
+def calibration_clips(take, others: Sequence, frames: int, fps: float) -> tuple[list, str]:
     """The clips to calibrate on: the longest other context clips up to ``frames`` frames in
-    all (at the analysis rate), or the take itself when there is no other clip."""
+    all at the analysis rate ``fps`` (a clip's length counted in analysis frames, so a
+    120-fps context calibrates on as many seconds as a 24-fps one), or the take itself when
+    there is no other clip."""
     if not others:
         return [take], "self"
-    chosen, total = [], 0
-    for c in sorted(others, key=lambda c: -c.n_frames):
+    chosen, total = [], 0.0
+    for c in sorted(others, key=lambda c: -c.n_frames / c.fps):
         if total >= frames:
             break
         chosen.append(c)
-        total += c.n_frames
+        total += c.n_frames * fps / c.fps
     return chosen, "context"
 
 
@@ -275,7 +277,7 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
             cache[id(m)] = make(m)
         return cache[id(m)]
 
-    clips, source = calibration_clips(take, others, frames)
+    clips, source = calibration_clips(take, others, frames, fps)
     cue_list, truth_list, names = [], [], []
     for i, clip in enumerate(clips):
         tex = tex_of(clip)
