@@ -95,7 +95,7 @@ def install_cache(folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     original = mdm.digression_map
     decision_only = {"mode", "false_alarm", "null_quantile", "calibration_frames", "calibration_density",
-                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "freeze_moving", "shrink_full", "shrink_cues", "accept_margin", "accept_offsets", "unclaimed_revert", "unclaimed_frames", "freeze_hold", "freeze_fill", "freeze_guard", "spike_level", "spike_exact", "spike_keep", "spike_least_deg", "noise_fix", "noise_null", "noise_cues", "noise_half", "noise_factor", "cue_fa", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
+                     "calibration_seed", "cues", "max_edit", "swap_gain", "swap_level", "swap_max", "mirror_swaps", "offset_level", "flag_rule", "interp_max", "merge_gap", "agree", "acc_persist", "acc_persist_fit", "acc_body", "freeze_still", "flag_min_deg", "flag_min_scope", "flag_min_revert", "freeze_moving", "shrink_full", "shrink_cues", "accept_margin", "accept_offsets", "unclaimed_revert", "unclaimed_frames", "freeze_hold", "freeze_fill", "freeze_guard", "spike_level", "spike_exact", "spike_keep", "spike_least_deg", "noise_fix", "noise_null", "noise_cues", "noise_half", "noise_factor", "cue_fa", "words_half", "words_slack", "words_erode", "merge_jolts", "gap_cap", "jitter", "jitter_half", "write_bvh", "heatmaps", "threshold",
                      "savgol_window", "savgol_order", "include_self"}
 
     def cached(motion, context=None, params=None):

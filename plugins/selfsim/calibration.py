@@ -51,7 +51,7 @@ CALIBRATION_RANGES: dict[str, tuple[tuple[int, int], tuple[float, float]]] = {
 CALIBRATION_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap")
 
 
-_FLOORS = np.array([1.0, 1.0, 0.2, 0.3, 0.5, 0.5])  # least null level per cue (units of cue_values)
+_FLOORS = np.array([1.0, 1.0, 0.2, 0.3, 0.5, 0.5, 0.3])  # least null level per cue (units of cue_values)
 _GRID = np.array([0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, 5.0, 6.4, 8.0, 12.0, np.inf])
 
 
@@ -161,6 +161,9 @@ class Calibration:
         Persistence factor of the acceleration cue (:func:`.cues.persistent`).
     jitter_half, freeze_hold
         Definition of the jitter and freeze cues (:func:`.cues.cue_values`).
+    word_half, word_slack
+        Definition of the words cue (:mod:`.word_noise`); ``word_half`` None: the cue is not
+        computed (0 everywhere).
     """
 
     scales: dict[str, np.ndarray]
@@ -177,10 +180,17 @@ class Calibration:
     acc_persist: float | None = None
     jitter_half: int = 3
     freeze_hold: int | None = None
+    word_half: int | None = None
+    word_slack: int = 0
+    word_erode: int = 0
 
-    def evidence(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str]) -> np.ndarray:
-        """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags)."""
-        cue = raw_cues(q, mean_q, spread, joints, self.low, self.high)
+    def evidence(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
+                 word_amp: np.ndarray | None = None) -> np.ndarray:
+        """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags).
+        ``word_amp``: the take's KNN words' amplitude (:func:`.word_noise.word_amplitude`),
+        needed when ``word_half`` is set."""
+        cue = raw_cues(q, mean_q, spread, joints, self.low, self.high, word_amp if self.word_half else None,
+                       self.word_half or 2, self.word_slack, self.word_erode)
         own = typical(cue)
         scale = {k: np.maximum(v, own[k]) for k, v in self.scales.items()}
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -188,13 +198,13 @@ class Calibration:
                                                  self.freeze_hold) / (self.levels * self.weights), nan=0.0, posinf=0.0)
 
     def detect(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
-               grow: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               grow: float = 1.0, word_amp: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Flags (T, m) bool, fused evidence (T, m) and the index of the deciding cue (T, m).
 
         ``grow`` < 1: hysteresis in time, a flagged run of a joint is extended along the
         neighbouring cells whose evidence exceeds ``grow`` (the whole error, not only its
         strongest cells; the mirror cue is not grown, swaps have their own intervals)."""
-        ev = self.evidence(q, mean_q, spread, joints)
+        ev = self.evidence(q, mean_q, spread, joints, word_amp)
         best = ev.max(axis=-1)
         dom = np.argmax(ev, axis=-1)
         flags = best > 1.0
@@ -239,7 +249,8 @@ class CalibrationMaterial:
 
 def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
                          frames: int = 600, density: float = 0.2, seed: int = 0,
-                         texture: Callable | None = None) -> CalibrationMaterial:
+                         texture: Callable | None = None, word_half: int | None = None,
+                         word_slack: int = 0, word_erode: int = 0) -> CalibrationMaterial:
     """Inject errors into the calibration clips and analyse them (steps 1-2 of the module doc).
 
     Parameters
@@ -262,6 +273,9 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
     seed : int
     texture : callable, optional
         ``texture(motion) -> Texture``; default :func:`.motion_words.motion_texture`.
+    word_half, word_slack, word_erode : int
+        With ``word_half``, the words cue is computed from each clip's warped KNN words
+        (:mod:`.word_noise`); None: it is 0.
     """
     from .error_injection import inject_at_density
 
@@ -284,7 +298,13 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
         bad, mask, _ = inject_at_density(tex.motion, density, CALIBRATION_KINDS, seed=seed + i,
                                          ranges=CALIBRATION_RANGES)
         res = analyse(bad, rest)
-        cue_list.append(raw_cues(res.texture.q, res.mean_texture, res.spread, joints, low, high))
+        wamp = None
+        if word_half is not None and res.neighbours:
+            from .word_noise import word_amplitude
+
+            wamp = word_amplitude(res.neighbours[0], res.mean_texture, word_half)
+        cue_list.append(raw_cues(res.texture.q, res.mean_texture, res.spread, joints, low, high, wamp,
+                                 word_half or 2, word_slack, word_erode))
         truth_list.append(mask[:, tex.joint_index])
         names.append(clip.name)
     low, high = rotation_range([tex_of(c).q for c in others] if others else [tex_of(take).q])
@@ -313,7 +333,8 @@ def cue_floor(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndarr
 def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, null_quantile: float = 0.99,
                     cues: Sequence[str] = DEFAULT_CUES, acc_persist: float | None = None,
                     jitter_half: int = 3, freeze_hold: int | None = None,
-                    cue_fa: dict[str, float] | None = None) -> Calibration:
+                    cue_fa: dict[str, float] | None = None, word_half: int | None = None,
+                    word_slack: int = 0, word_erode: int = 0) -> Calibration:
     """Null scales and levels, and the cue weights, from :func:`calibration_material`
     (steps 3-4 of the module doc).
 
@@ -335,6 +356,8 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
     cue_fa : dict of str -> float, optional
         Per cue, a false-alarm rate of its own: the cue's weight is at most its
         :func:`cue_floor` (it may then add up to that share of clean pairs to the budget).
+    word_half, word_slack, word_erode : int
+        Recorded in the result: the take's words cue is computed as the material's was.
     """
     cue_list, truth_list = material.cues, material.truth
     clean = [~t for t in truth_list]
@@ -354,7 +377,8 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
     rec = sum(int((f & t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int(t.sum()) for t in wj_t), 1)
     fa = sum(int((f & ~t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int((~t).sum()) for t in wj_t), 1)
     return Calibration(scales, levels, lam, material.low, material.high, int(sum(t.size for t in truth_list)),
-                       int(sum(t.sum() for t in truth_list)), rec, fa, material.source, list(material.names), acc_persist, jitter_half, freeze_hold)
+                       int(sum(t.sum() for t in truth_list)), rec, fa, material.source, list(material.names), acc_persist, jitter_half, freeze_hold,
+                       word_half, word_slack, word_erode)
 
 
 def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
@@ -362,8 +386,11 @@ def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], 
               null_quantile: float = 0.99, cues: Sequence[str] = DEFAULT_CUES,
               texture: Callable | None = None, acc_persist: float | None = None,
               jitter_half: int = 3, freeze_hold: int | None = None,
-              cue_fa: dict[str, float] | None = None) -> Calibration:
-    """:func:`calibration_material` then :func:`fit_calibration` (the module doc's steps)."""
+              cue_fa: dict[str, float] | None = None, word_half: int | None = None,
+              word_slack: int = 0, word_erode: int = 0) -> Calibration:
+    """:func:`calibration_material` then :func:`fit_calibration` (the module doc's steps);
+    ``word_half`` None: the words cue is not computed (0)."""
     mat = calibration_material(take, others, analyse, joints, fps, frames=frames, density=density, seed=seed,
-                               texture=texture)
-    return fit_calibration(mat, false_alarm, null_quantile, cues, acc_persist, jitter_half, freeze_hold, cue_fa)
+                               texture=texture, word_half=word_half, word_slack=word_slack, word_erode=word_erode)
+    return fit_calibration(mat, false_alarm, null_quantile, cues, acc_persist, jitter_half, freeze_hold, cue_fa,
+                           word_half, word_slack, word_erode)
