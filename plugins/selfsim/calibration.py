@@ -334,7 +334,8 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
                     cues: Sequence[str] = DEFAULT_CUES, acc_persist: float | None = None,
                     jitter_half: int = 3, freeze_hold: int | None = None,
                     cue_fa: dict[str, float] | None = None, word_half: int | None = None,
-                    word_slack: int = 0, word_erode: int = 0) -> Calibration:
+                    word_slack: int = 0, word_erode: int = 0, floor_only: Sequence[str] = (),
+                    null_reach: dict[str, int] | None = None) -> Calibration:
     """Null scales and levels, and the cue weights, from :func:`calibration_material`
     (steps 3-4 of the module doc).
 
@@ -356,6 +357,12 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
     cue_fa : dict of str -> float, optional
         Per cue, a false-alarm rate of its own: the cue's weight is at most its
         :func:`cue_floor` (it may then add up to that share of clean pairs to the budget).
+    floor_only : sequence of str
+        Cues the greedy allocation may not use: their weight is their :func:`cue_floor`
+        only (with a ``cue_fa`` rate; else they stay off).
+    null_reach : dict of str -> int, optional
+        Per cue, the clean cells within that many frames of an injected error are left out
+        of its null level (a windowed cue leaks an error into its clean neighbours).
     word_half, word_slack, word_erode : int
         Recorded in the result: the take's words cue is computed as the material's was.
     """
@@ -367,7 +374,13 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
                          freeze_hold) for c in cue_list]
     stacked = np.concatenate([np.where(ok[..., None], v, np.nan) for v, ok in zip(values, clean)], 0)
     levels = np.maximum(np.nan_to_num(np.nanquantile(stacked, null_quantile, axis=0), nan=0.0), _FLOORS)
-    lam = fit_levels(values, levels, truth_list, false_alarm, use=[c in cues for c in CUES])
+    for name, reach in (null_reach or {}).items():
+        k = CUES.index(name)
+        far = [~_near(t, reach) for t in truth_list]
+        col = np.concatenate([np.where(ok, v[..., k], np.nan) for v, ok in zip(values, far)], 0)
+        if np.isfinite(col).any():
+            levels[:, k] = np.maximum(np.nan_to_num(np.nanquantile(col, null_quantile, axis=0), nan=0.0), _FLOORS[k])
+    lam = fit_levels(values, levels, truth_list, false_alarm, use=[c in cues and c not in floor_only for c in CUES])
     for name, fa in (cue_fa or {}).items():
         if name in cues:
             k = CUES.index(name)
@@ -381,16 +394,26 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
                        word_half, word_slack, word_erode)
 
 
+def _near(truth: np.ndarray, reach: int) -> np.ndarray:
+    """``truth`` (T, m) dilated by ``reach`` frames in time, per column."""
+    out = truth.copy()
+    for o in range(1, reach + 1):
+        out[o:] |= truth[:-o]
+        out[:-o] |= truth[o:]
+    return out
+
+
 def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
               false_alarm: float = 0.004, frames: int = 600, density: float = 0.2, seed: int = 0,
               null_quantile: float = 0.99, cues: Sequence[str] = DEFAULT_CUES,
               texture: Callable | None = None, acc_persist: float | None = None,
               jitter_half: int = 3, freeze_hold: int | None = None,
               cue_fa: dict[str, float] | None = None, word_half: int | None = None,
-              word_slack: int = 0, word_erode: int = 0) -> Calibration:
+              word_slack: int = 0, word_erode: int = 0, floor_only: Sequence[str] = (),
+              null_reach: dict[str, int] | None = None) -> Calibration:
     """:func:`calibration_material` then :func:`fit_calibration` (the module doc's steps);
     ``word_half`` None: the words cue is not computed (0)."""
     mat = calibration_material(take, others, analyse, joints, fps, frames=frames, density=density, seed=seed,
                                texture=texture, word_half=word_half, word_slack=word_slack, word_erode=word_erode)
     return fit_calibration(mat, false_alarm, null_quantile, cues, acc_persist, jitter_half, freeze_hold, cue_fa,
-                           word_half, word_slack, word_erode)
+                           word_half, word_slack, word_erode, floor_only, null_reach)

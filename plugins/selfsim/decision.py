@@ -239,7 +239,8 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
                         acc_persist=p.acc_persist if p.acc_persist_fit else None,
                         jitter_half=p.jitter_half, freeze_hold=p.freeze_hold,
                         cue_fa=dict(p.cue_fa), word_half=word_half, word_slack=p.words_slack,
-                        word_erode=p.words_erode)
+                        word_erode=p.words_erode, floor_only=p.floor_only,
+                        null_reach=None if p.words_reach is None else {"words": p.words_reach})
         if p.acc_persist is not None and not p.acc_persist_fit:
             # the persistence rule only removes flags: fitted without it, applied to the take
             cal = dataclasses.replace(cal, acc_persist=p.acc_persist)
@@ -308,6 +309,10 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             else:
                 ncap = noise_cap(res.texture.q, res.mean_texture, p.noise_half, p.noise_factor)
             cap = np.where(noisy, np.minimum(cap, ncap), cap)
+        if not p.merge_mirror and mirror_flags.any():
+            # a mirror flag whose swap-back does not hold up is left as it is (bounded_repair); no
+            # merged run takes it in either (it would get the mirror cue's unbounded edit)
+            jolts = mirror_flags if jolts is None else jolts | mirror_flags
         new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap,
                                                 swap_level=p.swap_level, swap_max=p.swap_max,
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,

@@ -72,6 +72,9 @@ class MDMParams(Params):
                               "flags acc_body dropped (a whole-body jolt: a KNN word cannot repair them, and a merged "
                               "run gave them their cue's unbounded edit); False = a merged run stops at them (session 7; "
                               "True = session 6)")
+    merge_mirror: bool = Field(default=False, description="calibrated: merge_gap may bridge mirror-cue flags (left "
+                               "as they are when their swap-back does not hold up, bounded_repair); False = a merged run "
+                               "stops at them (session 7; True = session 6)")
     gap_cap: bool = Field(default=False, description="calibrated: cells a merged run takes in without being flagged "
                           "are bounded by max_edit, not by their own cue's bound (session 7)")
     agree: float | None = Field(default=0.3, gt=0, description="calibrated: runs flagged by the digression alone "
@@ -133,6 +136,12 @@ class MDMParams(Params):
                             "amplitude of the take and of the KNN words, frames (selfsim/word_noise.py)")
     words_slack: int = Field(default=0, ge=0, description="calibrated, with the words cue: the KNN words' amplitude "
                              "is its largest over +-words_slack frames (a warped word may turn a frame away)")
+    words_reach: int | None = Field(default=None, ge=0, description="calibrated, with the words cue: its null level "
+                                    "leaves out the clean calibration cells within this many frames of an injected "
+                                    "error (the windowed amplitude leaks into them); None = every clean cell")
+    floor_only: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter", "words"], ...] = Field(
+        default=(), description="calibrated: cues the greedy allocation may not use: their weight is their cue_fa "
+        "floor only (calibration.cue_floor)")
     words_erode: int = Field(default=0, ge=0, description="calibrated, with the words cue: the cue is its smallest "
                              "over +-words_erode frames (a short spike's leak into clean neighbours does not count)")
     cue_fa: dict[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter", "words"], float] = Field(
