@@ -124,3 +124,45 @@ def test_merged_runs_do_not_bridge_body_jolt_cells(walk_analysis):
     assert edited2[40:43, j].any() and edited2[45:48, j].any()
     np.testing.assert_array_equal(kept[:, [c for c in range(q.shape[1]) if c != j]],
                                   merged[:, [c for c in range(q.shape[1]) if c != j]])
+
+
+def _material(seed: int = 0):
+    from mocapflow.plugins.selfsim.calibration import CalibrationMaterial
+    from mocapflow.plugins.selfsim.cues import RAW_CUES
+
+    rng = np.random.default_rng(seed)
+    cues, truth = [], []
+    for _ in range(2):
+        t, m = 90, 4
+        c = {k: np.abs(rng.normal(0.02, 0.01, (t, m))) for k in RAW_CUES}
+        c["hold"] = np.zeros((t, m))
+        tr = np.zeros((t, m), bool)
+        tr[40:48, 1] = True
+        c["word_jitter"] = np.abs(rng.normal(0.1, 0.05, (t, m)))
+        c["word_jitter"][36:52, 1] += 2.0  # the error and its leak of 4 frames each side
+        cues.append(c)
+        truth.append(tr)
+    return CalibrationMaterial(cues, truth, ["a", "b"], "context", None, None)
+
+
+def test_null_reach_leaves_out_the_leak_and_floor_only_keeps_the_cue_out_of_the_greedy():
+    from mocapflow.plugins.selfsim.calibration import _FLOORS, _near, fit_calibration
+
+    mat = _material()
+    k = CUES.index("words")
+    allc = ("digression", "acceleration", "mirror", "freeze", "jitter", "words")
+    plain = fit_calibration(mat, 0.05, cues=allc, word_half=2)
+    far = fit_calibration(mat, 0.05, cues=allc, word_half=2, null_reach={"words": 4})
+    # the slow way: the 0.99 quantile of joint 1's clean cells more than 4 frames from the error
+    vals = np.concatenate([c["word_jitter"][:, 1][[all(not t[g, 1] for g in range(max(0, f - 4), min(90, f + 5)))
+                                                   for f in range(90)]] for c, t in zip(mat.cues, mat.truth)])
+    assert far.levels[1, k] == pytest.approx(max(np.quantile(vals, 0.99), _FLOORS[k]))
+    assert plain.levels[1, k] > 1.0 > far.levels[1, k]
+    np.testing.assert_array_equal(_near(mat.truth[0], 4)[:, 1], np.isin(np.arange(90), np.arange(36, 52)))
+    # the greedy uses the words cue when it may; with floor_only it does not, and a cue_fa floor sets it
+    assert np.isfinite(far.weights[k])
+    off = fit_calibration(mat, 0.05, cues=allc, word_half=2, null_reach={"words": 4}, floor_only=("words",))
+    assert not np.isfinite(off.weights[k])
+    floor = fit_calibration(mat, 0.05, cues=allc, word_half=2, null_reach={"words": 4}, floor_only=("words",),
+                            cue_fa={"words": 0.01})
+    assert np.isfinite(floor.weights[k])
