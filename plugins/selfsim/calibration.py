@@ -189,8 +189,12 @@ class Calibration:
         """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags).
         ``word_amp``: the take's KNN words' amplitude (:func:`.word_noise.word_amplitude`),
         needed when ``word_half`` is set."""
-        cue = raw_cues(q, mean_q, spread, joints, self.low, self.high, word_amp if self.word_half else None,
-                       self.word_half or 2, self.word_slack, self.word_erode)
+        wj = None
+        if self.word_half and word_amp is not None:
+            from .word_noise import word_jitter
+
+            wj = word_jitter(q, mean_q, word_amp, self.word_half, self.word_slack, erode=self.word_erode)
+        cue = raw_cues(q, mean_q, spread, joints, self.low, self.high, wj)
         own = typical(cue)
         scale = {k: np.maximum(v, own[k]) for k, v in self.scales.items()}
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -298,13 +302,13 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
         bad, mask, _ = inject_at_density(tex.motion, density, CALIBRATION_KINDS, seed=seed + i,
                                          ranges=CALIBRATION_RANGES)
         res = analyse(bad, rest)
-        wamp = None
+        wj = None
         if word_half is not None and res.neighbours:
-            from .word_noise import word_amplitude
+            from .word_noise import word_amplitude, word_jitter
 
             wamp = word_amplitude(res.neighbours[0], res.mean_texture, word_half)
-        cue_list.append(raw_cues(res.texture.q, res.mean_texture, res.spread, joints, low, high, wamp,
-                                 word_half or 2, word_slack, word_erode))
+            wj = word_jitter(res.texture.q, res.mean_texture, wamp, word_half, word_slack, erode=word_erode)
+        cue_list.append(raw_cues(res.texture.q, res.mean_texture, res.spread, joints, low, high, wj))
         truth_list.append(mask[:, tex.joint_index])
         names.append(clip.name)
     low, high = rotation_range([tex_of(c).q for c in others] if others else [tex_of(take).q])

@@ -149,8 +149,8 @@ def rotation_range(textures: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarr
 
 
 def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
-             low: np.ndarray | None = None, high: np.ndarray | None = None, word_amp: np.ndarray | None = None,
-             word_half: int = 2, word_slack: int = 0, word_erode: int = 0) -> dict[str, np.ndarray]:
+             low: np.ndarray | None = None, high: np.ndarray | None = None,
+             word_jitter: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Every raw cue of :data:`RAW_CUES` for one analysed texture.
 
     Parameters
@@ -162,12 +162,9 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
     joints : sequence of str, length m
     low, high : ndarray of shape (m, 3), optional
         Rotation-vector range of the clean context (:func:`rotation_range`).
-    word_amp : ndarray of shape (T, m), optional
-        The KNN words' noise amplitude (:func:`.word_noise.word_amplitude`, radians); the
-        ``word_jitter`` cue is 0 without it.
-    word_half, word_slack, word_erode : int
-        Half window of the take's amplitude, the words' slack and the erosion
-        (:func:`.word_noise.word_jitter`).
+    word_jitter : ndarray of shape (T, m), optional
+        The words cue (:func:`.word_noise.word_jitter`, computed by the caller: it needs the
+        warped KNN words); 0 without it.
 
     Returns
     -------
@@ -178,14 +175,8 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
     still = -window_min(-speed(q), 4)
     freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (still + floor))
     v = speed(q)
-    if word_amp is None:
-        wj = np.zeros(q.shape[:2])
-    else:
-        from .word_noise import word_jitter
-
-        wj = word_jitter(q, mean_q, word_amp, word_half, word_slack, erode=word_erode)
     return {
-        "word_jitter": wj,
+        "word_jitter": np.zeros(q.shape[:2]) if word_jitter is None else np.asarray(word_jitter, float),
         "hold": hold_lengths(v)[0],
         "held_freeze": np.maximum(np.log((_window_mean(speed(mean_q), 4) + floor) / (v + floor)), 0.0),
         "digression": quat.geodesic_angle(q, mean_q),
