@@ -13,7 +13,7 @@ from naive.cleaning_cues import (naive_acceleration, naive_mirror_gain, naive_pe
 from mocapflow.framework import quaternions as quat
 from mocapflow.plugins.selfsim.error_injection import inject_at_density
 from mocapflow.plugins.selfsim import cues
-from mocapflow.plugins.selfsim.calibration import fit_levels, word_joint
+from mocapflow.plugins.selfsim.fusion import fit_levels, word_joint
 from mocapflow.plugins.selfsim.mdm import MDMCleaner
 
 

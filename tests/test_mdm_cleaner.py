@@ -187,7 +187,10 @@ def test_carry_guard_never_turns_a_clean_input_frame_away_from_the_repair():
     assert flagged.sum() == 1  # one 24-fps sample (input frame 0) caught the 2-frame glitch
     plain, changed_plain = apply_to_input(bad, tex, new24, flagged)
     guarded, changed = apply_to_input(bad, tex, new24, flagged, guard=True)
-    err = lambda m: quat.geodesic_angle(m.rotations[:, j], clean.rotations[:, j])  # noqa: E731
+
+    def err(m):
+        return quat.geodesic_angle(m.rotations[:, j], clean.rotations[:, j])
+
     # the unguarded carry turns the clean frames 2-4 the glitch's way; the guard leaves them
     assert err(plain)[2:5].min() > 0.3 and err(bad)[2:5].max() < 1e-6  # 0.96, 0.64, 0.32 rad
     assert not changed[2:, j].any() and np.array_equal(guarded.rotations[2:], bad.rotations[2:])

@@ -8,7 +8,7 @@ from naive.cleaning_holds import naive_consensus_fill, naive_hold_lengths
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.plugins.selfsim import cues, holds
-from mocapflow.plugins.selfsim.calibration import _GRID, cue_floor, word_joint
+from mocapflow.plugins.selfsim.fusion import _GRID, cue_floor, word_joint
 from mocapflow.plugins.selfsim.error_injection import apply_error
 from mocapflow.plugins.selfsim.mdm import MDMCleaner
 

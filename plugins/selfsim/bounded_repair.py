@@ -100,8 +100,8 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
                    mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None,
                    swap_level: float | None = None, swap_max: int = 72, mirror_swaps: bool = True,
                    offset_level: float | None = None, extra: dict | None = None,
-                   interp: np.ndarray | None = None, interp_max: int = 0, merge_gap: int = 0
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   interp: np.ndarray | None = None, interp_max: int = 0, merge_gap: int = 0,
+                   no_merge: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
 
     Parameters
@@ -140,6 +140,9 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     merge_gap : int
         Flagged runs of one joint at most this many frames apart are repaired as one run
         (the gap included: a burst of jitter flags its extreme frames only).
+    no_merge : ndarray of bool, shape (T, m), optional
+        Cells no merged gap may include (the acceleration flags of a whole-body jolt,
+        dropped because a KNN word cannot repair them).
     """
     from .repair import _propose
 
@@ -179,7 +182,8 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     if merge_gap > 0:
         for j in np.flatnonzero(rest.any(axis=0)):
             for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:]):
-                if a2 - b <= merge_gap and not swapped[b:a2, j].any():
+                if a2 - b <= merge_gap and not swapped[b:a2, j].any() and not (
+                        no_merge is not None and no_merge[b:a2, j].any()):
                     rest[b:a2, j] = True
     if rest.any() and res.neighbours:
         around = rest.copy()

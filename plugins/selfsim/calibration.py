@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .cues import CUES, DEFAULT_CUES, cue_values, raw_cues, rotation_range, typical
+from .fusion import _FLOORS, _grow, _near, cue_floor, fit_levels, word_joint
 
 #: Error ranges of the self-supervised injection: wider than the evaluation protocol's
 #: (issue 14) so the fusion is not fitted to the test distribution.
@@ -49,89 +50,6 @@ CALIBRATION_RANGES: dict[str, tuple[tuple[int, int], tuple[float, float]]] = {
 }
 
 CALIBRATION_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap")
-
-
-_FLOORS = np.array([1.0, 1.0, 0.2, 0.3, 0.5, 0.5])  # least null level per cue (units of cue_values)
-_GRID = np.array([0.8, 1.0, 1.25, 1.6, 2.0, 2.5, 3.2, 4.0, 5.0, 6.4, 8.0, 12.0, np.inf])
-
-
-def _grow(seed: np.ndarray, weak: np.ndarray) -> np.ndarray:
-    """``seed`` (T, m) extended in time, per column, along consecutive ``weak`` cells."""
-    out = seed.copy()
-    for j in range(seed.shape[1]):
-        col = weak[:, j] | seed[:, j]
-        d = np.diff(np.concatenate([[0], col.astype(np.int8), [0]]))
-        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
-            if seed[a:b, j].any():
-                out[a:b, j] = True
-    return out
-
-
-def word_joint(mask: np.ndarray, n: int = 15, step: int = 5) -> np.ndarray:
-    """(word, joint) pairs holding a True cell: shape (S, m) over the source words."""
-    from .motion_words import source_word_starts
-
-    starts = source_word_starts(len(mask), n, step)
-    if len(starts) == 0:
-        return np.zeros((0, mask.shape[1]), bool)
-    c = np.concatenate([np.zeros((1, mask.shape[1]), np.int64), np.cumsum(mask, axis=0)])
-    return (c[starts + n] - c[starts]) > 0
-
-
-def fit_levels(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndarray], false_alarm: float,
-               use: Sequence[bool] | None = None, max_steps: int = 40) -> np.ndarray:
-    """Per-cue weights ``lambda`` (K,) maximising the (word, joint) recall of the injected
-    errors with at most ``false_alarm`` of the clean (word, joint) pairs flagged.
-
-    Greedy on the false-alarm budget: from every cue off (``lambda`` = inf), each step takes
-    the move (one cue to a lower grid value) with the most newly found erroneous pairs per
-    newly flagged clean pair that stays within the budget, until no move finds more.
-
-    Parameters
-    ----------
-    values : list of ndarray (T, m, K)
-        Cue values of the calibration clips.
-    levels : ndarray (m, K)
-        Per-joint null levels.
-    truth : list of bool ndarray (T, m)
-    use : sequence of bool (K,), optional
-        Cues that may be used (the others keep an infinite weight).
-    """
-    wj_truth = [word_joint(t) for t in truth]
-    ratio = [v / levels for v in values]
-    n_clean = max(sum(int((~w).sum()) for w in wj_truth), 1)
-    budget = false_alarm * n_clean
-
-    def counts(lam: np.ndarray) -> tuple[int, int]:
-        tp = fp = 0
-        for r, w in zip(ratio, wj_truth):
-            f = word_joint((r / lam).max(axis=-1) > 1.0)
-            tp += int((f & w).sum())
-            fp += int((f & ~w).sum())
-        return tp, fp
-
-    k_count = levels.shape[1]
-    lam = np.full(k_count, np.inf)
-    tp, fp = 0, 0
-    for _ in range(max_steps):
-        best = None
-        for k in range(k_count):
-            if use is not None and not use[k]:
-                continue
-            for g in _GRID[_GRID < lam[k]]:
-                trial = lam.copy()
-                trial[k] = g
-                t2, f2 = counts(trial)
-                if f2 > budget or t2 <= tp:
-                    continue
-                gain = (t2 - tp) / (max(f2 - fp, 0) + 0.5)
-                if best is None or gain > best[0]:
-                    best = (gain, k, g, t2, f2)
-        if best is None:
-            break
-        _, k, g, tp, fp = best
-        lam[k] = g
-    return lam
 
 
 @dataclass
@@ -161,6 +79,9 @@ class Calibration:
         Persistence factor of the acceleration cue (:func:`.cues.persistent`).
     jitter_half, freeze_hold
         Definition of the jitter and freeze cues (:func:`.cues.cue_values`).
+    word_half, word_slack
+        Definition of the words cue (:mod:`.word_noise`); ``word_half`` None: the cue is not
+        computed (0 everywhere).
     """
 
     scales: dict[str, np.ndarray]
@@ -177,10 +98,21 @@ class Calibration:
     acc_persist: float | None = None
     jitter_half: int = 3
     freeze_hold: int | None = None
+    word_half: int | None = None
+    word_slack: int = 0
+    word_erode: int = 0
 
-    def evidence(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str]) -> np.ndarray:
-        """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags)."""
-        cue = raw_cues(q, mean_q, spread, joints, self.low, self.high)
+    def evidence(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
+                 word_amp: np.ndarray | None = None) -> np.ndarray:
+        """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags).
+        ``word_amp``: the take's KNN words' amplitude (:func:`.word_noise.word_amplitude`),
+        needed when ``word_half`` is set."""
+        wj = None
+        if self.word_half and word_amp is not None:
+            from .word_noise import word_jitter
+
+            wj = word_jitter(q, mean_q, word_amp, self.word_half, self.word_slack, erode=self.word_erode)
+        cue = raw_cues(q, mean_q, spread, joints, self.low, self.high, wj)
         own = typical(cue)
         scale = {k: np.maximum(v, own[k]) for k, v in self.scales.items()}
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -188,13 +120,13 @@ class Calibration:
                                                  self.freeze_hold) / (self.levels * self.weights), nan=0.0, posinf=0.0)
 
     def detect(self, q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
-               grow: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               grow: float = 1.0, word_amp: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Flags (T, m) bool, fused evidence (T, m) and the index of the deciding cue (T, m).
 
         ``grow`` < 1: hysteresis in time, a flagged run of a joint is extended along the
         neighbouring cells whose evidence exceeds ``grow`` (the whole error, not only its
         strongest cells; the mirror cue is not grown, swaps have their own intervals)."""
-        ev = self.evidence(q, mean_q, spread, joints)
+        ev = self.evidence(q, mean_q, spread, joints, word_amp)
         best = ev.max(axis=-1)
         dom = np.argmax(ev, axis=-1)
         flags = best > 1.0
@@ -241,7 +173,8 @@ class CalibrationMaterial:
 
 def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
                          frames: int = 600, density: float = 0.2, seed: int = 0,
-                         texture: Callable | None = None) -> CalibrationMaterial:
+                         texture: Callable | None = None, word_half: int | None = None,
+                         word_slack: int = 0, word_erode: int = 0) -> CalibrationMaterial:
     """Inject errors into the calibration clips and analyse them (steps 1-2 of the module doc).
 
     Parameters
@@ -264,6 +197,9 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
     seed : int
     texture : callable, optional
         ``texture(motion) -> Texture``; default :func:`.motion_words.motion_texture`.
+    word_half, word_slack, word_erode : int
+        With ``word_half``, the words cue is computed from each clip's warped KNN words
+        (:mod:`.word_noise`); None: it is 0.
     """
     from .error_injection import inject_at_density
 
@@ -286,36 +222,25 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
         bad, mask, _ = inject_at_density(tex.motion, density, CALIBRATION_KINDS, seed=seed + i,
                                          ranges=CALIBRATION_RANGES)
         res = analyse(bad, rest)
-        cue_list.append(raw_cues(res.texture.q, res.mean_texture, res.spread, joints, low, high))
+        wj = None
+        if word_half is not None and res.neighbours:
+            from .word_noise import word_amplitude, word_jitter
+
+            wamp = word_amplitude(res.neighbours[0], res.mean_texture, word_half)
+            wj = word_jitter(res.texture.q, res.mean_texture, wamp, word_half, word_slack, erode=word_erode)
+        cue_list.append(raw_cues(res.texture.q, res.mean_texture, res.spread, joints, low, high, wj))
         truth_list.append(mask[:, tex.joint_index])
         names.append(clip.name)
     low, high = rotation_range([tex_of(c).q for c in others] if others else [tex_of(take).q])
     return CalibrationMaterial(cue_list, truth_list, names, source, low, high)
 
 
-def cue_floor(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndarray], k: int, false_alarm: float
-              ) -> float:
-    """The lowest grid weight at which cue ``k`` *alone* flags at most ``false_alarm`` of the
-    clean (word, joint) pairs of the calibration clips (inf when none does).
-
-    The greedy allocation of :func:`fit_levels` spends the shared budget where it finds the
-    most errors per false alarm and may leave a cue unused whose errors another cue finds
-    on *these* clips (the jitter cue, when the acceleration already finds the calibration
-    noise); a floor gives such a cue a level of its own, with its own calibrated
-    false-alarm rate (session 6)."""
-    wj_truth = [word_joint(t) for t in truth]
-    n_clean = max(sum(int((~w).sum()) for w in wj_truth), 1)
-    for g in _GRID[np.isfinite(_GRID)]:
-        fp = sum(int((word_joint(v[..., k] / (levels[:, k] * g) > 1.0) & ~w).sum()) for v, w in zip(values, wj_truth))
-        if fp <= false_alarm * n_clean:
-            return float(g)
-    return float("inf")
-
-
 def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, null_quantile: float = 0.99,
                     cues: Sequence[str] = DEFAULT_CUES, acc_persist: float | None = None,
                     jitter_half: int = 3, freeze_hold: int | None = None,
-                    cue_fa: dict[str, float] | None = None) -> Calibration:
+                    cue_fa: dict[str, float] | None = None, word_half: int | None = None,
+                    word_slack: int = 0, word_erode: int = 0, floor_only: Sequence[str] = (),
+                    null_reach: dict[str, int] | None = None) -> Calibration:
     """Null scales and levels, and the cue weights, from :func:`calibration_material`
     (steps 3-4 of the module doc).
 
@@ -337,6 +262,14 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
     cue_fa : dict of str -> float, optional
         Per cue, a false-alarm rate of its own: the cue's weight is at most its
         :func:`cue_floor` (it may then add up to that share of clean pairs to the budget).
+    floor_only : sequence of str
+        Cues the greedy allocation may not use: their weight is their :func:`cue_floor`
+        only (with a ``cue_fa`` rate; else they stay off).
+    null_reach : dict of str -> int, optional
+        Per cue, the clean cells within that many frames of an injected error are left out
+        of its null level (a windowed cue leaks an error into its clean neighbours).
+    word_half, word_slack, word_erode : int
+        Recorded in the result: the take's words cue is computed as the material's was.
     """
     cue_list, truth_list = material.cues, material.truth
     clean = [~t for t in truth_list]
@@ -346,7 +279,13 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
                          freeze_hold) for c in cue_list]
     stacked = np.concatenate([np.where(ok[..., None], v, np.nan) for v, ok in zip(values, clean)], 0)
     levels = np.maximum(np.nan_to_num(np.nanquantile(stacked, null_quantile, axis=0), nan=0.0), _FLOORS)
-    lam = fit_levels(values, levels, truth_list, false_alarm, use=[c in cues for c in CUES])
+    for name, reach in (null_reach or {}).items():
+        k = CUES.index(name)
+        far = [~_near(t, reach) for t in truth_list]
+        col = np.concatenate([np.where(ok, v[..., k], np.nan) for v, ok in zip(values, far)], 0)
+        if np.isfinite(col).any():
+            levels[:, k] = np.maximum(np.nan_to_num(np.nanquantile(col, null_quantile, axis=0), nan=0.0), _FLOORS[k])
+    lam = fit_levels(values, levels, truth_list, false_alarm, use=[c in cues and c not in floor_only for c in CUES])
     for name, fa in (cue_fa or {}).items():
         if name in cues:
             k = CUES.index(name)
@@ -356,7 +295,8 @@ def fit_calibration(material: CalibrationMaterial, false_alarm: float = 0.004, n
     rec = sum(int((f & t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int(t.sum()) for t in wj_t), 1)
     fa = sum(int((f & ~t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int((~t).sum()) for t in wj_t), 1)
     return Calibration(scales, levels, lam, material.low, material.high, int(sum(t.size for t in truth_list)),
-                       int(sum(t.sum() for t in truth_list)), rec, fa, material.source, list(material.names), acc_persist, jitter_half, freeze_hold)
+                       int(sum(t.sum() for t in truth_list)), rec, fa, material.source, list(material.names), acc_persist, jitter_half, freeze_hold,
+                       word_half, word_slack, word_erode)
 
 
 def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
@@ -364,8 +304,12 @@ def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], 
               null_quantile: float = 0.99, cues: Sequence[str] = DEFAULT_CUES,
               texture: Callable | None = None, acc_persist: float | None = None,
               jitter_half: int = 3, freeze_hold: int | None = None,
-              cue_fa: dict[str, float] | None = None) -> Calibration:
-    """:func:`calibration_material` then :func:`fit_calibration` (the module doc's steps)."""
+              cue_fa: dict[str, float] | None = None, word_half: int | None = None,
+              word_slack: int = 0, word_erode: int = 0, floor_only: Sequence[str] = (),
+              null_reach: dict[str, int] | None = None) -> Calibration:
+    """:func:`calibration_material` then :func:`fit_calibration` (the module doc's steps);
+    ``word_half`` None: the words cue is not computed (0)."""
     mat = calibration_material(take, others, analyse, joints, fps, frames=frames, density=density, seed=seed,
-                               texture=texture)
-    return fit_calibration(mat, false_alarm, null_quantile, cues, acc_persist, jitter_half, freeze_hold, cue_fa)
+                               texture=texture, word_half=word_half, word_slack=word_slack, word_erode=word_erode)
+    return fit_calibration(mat, false_alarm, null_quantile, cues, acc_persist, jitter_half, freeze_hold, cue_fa,
+                           word_half, word_slack, word_erode, floor_only, null_reach)

@@ -26,9 +26,11 @@ hold           length (frames) of the *hold* holding the cell: consecutive frame
                less than :data:`HOLD_SPEED` (0 elsewhere; frozen joints, session 6)
 held_freeze    log of the consensus' mean speed over the take's own speed at the cell
                (what ``freeze`` is once a hold says the joint is still)
+word_jitter    log of the take's noise amplitude over the KNN words' own at the cell
+               (:mod:`.word_noise`; 0 unless the words' amplitude is given; session 7)
 =============  ===========================================================================
 
-:func:`cue_values` turns them into the six cues of the calibrated detector (:data:`CUES`),
+:func:`cue_values` turns them into the seven cues of the calibrated detector (:data:`CUES`),
 adding *persistence* (the digression must last 3 frames) and *group agreement* (divided by
 the frame's median over the joints).
 """
@@ -42,7 +44,7 @@ from mocapflow.framework import quaternions as quat
 
 #: Raw cues, in the order of :func:`raw_cues`' keys.
 RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirror", "range", "freeze", "spread",
-                              "hold", "held_freeze")
+                              "hold", "held_freeze", "word_jitter")
 
 #: A joint turning less than this per frame (radians) is *held*: a lost marker's last value
 #: held by the capture software is exactly still, while capture noise moves a clean joint by
@@ -50,7 +52,7 @@ RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirr
 HOLD_SPEED: float = float(np.deg2rad(0.05))
 
 #: Cues of the calibrated detector (:func:`cue_values`), each with its own null and threshold.
-CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range", "jitter")
+CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range", "jitter", "words")
 
 #: Cues the default detector uses (the range cue of baseline (a) flags clean takes that
 #: merely leave a small context's range: see docs/cleaning.md).
@@ -147,7 +149,8 @@ def rotation_range(textures: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarr
 
 
 def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
-             low: np.ndarray | None = None, high: np.ndarray | None = None) -> dict[str, np.ndarray]:
+             low: np.ndarray | None = None, high: np.ndarray | None = None,
+             word_jitter: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Every raw cue of :data:`RAW_CUES` for one analysed texture.
 
     Parameters
@@ -159,6 +162,9 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
     joints : sequence of str, length m
     low, high : ndarray of shape (m, 3), optional
         Rotation-vector range of the clean context (:func:`rotation_range`).
+    word_jitter : ndarray of shape (T, m), optional
+        The words cue (:func:`.word_noise.word_jitter`, computed by the caller: it needs the
+        warped KNN words); 0 without it.
 
     Returns
     -------
@@ -170,6 +176,7 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequ
     freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (still + floor))
     v = speed(q)
     return {
+        "word_jitter": np.zeros(q.shape[:2]) if word_jitter is None else np.asarray(word_jitter, float),
         "hold": hold_lengths(v)[0],
         "held_freeze": np.maximum(np.log((_window_mean(speed(mean_q), 4) + floor) / (v + floor)), 0.0),
         "digression": quat.geodesic_angle(q, mean_q),
@@ -254,7 +261,7 @@ def persistent(x: np.ndarray, factor: float) -> np.ndarray:
 
 def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = None,
                jitter_half: int = 3, freeze_hold: int | None = None) -> np.ndarray:
-    """The calibrated detector's cues :data:`CUES`, shape (T, m, 6), unitless.
+    """The calibrated detector's cues :data:`CUES`, shape (T, m, 7), unitless.
 
     * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
       flickers), in units of the joint's typical digression, divided by the frame's median
@@ -271,7 +278,8 @@ def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_per
     * jitter: the median, over the ``2 jitter_half + 1`` frames centred on the cell, of the acceleration cue
       (before ``acc_persist``): high-frequency energy that lasts (jitter, tremor-like noise)
       where a clean joint has at most an isolated kink. Its null is the context's, like
-      every cue's (:mod:`.calibration`).
+      every cue's (:mod:`.calibration`);
+    * words: the ``word_jitter`` log ratio (:mod:`.word_noise`; 0 where not computed).
     """
     d = cue["digression"] / scale["digression"]
     group = np.maximum(np.median(d, axis=1, keepdims=True), 1.0)
@@ -285,7 +293,9 @@ def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_per
     if freeze_hold is not None:
         held = cue["hold"] >= freeze_hold
         frz = np.where(held, cue["held_freeze"], 0.0)
-    return np.stack([dig, acc, mir, frz, cue["range"] / 0.1, jit], axis=-1)
+    words = cue.get("word_jitter")
+    words = np.zeros(d.shape) if words is None else words
+    return np.stack([dig, acc, mir, frz, cue["range"] / 0.1, jit, words], axis=-1)
 
 
 def window_median(x: np.ndarray, half: int) -> np.ndarray:

@@ -112,6 +112,7 @@ def _agreeing(flags: np.ndarray, dom: np.ndarray, ev: np.ndarray, level: float) 
     out = flags.copy()
     other = np.maximum(ev[..., CUES.index("acceleration")], ev[..., CUES.index("freeze")])
     other = np.maximum(other, ev[..., CUES.index("jitter")])
+    other = np.maximum(other, ev[..., CUES.index("words")])
     dig = CUES.index("digression")
     for j in np.flatnonzero(flags.any(axis=0)):
         for a, b in _runs(flags[:, j]):
@@ -229,22 +230,35 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         value, cal = res.mdm, None
     else:
         others = context_motions(motion, context, True)[1:]
+        # the words cue (selfsim/word_noise.py, session 7) needs the warped KNN words: computed only when used
+        word_half = p.words_half if "words" in p.cues else None
         analyser = cleaner.clone(include_self=True)  # the calibration analyses each clip with itself included
         cal = calibration if calibration is not None else calibrate(motion, others, analyser.analyse, res.joints, p.fps,
                         false_alarm=p.false_alarm, frames=p.calibration_frames, density=p.calibration_density,
                         seed=p.calibration_seed, null_quantile=p.null_quantile, cues=p.cues,
                         acc_persist=p.acc_persist if p.acc_persist_fit else None,
                         jitter_half=p.jitter_half, freeze_hold=p.freeze_hold,
-                        cue_fa=dict(p.cue_fa))
+                        cue_fa=dict(p.cue_fa), word_half=word_half, word_slack=p.words_slack,
+                        word_erode=p.words_erode, floor_only=p.floor_only,
+                        null_reach=None if p.words_reach is None else {"words": p.words_reach})
         if p.acc_persist is not None and not p.acc_persist_fit:
             # the persistence rule only removes flags: fitted without it, applied to the take
             cal = dataclasses.replace(cal, acc_persist=p.acc_persist)
-        flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints)
+        word_amp = None
+        if cal.word_half is not None:
+            from .word_noise import word_amplitude
+
+            word_amp = word_amplitude(res.neighbours[0], res.mean_texture, cal.word_half)
+        flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints, word_amp=word_amp)
         if p.agree is not None:
-            flags = _agreeing(flags, dom, cal.evidence(res.texture.q, res.mean_texture, res.spread, res.joints),
-                              p.agree)
+            flags = _agreeing(flags, dom, cal.evidence(res.texture.q, res.mean_texture, res.spread, res.joints,
+                                                       word_amp), p.agree)
+        jolts = None
         if p.acc_body is not None:
-            flags = _body_jolts_dropped(flags, dom, p.acc_body)
+            kept = _body_jolts_dropped(flags, dom, p.acc_body)
+            if not p.merge_jolts:
+                jolts = flags & ~kept  # dropped as a body jolt: no merged run bridges them either
+            flags = kept
         if p.spike_level is not None:
             # short excursions found by their two jumps (selfsim/spikes.py), repaired as offsets
             from .spikes import spike_runs
@@ -281,6 +295,8 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
         mirror_flags = flags & (dom == CUES.index("mirror"))
         extra: dict = {}
         local = np.isin(dom, [CUES.index("acceleration"), CUES.index("mirror")])
+        if p.gap_cap:
+            local &= flags  # a cell a merged run takes in is bounded as an unflagged one (max_edit)
         cap = np.where(local, np.pi, np.deg2rad(p.max_edit))
         if p.noise_fix == "capped" and noisy.any():
             from .noise import noise_cap
@@ -293,11 +309,15 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             else:
                 ncap = noise_cap(res.texture.q, res.mean_texture, p.noise_half, p.noise_factor)
             cap = np.where(noisy, np.minimum(cap, ncap), cap)
+        if not p.merge_mirror and mirror_flags.any():
+            # a mirror flag whose swap-back does not hold up is left as it is (bounded_repair); no
+            # merged run takes it in either (it would get the mirror cue's unbounded edit)
+            jolts = mirror_flags if jolts is None else jolts | mirror_flags
         new24, edited, swapped = bounded_repair(res, flags, p.swap_gain, mirror_flags=mirror_flags, cap=cap,
                                                 swap_level=p.swap_level, swap_max=p.swap_max,
                                                 mirror_swaps=p.mirror_swaps, offset_level=p.offset_level,
                                                 extra=extra, interp=dom == CUES.index("acceleration"),
-                                                interp_max=p.interp_max, merge_gap=p.merge_gap)
+                                                interp_max=p.interp_max, merge_gap=p.merge_gap, no_merge=jolts)
         if p.noise_fix == "capped" and noisy.any():
             still = noisy & (cap <= 0) & ~swapped & ~extra["offset"]  # no noise beyond the null: as it was
             new24 = np.where(still[..., None], res.texture.q, new24)

@@ -284,7 +284,7 @@ class MDMCleaner(Cleaner):
     """
 
     name = "mdm"
-    version = "2"
+    version = "3"  # 3: session 7 (merged runs stop at cells a rule left alone; the carry guard; the calibration budget at the analysis rate)
     Params: ClassVar[type[Params]] = MDMParams
 
     def analyse(self, motion: Motion, context: Any = None) -> DigressionResult:

@@ -45,9 +45,10 @@ class MDMParams(Params):
     calibration_density: float = Field(default=0.2, gt=0, lt=1, description="calibrated: share of calibration "
                                        "words given a synthetic error")
     calibration_seed: int = Field(default=0, description="calibrated: seed of the synthetic errors")
-    cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], ...] = Field(
+    cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter", "words"], ...] = Field(
         default=("digression", "acceleration", "mirror", "freeze", "jitter"),
-        description="calibrated: cues the detector may use (range = baseline (a), off by default)")
+        description="calibrated: cues the detector may use (range = baseline (a), off by default; words = the jitter "
+        "cue against the KNN words' own high-frequency energy, selfsim/word_noise.py, off by default)")
     max_edit: float = Field(default=30.0, gt=0, le=180, description="calibrated: largest edit, degrees, of a cell "
                             "flagged by the digression, freeze or range cue (spikes and swaps are bounded by their evidence)")
     swap_gain: float = Field(default=0.1, ge=0, description="calibrated: least chain mirror gain (radians over the "
@@ -67,6 +68,15 @@ class MDMParams(Params):
                             "taking the KNN word; 0 = off")
     merge_gap: int = Field(default=3, ge=0, description="calibrated: flagged runs of one joint at most this many "
                            "frames apart are repaired as one (the gap included); 0 = off")
+    merge_jolts: bool = Field(default=False, description="calibrated: merge_gap may bridge cells whose acceleration "
+                              "flags acc_body dropped (a whole-body jolt: a KNN word cannot repair them, and a merged "
+                              "run gave them their cue's unbounded edit); False = a merged run stops at them (session 7; "
+                              "True = session 6)")
+    merge_mirror: bool = Field(default=False, description="calibrated: merge_gap may bridge mirror-cue flags (left "
+                               "as they are when their swap-back does not hold up, bounded_repair); False = a merged run "
+                               "stops at them (session 7; True = session 6)")
+    gap_cap: bool = Field(default=False, description="calibrated: cells a merged run takes in without being flagged "
+                          "are bounded by max_edit, not by their own cue's bound (session 7)")
     agree: float | None = Field(default=0.3, gt=0, description="calibrated: runs flagged by the digression alone "
                                 "are kept only where the acceleration or freeze evidence exceeds this somewhere in "
                                 "the run (+-1 frame); None = off")
@@ -114,7 +124,7 @@ class MDMParams(Params):
                                                            "noise_cues decided are repaired by a low-pass toward the KNN "
                                                            "consensus ('lowpass') or by the KNN word ('capped'), each "
                                                            "cell's edit bounded by its noise amplitude (selfsim/noise.py)")
-    noise_cues: tuple[Literal["acceleration", "jitter"], ...] = Field(default=("jitter",), description="calibrated, "
+    noise_cues: tuple[Literal["acceleration", "jitter", "words"], ...] = Field(default=("jitter",), description="calibrated, "
                                                                        "with noise_fix: deciding cues of the runs it repairs")
     noise_null: Literal["take", "words"] = Field(default="take", description="calibrated, with noise_fix capped: the "
                                                  "null amplitude is the joint's median over the take or, per cell, the "
@@ -122,14 +132,26 @@ class MDMParams(Params):
     noise_half: int = Field(default=2, ge=1, description="calibrated, with noise_fix: half window, frames")
     noise_factor: float = Field(default=2.0, ge=0, description="calibrated, with noise_fix: a cell moves by at most its "
                                 "noise amplitude beyond this many times the joint's median amplitude over the take")
-    cue_fa: dict[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], float] = Field(
+    words_half: int = Field(default=2, ge=1, description="calibrated, with the words cue: half window of the noise "
+                            "amplitude of the take and of the KNN words, frames (selfsim/word_noise.py)")
+    words_slack: int = Field(default=0, ge=0, description="calibrated, with the words cue: the KNN words' amplitude "
+                             "is its largest over +-words_slack frames (a warped word may turn a frame away)")
+    words_reach: int | None = Field(default=None, ge=0, description="calibrated, with the words cue: its null level "
+                                    "leaves out the clean calibration cells within this many frames of an injected "
+                                    "error (the windowed amplitude leaks into them); None = every clean cell")
+    floor_only: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter", "words"], ...] = Field(
+        default=(), description="calibrated: cues the greedy allocation may not use: their weight is their cue_fa "
+        "floor only (calibration.cue_floor)")
+    words_erode: int = Field(default=0, ge=0, description="calibrated, with the words cue: the cue is its smallest "
+                             "over +-words_erode frames (a short spike's leak into clean neighbours does not count)")
+    cue_fa: dict[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter", "words"], float] = Field(
         default_factory=dict, description="calibrated: per cue, a false-alarm rate of its own (share of clean "
         "calibration (word, joint) pairs the cue alone may flag): its weight is at most that level, even where the "
         "greedy allocation of false_alarm leaves it unused (calibration.cue_floor, session 6)")
     shrink_full: float | None = Field(default=1.5, gt=1, description="calibrated: an edited run whose strongest "
                                       "evidence E is below this has its edit scaled by (E - 1) / (shrink_full - 1) "
                                       "(selfsim/run_acceptance.py); None = off")
-    shrink_cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter"], ...] = Field(
+    shrink_cues: tuple[Literal["digression", "acceleration", "mirror", "freeze", "range", "jitter", "words"], ...] = Field(
         default=("acceleration", "jitter"), description="calibrated: deciding cues of the runs shrink_full applies to")
     accept_margin: float | None = Field(default=None, ge=0, description="calibrated: an edited run is kept only when "
                                         "the squared distance to the KNN consensus it removes exceeds this many times "
