@@ -5,7 +5,7 @@
     python benchmarks/ann.py --db 1038388
 
 For F_E^15 and the 45-d windowed set F_E^15x3 (``features.end_effectors`` joints 5,
-samples 1 / 3), each installed library among hnswlib, usearch and faiss (``IndexHNSWFlat``)
+samples 1 / 3; ``--sets F_E30x3`` adds the 90-d set, joints 10, samples 3), each installed library among hnswlib, usearch and faiss (``IndexHNSWFlat``)
 builds an HNSW graph (M = 16, ef_construction = 200, one thread, seed 0) and is queried
 with single queries on one thread at several ``ef`` (search breadth) for k = 256 (and 16).
 Printed per library and ``ef``: recall@k against the exact answer of ``indexes.kdtree``,
@@ -185,7 +185,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="the real corpus only, 100 queries")
     ap.add_argument("--db", type=int, default=None, help="augmented database size (default 380,813)")
     ap.add_argument("--queries", type=int, default=None)
-    ap.add_argument("--sets", nargs="*", default=["F_E15", "F_E15x3"], choices=["F_E15", "F_E15x3"])
+    ap.add_argument("--sets", nargs="*", default=["F_E15", "F_E15x3"], choices=["F_E15", "F_E15x3", "F_E30x3"])
     ap.add_argument("--libs", nargs="*", default=["hnswlib", "usearch", "faiss"])
     ap.add_argument("--ef", type=int, nargs="*", default=[64, 256, 512, 1024], help="search breadths")
     ap.add_argument("-k", type=int, nargs="*", default=[256, 16])
@@ -196,7 +196,8 @@ def main(argv=None) -> int:
     db = load_corpus(30.0) if args.quick and args.db is None else augmented_database(args.db or 380_813, fps=30)
     n_q = args.queries or (100 if args.quick else 200)
     rng = np.random.default_rng(args.seed)
-    sets = {"F_E15": EndEffectorFeatures(joints=5), "F_E15x3": EndEffectorFeatures(joints=5, samples=3)}
+    sets = {"F_E15": EndEffectorFeatures(joints=5), "F_E15x3": EndEffectorFeatures(joints=5, samples=3),
+            "F_E30x3": EndEffectorFeatures(joints=10, samples=3)}
     for name in args.sets:
         x = np.ascontiguousarray(sets[name].transform(db), np.float32)
         bench(name, x, n_q, args.k, args.ef, rng, args.libs)
