@@ -42,6 +42,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 SLACK = 1.0 + 1e-5
+#: the oracle's rows also at these multiples of tau: what a bound within (1 - 1/w) of the truth keeps at best
+WIDER = (1.1, 1.25, 1.5)
 LENGTHS = (30, 64, 90)
 
 
@@ -111,6 +113,7 @@ def quality(sizes, picks, save):
         sp = space_of(x, cid, fr, index=True)
         b4 = block_boxes_of(sp, 4)[0]
         block_of = np.repeat(np.arange(len(b4) - 1), np.diff(b4))
+        level_sizes = [len(block_boxes_of(sp, b)[1]) for b in exact.LEVELS]
         for m in LENGTHS:
             med = []
             for s in picks[n][m]:
@@ -132,13 +135,19 @@ def quality(sizes, picks, save):
                          blk4=nb4 / n, dflt_rows=st.columns / n, dflt_coarse=1.2 * st.coarse_blocks / n,
                          ceil_cells=n * m / max(ncell, 1), ceil_rows=n / max(rows, 1), ceil_blk4=n / max(nb4, 1),
                          dflt_work=n / max(work, 1), ranges=row_ranges(alive).tolist(),
-                         seed_rows=float(np.mean(row_min <= st.tau * SLACK)))
+                         seed_rows=float(np.mean(row_min <= st.tau * SLACK)),
+                         wide=[float(np.mean(row_min <= w * tau * SLACK)) for w in WIDER],
+                         levels=[b / nl for b, nl in zip(st.level_blocks, level_sizes[1:])])
                 saved.append(r)
                 med.append(r)
                 print(f"{n:>9,} {m:>3} {tau:>7.2f} {st.tau / tau:>8.3f} {100 * r['rows']:>10.3f}% "
                       f"{100 * r['cells']:>7.3f}% {100 * r['blk4']:>8.3f}% {100 * r['dflt_rows']:>8.2f}% "
                       f"{100 * r['dflt_coarse']:>10.2f}% {r['ceil_cells']:>9.0f}x {r['ceil_rows']:>8.0f}x "
                       f"{r['ceil_blk4']:>8.0f}x {r['dflt_work']:>8.1f}x", flush=True)
+                print(f"{'':>14} rows at seed tau {100 * r['seed_rows']:.3f}%, at "
+                      + ", ".join(f"{w:g} tau {100 * v:.3f}%" for w, v in zip(WIDER, r["wide"]))
+                      + "; default's levels evaluated (of their blocks) "
+                      + "/".join(f"{100 * v:.0f}%" for v in r["levels"]), flush=True)
             print(f"{n:>9,} {m:>3} median: oracle rows {100 * np.median([r['rows'] for r in med]):.3f}%, "
                   f"ceiling (rows) {np.median([r['ceil_rows'] for r in med]):.0f}x, (cells) "
                   f"{np.median([r['ceil_cells'] for r in med]):.0f}x, (4-row blocks) "
@@ -195,7 +204,8 @@ def timing(path, rounds):
             med = lambda f: float(np.median([f(t) for t in res]))  # noqa: E731
             print(f"{n:>9,} {m:>3} median: ceiling (oracle DP) {med(lambda t: t['sdtw'] / max(t['oracle'], 1e-7)):.0f}x, "
                   f"(oracle DP + seeds) {med(lambda t: t['sdtw'] / (t['oracle'] + t['seeds'])):.1f}x, "
-                  f"default {med(lambda t: t['sdtw'] / t['default']):.1f}x; load average "
+                  f"default {med(lambda t: t['sdtw'] / t['default']):.1f}x (ratio of medians, as matching.py: "
+                  f"{med(lambda t: t['sdtw']) / med(lambda t: t['default']):.1f}x); load average "
                   f"{open('/proc/loadavg').read().split()[0]}", flush=True)
 
 
