@@ -9,7 +9,7 @@ from conftest import REPO
 from naive.dtw import continues_of, naive_subsequence_dtw, naive_through_cell
 
 sys.path.insert(0, str(REPO / "benchmarks"))
-from _ceiling_kernels import through_cell_rows  # noqa: E402
+from _ceiling_kernels import through_cell_rows
 
 
 @pytest.mark.parametrize("seed, m, integer", [(0, 1, False), (1, 5, False), (2, 9, True), (3, 17, False)])
