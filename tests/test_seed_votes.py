@@ -31,7 +31,7 @@ def test_voted_windows_equal_naive(seed, top, gap):
     if seed == 2:
         dist = np.round(dist * 4) / 4  # tied scores
     run_of = np.cumsum(~cont) - 1
-    got = voted_windows(frames, ids, dist, run_of, m, n, 2.0, gap, top)
+    got = exact.merged_ranges(*voted_windows(frames, ids, dist, run_of, m, n, 2.0, gap, top))
     ref = naive_voted_windows(frames, ids, dist, cont, m, n, 2.0, gap, top)
     assert got.tolist() == ref
     assert len(got) >= 1

@@ -17,7 +17,8 @@ import numpy as np
 
 
 def voted_windows(frames, ids, dist, run_of, m, n, slope, gap, top):
-    """Row ranges of the ``top`` best-scored seed clusters.
+    """Windows around the neighbours of the ``top`` best-scored seed clusters (merge them with
+    :func:`.exact.merged_ranges`).
 
     Parameters
     ----------
@@ -32,16 +33,14 @@ def voted_windows(frames, ids, dist, run_of, m, n, slope, gap, top):
 
     Returns
     -------
-    ranges : int64 (r, 2)     sorted disjoint ``[a, b)`` windows of the kept clusters
+    lo, hi : int64 (p,)       window ``[lo, hi)`` of every neighbour in a kept cluster
     """
-    from .exact import merged_ranges
-
     s, k = ids.shape
     fi = np.broadcast_to(np.arange(s)[:, None], ids.shape)
     ok = ids >= 0
     h, fi, dd = ids[ok].astype(np.int64), fi[ok], np.asarray(dist, np.float64)[ok]
     if not len(h):
-        return np.zeros((0, 2), np.int64)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     f = frames[fi]
     est = h - f  # the alignment's start if it were diagonal
     run = run_of[h]
@@ -62,4 +61,4 @@ def voted_windows(frames, ids, dist, run_of, m, n, slope, gap, top):
     sel = np.isin(cl, keep)
     lo = np.maximum(h[sel] - (slope * f[sel]).astype(np.int64) - 2, 0)
     hi = np.minimum(h[sel] + (slope * (m - 1 - f[sel])).astype(np.int64) + 3, n)
-    return merged_ranges(lo, hi)
+    return lo, hi

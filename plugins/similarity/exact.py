@@ -157,7 +157,8 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=N
         from ._seed_votes import voted_windows
 
         run_of = space.memo(("similarity.run_of",), lambda: np.cumsum(~space.continues) - 1)
-        ranges = voted_windows(frames, ids, dist, run_of, m, n, SEED_SLOPE, max(4, m // 8), SEED_VOTE * count)
+        ranges = merged_ranges(*voted_windows(frames, ids, dist, run_of, m, n, SEED_SLOPE, max(4, m // 8),
+                                                    SEED_VOTE * count))
         rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
         st.guess_columns += len(rows)
         keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
