@@ -201,7 +201,10 @@ def timing(path, rounds):
                       f"{t['default'] * 1e3:>8.2f} {t['sdtw'] / max(t['oracle'], 1e-7):>7.0f}x "
                       f"{t['sdtw'] / (t['oracle'] + t['seeds']):>10.1f}x {t['sdtw'] / t['default']:>8.1f}x "
                       f"{t['sdtw'] * 1e9 / (n * m):>12.2f} {t['oracle'] * 1e9 / cells:>7.2f}", flush=True)
-            med = lambda f: float(np.median([f(t) for t in res]))  # noqa: E731
+
+            def med(f, res=res):
+                return float(np.median([f(t) for t in res]))
+
             print(f"{n:>9,} {m:>3} median: ceiling (oracle DP) {med(lambda t: t['sdtw'] / max(t['oracle'], 1e-7)):.0f}x, "
                   f"(oracle DP + seeds) {med(lambda t: t['sdtw'] / (t['oracle'] + t['seeds'])):.1f}x, "
                   f"default {med(lambda t: t['sdtw'] / t['default']):.1f}x (ratio of medians, as matching.py: "
