@@ -2,6 +2,7 @@
 
     python benchmarks/certified_ab.py --size 380813 --kernel-old 2823527         # coarse kernel A/B
     python benchmarks/certified_ab.py --size 1038388 --seed-eps 0 0.5 1 2          # the seeds' kd-tree eps
+    python benchmarks/certified_ab.py --size 1038388 --seed-vote 0 2 4             # voted seed windows
     python benchmarks/certified_ab.py --size 380813 --levels 512/64/16/4 512/128/32/8
     ... --hidden                                                                    # the query's source hidden
     python benchmarks/certified_ab.py --quick       # 60,000 rows, 2 queries, two hierarchies: a smoke run
@@ -20,6 +21,8 @@ alternating in order; printed per query length: medians over the queries.
 * ``--seed-eps``: the whole search with ``exact.SEED_EPS`` set to each value (results checked
   identical): ms, counted work (sDTW cells / (1.2 x coarse block cells + fine and seed DP
   cells)) and ``tau``.
+* ``--seed-slope``: the same with ``exact.SEED_SLOPE`` (the seed windows' width) set to each value.
+* ``--seed-vote``: the same with ``exact.SEED_VOTE`` set to each value (voted seed windows).
 * ``--levels``: the whole search with each block hierarchy; time ratio to the first one.
 
 No assertions beyond identical results: the figures are the output.
@@ -157,13 +160,16 @@ def main(argv=None) -> int:
     ap.add_argument("--hidden", action="store_true", help="the query's source clip hidden")
     ap.add_argument("--kernel-old", default=None, help="git revision of the baseline coarse kernel")
     ap.add_argument("--seed-eps", type=float, nargs="*", default=None)
+    ap.add_argument("--seed-vote", type=int, nargs="*", default=None,
+                    help="exact.SEED_VOTE values (voted seed windows first, x count; 0 = all windows)")
+    ap.add_argument("--seed-slope", type=float, nargs="*", default=None, help="exact.SEED_SLOPE values")
     ap.add_argument("--levels", nargs="*", default=None, help="block hierarchies, e.g. 512/64/16/4")
     ap.add_argument("--rounds", type=int, default=6)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
     if args.quick:
         args.size, args.queries, args.rounds = 60_000, 2, 2
-        if not (args.kernel_old or args.seed_eps or args.levels):
+        if not (args.kernel_old or args.seed_eps or args.levels or args.seed_vote or args.seed_slope):
             args.levels = ["512/64/16/4", "256/32/8"]
     x, clip_id, frame, src = database(args.size)
     queries = spaces(x, clip_id, frame, src, (30, 64, 90), args.queries, args.hidden, np.random.default_rng(args.seed))
@@ -173,6 +179,12 @@ def main(argv=None) -> int:
         kernel_ab(queries, args.kernel_old, args.rounds)
     if args.seed_eps:
         whole(queries, list(args.seed_eps), lambda ex, s: setattr(ex, "SEED_EPS", s), "seed eps", max(2, args.rounds // 2))
+    if args.seed_vote:
+        whole(queries, list(args.seed_vote), lambda ex, s: setattr(ex, "SEED_VOTE", s), "seed vote",
+              max(2, args.rounds // 2))
+    if args.seed_slope:
+        whole(queries, list(args.seed_slope), lambda ex, s: setattr(ex, "SEED_SLOPE", s), "seed slope",
+              max(2, args.rounds // 2))
     if args.levels:
         lv = [tuple(int(v) for v in s.split("/")) for s in args.levels]
         whole(queries, lv, lambda ex, s: None, "levels", max(2, args.rounds // 2))

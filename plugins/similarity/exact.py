@@ -69,6 +69,10 @@ SEED_K = 6
 SEED_EPS = 1.0
 #: database frames per query frame a seed window allows on either side of its neighbour
 SEED_SLOPE = 2.0
+#: with ``V > 0``, the seed DP runs first over the windows of the ``V * count`` best-voted
+#: clusters of neighbours (:mod:`._seed_votes`), over all windows only if those hold fewer than
+#: ``count`` matches; 0: all windows at once
+SEED_VOTE = 0
 #: default block sizes of ``certified_sdtw``, coarsest first (benchmarks/matching.py: best of
 #: (128, 16), (256, 32, 8), (512, 64, 8), (512, 64, 16, 4), (1024, 128, 16, 4) at 380 k and 1 M rows)
 LEVELS = (512, 64, 16, 4)
@@ -147,8 +151,20 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=N
         kw["workers"] = 1
     if "eps" in params and SEED_EPS > 0:  # any tau is safe: approximate neighbours only seed it
         kw["eps"] = SEED_EPS
-    _, ids = space.index.query(qs, kk, **kw)
+    dist, ids = space.index.query(qs, kk, **kw)
     ids = np.asarray(ids, np.int64)
+    if SEED_VOTE > 0:
+        from ._seed_votes import voted_windows
+
+        run_of = space.memo(("similarity.run_of",), lambda: np.cumsum(~space.continues) - 1)
+        ranges = merged_ranges(*voted_windows(frames, ids, dist, run_of, m, n, SEED_SLOPE, max(4, m // 8),
+                                                    SEED_VOTE * count))
+        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
+        st.guess_columns += len(rows)
+        keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
+                              min_frames=min_frames)
+        if len(keep) == count:
+            return float(cost[keep[-1]]), (rows, cost, start, length)
     fi = np.broadcast_to(frames[:, None], ids.shape)
     ok = ids >= 0
     h, fi = ids[ok], fi[ok]
