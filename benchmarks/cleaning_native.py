@@ -21,13 +21,12 @@ larger than 30 degrees.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
 import numpy as np
 
-from cleaning_protocol import DATA, SUBJECTS, TUNE
+from cleaning_protocol import DATA, SUBJECTS, TUNE, parse_sets
 
 
 def _category_clips(category: str) -> list:
@@ -82,14 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     from mocapflow.plugins.selfsim import repair
     from mocapflow.plugins.selfsim.mdm import MDMCleaner, MDMParams
 
-    extra = {}
-    for kv in args.set:
-        k, _, v = kv.partition("=")
-        try:
-            extra[k] = json.loads(v)
-        except json.JSONDecodeError:
-            extra[k] = v
-    cleaner = MDMCleaner(MDMParams(**{"write_bvh": False, "heatmaps": False, **extra}))
+    cleaner = MDMCleaner(MDMParams(**{"write_bvh": False, "heatmaps": False, **parse_sets(args.set)}))
     guarded = repair.apply_to_input
 
     def unguarded(*a, **kw):

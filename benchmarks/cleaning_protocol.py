@@ -35,6 +35,18 @@ SUBJECTS = {"locomotion": ("02", "07", "16", "35", "49"), "dance": ("60", "61")}
 TUNE = {"locomotion": ("02", "49"), "dance": ("01", "02", "04", "05")}
 
 
+def parse_sets(items: list[str]) -> dict:
+    """``--set KEY=VALUE`` options as cleaner parameters (a JSON value, else the string)."""
+    out = {}
+    for kv in items:
+        k, _, v = kv.partition("=")
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
 def _f1(r: float, p: float) -> float:
     return 2 * r * p / (r + p) if r + p > 0 else 0.0
 
@@ -144,13 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     from mocapflow.plugins.selfsim.clean_eval import CleaningEvaluationParams, evaluate_category
     from mocapflow.plugins.formats.asf_amc import read_amc
 
-    cleaner = {}
-    for kv in args.set:
-        k, _, v = kv.partition("=")
-        try:
-            cleaner[k] = json.loads(v)
-        except json.JSONDecodeError:
-            cleaner[k] = v
+    cleaner = parse_sets(args.set)
     contexts = tuple(args.contexts.split(",")) if args.contexts else (("small",) if args.quick else ("local", "small"))
     kw = {"contexts": contexts, "cleaner": cleaner, "glitch_returns": args.glitch_returns}
     if args.quick:
