@@ -198,6 +198,7 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", f"{query_file}:1s-3s", "--count", "2"]) == 0
     best = capsys.readouterr().out.splitlines()[2].split()
     assert best[:4] == ["1", "16_15", "30", "90"]  # read, resampled to 30 Hz, found where it came from
+    assert best[-2:] == ["1.00", "3.00"]  # and the same match in seconds of the database's rate
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "nonexistent.amc"]) != 0
     # --exact is subsequence DTW's answer; --out into a folder that does not exist creates it
     capsys.readouterr()

@@ -238,12 +238,16 @@ class SearchSession:
         res = matcher.match(query.features, space)
         table = matches_table([0], [res], space)
         names = self.names
+        rate = f" at {self.fps:g} fps" if self.fps else ""
         print(f"query {query.name} ({len(query.features)} frames), {matcher.key()} on {self.idx.step!r} "
-              f"({space.n_rows} frames): {len(res)} matches", file=out)
-        print(f"{'rank':>4}  {'clip':<32} {'start':>6} {'end':>6} {'cost':>10} {'per cell':>9}", file=out)
+              f"({space.n_rows} frames{rate}): {len(res)} matches", file=out)
+        fps = self.fps  # database frames (the index's rate), shown in seconds too
+        print(f"{'rank':>4}  {'clip':<32} {'start':>6} {'end':>6} {'cost':>10} {'per cell':>9}"
+              + (f" {'start s':>8} {'end s':>8}" if fps else ""), file=out)
         for row in table.select(["rank", "clip_id", "start_frame", "end_frame", "cost", "cost_normalized"]).to_pylist():
+            secs = f" {row['start_frame'] / fps:>8.2f} {row['end_frame'] / fps:>8.2f}" if fps else ""
             print(f"{row['rank']:>4}  {names.get(row['clip_id'], row['clip_id'])!s:<32.32} {row['start_frame']:>6} "
-                  f"{row['end_frame']:>6} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}", file=out)
+                  f"{row['end_frame']:>6} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}{secs}", file=out)
         if args.out:
             import pyarrow as pa
 
