@@ -126,7 +126,11 @@ class Calibration:
         ``grow`` < 1: hysteresis in time, a flagged run of a joint is extended along the
         neighbouring cells whose evidence exceeds ``grow`` (the whole error, not only its
         strongest cells; the mirror cue is not grown, swaps have their own intervals)."""
-        ev = self.evidence(q, mean_q, spread, joints, word_amp)
+        return self.decide(self.evidence(q, mean_q, spread, joints, word_amp), grow)
+
+    @staticmethod
+    def decide(ev: np.ndarray, grow: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`detect` on evidence (T, m, K) already computed by :meth:`evidence`."""
         best = ev.max(axis=-1)
         dom = np.argmax(ev, axis=-1)
         flags = best > 1.0

@@ -249,10 +249,10 @@ def clean_motion(cleaner: Any, motion: Motion, context: Any = None, contacts: Se
             from .word_noise import word_amplitude
 
             word_amp = word_amplitude(res.neighbours[0], res.mean_texture, cal.word_half)
-        flags, evidence, dom = cal.detect(res.texture.q, res.mean_texture, res.spread, res.joints, word_amp=word_amp)
+        per_cue = cal.evidence(res.texture.q, res.mean_texture, res.spread, res.joints, word_amp)  # once: detect and agree
+        flags, evidence, dom = cal.decide(per_cue)
         if p.agree is not None:
-            flags = _agreeing(flags, dom, cal.evidence(res.texture.q, res.mean_texture, res.spread, res.joints,
-                                                       word_amp), p.agree)
+            flags = _agreeing(flags, dom, per_cue, p.agree)
         jolts = None
         if p.acc_body is not None:
             kept = _body_jolts_dropped(flags, dom, p.acc_body)

@@ -202,8 +202,9 @@ def apply_to_input(motion: Motion, texture: Any, new24: np.ndarray, flagged: np.
     w = x - i0
     rot = motion.rotations.copy()
     # the input frames in the texture's frame (heading removed from the root), where the
-    # repaired poses live; a right correction commutes with that left turn
-    local = _texture_frame(motion).rotations if guard else None
+    # repaired poses live; a right correction commutes with that left turn. Computed (forward
+    # kinematics) at the first guarded joint only.
+    local = None
     changed = np.zeros((motion.n_frames, motion.n_joints), bool)
     for c, j in enumerate(texture.joint_index):
         hit = (flagged[i0, c] & (w < 1.0)) | (flagged[i1, c] & (w > 0.0))
@@ -213,6 +214,8 @@ def apply_to_input(motion: Motion, texture: Any, new24: np.ndarray, flagged: np.
         d1 = np.where(flagged[i1, c][:, None], delta[i1, c], quat.identity((len(x),)))
         d = quat.slerp(d0, d1, w)
         if guard:
+            if local is None:
+                local = _texture_frame(motion).rotations
             target = quat.slerp(new24[i0[hit], c], new24[i1[hit], c], w[hit])
             was = quat.geodesic_angle(local[hit, j], target)
             now = quat.geodesic_angle(quat.mul(local[hit, j], d[hit]), target)
