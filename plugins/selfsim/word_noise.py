@@ -33,18 +33,12 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 
 from .cues import rotation_vectors
-from .noise import AMP_FLOOR, lowpassed
+from .noise import AMP_FLOOR, lowpassed, window_mean
 
 
 def _window_mean_axis(x: np.ndarray, half: int, axis: int) -> np.ndarray:
-    """Mean over ``[t - half, t + half]`` along ``axis`` (shrunk at the ends)."""
-    x = np.moveaxis(x, axis, 0)
-    t = len(x)
-    c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)], axis=0)
-    lo = np.clip(np.arange(t) - half, 0, t)
-    hi = np.clip(np.arange(t) + half + 1, 0, t)
-    out = (c[hi] - c[lo]) / (hi - lo).reshape((t,) + (1,) * (x.ndim - 1))
-    return np.moveaxis(out, 0, axis)
+    """:func:`.noise.window_mean` along ``axis`` (a word's frames, not the first axis)."""
+    return np.moveaxis(window_mean(np.moveaxis(x, axis, 0), half), 0, axis)
 
 
 def word_amplitude(neigh, mean_q: np.ndarray, half: int = 2) -> np.ndarray:
