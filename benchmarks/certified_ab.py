@@ -4,6 +4,7 @@
     python benchmarks/certified_ab.py --size 1038388 --seed-eps 0 0.5 1 2          # the seeds' kd-tree eps
     python benchmarks/certified_ab.py --size 1038388 --seed-vote 0 2 4             # voted seed windows
     python benchmarks/certified_ab.py --size 380813 --levels 512/64/16/4 512/128/32/8
+    python benchmarks/certified_ab.py --size 380813 --levels 512/64/16/4 512/64/16s3/4s2  # subspace cells
     ... --hidden                                                                    # the query's source hidden
     python benchmarks/certified_ab.py --quick       # 60,000 rows, 2 queries, two hierarchies: a smoke run
 
@@ -23,7 +24,11 @@ alternating in order; printed per query length: medians over the queries.
   cells)) and ``tau``.
 * ``--seed-slope``: the same with ``exact.SEED_SLOPE`` (the seed windows' width) set to each value.
 * ``--seed-vote``: the same with ``exact.SEED_VOTE`` set to each value (voted seed windows).
-* ``--levels``: the whole search with each block hierarchy; time ratio to the first one.
+* ``--subspace-from``: the same with ``exact.SUBSPACE_FROM`` (the share of a level's blocks in
+  play from which it uses subspace cells; 0: always, above 1: never) set to each value.
+* ``--levels``: the whole search with each block hierarchy; time ratio to the first one. A
+  level ``16s3`` has local subspace cells with a basis of 3 directions (``subspace``), plain
+  ``16`` boxes.
 
 No assertions beyond identical results: the figures are the output.
 """
@@ -124,6 +129,12 @@ def kernel_ab(queries, rev, rounds):
                   f"{', '.join(f'{r:.2f}' for r in ratios)}; last query new {tn * 1e3:.2f} ms); bounds agree: {agree}")
 
 
+def level_kw(spec: str) -> dict:
+    """``certified_sdtw`` keywords of a hierarchy ``512/64/16s3/4s2``: block sizes, and basis sizes (0: boxes)."""
+    parts = [v.partition("s") for v in spec.split("/")]
+    return {"levels": tuple(int(a) for a, _, _ in parts), "subspace": tuple(int(b or 0) for _, _, b in parts)}
+
+
 def whole(queries, settings, apply, label, rounds):
     import mocapflow.plugins.similarity.exact as ex
 
@@ -132,13 +143,13 @@ def whole(queries, settings, apply, label, rounds):
         for q, sp in qs:
             for s in settings:  # compile, and the space's block boxes, outside the timings
                 apply(ex, s)
-                ex.certified_sdtw(q[:8], sp, count=3, **({"levels": s} if label == "levels" else {}))
+                ex.certified_sdtw(q[:8], sp, count=3, subspace_from=0, **(level_kw(s) if label == "levels" else {}))
             ref = None
             for r in range(rounds):
                 for s in settings if r % 2 == 0 else settings[::-1]:
                     apply(ex, s)
                     st = ex.ExactStats()
-                    kw = {"levels": s} if label == "levels" else {}
+                    kw = level_kw(s) if label == "levels" else {}
                     t, got = cpu(lambda: ex.certified_sdtw(q, sp, count=10, stats=st, **kw))
                     ref = got if ref is None else ref
                     assert np.array_equal(got.cost, ref.cost) and np.array_equal(got.end, ref.end)
@@ -147,7 +158,7 @@ def whole(queries, settings, apply, label, rounds):
         base = np.median([t for t, _, _ in rows[settings[0]]])
         for s in settings:
             v = np.array(rows[s])
-            name = "/".join(map(str, s)) if label == "levels" else f"{label} {s:g}"
+            name = s if label == "levels" else f"{label} {s:g}"
             print(f"  {m} frames: {name:<22} {np.median(v[:, 0]) * 1e3:7.2f} ms (first / this {base / np.median(v[:, 0]):.2f}) "
                   f"work 1/{np.median(v[:, 1]):.1f} tau median {np.median(v[:, 2]):.2f}")
 
@@ -163,13 +174,15 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-vote", type=int, nargs="*", default=None,
                     help="exact.SEED_VOTE values (voted seed windows first, x count; 0 = all windows)")
     ap.add_argument("--seed-slope", type=float, nargs="*", default=None, help="exact.SEED_SLOPE values")
+    ap.add_argument("--subspace-from", type=float, nargs="*", default=None, help="exact.SUBSPACE_FROM values")
     ap.add_argument("--levels", nargs="*", default=None, help="block hierarchies, e.g. 512/64/16/4")
     ap.add_argument("--rounds", type=int, default=6)
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
     if args.quick:
         args.size, args.queries, args.rounds = 60_000, 2, 2
-        if not (args.kernel_old or args.seed_eps or args.levels or args.seed_vote or args.seed_slope):
+        if not (args.kernel_old or args.seed_eps or args.levels or args.seed_vote or args.seed_slope
+                or args.subspace_from):
             args.levels = ["512/64/16/4", "256/32/8"]
     x, clip_id, frame, src = database(args.size)
     queries = spaces(x, clip_id, frame, src, (30, 64, 90), args.queries, args.hidden, np.random.default_rng(args.seed))
@@ -185,9 +198,11 @@ def main(argv=None) -> int:
     if args.seed_slope:
         whole(queries, list(args.seed_slope), lambda ex, s: setattr(ex, "SEED_SLOPE", s), "seed slope",
               max(2, args.rounds // 2))
+    if args.subspace_from:
+        whole(queries, list(args.subspace_from), lambda ex, s: setattr(ex, "SUBSPACE_FROM", s), "subspace from",
+              max(2, args.rounds // 2))
     if args.levels:
-        lv = [tuple(int(v) for v in s.split("/")) for s in args.levels]
-        whole(queries, lv, lambda ex, s: None, "levels", max(2, args.rounds // 2))
+        whole(queries, list(args.levels), lambda ex, s: None, "levels", max(2, args.rounds // 2))
     return 0
 
 

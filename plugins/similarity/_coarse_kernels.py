@@ -98,18 +98,175 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
     -------
     lb : float64 (nb,)       inf for blocks outside every range
     """
+    return _coarse(qt, lo, hi, _NO_BOX, _NO_BASIS, _NO_BOX, _NO_BOX, _NO_RAD, link, branges, shrink, False)
+
+
+@njit(cache=True, fastmath=_FAST)
+def subspace_bounds(qt, cen, basis, alo, ahi, rad, link, branges, shrink):  # pragma: no cover - compiled
+    """:func:`coarse_bounds` with each block's *local subspace cell* in place of its box.
+
+    A block is described by its centre ``c`` (the rows' mean), an orthonormal basis ``U``
+    (``p`` principal directions of its rows), the box ``[alo, ahi]`` of its rows'
+    coordinates ``U (x_j - c)`` and the radius ``rho`` of their residuals ``||(I - U^T U)(x_j
+    - c)||`` (:func:`._subspace_kernels.block_subspaces`). For a query frame with ``r = q -
+    c``, the decomposition of ``q - x_j`` into its parts in and orthogonal to the subspace
+    gives, for every row of the block,
+    ``||q - x_j||^2 >= boxdist(U r, [alo, ahi])^2 + max(0, ||(I - U^T U) r|| - rho)^2``:
+    the cell cost. Box cells are the case ``p = 0`` with a box about every axis; along the
+    few directions a block of 4-16 rows of motion actually spans, the subspace cell is far
+    tighter (docs/global-matching.md, "sixth round": alive rows at 16-row blocks 30-45 %
+    against 60 % with boxes on the slow 90-frame queries).
+
+    Float32, admissible by margins: the coordinates widen the box by ``delta = mu (||r|| +
+    S)`` (``S`` the block's radius ``max ||x_j - c||``; ``mu = 4 (d + 2p + 4) u``, ``u =
+    2^-24``, covers the rounding of ``r`` and of the dot products, and the float32 basis
+    being orthonormal only to ``sqrt(p) u``), the residual is ``sqrt(kappa ||r||^2 -
+    ||U r||^2)`` (``1 - kappa = 2 (d + 5p + 2) u``: the cancellation, one-sided) less
+    ``rho + delta``; ``rho`` and the boxes are rounded outwards when built. Then the costs
+    are shrunk as the box costs. Reference: ``naive_subspace_bounds`` in
+    ``tests/naive/coarse.py``.
+
+    Parameters
+    ----------
+    qt : float32 (d, m)
+    cen : float32 (nb, d); basis : float32 (nb, 3, d); alo, ahi : float32 (nb, 3)
+                              three directions (``p`` <= 3 of them nonzero)
+    rad : float32 (nb, 2)     ``rho`` and ``S`` per block
+    link, branges, shrink : as :func:`coarse_bounds`
+    """
+    return _coarse(qt, _NO_BOX, _NO_BOX, cen, basis, alo, ahi, rad, link, branges, shrink, True)
+
+
+_NO_BOX = np.zeros((0, 0), np.float32)
+_NO_BASIS = np.zeros((0, 3, 0), np.float32)
+_NO_RAD = np.zeros((0, 2), np.float32)
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _box_costs(qp, lo, hi, b, sh, out, acc):  # pragma: no cover - compiled
+    """Block ``b``'s box cell costs of every (padded) query frame into ``out``.
+
+    The dimensions are taken five at a time, so that the accumulator is loaded and stored
+    once per five (one at a time, the loop was bound by those loads and stores).
+    """
+    d, mp = qp.shape
+    zero = np.float32(0.0)
+    for i in range(mp):
+        acc[i] = 0.0
+    k = 0
+    while k + 5 <= d:
+        l0, l1, l2, l3, l4 = lo[b, k], lo[b, k + 1], lo[b, k + 2], lo[b, k + 3], lo[b, k + 4]
+        h0, h1, h2, h3, h4 = hi[b, k], hi[b, k + 1], hi[b, k + 2], hi[b, k + 3], hi[b, k + 4]
+        for i in range(mp):
+            v0 = qp[k, i]
+            v1 = qp[k + 1, i]
+            v2 = qp[k + 2, i]
+            v3 = qp[k + 3, i]
+            v4 = qp[k + 4, i]
+            e0 = max(l0 - v0, v0 - h0, zero)
+            e1 = max(l1 - v1, v1 - h1, zero)
+            e2 = max(l2 - v2, v2 - h2, zero)
+            e3 = max(l3 - v3, v3 - h3, zero)
+            e4 = max(l4 - v4, v4 - h4, zero)
+            acc[i] += e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3 + e4 * e4
+        k += 5
+    while k < d:
+        lk = lo[b, k]
+        hk = hi[b, k]
+        for i in range(mp):
+            v = qp[k, i]
+            e = max(lk - v, v - hk, zero)
+            acc[i] += e * e
+        k += 1
+    for i in range(mp):
+        out[i] = np.sqrt(acc[i]) * sh
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _subspace_costs(qp, cen, basis, alo, ahi, rad, b, sh, out, rr, rt, aa, mu, kappa):  # pragma: no cover - compiled
+    """Block ``b``'s subspace cell costs of every (padded) query frame into ``out`` (see :func:`subspace_bounds`).
+
+    Vectorised over the query frames, as the box costs; the dimensions are taken five at a
+    time so that the four accumulators (``||r||^2`` and three coordinates) are loaded and
+    stored once per five dimensions: one dimension at a time, the subspace cell cost 2-3x a
+    box cell, memory-bound on the accumulators (docs/global-matching.md, "sixth round").
+    """
+    d, mp = qp.shape
+    zero = np.float32(0.0)
+    a0 = aa[0]
+    a1 = aa[1]
+    a2 = aa[2]
+    for i in range(mp):
+        rr[i] = 0.0
+        a0[i] = 0.0
+        a1[i] = 0.0
+        a2[i] = 0.0
+    k = 0
+    while k + 5 <= d:
+        c0, c1, c2, c3, c4 = cen[b, k], cen[b, k + 1], cen[b, k + 2], cen[b, k + 3], cen[b, k + 4]
+        u00, u01, u02, u03, u04 = basis[b, 0, k], basis[b, 0, k + 1], basis[b, 0, k + 2], basis[b, 0, k + 3], basis[b, 0, k + 4]
+        u10, u11, u12, u13, u14 = basis[b, 1, k], basis[b, 1, k + 1], basis[b, 1, k + 2], basis[b, 1, k + 3], basis[b, 1, k + 4]
+        u20, u21, u22, u23, u24 = basis[b, 2, k], basis[b, 2, k + 1], basis[b, 2, k + 2], basis[b, 2, k + 3], basis[b, 2, k + 4]
+        for i in range(mp):
+            v0 = qp[k, i] - c0
+            v1 = qp[k + 1, i] - c1
+            v2 = qp[k + 2, i] - c2
+            v3 = qp[k + 3, i] - c3
+            v4 = qp[k + 4, i] - c4
+            rr[i] += v0 * v0 + v1 * v1 + v2 * v2 + v3 * v3 + v4 * v4
+            a0[i] += u00 * v0 + u01 * v1 + u02 * v2 + u03 * v3 + u04 * v4
+            a1[i] += u10 * v0 + u11 * v1 + u12 * v2 + u13 * v3 + u14 * v4
+            a2[i] += u20 * v0 + u21 * v1 + u22 * v2 + u23 * v3 + u24 * v4
+        k += 5
+    while k < d:
+        ck = cen[b, k]
+        w0, w1, w2 = basis[b, 0, k], basis[b, 1, k], basis[b, 2, k]
+        for i in range(mp):
+            v = qp[k, i] - ck
+            rr[i] += v * v
+            a0[i] += w0 * v
+            a1[i] += w1 * v
+            a2[i] += w2 * v
+        k += 1
+    rho = rad[b, 0]
+    big_s = rad[b, 1]
+    l0, l1, l2 = alo[b, 0], alo[b, 1], alo[b, 2]
+    h0, h1, h2 = ahi[b, 0], ahi[b, 1], ahi[b, 2]
+    for i in range(mp):
+        r2 = rr[i]
+        delta = mu * (np.sqrt(r2) + big_s)
+        v0 = a0[i]
+        v1 = a1[i]
+        v2 = a2[i]
+        e0 = max(max(l0 - v0, v0 - h0) - delta, zero)
+        e1 = max(max(l1 - v1, v1 - h1) - delta, zero)
+        e2 = max(max(l2 - v2, v2 - h2) - delta, zero)
+        res = np.sqrt(max(r2 * kappa - v0 * v0 - v1 * v1 - v2 * v2, zero))
+        e = max(res - rho - delta, zero)
+        out[i] = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + e * e) * sh
+
+
+@njit(cache=True, fastmath=_FAST)
+def _coarse(qt, lo, hi, cen, basis, alo, ahi, rad, link, branges, shrink, sub):  # pragma: no cover - compiled
+    """The bound of :func:`coarse_bounds` (``sub`` false: box cells) or :func:`subspace_bounds`."""
     d, m = qt.shape
     mp = -(-m // 16) * 16  # query frames padded to whole vectors: no scalar remainder loops
     qp = np.empty((d, mp), np.float32)
     for k in range(d):
         for i in range(mp):
             qp[k, i] = qt[k, min(i, m - 1)]
-    nb = lo.shape[0]
+    nb = link.shape[0]
     inf = np.inf
     lb = np.full(nb, inf)
     acc = np.empty(mp, np.float32)
     tf = np.empty(mp, np.float32)
     tg = np.empty(mp, np.float32)
+    p = 3  # the subspace cells' basis: three directions (fewer: zero rows)
+    rt = np.empty(mp, np.float32)  # the subspace costs' scratch
+    aa = np.empty((p, mp), np.float32)  # .. the query frames' coordinates in the block's basis
+    u = 2.0 ** -24
+    mu = np.float32(4.0 * (d + 2 * p + 4) * u)  # the subspace margins (subspace_bounds docstring)
+    kappa = np.float32(1.0 - 2.0 * (d + 5 * p + 2) * u)
     inf32 = np.float32(np.inf)
     sh = np.float32(shrink * (1.0 - 4.0 * m * 2.0 ** -24))  # float32 rounding margin (docstring)
     # the chains never cross a block that does not continue the one before: each range runs as
@@ -134,17 +291,10 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
                 nr += 1
             for bb in range(nr):
                 b = b0 + bb
-                for i in range(mp):
-                    acc[i] = 0.0
-                for k in range(d):
-                    lk = lo[b, k]
-                    hk = hi[b, k]
-                    for i in range(mp):
-                        v = qp[k, i]
-                        e = max(lk - v, v - hk, np.float32(0.0))
-                        acc[i] += e * e
-                for i in range(mp):
-                    c[bb, i] = np.sqrt(acc[i]) * sh
+                if sub:
+                    _subspace_costs(qp, cen, basis, alo, ahi, rad, b, sh, c[bb], acc, rt, aa, mu, kappa)
+                    continue
+                _box_costs(qp, lo, hi, b, sh, c[bb], acc)
             if nr == 1:  # an isolated block: every path stays in it, F + G - c is the row sum
                 low = np.float32(0.0)
                 for i in range(m):

@@ -14,7 +14,11 @@ cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``,
    frame's distance to the block's bounding box, bounds every fine path from below
    (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level
    (:data:`LEVELS`: blocks of 512, 64, 16, 4 rows), each level only over the runs of
-   blocks still alive (bound <= ``tau``) at the level above;
+   blocks still alive (bound <= ``tau``) at the level above; where the levels above pruned
+   little (:data:`SUBSPACE_FROM` of a level's blocks in play), the 16- and 4-row levels use
+   *local subspace cells* instead of boxes (:data:`SUBSPACE`: a block's centre, 3 principal
+   directions, the box of its rows' coordinates and their residual radius,
+   :func:`._coarse_kernels.subspace_bounds`), tighter and 1.2-1.5x dearer per cell;
 3. the fine DP (:func:`._dtw_kernels.sdtw_ranges_compact`, the arithmetic of
    ``sdtw_forward``) runs over the rows still alive; every end row whose best path costs
    <= ``tau`` gets exactly sDTW's cost, start and length;
@@ -47,7 +51,7 @@ import numpy as np
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matcher_base import block_boxes_of
+from .matcher_base import block_boxes_of, block_subspaces_of
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
@@ -76,6 +80,12 @@ SEED_VOTE = 0
 #: default block sizes of ``certified_sdtw``, coarsest first (benchmarks/matching.py: best of
 #: (128, 16), (256, 32, 8), (512, 64, 8), (512, 64, 16, 4), (1024, 128, 16, 4) at 380 k and 1 M rows)
 LEVELS = (512, 64, 16, 4)
+#: basis size of each level's local subspace cells (0: boxes), as :data:`LEVELS`
+#: (docs/global-matching.md, "sixth round")
+SUBSPACE = (0, 0, 3, 3)
+#: a level with a basis uses its subspace cells when at least this share of its blocks is in
+#: play (the levels above pruned little), boxes otherwise (docs/global-matching.md, "sixth round")
+SUBSPACE_FROM = 0.3
 
 
 @dataclass
@@ -199,7 +209,7 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
     """
     from ._dtw_kernels import sdtw_ranges_compact
 
-    bstart, _, _, link = blocks
+    bstart, _, _, link = blocks[:4]
     nb = len(lb)
     order = np.argsort(lb, kind="stable")
     take = count
@@ -224,12 +234,27 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
         take *= 4
 
 
+def _level_bounds(qt, space, level, branges, sub_from=np.inf) -> np.ndarray:
+    """The coarse bound of the blocks of ``branges`` at one level (``block_boxes_of`` plus a basis size).
+
+    Local subspace cells (:func:`._coarse_kernels.subspace_bounds`) when the level has a basis
+    and at least ``sub_from`` of its blocks are in play, box cells otherwise.
+    """
+    from ._coarse_kernels import coarse_bounds, subspace_bounds
+
+    bstart, lo, hi, link, size, p = level
+    if p > 0 and int((branges[:, 1] - branges[:, 0]).sum()) >= sub_from * len(lo):
+        return subspace_bounds(qt, *block_subspaces_of(space, size, p), link, branges, _SHRINK)
+    return coarse_bounds(qt, lo, hi, link, branges, _SHRINK)
+
+
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
                    rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
                    top: int | None = None, graph=None, stats: ExactStats | None = None,
                    full_from: float | None = None, seeds: bool = True,
                    levels: tuple[int, ...] | None = None, direct_cells: int | None = None,
-                   approx: float = 0.0, seed_frames: int | None = None, seed_k: int | None = None) -> QueryMatches:
+                   approx: float = 0.0, seed_frames: int | None = None, seed_k: int | None = None,
+                   subspace: tuple[int, ...] | None = None, subspace_from: float | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -252,6 +277,12 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         overriding ``(top, block)``; e.g. ``(256, 32, 8)``. The lowest-bound blocks of the
         coarsest level supply ``tau`` when neither ``graph`` nor the seeds do
         (:func:`_guess_tau`).
+    subspace : tuple of int, optional
+        Basis size of each level's local subspace cells, 0 for boxes (default: :data:`SUBSPACE`
+        with the default :data:`LEVELS`, boxes with any other hierarchy). Speed only.
+    subspace_from : float, optional
+        (Default :data:`SUBSPACE_FROM`.) A level with a basis uses subspace cells once this share
+        of its blocks is still in play, box cells below it. Speed only.
     seeds : bool
         Take ``tau`` from the windows around the index's neighbours of a few query frames
         (:func:`_seed_tau`) before the lowest-bound blocks.
@@ -277,7 +308,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         (Defaults :data:`SEED_FRAMES`, :data:`SEED_K`.) Query frames searched for the seeds, and
         neighbours per frame (times ``count``).
     """
-    from ._coarse_kernels import alive_runs, coarse_bounds
+    from ._coarse_kernels import alive_runs
     from ._dtw_kernels import dtw_window_path, sdtw_ranges_compact
     from .graph import build_graph
     from .sdtw import validate_query
@@ -301,7 +332,12 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     if not scale >= 1.0:
         raise DataError(f"approx must be >= 0, got {approx}")
     direct = n * len(q) <= (DIRECT_CELLS if direct_cells is None else direct_cells)
-    levels = [] if direct else [block_boxes_of(space, b) for b in sizes]
+    if subspace is None:
+        subspace = SUBSPACE if len(sizes) == len(LEVELS) and sizes == list(LEVELS) else (0,) * len(sizes)
+    if len(subspace) != len(sizes):
+        raise DataError(f"subspace needs one basis size per level ({len(sizes)}), got {len(subspace)}")
+    levels = [] if direct else [block_boxes_of(space, b) + (b, int(p)) for b, p in zip(sizes, subspace)]
+    sub_from = SUBSPACE_FROM if subspace_from is None else float(subspace_from)
     lb_top = None
     tau = np.inf
     seeded = None  # the seed windows' candidates, whose selection gave tau: an approximate pass keeps them
@@ -317,7 +353,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
                                      seed_k)
         if not np.isfinite(tau) and top:
             bs = levels[0]
-            lb_top = coarse_bounds(qt, bs[1], bs[2], bs[3], np.array([[0, len(bs[1])]], np.int64), _SHRINK)
+            lb_top = _level_bounds(qt, space, bs, np.array([[0, len(bs[1])]], np.int64), sub_from)
             st.coarse_blocks += len(bs[1])
             tau = _guess_tau(qt, space, lb_top, bs, count, max_cost, rank_by, min_frames, st)
         if not np.isfinite(tau) and found is not None and len(found):  # a guess, verified below: too few matches under it doubles it
@@ -330,18 +366,19 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
             ranges = np.zeros((0, 2), np.int64)  # approx inf: the seed windows alone (no bound computed)
         elif np.isfinite(tau) and not direct:
             br = None  # block ranges of the current level still in play (None: all)
-            for li, (bstart, lo, hi, link) in enumerate(levels):
+            for li, level in enumerate(levels):
+                bstart, lo = level[0], level[1]
                 evaluated = np.array([[0, len(lo)]], np.int64) if br is None else br
                 if br is None:
                     if li == 0 and lb_top is not None:
                         lb = lb_top
                     else:
-                        lb = coarse_bounds(qt, lo, hi, link, np.array([[0, len(lo)]], np.int64), _SHRINK)
+                        lb = _level_bounds(qt, space, level, evaluated, sub_from)
                         st.coarse_blocks += len(lo)
                         if li == 0 and top:
                             lb_top = lb
                 else:
-                    lb = coarse_bounds(qt, lo, hi, link, br, _SHRINK)
+                    lb = _level_bounds(qt, space, level, br, sub_from)
                     st.coarse_blocks += int((br[:, 1] - br[:, 0]).sum())
                     st.level_blocks.append(int((br[:, 1] - br[:, 0]).sum()))
                 alive = alive_runs(lb, evaluated, scale, tau)

@@ -4,7 +4,7 @@ The step itself (search space, queries, match table) is the core's default
 :meth:`~mocapflow.framework.components.Matcher.run`; here are the parameters of the lazy
 neighborhood graph (:class:`NeighborParams`), when its extensions need the database
 features (:meth:`GlobalMatcher.uses_features`) and the block boxes of the certified-exact
-search, computed once per search space (:func:`block_boxes_of`).
+search, computed once per search space (:func:`block_boxes_of`, :func:`block_subspaces_of`).
 """
 from __future__ import annotations
 
@@ -65,3 +65,15 @@ def block_boxes_of(space: SearchSpace, size: int) -> tuple[np.ndarray, np.ndarra
         return block_boxes(space.features, space.continues, int(size))
 
     return space.memo(("similarity.block_boxes", int(size)), compute)
+
+
+def block_subspaces_of(space: SearchSpace, size: int, p: int) -> tuple[np.ndarray, ...]:
+    """The local subspace cells ``(cen, basis, alo, ahi, rad)`` of the blocks of
+    :func:`block_boxes_of` ``(space, size)`` with a basis of ``p`` directions, cached on the
+    space (:func:`._subspace_kernels.block_subspaces`)."""
+    def compute():
+        from ._subspace_kernels import block_subspaces
+
+        return block_subspaces(space.features, block_boxes_of(space, size)[0], int(p))
+
+    return space.memo(("similarity.block_subspaces", int(size), int(p)), compute)

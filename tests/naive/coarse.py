@@ -9,6 +9,9 @@ every sum is exact in both, or random data).
 
 - :func:`naive_coarse_bounds`: the coarse lower bound ``min_i F(i, b) + G(i, b) - c(i, b)``
   of every block (``coarse_bounds``);
+- :func:`naive_subspace_bounds`: the same bound with local subspace cells (``subspace_bounds``),
+  the subspaces by pivoted Gram-Schmidt and orthogonal iteration (:func:`naive_subspaces`), and :func:`naive_min_cells`, the tightest
+  cell costs there are (each query frame's distance to the block's nearest row);
 - :func:`naive_sdtw_ranges`: subsequence DTW restricted to row ranges, each started afresh
   (``sdtw_ranges_compact``), by running the full-matrix DP of :mod:`naive.dtw` on each
   range's rows alone.
@@ -66,9 +69,12 @@ def naive_coarse_bounds(q, x, continues, size, branges=None, shrink=1.0):
     lb : float64 (nb,)   inf for blocks outside every range
     """
     _, lo, hi, link = naive_boxes(x, continues, size)
-    nb = len(lo)
-    c = naive_box_distance(q, lo, hi) * shrink  # (m, nb)
-    m = len(c)
+    return naive_block_dp(naive_box_distance(q, lo, hi) * shrink, link, branges)
+
+
+def naive_block_dp(c, link, branges=None):
+    """``min_i F(i, b) + G(i, b) - c(i, b)`` per block for cell costs ``c`` (m, nb) (:func:`naive_coarse_bounds`)."""
+    m, nb = c.shape
     if branges is None:
         branges = [(0, nb)]
     lb = np.full(nb, np.inf)
@@ -92,6 +98,62 @@ def naive_coarse_bounds(q, x, continues, size, branges=None, shrink=1.0):
         for bb in range(z - a):
             lb[a + bb] = min(F[i, bb] + G[i, bb] - c[i, a + bb] for i in range(m))
     return lb
+
+
+def naive_subspaces(x, continues, size, p, iterations=4):
+    """Per block: mean ``c``; a basis ``U`` of at most ``p`` directions, from pivoted Gram-Schmidt
+    (the centred row of largest residual, normalised, then every residual projected off it)
+    followed by ``iterations`` orthogonal iterations ``U <- orth((U S^T) S)`` (``numpy.linalg.qr``);
+    the box of the rows' coordinates ``U (x_j - c)``; the largest residual norm
+    ``||(I - U^T U)(x_j - c)||``. Float64."""
+    x = np.asarray(x, np.float64)
+    block = naive_blocks(continues, size)
+    out = []
+    for b in range(int(block.max()) + 1):
+        rows = x[block == b]
+        c = rows.mean(axis=0)
+        s = rows - c
+        res, u = s.copy(), []
+        for _ in range(p):
+            norms = (res**2).sum(axis=1)
+            if norms.max() <= 1e-24:
+                break
+            v = res[norms.argmax()] / np.sqrt(norms.max())
+            u.append(v)
+            res = res - np.outer(res @ v, v)
+        u = np.array(u).reshape(-1, x.shape[1])
+        for _ in range(iterations if len(u) else 0):
+            u = np.linalg.qr(((s @ u.T).T @ s).T)[0].T
+        a = s @ u.T
+        res = s - a @ u
+        out.append((c, u, a.min(axis=0), a.max(axis=0), np.sqrt((res**2).sum(axis=1)).max()))
+    return out
+
+
+def naive_subspace_cells(q, subspaces):
+    """Cell costs (m, nb): ``sqrt(boxdist(U r)^2 + max(0, ||(I - U^T U) r|| - rho)^2)``, ``r = q - c``."""
+    q = np.asarray(q, np.float64)
+    cells = np.empty((len(q), len(subspaces)))
+    for b, (c, u, alo, ahi, rho) in enumerate(subspaces):
+        r = q - c
+        a = r @ u.T
+        box = np.clip(a, alo, ahi) - a
+        res = np.sqrt(((r - a @ u) ** 2).sum(axis=1))
+        cells[:, b] = np.sqrt((box**2).sum(axis=1) + np.maximum(res - rho, 0.0) ** 2)
+    return cells
+
+
+def naive_subspace_bounds(q, x, continues, size, p, branges=None, shrink=1.0):
+    """:func:`naive_coarse_bounds` with the subspace cells of :func:`naive_subspaces`."""
+    _, _, _, link = naive_boxes(x, continues, size)
+    return naive_block_dp(naive_subspace_cells(q, naive_subspaces(x, continues, size, p)) * shrink, link, branges)
+
+
+def naive_min_cells(q, x, continues, size):
+    """The tightest admissible cell costs (m, nb): each query frame's distance to the block's nearest row."""
+    block = naive_blocks(continues, size)
+    d = np.sqrt(((np.asarray(q, np.float64)[:, None] - np.asarray(x, np.float64)[None]) ** 2).sum(axis=2))
+    return np.stack([d[:, block == b].min(axis=1) for b in range(int(block.max()) + 1)], axis=1)
 
 
 def naive_sdtw_ranges(q, x, continues, ranges):
