@@ -14,6 +14,7 @@ from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_bou
 from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward, sdtw_ranges_compact
 from mocapflow.plugins.similarity.exact import ExactStats, certified_sdtw
 from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
+from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.sdtw import subsequence_dtw
 
@@ -160,6 +161,30 @@ def test_certified_levels_equal_sdtw(seed, levels, seeds):
     st = ExactStats()  # a small search runs the whole DP at once
     same(certified_sdtw(q, space, count=5, stats=st), subsequence_dtw(q, space, count=5))
     assert st.columns == len(x) and st.passes == 1 and st.coarse_blocks == 0
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("levels,subspace,sub_from", [((512, 64, 16, 4), None, 0.0), ((16, 4), (3, 2), 0.0),
+                                                      ((8, 4, 2), (1, 3, 3), 0.0), ((512, 64, 16, 4), (0, 0, 3, 3), 2.0)])
+def test_certified_with_subspace_cells_equals_sdtw(seed, levels, subspace, sub_from):
+    # subspace cells at every level that has a basis (sub_from 0), or never (2): sDTW's matches
+    clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25], dim=6, seed=seed)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    rng = np.random.default_rng(seed)
+    for m in (5, 14):
+        s = int(rng.integers(0, 200))
+        q = (x[s : s + m] + rng.normal(0, 0.3, (m, 6))).astype(np.float32)
+        for count in (1, 7):
+            got = certified_sdtw(q, space, count=count, levels=levels, subspace=subspace, subspace_from=sub_from,
+                                 direct_cells=0)
+            same(got, subsequence_dtw(q, space, count=count))
+
+
+def test_certified_subspace_needs_one_basis_size_per_level():
+    clip_id, frame, x = make_db([60, 40], seed=0)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    with pytest.raises(DataError, match="one basis size per level"):
+        certified_sdtw(x[:5], space, levels=(16, 4), subspace=(3,), direct_cells=0)
 
 
 @pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
