@@ -302,19 +302,23 @@ def _coarse(qt, lo, hi, cen, basis, alo, ahi, rad, link, branges, shrink, sub): 
                 lb[b0] = low
                 b0 += 1
                 continue
-            # forward F over blocks 0, 1, .. and backward G over blocks nr-1, nr-2, .. in one
-            # loop: two independent serial chains along the query run side by side
-            for step in range(nr):
+            # forward F over blocks 0, 1, .. and backward G over blocks nr-1, nr-2, .. two blocks
+            # a step each: four serial chains along the query in flight (the second block's
+            # chain takes the first's values as they come, so it trails it by a frame: the
+            # out-of-order core overlaps them); one block a step, two chains, the chains' latency
+            # was a third of a box cell's time (docs/global-matching.md, "sixth round")
+            for step in range(0, nr, 2):
                 bf = step
                 bg = nr - 1 - step
-                if bf > 0 and link[b0 + bf]:
+                pair = step + 1 < nr
+                if bf > 0:  # inside a linked stretch every block continues the one before
                     tf[0] = inf32
                     for i in range(1, m):  # diagonal and vertical: no dependency along i
                         tf[i] = min(f[bf - 1, i - 1], f[bf - 1, i])
                 else:
                     for i in range(m):
                         tf[i] = inf32
-                if bg + 1 < nr and link[b0 + bg + 1]:
+                if bg + 1 < nr:
                     for i in range(m - 1):
                         tg[i] = min(g[bg + 1, i + 1], g[bg + 1, i])
                 else:
@@ -324,23 +328,52 @@ def _coarse(qt, lo, hi, cen, basis, alo, ahi, rad, link, branges, shrink, sub): 
                 f[bf, 0] = vf
                 vg = c[bg, m - 1]  # a free end: going on vertically only adds cost
                 g[bg, m - 1] = vg
-                for i in range(1, m):  # horizontal: the serial chains
-                    vf = min(vf, tf[i]) + c[bf, i]
-                    f[bf, i] = vf
-                    j = m - 1 - i
-                    vg = min(vg, tg[j]) + c[bg, j]
-                    g[bg, j] = vg
-                # a block's bound as soon as both its chains are in (the buffers are still in L1)
-                if bf >= bg:
+                if pair:
+                    bf2 = bf + 1
+                    bg2 = bg - 1
+                    wf = c[bf2, 0]
+                    f[bf2, 0] = wf
+                    wg = c[bg2, m - 1]
+                    g[bg2, m - 1] = wg
+                    pf = vf
+                    pg = vg
+                    for i in range(1, m):  # horizontal: the serial chains
+                        vf = min(vf, tf[i]) + c[bf, i]
+                        f[bf, i] = vf
+                        wf = min(wf, min(pf, vf)) + c[bf2, i]
+                        f[bf2, i] = wf
+                        pf = vf
+                        j = m - 1 - i
+                        vg = min(vg, tg[j]) + c[bg, j]
+                        g[bg, j] = vg
+                        wg = min(wg, min(pg, vg)) + c[bg2, j]
+                        g[bg2, j] = wg
+                        pg = vg
+                    top = bf2
+                    bottom = bg2
+                else:
+                    for i in range(1, m):
+                        vf = min(vf, tf[i]) + c[bf, i]
+                        f[bf, i] = vf
+                        j = m - 1 - i
+                        vg = min(vg, tg[j]) + c[bg, j]
+                        g[bg, j] = vg
+                    top = bf
+                    bottom = bg
+                # a block's bound as soon as both its chains are in (the buffers are still in L1):
+                # F is in for blocks <= top, G for blocks >= bottom; only this step's blocks are new
+                for q4 in range(4):  # this step's F blocks bf, bf + 1, then its G blocks bg, bg - 1
+                    bb = bf + q4 if q4 < 2 else bg - (q4 - 2)
+                    if q4 % 2 == 1 and not pair:
+                        continue
+                    if q4 >= 2 and (bb == bf or (pair and bb == bf + 1)):
+                        continue  # also an F block of this step
+                    if bb < bottom or bb > top:
+                        continue
                     low = inf32
                     for i in range(m):
-                        low = min(low, f[bf, i] + g[bf, i] - c[bf, i])
-                    lb[b0 + bf] = low
-                if bg < bf:
-                    low = inf32
-                    for i in range(m):
-                        low = min(low, f[bg, i] + g[bg, i] - c[bg, i])
-                    lb[b0 + bg] = low
+                        low = min(low, f[bb, i] + g[bb, i] - c[bb, i])
+                    lb[b0 + bb] = low
             b0 += nr
     return lb
 
