@@ -21,6 +21,16 @@ from numba import njit
 ITERATIONS = 4
 
 
+@njit(cache=True, inline="always")
+def _project_off(v, w):  # pragma: no cover - compiled
+    """``v -= (w . v) w`` in place (``w`` a unit vector): ``v``'s part orthogonal to ``w``."""
+    dot = 0.0
+    for k in range(v.shape[0]):
+        dot += w[k] * v[k]
+    for k in range(v.shape[0]):
+        v[k] -= dot * w[k]
+
+
 @njit(cache=True)
 def block_subspaces(x, bstart, p):  # pragma: no cover - compiled
     """Centre, basis, coordinate box and radii of every block ``bstart[b] .. bstart[b+1] - 1``.
@@ -82,11 +92,7 @@ def block_subspaces(x, bstart, p):  # pragma: no cover - compiled
             for k in range(d):
                 u[t, k] = res[best, k] / nrm
             for j in range(nr):
-                dot = 0.0
-                for k in range(d):
-                    dot += u[t, k] * res[j, k]
-                for k in range(d):
-                    res[j, k] -= dot * u[t, k]
+                _project_off(res[j], u[t])
             got += 1
         for it in range(ITERATIONS + 1):
             if it > 0:  # orthogonal iteration towards the principal directions: u <- (u S^T) S
@@ -94,11 +100,7 @@ def block_subspaces(x, bstart, p):  # pragma: no cover - compiled
                 u[:got] = w.T @ s
             for t in range(got):  # Gram-Schmidt: orthonormal to float64 rounding
                 for z in range(t):
-                    dot = 0.0
-                    for k in range(d):
-                        dot += u[z, k] * u[t, k]
-                    for k in range(d):
-                        u[t, k] -= dot * u[z, k]
+                    _project_off(u[t], u[z])
                 nrm = np.sqrt(np.sum(u[t] * u[t]))
                 if nrm <= 1e-300:
                     got = t
