@@ -98,8 +98,8 @@ def _handle(session_box: list, raw: bytes, make_session) -> dict:
 
 
 def warm_up(session) -> float:
-    """Load the kernels a default search runs (one query cut from the database itself) and
-    the search space's block boxes; returns the seconds it took."""
+    """Load the kernels a default search runs (one query cut from the database itself), the
+    search space's block boxes and its subspace cells; returns the seconds it took."""
     import numpy as np
 
     t0 = time.perf_counter()
@@ -109,6 +109,14 @@ def warm_up(session) -> float:
     space = session.space(matcher)
     if space.features is not None and space.n_rows >= 30:
         matcher.match(np.array(space.features[:30]), space)
+        from .exact import LEVELS, SUBSPACE, certified_sdtw
+        from .matcher_base import block_subspaces_of
+
+        for size, p in zip(LEVELS, SUBSPACE):  # the subspace cells a hard query switches on: built now
+            if p > 0:
+                block_subspaces_of(space, size, p)
+        if space.index is not None:  # .. and their kernel loaded
+            certified_sdtw(np.array(space.features[:30]), space, count=1, subspace_from=0.0)
     try:  # a query file's path: forward kinematics and the feature set (a synthetic clip)
         from mocapflow.framework.synthetic import synthetic_motion
 
