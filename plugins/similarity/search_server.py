@@ -115,8 +115,7 @@ def warm_up(session) -> float:
         for size, p in zip(LEVELS, SUBSPACE):  # the subspace cells a hard query switches on: built now
             if p > 0:
                 block_subspaces_of(space, size, p)
-        if space.index is not None:  # .. and their kernel loaded
-            certified_sdtw(np.array(space.features[:30]), space, count=1, subspace_from=0.0)
+        certified_sdtw(np.array(space.features[:30]), space, count=1, subspace_from=0.0)  # .. their kernel loaded
     try:  # a query file's path: forward kinematics and the feature set (a synthetic clip)
         from mocapflow.framework.synthetic import synthetic_motion
 
