@@ -13,7 +13,9 @@ queries on one thread; builds on one thread, seed 0):
 * usearch, connectivity 16 in f32, f16 and i8, and 8 in f32 (expansion_add 200);
 * faiss ``IndexIVFFlat`` (exact distances of the probed lists), nlist 1024 and 4096 (trained on
   64 points per list), nprobe 4-32;
-* ``indexes.kdtree`` with ``eps`` 0.1-2 (the k-th distance within (1 + eps) of the true one).
+* ``indexes.kdtree`` with ``eps`` 0.1-2 (the k-th distance within (1 + eps) of the true one);
+* best-bin-first search of the same tree with a scan budget (``_bbf_kernels.py``, FLANN's
+  ``checks``): buckets of 64 (the index's) and 16 points, 512-8,192 points scanned.
 
 Printed: recall@256, ms per query, kd-tree / this, build seconds. No assertions.
 """
@@ -94,6 +96,19 @@ def candidates(x, libs):
             tree = KDTreeIndex(method="kdtree", workers=1).build(x)
             return lambda q, k, eps: tree.query(q, k, eps=eps)[1]
         yield "kdtree eps", build, ("eps", (0.1, 0.25, 0.5, 1.0, 2.0))
+        from _bbf_kernels import bbf_query
+
+        for leaf in (64, 16):
+            def build(leaf=leaf):
+                tree = KDTreeIndex(method="kdtree", workers=1, leafsize=leaf).build(x)
+                arrays = tree._tree_args()[0]
+                data, perm, start, end, left, right, _, _, blo, bhi = arrays[:10]
+
+                def query(q, k, checks):
+                    return bbf_query(np.asarray(q, np.float64)[0], k, checks, data, perm, start, end,
+                                     left, right, blo, bhi)
+                return query
+            yield f"kdtree bbf leaf {leaf}", build, ("checks", (512, 1024, 2048, 4096, 8192))
 
 
 def main(argv=None) -> int:

@@ -23,6 +23,8 @@ alternating in order; printed per query length: medians over the queries.
   identical): ms, counted work (sDTW cells / (1.2 x coarse block cells + fine and seed DP
   cells)) and ``tau``.
 * ``--seed-slope``: the same with ``exact.SEED_SLOPE`` (the seed windows' width) set to each value.
+* ``--seed-k`` / ``--seed-frames``: the same with ``exact.SEED_K`` (neighbours per seed frame,
+  times ``count``) / ``exact.SEED_FRAMES`` (query frames searched) set to each value.
 * ``--seed-vote``: the same with ``exact.SEED_VOTE`` set to each value (voted seed windows).
 * ``--subspace-from``: the same with ``exact.SUBSPACE_FROM`` (the share of a level's blocks in
   play from which it uses subspace cells; 0: always, above 1: never) set to each value.
@@ -174,6 +176,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-vote", type=int, nargs="*", default=None,
                     help="exact.SEED_VOTE values (voted seed windows first, x count; 0 = all windows)")
     ap.add_argument("--seed-slope", type=float, nargs="*", default=None, help="exact.SEED_SLOPE values")
+    ap.add_argument("--seed-k", type=int, nargs="*", default=None, help="exact.SEED_K values")
+    ap.add_argument("--seed-frames", type=int, nargs="*", default=None, help="exact.SEED_FRAMES values")
     ap.add_argument("--subspace-from", type=float, nargs="*", default=None, help="exact.SUBSPACE_FROM values")
     ap.add_argument("--levels", nargs="*", default=None, help="block hierarchies, e.g. 512/64/16/4")
     ap.add_argument("--rounds", type=int, default=6)
@@ -182,7 +186,7 @@ def main(argv=None) -> int:
     if args.quick:
         args.size, args.queries, args.rounds = 60_000, 2, 2
         if not (args.kernel_old or args.seed_eps or args.levels or args.seed_vote or args.seed_slope
-                or args.subspace_from):
+                or args.subspace_from or args.seed_k or args.seed_frames):
             args.levels = ["512/64/16/4", "256/32/8"]
     x, clip_id, frame, src = database(args.size)
     queries = spaces(x, clip_id, frame, src, (30, 64, 90), args.queries, args.hidden, np.random.default_rng(args.seed))
@@ -198,6 +202,10 @@ def main(argv=None) -> int:
     if args.seed_slope:
         whole(queries, list(args.seed_slope), lambda ex, s: setattr(ex, "SEED_SLOPE", s), "seed slope",
               max(2, args.rounds // 2))
+    for flag, attr in (("seed_k", "SEED_K"), ("seed_frames", "SEED_FRAMES")):
+        if getattr(args, flag):
+            whole(queries, list(getattr(args, flag)), lambda ex, s, attr=attr: setattr(ex, attr, s),
+                  flag.replace("_", " "), max(2, args.rounds // 2))
     if args.subspace_from:
         whole(queries, list(args.subspace_from), lambda ex, s: setattr(ex, "SUBSPACE_FROM", s), "subspace from",
               max(2, args.rounds // 2))
