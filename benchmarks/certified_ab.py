@@ -165,6 +165,11 @@ def whole(queries, settings, apply, label, rounds):
                   f"work 1/{np.median(v[:, 1]):.1f} tau median {np.median(v[:, 2]):.2f}")
 
 
+#: whole-search A/Bs of one module constant of ``exact``: (option dest, constant)
+SETTINGS = (("seed_eps", "SEED_EPS"), ("seed_vote", "SEED_VOTE"), ("seed_slope", "SEED_SLOPE"),
+            ("seed_k", "SEED_K"), ("seed_frames", "SEED_FRAMES"), ("subspace_from", "SUBSPACE_FROM"))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="60,000 rows, 2 queries per length, 2 rounds")
@@ -185,8 +190,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         args.size, args.queries, args.rounds = 60_000, 2, 2
-        if not (args.kernel_old or args.seed_eps or args.levels or args.seed_vote or args.seed_slope
-                or args.subspace_from or args.seed_k or args.seed_frames):
+        if not (args.kernel_old or args.levels or any(getattr(args, flag) for flag, _ in SETTINGS)):
             args.levels = ["512/64/16/4", "256/32/8"]
     x, clip_id, frame, src = database(args.size)
     queries = spaces(x, clip_id, frame, src, (30, 64, 90), args.queries, args.hidden, np.random.default_rng(args.seed))
@@ -194,21 +198,10 @@ def main(argv=None) -> int:
           f"load average {open('/proc/loadavg').read().split()[0]}")
     if args.kernel_old:
         kernel_ab(queries, args.kernel_old, args.rounds)
-    if args.seed_eps:
-        whole(queries, list(args.seed_eps), lambda ex, s: setattr(ex, "SEED_EPS", s), "seed eps", max(2, args.rounds // 2))
-    if args.seed_vote:
-        whole(queries, list(args.seed_vote), lambda ex, s: setattr(ex, "SEED_VOTE", s), "seed vote",
-              max(2, args.rounds // 2))
-    if args.seed_slope:
-        whole(queries, list(args.seed_slope), lambda ex, s: setattr(ex, "SEED_SLOPE", s), "seed slope",
-              max(2, args.rounds // 2))
-    for flag, attr in (("seed_k", "SEED_K"), ("seed_frames", "SEED_FRAMES")):
+    for flag, attr in SETTINGS:
         if getattr(args, flag):
             whole(queries, list(getattr(args, flag)), lambda ex, s, attr=attr: setattr(ex, attr, s),
                   flag.replace("_", " "), max(2, args.rounds // 2))
-    if args.subspace_from:
-        whole(queries, list(args.subspace_from), lambda ex, s: setattr(ex, "SUBSPACE_FROM", s), "subspace from",
-              max(2, args.rounds // 2))
     if args.levels:
         whole(queries, list(args.levels), lambda ex, s: None, "levels", max(2, args.rounds // 2))
     return 0
