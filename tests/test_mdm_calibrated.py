@@ -1,5 +1,5 @@
-"""The calibrated cleaner (issue 14): cues against naive references, calibration, bounded
-repair, the paper mode kept, the density injector, and what ``mocapflow clean`` writes."""
+"""The calibrated cleaner: cues against naive references, calibration, bounded repair, the
+paper mode kept, the density injector, and what ``mocapflow clean`` writes."""
 from __future__ import annotations
 
 import json
@@ -11,10 +11,11 @@ from naive.cleaning_cues import (naive_acceleration, naive_mirror_gain, naive_pe
                                  naive_window_min, naive_word_joint)
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.selfsim.error_injection import inject_at_density
-from mocapflow.plugins.selfsim import cues
-from mocapflow.plugins.selfsim.fusion import fit_levels, word_joint
-from mocapflow.plugins.selfsim.mdm import MDMCleaner
+from mocapflow.plugins.selfsim.calibrated import cues
+from mocapflow.plugins.selfsim.calibrated.constants import CUES
+from mocapflow.plugins.selfsim.calibrated.fusion import fit_levels, word_joint
+from mocapflow.plugins.selfsim.cleaner import MDMCleaner
+from mocapflow.plugins.selfsim.evaluation.error_injection import inject_at_density
 
 
 def _rand_quats(rng, shape):
@@ -55,13 +56,14 @@ def test_jitter_cue_lasts_where_a_kink_does_not():
     acc = np.zeros((60, 2))
     acc[20:34, 0] = rng.uniform(2.0, 4.0, 14)  # jitter: acceleration on every frame
     acc[40, 1] = 8.0  # an isolated kink
-    cue = {"digression": np.full((60, 2), 0.1), "acceleration": acc, "expected_acc": np.zeros((60, 2)),
-           "mirror": np.zeros((60, 2)), "freeze": np.zeros((60, 2)), "range": np.zeros((60, 2))}
-    scale = {"digression": np.full(2, 0.1), "acceleration": np.ones(2), "spread": np.ones(2)}
+    zero = np.zeros((60, 2))
+    cue = {"digression": np.full((60, 2), 0.1), "acceleration": acc, "expected_acc": zero, "mirror": zero,
+           "hold": zero, "held_freeze": zero}
+    scale = {"digression": np.full(2, 0.1), "acceleration": np.ones(2)}
     v = cues.cue_values(cue, scale)
-    jit = v[..., cues.CUES.index("jitter")]
+    jit = v[..., CUES.index("jitter")]
     assert jit[24:30, 0].min() >= 2.0 and jit[:, 1].max() == 0.0
-    assert cues.cue_values(cue, scale, 2.0)[40, 1, cues.CUES.index("acceleration")] == 0.0
+    assert cues.cue_values(cue, scale, 2.0)[40, 1, CUES.index("acceleration")] == 0.0
 
 
 def test_mirror_gain_sees_a_swap_only_where_it_is():
@@ -81,7 +83,7 @@ def test_mirror_gain_sees_a_swap_only_where_it_is():
 
 
 def test_swap_back_needs_a_swap_and_undoes_it():
-    from mocapflow.plugins.selfsim.bounded_repair import swap_frames
+    from mocapflow.plugins.selfsim.calibrated.bounded_repair import swap_frames
 
     walk = synthetic_walk(120, seed=2)
     names = [None] * walk.n_joints
@@ -162,7 +164,7 @@ def test_calibrated_cleaner_leaves_a_clean_take_alone_and_repairs_a_spike(walks)
     assert out.calibration.source == "context" and out.calibration.clips == ["ctx6", "ctx7"]
     c = out.analysis.joints.index("lknee")
     assert out.flags[120:122, c].any()
-    assert set(out.cue[out.flags].tolist()) <= set(cues.CUES)
+    assert set(out.cue[out.flags].tolist()) <= set(CUES)
     err0 = quat.geodesic_angle(bad.rotations[120:122, j], clean.rotations[120:122, j])
     err1 = quat.geodesic_angle(out.cleaned.rotations[120:122, j], clean.rotations[120:122, j])
     assert err1.max() < 0.5 * err0.min()
@@ -178,7 +180,7 @@ def test_calibrated_cleaner_leaves_a_clean_take_alone_and_repairs_a_spike(walks)
 def test_paper_mode_is_the_literal_mdm(walks):
     _, bad, _ = walks
     paper = MDMCleaner(mode="paper", write_bvh=False, heatmaps=False)
-    assert paper.params.normalization == "mean" and paper.params.threshold == 0.5
+    assert paper.params.threshold == 0.5
     out = paper.clean(bad)
     res = out.analysis
     m = res.difference / np.maximum(res.difference.mean(axis=0, keepdims=True), 0.01)
@@ -269,7 +271,7 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
 def test_calibration_budget_is_counted_at_the_analysis_rate():
     # the budget is in analysis frames: the same clips whatever rate the context was read at
     from mocapflow.framework.normalize import resample
-    from mocapflow.plugins.selfsim.calibration import calibration_clips
+    from mocapflow.plugins.selfsim.calibrated.calibration import calibration_clips
 
     walks = [synthetic_walk(n, fps=24.0, seed=s, name=f"w{s}") for s, n in enumerate((300, 260, 200, 120))]
     take = synthetic_walk(100, seed=9)

@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from naive.cleaning import naive_cdtw, naive_distance_function, naive_knn, naive_pose_distance, synthetic_walk
+from naive.cleaning import brute_knn, naive_cdtw, naive_distance_function, naive_knn, naive_pose_distance, synthetic_walk
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.selfsim import _mdm_kernels as kern
-from mocapflow.plugins.selfsim.knn import ContextTextures, knn_search
-from mocapflow.plugins.selfsim.motion_words import (DEFAULT_GROUPS, JointGroups, motion_texture, pose_distance,
+from mocapflow.plugins.selfsim.paper import _mdm_kernels as kern
+from mocapflow.plugins.selfsim.paper.knn import ContextTextures, knn_search
+from mocapflow.plugins.selfsim.paper.motion_words import (DEFAULT_GROUPS, JointGroups, motion_texture, pose_distance,
                                                      resolve_groups, source_word_starts, target_word_layout)
 
 
@@ -125,11 +125,11 @@ def test_knn_pruned_equals_brute_and_naive(self_clip):
     n, m, r, k = 6, 8, 2, 3
     starts = source_word_starts(len(src), n, 4)
     kw = dict(self_clip=self_clip, source_length=n, target_length=m, word_starts=starts, k=k, slope_run=r)
-    fast = knn_search(src, ctx, groups, method="pruned", **kw)
-    brute = knn_search(src, ctx, groups, method="brute", **kw)
-    np.testing.assert_array_equal(fast.target, brute.target)
-    np.testing.assert_array_equal(fast.distance, brute.distance)
-    assert fast.n_dtw <= brute.n_dtw
+    fast = knn_search(src, ctx, groups, **kw)
+    target, distance, n_dtw = brute_knn(src, ctx, groups, **kw)
+    np.testing.assert_array_equal(fast.target, target)
+    np.testing.assert_array_equal(fast.distance, distance)
+    assert fast.n_dtw <= n_dtw
     for g in range(groups.n_groups):
         ref = naive_knn(src, ctx.q, ctx.clip_lengths, starts, n, m, groups.mask[g], int(groups.drop[g]), r, k, self_clip)
         for w, words in enumerate(ref):
@@ -143,9 +143,8 @@ def test_knn_ties_on_a_constant_signal():
     groups = resolve_groups(("a", "b", "c"), [("all", (), 0)])
     starts = source_word_starts(40, 6, 5)
     kw = dict(self_clip=0, source_length=6, target_length=8, word_starts=starts, k=4, slope_run=2)
-    fast = knn_search(q, ctx, groups, method="pruned", **kw)
-    brute = knn_search(q, ctx, groups, method="brute", **kw)
-    np.testing.assert_array_equal(fast.target, brute.target)
+    fast = knn_search(q, ctx, groups, **kw)
+    np.testing.assert_array_equal(fast.target, brute_knn(q, ctx, groups, **kw)[0])
     assert np.all(fast.distance[fast.target >= 0] == 0.0)
 
 
@@ -154,9 +153,8 @@ def test_knn_on_synthetic_walk_and_warp_shapes():
     groups = resolve_groups(tex.joints, DEFAULT_GROUPS)
     starts = source_word_starts(tex.n_frames, 15, 5)
     ctx = ContextTextures.from_arrays([tex.q])
-    fast = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts, method="pruned")
-    brute = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts, method="brute")
-    np.testing.assert_array_equal(fast.target, brute.target)
+    fast = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts)
+    np.testing.assert_array_equal(fast.target, brute_knn(tex.q, ctx, groups, starts, self_clip=0)[0])
     assert fast.warped.shape == (5, len(starts), 5, 15, 24, 4)
     ok = fast.target >= 0
     assert np.allclose(np.linalg.norm(fast.warped[ok], axis=-1), 1.0)
@@ -176,11 +174,11 @@ def test_knn_equals_brute_force_on_real_clips():
     ctx = ContextTextures.from_arrays([tex.q, motion_texture(other, joints).q])
     groups = resolve_groups(joints, DEFAULT_GROUPS)
     starts = source_word_starts(tex.n_frames, 15, 5)
-    fast = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts, method="pruned")
-    brute = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts, method="brute")
-    np.testing.assert_array_equal(fast.target, brute.target)
-    np.testing.assert_array_equal(fast.distance, brute.distance)
-    assert fast.n_dtw < brute.n_dtw
+    fast = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts)
+    target, distance, n_dtw = brute_knn(tex.q, ctx, groups, starts, self_clip=0)
+    np.testing.assert_array_equal(fast.target, target)
+    np.testing.assert_array_equal(fast.distance, distance)
+    assert fast.n_dtw < n_dtw
 
 
 def test_resolve_groups_rejects_empty_group():

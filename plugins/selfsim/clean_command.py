@@ -1,6 +1,6 @@
 """``mocapflow clean``: clean one take from the command line. Imports nothing numerical at
 module level (the command is registered for ``mocapflow --help``); the work is
-:mod:`.clean_clip`."""
+:func:`.outputs.clean_and_write_clip`."""
 from __future__ import annotations
 
 import argparse
@@ -75,9 +75,6 @@ class CleanCommand:
         parser.add_argument("--false-alarm", type=float, default=None,
                             help="calibrated: share of clean (word, joint) pairs that may be flagged (default 0.004)")
         parser.add_argument("--threshold", type=float, default=None, help="paper: MDM threshold (default 0.5)")
-        parser.add_argument("--two-stage", action="store_true", help="local search first, context only around distinct words")
-        parser.add_argument("--normalization", choices=("mean", "median", "spread", "texture", "none"), default=None,
-                            help="paper: scale of the MDM differences (mean = the paper)")
 
     @classmethod
     def run(cls, args: argparse.Namespace, pm: Any = None) -> int:
@@ -96,17 +93,19 @@ class CleanCommand:
         if dest.suffix.lower() == ".amc" and take.skeleton.meta.get("format") != "asf":
             raise ConfigError(f"--output {args.output}: AMC needs an ASF skeleton; {args.take} is not ASF/AMC, write .bvh")
         context = [_read_motion(p, regs) for p in args.context]
-        params: dict[str, Any] = {"write_bvh": False, "heatmaps": bool(args.report), "two_stage": args.two_stage}
-        for key in ("mode", "threshold", "normalization", "false_alarm"):
+        params: dict[str, Any] = {"write_bvh": False, "heatmaps": bool(args.report)}
+        for key in ("mode", "threshold"):
             if getattr(args, key, None) is not None:
                 params[key] = getattr(args, key)
+        if getattr(args, "false_alarm", None) is not None:
+            params["calibrated"] = {"false_alarm": args.false_alarm}
         cleaner = cleaner_cls(params)
         report = Path(args.report) if args.report else None
         if report is not None:
             report.mkdir(parents=True, exist_ok=True)
-        from .clean_clip import clean_clip
+        from .outputs import clean_and_write_clip
 
-        out = clean_clip(cleaner, take, context, 0, report)
+        out = clean_and_write_clip(cleaner, take, context, 0, report)
         write_cleaned(out["cleaned"], dest, regs)
         if report is not None:
             _atomic(report / "mdm.parquet", lambda t: pq.write_table(out["mdm"], t))

@@ -9,14 +9,14 @@ from mocapflow.framework.plugins import hookimpl
 
 @hookimpl
 def register_cleaners() -> list[type]:
-    from .mdm import MDMCleaner
+    from .cleaner import MDMCleaner
 
     return [MDMCleaner]
 
 
 @hookimpl
 def register_analyses() -> list[type]:
-    from .clean_eval import CleaningEvaluation
+    from .evaluation.clean_eval import CleaningEvaluation
 
     return [CleaningEvaluation]
 

@@ -4,6 +4,8 @@
 * :func:`naive_cdtw` - the constrained DTW of the paper's Appendix by explicit enumeration
   of DP states with dictionaries (no shared work arrays);
 * :func:`naive_knn` - every word distance, local minima, exclusion, K smallest;
+* :func:`brute_knn` - the same brute force compiled (every DTW computed), fast enough for
+  real clips: the reference of the pruned KNN search;
 * :func:`synthetic_skeleton` / :func:`synthetic_walk` - a small canonical skeleton and a
   seeded gait-like motion so unit tests need no corpus.
 """
@@ -13,10 +15,13 @@ import math
 
 import numpy as np
 
+from numba import njit, prange
+
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
+from mocapflow.plugins.selfsim.paper import _mdm_kernels as kern
 
 
 def naive_pose_distance(a: np.ndarray, b: np.ndarray, mask: np.ndarray, drop: int) -> float:
@@ -109,6 +114,76 @@ def naive_knn(src, ctx, clip_lengths, starts, n, m, mask, drop, r, k, self_clip=
         cands.sort()
         result.append([(t, d) for d, t in cands[:k]])
     return result
+
+
+@njit(cache=True, parallel=True)
+def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r, k, out_t, out_d):  # pragma: no cover
+    """Reference KNN: the word distance at every target start, its local minima (within each
+    clip), those farther than ``radius`` frames from the source word, the ``k`` smallest.
+
+    ``self_clip`` is the source clip's position in the context (-1: not in it) and
+    ``self_off`` the context frame of its first frame. d (G, rows, C) float32; out_t
+    (G, S, k) int64 (-1 = none), out_d (G, S, k) float64 (inf = none).
+    """
+    n_g = d.shape[0]
+    n_w = starts.shape[0]
+    n_c = tlen.shape[0]
+    m = 1
+    for t in range(n_c):
+        m = max(m, tlen[t])
+    for gw in prange(n_g * n_w):
+        g = gw // n_w
+        w = gw % n_w
+        dg = d[g]
+        cur = np.empty((m, 2 * r + 1))
+        prev = np.empty((m, 2 * r + 1))
+        lcur = np.empty((m, 2 * r + 1), np.int64)
+        lprev = np.empty((m, 2 * r + 1), np.int64)
+        cost2 = np.empty((2, 5, m))
+        plen2 = np.empty((2, 5, m), np.int64)
+        f = np.full(n_c, np.inf)
+        i0 = starts[w] - row0
+        for t in range(n_c):
+            if tlen[t] > 0:
+                if r == 2:
+                    c, p = kern.cdtw_cost_r2(dg, i0, t, n, tlen[t], cost2, plen2)
+                else:
+                    c, p = kern.cdtw_cost(dg, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
+                f[t] = c / p
+        best_d = np.full(k, np.inf)
+        best_t = np.full(k, np.int64(2**62))
+        self_pos = self_off + starts[w]
+        for t in range(n_c):
+            if tlen[t] == 0 or kern._excluded(t, clip_of, self_clip, self_pos, radius):
+                continue
+            if t > 0 and tlen[t - 1] > 0 and clip_of[t - 1] == clip_of[t] and not f[t] < f[t - 1]:
+                continue
+            if t + 1 < n_c and tlen[t + 1] > 0 and clip_of[t + 1] == clip_of[t] and not f[t] <= f[t + 1]:
+                continue
+            kern._insert_topk(best_d, best_t, k, f[t], t)
+        for a in range(k):
+            out_d[g, w, a] = best_d[a]
+            out_t[g, w, a] = best_t[a] if best_d[a] < np.inf else -1
+
+
+
+def brute_knn(source_q, context, groups, word_starts, self_clip=-1, source_length=15, target_length=20, k=5,
+              slope_run=2, radius=None):
+    """:func:`knn_search`'s neighbours by brute force: (target (G, S, K), distance (G, S, K), DTWs)."""
+    from mocapflow.plugins.selfsim.paper.motion_words import target_word_layout
+
+    n, starts = source_length, np.asarray(word_starts, np.int64)
+    radius = n // 2 if radius is None else radius
+    tlen, clip_of = target_word_layout(context.clip_lengths, n, target_length)
+    self_off = int(context.offsets[self_clip]) if self_clip >= 0 else 0
+    g_count = groups.n_groups
+    d = np.empty((g_count, len(source_q), len(context.q)), np.float32)
+    kern.pose_distance_block(np.ascontiguousarray(source_q, dtype=np.float64), context.q,
+                             groups.mask.astype(np.uint8), groups.drop.astype(np.int64), d)
+    out_t = np.empty((g_count, len(starts), k), np.int64)
+    out_d = np.empty((g_count, len(starts), k))
+    knn_brute(d, starts, 0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d)
+    return out_t, out_d, g_count * len(starts) * int((tlen > 0).sum())
 
 
 # --- synthetic motions ------------------------------------------------------------------

@@ -1,13 +1,12 @@
-"""Per-cell evidence of a capture error ("cues") for the calibrated cleaner (issue 14).
+"""Per-cell evidence of a capture error ("cues") for the calibrated cleaner.
 
 Every cue is a ``(T, m)`` array over the analysis texture (frames x texture joints),
-computed from the texture ``T``, its KNN consensus ``T̄`` (:mod:`.mdm`) and, for the range
-cue, the rotations the clean context visits. Raw cues are angles in radians (or a log
-ratio); the calibrated fusion of :mod:`.calibration` measures each in units of that joint's
-typical value on clean cells.
+computed from the texture ``T`` and its KNN consensus ``T̄`` (:mod:`..paper.mdm`). Raw cues
+are angles in radians (or a log ratio); the calibration (:mod:`.calibration`) measures each
+in units of that joint's typical value on clean cells.
 
 =============  ===========================================================================
-cue            what it measures (the error kinds it targets)
+raw cue        what it measures (the error kinds it targets)
 =============  ===========================================================================
 digression     geodesic angle between T and T̄ (§3.4 of the paper; offsets, freezes, swaps)
 acceleration   angle between ``T[t]`` and the midpoint of ``T[t-1]`` and ``T[t+1]`` (spikes,
@@ -16,24 +15,16 @@ expected_acc   the same on T̄: how much acceleration the neighbours show there 
 mirror         how much closer the two limbs of a left/right chain pair are to the *mirrored*
                consensus of their counterparts than to their own, summed over both chains
                (swapped limbs)
-range          how far the rotation vector leaves the range the clean context visits
-               (baseline a of the paper's §6)
-freeze         log of the consensus' mean speed over the take's largest speed, over a
-               9-frame window (frozen joints)
-spread         scatter of the KNN samples about T̄ (where neighbours disagree a digression
-               means less)
 hold           length (frames) of the *hold* holding the cell: consecutive frames turning
-               less than :data:`HOLD_SPEED` (0 elsewhere; frozen joints, session 6)
+               less than :data:`.constants.HOLD_SPEED` (0 elsewhere; frozen joints)
 held_freeze    log of the consensus' mean speed over the take's own speed at the cell
-               (what ``freeze`` is once a hold says the joint is still)
-word_jitter    log of the take's noise amplitude over the KNN words' own at the cell
-               (:mod:`.word_noise`; 0 unless the words' amplitude is given; session 7)
 =============  ===========================================================================
 
-:func:`cue_values` turns them into the seven cues of the calibrated detector (:data:`CUES`),
+:func:`cue_values` turns them into the cues of the detector (:data:`.constants.CUES`),
 adding *persistence* (the digression must last 3 frames) and *group agreement* (divided by
 the frame's median over the joints).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -42,27 +33,14 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 
-#: Raw cues, in the order of :func:`raw_cues`' keys.
-RAW_CUES: tuple[str, ...] = ("digression", "acceleration", "expected_acc", "mirror", "range", "freeze", "spread",
-                              "hold", "held_freeze", "word_jitter")
-
-#: A joint turning less than this per frame (radians) is *held*: a lost marker's last value
-#: held by the capture software is exactly still, while capture noise moves a clean joint by
-#: more (the ``freeze_still`` default of the cleaner, session 4).
-HOLD_SPEED: float = float(np.deg2rad(0.05))
-
-#: Cues of the calibrated detector (:func:`cue_values`), each with its own null and threshold.
-CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "range", "jitter", "words")
-
-#: Cues the default detector uses (the range cue of baseline (a) flags clean takes that
-#: merely leave a small context's range: see docs/cleaning.md).
-DEFAULT_CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "jitter")
+from .constants import ACC_PERSIST, FREEZE_HOLD, HOLD_SPEED, JITTER_HALF
 
 #: Limb chains whose left/right exchange the mirror cue looks for (canonical names).
 MIRROR_CHAINS: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
     (("lshoulder", "lelbow", "lwrist"), ("rshoulder", "relbow", "rwrist")),
     (("lhip", "lknee", "lankle"), ("rhip", "rknee", "rankle")),
 )
+
 
 def mirror(q: np.ndarray) -> np.ndarray:
     """Mirror local rotations across the sagittal (y-z) plane: (w, x, y, z) -> (w, x, -y, -z)."""
@@ -123,69 +101,18 @@ def mirror_gain(q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str], joint_
     return out
 
 
-def rotation_vectors(q: np.ndarray) -> np.ndarray:
-    """Rotation vectors (axis * angle, radians) of unit quaternions (..., 4), w >= 0."""
-    q = np.where(q[..., :1] < 0, -q, q)
-    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
-    ang = 2.0 * np.arctan2(s, q[..., :1])
-    return np.where(s > 1e-12, q[..., 1:] / np.where(s > 1e-12, s, 1.0) * ang, 2.0 * q[..., 1:])
-
-
-def range_excess(q: np.ndarray, low: np.ndarray | None, high: np.ndarray | None) -> np.ndarray:
-    """Norm of the rotation vector's excess outside ``[low, high]`` per component, radians, (T, m)."""
-    if low is None or high is None:
-        return np.zeros(q.shape[:2])
-    rv = rotation_vectors(q)
-    ex = np.maximum(rv - high, 0.0) + np.maximum(low - rv, 0.0)
-    return np.linalg.norm(ex, axis=-1)
-
-
-def rotation_range(textures: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
-    """Per joint and component, the smallest and largest rotation-vector value of clean textures."""
-    if not textures:
-        return None, None
-    rv = np.concatenate([rotation_vectors(t) for t in textures], 0)
-    return rv.min(0), rv.max(0)
-
-
-def raw_cues(q: np.ndarray, mean_q: np.ndarray, spread: np.ndarray, joints: Sequence[str],
-             low: np.ndarray | None = None, high: np.ndarray | None = None,
-             word_jitter: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Every raw cue of :data:`RAW_CUES` for one analysed texture.
-
-    Parameters
-    ----------
-    q, mean_q : ndarray of shape (T, m, 4)
-        Texture and its KNN consensus T̄.
-    spread : ndarray of shape (T, m)
-        KNN scatter about T̄, radians.
-    joints : sequence of str, length m
-    low, high : ndarray of shape (m, 3), optional
-        Rotation-vector range of the clean context (:func:`rotation_range`).
-    word_jitter : ndarray of shape (T, m), optional
-        The words cue (:func:`.word_noise.word_jitter`, computed by the caller: it needs the
-        warped KNN words); 0 without it.
-
-    Returns
-    -------
-    dict of str -> ndarray of shape (T, m)
-    """
+def raw_cues(q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str]) -> dict[str, np.ndarray]:
+    """Every raw cue of the module doc for one analysed texture ``q`` and its consensus
+    ``mean_q`` (T, m, 4) of the texture joints ``joints``: dict of (T, m) arrays."""
     floor = np.deg2rad(0.2)
-    # the take's fastest frame in the window: a frozen joint has none, a slow clean one has some
-    still = -window_min(-speed(q), 4)
-    freeze = np.log((_window_mean(speed(mean_q), 4) + floor) / (still + floor))
     v = speed(q)
     return {
-        "word_jitter": np.zeros(q.shape[:2]) if word_jitter is None else np.asarray(word_jitter, float),
         "hold": hold_lengths(v)[0],
         "held_freeze": np.maximum(np.log((_window_mean(speed(mean_q), 4) + floor) / (v + floor)), 0.0),
         "digression": quat.geodesic_angle(q, mean_q),
         "acceleration": acceleration(q),
         "expected_acc": acceleration(mean_q),
         "mirror": mirror_gain(q, mean_q, joints),
-        "range": range_excess(q, low, high),
-        "freeze": np.maximum(freeze, 0.0),
-        "spread": np.asarray(spread, float),
     }
 
 
@@ -232,10 +159,10 @@ def window_min(x: np.ndarray, half: int) -> np.ndarray:
 
 
 def typical(cue: dict[str, np.ndarray], clean: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Per joint, the median of the digression, acceleration and spread over ``clean`` cells
-    (all cells when None), radians, floored at 0.5 degrees: the scale a cue is measured in."""
+    """Per joint, the median of the digression and acceleration over ``clean`` cells (all
+    cells when None), radians, floored at 0.5 degrees: the scale a cue is measured in."""
     out = {}
-    for name in ("digression", "acceleration", "spread"):
+    for name in ("digression", "acceleration"):
         x = cue[name] if clean is None else np.where(clean, cue[name], np.nan)
         med = np.nanmedian(x, axis=0) if np.isfinite(x).any() else np.zeros(x.shape[1])
         out[name] = np.maximum(np.nan_to_num(med, nan=0.0), np.deg2rad(0.5))
@@ -259,43 +186,35 @@ def persistent(x: np.ndarray, factor: float) -> np.ndarray:
     return np.minimum(x, factor * nb)
 
 
-def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = None,
-               jitter_half: int = 3, freeze_hold: int | None = None) -> np.ndarray:
-    """The calibrated detector's cues :data:`CUES`, shape (T, m, 7), unitless.
+def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = ACC_PERSIST
+               ) -> np.ndarray:
+    """The detector's cues :data:`.constants.CUES`, shape (T, m, 5), unitless.
 
     * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
       flickers), in units of the joint's typical digression, divided by the frame's median
       over the joints when that exceeds 1 (*group agreement*: when every joint digresses,
       the motion is rare, not broken);
     * acceleration: the take's acceleration beyond the consensus', in units of the joint's
-      typical acceleration;
+      typical acceleration, capped by :func:`persistent` with ``acc_persist`` (None: not;
+      the weights are fitted without the cap and the take is decided with it);
     * mirror: the chain-pair mirror gain in units of six typical digressions;
-    * freeze: the log speed ratio (consensus over take); with ``freeze_hold`` (session 6)
-      only on the cells of a hold of at least ``freeze_hold`` frames (``hold``), where it is
-      the consensus' speed over the take's own (``held_freeze``): a frozen joint is held,
-      a slow clean one (a stance ankle) still turns;
-    * range: the rotation-vector excess over the context's range, in units of 0.1 rad;
-    * jitter: the median, over the ``2 jitter_half + 1`` frames centred on the cell, of the acceleration cue
-      (before ``acc_persist``): high-frequency energy that lasts (jitter, tremor-like noise)
-      where a clean joint has at most an isolated kink. Its null is the context's, like
-      every cue's (:mod:`.calibration`);
-    * words: the ``word_jitter`` log ratio (:mod:`.word_noise`; 0 where not computed).
+    * freeze: on the cells of a hold of at least :data:`.constants.FREEZE_HOLD` frames, the
+      consensus' speed over the take's own (``held_freeze``), 0 elsewhere: a frozen joint is
+      held, a slow clean one (a stance ankle) still turns;
+    * jitter: the median, over the ``2 JITTER_HALF + 1`` frames centred on the cell, of the
+      acceleration cue (before the cap): high-frequency energy that lasts (jitter,
+      tremor-like noise) where a clean joint has at most an isolated kink.
     """
     d = cue["digression"] / scale["digression"]
     group = np.maximum(np.median(d, axis=1, keepdims=True), 1.0)
     dig = window_min(d, 1) / group
     acc = np.maximum(cue["acceleration"] - cue["expected_acc"], 0.0) / scale["acceleration"]
-    jit = window_median(acc, jitter_half)
+    jit = window_median(acc, JITTER_HALF)
     if acc_persist is not None:
         acc = persistent(acc, acc_persist)
     mir = cue["mirror"] / np.maximum(6.0 * np.median(scale["digression"]), 1e-3)
-    frz = cue["freeze"]
-    if freeze_hold is not None:
-        held = cue["hold"] >= freeze_hold
-        frz = np.where(held, cue["held_freeze"], 0.0)
-    words = cue.get("word_jitter")
-    words = np.zeros(d.shape) if words is None else words
-    return np.stack([dig, acc, mir, frz, cue["range"] / 0.1, jit, words], axis=-1)
+    frz = np.where(cue["hold"] >= FREEZE_HOLD, cue["held_freeze"], 0.0)
+    return np.stack([dig, acc, mir, frz, jit], axis=-1)
 
 
 def window_median(x: np.ndarray, half: int) -> np.ndarray:

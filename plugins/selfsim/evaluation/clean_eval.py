@@ -1,21 +1,21 @@
 """Evaluation harness of the MDM cleaner (Aristidou 2018 §6, Tables 1 and 2): ``analyses.clean_eval``.
 
-Protocol (issue 14)
--------------------
+Protocol
+--------
 For each category (input slots ``locomotion`` and ``dance``, motions datasets ingested at
 24 fps), the test clips are the clips of the *held-out* subjects (locomotion) or trials
-(dance) with at least ``min_frames`` frames (``held_out``; the cleaner was tuned on the
+(dance) with at least :data:`MIN_FRAMES` frames (``held_out``; the cleaner was tuned on the
 others). Each is corrupted by :func:`.error_injection.inject_at_density` (seed ``seed +
 clip position``): random errors of the protocol kinds (spikes 30-90 degrees over 1-3
 frames, offset bursts, left/right limb swaps, jitter, freezes) until ``density`` (the
 paper's ~12.5 %) of its 15-frame words hold one. It is analysed against the contexts of
 §6: ``local`` (the clip alone), ``small`` (plus ``small_size`` other clips of the
-category, longest first, never the partner's take of a dance), ``large`` (plus up to
-``large_size``) and ``large_two_stage`` (§5). Context clips are clean; the calibrated
+category, longest first, never the partner's take of a dance) and ``large`` (plus up to
+``large_size``). Context clips are clean; the calibrated
 cleaner calibrates on them, never on the test clip.
 
 Detection is scored on the texture joints against the ground-truth mask (cells moved more
-than ``min_angle``) per (frame, joint) cell, per (word, joint) (a joint of a source word
+than :data:`MIN_ANGLE` degrees) per (frame, joint) cell, per (word, joint) (a joint of a source word
 is erroneous when any of its cells is, flagged when any is; columns ``wj_*``) and per
 word: recall TP/(TP+FN), precision TP/(TP+FP). Methods: ``mdm`` (the configured cleaner,
 by default ``mode: calibrated``), ``mdm[paper]`` (``mode: paper`` on the same analysis) and
@@ -44,33 +44,31 @@ from pydantic import Field
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.components import Analysis, Params, ParamsOf
 from mocapflow.framework.motion import Motion
-from .clean_scores import (RotationBaselines, _log_norm_sq, _ratios, repair_errors, scores,  # noqa: F401 - re-exported
-                           glitch_returns, source_glitches)
+
 from .error_injection import PROTOCOL_KINDS, inject_at_density
+from .scores import RotationBaselines, _log_norm_sq, _ratios, scores, source_glitches
+
+#: What ``held_out`` names per category: the clip name before '_' (subject) or after it (trial).
+GROUP_BY: dict[str, str] = {"locomotion": "subject", "dance": "trial"}
+#: Test clips have at least this many frames at 24 fps.
+MIN_FRAMES = 60
+#: Ground truth: cells the injection moved more than this, degrees.
+MIN_ANGLE = 10.0
 
 
 class CleaningEvaluationParams(Params):
     density: float = Field(default=0.125, gt=0, lt=1, description="share of the source words of a test clip given "
                            "an error (the paper: ~0.125, §6)")
-    kinds: tuple[str, ...] = Field(default=PROTOCOL_KINDS, description="error kinds injected")
     held_out: dict[str, tuple[str, ...]] = Field(
         default_factory=lambda: {"locomotion": ("07", "16", "35"), "dance": ("06", "07", "10", "11")},
         description="per category, the subjects (locomotion) or trials (dance) whose clips are the test clips; "
                     "the defaults were never used while tuning the cleaner (tuned on subjects 02 and 49, trials "
                     "01, 02, 04, 05); empty = the n_test longest clips")
-    group_by: dict[str, Literal["subject", "trial"]] = Field(
-        default_factory=lambda: {"locomotion": "subject", "dance": "trial"},
-        description="what held_out names per category: the clip name before '_' (subject) or after it (trial)")
     n_test: int = Field(default=40, ge=1, description="at most this many test clips per category (the longest)")
-    min_frames: int = Field(default=60, ge=15, description="test clips have at least this many frames at 24 fps")
     small_size: int = Field(default=8, ge=1, description="other clips in the small-scale context (paper: 5-10)")
     large_size: int = Field(default=25, ge=1, description="other clips in the large-scale context (paper: 20-30)")
-    contexts: tuple[Literal["local", "small", "large", "large_two_stage"], ...] = Field(
-        default=("local", "small"),
-        description="contexts to evaluate; large_two_stage = the large context through the §5 two-stage scheme")
-    min_angle: float = Field(default=10.0, gt=0, description="ground truth: cells moved more than this, degrees")
-    glitch_returns: bool = Field(default=False, description="the source glitches also hold jump-and-return "
-                                 "excursions (clean_scores.glitch_returns); the strict figures do not change")
+    contexts: tuple[Literal["local", "small", "large"], ...] = Field(default=("local", "small"),
+                                                                     description="contexts to evaluate")
     seed: int = Field(default=0, description="seed of the error injection (clip k gets seed + k)")
     paper: bool = Field(default=True, description="also score mode 'paper' on the same analyses (rows 'mdm[paper]')")
     cleaner: Annotated[dict[str, Any], ParamsOf("cleaners.mdm")] = Field(default_factory=dict, description="parameters of cleaners.mdm")
@@ -107,7 +105,7 @@ class CleaningEvaluation(Analysis):
 def protocol_clips(clips: list[Motion], joints: Sequence[str], fps: float) -> tuple[list[Motion], tuple[str, ...]]:
     """The category's clips at the analysis rate, longest first, and the texture joints
     every clip maps."""
-    from .motion_words import motion_texture
+    from ..paper.motion_words import motion_texture
 
     joints = tuple(j for j in joints if all(j in c.skeleton.canonical for c in clips))
     clips = [c if abs(c.fps - fps) < 1e-9 else motion_texture(c, joints, fps).motion for c in clips]
@@ -138,8 +136,8 @@ class CorruptedClip:
 def test_indices(clips: list[Motion], p: CleaningEvaluationParams, category: str) -> list[int]:
     """Positions in ``clips`` (longest first) of the category's test clips."""
     held = p.held_out.get(category, ())
-    by = p.group_by.get(category, "subject")
-    idx = [i for i, c in enumerate(clips) if c.n_frames >= p.min_frames and (not held or clip_key(c.name, by) in held)]
+    by = GROUP_BY.get(category, "subject")
+    idx = [i for i, c in enumerate(clips) if c.n_frames >= MIN_FRAMES and (not held or clip_key(c.name, by) in held)]
     return idx[: p.n_test]
 
 
@@ -147,11 +145,11 @@ def corrupted_clips(clips: list[Motion], p: CleaningEvaluationParams, joints: Se
                     category: str = "locomotion") -> Iterator[CorruptedClip]:
     """The test clips of :func:`test_indices`, each corrupted by :func:`inject_at_density`
     with seed ``seed + position``."""
-    from .motion_words import motion_texture
+    from ..paper.motion_words import motion_texture
 
     for i in test_indices(clips, p, category):
         clean = clips[i]
-        bad, mask, errors = inject_at_density(clean, p.density, p.kinds, seed=p.seed + i, min_angle=p.min_angle)
+        bad, mask, errors = inject_at_density(clean, p.density, PROTOCOL_KINDS, seed=p.seed + i, min_angle=MIN_ANGLE)
         tex = motion_texture(clean, joints, fps)
         trial = clip_key(clean.name, "trial")
         others = [c for k, c in enumerate(clips) if k != i
@@ -161,8 +159,7 @@ def corrupted_clips(clips: list[Motion], p: CleaningEvaluationParams, joints: Se
 
 def context_clips(context: str, others: list[Motion], p: CleaningEvaluationParams) -> list[Motion]:
     """The clips searched besides the test clip itself for a context of the protocol."""
-    return {"local": [], "small": others[: p.small_size], "large": others[: p.large_size],
-            "large_two_stage": others[: p.large_size]}[context]
+    return {"local": [], "small": others[: p.small_size], "large": others[: p.large_size]}[context]
 
 
 def _glitch_part(clean: np.ndarray, other: np.ndarray, glitch: np.ndarray) -> float:
@@ -190,15 +187,14 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
     """Run the protocol (module doc) on one category's clips; returns (rows, repair rows, kind rows)."""
     import time
 
-    from .decision import clean_motion
-    from .mdm import MDMCleaner, MDMParams
-    from .motion_words import motion_texture, source_word_starts
+    from ..cleaner import MDMCleaner, MDMParams, clean_motion
+    from ..paper.motion_words import motion_texture, source_word_starts
 
     cleaner = MDMCleaner(MDMParams(**{"write_bvh": False, "heatmaps": False, **p.cleaner}))
     cp = cleaner.params
     methods = {"mdm": cleaner}
     if p.paper and cp.mode != "paper":
-        methods["mdm[paper]"] = cleaner.clone(mode="paper", normalization="mean", threshold=0.5)
+        methods["mdm[paper]"] = cleaner.clone(mode="paper", threshold=0.5)
     clips, joints = protocol_clips(clips, cp.joints, cp.fps)
     textures = [motion_texture(c, joints, cp.fps).q for c in clips]
     counts: dict[tuple[str, str], dict[str, int]] = {}
@@ -214,19 +210,15 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
         q_bad = motion_texture(case.bad, joints, cp.fps).q
         lim, der = base.limits(q_bad), base.derivative(q_bad)
         glitch = source_glitches(case.clean_texture.q)
-        if p.glitch_returns:
-            glitch |= glitch_returns(case.clean_texture.q)
         moved = (quat.geodesic_angle(case.clean_texture.q, q_bad) > 1e-6) | (glitch & ~truth)
         for name, flags in (("baseline_a_limits", lim), ("baseline_b_derivative", der), ("baseline_c_both", lim | der)):
             _add(counts, (name, "-"), scores(flags, truth, starts, cp.source_length, moved))
         for context in p.contexts:
             ctx = context_clips(context, case.others, p)
-            two = context == "large_two_stage"
             t0 = time.perf_counter()
             # one analysis (texture, KNN, T̄) per context; the methods differ only in decision and repair
-            analysis = (cleaner.clone(two_stage=True) if two else cleaner).analyse(case.bad, ctx)
+            analysis = cleaner.analyse(case.bad, ctx)
             for method, cl in methods.items():
-                cl = cl.clone(two_stage=True) if two else cl
                 out = clean_motion(cl, case.bad, ctx, analysis=analysis)
                 if method == "mdm":
                     times.setdefault(context, []).append(time.perf_counter() - t0)

@@ -4,7 +4,7 @@ Errors are injected into the local joint rotations of a clean clip (normally alr
 the cleaner's 24 fps analysis rate, so masks align with the MDM). Each kind imitates a
 failure seen in optical capture; magnitudes and durations are drawn from the ranges below
 with ``numpy.random.default_rng(seed)`` (frames at 24 fps; angles in degrees). The default
-ranges (:data:`ERROR_RANGES`) are those of issue 14's protocol:
+ranges (:data:`ERROR_RANGES`) are those of the protocol of ``analyses.clean_eval``:
 
 ========  ==========================================================  ============  =========
 kind      what                                                        duration      magnitude
@@ -19,12 +19,10 @@ swap      mislabelled markers: a left limb and its right mirror are   12-24 fram
           exchanged (mirror across the sagittal plane)
 ========  ==========================================================  ============  =========
 
-Two ways to place errors: :func:`inject_errors` puts ``per_kind`` errors of every kind in
-equal slots of the clip (dense: with every kind once in a 12-18 s clip, 36-44 % of the
-15-frame words hold an error); :func:`inject_at_density` adds seeded random errors until a
-target share of the source words (the paper's ~12.5 %, §6: about 1,000 of 8,000 words)
-holds an error, which is the protocol of ``analyses.clean_eval``. :data:`PROTOCOL_KINDS`
-are the kinds of that protocol (drift is kept for the dense harness).
+:func:`inject_at_density` adds seeded random errors until a target share of the source
+words (the paper's ~12.5 %, §6: about 1,000 of 8,000 words) holds an error, which is the
+protocol of ``analyses.clean_eval``; :data:`PROTOCOL_KINDS` are its kinds (drift is used by
+the calibration's self-supervision, with wider ranges).
 
 The ground-truth mask marks the (frame, joint) cells whose rotation ends up more than
 ``min_angle`` (default 10 degrees) from the clean rotation: a drift's first frames and a
@@ -40,11 +38,12 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
-from .cues import mirror
+
+from ..calibrated.cues import mirror
 
 ERROR_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap")
 
-#: The kinds of the evaluation protocol at the paper's density (issue 14).
+#: The kinds of the evaluation protocol at the paper's density.
 PROTOCOL_KINDS: tuple[str, ...] = ("spike", "offset", "freeze", "noise", "swap")
 
 Ranges = dict[str, tuple[tuple[int, int], tuple[float, float]]]
@@ -171,7 +170,7 @@ def inject_at_density(motion: Motion, density: float = 0.125, kinds: Sequence[st
     mask : ndarray of bool, shape (T, J)
     errors : list of InjectedError, in time order
     """
-    from .motion_words import source_word_starts
+    from ..paper.motion_words import source_word_starts
 
     if not kinds:
         raise DataError("inject_at_density needs at least one error kind")
@@ -214,60 +213,4 @@ def inject_at_density(motion: Motion, density: float = 0.125, kinds: Sequence[st
         busy[start:start + dur] = True
         errors.append(InjectedError(kind, joints, start, start + dur, mag))
     errors.sort(key=lambda e: e.start)
-    return motion.with_arrays(rotations=rot), mask, errors
-
-
-def inject_errors(motion: Motion, kinds: Sequence[str] = ERROR_KINDS, per_kind: int = 1, seed: int = 0,
-                  min_angle: float = 10.0, margin: int = 12) -> tuple[Motion, np.ndarray, list[InjectedError]]:
-    """Corrupt a clean clip with seeded errors at non-overlapping times.
-
-    The clip is cut into equal slots, one error per slot, placed at random inside; when
-    the clip is too short for every error, a seeded random subset that fits is injected
-    (a slot needs the longest duration plus ``margin`` frames).
-
-    Parameters
-    ----------
-    motion : Motion
-        Clean clip (frames at the rate the durations are meant for, normally 24 fps).
-    kinds : sequence of str
-        Error kinds (:data:`ERROR_KINDS`); each is injected ``per_kind`` times.
-    seed : int
-    min_angle : float
-        Degrees; cells changed by more are marked in the mask.
-    margin : int
-        Frames kept free between errors and at the clip ends.
-
-    Returns
-    -------
-    corrupted : Motion
-    mask : ndarray of bool, shape (T, J)
-        Ground truth: cells more than ``min_angle`` away from the clean rotation.
-    errors : list of InjectedError
-    """
-    rng = np.random.default_rng(seed)
-    rot = motion.rotations.copy()
-    t = motion.n_frames
-    jobs = [k for k in kinds for _ in range(per_kind)]
-    rng.shuffle(jobs)
-    need = max(ERROR_RANGES[k][0][1] for k in jobs) + margin if jobs else 1
-    jobs = jobs[: max(1, (t - margin) // need)]
-    # slots: equal stretches of the clip, one error each, placed randomly inside
-    slot = (t - margin) // max(1, len(jobs))
-    errors: list[InjectedError] = []
-    for i, kind in enumerate(jobs):
-        (dmin, dmax), (amin, amax) = ERROR_RANGES[kind]
-        dur = int(rng.integers(dmin, dmax + 1))
-        lo = margin + i * slot
-        hi = lo + slot - dur - margin // 2
-        if slot <= 0 or hi <= lo:
-            raise DataError(f"motion {motion.name!r} ({t} frames) is too short for {len(jobs)} errors")
-        start = int(rng.integers(lo, hi))
-        joints = _pick_joints(rng, motion, kind)
-        if joints is None:
-            continue
-        mag = float(rng.uniform(amin, amax))
-        apply_error(rot, motion, kind, start, start + dur, joints, mag, rng)
-        errors.append(InjectedError(kind, joints, start, start + dur, mag))
-    rot = quat.normalize(rot)
-    mask = np.rad2deg(quat.geodesic_angle(rot, motion.rotations)) > min_angle
     return motion.with_arrays(rotations=rot), mask, errors

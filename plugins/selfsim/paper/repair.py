@@ -16,7 +16,7 @@
   frame keeps its carried correction only when it lands nearer the repaired pose at that
   time than the frame was: a correction computed on an analysis sample that caught a glitch
   shorter than one analysis frame would otherwise turn the clean input frames beside it
-  the other way (seen on CMU 16_15, whose left arm is broken in its first two 120-fps frames).
+  the other way (CMU 16_15's left arm is broken in its first two 120-fps frames).
 * :func:`sparse_reconstruction`: full body from a subset of joints (§4, Fig. 8).
 """
 from __future__ import annotations
@@ -101,7 +101,6 @@ def repair_texture(res: Any, threshold: float = 0.5, window: int = 7, order: int
     if not flagged.any() or not res.neighbours:
         return new, flagged
     n = res.neighbours[0].warped.shape[3]
-    # later searches (two-stage) win where they cover, as in the MDM
     proposal = np.full((t_count, m, 4), np.nan)
     for neigh in res.neighbours:
         _propose(neigh, n, q, flagged, proposal, res, contacts)
@@ -270,7 +269,7 @@ def sparse_reconstruction(sparse: Motion, context: Sequence[Motion], known: Sequ
     if len(starts) == 0:
         raise DataError(f"motion {sparse.name!r} is shorter than one word ({n} frames at {params.fps} fps)")
     neigh = knn_search(tex.q, ctx, groups, self_clip=-1, word_starts=starts, source_length=n,
-                       target_length=params.target_length, k=params.k, slope_run=params.slope_run, method=params.knn_method)
+                       target_length=params.target_length, k=params.k, slope_run=params.slope_run)
     out = tex.q.copy()
     prev = None
     for w, s in enumerate(starts):

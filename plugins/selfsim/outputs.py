@@ -1,6 +1,6 @@
-"""The per-clip body of the ``cleaners.mdm`` step and of ``mocapflow clean``: analyse,
-decide and repair one clip, and the tables (digression map at the input frames, edits) and
-pictures it leaves."""
+"""What ``cleaners.mdm`` and ``mocapflow clean`` leave for one clip: the digression map at the
+input frames and the edits as tables, the change report, the cleaned BVH, the heatmap and the
+before/after plot (:func:`clean_and_write_clip`)."""
 from __future__ import annotations
 
 import re
@@ -68,10 +68,13 @@ def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
             "calibration": out.calibration.summary() if out.calibration is not None else None}
 
 
-def clean_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None) -> dict[str, Any]:
-    """Analyse and repair one clip; write its BVH, heatmap and before/after plot into ``out_dir``."""
+def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None
+                         ) -> dict[str, Any]:
+    """Clean one clip (:meth:`.cleaner.MDMCleaner.clean`) and write its BVH, heatmap and
+    before/after plot into ``out_dir`` (None: nothing written); returns the tables, the
+    cleaned motion, the analysis seconds and the summary."""
+    from .paper.repair import map_to_input
     from .plots import mdm_heatmap
-    from .repair import map_to_input
 
     p = cleaner.params
     out = cleaner.clean(motion, context)
@@ -87,7 +90,7 @@ def clean_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: P
                         title=f"{motion.name}: movement digression map ({p.mode})")
             files["heatmap"] = f"{stem}.mdm.png"
             if edits.num_rows:
-                from .edit_plots import before_after_plot
+                from .plots import before_after_plot
 
                 before_after_plot(motion, out.cleaned, edits, out_dir / f"{stem}.edits.png")
                 files["before_after"] = f"{stem}.edits.png"

@@ -1,9 +1,5 @@
 """Scores of the cleaning protocol (:mod:`.clean_eval`): baselines, detection counts, eq. 2,
-and the source glitches of the "clean" references.
-
-Split from :mod:`.clean_eval` (session 6: the module had grown past 400 lines); that module
-re-exports every name.
-"""
+and the source glitches of the "clean" references."""
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -12,8 +8,14 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 
-from .cues import rotation_vectors
 
+
+def rotation_vectors(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (axis * angle, radians) of unit quaternions (..., 4), w >= 0."""
+    q = np.where(q[..., :1] < 0, -q, q)
+    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    ang = 2.0 * np.arctan2(s, q[..., :1])
+    return np.where(s > 1e-12, q[..., 1:] / np.where(s > 1e-12, s, 1.0) * ang, 2.0 * q[..., 1:])
 
 def _log_norm_sq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """||log(a^-1 b)||^2 per quaternion pair (half-angle convention of eq. 1/2)."""
@@ -91,17 +93,6 @@ def _ratios(c: Mapping[str, int]) -> dict[str, float]:
             "wj_precision": div(c["wj_tp"], c["wj_tp"] + c["wj_fp"])}
 
 
-def repair_errors(clean: np.ndarray, other: np.ndarray, truth: np.ndarray) -> dict[str, float]:
-    """Eq. 2 between clean and another texture on erroneous frames (global) and cells (per joint)."""
-    cell = _log_norm_sq(clean, other)
-    frames = truth.any(1)
-    glob = cell.sum(1)[frames]
-    per = cell[truth]
-    nan = float("nan")
-    return {"global_avg": float(glob.mean()) if len(glob) else nan, "global_max": float(glob.max()) if len(glob) else nan,
-            "joint_avg": float(per.mean()) if len(per) else nan, "joint_max": float(per.max()) if len(per) else nan}
-
-
 def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typical: float = 30.0,
                     step: float = 45.0, pad: int = 2) -> np.ndarray:
     """Cells of a "clean" reference that are capture glitches of the source itself, (T, m) bool.
@@ -121,7 +112,7 @@ def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typica
     1/24 s) and is marked whole. The protocol
     scores repairs of these cells apart (the cleaner is right to repair them, and eq. 2
     against this reference counts that as damage)."""
-    from .bounded_repair import _runs
+    from ..calibrated.bounded_repair import _runs
 
     out = np.zeros(q.shape[:2], bool)
     for j in range(q.shape[1]):
@@ -136,27 +127,4 @@ def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typica
         for a, b in _runs(ang > back):
             if (ang[a:b] > far).any() and (sp[max(0, a - 2):b + 1] > step).any():
                 out[max(0, a - pad):b + pad, j] = True
-    return out
-
-
-def glitch_returns(q: np.ndarray, step: float = 45.0, back: float = 20.0, max_len: int = 12, pad: int = 2
-                   ) -> np.ndarray:
-    """Jump-and-return glitches of a "clean" reference, (T, m) bool (session 6, round 2).
-
-    A step of more than ``step`` degrees in one 24-fps frame out of a pose and, within
-    ``max_len`` frames, another one back to within ``back`` degrees of that pose: salsa take
-    60_07's neck (24-fps frames 307-317: 84 degrees away by a 107-degree step in 1/120 s and
-    back 0.25 s later), which :func:`source_glitches` misses because the excursion stays under
-    60 degrees from the joint's mean pose. On the protocol's clean references it adds 60_07
-    neck, 60_02 left shoulder and 61_07 / 61_11 right toes, and nothing on locomotion. Marks the
-    frames from the first step to the return, plus ``pad``."""
-    out = np.zeros(q.shape[:2], bool)
-    for j in range(q.shape[1]):
-        sp = np.rad2deg(quat.geodesic_angle(q[1:, j], q[:-1, j]))
-        big = np.flatnonzero(sp > step)
-        for a in big:
-            for b in big[(big > a) & (big <= a + max_len)]:
-                if np.rad2deg(quat.geodesic_angle(q[a, j], q[b + 1, j])) < back:
-                    out[max(0, a + 1 - pad):b + 1 + pad, j] = True
-                    break
     return out

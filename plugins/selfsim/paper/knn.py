@@ -9,8 +9,8 @@ The paper's MATLAB compared every source word with every target word by DTW (140
 2. the constrained DTW runs in a compiled kernel on sub-blocks of that matrix;
 3. a lower bound of the DTW word distance (weighted row/column minima, see
    :mod:`._mdm_kernels`) orders the target starts and stops the search once no remaining
-   start can enter the KNN, so the answer equals the brute-force KNN (``method="brute"``,
-   kept for tests and benchmarks).
+   start can enter the KNN, so the answer equals the brute-force KNN (its twin in the
+   tests, ``tests/naive/cleaning.py``).
 
 The KNN of a source word are the ``K`` smallest local minima of its distance function over
 the context target starts (per clip), leaving out minima within ``radius`` frames of the
@@ -79,7 +79,7 @@ class WordNeighbours:
         Each neighbour's time-warped target word resampled to the source length (all
         texture joints; the group's joints are the ones that were compared).
     n_dtw : int
-        DTWs computed (brute force computes one per word, group and target start).
+        DTWs computed (brute force would compute one per word, group and target start).
     """
 
     starts: np.ndarray
@@ -120,8 +120,6 @@ def knn_search(
     k: int = 5,
     slope_run: int = 2,
     radius: int | None = None,
-    method: str = "pruned",
-    warp: str = "polyphase",
     block_rows: int = 192,
 ) -> WordNeighbours:
     """K nearest target words of each source word, per joint group.
@@ -146,12 +144,6 @@ def knn_search(
         Most consecutive non-diagonal DTW steps in one direction.
     radius : int or None
         Exclusion radius in frames; ``None`` = N // 2 (the paper's N/2).
-    method : {"pruned", "brute"}
-        Both give the same neighbours; "brute" computes every DTW.
-    warp : {"polyphase", "path"}
-        How a neighbour is brought to the source length: "polyphase" (the paper) resamples
-        the target frames along the DTW path; "path" averages, for each source frame, the
-        target frames the path matches to it (no filter ringing).
     block_rows : int
         Source frames per eq. 1 block (memory: G * block_rows * C * 4 bytes).
 
@@ -162,10 +154,6 @@ def knn_search(
     from . import _mdm_kernels as kern
 
     n, mlen = int(source_length), int(target_length)
-    if method not in ("pruned", "brute"):
-        raise DataError(f"unknown KNN method {method!r} (use 'pruned' or 'brute')")
-    if warp not in ("polyphase", "path"):
-        raise DataError(f"unknown warp {warp!r} (use 'polyphase' or 'path')")
     if source_q.shape[1:] != context.q.shape[1:]:
         raise DataError(f"source texture {source_q.shape[1:]} and context {context.q.shape[1:]} differ in joints")
     if not 1 <= n <= mlen:
@@ -192,19 +180,15 @@ def knn_search(
         st = starts[chunk]
         out_t = np.empty((g_count, len(st), k), np.int64)
         out_d = np.empty((g_count, len(st), k))
-        if method == "brute":
-            kern.knn_brute(d, st, r0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d)
-            n_dtw += g_count * len(st) * int((tlen > 0).sum())
-        else:
-            w_rows = np.empty_like(d)
-            kern.sliding_row_min(d, tlen, w_rows)
-            v_cols = np.empty((g_count, len(st), d.shape[2]), np.float32)
-            kern.word_column_min(d, st - r0, n, v_cols)
-            lb = np.empty((g_count, len(st), d.shape[2]))
-            kern.lower_bounds(w_rows, v_cols, st, r0, n, tlen, slope_run, lb)
-            out_n = np.empty((g_count, len(st)), np.int64)
-            kern.knn_pruned(d, lb, st, r0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d, out_n)
-            n_dtw += int(out_n.sum())
+        w_rows = np.empty_like(d)
+        kern.sliding_row_min(d, tlen, w_rows)
+        v_cols = np.empty((g_count, len(st), d.shape[2]), np.float32)
+        kern.word_column_min(d, st - r0, n, v_cols)
+        lb = np.empty((g_count, len(st), d.shape[2]))
+        kern.lower_bounds(w_rows, v_cols, st, r0, n, tlen, slope_run, lb)
+        out_n = np.empty((g_count, len(st)), np.int64)
+        kern.knn_pruned(d, lb, st, r0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d, out_n)
+        n_dtw += int(out_n.sum())
         target[:, chunk] = out_t
         distance[:, chunk] = out_d
         for g in range(g_count):
@@ -214,10 +198,7 @@ def knn_search(
                     if t < 0:
                         continue
                     _, path = kern.cdtw_path(d[g], int(st[a]) - r0, t, n, int(tlen[t]), slope_run)
-                    if warp == "path":
-                        warped[g, w, b] = _path_mean(context.q, t, path, n)
-                    else:
-                        jobs.setdefault(len(path), []).append((g, w, b, t + path[:, 1]))
+                    jobs.setdefault(len(path), []).append((g, w, b, t + path[:, 1]))
     for p, items in jobs.items():
         # one polyphase call per path length instead of one per neighbour
         frames = np.stack([it[3] for it in items], axis=1)  # (p, B)
@@ -225,15 +206,6 @@ def knn_search(
         for c, (g, w, b, _) in enumerate(items):
             warped[g, w, b] = out[:, c]
     return WordNeighbours(starts, groups, target, distance, warped, n_dtw)
-
-
-def _path_mean(ctx_q: np.ndarray, t0: int, path: np.ndarray, n: int) -> np.ndarray:
-    """Per source frame, the normalised mean of the target frames the path matches to it."""
-    seq = ctx_q[t0 + path[:, 1]]  # (p, m, 4), sign-continuous within the clip
-    acc = np.zeros((n,) + seq.shape[1:])
-    np.add.at(acc, path[:, 0], seq)
-    norm = np.linalg.norm(acc, axis=-1, keepdims=True)
-    return acc / np.where(norm > 0, norm, 1.0)
 
 
 def _word_chunks(starts: np.ndarray, n: int, block_rows: int) -> list[np.ndarray]:

@@ -1,13 +1,15 @@
 """Repair of the calibrated cleaner: only flagged cells, bounded, never away from consensus.
 
-For the cells :meth:`.calibration.Calibration.detect` flags (analysis rate, texture joints):
+For the cells the calibrated decision (:mod:`.decision`) flags (analysis rate, texture joints):
 
 1. *Swapped limbs*: on the frames where a left/right chain pair is flagged by the mirror
-   cue, swapping back makes the chains smoother at both ends of the run, and that cue says the limbs are nearer their consensus once exchanged (the summed gain exceeds
-   ``swap_gain`` radians), both chains are swapped back (left <- mirrored right and the
-   reverse), which undoes a marker mislabelling exactly.
+   cue, swapping back makes the chains smoother at both ends of the run, and that cue says
+   the limbs are nearer their consensus once exchanged (the summed gain exceeds
+   :data:`.constants.SWAP_GAIN` radians), both chains are swapped back (left <- mirrored right and the
+   reverse), which undoes a marker mislabelling exactly; so are the swaps found by their
+   edges (:mod:`.swaps`), whatever the flags.
 2. *Other flagged runs* (consecutive flagged frames of one joint) take the rotations of
-   the median KNN word (:func:`.repair._propose`, the paper's §4) corrected by a
+   the median KNN word (:func:`..paper.repair._propose`, the paper's §4) corrected by a
    displacement map: the offset between the KNN word and the take at the two frames that
    bound the run, interpolated (slerp) across it, so the repair joins the take without a
    jump and keeps the KNN word's shape (this replaces the Savitzky-Golay blend of the
@@ -96,13 +98,11 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
     return out
 
 
-def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int = 0,
-                   mirror_flags: np.ndarray | None = None, cap: np.ndarray | None = None,
-                   swap_level: float | None = None, swap_max: int = 72, mirror_swaps: bool = True,
-                   offset_level: float | None = None, extra: dict | None = None,
-                   interp: np.ndarray | None = None, interp_max: int = 0, merge_gap: int = 0,
-                   no_merge: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Repaired texture (T, m, 4), the edited cells (T, m) and which were swapped (T, m).
+def bounded_repair(res, flags: np.ndarray, mirror_flags: np.ndarray, cap: np.ndarray, no_merge: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Repaired texture (T, m, 4), the edited cells, which were swapped and which were
+    repaired as offsets (each (T, m); offsets may lie outside ``flags``: the interval
+    between the jumps).
 
     Parameters
     ----------
@@ -110,81 +110,48 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
         The take's analysis (texture, T̄, spread, KNN).
     flags : ndarray of bool, shape (T, m)
         Cells to repair.
-    swap_gain : float
-        Least summed mirror gain (radians over the six chain joints) for a swap-back.
-    dilate : int
-        Frames added on each side of a flagged run before repairing.
-    mirror_flags : ndarray of bool, shape (T, m), optional
-        Cells the mirror cue flagged: only runs holding one are swapped back (default: any
-        flagged cell of the chains).
-    cap : ndarray of shape (T, m), optional
+    mirror_flags : ndarray of bool, shape (T, m)
+        Cells the mirror cue flagged: only runs holding one are swapped back
+        (:func:`swap_frames`, where no swap found by its edges, :func:`.swaps.swap_edges`,
+        overlaps them); the others are left as they are.
+    cap : ndarray of shape (T, m)
         Largest edit per cell, radians (on top of the evidence bound); swaps are not capped.
-    swap_level : float, optional
-        Swaps found by their edges (:func:`.swaps.swap_edges`, this level, intervals up to
-        ``swap_max`` frames) are swapped back whatever the flags; None = off.
-    mirror_swaps : bool
-        Also swap back the runs the mirror cue flagged (:func:`swap_frames`) where no edge
-        swap of that chain pair overlaps them.
-    offset_level : float, optional
-        Flagged runs whose two ends are consistent jumps of at least this many typical
-        accelerations of the joint (and 8 degrees) are repaired by taking the offset out
-        over the whole interval between the jumps (:mod:`.offsets`) instead of the KNN word,
-        when that lowers the run's mean digression; None = off.
-    extra : dict, optional
-        Receives ``"offset"``: bool (T, m), the cells repaired as offsets (some may lie
-        outside ``flags``: the interval between the jumps).
-    interp, interp_max : ndarray of bool (T, m), int
-        Runs of at most ``interp_max`` frames made only of ``interp`` cells (the
-        acceleration cue's: a spike or a burst of jitter) that are no offset are
-        interpolated (slerp) between the frames that bound them instead of taking the KNN word.
-    merge_gap : int
-        Flagged runs of one joint at most this many frames apart are repaired as one run
-        (the gap included: a burst of jitter flags its extreme frames only).
-    no_merge : ndarray of bool, shape (T, m), optional
-        Cells no merged gap may include (the acceleration flags of a whole-body jolt,
-        dropped because a KNN word cannot repair them).
+    no_merge : ndarray of bool, shape (T, m)
+        Cells no merged gap may include (flags a rule dropped on purpose).
+
+    Flagged runs of one joint at most :data:`.constants.MERGE_GAP` frames apart are repaired
+    as one run (the gap included: a burst of jitter flags its extreme frames only). A run
+    whose two ends are consistent jumps of at least :data:`.constants.OFFSET_LEVEL` typical
+    accelerations of the joint (and 8 degrees) is repaired by taking the offset out over the
+    whole interval between the jumps (:mod:`.offsets`) when that lowers its mean digression.
     """
-    from .repair import _propose
+    from ..paper.repair import _propose
+    from .constants import MERGE_GAP, OFFSET_LEVEL, SWAP_GAIN, SWAP_LEVEL, SWAP_MAX
+    from .swaps import swap_edges
 
     q = res.texture.q
     mean_q = res.mean_texture
     t_count, m = q.shape[:2]
     new = q.copy()
     swapped = np.zeros((t_count, m), bool)
-    if extra is not None:
-        extra["offset"] = np.zeros((t_count, m), bool)
-    edge_swaps = []
-    if swap_level is not None:
-        from .swaps import swap_edges
-
-        edge_swaps = swap_edges(q, res.joints, swap_level, max_len=swap_max)
+    offset = np.zeros((t_count, m), bool)
+    edge_swaps = swap_edges(q, res.joints, SWAP_LEVEL, max_len=SWAP_MAX)
     if not flags.any() and not edge_swaps:
-        return new, np.zeros((t_count, m), bool), swapped
-    work = flags.copy()
-    if dilate > 0:
-        for o in range(1, dilate + 1):
-            work[o:] |= flags[:-o]
-            work[:-o] |= flags[o:]
+        return new, np.zeros((t_count, m), bool), swapped, offset
     runs = list(edge_swaps)
-    if mirror_swaps:
-        for lc, rc, a, b in swap_frames(q, mean_q, res.joints, work if mirror_flags is None else mirror_flags,
-                                        swap_gain, skip=edge_swaps):
-            if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in edge_swaps):
-                runs.append((lc, rc, a, b))
+    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, mirror_flags, SWAP_GAIN, skip=edge_swaps):
+        if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in edge_swaps):
+            runs.append((lc, rc, a, b))
     for lc, rc, a, b in runs:
         new[a:b, lc] = mirror(q[a:b, rc])
         new[a:b, rc] = mirror(q[a:b, lc])
         swapped[a:b, np.concatenate([lc, rc])] = True
-    rest = work & ~swapped
-    offset = np.zeros((t_count, m), bool)
-    if mirror_flags is not None:
-        rest &= ~mirror_flags  # the evidence was for a swap that did not hold up: leave them
-    if merge_gap > 0:
-        for j in np.flatnonzero(rest.any(axis=0)):
-            for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:]):
-                if a2 - b <= merge_gap and not swapped[b:a2, j].any() and not (
-                        no_merge is not None and no_merge[b:a2, j].any()):
-                    rest[b:a2, j] = True
+    # the mirror flags' evidence was for a swap that did not hold up: leave them
+    rest = flags & ~swapped & ~mirror_flags
+    for j in np.flatnonzero(rest.any(axis=0)):
+        for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:]):
+            if a2 - b <= MERGE_GAP and not swapped[b:a2, j].any() and not no_merge[b:a2, j].any():
+                rest[b:a2, j] = True
     if rest.any() and res.neighbours:
         around = rest.copy()
         around[1:] |= rest[:-1]
@@ -195,14 +162,8 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
             _propose(neigh, n, q, around, proposal, res, ())
         for j in np.flatnonzero(rest.any(axis=0)):
             for a, b in _runs(rest[:, j]):
-                if offset_level is not None and _offset_run(q, mean_q, new, j, a, b, offset_level, offset):
-                    continue
-                if interp is not None and b - a <= interp_max and interp[a:b, j].all() and a > 0 and b < t_count:
-                    u = (np.arange(a, b) - a + 1) / (b - a + 1)
-                    new[a:b, j] = quat.slerp(np.broadcast_to(q[a - 1, j], (b - a, 4)),
-                                             np.broadcast_to(q[b, j], (b - a, 4)), u)
-                    continue
-                _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
+                if not _offset_run(q, mean_q, new, j, a, b, OFFSET_LEVEL, offset):
+                    _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
     # bounds: nearer the consensus, never more than the evidence
     before = quat.geodesic_angle(q, mean_q)
     after = quat.geodesic_angle(new, mean_q)
@@ -216,16 +177,13 @@ def bounded_repair(res, flags: np.ndarray, swap_gain: float = 0.1, dilate: int =
     new[worse] = q[worse]
     edit = quat.geodesic_angle(new, q)
     limit = before + np.asarray(res.spread if res.spread is not None else 0.0)
-    if cap is not None:
-        limit = np.where(swapped, limit, np.minimum(limit, cap))
+    limit = np.where(swapped, limit, np.minimum(limit, cap))
     over = (edit > limit + 1e-9) & ~exempt
     if over.any():
         frac = limit[over] / edit[over]
         new[over] = quat.slerp(q[over], new[over], frac)
     edited = np.any(new != q, axis=-1)  # exact: an angle test near 0 is rounding noise
-    if extra is not None:
-        extra["offset"] = offset & edited
-    return new, edited, swapped & edited
+    return new, edited, swapped & edited, offset & edited
 
 
 def _offset_run(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, j: int, a0: int, b0: int, level: float,

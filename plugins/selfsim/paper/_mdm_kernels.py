@@ -205,56 +205,6 @@ def _excluded(t, clip_of, self_clip, self_pos, radius):  # pragma: no cover - co
     return self_clip >= 0 and clip_of[t] == self_clip and abs(t - self_pos) <= radius
 
 
-@njit(cache=True, parallel=True)
-def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r, k, out_t, out_d):  # pragma: no cover
-    """Reference KNN: the word distance at every target start, its local minima (within each
-    clip), those farther than ``radius`` frames from the source word, the ``k`` smallest.
-
-    ``self_clip`` is the source clip's position in the context (-1: not in it) and
-    ``self_off`` the context frame of its first frame. d (G, rows, C) float32; out_t
-    (G, S, k) int64 (-1 = none), out_d (G, S, k) float64 (inf = none).
-    """
-    n_g = d.shape[0]
-    n_w = starts.shape[0]
-    n_c = tlen.shape[0]
-    m = 1
-    for t in range(n_c):
-        m = max(m, tlen[t])
-    for gw in prange(n_g * n_w):
-        g = gw // n_w
-        w = gw % n_w
-        dg = d[g]
-        cur = np.empty((m, 2 * r + 1))
-        prev = np.empty((m, 2 * r + 1))
-        lcur = np.empty((m, 2 * r + 1), np.int64)
-        lprev = np.empty((m, 2 * r + 1), np.int64)
-        cost2 = np.empty((2, 5, m))
-        plen2 = np.empty((2, 5, m), np.int64)
-        f = np.full(n_c, _INF)
-        i0 = starts[w] - row0
-        for t in range(n_c):
-            if tlen[t] > 0:
-                if r == 2:
-                    c, p = cdtw_cost_r2(dg, i0, t, n, tlen[t], cost2, plen2)
-                else:
-                    c, p = cdtw_cost(dg, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
-                f[t] = c / p
-        best_d = np.full(k, _INF)
-        best_t = np.full(k, np.int64(2**62))
-        self_pos = self_off + starts[w]
-        for t in range(n_c):
-            if tlen[t] == 0 or _excluded(t, clip_of, self_clip, self_pos, radius):
-                continue
-            if t > 0 and tlen[t - 1] > 0 and clip_of[t - 1] == clip_of[t] and not f[t] < f[t - 1]:
-                continue
-            if t + 1 < n_c and tlen[t + 1] > 0 and clip_of[t + 1] == clip_of[t] and not f[t] <= f[t + 1]:
-                continue
-            _insert_topk(best_d, best_t, k, f[t], t)
-        for a in range(k):
-            out_d[g, w, a] = best_d[a]
-            out_t[g, w, a] = best_t[a] if best_d[a] < _INF else -1
-
-
 @njit(cache=True)
 def _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo):  # pragma: no cover
     if math.isnan(memo[t]):
@@ -268,14 +218,15 @@ def _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, m
 
 @njit(cache=True, parallel=True)
 def knn_pruned(d, lb, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r, k, out_t, out_d, out_n):  # pragma: no cover
-    """Exact KNN with lower-bound pruning; same answer as :func:`knn_brute`.
+    """Exact KNN with lower-bound pruning; same answer as the brute force (``knn_brute`` in
+    ``tests/naive/cleaning.py``).
 
     Target starts are visited in increasing lower bound; the search stops once the bound
     exceeds the k-th best local minimum found. A start is a local minimum when its distance
     is below its left neighbour's and not above its right neighbour's: a neighbour whose
     bound already exceeds the start's distance needs no DTW (its distance is larger still).
-    d (G, rows, C), lb (G, S, C); outputs as :func:`knn_brute` plus out_n (G, S), the DTWs
-    computed per word.
+    d (G, rows, C), lb (G, S, C); outputs out_t (G, S, k) int64 (-1 = none), out_d (G, S, k)
+    float64 (inf = none) and out_n (G, S), the DTWs computed per word.
     """
     n_g = d.shape[0]
     n_w = starts.shape[0]
