@@ -1,4 +1,4 @@
-"""Slow, obviously correct references for the calibrated cleaner's cues (:mod:`mocapflow.plugins.selfsim.cues`).
+"""Slow, obviously correct references for the calibrated cleaner's cues (:mod:`mocapflow.plugins.selfsim.calibrated.cues`).
 
 Each loops over frames and joints with scalar quaternion arithmetic written out here,
 independent of :mod:`mocapflow.framework.quaternions`.

@@ -1,5 +1,5 @@
 """Slow, obviously correct references for the hold cue and the hold fill of the calibrated
-cleaner (:mod:`mocapflow.plugins.selfsim.holds`, ``cues.hold_lengths``, session 6).
+cleaner (:mod:`mocapflow.plugins.selfsim.calibrated.holds`, ``cues.hold_lengths``).
 
 Scalar loops and quaternion arithmetic written out here, independent of
 :mod:`mocapflow.framework.quaternions`.

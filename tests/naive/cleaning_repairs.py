@@ -1,5 +1,5 @@
 """Slow, obviously correct references for the swap and offset repairs of the calibrated
-cleaner (:mod:`mocapflow.plugins.selfsim.swaps`, :mod:`mocapflow.plugins.selfsim.offsets`).
+cleaner (:mod:`mocapflow.plugins.selfsim.calibrated.swaps`, :mod:`mocapflow.plugins.selfsim.calibrated.offsets`).
 
 Scalar quaternion arithmetic written out here, one frame and joint at a time, independent
 of :mod:`mocapflow.framework.quaternions`.

@@ -1,4 +1,4 @@
-"""Constant-offset repair of a flagged run (calibrated cleaner, issue 14).
+"""Constant-offset repair of a flagged run (calibrated cleaner).
 
 A spike (1-3 frames) or an offset burst adds one rotation ``off`` to a joint over an
 interval: ``q[t] = c[t] off`` for ``a <= t < b`` (``c`` the clean track, ``off`` right-

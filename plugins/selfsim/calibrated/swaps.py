@@ -1,4 +1,4 @@
-"""Swapped limbs found by their edges (calibrated cleaner, issue 14).
+"""Swapped limbs found by their edges (calibrated cleaner).
 
 A left/right mislabelling of a limb (the markers of the two arms or legs exchanged, seen
 as the left chain taking the *mirrored* rotations of the right one and the reverse) starts
