@@ -88,7 +88,9 @@ def speed(args) -> None:
     nb = res.neighbours[0]
     ctx = ContextTextures.from_arrays([res.texture.q])
     kw = {"self_clip": 0, "word_starts": nb.starts}
-    brute_knn(res.texture.q[:40], ContextTextures.from_arrays([res.texture.q[:40]]), nb.groups, nb.starts[:1], self_clip=0)
+    brute_knn(
+        res.texture.q[:40], ContextTextures.from_arrays([res.texture.q[:40]]), nb.groups, nb.starts[:1], self_clip=0
+    )
     t0 = time.perf_counter()
     fast = knn_search(res.texture.q, ctx, nb.groups, **kw)
     t_fast = time.perf_counter() - t0
@@ -97,15 +99,19 @@ def speed(args) -> None:
     t_brute = time.perf_counter() - t0
     same = np.array_equal(target, fast.target) and np.array_equal(distance, fast.distance)
     print(f"speed: {take.name} ({take.n_frames} frames at 24 fps) against itself")
-    print(f"  whole analysis {t_map:.2f} s ({c_map:.2f} s CPU); KNN pruned {t_fast:.2f} s ({fast.n_dtw} DTWs), brute "
-          f"force {t_brute:.2f} s ({n_brute} DTWs): x{t_brute / max(t_fast, 1e-9):.1f}, identical neighbours: {same}")
+    print(
+        f"  whole analysis {t_map:.2f} s ({c_map:.2f} s CPU); KNN pruned {t_fast:.2f} s ({fast.n_dtw} DTWs), brute "
+        f"force {t_brute:.2f} s ({n_brute} DTWs): x{t_brute / max(t_fast, 1e-9):.1f}, identical neighbours: {same}"
+    )
     cpu = {}
     for mode in ("paper", "calibrated"):
         c0 = time.process_time()
         MDMCleaner(mode=mode, write_bvh=False, heatmaps=False).clean(take)
         cpu[mode] = time.process_time() - c0
-    print(f"  whole clean, CPU: paper {cpu['paper']:.2f} s, calibrated {cpu['calibrated']:.2f} s "
-          f"(x{cpu['calibrated'] / cpu['paper']:.2f}: the calibration analyses the context once more)")
+    print(
+        f"  whole clean, CPU: paper {cpu['paper']:.2f} s, calibrated {cpu['calibrated']:.2f} s "
+        f"(x{cpu['calibrated'] / cpu['paper']:.2f}: the calibration analyses the context once more)"
+    )
     if args.quick:
         return
     # the take against about 600 s of other CMU takes (the paper: ~3 h)
@@ -121,8 +127,10 @@ def speed(args) -> None:
     t0 = time.perf_counter()
     big = knn_search(ctx_q[0], ContextTextures.from_arrays(ctx_q), nb.groups, **kw)
     every = nb.groups.n_groups * len(nb.starts) * sum(max(0, len(q) - 14) for q in ctx_q)
-    print(f"  against {len(context)} takes ({total:.0f} s): KNN pruned {time.perf_counter() - t0:.2f} s, "
-          f"{big.n_dtw} of {every} DTWs ({1 - big.n_dtw / every:.1%} avoided)")
+    print(
+        f"  against {len(context)} takes ({total:.0f} s): KNN pruned {time.perf_counter() - t0:.2f} s, "
+        f"{big.n_dtw} of {every} DTWs ({1 - big.n_dtw / every:.1%} avoided)"
+    )
 
 
 def install_cache(folder: Path) -> None:
@@ -143,8 +151,11 @@ def install_cache(folder: Path) -> None:
         for c in mdm.context_motions(motion, context, p.include_self):
             h.update(c.name.encode())
             h.update(np.ascontiguousarray(c.rotations).tobytes())
-        h.update(json.dumps({k: v for k, v in p.model_dump(mode="json").items() if k not in decision},
-                            sort_keys=True).encode())
+        h.update(
+            json.dumps(
+                {k: v for k, v in p.model_dump(mode="json").items() if k not in decision}, sort_keys=True
+            ).encode()
+        )
         path = folder / f"{h.hexdigest()}.pkl"
         if path.exists():
             return pickle.loads(path.read_bytes())
@@ -172,15 +183,26 @@ def pooled(results: list) -> tuple[list, list, list]:
     rep = []
     for group in zip(*(r[1] for r in results), strict=True):
         w = np.array([g["n_clips"] for g in group], float)
-        row = {k: (max(g[k] for g in group) if "max" in k else sum(g[k] for g in group) if isinstance(v, int)
-                   else float(np.average([g[k] for g in group], weights=w)) if isinstance(v, float) else v)
-               for k, v in group[0].items()}
+        row = {
+            k: (
+                max(g[k] for g in group)
+                if "max" in k
+                else sum(g[k] for g in group)
+                if isinstance(v, int)
+                else float(np.average([g[k] for g in group], weights=w))
+                if isinstance(v, float)
+                else v
+            )
+            for k, v in group[0].items()
+        }
         rep.append(row)
     kinds: dict[tuple, dict] = {}
     for r in results:
         for k in r[2]:
-            cur = kinds.setdefault((k["method"], k["context"], k["kind"]), {**k, **dict.fromkeys(
-                ("errors", "found", "cells", "cells_flagged", "eq2_before", "eq2_after"), 0)})
+            cur = kinds.setdefault(
+                (k["method"], k["context"], k["kind"]),
+                {**k, **dict.fromkeys(("errors", "found", "cells", "cells_flagged", "eq2_before", "eq2_after"), 0)},
+            )
             for f in ("errors", "found", "cells", "cells_flagged", "eq2_before", "eq2_after"):
                 cur[f] += k[f]
     return rows, rep, list(kinds.values())
@@ -192,44 +214,68 @@ def protocol(args) -> None:
 
     if args.cache:
         install_cache(args.cache)
-    kw: dict = {"contexts": tuple(args.contexts.split(",")) if args.contexts else ("local", "small"),
-                "cleaner": _sets(args.set)}
+    kw: dict = {
+        "contexts": tuple(args.contexts.split(",")) if args.contexts else ("local", "small"),
+        "cleaner": _sets(args.set),
+    }
     if args.tune:
         kw["held_out"] = TUNE
     if args.quick:
         kw.update(held_out={}, n_test=1, small_size=2, contexts=("small",))
     out = {}
-    for cat in (["locomotion"] if args.quick else args.category or list(SUBJECTS)):
+    for cat in ["locomotion"] if args.quick else args.category or list(SUBJECTS):
         t0 = time.perf_counter()
         clips = _category(cat, args.quick)
-        rows, rep, kinds = pooled([evaluate_category(cat, clips, CleaningEvaluationParams(**kw, seed=sd),
-                                                     log=lambda m: print("  " + m, file=sys.stderr, flush=True))
-                                   for sd in args.seed or [0]])
+        rows, rep, kinds = pooled(
+            [
+                evaluate_category(
+                    cat,
+                    clips,
+                    CleaningEvaluationParams(**kw, seed=sd),
+                    log=lambda m: print("  " + m, file=sys.stderr, flush=True),
+                )
+                for sd in args.seed or [0]
+            ]
+        )
         out[cat] = {"rows": rows, "repair": rep, "kinds": kinds}
-        print(f"\nprotocol, {cat}: {rows[0]['n_clips'] if rows else 0} test clips "
-              f"({'tuning' if args.tune else 'held-out'}), {time.perf_counter() - t0:.0f} s")
-        best = [max((_f1(r[a], r[b]) for r in rows if r["method"].startswith("baseline")), default=0.0)
-                for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))]
-        print(f"  {'method':22s} {'context':7s} {'word R/P':>11s} {'(w,j) R/P':>11s} {'cell R/P':>11s} "
-              f"{'F1 / best baseline: word, (w,j), cell':>38s}")
+        print(
+            f"\nprotocol, {cat}: {rows[0]['n_clips'] if rows else 0} test clips "
+            f"({'tuning' if args.tune else 'held-out'}), {time.perf_counter() - t0:.0f} s"
+        )
+        best = [
+            max((_f1(r[a], r[b]) for r in rows if r["method"].startswith("baseline")), default=0.0)
+            for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))
+        ]
+        print(
+            f"  {'method':22s} {'context':7s} {'word R/P':>11s} {'(w,j) R/P':>11s} {'cell R/P':>11s} "
+            f"{'F1 / best baseline: word, (w,j), cell':>38s}"
+        )
         for r in rows:
-            f = [_f1(r[a], r[b]) for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"),
-                                              ("recall", "precision"))]
+            f = [
+                _f1(r[a], r[b])
+                for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))
+            ]
             ratio = ", ".join(f"{x / y:.2f}x" if y > 0 else "-" for x, y in zip(f, best, strict=True))
-            print(f"  {r['method']:22s} {r['context']:7s} {r['word_recall']:5.3f}/{r['word_precision']:5.3f} "
-                  f"{r['wj_recall']:5.3f}/{r['wj_precision']:5.3f} {r['recall']:5.3f}/{r['precision']:5.3f}   {ratio}")
+            print(
+                f"  {r['method']:22s} {r['context']:7s} {r['word_recall']:5.3f}/{r['word_precision']:5.3f} "
+                f"{r['wj_recall']:5.3f}/{r['wj_precision']:5.3f} {r['recall']:5.3f}/{r['precision']:5.3f}   {ratio}"
+            )
         for r in rep:
-            print(f"  {r['method']:12s} {r['context']:6s} eq. 2 global {r['global_before']:.4f} -> {r['global_after']:.4f}, "
-                  f"fell on {r['share_global_lower']:.2f} (did not rise {r['share_global_not_higher']:.2f}; glitches "
-                  f"out {r['share_global_lower_ng']:.2f}), erroneous cells {r['cells_before']:.4f} -> "
-                  f"{r['cells_after']:.4f}; clean takes edited {100 * r['clean_edited_share']:.2f} % / worst "
-                  f"{100 * r['clean_edited_share_max']:.2f} %, largest {r['clean_max_edit_deg']:.1f} deg "
-                  f"({r['clean_max_edit_deg_ng']:.1f} outside the source glitches)")
+            print(
+                f"  {r['method']:12s} {r['context']:6s} eq. 2 global {r['global_before']:.4f} -> {r['global_after']:.4f}, "
+                f"fell on {r['share_global_lower']:.2f} (did not rise {r['share_global_not_higher']:.2f}; glitches "
+                f"out {r['share_global_lower_ng']:.2f}), erroneous cells {r['cells_before']:.4f} -> "
+                f"{r['cells_after']:.4f}; clean takes edited {100 * r['clean_edited_share']:.2f} % / worst "
+                f"{100 * r['clean_edited_share_max']:.2f} %, largest {r['clean_max_edit_deg']:.1f} deg "
+                f"({r['clean_max_edit_deg_ng']:.1f} outside the source glitches)"
+            )
         for r in kinds:
             if r["method"] == "mdm":
                 ratio = r["eq2_after"] / r["eq2_before"] if r["eq2_before"] > 0 else float("nan")
-                print(f"  kind {r['kind']:7s} {r['context']:6s} found {r['found']}/{r['errors']}, cells flagged "
-                      f"{r['cells_flagged']}/{r['cells']}, eq. 2 on its cells x{ratio:.2f}")
+                print(
+                    f"  kind {r['kind']:7s} {r['context']:6s} found {r['found']}/{r['errors']}, cells flagged "
+                    f"{r['cells_flagged']}/{r['cells']}, eq. 2 on its cells x{ratio:.2f}"
+                )
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1, default=float))
 
@@ -243,16 +289,20 @@ def native(args) -> None:
 
     cleaner = MDMCleaner(**{"write_bvh": False, "heatmaps": False, **_sets(args.set)})
     guarded = repair.apply_to_input
-    for cat in (["locomotion"] if args.quick else args.category or list(SUBJECTS)):
+    for cat in ["locomotion"] if args.quick else args.category or list(SUBJECTS):
         clips = sorted(_category(cat, args.quick), key=lambda m: -m.n_frames)
         held = TUNE[cat] if args.tune else CleaningEvaluationParams().held_out[cat]
-        tests = [i for i, c in enumerate(clips) if c.n_frames * 24.0 / c.fps >= MIN_FRAMES
-                 and (args.quick or clip_key(c.name, GROUP_BY[cat]) in held)][: 1 if args.quick else None]
+        tests = [
+            i
+            for i, c in enumerate(clips)
+            if c.n_frames * 24.0 / c.fps >= MIN_FRAMES and (args.quick or clip_key(c.name, GROUP_BY[cat]) in held)
+        ][: 1 if args.quick else None]
         figs: dict[str, list] = {"default": [], "no guard": []}
         for i in tests:
             trial = clip_key(clips[i].name, "trial")
-            ctx = [c for k, c in enumerate(clips) if k != i
-                   and not (cat == "dance" and clip_key(c.name, "trial") == trial)][: 2 if args.quick else 8]
+            ctx = [
+                c for k, c in enumerate(clips) if k != i and not (cat == "dance" and clip_key(c.name, "trial") == trial)
+            ][: 2 if args.quick else 8]
             res = cleaner.analyse(clips[i], ctx)  # one analysis, two carries of the same decision
             idx = [clips[i].skeleton.canonical[j] for j in res.joints]
             for name, guard in (("default", True), ("no guard", False)):
@@ -267,8 +317,10 @@ def native(args) -> None:
         for name, v in figs.items():
             if v:
                 share, big = np.array(v).T
-                print(f"  {name:9s} edited {100 * share.mean():.2f} % / worst {100 * share.max():.2f} %, largest edit "
-                      f"{big.max():.1f} deg, takes > 30 deg: {int((big > 30).sum())}")
+                print(
+                    f"  {name:9s} edited {100 * share.mean():.2f} % / worst {100 * share.max():.2f} %, largest edit "
+                    f"{big.max():.1f} deg, takes > 30 deg: {int((big > 30).sum())}"
+                )
 
 
 def _sweep(z: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -286,32 +338,49 @@ def scores(args) -> None:
     corrupted clips, small context: no threshold of a score reaches a precision no choice of
     threshold will."""
     from mocapflow.plugins.selfsim.cleaner import MDMCleaner
-    from mocapflow.plugins.selfsim.evaluation.clean_eval import (CleaningEvaluationParams, context_clips,
-                                                                 corrupted_clips, protocol_clips)
+    from mocapflow.plugins.selfsim.evaluation.clean_eval import (
+        CleaningEvaluationParams,
+        context_clips,
+        corrupted_clips,
+        protocol_clips,
+    )
 
     cleaner = MDMCleaner(write_bvh=False, heatmaps=False)
     p = cleaner.params
     ev = CleaningEvaluationParams(n_test=1 if args.quick else 4, **({"held_out": {}} if args.quick else {}))
-    for cat in (["locomotion"] if args.quick else args.category or list(SUBJECTS)):
+    for cat in ["locomotion"] if args.quick else args.category or list(SUBJECTS):
         clips, joints = protocol_clips(_category(cat, args.quick), p.joints, p.fps)
         runs = []
         for case in corrupted_clips(clips, ev, joints, p.fps, cat):
             res = cleaner.analyse(case.bad, context_clips("small", case.others, ev))
-            lo, tot, cnt = np.full(res.difference.shape, np.inf), np.zeros(res.difference.shape), np.zeros(res.difference.shape)
+            lo, tot, cnt = (
+                np.full(res.difference.shape, np.inf),
+                np.zeros(res.difference.shape),
+                np.zeros(res.difference.shape),
+            )
             nb, n = res.neighbours[0], p.source_length
             for g in range(nb.groups.n_groups):
                 jm = nb.groups.mask[g]
                 for si, s in enumerate(nb.starts):
                     for k in np.flatnonzero(nb.target[g, si] >= 0):
-                        a = 2.0 * np.arccos(np.clip(np.abs(np.sum(res.texture.q[s:s + n] * nb.warped[g, si, k], -1)),
-                                                    0.0, 1.0))[:, jm]
-                        lo[s:s + n, jm] = np.minimum(lo[s:s + n, jm], a)
-                        tot[s:s + n, jm] += a
-                        cnt[s:s + n, jm] += 1
-            runs.append({"truth": case.truth, "angle to T̄ (the MDM's)": res.difference,
-                         "smallest angle to a KNN sample": np.where(np.isfinite(lo), lo, 0.0),
-                         "mean angle to the KNN samples": tot / np.maximum(cnt, 1),
-                         "angle to T̄ / KNN spread": res.difference / np.sqrt(res.spread ** 2 + 0.035 ** 2)})
+                        a = (
+                            2.0
+                            * np.arccos(
+                                np.clip(np.abs(np.sum(res.texture.q[s : s + n] * nb.warped[g, si, k], -1)), 0.0, 1.0)
+                            )[:, jm]
+                        )
+                        lo[s : s + n, jm] = np.minimum(lo[s : s + n, jm], a)
+                        tot[s : s + n, jm] += a
+                        cnt[s : s + n, jm] += 1
+            runs.append(
+                {
+                    "truth": case.truth,
+                    "angle to T̄ (the MDM's)": res.difference,
+                    "smallest angle to a KNN sample": np.where(np.isfinite(lo), lo, 0.0),
+                    "mean angle to the KNN samples": tot / np.maximum(cnt, 1),
+                    "angle to T̄ / KNN spread": res.difference / np.sqrt(res.spread**2 + 0.035**2),
+                }
+            )
         truth = np.concatenate([r["truth"] for r in runs])
         print(f"\nscores, {cat}, small context: {truth.size:,} cells, {int(truth.sum())} erroneous")
         for name in [k for k in runs[0] if k != "truth"]:

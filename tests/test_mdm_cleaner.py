@@ -1,4 +1,5 @@
 """The MDM cleaner end to end on synthetic motions: the paper's analysis, detection, repair, contexts."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -41,7 +42,7 @@ def test_mdm_is_a_map_in_unit_range_and_finds_the_error(corrupted):
 def test_rows_are_divided_by_their_mean(corrupted):
     _, _, _, res = corrupted
     m = res.difference / np.maximum(res.difference.mean(axis=0, keepdims=True), 0.01)
-    np.testing.assert_allclose(res.mdm, 1 - np.exp(-m ** 2))
+    np.testing.assert_allclose(res.mdm, 1 - np.exp(-(m**2)))
 
 
 def test_knn_spread_is_the_rms_half_angle_about_the_chordal_mean():
@@ -57,7 +58,9 @@ def test_knn_spread_is_the_rms_half_angle_about_the_chordal_mean():
             n = 1 + 4 * t + j
             axis = rng.standard_normal((n, 3))
             axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-            q = quat.mul(np.broadcast_to(base, (n, 4)), quat.from_axis_angle(axis, (0.1 + 0.3 * j) * rng.standard_normal(n)))
+            q = quat.mul(
+                np.broadcast_to(base, (n, 4)), quat.from_axis_angle(axis, (0.1 + 0.3 * j) * rng.standard_normal(n))
+            )
             q = q * rng.choice([-1.0, 1.0], size=(n, 1))  # sign flips must not matter
             outer[t, j] = np.einsum("ni,nj->ij", q, q)
             count[t, j] = n
@@ -132,8 +135,9 @@ def test_contact_constraint_picks_the_word_closest_to_the_contact(corrupted):
     m24 = res.texture.motion
     e = m24.skeleton.canonical["lfingers"]
     target = clean.positions[203, e] - clean.root_translation[203] + m24.root_translation[203]
-    new_c, _ = repair_texture(res, p.threshold, p.savgol_window, p.savgol_order,
-                              contacts=[Contact("lfingers", 203, tuple(target))])
+    new_c, _ = repair_texture(
+        res, p.threshold, p.savgol_window, p.savgol_order, contacts=[Contact("lfingers", 203, tuple(target))]
+    )
     assert new_c.shape == res.texture.q.shape
 
 
@@ -209,7 +213,9 @@ def test_carry_guard_never_turns_a_clean_input_frame_away_from_the_repair():
     # the broken frames are repaired (frame 0 is the sample: exactly; frame 1 nearer)
     assert err(guarded)[0] < 1e-6 and err(guarded)[1] < 0.5 * err(bad)[1]
     assert changed[:2, j].all() and changed.sum() == 2 and changed_plain.sum() > 2
-    assert np.array_equal(guarded.rotations[:, np.arange(bad.n_joints) != j], bad.rotations[:, np.arange(bad.n_joints) != j])
+    assert np.array_equal(
+        guarded.rotations[:, np.arange(bad.n_joints) != j], bad.rotations[:, np.arange(bad.n_joints) != j]
+    )
 
 
 @pytest.mark.parametrize("joint", ["lelbow", "root"])

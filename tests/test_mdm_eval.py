@@ -1,4 +1,5 @@
 """Error injection, baselines and the cleaning evaluation harness; the clean pipeline and CLI."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -60,8 +61,13 @@ def test_harness_on_synthetic_walks():
     p = CleaningEvaluationParams(n_test=1, small_size=2, contexts=("small",), held_out={"locomotion": ()})
     rows, rep, kinds = evaluate_category("locomotion", clips, p, log=lambda *_: None)
     by = {(r["method"], r["context"]): r for r in rows}
-    assert set(by) == {("baseline_a_limits", "-"), ("baseline_b_derivative", "-"), ("baseline_c_both", "-"),
-                       ("mdm", "small"), ("mdm[paper]", "small")}
+    assert set(by) == {
+        ("baseline_a_limits", "-"),
+        ("baseline_b_derivative", "-"),
+        ("baseline_c_both", "-"),
+        ("mdm", "small"),
+        ("mdm[paper]", "small"),
+    }
     assert {"wj_recall", "wj_precision", "word_recall", "recall"} <= set(by[("mdm", "small")])
     assert by[("mdm[paper]", "small")]["recall"] >= by[("mdm", "small")]["recall"]
     r = {x["method"]: x for x in rep}
@@ -89,9 +95,26 @@ def test_clean_pipeline_and_cli(tmp_path):
     take = REPO / "examples" / "data" / "cmu" / "16" / "16_15.amc"
     ctx = REPO / "examples" / "data" / "cmu" / "16" / "16_01.amc"
     out = tmp_path / "clean.bvh"
-    assert main(["clean", str(take), "--context", str(ctx), "--output", str(out), "--report", str(tmp_path / "rep"),
-                 "--mode", "paper"]) == 0
-    assert out.is_file() and (tmp_path / "rep" / "mdm.parquet").is_file() and (tmp_path / "rep" / "summary.json").is_file()
+    assert (
+        main(
+            [
+                "clean",
+                str(take),
+                "--context",
+                str(ctx),
+                "--output",
+                str(out),
+                "--report",
+                str(tmp_path / "rep"),
+                "--mode",
+                "paper",
+            ]
+        )
+        == 0
+    )
+    assert (
+        out.is_file() and (tmp_path / "rep" / "mdm.parquet").is_file() and (tmp_path / "rep" / "summary.json").is_file()
+    )
     from mocapflow.plugins.formats.bvh import read_bvh
 
     assert read_bvh(out).n_frames > 0

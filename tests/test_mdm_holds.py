@@ -1,5 +1,6 @@
 """The freeze cue on holds and the hold fill of the calibrated cleaner, against slow
 references (tests/naive/cleaning_holds.py)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -38,8 +39,14 @@ def test_hold_lengths_match_the_naive_reference():
 def test_freeze_cue_counts_only_on_holds():
     t = 30
     frozen = np.zeros((t, 2))
-    cue = {"digression": np.full((t, 2), 0.1), "acceleration": np.zeros((t, 2)), "expected_acc": np.zeros((t, 2)),
-           "mirror": np.zeros((t, 2)), "held_freeze": np.full((t, 2), 3.0), "hold": frozen}
+    cue = {
+        "digression": np.full((t, 2), 0.1),
+        "acceleration": np.zeros((t, 2)),
+        "expected_acc": np.zeros((t, 2)),
+        "mirror": np.zeros((t, 2)),
+        "held_freeze": np.full((t, 2), 3.0),
+        "hold": frozen,
+    }
     cue["hold"][10:22, 0] = 12.0  # joint 0 held for 12 frames; joint 1 slow but moving
     scale = {"digression": np.full(2, 0.1), "acceleration": np.ones(2)}
     frz = cues.cue_values(cue, scale)[..., CUES.index("freeze")]
@@ -54,8 +61,9 @@ def test_fills_match_references_and_restore_what_they_can():
     got = holds.consensus_fill(bad, mean, 10, 24)
     np.testing.assert_allclose(np.abs(np.sum(got * naive_consensus_fill(bad, mean, 10, 24), -1)), 1.0, atol=1e-9)
     # with the clean track as the consensus the fill restores it exactly
-    np.testing.assert_allclose(np.abs(np.sum(holds.consensus_fill(bad, track, 10, 24) * track[11:24], -1)), 1.0,
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        np.abs(np.sum(holds.consensus_fill(bad, track, 10, 24) * track[11:24], -1)), 1.0, atol=1e-9
+    )
 
 
 def test_fill_holds_fills_flagged_interior_holds_only():
@@ -91,4 +99,4 @@ def test_calibrated_cleaner_fills_a_frozen_joint():
     err0 = quat.geodesic_angle(bad.rotations[100:118, j], clean.rotations[100:118, j])
     err1 = quat.geodesic_angle(out.cleaned.rotations[100:118, j], clean.rotations[100:118, j])
     assert out.flags[100:118, c].any() and set(out.cue[100:118, c][out.flags[100:118, c]]) == {"freeze"}
-    assert (err1 ** 2).sum() < 0.5 * (err0 ** 2).sum()
+    assert (err1**2).sum() < 0.5 * (err0**2).sum()

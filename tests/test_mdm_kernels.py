@@ -1,15 +1,30 @@
 """MDM cleaner kernels against their naive twins (tests/naive/cleaning.py)."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from naive.cleaning import brute_knn, naive_cdtw, naive_distance_function, naive_knn, naive_pose_distance, synthetic_walk
+from naive.cleaning import (
+    brute_knn,
+    naive_cdtw,
+    naive_distance_function,
+    naive_knn,
+    naive_pose_distance,
+    synthetic_walk,
+)
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.plugins.selfsim.paper import _mdm_kernels as kern
 from mocapflow.plugins.selfsim.paper.knn import ContextTextures, knn_search
-from mocapflow.plugins.selfsim.paper.motion_words import (DEFAULT_GROUPS, JointGroups, motion_texture, pose_distance,
-                                                     resolve_groups, source_word_starts, target_word_layout)
+from mocapflow.plugins.selfsim.paper.motion_words import (
+    DEFAULT_GROUPS,
+    JointGroups,
+    motion_texture,
+    pose_distance,
+    resolve_groups,
+    source_word_starts,
+    target_word_layout,
+)
 
 
 def _random_quats(rng, shape):
@@ -44,7 +59,7 @@ def test_cdtw_matches_naive(n, ln, r):
     rng = np.random.default_rng(n * 100 + ln * 10 + r)
     for _ in range(5):
         d = rng.random((n + 3, ln + 4)).astype(np.float32)
-        mean_ref, path_ref = naive_cdtw(d[2:2 + n, 1:1 + ln], r)
+        mean_ref, path_ref = naive_cdtw(d[2 : 2 + n, 1 : 1 + ln], r)
         m = max(ln, 1)
         cur, prev = np.empty((m, 2 * r + 1)), np.empty((m, 2 * r + 1))
         lc, lp = np.empty((m, 2 * r + 1), np.int64), np.empty((m, 2 * r + 1), np.int64)
@@ -78,7 +93,7 @@ def test_cdtw_slope_constraint_limits_runs():
     _, path = kern.cdtw_path(d, 0, 0, 15, 20, 2)
     steps = [tuple(s) for s in np.diff(path, axis=0)]
     run = best = 0
-    for a, b in zip(steps, steps[1:] + [None]):
+    for a, b in zip(steps, steps[1:] + [None], strict=True):
         run = run + 1 if a != (1, 1) and a == b else 0
         best = max(best, run + (a != (1, 1)))
     assert best <= 2
@@ -131,7 +146,9 @@ def test_knn_pruned_equals_brute_and_naive(self_clip):
     np.testing.assert_array_equal(fast.distance, distance)
     assert fast.n_dtw <= n_dtw
     for g in range(groups.n_groups):
-        ref = naive_knn(src, ctx.q, ctx.clip_lengths, starts, n, m, groups.mask[g], int(groups.drop[g]), r, k, self_clip)
+        ref = naive_knn(
+            src, ctx.q, ctx.clip_lengths, starts, n, m, groups.mask[g], int(groups.drop[g]), r, k, self_clip
+        )
         for w, words in enumerate(ref):
             assert [t for t, _ in words] == [t for t in fast.target[g, w] if t >= 0]
             np.testing.assert_allclose([dd for _, dd in words], fast.distance[g, w][: len(words)], rtol=1e-9)

@@ -1,5 +1,6 @@
 """Swaps found by their edges, offsets repaired between their jumps, the decision's rules and
 the protocol's source-glitch mask, against naive references and on a synthetic walk."""
+
 from __future__ import annotations
 
 import numpy as np

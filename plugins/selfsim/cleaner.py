@@ -46,13 +46,26 @@ def _default_groups() -> tuple[JointGroup, ...]:
 class CalibratedParams(Params):
     """What a user chooses in ``mode: calibrated`` (the rest is measured: :mod:`.calibrated.constants`)."""
 
-    false_alarm: float = Field(default=0.004, gt=0, lt=1, description="share of clean (word, joint) pairs of the "
-                               "calibration clips the detector may flag")
-    frames: int = Field(default=600, ge=15, description="calibration budget: frames (at fps) of the longest context "
-                        "clips analysed with synthetic errors (the take itself when there is no other clip)")
+    false_alarm: float = Field(
+        default=0.004,
+        gt=0,
+        lt=1,
+        description="share of clean (word, joint) pairs of the calibration clips the detector may flag",
+    )
+    frames: int = Field(
+        default=600,
+        ge=15,
+        description="calibration budget: frames (at fps) of the longest context "
+        "clips analysed with synthetic errors (the take itself when there is no other clip)",
+    )
     seed: int = Field(default=0, description="seed of the synthetic calibration errors")
-    max_edit: float = Field(default=30.0, gt=0, le=180, description="largest edit, degrees, of a cell only the "
-                            "digression or freeze cue flagged (spikes and swaps are bounded by their evidence)")
+    max_edit: float = Field(
+        default=30.0,
+        gt=0,
+        le=180,
+        description="largest edit, degrees, of a cell only the "
+        "digression or freeze cue flagged (spikes and swaps are bounded by their evidence)",
+    )
 
 
 class MDMParams(Params):
@@ -62,27 +75,34 @@ class MDMParams(Params):
     mode: Literal["calibrated", "paper"] = Field(
         default="calibrated",
         description="'calibrated': detector fitted on the clean context (self-supervised, target false_alarm) and "
-        "bounded repair; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)")
+        "bounded repair; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)",
+    )
     fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
-    joints: tuple[str, ...] = Field(default=DEFAULT_JOINTS, description="texture joints (canonical names; absent ones "
-                                    "are skipped)")
-    groups: tuple[JointGroup, ...] = Field(default_factory=_default_groups, description="joint groups of the "
-                                           "motion-words")
+    joints: tuple[str, ...] = Field(
+        default=DEFAULT_JOINTS, description="texture joints (canonical names; absent ones are skipped)"
+    )
+    groups: tuple[JointGroup, ...] = Field(
+        default_factory=_default_groups, description="joint groups of the motion-words"
+    )
     source_length: int = Field(default=15, ge=2, description="source word length N, frames")
     source_step: int = Field(default=5, ge=1, description="frames between source words")
     target_length: int = Field(default=20, ge=2, description="target word length M, frames")
     k: int = Field(default=5, ge=1, description="nearest neighbours per word")
     slope_run: int = Field(default=2, ge=1, description="DTW slope constraint: most consecutive steps in one direction")
-    exclusion: int | None = Field(default=None, ge=0, description="minima this close to the source word are "
-                                  "discarded (frames; None = N/2)")
+    exclusion: int | None = Field(
+        default=None, ge=0, description="minima this close to the source word are discarded (frames; None = N/2)"
+    )
     include_self: bool = Field(default=True, description="search the clip itself as part of its context")
-    threshold: float = Field(default=0.5, ge=0, le=1, description="paper: MDM value above which a cell is "
-                             "erroneous (§4)")
-    savgol_window: int = Field(default=7, ge=3, description="paper: Savitzky-Golay window of the repair blending, "
-                               "frames at fps")
+    threshold: float = Field(
+        default=0.5, ge=0, le=1, description="paper: MDM value above which a cell is erroneous (§4)"
+    )
+    savgol_window: int = Field(
+        default=7, ge=3, description="paper: Savitzky-Golay window of the repair blending, frames at fps"
+    )
     savgol_order: int = Field(default=2, ge=1, description="paper: Savitzky-Golay polynomial order (quadratic)")
-    calibrated: CalibratedParams = Field(default_factory=CalibratedParams, description="calibrated: the user's "
-                                         "choices of the calibrated decision")
+    calibrated: CalibratedParams = Field(
+        default_factory=CalibratedParams, description="calibrated: the user's choices of the calibrated decision"
+    )
     write_bvh: bool = Field(default=True, description="write each cleaned clip as BVH into the step folder")
     heatmaps: bool = Field(default=True, description="write an MDM heatmap PNG per clip into the step folder")
 
@@ -138,7 +158,7 @@ def _input_cues(motion: Motion, texture: Any, cue: np.ndarray, frames: np.ndarra
     col = {int(j): c for c, j in enumerate(texture.joint_index)}
     x = np.rint(frames * (texture.fps / motion.fps)).astype(np.int64).clip(0, len(cue) - 1)
     out = []
-    for f, j in zip(x.tolist(), joints.tolist()):
+    for f, j in zip(x.tolist(), joints.tolist(), strict=True):
         c = col.get(int(j))
         v = cue[f, c] if c is not None else None
         if v is None and c is not None:  # an input frame next to a flagged analysis frame
@@ -159,8 +179,14 @@ def _edits(motion: Motion, cleaned: Motion, changed: np.ndarray, texture: Any, c
     return tab.append_column("cue", pa.array(_input_cues(motion, texture, cue, f, j), pa.string()))
 
 
-def clean_motion(cleaner: MDMCleaner, motion: Motion, context: Any = None, contacts: Sequence[Any] = (),
-                 analysis: Any = None, calibration: Any = None) -> CleanResult:
+def clean_motion(
+    cleaner: MDMCleaner,
+    motion: Motion,
+    context: Any = None,
+    contacts: Sequence[Any] = (),
+    analysis: Any = None,
+    calibration: Any = None,
+) -> CleanResult:
     """Analyse, decide and repair one clip.
 
     ``analysis`` (a :class:`.paper.mdm.DigressionResult` of this clip and context) and
@@ -185,14 +211,23 @@ def clean_motion(cleaner: MDMCleaner, motion: Motion, context: Any = None, conta
         if calibration is None:
             # the calibration analyses each clip with itself included
             others = context_motions(motion, context, True)[1:]
-            calibration = calibrate(motion, others, cleaner.clone(include_self=True).analyse, res.joints, p.fps,
-                                    false_alarm=c.false_alarm, frames=c.frames, seed=c.seed)
+            calibration = calibrate(
+                motion,
+                others,
+                cleaner.clone(include_self=True).analyse,
+                res.joints,
+                p.fps,
+                false_alarm=c.false_alarm,
+                frames=c.frames,
+                seed=c.seed,
+            )
         cal = calibration
         flags, value, cue, new24, edited = calibrated_decision(res, cal, c.max_edit)
     # the calibrated mode never turns an input frame away from its repaired pose (paper/repair.py)
     cleaned, changed = apply_to_input(motion, res.texture, new24, edited, guard=p.mode != "paper")
-    return CleanResult(res, flags, value, cue, new24, edited, cleaned, _edits(motion, cleaned, changed, res.texture, cue),
-                       cal)
+    return CleanResult(
+        res, flags, value, cue, new24, edited, cleaned, _edits(motion, cleaned, changed, res.texture, cue), cal
+    )
 
 
 class MDMCleaner(Cleaner):

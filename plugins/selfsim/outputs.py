@@ -1,6 +1,7 @@
 """What ``cleaners.mdm`` and ``mocapflow clean`` leave for one clip: the digression map at the
 input frames and the edits as tables, the change report, the cleaned BVH, the heatmap and the
 before/after plot (:func:`clean_and_write_clip`)."""
+
 from __future__ import annotations
 
 import re
@@ -15,8 +16,9 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "clip"
 
 
-def mdm_table(res: Any, motion: Any, mdm_in: np.ndarray, clip_id: int, threshold: float,
-              cue: np.ndarray | None = None) -> pa.Table:
+def mdm_table(
+    res: Any, motion: Any, mdm_in: np.ndarray, clip_id: int, threshold: float, cue: np.ndarray | None = None
+) -> pa.Table:
     """Map rows at the input frames: clip_id, frame, joint, joint_name, value, flagged, cue
     (the cue that flagged the nearest analysis cell, null where none did)."""
     cols = res.texture.joint_index
@@ -32,15 +34,17 @@ def mdm_table(res: Any, motion: Any, mdm_in: np.ndarray, clip_id: int, threshold
         cues = np.where(flagged, cues, None)
     else:
         cues = np.full(len(flagged), None, dtype=object)
-    return pa.table({
-        "clip_id": pa.array(np.full(t * len(cols), clip_id, np.int32)),
-        "frame": pa.array(frame),
-        "joint": pa.array(joint),
-        "joint_name": pa.array(names.tolist(), pa.string()),
-        "value": pa.array(vals.reshape(-1).astype(np.float32)),
-        "flagged": pa.array(flagged),
-        "cue": pa.array(cues.tolist(), pa.string()),
-    })
+    return pa.table(
+        {
+            "clip_id": pa.array(np.full(t * len(cols), clip_id, np.int32)),
+            "frame": pa.array(frame),
+            "joint": pa.array(joint),
+            "joint_name": pa.array(names.tolist(), pa.string()),
+            "value": pa.array(vals.reshape(-1).astype(np.float32)),
+            "flagged": pa.array(flagged),
+            "cue": pa.array(cues.tolist(), pa.string()),
+        }
+    )
 
 
 def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
@@ -48,7 +52,7 @@ def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
     largest input edits, the calibration (JSON-friendly, deterministic)."""
     joints = out.analysis.joints
     per_joint: dict[str, dict[str, int]] = {}
-    for f, c in zip(*np.nonzero(out.flags)):
+    for f, c in zip(*np.nonzero(out.flags), strict=True):
         d = per_joint.setdefault(joints[c], {})
         name = out.cue[f, c] or "mdm"
         d[name] = d.get(name, 0) + 1
@@ -58,18 +62,27 @@ def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
         deg = ed["edit_deg"].to_numpy()
         order = np.argsort(-deg, kind="stable")[:top]
         fr, jn, cu = ed["frame"].to_pylist(), ed["joint_name"].to_pylist(), ed["cue"].to_pylist()
-        largest = [{"frame": fr[i], "time_s": round(fr[i] / motion.fps, 3), "joint": jn[i], "cue": cu[i],
-                    "edit_deg": round(float(deg[i]), 2)} for i in order]
+        largest = [
+            {
+                "frame": fr[i],
+                "time_s": round(fr[i] / motion.fps, 3),
+                "joint": jn[i],
+                "cue": cu[i],
+                "edit_deg": round(float(deg[i]), 2),
+            }
+            for i in order
+        ]
     n_cells = int(motion.n_frames * len(out.analysis.texture.joint_index))
-    return {"flagged_per_joint": dict(sorted(per_joint.items())),
-            "edited_share": round(ed.num_rows / max(n_cells, 1), 6),
-            "max_edit_deg": round(float(ed["edit_deg"].to_numpy().max()), 2) if ed.num_rows else 0.0,
-            "largest_edits": largest,
-            "calibration": out.calibration.summary() if out.calibration is not None else None}
+    return {
+        "flagged_per_joint": dict(sorted(per_joint.items())),
+        "edited_share": round(ed.num_rows / max(n_cells, 1), 6),
+        "max_edit_deg": round(float(ed["edit_deg"].to_numpy().max()), 2) if ed.num_rows else 0.0,
+        "largest_edits": largest,
+        "calibration": out.calibration.summary() if out.calibration is not None else None,
+    }
 
 
-def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None
-                         ) -> dict[str, Any]:
+def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None) -> dict[str, Any]:
     """Clean one clip (:meth:`.cleaner.MDMCleaner.clean`) and write its BVH, heatmap and
     before/after plot into ``out_dir`` (None: nothing written); returns the tables, the
     cleaned motion, the analysis seconds and the summary."""
@@ -86,8 +99,14 @@ def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, 
     if out_dir is not None:
         stem = _safe(motion.name or f"clip{clip_id}")
         if p.heatmaps:
-            mdm_heatmap(out.value, res.joints, out_dir / f"{stem}.mdm.png", res.texture.fps, level,
-                        title=f"{motion.name}: movement digression map ({p.mode})")
+            mdm_heatmap(
+                out.value,
+                res.joints,
+                out_dir / f"{stem}.mdm.png",
+                res.texture.fps,
+                level,
+                title=f"{motion.name}: movement digression map ({p.mode})",
+            )
             files["heatmap"] = f"{stem}.mdm.png"
             if edits.num_rows:
                 from .plots import before_after_plot
@@ -105,7 +124,13 @@ def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, 
         "edits": edits,
         "cleaned": out.cleaned,
         "seconds": res.seconds,
-        "summary": {"clip": motion.name, "mode": p.mode, "dtw": res.n_dtw,
-                    "flagged_cells": int(out.flags.sum()), "edited_cells": edits.num_rows,
-                    **change_report(out, motion), **files},
+        "summary": {
+            "clip": motion.name,
+            "mode": p.mode,
+            "dtw": res.n_dtw,
+            "flagged_cells": int(out.flags.sum()),
+            "edited_cells": edits.num_rows,
+            **change_report(out, motion),
+            **files,
+        },
     }

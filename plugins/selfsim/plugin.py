@@ -2,6 +2,7 @@
 ``cleaners.mdm`` cleaner (motion-word self-similarity, digression maps, repair), the
 ``analyses.clean_eval`` protocol and the ``mocapflow clean`` command. Imports happen inside
 the hooks, so loading this module imports no numerical library."""
+
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl

@@ -9,12 +9,12 @@
 * :func:`synthetic_skeleton` / :func:`synthetic_walk` - a small canonical skeleton and a
   seeded gait-like motion so unit tests need no corpus.
 """
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
-
 from numba import njit, prange
 
 from mocapflow.framework import quaternions as quat
@@ -44,7 +44,9 @@ def naive_cdtw(cost: np.ndarray, r: int) -> tuple[float, list[tuple[int, int]]]:
     the shorter one).
     """
     n, ln = cost.shape
-    best: dict[tuple[int, int, str, int], tuple[float, int, tuple | None]] = {(0, 0, "d", 0): (float(cost[0, 0]), 1, None)}
+    best: dict[tuple[int, int, str, int], tuple[float, int, tuple | None]] = {
+        (0, 0, "d", 0): (float(cost[0, 0]), 1, None)
+    }
 
     def terminal(i: int, j: int) -> bool:
         return i == n - 1 or j == ln - 1
@@ -75,8 +77,9 @@ def naive_cdtw(cost: np.ndarray, r: int) -> tuple[float, list[tuple[int, int]]]:
     return c / length, path[::-1]
 
 
-def naive_distance_function(src: np.ndarray, ctx: np.ndarray, clip_lengths, s: int, n: int, m: int,
-                            mask: np.ndarray, drop: int, r: int) -> np.ndarray:
+def naive_distance_function(
+    src: np.ndarray, ctx: np.ndarray, clip_lengths, s: int, n: int, m: int, mask: np.ndarray, drop: int, r: int
+) -> np.ndarray:
     """Word distance of the source word at ``s`` against every context start (inf: none)."""
     out = np.full(len(ctx), np.inf)
     off = 0
@@ -86,8 +89,10 @@ def naive_distance_function(src: np.ndarray, ctx: np.ndarray, clip_lengths, s: i
             if left < n:
                 continue
             ln = min(m, left)
-            cost = np.array([[naive_pose_distance(src[s + i], ctx[t + j], mask, drop) for j in range(ln)] for i in range(n)],
-                            dtype=np.float32)
+            cost = np.array(
+                [[naive_pose_distance(src[s + i], ctx[t + j], mask, drop) for j in range(ln)] for i in range(n)],
+                dtype=np.float32,
+            )
             out[t] = naive_cdtw(cost, r)[0]
         off += length
     return out
@@ -108,7 +113,9 @@ def naive_knn(src, ctx, clip_lengths, starts, n, m, mask, drop, r, k, self_clip=
             if self_clip >= 0 and clip_of[t] == self_clip and abs(t - (offs[self_clip] + s)) <= radius:
                 continue
             left_ok = t == 0 or clip_of[t - 1] != clip_of[t] or not np.isfinite(f[t - 1]) or f[t] < f[t - 1]
-            right_ok = t + 1 >= len(ctx) or clip_of[t + 1] != clip_of[t] or not np.isfinite(f[t + 1]) or f[t] <= f[t + 1]
+            right_ok = (
+                t + 1 >= len(ctx) or clip_of[t + 1] != clip_of[t] or not np.isfinite(f[t + 1]) or f[t] <= f[t + 1]
+            )
             if left_ok and right_ok:
                 cands.append((f[t], t))
         cands.sort()
@@ -166,9 +173,18 @@ def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r,
             out_t[g, w, a] = best_t[a] if best_d[a] < np.inf else -1
 
 
-
-def brute_knn(source_q, context, groups, word_starts, self_clip=-1, source_length=15, target_length=20, k=5,
-              slope_run=2, radius=None):
+def brute_knn(
+    source_q,
+    context,
+    groups,
+    word_starts,
+    self_clip=-1,
+    source_length=15,
+    target_length=20,
+    k=5,
+    slope_run=2,
+    radius=None,
+):
     """:func:`knn_search`'s neighbours by brute force: (target (G, S, K), distance (G, S, K), DTWs)."""
     from mocapflow.plugins.selfsim.paper.motion_words import target_word_layout
 
@@ -178,8 +194,13 @@ def brute_knn(source_q, context, groups, word_starts, self_clip=-1, source_lengt
     self_off = int(context.offsets[self_clip]) if self_clip >= 0 else 0
     g_count = groups.n_groups
     d = np.empty((g_count, len(source_q), len(context.q)), np.float32)
-    kern.pose_distance_block(np.ascontiguousarray(source_q, dtype=np.float64), context.q,
-                             groups.mask.astype(np.uint8), groups.drop.astype(np.int64), d)
+    kern.pose_distance_block(
+        np.ascontiguousarray(source_q, dtype=np.float64),
+        context.q,
+        groups.mask.astype(np.uint8),
+        groups.drop.astype(np.int64),
+        d,
+    )
     out_t = np.empty((g_count, len(starts), k), np.int64)
     out_d = np.empty((g_count, len(starts), k))
     knn_brute(d, starts, 0, n, tlen, clip_of, self_clip, self_off, radius, slope_run, k, out_t, out_d)
@@ -188,20 +209,58 @@ def brute_knn(source_q, context, groups, word_starts, self_clip=-1, source_lengt
 
 # --- synthetic motions ------------------------------------------------------------------
 _PARENT = {
-    "root": None, "lhip": "root", "lknee": "lhip", "lankle": "lknee", "ltoes": "lankle",
-    "rhip": "root", "rknee": "rhip", "rankle": "rknee", "rtoes": "rankle",
-    "lowerback": "root", "upperback": "lowerback", "chest": "upperback", "neck": "chest", "head": "neck",
-    "headtop": "head", "lclavicle": "chest", "lshoulder": "lclavicle", "lelbow": "lshoulder", "lwrist": "lelbow",
-    "lfingers": "lwrist", "rclavicle": "chest", "rshoulder": "rclavicle", "relbow": "rshoulder", "rwrist": "relbow",
+    "root": None,
+    "lhip": "root",
+    "lknee": "lhip",
+    "lankle": "lknee",
+    "ltoes": "lankle",
+    "rhip": "root",
+    "rknee": "rhip",
+    "rankle": "rknee",
+    "rtoes": "rankle",
+    "lowerback": "root",
+    "upperback": "lowerback",
+    "chest": "upperback",
+    "neck": "chest",
+    "head": "neck",
+    "headtop": "head",
+    "lclavicle": "chest",
+    "lshoulder": "lclavicle",
+    "lelbow": "lshoulder",
+    "lwrist": "lelbow",
+    "lfingers": "lwrist",
+    "rclavicle": "chest",
+    "rshoulder": "rclavicle",
+    "relbow": "rshoulder",
+    "rwrist": "relbow",
     "rfingers": "rwrist",
 }
 _OFFSET = {
-    "root": (0, 0, 0), "lhip": (0.1, -0.05, 0), "lknee": (0, -0.42, 0), "lankle": (0, -0.42, 0), "ltoes": (0, -0.05, 0.12),
-    "rhip": (-0.1, -0.05, 0), "rknee": (0, -0.42, 0), "rankle": (0, -0.42, 0), "rtoes": (0, -0.05, 0.12),
-    "lowerback": (0, 0.1, 0), "upperback": (0, 0.12, 0), "chest": (0, 0.12, 0), "neck": (0, 0.15, 0), "head": (0, 0.08, 0),
-    "headtop": (0, 0.15, 0), "lclavicle": (0.05, 0.1, 0), "lshoulder": (0.12, 0, 0), "lelbow": (0.28, 0, 0),
-    "lwrist": (0.25, 0, 0), "lfingers": (0.08, 0, 0), "rclavicle": (-0.05, 0.1, 0), "rshoulder": (-0.12, 0, 0),
-    "relbow": (-0.28, 0, 0), "rwrist": (-0.25, 0, 0), "rfingers": (-0.08, 0, 0),
+    "root": (0, 0, 0),
+    "lhip": (0.1, -0.05, 0),
+    "lknee": (0, -0.42, 0),
+    "lankle": (0, -0.42, 0),
+    "ltoes": (0, -0.05, 0.12),
+    "rhip": (-0.1, -0.05, 0),
+    "rknee": (0, -0.42, 0),
+    "rankle": (0, -0.42, 0),
+    "rtoes": (0, -0.05, 0.12),
+    "lowerback": (0, 0.1, 0),
+    "upperback": (0, 0.12, 0),
+    "chest": (0, 0.12, 0),
+    "neck": (0, 0.15, 0),
+    "head": (0, 0.08, 0),
+    "headtop": (0, 0.15, 0),
+    "lclavicle": (0.05, 0.1, 0),
+    "lshoulder": (0.12, 0, 0),
+    "lelbow": (0.28, 0, 0),
+    "lwrist": (0.25, 0, 0),
+    "lfingers": (0.08, 0, 0),
+    "rclavicle": (-0.05, 0.1, 0),
+    "rshoulder": (-0.12, 0, 0),
+    "relbow": (-0.28, 0, 0),
+    "rwrist": (-0.25, 0, 0),
+    "rfingers": (-0.08, 0, 0),
 }
 
 
@@ -209,11 +268,18 @@ def synthetic_skeleton() -> Skeleton:
     """A 25-joint skeleton named by the canonical vocabulary (rest pose faces +z)."""
     names = list(CANONICAL_JOINTS)
     parents = [-1 if _PARENT[j] is None else names.index(_PARENT[j]) for j in names]
-    return Skeleton(tuple(names), np.array(parents), np.array([_OFFSET[j] for j in names], float),
-                    canonical={j: i for i, j in enumerate(names)}, name="synthetic")
+    return Skeleton(
+        tuple(names),
+        np.array(parents),
+        np.array([_OFFSET[j] for j in names], float),
+        canonical={j: i for i, j in enumerate(names)},
+        name="synthetic",
+    )
 
 
-def synthetic_walk(n_frames: int = 480, fps: float = 24.0, seed: int = 0, period: float = 1.0, name: str = "walk") -> Motion:
+def synthetic_walk(
+    n_frames: int = 480, fps: float = 24.0, seed: int = 0, period: float = 1.0, name: str = "walk"
+) -> Motion:
     """A gait-like motion: legs, arms and spine swing with one period, small seeded variations."""
     rng = np.random.default_rng(seed)
     skel = synthetic_skeleton()
@@ -226,13 +292,30 @@ def synthetic_walk(n_frames: int = 480, fps: float = 24.0, seed: int = 0, period
     ax_y = np.array([0, 1.0, 0])
     ax_z = np.array([0, 0, 1.0])
     swing = {
-        "lhip": (ax_x, 0.5, 0.0), "rhip": (ax_x, 0.5, np.pi), "lknee": (ax_x, 0.6, 1.2), "rknee": (ax_x, 0.6, 1.2 + np.pi),
-        "lankle": (ax_x, 0.25, 0.5), "rankle": (ax_x, 0.25, 0.5 + np.pi), "ltoes": (ax_x, 0.2, 2.0), "rtoes": (ax_x, 0.2, 2.0 + np.pi),
-        "lshoulder": (ax_x, 0.45, np.pi), "rshoulder": (ax_x, 0.45, 0.0), "lelbow": (ax_x, 0.3, np.pi + 0.6),
-        "relbow": (ax_x, 0.3, 0.6), "lowerback": (ax_y, 0.1, 0.0), "chest": (ax_y, 0.12, np.pi), "head": (ax_y, 0.05, 0.3),
-        "lwrist": (ax_z, 0.15, 1.0), "rwrist": (ax_z, 0.15, 1.0 + np.pi), "neck": (ax_x, 0.05, 0.2),
-        "upperback": (ax_z, 0.05, 0.0), "lclavicle": (ax_z, 0.06, 0.0), "rclavicle": (ax_z, 0.06, np.pi),
-        "lfingers": (ax_x, 0.1, 0.0), "rfingers": (ax_x, 0.1, np.pi), "root": (ax_z, 0.05, 0.0),
+        "lhip": (ax_x, 0.5, 0.0),
+        "rhip": (ax_x, 0.5, np.pi),
+        "lknee": (ax_x, 0.6, 1.2),
+        "rknee": (ax_x, 0.6, 1.2 + np.pi),
+        "lankle": (ax_x, 0.25, 0.5),
+        "rankle": (ax_x, 0.25, 0.5 + np.pi),
+        "ltoes": (ax_x, 0.2, 2.0),
+        "rtoes": (ax_x, 0.2, 2.0 + np.pi),
+        "lshoulder": (ax_x, 0.45, np.pi),
+        "rshoulder": (ax_x, 0.45, 0.0),
+        "lelbow": (ax_x, 0.3, np.pi + 0.6),
+        "relbow": (ax_x, 0.3, 0.6),
+        "lowerback": (ax_y, 0.1, 0.0),
+        "chest": (ax_y, 0.12, np.pi),
+        "head": (ax_y, 0.05, 0.3),
+        "lwrist": (ax_z, 0.15, 1.0),
+        "rwrist": (ax_z, 0.15, 1.0 + np.pi),
+        "neck": (ax_x, 0.05, 0.2),
+        "upperback": (ax_z, 0.05, 0.0),
+        "lclavicle": (ax_z, 0.06, 0.0),
+        "rclavicle": (ax_z, 0.06, np.pi),
+        "lfingers": (ax_x, 0.1, 0.0),
+        "rfingers": (ax_x, 0.1, np.pi),
+        "root": (ax_z, 0.05, 0.0),
     }
     rot = quat.identity((n_frames, skel.n_joints))
     for j, (axis, a, ph) in swing.items():

@@ -20,6 +20,7 @@ For the cells the calibrated decision (:mod:`.decision`) flags (analysis rate, t
    evidence supports) is shortened to that along the geodesic. No cell ends farther from
    T̄ than it was, so no clip ends farther from its consensus.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -34,7 +35,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     if not mask.any():
         return []
     d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
 
 
 def _edge_roughness(q: np.ndarray, cols: np.ndarray, a: int, b: int) -> float:
@@ -42,7 +43,7 @@ def _edge_roughness(q: np.ndarray, cols: np.ndarray, a: int, b: int) -> float:
     total = 0.0
     for f in (a - 1, a, b - 1, b):
         if 1 <= f < len(q) - 1:
-            total += float(acceleration(q[f - 1:f + 2][:, cols])[1].sum())
+            total += float(acceleration(q[f - 1 : f + 2][:, cols])[1].sum())
     return total
 
 
@@ -63,8 +64,15 @@ def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in out]
 
 
-def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, swap_gain: float,
-                slack: int = 8, skip: list | None = None) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
+def swap_frames(
+    q: np.ndarray,
+    mean_q: np.ndarray,
+    joints,
+    flags: np.ndarray,
+    swap_gain: float,
+    slack: int = 8,
+    skip: list | None = None,
+) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
     """(left columns, right columns, start, end) of the runs to swap back.
 
     Candidates are the runs (gaps of up to ``slack`` frames merged) where the chain-pair
@@ -88,7 +96,9 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
                 for b in range(max(a + 1, b0 - slack), min(t, b0 + slack) + 1):
                     lo = max(0, a - 2)
                     # the window around [a, b) only: the same as swapping the whole take, without its copy
-                    back = quat.make_continuous(_swapped(q[lo:min(t, b + 2)], lc, rc, a - lo, b - lo)[:, cols], axis=0)
+                    back = quat.make_continuous(
+                        _swapped(q[lo : min(t, b + 2)], lc, rc, a - lo, b - lo)[:, cols], axis=0
+                    )
                     after = _edge_roughness(back, np.arange(len(cols)), a - lo, b - lo)
                     if best is None or after < best[0]:
                         best = (after, a, b)
@@ -98,8 +108,9 @@ def swap_frames(q: np.ndarray, mean_q: np.ndarray, joints, flags: np.ndarray, sw
     return out
 
 
-def bounded_repair(res, flags: np.ndarray, mirror_flags: np.ndarray, cap: np.ndarray, no_merge: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def bounded_repair(
+    res, flags: np.ndarray, mirror_flags: np.ndarray, cap: np.ndarray, no_merge: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), the edited cells, which were swapped and which were
     repaired as offsets (each (T, m); offsets may lie outside ``flags``: the interval
     between the jumps).
@@ -149,7 +160,7 @@ def bounded_repair(res, flags: np.ndarray, mirror_flags: np.ndarray, cap: np.nda
     # the mirror flags' evidence was for a swap that did not hold up: leave them
     rest = flags & ~swapped & ~mirror_flags
     for j in np.flatnonzero(rest.any(axis=0)):
-        for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:]):
+        for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:], strict=True):
             if a2 - b <= MERGE_GAP and not swapped[b:a2, j].any() and not no_merge[b:a2, j].any():
                 rest[b:a2, j] = True
     if rest.any() and res.neighbours:
@@ -186,14 +197,15 @@ def bounded_repair(res, flags: np.ndarray, mirror_flags: np.ndarray, cap: np.nda
     return new, edited, swapped & edited, offset & edited
 
 
-def _offset_run(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, j: int, a0: int, b0: int, level: float,
-                offset: np.ndarray) -> bool:
+def _offset_run(
+    q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, j: int, a0: int, b0: int, level: float, offset: np.ndarray
+) -> bool:
     """Repair the flagged run ``[a0, b0)`` of joint ``j`` as an offset (:mod:`.offsets`) when
     its ends are found and the repair lowers the interval's mean digression; True if done."""
     from .cues import acceleration
     from .offsets import offset_interval, remove_offset
 
-    acc = np.median(acceleration(q[:, j:j + 1])[1:-1, 0]) if len(q) > 2 else 0.0
+    acc = np.median(acceleration(q[:, j : j + 1])[1:-1, 0]) if len(q) > 2 else 0.0
     found = offset_interval(q[:, j], a0, b0, max(level * 2.0 * acc, np.deg2rad(8.0)))
     if found is None:
         return False

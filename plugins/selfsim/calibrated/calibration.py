@@ -89,10 +89,17 @@ class Calibration:
 
     def summary(self) -> dict:
         """JSON-friendly description (weight per cue, calibration figures, clips)."""
-        return {"source": self.source, "clips": list(self.clips), "cells": self.n_cells,
-                "error_cells": self.n_error_cells, "recall": round(self.recall, 4),
-                "false_alarm": round(self.false_alarm, 5),
-                "weights": {name: (None if not np.isfinite(w) else float(w)) for name, w in zip(CUES, self.weights)}}
+        return {
+            "source": self.source,
+            "clips": list(self.clips),
+            "cells": self.n_cells,
+            "error_cells": self.n_error_cells,
+            "recall": round(self.recall, 4),
+            "false_alarm": round(self.false_alarm, 5),
+            "weights": {
+                name: (None if not np.isfinite(w) else float(w)) for name, w in zip(CUES, self.weights, strict=True)
+            },
+        }
 
 
 def calibration_clips(take, others: Sequence, frames: int, fps: float) -> tuple[list, str]:
@@ -111,9 +118,17 @@ def calibration_clips(take, others: Sequence, frames: int, fps: float) -> tuple[
     return chosen, "context"
 
 
-def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
-                         frames: int = 600, seed: int = 0, texture: Callable | None = None
-                         ) -> tuple[list[dict[str, np.ndarray]], list[np.ndarray], list[str], str]:
+def calibration_material(
+    take,
+    others: Sequence,
+    analyse: Callable,
+    joints: Sequence[str],
+    fps: float,
+    *,
+    frames: int = 600,
+    seed: int = 0,
+    texture: Callable | None = None,
+) -> tuple[list[dict[str, np.ndarray]], list[np.ndarray], list[str], str]:
     """Inject errors into the calibration clips and analyse them (steps 1-2 of the module doc).
 
     Parameters
@@ -148,33 +163,55 @@ def calibration_material(take, others: Sequence, analyse: Callable, joints: Sequ
     for i, clip in enumerate(clips):
         tex = make(clip)
         rest = [c for c in others if c is not clip]
-        bad, mask, _ = inject_at_density(tex.motion, CALIBRATION_DENSITY, CALIBRATION_KINDS, seed=seed + i,
-                                         ranges=CALIBRATION_RANGES)
+        bad, mask, _ = inject_at_density(
+            tex.motion, CALIBRATION_DENSITY, CALIBRATION_KINDS, seed=seed + i, ranges=CALIBRATION_RANGES
+        )
         res = analyse(bad, rest)
         cue_list.append(raw_cues(res.texture.q, res.mean_texture, joints))
         truth_list.append(mask[:, tex.joint_index])
     return cue_list, truth_list, [c.name for c in clips], source
 
 
-def calibrate(take, others: Sequence, analyse: Callable, joints: Sequence[str], fps: float, *,
-              false_alarm: float = 0.004, frames: int = 600, seed: int = 0, texture: Callable | None = None
-              ) -> Calibration:
+def calibrate(
+    take,
+    others: Sequence,
+    analyse: Callable,
+    joints: Sequence[str],
+    fps: float,
+    *,
+    false_alarm: float = 0.004,
+    frames: int = 600,
+    seed: int = 0,
+    texture: Callable | None = None,
+) -> Calibration:
     """:func:`calibration_material`, then the null scales and levels and the cue weights
     (steps 3-4 of the module doc); ``false_alarm`` is the target share of clean (word,
     joint) pairs flagged on the calibration clips."""
-    cue_list, truth_list, names, source = calibration_material(take, others, analyse, joints, fps, frames=frames,
-                                                               seed=seed, texture=texture)
+    cue_list, truth_list, names, source = calibration_material(
+        take, others, analyse, joints, fps, frames=frames, seed=seed, texture=texture
+    )
     clean = [~t for t in truth_list]
-    scales = {k: np.median(np.stack([typical(c, ok)[k] for c, ok in zip(cue_list, clean)]), axis=0)
-              for k in ("digression", "acceleration")}
+    scales = {
+        k: np.median(np.stack([typical(c, ok)[k] for c, ok in zip(cue_list, clean, strict=True)]), axis=0)
+        for k in ("digression", "acceleration")
+    }
     # fitted without the acceleration cap: with it, the greedy allocation re-spends the freed budget
     values = [cue_values(c, {k: np.maximum(v, typical(c)[k]) for k, v in scales.items()}, None) for c in cue_list]
-    stacked = np.concatenate([np.where(ok[..., None], v, np.nan) for v, ok in zip(values, clean)], 0)
+    stacked = np.concatenate([np.where(ok[..., None], v, np.nan) for v, ok in zip(values, clean, strict=True)], 0)
     levels = np.maximum(np.nan_to_num(np.nanquantile(stacked, NULL_QUANTILE, axis=0), nan=0.0), FLOORS)
     lam = fit_levels(values, levels, truth_list, false_alarm)
     wj_t = [word_joint(t) for t in truth_list]
     wj_f = [word_joint((v / (levels * lam)).max(-1) > 1.0) for v in values]
-    rec = sum(int((f & t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int(t.sum()) for t in wj_t), 1)
-    fa = sum(int((f & ~t).sum()) for f, t in zip(wj_f, wj_t)) / max(sum(int((~t).sum()) for t in wj_t), 1)
-    return Calibration(scales, levels, lam, int(sum(t.size for t in truth_list)),
-                       int(sum(t.sum() for t in truth_list)), rec, fa, source, names)
+    rec = sum(int((f & t).sum()) for f, t in zip(wj_f, wj_t, strict=True)) / max(sum(int(t.sum()) for t in wj_t), 1)
+    fa = sum(int((f & ~t).sum()) for f, t in zip(wj_f, wj_t, strict=True)) / max(sum(int((~t).sum()) for t in wj_t), 1)
+    return Calibration(
+        scales,
+        levels,
+        lam,
+        int(sum(t.size for t in truth_list)),
+        int(sum(t.sum() for t in truth_list)),
+        rec,
+        fa,
+        source,
+        names,
+    )

@@ -83,8 +83,9 @@ def chain_columns(joints: Sequence[str]) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def mirror_gain(q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str], joint_margin: float = np.deg2rad(5.0)
-                ) -> np.ndarray:
+def mirror_gain(
+    q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str], joint_margin: float = np.deg2rad(5.0)
+) -> np.ndarray:
     """Per frame and chain joint: summed over the chain pair, the digression minus the angle
     to the mirrored consensus of the counterpart (radians; > 0 where swapping back brings the
     limbs nearer their consensus), kept on the joints that themselves gain more than
@@ -143,7 +144,7 @@ def hold_lengths(v: np.ndarray, still: float = HOLD_SPEED) -> tuple[np.ndarray, 
     t = len(v)
     for j in range(v.shape[1]):
         d = np.diff(np.concatenate([[0], held[:, j].astype(np.int8), [0]]))
-        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
             length[a:b, j] = b - a
             edge[a:b, j] = a == 0 or b == t
     return length, edge
@@ -186,8 +187,9 @@ def persistent(x: np.ndarray, factor: float) -> np.ndarray:
     return np.minimum(x, factor * nb)
 
 
-def cue_values(cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = ACC_PERSIST
-               ) -> np.ndarray:
+def cue_values(
+    cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = ACC_PERSIST
+) -> np.ndarray:
     """The detector's cues :data:`.constants.CUES`, shape (T, m, 5), unitless.
 
     * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
@@ -221,6 +223,6 @@ def window_median(x: np.ndarray, half: int) -> np.ndarray:
     """Median over ``[t - half, t + half]`` along time, (T, m); the ends padded by reflection."""
     if len(x) <= half:
         return np.median(x, axis=0, keepdims=True).repeat(len(x), 0)
-    pad = np.concatenate([x[half:0:-1], x, x[-2:-half - 2:-1]], axis=0)
+    pad = np.concatenate([x[half:0:-1], x, x[-2 : -half - 2 : -1]], axis=0)
     win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1, axis=0)
     return np.median(win, axis=-1)

@@ -39,7 +39,9 @@ from .constants import (
     SHRINK_FULL,
 )
 
-_DIG, _ACC, _MIRROR, _FREEZE, _JITTER = (CUES.index(c) for c in ("digression", "acceleration", "mirror", "freeze", "jitter"))
+_DIG, _ACC, _MIRROR, _FREEZE, _JITTER = (
+    CUES.index(c) for c in ("digression", "acceleration", "mirror", "freeze", "jitter")
+)
 
 
 def _agreeing(flags: np.ndarray, dom: np.ndarray, ev: np.ndarray, level: float) -> np.ndarray:
@@ -51,7 +53,7 @@ def _agreeing(flags: np.ndarray, dom: np.ndarray, ev: np.ndarray, level: float) 
     other = np.maximum(np.maximum(ev[..., _ACC], ev[..., _FREEZE]), ev[..., _JITTER])
     for j in np.flatnonzero(flags.any(axis=0)):
         for a, b in _runs(flags[:, j]):
-            if np.all(dom[a:b, j] == _DIG) and not (other[max(0, a - 1):b + 1, j] > level).any():
+            if np.all(dom[a:b, j] == _DIG) and not (other[max(0, a - 1) : b + 1, j] > level).any():
                 out[a:b, j] = False
     return out
 
@@ -67,8 +69,14 @@ def _body_jolts_dropped(flags: np.ndarray, dom: np.ndarray, least: int) -> np.nd
     return flags & ~(acc & jolt[:, None])
 
 
-def _freezes_grown(flags: np.ndarray, dom: np.ndarray, q: np.ndarray, still: float, mean_q: np.ndarray | None = None,
-                   moving: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _freezes_grown(
+    flags: np.ndarray,
+    dom: np.ndarray,
+    q: np.ndarray,
+    still: float,
+    mean_q: np.ndarray | None = None,
+    moving: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Runs flagged by the freeze cue grown over the whole interval where the joint is still
     (moves less than ``still`` radians per frame): a frozen joint (a marker lost, its last
     value held) is exactly still from its first frozen frame to its last, and the freeze cue
@@ -94,8 +102,15 @@ def _freezes_grown(flags: np.ndarray, dom: np.ndarray, q: np.ndarray, still: flo
     return out, dom
 
 
-def shrink_weak_runs(q: np.ndarray, new: np.ndarray, edited: np.ndarray, exclude: np.ndarray,
-                     evidence: np.ndarray, eligible: np.ndarray, full: float) -> np.ndarray:
+def shrink_weak_runs(
+    q: np.ndarray,
+    new: np.ndarray,
+    edited: np.ndarray,
+    exclude: np.ndarray,
+    evidence: np.ndarray,
+    eligible: np.ndarray,
+    full: float,
+) -> np.ndarray:
     """``new`` (T, m, 4) with the edit of each weak run scaled by its evidence.
 
     A run is consecutive cells of one joint in ``edited & ~exclude`` (T, m; swapped-back
@@ -124,7 +139,7 @@ def cue_of_run(cue: np.ndarray, grown: np.ndarray) -> np.ndarray:
     """For the cells of ``grown`` (T, m), the cue of the nearest flagged cell of the same joint
     (the run they extend), values for ``cue[grown]``."""
     out = []
-    for f, j in zip(*np.nonzero(grown)):
+    for f, j in zip(*np.nonzero(grown), strict=True):
         col = cue[:, j]
         have = np.flatnonzero(col != None)  # noqa: E711 - object array: elementwise comparison with None
         out.append(col[have[np.argmin(np.abs(have - f))]] if len(have) else None)

@@ -24,8 +24,9 @@ def word_joint(mask: np.ndarray, n: int = 15, step: int = 5) -> np.ndarray:
     return (c[starts + n] - c[starts]) > 0
 
 
-def fit_levels(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndarray], false_alarm: float,
-               max_steps: int = 40) -> np.ndarray:
+def fit_levels(
+    values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndarray], false_alarm: float, max_steps: int = 40
+) -> np.ndarray:
     """Per-cue weights ``lambda`` (K,) maximising the (word, joint) recall of the injected
     errors with at most ``false_alarm`` of the clean (word, joint) pairs flagged.
 
@@ -48,7 +49,7 @@ def fit_levels(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndar
 
     def counts(lam: np.ndarray) -> tuple[int, int]:
         tp = fp = 0
-        for r, w in zip(ratio, wj_truth):
+        for r, w in zip(ratio, wj_truth, strict=True):
             f = word_joint((r / lam).max(axis=-1) > 1.0)
             tp += int((f & w).sum())
             fp += int((f & ~w).sum())
@@ -60,7 +61,7 @@ def fit_levels(values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndar
     for _ in range(max_steps):
         best = None
         for k in range(k_count):
-            for g in _GRID[_GRID < lam[k]]:
+            for g in _GRID[lam[k] > _GRID]:
                 trial = lam.copy()
                 trial[k] = g
                 t2, f2 = counts(trial)

@@ -28,11 +28,12 @@ def consensus_fill(track: np.ndarray, mean: np.ndarray, a: int, b: int) -> np.nd
     d0 = quat.mul(quat.conjugate(mean[a]), track[a])
     d1 = quat.mul(quat.conjugate(mean[b]), track[b])
     delta = quat.slerp(np.broadcast_to(d0, (n - 1, 4)), np.broadcast_to(d1, (n - 1, 4)), u)
-    return quat.normalize(quat.mul(mean[a + 1:b], delta))
+    return quat.normalize(quat.mul(mean[a + 1 : b], delta))
 
 
-def fill_holds(q: np.ndarray, seeds: np.ndarray, min_frames: int, mean_q: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fill_holds(
+    q: np.ndarray, seeds: np.ndarray, min_frames: int, mean_q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The take ``q`` (T, m, 4) with every hold that holds a ``seeds`` cell (the freeze cue's
     flags) and lasts at least ``min_frames`` frames filled by :func:`consensus_fill` from the
     consensus ``mean_q``.
@@ -55,9 +56,9 @@ def fill_holds(q: np.ndarray, seeds: np.ndarray, min_frames: int, mean_q: np.nda
     for j in np.flatnonzero((seeds & (length >= min_frames) & ~edge).any(axis=0)):
         held = (length[:, j] >= min_frames) & ~edge[:, j]
         d = np.diff(np.concatenate([[0], held.astype(np.int8), [0]]))
-        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
-            if seeds[a:b, j].any() and 0 < a and b < t and b - a >= 2:
-                out[a + 1:b, j] = consensus_fill(q[:, j], mean_q[:, j], a, b)
-                filled[a + 1:b, j] = True
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
+            if seeds[a:b, j].any() and a > 0 and b < t and b - a >= 2:
+                out[a + 1 : b, j] = consensus_fill(q[:, j], mean_q[:, j], a, b)
+                filled[a + 1 : b, j] = True
                 holds[a:b, j] = True
     return out, filled, holds

@@ -13,6 +13,7 @@ the paper splices in is another performance of the move).
 :func:`offset_interval` looks for the two ends around a flagged run, so an offset of
 which the detector flagged only a part is repaired over its whole extent.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -40,8 +41,9 @@ def _angle(q: np.ndarray) -> np.ndarray:
     return quat.geodesic_angle(q, np.broadcast_to(quat.identity(()), q.shape))
 
 
-def offset_interval(track: np.ndarray, a0: int, b0: int, level: float, window: int = 18,
-                    agree: float = 0.35) -> tuple[int, int, np.ndarray, np.ndarray] | None:
+def offset_interval(
+    track: np.ndarray, a0: int, b0: int, level: float, window: int = 18, agree: float = 0.35
+) -> tuple[int, int, np.ndarray, np.ndarray] | None:
     """The offset interval ``[a, b)`` holding the flagged run ``[a0, b0)`` of one joint, and
     its end offsets, or None.
 

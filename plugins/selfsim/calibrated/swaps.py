@@ -25,6 +25,7 @@ other's moves, so the KNN consensus adapts to the swapped limb in mid-interval) 
 their exact extent. A swap that starts before the take or lasts past its end has one edge
 and is not found here (the mirror cue of :mod:`.bounded_repair` may still find it).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -75,8 +76,9 @@ def chain_unit(q: np.ndarray, cols: np.ndarray) -> float:
     return float(np.maximum(acc, np.deg2rad(0.5)).sum())
 
 
-def swap_edges(q: np.ndarray, joints: Sequence[str], level: float = 3.0, min_len: int = 2,
-               max_len: int = 72) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
+def swap_edges(
+    q: np.ndarray, joints: Sequence[str], level: float = 3.0, min_len: int = 2, max_len: int = 72
+) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
     """(left columns, right columns, start, end) of the swapped intervals found by their edges.
 
     Parameters

@@ -31,6 +31,7 @@ it was counts as not lower) and, beside it, the share whose error did not rise
 is also cleaned uncorrupted: share of its input cells edited and the largest edit. Table
 ``kinds``: per error kind, errors found and eq. 2 on their cells before/after.
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
@@ -57,21 +58,29 @@ MIN_ANGLE = 10.0
 
 
 class CleaningEvaluationParams(Params):
-    density: float = Field(default=0.125, gt=0, lt=1, description="share of the source words of a test clip given "
-                           "an error (the paper: ~0.125, §6)")
+    density: float = Field(
+        default=0.125,
+        gt=0,
+        lt=1,
+        description="share of the source words of a test clip given an error (the paper: ~0.125, §6)",
+    )
     held_out: dict[str, tuple[str, ...]] = Field(
         default_factory=lambda: {"locomotion": ("07", "16", "35"), "dance": ("06", "07", "10", "11")},
         description="per category, the subjects (locomotion) or trials (dance) whose clips are the test clips; "
-                    "the defaults were never used while tuning the cleaner (tuned on subjects 02 and 49, trials "
-                    "01, 02, 04, 05); empty = the n_test longest clips")
+        "the defaults were never used while tuning the cleaner (tuned on subjects 02 and 49, trials "
+        "01, 02, 04, 05); empty = the n_test longest clips",
+    )
     n_test: int = Field(default=40, ge=1, description="at most this many test clips per category (the longest)")
     small_size: int = Field(default=8, ge=1, description="other clips in the small-scale context (paper: 5-10)")
     large_size: int = Field(default=25, ge=1, description="other clips in the large-scale context (paper: 20-30)")
-    contexts: tuple[Literal["local", "small", "large"], ...] = Field(default=("local", "small"),
-                                                                     description="contexts to evaluate")
+    contexts: tuple[Literal["local", "small", "large"], ...] = Field(
+        default=("local", "small"), description="contexts to evaluate"
+    )
     seed: int = Field(default=0, description="seed of the error injection (clip k gets seed + k)")
     paper: bool = Field(default=True, description="also score mode 'paper' on the same analyses (rows 'mdm[paper]')")
-    cleaner: Annotated[dict[str, Any], ParamsOf("cleaners.mdm")] = Field(default_factory=dict, description="parameters of cleaners.mdm")
+    cleaner: Annotated[dict[str, Any], ParamsOf("cleaners.mdm")] = Field(
+        default_factory=dict, description="parameters of cleaners.mdm"
+    )
 
 
 class CleaningEvaluation(Analysis):
@@ -91,14 +100,21 @@ class CleaningEvaluation(Analysis):
         for category in ("locomotion", "dance"):
             if inputs.get(category) is None:
                 continue
-            r1, r2, r3 = evaluate_category(category, inputs[category].motions().motions, self.params, log=ctx.log.info,
-                                           progress=lambda it, n, d: ctx.progress(it, total=n, desc=d))
+            r1, r2, r3 = evaluate_category(
+                category,
+                inputs[category].motions().motions,
+                self.params,
+                log=ctx.log.info,
+                progress=lambda it, n, d: ctx.progress(it, total=n, desc=d),
+            )
             rows += r1
             rep += r2
             kinds += r3
         empty = pa.table({"category": pa.array([], pa.string())})
-        tabs = {name: pa.Table.from_pylist(v) if v else empty for name, v in (("data", rows), ("repair", rep),
-                                                                             ("kinds", kinds))}
+        tabs = {
+            name: pa.Table.from_pylist(v) if v else empty
+            for name, v in (("data", rows), ("repair", rep), ("kinds", kinds))
+        }
         return StepOutput(tabs, {"rows": rows, "repair": rep})
 
 
@@ -141,8 +157,9 @@ def test_indices(clips: list[Motion], p: CleaningEvaluationParams, category: str
     return idx[: p.n_test]
 
 
-def corrupted_clips(clips: list[Motion], p: CleaningEvaluationParams, joints: Sequence[str], fps: float,
-                    category: str = "locomotion") -> Iterator[CorruptedClip]:
+def corrupted_clips(
+    clips: list[Motion], p: CleaningEvaluationParams, joints: Sequence[str], fps: float, category: str = "locomotion"
+) -> Iterator[CorruptedClip]:
     """The test clips of :func:`test_indices`, each corrupted by :func:`inject_at_density`
     with seed ``seed + position``."""
     from ..paper.motion_words import motion_texture
@@ -152,8 +169,11 @@ def corrupted_clips(clips: list[Motion], p: CleaningEvaluationParams, joints: Se
         bad, mask, errors = inject_at_density(clean, p.density, PROTOCOL_KINDS, seed=p.seed + i, min_angle=MIN_ANGLE)
         tex = motion_texture(clean, joints, fps)
         trial = clip_key(clean.name, "trial")
-        others = [c for k, c in enumerate(clips) if k != i
-                  and not (category == "dance" and clip_key(c.name, "trial") == trial)]
+        others = [
+            c
+            for k, c in enumerate(clips)
+            if k != i and not (category == "dance" and clip_key(c.name, "trial") == trial)
+        ]
         yield CorruptedClip(i, clean, others, bad, mask[:, tex.joint_index], errors, tex)
 
 
@@ -182,8 +202,9 @@ def _eq2(clean: np.ndarray, other: np.ndarray, truth: np.ndarray) -> tuple[float
     return float(cell.sum(1).mean()), float(cell[truth].mean()) if truth.any() else float("nan")
 
 
-def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationParams, log: Any = print,
-                      progress: Any = None) -> tuple[list[dict], list[dict], list[dict]]:
+def evaluate_category(
+    category: str, clips: list[Motion], p: CleaningEvaluationParams, log: Any = print, progress: Any = None
+) -> tuple[list[dict], list[dict], list[dict]]:
     """Run the protocol (module doc) on one category's clips; returns (rows, repair rows, kind rows)."""
     import time
 
@@ -223,8 +244,14 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
                 if method == "mdm":
                     times.setdefault(context, []).append(time.perf_counter() - t0)
                 _add(counts, (method, context), scores(out.flags, truth, starts, cp.source_length, moved))
-                clean_run = clean_motion(cl, case.clean, ctx, calibration=out.calibration
-                                         if out.calibration is not None and out.calibration.source == "context" else None)
+                clean_run = clean_motion(
+                    cl,
+                    case.clean,
+                    ctx,
+                    calibration=out.calibration
+                    if out.calibration is not None and out.calibration.source == "context"
+                    else None,
+                )
                 g0, e0 = _eq2(case.clean_texture.q, analysis.texture.q, truth)
                 g1, e1 = _eq2(case.clean_texture.q, out.repaired, truth)
                 n_in = case.clean.n_frames * len(case.clean_texture.joint_index)
@@ -234,50 +261,79 @@ def evaluate_category(category: str, clips: list[Motion], p: CleaningEvaluationP
                 ce = clean_run.edits
                 gl_in = _input_mask(glitch, case.clean_texture, case.clean)
                 outside = ~gl_in[ce["frame"].to_numpy(), ce["joint"].to_numpy()] if ce.num_rows else np.zeros(0, bool)
-                repair.setdefault((method, context), []).append({
-                    "global_before": g0, "global_after": g1, "cells_before": e0, "cells_after": e1,
-                    "clean_edited_share": clean_run.edits.num_rows / max(n_in, 1),
-                    "clean_max_edit_deg": float(clean_run.edits["edit_deg"].to_numpy().max())
-                    if clean_run.edits.num_rows else 0.0,
-                    "global_before_ng": g0n, "global_after_ng": g1n, "glitch_cells": int(glitch.sum()),
-                    "clean_max_edit_deg_ng": float(ce["edit_deg"].to_numpy()[outside].max()) if outside.any() else 0.0,
-                    # the clean-take edits outside the source's own glitches, over the cells outside them
-                    "clean_edited_share_ng": int(outside.sum()) / max(n_in - int(gl_in.sum()), 1),
-                    "clean_glitch_edits": int((~outside).sum())})
+                repair.setdefault((method, context), []).append(
+                    {
+                        "global_before": g0,
+                        "global_after": g1,
+                        "cells_before": e0,
+                        "cells_after": e1,
+                        "clean_edited_share": clean_run.edits.num_rows / max(n_in, 1),
+                        "clean_max_edit_deg": float(clean_run.edits["edit_deg"].to_numpy().max())
+                        if clean_run.edits.num_rows
+                        else 0.0,
+                        "global_before_ng": g0n,
+                        "global_after_ng": g1n,
+                        "glitch_cells": int(glitch.sum()),
+                        "clean_max_edit_deg_ng": float(ce["edit_deg"].to_numpy()[outside].max())
+                        if outside.any()
+                        else 0.0,
+                        # the clean-take edits outside the source's own glitches, over the cells outside them
+                        "clean_edited_share_ng": int(outside.sum()) / max(n_in - int(gl_in.sum()), 1),
+                        "clean_glitch_edits": int((~outside).sum()),
+                    }
+                )
                 _kind_rows(kinds, category, method, context, case, out)
             log(f"clean_eval {category} clip {case.clean.name} context {context}: {times[context][-1]:.2f} s")
     n = len(cases)
     rows = []
     for (method, context), c in counts.items():
         sec = float(np.mean(times[context])) if context in times else float("nan")
-        rows.append({"category": category, "method": method, "context": context, **_ratios(c), **c,
-                     "seconds_per_clip": sec, "n_clips": n})
+        rows.append(
+            {
+                "category": category,
+                "method": method,
+                "context": context,
+                **_ratios(c),
+                **c,
+                "seconds_per_clip": sec,
+                "n_clips": n,
+            }
+        )
     rep = []
     for (method, context), vals in repair.items():
         col = {k: np.array([v[k] for v in vals]) for k in vals[0]}
-        rep.append({"category": category, "method": method, "context": context, "n_clips": len(vals),
-                    "global_before": float(col["global_before"].mean()), "global_after": float(col["global_after"].mean()),
-                    "share_global_lower": float(np.mean(col["global_after"] < col["global_before"])),
-                    # the same target counted the other way: a clip left exactly as it was (its errors
-                    # missed, nothing edited) is no failure of "do no harm"
-                    "share_global_not_higher": float(np.mean(col["global_after"] <= col["global_before"])),
-                    "share_global_unchanged": float(np.mean(col["global_after"] == col["global_before"])),
-                    "cells_before": float(np.nanmean(col["cells_before"])),
-                    "cells_after": float(np.nanmean(col["cells_after"])),
-                    "clean_edited_share": float(col["clean_edited_share"].mean()),
-                    "clean_edited_share_max": float(col["clean_edited_share"].max()),
-                    "clean_edited_share_ng": float(col["clean_edited_share_ng"].mean()),
-                    "clean_edited_share_max_ng": float(col["clean_edited_share_ng"].max()),
-                    "clean_max_edit_deg": float(col["clean_max_edit_deg"].max()),
-                    "global_before_ng": float(col["global_before_ng"].mean()),
-                    "global_after_ng": float(col["global_after_ng"].mean()),
-                    "share_global_lower_ng": float(np.mean(col["global_after_ng"] < col["global_before_ng"])),
-                    "share_global_not_higher_ng": float(np.mean(col["global_after_ng"] <= col["global_before_ng"])),
-                    "glitch_cells": int(col["glitch_cells"].sum()),
-                    "clean_max_edit_deg_ng": float(col["clean_max_edit_deg_ng"].max()),
-                    "clean_glitch_edits": int(col["clean_glitch_edits"].sum())})
-    kind_rows = [{"category": key[0], "method": key[1], "context": key[2], "kind": key[3], **val}
-                 for key, val in kinds.items()]
+        rep.append(
+            {
+                "category": category,
+                "method": method,
+                "context": context,
+                "n_clips": len(vals),
+                "global_before": float(col["global_before"].mean()),
+                "global_after": float(col["global_after"].mean()),
+                "share_global_lower": float(np.mean(col["global_after"] < col["global_before"])),
+                # the same target counted the other way: a clip left exactly as it was (its errors
+                # missed, nothing edited) is no failure of "do no harm"
+                "share_global_not_higher": float(np.mean(col["global_after"] <= col["global_before"])),
+                "share_global_unchanged": float(np.mean(col["global_after"] == col["global_before"])),
+                "cells_before": float(np.nanmean(col["cells_before"])),
+                "cells_after": float(np.nanmean(col["cells_after"])),
+                "clean_edited_share": float(col["clean_edited_share"].mean()),
+                "clean_edited_share_max": float(col["clean_edited_share"].max()),
+                "clean_edited_share_ng": float(col["clean_edited_share_ng"].mean()),
+                "clean_edited_share_max_ng": float(col["clean_edited_share_ng"].max()),
+                "clean_max_edit_deg": float(col["clean_max_edit_deg"].max()),
+                "global_before_ng": float(col["global_before_ng"].mean()),
+                "global_after_ng": float(col["global_after_ng"].mean()),
+                "share_global_lower_ng": float(np.mean(col["global_after_ng"] < col["global_before_ng"])),
+                "share_global_not_higher_ng": float(np.mean(col["global_after_ng"] <= col["global_before_ng"])),
+                "glitch_cells": int(col["glitch_cells"].sum()),
+                "clean_max_edit_deg_ng": float(col["clean_max_edit_deg_ng"].max()),
+                "clean_glitch_edits": int(col["clean_glitch_edits"].sum()),
+            }
+        )
+    kind_rows = [
+        {"category": key[0], "method": key[1], "context": key[2], "kind": key[3], **val} for key, val in kinds.items()
+    ]
     return rows, rep, kind_rows
 
 
@@ -286,18 +342,20 @@ def _kind_rows(acc: dict, category: str, method: str, context: str, case: Corrup
     col = {int(j): c for c, j in enumerate(case.clean_texture.joint_index)}
     for e in case.errors:
         cols = [col[j] for j in e.joints if j in col]
-        t = case.truth[e.start:e.end][:, cols]
+        t = case.truth[e.start : e.end][:, cols]
         if not t.any():
             continue
-        r = acc.setdefault((category, method, context, e.kind), {"errors": 0, "found": 0, "cells": 0,
-                                                                 "cells_flagged": 0, "eq2_before": 0.0, "eq2_after": 0.0})
+        r = acc.setdefault(
+            (category, method, context, e.kind),
+            {"errors": 0, "found": 0, "cells": 0, "cells_flagged": 0, "eq2_before": 0.0, "eq2_after": 0.0},
+        )
         r["errors"] += 1
-        r["found"] += int((out.flags[e.start:e.end][:, cols] & t).any())
+        r["found"] += int((out.flags[e.start : e.end][:, cols] & t).any())
         r["cells"] += int(t.sum())
-        r["cells_flagged"] += int((out.flags[e.start:e.end][:, cols] & t).sum())
-        q0 = case.clean_texture.q[e.start:e.end][:, cols][t]
-        r["eq2_before"] += float(_log_norm_sq(q0, out.analysis.texture.q[e.start:e.end][:, cols][t]).sum())
-        r["eq2_after"] += float(_log_norm_sq(q0, out.repaired[e.start:e.end][:, cols][t]).sum())
+        r["cells_flagged"] += int((out.flags[e.start : e.end][:, cols] & t).sum())
+        q0 = case.clean_texture.q[e.start : e.end][:, cols][t]
+        r["eq2_before"] += float(_log_norm_sq(q0, out.analysis.texture.q[e.start : e.end][:, cols][t]).sum())
+        r["eq2_after"] += float(_log_norm_sq(q0, out.repaired[e.start : e.end][:, cols][t]).sum())
 
 
 def _add(acc: dict, key: tuple[str, str], c: Mapping[str, int]) -> None:

@@ -28,6 +28,7 @@ The ground-truth mask marks the (frame, joint) cells whose rotation ends up more
 ``min_angle`` (default 10 degrees) from the clean rotation: a drift's first frames and a
 freeze of a joint that hardly moved are not errors anyone could see.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -66,8 +67,22 @@ SWAP_CHAINS: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
 
 #: Joints that single-joint errors pick from (the limbs, spine and head).
 ERROR_JOINTS: tuple[str, ...] = (
-    "lhip", "lknee", "lankle", "rhip", "rknee", "rankle", "lowerback", "chest", "neck", "head",
-    "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist",
+    "lhip",
+    "lknee",
+    "lankle",
+    "rhip",
+    "rknee",
+    "rankle",
+    "lowerback",
+    "chest",
+    "neck",
+    "head",
+    "lshoulder",
+    "lelbow",
+    "lwrist",
+    "rshoulder",
+    "relbow",
+    "rwrist",
 )
 
 
@@ -87,8 +102,16 @@ def _random_axis(rng: np.random.Generator, n: int = 1) -> np.ndarray:
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def apply_error(rot: np.ndarray, motion: Motion, kind: str, start: int, end: int, joints: Sequence[int],
-                magnitude: float, rng: np.random.Generator) -> None:
+def apply_error(
+    rot: np.ndarray,
+    motion: Motion,
+    kind: str,
+    start: int,
+    end: int,
+    joints: Sequence[int],
+    magnitude: float,
+    rng: np.random.Generator,
+) -> None:
     """Write one error into ``rot (T, J, 4)`` in place (see the module table)."""
     span = np.arange(start, end)
     n = len(span)
@@ -131,10 +154,18 @@ def _pick_joints(rng: np.random.Generator, motion: Motion, kind: str) -> tuple[i
     return (pool[int(rng.integers(len(pool)))],) if pool else None
 
 
-def inject_at_density(motion: Motion, density: float = 0.125, kinds: Sequence[str] = PROTOCOL_KINDS, seed: int = 0,
-                      min_angle: float = 10.0, ranges: Ranges | None = None, word_length: int = 15,
-                      word_step: int = 5, margin: int = 4, max_tries: int = 200
-                      ) -> tuple[Motion, np.ndarray, list[InjectedError]]:
+def inject_at_density(
+    motion: Motion,
+    density: float = 0.125,
+    kinds: Sequence[str] = PROTOCOL_KINDS,
+    seed: int = 0,
+    min_angle: float = 10.0,
+    ranges: Ranges | None = None,
+    word_length: int = 15,
+    word_step: int = 5,
+    margin: int = 4,
+    max_tries: int = 200,
+) -> tuple[Motion, np.ndarray, list[InjectedError]]:
     """Corrupt a clean clip until about ``density`` of its source words hold an error.
 
     Errors (kind drawn uniformly from ``kinds``, joints, duration, magnitude and start drawn
@@ -188,7 +219,7 @@ def inject_at_density(motion: Motion, density: float = 0.125, kinds: Sequence[st
     for _ in range(max_tries):
         if len(starts) == 0:
             break
-        share = np.mean([mask[s:s + word_length].any() for s in starts])
+        share = np.mean([mask[s : s + word_length].any() for s in starts])
         if errors and share >= density:
             break
         kind = str(kinds[int(rng.integers(len(kinds)))])
@@ -197,7 +228,7 @@ def inject_at_density(motion: Motion, density: float = 0.125, kinds: Sequence[st
         if t - 2 * margin - dur <= 0:
             continue
         start = int(rng.integers(margin, t - margin - dur + 1))
-        if busy[max(0, start - margin):start + dur + margin].any():
+        if busy[max(0, start - margin) : start + dur + margin].any():
             continue
         joints = _pick_joints(rng, motion, kind)
         if joints is None:
@@ -207,10 +238,10 @@ def inject_at_density(motion: Motion, density: float = 0.125, kinds: Sequence[st
         apply_error(trial, motion, kind, start, start + dur, joints, mag, rng)
         trial = quat.normalize(trial)
         new_mask = np.rad2deg(quat.geodesic_angle(trial, motion.rotations)) > min_angle
-        if not new_mask[start:start + dur].any():
+        if not new_mask[start : start + dur].any():
             continue  # e.g. a freeze of a joint that hardly moves: nothing anyone could see
         rot, mask = trial, new_mask
-        busy[start:start + dur] = True
+        busy[start : start + dur] = True
         errors.append(InjectedError(kind, joints, start, start + dur, mag))
     errors.sort(key=lambda e: e.start)
     return motion.with_arrays(rotations=rot), mask, errors

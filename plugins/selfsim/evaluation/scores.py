@@ -1,5 +1,6 @@
 """Scores of the cleaning protocol (:mod:`.clean_eval`): baselines, detection counts, eq. 2,
 and the source glitches of the "clean" references."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -9,13 +10,13 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 
 
-
 def rotation_vectors(q: np.ndarray) -> np.ndarray:
     """Rotation vectors (axis * angle, radians) of unit quaternions (..., 4), w >= 0."""
     q = np.where(q[..., :1] < 0, -q, q)
     s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
     ang = 2.0 * np.arctan2(s, q[..., :1])
     return np.where(s > 1e-12, q[..., 1:] / np.where(s > 1e-12, s, 1.0) * ang, 2.0 * q[..., 1:])
+
 
 def _log_norm_sq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """||log(a^-1 b)||^2 per quaternion pair (half-angle convention of eq. 1/2)."""
@@ -51,8 +52,9 @@ class RotationBaselines:
         return out
 
 
-def scores(flagged: np.ndarray, truth: np.ndarray, starts: np.ndarray, n: int,
-           moved: np.ndarray | None = None) -> dict[str, float]:
+def scores(
+    flagged: np.ndarray, truth: np.ndarray, starts: np.ndarray, n: int, moved: np.ndarray | None = None
+) -> dict[str, float]:
     """Cell, word and (word, joint) true/false positive and false negative counts of
     ``flagged`` against ``truth`` (T, m); ``starts`` are the source words (length ``n``).
 
@@ -64,16 +66,29 @@ def scores(flagged: np.ndarray, truth: np.ndarray, starts: np.ndarray, n: int,
     tp = int((flagged & truth).sum())
     fp = int((flagged & ~truth).sum())
     fn = int((~flagged & truth).sum())
-    jt = np.array([truth[s:s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
-    jf = np.array([flagged[s:s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
+    jt = np.array([truth[s : s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
+    jf = np.array([flagged[s : s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
     wt, wf = jt.any(1), jf.any(1)
-    out = {"tp": tp, "fp": fp, "fn": fn, "word_tp": int((wt & wf).sum()), "word_fp": int((~wt & wf).sum()),
-           "word_fn": int((wt & ~wf).sum()), "wj_tp": int((jt & jf).sum()), "wj_fp": int((~jt & jf).sum()),
-           "wj_fn": int((jt & ~jf).sum())}
+    out = {
+        "tp": tp,
+        "fp": fp,
+        "fn": fn,
+        "word_tp": int((wt & wf).sum()),
+        "word_fp": int((~wt & wf).sum()),
+        "word_fn": int((wt & ~wf).sum()),
+        "wj_tp": int((jt & jf).sum()),
+        "wj_fp": int((~jt & jf).sum()),
+        "wj_fn": int((jt & ~jf).sum()),
+    }
     if moved is not None:
-        jm = np.array([moved[s:s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
-        out.update({"fp_sub": int((flagged & ~truth & moved).sum()), "wj_fp_sub": int((~jt & jf & jm).sum()),
-                    "word_fp_sub": int((~wt & wf & jm.any(1)).sum())})
+        jm = np.array([moved[s : s + n].any(0) for s in starts], bool).reshape(len(starts), truth.shape[1])
+        out.update(
+            {
+                "fp_sub": int((flagged & ~truth & moved).sum()),
+                "wj_fp_sub": int((~jt & jf & jm).sum()),
+                "word_fp_sub": int((~wt & wf & jm.any(1)).sum()),
+            }
+        )
     return out
 
 
@@ -83,18 +98,25 @@ def _ratios(c: Mapping[str, int]) -> dict[str, float]:
 
     dc = {}
     if "fp_sub" in c:
-        dc = {"precision_dc": div(c["tp"], c["tp"] + c["fp"] - c["fp_sub"]),
-              "wj_precision_dc": div(c["wj_tp"], c["wj_tp"] + c["wj_fp"] - c["wj_fp_sub"]),
-              "word_precision_dc": div(c["word_tp"], c["word_tp"] + c["word_fp"] - c["word_fp_sub"])}
-    return {**dc, "recall": div(c["tp"], c["tp"] + c["fn"]), "precision": div(c["tp"], c["tp"] + c["fp"]),
-            "word_recall": div(c["word_tp"], c["word_tp"] + c["word_fn"]),
-            "word_precision": div(c["word_tp"], c["word_tp"] + c["word_fp"]),
-            "wj_recall": div(c["wj_tp"], c["wj_tp"] + c["wj_fn"]),
-            "wj_precision": div(c["wj_tp"], c["wj_tp"] + c["wj_fp"])}
+        dc = {
+            "precision_dc": div(c["tp"], c["tp"] + c["fp"] - c["fp_sub"]),
+            "wj_precision_dc": div(c["wj_tp"], c["wj_tp"] + c["wj_fp"] - c["wj_fp_sub"]),
+            "word_precision_dc": div(c["word_tp"], c["word_tp"] + c["word_fp"] - c["word_fp_sub"]),
+        }
+    return {
+        **dc,
+        "recall": div(c["tp"], c["tp"] + c["fn"]),
+        "precision": div(c["tp"], c["tp"] + c["fp"]),
+        "word_recall": div(c["word_tp"], c["word_tp"] + c["word_fn"]),
+        "word_precision": div(c["word_tp"], c["word_tp"] + c["word_fp"]),
+        "wj_recall": div(c["wj_tp"], c["wj_tp"] + c["wj_fn"]),
+        "wj_precision": div(c["wj_tp"], c["wj_tp"] + c["wj_fp"]),
+    }
 
 
-def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typical: float = 30.0,
-                    step: float = 45.0, pad: int = 2) -> np.ndarray:
+def source_glitches(
+    q: np.ndarray, far: float = 60.0, back: float = 45.0, typical: float = 30.0, step: float = 45.0, pad: int = 2
+) -> np.ndarray:
     """Cells of a "clean" reference that are capture glitches of the source itself, (T, m) bool.
 
     A joint whose rotation normally stays near its mean pose over the take (median angle
@@ -125,6 +147,6 @@ def source_glitches(q: np.ndarray, far: float = 60.0, back: float = 45.0, typica
         if np.median(ang) >= typical or not (ang > far).any():
             continue
         for a, b in _runs(ang > back):
-            if (ang[a:b] > far).any() and (sp[max(0, a - 2):b + 1] > step).any():
-                out[max(0, a - pad):b + pad, j] = True
+            if (ang[a:b] > far).any() and (sp[max(0, a - 2) : b + 1] > step).any():
+                out[max(0, a - pad) : b + pad, j] = True
     return out

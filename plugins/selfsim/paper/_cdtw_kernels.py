@@ -4,6 +4,7 @@ Split from :mod:`._mdm_kernels` (which re-exports these names): the full-path va
 ``cdtw``, the cost-only variants ``cdtw_cost`` / ``cdtw_cost_r2`` used inside the KNN
 search, and ``cdtw_path``. No validation here; see ``motion_words.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -26,6 +26,7 @@ mean (weights ``R+1`` on the rows below the optimum, 1 above: a linear-fractiona
 over a box) bounds it from below. Paths ending on the last target column are bounded the
 same way with column minima. The word distance is at least the smaller of the two bounds.
 """
+
 from __future__ import annotations
 
 import math
@@ -57,8 +58,12 @@ def pose_distance_block(src, ctx, mask, drop, out):  # pragma: no cover - compil
         top = np.empty(max_drop + 1)
         for c in range(n_c):
             for k in range(m):
-                d = abs(src[i, k, 0] * ctx[c, k, 0] + src[i, k, 1] * ctx[c, k, 1]
-                        + src[i, k, 2] * ctx[c, k, 2] + src[i, k, 3] * ctx[c, k, 3])
+                d = abs(
+                    src[i, k, 0] * ctx[c, k, 0]
+                    + src[i, k, 1] * ctx[c, k, 1]
+                    + src[i, k, 2] * ctx[c, k, 2]
+                    + src[i, k, 3] * ctx[c, k, 3]
+                )
                 if d > 1.0:
                     d = 1.0
                 a = math.acos(d)
@@ -217,7 +222,9 @@ def _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, m
 
 
 @njit(cache=True, parallel=True)
-def knn_pruned(d, lb, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r, k, out_t, out_d, out_n):  # pragma: no cover
+def knn_pruned(
+    d, lb, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r, k, out_t, out_d, out_n
+):  # pragma: no cover
     """Exact KNN with lower-bound pruning; same answer as the brute force (``knn_brute`` in
     ``tests/naive/cleaning.py``).
 
@@ -263,13 +270,23 @@ def knn_pruned(d, lb, starts, row0, n, tlen, clip_of, self_clip, self_off, radiu
             if v > best_d[k - 1]:
                 continue
             u = t - 1
-            if u >= 0 and tlen[u] > 0 and clip_of[u] == clip_of[t] and not lbw[u] * slack > v:
-                if not v < _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo):
-                    continue
+            if (
+                u >= 0
+                and tlen[u] > 0
+                and clip_of[u] == clip_of[t]
+                and not lbw[u] * slack > v
+                and not v < _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
+            ):
+                continue
             u = t + 1
-            if u < n_c and tlen[u] > 0 and clip_of[u] == clip_of[t] and not lbw[u] * slack > v:
-                if not v <= _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo):
-                    continue
+            if (
+                u < n_c
+                and tlen[u] > 0
+                and clip_of[u] == clip_of[t]
+                and not lbw[u] * slack > v
+                and not v <= _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
+            ):
+                continue
             _insert_topk(best_d, best_t, k, v, t)
         computed = 0
         for t in range(n_c):

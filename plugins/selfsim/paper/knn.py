@@ -16,6 +16,7 @@ The KNN of a source word are the ``K`` smallest local minima of its distance fun
 the context target starts (per clip), leaving out minima within ``radius`` frames of the
 source word itself.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -90,8 +91,6 @@ class WordNeighbours:
     n_dtw: int = 0
 
 
-
-
 def warp_sequences(seq: np.ndarray, n: int) -> np.ndarray:
     """Resample quaternion sequences ``(p, ...)`` along time to ``n`` frames (polyphase
     filter, scipy's default Kaiser FIR), renormalised to unit quaternions."""
@@ -102,6 +101,7 @@ def warp_sequences(seq: np.ndarray, n: int) -> np.ndarray:
         flat = np.ascontiguousarray(seq.reshape(p, -1).T)
         # 'line' padding: quaternion components are smooth, zero padding would shrink the ends
         from scipy.signal import resample_poly  # lazy: scipy.signal costs seconds at import
+
         out = resample_poly(flat, n // g, p // g, axis=-1, padtype="line")
         seq = np.ascontiguousarray(out.T).reshape((n,) + seq.shape[1:])
     norm = np.linalg.norm(seq, axis=-1, keepdims=True)
@@ -199,7 +199,7 @@ def knn_search(
                         continue
                     _, path = kern.cdtw_path(d[g], int(st[a]) - r0, t, n, int(tlen[t]), slope_run)
                     jobs.setdefault(len(path), []).append((g, w, b, t + path[:, 1]))
-    for p, items in jobs.items():
+    for items in jobs.values():
         # one polyphase call per path length instead of one per neighbour
         frames = np.stack([it[3] for it in items], axis=1)  # (p, B)
         out = warp_sequences(context.q[frames], n)  # (n, B, m, 4)

@@ -23,9 +23,8 @@ added to its context unless ``include_self`` is off.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,7 +33,6 @@ from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
 
 from .knn import ContextTextures, WordNeighbours, knn_search
-
 from .motion_words import Texture, context_motions, motion_texture, resolve_groups, source_word_starts
 
 if TYPE_CHECKING:
@@ -135,8 +133,9 @@ def knn_spread(outer: np.ndarray, count: np.ndarray) -> np.ndarray:
     return out
 
 
-def digression_from_outer(q: np.ndarray, outer: np.ndarray, count: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def digression_from_outer(
+    q: np.ndarray, outer: np.ndarray, count: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """T̄, the geodesic difference, the KNN spread and the MDM from accumulated outer products (§3.4)."""
     mean_q = q.copy()
     covered = count > 0
@@ -146,7 +145,7 @@ def digression_from_outer(q: np.ndarray, outer: np.ndarray, count: np.ndarray
     spread = knn_spread(outer, count)
     scale = np.maximum(diff.mean(axis=0, keepdims=True), MEAN_FLOOR)
     m = np.where(scale > 0, diff / np.where(scale > 0, scale, 1.0), 0.0)
-    return mean_q, diff, spread, 1.0 - np.exp(-(m ** 2))
+    return mean_q, diff, spread, 1.0 - np.exp(-(m**2))
 
 
 def digression_map(motion: Motion, context: Any = None, params: MDMParams | None = None) -> DigressionResult:
@@ -184,9 +183,22 @@ def digression_map(motion: Motion, context: Any = None, params: MDMParams | None
         outer = np.zeros(tex.q.shape[:2] + (4, 4))
         count = np.zeros(tex.q.shape[:2], np.int64)
     else:
-        searches.append(knn_search(tex.q, full, groups, self_clip=self_clip, word_starts=starts, source_length=n,
-                                   target_length=p.target_length, k=p.k, slope_run=p.slope_run, radius=p.exclusion))
+        searches.append(
+            knn_search(
+                tex.q,
+                full,
+                groups,
+                self_clip=self_clip,
+                word_starts=starts,
+                source_length=n,
+                target_length=p.target_length,
+                k=p.k,
+                slope_run=p.slope_run,
+                radius=p.exclusion,
+            )
+        )
         outer, count = accumulate(searches[0], tex.n_frames, n)
     mean_q, diff, spread, mdm = digression_from_outer(tex.q, outer, count)
-    return DigressionResult(tex, mean_q, diff, mdm, searches, time.perf_counter() - t0, sum(s.n_dtw for s in searches),
-                            spread)
+    return DigressionResult(
+        tex, mean_q, diff, mdm, searches, time.perf_counter() - t0, sum(s.n_dtw for s in searches), spread
+    )

@@ -29,6 +29,7 @@ rotation difference
     eigenvector of ``sum q q^T``, Markley et al. 2007), which is sign invariant and a proper
     mean on the rotation group, unlike averaging Euler angles.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -47,11 +48,29 @@ from mocapflow.framework.normalize import align_facing, resample
 #: (an end site that carries no rotation).
 DEFAULT_JOINTS: tuple[str, ...] = (
     "root",
-    "lhip", "lknee", "lankle", "ltoes",
-    "rhip", "rknee", "rankle", "rtoes",
-    "lowerback", "upperback", "chest", "neck", "head",
-    "lclavicle", "lshoulder", "lelbow", "lwrist", "lfingers",
-    "rclavicle", "rshoulder", "relbow", "rwrist", "rfingers",
+    "lhip",
+    "lknee",
+    "lankle",
+    "ltoes",
+    "rhip",
+    "rknee",
+    "rankle",
+    "rtoes",
+    "lowerback",
+    "upperback",
+    "chest",
+    "neck",
+    "head",
+    "lclavicle",
+    "lshoulder",
+    "lelbow",
+    "lwrist",
+    "lfingers",
+    "rclavicle",
+    "rshoulder",
+    "relbow",
+    "rwrist",
+    "rfingers",
 )
 
 _SPINE = ("lowerback", "upperback", "chest", "neck", "head")
@@ -210,7 +229,9 @@ def source_word_starts(n_frames: int, length: int, step: int) -> np.ndarray:
     return starts
 
 
-def target_word_layout(clip_lengths: Sequence[int], source_length: int, target_length: int) -> tuple[np.ndarray, np.ndarray]:
+def target_word_layout(
+    clip_lengths: Sequence[int], source_length: int, target_length: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Target-word lengths and clip positions for every frame of a concatenated context.
 
     Returns
@@ -247,7 +268,9 @@ def context_motions(motion: Motion, context: Any, include_self: bool = True) -> 
         if not all(isinstance(c, Motion) for c in others):
             raise DataError("a cleaning context list must hold Motions only")
     else:
-        raise DataError(f"cleaning context must be a Motion, a list of Motions or a MotionDatabase, got {type(context).__name__}")
+        raise DataError(
+            f"cleaning context must be a Motion, a list of Motions or a MotionDatabase, got {type(context).__name__}"
+        )
     others = [c for c in others if c is not motion and not (c.name == motion.name and c.n_frames == motion.n_frames)]
     if not include_self and not others:
         raise DataError(f"motion {motion.name!r}: include_self is off and the context is empty")

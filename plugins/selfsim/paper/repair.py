@@ -19,6 +19,7 @@
   the other way (CMU 16_15's left arm is broken in its first two 120-fps frames).
 * :func:`sparse_reconstruction`: full body from a subset of joints (§4, Fig. 8).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -73,8 +74,9 @@ def _medoid(warped: np.ndarray, valid: np.ndarray, mask: np.ndarray) -> int:
     return int(idx[np.argmin(cost)])
 
 
-def _contact_choice(motion24: Motion, tex_index: np.ndarray, candidates: np.ndarray, valid: np.ndarray, s: int,
-                    contact: Contact) -> int:
+def _contact_choice(
+    motion24: Motion, tex_index: np.ndarray, candidates: np.ndarray, valid: np.ndarray, s: int, contact: Contact
+) -> int:
     """KNN word whose effector lands closest to the contact at ``contact.frame``."""
     f = contact.frame
     e = motion24.skeleton.canonical.get(contact.joint)
@@ -82,17 +84,18 @@ def _contact_choice(motion24: Motion, tex_index: np.ndarray, candidates: np.ndar
         raise DataError(f"contact joint {contact.joint!r} is not in the skeleton")
     best, best_d = -1, np.inf
     for kk in np.flatnonzero(valid):
-        rot = motion24.rotations[f:f + 1].copy()
+        rot = motion24.rotations[f : f + 1].copy()
         rot[0, tex_index] = candidates[kk, f - s]
-        pos, _ = forward_kinematics(motion24.skeleton, motion24.root_translation[f:f + 1], rot)
+        pos, _ = forward_kinematics(motion24.skeleton, motion24.root_translation[f : f + 1], rot)
         d = float(np.linalg.norm(pos[0, e] - np.asarray(contact.position)))
         if d < best_d:
             best, best_d = int(kk), d
     return best
 
 
-def repair_texture(res: Any, threshold: float = 0.5, window: int = 7, order: int = 2,
-                   contacts: Sequence[Contact] = ()) -> tuple[np.ndarray, np.ndarray]:
+def repair_texture(
+    res: Any, threshold: float = 0.5, window: int = 7, order: int = 2, contacts: Sequence[Contact] = ()
+) -> tuple[np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4) and the flagged cells (T, m); only flagged cells differ."""
     q = res.texture.q
     t_count, m = q.shape[:2]
@@ -113,6 +116,7 @@ def repair_texture(res: Any, threshold: float = 0.5, window: int = 7, order: int
         track[rows] = rep
         if t_count >= window:
             from scipy.signal import savgol_filter  # lazy: scipy.signal costs seconds at import
+
             smooth = savgol_filter(track, window, order, axis=0, mode="interp")
         else:
             smooth = track
@@ -120,8 +124,15 @@ def repair_texture(res: Any, threshold: float = 0.5, window: int = 7, order: int
     return new, have
 
 
-def _propose(neigh: WordNeighbours, n: int, q: np.ndarray, flagged: np.ndarray, proposal: np.ndarray, res: Any,
-             contacts: Sequence[Contact]) -> None:
+def _propose(
+    neigh: WordNeighbours,
+    n: int,
+    q: np.ndarray,
+    flagged: np.ndarray,
+    proposal: np.ndarray,
+    res: Any,
+    contacts: Sequence[Contact],
+) -> None:
     t_count, m = q.shape[:2]
     starts = neigh.starts
     centres = starts + (n - 1) / 2.0
@@ -142,7 +153,7 @@ def _propose(neigh: WordNeighbours, n: int, q: np.ndarray, flagged: np.ndarray, 
             g_of[:, j] = holders[np.argmin(score[holders], axis=0)]
     chosen: dict[tuple[int, int], int] = {}
     by_frame = {c.frame: c for c in contacts}
-    for f, j in zip(*np.nonzero(flagged)):
+    for f, j in zip(*np.nonzero(flagged), strict=True):
         w = word_of[f]
         if w < 0 or g_of[w, j] < 0:
             continue
@@ -155,7 +166,9 @@ def _propose(neigh: WordNeighbours, n: int, q: np.ndarray, flagged: np.ndarray, 
             s = int(starts[w])
             hit = [c for fr, c in by_frame.items() if s <= fr < s + n]
             if hit:
-                chosen[key] = _contact_choice(res.texture.motion, res.texture.joint_index, neigh.warped[g, w], valid, s, hit[0])
+                chosen[key] = _contact_choice(
+                    res.texture.motion, res.texture.joint_index, neigh.warped[g, w], valid, s, hit[0]
+                )
             else:
                 chosen[key] = _medoid(neigh.warped[g, w], valid, neigh.groups.mask[g])
         proposal[f, j] = neigh.warped[g, w, chosen[key], f - starts[w], j]
@@ -173,8 +186,9 @@ def repair_motion(motion: Motion, res: Any, params: Any, contacts: Sequence[Cont
 GUARD_SLACK = 1e-6
 
 
-def apply_to_input(motion: Motion, texture: Any, new24: np.ndarray, flagged: np.ndarray,
-                   guard: bool = False) -> tuple[Motion, np.ndarray]:
+def apply_to_input(
+    motion: Motion, texture: Any, new24: np.ndarray, flagged: np.ndarray, guard: bool = False
+) -> tuple[Motion, np.ndarray]:
     """Carry a repaired texture to the input frames; returns the motion and changed (T_in, J).
 
     Parameters
@@ -237,14 +251,16 @@ def edits_table(motion: Motion, cleaned: Motion, changed: np.ndarray, clip_id: i
     rotation (w, x, y, z)."""
     f, j = np.nonzero(changed)
     names = np.array(motion.skeleton.names, dtype=object)
-    return pa.table({
-        "clip_id": pa.array(np.full(len(f), clip_id, np.int32)),
-        "frame": pa.array(f.astype(np.int32)),
-        "joint": pa.array(j.astype(np.int32)),
-        "joint_name": pa.array(names[j].tolist() if len(j) else [], pa.string()),
-        "old_rotation": fixed_list(motion.rotations[f, j].reshape(-1, 4)),
-        "new_rotation": fixed_list(cleaned.rotations[f, j].reshape(-1, 4)),
-    })
+    return pa.table(
+        {
+            "clip_id": pa.array(np.full(len(f), clip_id, np.int32)),
+            "frame": pa.array(f.astype(np.int32)),
+            "joint": pa.array(j.astype(np.int32)),
+            "joint_name": pa.array(names[j].tolist() if len(j) else [], pa.string()),
+            "old_rotation": fixed_list(motion.rotations[f, j].reshape(-1, 4)),
+            "new_rotation": fixed_list(cleaned.rotations[f, j].reshape(-1, 4)),
+        }
+    )
 
 
 def sparse_reconstruction(sparse: Motion, context: Sequence[Motion], known: Sequence[str], params: Any) -> Motion:
@@ -262,14 +278,25 @@ def sparse_reconstruction(sparse: Motion, context: Sequence[Motion], known: Sequ
     if missing:
         raise DataError(f"sparse joints {missing} are not texture joints of every clip")
     tex = motion_texture(sparse, joints, params.fps)
-    ctx = ContextTextures.from_arrays([motion_texture(c, joints, params.fps).q for c in context], [c.name for c in context])
+    ctx = ContextTextures.from_arrays(
+        [motion_texture(c, joints, params.fps).q for c in context], [c.name for c in context]
+    )
     groups = resolve_groups(joints, [("known", tuple(known), 0)])
     n = params.source_length
     starts = source_word_starts(tex.n_frames, n, params.source_step)
     if len(starts) == 0:
         raise DataError(f"motion {sparse.name!r} is shorter than one word ({n} frames at {params.fps} fps)")
-    neigh = knn_search(tex.q, ctx, groups, self_clip=-1, word_starts=starts, source_length=n,
-                       target_length=params.target_length, k=params.k, slope_run=params.slope_run)
+    neigh = knn_search(
+        tex.q,
+        ctx,
+        groups,
+        self_clip=-1,
+        word_starts=starts,
+        source_length=n,
+        target_length=params.target_length,
+        k=params.k,
+        slope_run=params.slope_run,
+    )
     out = tex.q.copy()
     prev = None
     for w, s in enumerate(starts):
@@ -280,7 +307,10 @@ def sparse_reconstruction(sparse: Motion, context: Sequence[Motion], known: Sequ
             pick = valid[0]
         else:
             ref = out[s]  # the previous word already filled this frame
-            d = [np.sum(np.arccos(np.clip(np.abs(np.sum(neigh.warped[0, w, kk, 0] * ref, -1)), 0, 1)) ** 2) for kk in valid]
+            d = [
+                np.sum(np.arccos(np.clip(np.abs(np.sum(neigh.warped[0, w, kk, 0] * ref, -1)), 0, 1)) ** 2)
+                for kk in valid
+            ]
             pick = valid[int(np.argmin(d))]
         end = starts[w + 1] if w + 1 < len(starts) else len(out)
         word = neigh.warped[0, w, pick]
@@ -291,7 +321,10 @@ def sparse_reconstruction(sparse: Motion, context: Sequence[Motion], known: Sequ
     unknown = ~groups.mask[0]
     if len(out) >= params.savgol_window:
         from scipy.signal import savgol_filter  # lazy: scipy.signal costs seconds at import
-        sm = savgol_filter(quat.make_continuous(out, axis=0), params.savgol_window, params.savgol_order, axis=0, mode="interp")
+
+        sm = savgol_filter(
+            quat.make_continuous(out, axis=0), params.savgol_window, params.savgol_order, axis=0, mode="interp"
+        )
         out[:, unknown] = quat.normalize(sm[:, unknown])
     rot = tex.motion.rotations.copy()
     rot[:, tex.joint_index] = out
