@@ -61,8 +61,11 @@ def test_coarse_template_rows_and_steps():
     c3 = coarse_template(t, 3)
     np.testing.assert_array_equal(c3.mean, t.mean[::3])
     assert coarse_template(t, 3) is c3  # cached: its lookup table is built once
-    assert template_step(t, 2) == 2 and template_step(t, "auto", coarse_frames=30) == t.n_frames // 30
-    assert template_step(t, "auto", coarse_frames=1, max_step=4) == 4
+    assert template_step(t, 2) == 2
+    # auto: at least 7 coarse rows, at most every 4th frame (a 22-frame hop at 30 Hz: every 3rd)
+    for k, want in ((6, 1), (13, 1), (22, 3), (28, 4), (181, 4)):
+        tk = MotionTemplate("k", np.zeros((k, 31), np.float32), np.arange(31), 0.2, 1.0, 1)
+        assert template_step(tk, "auto") == want, k
 
 
 def test_rival_window_minima_matches_definition():
@@ -84,8 +87,8 @@ def test_cutoff_hits_coarse_step_keeps_the_rival_decision():
     from mocapflow.plugins.relational.template import cutoff_hits
 
     t, codes, offsets = _setup()
-    full = cutoff_hits([t], codes, offsets, "threshold", threshold=0.5)
+    full = cutoff_hits([t], codes, offsets, threshold=0.5)
     for step in (2, "auto"):
-        got = cutoff_hits([t], codes, offsets, "threshold", threshold=0.5, step=step)
+        got = cutoff_hits([t], codes, offsets, threshold=0.5, step=step)
         clips = set((np.searchsorted(offsets, got[0][0], side="right") - 1).tolist())
         assert clips == set((np.searchsorted(offsets, full[0][0], side="right") - 1).tolist())

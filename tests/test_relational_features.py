@@ -13,7 +13,7 @@ from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import ConfigError
 from mocapflow.plugins.relational.body import body_measures
 from mocapflow.plugins.relational import primitives as prim
-from mocapflow.plugins.relational.features import (FEATURE_IDS, FEATURES, RelationalFeatures, feature_column,
+from mocapflow.plugins.relational.features import (FEATURE_IDS, FEATURES, THRESHOLDS, RelationalFeatures, feature_column,
                                                    feature_values, relational_features, set_codes)
 
 RNG = np.random.default_rng(7)
@@ -59,21 +59,14 @@ def test_speed_never_crosses_clip_boundaries():
     assert not prim.speed(np.ones((5, 3)), 30.0).any()
 
 
-def test_hysteresis_matches_naive():
-    offsets = np.array([0, 7, 8, 30])
-    stay = RNG.random((30, 3)) < 0.6
-    on_ = stay & (RNG.random((30, 3)) < 0.5)
-    np.testing.assert_array_equal(prim.hysteresis(on_, stay, offsets), naive.hysteresis(on_, stay, offsets))
-
-
 def test_kernel_matches_naive_features():
     # random perturbations of the standing pose, two clips, a missing joint (fallback)
     frames = pose_array()[None] + RNG.normal(scale=0.15, size=(40, 25, 3))
     frames[:, naive.CANONICAL_JOINTS.index("ltoes")] = np.nan  # missing joint -> fallback lankle
     offsets = np.array([0, 1, 40])
     meas = {"humerus_length": 0.28, "shoulder_width": 0.4, "hip_width": 0.2}
-    for hyst in (False, True):
-        params = RelationalFeatures.Params(hysteresis=hyst)
+    for over in ({}, {"foot_raised": 0.5, "bent_angle": 100.0}):
+        params = RelationalFeatures.Params(thresholds=over)
         got = relational_features(frames, 30.0, meas, params, offsets)
         want = naive.feature_bits(FEATURES, params, frames, 30.0, meas, offsets)
         # values at a threshold may round either way in float32: allow a tiny fraction
@@ -220,9 +213,7 @@ def test_docs_table_lists_every_feature_with_its_thresholds():
     from pathlib import Path
 
     doc = (Path(__file__).resolve().parent.parent / "docs" / "relational-features.md").read_text()
-    params = RelationalFeatures.Params()
     for d in FEATURES:
         row = next((line for line in doc.splitlines() if line.startswith(f"| {d.id} |")), None)
         assert row is not None, f"{d.id} missing from docs/relational-features.md"
-        thr, strict = getattr(params, d.param)
-        assert f"`{d.name}`" in row and d.definition in row and f"{thr:g}" in row and f"{strict:g}" in row, row
+        assert f"`{d.name}`" in row and d.definition in row and f"{THRESHOLDS[d.param]:g}" in row, row

@@ -355,7 +355,7 @@ def _two_class_setup():
 
 
 def test_rival_cutoff_keeps_each_motion_for_its_own_template():
-    from mocapflow.plugins.relational.template import cutoff_hits
+    from mocapflow.plugins.relational.template import cutoff_hits, search_template
     from mocapflow.plugins.relational.template_cutoff import RivalTable, rival_mask
 
     temps, codes, offsets = _two_class_setup()
@@ -363,34 +363,13 @@ def test_rival_cutoff_keeps_each_motion_for_its_own_template():
     def clip_of(starts):
         return np.searchsorted(offsets, starts, side="right") - 1
 
-    loose = cutoff_hits(temps, codes, offsets, "threshold", threshold=0.6)
+    loose = [search_template(t, codes, offsets, threshold=0.6) for t in temps]  # no rival check
     assert set(clip_of(loose[0][0]).tolist()) >= {0, 1, 2}  # a loose bound: template a also hits b's motion
-    got = cutoff_hits(temps, codes, offsets, "rivals", threshold=0.6)
+    got = cutoff_hits(temps, codes, offsets, threshold=0.6)
     assert set(clip_of(got[0][0]).tolist()) == {0, 2} and set(clip_of(got[1][0]).tolist()) == {1, 3}
     table = RivalTable.build(temps, codes, offsets)
-    for which, (s, e, _, _) in enumerate(loose):  # the lookup table and the window scans agree
+    for which, (s, e, _) in enumerate(loose):  # the lookup table and the window scans agree
         np.testing.assert_array_equal(table.mask(which, s, e, offsets), rival_mask(temps, which, s, e, codes, offsets))
-    with_table = cutoff_hits(temps, codes, offsets, "rivals", threshold=0.6, rival_table=table)
+    with_table = cutoff_hits(temps, codes, offsets, threshold=0.6, rival_table=table)
     for a, b in zip(got, with_table):
         np.testing.assert_array_equal(a[0], b[0])
-
-
-def test_intersect_ranges_matches_naive():
-    from mocapflow.plugins.relational._hit_kernels import intersect_ranges
-
-    rng = np.random.default_rng(4)
-    for _ in range(20):
-        a = np.zeros(200, bool)
-        b = np.zeros(200, bool)
-        a[rng.integers(0, 200, 30)] = True
-        b[rng.integers(0, 200, 30)] = True
-        a |= np.roll(a, 1) | np.roll(a, 2)
-        b |= np.roll(b, 3)
-
-        def as_ranges(m):
-            edges = np.flatnonzero(np.diff(np.r_[0, m.astype(int), 0]))
-            return edges[0::2].astype(np.int64), edges[1::2].astype(np.int64)
-        lo, hi = intersect_ranges(*as_ranges(a), *as_ranges(b))
-        want_lo, want_hi = as_ranges(a & b)
-        np.testing.assert_array_equal(lo, want_lo)
-        np.testing.assert_array_equal(hi, want_hi)

@@ -379,24 +379,20 @@ class AmcFormat(Format):
     class Params(Params):
         fps: float = Field(AMC_DEFAULT_FPS, gt=0, description="frame rate of the AMC files (they carry none; CMU/HDM05: 120)")
         asf: str | None = Field(None, description="ASF skeleton path; default: the .asf beside each AMC file")
-        write_asf: bool = Field(True, description="writing: also write the skeleton as the .asf beside the AMC "
-                                "(same stem), so that the AMC can be read back")
 
     def read(self, path: str | Path) -> Motion:
         return read_amc(path, skeleton=self.params.asf, fps=self.params.fps)
 
     def write(self, obj: Any, path: str | Path) -> None:
-        write_amc(obj, path)
-        if self.params.write_asf:
-            write_asf(obj.skeleton, Path(path).with_suffix(".asf"))
+        write_amc(obj, path)  # the skeleton beside it (same stem), so that the AMC can be read back
+        write_asf(obj.skeleton, Path(path).with_suffix(".asf"))
 
     def write_atomic(self, obj: Any, path: str | Path) -> None:
         """The ASF beside ``path`` and then the AMC, each through a temporary file renamed
         into place (the ASF is named after ``path``, not after the temporary AMC)."""
         from mocapflow.framework.datasets import atomic_path
 
-        if self.params.write_asf:
-            with atomic_path(Path(path).with_suffix(".asf")) as tmp:
-                write_asf(obj.skeleton, tmp)
+        with atomic_path(Path(path).with_suffix(".asf")) as tmp:
+            write_asf(obj.skeleton, tmp)
         with atomic_path(path) as tmp:
             write_amc(obj, tmp)

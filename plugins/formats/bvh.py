@@ -387,11 +387,9 @@ class BvhFormat(Format):
     class Params(Params):
         scale: float | Literal["auto"] = Field(
             "auto", description="metres per file unit, or 'auto' (guessed from the rest-pose size)")
-        collapse_static_root: bool = Field(
-            True, description="drop a never-moving root above the translating hips (Bandai-Namco joint_Root)")
 
     def read(self, path: str | Path) -> Motion:
-        return read_bvh(path, scale=self.params.scale, collapse_static_root=self.params.collapse_static_root)
+        return read_bvh(path, scale=self.params.scale)
 
     def write(self, obj: Any, path: str | Path) -> None:
         write_bvh(obj, path)

@@ -193,10 +193,10 @@ def feature_values(pos, starts, fps, ops, joints, n_terms, fallback, out):  # pr
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def feature_bits(pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, thr, strict, below,
-                 out, out_on):  # pragma: no cover - compiled
-    """Thresholded features in the same pass: ``out[i, f] = value (>= | <) thr[f] * scale[i, unit[f]]``
-    and ``out_on`` the same against ``strict`` (for hysteresis); NaN gives False."""
+def feature_bits(pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, thr, below,
+                 out):  # pragma: no cover - compiled
+    """Thresholded features in the same pass: ``out[i, f] = value (>= | <) thr[f] * scale[i, unit[f]]``;
+    NaN gives False."""
     for i in range(pos.shape[0]):
         lo, hi, miny = _frame(pos, starts, i)
         for f in range(ops.shape[0]):
@@ -204,10 +204,8 @@ def feature_bits(pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, 
             sc = scale[i, unit[f]]
             if below[f]:
                 out[i, f] = v < thr[f] * sc
-                out_on[i, f] = v < strict[f] * sc
             else:
                 out[i, f] = v >= thr[f] * sc
-                out_on[i, f] = v >= strict[f] * sc
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)

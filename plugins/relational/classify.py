@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
@@ -28,24 +28,23 @@ if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.datasets import Dataset, StepOutput
 
 
-def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray, columns: Literal["key", "all"] = "all") -> np.ndarray:
-    """Per clip and template the least cost, shape (n_clips, n_templates) (inf: no path fits).
+def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Per clip and template the least cost on all 31 features, shape (n_clips, n_templates)
+    (inf: no path fits).
 
     Parameters
     ----------
     templates : list of MotionTemplate
     bits : ndarray of shape (N, 31), 0/1
     offsets : ndarray of int, shape (n_clips + 1,)
-    columns : "key" (each template's key features) or "all" (all 31 features)
     """
-    from .template import _all_columns
+    from .template_cutoff import _all_columns
     from .template_model import clip_min_costs, frame_codes
 
     codes = frame_codes(bits)
     out = np.empty((len(offsets) - 1, len(templates)))
     for i, t in enumerate(templates):
-        use = t if columns == "key" else _all_columns(t)
-        out[:, i] = clip_min_costs(codes, offsets, use.table())
+        out[:, i] = clip_min_costs(codes, offsets, _all_columns(t).table())
     return out
 
 
@@ -77,7 +76,6 @@ class TemplateClassifier(Analysis):
     inputs = {"templates": True, "features": True, "motions": True}
 
     class Params(Params):
-        columns: Literal["key", "all"] = Field("all", description="compare on all 31 features or on each template's key features")
         clips: str = Field(".", description="regular expression: classify the clips whose names match")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
@@ -100,7 +98,7 @@ class TemplateClassifier(Analysis):
         lengths = np.diff(offsets)[sel]
         sub_off = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
         sub_bits = np.concatenate([bits[offsets[i]:offsets[i + 1]] for i in sel]) if len(sel) else bits[:0]
-        costs = classify_clips(templates, sub_bits, sub_off, self.params.columns)
+        costs = classify_clips(templates, sub_bits, sub_off)
         best, c1, second, conf = decide(costs) if len(templates) else (np.zeros(len(sel), int),) * 4
         labels = [t.label for t in templates]
         truth = clip_labels([names[i] for i in sel], meta.get("label_pattern", r"(?P<label>$^)"))

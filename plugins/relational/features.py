@@ -13,11 +13,9 @@ The table :data:`FEATURES` is the single definition: it is compiled into a small
 the frames (``_relational_kernels.feature_bits``, about 0.6 s per million frames on one
 core); ``tests/naive/relational.py`` evaluates the same table with plain NumPy geometry.
 
-Every threshold is a pair ``(threshold, strict)``: ``threshold`` is the single decision
-value (the paper's where it gives one, e.g. 120 degrees for "bent" and one humerus length
-for "hand in front"); ``strict`` is the switch-on value used only with ``hysteresis=True``
-(switch on past ``strict``, off when ``threshold`` fails), which removes flicker at the cost
-of slightly shorter "on" runs.
+Every threshold is one value of :data:`THRESHOLDS` (the paper's where it gives one, e.g. 120
+degrees for "bent" and one humerus length for "hand in front"); the step's ``thresholds``
+parameter overrides them by name.
 """
 from __future__ import annotations
 
@@ -27,7 +25,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from mocapflow.framework.components import FeatureSet, Params
 from mocapflow.framework.errors import ConfigError, DataError
@@ -50,6 +48,14 @@ _FALLBACK = {"ltoes": "lankle", "rtoes": "rankle", "lfingers": "lwrist", "rfinge
 SETS: tuple[tuple[str, str, int], ...] = (("lower", "L", 11), ("upper", "U", 12), ("mixed", "M", 8))
 
 
+#: Decision thresholds per ``FeatureDef.param``, in the unit of the feature (docs/relational-features.md).
+THRESHOLDS: dict[str, float] = {
+    "foot_front": 0.0, "foot_raised": 1.0, "foot_fast": 2.0, "bent_angle": 120.0, "leg_sideways": 0.8,
+    "crossed": 0.0, "hand_front": 1.0, "hand_raised": 0.0, "arm_sideways": 1.0, "hand_fast": 2.0,
+    "touch_hands": 0.5, "touch_leg": 0.5, "touch_head": 0.7, "touch_hip": 0.7, "torso_bent_angle": 120.0,
+    "root_fast": 2.0,
+}
+
 #: Operations of the feature program, matching the kernel op codes.
 OPS: tuple[str, ...] = ("plane", "nplane", "point_segment", "segment_segment", "cos", "height", "speed")
 
@@ -61,7 +67,7 @@ class FeatureDef:
     ``op`` (one of :data:`OPS`) is applied to each tuple of joints in ``terms`` and the
     minimum over the terms is taken (several terms: "touching any leg", "torso bent").
     The feature is ``value >= threshold`` (``below``: ``value < threshold``) where the
-    threshold is the :class:`RelationalFeatures.Params` pair named ``param`` times the
+    threshold is the :data:`THRESHOLDS` value named ``param`` times the
     body measure ``unit`` (``hl`` humerus length, ``sw`` shoulder width, ``hw`` hip width,
     ``hl/s``; ``deg`` thresholds an angle, computed as its cosine).
 
@@ -207,7 +213,7 @@ def relational_features(positions: np.ndarray, fps: float, measures: Mapping[str
         of shape (T,) (one value per frame when clips come from several skeletons).
     params : RelationalFeatures.Params, optional
     offsets : ndarray of int, shape (n_clips + 1,), optional
-        Clip offsets; speeds and hysteresis never cross a clip boundary.
+        Clip offsets; speeds never cross a clip boundary.
 
     Returns
     -------
@@ -227,25 +233,22 @@ def relational_features(positions: np.ndarray, fps: float, measures: Mapping[str
     scale = np.ones((t, 4), dtype=np.float32)
     for k, key in ((1, "humerus_length"), (2, "shoulder_width"), (3, "hip_width")):
         scale[:, k] = np.asarray(measures[key], dtype=np.float32)
+    values = {**THRESHOLDS, **params.thresholds}
     thr = np.empty(len(FEATURES), np.float32)
-    strict = np.empty_like(thr)
     below = np.empty(len(FEATURES), bool)
     unit = np.empty(len(FEATURES), np.int64)
     for i, d in enumerate(FEATURES):
-        a, b = getattr(params, d.param)
+        a = values[d.param]
         if d.unit == "deg":  # the value is a cosine: angle < theta iff cos > cos(theta)
-            thr[i], strict[i], below[i] = np.cos(np.radians(a)), np.cos(np.radians(b)), not d.below
+            thr[i], below[i] = np.cos(np.radians(a)), not d.below
         else:
-            thr[i], strict[i], below[i] = a, b, d.below
+            thr[i], below[i] = a, d.below
         unit[i] = units.index(d.unit.removesuffix("/s"))
     out = np.zeros((t, len(FEATURES)), dtype=bool)
-    on = np.zeros_like(out)
     if t:
         from ._feature_kernels import feature_bits
 
-        feature_bits(np.ascontiguousarray(pos), starts, float(fps), *_program(), unit, scale, thr, strict, below, out, on)
-    if params.hysteresis:
-        out = prim.hysteresis(on & out, out, offsets)
+        feature_bits(np.ascontiguousarray(pos), starts, float(fps), *_program(), unit, scale, thr, below, out)
     return out
 
 
@@ -308,23 +311,17 @@ class RelationalFeatures(FeatureSet):
     version = "1"
 
     class Params(Params):
-        hysteresis: bool = Field(False, description="two-threshold switching (on past 'strict', off when 'threshold' fails) against flicker")
-        foot_front: tuple[float, float] = Field((0.0, 0.1), description="offset of the foot plane (root, ankle, hip) to the front, humerus lengths (paper: 0)")
-        foot_raised: tuple[float, float] = Field((1.0, 1.2), description="toes height above the lowest joint, humerus lengths")
-        foot_fast: tuple[float, float] = Field((2.0, 2.5), description="toes speed, humerus lengths per second")
-        bent_angle: tuple[float, float] = Field((120.0, 110.0), description="knee/elbow bent below this angle, degrees (paper: 120)")
-        leg_sideways: tuple[float, float] = Field((0.8, 1.0), description="ankle beyond its hip along the hip axis, humerus lengths (hip widths vary too much across skeletons)")
-        crossed: tuple[float, float] = Field((0.0, 0.1), description="right ankle/wrist past the left one along the hip/shoulder axis, hip/shoulder widths")
-        hand_front: tuple[float, float] = Field((1.0, 1.2), description="offset of the body plane (root, shoulders) to the front, humerus lengths (paper: 1)")
-        hand_raised: tuple[float, float] = Field((0.0, 0.2), description="wrist above the neck along chest->neck, humerus lengths (paper: neck height)")
-        arm_sideways: tuple[float, float] = Field((1.0, 1.2), description="wrist beyond its shoulder along the shoulder axis, humerus lengths")
-        hand_fast: tuple[float, float] = Field((2.0, 2.5), description="wrist speed relative to the root, humerus lengths per second")
-        touch_hands: tuple[float, float] = Field((0.5, 0.4), description="hand segments closer than this, humerus lengths (epsilon)")
-        touch_leg: tuple[float, float] = Field((0.5, 0.4), description="wrist closer than this to a leg bone, humerus lengths")
-        touch_head: tuple[float, float] = Field((0.7, 0.55), description="wrist closer than this to the neck-headtop segment, humerus lengths")
-        touch_hip: tuple[float, float] = Field((0.7, 0.55), description="wrist closer than this to the hip segment, humerus lengths")
-        torso_bent_angle: tuple[float, float] = Field((120.0, 110.0), description="torso bent when both spine-thigh angles are below this, degrees (paper: 120)")
-        root_fast: tuple[float, float] = Field((2.0, 2.5), description="root speed, humerus lengths per second")
+        thresholds: dict[str, float] = Field(default_factory=dict, description="decision thresholds overriding "
+                                             "THRESHOLDS by name, e.g. {foot_raised: 1.1} (units and defaults: "
+                                             "docs/relational-features.md)")
+
+        @field_validator("thresholds")
+        @classmethod
+        def _known(cls, v: dict[str, float]) -> dict[str, float]:
+            unknown = sorted(set(v) - set(THRESHOLDS))
+            if unknown:
+                raise ValueError(f"unknown thresholds {unknown}; known: {', '.join(THRESHOLDS)}")
+            return v
 
     @property
     def dim(self) -> int:
@@ -376,5 +373,5 @@ class RelationalFeatures(FeatureSet):
     feature_ids: ClassVar[tuple[str, ...]] = FEATURE_IDS
 
 
-__all__ = ["FEATURES", "FEATURE_IDS", "FEATURE_NAMES", "OPS", "SETS", "SET_SLICES", "FeatureDef", "RelationalFeatures",
+__all__ = ["FEATURES", "THRESHOLDS", "FEATURE_IDS", "FEATURE_NAMES", "OPS", "SETS", "SET_SLICES", "FeatureDef", "RelationalFeatures",
            "feature_column", "feature_set_of", "feature_values", "relational_features", "set_codes"]

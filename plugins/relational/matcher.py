@@ -122,34 +122,17 @@ class RelationalMatcher(Matcher):
         scenes: tuple[SceneQuery, ...] = Field((), description="scene descriptions (query ids follow the example queries)")
         mode: ExampleMode = Field("auto", description="auto (features chosen from the example), exact (eq. 7), fuzzy (eq. 11), "
                                   "adaptive (§5.2) or mismatch")
-        auto_search: Literal["dtw", "adaptive", "mismatch"] = Field("dtw", description="mode auto: subsequence DTW of the "
-                                                                    "example as a template, or the paper's adaptive / mismatch hits")
-        min_run: int = Field(4, ge=1, description="mode auto: runs shorter than this (frames) are flicker")
-        max_features: int = Field(3, ge=1, le=31, description="mode auto with adaptive/mismatch search: features selected")
-        relative_cut: float | None = Field(None, gt=0.0, description="mode auto, dtw: hits cost below this x q^w x "
-                                           "median^(1-w) of the database's per-clip least costs (q: their 5 % quantile, "
-                                           "w: low_weight); default 1.3 for hits the mutual check passes, 1.15 for "
-                                           "unchecked ones (auto_mutual off, or long clips under auto)")
-        low_weight: float = Field(0.75, ge=0.0, le=1.0, description="mode auto, dtw: weight w of the low quantile in the cut "
-                                  "(0: relative_cut x the median, the first design)")
-        max_cost: float | None = Field(None, gt=0.0, description="mode auto, dtw: fixed cost cut instead of relative_cut")
-        auto_features: Literal["all", "key"] = Field("all", description="mode auto, dtw: the example template on all 31 "
-                                                     "features or on its key features (the first design)")
-        auto_mutual: Literal["auto", "clip", "off"] = Field("auto", description="mode auto, dtw: reverse check of each "
-                                                            "hit (the hit's clip as a query must find the query clip too): "
-                                                            "clip on every hit (databases of cut motions), auto only where "
-                                                            "the hit's clip is at most mutual_ratio x the query's length, for an example that is a whole clip "
-                                                            "(long takes: mutual_window or no check), off; docs/templates.md")
+        relative_cut: float | None = Field(None, gt=0.0, description="mode auto: hits cost below this x q^0.75 x "
+                                           "median^0.25 of the database's per-clip least costs (q: their 5 % quantile); "
+                                           "default 1.3 for hits the mutual check passes, 1.15 for unchecked ones")
+        auto_mutual: Literal["auto", "clip", "off"] = Field("auto", description="mode auto: reverse check of each "
+                                                            "hit (the hit's clip as a query must find the query clip "
+                                                            "too): auto only where the hit's clip is at most "
+                                                            "mutual_ratio x the query's length, for an example that is "
+                                                            "a whole clip; clip on every hit (databases of cut motions); "
+                                                            "off; docs/templates.md")
         mutual_ratio: float = Field(3.0, gt=0.0, description="mode auto, auto_mutual auto: a hit's clip of at most this "
                                     "x the query's frames is checked as a whole")
-        mutual_window: float | None = Field(None, ge=0.0, description="mode auto, auto_mutual auto: in a longer clip "
-                                            "the reverse query is a window of the query's length x (1 + this) around "
-                                            "the hit; None: such hits are not checked (and get the plain cut)")
-        mutual_sample: int | None = Field(256, ge=8, description="mode auto, mutual check: the reverse search covers a "
-                                          "fixed random sample of this many clips (its cut needs only the quantiles "
-                                          "of their costs); None: every clip")
-        auto_weighting: float = Field(0.5, ge=0.0, le=4.0, description="mode auto, dtw: a mismatch costs the surprise of the "
-                                      "example's value under the database's on-fraction, to this power (0: unweighted)")
         mismatches: int = Field(1, ge=0, description="m of m-mismatch hits")
         mismatch_positions: tuple[int, ...] | None = Field(None, description="query levels (0-based) where mismatches may occur; default any")
         min_overlap: float = Field(0.5, ge=0.0, le=1.0, description="overlap (fraction of the shorter span) for combining hits of several indexes")
@@ -219,11 +202,11 @@ class RelationalMatcher(Matcher):
 
     def _auto_rows(self, qid: int, index: InvertedIndex, bits: np.ndarray, spec: ExampleQuery,
                    examples: list[np.ndarray], whole: bool = True) -> list[dict]:
-        """Mode auto: features selected from the example, then DTW or the paper's machinery.
+        """Mode auto: the example as a weighted all-feature template (:mod:`.auto`).
         ``whole``: the example covers (at least 80 % of) its clip; ``auto_mutual: auto`` checks
         hits only then, since a piece of a take is no cut whose clip could be compared with
         the hit's clip (``clip`` checks regardless)."""
-        from .auto import auto_dtw_hits, auto_template, select_features
+        from .auto import auto_dtw_hits, auto_template
         from .template_model import frame_codes
 
         cache = getattr(self, "_frames", None)
@@ -233,35 +216,21 @@ class RelationalMatcher(Matcher):
             cache = (index, frame_codes(db_bits), db_bits.mean(axis=0) if len(db_bits) else np.zeros(31), any_set, db_bits)
             self._frames = cache
         _, codes, background, any_set, db_bits = cache
-        allowed = sorted({feature_column(f) for f in spec.features}) if spec.features else None
-        if self.params.auto_search == "dtw":
-            t = auto_template(bits, background, examples, self.params.min_run, self.params.auto_features,
-                              self.params.auto_weighting)
-            if allowed is not None:
-                keep = np.intersect1d(t.columns, allowed)
-                t.columns = keep if len(keep) else np.asarray(allowed, np.int64)
-            pr = self.params
-            mutual = "off" if pr.auto_mutual == "auto" and not whole else pr.auto_mutual
-            s, e, c = auto_dtw_hits(t, bits, db_bits, codes, any_set.clip_offsets, background, mutual,
-                                    pr.relative_cut, pr.max_cost, pr.low_weight, pr.mutual_ratio, pr.mutual_window,
-                                    pr.min_run, pr.auto_features, pr.auto_weighting, pr.mutual_sample)
-            used = t.columns
-            hits = Hits(np.searchsorted(any_set.clip_offsets, s, side="right") - 1, s, e, c,
-                        sets="+".join(sorted({feature_set_of(int(x)) for x in used})), n_levels=t.n_frames)
-        else:
-            used, sm, _ = select_features(bits, background, examples, self.params.min_run, max_features=self.params.max_features,
-                                          allowed=allowed)
-            if not len(used):
-                return []
-            mode = self.params.auto_search
-            hits = example_query(index, sm, sorted(int(x) for x in used), mode, self.params.mismatches,
-                                 self.params.mismatch_positions, self.params.min_overlap)
+        t = auto_template(bits, background, examples)
+        if spec.features:
+            allowed = sorted({feature_column(f) for f in spec.features})
+            keep = np.intersect1d(t.columns, allowed)
+            t.columns = keep if len(keep) else np.asarray(allowed, np.int64)
+        pr = self.params
+        mutual = "off" if pr.auto_mutual == "auto" and not whole else pr.auto_mutual
+        s, e, c = auto_dtw_hits(t, bits, db_bits, codes, any_set.clip_offsets, background, mutual, pr.relative_cut,
+                                pr.mutual_ratio)
+        hits = Hits(np.searchsorted(any_set.clip_offsets, s, side="right") - 1, s, e, c,
+                    sets="+".join(sorted({feature_set_of(int(x)) for x in t.columns})), n_levels=t.n_frames)
         rows = self._rows(qid, index, hits, None, None)
-        ids = ",".join(FEATURE_IDS[int(x)] for x in sorted(used))
+        ids = ",".join(FEATURE_IDS[int(x)] for x in sorted(t.columns))
         for r in rows:
-            r.update(mode="auto", features=ids)
-            if self.params.auto_search == "dtw":
-                r["dtw_cost"] = r["cost"]
+            r.update(mode="auto", features=ids, dtw_cost=r["cost"])
         return rows
 
     def _rows(self, qid: int, index: InvertedIndex, hits: Hits, mdb, query_clip) -> list[dict]:

@@ -2,8 +2,7 @@
 
 Every function works on arrays of points broadcast over frames, ``(..., 3)`` in metres,
 y up, and returns a real-valued quantity (a signed distance, a distance, an angle or a
-speed); thresholding into booleans (optionally with hysteresis) is a separate step
-(:func:`threshold`, :func:`hysteresis`). Nothing here knows about joints: the feature
+speed); thresholding into booleans is a separate step (:func:`threshold`). Nothing here knows about joints: the feature
 table in :mod:`.relational` picks the joints.
 
 Conventions
@@ -196,36 +195,5 @@ def threshold(value: np.ndarray, thresh: float | np.ndarray, below: bool = False
         return (value < thresh) if below else (value >= thresh)
 
 
-def hysteresis(on: np.ndarray, stay: np.ndarray, offsets: np.ndarray | None = None) -> np.ndarray:
-    """Two-threshold (Schmitt trigger) booleans, vectorised over frames and features.
-
-    The output switches to True where ``on`` (the stricter test) holds, to False where
-    ``stay`` (the laxer test) fails, and otherwise keeps its previous value; each clip starts
-    False unless ``on`` holds. ``on`` must imply ``stay``.
-
-    Parameters
-    ----------
-    on, stay : ndarray of bool, shape (T,) or (T, f)
-    offsets : ndarray of int, shape (n_clips + 1,), optional
-
-    Returns
-    -------
-    ndarray of bool, same shape
-    """
-    on = np.asarray(on, dtype=bool)
-    stay = np.asarray(stay, dtype=bool)
-    t = on.shape[0]
-    if t == 0:
-        return on.copy()
-    if offsets is None:
-        offsets = np.array([0, t])
-    starts = clip_starts(offsets, t)
-    decided = on | ~stay
-    decided |= starts.reshape((-1,) + (1,) * (on.ndim - 1))
-    idx = np.where(decided, np.arange(t).reshape((-1,) + (1,) * (on.ndim - 1)), 0)
-    np.maximum.accumulate(idx, axis=0, out=idx)
-    return np.take_along_axis(on, idx, axis=0) if on.ndim > 1 else on[idx]
-
-
-__all__ = ["angle_between", "clip_starts", "cos_between", "hysteresis", "min_height", "normal_plane_distance", "plane_distance",
+__all__ = ["angle_between", "clip_starts", "cos_between", "min_height", "normal_plane_distance", "plane_distance",
            "point_segment_distance", "segment_segment_distance", "speed", "threshold"]

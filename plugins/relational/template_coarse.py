@@ -14,8 +14,7 @@ acceptance bound (costs are mean local costs in [0, 1] at either rate). The hits
 back to full-rate frames and the rival check of the ``rivals`` cut-off runs at the full rate
 on them, so which class wins a stretch is decided as before.
 
-``step="auto"`` (default of the step): per template ``s = clip(K // coarse_frames, 1, max_step)``
-(``coarse_frames`` 7, ``max_step`` 4): at least 7 coarse rows, at most a quarter of the rate
+``step="auto"`` (default of the step): per template ``s = clip(K // 7, 1, 4)``: at least 7 coarse rows, at most a quarter of the rate
 (hop, 22 frames at 30 Hz: s = 3; every other HDM05 template: 4). Measured
 leave-one-actor-out, a uniform step of 6 (5 Hz; rotate's 32 frames become 6 rows) loses two
 classes, steps 2-4 none; a class's list depends only on its own step (the rival check runs
@@ -60,11 +59,15 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
     return cached[1]
 
 
-def template_step(t: MotionTemplate, step: int | str, coarse_frames: int = 7, max_step: int = 4) -> int:
+#: ``step="auto"``: template frames per coarse template frame, and the largest step.
+COARSE_FRAMES, MAX_STEP = 7, 4
+
+
+def template_step(t: MotionTemplate, step: int | str) -> int:
     """The decimation step for one template: ``step`` itself, or for ``"auto"``
-    ``clip(K // coarse_frames, 1, max_step)``."""
+    ``clip(K // COARSE_FRAMES, 1, MAX_STEP)``."""
     if step == "auto":
-        return int(np.clip(t.n_frames // max(coarse_frames, 1), 1, max_step))
+        return int(np.clip(t.n_frames // COARSE_FRAMES, 1, MAX_STEP))
     return max(int(step), 1)
 
 

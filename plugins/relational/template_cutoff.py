@@ -1,22 +1,12 @@
 """The cut-off of ``matchers.template``: which hits the matcher reports.
 
-Two rules (``cutoff`` of the step):
-
-``threshold``
-    A hit is a local cost minimum below the template's calibrated threshold
-    (:func:`.template_model.calibrate_threshold`: the best-F1 cut between the left-out
-    actors' example costs and the other classes' training clips). Measured on the HDM05
-    cuts (docs/templates.md) this carries the ranking's separation over for 5 of 11
-    classes only: thresholds learned from templates of fewer actors do not transfer to
-    the final template, and one near negative per class already breaks P >= 0.8.
-``rivals`` (default)
-    The templates of all classes compete, as in Müller & Röder's classification: a hit of
-    template ``c`` (key-feature cost below the *acceptance bound*, :func:`acceptance_bound`)
-    is kept when ``c``'s all-feature cost on the stretch is at most ``rho`` times the least
-    all-feature cost of every other template there (:func:`rival_mask`). All-feature costs
-    are comparable between templates (the key features differ per class; classification on
-    all 31 features is 0.97 accurate against 0.92 on key features). ``rho = 1`` (plain
-    competition) was also the value chosen inside the training actors of every fold.
+The templates of all classes compete, as in Müller & Röder's classification: a hit of
+template ``c`` (key-feature cost below the *acceptance bound*, :func:`acceptance_bound`) is
+kept when ``c``'s all-feature cost on the stretch is at most ``rho`` times the least
+all-feature cost of every other template there (:func:`rival_mask`). All-feature costs are
+comparable between templates (the key features differ per class). ``rho = 1`` (plain
+competition) was also the value chosen inside the training actors of every fold. A plain
+calibrated threshold lost (5 of 11 HDM05 classes against 9: docs/templates.md).
 
 For many queries on one database the rivals' costs are the same every time:
 :class:`RivalTable` computes every template's all-feature end costs once (like an index)

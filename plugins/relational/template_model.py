@@ -155,8 +155,7 @@ def pairwise_costs(examples: list[np.ndarray], columns: np.ndarray) -> np.ndarra
 
 
 def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | None = None,
-                 delta: float = 0.2, iterations: int = 2, length: str = "medoid",
-                 pair: np.ndarray | None = None) -> MotionTemplate:
+                 delta: float = 0.2, iterations: int = 2, pair: np.ndarray | None = None) -> MotionTemplate:
     """Learn one class template from its examples' relational feature matrices.
 
     Parameters
@@ -169,8 +168,6 @@ def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | N
         Don't-care band (values in (delta, 1 - delta)).
     iterations : int
         Re-alignment rounds after the first average.
-    length : "medoid" or "median"
-        Time axis: the medoid example's, or resampled to the median example length.
     pair : ndarray of shape (n, n), optional
         :func:`pairwise_costs` of the examples (computed when omitted).
     """
@@ -186,23 +183,12 @@ def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | N
     else:
         ref = 0
     tmpl = xs[ref].copy()
-    if length == "median":  # the time axis resampled to the median example length
-        tmpl = resample_rows(tmpl, int(np.median([len(x) for x in xs])))
     for _ in range(max(iterations, 0) + 1):
         warped = [align_average(tmpl[:, cols], x[:, cols])[0] for x in xs]
         new = np.zeros_like(tmpl)
         new[:, cols] = np.mean(warped, axis=0)
         tmpl = new
     return MotionTemplate(label, tmpl.astype(np.float32), cols, float(delta), np.inf, len(xs))
-
-
-def resample_rows(x: np.ndarray, n: int) -> np.ndarray:
-    """Rows of ``x (T, f)`` linearly interpolated onto ``n`` equally spaced times."""
-    t = np.linspace(0, len(x) - 1, max(n, 2))
-    lo = np.floor(t).astype(np.int64)
-    hi = np.minimum(lo + 1, len(x) - 1)
-    w = (t - lo)[:, None]
-    return (1 - w) * x[lo] + w * x[hi]
 
 
 def template_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocapflow.framework.joints import CANONICAL_JOINTS
+from mocapflow.plugins.relational.features import THRESHOLDS
 
 
 # --- geometry (float64, straight from the definitions) ---------------------------------
@@ -53,16 +54,6 @@ def speed(p, fps, offsets):
         for i in range(a, b):
             lo, hi = max(i - 1, a), min(i + 1, b - 1)
             out[i] = 0.0 if hi == lo else np.linalg.norm(p[hi] - p[lo]) * fps / (hi - lo)
-    return out
-
-
-def hysteresis(on, stay, offsets):
-    out = np.zeros_like(on)
-    for a, b in zip(offsets[:-1], offsets[1:]):
-        state = np.zeros(on.shape[1:], bool)
-        for i in range(a, b):
-            state = np.where(on[i], True, np.where(~stay[i], False, state))
-            out[i] = state
     return out
 
 
@@ -113,14 +104,10 @@ def feature_bits(features, params, positions, fps, measures, offsets):
     scale = {"hl": measures["humerus_length"], "hl/s": measures["humerus_length"],
              "sw": measures["shoulder_width"], "hw": measures["hip_width"], "deg": 1.0}
     out = np.zeros(values.shape, bool)
-    on = np.zeros(values.shape, bool)
     for i, d in enumerate(features):
-        thr, strict = getattr(params, d.param)
+        thr = params.thresholds.get(d.param, THRESHOLDS[d.param])
         s = scale[d.unit]
         out[:, i] = values[:, i] < thr * s if d.below else values[:, i] >= thr * s
-        on[:, i] = values[:, i] < strict * s if d.below else values[:, i] >= strict * s
-    if params.hysteresis:
-        out = hysteresis(on & out, out, offsets)
     return out
 
 
