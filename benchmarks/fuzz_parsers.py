@@ -16,7 +16,7 @@ the first examples of each failure. Exit status 1 if any failure.
 Usage::
 
     python benchmarks/fuzz_parsers.py                # 100,000 cases, seed 0
-    python benchmarks/fuzz_parsers.py --quick        # 3,000 cases
+    python benchmarks/fuzz_parsers.py --quick        # 100 cases on the bundled examples/data (AMC, BVH)
     python benchmarks/fuzz_parsers.py --cases N --seed S --jobs 2 --timeout 20
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ class Cases:
             with_c3d = True
         except ImportError:
             with_c3d = False
-        self.sources = fuzz.corpus_sources(DATA, with_c3d)
+        self.sources = fuzz.corpus_sources(Path(os.environ.get("MOCAPFLOW_FUZZ_DATA", DATA)), with_c3d)
         w = np.array([WEIGHTS[f] for f in self.sources])
         self.formats, self.weights = list(self.sources), w / w.sum()
         self._loaded: dict[Path, tuple] = {}
@@ -222,21 +222,41 @@ def report(res: dict, echo=print) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="3,000 cases")
+    ap.add_argument("--quick", action="store_true", help="100 cases on examples/data")
     ap.add_argument("--cases", type=int, default=None, help="number of cases (default 100,000)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (at most 2: the machine is shared)")
     ap.add_argument("--timeout", type=float, default=20.0, help="seconds per case before it counts as a hang")
     args = ap.parse_args(argv)
-    if not DATA.exists():
-        print(f"corpus not found at {DATA}", file=sys.stderr)
+    if not args.quick and not DATA.exists():
+        print(f"corpus not found at {DATA} (--quick runs on examples/data)", file=sys.stderr)
         return 1
     # a terminated run still removes its case folder and its workers
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    n = args.cases or (3_000 if args.quick else 100_000)
+    n = args.cases or (100 if args.quick else 100_000)
     jobs = max(1, min(args.jobs, 2))
-    print(f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s")
-    return report(run(n, args.seed, jobs, args.timeout))
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.quick:
+            os.environ["MOCAPFLOW_FUZZ_DATA"] = str(_example_sources(Path(tmp)))
+        print(f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s")
+        return report(run(n, args.seed, jobs, args.timeout))
+
+
+def _example_sources(into: Path) -> Path:
+    """The bundled CMU takes laid out as the corpus (``cmu/amc/<subject>/``), and BVH files
+    written from two of them (``bvh/examples/``)."""
+    import shutil
+
+    from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.formats.bvh import write_bvh
+
+    for subject in sorted((ROOT / "examples" / "data" / "cmu").iterdir()):
+        if subject.is_dir():
+            shutil.copytree(subject, into / "cmu" / "amc" / subject.name)
+    (into / "bvh" / "examples").mkdir(parents=True)
+    for f in sorted((into / "cmu" / "amc").glob("*/*.amc"))[:2]:
+        write_bvh(read_amc(f).slice(0, 120), into / "bvh" / "examples" / f"{f.stem}.bvh")
+    return into
 
 
 if __name__ == "__main__":

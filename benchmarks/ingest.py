@@ -13,7 +13,7 @@ pipeline runner is available, the ``formats.load`` ingest step over it (Parquet 
 Usage::
 
     python benchmarks/ingest.py            # full run (corpus at ../shared/data)
-    python benchmarks/ingest.py --quick    # a few files, one repetition
+    python benchmarks/ingest.py --quick    # the bundled examples/data takes (BVH written from them), one repetition
     python benchmarks/ingest.py --quick --baseline 263f30c   # readers now against a commit's
 """
 from __future__ import annotations
@@ -32,6 +32,7 @@ from mocapflow.plugins.formats.bvh import read_bvh
 #: Frames per file the (slow) plain reference is timed on.
 REF_FRAMES = 300
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "data"
 
 
 # --- plain reference ------------------------------------------------------------------------
@@ -282,22 +283,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="a few files, one repetition")
     ap.add_argument("--baseline", metavar="COMMIT", help="also time the readers of COMMIT against the working tree's")
     args = ap.parse_args(argv)
-    if not DATA.exists():
-        print(f"corpus not found at {DATA}", file=sys.stderr)
+    if not args.quick and not DATA.exists():
+        print(f"corpus not found at {DATA} (--quick runs on examples/data)", file=sys.stderr)
         return 1
-    reps = 1 if args.quick else 3
-    amc = sorted((DATA / "cmu" / "amc").glob("*/*.amc"))
-    bvh = sorted((DATA / "bvh" / "cmu_cgspeed").glob("*.bvh")) + sorted((DATA / "bvh" / "xia_style").glob("*.bvh"))
+    global REF_FRAMES
     if args.quick:
-        amc, bvh = amc[:4], bvh[:2]
-    read_amc(amc[0]).positions  # load the numba kernels before timing
-    read_bvh(bvh[0]).positions
-    bench_amc(amc, reps)
-    bench_bvh(bvh, reps)
-    if args.baseline:
-        bench_baseline(args.baseline, amc, bvh, 3 if args.quick else 5)
-    if not args.quick:
-        bench_corpus(reps)
+        REF_FRAMES = 60
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.quick:  # the bundled takes, and BVH files written from two of them
+            from mocapflow.plugins.formats.bvh import write_bvh
+
+            amc = sorted(EXAMPLES.glob("cmu/*/*.amc"))
+            bvh = [Path(tmp) / f"{f.stem}.bvh" for f in amc[:2]]
+            for f, out in zip(amc, bvh):
+                write_bvh(read_amc(f), out)
+        else:
+            amc = sorted((DATA / "cmu" / "amc").glob("*/*.amc"))
+            bvh = sorted((DATA / "bvh" / "cmu_cgspeed").glob("*.bvh")) + sorted((DATA / "bvh" / "xia_style").glob("*.bvh"))
+        reps = 1 if args.quick else 3
+        read_amc(amc[0]).positions  # load the numba kernels before timing
+        read_bvh(bvh[0]).positions
+        bench_amc(amc, reps)
+        bench_bvh(bvh, reps)
+        if args.baseline:
+            bench_baseline(args.baseline, amc, bvh, 3 if args.quick else 5)
+        if not args.quick:
+            bench_corpus(reps)
     return 0
 
 

@@ -6,20 +6,22 @@ Prints:
    class a documented feature subset; hits, precision and recall in the adaptive, fuzzy and
    m-mismatch modes (each of a class's clips is a query, whole clip; figures are means over
    the queries, the query clip itself included as in the paper);
-2. build: feature extraction, segmentation and index build times and sizes, for the real
-   corpus and for an augmented database of ~1.3 M frames (paper: 1,288,846 frames);
+2. build: feature extraction (against the plain NumPy reference of ``tests/naive``, same run),
+   segmentation and index build times and sizes, for the cuts and for an augmented database
+   of ~1.3 M frames (paper: 1,288,846 frames);
 3. queries: exact and adaptive fuzzy queries of 5, 10 and 20 segments, 1,000 random
    queries each (paper Table 3: 10,000 queries, 16-294 ms in Matlab).
 
-4. with ``--templates`` (only): motion templates and mode ``auto`` leave-one-actor-out, and
-   their speed on a 1 M-frame tiled database (``relational_templates.py``).
+Motion templates and mode auto: ``benchmarks/templates.py``.
 
-Usage: ``python benchmarks/relational.py [--quick] [--frames N] [--fps 30] [--templates | --auto]``
+    python benchmarks/relational.py [--frames N] [--fps 30] [--tiled]
+    python benchmarks/relational.py --quick   # the bundled examples/data takes tiled to 50 k frames, no fidelity
 """
 from __future__ import annotations
 
 import argparse
 import glob
+import sys
 import time
 from pathlib import Path
 
@@ -31,8 +33,10 @@ from mocapflow.plugins.relational.body import body_measures
 from mocapflow.plugins.relational.features import FEATURE_IDS, relational_features
 from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.queries import example_query, search_set, subset_member
+from mocapflow.plugins.relational.segmentation import segment
 
 HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu"
 
 #: Feature subsets per HDM05 class (ids of Table 1, docs/relational-features.md): the first
 #: was chosen per class among 4-5 motivated candidates (best F1 of the adaptive mode, as a
@@ -54,10 +58,10 @@ CLASS_FEATURES: dict[str, tuple[tuple[str, ...], ...]] = {
 PAPER = {"kickLFront1Reps": 1, "squat1Reps": 1}
 
 
-def load_hdm05(fps: float, per_class: int | None = None) -> MotionDatabase:
+def load_hdm05(fps: float, per_class: int | None = None, folder: Path = HDM05) -> MotionDatabase:
     from mocapflow.plugins.formats.asf_amc import read_amc
 
-    files = sorted(glob.glob(str(HDM05 / "*" / "*.amc")))
+    files = sorted(glob.glob(str(folder / "*" / "*.amc")))
     if per_class:
         keep, seen = [], {}
         for f in files:
@@ -151,6 +155,26 @@ def _measures(db: MotionDatabase) -> dict[str, np.ndarray]:
     return {k: np.repeat([p[k] for p in per], lengths).astype(np.float32) for k in ("humerus_length", "shoulder_width", "hip_width")}
 
 
+def naive_reference(pos, offsets, meas, fps, frames: int = 2000) -> None:
+    """The compiled feature pass against the plain NumPy twin of ``tests/naive`` on the first
+    ``frames`` frames (same run), and how often they disagree."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from naive import relational as naive
+
+    from mocapflow.plugins.relational.features import FEATURES, RelationalFeatures
+
+    n = min(frames, len(pos))
+    off = np.r_[offsets[offsets < n], n]
+    m = {k: v[:n] for k, v in meas.items()}
+    t0 = time.perf_counter()
+    want = naive.feature_bits(FEATURES, RelationalFeatures.Params(), pos[:n], fps, m, off)
+    t1 = time.perf_counter()
+    got = relational_features(pos[:n], fps, m, None, off)
+    t2 = time.perf_counter()
+    print(f"features of {n} frames: compiled {t2 - t1:.4f} s, plain NumPy reference {t1 - t0:.3f} s "
+          f"(x{(t1 - t0) / max(t2 - t1, 1e-9):.0f}); bits differing {100 * (got != want).mean():.2f} %")
+
+
 def build_bench(pos, offsets, meas, fps, label: str) -> tuple[np.ndarray, InvertedIndex]:
     t0 = time.perf_counter()
     # compile (or load from the numba cache) the kernel for this dtype outside the timing
@@ -160,8 +184,8 @@ def build_bench(pos, offsets, meas, fps, label: str) -> tuple[np.ndarray, Invert
     bits = relational_features(pos, fps, meas, None, offsets)
     t1 = time.perf_counter()
     clip_id = np.repeat(np.arange(len(offsets) - 1, dtype=np.int32), np.diff(offsets))
-    _segs = {  # timed only: the segmentation the index build repeatsn: len(segment(bits, list(range(sl.start, sl.stop)), offsets)) for n, sl in
-            (("lower", slice(0, 11)), ("upper", slice(11, 23)), ("mixed", slice(23, 31)))}
+    for sl in (slice(0, 11), slice(11, 23), slice(23, 31)):  # timed only: the index build repeats it
+        segment(bits, list(range(sl.start, sl.stop)), offsets)
     t2 = time.perf_counter()
     index = InvertedIndex().build(bits, clip_id)
     t3 = time.perf_counter()
@@ -214,57 +238,29 @@ def query_bench(index: InvertedIndex, n_queries: int, seed: int = 0) -> None:
                   f"p95 {np.percentile(times, 95):.3f} ms; hits median {int(np.median(nh))}, max {max(nh)}")
 
 
-def templates_main(fps: float, n_frames: int, auto_only: bool = False) -> None:
-    """Motion templates (Müller & Röder 2006) and mode auto: figures and speed."""
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import relational_templates as rt
-
-    t = time.perf_counter()
-    db = load_hdm05(fps)
-    bits = relational_features(db.canonical_positions(), db.fps, _measures(db), None, db.offsets)
-    names = [m.name for m in db.motions]
-    print(f"loaded {db.n_clips} HDM05 cuts ({db.n_frames} frames at {fps:g} Hz) with features in {time.perf_counter() - t:.1f} s")
-    if auto_only:
-        return rt.report_auto(bits, db.offsets, names)
-    rt.report(bits, db.offsets, names)
-    big_pos, big_off, big_meas, how = augmented_positions(db, n_frames, tiled=True)
-    big_pos, big_off = big_pos[:n_frames], np.minimum(big_off[big_off < n_frames].tolist() + [n_frames], n_frames)
-    big_meas = {k: v[:n_frames] for k, v in big_meas.items()}
-    big_bits = relational_features(big_pos, db.fps, big_meas, None, big_off)
-    print(f"\nlarge database: {how}, {len(big_bits):,} frames")
-    rt.speed(bits, db.offsets, names, big_bits, np.asarray(big_off, np.int64))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="small run (2 clips per class, 200 k frames, 100 queries)")
+    ap.add_argument("--quick", action="store_true", help="the bundled takes tiled to 50 k frames, 50 queries")
     ap.add_argument("--frames", type=int, default=None, help="frames of the augmented database (default 1.3 M)")
     ap.add_argument("--fps", type=float, default=30.0, help="resampling rate (default 30 Hz)")
     ap.add_argument("--tiled", action="store_true", help="build the large database by tiling HDM05 (fast) "
                     "instead of benchmarks/corpus.py's augmented CMU + HDM05 corpus")
-    ap.add_argument("--templates", action="store_true", help="only the motion-template and automatic-selection figures "
-                    "(leave-one-actor-out) and their speed on a 1 M-frame tiled database (relational_templates.py)")
-    ap.add_argument("--auto", action="store_true", help="only the automatic-selection figures of --templates "
-                    "(mode auto, leave-one-actor-out on the HDM05 cuts; no templates, no speed)")
     args = ap.parse_args()
-    if args.auto:
-        return templates_main(args.fps, 0, auto_only=True)
-    n_frames = args.frames or (200_000 if args.quick else 1_300_000)
-    if args.templates:
-        return templates_main(args.fps, args.frames or (200_000 if args.quick else 1_000_000))
+    n_frames = args.frames or (50_000 if args.quick else 1_300_000)
     t = time.perf_counter()
-    db = load_hdm05(args.fps, per_class=2 if args.quick else None)
-    print(f"loaded {db.n_clips} HDM05 clips ({db.n_frames} frames at {args.fps:g} Hz) in {time.perf_counter() - t:.1f} s")
-    pos = db.canonical_positions()
-    bits, index = build_bench(pos, db.offsets, _measures(db), db.fps, "HDM05 cut clips")
-    fidelity(db, bits, index)
+    db = load_hdm05(args.fps, folder=EXAMPLES if args.quick else HDM05)
+    what = "bundled CMU takes" if args.quick else "HDM05 clips"
+    print(f"loaded {db.n_clips} {what} ({db.n_frames} frames at {args.fps:g} Hz) in {time.perf_counter() - t:.1f} s")
+    pos, meas = db.canonical_positions(), _measures(db)
+    bits, index = build_bench(pos, db.offsets, meas, db.fps, what)
+    naive_reference(pos, np.asarray(db.offsets), meas, db.fps, 500 if args.quick else 2000)
+    if not args.quick:
+        fidelity(db, bits, index)
     t = time.perf_counter()
     big_pos, big_off, big_meas, how = augmented_positions(db, n_frames, tiled=args.tiled or args.quick)
     print(f"\nlarge database: {how}, built in {time.perf_counter() - t:.1f} s")
     _, big_index = build_bench(big_pos, big_off, big_meas, db.fps, f"augmented ({how})")
-    query_bench(big_index, 100 if args.quick else 1000)
+    query_bench(big_index, 50 if args.quick else 1000)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Scale-out figures (issue 16): the local pool, the Dask executor and the sharded kNN index.
+"""Scale-out figures: the local pool, the Dask executor and the sharded kNN index.
 
 Every ratio is against a baseline measured in the same run. Pipelines run as a user runs
 them (``python -m mocapflow.framework.cli run``, a fresh interpreter each time, so start-up,
@@ -25,7 +25,7 @@ wall times: they show the work, unlike wall time they hardly depend on the other
    projects from.
 
     python benchmarks/scale.py            # everything (about 5 minutes on 2 idle cores)
-    python benchmarks/scale.py --quick    # fewer repeats, 200,000 frames for the index
+    python benchmarks/scale.py --quick    # ingest + features of the bundled takes, --jobs 2 vs --jobs 1, once
     python benchmarks/scale.py --only local,index
     python benchmarks/scale.py --context  # also the cleaning against 103 takes (slow)
 """
@@ -381,9 +381,18 @@ def index_figures(n_frames: int, n_queries: int, k: int, tmp: Path) -> dict:
     return out
 
 
+def quick(repeats: int) -> None:
+    """Ingest + features of the bundled takes: ``--jobs 2`` against ``--jobs 1`` (same run)."""
+    with tempfile.TemporaryDirectory(prefix="mocapflow-scale-") as tmpname:
+        tmp = Path(tmpname)
+        feats = tmp / "features.yaml"
+        feats.write_text(FEATURES.format(data=REPO / "examples" / "data"))
+        compare("ingest + features, bundled takes", feats, tmp, [("local", 1), ("local+client_works=false", 2)], repeats)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="fewer repeats, a 200k-frame index")
+    ap.add_argument("--quick", action="store_true", help="the bundled takes' ingest + features only, once")
     ap.add_argument("--only", default="local,dask,index", help="comma-separated sections: local, dask, index")
     ap.add_argument("--repeats", type=int, default=None)
     ap.add_argument("--context", action="store_true", help="also clean the 8 takes against the 103 CMU takes "
@@ -400,6 +409,8 @@ def main() -> None:
     sections = set(args.only.split(","))
     repeats = args.repeats or (1 if args.quick else 3)
     print(f"mocapflow scale benchmark; {os.cpu_count()} cores; load average {os.getloadavg()}")
+    if args.quick:
+        return quick(repeats)
     if not DATA.is_dir():
         raise SystemExit(f"the corpus is not at {DATA} (set MOCAPFLOW_DATA)")
     results: dict = {}

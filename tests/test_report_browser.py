@@ -3,7 +3,7 @@ from ``file://``, the player advances frames, the canvas is not blank, no consol
 
 Driven over the DevTools protocol on a pipe (:mod:`mocapflow.plugins.report.browser`);
 skipped when no Chromium is installed. Load times are recorded (``record_property``),
-not asserted: benchmarks/report_load.py measures them.
+not asserted: benchmarks/report.py measures them.
 """
 from __future__ import annotations
 
