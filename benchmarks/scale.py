@@ -195,7 +195,7 @@ def critical_path(yaml: Path, tmp: Path, jobs: int, options: dict | None = None)
     own = sum(b["client_s"] for b in out["batches"])
     out["serial"] = out["parent"] - own
     out["path"] = out["serial"] + sum(max([b["client_s"], *b["workers_s"]]) for b in out["batches"])
-    out["path_s4"] = out["parent"] + max(out["workers"], default=0.0)  # session 4's formula (client waits)
+    out["path_s4"] = out["parent"] + max(out["workers"], default=0.0)  # client + busiest process (a waiting client)
     out["total"] = out["parent"] + sum(out["workers"])
     return out
 
@@ -204,7 +204,7 @@ def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestar
                          extra: dict | None = None) -> dict:
     """Best (shortest critical path) of ``repeats`` interleaved child runs of each layout:
     ``--jobs 1``; ``--jobs 2`` with a pool of 2 and the client waiting (``client_works:
-    false``, the layout up to session 4); ``--jobs 2`` with the client as worker 0 and a
+    false``); ``--jobs 2`` with the client as worker 0 and a
     pool of 1 (the default); optionally the pool started before planning."""
     best: dict = {}
     runs = [("1", 1, {}), ("pool", 2, {"client_works": False}), ("client", 2, {"client_works": True})]
@@ -229,7 +229,7 @@ def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestar
               f"cores; total CPU {r['total']:.2f} s (--jobs 1: {best['1']['total']:.2f} s); pool processes "
               f"{', '.join(f'{w:.2f}' for w in r['workers'])} s; wall {r['wall']:.2f} s")
         print(f"      serial fraction {serial:.0%}: Amdahl bound on 2 cores {1 / (serial + (1 - serial) / 2):.2f}x "
-              f"(1.7x needs <= {2 / 1.7 - 1:.0%}); session 4's formula (client + busiest process) {r['path_s4']:.2f} s")
+              f"(1.7x needs <= {2 / 1.7 - 1:.0%}); client + busiest process {r['path_s4']:.2f} s")
     out = {k: best[k] for k in best}
     out["ratio_pool"] = one / best["pool"]["path"]
     out["ratio_client"] = one / best["client"]["path"]
@@ -396,7 +396,7 @@ def main() -> None:
     ap.add_argument("--only", default="local,dask,index", help="comma-separated sections: local, dask, index")
     ap.add_argument("--repeats", type=int, default=None)
     ap.add_argument("--context", action="store_true", help="also clean the 8 takes against the 103 CMU takes "
-                    "(minutes per run since the issue-14 cleaner)")
+                    "(minutes per run)")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     ap.add_argument("--prestart", action="store_true", help="also --jobs 2 with the pool forked before planning "
                     "(LocalExecutor(prestart=True))")

@@ -126,7 +126,7 @@ def test_the_oracle_catches_a_changed_value_and_a_silent_gap(tmp_path: Path, mon
 
     def lying(p, **kw):
         m = real(p, **kw)
-        m.positions[2, 1] = np.nan  # inf read as a gap, the bug of issue 11
+        m.positions[2, 1] = np.nan  # inf read as a gap: a wrong acceptance
         return m
 
     monkeypatch.setattr(fuzz, "_reader", lambda fmt: lying)

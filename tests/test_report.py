@@ -168,7 +168,7 @@ def test_cleaning_view_has_every_take_with_its_map_and_cleaned_motion(quickstart
     m = page_model(quickstart_site)
     view = next(s for s in m["steps"] if s["id"] == "clean")["views"][0]
     assert view["type"] == "cleaning" and len(view["clips"]) == 8 and view["threshold"] == 0.5
-    # the takes are clean: the take the cleaner flags most (35_01 with the issue-14 defaults)
+    # the takes are clean: the take the cleaner flags most (35_01 with the defaults)
     c = max(view["clips"], key=lambda c: c["n_flagged"])
     key, meta, parts = read_blob(quickstart_site / m["data_files"][c["data"]]["file"])
     assert parts["mdm"].shape == (c["n_frames"], len(meta["joints"])) and meta["cues"]

@@ -1,5 +1,5 @@
 """Every PNG the pipelines write explains itself: titles, axis labels with units, colour bar
-labels, legends for every mark, clip names instead of ids (issue 17, section 2).
+labels, legends for every mark, clip names instead of ids.
 
 Each plot is drawn for real; the figure is captured when it is saved and its texts read.
 """

@@ -107,7 +107,7 @@ class _Motions:
 
     def positions(self, step: str, clip_id: int) -> np.ndarray:
         """Canonical joint positions (T, 25, 3) of a clip, metres: forward kinematics of the
-        stored rotations (motions datasets store no positions; issue 12, FK once)."""
+        stored rotations (motions datasets store no positions; FK once)."""
         if step not in self._pos:
             db = self.datasets[step].motions()
             self._pos[step] = {int(c): m for c, m in zip(db.clip_ids, db.motions)}
