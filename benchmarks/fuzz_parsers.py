@@ -19,9 +19,11 @@ Usage::
     python benchmarks/fuzz_parsers.py --quick        # 100 cases on the bundled examples/data (AMC, BVH)
     python benchmarks/fuzz_parsers.py --cases N --seed S --jobs 2 --timeout 20
 """
+
 from __future__ import annotations
 
 import argparse
+import contextlib
 import multiprocessing as mp
 import os
 import resource
@@ -54,6 +56,7 @@ class Cases:
         self.seed = seed
         try:
             import c3d  # noqa: F401 - only checks that the optional reader is installed
+
             with_c3d = True
         except ImportError:
             with_c3d = False
@@ -126,7 +129,9 @@ def run(n_cases: int, seed: int, jobs: int, timeout: float, echo=print) -> dict:
         def start(w: int, indices: list[int]) -> None:
             parent, child = ctx.Pipe(duplex=False)
             slot = ctx.Array("d", [-1.0, time.time()], lock=False)
-            p = ctx.Process(target=_worker, args=(seed, indices, child, slot, f"{tmp}/w{w}-{len(workers)}"), daemon=True)
+            p = ctx.Process(
+                target=_worker, args=(seed, indices, child, slot, f"{tmp}/w{w}-{len(workers)}"), daemon=True
+            )
             p.start()
             child.close()
             workers.append({"p": p, "conn": parent, "slot": slot, "indices": indices, "alive": True})
@@ -148,8 +153,15 @@ def run(n_cases: int, seed: int, jobs: int, timeout: float, echo=print) -> dict:
                     wk["p"].kill()
                 wk["p"].join()
     cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return {"cpu": cpu.ru_utime + cpu.ru_stime, "counts": counts, "by_kind": by_kind, "by_fmt": by_fmt,
-            "examples": examples, "cases": done, "seconds": time.time() - t0}
+    return {
+        "cpu": cpu.ru_utime + cpu.ru_stime,
+        "counts": counts,
+        "by_kind": by_kind,
+        "by_fmt": by_fmt,
+        "examples": examples,
+        "cases": done,
+        "seconds": time.time() - t0,
+    }
 
 
 def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, done) -> None:
@@ -177,19 +189,17 @@ def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, 
                 wk["p"].join()
                 wk["alive"] = False
                 fmt, kind = "?", "?"
-                try:
+                with contextlib.suppress(Exception):
                     fmt, kind = Cases(seed).make(i)[:2]
-                except Exception:
-                    pass
                 record(i, fmt, kind, "hang", f"no result after {timeout:g} s", "")
-                rest = wk["indices"][wk["indices"].index(i) + 1:]
+                rest = wk["indices"][wk["indices"].index(i) + 1 :]
                 if rest:
                     start(len(workers), rest)
             elif wk["alive"] and not wk["p"].is_alive() and not wk["conn"].poll():
                 wk["alive"] = False  # died without a word (killed for memory...)
                 i = int(wk["slot"][0])
                 record(i, "?", "?", "crash", f"worker died (exit {wk['p'].exitcode})", "")
-                rest = wk["indices"][wk["indices"].index(i) + 1:] if i >= 0 else []
+                rest = wk["indices"][wk["indices"].index(i) + 1 :] if i >= 0 else []
                 if rest:
                     start(len(workers), rest)
         if time.time() - last_echo > 30:
@@ -201,13 +211,19 @@ def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, 
 
 def report(res: dict, echo=print) -> int:
     c = res["counts"]
-    echo(f"cases {res['cases']:,} in {res['seconds']:.0f} s: accepted {c['accepted']:,}, rejected (ParseError) "
-         f"{c['rejected']:,}")
+    echo(
+        f"cases {res['cases']:,} in {res['seconds']:.0f} s: accepted {c['accepted']:,}, rejected (ParseError) "
+        f"{c['rejected']:,}"
+    )
     per = res["cpu"] / max(res["cases"], 1)
-    echo(f"worker CPU {res['cpu']:.0f} s ({1000 * per:.1f} ms per case; on two idle cores 100,000 cases would take "
-         f"{per * 100_000 / 2 / 60:.0f} min)")
-    echo("crashes {crash}, hangs {hang}, wrong acceptances {wrong_accept}, wrong rejections {wrong_reject}, "
-         "bad errors {bad_error}, fuzzer errors {fuzzer_error}".format(**{k: c[k] for k in (*FAILURES, "fuzzer_error")}))
+    echo(
+        f"worker CPU {res['cpu']:.0f} s ({1000 * per:.1f} ms per case; on two idle cores 100,000 cases would take "
+        f"{per * 100_000 / 2 / 60:.0f} min)"
+    )
+    echo(
+        "crashes {crash}, hangs {hang}, wrong acceptances {wrong_accept}, wrong rejections {wrong_reject}, "
+        "bad errors {bad_error}, fuzzer errors {fuzzer_error}".format(**{k: c[k] for k in (*FAILURES, "fuzzer_error")})
+    )
     cols = ("accepted", "rejected", *FAILURES)
     for title, table in (("mutation kind", res["by_kind"]), ("format", res["by_fmt"])):
         echo(f"\n{title:<16}" + "".join(f"{k:>13}" for k in cols))
@@ -238,7 +254,9 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         if args.quick:
             os.environ["MOCAPFLOW_FUZZ_DATA"] = str(_example_sources(Path(tmp)))
-        print(f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s")
+        print(
+            f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s"
+        )
         return report(run(n, args.seed, jobs, args.timeout))
 
 

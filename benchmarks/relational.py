@@ -17,6 +17,7 @@ Motion templates and mode auto: ``benchmarks/templates.py``.
     python benchmarks/relational.py [--frames N] [--fps 30] [--tiled]
     python benchmarks/relational.py --quick   # the bundled examples/data takes tiled to 50 k frames, no fidelity
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,7 +44,7 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu"
 #: user would pick features, §6.2); rows marked "paper" are the paper's subsets for kicks
 #: and squats, and the a-priori choices made before looking at the results.
 CLASS_FEATURES: dict[str, tuple[tuple[str, ...], ...]] = {
-    "kickLFront1Reps": (("L4",), ("L3", "L4", "L7", "L8")),     # HDM05 kicks are left kicks; paper: L3 L4 L7 L8
+    "kickLFront1Reps": (("L4",), ("L3", "L4", "L7", "L8")),  # HDM05 kicks are left kicks; paper: L3 L4 L7 L8
     "squat1Reps": (("L7", "L8", "M7"), ("L5", "L6", "L7", "L10", "L11")),  # paper: L5 L6 L7 L10 L11
     "depositFloorR": (("M7", "U1"), ("L7", "L8", "M7")),
     "elbowToKnee1RepsLelbowStart": (("L3", "L4", "U8"), ("L3", "L4", "U7", "U8")),
@@ -81,7 +82,11 @@ def fidelity(db: MotionDatabase, bits: np.ndarray, index: InvertedIndex) -> None
     classes = np.array([class_of(m.name) for m in db.motions])
     print(f"\n== fidelity: {db.n_clips} clips, {db.n_frames} frames at {db.fps:g} Hz ==")
     modes = (("adaptive", {}), ("fuzzy", {}), ("mismatch", {"mismatches": 1}), ("mismatch", {"mismatches": 2}))
-    head = "class".ljust(30) + "features".ljust(18) + "".join(f"{(m + str(kw.get('mismatches', ''))):>24s}" for m, kw in modes)
+    head = (
+        "class".ljust(30)
+        + "features".ljust(18)
+        + "".join(f"{(m + str(kw.get('mismatches', ''))):>24s}" for m, kw in modes)
+    )
     print(head)
     print(" " * 48 + "".join(f"{'hits  prec  recall':>24s}" for _ in modes))
     for which in ("chosen", "a priori / paper"):
@@ -99,11 +104,11 @@ def fidelity(db: MotionDatabase, bits: np.ndarray, index: InvertedIndex) -> None
             cols = [FEATURE_IDS.index(f) for f in feats]
             qs = np.flatnonzero(classes == cls)
             tag = " (paper)" if which != "chosen" and cls in PAPER else ""
-            line = (cls[:29 - len(tag)] + tag).ljust(30) + ",".join(feats).ljust(18)
+            line = (cls[: 29 - len(tag)] + tag).ljust(30) + ",".join(feats).ljust(18)
             for mi, (mode, kw) in enumerate(modes):
                 h_n, prec, rec = [], [], []
                 for q in qs:
-                    qb = bits[db.offsets[q]:db.offsets[q + 1]]
+                    qb = bits[db.offsets[q] : db.offsets[q + 1]]
                     hits = example_query(index, qb, cols, mode, **kw)
                     good = classes[hits.clip] == cls
                     h_n.append(len(hits))
@@ -127,8 +132,12 @@ def augmented_positions(db: MotionDatabase, n_frames: int, seed: int = 0, tiled:
         from corpus import augmented_database  # the shared benchmark corpus (CMU + HDM05, augmented)
 
         big = augmented_database(n_frames, fps=db.fps, seed=seed)
-        return (big.canonical_positions().astype(np.float32), big.offsets, _measures(big),
-                "benchmarks/corpus.py augmented_database (CMU + HDM05: mirrored, time-scaled, jittered)")
+        return (
+            big.canonical_positions().astype(np.float32),
+            big.offsets,
+            _measures(big),
+            "benchmarks/corpus.py augmented_database (CMU + HDM05: mirrored, time-scaled, jittered)",
+        )
     rng = np.random.default_rng(seed)
     base = db.canonical_positions().astype(np.float32)
     meas = _measures(db)
@@ -152,7 +161,10 @@ def augmented_positions(db: MotionDatabase, n_frames: int, seed: int = 0, tiled:
 def _measures(db: MotionDatabase) -> dict[str, np.ndarray]:
     lengths = np.diff(db.offsets)
     per = [body_measures(m.skeleton) for m in db.motions]
-    return {k: np.repeat([p[k] for p in per], lengths).astype(np.float32) for k in ("humerus_length", "shoulder_width", "hip_width")}
+    return {
+        k: np.repeat([p[k] for p in per], lengths).astype(np.float32)
+        for k in ("humerus_length", "shoulder_width", "hip_width")
+    }
 
 
 def naive_reference(pos, offsets, meas, fps, frames: int = 2000) -> None:
@@ -171,8 +183,10 @@ def naive_reference(pos, offsets, meas, fps, frames: int = 2000) -> None:
     t1 = time.perf_counter()
     got = relational_features(pos[:n], fps, m, None, off)
     t2 = time.perf_counter()
-    print(f"features of {n} frames: compiled {t2 - t1:.4f} s, plain NumPy reference {t1 - t0:.3f} s "
-          f"(x{(t1 - t0) / max(t2 - t1, 1e-9):.0f}); bits differing {100 * (got != want).mean():.2f} %")
+    print(
+        f"features of {n} frames: compiled {t2 - t1:.4f} s, plain NumPy reference {t1 - t0:.3f} s "
+        f"(x{(t1 - t0) / max(t2 - t1, 1e-9):.0f}); bits differing {100 * (got != want).mean():.2f} %"
+    )
 
 
 def build_bench(pos, offsets, meas, fps, label: str) -> tuple[np.ndarray, InvertedIndex]:
@@ -190,21 +204,27 @@ def build_bench(pos, offsets, meas, fps, label: str) -> tuple[np.ndarray, Invert
     index = InvertedIndex().build(bits, clip_id)
     t3 = time.perf_counter()
     print(f"\n== build: {label}: {len(bits):,} frames, {len(offsets) - 1:,} clips ==")
-    print(f"features {t1 - t0:.3f} s ({len(bits) / max(t1 - t0, 1e-9) / 1e6:.1f} M frames/s); "
-          f"segmentation (3 sets) {t2 - t1:.3f} s; index build (3 sets) {t3 - t2:.3f} s; "
-          f"total {t3 - t0:.3f} s")
+    print(
+        f"features {t1 - t0:.3f} s ({len(bits) / max(t1 - t0, 1e-9) / 1e6:.1f} M frames/s); "
+        f"segmentation (3 sets) {t2 - t1:.3f} s; index build (3 sets) {t3 - t2:.3f} s; "
+        f"total {t3 - t0:.3f} s"
+    )
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
         t4 = time.perf_counter()
         index.save(Path(tmp))
         t5 = time.perf_counter()
-        disk = {n: sum((Path(tmp) / f"{n}_{k}.parquet").stat().st_size for k in ("segments", "lists")) for n in index.sets}
+        disk = {
+            n: sum((Path(tmp) / f"{n}_{k}.parquet").stat().st_size for k in ("segments", "lists")) for n in index.sets
+        }
     print(f"saved as Parquet in {t5 - t4:.3f} s: " + ", ".join(f"{n} {b / 1e6:.2f} MB" for n, b in disk.items()))
     for n, s in index.sets.items():
-        print(f"  {n:6s} f={s.n_features:2d} lists={len(s.list_codes):5d}/{2 ** s.n_features:5d} "
-              f"segments={s.n_segments:8,d} ({100 * s.n_segments / len(bits):.1f} % of frames) "
-              f"size={s.nbytes() / 1e6:.2f} MB in memory ({s.nbytes() / max(s.n_segments, 1):.0f} B/segment)")
+        print(
+            f"  {n:6s} f={s.n_features:2d} lists={len(s.list_codes):5d}/{2**s.n_features:5d} "
+            f"segments={s.n_segments:8,d} ({100 * s.n_segments / len(bits):.1f} % of frames) "
+            f"size={s.nbytes() / 1e6:.2f} MB in memory ({s.nbytes() / max(s.n_segments, 1):.0f} B/segment)"
+        )
     return bits, index
 
 
@@ -221,7 +241,7 @@ def query_bench(index: InvertedIndex, n_queries: int, seed: int = 0) -> None:
                     k = int(rng.integers(0, idx.n_segments - length))
                     if idx.seg_clip[k] == idx.seg_clip[k + length - 1]:
                         break
-                codes = idx.seg_code[k:k + length]
+                codes = idx.seg_code[k : k + length]
                 if mode == "exact":
                     member = np.zeros((length, 1 << idx.n_features), bool)
                     member[np.arange(length), codes] = True
@@ -234,8 +254,10 @@ def query_bench(index: InvertedIndex, n_queries: int, seed: int = 0) -> None:
                 times.append(time.perf_counter() - t)
                 nh.append(len(levels))
             times = np.array(times) * 1e3
-            print(f"  {mode:8s} |Q|={length:2d}: median {np.median(times):.3f} ms, mean {times.mean():.3f} ms, "
-                  f"p95 {np.percentile(times, 95):.3f} ms; hits median {int(np.median(nh))}, max {max(nh)}")
+            print(
+                f"  {mode:8s} |Q|={length:2d}: median {np.median(times):.3f} ms, mean {times.mean():.3f} ms, "
+                f"p95 {np.percentile(times, 95):.3f} ms; hits median {int(np.median(nh))}, max {max(nh)}"
+            )
 
 
 def main() -> None:
@@ -243,8 +265,12 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="the bundled takes tiled to 50 k frames, 50 queries")
     ap.add_argument("--frames", type=int, default=None, help="frames of the augmented database (default 1.3 M)")
     ap.add_argument("--fps", type=float, default=30.0, help="resampling rate (default 30 Hz)")
-    ap.add_argument("--tiled", action="store_true", help="build the large database by tiling HDM05 (fast) "
-                    "instead of benchmarks/corpus.py's augmented CMU + HDM05 corpus")
+    ap.add_argument(
+        "--tiled",
+        action="store_true",
+        help="build the large database by tiling HDM05 (fast) "
+        "instead of benchmarks/corpus.py's augmented CMU + HDM05 corpus",
+    )
     args = ap.parse_args()
     n_frames = args.frames or (50_000 if args.quick else 1_300_000)
     t = time.perf_counter()

@@ -15,6 +15,7 @@ hits lie in the long take), its report written, and Chromium opens it ``--rounds
     python benchmarks/report.py --quick    # 15-second take, 1 round (page weight only without Chromium)
     python benchmarks/report.py --workspace runs/quickstart   # an existing workspace's report
 """
+
 from __future__ import annotations
 
 import argparse
@@ -110,10 +111,14 @@ def measure_take(tmp: Path, minutes: float, rounds: int, chromium: bool) -> None
     (site / "data" / "baseline.js").write_text("window.__baseline = " + json.dumps(flat, separators=(",", ":")) + ";\n")
     base_bytes = (site / "data" / "baseline.js").stat().st_size
     kib = lambda x: f"{x / 1024:.0f} KiB"  # noqa: E731 - a one-line helper local to this function
-    print(f"take: {n} frames ({n / 30 / 60:.1f} min at 30 fps), 25 joints; pipeline {t_run:.1f} s, report written in {t_report:.2f} s")
-    print(f"page weight: {kib(info['bytes'])} in {info['files']} files; index.html {kib((site / 'index.html').stat().st_size)}, "
-          f"scripts+css {kib(sum((site / f).stat().st_size for f in ('report.js', 'player.js', 'report.css')))}, "
-          f"the take's data script {kib(take_bytes)} (JSON baseline {kib(base_bytes)}, {base_bytes / take_bytes:.1f}x)")
+    print(
+        f"take: {n} frames ({n / 30 / 60:.1f} min at 30 fps), 25 joints; pipeline {t_run:.1f} s, report written in {t_report:.2f} s"
+    )
+    print(
+        f"page weight: {kib(info['bytes'])} in {info['files']} files; index.html {kib((site / 'index.html').stat().st_size)}, "
+        f"scripts+css {kib(sum((site / f).stat().st_size for f in ('report.js', 'player.js', 'report.css')))}, "
+        f"the take's data script {kib(take_bytes)} (JSON baseline {kib(base_bytes)}, {base_bytes / take_bytes:.1f}x)"
+    )
     if not chromium:
         print("no Chromium installed: load times not measured (apt-get install chromium)")
         return
@@ -141,11 +146,15 @@ def measure_take(tmp: Path, minutes: float, rounds: int, chromium: bool) -> None
         errors = list(b.errors)
     med = statistics.median
     print(f"page load (navigation -> load event), median of {rounds}: {med(page_s) * 1000:.0f} ms")
-    print(f"take load (script -> decoded positions), median of {rounds}: {med(take_ms):.0f} ms "
-          f"(min {min(take_ms):.0f}, max {max(take_ms):.0f})")
+    print(
+        f"take load (script -> decoded positions), median of {rounds}: {med(take_ms):.0f} ms "
+        f"(min {min(take_ms):.0f}, max {max(take_ms):.0f})"
+    )
     print(f"click -> first frame drawn, median of {rounds}: {med(first_ms):.0f} ms")
-    print(f"JSON baseline (script -> Float32Array), median of {rounds}: {med(base_ms):.0f} ms; "
-          f"baseline / compact = {med(base_ms) / med(take_ms):.1f}x")
+    print(
+        f"JSON baseline (script -> Float32Array), median of {rounds}: {med(base_ms):.0f} ms; "
+        f"baseline / compact = {med(base_ms) / med(take_ms):.1f}x"
+    )
     print(f"console errors: {errors or 'none'}")
 
 
@@ -169,12 +178,16 @@ def measure_workspace(ws: Path, rounds: int) -> None:
             b.wait_for("window.MocapReport !== undefined && MocapReport.ready === true")
             first_ms.append(b.eval(click))
         errors = list(b.errors)
-    print(f"{ws}: page weight {info['bytes'] / 1024:.0f} KiB in {info['files']} files; index.html "
-          f"{(site / 'index.html').stat().st_size / 1024:.0f} KiB, data {sizes['data'] / 1024:.0f} KiB, "
-          f"plots {sizes['img'] / 1024:.0f} KiB")
-    print(f"page load, median of {rounds}: {statistics.median(page_s) * 1000:.0f} ms "
-          f"(min {min(page_s) * 1000:.0f}, max {max(page_s) * 1000:.0f}); first hit click -> first frame "
-          f"{statistics.median(first_ms):.0f} ms")
+    print(
+        f"{ws}: page weight {info['bytes'] / 1024:.0f} KiB in {info['files']} files; index.html "
+        f"{(site / 'index.html').stat().st_size / 1024:.0f} KiB, data {sizes['data'] / 1024:.0f} KiB, "
+        f"plots {sizes['img'] / 1024:.0f} KiB"
+    )
+    print(
+        f"page load, median of {rounds}: {statistics.median(page_s) * 1000:.0f} ms "
+        f"(min {min(page_s) * 1000:.0f}, max {max(page_s) * 1000:.0f}); first hit click -> first frame "
+        f"{statistics.median(first_ms):.0f} ms"
+    )
     print(f"console errors: {errors or 'none'}")
 
 

@@ -46,7 +46,9 @@ def run(name: str, args: list[str]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], usage="%(prog)s (--list | --all [--quick] | NAME [ARGS...])")
+    ap = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], usage="%(prog)s (--list | --all [--quick] | NAME [ARGS...])"
+    )
     ap.add_argument("name", nargs="?", help="the benchmark to run")
     ap.add_argument("--list", action="store_true", help="list every benchmark with what it measures")
     ap.add_argument("--all", action="store_true", help="run every benchmark")
@@ -66,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"=== {name}: exit {rc} in {time.perf_counter() - t0:.1f} s ===", flush=True)
             if rc:
                 failed.append(name)
-        print(f"\n{len(BENCHMARKS) - len(failed)} of {len(BENCHMARKS)} passed" + (f"; failed: {failed}" if failed else ""))
+        print(
+            f"\n{len(BENCHMARKS) - len(failed)} of {len(BENCHMARKS)} passed" + (f"; failed: {failed}" if failed else "")
+        )
         return 1 if failed else 0
     if args.name not in BENCHMARKS:
         ap.error(f"unknown benchmark {args.name!r}; known: {', '.join(BENCHMARKS)}")

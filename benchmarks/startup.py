@@ -24,6 +24,7 @@ the cached augmented corpus of ``N`` frames (benchmarks/corpus.py: motions,
     python benchmarks/startup.py --build-db 1038388 --search-db /tmp/ws1m \
         --query examples/data/cmu/16/16_15.amc:1s-3s --baseline HEAD~1
 """
+
 from __future__ import annotations
 
 import argparse
@@ -86,7 +87,9 @@ def _pipeline(src_root: Path, steps: tuple[str, ...] | None, tmp: Path) -> Path:
     for step in spec["steps"].values():  # paths are relative to the pipeline's folder
         paths = (step.get("with") or {}).get("paths")
         if paths:
-            step["with"]["paths"] = [str((src_root / "pipelines" / p).resolve()) if not os.path.isabs(p) else p for p in paths]
+            step["with"]["paths"] = [
+                str((src_root / "pipelines" / p).resolve()) if not os.path.isabs(p) else p for p in paths
+            ]
     out = tmp / "quickstart.yaml"
     out.write_text(yaml.safe_dump(spec, sort_keys=False))
     return out
@@ -96,8 +99,14 @@ def _run(pipeline: Path, cache: Path, pythonpath: Path | None, force: bool) -> t
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "MOCAPFLOW_PROGRESS": "0"}
     if pythonpath is not None:
         env["PYTHONPATH"] = str(pythonpath)
-    cmd = [sys.executable, "-c", "import sys; from mocapflow.framework.cli import main; sys.exit(main())",
-           "--no-entry-points", "run", str(pipeline)] + (["--force"] if force else [])
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from mocapflow.framework.cli import main; sys.exit(main())",
+        "--no-entry-points",
+        "run",
+        str(pipeline),
+    ] + (["--force"] if force else [])
     t0 = time.perf_counter()
     res = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=str(pipeline.parent))
     wall = time.perf_counter() - t0
@@ -124,9 +133,11 @@ def measure(label: str, src_root: Path, pythonpath: Path | None, steps: tuple[st
         warm_wall, warm, _ = _run(pipeline, cache, pythonpath, force=True)
         n_fn, n_var, dup = _cache_counts(cache)
     announced = "compiling numba kernels" in out
-    print(f"\n{label}: cold {cold_wall:.1f} s, warm {warm_wall:.1f} s wall "
-          f"(compilation ≈ {cold_wall - warm_wall:.1f} s); {n_fn} kernels, {n_var} compiled variants"
-          f"{'; the first run said it was compiling' if announced else ''}")
+    print(
+        f"\n{label}: cold {cold_wall:.1f} s, warm {warm_wall:.1f} s wall "
+        f"(compilation ≈ {cold_wall - warm_wall:.1f} s); {n_fn} kernels, {n_var} compiled variants"
+        f"{'; the first run said it was compiling' if announced else ''}"
+    )
     print(f"  {'step':<14} {'cold s':>8} {'warm s':>8} {'cold-warm':>10}")
     for step, c in cold.items():
         w = warm.get(step, float("nan"))
@@ -199,8 +210,13 @@ def _search_cases(py: str, db: str, query: str, baseline: Path | None) -> dict[s
 
 def _start_server(py: str, db: str) -> subprocess.Popen:
     env = {**os.environ, "MOCAPFLOW_PROGRESS": "0"}
-    proc = subprocess.Popen([py, "-c", CLI, "search", "--db", db, "--serve"], env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [py, "-c", CLI, "search", "--db", db, "--serve"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     seen = []
     for line in proc.stderr:  # "search server on ... (warm in x s)" once it listens; notices before it
         seen.append(line)
@@ -249,29 +265,40 @@ def warm_startup(args, repeat: int, tmp: Path, baseline: Path | None) -> None:
     print(f"  {'command':<34} {'seconds':>8} {'vs numpy':>9} {'vs pass':>8}  target < 0.5 s")
     for name, t in times.items():
         limit = 1.0 if name.startswith("mocapflow search (") else 0.5
-        target = "" if not name.startswith("mocapflow") or name.endswith(("plugins", "yaml")) else (
-            "ok" if t < limit else "SLOW")
+        target = (
+            ""
+            if not name.startswith("mocapflow") or name.endswith(("plugins", "yaml"))
+            else ("ok" if t < limit else "SLOW")
+        )
         print(f"  {name:<34} {t:8.3f} {t / numpy_t:8.2f}x {t / bare:7.2f}x  {target}")
-    print("(`plugins` and `plan` build every registry, i.e. import every plugin: not start-up; "
-          "`search (...)` rows: target < 1 s per query)")
+    print(
+        "(`plugins` and `plan` build every registry, i.e. import every plugin: not start-up; "
+        "`search (...)` rows: target < 1 s per query)"
+    )
     if baseline is not None:
         before = times[f"mocapflow --help at {args.baseline}"]
-        print(f"mocapflow --help: {before:.3f} s at {args.baseline} -> {times['mocapflow --help']:.3f} s "
-              f"({before / times['mocapflow --help']:.1f}x faster)")
+        print(
+            f"mocapflow --help: {before:.3f} s at {args.baseline} -> {times['mocapflow --help']:.3f} s "
+            f"({before / times['mocapflow --help']:.1f}x faster)"
+        )
 
 
 def first_run(args, tmp: Path, baseline: Path | None) -> None:
     steps = tuple(args.first_run_steps) if args.first_run_steps else None
-    print(f"\nquickstart{' (' + ', '.join(steps) + ' and their inputs)' if steps else ''}, cold numba cache, "
-          f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"\nquickstart{' (' + ', '.join(steps) + ' and their inputs)' if steps else ''}, cold numba cache, "
+        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}"
+    )
     results = {}
     if baseline is not None:
         results["baseline"] = measure(f"baseline {args.baseline}", baseline.parent / "src", baseline, steps)
     results["this tree"] = measure("this tree", ROOT, None, steps)
     if "baseline" in results:
         b, t = results["baseline"], results["this tree"]
-        print(f"\nthis tree vs {args.baseline}: cold first run {b['cold'] / t['cold']:.2f}x faster "
-              f"({b['cold']:.1f} s -> {t['cold']:.1f} s), compiled variants {b['variants']} -> {t['variants']}")
+        print(
+            f"\nthis tree vs {args.baseline}: cold first run {b['cold'] / t['cold']:.2f}x faster "
+            f"({b['cold']:.1f} s -> {t['cold']:.1f} s), compiled variants {b['variants']} -> {t['variants']}"
+        )
     print(f"target: cold first run <= 45 s on an idle 2-core machine (this run: {results['this tree']['cold']:.1f} s)")
 
 
@@ -283,8 +310,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--search-db", metavar="WORKSPACE", help="also time `mocapflow search` on this workspace")
     ap.add_argument("--query", default=str(ROOT / "examples/data/cmu/16/16_15.amc") + ":1s-3s")
     ap.add_argument("--build-db", type=int, metavar="FRAMES", help="first build --search-db from the cached corpus")
-    ap.add_argument("--first-run-steps", nargs="+", metavar="STEP", help="first run: only these quickstart steps "
-                    f"(and their inputs), e.g. {' '.join(QUICK_STEPS)}")
+    ap.add_argument(
+        "--first-run-steps",
+        nargs="+",
+        metavar="STEP",
+        help=f"first run: only these quickstart steps (and their inputs), e.g. {' '.join(QUICK_STEPS)}",
+    )
     args = ap.parse_args(argv)
     if args.build_db:
         if not args.search_db:

@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -79,8 +80,9 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> N
         temps = fit_templates(bits, offsets, list(cls), train, list(act), classes)
         te = np.flatnonzero(~train)
         table = RivalTable.build(temps, codes, offsets)
-        for j, (t, (s, _, _, _)) in enumerate(zip(temps, cutoff_hits(temps, codes, offsets, rival_table=table,
-                                                                        step="auto"), strict=True)):
+        for j, (t, (s, _, _, _)) in enumerate(
+            zip(temps, cutoff_hits(temps, codes, offsets, rival_table=table, step="auto"), strict=True)
+        ):
             score[te, j] = clip_min_costs(codes, offsets, t.table())[te]
             found = np.zeros(len(names), bool)
             found[np.searchsorted(offsets, s, side="right") - 1] = True
@@ -102,8 +104,10 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> N
         ok_rank += best_r >= 0.9
         ok += p >= 0.8 and r >= 0.9
         print(f"{c:30s} {best_r:21.2f} {p:12.2f} {r:5.2f} {int(h.sum()):5d}")
-    print(f"classes with R >= 0.9 at P >= 0.8: reported list {ok} of {len(classes)}, against the ranking "
-          f"(same run) {ok_rank}; classification accuracy {np.mean(pred == cls):.3f}")
+    print(
+        f"classes with R >= 0.9 at P >= 0.8: reported list {ok} of {len(classes)}, against the ranking "
+        f"(same run) {ok_rank}; classification accuracy {np.mean(pred == cls):.3f}"
+    )
 
 
 def auto_queries(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
@@ -158,15 +162,19 @@ def speed(bits, offsets, names, n_frames: int, repeats: int) -> None:
             b = min(b, time.perf_counter() - t0)
         return b, len(out[0][0])
 
-    print(f"\n== template queries over {len(big):,} frames ({len(off) - 1:,} clips), best of {repeats}; "
-          f"load average {open('/proc/loadavg').read().split()[0]} ==")
+    print(
+        f"\n== template queries over {len(big):,} frames ({len(off) - 1:,} clips), best of {repeats}; "
+        f"load average {os.getloadavg()[0]:.1f} =="
+    )
     ratios = []
     for j, t in enumerate(temps):
         t1, h1 = best(1, j)
         ta, ha = best("auto", j)
         ratios.append(t1 / ta)
-        print(f"  {t.label:30s} K={t.n_frames:4d}: full rate {t1 * 1e3:7.1f} ms ({h1} hits) | default (step auto) "
-              f"{ta * 1e3:7.1f} ms ({ha} hits): x{t1 / ta:.1f}")
+        print(
+            f"  {t.label:30s} K={t.n_frames:4d}: full rate {t1 * 1e3:7.1f} ms ({h1} hits) | default (step auto) "
+            f"{ta * 1e3:7.1f} ms ({ha} hits): x{t1 / ta:.1f}"
+        )
     print(f"median speed-up of the default over the full-rate search (same run): x{np.median(ratios):.1f}")
 
 
@@ -178,8 +186,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     bits, offsets, names = synthetic_cuts() if args.quick else hdm05_cuts(args.fps)
-    print(f"{len(names)} cuts, {len(bits)} frames ({'synthetic' if args.quick else 'HDM05'}), features in "
-          f"{time.perf_counter() - t0:.1f} s")
+    print(
+        f"{len(names)} cuts, {len(bits)} frames ({'synthetic' if args.quick else 'HDM05'}), features in "
+        f"{time.perf_counter() - t0:.1f} s"
+    )
     templates_loao(bits, offsets, names)
     auto_queries(bits, offsets, names)
     speed(bits, offsets, names, args.frames or (20_000 if args.quick else 1_000_000), 1 if args.quick else 3)

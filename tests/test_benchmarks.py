@@ -28,6 +28,7 @@ def test_benchmark_runs_quick(name, tmp_path):
     script = BENCH / f"{name}.py"
     assert script.is_file(), f"the runner lists {name} but benchmarks/{name}.py is missing"
     env = {**os.environ, "MOCAPFLOW_PROGRESS": "0", "MOCAPFLOW_BENCH_CACHE": str(tmp_path / "cache")}
-    res = subprocess.run([sys.executable, str(script), "--quick"], capture_output=True, text=True, env=env,
-                         cwd=tmp_path, timeout=TIMEOUT)
+    res = subprocess.run(
+        [sys.executable, str(script), "--quick"], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=TIMEOUT
+    )
     assert res.returncode == 0, f"{name} --quick exited {res.returncode}:\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"

@@ -1,5 +1,6 @@
 """matchers.relational mode auto: flicker removal, frame bits from the index, and queries by
 example without a feature list (HDM05 where available)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.auto import auto_hits, auto_template, runs, smooth_runs
+from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.template_model import frame_codes
 
 HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
@@ -82,7 +83,9 @@ steps:
         mine = sorted((h for h in hits if h["query_id"] == qid), key=lambda h: h["rank"])
         assert mine and all(h["mode"] == "auto" and h["features"] for h in mine)
         assert all(word in clips[h["clip_id"]] for h in mine[:3])
-    assert "L4" in next(h for h in hits if h["query_id"] == 0)["features"]  # left foot raised: HDM05 kicks are left kicks
+    assert (
+        "L4" in next(h for h in hits if h["query_id"] == 0)["features"]
+    )  # left foot raised: HDM05 kicks are left kicks
 
 
 def test_relative_cost_cut_separates_the_few_cheap_clips_from_the_bulk():
@@ -100,9 +103,9 @@ def test_relative_cost_cut_separates_the_few_cheap_clips_from_the_bulk():
 
 @pytest.mark.parametrize("seed", range(3))
 def test_weighted_cost_table_matches_naive_local_cost(seed):
-    from mocapflow.plugins.relational.template_model import cost_table, frame_codes
-
     from naive import templates as naive_templates
+
+    from mocapflow.plugins.relational.template_model import cost_table, frame_codes
 
     rng = np.random.default_rng(seed)
     q = rng.choice([0.0, 0.5, 1.0], size=(5, 31)).astype(np.float32)
@@ -146,7 +149,7 @@ def test_mutual_check_auto_keeps_hits_inside_a_long_take():
     from mocapflow.plugins.relational.auto import mutual_check
 
     rng = np.random.default_rng(0)
-    hop = _runs_motion(rng, 6)                                           # 30 frames
+    hop = _runs_motion(rng, 6)  # 30 frames
     medium = np.concatenate([_runs_motion(rng, 3), hop, _runs_motion(rng, 3)])  # 60 frames <= 3 x 30
     take = np.concatenate([_runs_motion(rng, 8) for _ in range(20)] + [hop] + [_runs_motion(rng, 8) for _ in range(20)])
     clips = [hop.copy(), medium, take] + [_runs_motion(rng, 8) for _ in range(8)]
@@ -172,9 +175,13 @@ def _hdm05_bits(files):
 
     db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])
     per = [body_measures(m.skeleton) for m in db.motions]
-    meas = {k: np.repeat([p[k] for p in per], np.diff(db.offsets)).astype(np.float32)
-            for k in ("humerus_length", "shoulder_width", "hip_width")}
-    return relational_features(db.canonical_positions(), db.fps, meas, None, db.offsets), np.asarray(db.offsets, np.int64)
+    meas = {
+        k: np.repeat([p[k] for p in per], np.diff(db.offsets)).astype(np.float32)
+        for k in ("humerus_length", "shoulder_width", "hip_width")
+    }
+    return relational_features(db.canonical_positions(), db.fps, meas, None, db.offsets), np.asarray(
+        db.offsets, np.int64
+    )
 
 
 @pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
@@ -194,20 +201,20 @@ def test_default_mutual_check_keeps_true_hits_in_a_long_take_of_hdm05_cuts():
     bits, off = _hdm05_bits(take_files + cut_files)
     n_take = len(take_files)
     offsets = np.concatenate([[0], off[n_take:]])  # the dg cuts become one clip (a take)
-    true_span = np.stack([off[:n_take], off[1:n_take + 1]], axis=1)
+    true_span = np.stack([off[:n_take], off[1 : n_take + 1]], axis=1)
     codes, bg = frame_codes(bits), bits.mean(axis=0)
     found = {m: set() for m in ("off", "auto", "clip")}
     for i in range(len(classes)):
         q = n_take + 2 * i  # the bd cut of class i
-        qb = bits[off[q]:off[q + 1]]
+        qb = bits[off[q] : off[q + 1]]
         t = auto_template(qb, bg)
         for mode in found:
             s, e, _ = auto_dtw_hits(t, qb, bits, codes, offsets, bg, mode)
-            if any(a < true_span[i, 1] and b > true_span[i, 0] for a, b in zip(s, e)):
+            if any(a < true_span[i, 1] and b > true_span[i, 0] for a, b in zip(s, e, strict=True)):
                 found[mode].add(i)
-    assert len(found["off"]) >= len(classes) // 2     # the test is not vacuous
-    assert found["off"] <= found["auto"]              # no true hit in the take is rejected
-    assert not found["clip"]                          # the whole-take check would reject them
+    assert len(found["off"]) >= len(classes) // 2  # the test is not vacuous
+    assert found["off"] <= found["auto"]  # no true hit in the take is rejected
+    assert not found["clip"]  # the whole-take check would reject them
 
 
 def test_reverse_costs_cut_out_the_hit_and_sample_the_database():

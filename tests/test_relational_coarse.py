@@ -1,18 +1,24 @@
 """Coarse-rate template search (plugins/relational/template_coarse.py) against a plain decimation
 by hand, and the rival check's window kernel against its definition."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from mocapflow.plugins.relational.template_coarse import (CoarseCodes, coarse_layout, coarse_search, coarse_template,
-                                                          template_step)
+from mocapflow.plugins.relational.template_coarse import (
+    CoarseCodes,
+    coarse_layout,
+    coarse_search,
+    coarse_template,
+    template_step,
+)
 from mocapflow.plugins.relational.template_model import MotionTemplate, fit_class_template, frame_codes, search_costs
 
 
 def _naive_layout(offsets, step):
     frames, off = [], [0]
-    for a, b in zip(offsets[:-1], offsets[1:]):
+    for a, b in zip(offsets[:-1], offsets[1:], strict=True):
         r = list(range(a, b, step))
         frames += r
         off.append(off[-1] + len(r))
@@ -79,8 +85,8 @@ def test_rival_window_minima_matches_definition():
     hi = np.minimum(lo + rng.integers(0, 12, 25), 60)
     o, r = rival_window_minima(own, best, second, arg, 1, lo, hi)
     other = np.where(arg == 1, second, best)
-    np.testing.assert_array_equal(o, [own[a:b].min() if b > a else np.inf for a, b in zip(lo, hi)])
-    np.testing.assert_array_equal(r, [other[a:b].min() if b > a else np.inf for a, b in zip(lo, hi)])
+    np.testing.assert_array_equal(o, [own[a:b].min() if b > a else np.inf for a, b in zip(lo, hi, strict=True)])
+    np.testing.assert_array_equal(r, [other[a:b].min() if b > a else np.inf for a, b in zip(lo, hi, strict=True)])
 
 
 def test_cutoff_hits_coarse_step_keeps_the_rival_decision():

@@ -1,4 +1,5 @@
 """Relational features (Müller et al. 2005, Table 1): primitives, kernels, constructed poses, real clips."""
+
 from __future__ import annotations
 
 import glob
@@ -11,10 +12,18 @@ from naive.relational import motion_from_positions, pose_array
 
 from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import ConfigError
-from mocapflow.plugins.relational.body import body_measures
 from mocapflow.plugins.relational import primitives as prim
-from mocapflow.plugins.relational.features import (FEATURE_IDS, FEATURES, THRESHOLDS, RelationalFeatures, feature_column,
-                                                   feature_values, relational_features, set_codes)
+from mocapflow.plugins.relational.body import body_measures
+from mocapflow.plugins.relational.features import (
+    FEATURE_IDS,
+    FEATURES,
+    THRESHOLDS,
+    RelationalFeatures,
+    feature_column,
+    feature_values,
+    relational_features,
+    set_codes,
+)
 
 RNG = np.random.default_rng(7)
 
@@ -43,7 +52,9 @@ def test_segment_distance_awkward_cases():
     # parallel segments, a point segment, crossing segments
     assert prim.segment_segment_distance(z, [1, 0, 0], [0, 1, 0], [1, 1, 0]) == pytest.approx(1, abs=1e-6)
     assert prim.segment_segment_distance(z, z, [0, 2, 0], [0, 3, 0]) == pytest.approx(2, abs=1e-6)
-    assert prim.segment_segment_distance([-1, 0, 0], [1, 0, 0], [0, -1, 0.5], [0, 1, 0.5]) == pytest.approx(0.5, abs=1e-6)
+    assert prim.segment_segment_distance([-1, 0, 0], [1, 0, 0], [0, -1, 0.5], [0, 1, 0.5]) == pytest.approx(
+        0.5, abs=1e-6
+    )
     # a fixed normal direction broadcasts against per-frame points
     q = np.array([[0, 2, 0], [0, -1, 0]], float)
     np.testing.assert_allclose(prim.normal_plane_distance(z, [0, 1, 0], z, q), [2, -1], atol=1e-6)
@@ -97,16 +108,26 @@ MOVED = {
     "U6": dict(lelbow=(0.48, 1.45, 0), lwrist=(0.75, 1.45, 0), lfingers=(0.85, 1.45, 0)),
     "U7": dict(rwrist=(-0.25, 1.17, 0.25), rfingers=(-0.25, 1.17, 0.35)),
     "U8": dict(lwrist=(0.25, 1.17, 0.25), lfingers=(0.25, 1.17, 0.35)),
-    "U11": dict(rwrist=(0.15, 1.2, 0.2), lwrist=(-0.15, 1.2, 0.25), rfingers=(0.2, 1.2, 0.3), lfingers=(-0.2, 1.2, 0.3)),
-    "U12": dict(rwrist=(-0.04, 1.2, 0.3), rfingers=(0.0, 1.2, 0.38), lwrist=(0.04, 1.2, 0.3), lfingers=(0.0, 1.22, 0.38)),
+    "U11": dict(
+        rwrist=(0.15, 1.2, 0.2), lwrist=(-0.15, 1.2, 0.25), rfingers=(0.2, 1.2, 0.3), lfingers=(-0.2, 1.2, 0.3)
+    ),
+    "U12": dict(
+        rwrist=(-0.04, 1.2, 0.3), rfingers=(0.0, 1.2, 0.38), lwrist=(0.04, 1.2, 0.3), lfingers=(0.0, 1.22, 0.38)
+    ),
     "M1": dict(rwrist=(-0.15, 0.7, 0.05), rfingers=(-0.15, 0.6, 0.05)),
     "M2": dict(lwrist=(0.15, 0.7, 0.05), lfingers=(0.15, 0.6, 0.05)),
     "M3": dict(relbow=(-0.3, 1.5, 0.2), rwrist=(-0.1, 1.65, 0.05), rfingers=(-0.05, 1.7, 0.05)),
     "M4": dict(lelbow=(0.3, 1.5, 0.2), lwrist=(0.1, 1.65, 0.05), lfingers=(0.05, 1.7, 0.05)),
     "M5": dict(rwrist=(-0.05, 0.95, 0.1), rfingers=(0.0, 0.9, 0.12)),
     "M6": dict(lwrist=(0.05, 0.95, 0.1), lfingers=(0.0, 0.9, 0.12)),
-    "M7": dict(lowerback=(0, 1.02, 0.12), upperback=(0, 1.04, 0.25), chest=(0, 1.05, 0.35), neck=(0, 1.05, 0.5),
-               head=(0, 1.05, 0.6), headtop=(0, 1.05, 0.75)),
+    "M7": dict(
+        lowerback=(0, 1.02, 0.12),
+        upperback=(0, 1.04, 0.25),
+        chest=(0, 1.05, 0.35),
+        neck=(0, 1.05, 0.5),
+        head=(0, 1.05, 0.6),
+        headtop=(0, 1.05, 0.75),
+    ),
 }
 
 
@@ -120,9 +141,28 @@ def test_static_feature_on_constructed_pose(fid):
     got = on(bits_of(pose_array(**MOVED[fid]))[0])
     assert fid in got, f"{fid} ({FEATURES[feature_column(fid)].description}) should fire: {sorted(got)}"
     # the mirrored feature stays off
-    mirror = {"L3": "L4", "L4": "L3", "L7": "L8", "L8": "L7", "L9": "L10", "L10": "L9", "U1": "U2", "U2": "U1",
-              "U3": "U4", "U4": "U3", "U5": "U6", "U6": "U5", "U7": "U8", "U8": "U7", "M1": "M2", "M2": "M1",
-              "M3": "M4", "M4": "M3", "M5": "M6", "M6": "M5"}.get(fid)
+    mirror = {
+        "L3": "L4",
+        "L4": "L3",
+        "L7": "L8",
+        "L8": "L7",
+        "L9": "L10",
+        "L10": "L9",
+        "U1": "U2",
+        "U2": "U1",
+        "U3": "U4",
+        "U4": "U3",
+        "U5": "U6",
+        "U6": "U5",
+        "U7": "U8",
+        "U8": "U7",
+        "M1": "M2",
+        "M2": "M1",
+        "M3": "M4",
+        "M4": "M3",
+        "M5": "M6",
+        "M6": "M5",
+    }.get(fid)
     if mirror:
         assert mirror not in got
 
@@ -134,8 +174,9 @@ def test_foot_front_turns_off_when_foot_behind():
     assert "L2" not in got and "L1" in got
 
 
-@pytest.mark.parametrize("fid,joints", [("L5", ["rtoes"]), ("L6", ["ltoes"]), ("U9", ["rwrist"]),
-                                        ("U10", ["lwrist"]), ("M8", None)])
+@pytest.mark.parametrize(
+    "fid,joints", [("L5", ["rtoes"]), ("L6", ["ltoes"]), ("U9", ["rwrist"]), ("U10", ["lwrist"]), ("M8", None)]
+)
 def test_speed_features(fid, joints):
     frames = np.stack([STAND] * 5)
     step = np.array([0.0, 0.0, 0.1])  # 0.1 m per frame at 30 Hz = 3 m/s > 2 humerus lengths/s

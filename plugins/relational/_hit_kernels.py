@@ -3,6 +3,7 @@
 No validation here (the API validates); each kernel has a slow reference in
 ``tests/naive/templates.py``. The DTW kernels themselves are in ``_template_kernels.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np

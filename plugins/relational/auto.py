@@ -18,6 +18,7 @@ Measured leave-one-actor-out on the HDM05 cuts (docs/templates.md): mAP 0.906, 9
 classes at P >= 0.7, R >= 0.9 on the reported hits, against 0.34-0.49 mAP for the paper's
 adaptive and m-mismatch hits on features chosen from the example.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -60,8 +61,8 @@ def smooth_runs(x: np.ndarray, min_run: int) -> np.ndarray:
         if lens[i] >= min_run:
             break
         merged = lens[i - 1] + lens[i] + lens[i + 1]
-        vals[i - 1:i + 2] = [vals[i - 1]]
-        lens[i - 1:i + 2] = [merged]
+        vals[i - 1 : i + 2] = [vals[i - 1]]
+        lens[i - 1 : i + 2] = [merged]
     # an edge run shorter than min_run next to a long run is flicker at the cut: absorb it
     if len(lens) == 2 and min(lens) < min_run:
         keep = int(np.argmax(lens))
@@ -78,11 +79,16 @@ def surprise_weights(quantized: np.ndarray, background: np.ndarray, power: float
     the background needs no labels."""
     p = np.clip(np.asarray(background, np.float64), 1e-3, 1 - 1e-3)
     s = np.where(np.asarray(quantized) >= 0.75, -np.log2(p), -np.log2(1 - p))
-    return (s ** power).astype(np.float64) if power else np.ones_like(s)
+    return (s**power).astype(np.float64) if power else np.ones_like(s)
 
 
-def auto_template(bits: np.ndarray, background: np.ndarray, examples: list[np.ndarray] | None = None,
-                  min_run: int = MIN_RUN, weighting: float = WEIGHTING):
+def auto_template(
+    bits: np.ndarray,
+    background: np.ndarray,
+    examples: list[np.ndarray] | None = None,
+    min_run: int = MIN_RUN,
+    weighting: float = WEIGHTING,
+):
     """The smoothed query as a motion template on all 31 features, or (with examples) a
     template fitted on query and examples (don't care where they disagree), its local cost
     weighted by :func:`surprise_weights` to the power ``weighting``."""
@@ -118,8 +124,9 @@ def relative_cost_cut(per_clip: np.ndarray, relative_cut: float = PLAIN_CUT) -> 
     return float(relative_cut * low**LOW_WEIGHT * med ** (1.0 - LOW_WEIGHT))
 
 
-def auto_hits(template, codes: np.ndarray, offsets: np.ndarray,
-              relative_cut: float = PLAIN_CUT) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def auto_hits(
+    template, codes: np.ndarray, offsets: np.ndarray, relative_cut: float = PLAIN_CUT
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Hits ``(start, end, cost)`` of an auto template below :func:`relative_cost_cut` of
     each clip's least cost, and that cut."""
     from .template_model import template_costs, template_hits
@@ -132,9 +139,16 @@ def auto_hits(template, codes: np.ndarray, offsets: np.ndarray,
     return s, e, c, cut
 
 
-def reverse_costs(rev_bits: np.ndarray, lo: int, hi: int, query_codes: np.ndarray, codes: np.ndarray,
-                  offsets: np.ndarray, background: np.ndarray,
-                  max_clips: int | None = MUTUAL_SAMPLE) -> tuple[float, np.ndarray]:
+def reverse_costs(
+    rev_bits: np.ndarray,
+    lo: int,
+    hi: int,
+    query_codes: np.ndarray,
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    background: np.ndarray,
+    max_clips: int | None = MUTUAL_SAMPLE,
+) -> tuple[float, np.ndarray]:
     """The reverse query of the mutual check: ``rev_bits`` (a hit's clip or a window of it,
     database frames ``[lo, hi)``) made an auto template. Returns the query's least cost under
     it and the least cost per database range: every other clip, and the rest of the clip
@@ -150,8 +164,9 @@ def reverse_costs(rev_bits: np.ndarray, lo: int, hi: int, query_codes: np.ndarra
     others = np.delete(np.arange(len(offsets) - 1), h)
     if max_clips is not None and len(others) > max_clips:
         others = np.sort(np.random.default_rng(0).choice(others, max_clips, replace=False))
-    ranges = np.concatenate([np.stack([offsets[others], offsets[others + 1]], axis=1),
-                             [[offsets[h], lo], [hi, offsets[h + 1]]]]).astype(np.int64)
+    ranges = np.concatenate(
+        [np.stack([offsets[others], offsets[others + 1]], axis=1), [[offsets[h], lo], [hi, offsets[h + 1]]]]
+    ).astype(np.int64)
     ranges = ranges[ranges[:, 1] > ranges[:, 0]]
     ranges = ranges[np.argsort(ranges[:, 0], kind="stable")]
     per_range = np.zeros(0)
@@ -170,10 +185,19 @@ def _reverse_finds_query(rev_bits, lo, hi, q_codes, codes, offsets, background, 
     return bool(np.isfinite(own) and own <= relative_cost_cut(per_range, relative_cut))
 
 
-def mutual_check(query_bits: np.ndarray, hit_start: np.ndarray, hit_end: np.ndarray, db_bits: np.ndarray,
-                 codes: np.ndarray, offsets: np.ndarray, background: np.ndarray, mode: str = "auto",
-                 ratio: float = 3.0, relative_cut: float = CHECKED_CUT,
-                 max_clips: int | None = MUTUAL_SAMPLE) -> tuple[np.ndarray, np.ndarray]:
+def mutual_check(
+    query_bits: np.ndarray,
+    hit_start: np.ndarray,
+    hit_end: np.ndarray,
+    db_bits: np.ndarray,
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    background: np.ndarray,
+    mode: str = "auto",
+    ratio: float = 3.0,
+    relative_cut: float = CHECKED_CUT,
+    max_clips: int | None = MUTUAL_SAMPLE,
+) -> tuple[np.ndarray, np.ndarray]:
     """The reverse check of ``auto_mutual`` per hit: ``(keep, checked)``, bool of shape (h,).
 
     The hit's whole clip, made an auto template in turn, must find the query (its least cost
@@ -201,15 +225,24 @@ def mutual_check(query_bits: np.ndarray, hit_start: np.ndarray, hit_end: np.ndar
         lo, hi = int(offsets[h]), int(offsets[h + 1])
         if mode == "clip" or hi - lo <= ratio * n_q:
             if h not in whole:
-                whole[h] = _reverse_finds_query(db_bits[lo:hi], lo, hi, q_codes, codes, offsets, background,
-                                                relative_cut, max_clips)
+                whole[h] = _reverse_finds_query(
+                    db_bits[lo:hi], lo, hi, q_codes, codes, offsets, background, relative_cut, max_clips
+                )
             keep[i], checked[i] = whole[h], True
     return keep, checked
 
 
-def auto_dtw_hits(template, query_bits: np.ndarray, db_bits: np.ndarray, codes: np.ndarray, offsets: np.ndarray,
-                  background: np.ndarray, mutual: str = "auto", relative_cut: float | None = None,
-                  ratio: float = 3.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def auto_dtw_hits(
+    template,
+    query_bits: np.ndarray,
+    db_bits: np.ndarray,
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    background: np.ndarray,
+    mutual: str = "auto",
+    relative_cut: float | None = None,
+    ratio: float = 3.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end, cost)`` of mode auto with the mutual check (the matcher's code
     path): :func:`auto_hits` at the checked cut (``relative_cut``, default 1.3 with a check,
     1.15 with ``mutual="off"``), :func:`mutual_check` (``mutual`` auto or clip), and for
@@ -225,5 +258,14 @@ def auto_dtw_hits(template, query_bits: np.ndarray, db_bits: np.ndarray, codes: 
     return s[keep], e[keep], c[keep]
 
 
-__all__ = ["auto_dtw_hits", "auto_hits", "auto_template", "mutual_check", "relative_cost_cut", "reverse_costs", "runs",
-           "smooth_runs", "surprise_weights"]
+__all__ = [
+    "auto_dtw_hits",
+    "auto_hits",
+    "auto_template",
+    "mutual_check",
+    "relative_cost_cut",
+    "reverse_costs",
+    "runs",
+    "smooth_runs",
+    "surprise_weights",
+]

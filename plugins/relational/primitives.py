@@ -16,6 +16,7 @@ plane given by a normal
     plane passes through an anchor point; the signed distance is positive on the side the
     normal points to.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,8 +45,9 @@ def _k():
     return _relational_kernels
 
 
-def plane_distance(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray,
-                   offset: float | np.ndarray = 0.0) -> np.ndarray:
+def plane_distance(
+    p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray, offset: float | np.ndarray = 0.0
+) -> np.ndarray:
     """Signed distance of ``q`` from the oriented plane through ``p1, p2, p3``, minus ``offset``.
 
     Parameters
@@ -67,8 +69,9 @@ def plane_distance(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray
     return out.reshape(shape)
 
 
-def normal_plane_distance(a: np.ndarray, b: np.ndarray, anchor: np.ndarray, q: np.ndarray,
-                          offset: float | np.ndarray = 0.0) -> np.ndarray:
+def normal_plane_distance(
+    a: np.ndarray, b: np.ndarray, anchor: np.ndarray, q: np.ndarray, offset: float | np.ndarray = 0.0
+) -> np.ndarray:
     """Signed distance of ``q`` from the plane with normal ``b - a`` through ``anchor``, minus ``offset``.
 
     ``a`` and ``b`` may be joints (shape (..., 3)) or a fixed direction given as
@@ -156,8 +159,9 @@ def clip_starts(offsets: np.ndarray, n_frames: int) -> np.ndarray:
     return mask
 
 
-def speed(p: np.ndarray, fps: float, offsets: np.ndarray | None = None,
-          reference: np.ndarray | None = None) -> np.ndarray:
+def speed(
+    p: np.ndarray, fps: float, offsets: np.ndarray | None = None, reference: np.ndarray | None = None
+) -> np.ndarray:
     """Speed of a point, metres per second, never differencing across clip boundaries.
 
     Central differences inside a clip, one-sided differences at a clip's first and last
@@ -195,5 +199,15 @@ def threshold(value: np.ndarray, thresh: float | np.ndarray, below: bool = False
         return (value < thresh) if below else (value >= thresh)
 
 
-__all__ = ["angle_between", "clip_starts", "cos_between", "min_height", "normal_plane_distance", "plane_distance",
-           "point_segment_distance", "segment_segment_distance", "speed", "threshold"]
+__all__ = [
+    "angle_between",
+    "clip_starts",
+    "cos_between",
+    "min_height",
+    "normal_plane_distance",
+    "plane_distance",
+    "point_segment_distance",
+    "segment_segment_distance",
+    "speed",
+    "threshold",
+]

@@ -13,6 +13,7 @@ templates by naming this step as its ``reference`` input::
 Labels come from clip names (``label_pattern``, a regular expression with a group
 ``label``); the training clips are those whose names match ``train``.
 """
+
 from __future__ import annotations
 
 import re
@@ -28,7 +29,14 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 from mocapflow.framework.schema import MATCHES
 
-from .template_model import MotionTemplate, fit_class_template, frame_codes, load_templates, save_templates, search_costs
+from .template_model import (
+    MotionTemplate,
+    fit_class_template,
+    frame_codes,
+    load_templates,
+    save_templates,
+    search_costs,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.context import StepContext
@@ -52,8 +60,14 @@ def clip_labels(names: list[str], pattern: str, group: str = "label") -> list[st
     return out
 
 
-def fit_templates(bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
-                  groups: list[str | None] | None = None, classes: list[str] | None = None) -> list[MotionTemplate]:
+def fit_templates(
+    bits: np.ndarray,
+    offsets: np.ndarray,
+    labels: list[str | None],
+    train: np.ndarray,
+    groups: list[str | None] | None = None,
+    classes: list[str] | None = None,
+) -> list[MotionTemplate]:
     """One template per class from labelled training clips.
 
     Parameters
@@ -72,7 +86,7 @@ def fit_templates(bits: np.ndarray, offsets: np.ndarray, labels: list[str | None
     if not use.any():
         raise DataError("matchers.template: no training clip matches both 'train' and 'label_pattern'")
     classes = classes or sorted(set(lab[use]))
-    clip = [bits[offsets[i]:offsets[i + 1]] for i in range(len(offsets) - 1)]
+    clip = [bits[offsets[i] : offsets[i + 1]] for i in range(len(offsets) - 1)]
     bg = np.concatenate([clip[i] for i in np.flatnonzero(use)]).mean(axis=0)
     grp = np.array([g if g is not None else "" for g in groups], dtype=object) if groups is not None else None
     out = []
@@ -81,8 +95,11 @@ def fit_templates(bits: np.ndarray, offsets: np.ndarray, labels: list[str | None
         if not len(mine):
             raise DataError(f"matchers.template: class {c!r} has no training clip")
         neg = [clip[i] for i in np.flatnonzero(use & (lab != c))]
-        out.append(fit_class_template(c, [clip[i] for i in mine], bg, groups=None if grp is None else list(grp[mine]),
-                                      negatives=neg))
+        out.append(
+            fit_class_template(
+                c, [clip[i] for i in mine], bg, groups=None if grp is None else list(grp[mine]), negatives=neg
+            )
+        )
     return out
 
 
@@ -92,8 +109,9 @@ def feature_ids(columns: np.ndarray) -> str:
     return ",".join(FEATURE_IDS[int(c)] for c in columns)
 
 
-def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None,
-                    index=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def search_template(
+    t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None, index=None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template below its
     threshold, without the rival check.
 
@@ -113,10 +131,18 @@ def _ranges(t: MotionTemplate, offsets: np.ndarray, index) -> np.ndarray:
     return candidate_ranges(t, index)[0]
 
 
-def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.ndarray, index=None,
-                threshold: float | None = None, min_gap: float = 0.5, only: list[int] | None = None,
-                rival_table=None, step: int | str = 1,
-                coarse=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+def cutoff_hits(
+    templates: list[MotionTemplate],
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    index=None,
+    threshold: float | None = None,
+    min_gap: float = 0.5,
+    only: list[int] | None = None,
+    rival_table=None,
+    step: int | str = 1,
+    coarse=None,
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
     frames, ascending cost): key-feature cost <= the template's acceptance bound and no
     other template cheaper on the stretch (all-feature costs, :mod:`.template_cutoff`).
@@ -141,8 +167,11 @@ def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.
             continue
         bound = float(threshold) if threshold is not None else acceptance_bound(t)
         s, e, c = coarse_search(t, coarse, _ranges(t, offsets, index), bound, min_gap, template_step(t, step))
-        keep = (rival_table.mask(qid, s, e, offsets) if rival_table is not None
-                else rival_mask(templates, qid, s, e, codes, offsets))
+        keep = (
+            rival_table.mask(qid, s, e, offsets)
+            if rival_table is not None
+            else rival_mask(templates, qid, s, e, codes, offsets)
+        )
         out.append((s[keep], e[keep], c[keep], bound))
     return out
 
@@ -165,29 +194,46 @@ class TemplateMatcher(Matcher):
     inputs = {"database": True, "motions": True, "reference": False, "index": False}
     #: Conformance (mocapflow.framework.testing): one template from synthetic clips.
     test_pipeline = {
-        "steps": {"feat": {"uses": "features.relational", "input": "motions"},
-                  "inv": {"uses": "indexes.inverted", "input": "feat"}},
+        "steps": {
+            "feat": {"uses": "features.relational", "input": "motions"},
+            "inv": {"uses": "indexes.inverted", "input": "feat"},
+        },
         "inputs": {"database": "feat", "motions": "motions"},
         "with": {"label_pattern": r"^(?P<label>synthetic)\d", "group_pattern": None, "plots": False},
         "bad_inputs": {"database": "inv", "motions": "motions"},
     }
 
     class Params(Params):
-        label_pattern: str = Field(HDM05_LABEL, description="regular expression on clip names with a group (?P<label>...)")
+        label_pattern: str = Field(
+            HDM05_LABEL, description="regular expression on clip names with a group (?P<label>...)"
+        )
         train: str = Field(".", description="regular expression: clips whose names match are training examples")
         classes: tuple[str, ...] = Field((), description="labels to learn (default: every label of the training clips)")
-        group_pattern: str | None = Field(HDM05_GROUP, description="regular expression with a group (?P<group>...) "
-                                          "(e.g. the actor): thresholds are calibrated leaving one group out at a time")
-        threshold: float | None = Field(None, gt=0.0, le=1.0, description="fixed acceptance bound for every template "
-                                        "(default: calibrated)")
+        group_pattern: str | None = Field(
+            HDM05_GROUP,
+            description="regular expression with a group (?P<group>...) "
+            "(e.g. the actor): thresholds are calibrated leaving one group out at a time",
+        )
+        threshold: float | None = Field(
+            None, gt=0.0, le=1.0, description="fixed acceptance bound for every template (default: calibrated)"
+        )
         max_hits: int | None = Field(None, ge=1, description="keep the best max_hits per template")
-        step: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field("auto", description="search every step-th "
-                                            "frame of template and clips (the rival check stays at the full rate); "
-                                            "auto: K // 7, 1 to 4 (docs/templates.md); 1: the full-rate search")
+        step: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field(
+            "auto",
+            description="search every step-th "
+            "frame of template and clips (the rival check stays at the full rate); "
+            "auto: K // 7, 1 to 4 (docs/templates.md); 1: the full-rate search",
+        )
         plots: bool = Field(True, description="write template_<label>.png per template")
 
-    def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
-            groups: list[str | None] | None = None) -> list[MotionTemplate]:
+    def fit(
+        self,
+        bits: np.ndarray,
+        offsets: np.ndarray,
+        labels: list[str | None],
+        train: np.ndarray,
+        groups: list[str | None] | None = None,
+    ) -> list[MotionTemplate]:
         """Templates from labelled clips (:func:`fit_templates` with this step's parameters)."""
         return fit_templates(bits, offsets, labels, train, groups, list(self.params.classes) or None)
 
@@ -199,13 +245,15 @@ class TemplateMatcher(Matcher):
             raise PipelineError(f"matchers.template needs database=features.relational, got {db_ds.producer}")
         feats = db_ds.features()
         clips = inputs["motions"].table("clips", columns=["clip_id", "name"])
-        name_of = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist()))
+        name_of = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist(), strict=True))
         bits, clip_ids, offsets = _clip_layout(feats)
         names = [name_of.get(int(c), str(c)) for c in clip_ids]
         if "reference" in inputs:
             ref = inputs["reference"]
             if ref.producer != "matchers.template":
-                raise PipelineError(f"matchers.template: reference must be a matchers.template step, got {ref.producer}")
+                raise PipelineError(
+                    f"matchers.template: reference must be a matchers.template step, got {ref.producer}"
+                )
             templates, _ = load_templates(ref.path)
         else:
             rx = re.compile(self.params.train)
@@ -219,7 +267,9 @@ class TemplateMatcher(Matcher):
             from .inverted import InvertedIndex
 
             if inputs["index"].producer != "indexes.inverted":
-                raise PipelineError(f"matchers.template: index must be an indexes.inverted step, got {inputs['index'].producer}")
+                raise PipelineError(
+                    f"matchers.template: index must be an indexes.inverted step, got {inputs['index'].producer}"
+                )
             index = InvertedIndex.load(inputs["index"].path / "index")
             if int(next(iter(index.sets.values())).clip_offsets[-1]) != len(codes):
                 raise PipelineError("matchers.template: the index was built on other frames than 'database'")
@@ -231,19 +281,31 @@ class TemplateMatcher(Matcher):
 
             table = RivalTable.build(templates, codes, offsets)
         lists = cutoff_hits(templates, codes, offsets, index, prm.threshold, rival_table=table, step=prm.step)
-        for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists)):
+        for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists, strict=True)):
             if prm.max_hits:
                 s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]
             pos = np.searchsorted(offsets, s, side="right") - 1
-            for rank, (a, b, cc, p) in enumerate(zip(s, e, c, pos), start=1):
-                rows.append({"query_id": qid, "rank": rank, "clip_id": int(clip_ids[p]), "start_frame": int(a - offsets[p]),
-                             "end_frame": int(b - offsets[p]), "cost": float(cc), "label": t.label,
-                             "threshold": bound, "features": feature_ids(t.columns)})
+            for rank, (a, b, cc, p) in enumerate(zip(s, e, c, pos, strict=True), start=1):
+                rows.append(
+                    {
+                        "query_id": qid,
+                        "rank": rank,
+                        "clip_id": int(clip_ids[p]),
+                        "start_frame": int(a - offsets[p]),
+                        "end_frame": int(b - offsets[p]),
+                        "cost": float(cc),
+                        "label": t.label,
+                        "threshold": bound,
+                        "features": feature_ids(t.columns),
+                    }
+                )
         if self.params.plots:
             for t in templates:
                 plot_template(t, ctx.out_dir / f"template_{_safe(t.label)}.png", fps=_fps(inputs["motions"]))
-        return StepOutput({"data": template_hits_table(rows), "templates": templates_table(templates)},
-                          {"templates": len(templates), "hits": len(rows)})
+        return StepOutput(
+            {"data": template_hits_table(rows), "templates": templates_table(templates)},
+            {"templates": len(templates), "hits": len(rows)},
+        )
 
 
 def _safe(label: str) -> str:
@@ -273,23 +335,28 @@ def _clip_layout(feats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def template_hits_table(rows: list[dict]) -> pa.Table:
-    fields = list(MATCHES) + [pa.field("label", pa.string()), pa.field("threshold", pa.float64()),
-                              pa.field("features", pa.string())]
+    fields = list(MATCHES) + [
+        pa.field("label", pa.string()),
+        pa.field("threshold", pa.float64()),
+        pa.field("features", pa.string()),
+    ]
     schema = pa.schema(fields)
     return pa.table({f.name: pa.array([r[f.name] for r in rows], f.type) for f in schema}, schema=schema)
 
 
 def templates_table(templates: list[MotionTemplate]) -> pa.Table:
     """One row per template: label, frames, examples, threshold, key features, don't-care share."""
-    return pa.table({
-        "template_id": pa.array(list(range(len(templates))), pa.int32()),
-        "label": pa.array([t.label for t in templates], pa.string()),
-        "n_frames": pa.array([t.n_frames for t in templates], pa.int32()),
-        "n_examples": pa.array([t.n_examples for t in templates], pa.int32()),
-        "threshold": pa.array([float(t.threshold) for t in templates], pa.float64()),
-        "features": pa.array([feature_ids(t.columns) for t in templates], pa.string()),
-        "dont_care_fraction": pa.array([t.dont_care_fraction() for t in templates], pa.float64()),
-    })
+    return pa.table(
+        {
+            "template_id": pa.array(list(range(len(templates))), pa.int32()),
+            "label": pa.array([t.label for t in templates], pa.string()),
+            "n_frames": pa.array([t.n_frames for t in templates], pa.int32()),
+            "n_examples": pa.array([t.n_examples for t in templates], pa.int32()),
+            "threshold": pa.array([float(t.threshold) for t in templates], pa.float64()),
+            "features": pa.array([feature_ids(t.columns) for t in templates], pa.string()),
+            "dont_care_fraction": pa.array([t.dont_care_fraction() for t in templates], pa.float64()),
+        }
+    )
 
 
 def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None) -> Path:
@@ -306,21 +373,46 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     scale = 1.0 / fps if fps else 1.0
     m = t.mean
     fig, ax = plt.subplots(figsize=(min(4 + k * 0.06, 14), 8), dpi=100)
-    im = ax.imshow(t.mean.T, aspect="auto", origin="upper", cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest",
-                   extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5))
-    dc = np.ma.masked_where(~((m.T > t.delta) & (m.T < 1 - t.delta)), np.ones_like(m.T))
-    ax.imshow(dc, aspect="auto", origin="upper", cmap="Greys", vmin=0, vmax=1.5, alpha=0.55, interpolation="nearest",
-              extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5))
+    im = ax.imshow(
+        t.mean.T,
+        aspect="auto",
+        origin="upper",
+        cmap="viridis",
+        vmin=0.0,
+        vmax=1.0,
+        interpolation="nearest",
+        extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5),
+    )
+    dc = np.ma.masked_where(~((t.delta < m.T) & (1 - t.delta > m.T)), np.ones_like(m.T))
+    ax.imshow(
+        dc,
+        aspect="auto",
+        origin="upper",
+        cmap="Greys",
+        vmin=0,
+        vmax=1.5,
+        alpha=0.55,
+        interpolation="nearest",
+        extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5),
+    )
     key = set(int(c) for c in t.columns)
     ax.set_yticks(range(31))
-    ax.set_yticklabels([f"{'* ' if i in key else ''}{FEATURE_IDS[i]} {FEATURE_NAMES[i]}" for i in range(31)], fontsize=6)
+    ax.set_yticklabels(
+        [f"{'* ' if i in key else ''}{FEATURE_IDS[i]} {FEATURE_NAMES[i]}" for i in range(31)], fontsize=6
+    )
     ax.set_xlabel("template time (s)" if fps else "template frame")
     ax.set_ylabel("relational feature (* = key feature used for retrieval)")
-    ax.set_title(f"motion template '{t.label}': {t.n_examples} examples, {k} frames, threshold {t.threshold:.3f}", fontsize=9)
+    ax.set_title(
+        f"motion template '{t.label}': {t.n_examples} examples, {k} frames, threshold {t.threshold:.3f}", fontsize=9
+    )
     cb = fig.colorbar(im, ax=ax)
     cb.set_label("fraction of aligned examples with the feature on (0-1)")
-    ax.legend(handles=[Patch(facecolor="0.6", alpha=0.7, label=f"don't care ({t.delta:g} < value < {1 - t.delta:g})")],
-              loc="upper right", fontsize=7, framealpha=0.9)
+    ax.legend(
+        handles=[Patch(facecolor="0.6", alpha=0.7, label=f"don't care ({t.delta:g} < value < {1 - t.delta:g})")],
+        loc="upper right",
+        fontsize=7,
+        framealpha=0.9,
+    )
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
@@ -328,5 +420,15 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     return out
 
 
-__all__ = ["HDM05_GROUP", "HDM05_LABEL", "TemplateMatcher", "clip_labels", "cutoff_hits", "fit_templates", "plot_template",
-           "search_template", "template_hits_table", "templates_table"]
+__all__ = [
+    "HDM05_GROUP",
+    "HDM05_LABEL",
+    "TemplateMatcher",
+    "clip_labels",
+    "cutoff_hits",
+    "fit_templates",
+    "plot_template",
+    "search_template",
+    "template_hits_table",
+    "templates_table",
+]

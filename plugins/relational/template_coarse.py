@@ -20,6 +20,7 @@ leave-one-actor-out, a uniform step of 6 (5 Hz; rotate's 32 frames become 6 rows
 classes, steps 2-4 none; a class's list depends only on its own step (the rival check runs
 at the full rate), so ``auto`` inherits that.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -53,8 +54,18 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
     key = (step, t.columns.tobytes(), t.delta, t.mean.shape)
     cached = getattr(t, "_coarse", None)
     if cached is None or cached[0] != key:  # kept on the template: its lookup table is cached on it in turn
-        cached = (key, MotionTemplate(t.label, np.ascontiguousarray(t.mean[::step]), t.columns, t.delta, t.threshold,
-                                      t.n_examples, t.example_costs))
+        cached = (
+            key,
+            MotionTemplate(
+                t.label,
+                np.ascontiguousarray(t.mean[::step]),
+                t.columns,
+                t.delta,
+                t.threshold,
+                t.n_examples,
+                t.example_costs,
+            ),
+        )
         t._coarse = cached
     return cached[1]
 
@@ -88,8 +99,9 @@ class CoarseCodes:
         return self._by_step[step]
 
 
-def coarse_search(t: MotionTemplate, coarse: CoarseCodes, ranges: np.ndarray, bound: float, min_gap: float,
-                  step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def coarse_search(
+    t: MotionTemplate, coarse: CoarseCodes, ranges: np.ndarray, bound: float, min_gap: float, step: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end exclusive, cost)`` in full-rate frames of template ``t`` (already on
     the columns to use) searched at ``step`` over the full-rate ``ranges`` (R, 2)."""
     from .template_model import search_costs

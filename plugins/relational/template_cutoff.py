@@ -17,11 +17,12 @@ The acceptance bound only guards against motions of no known class (every HDM05 
 one), so it is loose: the larger of the F1 threshold and ``(1 + guard)`` times the largest
 leave-one-actor-out example cost.
 """
+
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import dataclass
+
+import numpy as np
 
 from .template_model import MotionTemplate
 
@@ -35,7 +36,9 @@ def acceptance_bound(t: MotionTemplate, guard: float = 1.0) -> float:
 
 
 def _all_columns(t: MotionTemplate) -> MotionTemplate:
-    return MotionTemplate(t.label, t.mean, np.arange(t.mean.shape[1]), t.delta, t.threshold, t.n_examples, t.example_costs)
+    return MotionTemplate(
+        t.label, t.mean, np.arange(t.mean.shape[1]), t.delta, t.threshold, t.n_examples, t.example_costs
+    )
 
 
 def end_windows(start: np.ndarray, end: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -47,8 +50,14 @@ def end_windows(start: np.ndarray, end: np.ndarray, offsets: np.ndarray) -> tupl
     return np.maximum(e - 1 - half, offsets[clip]), np.minimum(e + half, offsets[clip + 1])
 
 
-def window_min_costs(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, lo: np.ndarray,
-                     hi: np.ndarray, bound: np.ndarray | float = np.inf) -> np.ndarray:
+def window_min_costs(
+    t: MotionTemplate,
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    bound: np.ndarray | float = np.inf,
+) -> np.ndarray:
     """Least all-feature cost of template ``t`` over paths ending in each window
     ``[lo_i, hi_i)`` (windows inside one clip), shape (n,); exact where ``<= bound`` (per
     window, or one value), inf or exact above (early abandoning). Subsequence DTW runs only
@@ -72,13 +81,26 @@ def window_min_costs(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, 
     r_hi = np.ascontiguousarray(np.maximum.reduceat(b, first))
     bounds = np.maximum.reduceat(np.broadcast_to(np.asarray(bound, np.float64), (n,))[order], first)
     cost = np.full(len(codes), np.inf)
-    sdtw_cost(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(use.table()), r_lo, r_hi, cost,
-              np.ascontiguousarray(bounds, np.float64))
+    sdtw_cost(
+        np.ascontiguousarray(codes, np.int64),
+        np.ascontiguousarray(use.table()),
+        r_lo,
+        r_hi,
+        cost,
+        np.ascontiguousarray(bounds, np.float64),
+    )
     return window_minima(cost, np.ascontiguousarray(lo, np.int64), np.ascontiguousarray(hi, np.int64))
 
 
-def rival_mask(templates: list[MotionTemplate], which: int, start: np.ndarray, end: np.ndarray, codes: np.ndarray,
-               offsets: np.ndarray, rho: float = 1.0) -> np.ndarray:
+def rival_mask(
+    templates: list[MotionTemplate],
+    which: int,
+    start: np.ndarray,
+    end: np.ndarray,
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    rho: float = 1.0,
+) -> np.ndarray:
     """Which hits ``[start, end)`` (global frames) of ``templates[which]`` no other template
     beats: own least all-feature cost over paths ending in :func:`end_windows` <= ``rho`` x
     the least cost of every other template over paths ending there or up to ``K - 1``
@@ -95,7 +117,9 @@ def rival_mask(templates: list[MotionTemplate], which: int, start: np.ndarray, e
     bound = own / rho
     for i, t in enumerate(templates):
         if i != which:  # a rival path covering the stretch may end up to its own length later
-            other = np.minimum(other, window_min_costs(t, codes, offsets, lo, np.minimum(hi + t.n_frames - 1, clip_end), bound))
+            other = np.minimum(
+                other, window_min_costs(t, codes, offsets, lo, np.minimum(hi + t.n_frames - 1, clip_end), bound)
+            )
     return own <= rho * other
 
 

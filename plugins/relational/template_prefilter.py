@@ -9,6 +9,7 @@ frame in an anchor segment ``[s, e)`` lies in ``[s - 2 K, e + 2 K)``; only there
 subsequence DTW run. A match whose anchor frames do not show the anchor is missed
 (``benchmarks/templates.py`` reports the hits lost against the full scan).
 """
+
 from __future__ import annotations
 
 from itertools import combinations
@@ -16,11 +17,12 @@ from itertools import combinations
 import numpy as np
 
 from .features import SET_SLICES
-
 from .template_model import MotionTemplate
 
 
-def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3, sets: tuple[str, ...] | None = None):
+def choose_anchor(
+    t: MotionTemplate, index, max_features: int = 2, min_run: int = 3, sets: tuple[str, ...] | None = None
+):
     """The rarest constellation of the template's key features (module doc).
 
     Returns ``(set name, {local bit: value}, database fraction, (a, b))`` with ``a..b`` the
@@ -40,8 +42,9 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
         for r in range(1, max_features + 1):
             for combo in combinations(cols, r):
                 # frames per value of the combination's bits (value i of bit c at bit position i)
-                hist = np.bincount(sum(list_bits[c] << i for i, c in enumerate(combo)), weights=counts,
-                                   minlength=1 << r)
+                hist = np.bincount(
+                    sum(list_bits[c] << i for i, c in enumerate(combo)), weights=counts, minlength=1 << r
+                )
                 v = q[:, list(combo)]
                 ok = np.all(v != 0.5, axis=1)
                 # stretches of constant cared values over the combination
@@ -49,7 +52,7 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
                 brk = np.r_[True, np.any(key[1:] != key[:-1], axis=1)]
                 starts = np.flatnonzero(brk)
                 lens = np.diff(np.append(starts, len(key)))
-                for s, n in zip(starts, lens):
+                for s, n in zip(starts, lens, strict=True):
                     if n < min_run or not ok[s]:
                         continue
                     bits = {c - sl.start: int(v[s, i]) for i, c in enumerate(combo)}
