@@ -20,6 +20,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -32,7 +33,7 @@ from mocapflow.plugins.formats.bvh import read_bvh
 
 #: Frames per file the (slow) plain reference is timed on.
 REF_FRAMES = 300
-DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+DATA = Path(os.environ.get("MOCAPFLOW_DATA", Path(__file__).resolve().parent.parent.parent / "shared" / "data"))
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "data"
 
 

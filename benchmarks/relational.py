@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import os
 import sys
 import time
 from pathlib import Path
@@ -36,7 +37,8 @@ from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.queries import example_query, search_set, subset_member
 from mocapflow.plugins.relational.segmentation import segment
 
-HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
+DATA = Path(os.environ.get("MOCAPFLOW_DATA", Path(__file__).resolve().parent.parent.parent / "shared" / "data"))
+HDM05 = DATA / "hdm05" / "amc"
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu"
 
 #: Feature subsets per HDM05 class (ids of Table 1, docs/relational-features.md): the first
