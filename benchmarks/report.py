@@ -1,4 +1,4 @@
-"""Page weight and load time of ``mocapflow report`` in headless Chromium (issue 17).
+"""Page weight and load time of ``mocapflow report`` in headless Chromium.
 
 Claim: the player's data for a 10-minute take at 30 fps (18 000 frames, 25 joints) loads in
 under a second from ``file://``. A workspace is built around one such take (a bundled CMU
@@ -11,10 +11,11 @@ hits lie in the long take), its report written, and Chromium opens it ``--rounds
 * baseline, same page: the same positions as a JSON array in a script (what a plain JSON
   export would cost the page), parsed; the ratio is baseline / compact binary.
 
-    python benchmarks/report_load.py            # 10-minute take, 5 rounds
-    python benchmarks/report_load.py --quick    # 2-minute take, 2 rounds
-    python benchmarks/report_load.py --workspace runs/quickstart   # an existing workspace's report
+    python benchmarks/report.py            # 10-minute take, 5 rounds
+    python benchmarks/report.py --quick    # 15-second take, 1 round (page weight only without Chromium)
+    python benchmarks/report.py --workspace runs/quickstart   # an existing workspace's report
 """
+
 from __future__ import annotations
 
 import argparse
@@ -61,24 +62,32 @@ def long_take(minutes: float, path: Path) -> int:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="2-minute take, 2 rounds")
+    ap.add_argument("--quick", action="store_true", help="15-second take, 1 round")
     ap.add_argument("--minutes", type=float, default=None)
     ap.add_argument("--rounds", type=int, default=None)
     ap.add_argument("--workspace", help="measure the report of this workspace (its first search hit) instead")
     args = ap.parse_args()
     if args.workspace:
         return measure_workspace(Path(args.workspace), args.rounds or 5)
-    minutes = args.minutes or (2.0 if args.quick else 10.0)
-    rounds = args.rounds or (2 if args.quick else 5)
+    minutes = args.minutes or (0.25 if args.quick else 10.0)
+    rounds = args.rounds or (1 if args.quick else 5)
 
+    from mocapflow.plugins.report.browser import find_chromium
+
+    chromium = find_chromium() is not None
+    if not chromium and not args.quick:
+        raise SystemExit("no Chromium installed (apt-get install chromium)")
+    with tempfile.TemporaryDirectory(prefix="report-load-") as tmp_s:
+        measure_take(Path(tmp_s), minutes, rounds, chromium)
+
+
+def measure_take(tmp: Path, minutes: float, rounds: int, chromium: bool) -> None:
+    """A workspace around one long take, its report, page weight and (with Chromium) load times."""
     from mocapflow.framework import get_plugin_manager
     from mocapflow.framework.runner import run_pipeline
-    from mocapflow.plugins.report.browser import Browser, find_chromium
+    from mocapflow.plugins.report.browser import Browser
     from mocapflow.plugins.report.plugin import build_report
 
-    if find_chromium() is None:
-        raise SystemExit("no Chromium installed (apt-get install chromium)")
-    tmp = Path(tempfile.mkdtemp(prefix="report-load-"))
     take = tmp / "long_take.bvh"
     n = long_take(minutes, take)
     yaml = tmp / "p.yaml"
@@ -101,6 +110,18 @@ def main() -> None:
     flat = [None if not np.isfinite(v) else round(float(v), 4) for v in pos.reshape(-1)]
     (site / "data" / "baseline.js").write_text("window.__baseline = " + json.dumps(flat, separators=(",", ":")) + ";\n")
     base_bytes = (site / "data" / "baseline.js").stat().st_size
+    kib = lambda x: f"{x / 1024:.0f} KiB"  # noqa: E731 - a one-line helper local to this function
+    print(
+        f"take: {n} frames ({n / 30 / 60:.1f} min at 30 fps), 25 joints; pipeline {t_run:.1f} s, report written in {t_report:.2f} s"
+    )
+    print(
+        f"page weight: {kib(info['bytes'])} in {info['files']} files; index.html {kib((site / 'index.html').stat().st_size)}, "
+        f"scripts+css {kib(sum((site / f).stat().st_size for f in ('report.js', 'player.js', 'report.css')))}, "
+        f"the take's data script {kib(take_bytes)} (JSON baseline {kib(base_bytes)}, {base_bytes / take_bytes:.1f}x)"
+    )
+    if not chromium:
+        print("no Chromium installed: load times not measured (apt-get install chromium)")
+        return
 
     click = """(async () => {
       const t0 = performance.now();
@@ -124,17 +145,16 @@ def main() -> None:
             base_ms.append(ms)
         errors = list(b.errors)
     med = statistics.median
-    kib = lambda x: f"{x / 1024:.0f} KiB"  # noqa: E731 - a one-line helper local to this function
-    print(f"take: {n} frames ({n / 30 / 60:.1f} min at 30 fps), 25 joints; pipeline {t_run:.1f} s, report written in {t_report:.2f} s")
-    print(f"page weight: {kib(info['bytes'])} in {info['files']} files; index.html {kib((site / 'index.html').stat().st_size)}, "
-          f"scripts+css {kib(sum((site / f).stat().st_size for f in ('report.js', 'player.js', 'report.css')))}, "
-          f"the take's data script {kib(take_bytes)} (JSON baseline {kib(base_bytes)}, {base_bytes / take_bytes:.1f}x)")
     print(f"page load (navigation -> load event), median of {rounds}: {med(page_s) * 1000:.0f} ms")
-    print(f"take load (script -> decoded positions), median of {rounds}: {med(take_ms):.0f} ms "
-          f"(min {min(take_ms):.0f}, max {max(take_ms):.0f})")
+    print(
+        f"take load (script -> decoded positions), median of {rounds}: {med(take_ms):.0f} ms "
+        f"(min {min(take_ms):.0f}, max {max(take_ms):.0f})"
+    )
     print(f"click -> first frame drawn, median of {rounds}: {med(first_ms):.0f} ms")
-    print(f"JSON baseline (script -> Float32Array), median of {rounds}: {med(base_ms):.0f} ms; "
-          f"baseline / compact = {med(base_ms) / med(take_ms):.1f}x")
+    print(
+        f"JSON baseline (script -> Float32Array), median of {rounds}: {med(base_ms):.0f} ms; "
+        f"baseline / compact = {med(base_ms) / med(take_ms):.1f}x"
+    )
     print(f"console errors: {errors or 'none'}")
 
 
@@ -158,12 +178,16 @@ def measure_workspace(ws: Path, rounds: int) -> None:
             b.wait_for("window.MocapReport !== undefined && MocapReport.ready === true")
             first_ms.append(b.eval(click))
         errors = list(b.errors)
-    print(f"{ws}: page weight {info['bytes'] / 1024:.0f} KiB in {info['files']} files; index.html "
-          f"{(site / 'index.html').stat().st_size / 1024:.0f} KiB, data {sizes['data'] / 1024:.0f} KiB, "
-          f"plots {sizes['img'] / 1024:.0f} KiB")
-    print(f"page load, median of {rounds}: {statistics.median(page_s) * 1000:.0f} ms "
-          f"(min {min(page_s) * 1000:.0f}, max {max(page_s) * 1000:.0f}); first hit click -> first frame "
-          f"{statistics.median(first_ms):.0f} ms")
+    print(
+        f"{ws}: page weight {info['bytes'] / 1024:.0f} KiB in {info['files']} files; index.html "
+        f"{(site / 'index.html').stat().st_size / 1024:.0f} KiB, data {sizes['data'] / 1024:.0f} KiB, "
+        f"plots {sizes['img'] / 1024:.0f} KiB"
+    )
+    print(
+        f"page load, median of {rounds}: {statistics.median(page_s) * 1000:.0f} ms "
+        f"(min {min(page_s) * 1000:.0f}, max {max(page_s) * 1000:.0f}); first hit click -> first frame "
+        f"{statistics.median(first_ms):.0f} ms"
+    )
     print(f"console errors: {errors or 'none'}")
 
 

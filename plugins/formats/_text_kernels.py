@@ -10,6 +10,7 @@ non-numbers a 64-bit FNV-1a hash (to compare name tokens without building Python
 strings; 0 for numbers). Lines end at LF;
 CR is whitespace, so CRLF, LF and files mixing both count lines alike.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,7 +19,7 @@ from numba import njit
 _FNV_OFFSET = np.uint64(14695981039346656037)
 _FNV_PRIME = np.uint64(1099511628211)
 #: Exact powers of ten representable in a double (10**0 .. 10**22).
-_POW10 = np.array([10.0 ** k for k in range(23)])
+_POW10 = np.array([10.0**k for k in range(23)])
 
 
 def fnv1a(token: bytes) -> int:
@@ -88,10 +89,7 @@ def _parse_number(buf, s, e, pow10):
     if mant == 0:
         pass  # 0e999 is zero, not 0 * inf
     elif exp10 >= 0:
-        if exp10 <= 22:
-            v = v * pow10[exp10]
-        else:
-            v = v * 10.0 ** exp10
+        v = v * pow10[exp10] if exp10 <= 22 else v * 10.0**exp10
     else:
         if exp10 >= -22:
             v = v / pow10[-exp10]
@@ -99,7 +97,7 @@ def _parse_number(buf, s, e, pow10):
             k = -exp10
             while k > 0 and v != 0.0:
                 step = min(k, 300)
-                v = v / 10.0 ** step
+                v = v / 10.0**step
                 k -= step
     if not np.isfinite(v):
         return False, 0.0, j
