@@ -163,37 +163,6 @@ class Catalog:
         self.close()
 
 
-def CSV_OPTIONS():
-    import pyarrow.csv as pacsv
-
-    return pacsv.WriteOptions(quoting_style="needed", quoting_header="none")
-
-
-def write_table(table: pa.Table, path: str | Path, fmt: str) -> None:
-    """Write a query result as CSV or Parquet, atomically (temp file + rename)."""
-    import os
-
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
-
-    out = Path(path)
-    tmp = out.with_name(f".{out.name}.tmp")
-    if fmt == "csv":
-        # nested columns (feature vectors, paths) are written as their text form
-        cols = [
-            c
-            if not (pa.types.is_list(c.type) or pa.types.is_fixed_size_list(c.type) or pa.types.is_struct(c.type))
-            else pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.string())
-            for c in table.columns
-        ]
-        pacsv.write_csv(pa.Table.from_arrays(cols, names=table.column_names), tmp, CSV_OPTIONS())
-    elif fmt == "parquet":
-        pq.write_table(table, tmp)
-    else:
-        raise ConfigError(f"unknown output format {fmt!r}: csv or parquet")
-    os.replace(tmp, out)
-
-
 def format_table(table: pa.Table, max_rows: int = 50, max_width: int = 40) -> str:
     """Plain-text rendering of an Arrow table for terminals."""
     names = table.column_names

@@ -80,27 +80,17 @@ def cmd_run(args: argparse.Namespace, pm) -> int:
 
 
 def cmd_plan(args: argparse.Namespace, pm) -> int:
-    import json
-
     from .plugins import build_registries
     from .runner import default_workspace, plan_pipeline
+    from .workspace import Workspace
 
     plan = plan_pipeline(args.pipeline, args.set, registries=build_registries(pm))
-    ws = Path(args.workspace).resolve() if args.workspace else default_workspace(plan)
+    ws = Workspace(Path(args.workspace).resolve() if args.workspace else default_workspace(plan))
     fps = plan.fingerprints()
-    _echo(f"pipeline {plan.source.config.name!r}: {len(plan.steps)} steps, workspace {ws}")
+    _echo(f"pipeline {plan.source.config.name!r}: {len(plan.steps)} steps, workspace {ws.path}")
     for s in plan.steps:
-        manifest = ws / s.step_id / "_manifest.json"
-        state = "would compute"
-        if manifest.is_file():
-            try:
-                state = (
-                    "up to date"
-                    if json.loads(manifest.read_text()).get("fingerprint") == fps[s.step_id]
-                    else "would recompute"
-                )
-            except ValueError:
-                pass
+        found = ws.fingerprint(s.step_id)
+        state = "would compute" if found is None else "up to date" if found == fps[s.step_id] else "would recompute"
         ins = ", ".join(f"{k}<-{v}" for k, v in s.inputs.items()) or "-"
         _echo(f"  {s.step_id:<16} {s.key:<28} inputs: {ins:<30} [{state}]")
         for k, v in s.component.get_params().items():
@@ -161,7 +151,8 @@ def cmd_plugins(args: argparse.Namespace, pm) -> int:
 def cmd_sql(args: argparse.Namespace, pm) -> int:
     if not Path(args.workspace).exists():  # the common typo, answered before pyarrow and duckdb load
         raise ConfigError(f"workspace {args.workspace} does not exist (run a pipeline first)")
-    from .catalog import Catalog, format_table, write_table
+    from .catalog import Catalog, format_table
+    from .workspace import export_table
 
     if args.output:  # refuse what cannot be written before the work
         out = Path(args.output)
@@ -177,17 +168,17 @@ def cmd_sql(args: argparse.Namespace, pm) -> int:
     if args.output:
         fmt = args.format if args.format != "table" else Path(args.output).suffix.lstrip(".").lower() or "csv"
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # a new folder is made, as a user expects
-        write_table(table, args.output, fmt)
+        export_table(table, args.output, fmt)
         _echo(f"wrote {table.num_rows} rows to {args.output}")
     elif args.format == "csv":
         import io
 
         import pyarrow.csv as pacsv
 
-        from .catalog import CSV_OPTIONS
+        from .workspace import csv_options
 
         buf = io.BytesIO()
-        pacsv.write_csv(table, buf, CSV_OPTIONS())
+        pacsv.write_csv(table, buf, csv_options())
         sys.stdout.write(buf.getvalue().decode())
     elif args.format == "parquet":
         raise ConfigError("--format parquet needs --output FILE")
@@ -197,7 +188,7 @@ def cmd_sql(args: argparse.Namespace, pm) -> int:
 
 
 def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
-    from . import __version__
+    from mocapflow import __version__
 
     parser = argparse.ArgumentParser(prog="mocapflow", description="Searchable, clean motion-capture databases.")
     parser.add_argument("--version", action="version", version=f"mocapflow {__version__}")
@@ -340,7 +331,7 @@ def _register_remaining_builtins(pm, blocked: list[str]) -> None:
 
 def _exit_without_a_last_collection() -> None:
     """At exit: the interpreter's last garbage collection walked every object of a run (0.2 s
-    of a 2.5 s ingest, docs/scale-out.md session 6); outputs and the lock are closed before."""
+    of a 2.5 s ingest, docs/scale-out.md); outputs and the lock are closed before."""
     import gc
 
     gc.freeze()

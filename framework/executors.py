@@ -1,14 +1,16 @@
 """Executors: how a step fans out per-item work (per clip, per query, per shard).
 
-An executor is anything with ``map(fn, items, desc) -> list`` (results in input order),
-``close()`` and ``workers`` (how many items it runs at once), and optionally ``start()``
-(begin bringing workers up without blocking: the runner calls it before planning, so that
-a cluster's start-up overlaps the client's). The runner never looks inside: ``local`` runs in-process or on a process pool; a cluster executor (``dask``,
-:mod:`mocapflow.plugins.executors.dask_cluster`) implements the same and is registered through the
-``register_executors`` hook (or passed to :func:`~mocapflow.framework.runner.run_pipeline`).
-``fn`` and the items must be picklable when work leaves the process.
+An executor follows :class:`~mocapflow.framework.context.Executor`: ``map(fn, items, desc)
+-> list`` (results in input order), ``close()``, ``workers`` and its options declared in
+``Params``. The runner never looks inside: ``local`` (:class:`LocalExecutor`) runs
+in-process or on a process pool; a cluster executor (``dask``,
+:mod:`mocapflow.plugins.executors.dask_cluster`) implements the same and is registered
+through the ``register_executors`` hook (or passed to
+:func:`~mocapflow.framework.runner.run_pipeline`).
 
-Work goes out *by reference* (:mod:`mocapflow.framework.clip_refs`): :func:`map_clips` sends :class:`~mocapflow.framework.clip_refs.ClipSlice` items (a motions
+Work goes out *by reference* (:mod:`mocapflow.framework.clip_refs`):
+:func:`~mocapflow.framework.context.map_clips` sends
+:class:`~mocapflow.framework.clip_refs.ClipSlice` items (a motions
 dataset's path, fingerprint and a clip range), and each worker reads those clips from the
 workspace's Parquet file itself (only the row groups it needs, cached per process), so
 no whole motion is pickled to a worker. Results come back to the step, and the runner
@@ -43,13 +45,17 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, ClassVar, Literal
 
+import numpy as np
+from pydantic import Field
 
-from .clip_refs import _SliceTask, clear_cache, clip_slices
+from .clip_refs import clear_cache
+from .context import Executor, map_clips
 from .errors import PipelineError
+from .params import Params
 from .progress import progress
-from .threads import (  # noqa: F401 - re-exported: the executors API of sessions 1-5
+from .threads import (
     THREAD_ENV,
     _client_threads,
     available_cores,
@@ -57,24 +63,10 @@ from .threads import (  # noqa: F401 - re-exported: the executors API of session
     size_blas_for_workers,
     threads_per_worker,
 )
+from .workspace import ROW_GROUP_ROWS
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .datasets import Dataset
-
-#: Rows per Parquet row group of the tables the runner writes: a worker reading a clip range
-#: decodes only the groups that hold it (:class:`ClipSlice`), not the whole table.
-ROW_GROUP_ROWS = 65536
 #: Modules a forkserver imports once, so that its workers start warm.
 PRELOAD = ("numpy", "pyarrow.parquet", "numba", "mocapflow.framework", "mocapflow.plugins")
-
-
-class Executor(Protocol):
-    name: str
-    workers: int
-
-    def map(self, fn: Callable[[Any], Any], items: Sequence[Any], desc: str = "") -> list[Any]: ...
-
-    def close(self) -> None: ...
 
 
 def _fork_is_safe() -> bool:
@@ -97,9 +89,11 @@ def warm_up() -> None:
     """
     import pyarrow.dataset  # noqa: F401 - preloaded before forking: the worker's first read is then fast
 
-    from .synthetic import synthetic_motion
+    from ._fk_kernels import fk
 
-    synthetic_motion(2).positions
+    identity = np.zeros((2, 2, 4))
+    identity[..., 0] = 1.0
+    fk(np.array([-1, 0]), np.zeros((2, 3)), np.zeros((2, 3)), identity, None)
 
 
 def _init_worker(threads: int, warm: bool = False) -> None:
@@ -142,7 +136,7 @@ class LocalExecutor:
         spawned pool (each worker imports and warms up on its own), ``False`` for a forked
         one, whose workers inherit the client's start-up: there the client's share of a
         batch, beside the unpickling of the pool's results on its core, measured no faster,
-        and with ``prestart`` slower (docs/scale-out.md, session 5).
+        and with ``prestart`` slower (docs/scale-out.md).
 
     Results come back in input order, and a failing batch raises the error of its first
     failing item in input order, as in-process (the client's own chunks included: chunks
@@ -152,7 +146,19 @@ class LocalExecutor:
     output, so no half-written dataset remains.
     """
 
-    name = "local"
+    name: ClassVar[str] = "local"
+
+    class Params(Params):
+        jobs: int = Field(1, ge=0, description="workers, the client included (0: one per core)")
+        min_items_for_pool: int = Field(4, ge=1, description="smaller batches run in-process")
+        threads: int | None = Field(None, ge=1, description="numeric threads per worker (default cores // jobs)")
+        start_method: Literal["fork", "forkserver", "spawn"] | None = Field(
+            None, description="default: fork while it is safe, else a forkserver"
+        )
+        prestart: bool = Field(False, description="fork the pool before planning; workers warm up meanwhile")
+        client_works: bool | None = Field(
+            None, description="the client is worker 0 (default: for a forkserver or spawned pool)"
+        )
 
     def __init__(
         self,
@@ -187,7 +193,7 @@ class LocalExecutor:
     def _client_works(self, method: str, warm_parent: bool) -> bool:
         if self.client_works is not None:
             return bool(self.client_works)
-        return method != "fork"  # workers that import and warm up on their own (measured, session 5)
+        return method != "fork"  # workers that import and warm up on their own (measured)
 
     def start(self) -> None:
         """With ``prestart``: fork every worker now; each warms itself up in the background."""
@@ -378,28 +384,16 @@ def _pool_cpu(pool: ProcessPoolExecutor) -> dict[int, float]:
     return out
 
 
-def map_clips(
-    executor: Executor,
-    fn: Callable[..., Any],
-    dataset: Dataset,
-    desc: str = "",
-    with_ids: bool = False,
-    slices_per_worker: int = 4,
-) -> list[Any]:
-    """``[fn(motion) for motion in dataset]`` on ``executor``, in clip order.
-
-    Items are :class:`ClipSlice` references (``slices_per_worker`` per worker, balanced by
-    frames; one slice when the executor has a single worker), so workers read their clips
-    from the Parquet file instead of receiving pickled motions. ``fn`` must be picklable
-    (a module-level function, a bound method of a component, a ``functools.partial``);
-    with ``with_ids`` it is called as ``fn(motion, clip_id)``.
-    """
-    workers = max(1, int(getattr(executor, "workers", 1)))
-    n = 1 if workers == 1 else workers * slices_per_worker
-    pieces = clip_slices(dataset, n)
-    # largest slices first (a long clip started last would finish alone); results back in clip order
-    frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy()
-    order = sorted(range(len(pieces)), key=lambda i: -int(frames[pieces[i].start : pieces[i].stop].sum()))
-    out = executor.map(_SliceTask(fn, with_ids), [pieces[i] for i in order], desc=desc)
-    by_slice = dict(zip(order, out))
-    return [r for i in range(len(pieces)) for r in by_slice[i]]
+__all__ = [
+    "PRELOAD",
+    "ROW_GROUP_ROWS",
+    "THREAD_ENV",
+    "Executor",
+    "LocalExecutor",
+    "available_cores",
+    "limit_threads",
+    "map_clips",
+    "size_blas_for_workers",
+    "threads_per_worker",
+    "warm_up",
+]

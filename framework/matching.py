@@ -16,8 +16,11 @@ table); :class:`SearchSpace` maps them to ``(clip_id, frame)``.
 from __future__ import annotations
 
 import bisect
+import hashlib
+import re
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
+from pathlib import Path
 from functools import cached_property
 from typing import Any, Literal
 
@@ -27,7 +30,7 @@ from pydantic import Field
 
 from . import schema
 from .params import Params
-from .errors import DataError
+from .errors import ConfigError, DataError
 
 #: Columns of a match table (:data:`~mocapflow.framework.schema.MATCH_TABLE`).
 MATCH_COLUMNS = schema.MATCH_TABLE
@@ -282,13 +285,81 @@ class MatchParams(Params):
     )
 
 
+_RANGE = re.compile(r"^(?P<a>\d+(?:\.\d+)?)(?P<ua>s?)-(?P<b>\d+(?:\.\d+)?)(?P<ub>s?)$")
+
+
+@dataclass(frozen=True)
+class QuerySpec:
+    """A parsed ``SOURCE[:START-END]``; ``start``/``end`` in frames, or seconds if ``seconds``."""
+
+    source: str
+    start: float | None = None
+    end: float | None = None
+    seconds: bool = False
+
+    def frames(self, fps: float, n_frames: int) -> tuple[int, int]:
+        """Half-open frame range within a clip of ``n_frames`` at ``fps``."""
+        if self.start is None:
+            return 0, n_frames
+        scale = fps if self.seconds else 1.0
+        a, b = int(round(self.start * scale)), int(round(self.end * scale))
+        if not 0 <= a < b <= n_frames:
+            raise ConfigError(f"query {self.text()!r}: frames [{a}, {b}) outside the clip's {n_frames} frames")
+        return a, b
+
+    def text(self) -> str:
+        if self.start is None:
+            return self.source
+        u = "s" if self.seconds else ""
+        fmt = (lambda v: f"{v:g}") if self.seconds else (lambda v: str(int(v)))
+        return f"{self.source}:{fmt(self.start)}{u}-{fmt(self.end)}{u}"
+
+
+def parse_query_spec(text: str) -> QuerySpec:
+    """``"walk.amc:30-120"`` -> ``QuerySpec("walk.amc", 30, 120)``; no range: the whole clip."""
+    source, sep, rng = text.rpartition(":")
+    m = _RANGE.match(rng) if sep else None
+    if not m:
+        return QuerySpec(text)
+    if bool(m["ua"]) != bool(m["ub"]):
+        raise ConfigError(f"query {text!r}: give both ends in frames or both in seconds ('1.5s-3s')")
+    secs = bool(m["ua"])
+    a, b = float(m["a"]), float(m["b"])
+    if not secs and (a != int(a) or b != int(b)):
+        raise ConfigError(f"query {text!r}: frame numbers must be integers (or add 's' for seconds)")
+    if b <= a:
+        raise ConfigError(f"query {text!r}: empty range (end is exclusive)")
+    return QuerySpec(source, a, b, secs)
+
+
+def query_files_fingerprint(queries: Any, base_dir: Path) -> str:
+    """Digest of the query files named in ``queries`` (path, size, mtime); "" when none.
+
+    Entries that are not query-spec strings (another matcher's structured queries) are skipped.
+    """
+    h, files = hashlib.sha256(), 0
+    for text in queries or ():
+        if not isinstance(text, str):
+            continue
+        p = Path(parse_query_spec(text).source).expanduser()
+        p = p if p.is_absolute() else Path(base_dir) / p
+        if p.is_file():
+            st = p.stat()
+            h.update(f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+            files += 1
+    return h.hexdigest()[:24] if files else ""
+
+
 __all__ = [
     "MATCH_COLUMNS",
     "IntervalSet",
     "MatchParams",
+    "QuerySpec",
     "QueryMatches",
     "SearchSpace",
     "matches_table",
     "min_frames_of",
+    "parse_query_spec",
+    "query_files_fingerprint",
     "select_matches",
 ]

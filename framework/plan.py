@@ -161,6 +161,30 @@ def _check_kinds(source: PipelineSource, steps: dict[str, PlannedStep]) -> None:
                 )
 
 
+def _check_executor(source: PipelineSource, registries: Registries) -> None:
+    """The executor is registered and ``executor_options`` validate against its ``Params``."""
+    config, executors = source.config, registries.executors
+    if not len(executors):  # a bare Registries() knows none: not checked
+        return
+    if config.executor not in executors:
+        raise source.error(
+            ("executor",),
+            f"unknown executor {config.executor!r}{did_you_mean(config.executor, executors.names())}; "
+            f"registered: {', '.join(executors.names())}",
+        )
+    model: type[BaseModel] = executors.get(config.executor).Params
+    try:
+        model(**{"jobs": config.jobs, **config.executor_options})
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = tuple(str(p) for p in err["loc"])
+        known = ", ".join(model.model_fields)
+        raise source.error(
+            ("executor_options", *loc),
+            f"executor {config.executor!r}: option {'.'.join(loc)!r}: {err['msg']} (options: {known})",
+        ) from None
+
+
 def build_plan(source: PipelineSource, registries: Registries) -> Plan:
     """Validate everything and return a :class:`Plan`; raises :class:`ConfigError`.
 
@@ -217,13 +241,7 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
         steps[step_id] = PlannedStep(step_id, component, inputs)
 
     _check_kinds(source, steps)
-    executors = registries.executors
-    if len(executors) and config.executor not in executors:  # a bare Registries() knows none: not checked
-        raise source.error(
-            ("executor",),
-            f"unknown executor {config.executor!r}{did_you_mean(config.executor, executors.names())}; "
-            f"registered: {', '.join(executors.names())}",
-        )
+    _check_executor(source, registries)
     sorter = graphlib.TopologicalSorter({sid: set(s.inputs.values()) for sid, s in steps.items()})
     try:
         order = list(sorter.static_order())

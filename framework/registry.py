@@ -9,6 +9,7 @@ from typing import Any
 from dataclasses import dataclass, field
 
 from .errors import ConfigError, PluginError
+from .params import Params
 
 #: The component kinds, in the order ``mocapflow plugins`` lists them.
 KINDS: tuple[str, ...] = ("formats", "features", "indexes", "matchers", "cleaners", "analyses")
@@ -40,6 +41,9 @@ class Registry:
             raise PluginError(f"plugin {provider!r} registered {cls!r} under {self.kind} without a snake_case `name`")
         if getattr(cls, "kind", self.kind) != self.kind:
             raise PluginError(f"plugin {provider!r} registered {cls.__name__} ({cls.kind}) as one of the {self.kind}")
+        declared = getattr(cls, "Params", None)
+        if not (isinstance(declared, type) and issubclass(declared, Params)):
+            raise PluginError(f"plugin {provider!r} registered {cls.__name__} without a `Params` model")
 
     def add(self, cls: type, provider: str) -> None:
         self.check(cls, provider)

@@ -37,8 +37,9 @@ def test_views_and_parameterised_queries(workspace):
         n = cat.query("SELECT count(*) AS n FROM motions m JOIN clips c USING (clip_id)").column("n")[0].as_py()
         assert n == 75
         assert cat.query("SELECT sum(x) AS s FROM my_src").column("s")[0].as_py() == 3.0
-        with pytest.raises(Exception, match="SQL error"):
+        with pytest.raises(MocapflowError, match="SQL error") as err:
             cat.query("SELECT nope FROM clips")
+        assert err.type is MocapflowError  # a failed query, not a refused statement (ConfigError)
 
 
 def test_catalog_is_read_only(workspace):

@@ -334,3 +334,26 @@ def test_the_client_works_by_default_only_where_workers_pay_their_own_start_up()
     assert ex._client_works("spawn", warm_parent=True) is True
     assert ex._client_works("forkserver", warm_parent=True) is True
     assert LocalExecutor(2, client_works=True)._client_works("fork", True) is True
+
+
+def test_workers_resolve_components_with_the_registries_of_the_run(tmp_path):
+    """``--block`` holds on the workers: with the built-in similarity package blocked, the
+    ``indexes.kdtree`` of the run is a stand-in, and the workers that match the queries load
+    the saved index with it (registries rebuilt on a worker would bring the built-in back,
+    which cannot read the stand-in's files)."""
+    from toy_components import StandInPlugin, ToyPlugin
+
+    p = tmp_path / "p.yaml"
+    p.write_text(
+        "name: blocked\nworkspace: ws\njobs: 2\nexecutor_options: {min_items_for_pool: 1}\nsteps:\n"
+        "  motions: {uses: analyses.toy_motions, with: {clips: 4, frames: 20}}\n"
+        "  feats: {uses: features.toy_root, input: motions}\n"
+        "  idx: {uses: indexes.kdtree, input: feats}\n"
+        "  found: {uses: matchers.toy_nearest, inputs: {database: idx, query: motions, features: feats}}\n"
+    )
+    blocked = ["mocapflow.plugins.similarity.plugin"]
+    pm = get_plugin_manager(entry_points=False, blocked=blocked, extra=[ToyPlugin(), StandInPlugin()])
+    run_pipeline(p, pm=pm)
+    found = Dataset(tmp_path / "ws" / "found").table()
+    # each clip's first frame is its own nearest row: distance 0 on every worker
+    assert found.num_rows == 4 and found["cost"].to_pylist() == [0.0] * 4

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from mocapflow.framework import Analysis, PluginError, get_plugin_manager, hookimpl
+from mocapflow.framework import Analysis, ConfigError, PluginError, get_plugin_manager, hookimpl
 from mocapflow.framework.plugins import build_registries
 from mocapflow.framework.registry import Registries
 
@@ -162,7 +162,7 @@ def test_broken_entry_point_is_recorded_not_raised(monkeypatch):
 
 def test_unknown_component_suggests():
     regs = build_registries(get_plugin_manager(entry_points=False))
-    with pytest.raises(Exception, match="did you mean 'analyses.clip_summary'"):
+    with pytest.raises(ConfigError, match="did you mean 'analyses.clip_summary'"):
         regs.resolve("analyses.clip_sumary")
 
 

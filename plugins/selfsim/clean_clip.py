@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from mocapflow.framework.errors import ConfigError
+
 
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "clip"
@@ -68,8 +70,10 @@ def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
             "calibration": out.calibration.summary() if out.calibration is not None else None}
 
 
-def clean_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None) -> dict[str, Any]:
-    """Analyse and repair one clip; write its BVH, heatmap and before/after plot into ``out_dir``."""
+def clean_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None,
+               registries: Any = None) -> dict[str, Any]:
+    """Analyse and repair one clip; write its BVH (with the ``formats.bvh`` of ``registries``),
+    heatmap and before/after plot into ``out_dir``."""
     from .plots import mdm_heatmap
     from .repair import map_to_input
 
@@ -92,10 +96,9 @@ def clean_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: P
                 before_after_plot(motion, out.cleaned, edits, out_dir / f"{stem}.edits.png")
                 files["before_after"] = f"{stem}.edits.png"
         if p.write_bvh:
-            from mocapflow.framework.plugins import load_registries
-
-            # through the registry: a format is another package's component
-            load_registries()["formats"].get("bvh")().write(out.cleaned, out_dir / f"{stem}.clean.bvh")
+            if registries is None:
+                raise ConfigError(f"{cleaner.key()}: write_bvh needs the registries (a format is another package's)")
+            registries["formats"].get("bvh")().write(out.cleaned, out_dir / f"{stem}.clean.bvh")
             files["bvh"] = f"{stem}.clean.bvh"
     return {
         "mdm": mdm_table(res, motion, mdm_in, clip_id, level, out.cue),

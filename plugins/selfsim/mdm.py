@@ -313,11 +313,11 @@ class MDMCleaner(Cleaner):
         out = self.clean(motion, context, contacts)
         return out.cleaned, out.edits
 
-    def clean_clip(self, motion: Motion, context: Any, clip_id: int, out_dir: Any) -> Any:
+    def clean_clip(self, motion: Motion, context: Any, clip_id: int, out_dir: Any = None, registries: Any = None) -> Any:
         """One clip of the default step (analysis once; BVH, heatmap and plots into ``out_dir``)."""
         from mocapflow.framework.cleaning import CleanedClip
 
         from .clean_clip import clean_clip
 
-        out = clean_clip(self, motion, context, clip_id, out_dir)
+        out = clean_clip(self, motion, context, clip_id, out_dir, registries)
         return CleanedClip(out["mdm"], out["edits"], out["cleaned"], out["summary"])
