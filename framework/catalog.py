@@ -144,7 +144,7 @@ class Catalog:
         except duckdb.Error as exc:
             raise MocapflowError(f"SQL error: {exc}") from None
 
-    def relation(self, view: str):
+    def relation(self, view: str) -> Any:
         """The DuckDB relation of one view (for the relational API)."""
         if view not in self.views:
             from .registry import did_you_mean

@@ -91,7 +91,7 @@ def digression_table(
     cues = (
         np.full(len(flagged), None, dtype=object)
         if cue is None
-        else np.where(flagged, np.asarray(cue).reshape(-1), None)
+        else np.where(flagged, np.asarray(cue, dtype=object).reshape(-1), np.full(len(flagged), None, dtype=object))
     )
     names = np.array(motion.skeleton.names, dtype=object)[cols]
     return pa.table(
@@ -113,7 +113,7 @@ def edits_table(
     cleaned: Motion,
     changed: np.ndarray | None = None,
     clip_id: int = 0,
-    cue: list | np.ndarray | None = None,
+    cue: list[str | None] | np.ndarray | None = None,
 ) -> pa.Table:
     """:data:`~.schema.EDITS` rows: one per changed (frame, joint), frame-major.
 

@@ -48,6 +48,9 @@ from .registry import Registries
 from .workspace import atomic_path
 
 
+#: The base of every ``Params`` (a name that the class attribute ``Component.Params`` does not hide).
+ParamsModel = Params
+
 #: Dataset kinds the built-in kind bases declare (``output_kind`` / ``input_kinds``).
 DATASET_KINDS: tuple[str, ...] = ("motions", "markers", "features", "index", "matches", "table")
 
@@ -71,7 +74,7 @@ class Component:
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     Params: ClassVar[type[Params]] = Params
 
-    def __init__(self, params: Params | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+    def __init__(self, params: ParamsModel | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
         if params is None:
             params = self.Params(**kwargs)
         elif isinstance(params, Mapping):
@@ -80,7 +83,7 @@ class Component:
             params = params.model_copy(update=kwargs)
         elif not isinstance(params, self.Params):
             raise ConfigError(f"{self.key()}: expected {self.Params.__qualname__}, got {type(params).__name__}")
-        self.params = params
+        self.params: ParamsModel = params
 
     @classmethod
     def key(cls) -> str:

@@ -177,15 +177,15 @@ def check_matcher(cls: type[Component]) -> None:
         ("a space without features", synthetic_space(features=False)[0]),
     ):
         try:
-            r = inst.match(query, sp)
+            got = inst.match(query, sp)
         except MocapflowError:
             continue
         except Exception as exc:
             raise AssertionError(
                 f"{who}: {what} raised {type(exc).__name__}: {exc} (expected a MocapflowError subclass)"
             ) from exc
-        assert isinstance(r, QueryMatches), f"{who}: {what} gave {type(r).__name__}"
-        r.validate(sp, f"{who} ({what})")
+        assert isinstance(got, QueryMatches), f"{who}: {what} gave {type(got).__name__}"
+        got.validate(sp, f"{who} ({what})")
 
 
 class SyntheticMotions(Analysis):

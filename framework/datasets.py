@@ -85,16 +85,17 @@ class Dataset:
 
     @cached_property
     def manifest(self) -> dict[str, Any]:
-        return json.loads((self.path / MANIFEST).read_text())
+        manifest: dict[str, Any] = json.loads((self.path / MANIFEST).read_text())
+        return manifest
 
     @property
     def step(self) -> str:
-        return self.manifest["step"]
+        return str(self.manifest["step"])
 
     @property
     def producer(self) -> str:
         """Registry key of the component that wrote it (``features.end_effectors``)."""
-        return self.manifest["component"]
+        return str(self.manifest["component"])
 
     @property
     def producer_kind(self) -> str:
@@ -102,7 +103,7 @@ class Dataset:
 
     @property
     def fingerprint(self) -> str:
-        return self.manifest["fingerprint"]
+        return str(self.manifest["fingerprint"])
 
     def table_names(self) -> list[str]:
         return sorted(p.stem for p in self.path.glob("*.parquet"))

@@ -43,7 +43,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, ClassVar, Literal
 
@@ -242,7 +242,7 @@ class LocalExecutor:
             if self.batches:  # the client's CPU during the whole batch (pool start-up included)
                 self.batches[-1]["map_s"] = time.process_time() - c0
 
-    def _map_on_pool(self, pool: ProcessPoolExecutor, fn, items: list[Any], desc: str) -> list[Any]:
+    def _map_on_pool(self, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any], desc: str) -> list[Any]:
         chunk = max(1, len(items) // (self.jobs * 4))
         out = pool.map(fn, items, chunksize=chunk)
         cpu0 = _pool_cpu(pool)  # after the submissions: a forked pool starts its processes there
@@ -251,7 +251,9 @@ class LocalExecutor:
         finally:
             self._record(desc, len(items), 0.0, cpu0, _pool_cpu(pool))
 
-    def _map_with_client(self, pool: ProcessPoolExecutor, fn, items: list[Any], desc: str) -> list[Any]:
+    def _map_with_client(
+        self, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any], desc: str
+    ) -> list[Any]:
         """The batch in chunks taken in order from one list by the client (which runs them
         itself) and by a feeder thread that keeps the pool's processes supplied (one chunk
         each, plus one queued while more than ``jobs`` remain, so that the last chunks go to
@@ -259,7 +261,8 @@ class LocalExecutor:
         size = max(1, len(items) // (self.jobs * 8))  # finer than the pool alone: a chunk is the tail
         bounds = [(a, min(a + size, len(items))) for a in range(0, len(items), size)]
         todo, lock, stop = deque(range(len(bounds))), threading.Lock(), threading.Event()
-        done: queue.SimpleQueue = queue.SimpleQueue()  # (chunk, future) the pool finished; None: feeder ended
+        # (chunk, future) the pool finished, (-1, error) a broken pool; None: the feeder ended
+        done: queue.SimpleQueue[tuple[int, Any] | None] = queue.SimpleQueue()
         results: list[list[Any] | None] = [None] * len(bounds)
         errors: dict[int, BaseException] = {}
         own = 0.0
@@ -268,14 +271,14 @@ class LocalExecutor:
             with lock:  # chunks are claimed in order: all chunks before a failing one are claimed
                 return None if stop.is_set() or not todo else todo.popleft()
 
-        def submit(inflight: dict, want: int) -> None:
+        def submit(inflight: dict[Future[list[Any]], int], want: int) -> None:
             while len(inflight) < want + (1 if len(todo) > self.jobs else 0):
                 j = claim()
                 if j is None:
                     return
                 inflight[pool.submit(_apply_chunk, fn, items[bounds[j][0] : bounds[j][1]])] = j
 
-        def feed(inflight: dict) -> None:
+        def feed(inflight: dict[Future[list[Any]], int]) -> None:
             try:
                 while True:
                     submit(inflight, self.processes)
@@ -292,13 +295,13 @@ class LocalExecutor:
             finally:
                 done.put(None)
 
-        first: dict = {}
+        first: dict[Future[list[Any]], int] = {}
         submit(first, self.processes)  # in this thread: a forked pool starts its processes here
         cpu0 = _pool_cpu(pool)
         feeder = threading.Thread(target=feed, args=(first,), name="mocapflow-feeder", daemon=True)
         feeder.start()
 
-        def take(item) -> Iterator[int]:
+        def take(item: tuple[int, Any]) -> Iterator[int]:
             j, f = item
             if j < 0:
                 raise f

@@ -22,7 +22,7 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
 from functools import cached_property
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import pyarrow as pa
@@ -34,6 +34,12 @@ from .errors import ConfigError, DataError
 
 #: Columns of a match table (:data:`~mocapflow.framework.schema.MATCH_TABLE`).
 MATCH_COLUMNS = schema.MATCH_TABLE
+
+
+class NeighbourIndex(Protocol):
+    """What a search space needs of an index (:class:`~mocapflow.framework.Index`)."""
+
+    def query(self, x: np.ndarray, k: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @dataclass(frozen=True)
@@ -59,9 +65,9 @@ class SearchSpace:
 
     clip_id: np.ndarray
     frame: np.ndarray
-    index: object | None = None
+    index: NeighbourIndex | None = None
     features: np.ndarray | None = None
-    clip_names: dict | None = None
+    clip_names: dict[int, str] | None = None
 
     def __post_init__(self) -> None:
         cid = np.asarray(self.clip_id, np.int32)
@@ -92,7 +98,7 @@ class SearchSpace:
         return c
 
     @cached_property
-    def _memo(self) -> dict:
+    def _memo(self) -> dict[Hashable, Any]:
         return {}
 
     def memo(self, key: Hashable, compute: Callable[[], Any]) -> Any:
@@ -105,7 +111,8 @@ class SearchSpace:
         """The index's kNN of ``x`` (m, d): ``(dist, ids)`` each (m, k), as :meth:`.Index.query`."""
         if self.index is None:
             raise DataError("this search space has no index (SearchSpace.index)")
-        return self.index.query(np.ascontiguousarray(x, dtype=np.float32), k, radius)
+        dist, ids = self.index.query(np.ascontiguousarray(x, dtype=np.float32), k, radius)
+        return np.asarray(dist), np.asarray(ids)
 
 
 @dataclass
@@ -237,7 +244,7 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
             flat.append(np.stack([p[:, 0], space.frame[p[:, 1]]], axis=1).astype(np.int32))
             offsets.append(offsets[-1] + len(p))
 
-    def cat(xs: list, dt: Any) -> np.ndarray:
+    def cat(xs: list[np.ndarray], dt: Any) -> np.ndarray:
         return np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)
 
     start, end = cat(s_all, np.int64), cat(e_all, np.int64)
@@ -299,7 +306,7 @@ class QuerySpec:
 
     def frames(self, fps: float, n_frames: int) -> tuple[int, int]:
         """Half-open frame range within a clip of ``n_frames`` at ``fps``."""
-        if self.start is None:
+        if self.start is None or self.end is None:
             return 0, n_frames
         scale = fps if self.seconds else 1.0
         a, b = int(round(self.start * scale)), int(round(self.end * scale))
@@ -308,11 +315,11 @@ class QuerySpec:
         return a, b
 
     def text(self) -> str:
-        if self.start is None:
+        if self.start is None or self.end is None:
             return self.source
-        u = "s" if self.seconds else ""
-        fmt = (lambda v: f"{v:g}") if self.seconds else (lambda v: str(int(v)))
-        return f"{self.source}:{fmt(self.start)}{u}-{fmt(self.end)}{u}"
+        if self.seconds:
+            return f"{self.source}:{self.start:g}s-{self.end:g}s"
+        return f"{self.source}:{int(self.start)}-{int(self.end)}"
 
 
 def parse_query_spec(text: str) -> QuerySpec:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -16,7 +17,7 @@ from .schema import fixed_list
 from .skeleton import Skeleton
 
 
-def clip_row(clip_id: int, motion: Motion) -> dict:
+def clip_row(clip_id: int, motion: Motion) -> dict[str, Any]:
     """One row of the ``clips`` table from a motion's metadata."""
     meta = motion.metadata
     return {
@@ -34,7 +35,7 @@ def clip_row(clip_id: int, motion: Motion) -> dict:
     }
 
 
-def clips_table(rows: Sequence[dict]) -> pa.Table:
+def clips_table(rows: Sequence[dict[str, Any]]) -> pa.Table:
     return pa.Table.from_pylist(list(rows), schema=schema.CLIPS)
 
 

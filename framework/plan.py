@@ -13,6 +13,7 @@ import json
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
@@ -103,7 +104,7 @@ def _param_error(
     return source.error(("steps", step_id, "with", *loc), f"step {step_id!r}: {msg}")
 
 
-class _Fields(dict):
+class _Fields(dict[str, Any]):
     def __missing__(self, key: str) -> str:
         raise ConfigError(f"ParamsOf key refers to no parameter {key!r}")
 

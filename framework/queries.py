@@ -123,11 +123,11 @@ def motion_queries(
     fps = fps if fps is not None else (mdb.fps if mdb.n_clips else None)
     out = []
     for spec in specs or [QuerySpec(m.name) for m in mdb.motions]:
-        pos = names.get(spec.source)
-        if pos is None:
-            pos = next((i for k, i in names.items() if k.endswith("/" + spec.source)), None)
-        if pos is not None:
-            motion, cid = mdb.motions[pos], int(mdb.clip_ids[pos])
+        found = names.get(spec.source)
+        if found is None:
+            found = next((i for k, i in names.items() if k.endswith("/" + spec.source)), None)
+        if found is not None:
+            motion, cid = mdb.motions[found], int(mdb.clip_ids[found])
         else:
             path = resolve(spec.source)
             if not path.is_file():

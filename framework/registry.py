@@ -9,6 +9,7 @@ from typing import Any
 from dataclasses import dataclass, field
 
 from .errors import ConfigError, PluginError
+from .joints import JointMap
 from .params import Params
 
 #: The component kinds, in the order ``mocapflow plugins`` lists them.
@@ -30,10 +31,10 @@ class Registry:
     """
 
     kind: str
-    _classes: dict[str, type] = field(default_factory=dict)
+    _classes: dict[str, type[Any]] = field(default_factory=dict)
     _providers: dict[str, str] = field(default_factory=dict)
 
-    def check(self, cls: type, provider: str) -> None:
+    def check(self, cls: type[Any], provider: str) -> None:
         """Raise :class:`PluginError` unless ``cls`` may be registered here (a snake_case
         ``name`` and, if it declares one, this ``kind``)."""
         name = getattr(cls, "name", None)
@@ -45,7 +46,7 @@ class Registry:
         if not (isinstance(declared, type) and issubclass(declared, Params)):
             raise PluginError(f"plugin {provider!r} registered {cls.__name__} without a `Params` model")
 
-    def add(self, cls: type, provider: str) -> None:
+    def add(self, cls: type[Any], provider: str) -> None:
         self.check(cls, provider)
         name = cls.name
         if name in self._classes and self._classes[name] is not cls:
@@ -56,11 +57,11 @@ class Registry:
         self._classes[name] = cls
         self._providers[name] = provider
 
-    def get(self, name: str) -> type:
+    def get(self, name: str) -> type[Any]:
         try:
             return self._classes[name]
         except KeyError:
-            raise ConfigError(f"unknown {self.kind} component {name!r}{did_you_mean(name, self._classes)}") from None
+            raise ConfigError(f"unknown {self.kind} component {name!r}{did_you_mean(name, list(self._classes))}") from None
 
     def provider(self, name: str) -> str:
         return self._providers[name]
@@ -71,7 +72,7 @@ class Registry:
     def __contains__(self, name: object) -> bool:
         return name in self._classes
 
-    def __iter__(self) -> Iterator[tuple[str, type]]:
+    def __iter__(self) -> Iterator[tuple[str, type[Any]]]:
         return iter(sorted(self._classes.items()))
 
     def __len__(self) -> int:
@@ -86,13 +87,13 @@ class Registries:
     #: Executor classes (``register_executors``) by name; not components, so not in ``by_kind``.
     executors: Registry = field(default_factory=lambda: Registry("executors"))
     #: Skeleton naming dialects (``register_joint_maps``) by name, and the plugin of each.
-    joint_maps: dict = field(default_factory=dict)
-    joint_map_providers: dict = field(default_factory=dict)
+    joint_maps: dict[str, JointMap] = field(default_factory=dict)
+    joint_map_providers: dict[str, str] = field(default_factory=dict)
 
     def __getitem__(self, kind: str) -> Registry:
         return self.by_kind[kind]
 
-    def resolve(self, key: str) -> type:
+    def resolve(self, key: str) -> type[Any]:
         """Class for a ``<kind>.<name>`` key, with "did you mean" on typos."""
         kind, _, name = key.partition(".")
         if kind not in self.by_kind or not name:

@@ -18,7 +18,7 @@ from toy_components import ToyPlugin
 
 from mocapflow.framework import get_plugin_manager
 from mocapflow.framework.errors import LockError
-from mocapflow.framework.locking import WorkspaceLock, holder_alive
+from mocapflow.framework.workspace import WorkspaceLock, holder_alive
 from mocapflow.framework.runner import run_pipeline
 
 TESTS = Path(__file__).resolve().parent
