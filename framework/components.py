@@ -73,6 +73,8 @@ class Component:
     #: Input slot -> dataset kinds it accepts; a slot not listed accepts any dataset.
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     Params: ClassVar[type[Params]] = Params
+    #: Parameters the conformance suite builds an instance with (for required ones).
+    test_params: ClassVar[Mapping[str, Any] | None] = None
 
     def __init__(self, params: ParamsModel | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
         if params is None:
@@ -262,6 +264,9 @@ class Matcher(Component):
     needs_index: ClassVar[bool] = True
     #: The default step loads the database features (``SearchSpace.features``).
     needs_features: ClassVar[bool] = False
+    #: A matcher with a step of its own: the pipeline the conformance suite runs it in
+    #: (:func:`~.conformance.check_matcher_pipeline`).
+    test_pipeline: ClassVar[Mapping[str, Any] | None] = None
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         """Ranked matches of one query.

@@ -253,9 +253,9 @@ def run_test_pipeline(
 def check_matcher_pipeline(cls: type[Component]) -> None:
     """A matcher with its own step and a ``test_pipeline``: equal tables over two runs, the
     shared match columns first, a clear error for ``bad_inputs``."""
-    spec = getattr(cls, "test_pipeline", None)
-    if not issubclass(cls, Matcher) or spec is None:
+    if not issubclass(cls, Matcher) or cls.test_pipeline is None:
         return
+    spec = cls.test_pipeline
     who = cls.key()
     with tempfile.TemporaryDirectory() as tmp:
         one = run_test_pipeline(cls, spec, Path(tmp) / "one")

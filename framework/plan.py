@@ -203,7 +203,7 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
             cls = registries.resolve(sc.uses)
         except ConfigError as exc:
             raise source.error(("steps", step_id, "uses"), f"step {step_id!r}: {exc}") from None
-        if not getattr(cls, "is_step", True):
+        if not cls.is_step:
             raise source.error(
                 ("steps", step_id, "uses"),
                 f"step {step_id!r}: {sc.uses} is a file format, not a step; use formats.load",

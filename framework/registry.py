@@ -114,7 +114,7 @@ class Registries:
         for _, cls in self.by_kind["formats"]:
             if (
                 ext in cls.extensions
-                and getattr(cls, "produces", "motion") == "motion"
+                and cls.produces == "motion"
                 and (not writing or cls.can_write())
             ):
                 return cls()

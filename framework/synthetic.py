@@ -75,7 +75,7 @@ def synthetic_motion(n_frames: int = 60, fps: float = 30.0, seed: int = 0, ampli
 
 def _instance(cls: type[C]) -> C | None:
     """An instance with default or ``test_params``; None when required params are unknown."""
-    params = getattr(cls, "test_params", None)
+    params = cls.test_params
     try:
         return cls(cls.Params(**(params or {})))
     except ValidationError:
