@@ -242,7 +242,9 @@ class LocalExecutor:
             if self.batches:  # the client's CPU during the whole batch (pool start-up included)
                 self.batches[-1]["map_s"] = time.process_time() - c0
 
-    def _map_on_pool(self, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any], desc: str) -> list[Any]:
+    def _map_on_pool(
+        self, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any], desc: str
+    ) -> list[Any]:
         chunk = max(1, len(items) // (self.jobs * 4))
         out = pool.map(fn, items, chunksize=chunk)
         cpu0 = _pool_cpu(pool)  # after the submissions: a forked pool starts its processes there
@@ -258,105 +260,22 @@ class LocalExecutor:
         itself) and by a feeder thread that keeps the pool's processes supplied (one chunk
         each, plus one queued while more than ``jobs`` remain, so that the last chunks go to
         whoever is free). Nothing is submitted that is not meant to run: no cancellations."""
-        size = max(1, len(items) // (self.jobs * 8))  # finer than the pool alone: a chunk is the tail
-        bounds = [(a, min(a + size, len(items))) for a in range(0, len(items), size)]
-        todo, lock, stop = deque(range(len(bounds))), threading.Lock(), threading.Event()
-        # (chunk, future) the pool finished, (-1, error) a broken pool; None: the feeder ended
-        done: queue.SimpleQueue[tuple[int, Any] | None] = queue.SimpleQueue()
-        results: list[list[Any] | None] = [None] * len(bounds)
-        errors: dict[int, BaseException] = {}
-        own = 0.0
-
-        def claim() -> int | None:
-            with lock:  # chunks are claimed in order: all chunks before a failing one are claimed
-                return None if stop.is_set() or not todo else todo.popleft()
-
-        def submit(inflight: dict[Future[list[Any]], int], want: int) -> None:
-            while len(inflight) < want + (1 if len(todo) > self.jobs else 0):
-                j = claim()
-                if j is None:
-                    return
-                inflight[pool.submit(_apply_chunk, fn, items[bounds[j][0] : bounds[j][1]])] = j
-
-        def feed(inflight: dict[Future[list[Any]], int]) -> None:
-            try:
-                while True:
-                    submit(inflight, self.processes)
-                    if not inflight:
-                        return
-                    finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
-                    for f in finished:
-                        if f.exception() is not None:
-                            stop.set()  # as in-process: nothing after a failing item starts
-                        done.put((inflight.pop(f), f))
-            except BaseException as exc:  # a broken or closed pool: the client raises it
-                stop.set()
-                done.put((-1, exc))
-            finally:
-                done.put(None)
-
+        batch = _ClientBatch(self, pool, fn, items)
         first: dict[Future[list[Any]], int] = {}
-        submit(first, self.processes)  # in this thread: a forked pool starts its processes here
+        batch.submit(first, self.processes)  # in this thread: a forked pool starts its processes here
         cpu0 = _pool_cpu(pool)
-        feeder = threading.Thread(target=feed, args=(first,), name="mocapflow-feeder", daemon=True)
+        feeder = threading.Thread(target=batch.feed, args=(first,), name="mocapflow-feeder", daemon=True)
         feeder.start()
-
-        def take(item: tuple[int, Any]) -> Iterator[int]:
-            j, f = item
-            if j < 0:
-                raise f
-            exc = f.exception()
-            if isinstance(exc, BrokenProcessPool):
-                raise exc
-            if exc is not None:
-                errors[j] = exc
-            else:
-                results[j] = f.result()
-            yield from range(bounds[j][1] - bounds[j][0])
-
-        def drive() -> Iterator[int]:
-            nonlocal own
-            ended = False
-            with _client_threads(self.threads):
-                while (j := claim()) is not None:
-                    c0 = time.process_time()
-                    try:
-                        results[j] = _apply_chunk(fn, items[bounds[j][0] : bounds[j][1]])
-                    except Exception as exc:  # raised below in input order, like a worker's
-                        errors[j] = exc
-                        stop.set()
-                    finally:
-                        own += time.process_time() - c0
-                    yield from range(bounds[j][1] - bounds[j][0])
-                    while not ended:  # what the pool finished meanwhile: the bar moves
-                        try:
-                            item = done.get_nowait()
-                        except queue.Empty:
-                            break
-                        if item is None:
-                            ended = True
-                        else:
-                            yield from take(item)
-            while not ended:
-                try:
-                    item = done.get(timeout=0.2)  # a timeout: Ctrl-C is seen while waiting
-                except queue.Empty:
-                    continue
-                if item is None:
-                    ended = True
-                else:
-                    yield from take(item)
-
         try:
-            for _ in progress(drive(), total=len(items), desc=desc):
+            for _ in progress(batch.drive(), total=len(items), desc=desc):
                 pass
         finally:
-            stop.set()  # an error or an interrupt: nothing more is claimed nor submitted
+            batch.stop.set()  # an error or an interrupt: nothing more is claimed nor submitted
             clear_cache()  # the client keeps no dataset between steps
-            self._record(desc, len(items), own, cpu0, _pool_cpu(pool))
-        if errors:
-            raise errors[min(errors)]
-        return [r for part in results for r in part]  # type: ignore[union-attr]
+            self._record(desc, len(items), batch.own, cpu0, _pool_cpu(pool))
+        if batch.errors:
+            raise batch.errors[min(batch.errors)]
+        return [r for part in batch.results for r in part or ()]
 
     def _record(self, desc: str, n: int, client_s: float, cpu0: dict[int, float], cpu1: dict[int, float]) -> None:
         workers = [cpu1[p] - cpu0.get(p, 0.0) for p in cpu1]
@@ -366,6 +285,103 @@ class LocalExecutor:
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
+
+
+class _ClientBatch:
+    """One batch of :meth:`LocalExecutor._map_with_client`: its chunks, claimed in order by
+    the client (:meth:`drive`) and by the feeder thread for the pool (:meth:`feed`)."""
+
+    def __init__(self, ex: LocalExecutor, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any]):
+        self.ex, self.pool, self.fn, self.items = ex, pool, fn, items
+        size = max(1, len(items) // (ex.jobs * 8))  # finer than the pool alone: a chunk is the tail
+        self.bounds = [(a, min(a + size, len(items))) for a in range(0, len(items), size)]
+        self.todo, self.lock, self.stop = deque(range(len(self.bounds))), threading.Lock(), threading.Event()
+        # (chunk, future) the pool finished, (-1, error) a broken pool; None: the feeder ended
+        self.done: queue.SimpleQueue[tuple[int, Any] | None] = queue.SimpleQueue()
+        self.results: list[list[Any] | None] = [None] * len(self.bounds)
+        self.errors: dict[int, BaseException] = {}
+        self.own = 0.0  # CPU seconds of the client's own chunks
+
+    def chunk(self, j: int) -> list[Any]:
+        return self.items[self.bounds[j][0] : self.bounds[j][1]]
+
+    def claim(self) -> int | None:
+        with self.lock:  # chunks are claimed in order: all chunks before a failing one are claimed
+            return None if self.stop.is_set() or not self.todo else self.todo.popleft()
+
+    def submit(self, inflight: dict[Future[list[Any]], int], want: int) -> None:
+        while len(inflight) < want + (1 if len(self.todo) > self.ex.jobs else 0):
+            j = self.claim()
+            if j is None:
+                return
+            inflight[self.pool.submit(_apply_chunk, self.fn, self.chunk(j))] = j
+
+    def feed(self, inflight: dict[Future[list[Any]], int]) -> None:
+        """The feeder thread: keeps the pool supplied, hands finished chunks to the client."""
+        try:
+            while True:
+                self.submit(inflight, self.ex.processes)
+                if not inflight:
+                    return
+                finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                for f in finished:
+                    if f.exception() is not None:
+                        self.stop.set()  # as in-process: nothing after a failing item starts
+                    self.done.put((inflight.pop(f), f))
+        except BaseException as exc:  # a broken or closed pool: the client raises it
+            self.stop.set()
+            self.done.put((-1, exc))
+        finally:
+            self.done.put(None)
+
+    def take(self, item: tuple[int, Any]) -> Iterator[int]:
+        """A chunk the pool finished: its result or error; one tick per item."""
+        j, f = item
+        if j < 0:
+            raise f
+        exc = f.exception()
+        if isinstance(exc, BrokenProcessPool):
+            raise exc
+        if exc is not None:
+            self.errors[j] = exc
+        else:
+            self.results[j] = f.result()
+        yield from range(len(self.chunk(j)))
+
+    def run_own(self, j: int) -> Iterator[int]:
+        """A chunk the client runs itself; one tick per item."""
+        c0 = time.process_time()
+        try:
+            self.results[j] = _apply_chunk(self.fn, self.chunk(j))
+        except Exception as exc:  # raised at the end in input order, like a worker's
+            self.errors[j] = exc
+            self.stop.set()
+        finally:
+            self.own += time.process_time() - c0
+        yield from range(len(self.chunk(j)))
+
+    def drive(self) -> Iterator[int]:
+        """The client: its own chunks while any is left, then what the pool finishes."""
+        ended = False
+        with _client_threads(self.ex.threads):
+            while (j := self.claim()) is not None:
+                yield from self.run_own(j)
+                while not ended:  # what the pool finished meanwhile: the bar moves
+                    try:
+                        item = self.done.get_nowait()
+                    except queue.Empty:
+                        break
+                    ended = item is None
+                    if item is not None:
+                        yield from self.take(item)
+        while not ended:
+            try:
+                item = self.done.get(timeout=0.2)  # a timeout: Ctrl-C is seen while waiting
+            except queue.Empty:
+                continue
+            ended = item is None
+            if item is not None:
+                yield from self.take(item)
 
 
 def _apply_chunk(fn: Callable[[Any], Any], chunk: Sequence[Any]) -> list[Any]:
