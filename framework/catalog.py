@@ -169,17 +169,14 @@ def format_table(table: pa.Table, max_rows: int = 50, max_width: int = 40) -> st
     shown = table.slice(0, max_rows).to_pylist()
 
     def cell(v: Any) -> str:
-        if isinstance(v, float):
-            s = f"{v:.6g}"
-        else:
-            s = "NULL" if v is None else str(v)
+        s = f"{v:.6g}" if isinstance(v, float) else "NULL" if v is None else str(v)
         return s if len(s) <= max_width else s[: max_width - 1] + "…"
 
     rows = [[cell(r[n]) for n in names] for r in shown]
     widths = [max([len(n)] + [len(r[i]) for r in rows]) for i, n in enumerate(names)]
-    line = "  ".join(n.ljust(w) for n, w in zip(names, widths))
+    line = "  ".join(n.ljust(w) for n, w in zip(names, widths, strict=True))
     out = [line, "  ".join("-" * w for w in widths)]
-    out += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
+    out += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
     more = table.num_rows - len(shown)
     out.append(f"({table.num_rows} row{'s' if table.num_rows != 1 else ''}{f', {more} not shown' if more > 0 else ''})")
     return "\n".join(out)

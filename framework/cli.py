@@ -393,7 +393,11 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         # a command that builds the registries it needs itself (`loads_plugins = True`, e.g.
         # `search`, which may only forward the query to a search server) skips the rest
-        if pm is not None and command not in BUILTIN_COMMANDS and not getattr(getattr(args, "command_cls", None), "loads_plugins", False):
+        if (
+            pm is not None
+            and command not in BUILTIN_COMMANDS
+            and not getattr(getattr(args, "command_cls", None), "loads_plugins", False)
+        ):
             _register_remaining_builtins(pm, blocked)
         from .progress import announce_compilation
 

@@ -12,6 +12,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from functools import partial
+from itertools import pairwise
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
@@ -157,7 +158,7 @@ def clip_slices(dataset: Dataset, n_slices: int) -> list[ClipSlice]:
         cuts = np.where(cum[right] - want <= want - cum[right - 1], right, right - 1)
         bounds = np.unique(np.clip(np.concatenate([[0], cuts, [n]]), 0, n))
     ref = DatasetRef.of(dataset)
-    return [ClipSlice(ref.path, ref.fingerprint, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    return [ClipSlice(ref.path, ref.fingerprint, int(a), int(b)) for a, b in pairwise(bounds) if b > a]
 
 
 @dataclass(frozen=True)
@@ -170,5 +171,5 @@ class _SliceTask:
     def __call__(self, piece: ClipSlice) -> list[Any]:
         db = piece.motions()
         if self.with_ids:
-            return [self.fn(m, int(c)) for m, c in zip(db.motions, db.clip_ids)]
+            return [self.fn(m, int(c)) for m, c in zip(db.motions, db.clip_ids, strict=True)]
         return [self.fn(m) for m in db.motions]

@@ -47,7 +47,6 @@ from .params import ParamsOf as ParamsOf
 from .registry import Registries
 from .workspace import atomic_path
 
-
 #: The base of every ``Params`` (a name that the class attribute ``Component.Params`` does not hide).
 ParamsModel = Params
 

@@ -126,7 +126,7 @@ def _raises_clear(fn: Any, what: str, who: str) -> None:
 def _same(a: Any, b: Any, who: str) -> None:
     for f in ("start", "end", "cost", "length"):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f"{who}: two runs differ in {f}")
-    assert len(a.paths) == len(b.paths) and all(np.array_equal(p, q) for p, q in zip(a.paths, b.paths)), (
+    assert len(a.paths) == len(b.paths) and all(np.array_equal(p, q) for p, q in zip(a.paths, b.paths, strict=True)), (
         f"{who}: two runs differ in their warping paths"
     )
 

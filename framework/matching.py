@@ -20,8 +20,8 @@ import hashlib
 import re
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
-from pathlib import Path
 from functools import cached_property
+from pathlib import Path
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -29,8 +29,8 @@ import pyarrow as pa
 from pydantic import Field
 
 from . import schema
-from .params import Params
 from .errors import ConfigError, DataError
+from .params import Params
 
 #: Columns of a match table (:data:`~mocapflow.framework.schema.MATCH_TABLE`).
 MATCH_COLUMNS = schema.MATCH_TABLE
@@ -227,12 +227,12 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
 
     Each result needs ``paths`` (one per match); ``query_ids[i]`` labels ``results[i]``.
     """
-    for q, r in zip(query_ids, results):
+    for q, r in zip(query_ids, results, strict=True):
         r.validate(space, f"query {q}")
         if len(r.paths) != len(r):
             raise DataError(f"query {q}: {len(r)} matches but {len(r.paths)} warping paths")
     qid, rank, s_all, e_all, c_all, l_all, offsets, flat = [], [], [], [], [], [], [0], []
-    for q, r in zip(query_ids, results):
+    for q, r in zip(query_ids, results, strict=True):
         n = len(r)
         qid.append(np.full(n, q, np.int32))
         rank.append(np.arange(1, n + 1, dtype=np.int32))

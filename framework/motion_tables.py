@@ -79,11 +79,11 @@ def motions_to_tables(motions: Sequence[Motion], clip_ids: Sequence[int] | None 
     ids = list(range(len(motions))) if clip_ids is None else [int(c) for c in clip_ids]
     if len(ids) != len(motions) or len(set(ids)) != len(ids):
         raise DataError(f"need {len(motions)} distinct clip ids, got {len(set(ids))} distinct of {len(ids)}")
-    frames = [frames_table(i, m) for i, m in zip(ids, motions)]
+    frames = [frames_table(i, m) for i, m in zip(ids, motions, strict=True)]
     data = pa.concat_tables(frames) if frames else schema.motion_frames().empty_table()
     return {
         "data": data,
-        "clips": clips_table([clip_row(i, m) for i, m in zip(ids, motions)]),
+        "clips": clips_table([clip_row(i, m) for i, m in zip(ids, motions, strict=True)]),
         "skeletons": skeletons_table([m.skeleton for m in motions]),
     }
 
@@ -100,7 +100,7 @@ def database_from_tables(clips: pa.Table, skeletons: pa.Table, frames: pa.Table)
     if int(n_frames.sum()) != frames.num_rows:
         raise DataError(f"clips table counts {int(n_frames.sum())} frames, data table has {frames.num_rows}")
     rot_offset = 0
-    for row, start in zip(clips.to_pylist(), starts):
+    for row, start in zip(clips.to_pylist(), starts, strict=False):  # no clip: starts is [0]
         s = skel[row["skeleton"]]
         n = row["n_frames"]
         size = n * s.n_joints * 4

@@ -3,10 +3,10 @@ announcement of numba compilations (:func:`announce_compilation`)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -84,7 +84,7 @@ class _CallbackLoader:
         return getattr(self._loader, name)
 
 
-@contextmanager
+@contextlib.contextmanager
 def announce_compilation(echo: Callable[[str], None], message: str = COMPILING_MESSAGE) -> Iterator[None]:
     """Within the block, say ``message`` (once) when numba starts compiling a kernel.
 
@@ -129,7 +129,5 @@ def announce_compilation(echo: Callable[[str], None], message: str = COMPILING_M
         if finder is not None and finder in sys.meta_path:
             sys.meta_path.remove(finder)
         for ev_mod, listener in listeners:
-            try:
+            with contextlib.suppress(Exception):
                 ev_mod.unregister("numba:compile", listener)
-            except Exception:
-                pass

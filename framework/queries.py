@@ -50,6 +50,7 @@ from .matching import QueryMatches, QuerySpec, SearchSpace, matches_table, parse
 from .motion import Motion
 from .registry import Registries
 
+
 @dataclass(frozen=True)
 class Query:
     """One query: its features and where they came from (``clip_id`` -1 for a file)."""
@@ -173,7 +174,12 @@ def search_space(matcher: Matcher, inputs: Mapping[str, Dataset], registries: Re
     names = (
         None
         if mds is None or not mds.has_table("clips")
-        else dict(zip(*(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name"))))
+        else dict(
+            zip(
+                *(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name")),
+                strict=True,
+            )
+        )
     )
     return SearchSpace(clip_id, frame, index, x, clip_names=names)
 
@@ -197,7 +203,7 @@ def feature_queries(qds: Dataset, specs: list[QuerySpec], what: str) -> list[Que
     """Queries cut from a features dataset (specs name clips by id; ranges in frames)."""
     fm = qds.features()
     bounds = np.flatnonzero(np.diff(fm.clip_id)) + 1
-    clips = {int(c[0]): (s, len(c)) for c, s in zip(np.split(fm.clip_id, bounds), np.r_[0, bounds])}
+    clips = {int(c[0]): (s, len(c)) for c, s in zip(np.split(fm.clip_id, bounds), np.r_[0, bounds], strict=True)}
     out = []
     for spec in specs or [QuerySpec(str(c)) for c in clips]:
         try:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from dataclasses import dataclass, field
 
 from .errors import ConfigError, PluginError
 from .joints import JointMap
@@ -61,7 +61,9 @@ class Registry:
         try:
             return self._classes[name]
         except KeyError:
-            raise ConfigError(f"unknown {self.kind} component {name!r}{did_you_mean(name, list(self._classes))}") from None
+            raise ConfigError(
+                f"unknown {self.kind} component {name!r}{did_you_mean(name, list(self._classes))}"
+            ) from None
 
     def provider(self, name: str) -> str:
         return self._providers[name]
@@ -112,11 +114,7 @@ class Registries:
         (a writer when ``writing``); :class:`ConfigError` when none handles it."""
         ext = Path(path).suffix.lower()
         for _, cls in self.by_kind["formats"]:
-            if (
-                ext in cls.extensions
-                and cls.produces == "motion"
-                and (not writing or cls.can_write())
-            ):
+            if ext in cls.extensions and cls.produces == "motion" and (not writing or cls.can_write()):
                 return cls()
         raise ConfigError(
             f"{path}: no registered {'writer' if writing else 'reader'} for {ext or 'extensionless'!r} files"

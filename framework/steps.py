@@ -56,11 +56,7 @@ def run_features(fs: FeatureSet, inputs: Mapping[str, Dataset], ctx: StepContext
         fs.save_state(ctx.out_dir)
     # clips go out by reference: each worker reads its own from the Parquet file
     parts = ctx.map_clips(fs.transform_motion, motions, desc=fs.key())
-    x = (
-        np.concatenate([np.asarray(p, np.float32) for p in parts], 0)
-        if parts
-        else np.zeros((0, fs.dim), np.float32)
-    )
+    x = np.concatenate([np.asarray(p, np.float32) for p in parts], 0) if parts else np.zeros((0, fs.dim), np.float32)
     clip_id, frame = motions.frame_ids()
     return StepOutput({"data": feature_table(clip_id, frame, x)})
 

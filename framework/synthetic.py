@@ -10,11 +10,10 @@ import numpy as np
 from pydantic import ValidationError
 
 from . import quaternions as quat
+from .components import Component
 from .joints import CANONICAL_JOINTS
 from .motion import Motion
 from .skeleton import Skeleton
-
-from .components import Component
 
 C = TypeVar("C", bound=Component)
 

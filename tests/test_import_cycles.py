@@ -7,14 +7,19 @@ understood, tested or moved apart. Across the whole tree ``if TYPE_CHECKING:`` b
 never run) are skipped; in ``framework/`` they count too: a type-only import is still a
 dependency a reader follows. ``KNOWN`` lists the cycles left, each with why (none today).
 """
+
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"_mocapflow": "mocapflow", "framework": "mocapflow.framework", "plugins": "mocapflow.plugins",
-            "pipelines": "mocapflow.pipelines"}
+PACKAGES = {
+    "_mocapflow": "mocapflow",
+    "framework": "mocapflow.framework",
+    "plugins": "mocapflow.plugins",
+    "pipelines": "mocapflow.pipelines",
+}
 
 #: Cycles still present: frozensets of module names (each one a strongly connected component).
 KNOWN: dict[frozenset[str], str] = {}
@@ -132,9 +137,27 @@ def test_no_import_cycles_but_the_known_ones():
 LAYERS: dict[str, tuple[str, ...]] = {
     # what motions, datasets and matches are; the workspace's files; no component, no run
     "data model": (
-        "errors", "params", "progress", "threads", "schema", "quaternions", "joints", "_fk_kernels", "skeleton",
-        "motion", "markers", "database", "normalize", "motion_tables", "matching", "registry", "workspace",
-        "datasets", "clip_refs", "cleaning", "plotting",
+        "errors",
+        "params",
+        "progress",
+        "threads",
+        "schema",
+        "quaternions",
+        "joints",
+        "_fk_kernels",
+        "skeleton",
+        "motion",
+        "markers",
+        "database",
+        "normalize",
+        "motion_tables",
+        "matching",
+        "registry",
+        "workspace",
+        "datasets",
+        "clip_refs",
+        "cleaning",
+        "plotting",
     ),
     # what a component, a step's context, an executor and a plugin hook must provide
     "contracts": ("components", "context", "hookspecs"),
@@ -151,9 +174,7 @@ CORE = "mocapflow.framework"
 
 
 def _layer_of() -> dict[str, int]:
-    return {
-        f"{CORE}.{m}" if m else CORE: i for i, (_, members) in enumerate(LAYERS.items()) for m in members
-    }
+    return {f"{CORE}.{m}" if m else CORE: i for i, (_, members) in enumerate(LAYERS.items()) for m in members}
 
 
 def test_every_core_module_has_a_layer():

@@ -2,6 +2,7 @@
 another (cross-package use goes through :mod:`mocapflow.framework` or the registries), and
 the core never imports a built-in package. Checked on the source with :mod:`ast`, imports
 inside functions included, relative imports resolved."""
+
 from __future__ import annotations
 
 import ast
@@ -81,7 +82,8 @@ def test_every_builtin_package_registers_from_its_plugin_module():
     assert sorted(BUILTIN_PLUGINS) == [f"mocapflow.plugins.{p}.plugin" for p in packages]
     hooked = sorted(p.parent.name for p in (ROOT / "plugins").rglob("*.py") if "@hookimpl" in p.read_text())
     assert sorted(set(hooked)) == packages and all(
-        "@hookimpl" not in p.read_text() for p in (ROOT / "plugins").rglob("*.py") if p.name != "plugin.py")
+        "@hookimpl" not in p.read_text() for p in (ROOT / "plugins").rglob("*.py") if p.name != "plugin.py"
+    )
 
 
 #: Where registries may be built from the installed plugins: the CLI (and the commands plugins

@@ -1,4 +1,5 @@
 """The Python API (``mocapflow.read/features/Database/clean``) and ``python -m mocapflow``."""
+
 from __future__ import annotations
 
 import re

@@ -1,4 +1,5 @@
 """Tiny components registered through a test plugin object (``extra=[ToyPlugin()]``)."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping
