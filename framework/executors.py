@@ -8,29 +8,12 @@ in-process or on a process pool; a cluster executor (``dask``,
 through the ``register_executors`` hook (or passed to
 :func:`~mocapflow.framework.runner.run_pipeline`).
 
-Work goes out *by reference* (:mod:`mocapflow.framework.clip_refs`):
-:func:`~mocapflow.framework.context.map_clips` sends
-:class:`~mocapflow.framework.clip_refs.ClipSlice` items (a motions
-dataset's path, fingerprint and a clip range), and each worker reads those clips from the
-workspace's Parquet file itself (only the row groups it needs, cached per process), so
-no whole motion is pickled to a worker. Results come back to the step, and the runner
-writes them atomically as always: a worker never writes a table of the dataset.
-
-Why ``--jobs 2`` used to be slower than ``--jobs 1`` (measured, docs/scale-out.md): the
-steps pickled every motion to the pool, every worker ran numba's and OpenBLAS's thread
-pools at full width (2 workers x 2 threads on 2 cores), and a pool forked after the parent
-had run a parallel numba kernel died at once (GNU OpenMP is not fork-safe). Workers now
-get ``cores // workers`` threads each (:func:`limit_threads`, before their first kernel),
-the pool forks only while that is safe (from a forkserver otherwise), after numba's
-one-time start-up ran in the parent (:func:`warm_up`), so that workers inherit it.
-
-The client can be worker 0 (``client_works``): with ``jobs = N`` the pool has N - 1
-processes and the client works through the same batch's chunks instead of waiting. It
-has paid its start-up already (interpreter, registries, numba's target context, the
-kernels it loaded), so one worker's start-up leaves the run; while it works, its numeric
-threads are a worker's share too. By default it does so only where workers pay their own
-start-up (a forkserver or spawned pool): a forked pool inherits the client's, and there
-the measured critical path did not shorten.
+Work goes out *by reference* (:mod:`.clip_refs`): workers read their clips from the
+workspace's Parquet files; results come back to the step, and the runner writes them. Each
+worker gets ``cores // workers`` numeric threads (:func:`limit_threads`); the pool forks
+only while that is safe (a forkserver otherwise), after the parent's one-time start-up
+(:func:`warm_up`); the client can be worker 0 (``client_works``). Measurements:
+docs/scale-out.md.
 """
 
 from __future__ import annotations
@@ -109,41 +92,20 @@ def _started() -> int:
 class LocalExecutor:
     """In-process for ``jobs == 1``, else ``jobs`` workers kept for the run: by default the
     client itself and a process pool of ``jobs - 1`` (``client_works``), else a pool of ``jobs``.
+    The options are :class:`LocalExecutor.Params`.
 
-    Parameters
-    ----------
-    jobs : int
-        Workers (0: one per core), the client included when ``client_works``.
-    min_items_for_pool : int
-        Smaller batches run in-process (a pool costs more than it saves on a handful).
-    threads : int, optional
-        Numeric threads per worker (default ``cores // jobs``, at least 1); the client uses
-        as many while it works through a batch's chunks, its full width otherwise.
-    start_method : {"fork", "forkserver", "spawn"}, optional
-        Default: fork while it is safe (see :func:`_fork_is_safe`), else a forkserver that
-        preloads :data:`PRELOAD`.
-    prestart : bool
-        :meth:`start` (the runner calls it before planning) forks the pool at once and each
-        worker warms itself up (:func:`warm_up`) while the client plans, lists and
-        fingerprints; otherwise the pool forks at the first batch, after the parent warmed
-        up, and the workers inherit that (docs/scale-out.md compares both).
-    client_works : bool, optional
-        ``True``: the client is worker 0: it has paid its start-up (imports, registries,
-        numba's target context, loaded kernels) and would otherwise wait, so a batch is cut
-        into chunks that the pool's ``jobs - 1`` processes and the client take from the
-        same list; one worker's start-up leaves the run. ``False``: a pool of ``jobs``
-        processes, the client waits. Default (``None``): ``True`` for a forkserver or
-        spawned pool (each worker imports and warms up on its own), ``False`` for a forked
-        one, whose workers inherit the client's start-up: there the client's share of a
-        batch, beside the unpickling of the pool's results on its core, measured no faster,
-        and with ``prestart`` slower (docs/scale-out.md).
+    ``client_works`` unset: the client is worker 0 for a forkserver or spawned pool (each
+    worker imports and warms up on its own, the client has paid that already), not for a
+    forked one (its workers inherit the client's start-up; measured no faster there).
+    ``prestart``: :meth:`start` (called before planning) forks the pool at once and each
+    worker warms itself up while the client plans; otherwise the pool forks at the first
+    batch, after the parent warmed up.
 
     Results come back in input order, and a failing batch raises the error of its first
-    failing item in input order, as in-process (the client's own chunks included: chunks
-    are claimed in order and none is claimed after a failure). A worker that dies
-    (killed, out of memory) fails the step with a
-    :class:`~mocapflow.framework.errors.PipelineError`; the runner discards its temporary
-    output, so no half-written dataset remains.
+    failing item in input order, as in-process (chunks are claimed in order and none is
+    claimed after a failure). A worker that dies (killed, out of memory) fails the step
+    with a :class:`~mocapflow.framework.errors.PipelineError`; the runner discards its
+    temporary output, so no half-written dataset remains.
     """
 
     name: ClassVar[str] = "local"
