@@ -10,7 +10,6 @@ from typing import Any
 
 from .errors import ConfigError, PluginError
 from .joints import JointMap
-from .params import Params
 
 #: The component kinds, in the order ``mocapflow plugins`` lists them.
 KINDS: tuple[str, ...] = ("formats", "features", "indexes", "matchers", "cleaners", "analyses")
@@ -42,6 +41,8 @@ class Registry:
             raise PluginError(f"plugin {provider!r} registered {cls!r} under {self.kind} without a snake_case `name`")
         if getattr(cls, "kind", self.kind) != self.kind:
             raise PluginError(f"plugin {provider!r} registered {cls.__name__} ({cls.kind}) as one of the {self.kind}")
+        from .params import Params  # pydantic: not on the way of `mocapflow --help`
+
         declared = getattr(cls, "Params", None)
         if not (isinstance(declared, type) and issubclass(declared, Params)):
             raise PluginError(f"plugin {provider!r} registered {cls.__name__} without a `Params` model")

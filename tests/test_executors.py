@@ -196,9 +196,9 @@ def test_an_interrupt_in_the_clients_chunk_is_clean():
 
 def _motions_workspace(tmp_path: Path, monkeypatch, rows_per_group: int = 24) -> Dataset:
     """A motions dataset of the bundled CMU takes written with small row groups."""
-    import mocapflow.framework.runner as runner
+    import mocapflow.framework.workspace as workspace
 
-    monkeypatch.setattr(runner, "ROW_GROUP_ROWS", rows_per_group)
+    monkeypatch.setattr(workspace, "ROW_GROUP_ROWS", rows_per_group)
     p = tmp_path / "m.yaml"
     p.write_text(
         f"name: m\nworkspace: ws\nsteps:\n  motions: {{uses: formats.load, with: {{paths: ['{CMU}/**/*.amc'], fps: 10}}}}\n"
