@@ -56,7 +56,9 @@ def test_small_knn_pipeline_end_to_end(tmp_path):
     assert all(not (r["clip_id"] == r["query_clip_id"] and r["frame"] == r["query_frame"]) for r in q0)
     d = [r["distance"] for r in q0]
     assert d == sorted(d)
-    tree = Dataset(ws / "tree").index()
+    import mocapflow
+
+    tree = Dataset(ws / "tree").index(mocapflow.registries())
     assert tree.method_ in ("kdtree", "brute")
     a = Dataset(ws / "pca8").features().x
     b = Dataset(ws / "pca8b").features().x

@@ -15,6 +15,7 @@ from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
 from mocapflow.plugins.similarity.logical import LogicalSearch, logical_search
 from mocapflow.framework.matching import MATCH_COLUMNS, SearchSpace
 from mocapflow.framework.queries import parse_query_spec
+from mocapflow.framework.steps import run_step
 from mocapflow.plugins.similarity.sdtw import SubsequenceDTW
 
 
@@ -107,7 +108,7 @@ def ctx_for(tmp_path, regs, step):
 def test_run_steps_on_datasets(workspace, cls, params):
     tmp_path, regs, feats, tree = workspace
     matcher = cls({**params, "queries": ["0:8-28", "1:8-28"]})
-    out = matcher.run({"database": tree, "query": feats}, ctx_for(tmp_path, regs, cls.name))
+    out = run_step(matcher, {"database": tree, "query": feats}, ctx_for(tmp_path, regs, cls.name))
     data, queries = out.tables["data"], out.tables["queries"]
     assert data.schema.names[: len(MATCH_COLUMNS)] == MATCH_COLUMNS.names
     assert queries["name"].to_pylist() == ["0:8-28", "1:8-28"]
@@ -130,14 +131,14 @@ def test_run_steps_on_datasets(workspace, cls, params):
 
 def test_sdtw_runs_on_a_features_dataset_without_index(workspace):
     tmp_path, regs, feats, tree = workspace
-    out = SubsequenceDTW(count=1, queries=["2:8-28"]).run({"database": feats, "query": feats}, ctx_for(tmp_path, regs, "s"))
+    out = run_step(SubsequenceDTW(count=1, queries=["2:8-28"]), {"database": feats, "query": feats}, ctx_for(tmp_path, regs, "s"))
     assert out.tables["data"].to_pylist()[0]["clip_id"] == 2
 
 
 def test_lng_needs_an_index_dataset(workspace):
     tmp_path, regs, feats, tree = workspace
     with pytest.raises(Exception, match="index dataset"):
-        LazyNeighborhoodGraph().run({"database": feats, "query": feats}, ctx_for(tmp_path, regs, "l"))
+        run_step(LazyNeighborhoodGraph(), {"database": feats, "query": feats}, ctx_for(tmp_path, regs, "l"))
 
 
 @pytest.mark.parametrize("text,expected", [

@@ -269,6 +269,7 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     from types import SimpleNamespace
 
     from mocapflow.framework.database import MotionDatabase
+    from mocapflow.framework.steps import run_cleaner
 
     db = MotionDatabase([synthetic_walk(120, seed=9, name="w")])
     inputs = {"motions": SimpleNamespace(motions=lambda: db)}
@@ -281,12 +282,13 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
             progress=lambda it, **_: it,
             step_id="mdm",
             out_dir=out_dir,
+            registries=None,
             log=SimpleNamespace(info=lambda *_: None),
             map_clips=lambda fn, ds, with_ids=False, **_: [
                 fn(m, int(i)) for i, m in zip(ds.motions().clip_ids, ds.motions().motions, strict=True)
             ],
         )
-        outs.append(json.dumps(cleaner.run(inputs, ctx).summary, sort_keys=True))
+        outs.append(json.dumps(run_cleaner(cleaner, inputs, ctx).summary, sort_keys=True))
     assert outs[0] == outs[1]
     assert str(tmp_path) not in outs[0]
 

@@ -128,7 +128,7 @@ class CleanCommand:
             report.mkdir(parents=True, exist_ok=True)
         from .outputs import clean_and_write_clip
 
-        out = clean_and_write_clip(cleaner, take, context, 0, report)
+        out = clean_and_write_clip(cleaner, take, context, 0, report, regs)
         write_cleaned(out["cleaned"], dest, regs)
         if report is not None:
             _atomic(report / "mdm.parquet", lambda t: pq.write_table(out["mdm"], t))

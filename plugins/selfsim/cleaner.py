@@ -266,12 +266,14 @@ class MDMCleaner(Cleaner):
         out = self.clean(motion, context, contacts)
         return out.cleaned, out.edits
 
-    def clean_clip(self, motion: Motion, context: Any, clip_id: int, out_dir: Any) -> Any:
+    def clean_clip(
+        self, motion: Motion, context: Any, clip_id: int, out_dir: Any = None, registries: Any = None
+    ) -> Any:
         """The step's hook for one clip (:meth:`Cleaner.clean_clip`): one analysis, and the
         tables, BVH and pictures of :func:`.outputs.clean_and_write_clip`."""
         from mocapflow.framework.cleaning import CleanedClip
 
         from .outputs import clean_and_write_clip
 
-        out = clean_and_write_clip(self, motion, context, clip_id, out_dir)
+        out = clean_and_write_clip(self, motion, context, clip_id, out_dir, registries)
         return CleanedClip(out["mdm"], out["edits"], out["cleaned"], out["summary"])

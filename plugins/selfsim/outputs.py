@@ -11,6 +11,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from mocapflow.framework.errors import ConfigError
+
 
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "clip"
@@ -82,9 +84,10 @@ def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
     }
 
 
-def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None) -> dict[str, Any]:
+def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None, registries: Any = None
+) -> dict[str, Any]:
     """Clean one clip (:meth:`.cleaner.MDMCleaner.clean`) and write its BVH, heatmap and
-    before/after plot into ``out_dir`` (None: nothing written); returns the tables, the
+    before/after plot into ``out_dir`` (the BVH with the ``formats.bvh`` of ``registries``) (None: nothing written); returns the tables, the
     cleaned motion, the analysis seconds and the summary."""
     from .paper.repair import map_to_input
     from .plots import mdm_heatmap
@@ -114,10 +117,9 @@ def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, 
                 before_after_plot(motion, out.cleaned, edits, out_dir / f"{stem}.edits.png")
                 files["before_after"] = f"{stem}.edits.png"
         if p.write_bvh:
-            from mocapflow.framework.plugins import load_registries
-
-            # through the registry: a format is another package's component
-            load_registries()["formats"].get("bvh")().write(out.cleaned, out_dir / f"{stem}.clean.bvh")
+            if registries is None:
+                raise ConfigError(f"{cleaner.key()}: write_bvh needs the registries (a format is another package's)")
+            registries["formats"].get("bvh")().write(out.cleaned, out_dir / f"{stem}.clean.bvh")
             files["bvh"] = f"{stem}.clean.bvh"
     return {
         "mdm": mdm_table(res, motion, mdm_in, clip_id, level, out.cue),

@@ -22,7 +22,7 @@ from pydantic import Field
 from mocapflow.framework.datasets import StepOutput
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import IntervalSet, QueryMatches, SearchSpace, matches_table
-from mocapflow.framework.queries import queries_table, upstream
+from mocapflow.framework.queries import features_dataset, queries_table, search_space, step_queries, upstream
 
 from .lng import lazy_neighborhood_graph
 from .matcher_base import GlobalMatcher, NeighborParams
@@ -128,9 +128,9 @@ class LogicalSearch(GlobalMatcher):
         return self.search(query, space)
 
     def run(self, inputs, ctx) -> StepOutput:
-        space = self.search_space(inputs, ctx.registries)
-        queries = self.queries(inputs, ctx)
-        fds = self.features_dataset(inputs)
+        space = search_space(self, inputs, ctx.registries)
+        queries = step_queries(self, inputs, ctx)
+        fds = features_dataset(inputs)
         qpath = inputs["query"].path.resolve()
         # query clip ids are database clip ids only when the query input is the database's own
         same = fds is not None and (fds.path.resolve() == qpath or

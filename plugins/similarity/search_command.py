@@ -180,7 +180,9 @@ class SearchSession:
                 self._spaces[key] = SearchSpace(clip_id, frame, index if key[0] else None, x if key[1] else None,
                                                 clip_names=self.names)
             else:
-                self._spaces[key] = matcher.search_space({"database": self.idx, "features": self.fds}, self.regs)
+                from mocapflow.framework.queries import search_space
+
+                self._spaces[key] = search_space(matcher, {"database": self.idx, "features": self.fds}, self.regs)
         return self._spaces[key]
 
     def feature_set(self):

@@ -76,6 +76,23 @@ def shard_bounds(groups: np.ndarray, n_shards: int, max_rows: int | None = None)
     return filled if len(filled) > len(even) else even
 
 
+def _registries(registries: Any) -> Any:
+    """``registries``, or outside a run (an index built or loaded from Python) the facade's."""
+    if registries is not None:
+        return registries
+    import mocapflow
+
+    return mocapflow.registries()
+
+
+def _import_class(path: str) -> type:
+    """The class saved as ``module:qualname`` (the shard index of a saved sharded index)."""
+    import importlib
+
+    module, _, name = path.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
 def _load_shard(cls: type, directory: Path) -> Index:
     """``cls.load`` memory-mapped where the index supports it (``mmap_mode``)."""
     if "mmap_mode" in inspect.signature(cls.load).parameters:
@@ -98,7 +115,7 @@ class _ShardQuery:
     """One shard's answer to a batch of queries, on a worker (the shard loaded once there)."""
 
     directory: str
-    index_key: str
+    index_cls: type
     stamp: str
     k: int
     radius: float | None
@@ -106,10 +123,9 @@ class _ShardQuery:
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from mocapflow.framework.clip_refs import cached
-        from mocapflow.framework.plugins import load_registries
 
         def load():
-            return _load_shard(load_registries().resolve(self.index_key), Path(self.directory))
+            return _load_shard(self.index_cls, Path(self.directory))
 
         shard = cached(("index-shard", self.directory, self.stamp), load)
         return shard.query(q, self.k, self.radius, **self.kwargs)
@@ -144,14 +160,10 @@ class ShardedIndex(Index):
 
     # --- building ---------------------------------------------------------------------
     def _shard_class(self, registries=None) -> type:
-        if registries is None:
-            from mocapflow.framework.plugins import load_registries
-
-            registries = load_registries()
         key = self.params.index if "." in self.params.index else f"indexes.{self.params.index}"
         if key == self.key():
             raise ConfigError(f"{self.key()}: a shard cannot itself be sharded")
-        return registries.resolve(key)
+        return _registries(registries).resolve(key)
 
     def build(self, features: np.ndarray, *, groups: np.ndarray | None = None, frames: np.ndarray | None = None,
               registries=None) -> ShardedIndex:
@@ -176,6 +188,7 @@ class ShardedIndex(Index):
 
     def _finish(self, cls: type, dim: int) -> None:
         self.shard_key_ = cls.key()
+        self.shard_cls_ = cls
         self.dim_ = int(dim)
         self.method_ = "sharded: " + ", ".join(str(getattr(s, "method_", cls.name)) for s in self.shards_)
         self.directory_ = None
@@ -223,7 +236,7 @@ class ShardedIndex(Index):
         if workers > 1 and self.directory_ is not None and self.params.fan_out == "queries" and len(q) > 1:
             return self._query_blocks(ex, workers, q, int(k), radius, kw)
         if workers > 1 and self.directory_ is not None and len(self.shards_) > 1:
-            tasks = [_ShardQuery(str(self.directory_ / f"shard-{s:03d}"), self.shard_key_, self._stamp, int(k), radius, kw)
+            tasks = [_ShardQuery(str(self.directory_ / f"shard-{s:03d}"), self.shard_cls_, self._stamp, int(k), radius, kw)
                      for s in range(len(self.shards_))]
             answers = ex.map(_Apply(q), tasks, desc=f"{self.key()}: shards")
         else:
@@ -328,6 +341,7 @@ class ShardedIndex(Index):
 
     def _write_meta(self, d: Path) -> None:
         meta = {"component": self.key(), "params": self.get_params(), "shard_index": self.shard_key_,
+                "shard_class": f"{self.shard_cls_.__module__}:{self.shard_cls_.__qualname__}",
                 "offsets": self.offsets_.tolist(), "dim": self.dim_, "method": self.method_}
         (d / _META).write_text(json.dumps(meta, indent=1))
 
@@ -338,9 +352,8 @@ class ShardedIndex(Index):
             raise DataError(f"{d} holds no saved {cls.name} index (no {_META})")
         meta = json.loads((d / _META).read_text())
         self = cls(meta["params"])
-        from mocapflow.framework.plugins import load_registries
-
-        shard_cls = load_registries().resolve(meta["shard_index"])
+        shard_cls = _import_class(meta["shard_class"]) if "shard_class" in meta \
+            else _registries(None).resolve(meta["shard_index"])
         self.offsets_ = np.asarray(meta["offsets"], np.int64)
         self.shards_ = [_load_shard(shard_cls, d / f"shard-{s:03d}") for s in range(len(self.offsets_) - 1)]
         self._finish(shard_cls, meta["dim"])
@@ -359,7 +372,7 @@ class ShardedIndex(Index):
         out = ctx.out_dir / "index"
         ref = DatasetRef.of(inputs["features"])
         # each shard is built and saved by a worker, which reads only its rows of the features
-        tasks = [_ShardBuild(ref, int(a), int(b), cls.key(), self.params.index_params, str(out / f"shard-{s:03d}"))
+        tasks = [_ShardBuild(ref, int(a), int(b), cls, self.params.index_params, str(out / f"shard-{s:03d}"))
                  for s, (a, b) in enumerate(zip(self.offsets_[:-1], self.offsets_[1:]))]
         built = ctx.executor.map(_build_task, tasks, desc=f"{ctx.step_id}: shards") if len(tasks) > 1 else [_build_task(t) for t in tasks]
         self.shards_ = [_load_shard(cls, Path(t.directory)) for t in tasks]
@@ -375,7 +388,7 @@ class _ShardBuild:
     features: Any  # DatasetRef
     start: int
     stop: int
-    index_key: str
+    index_cls: type
     index_params: dict
     directory: str
 
@@ -385,7 +398,6 @@ def _build_task(t: _ShardBuild) -> dict[str, Any]:
     import pyarrow.parquet as pq
 
     from mocapflow.framework.datasets import fixed_list_to_numpy
-    from mocapflow.framework.plugins import load_registries
 
     f = pq.ParquetFile(f"{t.features.path}/data.parquet", memory_map=True)
     sizes = [f.metadata.row_group(i).num_rows for i in range(f.metadata.num_row_groups)]
@@ -394,8 +406,7 @@ def _build_task(t: _ShardBuild) -> dict[str, Any]:
     g1 = int(np.searchsorted(starts, t.stop, side="left"))
     table = f.read_row_groups(list(range(g0, g1))).slice(t.start - int(starts[g0]), t.stop - t.start)
     x = fixed_list_to_numpy(table["features"])
-    cls = load_registries().resolve(t.index_key)
-    shard = cls(t.index_params)
+    shard = t.index_cls(t.index_params)
     kw = {"groups": table["clip_id"].to_numpy(), "frames": table["frame"].to_numpy()} \
         if "groups" in inspect.signature(shard.build).parameters else {}
     shard.build(x, **kw)
