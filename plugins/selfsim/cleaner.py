@@ -266,10 +266,10 @@ class MDMCleaner(Cleaner):
         out = self.clean(motion, context, contacts)
         return out.cleaned, out.edits
 
-    def clean_clip(
+    def detect_and_repair(
         self, motion: Motion, context: Any, clip_id: int, out_dir: Any = None, registries: Any = None
     ) -> Any:
-        """The step's hook for one clip (:meth:`Cleaner.clean_clip`): one analysis, and the
+        """The step's hook for one clip (:meth:`Cleaner.detect_and_repair`): one analysis, and the
         tables, BVH and pictures of :func:`.outputs.clean_and_write_clip`."""
         from mocapflow.framework.cleaning import CleanedClip
 

@@ -84,7 +84,8 @@ def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
     }
 
 
-def clean_and_write_clip(cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None, registries: Any = None
+def clean_and_write_clip(
+    cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None, registries: Any = None
 ) -> dict[str, Any]:
     """Clean one clip (:meth:`.cleaner.MDMCleaner.clean`) and write its BVH, heatmap and
     before/after plot into ``out_dir`` (the BVH with the ``formats.bvh`` of ``registries``) (None: nothing written); returns the tables, the
