@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from mocapflow.plugins.similarity._knn_kernels import _box_dist, _heap_replace
+from mocapflow.plugins.similarity.knn._knn_kernels import _box_dist, _heap_replace
 
 
 @njit(cache=True)

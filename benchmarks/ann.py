@@ -141,7 +141,7 @@ def one_by_one(fn, qs):
 
 
 def bench(label, x, n_queries, ks, efs, rng, libs=("hnswlib", "usearch", "faiss"), echo=print):
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     sd = x.std(axis=0).mean()
     qs = (x[rng.integers(0, len(x), n_queries)] + rng.normal(0, 0.01 * sd, (n_queries, x.shape[1]))).astype(np.float32)
@@ -179,7 +179,7 @@ def bench(label, x, n_queries, ks, efs, rng, libs=("hnswlib", "usearch", "faiss"
 
 
 def main(argv=None) -> int:
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="the real corpus only, 100 queries")

@@ -90,7 +90,7 @@ def candidates(x, libs):
                 return query
             yield f"faiss IVFFlat {nlist}", build, ("nprobe", (4, 8, 16, 32))
     if "kdtree" in libs:
-        from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+        from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
         def build():
             tree = KDTreeIndex(method="kdtree", workers=1).build(x)
@@ -114,8 +114,8 @@ def candidates(x, libs):
 def main(argv=None) -> int:
     from corpus import augmented_database, load_corpus
 
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="the real corpus only, 50 queries")

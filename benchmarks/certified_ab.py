@@ -54,7 +54,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 def database(n: int):
     from corpus import augmented_database
 
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 
     db = augmented_database(n, fps=30)
     x = np.ascontiguousarray(EndEffectorFeatures(joints=5).transform(db))
@@ -66,7 +66,7 @@ def database(n: int):
 def spaces(x, clip_id, frame, src, lengths, n_queries, hidden, rng):
     """(query, space) pairs per length; with ``hidden`` each query's source clip removed."""
     from mocapflow.framework.matching import SearchSpace
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     def space(keep=None):
         if keep is None:
@@ -91,7 +91,7 @@ def old_coarse(rev: str, where: Path):
     src = subprocess.run(["git", "show", f"{rev}:plugins/similarity/_coarse_kernels.py"], cwd=ROOT, check=True,
                          capture_output=True, text=True).stdout
     (pkg / "_coarse_kernels.py").write_text(src.replace("from ._dtw_kernels import",
-                                                         "from mocapflow.plugins.similarity._dtw_kernels import"))
+                                                         "from mocapflow.plugins.similarity.search._dtw_kernels import"))
     sys.path.insert(0, str(where))
     return importlib.import_module("old_coarse._coarse_kernels").coarse_bounds
 
@@ -103,8 +103,8 @@ def cpu(fn, *args):
 
 
 def kernel_ab(queries, rev, rounds):
-    import mocapflow.plugins.similarity._coarse_kernels as ck
-    from mocapflow.plugins.similarity.exact import certified_sdtw
+    import mocapflow.plugins.similarity.search._coarse_kernels as ck
+    from mocapflow.plugins.similarity.search.exact import certified_sdtw
 
     new = ck.coarse_bounds
     with tempfile.TemporaryDirectory() as tmp:
@@ -138,7 +138,7 @@ def level_kw(spec: str) -> dict:
 
 
 def whole(queries, settings, apply, label, rounds):
-    import mocapflow.plugins.similarity.exact as ex
+    import mocapflow.plugins.similarity.search.exact as ex
 
     for m, qs in queries.items():
         rows = {s: [] for s in settings}

@@ -57,7 +57,7 @@ def data(n: int):
     if f.is_file():
         x = np.load(f)
     else:
-        from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+        from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 
         x = np.ascontiguousarray(EndEffectorFeatures(joints=5).transform(db), np.float32)
         np.save(f, x)
@@ -66,7 +66,7 @@ def data(n: int):
 
 def space_of(x, clip_id, frame, index=False):
     from mocapflow.framework.matching import SearchSpace
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     idx = KDTreeIndex(method="kdtree", workers=1).build(x) if index else None
     return SearchSpace(clip_id, frame, idx, x)
@@ -94,15 +94,15 @@ def oracle(q, sp, tau):
 
 
 def row_ranges(mask):
-    from mocapflow.plugins.similarity.exact import block_ranges
+    from mocapflow.plugins.similarity.search.exact import block_ranges
 
     return block_ranges(mask)
 
 
 def quality(sizes, picks, save):
-    from mocapflow.plugins.similarity import exact
-    from mocapflow.plugins.similarity.matcher_base import block_boxes_of
-    from mocapflow.plugins.similarity.sdtw import subsequence_dtw
+    from mocapflow.plugins.similarity.search import exact
+    from mocapflow.plugins.similarity.search.matcher_base import block_boxes_of
+    from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
     saved = []
     hdr = (f"{'rows':>9} {'m':>3} {'tau':>7} {'seed/tau':>8} {'oracle rows':>11} {'cells':>8} {'blk4 rows':>9} "
@@ -164,8 +164,8 @@ def cpu(fn, *args):
 
 
 def timing(path, rounds):
-    from mocapflow.plugins.similarity import exact
-    from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward, sdtw_ranges_compact
+    from mocapflow.plugins.similarity.search import exact
+    from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_ranges_compact
     from mocapflow.framework.matching import min_frames_of
 
     saved = json.loads(Path(path).read_text())

@@ -41,10 +41,10 @@ PARTS = {"seeds": ("exact", "_seed_tau"), "knn": ("kdtree", "KDTreeIndex.query")
 
 def instrument(spent: dict) -> None:
     """Wrap each part's function so that its wall time accumulates in ``spent[part]``."""
-    import mocapflow.plugins.similarity._coarse_kernels as coarse
-    import mocapflow.plugins.similarity._dtw_kernels as dtw
-    import mocapflow.plugins.similarity.exact as exact
-    import mocapflow.plugins.similarity.kdtree as kdtree
+    import mocapflow.plugins.similarity.search._coarse_kernels as coarse
+    import mocapflow.plugins.similarity.search._dtw_kernels as dtw
+    import mocapflow.plugins.similarity.search.exact as exact
+    import mocapflow.plugins.similarity.knn.kdtree as kdtree
 
     modules = {"exact": exact, "coarse": coarse, "dtw": dtw, "kdtree": kdtree}
     for part, (mod, name) in PARTS.items():
@@ -67,9 +67,9 @@ def instrument(spent: dict) -> None:
 
 def seed_window_share(q, space, tau) -> float:
     """Share of the seed windows' rows in windows whose coarsest-level bound is <= ``tau``."""
-    import mocapflow.plugins.similarity._dtw_kernels as dtw
-    import mocapflow.plugins.similarity.exact as exact
-    from mocapflow.plugins.similarity.matcher_base import block_boxes_of
+    import mocapflow.plugins.similarity.search._dtw_kernels as dtw
+    import mocapflow.plugins.similarity.search.exact as exact
+    from mocapflow.plugins.similarity.search.matcher_base import block_boxes_of
 
     calls = []
     fn = dtw.sdtw_ranges_compact
@@ -93,7 +93,7 @@ def seed_window_share(q, space, tau) -> float:
 def main(argv=None) -> int:
     import matching as mt
 
-    import mocapflow.plugins.similarity.exact as exact
+    import mocapflow.plugins.similarity.search.exact as exact
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="60,000 rows, 2 queries per length")

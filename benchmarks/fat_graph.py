@@ -24,8 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from corpus import augmented_database
 
 from mocapflow.framework import load_registries
-from mocapflow.plugins.similarity._fat_graph_kernels import greedy_cover
-from mocapflow.plugins.similarity.fat_graph import FatGraphParams, radius_neighbours
+from mocapflow.plugins.similarity.applications._fat_graph_kernels import greedy_cover
+from mocapflow.plugins.similarity.applications.fat_graph import FatGraphParams, radius_neighbours
 
 
 def quadratic_neighbours(x: np.ndarray, radius: float, k: int, block: int = 2048) -> np.ndarray:

@@ -56,7 +56,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=12, help="alternating rounds (default 12)")
     ap.add_argument("--quick", action="store_true", help="3 rounds: a smoke run")
     args = ap.parse_args()
-    from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward, sdtw_ranges_compact
+    from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_ranges_compact
 
     x = np.ascontiguousarray(np.load(FEATURES).astype(np.float32))
     n = len(x)

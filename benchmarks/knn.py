@@ -59,7 +59,7 @@ def features_for(db_name: str, cache: Path) -> dict[str, np.ndarray]:
     from corpus import augmented_database, load_corpus
 
     from mocapflow.framework import MotionDatabase
-    from mocapflow.plugins.similarity.correlation import feature_matrix
+    from mocapflow.plugins.similarity.applications.correlation import feature_matrix
 
     d = cache / f"features_{db_name}"
     if all((d / f"{f}.npy").is_file() for f in FEATURE_SETS):
@@ -89,7 +89,7 @@ def measure(db_name: str, mode: str, n_queries: int, cache: Path) -> dict:
     """Run in a child process; ``mode`` single (1 thread, one query per call) or batch."""
     from scipy.spatial import cKDTree
 
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     try:
         from pykdtree.kdtree import KDTree as PyKDTree

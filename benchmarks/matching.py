@@ -35,13 +35,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from corpus import augmented_database
 
-from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
-from mocapflow.plugins.similarity._lng_kernels import lng_forward
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
-from mocapflow.plugins.similarity.graph import NeighborhoodGraph, neighbor_sets
+from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.search._lng_kernels import lng_forward
+from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.search.graph import NeighborhoodGraph, neighbor_sets
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 
 def database_space(n_frames: int, echo=print, names: list | None = None) -> SearchSpace:
@@ -97,7 +97,7 @@ def lng_once(q, space, k, eps, propagate=0):
 def matcher_once(q, space, **kw):
     """(top-10 [(start, end), ...], seconds, result) of one ``lazy_neighborhood_graph`` call (matcher defaults +
     ``kw``); with ``levels`` or ``top`` in ``kw``, of :func:`certified_sdtw` with those settings."""
-    from mocapflow.plugins.similarity import exact
+    from mocapflow.plugins.similarity.search import exact
 
     full_from, exact.FULL_FROM = exact.FULL_FROM, kw.pop("full_from", exact.FULL_FROM)
     try:
@@ -238,7 +238,7 @@ def bench_hidden(space: SearchSpace, sources: list, lengths, n_queries, rng, ech
     so only other performances count (issue 13's quality targets, at scale); with the time ratios."""
     from scipy.stats import spearmanr
 
-    from mocapflow.plugins.similarity.exact import certified_sdtw
+    from mocapflow.plugins.similarity.search.exact import certified_sdtw
 
     src = np.asarray(sources)[space.clip_id]
     echo(f"  query's source clip hidden (all its augmented copies); {n_queries} queries per length; "
@@ -256,7 +256,7 @@ def bench_hidden(space: SearchSpace, sources: list, lengths, n_queries, rng, ech
             ref, t = timed(subsequence_dtw, q, sub, count=10)
             t_ref.append(t)
             for name, kw in HIDDEN_METHODS.items():
-                from mocapflow.plugins.similarity.exact import ExactStats
+                from mocapflow.plugins.similarity.search.exact import ExactStats
 
                 st = ExactStats()
                 res, t = timed(certified_sdtw, q, sub, count=10, stats=st, **kw)
@@ -316,7 +316,7 @@ def main(argv=None) -> int:
         space = database_space(n)
         ann = None
         if args.ann:
-            from mocapflow.plugins.similarity.hnsw import HNSWIndex
+            from mocapflow.plugins.similarity.knn.hnsw import HNSWIndex
 
             t = time.perf_counter()
             ann = SearchSpace(space.clip_id, space.frame, HNSWIndex(ef=256, threads=0).build(space.features), space.features)

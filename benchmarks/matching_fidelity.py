@@ -43,10 +43,10 @@ from matching import random_queries, random_segments
 
 from mocapflow.framework import MotionDatabase
 from mocapflow.framework.normalize import resample
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
-from mocapflow.plugins.similarity.graph import build_graph
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.search.graph import build_graph
 from mocapflow.framework.matching import SearchSpace, select_matches
-from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw
+from mocapflow.plugins.similarity.search.sdtw import sdtw_costs, subsequence_dtw
 
 
 def load(corpus: str) -> MotionDatabase:
@@ -179,7 +179,7 @@ def query_by_example(db: MotionDatabase, feature_sets: dict, k: int, min_span: f
 
 
 def main(argv=None) -> int:
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
         if corpus == "hdm05" and not args.no_qbe:
             sets = {"F15": EndEffectorFeatures(joints=5)}
             if not args.quick:
-                from mocapflow.plugins.similarity.pca import PosePCA
+                from mocapflow.plugins.similarity.knn.pca import PosePCA
 
                 sets.update({"F30": EndEffectorFeatures(joints=10), "F15x3": EndEffectorFeatures(joints=5, samples=3),
                              "Fpca16": PosePCA(n_components=16)})

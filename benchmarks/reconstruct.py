@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from corpus import load_corpus
 
 from mocapflow.framework import MotionDatabase, load_registries
-from mocapflow.plugins.similarity.reconstruct import PriorDatabase, ReconstructParams, reconstruct_motion
-from mocapflow.plugins.similarity.reconstruct_eval import (
+from mocapflow.plugins.similarity.applications.reconstruct import PriorDatabase, ReconstructParams, reconstruct_motion
+from mocapflow.plugins.similarity.applications.reconstruct_eval import (
     DEFAULT_TESTS, FEATURE_SETS, size_sweep, table3, table4,
 )
 

@@ -40,10 +40,10 @@ from corpus import DATA
 
 from mocapflow.framework import MotionDatabase
 from mocapflow.framework.normalize import resample
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 #: method label -> keyword arguments of lazy_neighborhood_graph (None: subsequence DTW)
 METHODS = {
@@ -252,7 +252,7 @@ def choose_approx_loao(db, x, actors, grid, n_queries, rng, echo=print) -> None:
 
 
 def main(argv=None) -> int:
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help=f"methods {', '.join(QUICK)}; 16 recall queries per length")

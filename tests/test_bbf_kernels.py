@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
 sys.path.insert(0, str(REPO / "benchmarks"))
 from _bbf_kernels import bbf_query

@@ -9,8 +9,8 @@ import sys
 
 CODE = """
 import numpy as np
-from mocapflow.plugins.similarity import _knn_kernels as kern
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn import _knn_kernels as kern
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
 rng = np.random.default_rng(0)
 x = rng.normal(size=(400, 6)).astype(np.float32)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocapflow.framework import MotionDatabase
-from mocapflow.plugins.similarity.correlation import DistanceCorrelationStudy
+from mocapflow.plugins.similarity.applications.correlation import DistanceCorrelationStudy
 from mocapflow.framework.testing import synthetic_motion
 
 

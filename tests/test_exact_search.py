@@ -10,13 +10,13 @@ from test_lng import BruteIndex
 from test_sdtw import make_db
 
 from naive.coarse import naive_boxes, naive_coarse_bounds, naive_sdtw_ranges
-from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_bounds
-from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward, sdtw_ranges_compact
-from mocapflow.plugins.similarity.exact import ExactStats, certified_sdtw
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.search._coarse_kernels import block_boxes, coarse_bounds
+from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_ranges_compact
+from mocapflow.plugins.similarity.search.exact import ExactStats, certified_sdtw
+from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
@@ -126,7 +126,7 @@ def test_coarse_kernels_equal_naive_on_hdm05():
     from mocapflow.framework import MotionDatabase
     from mocapflow.framework.normalize import resample
     from mocapflow.plugins.formats.asf_amc import read_amc
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 
     files = sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))[:2]
     db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])
@@ -271,9 +271,9 @@ def test_normalized_ranking_falls_back_to_the_whole_dp():
 def test_certified_equals_sdtw_on_hdm05():
     from mocapflow.framework import MotionDatabase
     from mocapflow.framework.normalize import resample
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
     from mocapflow.plugins.formats.asf_amc import read_amc
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     files = sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))
     db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])
@@ -330,8 +330,8 @@ def test_bounded_approximation_guarantee(seed, approx):
 def test_matcher_default_is_exactly_sdtw_on_a_pruned_search():
     # what the default promises (matchers.lng: exact true, approx 0): subsequence DTW's matches,
     # here on a database large enough (> DIRECT_CELLS) that the pruned coarse-to-fine search runs
-    from mocapflow.plugins.similarity.exact import DIRECT_CELLS
-    from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
+    from mocapflow.plugins.similarity.search.exact import DIRECT_CELLS
+    from mocapflow.plugins.similarity.search.lng import LazyNeighborhoodGraph
 
     p = LazyNeighborhoodGraph.Params()
     assert p.exact and p.approx == 0.0
@@ -350,8 +350,8 @@ def test_matcher_default_is_exactly_sdtw_on_a_pruned_search():
 @pytest.mark.parametrize("seed_eps", [0.0, 1.0, 4.0])
 def test_certified_with_approximate_seeds_equals_sdtw(seed_eps, monkeypatch):
     # the seeds' neighbours may be approximate (exact.SEED_EPS, kd-tree eps): they only supply tau
-    import mocapflow.plugins.similarity.exact as exact
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+    import mocapflow.plugins.similarity.search.exact as exact
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     monkeypatch.setattr(exact, "SEED_EPS", seed_eps)
     clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25, 120, 80], seed=5)
@@ -368,8 +368,8 @@ def test_alive_runs_equals_block_ranges(seed):
     # the scan over the evaluated ranges only == the runs block by block (and block_ranges), adjacent ranges merged
     from naive.coarse import naive_alive_runs
 
-    from mocapflow.plugins.similarity._coarse_kernels import alive_runs
-    from mocapflow.plugins.similarity.exact import block_ranges
+    from mocapflow.plugins.similarity.search._coarse_kernels import alive_runs
+    from mocapflow.plugins.similarity.search.exact import block_ranges
 
     rng = np.random.default_rng(seed)
     nb = int(rng.integers(1, 80))

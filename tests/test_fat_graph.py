@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapflow.plugins.similarity._fat_graph_kernels import greedy_cover
-from mocapflow.plugins.similarity.fat_graph import (
+from mocapflow.plugins.similarity.applications._fat_graph_kernels import greedy_cover
+from mocapflow.plugins.similarity.applications.fat_graph import (
     BasePoses, FatGraph, clip_transitions, cluster_runs, select_base_poses,
 )
 from naive.fat_graph import all_pairs_neighbours
@@ -104,7 +104,7 @@ def test_tables_shape_and_graph_edges():
 def test_plot_writes_png(tmp_path):
     pytest.importorskip("matplotlib")
     from mocapflow.framework.joints import CANONICAL_JOINTS
-    from mocapflow.plugins.similarity.fat_graph import plot_base_poses
+    from mocapflow.plugins.similarity.applications.fat_graph import plot_base_poses
 
     pos = np.random.default_rng(0).normal(size=(3, len(CANONICAL_JOINTS), 3))
     plot_base_poses(pos, CANONICAL_JOINTS, tmp_path / "b.png", "t")

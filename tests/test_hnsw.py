@@ -7,8 +7,8 @@ import pytest
 hnswlib = pytest.importorskip("hnswlib", reason="indexes.hnsw needs the 'ann' extra (pip install 'mocapflow[ann]')")
 
 from mocapflow.framework.testing import parametrize_with_checks  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
-from mocapflow.plugins.similarity.hnsw import HNSWIndex  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
+from mocapflow.plugins.similarity.knn.hnsw import HNSWIndex  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
+from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 from mocapflow.framework.matching import SearchSpace  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 
 

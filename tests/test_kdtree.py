@@ -6,7 +6,7 @@ import pytest
 from naive.knn import knn
 
 from mocapflow.framework.errors import ConfigError, DataError
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
 METHODS = ["kdtree", "brute"]
 
@@ -88,7 +88,7 @@ def test_save_load_does_not_rebuild(tmp_path, monkeypatch):
     x = rng.normal(size=(800, 5)).astype(np.float32)
     ix = KDTreeIndex(method="kdtree").build(x, groups=np.arange(800) // 100, frames=np.arange(800) % 100)
     ix.save(tmp_path / "ix")
-    from mocapflow.plugins.similarity import _knn_kernels
+    from mocapflow.plugins.similarity.knn import _knn_kernels
 
     monkeypatch.setattr(_knn_kernels, "build_tree", None)  # load must not call it
     back = KDTreeIndex.load(tmp_path / "ix")
@@ -120,7 +120,7 @@ def test_float32_stored_once_and_auto_reports_method():
 
 
 def test_batches_switch_to_brute_force_by_the_batched_cost_model():
-    from mocapflow.plugins.similarity import kdtree
+    from mocapflow.plugins.similarity.knn import kdtree
 
     rng = np.random.default_rng(7)
     x = rng.normal(size=(4000, 10)).astype(np.float32)
@@ -172,7 +172,7 @@ def test_brute_force_massive_ties_fall_back_exactly():
     assert i.tolist() == [[1, 2, 3, 4, 5]] * 2 and not d.any()
     d, i = ix.query(np.ones((1, 4), np.float32), 3, radius=0.5)
     assert i.tolist() == [[0, 7, 14]]
-    from mocapflow.plugins.similarity._brute import brute_knn  # the blocked path overflows its buffers here
+    from mocapflow.plugins.similarity.knn._brute import brute_knn  # the blocked path overflows its buffers here
 
     z = np.zeros(2, np.int64)
     d2, i = brute_knn(np.zeros((2, 4), np.float32), x, ix.mean_, ix.sqnorms_, 5, np.inf, ix.groups_, ix.frames_,
@@ -235,7 +235,7 @@ def test_brute_single_query_lean_path_is_exact(case):
 @pytest.mark.parametrize("case", ["clustered", "ties", "radius", "exclude"])
 def test_blocked_brute_path_equals_naive(case):
     # databases over lean_max_rows take the blocked path: force it on a small one
-    from mocapflow.plugins.similarity._brute import brute_knn
+    from mocapflow.plugins.similarity.knn._brute import brute_knn
 
     rng = np.random.default_rng(9)
     x = _clustered(rng, 2500, 6) if case != "ties" else rng.integers(0, 3, size=(2500, 3)).astype(np.float32)
@@ -272,7 +272,7 @@ def test_kdtree_single_row_queries_take_the_lean_call_exactly():
 def test_tree_work_counts_the_buckets_within_the_kth_distance():
     # the auto cost model's counts against a plain reading of the tree: every leaf whose
     # points' box lies within the k-th neighbour distance, and every node visited on the way
-    from mocapflow.plugins.similarity import _knn_kernels as kern
+    from mocapflow.plugins.similarity.knn import _knn_kernels as kern
 
     rng = np.random.default_rng(11)
     x = rng.normal(size=(2000, 5)).astype(np.float32)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from naive.knn import knn
 
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
 
 def _data(kind, rng):
@@ -39,7 +39,7 @@ def test_node_boxes_are_the_tight_boxes_of_the_node_points(kind, leafsize):
 def test_box_distance_never_exceeds_a_point_distance(kind):
     # the pruning rule: for every query and node, the box distance is <= the float64 distance
     # (summed as the search sums it) of each point in the node, ties included
-    from mocapflow.plugins.similarity._knn_kernels import _box_dist
+    from mocapflow.plugins.similarity.knn._knn_kernels import _box_dist
 
     rng = np.random.default_rng(1)
     ix = KDTreeIndex(method="kdtree", leafsize=4).build(_data(kind, rng)[:300])

@@ -9,8 +9,8 @@ from mocapflow.framework import MotionDatabase
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.testing import synthetic_motion, synthetic_skeleton
-from mocapflow.plugins.similarity.end_effectors import JOINT_SETS, EndEffectorFeatures
-from mocapflow.plugins.similarity.pca import PosePCA
+from mocapflow.plugins.similarity.knn.end_effectors import JOINT_SETS, EndEffectorFeatures
+from mocapflow.plugins.similarity.knn.pca import PosePCA
 
 
 def _tpose(n=3, heading_deg=0.0, root=(1.0, 0.95, -2.0)):

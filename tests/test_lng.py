@@ -8,10 +8,10 @@ from test_sdtw import make_db
 
 from mocapflow.framework import Index
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
-from mocapflow.plugins.similarity.graph import build_graph
+from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.search.graph import build_graph
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 
 class BruteIndex(Index):
@@ -126,7 +126,7 @@ def test_index_contract_violations():
 def test_propagate_layer_equals_naive(seed, k, radius, ties):
     from naive.dtw import naive_propagate
 
-    from mocapflow.plugins.similarity._lng_kernels import propagate_layer
+    from mocapflow.plugins.similarity.search._lng_kernels import propagate_layer
 
     rng = np.random.default_rng(seed)
     lengths = [1, 7, 2, 30, 3]

@@ -9,11 +9,11 @@ from test_lng import BruteIndex, space_of
 from test_sdtw import make_db
 
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.similarity._gap_kernels import gap_layers
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
-from mocapflow.plugins.similarity.graph import build_graph, neighbor_sets
+from mocapflow.plugins.similarity.search._gap_kernels import gap_layers
+from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.search.graph import build_graph, neighbor_sets
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity.sdtw import sdtw_costs
+from mocapflow.plugins.similarity.search.sdtw import sdtw_costs
 
 
 @pytest.mark.parametrize("lengths,m,k,gaps,seed", [

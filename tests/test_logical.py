@@ -11,11 +11,11 @@ from test_lng import BruteIndex
 from mocapflow.framework import StepContext, load_registries
 from mocapflow.framework.datasets import MANIFEST, Dataset, feature_table, frame_id_table
 from mocapflow.framework.errors import ConfigError
-from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
-from mocapflow.plugins.similarity.logical import LogicalSearch, logical_search
+from mocapflow.plugins.similarity.search.lng import LazyNeighborhoodGraph
+from mocapflow.plugins.similarity.search.logical import LogicalSearch, logical_search
 from mocapflow.framework.matching import MATCH_COLUMNS, SearchSpace
 from mocapflow.framework.queries import parse_query_spec
-from mocapflow.plugins.similarity.sdtw import SubsequenceDTW
+from mocapflow.plugins.similarity.search.sdtw import SubsequenceDTW
 
 
 class SavedBrute(BruteIndex):

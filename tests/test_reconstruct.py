@@ -8,8 +8,8 @@ from mocapflow.framework import FeatureSet, Motion, MotionDatabase
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.testing import synthetic_skeleton
-from mocapflow.plugins.similarity.retarget import positions_to_motion
-from mocapflow.plugins.similarity.reconstruct import (
+from mocapflow.plugins.similarity.applications.retarget import positions_to_motion
+from mocapflow.plugins.similarity.applications.reconstruct import (
     PosePrior, PriorDatabase, ReconstructParams, joint_errors, local_poses,
     reconstruct_motion, reconstruct_positions, synthetic_markers,
 )

@@ -7,7 +7,7 @@ from naive.dtw import continues_of, naive_path, naive_subsequence_dtw
 
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace, select_matches
-from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw
+from mocapflow.plugins.similarity.search.sdtw import sdtw_costs, subsequence_dtw
 
 
 def make_db(lengths, dim=3, seed=0, walk=True):

@@ -67,13 +67,13 @@ def _search(ws, *extra):
 def test_server_answers_as_the_process_does(workspace, capsys, tmp_path):
     from conftest import EXAMPLES_DATA
 
-    from mocapflow.plugins.similarity import search_server
+    from mocapflow.plugins.similarity.search import search_server
 
     query = ["--query", f"{EXAMPLES_DATA}/cmu/16/16_15.amc:1s-3s"]
     assert _search(workspace, *query, "--no-server") == 0
     local = capsys.readouterr().out
     args = Namespace(db=str(workspace), index=None, no_entry_points=True, block=[], idle_timeout=1.0)
-    from mocapflow.plugins.similarity.search_command import SearchSession
+    from mocapflow.plugins.similarity.search.search_command import SearchSession
 
     server = threading.Thread(target=search_server.serve, args=(args, SearchSession))
     server.start()
@@ -112,8 +112,8 @@ def test_without_sidecars_and_stale_sessions(workspace, capsys, tmp_path):
 
     from conftest import EXAMPLES_DATA
 
-    from mocapflow.plugins.similarity.search_command import SearchSession
-    from mocapflow.plugins.similarity.search_server import _handle
+    from mocapflow.plugins.similarity.search.search_command import SearchSession
+    from mocapflow.plugins.similarity.search.search_server import _handle
 
     ws = tmp_path / "old"
     shutil.copytree(workspace, ws)

@@ -10,9 +10,9 @@ from test_lng import BruteIndex
 from test_sdtw import make_db
 
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity import exact
+from mocapflow.plugins.similarity.search import exact
 from mocapflow.plugins.similarity._seed_votes import voted_windows
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 
 @pytest.mark.parametrize("seed,top,gap", [(0, 1, 4), (1, 3, 2), (2, 50, 6), (3, 2, 0)])

@@ -10,8 +10,8 @@ import pytest
 from mocapflow.framework import get_plugin_manager
 from mocapflow.framework.executors import LocalExecutor
 from mocapflow.framework.runner import run_pipeline
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
-from mocapflow.plugins.similarity.sharded import ShardedIndex, _ShardQuery, shard_bounds
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn.sharded import ShardedIndex, _ShardQuery, shard_bounds
 
 REPO = Path(__file__).resolve().parent.parent
 CMU = REPO / "examples" / "data" / "cmu"

@@ -8,8 +8,8 @@ from naive.dtw import continues_of, naive_blocks, naive_through_cell
 from test_exact_search import query_of
 from test_sdtw import make_db
 
-from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_bounds, subspace_bounds
-from mocapflow.plugins.similarity._subspace_kernels import block_subspaces
+from mocapflow.plugins.similarity.search._coarse_kernels import block_boxes, coarse_bounds, subspace_bounds
+from mocapflow.plugins.similarity.search._subspace_kernels import block_subspaces
 
 # seed, clip lengths, query frames, rows per block, basis size, dimensions
 CASES = [(0, [40, 1, 30, 12], 6, 4, 2, 3), (1, [80], 10, 16, 3, 5), (2, [5, 5, 5, 60], 3, 7, 2, 4),

@@ -1,4 +1,4 @@
-"""Naive references of the certified search's kernels (:mod:`mocapflow.plugins.similarity._coarse_kernels`).
+"""Naive references of the certified search's kernels (:mod:`mocapflow.plugins.similarity.search._coarse_kernels`).
 
 Written from the definitions, not from the kernels: full matrices in float64, the
 textbook recurrences cell by cell, blocks and boxes found by brute force. They share no

@@ -28,7 +28,7 @@ from pydantic import Field
 from mocapflow.framework import Analysis, MotionDatabase, Params
 from mocapflow.framework.errors import ConfigError
 
-from .distances import DISTANCE_MEASURES, PoseMeasures
+from ..knn.distances import DISTANCE_MEASURES, PoseMeasures
 
 if TYPE_CHECKING:  # pragma: no cover
     from pathlib import Path
@@ -48,8 +48,8 @@ def _check_measure(name: str) -> None:
 
 def feature_matrix(name: str, db: MotionDatabase, reference: MotionDatabase | None, window: float = 0.3) -> np.ndarray:
     """Features of every frame of ``db`` for a measure name ``F_...``, float32 (n_frames, dim)."""
-    from .end_effectors import EndEffectorFeatures
-    from .pca import PosePCA
+    from ..knn.end_effectors import EndEffectorFeatures
+    from ..knn.pca import PosePCA
 
     m = _FEATURE.fullmatch(name)
     if m is None:
@@ -90,7 +90,7 @@ class DistanceCorrelationStudy(Analysis):
 
     def study(self, db: MotionDatabase, reference: MotionDatabase | None = None, progress=None):
         """Run the study; returns ``(rows, cols, rho (R, C), rho_std (R, C), n (R, C))``."""
-        from .kdtree import KDTreeIndex
+        from ..knn.kdtree import KDTreeIndex
 
         p = self.params
         cols = tuple(p.measures)
