@@ -59,5 +59,5 @@ def test_lng_through_the_contract():
     frame = np.tile(np.arange(100), 20).astype(np.int32)
     space = SearchSpace(clip_id, frame, HNSWIndex().build(x), x)
     q = x[430:460] + rng.normal(0, 0.01, (30, 3)).astype(np.float32)
-    res = lazy_neighborhood_graph(q, space, k=32, count=3, exact=False)
+    res = lazy_neighborhood_graph(q, space, k=32, count=3)
     assert (res.start[0], res.end[0]) == (430, 460)

@@ -74,7 +74,7 @@ def test_kernel_matches_explicit_graph(lengths, m, k, radius, seed):
 def test_equals_subsequence_dtw_with_all_neighbours(seed):
     space = space_of([35, 2, 50, 20], seed=seed)
     q = space.features[40:52] * 1.05
-    lng = lazy_neighborhood_graph(q, space, k=space.n_rows, count=6, exact=False)
+    lng = lazy_neighborhood_graph(q, space, k=space.n_rows, count=6)
     ref = subsequence_dtw(q, space, count=6)
     np.testing.assert_allclose(lng.cost, ref.cost, rtol=1e-5)
     np.testing.assert_array_equal(lng.start, ref.start)
@@ -89,7 +89,7 @@ def test_no_edge_across_clip_boundary():
     clip_id = np.r_[np.zeros(20), np.ones(20)].astype(np.int32)
     frame = np.r_[np.arange(20), np.arange(20)].astype(np.int32)
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
-    res = lazy_neighborhood_graph(x[15:25], space, k=40, count=3, exact=False)
+    res = lazy_neighborhood_graph(x[15:25], space, k=40, count=3)
     for path in res.paths:
         assert len(set(clip_id[path[:, 1]])) == 1
     assert res.cost[0] > 0  # the perfect crossing alignment is forbidden
@@ -154,9 +154,9 @@ def test_propagated_sets_with_every_row_equal_subsequence_dtw(seed):
     # k >= n: the first layer holds every row, so every later candidate set does too
     space = space_of([25, 1, 18, 6], seed=seed)
     q = np.random.default_rng(seed).normal(size=(9, 3)).astype(np.float32)
-    exact = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5, exact=False)
+    exact = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5)
     for every in (1, 4, 100):
-        prop = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5, propagate=every, exact=False)
+        prop = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5, propagate=every)
         np.testing.assert_array_equal(prop.start, exact.start)
         np.testing.assert_array_equal(prop.end, exact.end)
         np.testing.assert_allclose(prop.cost, exact.cost, rtol=1e-6)
@@ -173,7 +173,7 @@ def test_propagated_sets_keep_exact_layers_and_need_features():
         np.testing.assert_array_equal(g_prop.ids[i], g_exact.ids[i])
     assert g_prop.count.min() >= 1
     # the query is a database segment: its own rows stay in the beam, so its match is found
-    best = lazy_neighborhood_graph(q, space, k=6, count=1, propagate=4, exact=False)
+    best = lazy_neighborhood_graph(q, space, k=6, count=1, propagate=4)
     assert (best.start[0], best.end[0]) == (10, 22)
     bare = SearchSpace(space.clip_id, space.frame, space.index)
     with pytest.raises(DataError, match="features"):

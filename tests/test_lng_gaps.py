@@ -75,8 +75,8 @@ def test_gaps_find_what_the_paper_graph_cannot():
     clip_id = np.r_[np.zeros(20), np.ones(20)].astype(np.int32)
     frame = np.r_[np.arange(20), np.arange(20)].astype(np.int32)
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
-    both_paper = lazy_neighborhood_graph(motif, space, k=2, count=2, gaps=0, fill=False, min_span=0, exact=False)
-    both_gaps = lazy_neighborhood_graph(motif, space, k=2, count=2, gaps=2, fill=False, min_span=0, exact=False)
+    both_paper = lazy_neighborhood_graph(motif, space, k=2, count=2, gaps=0, fill=False, min_span=0)
+    both_gaps = lazy_neighborhood_graph(motif, space, k=2, count=2, gaps=2, fill=False, min_span=0)
     assert len(both_paper) == 1 and both_paper.start[0] == 0
     assert len(both_gaps) == 2 and set(clip_id[both_gaps.start]) == {0, 1}
     assert both_gaps.end[1] - both_gaps.start[1] == 20
@@ -93,6 +93,6 @@ def test_fill_returns_count_when_graph_is_short():
     clip_id, frame, x = make_db([30, 30, 30], seed=8)
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
     q = x[5:15] + np.float32(3.0)
-    short = lazy_neighborhood_graph(q, space, k=1, count=5, gaps=0, fill=False, exact=False)
-    filled = lazy_neighborhood_graph(q, space, k=1, count=5, gaps=0, fill=True, exact=False)
+    short = lazy_neighborhood_graph(q, space, k=1, count=5, gaps=0, fill=False)
+    filled = lazy_neighborhood_graph(q, space, k=1, count=5, gaps=0, fill=True)
     assert len(short) < 5 and len(filled) == 5

@@ -11,6 +11,7 @@ from test_lng import BruteIndex
 from mocapflow.framework import StepContext, load_registries
 from mocapflow.framework.datasets import MANIFEST, Dataset, feature_table, frame_id_table
 from mocapflow.framework.errors import ConfigError
+from mocapflow.plugins.similarity.search.exact import CertifiedSearch
 from mocapflow.plugins.similarity.search.lng import LazyNeighborhoodGraph
 from mocapflow.plugins.similarity.search.logical import LogicalSearch, logical_search
 from mocapflow.framework.matching import MATCH_COLUMNS, SearchSpace
@@ -100,7 +101,9 @@ def ctx_for(tmp_path, regs, step):
 
 
 @pytest.mark.parametrize("cls,params", [
-    (LazyNeighborhoodGraph, {"k": 64, "count": 3, "plots": 1}),
+    (CertifiedSearch, {"count": 3, "plots": 1}),
+    (LazyNeighborhoodGraph, {"k": 64, "count": 3, "exact": False}),
+    (LazyNeighborhoodGraph, {"k": 64, "count": 3, "exact": False, "paper": True}),
     (SubsequenceDTW, {"count": 3}),
     (LogicalSearch, {"k": 64, "count": 3, "max_cost": 25.0, "rank_by": "cost"}),
 ])
@@ -123,8 +126,8 @@ def test_run_steps_on_datasets(workspace, cls, params):
         best = [r for r in rows if r["rank"] == 1]
         assert [(r["clip_id"], r["start_frame"], r["end_frame"]) for r in best] == [(0, 8, 28), (1, 8, 28)]
         assert best[0]["cost"] == pytest.approx(0.0, abs=1e-6)
-    if cls is LazyNeighborhoodGraph:
-        pngs = sorted(p.name for p in (tmp_path / ".tmp-lng" / "plots").iterdir())
+    if cls is CertifiedSearch:
+        pngs = sorted(p.name for p in (tmp_path / ".tmp-search" / "plots").iterdir())
         assert pngs == ["q0_m1.png", "q1_m1.png"]
 
 
@@ -200,29 +203,24 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     assert best[:4] == ["1", "16_15", "30", "90"]  # read, resampled to 30 Hz, found where it came from
     assert best[-2:] == ["1.00", "3.00"]  # and the same match in seconds of the database's rate
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "nonexistent.amc"]) != 0
-    # --exact is subsequence DTW's answer; --out into a folder that does not exist creates it
+    # the default (matchers.search) is subsequence DTW's answer; --out into a folder that does not exist creates it
     capsys.readouterr()
     out = tmp_path / "new" / "folder" / "m.csv"
     args = ["--no-entry-points", "search", "--db", str(ws), "--query", "02_01:10-50", "--count", "4"]
-    assert main(args + ["--exact", "--out", str(out)]) == 0
-    exact_out = capsys.readouterr().out.splitlines()[2:]
+    assert main(args + ["--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "matchers.search" in lines[0]
+    exact_out = lines[2:]
     assert main(args + ["--matcher", "sdtw"]) == 0
     assert capsys.readouterr().out.splitlines()[2:] == exact_out and len(exact_out) == 4
-    assert main(args) == 0  # lng's default is the certified search: sdtw's answer too
-    assert capsys.readouterr().out.splitlines()[2:] == exact_out
-    # --approx 0 is the certified search itself; any --approx keeps count matches, the best one here
-    assert main(args + ["--approx", "0"]) == 0
-    assert capsys.readouterr().out.splitlines()[2:] == exact_out
-    assert main(args + ["--approx", "0.5"]) == 0
-    approx_out = capsys.readouterr().out.splitlines()[2:]
-    assert len(approx_out) == 4 and approx_out[0] == exact_out[0]
-    assert main(args + ["--approx", "0.5", "--no-exact"]) == 2
-    assert "--approx" in capsys.readouterr().err
-    assert main(args + ["--no-exact"]) == 0  # the graph answers (same best match here)
+    assert main(args + ["--matcher", "lng"]) == 0  # the graph answers (same best match here)
     graph_out = capsys.readouterr().out.splitlines()[2:]
     assert len(graph_out) == 4 and graph_out[0] == exact_out[0]
+    assert main(args + ["--paper"]) == 2  # a graph option for the certified search
+    assert "paper" in capsys.readouterr().err
     assert out.is_file() and len(out.read_text().splitlines()) == 5 and not list(out.parent.glob(".m.csv*"))
-    assert main(args + ["--min-span", "1.0", "--gaps", "0", "--rank-by", "normalized", "--out", str(out.with_suffix(".parquet"))]) == 0
+    assert main(args + ["--matcher", "lng", "--paper", "--min-span", "1.0", "--rank-by", "normalized", "--out",
+                        str(out.with_suffix(".parquet"))]) == 0
     import pyarrow.parquet as pq
 
     t = pq.read_table(out.with_suffix(".parquet"))
@@ -239,8 +237,8 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
 def test_query_files_enter_the_fingerprint(tmp_path):
     f = tmp_path / "walk.amc"
     f.write_text("x")
-    m = LazyNeighborhoodGraph(queries=["walk.amc:0-10", "some_clip:0-5"])
+    m = CertifiedSearch(queries=["walk.amc:0-10", "some_clip:0-5"])
     before = m.source_fingerprint(tmp_path)
-    assert before and LazyNeighborhoodGraph(queries=["some_clip"]).source_fingerprint(tmp_path) == ""
+    assert before and CertifiedSearch(queries=["some_clip"]).source_fingerprint(tmp_path) == ""
     f.write_text("xy")
     assert m.source_fingerprint(tmp_path) != before

@@ -39,7 +39,7 @@ def workspace(tmp_path_factory):
 
 def test_registries_of_some_kinds_only():
     regs = load_registries(entry_points=False, kinds=("indexes", "matchers"))
-    assert "kdtree" in regs["indexes"] and "lng" in regs["matchers"]
+    assert "kdtree" in regs["indexes"] and "search" in regs["matchers"]
     assert not list(regs["analyses"]) and not list(regs["cleaners"]) and not list(regs.executors)
     full = load_registries(entry_points=False)
     assert set(full["matchers"].names()) == set(regs["matchers"].names()) and list(full["analyses"])
@@ -129,9 +129,8 @@ def test_without_sidecars_and_stale_sessions(workspace, capsys, tmp_path):
     first = box[0]
     manifest = ws / "tree" / "_manifest.json"
     manifest.write_text(manifest.read_text() + " ")  # the index step was recomputed
-    req = {"args": {"query": query[1], "index": None, "matcher": "lng", "count": 4, "min_span": None,
-                    "rank_by": None, "exact": None, "gaps": None, "propagate": None, "k": None, "radius": None,
-                    "plot": None, "out": None}, "cwd": str(tmp_path)}
+    req = {"args": {"query": query[1], "index": None, "matcher": "search", "count": 4, "min_span": None,
+                    "rank_by": None, "paper": None, "k": None, "plot": None, "out": None}, "cwd": str(tmp_path)}
     import json
 
     reply = _handle(box, json.dumps(req).encode(), lambda: SearchSession(ws, entry_points=False))

@@ -2,7 +2,8 @@
 
 Feature sets ``features.end_effectors`` and ``features.pca``; the kNN indexes
 ``indexes.kdtree``, ``indexes.sharded`` and, with the ``ann`` extra, ``indexes.hnsw``; the
-global matchers ``matchers.lng``, ``matchers.sdtw`` and ``matchers.logical``; the analyses
+global matchers ``matchers.search`` (the default: certified subsequence DTW), ``matchers.lng``
+(the paper's lazy neighbourhood graph), ``matchers.sdtw`` and ``matchers.logical``; the analyses
 built on them (nearest poses, distance correlation, reconstruction, fat-graph base poses);
 and the ``mocapflow search`` command. Every import is inside a hook so that loading this
 module (``mocapflow --help``) imports no numerical library.
@@ -36,11 +37,12 @@ def register_indexes() -> list[type]:
 
 @hookimpl
 def register_matchers() -> list[type]:
+    from .search.exact import CertifiedSearch
     from .search.lng import LazyNeighborhoodGraph
     from .search.logical import LogicalSearch
     from .search.sdtw import SubsequenceDTW
 
-    return [LazyNeighborhoodGraph, SubsequenceDTW, LogicalSearch]
+    return [CertifiedSearch, LazyNeighborhoodGraph, SubsequenceDTW, LogicalSearch]
 
 
 @hookimpl

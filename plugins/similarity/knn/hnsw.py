@@ -38,6 +38,7 @@ class HNSWIndex(Index):
     """Approximate kNN index (HNSW via hnswlib); deterministic for a given ``seed``."""
 
     name: ClassVar[str] = "hnsw"
+    query_options: ClassVar[frozenset[str]] = frozenset({"workers"})
 
     class Params(Params):
         m: int = Field(16, ge=2, le=128, description="graph degree M (links per node and layer)")

@@ -100,6 +100,8 @@ class KDTreeIndex(Index):
     """
 
     name: ClassVar[str] = "kdtree"
+    query_options: ClassVar[frozenset[str]] = frozenset({"eps", "exclude", "query_groups", "query_frames", "workers"})
+    build_options: ClassVar[frozenset[str]] = frozenset({"groups", "frames"})
 
     class Params(Params):
         method: Literal["auto", "kdtree", "brute"] = Field(

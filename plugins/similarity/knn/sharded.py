@@ -30,7 +30,6 @@ never once per task.
 """
 from __future__ import annotations
 
-import inspect
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -78,7 +77,7 @@ def shard_bounds(groups: np.ndarray, n_shards: int, max_rows: int | None = None)
 
 def _load_shard(cls: type, directory: Path) -> Index:
     """``cls.load`` memory-mapped where the index supports it (``mmap_mode``)."""
-    if "mmap_mode" in inspect.signature(cls.load).parameters:
+    if "mmap_mode" in getattr(cls, "load_options", ()):
         return cls.load(directory, mmap_mode="r")
     return cls.load(directory)
 
@@ -132,6 +131,8 @@ class ShardedIndex(Index):
     """
 
     name: ClassVar[str] = "sharded"
+    query_options: ClassVar[frozenset[str]] = frozenset({"eps", "exclude", "query_groups", "query_frames", "executor"})
+    build_options: ClassVar[frozenset[str]] = frozenset({"groups", "frames"})
 
     class Params(Params):
         shards: int = Field(2, ge=1, description="number of shards (clip ranges of about equal rows)")
@@ -170,7 +171,7 @@ class ShardedIndex(Index):
 
     def _build_one(self, cls: type, x: np.ndarray, g: np.ndarray, f: np.ndarray) -> Index:
         shard = cls(self.params.index_params)
-        if "groups" in inspect.signature(shard.build).parameters:
+        if "groups" in shard.build_options:
             return shard.build(x, groups=g, frames=f)
         return shard.build(x)
 
@@ -397,7 +398,7 @@ def _build_task(t: _ShardBuild) -> dict[str, Any]:
     cls = load_registries().resolve(t.index_key)
     shard = cls(t.index_params)
     kw = {"groups": table["clip_id"].to_numpy(), "frames": table["frame"].to_numpy()} \
-        if "groups" in inspect.signature(shard.build).parameters else {}
+        if "groups" in shard.build_options else {}
     shard.build(x, **kw)
     shard.save(Path(t.directory))
     return {"rows": int(len(x)), "dim": int(x.shape[1])}

@@ -1,91 +1,93 @@
-"""Certified-exact global matching: subsequence DTW's top matches, pruned by an admissible bound.
+"""Certified-exact global matching (``matchers.search``): subsequence DTW's top matches, pruned by an admissible bound.
 
 ``certified_sdtw`` returns exactly what :func:`.sdtw.subsequence_dtw` returns (same matches,
 costs, paths; any ``rank_by: cost`` setting) while running the DP only where a lower bound
-cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``,
-"Certified-exact mode"):
+cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``). How it prunes
+is one frozen :class:`CertifiedSettings` (speed only, never the result):
 
 1. a threshold ``tau`` from real alignments with their exact costs: a given graph's
    ``count``-th match, else the fine DP over windows around the index's nearest rows of
-   :data:`SEED_FRAMES` query frames (:func:`_seed_tau`; searched with ``eps`` :data:`SEED_EPS`),
-   else over the blocks of lowest coarse bound (:func:`_guess_tau`); capped by ``max_cost``.
-   Any value is safe (step 4);
+   ``seed_frames`` query frames (:func:`_seed_tau`), else over the blocks of lowest coarse
+   bound (:func:`_guess_tau`); capped by ``max_cost``. Any value is safe (step 4);
 2. a coarse subsequence DTW over blocks of consecutive rows, each cell costing the query
    frame's distance to the block's bounding box, bounds every fine path from below
-   (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level
-   (:data:`LEVELS`: blocks of 512, 64, 16, 4 rows), each level only over the runs of
-   blocks still alive (bound <= ``tau``) at the level above; where the levels above pruned
-   little (:data:`SUBSPACE_FROM` of a level's blocks in play), the 16- and 4-row levels use
-   *local subspace cells* instead of boxes (:data:`SUBSPACE`: a block's centre, 3 principal
-   directions, the box of its rows' coordinates and their residual radius,
-   :func:`._coarse_kernels.subspace_bounds`), tighter and 1.2-1.5x dearer per cell;
-3. the fine DP (:func:`._dtw_kernels.sdtw_ranges_compact`, the arithmetic of
-   ``sdtw_forward``) runs over the rows still alive; every end row whose best path costs
-   <= ``tau`` gets exactly sDTW's cost, start and length;
+   (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level (``levels``),
+   each level only over the runs of blocks still alive (bound <= ``tau``) at the level
+   above; where the levels above pruned little (``subspace_from`` of a level's blocks in
+   play), levels with a basis (``subspace``) use *local subspace cells* instead of boxes
+   (:func:`._coarse_kernels.subspace_bounds`), tighter and 1.2-1.5x dearer per cell;
+3. the fine DP (:func:`._dtw_kernels.sdtw_ranges_compact`) runs over the rows still alive;
+   every end row whose best path costs <= ``tau`` gets exactly sDTW's cost, start and length;
 4. the same greedy selection on those candidates yields ``count`` matches, which are then
    sDTW's; if it yields fewer, ``tau`` is doubled (three times at most), then set to
-   ``max_cost`` (or unbounded: the whole DP, plain sDTW). Below :data:`DIRECT_CELLS` DP
-   cells, and once half the rows are alive (:data:`FULL_FROM`), the whole DP runs at once.
-
-``approx > 0`` is the bounded approximation: a block is pruned when ``(1 + approx) * LB >
-tau``; every match is still a real alignment with its exact cost, the ``count``-th cost is
-at most ``(1 + approx)`` times sDTW's, and the result is sDTW's whenever sDTW's ``count``-th
-cost is at most ``tau / (1 + approx)`` (``approx = inf``: the seed windows alone). Measured
-(docs/global-matching.md): with the recall constraint (>= 0.95 of sDTW's top-10, chosen leave
-one actor out: 0.15) it saves 0-30 % of the time, so the default stays exact.
-
-Measured and dropped: the bound suggested first (the sum of the remaining query frames'
-1-NN distances, or per run of rows the k-th neighbour distance, with the first row's
-surviving cells from a radius query): with k = 256 on 380,813 rows the k-th neighbour
-distance is far below a match's cost per frame, and half the queries kept every row.
-Also dropped (2026-12-02): ``tau`` from the full gap-tolerant graph (its kNN search alone
-cost more than this whole search), ``tau`` from the lowest-bound blocks alone (loose: the
-whole DP in most queries at 1 M rows), boxes in PCA-rotated coordinates (no tighter).
+   ``max_cost`` (or unbounded: the whole DP, plain sDTW). Below ``direct_cells`` DP cells,
+   and once ``full_from`` of the rows are alive, the whole DP runs at once.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
+from pydantic import Field
 
 from mocapflow.framework.errors import DataError
-from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
+from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matcher_base import block_boxes_of, block_subspaces_of
+from .matcher_base import GlobalMatcher, block_boxes_of, block_subspaces_of
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
 _SHRINK = 1.0 - 1e-4
-#: default of ``certified_sdtw(full_from=)``: share of alive rows from which a pass is the whole DP
-FULL_FROM = 0.5
-#: below this many DP cells (rows x query frames) the whole DP runs at once: the seeds, the
-#: coarse levels and the selection's Python work cost a few milliseconds, which the whole DP
-#: at 100-200 M cells/s beats (HDM05 cuts, 4,419 rows: 0.5x sDTW's speed with the levels)
-DIRECT_CELLS = 2_000_000
-#: query frames whose nearest neighbours seed the threshold's windows (:func:`_seed_tau`)
-SEED_FRAMES = 5
-#: neighbours per seed frame, times ``count``
-SEED_K = 6
-#: the seeds' neighbours are searched epsilon-approximately (when the index takes ``eps``): they
-#: only supply ``tau``, which the pass verifies; the exact 60-NN search was a fifth of a query's
-#: time at 1 M rows (measured, docs/global-matching.md "fourth round": 3-20 % faster at 1.0, the
-#: same ``tau`` median and work; 2.0 loosened ``tau`` in some queries)
-SEED_EPS = 1.0
-#: database frames per query frame a seed window allows on either side of its neighbour
-SEED_SLOPE = 2.0
-#: with ``V > 0``, the seed DP runs first over the windows of the ``V * count`` best-voted
-#: clusters of neighbours (:mod:`._seed_votes`), over all windows only if those hold fewer than
-#: ``count`` matches; 0: all windows at once
-SEED_VOTE = 0
-#: default block sizes of ``certified_sdtw``, coarsest first (benchmarks/matching.py: best of
-#: (128, 16), (256, 32, 8), (512, 64, 8), (512, 64, 16, 4), (1024, 128, 16, 4) at 380 k and 1 M rows)
-LEVELS = (512, 64, 16, 4)
-#: basis size of each level's local subspace cells (0: boxes), as :data:`LEVELS`
-#: (docs/global-matching.md, "sixth round")
-SUBSPACE = (0, 0, 3, 3)
-#: a level with a basis uses its subspace cells when at least this share of its blocks is in
-#: play (the levels above pruned little), boxes otherwise (docs/global-matching.md, "sixth round")
-SUBSPACE_FROM = 0.3
+
+
+@dataclass(frozen=True)
+class CertifiedSettings:
+    """How :func:`certified_sdtw` prunes (speed only: the result is sDTW's with any settings).
+
+    The defaults are the measured best (docs/global-matching.md, "How the default was chosen").
+
+    Attributes
+    ----------
+    levels : block sizes in rows, coarsest first (each rounded up to a multiple of the next)
+    subspace : basis size of each level's local subspace cells, 0 for boxes; None: 3 at the
+        16- and 4-row levels of the default ``levels``, boxes for any other hierarchy
+    subspace_from : a level with a basis uses its subspace cells once this share of its blocks is in play
+    seed_frames : query frames whose nearest rows seed ``tau`` (0: no seeds, lowest-bound blocks only)
+    seed_k : neighbours per seed frame, times ``count``
+    seed_eps : the seeds' neighbours are searched ``eps``-approximately where the index can
+        (``"eps" in Index.query_options``): they only supply ``tau``, which the pass verifies
+    seed_slope : database rows per query frame a seed window allows on either side of its neighbour
+    full_from : share of alive rows from which a pass is the whole DP
+    direct_cells : up to this many DP cells (rows x query frames) the whole DP runs at once
+    """
+
+    levels: tuple[int, ...] = (512, 64, 16, 4)
+    subspace: tuple[int, ...] | None = None
+    subspace_from: float = 0.3
+    seed_frames: int = 5
+    seed_k: int = 6
+    seed_eps: float = 1.0
+    seed_slope: float = 2.0
+    full_from: float = 0.5
+    direct_cells: int = 2_000_000
+
+    def sizes(self) -> list[int]:
+        """``levels``, each rounded up to a multiple of the next (its blocks tile the coarser ones)."""
+        sizes = [int(b) for b in self.levels]
+        for a in range(len(sizes) - 2, -1, -1):
+            sizes[a] = -(-sizes[a] // sizes[a + 1]) * sizes[a + 1]
+        return sizes
+
+    def bases(self) -> tuple[int, ...]:
+        if self.subspace is not None:
+            if len(self.subspace) != len(self.levels):
+                raise DataError(f"subspace needs one basis size per level ({len(self.levels)}), got {len(self.subspace)}")
+            return tuple(int(p) for p in self.subspace)
+        return (0, 0, 3, 3) if tuple(self.levels) == (512, 64, 16, 4) else (0,) * len(self.levels)
+
+
+DEFAULT_SETTINGS = CertifiedSettings()
 
 
 @dataclass
@@ -98,7 +100,6 @@ class ExactStats:
     retried: bool = False
     coarse_blocks: int = 0
     guess_columns: int = 0
-    level_blocks: list = field(default_factory=list)
 
 
 def block_ranges(mask: np.ndarray) -> np.ndarray:
@@ -126,77 +127,39 @@ def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.stack([lo[first], hi[last]], axis=1).astype(np.int64)
 
 
-def _query_params(index) -> frozenset:
-    """Keyword names of ``index.query`` (cached per index class)."""
-    import inspect
-
-    cls = type(index)
-    if cls not in _QUERY_PARAMS:
-        _QUERY_PARAMS[cls] = frozenset(inspect.signature(index.query).parameters)
-    return _QUERY_PARAMS[cls]
-
-
-_QUERY_PARAMS: dict = {}
-
-
-def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, n_frames=None,
-              k_per=None) -> tuple[float, tuple]:
+def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: CertifiedSettings) -> float:
     """A threshold from real alignments around the nearest neighbours of a few query frames.
 
-    :data:`SEED_FRAMES` query frames spread over the query (first and last included) get
-    their ``SEED_K * count`` nearest rows from the index; a match through row ``h`` at query frame ``i`` lies
-    within ``h - 2i .. h + 2(m - 1 - i)`` when it takes at most two database frames per
-    query frame, so the fine DP runs over those windows (merged). Returns the
-    ``count``-th cost of their selection, or inf when it holds fewer.
+    ``cfg.seed_frames`` query frames spread over the query (first and last included) get
+    their ``cfg.seed_k * count`` nearest rows from the index; a match through row ``h`` at
+    query frame ``i`` lies within ``h - 2i .. h + 2(m - 1 - i)`` when it takes at most two
+    database frames per query frame, so the fine DP runs over those windows (merged).
+    Returns the ``count``-th cost of their selection, or inf when it holds fewer.
     """
     from ._dtw_kernels import sdtw_ranges_compact
 
     m, n = len(q), space.n_rows
-    frames = np.unique(np.linspace(0, m - 1, n_frames or SEED_FRAMES).round().astype(np.int64))
-    kk = min(n, (k_per or SEED_K) * count)
-    qs = np.ascontiguousarray(q[frames])
+    frames = np.unique(np.linspace(0, m - 1, cfg.seed_frames).round().astype(np.int64))
+    kk = min(n, cfg.seed_k * count)
     kw = {}
-    params = _query_params(space.index)
-    if "workers" in params:  # a few queries: waking threads costs more than it saves
+    options = getattr(type(space.index), "query_options", frozenset())
+    if "workers" in options:  # a few queries: waking threads costs more than it saves
         kw["workers"] = 1
-    if "eps" in params and SEED_EPS > 0:  # any tau is safe: approximate neighbours only seed it
-        kw["eps"] = SEED_EPS
-    dist, ids = space.index.query(qs, kk, **kw)
+    if "eps" in options and cfg.seed_eps > 0:  # any tau is safe: approximate neighbours only seed it
+        kw["eps"] = cfg.seed_eps
+    _, ids = space.index.query(np.ascontiguousarray(q[frames]), kk, **kw)
     ids = np.asarray(ids, np.int64)
-    if SEED_VOTE > 0:
-        from ._seed_votes import voted_windows
-
-        run_of = space.memo(("similarity.run_of",), lambda: np.cumsum(~space.continues) - 1)
-        ranges = merged_ranges(*voted_windows(frames, ids, dist, run_of, m, n, SEED_SLOPE, max(4, m // 8),
-                                                    SEED_VOTE * count))
-        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
-        st.guess_columns += len(rows)
-        keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
-                              min_frames=min_frames)
-        if len(keep) == count:
-            return float(cost[keep[-1]]), (rows, cost, start, length)
     fi = np.broadcast_to(frames[:, None], ids.shape)
     ok = ids >= 0
     h, fi = ids[ok], fi[ok]
-    sl = SEED_SLOPE
+    sl = cfg.seed_slope
     ranges = merged_ranges(np.maximum(h - (sl * fi).astype(np.int64) - 2, 0),
                            np.minimum(h + (sl * (m - 1 - fi)).astype(np.int64) + 3, n))
     rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
     st.guess_columns += len(rows)
     keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
                           min_frames=min_frames)
-    return (float(cost[keep[-1]]) if len(keep) == count else np.inf), (rows, cost, start, length)
-
-
-def merged_candidates(a: tuple, b: tuple) -> tuple:
-    """Candidates ``(rows, cost, start, length)`` of two fine DP passes, one per row: the lower
-    cost (``a``'s on ties), rows ascending. Both are costs of real paths into their row."""
-    rows, cost, start, length = (np.concatenate([u, v]) for u, v in zip(a, b))
-    src = np.r_[np.zeros(len(a[0]), np.int8), np.ones(len(b[0]), np.int8)]
-    o = np.lexsort((src, cost, rows))
-    first = np.r_[True, rows[o][1:] != rows[o][:-1]]
-    o = o[first]
-    return rows[o], cost[o], start[o], length[o]
+    return float(cost[keep[-1]]) if len(keep) == count else np.inf
 
 
 def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) -> float:
@@ -249,153 +212,69 @@ def _level_bounds(qt, space, level, branges, sub_from=np.inf) -> np.ndarray:
 
 
 def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
-                   rank_by: str = "cost", min_span: float = 0.5, k: int = 256, gaps: int = 32, block: int = 16,
-                   top: int | None = None, graph=None, stats: ExactStats | None = None,
-                   full_from: float | None = None, seeds: bool = True,
-                   levels: tuple[int, ...] | None = None, direct_cells: int | None = None,
-                   approx: float = 0.0, seed_frames: int | None = None, seed_k: int | None = None,
-                   subspace: tuple[int, ...] | None = None, subspace_from: float | None = None) -> QueryMatches:
+                   rank_by: str = "cost", min_span: float = 0.5, settings: CertifiedSettings = DEFAULT_SETTINGS,
+                   graph=None, stats: ExactStats | None = None) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
     ----------
     query : ndarray of shape (m, d)
     space : SearchSpace
-        With ``features`` (and ``index`` when ``graph`` is not given and ``top`` is 0).
+        With ``features`` (and an ``index`` for the seeds; without one ``tau`` comes from the
+        lowest-bound blocks).
     count, max_cost, rank_by, min_span
         As :func:`mocapflow.framework.matching.select_matches`; ``rank_by="normalized"`` has no admissible
         cost bound here and runs the whole DP.
-    k, gaps
-        kNN sets and gap band of the LNG that supplies ``tau`` when ``top`` is 0
-        (:func:`.graph.build_graph`).
-    block, top : int
-        With ``top`` given: two levels, blocks of ``top`` rows (rounded up to a multiple of
-        ``block``) then of ``block`` rows; ``top = 0``: one level of ``block`` rows with ``tau``
-        from the LNG (the first certified mode). Default (``top`` None): :data:`LEVELS`.
-    levels : tuple of int, optional
-        Block sizes from coarsest to finest (each rounded up to a multiple of the next),
-        overriding ``(top, block)``; e.g. ``(256, 32, 8)``. The lowest-bound blocks of the
-        coarsest level supply ``tau`` when neither ``graph`` nor the seeds do
-        (:func:`_guess_tau`).
-    subspace : tuple of int, optional
-        Basis size of each level's local subspace cells, 0 for boxes (default: :data:`SUBSPACE`
-        with the default :data:`LEVELS`, boxes with any other hierarchy). Speed only.
-    subspace_from : float, optional
-        (Default :data:`SUBSPACE_FROM`.) A level with a basis uses subspace cells once this share
-        of its blocks is still in play, box cells below it. Speed only.
-    seeds : bool
-        Take ``tau`` from the windows around the index's neighbours of a few query frames
-        (:func:`_seed_tau`) before the lowest-bound blocks.
+    settings : CertifiedSettings
+        How it prunes (speed only).
     graph : NeighborhoodGraph, optional
-        The LNG of this query, when already built (any sets: it only supplies ``tau``).
+        The lazy neighbourhood graph of this query, when already built: its ``count``-th match supplies ``tau``.
     stats : ExactStats, optional
         Filled with what the search did.
-    full_from : float, optional
-        (Default :data:`FULL_FROM`.) When the alive rows of a pass reach this share of the database, that pass is the
-        whole DP with no threshold (the last pass: a pruned pass, then retries, would cost
-        more than sDTW itself). Speed only; the result is sDTW's either way.
-    direct_cells : int, optional
-        (Default :data:`DIRECT_CELLS`.) Up to this many DP cells (rows x query frames) the
-        whole DP runs at once, with no threshold. Speed only.
-    approx : float
-        Bounded approximation (0: certified exact). A block is pruned when ``(1 + approx) *
-        LB > tau``, so every path left out costs more than ``tau / (1 + approx)``; what a user
-        can rely on (docs/global-matching.md, "Bounded approximation"): every match is a real
-        alignment with its exact cost, the ``count``-th cost is at most ``(1 + approx)`` times
-        sDTW's, and the result is sDTW's whenever sDTW's ``count``-th cost is at most
-        ``tau / (1 + approx)``.
-    seed_frames, seed_k : int, optional
-        (Defaults :data:`SEED_FRAMES`, :data:`SEED_K`.) Query frames searched for the seeds, and
-        neighbours per frame (times ``count``).
     """
     from ._coarse_kernels import alive_runs
     from ._dtw_kernels import dtw_window_path, sdtw_ranges_compact
-    from .graph import build_graph
     from .sdtw import validate_query
 
-    if not levels:
-        levels = LEVELS if top is None else ((top, block) if top else (block,))
-    sizes = [int(b) for b in levels]
-    for a in range(len(sizes) - 2, -1, -1):  # each a multiple of the next: its blocks tile the coarser ones
-        sizes[a] = -(-sizes[a] // sizes[a + 1]) * sizes[a + 1]
-    top = sizes[0] if len(sizes) > 1 else 0
-    if space.features is None or (space.index is None and graph is None and not top):
-        raise DataError("certified-exact search needs the database features (and an index with one level)")
+    cfg = settings
+    if space.features is None:
+        raise DataError("certified-exact search needs the database features")
     q = validate_query(query, space.features.shape[1])
     st = stats if stats is not None else ExactStats()
-    full_from = FULL_FROM if full_from is None else float(full_from)
     min_frames = min_frames_of(min_span, len(q))
     ceiling = np.inf if (max_cost is None or rank_by != "cost") else float(max_cost)
     qt = np.ascontiguousarray(q.T)
     n = space.n_rows
-    scale = 1.0 + float(approx)  # alive when scale * LB <= tau
-    if not scale >= 1.0:
-        raise DataError(f"approx must be >= 0, got {approx}")
-    direct = n * len(q) <= (DIRECT_CELLS if direct_cells is None else direct_cells)
-    if subspace is None:
-        subspace = SUBSPACE if len(sizes) == len(LEVELS) and sizes == list(LEVELS) else (0,) * len(sizes)
-    if len(subspace) != len(sizes):
-        raise DataError(f"subspace needs one basis size per level ({len(sizes)}), got {len(subspace)}")
-    levels = [] if direct else [block_boxes_of(space, b) + (b, int(p)) for b, p in zip(sizes, subspace)]
-    sub_from = SUBSPACE_FROM if subspace_from is None else float(subspace_from)
+    direct = n * len(q) <= cfg.direct_cells
+    levels = [] if direct else [block_boxes_of(space, b) + (b, p) for b, p in zip(cfg.sizes(), cfg.bases())]
     lb_top = None
     tau = np.inf
-    seeded = None  # the seed windows' candidates, whose selection gave tau: an approximate pass keeps them
     if rank_by == "cost" and not direct:
-        if graph is None and not top:
-            graph = build_graph(q, space, k=min(k, n), gaps=gaps)
         found = graph.matches(count=count, max_cost=max_cost, rank_by="cost", min_span=min_span) \
             if graph is not None else None
         if found is not None and len(found) == count:
             tau = float(found.cost[-1])
-        elif top and space.index is not None and seeds:
-            tau, seeded = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, seed_frames,
-                                     seed_k)
-        if not np.isfinite(tau) and top:
+        elif space.index is not None and cfg.seed_frames > 0:
+            tau = _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg)
+        if not np.isfinite(tau):
             bs = levels[0]
-            lb_top = _level_bounds(qt, space, bs, np.array([[0, len(bs[1])]], np.int64), sub_from)
+            lb_top = _level_bounds(qt, space, bs, np.array([[0, len(bs[1])]], np.int64), cfg.subspace_from)
             st.coarse_blocks += len(bs[1])
             tau = _guess_tau(qt, space, lb_top, bs, count, max_cost, rank_by, min_frames, st)
-        if not np.isfinite(tau) and found is not None and len(found):  # a guess, verified below: too few matches under it doubles it
+        if not np.isfinite(tau) and found is not None and len(found):  # a guess, verified below
             tau = 2.0 * float(found.cost[-1])
     tau = min(tau, ceiling)
     tries = 0
     while True:
         ranges = np.array([[0, n]], np.int64)
-        if np.isfinite(tau) and not direct and np.isinf(scale) and seeded is not None:
-            ranges = np.zeros((0, 2), np.int64)  # approx inf: the seed windows alone (no bound computed)
-        elif np.isfinite(tau) and not direct:
-            br = None  # block ranges of the current level still in play (None: all)
-            for li, level in enumerate(levels):
-                bstart, lo = level[0], level[1]
-                evaluated = np.array([[0, len(lo)]], np.int64) if br is None else br
-                if br is None:
-                    if li == 0 and lb_top is not None:
-                        lb = lb_top
-                    else:
-                        lb = _level_bounds(qt, space, level, evaluated, sub_from)
-                        st.coarse_blocks += len(lo)
-                        if li == 0 and top:
-                            lb_top = lb
-                else:
-                    lb = _level_bounds(qt, space, level, br, sub_from)
-                    st.coarse_blocks += int((br[:, 1] - br[:, 0]).sum())
-                    st.level_blocks.append(int((br[:, 1] - br[:, 0]).sum()))
-                alive = alive_runs(lb, evaluated, scale, tau)
-                ranges = bstart[alive]
-                if li + 1 < len(levels):  # the next level's blocks tile these rows exactly
-                    br = np.searchsorted(levels[li + 1][0], ranges)
-            if (ranges[:, 1] - ranges[:, 0]).sum() >= full_from * n:
+        if np.isfinite(tau) and not direct:
+            ranges, lb_top = _alive_ranges(qt, space, levels, lb_top, tau, cfg, st, alive_runs)
+            if (ranges[:, 1] - ranges[:, 0]).sum() >= cfg.full_from * n:
                 tau = ceiling
                 ranges = np.array([[0, n]], np.int64)
         rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
         st.tau, st.passes = tau, st.passes + 1
         st.columns += len(rows)
-        whole = len(ranges) == 1 and ranges[0, 0] == 0 and ranges[0, 1] == n
-        if scale > 1.0 and seeded is not None and not whole:
-            # the (1 + approx) pruning may rule out the very windows that gave tau: their candidates
-            # (real paths, cost >= the true best into their row) join, so count matches <= tau remain
-            rows, cost, start, length = merged_candidates((rows, cost, start, length), seeded)
         sel = np.flatnonzero(cost <= tau)
         keep = select_matches(rows[sel], start[sel], cost[sel], length[sel], count=count, max_cost=max_cost,
                               rank_by=rank_by, min_frames=min_frames)
@@ -411,3 +290,52 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         path[:, 1] += s
         paths.append(path)
     return QueryMatches(start[keep], out_end + 1, cost[keep], length[keep].astype(np.int64), paths)
+
+
+def _alive_ranges(qt, space, levels, lb_top, tau, cfg, st, alive_runs) -> tuple[np.ndarray, np.ndarray]:
+    """Row ranges ``[a, b)`` still alive at ``tau`` after every level, and the first level's
+    bound over all its blocks (``lb_top``, reused when given: a retry needs it again)."""
+    br = None  # block ranges of the current level still in play (None: all)
+    for li, level in enumerate(levels):
+        bstart, lo = level[0], level[1]
+        evaluated = np.array([[0, len(lo)]], np.int64) if br is None else br
+        if br is None and li == 0 and lb_top is not None:
+            lb = lb_top
+        else:
+            lb = _level_bounds(qt, space, level, evaluated, cfg.subspace_from)
+            st.coarse_blocks += int((evaluated[:, 1] - evaluated[:, 0]).sum())
+            if li == 0:
+                lb_top = lb
+        ranges = bstart[alive_runs(lb, evaluated, 1.0, tau)]
+        if li + 1 < len(levels):  # the next level's blocks tile these rows exactly
+            br = np.searchsorted(levels[li + 1][0], ranges)
+    return ranges, lb_top
+
+
+class CertifiedSearch(GlobalMatcher):
+    """The default global search: exactly subsequence DTW's matches by the certified pruned DP.
+
+    ``database`` is an index dataset (``indexes.*``: its nearest rows seed the threshold); query
+    motions are turned into features by the database's feature set.
+    """
+
+    name = "search"
+    needs_index: ClassVar[bool] = True
+    needs_features: ClassVar[bool] = True
+
+    class Params(MatchParams):
+        plots: int = Field(0, ge=0, description=(
+            "write a Fig. 3-style PNG (plots/q<query>_m<rank>.png: the query's kNN cells with the warping path) "
+            "for this many top matches of each of the first 16 queries"))
+
+    settings: ClassVar[CertifiedSettings] = DEFAULT_SETTINGS
+
+    def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
+        p = self.params
+        return certified_sdtw(query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
+                              min_span=p.min_span, settings=self.settings)
+
+    def after_match(self, query_id, query, matches, space, ctx) -> None:
+        from .plots import plot_matches
+
+        plot_matches(self.params.plots, query_id, query, matches, space, ctx)

@@ -5,12 +5,11 @@ certified exact search (:mod:`.exact`) uses the graph's costs as a first thresho
 """
 from __future__ import annotations
 
-import inspect
 from dataclasses import dataclass
 
 import numpy as np
 
-from mocapflow.framework.errors import ConfigError, DataError
+from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
 
 
@@ -59,25 +58,17 @@ class NeighborhoodGraph:
                             self.length[last, keep].astype(np.int64), paths)
 
 
-def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None,
-                  eps: float = 0.0, propagate: int = 0,
+def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None, propagate: int = 0,
                   space: SearchSpace | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``S(q_i)`` from the index, re-sorted by row id: ``(ids, dist, count)`` (see :class:`NeighborhoodGraph`).
 
-    ``eps > 0`` asks the index for an ε-approximate search (an index whose ``query``
-    takes an ``eps`` keyword, like ``indexes.kdtree``); 0 uses the plain Index contract.
     ``propagate = N > 0`` searches the index only for query frames ``0, N, 2N, ...`` and
     derives the other sets from the previous one (:func:`propagated_sets`; needs
     ``space`` with features).
     """
     if propagate > 0:
-        return propagated_sets(query, index, k, radius, eps, propagate, space)
-    if eps > 0:
-        if "eps" not in inspect.signature(index.query).parameters:
-            raise ConfigError(f"{type(index).__name__}.query takes no 'eps': this index cannot search approximately")
-        dist, ids = index.query(query, k, radius, eps=eps)
-    else:
-        dist, ids = index.query(query, k, radius)
+        return propagated_sets(query, index, k, radius, propagate, space)
+    dist, ids = index.query(query, k, radius)
     dist = np.asarray(dist, np.float32)
     ids = np.asarray(ids, np.int64)
     if ids.shape != (query.shape[0], k) or dist.shape != ids.shape:
@@ -95,18 +86,18 @@ def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None,
     return ids, dist, count
 
 
-def propagated_sets(query: np.ndarray, index, k: int, radius: float | None, eps: float, every: int,
+def propagated_sets(query: np.ndarray, index, k: int, radius: float | None, every: int,
                     space: SearchSpace | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Approximate neighbour sets by temporal propagation (our extension, not in the paper).
 
-    Query frames ``0, every, 2 every, ...`` get the index's kNN (exact unless ``eps``); every
+    Query frames ``0, every, 2 every, ...`` get the index's exact kNN; every
     other frame gets the ``k`` nearest (within ``radius``) of the rows a warping path can
     reach from the previous frame's set: ``h - 1 .. h + 2`` for each of its rows ``h``
     (:func:`._lng_kernels.propagate_layer`, distances exact). The graph then holds the
     neighbourhoods of the paths that start near ``q_1``, as a beam of width ``k`` would:
     the kNN sets themselves are no longer the true ones, but every path cost is exact, and
     an alignment is lost only when its rows drop out of the ``k`` best of the beam.
-    ``benchmarks/matching.py`` measures the fraction of the exact-kNN alignments kept.
+    ``benchmarks/search.py`` measures the fraction of sDTW's alignments kept.
     """
     from ._lng_kernels import propagate_sets
 
@@ -118,14 +109,14 @@ def propagated_sets(query: np.ndarray, index, k: int, radius: float | None, eps:
     count = np.zeros(m, np.int64)
     r2 = np.inf if radius is None else float(radius) ** 2
     exact = np.arange(0, m, every)
-    ids[exact], dist[exact], count[exact] = neighbor_sets(query[exact], index, k, radius, eps)
+    ids[exact], dist[exact], count[exact] = neighbor_sets(query[exact], index, k, radius)
     propagate_sets(np.ascontiguousarray(query, dtype=np.float32), ids, dist, count, every, space.features,
                    space.continues, r2)
     return ids, dist, count
 
 
 def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
-                eps: float = 0.0, propagate: int = 0, gaps: int = 0,
+                propagate: int = 0, gaps: int = 0,
                 sets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> NeighborhoodGraph:
     """kNN search, graph construction and path search for one query.
 
@@ -139,8 +130,6 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
         Cap on the neighbours per query frame.
     radius : float or None
         Fixed search radius ``r`` (same units as the features); ``None``: plain kNN.
-    eps : float
-        ε of an approximate kNN search (0: exact).
     propagate : int
         0: the index's kNN for every query frame (the paper). N > 0: only for every N-th
         frame, the sets in between propagated along the database (:func:`propagated_sets`).
@@ -159,7 +148,7 @@ def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: 
     q = np.ascontiguousarray(query, dtype=np.float32)
     if q.ndim != 2 or q.shape[0] < 1 or not np.isfinite(q).all():
         raise DataError(f"query must be finite (n_frames >= 1, dim) feature vectors, got shape {q.shape}")
-    ids, dist, count = sets if sets is not None else neighbor_sets(q, space.index, k, radius, eps, propagate, space)
+    ids, dist, count = sets if sets is not None else neighbor_sets(q, space.index, k, radius, propagate, space)
     if count.any() and ids.max() >= space.n_rows:
         raise DataError(f"index returned row {ids.max()} but the database has {space.n_rows} rows")
     gap_cells = 0

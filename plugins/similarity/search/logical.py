@@ -1,6 +1,6 @@
 """Numerical and logical similarity search (Krüger et al. 2010, §5.1; Kovar & Gleicher 2004).
 
-A *numerical* search is one LNG search (:mod:`.lng`). A *logical* search iterates it:
+A *numerical* search is one LNG search (:mod:`.lng`: the gap-tolerant graph, no fallback). A *logical* search iterates it:
 the segments found in one round become the queries of the next ("use the set of found
 similar motion segments as queries for new iterations"), so motions that are logically
 similar but numerically far from the original query are reached through numerically
@@ -21,11 +21,11 @@ from pydantic import Field
 
 from mocapflow.framework.datasets import StepOutput
 from mocapflow.framework.errors import DataError
-from mocapflow.framework.matching import IntervalSet, QueryMatches, SearchSpace, matches_table
+from mocapflow.framework.matching import IntervalSet, MatchParams, QueryMatches, SearchSpace, matches_table
 from mocapflow.framework.queries import queries_table, upstream
 
-from .lng import lazy_neighborhood_graph
-from .matcher_base import GlobalMatcher, NeighborParams
+from .lng import GAPS, PROPAGATE, lazy_neighborhood_graph
+from .matcher_base import GlobalMatcher
 
 
 @dataclass
@@ -42,10 +42,9 @@ class LogicalMatches(QueryMatches):
 
 
 def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, max_matches: int = 100,
-                   exclude: tuple[int, int] | None = None, k: int = 256, radius: float | None = None, eps: float = 0.0,
-                   count: int = 10, max_cost: float | None = None, rank_by: str = "cost",
-                   min_span: float = 0.5, propagate: int = 0, gaps: int = 0, exact: bool = False,
-                   fill: bool = False) -> LogicalMatches:
+                   exclude: tuple[int, int] | None = None, k: int = 256, count: int = 10,
+                   max_cost: float | None = None, rank_by: str = "cost", min_span: float = 0.5,
+                   propagate: int = PROPAGATE, gaps: int = GAPS) -> LogicalMatches:
     """Iterated LNG search.
 
     Parameters
@@ -59,8 +58,8 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
         Stop once this many distinct segments were found.
     exclude : (int, int) or None
         Rows ``[start, end)`` not to report (the query's own segment in the database).
-    k, radius, eps, count, max_cost, rank_by, min_span, propagate, gaps, exact, fill
-        Per-query LNG parameters (:func:`.lng.lazy_neighborhood_graph`); ``max_cost``
+    k, count, max_cost, rank_by, min_span, propagate, gaps
+        Per-query LNG parameters (:func:`.lng.lazy_neighborhood_graph`, no fallback); ``max_cost``
         also decides which matches count as found.
     """
     if space.features is None or space.index is None:
@@ -73,9 +72,8 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
     for r in range(1, rounds + 1):
         new: list[tuple[np.ndarray, int]] = []
         for qx, src in frontier:
-            res = lazy_neighborhood_graph(qx, space, k=k, radius=radius, eps=eps, count=count, max_cost=max_cost,
-                                          rank_by=rank_by, min_span=min_span, propagate=propagate,
-                                          gaps=gaps, exact=exact, fill=fill)
+            res = lazy_neighborhood_graph(qx, space, k=k, count=count, max_cost=max_cost, rank_by=rank_by,
+                                          min_span=min_span, propagate=propagate, gaps=gaps, fill=False)
             for i in range(len(res)):
                 s, e = int(res.start[i]), int(res.end[i])  # half-open
                 if len(rows["start"]) >= max_matches or not found.add(s, e - 1):
@@ -107,22 +105,19 @@ class LogicalSearch(GlobalMatcher):
     needs_index: ClassVar[bool] = True
     needs_features: ClassVar[bool] = True
 
-    class Params(NeighborParams):
+    class Params(MatchParams):
+        k: int = Field(256, ge=1, description="maximum neighbours per query frame of each round's graph")
         rounds: int = Field(3, ge=1, description="maximum search rounds (1: numerical search only)")
         max_matches: int = Field(100, ge=1, description="stop once this many distinct segments were found")
         count: int = Field(10, ge=1, description="matches kept per query and round")
         max_cost: float | None = Field(None, ge=0, description="matches above this ranking cost are not found (stopping rule)")
         rank_by: Literal["cost", "normalized"] = Field("normalized", description=(
             "rank by accumulated cost or by cost per path cell (comparable across query lengths)"))
-        exclude_query: bool = Field(True, description="do not report the query's own segment when it comes from the database")
-        fill: bool = Field(False, description=(
-            "when a round's graph holds fewer than count matches, take the certified-exact search's (whole DP: slow)"))
 
     def search(self, query: np.ndarray, space: SearchSpace, exclude: tuple[int, int] | None = None) -> LogicalMatches:
         p = self.params
         return logical_search(query, space, rounds=p.rounds, max_matches=p.max_matches, exclude=exclude, k=p.k,
-                              radius=p.radius, eps=p.eps, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
-                              min_span=p.min_span, propagate=p.propagate, gaps=p.gaps, exact=p.exact, fill=p.fill)
+                              count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span)
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         return self.search(query, space)
@@ -147,8 +142,8 @@ class LogicalSearch(GlobalMatcher):
                           {"queries": len(queries), "matches": int(sum(len(r) for r in results))})
 
     def _own_rows(self, q, space: SearchSpace) -> tuple[int, int] | None:
-        """Rows of the query's own segment when the query input is the database's motions."""
-        if not self.params.exclude_query or q.clip_id < 0:
+        """Rows of the query's own segment when the query input is the database's motions (never reported)."""
+        if q.clip_id < 0:
             return None
         hit = np.flatnonzero((space.clip_id == q.clip_id) & (space.frame >= q.start_frame) & (space.frame < q.end_frame))
         return (int(hit[0]), int(hit[-1]) + 1) if hit.size else None

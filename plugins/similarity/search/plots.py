@@ -101,3 +101,21 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
     fig.savefig(out)
     plt.close(fig)
     return out
+
+
+#: queries of a step that get pictures (``plots`` parameter of ``matchers.search``)
+PLOT_QUERIES = 16
+
+
+def plot_matches(n: int, query_id: int, query, matches: QueryMatches, space: SearchSpace, ctx, **graph_kw) -> None:
+    """``plots/q<query>_m<rank>.png`` for the top ``n`` matches of one of the first
+    :data:`PLOT_QUERIES` queries: the kNN cells of the query's lazy neighbourhood graph
+    (:func:`.graph.build_graph`, the gap-tolerant defaults unless ``graph_kw`` says otherwise)."""
+    if not n or query_id >= PLOT_QUERIES or not len(matches):
+        return
+    from .graph import build_graph
+
+    graph = build_graph(query.features, space, **{"k": 256, "propagate": 2, "gaps": 32, **graph_kw})
+    for r in range(min(n, len(matches))):
+        plot_neighborhood(graph, matches, space, ctx.out_dir / "plots" / f"q{query_id}_m{r + 1}.png",
+                          match=r, title=f"{query.name} - match {r + 1}, cost {matches.cost[r]:.3g}")

@@ -44,24 +44,17 @@ class SearchCommand:
         parser.add_argument("--query", metavar="FILE[:START-END]",
                             help="motion file or database clip; frames (end exclusive) or seconds ('1s-3s')")
         parser.add_argument("--index", metavar="STEP", help="index step to use when the workspace has several")
-        parser.add_argument("--matcher", default="lng", help="matchers.<name>: lng (default), sdtw, logical")
+        parser.add_argument("--matcher", default="search",
+                            help="matchers.<name>: search (default: certified, exactly sdtw's matches), lng (the lazy "
+                                 "neighbourhood graph), sdtw, logical")
         parser.add_argument("--count", type=int, default=10, help="matches to show (default 10)")
         parser.add_argument("--min-span", type=float, default=None, metavar="F",
                             help="drop matches spanning fewer database frames than F x the query (default 0.5; 0: all)")
         parser.add_argument("--rank-by", choices=("cost", "normalized"), default=None,
                             help="rank by accumulated cost (default) or cost per path cell")
-        parser.add_argument("--exact", action=argparse.BooleanOptionalAction, default=None,
-                            help="return exactly subsequence DTW's matches (lng: a certified pruned DP, identical to "
-                                 "sdtw; the default of lng); --no-exact: lng answers from its neighborhood graph")
-        parser.add_argument("--approx", type=float, default=None, metavar="EPS",
-                            help="lng --exact: bounded approximation: prune a block when (1+EPS) x its lower bound exceeds "
-                                 "the threshold; the count-th cost is at most (1+EPS) x sDTW's (default 0: exact; inf: seed windows only)")
-        parser.add_argument("--gaps", type=int, default=None, metavar="G",
-                            help="lng --no-exact: query frames a path may cross without a kNN cell (default: the matcher's, 32; 0: the paper's graph)")
-        parser.add_argument("--propagate", type=int, default=None, metavar="N",
-                            help="lng --no-exact: search the index every N-th query frame only, propagate the sets in between")
+        parser.add_argument("--paper", action="store_true", default=None,
+                            help="lng: the paper's graph (neighbour cells only, every frame searched, no fallback)")
         parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
-        parser.add_argument("--radius", type=float, default=None, help="kNN search radius (lng, logical)")
         parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
         parser.add_argument("--out", metavar="FILE", help="also write the matches as .csv or .parquet")
         parser.add_argument("--serve", action="store_true",
@@ -191,18 +184,14 @@ class SearchSession:
         return self._feature_set
 
     def matcher(self, args: argparse.Namespace):
-        """The matcher of ``args`` (``--matcher`` and its options)."""
+        """The matcher of ``args`` (``--matcher`` and its options; ``lng`` is the graph)."""
         from mocapflow.framework.errors import ConfigError
 
         matcher_cls = self.regs.resolve(f"matchers.{args.matcher}")
         fields = matcher_cls.Params.model_fields
-        params = {"count": args.count}
-        exact = None if args.exact and args.matcher == "sdtw" else args.exact  # sdtw is exact already
-        if args.approx is not None and args.exact is False:
-            raise ConfigError("--approx bounds the certified search: it needs --exact, not --no-exact")
-        for key, val in (("k", args.k), ("radius", args.radius), ("min_span", args.min_span), ("rank_by", args.rank_by),
-                         ("gaps", args.gaps), ("propagate", args.propagate), ("exact", exact),
-                         ("approx", args.approx)):
+        params = {"count": args.count, **({"exact": False} if "exact" in fields else {})}
+        for key, val in (("k", args.k), ("min_span", args.min_span), ("rank_by", args.rank_by),
+                         ("paper", getattr(args, "paper", None))):
             if val is not None:
                 if key not in fields:
                     raise ConfigError(f"matchers.{args.matcher} has no parameter {key!r}")
@@ -254,14 +243,14 @@ class SearchSession:
             table = table.append_column("clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string()))
             write_atomic(table, Path(cwd) / Path(args.out).expanduser())
         if args.plot:
-            if args.matcher != "lng" or not len(res):
-                raise ConfigError("--plot draws the lazy neighborhood graph of the best match: use --matcher lng")
+            if args.matcher not in ("search", "lng") or not len(res):
+                raise ConfigError("--plot draws the lazy neighborhood graph of the best match: --matcher search or lng")
             from .graph import build_graph
             from .plots import plot_neighborhood
 
-            p = matcher.params
-            graph = build_graph(query.features, space, k=p.k, radius=p.radius, eps=p.eps, propagate=p.propagate,
-                                gaps=p.gaps)
+            paper = bool(getattr(matcher.params, "paper", False))
+            graph = build_graph(query.features, space, k=getattr(matcher.params, "k", 256),
+                                propagate=0 if paper else 2, gaps=0 if paper else 32)
             plot = Path(cwd) / Path(args.plot).expanduser()
             plot_neighborhood(graph, res, space, plot, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
             print(f"wrote {args.plot}", file=err)

@@ -27,8 +27,7 @@ from pathlib import Path
 
 SOCKET_NAME = ".search.sock"
 # request options the server takes from the client (the rest: its own plugin selection)
-_FORWARDED = ("query", "index", "matcher", "count", "min_span", "rank_by", "exact", "approx", "gaps", "propagate", "k",
-              "radius", "plot", "out")
+_FORWARDED = ("query", "index", "matcher", "count", "min_span", "rank_by", "paper", "k", "plot", "out")
 
 
 def socket_path(db: str | Path) -> Path:
@@ -103,19 +102,21 @@ def warm_up(session) -> float:
     import numpy as np
 
     t0 = time.perf_counter()
-    args = argparse.Namespace(matcher="lng", count=10, k=None, radius=None, min_span=None, rank_by=None, exact=None,
-                              approx=None, gaps=None, propagate=None)
+    args = argparse.Namespace(matcher="search", count=10, k=None, min_span=None, rank_by=None, paper=None)
     matcher = session.matcher(args)
     space = session.space(matcher)
     if space.features is not None and space.n_rows >= 30:
         matcher.match(np.array(space.features[:30]), space)
-        from .exact import LEVELS, SUBSPACE, certified_sdtw
+        from dataclasses import replace
+
+        from .exact import DEFAULT_SETTINGS, certified_sdtw
         from .matcher_base import block_subspaces_of
 
-        for size, p in zip(LEVELS, SUBSPACE):  # the subspace cells a hard query switches on: built now
-            if p > 0:
+        for size, p in zip(DEFAULT_SETTINGS.sizes(), DEFAULT_SETTINGS.bases()):  # the subspace cells a hard
+            if p > 0:  # query switches on: built now
                 block_subspaces_of(space, size, p)
-        certified_sdtw(np.array(space.features[:30]), space, count=1, subspace_from=0.0)  # .. their kernel loaded
+        eager = replace(DEFAULT_SETTINGS, subspace_from=0.0)
+        certified_sdtw(np.array(space.features[:30]), space, count=1, settings=eager)  # .. their kernel loaded
     try:  # a query file's path: forward kinematics and the feature set (a synthetic clip)
         from mocapflow.framework.synthetic import synthetic_motion
 
