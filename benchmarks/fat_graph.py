@@ -1,7 +1,7 @@
 """Fat-graph base poses (Krüger et al. 2010 §5.3): kd-tree O(n log n) versus all pairs O(n^2).
 
     python benchmarks/fat_graph.py            # kd-tree at 100 k, 380 k, 1 M frames; quadratic to 40 k
-    python benchmarks/fat_graph.py --quick    # kd-tree at 25 k, 50 k, 100 k; quadratic to 20 k
+    python benchmarks/fat_graph.py --quick    # synthetic motion: kd-tree at 2 k, 4 k, 8 k; quadratic to 4 k
 
 Databases are prefixes of the augmented corpus (``benchmarks/corpus.py``), features F_E^15
 (``features.end_effectors``, ``joints: 5``), radius and k the step's defaults. Times cover
@@ -66,11 +66,16 @@ def main() -> None:
     reg = load_registries(entry_points=False)
     fe15 = reg["features"].get("end_effectors")({"joints": 5})
     Tree = reg["indexes"].get("kdtree")
-    sizes = args.sizes or ([25_000, 50_000, 100_000] if args.quick else [100_000, 380_813, 1_038_388])
-    quad_sizes = args.quadratic_sizes or ([5_000, 10_000, 20_000] if args.quick else [5_000, 10_000, 20_000, 40_000])
+    sizes = args.sizes or ([2_000, 4_000, 8_000] if args.quick else [100_000, 380_813, 1_038_388])
+    quad_sizes = args.quadratic_sizes or ([1_000, 2_000, 4_000] if args.quick else [5_000, 10_000, 20_000, 40_000])
 
     t0 = time.perf_counter()
-    if args.features:
+    if args.quick:
+        from mocapflow.framework import MotionDatabase
+        from mocapflow.framework.synthetic import synthetic_motion
+
+        x_all = fe15.transform(MotionDatabase([synthetic_motion(400, seed=s) for s in range(20)]))
+    elif args.features:
         x_all = np.load(args.features)
         print(f"F_E^15 of {len(x_all)} frames loaded from {args.features}; radius {p.radius}, k {p.k}")
     else:

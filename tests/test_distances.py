@@ -82,9 +82,8 @@ def test_spearman_rows_matches_scipy():
 
 def test_correlation_study_small(tmp_path):
     db = MotionDatabase([synthetic_motion(120, seed=s) for s in range(4)])
-    study = DistanceCorrelationStudy(samples=12, k=16, measures=("D_quat", "D_pc1", "F_E15", "F_E30", "F_E15x3", "F_pca8"),
-                                     rows=("F_E15", "D_pc1"))
-    rows, cols, rho, std, n = study.study(db)
+    study = DistanceCorrelationStudy(samples=12, k=16, measures=("D_quat", "D_pc1", "F_E15", "F_E30", "F_E15x3", "F_pca8"))
+    rows, cols, rho, std, n = study.study(db, rows=("F_E15", "D_pc1"))
     assert rho.shape == (2, 6) and rows == ("F_E15", "D_pc1")
     assert rho[0, 2] == 1.0 and rho[1, 1] == 1.0 and np.all(n == 12)
     assert np.all(np.abs(rho) <= 1.0) and rho[0, 3] > 0.5  # F15 ~ F30 even on synthetic motion

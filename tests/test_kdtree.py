@@ -6,7 +6,7 @@ import pytest
 from naive.knn import knn
 
 from mocapflow.framework.errors import ConfigError, DataError
-from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex, TreeSettings
 
 METHODS = ["kdtree", "brute"]
 
@@ -22,7 +22,7 @@ def test_knn_equals_brute_force(method, kind):
     rng = np.random.default_rng(0)
     x = rng.normal(size=(2000, 7)).astype(np.float32) if kind == "random" else _clustered(rng, 2000, 7)
     q = np.concatenate([x[:20] + 0.01, rng.normal(size=(20, 7)).astype(np.float32)])
-    ix = KDTreeIndex(method=method, leafsize=8).build(x)
+    ix = KDTreeIndex(method=method).build(x, tree=TreeSettings(leafsize=8))
     for k in (1, 16, 300):
         d, i = ix.query(q, k)
         d0, i0 = knn(x, q, k)
@@ -36,7 +36,7 @@ def test_ties_resolve_by_row_id(method):
     # integer grid with many duplicates: distances tie exactly
     rng = np.random.default_rng(1)
     x = rng.integers(0, 3, size=(500, 3)).astype(np.float32)
-    ix = KDTreeIndex(method=method, leafsize=4).build(x)
+    ix = KDTreeIndex(method=method).build(x, tree=TreeSettings(leafsize=4))
     d, i = ix.query(x[:30], 40)
     d0, i0 = knn(x, x[:30], 40)
     np.testing.assert_array_equal(i, i0)
@@ -63,7 +63,7 @@ def test_exclusion_of_own_clip_window(method):
     x = np.stack([np.sin(t / 20), np.cos(t / 13), np.sin(t / 7)], 1).astype(np.float32)
     groups = t // 200
     frames = t % 200
-    ix = KDTreeIndex(method=method, leafsize=8).build(x, groups=groups, frames=frames)
+    ix = KDTreeIndex(method=method).build(x, groups=groups, frames=frames, tree=TreeSettings(leafsize=8))
     rows = rng.choice(600, 30, replace=False)
     d, i = ix.query_rows(rows, 10, exclude=5)
     d0, i0 = knn(x, x[rows], 10, groups=groups, frames=frames, query_groups=groups[rows],
@@ -102,12 +102,12 @@ def test_save_load_does_not_rebuild(tmp_path, monkeypatch):
 def test_float32_stored_once_and_auto_reports_method():
     rng = np.random.default_rng(6)
     x = rng.normal(size=(3000, 12)).astype(np.float32)
-    ix = KDTreeIndex(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)).build(x)
+    ix = KDTreeIndex().build(x, tree=TreeSettings(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)))
     assert ix.data_.dtype == np.float32 and ix.data_.nbytes == x.nbytes
     assert ix.method_ in ("kdtree", "brute") and set(ix.probe_) == {f"tree_share@{k}" for k in (4, 64)}
     assert ix.brute_from_k_ in (None, 16)
     # the choice counts work, never times it: the same data gives the same choice and counts
-    again = KDTreeIndex(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)).build(x)
+    again = KDTreeIndex().build(x, tree=TreeSettings(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)))
     assert (again.method_, again.brute_from_k_, again.probe_) == (ix.method_, ix.brute_from_k_, ix.probe_)
     for k in (3, 100):
         np.testing.assert_array_equal(ix.query(x[:5], k)[1], knn(x, x[:5], k)[1])
@@ -124,7 +124,7 @@ def test_batches_switch_to_brute_force_by_the_batched_cost_model():
 
     rng = np.random.default_rng(7)
     x = rng.normal(size=(4000, 10)).astype(np.float32)
-    ix = KDTreeIndex(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)).build(x)
+    ix = KDTreeIndex().build(x, tree=TreeSettings(min_probe_rows=1000, probe_queries=8, probe_k=(4, 64)))
     ix.method_, ix.brute_from_k_ = "kdtree", None
     # the switch follows the saved probe counts and d only (share x d against the constant)
     ix.probe_ = {"tree_share@4": 0.1, "tree_share@64": kdtree.BATCH_BRUTE_FROM_WORK / 10}
@@ -152,7 +152,7 @@ def test_awkward_inputs():
     one = KDTreeIndex().build(np.ones((1, 3), np.float32))
     d, i = one.query(np.zeros(3), 4)
     assert i.tolist() == [[0, -1, -1, -1]] and np.isinf(d[0, 1:]).all()
-    same = KDTreeIndex(leafsize=2).build(np.zeros((50, 2), np.float32))  # constant features
+    same = KDTreeIndex().build(np.zeros((50, 2), np.float32), tree=TreeSettings(leafsize=2))  # constant features
     assert same.query(np.zeros(2), 5)[1].tolist() == [[0, 1, 2, 3, 4]]
     with pytest.raises(DataError):
         same.query(np.zeros(3), 1)
@@ -193,7 +193,7 @@ def test_consecutive_queries_seeded_search_is_exact(case, workers):
         x = np.round(x * 2).astype(np.float32)
     groups, frames = t // 300, t % 300
     rows = np.arange(1180, 1200) if case == "clip_end" else np.arange(400, 440)
-    ix = KDTreeIndex(method="kdtree", leafsize=8, workers=workers).build(x, groups=groups, frames=frames)
+    ix = KDTreeIndex(method="kdtree", workers=workers).build(x, groups=groups, frames=frames, tree=TreeSettings(leafsize=8))
     kw = {"radius": 0.3} if case == "radius" else {}
     ref = {"radius": 0.3} if case == "radius" else {}
     if case == "exclude":
@@ -257,7 +257,7 @@ def test_blocked_brute_path_equals_naive(case):
 def test_kdtree_single_row_queries_take_the_lean_call_exactly():
     rng = np.random.default_rng(11)
     x = _clustered(rng, 1500, 5)
-    ix = KDTreeIndex(method="kdtree", leafsize=8).build(x)
+    ix = KDTreeIndex(method="kdtree").build(x, tree=TreeSettings(leafsize=8))
     q = (x[:12] + np.float32(0.002)).astype(np.float32)
     for k in (1, 16, 200):
         d0, i0 = knn(x, q, k)
@@ -276,7 +276,7 @@ def test_tree_work_counts_the_buckets_within_the_kth_distance():
 
     rng = np.random.default_rng(11)
     x = rng.normal(size=(2000, 5)).astype(np.float32)
-    ix = KDTreeIndex(method="kdtree", leafsize=16).build(x)
+    ix = KDTreeIndex(method="kdtree").build(x, tree=TreeSettings(leafsize=16))
     q = x[:7].astype(np.float64)
     d2 = knn(x, x[:7], 9)[0].astype(np.float64) ** 2
     _, _, start, end, left, right, _, _, blo, bhi = ix._tree_args()[0][:10]

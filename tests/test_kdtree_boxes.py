@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from naive.knn import knn
 
-from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex, TreeSettings
 
 
 def _data(kind, rng):
@@ -26,7 +26,7 @@ def _data(kind, rng):
 @pytest.mark.parametrize("kind", ["random", "clustered", "ties", "one_row", "constant"])
 @pytest.mark.parametrize("leafsize", [1, 4, 16])
 def test_node_boxes_are_the_tight_boxes_of_the_node_points(kind, leafsize):
-    ix = KDTreeIndex(method="kdtree", leafsize=leafsize).build(_data(kind, np.random.default_rng(0)))
+    ix = KDTreeIndex(method="kdtree").build(_data(kind, np.random.default_rng(0)), tree=TreeSettings(leafsize=leafsize))
     lo, hi = ix._node_boxes()
     assert lo.shape == hi.shape == (len(ix.start_), ix.data_.shape[1]) and lo.dtype == np.float32
     for node in range(len(ix.start_)):
@@ -42,7 +42,7 @@ def test_box_distance_never_exceeds_a_point_distance(kind):
     from mocapflow.plugins.similarity.knn._knn_kernels import _box_dist
 
     rng = np.random.default_rng(1)
-    ix = KDTreeIndex(method="kdtree", leafsize=4).build(_data(kind, rng)[:300])
+    ix = KDTreeIndex(method="kdtree").build(_data(kind, rng)[:300], tree=TreeSettings(leafsize=4))
     lo, hi = ix._node_boxes()
     x = ix.data_.astype(np.float64)
     for q in np.concatenate([ix.data_[:5], ix.data_[:5] + np.float32(0.5)]).astype(np.float64):
@@ -59,7 +59,7 @@ def test_box_distance_never_exceeds_a_point_distance(kind):
 def test_box_pruned_search_equals_brute_force(kind, leafsize):
     rng = np.random.default_rng(2)
     x = _data(kind, rng)
-    ix = KDTreeIndex(method="kdtree", leafsize=leafsize).build(x)
+    ix = KDTreeIndex(method="kdtree").build(x, tree=TreeSettings(leafsize=leafsize))
     # consecutive rows (seeded bounds), shifted copies (no exact hit) and far-away queries
     q = np.concatenate([x[:15], x[:15] + np.float32(0.01), rng.normal(size=(5, x.shape[1])).astype(np.float32) * 4])
     for k in (1, 7, 64):
@@ -78,7 +78,7 @@ def test_box_pruned_search_with_exclusion(kind):
     x = _data(kind, rng)
     n = len(x)
     groups, frames = np.arange(n) // 250, np.arange(n) % 250
-    ix = KDTreeIndex(method="kdtree", leafsize=4).build(x, groups=groups, frames=frames)
+    ix = KDTreeIndex(method="kdtree").build(x, groups=groups, frames=frames, tree=TreeSettings(leafsize=4))
     rows = np.arange(240, 270)  # crosses a clip boundary
     d, i = ix.query_rows(rows, 20, exclude=3)
     d0, i0 = knn(x, x[rows], 20, groups=groups, frames=frames, query_groups=groups[rows],
@@ -90,7 +90,7 @@ def test_boxes_rebuilt_after_load_of_a_saved_index(tmp_path):
     # boxes are derived, not saved: an index saved without them loads and answers the same
     rng = np.random.default_rng(4)
     x = _data("clustered", rng)
-    ix = KDTreeIndex(method="kdtree", leafsize=8).build(x)
+    ix = KDTreeIndex(method="kdtree").build(x, tree=TreeSettings(leafsize=8))
     ix.save(tmp_path / "ix")
     assert not any("box" in p.name for p in (tmp_path / "ix").iterdir())
     back = KDTreeIndex.load(tmp_path / "ix")

@@ -10,7 +10,7 @@ from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.testing import synthetic_skeleton
 from mocapflow.plugins.similarity.applications.retarget import positions_to_motion
 from mocapflow.plugins.similarity.applications.reconstruct import (
-    PosePrior, PriorDatabase, ReconstructParams, joint_errors, local_poses,
+    PosePrior, PriorDatabase, ReconstructModel, ReconstructParams, joint_errors, local_poses,
     reconstruct_motion, reconstruct_positions, synthetic_markers,
 )
 from naive.knn import ckdtree_index_class
@@ -126,7 +126,7 @@ def test_input_validation(prior_store):
     with pytest.raises(DataError):
         reconstruct_positions(np.zeros((5, 4, 3)), prior)
     with pytest.raises(DataError):
-        reconstruct_positions(np.zeros((5, 6, 3)), prior, ReconstructParams(markers=("head", "lwrist")))
+        reconstruct_positions(np.zeros((5, 2, 3)), prior, model=ReconstructModel(markers=("head", "lwrist")))
     assert reconstruct_positions(np.zeros((0, 6, 3)), prior)[0].shape == (0, len(prior.joints), 3)
     m = periodic_motion(3, 0.5 / 30)
     for n in (1, 2, 3):  # one-frame clips and clips shorter than the backward pass

@@ -42,8 +42,8 @@ def test_shard_bounds_cut_only_between_clips():
 @pytest.mark.parametrize("shards", [1, 2, 3, 7])
 def test_sharded_equals_one_kdtree_with_ties_radius_and_exclusion(shards):
     x, g, f = clips_data()
-    one = KDTreeIndex(method="kdtree", leafsize=4).build(x, groups=g, frames=f)
-    sh = ShardedIndex(shards=shards, index_params={"method": "kdtree", "leafsize": 4}).build(x, groups=g, frames=f)
+    one = KDTreeIndex(method="kdtree").build(x, groups=g, frames=f)
+    sh = ShardedIndex(shards=shards, index_params={"method": "kdtree"}).build(x, groups=g, frames=f)
     assert len(sh.shards_) == min(shards, len(np.unique(g)))
     rng = np.random.default_rng(1)
     q = np.concatenate([x[rng.choice(len(x), 30)], np.round(rng.normal(size=(20, x.shape[1])) * 2).astype(np.float32) / 2])
@@ -83,7 +83,7 @@ def _shard_identity(task: _ShardQuery):
 
 def test_saved_shards_answer_on_workers_loaded_once_per_process(tmp_path):
     x, g, f = clips_data(seed=5)
-    sh = ShardedIndex(shards=3, index_params={"leafsize": 4}).build(x, groups=g, frames=f)
+    sh = ShardedIndex(shards=3).build(x, groups=g, frames=f)
     sh.save(tmp_path / "index")
     loaded = ShardedIndex.load(tmp_path / "index")
     q = x[::5]
@@ -109,8 +109,8 @@ def test_both_fan_outs_on_workers_equal_one_kdtree(tmp_path, fan_out):
     """Query blocks (each worker asks every shard and merges) and shard tasks (each worker
     one shard, merged by the caller) give the unsharded answers, exclusion and radius too."""
     x, g, f = clips_data(seed=7)
-    one = KDTreeIndex(method="kdtree", leafsize=4).build(x, groups=g, frames=f)
-    ShardedIndex(shards=3, fan_out=fan_out, index_params={"leafsize": 4}).build(x, groups=g, frames=f).save(tmp_path / "i")
+    one = KDTreeIndex(method="kdtree").build(x, groups=g, frames=f)
+    ShardedIndex(shards=3, fan_out=fan_out).build(x, groups=g, frames=f).save(tmp_path / "i")
     loaded = ShardedIndex.load(tmp_path / "i")
     assert loaded.params.fan_out == fan_out
     rows = np.arange(0, len(x), 3)

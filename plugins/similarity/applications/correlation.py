@@ -6,7 +6,7 @@ measures: a full scan); then, for each *column* measure, Spearman's rank correla
 between the row measure's distances and the column measure's distances to those ``k``
 frames is computed, and averaged over the samples. The matrix is not symmetric: the
 neighbours always come from the row measure. The query frame itself is excluded from its
-neighbours (``exclude_frames: 0``; larger values also skip its own clip's nearby frames).
+neighbours.
 
 Measures: ``D_quat, D_euler, D_pc1, D_pc11, D_wb`` (:mod:`.distances`) and the feature sets
 ``F_pca<n>`` (fitted on the ``reference`` motions, else on the motions themselves),
@@ -37,6 +37,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
 FIG2_MEASURES = ("D_quat", "D_euler", "D_pc1", "D_pc11", "D_wb", "F_pca8", "F_pca16", "F_pca25",
                  "F_E15", "F_E30", "F_E39", "F_E15x3", "F_E15x5", "F_E30x3")
+#: window of the F_E<n>x<l> feature sets, seconds (the paper's 0.3)
+WINDOW = 0.3
+#: weight of D_wb's joint-velocity term, s^2
+VELOCITY_WEIGHT = 0.01
 _FEATURE = re.compile(r"F_(?:pca(\d+)|E(15|30|39)(?:x(\d+))?)")
 
 
@@ -81,29 +85,26 @@ class DistanceCorrelationStudy(Analysis):
     class Params(Params):
         samples: int = Field(1024, ge=1, description="random query frames (paper: 1024)")
         k: int = Field(256, ge=2, description="nearest neighbours per query and row measure (paper: 256)")
-        measures: tuple[str, ...] = Field(FIG2_MEASURES, min_length=1, description="column measures, in order")
-        rows: tuple[str, ...] | None = Field(None, description="row measures (neighbour sources); default: all measures")
-        exclude_frames: int = Field(0, ge=0, description="skip neighbours of the query's clip within this many frames")
-        window: float = Field(0.3, gt=0, description="window of the F_E<n>x<l> feature sets, seconds (paper: 0.3)")
-        velocity_weight: float = Field(0.01, ge=0, description="weight of D_wb's joint-velocity term, s^2")
-        seed: int = Field(0, description="seed of the sample frames")
+        measures: tuple[str, ...] = Field(FIG2_MEASURES, min_length=1, description="the measures, in order")
 
-    def study(self, db: MotionDatabase, reference: MotionDatabase | None = None, progress=None):
-        """Run the study; returns ``(rows, cols, rho (R, C), rho_std (R, C), n (R, C))``."""
+    def study(self, db: MotionDatabase, reference: MotionDatabase | None = None, progress=None,
+              rows: tuple[str, ...] | None = None):
+        """Run the study; returns ``(rows, cols, rho (R, C), rho_std (R, C), n (R, C))`` (``rows``:
+        the neighbour sources, default every measure)."""
         from ..knn.kdtree import KDTreeIndex
 
         p = self.params
         cols = tuple(p.measures)
-        rows = tuple(p.rows) if p.rows is not None else cols
+        rows = tuple(rows) if rows is not None else cols
         for name in set(cols) | set(rows):
             _check_measure(name)
         n = db.n_frames
         if n <= p.k:
             raise ConfigError(f"{self.key()}: the database has {n} frames, need more than k={p.k}")
-        pm = PoseMeasures(db, p.velocity_weight) if any(c.startswith("D_") for c in cols + rows) else None
-        feats = {c: feature_matrix(c, db, reference, p.window) for c in dict.fromkeys(cols + rows) if c.startswith("F_")}
+        pm = PoseMeasures(db, VELOCITY_WEIGHT) if any(c.startswith("D_") for c in cols + rows) else None
+        feats = {c: feature_matrix(c, db, reference, WINDOW) for c in dict.fromkeys(cols + rows) if c.startswith("F_")}
         clip_id, frame = db.frame_ids
-        rng = np.random.default_rng(p.seed)
+        rng = np.random.default_rng(0)
         queries = np.sort(rng.choice(n, size=min(p.samples, n), replace=False))
 
         def dist(measure: str, i: int, js: np.ndarray) -> np.ndarray:
@@ -124,7 +125,7 @@ class DistanceCorrelationStudy(Analysis):
             if c < 0:  # the row's neighbours
                 if row in feats:
                     ix = KDTreeIndex(method="kdtree").build(feats[row], groups=clip_id, frames=frame)
-                    nd, nb = ix.query_rows(queries, p.k, exclude=p.exclude_frames)
+                    nd, nb = ix.query_rows(queries, p.k, exclude=0)
                 else:
                     nd, nb = self._scan(pm, row, queries, clip_id, frame)
                 per = np.full((len(queries), len(cols)), np.nan)
@@ -149,7 +150,7 @@ class DistanceCorrelationStudy(Analysis):
         nb = np.full((len(queries), k), -1, np.int64)
         for s, q in enumerate(queries):
             d = np.concatenate([pm.distance(row, int(q), np.arange(a, min(a + chunk, n))) for a in range(0, n, chunk)])
-            d[(clip_id == clip_id[q]) & (np.abs(frame - frame[q]) <= self.params.exclude_frames)] = np.inf
+            d[(clip_id == clip_id[q]) & (frame == frame[q])] = np.inf
             top = np.argpartition(d, k - 1)[:k]
             top = top[np.lexsort((top, d[top]))]
             nd[s], nb[s] = d[top], np.where(np.isfinite(d[top]), top, -1)

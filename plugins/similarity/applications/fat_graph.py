@@ -205,9 +205,10 @@ class FatGraphParams(Params):
     radius: float = Field(0.3, gt=0, description="neighbourhood radius in feature units (metres for "
                           "features.end_effectors); the paper gives no value")
     k: int = Field(64, ge=1, description="neighbourhood cap k of the radius search (k << n)")
-    max_base_poses: int = Field(0, ge=0, description="stop after this many base poses; 0 = until every frame is covered")
-    index: str = Field("kdtree", description="indexes component that runs the radius search")
-    plot_max: int = Field(48, ge=0, description="base poses drawn in base_poses.png (0: no plot)")
+
+
+#: base poses drawn in base_poses.png (when the step has a motions input)
+PLOT_MAX = 48
 
 
 class FatGraph(Analysis):
@@ -220,20 +221,21 @@ class FatGraph(Analysis):
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         p = self.params
         feats = inputs["features"].features()
-        index = ctx.registries["indexes"].get(p.index)()
-        res = select_base_poses(feats.x, p.radius, p.k, index, p.max_base_poses)
+        from ..knn.kdtree import KDTreeIndex
+
+        res = select_base_poses(feats.x, p.radius, p.k, KDTreeIndex())
         clip_id, frame = feats.clip_id, feats.frame
         # clip boundaries of the feature rows (rows are clip-contiguous, in clip order)
         new_clip = np.ones(len(clip_id), bool)
         new_clip[1:] = (clip_id[1:] != clip_id[:-1]) | (frame[1:] != frame[:-1] + 1)
         offsets = np.append(np.flatnonzero(new_clip), len(clip_id))
         tables = self.tables(res, clip_id, frame, offsets)
-        if "motions" in inputs and p.plot_max and len(res.bases):
-            self._plot(inputs["motions"], clip_id, frame, res.bases[: p.plot_max], ctx.out_dir / "base_poses.png",
-                       res.n_members[: p.plot_max])
+        if "motions" in inputs and len(res.bases):
+            self._plot(inputs["motions"], clip_id, frame, res.bases[:PLOT_MAX], ctx.out_dir / "base_poses.png",
+                       res.n_members[:PLOT_MAX])
         summary = {"n_frames": int(len(clip_id)), "n_base_poses": int(len(res.bases)),
                    "n_uncovered": int((res.cluster < 0).sum()), "n_edges": int(tables["edges"].num_rows),
-                   "backend": f"indexes.{p.index} + numba greedy"}
+                   "backend": "indexes.kdtree + numba greedy"}
         return StepOutput(tables, summary)
 
     @staticmethod

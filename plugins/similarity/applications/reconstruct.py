@@ -148,19 +148,41 @@ def _yaw_align(model: np.ndarray, observed: np.ndarray) -> float:
 class ReconstructParams(Params):
     features: str = Field("end_effectors", description="features component of the kNN search")
     feature_params: dict = Field(default_factory=dict, description="parameters of that feature set")
-    index: str = Field("kdtree", description="indexes component of the kNN search")
-    index_params: dict = Field(default_factory=lambda: {"workers": 1}, description="parameters of that index "
-                               "(one query per frame: threads only add wake-up latency)")
-    markers: tuple[str, ...] = Field(DEFAULT_MARKERS, min_length=1, description="canonical marker joints (root needed)")
-    noise: float = Field(0.001, ge=0, description="uniform marker disturbance, metres (paper: 1 mm)")
     k: int = Field(64, ge=2, description="neighbours of the local linear model")
-    marker_sigma: float = Field(0.005, gt=0, description="marker misfit scale, metres (model error dominates the 1 mm noise)")
-    smooth_sigma: float = Field(0.02, gt=0, description="allowed deviation from the constant-velocity prediction, metres")
-    iterations: int = Field(2, ge=1, description="searches per frame (the 2nd around the synthesised pose)")
-    backward_frames: int = Field(10, ge=0, description="first frames solved again backwards (they lack a past)")
     leave_out: Literal["clip", "subject", "none"] = Field(
         "clip", description="prior clips withheld for each test clip: the same clip (by name), its subject, or none")
-    seed: int = Field(0, description="seed of the marker noise")
+
+
+@dataclass(frozen=True)
+class ReconstructModel:
+    """The reconstruction's fixed model (the paper's set-up; measured, docs/knn.md).
+
+    ``markers``: canonical marker joints (root needed; the paper's 6); ``noise``: uniform
+    marker disturbance, metres (paper: 1 mm), drawn with ``seed``; ``marker_sigma``: marker
+    misfit scale, metres (model error dominates the 1 mm noise); ``smooth_sigma``: allowed
+    deviation from the constant-velocity prediction, metres; ``iterations``: searches per
+    frame (the 2nd around the synthesised pose); ``backward_frames``: first frames solved
+    again backwards (they lack a past). The kNN index is ``indexes.kdtree`` on one thread
+    (one query per frame: threads only add wake-up latency).
+    """
+
+    markers: tuple[str, ...] = DEFAULT_MARKERS
+    noise: float = 0.001
+    marker_sigma: float = 0.005
+    smooth_sigma: float = 0.02
+    iterations: int = 2
+    backward_frames: int = 10
+    seed: int = 0
+
+
+MODEL = ReconstructModel()
+
+
+def prior_index() -> Index:
+    """The kNN index of a prior database: an exact kd-tree, one thread."""
+    from ..knn.kdtree import KDTreeIndex
+
+    return KDTreeIndex(workers=1)
 
 
 def _local_model(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -177,16 +199,17 @@ def _local_model(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return mu, x, x @ x.T
 
 
-def reconstruct_positions(markers: np.ndarray, prior: PosePrior, params: ReconstructParams | None = None
-                          ) -> tuple[np.ndarray, np.ndarray]:
+def reconstruct_positions(markers: np.ndarray, prior: PosePrior, params: ReconstructParams | None = None,
+                          model: ReconstructModel = MODEL) -> tuple[np.ndarray, np.ndarray]:
     """Reconstruct full poses from marker trajectories.
 
     Parameters
     ----------
     markers : ndarray of shape (T, M, 3), metres
-        World positions of ``params.markers`` (which must include ``root``).
+        World positions of ``model.markers`` (which must include ``root``).
     prior : PosePrior
     params : ReconstructParams
+    model : ReconstructModel
 
     Returns
     -------
@@ -195,15 +218,16 @@ def reconstruct_positions(markers: np.ndarray, prior: PosePrior, params: Reconst
     heading : ndarray of shape (T,), radians
     """
     p = params or ReconstructParams()
+    mk = model.markers
     markers = np.asarray(markers, np.float64)
     joints = list(prior.joints)
-    if "root" not in p.markers or any(m not in joints for m in p.markers):
-        raise DataError(f"markers {list(p.markers)} must include 'root' and lie in the pose joints {joints}")
-    if markers.ndim != 3 or markers.shape[1:] != (len(p.markers), 3):
-        raise DataError(f"markers must be (T, {len(p.markers)}, 3), got {markers.shape}")
+    if "root" not in mk or any(m not in joints for m in mk):
+        raise DataError(f"markers {list(mk)} must include 'root' and lie in the pose joints {joints}")
+    if markers.ndim != 3 or markers.shape[1:] != (len(mk), 3):
+        raise DataError(f"markers must be (T, {len(mk)}, 3), got {markers.shape}")
     t_len, n_j = len(markers), len(joints)
-    sel = np.array([[3 * joints.index(m) + a for a in range(3)] for m in p.markers]).ravel()
-    root = markers[:, list(p.markers).index("root")]
+    sel = np.array([[3 * joints.index(m) + a for a in range(3)] for m in mk]).ravel()
+    root = markers[:, list(mk).index("root")]
     rel = markers - root[:, None, :]
     out = np.zeros((t_len, n_j * 3))
     heading = np.zeros(t_len)
@@ -211,27 +235,27 @@ def reconstruct_positions(markers: np.ndarray, prior: PosePrior, params: Reconst
         return out.reshape(0, n_j, 3), heading
     theta, guess = _initial_pose(rel[0], prior.poses, sel)
     # the first frame starts from a database pose and has no temporal context: search more often
-    out[0], heading[0] = _solve_frame(rel[0], guess, theta, None, prior, sel, p, max(p.iterations, 5))
+    out[0], heading[0] = _solve_frame(rel[0], guess, theta, None, prior, sel, p.k, model, max(model.iterations, 5))
     for t in range(1, t_len):
         pred = 2 * out[t - 1] - out[t - 2] if t >= 2 else out[t - 1]
-        out[t], heading[t] = _solve_frame(rel[t], pred, heading[t - 1], pred, prior, sel, p, p.iterations)
+        out[t], heading[t] = _solve_frame(rel[t], pred, heading[t - 1], pred, prior, sel, p.k, model, model.iterations)
     # then a short backward pass: the first frames again, predicted from the later ones
-    for t in range(min(p.backward_frames, t_len - 2) - 1, -1, -1):
+    for t in range(min(model.backward_frames, t_len - 2) - 1, -1, -1):
         pred = 2 * out[t + 1] - out[t + 2]
-        out[t], heading[t] = _solve_frame(rel[t], pred, heading[t + 1], pred, prior, sel, p, p.iterations)
+        out[t], heading[t] = _solve_frame(rel[t], pred, heading[t + 1], pred, prior, sel, p.k, model, model.iterations)
     world = rotate_about_y(out.reshape(t_len, n_j, 3), heading) + root[:, None, :]
     return world, heading
 
 
 def _solve_frame(rel: np.ndarray, guess: np.ndarray, theta: float, pred: np.ndarray | None, prior: PosePrior,
-                 sel: np.ndarray, p: ReconstructParams, iterations: int) -> tuple[np.ndarray, float]:
+                 sel: np.ndarray, k: int, model: ReconstructModel, iterations: int) -> tuple[np.ndarray, float]:
     """One frame: kNN around ``guess``, local model, MAP pose and heading (see module doc).
 
     rel : (M, 3) markers relative to the root marker; guess, pred : (D,) local poses;
     returns the pose (D,) and heading (radians).
     """
-    w_m, w_s = 1.0 / p.marker_sigma**2, 1.0 / p.smooth_sigma**2
-    k = min(p.k, len(prior.poses))
+    w_m, w_s = 1.0 / model.marker_sigma**2, 1.0 / model.smooth_sigma**2
+    k = min(k, len(prior.poses))
     for _ in range(iterations):
         _, ids = prior.index.query(prior.query_features(guess), k)
         nb = prior.poses[ids[0][ids[0] >= 0]].astype(np.float64)
@@ -320,8 +344,8 @@ class PriorDatabase:
                                np.concatenate([self.features[i] for i in rows]), index, self.joints)
 
 
-def reconstruct_motion(motion: Motion, prior: PosePrior, params: ReconstructParams | None = None
-                       ) -> tuple[Motion, dict]:
+def reconstruct_motion(motion: Motion, prior: PosePrior, params: ReconstructParams | None = None,
+                       model: ReconstructModel = MODEL) -> tuple[Motion, dict]:
     """Reconstruct one clip from its synthetic markers; the result and its errors.
 
     Returns the reconstructed Motion (test clip's skeleton, ``<name>_recon``) and a dict:
@@ -329,9 +353,9 @@ def reconstruct_motion(motion: Motion, prior: PosePrior, params: ReconstructPara
     ``seconds`` (reconstruction time, excluding the prior).
     """
     p = params or ReconstructParams()
-    markers = synthetic_markers(motion, p.markers, p.noise, np.random.default_rng(p.seed))
+    markers = synthetic_markers(motion, model.markers, model.noise, np.random.default_rng(model.seed))
     t0 = time.perf_counter()
-    world, _ = reconstruct_positions(markers, prior, p)
+    world, _ = reconstruct_positions(markers, prior, p, model)
     seconds = time.perf_counter() - t0
     truth = motion.canonical_positions(prior.joints)
     mean, mx, avg, worst = joint_errors(world, truth)
@@ -363,7 +387,7 @@ class Reconstruct(Analysis):
             keep = ~store.withheld(m, p.leave_out)
             key = keep.tobytes()
             if key not in cache:  # one index per distinct left-out set
-                cache = {key: store.prior(keep, ctx.registries["indexes"].get(p.index)(p.index_params))}
+                cache = {key: store.prior(keep, prior_index())}
             rec, e = reconstruct_motion(m, cache[key], p)
             motions.append(rec)
             err_rows += [{"clip_id": int(cid), "name": m.name, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
@@ -384,5 +408,5 @@ class Reconstruct(Analysis):
         summary = {"clips": len(clip_rows), "frames": frames,
                    "avg_cm": float(np.mean([r["avg_cm"] for r in clip_rows])) if clip_rows else None,
                    "feature_fit_r2": float(next(iter(cache.values())).feature_fit_r2) if cache else None,
-                   "backend": f"features.{p.features} + indexes.{p.index}"}
+                   "backend": f"features.{p.features} + indexes.kdtree"}
         return StepOutput(tables, summary)

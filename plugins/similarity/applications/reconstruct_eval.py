@@ -30,7 +30,7 @@ from pydantic import Field
 from mocapflow.framework import Analysis, DataError, FeatureSet, Index, Motion, MotionDatabase, Params, StepContext, StepOutput
 from mocapflow.framework.datasets import Dataset
 
-from .reconstruct import PriorDatabase, ReconstructParams, reconstruct_motion
+from .reconstruct import PriorDatabase, ReconstructParams, prior_index, reconstruct_motion
 
 #: Table 4's columns: label -> (features component, parameters).
 FEATURE_SETS: dict[str, tuple[str, dict]] = {
@@ -132,10 +132,7 @@ class ReconstructionEvalParams(Params):
     test_clips: tuple[str, ...] = Field(DEFAULT_TESTS, min_length=1, description="names of the test clips")
     feature_sets: tuple[str, ...] = Field(tuple(FEATURE_SETS), description=f"Table 4 columns, of {list(FEATURE_SETS)}")
     fractions: tuple[float, ...] = Field((0.1, 0.3, 1.0), description="prior sizes of the size sweep (fractions of CMU clips)")
-    index: str = Field("kdtree", description="indexes component")
-    index_params: dict = Field(default_factory=lambda: {"workers": 1}, description="parameters of the index")
-    reconstruct: ReconstructParams = Field(default_factory=ReconstructParams, description="reconstruction parameters")
-    seed: int = Field(0, description="seed of the size sweep's clip subsets")
+    k: int = Field(64, ge=2, description="neighbours of the local linear model")
 
 
 class ReconstructionEval(Analysis):
@@ -153,14 +150,14 @@ class ReconstructionEval(Analysis):
         cmu_db = inputs["cmu"].motions()
         hdm_db = inputs["hdm05"].motions() if "hdm05" in inputs else None
         reg = ctx.registries
-        make_index = lambda: reg["indexes"].get(p.index)(p.index_params)  # noqa: E731 - a one-line helper local to this function
         make_features = lambda comp, params: reg["features"].get(comp)(params)  # noqa: E731 - a one-line helper local to this function
         fe15 = make_features(*FEATURE_SETS["F_E^15"])
         cmu = PriorDatabase(cmu_db, fe15)
         hdm = PriorDatabase(hdm_db, fe15) if hdm_db is not None else None
-        t3, joints = table3(p.test_clips, cmu, hdm, cmu_db, hdm_db, make_index, p.reconstruct)
-        t4 = table4(p.test_clips, cmu_db, hdm_db, p.feature_sets, make_features, make_index, p.reconstruct)
-        sizes = size_sweep(p.test_clips, cmu, cmu_db, hdm_db, p.fractions, make_index, p.reconstruct, p.seed)
+        rp = ReconstructParams(k=p.k)
+        t3, joints = table3(p.test_clips, cmu, hdm, cmu_db, hdm_db, prior_index, rp)
+        t4 = table4(p.test_clips, cmu_db, hdm_db, p.feature_sets, make_features, prior_index, rp)
+        sizes = size_sweep(p.test_clips, cmu, cmu_db, hdm_db, p.fractions, prior_index, rp)
         tables = {"table3": pa.Table.from_pylist(t3), "table4": pa.Table.from_pylist(t4),
                   "sizes": pa.Table.from_pylist(sizes), "joint_errors": pa.Table.from_pylist(joints)}
         tables["data"] = tables["table3"]

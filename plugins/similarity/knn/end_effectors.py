@@ -15,9 +15,8 @@ Joint choice (canonical names, :mod:`mocapflow.framework.joints`):
 Windows (``samples: l > 1``): the frame features at ``l`` instants spread evenly over a
 window of ``window`` seconds (paper: 0.3 s), concatenated oldest first, each sample
 normalised in its own root frame (the paper extends "every frame-based feature set F^n to
-one on a window of l frames F^{n×l}"). Placement: ``centered`` puts frame ``t`` in the
-middle (``t - w/2 .. t + w/2``), ``trailing`` ends the window at ``t`` (causal, for online
-use). Sample instants that fall between frames are interpolated linearly (at 30 Hz, 0.3 s
+one on a window of l frames F^{n×l}"), frame ``t`` in the middle (``t - w/2 .. t + w/2``).
+Sample instants that fall between frames are interpolated linearly (at 30 Hz, 0.3 s
 is 9 frame intervals, so the 3-sample window's ends sit at ±4.5 frames). At the clip edges
 the instants are clamped to the first/last frame: a window never straddles two clips
 (features are computed clip by clip) and never reads outside its clip.
@@ -55,13 +54,12 @@ def body_frame_positions(motion: Motion, joints: tuple[str, ...]) -> np.ndarray:
     return local[:, [names.index(j) for j in joints]]
 
 
-def window_offsets(samples: int, window: float, fps: float, placement: str) -> np.ndarray:
+def window_offsets(samples: int, window: float, fps: float) -> np.ndarray:
     """Sample instants relative to the frame, in frames (float), oldest first, shape (samples,)."""
     if samples == 1:
         return np.zeros(1)
     span = window * fps
-    start = -0.5 * span if placement == "centered" else -span
-    return start + np.linspace(0.0, span, samples)
+    return -0.5 * span + np.linspace(0.0, span, samples)
 
 
 def sample_window(frames: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -91,7 +89,7 @@ class EndEffectorFeatures(FeatureSet):
     """End-effector positions in the root frame, optionally over a short time window.
 
     ``joints`` 5/10/13 give F_E^15/30/39; ``samples`` 3 or 5 give F^{n×3}/F^{n×5} over
-    ``window`` seconds (see the module docstring for placement and clip edges). Output:
+    ``window`` seconds (see the module docstring for clip edges). Output:
     float32 (T, 3 * joints * samples), metres, joint-major within a sample, samples oldest first.
     """
 
@@ -102,8 +100,6 @@ class EndEffectorFeatures(FeatureSet):
         joints: Literal[5, 10, 13] = Field(5, description="5, 10 or 13 joints: F_E^15, F_E^30, F_E^39")
         samples: int = Field(1, ge=1, le=32, description="samples per window (1 = pose only; paper: 3 or 5)")
         window: float = Field(0.3, gt=0, le=10, description="window length in seconds (paper: 0.3)")
-        placement: Literal["centered", "trailing"] = Field(
-            "centered", description="window centred on the frame, or ending at it (causal)")
 
     @property
     def dim(self) -> int:
@@ -118,5 +114,5 @@ class EndEffectorFeatures(FeatureSet):
         p = self.params
         pose = body_frame_positions(motion, self.joint_names).reshape(motion.n_frames, -1)
         if p.samples > 1:
-            pose = sample_window(pose, window_offsets(p.samples, p.window, motion.fps, p.placement))
+            pose = sample_window(pose, window_offsets(p.samples, p.window, motion.fps))
         return pose.astype(np.float32)

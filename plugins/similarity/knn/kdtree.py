@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Literal
 
@@ -52,6 +53,26 @@ BRUTE_FROM_SHARE = 0.25
 #: a batch while ``tree_share@k x d`` stays below this.
 BATCH_BRUTE_FROM_WORK = 7.0
 BATCH_QUERIES = 32
+
+@dataclass(frozen=True)
+class TreeSettings:
+    """How a kd-tree is built and how ``method: auto`` probes (measured defaults, docs/knn.md).
+
+    ``leafsize``: maximum points per bucket (64, not ANN's usual 16: with per-node bounding
+    boxes a far bucket is skipped on one box test and a scanned one is a tight loop; measured
+    15-40 % faster single queries than 16 at 27 k and 380 k rows, and 128 no faster).
+    ``probe_queries`` rows sampled to count the methods' work, for each of ``probe_k``
+    neighbour counts (Table 1: 16 and 256); below ``min_probe_rows`` rows auto uses the
+    kd-tree without a probe.
+    """
+
+    leafsize: int = 64
+    probe_queries: int = 64
+    probe_k: tuple[int, ...] = (16, 256)
+    min_probe_rows: int = 20000
+
+
+TREE = TreeSettings()
 
 _ARRAYS = ("data_", "perm_", "groups_", "frames_", "sqnorms_", "mean_",
            "start_", "end_", "left_", "right_", "sdim_", "sval_")
@@ -108,20 +129,11 @@ class KDTreeIndex(Index):
             "auto", description=(
                 "search method; auto counts the kd-tree's unavoidable work on sampled rows at build time and keeps "
                 "it unless that reaches a quarter of the rows (deterministic; both methods exact)"))
-        # 64, not ANN's usual 16: with per-node bounding boxes a far bucket is skipped on one
-        # box test and a scanned one is a tight loop, so bigger buckets cost little; measured
-        # 15-40 % faster single queries than 16 across the feature sets at 27 k and 380 k rows
-        # (and 128 no faster)
-        leafsize: int = Field(64, ge=1, le=1024, description="maximum points per kd-tree bucket")
-        probe_queries: int = Field(64, ge=1, description="rows sampled to count the methods' work (method auto)")
-        probe_k: tuple[int, ...] = Field((16, 256), min_length=1,
-                                         description="neighbour counts probed (Table 1: 16 and 256); ascending")
-        min_probe_rows: int = Field(20000, ge=0, description="below this many rows auto uses the kd-tree without a probe")
         workers: int = Field(0, ge=0, description="threads for batched queries, 0 = all cores")
 
     # --- building ---------------------------------------------------------------------
     def build(self, features: np.ndarray, *, groups: np.ndarray | None = None,
-              frames: np.ndarray | None = None) -> KDTreeIndex:
+              frames: np.ndarray | None = None, tree: TreeSettings | None = None) -> KDTreeIndex:
         """Index ``features`` (n, d); float32 is stored as is (tree order), others converted once.
 
         Parameters
@@ -129,9 +141,12 @@ class KDTreeIndex(Index):
         features : ndarray of shape (n, d)
         groups, frames : ndarray of shape (n,), int, optional
             Clip id and frame per row (for ``exclude``).
+        tree : TreeSettings, optional
+            Bucket size and probe (default :data:`TREE`).
         """
         from . import _knn_kernels as kern
 
+        cfg = tree or TREE
         x = np.asarray(features)
         if x.ndim != 2 or x.shape[1] < 1:
             raise DataError(f"{self.key()}: features must be (n, d) with d >= 1, got shape {x.shape}")
@@ -146,7 +161,7 @@ class KDTreeIndex(Index):
         if g.shape != (n,) or f.shape != (n,):
             raise DataError(f"{self.key()}: groups/frames must have shape ({n},)")
         x = np.ascontiguousarray(x)
-        perm, start, end, left, right, sdim, sval = kern.build_tree(x, self.params.leafsize) if n else (
+        perm, start, end, left, right, sdim, sval = kern.build_tree(x, cfg.leafsize) if n else (
             np.zeros(0, np.int64), *(np.zeros(1, np.int64),) * 2, *(np.full(1, -1, np.int64),) * 2,
             np.zeros(1, np.int32), np.zeros(1, np.float32))
         self._inv = self._depth = self._raw_bound = self._boxes = self._targs = None
@@ -161,13 +176,13 @@ class KDTreeIndex(Index):
         self.probe_ = {}
         self.method_, self.brute_from_k_, self.large_method_ = self.params.method, None, "brute"
         if self.method_ == "auto":
-            self.method_ = self._probe() if n >= max(self.params.min_probe_rows, 1) else "kdtree"
+            self.method_ = self._probe(cfg) if n >= max(cfg.min_probe_rows, 1) else "kdtree"
         return self
 
-    def _probe(self) -> str:
+    def _probe(self, cfg: TreeSettings) -> str:
         """Choose the method by counting work on a sample of the indexed rows (deterministic).
 
-        For each probed ``k``: the exact k-th neighbour distance of ``probe_queries`` sampled
+        For each probed ``k``: the exact k-th neighbour distance of ``cfg.probe_queries`` sampled
         rows, then the nodes and bucket points of the tree within that distance
         (:func:`._knn_kernels.tree_work`: the work no exact tree search can skip); their
         mean share of the ``n`` rows a brute force scans is ``probe_["tree_share@k"]``. The
@@ -181,11 +196,11 @@ class KDTreeIndex(Index):
 
         n = self.data_.shape[0]
         rng = np.random.default_rng(0)
-        q = self.data_[np.sort(rng.choice(n, size=min(self.params.probe_queries, n), replace=False))]
+        q = self.data_[np.sort(rng.choice(n, size=min(cfg.probe_queries, n), replace=False))]
         tree, _ = self._tree_args()
         _, _, start, end, left, right, _, _, blo, bhi = tree[:10]
         winners = []
-        for k in sorted({min(k, n) for k in self.params.probe_k}):
+        for k in sorted({min(k, n) for k in cfg.probe_k}):
             d2, _ = self._search(q, k, None, 0.0, None, None, None, 0, "brute")  # exact, batched
             points, nodes = kern.tree_work(q.astype(np.float64), d2[:, -1] * (1.0 + 1e-9), start, end, left, right,
                                            blo, bhi, self._max_depth())
@@ -427,7 +442,8 @@ class KDTreeIndex(Index):
         if not (d / "index.json").is_file():
             raise DataError(f"{d} holds no saved {cls.name} index (no index.json)")
         meta = json.loads((d / "index.json").read_text())
-        self = cls(meta["params"])
+        # parameters that became build settings (leafsize, probe_*) are ignored in older indexes
+        self = cls({k: v for k, v in meta["params"].items() if k in cls.Params.model_fields})
         for a in _ARRAYS:
             # memory-mapped copy-on-write: nothing is read before a query touches it, and the
             # arrays stay writable ndarrays (the kernels' one signature)
