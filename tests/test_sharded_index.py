@@ -139,8 +139,8 @@ steps:
   fe15: {{uses: features.end_effectors, input: motions}}
   tree: {{uses: indexes.kdtree, input: fe15}}
   shards: {{uses: indexes.sharded, input: fe15, with: {{shards: 3}}}}
-  search_tree: {{uses: matchers.search, inputs: {{database: tree, query: motions}}, with: {{queries: ["16_15.amc:1s-2s", "02_01:10-50", "02_02:0-30", "35_01:5-40"], count: 5, k: 64}}}}
-  search_shards: {{uses: matchers.search, inputs: {{database: shards, query: motions}}, with: {{queries: ["16_15.amc:1s-2s", "02_01:10-50", "02_02:0-30", "35_01:5-40"], count: 5, k: 64}}}}
+  search_tree: {{uses: matchers.search, inputs: {{database: tree, query: motions}}, with: {{queries: ["16_15.amc:1s-2s", "02_01:10-50", "02_02:0-30", "35_01:5-40"], count: 5}}}}
+  search_shards: {{uses: matchers.search, inputs: {{database: shards, query: motions}}, with: {{queries: ["16_15.amc:1s-2s", "02_01:10-50", "02_02:0-30", "35_01:5-40"], count: 5}}}}
   near_tree: {{uses: analyses.nearest_poses, inputs: {{index: tree, motions: motions}}, with: {{queries: ["02_01:30", "16_15:60"], k: 16, exclude_frames: 15}}}}
   near_shards: {{uses: analyses.nearest_poses, inputs: {{index: shards, motions: motions}}, with: {{queries: ["02_01:30", "16_15:60"], k: 16, exclude_frames: 15}}}}
 """)
