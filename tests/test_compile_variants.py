@@ -1,4 +1,4 @@
-"""First-run compile time (issue 11 §5): the kd-tree query kernel is compiled once per run,
+"""First-run compile time: the kd-tree query kernel is compiled once per run,
 not once per kind of argument array (read-only views, e.g. of ``exclude``'s broadcast groups, vs fresh arrays, a literal 0
 vs an int64 chunk start)."""
 from __future__ import annotations

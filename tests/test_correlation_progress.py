@@ -1,4 +1,4 @@
-"""``analyses.distance_correlation`` shows progress inside its rows (issue 11 §5)."""
+"""``analyses.distance_correlation`` shows progress inside its rows."""
 from __future__ import annotations
 
 import numpy as np

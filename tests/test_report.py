@@ -134,7 +134,7 @@ def test_quickstart_report_lists_clips_steps_and_provenance(quickstart_site, qui
     steps = {s["id"]: s for s in m["steps"]}
     assert set(steps) == {"motions", "summary", "fe15", "tree", "nearest", "search", "relational", "inverted", "hits", "clean"}
     s = steps["search"]
-    assert s["component"] == "matchers.lng" and s["params"]["count"] == 5 and s["inputs"] == {"database": "tree", "query": "motions"}
+    assert s["component"] == "matchers.search" and s["params"]["count"] == 5 and s["inputs"] == {"database": "tree", "query": "motions"}
     assert s["input_fingerprints"]["query"] == Dataset(quickstart_workspace / "motions").fingerprint
     assert s["images"] == ["plots/q0_m1.png"] and (quickstart_site / "img" / "search" / "plots" / "q0_m1.png").is_file()
 

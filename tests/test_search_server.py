@@ -1,4 +1,4 @@
-"""`mocapflow search` start-up paths (issue 13 §5): the kd-tree's memory-mapped row sidecars,
+"""`mocapflow search` start-up paths: the kd-tree's memory-mapped row sidecars,
 registries built for a few kinds only, and the search server giving the same answers as a
 search in the calling process."""
 from __future__ import annotations

@@ -3,7 +3,7 @@
 An optional backend (``pip install mocapflow[ann]``, which installs ``hnswlib``): a
 hierarchical navigable small-world graph (Malkov & Yashunin 2018) over the feature
 vectors, built with one thread from a fixed seed, so the same data and parameters give
-the same graph and the same answers. Chosen by ``benchmarks/ann.py`` (recall@k, time,
+the same graph and the same answers. Chosen by measurement (recall@k, time,
 build time, size, save/load, determinism against usearch and faiss; ``docs/knn.md``).
 
 Contract (:class:`~mocapflow.framework.Index`): ``build(features)``; ``query(x, k,

@@ -82,8 +82,8 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
 
     Float32 throughout (box distances, chains, bound), the box distances over the query
     padded to whole 16-lane vectors, an isolated block's bound as its row sum (every path
-    through it stays in it): 1.1-1.6x the float64 kernel (docs/global-matching.md, "Issue 13,
-    fourth round"). Still admissible: a float32 sum of ``m`` non-negative terms, and ``F + G -
+    through it stays in it): 1.1-1.6x the float64 kernel (docs/global-matching.md, "How the default
+    was chosen"). Still admissible: a float32 sum of ``m`` non-negative terms, and ``F + G -
     c`` (>= max(F, G)), exceed their exact values by at most ``(2m + 3) u`` relative (``u`` =
     2^-24), so the box distances are shrunk by a further ``1 - 4 m u`` on top of ``shrink``.
 
@@ -114,7 +114,7 @@ def subspace_bounds(qt, cen, basis, alo, ahi, rad, link, branges, shrink):  # pr
     ``||q - x_j||^2 >= boxdist(U r, [alo, ahi])^2 + max(0, ||(I - U^T U) r|| - rho)^2``:
     the cell cost. Box cells are the case ``p = 0`` with a box about every axis; along the
     few directions a block of 4-16 rows of motion actually spans, the subspace cell is far
-    tighter (docs/global-matching.md, "sixth round": alive rows at 16-row blocks 30-45 %
+    tighter (docs/global-matching.md: alive rows at 16-row blocks 30-45 %
     against 60 % with boxes on the slow 90-frame queries).
 
     Float32, admissible by margins: the coordinates widen the box by ``delta = mu (||r|| +
@@ -148,7 +148,7 @@ def _box_costs(qp, lo, hi, b, sh, out, acc):  # pragma: no cover - compiled
 
     The dimensions are taken five at a time, so that the accumulator is loaded and stored
     once per five (one at a time, ``coarse_bounds`` on the levels' real calls ran 0.87 / 0.97 /
-    0.95x as fast for 30 / 64 / 90 query frames: ``benchmarks/certified_ab.py --kernel-old``).
+    0.95x as fast for 30 / 64 / 90 query frames: A/B of the two kernels, commit 578a799).
     """
     d, mp = qp.shape
     zero = np.float32(0.0)
@@ -190,7 +190,7 @@ def _subspace_costs(qp, cen, basis, alo, ahi, rad, b, sh, out, rr, aa, mu, kappa
     Vectorised over the query frames, as the box costs; the dimensions are taken five at a
     time so that the four accumulators (``||r||^2`` and three coordinates) are loaded and
     stored once per five dimensions (one dimension at a time: 5.5-5.7 ns a cell against
-    4.7-5.3, docs/global-matching.md, "sixth round").
+    4.7-5.3).
     """
     d, mp = qp.shape
     zero = np.float32(0.0)
@@ -315,7 +315,7 @@ def _coarse(qt, lo, hi, cen, basis, alo, ahi, rad, link, branges, shrink, sub): 
             # a step each: four serial chains along the query in flight (the second block's
             # chain takes the first's values as they come, so it trails it by a frame: the
             # out-of-order core overlaps them); one block a step, two chains, the chains' latency
-            # was a third of a box cell's time (docs/global-matching.md, "sixth round")
+            # was a third of a box cell's time
             for step in range(0, nr, 2):
                 bf = step
                 bg = nr - 1 - step
