@@ -31,10 +31,11 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
+from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matcher_base import GlobalMatcher, block_boxes_of, block_subspaces_of
+from .matcher_base import block_boxes_of, block_subspaces_of
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
@@ -312,7 +313,7 @@ def _alive_ranges(qt, space, levels, lb_top, tau, cfg, st, alive_runs) -> tuple[
     return ranges, lb_top
 
 
-class CertifiedSearch(GlobalMatcher):
+class CertifiedSearch(Matcher):
     """The default global search: exactly subsequence DTW's matches by the certified pruned DP.
 
     ``database`` is an index dataset (``indexes.*``: its nearest rows seed the threshold); query

@@ -24,10 +24,10 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
+from mocapflow.framework import Matcher
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace
 
 from .graph import build_graph
-from .matcher_base import GlobalMatcher
 
 #: gap band of the default graph, in query frames (measured: docs/global-matching.md)
 GAPS = 32
@@ -57,7 +57,7 @@ def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 2
     return res
 
 
-class LazyNeighborhoodGraph(GlobalMatcher):
+class LazyNeighborhoodGraph(Matcher):
     """Global motion matching by shortest paths in the lazy neighborhood graph.
 
     ``database`` is an index dataset (``indexes.*``); query motions are turned into
@@ -96,7 +96,6 @@ class LazyNeighborhoodGraph(GlobalMatcher):
         return lazy_neighborhood_graph(query, space, k=p.k, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
                                        min_span=p.min_span)
 
-    def run(self, inputs, ctx):
-        if self.params.exact is not False:
-            ctx.log.warning("%s: %s", ctx.step_id, DEPRECATED)
-        return super().run(inputs, ctx)
+    def check_plan(self, base_dir) -> list[str]:
+        """The alias's warning at the step's line of the plan (and in the run log)."""
+        return [DEPRECATED] if self.params.exact is not False else []

@@ -20,12 +20,12 @@ import pyarrow as pa
 from pydantic import Field
 
 from mocapflow.framework.datasets import StepOutput
+from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import IntervalSet, MatchParams, QueryMatches, SearchSpace, matches_table
 from mocapflow.framework.queries import queries_table, upstream
 
 from .lng import GAPS, PROPAGATE, lazy_neighborhood_graph
-from .matcher_base import GlobalMatcher
 
 
 @dataclass
@@ -93,7 +93,7 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
     )
 
 
-class LogicalSearch(GlobalMatcher):
+class LogicalSearch(Matcher):
     """Logical similarity search: LNG searches iterated on their own matches (§5.1).
 
     Output columns after the shared match columns: ``round`` and ``source_rank`` (rank of

@@ -1,25 +1,14 @@
-"""What the global matchers (``search``, ``lng``, ``sdtw``, ``logical``) share beyond the core contract.
-
-The step itself (search space, queries, match table) is the core's default
-:meth:`~mocapflow.framework.components.Matcher.run`; here are the matcher base class and the
-block boxes of the certified search, computed once per search space (:func:`block_boxes_of`,
-:func:`block_subspaces_of`).
+"""The block boxes and local subspace cells of the certified search, computed once per search
+space (:func:`block_boxes_of`, :func:`block_subspaces_of`). The matchers' step itself (search
+space, queries, match table) is the core's default
+:meth:`~mocapflow.framework.components.Matcher.run`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace
-
-
-class GlobalMatcher(Matcher):
-    """A core :class:`~mocapflow.framework.Matcher` that aligns whole query segments; subclasses
-    set ``needs_index``/``needs_features`` and implement ``match``."""
-
-    def uses_features(self) -> bool:
-        return self.needs_features
 
 
 def block_boxes_of(space: SearchSpace, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

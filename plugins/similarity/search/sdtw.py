@@ -12,10 +12,10 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
+from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matcher_base import GlobalMatcher
 
 
 def validate_query(query: np.ndarray, dim: int) -> np.ndarray:
@@ -83,7 +83,7 @@ def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, m
     return QueryMatches(start[keep], ends[keep] + 1, cost[keep], length[keep].astype(np.int64), paths)
 
 
-class SubsequenceDTW(GlobalMatcher):
+class SubsequenceDTW(Matcher):
     """Exact subsequence DTW of each query against every clip of the database.
 
     ``database`` is an index dataset (its features dataset is found through its
