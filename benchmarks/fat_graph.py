@@ -10,6 +10,7 @@ matrix in blocks) plus the shared greedy cover; feature computation is excluded.
 run, the base poses are checked to be identical. The exponent b of ``time ~ n^b`` is fitted
 by least squares in log-log space.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,12 +38,12 @@ def quadratic_neighbours(x: np.ndarray, radius: float, k: int, block: int = 2048
     ids = np.full((n, k), -1, np.int32)
     kk = min(k, n)
     for s in range(0, n, block):
-        d2 = np.maximum(sq[s:s + block, None] + sq[None, :] - 2.0 * x[s:s + block] @ x.T, 0.0)
+        d2 = np.maximum(sq[s : s + block, None] + sq[None, :] - 2.0 * x[s : s + block] @ x.T, 0.0)
         part = np.argpartition(d2, kk - 1, axis=1)[:, :kk]
         pd = np.take_along_axis(d2, part, 1)
         order = np.lexsort((part, pd), axis=1)
         part, pd = np.take_along_axis(part, order, 1), np.take_along_axis(pd, order, 1)
-        ids[s:s + block, :kk] = np.where(pd <= radius * radius, part, -1)
+        ids[s : s + block, :kk] = np.where(pd <= radius * radius, part, -1)
     return ids
 
 
@@ -54,11 +55,19 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--save-features", metavar="NPY", help="store the F_E^15 matrix (float32) and stop")
-    ap.add_argument("--features", metavar="NPY", help="use a stored F_E^15 matrix instead of the corpus "
-                    "(e.g. on a machine without ../shared/data)")
-    ap.add_argument("--sample", type=int, default=0, metavar="N",
-                    help="estimate the search at the kd-tree sizes from N random queries (build timed in full); "
-                         "the greedy cover is then not run")
+    ap.add_argument(
+        "--features",
+        metavar="NPY",
+        help="use a stored F_E^15 matrix instead of the corpus (e.g. on a machine without ../shared/data)",
+    )
+    ap.add_argument(
+        "--sample",
+        type=int,
+        default=0,
+        metavar="N",
+        help="estimate the search at the kd-tree sizes from N random queries (build timed in full); "
+        "the greedy cover is then not run",
+    )
     ap.add_argument("--sizes", type=int, nargs="*", help="kd-tree database sizes (default per --quick)")
     ap.add_argument("--quadratic-sizes", type=int, nargs="*", help="all-pairs sizes (default per --quick)")
     args = ap.parse_args()
@@ -81,8 +90,10 @@ def main() -> None:
     else:
         db = augmented_database(max(sizes), fps=30)
         x_all = fe15.transform(db)
-        print(f"augmented corpus: {db.n_frames} frames, F_E^15 computed in {time.perf_counter() - t0:.0f} s; "
-              f"radius {p.radius}, k {p.k}")
+        print(
+            f"augmented corpus: {db.n_frames} frames, F_E^15 computed in {time.perf_counter() - t0:.0f} s; "
+            f"radius {p.radius}, k {p.k}"
+        )
     if args.save_features:
         np.save(args.save_features, np.ascontiguousarray(x_all, np.float32))
         return
@@ -109,7 +120,9 @@ def main() -> None:
             print(f"{n:>9} {tb:8.2f} {len(q) / tq:9.0f} {est:14.1f}")
             est_n.append(n)
             est_t.append(est)
-        print(f"fitted exponent of the estimated search time ({sizes[0]}..{sizes[-1]}): {fit_exponent(est_n, est_t):.2f}")
+        print(
+            f"fitted exponent of the estimated search time ({sizes[0]}..{sizes[-1]}): {fit_exponent(est_n, est_t):.2f}"
+        )
         return
     kd_n, kd_t, kd_ids = [], [], {}
     print(f"\n{'n':>9} {'method':>10} {'search s':>9} {'greedy s':>9} {'total s':>9} {'bases':>7}")
@@ -137,12 +150,18 @@ def main() -> None:
         tg = time.perf_counter() - t
         quad_t.append(ts + tg)
         same = np.array_equal(bases, kd_ids[n][0])
-        print(f"{n:>9} {'all-pairs':>10} {ts:9.2f} {tg:9.2f} {ts + tg:9.2f} {len(bases):>7}   "
-              f"same base poses as kd-tree: {same}; kd-tree {quad_t[-1] / kd_ids[n][1]:.1f}x faster")
+        print(
+            f"{n:>9} {'all-pairs':>10} {ts:9.2f} {tg:9.2f} {ts + tg:9.2f} {len(bases):>7}   "
+            f"same base poses as kd-tree: {same}; kd-tree {quad_t[-1] / kd_ids[n][1]:.1f}x faster"
+        )
     big = [i for i, n in enumerate(kd_n) if n >= min(sizes)]
-    print(f"\nfitted exponent, kd-tree ({kd_n[big[0]]}..{kd_n[-1]} frames): {fit_exponent([kd_n[i] for i in big], [kd_t[i] for i in big]):.2f}")
+    print(
+        f"\nfitted exponent, kd-tree ({kd_n[big[0]]}..{kd_n[-1]} frames): {fit_exponent([kd_n[i] for i in big], [kd_t[i] for i in big]):.2f}"
+    )
     print(f"fitted exponent, kd-tree ({quad_sizes[0]}..{kd_n[-1]} frames): {fit_exponent(kd_n, kd_t):.2f}")
-    print(f"fitted exponent, all pairs ({quad_sizes[0]}..{quad_sizes[-1]} frames): {fit_exponent(quad_sizes, quad_t):.2f}")
+    print(
+        f"fitted exponent, all pairs ({quad_sizes[0]}..{quad_sizes[-1]} frames): {fit_exponent(quad_sizes, quad_t):.2f}"
+    )
     b = fit_exponent(quad_sizes, quad_t)
     est = quad_t[-1] * (kd_n[-1] / quad_sizes[-1]) ** b
     print(f"all pairs extrapolated to {kd_n[-1]} frames: ~{est / 3600:.1f} h (kd-tree: {kd_t[-1]:.0f} s)")

@@ -53,13 +53,13 @@ def per_query(fn, qs, single: bool) -> float:
 
 
 def recall(got: np.ndarray, want: np.ndarray) -> float:
-    return float(np.mean([len(set(g.tolist()) & set(w.tolist())) / len(w) for g, w in zip(got, want)]))
+    return float(np.mean([len(set(g.tolist()) & set(w.tolist())) / len(w) for g, w in zip(got, want, strict=True)]))
 
 
 def bench(x: np.ndarray, groups: np.ndarray, n_queries: int, rng) -> None:
     from scipy.spatial import cKDTree
 
-    qs = (x[rng.integers(0, len(x), n_queries)] + rng.normal(0, 0.01 * x.std(0).mean(), (n_queries, x.shape[1])))
+    qs = x[rng.integers(0, len(x), n_queries)] + rng.normal(0, 0.01 * x.std(0).mean(), (n_queries, x.shape[1]))
     qs = qs.astype(np.float32)
     tree = KDTreeIndex().build(x, groups=groups)
     shards = ShardedIndex(shards=2).build(x, groups=groups)
@@ -72,8 +72,10 @@ def bench(x: np.ndarray, groups: np.ndarray, n_queries: int, rng) -> None:
         hnsw = HNSWIndex(threads=0).build(x)
     except Exception as exc:  # the ann extra is optional
         print(f"    (no indexes.hnsw: {exc})")
-    print(f"    {'k':>4} {'mode':<7} {'cKDTree ms':>10} {'kdtree':>8} {'x':>6} {'sharded':>8} {'x':>6} {'hnsw':>8} "
-          f"{'x':>6} {'recall':>7}")
+    print(
+        f"    {'k':>4} {'mode':<7} {'cKDTree ms':>10} {'kdtree':>8} {'x':>6} {'sharded':>8} {'x':>6} {'hnsw':>8} "
+        f"{'x':>6} {'recall':>7}"
+    )
     for k in (16, 256):
         exact = tree.query(qs, k, workers=1)[1]
         assert np.array_equal(shards.query(qs, k)[1], exact), "sharded != kd-tree"
@@ -82,8 +84,10 @@ def bench(x: np.ndarray, groups: np.ndarray, n_queries: int, rng) -> None:
             t_ck = per_query(lambda q, k=k, w=w: ck.query(q, k, workers=w or -1), qs, single)
             t_kd = per_query(lambda q, k=k, w=w: tree.query(q, k, workers=w), qs, single)
             t_sh = per_query(lambda q, k=k: shards.query(q, k), qs, single)
-            row = (f"    {k:>4} {'single' if single else 'batch':<7} {t_ck:>10.3f} {t_kd:>8.3f} {t_ck / t_kd:>6.2f} "
-                   f"{t_sh:>8.3f} {t_ck / t_sh:>6.2f}")
+            row = (
+                f"    {k:>4} {'single' if single else 'batch':<7} {t_ck:>10.3f} {t_kd:>8.3f} {t_ck / t_kd:>6.2f} "
+                f"{t_sh:>8.3f} {t_ck / t_sh:>6.2f}"
+            )
             if hnsw is not None:
                 t_hn = per_query(lambda q, k=k, w=w: hnsw.query(q, k, workers=w or -1), qs, single)
                 row += f" {t_hn:>8.3f} {t_ck / t_hn:>6.2f} {recall(hnsw.query(qs, k)[1], exact):>7.4f}"

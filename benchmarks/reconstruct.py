@@ -9,6 +9,7 @@ share of the cost), then the error tables in the paper's "average (max)" cm-per-
 Paper reference: 1.3-3.4 cm average per joint on databases of 380 k (HDM05) to 1 M (CMU)
 frames; our corpus has ~27 k frames at 30 Hz, so larger errors are expected.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,10 +25,18 @@ from corpus import REPO, load_corpus
 
 from mocapflow.framework import MotionDatabase, load_registries
 from mocapflow.plugins.similarity.applications.reconstruct import (
-    MODEL, PriorDatabase, ReconstructParams, prior_index, reconstruct_motion,
+    MODEL,
+    PriorDatabase,
+    ReconstructParams,
+    prior_index,
+    reconstruct_motion,
 )
 from mocapflow.plugins.similarity.applications.reconstruct_eval import (
-    DEFAULT_TESTS, FEATURE_SETS, size_sweep, table3, table4,
+    DEFAULT_TESTS,
+    FEATURE_SETS,
+    size_sweep,
+    table3,
+    table4,
 )
 
 
@@ -61,8 +70,10 @@ def main() -> None:
     db = examples_db() if args.quick else load_corpus(fps=30)
     cmu_db = MotionDatabase([m for m in db.motions if not m.name.startswith("HDM")])
     hdm_db = MotionDatabase([m for m in db.motions if m.name.startswith("HDM")]) if not args.quick else None
-    print(f"corpus: CMU {cmu_db.n_frames} frames ({cmu_db.n_clips} clips), HDM05 "
-          f"{hdm_db.n_frames if hdm_db else 0} frames at 30 Hz, loaded in {time.perf_counter() - t0:.1f} s")
+    print(
+        f"corpus: CMU {cmu_db.n_frames} frames ({cmu_db.n_clips} clips), HDM05 "
+        f"{hdm_db.n_frames if hdm_db else 0} frames at 30 Hz, loaded in {time.perf_counter() - t0:.1f} s"
+    )
     tests = ["16_15", "02_01"] if args.quick else list(DEFAULT_TESTS)
     fsets = ["F_E^15", "F_E^30", "F_pca^8"] if args.quick else list(FEATURE_SETS)
 
@@ -76,13 +87,15 @@ def main() -> None:
     reconstruct_motion(test, prior, params)  # warm-up (numba compile of the index)
     _, e = reconstruct_motion(test, prior, params)
     fps = test.n_frames / e["seconds"]
-    q = prior.features[: 2000]
+    q = prior.features[:2000]
     t = time.perf_counter()
     for i in range(len(q)):
-        prior.index.query(q[i:i + 1], params.k)
+        prior.index.query(q[i : i + 1], params.k)
     qps = len(q) / (time.perf_counter() - t)
-    print(f"\nspeed ({test.name}, {test.n_frames} frames, prior {len(prior.poses)} frames, k={params.k}, "
-          f"{MODEL.iterations} searches/frame):")
+    print(
+        f"\nspeed ({test.name}, {test.n_frames} frames, prior {len(prior.poses)} frames, k={params.k}, "
+        f"{MODEL.iterations} searches/frame):"
+    )
     print(f"  reconstruction  {fps:9.0f} frames/s")
     print(f"  kNN query alone {qps:9.0f} queries/s  -> search share {MODEL.iterations * fps / qps:.0%} of the time")
 
@@ -104,8 +117,10 @@ def main() -> None:
     print("\nerror vs prior size (CMU clips, nested random subsets)")
     for frac in (0.1, 0.3, 1.0):
         sel = [r for r in rows if r["fraction"] == frac]
-        print(f"  {frac:4.0%}: prior {np.mean([r['prior_frames'] for r in sel]):8.0f} frames  "
-              f"avg {np.mean([r['avg_cm'] for r in sel]):.2f} cm  max {np.mean([r['max_cm'] for r in sel]):.2f} cm")
+        print(
+            f"  {frac:4.0%}: prior {np.mean([r['prior_frames'] for r in sel]):8.0f} frames  "
+            f"avg {np.mean([r['avg_cm'] for r in sel]):.2f} cm  max {np.mean([r['max_cm'] for r in sel]):.2f} cm"
+        )
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ recall of sDTW's top-10 with the query's own clip hidden (1 s and 3 s random seg
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
 import time
@@ -79,7 +80,10 @@ def segments(space: SearchSpace, length: int, count: int, rng) -> list[int]:
     out: list[int] = []
     while len(out) < count:
         s = int(rng.integers(0, space.n_rows - length))
-        if space.clip_id[s] == space.clip_id[s + length - 1] and space.frame[s + length - 1] - space.frame[s] == length - 1:
+        if (
+            space.clip_id[s] == space.clip_id[s + length - 1]
+            and space.frame[s + length - 1] - space.frame[s] == length - 1
+        ):
             out.append(s)
     return out
 
@@ -99,8 +103,10 @@ def speed(space: SearchSpace, lengths, n_queries: int, rng, sources=None) -> Non
     q0 = space.features[:8]
     for fn in (sdtw, *METHODS.values()):  # numba kernels loaded outside the timings
         fn(q0, space, count=2)
-    print(f"  {space.n_rows:,} rows{', source hidden' if sources is not None else ''}; "
-          f"load average {open('/proc/loadavg').read().split()[0]}")
+    print(
+        f"  {space.n_rows:,} rows{', source hidden' if sources is not None else ''}; "
+        f"load average {os.getloadavg()[0]:.2f}"
+    )
     print(f"    {'query':>5} {'method':<22} {'ms':>8} {'sDTW/this':>9} {'kept':>5} {'identical':>9} {'work 1/x':>8}")
     for m in lengths:
         rows = {name: {"t": [], "kept": [], "same": [], "work": []} for name in METHODS}
@@ -126,8 +132,10 @@ def speed(space: SearchSpace, lengths, n_queries: int, rng, sources=None) -> Non
         for name, r in rows.items():
             t = float(np.median(r["t"]))
             work = f"{np.median(r['work']):>8.1f}" if name.startswith("search") else ""
-            print(f"    {m:>5} {name:<22} {t * 1e3:>8.2f} {tr / t:>9.1f} {np.mean(r['kept']):>5.2f} "
-                  f"{str(all(r['same'])):>9} {work}")
+            print(
+                f"    {m:>5} {name:<22} {t * 1e3:>8.2f} {tr / t:>9.1f} {np.mean(r['kept']):>5.2f} "
+                f"{str(all(r['same'])):>9} {work}"
+            )
 
 
 def average_precision(ranked: list[bool], n_relevant: int) -> float:

@@ -1,6 +1,7 @@
 """First-run compile time: the kd-tree query kernel is compiled once per run,
 not once per kind of argument array (read-only views, e.g. of ``exclude``'s broadcast groups, vs fresh arrays, a literal 0
 vs an int64 chunk start)."""
+
 from __future__ import annotations
 
 import os
@@ -31,6 +32,7 @@ def test_kdtree_query_kernel_compiles_one_variant(tmp_path):
     # an empty numba cache: a kernel loaded from the cache does not compile the kernels it
     # calls, so the counts would depend on which tests ran before
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
-    out = subprocess.run([sys.executable, "-c", CODE], capture_output=True, text=True, check=True,
-                         env=env).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", CODE], capture_output=True, text=True, check=True, env=env
+    ).stdout.split()
     assert out == ["1", "1"], f"query_tree, _query_rows variants: {out}"

@@ -1,11 +1,12 @@
 """``analyses.distance_correlation`` shows progress inside its rows."""
+
 from __future__ import annotations
 
 import numpy as np
 
 from mocapflow.framework import MotionDatabase
-from mocapflow.plugins.similarity.applications.correlation import DistanceCorrelationStudy
 from mocapflow.framework.testing import synthetic_motion
+from mocapflow.plugins.similarity.applications.correlation import DistanceCorrelationStudy
 
 
 def test_correlation_study_shows_progress_inside_its_rows():
@@ -24,5 +25,5 @@ def test_correlation_study_shows_progress_inside_its_rows():
     with_bar = study.study(db, progress=recorder, rows=two)
     assert len(seen) == 2 * (3 + 1)  # rows x (columns + the row's neighbours)
     without = study.study(db, rows=two)
-    for a, b in zip(with_bar[2:], without[2:]):
+    for a, b in zip(with_bar[2:], without[2:], strict=True):
         np.testing.assert_array_equal(a, b)

@@ -1,4 +1,5 @@
 """Distance measures (plugins/similarity/distances.py) and the Fig. 2 correlation study."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -50,8 +51,8 @@ def test_pose_measures_basic_properties():
 def test_euler_dofs_reproduce_amc_values():
     from conftest import corpus_path
 
-    from mocapflow.plugins.similarity.knn.distances import euler_dofs
     from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.similarity.knn.distances import euler_dofs
 
     f = sorted(corpus_path("hdm05", "amc").glob("*/*.amc"))[0]
     m = read_amc(f).slice(0, 3)
@@ -82,7 +83,9 @@ def test_spearman_rows_matches_scipy():
 
 def test_correlation_study_small(tmp_path):
     db = MotionDatabase([synthetic_motion(120, seed=s) for s in range(4)])
-    study = DistanceCorrelationStudy(samples=12, k=16, measures=("D_quat", "D_pc1", "F_E15", "F_E30", "F_E15x3", "F_pca8"))
+    study = DistanceCorrelationStudy(
+        samples=12, k=16, measures=("D_quat", "D_pc1", "F_E15", "F_E30", "F_E15x3", "F_pca8")
+    )
     rows, cols, rho, std, n = study.study(db, rows=("F_E15", "D_pc1"))
     assert rho.shape == (2, 6) and rows == ("F_E15", "D_pc1")
     assert rho[0, 2] == 1.0 and rho[1, 1] == 1.0 and np.all(n == 12)

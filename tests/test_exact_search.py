@@ -1,4 +1,5 @@
 """Certified-exact search (``matchers.search``): identical to subsequence DTW (synthetic and real data), pruning checked."""
+
 from __future__ import annotations
 
 import warnings
@@ -6,16 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from naive.dtw import continues_of, naive_blocks, naive_through_cell, naive_window_cost
+from naive.coarse import naive_boxes, naive_coarse_bounds, naive_sdtw_ranges
+from naive.dtw import continues_of, naive_blocks, naive_through_cell
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
-from naive.coarse import naive_boxes, naive_coarse_bounds, naive_sdtw_ranges
+from mocapflow.framework.errors import DataError
+from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.search._coarse_kernels import block_boxes, coarse_bounds
 from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_ranges_compact
 from mocapflow.plugins.similarity.search.exact import CertifiedSettings, ExactStats, certified_sdtw
-from mocapflow.framework.errors import DataError
-from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -31,7 +32,7 @@ def same(a, b):
     np.testing.assert_array_equal(a.end, b.end)
     np.testing.assert_array_equal(a.cost, b.cost)
     np.testing.assert_array_equal(a.length, b.length)
-    for p, r in zip(a.paths, b.paths):
+    for p, r in zip(a.paths, b.paths, strict=True):
         np.testing.assert_array_equal(p, r)
 
 
@@ -50,9 +51,16 @@ def query_of(x, m, seed, ties=False):
 
 
 # random walks; a 1-row clip (single-row blocks); blocks of 1 row; queries longer than blocks and clips; ties
-BOUND_CASES = [(0, [40, 1, 30, 12], 6, 4, False), (1, [80], 10, 16, False), (2, [5, 5, 5, 60], 3, 7, False),
-               (3, [50, 50], 1, 3, False), (4, [7, 1, 1, 20], 12, 1, False), (5, [30, 2, 25], 9, 5, True),
-               (6, [60], 4, 60, True), (7, [45, 30], 150, 8, False)]  # long query: float32 chains' margin
+BOUND_CASES = [
+    (0, [40, 1, 30, 12], 6, 4, False),
+    (1, [80], 10, 16, False),
+    (2, [5, 5, 5, 60], 3, 7, False),
+    (3, [50, 50], 1, 3, False),
+    (4, [7, 1, 1, 20], 12, 1, False),
+    (5, [30, 2, 25], 9, 5, True),
+    (6, [60], 4, 60, True),
+    (7, [45, 30], 150, 8, False),
+]  # long query: float32 chains' margin
 
 
 @pytest.mark.parametrize("seed,lengths,m,size,ties", BOUND_CASES)
@@ -109,8 +117,14 @@ def check_ranges_against_naive(q, x, cont, ranges, exact_costs):
 
 
 # random walks; ties; 1-row ranges and clips; queries longer than every range
-RANGE_CASES = [(0, [40, 1, 30, 12], 6, False), (1, [80], 10, False), (3, [50, 50], 1, False), (4, [40, 1, 30, 12], 7, True),
-               (5, [3, 90], 25, True), (6, [20, 20, 20], 30, False)]
+RANGE_CASES = [
+    (0, [40, 1, 30, 12], 6, False),
+    (1, [80], 10, False),
+    (3, [50, 50], 1, False),
+    (4, [40, 1, 30, 12], 7, True),
+    (5, [3, 90], 25, True),
+    (6, [20, 20, 20], 30, False),
+]
 
 
 @pytest.mark.parametrize("seed,lengths,m,ties", RANGE_CASES)
@@ -121,8 +135,12 @@ def test_sdtw_ranges_compact_equals_naive(seed, lengths, m, ties):
     n = len(x)
     rng = np.random.default_rng(seed)
     cuts = np.sort(rng.choice(np.arange(1, n - 1), 6, replace=False))
-    for ranges in ([[0, 7], [9, 30], [31, n]], [[0, n]], [[0, 1], [1, 2], [5, 6], [n - 1, n]],
-                   [[cuts[0], cuts[1]], [cuts[2], cuts[3]], [cuts[4], cuts[5] + 1]]):
+    for ranges in (
+        [[0, 7], [9, 30], [31, n]],
+        [[0, n]],
+        [[0, 1], [1, 2], [5, 6], [n - 1, n]],
+        [[cuts[0], cuts[1]], [cuts[2], cuts[3]], [cuts[4], cuts[5] + 1]],
+    ):
         check_ranges_against_naive(q, x, cont, np.array(ranges, np.int64), exact_costs=ties)
 
 
@@ -157,8 +175,9 @@ def test_certified_levels_equal_sdtw(seed, levels, seed_frames):
     s = int(rng.integers(0, 150))
     q = (x[s : s + 12] + rng.normal(0, 0.3, (12, 3))).astype(np.float32)
     for count, max_cost in ((1, None), (6, None), (9, 10.0)):
-        got = certified_sdtw(q, space, count=count, max_cost=max_cost,
-                             settings=pruned(levels=levels, seed_frames=seed_frames))
+        got = certified_sdtw(
+            q, space, count=count, max_cost=max_cost, settings=pruned(levels=levels, seed_frames=seed_frames)
+        )
         same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
     # no index: the lowest-bound blocks supply tau
     bare = SearchSpace(clip_id, frame, None, x)
@@ -169,8 +188,15 @@ def test_certified_levels_equal_sdtw(seed, levels, seed_frames):
 
 
 @pytest.mark.parametrize("seed", range(3))
-@pytest.mark.parametrize("levels,subspace,sub_from", [((512, 64, 16, 4), None, 0.0), ((16, 4), (3, 2), 0.0),
-                                                      ((8, 4, 2), (1, 3, 3), 0.0), ((512, 64, 16, 4), (0, 0, 3, 3), 2.0)])
+@pytest.mark.parametrize(
+    "levels,subspace,sub_from",
+    [
+        ((512, 64, 16, 4), None, 0.0),
+        ((16, 4), (3, 2), 0.0),
+        ((8, 4, 2), (1, 3, 3), 0.0),
+        ((512, 64, 16, 4), (0, 0, 3, 3), 2.0),
+    ],
+)
 def test_certified_with_subspace_cells_equals_sdtw(seed, levels, subspace, sub_from):
     # subspace cells at every level that has a basis (sub_from 0), or never (2): sDTW's matches
     clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25], dim=6, seed=seed)
@@ -202,12 +228,12 @@ def test_sdtw_ranges_compact_equals_forward(seed, lengths, m):
     full = sdtw_forward(qt, x, ~cont)
     rows, *got = sdtw_ranges_compact(qt, x, ~cont, np.array([[0, len(x)]], np.int64))
     np.testing.assert_array_equal(rows, np.arange(len(x)))
-    for a, b in zip(got, full):
+    for a, b in zip(got, full, strict=True):
         np.testing.assert_array_equal(a, b)
     # a range starting at a clip start equals the full pass inside it
     a0 = int(np.flatnonzero(~cont)[-1])
     rows, *part = sdtw_ranges_compact(qt, x, ~cont, np.array([[a0, len(x)]], np.int64))
-    for a, b in zip(part, full):
+    for a, b in zip(part, full, strict=True):
         np.testing.assert_array_equal(a, b[a0:])
 
 
@@ -220,8 +246,9 @@ def test_certified_equals_sdtw_synthetic(seed, count, min_span, max_cost):
     s = int(rng.integers(0, 150))
     q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
     st = ExactStats()
-    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, stats=st,
-                         settings=pruned(levels=(20, 5)))
+    got = certified_sdtw(
+        q, space, count=count, min_span=min_span, max_cost=max_cost, stats=st, settings=pruned(levels=(20, 5))
+    )
     same(got, subsequence_dtw(q, space, count=count, min_span=min_span, max_cost=max_cost))
 
 
@@ -252,8 +279,9 @@ def test_whole_dp_once_alive_rows_pass_full_from(seed, full_from):
     q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
     for count, max_cost in ((5, None), (8, 12.0)):
         st = ExactStats()
-        got = certified_sdtw(q, space, count=count, max_cost=max_cost, stats=st,
-                             settings=pruned(levels=(20, 5), full_from=full_from))
+        got = certified_sdtw(
+            q, space, count=count, max_cost=max_cost, stats=st, settings=pruned(levels=(20, 5), full_from=full_from)
+        )
         same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
         if full_from == 0.0:  # the first pass is the whole DP, and the last
             assert st.passes == 1 and st.columns == len(x)
@@ -264,8 +292,10 @@ def test_normalized_ranking_falls_back_to_the_whole_dp():
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
     q = x[10:20] * 1.1
     st = ExactStats()
-    same(certified_sdtw(q, space, count=4, rank_by="normalized", stats=st),
-         subsequence_dtw(q, space, count=4, rank_by="normalized"))
+    same(
+        certified_sdtw(q, space, count=4, rank_by="normalized", stats=st),
+        subsequence_dtw(q, space, count=4, rank_by="normalized"),
+    )
     assert st.columns == len(x)
 
 
@@ -273,8 +303,8 @@ def test_normalized_ranking_falls_back_to_the_whole_dp():
 def test_certified_equals_sdtw_on_hdm05():
     from mocapflow.framework import MotionDatabase
     from mocapflow.framework.normalize import resample
-    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
     from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
     from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     files = sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))
@@ -341,8 +371,10 @@ def test_certified_with_approximate_seeds_equals_sdtw(seed_eps):
     for s in rng.integers(0, 400, 4):
         q = (x[s : s + 14] + rng.normal(0, 0.3, (14, 3))).astype(np.float32)
         for count in (1, 6):
-            same(certified_sdtw(q, space, count=count, settings=pruned(seed_eps=seed_eps)),
-                 subsequence_dtw(q, space, count=count))
+            same(
+                certified_sdtw(q, space, count=count, settings=pruned(seed_eps=seed_eps)),
+                subsequence_dtw(q, space, count=count),
+            )
 
 
 @pytest.mark.parametrize("seed", range(6))

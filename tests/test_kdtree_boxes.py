@@ -1,4 +1,5 @@
 """Bounding-box pruning of indexes.kdtree: the boxes, their lower bound, and exactness."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,7 +31,7 @@ def test_node_boxes_are_the_tight_boxes_of_the_node_points(kind, leafsize):
     lo, hi = ix._node_boxes()
     assert lo.shape == hi.shape == (len(ix.start_), ix.data_.shape[1]) and lo.dtype == np.float32
     for node in range(len(ix.start_)):
-        pts = ix.data_[ix.start_[node]:ix.end_[node]]
+        pts = ix.data_[ix.start_[node] : ix.end_[node]]
         np.testing.assert_array_equal(lo[node], pts.min(0))
         np.testing.assert_array_equal(hi[node], pts.max(0))
 
@@ -51,7 +52,7 @@ def test_box_distance_never_exceeds_a_point_distance(kind):
             d2 += (x[:, j] - q[j]) ** 2
         for node in range(len(ix.start_)):
             b = _box_dist(q, lo, hi, node, x.shape[1])
-            assert b <= d2[ix.start_[node]:ix.end_[node]].min()
+            assert b <= d2[ix.start_[node] : ix.end_[node]].min()
 
 
 @pytest.mark.parametrize("kind", ["random", "clustered", "ties", "one_row", "constant"])
@@ -81,8 +82,9 @@ def test_box_pruned_search_with_exclusion(kind):
     ix = KDTreeIndex(method="kdtree").build(x, groups=groups, frames=frames, tree=TreeSettings(leafsize=4))
     rows = np.arange(240, 270)  # crosses a clip boundary
     d, i = ix.query_rows(rows, 20, exclude=3)
-    d0, i0 = knn(x, x[rows], 20, groups=groups, frames=frames, query_groups=groups[rows],
-                 query_frames=frames[rows], exclude=3)
+    d0, i0 = knn(
+        x, x[rows], 20, groups=groups, frames=frames, query_groups=groups[rows], query_frames=frames[rows], exclude=3
+    )
     np.testing.assert_array_equal(i, i0)
 
 
@@ -95,7 +97,7 @@ def test_boxes_rebuilt_after_load_of_a_saved_index(tmp_path):
     assert not any("box" in p.name for p in (tmp_path / "ix").iterdir())
     back = KDTreeIndex.load(tmp_path / "ix")
     q = x[100:130] + np.float32(0.02)
-    for a, b in zip(ix.query(q, 33), back.query(q, 33)):
+    for a, b in zip(ix.query(q, 33), back.query(q, 33), strict=True):
         np.testing.assert_array_equal(a, b)
-    for lo_a, lo_b in zip(ix._node_boxes(), back._node_boxes()):
+    for lo_a, lo_b in zip(ix._node_boxes(), back._node_boxes(), strict=True):
         np.testing.assert_array_equal(lo_a, lo_b)

@@ -1,4 +1,5 @@
 """The knn-study pipeline plans; a small variant runs end to end on the bundled sample takes."""
+
 from __future__ import annotations
 
 from pathlib import Path

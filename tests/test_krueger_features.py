@@ -1,4 +1,5 @@
 """features.end_effectors and features.pca (Krüger et al. 2010 §3)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,6 +1,7 @@
 """`mocapflow search` start-up paths: the kd-tree's memory-mapped row sidecars,
 registries built for a few kinds only, and the search server giving the same answers as a
 search in the calling process."""
+
 from __future__ import annotations
 
 import os
@@ -25,14 +26,16 @@ def workspace(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("srv")  # short: a Unix socket path holds ~100 bytes
     p = root / "p.yaml"
-    p.write_text(textwrap.dedent(f"""
+    p.write_text(
+        textwrap.dedent(f"""
         name: s
-        workspace: {root / 'ws'}
+        workspace: {root / "ws"}
         steps:
           motions: {{uses: formats.load, with: {{paths: ["{EXAMPLES_DATA}/cmu/**/*.amc"], fps: 30}}}}
           fe15: {{uses: features.end_effectors, input: motions, with: {{joints: 5}}}}
           tree: {{uses: indexes.kdtree, input: fe15}}
-    """))
+    """)
+    )
     run_pipeline(p, echo=lambda s: None)
     return root / "ws"
 
@@ -129,8 +132,21 @@ def test_without_sidecars_and_stale_sessions(workspace, capsys, tmp_path):
     first = box[0]
     manifest = ws / "tree" / "_manifest.json"
     manifest.write_text(manifest.read_text() + " ")  # the index step was recomputed
-    req = {"args": {"query": query[1], "index": None, "matcher": "search", "count": 4, "min_span": None,
-                    "rank_by": None, "paper": None, "k": None, "plot": None, "out": None}, "cwd": str(tmp_path)}
+    req = {
+        "args": {
+            "query": query[1],
+            "index": None,
+            "matcher": "search",
+            "count": 4,
+            "min_span": None,
+            "rank_by": None,
+            "paper": None,
+            "k": None,
+            "plot": None,
+            "out": None,
+        },
+        "cwd": str(tmp_path),
+    }
     import json
 
     reply = _handle(box, json.dumps(req).encode(), lambda: SearchSession(ws, entry_points=False))

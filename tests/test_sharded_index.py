@@ -1,4 +1,5 @@
 """``indexes.sharded``: identical answers to one unsharded kd-tree, in pipelines too."""
+
 from __future__ import annotations
 
 import os
@@ -46,7 +47,9 @@ def test_sharded_equals_one_kdtree_with_ties_radius_and_exclusion(shards):
     sh = ShardedIndex(shards=shards, index_params={"method": "kdtree"}).build(x, groups=g, frames=f)
     assert len(sh.shards_) == min(shards, len(np.unique(g)))
     rng = np.random.default_rng(1)
-    q = np.concatenate([x[rng.choice(len(x), 30)], np.round(rng.normal(size=(20, x.shape[1])) * 2).astype(np.float32) / 2])
+    q = np.concatenate(
+        [x[rng.choice(len(x), 30)], np.round(rng.normal(size=(20, x.shape[1])) * 2).astype(np.float32) / 2]
+    )
     for k in (1, 5, 40, len(x) + 3):
         for radius in (None, 0.0, 1.0, 2.5):
             a, b = one.query(q, k, radius), sh.query(q, k, radius)
@@ -94,8 +97,10 @@ def test_saved_shards_answer_on_workers_loaded_once_per_process(tmp_path):
             got = loaded.query(q, 7, 2.0, executor=ex)
             np.testing.assert_array_equal(got[1], ref[1])
             np.testing.assert_array_equal(got[0], ref[0])
-        tasks = [_ShardQuery(str(loaded.directory_ / f"shard-{s:03d}"), loaded.shard_key_, loaded._stamp, 3, None, {})
-                 for s in range(3)] * 6
+        tasks = [
+            _ShardQuery(str(loaded.directory_ / f"shard-{s:03d}"), loaded.shard_key_, loaded._stamp, 3, None, {})
+            for s in range(3)
+        ] * 6
         seen: dict[tuple[int, str], set[int]] = {}
         for pid, d, obj in ex.map(_shard_identity, tasks):
             seen.setdefault((pid, d), set()).add(obj)

@@ -8,6 +8,7 @@ built on them (nearest poses, distance correlation, reconstruction, fat-graph ba
 and the ``mocapflow search`` command. Every import is inside a hook so that loading this
 module (``mocapflow --help``) imports no numerical library.
 """
+
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl
@@ -49,9 +50,9 @@ def register_matchers() -> list[type]:
 def register_analyses() -> list[type]:
     from .applications.correlation import DistanceCorrelationStudy
     from .applications.fat_graph import FatGraph
-    from .knn.knn_query import NearestPoses
     from .applications.reconstruct import Reconstruct
     from .applications.reconstruct_eval import ReconstructionEval
+    from .knn.knn_query import NearestPoses
 
     return [NearestPoses, DistanceCorrelationStudy, Reconstruct, ReconstructionEval, FatGraph]
 

@@ -16,9 +16,11 @@ every sum is exact in both, or random data).
   (``sdtw_ranges_compact``), by running the full-matrix DP of :mod:`naive.dtw` on each
   range's rows alone.
 """
+
 from __future__ import annotations
 
 import numpy as np
+
 from naive.dtw import naive_blocks, naive_path, naive_subsequence_dtw
 
 

@@ -1,4 +1,5 @@
 """Slow, obviously correct references for the Krüger feature sets (one frame at a time)."""
+
 from __future__ import annotations
 
 import math

@@ -5,6 +5,7 @@ its inputs and calls :func:`greedy_cover`. This module imports numba, so
 :mod:`.fat_graph` imports it only when a computation starts (never at CLI start-up).
 The slow reference is ``tests/naive/fat_graph.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np

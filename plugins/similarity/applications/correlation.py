@@ -15,6 +15,7 @@ Measures: ``D_quat, D_euler, D_pc1, D_pc11, D_wb`` (:mod:`.distances`) and the f
 Outputs: ``data`` (row_measure, col_measure, rho, rho_std, n_samples), a ``matrix`` table
 (one row per row measure, a column per column measure) and ``correlation.png``.
 """
+
 from __future__ import annotations
 
 import re
@@ -35,8 +36,22 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from mocapflow.framework import Dataset, StepContext, StepOutput
 
-FIG2_MEASURES = ("D_quat", "D_euler", "D_pc1", "D_pc11", "D_wb", "F_pca8", "F_pca16", "F_pca25",
-                 "F_E15", "F_E30", "F_E39", "F_E15x3", "F_E15x5", "F_E30x3")
+FIG2_MEASURES = (
+    "D_quat",
+    "D_euler",
+    "D_pc1",
+    "D_pc11",
+    "D_wb",
+    "F_pca8",
+    "F_pca16",
+    "F_pca25",
+    "F_E15",
+    "F_E30",
+    "F_E39",
+    "F_E15x3",
+    "F_E15x5",
+    "F_E30x3",
+)
 #: window of the F_E<n>x<l> feature sets, seconds (the paper's 0.3)
 WINDOW = 0.3
 #: weight of D_wb's joint-velocity term, s^2
@@ -71,7 +86,7 @@ def spearman_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     rb = rankdata(b, axis=1)
     ra -= ra.mean(1, keepdims=True)
     rb -= rb.mean(1, keepdims=True)
-    den = np.sqrt((ra ** 2).sum(1) * (rb ** 2).sum(1))
+    den = np.sqrt((ra**2).sum(1) * (rb**2).sum(1))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, (ra * rb).sum(1) / np.where(den > 0, den, 1.0), np.nan)
 
@@ -87,8 +102,13 @@ class DistanceCorrelationStudy(Analysis):
         k: int = Field(256, ge=2, description="nearest neighbours per query and row measure (paper: 256)")
         measures: tuple[str, ...] = Field(FIG2_MEASURES, min_length=1, description="the measures, in order")
 
-    def study(self, db: MotionDatabase, reference: MotionDatabase | None = None, progress=None,
-              rows: tuple[str, ...] | None = None):
+    def study(
+        self,
+        db: MotionDatabase,
+        reference: MotionDatabase | None = None,
+        progress=None,
+        rows: tuple[str, ...] | None = None,
+    ):
         """Run the study; returns ``(rows, cols, rho (R, C), rho_std (R, C), n (R, C))`` (``rows``:
         the neighbour sources, default every measure)."""
         from ..knn.kdtree import KDTreeIndex
@@ -163,17 +183,27 @@ class DistanceCorrelationStudy(Analysis):
         ref = inputs["reference"].motions() if "reference" in inputs else None
         rows, cols, rho, std, count = self.study(db, ref, progress=ctx.progress)
         r_idx, c_idx = np.meshgrid(np.arange(len(rows)), np.arange(len(cols)), indexing="ij")
-        long = pa.table({
-            "row_measure": pa.array([rows[i] for i in r_idx.ravel()]),
-            "col_measure": pa.array([cols[j] for j in c_idx.ravel()]),
-            "rho": pa.array(rho.ravel()), "rho_std": pa.array(std.ravel()),
-            "n_samples": pa.array(count.ravel().astype(np.int32)),
-        })
+        long = pa.table(
+            {
+                "row_measure": pa.array([rows[i] for i in r_idx.ravel()]),
+                "col_measure": pa.array([cols[j] for j in c_idx.ravel()]),
+                "rho": pa.array(rho.ravel()),
+                "rho_std": pa.array(std.ravel()),
+                "n_samples": pa.array(count.ravel().astype(np.int32)),
+            }
+        )
         wide = pa.table({"row_measure": pa.array(list(rows)), **{c: pa.array(rho[:, j]) for j, c in enumerate(cols)}})
-        png = plot_heatmap(rows, cols, rho, ctx.out_dir / "correlation.png",
-                           title=f"Spearman rho, {self.params.k} NN of {int(count.max(initial=0))} samples, {db.n_frames} frames")
-        return StepOutput({"data": long, "matrix": wide}, summary={"plot": png.name if png else None,
-                                                                   "frames": db.n_frames, "rows": len(rows), "cols": len(cols)})
+        png = plot_heatmap(
+            rows,
+            cols,
+            rho,
+            ctx.out_dir / "correlation.png",
+            title=f"Spearman rho, {self.params.k} NN of {int(count.max(initial=0))} samples, {db.n_frames} frames",
+        )
+        return StepOutput(
+            {"data": long, "matrix": wide},
+            summary={"plot": png.name if png else None, "frames": db.n_frames, "rows": len(rows), "cols": len(cols)},
+        )
 
 
 def plot_heatmap(rows, cols, rho: np.ndarray, path: Path, title: str = "") -> Path | None:

@@ -34,6 +34,7 @@ edges : the fat graph's edges aggregated
 With a ``motions`` input the step also writes ``base_poses.png``: the base poses as stick
 figures in their root frame (matplotlib, Agg backend, imported only then).
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -47,16 +48,31 @@ from pydantic import Field
 from mocapflow.framework import Analysis, DataError, Index, Params, StepContext, StepOutput
 from mocapflow.framework.datasets import Dataset
 
-
 #: Bones drawn in stick figures, as canonical joint pairs (missing joints are skipped).
 STICK_BONES: tuple[tuple[str, str], ...] = (
-    ("root", "lhip"), ("lhip", "lknee"), ("lknee", "lankle"), ("lankle", "ltoes"),
-    ("root", "rhip"), ("rhip", "rknee"), ("rknee", "rankle"), ("rankle", "rtoes"),
-    ("root", "lowerback"), ("lowerback", "upperback"), ("upperback", "chest"), ("chest", "neck"),
-    ("neck", "head"), ("head", "headtop"),
-    ("chest", "lclavicle"), ("lclavicle", "lshoulder"), ("lshoulder", "lelbow"), ("lelbow", "lwrist"),
+    ("root", "lhip"),
+    ("lhip", "lknee"),
+    ("lknee", "lankle"),
+    ("lankle", "ltoes"),
+    ("root", "rhip"),
+    ("rhip", "rknee"),
+    ("rknee", "rankle"),
+    ("rankle", "rtoes"),
+    ("root", "lowerback"),
+    ("lowerback", "upperback"),
+    ("upperback", "chest"),
+    ("chest", "neck"),
+    ("neck", "head"),
+    ("head", "headtop"),
+    ("chest", "lclavicle"),
+    ("lclavicle", "lshoulder"),
+    ("lshoulder", "lelbow"),
+    ("lelbow", "lwrist"),
     ("lwrist", "lfingers"),
-    ("chest", "rclavicle"), ("rclavicle", "rshoulder"), ("rshoulder", "relbow"), ("relbow", "rwrist"),
+    ("chest", "rclavicle"),
+    ("rclavicle", "rshoulder"),
+    ("rshoulder", "relbow"),
+    ("relbow", "rwrist"),
     ("rwrist", "rfingers"),
 )
 
@@ -95,13 +111,14 @@ def radius_neighbours(index: Index, x: np.ndarray, radius: float, k: int, chunk:
     dtype = np.int32 if n < 2**31 - 1 else np.int64
     ids = np.full((n, k), -1, dtype)
     for s in range(0, n, chunk):
-        _, part = index.query(x[s:s + chunk], k, radius=radius)
-        ids[s:s + chunk, : part.shape[1]] = part
+        _, part = index.query(x[s : s + chunk], k, radius=radius)
+        ids[s : s + chunk, : part.shape[1]] = part
     return ids
 
 
-def select_base_poses(x: np.ndarray, radius: float, k: int, index: Index, max_base_poses: int = 0,
-                      ids: np.ndarray | None = None) -> BasePoses:
+def select_base_poses(
+    x: np.ndarray, radius: float, k: int, index: Index, max_base_poses: int = 0, ids: np.ndarray | None = None
+) -> BasePoses:
     """Base poses of feature vectors ``x`` (Krüger 2010 §5.3, see the module docstring).
 
     Parameters
@@ -160,8 +177,9 @@ def clip_transitions(cluster: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarr
     return rows[1:][change], cl[:-1][change], cl[1:][change]
 
 
-def plot_base_poses(positions: np.ndarray, joints: tuple[str, ...], path: Path, title: str = "",
-                    labels: list[str] | None = None) -> None:
+def plot_base_poses(
+    positions: np.ndarray, joints: tuple[str, ...], path: Path, title: str = "", labels: list[str] | None = None
+) -> None:
     """Stick figures of poses ``(n, J, 3)`` (root frame, metres), side by side, saved as PNG.
 
     Panels share one scale: x is the lateral offset from the root and y the height relative
@@ -175,8 +193,9 @@ def plot_base_poses(positions: np.ndarray, joints: tuple[str, ...], path: Path, 
     n = len(positions)
     cols = min(n, 8) or 1
     rows = max(1, -(-n // cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(1.7 * cols + 0.6, 2.6 * rows + 0.7), squeeze=False,
-                             sharex=True, sharey=True)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(1.7 * cols + 0.6, 2.6 * rows + 0.7), squeeze=False, sharex=True, sharey=True
+    )
     j = {name: i for i, name in enumerate(joints)}
     bones = [(j[a], j[b]) for a, b in STICK_BONES if a in j and b in j]
     for i, ax in enumerate(axes.ravel()):
@@ -202,8 +221,12 @@ def plot_base_poses(positions: np.ndarray, joints: tuple[str, ...], path: Path, 
 
 
 class FatGraphParams(Params):
-    radius: float = Field(0.3, gt=0, description="neighbourhood radius in feature units (metres for "
-                          "features.end_effectors); the paper gives no value")
+    radius: float = Field(
+        0.3,
+        gt=0,
+        description="neighbourhood radius in feature units (metres for "
+        "features.end_effectors); the paper gives no value",
+    )
     k: int = Field(64, ge=1, description="neighbourhood cap k of the radius search (k << n)")
 
 
@@ -231,11 +254,21 @@ class FatGraph(Analysis):
         offsets = np.append(np.flatnonzero(new_clip), len(clip_id))
         tables = self.tables(res, clip_id, frame, offsets)
         if "motions" in inputs and len(res.bases):
-            self._plot(inputs["motions"], clip_id, frame, res.bases[:PLOT_MAX], ctx.out_dir / "base_poses.png",
-                       res.n_members[:PLOT_MAX])
-        summary = {"n_frames": int(len(clip_id)), "n_base_poses": int(len(res.bases)),
-                   "n_uncovered": int((res.cluster < 0).sum()), "n_edges": int(tables["edges"].num_rows),
-                   "backend": "indexes.kdtree + numba greedy"}
+            self._plot(
+                inputs["motions"],
+                clip_id,
+                frame,
+                res.bases[:PLOT_MAX],
+                ctx.out_dir / "base_poses.png",
+                res.n_members[:PLOT_MAX],
+            )
+        summary = {
+            "n_frames": int(len(clip_id)),
+            "n_base_poses": int(len(res.bases)),
+            "n_uncovered": int((res.cluster < 0).sum()),
+            "n_edges": int(tables["edges"].num_rows),
+            "backend": "indexes.kdtree + numba greedy",
+        }
         return StepOutput(tables, summary)
 
     @staticmethod
@@ -243,28 +276,44 @@ class FatGraph(Analysis):
         """The step's tables (see the module docstring) from global-row results."""
         i32 = lambda a: pa.array(np.asarray(a, np.int32))  # noqa: E731 - a one-line helper local to this function
         cl = res.cluster
-        data = pa.table({"clip_id": i32(clip_id), "frame": i32(frame), "cluster": i32(cl),
-                         "n_neighbours": i32(res.degree)})
-        bases = pa.table({"cluster": i32(np.arange(len(res.bases))), "clip_id": i32(clip_id[res.bases]),
-                          "frame": i32(frame[res.bases]), "n_neighbours": i32(res.degree[res.bases]),
-                          "n_members": i32(res.n_members)})
+        data = pa.table(
+            {"clip_id": i32(clip_id), "frame": i32(frame), "cluster": i32(cl), "n_neighbours": i32(res.degree)}
+        )
+        bases = pa.table(
+            {
+                "cluster": i32(np.arange(len(res.bases))),
+                "clip_id": i32(clip_id[res.bases]),
+                "frame": i32(frame[res.bases]),
+                "n_neighbours": i32(res.degree[res.bases]),
+                "n_members": i32(res.n_members),
+            }
+        )
         s, e, c = cluster_runs(cl, offsets)
-        segments = pa.table({"clip_id": i32(clip_id[s]), "start_frame": i32(frame[s]),
-                             "end_frame": i32(frame[e - 1] + 1), "cluster": i32(c)})
+        segments = pa.table(
+            {
+                "clip_id": i32(clip_id[s]),
+                "start_frame": i32(frame[s]),
+                "end_frame": i32(frame[e - 1] + 1),
+                "cluster": i32(c),
+            }
+        )
         rows, a, b = clip_transitions(cl, offsets)
-        transitions = pa.table({"clip_id": i32(clip_id[rows]), "frame": i32(frame[rows]),
-                                "from_cluster": i32(a), "to_cluster": i32(b)})
+        transitions = pa.table(
+            {"clip_id": i32(clip_id[rows]), "frame": i32(frame[rows]), "from_cluster": i32(a), "to_cluster": i32(b)}
+        )
         if len(a):
             pairs, counts = np.unique(np.stack([a, b], 1), axis=0, return_counts=True)
         else:
             pairs, counts = np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-        edges = pa.table({"from_cluster": i32(pairs[:, 0]), "to_cluster": i32(pairs[:, 1]),
-                          "n_transitions": i32(counts)})
+        edges = pa.table(
+            {"from_cluster": i32(pairs[:, 0]), "to_cluster": i32(pairs[:, 1]), "n_transitions": i32(counts)}
+        )
         return {"data": data, "base_poses": bases, "segments": segments, "transitions": transitions, "edges": edges}
 
     @staticmethod
-    def _plot(motions: Dataset, clip_id: np.ndarray, frame: np.ndarray, bases: np.ndarray, path: Path,
-              n_members: np.ndarray) -> None:
+    def _plot(
+        motions: Dataset, clip_id: np.ndarray, frame: np.ndarray, bases: np.ndarray, path: Path, n_members: np.ndarray
+    ) -> None:
         from mocapflow.framework.joints import CANONICAL_JOINTS
         from mocapflow.framework.normalize import to_root_frame
 
@@ -274,8 +323,13 @@ class FatGraph(Analysis):
         for i, b in enumerate(bases):
             m = db.motions[where[int(clip_id[b])]]
             f = int(frame[b])
-            poses.append(m.canonical_positions()[f:f + 1])
+            poses.append(m.canonical_positions()[f : f + 1])
             labels.append(f"#{i} {m.name} frame {f}\n{int(n_members[i])} member{'s' if n_members[i] != 1 else ''}")
         pos = to_root_frame(np.concatenate(poses, 0), CANONICAL_JOINTS)
-        plot_base_poses(pos, CANONICAL_JOINTS, path, labels=labels,
-                        title=f"{len(bases)} base poses (of {len(clip_id)} frames): source clip, frame, frames covered")
+        plot_base_poses(
+            pos,
+            CANONICAL_JOINTS,
+            path,
+            labels=labels,
+            title=f"{len(bases)} base poses (of {len(clip_id)} frames): source clip, frame, frames covered",
+        )

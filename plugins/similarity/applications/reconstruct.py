@@ -45,6 +45,7 @@ Tables: ``data``/``clips``/``skeletons`` (a motions dataset of the reconstructio
 ``errors`` (per clip and canonical joint: ``mean_cm, max_cm``) and ``clip_errors`` (per
 clip: ``avg_cm`` mean over joints and frames, ``max_cm`` largest per-frame mean joint error).
 """
+
 from __future__ import annotations
 
 import time
@@ -57,11 +58,20 @@ import pyarrow as pa
 from pydantic import Field
 
 from mocapflow.framework import (
-    Analysis, DataError, FeatureSet, Index, Motion, MotionDatabase, Params, StepContext, StepOutput,
+    Analysis,
+    DataError,
+    FeatureSet,
+    Index,
+    Motion,
+    MotionDatabase,
+    Params,
+    StepContext,
+    StepOutput,
 )
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.normalize import facing_angles, rotate_about_y
+
 from .retarget import positions_to_motion
 
 #: The paper's 6 markers: the 4 end effectors, the head and the root.
@@ -78,8 +88,12 @@ def local_poses(positions: np.ndarray, joints: Sequence[str]) -> np.ndarray:
     return rotate_about_y(centred, -facing_angles(positions, j))
 
 
-def synthetic_markers(motion: Motion, markers: Sequence[str] = DEFAULT_MARKERS, noise: float = 0.001,
-                      rng: np.random.Generator | None = None) -> np.ndarray:
+def synthetic_markers(
+    motion: Motion,
+    markers: Sequence[str] = DEFAULT_MARKERS,
+    noise: float = 0.001,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
     """Marker positions from a motion, each coordinate disturbed uniformly in ``±noise`` metres.
 
     Returns ndarray of shape (T, len(markers), 3), metres (the paper: ±1 mm).
@@ -87,7 +101,7 @@ def synthetic_markers(motion: Motion, markers: Sequence[str] = DEFAULT_MARKERS, 
     rng = np.random.default_rng(0) if rng is None else rng
     pos = motion.canonical_positions(tuple(markers))
     if np.isnan(pos).any():
-        missing = [m for m, i in zip(markers, motion.skeleton.canonical_indices(tuple(markers))) if i < 0]
+        missing = [m for m, i in zip(markers, motion.skeleton.canonical_indices(tuple(markers)), strict=True) if i < 0]
         raise DataError(f"motion {motion.name!r} lacks marker joints {missing}")
     return pos + rng.uniform(-noise, noise, pos.shape)
 
@@ -150,7 +164,8 @@ class ReconstructParams(Params):
     feature_params: dict = Field(default_factory=dict, description="parameters of that feature set")
     k: int = Field(64, ge=2, description="neighbours of the local linear model")
     leave_out: Literal["clip", "subject", "none"] = Field(
-        "clip", description="prior clips withheld for each test clip: the same clip (by name), its subject, or none")
+        "clip", description="prior clips withheld for each test clip: the same clip (by name), its subject, or none"
+    )
 
 
 @dataclass(frozen=True)
@@ -199,8 +214,9 @@ def _local_model(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return mu, x, x @ x.T
 
 
-def reconstruct_positions(markers: np.ndarray, prior: PosePrior, params: ReconstructParams | None = None,
-                          model: ReconstructModel = MODEL) -> tuple[np.ndarray, np.ndarray]:
+def reconstruct_positions(
+    markers: np.ndarray, prior: PosePrior, params: ReconstructParams | None = None, model: ReconstructModel = MODEL
+) -> tuple[np.ndarray, np.ndarray]:
     """Reconstruct full poses from marker trajectories.
 
     Parameters
@@ -247,8 +263,17 @@ def reconstruct_positions(markers: np.ndarray, prior: PosePrior, params: Reconst
     return world, heading
 
 
-def _solve_frame(rel: np.ndarray, guess: np.ndarray, theta: float, pred: np.ndarray | None, prior: PosePrior,
-                 sel: np.ndarray, k: int, model: ReconstructModel, iterations: int) -> tuple[np.ndarray, float]:
+def _solve_frame(
+    rel: np.ndarray,
+    guess: np.ndarray,
+    theta: float,
+    pred: np.ndarray | None,
+    prior: PosePrior,
+    sel: np.ndarray,
+    k: int,
+    model: ReconstructModel,
+    iterations: int,
+) -> tuple[np.ndarray, float]:
     """One frame: kNN around ``guess``, local model, MAP pose and heading (see module doc).
 
     rel : (M, 3) markers relative to the root marker; guess, pred : (D,) local poses;
@@ -318,8 +343,10 @@ class PriorDatabase:
         self.joints = tuple(present)
         self.names = [m.name for m in db.motions]
         self.subjects = [str(m.metadata.get("subject", "")) for m in db.motions]
-        self.poses = [local_poses(m.canonical_positions(self.joints), self.joints).reshape(m.n_frames, -1)
-                      .astype(np.float32) for m in db.motions]
+        self.poses = [
+            local_poses(m.canonical_positions(self.joints), self.joints).reshape(m.n_frames, -1).astype(np.float32)
+            for m in db.motions
+        ]
         self.features = [np.asarray(feature_set.transform(m), np.float32) for m in db.motions]
 
     @property
@@ -340,12 +367,17 @@ class PriorDatabase:
         rows = np.flatnonzero(keep)
         if len(rows) == 0:
             raise DataError("prior database is empty after leaving out the test clips")
-        return PosePrior.build(np.concatenate([self.poses[i] for i in rows]),
-                               np.concatenate([self.features[i] for i in rows]), index, self.joints)
+        return PosePrior.build(
+            np.concatenate([self.poses[i] for i in rows]),
+            np.concatenate([self.features[i] for i in rows]),
+            index,
+            self.joints,
+        )
 
 
-def reconstruct_motion(motion: Motion, prior: PosePrior, params: ReconstructParams | None = None,
-                       model: ReconstructModel = MODEL) -> tuple[Motion, dict]:
+def reconstruct_motion(
+    motion: Motion, prior: PosePrior, params: ReconstructParams | None = None, model: ReconstructModel = MODEL
+) -> tuple[Motion, dict]:
     """Reconstruct one clip from its synthetic markers; the result and its errors.
 
     Returns the reconstructed Motion (test clip's skeleton, ``<name>_recon``) and a dict:
@@ -359,11 +391,24 @@ def reconstruct_motion(motion: Motion, prior: PosePrior, params: ReconstructPara
     seconds = time.perf_counter() - t0
     truth = motion.canonical_positions(prior.joints)
     mean, mx, avg, worst = joint_errors(world, truth)
-    out = positions_to_motion(motion.skeleton, world, prior.joints, motion.fps, name=f"{motion.name}_recon",
-                              metadata={**motion.metadata, "reconstructed_from": motion.name})
+    out = positions_to_motion(
+        motion.skeleton,
+        world,
+        prior.joints,
+        motion.fps,
+        name=f"{motion.name}_recon",
+        metadata={**motion.metadata, "reconstructed_from": motion.name},
+    )
     _, _, fk_avg, _ = joint_errors(out.canonical_positions(prior.joints), truth)
-    return out, {"joints": prior.joints, "mean_cm": mean, "max_cm": mx, "avg_cm": avg, "max_frame_cm": worst,
-                 "fk_avg_cm": fk_avg, "seconds": seconds}
+    return out, {
+        "joints": prior.joints,
+        "mean_cm": mean,
+        "max_cm": mx,
+        "avg_cm": avg,
+        "max_frame_cm": worst,
+        "fk_avg_cm": fk_avg,
+        "seconds": seconds,
+    }
 
 
 class Reconstruct(Analysis):
@@ -383,30 +428,66 @@ class Reconstruct(Analysis):
             fs.fit(prior_db)
         store = PriorDatabase(prior_db, fs)
         motions, err_rows, clip_rows, cache = [], [], [], {}
-        for cid, m in zip(test_db.clip_ids, ctx.progress(test_db.motions, total=test_db.n_clips, desc=ctx.step_id)):
+        for cid, m in zip(
+            test_db.clip_ids, ctx.progress(test_db.motions, total=test_db.n_clips, desc=ctx.step_id), strict=True
+        ):
             keep = ~store.withheld(m, p.leave_out)
             key = keep.tobytes()
             if key not in cache:  # one index per distinct left-out set
                 cache = {key: store.prior(keep, prior_index())}
             rec, e = reconstruct_motion(m, cache[key], p)
             motions.append(rec)
-            err_rows += [{"clip_id": int(cid), "name": m.name, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
-                         for j, a, b in zip(e["joints"], e["mean_cm"], e["max_cm"]) if np.isfinite(a)]
-            clip_rows.append({"clip_id": int(cid), "name": m.name, "n_frames": m.n_frames,
-                              "prior_frames": int(store.n_frames[keep].sum()), "avg_cm": e["avg_cm"],
-                              "max_cm": e["max_frame_cm"], "fk_avg_cm": e["fk_avg_cm"],
-                              "frames_per_s": m.n_frames / max(e["seconds"], 1e-9)})
+            err_rows += [
+                {"clip_id": int(cid), "name": m.name, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
+                for j, a, b in zip(e["joints"], e["mean_cm"], e["max_cm"], strict=True)
+                if np.isfinite(a)
+            ]
+            clip_rows.append(
+                {
+                    "clip_id": int(cid),
+                    "name": m.name,
+                    "n_frames": m.n_frames,
+                    "prior_frames": int(store.n_frames[keep].sum()),
+                    "avg_cm": e["avg_cm"],
+                    "max_cm": e["max_frame_cm"],
+                    "fk_avg_cm": e["fk_avg_cm"],
+                    "frames_per_s": m.n_frames / max(e["seconds"], 1e-9),
+                }
+            )
         tables = motions_to_tables(motions, list(test_db.clip_ids))
-        tables["errors"] = pa.Table.from_pylist(err_rows, schema=pa.schema(
-            [("clip_id", pa.int32()), ("name", pa.string()), ("joint", pa.string()),
-             ("mean_cm", pa.float64()), ("max_cm", pa.float64())]))
-        tables["clip_errors"] = pa.Table.from_pylist(clip_rows, schema=pa.schema(
-            [("clip_id", pa.int32()), ("name", pa.string()), ("n_frames", pa.int32()), ("prior_frames", pa.int64()),
-             ("avg_cm", pa.float64()), ("max_cm", pa.float64()), ("fk_avg_cm", pa.float64()),
-             ("frames_per_s", pa.float64())]))
+        tables["errors"] = pa.Table.from_pylist(
+            err_rows,
+            schema=pa.schema(
+                [
+                    ("clip_id", pa.int32()),
+                    ("name", pa.string()),
+                    ("joint", pa.string()),
+                    ("mean_cm", pa.float64()),
+                    ("max_cm", pa.float64()),
+                ]
+            ),
+        )
+        tables["clip_errors"] = pa.Table.from_pylist(
+            clip_rows,
+            schema=pa.schema(
+                [
+                    ("clip_id", pa.int32()),
+                    ("name", pa.string()),
+                    ("n_frames", pa.int32()),
+                    ("prior_frames", pa.int64()),
+                    ("avg_cm", pa.float64()),
+                    ("max_cm", pa.float64()),
+                    ("fk_avg_cm", pa.float64()),
+                    ("frames_per_s", pa.float64()),
+                ]
+            ),
+        )
         frames = sum(r["n_frames"] for r in clip_rows)
-        summary = {"clips": len(clip_rows), "frames": frames,
-                   "avg_cm": float(np.mean([r["avg_cm"] for r in clip_rows])) if clip_rows else None,
-                   "feature_fit_r2": float(next(iter(cache.values())).feature_fit_r2) if cache else None,
-                   "backend": f"features.{p.features} + indexes.kdtree"}
+        summary = {
+            "clips": len(clip_rows),
+            "frames": frames,
+            "avg_cm": float(np.mean([r["avg_cm"] for r in clip_rows])) if clip_rows else None,
+            "feature_fit_r2": float(next(iter(cache.values())).feature_fit_r2) if cache else None,
+            "backend": f"features.{p.features} + indexes.kdtree",
+        }
         return StepOutput(tables, summary)

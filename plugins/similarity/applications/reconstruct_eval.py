@@ -19,6 +19,7 @@ sizes : ``motion, fraction, prior_frames, avg_cm, max_cm``
     the prior database grows (our corpus is ~2 % of the paper's).
 joint_errors : ``motion, prior, joint, mean_cm, max_cm`` for table 3.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
@@ -27,7 +28,17 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework import Analysis, DataError, FeatureSet, Index, Motion, MotionDatabase, Params, StepContext, StepOutput
+from mocapflow.framework import (
+    Analysis,
+    DataError,
+    FeatureSet,
+    Index,
+    Motion,
+    MotionDatabase,
+    Params,
+    StepContext,
+    StepOutput,
+)
 from mocapflow.framework.datasets import Dataset
 
 from .reconstruct import PriorDatabase, ReconstructParams, prior_index, reconstruct_motion
@@ -46,8 +57,13 @@ FEATURE_SETS: dict[str, tuple[str, dict]] = {
 }
 
 #: Default test clips: two CMU subjects with many clips, two HDM05 takes of actor bk.
-DEFAULT_TESTS: tuple[str, ...] = ("16_15", "09_06", "49_02", "HDM_bk_squat1Reps_013_120",
-                                  "HDM_bk_jogLeftCircle4StepsRstart_003_120")
+DEFAULT_TESTS: tuple[str, ...] = (
+    "16_15",
+    "09_06",
+    "49_02",
+    "HDM_bk_squat1Reps_013_120",
+    "HDM_bk_jogLeftCircle4StepsRstart_003_120",
+)
 
 
 def cell(avg: float, mx: float) -> str:
@@ -63,16 +79,23 @@ def _find(dbs: Sequence[MotionDatabase | None], name: str) -> tuple[Motion, int]
     raise DataError(f"test clip {name!r} is in neither database")
 
 
-def _run(test: Motion, store: PriorDatabase, keep: np.ndarray, make_index: Callable[[], Index],
-         params: ReconstructParams) -> tuple[dict, int]:
+def _run(
+    test: Motion, store: PriorDatabase, keep: np.ndarray, make_index: Callable[[], Index], params: ReconstructParams
+) -> tuple[dict, int]:
     prior = store.prior(keep, make_index())
     _, e = reconstruct_motion(test, prior, params)
     return e, len(prior.poses)
 
 
-def table3(tests: Sequence[str], cmu: PriorDatabase, hdm: PriorDatabase | None, cmu_db: MotionDatabase,
-           hdm_db: MotionDatabase | None, make_index: Callable[[], Index], params: ReconstructParams
-           ) -> tuple[list[dict], list[dict]]:
+def table3(
+    tests: Sequence[str],
+    cmu: PriorDatabase,
+    hdm: PriorDatabase | None,
+    cmu_db: MotionDatabase,
+    hdm_db: MotionDatabase | None,
+    make_index: Callable[[], Index],
+    params: ReconstructParams,
+) -> tuple[list[dict], list[dict]]:
     """Rows of Table 3 (and its per-joint errors) for the named test clips."""
     rows, joints = [], []
     for name in tests:
@@ -83,16 +106,34 @@ def table3(tests: Sequence[str], cmu: PriorDatabase, hdm: PriorDatabase | None, 
         configs += [("CMU-", cmu, ~cmu.withheld(m, "subject")), ("CMU", cmu, ~cmu.withheld(m, "clip"))]
         for label, store, keep in configs:
             e, n = _run(m, store, keep, make_index, params)
-            rows.append({"motion": name, "n_frames": m.n_frames, "prior": label, "prior_frames": n,
-                         "avg_cm": e["avg_cm"], "max_cm": e["max_frame_cm"], "cell": cell(e["avg_cm"], e["max_frame_cm"])})
-            joints += [{"motion": name, "prior": label, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
-                       for j, a, b in zip(e["joints"], e["mean_cm"], e["max_cm"]) if np.isfinite(a)]
+            rows.append(
+                {
+                    "motion": name,
+                    "n_frames": m.n_frames,
+                    "prior": label,
+                    "prior_frames": n,
+                    "avg_cm": e["avg_cm"],
+                    "max_cm": e["max_frame_cm"],
+                    "cell": cell(e["avg_cm"], e["max_frame_cm"]),
+                }
+            )
+            joints += [
+                {"motion": name, "prior": label, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
+                for j, a, b in zip(e["joints"], e["mean_cm"], e["max_cm"], strict=True)
+                if np.isfinite(a)
+            ]
     return rows, joints
 
 
-def table4(tests: Sequence[str], cmu_db: MotionDatabase, hdm_db: MotionDatabase | None,
-           feature_sets: Sequence[str], make_features: Callable[[str, dict], FeatureSet],
-           make_index: Callable[[], Index], params: ReconstructParams) -> list[dict]:
+def table4(
+    tests: Sequence[str],
+    cmu_db: MotionDatabase,
+    hdm_db: MotionDatabase | None,
+    feature_sets: Sequence[str],
+    make_features: Callable[[str, dict], FeatureSet],
+    make_index: Callable[[], Index],
+    params: ReconstructParams,
+) -> list[dict]:
     """Rows of Table 4: prior = CMU without the test clip, one column per feature set."""
     rows = []
     tests_m = [_find([cmu_db, hdm_db], n)[0] for n in tests]
@@ -102,16 +143,30 @@ def table4(tests: Sequence[str], cmu_db: MotionDatabase, hdm_db: MotionDatabase 
         if fs.requires_fit:
             fs.fit(hdm_db if hdm_db is not None else cmu_db)
         store = PriorDatabase(cmu_db, fs)
-        for name, m in zip(tests, tests_m):
+        for name, m in zip(tests, tests_m, strict=True):
             e, _ = _run(m, store, ~store.withheld(m, "clip"), make_index, params)
-            rows.append({"motion": name, "feature_set": label, "avg_cm": e["avg_cm"], "max_cm": e["max_frame_cm"],
-                         "cell": cell(e["avg_cm"], e["max_frame_cm"])})
+            rows.append(
+                {
+                    "motion": name,
+                    "feature_set": label,
+                    "avg_cm": e["avg_cm"],
+                    "max_cm": e["max_frame_cm"],
+                    "cell": cell(e["avg_cm"], e["max_frame_cm"]),
+                }
+            )
     return rows
 
 
-def size_sweep(tests: Sequence[str], cmu: PriorDatabase, cmu_db: MotionDatabase, hdm_db: MotionDatabase | None,
-               fractions: Sequence[float], make_index: Callable[[], Index], params: ReconstructParams,
-               seed: int = 0) -> list[dict]:
+def size_sweep(
+    tests: Sequence[str],
+    cmu: PriorDatabase,
+    cmu_db: MotionDatabase,
+    hdm_db: MotionDatabase | None,
+    fractions: Sequence[float],
+    make_index: Callable[[], Index],
+    params: ReconstructParams,
+    seed: int = 0,
+) -> list[dict]:
     """Error versus prior size: random clip subsets (nested: 10 % within 30 % within 100 %)."""
     order = np.random.default_rng(seed).permutation(len(cmu.names))
     rank = np.empty_like(order)
@@ -123,15 +178,24 @@ def size_sweep(tests: Sequence[str], cmu: PriorDatabase, cmu_db: MotionDatabase,
         for frac in fractions:
             keep = base & (rank < max(1, int(round(frac * len(order)))))
             e, n = _run(m, cmu, keep, make_index, params)
-            rows.append({"motion": name, "fraction": float(frac), "prior_frames": n, "avg_cm": e["avg_cm"],
-                         "max_cm": e["max_frame_cm"]})
+            rows.append(
+                {
+                    "motion": name,
+                    "fraction": float(frac),
+                    "prior_frames": n,
+                    "avg_cm": e["avg_cm"],
+                    "max_cm": e["max_frame_cm"],
+                }
+            )
     return rows
 
 
 class ReconstructionEvalParams(Params):
     test_clips: tuple[str, ...] = Field(DEFAULT_TESTS, min_length=1, description="names of the test clips")
     feature_sets: tuple[str, ...] = Field(tuple(FEATURE_SETS), description=f"Table 4 columns, of {list(FEATURE_SETS)}")
-    fractions: tuple[float, ...] = Field((0.1, 0.3, 1.0), description="prior sizes of the size sweep (fractions of CMU clips)")
+    fractions: tuple[float, ...] = Field(
+        (0.1, 0.3, 1.0), description="prior sizes of the size sweep (fractions of CMU clips)"
+    )
     k: int = Field(64, ge=2, description="neighbours of the local linear model")
 
 
@@ -158,11 +222,18 @@ class ReconstructionEval(Analysis):
         t3, joints = table3(p.test_clips, cmu, hdm, cmu_db, hdm_db, prior_index, rp)
         t4 = table4(p.test_clips, cmu_db, hdm_db, p.feature_sets, make_features, prior_index, rp)
         sizes = size_sweep(p.test_clips, cmu, cmu_db, hdm_db, p.fractions, prior_index, rp)
-        tables = {"table3": pa.Table.from_pylist(t3), "table4": pa.Table.from_pylist(t4),
-                  "sizes": pa.Table.from_pylist(sizes), "joint_errors": pa.Table.from_pylist(joints)}
+        tables = {
+            "table3": pa.Table.from_pylist(t3),
+            "table4": pa.Table.from_pylist(t4),
+            "sizes": pa.Table.from_pylist(sizes),
+            "joint_errors": pa.Table.from_pylist(joints),
+        }
         tables["data"] = tables["table3"]
-        summary = {"cmu_frames": cmu_db.n_frames, "hdm05_frames": hdm_db.n_frames if hdm_db else 0,
-                   "table3_avg_cm": {r["prior"]: None for r in t3}}
+        summary = {
+            "cmu_frames": cmu_db.n_frames,
+            "hdm05_frames": hdm_db.n_frames if hdm_db else 0,
+            "table3_avg_cm": {r["prior"]: None for r in t3},
+        }
         for label in summary["table3_avg_cm"]:
             summary["table3_avg_cm"][label] = float(np.mean([r["avg_cm"] for r in t3 if r["prior"] == label]))
         return StepOutput(tables, summary)

@@ -4,6 +4,7 @@ Reconstructed canonical joint positions are turned into joint rotations of a ske
 aiming every bone at its reconstructed canonical descendants (minimal rotation for one,
 Kabsch for several; all frames at once), so ``formats.export`` writes them as BVH/AMC.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -12,7 +13,6 @@ import numpy as np
 
 from mocapflow.framework import DataError, Motion, Skeleton
 from mocapflow.framework import quaternions as quat
-
 
 
 def _aim_targets(skeleton: Skeleton, joints: Sequence[str]) -> list[list[tuple[int, np.ndarray]]]:
@@ -35,8 +35,14 @@ def _aim_targets(skeleton: Skeleton, joints: Sequence[str]) -> list[list[tuple[i
     return aims
 
 
-def positions_to_motion(skeleton: Skeleton, positions: np.ndarray, joints: Sequence[str], fps: float,
-                        name: str = "", metadata: dict | None = None) -> Motion:
+def positions_to_motion(
+    skeleton: Skeleton,
+    positions: np.ndarray,
+    joints: Sequence[str],
+    fps: float,
+    name: str = "",
+    metadata: dict | None = None,
+) -> Motion:
     """Joint rotations of ``skeleton`` that place its bones along target positions.
 
     Every joint is turned, for all frames at once, so that its rest bone vectors point at

@@ -6,11 +6,11 @@ from a sampled threshold (:func:`lean_rank`, per block row in parallel by
 :func:`lean_rank_rows`) and the exact float64 re-ranking of the candidates
 (:func:`exact_rank`), ties ordered by id as in the kd-tree (:mod:`._knn_kernels`).
 """
+
 from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
-
 
 
 @njit(cache=True)
@@ -32,8 +32,7 @@ def _maxheap_replace(h, v):
 
 
 @njit(cache=True)
-def _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-              excl, groups, frames, qg, qf):
+def _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf):
     b = g.shape[1]
     cap = cand_i.shape[1]
     h = heap[r]
@@ -65,8 +64,7 @@ def _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2
 
 
 @njit(cache=True, parallel=True)
-def scan_block(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-               excl, groups, frames, qg, qf):
+def scan_block(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf):
     """One data block of the blocked brute force (see :mod:`._brute`), fused in one pass.
 
     ``g (nq, B)`` holds ``q_c . y`` for rows ``y0 .. y0 + B``; the approximate squared
@@ -77,18 +75,21 @@ def scan_block(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, 
     """
     for r in prange(g.shape[0]):
         if not overflow[r]:
-            _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-                      excl, groups, frames, qg, qf)
+            _scan_row(
+                r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf
+            )
 
 
 @njit(cache=True)
-def scan_block_serial(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-                      excl, groups, frames, qg, qf):
+def scan_block_serial(
+    g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf
+):
     """:func:`scan_block` on one thread (few queries: waking threads costs more than it saves)."""
     for r in range(g.shape[0]):
         if not overflow[r]:
-            _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol,
-                      excl, groups, frames, qg, qf)
+            _scan_row(
+                r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf
+            )
 
 
 @njit(cache=True)
@@ -227,7 +228,7 @@ def lean_query(q, data, mean, sqnorms, ymax, yraw, k, r2, excl, groups, frames, 
         qn += c64 * c64
         qm += c64 * np.float64(mean[j])
     const = qn + 2.0 * qm
-    tol2 = 4.0 * (d + 4) * 2.0 ** -24 * (qn + ymax + 2.0 * np.sqrt(qn * yraw)) + 1e-30
+    tol2 = 4.0 * (d + 4) * 2.0**-24 * (qn + ymax + 2.0 * np.sqrt(qn * yraw)) + 1e-30
     a = np.dot(data, qc)
     two = np.float32(2.0)
     for t in range(a.shape[0]):
@@ -236,13 +237,25 @@ def lean_query(q, data, mean, sqnorms, ymax, yraw, k, r2, excl, groups, frames, 
 
 
 @njit(cache=True, parallel=True)
-def lean_rank_rows(a, lim, slack, k, queries, q0, data, ids, r2, excl, groups, frames, qgroups, qframes,
-                   out_d, out_i):
+def lean_rank_rows(a, lim, slack, k, queries, q0, data, ids, r2, excl, groups, frames, qgroups, qframes, out_d, out_i):
     """:func:`lean_rank` of every row of a GEMM block ``a`` (b, n), rows spread over threads;
     results go to ``out_d / out_i[q0 + r]``."""
     for r in prange(a.shape[0]):
-        dd, ii = lean_rank(a[r], lim[r], slack[r], k, queries[q0 + r], data, ids, r2, excl, groups, frames,
-                           qgroups[q0 + r], qframes[q0 + r])
+        dd, ii = lean_rank(
+            a[r],
+            lim[r],
+            slack[r],
+            k,
+            queries[q0 + r],
+            data,
+            ids,
+            r2,
+            excl,
+            groups,
+            frames,
+            qgroups[q0 + r],
+            qframes[q0 + r],
+        )
         for c in range(dd.shape[0]):
             out_d[q0 + r, c] = dd[c]
             out_i[q0 + r, c] = ii[c]

@@ -3,7 +3,7 @@
 The tree follows Arya & Mount's ANN (the library Krüger et al. 2010 used): sliding-midpoint
 splits, buckets of at most ``leafsize`` points, depth-first search with incremental
 distances to the far cells and the ``(1 + eps)`` pruning rule of ε-approximate search.
-Beyond ANN, each node also has the tight bounding box of its points (:func:`node_boxes`,
+Beyond ANN, each node also has the tight bounding box of its points (:func:`._tree_kernels.node_boxes`,
 derived from the stored tree, never saved): a stacked cell that survives the cheap
 incremental test is re-tested on its exact box distance when popped, and a bucket reached
 by descending is scanned only if its box is within reach. This cuts the points a 256-NN
@@ -18,6 +18,7 @@ smaller row id exactly as a sorted brute force does.
 Exclusion: a candidate ``i`` is skipped when ``excl >= 0`` and it lies in the query's group
 (clip) within ``excl`` frames: ``group[i] == qg and |frame[i] - qf| <= excl``.
 """
+
 from __future__ import annotations
 
 import numba
@@ -25,94 +26,6 @@ import numpy as np
 from numba import njit, prange
 
 _IMAX = np.iinfo(np.int64).max
-
-
-@njit(cache=True, inline="always")
-def _partition(data, perm, s, e, dim, cut):
-    """Reorder ``perm[s:e]`` into rows with ``data[:, dim] < cut`` then the others; returns
-    the first position of the second part."""
-    i, k = s, e - 1
-    while i <= k:
-        if data[perm[i], dim] < cut:
-            i += 1
-        else:
-            perm[i], perm[k] = perm[k], perm[i]
-            k -= 1
-    return i
-
-
-@njit(cache=True)
-def build_tree(data, leafsize):
-    """Sliding-midpoint kd-tree over ``data (n, d)`` float32.
-
-    Returns ``perm`` (row of the input at each tree position) and the node arrays
-    ``start, end, left, right, split_dim, split_val`` (leaves have ``left == -1``).
-    """
-    n, d = data.shape
-    perm = np.arange(n).astype(np.int64)
-    cap = 2 * n + 1
-    start = np.empty(cap, np.int64)
-    end = np.empty(cap, np.int64)
-    left = np.full(cap, -1, np.int64)
-    right = np.full(cap, -1, np.int64)
-    sdim = np.zeros(cap, np.int32)
-    sval = np.zeros(cap, np.float32)
-    start[0] = 0
-    end[0] = n
-    n_nodes = 1
-    stack = np.empty(cap, np.int64)
-    stack[0] = 0
-    top = 1
-    lo = np.empty(d, np.float32)
-    hi = np.empty(d, np.float32)
-    while top > 0:
-        top -= 1
-        node = stack[top]
-        s, e = start[node], end[node]
-        if e - s <= leafsize:
-            continue
-        for j in range(d):
-            lo[j] = np.inf
-            hi[j] = -np.inf
-        for i in range(s, e):
-            row = perm[i]
-            for j in range(d):
-                v = data[row, j]
-                if v < lo[j]:
-                    lo[j] = v
-                if v > hi[j]:
-                    hi[j] = v
-        dim = 0
-        spread = hi[0] - lo[0]
-        for j in range(1, d):
-            if hi[j] - lo[j] > spread:
-                spread = hi[j] - lo[j]
-                dim = j
-        if spread <= 0.0:  # all points identical: one (large) bucket
-            continue
-        cut = np.float32(0.5 * (np.float64(lo[dim]) + np.float64(hi[dim])))
-        mid = _partition(data, perm, s, e, dim, cut)
-        if mid == s:  # slide the cut down to the minimum: one side gets the minimum points
-            cut = hi[dim]
-            for t in range(s, e):
-                v = data[perm[t], dim]
-                if v > lo[dim] and v < cut:
-                    cut = v
-            mid = _partition(data, perm, s, e, dim, cut)
-        elif mid == e:  # cannot happen for cut <= hi with the < rule, kept for safety
-            continue
-        sdim[node] = dim
-        sval[node] = cut
-        left[node] = n_nodes
-        start[n_nodes], end[n_nodes] = s, mid
-        right[node] = n_nodes + 1
-        start[n_nodes + 1], end[n_nodes + 1] = mid, e
-        stack[top] = n_nodes
-        stack[top + 1] = n_nodes + 1
-        top += 2
-        n_nodes += 2
-    return (perm, start[:n_nodes].copy(), end[:n_nodes].copy(), left[:n_nodes].copy(),
-            right[:n_nodes].copy(), sdim[:n_nodes].copy(), sval[:n_nodes].copy())
 
 
 @njit(cache=True, inline="always")
@@ -141,37 +54,6 @@ def _heap_replace(hd, hi, dist, idx):
     hi[pos] = idx
 
 
-@njit(cache=True)
-def node_boxes(data, start, end, left, right):
-    """Tight bounding box ``(lo, hi)`` of each node's points, shape (n_nodes, d) float32.
-
-    Derived from the stored tree (children are created after their parent, so a reverse
-    sweep merges children into parents): one pass over the points, O(n d).
-    """
-    n_nodes = left.shape[0]
-    d = data.shape[1]
-    lo = np.empty((n_nodes, d), np.float32)
-    hi = np.empty((n_nodes, d), np.float32)
-    for node in range(n_nodes - 1, -1, -1):
-        if left[node] < 0:
-            for j in range(d):
-                lo[node, j] = np.inf
-                hi[node, j] = -np.inf
-            for t in range(start[node], end[node]):
-                for j in range(d):
-                    v = data[t, j]
-                    if v < lo[node, j]:
-                        lo[node, j] = v
-                    if v > hi[node, j]:
-                        hi[node, j] = v
-        else:
-            a, b = left[node], right[node]
-            for j in range(d):
-                lo[node, j] = min(lo[a, j], lo[b, j])
-                hi[node, j] = max(hi[a, j], hi[b, j])
-    return lo, hi
-
-
 @njit(cache=True, inline="always")
 def _box_dist(q, lo, hi, node, d):
     """Squared distance from ``q`` to the box of ``node``, summed in dimension order.
@@ -194,8 +76,32 @@ def _box_dist(q, lo, hi, node, d):
 
 
 @njit(cache=True)
-def _search(q, data, perm, start, end, left, right, sdim, sval, blo, bhi, groups, frames, qg, qf, excl,
-            hd, hi_, eps_fac, r2, st_node, st_rd, st_off, cur_off):
+def _search(
+    q,
+    data,
+    perm,
+    start,
+    end,
+    left,
+    right,
+    sdim,
+    sval,
+    blo,
+    bhi,
+    groups,
+    frames,
+    qg,
+    qf,
+    excl,
+    hd,
+    hi_,
+    eps_fac,
+    r2,
+    st_node,
+    st_rd,
+    st_off,
+    cur_off,
+):
     """Depth-first search with an explicit stack (numba cannot cache recursive functions).
 
     Each stacked far cell carries its incremental-distance vector ``off`` (per-dimension
@@ -287,8 +193,33 @@ def _seed_bound(q, prev, shift, data, inv, groups, frames, qg, qf, excl):
 
 
 @njit(cache=True)
-def _query_rows(r0, r1, queries, k, eps_fac, r2, data, perm, start, end, left, right, sdim, sval, blo, bhi,
-                groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i, inv):
+def _query_rows(
+    r0,
+    r1,
+    queries,
+    k,
+    eps_fac,
+    r2,
+    data,
+    perm,
+    start,
+    end,
+    left,
+    right,
+    sdim,
+    sval,
+    blo,
+    bhi,
+    groups,
+    frames,
+    qgroups,
+    qframes,
+    excl,
+    max_depth,
+    out_d,
+    out_i,
+    inv,
+):
     d = queries.shape[1]
     hd = np.empty(k)
     hi_ = np.empty(k, np.int64)
@@ -308,8 +239,32 @@ def _query_rows(r0, r1, queries, k, eps_fac, r2, data, perm, start, end, left, r
                 b = _seed_bound(q, out_i[r - 1], shift, data, inv, groups, frames, qgroups[r], qframes[r], excl)
                 if b < bound:
                     bound = b
-        _search(q, data, perm, start, end, left, right, sdim, sval, blo, bhi, groups, frames,
-                qgroups[r], qframes[r], excl, hd, hi_, eps_fac, bound, st_node, st_rd, st_off, cur_off)
+        _search(
+            q,
+            data,
+            perm,
+            start,
+            end,
+            left,
+            right,
+            sdim,
+            sval,
+            blo,
+            bhi,
+            groups,
+            frames,
+            qgroups[r],
+            qframes[r],
+            excl,
+            hd,
+            hi_,
+            eps_fac,
+            bound,
+            st_node,
+            st_rd,
+            st_off,
+            cur_off,
+        )
         order = np.argsort(hd, kind="mergesort")
         for a in range(k):
             out_d[r, a] = hd[order[a]]
@@ -327,8 +282,30 @@ def _query_rows(r0, r1, queries, k, eps_fac, r2, data, perm, start, end, left, r
 
 
 @njit(cache=True, parallel=True)
-def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, sval, blo, bhi,
-               groups, frames, qgroups, qframes, excl, max_depth, n_chunks, inv):
+def query_tree(
+    queries,
+    k,
+    eps,
+    r2,
+    data,
+    perm,
+    start,
+    end,
+    left,
+    right,
+    sdim,
+    sval,
+    blo,
+    bhi,
+    groups,
+    frames,
+    qgroups,
+    qframes,
+    excl,
+    max_depth,
+    n_chunks,
+    inv,
+):
     """kNN of every query row; returns squared distances (float64) and row ids, sorted.
 
     ``n_chunks <= 1`` runs on the calling thread (single queries: no thread wake-up).
@@ -341,33 +318,73 @@ def query_tree(queries, k, eps, r2, data, perm, start, end, left, right, sdim, s
     out_i = np.full((m, k), -1, np.int64)
     eps_fac = (1.0 + eps) * (1.0 + eps)
     if n_chunks <= 1:
-        _query_rows(np.int64(0), m, queries, k, eps_fac, r2, data, perm, start, end, left, right, sdim, sval, blo, bhi,
-                    groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i, inv)
+        _query_rows(
+            np.int64(0),
+            m,
+            queries,
+            k,
+            eps_fac,
+            r2,
+            data,
+            perm,
+            start,
+            end,
+            left,
+            right,
+            sdim,
+            sval,
+            blo,
+            bhi,
+            groups,
+            frames,
+            qgroups,
+            qframes,
+            excl,
+            max_depth,
+            out_d,
+            out_i,
+            inv,
+        )
         return out_d, out_i
     for c in prange(n_chunks):
-        _query_rows(c * m // n_chunks, (c + 1) * m // n_chunks, queries, k, eps_fac, r2, data, perm, start,
-                    end, left, right, sdim, sval, blo, bhi, groups, frames, qgroups, qframes, excl, max_depth, out_d, out_i, inv)
+        _query_rows(
+            c * m // n_chunks,
+            (c + 1) * m // n_chunks,
+            queries,
+            k,
+            eps_fac,
+            r2,
+            data,
+            perm,
+            start,
+            end,
+            left,
+            right,
+            sdim,
+            sval,
+            blo,
+            bhi,
+            groups,
+            frames,
+            qgroups,
+            qframes,
+            excl,
+            max_depth,
+            out_d,
+            out_i,
+            inv,
+        )
     return out_d, out_i
-
-
-@njit(cache=True)
-def tree_depth(left, right):
-    """Depth of the deepest node (children are always created after their parent)."""
-    depth = np.zeros(left.shape[0], np.int64)
-    best = 0
-    for node in range(left.shape[0]):
-        if left[node] >= 0:
-            depth[left[node]] = depth[node] + 1
-            depth[right[node]] = depth[node] + 1
-            if depth[node] + 1 > best:
-                best = depth[node] + 1
-    return best
 
 
 def set_threads(workers: int | None) -> int:
     """Set numba's thread count for the next parallel call; returns the previous one."""
     prev = numba.get_num_threads()
-    n = numba.config.NUMBA_NUM_THREADS if workers is None or workers < 1 else min(workers, numba.config.NUMBA_NUM_THREADS)
+    n = (
+        numba.config.NUMBA_NUM_THREADS
+        if workers is None or workers < 1
+        else min(workers, numba.config.NUMBA_NUM_THREADS)
+    )
     if n != prev:  # setting takes locks: skip it on the (usual) unchanged path
         numba.set_num_threads(n)
     return prev

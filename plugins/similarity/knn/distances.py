@@ -24,6 +24,7 @@ Each measure compares one frame ``i`` of a :class:`PoseMeasures` database with m
     as the paper states; the optimised values are not given there, so ``w_j = 1``);
     ``omega`` the local angular velocity (rad/s, forward difference, last frame repeats).
 """
+
 from __future__ import annotations
 
 import re
@@ -36,8 +37,27 @@ from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
 
 WB_JOINTS = ("lhip", "rhip", "lknee", "rknee", "lshoulder", "rshoulder", "lelbow", "relbow")
-PC_JOINTS = ("root", "lhip", "lknee", "lankle", "ltoes", "rhip", "rknee", "rankle", "rtoes", "lowerback",
-             "chest", "neck", "head", "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist")
+PC_JOINTS = (
+    "root",
+    "lhip",
+    "lknee",
+    "lankle",
+    "ltoes",
+    "rhip",
+    "rknee",
+    "rankle",
+    "rtoes",
+    "lowerback",
+    "chest",
+    "neck",
+    "head",
+    "lshoulder",
+    "lelbow",
+    "lwrist",
+    "rshoulder",
+    "relbow",
+    "rwrist",
+)
 DISTANCE_MEASURES = ("D_quat", "D_euler", "D_pc1", "D_pc11", "D_wb")
 
 
@@ -96,7 +116,9 @@ class PoseMeasures:
             raise DataError("distance measures need at least one clip")
         names = {m.skeleton.names for m in db.motions}
         if len(names) != 1:
-            raise DataError(f"joint-angle distances need clips with the same joint names; got {len(names)} skeleton layouts")
+            raise DataError(
+                f"joint-angle distances need clips with the same joint names; got {len(names)} skeleton layouts"
+            )
         self.db = db
         self.velocity_weight = velocity_weight
         m0 = db.motions[0]

@@ -21,6 +21,7 @@ is 9 frame intervals, so the 3-sample window's ends sit at ±4.5 frames). At the
 the instants are clamped to the first/last frame: a window never straddles two clips
 (features are computed clip by clip) and never reads outside its clip.
 """
+
 from __future__ import annotations
 
 from typing import ClassVar, Literal
@@ -47,7 +48,7 @@ def body_frame_positions(motion: Motion, joints: tuple[str, ...]) -> np.ndarray:
     """Canonical joint positions in the normalised root frame, shape (T, len(joints), 3), metres."""
     names = _FRAME_JOINTS + tuple(j for j in joints if j not in _FRAME_JOINTS)
     pos = motion.canonical_positions(names)
-    missing = [n for n, i in zip(names, motion.skeleton.canonical_indices(names)) if i < 0]
+    missing = [n for n, i in zip(names, motion.skeleton.canonical_indices(names), strict=True) if i < 0]
     if missing:
         raise DataError(f"motion {motion.name!r} (skeleton {motion.skeleton.name!r}) lacks canonical joints {missing}")
     local = to_root_frame(pos, names)

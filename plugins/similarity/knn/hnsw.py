@@ -13,6 +13,7 @@ row ids int64, padded with ``inf`` / ``-1`` (fewer than ``k`` rows, or beyond ``
 approximate: ``ef`` (search breadth, at least ``k``) trades time for recall. No
 ``exclude`` and no ``eps`` (the LNG and the matchers need neither).
 """
+
 from __future__ import annotations
 
 import json
@@ -45,7 +46,9 @@ class HNSWIndex(Index):
         ef_construction: int = Field(200, ge=8, description="search breadth while building (quality of the graph)")
         ef: int = Field(512, ge=1, description="search breadth of a query (at least k is used); recall grows with it")
         seed: int = Field(0, description="random seed of the layer assignment (with one build thread: same graph)")
-        threads: int = Field(1, ge=0, description="build threads (1: deterministic; 0: all cores, faster, not reproducible)")
+        threads: int = Field(
+            1, ge=0, description="build threads (1: deterministic; 0: all cores, faster, not reproducible)"
+        )
 
     def build(self, features: np.ndarray) -> HNSWIndex:
         """Index ``features`` (n, d) (converted to float32 once)."""
@@ -62,8 +65,9 @@ class HNSWIndex(Index):
         self.index_, self.n_, self.dim_ = ix, len(x), x.shape[1]
         return self
 
-    def query(self, x: np.ndarray, k: int, radius: float | None = None, *, workers: int = 1
-              ) -> tuple[np.ndarray, np.ndarray]:
+    def query(
+        self, x: np.ndarray, k: int, radius: float | None = None, *, workers: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Approximate ``k`` nearest rows of each query row; see the module doc for the format."""
         if not hasattr(self, "index_"):
             raise DataError(f"{self.key()}: query before build/load")
@@ -91,8 +95,11 @@ class HNSWIndex(Index):
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         self.index_.save_index(str(d / "hnsw.bin"))
-        (d / "index.json").write_text(json.dumps({"component": self.key(), "params": self.get_params(),
-                                                  "rows": self.n_, "dim": self.dim_}, indent=1))
+        (d / "index.json").write_text(
+            json.dumps(
+                {"component": self.key(), "params": self.get_params(), "rows": self.n_, "dim": self.dim_}, indent=1
+            )
+        )
 
     @classmethod
     def load(cls, directory: Path) -> HNSWIndex:

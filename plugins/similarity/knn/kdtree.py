@@ -1,26 +1,14 @@
 """``indexes.kdtree``: exact (or ε-approximate) k-nearest-neighbour search over feature vectors.
 
-The kNN index of Krüger et al. 2010 §3.3 (they used ANN). A float32 kd-tree of our own
-(numba, :mod:`._knn_kernels`) so that the features are stored once in float32 and the tree
-can be saved and loaded as plain arrays, without a rebuild. For feature sets of high
-intrinsic dimension a kd-tree degenerates to a slow linear scan; there an exact BLAS brute
-force in blocks (:mod:`._brute`) is faster (single queries over small databases take its
-lean path: one compiled call with the GEMV, a sampled k-th threshold, an exact re-ranking of
-the few candidates). With
-``method: auto`` a probe at build time counts, on a sample of the indexed rows, for 16
-and 256 neighbours, the tree work an exact search cannot skip and keeps the tree while it
-is below a share of the rows (a deterministic cost model, :data:`BRUTE_FROM_SHARE`) (a kd-tree's cost grows with k, the brute force's hardly: where one method wins at
-16 and another at 256, queries from ``brute_from_k_`` neighbours on use ``large_method_``);
-``method_``, ``brute_from_k_``, ``large_method_`` and ``probe_`` say what was chosen and
-why, and the step's summary repeats them. Both methods are exact (ties ordered by row id);
-only an explicit ``eps > 0`` makes a search approximate.
-
-Sequences of queries (the lazy neighborhood graph asks for the neighbours of consecutive
-query frames) are cheaper on the kd-tree: each query's search starts with the k-th
-distance from it to the previous query's neighbours and to their successor rows as its
-pruning bound, which is exact (at least k rows lie within it) and much tighter than the
-empty heap's.
+The kNN index of Krüger et al. 2010 §3.3 (they used ANN): a float32 kd-tree of our own
+(:mod:`._knn_kernels`, :mod:`._tree_kernels`), saved and loaded as plain arrays without a
+rebuild, and an exact BLAS brute force (:mod:`._brute`) where a tree loses (high intrinsic
+dimension, large batches). ``method: auto`` chooses by a deterministic cost model counted at
+build time (:mod:`.cost_model`; docs/knn.md). Both methods
+are exact, ties ordered by row id. Consecutive queries (the graph's query frames) seed each
+other's pruning bound with the k-th distance to the previous query's neighbours.
 """
+
 from __future__ import annotations
 
 import json
@@ -35,24 +23,11 @@ from pydantic import Field
 from mocapflow.framework import Index, Params
 from mocapflow.framework.errors import ConfigError, DataError
 
+from .cost_model import CostModel
+
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework import Dataset, StepContext, StepOutput
 
-#: ``method: auto`` picks the kd-tree while the tree work a k-NN query cannot skip (points of
-#: the buckets within the k-th neighbour distance, plus nodes) stays below this share of the
-#: rows a brute force scans. Measured (380,813 rows, one thread, loaded 2-core machine): a
-#: tree query costs 3-8 ns per counted point and dimension (its depth-first search does up to
-#: ~2x the unavoidable work in 90-d), a single brute-force query 3-11 ns per row and
-#: dimension and a batched one far less, so the break-even lies near a quarter of the rows.
-BRUTE_FROM_SHARE = 0.25
-#: Batches (at least :data:`BATCH_QUERIES` queries in one call) go to the brute force sooner:
-#: there one GEMM serves a block of queries, so a scanned row costs about the same whatever
-#: ``d`` (measured 380,813 rows, k = 16 and 256, d = 45 and 90, both cores: 12-15 ms per query
-#: at d = 45 and 90 alike), while a tree query still costs per counted point *and* dimension
-#: (1.85 ms per unit of ``share x d`` there). Break-even: ``share x d`` near 7; the tree answers
-#: a batch while ``tree_share@k x d`` stays below this.
-BATCH_BRUTE_FROM_WORK = 7.0
-BATCH_QUERIES = 32
 
 @dataclass(frozen=True)
 class TreeSettings:
@@ -74,12 +49,14 @@ class TreeSettings:
 
 TREE = TreeSettings()
 
-_ARRAYS = ("data_", "perm_", "groups_", "frames_", "sqnorms_", "mean_",
-           "start_", "end_", "left_", "right_", "sdim_", "sval_")
+_ARRAYS = tuple(
+    f"{a}_"
+    for a in ["data", "perm", "groups", "frames", "sqnorms", "mean", "start", "end", "left", "right", "sdim", "sval"]
+)
 _ZEROS = np.zeros(4, np.int64)  # query clip/frame ids of interactive queries (never written)
 
 
-class KDTreeIndex(Index):
+class KDTreeIndex(CostModel, Index):
     """Exact k-nearest-neighbour index (kd-tree, or BLAS brute force where that is faster).
 
     Contract (:class:`~mocapflow.framework.Index`): ``build(features)``;
@@ -87,21 +64,12 @@ class KDTreeIndex(Index):
     (m, k) ascending and row ids int64, padded with ``inf`` / ``-1``; ``save``/``load``.
     Ties are ordered by row id, so results are deterministic and equal a sorted brute force.
 
-    Extensions (keyword-only):
-
-    * ``build(features, *, groups=None, frames=None)``: per-row group (clip id) and frame,
-      used by ``exclude``; default: one group, frames ``0..n-1``.
-    * ``query(..., eps=0.0)``: ε-approximate search (the k-th distance returned is at most
-      ``(1 + eps)`` times the true one; kd-tree only; the brute force is always exact).
-    * ``query(..., radius=r)``: fixed-radius search capped at ``k`` neighbours (the paper's
-      "fixed radius k-nearest-neighbour search"): only neighbours with ``dist <= r``.
-    * ``query(..., exclude=N, query_groups=g, query_frames=f)``: skip candidates of the
-      query's own group within ``±N`` frames (self-similarity; ``exclude=0`` skips the
-      query frame itself).
-    * ``query_rows(rows, k, ...)``: query with indexed rows themselves, their groups and
-      frames taken from the index (the usual self-similarity call).
-    * ``workers``: threads for batched queries (default all cores). Time single interactive
-      queries with ``workers=1``: waking a second core costs a few ms after an idle spell.
+    Extensions (keyword-only, :attr:`query_options`, :attr:`build_options`): ``build(...,
+    groups=, frames=)`` clip id and frame per row (for ``exclude``); ``query(..., eps=)``
+    ε-approximate (kd-tree only); ``radius=r`` fixed-radius capped at ``k``; ``exclude=N,
+    query_groups=, query_frames=`` skip the query's own clip within ±N frames;
+    ``workers`` threads for batches (1 for interactive queries); ``query_rows(rows, k, ...)``
+    queries with indexed rows themselves.
 
     Attributes
     ----------
@@ -126,14 +94,23 @@ class KDTreeIndex(Index):
 
     class Params(Params):
         method: Literal["auto", "kdtree", "brute"] = Field(
-            "auto", description=(
+            "auto",
+            description=(
                 "search method; auto counts the kd-tree's unavoidable work on sampled rows at build time and keeps "
-                "it unless that reaches a quarter of the rows (deterministic; both methods exact)"))
+                "it unless that reaches a quarter of the rows (deterministic; both methods exact)"
+            ),
+        )
         workers: int = Field(0, ge=0, description="threads for batched queries, 0 = all cores")
 
     # --- building ---------------------------------------------------------------------
-    def build(self, features: np.ndarray, *, groups: np.ndarray | None = None,
-              frames: np.ndarray | None = None, tree: TreeSettings | None = None) -> KDTreeIndex:
+    def build(
+        self,
+        features: np.ndarray,
+        *,
+        groups: np.ndarray | None = None,
+        frames: np.ndarray | None = None,
+        tree: TreeSettings | None = None,
+    ) -> KDTreeIndex:
         """Index ``features`` (n, d); float32 is stored as is (tree order), others converted once.
 
         Parameters
@@ -144,7 +121,7 @@ class KDTreeIndex(Index):
         tree : TreeSettings, optional
             Bucket size and probe (default :data:`TREE`).
         """
-        from . import _knn_kernels as kern
+        from . import _tree_kernels as tk
 
         cfg = tree or TREE
         x = np.asarray(features)
@@ -153,7 +130,9 @@ class KDTreeIndex(Index):
         if x.dtype != np.float32:
             x = x.astype(np.float32)
         if not np.isfinite(x).all():
-            raise DataError(f"{self.key()}: features contain NaN or inf (rows {np.flatnonzero(~np.isfinite(x).all(1))[:5].tolist()}...)")
+            raise DataError(
+                f"{self.key()}: features contain NaN or inf (rows {np.flatnonzero(~np.isfinite(x).all(1))[:5].tolist()}...)"
+            )
         n = x.shape[0]
         # int32 like the clip_id/frame columns: 8 bytes per row beside the 4 d of the features
         g = np.zeros(n, np.int32) if groups is None else np.asarray(groups).astype(np.int32)
@@ -161,9 +140,17 @@ class KDTreeIndex(Index):
         if g.shape != (n,) or f.shape != (n,):
             raise DataError(f"{self.key()}: groups/frames must have shape ({n},)")
         x = np.ascontiguousarray(x)
-        perm, start, end, left, right, sdim, sval = kern.build_tree(x, cfg.leafsize) if n else (
-            np.zeros(0, np.int64), *(np.zeros(1, np.int64),) * 2, *(np.full(1, -1, np.int64),) * 2,
-            np.zeros(1, np.int32), np.zeros(1, np.float32))
+        perm, start, end, left, right, sdim, sval = (
+            tk.build_tree(x, cfg.leafsize)
+            if n
+            else (
+                np.zeros(0, np.int64),
+                *(np.zeros(1, np.int64),) * 2,
+                *(np.full(1, -1, np.int64),) * 2,
+                np.zeros(1, np.int32),
+                np.zeros(1, np.float32),
+            )
+        )
         self._inv = self._depth = self._raw_bound = self._boxes = self._targs = None
         self.data_ = x[perm]
         self.perm_, self.groups_, self.frames_ = perm, g[perm], f[perm]
@@ -171,92 +158,26 @@ class KDTreeIndex(Index):
         self.mean_ = self.data_.mean(0, dtype=np.float64).astype(np.float32) if n else np.zeros(x.shape[1], np.float32)
         self.sqnorms_ = np.empty(n, np.float32)
         for a in range(0, n, 65536):  # in blocks: no transient centred copy of the features
-            c = self.data_[a:a + 65536] - self.mean_
-            self.sqnorms_[a:a + 65536] = np.einsum("ij,ij->i", c, c)
+            c = self.data_[a : a + 65536] - self.mean_
+            self.sqnorms_[a : a + 65536] = np.einsum("ij,ij->i", c, c)
         self.probe_ = {}
         self.method_, self.brute_from_k_, self.large_method_ = self.params.method, None, "brute"
         if self.method_ == "auto":
             self.method_ = self._probe(cfg) if n >= max(cfg.min_probe_rows, 1) else "kdtree"
         return self
 
-    def _probe(self, cfg: TreeSettings) -> str:
-        """Choose the method by counting work on a sample of the indexed rows (deterministic).
-
-        For each probed ``k``: the exact k-th neighbour distance of ``cfg.probe_queries`` sampled
-        rows, then the nodes and bucket points of the tree within that distance
-        (:func:`._knn_kernels.tree_work`: the work no exact tree search can skip); their
-        mean share of the ``n`` rows a brute force scans is ``probe_["tree_share@k"]``. The
-        kd-tree answers where that share is below :data:`BRUTE_FROM_SHARE`. The counts
-        depend on the data only, never on the machine's load (the timing probe this
-        replaces chose a kd-tree on a quiet machine and brute force on a busy one). If the
-        tree wins at small ``k`` but not at a larger one, ``brute_from_k_`` records from which
-        ``k`` on the brute force answers (the geometric mean of the two probed values).
-        """
-        from . import _knn_kernels as kern
-
-        n = self.data_.shape[0]
-        rng = np.random.default_rng(0)
-        q = self.data_[np.sort(rng.choice(n, size=min(cfg.probe_queries, n), replace=False))]
-        tree, _ = self._tree_args()
-        _, _, start, end, left, right, _, _, blo, bhi = tree[:10]
-        winners = []
-        for k in sorted({min(k, n) for k in cfg.probe_k}):
-            d2, _ = self._search(q, k, None, 0.0, None, None, None, 0, "brute")  # exact, batched
-            points, nodes = kern.tree_work(q.astype(np.float64), d2[:, -1] * (1.0 + 1e-9), start, end, left, right,
-                                           blo, bhi, self._max_depth())
-            share = float(points.mean() + nodes.mean()) / n
-            self.probe_[f"tree_share@{k}"] = round(share, 6)
-            winners.append((k, "kdtree" if share < BRUTE_FROM_SHARE else "brute"))
-        first = winners[0][1]
-        prev = winners[0][0]
-        for k, w in winners[1:]:
-            if w != first:
-                self.brute_from_k_, self.large_method_ = int(round(np.sqrt(prev * k))), w
-                break
-            prev = k
-        return first
-
-    def method_for(self, k: int, m: int = 1) -> str:
-        """The method that answers ``m`` queries for ``k`` neighbours (``"kdtree"`` or ``"brute"``).
-
-        Single queries follow the build-time choice (``method_``, ``brute_from_k_``); batches
-        of at least :data:`BATCH_QUERIES` of an ``auto`` index also switch to the brute force
-        from :meth:`batch_brute_from_k` on (the same probe counts, the batched cost model;
-        not for radius queries, whose tree work the unbounded probe overstates).
-        """
-        if self.brute_from_k_ is not None and k >= self.brute_from_k_:
-            method = getattr(self, "large_method_", "brute")
-        else:
-            method = self.method_
-        if method == "kdtree" and m >= BATCH_QUERIES:
-            bk = self.batch_brute_from_k()
-            if bk is not None and k >= bk:
-                return "brute"
-        return method
-
-    def batch_brute_from_k(self) -> int | None:
-        """From which ``k`` on a batch is answered by brute force (``None``: never).
-
-        Derived from the probe's counts (``probe_``, saved with the index) and the dimension:
-        deterministic, and indexes saved before this rule get it too. A ``k`` between two
-        probed values switches at their geometric mean, as :meth:`_probe` does.
-        """
-        probe = getattr(self, "probe_", None) or {}
-        shares = sorted((int(key.split("@")[1]), v) for key, v in probe.items() if key.startswith("tree_share@"))
-        if self.params.method != "auto" or not shares:
-            return None
-        d = self.data_.shape[1]
-        prev = None
-        for k, share in shares:
-            if share * d >= BATCH_BRUTE_FROM_WORK:
-                return k if prev is None else int(round(np.sqrt(prev * k)))
-            prev = k
-        return None
-
-    # --- querying ---------------------------------------------------------------------
-    def query(self, x: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
-              exclude: int | None = None, query_groups: np.ndarray | None = None,
-              query_frames: np.ndarray | None = None, workers: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def query(
+        self,
+        x: np.ndarray,
+        k: int,
+        radius: float | None = None,
+        *,
+        eps: float = 0.0,
+        exclude: int | None = None,
+        query_groups: np.ndarray | None = None,
+        query_frames: np.ndarray | None = None,
+        workers: int | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` nearest indexed rows of each query (see the class docstring).
 
         Parameters
@@ -290,21 +211,42 @@ class KDTreeIndex(Index):
             query_groups = np.broadcast_to(np.asarray(query_groups, np.int64), (len(q),))
             query_frames = np.broadcast_to(np.asarray(query_frames, np.int64), (len(q),))
         w = self.params.workers if workers is None else workers
-        d2, ids = self._search(np.ascontiguousarray(q), int(k), radius, float(eps), exclude,
-                               query_groups, query_frames, w,
-                               "kdtree" if eps > 0 else self.method_for(int(k), len(q) if radius is None else 1))
+        d2, ids = self._search(
+            np.ascontiguousarray(q),
+            int(k),
+            radius,
+            float(eps),
+            exclude,
+            query_groups,
+            query_frames,
+            w,
+            "kdtree" if eps > 0 else self.method_for(int(k), len(q) if radius is None else 1),
+        )
         return np.sqrt(d2).astype(np.float32), ids
 
     def _interactive(self, x, k, radius, eps, exclude) -> tuple[np.ndarray, np.ndarray] | None:
         """The common interactive call (one float32 query row, plain exact kNN on the kd-tree
         path) with no per-call numpy work: a 16-NN query in 8-d takes ~20 microseconds, so
         the checks and conversions of the general path would add a third. None: not that call."""
-        if (radius is not None or eps != 0.0 or exclude is not None or type(x) is not np.ndarray
-                or x.dtype != np.float32 or type(k) is not int or k < 1):
+        if (
+            radius is not None
+            or eps != 0.0
+            or exclude is not None
+            or type(x) is not np.ndarray
+            or x.dtype != np.float32
+            or type(k) is not int
+            or k < 1
+        ):
             return None
         targs = getattr(self, "_targs", None)
-        if targs is None or x.ndim != 2 or x.shape[0] != 1 or x.shape[1] != self.data_.shape[1] \
-                or not x.flags.c_contiguous or self.method_for(k) != "kdtree":
+        if (
+            targs is None
+            or x.ndim != 2
+            or x.shape[0] != 1
+            or x.shape[1] != self.data_.shape[1]
+            or not x.flags.c_contiguous
+            or self.method_for(k) != "kdtree"
+        ):
             return None
         from . import _knn_kernels as kern
 
@@ -312,15 +254,31 @@ class KDTreeIndex(Index):
         d2, ids = kern.query_tree(x, k, 0.0, np.inf, *tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
         return np.sqrt(d2).astype(np.float32), ids
 
-    def query_rows(self, rows: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
-                   exclude: int | None = None, workers: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def query_rows(
+        self,
+        rows: np.ndarray,
+        k: int,
+        radius: float | None = None,
+        *,
+        eps: float = 0.0,
+        exclude: int | None = None,
+        workers: int | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Query with indexed rows (input row ids), excluding their own clip within ±``exclude`` frames."""
         self._check_built()
         rows = np.asarray(rows, np.int64)
         inv = self._inverse_perm()
         t = inv[rows]
-        return self.query(self.data_[t], k, radius, eps=eps, exclude=exclude, query_groups=self.groups_[t],
-                          query_frames=self.frames_[t], workers=workers)
+        return self.query(
+            self.data_[t],
+            k,
+            radius,
+            eps=eps,
+            exclude=exclude,
+            query_groups=self.groups_[t],
+            query_frames=self.frames_[t],
+            workers=workers,
+        )
 
     def _inverse_perm(self) -> np.ndarray:
         inv = getattr(self, "_inv", None)
@@ -353,17 +311,41 @@ class KDTreeIndex(Index):
             if method == "brute":
                 from ._brute import brute_knn
 
-                return brute_knn(q, self.data_, self.mean_, self.sqnorms_, k, r2, self.groups_, self.frames_,
-                                 qg, qf, excl, ids=self.perm_, raw_bound=self._raw_bound,
-                                 parallel=m >= 4 and kern.threads() > 1, sqnorm_max=self._sqnorm_max)
+                return brute_knn(
+                    q,
+                    self.data_,
+                    self.mean_,
+                    self.sqnorms_,
+                    k,
+                    r2,
+                    self.groups_,
+                    self.frames_,
+                    qg,
+                    qf,
+                    excl,
+                    ids=self.perm_,
+                    raw_bound=self._raw_bound,
+                    parallel=m >= 4 and kern.threads() > 1,
+                    sqnorm_max=self._sqnorm_max,
+                )
             # consecutive queries seed each other's bound (see the module doc): contiguous chunks,
             # one per thread, keep most queries seeded
             chunks = 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads())
             seeded = eps == 0.0 and m > 1
             tree, no_seed = self._tree_args()
-            return kern.query_tree(q, k, eps, r2, *tree, qg, qf, excl, self._depth,
-                                   min(chunks, kern.threads()) if seeded else chunks,
-                                   self._inverse_perm() if seeded else no_seed)
+            return kern.query_tree(
+                q,
+                k,
+                eps,
+                r2,
+                *tree,
+                qg,
+                qf,
+                excl,
+                self._depth,
+                min(chunks, kern.threads()) if seeded else chunks,
+                self._inverse_perm() if seeded else no_seed,
+            )
         finally:
             if prev is not None:
                 kern.set_threads(prev)
@@ -374,9 +356,22 @@ class KDTreeIndex(Index):
         args = getattr(self, "_targs", None)
         if args is None:
             self._max_depth()
-            args = self._targs = ((self.data_, self.perm_, self.start_, self.end_, self.left_, self.right_,
-                                   self.sdim_, self.sval_, *self._node_boxes(), self.groups_, self.frames_),
-                                  self.perm_[:0])
+            args = self._targs = (
+                (
+                    self.data_,
+                    self.perm_,
+                    self.start_,
+                    self.end_,
+                    self.left_,
+                    self.right_,
+                    self.sdim_,
+                    self.sval_,
+                    *self._node_boxes(),
+                    self.groups_,
+                    self.frames_,
+                ),
+                self.perm_[:0],
+            )
         return args
 
     def _node_boxes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -386,17 +381,17 @@ class KDTreeIndex(Index):
         pass on first use (30 ms and 10 MB at 380k rows, d = 15), so the on-disk format is
         unchanged and indexes saved before boxes existed load as they are.
         """
-        from . import _knn_kernels as kern
+        from . import _tree_kernels as tk
 
         if getattr(self, "_boxes", None) is None:
-            self._boxes = kern.node_boxes(self.data_, self.start_, self.end_, self.left_, self.right_)
+            self._boxes = tk.node_boxes(self.data_, self.start_, self.end_, self.left_, self.right_)
         return self._boxes
 
     def _max_depth(self) -> int:
-        from . import _knn_kernels as kern
+        from . import _tree_kernels as tk
 
         if getattr(self, "_depth", None) is None:
-            self._depth = int(kern.tree_depth(self.left_, self.right_))
+            self._depth = int(tk.tree_depth(self.left_, self.right_))
         return self._depth
 
     def _check_built(self) -> None:
@@ -416,9 +411,14 @@ class KDTreeIndex(Index):
         inv = self._inverse_perm()
         for name, arr in (("rows_features", self.data_), ("rows_clip_id", self.groups_), ("rows_frame", self.frames_)):
             np.save(d / f"{name}.npy", arr[inv])
-        meta = {"component": self.key(), "params": self.get_params(), "method": self.method_,
-                "brute_from_k": self.brute_from_k_, "large_method": getattr(self, "large_method_", "brute"),
-                "probe": self.probe_}
+        meta = {
+            "component": self.key(),
+            "params": self.get_params(),
+            "method": self.method_,
+            "brute_from_k": self.brute_from_k_,
+            "large_method": getattr(self, "large_method_", "brute"),
+            "probe": self.probe_,
+        }
         (d / "index.json").write_text(json.dumps(meta, indent=1))
 
     def rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -434,7 +434,9 @@ class KDTreeIndex(Index):
         if d is None or not all((d / f"rows_{n}.npy").is_file() for n in ("features", "clip_id", "frame")):
             return None
         # copy-on-write like the tree arrays: writable ndarrays (the kernels' one signature), never written
-        return tuple(np.load(d / f"rows_{n}.npy", mmap_mode="c").view(np.ndarray) for n in ("features", "clip_id", "frame"))
+        return tuple(
+            np.load(d / f"rows_{n}.npy", mmap_mode="c").view(np.ndarray) for n in ("features", "clip_id", "frame")
+        )
 
     @classmethod
     def load(cls, directory: Path) -> KDTreeIndex:
@@ -461,9 +463,21 @@ class KDTreeIndex(Index):
         feats = inputs["features"].features()
         self.build(feats.x, groups=feats.clip_id, frames=feats.frame)
         self.save(ctx.out_dir / "index")
-        summary = {"method": self.method_, "brute_from_k": self.brute_from_k_, "large_method": self.large_method_,
-                   "rows": int(feats.x.shape[0]),
-                   "dim": int(feats.x.shape[1]), **self.probe_}
-        ctx.log.info("%s: %d x %d, method %s (%s from k=%s) %s", self.key(), *feats.x.shape, self.method_,
-                     self.large_method_, self.brute_from_k_, self.probe_)
+        summary = {
+            "method": self.method_,
+            "brute_from_k": self.brute_from_k_,
+            "large_method": self.large_method_,
+            "rows": int(feats.x.shape[0]),
+            "dim": int(feats.x.shape[1]),
+            **self.probe_,
+        }
+        ctx.log.info(
+            "%s: %d x %d, method %s (%s from k=%s) %s",
+            self.key(),
+            *feats.x.shape,
+            self.method_,
+            self.large_method_,
+            self.brute_from_k_,
+            self.probe_,
+        )
         return StepOutput({"data": frame_id_table(feats.clip_id, feats.frame)}, summary=summary)

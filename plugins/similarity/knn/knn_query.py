@@ -6,6 +6,7 @@ clip name (needs the ``motions`` input) or a clip id, and ``<frame>`` a frame of
 the dataset's rate. Output ``data``: query_id, query_clip_id, query_frame, rank (0 = nearest),
 clip_id, frame, distance (feature units).
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -32,7 +33,8 @@ class NearestPoses(Analysis):
         queries: list[str] = Field(min_length=1, description='query frames "<clip name or id>:<frame>"')
         k: int = Field(16, ge=1, description="neighbours per query")
         exclude_frames: int | None = Field(
-            None, ge=0, description="skip neighbours of the query's own clip within this many frames (0 = itself)")
+            None, ge=0, description="skip neighbours of the query's own clip within this many frames (0 = itself)"
+        )
 
     def _rows(self, clip_id: np.ndarray, frame: np.ndarray, names: dict[str, int]) -> np.ndarray:
         rows = []
@@ -45,7 +47,9 @@ class NearestPoses(Analysis):
             elif clip.isdigit():
                 cid = int(clip)
             else:
-                raise ConfigError(f"{self.key()}: unknown clip {clip!r} in query {q!r} (give a motions input for names)")
+                raise ConfigError(
+                    f"{self.key()}: unknown clip {clip!r} in query {q!r} (give a motions input for names)"
+                )
             hit = np.flatnonzero((clip_id == cid) & (frame == int(f)))
             if not hit.size:
                 raise ConfigError(f"{self.key()}: frame {f} of clip {clip!r} is not in the index")
@@ -60,7 +64,7 @@ class NearestPoses(Analysis):
         names: dict[str, int] = {}
         if "motions" in inputs:
             clips = inputs["motions"].table("clips", columns=["clip_id", "name"])
-            names = {n: int(c) for c, n in zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist())}
+            names = {n: int(c) for c, n in zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist(), strict=True)}
             names.update({n.rsplit(".", 1)[0]: c for n, c in list(names.items())})
         rows = self._rows(clip_id, frame, names)
         if not hasattr(index, "query_rows"):
@@ -69,14 +73,18 @@ class NearestPoses(Analysis):
         qid, rank = np.meshgrid(np.arange(len(rows)), np.arange(self.params.k), indexing="ij")
         ok = ids.ravel() >= 0
         nb = ids.ravel()[ok]
-        table = pa.table({
-            "query_id": pa.array(qid.ravel()[ok].astype(np.int32)),
-            "query_clip_id": pa.array(clip_id[rows][qid.ravel()[ok]].astype(np.int32)),
-            "query_frame": pa.array(frame[rows][qid.ravel()[ok]].astype(np.int32)),
-            "rank": pa.array(rank.ravel()[ok].astype(np.int32)),
-            "clip_id": pa.array(clip_id[nb].astype(np.int32)),
-            "frame": pa.array(frame[nb].astype(np.int32)),
-            "distance": pa.array(dist.ravel()[ok].astype(np.float64)),
-        })
-        return StepOutput({"data": table}, summary={"queries": len(rows), "k": self.params.k,
-                                                    "method": getattr(index, "method_", None)})
+        table = pa.table(
+            {
+                "query_id": pa.array(qid.ravel()[ok].astype(np.int32)),
+                "query_clip_id": pa.array(clip_id[rows][qid.ravel()[ok]].astype(np.int32)),
+                "query_frame": pa.array(frame[rows][qid.ravel()[ok]].astype(np.int32)),
+                "rank": pa.array(rank.ravel()[ok].astype(np.int32)),
+                "clip_id": pa.array(clip_id[nb].astype(np.int32)),
+                "frame": pa.array(frame[nb].astype(np.int32)),
+                "distance": pa.array(dist.ravel()[ok].astype(np.float64)),
+            }
+        )
+        return StepOutput(
+            {"data": table},
+            summary={"queries": len(rows), "k": self.params.k, "method": getattr(index, "method_", None)},
+        )

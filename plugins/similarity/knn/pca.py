@@ -9,6 +9,7 @@ later step reuses it by naming this features step as its ``reference``::
     pca16:    {uses: features.pca, inputs: {motions: hdm05, reference: hdm05}, with: {n_components: 16}}
     pca16cmu: {uses: features.pca, inputs: {motions: cmu, reference: pca16}}
 """
+
 from __future__ import annotations
 
 import json
@@ -27,9 +28,24 @@ from .end_effectors import body_frame_positions
 #: Canonical joints whose body-frame positions are compressed (present in CMU, HDM05 and
 #: the common BVH skeletons; the root is the origin and carries no information).
 PCA_JOINTS: tuple[str, ...] = (
-    "lhip", "lknee", "lankle", "ltoes", "rhip", "rknee", "rankle", "rtoes",
-    "lowerback", "chest", "neck", "head",
-    "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist",
+    "lhip",
+    "lknee",
+    "lankle",
+    "ltoes",
+    "rhip",
+    "rknee",
+    "rankle",
+    "rtoes",
+    "lowerback",
+    "chest",
+    "neck",
+    "head",
+    "lshoulder",
+    "lelbow",
+    "lwrist",
+    "rshoulder",
+    "relbow",
+    "rwrist",
 )
 
 MODEL_FILE = "pca_model.npz"
@@ -51,7 +67,9 @@ class PosePCA(FeatureSet):
 
     class Params(Params):
         n_components: int = Field(16, ge=1, description="principal components kept (paper: 8, 16, 25)")
-        joints: tuple[str, ...] = Field(PCA_JOINTS, min_length=1, description="canonical joints whose positions are compressed")
+        joints: tuple[str, ...] = Field(
+            PCA_JOINTS, min_length=1, description="canonical joints whose positions are compressed"
+        )
 
     @property
     def dim(self) -> int:
@@ -94,9 +112,14 @@ class PosePCA(FeatureSet):
     def save_state(self, directory: Path) -> None:
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        np.savez(d / MODEL_FILE, mean=self.mean_, components=self.components_,
-                 explained_variance_ratio=self.explained_variance_ratio_,
-                 joints=np.array(json.dumps(list(self.params.joints))), n_fit_frames=self.n_fit_frames_)
+        np.savez(
+            d / MODEL_FILE,
+            mean=self.mean_,
+            components=self.components_,
+            explained_variance_ratio=self.explained_variance_ratio_,
+            joints=np.array(json.dumps(list(self.params.joints))),
+            n_fit_frames=self.n_fit_frames_,
+        )
 
     def load_state(self, directory: Path) -> PosePCA:
         p = Path(directory) / MODEL_FILE
@@ -105,8 +128,10 @@ class PosePCA(FeatureSet):
         with np.load(p) as z:
             joints = tuple(json.loads(str(z["joints"])))
             if joints != tuple(self.params.joints) or z["components"].shape[0] < self.params.n_components:
-                raise DataError(f"{self.key()}: model in {p} was fitted for joints {joints} with "
-                                f"{z['components'].shape[0]} components; this step asks for {self.params.n_components}")
+                raise DataError(
+                    f"{self.key()}: model in {p} was fitted for joints {joints} with "
+                    f"{z['components'].shape[0]} components; this step asks for {self.params.n_components}"
+                )
             self.mean_ = z["mean"]
             self.components_ = z["components"][: self.params.n_components]
             self.explained_variance_ratio_ = z["explained_variance_ratio"][: self.params.n_components]

@@ -28,6 +28,7 @@ every shard; ``query_rows`` takes global row ids. With an executor of several wo
 Each shard is loaded once per process (:func:`~mocapflow.framework.clip_refs.cached`),
 never once per task.
 """
+
 from __future__ import annotations
 
 import json
@@ -136,12 +137,16 @@ class ShardedIndex(Index):
 
     class Params(Params):
         shards: int = Field(2, ge=1, description="number of shards (clip ranges of about equal rows)")
-        max_rows: int | None = Field(None, ge=1, description="at most this many rows per shard (memory budget): more shards if needed")
+        max_rows: int | None = Field(
+            None, ge=1, description="at most this many rows per shard (memory budget): more shards if needed"
+        )
         index: str = Field("kdtree", description="the index each shard is (registry name in `indexes`)")
         index_params: dict[str, Any] = Field(default_factory=dict, description="parameters of the shard index")
         fan_out: Literal["queries", "shards"] = Field(
-            "queries", description="with an executor of several workers: split a batch of queries between workers "
-            "(each worker asks every shard, loaded once per process) or send each shard all the queries")
+            "queries",
+            description="with an executor of several workers: split a batch of queries between workers "
+            "(each worker asks every shard, loaded once per process) or send each shard all the queries",
+        )
 
     # --- building ---------------------------------------------------------------------
     def _shard_class(self, registries=None) -> type:
@@ -154,8 +159,14 @@ class ShardedIndex(Index):
             raise ConfigError(f"{self.key()}: a shard cannot itself be sharded")
         return registries.resolve(key)
 
-    def build(self, features: np.ndarray, *, groups: np.ndarray | None = None, frames: np.ndarray | None = None,
-              registries=None) -> ShardedIndex:
+    def build(
+        self,
+        features: np.ndarray,
+        *,
+        groups: np.ndarray | None = None,
+        frames: np.ndarray | None = None,
+        registries=None,
+    ) -> ShardedIndex:
         """Index ``features`` (n, d) in shards; ``groups`` (clip ids) decide where shards may be cut."""
         x = np.asarray(features)
         if x.ndim != 2:
@@ -164,8 +175,13 @@ class ShardedIndex(Index):
         g = np.zeros(n, np.int32) if groups is None else np.asarray(groups)
         f = np.arange(n, dtype=np.int32) if frames is None else np.asarray(frames)
         cls = self._shard_class(registries)
-        self.offsets_ = shard_bounds(g if groups is not None else np.arange(n), self.params.shards, self.params.max_rows)
-        self.shards_ = [self._build_one(cls, x[a:b], g[a:b], f[a:b]) for a, b in zip(self.offsets_[:-1], self.offsets_[1:])]
+        self.offsets_ = shard_bounds(
+            g if groups is not None else np.arange(n), self.params.shards, self.params.max_rows
+        )
+        self.shards_ = [
+            self._build_one(cls, x[a:b], g[a:b], f[a:b])
+            for a, b in zip(self.offsets_[:-1], self.offsets_[1:], strict=True)
+        ]
         self._finish(cls, x.shape[1])
         return self
 
@@ -193,9 +209,18 @@ class ShardedIndex(Index):
         if not hasattr(self, "shards_"):
             raise DataError(f"{self.key()}: index not built (call build() or load())")
 
-    def query(self, x: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
-              exclude: int | None = None, query_groups: np.ndarray | None = None,
-              query_frames: np.ndarray | None = None, executor=None) -> tuple[np.ndarray, np.ndarray]:
+    def query(
+        self,
+        x: np.ndarray,
+        k: int,
+        radius: float | None = None,
+        *,
+        eps: float = 0.0,
+        exclude: int | None = None,
+        query_groups: np.ndarray | None = None,
+        query_frames: np.ndarray | None = None,
+        executor=None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` nearest rows over all shards (see :meth:`.KDTreeIndex.query`).
 
         Returns
@@ -217,48 +242,65 @@ class ShardedIndex(Index):
         if exclude is not None:
             if query_groups is None or query_frames is None:
                 raise ConfigError(f"{self.key()}: exclude=N needs query_groups and query_frames")
-            kw.update(exclude=int(exclude), query_groups=np.broadcast_to(np.asarray(query_groups, np.int64), (len(q),)),
-                      query_frames=np.broadcast_to(np.asarray(query_frames, np.int64), (len(q),)))
+            kw.update(
+                exclude=int(exclude),
+                query_groups=np.broadcast_to(np.asarray(query_groups, np.int64), (len(q),)),
+                query_frames=np.broadcast_to(np.asarray(query_frames, np.int64), (len(q),)),
+            )
         ex = executor if executor is not None else self._executor
         workers = int(getattr(ex, "workers", 1)) if ex is not None else 1
         if workers > 1 and self.directory_ is not None and self.params.fan_out == "queries" and len(q) > 1:
             return self._query_blocks(ex, workers, q, int(k), radius, kw)
         if workers > 1 and self.directory_ is not None and len(self.shards_) > 1:
-            tasks = [_ShardQuery(str(self.directory_ / f"shard-{s:03d}"), self.shard_key_, self._stamp, int(k), radius, kw)
-                     for s in range(len(self.shards_))]
+            tasks = [
+                _ShardQuery(str(self.directory_ / f"shard-{s:03d}"), self.shard_key_, self._stamp, int(k), radius, kw)
+                for s in range(len(self.shards_))
+            ]
             answers = ex.map(_Apply(q), tasks, desc=f"{self.key()}: shards")
         else:
             answers = [s.query(q, int(k), radius, **kw) for s in self.shards_]
         return self._merge(q, int(k), answers)
 
-    def _query_blocks(self, ex, workers: int, q: np.ndarray, k: int, radius: float | None,
-                      kw: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    def _query_blocks(
+        self, ex, workers: int, q: np.ndarray, k: int, radius: float | None, kw: dict[str, Any]
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``fan_out: queries``: contiguous blocks of the queries (2 per worker, so that a
         slow block does not finish alone), each answered by every shard and merged on the
         worker that holds the whole sharded index (loaded once per process)."""
         n_blocks = min(len(q), 2 * workers)
         cuts = np.linspace(0, len(q), n_blocks + 1).astype(np.int64)
         blocks = []
-        for a, b in zip(cuts[:-1], cuts[1:]):
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
             part = {key: (v[a:b] if isinstance(v, np.ndarray) else v) for key, v in kw.items()}
             blocks.append(_BlockQuery(str(self.directory_), self._stamp, k, radius, q[a:b], part))
         answers = ex.map(_answer_block, blocks, desc=f"{self.key()}: query blocks")
         return np.concatenate([d for d, _ in answers]), np.concatenate([i for _, i in answers])
 
-    def _merge(self, q: np.ndarray, k: int, answers: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    def _merge(
+        self, q: np.ndarray, k: int, answers: list[tuple[np.ndarray, np.ndarray]]
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` best of the shards' answers, by blocks of queries (bounded memory)."""
         width = sum(np.shape(i)[1] for _, i in answers)
         step = max(1, (1 << 22) // max(1, width * self.dim_))
-        parts = [self._merge_block(q[a:a + step], k, [(d[a:a + step], i[a:a + step]) for d, i in answers])
-                 for a in range(0, len(q), step)]
+        parts = [
+            self._merge_block(q[a : a + step], k, [(d[a : a + step], i[a : a + step]) for d, i in answers])
+            for a in range(0, len(q), step)
+        ]
         if not parts:
             return np.full((0, k), np.inf, np.float32), np.full((0, k), -1, np.int64)
         return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
-    def _merge_block(self, q: np.ndarray, k: int, answers: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    def _merge_block(
+        self, q: np.ndarray, k: int, answers: list[tuple[np.ndarray, np.ndarray]]
+    ) -> tuple[np.ndarray, np.ndarray]:
         dist = np.concatenate([np.asarray(d, np.float32) for d, _ in answers], axis=1)
-        ids = np.concatenate([np.where(np.asarray(i) >= 0, np.asarray(i, np.int64) + off, -1)
-                              for (_, i), off in zip(answers, self.offsets_[:-1])], axis=1)
+        ids = np.concatenate(
+            [
+                np.where(np.asarray(i) >= 0, np.asarray(i, np.int64) + off, -1)
+                for (_, i), off in zip(answers, self.offsets_[:-1], strict=True)
+            ],
+            axis=1,
+        )
         valid = ids >= 0
         key = np.where(valid, dist.astype(np.float64), np.inf)
         rows = self._rows(np.maximum(ids, 0))
@@ -300,8 +342,9 @@ class ShardedIndex(Index):
             self._inv[j] = inv
         return inv
 
-    def query_rows(self, rows: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0,
-                   exclude: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def query_rows(
+        self, rows: np.ndarray, k: int, radius: float | None = None, *, eps: float = 0.0, exclude: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Query with indexed rows (global ids), excluding their own clip within ±``exclude`` frames."""
         self._check_built()
         rows = np.asarray(rows, np.int64)
@@ -328,8 +371,14 @@ class ShardedIndex(Index):
         self._write_meta(d)
 
     def _write_meta(self, d: Path) -> None:
-        meta = {"component": self.key(), "params": self.get_params(), "shard_index": self.shard_key_,
-                "offsets": self.offsets_.tolist(), "dim": self.dim_, "method": self.method_}
+        meta = {
+            "component": self.key(),
+            "params": self.get_params(),
+            "shard_index": self.shard_key_,
+            "offsets": self.offsets_.tolist(),
+            "dim": self.dim_,
+            "method": self.method_,
+        }
         (d / _META).write_text(json.dumps(meta, indent=1))
 
     @classmethod
@@ -351,8 +400,8 @@ class ShardedIndex(Index):
 
     # --- pipeline step ----------------------------------------------------------------
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        from mocapflow.framework.datasets import StepOutput, frame_id_table
         from mocapflow.framework.clip_refs import DatasetRef
+        from mocapflow.framework.datasets import StepOutput, frame_id_table
 
         clip_id, frame = inputs["features"].frame_ids()
         cls = self._shard_class(ctx.registries)
@@ -360,14 +409,24 @@ class ShardedIndex(Index):
         out = ctx.out_dir / "index"
         ref = DatasetRef.of(inputs["features"])
         # each shard is built and saved by a worker, which reads only its rows of the features
-        tasks = [_ShardBuild(ref, int(a), int(b), cls.key(), self.params.index_params, str(out / f"shard-{s:03d}"))
-                 for s, (a, b) in enumerate(zip(self.offsets_[:-1], self.offsets_[1:]))]
-        built = ctx.executor.map(_build_task, tasks, desc=f"{ctx.step_id}: shards") if len(tasks) > 1 else [_build_task(t) for t in tasks]
+        tasks = [
+            _ShardBuild(ref, int(a), int(b), cls.key(), self.params.index_params, str(out / f"shard-{s:03d}"))
+            for s, (a, b) in enumerate(zip(self.offsets_[:-1], self.offsets_[1:], strict=True))
+        ]
+        built = (
+            ctx.executor.map(_build_task, tasks, desc=f"{ctx.step_id}: shards")
+            if len(tasks) > 1
+            else [_build_task(t) for t in tasks]
+        )
         self.shards_ = [_load_shard(cls, Path(t.directory)) for t in tasks]
         self._finish(cls, int(built[0]["dim"]) if built else 0)
         self._write_meta(out)
-        summary = {"shards": len(tasks), "rows": int(len(clip_id)), "method": self.method_,
-                   "shard_rows": [b["rows"] for b in built]}
+        summary = {
+            "shards": len(tasks),
+            "rows": int(len(clip_id)),
+            "method": self.method_,
+            "shard_rows": [b["rows"] for b in built],
+        }
         return StepOutput({"data": frame_id_table(clip_id, frame)}, summary=summary)
 
 
@@ -397,8 +456,11 @@ def _build_task(t: _ShardBuild) -> dict[str, Any]:
     x = fixed_list_to_numpy(table["features"])
     cls = load_registries().resolve(t.index_key)
     shard = cls(t.index_params)
-    kw = {"groups": table["clip_id"].to_numpy(), "frames": table["frame"].to_numpy()} \
-        if "groups" in shard.build_options else {}
+    kw = (
+        {"groups": table["clip_id"].to_numpy(), "frames": table["frame"].to_numpy()}
+        if "groups" in shard.build_options
+        else {}
+    )
     shard.build(x, **kw)
     shard.save(Path(t.directory))
     return {"rows": int(len(x)), "dim": int(x.shape[1])}

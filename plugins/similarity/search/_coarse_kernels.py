@@ -15,6 +15,7 @@ blocks only, :func:`._dtw_kernels.sdtw_ranges_compact` (the columns of
 :func:`._dtw_kernels.sdtw_forward`). References written from the definitions (full
 matrices, brute-force boxes): ``tests/naive/coarse.py``; proof in ``docs/global-matching.md``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -205,9 +206,27 @@ def _subspace_costs(qp, cen, basis, alo, ahi, rad, b, sh, out, rr, aa, mu, kappa
     k = 0
     while k + 5 <= d:
         c0, c1, c2, c3, c4 = cen[b, k], cen[b, k + 1], cen[b, k + 2], cen[b, k + 3], cen[b, k + 4]
-        u00, u01, u02, u03, u04 = basis[b, 0, k], basis[b, 0, k + 1], basis[b, 0, k + 2], basis[b, 0, k + 3], basis[b, 0, k + 4]
-        u10, u11, u12, u13, u14 = basis[b, 1, k], basis[b, 1, k + 1], basis[b, 1, k + 2], basis[b, 1, k + 3], basis[b, 1, k + 4]
-        u20, u21, u22, u23, u24 = basis[b, 2, k], basis[b, 2, k + 1], basis[b, 2, k + 2], basis[b, 2, k + 3], basis[b, 2, k + 4]
+        u00, u01, u02, u03, u04 = (
+            basis[b, 0, k],
+            basis[b, 0, k + 1],
+            basis[b, 0, k + 2],
+            basis[b, 0, k + 3],
+            basis[b, 0, k + 4],
+        )
+        u10, u11, u12, u13, u14 = (
+            basis[b, 1, k],
+            basis[b, 1, k + 1],
+            basis[b, 1, k + 2],
+            basis[b, 1, k + 3],
+            basis[b, 1, k + 4],
+        )
+        u20, u21, u22, u23, u24 = (
+            basis[b, 2, k],
+            basis[b, 2, k + 1],
+            basis[b, 2, k + 2],
+            basis[b, 2, k + 3],
+            basis[b, 2, k + 4],
+        )
         for i in range(mp):
             v0 = qp[k, i] - c0
             v1 = qp[k + 1, i] - c1
@@ -273,11 +292,11 @@ def _coarse(qt, lo, hi, cen, basis, alo, ahi, rad, link, branges, shrink, sub): 
     tg = np.empty(mp, np.float32)
     p = 3  # the subspace cells' basis: three directions (fewer: zero rows)
     aa = np.empty((p, mp), np.float32)  # the subspace costs' scratch: the frames' coordinates in the basis
-    u = 2.0 ** -24
+    u = 2.0**-24
     mu = np.float32(4.0 * (d + 2 * p + 4) * u)  # the subspace margins (subspace_bounds docstring)
     kappa = np.float32(1.0 - 2.0 * (d + 5 * p + 2) * u)
     inf32 = np.float32(np.inf)
-    sh = np.float32(shrink * (1.0 - 4.0 * m * 2.0 ** -24))  # float32 rounding margin (docstring)
+    sh = np.float32(shrink * (1.0 - 4.0 * m * 2.0**-24))  # float32 rounding margin (docstring)
     # the chains never cross a block that does not continue the one before: each range runs as
     # its linked stretches (clips, at most), in buffers sized for the longest, which stay in
     # cache (one buffer per range cost 2-3x the time at 380 k rows: page faults, cache misses)

@@ -14,11 +14,11 @@ order). Steps that advance the database (diagonal, vertical) are forbidden from 
 ``j-1`` to ``j`` when ``j`` starts a new clip (``clip_start[j]``), so no path crosses a
 clip boundary. Reference: ``tests/naive/dtw.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
-
 
 # reassociation lets the distance loops vectorise; no "nnan"/"ninf": the DP relies on inf
 _FAST = {"reassoc", "contract", "nsz", "arcp"}
@@ -32,8 +32,15 @@ def column_buffers(m):  # pragma: no cover - compiled
     ``cur_c, cur_s, cur_l`` (filled by the column) and ``col``: float64 / int64 / int64 (m,)
     each, ``col`` float32 (m,).
     """
-    return (np.full(m, np.inf), np.zeros(m, np.int64), np.zeros(m, np.int64),
-            np.empty(m), np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.float32))
+    return (
+        np.full(m, np.inf),
+        np.zeros(m, np.int64),
+        np.zeros(m, np.int64),
+        np.empty(m),
+        np.empty(m, np.int64),
+        np.empty(m, np.int64),
+        np.empty(m, np.float32),
+    )
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
@@ -135,8 +142,9 @@ def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
     length = np.empty(n, np.int64)
     prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col = column_buffers(m)
     for j in range(n):
-        cost[j], start[j], length[j] = sdtw_column(qt, x, j, clip_start[j], prev_c, prev_s, prev_l, cur_c, cur_s,
-                                                   cur_l, col)
+        cost[j], start[j], length[j] = sdtw_column(
+            qt, x, j, clip_start[j], prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col
+        )
         prev_c, cur_c = cur_c, prev_c
         prev_s, cur_s = cur_s, prev_s
         prev_l, cur_l = cur_l, prev_l
@@ -175,8 +183,9 @@ def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compil
         a = ranges[r, 0]
         for j in range(a, ranges[r, 1]):
             rows[o] = j
-            cost[o], start[o], length[o] = sdtw_column(qt, x, j, j == a or clip_start[j], prev_c, prev_s, prev_l,
-                                                       cur_c, cur_s, cur_l, col)
+            cost[o], start[o], length[o] = sdtw_column(
+                qt, x, j, j == a or clip_start[j], prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col
+            )
             o += 1
             prev_c, cur_c = cur_c, prev_c
             prev_s, cur_s = cur_s, prev_s
@@ -254,4 +263,3 @@ def dtw_window_path(q, w):  # pragma: no cover - compiled
         else:
             i -= 1
     return out[:p][::-1].copy(), acc[m - 1, n - 1]
-

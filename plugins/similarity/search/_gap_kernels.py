@@ -15,6 +15,7 @@ the last one it left, ``gaps`` before the next), or start or end with ``gaps`` o
 layer, padded with -1 / inf), so the path search is unchanged.
 Reference: ``tests/naive/gaps.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -127,8 +128,9 @@ def _band(ids, count, gaps, continues, forward):  # pragma: no cover - compiled
         s0 = pos + need
         ns = 0
         if t > 0:
-            ns = _step_rows(rows[prev_start:], depth[prev_start:], prev_n, gaps, continues, forward,
-                            rows[s0:], depth[s0:])
+            ns = _step_rows(
+                rows[prev_start:], depth[prev_start:], prev_n, gaps, continues, forward, rows[s0:], depth[s0:]
+            )
         c = _merge(ids[i], zero, count[i], rows[s0:], depth[s0:], ns, rows[pos:], depth[pos:])
         starts[i] = pos
         sizes[i] = c
@@ -186,8 +188,16 @@ def gap_layers(query, ids, dist, count, x, continues, gaps):  # pragma: no cover
     scratch = np.empty(w, np.int32)
     gap_cells = 0
     for i in range(m):
-        c = _merge(fr[fo[i] : fo[i + 1]], fd[fo[i] : fo[i + 1]], fo[i + 1] - fo[i],
-                   br[bo[i] : bo[i + 1]], bd[bo[i] : bo[i + 1]], bo[i + 1] - bo[i], out_ids[i], scratch)
+        c = _merge(
+            fr[fo[i] : fo[i + 1]],
+            fd[fo[i] : fo[i + 1]],
+            fo[i + 1] - fo[i],
+            br[bo[i] : bo[i + 1]],
+            bd[bo[i] : bo[i + 1]],
+            bo[i + 1] - bo[i],
+            out_ids[i],
+            scratch,
+        )
         out_count[i] = c
         p = 0  # pointer into the neighbour rows (ascending, a subset of the layer)
         for a in range(c):

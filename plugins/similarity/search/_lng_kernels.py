@@ -15,6 +15,7 @@ O(k m) (the two-pointer merge of adjacent layers finds each node's predecessors)
 to diagonal, vertical, horizontal in that order, as in :mod:`._dtw_kernels`.
 Reference: ``tests/naive/dtw.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -74,17 +75,15 @@ def lng_forward(ids, dist, count, continues):  # pragma: no cover - compiled
                     bj = q
                 q += 1
             # vertical from (i, h-1): the previous node of this layer, if it is row h-1
-            if linked and a > 0 and ids[i, a - 1] == h - 1:
-                if cost[i, a - 1] < best:
-                    best = cost[i, a - 1]
-                    bi = i
-                    bj = a - 1
+            if linked and a > 0 and ids[i, a - 1] == h - 1 and cost[i, a - 1] < best:
+                best = cost[i, a - 1]
+                bi = i
+                bj = a - 1
             # horizontal from (i-1, h)
-            if q < cp and ids[i - 1, q] == h:
-                if cost[i - 1, q] < best:
-                    best = cost[i - 1, q]
-                    bi = i - 1
-                    bj = q
+            if q < cp and ids[i - 1, q] == h and cost[i - 1, q] < best:
+                best = cost[i - 1, q]
+                bi = i - 1
+                bj = q
             if bi >= 0:
                 cost[i, a] = best + dist[i, a]
                 start[i, a] = start[bi, bj]

@@ -9,11 +9,11 @@ basis (any orthonormal basis is admissible), so the principal directions come fr
 eigenvectors of the block's small Gram matrix (at most ``size x size``), not from a
 ``d x d`` covariance. Reference: ``naive_subspaces`` in ``tests/naive/coarse.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
-
 
 #: orthogonal iterations from the pivoted Gram-Schmidt basis towards the principal directions
 #: (measured: 4 come within a few per cent of the exact ones'

@@ -23,6 +23,7 @@ is one frozen :class:`CertifiedSettings` (speed only, never the result):
    ``max_cost`` (or unbounded: the whole DP, plain sDTW). Below ``direct_cells`` DP cells,
    and once ``full_from`` of the rows are alive, the whole DP runs at once.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -83,7 +84,9 @@ class CertifiedSettings:
     def bases(self) -> tuple[int, ...]:
         if self.subspace is not None:
             if len(self.subspace) != len(self.levels):
-                raise DataError(f"subspace needs one basis size per level ({len(self.levels)}), got {len(self.subspace)}")
+                raise DataError(
+                    f"subspace needs one basis size per level ({len(self.levels)}), got {len(self.subspace)}"
+                )
             return tuple(int(p) for p in self.subspace)
         return (0, 0, 3, 3) if tuple(self.levels) == (512, 64, 16, 4) else (0,) * len(self.levels)
 
@@ -154,12 +157,14 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: Certi
     ok = ids >= 0
     h, fi = ids[ok], fi[ok]
     sl = cfg.seed_slope
-    ranges = merged_ranges(np.maximum(h - (sl * fi).astype(np.int64) - 2, 0),
-                           np.minimum(h + (sl * (m - 1 - fi)).astype(np.int64) + 3, n))
+    ranges = merged_ranges(
+        np.maximum(h - (sl * fi).astype(np.int64) - 2, 0), np.minimum(h + (sl * (m - 1 - fi)).astype(np.int64) + 3, n)
+    )
     rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
     st.guess_columns += len(rows)
-    keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
-                          min_frames=min_frames)
+    keep = select_matches(
+        rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by, min_frames=min_frames
+    )
     return float(cost[keep[-1]]) if len(keep) == count else np.inf
 
 
@@ -189,8 +194,9 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
         br = block_ranges(mark[:nb])
         rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), bstart[br])
         st.guess_columns += len(rows)
-        keep = select_matches(rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
-                              min_frames=min_frames)
+        keep = select_matches(
+            rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by, min_frames=min_frames
+        )
         if len(keep) == count:
             return float(cost[keep[-1]])
         if take >= nb:
@@ -212,9 +218,18 @@ def _level_bounds(qt, space, level, branges, sub_from=np.inf) -> np.ndarray:
     return coarse_bounds(qt, lo, hi, link, branges, _SHRINK)
 
 
-def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
-                   rank_by: str = "cost", min_span: float = 0.5, settings: CertifiedSettings = DEFAULT_SETTINGS,
-                   graph=None, stats: ExactStats | None = None) -> QueryMatches:
+def certified_sdtw(
+    query: np.ndarray,
+    space: SearchSpace,
+    *,
+    count: int = 10,
+    max_cost: float | None = None,
+    rank_by: str = "cost",
+    min_span: float = 0.5,
+    settings: CertifiedSettings = DEFAULT_SETTINGS,
+    graph=None,
+    stats: ExactStats | None = None,
+) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
 
     Parameters
@@ -247,12 +262,17 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     qt = np.ascontiguousarray(q.T)
     n = space.n_rows
     direct = n * len(q) <= cfg.direct_cells
-    levels = [] if direct else [block_boxes_of(space, b) + (b, p) for b, p in zip(cfg.sizes(), cfg.bases())]
+    levels = (
+        [] if direct else [block_boxes_of(space, b) + (b, p) for b, p in zip(cfg.sizes(), cfg.bases(), strict=True)]
+    )
     lb_top = None
     tau = np.inf
     if rank_by == "cost" and not direct:
-        found = graph.matches(count=count, max_cost=max_cost, rank_by="cost", min_span=min_span) \
-            if graph is not None else None
+        found = (
+            graph.matches(count=count, max_cost=max_cost, rank_by="cost", min_span=min_span)
+            if graph is not None
+            else None
+        )
         if found is not None and len(found) == count:
             tau = float(found.cost[-1])
         elif space.index is not None and cfg.seed_frames > 0:
@@ -277,8 +297,16 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
         st.tau, st.passes = tau, st.passes + 1
         st.columns += len(rows)
         sel = np.flatnonzero(cost <= tau)
-        keep = select_matches(rows[sel], start[sel], cost[sel], length[sel], count=count, max_cost=max_cost,
-                              rank_by=rank_by, min_frames=min_frames)
+        keep = select_matches(
+            rows[sel],
+            start[sel],
+            cost[sel],
+            length[sel],
+            count=count,
+            max_cost=max_cost,
+            rank_by=rank_by,
+            min_frames=min_frames,
+        )
         if len(keep) == count or tau >= ceiling:
             break
         tries += 1
@@ -286,7 +314,7 @@ def certified_sdtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, ma
     keep = sel[keep]
     out_end = rows[keep]
     paths = []
-    for e, s in zip(out_end.tolist(), start[keep].tolist()):
+    for e, s in zip(out_end.tolist(), start[keep].tolist(), strict=True):
         path, _ = dtw_window_path(q, space.features[s : e + 1])
         path[:, 1] += s
         paths.append(path)
@@ -325,16 +353,28 @@ class CertifiedSearch(Matcher):
     needs_features: ClassVar[bool] = True
 
     class Params(MatchParams):
-        plots: int = Field(0, ge=0, description=(
-            "write a Fig. 3-style PNG (plots/q<query>_m<rank>.png: the query's kNN cells with the warping path) "
-            "for this many top matches of each of the first 16 queries"))
+        plots: int = Field(
+            0,
+            ge=0,
+            description=(
+                "write a Fig. 3-style PNG (plots/q<query>_m<rank>.png: the query's kNN cells with the warping path) "
+                "for this many top matches of each of the first 16 queries"
+            ),
+        )
 
     settings: ClassVar[CertifiedSettings] = DEFAULT_SETTINGS
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         p = self.params
-        return certified_sdtw(query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
-                              min_span=p.min_span, settings=self.settings)
+        return certified_sdtw(
+            query,
+            space,
+            count=p.count,
+            max_cost=p.max_cost,
+            rank_by=p.rank_by,
+            min_span=p.min_span,
+            settings=self.settings,
+        )
 
     def after_match(self, query_id, query, matches, space, ctx) -> None:
         from .plots import plot_matches

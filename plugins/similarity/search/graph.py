@@ -3,6 +3,7 @@ the query frames (kNN, optionally propagated between searched frames), gap cells
 shortest-path search over the graph. :mod:`.lng` ranks its paths into matches; the
 certified exact search (:mod:`.exact`) uses the graph's costs as a first threshold.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -42,24 +43,38 @@ class NeighborhoodGraph:
     def n_nodes(self) -> int:
         return int(self.count.sum())
 
-    def matches(self, *, count: int = 10, max_cost: float | None = None, rank_by: str = "cost",
-                min_span: float = 0.5) -> QueryMatches:
+    def matches(
+        self, *, count: int = 10, max_cost: float | None = None, rank_by: str = "cost", min_span: float = 0.5
+    ) -> QueryMatches:
         """Ranked non-overlapping matches ending in the last layer (see :func:`.select_matches`); ``end`` exclusive."""
         from ._lng_kernels import lng_backtrack
 
         last = self.ids.shape[0] - 1
         c = int(self.count[last])
         ends = self.ids[last, :c]
-        keep = select_matches(ends, self.start[last, :c], self.cost[last, :c], self.length[last, :c],
-                              count=count, max_cost=max_cost, rank_by=rank_by,
-                              min_frames=min_frames_of(min_span, self.ids.shape[0]))
+        keep = select_matches(
+            ends,
+            self.start[last, :c],
+            self.cost[last, :c],
+            self.length[last, :c],
+            count=count,
+            max_cost=max_cost,
+            rank_by=rank_by,
+            min_frames=min_frames_of(min_span, self.ids.shape[0]),
+        )
         paths = [lng_backtrack(self.ids, self.pred, last, int(a)) for a in keep]
-        return QueryMatches(self.start[last, keep], ends[keep] + 1, self.cost[last, keep],
-                            self.length[last, keep].astype(np.int64), paths)
+        return QueryMatches(
+            self.start[last, keep],
+            ends[keep] + 1,
+            self.cost[last, keep],
+            self.length[last, keep].astype(np.int64),
+            paths,
+        )
 
 
-def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None, propagate: int = 0,
-                  space: SearchSpace | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def neighbor_sets(
+    query: np.ndarray, index, k: int, radius: float | None, propagate: int = 0, space: SearchSpace | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``S(q_i)`` from the index, re-sorted by row id: ``(ids, dist, count)`` (see :class:`NeighborhoodGraph`).
 
     ``propagate = N > 0`` searches the index only for query frames ``0, N, 2N, ...`` and
@@ -86,8 +101,9 @@ def neighbor_sets(query: np.ndarray, index, k: int, radius: float | None, propag
     return ids, dist, count
 
 
-def propagated_sets(query: np.ndarray, index, k: int, radius: float | None, every: int,
-                    space: SearchSpace | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def propagated_sets(
+    query: np.ndarray, index, k: int, radius: float | None, every: int, space: SearchSpace | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Approximate neighbour sets by temporal propagation (our extension, not in the paper).
 
     Query frames ``0, every, 2 every, ...`` get the index's exact kNN; every
@@ -110,14 +126,22 @@ def propagated_sets(query: np.ndarray, index, k: int, radius: float | None, ever
     r2 = np.inf if radius is None else float(radius) ** 2
     exact = np.arange(0, m, every)
     ids[exact], dist[exact], count[exact] = neighbor_sets(query[exact], index, k, radius)
-    propagate_sets(np.ascontiguousarray(query, dtype=np.float32), ids, dist, count, every, space.features,
-                   space.continues, r2)
+    propagate_sets(
+        np.ascontiguousarray(query, dtype=np.float32), ids, dist, count, every, space.features, space.continues, r2
+    )
     return ids, dist, count
 
 
-def build_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
-                propagate: int = 0, gaps: int = 0,
-                sets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> NeighborhoodGraph:
+def build_graph(
+    query: np.ndarray,
+    space: SearchSpace,
+    *,
+    k: int = 256,
+    radius: float | None = None,
+    propagate: int = 0,
+    gaps: int = 0,
+    sets: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> NeighborhoodGraph:
     """kNN search, graph construction and path search for one query.
 
     Parameters

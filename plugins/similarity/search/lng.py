@@ -16,6 +16,7 @@ matches; ``paper: true`` is the paper's graph (neighbour cells only, every frame
 no fallback). For one more release ``matchers.lng`` without ``exact: false`` runs the
 certified search (``matchers.search``) and warns.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -33,14 +34,26 @@ from .graph import build_graph
 GAPS = 32
 #: the default graph searches the index on every this-many-th query frame
 PROPAGATE = 2
-DEPRECATED = ("matchers.lng runs the certified search for one more release; name matchers.search (same results) "
-              "or set exact: false for the lazy neighbourhood graph")
+DEPRECATED = (
+    "matchers.lng runs the certified search for one more release; name matchers.search (same results) "
+    "or set exact: false for the lazy neighbourhood graph"
+)
 
 
-def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 256, radius: float | None = None,
-                            count: int = 10, max_cost: float | None = None, rank_by: str = "cost",
-                            min_span: float = 0.5, propagate: int = PROPAGATE, gaps: int = GAPS,
-                            fill: bool = True) -> QueryMatches:
+def lazy_neighborhood_graph(
+    query: np.ndarray,
+    space: SearchSpace,
+    *,
+    k: int = 256,
+    radius: float | None = None,
+    count: int = 10,
+    max_cost: float | None = None,
+    rank_by: str = "cost",
+    min_span: float = 0.5,
+    propagate: int = PROPAGATE,
+    gaps: int = GAPS,
+    fill: bool = True,
+) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` in its graph (:func:`.graph.build_graph`).
 
     ``fill``: when the graph holds fewer than ``count`` matches, return the certified search's
@@ -52,8 +65,9 @@ def lazy_neighborhood_graph(query: np.ndarray, space: SearchSpace, *, k: int = 2
     if fill and len(res) < count and space.features is not None:
         from .exact import certified_sdtw
 
-        return certified_sdtw(query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span,
-                              graph=graph)
+        return certified_sdtw(
+            query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span, graph=graph
+        )
     return res
 
 
@@ -70,13 +84,21 @@ class LazyNeighborhoodGraph(Matcher):
 
     class Params(MatchParams):
         k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
-        paper: bool = Field(False, description=(
-            "the paper's graph: neighbour cells only, the index searched for every query frame, no fallback; "
-            f"false: gap-tolerant ({GAPS} query frames), propagated sets (every {PROPAGATE}nd frame searched), "
-            "the certified search when the graph holds fewer than count matches"))
-        exact: bool | None = Field(None, description=(
-            "deprecated, one release: unset or true runs matchers.search (the certified search) with a warning; "
-            "false: the lazy neighbourhood graph"))
+        paper: bool = Field(
+            False,
+            description=(
+                "the paper's graph: neighbour cells only, the index searched for every query frame, no fallback; "
+                f"false: gap-tolerant ({GAPS} query frames), propagated sets (every {PROPAGATE}nd frame searched), "
+                "the certified search when the graph holds fewer than count matches"
+            ),
+        )
+        exact: bool | None = Field(
+            None,
+            description=(
+                "deprecated, one release: unset or true runs matchers.search (the certified search) with a warning; "
+                "false: the lazy neighbourhood graph"
+            ),
+        )
 
     def __init__(self, params=None, **kw) -> None:
         super().__init__(params, **kw)
@@ -88,13 +110,25 @@ class LazyNeighborhoodGraph(Matcher):
         if p.exact is not False:
             from .exact import certified_sdtw
 
-            return certified_sdtw(query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
-                                  min_span=p.min_span)
+            return certified_sdtw(
+                query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span
+            )
         if p.paper:
-            return lazy_neighborhood_graph(query, space, k=p.k, count=p.count, max_cost=p.max_cost,
-                                           rank_by=p.rank_by, min_span=p.min_span, propagate=0, gaps=0, fill=False)
-        return lazy_neighborhood_graph(query, space, k=p.k, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
-                                       min_span=p.min_span)
+            return lazy_neighborhood_graph(
+                query,
+                space,
+                k=p.k,
+                count=p.count,
+                max_cost=p.max_cost,
+                rank_by=p.rank_by,
+                min_span=p.min_span,
+                propagate=0,
+                gaps=0,
+                fill=False,
+            )
+        return lazy_neighborhood_graph(
+            query, space, k=p.k, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span
+        )
 
     def check_plan(self, base_dir) -> list[str]:
         """The alias's warning at the step's line of the plan (and in the run log)."""

@@ -9,6 +9,7 @@ already found (including the query's own segment when it comes from the database
 dropped. The search stops after ``rounds`` rounds, when a round finds no new segment
 (only matches within ``max_cost`` of their query count), or at ``max_matches`` segments.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -19,8 +20,8 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework.datasets import StepOutput
 from mocapflow.framework import Matcher
+from mocapflow.framework.datasets import StepOutput
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import IntervalSet, MatchParams, QueryMatches, SearchSpace, matches_table
 from mocapflow.framework.queries import queries_table, upstream
@@ -41,10 +42,21 @@ class LogicalMatches(QueryMatches):
     source: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
 
 
-def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, max_matches: int = 100,
-                   exclude: tuple[int, int] | None = None, k: int = 256, count: int = 10,
-                   max_cost: float | None = None, rank_by: str = "cost", min_span: float = 0.5,
-                   propagate: int = PROPAGATE, gaps: int = GAPS) -> LogicalMatches:
+def logical_search(
+    query: np.ndarray,
+    space: SearchSpace,
+    *,
+    rounds: int = 3,
+    max_matches: int = 100,
+    exclude: tuple[int, int] | None = None,
+    k: int = 256,
+    count: int = 10,
+    max_cost: float | None = None,
+    rank_by: str = "cost",
+    min_span: float = 0.5,
+    propagate: int = PROPAGATE,
+    gaps: int = GAPS,
+) -> LogicalMatches:
     """Iterated LNG search.
 
     Parameters
@@ -72,24 +84,45 @@ def logical_search(query: np.ndarray, space: SearchSpace, *, rounds: int = 3, ma
     for r in range(1, rounds + 1):
         new: list[tuple[np.ndarray, int]] = []
         for qx, src in frontier:
-            res = lazy_neighborhood_graph(qx, space, k=k, count=count, max_cost=max_cost, rank_by=rank_by,
-                                          min_span=min_span, propagate=propagate, gaps=gaps, fill=False)
+            res = lazy_neighborhood_graph(
+                qx,
+                space,
+                k=k,
+                count=count,
+                max_cost=max_cost,
+                rank_by=rank_by,
+                min_span=min_span,
+                propagate=propagate,
+                gaps=gaps,
+                fill=False,
+            )
             for i in range(len(res)):
                 s, e = int(res.start[i]), int(res.end[i])  # half-open
                 if len(rows["start"]) >= max_matches or not found.add(s, e - 1):
                     continue
                 pos = len(rows["start"])
-                for key, val in (("start", s), ("end", e), ("cost", float(res.cost[i])), ("length", int(res.length[i])),
-                                 ("paths", res.paths[i]), ("round", r), ("source", src)):
+                for key, val in (
+                    ("start", s),
+                    ("end", e),
+                    ("cost", float(res.cost[i])),
+                    ("length", int(res.length[i])),
+                    ("paths", res.paths[i]),
+                    ("round", r),
+                    ("source", src),
+                ):
                     rows[key].append(val)
                 new.append((space.features[s:e], pos))
         if not new or len(rows["start"]) >= max_matches:
             break
         frontier = new
     return LogicalMatches(
-        np.asarray(rows["start"], np.int64), np.asarray(rows["end"], np.int64), np.asarray(rows["cost"], np.float64),
-        np.asarray(rows["length"], np.int64), rows["paths"],
-        np.asarray(rows["round"], np.int32), np.asarray(rows["source"], np.int32),
+        np.asarray(rows["start"], np.int64),
+        np.asarray(rows["end"], np.int64),
+        np.asarray(rows["cost"], np.float64),
+        np.asarray(rows["length"], np.int64),
+        rows["paths"],
+        np.asarray(rows["round"], np.int32),
+        np.asarray(rows["source"], np.int32),
     )
 
 
@@ -110,14 +143,28 @@ class LogicalSearch(Matcher):
         rounds: int = Field(3, ge=1, description="maximum search rounds (1: numerical search only)")
         max_matches: int = Field(100, ge=1, description="stop once this many distinct segments were found")
         count: int = Field(10, ge=1, description="matches kept per query and round")
-        max_cost: float | None = Field(None, ge=0, description="matches above this ranking cost are not found (stopping rule)")
-        rank_by: Literal["cost", "normalized"] = Field("normalized", description=(
-            "rank by accumulated cost or by cost per path cell (comparable across query lengths)"))
+        max_cost: float | None = Field(
+            None, ge=0, description="matches above this ranking cost are not found (stopping rule)"
+        )
+        rank_by: Literal["cost", "normalized"] = Field(
+            "normalized",
+            description=("rank by accumulated cost or by cost per path cell (comparable across query lengths)"),
+        )
 
     def search(self, query: np.ndarray, space: SearchSpace, exclude: tuple[int, int] | None = None) -> LogicalMatches:
         p = self.params
-        return logical_search(query, space, rounds=p.rounds, max_matches=p.max_matches, exclude=exclude, k=p.k,
-                              count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span)
+        return logical_search(
+            query,
+            space,
+            rounds=p.rounds,
+            max_matches=p.max_matches,
+            exclude=exclude,
+            k=p.k,
+            count=p.count,
+            max_cost=p.max_cost,
+            rank_by=p.rank_by,
+            min_span=p.min_span,
+        )
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         return self.search(query, space)
@@ -128,22 +175,32 @@ class LogicalSearch(Matcher):
         fds = self.features_dataset(inputs)
         qpath = inputs["query"].path.resolve()
         # query clip ids are database clip ids only when the query input is the database's own
-        same = fds is not None and (fds.path.resolve() == qpath or
-                                    getattr(upstream(fds, "motions"), "path", Path("/nonexistent")).resolve() == qpath)
+        same = fds is not None and (
+            fds.path.resolve() == qpath
+            or getattr(upstream(fds, "motions"), "path", Path("/nonexistent")).resolve() == qpath
+        )
         results = []
         for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id):
             results.append(self.search(q.features, space, self._own_rows(q, space) if same else None))
         table = matches_table(list(range(len(queries))), results, space)
         rank_of = [np.r_[0, np.arange(1, len(r) + 1)] for r in results]  # source -1 -> rank 0
-        table = table.append_column("round", pa.array(np.concatenate([r.round for r in results]) if results else np.zeros(0, np.int32)))
-        src = [ro[r.source + 1] for ro, r in zip(rank_of, results)]
-        table = table.append_column("source_rank", pa.array(np.concatenate(src).astype(np.int32) if src else np.zeros(0, np.int32)))
-        return StepOutput({"data": table, "queries": queries_table(queries)},
-                          {"queries": len(queries), "matches": int(sum(len(r) for r in results))})
+        table = table.append_column(
+            "round", pa.array(np.concatenate([r.round for r in results]) if results else np.zeros(0, np.int32))
+        )
+        src = [ro[r.source + 1] for ro, r in zip(rank_of, results, strict=True)]
+        table = table.append_column(
+            "source_rank", pa.array(np.concatenate(src).astype(np.int32) if src else np.zeros(0, np.int32))
+        )
+        return StepOutput(
+            {"data": table, "queries": queries_table(queries)},
+            {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
+        )
 
     def _own_rows(self, q, space: SearchSpace) -> tuple[int, int] | None:
         """Rows of the query's own segment when the query input is the database's motions (never reported)."""
         if q.clip_id < 0:
             return None
-        hit = np.flatnonzero((space.clip_id == q.clip_id) & (space.frame >= q.start_frame) & (space.frame < q.end_frame))
+        hit = np.flatnonzero(
+            (space.clip_id == q.clip_id) & (space.frame >= q.start_frame) & (space.frame < q.end_frame)
+        )
         return (int(hit[0]), int(hit[-1]) + 1) if hit.size else None

@@ -3,6 +3,7 @@ space (:func:`block_boxes_of`, :func:`block_subspaces_of`). The matchers' step i
 space, queries, match table) is the core's default
 :meth:`~mocapflow.framework.components.Matcher.run`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -29,6 +30,7 @@ def block_subspaces_of(space: SearchSpace, size: int, p: int) -> tuple[np.ndarra
     """The local subspace cells ``(cen, basis, alo, ahi, rad)`` of the blocks of
     :func:`block_boxes_of` ``(space, size)`` with a basis of ``p`` directions, cached on the
     space (:func:`._subspace_kernels.block_subspaces`)."""
+
     def compute():
         from ._subspace_kernels import block_subspaces
 

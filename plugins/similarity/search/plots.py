@@ -7,6 +7,7 @@ paths of the matches in that stretch are drawn in red, the plotted match thick a
 the others thin and dashed, each labelled with its rank; a legend names every mark and
 the database clip is named, not numbered. Needs matplotlib, imported lazily.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,7 +16,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mocapflow.framework.errors import ConfigError
-
 from mocapflow.framework.matching import QueryMatches, SearchSpace
 
 if TYPE_CHECKING:  # annotations only: lng.py imports this module (lazily)
@@ -33,8 +33,16 @@ def local_distance_window(graph: NeighborhoodGraph, lo: int, hi: int) -> np.ndar
     return img
 
 
-def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: SearchSpace, path: str | Path, *,
-                      match: int = 0, pad: int | None = None, title: str = "") -> Path:
+def plot_neighborhood(
+    graph: NeighborhoodGraph,
+    matches: QueryMatches,
+    space: SearchSpace,
+    path: str | Path,
+    *,
+    match: int = 0,
+    pad: int | None = None,
+    title: str = "",
+) -> Path:
     """Write a PNG of the kNN cells around match ``match`` with the warping paths.
 
     Parameters
@@ -55,6 +63,7 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
 
     plt = pyplot("LNG plots")
     from matplotlib.patches import Patch
+
     if not 0 <= match < len(matches):
         raise ConfigError(f"match {match} out of range: the query has {len(matches)} matches")
     m = graph.ids.shape[0]
@@ -70,21 +79,45 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
     finite = img[np.isfinite(img)]
     vmax = float(finite.max()) if finite.size else 1.0
     f0 = int(space.frame[lo]) - lo  # row -> frame within the clip (rows of one clip are contiguous)
-    im = ax.imshow(np.ma.masked_invalid(img.T), origin="lower", cmap="gray", vmin=0.0, vmax=vmax or 1.0, aspect="auto",
-                   interpolation="nearest", extent=(-0.5, m - 0.5, lo + f0 - 0.5, hi + f0 - 0.5))
-    handles = [Patch(facecolor=never, edgecolor="none",
-                     label=f"not among the k = {graph.ids.shape[1]} nearest neighbours of the query frame (never computed)")]
+    im = ax.imshow(
+        np.ma.masked_invalid(img.T),
+        origin="lower",
+        cmap="gray",
+        vmin=0.0,
+        vmax=vmax or 1.0,
+        aspect="auto",
+        interpolation="nearest",
+        extent=(-0.5, m - 0.5, lo + f0 - 0.5, hi + f0 - 0.5),
+    )
+    handles = [
+        Patch(
+            facecolor=never,
+            edgecolor="none",
+            label=f"not among the k = {graph.ids.shape[1]} nearest neighbours of the query frame (never computed)",
+        )
+    ]
     for r, p in enumerate(matches.paths):
         if lo <= p[:, 1].min() and p[:, 1].max() < hi:
             mine = r == match
-            (line,) = ax.plot(p[:, 0], p[:, 1] + f0, color="red" if mine else "#ff8c69", lw=2.5 if mine else 1.2,
-                              ls="-" if mine else "--", label=f"{'this' if mine else 'another'} match: rank {r + 1}, "
-                                                             f"cost {matches.cost[r]:.3g}")
+            (line,) = ax.plot(
+                p[:, 0],
+                p[:, 1] + f0,
+                color="red" if mine else "#ff8c69",
+                lw=2.5 if mine else 1.2,
+                ls="-" if mine else "--",
+                label=f"{'this' if mine else 'another'} match: rank {r + 1}, cost {matches.cost[r]:.3g}",
+            )
             handles.append(line)
             if not mine:
                 mid = p[len(p) // 2]
-                ax.annotate(f"#{r + 1}", (mid[0], mid[1] + f0), color="#ff8c69", fontsize=8, xytext=(-14, 4),
-                            textcoords="offset points")
+                ax.annotate(
+                    f"#{r + 1}",
+                    (mid[0], mid[1] + f0),
+                    color="#ff8c69",
+                    fontsize=8,
+                    xytext=(-14, 4),
+                    textcoords="offset points",
+                )
     ax.set_ylim(lo + f0 - 0.5, hi + f0 - 0.5)
     names = getattr(space, "clip_names", None) or {}
     clip_label = names.get(int(clip), f"clip id {int(clip)}")
@@ -92,8 +125,10 @@ def plot_neighborhood(graph: NeighborhoodGraph, matches: QueryMatches, space: Se
     ax.set_ylabel(f"frame of database clip {clip_label}")
     ax.set_title(title or f"match {match + 1}: cost {matches.cost[match]:.3g}", fontsize=9)
     cb = fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02)
-    cb.set_label("local distance of a graph cell, darker = more similar\n(feature units: metres for end-effector features)",
-                 fontsize=8)
+    cb.set_label(
+        "local distance of a graph cell, darker = more similar\n(feature units: metres for end-effector features)",
+        fontsize=8,
+    )
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.09), fontsize=7, frameon=False)
     fig.tight_layout()
     out = Path(path)
@@ -117,5 +152,11 @@ def plot_matches(n: int, query_id: int, query, matches: QueryMatches, space: Sea
 
     graph = build_graph(query.features, space, **{"k": 256, "propagate": 2, "gaps": 32, **graph_kw})
     for r in range(min(n, len(matches))):
-        plot_neighborhood(graph, matches, space, ctx.out_dir / "plots" / f"q{query_id}_m{r + 1}.png",
-                          match=r, title=f"{query.name} - match {r + 1}, cost {matches.cost[r]:.3g}")
+        plot_neighborhood(
+            graph,
+            matches,
+            space,
+            ctx.out_dir / "plots" / f"q{query_id}_m{r + 1}.png",
+            match=r,
+            title=f"{query.name} - match {r + 1}, cost {matches.cost[r]:.3g}",
+        )

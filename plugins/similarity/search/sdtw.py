@@ -7,15 +7,16 @@ frame among the neighbours the two return identical matches. O(nm) time, O(n + m
 memory: the forward pass keeps one DP column; the warping path of each kept match is
 recomputed on its own window only.
 """
+
 from __future__ import annotations
 
 from typing import ClassVar
 
 import numpy as np
+
 from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
-
 
 
 def validate_query(query: np.ndarray, dim: int) -> np.ndarray:
@@ -54,8 +55,15 @@ def sdtw_costs(query: np.ndarray, space: SearchSpace) -> tuple[np.ndarray, np.nd
     return sdtw_forward(np.ascontiguousarray(q.T), space.features, ~space.continues)
 
 
-def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, max_cost: float | None = None,
-                    rank_by: str = "cost", min_span: float = 0.5) -> QueryMatches:
+def subsequence_dtw(
+    query: np.ndarray,
+    space: SearchSpace,
+    *,
+    count: int = 10,
+    max_cost: float | None = None,
+    rank_by: str = "cost",
+    min_span: float = 0.5,
+) -> QueryMatches:
     """Ranked non-overlapping matches of ``query`` by exact subsequence DTW.
 
     Parameters
@@ -72,8 +80,16 @@ def subsequence_dtw(query: np.ndarray, space: SearchSpace, *, count: int = 10, m
     cost, start, length = sdtw_costs(query, space)
     q = validate_query(query, space.features.shape[1])
     ends = np.arange(len(cost), dtype=np.int64)
-    keep = select_matches(ends, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by,
-                          min_frames=min_frames_of(min_span, len(q)))
+    keep = select_matches(
+        ends,
+        start,
+        cost,
+        length,
+        count=count,
+        max_cost=max_cost,
+        rank_by=rank_by,
+        min_frames=min_frames_of(min_span, len(q)),
+    )
     paths = []
     for e in keep:
         s = int(start[e])
@@ -98,5 +114,4 @@ class SubsequenceDTW(Matcher):
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         p = self.params
-        return subsequence_dtw(query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
-                               min_span=p.min_span)
+        return subsequence_dtw(query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span)

@@ -12,6 +12,7 @@ Two ways to answer, same output (docs/knn.md, "mocapflow search start-up"):
   answers (``--no-server``: never), importing nothing numerical itself
   (:mod:`.search_server`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,30 +42,61 @@ class SearchCommand:
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--db", required=True, metavar="WORKSPACE", help="workspace of a run with an index step")
-        parser.add_argument("--query", metavar="FILE[:START-END]",
-                            help="motion file or database clip; frames (end exclusive) or seconds ('1s-3s')")
+        parser.add_argument(
+            "--query",
+            metavar="FILE[:START-END]",
+            help="motion file or database clip; frames (end exclusive) or seconds ('1s-3s')",
+        )
         parser.add_argument("--index", metavar="STEP", help="index step to use when the workspace has several")
-        parser.add_argument("--matcher", default="search",
-                            help="matchers.<name>: search (default: certified, exactly sdtw's matches), lng (the lazy "
-                                 "neighbourhood graph), sdtw, logical")
+        parser.add_argument(
+            "--matcher",
+            default="search",
+            help="matchers.<name>: search (default: certified, exactly sdtw's matches), lng (the lazy "
+            "neighbourhood graph), sdtw, logical",
+        )
         parser.add_argument("--count", type=int, default=10, help="matches to show (default 10)")
-        parser.add_argument("--min-span", type=float, default=None, metavar="F",
-                            help="drop matches spanning fewer database frames than F x the query (default 0.5; 0: all)")
-        parser.add_argument("--rank-by", choices=("cost", "normalized"), default=None,
-                            help="rank by accumulated cost (default) or cost per path cell")
-        parser.add_argument("--paper", action="store_true", default=None,
-                            help="lng: the paper's graph (neighbour cells only, every frame searched, no fallback)")
+        parser.add_argument(
+            "--min-span",
+            type=float,
+            default=None,
+            metavar="F",
+            help="drop matches spanning fewer database frames than F x the query (default 0.5; 0: all)",
+        )
+        parser.add_argument(
+            "--rank-by",
+            choices=("cost", "normalized"),
+            default=None,
+            help="rank by accumulated cost (default) or cost per path cell",
+        )
+        parser.add_argument(
+            "--paper",
+            action="store_true",
+            default=None,
+            help="lng: the paper's graph (neighbour cells only, every frame searched, no fallback)",
+        )
         parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
         parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
         parser.add_argument("--out", metavar="FILE", help="also write the matches as .csv or .parquet")
-        parser.add_argument("--serve", action="store_true",
-                            help="keep the workspace loaded and answer searches on WORKSPACE/.search.sock until "
-                                 "interrupted (or --idle-timeout); later `mocapflow search --db WORKSPACE` calls use it")
-        parser.add_argument("--idle-timeout", type=float, default=None, metavar="SECONDS",
-                            help="--serve: stop after this long without a request (default: never)")
-        parser.add_argument("--server", action=argparse.BooleanOptionalAction, default=True,
-                            help="ask the workspace's search server when one answers (default); --no-server: "
-                                 "always search in this process")
+        parser.add_argument(
+            "--serve",
+            action="store_true",
+            help="keep the workspace loaded and answer searches on WORKSPACE/.search.sock until "
+            "interrupted (or --idle-timeout); later `mocapflow search --db WORKSPACE` calls use it",
+        )
+        parser.add_argument(
+            "--idle-timeout",
+            type=float,
+            default=None,
+            metavar="SECONDS",
+            help="--serve: stop after this long without a request (default: never)",
+        )
+        parser.add_argument(
+            "--server",
+            action=argparse.BooleanOptionalAction,
+            default=True,
+            help="ask the workspace's search server when one answers (default); --no-server: "
+            "always search in this process",
+        )
 
     @classmethod
     def run(cls, args: argparse.Namespace) -> int:
@@ -82,8 +114,12 @@ class SearchCommand:
             rc = ask(args)
             if rc is not None:
                 return rc
-        session = SearchSession(args.db, args.index, entry_points=not getattr(args, "no_entry_points", False),
-                                blocked=list(getattr(args, "block", None) or []))
+        session = SearchSession(
+            args.db,
+            args.index,
+            entry_points=not getattr(args, "no_entry_points", False),
+            blocked=list(getattr(args, "block", None) or []),
+        )
         return session.answer(args, Path.cwd(), sys.stdout, sys.stderr)
 
 
@@ -103,8 +139,14 @@ class SearchSession:
         Plugin selection, as the global ``--no-entry-points`` / ``--block``.
     """
 
-    def __init__(self, db: str | Path, index_step: str | None = None, *, entry_points: bool = True,
-                 blocked: list[str] | tuple[str, ...] = ()) -> None:
+    def __init__(
+        self,
+        db: str | Path,
+        index_step: str | None = None,
+        *,
+        entry_points: bool = True,
+        blocked: list[str] | tuple[str, ...] = (),
+    ) -> None:
         from mocapflow.framework import load_registries
         from mocapflow.framework.datasets import read_datasets
         from mocapflow.framework.errors import ConfigError
@@ -116,8 +158,14 @@ class SearchSession:
         self.regs = regs = load_registries(kinds=KINDS, entry_points=entry_points, blocked=list(blocked))
         datasets = read_datasets(self.db)
         # only numeric kNN indexes can serve a similarity search (not inverted lists)
-        indexes = {k: d for k, d in datasets.items() if d.producer_kind == "indexes"
-                   and d.producer in regs.keys() and getattr(regs.resolve(d.producer), "supports_knn", True)}
+        known = set(regs.keys())
+        indexes = {
+            k: d
+            for k, d in datasets.items()
+            if d.producer_kind == "indexes"
+            and d.producer in known
+            and getattr(regs.resolve(d.producer), "supports_knn", True)
+        }
         if index_step:
             if index_step not in indexes:
                 raise ConfigError(f"{db}: no index step {index_step!r} (index steps: {', '.join(indexes) or 'none'})")
@@ -125,14 +173,16 @@ class SearchSession:
         elif len(indexes) == 1:
             idx = next(iter(indexes.values()))
         else:
-            raise ConfigError(f"{db}: {'no index step' if not indexes else 'several index steps ' + ', '.join(indexes)}; run a pipeline with one or pick --index")
+            raise ConfigError(
+                f"{db}: {'no index step' if not indexes else 'several index steps ' + ', '.join(indexes)}; run a pipeline with one or pick --index"
+            )
         fds = upstream(idx, "features")
         mds = upstream(fds, "motions") if fds is not None else None
         if fds is None or mds is None:
             raise ConfigError(f"{db}: cannot trace index {idx.step!r} back to its features and motions")
         self.idx, self.fds, self.mds = idx, fds, mds
         clips = mds.table("clips", columns=["clip_id", "name", "fps"])
-        self.names = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist()))
+        self.names = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist(), strict=True))
         self.fps = float(clips["fps"][0].as_py()) if clips.num_rows else None
         self._stamp = self.stamp()
         self._index = self._rows = self._feature_set = self._mdb = None
@@ -170,8 +220,9 @@ class SearchSession:
             index = self.index()
             if self._rows is not None:
                 x, clip_id, frame = self._rows
-                self._spaces[key] = SearchSpace(clip_id, frame, index if key[0] else None, x if key[1] else None,
-                                                clip_names=self.names)
+                self._spaces[key] = SearchSpace(
+                    clip_id, frame, index if key[0] else None, x if key[1] else None, clip_names=self.names
+                )
             else:
                 self._spaces[key] = matcher.search_space({"database": self.idx, "features": self.fds}, self.regs)
         return self._spaces[key]
@@ -190,8 +241,12 @@ class SearchSession:
         matcher_cls = self.regs.resolve(f"matchers.{args.matcher}")
         fields = matcher_cls.Params.model_fields
         params = {"count": args.count, **({"exact": False} if "exact" in fields else {})}
-        for key, val in (("k", args.k), ("min_span", args.min_span), ("rank_by", args.rank_by),
-                         ("paper", getattr(args, "paper", None))):
+        for key, val in (
+            ("k", args.k),
+            ("min_span", args.min_span),
+            ("rank_by", args.rank_by),
+            ("paper", getattr(args, "paper", None)),
+        ):
             if val is not None:
                 if key not in fields:
                     raise ConfigError(f"matchers.{args.matcher} has no parameter {key!r}")
@@ -228,19 +283,30 @@ class SearchSession:
         table = matches_table([0], [res], space)
         names = self.names
         rate = f" at {self.fps:g} fps" if self.fps else ""
-        print(f"query {query.name} ({len(query.features)} frames), {matcher.key()} on {self.idx.step!r} "
-              f"({space.n_rows} frames{rate}): {len(res)} matches", file=out)
+        print(
+            f"query {query.name} ({len(query.features)} frames), {matcher.key()} on {self.idx.step!r} "
+            f"({space.n_rows} frames{rate}): {len(res)} matches",
+            file=out,
+        )
         fps = self.fps  # database frames (the index's rate), shown in seconds too
-        print(f"{'rank':>4}  {'clip':<32} {'start':>6} {'end':>6} {'cost':>10} {'per cell':>9}"
-              + (f" {'start s':>8} {'end s':>8}" if fps else ""), file=out)
+        print(
+            f"{'rank':>4}  {'clip':<32} {'start':>6} {'end':>6} {'cost':>10} {'per cell':>9}"
+            + (f" {'start s':>8} {'end s':>8}" if fps else ""),
+            file=out,
+        )
         for row in table.select(["rank", "clip_id", "start_frame", "end_frame", "cost", "cost_normalized"]).to_pylist():
             secs = f" {row['start_frame'] / fps:>8.2f} {row['end_frame'] / fps:>8.2f}" if fps else ""
-            print(f"{row['rank']:>4}  {names.get(row['clip_id'], row['clip_id'])!s:<32.32} {row['start_frame']:>6} "
-                  f"{row['end_frame']:>6} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}{secs}", file=out)
+            print(
+                f"{row['rank']:>4}  {names.get(row['clip_id'], row['clip_id'])!s:<32.32} {row['start_frame']:>6} "
+                f"{row['end_frame']:>6} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}{secs}",
+                file=out,
+            )
         if args.out:
             import pyarrow as pa
 
-            table = table.append_column("clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string()))
+            table = table.append_column(
+                "clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string())
+            )
             write_atomic(table, Path(cwd) / Path(args.out).expanduser())
         if args.plot:
             if args.matcher not in ("search", "lng") or not len(res):
@@ -249,8 +315,13 @@ class SearchSession:
             from .plots import plot_neighborhood
 
             paper = bool(getattr(matcher.params, "paper", False))
-            graph = build_graph(query.features, space, k=getattr(matcher.params, "k", 256),
-                                propagate=0 if paper else 2, gaps=0 if paper else 32)
+            graph = build_graph(
+                query.features,
+                space,
+                k=getattr(matcher.params, "k", 256),
+                propagate=0 if paper else 2,
+                gaps=0 if paper else 32,
+            )
             plot = Path(cwd) / Path(args.plot).expanduser()
             plot_neighborhood(graph, res, space, plot, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
             print(f"wrote {args.plot}", file=err)

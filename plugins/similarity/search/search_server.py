@@ -14,6 +14,7 @@ server answers one request at a time, rebuilds its session when the workspace's 
 features or motions step was recomputed, and removes its socket when it stops. The socket
 is made owner-only (0600): the workspace's owner is the only client.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -112,7 +113,9 @@ def warm_up(session) -> float:
         from .exact import DEFAULT_SETTINGS, certified_sdtw
         from .matcher_base import block_subspaces_of
 
-        for size, p in zip(DEFAULT_SETTINGS.sizes(), DEFAULT_SETTINGS.bases()):  # the subspace cells a hard
+        for size, p in zip(
+            DEFAULT_SETTINGS.sizes(), DEFAULT_SETTINGS.bases(), strict=True
+        ):  # the subspace cells a hard
             if p > 0:  # query switches on: built now
                 block_subspaces_of(space, size, p)
         eager = replace(DEFAULT_SETTINGS, subspace_from=0.0)
@@ -132,8 +135,12 @@ def serve(args: argparse.Namespace, session_cls) -> int:
     from mocapflow.framework.errors import ConfigError
 
     def make_session():
-        return session_cls(args.db, args.index, entry_points=not getattr(args, "no_entry_points", False),
-                             blocked=list(getattr(args, "block", None) or []))
+        return session_cls(
+            args.db,
+            args.index,
+            entry_points=not getattr(args, "no_entry_points", False),
+            blocked=list(getattr(args, "block", None) or []),
+        )
 
     path = socket_path(args.db)
     if len(str(path).encode()) > 100:  # sun_path holds 104-108 bytes
@@ -158,8 +165,11 @@ def serve(args: argparse.Namespace, session_cls) -> int:
     ino = path.stat().st_ino
     srv.listen(16)
     srv.settimeout(args.idle_timeout or None)
-    print(f"mocapflow: search server on {path} ({box[0].idx.step!r}, warm in {warm:.2f} s); Ctrl-C stops it",
-          file=sys.stderr, flush=True)
+    print(
+        f"mocapflow: search server on {path} ({box[0].idx.step!r}, warm in {warm:.2f} s); Ctrl-C stops it",
+        file=sys.stderr,
+        flush=True,
+    )
     served = 0
 
     def stop(*_):
@@ -175,7 +185,7 @@ def serve(args: argparse.Namespace, session_cls) -> int:
         while True:
             try:
                 conn, _ = srv.accept()
-            except socket.timeout:
+            except TimeoutError:
                 print(f"mocapflow: search server idle for {args.idle_timeout:g} s: stopping", file=sys.stderr)
                 break
             with conn:
