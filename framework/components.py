@@ -221,6 +221,12 @@ class Index(Component):
     #: False for indexes that answer other queries than numeric kNN (inverted lists);
     #: the conformance suite then skips the kNN checks.
     supports_knn: ClassVar[bool] = True
+    #: keywords ``query`` accepts beyond ``x, k, radius`` (e.g. ``{"eps", "workers"}``)
+    query_options: ClassVar[frozenset[str]] = frozenset()
+    #: keywords ``build`` accepts beyond ``features`` (e.g. ``{"groups", "frames"}``)
+    build_options: ClassVar[frozenset[str]] = frozenset()
+    #: keywords ``load`` accepts beyond ``directory`` (e.g. ``{"mmap_mode"}``)
+    load_options: ClassVar[frozenset[str]] = frozenset()
 
     def build(self, features: np.ndarray) -> Index:
         raise NotImplementedError

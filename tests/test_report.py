@@ -154,7 +154,7 @@ def test_quickstart_report_lists_clips_steps_and_provenance(quickstart_site, qui
     }
     s = steps["search"]
     assert (
-        s["component"] == "matchers.lng"
+        s["component"] == "matchers.search"
         and s["params"]["count"] == 5
         and s["inputs"] == {"database": "tree", "query": "motions"}
     )
