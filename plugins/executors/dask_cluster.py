@@ -36,8 +36,8 @@ from typing import Any
 from pydantic import Field
 
 from mocapflow.framework.errors import ConfigError, PipelineError
-from mocapflow.framework.params import Params
 from mocapflow.framework.executors import PRELOAD, available_cores, threads_per_worker
+from mocapflow.framework.params import Params
 from mocapflow.framework.progress import progress
 
 ADDRESS_ENV = "MOCAPFLOW_DASK_ADDRESS"
