@@ -1,4 +1,4 @@
-"""Validation before anything runs (issue 11 §4): nested component parameters, dataset
+"""Validation before anything runs: nested component parameters, dataset
 kinds of inputs, the executor, and components' own plan-time checks (globs)."""
 
 from __future__ import annotations
