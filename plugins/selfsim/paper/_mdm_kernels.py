@@ -34,8 +34,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-# the constrained DTW kernels live in their own module; re-exported for the callers here
-from ._cdtw_kernels import cdtw, cdtw_cost, cdtw_cost_r2, cdtw_path  # noqa: F401 - re-exported: the cleaner calls the cDTW kernels through this module
+from ._cdtw_kernels import cdtw, cdtw_cost_r2, cdtw_path  # noqa: F401 - re-exported for the callers
 
 _INF = np.inf
 
@@ -211,12 +210,12 @@ def _excluded(t, clip_of, self_clip, self_pos, radius):  # pragma: no cover - co
 
 
 @njit(cache=True)
-def _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo):  # pragma: no cover
+def _word_distance(d, i0, t, n, tlen, r, cum, plen, back, cost2, plen2, memo):  # pragma: no cover
     if math.isnan(memo[t]):
         if r == 2:
             c, p = cdtw_cost_r2(d, i0, t, n, tlen[t], cost2, plen2)
         else:
-            c, p = cdtw_cost(d, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
+            c, p, _, _, _ = cdtw(d, i0, t, n, tlen[t], r, cum, plen, back)
         memo[t] = c / p
     return memo[t]
 
@@ -247,10 +246,10 @@ def knn_pruned(
         w = gw % n_w
         dg = d[g]
         lbw = lb[g, w]
-        cur = np.empty((m, 2 * r + 1))
-        prev = np.empty((m, 2 * r + 1))
-        lcur = np.empty((m, 2 * r + 1), np.int64)
-        lprev = np.empty((m, 2 * r + 1), np.int64)
+        nr = 0 if r == 2 else n  # cdtw's work arrays, for r != 2 only
+        cum = np.empty((nr, m, 2 * r + 1))
+        plen = np.empty((nr, m, 2 * r + 1), np.int64)
+        back = np.empty((nr, m, 2 * r + 1), np.int64)
         cost2 = np.empty((2, 5, m))
         plen2 = np.empty((2, 5, m), np.int64)
         memo = np.full(n_c, np.nan)
@@ -266,7 +265,7 @@ def knn_pruned(
                 break
             if _excluded(t, clip_of, self_clip, self_pos, radius):
                 continue
-            v = _word_distance(dg, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
+            v = _word_distance(dg, i0, t, n, tlen, r, cum, plen, back, cost2, plen2, memo)
             if v > best_d[k - 1]:
                 continue
             u = t - 1
@@ -275,7 +274,7 @@ def knn_pruned(
                 and tlen[u] > 0
                 and clip_of[u] == clip_of[t]
                 and not lbw[u] * slack > v
-                and not v < _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
+                and not v < _word_distance(dg, i0, u, n, tlen, r, cum, plen, back, cost2, plen2, memo)
             ):
                 continue
             u = t + 1
@@ -284,7 +283,7 @@ def knn_pruned(
                 and tlen[u] > 0
                 and clip_of[u] == clip_of[t]
                 and not lbw[u] * slack > v
-                and not v <= _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
+                and not v <= _word_distance(dg, i0, u, n, tlen, r, cum, plen, back, cost2, plen2, memo)
             ):
                 continue
             _insert_topk(best_d, best_t, k, v, t)
