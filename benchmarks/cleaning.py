@@ -353,25 +353,16 @@ def scores(args) -> None:
         runs = []
         for case in corrupted_clips(clips, ev, joints, p.fps, cat):
             res = cleaner.analyse(case.bad, context_clips("small", case.others, ev))
-            lo, tot, cnt = (
-                np.full(res.difference.shape, np.inf),
-                np.zeros(res.difference.shape),
-                np.zeros(res.difference.shape),
-            )
+            shape = res.difference.shape
+            lo, tot, cnt = np.full(shape, np.inf), np.zeros(shape), np.zeros(shape)
             nb, n = res.neighbours[0], p.source_length
-            for g in range(nb.groups.n_groups):
-                jm = nb.groups.mask[g]
-                for si, s in enumerate(nb.starts):
-                    for k in np.flatnonzero(nb.target[g, si] >= 0):
-                        a = (
-                            2.0
-                            * np.arccos(
-                                np.clip(np.abs(np.sum(res.texture.q[s : s + n] * nb.warped[g, si, k], -1)), 0.0, 1.0)
-                            )[:, jm]
-                        )
-                        lo[s : s + n, jm] = np.minimum(lo[s : s + n, jm], a)
-                        tot[s : s + n, jm] += a
-                        cnt[s : s + n, jm] += 1
+            for g, si, k in zip(*np.nonzero(nb.target >= 0), strict=True):
+                s, jm = nb.starts[si], nb.groups.mask[g]
+                dot = np.abs(np.sum(res.texture.q[s : s + n] * nb.warped[g, si, k], -1))
+                a = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))[:, jm]
+                lo[s : s + n, jm] = np.minimum(lo[s : s + n, jm], a)
+                tot[s : s + n, jm] += a
+                cnt[s : s + n, jm] += 1
             runs.append(
                 {
                     "truth": case.truth,
