@@ -64,8 +64,10 @@ def _sets(items: list[str]) -> dict:
     return out
 
 
-def _f1(r: float, p: float) -> float:
-    return 2 * r * p / (r + p) if r + p > 0 else 0.0
+def _f1s(row: dict) -> list[float]:
+    """F1 of a protocol row: word, (word, joint), cell."""
+    pairs = [(row[f"{k}recall"], row[f"{k}precision"]) for k in ("word_", "wj_", "")]
+    return [2 * r * p / (r + p) if r + p > 0 else 0.0 for r, p in pairs]
 
 
 def speed(args) -> None:
@@ -242,20 +244,14 @@ def protocol(args) -> None:
             f"\nprotocol, {cat}: {rows[0]['n_clips'] if rows else 0} test clips "
             f"({'tuning' if args.tune else 'held-out'}), {time.perf_counter() - t0:.0f} s"
         )
-        best = [
-            max((_f1(r[a], r[b]) for r in rows if r["method"].startswith("baseline")), default=0.0)
-            for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))
-        ]
+        base = [_f1s(r) for r in rows if r["method"].startswith("baseline")] or [[0.0] * 3]
+        best = [max(col) for col in zip(*base, strict=True)]
         print(
             f"  {'method':22s} {'context':7s} {'word R/P':>11s} {'(w,j) R/P':>11s} {'cell R/P':>11s} "
             f"{'F1 / best baseline: word, (w,j), cell':>38s}"
         )
         for r in rows:
-            f = [
-                _f1(r[a], r[b])
-                for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))
-            ]
-            ratio = ", ".join(f"{x / y:.2f}x" if y > 0 else "-" for x, y in zip(f, best, strict=True))
+            ratio = ", ".join(f"{x / y:.2f}x" if y > 0 else "-" for x, y in zip(_f1s(r), best, strict=True))
             print(
                 f"  {r['method']:22s} {r['context']:7s} {r['word_recall']:5.3f}/{r['word_precision']:5.3f} "
                 f"{r['wj_recall']:5.3f}/{r['wj_precision']:5.3f} {r['recall']:5.3f}/{r['precision']:5.3f}   {ratio}"
