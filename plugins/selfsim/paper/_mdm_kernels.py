@@ -1,30 +1,21 @@
 """Compiled kernels of the MDM cleaner: pose-distance blocks, constrained DTW, exact KNN.
 
-No validation here; :mod:`.knn` and :mod:`.motion_words` check inputs and call these.
-The constrained DTW kernels themselves are in :mod:`._cdtw_kernels`.
-Each kernel has a slow reference in ``tests/naive/cleaning.py``.
+No validation here (:mod:`.knn` checks inputs); each kernel has a slow reference in
+``tests/naive/cleaning.py``; the cDTW kernels are in :mod:`._cdtw_kernels`.
 
-Constrained DTW (paper Appendix), the convention every kernel shares
---------------------------------------------------------------------
-Source word rows ``i < N``, target word columns ``j < L`` (``L <= M``), cost ``D[i0+i, j0+j]``.
-The path starts at (0, 0) and ends at the *first* cell where ``i == N-1`` or ``j == L-1``
-(either word ends). Steps are (1, 1) "diagonal", (0, 1) "horizontal" (the target advances)
-and (1, 0) "vertical" (the source advances); the slope constraint allows at most ``R``
-consecutive horizontal or vertical steps. The DP state of a cell is how it was entered:
-0 = diagonal (or the start), ``1..R`` = ``r`` horizontal steps in a row, ``R+1..2R`` = ``r``
-vertical steps in a row. The optimal path minimises the cumulative cost over all end cells
-(ties: shorter path, then end cell order); the word distance is cumulative cost / path
-length (mean cost along the path).
+Constrained DTW (paper Appendix): source rows ``i < N``, target columns ``j < L <= M``, cost
+``D[i0+i, j0+j]``; the path starts at (0, 0) and ends at the first cell where either word
+ends. Steps (1, 1), (0, 1), (1, 0), at most ``R`` non-diagonal steps in a row; a cell's DP
+state is how it was entered: 0 diagonal (or the start), ``1..R`` horizontal run length,
+``R+1..2R`` vertical. The optimum minimises the cumulative cost over the end cells (ties:
+shorter path, then end cell order); the word distance is cost / path length.
 
-Lower bound used for pruning
-----------------------------
-A path ending on the last source row visits every row ``i``; rows ``i < N-1`` hold between
-1 and ``R+1`` of its cells (a horizontal run is at most ``R`` long) and the last row exactly
-one. Its mean cost is thus a weighted mean of per-row costs, each at least the row minimum
-``W[i] = min_{j<L} D[i0+i, j0+j]``, with weights in ``[1, R+1]``; the smallest such weighted
-mean (weights ``R+1`` on the rows below the optimum, 1 above: a linear-fractional programme
-over a box) bounds it from below. Paths ending on the last target column are bounded the
-same way with column minima. The word distance is at least the smaller of the two bounds.
+Lower bound: a path ending on the last source row holds 1 to ``R+1`` cells of every other
+row and one of the last, so its mean cost is a weighted mean of the row minima
+``W[i] = min_j D[i0+i, j0+j]`` with weights in ``[1, R+1]``; the least such mean (weights
+``R+1`` on the rows below the optimum, 1 above: a linear-fractional programme over a box)
+bounds it. Column minima bound the paths ending on the last column; the distance is at
+least the smaller bound.
 """
 
 from __future__ import annotations

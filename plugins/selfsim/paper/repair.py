@@ -237,15 +237,11 @@ def edits_table(motion: Motion, cleaned: Motion, changed: np.ndarray, clip_id: i
 
 
 def sparse_reconstruction(sparse: Motion, context: Sequence[Motion], known: Sequence[str], params: Any) -> Motion:
-    """Full-body motion from the rotations of ``known`` joints (§4 "sparse data", Fig. 8).
-
-    Source words of ``sparse`` compared on the known joints only find KNN words in the
-    full-body ``context``; the first word is the nearest neighbour, each later one the
-    candidate whose first frame is closest to the previous word's frame at the same time,
-    and the words' unknown joints are stitched (each word fills the frames up to the next
-    word's start) and smoothed by the quadratic Savitzky-Golay filter. Known joints keep
-    their input rotations. Returns the motion at the analysis rate.
-    """
+    """Full-body motion at the analysis rate from the rotations of ``known`` joints (§4, Fig. 8):
+    source words compared on the known joints find KNN words in the full-body ``context``;
+    the first word is the nearest neighbour, each later one the candidate closest to the
+    previous word at their shared frame; the unknown joints are stitched and smoothed by the
+    Savitzky-Golay filter, the known ones keep their input rotations."""
     joints = tuple(j for j in params.joints if all(j in c.skeleton.canonical for c in [sparse, *context]))
     missing = [j for j in known if j not in joints]
     if missing:
