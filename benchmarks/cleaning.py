@@ -78,14 +78,13 @@ def speed(args) -> None:
     from mocapflow.framework.normalize import resample
     from mocapflow.plugins.selfsim.cleaner import MDMCleaner
     from mocapflow.plugins.selfsim.paper.knn import ContextTextures, knn_search
-    from mocapflow.plugins.selfsim.paper.mdm import digression_map
 
     path = EXAMPLES / "16" / "16_15.amc" if args.quick else CMU / "14" / "14_02.amc"
     take = resample(_read([path])[0], 24.0)
     take = take.slice(0, min(take.n_frames, 240 if args.quick else 480)).with_arrays(name=path.stem)
-    digression_map(take.slice(0, 40))  # compile the kernels (numba caches them on disk)
+    MDMCleaner().analyse(take.slice(0, 40))  # compile the kernels (numba caches them on disk)
     t0, c0 = time.perf_counter(), time.process_time()
-    res = digression_map(take)
+    res = MDMCleaner().analyse(take)
     t_map, c_map = time.perf_counter() - t0, time.process_time() - c0
     nb = res.neighbours[0]
     ctx = ContextTextures.from_arrays([res.texture.q])

@@ -101,13 +101,8 @@ def digression_from_outer(
     return mean_q, diff, spread, 1.0 - np.exp(-(m**2))
 
 
-def digression_map(motion: Motion, context: Any = None, params: MDMParams | None = None) -> DigressionResult:
-    """The MDM of ``motion`` against ``context`` (module doc) with :class:`MDMParams`."""
-    if params is None:
-        from ..cleaner import MDMParams
-
-        params = MDMParams()
-    p = params
+def digression_map(motion: Motion, context: Any, p: MDMParams) -> DigressionResult:
+    """The MDM of ``motion`` against ``context`` (module doc) with the cleaner's parameters."""
     t0 = time.perf_counter()
     clips = context_motions(motion, context, p.include_self)
     joints = tuple(j for j in p.joints if all(j in c.skeleton.canonical for c in clips))
