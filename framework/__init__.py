@@ -58,8 +58,8 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs; never executed
-    from .components import Analysis, Cleaner, Component, FeatureSet, Format, Index, Matcher, Params
     from .cleaning import CleanedClip
+    from .components import Analysis, Cleaner, Component, FeatureSet, Format, Index, Matcher, Params
     from .context import StepContext
     from .database import MotionDatabase
     from .datasets import Dataset, FeatureMatrix, StepOutput

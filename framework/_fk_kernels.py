@@ -7,9 +7,15 @@ from numba import njit
 
 
 @njit(cache=True, fastmath=False)
-def fk_kernel(
-    parents, offsets, per_frame_offsets, root_translation, rotations, pos, glob
-):  # pragma: no cover - compiled
+def fk_kernel(  # pragma: no cover - compiled
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    per_frame_offsets: np.ndarray,
+    root_translation: np.ndarray,
+    rotations: np.ndarray,
+    pos: np.ndarray,
+    glob: np.ndarray,
+) -> None:
     """Fill ``pos (T,J,3)`` and ``glob (T,J,4)``.
 
     ``per_frame_offsets`` is ``(T,J,3)`` or ``(0,0,3)`` to use the static ``offsets (J,3)``.

@@ -144,7 +144,7 @@ class Catalog:
         except duckdb.Error as exc:
             raise MocapflowError(f"SQL error: {exc}") from None
 
-    def relation(self, view: str):
+    def relation(self, view: str) -> Any:
         """The DuckDB relation of one view (for the relational API)."""
         if view not in self.views:
             from .registry import did_you_mean
@@ -163,54 +163,20 @@ class Catalog:
         self.close()
 
 
-def CSV_OPTIONS():
-    import pyarrow.csv as pacsv
-
-    return pacsv.WriteOptions(quoting_style="needed", quoting_header="none")
-
-
-def write_table(table: pa.Table, path: str | Path, fmt: str) -> None:
-    """Write a query result as CSV or Parquet, atomically (temp file + rename)."""
-    import os
-
-    import pyarrow.csv as pacsv
-    import pyarrow.parquet as pq
-
-    out = Path(path)
-    tmp = out.with_name(f".{out.name}.tmp")
-    if fmt == "csv":
-        # nested columns (feature vectors, paths) are written as their text form
-        cols = [
-            c
-            if not (pa.types.is_list(c.type) or pa.types.is_fixed_size_list(c.type) or pa.types.is_struct(c.type))
-            else pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.string())
-            for c in table.columns
-        ]
-        pacsv.write_csv(pa.Table.from_arrays(cols, names=table.column_names), tmp, CSV_OPTIONS())
-    elif fmt == "parquet":
-        pq.write_table(table, tmp)
-    else:
-        raise ConfigError(f"unknown output format {fmt!r}: csv or parquet")
-    os.replace(tmp, out)
-
-
 def format_table(table: pa.Table, max_rows: int = 50, max_width: int = 40) -> str:
     """Plain-text rendering of an Arrow table for terminals."""
     names = table.column_names
     shown = table.slice(0, max_rows).to_pylist()
 
     def cell(v: Any) -> str:
-        if isinstance(v, float):
-            s = f"{v:.6g}"
-        else:
-            s = "NULL" if v is None else str(v)
+        s = f"{v:.6g}" if isinstance(v, float) else "NULL" if v is None else str(v)
         return s if len(s) <= max_width else s[: max_width - 1] + "…"
 
     rows = [[cell(r[n]) for n in names] for r in shown]
     widths = [max([len(n)] + [len(r[i]) for r in rows]) for i, n in enumerate(names)]
-    line = "  ".join(n.ljust(w) for n, w in zip(names, widths))
+    line = "  ".join(n.ljust(w) for n, w in zip(names, widths, strict=True))
     out = [line, "  ".join("-" * w for w in widths)]
-    out += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
+    out += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
     more = table.num_rows - len(shown)
     out.append(f"({table.num_rows} row{'s' if table.num_rows != 1 else ''}{f', {more} not shown' if more > 0 else ''})")
     return "\n".join(out)

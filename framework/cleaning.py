@@ -1,33 +1,26 @@
-"""The cleaner contract: digression and edit tables, and the default cleaner step.
+"""What a cleaner produces: digression and edit tables, one clip's result.
 
 A cleaner implements :meth:`~mocapflow.framework.components.Cleaner.detect` (a digression
 map, shape (T, J) in [0, 1]) and :meth:`~mocapflow.framework.components.Cleaner.repair`
 (the cleaned motion and an :data:`~.schema.EDITS` table, :func:`edits_table`). The default
-step :func:`run_cleaner` cleans every clip of its ``motions`` input against the optional
-``context`` input through ``Cleaner.clean_clip`` (default :func:`clean_clip`) and writes
-``data`` (:data:`~.schema.DIGRESSIONS`, :func:`digression_table`) and ``edits``. Its
-summary (stored in the provenance) holds no timing and no path, so identical runs give
-identical provenance.
+cleaner step (:func:`~mocapflow.framework.steps.run_cleaner`) collects one
+:class:`CleanedClip` per clip into ``data`` (:data:`~.schema.DIGRESSIONS`,
+:func:`digression_table`) and ``edits``. A clip's summary (stored in the provenance) holds
+no timing and no path, so identical runs give identical provenance.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
-from functools import partial
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
 from . import schema
 from .errors import DataError
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .components import Cleaner
-    from .datasets import StepOutput
-    from .motion import Motion
+from .motion import Motion
+from .quaternions import geodesic_angle
 
 
 @dataclass
@@ -55,8 +48,6 @@ class CleanedClip:
 def check_take(motion: Motion, what: str = "cleaning") -> None:
     """Raise :class:`DataError` unless ``motion`` is a Motion with finite rotations and root
     translation (a NaN would otherwise surface as a linear-algebra error deep in a cleaner)."""
-    from .motion import Motion
-
     if not isinstance(motion, Motion):
         raise DataError(f"{what}: expected a Motion, got {type(motion).__name__}")
     for name, arr in (("rotations", motion.rotations), ("root_translation", motion.root_translation)):
@@ -100,7 +91,7 @@ def digression_table(
     cues = (
         np.full(len(flagged), None, dtype=object)
         if cue is None
-        else np.where(flagged, np.asarray(cue).reshape(-1), None)
+        else np.where(flagged, np.asarray(cue, dtype=object).reshape(-1), np.full(len(flagged), None, dtype=object))
     )
     names = np.array(motion.skeleton.names, dtype=object)[cols]
     return pa.table(
@@ -122,15 +113,13 @@ def edits_table(
     cleaned: Motion,
     changed: np.ndarray | None = None,
     clip_id: int = 0,
-    cue: list | np.ndarray | None = None,
+    cue: list[str | None] | np.ndarray | None = None,
 ) -> pa.Table:
     """:data:`~.schema.EDITS` rows: one per changed (frame, joint), frame-major.
 
     ``changed`` (T, J) bool defaults to the cells whose rotation differs; ``cue`` gives one
     entry per changed cell (default null).
     """
-    from .quaternions import geodesic_angle
-
     if cleaned.rotations.shape != motion.rotations.shape:
         raise DataError(f"cleaned motion has rotations {cleaned.rotations.shape}, the input {motion.rotations.shape}")
     if changed is None:
@@ -160,50 +149,17 @@ def with_clip_id(table: pa.Table, clip_id: int) -> pa.Table:
     return table.set_column(0, "clip_id", pa.array(np.full(table.num_rows, clip_id, np.int32)))
 
 
-def clean_clip(cleaner: Cleaner, motion: Motion, context: Any, clip_id: int) -> CleanedClip:
-    """The default ``Cleaner.clean_clip``: :meth:`detect` for the map, :meth:`repair` for the edits."""
-    value = cleaner.detect(motion, context)
-    cleaned, edits = cleaner.repair(motion, context)
+def clip_result(motion: Motion, value: np.ndarray, cleaned: Motion, edits: pa.Table, clip_id: int) -> CleanedClip:
+    """A :class:`CleanedClip` from a digression map (:meth:`~.components.Cleaner.detect`) and a
+    repair (:meth:`~.components.Cleaner.repair`): the default ``Cleaner.detect_and_repair``."""
     digressions = digression_table(value, motion, clip_id)
     edits = with_clip_id(edits, clip_id)
-    return CleanedClip(
-        digressions,
-        edits,
-        cleaned,
-        {
-            "clip": motion.name,
-            "flagged_cells": int(digressions["flagged"].to_numpy().sum()),
-            "edited_cells": edits.num_rows,
-        },
-    )
+    summary = {
+        "clip": motion.name,
+        "flagged_cells": int(digressions["flagged"].to_numpy().sum()),
+        "edited_cells": edits.num_rows,
+    }
+    return CleanedClip(digressions, edits, cleaned, summary)
 
 
-def _clean_task(cleaner: Cleaner, context: Any, out_dir: Path, motion: Motion, clip_id: int) -> CleanedClip:
-    """One clip of :func:`run_cleaner` (module-level: executors pickle it); the context
-    motions are read once per worker process."""
-    out = cleaner.clean_clip(motion, context.motions() if context is not None else None, clip_id, out_dir)
-    out.cleaned = None  # files are written; the motion itself need not travel back
-    return out
-
-
-def run_cleaner(cleaner: Cleaner, inputs: Mapping[str, Any], ctx: Any) -> StepOutput:
-    """The default cleaner step: every clip of ``motions`` against itself plus the optional
-    ``context`` dataset. Tables ``data`` (digressions), ``edits``; files per clip; summary
-    ``{"clips": [clip summaries]}``."""
-    from .datasets import StepOutput
-    from .clip_refs import DatasetRef
-
-    # clips and context go to the workers by reference (each reads them from the workspace)
-    context = DatasetRef.of(inputs["context"]) if inputs.get("context") is not None else None
-    digressions, edits, summary = [], [], []
-    for out in ctx.map_clips(partial(_clean_task, cleaner, context, ctx.out_dir), inputs["motions"], with_ids=True):
-        digressions.append(out.digressions)
-        edits.append(out.edits)
-        summary.append(out.summary)
-    data = pa.concat_tables(digressions) if digressions else None
-    ed = pa.concat_tables(edits) if edits else None
-    tables = {k: v for k, v in (("data", data), ("edits", ed)) if v is not None}
-    return StepOutput(tables, {"clips": summary})
-
-
-__all__ = ["CleanedClip", "check_take", "clean_clip", "digression_table", "edits_table", "run_cleaner", "with_clip_id"]
+__all__ = ["CleanedClip", "check_take", "clip_result", "digression_table", "edits_table", "with_clip_id"]

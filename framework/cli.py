@@ -18,9 +18,16 @@ import logging
 import sys
 import traceback
 import typing
+from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pluggy
 
 from .errors import ConfigError, MocapflowError, PluginError
+
+if TYPE_CHECKING:
+    from .runner import StepReport
 
 BUILTIN_COMMANDS = ("run", "plan", "plugins", "sql")
 # built-in commands that need the plugin manager (the registries); `sql` reads Parquet only
@@ -39,7 +46,7 @@ def _warn(msg: str) -> None:
     print(f"mocapflow: warning: {msg}", file=sys.stderr, flush=True)
 
 
-def _rejects_warnings(reports) -> list[str]:
+def _rejects_warnings(reports: list[StepReport]) -> list[str]:
     """One line per computed step that rejected input files (their summary says so)."""
     lines = []
     for r in reports:
@@ -54,7 +61,13 @@ def _rejects_warnings(reports) -> list[str]:
     return lines
 
 
-def cmd_run(args: argparse.Namespace, pm) -> int:
+def _needed(pm: pluggy.PluginManager | None) -> pluggy.PluginManager:
+    if pm is None:  # pragma: no cover - main() builds one for every command that needs it
+        raise PluginError("this command needs the plugin manager")
+    return pm
+
+
+def cmd_run(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
     from .runner import run_pipeline
 
     _echo(f"mocapflow: running {args.pipeline}")
@@ -79,28 +92,18 @@ def cmd_run(args: argparse.Namespace, pm) -> int:
     return 0
 
 
-def cmd_plan(args: argparse.Namespace, pm) -> int:
-    import json
-
+def cmd_plan(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
     from .plugins import build_registries
     from .runner import default_workspace, plan_pipeline
+    from .workspace import Workspace
 
-    plan = plan_pipeline(args.pipeline, args.set, registries=build_registries(pm))
-    ws = Path(args.workspace).resolve() if args.workspace else default_workspace(plan)
+    plan = plan_pipeline(args.pipeline, args.set, registries=build_registries(_needed(pm)))
+    ws = Workspace(Path(args.workspace).resolve() if args.workspace else default_workspace(plan))
     fps = plan.fingerprints()
-    _echo(f"pipeline {plan.source.config.name!r}: {len(plan.steps)} steps, workspace {ws}")
+    _echo(f"pipeline {plan.source.config.name!r}: {len(plan.steps)} steps, workspace {ws.path}")
     for s in plan.steps:
-        manifest = ws / s.step_id / "_manifest.json"
-        state = "would compute"
-        if manifest.is_file():
-            try:
-                state = (
-                    "up to date"
-                    if json.loads(manifest.read_text()).get("fingerprint") == fps[s.step_id]
-                    else "would recompute"
-                )
-            except ValueError:
-                pass
+        found = ws.fingerprint(s.step_id)
+        state = "would compute" if found is None else "up to date" if found == fps[s.step_id] else "would recompute"
         ins = ", ".join(f"{k}<-{v}" for k, v in s.inputs.items()) or "-"
         _echo(f"  {s.step_id:<16} {s.key:<28} inputs: {ins:<30} [{state}]")
         for k, v in s.component.get_params().items():
@@ -129,7 +132,7 @@ def format_annotation(ann: object) -> str:
     return str(ann).replace("typing.", "")
 
 
-def _param_rows(cls: type) -> list[str]:
+def _param_rows(cls: type[Any]) -> list[str]:
     rows = []
     for name, field in cls.Params.model_fields.items():
         default = "required" if field.is_required() else f"default {field.get_default(call_default_factory=True)!r}"
@@ -138,11 +141,11 @@ def _param_rows(cls: type) -> list[str]:
     return rows
 
 
-def cmd_plugins(args: argparse.Namespace, pm) -> int:
+def cmd_plugins(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
     from .plugins import build_registries
     from .registry import KINDS
 
-    regs = build_registries(pm)
+    regs = build_registries(_needed(pm))
     by_plugin: dict[str, list[tuple[str, type]]] = {}
     for kind in KINDS:
         for name, cls in regs[kind]:
@@ -158,10 +161,11 @@ def cmd_plugins(args: argparse.Namespace, pm) -> int:
     return 0
 
 
-def cmd_sql(args: argparse.Namespace, pm) -> int:
+def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
     if not Path(args.workspace).exists():  # the common typo, answered before pyarrow and duckdb load
         raise ConfigError(f"workspace {args.workspace} does not exist (run a pipeline first)")
-    from .catalog import Catalog, format_table, write_table
+    from .catalog import Catalog, format_table
+    from .workspace import export_table
 
     if args.output:  # refuse what cannot be written before the work
         out = Path(args.output)
@@ -177,17 +181,17 @@ def cmd_sql(args: argparse.Namespace, pm) -> int:
     if args.output:
         fmt = args.format if args.format != "table" else Path(args.output).suffix.lstrip(".").lower() or "csv"
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # a new folder is made, as a user expects
-        write_table(table, args.output, fmt)
+        export_table(table, args.output, fmt)
         _echo(f"wrote {table.num_rows} rows to {args.output}")
     elif args.format == "csv":
         import io
 
         import pyarrow.csv as pacsv
 
-        from .catalog import CSV_OPTIONS
+        from .workspace import csv_options
 
         buf = io.BytesIO()
-        pacsv.write_csv(table, buf, CSV_OPTIONS())
+        pacsv.write_csv(table, buf, csv_options())
         sys.stdout.write(buf.getvalue().decode())
     elif args.format == "parquet":
         raise ConfigError("--format parquet needs --output FILE")
@@ -196,8 +200,8 @@ def cmd_sql(args: argparse.Namespace, pm) -> int:
     return 0
 
 
-def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
-    from . import __version__
+def build_parser(plugin_commands: list[type[Any]]) -> argparse.ArgumentParser:
+    from mocapflow import __version__
 
     parser = argparse.ArgumentParser(prog="mocapflow", description="Searchable, clean motion-capture databases.")
     parser.add_argument("--version", action="version", version=f"mocapflow {__version__}")
@@ -246,11 +250,17 @@ def build_parser(plugin_commands: list[type]) -> argparse.ArgumentParser:
         p = sub.add_parser(cls.name, help=getattr(cls, "help", ""))
         cls.add_arguments(p)
         # the command sees the plugin manager built here (--block, --no-entry-points) as args.plugin_manager
-        p.set_defaults(func=lambda a, pm, _cls=cls: (setattr(a, "plugin_manager", pm), _cls.run(a))[1], command_cls=cls)
+        p.set_defaults(func=partial(_run_plugin_command, cls), command_cls=cls)
     return parser
 
 
-def _plugin_commands(pm) -> list[type]:
+def _run_plugin_command(cls: type[Any], args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
+    args.plugin_manager = pm
+    code: int = cls.run(args)
+    return code
+
+
+def _plugin_commands(pm: pluggy.PluginManager) -> list[type[Any]]:
     from .plugins import plugin_commands
 
     return plugin_commands(pm)  # a plugin whose hook raises is reported and skipped
@@ -309,17 +319,19 @@ def _unknown_blocked(blocked: list[str]) -> list[str]:
     return [b for b in dict.fromkeys(blocked) if b not in known]
 
 
-def _plugin_manager(command: str | None, entry_points: bool, blocked: list[str]):
-    """All plugins for run/plan/plugins, none for sql (``None``), and for ``--help`` and
-    plugin commands only the plugins that provide commands."""
+def _plugin_manager(command: str | None, entry_points: bool, blocked: list[str]) -> pluggy.PluginManager | None:
+    """All plugins for run/plan/plugins, none for sql (``None``)."""
     from .plugins import get_plugin_manager
 
-    if command in BUILTIN_COMMANDS:
-        return (
-            get_plugin_manager(entry_points=entry_points, blocked=blocked)
-            if command in _COMMANDS_WITH_PLUGINS
-            else None
-        )
+    if command in _COMMANDS_WITH_PLUGINS:
+        return get_plugin_manager(entry_points=entry_points, blocked=blocked)
+    return None
+
+
+def _command_plugin_manager(entry_points: bool, blocked: list[str]) -> pluggy.PluginManager:
+    """The plugins that provide commands (``--help``, a plugin command)."""
+    from .plugins import get_plugin_manager
+
     pm = get_plugin_manager(builtins=False, entry_points=entry_points, blocked=blocked)
     for mod in command_plugin_modules():
         if mod not in blocked and not pm.has_plugin(mod):
@@ -327,7 +339,7 @@ def _plugin_manager(command: str | None, entry_points: bool, blocked: list[str])
     return pm
 
 
-def _register_remaining_builtins(pm, blocked: list[str]) -> None:
+def _register_remaining_builtins(pm: pluggy.PluginManager, blocked: list[str]) -> None:
     """A plugin command, once chosen, sees every built-in plugin that is not blocked (formats,
     features, indexes, ...), exactly like ``run``; only ``--help`` stays limited to the
     plugins that provide commands."""
@@ -340,7 +352,7 @@ def _register_remaining_builtins(pm, blocked: list[str]) -> None:
 
 def _exit_without_a_last_collection() -> None:
     """At exit: the interpreter's last garbage collection walked every object of a run (0.2 s
-    of a 2.5 s ingest, docs/scale-out.md session 6); outputs and the lock are closed before."""
+    of a 2.5 s ingest, docs/scale-out.md); outputs and the lock are closed before."""
     import gc
 
     gc.freeze()
@@ -373,7 +385,7 @@ def main(argv: list[str] | None = None) -> int:
                 size_blas_for_workers(workers_on_this_host(args.pipeline, args.jobs))
             pm = _plugin_manager(command, entry_points, blocked)
         else:
-            pm = _plugin_manager(command, entry_points, blocked)
+            pm = _command_plugin_manager(entry_points, blocked)
             parser = build_parser(_plugin_commands(pm))
             args = parser.parse_args(argv)
         if not getattr(args, "func", None):
@@ -381,7 +393,11 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         # a command that builds the registries it needs itself (`loads_plugins = True`, e.g.
         # `search`, which may only forward the query to a search server) skips the rest
-        if command not in BUILTIN_COMMANDS and not getattr(getattr(args, "command_cls", None), "loads_plugins", False):
+        if (
+            pm is not None
+            and command not in BUILTIN_COMMANDS
+            and not getattr(getattr(args, "command_cls", None), "loads_plugins", False)
+        ):
             _register_remaining_builtins(pm, blocked)
         from .progress import announce_compilation
 

@@ -9,9 +9,11 @@ what every task of a step needs in a small per-process cache (:func:`cached`).
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from functools import partial
+from itertools import pairwise
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -20,11 +22,12 @@ if TYPE_CHECKING:  # pragma: no cover
     from .datasets import Dataset
 
 
-_CACHE: OrderedDict[tuple, Any] = OrderedDict()
+T = TypeVar("T")
+_CACHE: OrderedDict[tuple[Hashable, ...], Any] = OrderedDict()
 _CACHE_ENTRIES = 64
 
 
-def cached(key: tuple, load: Callable[[], Any], entries: int = _CACHE_ENTRIES) -> Any:
+def cached(key: tuple[Hashable, ...], load: Callable[[], T], entries: int = _CACHE_ENTRIES) -> T:
     """``load()`` once per process for ``key`` (least recently used entries are dropped).
 
     Workers keep what every task of a step needs (a dataset's small tables, decoded row
@@ -32,7 +35,8 @@ def cached(key: tuple, load: Callable[[], Any], entries: int = _CACHE_ENTRIES) -
     """
     if key in _CACHE:
         _CACHE.move_to_end(key)
-        return _CACHE[key]
+        found: T = _CACHE[key]
+        return found
     value = load()
     _CACHE[key] = value
     while len(_CACHE) > entries:
@@ -76,12 +80,12 @@ class ClipSlice:
     start: int
     stop: int
 
-    def _meta(self):
+    def _meta(self) -> tuple[Any, Any, np.ndarray, np.ndarray]:
         import pyarrow.parquet as pq
 
         from .datasets import Dataset
 
-        def load():
+        def load() -> tuple[Any, Any, np.ndarray, np.ndarray]:
             ds = Dataset(self.path)
             clips, skeletons = ds.table("clips"), ds.table("skeletons")
             rows = np.concatenate([[0], np.cumsum(clips["n_frames"].to_numpy().astype(np.int64))])
@@ -108,12 +112,12 @@ class ClipSlice:
         g0 = max(g0, 0)
         opened: list[pq.ParquetFile] = []
 
-        def read(g: int):
+        def read(g: int) -> Any:
             if not opened:
                 opened.append(pq.ParquetFile(f"{self.path}/data.parquet", memory_map=True))
             return opened[0].read_row_group(g, columns=list(schema.MOTION_COLUMNS))
 
-        parts = [cached(("row-group", self.path, self.fingerprint, g), lambda g=g: read(g)) for g in range(g0, g1)]
+        parts = [cached(("row-group", self.path, self.fingerprint, g), partial(read, g)) for g in range(g0, g1)]
         frames = pa.concat_tables(parts).slice(r0 - int(groups[g0]), r1 - r0) if parts else None
         if frames is None:
             return database_from_tables(clips.slice(0, 0), skeletons.slice(0, 0), _empty_frames())
@@ -124,7 +128,7 @@ class ClipSlice:
         return database_from_tables(mine, skeletons.take(keep), frames)
 
 
-def _empty_frames():
+def _empty_frames() -> Any:
     from . import schema
 
     return schema.motion_frames().empty_table()
@@ -154,7 +158,7 @@ def clip_slices(dataset: Dataset, n_slices: int) -> list[ClipSlice]:
         cuts = np.where(cum[right] - want <= want - cum[right - 1], right, right - 1)
         bounds = np.unique(np.clip(np.concatenate([[0], cuts, [n]]), 0, n))
     ref = DatasetRef.of(dataset)
-    return [ClipSlice(ref.path, ref.fingerprint, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    return [ClipSlice(ref.path, ref.fingerprint, int(a), int(b)) for a, b in pairwise(bounds) if b > a]
 
 
 @dataclass(frozen=True)
@@ -167,5 +171,5 @@ class _SliceTask:
     def __call__(self, piece: ClipSlice) -> list[Any]:
         db = piece.motions()
         if self.with_ids:
-            return [self.fn(m, int(c)) for m, c in zip(db.motions, db.clip_ids)]
+            return [self.fn(m, int(c)) for m, c in zip(db.motions, db.clip_ids, strict=True)]
         return [self.fn(m) for m in db.motions]

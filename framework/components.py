@@ -6,10 +6,12 @@ A component follows scikit-learn's estimator contract, validated by pydantic:
 * parameters are declared once, in a nested frozen pydantic model ``Params`` (unknown
   keys rejected); ``__init__`` only validates and stores them (no other logic);
 * fitted state lives in attributes ending in ``_``;
-* ``run(inputs, ctx)`` is what a pipeline step calls: it receives finished upstream
-  :class:`~mocapflow.framework.datasets.Dataset` objects keyed by input slot and returns a
-  :class:`~mocapflow.framework.datasets.StepOutput` (tables plus files written into
-  ``ctx.out_dir``). ``inputs`` (class attribute) declares the slots, slot -> required.
+* a pipeline step receives finished upstream :class:`~mocapflow.framework.datasets.Dataset`
+  objects keyed by input slot and returns a :class:`~mocapflow.framework.datasets.StepOutput`
+  (tables plus files written into ``ctx.out_dir``); ``inputs`` (class attribute) declares the
+  slots, slot -> required. Feature sets, indexes, matchers and cleaners get the default step
+  of their kind (:mod:`.steps`) from the methods below; a component overrides ``run`` for a
+  step of its own.
 
 What is checked when a pipeline is planned, beyond ``Params``:
 
@@ -29,20 +31,24 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
+from .cleaning import CleanedClip, clip_result
+from .context import StepContext
+from .database import MotionDatabase
+from .datasets import Dataset, StepOutput
 from .errors import ConfigError
+from .matching import QueryMatches, SearchSpace, query_files_fingerprint
+from .motion import Motion
 from .params import Params as Params  # re-exported: components declare Params here
 from .params import ParamsOf as ParamsOf
+from .registry import Registries
+from .workspace import atomic_path
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .database import MotionDatabase
-    from .datasets import Dataset, StepOutput
-    from .motion import Motion
-    from .context import StepContext
-
+#: The base of every ``Params`` (a name that the class attribute ``Component.Params`` does not hide).
+ParamsModel = Params
 
 #: Dataset kinds the built-in kind bases declare (``output_kind`` / ``input_kinds``).
 DATASET_KINDS: tuple[str, ...] = ("motions", "markers", "features", "index", "matches", "table")
@@ -66,8 +72,10 @@ class Component:
     #: Input slot -> dataset kinds it accepts; a slot not listed accepts any dataset.
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     Params: ClassVar[type[Params]] = Params
+    #: Parameters the conformance suite builds an instance with (for required ones).
+    test_params: ClassVar[Mapping[str, Any] | None] = None
 
-    def __init__(self, params: Params | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+    def __init__(self, params: ParamsModel | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
         if params is None:
             params = self.Params(**kwargs)
         elif isinstance(params, Mapping):
@@ -76,7 +84,7 @@ class Component:
             params = params.model_copy(update=kwargs)
         elif not isinstance(params, self.Params):
             raise ConfigError(f"{self.key()}: expected {self.Params.__qualname__}, got {type(params).__name__}")
-        self.params = params
+        self.params: ParamsModel = params
 
     @classmethod
     def key(cls) -> str:
@@ -91,7 +99,8 @@ class Component:
         return type(self)(self.params.model_copy(update=changes) if changes else self.params)
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        """Compute this step's output from finished input datasets (see module doc)."""
+        """A step of the component's own: its output from finished input datasets. Not
+        overridden: the default step of its kind runs (:func:`.steps.run_step`)."""
         raise NotImplementedError(f"{self.key()} cannot run as a pipeline step")
 
     def check_plan(self, base_dir: Path) -> list[str]:
@@ -140,11 +149,9 @@ class Format(Component):
 
     def write_atomic(self, obj: Any, path: str | Path) -> None:
         """:meth:`write` through a temporary file renamed into place
-        (:func:`~.datasets.atomic_path`): never half a file at ``path``, and a failed write
+        (:func:`~.workspace.atomic_path`): never half a file at ``path``, and a failed write
         leaves the previous one intact. Writers implement :meth:`write`; callers that write
         outside a step's output folder (which is committed atomically anyway) use this."""
-        from .datasets import atomic_path
-
         with atomic_path(path) as tmp:
             self.write(obj, tmp)
 
@@ -187,8 +194,6 @@ class FeatureSet(Component):
 
         Computed clip by clip, so windows never straddle two clips.
         """
-        from .motion import Motion
-
         if isinstance(data, Motion):
             return np.asarray(self.transform_motion(data), dtype=np.float32)
         parts = [np.asarray(self.transform_motion(m), dtype=np.float32) for m in data.motions]
@@ -199,27 +204,6 @@ class FeatureSet(Component):
 
     def load_state(self, directory: Path) -> FeatureSet:
         return self
-
-    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        from .datasets import StepOutput, feature_table
-
-        motions = inputs["motions"]
-        if self.requires_fit:
-            ref = inputs["reference"] if "reference" in inputs else None
-            if ref is not None and ref.producer_kind == "features":
-                self.load_state(ref.path)  # reuse a model fitted by another step
-            else:
-                self.fit((ref if ref is not None else motions).motions())
-            self.save_state(ctx.out_dir)
-        # clips go out by reference: each worker reads its own from the Parquet file
-        parts = ctx.map_clips(self.transform_motion, motions, desc=f"{self.key()}")
-        x = (
-            np.concatenate([np.asarray(p, np.float32) for p in parts], 0)
-            if parts
-            else np.zeros((0, self.dim), np.float32)
-        )
-        clip_id, frame = motions.frame_ids()
-        return StepOutput({"data": feature_table(clip_id, frame, x)})
 
 
 class Index(Component):
@@ -237,6 +221,12 @@ class Index(Component):
     #: False for indexes that answer other queries than numeric kNN (inverted lists);
     #: the conformance suite then skips the kNN checks.
     supports_knn: ClassVar[bool] = True
+    #: keywords ``query`` accepts beyond ``x, k, radius`` (e.g. ``{"eps", "workers"}``)
+    query_options: ClassVar[frozenset[str]] = frozenset()
+    #: keywords ``build`` accepts beyond ``features`` (e.g. ``{"groups", "frames"}``)
+    build_options: ClassVar[frozenset[str]] = frozenset()
+    #: keywords ``load`` accepts beyond ``directory`` (e.g. ``{"mmap_mode"}``)
+    load_options: ClassVar[frozenset[str]] = frozenset()
 
     def build(self, features: np.ndarray) -> Index:
         raise NotImplementedError
@@ -251,15 +241,6 @@ class Index(Component):
     def load(cls, directory: Path) -> Index:
         raise NotImplementedError
 
-    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        from .datasets import StepOutput, frame_id_table
-
-        feats = inputs["features"].features()
-        self.build(feats.x)
-        self.save(ctx.out_dir / "index")
-        # row i of the index is frame (clip_id[i], frame[i]); matchers map ids back with it
-        return StepOutput({"data": frame_id_table(feats.clip_id, feats.frame)})
-
 
 class Matcher(Component):
     """Matches queries against a database; writes tables with :data:`~.schema.MATCHES` columns.
@@ -267,7 +248,7 @@ class Matcher(Component):
     A matcher that aligns whole query segments implements only :meth:`match` (one query's
     features against a :class:`~.matching.SearchSpace`, returning ranked
     :class:`~.matching.QueryMatches`) and sets :attr:`needs_index` / :attr:`needs_features`;
-    the default :meth:`run` (:func:`.queries.run_matcher`) does the rest: the search space
+    the default step (:func:`.queries.run_matcher`) does the rest: the search space
     from ``database`` (an index dataset, or features when no index is needed), the queries
     from ``query`` and the ``queries`` parameter (:class:`~.matching.MatchParams`), the
     ``data`` table (:data:`~.schema.MATCH_TABLE`) and the ``queries`` table
@@ -288,8 +269,11 @@ class Matcher(Component):
     needs_index: ClassVar[bool] = True
     #: The default step loads the database features (``SearchSpace.features``).
     needs_features: ClassVar[bool] = False
+    #: A matcher with a step of its own: the pipeline the conformance suite runs it in
+    #: (:func:`~.conformance.check_matcher_pipeline`).
+    test_pipeline: ClassVar[Mapping[str, Any] | None] = None
 
-    def match(self, query: np.ndarray, space: Any) -> Any:
+    def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         """Ranked matches of one query.
 
         Parameters
@@ -312,50 +296,24 @@ class Matcher(Component):
         """Whether the default step loads the database features (default :attr:`needs_features`)."""
         return self.needs_features
 
-    def search_space(self, inputs: Mapping[str, Dataset], registries: Any = None) -> Any:
-        """The :class:`~.matching.SearchSpace` of the step's inputs (:func:`.queries.search_space`)."""
-        from .queries import search_space
-
-        return search_space(self, inputs, registries)
-
-    def features_dataset(self, inputs: Mapping[str, Dataset]) -> Dataset | None:
-        """The database's features dataset (:func:`.queries.features_dataset`)."""
-        from .queries import features_dataset
-
-        return features_dataset(inputs)
-
-    def queries(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> list[Any]:
-        """The step's :class:`~.queries.Query` list (:func:`.queries.step_queries`)."""
-        from .queries import step_queries
-
-        return step_queries(self, inputs, ctx)
-
-    def after_match(self, query_id: int, query: Any, matches: Any, space: Any, ctx: StepContext) -> None:
+    def after_match(
+        self, query_id: int, query: Any, matches: QueryMatches, space: SearchSpace, ctx: StepContext
+    ) -> None:
         """Called by the default step after each query (plots); default: nothing."""
 
     def source_fingerprint(self, base_dir: Path) -> str:
         """Query files named in ``queries`` (path, size, mtime): an edited file recomputes the step."""
-        from .queries import query_files_fingerprint
-
         return query_files_fingerprint(getattr(self.params, "queries", ()), base_dir)
-
-    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        """The default step: :meth:`match` per query (:func:`.queries.run_matcher`)."""
-        if type(self).match is Matcher.match:
-            raise NotImplementedError(f"{self.key()} implements neither match(query, space) nor run()")
-        from .queries import run_matcher
-
-        return run_matcher(self, inputs, ctx)
 
 
 class Cleaner(Component):
     """Detects (:meth:`detect`) and repairs (:meth:`repair`) capture errors per joint and frame.
 
-    A cleaner implements :meth:`detect` and :meth:`repair`; the default :meth:`run`
-    (:func:`.cleaning.run_cleaner`) cleans every clip of ``motions`` against the optional
-    ``context`` clips through :meth:`clean_clip` and writes ``data``
+    A cleaner implements :meth:`detect` and :meth:`repair`; the default step
+    (:func:`.steps.run_cleaner`) cleans every clip of ``motions`` against the optional
+    ``context`` clips through :meth:`detect_and_repair` and writes ``data``
     (:data:`~.schema.DIGRESSIONS`) and ``edits`` (:data:`~.schema.EDITS`). A cleaner whose
-    detection and repair share one analysis overrides :meth:`clean_clip` to run it once.
+    detection and repair share one analysis overrides :meth:`detect_and_repair` to run it once.
     ``context`` is None, a Motion, a list of Motions or a MotionDatabase.
     """
 
@@ -378,19 +336,21 @@ class Cleaner(Component):
         (:data:`~.schema.EDITS`, :func:`.cleaning.edits_table`)."""
         raise NotImplementedError(f"{self.key()} cannot repair")
 
-    def clean_clip(self, motion: Motion, context: Any, clip_id: int, out_dir: Path | None) -> Any:
-        """One clip of the step: a :class:`.cleaning.CleanedClip` (tables, cleaned motion,
-        JSON summary); files may be written into ``out_dir``. Default: :meth:`detect`, then
-        :meth:`repair` (:func:`.cleaning.clean_clip`)."""
-        from .cleaning import clean_clip
-
-        return clean_clip(self, motion, context, clip_id)
-
-    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        """The default step: :meth:`clean_clip` per clip (:func:`.cleaning.run_cleaner`)."""
-        from .cleaning import run_cleaner
-
-        return run_cleaner(self, inputs, ctx)
+    def detect_and_repair(
+        self,
+        motion: Motion,
+        context: Any,
+        clip_id: int,
+        out_dir: Path | None = None,
+        registries: Registries | None = None,
+    ) -> CleanedClip:
+        """One clip of the default step (:func:`.steps.run_cleaner`): its tables, cleaned
+        motion and JSON summary. Files may be written into ``out_dir`` (other components,
+        e.g. a format, resolved through ``registries``: the run's). Default: :meth:`detect`,
+        then :meth:`repair` (:func:`.cleaning.clip_result`)."""
+        value = self.detect(motion, context)
+        cleaned, edits = self.repair(motion, context)
+        return clip_result(motion, value, cleaned, edits, clip_id)
 
 
 class Analysis(Component):

@@ -71,7 +71,7 @@ class PipelineConfig(BaseModel):
         return steps
 
 
-class _LineLoader(yaml.SafeLoader):
+class _LineLoader(yaml.SafeLoader):  # type: ignore[misc]  # PyYAML has no type information
     """SafeLoader that records the line of every mapping key (path tuple -> 1-based line)."""
 
 
@@ -111,7 +111,7 @@ def _load_with_lines(text: str, source: str) -> tuple[Any, dict[tuple[str, ...],
                     walk(v, key)
             elif isinstance(node, yaml.SequenceNode):
                 for i, v in enumerate(node.value):
-                    lines[(*path, str(i))] = v.start_mark.line + 1
+                    lines[path + (str(i),)] = v.start_mark.line + 1
                     walk(v, (*path, str(i)))
             active.discard(id(node))
 
@@ -219,7 +219,7 @@ def apply_overrides(source: PipelineSource, overrides: list[str] | tuple[str, ..
             if not isinstance(target, dict):
                 raise ConfigError(f"--set {item!r}: {step}.{key.rpartition('.')[0]} is not a mapping")
         target[last] = value
-        given[("steps", step, "with", *key.split("."))] = item
+        given[("steps", step, "with") + tuple(key.split("."))] = item
     data = source.config.model_dump()
     data["steps"] = steps
     return PipelineSource(PipelineConfig.model_validate(data), source.path, source.lines, given)

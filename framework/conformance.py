@@ -126,7 +126,7 @@ def _raises_clear(fn: Any, what: str, who: str) -> None:
 def _same(a: Any, b: Any, who: str) -> None:
     for f in ("start", "end", "cost", "length"):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f"{who}: two runs differ in {f}")
-    assert len(a.paths) == len(b.paths) and all(np.array_equal(p, q) for p, q in zip(a.paths, b.paths)), (
+    assert len(a.paths) == len(b.paths) and all(np.array_equal(p, q) for p, q in zip(a.paths, b.paths, strict=True)), (
         f"{who}: two runs differ in their warping paths"
     )
 
@@ -177,15 +177,15 @@ def check_matcher(cls: type[Component]) -> None:
         ("a space without features", synthetic_space(features=False)[0]),
     ):
         try:
-            r = inst.match(query, sp)
+            got = inst.match(query, sp)
         except MocapflowError:
             continue
         except Exception as exc:
             raise AssertionError(
                 f"{who}: {what} raised {type(exc).__name__}: {exc} (expected a MocapflowError subclass)"
             ) from exc
-        assert isinstance(r, QueryMatches), f"{who}: {what} gave {type(r).__name__}"
-        r.validate(sp, f"{who} ({what})")
+        assert isinstance(got, QueryMatches), f"{who}: {what} gave {type(got).__name__}"
+        got.validate(sp, f"{who} ({what})")
 
 
 class SyntheticMotions(Analysis):
@@ -253,9 +253,9 @@ def run_test_pipeline(
 def check_matcher_pipeline(cls: type[Component]) -> None:
     """A matcher with its own step and a ``test_pipeline``: equal tables over two runs, the
     shared match columns first, a clear error for ``bad_inputs``."""
-    spec = getattr(cls, "test_pipeline", None)
-    if not issubclass(cls, Matcher) or spec is None:
+    if not issubclass(cls, Matcher) or cls.test_pipeline is None:
         return
+    spec = cls.test_pipeline
     who = cls.key()
     with tempfile.TemporaryDirectory() as tmp:
         one = run_test_pipeline(cls, spec, Path(tmp) / "one")
@@ -277,7 +277,7 @@ def check_matcher_pipeline(cls: type[Component]) -> None:
 
 
 def check_cleaner(cls: type[Component]) -> None:
-    """detect / repair / clean_clip on a synthetic clip: shapes, schemas, determinism, clear errors."""
+    """detect / repair / detect_and_repair on a synthetic clip: shapes, schemas, determinism, clear errors."""
     from .cleaning import CleanedClip
     from .motion import Motion
     from .synthetic import _instance, synthetic_motion
@@ -317,8 +317,8 @@ def check_cleaner(cls: type[Component]) -> None:
     )
     again, edits2 = inst.repair(m)
     assert edits.equals(edits2) and np.array_equal(again.rotations, cleaned.rotations), f"{who}.repair: two runs differ"
-    out = inst.clean_clip(m, None, 7, None)
-    assert isinstance(out, CleanedClip), f"{who}.clean_clip returned {type(out).__name__}, not CleanedClip"
+    out = inst.detect_and_repair(m, None, 7, None)
+    assert isinstance(out, CleanedClip), f"{who}.detect_and_repair returned {type(out).__name__}, not CleanedClip"
     assert out.digressions.schema.equals(schema.DIGRESSIONS), f"{who}: digression table schema {out.digressions.schema}"
     assert out.edits.schema.equals(schema.EDITS), f"{who}: step edits schema {out.edits.schema}"
     assert set(out.digressions["clip_id"].to_pylist()) <= {7} and set(out.edits["clip_id"].to_pylist()) <= {7}

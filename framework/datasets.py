@@ -9,25 +9,25 @@ Parquet file's key-value metadata under ``mocapflow``).
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
-import uuid
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from . import schema
-from .schema import fixed_list, fixed_list_to_numpy
 from .errors import DataError, PipelineError
+from .schema import fixed_list, fixed_list_to_numpy
+from .workspace import MANIFEST, Workspace, atomic_path
 
-MANIFEST = "_manifest.json"
+if TYPE_CHECKING:
+    from .database import MotionDatabase
+    from .registry import Registries
 
 
 @dataclass
@@ -85,16 +85,17 @@ class Dataset:
 
     @cached_property
     def manifest(self) -> dict[str, Any]:
-        return json.loads((self.path / MANIFEST).read_text())
+        manifest: dict[str, Any] = json.loads((self.path / MANIFEST).read_text())
+        return manifest
 
     @property
     def step(self) -> str:
-        return self.manifest["step"]
+        return str(self.manifest["step"])
 
     @property
     def producer(self) -> str:
         """Registry key of the component that wrote it (``features.end_effectors``)."""
-        return self.manifest["component"]
+        return str(self.manifest["component"])
 
     @property
     def producer_kind(self) -> str:
@@ -102,7 +103,7 @@ class Dataset:
 
     @property
     def fingerprint(self) -> str:
-        return self.manifest["fingerprint"]
+        return str(self.manifest["fingerprint"])
 
     def table_names(self) -> list[str]:
         return sorted(p.stem for p in self.path.glob("*.parquet"))
@@ -139,7 +140,7 @@ class Dataset:
             fixed_list_to_numpy(t["features"]),
         )
 
-    def motions(self):  # -> MotionDatabase
+    def motions(self) -> MotionDatabase:
         """The clips of a motions dataset as a :class:`MotionDatabase`."""
         from .motion_tables import database_from_tables
 
@@ -149,14 +150,10 @@ class Dataset:
             self.table("clips"), self.table("skeletons"), self.table("data", columns=list(schema.MOTION_COLUMNS))
         )
 
-    def index(self, registries=None):  # -> Index
-        """Load the persisted index of an index dataset (no rebuild)."""
-        if registries is None:
-            from .plugins import load_registries
-
-            registries = load_registries()
-        cls = registries.resolve(self.producer)
-        return cls.load(self.path / "index")
+    def index(self, registries: Registries) -> Any:
+        """Load the persisted index of an index dataset (no rebuild) with the class that
+        ``registries`` hold for its producer."""
+        return registries.resolve(self.producer).load(self.path / "index")
 
     def frame_ids(self) -> tuple[np.ndarray, np.ndarray]:
         """``(clip_id, frame)`` of the rows of the main table."""
@@ -164,37 +161,13 @@ class Dataset:
         return t["clip_id"].to_numpy().astype(np.int32), t["frame"].to_numpy().astype(np.int32)
 
 
-@contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Write a file atomically: yields a temporary path beside ``path`` (same folder, same
-    suffix, so writers that look at the extension still work); when the block ends without
-    error it is renamed over ``path``, otherwise removed. A reader never sees half a file,
-    and a failed write leaves the previous file as it was. The folder must exist.
-
-    >>> with atomic_path("take.bvh") as tmp:      # doctest: +SKIP
-    ...     write_bvh(motion, tmp)
-    """
-    final = Path(path)
-    tmp = final.with_name(f".{final.stem}.{uuid.uuid4().hex[:8]}.tmp{final.suffix}")
-    try:
-        yield tmp
-        os.replace(tmp, final)
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-
-
 def read_datasets(workspace: str | Path) -> Mapping[str, Dataset]:
     """Every finished dataset of a workspace, by step id."""
-    ws = Path(workspace)
-    out = {}
-    for d in sorted(ws.iterdir()) if ws.is_dir() else []:
-        if d.is_dir() and not d.name.startswith(".") and (d / MANIFEST).is_file():
-            out[d.name] = Dataset(d)
-    return out
+    return {d.name: Dataset(d) for d in Workspace(workspace).dataset_dirs()}
 
 
 __all__ = [
+    "MANIFEST",
     "Dataset",
     "FeatureMatrix",
     "StepOutput",

@@ -34,7 +34,9 @@ class ParseError(MocapflowError):
         where = f"{self.path}:{line}" if line is not None else self.path
         super().__init__(f"{where}: {message}")
 
-    def __reduce__(self):  # keep pickling (process pools) faithful to the fields
+    def __reduce__(
+        self,
+    ) -> tuple[type[ParseError], tuple[str, int | None, str]]:  # keep pickling (process pools) faithful to the fields
         return (type(self), (self.path, self.line, self.message))
 
 

@@ -1,34 +1,19 @@
 """Executors: how a step fans out per-item work (per clip, per query, per shard).
 
-An executor is anything with ``map(fn, items, desc) -> list`` (results in input order),
-``close()`` and ``workers`` (how many items it runs at once), and optionally ``start()``
-(begin bringing workers up without blocking: the runner calls it before planning, so that
-a cluster's start-up overlaps the client's). The runner never looks inside: ``local`` runs in-process or on a process pool; a cluster executor (``dask``,
-:mod:`mocapflow.plugins.executors.dask_cluster`) implements the same and is registered through the
-``register_executors`` hook (or passed to :func:`~mocapflow.framework.runner.run_pipeline`).
-``fn`` and the items must be picklable when work leaves the process.
+An executor follows :class:`~mocapflow.framework.context.Executor`: ``map(fn, items, desc)
+-> list`` (results in input order), ``close()``, ``workers`` and its options declared in
+``Params``. The runner never looks inside: ``local`` (:class:`LocalExecutor`) runs
+in-process or on a process pool; a cluster executor (``dask``,
+:mod:`mocapflow.plugins.executors.dask_cluster`) implements the same and is registered
+through the ``register_executors`` hook (or passed to
+:func:`~mocapflow.framework.runner.run_pipeline`).
 
-Work goes out *by reference* (:mod:`mocapflow.framework.clip_refs`): :func:`map_clips` sends :class:`~mocapflow.framework.clip_refs.ClipSlice` items (a motions
-dataset's path, fingerprint and a clip range), and each worker reads those clips from the
-workspace's Parquet file itself (only the row groups it needs, cached per process), so
-no whole motion is pickled to a worker. Results come back to the step, and the runner
-writes them atomically as always: a worker never writes a table of the dataset.
-
-Why ``--jobs 2`` used to be slower than ``--jobs 1`` (measured, docs/scale-out.md): the
-steps pickled every motion to the pool, every worker ran numba's and OpenBLAS's thread
-pools at full width (2 workers x 2 threads on 2 cores), and a pool forked after the parent
-had run a parallel numba kernel died at once (GNU OpenMP is not fork-safe). Workers now
-get ``cores // workers`` threads each (:func:`limit_threads`, before their first kernel),
-the pool forks only while that is safe (from a forkserver otherwise), after numba's
-one-time start-up ran in the parent (:func:`warm_up`), so that workers inherit it.
-
-The client can be worker 0 (``client_works``): with ``jobs = N`` the pool has N - 1
-processes and the client works through the same batch's chunks instead of waiting. It
-has paid its start-up already (interpreter, registries, numba's target context, the
-kernels it loaded), so one worker's start-up leaves the run; while it works, its numeric
-threads are a worker's share too. By default it does so only where workers pay their own
-start-up (a forkserver or spawned pool): a forked pool inherits the client's, and there
-the measured critical path did not shorten.
+Work goes out *by reference* (:mod:`.clip_refs`): workers read their clips from the
+workspace's Parquet files; results come back to the step, and the runner writes them. Each
+worker gets ``cores // workers`` numeric threads (:func:`limit_threads`); the pool forks
+only while that is safe (a forkserver otherwise), after the parent's one-time start-up
+(:func:`warm_up`); the client can be worker 0 (``client_works``). Measurements:
+docs/scale-out.md.
 """
 
 from __future__ import annotations
@@ -41,15 +26,19 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, ClassVar, Literal
 
+import numpy as np
+from pydantic import Field
 
-from .clip_refs import _SliceTask, clear_cache, clip_slices
+from .clip_refs import clear_cache
+from .context import Executor, map_clips
 from .errors import PipelineError
+from .params import Params
 from .progress import progress
-from .threads import (  # noqa: F401 - re-exported: the executors API of sessions 1-5
+from .threads import (
     THREAD_ENV,
     _client_threads,
     available_cores,
@@ -57,24 +46,10 @@ from .threads import (  # noqa: F401 - re-exported: the executors API of session
     size_blas_for_workers,
     threads_per_worker,
 )
+from .workspace import ROW_GROUP_ROWS
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .datasets import Dataset
-
-#: Rows per Parquet row group of the tables the runner writes: a worker reading a clip range
-#: decodes only the groups that hold it (:class:`ClipSlice`), not the whole table.
-ROW_GROUP_ROWS = 65536
 #: Modules a forkserver imports once, so that its workers start warm.
 PRELOAD = ("numpy", "pyarrow.parquet", "numba", "mocapflow.framework", "mocapflow.plugins")
-
-
-class Executor(Protocol):
-    name: str
-    workers: int
-
-    def map(self, fn: Callable[[Any], Any], items: Sequence[Any], desc: str = "") -> list[Any]: ...
-
-    def close(self) -> None: ...
 
 
 def _fork_is_safe() -> bool:
@@ -97,9 +72,11 @@ def warm_up() -> None:
     """
     import pyarrow.dataset  # noqa: F401 - preloaded before forking: the worker's first read is then fast
 
-    from .synthetic import synthetic_motion
+    from ._fk_kernels import fk
 
-    synthetic_motion(2).positions
+    identity = np.zeros((2, 2, 4))
+    identity[..., 0] = 1.0
+    fk(np.array([-1, 0]), np.zeros((2, 3)), np.zeros((2, 3)), identity, None)
 
 
 def _init_worker(threads: int, warm: bool = False) -> None:
@@ -115,44 +92,35 @@ def _started() -> int:
 class LocalExecutor:
     """In-process for ``jobs == 1``, else ``jobs`` workers kept for the run: by default the
     client itself and a process pool of ``jobs - 1`` (``client_works``), else a pool of ``jobs``.
+    The options are :class:`LocalExecutor.Params`.
 
-    Parameters
-    ----------
-    jobs : int
-        Workers (0: one per core), the client included when ``client_works``.
-    min_items_for_pool : int
-        Smaller batches run in-process (a pool costs more than it saves on a handful).
-    threads : int, optional
-        Numeric threads per worker (default ``cores // jobs``, at least 1); the client uses
-        as many while it works through a batch's chunks, its full width otherwise.
-    start_method : {"fork", "forkserver", "spawn"}, optional
-        Default: fork while it is safe (see :func:`_fork_is_safe`), else a forkserver that
-        preloads :data:`PRELOAD`.
-    prestart : bool
-        :meth:`start` (the runner calls it before planning) forks the pool at once and each
-        worker warms itself up (:func:`warm_up`) while the client plans, lists and
-        fingerprints; otherwise the pool forks at the first batch, after the parent warmed
-        up, and the workers inherit that (docs/scale-out.md compares both).
-    client_works : bool, optional
-        ``True``: the client is worker 0: it has paid its start-up (imports, registries,
-        numba's target context, loaded kernels) and would otherwise wait, so a batch is cut
-        into chunks that the pool's ``jobs - 1`` processes and the client take from the
-        same list; one worker's start-up leaves the run. ``False``: a pool of ``jobs``
-        processes, the client waits. Default (``None``): ``True`` for a forkserver or
-        spawned pool (each worker imports and warms up on its own), ``False`` for a forked
-        one, whose workers inherit the client's start-up: there the client's share of a
-        batch, beside the unpickling of the pool's results on its core, measured no faster,
-        and with ``prestart`` slower (docs/scale-out.md, session 5).
+    ``client_works`` unset: the client is worker 0 for a forkserver or spawned pool (each
+    worker imports and warms up on its own, the client has paid that already), not for a
+    forked one (its workers inherit the client's start-up; measured no faster there).
+    ``prestart``: :meth:`start` (called before planning) forks the pool at once and each
+    worker warms itself up while the client plans; otherwise the pool forks at the first
+    batch, after the parent warmed up.
 
     Results come back in input order, and a failing batch raises the error of its first
-    failing item in input order, as in-process (the client's own chunks included: chunks
-    are claimed in order and none is claimed after a failure). A worker that dies
-    (killed, out of memory) fails the step with a
-    :class:`~mocapflow.framework.errors.PipelineError`; the runner discards its temporary
-    output, so no half-written dataset remains.
+    failing item in input order, as in-process (chunks are claimed in order and none is
+    claimed after a failure). A worker that dies (killed, out of memory) fails the step
+    with a :class:`~mocapflow.framework.errors.PipelineError`; the runner discards its
+    temporary output, so no half-written dataset remains.
     """
 
-    name = "local"
+    name: ClassVar[str] = "local"
+
+    class Params(Params):
+        jobs: int = Field(1, ge=0, description="workers, the client included (0: one per core)")
+        min_items_for_pool: int = Field(4, ge=1, description="smaller batches run in-process")
+        threads: int | None = Field(None, ge=1, description="numeric threads per worker (default cores // jobs)")
+        start_method: Literal["fork", "forkserver", "spawn"] | None = Field(
+            None, description="default: fork while it is safe, else a forkserver"
+        )
+        prestart: bool = Field(False, description="fork the pool before planning; workers warm up meanwhile")
+        client_works: bool | None = Field(
+            None, description="the client is worker 0 (default: for a forkserver or spawned pool)"
+        )
 
     def __init__(
         self,
@@ -187,7 +155,7 @@ class LocalExecutor:
     def _client_works(self, method: str, warm_parent: bool) -> bool:
         if self.client_works is not None:
             return bool(self.client_works)
-        return method != "fork"  # workers that import and warm up on their own (measured, session 5)
+        return method != "fork"  # workers that import and warm up on their own (measured)
 
     def start(self) -> None:
         """With ``prestart``: fork every worker now; each warms itself up in the background."""
@@ -236,7 +204,9 @@ class LocalExecutor:
             if self.batches:  # the client's CPU during the whole batch (pool start-up included)
                 self.batches[-1]["map_s"] = time.process_time() - c0
 
-    def _map_on_pool(self, pool: ProcessPoolExecutor, fn, items: list[Any], desc: str) -> list[Any]:
+    def _map_on_pool(
+        self, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any], desc: str
+    ) -> list[Any]:
         chunk = max(1, len(items) // (self.jobs * 4))
         out = pool.map(fn, items, chunksize=chunk)
         cpu0 = _pool_cpu(pool)  # after the submissions: a forked pool starts its processes there
@@ -245,109 +215,29 @@ class LocalExecutor:
         finally:
             self._record(desc, len(items), 0.0, cpu0, _pool_cpu(pool))
 
-    def _map_with_client(self, pool: ProcessPoolExecutor, fn, items: list[Any], desc: str) -> list[Any]:
+    def _map_with_client(
+        self, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any], desc: str
+    ) -> list[Any]:
         """The batch in chunks taken in order from one list by the client (which runs them
         itself) and by a feeder thread that keeps the pool's processes supplied (one chunk
         each, plus one queued while more than ``jobs`` remain, so that the last chunks go to
         whoever is free). Nothing is submitted that is not meant to run: no cancellations."""
-        size = max(1, len(items) // (self.jobs * 8))  # finer than the pool alone: a chunk is the tail
-        bounds = [(a, min(a + size, len(items))) for a in range(0, len(items), size)]
-        todo, lock, stop = deque(range(len(bounds))), threading.Lock(), threading.Event()
-        done: queue.SimpleQueue = queue.SimpleQueue()  # (chunk, future) the pool finished; None: feeder ended
-        results: list[list[Any] | None] = [None] * len(bounds)
-        errors: dict[int, BaseException] = {}
-        own = 0.0
-
-        def claim() -> int | None:
-            with lock:  # chunks are claimed in order: all chunks before a failing one are claimed
-                return None if stop.is_set() or not todo else todo.popleft()
-
-        def submit(inflight: dict, want: int) -> None:
-            while len(inflight) < want + (1 if len(todo) > self.jobs else 0):
-                j = claim()
-                if j is None:
-                    return
-                inflight[pool.submit(_apply_chunk, fn, items[bounds[j][0] : bounds[j][1]])] = j
-
-        def feed(inflight: dict) -> None:
-            try:
-                while True:
-                    submit(inflight, self.processes)
-                    if not inflight:
-                        return
-                    finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
-                    for f in finished:
-                        if f.exception() is not None:
-                            stop.set()  # as in-process: nothing after a failing item starts
-                        done.put((inflight.pop(f), f))
-            except BaseException as exc:  # a broken or closed pool: the client raises it
-                stop.set()
-                done.put((-1, exc))
-            finally:
-                done.put(None)
-
-        first: dict = {}
-        submit(first, self.processes)  # in this thread: a forked pool starts its processes here
+        batch = _ClientBatch(self, pool, fn, items)
+        first: dict[Future[list[Any]], int] = {}
+        batch.submit(first, self.processes)  # in this thread: a forked pool starts its processes here
         cpu0 = _pool_cpu(pool)
-        feeder = threading.Thread(target=feed, args=(first,), name="mocapflow-feeder", daemon=True)
+        feeder = threading.Thread(target=batch.feed, args=(first,), name="mocapflow-feeder", daemon=True)
         feeder.start()
-
-        def take(item) -> Iterator[int]:
-            j, f = item
-            if j < 0:
-                raise f
-            exc = f.exception()
-            if isinstance(exc, BrokenProcessPool):
-                raise exc
-            if exc is not None:
-                errors[j] = exc
-            else:
-                results[j] = f.result()
-            yield from range(bounds[j][1] - bounds[j][0])
-
-        def drive() -> Iterator[int]:
-            nonlocal own
-            ended = False
-            with _client_threads(self.threads):
-                while (j := claim()) is not None:
-                    c0 = time.process_time()
-                    try:
-                        results[j] = _apply_chunk(fn, items[bounds[j][0] : bounds[j][1]])
-                    except Exception as exc:  # raised below in input order, like a worker's
-                        errors[j] = exc
-                        stop.set()
-                    finally:
-                        own += time.process_time() - c0
-                    yield from range(bounds[j][1] - bounds[j][0])
-                    while not ended:  # what the pool finished meanwhile: the bar moves
-                        try:
-                            item = done.get_nowait()
-                        except queue.Empty:
-                            break
-                        if item is None:
-                            ended = True
-                        else:
-                            yield from take(item)
-            while not ended:
-                try:
-                    item = done.get(timeout=0.2)  # a timeout: Ctrl-C is seen while waiting
-                except queue.Empty:
-                    continue
-                if item is None:
-                    ended = True
-                else:
-                    yield from take(item)
-
         try:
-            for _ in progress(drive(), total=len(items), desc=desc):
+            for _ in progress(batch.drive(), total=len(items), desc=desc):
                 pass
         finally:
-            stop.set()  # an error or an interrupt: nothing more is claimed nor submitted
+            batch.stop.set()  # an error or an interrupt: nothing more is claimed nor submitted
             clear_cache()  # the client keeps no dataset between steps
-            self._record(desc, len(items), own, cpu0, _pool_cpu(pool))
-        if errors:
-            raise errors[min(errors)]
-        return [r for part in results for r in part]  # type: ignore[union-attr]
+            self._record(desc, len(items), batch.own, cpu0, _pool_cpu(pool))
+        if batch.errors:
+            raise batch.errors[min(batch.errors)]
+        return [r for part in batch.results for r in part or ()]
 
     def _record(self, desc: str, n: int, client_s: float, cpu0: dict[int, float], cpu1: dict[int, float]) -> None:
         workers = [cpu1[p] - cpu0.get(p, 0.0) for p in cpu1]
@@ -357,6 +247,103 @@ class LocalExecutor:
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
+
+
+class _ClientBatch:
+    """One batch of :meth:`LocalExecutor._map_with_client`: its chunks, claimed in order by
+    the client (:meth:`drive`) and by the feeder thread for the pool (:meth:`feed`)."""
+
+    def __init__(self, ex: LocalExecutor, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any]):
+        self.ex, self.pool, self.fn, self.items = ex, pool, fn, items
+        size = max(1, len(items) // (ex.jobs * 8))  # finer than the pool alone: a chunk is the tail
+        self.bounds = [(a, min(a + size, len(items))) for a in range(0, len(items), size)]
+        self.todo, self.lock, self.stop = deque(range(len(self.bounds))), threading.Lock(), threading.Event()
+        # (chunk, future) the pool finished, (-1, error) a broken pool; None: the feeder ended
+        self.done: queue.SimpleQueue[tuple[int, Any] | None] = queue.SimpleQueue()
+        self.results: list[list[Any] | None] = [None] * len(self.bounds)
+        self.errors: dict[int, BaseException] = {}
+        self.own = 0.0  # CPU seconds of the client's own chunks
+
+    def chunk(self, j: int) -> list[Any]:
+        return self.items[self.bounds[j][0] : self.bounds[j][1]]
+
+    def claim(self) -> int | None:
+        with self.lock:  # chunks are claimed in order: all chunks before a failing one are claimed
+            return None if self.stop.is_set() or not self.todo else self.todo.popleft()
+
+    def submit(self, inflight: dict[Future[list[Any]], int], want: int) -> None:
+        while len(inflight) < want + (1 if len(self.todo) > self.ex.jobs else 0):
+            j = self.claim()
+            if j is None:
+                return
+            inflight[self.pool.submit(_apply_chunk, self.fn, self.chunk(j))] = j
+
+    def feed(self, inflight: dict[Future[list[Any]], int]) -> None:
+        """The feeder thread: keeps the pool supplied, hands finished chunks to the client."""
+        try:
+            while True:
+                self.submit(inflight, self.ex.processes)
+                if not inflight:
+                    return
+                finished, _ = wait(inflight, return_when=FIRST_COMPLETED)
+                for f in finished:
+                    if f.exception() is not None:
+                        self.stop.set()  # as in-process: nothing after a failing item starts
+                    self.done.put((inflight.pop(f), f))
+        except BaseException as exc:  # a broken or closed pool: the client raises it
+            self.stop.set()
+            self.done.put((-1, exc))
+        finally:
+            self.done.put(None)
+
+    def take(self, item: tuple[int, Any]) -> Iterator[int]:
+        """A chunk the pool finished: its result or error; one tick per item."""
+        j, f = item
+        if j < 0:
+            raise f
+        exc = f.exception()
+        if isinstance(exc, BrokenProcessPool):
+            raise exc
+        if exc is not None:
+            self.errors[j] = exc
+        else:
+            self.results[j] = f.result()
+        yield from range(len(self.chunk(j)))
+
+    def run_own(self, j: int) -> Iterator[int]:
+        """A chunk the client runs itself; one tick per item."""
+        c0 = time.process_time()
+        try:
+            self.results[j] = _apply_chunk(self.fn, self.chunk(j))
+        except Exception as exc:  # raised at the end in input order, like a worker's
+            self.errors[j] = exc
+            self.stop.set()
+        finally:
+            self.own += time.process_time() - c0
+        yield from range(len(self.chunk(j)))
+
+    def drive(self) -> Iterator[int]:
+        """The client: its own chunks while any is left, then what the pool finishes."""
+        ended = False
+        with _client_threads(self.ex.threads):
+            while (j := self.claim()) is not None:
+                yield from self.run_own(j)
+                while not ended:  # what the pool finished meanwhile: the bar moves
+                    try:
+                        item = self.done.get_nowait()
+                    except queue.Empty:
+                        break
+                    ended = item is None
+                    if item is not None:
+                        yield from self.take(item)
+        while not ended:
+            try:
+                item = self.done.get(timeout=0.2)  # a timeout: Ctrl-C is seen while waiting
+            except queue.Empty:
+                continue
+            ended = item is None
+            if item is not None:
+                yield from self.take(item)
 
 
 def _apply_chunk(fn: Callable[[Any], Any], chunk: Sequence[Any]) -> list[Any]:
@@ -378,28 +365,16 @@ def _pool_cpu(pool: ProcessPoolExecutor) -> dict[int, float]:
     return out
 
 
-def map_clips(
-    executor: Executor,
-    fn: Callable[..., Any],
-    dataset: Dataset,
-    desc: str = "",
-    with_ids: bool = False,
-    slices_per_worker: int = 4,
-) -> list[Any]:
-    """``[fn(motion) for motion in dataset]`` on ``executor``, in clip order.
-
-    Items are :class:`ClipSlice` references (``slices_per_worker`` per worker, balanced by
-    frames; one slice when the executor has a single worker), so workers read their clips
-    from the Parquet file instead of receiving pickled motions. ``fn`` must be picklable
-    (a module-level function, a bound method of a component, a ``functools.partial``);
-    with ``with_ids`` it is called as ``fn(motion, clip_id)``.
-    """
-    workers = max(1, int(getattr(executor, "workers", 1)))
-    n = 1 if workers == 1 else workers * slices_per_worker
-    pieces = clip_slices(dataset, n)
-    # largest slices first (a long clip started last would finish alone); results back in clip order
-    frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy()
-    order = sorted(range(len(pieces)), key=lambda i: -int(frames[pieces[i].start : pieces[i].stop].sum()))
-    out = executor.map(_SliceTask(fn, with_ids), [pieces[i] for i in order], desc=desc)
-    by_slice = dict(zip(order, out))
-    return [r for i in range(len(pieces)) for r in by_slice[i]]
+__all__ = [
+    "PRELOAD",
+    "ROW_GROUP_ROWS",
+    "THREAD_ENV",
+    "Executor",
+    "LocalExecutor",
+    "available_cores",
+    "limit_threads",
+    "map_clips",
+    "size_blas_for_workers",
+    "threads_per_worker",
+    "warm_up",
+]

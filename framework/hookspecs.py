@@ -17,6 +17,8 @@ exception is its cause).
 
 from __future__ import annotations
 
+from typing import Any
+
 import pluggy
 
 hookspec = pluggy.HookspecMarker("mocapflow")
@@ -61,7 +63,7 @@ def register_analyses() -> list[type]:
 
 
 @hookspec
-def register_joint_maps() -> list:
+def register_joint_maps() -> list[Any]:
     """Return skeleton naming dialects (:class:`~mocapflow.framework.joints.JointMap`
     instances): for each canonical joint, the source joint names that stand for it. Readers
     map every skeleton through the dialect that maps the most required joints

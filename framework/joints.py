@@ -131,11 +131,11 @@ class JointMap:
         for canon in self.pick_order or tuple(self.candidates):
             names = (*self.candidates.get(canon, ()), *((canon,) if self.self_named else ()))
             for cand in names:
-                i = index.get(key(cand))
+                found = index.get(key(cand))
                 # dialects may list one name for two joints: never give a joint two names
-                if i is not None and i not in used:
-                    out[canon] = i
-                    used.add(i)
+                if found is not None and found not in used:
+                    out[canon] = found
+                    used.add(found)
                     break
         return out
 

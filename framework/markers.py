@@ -79,7 +79,7 @@ class Markers:
     @property
     def gaps(self) -> np.ndarray:
         """Boolean mask of missing samples, shape (T, M)."""
-        return np.isnan(self.positions).any(axis=-1)
+        return np.asarray(np.isnan(self.positions).any(axis=-1))
 
     def index(self, label: str) -> int:
         try:

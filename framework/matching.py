@@ -16,21 +16,30 @@ table); :class:`SearchSpace` maps them to ``(clip_id, frame)``.
 from __future__ import annotations
 
 import bisect
+import hashlib
+import re
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Literal
+from pathlib import Path
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
 from . import schema
+from .errors import ConfigError, DataError
 from .params import Params
-from .errors import DataError
 
 #: Columns of a match table (:data:`~mocapflow.framework.schema.MATCH_TABLE`).
 MATCH_COLUMNS = schema.MATCH_TABLE
+
+
+class NeighbourIndex(Protocol):
+    """What a search space needs of an index (:class:`~mocapflow.framework.Index`)."""
+
+    def query(self, x: np.ndarray, k: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @dataclass(frozen=True)
@@ -56,9 +65,9 @@ class SearchSpace:
 
     clip_id: np.ndarray
     frame: np.ndarray
-    index: object | None = None
+    index: NeighbourIndex | None = None
     features: np.ndarray | None = None
-    clip_names: dict | None = None
+    clip_names: dict[int, str] | None = None
 
     def __post_init__(self) -> None:
         cid = np.asarray(self.clip_id, np.int32)
@@ -89,7 +98,7 @@ class SearchSpace:
         return c
 
     @cached_property
-    def _memo(self) -> dict:
+    def _memo(self) -> dict[Hashable, Any]:
         return {}
 
     def memo(self, key: Hashable, compute: Callable[[], Any]) -> Any:
@@ -102,7 +111,8 @@ class SearchSpace:
         """The index's kNN of ``x`` (m, d): ``(dist, ids)`` each (m, k), as :meth:`.Index.query`."""
         if self.index is None:
             raise DataError("this search space has no index (SearchSpace.index)")
-        return self.index.query(np.ascontiguousarray(x, dtype=np.float32), k, radius)
+        dist, ids = self.index.query(np.ascontiguousarray(x, dtype=np.float32), k, radius)
+        return np.asarray(dist), np.asarray(ids)
 
 
 @dataclass
@@ -217,12 +227,12 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
 
     Each result needs ``paths`` (one per match); ``query_ids[i]`` labels ``results[i]``.
     """
-    for q, r in zip(query_ids, results):
+    for q, r in zip(query_ids, results, strict=True):
         r.validate(space, f"query {q}")
         if len(r.paths) != len(r):
             raise DataError(f"query {q}: {len(r)} matches but {len(r.paths)} warping paths")
     qid, rank, s_all, e_all, c_all, l_all, offsets, flat = [], [], [], [], [], [], [0], []
-    for q, r in zip(query_ids, results):
+    for q, r in zip(query_ids, results, strict=True):
         n = len(r)
         qid.append(np.full(n, q, np.int32))
         rank.append(np.arange(1, n + 1, dtype=np.int32))
@@ -234,7 +244,7 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
             flat.append(np.stack([p[:, 0], space.frame[p[:, 1]]], axis=1).astype(np.int32))
             offsets.append(offsets[-1] + len(p))
 
-    def cat(xs: list, dt: Any) -> np.ndarray:
+    def cat(xs: list[np.ndarray], dt: Any) -> np.ndarray:
         return np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)
 
     start, end = cat(s_all, np.int64), cat(e_all, np.int64)
@@ -282,13 +292,81 @@ class MatchParams(Params):
     )
 
 
+_RANGE = re.compile(r"^(?P<a>\d+(?:\.\d+)?)(?P<ua>s?)-(?P<b>\d+(?:\.\d+)?)(?P<ub>s?)$")
+
+
+@dataclass(frozen=True)
+class QuerySpec:
+    """A parsed ``SOURCE[:START-END]``; ``start``/``end`` in frames, or seconds if ``seconds``."""
+
+    source: str
+    start: float | None = None
+    end: float | None = None
+    seconds: bool = False
+
+    def frames(self, fps: float, n_frames: int) -> tuple[int, int]:
+        """Half-open frame range within a clip of ``n_frames`` at ``fps``."""
+        if self.start is None or self.end is None:
+            return 0, n_frames
+        scale = fps if self.seconds else 1.0
+        a, b = int(round(self.start * scale)), int(round(self.end * scale))
+        if not 0 <= a < b <= n_frames:
+            raise ConfigError(f"query {self.text()!r}: frames [{a}, {b}) outside the clip's {n_frames} frames")
+        return a, b
+
+    def text(self) -> str:
+        if self.start is None or self.end is None:
+            return self.source
+        if self.seconds:
+            return f"{self.source}:{self.start:g}s-{self.end:g}s"
+        return f"{self.source}:{int(self.start)}-{int(self.end)}"
+
+
+def parse_query_spec(text: str) -> QuerySpec:
+    """``"walk.amc:30-120"`` -> ``QuerySpec("walk.amc", 30, 120)``; no range: the whole clip."""
+    source, sep, rng = text.rpartition(":")
+    m = _RANGE.match(rng) if sep else None
+    if not m:
+        return QuerySpec(text)
+    if bool(m["ua"]) != bool(m["ub"]):
+        raise ConfigError(f"query {text!r}: give both ends in frames or both in seconds ('1.5s-3s')")
+    secs = bool(m["ua"])
+    a, b = float(m["a"]), float(m["b"])
+    if not secs and (a != int(a) or b != int(b)):
+        raise ConfigError(f"query {text!r}: frame numbers must be integers (or add 's' for seconds)")
+    if b <= a:
+        raise ConfigError(f"query {text!r}: empty range (end is exclusive)")
+    return QuerySpec(source, a, b, secs)
+
+
+def query_files_fingerprint(queries: Any, base_dir: Path) -> str:
+    """Digest of the query files named in ``queries`` (path, size, mtime); "" when none.
+
+    Entries that are not query-spec strings (another matcher's structured queries) are skipped.
+    """
+    h, files = hashlib.sha256(), 0
+    for text in queries or ():
+        if not isinstance(text, str):
+            continue
+        p = Path(parse_query_spec(text).source).expanduser()
+        p = p if p.is_absolute() else Path(base_dir) / p
+        if p.is_file():
+            st = p.stat()
+            h.update(f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+            files += 1
+    return h.hexdigest()[:24] if files else ""
+
+
 __all__ = [
     "MATCH_COLUMNS",
     "IntervalSet",
     "MatchParams",
+    "QuerySpec",
     "QueryMatches",
     "SearchSpace",
     "matches_table",
     "min_frames_of",
+    "parse_query_spec",
+    "query_files_fingerprint",
     "select_matches",
 ]

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -135,14 +134,6 @@ class Motion:
         return out
 
     # --- editing ------------------------------------------------------------------------
-    def write(self, path: str | Path) -> None:
-        """Write with the registered format for the extension of ``path`` (``.bvh``, ``.amc`` ...), atomically."""
-        from .plugins import default_registries
-
-        path = Path(path).expanduser()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        default_registries().motion_format(path, writing=True).write_atomic(self, path)
-
     def slice(self, start: int, stop: int) -> Motion:
         """Frames ``[start, stop)`` as a new clip (metadata records the offset)."""
         meta = dict(self.metadata, source_start_frame=int(self.metadata.get("source_start_frame", 0)) + int(start))

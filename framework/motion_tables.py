@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -16,7 +17,7 @@ from .schema import fixed_list
 from .skeleton import Skeleton
 
 
-def clip_row(clip_id: int, motion: Motion) -> dict:
+def clip_row(clip_id: int, motion: Motion) -> dict[str, Any]:
     """One row of the ``clips`` table from a motion's metadata."""
     meta = motion.metadata
     return {
@@ -34,7 +35,7 @@ def clip_row(clip_id: int, motion: Motion) -> dict:
     }
 
 
-def clips_table(rows: Sequence[dict]) -> pa.Table:
+def clips_table(rows: Sequence[dict[str, Any]]) -> pa.Table:
     return pa.Table.from_pylist(list(rows), schema=schema.CLIPS)
 
 
@@ -78,11 +79,11 @@ def motions_to_tables(motions: Sequence[Motion], clip_ids: Sequence[int] | None 
     ids = list(range(len(motions))) if clip_ids is None else [int(c) for c in clip_ids]
     if len(ids) != len(motions) or len(set(ids)) != len(ids):
         raise DataError(f"need {len(motions)} distinct clip ids, got {len(set(ids))} distinct of {len(ids)}")
-    frames = [frames_table(i, m) for i, m in zip(ids, motions)]
+    frames = [frames_table(i, m) for i, m in zip(ids, motions, strict=True)]
     data = pa.concat_tables(frames) if frames else schema.motion_frames().empty_table()
     return {
         "data": data,
-        "clips": clips_table([clip_row(i, m) for i, m in zip(ids, motions)]),
+        "clips": clips_table([clip_row(i, m) for i, m in zip(ids, motions, strict=True)]),
         "skeletons": skeletons_table([m.skeleton for m in motions]),
     }
 
@@ -99,7 +100,7 @@ def database_from_tables(clips: pa.Table, skeletons: pa.Table, frames: pa.Table)
     if int(n_frames.sum()) != frames.num_rows:
         raise DataError(f"clips table counts {int(n_frames.sum())} frames, data table has {frames.num_rows}")
     rot_offset = 0
-    for row, start in zip(clips.to_pylist(), starts):
+    for row, start in zip(clips.to_pylist(), starts, strict=False):  # no clip: starts is [0]
         s = skel[row["skeleton"]]
         n = row["n_frames"]
         size = n * s.n_joints * 4

@@ -13,6 +13,7 @@ import json
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
@@ -103,7 +104,7 @@ def _param_error(
     return source.error(("steps", step_id, "with", *loc), f"step {step_id!r}: {msg}")
 
 
-class _Fields(dict):
+class _Fields(dict[str, Any]):
     def __missing__(self, key: str) -> str:
         raise ConfigError(f"ParamsOf key refers to no parameter {key!r}")
 
@@ -161,6 +162,77 @@ def _check_kinds(source: PipelineSource, steps: dict[str, PlannedStep]) -> None:
                 )
 
 
+def _check_executor(source: PipelineSource, registries: Registries) -> None:
+    """The executor is registered and ``executor_options`` validate against its ``Params``."""
+    config, executors = source.config, registries.executors
+    if not len(executors):  # a bare Registries() knows none: not checked
+        return
+    if config.executor not in executors:
+        raise source.error(
+            ("executor",),
+            f"unknown executor {config.executor!r}{did_you_mean(config.executor, executors.names())}; "
+            f"registered: {', '.join(executors.names())}",
+        )
+    model: type[BaseModel] = executors.get(config.executor).Params
+    try:
+        model(**{"jobs": config.jobs, **config.executor_options})
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = tuple(str(p) for p in err["loc"])
+        known = ", ".join(model.model_fields)
+        raise source.error(
+            ("executor_options", *loc),
+            f"executor {config.executor!r}: option {'.'.join(loc)!r}: {err['msg']} (options: {known})",
+        ) from None
+
+
+def _plan_step(source: PipelineSource, step_id: str, registries: Registries) -> PlannedStep:
+    """One step checked on its own: component, parameters (nested ones too), input slots."""
+    config, sc = source.config, source.config.steps[step_id]
+    try:
+        cls: type[Component] = registries.resolve(sc.uses)
+    except ConfigError as exc:
+        raise source.error(("steps", step_id, "uses"), f"step {step_id!r}: {exc}") from None
+    if not cls.is_step:
+        raise source.error(
+            ("steps", step_id, "uses"),
+            f"step {step_id!r}: {sc.uses} is a file format, not a step; use formats.load",
+        )
+    try:
+        component = cls(cls.Params(**sc.with_))
+    except ValidationError as exc:
+        raise _param_error(source, step_id, cls, exc) from None
+    _check_nested(source, step_id, cls, component.params, registries)
+    slots = dict(cls.inputs)
+    if sc.input is not None:
+        if not slots:
+            raise source.error(("steps", step_id, "input"), f"step {step_id!r}: {sc.uses} takes no input")
+        inputs = {next(iter(slots)): sc.input}
+    else:
+        inputs = dict(sc.inputs)
+    for slot, upstream in inputs.items():
+        if slot not in slots:
+            known = f"{did_you_mean(slot, list(slots))}; slots: {', '.join(slots) or 'none'}"
+            raise source.error(
+                ("steps", step_id, "inputs", slot), f"step {step_id!r}: {sc.uses} has no input {slot!r}{known}"
+            )
+        if upstream not in config.steps:
+            raise source.error(
+                ("steps", step_id, "input" if sc.input is not None else "inputs"),
+                f"step {step_id!r}: input {slot!r} refers to unknown step {upstream!r}"
+                f"{did_you_mean(upstream, list(config.steps))}",
+            )
+        if upstream == step_id:
+            raise source.error(("steps", step_id), f"step {step_id!r} uses its own output as input")
+    missing = [s for s, required in slots.items() if required and s not in inputs]
+    if missing:
+        raise source.error(
+            ("steps", step_id),
+            f"step {step_id!r}: missing required input {', '.join(map(repr, missing))} for {sc.uses}",
+        )
+    return PlannedStep(step_id, component, inputs)
+
+
 def build_plan(source: PipelineSource, registries: Registries) -> Plan:
     """Validate everything and return a :class:`Plan`; raises :class:`ConfigError`.
 
@@ -172,58 +244,10 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
     its warnings are logged and kept in ``Plan.warnings``.
     """
     config = source.config
-    steps: dict[str, PlannedStep] = {}
-    for step_id, sc in config.steps.items():
-        try:
-            cls = registries.resolve(sc.uses)
-        except ConfigError as exc:
-            raise source.error(("steps", step_id, "uses"), f"step {step_id!r}: {exc}") from None
-        if not getattr(cls, "is_step", True):
-            raise source.error(
-                ("steps", step_id, "uses"),
-                f"step {step_id!r}: {sc.uses} is a file format, not a step; use formats.load",
-            )
-        try:
-            component = cls(cls.Params(**sc.with_))
-        except ValidationError as exc:
-            raise _param_error(source, step_id, cls, exc) from None
-        _check_nested(source, step_id, cls, component.params, registries)
-        slots = dict(cls.inputs)
-        if sc.input is not None:
-            if not slots:
-                raise source.error(("steps", step_id, "input"), f"step {step_id!r}: {sc.uses} takes no input")
-            inputs = {next(iter(slots)): sc.input}
-        else:
-            inputs = dict(sc.inputs)
-        for slot, upstream in inputs.items():
-            if slot not in slots:
-                raise source.error(
-                    ("steps", step_id, "inputs", slot),
-                    f"step {step_id!r}: {sc.uses} has no input {slot!r}{did_you_mean(slot, list(slots))}; slots: {', '.join(slots) or 'none'}",
-                )
-            if upstream not in config.steps:
-                raise source.error(
-                    ("steps", step_id, "input" if sc.input is not None else "inputs"),
-                    f"step {step_id!r}: input {slot!r} refers to unknown step {upstream!r}{did_you_mean(upstream, list(config.steps))}",
-                )
-            if upstream == step_id:
-                raise source.error(("steps", step_id), f"step {step_id!r} uses its own output as input")
-        missing = [s for s, required in slots.items() if required and s not in inputs]
-        if missing:
-            raise source.error(
-                ("steps", step_id),
-                f"step {step_id!r}: missing required input {', '.join(map(repr, missing))} for {sc.uses}",
-            )
-        steps[step_id] = PlannedStep(step_id, component, inputs)
+    steps = {step_id: _plan_step(source, step_id, registries) for step_id in config.steps}
 
     _check_kinds(source, steps)
-    executors = registries.executors
-    if len(executors) and config.executor not in executors:  # a bare Registries() knows none: not checked
-        raise source.error(
-            ("executor",),
-            f"unknown executor {config.executor!r}{did_you_mean(config.executor, executors.names())}; "
-            f"registered: {', '.join(executors.names())}",
-        )
+    _check_executor(source, registries)
     sorter = graphlib.TopologicalSorter({sid: set(s.inputs.values()) for sid, s in steps.items()})
     try:
         order = list(sorter.static_order())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import importlib
 import logging
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from importlib import metadata
 from typing import Any
@@ -15,7 +15,7 @@ import pluggy
 from . import hookspecs
 from .errors import PluginError
 from .joints import JointMap
-from .registry import KINDS, Registries
+from .registry import KINDS, Registries, Registry
 
 PROJECT = "mocapflow"
 ENTRY_POINT_GROUP = "mocapflow"
@@ -27,7 +27,7 @@ def builtin_plugin_modules() -> tuple[str, ...]:
     """Module names of the built-in plugins (listed in :mod:`mocapflow.plugins`)."""
     from mocapflow.plugins import BUILTIN_PLUGINS
 
-    return BUILTIN_PLUGINS
+    return tuple(BUILTIN_PLUGINS)
 
 
 @dataclass
@@ -102,8 +102,8 @@ def _provider(pm: pluggy.PluginManager, impl: Any) -> str:
 
 
 def collect_classes(
-    pm: pluggy.PluginManager, hook_name: str, check=None
-) -> tuple[list[tuple[str, list[type]]], dict[str, str]]:
+    pm: pluggy.PluginManager, hook_name: str, check: Callable[[type[Any], str], None] | None = None
+) -> tuple[list[tuple[str, list[type[Any]]]], dict[str, str]]:
     """Call one registration hook plugin by plugin.
 
     Returns ``(results, failed)``: ``(plugin name, classes)`` for every plugin whose hook
@@ -112,7 +112,7 @@ def collect_classes(
     raised, returned something else, or a class failed the check). Nothing is raised, so
     one broken plugin never stops the others.
     """
-    results: list[tuple[str, list[type]]] = []
+    results: list[tuple[str, list[type[Any]]]] = []
     failed: dict[str, str] = {}
     for impl in getattr(pm.hook, hook_name).get_hookimpls():
         provider = _provider(pm, impl)
@@ -156,7 +156,7 @@ def build_registries(
     """
     wanted = None if kinds is None else set(kinds)
     regs = Registries()
-    pending: list[tuple[object, str, list[type]]] = []
+    pending: list[tuple[Registry, str, list[type[Any]]]] = []
     failed: dict[str, str] = {}
     for kind in KINDS:
         if wanted is not None and kind not in wanted:
@@ -172,8 +172,9 @@ def build_registries(
     failed.update({p: e for p, e in bad.items() if p not in failed})
     for plugin, error in failed.items():
         _record_failure(pm, plugin, error)
-    if strict and getattr(pm, "failures", None):
-        f = pm.failures[0]
+    failures: list[PluginFailure] = getattr(pm, "failures", [])
+    if strict and failures:
+        f = failures[0]
         raise PluginError(f"plugin {f.plugin!r}: {f.error}")
     for registry, provider, classes in pending:
         if provider not in failed:
@@ -232,7 +233,7 @@ def collect_joint_maps(pm: pluggy.PluginManager) -> tuple[list[tuple[str, list[A
     return results, failed
 
 
-def plugin_commands(pm: pluggy.PluginManager) -> list[type]:
+def plugin_commands(pm: pluggy.PluginManager) -> list[type[Any]]:
     """CLI command classes of ``register_commands``; a plugin whose hook fails is recorded
     in ``pm.failures``, warned about and skipped, as in :func:`build_registries`."""
     results, failed = collect_classes(pm, "register_commands")
@@ -266,7 +267,7 @@ def call_lifecycle(hook_relay: Any, hook_name: str, **kwargs: Any) -> None:
             raise PluginError(f"plugin {impl.plugin_name!r} failed in {what}: {type(exc).__name__}: {exc}") from exc
 
 
-def load_registries(*, kinds: Iterable[str] | None = None, **kwargs) -> Registries:
+def load_registries(*, kinds: Iterable[str] | None = None, **kwargs: Any) -> Registries:
     """Shortcut: ``build_registries(get_plugin_manager(**kwargs), kinds=kinds)``."""
     return build_registries(get_plugin_manager(**kwargs), kinds=kinds)
 

@@ -3,11 +3,11 @@ announcement of numba compilations (:func:`announce_compilation`)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
-from typing import TypeVar
+from typing import Any, TypeVar
 
 T = TypeVar("T")
 
@@ -51,7 +51,7 @@ class _AfterImport:
     def __init__(self, name: str, callback: Callable[[], None]) -> None:
         self.name, self.callback, self._busy = name, callback, False
 
-    def find_spec(self, fullname: str, path=None, target=None):
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
         if fullname != self.name or self._busy:
             return None
         import importlib.util
@@ -63,28 +63,28 @@ class _AfterImport:
             self._busy = False
         if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
             return spec
-        spec.loader = _CallbackLoader(spec.loader, self.callback)
+        spec.loader = _CallbackLoader(spec.loader, self.callback)  # type: ignore[assignment]
         return spec
 
 
 class _CallbackLoader:
     """Delegates to the real loader; runs the callback after the module's code ran."""
 
-    def __init__(self, loader, callback: Callable[[], None]) -> None:
+    def __init__(self, loader: Any, callback: Callable[[], None]) -> None:
         self._loader, self._callback = loader, callback
 
-    def create_module(self, spec):
+    def create_module(self, spec: Any) -> Any:
         return self._loader.create_module(spec)
 
-    def exec_module(self, module) -> None:
+    def exec_module(self, module: Any) -> None:
         self._loader.exec_module(module)
         self._callback()
 
-    def __getattr__(self, name: str):
+    def __getattr__(self, name: str) -> Any:
         return getattr(self._loader, name)
 
 
-@contextmanager
+@contextlib.contextmanager
 def announce_compilation(echo: Callable[[str], None], message: str = COMPILING_MESSAGE) -> Iterator[None]:
     """Within the block, say ``message`` (once) when numba starts compiling a kernel.
 
@@ -96,7 +96,7 @@ def announce_compilation(echo: Callable[[str], None], message: str = COMPILING_M
     Work done in worker processes is not seen.
     """
     said: list[bool] = []
-    listeners: list[object] = []
+    listeners: list[tuple[Any, Any]] = []
 
     def attach() -> None:
         try:
@@ -104,13 +104,13 @@ def announce_compilation(echo: Callable[[str], None], message: str = COMPILING_M
         except Exception:  # no numba, or an API we do not know: stay silent, as before
             return
 
-        class _Announce(event.Listener):
-            def on_start(self, ev) -> None:
+        class _Announce(event.Listener):  # type: ignore[misc]  # numba: no type information
+            def on_start(self, ev: Any) -> None:
                 if not said:
                     said.append(True)
                     echo(message)
 
-            def on_end(self, ev) -> None:
+            def on_end(self, ev: Any) -> None:
                 pass
 
         listener = _Announce()
@@ -129,7 +129,5 @@ def announce_compilation(echo: Callable[[str], None], message: str = COMPILING_M
         if finder is not None and finder in sys.meta_path:
             sys.meta_path.remove(finder)
         for ev_mod, listener in listeners:
-            try:
+            with contextlib.suppress(Exception):
                 ev_mod.unregister("numba:compile", listener)
-            except Exception:
-                pass

@@ -184,7 +184,7 @@ def to_euler(q: np.ndarray, order: str, degrees: bool = True) -> np.ndarray:
 def geodesic_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Rotation angle in radians, in [0, pi], between unit quaternions (sign-invariant)."""
     d = np.abs(np.sum(np.asarray(a) * np.asarray(b), axis=-1))
-    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+    return np.asarray(2.0 * np.arccos(np.clip(d, 0.0, 1.0)))
 
 
 def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:

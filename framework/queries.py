@@ -1,6 +1,6 @@
 """The default matcher step: how a step's inputs become a search space and query arrays.
 
-:meth:`~mocapflow.framework.components.Matcher.run` is :func:`run_matcher`: it builds the
+A matcher that does not override ``run`` runs :func:`run_matcher`: it builds the
 :class:`~.matching.SearchSpace` (:func:`search_space`), the query features
 (:func:`step_queries`), calls ``matcher.match(query, space)`` per query (on the executor's
 workers when there are several) and writes ``data`` (:data:`~.schema.MATCH_TABLE`) and
@@ -29,69 +29,26 @@ clip first and then cut, so windowed features match the database's frame for fra
 
 from __future__ import annotations
 
-import hashlib
-import re
-from collections.abc import Mapping
+import json
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
 from . import schema
+from .clip_refs import DatasetRef, cached
+from .components import FeatureSet, Matcher
+from .context import StepContext
+from .database import MotionDatabase
 from .datasets import Dataset, StepOutput
 from .errors import ConfigError, DataError, PipelineError
-from .matching import QueryMatches, SearchSpace, matches_table
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .components import Matcher
-
-_RANGE = re.compile(r"^(?P<a>\d+(?:\.\d+)?)(?P<ua>s?)-(?P<b>\d+(?:\.\d+)?)(?P<ub>s?)$")
-
-
-@dataclass(frozen=True)
-class QuerySpec:
-    """A parsed ``SOURCE[:START-END]``; ``start``/``end`` in frames, or seconds if ``seconds``."""
-
-    source: str
-    start: float | None = None
-    end: float | None = None
-    seconds: bool = False
-
-    def frames(self, fps: float, n_frames: int) -> tuple[int, int]:
-        """Half-open frame range within a clip of ``n_frames`` at ``fps``."""
-        if self.start is None:
-            return 0, n_frames
-        scale = fps if self.seconds else 1.0
-        a, b = int(round(self.start * scale)), int(round(self.end * scale))
-        if not 0 <= a < b <= n_frames:
-            raise ConfigError(f"query {self.text()!r}: frames [{a}, {b}) outside the clip's {n_frames} frames")
-        return a, b
-
-    def text(self) -> str:
-        if self.start is None:
-            return self.source
-        u = "s" if self.seconds else ""
-        fmt = (lambda v: f"{v:g}") if self.seconds else (lambda v: str(int(v)))
-        return f"{self.source}:{fmt(self.start)}{u}-{fmt(self.end)}{u}"
-
-
-def parse_query_spec(text: str) -> QuerySpec:
-    """``"walk.amc:30-120"`` -> ``QuerySpec("walk.amc", 30, 120)``; no range: the whole clip."""
-    source, sep, rng = text.rpartition(":")
-    m = _RANGE.match(rng) if sep else None
-    if not m:
-        return QuerySpec(text)
-    if bool(m["ua"]) != bool(m["ub"]):
-        raise ConfigError(f"query {text!r}: give both ends in frames or both in seconds ('1.5s-3s')")
-    secs = bool(m["ua"])
-    a, b = float(m["a"]), float(m["b"])
-    if not secs and (a != int(a) or b != int(b)):
-        raise ConfigError(f"query {text!r}: frame numbers must be integers (or add 's' for seconds)")
-    if b <= a:
-        raise ConfigError(f"query {text!r}: empty range (end is exclusive)")
-    return QuerySpec(source, a, b, secs)
+from .matching import QueryMatches, QuerySpec, SearchSpace, matches_table, parse_query_spec, query_files_fingerprint
+from .motion import Motion
+from .registry import Registries
 
 
 @dataclass(frozen=True)
@@ -114,28 +71,35 @@ def upstream(ds: Dataset, slot: str) -> Dataset | None:
     return Dataset(ds.path.parent / step)
 
 
-def feature_set_of(features: Dataset, registries):
+def feature_set_of(features: Dataset, registries: Registries) -> FeatureSet:
     """The configured (and, if needed, fitted) feature set that wrote ``features``."""
     cls = registries.resolve(features.producer)
+    if not issubclass(cls, FeatureSet):
+        raise PipelineError(f"dataset {features.step!r} was written by {features.producer}, not a feature set")
     fs = cls(features.manifest.get("params", {}))
-    if getattr(cls, "requires_fit", False):
+    if cls.requires_fit:
         fs.load_state(features.path)
     return fs
 
 
-def read_motion_file(path: Path, registries, fps: float | None):
+def read_motion_file(path: Path, registries: Registries, fps: float | None) -> Motion:
     """Read one motion file with the registered reader for its extension, resampled to ``fps``."""
     from .normalize import resample
 
-    for _, cls in registries["formats"]:
-        if getattr(cls, "produces", "") == "motion" and path.suffix.lower() in cls.extensions:
-            motion = cls().read(path)
-            return resample(motion, fps) if fps else motion
-    raise ConfigError(f"no registered reader for {path.suffix!r} files ({path})")
+    motion = registries.motion_format(path).read(path)
+    if not isinstance(motion, Motion):
+        raise ConfigError(f"{path}: the reader returned {type(motion).__name__}, not a Motion")
+    return resample(motion, fps) if fps else motion
 
 
 def motion_queries(
-    specs: list[QuerySpec], mdb, feature_set, registries, resolve, what: str = "query", fps: float | None = None
+    specs: list[QuerySpec],
+    mdb: MotionDatabase,
+    feature_set: FeatureSet,
+    registries: Registries,
+    resolve: Callable[[str], Path],
+    what: str = "query",
+    fps: float | None = None,
 ) -> list[Query]:
     """Features of query segments of the clips of ``mdb`` (or of files on disk).
 
@@ -160,11 +124,11 @@ def motion_queries(
     fps = fps if fps is not None else (mdb.fps if mdb.n_clips else None)
     out = []
     for spec in specs or [QuerySpec(m.name) for m in mdb.motions]:
-        pos = names.get(spec.source)
-        if pos is None:
-            pos = next((i for k, i in names.items() if k.endswith("/" + spec.source)), None)
-        if pos is not None:
-            motion, cid = mdb.motions[pos], int(mdb.clip_ids[pos])
+        found = names.get(spec.source)
+        if found is None:
+            found = next((i for k, i in names.items() if k.endswith("/" + spec.source)), None)
+        if found is not None:
+            motion, cid = mdb.motions[found], int(mdb.clip_ids[found])
         else:
             path = resolve(spec.source)
             if not path.is_file():
@@ -176,24 +140,6 @@ def motion_queries(
     return out
 
 
-def query_files_fingerprint(queries: Any, base_dir: Path) -> str:
-    """Digest of the query files named in ``queries`` (path, size, mtime); "" when none.
-
-    Entries that are not query-spec strings (another matcher's structured queries) are skipped.
-    """
-    h, files = hashlib.sha256(), 0
-    for text in queries or ():
-        if not isinstance(text, str):
-            continue
-        p = Path(parse_query_spec(text).source).expanduser()
-        p = p if p.is_absolute() else Path(base_dir) / p
-        if p.is_file():
-            st = p.stat()
-            h.update(f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode())
-            files += 1
-    return h.hexdigest()[:24] if files else ""
-
-
 def features_dataset(inputs: Mapping[str, Dataset]) -> Dataset | None:
     """The database's features dataset: the ``features`` input, the database itself, or the
     index's upstream features (provenance)."""
@@ -203,7 +149,7 @@ def features_dataset(inputs: Mapping[str, Dataset]) -> Dataset | None:
     return db if db.producer_kind == "features" else upstream(db, "features")
 
 
-def search_space(matcher: Matcher, inputs: Mapping[str, Dataset], registries: Any = None) -> SearchSpace:
+def search_space(matcher: Matcher, inputs: Mapping[str, Dataset], registries: Registries) -> SearchSpace:
     """The :class:`SearchSpace` of a step: rows of ``database``, its index when the matcher
     ``needs_index``, the features when :meth:`~.components.Matcher.uses_features`, clip names."""
     db = inputs["database"]
@@ -228,12 +174,17 @@ def search_space(matcher: Matcher, inputs: Mapping[str, Dataset], registries: An
     names = (
         None
         if mds is None or not mds.has_table("clips")
-        else dict(zip(*(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name"))))
+        else dict(
+            zip(
+                *(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name")),
+                strict=True,
+            )
+        )
     )
     return SearchSpace(clip_id, frame, index, x, clip_names=names)
 
 
-def step_queries(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> list[Query]:
+def step_queries(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: StepContext) -> list[Query]:
     """Query features from the ``query`` input and the matcher's ``queries`` parameter."""
     qds = inputs["query"]
     specs = [parse_query_spec(s) for s in getattr(matcher.params, "queries", [])]
@@ -252,7 +203,7 @@ def feature_queries(qds: Dataset, specs: list[QuerySpec], what: str) -> list[Que
     """Queries cut from a features dataset (specs name clips by id; ranges in frames)."""
     fm = qds.features()
     bounds = np.flatnonzero(np.diff(fm.clip_id)) + 1
-    clips = {int(c[0]): (s, len(c)) for c, s in zip(np.split(fm.clip_id, bounds), np.r_[0, bounds])}
+    clips = {int(c[0]): (s, len(c)) for c, s in zip(np.split(fm.clip_id, bounds), np.r_[0, bounds], strict=True)}
     out = []
     for spec in specs or [QuerySpec(str(c)) for c in clips]:
         try:
@@ -269,22 +220,21 @@ def feature_queries(qds: Dataset, specs: list[QuerySpec], what: str) -> list[Que
     return out
 
 
-def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> StepOutput:
+def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
     """The default matcher step (see module doc)."""
-    space = matcher.search_space(inputs, ctx.registries)
-    queries = matcher.queries(inputs, ctx)
-    if getattr(ctx.executor, "workers", 1) > 1 and len(queries) > 1:
-        # one task per query; each worker loads the search space once, from the workspace files
-        from functools import partial
-
-        from .clip_refs import DatasetRef
-
+    if type(matcher).match is Matcher.match:
+        raise NotImplementedError(f"{matcher.key()} implements neither match(query, space) nor run()")
+    space = search_space(matcher, inputs, ctx.registries)
+    queries = step_queries(matcher, inputs, ctx)
+    results: list[Any]
+    if ctx.executor.workers > 1 and len(queries) > 1:
+        # one task per query; each worker loads the search space once, from the workspace
+        # files, with the registries of the run (those a --block left)
         refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
-        results = ctx.map(partial(_match_task, matcher, refs), [q.features for q in queries], desc=ctx.step_id)
+        task = partial(_match_task, matcher, refs, ctx.registries)
+        results = ctx.map(task, [q.features for q in queries], desc=ctx.step_id)
     else:
-        results = [
-            matcher.match(q.features, space) for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id)
-        ]
+        results = [matcher.match(q.features, space) for q in ctx.progress(queries, total=len(queries))]
     for qi, q in enumerate(queries):
         if not isinstance(results[qi], QueryMatches):
             raise PipelineError(f"{matcher.key()}.match returned {type(results[qi]).__name__}, not QueryMatches")
@@ -295,22 +245,20 @@ def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: Any) -> St
     )
 
 
-def _match_task(matcher: Matcher, refs: dict, features: np.ndarray) -> QueryMatches:
+def _match_task(
+    matcher: Matcher, refs: dict[str, DatasetRef], registries: Registries, features: np.ndarray
+) -> QueryMatches:
     """One query of :func:`run_matcher` on an executor worker (module-level: pickled);
     the search space (index, frame ids, features) is loaded once per worker process."""
-    import json
-
-    from .clip_refs import cached
-    from .plugins import load_registries
-
     key = (
         "search-space",
         matcher.key(),
         json.dumps(matcher.get_params(), sort_keys=True),
         tuple(sorted((s, r.path, r.fingerprint) for s, r in refs.items())),
     )
-    space = cached(key, lambda: matcher.search_space({s: r.dataset() for s, r in refs.items()}, load_registries()))
-    return matcher.match(features, space)
+    space = cached(key, lambda: search_space(matcher, {s: r.dataset() for s, r in refs.items()}, registries))
+    result: QueryMatches = matcher.match(features, space)
+    return result
 
 
 def queries_table(queries: list[Query]) -> pa.Table:

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from dataclasses import dataclass, field
 
 from .errors import ConfigError, PluginError
+from .joints import JointMap
 
 #: The component kinds, in the order ``mocapflow plugins`` lists them.
 KINDS: tuple[str, ...] = ("formats", "features", "indexes", "matchers", "cleaners", "analyses")
@@ -29,10 +30,10 @@ class Registry:
     """
 
     kind: str
-    _classes: dict[str, type] = field(default_factory=dict)
+    _classes: dict[str, type[Any]] = field(default_factory=dict)
     _providers: dict[str, str] = field(default_factory=dict)
 
-    def check(self, cls: type, provider: str) -> None:
+    def check(self, cls: type[Any], provider: str) -> None:
         """Raise :class:`PluginError` unless ``cls`` may be registered here (a snake_case
         ``name`` and, if it declares one, this ``kind``)."""
         name = getattr(cls, "name", None)
@@ -40,8 +41,13 @@ class Registry:
             raise PluginError(f"plugin {provider!r} registered {cls!r} under {self.kind} without a snake_case `name`")
         if getattr(cls, "kind", self.kind) != self.kind:
             raise PluginError(f"plugin {provider!r} registered {cls.__name__} ({cls.kind}) as one of the {self.kind}")
+        from .params import Params  # pydantic: not on the way of `mocapflow --help`
 
-    def add(self, cls: type, provider: str) -> None:
+        declared = getattr(cls, "Params", None)
+        if not (isinstance(declared, type) and issubclass(declared, Params)):
+            raise PluginError(f"plugin {provider!r} registered {cls.__name__} without a `Params` model")
+
+    def add(self, cls: type[Any], provider: str) -> None:
         self.check(cls, provider)
         name = cls.name
         if name in self._classes and self._classes[name] is not cls:
@@ -52,11 +58,13 @@ class Registry:
         self._classes[name] = cls
         self._providers[name] = provider
 
-    def get(self, name: str) -> type:
+    def get(self, name: str) -> type[Any]:
         try:
             return self._classes[name]
         except KeyError:
-            raise ConfigError(f"unknown {self.kind} component {name!r}{did_you_mean(name, self._classes)}") from None
+            raise ConfigError(
+                f"unknown {self.kind} component {name!r}{did_you_mean(name, list(self._classes))}"
+            ) from None
 
     def provider(self, name: str) -> str:
         return self._providers[name]
@@ -67,7 +75,7 @@ class Registry:
     def __contains__(self, name: object) -> bool:
         return name in self._classes
 
-    def __iter__(self) -> Iterator[tuple[str, type]]:
+    def __iter__(self) -> Iterator[tuple[str, type[Any]]]:
         return iter(sorted(self._classes.items()))
 
     def __len__(self) -> int:
@@ -82,13 +90,13 @@ class Registries:
     #: Executor classes (``register_executors``) by name; not components, so not in ``by_kind``.
     executors: Registry = field(default_factory=lambda: Registry("executors"))
     #: Skeleton naming dialects (``register_joint_maps``) by name, and the plugin of each.
-    joint_maps: dict = field(default_factory=dict)
-    joint_map_providers: dict = field(default_factory=dict)
+    joint_maps: dict[str, JointMap] = field(default_factory=dict)
+    joint_map_providers: dict[str, str] = field(default_factory=dict)
 
     def __getitem__(self, kind: str) -> Registry:
         return self.by_kind[kind]
 
-    def resolve(self, key: str) -> type:
+    def resolve(self, key: str) -> type[Any]:
         """Class for a ``<kind>.<name>`` key, with "did you mean" on typos."""
         kind, _, name = key.partition(".")
         if kind not in self.by_kind or not name:
@@ -107,11 +115,7 @@ class Registries:
         (a writer when ``writing``); :class:`ConfigError` when none handles it."""
         ext = Path(path).suffix.lower()
         for _, cls in self.by_kind["formats"]:
-            if (
-                ext in cls.extensions
-                and getattr(cls, "produces", "motion") == "motion"
-                and (not writing or cls.can_write())
-            ):
+            if ext in cls.extensions and cls.produces == "motion" and (not writing or cls.can_write()):
                 return cls()
         raise ConfigError(
             f"{path}: no registered {'writer' if writing else 'reader'} for {ext or 'extensionless'!r} files"

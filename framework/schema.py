@@ -151,7 +151,7 @@ def motion_frames() -> pa.Schema:
     the order of the clip's skeleton definition in ``skeletons``; variable length across
     skeletons). Joint positions are not stored: they are derived by forward kinematics
     (``Motion.positions``) where a step needs them, so FK runs once per use, from the
-    stored rotations, and not also at ingest (issue 12).
+    stored rotations, and not also at ingest.
     """
     return pa.schema(
         [

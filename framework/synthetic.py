@@ -1,22 +1,21 @@
-"""A synthetic humanoid for tests, conformance checks and warm-ups: a 25-joint T-pose
-skeleton named with the canonical joints and smooth random motions of it. Public through
-:mod:`mocapflow.framework.testing`; a module of its own so that the executors (which warm
-workers up with it) and the conformance checks need not import the test helpers."""
+"""A synthetic humanoid for tests and conformance checks: a 25-joint T-pose skeleton named
+with the canonical joints and smooth random motions of it. Public through
+:mod:`mocapflow.framework.testing`."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TypeVar
 
 import numpy as np
 from pydantic import ValidationError
 
 from . import quaternions as quat
+from .components import Component
 from .joints import CANONICAL_JOINTS
 from .motion import Motion
 from .skeleton import Skeleton
 
-if TYPE_CHECKING:  # annotations only
-    from .components import Component
+C = TypeVar("C", bound=Component)
 
 # joint, parent, offset (metres, y up, facing +z, left = +x)
 _BONES = [
@@ -73,9 +72,9 @@ def synthetic_motion(n_frames: int = 60, fps: float = 30.0, seed: int = 0, ampli
 # --- checks -----------------------------------------------------------------------------
 
 
-def _instance(cls: type[Component]) -> Component | None:
+def _instance(cls: type[C]) -> C | None:
     """An instance with default or ``test_params``; None when required params are unknown."""
-    params = getattr(cls, "test_params", None)
+    params = cls.test_params
     try:
         return cls(cls.Params(**(params or {})))
     except ValidationError:

@@ -60,7 +60,7 @@ def check_params_model(cls: type[Component]) -> None:
     assert cls.Params.model_config.get("frozen"), f"{cls.__name__}.Params must be frozen"
     assert cls.Params.model_config.get("extra") == "forbid", f"{cls.__name__}.Params must forbid unknown keys"
     try:
-        cls.Params(**{**(getattr(cls, "test_params", None) or {}), "surely_not_a_parameter__": 1})
+        cls.Params(**{**(cls.test_params or {}), "surely_not_a_parameter__": 1})
     except ValidationError:
         pass
     else:  # pragma: no cover - reached only by a broken component

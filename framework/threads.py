@@ -8,7 +8,7 @@ OpenBLAS is best sized when it loads (:func:`size_blas_for_workers`, which the C
 before NumPy is imported when a run will fork workers): limited only afterwards (in each
 forked worker, by threadpoolctl) to fewer threads than it loaded with, the ingest's readers
 spent about 12 % more CPU per worker, and the client's imports about 0.2 s more CPU (its
-thread server busy on the other core) - measured in session 6 of issue 16,
+thread server busy on the other core), measured in
 docs/scale-out.md.
 """
 

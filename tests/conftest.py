@@ -1,4 +1,5 @@
 """Shared fixtures: the real corpus (skipped with a reason when absent) and fresh registries."""
+
 from __future__ import annotations
 
 import sys

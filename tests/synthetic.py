@@ -1,4 +1,5 @@
 """Test aliases for the synthetic humanoid of :mod:`mocapflow.framework.testing`."""
+
 from __future__ import annotations
 
 from mocapflow.framework.testing import synthetic_motion as random_motion

@@ -37,8 +37,9 @@ def test_views_and_parameterised_queries(workspace):
         n = cat.query("SELECT count(*) AS n FROM motions m JOIN clips c USING (clip_id)").column("n")[0].as_py()
         assert n == 75
         assert cat.query("SELECT sum(x) AS s FROM my_src").column("s")[0].as_py() == 3.0
-        with pytest.raises(Exception, match="SQL error"):
+        with pytest.raises(MocapflowError, match="SQL error") as err:
             cat.query("SELECT nope FROM clips")
+        assert err.type is MocapflowError  # a failed query, not a refused statement (ConfigError)
 
 
 def test_catalog_is_read_only(workspace):
@@ -57,7 +58,10 @@ def test_cli_sql_table_csv_parquet(workspace, tmp_path, capsys):
     assert main(["--no-entry-points", "sql", str(workspace), "SELECT name, n_frames FROM clips ORDER BY name"]) == 0
     out = capsys.readouterr().out
     assert "synthetic0" in out and "(3 rows)" in out
-    assert main(["sql", str(workspace), "SELECT clip_id FROM clips WHERE clip_id = ?", "--param", "1", "--format", "csv"]) == 0
+    assert (
+        main(["sql", str(workspace), "SELECT clip_id FROM clips WHERE clip_id = ?", "--param", "1", "--format", "csv"])
+        == 0
+    )
     assert capsys.readouterr().out.split() == ["clip_id", "1"]
     target = tmp_path / "out.parquet"
     assert main(["sql", str(workspace), "SELECT * FROM summary", "--output", str(target)]) == 0
@@ -89,18 +93,21 @@ def _tree(ws):
     return {str(p.relative_to(ws)): p.read_bytes() for p in sorted(ws.rglob("*")) if p.is_file()}
 
 
-@pytest.mark.parametrize("sql", [
-    "COPY (SELECT 1 AS x) TO '{ws}/summary/data.parquet'",
-    "COPY summary TO '{ws}/summary/data.parquet' (FORMAT parquet)",
-    "SELECT 1; COPY (SELECT 1) TO '{ws}/summary/data.parquet'",
-    "EXPLAIN ANALYZE COPY (SELECT 1) TO '{ws}/summary/data.parquet'",
-    "ATTACH '{ws}/new.db' AS other",
-    "EXPORT DATABASE '{ws}/exported'",
-    "INSTALL httpfs",
-    "LOAD httpfs",
-    "CREATE TABLE t AS SELECT 1",
-    "SET enable_external_access = true",
-])
+@pytest.mark.parametrize(
+    "sql",
+    [
+        "COPY (SELECT 1 AS x) TO '{ws}/summary/data.parquet'",
+        "COPY summary TO '{ws}/summary/data.parquet' (FORMAT parquet)",
+        "SELECT 1; COPY (SELECT 1) TO '{ws}/summary/data.parquet'",
+        "EXPLAIN ANALYZE COPY (SELECT 1) TO '{ws}/summary/data.parquet'",
+        "ATTACH '{ws}/new.db' AS other",
+        "EXPORT DATABASE '{ws}/exported'",
+        "INSTALL httpfs",
+        "LOAD httpfs",
+        "CREATE TABLE t AS SELECT 1",
+        "SET enable_external_access = true",
+    ],
+)
 def test_sql_cannot_write_attach_or_load(workspace, sql):
     before = _tree(workspace)
     with Catalog(workspace) as cat, pytest.raises(ConfigError, match="read-only"):
@@ -113,13 +120,20 @@ def test_sql_cannot_read_files_outside_the_workspace(workspace, tmp_path):
     outside.write_text("a,b\n1,2\n")
     (workspace / "summary" / "note.csv").write_text("a\n1\n")
     with Catalog(workspace) as cat:
-        for sql in (f"SELECT * FROM read_csv('{outside}')", f"SELECT * FROM '{outside}'",
-                    f"SELECT * FROM read_csv('{workspace}/../secret.csv')", "SELECT * FROM read_text('/etc/passwd')",
-                    f"SELECT * FROM glob('{tmp_path}/*')"):
+        for sql in (
+            f"SELECT * FROM read_csv('{outside}')",
+            f"SELECT * FROM '{outside}'",
+            f"SELECT * FROM read_csv('{workspace}/../secret.csv')",
+            "SELECT * FROM read_text('/etc/passwd')",
+            f"SELECT * FROM glob('{tmp_path}/*')",
+        ):
             with pytest.raises(MocapflowError, match="(?s)SQL error.*reads only the datasets"):
                 cat.query(sql)
         # the datasets themselves stay readable, through the views and by path
-        assert cat.query(f"SELECT count(*) AS n FROM read_parquet('{workspace}/summary/data.parquet')")["n"][0].as_py() == 3
+        assert (
+            cat.query(f"SELECT count(*) AS n FROM read_parquet('{workspace}/summary/data.parquet')")["n"][0].as_py()
+            == 3
+        )
         assert cat.query("EXPLAIN SELECT * FROM summary").num_rows >= 1
         assert cat.query("DESCRIBE summary").num_rows > 0
 

@@ -1,6 +1,7 @@
-"""Paper cuts a new user hits in the CLI (issue 11 §5): --version, --block of an unknown
+"""Paper cuts a new user hits in the CLI: --version, --block of an unknown
 plugin, the choices of Literal parameters, rejected files, the first run's compilation,
 ``sql --output`` into a new folder."""
+
 from __future__ import annotations
 
 import os
@@ -46,9 +47,9 @@ def test_block_of_an_unknown_plugin_warns(capsys):
 
 def test_plugins_prints_the_choices_of_literal_and_union_parameters(capsys):
     assert format_annotation(typing.Literal["record", "fail"]) == "'record' | 'fail'"
-    assert format_annotation(typing.Optional[typing.Literal["a", "b"]]) == "'a' | 'b' | None"
+    assert format_annotation(typing.Optional[typing.Literal["a", "b"]]) == "'a' | 'b' | None"  # noqa: UP045
     assert format_annotation(int | None) == "int | None"
-    assert format_annotation(typing.Union[int, str]) == "int | str"
+    assert format_annotation(typing.Union[int, str]) == "int | str"  # noqa: UP007
     assert format_annotation(tuple[typing.Literal["x", "y"], ...]) == "tuple['x' | 'y', ...]"
     assert format_annotation(dict[str, float]) == "dict[str, float]"
     assert main(["--no-entry-points", "plugins"]) == 0
@@ -66,15 +67,22 @@ def rejecting_pipeline(tmp_path_factory) -> Path:
     shutil.copy(CMU / "35_01.amc", data)
     (data / "35_66.amc").write_text(":FULLY-SPECIFIED\n:DEGREES\n1\nroot one two three 0 0 0\n")
     (data / "35_77.amc").write_bytes(b"\x00\x01 not a motion file \xff\n")
-    (root / "p.yaml").write_text("name: rejects\nworkspace: ws\nsteps:\n  motions:\n    uses: formats.load\n"
-                                 "    with:\n      paths: [\"data/*.amc\"]\n")
+    (root / "p.yaml").write_text(
+        "name: rejects\nworkspace: ws\nsteps:\n  motions:\n    uses: formats.load\n"
+        '    with:\n      paths: ["data/*.amc"]\n'
+    )
     return root / "p.yaml"
 
 
 def _run_cli(args: list[str], **env: str) -> subprocess.CompletedProcess:
     full_env = {**os.environ, "MOCAPFLOW_PROGRESS": "0", **env}
-    return subprocess.run([sys.executable, "-m", "mocapflow.framework.cli", *args], capture_output=True, text=True,
-                          env=full_env, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "mocapflow.framework.cli", *args],
+        capture_output=True,
+        text=True,
+        env=full_env,
+        timeout=600,
+    )
 
 
 def test_a_run_with_rejects_warns_and_the_first_run_says_it_compiles(rejecting_pipeline, tmp_path):
@@ -177,7 +185,8 @@ def test_sql_into_a_pipe_closed_early_ends_quietly(rejecting_pipeline):
         "sys.stdout = sys.__stdout__\n"
         "print('rc', rc, file=sys.stderr)\n"
     )
-    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                       env=dict(os.environ, MOCAPFLOW_PROGRESS="0"))
+    r = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=dict(os.environ, MOCAPFLOW_PROGRESS="0")
+    )
     assert "rc 141" in r.stderr, r.stderr
     assert "error" not in r.stderr, r.stderr

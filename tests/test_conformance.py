@@ -1,4 +1,5 @@
 """Every registered component, built-in or installed, passes the conformance suite."""
+
 from __future__ import annotations
 
 from mocapflow.framework import load_registries
@@ -25,7 +26,9 @@ def test_every_matcher_and_cleaner_is_exercised():
     matchers = dict(_REGS["matchers"])
     assert {"lng", "sdtw", "logical", "relational", "template"} <= set(matchers)
     for name, cls in matchers.items():
-        assert cls.match is not Matcher.match or getattr(cls, "test_pipeline", None), f"matchers.{name} is not exercised"
+        assert cls.match is not Matcher.match or getattr(cls, "test_pipeline", None), (
+            f"matchers.{name} is not exercised"
+        )
     cleaners = dict(_REGS["cleaners"])
     assert "mdm" in cleaners
     for name, cls in cleaners.items():

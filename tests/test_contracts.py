@@ -4,19 +4,25 @@ A matcher implementing only ``match(query, space)`` and a cleaner implementing o
 ``detect``/``repair`` pass the conformance suite and run as pipeline steps through the
 core's default ``run`` (no built-in module imported by the components themselves).
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
 import pytest
 
-from mocapflow.framework import Cleaner, DataError, Matcher, MocapflowError
-from mocapflow.framework import schema
+from mocapflow.framework import Cleaner, DataError, Matcher, MocapflowError, schema
 from mocapflow.framework.cleaning import check_take, digression_table, edits_table
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 from mocapflow.framework.queries import parse_query_spec
-from mocapflow.framework.testing import (ReferenceIndex, check_cleaner, check_matcher, check_matcher_pipeline,
-                                         synthetic_motion, synthetic_space)
+from mocapflow.framework.testing import (
+    ReferenceIndex,
+    check_cleaner,
+    check_matcher,
+    check_matcher_pipeline,
+    synthetic_motion,
+    synthetic_space,
+)
 
 
 class DiagonalMatcher(Matcher):
@@ -49,8 +55,16 @@ class DiagonalMatcher(Matcher):
         ends = np.arange(n, dtype=np.int64)
         start, length = ends - m + 1, np.full(n, m, np.int64)
         p = self.params
-        keep = select_matches(ends, start, cost, length, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by,
-                              min_frames=min_frames_of(p.min_span, m))
+        keep = select_matches(
+            ends,
+            start,
+            cost,
+            length,
+            count=p.count,
+            max_cost=p.max_cost,
+            rank_by=p.rank_by,
+            min_frames=min_frames_of(p.min_span, m),
+        )
         paths = [np.stack([np.arange(m), np.arange(start[k], start[k] + m)], 1) for k in keep]
         return QueryMatches(start[keep], ends[keep] + 1, cost[keep], length[keep], paths)
 
@@ -114,8 +128,8 @@ def test_a_spike_is_detected_and_repaired():
     c = SmoothingCleaner()
     assert c.detect(bad)[12, 5] > 0.5
     cleaned, edits = c.repair(bad)
-    assert (12, 5) in set(zip(edits["frame"].to_pylist(), edits["joint"].to_pylist()))
-    out = c.clean_clip(bad, None, 3, None)
+    assert (12, 5) in set(zip(edits["frame"].to_pylist(), edits["joint"].to_pylist(), strict=True))
+    out = c.detect_and_repair(bad, None, 3, None)
     assert out.digressions.filter(pa.compute.field("flagged")).num_rows >= 1
 
 

@@ -7,8 +7,8 @@ from scipy.spatial.transform import Rotation
 from synthetic import humanoid, random_motion
 
 from mocapflow.framework import DataError, Motion, MotionDatabase, Skeleton
-from mocapflow.framework.motion import forward_kinematics_numpy
 from mocapflow.framework import quaternions as quat
+from mocapflow.framework.motion import forward_kinematics_numpy
 from mocapflow.framework.normalize import facing_angles, resample, to_root_frame
 from mocapflow.plugins.relational.body import body_measures, rest_positions
 
@@ -21,7 +21,7 @@ def test_euler_matches_explicit_matrices_and_inverts(order):
     ang = rng.uniform(-170, 170, size=(50, 3))
     ang[:, 1] = rng.uniform(-85, 85, size=50)  # keep away from gimbal lock for the inverse
     q = quat.from_euler(ang, order)
-    for a, qq in zip(ang[:5], q[:5]):
+    for a, qq in zip(ang[:5], q[:5], strict=True):
         np.testing.assert_allclose(quat.to_matrix(qq), euler_matrix(a, order), atol=1e-12)
     back = quat.to_euler(q, order)
     np.testing.assert_allclose(back, ang, atol=1e-8)
@@ -58,7 +58,9 @@ def test_fk_with_per_frame_translations_and_one_frame():
     rng = np.random.default_rng(0)
     lt = m.skeleton.offsets[None] + rng.normal(scale=0.01, size=(7, m.n_joints, 3))
     moved = m.with_arrays(local_translations=lt)
-    ref = np.stack([fk_loop(m.skeleton.parents, lt[t], m.root_translation[t:t + 1], m.rotations[t:t + 1])[0] for t in range(7)])
+    ref = np.stack(
+        [fk_loop(m.skeleton.parents, lt[t], m.root_translation[t : t + 1], m.rotations[t : t + 1])[0] for t in range(7)]
+    )
     np.testing.assert_allclose(moved.positions, ref, atol=1e-12)
     one = m.slice(3, 4)
     np.testing.assert_allclose(one.positions[0], m.positions[3], atol=1e-12)
@@ -95,7 +97,9 @@ def test_resample_keeps_time_and_interpolates():
     m = random_motion(121, fps=120, seed=5)
     r = resample(m, 30)
     assert r.fps == 30 and r.n_frames == 31
-    np.testing.assert_allclose(r.rotations[1], m.rotations[4] * np.sign(np.sum(r.rotations[1] * m.rotations[4], -1))[:, None], atol=1e-12)
+    np.testing.assert_allclose(
+        r.rotations[1], m.rotations[4] * np.sign(np.sum(r.rotations[1] * m.rotations[4], -1))[:, None], atol=1e-12
+    )
     np.testing.assert_allclose(r.root_translation[-1], m.root_translation[-1])
     up = resample(m.slice(0, 3), 240)
     assert up.n_frames == 5
@@ -156,7 +160,7 @@ def test_tables_round_trip_with_sparse_unsorted_clip_ids():
     assert "positions" not in t["data"].column_names
     back = database_from_tables(t["clips"], t["skeletons"], t["data"])
     assert back.clip_ids.tolist() == ids
-    for m, r in zip(ms, back.motions):
+    for m, r in zip(ms, back.motions, strict=True):
         np.testing.assert_allclose(r.root_translation, m.root_translation, atol=1e-5)
         np.testing.assert_allclose(r.positions, m.positions, atol=1e-4)
     with pytest.raises(DataError, match="distinct"):

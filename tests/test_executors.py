@@ -1,5 +1,6 @@
 """The local executor: thread limits in workers, fork safety, clips by reference, dying workers,
 the client as worker 0 (errors, interrupts, order)."""
+
 from __future__ import annotations
 
 import os
@@ -8,6 +9,7 @@ import subprocess
 import sys
 import time
 from functools import partial
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +18,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl
-from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.clip_refs import clip_slices
+from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.executors import LocalExecutor, map_clips, threads_per_worker
 from mocapflow.framework.runner import run_pipeline
 
@@ -130,6 +132,7 @@ def test_a_killed_worker_is_a_clear_error_and_the_pool_recovers(client_works):
 
 # --- the client as worker 0 ------------------------------------------------------------------
 
+
 def _where(parent, x):
     time.sleep(0.02)  # long enough that the pool process takes its share
     return x, os.getpid() == parent
@@ -190,13 +193,16 @@ def test_an_interrupt_in_the_clients_chunk_is_clean():
 
 # --- clips by reference ------------------------------------------------------------------
 
+
 def _motions_workspace(tmp_path: Path, monkeypatch, rows_per_group: int = 24) -> Dataset:
     """A motions dataset of the bundled CMU takes written with small row groups."""
-    import mocapflow.framework.runner as runner
+    import mocapflow.framework.workspace as workspace
 
-    monkeypatch.setattr(runner, "ROW_GROUP_ROWS", rows_per_group)
+    monkeypatch.setattr(workspace, "ROW_GROUP_ROWS", rows_per_group)
     p = tmp_path / "m.yaml"
-    p.write_text(f"name: m\nworkspace: ws\nsteps:\n  motions: {{uses: formats.load, with: {{paths: ['{CMU}/**/*.amc'], fps: 10}}}}\n")
+    p.write_text(
+        f"name: m\nworkspace: ws\nsteps:\n  motions: {{uses: formats.load, with: {{paths: ['{CMU}/**/*.amc'], fps: 10}}}}\n"
+    )
     run_pipeline(p, pm=get_plugin_manager(entry_points=False))
     return Dataset(tmp_path / "ws" / "motions")
 
@@ -208,10 +214,10 @@ def test_clip_slices_read_exactly_the_clips_of_the_dataset(tmp_path, monkeypatch
     for n in (1, 3, 8, 50):
         pieces = clip_slices(ds, n)
         assert pieces[0].start == 0 and pieces[-1].stop == whole.n_clips
-        assert all(a.stop == b.start for a, b in zip(pieces, pieces[1:]))
-        got = [(int(c), m) for p in pieces for c, m in zip(p.motions().clip_ids, p.motions().motions)]
+        assert all(a.stop == b.start for a, b in pairwise(pieces))
+        got = [(int(c), m) for p in pieces for c, m in zip(p.motions().clip_ids, p.motions().motions, strict=True)]
         assert [c for c, _ in got] == whole.clip_ids.tolist()
-        for (_, m), ref in zip(got, whole.motions):
+        for (_, m), ref in zip(got, whole.motions, strict=True):
             assert m.name == ref.name and m.metadata == ref.metadata
             np.testing.assert_array_equal(m.rotations, ref.rotations)
             np.testing.assert_array_equal(m.root_translation, ref.root_translation)
@@ -256,8 +262,11 @@ def test_jobs_2_writes_the_same_tables_and_files_as_jobs_1(tmp_path):
         # 2: the default layout; client: the client is worker 0 beside one pool process;
         # prestart: the pool forks before planning and warms itself up; pool: two pool
         # processes while the client waits
-        options = {"2-client": {"client_works": True}, "2-prestart": {"prestart": True},
-                   "2-pool": {"client_works": False}}.get(jobs)
+        options = {
+            "2-client": {"client_works": True},
+            "2-prestart": {"prestart": True},
+            "2-pool": {"client_works": False},
+        }.get(jobs)
         ex = LocalExecutor(2, **options) if options else None
         try:
             run_pipeline(d / "p.yaml", jobs=2 if ex else jobs, pm=get_plugin_manager(entry_points=False), executor=ex)
@@ -334,3 +343,26 @@ def test_the_client_works_by_default_only_where_workers_pay_their_own_start_up()
     assert ex._client_works("spawn", warm_parent=True) is True
     assert ex._client_works("forkserver", warm_parent=True) is True
     assert LocalExecutor(2, client_works=True)._client_works("fork", True) is True
+
+
+def test_workers_resolve_components_with_the_registries_of_the_run(tmp_path):
+    """``--block`` holds on the workers: with the built-in similarity package blocked, the
+    ``indexes.kdtree`` of the run is a stand-in, and the workers that match the queries load
+    the saved index with it (registries rebuilt on a worker would bring the built-in back,
+    which cannot read the stand-in's files)."""
+    from toy_components import StandInPlugin, ToyPlugin
+
+    p = tmp_path / "p.yaml"
+    p.write_text(
+        "name: blocked\nworkspace: ws\njobs: 2\nexecutor_options: {min_items_for_pool: 1}\nsteps:\n"
+        "  motions: {uses: analyses.toy_motions, with: {clips: 4, frames: 20}}\n"
+        "  feats: {uses: features.toy_root, input: motions}\n"
+        "  idx: {uses: indexes.kdtree, input: feats}\n"
+        "  found: {uses: matchers.toy_nearest, inputs: {database: idx, query: motions, features: feats}}\n"
+    )
+    blocked = ["mocapflow.plugins.similarity.plugin"]
+    pm = get_plugin_manager(entry_points=False, blocked=blocked, extra=[ToyPlugin(), StandInPlugin()])
+    run_pipeline(p, pm=pm)
+    found = Dataset(tmp_path / "ws" / "found").table()
+    # each clip's first frame is its own nearest row: distance 0 on every worker
+    assert found.num_rows == 4 and found["cost"].to_pylist() == [0.0] * 4

@@ -1,4 +1,5 @@
 """``executor: dask`` on LocalClusters of worker processes on loopback (started by the tests)."""
+
 from __future__ import annotations
 
 import os
@@ -8,13 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-distributed = pytest.importorskip("distributed", reason="the dask extra is not installed (pip install 'mocapflow[dask]')")
+distributed = pytest.importorskip(
+    "distributed", reason="the dask extra is not installed (pip install 'mocapflow[dask]')"
+)
+
+from test_executors import table_bytes, workspace_tables  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 
 from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 from mocapflow.framework.runner import run_pipeline  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 from mocapflow.plugins.executors.dask_cluster import DaskExecutor  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
-
-from test_executors import table_bytes, workspace_tables  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 
 REPO = Path(__file__).resolve().parent.parent
 CMU = REPO / "examples" / "data" / "cmu"
@@ -34,8 +37,9 @@ steps:
 
 @pytest.fixture(scope="module")
 def cluster():
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address="127.0.0.1:0") as c:
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0"
+    ) as c:
         yield c
 
 
@@ -44,10 +48,11 @@ def _square(x):
 
 
 def test_the_dask_executor_is_registered_and_maps_in_order(cluster, monkeypatch):
+    from mocapflow.framework.plugins import build_registries
     from mocapflow.framework.runner import make_executor
 
     monkeypatch.setenv("MOCAPFLOW_DASK_ADDRESS", cluster.scheduler_address)
-    ex = make_executor(get_plugin_manager(entry_points=False), "dask", jobs=1)
+    ex = make_executor(build_registries(get_plugin_manager(entry_points=False)), "dask", jobs=1)
     try:
         assert ex.workers == 2
         assert ex.map(_square, list(range(20)), desc="squares") == [x * x for x in range(20)]
@@ -118,8 +123,11 @@ def test_dask_run_writes_the_same_tables_as_local(tmp_path, cluster):
             if ex is not None:
                 ex.close()
         ws = d / "ws"
-        out[name] = (workspace_tables(ws), {p.name: p.read_bytes() for p in sorted((ws / "clean").glob("*.bvh"))},
-                     {str(p.relative_to(ws)): p.read_bytes() for p in sorted((ws / "shards" / "index").rglob("*.npy"))})
+        out[name] = (
+            workspace_tables(ws),
+            {p.name: p.read_bytes() for p in sorted((ws / "clean").glob("*.bvh"))},
+            {str(p.relative_to(ws)): p.read_bytes() for p in sorted((ws / "shards" / "index").rglob("*.npy"))},
+        )
     assert out["local"][0].keys() == out["dask"][0].keys() and len(out["local"][0]) >= 8
     for name in out["local"][0]:
         assert out["local"][0][name] == out["dask"][0][name], name
@@ -161,7 +169,7 @@ name: k
 workspace: ws
 steps:
   motions: {{uses: formats.load, with: {{paths: ["{CMU}/**/*.amc"], fps: 10}}}}
-  feats: {{uses: features.kill_once, input: motions, with: {{marker: "{tmp_path / 'killed'}", always: {str(always).lower()}}}}}
+  feats: {{uses: features.kill_once, input: motions, with: {{marker: "{tmp_path / "killed"}", always: {str(always).lower()}}}}}
 """)
     return p
 
@@ -177,7 +185,11 @@ def test_a_worker_killed_mid_step_is_retried_and_the_output_is_complete(tmp_path
     got = table_bytes(tmp_path / "ws" / "feats" / "data.parquet")
     (tmp_path / "again").mkdir()
     (tmp_path / "again" / "killed").write_text("no kill this time")
-    run_pipeline(_kill_pipeline(tmp_path / "again", always=False), pm=get_plugin_manager(entry_points=False, extra=[KillPlugin()]), jobs=1)
+    run_pipeline(
+        _kill_pipeline(tmp_path / "again", always=False),
+        pm=get_plugin_manager(entry_points=False, extra=[KillPlugin()]),
+        jobs=1,
+    )
     assert table_bytes(tmp_path / "again" / "ws" / "feats" / "data.parquet") == got
 
 

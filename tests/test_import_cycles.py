@@ -1,18 +1,25 @@
-"""No import cycles among mocapflow modules (static, parsed with ast).
+"""No import cycles among mocapflow modules, and the core's layers import only downward
+(static, parsed with ast).
 
 Every import statement counts, those inside functions too: a deferred import cannot make
 a half-initialised module, but a cycle through it is still two modules that cannot be
-understood, tested or moved apart. ``if TYPE_CHECKING:`` blocks never run and are skipped.
-``KNOWN`` lists the cycles left, each with why (none today).
+understood, tested or moved apart. Across the whole tree ``if TYPE_CHECKING:`` blocks (which
+never run) are skipped; in ``framework/`` they count too: a type-only import is still a
+dependency a reader follows. ``KNOWN`` lists the cycles left, each with why (none today).
 """
+
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"_mocapflow": "mocapflow", "framework": "mocapflow.framework", "plugins": "mocapflow.plugins",
-            "pipelines": "mocapflow.pipelines"}
+PACKAGES = {
+    "_mocapflow": "mocapflow",
+    "framework": "mocapflow.framework",
+    "plugins": "mocapflow.plugins",
+    "pipelines": "mocapflow.pipelines",
+}
 
 #: Cycles still present: frozensets of module names (each one a strongly connected component).
 KNOWN: dict[frozenset[str], str] = {}
@@ -29,27 +36,29 @@ def modules() -> dict[str, Path]:
     return out
 
 
-def _top_level(body: list[ast.stmt]):
-    """Every import statement of ``body``, nested ones included, except under TYPE_CHECKING."""
+def _top_level(body: list[ast.stmt], type_only: bool = False):
+    """Every import statement of ``body``, nested ones included; those under TYPE_CHECKING
+    only with ``type_only``."""
     for node in body:
         if isinstance(node, (ast.Import, ast.ImportFrom)):
             yield node
             continue
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            yield from _top_level(node.orelse)
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test) and not type_only:
+            yield from _top_level(node.orelse, type_only)
             continue
         for name in ("body", "orelse", "finalbody", "handlers", "cases"):
             for child in getattr(node, name, None) or []:
                 if isinstance(child, ast.AST):
-                    yield from _top_level([child] if isinstance(child, ast.stmt) else getattr(child, "body", []))
+                    sub = [child] if isinstance(child, ast.stmt) else getattr(child, "body", [])
+                    yield from _top_level(sub, type_only)
 
 
-def import_graph() -> dict[str, set[str]]:
+def import_graph(type_only: bool = False) -> dict[str, set[str]]:
     mods = modules()
     graph: dict[str, set[str]] = {m: set() for m in mods}
     for mod, path in mods.items():
         is_pkg = path.name == "__init__.py"
-        for node in _top_level(ast.parse(path.read_text(encoding="utf-8")).body):
+        for node in _top_level(ast.parse(path.read_text(encoding="utf-8")).body, type_only):
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             else:
@@ -110,10 +119,10 @@ def test_cycle_finder_finds_a_cycle():
 
 def test_graph_sees_relative_and_deferred_imports():
     g = import_graph()
-    # inside a function of plugins/similarity/exact.py
-    assert "mocapflow.plugins.similarity.graph" in g["mocapflow.plugins.similarity.exact"]
+    # inside a function of plugins/similarity/search/lng.py
+    assert "mocapflow.plugins.similarity.search.exact" in g["mocapflow.plugins.similarity.search.lng"]
     assert "mocapflow.framework.schema" in g["mocapflow.framework.motion_tables"]
-    assert "mocapflow.plugins.similarity.lng" in g["mocapflow.plugins.similarity.logical"]
+    assert "mocapflow.plugins.similarity.search.lng" in g["mocapflow.plugins.similarity.search.logical"]
 
 
 def test_no_import_cycles_but_the_known_ones():
@@ -122,3 +131,71 @@ def test_no_import_cycles_but_the_known_ones():
     assert not new, "import cycles: " + "; ".join(" <-> ".join(sorted(c)) for c in new)
     gone = set(KNOWN) - found
     assert not gone, f"fixed, remove from KNOWN: {gone}"
+
+
+#: The core's layers, bottom first; a module imports only modules of its own layer or below.
+LAYERS: dict[str, tuple[str, ...]] = {
+    # what motions, datasets and matches are; the workspace's files; no component, no run
+    "data model": (
+        "errors",
+        "params",
+        "progress",
+        "threads",
+        "schema",
+        "quaternions",
+        "joints",
+        "_fk_kernels",
+        "skeleton",
+        "motion",
+        "markers",
+        "database",
+        "normalize",
+        "motion_tables",
+        "matching",
+        "registry",
+        "workspace",
+        "datasets",
+        "clip_refs",
+        "cleaning",
+        "plotting",
+    ),
+    # what a component, a step's context, an executor and a plugin hook must provide
+    "contracts": ("components", "context", "hookspecs"),
+    # the default step of each kind
+    "steps": ("queries", "steps"),
+    # pipelines, plans, plugins, executors, the runner, the catalog and the CLI
+    "engine": ("config", "plan", "plugins", "executors", "runner", "catalog", "cli"),
+    # what third parties test their components with
+    "testing": ("synthetic", "conformance", "testing"),
+    # the lazy public names of mocapflow.framework
+    "facade": ("",),
+}
+CORE = "mocapflow.framework"
+
+
+def _layer_of() -> dict[str, int]:
+    return {f"{CORE}.{m}" if m else CORE: i for i, (_, members) in enumerate(LAYERS.items()) for m in members}
+
+
+def test_every_core_module_has_a_layer():
+    core = {m for m in modules() if m == CORE or m.startswith(CORE + ".")}
+    assert core == set(_layer_of()), f"unlisted: {core - set(_layer_of())}, gone: {set(_layer_of()) - core}"
+
+
+def test_no_import_cycle_in_the_core_type_only_imports_included():
+    graph = import_graph(type_only=True)
+    core = {m: {t for t in ts if t in _layer_of()} for m, ts in graph.items() if m in _layer_of()}
+    found = cycles(core)
+    assert not found, "import cycles: " + "; ".join(" <-> ".join(sorted(c)) for c in found)
+
+
+def test_core_layers_import_only_downward():
+    layer, names = _layer_of(), list(LAYERS)
+    graph = import_graph(type_only=True)
+    up = [
+        f"{m} ({names[layer[m]]}) imports {t} ({names[layer[t]]})"
+        for m in layer
+        for t in sorted(graph[m])
+        if t in layer and layer[t] > layer[m]
+    ]
+    assert not up, "imports that go up a layer:\n" + "\n".join(up)

@@ -1,4 +1,5 @@
 """The ingest step ``formats.load`` on real files: counts, rejects, resampling, resume."""
+
 from __future__ import annotations
 
 import shutil
@@ -22,8 +23,15 @@ def pipeline(tmp_path: Path, paths: list[str], **extra) -> Path:
     p = tmp_path / "ingest.yaml"
     import yaml
 
-    p.write_text(yaml.safe_dump({"name": "ingest", "workspace": str(tmp_path / "ws"),
-                                 "steps": {"motions": {"uses": "formats.load", "with": with_}}}))
+    p.write_text(
+        yaml.safe_dump(
+            {
+                "name": "ingest",
+                "workspace": str(tmp_path / "ws"),
+                "steps": {"motions": {"uses": "formats.load", "with": with_}},
+            }
+        )
+    )
     return p
 
 
@@ -53,7 +61,9 @@ def test_corrupted_files_land_in_rejects_and_the_rest_finishes(tmp_path):
     p = pipeline(tmp_path, [str(bad / "*.amc")])
     reports = run_pipeline(p, pm=pm())
     assert reports[0].summary["clips"] == 1 and reports[0].summary["rejects"] == 4
-    rejects = {Path(r["path"]).name: r for r in pq.read_table(tmp_path / "ws" / "motions" / "rejects.parquet").to_pylist()}
+    rejects = {
+        Path(r["path"]).name: r for r in pq.read_table(tmp_path / "ws" / "motions" / "rejects.parquet").to_pylist()
+    }
     assert set(rejects) == {"truncated.amc", "nanvalue.amc", "garbage.amc", "empty.amc"}
     assert rejects["nanvalue.amc"]["line"] == 41
     assert rejects["truncated.amc"]["line"] is not None
@@ -89,18 +99,28 @@ def test_changed_file_recomputes(tmp_path):
 @pytest.mark.slow
 def test_whole_corpus_ingest_has_no_rejects_and_exact_frame_counts(tmp_path):
     root = corpus_path()
-    p = pipeline(tmp_path, [str(root / "cmu" / "amc" / "**" / "*.amc"), str(root / "hdm05" / "amc" / "**" / "*.amc"),
-                            str(root / "bvh" / "**" / "*.bvh")])
+    p = pipeline(
+        tmp_path,
+        [
+            str(root / "cmu" / "amc" / "**" / "*.amc"),
+            str(root / "hdm05" / "amc" / "**" / "*.amc"),
+            str(root / "bvh" / "**" / "*.bvh"),
+        ],
+    )
     run_pipeline(p, pm=pm(), jobs=2)
     with Catalog(tmp_path / "ws") as cat:
         assert cat.query("SELECT count(*) AS n FROM rejects").column("n")[0].as_py() == 0
-        amc = cat.query("SELECT count(*) AS clips, sum(n_frames) AS frames FROM clips WHERE format = 'amc'").to_pylist()[0]
+        amc = cat.query(
+            "SELECT count(*) AS clips, sum(n_frames) AS frames FROM clips WHERE format = 'amc'"
+        ).to_pylist()[0]
         assert amc == {"clips": 169, "frames": 110109}
         bvh = cat.query("SELECT count(*) AS n FROM clips WHERE format = 'bvh'").column("n")[0].as_py()
         assert bvh == len(list((root / "bvh").rglob("*.bvh")))
         # every frame row is there
-        assert cat.query("SELECT count(*) AS n FROM motions").column("n")[0].as_py() == \
-            cat.query("SELECT sum(n_frames) AS n FROM clips").column("n")[0].as_py()
+        assert (
+            cat.query("SELECT count(*) AS n FROM motions").column("n")[0].as_py()
+            == cat.query("SELECT sum(n_frames) AS n FROM clips").column("n")[0].as_py()
+        )
 
 
 def test_marker_files_ingest(tmp_path):
@@ -109,8 +129,15 @@ def test_marker_files_ingest(tmp_path):
     p = tmp_path / "m.yaml"
     import yaml
 
-    p.write_text(yaml.safe_dump({"name": "m", "workspace": str(tmp_path / "ws"),
-                                 "steps": {"markers": {"uses": "formats.load_markers", "with": {"paths": [str(f) for f in files[:3]]}}}}))
+    p.write_text(
+        yaml.safe_dump(
+            {
+                "name": "m",
+                "workspace": str(tmp_path / "ws"),
+                "steps": {"markers": {"uses": "formats.load_markers", "with": {"paths": [str(f) for f in files[:3]]}}},
+            }
+        )
+    )
     run_pipeline(p, pm=pm())
     with Catalog(tmp_path / "ws") as cat:
         clips = cat.query("SELECT * FROM markers_clips ORDER BY clip_id").to_pylist()
@@ -132,7 +159,9 @@ def test_clip_ids_are_stable_when_a_file_starts_failing(tmp_path):
     run_pipeline(p, pm=pm())
     before = {r["name"]: r["clip_id"] for r in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()}
     assert before["02_02"] == clip_id_of("02_02.amc")  # relative to the patterns' folder, d/
-    assert [c["name"] for c in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()] == sorted(before)
+    assert [c["name"] for c in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()] == sorted(
+        before
+    )
     (data / "02_01.amc").write_text("")  # the first file (rank 0) breaks
     run_pipeline(p, pm=pm())
     after = {r["name"]: r["clip_id"] for r in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()}
@@ -165,7 +194,7 @@ def test_clip_id_collisions_are_resolved_deterministically():
 
 
 def test_rows_built_in_the_workers_equal_motions_to_tables(tmp_path, monkeypatch):
-    """formats.load builds each clip's rows where the file is read (issue 16): the tables are
+    """formats.load builds each clip's rows where the file is read: the tables are
     exactly motions_to_tables of the motions read and checked one by one, and the inputs are
     listed once by the fingerprint, whose listing the run reuses."""
     from mocapflow.framework.motion_tables import motions_to_tables
@@ -182,7 +211,9 @@ def test_rows_built_in_the_workers_equal_motions_to_tables(tmp_path, monkeypatch
     from mocapflow.framework.plugins import build_registries
 
     reg = build_registries(pm())
-    step = steps.LoadMotions({"paths": [str(EXAMPLES_DATA / "cmu" / "**" / "*.amc"), str(EXAMPLES_DATA / "**" / "*.bvh")], "fps": 30})
+    step = steps.LoadMotions(
+        {"paths": [str(EXAMPLES_DATA / "cmu" / "**" / "*.amc"), str(EXAMPLES_DATA / "**" / "*.bvh")], "fps": 30}
+    )
     listed = step._files(p.parent)
     by_ext = {e: c for _, c in reg["formats"] if getattr(c, "produces", "") == "motion" for e in c.extensions}
     motions = [steps._read_file((by_ext[f.suffix.lower()], {}, str(f), 30.0)) for f in listed]

@@ -1,4 +1,5 @@
 """The knn-study pipeline plans; a small variant runs end to end on the bundled sample takes."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -22,7 +23,7 @@ steps:
   correlation:
     uses: analyses.distance_correlation
     input: motions
-    with: {{samples: 8, k: 16, measures: [D_pc1, F_E15, F_E30, F_E15x3], rows: [F_E15, F_E15x3]}}
+    with: {{samples: 8, k: 16, measures: [F_E15, F_E15x3, D_pc1]}}
 """
 
 
@@ -56,14 +57,16 @@ def test_small_knn_pipeline_end_to_end(tmp_path):
     assert all(not (r["clip_id"] == r["query_clip_id"] and r["frame"] == r["query_frame"]) for r in q0)
     d = [r["distance"] for r in q0]
     assert d == sorted(d)
-    tree = Dataset(ws / "tree").index()
+    import mocapflow
+
+    tree = Dataset(ws / "tree").index(mocapflow.registries())
     assert tree.method_ in ("kdtree", "brute")
     a = Dataset(ws / "pca8").features().x
     b = Dataset(ws / "pca8b").features().x
     np.testing.assert_array_equal(a, b)  # the model fitted by pca8 is reused by pca8b
     assert (ws / "correlation" / "correlation.png").is_file()
     m = Dataset(ws / "correlation").table("matrix").to_pylist()
-    assert [r["row_measure"] for r in m] == ["F_E15", "F_E15x3"] and m[0]["F_E15"] == 1.0
+    assert [r["row_measure"] for r in m] == ["F_E15", "F_E15x3", "D_pc1"] and m[0]["F_E15"] == 1.0
     assert Path(ws / "pca8" / "pca_model.npz").is_file()
 
 

@@ -2,6 +2,7 @@
 another (cross-package use goes through :mod:`mocapflow.framework` or the registries), and
 the core never imports a built-in package. Checked on the source with :mod:`ast`, imports
 inside functions included, relative imports resolved."""
+
 from __future__ import annotations
 
 import ast
@@ -81,4 +82,28 @@ def test_every_builtin_package_registers_from_its_plugin_module():
     assert sorted(BUILTIN_PLUGINS) == [f"mocapflow.plugins.{p}.plugin" for p in packages]
     hooked = sorted(p.parent.name for p in (ROOT / "plugins").rglob("*.py") if "@hookimpl" in p.read_text())
     assert sorted(set(hooked)) == packages and all(
-        "@hookimpl" not in p.read_text() for p in (ROOT / "plugins").rglob("*.py") if p.name != "plugin.py")
+        "@hookimpl" not in p.read_text() for p in (ROOT / "plugins").rglob("*.py") if p.name != "plugin.py"
+    )
+
+
+#: Where registries may be built from the installed plugins: the CLI (and the commands plugins
+#: add to it), the facades and the plugin manager. Everything else receives the run's
+#: registries (a step's context, a task's arguments), so that ``--block`` holds everywhere.
+REGISTRY_BUILDERS = ("load_registries", "default_registries")
+MAY_BUILD = ("framework/cli.py", "framework/__init__.py", "framework/plugins.py", "_mocapflow/")
+
+
+def test_registries_are_built_only_by_the_cli_the_facade_and_the_plugin_manager():
+    bad = []
+    for top in ("framework", "plugins", "_mocapflow"):
+        for path in sorted((ROOT / top).rglob("*.py")):
+            rel = path.relative_to(ROOT).as_posix()
+            if rel.startswith(MAY_BUILD) or path.name.endswith("_command.py"):
+                continue
+            for node in ast.walk(ast.parse(path.read_text(), rel)):
+                if isinstance(node, ast.Call):
+                    f = node.func
+                    name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+                    if name in REGISTRY_BUILDERS:
+                        bad.append(f"{rel}:{node.lineno} calls {name}()")
+    assert not bad, "registries rebuilt outside the CLI, the facade and the plugin manager:\n" + "\n".join(bad)

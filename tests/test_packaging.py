@@ -1,5 +1,6 @@
 """Build the wheel, install it with the template plugin in a fresh virtual environment,
 and use it as a new user would (``mocapflow --help``, ``plugins``, a pipeline)."""
+
 from __future__ import annotations
 
 import os
@@ -18,7 +19,9 @@ def _run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
     env = {**os.environ, "MOCAPFLOW_PROGRESS": "0", "PIP_DISABLE_PIP_VERSION_CHECK": "1"}
     env.pop("PYTHONPATH", None)
     res = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600, **kw)
-    assert res.returncode == 0, f"{' '.join(cmd)} failed ({res.returncode}):\n{res.stdout[-3000:]}\n{res.stderr[-3000:]}"
+    assert res.returncode == 0, (
+        f"{' '.join(cmd)} failed ({res.returncode}):\n{res.stdout[-3000:]}\n{res.stderr[-3000:]}"
+    )
     return res
 
 
@@ -59,11 +62,19 @@ def venv(tmp_path_factory):
     root = tmp_path_factory.mktemp("venv")
     build = root / "src"
     # build from a copy, so the build leaves nothing behind in the repository
-    shutil.copytree(REPO, build, ignore=shutil.ignore_patterns(".git", "runs", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache", "*.whl"))
+    shutil.copytree(
+        REPO,
+        build,
+        ignore=shutil.ignore_patterns(
+            ".git", "runs", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache", "*.whl"
+        ),
+    )
     wheels = root / "wheels"
     # wheels are built by this interpreter (its setuptools); the venv only installs them
     for project in (build, build / "examples" / "template-plugin"):
-        _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(project)])
+        _run(
+            [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(project)]
+        )
     env_dir = root / "env"
     # this interpreter's pip installs into the venv (pip >= 22.3 `--python`; else the venv's
     # own pip), before the .pth exists: the venv then holds nothing else, so nothing outside
@@ -82,15 +93,23 @@ def venv(tmp_path_factory):
 
 def test_wheel_contents_import_from_the_venv(venv):
     py = venv / "bin" / "python"
-    out = _run([str(py), "-c", "import mocapflow, mocapflow.framework as f, mocapflow.plugins as p; "
-                               "print(mocapflow.__file__); print(f.__file__); print(p.__file__)"]).stdout
+    out = _run(
+        [
+            str(py),
+            "-c",
+            "import mocapflow, mocapflow.framework as f, mocapflow.plugins as p; "
+            "print(mocapflow.__file__); print(f.__file__); print(p.__file__)",
+        ]
+    ).stdout
     assert len(out.split()) == 3 and all(str(venv) in line for line in out.split()), out
 
 
 def test_cli_help_and_plugins_from_wheel(venv):
     exe = venv / "bin" / "mocapflow"
     assert "run" in _run([str(exe), "--help"]).stdout
-    version = _run([str(venv / "bin" / "python"), "-c", "import mocapflow; print(mocapflow.__version__)"]).stdout.strip()
+    version = _run(
+        [str(venv / "bin" / "python"), "-c", "import mocapflow; print(mocapflow.__version__)"]
+    ).stdout.strip()
     assert _run([str(exe), "--version"]).stdout.strip() == f"mocapflow {version}"
     out = _run([str(exe), "plugins"]).stdout
     assert "template" in out and "features.joint_speed" in out and "matchers.sliding_window" in out
@@ -101,10 +120,11 @@ def test_template_plugin_runs_in_a_pipeline(venv, tmp_path):
     ws = tmp_path / "ws"
     out = _run([str(exe), "run", str(TEMPLATE / "pipeline.yaml"), "--workspace", str(ws)]).stdout
     assert "done: 3 computed" in out
-    res = _run([str(exe), "sql", str(ws), "SELECT rank, clip_id, cost FROM matches ORDER BY rank", "--format", "csv"]).stdout
+    res = _run(
+        [str(exe), "sql", str(ws), "SELECT rank, clip_id, cost FROM matches ORDER BY rank", "--format", "csv"]
+    ).stdout
     rows = res.split()[1:]
-    first = _run([str(exe), "sql", str(ws), "SELECT clip_id FROM speeds LIMIT 1",
-                  "--format", "csv"]).stdout.split()[1]
+    first = _run([str(exe), "sql", str(ws), "SELECT clip_id FROM speeds LIMIT 1", "--format", "csv"]).stdout.split()[1]
     rank, clip, cost = rows[0].split(",")
     assert len(rows) == 3 and (rank, clip, float(cost)) == ("1", first, 0.0)  # the query clip matches itself first
 

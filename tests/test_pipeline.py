@@ -48,9 +48,17 @@ def plan(path, overrides=()):
     [
         ("steps:\n  a: {uses: analyses.toy_sourse}\n", 2, ["did you mean 'analyses.toy_source'"]),
         ("steps:\n  a:\n    uses: analyses.toy_source\n    with: {n: 0}\n", 4, ["'n'", "greater than or equal to 1"]),
-        ("steps:\n  a:\n    uses: analyses.toy_source\n    with:\n      sclae: 2\n", 5, ["unknown parameter 'sclae'", "did you mean 'scale'"]),
+        (
+            "steps:\n  a:\n    uses: analyses.toy_source\n    with:\n      sclae: 2\n",
+            5,
+            ["unknown parameter 'sclae'", "did you mean 'scale'"],
+        ),
         ("steps:\n  a: {uses: analyses.toy_add}\n", 2, ["missing required input 'source'"]),
-        ("steps:\n  a: {uses: analyses.toy_add, input: sorce}\n  source: {uses: analyses.toy_source}\n", 2, ["unknown step 'sorce'", "did you mean 'source'"]),
+        (
+            "steps:\n  a: {uses: analyses.toy_add, input: sorce}\n  source: {uses: analyses.toy_source}\n",
+            2,
+            ["unknown step 'sorce'", "did you mean 'source'"],
+        ),
         ("steps:\n  a: {uses: analyses.toy_add, input: b}\n  b: {uses: analyses.toy_add, input: a}\n", 2, ["cycle"]),
         ("steps:\n  a: {uses: analyses.toy_add, inputs: {sourse: a}}\n", 2, ["no input 'sourse'"]),
         ("steps:\n  a: {uses: nothing}\n", 2, ["expected '<kind>.<name>'"]),
@@ -203,8 +211,10 @@ def test_executor_from_a_plugin_without_touching_the_runner(tmp_path):
     run_pipeline(p, pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin(), ExecutorPlugin()]))
     assert RecordingExecutor.seen[-1] == "closed"
     with pytest.raises(ConfigError, match="unknown executor 'recordng'.*did you mean 'recording'"):
-        run_pipeline(write(tmp_path, body.replace("executor: recording", "executor: recordng"), "q.yaml"),
-                     pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin(), ExecutorPlugin()]))
+        run_pipeline(
+            write(tmp_path, body.replace("executor: recording", "executor: recordng"), "q.yaml"),
+            pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin(), ExecutorPlugin()]),
+        )
 
 
 def test_killed_run_resumes_with_the_same_outputs(tmp_path):
@@ -249,12 +259,23 @@ def test_killed_run_resumes_with_the_same_outputs(tmp_path):
     assert not (ws / ".mocapflow" / "tmp").exists()
 
 
-@pytest.mark.parametrize("body, line, words", [
-    ("steps:\n  a: !!python/object/apply:os.system ['touch PWNED']\n", 3, ["unsupported tag", "python/object/apply"]),
-    ("steps:\n  a:\n    uses: !custom analyses.toy_source\n", 4, ["unsupported tag '!custom'"]),
-    ("steps:\n  a: {uses: analyses.toy_source}\n  a: {uses: analyses.toy_add}\n", 4, ["key 'a' appears twice", "line 3"]),
-    ("steps: &s\n  a: *s\n", 2, ["alias"]),
-])
+@pytest.mark.parametrize(
+    "body, line, words",
+    [
+        (
+            "steps:\n  a: !!python/object/apply:os.system ['touch PWNED']\n",
+            3,
+            ["unsupported tag", "python/object/apply"],
+        ),
+        ("steps:\n  a:\n    uses: !custom analyses.toy_source\n", 4, ["unsupported tag '!custom'"]),
+        (
+            "steps:\n  a: {uses: analyses.toy_source}\n  a: {uses: analyses.toy_add}\n",
+            4,
+            ["key 'a' appears twice", "line 3"],
+        ),
+        ("steps: &s\n  a: *s\n", 2, ["alias"]),
+    ],
+)
 def test_yaml_tags_duplicates_and_recursive_aliases_are_config_errors(tmp_path, body, line, words):
     from mocapflow.framework.cli import main
 

@@ -1,5 +1,6 @@
-"""Validation before anything runs (issue 11 §4): nested component parameters, dataset
+"""Validation before anything runs: nested component parameters, dataset
 kinds of inputs, the executor, and components' own plan-time checks (globs)."""
+
 from __future__ import annotations
 
 import textwrap
@@ -48,23 +49,23 @@ steps:
 
 def test_nested_cleaner_parameters_are_validated_at_plan_time_via_set(tmp_path):
     p = write(tmp_path, EVAL)
-    item = 'evaluation.cleaner={"normalisation": "median"}'
+    item = 'evaluation.cleaner={"treshold": 0.6}'
     with pytest.raises(ConfigError) as err:
         plan(p, [item])
     msg = str(err.value)
     assert f"{p}:11" in msg and f"--set {item!r}" in msg, msg  # the step's `with:` line and the --set item
-    assert "step 'evaluation'" in msg and "unknown parameter 'cleaner.normalisation'" in msg, msg
-    assert "parameters of cleaners.mdm" in msg and "did you mean 'normalization'" in msg, msg
+    assert "step 'evaluation'" in msg and "unknown parameter 'cleaner.treshold'" in msg, msg
+    assert "parameters of cleaners.mdm" in msg and "did you mean 'threshold'" in msg, msg
     assert main(["--no-entry-points", "plan", str(p), "--set", item]) == 2
-    plan(p, ['evaluation.cleaner={"normalization": "median"}'])  # the right spelling plans
+    plan(p, ['evaluation.cleaner={"threshold": 0.6}'])  # the right spelling plans
 
 
 def test_nested_parameters_in_yaml_point_at_their_line(tmp_path):
-    p = write(tmp_path, EVAL + "      cleaner:\n        k: 5\n        normalization: avg\n")
+    p = write(tmp_path, EVAL + "      cleaner:\n        k: 5\n        mode: avg\n")
     with pytest.raises(ConfigError) as err:
         plan(p)
     msg = str(err.value)
-    assert f"{p}:15" in msg and "parameter 'cleaner.normalization'" in msg and "'avg'" in msg, msg
+    assert f"{p}:15" in msg and "parameter 'cleaner.mode'" in msg and "'avg'" in msg, msg
 
 
 def test_nested_key_may_name_a_sibling_parameter(tmp_path):
@@ -85,29 +86,51 @@ def test_nested_key_may_name_a_sibling_parameter(tmp_path):
     assert planned["a"].component.params.options == {"add": 1}  # still the dict the user gave
 
 
-@pytest.mark.parametrize("body, line, words", [
-    # an index over a summary table
-    ("""
+@pytest.mark.parametrize(
+    "body, line, words",
+    [
+        # an index over a summary table
+        (
+            """
      motions: {uses: analyses.toy_motions}
      summary: {uses: analyses.clip_summary, input: motions}
      tree: {uses: indexes.kdtree, input: summary}
-     """, 5, ["input 'features' of indexes.kdtree takes a features dataset",
-              "step 'summary' (analyses.clip_summary) writes a table dataset"]),
-    # features of an index
-    ("""
+     """,
+            5,
+            [
+                "input 'features' of indexes.kdtree takes a features dataset",
+                "step 'summary' (analyses.clip_summary) writes a table dataset",
+            ],
+        ),
+        # features of an index
+        (
+            """
      motions: {uses: analyses.toy_motions}
      fe: {uses: features.end_effectors, input: motions}
      tree: {uses: indexes.kdtree, input: fe}
      again: {uses: features.end_effectors, input: tree}
-     """, 6, ["takes a motions dataset", "writes an index dataset"]),
-    # a matcher whose database is a motions dataset
-    ("""
+     """,
+            6,
+            ["takes a motions dataset", "writes an index dataset"],
+        ),
+        # a matcher whose database is a motions dataset
+        (
+            """
      motions: {uses: formats.load, with: {paths: ["AMC"]}}
      lng: {uses: matchers.lng, inputs: {database: motions, query: motions}}
-     """, 4, ["input 'database' of matchers.lng takes an index or features dataset", "writes a motions dataset"]),
-])
+     """,
+            4,
+            ["input 'database' of matchers.lng takes an index or features dataset", "writes a motions dataset"],
+        ),
+    ],
+)
 def test_inputs_of_the_wrong_kind_are_refused_at_plan_time(tmp_path, body, line, words):
-    p = write(tmp_path, "name: k\nsteps:\n" + textwrap.indent(textwrap.dedent(body).strip("\n"), "  ").replace("AMC", str(AMC[0])) + "\n")
+    p = write(
+        tmp_path,
+        "name: k\nsteps:\n"
+        + textwrap.indent(textwrap.dedent(body).strip("\n"), "  ").replace("AMC", str(AMC[0]))
+        + "\n",
+    )
     with pytest.raises(ConfigError) as err:
         plan(p)
     msg = str(err.value)
@@ -118,7 +141,9 @@ def test_inputs_of_the_wrong_kind_are_refused_at_plan_time(tmp_path, body, line,
 
 def test_undeclared_kinds_are_not_checked(tmp_path):
     # toy_motions (an analysis declaring no output kind) feeds a feature set and a summary
-    p = write(tmp_path, """
+    p = write(
+        tmp_path,
+        """
     name: ok
     steps:
       motions: {uses: analyses.toy_motions}
@@ -126,18 +151,24 @@ def test_undeclared_kinds_are_not_checked(tmp_path):
       tree: {uses: indexes.kdtree, input: fe}
       lng: {uses: matchers.lng, inputs: {database: tree, query: motions}}
       summary: {uses: analyses.clip_summary, input: motions}
-    """)
+    """,
+    )
     assert [s.step_id for s in plan(p).steps] == ["motions", "fe", "tree", "lng", "summary"]
 
 
 def test_unknown_executor_is_a_plan_time_error(tmp_path):
-    p = write(tmp_path, """
+    p = write(
+        tmp_path,
+        """
     name: x
     executor: daks
     steps:
       a: {uses: analyses.toy_source}
-    """)
-    with pytest.raises(ConfigError, match=rf"{p}:3: unknown executor 'daks' \(did you mean 'dask'\?\); registered: .*local"):
+    """,
+    )
+    with pytest.raises(
+        ConfigError, match=rf"{p}:3: unknown executor 'daks' \(did you mean 'dask'\?\); registered: .*local"
+    ):
         plan(p)
     assert main(["--no-entry-points", "plan", str(p)]) == 2
     with pytest.raises(ConfigError, match="unknown executor 'daks'"):
@@ -146,7 +177,9 @@ def test_unknown_executor_is_a_plan_time_error(tmp_path):
 
 
 def test_glob_matching_no_file_warns_at_plan_time(tmp_path, caplog, capsys):
-    p = write(tmp_path, f"""
+    p = write(
+        tmp_path,
+        f"""
     name: g
     steps:
       motions:
@@ -155,7 +188,8 @@ def test_glob_matching_no_file_warns_at_plan_time(tmp_path, caplog, capsys):
       markers:
         uses: formats.load_markers
         with: {{paths: ["*.trc"]}}
-    """)
+    """,
+    )
     planned = plan(p)
     assert planned.warnings == [
         f"{p}:6: step 'motions': pattern 'nowhere/**/*.bvh' of `paths` matches no file (relative to {tmp_path})",
@@ -169,5 +203,7 @@ def test_glob_matching_no_file_warns_at_plan_time(tmp_path, caplog, capsys):
 
 def test_typos_in_model_typed_parameters_suggest_from_the_nested_model():
     p = REPO / "pipelines" / "reconstruct.yaml"
-    with pytest.raises(ConfigError, match=r"unknown parameter 'reconstruct.kk'.*did you mean 'k'\?\); known: features, feature_params"):
+    with pytest.raises(
+        ConfigError, match=r"unknown parameter 'reconstruct.kk'.*did you mean 'k'\?\); known: features, feature_params"
+    ):
         plan(p, ["evaluation.reconstruct.kk=3"])

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from mocapflow.framework import Analysis, PluginError, get_plugin_manager, hookimpl
+from mocapflow.framework import Analysis, ConfigError, PluginError, get_plugin_manager, hookimpl
 from mocapflow.framework.plugins import build_registries
 from mocapflow.framework.registry import Registries
 
@@ -51,7 +51,9 @@ def test_plugin_raising_in_hook_is_named_skipped_and_the_rest_goes_on(caplog):
     pm.register(BrokenPlugin(), name="broken-one")
     regs = build_registries(pm)  # no raise: the others are usable
     assert "end_effectors" in regs["features"] and "local" in regs.executors
-    assert [(f.plugin, "register_features" in f.error and "boom" in f.error) for f in pm.failures] == [("broken-one", True)]
+    assert [(f.plugin, "register_features" in f.error and "boom" in f.error) for f in pm.failures] == [
+        ("broken-one", True)
+    ]
     assert "plugin 'broken-one' skipped" in caplog.text and "boom" in caplog.text
     build_registries(pm)
     assert len(pm.failures) == 1 and caplog.text.count("skipped") == 1  # reported once
@@ -119,13 +121,15 @@ def test_cli_plugins_plan_run_survive_a_plugin_whose_hooks_raise(monkeypatch, tm
             shutil.copy(f, tmp_path)
     shutil.copy(src, tmp_path)
     p = tmp_path / "p.yaml"
-    p.write_text(textwrap.dedent(f"""
+    p.write_text(
+        textwrap.dedent(f"""
         name: survive
         workspace: ws
         steps:
           motions: {{uses: formats.load, with: {{paths: ["*{src.suffix}"]}}}}
           summary: {{uses: analyses.clip_summary, input: motions}}
-    """))
+    """)
+    )
     assert main(["plan", str(p)]) == 0
     assert main(["run", str(p)]) == 0
     cap = capsys.readouterr()
@@ -162,7 +166,7 @@ def test_broken_entry_point_is_recorded_not_raised(monkeypatch):
 
 def test_unknown_component_suggests():
     regs = build_registries(get_plugin_manager(entry_points=False))
-    with pytest.raises(Exception, match="did you mean 'analyses.clip_summary'"):
+    with pytest.raises(ConfigError, match="did you mean 'analyses.clip_summary'"):
         regs.resolve("analyses.clip_sumary")
 
 
@@ -178,11 +182,14 @@ def test_hook_docs_are_in_step_with_hookspecs():
     assert (docs / "hooks.md").read_text() == mod.render(), "run `python docs/make_hooks_md.py`"
 
 
-@pytest.mark.parametrize("hook, step, committed", [
-    ("before_step", "plus", False),
-    ("after_step", "plus", True),
-    ("on_step_error", "boom", False),
-])
+@pytest.mark.parametrize(
+    "hook, step, committed",
+    [
+        ("before_step", "plus", False),
+        ("after_step", "plus", True),
+        ("on_step_error", "boom", False),
+    ],
+)
 def test_lifecycle_hook_errors_are_plugin_errors_naming_the_plugin(tmp_path, hook, step, committed):
     import textwrap
 
@@ -191,14 +198,16 @@ def test_lifecycle_hook_errors_are_plugin_errors_naming_the_plugin(tmp_path, hoo
     from mocapflow.framework.runner import run_pipeline
 
     p = tmp_path / "p.yaml"
-    p.write_text(textwrap.dedent("""
+    p.write_text(
+        textwrap.dedent("""
         name: hooks
         workspace: ws
         steps:
           src: {uses: analyses.toy_source}
           plus: {uses: analyses.toy_add, input: src}
           boom: {uses: analyses.toy_fail, input: plus}
-    """))
+    """)
+    )
     pm = get_plugin_manager(entry_points=False, extra=[ToyPlugin()])
     hooks = HookFailures(**{hook: (step,)})
     pm.register(hooks, name="hooky")

@@ -1,4 +1,5 @@
 """The Python API (``mocapflow.read/features/Database/clean``) and ``python -m mocapflow``."""
+
 from __future__ import annotations
 
 import re
@@ -45,7 +46,7 @@ def test_read_write_round_trip_and_unknown_extension(tmp_path):
     from mocapflow.framework.errors import ConfigError
 
     walk = mocapflow.read(DATA / "16" / "16_15.amc")
-    walk.write(tmp_path / "w.bvh")
+    mocapflow.write(walk, tmp_path / "w.bvh")
     back = mocapflow.read(tmp_path / "w.bvh")
     assert back.n_frames == walk.n_frames
     np.testing.assert_allclose(back.positions, walk.positions, atol=1e-3)

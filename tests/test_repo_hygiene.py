@@ -1,5 +1,6 @@
 """The repository as CI and a new user see it: the README's test command is what CI runs
 (inside a fresh virtual environment), and no build artefacts are committed."""
+
 from __future__ import annotations
 
 import shutil
@@ -80,7 +81,9 @@ def test_readme_set_example_recomputes_what_it_says():
     from mocapflow.framework.runner import plan_pipeline
 
     readme = " ".join((REPO / "README.md").read_text().split())
-    m = re.search(r"`mocapflow run (\S+) --set (\S+)` recomputes exactly the steps downstream of the change \(([^)]*)\)", readme)
+    m = re.search(
+        r"`mocapflow run (\S+) --set (\S+)` recomputes exactly the steps downstream of the change \(([^)]*)\)", readme
+    )
     assert m, "README's --set example"
     pipeline, override, named = REPO / m.group(1), m.group(2), {s.strip(" `") for s in m.group(3).split(",")}
     regs = load_registries(entry_points=False)
@@ -97,7 +100,12 @@ def test_every_benchmark_script_has_quick():
     for script in sorted((REPO / "benchmarks").glob("*.py")):
         tree = ast.parse(script.read_text())
         is_script = any(isinstance(n, ast.If) and "__main__" in ast.unparse(n.test) for n in tree.body)
-        options = {a.value for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "attr", "") == "add_argument"
-                   for a in n.args if isinstance(a, ast.Constant)}
+        options = {
+            a.value
+            for n in ast.walk(tree)
+            if isinstance(n, ast.Call) and getattr(n.func, "attr", "") == "add_argument"
+            for a in n.args
+            if isinstance(a, ast.Constant)
+        }
         if is_script:
             assert "--quick" in options, f"{script.name} has no --quick"

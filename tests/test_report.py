@@ -60,15 +60,15 @@ def test_blob_parts_are_aligned_and_read_back(tmp_path):
 
 # --- cleaned takes and MDM grids -----------------------------------------------------------
 def test_edits_applied_to_the_original_give_the_cleaners_take():
-    from mocapflow.plugins.selfsim.clean_clip import clean_clip
-    from mocapflow.plugins.selfsim.mdm import MDMCleaner
+    from mocapflow.plugins.selfsim.cleaner import MDMCleaner
+    from mocapflow.plugins.selfsim.outputs import clean_and_write_clip
 
     walk = synthetic_walk(240, seed=5)
     rot = walk.rotations.copy()
     j = walk.skeleton.canonical["lelbow"]
     rot[120:126, j] = quat.mul(rot[120:126, j], quat.from_axis_angle(np.array([0, 0, 1.0]), np.array(1.2)))
     bad = walk.with_arrays(rotations=rot)
-    out = clean_clip(MDMCleaner({"normalization": "texture"}), bad, None, 3, None)
+    out = clean_and_write_clip(MDMCleaner(), bad, None, 3, None)
     assert out["edits"].num_rows > 0
     mine = apply_edits(bad, out["edits"], 3)
     np.testing.assert_allclose(mine.rotations, out["cleaned"].rotations, atol=1e-12)
@@ -154,7 +154,7 @@ def test_quickstart_report_lists_clips_steps_and_provenance(quickstart_site, qui
     }
     s = steps["search"]
     assert (
-        s["component"] == "matchers.lng"
+        s["component"] == "matchers.search"
         and s["params"]["count"] == 5
         and s["inputs"] == {"database": "tree", "query": "motions"}
     )

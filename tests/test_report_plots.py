@@ -89,7 +89,7 @@ def test_mdm_heatmap_labels_its_colour_bar_and_white_squares(tmp_path, saved):
 
 def test_base_poses_are_labelled_with_clip_frame_and_members(extras_workspace, tmp_path, saved):
     from mocapflow.framework.datasets import Dataset
-    from mocapflow.plugins.similarity.fat_graph import FatGraph
+    from mocapflow.plugins.similarity.applications.fat_graph import FatGraph
 
     bp = Dataset(extras_workspace / "fat_graph").table("base_poses")
     clip_id, frame = bp["clip_id"].to_numpy(), bp["frame"].to_numpy()

@@ -1,4 +1,5 @@
 """Every pipeline shipped in pipelines/ is planned; the quickstart runs end to end."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -28,8 +29,10 @@ def test_quickstart_end_to_end(tmp_path):
     with Catalog(tmp_path) as cat:
         assert cat.query("SELECT count(*) AS n FROM clips").column("n")[0].as_py() == 8
         assert cat.query("SELECT count(*) AS n FROM rejects").column("n")[0].as_py() == 0
-        best = cat.query("SELECT c.name, s.start_frame, s.end_frame, s.cost FROM search s JOIN clips c USING (clip_id) "
-                         "WHERE s.rank = 1").to_pylist()
+        best = cat.query(
+            "SELECT c.name, s.start_frame, s.end_frame, s.cost FROM search s JOIN clips c USING (clip_id) "
+            "WHERE s.rank = 1"
+        ).to_pylist()
         # the query (16_15, seconds 1-2 at 30 Hz) finds itself first, at zero cost
         assert best == [{"name": "16_15", "start_frame": 30, "end_frame": 60, "cost": 0.0}]
         nearest = cat.query("SELECT count(*) AS n FROM nearest").column("n")[0].as_py()

@@ -1,5 +1,6 @@
 """Nothing heavy happens on import: building the registries (what every CLI command does)
 must not import numba, matplotlib or the slow scipy sub-packages; kernels load lazily."""
+
 from __future__ import annotations
 
 import subprocess
@@ -27,17 +28,23 @@ def test_cli_help_imports_nothing_heavy():
         "    main([])\n"
         f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1:]
+    out = (
+        subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        .stdout.strip()
+        .splitlines()[-1:]
+    )
     assert out in ([], [""]), f"imported by `mocapflow`: {out}"
 
 
 def _modules_after(code_lines: list[str], cwd: str | None = None) -> set[str]:
     """The top-level modules (and ``mocapflow.*`` ones) a fresh interpreter holds after ``code``."""
-    code = "\n".join([
-        "import sys, io, contextlib",
-        *code_lines,
-        "print('MODULES', ' '.join(sorted(m for m in sys.modules if '.' not in m or m.startswith('mocapflow.'))))",
-    ])
+    code = "\n".join(
+        [
+            "import sys, io, contextlib",
+            *code_lines,
+            "print('MODULES', ' '.join(sorted(m for m in sys.modules if '.' not in m or m.startswith('mocapflow.'))))",
+        ]
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=cwd).stdout
     return set(next(line for line in out.splitlines() if line.startswith("MODULES")).split()[1:])
 
@@ -68,7 +75,10 @@ def test_importing_the_framework_is_cheap_and_every_name_resolves():
 def test_cli_help_and_version_import_no_pydantic_scipy_numba():
     for argv in (["--help"], [], ["--version"], ["run", "--help"]):
         mods = _modules_after(_cli(argv))
-        assert not mods & {"numpy", "pyarrow", "pydantic", "scipy", "numba", "duckdb", "matplotlib", "yaml"}, (argv, mods)
+        assert not mods & {"numpy", "pyarrow", "pydantic", "scipy", "numba", "duckdb", "matplotlib", "yaml"}, (
+            argv,
+            mods,
+        )
 
 
 def test_sql_loads_no_plugin(tmp_path):

@@ -1,5 +1,6 @@
 """Two runs on one workspace: the second waits or refuses naming the holder; a killed
 run's lock is taken over with a notice. Each test starts real processes."""
+
 from __future__ import annotations
 
 import json
@@ -18,8 +19,8 @@ from toy_components import ToyPlugin
 
 from mocapflow.framework import get_plugin_manager
 from mocapflow.framework.errors import LockError
-from mocapflow.framework.locking import WorkspaceLock, holder_alive
 from mocapflow.framework.runner import run_pipeline
+from mocapflow.framework.workspace import WorkspaceLock, holder_alive
 
 TESTS = Path(__file__).resolve().parent
 GATED = """
@@ -126,7 +127,10 @@ def test_lock_of_a_killed_run_is_taken_over_with_a_notice(pipeline, tmp_path, ca
     (ws / "gate-open").write_text("1")
     reports = run_pipeline(pipeline, pm=pm())
     assert [r.status for r in reports] == ["computed", "computed"]
-    assert f"taking over the lock of a run that did not finish (pid {first.pid} on host {socket.gethostname()}" in caplog.text
+    assert (
+        f"taking over the lock of a run that did not finish (pid {first.pid} on host {socket.gethostname()}"
+        in caplog.text
+    )
     assert "is no longer running" in caplog.text
 
 
@@ -142,7 +146,9 @@ def test_without_flock_the_record_decides(tmp_path, monkeypatch):
     # a record of a process that died without releasing: taken over
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    (ws / ".mocapflow" / "lock").write_text(json.dumps({"pid": dead.pid, "host": socket.gethostname(), "started": "then"}))
+    (ws / ".mocapflow" / "lock").write_text(
+        json.dumps({"pid": dead.pid, "host": socket.gethostname(), "started": "then"})
+    )
     with WorkspaceLock(ws) as lock:
         assert json.loads(lock.path.read_text())["pid"] == os.getpid()
     # a record from another host cannot be checked: refused
@@ -156,7 +162,9 @@ def test_cli_run_refuses_a_locked_workspace_and_waits_with_wait(tmp_path, capsys
 
     src = next((TESTS.parent / "examples" / "data" / "cmu").rglob("*.amc"))
     p = tmp_path / "p.yaml"
-    p.write_text(f"name: c\nworkspace: ws\nsteps:\n  motions: {{uses: formats.load, with: {{paths: [{str(src)!r}]}}}}\n")
+    p.write_text(
+        f"name: c\nworkspace: ws\nsteps:\n  motions: {{uses: formats.load, with: {{paths: [{str(src)!r}]}}}}\n"
+    )
     with WorkspaceLock(tmp_path / "ws", pipeline="other"):
         assert main(["--no-entry-points", "run", str(p)]) == 1
         err = capsys.readouterr().err

@@ -1,4 +1,5 @@
 """Tiny components registered through a test plugin object (``extra=[ToyPlugin()]``)."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -9,8 +10,9 @@ import pyarrow as pa
 from pydantic import Field
 from synthetic import random_motion
 
-from mocapflow.framework import Analysis, Params, PipelineError, StepOutput, hookimpl
+from mocapflow.framework import Analysis, FeatureSet, Matcher, Params, PipelineError, QueryMatches, StepOutput, hookimpl
 from mocapflow.framework.components import ParamsOf
+from mocapflow.framework.conformance import ReferenceIndex
 from mocapflow.framework.motion_tables import motions_to_tables
 
 
@@ -93,6 +95,11 @@ class RecordingExecutor:
 
     name = "recording"
     seen: list[str] = []
+    workers = 1
+
+    class Params(Params):
+        jobs: int = 1
+        label: str = "x"
 
     def __init__(self, jobs: int = 1, label: str = "x") -> None:
         self.label = label
@@ -215,3 +222,51 @@ class NestedPlugin:
     @hookimpl
     def register_analyses(self):
         return [ToyNested]
+
+
+class ToyRoot(FeatureSet):
+    """The root position per frame (3 numbers)."""
+
+    name = "toy_root"
+
+    @property
+    def dim(self) -> int:
+        return 3
+
+    def transform_motion(self, motion):
+        return np.asarray(motion.root_translation, np.float32)
+
+
+class ToyKdtree(ReferenceIndex):
+    """Brute force registered as ``indexes.kdtree``: stands in for the built-in when it is blocked."""
+
+    name = "kdtree"
+
+
+class ToyNearest(Matcher):
+    """The database row nearest to the query's first frame, as a one-row match."""
+
+    name = "toy_nearest"
+
+    def match(self, query, space):
+        dist, ids = space.neighbors(query[:1], 1)
+        row = int(ids[0, 0])
+        return QueryMatches(
+            np.array([row]), np.array([row + 1]), dist[0, :1].astype(np.float64), np.array([1]), [np.array([[0, row]])]
+        )
+
+
+class StandInPlugin:
+    """``features.toy_root``, ``indexes.kdtree`` (a stand-in) and ``matchers.toy_nearest``."""
+
+    @hookimpl
+    def register_features(self):
+        return [ToyRoot]
+
+    @hookimpl
+    def register_indexes(self):
+        return [ToyKdtree]
+
+    @hookimpl
+    def register_matchers(self):
+        return [ToyNearest]

@@ -1,4 +1,4 @@
-"""Compare every Parquet table of two workspaces of the same pipeline (issue 12 §3).
+"""Compare every Parquet table of two workspaces of the same pipeline.
 
     python tools/compare_workspaces.py OLD_WORKSPACE NEW_WORKSPACE
 
@@ -28,8 +28,8 @@ def clip_map(old: Path, new: Path) -> dict[int, int]:
             a, b = pq.read_table(d / name), pq.read_table(new / d.name / name)
             if "clip_id" not in a.column_names or "clip_id" not in b.column_names:
                 continue
-            by_path = dict(zip(b["path"].to_pylist(), b["clip_id"].to_pylist()))
-            for p, c in zip(a["path"].to_pylist(), a["clip_id"].to_pylist()):
+            by_path = dict(zip(b["path"].to_pylist(), b["clip_id"].to_pylist(), strict=True))
+            for p, c in zip(a["path"].to_pylist(), a["clip_id"].to_pylist(), strict=True):
                 if p in by_path:
                     out.setdefault(int(c), int(by_path[p]))
     return out

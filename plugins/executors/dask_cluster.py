@@ -33,8 +33,11 @@ import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from pydantic import Field
+
 from mocapflow.framework.errors import ConfigError, PipelineError
 from mocapflow.framework.executors import PRELOAD, available_cores, threads_per_worker
+from mocapflow.framework.params import Params
 from mocapflow.framework.progress import progress
 
 ADDRESS_ENV = "MOCAPFLOW_DASK_ADDRESS"
@@ -80,6 +83,15 @@ class DaskExecutor:
     """
 
     name = "dask"
+
+    class Params(Params):
+        jobs: int = Field(0, ge=0)
+        address: str | None = None
+        threads: int | None = Field(None, ge=1)
+        retries: int = Field(0, ge=0)
+        allowed_failures: int | None = None
+        min_items: int = Field(1, ge=0)
+        chunks_per_worker: int = Field(4, ge=0)
 
     def __init__(
         self,

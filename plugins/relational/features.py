@@ -223,7 +223,9 @@ class RelationalFeatures(FeatureSet):
         return self.transform_bits(data).astype(np.float32)
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        out = super().run(inputs, ctx)
+        from mocapflow.framework.steps import run_features
+
+        out = run_features(self, inputs, ctx)
         data = out.tables["data"]
         from mocapflow.framework.datasets import fixed_list_to_numpy
 

@@ -1,0 +1,104 @@
+"""The default step of each component kind, and :func:`run_step`, which the runner calls.
+
+A component with a step of its own overrides ``run``; the others get the default of their
+kind: a feature set transforms every clip (:func:`run_features`), an index is built over a
+features dataset (:func:`run_index`), a matcher matches every query
+(:func:`.queries.run_matcher`), a cleaner cleans every clip (:func:`run_cleaner`). Each
+returns a :class:`~.datasets.StepOutput`; the runner writes it (:mod:`.workspace`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from .cleaning import CleanedClip
+from .clip_refs import DatasetRef
+from .components import Cleaner, Component, FeatureSet, Index, Matcher
+from .context import StepContext
+from .datasets import Dataset, StepOutput, feature_table, frame_id_table
+from .motion import Motion
+from .queries import run_matcher
+from .registry import Registries
+
+StepFunction = Callable[[Component, Mapping[str, Dataset], StepContext], StepOutput]
+
+
+def run_step(component: Component, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+    """``component.run`` where the component overrides it, else the default step of its kind."""
+    if type(component).run is not Component.run:
+        return component.run(inputs, ctx)
+    if isinstance(component, FeatureSet):
+        return run_features(component, inputs, ctx)
+    if isinstance(component, Index):
+        return run_index(component, inputs, ctx)
+    if isinstance(component, Matcher):
+        return run_matcher(component, inputs, ctx)
+    if isinstance(component, Cleaner):
+        return run_cleaner(component, inputs, ctx)
+    return component.run(inputs, ctx)  # raises: no step of its own, none by default
+
+
+def run_features(fs: FeatureSet, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+    """Features of every clip of ``motions``; a feature set that ``requires_fit`` is fitted on
+    ``reference`` (motions) or loads the model of ``reference`` (a features dataset)."""
+    motions = inputs["motions"]
+    if fs.requires_fit:
+        ref = inputs.get("reference")
+        if ref is not None and ref.producer_kind == "features":
+            fs.load_state(ref.path)  # reuse a model fitted by another step
+        else:
+            fs.fit((ref if ref is not None else motions).motions())
+        fs.save_state(ctx.out_dir)
+    # clips go out by reference: each worker reads its own from the Parquet file
+    parts = ctx.map_clips(fs.transform_motion, motions, desc=fs.key())
+    x = np.concatenate([np.asarray(p, np.float32) for p in parts], 0) if parts else np.zeros((0, fs.dim), np.float32)
+    clip_id, frame = motions.frame_ids()
+    return StepOutput({"data": feature_table(clip_id, frame, x)})
+
+
+def run_index(index: Index, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+    """The index built over ``features`` and saved into ``index/`` of the dataset."""
+    feats = inputs["features"].features()
+    index.build(feats.x)
+    index.save(ctx.out_dir / "index")
+    # row i of the index is frame (clip_id[i], frame[i]); matchers map ids back with it
+    return StepOutput({"data": frame_id_table(feats.clip_id, feats.frame)})
+
+
+def _clean_task(
+    cleaner: Cleaner,
+    context: DatasetRef | None,
+    out_dir: Path,
+    registries: Registries,
+    motion: Motion,
+    clip_id: int,
+) -> CleanedClip:
+    """One clip of :func:`run_cleaner` (module-level: executors pickle it); the context
+    motions are read once per worker process."""
+    ctx_motions = context.motions() if context is not None else None
+    out = cleaner.detect_and_repair(motion, ctx_motions, clip_id, out_dir, registries)
+    out.cleaned = None  # files are written; the motion itself need not travel back
+    return out
+
+
+def run_cleaner(cleaner: Cleaner, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+    """Every clip of ``motions`` cleaned against itself plus the optional ``context`` dataset.
+    Tables ``data`` (digressions), ``edits``; files per clip; summary ``{"clips": [...]}``."""
+    # clips and context go to the workers by reference (each reads them from the workspace)
+    context = DatasetRef.of(inputs["context"]) if inputs.get("context") is not None else None
+    task = partial(_clean_task, cleaner, context, ctx.out_dir, ctx.registries)
+    outs: list[CleanedClip] = ctx.map_clips(task, inputs["motions"], with_ids=True)
+    tables = {
+        name: pa.concat_tables([getattr(o, attr) for o in outs])
+        for name, attr in (("data", "digressions"), ("edits", "edits"))
+        if outs
+    }
+    return StepOutput(tables, {"clips": [o.summary for o in outs]})
+
+
+__all__ = ["StepFunction", "run_cleaner", "run_features", "run_index", "run_matcher", "run_step"]

@@ -1,0 +1,427 @@
+"""The workspace: where a run's datasets live, and how a step's output is written.
+
+Layout of a workspace folder (it may be a folder the user already had: the runner deletes or
+replaces nothing it did not create)::
+
+    <workspace>/<step>/                one finished dataset per step (see :mod:`.datasets`)
+        data.parquet, <table>.parquet  the step's tables, provenance in their key-value metadata
+        _manifest.json                 the provenance, written last: no manifest, no dataset
+        ...                            files the component wrote (an index, a model, plots)
+    <workspace>/.mocapflow/            the runner's own folder (carries MARKER)
+        lock                           one run at a time (:class:`WorkspaceLock`)
+        tmp/<step>-<id>/               a step being written
+        trash/<step>-<id>/             the previous dataset while it is replaced
+
+How a step's output is written (:meth:`Workspace.write_step`): the component writes files into
+a temporary folder (``ctx.out_dir``) and returns its tables; the tables are written there
+(:func:`write_table`), then the manifest, and the folder is renamed over ``<workspace>/<step>``
+(:meth:`Workspace.commit`, atomic on one filesystem). A failed step leaves its previous dataset
+as it was. Files written outside a step's folder go through :func:`atomic_path`.
+
+``<workspace>/.mocapflow/lock`` keeps two runs from writing one workspace at once. It is an
+advisory ``flock`` (released by the kernel when the holder exits, even by ``kill -9``) on a
+file that records the holder (pid, host, start time, pipeline) for messages. A second run
+waits up to ``wait`` seconds, then refuses with a :class:`~.errors.LockError` naming the
+holder. A holder recorded in a lock nobody holds is a run that was killed: the next run
+says so and takes the lock over. Where ``flock`` is unavailable (no :mod:`fcntl`, or a
+filesystem without locks) the record alone decides: the lock is taken over when its holder
+ran on this host and is no longer alive.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import logging
+import os
+import shutil
+import socket
+import time
+import uuid
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from .errors import ConfigError, LockError
+
+log = logging.getLogger("mocapflow")
+
+RUNNER_DIR = ".mocapflow"
+MARKER = "CREATED-BY-MOCAPFLOW"
+LOCK_FILE = "lock"
+TMP_DIR = "tmp"
+TRASH_DIR = "trash"
+#: The provenance file of a dataset; a folder without it is not a finished dataset.
+MANIFEST = "_manifest.json"
+#: Rows per Parquet row group of the tables the runner writes: a worker reading a clip range
+#: decodes only the groups that hold it (:class:`~.clip_refs.ClipSlice`), not the whole table.
+ROW_GROUP_ROWS = 65536
+_MARKER_TEXT = (
+    "This folder was created by the mocapflow runner for its temporary files and its lock.\n"
+    "mocapflow deletes what is inside tmp/ and trash/ here; it never deletes anything else.\n"
+)
+
+
+def runner_dir(workspace: str | Path) -> Path:
+    """``<workspace>/.mocapflow``, created (atomically, with its marker) if missing.
+
+    Raises :class:`ConfigError` when a ``.mocapflow`` entry exists without the marker: it
+    belongs to someone else and the runner will not use or clean it.
+    """
+    d = Path(workspace) / RUNNER_DIR
+    for _ in range(2):
+        found = existing_runner_dir(workspace)
+        if found is not None:
+            return found
+        staging = d.with_name(f"{RUNNER_DIR}-{uuid.uuid4().hex[:8]}")
+        staging.mkdir(parents=True)
+        (staging / MARKER).write_text(_MARKER_TEXT)
+        try:
+            os.rename(staging, d)  # atomic: the folder never exists without its marker
+            return d
+        except OSError:  # another run created it first: use theirs
+            shutil.rmtree(staging, ignore_errors=True)
+    raise ConfigError(f"cannot create {d}")  # pragma: no cover - only under a pathological race
+
+
+def existing_runner_dir(workspace: str | Path) -> Path | None:
+    """``<workspace>/.mocapflow`` if it exists (:class:`ConfigError` if it is not the runner's)."""
+    d = Path(workspace) / RUNNER_DIR
+    if not (d.exists() or d.is_symlink()):
+        return None
+    if d.is_symlink() or not d.is_dir() or not (d / MARKER).is_file():
+        raise ConfigError(
+            f"{d} exists but was not created by mocapflow (no {MARKER} inside); the runner keeps "
+            "its temporary files there and will not touch it: move it away or choose another workspace"
+        )
+    return d
+
+
+def remove_owned(workspace: str | Path, *names: str) -> None:
+    """Delete ``names`` (e.g. ``tmp``, ``trash``) inside the runner's own marked folder only."""
+    d = existing_runner_dir(workspace)
+    if d is not None:
+        for name in names:
+            shutil.rmtree(d / name, ignore_errors=True)
+
+
+def _proc_start(pid: int) -> str | None:
+    """Start time of a process in clock ticks since boot (Linux), to tell pid reuse apart."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return stat.rpartition(")")[2].split()[19]
+    except (OSError, IndexError):
+        return None
+
+
+def holder_alive(holder: dict[str, Any]) -> bool:
+    """Whether the process recorded in a lock may still run (``True`` when it cannot be told:
+    another host, or no pid)."""
+    pid = holder.get("pid")
+    if holder.get("host") != socket.gethostname() or not isinstance(pid, int):
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass
+    start = holder.get("proc_start")
+    return start is None or _proc_start(pid) in (None, start)
+
+
+def describe_holder(holder: dict[str, Any]) -> str:
+    if not holder:
+        return "a process that left no record"
+    pipeline = f", pipeline {holder['pipeline']!r}" if holder.get("pipeline") else ""
+    return f"pid {holder.get('pid')} on host {holder.get('host')}, started {holder.get('started')}{pipeline}"
+
+
+class WorkspaceLock:
+    """Exclusive use of a workspace by one run; a context manager.
+
+    Parameters
+    ----------
+    workspace : Path
+        The workspace folder (created if missing).
+    wait : float
+        Seconds to wait for another run to finish before refusing (``0``: refuse at once;
+        ``float("inf")``: wait as long as it takes).
+    pipeline : str
+        Recorded in the lock, for the message another run shows.
+    echo : callable, optional
+        Receives the "waiting for ..." line.
+    poll : float
+        Seconds between attempts while waiting.
+    """
+
+    def __init__(
+        self,
+        workspace: str | Path,
+        wait: float = 0.0,
+        pipeline: str = "",
+        echo: Callable[[str], None] | None = None,
+        poll: float = 0.2,
+    ) -> None:
+        self.workspace = Path(workspace)
+        self.wait = float(wait)
+        self.pipeline = pipeline
+        self.echo = echo or (lambda msg: None)
+        self.poll = poll
+        self._fd: int | None = None
+        self.path: Path | None = None
+
+    # --- the record ----------------------------------------------------------------
+    def _read(self, fd: int) -> dict[str, Any]:
+        try:
+            os.lseek(fd, 0, os.SEEK_SET)
+            raw = b""
+            while chunk := os.read(fd, 65536):
+                raw += chunk
+            return json.loads(raw) if raw.strip() else {}
+        except (OSError, ValueError):
+            return {"pid": None, "host": "?", "started": "?"}
+
+    def _write(self, fd: int) -> None:
+        me = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "proc_start": _proc_start(os.getpid()),
+            "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "pipeline": self.pipeline,
+        }
+        os.ftruncate(fd, 0)
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.write(fd, json.dumps(me).encode())
+        os.fsync(fd)
+
+    # --- acquiring -----------------------------------------------------------------
+    def _try_flock(self, fd: int) -> bool | None:
+        """True: locked; False: held by another; None: this filesystem has no flock."""
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            return False
+        except OSError as exc:
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                return False
+            if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+                return None
+            raise
+
+    def acquire(self) -> WorkspaceLock:
+        self.workspace.mkdir(parents=True, exist_ok=True)
+        self.path = runner_dir(self.workspace) / LOCK_FILE
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        deadline = time.monotonic() + self.wait
+        waiting = False
+        try:
+            while True:
+                got = self._try_flock(fd)
+                holder = self._read(fd)
+                if got is None:  # no flock here: the record decides
+                    got = not holder or not holder_alive(holder)
+                if got:
+                    break
+                if time.monotonic() >= deadline:
+                    hint = (
+                        "wait for it to finish, or pass a longer --wait SECONDS"
+                        if self.wait
+                        else "wait for it to finish, or pass --wait SECONDS to wait for it"
+                    )
+                    raise LockError(
+                        f"workspace {self.workspace} is in use by another run ({describe_holder(holder)}); {hint}"
+                    )
+                if not waiting:
+                    self.echo(
+                        f"  workspace {self.workspace} is in use by {describe_holder(holder)}; waiting "
+                        f"{'as long as it takes' if self.wait == float('inf') else f'up to {self.wait:g} s'}..."
+                    )
+                    waiting = True
+                time.sleep(self.poll)
+            if holder:
+                state = "is no longer running" if not holder_alive(holder) else "no longer holds it"
+                log.warning(
+                    "workspace %s: taking over the lock of a run that did not finish (%s, which %s); "
+                    "its unfinished outputs are discarded",
+                    self.workspace,
+                    describe_holder(holder),
+                    state,
+                )
+            self._write(fd)
+        except BaseException:
+            os.close(fd)
+            raise
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        """Clear the record (so the next run sees a clean release), then unlock."""
+        if self._fd is None:
+            return
+        fd, self._fd = self._fd, None
+        try:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, 0)
+        finally:
+            os.close(fd)  # closing the last descriptor releases the flock
+
+    def __enter__(self) -> WorkspaceLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+class Workspace:
+    """A workspace folder as the runner uses it (see the module doc for the layout).
+
+    Every method that deletes or replaces something does so only inside the runner's own
+    marked folder or for a step folder holding a :data:`MANIFEST`.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    def lock(self, wait: float = 0.0, pipeline: str = "", echo: Callable[[str], None] | None = None) -> WorkspaceLock:
+        """The lock a run holds from start to end (a context manager)."""
+        return WorkspaceLock(self.path, wait, pipeline, echo)
+
+    def check_outputs(self, step_ids: list[str]) -> None:
+        """Refuse, before anything runs, to replace a folder the runner did not write."""
+        for step_id in step_ids:
+            out = self.path / step_id
+            if (out.exists() or out.is_symlink()) and (
+                out.is_symlink() or not out.is_dir() or not (out / MANIFEST).is_file()
+            ):
+                raise ConfigError(
+                    f"{out} exists and is not a mocapflow dataset (no {MANIFEST}); step {step_id!r} "
+                    "would replace it: move it away, rename the step, or choose another workspace"
+                )
+
+    def clean_leftovers(self) -> None:
+        """Remove half-written outputs of an interrupted run (never read, never kept); call
+        only while holding the lock."""
+        remove_owned(self.path, TMP_DIR, TRASH_DIR)
+
+    def fingerprint(self, step_id: str) -> str | None:
+        """The fingerprint recorded by the finished dataset of ``step_id`` (None: none, or unreadable)."""
+        try:
+            value = json.loads((self.path / step_id / MANIFEST).read_text()).get("fingerprint")
+        except (OSError, ValueError):
+            return None
+        return value if isinstance(value, str) else None
+
+    def temp_dir(self, step_id: str) -> Path:
+        """A new empty folder for one step's output, inside the runner's folder."""
+        tmp = runner_dir(self.path) / TMP_DIR / f"{step_id}-{uuid.uuid4().hex[:8]}"
+        tmp.mkdir(parents=True)
+        return tmp
+
+    def write_step(self, tmp: Path, step_id: str, tables: Mapping[str, pa.Table], provenance: dict[str, Any]) -> None:
+        """Write a step's tables and manifest into ``tmp`` and commit it as ``<workspace>/<step_id>``."""
+        for name, table in tables.items():
+            write_table(table, tmp / f"{name}.parquet", provenance)
+        manifest = {**provenance, "tables": {name: t.num_rows for name, t in tables.items()}}
+        # the manifest is written last: a directory without it is never a dataset
+        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True, default=str))
+        self.commit(tmp, step_id)
+
+    def commit(self, tmp: Path, step_id: str) -> None:
+        """Swap the finished temporary folder in with renames (atomic on one filesystem)."""
+        final = self.path / step_id
+        if final.exists():
+            trash = runner_dir(self.path) / TRASH_DIR / f"{final.name}-{uuid.uuid4().hex[:8]}"
+            trash.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(final, trash)
+            os.replace(tmp, final)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            os.replace(tmp, final)
+
+    def dataset_dirs(self) -> list[Path]:
+        """Folders of the finished datasets, sorted by step id."""
+        if not self.path.is_dir():
+            return []
+        return [
+            d
+            for d in sorted(self.path.iterdir())
+            if d.is_dir() and not d.name.startswith(".") and (d / MANIFEST).is_file()
+        ]
+
+
+def write_table(table: pa.Table, path: Path, provenance: Mapping[str, Any]) -> None:
+    """One table of a step as Parquet, the provenance in its key-value metadata (``mocapflow``)."""
+    import pyarrow.parquet as pq
+
+    meta = dict(table.schema.metadata or {})
+    meta[b"mocapflow"] = json.dumps(provenance, sort_keys=True, default=str).encode()
+    # dictionaries only pay for strings, statistics only for flat columns (DuckDB prunes row
+    # groups on clip_id/frame); both cost seconds on large nested float columns
+    flat = [f.name for f in table.schema if not pa.types.is_nested(f.type)]
+    strings = [f.name for f in table.schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
+    pq.write_table(
+        table.replace_schema_metadata(meta),
+        path,
+        compression="zstd",
+        use_dictionary=strings or False,
+        write_statistics=flat or False,
+        row_group_size=ROW_GROUP_ROWS,
+    )
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Write a file atomically: yields a temporary path beside ``path`` (same folder, same
+    suffix, so writers that look at the extension still work); when the block ends without
+    error it is renamed over ``path``, otherwise removed. A reader never sees half a file,
+    and a failed write leaves the previous file as it was. The folder must exist.
+
+    >>> with atomic_path("take.bvh") as tmp:      # doctest: +SKIP
+    ...     write_bvh(motion, tmp)
+    """
+    final = Path(path)
+    tmp = final.with_name(f".{final.stem}.{uuid.uuid4().hex[:8]}.tmp{final.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, final)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def csv_options() -> Any:
+    """How tables are written as CSV (``mocapflow sql --format csv``, :func:`export_table`)."""
+    import pyarrow.csv as pacsv
+
+    return pacsv.WriteOptions(quoting_style="needed", quoting_header="none")
+
+
+def export_table(table: pa.Table, path: str | Path, fmt: str) -> None:
+    """Write a table (a query result) as CSV or Parquet, atomically; nested columns
+    (feature vectors, paths) go to CSV as their text form."""
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    if fmt not in ("csv", "parquet"):
+        raise ConfigError(f"unknown output format {fmt!r}: csv or parquet")
+    with atomic_path(path) as tmp:
+        if fmt == "parquet":
+            pq.write_table(table, tmp)
+            return
+        nested = (pa.types.is_list, pa.types.is_fixed_size_list, pa.types.is_struct)
+        cols = [
+            pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.string())
+            if any(t(c.type) for t in nested)
+            else c
+            for c in table.columns
+        ]
+        pacsv.write_csv(pa.Table.from_arrays(cols, names=table.column_names), tmp, csv_options())
