@@ -36,15 +36,11 @@ from .body import body_measures
 from .feature_table import (
     _FALLBACK,
     FEATURE_IDS,
-    FEATURE_NAMES,
     FEATURES,
     OPS,
     SET_SLICES,
     SETS,
     THRESHOLDS,
-    FeatureDef,
-    feature_column,
-    feature_set_of,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -246,21 +242,3 @@ class RelationalFeatures(FeatureSet):
         return out
 
     feature_ids: ClassVar[tuple[str, ...]] = FEATURE_IDS
-
-
-__all__ = [
-    "FEATURES",
-    "THRESHOLDS",
-    "FEATURE_IDS",
-    "FEATURE_NAMES",
-    "OPS",
-    "SETS",
-    "SET_SLICES",
-    "FeatureDef",
-    "RelationalFeatures",
-    "feature_column",
-    "feature_set_of",
-    "feature_values",
-    "relational_features",
-    "set_codes",
-]

@@ -26,7 +26,7 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, PipelineError
 from mocapflow.framework.schema import MATCHES, WARPING_PATH
 
-from .features import FEATURE_IDS, feature_column, feature_set_of
+from .feature_table import FEATURE_IDS, feature_column, feature_set_of
 from .inverted import InvertedIndex
 from .queries import Hits, example_query, scene_query
 

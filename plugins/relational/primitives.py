@@ -197,17 +197,3 @@ def threshold(value: np.ndarray, thresh: float | np.ndarray, below: bool = False
     """``value >= thresh`` (or ``value < thresh`` when ``below``); NaN gives False."""
     with np.errstate(invalid="ignore"):
         return (value < thresh) if below else (value >= thresh)
-
-
-__all__ = [
-    "angle_between",
-    "clip_starts",
-    "cos_between",
-    "min_height",
-    "normal_plane_distance",
-    "plane_distance",
-    "point_segment_distance",
-    "segment_segment_distance",
-    "speed",
-    "threshold",
-]

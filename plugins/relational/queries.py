@@ -35,7 +35,7 @@ import numpy as np
 
 from mocapflow.framework.errors import ConfigError
 
-from .features import SET_SLICES, feature_column, feature_set_of
+from .feature_table import SET_SLICES, feature_column, feature_set_of
 from .inverted import InvertedIndex, SetIndex
 from .segmentation import segment
 

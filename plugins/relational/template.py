@@ -367,7 +367,7 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     plt = pyplot("template plots")
     from matplotlib.patches import Patch
 
-    from .features import FEATURE_IDS, FEATURE_NAMES
+    from .feature_table import FEATURE_IDS, FEATURE_NAMES
 
     k = t.n_frames
     scale = 1.0 / fps if fps else 1.0
@@ -418,17 +418,3 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     fig.savefig(out)
     plt.close(fig)
     return out
-
-
-__all__ = [
-    "HDM05_GROUP",
-    "HDM05_LABEL",
-    "TemplateMatcher",
-    "clip_labels",
-    "cutoff_hits",
-    "fit_templates",
-    "plot_template",
-    "search_template",
-    "template_hits_table",
-    "templates_table",
-]

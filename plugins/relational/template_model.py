@@ -469,23 +469,3 @@ def fit_class_template(
     else:
         tmpl.threshold = float((1 + margin) * 0.08)
     return tmpl
-
-
-__all__ = [
-    "search_costs",
-    "calibrate_threshold",
-    "pairwise_costs",
-    "clip_min_costs",
-    "fit_class_template",
-    "key_columns",
-    "MODEL_FILE",
-    "MotionTemplate",
-    "align_average",
-    "cost_table",
-    "fit_template",
-    "frame_codes",
-    "load_templates",
-    "save_templates",
-    "template_costs",
-    "template_hits",
-]
