@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -37,33 +38,15 @@ from mocapflow.framework.normalize import to_root_frame
 MATCH_COLS = ("query_id", "rank", "clip_id", "start_frame", "end_frame", "cost")
 NEAREST_COLS = ("query_clip_id", "query_frame", "clip_id", "frame", "distance")
 MDM_COLS = ("clip_id", "frame", "joint_name", "value")
-#: Bones of the stick figures, as canonical joint pairs.
-BONES = (
-    ("root", "lhip"),
-    ("lhip", "lknee"),
-    ("lknee", "lankle"),
-    ("lankle", "ltoes"),
-    ("root", "rhip"),
-    ("rhip", "rknee"),
-    ("rknee", "rankle"),
-    ("rankle", "rtoes"),
-    ("root", "lowerback"),
-    ("lowerback", "upperback"),
-    ("upperback", "chest"),
-    ("chest", "neck"),
-    ("neck", "head"),
-    ("head", "headtop"),
-    ("chest", "lclavicle"),
-    ("lclavicle", "lshoulder"),
-    ("lshoulder", "lelbow"),
-    ("lelbow", "lwrist"),
-    ("lwrist", "lfingers"),
-    ("chest", "rclavicle"),
-    ("rclavicle", "rshoulder"),
-    ("rshoulder", "relbow"),
-    ("relbow", "rwrist"),
-    ("rwrist", "rfingers"),
+#: Bones of the stick figures, as canonical joint pairs along these chains.
+_CHAINS = (
+    "root lhip lknee lankle ltoes",
+    "root rhip rknee rankle rtoes",
+    "root lowerback upperback chest neck head headtop",
+    "chest lclavicle lshoulder lelbow lwrist lfingers",
+    "chest rclavicle rshoulder relbow rwrist rfingers",
 )
+BONES = tuple(pair for chain in _CHAINS for pair in pairwise(chain.split()))
 SMALL_TABLE_ROWS = 60
 
 
