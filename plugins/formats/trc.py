@@ -187,17 +187,8 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
 
 
 def write_trc(markers: Markers, path: str | Path, units: str = "mm", precision: int = 10) -> None:
-    """Write markers as TRC (gaps as empty fields).
-
-    Parameters
-    ----------
-    markers : Markers
-    path : str or Path
-    units : str
-        Length unit of the file (``mm``, ``cm``, ``m``, ``in``).
-    precision : int
-        Significant digits per value.
-    """
+    """Write markers as TRC (gaps as empty fields) in ``units`` (``mm``, ``cm``, ``m``, ``in``)
+    with ``precision`` significant digits per value."""
     if units not in UNITS_TO_METRES:
         raise DataError(f"units must be one of {sorted(UNITS_TO_METRES)}, got {units!r}")
     t, m = markers.n_frames, markers.n_markers

@@ -52,19 +52,10 @@ SMALL_TABLE_ROWS = 60
 
 @dataclass
 class Model:
-    """The page model and the motion data the site writer must emit.
-
-    Attributes
-    ----------
-    page : dict
-        JSON-serialisable (see ``assets/report.js`` for how it is read).
-    motions : dict
-        ``key -> (T, 25, 3)`` canonical positions in metres, one per played take.
-    fps : dict
-        ``key -> frames per second`` of each of ``motions``.
-    cleaning : dict
-        ``key -> dict`` of arrays for each cleaned clip (cleaned positions, MDM, cues).
-    """
+    """The page model (JSON-serialisable, read by ``assets/report.js``) and the motion data
+    the site writer must emit: ``motions`` key -> (T, 25, 3) canonical positions in metres
+    per played take, ``fps`` their frame rates, ``cleaning`` key -> arrays per cleaned clip
+    (cleaned positions, MDM, cues)."""
 
     page: dict[str, Any]
     motions: dict[str, np.ndarray] = field(default_factory=dict)
