@@ -17,22 +17,10 @@ def mismatch_scan(codes, clip, member, allowed, m):  # pragma: no cover - compil
     left to right (the DP state is the mismatch count so far), abandoning a start as soon
     as it exceeds ``m`` or a mismatch falls on a position where none is allowed.
 
-    Parameters
-    ----------
-    codes : int64 (M,)
-        Segment codes.
-    clip : int64 (M,)
-        Clip position of each segment (a hit never spans two clips).
-    member : bool (L, C)
-        ``member[l, c]``: code ``c`` belongs to the query's l-th fuzzy set.
-    allowed : bool (L,)
-        Positions where a mismatch may occur.
-    m : int
-        Maximum number of mismatches.
-
-    Returns
-    -------
-    starts : int64 (n,), mismatches : int64 (n,)
+    ``codes`` (M,) segment codes, ``clip`` (M,) their clip positions (a hit never spans two
+    clips), ``member`` (L, C) bool: code ``c`` is in the query's l-th fuzzy set, ``allowed``
+    (L,) positions where a mismatch may occur, at most ``m``. Returns ``starts, mismatches``
+    (n,) int64.
     """
     n_seg = codes.shape[0]
     n_q = member.shape[0]

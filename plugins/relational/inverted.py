@@ -50,27 +50,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 @dataclass
 class SetIndex:
-    """The inverted lists of one feature set, with the segments they point to.
-
-    Attributes
-    ----------
-    name : str
-        ``lower``, ``upper`` or ``mixed``.
-    columns : ndarray of int, shape (f,)
-        Columns of the 31 relational features in this set (bit ``i`` of a code = ``columns[i]``).
-    seg_start, seg_end : ndarray of int64, shape (M,)
-        Global frame range ``[start, end)`` of each segment.
-    seg_code : ndarray of int64, shape (M,)
-    seg_clip : ndarray of int64, shape (M,)
-        Clip position of each segment.
-    clip_ids : ndarray of int32, shape (n_clips,)
-    clip_offsets : ndarray of int64, shape (n_clips + 1,)
-        Global frame id of each clip's first frame.
-    list_codes : ndarray of int64, shape (n_lists,)
-        Codes with a non-empty list, ascending.
-    list_offsets : ndarray of int64, shape (n_lists + 1,)
-    list_positions : ndarray of int64, shape (M,)
-        Concatenated inverted lists; list ``i`` is ``list_positions[list_offsets[i]:list_offsets[i+1]]``.
+    """The inverted lists of one feature set (``name`` lower, upper or mixed; ``columns`` (f,)
+    of the 31 features, bit ``i`` of a code = ``columns[i]``), with the segments they point
+    to: ``seg_start, seg_end, seg_code, seg_clip`` (M,) int64, the global frame range
+    ``[start, end)``, code and clip position of each; ``clip_offsets`` (n_clips + 1,) the
+    global first frame of each clip; ``list_codes`` (n_lists,) the codes with a non-empty
+    list, ascending; list ``i`` is ``list_positions[list_offsets[i]:list_offsets[i + 1]]``.
     """
 
     name: str
