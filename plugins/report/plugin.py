@@ -55,20 +55,9 @@ def workspace_tables(workspace: Path):
 
 
 def build_report(workspace: str | Path, output: str | Path | None = None) -> dict:
-    """Read a workspace and write its report site.
-
-    Parameters
-    ----------
-    workspace : str or Path
-        A directory written by ``mocapflow run``.
-    output : str or Path or None
-        Site directory (default ``<workspace>/report``).
-
-    Returns
-    -------
-    dict
-        ``index`` (Path of index.html), ``files``, ``bytes``, ``steps``.
-    """
+    """Read a workspace written by ``mocapflow run`` and write its report site to ``output``
+    (default ``<workspace>/report``); returns ``index`` (Path of index.html), ``files``,
+    ``bytes``, ``steps``."""
     from mocapflow.framework.errors import ConfigError
 
     from .model import ModelBuilder
