@@ -364,13 +364,8 @@ def _fmt(x: float) -> str:
 
 
 def write_asf(skeleton: Skeleton, path: str | Path) -> None:
-    """Write an ASF file for a skeleton read by :func:`read_asf` (uses ``skeleton.meta``).
-
-    Raises
-    ------
-    DataError
-        If the skeleton did not come from an ASF file.
-    """
+    """Write an ASF file for a skeleton read by :func:`read_asf` (from ``skeleton.meta``;
+    DataError for any other skeleton)."""
     from mocapflow.framework.errors import DataError
 
     meta = skeleton.meta

@@ -39,14 +39,8 @@ def _fill_costs(code, table, col, lo, hi):  # pragma: no cover - compiled
 def dtw_path(a, b):  # pragma: no cover - compiled
     """Global DTW between ``a (n, f)`` and ``b (m, f)``, local cost mean |a - b| over features.
 
-    Steps (1,0), (0,1), (1,1); the path runs from (0, 0) to (n-1, m-1).
-
-    Returns
-    -------
-    cost : float
-        Accumulated cost of the optimal path.
-    path : int64 (P, 2)
-        (row of ``a``, row of ``b``) pairs in order.
+    Steps (1,0), (0,1), (1,1) from (0, 0) to (n-1, m-1). Returns the accumulated cost of the
+    optimal path and the path, int64 (P, 2) (row of ``a``, row of ``b``) pairs in order.
     """
     n, f = a.shape
     m = b.shape[0]

@@ -64,13 +64,8 @@ def normal_plane_distance(
 ) -> np.ndarray:
     """Signed distance of ``q`` from the plane with normal ``b - a`` through ``anchor``, minus ``offset``.
 
-    ``a`` and ``b`` may be joints (shape (..., 3)) or a fixed direction given as
-    ``a = (0, 0, 0), b = direction``.
-
-    Returns
-    -------
-    ndarray of float32, shape (...,), metres
-        Positive on the side the normal points to.
+    ``a`` and ``b`` may be joints (..., 3) or a fixed direction ``a = (0, 0, 0), b = direction``.
+    Returns float32 (...,) metres, positive on the side the normal points to.
     """
     (x, y, z, w), shape = _points(a, b, anchor, q)
     out = np.empty(len(x), np.float32)

@@ -38,17 +38,9 @@ def pack_codes(bits: np.ndarray, columns: np.ndarray | list[int] | None = None) 
 
 @dataclass(frozen=True)
 class Segmentation:
-    """F-segments of concatenated clips.
-
-    Attributes
-    ----------
-    start, end : ndarray of int64, shape (K,)
-        Global frame range ``[start, end)`` of each segment.
-    code : ndarray of int64, shape (K,)
-        The segment's feature vector as an integer (:func:`pack_codes`).
-    clip : ndarray of int64, shape (K,)
-        Clip position (0-based index into the offsets) of each segment.
-    """
+    """F-segments of concatenated clips, each (K,) int64: the global frame range ``[start,
+    end)``, the feature vector as an integer (``code``, :func:`pack_codes`) and the clip
+    position (0-based index into the offsets)."""
 
     start: np.ndarray
     end: np.ndarray

@@ -15,14 +15,8 @@ def register_commands() -> list[type]:
 
 
 def workspace_tables(workspace: Path):
-    """Clips (with duration) and rejects of every motions dataset, through the catalog.
-
-    Returns
-    -------
-    datasets : mapping of step id to Dataset
-    clips, rejects : pyarrow.Table
-        With a leading ``step`` column naming the dataset.
-    """
+    """Datasets by step id, and the clips (with duration) and rejects of every motions
+    dataset through the catalog, each table with a leading ``step`` column."""
     import pyarrow as pa
 
     from mocapflow.framework.catalog import Catalog
