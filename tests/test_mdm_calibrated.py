@@ -249,6 +249,7 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     from types import SimpleNamespace
 
     from mocapflow.framework.database import MotionDatabase
+    from mocapflow import registries
     from mocapflow.framework.steps import run_cleaner
 
     db = MotionDatabase([synthetic_walk(120, seed=9, name="w")])
@@ -258,7 +259,7 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     for k in range(2):
         out_dir = tmp_path / f"run{k}" / ".tmp-step"
         out_dir.mkdir(parents=True)
-        ctx = SimpleNamespace(progress=lambda it, **_: it, step_id="mdm", out_dir=out_dir, registries=None,
+        ctx = SimpleNamespace(progress=lambda it, **_: it, step_id="mdm", out_dir=out_dir, registries=registries(),
                               log=SimpleNamespace(info=lambda *_: None),
                               map_clips=lambda fn, ds, with_ids=False, **_: [
                                   fn(m, int(i)) for i, m in zip(ds.motions().clip_ids, ds.motions().motions)])
