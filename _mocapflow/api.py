@@ -98,7 +98,7 @@ class Database:
         self.clip_names = {int(c): m.name for c, m in zip(self.motions.clip_ids, self.motions, strict=True)}
         self.space = SearchSpace(clip_id, frame, self.index, x, clip_names=self.clip_names)
 
-    def search(self, query, matcher: str = "lng", count: int = 10, **params: Any):
+    def search(self, query, matcher: str = "search", count: int = 10, **params: Any):
         """Segments most similar to ``query`` (a Motion or path, resampled to the database rate).
 
         Returns the shared match table (pyarrow Table: ``query_id, rank, clip_id, start_frame,

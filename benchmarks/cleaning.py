@@ -1,134 +1,412 @@
-"""Benchmark of the MDM cleaner's motion-word KNN (Aristidou 2018 §5 "Implementation").
+"""Benchmark of the MDM cleaner (``cleaners.mdm``, ``analyses.clean_eval``; docs/cleaning.md).
 
-Paper (MATLAB, six-core i7): about 140 s for a 20 s clip with local context, about 3 h with
-a 600 s context. Targets on the 2-core development machine: <= 2 s and <= 120 s, with the
-KNN identical to brute force.
+Four measurements, on the CMU corpus of ../shared/data (``MOCAPFLOW_DATA`` overrides it):
 
-Cases (CMU corpus at ../shared/data, resampled to 24 fps):
+    python benchmarks/cleaning.py speed      # analysis with the pruned KNN against the brute force
+                                             # (tests/naive/cleaning.py), whole clean paper vs calibrated
+    python benchmarks/cleaning.py protocol   # errors at the paper's density on held-out clips: detection,
+                                             # repair, clean takes, per kind; F1 against the best baseline
+    python benchmarks/cleaning.py native     # the protocol's clean takes cleaned at their own rate (120 fps)
+    python benchmarks/cleaning.py scores     # how separable are the errors by per-cell scores?
+    python benchmarks/cleaning.py --quick    # all four, tiny, on the bundled examples/data (seconds)
 
-1. a 20 s take (14_02, first 20 s) against itself: full MDM analysis with the pruned KNN,
-   then with the brute-force KNN, neighbours compared;
-2. the same take against a ~600 s context of CMU takes: the pruned KNN, and (unless
-   ``--skip-brute``) the brute force on a 60 s slice of that context, extrapolated.
-
-    python benchmarks/cleaning.py            # both cases
-    python benchmarks/cleaning.py --quick    # 10 s take, 120 s context
+``protocol`` and ``native`` take ``--tune`` (the tuning subjects / trials), ``--category``,
+``--set KEY=VALUE`` (a cleaner parameter, JSON value; ``calibrated.false_alarm=0.002`` for a
+nested one); ``protocol`` also ``--contexts``, ``--seed`` (repeatable: seeds pooled),
+``--cache DIR`` (KNN analyses memoised on disk: a change of the decision only is scored on
+the same analyses in seconds) and ``--json FILE``.
 """
+
 from __future__ import annotations
 
 import argparse
-import glob
-import os
+import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from corpus import DATA
 
 REPO = Path(__file__).resolve().parent.parent
-CMU = REPO.parent / "shared" / "data" / "cmu" / "amc"
+CMU = DATA / "cmu" / "amc"
+EXAMPLES = REPO / "examples" / "data" / "cmu"
+SUBJECTS = {"locomotion": ("02", "07", "16", "35", "49"), "dance": ("60", "61")}
+TUNE = {"locomotion": ("02", "49"), "dance": ("01", "02", "04", "05")}
 
 
-def _load(path: str, fps: float = 24.0):
-    from mocapflow.framework.normalize import resample
+def _read(files) -> list:
     from mocapflow.plugins.formats.asf_amc import read_amc
 
-    return resample(read_amc(path), fps)
+    return [read_amc(f) for f in files]
 
 
-def _search(tex, ctx_q, self_clip, method):
-    from mocapflow.plugins.selfsim.knn import ContextTextures, knn_search
-    from mocapflow.plugins.selfsim.motion_words import DEFAULT_GROUPS, resolve_groups, source_word_starts
+def _category(cat: str, quick: bool) -> list:
+    if quick:  # the bundled takes play both categories
+        return _read(sorted(EXAMPLES.glob("*/*.amc")))
+    return _read(sorted(f for s in SUBJECTS[cat] for f in (CMU / s).glob("*.amc")))
 
-    ctx = ContextTextures.from_arrays(ctx_q)
-    groups = resolve_groups(tex.joints, DEFAULT_GROUPS)
-    starts = source_word_starts(tex.n_frames, 15, 5)
+
+def _sets(items: list[str]) -> dict:
+    """``--set KEY=VALUE`` as cleaner parameters; ``a.b=V`` sets ``{"a": {"b": V}}``."""
+    out: dict = {}
+    for kv in items:
+        k, _, v = kv.partition("=")
+        try:
+            val = json.loads(v)
+        except json.JSONDecodeError:
+            val = v
+        *head, last = k.split(".")
+        d = out
+        for h in head:
+            d = d.setdefault(h, {})
+        d[last] = val
+    return out
+
+
+def _f1(r: float, p: float) -> float:
+    return 2 * r * p / (r + p) if r + p > 0 else 0.0
+
+
+def speed(args) -> None:
+    """The analysis of one take against itself, pruned vs brute-force KNN; a whole clean."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from naive.cleaning import brute_knn
+
+    from mocapflow.framework.normalize import resample
+    from mocapflow.plugins.selfsim.cleaner import MDMCleaner
+    from mocapflow.plugins.selfsim.paper.knn import ContextTextures, knn_search
+    from mocapflow.plugins.selfsim.paper.mdm import digression_map
+
+    path = EXAMPLES / "16" / "16_15.amc" if args.quick else CMU / "14" / "14_02.amc"
+    take = resample(_read([path])[0], 24.0)
+    take = take.slice(0, min(take.n_frames, 240 if args.quick else 480)).with_arrays(name=path.stem)
+    digression_map(take.slice(0, 40))  # compile the kernels (numba caches them on disk)
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = digression_map(take)
+    t_map, c_map = time.perf_counter() - t0, time.process_time() - c0
+    nb = res.neighbours[0]
+    ctx = ContextTextures.from_arrays([res.texture.q])
+    kw = {"self_clip": 0, "word_starts": nb.starts}
+    brute_knn(
+        res.texture.q[:40], ContextTextures.from_arrays([res.texture.q[:40]]), nb.groups, nb.starts[:1], self_clip=0
+    )
     t0 = time.perf_counter()
-    res = knn_search(tex.q, ctx, groups, self_clip=self_clip, word_starts=starts, method=method)
-    return res, time.perf_counter() - t0
+    fast = knn_search(res.texture.q, ctx, nb.groups, **kw)
+    t_fast = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    target, distance, n_brute = brute_knn(res.texture.q, ctx, nb.groups, **kw)
+    t_brute = time.perf_counter() - t0
+    same = np.array_equal(target, fast.target) and np.array_equal(distance, fast.distance)
+    print(f"speed: {take.name} ({take.n_frames} frames at 24 fps) against itself")
+    print(
+        f"  whole analysis {t_map:.2f} s ({c_map:.2f} s CPU); KNN pruned {t_fast:.2f} s ({fast.n_dtw} DTWs), brute "
+        f"force {t_brute:.2f} s ({n_brute} DTWs): x{t_brute / max(t_fast, 1e-9):.1f}, identical neighbours: {same}"
+    )
+    cpu = {}
+    for mode in ("paper", "calibrated"):
+        c0 = time.process_time()
+        MDMCleaner(mode=mode, write_bvh=False, heatmaps=False).clean(take)
+        cpu[mode] = time.process_time() - c0
+    print(
+        f"  whole clean, CPU: paper {cpu['paper']:.2f} s, calibrated {cpu['calibrated']:.2f} s "
+        f"(x{cpu['calibrated'] / cpu['paper']:.2f}: the calibration analyses the context once more)"
+    )
+    if args.quick:
+        return
+    # the take against about 600 s of other CMU takes (the paper: ~3 h)
+    from mocapflow.plugins.selfsim.paper.motion_words import motion_texture
+
+    context, total = [], 0.0
+    for f in sorted(CMU.glob("*/*.amc")):
+        if f.stem != path.stem and total < 600.0:
+            context.append(resample(_read([f])[0], 24.0))
+            total += context[-1].duration
+    joints = tuple(j for j in res.joints if all(j in c.skeleton.canonical for c in context))
+    ctx_q = [motion_texture(take, joints).q] + [motion_texture(c, joints).q for c in context]
+    t0 = time.perf_counter()
+    big = knn_search(ctx_q[0], ContextTextures.from_arrays(ctx_q), nb.groups, **kw)
+    every = nb.groups.n_groups * len(nb.starts) * sum(max(0, len(q) - 14) for q in ctx_q)
+    print(
+        f"  against {len(context)} takes ({total:.0f} s): KNN pruned {time.perf_counter() - t0:.2f} s, "
+        f"{big.n_dtw} of {every} DTWs ({1 - big.n_dtw / every:.1%} avoided)"
+    )
+
+
+def install_cache(folder: Path) -> None:
+    """Memoise the KNN analyses on disk, keyed by the clips and the analysis parameters."""
+    import hashlib
+    import pickle
+
+    from mocapflow.plugins.selfsim import cleaner
+    from mocapflow.plugins.selfsim.paper import mdm
+
+    folder.mkdir(parents=True, exist_ok=True)
+    original = mdm.digression_map
+    decision = {"mode", "calibrated", "threshold", "savgol_window", "savgol_order", "write_bvh", "heatmaps"}
+
+    def cached(motion, context=None, params=None):
+        p = params or cleaner.MDMParams()
+        h = hashlib.sha1()
+        for c in mdm.context_motions(motion, context, p.include_self):
+            h.update(c.name.encode())
+            h.update(np.ascontiguousarray(c.rotations).tobytes())
+        h.update(
+            json.dumps(
+                {k: v for k, v in p.model_dump(mode="json").items() if k not in decision}, sort_keys=True
+            ).encode()
+        )
+        path = folder / f"{h.hexdigest()}.pkl"
+        if path.exists():
+            return pickle.loads(path.read_bytes())
+        res = original(motion, context, p)
+        path.with_suffix(".tmp").write_bytes(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+        path.with_suffix(".tmp").replace(path)
+        return res
+
+    cleaner.MDMCleaner.analyse = lambda self, motion, context=None: cached(motion, context, self.params)
+
+
+def pooled(results: list) -> tuple[list, list, list]:
+    """Rows of several seeds pooled: counts summed and ratios recomputed, repair rows averaged
+    (weighted by clips; maxima as maxima), kind rows summed."""
+    if len(results) == 1:
+        return results[0]
+    from mocapflow.plugins.selfsim.evaluation.scores import _ratios
+
+    rows = []
+    for group in zip(*(r[0] for r in results), strict=True):
+        row = dict(group[0])
+        for k in [k for k in row if isinstance(row[k], int) and k != "n_clips"] + ["n_clips"]:
+            row[k] = sum(g[k] for g in group)
+        rows.append({**row, **_ratios(row)})
+    rep = []
+    for group in zip(*(r[1] for r in results), strict=True):
+        w = np.array([g["n_clips"] for g in group], float)
+        row = {
+            k: (
+                max(g[k] for g in group)
+                if "max" in k
+                else sum(g[k] for g in group)
+                if isinstance(v, int)
+                else float(np.average([g[k] for g in group], weights=w))
+                if isinstance(v, float)
+                else v
+            )
+            for k, v in group[0].items()
+        }
+        rep.append(row)
+    kinds: dict[tuple, dict] = {}
+    for r in results:
+        for k in r[2]:
+            cur = kinds.setdefault(
+                (k["method"], k["context"], k["kind"]),
+                {**k, **dict.fromkeys(("errors", "found", "cells", "cells_flagged", "eq2_before", "eq2_after"), 0)},
+            )
+            for f in ("errors", "found", "cells", "cells_flagged", "eq2_before", "eq2_after"):
+                cur[f] += k[f]
+    return rows, rep, list(kinds.values())
+
+
+def protocol(args) -> None:
+    """The protocol of ``analyses.clean_eval`` (module doc there), printed."""
+    from mocapflow.plugins.selfsim.evaluation.clean_eval import CleaningEvaluationParams, evaluate_category
+
+    if args.cache:
+        install_cache(args.cache)
+    kw: dict = {
+        "contexts": tuple(args.contexts.split(",")) if args.contexts else ("local", "small"),
+        "cleaner": _sets(args.set),
+    }
+    if args.tune:
+        kw["held_out"] = TUNE
+    if args.quick:
+        kw.update(held_out={}, n_test=1, small_size=2, contexts=("small",))
+    out = {}
+    for cat in ["locomotion"] if args.quick else args.category or list(SUBJECTS):
+        t0 = time.perf_counter()
+        clips = _category(cat, args.quick)
+        rows, rep, kinds = pooled(
+            [
+                evaluate_category(
+                    cat,
+                    clips,
+                    CleaningEvaluationParams(**kw, seed=sd),
+                    log=lambda m: print("  " + m, file=sys.stderr, flush=True),
+                )
+                for sd in args.seed or [0]
+            ]
+        )
+        out[cat] = {"rows": rows, "repair": rep, "kinds": kinds}
+        print(
+            f"\nprotocol, {cat}: {rows[0]['n_clips'] if rows else 0} test clips "
+            f"({'tuning' if args.tune else 'held-out'}), {time.perf_counter() - t0:.0f} s"
+        )
+        best = [
+            max((_f1(r[a], r[b]) for r in rows if r["method"].startswith("baseline")), default=0.0)
+            for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))
+        ]
+        print(
+            f"  {'method':22s} {'context':7s} {'word R/P':>11s} {'(w,j) R/P':>11s} {'cell R/P':>11s} "
+            f"{'F1 / best baseline: word, (w,j), cell':>38s}"
+        )
+        for r in rows:
+            f = [
+                _f1(r[a], r[b])
+                for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))
+            ]
+            ratio = ", ".join(f"{x / y:.2f}x" if y > 0 else "-" for x, y in zip(f, best, strict=True))
+            print(
+                f"  {r['method']:22s} {r['context']:7s} {r['word_recall']:5.3f}/{r['word_precision']:5.3f} "
+                f"{r['wj_recall']:5.3f}/{r['wj_precision']:5.3f} {r['recall']:5.3f}/{r['precision']:5.3f}   {ratio}"
+            )
+        for r in rep:
+            print(
+                f"  {r['method']:12s} {r['context']:6s} eq. 2 global {r['global_before']:.4f} -> {r['global_after']:.4f}, "
+                f"fell on {r['share_global_lower']:.2f} (did not rise {r['share_global_not_higher']:.2f}; glitches "
+                f"out {r['share_global_lower_ng']:.2f}), erroneous cells {r['cells_before']:.4f} -> "
+                f"{r['cells_after']:.4f}; clean takes edited {100 * r['clean_edited_share']:.2f} % / worst "
+                f"{100 * r['clean_edited_share_max']:.2f} %, largest {r['clean_max_edit_deg']:.1f} deg "
+                f"({r['clean_max_edit_deg_ng']:.1f} outside the source glitches)"
+            )
+        for r in kinds:
+            if r["method"] == "mdm":
+                ratio = r["eq2_after"] / r["eq2_before"] if r["eq2_before"] > 0 else float("nan")
+                print(
+                    f"  kind {r['kind']:7s} {r['context']:6s} found {r['found']}/{r['errors']}, cells flagged "
+                    f"{r['cells_flagged']}/{r['cells']}, eq. 2 on its cells x{ratio:.2f}"
+                )
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+
+
+def native(args) -> None:
+    """The protocol's clean takes cleaned at their own frame rate, with and without the carry guard."""
+    from mocapflow.framework import quaternions as quat
+    from mocapflow.plugins.selfsim.cleaner import MDMCleaner, clean_motion
+    from mocapflow.plugins.selfsim.evaluation.clean_eval import GROUP_BY, MIN_FRAMES, CleaningEvaluationParams, clip_key
+    from mocapflow.plugins.selfsim.paper import repair
+
+    cleaner = MDMCleaner(**{"write_bvh": False, "heatmaps": False, **_sets(args.set)})
+    guarded = repair.apply_to_input
+    for cat in ["locomotion"] if args.quick else args.category or list(SUBJECTS):
+        clips = sorted(_category(cat, args.quick), key=lambda m: -m.n_frames)
+        held = TUNE[cat] if args.tune else CleaningEvaluationParams().held_out[cat]
+        tests = [
+            i
+            for i, c in enumerate(clips)
+            if c.n_frames * 24.0 / c.fps >= MIN_FRAMES and (args.quick or clip_key(c.name, GROUP_BY[cat]) in held)
+        ][: 1 if args.quick else None]
+        figs: dict[str, list] = {"default": [], "no guard": []}
+        for i in tests:
+            trial = clip_key(clips[i].name, "trial")
+            ctx = [
+                c for k, c in enumerate(clips) if k != i and not (cat == "dance" and clip_key(c.name, "trial") == trial)
+            ][: 2 if args.quick else 8]
+            res = cleaner.analyse(clips[i], ctx)  # one analysis, two carries of the same decision
+            idx = [clips[i].skeleton.canonical[j] for j in res.joints]
+            for name, guard in (("default", True), ("no guard", False)):
+                repair.apply_to_input = lambda *a, g=guard, **kw: guarded(*a, **{**kw, "guard": g})
+                try:
+                    out = clean_motion(cleaner, clips[i], ctx, analysis=res)
+                finally:
+                    repair.apply_to_input = guarded
+                ang = np.degrees(quat.geodesic_angle(clips[i].rotations[:, idx], out.cleaned.rotations[:, idx]))
+                figs[name].append(((ang > 1e-4).mean(), ang.max(initial=0.0)))
+        print(f"\nnative, {cat}: {len(tests)} clean takes at their own rate ({'tuning' if args.tune else 'held-out'})")
+        for name, v in figs.items():
+            if v:
+                share, big = np.array(v).T
+                print(
+                    f"  {name:9s} edited {100 * share.mean():.2f} % / worst {100 * share.max():.2f} %, largest edit "
+                    f"{big.max():.1f} deg, takes > 30 deg: {int((big > 30).sum())}"
+                )
+
+
+def _sweep(z: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Best F1 over all thresholds of ``z``, and the best precision at recall 0.8."""
+    order = np.argsort(-z, axis=None)
+    hit = truth.ravel()[order]
+    tp, fp = np.cumsum(hit), np.cumsum(~hit)
+    rec, prec = tp / max(truth.sum(), 1), tp / np.maximum(tp + fp, 1)
+    f1 = 2 * prec * rec / np.maximum(prec + rec, 1e-12)
+    return float(f1.max()), float(prec[rec >= 0.8].max()) if (rec >= 0.8).any() else 0.0
+
+
+def scores(args) -> None:
+    """Every threshold of per-cell scores (each joint's row over its median) on the protocol's
+    corrupted clips, small context: no threshold of a score reaches a precision no choice of
+    threshold will."""
+    from mocapflow.plugins.selfsim.cleaner import MDMCleaner
+    from mocapflow.plugins.selfsim.evaluation.clean_eval import (
+        CleaningEvaluationParams,
+        context_clips,
+        corrupted_clips,
+        protocol_clips,
+    )
+
+    cleaner = MDMCleaner(write_bvh=False, heatmaps=False)
+    p = cleaner.params
+    ev = CleaningEvaluationParams(n_test=1 if args.quick else 4, **({"held_out": {}} if args.quick else {}))
+    for cat in ["locomotion"] if args.quick else args.category or list(SUBJECTS):
+        clips, joints = protocol_clips(_category(cat, args.quick), p.joints, p.fps)
+        runs = []
+        for case in corrupted_clips(clips, ev, joints, p.fps, cat):
+            res = cleaner.analyse(case.bad, context_clips("small", case.others, ev))
+            lo, tot, cnt = (
+                np.full(res.difference.shape, np.inf),
+                np.zeros(res.difference.shape),
+                np.zeros(res.difference.shape),
+            )
+            nb, n = res.neighbours[0], p.source_length
+            for g in range(nb.groups.n_groups):
+                jm = nb.groups.mask[g]
+                for si, s in enumerate(nb.starts):
+                    for k in np.flatnonzero(nb.target[g, si] >= 0):
+                        a = (
+                            2.0
+                            * np.arccos(
+                                np.clip(np.abs(np.sum(res.texture.q[s : s + n] * nb.warped[g, si, k], -1)), 0.0, 1.0)
+                            )[:, jm]
+                        )
+                        lo[s : s + n, jm] = np.minimum(lo[s : s + n, jm], a)
+                        tot[s : s + n, jm] += a
+                        cnt[s : s + n, jm] += 1
+            runs.append(
+                {
+                    "truth": case.truth,
+                    "angle to T̄ (the MDM's)": res.difference,
+                    "smallest angle to a KNN sample": np.where(np.isfinite(lo), lo, 0.0),
+                    "mean angle to the KNN samples": tot / np.maximum(cnt, 1),
+                    "angle to T̄ / KNN spread": res.difference / np.sqrt(res.spread**2 + 0.035**2),
+                }
+            )
+        truth = np.concatenate([r["truth"] for r in runs])
+        print(f"\nscores, {cat}, small context: {truth.size:,} cells, {int(truth.sum())} erroneous")
+        for name in [k for k in runs[0] if k != "truth"]:
+            z = np.concatenate([r[name] / np.maximum(np.median(r[name], 0, keepdims=True), 1e-3) for r in runs])
+            f1, p80 = _sweep(z, truth)
+            print(f"  {name:34s} best F1 {f1:.3f}, precision at recall 0.8 {p80:.3f}")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="10 s take and a 120 s context")
-    ap.add_argument("--skip-brute", action="store_true", help="no brute force in the large case")
+    ap.add_argument("part", nargs="?", choices=("speed", "protocol", "native", "scores"), default=None)
+    ap.add_argument("--quick", action="store_true", help="every part, tiny, on the bundled examples/data")
+    ap.add_argument("--category", choices=tuple(SUBJECTS), action="append")
+    ap.add_argument("--tune", action="store_true", help="the tuning subjects / trials instead of the held-out ones")
+    ap.add_argument("--contexts", help="protocol: comma-separated contexts (default local,small)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="cleaner parameter (JSON value)")
+    ap.add_argument("--seed", type=int, action="append", help="protocol: injection seed (repeatable, pooled)")
+    ap.add_argument("--cache", type=Path, help="protocol: memoise the KNN analyses in this folder")
+    ap.add_argument("--json", help="protocol: also write every row to this JSON file")
     args = ap.parse_args(argv)
-    if not CMU.is_dir():
-        print(f"corpus not found at {CMU}", file=sys.stderr)
-        return 1
-    from mocapflow.plugins.selfsim.mdm import MDMParams, digression_map
-    from mocapflow.plugins.selfsim.motion_words import motion_texture
-
-    take_s = 10.0 if args.quick else 20.0
-    ctx_s = 120.0 if args.quick else 600.0
-    take = _load(str(CMU / "14" / "14_02.amc"))
-    take = take.slice(0, int(take_s * 24))
-    take = take.with_arrays(name="14_02[:%ds]" % take_s)
-    # warm-up: compile the kernels on a tiny input (numba caches them on disk)
-    digression_map(take.slice(0, 40))
-
-    print(f"case 1: {take.name} ({take.n_frames} frames at 24 fps) against itself")
-    t0, c0 = time.perf_counter(), time.process_time()
-    res = digression_map(take, None, MDMParams(knn_method="pruned"))
-    t_fast, c_fast = time.perf_counter() - t0, time.process_time() - c0
-    t0 = time.perf_counter()
-    ref = digression_map(take, None, MDMParams(knn_method="brute"))
-    t_brute = time.perf_counter() - t0
-    same = all(np.array_equal(a.target, b.target) and np.array_equal(a.distance, b.distance)
-               for a, b in zip(res.neighbours, ref.neighbours))
-    print(f"  MDM analysis, pruned KNN : {t_fast:7.2f} s  ({res.n_dtw} DTWs)   target <= 2 s, paper ~140 s")
-    print(f"     CPU time of this process: {c_fast:.2f} s (an idle 2-core machine needs between half of it and all of it; "
-          f"load average now {os.getloadavg()[0]:.1f})")
-    print(f"  MDM analysis, brute KNN  : {t_brute:7.2f} s  ({ref.n_dtw} DTWs)")
-    print(f"  speed-up pruned/brute    : {t_brute / t_fast:7.2f} x   DTWs avoided {1 - res.n_dtw / ref.n_dtw:.1%}")
-    print(f"  KNN identical to brute force: {same}")
-    from mocapflow.plugins.selfsim.mdm import MDMCleaner
-
-    c0 = time.process_time()
-    MDMCleaner(mode="paper", write_bvh=False, heatmaps=False).clean(take)
-    c_paper = time.process_time() - c0
-    c0 = time.process_time()
-    MDMCleaner(write_bvh=False, heatmaps=False).clean(take)
-    c_cal = time.process_time() - c0
-    print(f"  whole clean (analysis, decision, repair), CPU: paper {c_paper:.2f} s, calibrated {c_cal:.2f} s "
-          f"(ratio {c_cal / c_paper:.2f}; the calibration analyses the take once more with synthetic errors)")
-
-    # case 2: a context of CMU takes adding up to ctx_s seconds (the take's own subject first)
-    files = sorted(glob.glob(str(CMU / "*" / "*.amc")))
-    context, total = [], 0.0
-    for f in files:
-        if Path(f).stem == "14_02" or total >= ctx_s:
-            continue
-        m = _load(f)
-        context.append(m)
-        total += m.duration
-    tex = motion_texture(take, MDMParams().joints)
-    joints = tuple(j for j in tex.joints if all(j in c.skeleton.canonical for c in context))
-    tex = motion_texture(take, joints)
-    ctx_q = [tex.q] + [motion_texture(c, joints).q for c in context]
-    n_ctx = sum(len(q) for q in ctx_q)
-    print(f"case 2: {take.name} against {len(context)} takes + itself, {n_ctx / 24:.0f} s ({n_ctx} frames at 24 fps)")
-    c0 = time.process_time()
-    fast, t_big = _search(tex, ctx_q, 0, "pruned")
-    c_big = time.process_time() - c0
-    brute_dtw = 5 * len(fast.starts) * sum(max(0, len(q) - 15 + 1) for q in ctx_q)
-    print(f"  KNN, pruned              : {t_big:7.2f} s  ({fast.n_dtw} of {brute_dtw} DTWs, "
-          f"{1 - fast.n_dtw / brute_dtw:.1%} avoided)   target <= 120 s, paper ~3 h")
-    print(f"     CPU time of this process: {c_big:.2f} s")
-    if not args.skip_brute:
-        # brute force on the first ~60 s of the context, scaled by frames
-        part, acc = [], 0
-        for q in ctx_q:
-            if acc >= 60 * 24:
-                break
-            part.append(q)
-            acc += len(q)
-        fp, tp = _search(tex, part, 0, "pruned")
-        bp, tb = _search(tex, part, 0, "brute")
-        same = np.array_equal(fp.target, bp.target) and np.array_equal(fp.distance, bp.distance)
-        est = tb * n_ctx / acc
-        print(f"  brute force on {acc / 24:.0f} s of it : {tb:7.2f} s (pruned {tp:.2f} s, identical: {same}); "
-              f"brute on the whole context ~{est:.0f} s by extrapolation, pruned speed-up ~{est / t_big:.1f} x")
+    if not args.quick and not CMU.is_dir():
+        print(f"needs the corpus at {CMU} (or --quick)", file=sys.stderr)
+        return 2
+    parts = {"speed": speed, "protocol": protocol, "native": native, "scores": scores}
+    for name in [args.part] if args.part else (list(parts) if args.quick else ["speed"]):
+        parts[name](args)
     return 0
 
 

@@ -25,6 +25,7 @@ Stable API (other benchmarks import this module)::
   ``$MOCAPFLOW_BENCH_CACHE`` (default ``~/.cache/mocapflow-bench``), about 600 MB for
   1 M frames.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -73,8 +74,8 @@ def mirror_partners(names: tuple[str, ...]) -> np.ndarray:
     for i, n in enumerate(names):
         for a, b in _PAIRS:
             for x, y in ((a, b), (b, a)):
-                if n.startswith(x) and y + n[len(x):] in index:
-                    out[i] = index[y + n[len(x):]]
+                if n.startswith(x) and y + n[len(x) :] in index:
+                    out[i] = index[y + n[len(x) :]]
         for a, b in _SUFFIX_PAIRS:
             for x, y in ((a, b), (b, a)):
                 if n.endswith(x) and n[: -len(x)] + y in index:
@@ -94,9 +95,17 @@ def mirror_skeleton(sk: Skeleton) -> Skeleton:
     p = mirror_partners(sk.names)
     flip = np.array([-1.0, 1.0, 1.0])
     axes = None if sk.axes is None else _reflect_q(sk.axes[p])
-    return Skeleton(sk.names, sk.parents, sk.offsets[p] * flip, canonical=dict(sk.canonical),
-                    rotation_orders=sk.rotation_orders, axes=axes, channels=sk.channels,
-                    name=sk.name + "_mirrored", meta=dict(sk.meta))
+    return Skeleton(
+        sk.names,
+        sk.parents,
+        sk.offsets[p] * flip,
+        canonical=dict(sk.canonical),
+        rotation_orders=sk.rotation_orders,
+        axes=axes,
+        channels=sk.channels,
+        name=sk.name + "_mirrored",
+        meta=dict(sk.meta),
+    )
 
 
 def mirror_motion(m: Motion, skeleton: Skeleton | None = None) -> Motion:
@@ -111,11 +120,17 @@ def mirror_motion(m: Motion, skeleton: Skeleton | None = None) -> Motion:
     sk = skeleton if skeleton is not None else mirror_skeleton(m.skeleton)
     root = m.root_translation * np.array([-1.0, 1.0, 1.0])
     lt = None if m.local_translations is None else m.local_translations[:, p] * np.array([-1.0, 1.0, 1.0])
-    return m.with_arrays(skeleton=sk, rotations=_reflect_q(m.rotations[:, p]), root_translation=root,
-                         local_translations=lt, name=m.name + "_mirrored")
+    return m.with_arrays(
+        skeleton=sk,
+        rotations=_reflect_q(m.rotations[:, p]),
+        root_translation=root,
+        local_translations=lt,
+        name=m.name + "_mirrored",
+    )
 
 
 # --- augmentation -------------------------------------------------------------------------
+
 
 def _variant(m: Motion, v: int, rng: np.random.Generator, fps: float, mirrored: dict) -> Motion:
     if v == 0:
@@ -133,7 +148,8 @@ def _variant(m: Motion, v: int, rng: np.random.Generator, fps: float, mirrored: 
     axis = rng.normal(size=(j, 3))
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
     angle = np.radians(rng.normal(0.0, 2.0, size=j))[None, :] + np.radians(1.0) * np.sin(
-        2 * np.pi * rng.uniform(0.1, 0.5, size=j)[None, :] * t[:, None] + rng.uniform(0, 2 * np.pi, size=j))
+        2 * np.pi * rng.uniform(0.1, 0.5, size=j)[None, :] * t[:, None] + rng.uniform(0, 2 * np.pi, size=j)
+    )
     angle[:, 0] = 0.0  # keep the root's heading and tilt: those are normalised away anyway
     delta = quat.from_axis_angle(np.broadcast_to(axis, (m.n_frames, j, 3)), angle)
     return m.with_arrays(rotations=quat.mul(m.rotations, delta), name=f"{m.name}_v{v}")
@@ -184,7 +200,10 @@ def _save(motions: list[Motion], path: Path) -> None:
             skels[key] = len(sk_list)
             sk_list.append(m.skeleton.to_dict())
         sk_of.append(skels[key])
-    np.save(path / "rotations.npy", np.concatenate([m.rotations.reshape(m.n_frames, -1) for m in motions]).astype(np.float32))
+    np.save(
+        path / "rotations.npy",
+        np.concatenate([m.rotations.reshape(m.n_frames, -1) for m in motions]).astype(np.float32),
+    )
     np.save(path / "root.npy", np.concatenate([m.root_translation for m in motions]).astype(np.float32))
     meta = {"skeletons": sk_list, "clips": [[m.name, sk_of[i], m.n_frames, m.fps] for i, m in enumerate(motions)]}
     (path / "meta.json").write_text(json.dumps(meta))
@@ -199,7 +218,7 @@ def _load(path: Path) -> MotionDatabase:
     motions, at = [], 0
     for name, s, n, fps in meta["clips"]:
         sk = sks[s]
-        r = quat.normalize(np.asarray(rot[at:at + n], np.float64).reshape(n, sk.n_joints, 4))
-        motions.append(Motion(sk, np.asarray(root[at:at + n], np.float64), r, fps, name=name))
+        r = quat.normalize(np.asarray(rot[at : at + n], np.float64).reshape(n, sk.n_joints, 4))
+        motions.append(Motion(sk, np.asarray(root[at : at + n], np.float64), r, fps, name=name))
         at += n
     return MotionDatabase(motions)

@@ -16,12 +16,14 @@ the first examples of each failure. Exit status 1 if any failure.
 Usage::
 
     python benchmarks/fuzz_parsers.py                # 100,000 cases, seed 0
-    python benchmarks/fuzz_parsers.py --quick        # 3,000 cases
+    python benchmarks/fuzz_parsers.py --quick        # 100 cases on the bundled examples/data (AMC, BVH)
     python benchmarks/fuzz_parsers.py --cases N --seed S --jobs 2 --timeout 20
 """
+
 from __future__ import annotations
 
 import argparse
+import contextlib
 import multiprocessing as mp
 import os
 import resource
@@ -35,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT.parent / "shared" / "data"
+DATA = Path(os.environ.get("MOCAPFLOW_DATA", ROOT.parent / "shared" / "data"))
 sys.path.insert(0, str(ROOT / "tests"))
 
 FAILURES = ("crash", "hang", "wrong_accept", "wrong_reject", "bad_error")
@@ -54,10 +56,11 @@ class Cases:
         self.seed = seed
         try:
             import c3d  # noqa: F401 - only checks that the optional reader is installed
+
             with_c3d = True
         except ImportError:
             with_c3d = False
-        self.sources = fuzz.corpus_sources(DATA, with_c3d)
+        self.sources = fuzz.corpus_sources(Path(os.environ.get("MOCAPFLOW_FUZZ_DATA", DATA)), with_c3d)
         w = np.array([WEIGHTS[f] for f in self.sources])
         self.formats, self.weights = list(self.sources), w / w.sum()
         self._loaded: dict[Path, tuple] = {}
@@ -126,7 +129,9 @@ def run(n_cases: int, seed: int, jobs: int, timeout: float, echo=print) -> dict:
         def start(w: int, indices: list[int]) -> None:
             parent, child = ctx.Pipe(duplex=False)
             slot = ctx.Array("d", [-1.0, time.time()], lock=False)
-            p = ctx.Process(target=_worker, args=(seed, indices, child, slot, f"{tmp}/w{w}-{len(workers)}"), daemon=True)
+            p = ctx.Process(
+                target=_worker, args=(seed, indices, child, slot, f"{tmp}/w{w}-{len(workers)}"), daemon=True
+            )
             p.start()
             child.close()
             workers.append({"p": p, "conn": parent, "slot": slot, "indices": indices, "alive": True})
@@ -148,8 +153,15 @@ def run(n_cases: int, seed: int, jobs: int, timeout: float, echo=print) -> dict:
                     wk["p"].kill()
                 wk["p"].join()
     cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return {"cpu": cpu.ru_utime + cpu.ru_stime, "counts": counts, "by_kind": by_kind, "by_fmt": by_fmt,
-            "examples": examples, "cases": done, "seconds": time.time() - t0}
+    return {
+        "cpu": cpu.ru_utime + cpu.ru_stime,
+        "counts": counts,
+        "by_kind": by_kind,
+        "by_fmt": by_fmt,
+        "examples": examples,
+        "cases": done,
+        "seconds": time.time() - t0,
+    }
 
 
 def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, done) -> None:
@@ -177,19 +189,17 @@ def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, 
                 wk["p"].join()
                 wk["alive"] = False
                 fmt, kind = "?", "?"
-                try:
+                with contextlib.suppress(Exception):
                     fmt, kind = Cases(seed).make(i)[:2]
-                except Exception:
-                    pass
                 record(i, fmt, kind, "hang", f"no result after {timeout:g} s", "")
-                rest = wk["indices"][wk["indices"].index(i) + 1:]
+                rest = wk["indices"][wk["indices"].index(i) + 1 :]
                 if rest:
                     start(len(workers), rest)
             elif wk["alive"] and not wk["p"].is_alive() and not wk["conn"].poll():
                 wk["alive"] = False  # died without a word (killed for memory...)
                 i = int(wk["slot"][0])
                 record(i, "?", "?", "crash", f"worker died (exit {wk['p'].exitcode})", "")
-                rest = wk["indices"][wk["indices"].index(i) + 1:] if i >= 0 else []
+                rest = wk["indices"][wk["indices"].index(i) + 1 :] if i >= 0 else []
                 if rest:
                     start(len(workers), rest)
         if time.time() - last_echo > 30:
@@ -201,13 +211,19 @@ def _supervise(workers, start, record, parts, seed, timeout, n_cases, echo, t0, 
 
 def report(res: dict, echo=print) -> int:
     c = res["counts"]
-    echo(f"cases {res['cases']:,} in {res['seconds']:.0f} s: accepted {c['accepted']:,}, rejected (ParseError) "
-         f"{c['rejected']:,}")
+    echo(
+        f"cases {res['cases']:,} in {res['seconds']:.0f} s: accepted {c['accepted']:,}, rejected (ParseError) "
+        f"{c['rejected']:,}"
+    )
     per = res["cpu"] / max(res["cases"], 1)
-    echo(f"worker CPU {res['cpu']:.0f} s ({1000 * per:.1f} ms per case; on two idle cores 100,000 cases would take "
-         f"{per * 100_000 / 2 / 60:.0f} min)")
-    echo("crashes {crash}, hangs {hang}, wrong acceptances {wrong_accept}, wrong rejections {wrong_reject}, "
-         "bad errors {bad_error}, fuzzer errors {fuzzer_error}".format(**{k: c[k] for k in (*FAILURES, "fuzzer_error")}))
+    echo(
+        f"worker CPU {res['cpu']:.0f} s ({1000 * per:.1f} ms per case; on two idle cores 100,000 cases would take "
+        f"{per * 100_000 / 2 / 60:.0f} min)"
+    )
+    echo(
+        "crashes {crash}, hangs {hang}, wrong acceptances {wrong_accept}, wrong rejections {wrong_reject}, "
+        "bad errors {bad_error}, fuzzer errors {fuzzer_error}".format(**{k: c[k] for k in (*FAILURES, "fuzzer_error")})
+    )
     cols = ("accepted", "rejected", *FAILURES)
     for title, table in (("mutation kind", res["by_kind"]), ("format", res["by_fmt"])):
         echo(f"\n{title:<16}" + "".join(f"{k:>13}" for k in cols))
@@ -222,21 +238,43 @@ def report(res: dict, echo=print) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="3,000 cases")
+    ap.add_argument("--quick", action="store_true", help="100 cases on examples/data")
     ap.add_argument("--cases", type=int, default=None, help="number of cases (default 100,000)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (at most 2: the machine is shared)")
     ap.add_argument("--timeout", type=float, default=20.0, help="seconds per case before it counts as a hang")
     args = ap.parse_args(argv)
-    if not DATA.exists():
-        print(f"corpus not found at {DATA}", file=sys.stderr)
+    if not args.quick and not DATA.exists():
+        print(f"corpus not found at {DATA} (--quick runs on examples/data)", file=sys.stderr)
         return 1
     # a terminated run still removes its case folder and its workers
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    n = args.cases or (3_000 if args.quick else 100_000)
+    n = args.cases or (100 if args.quick else 100_000)
     jobs = max(1, min(args.jobs, 2))
-    print(f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s")
-    return report(run(n, args.seed, jobs, args.timeout))
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.quick:
+            os.environ["MOCAPFLOW_FUZZ_DATA"] = str(_example_sources(Path(tmp)))
+        print(
+            f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s"
+        )
+        return report(run(n, args.seed, jobs, args.timeout))
+
+
+def _example_sources(into: Path) -> Path:
+    """The bundled CMU takes laid out as the corpus (``cmu/amc/<subject>/``), and BVH files
+    written from two of them (``bvh/examples/``)."""
+    import shutil
+
+    from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.formats.bvh import write_bvh
+
+    for subject in sorted((ROOT / "examples" / "data" / "cmu").iterdir()):
+        if subject.is_dir():
+            shutil.copytree(subject, into / "cmu" / "amc" / subject.name)
+    (into / "bvh" / "examples").mkdir(parents=True)
+    for f in sorted((into / "cmu" / "amc").glob("*/*.amc"))[:2]:
+        write_bvh(read_amc(f).slice(0, 120), into / "bvh" / "examples" / f"{f.stem}.bvh")
+    return into
 
 
 if __name__ == "__main__":

@@ -13,12 +13,14 @@ pipeline runner is available, the ``formats.load`` ingest step over it (Parquet 
 Usage::
 
     python benchmarks/ingest.py            # full run (corpus at ../shared/data)
-    python benchmarks/ingest.py --quick    # a few files, one repetition
+    python benchmarks/ingest.py --quick    # the bundled examples/data takes (BVH written from them), one repetition
     python benchmarks/ingest.py --quick --baseline 263f30c   # readers now against a commit's
 """
+
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -31,10 +33,12 @@ from mocapflow.plugins.formats.bvh import read_bvh
 
 #: Frames per file the (slow) plain reference is timed on.
 REF_FRAMES = 300
-DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+DATA = Path(os.environ.get("MOCAPFLOW_DATA", Path(__file__).resolve().parent.parent.parent / "shared" / "data"))
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "data"
 
 
 # --- plain reference ------------------------------------------------------------------------
+
 
 def _rot(axis: str, deg: float) -> np.ndarray:
     c, s = np.cos(np.deg2rad(deg)), np.sin(np.deg2rad(deg))
@@ -54,7 +58,7 @@ def plain_amc(amc: Path, asf: Path, max_frames: int | None = None) -> np.ndarray
     c_mat = {}
     for name, b in bones.items():
         r = np.eye(3)
-        for a, ang in zip(b["axis_order"].lower(), b["axis"]):
+        for a, ang in zip(b["axis_order"].lower(), b["axis"], strict=True):
             r = _rot(a, ang) @ r
         c_mat[name] = r
     children = meta["hierarchy"]
@@ -83,7 +87,7 @@ def plain_amc(amc: Path, asf: Path, max_frames: int | None = None) -> np.ndarray
     for t, fr in enumerate(frames):
         vals = fr["root"]
         rr = np.eye(3)
-        for ch, v in zip(meta["root"]["order"], vals):
+        for ch, v in zip(meta["root"]["order"], vals, strict=False):
             if ch[0] == "R":
                 rr = _rot(ch[1].lower(), v) @ rr
         glob = {"root": rr}
@@ -91,7 +95,7 @@ def plain_amc(amc: Path, asf: Path, max_frames: int | None = None) -> np.ndarray
         for k, n in enumerate(order):
             b = bones[n]
             m = np.eye(3)
-            for d, v in zip(b["dof"], fr.get(n, [0.0] * len(b["dof"]))):
+            for d, v in zip(b["dof"], fr.get(n, [0.0] * len(b["dof"])), strict=False):
                 m = _rot(d[1], v) @ m
             g = glob[parent_of[n]] @ c_mat[n] @ m @ c_mat[n].T
             glob[n] = g
@@ -103,7 +107,7 @@ def plain_amc(amc: Path, asf: Path, max_frames: int | None = None) -> np.ndarray
 def plain_bvh(path: Path, max_frames: int | None = None) -> np.ndarray:
     """Line-by-line BVH parser and per-frame matrix FK; joint positions (T, J, 3), file units."""
     names, parents, offsets, channels, stack = [], [], [], [], []
-    lines = open(path, encoding="latin-1").read().splitlines()
+    lines = Path(path).read_text(encoding="latin-1").splitlines()
     i = 0
     while not lines[i].strip().startswith("MOTION"):
         w = lines[i].split()
@@ -123,7 +127,7 @@ def plain_bvh(path: Path, max_frames: int | None = None) -> np.ndarray:
         i += 1
     n_frames = int(lines[i + 1].split()[-1])
     n_frames = n_frames if max_frames is None else min(n_frames, max_frames)
-    data = [[float(x) for x in ln.split()] for ln in lines[i + 3:i + 3 + n_frames]]
+    data = [[float(x) for x in ln.split()] for ln in lines[i + 3 : i + 3 + n_frames]]
     out = np.zeros((n_frames, len(names), 3))
     for t, row in enumerate(data):
         c = 0
@@ -147,6 +151,7 @@ def plain_bvh(path: Path, max_frames: int | None = None) -> np.ndarray:
 
 
 # --- timing ---------------------------------------------------------------------------------
+
 
 def best_of(fn, reps: int) -> tuple[float, float]:
     """Best wall-clock and best process CPU time (seconds) over ``reps`` runs.
@@ -190,7 +195,9 @@ def bench_amc(files: list[Path], reps: int) -> None:
     err = np.abs(m.positions[:, ends] - p).max()
     print(f"AMC read+FK, {len(files)} CMU files (31 bones, {m.skeleton.n_joints} joints), {frames:,} frames")
     print(f"  mocapflow           {rate(frames, ours)}")
-    print(f"  plain reference     {rate(ref_frames, plain)}   [{len(ref_files)} x {REF_FRAMES} frames; max |diff| {err:.1e} m]")
+    print(
+        f"  plain reference     {rate(ref_frames, plain)}   [{len(ref_files)} x {REF_FRAMES} frames; max |diff| {err:.1e} m]"
+    )
     print(f"  ratio mocapflow / plain: {ratio(frames, ours, ref_frames, plain)}")
 
 
@@ -204,7 +211,9 @@ def bench_bvh(files: list[Path], reps: int) -> None:
     err = np.abs(m.positions - plain_bvh(ref_files[0], REF_FRAMES)).max()
     print(f"BVH read+FK, {len(files)} files (31-joint CMU conversions), {frames:,} frames")
     print(f"  mocapflow           {rate(frames, ours)}")
-    print(f"  plain reference     {rate(ref_frames, plain)}   [{len(ref_files)} x {REF_FRAMES} frames; max |diff| {err:.1e} file units]")
+    print(
+        f"  plain reference     {rate(ref_frames, plain)}   [{len(ref_files)} x {REF_FRAMES} frames; max |diff| {err:.1e} file units]"
+    )
     print(f"  ratio mocapflow / plain: {ratio(frames, ours, ref_frames, plain)}")
     try:
         import pybvh
@@ -254,27 +263,34 @@ def bench_baseline(commit: str, amc: list[Path], bvh: list[Path], rounds: int) -
     with tempfile.TemporaryDirectory() as tmp:
         pkg = Path(tmp) / "baseline_formats"
         pkg.mkdir()
-        archive = subprocess.run(["git", "-C", str(root), "archive", commit, "plugins/formats"], check=True,
-                                 capture_output=True).stdout
+        archive = subprocess.run(
+            ["git", "-C", str(root), "archive", commit, "plugins/formats"], check=True, capture_output=True
+        ).stdout
         subprocess.run(["tar", "-x", "--strip-components=2", "-C", str(pkg)], input=archive, check=True)
         sys.path.insert(0, tmp)
         try:
             old = {m: importlib.import_module(f"baseline_formats.{m}") for m in ("asf_amc", "bvh", "trc")}
         finally:
             sys.path.remove(tmp)
-        from mocapflow.plugins.formats import asf_amc as new_amc, bvh as new_bvh, trc as new_trc
+        from mocapflow.plugins.formats import asf_amc as new_amc
+        from mocapflow.plugins.formats import bvh as new_bvh
+        from mocapflow.plugins.formats import trc as new_trc
 
         print(f"Readers against {commit} (read only, process CPU time, same run, best of {rounds} x 3):")
-        for name, o, n, files in [("amc", old["asf_amc"].read_amc, new_amc.read_amc, amc),
-                                  ("bvh", old["bvh"].read_bvh, new_bvh.read_bvh, bvh),
-                                  ("trc", old["trc"].read_trc, new_trc.read_trc, trc)]:
+        for name, o, n, files in [
+            ("amc", old["asf_amc"].read_amc, new_amc.read_amc, amc),
+            ("bvh", old["bvh"].read_bvh, new_bvh.read_bvh, bvh),
+            ("trc", old["trc"].read_trc, new_trc.read_trc, trc),
+        ]:
             o(files[0]), n(files[0])  # numba kernels of both loaded (compiled) before timing
             t_old, t_new = [], []
             for _ in range(rounds):
-                t_old.append(best_of(lambda: [o(f) for f in files], 3)[1])  # process CPU time
-                t_new.append(best_of(lambda: [n(f) for f in files], 3)[1])
-            print(f"  {name}: {len(files)} files   {commit[:8]} {min(t_old) * 1e3:7.1f} ms   now {min(t_new) * 1e3:7.1f} ms"
-                  f"   now / {commit[:8]}: {min(t_new) / min(t_old):.3f}")
+                t_old.append(best_of(lambda o=o, files=files: [o(f) for f in files], 3)[1])  # process CPU time
+                t_new.append(best_of(lambda n=n, files=files: [n(f) for f in files], 3)[1])
+            print(
+                f"  {name}: {len(files)} files   {commit[:8]} {min(t_old) * 1e3:7.1f} ms   now {min(t_new) * 1e3:7.1f} ms"
+                f"   now / {commit[:8]}: {min(t_new) / min(t_old):.3f}"
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -282,22 +298,33 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="a few files, one repetition")
     ap.add_argument("--baseline", metavar="COMMIT", help="also time the readers of COMMIT against the working tree's")
     args = ap.parse_args(argv)
-    if not DATA.exists():
-        print(f"corpus not found at {DATA}", file=sys.stderr)
+    if not args.quick and not DATA.exists():
+        print(f"corpus not found at {DATA} (--quick runs on examples/data)", file=sys.stderr)
         return 1
-    reps = 1 if args.quick else 3
-    amc = sorted((DATA / "cmu" / "amc").glob("*/*.amc"))
-    bvh = sorted((DATA / "bvh" / "cmu_cgspeed").glob("*.bvh")) + sorted((DATA / "bvh" / "xia_style").glob("*.bvh"))
+    global REF_FRAMES
     if args.quick:
-        amc, bvh = amc[:4], bvh[:2]
-    read_amc(amc[0]).positions  # load the numba kernels before timing
-    read_bvh(bvh[0]).positions
-    bench_amc(amc, reps)
-    bench_bvh(bvh, reps)
-    if args.baseline:
-        bench_baseline(args.baseline, amc, bvh, 3 if args.quick else 5)
-    if not args.quick:
-        bench_corpus(reps)
+        REF_FRAMES = 60
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.quick:  # the bundled takes, and BVH files written from two of them
+            from mocapflow.plugins.formats.bvh import write_bvh
+
+            amc = sorted(EXAMPLES.glob("cmu/*/*.amc"))
+            bvh = [Path(tmp) / f"{f.stem}.bvh" for f in amc[:2]]
+            for f, out in zip(amc, bvh, strict=False):
+                write_bvh(read_amc(f), out)
+        else:
+            amc = sorted((DATA / "cmu" / "amc").glob("*/*.amc"))
+            bvh = sorted((DATA / "bvh" / "cmu_cgspeed").glob("*.bvh")) + sorted(
+                (DATA / "bvh" / "xia_style").glob("*.bvh")
+            )
+        reps = 1 if args.quick else 3
+        _ = read_amc(amc[0]).positions, read_bvh(bvh[0]).positions  # load the numba kernels before timing
+        bench_amc(amc, reps)
+        bench_bvh(bvh, reps)
+        if args.baseline:
+            bench_baseline(args.baseline, amc, bvh, 3 if args.quick else 5)
+        if not args.quick:
+            bench_corpus(reps)
     return 0
 
 

@@ -6,20 +6,24 @@ Prints:
    class a documented feature subset; hits, precision and recall in the adaptive, fuzzy and
    m-mismatch modes (each of a class's clips is a query, whole clip; figures are means over
    the queries, the query clip itself included as in the paper);
-2. build: feature extraction, segmentation and index build times and sizes, for the real
-   corpus and for an augmented database of ~1.3 M frames (paper: 1,288,846 frames);
+2. build: feature extraction (against the plain NumPy reference of ``tests/naive``, same run),
+   segmentation and index build times and sizes, for the cuts and for an augmented database
+   of ~1.3 M frames (paper: 1,288,846 frames);
 3. queries: exact and adaptive fuzzy queries of 5, 10 and 20 segments, 1,000 random
    queries each (paper Table 3: 10,000 queries, 16-294 ms in Matlab).
 
-4. with ``--templates`` (only): motion templates and mode ``auto`` leave-one-actor-out, and
-   their speed on a 1 M-frame tiled database (``relational_templates.py``).
+Motion templates and mode auto: ``benchmarks/templates.py``.
 
-Usage: ``python benchmarks/relational.py [--quick] [--frames N] [--fps 30] [--templates | --auto]``
+    python benchmarks/relational.py [--frames N] [--fps 30] [--tiled]
+    python benchmarks/relational.py --quick   # the bundled examples/data takes tiled to 50 k frames, no fidelity
 """
+
 from __future__ import annotations
 
 import argparse
 import glob
+import os
+import sys
 import time
 from pathlib import Path
 
@@ -31,15 +35,18 @@ from mocapflow.plugins.relational.body import body_measures
 from mocapflow.plugins.relational.features import FEATURE_IDS, relational_features
 from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.queries import example_query, search_set, subset_member
+from mocapflow.plugins.relational.segmentation import segment
 
-HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
+DATA = Path(os.environ.get("MOCAPFLOW_DATA", Path(__file__).resolve().parent.parent.parent / "shared" / "data"))
+HDM05 = DATA / "hdm05" / "amc"
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu"
 
 #: Feature subsets per HDM05 class (ids of Table 1, docs/relational-features.md): the first
 #: was chosen per class among 4-5 motivated candidates (best F1 of the adaptive mode, as a
 #: user would pick features, §6.2); rows marked "paper" are the paper's subsets for kicks
 #: and squats, and the a-priori choices made before looking at the results.
 CLASS_FEATURES: dict[str, tuple[tuple[str, ...], ...]] = {
-    "kickLFront1Reps": (("L4",), ("L3", "L4", "L7", "L8")),     # HDM05 kicks are left kicks; paper: L3 L4 L7 L8
+    "kickLFront1Reps": (("L4",), ("L3", "L4", "L7", "L8")),  # HDM05 kicks are left kicks; paper: L3 L4 L7 L8
     "squat1Reps": (("L7", "L8", "M7"), ("L5", "L6", "L7", "L10", "L11")),  # paper: L5 L6 L7 L10 L11
     "depositFloorR": (("M7", "U1"), ("L7", "L8", "M7")),
     "elbowToKnee1RepsLelbowStart": (("L3", "L4", "U8"), ("L3", "L4", "U7", "U8")),
@@ -54,10 +61,10 @@ CLASS_FEATURES: dict[str, tuple[tuple[str, ...], ...]] = {
 PAPER = {"kickLFront1Reps": 1, "squat1Reps": 1}
 
 
-def load_hdm05(fps: float, per_class: int | None = None) -> MotionDatabase:
+def load_hdm05(fps: float, per_class: int | None = None, folder: Path = HDM05) -> MotionDatabase:
     from mocapflow.plugins.formats.asf_amc import read_amc
 
-    files = sorted(glob.glob(str(HDM05 / "*" / "*.amc")))
+    files = sorted(glob.glob(str(folder / "*" / "*.amc")))
     if per_class:
         keep, seen = [], {}
         for f in files:
@@ -77,7 +84,11 @@ def fidelity(db: MotionDatabase, bits: np.ndarray, index: InvertedIndex) -> None
     classes = np.array([class_of(m.name) for m in db.motions])
     print(f"\n== fidelity: {db.n_clips} clips, {db.n_frames} frames at {db.fps:g} Hz ==")
     modes = (("adaptive", {}), ("fuzzy", {}), ("mismatch", {"mismatches": 1}), ("mismatch", {"mismatches": 2}))
-    head = "class".ljust(30) + "features".ljust(18) + "".join(f"{(m + str(kw.get('mismatches', ''))):>24s}" for m, kw in modes)
+    head = (
+        "class".ljust(30)
+        + "features".ljust(18)
+        + "".join(f"{(m + str(kw.get('mismatches', ''))):>24s}" for m, kw in modes)
+    )
     print(head)
     print(" " * 48 + "".join(f"{'hits  prec  recall':>24s}" for _ in modes))
     for which in ("chosen", "a priori / paper"):
@@ -95,11 +106,11 @@ def fidelity(db: MotionDatabase, bits: np.ndarray, index: InvertedIndex) -> None
             cols = [FEATURE_IDS.index(f) for f in feats]
             qs = np.flatnonzero(classes == cls)
             tag = " (paper)" if which != "chosen" and cls in PAPER else ""
-            line = (cls[:29 - len(tag)] + tag).ljust(30) + ",".join(feats).ljust(18)
+            line = (cls[: 29 - len(tag)] + tag).ljust(30) + ",".join(feats).ljust(18)
             for mi, (mode, kw) in enumerate(modes):
                 h_n, prec, rec = [], [], []
                 for q in qs:
-                    qb = bits[db.offsets[q]:db.offsets[q + 1]]
+                    qb = bits[db.offsets[q] : db.offsets[q + 1]]
                     hits = example_query(index, qb, cols, mode, **kw)
                     good = classes[hits.clip] == cls
                     h_n.append(len(hits))
@@ -123,8 +134,12 @@ def augmented_positions(db: MotionDatabase, n_frames: int, seed: int = 0, tiled:
         from corpus import augmented_database  # the shared benchmark corpus (CMU + HDM05, augmented)
 
         big = augmented_database(n_frames, fps=db.fps, seed=seed)
-        return (big.canonical_positions().astype(np.float32), big.offsets, _measures(big),
-                "benchmarks/corpus.py augmented_database (CMU + HDM05: mirrored, time-scaled, jittered)")
+        return (
+            big.canonical_positions().astype(np.float32),
+            big.offsets,
+            _measures(big),
+            "benchmarks/corpus.py augmented_database (CMU + HDM05: mirrored, time-scaled, jittered)",
+        )
     rng = np.random.default_rng(seed)
     base = db.canonical_positions().astype(np.float32)
     meas = _measures(db)
@@ -148,7 +163,32 @@ def augmented_positions(db: MotionDatabase, n_frames: int, seed: int = 0, tiled:
 def _measures(db: MotionDatabase) -> dict[str, np.ndarray]:
     lengths = np.diff(db.offsets)
     per = [body_measures(m.skeleton) for m in db.motions]
-    return {k: np.repeat([p[k] for p in per], lengths).astype(np.float32) for k in ("humerus_length", "shoulder_width", "hip_width")}
+    return {
+        k: np.repeat([p[k] for p in per], lengths).astype(np.float32)
+        for k in ("humerus_length", "shoulder_width", "hip_width")
+    }
+
+
+def naive_reference(pos, offsets, meas, fps, frames: int = 2000) -> None:
+    """The compiled feature pass against the plain NumPy twin of ``tests/naive`` on the first
+    ``frames`` frames (same run), and how often they disagree."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from naive import relational as naive
+
+    from mocapflow.plugins.relational.features import FEATURES, RelationalFeatures
+
+    n = min(frames, len(pos))
+    off = np.r_[offsets[offsets < n], n]
+    m = {k: v[:n] for k, v in meas.items()}
+    t0 = time.perf_counter()
+    want = naive.feature_bits(FEATURES, RelationalFeatures.Params(), pos[:n], fps, m, off)
+    t1 = time.perf_counter()
+    got = relational_features(pos[:n], fps, m, None, off)
+    t2 = time.perf_counter()
+    print(
+        f"features of {n} frames: compiled {t2 - t1:.4f} s, plain NumPy reference {t1 - t0:.3f} s "
+        f"(x{(t1 - t0) / max(t2 - t1, 1e-9):.0f}); bits differing {100 * (got != want).mean():.2f} %"
+    )
 
 
 def build_bench(pos, offsets, meas, fps, label: str) -> tuple[np.ndarray, InvertedIndex]:
@@ -160,27 +200,33 @@ def build_bench(pos, offsets, meas, fps, label: str) -> tuple[np.ndarray, Invert
     bits = relational_features(pos, fps, meas, None, offsets)
     t1 = time.perf_counter()
     clip_id = np.repeat(np.arange(len(offsets) - 1, dtype=np.int32), np.diff(offsets))
-    _segs = {  # timed only: the segmentation the index build repeatsn: len(segment(bits, list(range(sl.start, sl.stop)), offsets)) for n, sl in
-            (("lower", slice(0, 11)), ("upper", slice(11, 23)), ("mixed", slice(23, 31)))}
+    for sl in (slice(0, 11), slice(11, 23), slice(23, 31)):  # timed only: the index build repeats it
+        segment(bits, list(range(sl.start, sl.stop)), offsets)
     t2 = time.perf_counter()
     index = InvertedIndex().build(bits, clip_id)
     t3 = time.perf_counter()
     print(f"\n== build: {label}: {len(bits):,} frames, {len(offsets) - 1:,} clips ==")
-    print(f"features {t1 - t0:.3f} s ({len(bits) / max(t1 - t0, 1e-9) / 1e6:.1f} M frames/s); "
-          f"segmentation (3 sets) {t2 - t1:.3f} s; index build (3 sets) {t3 - t2:.3f} s; "
-          f"total {t3 - t0:.3f} s")
+    print(
+        f"features {t1 - t0:.3f} s ({len(bits) / max(t1 - t0, 1e-9) / 1e6:.1f} M frames/s); "
+        f"segmentation (3 sets) {t2 - t1:.3f} s; index build (3 sets) {t3 - t2:.3f} s; "
+        f"total {t3 - t0:.3f} s"
+    )
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
         t4 = time.perf_counter()
         index.save(Path(tmp))
         t5 = time.perf_counter()
-        disk = {n: sum((Path(tmp) / f"{n}_{k}.parquet").stat().st_size for k in ("segments", "lists")) for n in index.sets}
+        disk = {
+            n: sum((Path(tmp) / f"{n}_{k}.parquet").stat().st_size for k in ("segments", "lists")) for n in index.sets
+        }
     print(f"saved as Parquet in {t5 - t4:.3f} s: " + ", ".join(f"{n} {b / 1e6:.2f} MB" for n, b in disk.items()))
     for n, s in index.sets.items():
-        print(f"  {n:6s} f={s.n_features:2d} lists={len(s.list_codes):5d}/{2 ** s.n_features:5d} "
-              f"segments={s.n_segments:8,d} ({100 * s.n_segments / len(bits):.1f} % of frames) "
-              f"size={s.nbytes() / 1e6:.2f} MB in memory ({s.nbytes() / max(s.n_segments, 1):.0f} B/segment)")
+        print(
+            f"  {n:6s} f={s.n_features:2d} lists={len(s.list_codes):5d}/{2**s.n_features:5d} "
+            f"segments={s.n_segments:8,d} ({100 * s.n_segments / len(bits):.1f} % of frames) "
+            f"size={s.nbytes() / 1e6:.2f} MB in memory ({s.nbytes() / max(s.n_segments, 1):.0f} B/segment)"
+        )
     return bits, index
 
 
@@ -197,7 +243,7 @@ def query_bench(index: InvertedIndex, n_queries: int, seed: int = 0) -> None:
                     k = int(rng.integers(0, idx.n_segments - length))
                     if idx.seg_clip[k] == idx.seg_clip[k + length - 1]:
                         break
-                codes = idx.seg_code[k:k + length]
+                codes = idx.seg_code[k : k + length]
                 if mode == "exact":
                     member = np.zeros((length, 1 << idx.n_features), bool)
                     member[np.arange(length), codes] = True
@@ -210,61 +256,39 @@ def query_bench(index: InvertedIndex, n_queries: int, seed: int = 0) -> None:
                 times.append(time.perf_counter() - t)
                 nh.append(len(levels))
             times = np.array(times) * 1e3
-            print(f"  {mode:8s} |Q|={length:2d}: median {np.median(times):.3f} ms, mean {times.mean():.3f} ms, "
-                  f"p95 {np.percentile(times, 95):.3f} ms; hits median {int(np.median(nh))}, max {max(nh)}")
-
-
-def templates_main(fps: float, n_frames: int, auto_only: bool = False) -> None:
-    """Motion templates (Müller & Röder 2006) and mode auto: figures and speed."""
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import relational_templates as rt
-
-    t = time.perf_counter()
-    db = load_hdm05(fps)
-    bits = relational_features(db.canonical_positions(), db.fps, _measures(db), None, db.offsets)
-    names = [m.name for m in db.motions]
-    print(f"loaded {db.n_clips} HDM05 cuts ({db.n_frames} frames at {fps:g} Hz) with features in {time.perf_counter() - t:.1f} s")
-    if auto_only:
-        return rt.report_auto(bits, db.offsets, names)
-    rt.report(bits, db.offsets, names)
-    big_pos, big_off, big_meas, how = augmented_positions(db, n_frames, tiled=True)
-    big_pos, big_off = big_pos[:n_frames], np.minimum(big_off[big_off < n_frames].tolist() + [n_frames], n_frames)
-    big_meas = {k: v[:n_frames] for k, v in big_meas.items()}
-    big_bits = relational_features(big_pos, db.fps, big_meas, None, big_off)
-    print(f"\nlarge database: {how}, {len(big_bits):,} frames")
-    rt.speed(bits, db.offsets, names, big_bits, np.asarray(big_off, np.int64))
+            print(
+                f"  {mode:8s} |Q|={length:2d}: median {np.median(times):.3f} ms, mean {times.mean():.3f} ms, "
+                f"p95 {np.percentile(times, 95):.3f} ms; hits median {int(np.median(nh))}, max {max(nh)}"
+            )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="small run (2 clips per class, 200 k frames, 100 queries)")
+    ap.add_argument("--quick", action="store_true", help="the bundled takes tiled to 50 k frames, 50 queries")
     ap.add_argument("--frames", type=int, default=None, help="frames of the augmented database (default 1.3 M)")
     ap.add_argument("--fps", type=float, default=30.0, help="resampling rate (default 30 Hz)")
-    ap.add_argument("--tiled", action="store_true", help="build the large database by tiling HDM05 (fast) "
-                    "instead of benchmarks/corpus.py's augmented CMU + HDM05 corpus")
-    ap.add_argument("--templates", action="store_true", help="only the motion-template and automatic-selection figures "
-                    "(leave-one-actor-out) and their speed on a 1 M-frame tiled database (relational_templates.py)")
-    ap.add_argument("--auto", action="store_true", help="only the automatic-selection figures of --templates "
-                    "(mode auto, leave-one-actor-out on the HDM05 cuts; no templates, no speed)")
+    ap.add_argument(
+        "--tiled",
+        action="store_true",
+        help="build the large database by tiling HDM05 (fast) "
+        "instead of benchmarks/corpus.py's augmented CMU + HDM05 corpus",
+    )
     args = ap.parse_args()
-    if args.auto:
-        return templates_main(args.fps, 0, auto_only=True)
-    n_frames = args.frames or (200_000 if args.quick else 1_300_000)
-    if args.templates:
-        return templates_main(args.fps, args.frames or (200_000 if args.quick else 1_000_000))
+    n_frames = args.frames or (50_000 if args.quick else 1_300_000)
     t = time.perf_counter()
-    db = load_hdm05(args.fps, per_class=2 if args.quick else None)
-    print(f"loaded {db.n_clips} HDM05 clips ({db.n_frames} frames at {args.fps:g} Hz) in {time.perf_counter() - t:.1f} s")
-    pos = db.canonical_positions()
-    bits, index = build_bench(pos, db.offsets, _measures(db), db.fps, "HDM05 cut clips")
-    fidelity(db, bits, index)
+    db = load_hdm05(args.fps, folder=EXAMPLES if args.quick else HDM05)
+    what = "bundled CMU takes" if args.quick else "HDM05 clips"
+    print(f"loaded {db.n_clips} {what} ({db.n_frames} frames at {args.fps:g} Hz) in {time.perf_counter() - t:.1f} s")
+    pos, meas = db.canonical_positions(), _measures(db)
+    bits, index = build_bench(pos, db.offsets, meas, db.fps, what)
+    naive_reference(pos, np.asarray(db.offsets), meas, db.fps, 500 if args.quick else 2000)
+    if not args.quick:
+        fidelity(db, bits, index)
     t = time.perf_counter()
     big_pos, big_off, big_meas, how = augmented_positions(db, n_frames, tiled=args.tiled or args.quick)
     print(f"\nlarge database: {how}, built in {time.perf_counter() - t:.1f} s")
     _, big_index = build_bench(big_pos, big_off, big_meas, db.fps, f"augmented ({how})")
-    query_bench(big_index, 100 if args.quick else 1000)
+    query_bench(big_index, 50 if args.quick else 1000)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Scale-out figures (issue 16): the local pool, the Dask executor and the sharded kNN index.
+"""Scale-out figures: the local pool, the Dask executor and the sharded kNN index.
 
 Every ratio is against a baseline measured in the same run. Pipelines run as a user runs
 them (``python -m mocapflow.framework.cli run``, a fresh interpreter each time, so start-up,
@@ -25,10 +25,11 @@ wall times: they show the work, unlike wall time they hardly depend on the other
    projects from.
 
     python benchmarks/scale.py            # everything (about 5 minutes on 2 idle cores)
-    python benchmarks/scale.py --quick    # fewer repeats, 200,000 frames for the index
+    python benchmarks/scale.py --quick    # ingest + features of the bundled takes, --jobs 2 vs --jobs 1, once
     python benchmarks/scale.py --only local,index
     python benchmarks/scale.py --context  # also the cleaning against 103 takes (slow)
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,7 +47,6 @@ if __name__ == "__main__" and "--child-run" in sys.argv:  # as the CLI does, bef
 
     size_blas_for_workers(int(sys.argv[sys.argv.index("--child-run") + 3]))
 
-import numpy as np  # after sizing BLAS for the child run's workers
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("MOCAPFLOW_DATA", REPO.parent / "shared" / "data"))
@@ -97,8 +97,23 @@ def run_once(yaml: Path, ws: Path, jobs: int, executor: str = "local") -> dict:
         p.write_text(yaml.read_text().replace("\nsteps:", f"\nexecutor: {name}\njobs: {jobs}\n{extra}steps:", 1))
     c0, t0 = _children_cpu(), time.perf_counter()
     try:
-        r = subprocess.run([sys.executable, "-m", "mocapflow.framework.cli", "run", str(p), "--workspace", str(ws),
-                            "--jobs", str(jobs), "--force"], capture_output=True, text=True, env=env)
+        r = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "mocapflow.framework.cli",
+                "run",
+                str(p),
+                "--workspace",
+                str(ws),
+                "--jobs",
+                str(jobs),
+                "--force",
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+        )
     finally:
         if p != yaml:
             p.unlink()
@@ -123,9 +138,14 @@ def start_warm_cluster(workers: int = 2):
 
     n = str(threads_per_worker(workers))
     cluster = distributed.LocalCluster(
-        n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
-        silence_logs=40, env={v: n for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                                             "NUMBA_NUM_THREADS")})
+        n_workers=workers,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        silence_logs=40,
+        env={v: n for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")},
+    )
     _WARM_CLUSTER["address"] = cluster.scheduler_address
     return cluster
 
@@ -148,8 +168,16 @@ def child_run(yaml: Path, ws: Path, jobs: int) -> None:
     finally:
         ex.close()
     r = resource.getrusage(resource.RUSAGE_SELF)
-    print(json.dumps({"parent": r.ru_utime + r.ru_stime, "workers": workers, "batches": ex.batches,
-                      "wall": time.perf_counter() - t0}))
+    print(
+        json.dumps(
+            {
+                "parent": r.ru_utime + r.ru_stime,
+                "workers": workers,
+                "batches": ex.batches,
+                "wall": time.perf_counter() - t0,
+            }
+        )
+    )
 
 
 def _spin(n: int) -> None:
@@ -185,8 +213,12 @@ def critical_path(yaml: Path, tmp: Path, jobs: int, options: dict | None = None)
     """CPU seconds of the client and of its busiest worker: on ``jobs`` idle cores the run
     takes about ``parent + max(workers)`` (the client mostly waits while workers compute)."""
     env = dict(os.environ, MOCAPFLOW_PROGRESS="0", MOCAPFLOW_SCALE_OPTIONS=json.dumps(options or {}))
-    r = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child-run", str(yaml), str(tmp / f"cp-{jobs}"), str(jobs)],
-                       capture_output=True, text=True, env=env)
+    r = subprocess.run(
+        [sys.executable, str(Path(__file__).resolve()), "--child-run", str(yaml), str(tmp / f"cp-{jobs}"), str(jobs)],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     if r.returncode != 0:
         raise SystemExit(r.stderr[-3000:])
     out = json.loads(r.stdout.strip().splitlines()[-1])
@@ -195,16 +227,17 @@ def critical_path(yaml: Path, tmp: Path, jobs: int, options: dict | None = None)
     own = sum(b["client_s"] for b in out["batches"])
     out["serial"] = out["parent"] - own
     out["path"] = out["serial"] + sum(max([b["client_s"], *b["workers_s"]]) for b in out["batches"])
-    out["path_s4"] = out["parent"] + max(out["workers"], default=0.0)  # session 4's formula (client waits)
+    out["path_s4"] = out["parent"] + max(out["workers"], default=0.0)  # client + busiest process (a waiting client)
     out["total"] = out["parent"] + sum(out["workers"])
     return out
 
 
-def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestart: bool = False,
-                         extra: dict | None = None) -> dict:
+def report_critical_path(
+    name: str, yaml: Path, tmp: Path, repeats: int, prestart: bool = False, extra: dict | None = None
+) -> dict:
     """Best (shortest critical path) of ``repeats`` interleaved child runs of each layout:
     ``--jobs 1``; ``--jobs 2`` with a pool of 2 and the client waiting (``client_works:
-    false``, the layout up to session 4); ``--jobs 2`` with the client as worker 0 and a
+    false``); ``--jobs 2`` with the client as worker 0 and a
     pool of 1 (the default); optionally the pool started before planning."""
     best: dict = {}
     runs = [("1", 1, {}), ("pool", 2, {"client_works": False}), ("client", 2, {"client_works": True})]
@@ -219,17 +252,24 @@ def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int, prestar
     one = best["1"]["path"]
     print(f"  CPU critical path ({name}; best of {repeats}; load average before {load0}, after {_load()}):")
     print(f"    --jobs 1: {one:.2f} s (one process, wall {best['1']['wall']:.2f} s)")
-    labels = {"pool": "--jobs 2, pool of 2, client waits", "client": "--jobs 2, client is worker 0 + pool of 1",
-              "prestart": "--jobs 2, client is worker 0 + pool of 1 forked before planning"}
+    labels = {
+        "pool": "--jobs 2, pool of 2, client waits",
+        "client": "--jobs 2, client is worker 0 + pool of 1",
+        "prestart": "--jobs 2, client is worker 0 + pool of 1 forked before planning",
+    }
     for key in [k for k, _, _ in runs[1:]]:
         r = best[key]
         serial = min(1.0, r["serial"] / one)
-        print(f"    {labels[key]}: client serial {r['serial']:.2f} s (+ {r['parent'] - r['serial']:.2f} s in its own chunks) "
-              f"+ per-batch busiest {r['path'] - r['serial']:.2f} s = {r['path']:.2f} s -> {one / r['path']:.2f}x on 2 idle "
-              f"cores; total CPU {r['total']:.2f} s (--jobs 1: {best['1']['total']:.2f} s); pool processes "
-              f"{', '.join(f'{w:.2f}' for w in r['workers'])} s; wall {r['wall']:.2f} s")
-        print(f"      serial fraction {serial:.0%}: Amdahl bound on 2 cores {1 / (serial + (1 - serial) / 2):.2f}x "
-              f"(1.7x needs <= {2 / 1.7 - 1:.0%}); session 4's formula (client + busiest process) {r['path_s4']:.2f} s")
+        print(
+            f"    {labels[key]}: client serial {r['serial']:.2f} s (+ {r['parent'] - r['serial']:.2f} s in its own chunks) "
+            f"+ per-batch busiest {r['path'] - r['serial']:.2f} s = {r['path']:.2f} s -> {one / r['path']:.2f}x on 2 idle "
+            f"cores; total CPU {r['total']:.2f} s (--jobs 1: {best['1']['total']:.2f} s); pool processes "
+            f"{', '.join(f'{w:.2f}' for w in r['workers'])} s; wall {r['wall']:.2f} s"
+        )
+        print(
+            f"      serial fraction {serial:.0%}: Amdahl bound on 2 cores {1 / (serial + (1 - serial) / 2):.2f}x "
+            f"(1.7x needs <= {2 / 1.7 - 1:.0%}); client + busiest process {r['path_s4']:.2f} s"
+        )
     out = {k: best[k] for k in best}
     out["ratio_pool"] = one / best["pool"]["path"]
     out["ratio_client"] = one / best["client"]["path"]
@@ -252,147 +292,59 @@ def compare(name: str, yaml: Path, tmp: Path, configs: list[tuple[str, int]], re
     for (ex, jobs), r in best.items():
         label = f"{ex} --jobs {jobs}" if ex.startswith("local") else f"{ex} ({jobs} workers)"
         cpu = f"{r['cpu']:7.2f}" if ex.startswith("local") else "   n/a*"
-        print(f"  {label:<36} {r['wall']:8.2f} {r['steps']:8.2f} {cpu} "
-              f"{base['wall'] / r['wall']:10.2f}x {base['steps'] / r['steps']:11.2f}x")
+        print(
+            f"  {label:<36} {r['wall']:8.2f} {r['steps']:8.2f} {cpu} "
+            f"{base['wall'] / r['wall']:10.2f}x {base['steps'] / r['steps']:11.2f}x"
+        )
     if any(not ex.startswith("local") for ex, _ in configs):
         print("  * dask workers fork from a forkserver the run never waits for: their CPU time is not counted")
     if any(ex == "dask@cluster" for ex, _ in configs):
-        print("  dask@cluster: executor: dask given the address of a LocalCluster (2 workers) started once before "
-              "the runs and kept, as a Dask user keeps a cluster; each run still starts its own client process")
+        print(
+            "  dask@cluster: executor: dask given the address of a LocalCluster (2 workers) started once before "
+            "the runs and kept, as a Dask user keeps a cluster; each run still starts its own client process"
+        )
     return {f"{ex}:{jobs}": r for (ex, jobs), r in best.items()}
 
 
 # --- the sharded index ---------------------------------------------------------------------
-
-def _rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _load() -> str:
     return Path("/proc/loadavg").read_text().split(" ", 3)[:3].__str__().replace("'", "")
 
 
-def _proc_cpu(pids) -> list[float]:
-    """CPU seconds (user + system) of processes, from /proc."""
-    tick, out = os.sysconf("SC_CLK_TCK"), []
-    for pid in pids:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        out.append((int(fields[11]) + int(fields[12])) / tick)
-    return out
-
-
-def _best_batch(fn, ex, repeats: int = 3) -> tuple[float, dict]:
-    """Best wall time of ``fn()`` over repeats, and the CPU seconds the client and each pool
-    worker spent in that best repeat (what the batch costs on idle cores)."""
-    best, busy = np.inf, {}
-    for _ in range(repeats):
-        pids = list(getattr(getattr(ex, "_pool", None), "_processes", None) or {})
-        w0, c0 = _proc_cpu(pids), time.process_time()
-        t0 = time.perf_counter()
-        fn()
-        t = time.perf_counter() - t0
-        if t < best:
-            best = t
-            busy = {"client": time.process_time() - c0, "workers": [b - a for a, b in zip(w0, _proc_cpu(pids))]}
-    return best, busy
-
-
-def index_figures(n_frames: int, n_queries: int, k: int, tmp: Path) -> dict:
-    from corpus import augmented_database
-
-    from mocapflow.framework.executors import LocalExecutor
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
-    from mocapflow.plugins.similarity.sharded import ShardedIndex
-
-    t0 = time.perf_counter()
-    db = augmented_database(n_frames, fps=30)
-    x = EndEffectorFeatures(joints=5).transform(db)
-    groups, frames = db.frame_ids
-    print(f"\nsharded index: {len(x):,} frames of F_E^15 ({x.shape[1]} dims) ready in {time.perf_counter() - t0:.1f} s")
-    params = {"method": "kdtree", "workers": 1}  # one thread per process: the workers are the parallelism
-    t0 = time.perf_counter()
-    one = KDTreeIndex(params).build(x, groups=groups, frames=frames)
-    t_one = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    sh = ShardedIndex(shards=2, index_params=params).build(x, groups=groups, frames=frames)
-    t_sh = time.perf_counter() - t0
-    sh.save(tmp / "sharded")
-    one.save(tmp / "one")
-    bytes_row = sum(p.stat().st_size for p in (tmp / "one").glob("*.npy")) / len(x)
-    rng = np.random.default_rng(0)
-    q = (x[rng.choice(len(x), n_queries, replace=False)] + rng.normal(0, 0.01, (n_queries, x.shape[1]))).astype(np.float32)
-    a = one.query(q, k)
-    b = sh.query(q, k)
-    same = bool(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]))
-    ar, br = one.query(q, k, 0.15), sh.query(q, k, 0.15)
-    same_r = bool(np.array_equal(ar[0], br[0]) and np.array_equal(ar[1], br[1]))
-    loaded = ShardedIndex.load(tmp / "sharded")
-    out = {"frames": len(x), "identical_knn": same, "identical_radius": same_r, "bytes_per_row": bytes_row,
-           "build_one_s": t_one, "build_two_shards_serial_s": t_sh}
-    # numba threads instead of processes: one kd-tree with 2 threads (before this process is
-    # limited to one thread below)
-    out["batch_s_one_index_2threads"], out["busy_one_index_2threads"] = _best_batch(lambda: one.query(q, k, workers=2), None)
-    from mocapflow.framework.executors import limit_threads
-
-    limit_threads(1)
-    # one process: the whole batch in this process, one numba thread (the baseline of the target)
-    out["batch_s_1w"], out["busy_1w"] = _best_batch(lambda: loaded.query(q, k), None)
-    for fan_out in ("queries", "shards"):
-        loaded.params = loaded.params.model_copy(update={"fan_out": fan_out})
-        ex = LocalExecutor(2, min_items_for_pool=1, threads=1)
-        try:
-            loaded.query(q[:8], k, executor=ex)  # warm-up: each worker loads the shards once
-            best, busy = _best_batch(lambda: loaded.query(q, k, executor=ex), ex)
-            got = loaded.query(q, k, executor=ex)
-            assert np.array_equal(got[1], a[1]) and np.array_equal(got[0], a[0])
-        finally:
-            ex.close()
-        out[f"batch_s_2w_{fan_out}"], out[f"busy_2w_{fan_out}"] = best, busy
-    loaded.params = loaded.params.model_copy(update={"fan_out": "queries"})
-    out["batch_s_2w"] = out["batch_s_2w_queries"]
-    out["batch_s_one_index"], out["busy_one_index"] = _best_batch(lambda: one.query(q, k, workers=1), None)
-    shard_t, shard_cpu = {}, {}
-    for s, shard in enumerate(sh.shards_):  # per-shard figures the projections use
-        t0, c0 = time.perf_counter(), time.process_time()
-        shard.query(q, k)
-        shard_t[s], shard_cpu[s] = time.perf_counter() - t0, time.process_time() - c0
-    out["shard_query_cpu_s"] = list(shard_cpu.values())
-    out["shard_rows"] = [int(b - a) for a, b in zip(sh.offsets_[:-1], sh.offsets_[1:])]
-    out["shard_query_s"] = list(shard_t.values())
-    out["peak_rss_mb"] = _rss_mb()
-    print(f"  identical to one kd-tree: kNN {same}, radius 0.15 {same_r} ({n_queries} queries, k={k})")
-    print(f"  build: one index {t_one:.2f} s, 2 shards one after the other {t_sh:.2f} s; {bytes_row:.1f} bytes/row on disk")
-    bq, bs = out["busy_2w_queries"], out["busy_2w_shards"]
-    print(f"  batch of {n_queries} queries, k={k} (load average {_load()}):")
-    print("    (wall s, then CPU s of each process: on idle cores a batch takes about client + busiest worker)")
-    print(f"    one kd-tree, 1 thread {out['batch_s_one_index']:.3f} s (CPU {out['busy_one_index']['client']:.3f} s); "
-          f"2 numba threads {out['batch_s_one_index_2threads']:.3f} s (CPU {out['busy_one_index_2threads']['client']:.3f} s "
-          f"over both threads) -> {out['batch_s_one_index'] / out['batch_s_one_index_2threads']:.2f}x wall")
-    base_cpu = out["busy_1w"]["client"]
-    print(f"    sharded, 1 process {out['batch_s_1w']:.3f} s (CPU {base_cpu:.3f} s)")
-    for fan_out, busy in (("queries", bq), ("shards", bs)):
-        t = out[f"batch_s_2w_{fan_out}"]
-        print(f"    sharded, 2 processes, fan_out {fan_out}: {t:.3f} s -> {out['batch_s_1w'] / t:.2f}x throughput; "
-              f"CPU busy: client {busy['client']:.3f} s, workers {', '.join(f'{w:.3f}' for w in busy['workers'])} s "
-              f"-> {base_cpu / (busy['client'] + max(busy['workers'], default=0)):.2f}x on 2 idle cores")
-    print(f"  per shard ({out['shard_rows']} rows): {[round(t, 3) for t in out['shard_query_s']]} s per batch "
-          f"(CPU {[round(t, 3) for t in out['shard_query_cpu_s']]} s); peak RSS {out['peak_rss_mb']:.0f} MB")
-    return out
+def quick(repeats: int) -> None:
+    """Ingest + features of the bundled takes: ``--jobs 2`` against ``--jobs 1`` (same run)."""
+    with tempfile.TemporaryDirectory(prefix="mocapflow-scale-") as tmpname:
+        tmp = Path(tmpname)
+        feats = tmp / "features.yaml"
+        feats.write_text(FEATURES.format(data=REPO / "examples" / "data"))
+        compare(
+            "ingest + features, bundled takes", feats, tmp, [("local", 1), ("local+client_works=false", 2)], repeats
+        )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="fewer repeats, a 200k-frame index")
+    ap.add_argument("--quick", action="store_true", help="the bundled takes' ingest + features only, once")
     ap.add_argument("--only", default="local,dask,index", help="comma-separated sections: local, dask, index")
     ap.add_argument("--repeats", type=int, default=None)
-    ap.add_argument("--context", action="store_true", help="also clean the 8 takes against the 103 CMU takes "
-                    "(minutes per run since the issue-14 cleaner)")
+    ap.add_argument(
+        "--context", action="store_true", help="also clean the 8 takes against the 103 CMU takes (minutes per run)"
+    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
-    ap.add_argument("--prestart", action="store_true", help="also --jobs 2 with the pool forked before planning "
-                    "(LocalExecutor(prestart=True))")
-    ap.add_argument("--executor-options", type=json.loads, default=None, metavar="JSON",
-                    help='more LocalExecutor options for the --jobs 2 CPU runs, e.g. \'{"start_method": "forkserver"}\'')
+    ap.add_argument(
+        "--prestart",
+        action="store_true",
+        help="also --jobs 2 with the pool forked before planning (LocalExecutor(prestart=True))",
+    )
+    ap.add_argument(
+        "--executor-options",
+        type=json.loads,
+        default=None,
+        metavar="JSON",
+        help='more LocalExecutor options for the --jobs 2 CPU runs, e.g. \'{"start_method": "forkserver"}\'',
+    )
     ap.add_argument("--child-run", nargs=3, metavar=("YAML", "WS", "JOBS"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child_run:
@@ -400,6 +352,8 @@ def main() -> None:
     sections = set(args.only.split(","))
     repeats = args.repeats or (1 if args.quick else 3)
     print(f"mocapflow scale benchmark; {os.cpu_count()} cores; load average {os.getloadavg()}")
+    if args.quick:
+        return quick(repeats)
     if not DATA.is_dir():
         raise SystemExit(f"the corpus is not at {DATA} (set MOCAPFLOW_DATA)")
     results: dict = {}
@@ -412,38 +366,59 @@ def main() -> None:
         quick_yaml = REPO / "pipelines" / "quickstart.yaml"
         try:
             import distributed  # noqa: F401 - only checks that the dask extra is installed
+
             has_dask = "dask" in sections
         except ImportError:
             has_dask = False
             print("dask section skipped: the dask extra is not installed (pip install 'mocapflow[dask]')")
-        configs = ([("local", 1)] + ([("local+client_works=false", 2), ("local+client_works=true", 2)] if "local" in sections else [])
-                   + ([("local+prestart", 2)] if "local" in sections and args.prestart else [])
-                   + ([("dask", 2), ("dask@cluster", 2)] if has_dask else []))
+        configs = (
+            [("local", 1)]
+            + ([("local+client_works=false", 2), ("local+client_works=true", 2)] if "local" in sections else [])
+            + ([("local+prestart", 2)] if "local" in sections and args.prestart else [])
+            + ([("dask", 2), ("dask@cluster", 2)] if has_dask else [])
+        )
         cluster = start_warm_cluster(2) if has_dask else None
         if len(configs) > 1:
             results["features"] = compare("ingest + features, whole corpus", feats, tmp, configs, repeats)
             results["cleaning"] = compare("cleaning 8 takes (cleaners.mdm)", clean, tmp, configs, repeats)
             if args.context:
-                results["cleaning_context"] = compare("cleaning 8 takes against the 103 CMU takes", cleanctx, tmp, configs, repeats)
+                results["cleaning_context"] = compare(
+                    "cleaning 8 takes against the 103 CMU takes", cleanctx, tmp, configs, repeats
+                )
         if "local" in sections:
             results["parallel_ceiling"] = c = parallel_ceiling()
-            print(f"\ntwo processes of pure CPU work vs one, now: {c:.2f}x (the ceiling of any --jobs 2 ratio; load {_load()})")
-            print("wall time on a shared machine measures the other load as much as ours; the CPU each process spent does not:")
+            print(
+                f"\ntwo processes of pure CPU work vs one, now: {c:.2f}x (the ceiling of any --jobs 2 ratio; load {_load()})"
+            )
+            print(
+                "wall time on a shared machine measures the other load as much as ours; the CPU each process spent does not:"
+            )
             opts = args.executor_options
-            results["features_cpu_path"] = report_critical_path("ingest + features", feats, tmp, repeats, args.prestart, opts)
-            results["cleaning_cpu_path"] = report_critical_path("cleaning 8 takes", clean, tmp, repeats, args.prestart, opts)
+            results["features_cpu_path"] = report_critical_path(
+                "ingest + features", feats, tmp, repeats, args.prestart, opts
+            )
+            results["cleaning_cpu_path"] = report_critical_path(
+                "cleaning 8 takes", clean, tmp, repeats, args.prestart, opts
+            )
             if args.context:
-                results["cleaning_context_cpu_path"] = report_critical_path("cleaning against 103 takes", cleanctx, tmp, repeats)
+                results["cleaning_context_cpu_path"] = report_critical_path(
+                    "cleaning against 103 takes", cleanctx, tmp, repeats
+                )
         if has_dask:
-            results["quickstart"] = compare("quickstart (dask overhead)", quick_yaml, tmp,
-                                            [("local", 1), ("dask", 2), ("dask@cluster", 2)], repeats)
+            results["quickstart"] = compare(
+                "quickstart (dask overhead)", quick_yaml, tmp, [("local", 1), ("dask", 2), ("dask@cluster", 2)], repeats
+            )
             q = results["quickstart"]
-            print(f"  dask overhead on the quickstart: {q['dask:2']['wall'] - q['local:1']['wall']:+.2f} s wall "
-                  f"(a LocalCluster of its own), {q['dask@cluster:2']['wall'] - q['local:1']['wall']:+.2f} s "
-                  "(the cluster already running)")
+            print(
+                f"  dask overhead on the quickstart: {q['dask:2']['wall'] - q['local:1']['wall']:+.2f} s wall "
+                f"(a LocalCluster of its own), {q['dask@cluster:2']['wall'] - q['local:1']['wall']:+.2f} s "
+                "(the cluster already running)"
+            )
             cluster.close()
         if "index" in sections:
             n = 200_000 if args.quick else 1_038_388
+            from _scale_index import index_figures
+
             results["index"] = index_figures(n, 500 if args.quick else 2000, 16, tmp)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=float))

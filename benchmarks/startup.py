@@ -1,40 +1,150 @@
-"""Warm start-up time of ``mocapflow`` commands against ``python -c "import numpy"``.
+"""Start-up of ``mocapflow``: warm command start-up and the quickstart's cold first run.
 
-Each command runs in a fresh process, ``--repeat`` times after one untimed warm-up (the
-OS file cache and ``__pycache__`` are warm, as for a user's second command); the median
-wall time is printed with its ratio to ``python -c "import numpy"`` and to a bare
-``python -c pass``, measured in the same run. Target (issue 13): every command < 0.5 s.
+1. Warm start-up: each command runs in a fresh process, ``--repeat`` times after one untimed
+   warm-up (the OS file cache and ``__pycache__`` are warm, as for a user's second command);
+   the median wall time is printed with its ratio to ``python -c "import numpy"`` and to a
+   bare ``python -c pass``, measured in the same run. Target: every command < 0.5 s.
+2. First run (not with ``--quick``; ``--first-run-steps`` to choose steps): the quickstart in
+   a fresh workspace with an empty numba cache (``NUMBA_CACHE_DIR`` = a new folder), then
+   again with ``--force`` on the now warm cache; per step cold seconds, warm seconds and
+   their difference (about the compilation), and the kernels in the cache: functions
+   (``.nbi``) and variants (``.nbc``, one per signature). Target: a cold quickstart <= 45 s
+   on an idle 2-core machine.
 
-    python benchmarks/startup.py            # 7 repetitions
-    python benchmarks/startup.py --quick    # 3 repetitions
-    python benchmarks/startup.py --baseline HEAD~5   # also `mocapflow --help` of a git revision
+``--baseline REV`` exports that revision (``git archive``) and measures its ``mocapflow
+--help`` and first run in the same run (ratios against it). ``--search-db WORKSPACE --query
+FILE[:A-B]`` also times ``mocapflow search`` on a finished workspace (target < 1 s per query
+at 1 M frames): in a fresh process (``--no-server``) and through a search server
+(``--serve``, started and stopped here). ``--build-db N`` first builds such a workspace from
+the cached augmented corpus of ``N`` frames (benchmarks/corpus.py: motions,
+``features.end_effectors``, ``indexes.kdtree``; steps that exist are reused).
 
-``--baseline REV`` exports that revision (as ``benchmarks/first_run.py`` does) and times its
-``mocapflow --help`` in the same run.
-
-``--search-db WORKSPACE --query FILE[:A-B]`` also times ``mocapflow search`` on a finished
-workspace (target: < 1 s wall per query at 1 M frames): in a fresh process (``--no-server``),
-then through a search server (``--serve``, started and stopped here), and with
-``--baseline`` the revision's fresh process too. ``--build-db N`` first builds such a
-workspace from the cached augmented corpus of ``N`` frames (benchmarks/corpus.py; motions,
-``features.end_effectors`` and ``indexes.kdtree``, steps that exist are reused):
-
-    python benchmarks/startup.py --quick --build-db 1038388 --search-db /tmp/ws1m \
+    python benchmarks/startup.py --quick    # warm start-up, 2 repetitions, a few commands
+    python benchmarks/startup.py            # warm start-up (7 repetitions) and the cold first run
+    python benchmarks/startup.py --build-db 1038388 --search-db /tmp/ws1m \
         --query examples/data/cmu/16/16_15.amc:1s-3s --baseline HEAD~1
 """
+
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI = "import sys; from mocapflow.framework.cli import main; sys.exit(main())"
+
+QUICK_STEPS = ("motions", "summary", "fe15", "tree", "nearest")
+_STEP = re.compile(r"^\s+(\S+)\s+\S+\s+computed in ([0-9.]+) s")
+
+
+def _source_tree(rev: str, into: Path) -> Path:
+    """``rev`` of this repository, importable as ``mocapflow`` from ``into`` (a PYTHONPATH entry)."""
+    src = into / "src"
+    src.mkdir(parents=True)
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(src)], input=archive, check=True)
+    pkg = into / "path" / "mocapflow"
+    pkg.mkdir(parents=True)
+    top = src / "_mocapflow" / "__init__.py"
+    (pkg / "__init__.py").write_text(top.read_text() if top.is_file() else '__version__ = "0"\n')
+    for name in ("framework", "plugins", "pipelines"):
+        (pkg / name).symlink_to(src / name)
+    return into / "path"
+
+
+def _with_inputs(steps: dict, wanted) -> set[str]:
+    """``wanted`` and every step they read from, transitively."""
+    keep, todo = set(), list(wanted)
+    while todo:
+        name = todo.pop()
+        if name in keep:
+            continue
+        if name not in steps:
+            raise SystemExit(f"no step {name!r} in the quickstart: {', '.join(steps)}")
+        keep.add(name)
+        step = steps[name]
+        todo += [step["input"]] if "input" in step else list((step.get("inputs") or {}).values())
+    return keep
+
+
+def _pipeline(src_root: Path, steps: tuple[str, ...] | None, tmp: Path) -> Path:
+    """The quickstart (or some of its steps and their inputs), with the workspace in ``tmp``."""
+    import yaml
+
+    spec = yaml.safe_load((src_root / "pipelines" / "quickstart.yaml").read_text())
+    if steps:
+        keep = _with_inputs(spec["steps"], steps)
+        spec["steps"] = {k: v for k, v in spec["steps"].items() if k in keep}
+    spec["workspace"] = str(tmp / "ws")
+    for step in spec["steps"].values():  # paths are relative to the pipeline's folder
+        paths = (step.get("with") or {}).get("paths")
+        if paths:
+            step["with"]["paths"] = [
+                str((src_root / "pipelines" / p).resolve()) if not os.path.isabs(p) else p for p in paths
+            ]
+    out = tmp / "quickstart.yaml"
+    out.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return out
+
+
+def _run(pipeline: Path, cache: Path, pythonpath: Path | None, force: bool) -> tuple[float, dict[str, float], str]:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "MOCAPFLOW_PROGRESS": "0"}
+    if pythonpath is not None:
+        env["PYTHONPATH"] = str(pythonpath)
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from mocapflow.framework.cli import main; sys.exit(main())",
+        "--no-entry-points",
+        "run",
+        str(pipeline),
+    ] + (["--force"] if force else [])
+    t0 = time.perf_counter()
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=str(pipeline.parent))
+    wall = time.perf_counter() - t0
+    if res.returncode != 0:
+        raise SystemExit(f"run failed ({res.returncode}):\n{res.stdout[-2000:]}\n{res.stderr[-2000:]}")
+    steps = {m.group(1): float(m.group(2)) for m in map(_STEP.match, res.stdout.splitlines()) if m}
+    return wall, steps, res.stdout
+
+
+def _cache_counts(cache: Path) -> tuple[int, int, list[tuple[str, int]]]:
+    """(functions, variants, functions with more than one variant) in a numba cache folder."""
+    nbi = list(cache.rglob("*.nbi"))
+    per_fn = Counter(re.sub(r"\.\d+\.nbc$", "", p.name) for p in cache.rglob("*.nbc"))
+    dup = sorted(((fn, n) for fn, n in per_fn.items() if n > 1), key=lambda x: -x[1])
+    return len(nbi), sum(per_fn.values()), dup
+
+
+def measure(label: str, src_root: Path, pythonpath: Path | None, steps: tuple[str, ...] | None) -> dict:
+    with tempfile.TemporaryDirectory(prefix="mocapflow-first-run-") as tmp_s:
+        tmp = Path(tmp_s)
+        pipeline = _pipeline(src_root, steps, tmp)
+        cache = tmp / "numba-cache"
+        cold_wall, cold, out = _run(pipeline, cache, pythonpath, force=False)
+        warm_wall, warm, _ = _run(pipeline, cache, pythonpath, force=True)
+        n_fn, n_var, dup = _cache_counts(cache)
+    announced = "compiling numba kernels" in out
+    print(
+        f"\n{label}: cold {cold_wall:.1f} s, warm {warm_wall:.1f} s wall "
+        f"(compilation ≈ {cold_wall - warm_wall:.1f} s); {n_fn} kernels, {n_var} compiled variants"
+        f"{'; the first run said it was compiling' if announced else ''}"
+    )
+    print(f"  {'step':<14} {'cold s':>8} {'warm s':>8} {'cold-warm':>10}")
+    for step, c in cold.items():
+        w = warm.get(step, float("nan"))
+        print(f"  {step:<14} {c:8.2f} {w:8.2f} {c - w:10.2f}")
+    if dup:
+        print("  kernels compiled more than once: " + ", ".join(f"{fn} x{n}" for fn, n in dup[:12]))
+    return {"cold": cold_wall, "warm": warm_wall, "variants": n_var, "functions": n_fn}
 
 
 def _time(cmd: list[str], repeat: int, pythonpath: str | None = None) -> float:
@@ -56,7 +166,8 @@ def build_workspace(n_frames: int, ws: Path) -> None:
     from corpus import augmented_database
     from pydantic import Field
 
-    from mocapflow.framework import Format, Params, StepOutput, get_plugin_manager, hookimpl
+    from mocapflow.framework import Format, StepOutput, get_plugin_manager, hookimpl
+    from mocapflow.framework import Params as BaseParams
     from mocapflow.framework.motion_tables import motions_to_tables
     from mocapflow.framework.runner import run_pipeline
 
@@ -65,7 +176,7 @@ def build_workspace(n_frames: int, ws: Path) -> None:
 
         name, is_step, output_kind = "bench_corpus", True, "motions"
 
-        class Params(Params):
+        class Params(BaseParams):  # a class body does not see the function's names it rebinds
             frames: int = Field(1038388, ge=1)
 
         def run(self, inputs, ctx):
@@ -99,75 +210,123 @@ def _search_cases(py: str, db: str, query: str, baseline: Path | None) -> dict[s
 
 def _start_server(py: str, db: str) -> subprocess.Popen:
     env = {**os.environ, "MOCAPFLOW_PROGRESS": "0"}
-    proc = subprocess.Popen([py, "-c", CLI, "search", "--db", db, "--serve"], env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
-    line = proc.stderr.readline()  # "search server on ... (warm in x s)" once it listens
-    if "server on" not in line:
+    proc = subprocess.Popen(
+        [py, "-c", CLI, "search", "--db", db, "--serve"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    seen = []
+    for line in proc.stderr:  # "search server on ... (warm in x s)" once it listens; notices before it
+        seen.append(line)
+        if "server on" in line:
+            break
+    else:
         proc.kill()
-        raise SystemExit(f"search server did not start: {line}{proc.stderr.read()}")
+        raise SystemExit(f"search server did not start: {''.join(seen)}")
     print(line.strip().replace("mocapflow: ", ""))
     return proc
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="3 repetitions instead of 7")
-    ap.add_argument("--repeat", type=int, default=None)
-    ap.add_argument("--baseline", metavar="REV", help="also time `mocapflow --help` of this git revision")
-    ap.add_argument("--search-db", metavar="WORKSPACE", help="also time `mocapflow search` on this workspace")
-    ap.add_argument("--query", default=str(ROOT / "examples/data/cmu/16/16_15.amc") + ":1s-3s")
-    ap.add_argument("--build-db", type=int, metavar="FRAMES", help="first build --search-db from the cached corpus")
-    args = ap.parse_args(argv)
-    if args.build_db:
-        build_workspace(args.build_db, Path(args.search_db))
-    repeat = args.repeat or (3 if args.quick else 7)
+def warm_startup(args, repeat: int, tmp: Path, baseline: Path | None) -> None:
     py = sys.executable
-    with tempfile.TemporaryDirectory() as tmp:
-        missing = str(Path(tmp) / "no-workspace")
-        cases = {
-            'python -c "pass"': [py, "-c", "pass"],
-            'python -c "import numpy"': [py, "-c", "import numpy"],
-            "mocapflow --version": [py, "-c", CLI, "--version"],
-            "mocapflow --help": [py, "-c", CLI, "--help"],
-            "mocapflow run --help": [py, "-c", CLI, "run", "--help"],
+    missing = str(tmp / "no-workspace")
+    cases = {
+        'python -c "pass"': [py, "-c", "pass"],
+        'python -c "import numpy"': [py, "-c", "import numpy"],
+        "mocapflow --version": [py, "-c", CLI, "--version"],
+        "mocapflow --help": [py, "-c", CLI, "--help"],
+        "mocapflow run --help": [py, "-c", CLI, "run", "--help"],
+    }
+    if not args.quick:
+        cases |= {
             "mocapflow search --help": [py, "-c", CLI, "search", "--help"],
             "mocapflow sql MISSING (error)": [py, "-c", CLI, "sql", missing, "SELECT 1"],
             "mocapflow plugins": [py, "-c", CLI, "plugins"],
             "mocapflow plan quickstart.yaml": [py, "-c", CLI, "plan", str(ROOT / "pipelines" / "quickstart.yaml")],
         }
-        times = {name: _time(cmd, repeat) for name, cmd in cases.items()}
-        path = None
-        if args.baseline:
-            sys.path.insert(0, str(Path(__file__).resolve().parent))
-            from first_run import _source_tree
-
-            path = _source_tree(args.baseline, Path(tmp) / "baseline")
-            times[f"mocapflow --help at {args.baseline}"] = _time([py, "-c", CLI, "--help"], repeat, str(path))
-        if args.search_db:
-            db = str(Path(args.search_db).resolve())
-            for name, (cmd, pp) in _search_cases(py, db, args.query, path).items():
-                times[name] = _time(cmd, repeat, pp)
-            server = _start_server(py, db)
-            try:
-                cmd = [py, "-c", CLI, "search", "--db", db, "--query", args.query]
-                times["mocapflow search (search server)"] = _time(cmd, repeat)
-            finally:
-                server.terminate()
-                server.wait(30)
+    times = {name: _time(cmd, repeat) for name, cmd in cases.items()}
+    if baseline is not None:
+        times[f"mocapflow --help at {args.baseline}"] = _time([py, "-c", CLI, "--help"], repeat, str(baseline))
+    if args.search_db:
+        db = str(Path(args.search_db).resolve())
+        for name, (cmd, pp) in _search_cases(py, db, args.query, baseline).items():
+            times[name] = _time(cmd, repeat, pp)
+        server = _start_server(py, db)
+        try:
+            cmd = [py, "-c", CLI, "search", "--db", db, "--query", args.query]
+            times["mocapflow search (search server)"] = _time(cmd, repeat)
+        finally:
+            server.terminate()
+            server.wait(30)
     bare, numpy_t = times['python -c "pass"'], times['python -c "import numpy"']
     print(f"warm start-up, median of {repeat}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
     print(f"  {'command':<34} {'seconds':>8} {'vs numpy':>9} {'vs pass':>8}  target < 0.5 s")
     for name, t in times.items():
         limit = 1.0 if name.startswith("mocapflow search (") else 0.5
-        target = "" if not name.startswith("mocapflow") or name.endswith(("plugins", "yaml")) else (
-            "ok" if t < limit else "SLOW")
+        target = (
+            ""
+            if not name.startswith("mocapflow") or name.endswith(("plugins", "yaml"))
+            else ("ok" if t < limit else "SLOW")
+        )
         print(f"  {name:<34} {t:8.3f} {t / numpy_t:8.2f}x {t / bare:7.2f}x  {target}")
-    print("(`plugins` and `plan` build every registry, i.e. import every plugin: not start-up; "
-          "`search (...)` rows: target < 1 s per query)")
-    if args.baseline:
+    print(
+        "(`plugins` and `plan` build every registry, i.e. import every plugin: not start-up; "
+        "`search (...)` rows: target < 1 s per query)"
+    )
+    if baseline is not None:
         before = times[f"mocapflow --help at {args.baseline}"]
-        print(f"mocapflow --help: {before:.3f} s at {args.baseline} -> {times['mocapflow --help']:.3f} s "
-              f"({before / times['mocapflow --help']:.1f}x faster)")
+        print(
+            f"mocapflow --help: {before:.3f} s at {args.baseline} -> {times['mocapflow --help']:.3f} s "
+            f"({before / times['mocapflow --help']:.1f}x faster)"
+        )
+
+
+def first_run(args, tmp: Path, baseline: Path | None) -> None:
+    steps = tuple(args.first_run_steps) if args.first_run_steps else None
+    print(
+        f"\nquickstart{' (' + ', '.join(steps) + ' and their inputs)' if steps else ''}, cold numba cache, "
+        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}"
+    )
+    results = {}
+    if baseline is not None:
+        results["baseline"] = measure(f"baseline {args.baseline}", baseline.parent / "src", baseline, steps)
+    results["this tree"] = measure("this tree", ROOT, None, steps)
+    if "baseline" in results:
+        b, t = results["baseline"], results["this tree"]
+        print(
+            f"\nthis tree vs {args.baseline}: cold first run {b['cold'] / t['cold']:.2f}x faster "
+            f"({b['cold']:.1f} s -> {t['cold']:.1f} s), compiled variants {b['variants']} -> {t['variants']}"
+        )
+    print(f"target: cold first run <= 45 s on an idle 2-core machine (this run: {results['this tree']['cold']:.1f} s)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="2 repetitions of a few commands, no first run")
+    ap.add_argument("--repeat", type=int, default=None)
+    ap.add_argument("--baseline", metavar="REV", help="also measure this git revision")
+    ap.add_argument("--search-db", metavar="WORKSPACE", help="also time `mocapflow search` on this workspace")
+    ap.add_argument("--query", default=str(ROOT / "examples/data/cmu/16/16_15.amc") + ":1s-3s")
+    ap.add_argument("--build-db", type=int, metavar="FRAMES", help="first build --search-db from the cached corpus")
+    ap.add_argument(
+        "--first-run-steps",
+        nargs="+",
+        metavar="STEP",
+        help=f"first run: only these quickstart steps (and their inputs), e.g. {' '.join(QUICK_STEPS)}",
+    )
+    args = ap.parse_args(argv)
+    if args.build_db:
+        if not args.search_db:
+            ap.error("--build-db needs --search-db")
+        build_workspace(args.build_db, Path(args.search_db))
+    repeat = args.repeat or (2 if args.quick else 7)
+    with tempfile.TemporaryDirectory() as tmp:
+        baseline = _source_tree(args.baseline, Path(tmp) / "baseline") if args.baseline else None
+        warm_startup(args, repeat, Path(tmp), baseline)
+        if not args.quick:
+            first_run(args, Path(tmp), baseline)
     return 0
 
 

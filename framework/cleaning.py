@@ -151,7 +151,7 @@ def with_clip_id(table: pa.Table, clip_id: int) -> pa.Table:
 
 def clip_result(motion: Motion, value: np.ndarray, cleaned: Motion, edits: pa.Table, clip_id: int) -> CleanedClip:
     """A :class:`CleanedClip` from a digression map (:meth:`~.components.Cleaner.detect`) and a
-    repair (:meth:`~.components.Cleaner.repair`): the default ``Cleaner.clean_clip``."""
+    repair (:meth:`~.components.Cleaner.repair`): the default ``Cleaner.detect_and_repair``."""
     digressions = digression_table(value, motion, clip_id)
     edits = with_clip_id(edits, clip_id)
     summary = {

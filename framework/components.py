@@ -221,6 +221,12 @@ class Index(Component):
     #: False for indexes that answer other queries than numeric kNN (inverted lists);
     #: the conformance suite then skips the kNN checks.
     supports_knn: ClassVar[bool] = True
+    #: keywords ``query`` accepts beyond ``x, k, radius`` (e.g. ``{"eps", "workers"}``)
+    query_options: ClassVar[frozenset[str]] = frozenset()
+    #: keywords ``build`` accepts beyond ``features`` (e.g. ``{"groups", "frames"}``)
+    build_options: ClassVar[frozenset[str]] = frozenset()
+    #: keywords ``load`` accepts beyond ``directory`` (e.g. ``{"mmap_mode"}``)
+    load_options: ClassVar[frozenset[str]] = frozenset()
 
     def build(self, features: np.ndarray) -> Index:
         raise NotImplementedError
@@ -305,9 +311,9 @@ class Cleaner(Component):
 
     A cleaner implements :meth:`detect` and :meth:`repair`; the default step
     (:func:`.steps.run_cleaner`) cleans every clip of ``motions`` against the optional
-    ``context`` clips through :meth:`clean_clip` and writes ``data``
+    ``context`` clips through :meth:`detect_and_repair` and writes ``data``
     (:data:`~.schema.DIGRESSIONS`) and ``edits`` (:data:`~.schema.EDITS`). A cleaner whose
-    detection and repair share one analysis overrides :meth:`clean_clip` to run it once.
+    detection and repair share one analysis overrides :meth:`detect_and_repair` to run it once.
     ``context`` is None, a Motion, a list of Motions or a MotionDatabase.
     """
 
@@ -330,7 +336,7 @@ class Cleaner(Component):
         (:data:`~.schema.EDITS`, :func:`.cleaning.edits_table`)."""
         raise NotImplementedError(f"{self.key()} cannot repair")
 
-    def clean_clip(
+    def detect_and_repair(
         self,
         motion: Motion,
         context: Any,

@@ -277,7 +277,7 @@ def check_matcher_pipeline(cls: type[Component]) -> None:
 
 
 def check_cleaner(cls: type[Component]) -> None:
-    """detect / repair / clean_clip on a synthetic clip: shapes, schemas, determinism, clear errors."""
+    """detect / repair / detect_and_repair on a synthetic clip: shapes, schemas, determinism, clear errors."""
     from .cleaning import CleanedClip
     from .motion import Motion
     from .synthetic import _instance, synthetic_motion
@@ -317,8 +317,8 @@ def check_cleaner(cls: type[Component]) -> None:
     )
     again, edits2 = inst.repair(m)
     assert edits.equals(edits2) and np.array_equal(again.rotations, cleaned.rotations), f"{who}.repair: two runs differ"
-    out = inst.clean_clip(m, None, 7, None)
-    assert isinstance(out, CleanedClip), f"{who}.clean_clip returned {type(out).__name__}, not CleanedClip"
+    out = inst.detect_and_repair(m, None, 7, None)
+    assert isinstance(out, CleanedClip), f"{who}.detect_and_repair returned {type(out).__name__}, not CleanedClip"
     assert out.digressions.schema.equals(schema.DIGRESSIONS), f"{who}: digression table schema {out.digressions.schema}"
     assert out.edits.schema.equals(schema.EDITS), f"{who}: step edits schema {out.edits.schema}"
     assert set(out.digressions["clip_id"].to_pylist()) <= {7} and set(out.edits["clip_id"].to_pylist()) <= {7}

@@ -81,7 +81,7 @@ def _clean_task(
     """One clip of :func:`run_cleaner` (module-level: executors pickle it); the context
     motions are read once per worker process."""
     ctx_motions = context.motions() if context is not None else None
-    out = cleaner.clean_clip(motion, ctx_motions, clip_id, out_dir, registries)
+    out = cleaner.detect_and_repair(motion, ctx_motions, clip_id, out_dir, registries)
     out.cleaned = None  # files are written; the motion itself need not travel back
     return out
 

@@ -8,6 +8,7 @@ generic analyses and the report); each package registers its components from its
 imports another package's modules (``tests/test_package_boundaries.py``): cross-package use
 goes through :mod:`mocapflow.framework` or the registries.
 """
+
 from __future__ import annotations
 
 BUILTIN_PLUGINS: tuple[str, ...] = (

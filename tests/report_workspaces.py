@@ -1,6 +1,7 @@
 """Workspaces the report tests read: the shipped quickstart, and a small fat-graph plus
 reconstruction run. Each lives under pytest's base temp directory; a second test module
 asking for it reruns the pipeline, which finds every step up to date."""
+
 from __future__ import annotations
 
 from pathlib import Path

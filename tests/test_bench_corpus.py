@@ -1,4 +1,5 @@
 """benchmarks/corpus.py: mirroring is exact on positions; augmentation is seeded and exact in size."""
+
 from __future__ import annotations
 
 import sys

@@ -1,4 +1,4 @@
-"""Paper cuts a new user hits in the CLI (issue 11 §5): --version, --block of an unknown
+"""Paper cuts a new user hits in the CLI: --version, --block of an unknown
 plugin, the choices of Literal parameters, rejected files, the first run's compilation,
 ``sql --output`` into a new folder."""
 

@@ -1,6 +1,7 @@
-"""First-run compile time (issue 11 §5): the kd-tree query kernel is compiled once per run,
+"""First-run compile time: the kd-tree query kernel is compiled once per run,
 not once per kind of argument array (read-only views, e.g. of ``exclude``'s broadcast groups, vs fresh arrays, a literal 0
 vs an int64 chunk start)."""
+
 from __future__ import annotations
 
 import os
@@ -9,8 +10,8 @@ import sys
 
 CODE = """
 import numpy as np
-from mocapflow.plugins.similarity import _knn_kernels as kern
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn import _knn_kernels as kern
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
 rng = np.random.default_rng(0)
 x = rng.normal(size=(400, 6)).astype(np.float32)
@@ -31,6 +32,7 @@ def test_kdtree_query_kernel_compiles_one_variant(tmp_path):
     # an empty numba cache: a kernel loaded from the cache does not compile the kernels it
     # calls, so the counts would depend on which tests ran before
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
-    out = subprocess.run([sys.executable, "-c", CODE], capture_output=True, text=True, check=True,
-                         env=env).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", CODE], capture_output=True, text=True, check=True, env=env
+    ).stdout.split()
     assert out == ["1", "1"], f"query_tree, _query_rows variants: {out}"

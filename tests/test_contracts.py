@@ -129,7 +129,7 @@ def test_a_spike_is_detected_and_repaired():
     assert c.detect(bad)[12, 5] > 0.5
     cleaned, edits = c.repair(bad)
     assert (12, 5) in set(zip(edits["frame"].to_pylist(), edits["joint"].to_pylist(), strict=True))
-    out = c.clean_clip(bad, None, 3, None)
+    out = c.detect_and_repair(bad, None, 3, None)
     assert out.digressions.filter(pa.compute.field("flagged")).num_rows >= 1
 
 

@@ -1,18 +1,20 @@
-"""``analyses.distance_correlation`` shows progress inside its rows (issue 11 §5)."""
+"""``analyses.distance_correlation`` shows progress inside its rows."""
+
 from __future__ import annotations
 
 import numpy as np
 
 from mocapflow.framework import MotionDatabase
-from mocapflow.plugins.similarity.correlation import DistanceCorrelationStudy
 from mocapflow.framework.testing import synthetic_motion
+from mocapflow.plugins.similarity.applications.correlation import DistanceCorrelationStudy
 
 
 def test_correlation_study_shows_progress_inside_its_rows():
     """A row of the study is long (neighbours of every sample, then every column): the
     progress moves per column, not per row, and the result is the same as without a bar."""
     db = MotionDatabase([synthetic_motion(90, seed=s) for s in range(3)])
-    study = DistanceCorrelationStudy(samples=8, k=8, measures=("D_quat", "F_E15", "F_E30"), rows=("F_E15", "D_quat"))
+    study = DistanceCorrelationStudy(samples=8, k=8, measures=("D_quat", "F_E15", "F_E30"))
+    two = ("F_E15", "D_quat")
     seen: list[tuple] = []
 
     def recorder(items, total=None, desc=""):
@@ -20,8 +22,8 @@ def test_correlation_study_shows_progress_inside_its_rows():
             seen.append(item)
             yield item
 
-    with_bar = study.study(db, progress=recorder)
+    with_bar = study.study(db, progress=recorder, rows=two)
     assert len(seen) == 2 * (3 + 1)  # rows x (columns + the row's neighbours)
-    without = study.study(db)
-    for a, b in zip(with_bar[2:], without[2:]):
+    without = study.study(db, rows=two)
+    for a, b in zip(with_bar[2:], without[2:], strict=True):
         np.testing.assert_array_equal(a, b)

@@ -1,4 +1,5 @@
 """Distance measures (plugins/similarity/distances.py) and the Fig. 2 correlation study."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -9,8 +10,8 @@ from scipy.stats import spearmanr
 from mocapflow.framework import MotionDatabase
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.testing import synthetic_motion
-from mocapflow.plugins.similarity.correlation import DistanceCorrelationStudy, spearman_rows
-from mocapflow.plugins.similarity.distances import PoseMeasures, point_cloud_distance
+from mocapflow.plugins.similarity.applications.correlation import DistanceCorrelationStudy, spearman_rows
+from mocapflow.plugins.similarity.knn.distances import PoseMeasures, point_cloud_distance
 
 
 def test_point_cloud_distance_is_rigid_2d_invariant_and_matches_grid_search():
@@ -50,14 +51,14 @@ def test_pose_measures_basic_properties():
 def test_euler_dofs_reproduce_amc_values():
     from conftest import corpus_path
 
-    from mocapflow.plugins.similarity.distances import euler_dofs
     from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.similarity.knn.distances import euler_dofs
 
     f = sorted(corpus_path("hdm05", "amc").glob("*/*.amc"))[0]
     m = read_amc(f).slice(0, 3)
     lines = f.read_text(encoding="latin-1").replace("\r", "").split("\n")
     start = lines.index("1") + 1
-    from mocapflow.plugins.similarity.distances import angle_joints
+    from mocapflow.plugins.similarity.knn.distances import angle_joints
 
     by_bone = {}
     for ln in lines[start:]:
@@ -82,13 +83,14 @@ def test_spearman_rows_matches_scipy():
 
 def test_correlation_study_small(tmp_path):
     db = MotionDatabase([synthetic_motion(120, seed=s) for s in range(4)])
-    study = DistanceCorrelationStudy(samples=12, k=16, measures=("D_quat", "D_pc1", "F_E15", "F_E30", "F_E15x3", "F_pca8"),
-                                     rows=("F_E15", "D_pc1"))
-    rows, cols, rho, std, n = study.study(db)
+    study = DistanceCorrelationStudy(
+        samples=12, k=16, measures=("D_quat", "D_pc1", "F_E15", "F_E30", "F_E15x3", "F_pca8")
+    )
+    rows, cols, rho, std, n = study.study(db, rows=("F_E15", "D_pc1"))
     assert rho.shape == (2, 6) and rows == ("F_E15", "D_pc1")
     assert rho[0, 2] == 1.0 and rho[1, 1] == 1.0 and np.all(n == 12)
     assert np.all(np.abs(rho) <= 1.0) and rho[0, 3] > 0.5  # F15 ~ F30 even on synthetic motion
-    from mocapflow.plugins.similarity.correlation import plot_heatmap
+    from mocapflow.plugins.similarity.applications.correlation import plot_heatmap
 
     png = plot_heatmap(rows, cols, rho, tmp_path / "c.png")
     assert png is not None and png.stat().st_size > 1000

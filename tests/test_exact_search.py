@@ -1,24 +1,30 @@
-"""Certified-exact search: identical to subsequence DTW (synthetic and real data), pruning checked."""
+"""Certified-exact search (``matchers.search``): identical to subsequence DTW (synthetic and real data), pruning checked."""
+
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
-from naive.dtw import continues_of, naive_blocks, naive_through_cell, naive_window_cost
+from naive.coarse import naive_boxes, naive_coarse_bounds, naive_sdtw_ranges
+from naive.dtw import continues_of, naive_blocks, naive_through_cell
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
-from naive.coarse import naive_boxes, naive_coarse_bounds, naive_sdtw_ranges
-from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_bounds
-from mocapflow.plugins.similarity._dtw_kernels import sdtw_forward, sdtw_ranges_compact
-from mocapflow.plugins.similarity.exact import ExactStats, certified_sdtw
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity.search._coarse_kernels import block_boxes, coarse_bounds
+from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_ranges_compact
+from mocapflow.plugins.similarity.search.exact import CertifiedSettings, ExactStats, certified_sdtw
+from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+
+
+def pruned(**kw) -> CertifiedSettings:
+    """Settings that run the pruned search even on a tiny database (``direct_cells`` 0)."""
+    return CertifiedSettings(direct_cells=0, **kw)
 
 
 def same(a, b):
@@ -26,7 +32,7 @@ def same(a, b):
     np.testing.assert_array_equal(a.end, b.end)
     np.testing.assert_array_equal(a.cost, b.cost)
     np.testing.assert_array_equal(a.length, b.length)
-    for p, r in zip(a.paths, b.paths):
+    for p, r in zip(a.paths, b.paths, strict=True):
         np.testing.assert_array_equal(p, r)
 
 
@@ -45,9 +51,16 @@ def query_of(x, m, seed, ties=False):
 
 
 # random walks; a 1-row clip (single-row blocks); blocks of 1 row; queries longer than blocks and clips; ties
-BOUND_CASES = [(0, [40, 1, 30, 12], 6, 4, False), (1, [80], 10, 16, False), (2, [5, 5, 5, 60], 3, 7, False),
-               (3, [50, 50], 1, 3, False), (4, [7, 1, 1, 20], 12, 1, False), (5, [30, 2, 25], 9, 5, True),
-               (6, [60], 4, 60, True), (7, [45, 30], 150, 8, False)]  # long query: float32 chains' margin
+BOUND_CASES = [
+    (0, [40, 1, 30, 12], 6, 4, False),
+    (1, [80], 10, 16, False),
+    (2, [5, 5, 5, 60], 3, 7, False),
+    (3, [50, 50], 1, 3, False),
+    (4, [7, 1, 1, 20], 12, 1, False),
+    (5, [30, 2, 25], 9, 5, True),
+    (6, [60], 4, 60, True),
+    (7, [45, 30], 150, 8, False),
+]  # long query: float32 chains' margin
 
 
 @pytest.mark.parametrize("seed,lengths,m,size,ties", BOUND_CASES)
@@ -104,8 +117,14 @@ def check_ranges_against_naive(q, x, cont, ranges, exact_costs):
 
 
 # random walks; ties; 1-row ranges and clips; queries longer than every range
-RANGE_CASES = [(0, [40, 1, 30, 12], 6, False), (1, [80], 10, False), (3, [50, 50], 1, False), (4, [40, 1, 30, 12], 7, True),
-               (5, [3, 90], 25, True), (6, [20, 20, 20], 30, False)]
+RANGE_CASES = [
+    (0, [40, 1, 30, 12], 6, False),
+    (1, [80], 10, False),
+    (3, [50, 50], 1, False),
+    (4, [40, 1, 30, 12], 7, True),
+    (5, [3, 90], 25, True),
+    (6, [20, 20, 20], 30, False),
+]
 
 
 @pytest.mark.parametrize("seed,lengths,m,ties", RANGE_CASES)
@@ -116,8 +135,12 @@ def test_sdtw_ranges_compact_equals_naive(seed, lengths, m, ties):
     n = len(x)
     rng = np.random.default_rng(seed)
     cuts = np.sort(rng.choice(np.arange(1, n - 1), 6, replace=False))
-    for ranges in ([[0, 7], [9, 30], [31, n]], [[0, n]], [[0, 1], [1, 2], [5, 6], [n - 1, n]],
-                   [[cuts[0], cuts[1]], [cuts[2], cuts[3]], [cuts[4], cuts[5] + 1]]):
+    for ranges in (
+        [[0, 7], [9, 30], [31, n]],
+        [[0, n]],
+        [[0, 1], [1, 2], [5, 6], [n - 1, n]],
+        [[cuts[0], cuts[1]], [cuts[2], cuts[3]], [cuts[4], cuts[5] + 1]],
+    ):
         check_ranges_against_naive(q, x, cont, np.array(ranges, np.int64), exact_costs=ties)
 
 
@@ -126,7 +149,7 @@ def test_coarse_kernels_equal_naive_on_hdm05():
     from mocapflow.framework import MotionDatabase
     from mocapflow.framework.normalize import resample
     from mocapflow.plugins.formats.asf_amc import read_amc
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 
     files = sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))[:2]
     db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])
@@ -143,8 +166,8 @@ def test_coarse_kernels_equal_naive_on_hdm05():
 
 
 @pytest.mark.parametrize("seed", range(3))
-@pytest.mark.parametrize("levels,seeds", [((512, 64, 16, 4), True), ((8, 4), True), ((12, 5, 2), False), ((6,), True)])
-def test_certified_levels_equal_sdtw(seed, levels, seeds):
+@pytest.mark.parametrize("levels,seed_frames", [((512, 64, 16, 4), 5), ((8, 4), 5), ((12, 5, 2), 0), ((6,), 5)])
+def test_certified_levels_equal_sdtw(seed, levels, seed_frames):
     # any block hierarchy, tau from the seeds or from the lowest-bound blocks: sDTW's matches
     clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25], seed=seed)
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
@@ -152,20 +175,28 @@ def test_certified_levels_equal_sdtw(seed, levels, seeds):
     s = int(rng.integers(0, 150))
     q = (x[s : s + 12] + rng.normal(0, 0.3, (12, 3))).astype(np.float32)
     for count, max_cost in ((1, None), (6, None), (9, 10.0)):
-        got = certified_sdtw(q, space, count=count, max_cost=max_cost, k=4, gaps=4, levels=levels, seeds=seeds,
-                             direct_cells=0)
+        got = certified_sdtw(
+            q, space, count=count, max_cost=max_cost, settings=pruned(levels=levels, seed_frames=seed_frames)
+        )
         same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
     # no index: the lowest-bound blocks supply tau
     bare = SearchSpace(clip_id, frame, None, x)
-    same(certified_sdtw(q, bare, count=5, levels=(8, 4), direct_cells=0), subsequence_dtw(q, space, count=5))
+    same(certified_sdtw(q, bare, count=5, settings=pruned(levels=(8, 4))), subsequence_dtw(q, space, count=5))
     st = ExactStats()  # a small search runs the whole DP at once
     same(certified_sdtw(q, space, count=5, stats=st), subsequence_dtw(q, space, count=5))
     assert st.columns == len(x) and st.passes == 1 and st.coarse_blocks == 0
 
 
 @pytest.mark.parametrize("seed", range(3))
-@pytest.mark.parametrize("levels,subspace,sub_from", [((512, 64, 16, 4), None, 0.0), ((16, 4), (3, 2), 0.0),
-                                                      ((8, 4, 2), (1, 3, 3), 0.0), ((512, 64, 16, 4), (0, 0, 3, 3), 2.0)])
+@pytest.mark.parametrize(
+    "levels,subspace,sub_from",
+    [
+        ((512, 64, 16, 4), None, 0.0),
+        ((16, 4), (3, 2), 0.0),
+        ((8, 4, 2), (1, 3, 3), 0.0),
+        ((512, 64, 16, 4), (0, 0, 3, 3), 2.0),
+    ],
+)
 def test_certified_with_subspace_cells_equals_sdtw(seed, levels, subspace, sub_from):
     # subspace cells at every level that has a basis (sub_from 0), or never (2): sDTW's matches
     clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25], dim=6, seed=seed)
@@ -175,8 +206,8 @@ def test_certified_with_subspace_cells_equals_sdtw(seed, levels, subspace, sub_f
         s = int(rng.integers(0, 200))
         q = (x[s : s + m] + rng.normal(0, 0.3, (m, 6))).astype(np.float32)
         for count in (1, 7):
-            got = certified_sdtw(q, space, count=count, levels=levels, subspace=subspace, subspace_from=sub_from,
-                                 direct_cells=0)
+            cfg = pruned(levels=levels, subspace=subspace, subspace_from=sub_from)
+            got = certified_sdtw(q, space, count=count, settings=cfg)
             same(got, subsequence_dtw(q, space, count=count))
 
 
@@ -184,7 +215,7 @@ def test_certified_subspace_needs_one_basis_size_per_level():
     clip_id, frame, x = make_db([60, 40], seed=0)
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
     with pytest.raises(DataError, match="one basis size per level"):
-        certified_sdtw(x[:5], space, levels=(16, 4), subspace=(3,), direct_cells=0)
+        certified_sdtw(x[:5], space, settings=pruned(levels=(16, 4), subspace=(3,)))
 
 
 @pytest.mark.parametrize("seed,lengths,m", [(0, [40, 1, 30, 12], 6), (1, [80], 10), (3, [50, 50], 1)])
@@ -197,12 +228,12 @@ def test_sdtw_ranges_compact_equals_forward(seed, lengths, m):
     full = sdtw_forward(qt, x, ~cont)
     rows, *got = sdtw_ranges_compact(qt, x, ~cont, np.array([[0, len(x)]], np.int64))
     np.testing.assert_array_equal(rows, np.arange(len(x)))
-    for a, b in zip(got, full):
+    for a, b in zip(got, full, strict=True):
         np.testing.assert_array_equal(a, b)
     # a range starting at a clip start equals the full pass inside it
     a0 = int(np.flatnonzero(~cont)[-1])
     rows, *part = sdtw_ranges_compact(qt, x, ~cont, np.array([[a0, len(x)]], np.int64))
-    for a, b in zip(part, full):
+    for a, b in zip(part, full, strict=True):
         np.testing.assert_array_equal(a, b[a0:])
 
 
@@ -215,12 +246,10 @@ def test_certified_equals_sdtw_synthetic(seed, count, min_span, max_cost):
     s = int(rng.integers(0, 150))
     q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
     st = ExactStats()
-    got = certified_sdtw(q, space, count=count, min_span=min_span, max_cost=max_cost, k=4, gaps=4, block=5, stats=st,
-                         direct_cells=0)
-    ref = subsequence_dtw(q, space, count=count, min_span=min_span, max_cost=max_cost)
-    same(got, ref)
-    via_matcher = lazy_neighborhood_graph(q, space, k=4, count=count, min_span=min_span, max_cost=max_cost, exact=True)
-    same(via_matcher, ref)
+    got = certified_sdtw(
+        q, space, count=count, min_span=min_span, max_cost=max_cost, stats=st, settings=pruned(levels=(20, 5))
+    )
+    same(got, subsequence_dtw(q, space, count=count, min_span=min_span, max_cost=max_cost))
 
 
 def test_certified_prunes_columns():
@@ -235,7 +264,7 @@ def test_certified_prunes_columns():
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
     q = (base[starts[7] + 5 : starts[7] + 25] + rng.normal(0, 0.05, (20, 3))).astype(np.float32)
     st = ExactStats()
-    same(certified_sdtw(q, space, count=3, k=32, stats=st, direct_cells=0), subsequence_dtw(q, space, count=3))
+    same(certified_sdtw(q, space, count=3, stats=st, settings=pruned()), subsequence_dtw(q, space, count=3))
     assert np.isfinite(st.tau) and st.columns < len(x) // 4 and not st.retried
 
 
@@ -250,8 +279,9 @@ def test_whole_dp_once_alive_rows_pass_full_from(seed, full_from):
     q = (x[s : s + 15] + rng.normal(0, 0.3, (15, 3))).astype(np.float32)
     for count, max_cost in ((5, None), (8, 12.0)):
         st = ExactStats()
-        got = certified_sdtw(q, space, count=count, max_cost=max_cost, k=4, gaps=4, block=5, stats=st,
-                             full_from=full_from, direct_cells=0)
+        got = certified_sdtw(
+            q, space, count=count, max_cost=max_cost, stats=st, settings=pruned(levels=(20, 5), full_from=full_from)
+        )
         same(got, subsequence_dtw(q, space, count=count, max_cost=max_cost))
         if full_from == 0.0:  # the first pass is the whole DP, and the last
             assert st.passes == 1 and st.columns == len(x)
@@ -262,8 +292,10 @@ def test_normalized_ranking_falls_back_to_the_whole_dp():
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
     q = x[10:20] * 1.1
     st = ExactStats()
-    same(certified_sdtw(q, space, count=4, rank_by="normalized", stats=st),
-         subsequence_dtw(q, space, count=4, rank_by="normalized"))
+    same(
+        certified_sdtw(q, space, count=4, rank_by="normalized", stats=st),
+        subsequence_dtw(q, space, count=4, rank_by="normalized"),
+    )
     assert st.columns == len(x)
 
 
@@ -271,9 +303,9 @@ def test_normalized_ranking_falls_back_to_the_whole_dp():
 def test_certified_equals_sdtw_on_hdm05():
     from mocapflow.framework import MotionDatabase
     from mocapflow.framework.normalize import resample
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
     from mocapflow.plugins.formats.asf_amc import read_amc
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 
     files = sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))
     db = MotionDatabase([resample(read_amc(f), 30.0) for f in files])
@@ -290,77 +322,59 @@ def test_certified_equals_sdtw_on_hdm05():
     for q, keep in queries:
         space = SearchSpace(clip_id[keep], frame[keep], KDTreeIndex(method="kdtree").build(x[keep]), x[keep])
         for count in (1, 10):
-            same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))
+            same(certified_sdtw(q, space, count=count, settings=pruned()), subsequence_dtw(q, space, count=count))
 
 
-@pytest.mark.parametrize("seed", range(4))
-@pytest.mark.parametrize("approx", [0.0, 0.1, 0.5, 2.0, np.inf])
-def test_bounded_approximation_guarantee(seed, approx):
-    # what docs/global-matching.md "Bounded approximation" promises: real alignments with their
-    # exact costs, the count-th cost within (1 + approx) of sDTW's, sDTW's result when sDTW's
-    # count-th cost is at most tau / (1 + approx); approx 0 is the certified-exact search
-    clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25, 50], seed=seed)
-    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
-    cont = continues_of(clip_id, frame)
-    rng = np.random.default_rng(seed)
-    s0 = int(rng.integers(0, 200))
-    q = (x[s0 : s0 + 10] + rng.normal(0, 0.4, (10, 3))).astype(np.float32)
-    best_end = sdtw_forward(np.ascontiguousarray(q.T), x, ~cont)[0]  # sDTW's cost of the best path ending at each row
-    for count, levels in ((1, (16, 4)), (5, (8, 4)), (8, (12, 5, 2))):
-        st = ExactStats()
-        got = certified_sdtw(q, space, count=count, min_span=0.0, levels=levels, direct_cells=0, approx=approx,
-                             stats=st)
-        ref = subsequence_dtw(q, space, count=count, min_span=0.0)
-        if approx == 0.0:
-            same(got, ref)
-            continue
-        assert len(got) == len(ref) == count
-        assert np.all(np.diff(got.cost) >= 0)
-        o = np.argsort(got.start)
-        assert np.all(got.start[o][1:] >= got.end[o][:-1])  # non-overlapping
-        for s, e, c, p in zip(got.start, got.end, got.cost, got.paths):
-            assert c >= best_end[e - 1] - 1e-9  # never below sDTW's best path into that end row
-            np.testing.assert_allclose(c, naive_window_cost(q, x[s:e]), rtol=1e-5)  # a real alignment, exact cost
-            assert p[0, 1] == s and p[-1, 1] == e - 1
-        assert got.cost[-1] <= (1.0 + approx) * ref.cost[-1] * (1 + 1e-9)
-        if ref.cost[-1] * (1.0 + approx) <= st.tau:
-            same(got, ref)
+def test_matcher_is_exactly_sdtw_on_a_pruned_search():
+    # what matchers.search promises: subsequence DTW's matches, here on a database large enough
+    # (> direct_cells) that the pruned coarse-to-fine search runs
+    from mocapflow.plugins.similarity.search.exact import DEFAULT_SETTINGS, CertifiedSearch
 
-
-def test_matcher_default_is_exactly_sdtw_on_a_pruned_search():
-    # what the default promises (matchers.lng: exact true, approx 0): subsequence DTW's matches,
-    # here on a database large enough (> DIRECT_CELLS) that the pruned coarse-to-fine search runs
-    from mocapflow.plugins.similarity.exact import DIRECT_CELLS
-    from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
-
-    p = LazyNeighborhoodGraph.Params()
-    assert p.exact and p.approx == 0.0
+    matcher = CertifiedSearch()
+    p = matcher.params
     clip_id, frame, x = make_db([500] * 90, seed=5)
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
     q = (x[1000:1050] + np.random.default_rng(5).normal(0, 0.2, (50, 3))).astype(np.float32)
-    assert len(x) * len(q) > DIRECT_CELLS
+    assert len(x) * len(q) > DEFAULT_SETTINGS.direct_cells
     st = ExactStats()
-    got = certified_sdtw(q, space, count=p.count, min_span=p.min_span, approx=p.approx, stats=st)
-    same(got, subsequence_dtw(q, space, count=p.count, min_span=p.min_span))
-    same(lazy_neighborhood_graph(q, space, count=p.count, min_span=p.min_span, approx=p.approx),
-         subsequence_dtw(q, space, count=p.count, min_span=p.min_span))
+    ref = subsequence_dtw(q, space, count=p.count, min_span=p.min_span)
+    same(certified_sdtw(q, space, count=p.count, min_span=p.min_span, stats=st), ref)
+    same(matcher.match(q, space), ref)
     assert st.coarse_blocks > 0 and st.columns < len(x)
 
 
-@pytest.mark.parametrize("seed_eps", [0.0, 1.0, 4.0])
-def test_certified_with_approximate_seeds_equals_sdtw(seed_eps, monkeypatch):
-    # the seeds' neighbours may be approximate (exact.SEED_EPS, kd-tree eps): they only supply tau
-    import mocapflow.plugins.similarity.exact as exact
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
+def test_lng_alias_warns_and_equals_search():
+    # one release: matchers.lng without exact: false is matchers.search, with a DeprecationWarning
+    from mocapflow.plugins.similarity.search.exact import CertifiedSearch
+    from mocapflow.plugins.similarity.search.lng import LazyNeighborhoodGraph
 
-    monkeypatch.setattr(exact, "SEED_EPS", seed_eps)
+    clip_id, frame, x = make_db([500] * 20, seed=3)
+    space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
+    q = (x[700:740] + np.random.default_rng(3).normal(0, 0.2, (40, 3))).astype(np.float32)
+    for params in ({}, {"exact": True}):
+        with pytest.warns(DeprecationWarning, match="name matchers.search"):
+            alias = LazyNeighborhoodGraph(params)
+        same(alias.match(q, space), CertifiedSearch().match(q, space))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        LazyNeighborhoodGraph(exact=False)  # the graph: no warning
+
+
+@pytest.mark.parametrize("seed_eps", [0.0, 1.0, 4.0])
+def test_certified_with_approximate_seeds_equals_sdtw(seed_eps):
+    # the seeds' neighbours may be approximate (seed_eps, kd-tree eps): they only supply tau
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+
     clip_id, frame, x = make_db([60, 3, 90, 40, 70, 25, 120, 80], seed=5)
     space = SearchSpace(clip_id, frame, KDTreeIndex(method="kdtree").build(x), x)
     rng = np.random.default_rng(5)
     for s in rng.integers(0, 400, 4):
         q = (x[s : s + 14] + rng.normal(0, 0.3, (14, 3))).astype(np.float32)
         for count in (1, 6):
-            same(certified_sdtw(q, space, count=count, direct_cells=0), subsequence_dtw(q, space, count=count))
+            same(
+                certified_sdtw(q, space, count=count, settings=pruned(seed_eps=seed_eps)),
+                subsequence_dtw(q, space, count=count),
+            )
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -368,8 +382,8 @@ def test_alive_runs_equals_block_ranges(seed):
     # the scan over the evaluated ranges only == the runs block by block (and block_ranges), adjacent ranges merged
     from naive.coarse import naive_alive_runs
 
-    from mocapflow.plugins.similarity._coarse_kernels import alive_runs
-    from mocapflow.plugins.similarity.exact import block_ranges
+    from mocapflow.plugins.similarity.search._coarse_kernels import alive_runs
+    from mocapflow.plugins.similarity.search.exact import block_ranges
 
     rng = np.random.default_rng(seed)
     nb = int(rng.integers(1, 80))

@@ -1,18 +1,22 @@
 """analyses.fat_graph: greedy base poses against the quadratic reference, tables, plot."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from mocapflow.plugins.similarity._fat_graph_kernels import greedy_cover
-from mocapflow.plugins.similarity.fat_graph import (
-    BasePoses, FatGraph, clip_transitions, cluster_runs, select_base_poses,
-)
 from naive.fat_graph import all_pairs_neighbours
-from naive.knn import ckdtree_index_class
 from naive.fat_graph import clip_transitions as naive_transitions
 from naive.fat_graph import greedy_cover as naive_greedy
+from naive.knn import ckdtree_index_class
 
+from mocapflow.plugins.similarity.applications._fat_graph_kernels import greedy_cover
+from mocapflow.plugins.similarity.applications.fat_graph import (
+    BasePoses,
+    FatGraph,
+    clip_transitions,
+    cluster_runs,
+    select_base_poses,
+)
 
 CKDTreeIndex = ckdtree_index_class()
 
@@ -76,11 +80,11 @@ def test_runs_and_transitions_respect_clip_boundaries():
     rows, a, b = clip_transitions(cluster, offsets)
     clip = np.searchsorted(offsets, rows, side="right") - 1
     ref = naive_transitions(cluster, offsets)
-    assert [(int(c), int(r - offsets[c]), int(x), int(y)) for c, r, x, y in zip(clip, rows, a, b)] == ref
+    assert [(int(c), int(r - offsets[c]), int(x), int(y)) for c, r, x, y in zip(clip, rows, a, b, strict=True)] == ref
     s, e, c = cluster_runs(cluster, offsets)
     assert s[0] == 0 and e[-1] == 60 and np.all(e > s)
     assert set(offsets[:-1]) <= set(s.tolist())
-    for st, en, cl in zip(s, e, c):
+    for st, en, cl in zip(s, e, c, strict=True):
         assert (cluster[st:en] == cl).all()
 
 
@@ -94,8 +98,10 @@ def test_tables_shape_and_graph_edges():
         {"clip_id": 0, "frame": 4, "from_cluster": 1, "to_cluster": 0},
         {"clip_id": 3, "frame": 2, "from_cluster": 1, "to_cluster": 0},
     ]
-    assert t["edges"].to_pylist() == [{"from_cluster": 0, "to_cluster": 1, "n_transitions": 1},
-                                      {"from_cluster": 1, "to_cluster": 0, "n_transitions": 2}]
+    assert t["edges"].to_pylist() == [
+        {"from_cluster": 0, "to_cluster": 1, "n_transitions": 1},
+        {"from_cluster": 1, "to_cluster": 0, "n_transitions": 2},
+    ]
     assert t["base_poses"].column("n_members").to_pylist() == [4, 4]
     seg = t["segments"].to_pylist()
     assert seg[-1] == {"clip_id": 3, "start_frame": 3, "end_frame": 4, "cluster": -1}
@@ -104,7 +110,7 @@ def test_tables_shape_and_graph_edges():
 def test_plot_writes_png(tmp_path):
     pytest.importorskip("matplotlib")
     from mocapflow.framework.joints import CANONICAL_JOINTS
-    from mocapflow.plugins.similarity.fat_graph import plot_base_poses
+    from mocapflow.plugins.similarity.applications.fat_graph import plot_base_poses
 
     pos = np.random.default_rng(0).normal(size=(3, len(CANONICAL_JOINTS), 3))
     plot_base_poses(pos, CANONICAL_JOINTS, tmp_path / "b.png", "t")
@@ -118,8 +124,9 @@ def test_pipeline_end_to_end(tmp_path):
     from mocapflow.framework import Dataset, get_plugin_manager
     from mocapflow.framework.runner import run_pipeline
 
-    run_pipeline(REPO / "pipelines" / "fat-graph.yaml", workspace=tmp_path, jobs=1,
-                 pm=get_plugin_manager(entry_points=False))
+    run_pipeline(
+        REPO / "pipelines" / "fat-graph.yaml", workspace=tmp_path, jobs=1, pm=get_plugin_manager(entry_points=False)
+    )
     out = Dataset(tmp_path / "fat_graph")
     data = out.table("data").to_pydict()
     bases = out.table("base_poses").to_pydict()
@@ -128,4 +135,4 @@ def test_pipeline_end_to_end(tmp_path):
     assert bases["n_neighbours"][0] == max(data["n_neighbours"])  # the first pick has the most neighbours
     assert (tmp_path / "fat_graph" / "base_poses.png").is_file()
     seg = out.table("segments").to_pydict()
-    assert sum(e - s for s, e in zip(seg["start_frame"], seg["end_frame"])) == n
+    assert sum(e - s for s, e in zip(seg["start_frame"], seg["end_frame"], strict=True)) == n

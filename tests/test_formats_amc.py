@@ -1,4 +1,5 @@
 """ASF/AMC reader and writers: handmade files (no corpus needed) and real CMU/HDM05 files."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -91,8 +92,9 @@ def test_asf_joints_offsets_and_rest_pose(tiny: Path) -> None:
 def test_amc_rotation_convention(tiny: Path) -> None:
     """Bone a: axis z=90 turns its local x into global y; rx=90 then rotates bone a's
     children about global y; b's dofs are applied in listed order about fixed axes."""
-    (tiny / "t.amc").write_text(tiny_amc([(0, 0, 0, 0, 0, 0, 0, 0, 0), (1, 2, 3, 0, 0, 0, 90, 0, 0),
-                                          (0, 0, 0, 0, 0, 0, 0, 90, 90)]))
+    (tiny / "t.amc").write_text(
+        tiny_amc([(0, 0, 0, 0, 0, 0, 0, 0, 0), (1, 2, 3, 0, 0, 0, 90, 0, 0), (0, 0, 0, 0, 0, 0, 0, 90, 90)])
+    )
     m = read_amc(tiny / "t.amc")
     assert m.n_frames == 3 and m.fps == 120.0
     p = m.positions
@@ -121,7 +123,9 @@ def test_amc_bones_in_any_order_per_frame(tiny: Path) -> None:
     text = ":DEGREES\n1\nroot 0 0 0 0 0 0\na 10\nb 20 30\n2\nb 21 31\nroot 0 0 0 0 0 0\na 11\n"
     (tiny / "o.amc").write_text(text)
     m = read_amc(tiny / "o.amc")
-    (tiny / "p.amc").write_text(text.replace("2\nb 21 31\nroot 0 0 0 0 0 0\na 11\n", "2\nroot 0 0 0 0 0 0\na 11\nb 21 31\n"))
+    (tiny / "p.amc").write_text(
+        text.replace("2\nb 21 31\nroot 0 0 0 0 0 0\na 11\n", "2\nroot 0 0 0 0 0 0\na 11\nb 21 31\n")
+    )
     np.testing.assert_allclose(m.rotations, read_amc(tiny / "p.amc").rotations)
 
 
@@ -152,6 +156,7 @@ def test_handmade_round_trip(tiny: Path) -> None:
 
 
 # --- real corpus -------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("rel", [("cmu", "amc", "01", "01_01.amc"), ("hdm05", "amc", "bd")])
 def test_corpus_round_trip(rel: tuple[str, ...], tmp_path: Path) -> None:

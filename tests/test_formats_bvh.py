@@ -1,5 +1,6 @@
 """BVH reader and writer: handmade files (no corpus needed), real files of every source,
 and the AMC/BVH cross-format check on CMU 01_01."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -148,7 +149,20 @@ def test_cross_format_cmu_01_01() -> None:
     pa, pb = a.canonical_positions(), b.canonical_positions()[1:]
     idx = {n: k for k, n in enumerate(CANONICAL_JOINTS)}
     err = np.linalg.norm(pa - pb, axis=-1)
-    lower = ["root", "lhip", "lknee", "lankle", "ltoes", "rhip", "rknee", "rankle", "rtoes", "lowerback", "upperback", "chest"]
+    lower = [
+        "root",
+        "lhip",
+        "lknee",
+        "lankle",
+        "ltoes",
+        "rhip",
+        "rknee",
+        "rankle",
+        "rtoes",
+        "lowerback",
+        "upperback",
+        "chest",
+    ]
     assert err[:, [idx[j] for j in lower]].max() < 1e-4
     thorax = 2.06488 * 0.0254 / 0.45
     upper = ["neck", "head", "headtop", "lclavicle", "lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist"]

@@ -1,5 +1,6 @@
 """Every AMC and BVH file of the real corpus parses, with the files' own frame counts,
 the required canonical joints and plausible metres (reads the whole corpus once, ~5 s)."""
+
 from __future__ import annotations
 
 import re

@@ -3,6 +3,7 @@
 Corrupted copies of corpus files are built in tmp_path; handmade files keep the core
 suite meaningful without the corpus.
 """
+
 from __future__ import annotations
 
 import re
@@ -42,6 +43,7 @@ def write(path: Path, text: str | bytes) -> Path:
 
 
 # --- AMC / ASF -----------------------------------------------------------------------------
+
 
 def test_amc_truncated_mid_frame(tiny: Path) -> None:
     lines = tiny_amc(FRAMES).splitlines()
@@ -103,8 +105,12 @@ def test_amc_without_asf(tmp_path: Path) -> None:
 
 def test_asf_errors(tmp_path: Path) -> None:
     bad = TINY_ASF.replace("direction 0 1 0", "direction 0 one 0")
-    raises_at(read_asf, write(tmp_path / "a.asf", bad), bad.splitlines().index("     direction 0 one 0") + 1,
-              "3 numbers for direction")
+    raises_at(
+        read_asf,
+        write(tmp_path / "a.asf", bad),
+        bad.splitlines().index("     direction 0 one 0") + 1,
+        "3 numbers for direction",
+    )
     bad = TINY_ASF.replace("    a b\n", "    a b tail\n")
     raises_at(read_asf, write(tmp_path / "b.asf", bad), bad.splitlines().index("    a b tail") + 1, "'tail'")
     bad = TINY_ASF.replace("dof rx\n", "dof rx tx\n")
@@ -117,6 +123,7 @@ def test_parse_error_is_a_mocapflow_error() -> None:
 
 
 # --- BVH ---------------------------------------------------------------------------------------
+
 
 def test_bvh_wrong_value_count(tmp_path: Path) -> None:
     short = REST[:-1]
@@ -135,7 +142,9 @@ def test_bvh_frame_count_mismatch_and_nan(tmp_path: Path) -> None:
 
 
 def test_bvh_hierarchy_errors(tmp_path: Path) -> None:
-    text = tiny_bvh([REST] * 3).replace("CHANNELS 3 Xrotation Yrotation Zrotation", "CHANNELS 3 Xrotation Yrotation Wrotation")
+    text = tiny_bvh([REST] * 3).replace(
+        "CHANNELS 3 Xrotation Yrotation Zrotation", "CHANNELS 3 Xrotation Yrotation Wrotation"
+    )
     raises_at(read_bvh, write(tmp_path / "c.bvh", text), 9, "channels")
     text = tiny_bvh([REST] * 3).replace("    OFFSET 10 0 0\n", "")
     closing = max(i for i, ln in enumerate(text.splitlines()) if ln == "  }") + 1  # LeftUpLeg's "}"
@@ -148,6 +157,7 @@ def test_bvh_hierarchy_errors(tmp_path: Path) -> None:
 
 
 # --- corrupted copies of corpus files ----------------------------------------------------------
+
 
 def test_corpus_truncated_amc(tmp_path: Path) -> None:
     src = corpus_path("cmu", "amc", "01")

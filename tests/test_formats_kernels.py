@@ -1,4 +1,5 @@
 """Format kernels against their naive twins (tests/naive/formats.py)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -9,7 +10,7 @@ from naive.formats import tokenize as naive_tokenize
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.quaternions import euler_extrinsic, euler_extrinsic_inverse
 from mocapflow.plugins.formats._kernels import euler_table_to_quat
-from mocapflow.plugins.formats._text import fnv1a, tokenize
+from mocapflow.plugins.formats._text_kernels import fnv1a, tokenize
 
 CASES = [
     b"",
@@ -32,7 +33,9 @@ def test_tokenize_matches_naive(data: bytes) -> None:
     np.testing.assert_array_equal(lines, n_lines)
     np.testing.assert_array_equal(isnum, n_isnum)
     np.testing.assert_allclose(values[isnum], n_values[n_isnum], rtol=1e-15, atol=0)
-    assert [int(h) for h in hashes] == [0 if num else fnv1a(data[s:s + k]) for s, k, num in zip(starts, lens, isnum)]
+    assert [int(h) for h in hashes] == [
+        0 if num else fnv1a(data[s : s + k]) for s, k, num in zip(starts, lens, isnum, strict=True)
+    ]
 
 
 def test_tokenize_random_numbers_exact() -> None:

@@ -1,5 +1,6 @@
 """Marker formats: C3D (vectorised, checked against the c3d package's per-frame reader)
 and TRC (reader, writer, gaps, header checks); the Markers data model."""
+
 from __future__ import annotations
 
 import warnings
@@ -37,8 +38,12 @@ def test_markers_model() -> None:
 
 def test_to_y_up_is_a_rotation() -> None:
     m = small_markers(gaps=False)
-    z = Markers(m.labels, np.stack([m.positions[..., 0], -m.positions[..., 2], m.positions[..., 1]], -1), m.fps,
-                metadata={"up_axis": "+z"})
+    z = Markers(
+        m.labels,
+        np.stack([m.positions[..., 0], -m.positions[..., 2], m.positions[..., 1]], -1),
+        m.fps,
+        metadata={"up_axis": "+z"},
+    )
     assert guess_up_axis(z.positions, "z") == "+z"
     back = to_y_up(z)
     np.testing.assert_allclose(back.positions, m.positions, atol=1e-15)
@@ -83,8 +88,11 @@ def test_trc_header_checks(tmp_path: Path) -> None:
 
 
 def test_trc_corpus() -> None:
-    for name, frames, markers in [("subject01_walk1.trc", 151, 41), ("subject02_running.trc", 600, 41),
-                                  ("subject01_static.trc", 300, 49)]:
+    for name, frames, markers in [
+        ("subject01_walk1.trc", 151, 41),
+        ("subject02_running.trc", 600, 41),
+        ("subject01_static.trc", 300, 49),
+    ]:
         m = read_trc(corpus_path("trc", "opensim", name))
         assert m.positions.shape == (frames, markers, 3) and m.fps == 60.0
         assert m.metadata["up_axis"] == "+y" and m.labels[0] == "R.ASIS"
@@ -94,8 +102,12 @@ def test_trc_corpus() -> None:
 
 # --- C3D ---------------------------------------------------------------------------------
 
-C3D_FILES = [("cmu", "85_02.c3d"), ("ezc3d_samples", "Vicon.c3d"), ("ezc3d_samples", "Qualisys.c3d"),
-             ("numediart", "03_rolling.c3d")]
+C3D_FILES = [
+    ("cmu", "85_02.c3d"),
+    ("ezc3d_samples", "Vicon.c3d"),
+    ("ezc3d_samples", "Qualisys.c3d"),
+    ("numediart", "03_rolling.c3d"),
+]
 
 
 @pytest.mark.parametrize("folder, name", C3D_FILES)

@@ -1,7 +1,8 @@
-"""Issue 11 §2: the readers never crash or lie. Each known case failed before its fix:
+"""The readers never crash or lie. Each known case, one test:
 short AMC bone lines, 0x7F before an AMC frame, non-finite and absurd values (the value
 policy of ``plugins/formats/_common.py``), duplicated ASF/BVH names, BOM and CR-only
 line ends, OpenSim TRC headers with runs of tabs."""
+
 from __future__ import annotations
 
 import shutil
@@ -14,8 +15,12 @@ import pytest
 from conftest import EXAMPLES_DATA, corpus_path
 from test_formats_amc import TINY_ASF, tiny_amc
 from test_formats_bvh import REST, tiny_bvh
-from test_formats_errors import FRAMES, raises_at, write
-from test_formats_errors import tiny  # noqa: F401 - a pytest fixture, used by argument name
+from test_formats_errors import (
+    FRAMES,
+    raises_at,
+    tiny,  # noqa: F401 - a pytest fixture, used by argument name
+    write,
+)
 from test_formats_markers import small_markers
 
 from mocapflow.plugins.formats import _common
@@ -24,6 +29,7 @@ from mocapflow.plugins.formats.bvh import read_bvh
 from mocapflow.plugins.formats.trc import read_trc, write_trc
 
 # --- AMC: short bone lines, 0x7F, duplicated bones --------------------------------------------
+
 
 def test_amc_only_frame_with_a_short_root_line(tiny: Path) -> None:
     # the issue's file: IndexError before the fix
@@ -71,8 +77,8 @@ def test_amc_control_byte_before_a_frame_is_an_error(tmp_path: Path) -> None:
 
 
 def test_amc_short_line_is_a_reject_and_ingest_goes_on(tmp_path: Path) -> None:
-    import yaml
     import pyarrow.parquet as pq
+    import yaml
 
     from mocapflow.framework import get_plugin_manager
     from mocapflow.framework.runner import run_pipeline
@@ -84,8 +90,15 @@ def test_amc_short_line_is_a_reject_and_ingest_goes_on(tmp_path: Path) -> None:
     shutil.copy(src / "02_01.amc", data / "good.amc")
     write(data / "short.amc", ":FULLY-SPECIFIED\n:DEGREES\n1\nroot 1 2\n")
     p = tmp_path / "ingest.yaml"
-    p.write_text(yaml.safe_dump({"name": "ingest", "workspace": str(tmp_path / "ws"),
-                                 "steps": {"motions": {"uses": "formats.load", "with": {"paths": [str(data / "*.amc")]}}}}))
+    p.write_text(
+        yaml.safe_dump(
+            {
+                "name": "ingest",
+                "workspace": str(tmp_path / "ws"),
+                "steps": {"motions": {"uses": "formats.load", "with": {"paths": [str(data / "*.amc")]}}},
+            }
+        )
+    )
     reports = run_pipeline(p, pm=get_plugin_manager(entry_points=False))
     assert reports[0].summary["clips"] == 1 and reports[0].summary["rejects"] == 1
     (rej,) = pq.read_table(tmp_path / "ws" / "motions" / "rejects.parquet").to_pylist()
@@ -93,6 +106,7 @@ def test_amc_short_line_is_a_reject_and_ingest_goes_on(tmp_path: Path) -> None:
 
 
 # --- the value policy --------------------------------------------------------------------------
+
 
 def test_policy_bounds_are_documented() -> None:
     doc = _common.__doc__
@@ -102,8 +116,11 @@ def test_policy_bounds_are_documented() -> None:
 
 def test_amc_absurd_values(tiny: Path) -> None:
     lines = tiny_amc(FRAMES).splitlines()
-    for k, bad, what in [(4, "a 1e308", "angle within"), (4, "a 2e6", "angle within"),
-                         (3, "root 1e6 0 0 0 0 0", "root translation within")]:
+    for k, bad, what in [
+        (4, "a 1e308", "angle within"),
+        (4, "a 2e6", "angle within"),
+        (3, "root 1e6 0 0 0 0 0", "root translation within"),
+    ]:
         text = lines.copy()
         text[k] = bad
         raises_at(read_amc, write(tiny / "v.amc", "\n".join(text) + "\n"), k + 1, what)
@@ -122,18 +139,30 @@ def test_bvh_absurd_values(tmp_path: Path) -> None:
     big = list(REST)
     big[0] = "1e308"  # root Xposition
     text = tiny_bvh([REST, big, REST])
-    raises_at(read_bvh, write(tmp_path / "p.bvh", text), text.splitlines().index(" ".join(map(str, big))) + 1,
-              r"Hips Xposition within 10000 m")
+    raises_at(
+        read_bvh,
+        write(tmp_path / "p.bvh", text),
+        text.splitlines().index(" ".join(map(str, big))) + 1,
+        r"Hips Xposition within 10000 m",
+    )
     rot = list(REST)
     rot[3] = "-3e6"
     text = tiny_bvh([REST, rot, REST])
-    raises_at(read_bvh, write(tmp_path / "r.bvh", text), text.splitlines().index(" ".join(map(str, rot))) + 1,
-              r"Zrotation within 1e\+06 degrees")
+    raises_at(
+        read_bvh,
+        write(tmp_path / "r.bvh", text),
+        text.splitlines().index(" ".join(map(str, rot))) + 1,
+        r"Zrotation within 1e\+06 degrees",
+    )
     text = tiny_bvh([REST] * 3).replace("OFFSET 0 10 0", "OFFSET 0 1e300 0")
     raises_at(read_bvh, write(tmp_path / "o.bvh", text), 8, r"OFFSET values within")
     text = tiny_bvh([REST] * 3).replace("Frame Time: 0.04", "Frame Time: 1e-300")
-    raises_at(read_bvh, write(tmp_path / "t.bvh", text), text.splitlines().index("Frame Time: 1e-300") + 1,
-              r"Frame Time between")
+    raises_at(
+        read_bvh,
+        write(tmp_path / "t.bvh", text),
+        text.splitlines().index("Frame Time: 1e-300") + 1,
+        r"Frame Time between",
+    )
 
 
 def _trc(tmp_path: Path, edit=None, name: str = "m.trc") -> Path:
@@ -153,6 +182,7 @@ def test_trc_inf_is_an_error_not_a_gap(tmp_path: Path) -> None:
         lines[7] = "\t".join(cells)
 
     raises_at(read_trc, _trc(tmp_path, put_inf), 8, r"finite number.*'inf'")
+
     # NaN and empty fields stay gaps
     def put_nan(lines: list[str]) -> None:
         cells = lines[7].split("\t")
@@ -187,8 +217,9 @@ def test_c3d_non_finite_valid_sample_is_an_error(tmp_path: Path) -> None:
     src = corpus_path("c3d", "cmu", "85_02.c3d")
     m = read_c3d(src)
     data = bytearray(src.read_bytes())
-    import c3d
     import io
+
+    import c3d
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -197,12 +228,13 @@ def test_c3d_non_finite_valid_sample_is_an_error(tmp_path: Path) -> None:
     f, k = np.argwhere(~np.isnan(m.positions[..., 0]))[0]
     stride = 4 * 4 * reader.point_used + reader.analog_used * reader.analog_per_frame * 4
     at = (reader.header.data_block - 1) * 512 + f * stride + k * 16
-    data[at:at + 4] = struct.pack("<f", np.inf)
+    data[at : at + 4] = struct.pack("<f", np.inf)
     bad = write(tmp_path / "inf.c3d", bytes(data))
     raises_at(read_c3d, bad, None, r"expected a finite position")
 
 
 # --- duplicated names --------------------------------------------------------------------------
+
 
 def test_asf_duplicated_bone_name_names_its_line(tmp_path: Path) -> None:
     text = TINY_ASF.replace("     name c\n", "     name a\n")
@@ -213,13 +245,19 @@ def test_asf_duplicated_bone_name_names_its_line(tmp_path: Path) -> None:
 
 def test_asf_bone_with_two_parents(tmp_path: Path) -> None:
     text = TINY_ASF.replace("    a b\n", "    a b\n    c b\n")
-    raises_at(read_asf, write(tmp_path / "p.asf", text), text.splitlines().index("    c b") + 1, r"'b' already has a parent")
+    raises_at(
+        read_asf, write(tmp_path / "p.asf", text), text.splitlines().index("    c b") + 1, r"'b' already has a parent"
+    )
 
 
 def test_bvh_duplicated_joint_name(tmp_path: Path) -> None:
     text = tiny_bvh([REST] * 3).replace("JOINT LeftUpLeg", "JOINT Spine")
-    raises_at(read_bvh, write(tmp_path / "d.bvh", text), text.splitlines().index("  JOINT Spine", 6) + 1,
-              r"joint name 'Spine' is already used at line 6")
+    raises_at(
+        read_bvh,
+        write(tmp_path / "d.bvh", text),
+        text.splitlines().index("  JOINT Spine", 6) + 1,
+        r"joint name 'Spine' is already used at line 6",
+    )
 
 
 def test_bvh_second_offset_in_a_joint(tmp_path: Path) -> None:
@@ -228,6 +266,7 @@ def test_bvh_second_offset_in_a_joint(tmp_path: Path) -> None:
 
 
 # --- BOM and line ends -------------------------------------------------------------------------
+
 
 def _same_motion(a, b) -> None:
     np.testing.assert_array_equal(a.rotations, b.rotations)
@@ -279,6 +318,7 @@ def test_corpus_amc_cr_only_and_bom(tmp_path: Path) -> None:
 
 # --- OpenSim TRC headers -----------------------------------------------------------------------
 
+
 def test_trc_header_with_runs_of_tabs_and_spaces(tmp_path: Path) -> None:
     f = _trc(tmp_path)
     want = read_trc(f)
@@ -304,14 +344,26 @@ def test_corpus_opensim_trc_with_runs_of_tabs(tmp_path: Path) -> None:
 
 # --- every error names a line of the file (found by the fuzzer) --------------------------------
 
+
 def test_bvh_cut_after_the_motion_header_names_a_line(tmp_path: Path) -> None:
     head = tiny_bvh([REST] * 3).split("Frame Time")[0]
-    raises_at(read_bvh, write(tmp_path / "a.bvh", head.rstrip("\n")), head.count("\n"), r"'Frame Time: <value>', the file ends")
+    raises_at(
+        read_bvh,
+        write(tmp_path / "a.bvh", head.rstrip("\n")),
+        head.count("\n"),
+        r"'Frame Time: <value>', the file ends",
+    )
     text = tiny_bvh([]).rstrip("\n")
-    raises_at(read_bvh, write(tmp_path / "b.bvh", text), text.count("\n") + 1, r"frame lines .* after this line, found none")
+    raises_at(
+        read_bvh, write(tmp_path / "b.bvh", text), text.count("\n") + 1, r"frame lines .* after this line, found none"
+    )
 
 
 def test_asf_undefined_bone_with_a_non_ascii_blank_names_its_line(tmp_path: Path) -> None:
     text = TINY_ASF.replace("    a b\n", "    a \xa0b\n")
-    raises_at(read_asf, write(tmp_path / "n.asf", text.encode("latin-1")), text.splitlines().index("    a \xa0b") + 1,
-              r"hierarchy names bone '\\xa0b'")
+    raises_at(
+        read_asf,
+        write(tmp_path / "n.asf", text.encode("latin-1")),
+        text.splitlines().index("    a \xa0b") + 1,
+        r"hierarchy names bone '\\xa0b'",
+    )

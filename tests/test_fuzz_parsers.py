@@ -6,6 +6,7 @@ reference reader of ``tests/naive/readers.py`` reads.
 Handmade bases keep it meaningful without the corpus; corpus excerpts are used when
 ``../shared/data`` is present.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -23,20 +24,30 @@ from test_formats_markers import small_markers
 
 from mocapflow.plugins.formats.trc import write_trc
 
-FUZZ = settings(max_examples=150, derandomize=True, deadline=None, database=None,
-                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=150,
+    derandomize=True,
+    deadline=None,
+    database=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 
 def handmade_bases(folder: Path) -> list[fuzz.Base]:
-    frames = [(1.5, 2, -3, 10, 20, 30, 45, -5, 7.25), (1.6, 2.1, -3, 11, 21, 31, 46, -6, 7.5),
-              (1.7, 2.2, -3.1, 12, 22, 32, 47, -7, 7.75)]
+    frames = [
+        (1.5, 2, -3, 10, 20, 30, 45, -5, 7.25),
+        (1.6, 2.1, -3, 11, 21, 31, 46, -6, 7.5),
+        (1.7, 2.2, -3.1, 12, 22, 32, 47, -7, 7.75),
+    ]
     rows = [list(REST), [1, 91, 2, 10, 20, 30, 1, 2, 3, 0, 50, 0, 4, 5, 6, 7, 8, 9], list(REST)]
     trc = folder / "m.trc"
     write_trc(small_markers(t=5), trc)
-    return [fuzz.Base("amc", "tiny_01.amc", tiny_amc(frames).encode(), TINY_ASF.encode(), "tiny.asf"),
-            fuzz.Base("amc", "tiny_02.amc", tiny_amc(frames[:1], eol="\r\n").encode(), TINY_ASF.encode(), "tiny.asf"),
-            fuzz.Base("bvh", "tiny.bvh", tiny_bvh(rows).encode()),
-            fuzz.Base("trc", "m.trc", trc.read_bytes())]
+    return [
+        fuzz.Base("amc", "tiny_01.amc", tiny_amc(frames).encode(), TINY_ASF.encode(), "tiny.asf"),
+        fuzz.Base("amc", "tiny_02.amc", tiny_amc(frames[:1], eol="\r\n").encode(), TINY_ASF.encode(), "tiny.asf"),
+        fuzz.Base("bvh", "tiny.bvh", tiny_bvh(rows).encode()),
+        fuzz.Base("trc", "m.trc", trc.read_bytes()),
+    ]
 
 
 def run_case(folder: Path, base: fuzz.Base, kind: str, seed: int) -> tuple[str, str]:
@@ -112,10 +123,11 @@ def test_any_line_end_mix_reads_the_same(tmp_path: Path, eols: list[str], bom: b
 
 # --- the oracle can fail ---------------------------------------------------------------------
 
+
 def test_the_oracle_catches_a_reader_that_drops_a_frame(tmp_path: Path, monkeypatch) -> None:
     base = handmade_bases(tmp_path)[0]
     real = fuzz._reader("amc")
-    monkeypatch.setattr(fuzz, "_reader", lambda fmt: (lambda p, **kw: real(p, **kw).slice(0, 2)))
+    monkeypatch.setattr(fuzz, "_reader", lambda fmt: lambda p, **kw: real(p, **kw).slice(0, 2))
     outcome, detail = fuzz.check(tmp_path, base, "none", base.data, base.asf, None)
     assert outcome == "wrong_accept" and detail == "frames"
 
@@ -126,7 +138,7 @@ def test_the_oracle_catches_a_changed_value_and_a_silent_gap(tmp_path: Path, mon
 
     def lying(p, **kw):
         m = real(p, **kw)
-        m.positions[2, 1] = np.nan  # inf read as a gap, the bug of issue 11
+        m.positions[2, 1] = np.nan  # inf read as a gap: a wrong acceptance
         return m
 
     monkeypatch.setattr(fuzz, "_reader", lambda fmt: lying)

@@ -1,4 +1,5 @@
 """``indexes.hnsw`` (the ``ann`` extra): the Index contract, determinism, recall, the LNG through it."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,10 +7,10 @@ import pytest
 
 hnswlib = pytest.importorskip("hnswlib", reason="indexes.hnsw needs the 'ann' extra (pip install 'mocapflow[ann]')")
 
-from mocapflow.framework.testing import parametrize_with_checks  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
-from mocapflow.plugins.similarity.hnsw import HNSWIndex  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 from mocapflow.framework.matching import SearchSpace  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
+from mocapflow.framework.testing import parametrize_with_checks  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
+from mocapflow.plugins.similarity.knn.hnsw import HNSWIndex  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
+from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 
 
 @parametrize_with_checks([HNSWIndex])
@@ -34,7 +35,7 @@ def test_recall_padding_radius_and_determinism(tmp_path):
     ix = HNSWIndex(ef=512).build(x)
     dist, ids = ix.query(q, 64)
     _, want = brute(x, q, 64)
-    recall = np.mean([len(set(a) & set(b)) / 64 for a, b in zip(ids, want)])
+    recall = np.mean([len(set(a) & set(b)) / 64 for a, b in zip(ids, want, strict=True)])
     assert recall >= 0.99
     assert np.all(np.diff(dist, axis=1) >= 0)
     np.testing.assert_allclose(dist, np.linalg.norm(q[:, None] - x[ids], axis=2), rtol=1e-4, atol=1e-5)
@@ -59,5 +60,5 @@ def test_lng_through_the_contract():
     frame = np.tile(np.arange(100), 20).astype(np.int32)
     space = SearchSpace(clip_id, frame, HNSWIndex().build(x), x)
     q = x[430:460] + rng.normal(0, 0.01, (30, 3)).astype(np.float32)
-    res = lazy_neighborhood_graph(q, space, k=32, count=3, exact=False)
+    res = lazy_neighborhood_graph(q, space, k=32, count=3)
     assert (res.start[0], res.end[0]) == (430, 460)

@@ -119,10 +119,10 @@ def test_cycle_finder_finds_a_cycle():
 
 def test_graph_sees_relative_and_deferred_imports():
     g = import_graph()
-    # inside a function of plugins/similarity/exact.py
-    assert "mocapflow.plugins.similarity.graph" in g["mocapflow.plugins.similarity.exact"]
+    # inside a function of plugins/similarity/search/lng.py
+    assert "mocapflow.plugins.similarity.search.exact" in g["mocapflow.plugins.similarity.search.lng"]
     assert "mocapflow.framework.schema" in g["mocapflow.framework.motion_tables"]
-    assert "mocapflow.plugins.similarity.lng" in g["mocapflow.plugins.similarity.logical"]
+    assert "mocapflow.plugins.similarity.search.lng" in g["mocapflow.plugins.similarity.search.logical"]
 
 
 def test_no_import_cycles_but_the_known_ones():

@@ -1,10 +1,12 @@
 """Skeleton naming dialects are plugins (``register_joint_maps``): the built-in dialects map
 the corpus exactly as before, and a third-party dialect makes a new rig readable."""
+
 from __future__ import annotations
 
 import types
 
 import pytest
+from test_formats_bvh import REST, tiny_bvh
 
 from mocapflow.framework import hookimpl, plugins
 from mocapflow.framework.errors import PluginError
@@ -12,7 +14,6 @@ from mocapflow.framework.joints import JointMap, canonical_map
 from mocapflow.framework.plugins import build_registries, get_plugin_manager
 from mocapflow.plugins.formats.bvh import read_bvh
 from mocapflow.plugins.formats.joint_maps import ACCLAIM, BVH_COMMON, JOINT_MAPS
-from test_formats_bvh import REST, tiny_bvh
 
 STUDIO = {"Hips": "pelvis_jnt", "Spine": "spine_jnt", "Head": "skull_jnt", "LeftUpLeg": "thigh_l_jnt"}
 
@@ -61,13 +62,20 @@ def test_a_plugin_adds_a_dialect(tmp_path, fresh_maps):
     path = _studio_bvh(tmp_path)
     build_registries(get_plugin_manager(entry_points=False))
     assert "root" not in read_bvh(path).skeleton.canonical  # nobody knows this rig yet
-    studio = JointMap("studio", {"root": ("pelvis_jnt",), "lowerback": ("spine_jnt",), "head": ("skull_jnt",),
-                                 "lhip": ("thigh_l_jnt",)}, formats=("bvh",))
+    studio = JointMap(
+        "studio",
+        {"root": ("pelvis_jnt",), "lowerback": ("spine_jnt",), "head": ("skull_jnt",), "lhip": ("thigh_l_jnt",)},
+        formats=("bvh",),
+    )
     regs = build_registries(get_plugin_manager(entry_points=False, extra=[_plugin(studio)]))
     assert regs.joint_map_providers["studio"] == "studio_rig"
     skel = read_bvh(path).skeleton
     assert {c: skel.names[i] for c, i in skel.canonical.items()} == {
-        "root": "pelvis_jnt", "lowerback": "spine_jnt", "head": "skull_jnt", "lhip": "thigh_l_jnt"}
+        "root": "pelvis_jnt",
+        "lowerback": "spine_jnt",
+        "head": "skull_jnt",
+        "lhip": "thigh_l_jnt",
+    }
 
 
 def test_bad_joint_map_plugins_are_reported(fresh_maps):

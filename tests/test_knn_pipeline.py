@@ -1,4 +1,5 @@
 """The knn-study pipeline plans; a small variant runs end to end on the bundled sample takes."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -22,7 +23,7 @@ steps:
   correlation:
     uses: analyses.distance_correlation
     input: motions
-    with: {{samples: 8, k: 16, measures: [D_pc1, F_E15, F_E30, F_E15x3], rows: [F_E15, F_E15x3]}}
+    with: {{samples: 8, k: 16, measures: [F_E15, F_E15x3, D_pc1]}}
 """
 
 
@@ -65,7 +66,7 @@ def test_small_knn_pipeline_end_to_end(tmp_path):
     np.testing.assert_array_equal(a, b)  # the model fitted by pca8 is reused by pca8b
     assert (ws / "correlation" / "correlation.png").is_file()
     m = Dataset(ws / "correlation").table("matrix").to_pylist()
-    assert [r["row_measure"] for r in m] == ["F_E15", "F_E15x3"] and m[0]["F_E15"] == 1.0
+    assert [r["row_measure"] for r in m] == ["F_E15", "F_E15x3", "D_pc1"] and m[0]["F_E15"] == 1.0
     assert Path(ws / "pca8" / "pca_model.npz").is_file()
 
 

@@ -1,5 +1,6 @@
 """``ruff check`` and ``ruff format --check`` pass over the repository with the settings of
 pyproject.toml; every noqa comment says why."""
+
 from __future__ import annotations
 
 import shutil
@@ -13,7 +14,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _ruff() -> list[str] | None:
-    exe = shutil.which("ruff") or (str(Path(sys.executable).with_name("ruff")) if Path(sys.executable).with_name("ruff").exists() else None)
+    exe = shutil.which("ruff") or (
+        str(Path(sys.executable).with_name("ruff")) if Path(sys.executable).with_name("ruff").exists() else None
+    )
     return [exe] if exe else None
 
 
@@ -23,7 +26,6 @@ def test_ruff_check_passes():
         pytest.skip("ruff is not installed (pip install -e '.[test]' installs it)")
     out = subprocess.run([*cmd, "check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
-
 
 
 def test_ruff_format_is_applied():

@@ -1,4 +1,5 @@
 """Lazy neighborhood graph: kernel against the explicit graph, and against subsequence DTW."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,10 +9,10 @@ from test_sdtw import make_db
 
 from mocapflow.framework import Index
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.similarity.lng import lazy_neighborhood_graph
-from mocapflow.plugins.similarity.graph import build_graph
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity.sdtw import subsequence_dtw
+from mocapflow.plugins.similarity.search.graph import build_graph
+from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph
+from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 
 class BruteIndex(Index):
@@ -43,28 +44,38 @@ def space_of(lengths, seed=0, dim=3):
     return SearchSpace(clip_id, frame, BruteIndex().build(x), x)
 
 
-@pytest.mark.parametrize("lengths,m,k,radius,seed", [
-    ([30, 1, 25, 9], 6, 8, None, 0),
-    ([40, 40], 10, 12, 1.5, 1),
-    ([1, 1, 1, 1], 3, 4, None, 2),
-    ([60], 1, 5, None, 3),
-    ([20, 30, 15], 15, 30, 2.0, 4),
-])
+@pytest.mark.parametrize(
+    "lengths,m,k,radius,seed",
+    [
+        ([30, 1, 25, 9], 6, 8, None, 0),
+        ([40, 40], 10, 12, 1.5, 1),
+        ([1, 1, 1, 1], 3, 4, None, 2),
+        ([60], 1, 5, None, 3),
+        ([20, 30, 15], 15, 30, 2.0, 4),
+    ],
+)
 def test_kernel_matches_explicit_graph(lengths, m, k, radius, seed):
     space = space_of(lengths, seed=seed)
     rng = np.random.default_rng(seed)
     s = int(rng.integers(0, max(1, space.n_rows - m)))
     q = space.features[s : s + m] + rng.normal(scale=0.2, size=(min(m, space.n_rows - s), 3)).astype(np.float32)
     g = build_graph(q, space, k=k, radius=radius)
-    neighbors = [{int(h): float(d) for h, d in zip(g.ids[i, : g.count[i]], g.dist[i, : g.count[i]])} for i in range(len(q))]
+    neighbors = [
+        {int(h): float(d) for h, d in zip(g.ids[i, : g.count[i]], g.dist[i, : g.count[i]], strict=True)}
+        for i in range(len(q))
+    ]
     ref = naive_lng(neighbors, continues_of(space.clip_id, space.frame))
     last = len(q) - 1
-    reach = {int(h): (c, st) for h, c, st in zip(g.ids[last, : g.count[last]], g.cost[last], g.start[last]) if np.isfinite(c)}
+    reach = {
+        int(h): (c, st)
+        for h, c, st in zip(g.ids[last, : g.count[last]], g.cost[last], g.start[last], strict=False)
+        if np.isfinite(c)
+    }
     assert set(reach) == set(ref)
-    for h, (c, st) in reach.items():
+    for h, (c, _) in reach.items():
         assert c == pytest.approx(ref[h][0], rel=1e-9)
     res = g.matches(count=50, min_span=0)
-    for e, st, path in zip(res.end, res.start, res.paths):
+    for e, st, path in zip(res.end, res.start, res.paths, strict=True):
         rc, rs, rpath = ref[int(e) - 1]  # end is exclusive
         assert st == rs
         np.testing.assert_array_equal(path, rpath)
@@ -74,12 +85,12 @@ def test_kernel_matches_explicit_graph(lengths, m, k, radius, seed):
 def test_equals_subsequence_dtw_with_all_neighbours(seed):
     space = space_of([35, 2, 50, 20], seed=seed)
     q = space.features[40:52] * 1.05
-    lng = lazy_neighborhood_graph(q, space, k=space.n_rows, count=6, exact=False)
+    lng = lazy_neighborhood_graph(q, space, k=space.n_rows, count=6)
     ref = subsequence_dtw(q, space, count=6)
     np.testing.assert_allclose(lng.cost, ref.cost, rtol=1e-5)
     np.testing.assert_array_equal(lng.start, ref.start)
     np.testing.assert_array_equal(lng.end, ref.end)
-    for a, b in zip(lng.paths, ref.paths):
+    for a, b in zip(lng.paths, ref.paths, strict=True):
         np.testing.assert_array_equal(a, b)
 
 
@@ -89,7 +100,7 @@ def test_no_edge_across_clip_boundary():
     clip_id = np.r_[np.zeros(20), np.ones(20)].astype(np.int32)
     frame = np.r_[np.arange(20), np.arange(20)].astype(np.int32)
     space = SearchSpace(clip_id, frame, BruteIndex().build(x), x)
-    res = lazy_neighborhood_graph(x[15:25], space, k=40, count=3, exact=False)
+    res = lazy_neighborhood_graph(x[15:25], space, k=40, count=3)
     for path in res.paths:
         assert len(set(clip_id[path[:, 1]])) == 1
     assert res.cost[0] > 0  # the perfect crossing alignment is forbidden
@@ -121,12 +132,13 @@ def test_index_contract_violations():
         build_graph(space.features[:3], SearchSpace(space.clip_id, space.frame), k=4)
 
 
-@pytest.mark.parametrize("seed,k,radius,ties", [(0, 5, None, False), (1, 12, 1.2, False), (2, 3, None, True),
-                                                 (3, 40, None, False)])
+@pytest.mark.parametrize(
+    "seed,k,radius,ties", [(0, 5, None, False), (1, 12, 1.2, False), (2, 3, None, True), (3, 40, None, False)]
+)
 def test_propagate_layer_equals_naive(seed, k, radius, ties):
     from naive.dtw import naive_propagate
 
-    from mocapflow.plugins.similarity._lng_kernels import propagate_layer
+    from mocapflow.plugins.similarity.search._lng_kernels import propagate_layer
 
     rng = np.random.default_rng(seed)
     lengths = [1, 7, 2, 30, 3]
@@ -135,7 +147,7 @@ def test_propagate_layer_equals_naive(seed, k, radius, ties):
         x = rng.integers(0, 2, size=x.shape).astype(np.float32)
     cont = continues_of(clip_id, frame)
     n = len(x)
-    r2 = np.inf if radius is None else radius ** 2
+    r2 = np.inf if radius is None else radius**2
     for _ in range(10):
         prev = np.sort(rng.choice(n, size=min(k, n), replace=False)).astype(np.int64)
         prev = np.concatenate([prev, [-1, -1]])  # padding past the count is ignored
@@ -154,9 +166,9 @@ def test_propagated_sets_with_every_row_equal_subsequence_dtw(seed):
     # k >= n: the first layer holds every row, so every later candidate set does too
     space = space_of([25, 1, 18, 6], seed=seed)
     q = np.random.default_rng(seed).normal(size=(9, 3)).astype(np.float32)
-    exact = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5, exact=False)
+    exact = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5)
     for every in (1, 4, 100):
-        prop = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5, propagate=every, exact=False)
+        prop = lazy_neighborhood_graph(q, space, k=space.n_rows, count=5, propagate=every)
         np.testing.assert_array_equal(prop.start, exact.start)
         np.testing.assert_array_equal(prop.end, exact.end)
         np.testing.assert_allclose(prop.cost, exact.cost, rtol=1e-6)
@@ -173,7 +185,7 @@ def test_propagated_sets_keep_exact_layers_and_need_features():
         np.testing.assert_array_equal(g_prop.ids[i], g_exact.ids[i])
     assert g_prop.count.min() >= 1
     # the query is a database segment: its own rows stay in the beam, so its match is found
-    best = lazy_neighborhood_graph(q, space, k=6, count=1, propagate=4, exact=False)
+    best = lazy_neighborhood_graph(q, space, k=6, count=1, propagate=4)
     assert (best.start[0], best.end[0]) == (10, 22)
     bare = SearchSpace(space.clip_id, space.frame, space.index)
     with pytest.raises(DataError, match="features"):

@@ -1,4 +1,5 @@
 """Logical (iterated) similarity search, and the matcher steps' run() on hand-made datasets."""
+
 from __future__ import annotations
 
 import json
@@ -11,12 +12,13 @@ from test_lng import BruteIndex
 from mocapflow.framework import StepContext, load_registries
 from mocapflow.framework.datasets import MANIFEST, Dataset, feature_table, frame_id_table
 from mocapflow.framework.errors import ConfigError
-from mocapflow.plugins.similarity.lng import LazyNeighborhoodGraph
-from mocapflow.plugins.similarity.logical import LogicalSearch, logical_search
 from mocapflow.framework.matching import MATCH_COLUMNS, SearchSpace
 from mocapflow.framework.queries import parse_query_spec
 from mocapflow.framework.steps import run_step
-from mocapflow.plugins.similarity.sdtw import SubsequenceDTW
+from mocapflow.plugins.similarity.search.exact import CertifiedSearch
+from mocapflow.plugins.similarity.search.lng import LazyNeighborhoodGraph
+from mocapflow.plugins.similarity.search.logical import LogicalSearch, logical_search
+from mocapflow.plugins.similarity.search.sdtw import SubsequenceDTW
 
 
 class SavedBrute(BruteIndex):
@@ -57,15 +59,15 @@ def test_logical_reaches_what_numerical_misses():
     assert sorted(space.clip_id[logical.start]) == [1, 2, 3]
     assert list(logical.round) == [1, 2, 3]
     assert list(logical.source) == [-1, 0, 1]  # each found by the previous one
-    for s, e in zip(logical.start, logical.end):
+    for s, e in zip(logical.start, logical.end, strict=True):
         assert (space.frame[s], space.frame[e - 1]) == (8, 27)
 
 
 def test_logical_stops_and_deduplicates():
     space, motif = chain_db()
     res = logical_search(motif, space, rounds=10, k=64, count=10, max_cost=25.0)
-    iv = sorted(zip(res.start, res.end))
-    assert all(a[1] <= b[0] for a, b in zip(iv, iv[1:]))  # no overlaps (half-open)
+    iv = sorted(zip(res.start, res.end, strict=True))
+    assert all(a[1] <= b[0] for a, b in zip(iv, iv[1:], strict=False))  # no overlaps (half-open)
     assert res.round.max() <= 4  # ran out of new segments long before 10 rounds
     capped = logical_search(motif, space, rounds=10, k=64, count=10, max_cost=25.0, max_matches=2)
     assert len(capped) == 2
@@ -75,8 +77,13 @@ def write_dataset(path, component, tables, inputs=None, params=None):
     path.mkdir(parents=True, exist_ok=True)
     for name, t in tables.items():
         pq.write_table(t, path / f"{name}.parquet")
-    manifest = {"step": path.name, "component": component, "params": params or {}, "fingerprint": path.name,
-                "inputs": {k: {"step": v, "fingerprint": v} for k, v in (inputs or {}).items()}}
+    manifest = {
+        "step": path.name,
+        "component": component,
+        "params": params or {},
+        "fingerprint": path.name,
+        "inputs": {k: {"step": v, "fingerprint": v} for k, v in (inputs or {}).items()},
+    }
     (path / MANIFEST).write_text(json.dumps(manifest))
     return Dataset(path)
 
@@ -86,11 +93,17 @@ def workspace(tmp_path):
     space, _ = chain_db()
     regs = load_registries(entry_points=False)
     regs["indexes"].add(SavedBrute, "tests")
-    feats = write_dataset(tmp_path / "feats", "features.test", {"data": feature_table(space.clip_id, space.frame, space.features)})
+    feats = write_dataset(
+        tmp_path / "feats", "features.test", {"data": feature_table(space.clip_id, space.frame, space.features)}
+    )
     idx_dir = tmp_path / "tree"
     SavedBrute().build(space.features).save(idx_dir / "index")
-    tree = write_dataset(idx_dir, "indexes.saved_brute_test", {"data": frame_id_table(space.clip_id, space.frame)},
-                         inputs={"features": "feats"})
+    tree = write_dataset(
+        idx_dir,
+        "indexes.saved_brute_test",
+        {"data": frame_id_table(space.clip_id, space.frame)},
+        inputs={"features": "feats"},
+    )
     return tmp_path, regs, feats, tree
 
 
@@ -100,11 +113,16 @@ def ctx_for(tmp_path, regs, step):
     return StepContext(step, out, tmp_path, tmp_path, regs)
 
 
-@pytest.mark.parametrize("cls,params", [
-    (LazyNeighborhoodGraph, {"k": 64, "count": 3, "plots": 1}),
-    (SubsequenceDTW, {"count": 3}),
-    (LogicalSearch, {"k": 64, "count": 3, "max_cost": 25.0, "rank_by": "cost"}),
-])
+@pytest.mark.parametrize(
+    "cls,params",
+    [
+        (CertifiedSearch, {"count": 3, "plots": 1}),
+        (LazyNeighborhoodGraph, {"k": 64, "count": 3, "exact": False}),
+        (LazyNeighborhoodGraph, {"k": 64, "count": 3, "exact": False, "paper": True}),
+        (SubsequenceDTW, {"count": 3}),
+        (LogicalSearch, {"k": 64, "count": 3, "max_cost": 25.0, "rank_by": "cost"}),
+    ],
+)
 def test_run_steps_on_datasets(workspace, cls, params):
     tmp_path, regs, feats, tree = workspace
     matcher = cls({**params, "queries": ["0:8-28", "1:8-28"]})
@@ -124,14 +142,16 @@ def test_run_steps_on_datasets(workspace, cls, params):
         best = [r for r in rows if r["rank"] == 1]
         assert [(r["clip_id"], r["start_frame"], r["end_frame"]) for r in best] == [(0, 8, 28), (1, 8, 28)]
         assert best[0]["cost"] == pytest.approx(0.0, abs=1e-6)
-    if cls is LazyNeighborhoodGraph:
-        pngs = sorted(p.name for p in (tmp_path / ".tmp-lng" / "plots").iterdir())
+    if cls is CertifiedSearch:
+        pngs = sorted(p.name for p in (tmp_path / ".tmp-search" / "plots").iterdir())
         assert pngs == ["q0_m1.png", "q1_m1.png"]
 
 
 def test_sdtw_runs_on_a_features_dataset_without_index(workspace):
     tmp_path, regs, feats, tree = workspace
-    out = run_step(SubsequenceDTW(count=1, queries=["2:8-28"]), {"database": feats, "query": feats}, ctx_for(tmp_path, regs, "s"))
+    out = run_step(
+        SubsequenceDTW(count=1, queries=["2:8-28"]), {"database": feats, "query": feats}, ctx_for(tmp_path, regs, "s")
+    )
     assert out.tables["data"].to_pylist()[0]["clip_id"] == 2
 
 
@@ -141,12 +161,15 @@ def test_lng_needs_an_index_dataset(workspace):
         run_step(LazyNeighborhoodGraph(), {"database": feats, "query": feats}, ctx_for(tmp_path, regs, "l"))
 
 
-@pytest.mark.parametrize("text,expected", [
-    ("walk.amc", ("walk.amc", None, None, False)),
-    ("walk.amc:10-40", ("walk.amc", 10, 40, False)),
-    ("C:/data/walk.amc:1.5s-3s", ("C:/data/walk.amc", 1.5, 3.0, True)),
-    ("odd:name.bvh", ("odd:name.bvh", None, None, False)),
-])
+@pytest.mark.parametrize(
+    "text,expected",
+    [
+        ("walk.amc", ("walk.amc", None, None, False)),
+        ("walk.amc:10-40", ("walk.amc", 10, 40, False)),
+        ("C:/data/walk.amc:1.5s-3s", ("C:/data/walk.amc", 1.5, 3.0, True)),
+        ("odd:name.bvh", ("odd:name.bvh", None, None, False)),
+    ],
+)
 def test_query_specs(text, expected):
     s = parse_query_spec(text)
     assert (s.source, s.start, s.end, s.seconds) == expected
@@ -201,37 +224,57 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     assert best[:4] == ["1", "16_15", "30", "90"]  # read, resampled to 30 Hz, found where it came from
     assert best[-2:] == ["1.00", "3.00"]  # and the same match in seconds of the database's rate
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "nonexistent.amc"]) != 0
-    # --exact is subsequence DTW's answer; --out into a folder that does not exist creates it
+    # the default (matchers.search) is subsequence DTW's answer; --out into a folder that does not exist creates it
     capsys.readouterr()
     out = tmp_path / "new" / "folder" / "m.csv"
     args = ["--no-entry-points", "search", "--db", str(ws), "--query", "02_01:10-50", "--count", "4"]
-    assert main(args + ["--exact", "--out", str(out)]) == 0
-    exact_out = capsys.readouterr().out.splitlines()[2:]
+    assert main(args + ["--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "matchers.search" in lines[0]
+    exact_out = lines[2:]
     assert main(args + ["--matcher", "sdtw"]) == 0
     assert capsys.readouterr().out.splitlines()[2:] == exact_out and len(exact_out) == 4
-    assert main(args) == 0  # lng's default is the certified search: sdtw's answer too
-    assert capsys.readouterr().out.splitlines()[2:] == exact_out
-    # --approx 0 is the certified search itself; any --approx keeps count matches, the best one here
-    assert main(args + ["--approx", "0"]) == 0
-    assert capsys.readouterr().out.splitlines()[2:] == exact_out
-    assert main(args + ["--approx", "0.5"]) == 0
-    approx_out = capsys.readouterr().out.splitlines()[2:]
-    assert len(approx_out) == 4 and approx_out[0] == exact_out[0]
-    assert main(args + ["--approx", "0.5", "--no-exact"]) == 2
-    assert "--approx" in capsys.readouterr().err
-    assert main(args + ["--no-exact"]) == 0  # the graph answers (same best match here)
+    assert main(args + ["--matcher", "lng"]) == 0  # the graph answers (same best match here)
     graph_out = capsys.readouterr().out.splitlines()[2:]
     assert len(graph_out) == 4 and graph_out[0] == exact_out[0]
+    assert main(args + ["--paper"]) == 2  # a graph option for the certified search
+    assert "paper" in capsys.readouterr().err
     assert out.is_file() and len(out.read_text().splitlines()) == 5 and not list(out.parent.glob(".m.csv*"))
-    assert main(args + ["--min-span", "1.0", "--gaps", "0", "--rank-by", "normalized", "--out", str(out.with_suffix(".parquet"))]) == 0
+    assert (
+        main(
+            args
+            + [
+                "--matcher",
+                "lng",
+                "--paper",
+                "--min-span",
+                "1.0",
+                "--rank-by",
+                "normalized",
+                "--out",
+                str(out.with_suffix(".parquet")),
+            ]
+        )
+        == 0
+    )
     import pyarrow.parquet as pq
 
     t = pq.read_table(out.with_suffix(".parquet"))
-    assert all(e - s >= 40 for s, e in zip(t["start_frame"].to_pylist(), t["end_frame"].to_pylist()))
+    assert all(e - s >= 40 for s, e in zip(t["start_frame"].to_pylist(), t["end_frame"].to_pylist(), strict=True))
     # the global --block reaches the commands: blocking the similarity package removes `search`
     with pytest.raises(SystemExit) as exit_:
-        main(["--no-entry-points", "--block", "mocapflow.plugins.similarity.plugin", "search", "--db", str(ws),
-              "--query", "02_01:0-40"])
+        main(
+            [
+                "--no-entry-points",
+                "--block",
+                "mocapflow.plugins.similarity.plugin",
+                "search",
+                "--db",
+                str(ws),
+                "--query",
+                "02_01:0-40",
+            ]
+        )
     assert exit_.value.code == 2 and "invalid choice: 'search'" in capsys.readouterr().err
     assert main(["--no-entry-points", "search", "--db", str(tmp_path / "missing"), "--query", "02_01:0-40"]) == 2
     assert "does not exist" in capsys.readouterr().err
@@ -240,8 +283,8 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
 def test_query_files_enter_the_fingerprint(tmp_path):
     f = tmp_path / "walk.amc"
     f.write_text("x")
-    m = LazyNeighborhoodGraph(queries=["walk.amc:0-10", "some_clip:0-5"])
+    m = CertifiedSearch(queries=["walk.amc:0-10", "some_clip:0-5"])
     before = m.source_fingerprint(tmp_path)
-    assert before and LazyNeighborhoodGraph(queries=["some_clip"]).source_fingerprint(tmp_path) == ""
+    assert before and CertifiedSearch(queries=["some_clip"]).source_fingerprint(tmp_path) == ""
     f.write_text("xy")
     assert m.source_fingerprint(tmp_path) != before

@@ -1,5 +1,6 @@
-"""The calibrated cleaner (issue 14): cues against naive references, calibration, bounded
-repair, the paper mode kept, the density injector, and what ``mocapflow clean`` writes."""
+"""The calibrated cleaner: cues against naive references, calibration, bounded repair, the
+paper mode kept, the density injector, and what ``mocapflow clean`` writes."""
+
 from __future__ import annotations
 
 import json
@@ -7,14 +8,21 @@ import json
 import numpy as np
 import pytest
 from naive.cleaning import synthetic_walk
-from naive.cleaning_cues import (naive_acceleration, naive_mirror_gain, naive_persistent, naive_window_median,
-                                 naive_window_min, naive_word_joint)
+from naive.cleaning_cues import (
+    naive_acceleration,
+    naive_mirror_gain,
+    naive_persistent,
+    naive_window_median,
+    naive_window_min,
+    naive_word_joint,
+)
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.selfsim.error_injection import inject_at_density
-from mocapflow.plugins.selfsim import cues
-from mocapflow.plugins.selfsim.fusion import fit_levels, word_joint
-from mocapflow.plugins.selfsim.mdm import MDMCleaner
+from mocapflow.plugins.selfsim.calibrated import cues
+from mocapflow.plugins.selfsim.calibrated.constants import CUES
+from mocapflow.plugins.selfsim.calibrated.fusion import fit_levels, word_joint
+from mocapflow.plugins.selfsim.cleaner import MDMCleaner
+from mocapflow.plugins.selfsim.evaluation.error_injection import inject_at_density
 
 
 def _rand_quats(rng, shape):
@@ -30,8 +38,11 @@ def test_cues_match_naive_references():
         np.testing.assert_array_equal(cues.window_min(x, half), naive_window_min(x, half))
     joints = ["lshoulder", "lelbow", "lwrist", "rshoulder", "relbow", "rwrist", "head"]
     mq = _rand_quats(rng, (12, 7))
-    np.testing.assert_allclose(cues.mirror_gain(q, mq, joints), naive_mirror_gain(q, mq, joints, cues.MIRROR_CHAINS,
-                                                                                  np.deg2rad(5.0)), atol=1e-7)
+    np.testing.assert_allclose(
+        cues.mirror_gain(q, mq, joints),
+        naive_mirror_gain(q, mq, joints, cues.MIRROR_CHAINS, np.deg2rad(5.0)),
+        atol=1e-7,
+    )
     for half in (1, 3):
         np.testing.assert_allclose(cues.window_median(x, half), naive_window_median(x, half))
     for factor in (1.5, 2.0):
@@ -55,13 +66,20 @@ def test_jitter_cue_lasts_where_a_kink_does_not():
     acc = np.zeros((60, 2))
     acc[20:34, 0] = rng.uniform(2.0, 4.0, 14)  # jitter: acceleration on every frame
     acc[40, 1] = 8.0  # an isolated kink
-    cue = {"digression": np.full((60, 2), 0.1), "acceleration": acc, "expected_acc": np.zeros((60, 2)),
-           "mirror": np.zeros((60, 2)), "freeze": np.zeros((60, 2)), "range": np.zeros((60, 2))}
-    scale = {"digression": np.full(2, 0.1), "acceleration": np.ones(2), "spread": np.ones(2)}
+    zero = np.zeros((60, 2))
+    cue = {
+        "digression": np.full((60, 2), 0.1),
+        "acceleration": acc,
+        "expected_acc": zero,
+        "mirror": zero,
+        "hold": zero,
+        "held_freeze": zero,
+    }
+    scale = {"digression": np.full(2, 0.1), "acceleration": np.ones(2)}
     v = cues.cue_values(cue, scale)
-    jit = v[..., cues.CUES.index("jitter")]
+    jit = v[..., CUES.index("jitter")]
     assert jit[24:30, 0].min() >= 2.0 and jit[:, 1].max() == 0.0
-    assert cues.cue_values(cue, scale, 2.0)[40, 1, cues.CUES.index("acceleration")] == 0.0
+    assert cues.cue_values(cue, scale, 2.0)[40, 1, CUES.index("acceleration")] == 0.0
 
 
 def test_mirror_gain_sees_a_swap_only_where_it_is():
@@ -81,7 +99,7 @@ def test_mirror_gain_sees_a_swap_only_where_it_is():
 
 
 def test_swap_back_needs_a_swap_and_undoes_it():
-    from mocapflow.plugins.selfsim.bounded_repair import swap_frames
+    from mocapflow.plugins.selfsim.calibrated.bounded_repair import swap_frames
 
     walk = synthetic_walk(120, seed=2)
     names = [None] * walk.n_joints
@@ -113,7 +131,7 @@ def test_density_injection_is_seeded_and_reaches_the_density():
     share = word_joint(mask_a).any(1).mean()
     assert 0.125 <= share < 0.3
     spans = sorted((e.start, e.end) for e in err_a)
-    assert all(s1 >= e0 for (_, e0), (s1, _) in zip(spans, spans[1:]))  # never overlapping
+    assert all(s1 >= e0 for (_, e0), (s1, _) in zip(spans, spans[1:], strict=False))  # never overlapping
     for e in err_a:
         lo, hi = {"spike": (1, 3), "offset": (6, 18), "freeze": (12, 24), "noise": (8, 16), "swap": (12, 24)}[e.kind]
         assert lo <= e.end - e.start <= hi
@@ -135,8 +153,8 @@ def test_fit_levels_respects_the_false_alarm_budget():
     lam = fit_levels(values, levels, truth, false_alarm=0.01)
     flagged = [word_joint((v / (levels * lam)).max(-1) > 1) for v in values]
     wt = [word_joint(t) for t in truth]
-    fa = sum((f & ~w).sum() for f, w in zip(flagged, wt)) / sum((~w).sum() for w in wt)
-    rec = sum((f & w).sum() for f, w in zip(flagged, wt)) / sum(w.sum() for w in wt)
+    fa = sum((f & ~w).sum() for f, w in zip(flagged, wt, strict=True)) / sum((~w).sum() for w in wt)
+    rec = sum((f & w).sum() for f, w in zip(flagged, wt, strict=True)) / sum(w.sum() for w in wt)
     assert fa <= 0.01 and rec == 1.0 and np.isfinite(lam[0])
 
 
@@ -162,7 +180,7 @@ def test_calibrated_cleaner_leaves_a_clean_take_alone_and_repairs_a_spike(walks)
     assert out.calibration.source == "context" and out.calibration.clips == ["ctx6", "ctx7"]
     c = out.analysis.joints.index("lknee")
     assert out.flags[120:122, c].any()
-    assert set(out.cue[out.flags].tolist()) <= set(cues.CUES)
+    assert set(out.cue[out.flags].tolist()) <= set(CUES)
     err0 = quat.geodesic_angle(bad.rotations[120:122, j], clean.rotations[120:122, j])
     err1 = quat.geodesic_angle(out.cleaned.rotations[120:122, j], clean.rotations[120:122, j])
     assert err1.max() < 0.5 * err0.min()
@@ -178,11 +196,11 @@ def test_calibrated_cleaner_leaves_a_clean_take_alone_and_repairs_a_spike(walks)
 def test_paper_mode_is_the_literal_mdm(walks):
     _, bad, _ = walks
     paper = MDMCleaner(mode="paper", write_bvh=False, heatmaps=False)
-    assert paper.params.normalization == "mean" and paper.params.threshold == 0.5
+    assert paper.params.threshold == 0.5
     out = paper.clean(bad)
     res = out.analysis
     m = res.difference / np.maximum(res.difference.mean(axis=0, keepdims=True), 0.01)
-    np.testing.assert_allclose(res.mdm, 1 - np.exp(-m ** 2))
+    np.testing.assert_allclose(res.mdm, 1 - np.exp(-(m**2)))
     np.testing.assert_array_equal(out.flags, res.mdm > 0.5)
 
 
@@ -228,7 +246,9 @@ def test_clean_honours_block(tmp_path, capsys):
     take = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu" / "16" / "16_15.amc"
     if not take.is_file():
         pytest.skip("bundled example data missing")
-    code = main(["--block", "mocapflow.plugins.formats.plugin", "clean", str(take), "--output", str(tmp_path / "c.bvh")])
+    code = main(
+        ["--block", "mocapflow.plugins.formats.plugin", "clean", str(take), "--output", str(tmp_path / "c.bvh")]
+    )
     assert code == 2 and "no registered reader" in capsys.readouterr().err
 
 
@@ -259,10 +279,16 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     for k in range(2):
         out_dir = tmp_path / f"run{k}" / ".tmp-step"
         out_dir.mkdir(parents=True)
-        ctx = SimpleNamespace(progress=lambda it, **_: it, step_id="mdm", out_dir=out_dir, registries=registries(),
-                              log=SimpleNamespace(info=lambda *_: None),
-                              map_clips=lambda fn, ds, with_ids=False, **_: [
-                                  fn(m, int(i)) for i, m in zip(ds.motions().clip_ids, ds.motions().motions)])
+        ctx = SimpleNamespace(
+            progress=lambda it, **_: it,
+            step_id="mdm",
+            out_dir=out_dir,
+            registries=registries(),
+            log=SimpleNamespace(info=lambda *_: None),
+            map_clips=lambda fn, ds, with_ids=False, **_: [
+                fn(m, int(i)) for i, m in zip(ds.motions().clip_ids, ds.motions().motions, strict=True)
+            ],
+        )
         outs.append(json.dumps(run_cleaner(cleaner, inputs, ctx).summary, sort_keys=True))
     assert outs[0] == outs[1]
     assert str(tmp_path) not in outs[0]
@@ -271,7 +297,7 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
 def test_calibration_budget_is_counted_at_the_analysis_rate():
     # the budget is in analysis frames: the same clips whatever rate the context was read at
     from mocapflow.framework.normalize import resample
-    from mocapflow.plugins.selfsim.calibration import calibration_clips
+    from mocapflow.plugins.selfsim.calibrated.calibration import calibration_clips
 
     walks = [synthetic_walk(n, fps=24.0, seed=s, name=f"w{s}") for s, n in enumerate((300, 260, 200, 120))]
     take = synthetic_walk(100, seed=9)

@@ -1,15 +1,30 @@
 """MDM cleaner kernels against their naive twins (tests/naive/cleaning.py)."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from naive.cleaning import naive_cdtw, naive_distance_function, naive_knn, naive_pose_distance, synthetic_walk
+from naive.cleaning import (
+    brute_knn,
+    naive_cdtw,
+    naive_distance_function,
+    naive_knn,
+    naive_pose_distance,
+    synthetic_walk,
+)
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.selfsim import _mdm_kernels as kern
-from mocapflow.plugins.selfsim.knn import ContextTextures, knn_search
-from mocapflow.plugins.selfsim.motion_words import (DEFAULT_GROUPS, JointGroups, motion_texture, pose_distance,
-                                                     resolve_groups, source_word_starts, target_word_layout)
+from mocapflow.plugins.selfsim.paper import _mdm_kernels as kern
+from mocapflow.plugins.selfsim.paper.knn import ContextTextures, knn_search
+from mocapflow.plugins.selfsim.paper.motion_words import (
+    DEFAULT_GROUPS,
+    JointGroups,
+    motion_texture,
+    pose_distance,
+    resolve_groups,
+    source_word_starts,
+    target_word_layout,
+)
 
 
 def _random_quats(rng, shape):
@@ -44,7 +59,7 @@ def test_cdtw_matches_naive(n, ln, r):
     rng = np.random.default_rng(n * 100 + ln * 10 + r)
     for _ in range(5):
         d = rng.random((n + 3, ln + 4)).astype(np.float32)
-        mean_ref, path_ref = naive_cdtw(d[2:2 + n, 1:1 + ln], r)
+        mean_ref, path_ref = naive_cdtw(d[2 : 2 + n, 1 : 1 + ln], r)
         m = max(ln, 1)
         cur, prev = np.empty((m, 2 * r + 1)), np.empty((m, 2 * r + 1))
         lc, lp = np.empty((m, 2 * r + 1), np.int64), np.empty((m, 2 * r + 1), np.int64)
@@ -78,7 +93,7 @@ def test_cdtw_slope_constraint_limits_runs():
     _, path = kern.cdtw_path(d, 0, 0, 15, 20, 2)
     steps = [tuple(s) for s in np.diff(path, axis=0)]
     run = best = 0
-    for a, b in zip(steps, steps[1:] + [None]):
+    for a, b in zip(steps, steps[1:] + [None], strict=True):
         run = run + 1 if a != (1, 1) and a == b else 0
         best = max(best, run + (a != (1, 1)))
     assert best <= 2
@@ -125,13 +140,15 @@ def test_knn_pruned_equals_brute_and_naive(self_clip):
     n, m, r, k = 6, 8, 2, 3
     starts = source_word_starts(len(src), n, 4)
     kw = dict(self_clip=self_clip, source_length=n, target_length=m, word_starts=starts, k=k, slope_run=r)
-    fast = knn_search(src, ctx, groups, method="pruned", **kw)
-    brute = knn_search(src, ctx, groups, method="brute", **kw)
-    np.testing.assert_array_equal(fast.target, brute.target)
-    np.testing.assert_array_equal(fast.distance, brute.distance)
-    assert fast.n_dtw <= brute.n_dtw
+    fast = knn_search(src, ctx, groups, **kw)
+    target, distance, n_dtw = brute_knn(src, ctx, groups, **kw)
+    np.testing.assert_array_equal(fast.target, target)
+    np.testing.assert_array_equal(fast.distance, distance)
+    assert fast.n_dtw <= n_dtw
     for g in range(groups.n_groups):
-        ref = naive_knn(src, ctx.q, ctx.clip_lengths, starts, n, m, groups.mask[g], int(groups.drop[g]), r, k, self_clip)
+        ref = naive_knn(
+            src, ctx.q, ctx.clip_lengths, starts, n, m, groups.mask[g], int(groups.drop[g]), r, k, self_clip
+        )
         for w, words in enumerate(ref):
             assert [t for t, _ in words] == [t for t in fast.target[g, w] if t >= 0]
             np.testing.assert_allclose([dd for _, dd in words], fast.distance[g, w][: len(words)], rtol=1e-9)
@@ -143,9 +160,8 @@ def test_knn_ties_on_a_constant_signal():
     groups = resolve_groups(("a", "b", "c"), [("all", (), 0)])
     starts = source_word_starts(40, 6, 5)
     kw = dict(self_clip=0, source_length=6, target_length=8, word_starts=starts, k=4, slope_run=2)
-    fast = knn_search(q, ctx, groups, method="pruned", **kw)
-    brute = knn_search(q, ctx, groups, method="brute", **kw)
-    np.testing.assert_array_equal(fast.target, brute.target)
+    fast = knn_search(q, ctx, groups, **kw)
+    np.testing.assert_array_equal(fast.target, brute_knn(q, ctx, groups, **kw)[0])
     assert np.all(fast.distance[fast.target >= 0] == 0.0)
 
 
@@ -154,9 +170,8 @@ def test_knn_on_synthetic_walk_and_warp_shapes():
     groups = resolve_groups(tex.joints, DEFAULT_GROUPS)
     starts = source_word_starts(tex.n_frames, 15, 5)
     ctx = ContextTextures.from_arrays([tex.q])
-    fast = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts, method="pruned")
-    brute = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts, method="brute")
-    np.testing.assert_array_equal(fast.target, brute.target)
+    fast = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts)
+    np.testing.assert_array_equal(fast.target, brute_knn(tex.q, ctx, groups, starts, self_clip=0)[0])
     assert fast.warped.shape == (5, len(starts), 5, 15, 24, 4)
     ok = fast.target >= 0
     assert np.allclose(np.linalg.norm(fast.warped[ok], axis=-1), 1.0)
@@ -176,11 +191,11 @@ def test_knn_equals_brute_force_on_real_clips():
     ctx = ContextTextures.from_arrays([tex.q, motion_texture(other, joints).q])
     groups = resolve_groups(joints, DEFAULT_GROUPS)
     starts = source_word_starts(tex.n_frames, 15, 5)
-    fast = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts, method="pruned")
-    brute = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts, method="brute")
-    np.testing.assert_array_equal(fast.target, brute.target)
-    np.testing.assert_array_equal(fast.distance, brute.distance)
-    assert fast.n_dtw < brute.n_dtw
+    fast = knn_search(tex.q, ctx, groups, self_clip=0, word_starts=starts)
+    target, distance, n_dtw = brute_knn(tex.q, ctx, groups, starts, self_clip=0)
+    np.testing.assert_array_equal(fast.target, target)
+    np.testing.assert_array_equal(fast.distance, distance)
+    assert fast.n_dtw < n_dtw
 
 
 def test_resolve_groups_rejects_empty_group():

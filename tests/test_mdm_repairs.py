@@ -1,5 +1,6 @@
-"""Swaps found by their edges, offsets repaired between their jumps, and the protocol's
-source-glitch mask (issue 14), against naive references and on a synthetic walk."""
+"""Swaps found by their edges, offsets repaired between their jumps, the decision's rules and
+the protocol's source-glitch mask, against naive references and on a synthetic walk."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,9 +8,10 @@ from naive.cleaning import synthetic_walk
 from naive.cleaning_repairs import naive_edge_benefit, naive_forward_offset
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.plugins.selfsim import cues
-from mocapflow.plugins.selfsim.offsets import _forward_offsets, offset_interval, remove_offset
-from mocapflow.plugins.selfsim.swaps import edge_benefit, swap_edges
+from mocapflow.plugins.selfsim.calibrated import cues
+from mocapflow.plugins.selfsim.calibrated.constants import CUES
+from mocapflow.plugins.selfsim.calibrated.offsets import _forward_offsets, offset_interval, remove_offset
+from mocapflow.plugins.selfsim.calibrated.swaps import edge_benefit, swap_edges
 
 
 def _walk():
@@ -66,21 +68,20 @@ def test_offset_interval_recovers_a_partly_flagged_offset():
 
 
 def test_cleaner_repairs_a_swap_found_by_its_edges_alone():
-    from mocapflow.plugins.selfsim.decision import clean_motion
-    from mocapflow.plugins.selfsim.mdm import MDMCleaner, MDMParams
+    from mocapflow.plugins.selfsim.cleaner import MDMCleaner, MDMParams, clean_motion
 
     walk = synthetic_walk(200, seed=4)
     ctx = [synthetic_walk(200, seed=s, name=f"c{s}") for s in (5, 6)]
     c = walk.skeleton.canonical
     rot, left, right = _swap(quat.make_continuous(walk.rotations, axis=0), c, 80, 100)
     bad = walk.with_arrays(rotations=rot)
-    cl = MDMCleaner(MDMParams(write_bvh=False, heatmaps=False, calibration_frames=200))
+    cl = MDMCleaner(MDMParams(write_bvh=False, heatmaps=False, calibrated={"frames": 200}))
     out = clean_motion(cl, bad, ctx)
     tex = out.analysis.texture
     cols = [list(tex.joint_index).index(j) for j in left + right]
     clean_tex = quat.make_continuous(walk.rotations, axis=0)[:, tex.joint_index]
     # every cell the swap moved by an error's size is reported, and only as a swap (cells it
-    # moved less are swapped back too, not claimed: flag_min_deg)
+    # moved less are swapped back too, not claimed: FLAG_MIN_DEG)
     moved = np.rad2deg(quat.geodesic_angle(tex.q[80:100][:, cols], clean_tex[80:100][:, cols])) >= 10.0
     assert moved.sum() > 0.5 * moved.size and out.flags[80:100][:, cols][moved].all()
     assert set(out.cue[80:100][:, cols][out.flags[80:100][:, cols]].ravel()) == {"mirror"}
@@ -91,7 +92,7 @@ def test_cleaner_repairs_a_swap_found_by_its_edges_alone():
 
 
 def test_source_glitches_marks_a_flip_not_a_raised_arm():
-    from mocapflow.plugins.selfsim.clean_eval import source_glitches
+    from mocapflow.plugins.selfsim.evaluation.scores import source_glitches
 
     q, names, c = _walk()
     tex = q.copy()
@@ -110,8 +111,7 @@ def test_source_glitches_marks_a_flip_not_a_raised_arm():
 
 
 def test_digression_only_runs_need_another_cue():
-    from mocapflow.plugins.selfsim.cues import CUES
-    from mocapflow.plugins.selfsim.decision import _agreeing
+    from mocapflow.plugins.selfsim.calibrated.decision import _agreeing
 
     flags = np.zeros((20, 2), bool)
     flags[3:6, 0] = flags[10:13, 0] = flags[3:6, 1] = True
@@ -124,8 +124,7 @@ def test_digression_only_runs_need_another_cue():
 
 
 def test_a_whole_body_jolt_is_no_joint_error():
-    from mocapflow.plugins.selfsim.cues import CUES
-    from mocapflow.plugins.selfsim.decision import _body_jolts_dropped
+    from mocapflow.plugins.selfsim.calibrated.decision import _body_jolts_dropped
 
     acc, dig = CUES.index("acceleration"), CUES.index("digression")
     flags = np.zeros((10, 5), bool)
@@ -139,8 +138,7 @@ def test_a_whole_body_jolt_is_no_joint_error():
 
 
 def test_a_freeze_flag_grows_over_the_whole_still_interval():
-    from mocapflow.plugins.selfsim.cues import CUES
-    from mocapflow.plugins.selfsim.decision import _freezes_grown
+    from mocapflow.plugins.selfsim.calibrated.decision import _freezes_grown
 
     walk = synthetic_walk(60, seed=1)
     q = quat.make_continuous(walk.rotations, axis=0)[:, :3].copy()
@@ -153,3 +151,46 @@ def test_a_freeze_flag_grows_over_the_whole_still_interval():
     out, dom2 = _freezes_grown(flags, dom, q, np.deg2rad(0.05))
     assert out[20:35, 1].all() and not out[:20, 1].any() and not out[35:, 1].any()
     assert np.all(dom2[20:35, 1] == fz) and out[40, 0] and out.sum() == 16
+
+
+def _rot(q, deg, axis=(0.0, 0.6, 0.8)):
+    return quat.mul(q, quat.from_axis_angle(np.asarray(axis), np.deg2rad(deg)))
+
+
+def test_weak_runs_are_moved_in_proportion_to_their_evidence():
+    from mocapflow.plugins.selfsim.calibrated.decision import shrink_weak_runs
+
+    q = quat.make_continuous(synthetic_walk(40, seed=2).rotations, axis=0)[:, :3].copy()
+    new = q.copy()
+    new[5:7, 0] = _rot(q[5:7, 0], 20.0)  # weak run: evidence 1.25
+    new[20, 1] = _rot(q[20, 1], 40.0)  # strong run: evidence 4
+    new[30, 2] = _rot(q[30, 2], 20.0)  # weak, but decided by a cue not shrunk
+    edited = np.any(new != q, axis=-1)
+    ev = np.zeros(edited.shape)
+    ev[5:7, 0], ev[20, 1], ev[30, 2] = [1.1, 1.25], 4.0, 1.1
+    eligible = edited.copy()
+    eligible[30, 2] = False
+    out = shrink_weak_runs(q, new, edited, np.zeros_like(edited), ev, eligible, full=2.0)
+    got = np.rad2deg(quat.geodesic_angle(out, q))
+    np.testing.assert_allclose(got[5:7, 0], 0.25 * 20.0, atol=1e-6)  # (1.25 - 1) / (2 - 1)
+    assert abs(got[20, 1] - 40.0) < 1e-6 and abs(got[30, 2] - 20.0) < 1e-6
+    assert np.array_equal(out[~edited], q[~edited])
+
+
+def test_freeze_growth_stops_where_the_consensus_is_still_too():
+    from mocapflow.plugins.selfsim.calibrated.decision import _freezes_grown
+
+    walk = quat.make_continuous(synthetic_walk(60, seed=2).rotations, axis=0)[:, :3]
+    q = walk.copy()
+    q[20:35, 1] = q[20, 1]  # joint 1 still over frames 20-34
+    mean_q = q.copy()
+    mean_q[20:35, 1] = walk[20:35, 1]  # the consensus moves on ...
+    mean_q[28:35, 1] = mean_q[28, 1]  # ... then holds still from frame 28
+    fz = CUES.index("freeze")
+    flags = np.zeros((60, 3), bool)
+    dom = np.full((60, 3), CUES.index("digression"))
+    flags[24:26, 1], dom[24:26, 1] = True, fz
+    grown, _ = _freezes_grown(flags, dom, q, np.deg2rad(0.05))
+    assert grown[20:35, 1].all()
+    moving, _ = _freezes_grown(flags, dom, q, np.deg2rad(0.05), mean_q, np.deg2rad(0.05))
+    assert moving[20:26, 1].all() and not moving[31:35, 1].any()

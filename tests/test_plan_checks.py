@@ -1,4 +1,4 @@
-"""Validation before anything runs (issue 11 §4): nested component parameters, dataset
+"""Validation before anything runs: nested component parameters, dataset
 kinds of inputs, the executor, and components' own plan-time checks (globs)."""
 
 from __future__ import annotations
@@ -49,23 +49,23 @@ steps:
 
 def test_nested_cleaner_parameters_are_validated_at_plan_time_via_set(tmp_path):
     p = write(tmp_path, EVAL)
-    item = 'evaluation.cleaner={"normalisation": "median"}'
+    item = 'evaluation.cleaner={"treshold": 0.6}'
     with pytest.raises(ConfigError) as err:
         plan(p, [item])
     msg = str(err.value)
     assert f"{p}:11" in msg and f"--set {item!r}" in msg, msg  # the step's `with:` line and the --set item
-    assert "step 'evaluation'" in msg and "unknown parameter 'cleaner.normalisation'" in msg, msg
-    assert "parameters of cleaners.mdm" in msg and "did you mean 'normalization'" in msg, msg
+    assert "step 'evaluation'" in msg and "unknown parameter 'cleaner.treshold'" in msg, msg
+    assert "parameters of cleaners.mdm" in msg and "did you mean 'threshold'" in msg, msg
     assert main(["--no-entry-points", "plan", str(p), "--set", item]) == 2
-    plan(p, ['evaluation.cleaner={"normalization": "median"}'])  # the right spelling plans
+    plan(p, ['evaluation.cleaner={"threshold": 0.6}'])  # the right spelling plans
 
 
 def test_nested_parameters_in_yaml_point_at_their_line(tmp_path):
-    p = write(tmp_path, EVAL + "      cleaner:\n        k: 5\n        normalization: avg\n")
+    p = write(tmp_path, EVAL + "      cleaner:\n        k: 5\n        mode: avg\n")
     with pytest.raises(ConfigError) as err:
         plan(p)
     msg = str(err.value)
-    assert f"{p}:15" in msg and "parameter 'cleaner.normalization'" in msg and "'avg'" in msg, msg
+    assert f"{p}:15" in msg and "parameter 'cleaner.mode'" in msg and "'avg'" in msg, msg
 
 
 def test_nested_key_may_name_a_sibling_parameter(tmp_path):

@@ -1,19 +1,27 @@
 """analyses.reconstruct: sparse-marker reconstruction on synthetic periodic motions."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from naive.knn import ckdtree_index_class
 
 from mocapflow.framework import FeatureSet, Motion, MotionDatabase
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.testing import synthetic_skeleton
-from mocapflow.plugins.similarity.retarget import positions_to_motion
-from mocapflow.plugins.similarity.reconstruct import (
-    PosePrior, PriorDatabase, ReconstructParams, joint_errors, local_poses,
-    reconstruct_motion, reconstruct_positions, synthetic_markers,
+from mocapflow.plugins.similarity.applications.reconstruct import (
+    PosePrior,
+    PriorDatabase,
+    ReconstructModel,
+    ReconstructParams,
+    joint_errors,
+    local_poses,
+    reconstruct_motion,
+    reconstruct_positions,
+    synthetic_markers,
 )
-from naive.knn import ckdtree_index_class
+from mocapflow.plugins.similarity.applications.retarget import positions_to_motion
 
 CKDTreeIndex = ckdtree_index_class()
 
@@ -33,8 +41,9 @@ class EndEffectors15(FeatureSet):
         return p[:, 3:].reshape(motion.n_frames, 15)
 
 
-def periodic_motion(n_frames: int, t0: float = 0.0, amp: float = 1.0, yaw_deg: float = 0.0, name: str = "m",
-                    subject: str = "s") -> Motion:
+def periodic_motion(
+    n_frames: int, t0: float = 0.0, amp: float = 1.0, yaw_deg: float = 0.0, name: str = "m", subject: str = "s"
+) -> Motion:
     """A 1 Hz gait-like cycle: fixed per-joint sines, so every pose recurs each 30 frames."""
     sk = synthetic_skeleton()
     rng = np.random.default_rng(42)
@@ -52,9 +61,13 @@ def periodic_motion(n_frames: int, t0: float = 0.0, amp: float = 1.0, yaw_deg: f
 
 @pytest.fixture(scope="module")
 def prior_store():
-    db = MotionDatabase([periodic_motion(90, 0.0, name="a", subject="s1"),
-                         periodic_motion(60, 0.13, amp=0.9, name="b", subject="s1"),
-                         periodic_motion(60, 0.31, amp=1.1, name="c", subject="s2")])
+    db = MotionDatabase(
+        [
+            periodic_motion(90, 0.0, name="a", subject="s1"),
+            periodic_motion(60, 0.13, amp=0.9, name="b", subject="s1"),
+            periodic_motion(60, 0.31, amp=1.1, name="c", subject="s2"),
+        ]
+    )
     return PriorDatabase(db, EndEffectors15())
 
 
@@ -126,7 +139,7 @@ def test_input_validation(prior_store):
     with pytest.raises(DataError):
         reconstruct_positions(np.zeros((5, 4, 3)), prior)
     with pytest.raises(DataError):
-        reconstruct_positions(np.zeros((5, 6, 3)), prior, ReconstructParams(markers=("head", "lwrist")))
+        reconstruct_positions(np.zeros((5, 2, 3)), prior, model=ReconstructModel(markers=("head", "lwrist")))
     assert reconstruct_positions(np.zeros((0, 6, 3)), prior)[0].shape == (0, len(prior.joints), 3)
     m = periodic_motion(3, 0.5 / 30)
     for n in (1, 2, 3):  # one-frame clips and clips shorter than the backward pass
@@ -144,8 +157,9 @@ def test_pipeline_end_to_end(tmp_path):
     from mocapflow.framework import Dataset, get_plugin_manager
     from mocapflow.framework.runner import run_pipeline
 
-    run_pipeline(REPO / "pipelines" / "reconstruct.yaml", workspace=tmp_path, jobs=1,
-                 pm=get_plugin_manager(entry_points=False))
+    run_pipeline(
+        REPO / "pipelines" / "reconstruct.yaml", workspace=tmp_path, jobs=1, pm=get_plugin_manager(entry_points=False)
+    )
     rec = Dataset(tmp_path / "reconstruction")
     clips = rec.table("clip_errors").to_pylist()
     assert sorted(c["name"] for c in clips) == ["02_01", "16_15"]

@@ -1,18 +1,24 @@
 """Coarse-rate template search (plugins/relational/template_coarse.py) against a plain decimation
 by hand, and the rival check's window kernel against its definition."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from mocapflow.plugins.relational.template_coarse import (CoarseCodes, coarse_layout, coarse_search, coarse_template,
-                                                          template_step)
+from mocapflow.plugins.relational.template_coarse import (
+    CoarseCodes,
+    coarse_layout,
+    coarse_search,
+    coarse_template,
+    template_step,
+)
 from mocapflow.plugins.relational.template_model import MotionTemplate, fit_class_template, frame_codes, search_costs
 
 
 def _naive_layout(offsets, step):
     frames, off = [], [0]
-    for a, b in zip(offsets[:-1], offsets[1:]):
+    for a, b in zip(offsets[:-1], offsets[1:], strict=True):
         r = list(range(a, b, step))
         frames += r
         off.append(off[-1] + len(r))
@@ -61,8 +67,11 @@ def test_coarse_template_rows_and_steps():
     c3 = coarse_template(t, 3)
     np.testing.assert_array_equal(c3.mean, t.mean[::3])
     assert coarse_template(t, 3) is c3  # cached: its lookup table is built once
-    assert template_step(t, 2) == 2 and template_step(t, "auto", coarse_frames=30) == t.n_frames // 30
-    assert template_step(t, "auto", coarse_frames=1, max_step=4) == 4
+    assert template_step(t, 2) == 2
+    # auto: at least 7 coarse rows, at most every 4th frame (a 22-frame hop at 30 Hz: every 3rd)
+    for k, want in ((6, 1), (13, 1), (22, 3), (28, 4), (181, 4)):
+        tk = MotionTemplate("k", np.zeros((k, 31), np.float32), np.arange(31), 0.2, 1.0, 1)
+        assert template_step(tk, "auto") == want, k
 
 
 def test_rival_window_minima_matches_definition():
@@ -76,16 +85,16 @@ def test_rival_window_minima_matches_definition():
     hi = np.minimum(lo + rng.integers(0, 12, 25), 60)
     o, r = rival_window_minima(own, best, second, arg, 1, lo, hi)
     other = np.where(arg == 1, second, best)
-    np.testing.assert_array_equal(o, [own[a:b].min() if b > a else np.inf for a, b in zip(lo, hi)])
-    np.testing.assert_array_equal(r, [other[a:b].min() if b > a else np.inf for a, b in zip(lo, hi)])
+    np.testing.assert_array_equal(o, [own[a:b].min() if b > a else np.inf for a, b in zip(lo, hi, strict=True)])
+    np.testing.assert_array_equal(r, [other[a:b].min() if b > a else np.inf for a, b in zip(lo, hi, strict=True)])
 
 
 def test_cutoff_hits_coarse_step_keeps_the_rival_decision():
     from mocapflow.plugins.relational.template import cutoff_hits
 
     t, codes, offsets = _setup()
-    full = cutoff_hits([t], codes, offsets, "threshold", threshold=0.5)
+    full = cutoff_hits([t], codes, offsets, threshold=0.5)
     for step in (2, "auto"):
-        got = cutoff_hits([t], codes, offsets, "threshold", threshold=0.5, step=step)
+        got = cutoff_hits([t], codes, offsets, threshold=0.5, step=step)
         clips = set((np.searchsorted(offsets, got[0][0], side="right") - 1).tolist())
         assert clips == set((np.searchsorted(offsets, full[0][0], side="right") - 1).tolist())

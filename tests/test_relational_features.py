@@ -1,4 +1,5 @@
 """Relational features (Müller et al. 2005, Table 1): primitives, kernels, constructed poses, real clips."""
+
 from __future__ import annotations
 
 import glob
@@ -11,10 +12,18 @@ from naive.relational import motion_from_positions, pose_array
 
 from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import ConfigError
-from mocapflow.plugins.relational.body import body_measures
 from mocapflow.plugins.relational import primitives as prim
-from mocapflow.plugins.relational.features import (FEATURE_IDS, FEATURES, RelationalFeatures, feature_column,
-                                                   feature_values, relational_features, set_codes)
+from mocapflow.plugins.relational.body import body_measures
+from mocapflow.plugins.relational.features import (
+    FEATURE_IDS,
+    FEATURES,
+    THRESHOLDS,
+    RelationalFeatures,
+    feature_column,
+    feature_values,
+    relational_features,
+    set_codes,
+)
 
 RNG = np.random.default_rng(7)
 
@@ -43,7 +52,9 @@ def test_segment_distance_awkward_cases():
     # parallel segments, a point segment, crossing segments
     assert prim.segment_segment_distance(z, [1, 0, 0], [0, 1, 0], [1, 1, 0]) == pytest.approx(1, abs=1e-6)
     assert prim.segment_segment_distance(z, z, [0, 2, 0], [0, 3, 0]) == pytest.approx(2, abs=1e-6)
-    assert prim.segment_segment_distance([-1, 0, 0], [1, 0, 0], [0, -1, 0.5], [0, 1, 0.5]) == pytest.approx(0.5, abs=1e-6)
+    assert prim.segment_segment_distance([-1, 0, 0], [1, 0, 0], [0, -1, 0.5], [0, 1, 0.5]) == pytest.approx(
+        0.5, abs=1e-6
+    )
     # a fixed normal direction broadcasts against per-frame points
     q = np.array([[0, 2, 0], [0, -1, 0]], float)
     np.testing.assert_allclose(prim.normal_plane_distance(z, [0, 1, 0], z, q), [2, -1], atol=1e-6)
@@ -59,21 +70,14 @@ def test_speed_never_crosses_clip_boundaries():
     assert not prim.speed(np.ones((5, 3)), 30.0).any()
 
 
-def test_hysteresis_matches_naive():
-    offsets = np.array([0, 7, 8, 30])
-    stay = RNG.random((30, 3)) < 0.6
-    on_ = stay & (RNG.random((30, 3)) < 0.5)
-    np.testing.assert_array_equal(prim.hysteresis(on_, stay, offsets), naive.hysteresis(on_, stay, offsets))
-
-
 def test_kernel_matches_naive_features():
     # random perturbations of the standing pose, two clips, a missing joint (fallback)
     frames = pose_array()[None] + RNG.normal(scale=0.15, size=(40, 25, 3))
     frames[:, naive.CANONICAL_JOINTS.index("ltoes")] = np.nan  # missing joint -> fallback lankle
     offsets = np.array([0, 1, 40])
     meas = {"humerus_length": 0.28, "shoulder_width": 0.4, "hip_width": 0.2}
-    for hyst in (False, True):
-        params = RelationalFeatures.Params(hysteresis=hyst)
+    for over in ({}, {"foot_raised": 0.5, "bent_angle": 100.0}):
+        params = RelationalFeatures.Params(thresholds=over)
         got = relational_features(frames, 30.0, meas, params, offsets)
         want = naive.feature_bits(FEATURES, params, frames, 30.0, meas, offsets)
         # values at a threshold may round either way in float32: allow a tiny fraction
@@ -104,16 +108,26 @@ MOVED = {
     "U6": dict(lelbow=(0.48, 1.45, 0), lwrist=(0.75, 1.45, 0), lfingers=(0.85, 1.45, 0)),
     "U7": dict(rwrist=(-0.25, 1.17, 0.25), rfingers=(-0.25, 1.17, 0.35)),
     "U8": dict(lwrist=(0.25, 1.17, 0.25), lfingers=(0.25, 1.17, 0.35)),
-    "U11": dict(rwrist=(0.15, 1.2, 0.2), lwrist=(-0.15, 1.2, 0.25), rfingers=(0.2, 1.2, 0.3), lfingers=(-0.2, 1.2, 0.3)),
-    "U12": dict(rwrist=(-0.04, 1.2, 0.3), rfingers=(0.0, 1.2, 0.38), lwrist=(0.04, 1.2, 0.3), lfingers=(0.0, 1.22, 0.38)),
+    "U11": dict(
+        rwrist=(0.15, 1.2, 0.2), lwrist=(-0.15, 1.2, 0.25), rfingers=(0.2, 1.2, 0.3), lfingers=(-0.2, 1.2, 0.3)
+    ),
+    "U12": dict(
+        rwrist=(-0.04, 1.2, 0.3), rfingers=(0.0, 1.2, 0.38), lwrist=(0.04, 1.2, 0.3), lfingers=(0.0, 1.22, 0.38)
+    ),
     "M1": dict(rwrist=(-0.15, 0.7, 0.05), rfingers=(-0.15, 0.6, 0.05)),
     "M2": dict(lwrist=(0.15, 0.7, 0.05), lfingers=(0.15, 0.6, 0.05)),
     "M3": dict(relbow=(-0.3, 1.5, 0.2), rwrist=(-0.1, 1.65, 0.05), rfingers=(-0.05, 1.7, 0.05)),
     "M4": dict(lelbow=(0.3, 1.5, 0.2), lwrist=(0.1, 1.65, 0.05), lfingers=(0.05, 1.7, 0.05)),
     "M5": dict(rwrist=(-0.05, 0.95, 0.1), rfingers=(0.0, 0.9, 0.12)),
     "M6": dict(lwrist=(0.05, 0.95, 0.1), lfingers=(0.0, 0.9, 0.12)),
-    "M7": dict(lowerback=(0, 1.02, 0.12), upperback=(0, 1.04, 0.25), chest=(0, 1.05, 0.35), neck=(0, 1.05, 0.5),
-               head=(0, 1.05, 0.6), headtop=(0, 1.05, 0.75)),
+    "M7": dict(
+        lowerback=(0, 1.02, 0.12),
+        upperback=(0, 1.04, 0.25),
+        chest=(0, 1.05, 0.35),
+        neck=(0, 1.05, 0.5),
+        head=(0, 1.05, 0.6),
+        headtop=(0, 1.05, 0.75),
+    ),
 }
 
 
@@ -127,9 +141,28 @@ def test_static_feature_on_constructed_pose(fid):
     got = on(bits_of(pose_array(**MOVED[fid]))[0])
     assert fid in got, f"{fid} ({FEATURES[feature_column(fid)].description}) should fire: {sorted(got)}"
     # the mirrored feature stays off
-    mirror = {"L3": "L4", "L4": "L3", "L7": "L8", "L8": "L7", "L9": "L10", "L10": "L9", "U1": "U2", "U2": "U1",
-              "U3": "U4", "U4": "U3", "U5": "U6", "U6": "U5", "U7": "U8", "U8": "U7", "M1": "M2", "M2": "M1",
-              "M3": "M4", "M4": "M3", "M5": "M6", "M6": "M5"}.get(fid)
+    mirror = {
+        "L3": "L4",
+        "L4": "L3",
+        "L7": "L8",
+        "L8": "L7",
+        "L9": "L10",
+        "L10": "L9",
+        "U1": "U2",
+        "U2": "U1",
+        "U3": "U4",
+        "U4": "U3",
+        "U5": "U6",
+        "U6": "U5",
+        "U7": "U8",
+        "U8": "U7",
+        "M1": "M2",
+        "M2": "M1",
+        "M3": "M4",
+        "M4": "M3",
+        "M5": "M6",
+        "M6": "M5",
+    }.get(fid)
     if mirror:
         assert mirror not in got
 
@@ -141,8 +174,9 @@ def test_foot_front_turns_off_when_foot_behind():
     assert "L2" not in got and "L1" in got
 
 
-@pytest.mark.parametrize("fid,joints", [("L5", ["rtoes"]), ("L6", ["ltoes"]), ("U9", ["rwrist"]),
-                                        ("U10", ["lwrist"]), ("M8", None)])
+@pytest.mark.parametrize(
+    "fid,joints", [("L5", ["rtoes"]), ("L6", ["ltoes"]), ("U9", ["rwrist"]), ("U10", ["lwrist"]), ("M8", None)]
+)
 def test_speed_features(fid, joints):
     frames = np.stack([STAND] * 5)
     step = np.array([0.0, 0.0, 0.1])  # 0.1 m per frame at 30 Hz = 3 m/s > 2 humerus lengths/s
@@ -220,9 +254,7 @@ def test_docs_table_lists_every_feature_with_its_thresholds():
     from pathlib import Path
 
     doc = (Path(__file__).resolve().parent.parent / "docs" / "relational-features.md").read_text()
-    params = RelationalFeatures.Params()
     for d in FEATURES:
         row = next((line for line in doc.splitlines() if line.startswith(f"| {d.id} |")), None)
         assert row is not None, f"{d.id} missing from docs/relational-features.md"
-        thr, strict = getattr(params, d.param)
-        assert f"`{d.name}`" in row and d.definition in row and f"{thr:g}" in row and f"{strict:g}" in row, row
+        assert f"`{d.name}`" in row and d.definition in row and f"{THRESHOLDS[d.param]:g}" in row, row

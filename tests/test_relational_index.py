@@ -1,4 +1,5 @@
 """Adaptive segmentation and inverted-list indexes: exact, fuzzy, adaptive fuzzy, m-mismatch hits."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,9 +7,9 @@ import pytest
 from naive import relational as naive
 
 from mocapflow.framework.errors import DataError
-from mocapflow.plugins.relational.segmentation import offsets_from_clip_ids, pack_codes, segment, segment_codes
 from mocapflow.plugins.relational.inverted import InvertedIndex, SetIndex
 from mocapflow.plugins.relational.queries import coarsen_fuzzy, search_set
+from mocapflow.plugins.relational.segmentation import offsets_from_clip_ids, pack_codes, segment, segment_codes
 
 RNG = np.random.default_rng(3)
 
@@ -34,7 +35,7 @@ def test_segmentation_matches_naive_and_splits_at_clip_boundaries():
     offsets = np.array([0, 4, 4, 6, 9])  # an empty clip too
     seg = segment_codes(codes, offsets)
     want = naive.segments(codes, offsets)
-    assert list(zip(seg.start, seg.end, seg.code, seg.clip)) == [(a, b, c, k) for a, b, c, k in want]
+    assert list(zip(seg.start, seg.end, seg.code, seg.clip, strict=True)) == [(a, b, c, k) for a, b, c, k in want]
     assert (seg.end[:-1] == seg.start[1:]).all() and seg.lengths.sum() == len(codes)
     # a one-frame clip, a constant signal
     one = segment_codes(np.array([5]))
@@ -80,8 +81,9 @@ def test_paper_example_adaptive_fuzzy_hits():
     np.testing.assert_array_equal(idx.adaptive(member) + 1, [[2, 3, 6, 7], [6, 7, 10, 11]])
     assert len(idx.fuzzy(member)) == 0
     # the adaptive hits equal the exact hits of the first component alone (F^r), as the paper notes
-    fr = SetIndex.build("fr", np.repeat(WALK & 1, (2, 1, 3, 2, 1, 2, 4, 1, 2, 3)), np.arange(1),
-                        np.array([0]), np.array([0, 21]))
+    fr = SetIndex.build(
+        "fr", np.repeat(WALK & 1, (2, 1, 3, 2, 1, 2, 4, 1, 2, 3)), np.arange(1), np.array([0]), np.array([0, 21])
+    )
     hits = fr.exact(np.array([0, 1, 0]))
     levels, _ = search_set(idx, member, "adaptive")
     np.testing.assert_array_equal(fr.seg_start[hits], levels[:, 0, 0])
@@ -95,7 +97,7 @@ def test_hits_match_naive_on_random_indexes(seed):
     w, clip = idx.seg_code.tolist(), idx.seg_clip.tolist()
     for length in (1, 2, 3, 4):
         k = int(RNG.integers(0, idx.n_segments - length))
-        q = idx.seg_code[k:k + length]
+        q = idx.seg_code[k : k + length]
         assert idx.exact(q).tolist() == naive.exact_hits(w, clip, q.tolist())
         member = RNG.random((length, 8)) < 0.4
         member[np.arange(length), q] = True
@@ -109,7 +111,7 @@ def test_hits_match_naive_on_random_indexes(seed):
         allowed = RNG.random(length) < 0.7
         for m in (0, 1, 2):
             s, bad = mismatch_scan(idx.seg_code, idx.seg_clip, member, allowed, m)
-            assert list(zip(s.tolist(), bad.tolist())) == naive.mismatch_hits(w, clip, sets, m, allowed)
+            assert list(zip(s.tolist(), bad.tolist(), strict=True)) == naive.mismatch_hits(w, clip, sets, m, allowed)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -146,8 +148,18 @@ def test_index_build_save_load_roundtrip(tmp_path):
     back = InvertedIndex.load(tmp_path / "index")
     for name in ("lower", "upper", "mixed"):
         a, b = index.sets[name], back.sets[name]
-        for f in ("seg_start", "seg_end", "seg_code", "seg_clip", "clip_ids", "clip_offsets", "list_codes",
-                  "list_offsets", "list_positions", "columns"):
+        for f in (
+            "seg_start",
+            "seg_end",
+            "seg_code",
+            "seg_clip",
+            "clip_ids",
+            "clip_offsets",
+            "list_codes",
+            "list_offsets",
+            "list_positions",
+            "columns",
+        ):
             np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f"{name}.{f}")
     # no segment crosses a clip boundary; segments tile each clip
     s = index.sets["upper"]

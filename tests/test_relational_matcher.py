@@ -1,4 +1,5 @@
 """matchers.relational: queries by example, several indexes, scene descriptions, ranking, DTW refinement."""
+
 from __future__ import annotations
 
 import glob
@@ -9,12 +10,12 @@ from conftest import corpus_path
 from naive import relational as naive
 
 from mocapflow.framework.errors import ConfigError
-from mocapflow.plugins.relational.features import FEATURE_IDS, feature_column
-from mocapflow.plugins.relational.segmentation import pack_codes, segment_codes
-from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational._match_kernels import banded_dtw
+from mocapflow.plugins.relational.features import FEATURE_IDS, feature_column
+from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.matcher import dtw_band
 from mocapflow.plugins.relational.queries import combine, example_query, scene_query
+from mocapflow.plugins.relational.segmentation import pack_codes, segment_codes
 
 RNG = np.random.default_rng(11)
 
@@ -41,9 +42,9 @@ def test_query_by_example_matches_naive_on_projected_database(mode):
         k = int(RNG.integers(0, len(coarse) - 3))
         if coarse.clip[k] != coarse.clip[k + 2]:
             continue
-        q = bits[coarse.start[k]:coarse.end[k + 2]]
+        q = bits[coarse.start[k] : coarse.end[k + 2]]
         hits = example_query(index, q, cols, mode, mismatches=1)
-        qcodes = coarse.code[k:k + 3].tolist()
+        qcodes = coarse.code[k : k + 3].tolist()
         if mode == "adaptive":
             want = naive.exact_hits(coarse.code.tolist(), coarse.clip.tolist(), qcodes)
             assert sorted(hits.start.tolist()) == sorted(coarse.start[want].tolist())
@@ -68,7 +69,7 @@ def test_exact_mode_needs_whole_sets_and_finds_itself():
     with pytest.raises(ConfigError, match="whole feature sets"):
         example_query(index, bits[:50], [0, 1], "exact")
     s = index.sets["mixed"]
-    q = bits[s.seg_start[3]:s.seg_end[6]]
+    q = bits[s.seg_start[3] : s.seg_end[6]]
     hits = example_query(index, q, list(range(23, 31)), "exact")
     assert s.seg_start[3] in hits.start and 0.0 in hits.cost
 
@@ -83,7 +84,7 @@ def test_query_spanning_indexes_is_combined():
     assert both.sets == "lower+upper"
     assert len(both) <= len(lower) * len(upper)
     # every combined hit overlaps one hit of each part by at least half of the shorter span
-    for c, a, b in zip(both.clip, both.start, both.end):
+    for c, a, b in zip(both.clip, both.start, both.end, strict=True):
         for part in (lower, upper):
             assert np.any((part.clip == c) & (part.start >= a) & (part.end <= b))
     again = combine(lower, upper, 0.5)
@@ -97,11 +98,10 @@ def test_scene_description_with_cooccurrence():
     raised, bent = feature_column("lfoot_raised"), feature_column("lknee_bent")
     bits[10:25, raised] = True
     bits[15:30, bent] = True
-    bits[t + 10:t + 20, raised] = True
-    bits[t + 30:t + 40, bent] = True
+    bits[t + 10 : t + 20, raised] = True
+    bits[t + 30 : t + 40, bent] = True
     index = InvertedIndex().build(bits, np.repeat([0, 1], t))
-    progs = [[{"lfoot_raised": 0}, {"lfoot_raised": 1}, {"lfoot_raised": 0}],
-             [{"L8": 0}, {"L8": 1}, {"L8": 0}]]
+    progs = [[{"lfoot_raised": 0}, {"lfoot_raised": 1}, {"lfoot_raised": 0}], [{"L8": 0}, {"L8": 1}, {"L8": 0}]]
     free = scene_query(index, progs)
     assert set(free.clip.tolist()) == {0, 1}
     hits = scene_query(index, progs, [(0, 1, 1, 1)])
@@ -134,8 +134,9 @@ def test_banded_dtw_matches_naive_and_path_is_valid():
 
 
 def test_retrieval_pipeline_end_to_end(tmp_path):
-    from mocapflow.framework.runner import run_pipeline
     import pyarrow.parquet as pq
+
+    from mocapflow.framework.runner import run_pipeline
 
     root = corpus_path("hdm05", "amc")
     files = sorted(glob.glob(str(root / "bd" / "*kick*"))) + sorted(glob.glob(str(root / "bd" / "*squat*")))

@@ -1,19 +1,27 @@
 """Motion templates (matchers.template, analyses.classify): kernels against tests/naive/templates.py,
 learning, don't-care cells, retrieval of planted occurrences, storage, and the pipeline on HDM05."""
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from mocapflow.plugins.relational.classify import decide
-from mocapflow.plugins.relational._template_kernels import dtw_path
-from mocapflow.plugins.relational.template_model import (MotionTemplate, cost_table, fit_class_template, fit_template,
-                                                       frame_codes, load_templates, save_templates, template_costs,
-                                                       template_hits)
-
 from naive import templates as naive
+
+from mocapflow.plugins.relational._template_kernels import dtw_path
+from mocapflow.plugins.relational.classify import decide
+from mocapflow.plugins.relational.template_model import (
+    MotionTemplate,
+    cost_table,
+    fit_class_template,
+    fit_template,
+    frame_codes,
+    load_templates,
+    save_templates,
+    template_costs,
+    template_hits,
+)
 
 HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
 
@@ -115,9 +123,9 @@ def test_template_hits_find_planted_occurrences():
     db[200:245] = _pattern(45, (0.3, 0.6))
     cost, start = template_costs(frame_codes(db), t.table(), np.array([[0, 300]]))
     s, e, c = template_hits(cost, start, t.threshold)
-    found = sorted(zip(s.tolist(), e.tolist()))
+    found = sorted(zip(s.tolist(), e.tolist(), strict=True))
     assert len(found) == 2
-    for (a, b), (ta, tb) in zip(found, [(50, 85), (200, 245)]):
+    for (a, b), (ta, tb) in zip(found, [(50, 85), (200, 245)], strict=False):
         # the constant lead-in may be compressed (up to 2x): the span overlaps the planted one
         assert (min(b, tb) - max(a, ta)) / (max(b, tb) - min(a, ta)) >= 0.7
     assert np.all(c <= t.threshold)
@@ -161,11 +169,14 @@ def test_templates_pipeline_on_hdm05(tmp_path):
         acc = cat.query("SELECT avg(correct::INT) AS a FROM classify WHERE held_out").column("a")[0].as_py()
         assert acc >= 0.9  # the held-out actor dg (docs/templates.md)
         # the reported list (cutoff: rivals) on the held-out actor dg's cuts: precise, and most found by their class
-        dg = cat.query("SELECT h.label, c.name FROM templates h JOIN clips c USING (clip_id) "
-                       "WHERE c.name LIKE 'HDM_dg_%'").to_pylist()
+        dg = cat.query(
+            "SELECT h.label, c.name FROM templates h JOIN clips c USING (clip_id) WHERE c.name LIKE 'HDM_dg_%'"
+        ).to_pylist()
         right = [r for r in dg if r["label"] in r["name"]]
         assert len(right) >= 0.8 * len(dg) and len({r["name"] for r in right}) >= 18
-        top = cat.query("SELECT h.label, c.name FROM templates h JOIN clips c USING (clip_id) WHERE h.rank = 1").to_pylist()
+        top = cat.query(
+            "SELECT h.label, c.name FROM templates h JOIN clips c USING (clip_id) WHERE h.rank = 1"
+        ).to_pylist()
         assert all(r["label"] in r["name"] for r in top)
     assert len(list((tmp_path / "templates").glob("template_*.png"))) == 11
 
@@ -180,7 +191,7 @@ def test_hit_selection_matches_naive(seed):
     for thr, gap in ((0.3, 0.5), (0.6, 0.0), (1.0, 0.9)):
         got = template_hits(cost, start, thr, gap)
         want = naive.template_hits(cost, start, thr, gap)
-        for g, w in zip(got, want):
+        for g, w in zip(got, want, strict=True):
             np.testing.assert_array_equal(g, w)
 
 
@@ -194,7 +205,7 @@ def test_prefilter_keeps_every_hit_through_an_anchor():
     t = fit_class_template("a", ex, features="all")
     db = (rng.random((3000, 31)) < 0.002).astype(np.float32)
     for s0, n in ((100, 35), (900, 45), (2500, 30)):
-        db[s0:s0 + n] = _pattern(n, (0.3, 0.6))
+        db[s0 : s0 + n] = _pattern(n, (0.3, 0.6))
     offsets = np.array([0, 1000, 2000, 3000])
     idx = InvertedIndex().build(db, np.repeat([0, 1, 2], 1000).astype(np.int32))
     name, bits, frac, _ = choose_anchor(t, idx)
@@ -204,7 +215,7 @@ def test_prefilter_keeps_every_hit_through_an_anchor():
     assert all(np.searchsorted(offsets, a, "right") == np.searchsorted(offsets, b - 1, "right") for a, b in ranges)
     full = search_template(t, frame_codes(db), offsets)
     pre = search_template(t, frame_codes(db), offsets, index=idx)
-    for f, p in zip(full, pre):
+    for f, p in zip(full, pre, strict=True):
         np.testing.assert_array_equal(f, p)
     assert len(full[0]) == 3
 
@@ -229,7 +240,7 @@ def test_two_pass_search_matches_the_full_pass(seed):
             assert np.all((cost2[~low] == np.inf) | np.isclose(cost2[~low], cost[~low]))
         else:
             np.testing.assert_allclose(cost2, cost)  # the branch-free cost pass: same values
-        for got, want in zip((s, e, c), naive.template_hits(cost, start, thr, 0.5, ranges)):
+        for got, want in zip((s, e, c), naive.template_hits(cost, start, thr, 0.5, ranges), strict=True):
             np.testing.assert_array_equal(got, want)
 
 
@@ -248,13 +259,13 @@ def test_early_abandoning_cost_pass_matches_naive(seed):
     clip_of = np.repeat(np.arange(len(lengths)), lengths)
     ncost, nstart = naive.subsequence_dtw(_table_cost(table, codes), clip_of)
     fin = ncost[np.isfinite(ncost)]
-    for bound in ([0.0, np.inf] + ([float(np.quantile(fin, q)) for q in (0.05, 0.3, 0.7)] if len(fin) else [])):
+    for bound in [0.0, np.inf] + ([float(np.quantile(fin, q)) for q in (0.05, 0.3, 0.7)] if len(fin) else []):
         cost = np.full(n, np.inf)
         # a bound per range: this one for every range but the first, which gets none
         bounds = np.full(len(lengths), bound)
         bounds[0] = np.inf
         sdtw_cost(codes, table, offsets[:-1].copy(), offsets[1:].copy(), cost, bounds)
-        np.testing.assert_allclose(cost[:lengths[0]], ncost[:lengths[0]], rtol=1e-6)
+        np.testing.assert_allclose(cost[: lengths[0]], ncost[: lengths[0]], rtol=1e-6)
         low = ncost <= bound
         np.testing.assert_allclose(cost[low], ncost[low], rtol=1e-6)
         above = ~low
@@ -277,7 +288,7 @@ def test_window_minima_matches_naive():
     cost[rng.random(50) < 0.2] = np.inf
     lo = rng.integers(0, 50, 20)
     hi = np.minimum(lo + rng.integers(0, 10, 20), 50)
-    want = [cost[a:b].min() if b > a else np.inf for a, b in zip(lo, hi)]
+    want = [cost[a:b].min() if b > a else np.inf for a, b in zip(lo, hi, strict=True)]
     np.testing.assert_array_equal(window_minima(cost, lo, hi), want)
 
 
@@ -333,7 +344,7 @@ def test_forward_min_matches_naive():
     cost = rng.random(64)
     cost[rng.random(64) < 0.2] = np.inf
     for w in (1, 2, 3, 5, 8, 13, 40):
-        want = [cost[j:min(j + w, offsets[np.searchsorted(offsets, j, "right")])].min() for j in range(64)]
+        want = [cost[j : min(j + w, offsets[np.searchsorted(offsets, j, "right")])].min() for j in range(64)]
         np.testing.assert_array_equal(forward_min(cost, offsets, w), want)
 
 
@@ -345,7 +356,7 @@ def _two_class_setup():
     for n in (30, 34, 38):
         x = np.zeros((n, 31), np.float32)
         x[:, 20] = 1
-        x[int(0.5 * n):int(0.9 * n), 5] = 1
+        x[int(0.5 * n) : int(0.9 * n), 5] = 1
         ex_b.append(x)
     ta = fit_class_template("a", ex_a, features="all")
     tb = fit_class_template("b", ex_b, features="all")
@@ -355,7 +366,7 @@ def _two_class_setup():
 
 
 def test_rival_cutoff_keeps_each_motion_for_its_own_template():
-    from mocapflow.plugins.relational.template import cutoff_hits
+    from mocapflow.plugins.relational.template import cutoff_hits, search_template
     from mocapflow.plugins.relational.template_cutoff import RivalTable, rival_mask
 
     temps, codes, offsets = _two_class_setup()
@@ -363,34 +374,13 @@ def test_rival_cutoff_keeps_each_motion_for_its_own_template():
     def clip_of(starts):
         return np.searchsorted(offsets, starts, side="right") - 1
 
-    loose = cutoff_hits(temps, codes, offsets, "threshold", threshold=0.6)
+    loose = [search_template(t, codes, offsets, threshold=0.6) for t in temps]  # no rival check
     assert set(clip_of(loose[0][0]).tolist()) >= {0, 1, 2}  # a loose bound: template a also hits b's motion
-    got = cutoff_hits(temps, codes, offsets, "rivals", threshold=0.6)
+    got = cutoff_hits(temps, codes, offsets, threshold=0.6)
     assert set(clip_of(got[0][0]).tolist()) == {0, 2} and set(clip_of(got[1][0]).tolist()) == {1, 3}
     table = RivalTable.build(temps, codes, offsets)
-    for which, (s, e, _, _) in enumerate(loose):  # the lookup table and the window scans agree
+    for which, (s, e, _) in enumerate(loose):  # the lookup table and the window scans agree
         np.testing.assert_array_equal(table.mask(which, s, e, offsets), rival_mask(temps, which, s, e, codes, offsets))
-    with_table = cutoff_hits(temps, codes, offsets, "rivals", threshold=0.6, rival_table=table)
-    for a, b in zip(got, with_table):
+    with_table = cutoff_hits(temps, codes, offsets, threshold=0.6, rival_table=table)
+    for a, b in zip(got, with_table, strict=True):
         np.testing.assert_array_equal(a[0], b[0])
-
-
-def test_intersect_ranges_matches_naive():
-    from mocapflow.plugins.relational._hit_kernels import intersect_ranges
-
-    rng = np.random.default_rng(4)
-    for _ in range(20):
-        a = np.zeros(200, bool)
-        b = np.zeros(200, bool)
-        a[rng.integers(0, 200, 30)] = True
-        b[rng.integers(0, 200, 30)] = True
-        a |= np.roll(a, 1) | np.roll(a, 2)
-        b |= np.roll(b, 3)
-
-        def as_ranges(m):
-            edges = np.flatnonzero(np.diff(np.r_[0, m.astype(int), 0]))
-            return edges[0::2].astype(np.int64), edges[1::2].astype(np.int64)
-        lo, hi = intersect_ranges(*as_ranges(a), *as_ranges(b))
-        want_lo, want_hi = as_ranges(a & b)
-        np.testing.assert_array_equal(lo, want_lo)
-        np.testing.assert_array_equal(hi, want_hi)

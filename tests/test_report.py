@@ -2,6 +2,7 @@
 
 The browser half (the page in headless Chromium) is tests/test_report_browser.py.
 """
+
 from __future__ import annotations
 
 import json
@@ -12,14 +13,13 @@ import numpy as np
 import pyarrow as pa
 import pytest
 from naive.cleaning import synthetic_walk
+from report_workspaces import extras_workspace, quickstart_workspace  # noqa: F401 (fixtures)
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import ConfigError
 from mocapflow.plugins.report.blobs import decode_positions, encode_positions, pack, read_blob, unpack, write_blob
 from mocapflow.plugins.report.cleaned import DEFAULT_CUE, apply_edits, mdm_grid
 from mocapflow.plugins.report.model import _relative_path
-
-from report_workspaces import extras_workspace, quickstart_workspace  # noqa: F401 (fixtures)
 
 
 def page_model(site: Path) -> dict:
@@ -44,7 +44,11 @@ def test_positions_round_trip_within_half_a_quantisation_step_and_keep_nan():
 
 
 def test_blob_parts_are_aligned_and_read_back(tmp_path):
-    parts = {"a": np.arange(5, dtype=np.uint8), "b": np.array([[1.5, -2.0]], np.float32), "c": np.arange(3, dtype=np.int16)}
+    parts = {
+        "a": np.arange(5, dtype=np.uint8),
+        "b": np.array([[1.5, -2.0]], np.float32),
+        "c": np.arange(3, dtype=np.int16),
+    }
     blob, table = pack(parts)
     assert all(p["offset"] % 4 == 0 for p in table)
     assert all(np.array_equal(unpack(blob, table)[k], v) for k, v in parts.items())
@@ -56,15 +60,15 @@ def test_blob_parts_are_aligned_and_read_back(tmp_path):
 
 # --- cleaned takes and MDM grids -----------------------------------------------------------
 def test_edits_applied_to_the_original_give_the_cleaners_take():
-    from mocapflow.plugins.selfsim.mdm import MDMCleaner
-    from mocapflow.plugins.selfsim.clean_clip import clean_clip
+    from mocapflow.plugins.selfsim.cleaner import MDMCleaner
+    from mocapflow.plugins.selfsim.outputs import clean_and_write_clip
 
     walk = synthetic_walk(240, seed=5)
     rot = walk.rotations.copy()
     j = walk.skeleton.canonical["lelbow"]
     rot[120:126, j] = quat.mul(rot[120:126, j], quat.from_axis_angle(np.array([0, 0, 1.0]), np.array(1.2)))
     bad = walk.with_arrays(rotations=rot)
-    out = clean_clip(MDMCleaner({"normalization": "texture"}), bad, None, 3, None)
+    out = clean_and_write_clip(MDMCleaner(), bad, None, 3, None)
     assert out["edits"].num_rows > 0
     mine = apply_edits(bad, out["edits"], 3)
     np.testing.assert_allclose(mine.rotations, out["cleaned"].rotations, atol=1e-12)
@@ -72,9 +76,13 @@ def test_edits_applied_to_the_original_give_the_cleaners_take():
 
 
 def _mdm_table(cue=None):
-    cols = {"clip_id": pa.array([1] * 4 + [2], pa.int32()), "frame": pa.array([0, 0, 1, 1, 0], pa.int32()),
-            "joint_name": ["lknee", "head", "lknee", "head", "lknee"], "value": pa.array([0.25, 0.75, 0.625, 0.0, 1.0], pa.float32()),
-            "flagged": [False, True, True, False, True]}
+    cols = {
+        "clip_id": pa.array([1] * 4 + [2], pa.int32()),
+        "frame": pa.array([0, 0, 1, 1, 0], pa.int32()),
+        "joint_name": ["lknee", "head", "lknee", "head", "lknee"],
+        "value": pa.array([0.25, 0.75, 0.625, 0.0, 1.0], pa.float32()),
+        "flagged": [False, True, True, False, True],
+    }
     if cue is not None:
         cols["cue"] = cue
     return pa.table(cols)
@@ -132,9 +140,24 @@ def test_quickstart_report_lists_clips_steps_and_provenance(quickstart_site, qui
     assert sorted(r[cols.index("name")] for r in m["clips"]["rows"]) == names
     assert {"fps", "n_frames", "duration_s", "path"} <= set(cols) and m["rejects"]["n_rows"] == 0
     steps = {s["id"]: s for s in m["steps"]}
-    assert set(steps) == {"motions", "summary", "fe15", "tree", "nearest", "search", "relational", "inverted", "hits", "clean"}
+    assert set(steps) == {
+        "motions",
+        "summary",
+        "fe15",
+        "tree",
+        "nearest",
+        "search",
+        "relational",
+        "inverted",
+        "hits",
+        "clean",
+    }
     s = steps["search"]
-    assert s["component"] == "matchers.lng" and s["params"]["count"] == 5 and s["inputs"] == {"database": "tree", "query": "motions"}
+    assert (
+        s["component"] == "matchers.search"
+        and s["params"]["count"] == 5
+        and s["inputs"] == {"database": "tree", "query": "motions"}
+    )
     assert s["input_fingerprints"]["query"] == Dataset(quickstart_workspace / "motions").fingerprint
     assert s["images"] == ["plots/q0_m1.png"] and (quickstart_site / "img" / "search" / "plots" / "q0_m1.png").is_file()
 
@@ -168,7 +191,7 @@ def test_cleaning_view_has_every_take_with_its_map_and_cleaned_motion(quickstart
     m = page_model(quickstart_site)
     view = next(s for s in m["steps"] if s["id"] == "clean")["views"][0]
     assert view["type"] == "cleaning" and len(view["clips"]) == 8 and view["threshold"] == 0.5
-    # the takes are clean: the take the cleaner flags most (35_01 with the issue-14 defaults)
+    # the takes are clean: the take the cleaner flags most (35_01 with the defaults)
     c = max(view["clips"], key=lambda c: c["n_flagged"])
     key, meta, parts = read_blob(quickstart_site / m["data_files"][c["data"]]["file"])
     assert parts["mdm"].shape == (c["n_frames"], len(meta["joints"])) and meta["cues"]
@@ -209,7 +232,11 @@ def test_base_poses_and_reconstructions_are_shown(extras_workspace, tmp_path):
     table = Dataset(extras_workspace / "fat_graph").table("base_poses").to_pylist()
     assert bp["type"] == "base_poses" and bp["n_base_poses"] == len(table) > 0
     p0 = bp["poses"][0]
-    assert (p0["clip_id"], p0["frame"], p0["n_members"]) == (table[0]["clip_id"], table[0]["frame"], table[0]["n_members"])
+    assert (p0["clip_id"], p0["frame"], p0["n_members"]) == (
+        table[0]["clip_id"],
+        table[0]["frame"],
+        table[0]["n_members"],
+    )
     assert p0["clip"] in {"02_01", "16_15", "35_01"} and len(p0["positions"]) == 75 and abs(p0["positions"][0]) < 1e-6
     rec = next(v for v in steps["reconstruction"]["views"] if v["type"] == "derived")
     assert sorted(p["source_clip"] for p in rec["pairs"]) == ["02_01", "16_15"]

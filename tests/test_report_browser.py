@@ -3,8 +3,9 @@ from ``file://``, the player advances frames, the canvas is not blank, no consol
 
 Driven over the DevTools protocol on a pipe (:mod:`mocapflow.plugins.report.browser`);
 skipped when no Chromium is installed. Load times are recorded (``record_property``),
-not asserted: benchmarks/report_load.py measures them.
+not asserted: benchmarks/report.py measures them.
 """
+
 from __future__ import annotations
 
 import io
@@ -12,13 +13,14 @@ import time
 
 import numpy as np
 import pytest
+from report_workspaces import quickstart_workspace  # noqa: F401 (fixture)
 
 from mocapflow.plugins.report.browser import Browser, find_chromium
 
-from report_workspaces import quickstart_workspace  # noqa: F401 (fixture)
-
-pytestmark = pytest.mark.skipif(find_chromium() is None, reason="no Chromium installed (apt-get install chromium, "
-                                                                 "or set MOCAPFLOW_CHROMIUM to a Chrome/Chromium binary)")
+pytestmark = pytest.mark.skipif(
+    find_chromium() is None,
+    reason="no Chromium installed (apt-get install chromium, or set MOCAPFLOW_CHROMIUM to a Chrome/Chromium binary)",
+)
 
 RECT = "(() => {const r = %s.getBoundingClientRect(); return {x: r.x + scrollX, y: r.y + scrollY, width: r.width, height: r.height};})()"
 
@@ -102,7 +104,9 @@ def test_digression_map_hover_and_click_play_around_the_cell(page):
     for kind in ("mousemove", "click"):
         page.eval(f"{heat}.dispatchEvent(new MouseEvent('{kind}', {{clientX: {x}, clientY: {y}, bubbles: true}}))")
     tip = page.eval("document.getElementById('tooltip').textContent")
-    assert tip.startswith("joint ") and "frame" in tip and "MDM" in tip and ("flagged by" in tip or "not flagged" in tip)
+    assert (
+        tip.startswith("joint ") and "frame" in tip and "MDM" in tip and ("flagged by" in tip or "not flagged" in tip)
+    )
     player = "MocapReport.players[MocapReport.players.length - 1]"
     page.wait_for(f"{player}.playing")
     assert page.eval(f"{player}.tracks.map(t => t.label.split(' ')[0]).join()") == "original,cleaned"
@@ -117,13 +121,17 @@ def test_digression_map_hover_and_click_play_around_the_cell(page):
 def test_a_take_longer_than_the_map_is_wide_is_shown_by_its_largest_values(page):
     # 02_04 has 121 frames; a 200 px map has 110 px of plot: bins of one or two frames
     page.eval("document.querySelector('#step-clean .heatmap').style.width = '150px'")
-    page.eval("[...document.querySelectorAll('#step-clean .pick-clip')].find(b => b.textContent.startsWith('02_04')).click()")
+    page.eval(
+        "[...document.querySelectorAll('#step-clean .pick-clip')].find(b => b.textContent.startsWith('02_04')).click()"
+    )
     page.wait_for("document.querySelector('#step-clean .heatmap h3').textContent.startsWith('02_04')")
     heat = "document.querySelector('#step-clean .heat-canvas')"
     assert page.eval(f"{heat}.width") == 200
     r = page.eval(RECT.replace("+ scrollX", "").replace("+ scrollY", "") % heat)
-    page.eval(f"{heat}.dispatchEvent(new MouseEvent('mousemove', {{clientX: {r['x'] + 0.7 * r['width']}, "
-              f"clientY: {r['y'] + 5}, bubbles: true}}))")
+    page.eval(
+        f"{heat}.dispatchEvent(new MouseEvent('mousemove', {{clientX: {r['x'] + 0.7 * r['width']}, "
+        f"clientY: {r['y'] + 5}, bubbles: true}}))"
+    )
     tip = page.eval("document.getElementById('tooltip').textContent")
     assert "largest at" in tip and tip.startswith("joint root")
     page.eval("document.querySelector('#step-clean .heatmap').style.width = ''")

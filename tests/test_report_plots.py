@@ -1,13 +1,13 @@
 """Every PNG the pipelines write explains itself: titles, axis labels with units, colour bar
-labels, legends for every mark, clip names instead of ids (issue 17, section 2).
+labels, legends for every mark, clip names instead of ids.
 
 Each plot is drawn for real; the figure is captured when it is saved and its texts read.
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from report_workspaces import extras_workspace, quickstart_workspace  # noqa: F401 (fixtures)
 
 pytest.importorskip("matplotlib")
@@ -50,8 +50,22 @@ def texts(fig) -> dict[str, list[str]]:
 def test_lng_plot_names_the_clip_and_explains_every_mark(quickstart_workspace, tmp_path, saved):
     from mocapflow.framework.cli import main
 
-    assert main(["search", "--db", str(quickstart_workspace), "--query", "16_15:30-60", "--count", "5",
-                 "--plot", str(tmp_path / "lng.png")]) == 0
+    assert (
+        main(
+            [
+                "search",
+                "--db",
+                str(quickstart_workspace),
+                "--query",
+                "16_15:30-60",
+                "--count",
+                "5",
+                "--plot",
+                str(tmp_path / "lng.png"),
+            ]
+        )
+        == 0
+    )
     t = texts(saved[-1])
     assert (tmp_path / "lng.png").read_bytes()[:4] == b"\x89PNG"
     assert t["ylabel"][0] == "frame of database clip 16_15" and "query frame" in t["xlabel"][0]
@@ -75,13 +89,20 @@ def test_mdm_heatmap_labels_its_colour_bar_and_white_squares(tmp_path, saved):
 
 def test_base_poses_are_labelled_with_clip_frame_and_members(extras_workspace, tmp_path, saved):
     from mocapflow.framework.datasets import Dataset
-    from mocapflow.plugins.similarity.fat_graph import FatGraph
+    from mocapflow.plugins.similarity.applications.fat_graph import FatGraph
 
     bp = Dataset(extras_workspace / "fat_graph").table("base_poses")
     clip_id, frame = bp["clip_id"].to_numpy(), bp["frame"].to_numpy()
     members = bp["n_members"].to_numpy()
-    names = dict(zip(*(Dataset(extras_workspace / "motions").table("clips")[c].to_pylist() for c in ("clip_id", "name"))))
-    FatGraph._plot(Dataset(extras_workspace / "motions"), clip_id, frame, np.arange(len(bp)), tmp_path / "b.png", members)
+    names = dict(
+        zip(
+            *(Dataset(extras_workspace / "motions").table("clips")[c].to_pylist() for c in ("clip_id", "name")),
+            strict=True,
+        )
+    )
+    FatGraph._plot(
+        Dataset(extras_workspace / "motions"), clip_id, frame, np.arange(len(bp)), tmp_path / "b.png", members
+    )
     t = texts(saved[-1])
     titles = [s for s in t["title"] if s]
     assert len(titles) == len(bp)

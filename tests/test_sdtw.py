@@ -1,4 +1,5 @@
 """Subsequence DTW kernels and matcher against the naive full-matrix reference."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +8,7 @@ from naive.dtw import continues_of, naive_path, naive_subsequence_dtw
 
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace, select_matches
-from mocapflow.plugins.similarity.sdtw import sdtw_costs, subsequence_dtw
+from mocapflow.plugins.similarity.search.sdtw import sdtw_costs, subsequence_dtw
 
 
 def make_db(lengths, dim=3, seed=0, walk=True):
@@ -23,7 +24,11 @@ def make_db(lengths, dim=3, seed=0, walk=True):
 @pytest.mark.parametrize("lengths,m,seed", [([20, 1, 15, 7], 5, 0), ([1, 1, 1], 3, 1), ([30], 1, 2), ([12, 9], 12, 3)])
 def test_forward_matches_naive(lengths, m, seed):
     clip_id, frame, x = make_db(lengths, seed=seed)
-    q = x[2 : 2 + m] + np.random.default_rng(seed).normal(scale=0.1, size=(m, x.shape[1])).astype(np.float32) if len(x) >= m + 2 else x[:m] * 0.5
+    q = (
+        x[2 : 2 + m] + np.random.default_rng(seed).normal(scale=0.1, size=(m, x.shape[1])).astype(np.float32)
+        if len(x) >= m + 2
+        else x[:m] * 0.5
+    )
     space = SearchSpace(clip_id, frame, features=x)
     cost, start, length = sdtw_costs(q, space)
     D, S, P = naive_subsequence_dtw(q, x, continues_of(clip_id, frame))
@@ -42,19 +47,19 @@ def test_paths_match_naive_and_stay_in_clips():
     D, S, P = naive_subsequence_dtw(q, x, continues_of(clip_id, frame))
     assert len(res) >= 2
     assert res.cost[0] == pytest.approx(D[-1].min(), rel=1e-9)
-    for s, e, c, path in zip(res.start, res.end, res.cost, res.paths):
+    for s, e, c, path in zip(res.start, res.end, res.cost, res.paths, strict=True):
         ref = naive_path(P, len(q) - 1, e - 1)  # end is exclusive
         np.testing.assert_array_equal(path, ref)
         assert path[0, 1] == s and path[-1, 1] == e - 1 and path[0, 0] == 0 and path[-1, 0] == len(q) - 1
         assert len(set(clip_id[path[:, 1]])) == 1
         dq, dx = np.diff(path, axis=0).T
-        assert set(zip(dq, dx)) <= {(1, 1), (0, 1), (1, 0)}
+        assert set(zip(dq, dx, strict=True)) <= {(1, 1), (0, 1), (1, 0)}
         local = np.linalg.norm(q[path[:, 0]].astype(float) - x[path[:, 1]], axis=1).sum()
         assert c == pytest.approx(local, rel=1e-6)
     # ranked and non-overlapping
     assert np.all(np.diff(res.cost) >= 0)
-    iv = sorted(zip(res.start, res.end))
-    assert all(a[1] <= b[0] for a, b in zip(iv, iv[1:]))
+    iv = sorted(zip(res.start, res.end, strict=True))
+    assert all(a[1] <= b[0] for a, b in zip(iv, iv[1:], strict=False))
 
 
 def test_exact_copy_is_found_at_zero_cost():

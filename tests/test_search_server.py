@@ -1,6 +1,7 @@
-"""`mocapflow search` start-up paths (issue 13 §5): the kd-tree's memory-mapped row sidecars,
+"""`mocapflow search` start-up paths: the kd-tree's memory-mapped row sidecars,
 registries built for a few kinds only, and the search server giving the same answers as a
 search in the calling process."""
+
 from __future__ import annotations
 
 import os
@@ -25,21 +26,23 @@ def workspace(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("srv")  # short: a Unix socket path holds ~100 bytes
     p = root / "p.yaml"
-    p.write_text(textwrap.dedent(f"""
+    p.write_text(
+        textwrap.dedent(f"""
         name: s
-        workspace: {root / 'ws'}
+        workspace: {root / "ws"}
         steps:
           motions: {{uses: formats.load, with: {{paths: ["{EXAMPLES_DATA}/cmu/**/*.amc"], fps: 30}}}}
           fe15: {{uses: features.end_effectors, input: motions, with: {{joints: 5}}}}
           tree: {{uses: indexes.kdtree, input: fe15}}
-    """))
+    """)
+    )
     run_pipeline(p, echo=lambda s: None)
     return root / "ws"
 
 
 def test_registries_of_some_kinds_only():
     regs = load_registries(entry_points=False, kinds=("indexes", "matchers"))
-    assert "kdtree" in regs["indexes"] and "lng" in regs["matchers"]
+    assert "kdtree" in regs["indexes"] and "search" in regs["matchers"]
     assert not list(regs["analyses"]) and not list(regs["cleaners"]) and not list(regs.executors)
     full = load_registries(entry_points=False)
     assert set(full["matchers"].names()) == set(regs["matchers"].names()) and list(full["analyses"])
@@ -67,13 +70,13 @@ def _search(ws, *extra):
 def test_server_answers_as_the_process_does(workspace, capsys, tmp_path):
     from conftest import EXAMPLES_DATA
 
-    from mocapflow.plugins.similarity import search_server
+    from mocapflow.plugins.similarity.search import search_server
 
     query = ["--query", f"{EXAMPLES_DATA}/cmu/16/16_15.amc:1s-3s"]
     assert _search(workspace, *query, "--no-server") == 0
     local = capsys.readouterr().out
     args = Namespace(db=str(workspace), index=None, no_entry_points=True, block=[], idle_timeout=1.0)
-    from mocapflow.plugins.similarity.search_command import SearchSession
+    from mocapflow.plugins.similarity.search.search_command import SearchSession
 
     server = threading.Thread(target=search_server.serve, args=(args, SearchSession))
     server.start()
@@ -112,8 +115,8 @@ def test_without_sidecars_and_stale_sessions(workspace, capsys, tmp_path):
 
     from conftest import EXAMPLES_DATA
 
-    from mocapflow.plugins.similarity.search_command import SearchSession
-    from mocapflow.plugins.similarity.search_server import _handle
+    from mocapflow.plugins.similarity.search.search_command import SearchSession
+    from mocapflow.plugins.similarity.search.search_server import _handle
 
     ws = tmp_path / "old"
     shutil.copytree(workspace, ws)
@@ -129,9 +132,21 @@ def test_without_sidecars_and_stale_sessions(workspace, capsys, tmp_path):
     first = box[0]
     manifest = ws / "tree" / "_manifest.json"
     manifest.write_text(manifest.read_text() + " ")  # the index step was recomputed
-    req = {"args": {"query": query[1], "index": None, "matcher": "lng", "count": 4, "min_span": None,
-                    "rank_by": None, "exact": None, "gaps": None, "propagate": None, "k": None, "radius": None,
-                    "plot": None, "out": None}, "cwd": str(tmp_path)}
+    req = {
+        "args": {
+            "query": query[1],
+            "index": None,
+            "matcher": "search",
+            "count": 4,
+            "min_span": None,
+            "rank_by": None,
+            "paper": None,
+            "k": None,
+            "plot": None,
+            "out": None,
+        },
+        "cwd": str(tmp_path),
+    }
     import json
 
     reply = _handle(box, json.dumps(req).encode(), lambda: SearchSession(ws, entry_points=False))

@@ -1,4 +1,5 @@
 """``indexes.sharded``: identical answers to one unsharded kd-tree, in pipelines too."""
+
 from __future__ import annotations
 
 import os
@@ -10,8 +11,8 @@ import pytest
 from mocapflow.framework import get_plugin_manager
 from mocapflow.framework.executors import LocalExecutor
 from mocapflow.framework.runner import run_pipeline
-from mocapflow.plugins.similarity.kdtree import KDTreeIndex
-from mocapflow.plugins.similarity.sharded import ShardedIndex, _ShardQuery, shard_bounds
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+from mocapflow.plugins.similarity.knn.sharded import ShardedIndex, _ShardQuery, shard_bounds
 
 REPO = Path(__file__).resolve().parent.parent
 CMU = REPO / "examples" / "data" / "cmu"
@@ -42,11 +43,13 @@ def test_shard_bounds_cut_only_between_clips():
 @pytest.mark.parametrize("shards", [1, 2, 3, 7])
 def test_sharded_equals_one_kdtree_with_ties_radius_and_exclusion(shards):
     x, g, f = clips_data()
-    one = KDTreeIndex(method="kdtree", leafsize=4).build(x, groups=g, frames=f)
-    sh = ShardedIndex(shards=shards, index_params={"method": "kdtree", "leafsize": 4}).build(x, groups=g, frames=f)
+    one = KDTreeIndex(method="kdtree").build(x, groups=g, frames=f)
+    sh = ShardedIndex(shards=shards, index_params={"method": "kdtree"}).build(x, groups=g, frames=f)
     assert len(sh.shards_) == min(shards, len(np.unique(g)))
     rng = np.random.default_rng(1)
-    q = np.concatenate([x[rng.choice(len(x), 30)], np.round(rng.normal(size=(20, x.shape[1])) * 2).astype(np.float32) / 2])
+    q = np.concatenate(
+        [x[rng.choice(len(x), 30)], np.round(rng.normal(size=(20, x.shape[1])) * 2).astype(np.float32) / 2]
+    )
     for k in (1, 5, 40, len(x) + 3):
         for radius in (None, 0.0, 1.0, 2.5):
             a, b = one.query(q, k, radius), sh.query(q, k, radius)
@@ -83,7 +86,7 @@ def _shard_identity(task: _ShardQuery):
 
 def test_saved_shards_answer_on_workers_loaded_once_per_process(tmp_path):
     x, g, f = clips_data(seed=5)
-    sh = ShardedIndex(shards=3, index_params={"leafsize": 4}).build(x, groups=g, frames=f)
+    sh = ShardedIndex(shards=3).build(x, groups=g, frames=f)
     sh.save(tmp_path / "index")
     loaded = ShardedIndex.load(tmp_path / "index")
     q = x[::5]
@@ -94,8 +97,10 @@ def test_saved_shards_answer_on_workers_loaded_once_per_process(tmp_path):
             got = loaded.query(q, 7, 2.0, executor=ex)
             np.testing.assert_array_equal(got[1], ref[1])
             np.testing.assert_array_equal(got[0], ref[0])
-        tasks = [_ShardQuery(str(loaded.directory_ / f"shard-{s:03d}"), loaded.shard_cls_, loaded._stamp, 3, None, {})
-                 for s in range(3)] * 6
+        tasks = [
+            _ShardQuery(str(loaded.directory_ / f"shard-{s:03d}"), loaded.shard_cls_, loaded._stamp, 3, None, {})
+            for s in range(3)
+        ] * 6
         seen: dict[tuple[int, str], set[int]] = {}
         for pid, d, obj in ex.map(_shard_identity, tasks):
             seen.setdefault((pid, d), set()).add(obj)
@@ -109,8 +114,8 @@ def test_both_fan_outs_on_workers_equal_one_kdtree(tmp_path, fan_out):
     """Query blocks (each worker asks every shard and merges) and shard tasks (each worker
     one shard, merged by the caller) give the unsharded answers, exclusion and radius too."""
     x, g, f = clips_data(seed=7)
-    one = KDTreeIndex(method="kdtree", leafsize=4).build(x, groups=g, frames=f)
-    ShardedIndex(shards=3, fan_out=fan_out, index_params={"leafsize": 4}).build(x, groups=g, frames=f).save(tmp_path / "i")
+    one = KDTreeIndex(method="kdtree").build(x, groups=g, frames=f)
+    ShardedIndex(shards=3, fan_out=fan_out).build(x, groups=g, frames=f).save(tmp_path / "i")
     loaded = ShardedIndex.load(tmp_path / "i")
     assert loaded.params.fan_out == fan_out
     rows = np.arange(0, len(x), 3)
@@ -139,8 +144,8 @@ steps:
   fe15: {{uses: features.end_effectors, input: motions}}
   tree: {{uses: indexes.kdtree, input: fe15}}
   shards: {{uses: indexes.sharded, input: fe15, with: {{shards: 3}}}}
-  search_tree: {{uses: matchers.lng, inputs: {{database: tree, query: motions}}, with: {{queries: ["16_15.amc:1s-2s", "02_01:10-50", "02_02:0-30", "35_01:5-40"], count: 5, k: 64}}}}
-  search_shards: {{uses: matchers.lng, inputs: {{database: shards, query: motions}}, with: {{queries: ["16_15.amc:1s-2s", "02_01:10-50", "02_02:0-30", "35_01:5-40"], count: 5, k: 64}}}}
+  search_tree: {{uses: matchers.search, inputs: {{database: tree, query: motions}}, with: {{queries: ["16_15.amc:1s-2s", "02_01:10-50", "02_02:0-30", "35_01:5-40"], count: 5}}}}
+  search_shards: {{uses: matchers.search, inputs: {{database: shards, query: motions}}, with: {{queries: ["16_15.amc:1s-2s", "02_01:10-50", "02_02:0-30", "35_01:5-40"], count: 5}}}}
   near_tree: {{uses: analyses.nearest_poses, inputs: {{index: tree, motions: motions}}, with: {{queries: ["02_01:30", "16_15:60"], k: 16, exclude_frames: 15}}}}
   near_shards: {{uses: analyses.nearest_poses, inputs: {{index: shards, motions: motions}}, with: {{queries: ["02_01:30", "16_15:60"], k: 16, exclude_frames: 15}}}}
 """)

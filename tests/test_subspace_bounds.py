@@ -1,4 +1,5 @@
 """Local subspace cells of the certified search: equal to the SVD definition, and admissible in float32."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,13 +9,20 @@ from naive.dtw import continues_of, naive_blocks, naive_through_cell
 from test_exact_search import query_of
 from test_sdtw import make_db
 
-from mocapflow.plugins.similarity._coarse_kernels import block_boxes, coarse_bounds, subspace_bounds
-from mocapflow.plugins.similarity._subspace_kernels import block_subspaces
+from mocapflow.plugins.similarity.search._coarse_kernels import block_boxes, coarse_bounds, subspace_bounds
+from mocapflow.plugins.similarity.search._subspace_kernels import block_subspaces
 
 # seed, clip lengths, query frames, rows per block, basis size, dimensions
-CASES = [(0, [40, 1, 30, 12], 6, 4, 2, 3), (1, [80], 10, 16, 3, 5), (2, [5, 5, 5, 60], 3, 7, 2, 4),
-         (3, [50, 50], 1, 3, 3, 6), (4, [7, 1, 1, 20], 12, 1, 2, 3), (5, [64, 30], 40, 16, 3, 15),
-         (6, [33], 9, 2, 3, 15), (7, [41, 9], 20, 8, 1, 11)]  # 6: a basis wider than a block's rank: zero rows
+CASES = [
+    (0, [40, 1, 30, 12], 6, 4, 2, 3),
+    (1, [80], 10, 16, 3, 5),
+    (2, [5, 5, 5, 60], 3, 7, 2, 4),
+    (3, [50, 50], 1, 3, 3, 6),
+    (4, [7, 1, 1, 20], 12, 1, 2, 3),
+    (5, [64, 30], 40, 16, 3, 15),
+    (6, [33], 9, 2, 3, 15),
+    (7, [41, 9], 20, 8, 1, 11),
+]  # 6: a basis wider than a block's rank: zero rows
 
 
 def bounds(q, x, cont, size, p, br=None, shrink=1.0):

@@ -1,4 +1,5 @@
 """Registration of the generic analyses (the ``analyses`` package): ``analyses.clip_summary``."""
+
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl

@@ -12,6 +12,7 @@ joint_rom : one row per (clip, canonical joint)
     one). It is exact for rotations about a single axis (hinge joints) and a lower bound
     otherwise. ``mean_deg`` is the mean geodesic angle to the chordal mean rotation.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -55,21 +56,45 @@ class ClipSummary(Analysis):
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         db = inputs["motions"].motions()
         rows, rom_rows = [], []
-        for cid, m in zip(db.clip_ids, ctx.progress(db.motions, total=db.n_clips, desc=ctx.step_id)):
+        for cid, m in zip(db.clip_ids, ctx.progress(db.motions, total=db.n_clips, desc=ctx.step_id), strict=True):
             ground = m.root_translation[:, [0, 2]]
             path = float(np.linalg.norm(np.diff(ground, axis=0), axis=1).sum()) if m.n_frames > 1 else 0.0
-            rows.append({
-                "clip_id": int(cid), "name": m.name, "n_frames": m.n_frames, "fps": m.fps,
-                "duration_s": m.duration, "root_path_length_m": path,
-                "root_height_mean_m": float(m.root_translation[:, 1].mean()),
-                "mean_speed_m_s": path / m.duration if m.duration > 0 else 0.0,
-            })
+            rows.append(
+                {
+                    "clip_id": int(cid),
+                    "name": m.name,
+                    "n_frames": m.n_frames,
+                    "fps": m.fps,
+                    "duration_s": m.duration,
+                    "root_path_length_m": path,
+                    "root_height_mean_m": float(m.root_translation[:, 1].mean()),
+                    "mean_speed_m_s": path / m.duration if m.duration > 0 else 0.0,
+                }
+            )
             rom, mean, names = joint_range_of_motion(m)
-            rom_rows += [{"clip_id": int(cid), "joint": n, "rom_deg": r, "mean_deg": a} for n, r, a in zip(names, rom, mean)]
-        data = pa.Table.from_pylist(rows, schema=pa.schema([
-            ("clip_id", pa.int32()), ("name", pa.string()), ("n_frames", pa.int32()), ("fps", pa.float64()),
-            ("duration_s", pa.float64()), ("root_path_length_m", pa.float64()), ("root_height_mean_m", pa.float64()),
-            ("mean_speed_m_s", pa.float64())]))
-        rom_t = pa.Table.from_pylist(rom_rows, schema=pa.schema([
-            ("clip_id", pa.int32()), ("joint", pa.string()), ("rom_deg", pa.float64()), ("mean_deg", pa.float64())]))
+            rom_rows += [
+                {"clip_id": int(cid), "joint": n, "rom_deg": r, "mean_deg": a}
+                for n, r, a in zip(names, rom, mean, strict=True)
+            ]
+        data = pa.Table.from_pylist(
+            rows,
+            schema=pa.schema(
+                [
+                    ("clip_id", pa.int32()),
+                    ("name", pa.string()),
+                    ("n_frames", pa.int32()),
+                    ("fps", pa.float64()),
+                    ("duration_s", pa.float64()),
+                    ("root_path_length_m", pa.float64()),
+                    ("root_height_mean_m", pa.float64()),
+                    ("mean_speed_m_s", pa.float64()),
+                ]
+            ),
+        )
+        rom_t = pa.Table.from_pylist(
+            rom_rows,
+            schema=pa.schema(
+                [("clip_id", pa.int32()), ("joint", pa.string()), ("rom_deg", pa.float64()), ("mean_deg", pa.float64())]
+            ),
+        )
         return StepOutput({"data": data, "joint_rom": rom_t}, {"clips": len(rows)})

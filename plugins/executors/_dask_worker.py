@@ -1,4 +1,5 @@
 """Worker-side part of ``executor: dask`` (imports distributed; loaded only when a pipeline uses it)."""
+
 from __future__ import annotations
 
 from distributed.diagnostics.plugin import WorkerPlugin

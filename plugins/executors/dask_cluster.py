@@ -20,8 +20,10 @@ half-written dataset. Its tasks are rescheduled on the surviving workers by the
 scheduler (``allowed_failures`` deaths per task), then the step fails with a
 :class:`~mocapflow.framework.errors.PipelineError` naming the task.
 """
+
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import multiprocessing
@@ -34,8 +36,8 @@ from typing import Any
 from pydantic import Field
 
 from mocapflow.framework.errors import ConfigError, PipelineError
-from mocapflow.framework.params import Params
 from mocapflow.framework.executors import PRELOAD, available_cores, threads_per_worker
+from mocapflow.framework.params import Params
 from mocapflow.framework.progress import progress
 
 ADDRESS_ENV = "MOCAPFLOW_DASK_ADDRESS"
@@ -91,8 +93,16 @@ class DaskExecutor:
         min_items: int = Field(1, ge=0)
         chunks_per_worker: int = Field(4, ge=0)
 
-    def __init__(self, jobs: int = 0, address: str | None = None, threads: int | None = None, retries: int = 0,
-                 allowed_failures: int | None = None, min_items: int = 1, chunks_per_worker: int = 4) -> None:
+    def __init__(
+        self,
+        jobs: int = 0,
+        address: str | None = None,
+        threads: int | None = None,
+        retries: int = 0,
+        allowed_failures: int | None = None,
+        min_items: int = 1,
+        chunks_per_worker: int = 4,
+    ) -> None:
         self.jobs = int(jobs) if jobs and jobs > 0 else available_cores()
         self.address = address or os.environ.get(ADDRESS_ENV) or None
         self.threads = threads
@@ -112,7 +122,9 @@ class DaskExecutor:
         workers' start-up (their interpreters, imports, numba) overlaps the client's own
         (registries, plan, fingerprints, listing inputs). The first :meth:`map` waits for it."""
         if self._client is None and self._starting is None:
-            self._starting = threading.Thread(target=self._connect_in_background, name="mocapflow-dask-start", daemon=True)
+            self._starting = threading.Thread(
+                target=self._connect_in_background, name="mocapflow-dask-start", daemon=True
+            )
             self._starting.start()
 
     def _connect_in_background(self) -> None:
@@ -148,7 +160,11 @@ class DaskExecutor:
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"executor dask: cannot reach the scheduler at {self.address}: {exc}") from None
         else:
-            cfg: dict[str, Any] = {} if self.allowed_failures is None else {"distributed.scheduler.allowed-failures": self.allowed_failures}
+            cfg: dict[str, Any] = (
+                {}
+                if self.allowed_failures is None
+                else {"distributed.scheduler.allowed-failures": self.allowed_failures}
+            )
             forkserver = "forkserver" in multiprocessing.get_all_start_methods()
             if forkserver:
                 # workers fork from one server that imported distributed, numpy, pyarrow, numba and
@@ -162,11 +178,18 @@ class DaskExecutor:
 
                     get_mp_context().set_forkserver_preload(["distributed", *PRELOAD])
                 self._cluster = distributed.LocalCluster(
-                    n_workers=self.jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
-                    dashboard_address="127.0.0.1:0", silence_logs=40,
+                    n_workers=self.jobs,
+                    threads_per_worker=1,
+                    processes=True,
+                    host="127.0.0.1",
+                    dashboard_address="127.0.0.1:0",
+                    silence_logs=40,
                     # every worker gets its share of the cores for numba/BLAS (set before their imports)
-                    env={var: str(self.threads or threads_per_worker(self.jobs)) for var in
-                         ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")})
+                    env={
+                        var: str(self.threads or threads_per_worker(self.jobs))
+                        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+                    },
+                )
                 self._client = distributed.Client(self._cluster)
         hosts: dict[str, int] = {}
         for w in self._client.scheduler_info(n_workers=-1)["workers"].values():
@@ -197,9 +220,14 @@ class DaskExecutor:
         label = "".join(c if c.isalnum() or c in "-_" else "-" for c in (desc or "map"))[:40]
         n = len(items) if self.chunks_per_worker <= 0 else min(len(items), self.workers * self.chunks_per_worker)
         cuts = [len(items) * i // n for i in range(n + 1)]
-        chunks = [items[a:b] for a, b in zip(cuts[:-1], cuts[1:])]
-        futures = client.map(functools.partial(_apply_all, fn), chunks, key=[f"{label}-{token}-{i}" for i in range(n)],
-                             pure=False, retries=self.retries)
+        chunks = [items[a:b] for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+        futures = client.map(
+            functools.partial(_apply_all, fn),
+            chunks,
+            key=[f"{label}-{token}-{i}" for i in range(n)],
+            pure=False,
+            retries=self.retries,
+        )
         try:
             for _ in progress(distributed.as_completed(futures), total=len(futures), desc=desc):
                 pass
@@ -208,17 +236,17 @@ class DaskExecutor:
             raise PipelineError(f"dask: a task of {desc or 'a step'!r} was cancelled: {exc}") from None
         except Exception as exc:
             if type(exc).__name__ == "KilledWorker":
-                raise PipelineError(f"dask: the workers running a task of {desc or 'a step'!r} died "
-                                    f"(killed, out of memory or crashed): {exc}; the step's output was discarded") from None
+                raise PipelineError(
+                    f"dask: the workers running a task of {desc or 'a step'!r} died "
+                    f"(killed, out of memory or crashed): {exc}; the step's output was discarded"
+                ) from None
             raise
         finally:
             client.cancel([f for f in futures if not f.done()])
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(Exception):  # nothing was started, or it failed: nothing to close
             self._wait_started()
-        except Exception:  # nothing was started, or it failed: nothing to close
-            pass
         if self._client is not None:
             self._client.close()
             self._client = None

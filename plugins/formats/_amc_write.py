@@ -1,4 +1,5 @@
 """Writing AMC motions (``:DEGREES``) for skeletons read from an ASF file."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,7 +9,6 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
-
 from mocapflow.framework.quaternions import euler_extrinsic_inverse
 
 
@@ -28,8 +28,10 @@ def write_amc(motion: Motion, path: str | Path, precision: int = 10) -> None:
     """
     sk = motion.skeleton
     if sk.meta.get("format") != "asf" or sk.axes is None or not sk.channels:
-        raise NotAnAsfSkeleton(f"motion {motion.name!r}: its skeleton did not come from an ASF file (no ASF "
-                               "axes/dofs); writing AMC for other skeletons is not supported, write BVH instead")
+        raise NotAnAsfSkeleton(
+            f"motion {motion.name!r}: its skeleton did not come from an ASF file (no ASF "
+            "axes/dofs); writing AMC for other skeletons is not supported, write BVH instead"
+        )
     scale = float(sk.meta["length_scale"])
     cols: list[np.ndarray] = []
     fmt: list[str] = []

@@ -19,6 +19,7 @@ Mapping to :class:`~mocapflow.framework.skeleton.Skeleton`
 * Lengths in metres: ``:units length L`` means file values are inches times ``L``
   (CMU and HDM05: 0.45), so metres = value * 0.0254 / L. Without a length unit, inches.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -58,8 +59,28 @@ def _max_angle(asf: dict[str, Any]) -> float:
 def _bound(path: Path, line: int, vals: list[float], limit: float, what: str, unit: str) -> None:
     """Reject physically absurd magnitudes (the bounds of ``_common``'s value policy)."""
     if max(abs(v) for v in vals) > limit:
-        raise ParseError(path, line, f"expected {what} values within {limit:g} {unit} (10 km / 10^6 degrees), "
-                         f"found {' '.join(f'{v:g}' for v in vals)}")
+        raise ParseError(
+            path,
+            line,
+            f"expected {what} values within {limit:g} {unit} (10 km / 10^6 degrees), "
+            f"found {' '.join(f'{v:g}' for v in vals)}",
+        )
+
+
+class _AsfState:
+    """What the line handlers of :func:`parse_asf` share: the description built so far, the
+    open bone block, and the names seen (for errors that name both lines)."""
+
+    def __init__(self, path: Path, asf: dict[str, Any]) -> None:
+        self.path, self.asf = path, asf
+        self.bone: dict[str, Any] | None = None
+        self.in_limits = False
+        self.defined: set[str] = set()
+        self.placed: dict[str, int] = {}
+        self.name_line: dict[str, int] = {}
+
+
+_SECTIONS = {"units", "documentation", "root", "bonedata", "hierarchy", "name", "version"}
 
 
 def parse_asf(path: str | Path) -> dict[str, Any]:
@@ -76,151 +97,186 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
     check_text(path, data)
     lines = data.decode("latin-1").replace("\r\n", "\n").split("\n")
     asf: dict[str, Any] = {
-        "name": path.stem, "version": "", "units": {"length": None, "angle": "deg", "mass": None},
-        "root": {"order": ["TX", "TY", "TZ", "RX", "RY", "RZ"], "axis": "XYZ", "position": [0.0] * 3,
-                 "orientation": [0.0] * 3},
-        "bones": [], "hierarchy": {}, "documentation": [],
+        "name": path.stem,
+        "version": "",
+        "units": {"length": None, "angle": "deg", "mass": None},
+        "root": {
+            "order": ["TX", "TY", "TZ", "RX", "RY", "RZ"],
+            "axis": "XYZ",
+            "position": [0.0] * 3,
+            "orientation": [0.0] * 3,
+        },
+        "bones": [],
+        "hierarchy": {},
+        "documentation": [],
     }
+    st = _AsfState(path, asf)
     section = ""
-    bone: dict[str, Any] | None = None
-    in_limits = False
     seen_sections: set[str] = set()
-    defined: set[str] = set()
-    placed: dict[str, int] = {}
-    name_line: dict[str, int] = {}
+    handlers = {"units": _units_line, "root": _root_line, "bonedata": _bone_line, "hierarchy": _hierarchy_line}
     for ln, raw in enumerate(lines, start=1):
         words = split_ascii(raw.split("#", 1)[0])
         if not words:
             continue
-        text = " ".join(words)
-        key = words[0]
-        if key.startswith(":"):
-            section = key[1:].lower()
+        if words[0].startswith(":"):
+            section = words[0][1:].lower()
             seen_sections.add(section)
-            in_limits = False
+            st.in_limits = False
             if section == "name" and len(words) > 1:
                 asf["asf_name"] = " ".join(words[1:])
             elif section == "version" and len(words) > 1:
                 asf["version"] = words[1]
-            elif section not in {"units", "documentation", "root", "bonedata", "hierarchy", "name", "version"}:
-                raise ParseError(path, ln, f"unknown ASF section {key!r}")
-            continue
-        if section == "units":
-            k = key.lower()
-            if k == "angle":
-                unit = words[1].lower() if len(words) > 1 else ""
-                if unit not in {"deg", "rad"}:
-                    raise ParseError(path, ln, f"expected 'angle deg' or 'angle rad', found {text!r}")
-                asf["units"]["angle"] = unit
-            elif k in {"length", "mass"}:
-                asf["units"][k] = _floats(path, ln, words[1:], 1, k)[0]
-                if k == "length" and asf["units"][k] <= 0:
-                    raise ParseError(path, ln, "expected a positive length unit")
+            elif section not in _SECTIONS:
+                raise ParseError(path, ln, f"unknown ASF section {words[0]!r}")
         elif section == "documentation":
             asf["documentation"].append(raw.strip())
-        elif section == "root":
-            k = key.lower()
-            if k == "order":
-                order = [w.upper() for w in words[1:]]
-                if not set(order) <= _ROOT_CHANNELS or len(set(order)) != len(order):
-                    raise ParseError(path, ln, f"expected root channels among TX TY TZ RX RY RZ, found {text!r}")
-                asf["root"]["order"] = order
-            elif k == "axis":
-                ax = words[1].upper() if len(words) > 1 else ""
-                if sorted(ax) != ["X", "Y", "Z"]:
-                    raise ParseError(path, ln, f"expected a root axis order such as XYZ, found {text!r}")
-                asf["root"]["axis"] = ax
-            elif k in {"position", "orientation"}:
-                asf["root"][k] = _floats(path, ln, words[1:], 3, f"root {k}")
-                if k == "position":
-                    _bound(path, ln, asf["root"][k], MAX_METRES / length_scale(asf), "root position", "file units")
-                else:
-                    _bound(path, ln, asf["root"][k], _max_angle(asf), "root orientation", asf["units"]["angle"])
-        elif section == "bonedata":
-            k = key.lower()
-            if k == "begin":
-                bone = {"id": None, "name": None, "direction": None, "length": None, "axis": [0.0] * 3,
-                        "axis_order": "XYZ", "dof": [], "limits": [], "line": ln}
-                in_limits = False
-                continue
-            if bone is None:
-                raise ParseError(path, ln, f"expected 'begin' in :bonedata, found {text!r}")
-            if k == "end":
-                for field_ in ("name", "direction", "length"):
-                    if bone[field_] is None:
-                        raise ParseError(path, ln, f"bone starting at line {bone['line']} has no {field_}")
-                del bone["line"]
-                reach = [abs(d * bone["length"]) for d in bone["direction"]]
-                _bound(path, ln, reach, MAX_METRES / length_scale(asf), f"bone {bone['name']!r} direction x length", "file units")
-                asf["bones"].append(bone)
-                bone = None
-                continue
-            if k == "limits" or (in_limits and key.startswith("(")):
-                in_limits = True
-                nums = text[len("limits"):] if k == "limits" else text
-                bone["limits"].append(nums.strip())
-                continue
-            in_limits = False
-            if k == "id":
-                bone["id"] = words[1] if len(words) > 1 else None
-            elif k == "name":
-                if len(words) < 2:
-                    raise ParseError(path, ln, "expected a bone name")
-                if bone["name"] is not None:
-                    raise ParseError(path, ln, f"expected one name per bone block, found a second ({words[1]!r})")
-                bone["name"] = words[1]
-                if words[1] == "root" or words[1] in defined:
-                    first = f"line {name_line[words[1]]}" if words[1] in defined else "the root"
-                    raise ParseError(path, ln, f"bone name {words[1]!r} is already used by {first}; expected unique bone names")
-                defined.add(words[1])
-                name_line[words[1]] = ln
-            elif k == "direction":
-                bone["direction"] = _floats(path, ln, words[1:], 3, "direction")
-                _bound(path, ln, bone["direction"], MAX_METRES / length_scale(asf), "direction", "file units")
-            elif k == "length":
-                bone["length"] = _floats(path, ln, words[1:], 1, "length")[0]
-                _bound(path, ln, [bone["length"]], MAX_METRES / length_scale(asf), "length", "file units")
-            elif k == "axis":
-                bone["axis"] = _floats(path, ln, words[1:], 3, "axis")
-                _bound(path, ln, bone["axis"], _max_angle(asf), "axis", asf["units"]["angle"])
-                order = words[4].upper() if len(words) > 4 else "XYZ"
-                if sorted(order) != ["X", "Y", "Z"]:
-                    raise ParseError(path, ln, f"expected an axis order such as XYZ, found {order!r}")
-                bone["axis_order"] = order
-            elif k == "dof":
-                dof = [w.lower() for w in words[1:]]
-                if not set(dof) <= _DOFS or len(set(dof)) != len(dof):
-                    raise ParseError(path, ln, f"expected rotational dofs among rx ry rz (translation and "
-                                     f"length dofs are not supported), found {text!r}")
-                bone["dof"] = dof
-            elif k in {"bodymass", "cofmass"}:
-                pass
-            else:
-                raise ParseError(path, ln, f"unknown bone field {key!r}")
-        elif section == "hierarchy":
-            if key.lower() in {"begin", "end"}:
-                continue
-            for child in words[1:]:
-                if child == "root":
-                    raise ParseError(path, ln, "expected bones as children in :hierarchy, found 'root' (it has no parent)")
-                if child in placed:
-                    raise ParseError(path, ln, f"bone {child!r} already has a parent (line {placed[child]}); "
-                                     "expected each bone once as a child in :hierarchy")
-                placed[child] = ln
-            asf["hierarchy"].setdefault(key, []).extend(words[1:])
+        elif section in handlers:
+            handlers[section](st, ln, words, " ".join(words))
         else:
-            raise ParseError(path, ln, f"expected an ASF section (':root', ':bonedata'...), found {text!r}")
-    if bone is not None:
+            raise ParseError(path, ln, f"expected an ASF section (':root', ':bonedata'...), found {' '.join(words)!r}")
+    if st.bone is not None:
         raise ParseError(path, len(lines), "file ends inside a bone block (expected 'end')")
     if "bonedata" not in seen_sections or "hierarchy" not in seen_sections:
         raise ParseError(path, len(lines), "expected :bonedata and :hierarchy sections")
-    names = [b["name"] for b in asf["bones"]]
-    known = set(names) | {"root"}
+    known = {b["name"] for b in asf["bones"]} | {"root"}
     for parent, children in asf["hierarchy"].items():
         for n in [parent, *children]:
             if n not in known:
-                raise ParseError(path, _line_of_word(lines, n), f"hierarchy names bone {n!r}, which :bonedata does not define")
+                raise ParseError(
+                    path, _line_of_word(lines, n), f"hierarchy names bone {n!r}, which :bonedata does not define"
+                )
     return asf
+
+
+def _units_line(st: _AsfState, ln: int, words: list[str], text: str) -> None:
+    k = words[0].lower()
+    if k == "angle":
+        unit = words[1].lower() if len(words) > 1 else ""
+        if unit not in {"deg", "rad"}:
+            raise ParseError(st.path, ln, f"expected 'angle deg' or 'angle rad', found {text!r}")
+        st.asf["units"]["angle"] = unit
+    elif k in {"length", "mass"}:
+        st.asf["units"][k] = _floats(st.path, ln, words[1:], 1, k)[0]
+        if k == "length" and st.asf["units"][k] <= 0:
+            raise ParseError(st.path, ln, "expected a positive length unit")
+
+
+def _root_line(st: _AsfState, ln: int, words: list[str], text: str) -> None:
+    path, asf, k = st.path, st.asf, words[0].lower()
+    if k == "order":
+        order = [w.upper() for w in words[1:]]
+        if not set(order) <= _ROOT_CHANNELS or len(set(order)) != len(order):
+            raise ParseError(path, ln, f"expected root channels among TX TY TZ RX RY RZ, found {text!r}")
+        asf["root"]["order"] = order
+    elif k == "axis":
+        ax = words[1].upper() if len(words) > 1 else ""
+        if sorted(ax) != ["X", "Y", "Z"]:
+            raise ParseError(path, ln, f"expected a root axis order such as XYZ, found {text!r}")
+        asf["root"]["axis"] = ax
+    elif k in {"position", "orientation"}:
+        asf["root"][k] = _floats(path, ln, words[1:], 3, f"root {k}")
+        if k == "position":
+            _bound(path, ln, asf["root"][k], MAX_METRES / length_scale(asf), "root position", "file units")
+        else:
+            _bound(path, ln, asf["root"][k], _max_angle(asf), "root orientation", asf["units"]["angle"])
+
+
+def _bone_line(st: _AsfState, ln: int, words: list[str], text: str) -> None:
+    """One line of ``:bonedata``: ``begin``, ``end``, ``limits`` (and their continuation
+    lines) or a bone field."""
+    path, k = st.path, words[0].lower()
+    if k == "begin":
+        st.bone = {
+            "id": None,
+            "name": None,
+            "direction": None,
+            "length": None,
+            "axis": [0.0] * 3,
+            "axis_order": "XYZ",
+            "dof": [],
+            "limits": [],
+            "line": ln,
+        }
+        st.in_limits = False
+        return
+    bone = st.bone
+    if bone is None:
+        raise ParseError(path, ln, f"expected 'begin' in :bonedata, found {text!r}")
+    if k == "end":
+        for field_ in ("name", "direction", "length"):
+            if bone[field_] is None:
+                raise ParseError(path, ln, f"bone starting at line {bone['line']} has no {field_}")
+        del bone["line"]
+        reach = [abs(d * bone["length"]) for d in bone["direction"]]
+        limit = MAX_METRES / length_scale(st.asf)
+        _bound(path, ln, reach, limit, f"bone {bone['name']!r} direction x length", "file units")
+        st.asf["bones"].append(bone)
+        st.bone = None
+        return
+    if k == "limits" or (st.in_limits and words[0].startswith("(")):
+        st.in_limits = True
+        nums = text[len("limits") :] if k == "limits" else text
+        bone["limits"].append(nums.strip())
+        return
+    st.in_limits = False
+    _bone_field(st, bone, ln, words, text)
+
+
+def _bone_field(st: _AsfState, bone: dict[str, Any], ln: int, words: list[str], text: str) -> None:
+    path, asf, k = st.path, st.asf, words[0].lower()
+    if k == "id":
+        bone["id"] = words[1] if len(words) > 1 else None
+    elif k == "name":
+        if len(words) < 2:
+            raise ParseError(path, ln, "expected a bone name")
+        if bone["name"] is not None:
+            raise ParseError(path, ln, f"expected one name per bone block, found a second ({words[1]!r})")
+        bone["name"] = words[1]
+        if words[1] == "root" or words[1] in st.defined:
+            first = f"line {st.name_line[words[1]]}" if words[1] in st.defined else "the root"
+            raise ParseError(path, ln, f"bone name {words[1]!r} is already used by {first}; expected unique bone names")
+        st.defined.add(words[1])
+        st.name_line[words[1]] = ln
+    elif k in {"direction", "length"}:
+        vals = _floats(path, ln, words[1:], 3 if k == "direction" else 1, k)
+        bone[k] = vals if k == "direction" else vals[0]
+        _bound(path, ln, vals, MAX_METRES / length_scale(asf), k, "file units")
+    elif k == "axis":
+        bone["axis"] = _floats(path, ln, words[1:], 3, "axis")
+        _bound(path, ln, bone["axis"], _max_angle(asf), "axis", asf["units"]["angle"])
+        order = words[4].upper() if len(words) > 4 else "XYZ"
+        if sorted(order) != ["X", "Y", "Z"]:
+            raise ParseError(path, ln, f"expected an axis order such as XYZ, found {order!r}")
+        bone["axis_order"] = order
+    elif k == "dof":
+        dof = [w.lower() for w in words[1:]]
+        if not set(dof) <= _DOFS or len(set(dof)) != len(dof):
+            raise ParseError(
+                path,
+                ln,
+                f"expected rotational dofs among rx ry rz (translation and "
+                f"length dofs are not supported), found {text!r}",
+            )
+        bone["dof"] = dof
+    elif k not in {"bodymass", "cofmass"}:
+        raise ParseError(path, ln, f"unknown bone field {words[0]!r}")
+
+
+def _hierarchy_line(st: _AsfState, ln: int, words: list[str], text: str) -> None:
+    if words[0].lower() in {"begin", "end"}:
+        return
+    for child in words[1:]:
+        if child == "root":
+            raise ParseError(st.path, ln, "expected bones as children in :hierarchy, found 'root' (it has no parent)")
+        if child in st.placed:
+            raise ParseError(
+                st.path,
+                ln,
+                f"bone {child!r} already has a parent (line {st.placed[child]}); "
+                "expected each bone once as a child in :hierarchy",
+            )
+        st.placed[child] = ln
+    st.asf["hierarchy"].setdefault(words[0], []).extend(words[1:])
 
 
 def _line_of_word(lines: list[str], word: str) -> int | None:
@@ -281,9 +337,15 @@ def build_skeleton(asf: dict[str, Any]) -> Skeleton:
     meta["format"] = "asf"
     meta["length_scale"] = scale
     return Skeleton(
-        names=tuple(names), parents=np.array(parents), offsets=np.array(offsets),
-        canonical=canonical_map(names, "amc", registered_joint_maps()), rotation_orders=tuple(orders), axes=np.array(axes),
-        channels=tuple(channels), name=asf["name"], meta=meta,
+        names=tuple(names),
+        parents=np.array(parents),
+        offsets=np.array(offsets),
+        canonical=canonical_map(names, "amc", registered_joint_maps()),
+        rotation_orders=tuple(orders),
+        axes=np.array(axes),
+        channels=tuple(channels),
+        name=asf["name"],
+        meta=meta,
     )
 
 
@@ -330,8 +392,12 @@ def write_asf(skeleton: Skeleton, path: str | Path) -> None:
     if meta.get("format") != "asf" or "bones" not in meta:
         raise DataError(f"skeleton {skeleton.name!r} did not come from an ASF file; cannot write ASF")
     u = meta["units"]
-    out = ["# ASF written by mocapflow", f":version {meta.get('version') or '1.10'}",
-           f":name {meta.get('asf_name', skeleton.name)}", ":units"]
+    out = [
+        "# ASF written by mocapflow",
+        f":version {meta.get('version') or '1.10'}",
+        f":name {meta.get('asf_name', skeleton.name)}",
+        ":units",
+    ]
     if u.get("mass") is not None:
         out.append(f"  mass {_fmt(u['mass'])}")
     if u.get("length") is not None:
@@ -341,13 +407,23 @@ def write_asf(skeleton: Skeleton, path: str | Path) -> None:
         out.append(":documentation")
         out += [f"   {d}" for d in meta["documentation"]]
     r = meta["root"]
-    out += [":root", f"   order {' '.join(r['order'])}", f"   axis {r['axis']}",
-            f"   position {' '.join(_fmt(v) for v in r['position'])}",
-            f"   orientation {' '.join(_fmt(v) for v in r['orientation'])}", ":bonedata"]
+    out += [
+        ":root",
+        f"   order {' '.join(r['order'])}",
+        f"   axis {r['axis']}",
+        f"   position {' '.join(_fmt(v) for v in r['position'])}",
+        f"   orientation {' '.join(_fmt(v) for v in r['orientation'])}",
+        ":bonedata",
+    ]
     for i, b in enumerate(meta["bones"], start=1):
-        out += ["  begin", f"     id {b.get('id') or i}", f"     name {b['name']}",
-                f"     direction {' '.join(_fmt(v) for v in b['direction'])}", f"     length {_fmt(b['length'])}",
-                f"     axis {' '.join(_fmt(v) for v in b['axis'])} {b['axis_order']}"]
+        out += [
+            "  begin",
+            f"     id {b.get('id') or i}",
+            f"     name {b['name']}",
+            f"     direction {' '.join(_fmt(v) for v in b['direction'])}",
+            f"     length {_fmt(b['length'])}",
+            f"     axis {' '.join(_fmt(v) for v in b['axis'])} {b['axis_order']}",
+        ]
         if b["dof"]:
             out.append(f"    dof {' '.join(b['dof'])}")
             if b["limits"]:

@@ -1,4 +1,5 @@
 """BVH writer (see :mod:`mocapflow.plugins.formats.bvh` for the conventions)."""
+
 from __future__ import annotations
 
 from pathlib import Path

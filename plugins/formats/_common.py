@@ -22,6 +22,7 @@ Text files may start with a UTF-8 byte-order mark and end lines with LF, CRLF or
 CR, mixed in one file (:func:`text_body`); every other control byte except tab,
 vertical tab and form feed (whitespace) is binary garbage.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -129,5 +130,3 @@ def check_text(path: str | Path, data: bytes, upto: int | None = None) -> None:
 def file_metadata(path: str | Path, data: bytes, fmt: str) -> dict:
     """Metadata every reader records: path, format and the sha1 of the file bytes."""
     return {"path": str(path), "format": fmt, "checksum": hashlib.sha1(data).hexdigest()}
-
-

@@ -2,6 +2,7 @@
 
 The slow, obviously correct twins are in ``tests/naive/formats.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -10,10 +11,12 @@ from numba import njit
 
 @njit(cache=True)
 def _qmul(aw, ax, ay, az, bw, bx, by, bz):
-    return (aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw)
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
 
 
 @njit(cache=True)

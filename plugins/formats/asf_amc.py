@@ -7,7 +7,7 @@ AMC carries no frame rate: CMU and HDM05 are captured at 120 Hz, the default ``f
 
 The mapping from ASF bones to joints and rotations is documented in
 :mod:`mocapflow.plugins.formats._asf`. Parsing is vectorised: the bytes are tokenized
-once (:mod:`._text`) and the regular frame layout is validated with numpy; only a file
+once (:mod:`._text_kernels`) and the regular frame layout is validated with numpy; only a file
 that does not follow the layout of its first frame takes a slower token-by-token path,
 which either reads it (bones in another order per frame) or reports the first bad line.
 
@@ -17,6 +17,7 @@ root, legs and trunk agree to < 1e-5 m; joints above the chest differ by the con
 the neck (fingers: 0.097 m, the dropped wrist bone). The plain per-frame matrix FK of
 ``benchmarks/ingest.py`` agrees to 1e-15 m.
 """
+
 from __future__ import annotations
 
 import re
@@ -31,8 +32,8 @@ from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
-from ._asf import read_asf as _read_asf_uncached
 from ._amc_write import NotAnAsfSkeleton, write_amc
+from ._asf import read_asf as _read_asf_uncached
 from ._asf import write_asf
 from ._common import MAX_DEGREES, MAX_METRES, check_text, file_metadata, read_bytes, text_body
 
@@ -97,11 +98,17 @@ def _header(path: Path, data: bytes) -> tuple[int, int, str | None, bool]:
         text = data[pos:end].strip()
         if text[:1].isdigit():
             if not text.isdigit() or len(text) > 9:
-                raise ParseError(path, ln, f"expected a frame number (digits only, below 10^9) alone on its line, "
-                                 f"found {text[:40].decode('latin-1')!r}")
+                raise ParseError(
+                    path,
+                    ln,
+                    f"expected a frame number (digits only, below 10^9) alone on its line, "
+                    f"found {text[:40].decode('latin-1')!r}",
+                )
             return pos, ln, unit, full
         if text and text[:1] not in (b"#", b":"):
-            raise ParseError(path, ln, f"expected a header line or frame number 1, found {text[:40].decode('latin-1')!r}")
+            raise ParseError(
+                path, ln, f"expected a header line or frame number 1, found {text[:40].decode('latin-1')!r}"
+            )
         up = text.upper()
         if up == b":DEGREES":
             unit = "deg"
@@ -129,16 +136,20 @@ def _layout(path, data, tok, skeleton):
     seen: set[str] = set()
     i = 1
     while i < n and not isnum[i]:
-        name = data[starts[i]:starts[i] + lens[i]].decode("latin-1")
+        name = data[starts[i] : starts[i] + lens[i]].decode("latin-1")
         if name not in chan_of:
-            raise ParseError(path, int(lines[i]), f"bone {name!r} is not defined (with dofs) in the ASF skeleton {skeleton.name!r}")
+            raise ParseError(
+                path, int(lines[i]), f"bone {name!r} is not defined (with dofs) in the ASF skeleton {skeleton.name!r}"
+            )
         if name in seen:
             raise ParseError(path, int(lines[i]), f"frame 1: bone {name!r} appears twice")
         seen.add(name)
         bones.append((name, i + 1, chan_of[name]))
         i += 1 + chan_of[name]
     if not bones:
-        raise ParseError(path, int(lines[min(i, n) - 1]) if n else 1, "frame 1: expected bone lines after the frame number")
+        raise ParseError(
+            path, int(lines[min(i, n) - 1]) if n else 1, "frame 1: expected bone lines after the frame number"
+        )
     return bones, i
 
 
@@ -147,15 +158,19 @@ def _check_complete(path: Path, skeleton: Skeleton, bones: list[tuple[str, int, 
     have = {b for b, _, _ in bones}
     missing = [n for j, n in enumerate(skeleton.names) if skeleton.channels[j] and n not in have]
     if missing:
-        raise ParseError(path, line, f"frame 1 is incomplete (the file is :FULLY-SPECIFIED): expected bones "
-                         f"{', '.join(missing[:5])}" + ("..." if len(missing) > 5 else ""))
+        raise ParseError(
+            path,
+            line,
+            f"frame 1 is incomplete (the file is :FULLY-SPECIFIED): expected bones "
+            f"{', '.join(missing[:5])}" + ("..." if len(missing) > 5 else ""),
+        )
 
 
 def _fast_values(data, tok, bones, width):
     """``(table (T, width), token lines (T, width), T)`` if every frame follows the first
     frame's layout exactly (names, numbers, one line per bone and per frame number,
     consecutive frame numbers), else None."""
-    from ._text import fnv1a
+    from ._text_kernels import fnv1a
 
     starts, _l, lines, hashes, values, isnum = tok[:6]
     n = len(starts)
@@ -194,7 +209,7 @@ def _slow_values(path, data, tok, bones):
     order = [b for b, _, _ in bones]
 
     def text(i: int) -> str:
-        return data[starts[i]:starts[i] + lens[i]].decode("latin-1")
+        return data[starts[i] : starts[i] + lens[i]].decode("latin-1")
 
     out: dict[str, list[np.ndarray]] = {b: [] for b in order}
     out_lines: dict[str, list[int]] = {b: [] for b in order}
@@ -208,7 +223,9 @@ def _slow_values(path, data, tok, bones):
         if not isnum[i] or v != int(v) or (frame is not None and v != frame + 1):
             raise ParseError(path, ln, f"expected {expect}, found {text(i)!r}")
         if i + 1 < n and lines[i + 1] == ln:
-            raise ParseError(path, ln, f"expected frame number {int(v)} alone on its line, found {text(i + 1)!r} after it")
+            raise ParseError(
+                path, ln, f"expected frame number {int(v)} alone on its line, found {text(i + 1)!r} after it"
+            )
         frame = int(v)
         frame_lines.append(ln)
         i += 1
@@ -216,7 +233,9 @@ def _slow_values(path, data, tok, bones):
         while i < n and not isnum[i]:
             name, ln = text(i), int(lines[i])
             if name not in count:
-                raise ParseError(path, ln, f"frame {frame}: bone {name!r} is not in the first frame or has no dofs in the ASF")
+                raise ParseError(
+                    path, ln, f"frame {frame}: bone {name!r} is not in the first frame or has no dofs in the ASF"
+                )
             if name in seen:
                 raise ParseError(path, ln, f"frame {frame}: bone {name!r} appears twice")
             if i > 0 and lines[i - 1] == ln:
@@ -231,29 +250,42 @@ def _slow_values(path, data, tok, bones):
                 raise ParseError(path, ln, f"frame {frame}: expected {k} values for bone {name!r}, found {got}")
             for m in range(i + 1, j):
                 if not isnum[m]:
-                    raise ParseError(path, ln, f"frame {frame}: expected a finite number for bone {name!r}, found {text(m)!r}")
-            out[name].append(values[i + 1:j])
+                    raise ParseError(
+                        path, ln, f"frame {frame}: expected a finite number for bone {name!r}, found {text(m)!r}"
+                    )
+            out[name].append(values[i + 1 : j])
             out_lines[name].append(ln)
             i = j
         if len(seen) != len(order):
             missing = [b for b in order if b not in seen]
             last = int(lines[i - 1])
             what = "file ends" if i >= n else f"frame {frame + 1} starts"
-            raise ParseError(path, last, f"frame {frame} is incomplete ({what}): expected bones {', '.join(missing[:5])}"
-                             + ("..." if len(missing) > 5 else ""))
+            raise ParseError(
+                path,
+                last,
+                f"frame {frame} is incomplete ({what}): expected bones {', '.join(missing[:5])}"
+                + ("..." if len(missing) > 5 else ""),
+            )
     t = len(frame_lines)
     width = 1 + sum(1 + k for k in count.values())
     table = np.zeros((t, width))
     line_table = np.zeros((t, width), dtype=np.int64)
     line_table[:, 0] = frame_lines
     for b, c, k in bones:
-        table[:, c:c + k] = np.array(out[b]).reshape(t, k)
-        line_table[:, c - 1:c + k] = np.array(out_lines[b])[:, None]
+        table[:, c : c + k] = np.array(out[b]).reshape(t, k)
+        line_table[:, c - 1 : c + k] = np.array(out_lines[b])[:, None]
     return table, line_table, t
 
 
-def _check_bounds(path: Path, skeleton: Skeleton, table: np.ndarray, line_table: np.ndarray,
-                  bones: list[tuple[str, int, int]], degrees: bool, scale: float) -> None:
+def _check_bounds(
+    path: Path,
+    skeleton: Skeleton,
+    table: np.ndarray,
+    line_table: np.ndarray,
+    bones: list[tuple[str, int, int]],
+    degrees: bool,
+    scale: float,
+) -> None:
     """Angles within MAX_DEGREES, root translations within MAX_METRES (``_common``)."""
     limit = np.full(table.shape[1], np.inf)
     kind = [""] * table.shape[1]
@@ -268,8 +300,11 @@ def _check_bounds(path: Path, skeleton: Skeleton, table: np.ndarray, line_table:
     over = np.abs(table) > limit
     if over.any():
         f, c = np.argwhere(over)[0]
-        raise ParseError(path, int(line_table[f, c]), f"frame {table[f, 0]:.0f}: expected {kind[c]}, "
-                         f"found {table[f, c]:g} (bone {_bone_of_col(bones, c)!r})")
+        raise ParseError(
+            path,
+            int(line_table[f, c]),
+            f"frame {table[f, 0]:.0f}: expected {kind[c]}, found {table[f, c]:g} (bone {_bone_of_col(bones, c)!r})",
+        )
 
 
 def _bone_of_col(bones: list[tuple[str, int, int]], c: int) -> str:
@@ -304,7 +339,7 @@ def read_amc(
     ParseError
         Naming the file, the 1-based line and what was expected.
     """
-    from ._text import tokenize
+    from ._text_kernels import tokenize
 
     path = Path(path)
     data = read_bytes(path)
@@ -333,9 +368,13 @@ def read_amc(
     _check_bounds(path, skeleton, table, line_table, bones, degrees, scale)
     root_t, rot = _to_motion_arrays(skeleton, table, bones, degrees)
     meta = file_metadata(path, data, "amc")
-    meta.update(subject=_subject(path), source_fps=float(fps), source_frames=int(t),
-                skeleton_path=str(skel_path) if skel_path else skeleton.meta.get("path", ""),
-                angle_unit="deg" if degrees else "rad")
+    meta.update(
+        subject=_subject(path),
+        source_fps=float(fps),
+        source_frames=int(t),
+        skeleton_path=str(skel_path) if skel_path else skeleton.meta.get("path", ""),
+        angle_unit="deg" if degrees else "rad",
+    )
     return Motion(skeleton=skeleton, root_translation=root_t, rotations=rot, fps=fps, name=path.stem, metadata=meta)
 
 
@@ -364,8 +403,14 @@ def _to_motion_arrays(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[s
                 cols[j, n_rot] = c
                 axis_id[j, n_rot] = "xyz".index(ch[1].lower())
                 n_rot += 1
-    rot = euler_table_to_quat(np.ascontiguousarray(table), cols, axis_id, np.ascontiguousarray(skeleton.axes),
-                              np.pi / 180.0 if degrees else 1.0, True)
+    rot = euler_table_to_quat(
+        np.ascontiguousarray(table),
+        cols,
+        axis_id,
+        np.ascontiguousarray(skeleton.axes),
+        np.pi / 180.0 if degrees else 1.0,
+        True,
+    )
     return root_t, rot
 
 
@@ -377,26 +422,24 @@ class AmcFormat(Format):
     produces: ClassVar[str] = "motion"
 
     class Params(Params):
-        fps: float = Field(AMC_DEFAULT_FPS, gt=0, description="frame rate of the AMC files (they carry none; CMU/HDM05: 120)")
+        fps: float = Field(
+            AMC_DEFAULT_FPS, gt=0, description="frame rate of the AMC files (they carry none; CMU/HDM05: 120)"
+        )
         asf: str | None = Field(None, description="ASF skeleton path; default: the .asf beside each AMC file")
-        write_asf: bool = Field(True, description="writing: also write the skeleton as the .asf beside the AMC "
-                                "(same stem), so that the AMC can be read back")
 
     def read(self, path: str | Path) -> Motion:
         return read_amc(path, skeleton=self.params.asf, fps=self.params.fps)
 
     def write(self, obj: Any, path: str | Path) -> None:
-        write_amc(obj, path)
-        if self.params.write_asf:
-            write_asf(obj.skeleton, Path(path).with_suffix(".asf"))
+        write_amc(obj, path)  # the skeleton beside it (same stem), so that the AMC can be read back
+        write_asf(obj.skeleton, Path(path).with_suffix(".asf"))
 
     def write_atomic(self, obj: Any, path: str | Path) -> None:
         """The ASF beside ``path`` and then the AMC, each through a temporary file renamed
         into place (the ASF is named after ``path``, not after the temporary AMC)."""
         from mocapflow.framework.datasets import atomic_path
 
-        if self.params.write_asf:
-            with atomic_path(Path(path).with_suffix(".asf")) as tmp:
-                write_asf(obj.skeleton, tmp)
+        with atomic_path(Path(path).with_suffix(".asf")) as tmp:
+            write_asf(obj.skeleton, tmp)
         with atomic_path(path) as tmp:
             write_amc(obj, tmp)

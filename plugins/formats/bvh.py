@@ -23,6 +23,7 @@
   joint; world positions are unchanged.
 * ``Frame Time`` gives fps (``metadata["frame_time"]`` keeps the exact value).
 """
+
 from __future__ import annotations
 
 import re
@@ -36,13 +37,23 @@ from mocapflow.framework import quaternions as quat
 from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.joints import canonical_map
-from mocapflow.framework.plugins import registered_joint_maps
 from mocapflow.framework.motion import Motion
+from mocapflow.framework.plugins import registered_joint_maps
 from mocapflow.framework.skeleton import Skeleton
 
 from ._bvh_write import write_bvh
-from ._common import (MAX_DEGREES, MAX_FPS, MAX_METRES, check_text, file_metadata, line_of, read_bytes,
-                      strict_float, strict_int, text_body)
+from ._common import (
+    MAX_DEGREES,
+    MAX_FPS,
+    MAX_METRES,
+    check_text,
+    file_metadata,
+    line_of,
+    read_bytes,
+    strict_float,
+    strict_int,
+    text_body,
+)
 
 __all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
 
@@ -71,111 +82,153 @@ def _parse_hierarchy(path: Path, text: bytes) -> list[_Joint]:
     lines = text.decode("latin-1").split("\n")
     if b"\xa0" in text or b"\x85" in text:
         lines = [[w.decode("latin-1") for w in ln.split()] for ln in text.split(b"\n")]
-    words: list[tuple[str, int]] = [(w, ln) for ln, line in enumerate(lines, start=1)
-                                    for w in (line if isinstance(line, list) else line.split())]
-    n = len(words)
-    if n == 0 or words[0][0].upper() != "HIERARCHY":
+    words: list[tuple[str, int]] = [
+        (w, ln) for ln, line in enumerate(lines, start=1) for w in (line if isinstance(line, list) else line.split())
+    ]
+    if not words or words[0][0].upper() != "HIERARCHY":
         raise ParseError(path, words[0][1] if words else 1, "expected 'HIERARCHY' at the start of a BVH file")
-    joints: list[_Joint] = []
-    names: dict[str, int] = {}  # joint name -> line
-    stack: list[int] = []
-    i = 1
-    last = words[-1][1]
+    return _Hierarchy(path, words).parse()
 
-    def take(k: int, what: str) -> list[tuple[str, int]]:
-        if i + k > n:
-            raise ParseError(path, last, f"file ends inside the hierarchy, expected {what}")
-        return words[i:i + k]
 
-    while i < n:
-        w, ln = words[i]
-        key = w.upper()
-        if key in ("ROOT", "JOINT") or (key == "END" and i + 1 < n and words[i + 1][0].upper() == "SITE"):
-            if key == "ROOT" and (stack or joints):
-                raise ParseError(path, ln, "only one ROOT is supported")
-            if key != "ROOT" and not stack:
-                raise ParseError(path, ln, f"expected ROOT, found {w!r}")
-            if stack and joints[stack[-1]].name is None:
-                raise ParseError(path, ln, f"expected only OFFSET and '}}' inside an End Site, found {w!r}")
-            if key == "END":
-                name = None
-                i += 2
+class _Hierarchy:
+    """The word-by-word parser of a BVH hierarchy (after ``HIERARCHY``, up to ``MOTION``)."""
+
+    def __init__(self, path: Path, words: list[tuple[str, int]]) -> None:
+        self.path, self.words, self.n = path, words, len(words)
+        self.joints: list[_Joint] = []
+        self.names: dict[str, int] = {}  # joint name -> line
+        self.stack: list[int] = []
+        self.i = 1
+        self.last = words[-1][1]
+
+    def take(self, k: int, what: str) -> list[tuple[str, int]]:
+        if self.i + k > self.n:
+            raise ParseError(self.path, self.last, f"file ends inside the hierarchy, expected {what}")
+        return self.words[self.i : self.i + k]
+
+    def parse(self) -> list[_Joint]:
+        path, words = self.path, self.words
+        while self.i < self.n:
+            w, ln = words[self.i]
+            key = w.upper()
+            if key in ("ROOT", "JOINT") or (
+                key == "END" and self.i + 1 < self.n and words[self.i + 1][0].upper() == "SITE"
+            ):
+                self.joint(w, key, ln)
+            elif key == "OFFSET":
+                self.offset(ln)
+            elif key == "CHANNELS":
+                self.channels(ln)
+            elif w == "}":
+                self.close(ln)
             else:
-                (name, _l), = take(2, "a joint name")[1:]
-                if name in names:
-                    raise ParseError(path, ln, f"joint name {name!r} is already used at line {names[name]}; "
-                                     "expected unique joint names")
-                names[name] = ln
-                i += 2
-            joints.append(_Joint(name, stack[-1] if stack else -1, ln))
-            brace, bl = take(1, "'{'")[0]
-            if brace != "{":
-                what = "End Site" if name is None else repr(name)
-                raise ParseError(path, bl, f"expected '{{' after {what}, found {brace!r}")
-            i += 1
-            stack.append(len(joints) - 1)
-        elif key == "OFFSET":
-            if not stack:
-                raise ParseError(path, ln, "OFFSET outside a joint")
-            vals = take(4, "three OFFSET values")[1:]
-            if joints[stack[-1]].offset is not None:
-                raise ParseError(path, ln, f"expected one OFFSET per joint, found a second (the first is at line "
-                                 f"{joints[stack[-1]].offset_line})")
-            joints[stack[-1]].offset_line = ln
-            try:
-                joints[stack[-1]].offset = [strict_float(v) for v, _ in vals]
-            except ValueError:
-                raise ParseError(path, ln, f"expected three numbers after OFFSET, found {' '.join(v for v, _ in vals)!r}") from None
-            if not np.all(np.isfinite(joints[stack[-1]].offset)):
-                raise ParseError(path, ln, "expected finite OFFSET values")
-            i += 4
-        elif key == "CHANNELS":
-            if not stack:
-                raise ParseError(path, ln, "CHANNELS outside a joint")
-            if joints[stack[-1]].name is None:
-                raise ParseError(path, ln, "expected only OFFSET and '}' inside an End Site, found CHANNELS")
-            if joints[stack[-1]].channels_line:
-                raise ParseError(path, ln, f"expected one CHANNELS line per joint, found a second (the first is at "
-                                 f"line {joints[stack[-1]].channels_line})")
-            joints[stack[-1]].channels_line = ln
-            cnt_w = take(2, "a channel count")[1][0]
-            try:
-                cnt = strict_int(cnt_w)
-            except ValueError:
-                raise ParseError(path, ln, f"expected a channel count after CHANNELS, found {cnt_w!r}") from None
-            if cnt > 6:
-                raise ParseError(path, ln, f"expected at most 6 channels per joint, found {cnt}")
-            i += 2
-            chans = [c for c, _ in take(cnt, f"{cnt} channel names")]
-            bad = [c for c in chans if c.lower() not in _CHANNELS]
-            if bad or len({c.lower() for c in chans}) != cnt:
-                raise ParseError(path, ln, f"expected {cnt} distinct channels among X/Y/Z position/rotation, found {' '.join(chans)!r}")
-            joints[stack[-1]].channels = chans
-            i += cnt
-        elif w == "}":
-            if not stack:
-                raise ParseError(path, ln, "unbalanced '}'")
-            j = joints[stack.pop()]
-            if j.offset is None:
-                what = f"End Site of {joints[j.parent].name!r}" if j.name is None else f"joint {j.name!r}"
-                raise ParseError(path, ln, f"{what} has no OFFSET")
-            i += 1
-        else:
-            raise ParseError(path, ln, f"expected ROOT, JOINT, End Site, OFFSET, CHANNELS or '}}', found {w!r}")
-    if stack:
-        raise ParseError(path, last, f"expected '}}' closing {joints[stack[-1]].name!r} before MOTION")
-    if not joints:
-        raise ParseError(path, last, "expected a ROOT joint")
-    for j in joints:  # End Sites: <parent>_end, _end2... never a name the file uses
+                raise ParseError(path, ln, f"expected ROOT, JOINT, End Site, OFFSET, CHANNELS or '}}', found {w!r}")
+        if self.stack:
+            name = self.joints[self.stack[-1]].name
+            raise ParseError(path, self.last, f"expected '}}' closing {name!r} before MOTION")
+        if not self.joints:
+            raise ParseError(path, self.last, "expected a ROOT joint")
+        for j in self.joints:  # End Sites: <parent>_end, _end2... never a name the file uses
+            if j.name is None:
+                parent, k = self.joints[j.parent].name, 2
+                name = f"{parent}_end"
+                while name in self.names:
+                    name = f"{parent}_end{k}"
+                    k += 1
+                j.name = name
+                self.names[name] = j.line
+        return self.joints
+
+    def joint(self, w: str, key: str, ln: int) -> None:
+        path, joints, stack = self.path, self.joints, self.stack
+        if key == "ROOT" and (stack or joints):
+            raise ParseError(path, ln, "only one ROOT is supported")
+        if key != "ROOT" and not stack:
+            raise ParseError(path, ln, f"expected ROOT, found {w!r}")
+        if stack and joints[stack[-1]].name is None:
+            raise ParseError(path, ln, f"expected only OFFSET and '}}' inside an End Site, found {w!r}")
+        name = None
+        if key != "END":
+            ((name, _l),) = self.take(2, "a joint name")[1:]
+            if name in self.names:
+                raise ParseError(
+                    path,
+                    ln,
+                    f"joint name {name!r} is already used at line {self.names[name]}; expected unique joint names",
+                )
+            self.names[name] = ln
+        self.i += 2
+        joints.append(_Joint(name, stack[-1] if stack else -1, ln))
+        brace, bl = self.take(1, "'{'")[0]
+        if brace != "{":
+            what = "End Site" if name is None else repr(name)
+            raise ParseError(path, bl, f"expected '{{' after {what}, found {brace!r}")
+        self.i += 1
+        stack.append(len(joints) - 1)
+
+    def offset(self, ln: int) -> None:
+        if not self.stack:
+            raise ParseError(self.path, ln, "OFFSET outside a joint")
+        vals = self.take(4, "three OFFSET values")[1:]
+        j = self.joints[self.stack[-1]]
+        if j.offset is not None:
+            raise ParseError(
+                self.path,
+                ln,
+                f"expected one OFFSET per joint, found a second (the first is at line {j.offset_line})",
+            )
+        j.offset_line = ln
+        try:
+            j.offset = [strict_float(v) for v, _ in vals]
+        except ValueError:
+            raise ParseError(
+                self.path, ln, f"expected three numbers after OFFSET, found {' '.join(v for v, _ in vals)!r}"
+            ) from None
+        if not np.all(np.isfinite(j.offset)):
+            raise ParseError(self.path, ln, "expected finite OFFSET values")
+        self.i += 4
+
+    def channels(self, ln: int) -> None:
+        path = self.path
+        if not self.stack:
+            raise ParseError(path, ln, "CHANNELS outside a joint")
+        j = self.joints[self.stack[-1]]
         if j.name is None:
-            parent, k = joints[j.parent].name, 2
-            name = f"{parent}_end"
-            while name in names:
-                name = f"{parent}_end{k}"
-                k += 1
-            j.name = name
-            names[name] = j.line
-    return joints
+            raise ParseError(path, ln, "expected only OFFSET and '}' inside an End Site, found CHANNELS")
+        if j.channels_line:
+            raise ParseError(
+                path,
+                ln,
+                f"expected one CHANNELS line per joint, found a second (the first is at line {j.channels_line})",
+            )
+        j.channels_line = ln
+        cnt_w = self.take(2, "a channel count")[1][0]
+        try:
+            cnt = strict_int(cnt_w)
+        except ValueError:
+            raise ParseError(path, ln, f"expected a channel count after CHANNELS, found {cnt_w!r}") from None
+        if cnt > 6:
+            raise ParseError(path, ln, f"expected at most 6 channels per joint, found {cnt}")
+        self.i += 2
+        chans = [c for c, _ in self.take(cnt, f"{cnt} channel names")]
+        bad = [c for c in chans if c.lower() not in _CHANNELS]
+        if bad or len({c.lower() for c in chans}) != cnt:
+            raise ParseError(
+                path,
+                ln,
+                f"expected {cnt} distinct channels among X/Y/Z position/rotation, found {' '.join(chans)!r}",
+            )
+        j.channels = chans
+        self.i += cnt
+
+    def close(self, ln: int) -> None:
+        if not self.stack:
+            raise ParseError(self.path, ln, "unbalanced '}'")
+        j = self.joints[self.stack.pop()]
+        if j.offset is None:
+            what = f"End Site of {self.joints[j.parent].name!r}" if j.name is None else f"joint {j.name!r}"
+            raise ParseError(self.path, ln, f"{what} has no OFFSET")
+        self.i += 1
 
 
 def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, float, int, int]:
@@ -189,7 +242,7 @@ def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, f
         if not text.lower().startswith(key) or len(text) == len(key):
             what = "the file ends" if pos >= len(data) else f"found {text[:40]!r}"
             raise ParseError(path, min(line, last), f"expected '{shown} <value>', {what}")
-        vals[key] = text[len(key):].strip(" \t\r\x0b\x0c")
+        vals[key] = text[len(key) :].strip(" \t\r\x0b\x0c")
         pos, line = end + 1, line + 1
     try:
         frames = strict_int(vals["frames:"])
@@ -199,8 +252,11 @@ def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, f
     if frames < 1:
         raise ParseError(path, line - 2, f"expected Frames >= 1, found {frames}")
     if not 1.0 / MAX_FPS <= dt <= 3600.0:
-        raise ParseError(path, line - 1, f"expected a Frame Time between {1.0 / MAX_FPS:g} s ({MAX_FPS:g} Hz) "
-                         f"and 3600 s, found {dt:g}")
+        raise ParseError(
+            path,
+            line - 1,
+            f"expected a Frame Time between {1.0 / MAX_FPS:g} s ({MAX_FPS:g} Hz) and 3600 s, found {dt:g}",
+        )
     return frames, dt, pos, line
 
 
@@ -247,7 +303,7 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
         Naming the file, the 1-based line and what was expected.
     """
     from ._kernels import euler_table_to_quat
-    from ._text import tokenize
+    from ._text_kernels import tokenize
 
     path = Path(path)
     data = read_bytes(path)
@@ -256,7 +312,7 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
     m = _MOTION_RE.search(body)
     if m is None:
         raise ParseError(path, line_of(body, len(body)), "expected a MOTION section")
-    joints = _parse_hierarchy(path, body[:m.start()])
+    joints = _parse_hierarchy(path, body[: m.start()])
     mline = line_of(body, m.start())
     frames, dt, dpos, dline = _motion_header(path, body, m.end() + 1, mline + 1)
     n_ch = sum(len(j.channels) for j in joints)
@@ -302,8 +358,13 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
                 moving[j] = v
     names, collapsed = tuple(jt.name for jt in joints), None
     chans = [tuple(jt.channels) for jt in joints]
-    if collapse_static_root and 1 in moving and (parents == 0).sum() == 1 \
-            and np.ptp(root_t, axis=0).max() <= 1e-9 and np.abs(rot[:, 0] - rot[0, 0]).max() <= 1e-12:
+    if (
+        collapse_static_root
+        and 1 in moving
+        and (parents == 0).sum() == 1
+        and np.ptp(root_t, axis=0).max() <= 1e-9
+        and np.abs(rot[:, 0] - rot[0, 0]).max() <= 1e-12
+    ):
         # a static dummy root (Bandai-Namco's joint_Root) above the real, translating hips:
         # make the hips the root so that root_translation and rotations[:, 0] carry the motion
         collapsed = names[0]
@@ -322,29 +383,55 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
         for j, v in moving.items():
             local_t[:, j] = v * scl
     skeleton = Skeleton(
-        names=names, parents=parents, offsets=offsets * scl, canonical=canonical_map(names, "bvh", registered_joint_maps()),
+        names=names,
+        parents=parents,
+        offsets=offsets * scl,
+        canonical=canonical_map(names, "bvh", registered_joint_maps()),
         rotation_orders=tuple("".join(ch[0].lower() for ch in c if ch[1:].lower() == "rotation") for c in chans),
-        axes=None, channels=tuple(chans), name=path.stem,
+        axes=None,
+        channels=tuple(chans),
+        name=path.stem,
         meta={"format": "bvh", "scale": scl, "unit": unit},
     )
     meta = file_metadata(path, data, "bvh")
-    meta.update(subject=path.parent.name, source_fps=1.0 / dt, source_frames=frames, frame_time=dt,
-                scale=scl, unit=unit, rest_size=height, collapsed_root=collapsed)
-    return Motion(skeleton=skeleton, root_translation=root_t * scl, rotations=rot, fps=1.0 / dt, name=path.stem,
-                  metadata=meta, local_translations=local_t)
+    meta.update(
+        subject=path.parent.name,
+        source_fps=1.0 / dt,
+        source_frames=frames,
+        frame_time=dt,
+        scale=scl,
+        unit=unit,
+        rest_size=height,
+        collapsed_root=collapsed,
+    )
+    return Motion(
+        skeleton=skeleton,
+        root_translation=root_t * scl,
+        rotations=rot,
+        fps=1.0 / dt,
+        name=path.stem,
+        metadata=meta,
+        local_translations=local_t,
+    )
 
 
-def _check_bounds(path: Path, joints: list[_Joint], offsets: np.ndarray, table: np.ndarray,
-                  frame_lines: np.ndarray, scl: float) -> None:
+def _check_bounds(
+    path: Path, joints: list[_Joint], offsets: np.ndarray, table: np.ndarray, frame_lines: np.ndarray, scl: float
+) -> None:
     """OFFSETs and position channels within MAX_METRES, rotations within MAX_DEGREES
     (the value policy of ``_common``)."""
     far = np.abs(offsets).max(axis=1) * scl > MAX_METRES
     if far.any():
         j = joints[int(np.argmax(far))]
-        raise ParseError(path, j.offset_line, f"expected OFFSET values within {MAX_METRES:g} m (scale {scl:g} m per "
-                         f"file unit), found {' '.join(f'{v:g}' for v in j.offset)}")
-    limit = np.array([MAX_DEGREES if ch[1:].lower() == "rotation" else MAX_METRES / scl
-                      for jt in joints for ch in jt.channels])
+        raise ParseError(
+            path,
+            j.offset_line,
+            f"expected OFFSET values within {MAX_METRES:g} m (scale {scl:g} m per "
+            f"file unit), found {' '.join(f'{v:g}' for v in j.offset)}",
+        )
+    limit = np.array(
+        [MAX_DEGREES if ch[1:].lower() == "rotation" else MAX_METRES / scl for jt in joints for ch in jt.channels]
+    )
     if table.size and (np.abs(table) > limit).any():
         f, c = np.argwhere(np.abs(table) > limit)[0]
         ch = [(jt.name, ch) for jt in joints for ch in jt.channels][c]
@@ -386,12 +473,11 @@ class BvhFormat(Format):
 
     class Params(Params):
         scale: float | Literal["auto"] = Field(
-            "auto", description="metres per file unit, or 'auto' (guessed from the rest-pose size)")
-        collapse_static_root: bool = Field(
-            True, description="drop a never-moving root above the translating hips (Bandai-Namco joint_Root)")
+            "auto", description="metres per file unit, or 'auto' (guessed from the rest-pose size)"
+        )
 
     def read(self, path: str | Path) -> Motion:
-        return read_bvh(path, scale=self.params.scale, collapse_static_root=self.params.collapse_static_root)
+        return read_bvh(path, scale=self.params.scale)
 
     def write(self, obj: Any, path: str | Path) -> None:
         write_bvh(obj, path)

@@ -17,6 +17,7 @@ the package's per-frame reader.
   where the markers lie (``Y_SCREEN`` signs are unreliable in real files).
   ``metadata["up_axis_source"]`` says which. ``read_c3d(path, y_up=True)`` rotates to y-up.
 """
+
 from __future__ import annotations
 
 import io
@@ -72,8 +73,12 @@ def _points(path: Path, data: bytes, reader) -> np.ndarray:
         return np.zeros((max(t, 0), m, 4))
     have = (len(data) - start) // stride if stride else 0
     if have < t:
-        raise ParseError(path, None, f"truncated C3D: the header announces {t} frames "
-                         f"({reader.first_frame}..{reader.last_frame}), the file holds {max(have, 0)}")
+        raise ParseError(
+            path,
+            None,
+            f"truncated C3D: the header announces {t} frames "
+            f"({reader.first_frame}..{reader.last_frame}), the file holds {max(have, 0)}",
+        )
     dtypes = reader._dtypes  # the package's byte-order description of this file
     if is_float and dtypes.is_dec:
         frames = [p[:, :4].copy() for _, p, _ in reader.read_frames(copy=True, check_nan=False)]
@@ -144,9 +149,13 @@ def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
         wrong = ~gap & ~(np.abs(pos) <= MAX_METRES).all(-1)  # non-finite or beyond 10 km
     if wrong.any():
         f, m = np.argwhere(wrong)[0]
-        raise ParseError(path, None, f"frame {int(reader.first_frame) + int(f)}, point {int(m) + 1}: expected a "
-                         f"finite position within {MAX_METRES:g} m or an invalid sample (negative residual), "
-                         f"found {pos[f, m].tolist()}")
+        raise ParseError(
+            path,
+            None,
+            f"frame {int(reader.first_frame) + int(f)}, point {int(m) + 1}: expected a "
+            f"finite position within {MAX_METRES:g} m or an invalid sample (negative residual), "
+            f"found {pos[f, m].tolist()}",
+        )
     pos[gap] = np.nan
     labels = tuple(str(lb).strip() for lb in reader.point_labels)[: pos.shape[1]]
     # files with fewer POINT:LABELS than points exist; name the rest by index
@@ -158,8 +167,14 @@ def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
     up = guess_up_axis(pos, letter)
     source = "POINT:Y_SCREEN axis, sign from data" if letter else "guessed from data"
     meta = file_metadata(path, data, "c3d")
-    meta.update(units=units, first_frame=int(reader.first_frame), up_axis=up, up_axis_source=source,
-                source_fps=rate, source_frames=int(pos.shape[0]))
+    meta.update(
+        units=units,
+        first_frame=int(reader.first_frame),
+        up_axis=up,
+        up_axis_source=source,
+        source_fps=rate,
+        source_frames=int(pos.shape[0]),
+    )
     out = Markers(labels=labels, positions=pos, fps=rate, name=path.stem, metadata=meta)
     return to_y_up(out) if y_up else out
 

@@ -2,6 +2,7 @@
 ``acclaim`` (ASF/AMC skeletons of CMU and HDM05), ``acclaim_bvh`` (BVH files written from them) and
 ``bvh_common`` (the BVH namings found in public corpora). A plugin adds a dialect the same
 way (see :class:`mocapflow.framework.joints.JointMap`)."""
+
 from __future__ import annotations
 
 from mocapflow.framework.joints import CANONICAL_JOINTS, JointMap
@@ -11,14 +12,30 @@ from mocapflow.framework.joints import CANONICAL_JOINTS, JointMap
 # is the start of the tibia and the wrist the start of the "wrist" bone.
 _ASF = {
     "root": "root",
-    "lhip": "lfemur", "lknee": "ltibia", "lankle": "lfoot", "ltoes": "ltoes",
-    "rhip": "rfemur", "rknee": "rtibia", "rankle": "rfoot", "rtoes": "rtoes",
-    "lowerback": "lowerback", "upperback": "upperback", "chest": "thorax",
-    "neck": "lowerneck", "head": "head", "headtop": "head_end",
-    "lclavicle": "lclavicle", "lshoulder": "lhumerus", "lelbow": "lradius",
-    "lwrist": "lwrist", "lfingers": "lfingers",
-    "rclavicle": "rclavicle", "rshoulder": "rhumerus", "relbow": "rradius",
-    "rwrist": "rwrist", "rfingers": "rfingers",
+    "lhip": "lfemur",
+    "lknee": "ltibia",
+    "lankle": "lfoot",
+    "ltoes": "ltoes",
+    "rhip": "rfemur",
+    "rknee": "rtibia",
+    "rankle": "rfoot",
+    "rtoes": "rtoes",
+    "lowerback": "lowerback",
+    "upperback": "upperback",
+    "chest": "thorax",
+    "neck": "lowerneck",
+    "head": "head",
+    "headtop": "head_end",
+    "lclavicle": "lclavicle",
+    "lshoulder": "lhumerus",
+    "lelbow": "lradius",
+    "lwrist": "lwrist",
+    "lfingers": "lfingers",
+    "rclavicle": "rclavicle",
+    "rshoulder": "rhumerus",
+    "relbow": "rradius",
+    "rwrist": "rwrist",
+    "rfingers": "rfingers",
 }
 
 # BVH namings found in the corpus: cgspeed CMU conversions (MotionBuilder-style names:
@@ -47,35 +64,76 @@ _BVH_CANDIDATES: dict[str, tuple[str, ...]] = {
     "lshoulder": ("LeftArm", "LeftUpArm", "lShldr", "UpperArm_L", "l_shoulder", "LeftShoulder"),
     "lelbow": ("LeftForeArm", "LeftElbow", "LeftLowArm", "lForeArm", "LowerArm_L", "l_elbow"),
     "lwrist": ("LeftHand", "LeftWrist", "lHand", "Hand_L", "l_wrist"),
-    "lfingers": ("LeftHandIndex1", "LFingers", "LeftFingerBase", "LeftHand_end", "LeftHandEnd", "Hand_L_end",
-                 "LeftHandFinger1"),
+    "lfingers": (
+        "LeftHandIndex1",
+        "LFingers",
+        "LeftFingerBase",
+        "LeftHand_end",
+        "LeftHandEnd",
+        "Hand_L_end",
+        "LeftHandFinger1",
+    ),
     "rclavicle": ("RightCollar", "RightShoulder", "rCollar", "Shoulder_R", "r_clavicle"),
     "rshoulder": ("RightArm", "RightUpArm", "rShldr", "UpperArm_R", "r_shoulder", "RightShoulder"),
     "relbow": ("RightForeArm", "RightElbow", "RightLowArm", "rForeArm", "LowerArm_R", "r_elbow"),
     "rwrist": ("RightHand", "RightWrist", "rHand", "Hand_R", "r_wrist"),
-    "rfingers": ("RightHandIndex1", "RFingers", "RightFingerBase", "RightHand_end", "RightHandEnd", "Hand_R_end",
-                 "RightHandFinger1"),
+    "rfingers": (
+        "RightHandIndex1",
+        "RFingers",
+        "RightFingerBase",
+        "RightHand_end",
+        "RightHandEnd",
+        "Hand_R_end",
+        "RightHandFinger1",
+    ),
 }
 
 # Order in which canonical joints pick their candidates: the trunk top-down (so that
 # chest takes Spine1/Chest2 before upperback falls back to Spine), clavicles before
 # shoulders (3dsMax-style LeftShoulder is the upper arm only when LeftCollar exists).
 _BVH_PICK_ORDER: tuple[str, ...] = (
-    "root", "chest", "upperback", "lowerback", "neck", "head", "headtop",
-    "lhip", "lknee", "lankle", "ltoes", "rhip", "rknee", "rankle", "rtoes",
-    "lclavicle", "lshoulder", "lelbow", "lwrist", "lfingers",
-    "rclavicle", "rshoulder", "relbow", "rwrist", "rfingers",
+    "root",
+    "chest",
+    "upperback",
+    "lowerback",
+    "neck",
+    "head",
+    "headtop",
+    "lhip",
+    "lknee",
+    "lankle",
+    "ltoes",
+    "rhip",
+    "rknee",
+    "rankle",
+    "rtoes",
+    "lclavicle",
+    "lshoulder",
+    "lelbow",
+    "lwrist",
+    "lfingers",
+    "rclavicle",
+    "rshoulder",
+    "relbow",
+    "rwrist",
+    "rfingers",
 )
 
 
 #: Acclaim names, exact (ASF bone names are case-sensitive identifiers).
-ACCLAIM = JointMap("acclaim", {c: (s,) for c, s in _ASF.items()}, formats=("amc",), case_sensitive=True,
-                   pick_order=CANONICAL_JOINTS)
+ACCLAIM = JointMap(
+    "acclaim", {c: (s,) for c, s in _ASF.items()}, formats=("amc",), case_sensitive=True, pick_order=CANONICAL_JOINTS
+)
 
 #: BVH files whose skeleton was written from an ASF, recognised by the Acclaim limb bones.
-ACCLAIM_BVH = JointMap("acclaim_bvh", ACCLAIM.candidates, formats=("bvh",),
-                       signature=frozenset({"lfemur", "rfemur", "lhumerus", "rhumerus"}), case_sensitive=True,
-                       pick_order=CANONICAL_JOINTS)
+ACCLAIM_BVH = JointMap(
+    "acclaim_bvh",
+    ACCLAIM.candidates,
+    formats=("bvh",),
+    signature=frozenset({"lfemur", "rfemur", "lhumerus", "rhumerus"}),
+    case_sensitive=True,
+    pick_order=CANONICAL_JOINTS,
+)
 
 #: The common BVH namings, case-insensitive, falling back to the canonical names themselves.
 BVH_COMMON = JointMap("bvh_common", _BVH_CANDIDATES, formats=("bvh",), pick_order=_BVH_PICK_ORDER, self_named=True)

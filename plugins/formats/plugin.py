@@ -3,6 +3,7 @@
 use them (``formats.load``, ``formats.load_markers``, ``formats.export``), and the skeleton
 naming dialects of :mod:`.joint_maps`.
 numba kernels are imported only when a file is read."""
+
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl

@@ -3,6 +3,7 @@
 Readers are looked up in the ``formats`` registry by file extension, so a third-party
 format plugin is picked up by ingest without any change here.
 """
+
 from __future__ import annotations
 
 import glob
@@ -17,8 +18,7 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework import Format, Markers, Motion, Params, ParseError, StepContext, StepOutput
-from mocapflow.framework import schema
+from mocapflow.framework import Format, Markers, Motion, Params, ParseError, StepContext, StepOutput, schema
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.errors import DataError, MocapflowError, PipelineError
 from mocapflow.framework.joints import missing_required
@@ -30,8 +30,11 @@ def _glob(pattern: str, base: Path) -> list[str]:
     """Real paths of the files a glob pattern (``**`` recursive) matches, relative to ``base``."""
     p = Path(pattern).expanduser()
     # os.path.realpath on strings: Path.resolve cost more than the glob itself (201 files: 17 ms)
-    return [os.path.realpath(h) for h in glob.glob(str(p if p.is_absolute() else base / p), recursive=True)
-            if os.path.isfile(h) or not os.path.exists(h)]
+    return [
+        os.path.realpath(h)
+        for h in glob.glob(str(p if p.is_absolute() else base / p), recursive=True)
+        if os.path.isfile(h) or not os.path.exists(h)
+    ]
 
 
 def _expand(patterns: list[str], base: Path, exclude: list[str]) -> list[Path]:
@@ -48,7 +51,11 @@ def _prepare_motion(motion: Motion, path: str, fps: float | None) -> Motion | tu
     """Check the canonical joints, complete the metadata and resample one read motion."""
     missing = missing_required(motion.skeleton.canonical)
     if missing:
-        return (path, None, f"skeleton lacks required joints {', '.join(missing)} (add its naming dialect from a plugin: the register_joint_maps hook)")
+        return (
+            path,
+            None,
+            f"skeleton lacks required joints {', '.join(missing)} (add its naming dialect from a plugin: the register_joint_maps hook)",
+        )
     if "checksum" not in motion.metadata:
         motion.metadata["checksum"] = hashlib.sha1(Path(path).read_bytes()).hexdigest()
     motion.metadata.setdefault("path", path)
@@ -106,10 +113,14 @@ class _FileIngest(Format):
     reads: ClassVar[str] = "motion"
 
     class Params(Params):
-        paths: list[str] = Field(min_length=1, description="glob patterns (** recursive), relative to the pipeline file")
+        paths: list[str] = Field(
+            min_length=1, description="glob patterns (** recursive), relative to the pipeline file"
+        )
         exclude: list[str] = Field(default_factory=list, description="glob patterns of files to leave out")
         on_error: Literal["record", "fail"] = Field("record", description="record bad files in `rejects`, or stop")
-        readers: dict[str, dict[str, Any]] = Field(default_factory=dict, description="per-format reader parameters, e.g. {amc: {fps: 120}}")
+        readers: dict[str, dict[str, Any]] = Field(
+            default_factory=dict, description="per-format reader parameters, e.g. {amc: {fps: 120}}"
+        )
 
     def _files(self, base: Path) -> list[Path]:
         """The input files; the listing :meth:`source_fingerprint` made is reused once, by
@@ -121,8 +132,11 @@ class _FileIngest(Format):
         return _expand(self.params.paths, base, self.params.exclude)
 
     def check_plan(self, base_dir: Path) -> list[str]:
-        return [f"pattern {pat!r} of `paths` matches no file (relative to {base_dir})"
-                for pat in self.params.paths if not _glob(pat, base_dir)]
+        return [
+            f"pattern {pat!r} of `paths` matches no file (relative to {base_dir})"
+            for pat in self.params.paths
+            if not _glob(pat, base_dir)
+        ]
 
     def source_fingerprint(self, base_dir: Path) -> str:
         h = hashlib.sha256()
@@ -160,7 +174,9 @@ class _FileIngest(Format):
         root = self.ingest_root(base_dir)
         return schema.clip_ids_of([Path(os.path.relpath(os.path.realpath(f), root)).as_posix() for f in files])
 
-    def _read_all(self, ctx: StepContext, fps: float | None = None, rows: bool = False) -> tuple[list[Any], list[int], list[tuple], int, int]:
+    def _read_all(
+        self, ctx: StepContext, fps: float | None = None, rows: bool = False
+    ) -> tuple[list[Any], list[int], list[tuple], int, int]:
         """``(objects, their clip ids, rejects as (clip_id, path, line, message), files read,
         files skipped)``; raises on the first reject with ``on_error: fail``. With ``rows``
         (motions) the objects are :func:`_read_motion_rows`'s dataset rows, not motions."""
@@ -170,27 +186,33 @@ class _FileIngest(Format):
                 for ext in cls.extensions:
                     by_ext.setdefault(ext.lower(), cls)
         files = self._files(ctx.base_dir)
-        jobs = [(by_ext[f.suffix.lower()], self.params.readers.get(by_ext[f.suffix.lower()].name, {}), str(f), fps)
-                for f in files if f.suffix.lower() in by_ext]
+        jobs = [
+            (by_ext[f.suffix.lower()], self.params.readers.get(by_ext[f.suffix.lower()].name, {}), str(f), fps)
+            for f in files
+            if f.suffix.lower() in by_ext
+        ]
         if not jobs:
             raise PipelineError(f"no {self.reads} file matches {self.params.paths} (relative to {ctx.base_dir})")
         # ids of every readable file before reading: a file that fails keeps its would-be id
         ids = self.clip_ids([Path(j[2]) for j in jobs], ctx.base_dir)
         if rows:
-            results = ctx.map(_read_motion_rows, [(*j, c) for j, c in zip(jobs, ids)], desc=f"{ctx.step_id}: reading")
+            results = ctx.map(
+                _read_motion_rows, [(*j, c) for j, c in zip(jobs, ids, strict=True)], desc=f"{ctx.step_id}: reading"
+            )
         else:
             results = ctx.map(_read_file, jobs, desc=f"{ctx.step_id}: reading")
         good = [r for r in results if not isinstance(r, tuple)]
-        good_ids = [c for c, r in zip(ids, results) if not isinstance(r, tuple)]
-        rejects = [(c, *r) for c, r in zip(ids, results) if isinstance(r, tuple)]
+        good_ids = [c for c, r in zip(ids, results, strict=True) if not isinstance(r, tuple)]
+        rejects = [(c, *r) for c, r in zip(ids, results, strict=True) if isinstance(r, tuple)]
         if rejects and self.params.on_error == "fail":
             raise ParseError(*rejects[0][1:])
         return good, good_ids, rejects, len(jobs), len(files) - len(jobs)
 
     @staticmethod
     def _rejects_table(rejects: list[tuple]) -> pa.Table:
-        return pa.Table.from_pylist([{"clip_id": c, "path": p, "line": ln, "message": m} for c, p, ln, m in rejects],
-                                    schema=schema.REJECTS)
+        return pa.Table.from_pylist(
+            [{"clip_id": c, "path": p, "line": ln, "message": m} for c, p, ln, m in rejects], schema=schema.REJECTS
+        )
 
 
 class LoadMotions(_FileIngest):
@@ -224,8 +246,11 @@ class LoadMotions(_FileIngest):
             "rejects": self._rejects_table(rejects),
         }
         summary = {
-            "files": n_files, "clips": len(got), "frames": int(sum(g["clip"]["n_frames"] for g in got)),
-            "rejects": len(rejects), "skipped_files": skipped,
+            "files": n_files,
+            "clips": len(got),
+            "frames": int(sum(g["clip"]["n_frames"] for g in got)),
+            "rejects": len(rejects),
+            "skipped_files": skipped,
         }
         return StepOutput(tables, summary)
 
@@ -245,16 +270,34 @@ class LoadMarkers(_FileIngest):
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         good, ids, rejects, n_files, _ = self._read_all(ctx)
         frames, clips = [], []
-        for cid, mk in zip(ids, good):
+        for cid, mk in zip(ids, good, strict=True):
             t, m = mk.n_frames, mk.n_markers
             flat = mk.positions.astype(np.float32).reshape(-1)
-            frames.append(pa.Table.from_arrays([
-                pa.array(np.full(t, cid, np.int32)), pa.array(np.arange(t, dtype=np.int32)),
-                pa.ListArray.from_arrays(pa.array(np.arange(0, t * m * 3 + 1, m * 3, dtype=np.int32)), pa.array(flat)),
-            ], schema=schema.MARKER_FRAMES))
-            clips.append({"clip_id": cid, "name": mk.name, "path": str(mk.metadata.get("path", "")),
-                          "format": str(mk.metadata.get("format", "")), "fps": mk.fps, "n_frames": t, "n_markers": m,
-                          "labels": list(mk.labels), "up_axis": str(mk.metadata.get("up_axis", ""))})
+            frames.append(
+                pa.Table.from_arrays(
+                    [
+                        pa.array(np.full(t, cid, np.int32)),
+                        pa.array(np.arange(t, dtype=np.int32)),
+                        pa.ListArray.from_arrays(
+                            pa.array(np.arange(0, t * m * 3 + 1, m * 3, dtype=np.int32)), pa.array(flat)
+                        ),
+                    ],
+                    schema=schema.MARKER_FRAMES,
+                )
+            )
+            clips.append(
+                {
+                    "clip_id": cid,
+                    "name": mk.name,
+                    "path": str(mk.metadata.get("path", "")),
+                    "format": str(mk.metadata.get("format", "")),
+                    "fps": mk.fps,
+                    "n_frames": t,
+                    "n_markers": m,
+                    "labels": list(mk.labels),
+                    "up_axis": str(mk.metadata.get("up_axis", "")),
+                }
+            )
         data = pa.concat_tables(frames) if frames else schema.MARKER_FRAMES.empty_table()
         tables = {
             "data": data,
@@ -282,10 +325,14 @@ class ExportMotions(Format):
         ext = writer_cls.extensions[0] if writer_cls.extensions else f".{self.params.format}"
         db = inputs["motions"].motions()
         rows = []
-        for cid, m in zip(db.clip_ids, ctx.progress(db.motions, total=db.n_clips, desc=f"{ctx.step_id}: writing")):
+        for cid, m in zip(
+            db.clip_ids, ctx.progress(db.motions, total=db.n_clips, desc=f"{ctx.step_id}: writing"), strict=True
+        ):
             out = ctx.out_dir / f"{int(cid):010d}_{m.name}{ext}"
             writer.write(m, out)
             rows.append({"clip_id": int(cid), "name": m.name, "file": out.name})
         table = pa.Table.from_pylist(rows, schema=schema.EXPORTS)
         return StepOutput({"data": table}, {"files": len(rows), "format": self.params.format})
+
+
 __all__ = ["ExportMotions", "LoadMarkers", "LoadMotions"]

@@ -8,6 +8,7 @@ the data. Units (``mm``, ``cm``, ``m``, ``in``) are converted to metres. Axes ar
 (OpenSim files are y-up); ``metadata["up_axis"]`` is guessed from the data
 (:func:`~mocapflow.framework.markers.guess_up_axis`).
 """
+
 from __future__ import annotations
 
 import re
@@ -55,7 +56,7 @@ def _key_values(keys_line: str, vals_line: str) -> dict[str, str]:
     if len(keys) != len(vals):  # empty values in a tab-separated line: pair by tab position
         keys = [k.strip(_SPACE) for k in keys_line.split("\t")]
         vals = [v.strip(_SPACE) for v in vals_line.split("\t")]
-    return {k: v for k, v in zip(keys, vals) if k}
+    return {k: v for k, v in zip(keys, vals, strict=False) if k}
 
 
 def _field(text: bytes) -> float:
@@ -76,7 +77,9 @@ def _slow_row(path: Path, line: int, text: bytes, width: int) -> list[float]:
     try:
         row = [_field(f) for f in fields[:width]]
     except ValueError as exc:
-        raise ParseError(path, line, f"expected a finite number, an empty field or NaN, found {str(exc)[:40]!r}") from None
+        raise ParseError(
+            path, line, f"expected a finite number, an empty field or NaN, found {str(exc)[:40]!r}"
+        ) from None
     return row
 
 
@@ -102,13 +105,14 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
         values beyond 10 km (the value policy of ``_common``); ``NaN`` and empty fields
         are gaps.
     """
-    from ._text import tokenize
+    from ._text_kernels import tokenize
 
     path = Path(path)
     data = read_bytes(path)
     body = text_body(data)
     check_text(path, body)
     head, pos = _lines(body, _HEADER_LINES)
+
     def at(line: int) -> int:  # a header line, or the last line of a file that ends before it
         return min(line, body.count(b"\n") + 1)
 
@@ -154,21 +158,30 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
     for r in slow:
         s = body.rfind(b"\n", 0, starts[first[r]]) + 1  # the whole line: a leading tab is an empty field
         e = body.find(b"\n", s)
-        table[r] = _slow_row(path, int(rows[r]), body[s:len(body) if e < 0 else e].rstrip(b"\r"), width)
+        table[r] = _slow_row(path, int(rows[r]), body[s : len(body) if e < 0 else e].rstrip(b"\r"), width)
     bad_head = ~((np.abs(table[:, 0]) < 1e9) & (table[:, 0] == np.round(table[:, 0])) & (np.abs(table[:, 1]) < 1e9))
     if bad_head.any():
         r = int(np.argmax(bad_head))
-        raise ParseError(path, int(rows[r]), f"expected an integer frame number and a time, found {table[r, 0]:g} {table[r, 1]:g}")
+        raise ParseError(
+            path, int(rows[r]), f"expected an integer frame number and a time, found {table[r, 0]:g} {table[r, 1]:g}"
+        )
     pos3 = table[:, 2:].reshape(n_frames, n_markers, 3) * UNITS_TO_METRES[units]
     far = np.abs(pos3) > MAX_METRES
     if far.any():
         f, m, _a = np.argwhere(far)[0]
-        raise ParseError(path, int(rows[f]), f"expected marker {labels[m]!r} within {MAX_METRES:g} m, "
-                         f"found {pos3[f, m].max():g} m")
+        raise ParseError(
+            path, int(rows[f]), f"expected marker {labels[m]!r} within {MAX_METRES:g} m, found {pos3[f, m].max():g} m"
+        )
     pos3[~np.isfinite(pos3).all(-1)] = np.nan
     meta = file_metadata(path, data, "trc")
-    meta.update(units=units, first_frame=int(table[0, 0]), up_axis=guess_up_axis(pos3),
-                up_axis_source="guessed from data", source_fps=rate, source_frames=n_frames)
+    meta.update(
+        units=units,
+        first_frame=int(table[0, 0]),
+        up_axis=guess_up_axis(pos3),
+        up_axis_source="guessed from data",
+        source_fps=rate,
+        source_frames=n_frames,
+    )
     out = Markers(labels=labels, positions=pos3, fps=rate, name=path.stem, metadata=meta)
     return to_y_up(out) if y_up else out
 

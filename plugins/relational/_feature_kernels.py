@@ -3,6 +3,7 @@
 No validation here: :mod:`.relational_primitives` validates, broadcasts to ``(N, 3)`` and
 calls these. Each has a slow NumPy reference in ``tests/naive/relational.py``.
 """
+
 from __future__ import annotations
 
 import math
@@ -40,8 +41,9 @@ def normal_plane_distance(a, b, anchor, q, offset, out):  # pragma: no cover - c
     for i in range(q.shape[0]):
         nx, ny, nz = b[i, 0] - a[i, 0], b[i, 1] - a[i, 1], b[i, 2] - a[i, 2]
         norm = max(math.sqrt(nx * nx + ny * ny + nz * nz), _EPS)
-        out[i] = ((q[i, 0] - anchor[i, 0]) * nx + (q[i, 1] - anchor[i, 1]) * ny
-                  + (q[i, 2] - anchor[i, 2]) * nz) / norm - offset[i]
+        out[i] = (
+            (q[i, 0] - anchor[i, 0]) * nx + (q[i, 1] - anchor[i, 1]) * ny + (q[i, 2] - anchor[i, 2]) * nz
+        ) / norm - offset[i]
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
@@ -53,8 +55,20 @@ def point_segment_distance(q, a, b, out):  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def segment_segment_distance(a0, a1, b0, b1, out):  # pragma: no cover - compiled
     for i in range(a0.shape[0]):
-        out[i] = _segseg(a0[i, 0], a0[i, 1], a0[i, 2], a1[i, 0], a1[i, 1], a1[i, 2],
-                         b0[i, 0], b0[i, 1], b0[i, 2], b1[i, 0], b1[i, 1], b1[i, 2])
+        out[i] = _segseg(
+            a0[i, 0],
+            a0[i, 1],
+            a0[i, 2],
+            a1[i, 0],
+            a1[i, 1],
+            a1[i, 2],
+            b0[i, 0],
+            b0[i, 1],
+            b0[i, 2],
+            b1[i, 0],
+            b1[i, 1],
+            b1[i, 2],
+        )
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
@@ -193,10 +207,11 @@ def feature_values(pos, starts, fps, ops, joints, n_terms, fallback, out):  # pr
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def feature_bits(pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, thr, strict, below,
-                 out, out_on):  # pragma: no cover - compiled
-    """Thresholded features in the same pass: ``out[i, f] = value (>= | <) thr[f] * scale[i, unit[f]]``
-    and ``out_on`` the same against ``strict`` (for hysteresis); NaN gives False."""
+def feature_bits(
+    pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, thr, below, out
+):  # pragma: no cover - compiled
+    """Thresholded features in the same pass: ``out[i, f] = value (>= | <) thr[f] * scale[i, unit[f]]``;
+    NaN gives False."""
     for i in range(pos.shape[0]):
         lo, hi, miny = _frame(pos, starts, i)
         for f in range(ops.shape[0]):
@@ -204,10 +219,8 @@ def feature_bits(pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, 
             sc = scale[i, unit[f]]
             if below[f]:
                 out[i, f] = v < thr[f] * sc
-                out_on[i, f] = v < strict[f] * sc
             else:
                 out[i, f] = v >= thr[f] * sc
-                out_on[i, f] = v >= strict[f] * sc
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)

@@ -3,6 +3,7 @@
 No validation here (the API validates); each kernel has a slow reference in
 ``tests/naive/templates.py``. The DTW kernels themselves are in ``_template_kernels.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -114,23 +115,3 @@ def rival_window_minima(own, best, second, arg, which, lo, hi):  # pragma: no co
         out_own[i] = m
         out_other[i] = r
     return out_own, out_other
-
-
-@njit(cache=True)
-def intersect_ranges(alo, ahi, blo, bhi):  # pragma: no cover - compiled
-    """Intersection of two sorted lists of disjoint frame ranges ``[lo, hi)``: (lo, hi) int64."""
-    out_lo = np.empty(alo.shape[0] + blo.shape[0], np.int64)
-    out_hi = np.empty(alo.shape[0] + blo.shape[0], np.int64)
-    i, j, m = 0, 0, 0
-    while i < alo.shape[0] and j < blo.shape[0]:
-        lo = max(alo[i], blo[j])
-        hi = min(ahi[i], bhi[j])
-        if lo < hi:
-            out_lo[m] = lo
-            out_hi[m] = hi
-            m += 1
-        if ahi[i] < bhi[j]:
-            i += 1
-        else:
-            j += 1
-    return out_lo[:m], out_hi[:m]

@@ -2,6 +2,7 @@
 
 Each kernel has a slow reference in ``tests/naive/relational.py``.
 """
+
 from __future__ import annotations
 
 import numpy as np

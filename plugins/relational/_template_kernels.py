@@ -14,6 +14,7 @@ charged exactly once and ``D[K-1, j] / K`` is a mean local cost in [0, 1]; the d
 can stretch or compress the template by up to a factor 2. A path may start at any column
 (at template frame 0, or at frame 1 by the (2,1) step) and never crosses a clip boundary.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -336,9 +337,9 @@ def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost, bounds):  # pragma: no cov
         d2 = np.full(n_rows, np.inf)
         col = np.empty(n_rows)
         top0, top1, top2 = -1, -1, -1  # highest row written (above it: inf) per buffer
-        live1, live2 = -1, -1          # highest live row of the previous two columns
+        live1, live2 = -1, -1  # highest live row of the previous two columns
         last_code = -1
-        valid = 0                      # local costs of rows < valid are those of last_code
+        valid = 0  # local costs of rows < valid are those of last_code
         for j in range(chunk_lo[r], chunk_hi[r]):
             code = codes[j]
             if code != last_code:

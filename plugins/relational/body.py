@@ -1,6 +1,7 @@
 """Body-size measures of Müller et al. 2005: the relational features' thresholds are
 multiples of the actor's humerus length, shoulder and hip widths and height, measured on
 the rest pose."""
+
 from __future__ import annotations
 
 import numpy as np

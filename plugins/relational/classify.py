@@ -10,11 +10,12 @@ the winning template's retrieval threshold. With clip names matching the templat
 
     mocapflow sql runs/templates "SELECT avg(correct::INT) FROM classify WHERE held_out"
 """
+
 from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
@@ -28,24 +29,23 @@ if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.datasets import Dataset, StepOutput
 
 
-def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray, columns: Literal["key", "all"] = "all") -> np.ndarray:
-    """Per clip and template the least cost, shape (n_clips, n_templates) (inf: no path fits).
+def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Per clip and template the least cost on all 31 features, shape (n_clips, n_templates)
+    (inf: no path fits).
 
     Parameters
     ----------
     templates : list of MotionTemplate
     bits : ndarray of shape (N, 31), 0/1
     offsets : ndarray of int, shape (n_clips + 1,)
-    columns : "key" (each template's key features) or "all" (all 31 features)
     """
-    from .template import _all_columns
+    from .template_cutoff import _all_columns
     from .template_model import clip_min_costs, frame_codes
 
     codes = frame_codes(bits)
     out = np.empty((len(offsets) - 1, len(templates)))
     for i, t in enumerate(templates):
-        use = t if columns == "key" else _all_columns(t)
-        out[:, i] = clip_min_costs(codes, offsets, use.table())
+        out[:, i] = clip_min_costs(codes, offsets, _all_columns(t).table())
     return out
 
 
@@ -77,21 +77,23 @@ class TemplateClassifier(Analysis):
     inputs = {"templates": True, "features": True, "motions": True}
 
     class Params(Params):
-        columns: Literal["key", "all"] = Field("all", description="compare on all 31 features or on each template's key features")
         clips: str = Field(".", description="regular expression: classify the clips whose names match")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.datasets import StepOutput
+
         from .template import _clip_layout, clip_labels
         from .template_model import load_templates
 
         tds, fds = inputs["templates"], inputs["features"]
         if tds.producer != "matchers.template" or fds.producer != "features.relational":
-            raise PipelineError(f"analyses.classify needs templates=matchers.template and features=features.relational, "
-                                f"got {tds.producer} and {fds.producer}")
+            raise PipelineError(
+                f"analyses.classify needs templates=matchers.template and features=features.relational, "
+                f"got {tds.producer} and {fds.producer}"
+            )
         templates, meta = load_templates(tds.path)
         clips = inputs["motions"].table("clips", columns=["clip_id", "name"])
-        name_of = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist()))
+        name_of = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist(), strict=True))
         bits, clip_ids, offsets = _clip_layout(fds.features())
         names = [name_of.get(int(c), str(c)) for c in clip_ids]
         rx = re.compile(self.params.clips)
@@ -99,32 +101,50 @@ class TemplateClassifier(Analysis):
         sel = np.flatnonzero(keep)
         lengths = np.diff(offsets)[sel]
         sub_off = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-        sub_bits = np.concatenate([bits[offsets[i]:offsets[i + 1]] for i in sel]) if len(sel) else bits[:0]
-        costs = classify_clips(templates, sub_bits, sub_off, self.params.columns)
+        sub_bits = np.concatenate([bits[offsets[i] : offsets[i + 1]] for i in sel]) if len(sel) else bits[:0]
+        costs = classify_clips(templates, sub_bits, sub_off)
         best, c1, second, conf = decide(costs) if len(templates) else (np.zeros(len(sel), int),) * 4
         labels = [t.label for t in templates]
         truth = clip_labels([names[i] for i in sel], meta.get("label_pattern", r"(?P<label>$^)"))
         train = re.compile(meta.get("train", "$^"))
         held = [not bool(train.search(names[i])) for i in sel]
         thr = np.array([t.threshold for t in templates])
-        table = pa.table({
-            "clip_id": pa.array([int(clip_ids[i]) for i in sel], pa.int32()),
-            "name": pa.array([names[i] for i in sel], pa.string()),
-            "label": pa.array([labels[b] if np.isfinite(c) else None for b, c in zip(best, c1)], pa.string()),
-            "cost": pa.array([float(c) if np.isfinite(c) else None for c in c1], pa.float64()),
-            "runner_up": pa.array([labels[s] if s >= 0 else None for s in second], pa.string()),
-            "runner_up_cost": pa.array([float(costs[r, s]) if s >= 0 and np.isfinite(costs[r, s]) else None
-                                        for r, s in enumerate(second)], pa.float64()),
-            "confidence": pa.array([float(x) for x in conf], pa.float64()),
-            "within_threshold": pa.array([bool(np.isfinite(c) and c <= thr[b]) for b, c in zip(best, c1)], pa.bool_()),
-            "true_label": pa.array(truth, pa.string()),
-            "correct": pa.array([None if t is None else (np.isfinite(c) and labels[b] == t) for t, b, c in zip(truth, best, c1)],
-                                pa.bool_()),
-            "held_out": pa.array(held, pa.bool_()),
-        })
-        known = [(t, ok) for t, ok, h in zip(truth, table["correct"].to_pylist(), held) if t is not None and h]
-        summary = {"clips": len(sel), "templates": len(templates),
-                   "held_out_accuracy": round(float(np.mean([ok for _, ok in known])), 4) if known else None}
+        table = pa.table(
+            {
+                "clip_id": pa.array([int(clip_ids[i]) for i in sel], pa.int32()),
+                "name": pa.array([names[i] for i in sel], pa.string()),
+                "label": pa.array(
+                    [labels[b] if np.isfinite(c) else None for b, c in zip(best, c1, strict=True)], pa.string()
+                ),
+                "cost": pa.array([float(c) if np.isfinite(c) else None for c in c1], pa.float64()),
+                "runner_up": pa.array([labels[s] if s >= 0 else None for s in second], pa.string()),
+                "runner_up_cost": pa.array(
+                    [float(costs[r, s]) if s >= 0 and np.isfinite(costs[r, s]) else None for r, s in enumerate(second)],
+                    pa.float64(),
+                ),
+                "confidence": pa.array([float(x) for x in conf], pa.float64()),
+                "within_threshold": pa.array(
+                    [bool(np.isfinite(c) and c <= thr[b]) for b, c in zip(best, c1, strict=True)], pa.bool_()
+                ),
+                "true_label": pa.array(truth, pa.string()),
+                "correct": pa.array(
+                    [
+                        None if t is None else (np.isfinite(c) and labels[b] == t)
+                        for t, b, c in zip(truth, best, c1, strict=True)
+                    ],
+                    pa.bool_(),
+                ),
+                "held_out": pa.array(held, pa.bool_()),
+            }
+        )
+        known = [
+            (t, ok) for t, ok, h in zip(truth, table["correct"].to_pylist(), held, strict=True) if t is not None and h
+        ]
+        summary = {
+            "clips": len(sel),
+            "templates": len(templates),
+            "held_out_accuracy": round(float(np.mean([ok for _, ok in known])), 4) if known else None,
+        }
         return StepOutput({"data": table}, summary)
 
 

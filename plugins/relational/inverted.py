@@ -22,6 +22,7 @@ it is queried through :class:`SetIndex` (``positions(code)``, ``union(codes)``,
 adaptive fuzzy and m-mismatch hits on top of it. Load it with ``InvertedIndex.load(dir)``
 or ``Dataset.index()``; ``index.sets["lower" | "upper" | "mixed"]`` is a :class:`SetIndex`.
 """
+
 from __future__ import annotations
 
 import json
@@ -38,6 +39,7 @@ from pydantic import Field
 
 from mocapflow.framework.components import Index, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
+
 from .features import FEATURE_IDS, SET_SLICES, SETS
 from .segmentation import offsets_from_clip_ids, pack_codes, segment_codes
 
@@ -100,24 +102,36 @@ class SetIndex:
         return len(self.columns)
 
     @classmethod
-    def build(cls, name: str, codes: np.ndarray, columns: np.ndarray, clip_ids: np.ndarray,
-              clip_offsets: np.ndarray) -> SetIndex:
+    def build(
+        cls, name: str, codes: np.ndarray, columns: np.ndarray, clip_ids: np.ndarray, clip_offsets: np.ndarray
+    ) -> SetIndex:
         """Segment frame codes and build the inverted lists (linear time)."""
         seg = segment_codes(codes, clip_offsets)
         dtype = np.uint16 if len(columns) <= 16 else np.int64
         order = np.argsort(seg.code.astype(dtype), kind="stable")  # radix sort: linear
         sorted_codes = seg.code[order]
-        brk = np.flatnonzero(np.r_[True, sorted_codes[1:] != sorted_codes[:-1]]) if len(order) else np.zeros(0, np.int64)
-        return cls(name, np.asarray(columns, np.int64), seg.start, seg.end, seg.code, seg.clip,
-                   np.asarray(clip_ids, np.int32), np.asarray(clip_offsets, np.int64),
-                   sorted_codes[brk].astype(np.int64), np.append(brk, len(order)).astype(np.int64),
-                   order.astype(np.int64))
+        brk = (
+            np.flatnonzero(np.r_[True, sorted_codes[1:] != sorted_codes[:-1]]) if len(order) else np.zeros(0, np.int64)
+        )
+        return cls(
+            name,
+            np.asarray(columns, np.int64),
+            seg.start,
+            seg.end,
+            seg.code,
+            seg.clip,
+            np.asarray(clip_ids, np.int32),
+            np.asarray(clip_offsets, np.int64),
+            sorted_codes[brk].astype(np.int64),
+            np.append(brk, len(order)).astype(np.int64),
+            order.astype(np.int64),
+        )
 
     def positions(self, code: int) -> np.ndarray:
         """The inverted list ``L(code)``: sorted segment positions (empty if absent)."""
         i = np.searchsorted(self.list_codes, code)
         if i < len(self.list_codes) and self.list_codes[i] == code:
-            return self.list_positions[self.list_offsets[i]:self.list_offsets[i + 1]]
+            return self.list_positions[self.list_offsets[i] : self.list_offsets[i + 1]]
         return self.list_positions[:0]
 
     def union(self, codes: np.ndarray) -> np.ndarray:
@@ -126,7 +140,7 @@ class SetIndex:
         i = np.searchsorted(self.list_codes, codes)
         ok = i < len(self.list_codes)
         ok[ok] = self.list_codes[i[ok]] == codes[ok]
-        parts = [self.list_positions[self.list_offsets[j]:self.list_offsets[j + 1]] for j in i[ok]]
+        parts = [self.list_positions[self.list_offsets[j] : self.list_offsets[j + 1]] for j in i[ok]]
         if not parts:
             return self.list_positions[:0]
         if len(parts) == 1:
@@ -240,47 +254,74 @@ class SetIndex:
 
     def nbytes(self) -> int:
         """In-memory size of the index arrays (segments and lists), bytes."""
-        return sum(a.nbytes for a in (self.seg_start, self.seg_end, self.seg_code, self.seg_clip,
-                                      self.list_codes, self.list_offsets, self.list_positions))
+        return sum(
+            a.nbytes
+            for a in (
+                self.seg_start,
+                self.seg_end,
+                self.seg_code,
+                self.seg_clip,
+                self.list_codes,
+                self.list_offsets,
+                self.list_positions,
+            )
+        )
 
     # --- persistence ---------------------------------------------------------------
     def segments_table(self) -> pa.Table:
         clip = self.seg_clip
         first = self.clip_offsets[clip]
-        return pa.table({
-            "segment": pa.array(np.arange(self.n_segments, dtype=np.int32)),
-            "clip_id": pa.array(self.clip_ids[clip].astype(np.int32)),
-            "start_frame": pa.array((self.seg_start - first).astype(np.int32)),
-            "end_frame": pa.array((self.seg_end - first).astype(np.int32)),
-            "code": pa.array(self.seg_code.astype(np.int32)),
-        })
+        return pa.table(
+            {
+                "segment": pa.array(np.arange(self.n_segments, dtype=np.int32)),
+                "clip_id": pa.array(self.clip_ids[clip].astype(np.int32)),
+                "start_frame": pa.array((self.seg_start - first).astype(np.int32)),
+                "end_frame": pa.array((self.seg_end - first).astype(np.int32)),
+                "code": pa.array(self.seg_code.astype(np.int32)),
+            }
+        )
 
     def lists_table(self) -> pa.Table:
-        return pa.table({
-            "code": pa.array(self.list_codes.astype(np.int32)),
-            "positions": pa.ListArray.from_arrays(pa.array(self.list_offsets.astype(np.int32)),
-                                                  pa.array(self.list_positions.astype(np.int32))),
-        })
+        return pa.table(
+            {
+                "code": pa.array(self.list_codes.astype(np.int32)),
+                "positions": pa.ListArray.from_arrays(
+                    pa.array(self.list_offsets.astype(np.int32)), pa.array(self.list_positions.astype(np.int32))
+                ),
+            }
+        )
 
     def save(self, directory: Path) -> None:
         pq.write_table(self.segments_table(), directory / f"{self.name}_segments.parquet")
         pq.write_table(self.lists_table(), directory / f"{self.name}_lists.parquet")
 
     @classmethod
-    def load(cls, directory: Path, name: str, columns: np.ndarray, clip_ids: np.ndarray,
-             clip_offsets: np.ndarray) -> SetIndex:
+    def load(
+        cls, directory: Path, name: str, columns: np.ndarray, clip_ids: np.ndarray, clip_offsets: np.ndarray
+    ) -> SetIndex:
         seg = pq.read_table(directory / f"{name}_segments.parquet")
         lists = pq.read_table(directory / f"{name}_lists.parquet")
         # clip ids are sparse hashes (schema.clip_id_of): positions by sorted lookup, not by index
         order = np.argsort(clip_ids, kind="stable")
         seg_ids = seg["clip_id"].to_numpy()
-        seg_clip = order[np.searchsorted(clip_ids[order], seg_ids)] if len(clip_ids) else np.zeros(len(seg_ids), np.int64)
+        seg_clip = (
+            order[np.searchsorted(clip_ids[order], seg_ids)] if len(clip_ids) else np.zeros(len(seg_ids), np.int64)
+        )
         first = clip_offsets[seg_clip]
         col = lists["positions"].combine_chunks() if lists.num_rows else pa.array([], pa.list_(pa.int32()))
-        return cls(name, columns, seg["start_frame"].to_numpy().astype(np.int64) + first,
-                   seg["end_frame"].to_numpy().astype(np.int64) + first, seg["code"].to_numpy().astype(np.int64),
-                   seg_clip, clip_ids, clip_offsets, lists["code"].to_numpy().astype(np.int64),
-                   col.offsets.to_numpy().astype(np.int64), col.values.to_numpy().astype(np.int64))
+        return cls(
+            name,
+            columns,
+            seg["start_frame"].to_numpy().astype(np.int64) + first,
+            seg["end_frame"].to_numpy().astype(np.int64) + first,
+            seg["code"].to_numpy().astype(np.int64),
+            seg_clip,
+            clip_ids,
+            clip_offsets,
+            lists["code"].to_numpy().astype(np.int64),
+            col.offsets.to_numpy().astype(np.int64),
+            col.values.to_numpy().astype(np.int64),
+        )
 
 
 class InvertedIndex(Index):
@@ -297,7 +338,9 @@ class InvertedIndex(Index):
     set_names: ClassVar[tuple[str, ...]] = tuple(s[0] for s in SETS)
 
     class Params(Params):
-        feature_sets: tuple[str, ...] = Field(("lower", "upper", "mixed"), description="feature sets to index (paper: all three)")
+        feature_sets: tuple[str, ...] = Field(
+            ("lower", "upper", "mixed"), description="feature sets to index (paper: all three)"
+        )
 
     def build(self, features: np.ndarray, clip_id: np.ndarray | None = None, fps: float | None = None) -> InvertedIndex:
         """Build from the 31 relational features of concatenated clips.
@@ -340,7 +383,9 @@ class InvertedIndex(Index):
         """
         missing = [n for n, _, _ in SETS if n not in self.sets]
         if missing:
-            raise ConfigError(f"indexes.inverted: frame features need all three feature sets; this index lacks {missing}")
+            raise ConfigError(
+                f"indexes.inverted: frame features need all three feature sets; this index lacks {missing}"
+            )
         any_set = self.sets[SETS[0][0]]
         out = np.zeros((int(any_set.clip_offsets[-1]), len(FEATURE_IDS)), bool)
         for s in self.sets.values():
@@ -351,18 +396,27 @@ class InvertedIndex(Index):
         return out
 
     def query(self, x: np.ndarray, k: int, radius: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-        raise NotImplementedError("indexes.inverted answers segment queries, not kNN: use matchers.relational "
-                                  "or index.sets[<set>].positions(code)")
+        raise NotImplementedError(
+            "indexes.inverted answers segment queries, not kNN: use matchers.relational "
+            "or index.sets[<set>].positions(code)"
+        )
 
     def save(self, directory: Path) -> None:
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         any_set = next(iter(self.sets.values()))
-        pq.write_table(pa.table({"clip_id": pa.array(any_set.clip_ids),
-                                 "offset": pa.array(any_set.clip_offsets[:-1])}), directory / "clips.parquet")
-        meta = {"feature_sets": list(self.sets), "n_frames": int(any_set.clip_offsets[-1]), "fps": self.fps_,
-                "columns": {n: s.columns.tolist() for n, s in self.sets.items()},
-                "feature_ids": list(FEATURE_IDS), "params": self.get_params()}
+        pq.write_table(
+            pa.table({"clip_id": pa.array(any_set.clip_ids), "offset": pa.array(any_set.clip_offsets[:-1])}),
+            directory / "clips.parquet",
+        )
+        meta = {
+            "feature_sets": list(self.sets),
+            "n_frames": int(any_set.clip_offsets[-1]),
+            "fps": self.fps_,
+            "columns": {n: s.columns.tolist() for n, s in self.sets.items()},
+            "feature_ids": list(FEATURE_IDS),
+            "params": self.get_params(),
+        }
         (directory / "meta.json").write_text(json.dumps(meta, indent=1))
         for s in self.sets.values():
             s.save(directory)
@@ -377,8 +431,10 @@ class InvertedIndex(Index):
         ids = clips["clip_id"].to_numpy().astype(np.int32)
         offsets = np.append(clips["offset"].to_numpy().astype(np.int64), meta["n_frames"])
         self = cls(meta["params"])
-        self.sets_ = {n: SetIndex.load(directory, n, np.asarray(meta["columns"][n], np.int64), ids, offsets)
-                      for n in meta["feature_sets"]}
+        self.sets_ = {
+            n: SetIndex.load(directory, n, np.asarray(meta["columns"][n], np.int64), ids, offsets)
+            for n in meta["feature_sets"]
+        }
         self.fps_ = meta.get("fps")
         return self
 
@@ -387,7 +443,9 @@ class InvertedIndex(Index):
 
         feats = inputs["features"].features()
         if inputs["features"].producer != "features.relational":
-            raise PipelineError(f"indexes.inverted needs a features.relational dataset, got {inputs['features'].producer}")
+            raise PipelineError(
+                f"indexes.inverted needs a features.relational dataset, got {inputs['features'].producer}"
+            )
         self.build(feats.x, feats.clip_id)
         self.save(ctx.out_dir / "index")
         segs, lists = [], []
@@ -396,7 +454,9 @@ class InvertedIndex(Index):
             segs.append(t.add_column(0, "feature_set", pa.array([name] * t.num_rows, pa.string())))
             lt = s.lists_table()
             lists.append(lt.add_column(0, "feature_set", pa.array([name] * lt.num_rows, pa.string())))
-        summary = {n: {"segments": s.n_segments, "lists": len(s.list_codes), "bytes": s.nbytes()} for n, s in self.sets.items()}
+        summary = {
+            n: {"segments": s.n_segments, "lists": len(s.list_codes), "bytes": s.nbytes()} for n, s in self.sets.items()
+        }
         return StepOutput({"data": pa.concat_tables(segs), "lists": pa.concat_tables(lists)}, summary)
 
 

@@ -12,6 +12,7 @@ inside the band of matched segments widened by ``margin`` frames (§7); the warp
 (query frame, database frame), both within their clips, goes to the ``path`` column and
 the DTW cost per path step to ``dtw_cost``.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -24,6 +25,7 @@ from pydantic import Field
 from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, PipelineError
 from mocapflow.framework.schema import MATCHES, WARPING_PATH
+
 from .features import FEATURE_IDS, feature_column, feature_set_of
 from .inverted import InvertedIndex
 from .queries import Hits, example_query, scene_query
@@ -51,15 +53,16 @@ def dtw_band(query_levels: np.ndarray, levels: np.ndarray, margin: int) -> tuple
     n, m = int(query_levels[-1, 1]), int(levels[-1, 1])
     lo = np.full(n, m, np.int64)
     hi = np.zeros(n, np.int64)
-    for (qs, qe), (ds, de) in zip(query_levels, levels):
+    for (qs, qe), (ds, de) in zip(query_levels, levels, strict=True):
         rows = slice(max(qs - margin, 0), min(qe + margin, n))
         lo[rows] = np.minimum(lo[rows], max(ds - margin, 0))
         hi[rows] = np.maximum(hi[rows], min(de + margin, m))
     return lo, hi
 
 
-def refine(query_pose: np.ndarray, db_pose: np.ndarray, query_levels: np.ndarray, levels: np.ndarray,
-           margin: int) -> tuple[float, np.ndarray, int]:
+def refine(
+    query_pose: np.ndarray, db_pose: np.ndarray, query_levels: np.ndarray, levels: np.ndarray, margin: int
+) -> tuple[float, np.ndarray, int]:
     """DTW inside the band of matched segments; returns (cost per step, path (P, 2), cells)."""
     from ._match_kernels import banded_dtw
 
@@ -83,16 +86,25 @@ class ExampleQuery(Params):
     clip: str | int = Field(description="clip name (needs the 'motions' input) or clip id in the query dataset")
     start_frame: int = Field(0, ge=0, description="first query frame")
     end_frame: int | None = Field(None, description="end of the query frames (exclusive); default the clip's end")
-    features: tuple[str, ...] = Field((), description="selected features: ids (L3, U1, M7) or names (rfoot_raised); "
-                                      "in mode auto the features the selection may choose from (default all)")
-    examples: tuple[str | int, ...] = Field((), description="mode auto: further example clips (names or ids) of the same motion")
+    features: tuple[str, ...] = Field(
+        (),
+        description="selected features: ids (L3, U1, M7) or names (rfoot_raised); "
+        "in mode auto the features the selection may choose from (default all)",
+    )
+    examples: tuple[str | int, ...] = Field(
+        (), description="mode auto: further example clips (names or ids) of the same motion"
+    )
 
 
 class SceneQuery(Params):
     """A geometric scene description (§6.3)."""
 
-    progressions: tuple[tuple[dict[str, int], ...], ...] = Field(min_length=1, description="per progression, steps {feature: 0/1}")
-    overlaps: tuple[tuple[int, int, int, int], ...] = Field((), description="(a, i, b, j): step i of progression a overlaps step j of b")
+    progressions: tuple[tuple[dict[str, int], ...], ...] = Field(
+        min_length=1, description="per progression, steps {feature: 0/1}"
+    )
+    overlaps: tuple[tuple[int, int, int, int], ...] = Field(
+        (), description="(a, i, b, j): step i of progression a overlaps step j of b"
+    )
 
 
 class RelationalMatcher(Matcher):
@@ -110,8 +122,10 @@ class RelationalMatcher(Matcher):
     inputs = {"database": True, "query": True, "motions": False}
     #: Conformance (mocapflow.framework.testing): a query by example on synthetic clips.
     test_pipeline = {
-        "steps": {"feat": {"uses": "features.relational", "input": "motions"},
-                  "inv": {"uses": "indexes.inverted", "input": "feat"}},
+        "steps": {
+            "feat": {"uses": "features.relational", "input": "motions"},
+            "inv": {"uses": "indexes.inverted", "input": "feat"},
+        },
         "inputs": {"database": "inv", "query": "feat", "motions": "motions"},
         "with": {"queries": [{"clip": "synthetic2", "start_frame": 10, "end_frame": 50}]},
         "bad_inputs": {"database": "feat", "query": "feat", "motions": "motions"},
@@ -119,40 +133,46 @@ class RelationalMatcher(Matcher):
 
     class Params(Params):
         queries: tuple[ExampleQuery, ...] = Field((), description="queries by example")
-        scenes: tuple[SceneQuery, ...] = Field((), description="scene descriptions (query ids follow the example queries)")
-        mode: ExampleMode = Field("auto", description="auto (features chosen from the example), exact (eq. 7), fuzzy (eq. 11), "
-                                  "adaptive (§5.2) or mismatch")
-        auto_search: Literal["dtw", "adaptive", "mismatch"] = Field("dtw", description="mode auto: subsequence DTW of the "
-                                                                    "example as a template, or the paper's adaptive / mismatch hits")
-        min_run: int = Field(4, ge=1, description="mode auto: runs shorter than this (frames) are flicker")
-        max_features: int = Field(3, ge=1, le=31, description="mode auto with adaptive/mismatch search: features selected")
-        relative_cut: float | None = Field(None, gt=0.0, description="mode auto, dtw: hits cost below this x q^w x "
-                                           "median^(1-w) of the database's per-clip least costs (q: their 5 % quantile, "
-                                           "w: low_weight); default 1.3 for hits the mutual check passes, 1.15 for "
-                                           "unchecked ones (auto_mutual off, or long clips under auto)")
-        low_weight: float = Field(0.75, ge=0.0, le=1.0, description="mode auto, dtw: weight w of the low quantile in the cut "
-                                  "(0: relative_cut x the median, the first design)")
-        max_cost: float | None = Field(None, gt=0.0, description="mode auto, dtw: fixed cost cut instead of relative_cut")
-        auto_features: Literal["all", "key"] = Field("all", description="mode auto, dtw: the example template on all 31 "
-                                                     "features or on its key features (the first design)")
-        auto_mutual: Literal["auto", "clip", "off"] = Field("auto", description="mode auto, dtw: reverse check of each "
-                                                            "hit (the hit's clip as a query must find the query clip too): "
-                                                            "clip on every hit (databases of cut motions), auto only where "
-                                                            "the hit's clip is at most mutual_ratio x the query's length, for an example that is a whole clip "
-                                                            "(long takes: mutual_window or no check), off; docs/templates.md")
-        mutual_ratio: float = Field(3.0, gt=0.0, description="mode auto, auto_mutual auto: a hit's clip of at most this "
-                                    "x the query's frames is checked as a whole")
-        mutual_window: float | None = Field(None, ge=0.0, description="mode auto, auto_mutual auto: in a longer clip "
-                                            "the reverse query is a window of the query's length x (1 + this) around "
-                                            "the hit; None: such hits are not checked (and get the plain cut)")
-        mutual_sample: int | None = Field(256, ge=8, description="mode auto, mutual check: the reverse search covers a "
-                                          "fixed random sample of this many clips (its cut needs only the quantiles "
-                                          "of their costs); None: every clip")
-        auto_weighting: float = Field(0.5, ge=0.0, le=4.0, description="mode auto, dtw: a mismatch costs the surprise of the "
-                                      "example's value under the database's on-fraction, to this power (0: unweighted)")
+        scenes: tuple[SceneQuery, ...] = Field(
+            (), description="scene descriptions (query ids follow the example queries)"
+        )
+        mode: ExampleMode = Field(
+            "auto",
+            description="auto (features chosen from the example), exact (eq. 7), fuzzy (eq. 11), "
+            "adaptive (§5.2) or mismatch",
+        )
+        relative_cut: float | None = Field(
+            None,
+            gt=0.0,
+            description="mode auto: hits cost below this x q^0.75 x "
+            "median^0.25 of the database's per-clip least costs (q: their 5 % quantile); "
+            "default 1.3 for hits the mutual check passes, 1.15 for unchecked ones",
+        )
+        auto_mutual: Literal["auto", "clip", "off"] = Field(
+            "auto",
+            description="mode auto: reverse check of each "
+            "hit (the hit's clip as a query must find the query clip "
+            "too): auto only where the hit's clip is at most "
+            "mutual_ratio x the query's length, for an example that is "
+            "a whole clip; clip on every hit (databases of cut motions); "
+            "off; docs/templates.md",
+        )
+        mutual_ratio: float = Field(
+            3.0,
+            gt=0.0,
+            description="mode auto, auto_mutual auto: a hit's clip of at most this "
+            "x the query's frames is checked as a whole",
+        )
         mismatches: int = Field(1, ge=0, description="m of m-mismatch hits")
-        mismatch_positions: tuple[int, ...] | None = Field(None, description="query levels (0-based) where mismatches may occur; default any")
-        min_overlap: float = Field(0.5, ge=0.0, le=1.0, description="overlap (fraction of the shorter span) for combining hits of several indexes")
+        mismatch_positions: tuple[int, ...] | None = Field(
+            None, description="query levels (0-based) where mismatches may occur; default any"
+        )
+        min_overlap: float = Field(
+            0.5,
+            ge=0.0,
+            le=1.0,
+            description="overlap (fraction of the shorter span) for combining hits of several indexes",
+        )
         max_hits: int | None = Field(None, ge=1, description="keep the best max_hits per query")
         refine: bool = Field(False, description="DTW refinement of the coarse alignment (§7); needs 'motions'")
         margin: int = Field(4, ge=0, description="frames by which matched segments are enlarged for DTW (§7)")
@@ -160,23 +180,32 @@ class RelationalMatcher(Matcher):
     def search(self, index: InvertedIndex, bits: np.ndarray, features: tuple[str, ...]) -> Hits:
         """Hits of one query by example (features of the query frames, shape (T, 31))."""
         cols = sorted({feature_column(f) for f in features})
-        return example_query(index, bits, cols, self.params.mode, self.params.mismatches,
-                             self.params.mismatch_positions, self.params.min_overlap)
+        return example_query(
+            index,
+            bits,
+            cols,
+            self.params.mode,
+            self.params.mismatches,
+            self.params.mismatch_positions,
+            self.params.min_overlap,
+        )
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.datasets import StepOutput
 
         db_ds, q_ds = inputs["database"], inputs["query"]
         if db_ds.producer != "indexes.inverted" or q_ds.producer != "features.relational":
-            raise PipelineError(f"matchers.relational needs database=indexes.inverted and query=features.relational, "
-                                f"got {db_ds.producer} and {q_ds.producer}")
+            raise PipelineError(
+                f"matchers.relational needs database=indexes.inverted and query=features.relational, "
+                f"got {db_ds.producer} and {q_ds.producer}"
+            )
         index = InvertedIndex.load(db_ds.path / "index")
         q = q_ds.features()
         names: dict[str, int] = {}
         mdb = None
         if "motions" in inputs:
             clips = inputs["motions"].table("clips", columns=["clip_id", "name"])
-            names = dict(zip(clips["name"].to_pylist(), clips["clip_id"].to_pylist()))
+            names = dict(zip(clips["name"].to_pylist(), clips["clip_id"].to_pylist(), strict=True))
             if self.params.refine:
                 mdb = inputs["motions"].motions()
         elif self.params.refine:
@@ -185,7 +214,9 @@ class RelationalMatcher(Matcher):
         for qid, spec in enumerate(self.params.queries):
             cid = spec.clip if isinstance(spec.clip, int) else names.get(spec.clip)
             if cid is None:
-                raise ConfigError(f"query {qid}: unknown clip {spec.clip!r}" + ("" if names else " (give 'motions' to use names)"))
+                raise ConfigError(
+                    f"query {qid}: unknown clip {spec.clip!r}" + ("" if names else " (give 'motions' to use names)")
+                )
             sel = (q.clip_id == cid) & (q.frame >= spec.start_frame)
             if spec.end_frame is not None:
                 sel &= q.frame < spec.end_frame
@@ -205,63 +236,77 @@ class RelationalMatcher(Matcher):
             rows += [{**r, "features": ids} for r in self._rows(qid, index, hits, mdb, (int(cid), int(qpos)))]
         for sid, scene in enumerate(self.params.scenes):
             hits = scene_query(index, [list(p) for p in scene.progressions], [tuple(o) for o in scene.overlaps])
-            ids = ",".join(FEATURE_IDS[c] for c in sorted({feature_column(k) for p in scene.progressions for st in p for k in st}))
-            rows += [{**r, "features": ids} for r in self._rows(len(self.params.queries) + sid, index, hits, None, None)]
-        return StepOutput({"data": hits_table(rows, self.params.refine)},
-                          {"queries": len(self.params.queries) + len(self.params.scenes), "hits": len(rows)})
+            ids = ",".join(
+                FEATURE_IDS[c] for c in sorted({feature_column(k) for p in scene.progressions for st in p for k in st})
+            )
+            rows += [
+                {**r, "features": ids} for r in self._rows(len(self.params.queries) + sid, index, hits, None, None)
+            ]
+        return StepOutput(
+            {"data": hits_table(rows, self.params.refine)},
+            {"queries": len(self.params.queries) + len(self.params.scenes), "hits": len(rows)},
+        )
 
     @staticmethod
     def _clip_id(clip: str | int, names: dict[str, int], qid: int) -> int:
         cid = clip if isinstance(clip, int) else names.get(clip)
         if cid is None:
-            raise ConfigError(f"query {qid}: unknown example clip {clip!r}" + ("" if names else " (give 'motions' to use names)"))
+            raise ConfigError(
+                f"query {qid}: unknown example clip {clip!r}" + ("" if names else " (give 'motions' to use names)")
+            )
         return int(cid)
 
-    def _auto_rows(self, qid: int, index: InvertedIndex, bits: np.ndarray, spec: ExampleQuery,
-                   examples: list[np.ndarray], whole: bool = True) -> list[dict]:
-        """Mode auto: features selected from the example, then DTW or the paper's machinery.
+    def _auto_rows(
+        self,
+        qid: int,
+        index: InvertedIndex,
+        bits: np.ndarray,
+        spec: ExampleQuery,
+        examples: list[np.ndarray],
+        whole: bool = True,
+    ) -> list[dict]:
+        """Mode auto: the example as a weighted all-feature template (:mod:`.auto`).
         ``whole``: the example covers (at least 80 % of) its clip; ``auto_mutual: auto`` checks
         hits only then, since a piece of a take is no cut whose clip could be compared with
         the hit's clip (``clip`` checks regardless)."""
-        from .auto import auto_dtw_hits, auto_template, select_features
+        from .auto import auto_dtw_hits, auto_template
         from .template_model import frame_codes
 
         cache = getattr(self, "_frames", None)
         if cache is None or cache[0] is not index:
             db_bits = index.frame_bits()
             any_set = next(iter(index.sets.values()))
-            cache = (index, frame_codes(db_bits), db_bits.mean(axis=0) if len(db_bits) else np.zeros(31), any_set, db_bits)
+            cache = (
+                index,
+                frame_codes(db_bits),
+                db_bits.mean(axis=0) if len(db_bits) else np.zeros(31),
+                any_set,
+                db_bits,
+            )
             self._frames = cache
         _, codes, background, any_set, db_bits = cache
-        allowed = sorted({feature_column(f) for f in spec.features}) if spec.features else None
-        if self.params.auto_search == "dtw":
-            t = auto_template(bits, background, examples, self.params.min_run, self.params.auto_features,
-                              self.params.auto_weighting)
-            if allowed is not None:
-                keep = np.intersect1d(t.columns, allowed)
-                t.columns = keep if len(keep) else np.asarray(allowed, np.int64)
-            pr = self.params
-            mutual = "off" if pr.auto_mutual == "auto" and not whole else pr.auto_mutual
-            s, e, c = auto_dtw_hits(t, bits, db_bits, codes, any_set.clip_offsets, background, mutual,
-                                    pr.relative_cut, pr.max_cost, pr.low_weight, pr.mutual_ratio, pr.mutual_window,
-                                    pr.min_run, pr.auto_features, pr.auto_weighting, pr.mutual_sample)
-            used = t.columns
-            hits = Hits(np.searchsorted(any_set.clip_offsets, s, side="right") - 1, s, e, c,
-                        sets="+".join(sorted({feature_set_of(int(x)) for x in used})), n_levels=t.n_frames)
-        else:
-            used, sm, _ = select_features(bits, background, examples, self.params.min_run, max_features=self.params.max_features,
-                                          allowed=allowed)
-            if not len(used):
-                return []
-            mode = self.params.auto_search
-            hits = example_query(index, sm, sorted(int(x) for x in used), mode, self.params.mismatches,
-                                 self.params.mismatch_positions, self.params.min_overlap)
+        t = auto_template(bits, background, examples)
+        if spec.features:
+            allowed = sorted({feature_column(f) for f in spec.features})
+            keep = np.intersect1d(t.columns, allowed)
+            t.columns = keep if len(keep) else np.asarray(allowed, np.int64)
+        pr = self.params
+        mutual = "off" if pr.auto_mutual == "auto" and not whole else pr.auto_mutual
+        s, e, c = auto_dtw_hits(
+            t, bits, db_bits, codes, any_set.clip_offsets, background, mutual, pr.relative_cut, pr.mutual_ratio
+        )
+        hits = Hits(
+            np.searchsorted(any_set.clip_offsets, s, side="right") - 1,
+            s,
+            e,
+            c,
+            sets="+".join(sorted({feature_set_of(int(x)) for x in t.columns})),
+            n_levels=t.n_frames,
+        )
         rows = self._rows(qid, index, hits, None, None)
-        ids = ",".join(FEATURE_IDS[int(x)] for x in sorted(used))
+        ids = ",".join(FEATURE_IDS[int(x)] for x in sorted(t.columns))
         for r in rows:
-            r.update(mode="auto", features=ids)
-            if self.params.auto_search == "dtw":
-                r["dtw_cost"] = r["cost"]
+            r.update(mode="auto", features=ids, dtw_cost=r["cost"])
         return rows
 
     def _rows(self, qid: int, index: InvertedIndex, hits: Hits, mdb, query_clip) -> list[dict]:
@@ -277,12 +322,21 @@ class RelationalMatcher(Matcher):
         for rank, h in enumerate(order, start=1):  # ranks are 1-based in every match table
             pos = int(hits.clip[h])
             first = int(any_set.clip_offsets[pos])
-            row = {"query_id": qid, "rank": rank, "clip_id": int(any_set.clip_ids[pos]),
-                   "start_frame": int(hits.start[h] - first), "end_frame": int(hits.end[h] - first),
-                   "cost": float(hits.cost[h]), "mode": self.params.mode if query_clip else "scene",
-                   "feature_sets": hits.sets, "n_segments": hits.n_levels,
-                   "mismatches": int(hits.extra.get("mismatches", np.zeros(len(hits), np.int64))[h]),
-                   "dtw_cost": None, "path": None, "features": hits.sets}
+            row = {
+                "query_id": qid,
+                "rank": rank,
+                "clip_id": int(any_set.clip_ids[pos]),
+                "start_frame": int(hits.start[h] - first),
+                "end_frame": int(hits.end[h] - first),
+                "cost": float(hits.cost[h]),
+                "mode": self.params.mode if query_clip else "scene",
+                "feature_sets": hits.sets,
+                "n_segments": hits.n_levels,
+                "mismatches": int(hits.extra.get("mismatches", np.zeros(len(hits), np.int64))[h]),
+                "dtw_cost": None,
+                "path": None,
+                "features": hits.sets,
+            }
             if mdb is not None and query_clip is not None and hits.levels is not None:
                 row.update(self._refine(mdb, query_clip, pos, hits.levels[h] - first, hits.query_levels, index))
             out.append(row)
@@ -294,8 +348,8 @@ class RelationalMatcher(Matcher):
         qm = mdb.motions[where[query_clip[0]]]
         dm = mdb.motions[where[int(any_set.clip_ids[pos])]]
         ql = query_levels + query_clip[1]
-        qa = pose_features(qm.canonical_positions()[ql[0, 0]:ql[-1, 1]])
-        da = pose_features(dm.canonical_positions()[levels[0, 0]:levels[-1, 1]])
+        qa = pose_features(qm.canonical_positions()[ql[0, 0] : ql[-1, 1]])
+        da = pose_features(dm.canonical_positions()[levels[0, 0] : levels[-1, 1]])
         cost, path, _ = refine(qa, da, ql, levels, self.params.margin)
         path = path + np.array([ql[0, 0], levels[0, 0]])
         return {"dtw_cost": cost if np.isfinite(cost) else None, "path": path.tolist()}
@@ -303,9 +357,14 @@ class RelationalMatcher(Matcher):
 
 def hits_table(rows: list[dict], with_path: bool = False) -> pa.Table:
     """Rows -> a match table (:data:`~mocapflow.framework.schema.MATCHES` + relational columns)."""
-    fields = list(MATCHES) + [pa.field("mode", pa.string()), pa.field("feature_sets", pa.string()),
-                              pa.field("n_segments", pa.int32()), pa.field("mismatches", pa.int32()),
-                              pa.field("dtw_cost", pa.float64()), pa.field("features", pa.string())]
+    fields = list(MATCHES) + [
+        pa.field("mode", pa.string()),
+        pa.field("feature_sets", pa.string()),
+        pa.field("n_segments", pa.int32()),
+        pa.field("mismatches", pa.int32()),
+        pa.field("dtw_cost", pa.float64()),
+        pa.field("features", pa.string()),
+    ]
     if with_path:
         fields.append(WARPING_PATH)
     schema = pa.schema(fields)

@@ -1,6 +1,7 @@
 """Plugin registering the relational-feature retrieval components (Müller et al. 2005):
 ``features.relational``, ``indexes.inverted`` and ``matchers.relational``; and the motion
 templates of Müller & Röder 2006: ``matchers.template`` and ``analyses.classify``."""
+
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl

@@ -2,8 +2,7 @@
 
 Every function works on arrays of points broadcast over frames, ``(..., 3)`` in metres,
 y up, and returns a real-valued quantity (a signed distance, a distance, an angle or a
-speed); thresholding into booleans (optionally with hysteresis) is a separate step
-(:func:`threshold`, :func:`hysteresis`). Nothing here knows about joints: the feature
+speed); thresholding into booleans is a separate step (:func:`threshold`). Nothing here knows about joints: the feature
 table in :mod:`.relational` picks the joints.
 
 Conventions
@@ -17,6 +16,7 @@ plane given by a normal
     plane passes through an anchor point; the signed distance is positive on the side the
     normal points to.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -45,8 +45,9 @@ def _k():
     return _relational_kernels
 
 
-def plane_distance(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray,
-                   offset: float | np.ndarray = 0.0) -> np.ndarray:
+def plane_distance(
+    p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray, offset: float | np.ndarray = 0.0
+) -> np.ndarray:
     """Signed distance of ``q`` from the oriented plane through ``p1, p2, p3``, minus ``offset``.
 
     Parameters
@@ -68,8 +69,9 @@ def plane_distance(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray
     return out.reshape(shape)
 
 
-def normal_plane_distance(a: np.ndarray, b: np.ndarray, anchor: np.ndarray, q: np.ndarray,
-                          offset: float | np.ndarray = 0.0) -> np.ndarray:
+def normal_plane_distance(
+    a: np.ndarray, b: np.ndarray, anchor: np.ndarray, q: np.ndarray, offset: float | np.ndarray = 0.0
+) -> np.ndarray:
     """Signed distance of ``q`` from the plane with normal ``b - a`` through ``anchor``, minus ``offset``.
 
     ``a`` and ``b`` may be joints (shape (..., 3)) or a fixed direction given as
@@ -157,8 +159,9 @@ def clip_starts(offsets: np.ndarray, n_frames: int) -> np.ndarray:
     return mask
 
 
-def speed(p: np.ndarray, fps: float, offsets: np.ndarray | None = None,
-          reference: np.ndarray | None = None) -> np.ndarray:
+def speed(
+    p: np.ndarray, fps: float, offsets: np.ndarray | None = None, reference: np.ndarray | None = None
+) -> np.ndarray:
     """Speed of a point, metres per second, never differencing across clip boundaries.
 
     Central differences inside a clip, one-sided differences at a clip's first and last
@@ -196,36 +199,15 @@ def threshold(value: np.ndarray, thresh: float | np.ndarray, below: bool = False
         return (value < thresh) if below else (value >= thresh)
 
 
-def hysteresis(on: np.ndarray, stay: np.ndarray, offsets: np.ndarray | None = None) -> np.ndarray:
-    """Two-threshold (Schmitt trigger) booleans, vectorised over frames and features.
-
-    The output switches to True where ``on`` (the stricter test) holds, to False where
-    ``stay`` (the laxer test) fails, and otherwise keeps its previous value; each clip starts
-    False unless ``on`` holds. ``on`` must imply ``stay``.
-
-    Parameters
-    ----------
-    on, stay : ndarray of bool, shape (T,) or (T, f)
-    offsets : ndarray of int, shape (n_clips + 1,), optional
-
-    Returns
-    -------
-    ndarray of bool, same shape
-    """
-    on = np.asarray(on, dtype=bool)
-    stay = np.asarray(stay, dtype=bool)
-    t = on.shape[0]
-    if t == 0:
-        return on.copy()
-    if offsets is None:
-        offsets = np.array([0, t])
-    starts = clip_starts(offsets, t)
-    decided = on | ~stay
-    decided |= starts.reshape((-1,) + (1,) * (on.ndim - 1))
-    idx = np.where(decided, np.arange(t).reshape((-1,) + (1,) * (on.ndim - 1)), 0)
-    np.maximum.accumulate(idx, axis=0, out=idx)
-    return np.take_along_axis(on, idx, axis=0) if on.ndim > 1 else on[idx]
-
-
-__all__ = ["angle_between", "clip_starts", "cos_between", "hysteresis", "min_height", "normal_plane_distance", "plane_distance",
-           "point_segment_distance", "segment_segment_distance", "speed", "threshold"]
+__all__ = [
+    "angle_between",
+    "clip_starts",
+    "cos_between",
+    "min_height",
+    "normal_plane_distance",
+    "plane_distance",
+    "point_segment_distance",
+    "segment_segment_distance",
+    "speed",
+    "threshold",
+]

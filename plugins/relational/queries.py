@@ -25,6 +25,7 @@ to maximal runs of each ``V_l``: exact hits for the selected features; the defau
 The ranking cost of a hit is the segment-length heuristic of §6.2 (``matcher`` ranks and
 refines them). Component code is in ``matcher.py``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -33,9 +34,10 @@ from typing import Literal
 import numpy as np
 
 from mocapflow.framework.errors import ConfigError
+
 from .features import SET_SLICES, feature_column, feature_set_of
-from .segmentation import segment
 from .inverted import InvertedIndex, SetIndex
+from .segmentation import segment
 
 Mode = Literal["exact", "fuzzy", "adaptive", "mismatch"]
 
@@ -90,8 +92,14 @@ def _level_frames(idx: SetIndex, bounds: np.ndarray) -> np.ndarray:
     return np.stack([idx.seg_start[bounds[:, :-1]], idx.seg_end[bounds[:, 1:] - 1]], axis=-1)
 
 
-def search_set(idx: SetIndex, member: np.ndarray, mode: Mode, mismatches: int = 1,
-               allowed: np.ndarray | None = None, mask: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def search_set(
+    idx: SetIndex,
+    member: np.ndarray,
+    mode: Mode,
+    mismatches: int = 1,
+    allowed: np.ndarray | None = None,
+    mask: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Hits of one fuzzy query in one set index.
 
     ``member`` (L, 2**f) holds the fuzzy sets; ``mask`` the bits they constrain (derived
@@ -125,10 +133,16 @@ def search_set(idx: SetIndex, member: np.ndarray, mode: Mode, mismatches: int = 
     first_seg = np.flatnonzero(brk)
     end_seg = np.append(first_seg[1:], idx.n_segments)
     allowed = np.ones(n_levels, bool) if allowed is None else np.asarray(allowed, bool)
-    starts, bad = mismatch_scan(proj[first_seg], idx.seg_clip[first_seg], np.ascontiguousarray(member),
-                                allowed, int(mismatches))
-    bounds = np.concatenate([first_seg[starts[:, None] + np.arange(n_levels)[None, :]],
-                             end_seg[starts + n_levels - 1][:, None]], axis=1) if len(starts) else np.zeros((0, n_levels + 1), np.int64)
+    starts, bad = mismatch_scan(
+        proj[first_seg], idx.seg_clip[first_seg], np.ascontiguousarray(member), allowed, int(mismatches)
+    )
+    bounds = (
+        np.concatenate(
+            [first_seg[starts[:, None] + np.arange(n_levels)[None, :]], end_seg[starts + n_levels - 1][:, None]], axis=1
+        )
+        if len(starts)
+        else np.zeros((0, n_levels + 1), np.int64)
+    )
     return _level_frames(idx, bounds), bad
 
 
@@ -143,9 +157,15 @@ def _query_mask(member: np.ndarray) -> int:
     return mask
 
 
-def example_query(index: InvertedIndex, bits: np.ndarray, columns: list[int], mode: Mode = "adaptive",
-                  mismatches: int = 1, mismatch_positions: tuple[int, ...] | None = None,
-                  min_overlap: float = 0.5) -> Hits:
+def example_query(
+    index: InvertedIndex,
+    bits: np.ndarray,
+    columns: list[int],
+    mode: Mode = "adaptive",
+    mismatches: int = 1,
+    mismatch_positions: tuple[int, ...] | None = None,
+    min_overlap: float = 0.5,
+) -> Hits:
     """Query by example: the query clip's boolean features and a selection of columns.
 
     Parameters
@@ -168,7 +188,9 @@ def example_query(index: InvertedIndex, bits: np.ndarray, columns: list[int], mo
         idx = index.sets[name]
         local = [c - sl.start for c in cols]
         if mode == "exact" and len(local) != idx.n_features:
-            raise ConfigError(f"mode 'exact' compares whole feature sets; select all of {name!r} or use mode 'adaptive'")
+            raise ConfigError(
+                f"mode 'exact' compares whole feature sets; select all of {name!r} or use mode 'adaptive'"
+            )
         seg = segment(bits, cols)
         # re-express the segment codes in the set's own bit positions
         values = np.zeros(len(seg), np.int64)
@@ -183,8 +205,17 @@ def example_query(index: InvertedIndex, bits: np.ndarray, columns: list[int], mo
         qlen = qlev[:, 1] - qlev[:, 0]
         cost = np.abs(dlen - qlen[None, :]).sum(axis=1) / max(int(qlen.sum()), 1)
         clip = np.searchsorted(idx.clip_offsets, levels[:, 0, 0], side="right") - 1
-        h = Hits(clip.astype(np.int64), levels[:, 0, 0], levels[:, -1, 1], cost.astype(np.float64), levels, qlev, name, len(seg),
-                 {"mismatches": bad})
+        h = Hits(
+            clip.astype(np.int64),
+            levels[:, 0, 0],
+            levels[:, -1, 1],
+            cost.astype(np.float64),
+            levels,
+            qlev,
+            name,
+            len(seg),
+            {"mismatches": bad},
+        )
         parts.append(h)
     if not parts:
         raise ConfigError("matchers.relational: a query needs at least one feature")
@@ -209,15 +240,25 @@ def combine(a: Hits, b: Hits, min_overlap: float = 0.5) -> Hits:
     ia = np.concatenate(ia) if ia else np.zeros(0, np.int64)
     ib = np.concatenate(ib) if ib else np.zeros(0, np.int64)
     keep, kidx = (a, ia) if a.n_levels >= b.n_levels else (b, ib)
-    return Hits(a.clip[ia], np.minimum(a.start[ia], b.start[ib]), np.maximum(a.end[ia], b.end[ib]),
-                0.5 * (a.cost[ia] + b.cost[ib]), None if keep.levels is None else keep.levels[kidx],
-                keep.query_levels, f"{a.sets}+{b.sets}", keep.n_levels,
-                {"mismatches": a.extra.get("mismatches", np.zeros(len(a), np.int64))[ia]
-                 + b.extra.get("mismatches", np.zeros(len(b), np.int64))[ib]})
+    return Hits(
+        a.clip[ia],
+        np.minimum(a.start[ia], b.start[ib]),
+        np.maximum(a.end[ia], b.end[ib]),
+        0.5 * (a.cost[ia] + b.cost[ib]),
+        None if keep.levels is None else keep.levels[kidx],
+        keep.query_levels,
+        f"{a.sets}+{b.sets}",
+        keep.n_levels,
+        {
+            "mismatches": a.extra.get("mismatches", np.zeros(len(a), np.int64))[ia]
+            + b.extra.get("mismatches", np.zeros(len(b), np.int64))[ib]
+        },
+    )
 
 
-def scene_query(index: InvertedIndex, progressions: list[list[dict[str, int]]],
-                overlaps: list[tuple[int, int, int, int]] = ()) -> Hits:
+def scene_query(
+    index: InvertedIndex, progressions: list[list[dict[str, int]]], overlaps: list[tuple[int, int, int, int]] = ()
+) -> Hits:
     """Geometric scene description (§6.3): progressions combined under co-occurrence.
 
     Parameters
@@ -234,28 +275,41 @@ def scene_query(index: InvertedIndex, progressions: list[list[dict[str, int]]],
         cols = [[feature_column(k) for k in step] for step in prog]
         sets = {feature_set_of(c) for step in cols for c in step}
         if len(sets) != 1:
-            raise ConfigError(f"scene progression {p} must use features of exactly one set, got {sorted(sets) or 'none'}; "
-                              "split it into progressions linked by overlaps")
+            raise ConfigError(
+                f"scene progression {p} must use features of exactly one set, got {sorted(sets) or 'none'}; "
+                "split it into progressions linked by overlaps"
+            )
         name = sets.pop()
         idx = index.sets[name]
         base = SET_SLICES[name].start
         member = np.ones((len(prog), 1 << idx.n_features), bool)
-        for row, (step, scols) in enumerate(zip(prog, cols)):
-            for (k, v), c in zip(step.items(), scols):
+        for row, (step, scols) in enumerate(zip(prog, cols, strict=True)):
+            for (_, v), c in zip(step.items(), scols, strict=True):
                 member[row] &= subset_member(np.array([int(v) << (c - base)]), 1 << (c - base), idx.n_features)[0]
         if len(coarsen_fuzzy(member)) != len(member):
             raise ConfigError(f"scene progression {p}: adjacent steps must differ in a specified feature")
         levels, _ = search_set(idx, member, "adaptive")
         clip = np.searchsorted(idx.clip_offsets, levels[:, 0, 0], side="right") - 1
-        per.append(Hits(clip.astype(np.int64), levels[:, 0, 0], levels[:, -1, 1], np.zeros(len(levels)),
-                        levels, None, name, len(member)))
+        per.append(
+            Hits(
+                clip.astype(np.int64),
+                levels[:, 0, 0],
+                levels[:, -1, 1],
+                np.zeros(len(levels)),
+                levels,
+                None,
+                name,
+                len(member),
+            )
+        )
     if not per:
         raise ConfigError("a scene description needs at least one progression")
     # join progressions one by one; combos[k] holds hit indices into per[k]
     combos = [np.arange(len(per[0]))]
     for b in range(1, len(per)):
-        cons = [(a, i, j) for a, i, bb, j in overlaps if bb == b and a < b] + \
-               [(bb, j, i) for bb, j, a, i in overlaps if a == b and bb < b]
+        cons = [(a, i, j) for a, i, bb, j in overlaps if bb == b and a < b] + [
+            (bb, j, i) for bb, j, a, i in overlaps if a == b and bb < b
+        ]
         new_a, new_b = [], []
         hb = per[b]
         for c in np.unique(per[0].clip[combos[0]]):
@@ -273,8 +327,14 @@ def scene_query(index: InvertedIndex, progressions: list[list[dict[str, int]]],
         combos = [x[sel] for x in combos] + [np.concatenate(new_b) if new_b else np.zeros(0, np.int64)]
     start = np.min([per[k].start[combos[k]] for k in range(len(per))], axis=0)
     end = np.max([per[k].end[combos[k]] for k in range(len(per))], axis=0)
-    return Hits(per[0].clip[combos[0]], start, end, np.zeros(len(start)), sets="+".join(h.sets for h in per),
-                n_levels=sum(h.n_levels for h in per))
+    return Hits(
+        per[0].clip[combos[0]],
+        start,
+        end,
+        np.zeros(len(start)),
+        sets="+".join(h.sets for h in per),
+        n_levels=sum(h.n_levels for h in per),
+    )
 
 
 __all__ = ["Hits", "Mode", "coarsen_fuzzy", "combine", "example_query", "scene_query", "search_set", "subset_member"]

@@ -4,6 +4,7 @@ For a selected subset of boolean features, consecutive frames with the same feat
 vector form a run; the F-segments are the maximal runs, and they never cross a clip
 boundary. Segments are half-open frame ranges ``[start, end)``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -41,7 +42,7 @@ def pack_codes(bits: np.ndarray, columns: np.ndarray | list[int] | None = None) 
     if width is not None:
         return np.ascontiguousarray(packed).view(width).reshape(-1).astype(np.int64)
     pad = np.zeros((len(b), 8), np.uint8)
-    pad[:, :packed.shape[1]] = packed
+    pad[:, : packed.shape[1]] = packed
     return pad.view("<u8").reshape(-1).astype(np.int64)
 
 
@@ -106,8 +107,9 @@ def segment_codes(codes: np.ndarray, offsets: np.ndarray | None = None) -> Segme
     return Segmentation(start, end, codes[start], clip.astype(np.int64))
 
 
-def segment(bits: np.ndarray, columns: np.ndarray | list[int] | None = None,
-            offsets: np.ndarray | None = None) -> Segmentation:
+def segment(
+    bits: np.ndarray, columns: np.ndarray | list[int] | None = None, offsets: np.ndarray | None = None
+) -> Segmentation:
     """F-segmentation for a subset of feature columns.
 
     Parameters

@@ -13,6 +13,7 @@ templates by naming this step as its ``reference`` input::
 Labels come from clip names (``label_pattern``, a regular expression with a group
 ``label``); the training clips are those whose names match ``train``.
 """
+
 from __future__ import annotations
 
 import re
@@ -28,7 +29,14 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 from mocapflow.framework.schema import MATCHES
 
-from .template_model import MotionTemplate, fit_class_template, frame_codes, load_templates, save_templates, search_costs
+from .template_model import (
+    MotionTemplate,
+    fit_class_template,
+    frame_codes,
+    load_templates,
+    save_templates,
+    search_costs,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.context import StepContext
@@ -52,9 +60,14 @@ def clip_labels(names: list[str], pattern: str, group: str = "label") -> list[st
     return out
 
 
-def fit_templates(bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
-                  groups: list[str | None] | None = None, classes: list[str] | None = None, features: str = "key",
-                  delta: float = 0.2, iterations: int = 2, margin: float = 0.25, negatives: bool = True) -> list[MotionTemplate]:
+def fit_templates(
+    bits: np.ndarray,
+    offsets: np.ndarray,
+    labels: list[str | None],
+    train: np.ndarray,
+    groups: list[str | None] | None = None,
+    classes: list[str] | None = None,
+) -> list[MotionTemplate]:
     """One template per class from labelled training clips.
 
     Parameters
@@ -65,16 +78,15 @@ def fit_templates(bits: np.ndarray, offsets: np.ndarray, labels: list[str | None
     train : ndarray of bool, shape (n_clips,)
         Training clips.
     groups : list, optional
-        Group of each clip (e.g. actor) for leave-one-group-out threshold calibration.
-    negatives : bool
-        Calibrate each threshold against the training clips of the other classes too.
+        Group of each clip (e.g. actor) for leave-one-group-out threshold calibration; each
+        threshold is calibrated against the training clips of the other classes too.
     """
     lab = np.array([x if x is not None else "" for x in labels], dtype=object)
     use = np.asarray(train, bool) & (lab != "")
     if not use.any():
         raise DataError("matchers.template: no training clip matches both 'train' and 'label_pattern'")
     classes = classes or sorted(set(lab[use]))
-    clip = [bits[offsets[i]:offsets[i + 1]] for i in range(len(offsets) - 1)]
+    clip = [bits[offsets[i] : offsets[i + 1]] for i in range(len(offsets) - 1)]
     bg = np.concatenate([clip[i] for i in np.flatnonzero(use)]).mean(axis=0)
     grp = np.array([g if g is not None else "" for g in groups], dtype=object) if groups is not None else None
     out = []
@@ -82,9 +94,12 @@ def fit_templates(bits: np.ndarray, offsets: np.ndarray, labels: list[str | None
         mine = np.flatnonzero(use & (lab == c))
         if not len(mine):
             raise DataError(f"matchers.template: class {c!r} has no training clip")
-        neg = [clip[i] for i in np.flatnonzero(use & (lab != c))] if negatives else None
-        out.append(fit_class_template(c, [clip[i] for i in mine], bg, features, delta, iterations, True, margin,
-                                      None if grp is None else list(grp[mine]), neg))
+        neg = [clip[i] for i in np.flatnonzero(use & (lab != c))]
+        out.append(
+            fit_class_template(
+                c, [clip[i] for i in mine], bg, groups=None if grp is None else list(grp[mine]), negatives=neg
+            )
+        )
     return out
 
 
@@ -94,77 +109,71 @@ def feature_ids(columns: np.ndarray) -> str:
     return ",".join(FEATURE_IDS[int(c)] for c in columns)
 
 
-def search_template(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None,
-                    columns: Literal["key", "all"] = "key", index=None,
-                    anchor_features: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template in a database.
+def search_template(
+    t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None, index=None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template below its
+    threshold, without the rival check.
 
     ``codes`` (N,) :func:`.template_model.frame_codes`; ``offsets`` (n_clips + 1,) clip
     offsets; ``index``: an ``InvertedIndex`` of the same frames: only the candidate regions
     around the template's anchor are searched (:mod:`.template_prefilter`).
     """
-    use = t if columns == "key" else _all_columns(t)
-    if index is not None:
-        from .template_prefilter import candidate_ranges
-
-        ranges, _ = candidate_ranges(use, index, anchor_features)
-    else:
-        ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
-    return search_costs(codes, use.table(), ranges, t.threshold if threshold is None else threshold)[:3]
+    ranges = _ranges(t, offsets, index)
+    return search_costs(codes, t.table(), ranges, t.threshold if threshold is None else threshold)[:3]
 
 
-def cutoff_hits(templates: list[MotionTemplate], codes: np.ndarray, offsets: np.ndarray,
-                cutoff: Literal["rivals", "threshold"] = "rivals", columns: Literal["key", "all"] = "key",
-                index=None, anchor_features: int = 2, threshold: float | None = None, rho: float = 1.0,
-                guard: float = 1.0, min_gap: float = 0.5, only: list[int] | None = None,
-                rival_table=None, anchors: int = 1, step: int | str = 1, coarse_frames: int = 7,
-                coarse=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+def _ranges(t: MotionTemplate, offsets: np.ndarray, index) -> np.ndarray:
+    if index is None:
+        return np.stack([offsets[:-1], offsets[1:]], axis=1)
+    from .template_prefilter import candidate_ranges
+
+    return candidate_ranges(t, index)[0]
+
+
+def cutoff_hits(
+    templates: list[MotionTemplate],
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    index=None,
+    threshold: float | None = None,
+    min_gap: float = 0.5,
+    only: list[int] | None = None,
+    rival_table=None,
+    step: int | str = 1,
+    coarse=None,
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
-    frames, ascending cost) under a cut-off rule (:mod:`.template_cutoff`).
+    frames, ascending cost): key-feature cost <= the template's acceptance bound and no
+    other template cheaper on the stretch (all-feature costs, :mod:`.template_cutoff`).
 
-    ``cutoff="threshold"``: cost <= the template's threshold; ``"rivals"``: cost <= its
-    acceptance bound and no other template cheaper on the stretch (all-feature costs,
-    factor ``rho``). ``threshold`` overrides the bound of every template. ``only``: search
-    these templates (indices) only, the others still competing as rivals. ``rival_table``:
-    a :class:`.template_cutoff.RivalTable` of the same frames answers the rival check by
+    ``threshold`` overrides the bound of every template. ``only``: search these templates
+    (indices) only, the others still competing as rivals. ``rival_table``: a
+    :class:`.template_cutoff.RivalTable` of the same frames answers the rival check by
     lookups (many queries on one database) instead of scanning the hits' windows.
-    ``anchors``: candidate regions from one anchor or the intersection of two
-    (:func:`.template_prefilter.candidate_ranges`). ``step``: search every ``step``-th frame
-    (``"auto"``: per template, :func:`.template_coarse.template_step` with ``coarse_frames``),
-    the rival check at the full rate (:mod:`.template_coarse`); ``coarse``: a
-    :class:`.template_coarse.CoarseCodes` of ``codes`` reused between calls.
+    ``index``: candidate regions from the inverted lists (:mod:`.template_prefilter`).
+    ``step``: search every ``step``-th frame (``"auto"``: per template,
+    :func:`.template_coarse.template_step`), the rival check at the full rate
+    (:mod:`.template_coarse`); ``coarse``: a :class:`.template_coarse.CoarseCodes` of
+    ``codes`` reused between calls.
     """
     from .template_coarse import CoarseCodes, coarse_search, template_step
     from .template_cutoff import acceptance_bound, rival_mask
 
     coarse = coarse if coarse is not None else CoarseCodes(codes, offsets)
-
     out = []
     for qid, t in enumerate(templates):
         if only is not None and qid not in only:
             continue
-        use = t if columns == "key" else _all_columns(t)
-        if threshold is not None:
-            bound = float(threshold)
-        else:
-            bound = acceptance_bound(t, guard) if cutoff == "rivals" else float(t.threshold)
-        if index is not None:
-            from .template_prefilter import candidate_ranges
-
-            ranges, _ = candidate_ranges(use, index, anchor_features, widen="path", anchors=anchors)
-        else:
-            ranges = np.stack([offsets[:-1], offsets[1:]], axis=1)
-        s, e, c = coarse_search(use, coarse, ranges, bound, min_gap, template_step(t, step, coarse_frames))
-        if cutoff == "rivals":
-            keep = (rival_table.mask(qid, s, e, offsets, rho) if rival_table is not None
-                    else rival_mask(templates, qid, s, e, codes, offsets, rho))
-            s, e, c = s[keep], e[keep], c[keep]
-        out.append((s, e, c, bound))
+        bound = float(threshold) if threshold is not None else acceptance_bound(t)
+        s, e, c = coarse_search(t, coarse, _ranges(t, offsets, index), bound, min_gap, template_step(t, step))
+        keep = (
+            rival_table.mask(qid, s, e, offsets)
+            if rival_table is not None
+            else rival_mask(templates, qid, s, e, codes, offsets)
+        )
+        out.append((s[keep], e[keep], c[keep], bound))
     return out
-
-
-def _all_columns(t: MotionTemplate) -> MotionTemplate:
-    return MotionTemplate(t.label, t.mean, np.arange(t.mean.shape[1]), t.delta, t.threshold, t.n_examples, t.example_costs)
 
 
 class TemplateMatcher(Matcher):
@@ -175,9 +184,9 @@ class TemplateMatcher(Matcher):
     ``reference`` (a ``matchers.template`` step whose templates are reused) and ``index``
     (an ``indexes.inverted`` step on the same frames: candidate regions from its lists). Output: the
     shared match table (``query_id`` = template number) plus ``label``, ``threshold`` (the
-    cost bound the hit passed: the acceptance bound with ``cutoff: rivals``, the calibrated
-    threshold otherwise) and ``features``; a ``templates`` table; ``templates.npz`` and
-    ``template_<label>.png``. Which hits are reported: ``cutoff`` (:mod:`.template_cutoff`).
+    acceptance bound the hit passed) and ``features``; a ``templates`` table;
+    ``templates.npz`` and ``template_<label>.png``. Which hits are reported:
+    :mod:`.template_cutoff`.
     """
 
     name = "template"
@@ -185,48 +194,48 @@ class TemplateMatcher(Matcher):
     inputs = {"database": True, "motions": True, "reference": False, "index": False}
     #: Conformance (mocapflow.framework.testing): one template from synthetic clips.
     test_pipeline = {
-        "steps": {"feat": {"uses": "features.relational", "input": "motions"},
-                  "inv": {"uses": "indexes.inverted", "input": "feat"}},
+        "steps": {
+            "feat": {"uses": "features.relational", "input": "motions"},
+            "inv": {"uses": "indexes.inverted", "input": "feat"},
+        },
         "inputs": {"database": "feat", "motions": "motions"},
         "with": {"label_pattern": r"^(?P<label>synthetic)\d", "group_pattern": None, "plots": False},
         "bad_inputs": {"database": "inv", "motions": "motions"},
     }
 
     class Params(Params):
-        label_pattern: str = Field(HDM05_LABEL, description="regular expression on clip names with a group (?P<label>...)")
+        label_pattern: str = Field(
+            HDM05_LABEL, description="regular expression on clip names with a group (?P<label>...)"
+        )
         train: str = Field(".", description="regular expression: clips whose names match are training examples")
         classes: tuple[str, ...] = Field((), description="labels to learn (default: every label of the training clips)")
-        features: Literal["key", "all"] = Field("key", description="retrieve on the template's key features or on all 31")
-        delta: float = Field(0.2, gt=0.0, lt=0.5, description="don't care where the examples' average is in (delta, 1 - delta)")
-        iterations: int = Field(2, ge=0, le=10, description="re-alignment rounds after the first average")
-        margin: float = Field(0.25, ge=0.0, description="threshold = (1 + margin) x the largest leave-one-out example cost")
-        threshold: float | None = Field(None, gt=0.0, le=1.0, description="fixed cost threshold for every template (default: calibrated)")
+        group_pattern: str | None = Field(
+            HDM05_GROUP,
+            description="regular expression with a group (?P<group>...) "
+            "(e.g. the actor): thresholds are calibrated leaving one group out at a time",
+        )
+        threshold: float | None = Field(
+            None, gt=0.0, le=1.0, description="fixed acceptance bound for every template (default: calibrated)"
+        )
         max_hits: int | None = Field(None, ge=1, description="keep the best max_hits per template")
-        group_pattern: str | None = Field(HDM05_GROUP, description="regular expression with a group (?P<group>...) "
-                                          "(e.g. the actor): thresholds are calibrated leaving one group out at a time")
-        negatives: bool = Field(True, description="calibrate thresholds against the other classes' training clips too")
-        anchor_features: int = Field(2, ge=1, le=3, description="with an 'index' input: features of the anchor constellation "
-                                     "whose inverted lists pre-select the searched regions")
-        anchors: int = Field(1, ge=1, le=2, description="with an 'index' input: 2 searches only where the anchors of two "
-                             "feature sets both occur (faster, loses more hits: docs/templates.md)")
-        cutoff: Literal["rivals", "threshold"] = Field("rivals", description="rivals: a hit below the template's acceptance "
-                                                        "bound that no other template beats on the stretch (all-feature costs); "
-                                                        "threshold: every hit below the calibrated threshold")
-        rho: float = Field(1.0, gt=0.0, description="cutoff rivals: keep a hit when its all-feature cost <= rho x the best rival's")
-        guard: float = Field(1.0, ge=0.0, description="cutoff rivals: acceptance bound = max(threshold, (1 + guard) x the "
-                                                      "largest leave-one-group-out example cost)")
-        step: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field("auto", description="search every step-th frame of template and clips (the "
-                                            "rival check stays at the full rate); auto: K // coarse_frames, 1 to 4 "
-                                            "(docs/templates.md); 1: the full-rate search")
-        coarse_frames: int = Field(7, ge=1, description="step auto: template frames per coarse template frame")
+        step: Annotated[int, Field(ge=1, le=8)] | Literal["auto"] = Field(
+            "auto",
+            description="search every step-th "
+            "frame of template and clips (the rival check stays at the full rate); "
+            "auto: K // 7, 1 to 4 (docs/templates.md); 1: the full-rate search",
+        )
         plots: bool = Field(True, description="write template_<label>.png per template")
 
-    def fit(self, bits: np.ndarray, offsets: np.ndarray, labels: list[str | None], train: np.ndarray,
-            groups: list[str | None] | None = None) -> list[MotionTemplate]:
+    def fit(
+        self,
+        bits: np.ndarray,
+        offsets: np.ndarray,
+        labels: list[str | None],
+        train: np.ndarray,
+        groups: list[str | None] | None = None,
+    ) -> list[MotionTemplate]:
         """Templates from labelled clips (:func:`fit_templates` with this step's parameters)."""
-        p = self.params
-        return fit_templates(bits, offsets, labels, train, groups, list(p.classes) or None, p.features, p.delta,
-                             p.iterations, p.margin, p.negatives)
+        return fit_templates(bits, offsets, labels, train, groups, list(self.params.classes) or None)
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.datasets import StepOutput
@@ -236,13 +245,15 @@ class TemplateMatcher(Matcher):
             raise PipelineError(f"matchers.template needs database=features.relational, got {db_ds.producer}")
         feats = db_ds.features()
         clips = inputs["motions"].table("clips", columns=["clip_id", "name"])
-        name_of = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist()))
+        name_of = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist(), strict=True))
         bits, clip_ids, offsets = _clip_layout(feats)
         names = [name_of.get(int(c), str(c)) for c in clip_ids]
         if "reference" in inputs:
             ref = inputs["reference"]
             if ref.producer != "matchers.template":
-                raise PipelineError(f"matchers.template: reference must be a matchers.template step, got {ref.producer}")
+                raise PipelineError(
+                    f"matchers.template: reference must be a matchers.template step, got {ref.producer}"
+                )
             templates, _ = load_templates(ref.path)
         else:
             rx = re.compile(self.params.train)
@@ -256,33 +267,45 @@ class TemplateMatcher(Matcher):
             from .inverted import InvertedIndex
 
             if inputs["index"].producer != "indexes.inverted":
-                raise PipelineError(f"matchers.template: index must be an indexes.inverted step, got {inputs['index'].producer}")
+                raise PipelineError(
+                    f"matchers.template: index must be an indexes.inverted step, got {inputs['index'].producer}"
+                )
             index = InvertedIndex.load(inputs["index"].path / "index")
             if int(next(iter(index.sets.values())).clip_offsets[-1]) != len(codes):
                 raise PipelineError("matchers.template: the index was built on other frames than 'database'")
         rows = []
         prm = self.params
         table = None
-        if prm.cutoff == "rivals" and len(templates) > 1:  # every template is a query: the rivals' costs once
+        if len(templates) > 1:  # every template is a query: the rivals' costs once
             from .template_cutoff import RivalTable
 
             table = RivalTable.build(templates, codes, offsets)
-        lists = cutoff_hits(templates, codes, offsets, prm.cutoff, prm.features, index, prm.anchor_features, prm.threshold,
-                            prm.rho, prm.guard, rival_table=table, anchors=prm.anchors, step=prm.step,
-                            coarse_frames=prm.coarse_frames)
-        for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists)):
+        lists = cutoff_hits(templates, codes, offsets, index, prm.threshold, rival_table=table, step=prm.step)
+        for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists, strict=True)):
             if prm.max_hits:
                 s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]
             pos = np.searchsorted(offsets, s, side="right") - 1
-            for rank, (a, b, cc, p) in enumerate(zip(s, e, c, pos), start=1):
-                rows.append({"query_id": qid, "rank": rank, "clip_id": int(clip_ids[p]), "start_frame": int(a - offsets[p]),
-                             "end_frame": int(b - offsets[p]), "cost": float(cc), "label": t.label,
-                             "threshold": bound, "features": feature_ids(t.columns)})
+            for rank, (a, b, cc, p) in enumerate(zip(s, e, c, pos, strict=True), start=1):
+                rows.append(
+                    {
+                        "query_id": qid,
+                        "rank": rank,
+                        "clip_id": int(clip_ids[p]),
+                        "start_frame": int(a - offsets[p]),
+                        "end_frame": int(b - offsets[p]),
+                        "cost": float(cc),
+                        "label": t.label,
+                        "threshold": bound,
+                        "features": feature_ids(t.columns),
+                    }
+                )
         if self.params.plots:
             for t in templates:
                 plot_template(t, ctx.out_dir / f"template_{_safe(t.label)}.png", fps=_fps(inputs["motions"]))
-        return StepOutput({"data": template_hits_table(rows), "templates": templates_table(templates)},
-                          {"templates": len(templates), "hits": len(rows)})
+        return StepOutput(
+            {"data": template_hits_table(rows), "templates": templates_table(templates)},
+            {"templates": len(templates), "hits": len(rows)},
+        )
 
 
 def _safe(label: str) -> str:
@@ -312,23 +335,28 @@ def _clip_layout(feats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def template_hits_table(rows: list[dict]) -> pa.Table:
-    fields = list(MATCHES) + [pa.field("label", pa.string()), pa.field("threshold", pa.float64()),
-                              pa.field("features", pa.string())]
+    fields = list(MATCHES) + [
+        pa.field("label", pa.string()),
+        pa.field("threshold", pa.float64()),
+        pa.field("features", pa.string()),
+    ]
     schema = pa.schema(fields)
     return pa.table({f.name: pa.array([r[f.name] for r in rows], f.type) for f in schema}, schema=schema)
 
 
 def templates_table(templates: list[MotionTemplate]) -> pa.Table:
     """One row per template: label, frames, examples, threshold, key features, don't-care share."""
-    return pa.table({
-        "template_id": pa.array(list(range(len(templates))), pa.int32()),
-        "label": pa.array([t.label for t in templates], pa.string()),
-        "n_frames": pa.array([t.n_frames for t in templates], pa.int32()),
-        "n_examples": pa.array([t.n_examples for t in templates], pa.int32()),
-        "threshold": pa.array([float(t.threshold) for t in templates], pa.float64()),
-        "features": pa.array([feature_ids(t.columns) for t in templates], pa.string()),
-        "dont_care_fraction": pa.array([t.dont_care_fraction() for t in templates], pa.float64()),
-    })
+    return pa.table(
+        {
+            "template_id": pa.array(list(range(len(templates))), pa.int32()),
+            "label": pa.array([t.label for t in templates], pa.string()),
+            "n_frames": pa.array([t.n_frames for t in templates], pa.int32()),
+            "n_examples": pa.array([t.n_examples for t in templates], pa.int32()),
+            "threshold": pa.array([float(t.threshold) for t in templates], pa.float64()),
+            "features": pa.array([feature_ids(t.columns) for t in templates], pa.string()),
+            "dont_care_fraction": pa.array([t.dont_care_fraction() for t in templates], pa.float64()),
+        }
+    )
 
 
 def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None) -> Path:
@@ -345,21 +373,46 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     scale = 1.0 / fps if fps else 1.0
     m = t.mean
     fig, ax = plt.subplots(figsize=(min(4 + k * 0.06, 14), 8), dpi=100)
-    im = ax.imshow(t.mean.T, aspect="auto", origin="upper", cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest",
-                   extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5))
-    dc = np.ma.masked_where(~((m.T > t.delta) & (m.T < 1 - t.delta)), np.ones_like(m.T))
-    ax.imshow(dc, aspect="auto", origin="upper", cmap="Greys", vmin=0, vmax=1.5, alpha=0.55, interpolation="nearest",
-              extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5))
+    im = ax.imshow(
+        t.mean.T,
+        aspect="auto",
+        origin="upper",
+        cmap="viridis",
+        vmin=0.0,
+        vmax=1.0,
+        interpolation="nearest",
+        extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5),
+    )
+    dc = np.ma.masked_where(~((t.delta < m.T) & (1 - t.delta > m.T)), np.ones_like(m.T))
+    ax.imshow(
+        dc,
+        aspect="auto",
+        origin="upper",
+        cmap="Greys",
+        vmin=0,
+        vmax=1.5,
+        alpha=0.55,
+        interpolation="nearest",
+        extent=(-0.5 * scale, (k - 0.5) * scale, 30.5, -0.5),
+    )
     key = set(int(c) for c in t.columns)
     ax.set_yticks(range(31))
-    ax.set_yticklabels([f"{'* ' if i in key else ''}{FEATURE_IDS[i]} {FEATURE_NAMES[i]}" for i in range(31)], fontsize=6)
+    ax.set_yticklabels(
+        [f"{'* ' if i in key else ''}{FEATURE_IDS[i]} {FEATURE_NAMES[i]}" for i in range(31)], fontsize=6
+    )
     ax.set_xlabel("template time (s)" if fps else "template frame")
     ax.set_ylabel("relational feature (* = key feature used for retrieval)")
-    ax.set_title(f"motion template '{t.label}': {t.n_examples} examples, {k} frames, threshold {t.threshold:.3f}", fontsize=9)
+    ax.set_title(
+        f"motion template '{t.label}': {t.n_examples} examples, {k} frames, threshold {t.threshold:.3f}", fontsize=9
+    )
     cb = fig.colorbar(im, ax=ax)
     cb.set_label("fraction of aligned examples with the feature on (0-1)")
-    ax.legend(handles=[Patch(facecolor="0.6", alpha=0.7, label=f"don't care ({t.delta:g} < value < {1 - t.delta:g})")],
-              loc="upper right", fontsize=7, framealpha=0.9)
+    ax.legend(
+        handles=[Patch(facecolor="0.6", alpha=0.7, label=f"don't care ({t.delta:g} < value < {1 - t.delta:g})")],
+        loc="upper right",
+        fontsize=7,
+        framealpha=0.9,
+    )
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
@@ -367,5 +420,15 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     return out
 
 
-__all__ = ["HDM05_GROUP", "HDM05_LABEL", "TemplateMatcher", "clip_labels", "cutoff_hits", "fit_templates", "plot_template",
-           "search_template", "template_hits_table", "templates_table"]
+__all__ = [
+    "HDM05_GROUP",
+    "HDM05_LABEL",
+    "TemplateMatcher",
+    "clip_labels",
+    "cutoff_hits",
+    "fit_templates",
+    "plot_template",
+    "search_template",
+    "template_hits_table",
+    "templates_table",
+]

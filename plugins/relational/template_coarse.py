@@ -14,13 +14,13 @@ acceptance bound (costs are mean local costs in [0, 1] at either rate). The hits
 back to full-rate frames and the rival check of the ``rivals`` cut-off runs at the full rate
 on them, so which class wins a stretch is decided as before.
 
-``step="auto"`` (default of the step): per template ``s = clip(K // coarse_frames, 1, max_step)``
-(``coarse_frames`` 7, ``max_step`` 4): at least 7 coarse rows, at most a quarter of the rate
+``step="auto"`` (default of the step): per template ``s = clip(K // 7, 1, 4)``: at least 7 coarse rows, at most a quarter of the rate
 (hop, 22 frames at 30 Hz: s = 3; every other HDM05 template: 4). Measured
 leave-one-actor-out, a uniform step of 6 (5 Hz; rotate's 32 frames become 6 rows) loses two
 classes, steps 2-4 none; a class's list depends only on its own step (the rival check runs
 at the full rate), so ``auto`` inherits that.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -54,17 +54,31 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
     key = (step, t.columns.tobytes(), t.delta, t.mean.shape)
     cached = getattr(t, "_coarse", None)
     if cached is None or cached[0] != key:  # kept on the template: its lookup table is cached on it in turn
-        cached = (key, MotionTemplate(t.label, np.ascontiguousarray(t.mean[::step]), t.columns, t.delta, t.threshold,
-                                      t.n_examples, t.example_costs))
+        cached = (
+            key,
+            MotionTemplate(
+                t.label,
+                np.ascontiguousarray(t.mean[::step]),
+                t.columns,
+                t.delta,
+                t.threshold,
+                t.n_examples,
+                t.example_costs,
+            ),
+        )
         t._coarse = cached
     return cached[1]
 
 
-def template_step(t: MotionTemplate, step: int | str, coarse_frames: int = 7, max_step: int = 4) -> int:
+#: ``step="auto"``: template frames per coarse template frame, and the largest step.
+COARSE_FRAMES, MAX_STEP = 7, 4
+
+
+def template_step(t: MotionTemplate, step: int | str) -> int:
     """The decimation step for one template: ``step`` itself, or for ``"auto"``
-    ``clip(K // coarse_frames, 1, max_step)``."""
+    ``clip(K // COARSE_FRAMES, 1, MAX_STEP)``."""
     if step == "auto":
-        return int(np.clip(t.n_frames // max(coarse_frames, 1), 1, max_step))
+        return int(np.clip(t.n_frames // COARSE_FRAMES, 1, MAX_STEP))
     return max(int(step), 1)
 
 
@@ -85,8 +99,9 @@ class CoarseCodes:
         return self._by_step[step]
 
 
-def coarse_search(t: MotionTemplate, coarse: CoarseCodes, ranges: np.ndarray, bound: float, min_gap: float,
-                  step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def coarse_search(
+    t: MotionTemplate, coarse: CoarseCodes, ranges: np.ndarray, bound: float, min_gap: float, step: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end exclusive, cost)`` in full-rate frames of template ``t`` (already on
     the columns to use) searched at ``step`` over the full-rate ``ranges`` (R, 2)."""
     from .template_model import search_costs

@@ -1,22 +1,12 @@
 """The cut-off of ``matchers.template``: which hits the matcher reports.
 
-Two rules (``cutoff`` of the step):
-
-``threshold``
-    A hit is a local cost minimum below the template's calibrated threshold
-    (:func:`.template_model.calibrate_threshold`: the best-F1 cut between the left-out
-    actors' example costs and the other classes' training clips). Measured on the HDM05
-    cuts (docs/templates.md) this carries the ranking's separation over for 5 of 11
-    classes only: thresholds learned from templates of fewer actors do not transfer to
-    the final template, and one near negative per class already breaks P >= 0.8.
-``rivals`` (default)
-    The templates of all classes compete, as in Müller & Röder's classification: a hit of
-    template ``c`` (key-feature cost below the *acceptance bound*, :func:`acceptance_bound`)
-    is kept when ``c``'s all-feature cost on the stretch is at most ``rho`` times the least
-    all-feature cost of every other template there (:func:`rival_mask`). All-feature costs
-    are comparable between templates (the key features differ per class; classification on
-    all 31 features is 0.97 accurate against 0.92 on key features). ``rho = 1`` (plain
-    competition) was also the value chosen inside the training actors of every fold.
+The templates of all classes compete, as in Müller & Röder's classification: a hit of
+template ``c`` (key-feature cost below the *acceptance bound*, :func:`acceptance_bound`) is
+kept when ``c``'s all-feature cost on the stretch is at most ``rho`` times the least
+all-feature cost of every other template there (:func:`rival_mask`). All-feature costs are
+comparable between templates (the key features differ per class). ``rho = 1`` (plain
+competition) was also the value chosen inside the training actors of every fold. A plain
+calibrated threshold lost (5 of 11 HDM05 classes against 9: docs/templates.md).
 
 For many queries on one database the rivals' costs are the same every time:
 :class:`RivalTable` computes every template's all-feature end costs once (like an index)
@@ -27,11 +17,12 @@ The acceptance bound only guards against motions of no known class (every HDM05 
 one), so it is loose: the larger of the F1 threshold and ``(1 + guard)`` times the largest
 leave-one-actor-out example cost.
 """
+
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import dataclass
+
+import numpy as np
 
 from .template_model import MotionTemplate
 
@@ -45,7 +36,9 @@ def acceptance_bound(t: MotionTemplate, guard: float = 1.0) -> float:
 
 
 def _all_columns(t: MotionTemplate) -> MotionTemplate:
-    return MotionTemplate(t.label, t.mean, np.arange(t.mean.shape[1]), t.delta, t.threshold, t.n_examples, t.example_costs)
+    return MotionTemplate(
+        t.label, t.mean, np.arange(t.mean.shape[1]), t.delta, t.threshold, t.n_examples, t.example_costs
+    )
 
 
 def end_windows(start: np.ndarray, end: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -57,8 +50,14 @@ def end_windows(start: np.ndarray, end: np.ndarray, offsets: np.ndarray) -> tupl
     return np.maximum(e - 1 - half, offsets[clip]), np.minimum(e + half, offsets[clip + 1])
 
 
-def window_min_costs(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, lo: np.ndarray,
-                     hi: np.ndarray, bound: np.ndarray | float = np.inf) -> np.ndarray:
+def window_min_costs(
+    t: MotionTemplate,
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    bound: np.ndarray | float = np.inf,
+) -> np.ndarray:
     """Least all-feature cost of template ``t`` over paths ending in each window
     ``[lo_i, hi_i)`` (windows inside one clip), shape (n,); exact where ``<= bound`` (per
     window, or one value), inf or exact above (early abandoning). Subsequence DTW runs only
@@ -82,13 +81,26 @@ def window_min_costs(t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, 
     r_hi = np.ascontiguousarray(np.maximum.reduceat(b, first))
     bounds = np.maximum.reduceat(np.broadcast_to(np.asarray(bound, np.float64), (n,))[order], first)
     cost = np.full(len(codes), np.inf)
-    sdtw_cost(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(use.table()), r_lo, r_hi, cost,
-              np.ascontiguousarray(bounds, np.float64))
+    sdtw_cost(
+        np.ascontiguousarray(codes, np.int64),
+        np.ascontiguousarray(use.table()),
+        r_lo,
+        r_hi,
+        cost,
+        np.ascontiguousarray(bounds, np.float64),
+    )
     return window_minima(cost, np.ascontiguousarray(lo, np.int64), np.ascontiguousarray(hi, np.int64))
 
 
-def rival_mask(templates: list[MotionTemplate], which: int, start: np.ndarray, end: np.ndarray, codes: np.ndarray,
-               offsets: np.ndarray, rho: float = 1.0) -> np.ndarray:
+def rival_mask(
+    templates: list[MotionTemplate],
+    which: int,
+    start: np.ndarray,
+    end: np.ndarray,
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    rho: float = 1.0,
+) -> np.ndarray:
     """Which hits ``[start, end)`` (global frames) of ``templates[which]`` no other template
     beats: own least all-feature cost over paths ending in :func:`end_windows` <= ``rho`` x
     the least cost of every other template over paths ending there or up to ``K - 1``
@@ -105,7 +117,9 @@ def rival_mask(templates: list[MotionTemplate], which: int, start: np.ndarray, e
     bound = own / rho
     for i, t in enumerate(templates):
         if i != which:  # a rival path covering the stretch may end up to its own length later
-            other = np.minimum(other, window_min_costs(t, codes, offsets, lo, np.minimum(hi + t.n_frames - 1, clip_end), bound))
+            other = np.minimum(
+                other, window_min_costs(t, codes, offsets, lo, np.minimum(hi + t.n_frames - 1, clip_end), bound)
+            )
     return own <= rho * other
 
 

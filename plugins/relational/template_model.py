@@ -19,6 +19,7 @@ template against the database frames (``_template_kernels``), local cost = mean 
 cared-for features of a template frame of |template - bit|; a hit is a local minimum of
 the end-frame cost below the template's threshold, overlapping hits suppressed greedily.
 """
+
 from __future__ import annotations
 
 import json
@@ -111,13 +112,13 @@ def cost_table(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
         care = care * np.asarray(weights, np.float64)
     n = np.where(care.sum(axis=1) > 0, care.sum(axis=1), 1.0)
     table = np.zeros((TABLE_ROWS, len(q)), np.float64)
-    for off, (lo, hi) in zip(PART_OFFSETS, ((0, 11), (11, 23), (23, 31))):
+    for off, (lo, hi) in zip(PART_OFFSETS, ((0, 11), (11, 23), (23, 31)), strict=True):
         width = hi - lo
         codes = np.arange(1 << width)
         bits = ((codes[:, None] >> np.arange(width)[None, :]) & 1).astype(np.float64)  # (C, width)
         # |bit - q| on a cared cell is q + bit (1 - 2q) for q in {0, 1}: one matrix product per part
         c, w = care[:, lo:hi], (care * (1 - 2 * q))[:, lo:hi]
-        table[off:off + len(codes)] = ((c * q[:, lo:hi]).sum(axis=1)[None, :] + bits @ w.T) / n[None, :]
+        table[off : off + len(codes)] = ((c * q[:, lo:hi]).sum(axis=1)[None, :] + bits @ w.T) / n[None, :]
     return table.astype(np.float32)
 
 
@@ -148,15 +149,22 @@ def pairwise_costs(examples: list[np.ndarray], columns: np.ndarray) -> np.ndarra
     pair = np.zeros((n, n))
     for a in range(n):
         for b in range(a + 1, n):
-            c, p = dtw_path(np.ascontiguousarray(examples[a][:, columns], np.float64),
-                            np.ascontiguousarray(examples[b][:, columns], np.float64))
+            c, p = dtw_path(
+                np.ascontiguousarray(examples[a][:, columns], np.float64),
+                np.ascontiguousarray(examples[b][:, columns], np.float64),
+            )
             pair[a, b] = pair[b, a] = c / len(p)
     return pair
 
 
-def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | None = None,
-                 delta: float = 0.2, iterations: int = 2, length: str = "medoid",
-                 pair: np.ndarray | None = None) -> MotionTemplate:
+def fit_template(
+    label: str,
+    examples: list[np.ndarray],
+    columns: np.ndarray | None = None,
+    delta: float = 0.2,
+    iterations: int = 2,
+    pair: np.ndarray | None = None,
+) -> MotionTemplate:
     """Learn one class template from its examples' relational feature matrices.
 
     Parameters
@@ -169,8 +177,6 @@ def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | N
         Don't-care band (values in (delta, 1 - delta)).
     iterations : int
         Re-alignment rounds after the first average.
-    length : "medoid" or "median"
-        Time axis: the medoid example's, or resampled to the median example length.
     pair : ndarray of shape (n, n), optional
         :func:`pairwise_costs` of the examples (computed when omitted).
     """
@@ -186,23 +192,12 @@ def fit_template(label: str, examples: list[np.ndarray], columns: np.ndarray | N
     else:
         ref = 0
     tmpl = xs[ref].copy()
-    if length == "median":  # the time axis resampled to the median example length
-        tmpl = resample_rows(tmpl, int(np.median([len(x) for x in xs])))
     for _ in range(max(iterations, 0) + 1):
         warped = [align_average(tmpl[:, cols], x[:, cols])[0] for x in xs]
         new = np.zeros_like(tmpl)
         new[:, cols] = np.mean(warped, axis=0)
         tmpl = new
     return MotionTemplate(label, tmpl.astype(np.float32), cols, float(delta), np.inf, len(xs))
-
-
-def resample_rows(x: np.ndarray, n: int) -> np.ndarray:
-    """Rows of ``x (T, f)`` linearly interpolated onto ``n`` equally spaced times."""
-    t = np.linspace(0, len(x) - 1, max(n, 2))
-    lo = np.floor(t).astype(np.int64)
-    hi = np.minimum(lo + 1, len(x) - 1)
-    w = (t - lo)[:, None]
-    return (1 - w) * x[lo] + w * x[hi]
 
 
 def template_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -229,13 +224,25 @@ def template_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray) -> 
     start = np.full(len(codes), -1, np.int64)
     r = np.asarray(ranges, np.int64).reshape(-1, 2)
     if len(r) and table.shape[1]:
-        template_sdtw(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), np.ascontiguousarray(r[:, 0]),
-                      np.ascontiguousarray(r[:, 1]), cost, start)
+        template_sdtw(
+            np.ascontiguousarray(codes, np.int64),
+            np.ascontiguousarray(table),
+            np.ascontiguousarray(r[:, 0]),
+            np.ascontiguousarray(r[:, 1]),
+            cost,
+            start,
+        )
     return cost, start
 
 
-def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, threshold: float,
-                 min_gap: float = 0.5, abandon: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def search_costs(
+    codes: np.ndarray,
+    table: np.ndarray,
+    ranges: np.ndarray,
+    threshold: float,
+    min_gap: float = 0.5,
+    abandon: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Hits of one template over frame ranges in two passes: end-frame costs only
     (``sdtw_cost``, abandoning cells above ``threshold`` when ``abandon``), then the merged
     windows around candidate ends again with path starts.
@@ -251,8 +258,14 @@ def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, thres
     cost = np.full(n, np.inf)
     r = np.asarray(ranges, np.int64).reshape(-1, 2)
     if len(r) and table.shape[1]:
-        sdtw_cost(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), np.ascontiguousarray(r[:, 0]),
-                  np.ascontiguousarray(r[:, 1]), cost, np.full(len(r), float(threshold) if abandon else np.inf))
+        sdtw_cost(
+            np.ascontiguousarray(codes, np.int64),
+            np.ascontiguousarray(table),
+            np.ascontiguousarray(r[:, 0]),
+            np.ascontiguousarray(r[:, 1]),
+            cost,
+            np.full(len(r), float(threshold) if abandon else np.inf),
+        )
     from ._hit_kernels import greedy_hits, range_minima
 
     if not 0.0 <= min_gap < 1.0:
@@ -275,13 +288,17 @@ def search_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray, thres
         scratch_start = np.empty(n, np.int64)
         # no abandoning here: the windows hold the candidates' paths, where most cells are live
         # (measured: the bounded kernel's bookkeeping costs more than it saves for 2 of 4 templates)
-        template_sdtw(np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), wlo, whi, scratch_cost, scratch_start)
+        template_sdtw(
+            np.ascontiguousarray(codes, np.int64), np.ascontiguousarray(table), wlo, whi, scratch_cost, scratch_start
+        )
         full_start[cand] = scratch_start[cand]
     ends = greedy_hits(cand, cost, full_start, float(min_gap), n)
     return full_start[ends], ends + 1, cost[ends], cost
 
 
-def template_hits(cost: np.ndarray, start: np.ndarray, threshold: float, min_gap: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def template_hits(
+    cost: np.ndarray, start: np.ndarray, threshold: float, min_gap: float = 0.5
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits from end-frame costs: local minima with cost <= threshold, greedy suppression.
 
     A candidate is dropped when it overlaps an accepted (cheaper) hit by more than
@@ -293,7 +310,11 @@ def template_hits(cost: np.ndarray, start: np.ndarray, threshold: float, min_gap
     if not 0.0 <= min_gap < 1.0:
         raise DataError(f"min_gap must be in [0, 1), got {min_gap}")
     c = np.ascontiguousarray(cost, np.float64)
-    ends = select_hits(c, np.ascontiguousarray(start, np.int64), float(threshold), float(min_gap)) if len(c) else np.zeros(0, np.int64)
+    ends = (
+        select_hits(c, np.ascontiguousarray(start, np.int64), float(threshold), float(min_gap))
+        if len(c)
+        else np.zeros(0, np.int64)
+    )
     return np.asarray(start)[ends].astype(np.int64), ends + 1, c[ends]
 
 
@@ -307,8 +328,9 @@ def save_templates(templates: list[MotionTemplate], directory: Path, meta: dict 
         arrays[f"mean_{i}"] = t.mean
         arrays[f"columns_{i}"] = t.columns
         arrays[f"costs_{i}"] = t.example_costs
-        header["templates"].append({"label": t.label, "delta": t.delta, "threshold": t.threshold,
-                                    "n_examples": t.n_examples})
+        header["templates"].append(
+            {"label": t.label, "delta": t.delta, "threshold": t.threshold, "n_examples": t.n_examples}
+        )
     np.savez(d / MODEL_FILE, header=np.array(json.dumps(header)), **arrays)
 
 
@@ -319,8 +341,18 @@ def load_templates(directory: Path) -> tuple[list[MotionTemplate], dict]:
         raise DataError(f"{Path(directory)} holds no fitted motion templates ({MODEL_FILE})")
     with np.load(p) as z:
         header = json.loads(str(z["header"]))
-        out = [MotionTemplate(h["label"], z[f"mean_{i}"], z[f"columns_{i}"], h["delta"], h["threshold"],
-                              h["n_examples"], z[f"costs_{i}"]) for i, h in enumerate(header["templates"])]
+        out = [
+            MotionTemplate(
+                h["label"],
+                z[f"mean_{i}"],
+                z[f"columns_{i}"],
+                h["delta"],
+                h["threshold"],
+                h["n_examples"],
+                z[f"costs_{i}"],
+            )
+            for i, h in enumerate(header["templates"])
+        ]
     return out, header["meta"]
 
 
@@ -365,7 +397,7 @@ def calibrate_threshold(positive: np.ndarray, negative: np.ndarray | None = None
         return float((1 + margin) * pos.max())
     values = np.unique(np.concatenate([pos, neg]))
     best, cut = -1.0, float(pos.max())
-    for a, b in zip(values, np.append(values[1:], values[-1] * (1 + margin) + 1e-9)):
+    for a, b in zip(values, np.append(values[1:], values[-1] * (1 + margin) + 1e-9), strict=True):
         tp = (pos <= a).sum()
         fp = (neg <= a).sum()
         f1 = 2 * tp / (2 * tp + fp + (len(pos) - tp))
@@ -374,10 +406,18 @@ def calibrate_threshold(positive: np.ndarray, negative: np.ndarray | None = None
     return float(cut)
 
 
-def fit_class_template(label: str, examples: list[np.ndarray], background: np.ndarray | None = None,
-                       features: str = "key", delta: float = 0.2, iterations: int = 2,
-                       calibrate: bool = True, margin: float = 0.25, groups: list | None = None,
-                       negatives: list[np.ndarray] | None = None) -> MotionTemplate:
+def fit_class_template(
+    label: str,
+    examples: list[np.ndarray],
+    background: np.ndarray | None = None,
+    features: str = "key",
+    delta: float = 0.2,
+    iterations: int = 2,
+    calibrate: bool = True,
+    margin: float = 0.25,
+    groups: list | None = None,
+    negatives: list[np.ndarray] | None = None,
+) -> MotionTemplate:
     """A class template with its key features and a calibrated threshold.
 
     Parameters
@@ -422,12 +462,30 @@ def fit_class_template(label: str, examples: list[np.ndarray], background: np.nd
         neg = None
         if negatives:
             lengths = [len(x) for x in negatives]
-            neg = clip_min_costs(frame_codes(np.concatenate(negatives)), np.concatenate([[0], np.cumsum(lengths)]), tmpl.table())
+            neg = clip_min_costs(
+                frame_codes(np.concatenate(negatives)), np.concatenate([[0], np.cumsum(lengths)]), tmpl.table()
+            )
         tmpl.threshold = calibrate_threshold(costs, neg, margin)
     else:
         tmpl.threshold = float((1 + margin) * 0.08)
     return tmpl
 
 
-__all__ = ["search_costs", "calibrate_threshold", "pairwise_costs", "clip_min_costs", "fit_class_template", "key_columns", "MODEL_FILE", "MotionTemplate", "align_average", "cost_table", "fit_template", "frame_codes",
-           "load_templates", "save_templates", "template_costs", "template_hits"]
+__all__ = [
+    "search_costs",
+    "calibrate_threshold",
+    "pairwise_costs",
+    "clip_min_costs",
+    "fit_class_template",
+    "key_columns",
+    "MODEL_FILE",
+    "MotionTemplate",
+    "align_average",
+    "cost_table",
+    "fit_template",
+    "frame_codes",
+    "load_templates",
+    "save_templates",
+    "template_costs",
+    "template_hits",
+]

@@ -4,16 +4,12 @@ A template's *anchor* is a constellation of one or two of its key features of on
 set that holds (cared for, constant) over a stretch ``[a, b]`` of at least ``min_run``
 template frames and is rare in the database: the database frames where it holds are the
 union of the inverted lists of every code agreeing with it (``SetIndex.union``). A path
-advances at most 2 database frames per template frame (step (1,2)). ``widen="anchor"``:
-a path that maps one of the template frames ``a..b`` onto a frame of an anchor
-segment ``[s, e)`` starts at or after ``s - 2 b`` and ends before ``e + 2 (K - 1 - a)``;
-only there does subsequence DTW run (about ``L + 2 K`` frames per segment of length L).
-``widen="path"`` (default, the first design): every path with *any* frame in the segment
-lies in ``[s - 2 K, e + 2 K)`` (``L + 4 K`` frames). Measured at 1 M frames "anchor" searches
-0-17 % fewer frames (most candidate ranges are whole short clips either way) and assumes
-more about the match, so it stays an option. A match whose anchor frames do not show the
-anchor is missed: the benchmark reports hits lost against the full scan.
+advances at most 2 database frames per template frame (step (1,2)), so every path with any
+frame in an anchor segment ``[s, e)`` lies in ``[s - 2 K, e + 2 K)``; only there does
+subsequence DTW run. A match whose anchor frames do not show the anchor is missed
+(``benchmarks/templates.py`` reports the hits lost against the full scan).
 """
+
 from __future__ import annotations
 
 from itertools import combinations
@@ -21,11 +17,12 @@ from itertools import combinations
 import numpy as np
 
 from .features import SET_SLICES
-
 from .template_model import MotionTemplate
 
 
-def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3, sets: tuple[str, ...] | None = None):
+def choose_anchor(
+    t: MotionTemplate, index, max_features: int = 2, min_run: int = 3, sets: tuple[str, ...] | None = None
+):
     """The rarest constellation of the template's key features (module doc).
 
     Returns ``(set name, {local bit: value}, database fraction, (a, b))`` with ``a..b`` the
@@ -45,8 +42,9 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
         for r in range(1, max_features + 1):
             for combo in combinations(cols, r):
                 # frames per value of the combination's bits (value i of bit c at bit position i)
-                hist = np.bincount(sum(list_bits[c] << i for i, c in enumerate(combo)), weights=counts,
-                                   minlength=1 << r)
+                hist = np.bincount(
+                    sum(list_bits[c] << i for i, c in enumerate(combo)), weights=counts, minlength=1 << r
+                )
                 v = q[:, list(combo)]
                 ok = np.all(v != 0.5, axis=1)
                 # stretches of constant cared values over the combination
@@ -54,7 +52,7 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
                 brk = np.r_[True, np.any(key[1:] != key[:-1], axis=1)]
                 starts = np.flatnonzero(brk)
                 lens = np.diff(np.append(starts, len(key)))
-                for s, n in zip(starts, lens):
+                for s, n in zip(starts, lens, strict=True):
                     if n < min_run or not ok[s]:
                         continue
                     bits = {c - sl.start: int(v[s, i]) for i, c in enumerate(combo)}
@@ -65,36 +63,22 @@ def choose_anchor(t: MotionTemplate, index, max_features: int = 2, min_run: int 
     return best
 
 
-def candidate_ranges(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3,
-                     widen: str = "path", anchors: int = 1) -> tuple[np.ndarray, float]:
+def candidate_ranges(t: MotionTemplate, index, max_features: int = 2, min_run: int = 3) -> tuple[np.ndarray, float]:
     """Frame ranges ``(R, 2)`` (global, each inside one clip) to search, and the fraction of
-    the database they cover (1.0 and the whole clips when the template has no anchor);
-    ``widen``: "anchor" or "path" (module doc). ``anchors=2``: also the rarest anchor of
-    another feature set, and only the frames inside the ranges of both are searched (a
-    match must show both anchors)."""
-    from ._hit_kernels import intersect_ranges
-
+    the database they cover (1.0 and the whole clips when the template has no anchor)."""
     any_set = next(iter(index.sets.values()))
     offsets = any_set.clip_offsets
-    whole = np.stack([offsets[:-1], offsets[1:]], axis=1)
     anchor = choose_anchor(t, index, max_features, min_run)
     if anchor is None:
-        return whole, 1.0
-    ranges = _anchor_ranges(t, index, anchor, widen, offsets)
-    if anchors >= 2:
-        other = choose_anchor(t, index, max_features, min_run, tuple(n for n in index.sets if n != anchor[0]))
-        if other is not None:
-            r2 = _anchor_ranges(t, index, other, widen, offsets)
-            lo, hi = intersect_ranges(np.ascontiguousarray(ranges[:, 0]), np.ascontiguousarray(ranges[:, 1]),
-                                      np.ascontiguousarray(r2[:, 0]), np.ascontiguousarray(r2[:, 1]))
-            ranges = np.stack([lo, hi], axis=1)
+        return np.stack([offsets[:-1], offsets[1:]], axis=1), 1.0
+    ranges = _anchor_ranges(t, index, anchor, offsets)
     ranges = ranges[ranges[:, 1] - ranges[:, 0] >= max(t.n_frames // 2, 1)]
     return ranges.astype(np.int64), float((ranges[:, 1] - ranges[:, 0]).sum() / max(int(offsets[-1]), 1))
 
 
-def _anchor_ranges(t: MotionTemplate, index, anchor, widen: str, offsets: np.ndarray) -> np.ndarray:
+def _anchor_ranges(t: MotionTemplate, index, anchor, offsets: np.ndarray) -> np.ndarray:
     """Merged, sorted ranges (R, 2) around the segments where one anchor holds."""
-    name, bits, _, (row_a, row_b) = anchor
+    name, bits, _, _ = anchor
     idx = index.sets[name]
     sel = np.ones(len(idx.list_codes), bool)
     for bit, val in bits.items():
@@ -103,10 +87,9 @@ def _anchor_ranges(t: MotionTemplate, index, anchor, widen: str, offsets: np.nda
     if not len(pos):
         return np.zeros((0, 2), np.int64)
     k = t.n_frames
-    left, right = (2 * row_b + 1, 2 * (k - 1 - row_a) + 1) if widen == "anchor" else (2 * k, 2 * k)
     clip = idx.seg_clip[pos]
-    lo = np.maximum(idx.seg_start[pos] - left, offsets[clip])
-    hi = np.minimum(idx.seg_end[pos] + right, offsets[clip + 1])
+    lo = np.maximum(idx.seg_start[pos] - 2 * k, offsets[clip])
+    hi = np.minimum(idx.seg_end[pos] + 2 * k, offsets[clip + 1])
     # merge overlapping ranges of one clip (positions, hence lo within a clip, are sorted)
     run_hi = np.maximum.accumulate(hi)
     new = np.r_[True, (lo[1:] > run_hi[:-1]) | (clip[1:] != clip[:-1])]

@@ -13,6 +13,7 @@ offset from the root quantised to int16 with one scale per clip (``scale`` metre
 resolution better than 0.1 mm for a body 3 m across), NaN (a joint the skeleton lacks) as
 -32768: a 10-minute take at 30 fps (18 000 frames x 25 joints) is 2.9 MB, 3.8 MB as base64.
 """
+
 from __future__ import annotations
 
 import base64
@@ -93,7 +94,7 @@ def write_blob(path: Path, key: str, meta: Mapping[str, Any], parts: Mapping[str
     """Write one data script (see the module docstring); returns its size in bytes."""
     blob, table = pack(parts)
     head = json.dumps({**meta, "parts": table}, separators=(",", ":"), allow_nan=False)
-    text = f"MocapReport.blob({json.dumps(key)},{head},\"{base64.b64encode(blob).decode('ascii')}\");\n"
+    text = f'MocapReport.blob({json.dumps(key)},{head},"{base64.b64encode(blob).decode("ascii")}");\n'
     path.write_text(text, encoding="ascii")
     return len(text)
 
@@ -104,5 +105,5 @@ def read_blob(path: Path) -> tuple[str, dict[str, Any], dict[str, np.ndarray]]:
     prefix = "MocapReport.blob("
     if not (text.startswith(prefix) and text.endswith(");")):
         raise ValueError(f"{path}: not a report data script")
-    key, meta, b64 = json.loads("[" + text[len(prefix):-2] + "]")
+    key, meta, b64 = json.loads("[" + text[len(prefix) : -2] + "]")
     return key, meta, unpack(base64.b64decode(b64), meta["parts"])

@@ -5,9 +5,11 @@ on file descriptors 3 and 4), so no websocket library and no network port are ne
 Only what the tests use is here: open a page, evaluate JavaScript, collect console errors
 and uncaught exceptions, take a screenshot.
 """
+
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import queue
@@ -21,9 +23,18 @@ from typing import Any
 
 from mocapflow.framework.errors import MocapflowError
 
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--disable-extensions", "--remote-debugging-pipe")
+FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-extensions",
+    "--remote-debugging-pipe",
+)
 
 
 def find_chromium() -> str | None:
@@ -49,7 +60,9 @@ class Browser:
     error log entries (network failures) of the page, as strings.
     """
 
-    def __init__(self, executable: str | None = None, width: int = 1280, height: int = 1600, timeout: float = 60.0) -> None:
+    def __init__(
+        self, executable: str | None = None, width: int = 1280, height: int = 1600, timeout: float = 60.0
+    ) -> None:
         self.executable = executable or find_chromium()
         if not self.executable:
             raise BrowserError("no Chromium found (apt-get install chromium, or set MOCAPFLOW_CHROMIUM)")
@@ -71,12 +84,23 @@ class Browser:
             os.dup2(a, 3)
             os.dup2(b, 4)
 
-        args = [self.executable, *FLAGS, f"--user-data-dir={self._profile}", f"--window-size={self.size[0]},{self.size[1]}",
-                "about:blank"]
+        args = [
+            self.executable,
+            *FLAGS,
+            f"--user-data-dir={self._profile}",
+            f"--window-size={self.size[0]},{self.size[1]}",
+            "about:blank",
+        ]
         # a file, not a pipe: nobody reads Chromium's chatter, and a full pipe would block it
         self._log = open(Path(self._profile) / "stderr.log", "wb")
-        self.proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=self._log,
-                                     pass_fds=(3, 4, to_browser_r, from_browser_w), preexec_fn=fds)
+        self.proc = subprocess.Popen(
+            args,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=self._log,
+            pass_fds=(3, 4, to_browser_r, from_browser_w),
+            preexec_fn=fds,
+        )
         os.close(to_browser_r)
         os.close(from_browser_w)
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -87,19 +111,22 @@ class Browser:
             self._log.flush()
             tail = (Path(self._profile) / "stderr.log").read_text(errors="replace")[-600:].strip()
             self.__exit__()
-            raise BrowserError(f"{self.executable} did not start: {exc}" + (f"; it said: {tail}" if tail else "")) from None
+            raise BrowserError(
+                f"{self.executable} did not start: {exc}" + (f"; it said: {tail}" if tail else "")
+            ) from None
         self.session = self.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
         for domain in ("Runtime", "Log", "Page"):
             self.send(f"{domain}.enable", session=self.session)
-        self.send("Emulation.setDeviceMetricsOverride", {"width": self.size[0], "height": self.size[1],
-                                                         "deviceScaleFactor": 1, "mobile": False}, session=self.session)
+        self.send(
+            "Emulation.setDeviceMetricsOverride",
+            {"width": self.size[0], "height": self.size[1], "deviceScaleFactor": 1, "mobile": False},
+            session=self.session,
+        )
         return self
 
     def __exit__(self, *exc: object) -> None:
-        try:
+        with contextlib.suppress(BrowserError, OSError):  # already gone
             self.send("Browser.close", timeout=10)
-        except (BrowserError, OSError):  # already gone
-            pass
         try:
             self.proc.wait(timeout=15)
         except subprocess.TimeoutExpired:
@@ -135,8 +162,12 @@ class Browser:
         self.events.append(msg)
         method, p = msg.get("method"), msg.get("params", {})
         if method == "Runtime.consoleAPICalled" and p.get("type") in ("error", "assert"):
-            self.errors.append("console." + p["type"] + ": " + " ".join(str(a.get("value", a.get("description", "")))
-                                                                        for a in p.get("args", [])))
+            self.errors.append(
+                "console."
+                + p["type"]
+                + ": "
+                + " ".join(str(a.get("value", a.get("description", ""))) for a in p.get("args", []))
+            )
         elif method == "Runtime.exceptionThrown":
             d = p.get("exceptionDetails", {})
             self.errors.append("exception: " + str(d.get("exception", {}).get("description") or d.get("text")))
@@ -144,8 +175,13 @@ class Browser:
             e = p["entry"]
             self.errors.append(f"log: {e.get('text')} {e.get('url', '')}".strip())
 
-    def send(self, method: str, params: dict[str, Any] | None = None, session: str | None = None,
-             timeout: float | None = None) -> dict[str, Any]:
+    def send(
+        self,
+        method: str,
+        params: dict[str, Any] | None = None,
+        session: str | None = None,
+        timeout: float | None = None,
+    ) -> dict[str, Any]:
         """Send one protocol command and wait for its result."""
         with self._lock:
             self._id += 1
@@ -184,8 +220,11 @@ class Browser:
 
     def eval(self, expression: str, await_promise: bool = True) -> Any:
         """Value of a JavaScript expression (promises awaited); a thrown error raises."""
-        r = self.send("Runtime.evaluate", {"expression": expression, "awaitPromise": await_promise,
-                                           "returnByValue": True}, session=self.session)
+        r = self.send(
+            "Runtime.evaluate",
+            {"expression": expression, "awaitPromise": await_promise, "returnByValue": True},
+            session=self.session,
+        )
         if "exceptionDetails" in r:
             d = r["exceptionDetails"]
             raise BrowserError(f"{expression[:60]}: {d.get('exception', {}).get('description') or d.get('text')}")

@@ -1,4 +1,5 @@
 """A cleaning step's results in the form the page plays: MDM grids and cleaned takes."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -70,17 +71,25 @@ def mdm_grid(mdm: pa.Table, clip_id: int, n_frames: int, threshold: float) -> di
     scale = max(1.0, float(v.max(initial=0.0))) / 65535.0
     values = np.zeros((n_frames, len(joints)), np.uint16)
     values[f[ok], r[ok]] = np.clip(np.rint(v[ok] / scale), 0, 65535).astype(np.uint16)
-    flagged = (sel["flagged"].to_numpy(zero_copy_only=False).astype(bool) if "flagged" in sel.column_names
-               else v > threshold)
+    flagged = (
+        sel["flagged"].to_numpy(zero_copy_only=False).astype(bool) if "flagged" in sel.column_names else v > threshold
+    )
     cue = np.zeros(values.shape, np.uint8)
     # a cell's cue: the cue column's label where it names one, else the threshold if flagged
     raw = sel["cue"].to_pylist() if "cue" in sel.column_names else [None] * sel.num_rows
     labels = [str(c) if c not in (None, False, "", "False") else None for c in raw]
-    labels = [DEFAULT_CUE if c == "True" or (c is None and fl) else c for c, fl in zip(labels, flagged)]
+    labels = [DEFAULT_CUE if c == "True" or (c is None and fl) else c for c, fl in zip(labels, flagged, strict=True)]
     cues = sorted({c for c in labels if c is not None})
     code = {c: i + 1 for i, c in enumerate(cues)}
     codes = np.array([0 if c is None else code[c] for c in labels], np.uint8)
     cue[f[ok], r[ok]] = codes[ok]
     canonical = [CANONICAL_JOINTS.index(n) if n in CANONICAL_JOINTS else -1 for n in joints]
-    return {"values": values, "scale": scale, "cue": cue, "joints": joints, "canonical": canonical, "cues": cues,
-            "n_flagged": int((cue > 0).sum())}
+    return {
+        "values": values,
+        "scale": scale,
+        "cue": cue,
+        "joints": joints,
+        "canonical": canonical,
+        "cues": cues,
+        "n_flagged": int((cue > 0).sum()),
+    }

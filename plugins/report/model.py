@@ -20,6 +20,7 @@ derived motions
     a non-ingest step that writes motions (``clips``) whose clips are clips of one of its
     inputs (same id and checksum): reconstruction results, played over the input.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -37,12 +38,32 @@ MATCH_COLS = ("query_id", "rank", "clip_id", "start_frame", "end_frame", "cost")
 NEAREST_COLS = ("query_clip_id", "query_frame", "clip_id", "frame", "distance")
 MDM_COLS = ("clip_id", "frame", "joint_name", "value")
 #: Bones of the stick figures, as canonical joint pairs.
-BONES = (("root", "lhip"), ("lhip", "lknee"), ("lknee", "lankle"), ("lankle", "ltoes"),
-         ("root", "rhip"), ("rhip", "rknee"), ("rknee", "rankle"), ("rankle", "rtoes"),
-         ("root", "lowerback"), ("lowerback", "upperback"), ("upperback", "chest"), ("chest", "neck"),
-         ("neck", "head"), ("head", "headtop"), ("chest", "lclavicle"), ("lclavicle", "lshoulder"),
-         ("lshoulder", "lelbow"), ("lelbow", "lwrist"), ("lwrist", "lfingers"), ("chest", "rclavicle"),
-         ("rclavicle", "rshoulder"), ("rshoulder", "relbow"), ("relbow", "rwrist"), ("rwrist", "rfingers"))
+BONES = (
+    ("root", "lhip"),
+    ("lhip", "lknee"),
+    ("lknee", "lankle"),
+    ("lankle", "ltoes"),
+    ("root", "rhip"),
+    ("rhip", "rknee"),
+    ("rknee", "rankle"),
+    ("rankle", "rtoes"),
+    ("root", "lowerback"),
+    ("lowerback", "upperback"),
+    ("upperback", "chest"),
+    ("chest", "neck"),
+    ("neck", "head"),
+    ("head", "headtop"),
+    ("chest", "lclavicle"),
+    ("lclavicle", "lshoulder"),
+    ("lshoulder", "lelbow"),
+    ("lelbow", "lwrist"),
+    ("lwrist", "lfingers"),
+    ("chest", "rclavicle"),
+    ("rclavicle", "rshoulder"),
+    ("rshoulder", "relbow"),
+    ("relbow", "rwrist"),
+    ("rwrist", "rfingers"),
+)
 SMALL_TABLE_ROWS = 60
 
 
@@ -78,8 +99,11 @@ def _scalar(v: Any) -> Any:
 
 def small_table(t: pa.Table, max_rows: int = SMALL_TABLE_ROWS) -> dict[str, Any]:
     """A table for the page: scalar columns, at most ``max_rows`` rows."""
-    cols = [f.name for f in t.schema if not (pa.types.is_list(f.type) or pa.types.is_fixed_size_list(f.type)
-                                             or pa.types.is_large_list(f.type))]
+    cols = [
+        f.name
+        for f in t.schema
+        if not (pa.types.is_list(f.type) or pa.types.is_fixed_size_list(f.type) or pa.types.is_large_list(f.type))
+    ]
     rows = [[_scalar(r[c]) for c in cols] for r in t.select(cols).slice(0, max_rows).to_pylist()]
     return {"columns": cols, "rows": rows, "n_rows": t.num_rows}
 
@@ -96,8 +120,8 @@ class _Motions:
     def names(self, step: str) -> dict[int, str]:
         if step not in self._names:
             t = self.datasets[step].table("clips", columns=["clip_id", "name", "fps"])
-            self._names[step] = dict(zip(t["clip_id"].to_pylist(), t["name"].to_pylist()))
-            self._fps[step] = dict(zip(t["clip_id"].to_pylist(), t["fps"].to_pylist()))
+            self._names[step] = dict(zip(t["clip_id"].to_pylist(), t["name"].to_pylist(), strict=True))
+            self._fps[step] = dict(zip(t["clip_id"].to_pylist(), t["fps"].to_pylist(), strict=True))
         return self._names[step]
 
     def fps(self, step: str, clip_id: int) -> float:
@@ -107,10 +131,10 @@ class _Motions:
 
     def positions(self, step: str, clip_id: int) -> np.ndarray:
         """Canonical joint positions (T, 25, 3) of a clip, metres: forward kinematics of the
-        stored rotations (motions datasets store no positions; issue 12, FK once)."""
+        stored rotations (motions datasets store no positions; FK once)."""
         if step not in self._pos:
             db = self.datasets[step].motions()
-            self._pos[step] = {int(c): m for c, m in zip(db.clip_ids, db.motions)}
+            self._pos[step] = {int(c): m for c, m in zip(db.clip_ids, db.motions, strict=True)}
         got = self._pos[step][int(clip_id)]
         if not isinstance(got, np.ndarray):  # FK only of the clips the report shows
             got = self._pos[step][int(clip_id)] = got.canonical_positions(CANONICAL_JOINTS).astype(np.float32)
@@ -167,20 +191,31 @@ class ModelBuilder:
 
     def build(self, title: str) -> Model:
         steps = [self.step(ds) for ds in step_order(self.datasets)]
-        self.model.page.update({
-            "title": title, "joints": list(CANONICAL_JOINTS),
-            "bones": [[CANONICAL_JOINTS.index(a), CANONICAL_JOINTS.index(b)] for a, b in BONES],
-            "clips": small_table(self.clips, max_rows=100000), "rejects": small_table(self.rejects, max_rows=100000),
-            "steps": steps,
-        })
+        self.model.page.update(
+            {
+                "title": title,
+                "joints": list(CANONICAL_JOINTS),
+                "bones": [[CANONICAL_JOINTS.index(a), CANONICAL_JOINTS.index(b)] for a, b in BONES],
+                "clips": small_table(self.clips, max_rows=100000),
+                "rejects": small_table(self.rejects, max_rows=100000),
+                "steps": steps,
+            }
+        )
         return self.model
 
     def step(self, ds: Dataset) -> dict[str, Any]:
         m = ds.manifest
         out: dict[str, Any] = {
-            "id": ds.step, "component": ds.producer, "kind": ds.producer_kind, "version": m.get("version"),
-            "created": m.get("created"), "seconds": m.get("seconds"), "fingerprint": m.get("fingerprint"),
-            "pipeline": m.get("pipeline"), "params": m.get("params", {}), "summary": m.get("summary", {}),
+            "id": ds.step,
+            "component": ds.producer,
+            "kind": ds.producer_kind,
+            "version": m.get("version"),
+            "created": m.get("created"),
+            "seconds": m.get("seconds"),
+            "fingerprint": m.get("fingerprint"),
+            "pipeline": m.get("pipeline"),
+            "params": m.get("params", {}),
+            "summary": m.get("summary", {}),
             "inputs": {k: v.get("step") for k, v in m.get("inputs", {}).items()},
             "input_fingerprints": {k: v.get("fingerprint") for k, v in m.get("inputs", {}).items()},
             "tables": {t: int(n) for t, n in m.get("tables", {}).items()},
@@ -204,8 +239,11 @@ class ModelBuilder:
                     out["views"].append(view)
         except (KeyError, ValueError, IndexError) as exc:  # a step the report cannot read is shown without its view
             out["view_error"] = f"{type(exc).__name__}: {exc}"
-        out["small_tables"] = {t: small_table(ds.table(t)) for t in names
-                               if t not in ("clips", "skeletons") and int(m.get("tables", {}).get(t, 10 ** 9)) <= SMALL_TABLE_ROWS}
+        out["small_tables"] = {
+            t: small_table(ds.table(t))
+            for t in names
+            if t not in ("clips", "skeletons") and int(m.get("tables", {}).get(t, 10**9)) <= SMALL_TABLE_ROWS
+        }
         return out
 
     # --- retrieval --------------------------------------------------------------------------
@@ -213,8 +251,15 @@ class ModelBuilder:
         names = {v: k for k, v in self.mo.names(step).items()}
         if ds.has_table("queries"):
             rows = ds.table("queries").to_pylist()
-            return {int(r["query_id"]): {"name": r.get("name") or f"query {r['query_id']}", "clip_id": r.get("clip_id"),
-                                         "start": r.get("start_frame"), "end": r.get("end_frame")} for r in rows}
+            return {
+                int(r["query_id"]): {
+                    "name": r.get("name") or f"query {r['query_id']}",
+                    "clip_id": r.get("clip_id"),
+                    "start": r.get("start_frame"),
+                    "end": r.get("end_frame"),
+                }
+                for r in rows
+            }
         out = {}
         for i, q in enumerate(ds.manifest.get("params", {}).get("queries", []) or []):
             if not isinstance(q, dict) or q.get("clip") is None:
@@ -225,9 +270,13 @@ class ModelBuilder:
             n = len(self.mo.positions(step, cid))
             start, end = int(q.get("start_frame") or 0), q.get("end_frame")
             label = ", ".join(q.get("features", ()))
-            out[i] = {"name": f"{self.mo.names(step)[cid]}[{start}:{end if end is not None else n}]"
-                              + (f" ({label})" if label else ""),
-                      "clip_id": cid, "start": start, "end": int(end) if end is not None else n}
+            out[i] = {
+                "name": f"{self.mo.names(step)[cid]}[{start}:{end if end is not None else n}]"
+                + (f" ({label})" if label else ""),
+                "clip_id": cid,
+                "start": start,
+                "end": int(end) if end is not None else n,
+            }
         return out
 
     def _steps(self, ds: Dataset) -> tuple[str, str]:
@@ -241,8 +290,9 @@ class ModelBuilder:
         step, qstep = self._steps(ds)
         t = ds.table("data")
         cols = t.column_names
-        extra = [c for c in cols if c not in MATCH_COLS and c != "path"
-                 and not pa.types.is_nested(t.schema.field(c).type)]
+        extra = [
+            c for c in cols if c not in MATCH_COLS and c != "path" and not pa.types.is_nested(t.schema.field(c).type)
+        ]
         names, qnames = self.mo.names(step), self.mo.names(qstep)
         queries = {}
         for qid, q in self._query_specs(ds, qstep).items():
@@ -252,17 +302,33 @@ class ModelBuilder:
                 queries[qid].update(clip=qnames[int(q["clip_id"])], motion=self.motion_key(qstep, q["clip_id"]))
         hits = []
         paths = t["path"].to_pylist() if "path" in cols else [None] * t.num_rows
-        for r, path in zip(t.select([c for c in cols if c != "path"]).to_pylist(), paths):
+        for r, path in zip(t.select([c for c in cols if c != "path"]).to_pylist(), paths, strict=True):
             qid = int(r["query_id"])
             q = queries.setdefault(qid, {"id": qid, "name": f"query {qid}", "clip_id": None})
-            hits.append({"query_id": qid, "rank": r["rank"], "clip_id": r["clip_id"], "clip": names.get(r["clip_id"], str(r["clip_id"])),
-                         "start": r["start_frame"], "end": r["end_frame"], "cost": _scalar(r["cost"]),
-                         "seconds": round((r["end_frame"] - r["start_frame"]) / self.mo.fps(step, r["clip_id"]), 3),
-                         "extra": {c: _scalar(r[c]) for c in extra},
-                         "path": _relative_path(path, q if q.get("motion") else None),
-                         "motion": self.motion_key(step, r["clip_id"])})
-        return {"type": "retrieval", "motions": step, "query_motions": qstep, "cost_label": "cost", "extra": extra,
-                "queries": sorted(queries.values(), key=lambda q: q["id"]), "hits": hits}
+            hits.append(
+                {
+                    "query_id": qid,
+                    "rank": r["rank"],
+                    "clip_id": r["clip_id"],
+                    "clip": names.get(r["clip_id"], str(r["clip_id"])),
+                    "start": r["start_frame"],
+                    "end": r["end_frame"],
+                    "cost": _scalar(r["cost"]),
+                    "seconds": round((r["end_frame"] - r["start_frame"]) / self.mo.fps(step, r["clip_id"]), 3),
+                    "extra": {c: _scalar(r[c]) for c in extra},
+                    "path": _relative_path(path, q if q.get("motion") else None),
+                    "motion": self.motion_key(step, r["clip_id"]),
+                }
+            )
+        return {
+            "type": "retrieval",
+            "motions": step,
+            "query_motions": qstep,
+            "cost_label": "cost",
+            "extra": extra,
+            "queries": sorted(queries.values(), key=lambda q: q["id"]),
+            "hits": hits,
+        }
 
     def nearest(self, ds: Dataset) -> dict[str, Any]:
         step, qstep = self._steps(ds)
@@ -271,14 +337,43 @@ class ModelBuilder:
         for r in ds.table("data").to_pylist():
             qid = int(r.get("query_id", len(queries)))
             qc, qf = int(r["query_clip_id"]), int(r["query_frame"])
-            queries.setdefault(qid, {"id": qid, "name": f"{qnames.get(qc, qc)} frame {qf}", "clip_id": qc, "clip": qnames.get(qc),
-                                     "start": qf, "end": qf + 1, "motion": self.motion_key(qstep, qc)})
-            hits.append({"query_id": qid, "rank": r.get("rank"), "clip_id": r["clip_id"], "clip": names.get(r["clip_id"]),
-                         "start": r["frame"], "end": r["frame"] + 1, "cost": r["distance"], "extra": {}, "path": [[0, 0]],
-                         "seconds": round(1 / self.mo.fps(step, r["clip_id"]), 3),
-                         "motion": self.motion_key(step, r["clip_id"])})
-        return {"type": "retrieval", "motions": step, "query_motions": qstep, "cost_label": "distance", "extra": [],
-                "poses": True, "queries": sorted(queries.values(), key=lambda q: q["id"]), "hits": hits}
+            queries.setdefault(
+                qid,
+                {
+                    "id": qid,
+                    "name": f"{qnames.get(qc, qc)} frame {qf}",
+                    "clip_id": qc,
+                    "clip": qnames.get(qc),
+                    "start": qf,
+                    "end": qf + 1,
+                    "motion": self.motion_key(qstep, qc),
+                },
+            )
+            hits.append(
+                {
+                    "query_id": qid,
+                    "rank": r.get("rank"),
+                    "clip_id": r["clip_id"],
+                    "clip": names.get(r["clip_id"]),
+                    "start": r["frame"],
+                    "end": r["frame"] + 1,
+                    "cost": r["distance"],
+                    "extra": {},
+                    "path": [[0, 0]],
+                    "seconds": round(1 / self.mo.fps(step, r["clip_id"]), 3),
+                    "motion": self.motion_key(step, r["clip_id"]),
+                }
+            )
+        return {
+            "type": "retrieval",
+            "motions": step,
+            "query_motions": qstep,
+            "cost_label": "distance",
+            "extra": [],
+            "poses": True,
+            "queries": sorted(queries.values(), key=lambda q: q["id"]),
+            "hits": hits,
+        }
 
     # --- cleaning ---------------------------------------------------------------------------
     def cleaning(self, ds: Dataset) -> dict[str, Any]:
@@ -297,12 +392,27 @@ class ModelBuilder:
             cleaned = cleaned_positions(motion, edits, cid)
             key = f"c/{ds.step}/{cid}"
             self.model.cleaning[key] = {"positions": cleaned, **grid}
-            clips.append({"clip_id": cid, "clip": motion.name, "n_frames": motion.n_frames, "fps": motion.fps,
-                          "data": key, "motion": self.motion_key(step, cid), "joints": grid["joints"],
-                          "cues": grid["cues"], "n_flagged": int(grid["n_flagged"]),
-                          "n_edits": int(np.sum(edits["clip_id"].to_numpy() == cid))})
-        return {"type": "cleaning", "motions": step, "threshold": threshold, "clips": clips,
-                "has_cue_column": "cue" in mdm.column_names}
+            clips.append(
+                {
+                    "clip_id": cid,
+                    "clip": motion.name,
+                    "n_frames": motion.n_frames,
+                    "fps": motion.fps,
+                    "data": key,
+                    "motion": self.motion_key(step, cid),
+                    "joints": grid["joints"],
+                    "cues": grid["cues"],
+                    "n_flagged": int(grid["n_flagged"]),
+                    "n_edits": int(np.sum(edits["clip_id"].to_numpy() == cid)),
+                }
+            )
+        return {
+            "type": "cleaning",
+            "motions": step,
+            "threshold": threshold,
+            "clips": clips,
+            "has_cue_column": "cue" in mdm.column_names,
+        }
 
     # --- base poses, derived motions ---------------------------------------------------------
     def base_poses(self, ds: Dataset) -> dict[str, Any]:
@@ -315,10 +425,16 @@ class ModelBuilder:
             if step:
                 # in the root frame (root at the origin, facing +z), as base_poses.png draws them
                 p = to_root_frame(self.mo.positions(step, r["clip_id"])[r["frame"]][None], CANONICAL_JOINTS)[0]
-            poses.append({**r, "clip": names.get(r["clip_id"], str(r["clip_id"])),
-                          "motion": self.motion_key(step, r["clip_id"]) if step else None,
-                          "positions": None if p is None else [None if not np.isfinite(v) else round(float(v), 4)
-                                                               for v in p.reshape(-1)]})
+            poses.append(
+                {
+                    **r,
+                    "clip": names.get(r["clip_id"], str(r["clip_id"])),
+                    "motion": self.motion_key(step, r["clip_id"]) if step else None,
+                    "positions": None
+                    if p is None
+                    else [None if not np.isfinite(v) else round(float(v), 4) for v in p.reshape(-1)],
+                }
+            )
         return {"type": "base_poses", "motions": step, "poses": poses, "n_base_poses": len(rows)}
 
     def derived(self, ds: Dataset) -> dict[str, Any] | None:
@@ -328,7 +444,10 @@ class ModelBuilder:
         for name, ref in ds.manifest.get("inputs", {}).items():
             other = self.datasets.get(ref["step"])
             if other is not None and other.has_table("clips"):
-                theirs = {(r["clip_id"], r["checksum"], r["n_frames"]): r["name"] for r in other.table("clips", columns=cols).to_pylist()}
+                theirs = {
+                    (r["clip_id"], r["checksum"], r["n_frames"]): r["name"]
+                    for r in other.table("clips", columns=cols).to_pylist()
+                }
                 hits = sum((r["clip_id"], r["checksum"], r["n_frames"]) in theirs for r in mine)
                 candidates.append((-hits, len(theirs), name, other, theirs))
         pairs = []
@@ -337,10 +456,18 @@ class ModelBuilder:
             for r in mine:
                 src = theirs.get((r["clip_id"], r["checksum"], r["n_frames"]))
                 if src is not None and not any(p["clip_id"] == r["clip_id"] for p in pairs):
-                    pairs.append({"clip_id": r["clip_id"], "clip": r["name"], "source_clip": src, "source_step": other.step,
-                                  "input": name, "n_frames": r["n_frames"],
-                                  "motion": self.motion_key(ds.step, r["clip_id"]),
-                                  "source_motion": self.motion_key(other.step, r["clip_id"])})
+                    pairs.append(
+                        {
+                            "clip_id": r["clip_id"],
+                            "clip": r["name"],
+                            "source_clip": src,
+                            "source_step": other.step,
+                            "input": name,
+                            "n_frames": r["n_frames"],
+                            "motion": self.motion_key(ds.step, r["clip_id"]),
+                            "source_motion": self.motion_key(other.step, r["clip_id"]),
+                        }
+                    )
         return {"type": "derived", "pairs": pairs} if pairs else None
 
 
@@ -372,8 +499,9 @@ def step_order(datasets: Mapping[str, Dataset]) -> list[Dataset]:
     left = dict(datasets)
     out: list[Dataset] = []
     while left:
-        ready = [d for d in left.values()
-                 if not any(v.get("step") in left for v in d.manifest.get("inputs", {}).values())] or list(left.values())
+        ready = [
+            d for d in left.values() if not any(v.get("step") in left for v in d.manifest.get("inputs", {}).values())
+        ] or list(left.values())
         first = min(ready, key=lambda d: (d.manifest.get("created", ""), d.step))
         out.append(first)
         del left[first.step]

@@ -1,4 +1,5 @@
 """Built-in plugin: ``mocapflow report WORKSPACE [--output DIR]``, a static HTML report."""
+
 from __future__ import annotations
 
 import argparse
@@ -31,17 +32,26 @@ def workspace_tables(workspace: Path):
         datasets = dict(cat.datasets)
         for step, ds in sorted(datasets.items(), key=lambda kv: (kv[1].manifest.get("created", ""), kv[0])):
             if ds.has_table("clips"):
-                t = cat.relation(f"{step}_clips").project(
-                    "clip_id, name, subject, format, fps, n_frames, round(n_frames / fps, 3) AS duration_s, "
-                    "source_fps, source_frames, path").order("path, clip_id").to_arrow_table()
+                t = (
+                    cat.relation(f"{step}_clips")
+                    .project(
+                        "clip_id, name, subject, format, fps, n_frames, round(n_frames / fps, 3) AS duration_s, "
+                        "source_fps, source_frames, path"
+                    )
+                    .order("path, clip_id")
+                    .to_arrow_table()
+                )
                 clips.append(t.add_column(0, "step", pa.array([step] * t.num_rows, pa.string())))
             if ds.has_table("rejects"):
                 t = cat.relation(f"{step}_rejects").project("path, line, message").to_arrow_table()
                 rejects.append(t.add_column(0, "step", pa.array([step] * t.num_rows, pa.string())))
     empty_clips = pa.table({c: pa.array([], pa.string()) for c in ("step", "clip_id", "name")})
     empty_rejects = pa.table({c: pa.array([], pa.string()) for c in ("step", "path", "line", "message")})
-    return (datasets, pa.concat_tables(clips) if clips else empty_clips,
-            pa.concat_tables(rejects) if rejects else empty_rejects)
+    return (
+        datasets,
+        pa.concat_tables(clips) if clips else empty_clips,
+        pa.concat_tables(rejects) if rejects else empty_rejects,
+    )
 
 
 def build_report(workspace: str | Path, output: str | Path | None = None) -> dict:
@@ -88,6 +98,9 @@ class ReportCommand:
     @classmethod
     def run(cls, args: argparse.Namespace) -> int:
         info = build_report(args.workspace, args.output)
-        print(f"wrote {info['index']} ({info['steps']} steps, {info['files']} files, "
-              f"{info['bytes'] / 1024:.0f} KiB); open it in a browser (works from file://)", file=sys.stderr)
+        print(
+            f"wrote {info['index']} ({info['steps']} steps, {info['files']} files, "
+            f"{info['bytes'] / 1024:.0f} KiB); open it in a browser (works from file://)",
+            file=sys.stderr,
+        )
         return 0

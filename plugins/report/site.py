@@ -11,6 +11,7 @@ Layout of the output directory::
 The directory is written next to its destination and renamed into place, so a failed run
 leaves the previous report untouched.
 """
+
 from __future__ import annotations
 
 import json
@@ -53,16 +54,30 @@ def write_data(model: Model, out: Path) -> dict[str, dict[str, Any]]:
     for key, pos in model.motions.items():
         parts, scale = encode_positions(pos)
         name = f"data/{_safe(key)}.js"
-        n = write_blob(out / name, key, {"kind": "motion", "scale": scale, "n_frames": len(pos),
-                                         "fps": model.fps.get(key, 30.0)}, parts)
+        n = write_blob(
+            out / name,
+            key,
+            {"kind": "motion", "scale": scale, "n_frames": len(pos), "fps": model.fps.get(key, 30.0)},
+            parts,
+        )
         files[key] = {"file": name, "bytes": n}
     for key, c in model.cleaning.items():
         parts, scale = encode_positions(c["positions"])
         name = f"data/{_safe(key)}.js"
-        n = write_blob(out / name, key, {"kind": "cleaning", "scale": scale, "n_frames": len(c["positions"]),
-                                         "joints": c["joints"], "canonical": c["canonical"], "cues": c["cues"],
-                                         "mdm_scale": c["scale"]},
-                       {**parts, "mdm": c["values"], "cue": c["cue"]})
+        n = write_blob(
+            out / name,
+            key,
+            {
+                "kind": "cleaning",
+                "scale": scale,
+                "n_frames": len(c["positions"]),
+                "joints": c["joints"],
+                "canonical": c["canonical"],
+                "cues": c["cues"],
+                "mdm_scale": c["scale"],
+            },
+            {**parts, "mdm": c["values"], "cue": c["cue"]},
+        )
         files[key] = {"file": name, "bytes": n}
     return files
 

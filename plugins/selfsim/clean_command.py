@@ -1,6 +1,7 @@
 """``mocapflow clean``: clean one take from the command line. Imports nothing numerical at
 module level (the command is registered for ``mocapflow --help``); the work is
-:mod:`.clean_clip`."""
+:func:`.outputs.clean_and_write_clip`."""
+
 from __future__ import annotations
 
 import argparse
@@ -17,8 +18,9 @@ def _plugin_manager(args: argparse.Namespace, pm: Any = None) -> Any:
         return pm
     from mocapflow.framework.plugins import get_plugin_manager
 
-    return get_plugin_manager(entry_points=not getattr(args, "no_entry_points", False),
-                              blocked=list(getattr(args, "block", None) or []))
+    return get_plugin_manager(
+        entry_points=not getattr(args, "no_entry_points", False), blocked=list(getattr(args, "block", None) or [])
+    )
 
 
 def _read_motion(path: str, regs: Any) -> Any:
@@ -65,19 +67,33 @@ class CleanCommand:
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("take", help="motion file to clean (.amc, .bvh...)")
-        parser.add_argument("--context", nargs="*", default=[], metavar="FILE", help="similar clean takes to search too")
-        parser.add_argument("--output", required=True, metavar="CLEAN.bvh",
-                            help="cleaned take (.bvh, or .amc with its .asf written beside it)")
-        parser.add_argument("--report", metavar="DIR", help="write mdm.parquet, edits.parquet, heatmap and "
-                            "before/after PNGs, summary.json (what changed and why)")
-        parser.add_argument("--mode", choices=("calibrated", "paper"), default=None,
-                            help="calibrated (default): detector fitted on the context; paper: MDM > threshold")
-        parser.add_argument("--false-alarm", type=float, default=None,
-                            help="calibrated: share of clean (word, joint) pairs that may be flagged (default 0.004)")
+        parser.add_argument(
+            "--context", nargs="*", default=[], metavar="FILE", help="similar clean takes to search too"
+        )
+        parser.add_argument(
+            "--output",
+            required=True,
+            metavar="CLEAN.bvh",
+            help="cleaned take (.bvh, or .amc with its .asf written beside it)",
+        )
+        parser.add_argument(
+            "--report",
+            metavar="DIR",
+            help="write mdm.parquet, edits.parquet, heatmap and before/after PNGs, summary.json (what changed and why)",
+        )
+        parser.add_argument(
+            "--mode",
+            choices=("calibrated", "paper"),
+            default=None,
+            help="calibrated (default): detector fitted on the context; paper: MDM > threshold",
+        )
+        parser.add_argument(
+            "--false-alarm",
+            type=float,
+            default=None,
+            help="calibrated: share of clean (word, joint) pairs that may be flagged (default 0.004)",
+        )
         parser.add_argument("--threshold", type=float, default=None, help="paper: MDM threshold (default 0.5)")
-        parser.add_argument("--two-stage", action="store_true", help="local search first, context only around distinct words")
-        parser.add_argument("--normalization", choices=("mean", "median", "spread", "texture", "none"), default=None,
-                            help="paper: scale of the MDM differences (mean = the paper)")
 
     @classmethod
     def run(cls, args: argparse.Namespace, pm: Any = None) -> int:
@@ -88,31 +104,40 @@ class CleanCommand:
 
         dest = Path(args.output)
         if dest.suffix.lower() not in _OUTPUT_KINDS:
-            raise ConfigError(f"--output {args.output}: the cleaned take is written as .bvh or .amc, "
-                              f"not {dest.suffix or 'a file without extension'!r}")
+            raise ConfigError(
+                f"--output {args.output}: the cleaned take is written as .bvh or .amc, "
+                f"not {dest.suffix or 'a file without extension'!r}"
+            )
         regs = build_registries(_plugin_manager(args, pm))
         cleaner_cls = regs["cleaners"].get("mdm")
         take = _read_motion(args.take, regs)
         if dest.suffix.lower() == ".amc" and take.skeleton.meta.get("format") != "asf":
-            raise ConfigError(f"--output {args.output}: AMC needs an ASF skeleton; {args.take} is not ASF/AMC, write .bvh")
+            raise ConfigError(
+                f"--output {args.output}: AMC needs an ASF skeleton; {args.take} is not ASF/AMC, write .bvh"
+            )
         context = [_read_motion(p, regs) for p in args.context]
-        params: dict[str, Any] = {"write_bvh": False, "heatmaps": bool(args.report), "two_stage": args.two_stage}
-        for key in ("mode", "threshold", "normalization", "false_alarm"):
+        params: dict[str, Any] = {"write_bvh": False, "heatmaps": bool(args.report)}
+        for key in ("mode", "threshold"):
             if getattr(args, key, None) is not None:
                 params[key] = getattr(args, key)
+        if getattr(args, "false_alarm", None) is not None:
+            params["calibrated"] = {"false_alarm": args.false_alarm}
         cleaner = cleaner_cls(params)
         report = Path(args.report) if args.report else None
         if report is not None:
             report.mkdir(parents=True, exist_ok=True)
-        from .clean_clip import clean_clip
+        from .outputs import clean_and_write_clip
 
-        out = clean_clip(cleaner, take, context, 0, report, regs)
+        out = clean_and_write_clip(cleaner, take, context, 0, report, regs)
         write_cleaned(out["cleaned"], dest, regs)
         if report is not None:
             _atomic(report / "mdm.parquet", lambda t: pq.write_table(out["mdm"], t))
             _atomic(report / "edits.parquet", lambda t: pq.write_table(out["edits"], t))
             _atomic(report / "summary.json", lambda t: t.write_text(json.dumps(out["summary"], indent=2)))
         s = out["summary"]
-        print(f"{take.name}: {s['flagged_cells']} cells flagged, {s['edited_cells']} input cells edited "
-              f"(largest {s['max_edit_deg']:.1f} deg) in {out['seconds']:.2f} s -> {dest}", flush=True)
+        print(
+            f"{take.name}: {s['flagged_cells']} cells flagged, {s['edited_cells']} input cells edited "
+            f"(largest {s['max_edit_deg']:.1f} deg) in {out['seconds']:.2f} s -> {dest}",
+            flush=True,
+        )
         return 0

@@ -2,6 +2,7 @@
 ``cleaners.mdm`` cleaner (motion-word self-similarity, digression maps, repair), the
 ``analyses.clean_eval`` protocol and the ``mocapflow clean`` command. Imports happen inside
 the hooks, so loading this module imports no numerical library."""
+
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl
@@ -9,14 +10,14 @@ from mocapflow.framework.plugins import hookimpl
 
 @hookimpl
 def register_cleaners() -> list[type]:
-    from .mdm import MDMCleaner
+    from .cleaner import MDMCleaner
 
     return [MDMCleaner]
 
 
 @hookimpl
 def register_analyses() -> list[type]:
-    from .clean_eval import CleaningEvaluation
+    from .evaluation.clean_eval import CleaningEvaluation
 
     return [CleaningEvaluation]
 

@@ -2,11 +2,13 @@
 
 Feature sets ``features.end_effectors`` and ``features.pca``; the kNN indexes
 ``indexes.kdtree``, ``indexes.sharded`` and, with the ``ann`` extra, ``indexes.hnsw``; the
-global matchers ``matchers.lng``, ``matchers.sdtw`` and ``matchers.logical``; the analyses
+global matchers ``matchers.search`` (the default: certified subsequence DTW), ``matchers.lng``
+(the paper's lazy neighbourhood graph), ``matchers.sdtw`` and ``matchers.logical``; the analyses
 built on them (nearest poses, distance correlation, reconstruction, fat-graph base poses);
 and the ``mocapflow search`` command. Every import is inside a hook so that loading this
 module (``mocapflow --help``) imports no numerical library.
 """
+
 from __future__ import annotations
 
 from mocapflow.framework.plugins import hookimpl
@@ -14,8 +16,8 @@ from mocapflow.framework.plugins import hookimpl
 
 @hookimpl
 def register_features() -> list[type]:
-    from .end_effectors import EndEffectorFeatures
-    from .pca import PosePCA
+    from .knn.end_effectors import EndEffectorFeatures
+    from .knn.pca import PosePCA
 
     return [EndEffectorFeatures, PosePCA]
 
@@ -24,38 +26,39 @@ def register_features() -> list[type]:
 def register_indexes() -> list[type]:
     from importlib.util import find_spec
 
-    from .kdtree import KDTreeIndex
-    from .sharded import ShardedIndex
+    from .knn.kdtree import KDTreeIndex
+    from .knn.sharded import ShardedIndex
 
     if find_spec("hnswlib") is None:  # indexes.hnsw exists with the 'ann' extra only
         return [KDTreeIndex, ShardedIndex]
-    from .hnsw import HNSWIndex
+    from .knn.hnsw import HNSWIndex
 
     return [KDTreeIndex, HNSWIndex, ShardedIndex]
 
 
 @hookimpl
 def register_matchers() -> list[type]:
-    from .lng import LazyNeighborhoodGraph
-    from .logical import LogicalSearch
-    from .sdtw import SubsequenceDTW
+    from .search.exact import CertifiedSearch
+    from .search.lng import LazyNeighborhoodGraph
+    from .search.logical import LogicalSearch
+    from .search.sdtw import SubsequenceDTW
 
-    return [LazyNeighborhoodGraph, SubsequenceDTW, LogicalSearch]
+    return [CertifiedSearch, LazyNeighborhoodGraph, SubsequenceDTW, LogicalSearch]
 
 
 @hookimpl
 def register_analyses() -> list[type]:
-    from .correlation import DistanceCorrelationStudy
-    from .fat_graph import FatGraph
-    from .knn_query import NearestPoses
-    from .reconstruct import Reconstruct
-    from .reconstruct_eval import ReconstructionEval
+    from .applications.correlation import DistanceCorrelationStudy
+    from .applications.fat_graph import FatGraph
+    from .applications.reconstruct import Reconstruct
+    from .applications.reconstruct_eval import ReconstructionEval
+    from .knn.knn_query import NearestPoses
 
     return [NearestPoses, DistanceCorrelationStudy, Reconstruct, ReconstructionEval, FatGraph]
 
 
 @hookimpl
 def register_commands() -> list[type]:
-    from .search_command import SearchCommand
+    from .search.search_command import SearchCommand
 
     return [SearchCommand]

@@ -1,8 +1,9 @@
-"""Slow, obviously correct references for the calibrated cleaner's cues (:mod:`mocapflow.plugins.selfsim.cues`).
+"""Slow, obviously correct references for the calibrated cleaner's cues (:mod:`mocapflow.plugins.selfsim.calibrated.cues`).
 
 Each loops over frames and joints with scalar quaternion arithmetic written out here,
 independent of :mod:`mocapflow.framework.quaternions`.
 """
+
 from __future__ import annotations
 
 import math
@@ -12,7 +13,7 @@ import numpy as np
 
 def _angle(a, b) -> float:
     """Rotation angle (radians) between two unit quaternions, sign-invariant."""
-    d = abs(sum(float(x) * float(y) for x, y in zip(a, b)))
+    d = abs(sum(float(x) * float(y) for x, y in zip(a, b, strict=True)))
     return 2.0 * math.acos(min(1.0, d))
 
 
@@ -20,9 +21,9 @@ def _slerp_half(a, b):
     """The rotation halfway between unit quaternions a and b (shorter arc)."""
     a = [float(x) for x in a]
     b = [float(x) for x in b]
-    if sum(x * y for x, y in zip(a, b)) < 0:
+    if sum(x * y for x, y in zip(a, b, strict=True)) < 0:
         b = [-x for x in b]
-    s = [x + y for x, y in zip(a, b)]  # the chordal midpoint is the slerp midpoint once normalised
+    s = [x + y for x, y in zip(a, b, strict=True)]  # the chordal midpoint is the slerp midpoint once normalised
     n = math.sqrt(sum(x * x for x in s))
     return [x / n for x in s]
 
@@ -48,6 +49,7 @@ def naive_window_min(x: np.ndarray, half: int) -> np.ndarray:
 def naive_mirror_gain(q: np.ndarray, mean_q: np.ndarray, joints, chains, margin: float) -> np.ndarray:
     """For each chain pair and frame: the summed (own digression - angle to the mirrored
     counterpart's consensus) over the six joints, on the joints whose own gain > margin."""
+
     def mirrored(v):
         return [v[0], v[1], -v[2], -v[3]]
 
@@ -58,9 +60,12 @@ def naive_mirror_gain(q: np.ndarray, mean_q: np.ndarray, joints, chains, margin:
         cols = [joints.index(j) for j in left + right]
         other = [joints.index(j) for j in right + left]
         for f in range(len(q)):
-            gains = [_angle(q[f, c], mean_q[f, c]) - _angle(q[f, c], mirrored(mean_q[f, o])) for c, o in zip(cols, other)]
+            gains = [
+                _angle(q[f, c], mean_q[f, c]) - _angle(q[f, c], mirrored(mean_q[f, o]))
+                for c, o in zip(cols, other, strict=True)
+            ]
             total = sum(gains)
-            for c, g in zip(cols, gains):
+            for c, g in zip(cols, gains, strict=True):
                 out[f, c] = total if g > margin else 0.0
     return out
 
@@ -73,7 +78,7 @@ def naive_word_joint(mask: np.ndarray, n: int, step: int) -> np.ndarray:
     starts = list(range(0, t - n + 1, step))
     if starts[-1] != t - n:
         starts.append(t - n)
-    return np.array([[bool(mask[s:s + n, j].any()) for j in range(mask.shape[1])] for s in starts])
+    return np.array([[bool(mask[s : s + n, j].any()) for j in range(mask.shape[1])] for s in starts])
 
 
 def naive_persistent(x: np.ndarray, factor: float) -> np.ndarray:

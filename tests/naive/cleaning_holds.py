@@ -1,9 +1,10 @@
 """Slow, obviously correct references for the hold cue and the hold fill of the calibrated
-cleaner (:mod:`mocapflow.plugins.selfsim.holds`, ``cues.hold_lengths``, session 6).
+cleaner (:mod:`mocapflow.plugins.selfsim.calibrated.holds`, ``cues.hold_lengths``).
 
 Scalar loops and quaternion arithmetic written out here, independent of
 :mod:`mocapflow.framework.quaternions`.
 """
+
 from __future__ import annotations
 
 import math
@@ -38,8 +39,12 @@ def naive_hold_lengths(v: np.ndarray, still: float) -> tuple[np.ndarray, np.ndar
 def _mul(a, b):
     w1, x1, y1, z1 = a
     w2, x2, y2, z2 = b
-    return [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
+    return [
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    ]
 
 
 def _conj(a):
@@ -47,7 +52,7 @@ def _conj(a):
 
 
 def _slerp(a, b, u):
-    d = sum(x * y for x, y in zip(a, b))
+    d = sum(x * y for x, y in zip(a, b, strict=True))
     if d < 0:
         b, d = [-x for x in b], -d
     d = min(1.0, d)
@@ -55,7 +60,7 @@ def _slerp(a, b, u):
     if th < 1e-9:
         return list(a)
     s0, s1 = math.sin((1 - u) * th) / math.sin(th), math.sin(u * th) / math.sin(th)
-    return [s0 * x + s1 * y for x, y in zip(a, b)]
+    return [s0 * x + s1 * y for x, y in zip(a, b, strict=True)]
 
 
 def naive_consensus_fill(track: np.ndarray, mean: np.ndarray, a: int, b: int) -> np.ndarray:

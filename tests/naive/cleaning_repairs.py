@@ -1,9 +1,10 @@
 """Slow, obviously correct references for the swap and offset repairs of the calibrated
-cleaner (:mod:`mocapflow.plugins.selfsim.swaps`, :mod:`mocapflow.plugins.selfsim.offsets`).
+cleaner (:mod:`mocapflow.plugins.selfsim.calibrated.swaps`, :mod:`mocapflow.plugins.selfsim.calibrated.offsets`).
 
 Scalar quaternion arithmetic written out here, one frame and joint at a time, independent
 of :mod:`mocapflow.framework.quaternions`.
 """
+
 from __future__ import annotations
 
 import math
@@ -17,8 +18,12 @@ def _mul(a, b):
     """Hamilton product of (w, x, y, z) quaternions."""
     aw, ax, ay, az = (float(v) for v in a)
     bw, bx, by, bz = (float(v) for v in b)
-    return [aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw]
+    return [
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ]
 
 
 def _conj(a):
@@ -34,7 +39,7 @@ def naive_edge_benefit(q: np.ndarray, left: list[int], right: list[int]) -> np.n
     """B(f) of the swaps module doc, frame by frame and joint by joint (-inf where undefined)."""
     t = len(q)
     out = np.full(t, -np.inf)
-    pairs = list(zip(left, right)) + list(zip(right, left))
+    pairs = list(zip(left, right, strict=True)) + list(zip(right, left, strict=True))
     for f in range(2, t - 1):
         total = 0.0
         for j, other in pairs:

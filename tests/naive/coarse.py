@@ -1,4 +1,4 @@
-"""Naive references of the certified search's kernels (:mod:`mocapflow.plugins.similarity._coarse_kernels`).
+"""Naive references of the certified search's kernels (:mod:`mocapflow.plugins.similarity.search._coarse_kernels`).
 
 Written from the definitions, not from the kernels: full matrices in float64, the
 textbook recurrences cell by cell, blocks and boxes found by brute force. They share no
@@ -16,9 +16,11 @@ every sum is exact in both, or random data).
   (``sdtw_ranges_compact``), by running the full-matrix DP of :mod:`naive.dtw` on each
   range's rows alone.
 """
+
 from __future__ import annotations
 
 import numpy as np
+
 from naive.dtw import naive_blocks, naive_path, naive_subsequence_dtw
 
 

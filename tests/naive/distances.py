@@ -1,4 +1,5 @@
 """Slow references for the pose distance measures."""
+
 from __future__ import annotations
 
 import math

@@ -3,6 +3,7 @@
 Both follow Krüger 2010 §4.1 literally. Database rows ``j-1 -> j`` are linked only when
 ``continues[j]`` (same clip, consecutive frames).
 """
+
 from __future__ import annotations
 
 import heapq

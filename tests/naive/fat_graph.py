@@ -3,6 +3,7 @@
 ``all_pairs_neighbours`` is also the quadratic all-pairs construction the benchmark
 compares the kd-tree search with (Shin & Oh 2006 compute a dense distance matrix).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,13 +21,13 @@ def all_pairs_neighbours(x: np.ndarray, radius: float, k: int, block: int = 1024
     ids = np.full((n, k), -1, np.int64)
     sq = (x * x).sum(1)
     for s in range(0, n, block):
-        d2 = sq[s:s + block, None] + sq[None, :] - 2.0 * x[s:s + block] @ x.T
+        d2 = sq[s : s + block, None] + sq[None, :] - 2.0 * x[s : s + block] @ x.T
         d = np.sqrt(np.maximum(d2, 0.0))
         order = np.argsort(d, axis=1, kind="stable")[:, :k]
         dd = np.take_along_axis(d, order, 1)
         ok = dd <= radius
-        dist[s:s + block][ok] = dd[ok]
-        ids[s:s + block][ok] = order[ok]
+        dist[s : s + block][ok] = dd[ok]
+        ids[s : s + block][ok] = order[ok]
     return dist, ids
 
 

@@ -1,4 +1,5 @@
 """Slow, obviously correct references for the Krüger feature sets (one frame at a time)."""
+
 from __future__ import annotations
 
 import math
@@ -17,7 +18,7 @@ def root_frame_pose(frame_positions: dict[str, np.ndarray], joints) -> np.ndarra
     return np.concatenate([rot @ (frame_positions[j] - root) for j in joints])
 
 
-def end_effector_features(motion, joints, samples=1, window=0.3, placement="centered") -> np.ndarray:
+def end_effector_features(motion, joints, samples=1, window=0.3) -> np.ndarray:
     names = list(motion.skeleton.canonical)
     pos = motion.canonical_positions(names)
     poses = [root_frame_pose({n: pos[t, i] for i, n in enumerate(names)}, joints) for t in range(motion.n_frames)]
@@ -29,7 +30,7 @@ def end_effector_features(motion, joints, samples=1, window=0.3, placement="cent
                 at = float(t)
             else:
                 span = window * motion.fps
-                first = t - span / 2 if placement == "centered" else t - span
+                first = t - span / 2
                 at = first + s * span / (samples - 1)
             at = min(max(at, 0.0), motion.n_frames - 1.0)
             lo = int(math.floor(at))

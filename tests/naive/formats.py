@@ -1,5 +1,6 @@
-"""Slow, obviously correct twins of the format kernels (``plugins/formats/_text.py``,
+"""Slow, obviously correct twins of the format kernels (``plugins/formats/_text_kernels.py``,
 ``plugins/formats/_kernels.py``)."""
+
 from __future__ import annotations
 
 import math
@@ -28,16 +29,25 @@ def tokenize(data: bytes, start: int = 0, first_line: int = 1):
             lines.append(line)
             try:
                 v = float(tok)
-                ok = math.isfinite(v) and tok.lower().lstrip(b"+-")[:1] not in (b"n", b"i") \
-                    and b"_" not in tok and not tok.lower().startswith((b"0x", b"-0x", b"+0x"))
+                ok = (
+                    math.isfinite(v)
+                    and tok.lower().lstrip(b"+-")[:1] not in (b"n", b"i")
+                    and b"_" not in tok
+                    and not tok.lower().startswith((b"0x", b"-0x", b"+0x"))
+                )
             except ValueError:
                 v, ok = math.nan, False
             values.append(v if ok else math.nan)
             isnum.append(ok)
         i += len(piece) + 1
         line += 1
-    return (np.array(starts, np.int64), np.array(lens, np.int64), np.array(lines, np.int64),
-            np.array(values, float), np.array(isnum, bool))
+    return (
+        np.array(starts, np.int64),
+        np.array(lens, np.int64),
+        np.array(lines, np.int64),
+        np.array(values, float),
+        np.array(isnum, bool),
+    )
 
 
 def euler_table_to_quat(table, cols, axis_id, frames, scale, extrinsic):

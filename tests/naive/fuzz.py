@@ -18,6 +18,7 @@ and one mutation. Its outcome (:func:`check`):
   mutation kept;
 * ``bad_error``: a ParseError without the file's path or a valid line.
 """
+
 from __future__ import annotations
 
 import re
@@ -30,8 +31,21 @@ from mocapflow.framework.errors import ParseError
 from . import readers as ref
 from .mutations import BREAK, KINDS, SAME, Base, corpus_sources, excerpt, load_source, mutate
 
-__all__ = ["BREAK", "KINDS", "SAME", "Base", "arrays", "check", "corpus_sources", "excerpt", "load_source", "mutate",
-           "read", "same_arrays", "write_case"]
+__all__ = [
+    "BREAK",
+    "KINDS",
+    "SAME",
+    "Base",
+    "arrays",
+    "check",
+    "corpus_sources",
+    "excerpt",
+    "load_source",
+    "mutate",
+    "read",
+    "same_arrays",
+    "write_case",
+]
 
 
 def _close(a: np.ndarray, b: np.ndarray, atol: float) -> bool:
@@ -54,8 +68,13 @@ def arrays(obj) -> dict[str, np.ndarray | None]:
     from mocapflow.framework.motion import Motion
 
     if isinstance(obj, Motion):
-        return {"root": obj.root_translation, "rot": obj.rotations, "local": obj.local_translations,
-                "offsets": obj.skeleton.offsets, "fps": np.array([obj.fps])}
+        return {
+            "root": obj.root_translation,
+            "rot": obj.rotations,
+            "local": obj.local_translations,
+            "offsets": obj.skeleton.offsets,
+            "fps": np.array([obj.fps]),
+        }
     return {"positions": obj.positions, "fps": np.array([obj.fps])}
 
 
@@ -90,18 +109,32 @@ def _compare_reference(fmt: str, data: bytes, obj) -> str | None:
             root, rot = ref.amc_arrays(content, obj.skeleton)
             if obj.n_frames != content["frames"]:
                 return "frames"
-            return same_arrays({"root": obj.root_translation, "rot": obj.rotations},
-                               {"root": root, "rot": rot})
+            return same_arrays({"root": obj.root_translation, "rot": obj.rotations}, {"root": root, "rot": rot})
         if fmt == "bvh":
             content = ref.read_bvh(data, scale=1.0)
             root, rot, local = ref.bvh_arrays(content)
-            if list(obj.skeleton.names) != content["names"] or list(obj.skeleton.parents) != content["parents"] \
-                    or [tuple(c) for c in obj.skeleton.channels] != content["channels"]:
+            if (
+                list(obj.skeleton.names) != content["names"]
+                or list(obj.skeleton.parents) != content["parents"]
+                or [tuple(c) for c in obj.skeleton.channels] != content["channels"]
+            ):
                 return "hierarchy"
-            return same_arrays({"root": obj.root_translation, "rot": obj.rotations, "local": obj.local_translations,
-                                "offsets": obj.skeleton.offsets, "fps": np.array([obj.metadata["frame_time"]])},
-                               {"root": root, "rot": rot, "local": local, "offsets": content["offsets"],
-                                "fps": np.array([content["frame_time"]])})
+            return same_arrays(
+                {
+                    "root": obj.root_translation,
+                    "rot": obj.rotations,
+                    "local": obj.local_translations,
+                    "offsets": obj.skeleton.offsets,
+                    "fps": np.array([obj.metadata["frame_time"]]),
+                },
+                {
+                    "root": root,
+                    "rot": rot,
+                    "local": local,
+                    "offsets": content["offsets"],
+                    "fps": np.array([content["frame_time"]]),
+                },
+            )
         if fmt == "trc":
             content = ref.read_trc(data)
             if tuple(obj.labels) != content["labels"] or obj.metadata["first_frame"] != content["first_frame"]:
@@ -160,8 +193,9 @@ def read(fmt: str, path: Path):
     return _reader(fmt)(path)
 
 
-def check(folder: Path, base: Base, kind: str, data: bytes, asf: bytes | None,
-          reference: dict | None) -> tuple[str, str]:
+def check(
+    folder: Path, base: Base, kind: str, data: bytes, asf: bytes | None, reference: dict | None
+) -> tuple[str, str]:
     """``(outcome, detail)`` of one mutated case (outcomes: module doc). ``reference``:
     the arrays of the unmutated base (:func:`arrays` of :func:`read`), for the
     content-keeping kinds."""

@@ -6,6 +6,7 @@ a neighbour of query frame ``i`` (depth 0), or when a node ``(i-1, g)`` of forwa
 (forward depth one more), or when a node ``(i+1, g)`` of backward depth ``< gaps`` has
 ``g - h`` in ``{0, 1, 2}`` likewise (backward depth one more).
 """
+
 from __future__ import annotations
 
 import numpy as np

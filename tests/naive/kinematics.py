@@ -1,5 +1,6 @@
 """Per-frame, per-joint forward kinematics with rotation matrices (scipy), the reference
 for the vectorised quaternion FK."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,7 +29,7 @@ def fk_loop(parents, offsets, root_translation, rotations):
 def euler_matrix(angles_deg, order):
     """R = R_order[0] @ R_order[1] @ ... from degrees, built with explicit matrices."""
     m = np.eye(3)
-    for a, axis in zip(np.deg2rad(angles_deg), order.lower()):
+    for a, axis in zip(np.deg2rad(angles_deg), order.lower(), strict=True):
         c, s = np.cos(a), np.sin(a)
         if axis == "x":
             r = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])

@@ -1,11 +1,11 @@
 """Slow, obviously correct k-nearest-neighbour search (reference for indexes.kdtree)."""
+
 from __future__ import annotations
 
 import numpy as np
 
 
-def knn(data, queries, k, radius=None, groups=None, frames=None, query_groups=None, query_frames=None,
-        exclude=None):
+def knn(data, queries, k, radius=None, groups=None, frames=None, query_groups=None, query_frames=None, exclude=None):
     """Brute force: exact float64 distances, sorted by (distance, row id), padded with inf/-1."""
     data = np.asarray(data, np.float32).astype(np.float64)
     queries = np.atleast_2d(np.asarray(queries, np.float32)).astype(np.float64)
@@ -18,12 +18,12 @@ def knn(data, queries, k, radius=None, groups=None, frames=None, query_groups=No
             d2 += (data[:, j] - q[j]) ** 2
         ok = np.ones(n, bool)
         if radius is not None:
-            ok &= d2 <= radius ** 2
+            ok &= d2 <= radius**2
         if exclude is not None:
             ok &= ~((groups == query_groups[r]) & (np.abs(frames - query_frames[r]) <= exclude))
         rows = [i for i in np.lexsort((np.arange(n), d2)) if ok[i]][:k]
-        out_d[r, :len(rows)] = np.sqrt(d2[rows])
-        out_i[r, :len(rows)] = rows
+        out_d[r, : len(rows)] = np.sqrt(d2[rows])
+        out_i[r, : len(rows)] = rows
     return out_d, out_i
 
 

@@ -16,6 +16,7 @@ Rules restated here (they are the format contracts of ``plugins/formats``):
 * positions beyond 10 km, angles beyond 10^6 degrees and frame rates above 100 kHz are
   rejected (``plugins/formats/_common.py``, "Value policy").
 """
+
 from __future__ import annotations
 
 import math
@@ -65,11 +66,12 @@ def text_lines(data: bytes) -> list[bytes]:
         data = data[3:]
     m = _BINARY.search(data)
     if m:
-        raise Reject(len(_EOL.findall(data[:m.start()])) + 1, "binary byte")
+        raise Reject(len(_EOL.findall(data[: m.start()])) + 1, "binary byte")
     return _EOL.split(data)
 
 
 # --- AMC -------------------------------------------------------------------------------
+
 
 def read_amc(data: bytes, skeleton) -> dict:
     """What an AMC file says, for the ASF ``skeleton`` (a Skeleton from ``read_asf``).
@@ -78,15 +80,8 @@ def read_amc(data: bytes, skeleton) -> dict:
     values of each bone in the ASF's dof order, file units.
     """
     lines = text_lines(data)
-    dofs = {n: len(ch) for n, ch in zip(skeleton.names, skeleton.channels) if ch}
-    unit, full, i = None, False, 0
-    while i < len(lines) and not lines[i].strip()[:1].isdigit():
-        t = lines[i].strip()
-        if t and t[:1] not in (b"#", b":"):
-            raise Reject(i + 1, "expected a header line")
-        unit = {b":DEGREES": "deg", b":RADIANS": "rad"}.get(t.upper(), unit)
-        full = full or t.upper() == b":FULLY-SPECIFIED"
-        i += 1
+    dofs = {n: len(ch) for n, ch in zip(skeleton.names, skeleton.channels, strict=True) if ch}
+    unit, full, i = _amc_header(lines)
     if i == len(lines):
         raise Reject(i, "no frames")
     first = lines[i].strip()
@@ -130,6 +125,19 @@ def read_amc(data: bytes, skeleton) -> dict:
     return {"frames": len(frames), "degrees": degrees, "values": values}
 
 
+def _amc_header(lines: list[bytes]) -> tuple[str | None, bool, int]:
+    """The angle unit, :FULLY-SPECIFIED, and the index of the first frame line."""
+    unit, full, i = None, False, 0
+    while i < len(lines) and not lines[i].strip()[:1].isdigit():
+        t = lines[i].strip()
+        if t and t[:1] not in (b"#", b":"):
+            raise Reject(i + 1, "expected a header line")
+        unit = {b":DEGREES": "deg", b":RADIANS": "rad"}.get(t.upper(), unit)
+        full = full or t.upper() == b":FULLY-SPECIFIED"
+        i += 1
+    return unit, full, i
+
+
 def _close_frame(frames: list[dict], ln: int) -> None:
     if not frames[-1] or (len(frames) > 1 and set(frames[-1]) != set(frames[0])):
         raise Reject(ln, "incomplete frame")
@@ -145,7 +153,7 @@ def amc_arrays(content: dict, skeleton) -> tuple[np.ndarray, np.ndarray]:
     angles = np.zeros((t, nj, 3))  # k-th rotation dof of each joint (0 where it has fewer)
     axes = np.zeros((nj, 3, 3))
     axes[:, :, 0] = 1.0
-    for j, (name, chans) in enumerate(zip(skeleton.names, skeleton.channels)):
+    for j, (name, chans) in enumerate(zip(skeleton.names, skeleton.channels, strict=True)):
         vals = content["values"].get(name)
         k = 0
         for c, ch in enumerate(chans if vals is not None else ()):
@@ -167,6 +175,21 @@ def amc_arrays(content: dict, skeleton) -> tuple[np.ndarray, np.ndarray]:
 _CHANNELS = {b"xposition", b"yposition", b"zposition", b"xrotation", b"yrotation", b"zrotation"}
 
 
+def _name_end_sites(joints: list[dict]) -> None:
+    """Refuse duplicate joint names; name each End Site ``<parent>_end``, ``_end2``..."""
+    used = {j["name"] for j in joints if j["name"] is not None}
+    if len(used) != sum(j["name"] is not None for j in joints):
+        raise Reject(1, "duplicate joint names")
+    for j in joints:
+        if j["name"] is None:
+            base, k = joints[j["parent"]]["name"] + "_end", 2
+            name = base
+            while name in used:
+                name, k = f"{base}{k}", k + 1
+            j["name"] = name
+            used.add(name)
+
+
 def read_bvh(data: bytes, scale: float = 1.0) -> dict:
     """What a BVH file says: ``names, parents, offsets (J, 3), channels, table (T, C),
     frame_time``; ``scale`` (metres per file unit) only sets the bounds."""
@@ -183,18 +206,8 @@ def read_bvh(data: bytes, scale: float = 1.0) -> dict:
     pos = _bvh_joint(words, 2, -1, False, joints)
     if words[pos][0] != b"":
         raise Reject(words[pos][1], "words after the root joint")
-    used = {j["name"] for j in joints if j["name"] is not None}
-    if len(used) != sum(j["name"] is not None for j in joints):
-        raise Reject(1, "duplicate joint names")
-    for j in joints:
-        if j["name"] is None:
-            base, k = joints[j["parent"]]["name"] + "_end", 2
-            name = base
-            while name in used:
-                name, k = f"{base}{k}", k + 1
-            j["name"] = name
-            used.add(name)
-    head = [ln.strip() for ln in lines[m + 1:m + 3]] + [b"", b""]
+    _name_end_sites(joints)
+    head = [ln.strip() for ln in lines[m + 1 : m + 3]] + [b"", b""]
     if not head[0].lower().startswith(b"frames:") or not head[1].lower().startswith(b"frame time:"):
         raise Reject(m + 2, "expected Frames: and Frame Time:")
     frames, dt_word = head[0][7:].strip(), head[1][11:].strip()
@@ -221,9 +234,14 @@ def read_bvh(data: bytes, scale: float = 1.0) -> dict:
     for c, rotation in enumerate(kinds):
         if np.abs(table[:, c]).max() > (MAX_DEGREES if rotation else MAX_METRES / scale):
             raise Reject(m + 4, "channel out of bounds")
-    return {"names": [j["name"] for j in joints], "parents": [j["parent"] for j in joints], "offsets": offsets,
-            "channels": [tuple(c.decode("latin-1") for c in j["channels"]) for j in joints],
-            "table": table, "frame_time": dt}
+    return {
+        "names": [j["name"] for j in joints],
+        "parents": [j["parent"] for j in joints],
+        "offsets": offsets,
+        "channels": [tuple(c.decode("latin-1") for c in j["channels"]) for j in joints],
+        "table": table,
+        "frame_time": dt,
+    }
 
 
 def _bvh_joint(words: list[tuple[bytes, int]], pos: int, parent: int, end_site: bool, joints: list[dict]) -> int:
@@ -249,7 +267,7 @@ def _bvh_joint(words: list[tuple[bytes, int]], pos: int, parent: int, end_site: 
                 raise Reject(ln, "joint without OFFSET")
             return pos + 1
         if key == b"OFFSET" and joint["offset"] is None:
-            vals = [number(x) for x, _ in words[pos + 1:pos + 4]]
+            vals = [number(x) for x, _ in words[pos + 1 : pos + 4]]
             if len(vals) != 3 or any(v is None for v in vals):
                 raise Reject(ln, "expected 3 OFFSET numbers")
             joint["offset"] = vals
@@ -259,9 +277,12 @@ def _bvh_joint(words: list[tuple[bytes, int]], pos: int, parent: int, end_site: 
             cnt = words[pos + 1][0]
             if not cnt.isdigit() or int(cnt) > 6:
                 raise Reject(ln, "expected a channel count of at most 6")
-            chans = [x for x, _ in words[pos + 2:pos + 2 + int(cnt)]]
-            if len(chans) != int(cnt) or any(c.lower() not in _CHANNELS for c in chans) \
-                    or len({c.lower() for c in chans}) != len(chans):
+            chans = [x for x, _ in words[pos + 2 : pos + 2 + int(cnt)]]
+            if (
+                len(chans) != int(cnt)
+                or any(c.lower() not in _CHANNELS for c in chans)
+                or len({c.lower() for c in chans}) != len(chans)
+            ):
                 raise Reject(ln, "bad channels")
             joint["channels"] = tuple(chans)
             pos += 2 + int(cnt)
@@ -299,12 +320,16 @@ def bvh_arrays(content: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray | None
     rot = quat.identity((t, nj))
     for k in range(3):  # intrinsic: each later rotation applies on the right
         rot = quat.mul(rot, quat.from_axis_angle(axes[:, k], angles[:, :, k]))
-    moving = [j for j in range(1, nj) if np.abs(trans[:, j] - offsets[j]).max() > 1e-4 * max(1.0, np.abs(offsets[j]).max())]
+    moving = [
+        j for j in range(1, nj) if np.abs(trans[:, j] - offsets[j]).max() > 1e-4 * max(1.0, np.abs(offsets[j]).max())
+    ]
     local = None
     if moving:
         local = np.broadcast_to(offsets, (t, nj, 3)).copy()
         local[:, moving] = trans[:, moving]
     return trans[:, 0], rot, local
+
+
 # --- TRC ---------------------------------------------------------------------------------
 
 TRC_UNITS = {"mm": 0.001, "cm": 0.01, "m": 1.0, "in": 0.0254, "inch": 0.0254, "dm": 0.1}
@@ -313,6 +338,23 @@ _SPACE = b" \t\r\x0b\x0c"
 
 def _header_words(line: bytes) -> list[bytes]:
     return [w for w in re.split(rb"[ \t]+", line.strip(_SPACE)) if w]
+
+
+def _trc_fields(line: bytes, words: list[bytes], width: int, k: int) -> list[float]:
+    """A data row with gaps: empty or NaN fields (tab separated) read as NaN."""
+    fields = line.split(b"\t") if b"\t" in line else words
+    if len(fields) < width or any(f.strip() for f in fields[width:]):
+        raise Reject(k + 1, f"expected {width} fields")
+    vals = []
+    for f in fields[:width]:
+        f = f.strip()
+        if not f or f.lstrip(b"+-").lower() == b"nan":
+            vals.append(math.nan)
+        elif number(f) is None:
+            raise Reject(k + 1, f"bad field {f!r}")
+        else:
+            vals.append(number(f))
+    return vals
 
 
 def read_trc(data: bytes) -> dict:
@@ -326,7 +368,7 @@ def read_trc(data: bytes) -> dict:
     if len(keys) != len(vals):
         keys = [k.strip(_SPACE) for k in head[1].split(b"\t")]
         vals = [v.strip(_SPACE) for v in head[2].split(b"\t")]
-    info = {k: v for k, v in zip(keys, vals) if k}
+    info = {k: v for k, v in zip(keys, vals, strict=False) if k}
     nf, nm = info.get(b"NumFrames", b""), info.get(b"NumMarkers", b"")
     rate = number(info.get(b"DataRate") or info.get(b"CameraRate") or b"")
     if not (nf.isdigit() and nm.isdigit() and int(nf) >= 1 and int(nm) >= 1) or rate is None or not 0 < rate <= MAX_FPS:
@@ -349,21 +391,15 @@ def read_trc(data: bytes) -> dict:
             continue
         vals = numbers(words) if len(words) == width else None
         if vals is None:
-            fields = line.split(b"\t") if b"\t" in line else words
-            if len(fields) < width or any(f.strip() for f in fields[width:]):
-                raise Reject(k + 1, f"expected {width} fields")
-            vals = []
-            for f in fields[:width]:
-                f = f.strip()
-                if not f or f.lstrip(b"+-").lower() == b"nan":
-                    vals.append(math.nan)
-                elif number(f) is None:
-                    raise Reject(k + 1, f"bad field {f!r}")
-                else:
-                    vals.append(number(f))
+            vals = _trc_fields(line, words, width, k)
         frame, time = vals[0], vals[1]
-        if not (math.isfinite(frame) and math.isfinite(time) and abs(frame) < 1e9 and frame == int(frame)
-                and abs(time) < 1e9):
+        if not (
+            math.isfinite(frame)
+            and math.isfinite(time)
+            and abs(frame) < 1e9
+            and frame == int(frame)
+            and abs(time) < 1e9
+        ):
             raise Reject(k + 1, "bad frame number or time")
         rows.append(vals)
     if len(rows) != n_frames:
@@ -373,5 +409,9 @@ def read_trc(data: bytes) -> dict:
     if (np.abs(pos) > MAX_METRES).any():
         raise Reject(6, "marker out of bounds")
     pos[np.isnan(pos).any(-1)] = np.nan
-    return {"labels": tuple(lb.decode("latin-1") for lb in labels), "rate": rate,
-            "first_frame": int(table[0, 0]), "positions": pos}
+    return {
+        "labels": tuple(lb.decode("latin-1") for lb in labels),
+        "rate": rate,
+        "first_frame": int(table[0, 0]),
+        "positions": pos,
+    }

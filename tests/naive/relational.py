@@ -5,11 +5,13 @@ primitives, the one-pass feature program), ``plugins/relational/segmentation.py`
 the inverted-list hits of ``plugins/relational/inverted.py`` and the kernels of
 ``plugins/relational/_match_kernels.py`` (m-mismatch scan, banded DTW).
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from mocapflow.framework.joints import CANONICAL_JOINTS
+from mocapflow.plugins.relational.features import THRESHOLDS
 
 
 # --- geometry (float64, straight from the definitions) ---------------------------------
@@ -49,26 +51,23 @@ def angle_between(a0, a1, b0, b1):
 def speed(p, fps, offsets):
     """Per clip: central differences inside, one-sided at the ends, 0 for 1-frame clips."""
     out = np.zeros(len(p))
-    for a, b in zip(offsets[:-1], offsets[1:]):
+    for a, b in zip(offsets[:-1], offsets[1:], strict=True):
         for i in range(a, b):
             lo, hi = max(i - 1, a), min(i + 1, b - 1)
             out[i] = 0.0 if hi == lo else np.linalg.norm(p[hi] - p[lo]) * fps / (hi - lo)
     return out
 
 
-def hysteresis(on, stay, offsets):
-    out = np.zeros_like(on)
-    for a, b in zip(offsets[:-1], offsets[1:]):
-        state = np.zeros(on.shape[1:], bool)
-        for i in range(a, b):
-            state = np.where(on[i], True, np.where(~stay[i], False, state))
-            out[i] = state
-    return out
-
-
 # --- the 31 features ------------------------------------------------------------------
-_FALLBACK = {"ltoes": "lankle", "rtoes": "rankle", "lfingers": "lwrist", "rfingers": "rwrist",
-             "headtop": "head", "chest": "upperback", "neck": "head"}
+_FALLBACK = {
+    "ltoes": "lankle",
+    "rtoes": "rankle",
+    "lfingers": "lwrist",
+    "rfingers": "rwrist",
+    "headtop": "head",
+    "chest": "upperback",
+    "neck": "head",
+}
 
 
 def feature_values(features, positions, fps, offsets):
@@ -110,17 +109,18 @@ def feature_values(features, positions, fps, offsets):
 
 def feature_bits(features, params, positions, fps, measures, offsets):
     values = feature_values(features, positions, fps, offsets)
-    scale = {"hl": measures["humerus_length"], "hl/s": measures["humerus_length"],
-             "sw": measures["shoulder_width"], "hw": measures["hip_width"], "deg": 1.0}
+    scale = {
+        "hl": measures["humerus_length"],
+        "hl/s": measures["humerus_length"],
+        "sw": measures["shoulder_width"],
+        "hw": measures["hip_width"],
+        "deg": 1.0,
+    }
     out = np.zeros(values.shape, bool)
-    on = np.zeros(values.shape, bool)
     for i, d in enumerate(features):
-        thr, strict = getattr(params, d.param)
+        thr = params.thresholds.get(d.param, THRESHOLDS[d.param])
         s = scale[d.unit]
         out[:, i] = values[:, i] < thr * s if d.below else values[:, i] >= thr * s
-        on[:, i] = values[:, i] < strict * s if d.below else values[:, i] >= strict * s
-    if params.hysteresis:
-        out = hysteresis(on & out, out, offsets)
     return out
 
 
@@ -128,7 +128,7 @@ def feature_bits(features, params, positions, fps, measures, offsets):
 def segments(codes, offsets):
     """List of (start, end, code, clip) of maximal runs, split at clip boundaries."""
     out = []
-    for c, (a, b) in enumerate(zip(offsets[:-1], offsets[1:])):
+    for c, (a, b) in enumerate(zip(offsets[:-1], offsets[1:], strict=True)):
         i = a
         while i < b:
             j = i
@@ -141,14 +141,16 @@ def segments(codes, offsets):
 
 def exact_hits(w, clip, query):
     n = len(query)
-    return [k for k in range(len(w) - n + 1)
-            if all(w[k + i] == query[i] for i in range(n)) and clip[k] == clip[k + n - 1]]
+    return [
+        k for k in range(len(w) - n + 1) if all(w[k + i] == query[i] for i in range(n)) and clip[k] == clip[k + n - 1]
+    ]
 
 
 def fuzzy_hits(w, clip, sets):
     n = len(sets)
-    return [k for k in range(len(w) - n + 1)
-            if all(w[k + i] in sets[i] for i in range(n)) and clip[k] == clip[k + n - 1]]
+    return [
+        k for k in range(len(w) - n + 1) if all(w[k + i] in sets[i] for i in range(n)) and clip[k] == clip[k + n - 1]
+    ]
 
 
 def adaptive_hits(w, clip, sets):
@@ -161,7 +163,7 @@ def adaptive_hits(w, clip, sets):
         bounds = [k]
         pos = k
         ok = True
-        for level, v in enumerate(sets):
+        for v in sets:
             if pos >= len(w) or clip[pos] != clip[k] or w[pos] not in v:
                 ok = False
                 break
@@ -192,8 +194,8 @@ def dtw(a, b, lo=None, hi=None):
     cost = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
     if lo is not None:
         for i in range(n):
-            cost[i, :max(lo[i], 0)] = np.inf
-            cost[i, min(hi[i], m):] = np.inf
+            cost[i, : max(lo[i], 0)] = np.inf
+            cost[i, min(hi[i], m) :] = np.inf
     acc = np.full((n + 1, m + 1), np.inf)
     acc[0, 0] = 0.0
     for i in range(1, n + 1):
@@ -206,14 +208,30 @@ def dtw(a, b, lo=None, hi=None):
 #: A standing pose facing +z, left = +x, y up, metres (humerus 0.28, shoulders 0.4, hips 0.2).
 STANDING = {
     "root": (0, 1.0, 0),
-    "lhip": (0.1, 0.95, 0), "lknee": (0.1, 0.5, 0), "lankle": (0.1, 0.08, 0), "ltoes": (0.1, 0.0, 0.12),
-    "rhip": (-0.1, 0.95, 0), "rknee": (-0.1, 0.5, 0), "rankle": (-0.1, 0.08, 0), "rtoes": (-0.1, 0.0, 0.12),
-    "lowerback": (0, 1.1, 0), "upperback": (0, 1.25, 0), "chest": (0, 1.35, 0), "neck": (0, 1.5, 0),
-    "head": (0, 1.6, 0), "headtop": (0, 1.75, 0),
-    "lclavicle": (0.05, 1.45, 0), "lshoulder": (0.2, 1.45, 0), "lelbow": (0.25, 1.17, 0),
-    "lwrist": (0.3, 0.92, 0), "lfingers": (0.32, 0.82, 0),
-    "rclavicle": (-0.05, 1.45, 0), "rshoulder": (-0.2, 1.45, 0), "relbow": (-0.25, 1.17, 0),
-    "rwrist": (-0.3, 0.92, 0), "rfingers": (-0.32, 0.82, 0),
+    "lhip": (0.1, 0.95, 0),
+    "lknee": (0.1, 0.5, 0),
+    "lankle": (0.1, 0.08, 0),
+    "ltoes": (0.1, 0.0, 0.12),
+    "rhip": (-0.1, 0.95, 0),
+    "rknee": (-0.1, 0.5, 0),
+    "rankle": (-0.1, 0.08, 0),
+    "rtoes": (-0.1, 0.0, 0.12),
+    "lowerback": (0, 1.1, 0),
+    "upperback": (0, 1.25, 0),
+    "chest": (0, 1.35, 0),
+    "neck": (0, 1.5, 0),
+    "head": (0, 1.6, 0),
+    "headtop": (0, 1.75, 0),
+    "lclavicle": (0.05, 1.45, 0),
+    "lshoulder": (0.2, 1.45, 0),
+    "lelbow": (0.25, 1.17, 0),
+    "lwrist": (0.3, 0.92, 0),
+    "lfingers": (0.32, 0.82, 0),
+    "rclavicle": (-0.05, 1.45, 0),
+    "rshoulder": (-0.2, 1.45, 0),
+    "relbow": (-0.25, 1.17, 0),
+    "rwrist": (-0.3, 0.92, 0),
+    "rfingers": (-0.32, 0.82, 0),
 }
 
 
@@ -232,8 +250,13 @@ def star_skeleton(rest: np.ndarray | None = None):
     offsets = rest - rest[0]
     offsets[0] = 0
     parents = np.r_[-1, np.zeros(len(CANONICAL_JOINTS) - 1, dtype=int)]
-    return Skeleton(names=CANONICAL_JOINTS, parents=parents, offsets=offsets,
-                    canonical={j: i for i, j in enumerate(CANONICAL_JOINTS)}, name="star")
+    return Skeleton(
+        names=CANONICAL_JOINTS,
+        parents=parents,
+        offsets=offsets,
+        canonical={j: i for i, j in enumerate(CANONICAL_JOINTS)},
+        name="star",
+    )
 
 
 def motion_from_positions(frames: np.ndarray, fps: float = 30.0, name: str = "synthetic"):

@@ -2,6 +2,7 @@
 
 Full matrices straight from the recurrences (motion templates, Müller & Röder 2006).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -40,7 +41,9 @@ def local_cost(template, bits, weights=None):
         for j in range(len(bits)):
             total = sum(w[k, f] for f in range(t.shape[1]) if care[k, f])
             if total > 0:
-                out[k, j] = sum(w[k, f] * abs(t[k, f] - float(bits[j][f])) for f in range(t.shape[1]) if care[k, f]) / total
+                out[k, j] = (
+                    sum(w[k, f] * abs(t[k, f] - float(bits[j][f])) for f in range(t.shape[1]) if care[k, f]) / total
+                )
     return out
 
 
@@ -80,13 +83,20 @@ def template_hits(cost, start, threshold, min_gap=0.5, ranges=None):
     beyond its ends counting as inf."""
     c = np.asarray(cost, float)
     ranges = [(0, len(c))] if ranges is None else [tuple(r) for r in ranges]
-    cand = [j for lo, hi in ranges for j in range(lo, hi) if c[j] <= threshold and (j == lo or c[j - 1] >= c[j])
-            and (j + 1 == hi or c[j + 1] > c[j])]
+    cand = [
+        j
+        for lo, hi in ranges
+        for j in range(lo, hi)
+        if c[j] <= threshold and (j == lo or c[j - 1] >= c[j]) and (j + 1 == hi or c[j + 1] > c[j])
+    ]
     cand.sort(key=lambda j: c[j])  # stable: equal costs keep frame order
     acc = []
     for j in cand:
         s, e = int(start[j]), j + 1
         if all(min(e, e2) - max(s, s2) <= min_gap * min(e - s, e2 - s2) for s2, e2, _ in acc):
             acc.append((s, e, c[j]))
-    return (np.array([a[0] for a in acc], np.int64), np.array([a[1] for a in acc], np.int64),
-            np.array([a[2] for a in acc], float))
+    return (
+        np.array([a[0] for a in acc], np.int64),
+        np.array([a[1] for a in acc], np.int64),
+        np.array([a[2] for a in acc], float),
+    )

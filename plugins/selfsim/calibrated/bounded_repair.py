@@ -1,0 +1,243 @@
+"""Repair of the calibrated cleaner: only flagged cells, bounded, never away from consensus.
+
+For the cells the calibrated decision (:mod:`.decision`) flags (analysis rate, texture joints):
+
+1. *Swapped limbs*: on the frames where a left/right chain pair is flagged by the mirror
+   cue, swapping back makes the chains smoother at both ends of the run, and that cue says
+   the limbs are nearer their consensus once exchanged (the summed gain exceeds
+   :data:`.constants.SWAP_GAIN` radians), both chains are swapped back (left <- mirrored right and the
+   reverse), which undoes a marker mislabelling exactly; so are the swaps found by their
+   edges (:mod:`.swaps`), whatever the flags.
+2. *Other flagged runs* (consecutive flagged frames of one joint) take the rotations of
+   the median KNN word (:func:`..paper.repair._propose`, the paper's §4) corrected by a
+   displacement map: the offset between the KNN word and the take at the two frames that
+   bound the run, interpolated (slerp) across it, so the repair joins the take without a
+   jump and keeps the KNN word's shape (this replaces the Savitzky-Golay blend of the
+   paper; ``mode: paper`` keeps that one). Cells the mirror cue flagged whose swap-back
+   did not hold up are left as they are.
+3. *Bounds*: a cell keeps its value when the repair would not bring it nearer its KNN
+   consensus T̄; an edit larger than the cell's digression plus its KNN spread (what the
+   evidence supports) is shortened to that along the geodesic. No cell ends farther from
+   T̄ than it was, so no clip ends farther from its consensus.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapflow.framework import quaternions as quat
+
+from .cues import acceleration, chain_columns, mirror, mirror_gain
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Half-open [start, end) runs of True in a 1-D mask."""
+    if not mask.any():
+        return []
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+def _edge_roughness(q: np.ndarray, cols: np.ndarray, a: int, b: int) -> float:
+    """Summed acceleration (radians) of the ``cols`` joints on the frames that bound ``[a, b)``."""
+    total = 0.0
+    for f in (a - 1, a, b - 1, b):
+        if 1 <= f < len(q) - 1:
+            total += float(acceleration(q[f - 1 : f + 2][:, cols])[1].sum())
+    return total
+
+
+def _swapped(q: np.ndarray, lc: np.ndarray, rc: np.ndarray, a: int, b: int) -> np.ndarray:
+    back = q.copy()
+    back[a:b, lc] = mirror(q[a:b, rc])
+    back[a:b, rc] = mirror(q[a:b, lc])
+    return back
+
+
+def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
+    out: list[list[int]] = []
+    for a, b in runs:
+        if out and a - out[-1][1] <= gap:
+            out[-1][1] = b
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
+def swap_frames(
+    q: np.ndarray,
+    mean_q: np.ndarray,
+    joints,
+    flags: np.ndarray,
+    swap_gain: float,
+    slack: int = 8,
+    skip: list | None = None,
+) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
+    """(left columns, right columns, start, end) of the runs to swap back.
+
+    Candidates are the runs (gaps of up to ``slack`` frames merged) where the chain-pair
+    mirror gain exceeds ``swap_gain`` radians and a chain cell is flagged. A mislabelling
+    starts and stops with a jump that swapping back removes, so each candidate's ends are
+    moved by up to ``slack`` frames to where the swapped-back chains are smoothest, and the
+    swap is kept only when they are then smoother at both ends than the take (a clean limb
+    that merely resembles its mirror has no jump there; swapping it would create them)."""
+    out = []
+    gain = mirror_gain(q, mean_q, joints)
+    t = len(q)
+    for lc, rc in chain_columns(list(joints)):
+        cols = np.concatenate([lc, rc])
+        for a0, b0 in _merge(_runs(gain[:, cols].max(axis=1) > swap_gain), slack):
+            if not flags[a0:b0][:, cols].any():
+                continue
+            if skip and any(lc[0] == l2[0] and a0 < b2 + slack and a2 < b0 + slack for l2, _, a2, b2 in skip):
+                continue  # an edge swap of this chain pair is there already
+            best = None
+            for a in range(max(0, a0 - slack), min(a0 + slack, b0 - 1) + 1):
+                for b in range(max(a + 1, b0 - slack), min(t, b0 + slack) + 1):
+                    lo = max(0, a - 2)
+                    # the window around [a, b) only: the same as swapping the whole take, without its copy
+                    back = quat.make_continuous(
+                        _swapped(q[lo : min(t, b + 2)], lc, rc, a - lo, b - lo)[:, cols], axis=0
+                    )
+                    after = _edge_roughness(back, np.arange(len(cols)), a - lo, b - lo)
+                    if best is None or after < best[0]:
+                        best = (after, a, b)
+            after, a, b = best
+            if after < _edge_roughness(q, cols, a, b):
+                out.append((lc, rc, a, b))
+    return out
+
+
+def bounded_repair(
+    res, flags: np.ndarray, mirror_flags: np.ndarray, cap: np.ndarray, no_merge: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Repaired texture (T, m, 4), the edited cells, which were swapped and which were
+    repaired as offsets (each (T, m); offsets may lie outside ``flags``: the interval
+    between the jumps).
+
+    Parameters
+    ----------
+    res : DigressionResult
+        The take's analysis (texture, T̄, spread, KNN).
+    flags : ndarray of bool, shape (T, m)
+        Cells to repair.
+    mirror_flags : ndarray of bool, shape (T, m)
+        Cells the mirror cue flagged: only runs holding one are swapped back
+        (:func:`swap_frames`, where no swap found by its edges, :func:`.swaps.swap_edges`,
+        overlaps them); the others are left as they are.
+    cap : ndarray of shape (T, m)
+        Largest edit per cell, radians (on top of the evidence bound); swaps are not capped.
+    no_merge : ndarray of bool, shape (T, m)
+        Cells no merged gap may include (flags a rule dropped on purpose).
+
+    Flagged runs of one joint at most :data:`.constants.MERGE_GAP` frames apart are repaired
+    as one run (the gap included: a burst of jitter flags its extreme frames only). A run
+    whose two ends are consistent jumps of at least :data:`.constants.OFFSET_LEVEL` typical
+    accelerations of the joint (and 8 degrees) is repaired by taking the offset out over the
+    whole interval between the jumps (:mod:`.offsets`) when that lowers its mean digression.
+    """
+    from ..paper.repair import _propose
+    from .constants import MERGE_GAP, OFFSET_LEVEL, SWAP_GAIN, SWAP_LEVEL, SWAP_MAX
+    from .swaps import swap_edges
+
+    q = res.texture.q
+    mean_q = res.mean_texture
+    t_count, m = q.shape[:2]
+    new = q.copy()
+    swapped = np.zeros((t_count, m), bool)
+    offset = np.zeros((t_count, m), bool)
+    edge_swaps = swap_edges(q, res.joints, SWAP_LEVEL, max_len=SWAP_MAX)
+    if not flags.any() and not edge_swaps:
+        return new, np.zeros((t_count, m), bool), swapped, offset
+    runs = list(edge_swaps)
+    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, mirror_flags, SWAP_GAIN, skip=edge_swaps):
+        if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in edge_swaps):
+            runs.append((lc, rc, a, b))
+    for lc, rc, a, b in runs:
+        new[a:b, lc] = mirror(q[a:b, rc])
+        new[a:b, rc] = mirror(q[a:b, lc])
+        swapped[a:b, np.concatenate([lc, rc])] = True
+    # the mirror flags' evidence was for a swap that did not hold up: leave them
+    rest = flags & ~swapped & ~mirror_flags
+    for j in np.flatnonzero(rest.any(axis=0)):
+        for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:], strict=True):
+            if a2 - b <= MERGE_GAP and not swapped[b:a2, j].any() and not no_merge[b:a2, j].any():
+                rest[b:a2, j] = True
+    if rest.any() and res.neighbours:
+        around = rest.copy()
+        around[1:] |= rest[:-1]
+        around[:-1] |= rest[1:]
+        proposal = np.full((t_count, m, 4), np.nan)
+        n = res.neighbours[0].warped.shape[3]
+        for neigh in res.neighbours:
+            _propose(neigh, n, q, around, proposal, res, ())
+        for j in np.flatnonzero(rest.any(axis=0)):
+            for a, b in _runs(rest[:, j]):
+                if not _offset_run(q, mean_q, new, j, a, b, OFFSET_LEVEL, offset):
+                    _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
+    # bounds: nearer the consensus, never more than the evidence
+    before = quat.geodesic_angle(q, mean_q)
+    after = quat.geodesic_angle(new, mean_q)
+    # an edge swap is verified by its jumps, not by T̄ (the consensus adapts to a swapped
+    # limb in mid-interval): kept whole, never shortened cell by cell
+    exempt = np.zeros((t_count, m), bool)
+    for lc, rc, a, b in edge_swaps:
+        exempt[a:b, np.concatenate([lc, rc])] = True
+    exempt |= offset  # verified by its two jumps and its run's mean digression (_offset_run)
+    worse = (after >= before - 1e-9) & ~exempt
+    new[worse] = q[worse]
+    edit = quat.geodesic_angle(new, q)
+    limit = before + np.asarray(res.spread if res.spread is not None else 0.0)
+    limit = np.where(swapped, limit, np.minimum(limit, cap))
+    over = (edit > limit + 1e-9) & ~exempt
+    if over.any():
+        frac = limit[over] / edit[over]
+        new[over] = quat.slerp(q[over], new[over], frac)
+    edited = np.any(new != q, axis=-1)  # exact: an angle test near 0 is rounding noise
+    return new, edited, swapped & edited, offset & edited
+
+
+def _offset_run(
+    q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, j: int, a0: int, b0: int, level: float, offset: np.ndarray
+) -> bool:
+    """Repair the flagged run ``[a0, b0)`` of joint ``j`` as an offset (:mod:`.offsets`) when
+    its ends are found and the repair lowers the interval's mean digression; True if done."""
+    from .cues import acceleration
+    from .offsets import offset_interval, remove_offset
+
+    acc = np.median(acceleration(q[:, j : j + 1])[1:-1, 0]) if len(q) > 2 else 0.0
+    found = offset_interval(q[:, j], a0, b0, max(level * 2.0 * acc, np.deg2rad(8.0)))
+    if found is None:
+        return False
+    a, b, off_a, off_b = found
+    if offset[a:b, j].any():
+        return True  # an earlier run of this joint already took this interval
+    rep = remove_offset(q[:, j], a, b, off_a, off_b)
+    before = quat.geodesic_angle(q[a:b, j], mean_q[a:b, j]).mean()
+    if quat.geodesic_angle(rep, mean_q[a:b, j]).mean() >= before:
+        return False
+    new[a:b, j] = rep
+    offset[a:b, j] = True
+    return True
+
+
+def _displaced(track: np.ndarray, prop: np.ndarray, out: np.ndarray, a: int, b: int) -> None:
+    """Write the KNN proposal over ``[a, b)`` into ``out``, corrected at both ends to join ``track``."""
+    seg = prop[a:b]
+    ok = ~np.isnan(seg[:, 0])
+    if not ok.any():
+        return
+    t_count = len(track)
+    ident = quat.identity(())
+
+    def offset(f: int) -> np.ndarray:
+        if 0 <= f < t_count and not np.isnan(prop[f, 0]):
+            return quat.normalize(quat.mul(quat.conjugate(prop[f]), track[f]))
+        return ident
+
+    d0, d1 = offset(a - 1), offset(b)
+    u = (np.arange(a, b) - a + 1) / (b - a + 1)
+    corr = quat.slerp(np.broadcast_to(d0, (b - a, 4)), np.broadcast_to(d1, (b - a, 4)), u)
+    rep = quat.normalize(quat.mul(np.where(ok[:, None], seg, track[a:b]), corr))
+    rep = np.where(np.sum(rep * track[a:b], -1, keepdims=True) < 0, -rep, rep)
+    out[a:b] = np.where(ok[:, None], rep, out[a:b])

@@ -1,0 +1,228 @@
+"""Per-cell evidence of a capture error ("cues") for the calibrated cleaner.
+
+Every cue is a ``(T, m)`` array over the analysis texture (frames x texture joints),
+computed from the texture ``T`` and its KNN consensus ``T̄`` (:mod:`..paper.mdm`). Raw cues
+are angles in radians (or a log ratio); the calibration (:mod:`.calibration`) measures each
+in units of that joint's typical value on clean cells.
+
+=============  ===========================================================================
+raw cue        what it measures (the error kinds it targets)
+=============  ===========================================================================
+digression     geodesic angle between T and T̄ (§3.4 of the paper; offsets, freezes, swaps)
+acceleration   angle between ``T[t]`` and the midpoint of ``T[t-1]`` and ``T[t+1]`` (spikes,
+               jitter, the edges of offsets and swaps, flips)
+expected_acc   the same on T̄: how much acceleration the neighbours show there (fast joints)
+mirror         how much closer the two limbs of a left/right chain pair are to the *mirrored*
+               consensus of their counterparts than to their own, summed over both chains
+               (swapped limbs)
+hold           length (frames) of the *hold* holding the cell: consecutive frames turning
+               less than :data:`.constants.HOLD_SPEED` (0 elsewhere; frozen joints)
+held_freeze    log of the consensus' mean speed over the take's own speed at the cell
+=============  ===========================================================================
+
+:func:`cue_values` turns them into the cues of the detector (:data:`.constants.CUES`),
+adding *persistence* (the digression must last 3 frames) and *group agreement* (divided by
+the frame's median over the joints).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from mocapflow.framework import quaternions as quat
+
+from .constants import ACC_PERSIST, FREEZE_HOLD, HOLD_SPEED, JITTER_HALF
+
+#: Limb chains whose left/right exchange the mirror cue looks for (canonical names).
+MIRROR_CHAINS: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
+    (("lshoulder", "lelbow", "lwrist"), ("rshoulder", "relbow", "rwrist")),
+    (("lhip", "lknee", "lankle"), ("rhip", "rknee", "rankle")),
+)
+
+
+def mirror(q: np.ndarray) -> np.ndarray:
+    """Mirror local rotations across the sagittal (y-z) plane: (w, x, y, z) -> (w, x, -y, -z)."""
+    out = np.array(q, dtype=float, copy=True)
+    out[..., 2:] *= -1.0
+    return out
+
+
+def acceleration(q: np.ndarray) -> np.ndarray:
+    """Angle between each frame and the midpoint of its two neighbours, radians, (T, m); 0 at the ends."""
+    out = np.zeros(q.shape[:2])
+    if len(q) >= 3:
+        mid = quat.slerp(q[:-2], q[2:], np.full(q[1:-1].shape[:-1], 0.5))
+        out[1:-1] = quat.geodesic_angle(q[1:-1], mid)
+    return out
+
+
+def _window_mean(x: np.ndarray, half: int) -> np.ndarray:
+    """Mean over ``[t - half, t + half]`` along time (shrunk at the ends)."""
+    c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
+    t = np.arange(len(x))
+    lo, hi = np.maximum(t - half, 0), np.minimum(t + half + 1, len(x))
+    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+
+
+def speed(q: np.ndarray) -> np.ndarray:
+    """Frame-to-frame rotation angle, radians per frame, (T, m) (the last frame repeats)."""
+    if len(q) < 2:
+        return np.zeros(q.shape[:2])
+    v = quat.geodesic_angle(q[1:], q[:-1])
+    return np.concatenate([v, v[-1:]], axis=0)
+
+
+def chain_columns(joints: Sequence[str]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Texture columns (left, right) of each :data:`MIRROR_CHAINS` pair present in ``joints``."""
+    out = []
+    for left, right in MIRROR_CHAINS:
+        if all(j in joints for j in left + right):
+            out.append((np.array([joints.index(j) for j in left]), np.array([joints.index(j) for j in right])))
+    return out
+
+
+def mirror_gain(
+    q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str], joint_margin: float = np.deg2rad(5.0)
+) -> np.ndarray:
+    """Per frame and chain joint: summed over the chain pair, the digression minus the angle
+    to the mirrored consensus of the counterpart (radians; > 0 where swapping back brings the
+    limbs nearer their consensus), kept on the joints that themselves gain more than
+    ``joint_margin`` (a joint that looks the same mirrored carries no evidence). 0 on joints
+    outside the chains."""
+    out = np.zeros(q.shape[:2])
+    for lc, rc in chain_columns(list(joints)):
+        cols = np.concatenate([lc, rc])
+        other = np.concatenate([rc, lc])
+        own = quat.geodesic_angle(q[:, cols], mean_q[:, cols])
+        swapped = quat.geodesic_angle(q[:, cols], mirror(mean_q[:, other]))
+        gain = own - swapped
+        out[:, cols] = np.where(gain > joint_margin, gain.sum(1, keepdims=True), 0.0)
+    return out
+
+
+def raw_cues(q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str]) -> dict[str, np.ndarray]:
+    """Every raw cue of the module doc for one analysed texture ``q`` and its consensus
+    ``mean_q`` (T, m, 4) of the texture joints ``joints``: dict of (T, m) arrays."""
+    floor = np.deg2rad(0.2)
+    v = speed(q)
+    return {
+        "hold": hold_lengths(v)[0],
+        "held_freeze": np.maximum(np.log((_window_mean(speed(mean_q), 4) + floor) / (v + floor)), 0.0),
+        "digression": quat.geodesic_angle(q, mean_q),
+        "acceleration": acceleration(q),
+        "expected_acc": acceleration(mean_q),
+        "mirror": mirror_gain(q, mean_q, joints),
+    }
+
+
+def hold_lengths(v: np.ndarray, still: float = HOLD_SPEED) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell, the length of the hold it lies in, and whether that hold touches an end.
+
+    Parameters
+    ----------
+    v : ndarray of shape (T, m)
+        Frame-to-frame speed, radians per frame (:func:`speed`: ``v[t]`` is the step t -> t+1).
+    still : float
+        Radians per frame below which a step is still.
+
+    Returns
+    -------
+    length : ndarray of shape (T, m), float
+        Frames of the hold holding the cell (a frame is held when the step into it or out of
+        it is still: a held value is the same pose on both sides of a still step), 0 on cells
+        in no hold.
+    edge : ndarray of bool, shape (T, m)
+        Cells of holds that include the first or the last frame.
+    """
+    calm = v < still  # step t -> t+1 still (speed() repeats the last step into the last frame)
+    held = calm.copy()
+    held[1:] |= calm[:-1]
+    length = np.zeros(v.shape, float)
+    edge = np.zeros(v.shape, bool)
+    t = len(v)
+    for j in range(v.shape[1]):
+        d = np.diff(np.concatenate([[0], held[:, j].astype(np.int8), [0]]))
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
+            length[a:b, j] = b - a
+            edge[a:b, j] = a == 0 or b == t
+    return length, edge
+
+
+def window_min(x: np.ndarray, half: int) -> np.ndarray:
+    """Smallest value over ``[t - half, t + half]`` along time (shrunk at the ends)."""
+    out = x.copy()
+    for o in range(1, half + 1):
+        out[o:] = np.minimum(out[o:], x[:-o])
+        out[:-o] = np.minimum(out[:-o], x[o:])
+    return out
+
+
+def typical(cue: dict[str, np.ndarray], clean: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Per joint, the median of the digression and acceleration over ``clean`` cells (all
+    cells when None), radians, floored at 0.5 degrees: the scale a cue is measured in."""
+    out = {}
+    for name in ("digression", "acceleration"):
+        x = cue[name] if clean is None else np.where(clean, cue[name], np.nan)
+        med = np.nanmedian(x, axis=0) if np.isfinite(x).any() else np.zeros(x.shape[1])
+        out[name] = np.maximum(np.nan_to_num(med, nan=0.0), np.deg2rad(0.5))
+    return out
+
+
+def persistent(x: np.ndarray, factor: float) -> np.ndarray:
+    """``x`` (T, m) capped at ``factor`` times the larger of its two neighbours in time.
+
+    An injected spike of amplitude A at frame t shows an acceleration of about A at t and
+    A / 2 at t - 1 and t + 1 (the neighbours' midpoints hold half the spike); a step (the
+    edge of an offset or a swap) shows D / 2 at two consecutive frames; jitter lasts. A
+    clean fast joint's sharp turn (a knee at heel strike) is a kink: large at one frame,
+    little beside it. With ``factor`` 2 a spike keeps its whole value and an isolated kink
+    is cut down to twice its neighbours'."""
+    if len(x) < 2:
+        return x
+    nb = np.zeros_like(x)
+    nb[1:] = x[:-1]
+    nb[:-1] = np.maximum(nb[:-1], x[1:])
+    return np.minimum(x, factor * nb)
+
+
+def cue_values(
+    cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = ACC_PERSIST
+) -> np.ndarray:
+    """The detector's cues :data:`.constants.CUES`, shape (T, m, 5), unitless.
+
+    * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
+      flickers), in units of the joint's typical digression, divided by the frame's median
+      over the joints when that exceeds 1 (*group agreement*: when every joint digresses,
+      the motion is rare, not broken);
+    * acceleration: the take's acceleration beyond the consensus', in units of the joint's
+      typical acceleration, capped by :func:`persistent` with ``acc_persist`` (None: not;
+      the weights are fitted without the cap and the take is decided with it);
+    * mirror: the chain-pair mirror gain in units of six typical digressions;
+    * freeze: on the cells of a hold of at least :data:`.constants.FREEZE_HOLD` frames, the
+      consensus' speed over the take's own (``held_freeze``), 0 elsewhere: a frozen joint is
+      held, a slow clean one (a stance ankle) still turns;
+    * jitter: the median, over the ``2 JITTER_HALF + 1`` frames centred on the cell, of the
+      acceleration cue (before the cap): high-frequency energy that lasts (jitter,
+      tremor-like noise) where a clean joint has at most an isolated kink.
+    """
+    d = cue["digression"] / scale["digression"]
+    group = np.maximum(np.median(d, axis=1, keepdims=True), 1.0)
+    dig = window_min(d, 1) / group
+    acc = np.maximum(cue["acceleration"] - cue["expected_acc"], 0.0) / scale["acceleration"]
+    jit = window_median(acc, JITTER_HALF)
+    if acc_persist is not None:
+        acc = persistent(acc, acc_persist)
+    mir = cue["mirror"] / np.maximum(6.0 * np.median(scale["digression"]), 1e-3)
+    frz = np.where(cue["hold"] >= FREEZE_HOLD, cue["held_freeze"], 0.0)
+    return np.stack([dig, acc, mir, frz, jit], axis=-1)
+
+
+def window_median(x: np.ndarray, half: int) -> np.ndarray:
+    """Median over ``[t - half, t + half]`` along time, (T, m); the ends padded by reflection."""
+    if len(x) <= half:
+        return np.median(x, axis=0, keepdims=True).repeat(len(x), 0)
+    pad = np.concatenate([x[half:0:-1], x, x[-2 : -half - 2 : -1]], axis=0)
+    win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1, axis=0)
+    return np.median(win, axis=-1)

@@ -1,0 +1,64 @@
+"""Frozen joints repaired as gaps: the held frames filled from the KNN consensus joined to
+the two frames that bound the hold.
+
+A frozen joint (a marker lost and its last value held by the capture software, the
+protocol's ``freeze``) is *held*: from its first frozen frame ``a`` (still its true value)
+to the last, it turns less than :data:`.constants.HOLD_SPEED` per frame, and at ``b`` it
+jumps back to the motion. The bounded repair is no good there: the neighbours were chosen
+on the frozen take, so T̄ is nearly still too, and a repair that only moves a cell nearer
+T̄ changes it by a few degrees. The hold is a gap, filled from its two sides: the
+consensus keeps the motion's shape, a displacement map puts it back where the take is at
+``a`` and ``b``. A hold that touches the first or the last frame has one side only and is
+left to the other repairs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapflow.framework import quaternions as quat
+
+
+def consensus_fill(track: np.ndarray, mean: np.ndarray, a: int, b: int) -> np.ndarray:
+    """Frames ``a + 1 .. b - 1``: the consensus ``mean`` (T, 4) carried by a displacement map that
+    joins ``track`` at ``a`` and ``b`` (the right correction ``mean^-1 track`` slerped between
+    the two ends), (b - a - 1, 4)."""
+    n = b - a
+    u = np.arange(1, n) / n
+    d0 = quat.mul(quat.conjugate(mean[a]), track[a])
+    d1 = quat.mul(quat.conjugate(mean[b]), track[b])
+    delta = quat.slerp(np.broadcast_to(d0, (n - 1, 4)), np.broadcast_to(d1, (n - 1, 4)), u)
+    return quat.normalize(quat.mul(mean[a + 1 : b], delta))
+
+
+def fill_holds(
+    q: np.ndarray, seeds: np.ndarray, min_frames: int, mean_q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The take ``q`` (T, m, 4) with every hold that holds a ``seeds`` cell (the freeze cue's
+    flags) and lasts at least ``min_frames`` frames filled by :func:`consensus_fill` from the
+    consensus ``mean_q``.
+
+    Returns
+    -------
+    new : ndarray (T, m, 4)
+    filled : ndarray of bool (T, m)
+        The cells replaced (the hold's frames after its first).
+    holds : ndarray of bool (T, m)
+        The filled holds, first frame included (the other repairs leave them alone).
+    """
+    from .cues import hold_lengths, speed
+
+    out = q.copy()
+    filled = np.zeros(q.shape[:2], bool)
+    holds = np.zeros(q.shape[:2], bool)
+    length, edge = hold_lengths(speed(q))
+    t = len(q)
+    for j in np.flatnonzero((seeds & (length >= min_frames) & ~edge).any(axis=0)):
+        held = (length[:, j] >= min_frames) & ~edge[:, j]
+        d = np.diff(np.concatenate([[0], held.astype(np.int8), [0]]))
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
+            if seeds[a:b, j].any() and a > 0 and b < t and b - a >= 2:
+                out[a + 1 : b, j] = consensus_fill(q[:, j], mean_q[:, j], a, b)
+                filled[a + 1 : b, j] = True
+                holds[a:b, j] = True
+    return out, filled, holds

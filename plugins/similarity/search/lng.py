@@ -1,0 +1,135 @@
+"""Global motion matching with the lazy neighborhood graph (Krüger et al. 2010, §4.1): ``matchers.lng``.
+
+For a query ``Q = [q_1 .. q_m]``: a kNN search capped at ``k`` gives the neighbour set
+``S(q_i)`` of every query frame; every reported neighbour is a node; the diagonal, vertical
+and horizontal DTW steps between nodes are the edges (never across a clip boundary), each
+costing the distance of the node it points at; a super-source points at all of ``S(q_1)``.
+Shortest paths in this DAG, relaxed once in topological order (:mod:`._lng_kernels`), end in
+the nodes of ``S(q_m)``; the ranked, non-overlapping best of them are the matches. With all
+frames reachable through the neighbour sets the result equals subsequence DTW exactly.
+
+By default the graph is gap-tolerant (:data:`GAPS` query frames of *gap cells* around the
+neighbour cells, their cost computed exactly, :mod:`._gap_kernels`), searches the index on
+every :data:`PROPAGATE`-th query frame only (the sets between propagated along the database),
+and falls back to the certified search (:mod:`.exact`) when it holds fewer than ``count``
+matches; ``paper: true`` is the paper's graph (neighbour cells only, every frame searched,
+no fallback). For one more release ``matchers.lng`` without ``exact: false`` runs the
+certified search (``matchers.search``) and warns.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from mocapflow.framework import Matcher
+from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace
+
+from .graph import build_graph
+
+#: gap band of the default graph, in query frames (measured: docs/global-matching.md)
+GAPS = 32
+#: the default graph searches the index on every this-many-th query frame
+PROPAGATE = 2
+DEPRECATED = (
+    "matchers.lng runs the certified search for one more release; name matchers.search (same results) "
+    "or set exact: false for the lazy neighbourhood graph"
+)
+
+
+def lazy_neighborhood_graph(
+    query: np.ndarray,
+    space: SearchSpace,
+    *,
+    k: int = 256,
+    radius: float | None = None,
+    count: int = 10,
+    max_cost: float | None = None,
+    rank_by: str = "cost",
+    min_span: float = 0.5,
+    propagate: int = PROPAGATE,
+    gaps: int = GAPS,
+    fill: bool = True,
+) -> QueryMatches:
+    """Ranked non-overlapping matches of ``query`` in its graph (:func:`.graph.build_graph`).
+
+    ``fill``: when the graph holds fewer than ``count`` matches, return the certified search's
+    instead (the graph's matches supply its threshold). The paper's LNG is ``gaps=0,
+    propagate=0, fill=False, min_span=0``.
+    """
+    graph = build_graph(query, space, k=k, radius=radius, propagate=propagate, gaps=gaps)
+    res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
+    if fill and len(res) < count and space.features is not None:
+        from .exact import certified_sdtw
+
+        return certified_sdtw(
+            query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span, graph=graph
+        )
+    return res
+
+
+class LazyNeighborhoodGraph(Matcher):
+    """Global motion matching by shortest paths in the lazy neighborhood graph.
+
+    ``database`` is an index dataset (``indexes.*``); query motions are turned into
+    features by the database's feature set, query features are used as they are.
+    """
+
+    name = "lng"
+    needs_index: ClassVar[bool] = True
+    needs_features: ClassVar[bool] = True
+
+    class Params(MatchParams):
+        k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
+        paper: bool = Field(
+            False,
+            description=(
+                "the paper's graph: neighbour cells only, the index searched for every query frame, no fallback; "
+                f"false: gap-tolerant ({GAPS} query frames), propagated sets (every {PROPAGATE}nd frame searched), "
+                "the certified search when the graph holds fewer than count matches"
+            ),
+        )
+        exact: bool | None = Field(
+            None,
+            description=(
+                "deprecated, one release: unset or true runs matchers.search (the certified search) with a warning; "
+                "false: the lazy neighbourhood graph"
+            ),
+        )
+
+    def __init__(self, params=None, **kw) -> None:
+        super().__init__(params, **kw)
+        if self.params.exact is not False:
+            warnings.warn(DEPRECATED, DeprecationWarning, stacklevel=2)
+
+    def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
+        p = self.params
+        if p.exact is not False:
+            from .exact import certified_sdtw
+
+            return certified_sdtw(
+                query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span
+            )
+        if p.paper:
+            return lazy_neighborhood_graph(
+                query,
+                space,
+                k=p.k,
+                count=p.count,
+                max_cost=p.max_cost,
+                rank_by=p.rank_by,
+                min_span=p.min_span,
+                propagate=0,
+                gaps=0,
+                fill=False,
+            )
+        return lazy_neighborhood_graph(
+            query, space, k=p.k, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span
+        )
+
+    def check_plan(self, base_dir) -> list[str]:
+        """The alias's warning at the step's line of the plan (and in the run log)."""
+        return [DEPRECATED] if self.params.exact is not False else []

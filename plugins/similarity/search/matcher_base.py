@@ -1,0 +1,39 @@
+"""The block boxes and local subspace cells of the certified search, computed once per search
+space (:func:`block_boxes_of`, :func:`block_subspaces_of`). The matchers' step itself (search
+space, queries, match table) is the core's default
+:meth:`~mocapflow.framework.components.Matcher.run`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapflow.framework.errors import DataError
+from mocapflow.framework.matching import SearchSpace
+
+
+def block_boxes_of(space: SearchSpace, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Row blocks of at most ``size`` rows within runs and their feature boxes, cached on
+    the space (:func:`._coarse_kernels.block_boxes`; needs ``features``)."""
+    if space.features is None:
+        raise DataError("block boxes need the database features (SearchSpace.features)")
+
+    def compute():
+        from ._coarse_kernels import block_boxes
+
+        return block_boxes(space.features, space.continues, int(size))
+
+    return space.memo(("similarity.block_boxes", int(size)), compute)
+
+
+def block_subspaces_of(space: SearchSpace, size: int, p: int) -> tuple[np.ndarray, ...]:
+    """The local subspace cells ``(cen, basis, alo, ahi, rad)`` of the blocks of
+    :func:`block_boxes_of` ``(space, size)`` with a basis of ``p`` directions, cached on the
+    space (:func:`._subspace_kernels.block_subspaces`)."""
+
+    def compute():
+        from ._subspace_kernels import block_subspaces
+
+        return block_subspaces(space.features, block_boxes_of(space, size)[0], int(p))
+
+    return space.memo(("similarity.block_subspaces", int(size), int(p)), compute)

@@ -1,0 +1,353 @@
+"""Built-in plugin: the ``mocapflow search`` command (one query against a finished workspace).
+
+Two ways to answer, same output (docs/knn.md, "mocapflow search start-up"):
+
+* in the calling process: :class:`SearchSession` loads what a search needs and nothing more
+  (the registries of formats, features, indexes and matchers only; the index memory-mapped;
+  the features memory-mapped from the index's ``rows_*.npy`` sidecars, the Parquet table
+  decoded only for an index saved without them);
+* through a search server (``mocapflow search --db WS --serve``) that holds one session warm
+  (modules imported, numba kernels loaded, index and block boxes in memory) and answers on
+  the Unix socket ``WS/.search.sock``; a plain ``mocapflow search`` uses it whenever it
+  answers (``--no-server``: never), importing nothing numerical itself
+  (:mod:`.search_server`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import TextIO
+
+#: the registries a search needs: a query file's reader, the feature set, the index, the matcher
+KINDS = ("formats", "features", "indexes", "matchers")
+
+
+class SearchCommand:
+    """``mocapflow search --db WORKSPACE --query FILE[:START-END]``: one query, matches printed.
+
+    Uses a finished workspace (a pipeline with an index step, e.g. ``pipelines/search.yaml``):
+    the index, its features dataset and, through its provenance, the feature set and frame
+    rate of the database. The query is a motion file (any registered format, resampled to
+    the database rate) or the name of a database clip.
+    """
+
+    name = "search"
+    help = "find the motion segments of a workspace's database most similar to a query"
+    #: the CLI need not import every plugin first: :class:`SearchSession` builds the registries
+    #: of the kinds a search needs, and a server answer needs none
+    loads_plugins = True
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--db", required=True, metavar="WORKSPACE", help="workspace of a run with an index step")
+        parser.add_argument(
+            "--query",
+            metavar="FILE[:START-END]",
+            help="motion file or database clip; frames (end exclusive) or seconds ('1s-3s')",
+        )
+        parser.add_argument("--index", metavar="STEP", help="index step to use when the workspace has several")
+        parser.add_argument(
+            "--matcher",
+            default="search",
+            help="matchers.<name>: search (default: certified, exactly sdtw's matches), lng (the lazy "
+            "neighbourhood graph), sdtw, logical",
+        )
+        parser.add_argument("--count", type=int, default=10, help="matches to show (default 10)")
+        parser.add_argument(
+            "--min-span",
+            type=float,
+            default=None,
+            metavar="F",
+            help="drop matches spanning fewer database frames than F x the query (default 0.5; 0: all)",
+        )
+        parser.add_argument(
+            "--rank-by",
+            choices=("cost", "normalized"),
+            default=None,
+            help="rank by accumulated cost (default) or cost per path cell",
+        )
+        parser.add_argument(
+            "--paper",
+            action="store_true",
+            default=None,
+            help="lng: the paper's graph (neighbour cells only, every frame searched, no fallback)",
+        )
+        parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
+        parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
+        parser.add_argument("--out", metavar="FILE", help="also write the matches as .csv or .parquet")
+        parser.add_argument(
+            "--serve",
+            action="store_true",
+            help="keep the workspace loaded and answer searches on WORKSPACE/.search.sock until "
+            "interrupted (or --idle-timeout); later `mocapflow search --db WORKSPACE` calls use it",
+        )
+        parser.add_argument(
+            "--idle-timeout",
+            type=float,
+            default=None,
+            metavar="SECONDS",
+            help="--serve: stop after this long without a request (default: never)",
+        )
+        parser.add_argument(
+            "--server",
+            action=argparse.BooleanOptionalAction,
+            default=True,
+            help="ask the workspace's search server when one answers (default); --no-server: "
+            "always search in this process",
+        )
+
+    @classmethod
+    def run(cls, args: argparse.Namespace) -> int:
+        from mocapflow.framework.errors import ConfigError
+
+        if args.serve:
+            from .search_server import serve
+
+            return serve(args, SearchSession)
+        if not args.query:
+            raise ConfigError("--query is required (except with --serve)")
+        if args.server:
+            from .search_server import ask
+
+            rc = ask(args)
+            if rc is not None:
+                return rc
+        session = SearchSession(
+            args.db,
+            args.index,
+            entry_points=not getattr(args, "no_entry_points", False),
+            blocked=list(getattr(args, "block", None) or []),
+        )
+        return session.answer(args, Path.cwd(), sys.stdout, sys.stderr)
+
+
+class SearchSession:
+    """What searches of one workspace share: registries, datasets, the loaded index, clip
+    names and the search spaces (with their memoized block boxes); built once, then
+    :meth:`answer` runs one query. The server keeps one alive; :meth:`stamp` says when the
+    workspace's index, features or motions step was recomputed (then build a new one).
+
+    Parameters
+    ----------
+    db : str or Path
+        Workspace of a run with an index step.
+    index_step : str, optional
+        Index step to use when the workspace has several.
+    entry_points, blocked
+        Plugin selection, as the global ``--no-entry-points`` / ``--block``.
+    """
+
+    def __init__(
+        self,
+        db: str | Path,
+        index_step: str | None = None,
+        *,
+        entry_points: bool = True,
+        blocked: list[str] | tuple[str, ...] = (),
+    ) -> None:
+        from mocapflow.framework import load_registries
+        from mocapflow.framework.datasets import read_datasets
+        from mocapflow.framework.errors import ConfigError
+        from mocapflow.framework.queries import upstream
+
+        self.db = Path(db)
+        if not self.db.is_dir():
+            raise ConfigError(f"--db {db}: the workspace does not exist (run a pipeline with an index step first)")
+        self.regs = regs = load_registries(kinds=KINDS, entry_points=entry_points, blocked=list(blocked))
+        datasets = read_datasets(self.db)
+        # only numeric kNN indexes can serve a similarity search (not inverted lists)
+        known = set(regs.keys())
+        indexes = {
+            k: d
+            for k, d in datasets.items()
+            if d.producer_kind == "indexes"
+            and d.producer in known
+            and getattr(regs.resolve(d.producer), "supports_knn", True)
+        }
+        if index_step:
+            if index_step not in indexes:
+                raise ConfigError(f"{db}: no index step {index_step!r} (index steps: {', '.join(indexes) or 'none'})")
+            idx = indexes[index_step]
+        elif len(indexes) == 1:
+            idx = next(iter(indexes.values()))
+        else:
+            raise ConfigError(
+                f"{db}: {'no index step' if not indexes else 'several index steps ' + ', '.join(indexes)}; run a pipeline with one or pick --index"
+            )
+        fds = upstream(idx, "features")
+        mds = upstream(fds, "motions") if fds is not None else None
+        if fds is None or mds is None:
+            raise ConfigError(f"{db}: cannot trace index {idx.step!r} back to its features and motions")
+        self.idx, self.fds, self.mds = idx, fds, mds
+        clips = mds.table("clips", columns=["clip_id", "name", "fps"])
+        self.names = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist(), strict=True))
+        self.fps = float(clips["fps"][0].as_py()) if clips.num_rows else None
+        self._stamp = self.stamp()
+        self._index = self._rows = self._feature_set = self._mdb = None
+        self._spaces: dict[tuple[bool, bool], object] = {}
+
+    def stamp(self) -> tuple:
+        """``(mtime_ns, size)`` of the manifests of the index, features and motions steps."""
+        out = []
+        for ds in (self.idx, self.fds, self.mds):
+            try:
+                st = (ds.path / "_manifest.json").stat()
+                out.append((st.st_mtime_ns, st.st_size, st.st_ino))
+            except OSError:
+                out.append(None)
+        return tuple(out)
+
+    def is_stale(self) -> bool:
+        return self.stamp() != self._stamp
+
+    def index(self):
+        """The persisted index, loaded once (memory-mapped by the index class, no rebuild)."""
+        if self._index is None:
+            self._index = self.idx.index(self.regs)
+            rows = getattr(self._index, "rows", None)
+            self._rows = rows() if rows is not None else None
+        return self._index
+
+    def space(self, matcher):
+        """The matcher's search space, built once per (index, features) need: from the
+        index's memory-mapped row sidecars when it has them, else the matcher's own."""
+        from mocapflow.framework.matching import SearchSpace
+
+        key = (bool(matcher.needs_index), bool(matcher.uses_features()))
+        if key not in self._spaces:
+            index = self.index()
+            if self._rows is not None:
+                x, clip_id, frame = self._rows
+                self._spaces[key] = SearchSpace(
+                    clip_id, frame, index if key[0] else None, x if key[1] else None, clip_names=self.names
+                )
+            else:
+                from mocapflow.framework.queries import search_space
+
+                self._spaces[key] = search_space(matcher, {"database": self.idx, "features": self.fds}, self.regs)
+        return self._spaces[key]
+
+    def feature_set(self):
+        if self._feature_set is None:
+            from mocapflow.framework.queries import feature_set_of
+
+            self._feature_set = feature_set_of(self.fds, self.regs)
+        return self._feature_set
+
+    def matcher(self, args: argparse.Namespace):
+        """The matcher of ``args`` (``--matcher`` and its options; ``lng`` is the graph)."""
+        from mocapflow.framework.errors import ConfigError
+
+        matcher_cls = self.regs.resolve(f"matchers.{args.matcher}")
+        fields = matcher_cls.Params.model_fields
+        params = {"count": args.count, **({"exact": False} if "exact" in fields else {})}
+        for key, val in (
+            ("k", args.k),
+            ("min_span", args.min_span),
+            ("rank_by", args.rank_by),
+            ("paper", getattr(args, "paper", None)),
+        ):
+            if val is not None:
+                if key not in fields:
+                    raise ConfigError(f"matchers.{args.matcher} has no parameter {key!r}")
+                params[key] = val
+        return matcher_cls(params)
+
+    def query(self, text: str, cwd: Path):
+        """The :class:`~mocapflow.framework.queries.Query` of ``--query`` (files relative to ``cwd``)."""
+        from mocapflow.framework.database import MotionDatabase
+        from mocapflow.framework.queries import motion_queries, parse_query_spec
+
+        spec = parse_query_spec(text)
+
+        def resolve(p: str) -> Path:
+            return Path(cwd) / Path(p).expanduser()
+
+        if resolve(spec.source).is_file():
+            mdb = MotionDatabase([])  # a query file needs only the database's frame rate, not its clips
+        else:
+            if self._mdb is None:
+                self._mdb = self.mds.motions()
+            mdb = self._mdb
+        return motion_queries([spec], mdb, self.feature_set(), self.regs, resolve, what="--query", fps=self.fps)[0]
+
+    def answer(self, args: argparse.Namespace, cwd: Path, out: TextIO, err: TextIO) -> int:
+        """Run the search of ``args`` and print its matches to ``out`` (notes to ``err``)."""
+        from mocapflow.framework.errors import ConfigError
+        from mocapflow.framework.matching import matches_table
+
+        matcher = self.matcher(args)
+        space = self.space(matcher)
+        query = self.query(args.query, cwd)
+        res = matcher.match(query.features, space)
+        table = matches_table([0], [res], space)
+        names = self.names
+        rate = f" at {self.fps:g} fps" if self.fps else ""
+        print(
+            f"query {query.name} ({len(query.features)} frames), {matcher.key()} on {self.idx.step!r} "
+            f"({space.n_rows} frames{rate}): {len(res)} matches",
+            file=out,
+        )
+        fps = self.fps  # database frames (the index's rate), shown in seconds too
+        print(
+            f"{'rank':>4}  {'clip':<32} {'start':>6} {'end':>6} {'cost':>10} {'per cell':>9}"
+            + (f" {'start s':>8} {'end s':>8}" if fps else ""),
+            file=out,
+        )
+        for row in table.select(["rank", "clip_id", "start_frame", "end_frame", "cost", "cost_normalized"]).to_pylist():
+            secs = f" {row['start_frame'] / fps:>8.2f} {row['end_frame'] / fps:>8.2f}" if fps else ""
+            print(
+                f"{row['rank']:>4}  {names.get(row['clip_id'], row['clip_id'])!s:<32.32} {row['start_frame']:>6} "
+                f"{row['end_frame']:>6} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}{secs}",
+                file=out,
+            )
+        if args.out:
+            import pyarrow as pa
+
+            table = table.append_column(
+                "clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string())
+            )
+            write_atomic(table, Path(cwd) / Path(args.out).expanduser())
+        if args.plot:
+            if args.matcher not in ("search", "lng") or not len(res):
+                raise ConfigError("--plot draws the lazy neighborhood graph of the best match: --matcher search or lng")
+            from .graph import build_graph
+            from .plots import plot_neighborhood
+
+            paper = bool(getattr(matcher.params, "paper", False))
+            graph = build_graph(
+                query.features,
+                space,
+                k=getattr(matcher.params, "k", 256),
+                propagate=0 if paper else 2,
+                gaps=0 if paper else 32,
+            )
+            plot = Path(cwd) / Path(args.plot).expanduser()
+            plot_neighborhood(graph, res, space, plot, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
+            print(f"wrote {args.plot}", file=err)
+        return 0
+
+
+def write_atomic(table, out: Path) -> None:
+    """Write ``table`` as ``.parquet`` (with paths) or CSV (without), creating the folder; atomic (temp + rename)."""
+    import os
+    import tempfile
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", dir=out.parent)
+    os.close(fd)
+    try:
+        if out.suffix == ".parquet":
+            import pyarrow.parquet as pq
+
+            pq.write_table(table, tmp)
+        else:
+            import pyarrow.csv as pcsv
+
+            pcsv.write_csv(table.drop_columns(["path"]), tmp)
+        os.replace(tmp, out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
