@@ -160,6 +160,3 @@ def clip_result(motion: Motion, value: np.ndarray, cleaned: Motion, edits: pa.Ta
         "edited_cells": edits.num_rows,
     }
     return CleanedClip(digressions, edits, cleaned, summary)
-
-
-__all__ = ["CleanedClip", "check_take", "clip_result", "digression_table", "edits_table", "with_clip_id"]

@@ -339,14 +339,3 @@ def check_cleaner(cls: type[Component]) -> None:
         )
     bad = m.with_arrays(rotations=np.where(np.arange(m.n_frames)[:, None, None] == 10, np.nan, m.rotations))
     _raises_clear(lambda: inst.detect(bad), "a clip with NaN rotations", who)
-
-
-__all__ = [
-    "ReferenceIndex",
-    "SyntheticMotions",
-    "check_cleaner",
-    "check_matcher",
-    "check_matcher_pipeline",
-    "run_test_pipeline",
-    "synthetic_space",
-]

@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 from . import schema
 from .errors import DataError, PipelineError
 from .schema import fixed_list, fixed_list_to_numpy
-from .workspace import MANIFEST, Workspace, atomic_path
+from .workspace import MANIFEST, Workspace
 
 if TYPE_CHECKING:
     from .database import MotionDatabase
@@ -164,18 +164,3 @@ class Dataset:
 def read_datasets(workspace: str | Path) -> Mapping[str, Dataset]:
     """Every finished dataset of a workspace, by step id."""
     return {d.name: Dataset(d) for d in Workspace(workspace).dataset_dirs()}
-
-
-__all__ = [
-    "MANIFEST",
-    "Dataset",
-    "FeatureMatrix",
-    "StepOutput",
-    "atomic_path",
-    "feature_table",
-    "fixed_list",
-    "fixed_list_to_numpy",
-    "frame_id_table",
-    "read_datasets",
-    "schema",
-]

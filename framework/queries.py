@@ -46,7 +46,7 @@ from .context import StepContext
 from .database import MotionDatabase
 from .datasets import Dataset, StepOutput
 from .errors import ConfigError, DataError, PipelineError
-from .matching import QueryMatches, QuerySpec, SearchSpace, matches_table, parse_query_spec, query_files_fingerprint
+from .matching import QueryMatches, QuerySpec, SearchSpace, matches_table, parse_query_spec
 from .motion import Motion
 from .registry import Registries
 
@@ -273,21 +273,3 @@ def queries_table(queries: list[Query]) -> pa.Table:
         },
         schema=schema.QUERIES,
     )
-
-
-__all__ = [
-    "Query",
-    "QuerySpec",
-    "feature_queries",
-    "feature_set_of",
-    "features_dataset",
-    "motion_queries",
-    "parse_query_spec",
-    "queries_table",
-    "query_files_fingerprint",
-    "read_motion_file",
-    "run_matcher",
-    "search_space",
-    "step_queries",
-    "upstream",
-]

@@ -38,7 +38,7 @@ _OUTPUT_KINDS = (".bvh", ".amc")
 
 def _atomic(dest: Path, write: Any) -> None:
     """Write through ``write(tmp_path)`` into a temporary file beside ``dest``, then rename."""
-    from mocapflow.framework.datasets import atomic_path
+    from mocapflow.framework.workspace import atomic_path
 
     with atomic_path(dest) as tmp:
         write(tmp)
