@@ -61,7 +61,7 @@ def frame_id_table(clip_id: np.ndarray, frame: np.ndarray) -> pa.Table:
 
 
 def feature_table(clip_id: np.ndarray, frame: np.ndarray, x: np.ndarray) -> pa.Table:
-    """Feature table (:func:`.schema.feature_frames`) of ``x (n, dim)`` float32."""
+    """Feature table (``clip_id``, ``frame``, fixed-size ``features``) of ``x (n, dim)`` float32."""
     x = np.asarray(x, dtype=np.float32)
     if x.ndim != 2 or x.shape[0] != len(clip_id):
         raise DataError(f"features must be (n_frames, dim) with n_frames={len(clip_id)}, got {x.shape}")
