@@ -70,13 +70,7 @@ def feature_table(clip_id: np.ndarray, frame: np.ndarray, x: np.ndarray) -> pa.T
 
 
 class Dataset:
-    """A finished step output directory (read-only view).
-
-    Parameters
-    ----------
-    path : Path
-        ``<workspace>/<step>``.
-    """
+    """A finished step output directory ``<workspace>/<step>`` (read-only view)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
