@@ -268,8 +268,8 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     pytest.importorskip("matplotlib")
     from types import SimpleNamespace
 
-    from mocapflow.framework.database import MotionDatabase
     from mocapflow import registries
+    from mocapflow.framework.database import MotionDatabase
     from mocapflow.framework.steps import run_cleaner
 
     db = MotionDatabase([synthetic_walk(120, seed=9, name="w")])
