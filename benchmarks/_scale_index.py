@@ -94,7 +94,7 @@ def index_figures(n_frames: int, n_queries: int, k: int, tmp: Path) -> dict:
     out["batch_s_one_index_2threads"], out["busy_one_index_2threads"] = _best_batch(
         lambda: one.query(q, k, workers=2), None
     )
-    from mocapflow.framework.executors import limit_threads
+    from mocapflow.framework.threads import limit_threads
 
     limit_threads(1)
     # one process: the whole batch in this process, one numba thread (the baseline of the target)

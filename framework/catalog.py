@@ -1,17 +1,9 @@
 """A workspace's Parquet datasets as DuckDB views (the only module that imports duckdb).
 
-Views: ``<step>`` for each dataset's main table, ``<step>_<table>`` for its other tables
-(``motions_rejects``...), and the short names ``clips`` and ``rejects`` for the first
-motions dataset (in step order) that has them. Step ids containing ``-`` also get a view
-with ``_`` instead, so they can be written without quotes. Views are created through
-DuckDB's relation API; queries take parameters (``?``), never string formatting.
-
-Read-only for real: queries are refused unless every statement is a query (``SELECT``,
-``WITH``, ``FROM``, ``VALUES``, ``DESCRIBE``, ``SHOW``, ``SUMMARIZE``, ``EXPLAIN`` of one),
-so ``COPY``, ``ATTACH``, ``INSTALL``/``LOAD``, ``EXPORT``, ``CREATE``, ``SET`` never run; and
-DuckDB itself is opened with external access disabled except for the datasets' own
-directories (``allowed_directories``) and its configuration locked, so no file outside
-the workspace's datasets can be read and no extension can be installed or loaded.
+Views: ``<step>`` (main table), ``<step>_<table>``, ``clips``/``rejects`` of the first
+motions dataset; ``-`` in step ids also as ``_``. Read-only for real: only query statements
+run, and DuckDB is opened with external access limited to the datasets' directories and
+its configuration locked (no other file read, no extension loaded).
 """
 
 from __future__ import annotations
@@ -31,12 +23,8 @@ _EXPLAIN = re.compile(r"^\s*EXPLAIN(\s+ANALYZE)?\s+", re.IGNORECASE)
 
 
 def check_read_only(sql: str) -> None:
-    """Raise :class:`ConfigError` unless every statement of ``sql`` only reads.
-
-    DuckDB's parser classifies the statements (``SELECT`` covers ``WITH``, ``FROM``,
-    ``VALUES``, ``DESCRIBE``, ``SHOW``, ``SUMMARIZE``); ``EXPLAIN [ANALYZE]`` is allowed in
-    front of a query only, as ``EXPLAIN ANALYZE COPY ...`` executes the copy.
-    """
+    """Raise :class:`ConfigError` unless every statement of ``sql`` only reads (DuckDB's
+    parser decides; ``EXPLAIN`` only before a query: ``EXPLAIN ANALYZE COPY`` copies)."""
     import duckdb
 
     try:

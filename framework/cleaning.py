@@ -1,13 +1,5 @@
-"""What a cleaner produces: digression and edit tables, one clip's result.
-
-A cleaner implements :meth:`~mocapflow.framework.components.Cleaner.detect` (a digression
-map, shape (T, J) in [0, 1]) and :meth:`~mocapflow.framework.components.Cleaner.repair`
-(the cleaned motion and an :data:`~.schema.EDITS` table, :func:`edits_table`). The default
-cleaner step (:func:`~mocapflow.framework.steps.run_cleaner`) collects one
-:class:`CleanedClip` per clip into ``data`` (:data:`~.schema.DIGRESSIONS`,
-:func:`digression_table`) and ``edits``. A clip's summary (stored in the provenance) holds
-no timing and no path, so identical runs give identical provenance.
-"""
+"""What a cleaner produces: digression and edit tables, one clip's result. A clip's summary
+(stored in the provenance) holds no timing and no path: identical runs, identical provenance."""
 
 from __future__ import annotations
 
@@ -25,19 +17,9 @@ from .quaternions import geodesic_angle
 
 @dataclass
 class CleanedClip:
-    """One clip through a cleaner step.
-
-    Attributes
-    ----------
-    digressions : pyarrow.Table
-        :data:`~.schema.DIGRESSIONS` rows of the clip.
-    edits : pyarrow.Table
-        :data:`~.schema.EDITS` rows of the clip.
-    cleaned : Motion or None
-        The cleaned clip (None once it was written where it belongs, on a worker).
-    summary : dict
-        JSON-compatible, deterministic (no timing, no path): stored in the provenance.
-    """
+    """One clip through a cleaner step: its :data:`~.schema.DIGRESSIONS` and
+    :data:`~.schema.EDITS` rows, the cleaned clip (None once a worker wrote it) and a
+    deterministic JSON summary."""
 
     digressions: pa.Table
     edits: pa.Table
@@ -47,7 +29,7 @@ class CleanedClip:
 
 def check_take(motion: Motion, what: str = "cleaning") -> None:
     """Raise :class:`DataError` unless ``motion`` is a Motion with finite rotations and root
-    translation (a NaN would otherwise surface as a linear-algebra error deep in a cleaner)."""
+    translation (a NaN would otherwise surface as a linear-algebra error deep inside)."""
     if not isinstance(motion, Motion):
         raise DataError(f"{what}: expected a Motion, got {type(motion).__name__}")
     for name, arr in (("rotations", motion.rotations), ("root_translation", motion.root_translation)):
@@ -68,19 +50,9 @@ def digression_table(
     threshold: float = 0.5,
     cue: np.ndarray | None = None,
 ) -> pa.Table:
-    """:data:`~.schema.DIGRESSIONS` rows of one clip, frame-major.
-
-    Parameters
-    ----------
-    value : ndarray of shape (T, J), in [0, 1]
-        A digression map at the clip's frames (:meth:`.Cleaner.detect`).
-    joints : ndarray of int, optional
-        Skeleton joints to report (default: every joint).
-    threshold : float
-        ``flagged = value > threshold``.
-    cue : ndarray of object, shape (T, len(joints)), optional
-        What flagged each cell; kept only where flagged.
-    """
+    """:data:`~.schema.DIGRESSIONS` rows, frame-major, of a digression map ``value`` (T, J)
+    for ``joints`` (default all); ``flagged = value > threshold``; ``cue`` (T, len(joints))
+    says what flagged a cell (kept where flagged)."""
     v = np.asarray(value, dtype=np.float64)
     t = motion.n_frames
     if v.shape != (t, motion.n_joints):
@@ -115,11 +87,8 @@ def edits_table(
     clip_id: int = 0,
     cue: list[str | None] | np.ndarray | None = None,
 ) -> pa.Table:
-    """:data:`~.schema.EDITS` rows: one per changed (frame, joint), frame-major.
-
-    ``changed`` (T, J) bool defaults to the cells whose rotation differs; ``cue`` gives one
-    entry per changed cell (default null).
-    """
+    """:data:`~.schema.EDITS` rows per ``changed`` (T, J) cell (default: rotation differs),
+    frame-major; ``cue``: one entry per changed cell."""
     if cleaned.rotations.shape != motion.rotations.shape:
         raise DataError(f"cleaned motion has rotations {cleaned.rotations.shape}, the input {motion.rotations.shape}")
     if changed is None:
@@ -150,8 +119,7 @@ def with_clip_id(table: pa.Table, clip_id: int) -> pa.Table:
 
 
 def clip_result(motion: Motion, value: np.ndarray, cleaned: Motion, edits: pa.Table, clip_id: int) -> CleanedClip:
-    """A :class:`CleanedClip` from a digression map (:meth:`~.components.Cleaner.detect`) and a
-    repair (:meth:`~.components.Cleaner.repair`): the default ``Cleaner.detect_and_repair``."""
+    """A :class:`CleanedClip` from a digression map and a repair (the default ``detect_and_repair``)."""
     digressions = digression_table(value, motion, clip_id)
     edits = with_clip_id(edits, clip_id)
     summary = {
@@ -160,6 +128,3 @@ def clip_result(motion: Motion, value: np.ndarray, cleaned: Motion, edits: pa.Ta
         "edited_cells": edits.num_rows,
     }
     return CleanedClip(digressions, edits, cleaned, summary)
-
-
-__all__ = ["CleanedClip", "check_take", "clip_result", "digression_table", "edits_table", "with_clip_id"]

@@ -135,15 +135,7 @@ def _empty_frames() -> Any:
 
 
 def clip_slices(dataset: Dataset, n_slices: int) -> list[ClipSlice]:
-    """Contiguous clip ranges of a motions dataset with about equal frame counts.
-
-    Parameters
-    ----------
-    dataset : Dataset
-        A motions dataset (``clips`` table with ``n_frames``).
-    n_slices : int
-        Wanted number of slices (fewer when there are fewer clips).
-    """
+    """At most ``n_slices`` contiguous clip ranges of a motions dataset, about equal in frames."""
     frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy().astype(np.int64)
     n = len(frames)
     if n == 0:

@@ -1,30 +1,11 @@
-"""What a component is: the base classes of every registry kind.
+"""The base classes of every registry kind (scikit-learn's estimator contract).
 
-A component follows scikit-learn's estimator contract, validated by pydantic:
-
-* ``name`` (class attribute, snake_case) is its key in its kind's registry;
-* parameters are declared once, in a nested frozen pydantic model ``Params`` (unknown
-  keys rejected); ``__init__`` only validates and stores them (no other logic);
-* fitted state lives in attributes ending in ``_``;
-* a pipeline step receives finished upstream :class:`~mocapflow.framework.datasets.Dataset`
-  objects keyed by input slot and returns a :class:`~mocapflow.framework.datasets.StepOutput`
-  (tables plus files written into ``ctx.out_dir``); ``inputs`` (class attribute) declares the
-  slots, slot -> required. Feature sets, indexes, matchers and cleaners get the default step
-  of their kind (:mod:`.steps`) from the methods below; a component overrides ``run`` for a
-  step of its own.
-
-What is checked when a pipeline is planned, beyond ``Params``:
-
-* dataset kinds: a step declares the kind of dataset it writes (``output_kind``: one of
-  :data:`DATASET_KINDS` or a plugin's own word) and, per input slot, the kinds it accepts
-  (``input_kinds``); an index over a summary table is refused before anything runs. The
-  kind bases declare the usual ones; a kind left undeclared (``None`` / slot not listed)
-  is not checked.
-* nested parameters: a ``dict`` parameter annotated ``Annotated[dict[str, Any],
-  ParamsOf("kind.name")]`` holds another component's parameters and is validated against
-  that component's ``Params`` (errors name the nested key, with "did you mean").
-* :meth:`Component.check_plan`: anything else a component can tell from its parameters
-  and the pipeline's folder (a glob that matches no file is a warning).
+``name`` is the registry key; parameters live in a frozen pydantic ``Params`` that
+``__init__`` only validates and stores; fitted state ends in ``_``. A step gets finished
+upstream :class:`~.datasets.Dataset` objects by input slot and returns a
+:class:`~.datasets.StepOutput`; each kind has a default step (:mod:`.steps`). Planning
+checks dataset kinds (``output_kind`` / ``input_kinds``; undeclared: not checked), nested
+``ParamsOf`` parameters and :meth:`Component.check_plan`.
 """
 
 from __future__ import annotations
@@ -50,9 +31,6 @@ from .workspace import atomic_path
 #: The base of every ``Params`` (a name that the class attribute ``Component.Params`` does not hide).
 ParamsModel = Params
 
-#: Dataset kinds the built-in kind bases declare (``output_kind`` / ``input_kinds``).
-DATASET_KINDS: tuple[str, ...] = ("motions", "markers", "features", "index", "matches", "table")
-
 
 class Component:
     """Base of all components. Subclasses set ``kind`` (via their kind base) and ``name``."""
@@ -66,8 +44,7 @@ class Component:
     inputs: ClassVar[Mapping[str, bool]] = {}
     #: Whether the component can be a pipeline step (has a ``run``).
     is_step: ClassVar[bool] = True
-    #: Kind of dataset the step writes (``"motions"``, ``"features"``, ``"index"``...; see
-    #: :data:`DATASET_KINDS`); ``None``: not declared, consumers do not check it.
+    #: Kind of dataset the step writes (``"motions"``, ``"features"``...); ``None``: unchecked.
     output_kind: ClassVar[str | None] = None
     #: Input slot -> dataset kinds it accepts; a slot not listed accepts any dataset.
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {}
@@ -99,26 +76,17 @@ class Component:
         return type(self)(self.params.model_copy(update=changes) if changes else self.params)
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        """A step of the component's own: its output from finished input datasets. Not
-        overridden: the default step of its kind runs (:func:`.steps.run_step`)."""
+        """A step of the component's own (not overridden: its kind's default step runs)."""
         raise NotImplementedError(f"{self.key()} cannot run as a pipeline step")
 
     def check_plan(self, base_dir: Path) -> list[str]:
-        """Plan-time checks beyond ``Params`` (called once per step when a pipeline is planned).
-
-        Raise :class:`ConfigError` for what cannot run; return warnings (one line each,
-        e.g. a glob that matches no file) that the plan reports at the step's line. Must be
-        cheap and must not write anything. Default: nothing to check.
-        """
+        """Plan-time checks beyond ``Params``: raise :class:`ConfigError` for what cannot run,
+        return one-line warnings (a glob that matches no file). Cheap; writes nothing."""
         return []
 
     def source_fingerprint(self, base_dir: Path) -> str:
-        """Digest of external inputs the step reads (files named in its parameters).
-
-        Part of the step fingerprint: a step that reads files returns something that
-        changes when they change (e.g. paths, sizes and modification times), so that an
-        edited file recomputes the step. Default: no external inputs.
-        """
+        """Digest of files the step reads (paths, sizes, mtimes), part of the step
+        fingerprint so that an edited file recomputes the step. Default: none."""
         return ""
 
     def __repr__(self) -> str:
@@ -127,12 +95,8 @@ class Component:
 
 
 class Format(Component):
-    """A file format (reader and/or writer), or an ingest/export step.
-
-    Readers set ``extensions`` and implement :meth:`read`; writers implement
-    :meth:`write`. Readers raise :class:`~mocapflow.framework.errors.ParseError` naming the
-    file, line and what was expected.
-    """
+    """A file format: readers set ``extensions`` and implement :meth:`read` (raising
+    :class:`~.errors.ParseError` with file and line); writers implement :meth:`write`."""
 
     kind = "formats"
     is_step = False
@@ -148,10 +112,7 @@ class Format(Component):
         raise NotImplementedError(f"{self.key()} cannot write")
 
     def write_atomic(self, obj: Any, path: str | Path) -> None:
-        """:meth:`write` through a temporary file renamed into place
-        (:func:`~.workspace.atomic_path`): never half a file at ``path``, and a failed write
-        leaves the previous one intact. Writers implement :meth:`write`; callers that write
-        outside a step's output folder (which is committed atomically anyway) use this."""
+        """:meth:`write` through :func:`~.workspace.atomic_path` (for files outside a step's folder)."""
         with atomic_path(path) as tmp:
             self.write(obj, tmp)
 
@@ -161,13 +122,9 @@ class Format(Component):
 
 
 class FeatureSet(Component):
-    """Per-frame feature vectors of motions.
-
-    Subclasses implement :meth:`transform_motion` (one clip -> ``(T, dim)`` float32) and
-    :attr:`dim`. Feature sets that must be fitted (PCA) set ``requires_fit`` and implement
-    :meth:`fit`, :meth:`save_state` and :meth:`load_state`. Frame ids of the output refer to
-    the frames of the input motions dataset (resample at ingest, ``formats.load`` ``fps``).
-    """
+    """Per-frame feature vectors: :meth:`transform_motion` (one clip -> ``(T, dim)`` float32)
+    and :attr:`dim`; fitted ones (PCA) set ``requires_fit`` and implement :meth:`fit`,
+    :meth:`save_state`, :meth:`load_state`. Frames are those of the input motions."""
 
     kind = "features"
     inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "reference": False}
@@ -190,10 +147,7 @@ class FeatureSet(Component):
         raise NotImplementedError
 
     def transform(self, data: Motion | MotionDatabase) -> np.ndarray:
-        """Features of one clip or of every frame of a database, shape (n_frames, dim), float32.
-
-        Computed clip by clip, so windows never straddle two clips.
-        """
+        """Features (n_frames, dim) float32 of one clip or a database, clip by clip."""
         if isinstance(data, Motion):
             return np.asarray(self.transform_motion(data), dtype=np.float32)
         parts = [np.asarray(self.transform_motion(m), dtype=np.float32) for m in data.motions]
@@ -207,19 +161,14 @@ class FeatureSet(Component):
 
 
 class Index(Component):
-    """A nearest-neighbour index over feature vectors.
-
-    ``query`` returns ``(dist, ids)``, each of shape (n_queries, k): Euclidean distances
-    (float32, ascending) and row ids into the indexed feature matrix (int64), padded with
-    ``inf`` / ``-1`` where fewer than ``k`` neighbours exist (e.g. within ``radius``).
-    """
+    """A nearest-neighbour index: ``query`` returns ``(dist, ids)`` (n_queries, k), Euclidean
+    float32 ascending and int64 rows, padded with ``inf`` / ``-1`` (e.g. beyond ``radius``)."""
 
     kind = "indexes"
     inputs: ClassVar[Mapping[str, bool]] = {"features": True}
     output_kind: ClassVar[str | None] = "index"
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {"features": ("features",)}
-    #: False for indexes that answer other queries than numeric kNN (inverted lists);
-    #: the conformance suite then skips the kNN checks.
+    #: False for indexes that answer other queries than kNN (conformance skips kNN checks).
     supports_knn: ClassVar[bool] = True
     #: keywords ``query`` accepts beyond ``x, k, radius`` (e.g. ``{"eps", "workers"}``)
     query_options: ClassVar[frozenset[str]] = frozenset()
@@ -243,17 +192,12 @@ class Index(Component):
 
 
 class Matcher(Component):
-    """Matches queries against a database; writes tables with :data:`~.schema.MATCHES` columns.
+    """Matches queries against a database (tables with :data:`~.schema.MATCHES` columns).
 
-    A matcher that aligns whole query segments implements only :meth:`match` (one query's
-    features against a :class:`~.matching.SearchSpace`, returning ranked
-    :class:`~.matching.QueryMatches`) and sets :attr:`needs_index` / :attr:`needs_features`;
-    the default step (:func:`.queries.run_matcher`) does the rest: the search space
-    from ``database`` (an index dataset, or features when no index is needed), the queries
-    from ``query`` and the ``queries`` parameter (:class:`~.matching.MatchParams`), the
-    ``data`` table (:data:`~.schema.MATCH_TABLE`) and the ``queries`` table
-    (:data:`~.schema.QUERIES`). Matchers with other inputs (inverted lists, templates)
-    override :meth:`run` and write :data:`~.schema.MATCHES` plus their own columns.
+    Segment matchers implement only :meth:`match` and set :attr:`needs_index` /
+    :attr:`needs_features`; the default step (:func:`.queries.run_matcher`) builds the
+    space and queries and writes ``data`` (:data:`~.schema.MATCH_TABLE`) and ``queries``.
+    Matchers with other inputs override :meth:`run`.
     """
 
     kind = "matchers"
@@ -269,27 +213,12 @@ class Matcher(Component):
     needs_index: ClassVar[bool] = True
     #: The default step loads the database features (``SearchSpace.features``).
     needs_features: ClassVar[bool] = False
-    #: A matcher with a step of its own: the pipeline the conformance suite runs it in
-    #: (:func:`~.conformance.check_matcher_pipeline`).
+    #: A matcher with a step of its own: the pipeline the conformance suite runs it in.
     test_pipeline: ClassVar[Mapping[str, Any] | None] = None
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
-        """Ranked matches of one query.
-
-        Parameters
-        ----------
-        query : ndarray of float32, shape (m, d)
-            Query features, in the database's feature space (``m >= 1``).
-        space : SearchSpace
-            The searched rows (:class:`~.matching.SearchSpace`).
-
-        Returns
-        -------
-        QueryMatches
-            Best first, rows ``[start, end)`` of ``space``, one warping path per match.
-            Bad input (wrong dimension, NaN, no index where one is needed) raises a
-            :class:`~.errors.DataError` or :class:`~.errors.ConfigError`.
-        """
+        """Ranked matches (best first, one warping path each) of one query's features
+        float32 (m, d) in ``space``; bad input raises :class:`DataError`/:class:`ConfigError`."""
         raise NotImplementedError(f"{self.key()} does not implement match(query, space)")
 
     def uses_features(self) -> bool:
@@ -307,15 +236,10 @@ class Matcher(Component):
 
 
 class Cleaner(Component):
-    """Detects (:meth:`detect`) and repairs (:meth:`repair`) capture errors per joint and frame.
-
-    A cleaner implements :meth:`detect` and :meth:`repair`; the default step
-    (:func:`.steps.run_cleaner`) cleans every clip of ``motions`` against the optional
-    ``context`` clips through :meth:`detect_and_repair` and writes ``data``
-    (:data:`~.schema.DIGRESSIONS`) and ``edits`` (:data:`~.schema.EDITS`). A cleaner whose
-    detection and repair share one analysis overrides :meth:`detect_and_repair` to run it once.
-    ``context`` is None, a Motion, a list of Motions or a MotionDatabase.
-    """
+    """Detects (:meth:`detect`) and repairs (:meth:`repair`) capture errors per joint and
+    frame; the default step (:func:`.steps.run_cleaner`) writes ``data``
+    (:data:`~.schema.DIGRESSIONS`) and ``edits`` (:data:`~.schema.EDITS`). ``context``:
+    None, a Motion, a list of Motions or a MotionDatabase."""
 
     kind = "cleaners"
     inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "context": False}
@@ -323,12 +247,7 @@ class Cleaner(Component):
     input_kinds: ClassVar[Mapping[str, tuple[str, ...]]] = {"motions": ("motions",), "context": ("motions",)}
 
     def detect(self, motion: Motion, context: Any = None) -> np.ndarray:
-        """Digression map at the input frames, shape (T, J) in [0, 1] (> 0.5: an error).
-
-        ``J`` is the skeleton's joint count; joints the cleaner does not analyse are 0.
-        Bad input (a context of the wrong type, a clip too short) raises
-        :class:`~.errors.DataError`.
-        """
+        """Digression map (T, J) in [0, 1] (> 0.5: an error; joints not analysed: 0)."""
         raise NotImplementedError(f"{self.key()} cannot detect")
 
     def repair(self, motion: Motion, context: Any = None) -> tuple[Motion, Any]:
@@ -344,20 +263,14 @@ class Cleaner(Component):
         out_dir: Path | None = None,
         registries: Registries | None = None,
     ) -> CleanedClip:
-        """One clip of the default step (:func:`.steps.run_cleaner`): its tables, cleaned
-        motion and JSON summary. Files may be written into ``out_dir`` (other components,
-        e.g. a format, resolved through ``registries``: the run's). Default: :meth:`detect`,
-        then :meth:`repair` (:func:`.cleaning.clip_result`)."""
+        """One clip of the default step: tables, cleaned motion, summary (files may go to
+        ``out_dir``). Override to share one analysis between detection and repair."""
         value = self.detect(motion, context)
         cleaned, edits = self.repair(motion, context)
         return clip_result(motion, value, cleaned, edits, clip_id)
 
 
 class Analysis(Component):
-    """A step that fits none of the other kinds (studies, reconstruction, evaluation).
-
-    Analyses are too varied for a default ``output_kind``: declare it (usually
-    ``"table"``; ``"motions"`` for a step that writes clips) so that consumers are checked.
-    """
+    """A step that fits no other kind; declare ``output_kind`` (usually ``"table"``)."""
 
     kind = "analyses"

@@ -1,17 +1,9 @@
 """Conformance checks of matchers and cleaners (part of :mod:`mocapflow.framework.testing`).
 
-Matchers that implement ``match(query, space)`` are checked on a small synthetic
-:class:`~.matching.SearchSpace` served by :class:`ReferenceIndex` (brute force, defined
-here, so a third party needs no built-in plugin): the result is valid
-:class:`~.matching.QueryMatches` that make a :data:`~.schema.MATCH_TABLE`, the query's own
-segment is found, two runs are equal, bad queries raise a :class:`~.errors.MocapflowError`
-and a space lacking its index or features gives one or valid matches. Matchers with their
-own step declare
-``test_pipeline`` (:func:`check_matcher_pipeline`): their step runs twice through
-:mod:`.runner` on synthetic clips (equal tables, :data:`~.schema.MATCHES` first) and once
-with ``bad_inputs`` (a clear error). Cleaners (:func:`check_cleaner`) are run on a synthetic
-clip: digression map (T, J) in [0, 1], edits in :data:`~.schema.EDITS`, the step's tables
-in :data:`~.schema.DIGRESSIONS` / :data:`~.schema.EDITS`, determinism, bad input.
+Segment matchers run on a synthetic space served by :class:`ReferenceIndex` (defined here:
+a third party needs no built-in plugin): valid matches, the query's own segment found,
+determinism, clear errors. Matchers with their own step run their ``test_pipeline`` twice
+through the runner; cleaners run on a synthetic clip (map, edits, tables, determinism).
 """
 
 from __future__ import annotations
@@ -27,8 +19,6 @@ import pyarrow as pa
 from . import schema
 from .components import Analysis, Cleaner, Component, Index, Matcher
 from .errors import DataError, MocapflowError
-
-# --- a reference index and a synthetic search space -------------------------------------
 
 
 class ReferenceIndex(Index):
@@ -339,14 +329,3 @@ def check_cleaner(cls: type[Component]) -> None:
         )
     bad = m.with_arrays(rotations=np.where(np.arange(m.n_frames)[:, None, None] == 10, np.nan, m.rotations))
     _raises_clear(lambda: inst.detect(bad), "a clip with NaN rotations", who)
-
-
-__all__ = [
-    "ReferenceIndex",
-    "SyntheticMotions",
-    "check_cleaner",
-    "check_matcher",
-    "check_matcher_pipeline",
-    "run_test_pipeline",
-    "synthetic_space",
-]

@@ -19,15 +19,9 @@ T = TypeVar("T")
 
 
 class Executor(Protocol):
-    """How a step fans out per-item work (per clip, per query, per shard).
-
-    ``map`` returns results in input order; ``workers`` is how many items run at once;
-    ``close`` frees the workers. An executor may also have ``start()`` (bring workers up
-    without blocking: the runner calls it before planning). Its options are declared in
-    ``Params`` (a pipeline's ``executor_options``, validated when the pipeline is planned)
-    and passed to ``__init__`` as keywords, with ``jobs``. ``fn`` and the items must be
-    picklable when work leaves the process.
-    """
+    """How a step fans out per-item work: ``map`` (results in input order; ``fn`` and items
+    picklable), ``workers`` running at once, ``close``, optionally ``start()`` (called before
+    planning). Options: ``Params`` (``executor_options``), passed as keywords with ``jobs``."""
 
     name: ClassVar[str]
     Params: ClassVar[type[Params]]
@@ -65,14 +59,9 @@ def map_clips(
     with_ids: bool = False,
     slices_per_worker: int = 4,
 ) -> list[Any]:
-    """``[fn(motion) for motion in dataset]`` on ``executor``, in clip order.
-
-    Items are :class:`~.clip_refs.ClipSlice` references (``slices_per_worker`` per worker,
-    balanced by frames; one slice when the executor has a single worker), so workers read
-    their clips from the Parquet file instead of receiving pickled motions. ``fn`` must be
-    picklable (a module-level function, a bound method of a component, a
-    ``functools.partial``); with ``with_ids`` it is called as ``fn(motion, clip_id)``.
-    """
+    """``[fn(motion) for motion in dataset]`` (``fn(motion, clip_id)`` with ``with_ids``) on
+    ``executor``, in clip order. Workers get :class:`~.clip_refs.ClipSlice` references
+    (``slices_per_worker`` each, balanced by frames) and read their clips from Parquet."""
     workers = max(1, int(executor.workers))
     pieces = clip_slices(dataset, 1 if workers == 1 else workers * slices_per_worker)
     # largest slices first (a long clip started last would finish alone); results back in clip order
@@ -85,25 +74,9 @@ def map_clips(
 
 @dataclass
 class StepContext:
-    """Handed to a step.
-
-    Attributes
-    ----------
-    step_id : str
-        The step's id (= dataset name).
-    out_dir : Path
-        Temporary directory of the step's output; files written here (index, model, PNG)
-        become part of the dataset when the step commits atomically.
-    base_dir : Path
-        Directory relative paths in the pipeline resolve against (the YAML file's folder).
-    workspace : Path
-    registries : Registries
-        The run's registries (what its plugins, less any ``--block``, registered): to resolve
-        other components (a reader by file extension, an index class). Work sent to
-        executor workers carries them.
-    executor : Executor
-        Fans out per-clip work; use :meth:`map` and :meth:`map_clips`.
-    """
+    """Handed to a step: files written to ``out_dir`` become part of the dataset at commit;
+    relative pipeline paths resolve against ``base_dir``; ``registries`` are the run's
+    (less any ``--block``), carried by work sent to workers."""
 
     step_id: str
     out_dir: Path
@@ -118,8 +91,7 @@ class StepContext:
         return self.executor.map(fn, items, desc=desc or self.step_id)
 
     def map_clips(self, fn: Callable[..., T], motions: Dataset, desc: str = "", with_ids: bool = False) -> list[T]:
-        """``[fn(motion) for motion in motions]`` (a motions :class:`Dataset`) on the executor,
-        in clip order; workers read the clips from the Parquet file (:func:`map_clips`)."""
+        """:func:`map_clips` on the step's executor."""
         return map_clips(self.executor, fn, motions, desc=desc or self.step_id, with_ids=with_ids)
 
     def progress(self, items: Iterable[T], total: int | None = None, desc: str = "") -> Iterable[T]:

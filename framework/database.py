@@ -13,20 +13,8 @@ from .motion import Motion
 
 
 class MotionDatabase:
-    """Clips concatenated frame-wise with global frame ids.
-
-    Parameters
-    ----------
-    motions : sequence of Motion
-        The clips, in clip-id order (clip ``i`` has ``clip_id == clip_ids[i]``).
-    clip_ids : sequence of int, optional
-        Clip ids as stored in the ``clips`` table; defaults to ``0..n_clips-1``.
-
-    Attributes
-    ----------
-    offsets : ndarray of int64, shape (n_clips + 1,)
-        Global id of each clip's first frame; ``offsets[-1] == n_frames``.
-    """
+    """Clips concatenated frame-wise with global frame ids; clip ``i`` has id ``clip_ids[i]``
+    (default ``i``); ``offsets`` (n_clips + 1,) int64: each clip's first global frame."""
 
     def __init__(self, motions: Sequence[Motion], clip_ids: Sequence[int] | None = None) -> None:
         self.motions: list[Motion] = list(motions)

@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 from . import schema
 from .errors import DataError, PipelineError
 from .schema import fixed_list, fixed_list_to_numpy
-from .workspace import MANIFEST, Workspace, atomic_path
+from .workspace import MANIFEST, Workspace
 
 if TYPE_CHECKING:
     from .database import MotionDatabase
@@ -61,7 +61,7 @@ def frame_id_table(clip_id: np.ndarray, frame: np.ndarray) -> pa.Table:
 
 
 def feature_table(clip_id: np.ndarray, frame: np.ndarray, x: np.ndarray) -> pa.Table:
-    """Feature table (:func:`.schema.feature_frames`) of ``x (n, dim)`` float32."""
+    """Feature table (``clip_id``, ``frame``, fixed-size ``features``) of ``x (n, dim)`` float32."""
     x = np.asarray(x, dtype=np.float32)
     if x.ndim != 2 or x.shape[0] != len(clip_id):
         raise DataError(f"features must be (n_frames, dim) with n_frames={len(clip_id)}, got {x.shape}")
@@ -70,13 +70,7 @@ def feature_table(clip_id: np.ndarray, frame: np.ndarray, x: np.ndarray) -> pa.T
 
 
 class Dataset:
-    """A finished step output directory (read-only view).
-
-    Parameters
-    ----------
-    path : Path
-        ``<workspace>/<step>``.
-    """
+    """A finished step output directory ``<workspace>/<step>`` (read-only view)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -164,18 +158,3 @@ class Dataset:
 def read_datasets(workspace: str | Path) -> Mapping[str, Dataset]:
     """Every finished dataset of a workspace, by step id."""
     return {d.name: Dataset(d) for d in Workspace(workspace).dataset_dirs()}
-
-
-__all__ = [
-    "MANIFEST",
-    "Dataset",
-    "FeatureMatrix",
-    "StepOutput",
-    "atomic_path",
-    "feature_table",
-    "fixed_list",
-    "fixed_list_to_numpy",
-    "frame_id_table",
-    "read_datasets",
-    "schema",
-]

@@ -1,19 +1,8 @@
-"""Executors: how a step fans out per-item work (per clip, per query, per shard).
+"""The local executor: a step's per-item work (clip, query, shard) in-process or on a pool.
 
-An executor follows :class:`~mocapflow.framework.context.Executor`: ``map(fn, items, desc)
--> list`` (results in input order), ``close()``, ``workers`` and its options declared in
-``Params``. The runner never looks inside: ``local`` (:class:`LocalExecutor`) runs
-in-process or on a process pool; a cluster executor (``dask``,
-:mod:`mocapflow.plugins.executors.dask_cluster`) implements the same and is registered
-through the ``register_executors`` hook (or passed to
-:func:`~mocapflow.framework.runner.run_pipeline`).
-
-Work goes out *by reference* (:mod:`.clip_refs`): workers read their clips from the
-workspace's Parquet files; results come back to the step, and the runner writes them. Each
-worker gets ``cores // workers`` numeric threads (:func:`limit_threads`); the pool forks
-only while that is safe (a forkserver otherwise), after the parent's one-time start-up
-(:func:`warm_up`); the client can be worker 0 (``client_works``). Measurements:
-docs/scale-out.md.
+Any executor follows :class:`~mocapflow.framework.context.Executor`. Work goes out by
+reference (:mod:`.clip_refs`); each worker gets ``cores // workers`` numeric threads; the
+pool forks only while that is safe, after :func:`warm_up`. Measurements: docs/scale-out.md.
 """
 
 from __future__ import annotations
@@ -34,19 +23,10 @@ import numpy as np
 from pydantic import Field
 
 from .clip_refs import clear_cache
-from .context import Executor, map_clips
 from .errors import PipelineError
 from .params import Params
 from .progress import progress
-from .threads import (
-    THREAD_ENV,
-    _client_threads,
-    available_cores,
-    limit_threads,
-    size_blas_for_workers,
-    threads_per_worker,
-)
-from .workspace import ROW_GROUP_ROWS
+from .threads import _client_threads, available_cores, limit_threads, threads_per_worker
 
 #: Modules a forkserver imports once, so that its workers start warm.
 PRELOAD = ("numpy", "pyarrow.parquet", "numba", "mocapflow.framework", "mocapflow.plugins")
@@ -62,14 +42,8 @@ def _fork_is_safe() -> bool:
 
 
 def warm_up() -> None:
-    """Pay the one-time start-up costs every worker would pay again at its first task, in
-    this process, before the pool forks: numba's (its target context and BLAS bindings,
-    about 0.5 s of CPU; one small serial kernel, forward kinematics) and pyarrow's dataset
-    layer that reading any Parquet table imports (about 0.3 s).
-
-    Measured: a forked worker's first file read 0.57 s -> 0.06 s. Serial kernels only: a
-    parallel one would launch OpenMP and make the fork unsafe.
-    """
+    """Pay numba's and pyarrow.dataset's start-up (~0.8 s CPU) here, before the pool forks:
+    a forked worker's first read 0.57 s -> 0.06 s. Serial kernels only (OpenMP makes forks unsafe)."""
     import pyarrow.dataset  # noqa: F401 - preloaded before forking: the worker's first read is then fast
 
     from ._fk_kernels import fk
@@ -90,22 +64,12 @@ def _started() -> int:
 
 
 class LocalExecutor:
-    """In-process for ``jobs == 1``, else ``jobs`` workers kept for the run: by default the
-    client itself and a process pool of ``jobs - 1`` (``client_works``), else a pool of ``jobs``.
-    The options are :class:`LocalExecutor.Params`.
+    """In-process for ``jobs == 1``, else ``jobs`` workers kept for the run (the client as
+    worker 0 when ``client_works``; default: for a forkserver or spawned pool, whose workers
+    warm up on their own; a forked pool inherits the client's start-up, measured no faster).
 
-    ``client_works`` unset: the client is worker 0 for a forkserver or spawned pool (each
-    worker imports and warms up on its own, the client has paid that already), not for a
-    forked one (its workers inherit the client's start-up; measured no faster there).
-    ``prestart``: :meth:`start` (called before planning) forks the pool at once and each
-    worker warms itself up while the client plans; otherwise the pool forks at the first
-    batch, after the parent warmed up.
-
-    Results come back in input order, and a failing batch raises the error of its first
-    failing item in input order, as in-process (chunks are claimed in order and none is
-    claimed after a failure). A worker that dies (killed, out of memory) fails the step
-    with a :class:`~mocapflow.framework.errors.PipelineError`; the runner discards its
-    temporary output, so no half-written dataset remains.
+    Results come back in input order; a failing batch raises its first failing item's error,
+    as in-process. A worker that dies fails the step with a :class:`PipelineError`.
     """
 
     name: ClassVar[str] = "local"
@@ -138,8 +102,7 @@ class LocalExecutor:
         self.prestart = bool(prestart)
         self.client_works = client_works
         self._client = bool(client_works)  # resolved when the pool starts (see client_works)
-        #: per pooled batch: ``{"desc", "items", "client_s", "workers_s"}``, CPU seconds of the
-        #: client's own chunks and of each pool process during the batch (benchmarks/scale.py)
+        #: per pooled batch: CPU seconds of the client's chunks and of each pool process (scale.py)
         self.batches: list[dict[str, Any]] = []
         self._pool: ProcessPoolExecutor | None = None
 
@@ -218,10 +181,8 @@ class LocalExecutor:
     def _map_with_client(
         self, pool: ProcessPoolExecutor, fn: Callable[[Any], Any], items: list[Any], desc: str
     ) -> list[Any]:
-        """The batch in chunks taken in order from one list by the client (which runs them
-        itself) and by a feeder thread that keeps the pool's processes supplied (one chunk
-        each, plus one queued while more than ``jobs`` remain, so that the last chunks go to
-        whoever is free). Nothing is submitted that is not meant to run: no cancellations."""
+        """Chunks claimed in order by the client (which runs them) and by a feeder thread that
+        keeps each pool process supplied (plus one queued while more than ``jobs`` remain)."""
         batch = _ClientBatch(self, pool, fn, items)
         first: dict[Future[list[Any]], int] = {}
         batch.submit(first, self.processes)  # in this thread: a forked pool starts its processes here
@@ -351,8 +312,7 @@ def _apply_chunk(fn: Callable[[Any], Any], chunk: Sequence[Any]) -> list[Any]:
 
 
 def _pool_cpu(pool: ProcessPoolExecutor) -> dict[int, float]:
-    """CPU seconds (user + system) of each live process of ``pool``, from ``/proc`` (Linux;
-    empty elsewhere): what benchmarks/scale.py reads per batch."""
+    """CPU seconds (user + system) of each live process of ``pool``, from ``/proc`` (Linux)."""
     out: dict[int, float] = {}
     try:
         tick = os.sysconf("SC_CLK_TCK")
@@ -363,18 +323,3 @@ def _pool_cpu(pool: ProcessPoolExecutor) -> dict[int, float]:
     except (OSError, ValueError, IndexError):
         pass
     return out
-
-
-__all__ = [
-    "PRELOAD",
-    "ROW_GROUP_ROWS",
-    "THREAD_ENV",
-    "Executor",
-    "LocalExecutor",
-    "available_cores",
-    "limit_threads",
-    "map_clips",
-    "size_blas_for_workers",
-    "threads_per_worker",
-    "warm_up",
-]

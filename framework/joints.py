@@ -67,35 +67,10 @@ REQUIRED_JOINTS: tuple[str, ...] = (
 
 @dataclass(frozen=True)
 class JointMap:
-    """A skeleton naming dialect: for each canonical joint, the source joint names that
-    stand for it, in order of preference.
-
-    Plugins register dialects through the ``register_joint_maps`` hook
-    (:mod:`mocapflow.framework.hookspecs`); readers turn a skeleton's joint names into its
-    canonical map with :func:`canonical_map`, which tries every dialect that applies and
-    keeps the one mapping the most required joints.
-
-    Parameters
-    ----------
-    name : str
-        Unique name of the dialect (``"acclaim"``, ``"bvh_common"``, ``"mixamo"``...).
-    candidates : mapping of str to tuple of str
-        Canonical joint -> source names, preferred first. Canonical joints not listed stay
-        unmapped.
-    formats : tuple of str
-        Registry names of the formats whose skeletons may use it (``("bvh",)``); empty: all.
-    signature : frozenset of str
-        Lower-case joint names that must all be present for the dialect to apply (empty:
-        always applies).
-    pick_order : tuple of str
-        Canonical joints in the order in which they choose (a joint taken by one is not
-        given to another); default: the order of ``candidates``.
-    self_named : bool
-        Also accept the canonical name itself as the last candidate (skeletons already named
-        with the canonical vocabulary).
-    case_sensitive : bool
-        Match names exactly rather than case-insensitively.
-    """
+    """A skeleton naming dialect: ``candidates`` maps each canonical joint to source names,
+    preferred first. It applies to skeletons of ``formats`` (empty: all) that have every
+    lower-case ``signature`` name; canonical joints choose in ``pick_order`` (a joint taken
+    is not given again); ``self_named`` also accepts the canonical name itself."""
 
     name: str
     candidates: Mapping[str, tuple[str, ...]]

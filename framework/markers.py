@@ -1,16 +1,7 @@
 """Marker trajectories: the optical-marker counterpart of :class:`~.motion.Motion`.
 
-Glossary
---------
-marker
-    A labelled point tracked by the capture system (``LFHD``, ``R.ASIS``...).
-gap
-    A frame where a marker was not reconstructed; its position is NaN (all three
-    coordinates).
-axes
-    Positions are metres in the file's own axes. C3D and TRC files are often z-up; readers
-    record the up axis in ``metadata["up_axis"]`` (``"+y"``, ``"+z"``...) and convert to y-up
-    only when asked (see :func:`to_y_up`).
+Positions are metres in the file's own axes (C3D/TRC often z-up: readers record
+``metadata["up_axis"]``, :func:`to_y_up` converts); a gap (marker not reconstructed) is NaN.
 """
 
 from __future__ import annotations
@@ -26,22 +17,8 @@ from .errors import DataError
 
 @dataclass(frozen=True, eq=False)
 class Markers:
-    """Labelled marker trajectories of one take.
-
-    Parameters
-    ----------
-    labels : tuple of str, length M
-        Marker labels, stripped of padding.
-    positions : ndarray of shape (T, M, 3), metres
-        Marker positions; NaN marks a gap.
-    fps : float
-        Frames per second.
-    name : str
-        Take name (usually the file stem).
-    metadata : dict
-        Source path, format, checksum, ``up_axis``, ``first_frame`` and anything else worth
-        keeping (JSON-serialisable).
-    """
+    """Labelled marker trajectories of one take: ``labels`` (M), ``positions`` (T, M, 3)
+    metres with NaN gaps, ``fps``, JSON-serialisable ``metadata`` (``up_axis``...)."""
 
     labels: tuple[str, ...]
     positions: np.ndarray
@@ -99,12 +76,7 @@ class Markers:
 
 
 def to_y_up(markers: Markers) -> Markers:
-    """Rotate z-up markers (``metadata["up_axis"]`` ``"+z"`` or ``"-z"``) to y-up.
-
-    ``+z``: ``(x, y, z) -> (x, z, -y)``, a rotation of -90 degrees about x; ``-z``: the
-    opposite rotation. Both are proper rotations (handedness kept). Markers already y-up
-    are returned unchanged; other up axes raise :class:`DataError`.
-    """
+    """Rotate ``+z``/``-z``-up markers to y-up by -/+90 degrees about x (handedness kept)."""
     up = markers.metadata.get("up_axis", "+y")
     if up == "+y":
         return markers
@@ -119,20 +91,9 @@ def to_y_up(markers: Markers) -> Markers:
 
 
 def guess_up_axis(positions: np.ndarray, letter: str | None = None) -> str:
-    """The up axis of marker positions, as ``"+z"``, ``"-y"``...
-
-    Parameters
-    ----------
-    positions : ndarray of shape (T, M, 3)
-        Marker positions (NaN gaps allowed).
-    letter : str or None
-        The vertical axis if known (``"z"``, e.g. from C3D ``POINT:Y_SCREEN``); otherwise
-        the axis along which the marker cloud spreads most (median over frames; right for
-        people standing or walking, not lying).
-
-    The sign is the side of 0 where the markers lie (the floor is near 0). At most ~500
-    evenly spaced frames are used.
-    """
+    """The up axis (``"+z"``, ``"-y"``...) of positions (T, M, 3): ``letter`` if known, else
+    the axis the cloud spreads most along (people standing, not lying); the sign is the
+    side of the floor (0) the markers lie on. Uses at most ~500 frames."""
     sample = np.asarray(positions)[:: max(1, len(positions) // 500)]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # frames that are all gaps

@@ -1,16 +1,9 @@
 """The matcher contract: search spaces, ranked matches and the shared match table.
 
-A matcher that aligns whole query segments implements one method,
-:meth:`~mocapflow.framework.components.Matcher.match` ``(query, space) -> QueryMatches``;
-the default :meth:`~mocapflow.framework.components.Matcher.run` (:mod:`.queries`) turns the
-step's inputs into a :class:`SearchSpace` and query feature arrays, calls it per query and
-writes :func:`matches_table` (:data:`~.schema.MATCH_TABLE`).
-
-A matcher typically reduces one query to *candidates* (one per database row where a best
-path ends: its accumulated cost, first row and path length) and then keeps ranked,
-non-overlapping matches with :func:`select_matches`, the same rule for every matcher so
-their results compare one to one. Rows are row ids of the index (= of the features
-table); :class:`SearchSpace` maps them to ``(clip_id, frame)``.
+A matcher reduces one query to candidate path ends (cost, first row, length) and keeps
+ranked, non-overlapping matches with :func:`select_matches`, the same rule for every
+matcher so their results compare one to one. Rows are index rows (= features table rows);
+:class:`SearchSpace` maps them to ``(clip_id, frame)``.
 """
 
 from __future__ import annotations
@@ -44,24 +37,9 @@ class NeighbourIndex(Protocol):
 
 @dataclass(frozen=True)
 class SearchSpace:
-    """The searched database: index rows, their frame ids, optionally their features.
-
-    Any :class:`~mocapflow.framework.Index` serves a space (:meth:`neighbors` is its
-    ``query``); a matcher that needs no index (subsequence DTW) reads ``features``.
-    Derived arrays an algorithm needs once per space (block bounds...) are kept with
-    :meth:`memo`, so one space serves every query of a step.
-
-    Parameters
-    ----------
-    clip_id, frame : ndarray of int32, shape (n,)
-        Frame id of every index row (the index dataset's ``data`` table).
-    index : Index or None
-        A built :class:`~mocapflow.framework.Index` over the rows (LNG).
-    features : ndarray of float32, shape (n, d), or None
-        The indexed vectors (subsequence DTW, plots).
-    clip_names : dict of int to str, or None
-        Clip names by clip id (plots label clips by name).
-    """
+    """The searched database: frame id (``clip_id``, ``frame``: int32 (n,)) of every index
+    row, optionally a built ``index`` over the rows, their ``features`` float32 (n, d) and
+    ``clip_names`` by clip id (plots). :meth:`memo` keeps arrays derived once per space."""
 
     clip_id: np.ndarray
     frame: np.ndarray
@@ -88,11 +66,8 @@ class SearchSpace:
 
     @cached_property
     def continues(self) -> np.ndarray:
-        """bool (n,): row ``j`` is the frame after row ``j-1`` in the same clip.
-
-        A path may step from row ``j-1`` to ``j`` only where this holds, so no warping
-        path crosses a clip boundary (or a gap in the rows).
-        """
+        """bool (n,): row ``j`` is the frame after row ``j-1`` in the same clip (where a path
+        may step from ``j-1`` to ``j``: none crosses a clip boundary or a gap)."""
         c = np.zeros(self.n_rows, bool)
         c[1:] = (self.clip_id[1:] == self.clip_id[:-1]) & (self.frame[1:] == self.frame[:-1] + 1)
         return c
@@ -117,17 +92,14 @@ class SearchSpace:
 
 @dataclass
 class QueryMatches:
-    """Ranked matches of one query: rows ``[start, end)`` (index rows, ``end`` exclusive, as in every table).
-
-    ``length`` is the number of cells of each warping path, ``paths[r]`` its
-    ``(query frame, row)`` pairs.
-    """
+    """Ranked matches of one query: index rows ``[start, end)``, ``length`` cells per warping
+    path, ``paths[r]`` its ``(query frame, row)`` pairs."""
 
     start: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     end: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     cost: np.ndarray = field(default_factory=lambda: np.zeros(0))
     length: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    paths: list[np.ndarray] = field(default_factory=list)  # each (p, 2): (query frame, row)
+    paths: list[np.ndarray] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.cost)
@@ -177,19 +149,10 @@ def select_matches(
     rank_by: str,
     min_frames: int = 1,
 ) -> np.ndarray:
-    """Greedy ranked, non-overlapping choice among candidate path ends.
-
-    Candidates are taken by ascending ranking key (``cost``, or ``cost / length`` for
-    ``rank_by="normalized"``); one is kept when its rows ``[start, end]`` overlap no kept
-    match, until ``count`` are kept or the key passes ``max_cost``. Candidates spanning
-    fewer than ``min_frames`` database rows are skipped (a whole query squashed onto a few
-    frames by horizontal steps is a valid but rarely a wanted subsequence-DTW alignment).
-
-    Returns
-    -------
-    ndarray of int64
-        Positions into the candidate arrays, best first.
-    """
+    """Positions (int64, best first) of the greedy ranked, non-overlapping choice among
+    candidate path ends: by ascending ``cost`` (or ``cost / length``), each kept when rows
+    ``[start, end]`` overlap no kept match, until ``count`` or ``max_cost``; candidates
+    spanning fewer than ``min_frames`` rows (a query squashed onto a few frames) skipped."""
     key = cost / np.maximum(length, 1) if rank_by == "normalized" else np.asarray(cost, np.float64)
     ok = np.isfinite(key)
     if max_cost is not None:
@@ -223,10 +186,8 @@ def min_frames_of(min_span: float, query_frames: int) -> int:
 
 
 def matches_table(query_ids: list[int], results: list[QueryMatches], space: SearchSpace) -> pa.Table:
-    """Match table (:data:`~.schema.MATCH_TABLE`) of several queries; frames are within-clip.
-
-    Each result needs ``paths`` (one per match); ``query_ids[i]`` labels ``results[i]``.
-    """
+    """Match table (:data:`~.schema.MATCH_TABLE`, within-clip frames) of ``results[i]``
+    labelled ``query_ids[i]``; each result needs one path per match."""
     for q, r in zip(query_ids, results, strict=True):
         r.validate(space, f"query {q}")
         if len(r.paths) != len(r):
@@ -340,10 +301,8 @@ def parse_query_spec(text: str) -> QuerySpec:
 
 
 def query_files_fingerprint(queries: Any, base_dir: Path) -> str:
-    """Digest of the query files named in ``queries`` (path, size, mtime); "" when none.
-
-    Entries that are not query-spec strings (another matcher's structured queries) are skipped.
-    """
+    """Digest of the query files named in ``queries`` (path, size, mtime; non-strings
+    skipped); "" when none."""
     h, files = hashlib.sha256(), 0
     for text in queries or ():
         if not isinstance(text, str):
@@ -355,18 +314,3 @@ def query_files_fingerprint(queries: Any, base_dir: Path) -> str:
             h.update(f"{p}|{st.st_size}|{st.st_mtime_ns}\n".encode())
             files += 1
     return h.hexdigest()[:24] if files else ""
-
-
-__all__ = [
-    "MATCH_COLUMNS",
-    "IntervalSet",
-    "MatchParams",
-    "QuerySpec",
-    "QueryMatches",
-    "SearchSpace",
-    "matches_table",
-    "min_frames_of",
-    "parse_query_spec",
-    "query_files_fingerprint",
-    "select_matches",
-]

@@ -1,11 +1,5 @@
-"""Motion geometry shared by several built-in packages: the facing direction, the root
-frame (root position and heading removed), facing alignment and resampling.
-
-These stay in the core because the similarity, relational, self-similarity and report
-packages all use them; what belongs to one paper lives in that paper's package (Müller's
-body-size measures: :mod:`mocapflow.plugins.relational.body`). All functions take arrays
-(never per-frame objects) and broadcast over frames.
-"""
+"""Motion geometry several built-in packages share: facing direction, root frame, facing
+alignment and resampling (arrays, broadcast over frames)."""
 
 from __future__ import annotations
 
@@ -20,20 +14,8 @@ UP = np.array([0.0, 1.0, 0.0])
 
 
 def facing_angles(positions: np.ndarray, joints: tuple[str, ...] | list[str] = CANONICAL_JOINTS) -> np.ndarray:
-    """Heading per frame from the hip axis, radians about +y (0 = facing +z).
-
-    Parameters
-    ----------
-    positions : ndarray of shape (T, K, 3), metres
-        Canonical positions (``joints`` names the K columns; needs ``lhip`` and ``rhip``).
-
-    Returns
-    -------
-    ndarray of shape (T,)
-        Angle ``a`` such that rotating by ``-a`` about +y makes the character face +z.
-        The facing direction is ``(lhip - rhip) x up`` projected on the ground plane
-        (a hip axis along +x faces +z).
-    """
+    """Heading (T,) radians about +y (rotating by ``-a`` faces +z) of canonical positions
+    (T, K, 3) named by ``joints``: the direction ``(lhip - rhip) x up``."""
     j = list(joints)
     across = positions[:, j.index("lhip")] - positions[:, j.index("rhip")]
     fwd = np.cross(across, UP)
@@ -51,19 +33,8 @@ def rotate_about_y(v: np.ndarray, angle: np.ndarray) -> np.ndarray:
 def to_root_frame(
     positions: np.ndarray, joints: tuple[str, ...] | list[str] = CANONICAL_JOINTS, root: str = "root"
 ) -> np.ndarray:
-    """Positions with the root moved to the origin and the facing direction turned to +z.
-
-    The vertical axis is kept (heights stay heights), so only the root's ground-plane
-    position and heading are removed, as in Krüger et al. 2010 §3.
-
-    Parameters
-    ----------
-    positions : ndarray of shape (T, K, 3), metres
-
-    Returns
-    -------
-    ndarray of shape (T, K, 3), metres
-    """
+    """Positions (T, K, 3) metres with the root at the origin and facing +z (heights kept,
+    as in Krüger et al. 2010 §3)."""
     j = list(joints)
     r = positions[:, j.index(root)]
     centred = positions - r[:, None, :]
@@ -83,12 +54,8 @@ def align_facing(motion: Motion) -> Motion:
 
 
 def resample(motion: Motion, fps: float) -> Motion:
-    """Resample to ``fps``: slerp for rotations, linear for translations.
-
-    Samples are taken at ``k / fps`` seconds for ``k = 0 .. floor(duration_span * fps)``
-    where ``duration_span = (T - 1) / motion.fps`` (the first and last samples are kept in
-    time; the clip never grows past its last frame).
-    """
+    """Resample to ``fps`` (slerp rotations, lerp translations) at ``k / fps`` seconds up to
+    the last frame's time (the clip never grows past it)."""
     if fps <= 0:
         raise DataError(f"target fps must be positive, got {fps}")
     if abs(fps - motion.fps) < 1e-9 or motion.n_frames < 2:

@@ -234,15 +234,9 @@ def _plan_step(source: PipelineSource, step_id: str, registries: Registries) -> 
 
 
 def build_plan(source: PipelineSource, registries: Registries) -> Plan:
-    """Validate everything and return a :class:`Plan`; raises :class:`ConfigError`.
-
-    Checks, for every step: the component exists (with "did you mean"), it can be a step,
-    its ``with`` parameters validate against its ``Params`` (and nested ``ParamsOf`` dicts
-    against theirs), every input slot exists and every required one is filled, every
-    referenced step exists and writes a kind of dataset the slot accepts; then the executor
-    is registered and the graph has no cycle. Last, each component's ``check_plan`` runs:
-    its warnings are logged and kept in ``Plan.warnings``.
-    """
+    """Validate everything (components, parameters, nested ``ParamsOf``, input slots and
+    dataset kinds, executor, no cycle, each ``check_plan``) into a :class:`Plan`; raises
+    :class:`ConfigError`. ``check_plan`` warnings are logged and kept in ``Plan.warnings``."""
     config = source.config
     steps = {step_id: _plan_step(source, step_id, registries) for step_id in config.steps}
 

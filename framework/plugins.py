@@ -54,24 +54,9 @@ def get_plugin_manager(
     blocked: Iterable[str] = (),
     extra: Iterable[object] = (),
 ) -> pluggy.PluginManager:
-    """A fresh plugin manager.
-
-    Parameters
-    ----------
-    builtins : bool
-        Register the built-in plugins of :mod:`mocapflow.plugins`.
-    entry_points : bool
-        Load third-party plugins from the ``mocapflow`` entry-point group.
-    blocked : iterable of str
-        Plugin names (module or entry-point names) not to load.
-    extra : iterable of objects
-        Plugin objects (modules or instances with hookimpls) to register too; handy in tests.
-
-    A third-party plugin that fails to import is recorded in ``pm.failures`` (a list of
-    :class:`PluginFailure`) and logged as a warning rather than raised, so unrelated
-    commands keep working; :func:`build_registries` records plugins whose registration
-    hooks fail the same way.
-    """
+    """A fresh plugin manager with the built-ins, the ``mocapflow`` entry points and
+    ``extra`` plugin objects, none of ``blocked``. A plugin that fails to import is recorded
+    in ``pm.failures`` and warned about, never raised, so unrelated commands keep working."""
     pm = pluggy.PluginManager(PROJECT)
     pm.add_hookspecs(hookspecs)
     pm.failures = []  # type: ignore[attr-defined]
@@ -102,18 +87,18 @@ def _provider(pm: pluggy.PluginManager, impl: Any) -> str:
 
 
 def collect_classes(
-    pm: pluggy.PluginManager, hook_name: str, check: Callable[[type[Any], str], None] | None = None
-) -> tuple[list[tuple[str, list[type[Any]]]], dict[str, str]]:
-    """Call one registration hook plugin by plugin.
-
-    Returns ``(results, failed)``: ``(plugin name, classes)`` for every plugin whose hook
-    returned a list of classes that pass ``check(cls, plugin)`` (which raises
-    :class:`PluginError`), and ``plugin name -> what went wrong`` for the others (the hook
-    raised, returned something else, or a class failed the check). Nothing is raised, so
-    one broken plugin never stops the others.
-    """
-    results: list[tuple[str, list[type[Any]]]] = []
+    pm: pluggy.PluginManager,
+    hook_name: str,
+    check: Callable[[Any, str], None] | None = None,
+    item: type = type,
+) -> tuple[list[tuple[str, list[Any]]], dict[str, str]]:
+    """Call one registration hook plugin by plugin: ``(plugin name, items)`` for each whose
+    hook returned a list of ``item`` instances (classes; :class:`JointMap`) passing
+    ``check(obj, plugin)``, and ``plugin name -> what went wrong`` for the others. Nothing
+    is raised, so one broken plugin never stops the others."""
+    results: list[tuple[str, list[Any]]] = []
     failed: dict[str, str] = {}
+    what = "classes" if item is type else item.__name__
     for impl in getattr(pm.hook, hook_name).get_hookimpls():
         provider = _provider(pm, impl)
         try:
@@ -121,10 +106,10 @@ def collect_classes(
             if classes is None:
                 continue
             if not isinstance(classes, (list, tuple)):
-                raise PluginError(f"{hook_name}() must return a list of classes, got {type(classes).__name__}")
+                raise PluginError(f"{hook_name}() must return a list of {what}, got {type(classes).__name__}")
             for cls in classes:
-                if not isinstance(cls, type):
-                    raise PluginError(f"{hook_name}() returned {cls!r}, not a class")
+                if not isinstance(cls, item):
+                    raise PluginError(f"{hook_name}() returned {cls!r:.80}, not a {what}")
                 if check is not None:
                     check(cls, provider)
         except PluginError as exc:
@@ -139,21 +124,11 @@ def collect_classes(
 def build_registries(
     pm: pluggy.PluginManager, *, strict: bool = False, kinds: Iterable[str] | None = None
 ) -> Registries:
-    """Collect every registration hook (components and executors) into :class:`Registries`.
-
-    Each hook implementation is called separately so that a component is attributed to
-    the plugin that provided it. A plugin whose registration hook raises, returns something
-    other than a list of classes, or registers a class without a valid ``name`` or of the
-    wrong kind is skipped entirely (none of its components are registered), recorded in
-    ``pm.failures`` and logged as a warning naming it, so unrelated work goes on. With
-    ``strict`` any failed plugin (including one that failed to import) is a
-    :class:`PluginError`. Two plugins registering one name are always an error naming both.
-
-    ``kinds`` (e.g. ``("formats", "features", "indexes", "matchers")``) calls only those
-    kinds' hooks (``"executors"`` for ``register_executors``; joint maps always), so a
-    command that needs a few kinds imports only the modules behind them (``mocapflow
-    search``: no cleaner, analysis or executor module); the other registries stay empty.
-    """
+    """Collect every registration hook into :class:`Registries`, each component attributed
+    to its plugin. A plugin with a failing hook or an invalid class is skipped entirely,
+    recorded in ``pm.failures`` and warned about (``strict``: a :class:`PluginError`); two
+    plugins registering one name are always an error. ``kinds`` calls only those kinds'
+    hooks (joint maps always), so a command imports only the modules it needs."""
     wanted = None if kinds is None else set(kinds)
     regs = Registries()
     pending: list[tuple[Registry, str, list[type[Any]]]] = []
@@ -168,7 +143,7 @@ def build_registries(
         results, bad = collect_classes(pm, "register_executors", regs.executors.check)
         pending += [(regs.executors, provider, classes) for provider, classes in results]
         failed.update({p: e for p, e in bad.items() if p not in failed})
-    maps, bad = collect_joint_maps(pm)
+    maps, bad = collect_classes(pm, "register_joint_maps", item=JointMap)
     failed.update({p: e for p, e in bad.items() if p not in failed})
     for plugin, error in failed.items():
         _record_failure(pm, plugin, error)
@@ -197,45 +172,21 @@ _JOINT_MAPS: dict[str, JointMap] = {}
 
 
 def install_joint_maps(maps: Iterable[JointMap]) -> None:
-    """Make dialects known to :func:`registered_joint_maps` in this process (called by
-    :func:`build_registries` with every registered map)."""
+    """Make dialects known to :func:`registered_joint_maps` in this process."""
     for m in maps:
         _JOINT_MAPS[m.name] = m
 
 
 def registered_joint_maps() -> tuple[JointMap, ...]:
-    """The skeleton naming dialects registered in this process (what readers map skeletons
-    with); builds the installed plugins' registries the first time, so a reader called on
-    its own sees the plugins' dialects too."""
+    """The naming dialects registered in this process (built with the registries the first
+    time, so a reader called on its own sees the plugins' dialects too)."""
     if not _JOINT_MAPS:
         default_registries()  # installs them; the same build the facade uses later
     return tuple(_JOINT_MAPS.values())
 
 
-def collect_joint_maps(pm: pluggy.PluginManager) -> tuple[list[tuple[str, list[Any]]], dict[str, str]]:
-    """Call ``register_joint_maps`` plugin by plugin, as :func:`collect_classes` does for
-    classes: ``(plugin name, maps)`` for plugins that returned a list of
-    :class:`~mocapflow.framework.joints.JointMap`, ``plugin -> what went wrong`` otherwise."""
-    results: list[tuple[str, list[Any]]] = []
-    failed: dict[str, str] = {}
-    for impl in pm.hook.register_joint_maps.get_hookimpls():
-        provider = _provider(pm, impl)
-        try:
-            maps = impl.function()
-            if maps is None:
-                continue
-            if not isinstance(maps, (list, tuple)) or not all(isinstance(m, JointMap) for m in maps):
-                raise PluginError(f"must return a list of JointMap, got {maps!r:.80}")
-        except Exception as exc:
-            failed[provider] = f"failed in register_joint_maps(): {type(exc).__name__}: {exc}"
-        else:
-            results.append((provider, list(maps)))
-    return results, failed
-
-
 def plugin_commands(pm: pluggy.PluginManager) -> list[type[Any]]:
-    """CLI command classes of ``register_commands``; a plugin whose hook fails is recorded
-    in ``pm.failures``, warned about and skipped, as in :func:`build_registries`."""
+    """CLI command classes of ``register_commands`` (a failing plugin is recorded and skipped)."""
     results, failed = collect_classes(pm, "register_commands")
     for plugin, error in failed.items():
         _record_failure(pm, plugin, error)
@@ -243,13 +194,9 @@ def plugin_commands(pm: pluggy.PluginManager) -> list[type[Any]]:
 
 
 def call_lifecycle(hook_relay: Any, hook_name: str, **kwargs: Any) -> None:
-    """Call a lifecycle hook (``before_step``...) plugin by plugin, in pluggy's order.
-
-    An implementation that raises becomes a :class:`PluginError` naming its plugin and the
-    hook (the original exception is its ``__cause__``); the implementations after it are
-    not called. Hook wrappers, which pluggy must drive, make the call go through pluggy as
-    a whole; an error is then attributed to every plugin implementing the hook.
-    """
+    """Call a lifecycle hook plugin by plugin in pluggy's order; one that raises becomes a
+    :class:`PluginError` naming its plugin (with hook wrappers pluggy drives the call and
+    the error names every implementing plugin)."""
     caller = getattr(hook_relay, hook_name)
     impls = caller.get_hookimpls()
     what = f"{hook_name}({', '.join(f'{k}={v!r}' for k, v in kwargs.items() if k == 'step_id')})"
@@ -274,6 +221,5 @@ def load_registries(*, kinds: Iterable[str] | None = None, **kwargs: Any) -> Reg
 
 @functools.lru_cache(maxsize=1)
 def default_registries() -> Registries:
-    """The registries of every installed plugin, built once per process (the Python API,
-    :meth:`Motion.write` and the readers' joint maps use them)."""
+    """The registries of every installed plugin, built once per process."""
     return load_registries()

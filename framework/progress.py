@@ -86,15 +86,9 @@ class _CallbackLoader:
 
 @contextlib.contextmanager
 def announce_compilation(echo: Callable[[str], None], message: str = COMPILING_MESSAGE) -> Iterator[None]:
-    """Within the block, say ``message`` (once) when numba starts compiling a kernel.
-
-    numba compiles a kernel on its first call and then caches it on disk (``cache=True``);
-    loading from the cache is quick and silent, a compilation is not: a first run on a fresh
-    install would otherwise sit silent for a long time. Only real compilations are
-    announced (numba's ``numba:compile`` event fires on cache misses only), and nothing is
-    imported here: when numba is not imported yet, the listener is attached once it is.
-    Work done in worker processes is not seen.
-    """
+    """Within the block, say ``message`` (once) when numba compiles a kernel (cache misses
+    only), so a first run on a fresh install does not sit silent. Imports nothing; worker
+    processes are not seen."""
     said: list[bool] = []
     listeners: list[tuple[Any, Any]] = []
 

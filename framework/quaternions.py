@@ -42,9 +42,6 @@ def conjugate(q: np.ndarray) -> np.ndarray:
     return out
 
 
-inverse = conjugate
-
-
 def normalize(q: np.ndarray) -> np.ndarray:
     """Scale to unit norm; zero quaternions become the identity."""
     q = np.asarray(q, dtype=float)
@@ -71,20 +68,8 @@ def from_axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
 
 
 def from_euler(angles: np.ndarray, order: str, degrees: bool = True) -> np.ndarray:
-    """Compose elementary rotations.
-
-    Parameters
-    ----------
-    angles : ndarray of shape (..., len(order))
-        One angle per letter of ``order``.
-    order : str
-        Axis letters (``"zxy"``, ``"XYZ"``...), in the order the channels are listed
-        in the file. The result is ``R[order[0]] @ R[order[1]] @ ...``, i.e. the last
-        axis is applied to a vector first (BVH and ASF convention: intrinsic rotations in
-        listed order).
-    degrees : bool
-        Whether ``angles`` are in degrees.
-    """
+    """``R[order[0]] @ R[order[1]] @ ...`` of ``angles (..., len(order))``: intrinsic
+    rotations in listed channel order (BVH convention; the last axis acts first)."""
     angles = np.asarray(angles, dtype=float)
     if degrees:
         angles = np.deg2rad(angles)
@@ -157,10 +142,7 @@ def from_matrix(m: np.ndarray) -> np.ndarray:
 
 
 def to_euler(q: np.ndarray, order: str, degrees: bool = True) -> np.ndarray:
-    """Inverse of :func:`from_euler` for three distinct axes (Tait-Bryan orders).
-
-    Returns angles ``(..., 3)`` such that ``from_euler(angles, order) == ±q``.
-    """
+    """Angles ``(..., 3)`` with ``from_euler(angles, order) == ±q`` (three distinct axes)."""
     order = order.lower()
     if len(order) != 3 or len(set(order)) != 3:
         raise ValueError(f"to_euler needs three distinct axes, got {order!r}")
@@ -216,18 +198,8 @@ def make_continuous(q: np.ndarray, axis: int = 0) -> np.ndarray:
 
 
 def mean_of_outer(outer: np.ndarray) -> np.ndarray:
-    """Chordal L2 mean from accumulated outer products.
-
-    Parameters
-    ----------
-    outer : ndarray of shape (..., 4, 4)
-        ``sum q q^T`` over the samples (sign-invariant, so antipodal quaternions agree).
-
-    Returns
-    -------
-    ndarray of shape (..., 4)
-        The principal eigenvectors, unit quaternions with ``w >= 0`` (Markley et al. 2007).
-    """
+    """Chordal L2 mean (..., 4), ``w >= 0``, from ``sum q q^T`` (..., 4, 4): the principal
+    eigenvector (Markley et al. 2007; sign-invariant)."""
     _, vecs = np.linalg.eigh(outer)
     q = vecs[..., :, -1]
     return np.where(q[..., :1] < 0, -q, q)
@@ -240,30 +212,14 @@ def chordal_mean(q: np.ndarray) -> np.ndarray:
 
 
 def euler_extrinsic(angles: np.ndarray, order: str, degrees: bool) -> np.ndarray:
-    """Rotations applied about fixed axes in the listed order (Acclaim ASF/AMC convention).
-
-    ``order="xyz"`` means rotate about x first, then y, then z: ``R = Rz Ry Rx``.
-    Equivalent to :func:`from_euler` with the order and the angles reversed.
-
-    Parameters
-    ----------
-    angles : ndarray of shape (..., len(order))
-    order : str
-        Axis letters in the listed order.
-    degrees : bool
-    """
+    """Rotations about fixed axes in listed order (ASF/AMC: ``"xyz"`` is ``Rz Ry Rx``)."""
     angles = np.asarray(angles, dtype=float)
     return from_euler(angles[..., ::-1], order[::-1], degrees=degrees)
 
 
 def euler_extrinsic_inverse(q: np.ndarray, order: str, degrees: bool) -> np.ndarray:
-    """Angles ``(..., len(order))`` with ``euler_extrinsic(angles, order) == ±q``.
-
-    ``order`` may list one, two or three distinct axes; rotations about the missing axes
-    must be zero (they are, for rotations read from a file with those channels). The
-    missing axes are put in the middle of the three-axis decomposition, where their zero
-    angle keeps it away from gimbal lock.
-    """
+    """Angles ``(..., len(order))`` with ``euler_extrinsic(angles, order) == ±q``, for one to
+    three axes; missing axes (zero) go in the middle, away from gimbal lock."""
     order = order.lower()
     if not order:
         return np.zeros(np.shape(q)[:-1] + (0,))

@@ -1,30 +1,11 @@
 """The default matcher step: how a step's inputs become a search space and query arrays.
 
-A matcher that does not override ``run`` runs :func:`run_matcher`: it builds the
-:class:`~.matching.SearchSpace` (:func:`search_space`), the query features
-(:func:`step_queries`), calls ``matcher.match(query, space)`` per query (on the executor's
-workers when there are several) and writes ``data`` (:data:`~.schema.MATCH_TABLE`) and
-``queries`` (:data:`~.schema.QUERIES`). Inputs of such a step (``lng``, ``sdtw``,
-``logical``, a third party's):
-
-``database`` (required)
-    An index dataset (``indexes.*``): its ``data`` table maps index rows to
-    ``(clip_id, frame)``, ``.index()`` loads the persisted index. The feature vectors it
-    was built from are its upstream ``features`` dataset, found through the provenance
-    (``_manifest.json`` ``inputs.features.step``, a sibling in the workspace). A features
-    dataset is accepted too by matchers that need no index (``sdtw``).
-``features`` (optional)
-    The database's features dataset, when it is not the index's upstream.
-``query`` (required)
-    A motions dataset (each clip, or each ``queries`` spec, is turned into features by
-    the database's feature set, re-created from the features dataset's provenance; fitted
-    sets load their state from it) or a features dataset in the same feature space.
-
-A query spec is ``SOURCE[:START-END]``: SOURCE names a clip of the query dataset (its
-name, file name or path) or, failing that, a motion file on disk (relative to the
-pipeline file); START-END is a half-open frame range at the database frame rate, or in
-seconds with an ``s`` suffix (``walk.amc:1.5s-3s``). Features are computed on the whole
-clip first and then cut, so windowed features match the database's frame for frame.
+:func:`run_matcher` builds the :class:`~.matching.SearchSpace` from ``database`` (an index
+dataset; or features for matchers that need no index), the query features from ``query``
+(motions, turned into features by the database's feature set re-created from provenance;
+or features), calls ``matcher.match`` per query and writes ``data`` and ``queries``.
+Features are computed on the whole query clip and then cut (``SOURCE[:START-END]``), so
+windowed features match the database's frame for frame.
 """
 
 from __future__ import annotations
@@ -46,7 +27,7 @@ from .context import StepContext
 from .database import MotionDatabase
 from .datasets import Dataset, StepOutput
 from .errors import ConfigError, DataError, PipelineError
-from .matching import QueryMatches, QuerySpec, SearchSpace, matches_table, parse_query_spec, query_files_fingerprint
+from .matching import QueryMatches, QuerySpec, SearchSpace, matches_table, parse_query_spec
 from .motion import Motion
 from .registry import Registries
 
@@ -101,21 +82,8 @@ def motion_queries(
     what: str = "query",
     fps: float | None = None,
 ) -> list[Query]:
-    """Features of query segments of the clips of ``mdb`` (or of files on disk).
-
-    Parameters
-    ----------
-    specs : list of QuerySpec
-        Empty: every clip of ``mdb`` whole.
-    mdb : MotionDatabase
-        Clips a spec may name (name, file name, stem or path suffix).
-    feature_set : FeatureSet
-        The database's feature set (configured, fitted).
-    resolve : callable
-        Path of a file spec (relative paths against the pipeline file).
-    fps : float, optional
-        Rate files are resampled to (default: that of ``mdb``).
-    """
+    """Features of query segments (no ``specs``: every clip) of clips of ``mdb`` (by name,
+    file name, stem or path suffix) or of files (``resolve``d, resampled to ``fps``)."""
     names: dict[str, int] = {}
     for pos, m in enumerate(mdb.motions):
         p = str(m.metadata.get("path") or "")
@@ -171,16 +139,10 @@ def search_space(matcher: Matcher, inputs: Mapping[str, Dataset], registries: Re
             raise DataError(f"{matcher.key()}: rows of features {fds.step!r} differ from those of {db.step!r}")
         x = fm.x
     mds = upstream(features_dataset(inputs) or db, "motions")
-    names = (
-        None
-        if mds is None or not mds.has_table("clips")
-        else dict(
-            zip(
-                *(mds.table("clips", columns=["clip_id", "name"])[c].to_pylist() for c in ("clip_id", "name")),
-                strict=True,
-            )
-        )
-    )
+    names = None
+    if mds is not None and mds.has_table("clips"):
+        t = mds.table("clips", columns=["clip_id", "name"])
+        names = dict(zip(t["clip_id"].to_pylist(), t["name"].to_pylist(), strict=True))
     return SearchSpace(clip_id, frame, index, x, clip_names=names)
 
 
@@ -228,8 +190,7 @@ def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: StepContex
     queries = step_queries(matcher, inputs, ctx)
     results: list[Any]
     if ctx.executor.workers > 1 and len(queries) > 1:
-        # one task per query; each worker loads the search space once, from the workspace
-        # files, with the registries of the run (those a --block left)
+        # one task per query; each worker loads the search space once, with the run's registries
         refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
         task = partial(_match_task, matcher, refs, ctx.registries)
         results = ctx.map(task, [q.features for q in queries], desc=ctx.step_id)
@@ -248,8 +209,7 @@ def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: StepContex
 def _match_task(
     matcher: Matcher, refs: dict[str, DatasetRef], registries: Registries, features: np.ndarray
 ) -> QueryMatches:
-    """One query of :func:`run_matcher` on an executor worker (module-level: pickled);
-    the search space (index, frame ids, features) is loaded once per worker process."""
+    """One query of :func:`run_matcher` on a worker (the search space loaded once per process)."""
     key = (
         "search-space",
         matcher.key(),
@@ -263,31 +223,5 @@ def _match_task(
 
 def queries_table(queries: list[Query]) -> pa.Table:
     """:data:`~.schema.QUERIES` of each query (clip_id -1: a file)."""
-    return pa.table(
-        {
-            "query_id": pa.array(np.arange(len(queries), dtype=np.int32)),
-            "name": pa.array([q.name for q in queries], pa.string()),
-            "clip_id": pa.array(np.array([q.clip_id for q in queries], np.int32)),
-            "start_frame": pa.array(np.array([q.start_frame for q in queries], np.int32)),
-            "end_frame": pa.array(np.array([q.end_frame for q in queries], np.int32)),
-        },
-        schema=schema.QUERIES,
-    )
-
-
-__all__ = [
-    "Query",
-    "QuerySpec",
-    "feature_queries",
-    "feature_set_of",
-    "features_dataset",
-    "motion_queries",
-    "parse_query_spec",
-    "queries_table",
-    "query_files_fingerprint",
-    "read_motion_file",
-    "run_matcher",
-    "search_space",
-    "step_queries",
-    "upstream",
-]
+    rows = [{"query_id": i, **{k: getattr(q, k) for k in schema.QUERIES.names[1:]}} for i, q in enumerate(queries)]
+    return pa.Table.from_pylist(rows, schema=schema.QUERIES)

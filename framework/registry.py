@@ -23,11 +23,7 @@ def did_you_mean(name: str, candidates: list[str] | tuple[str, ...] | set[str]) 
 
 @dataclass
 class Registry:
-    """Components of one kind, keyed by their ``name`` class attribute.
-
-    Records which plugin provided each component so that duplicates and errors can
-    name both sides.
-    """
+    """Components of one kind by ``name``, with the plugin that provided each (for errors)."""
 
     kind: str
     _classes: dict[str, type[Any]] = field(default_factory=dict)

@@ -1,9 +1,5 @@
-"""Running a validated plan: one step after another into a workspace, skipping unchanged steps.
-
-A run holds the workspace's lock from start to end; each step's output is written and
-committed atomically by :class:`~.workspace.Workspace` (:meth:`~.workspace.Workspace.write_step`),
-with the provenance built here (:meth:`Runner._compute`).
-"""
+"""Running a validated plan: one step after another into a workspace, skipping unchanged
+steps, holding the workspace lock; each output committed atomically with its provenance."""
 
 from __future__ import annotations
 
@@ -50,24 +46,9 @@ def default_workspace(plan: Plan) -> Path:
 
 
 class Runner:
-    """Executes a :class:`Plan` into a workspace.
-
-    Parameters
-    ----------
-    plan : Plan
-    workspace : Path
-    executor : Executor
-        Fans out per-clip work.
-    registries : Registries
-        The run's registries; every step's context (and the work it sends out) carries them.
-    hook : pluggy hook relay or None
-        Lifecycle hooks (``before_step``, ``after_step``, ``on_step_error``).
-    force : bool
-        Recompute every step even when its fingerprint is unchanged.
-    wait : float
-        Seconds to wait for another run holding the workspace before refusing
-        (:class:`~.errors.LockError`); ``0`` refuses at once.
-    """
+    """Executes a :class:`Plan` into a workspace with the run's ``registries`` and
+    ``executor``; ``hook``: the lifecycle hook relay; ``force``: recompute every step;
+    ``wait``: seconds to wait for another run holding the workspace."""
 
     def __init__(
         self,
@@ -215,27 +196,10 @@ def run_pipeline(
     echo: Callable[[str], None] | None = None,
     wait: float = 0.0,
 ) -> list[StepReport]:
-    """Plan and run a pipeline file; returns one :class:`StepReport` per step.
-
-    Parameters
-    ----------
-    path : str or Path
-        The YAML file.
-    workspace : path, optional
-        Overrides the pipeline's ``workspace`` (relative paths are relative to the cwd).
-    overrides : list of ``"step.key=value"``
-    jobs : int, optional
-        Local executor workers (``0`` = all cores); overrides the pipeline's ``jobs``.
-    force : bool
-        Recompute steps even if up to date.
-    pm : pluggy.PluginManager, optional
-        A plugin manager (default: built-ins and entry points); its registries are the run's.
-    executor : Executor, optional
-        Use this executor instead of the configured one.
-    wait : float
-        Seconds to wait while another run holds the workspace (default: refuse at once
-        with a :class:`~.errors.LockError` naming it).
-    """
+    """Plan and run a pipeline file (one :class:`StepReport` per step). ``workspace``,
+    ``jobs`` (0: all cores) and ``executor`` override the pipeline's; ``overrides`` are
+    ``"step.key=value"``; ``pm`` defaults to every installed plugin; ``wait`` as in
+    :class:`Runner`."""
     pm = pm or get_plugin_manager()
     registries = build_registries(pm)
     source = _source(path, overrides)

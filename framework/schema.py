@@ -76,8 +76,6 @@ SKELETONS = pa.schema(
     [("skeleton", pa.string()), ("name", pa.string()), ("n_joints", pa.int32()), ("definition", pa.string())]
 )
 
-SEGMENTS = pa.schema([("clip_id", pa.int32()), ("start_frame", pa.int32()), ("end_frame", pa.int32())])
-
 MATCHES = pa.schema(
     [
         ("query_id", pa.int32()),
@@ -195,11 +193,6 @@ def clip_ids_of(keys: list[str]) -> list[int]:
         taken[cid] = key
         out[key] = cid
     return [out[k] for k in keys]
-
-
-def feature_frames(dim: int) -> pa.Schema:
-    """Schema of a feature table of dimension ``dim``."""
-    return pa.schema([("clip_id", pa.int32()), ("frame", pa.int32()), ("features", pa.list_(pa.float32(), dim))])
 
 
 def fixed_list(x: np.ndarray) -> pa.FixedSizeListArray:

@@ -15,33 +15,10 @@ from .joints import CANONICAL_JOINTS
 
 @dataclass(frozen=True, eq=False)
 class Skeleton:
-    """A joint hierarchy with rest offsets.
-
-    Parameters
-    ----------
-    names : tuple of str, length J
-        Joint names as in the source file; joints are in topological order (parents first).
-    parents : ndarray of int, shape (J,)
-        Parent index per joint, ``-1`` for the root (joint 0).
-    offsets : ndarray of shape (J, 3), metres
-        Rest offset of each joint from its parent, in the parent's frame. The root's offset
-        is ignored by forward kinematics (the root translation places it).
-    canonical : dict
-        Canonical joint name (see :mod:`mocapflow.framework.joints`) -> joint index.
-    rotation_orders : tuple of str, length J
-        Euler order of the rotation channels per joint as listed in the file (``"zxy"``...),
-        ``""`` for joints without rotation channels (end sites). Writers use it.
-    axes : ndarray of shape (J, 4) or None
-        ASF ``axis`` rest frames as quaternions (identity for BVH); writers of ASF/AMC need
-        them to turn local rotations back into the file's per-bone Euler angles.
-    channels : tuple of tuple of str
-        The file's channel names per joint (``("Xposition", "Zrotation", ...)`` or ASF
-        ``("rx", "ry")``), for faithful round trips.
-    name : str
-        Source skeleton name (ASF name or file stem).
-    meta : dict
-        Format-specific extras (JSON-serialisable).
-    """
+    """A joint hierarchy: ``names`` (J) in topological order, ``parents`` (J,) (-1: root,
+    joint 0), rest ``offsets`` (J, 3) metres in the parent's frame (the root's ignored),
+    ``canonical`` name -> joint index. For writers: per-joint Euler ``rotation_orders`` as
+    listed (``""``: none), ASF ``axes`` (J, 4) quaternions, the file's ``channels``."""
 
     names: tuple[str, ...]
     parents: np.ndarray

@@ -99,6 +99,3 @@ def run_cleaner(cleaner: Cleaner, inputs: Mapping[str, Dataset], ctx: StepContex
         if outs
     }
     return StepOutput(tables, {"clips": [o.summary for o in outs]})
-
-
-__all__ = ["StepFunction", "run_cleaner", "run_features", "run_index", "run_matcher", "run_step"]

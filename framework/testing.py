@@ -9,13 +9,8 @@ In the spirit of scikit-learn's ``parametrize_with_checks``::
     def test_conformance(component_class, check):
         check(component_class)
 
-Components whose ``Params`` have required fields may define a class attribute
-``test_params`` (a dict) used to build an instance for the checks that need one.
-Matchers and cleaners are checked by :mod:`.conformance` (synthetic search space with a
-brute-force :class:`ReferenceIndex`; a matcher with its own step declares
-``test_pipeline``, see :func:`check_matcher_pipeline`).
-Synthetic data for tests (:func:`synthetic_skeleton`, :func:`synthetic_motion`) lives here
-too, so third parties test with the same humanoid as mocapflow itself.
+Components with required parameters define ``test_params``; matchers and cleaners are
+checked by :mod:`.conformance`. The synthetic humanoid mocapflow tests with is here too.
 """
 
 from __future__ import annotations

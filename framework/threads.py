@@ -1,15 +1,8 @@
 """Numeric threads per process: workers x threads <= cores.
 
-Each worker of a pool gets ``cores // workers`` threads for numba, OpenBLAS and OpenMP
-(:func:`limit_threads`, before its first task); the client, while it works through a
-batch's chunks, a worker's share too (:func:`_client_threads`).
-
-OpenBLAS is best sized when it loads (:func:`size_blas_for_workers`, which the CLI calls
-before NumPy is imported when a run will fork workers): limited only afterwards (in each
-forked worker, by threadpoolctl) to fewer threads than it loaded with, the ingest's readers
-spent about 12 % more CPU per worker, and the client's imports about 0.2 s more CPU (its
-thread server busy on the other core), measured in
-docs/scale-out.md.
+Each worker (and the client while it works a batch) gets ``cores // workers`` threads.
+OpenBLAS is sized before NumPy loads (:func:`size_blas_for_workers`): limited only later
+by threadpoolctl, ingest readers spent ~12 % more CPU per worker (docs/scale-out.md).
 """
 
 from __future__ import annotations
@@ -44,12 +37,8 @@ def threads_per_worker(workers: int, cores: int | None = None) -> int:
 
 
 def limit_threads(n: int) -> int:
-    """Size every numeric thread pool of this process to ``n`` threads; returns ``n``.
-
-    Sets the environment (for libraries loaded later), limits already loaded BLAS/OpenMP
-    pools with threadpoolctl and numba's pool (its width if not yet launched, else the
-    threads it uses). Called in each worker before its first task.
-    """
+    """Size every numeric thread pool of this process to ``n`` threads (environment for
+    later loads, threadpoolctl, numba); returns ``n``. Each worker calls it first."""
     n = max(1, int(n))
     for var in THREAD_ENV:
         os.environ[var] = str(n)
@@ -61,12 +50,9 @@ def limit_threads(n: int) -> int:
             numba.config.reload_config()  # what numba.config.NUMBA_NUM_THREADS (and kd-trees) read
         # numba's pool was sized at import; limit the threads this (task-running) thread uses
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - a dependency; env vars still cover later loads
-        pass
-    else:
-        threadpool_limits(n)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(n)
     return n
 
 
@@ -75,14 +61,8 @@ BLAS_ENV = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
 
 
 def size_blas_for_workers(jobs: int, cores: int | None = None) -> bool:
-    """Before NumPy loads: size the BLAS libraries to a worker's share of the cores
-    (``cores // jobs``) when this process will fork ``jobs`` local workers.
-
-    Returns whether it did: not when NumPy is already imported (the library has read its
-    variables), when the user set any of :data:`BLAS_ENV`, or when ``jobs <= 1`` (a
-    one-process run keeps BLAS as wide as the machine). The client's own BLAS calls then
-    run at that width too; its heavy kernels are numba's, whose pool keeps its width.
-    """
+    """Before NumPy loads, size BLAS to ``cores // jobs`` when ``jobs > 1`` local workers
+    will fork; whether it did (not after NumPy loaded, nor over a user's :data:`BLAS_ENV`)."""
     jobs = int(jobs or 0)
     if jobs == 0:
         jobs = available_cores()
@@ -95,10 +75,8 @@ def size_blas_for_workers(jobs: int, cores: int | None = None) -> bool:
 
 
 def workers_on_this_host(pipeline: str, jobs: int | None) -> int:
-    """The worker processes a run will start on this host: ``jobs`` (``--jobs``), else the
-    pipeline's ``jobs:``, with ``executor: local`` or ``executor: dask`` without a scheduler
-    address (a LocalCluster beside the client); 1 when unknown, for a remote cluster or
-    another executor. Reads the YAML with PyYAML alone: NumPy is not imported yet."""
+    """Worker processes a run starts on this host (``jobs``, else the pipeline's, for a local
+    executor or a dask LocalCluster; else 1), read with PyYAML alone (no NumPy yet)."""
     try:
         import yaml
 
@@ -119,32 +97,22 @@ def workers_on_this_host(pipeline: str, jobs: int | None) -> int:
 
 @contextmanager
 def _client_threads(n: int) -> Iterator[None]:
-    """The client's numeric threads at a worker's share (``n``) while it works through
-    chunks, restored afterwards (its own kernels between batches use the whole machine).
-
-    Unlike :func:`limit_threads`, numba's pool keeps its width (only the threads this thread
-    uses change); called after the pool's processes exist: it launches numba's threading
-    layer, after which forking is unsafe (:func:`_fork_is_safe`).
-    """
+    """The client's numeric threads at a worker's share while it works chunks, restored
+    afterwards. Launches numba's threading layer: call only after the pool has forked."""
     import numba
 
     env = {var: os.environ.get(var) for var in THREAD_ENV}
     before = numba.get_num_threads()
-    limiter = None
+    from threadpoolctl import threadpool_limits
+
+    limiter = threadpool_limits(n)
     try:
         for var in THREAD_ENV:
             os.environ[var] = str(n)
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-        try:
-            from threadpoolctl import threadpool_limits
-        except ImportError:  # pragma: no cover - a dependency
-            pass
-        else:
-            limiter = threadpool_limits(n)
         yield
     finally:
-        if limiter is not None:
-            limiter.restore_original_limits()
+        limiter.restore_original_limits()
         numba.set_num_threads(before)
         for var, value in env.items():
             if value is None:

@@ -18,14 +18,9 @@ a temporary folder (``ctx.out_dir``) and returns its tables; the tables are writ
 (:meth:`Workspace.commit`, atomic on one filesystem). A failed step leaves its previous dataset
 as it was. Files written outside a step's folder go through :func:`atomic_path`.
 
-``<workspace>/.mocapflow/lock`` keeps two runs from writing one workspace at once. It is an
-advisory ``flock`` (released by the kernel when the holder exits, even by ``kill -9``) on a
-file that records the holder (pid, host, start time, pipeline) for messages. A second run
-waits up to ``wait`` seconds, then refuses with a :class:`~.errors.LockError` naming the
-holder. A holder recorded in a lock nobody holds is a run that was killed: the next run
-says so and takes the lock over. Where ``flock`` is unavailable (no :mod:`fcntl`, or a
-filesystem without locks) the record alone decides: the lock is taken over when its holder
-ran on this host and is no longer alive.
+``.mocapflow/lock`` is an advisory ``flock`` (released by the kernel even on ``kill -9``) on a
+file recording the holder; a holder recorded in a lock nobody holds was killed and is taken
+over. Without ``flock`` the record decides (holder on this host and dead: taken over).
 """
 
 from __future__ import annotations
@@ -66,11 +61,8 @@ _MARKER_TEXT = (
 
 
 def runner_dir(workspace: str | Path) -> Path:
-    """``<workspace>/.mocapflow``, created (atomically, with its marker) if missing.
-
-    Raises :class:`ConfigError` when a ``.mocapflow`` entry exists without the marker: it
-    belongs to someone else and the runner will not use or clean it.
-    """
+    """``<workspace>/.mocapflow``, created atomically with its marker if missing
+    (:class:`ConfigError` if one exists without the marker: not ours to use or clean)."""
     d = Path(workspace) / RUNNER_DIR
     for _ in range(2):
         found = existing_runner_dir(workspace)
@@ -118,8 +110,7 @@ def _proc_start(pid: int) -> str | None:
 
 
 def holder_alive(holder: dict[str, Any]) -> bool:
-    """Whether the process recorded in a lock may still run (``True`` when it cannot be told:
-    another host, or no pid)."""
+    """Whether the process recorded in a lock may still run (``True`` when it cannot be told)."""
     pid = holder.get("pid")
     if holder.get("host") != socket.gethostname() or not isinstance(pid, int):
         return True
@@ -141,22 +132,9 @@ def describe_holder(holder: dict[str, Any]) -> str:
 
 
 class WorkspaceLock:
-    """Exclusive use of a workspace by one run; a context manager.
-
-    Parameters
-    ----------
-    workspace : Path
-        The workspace folder (created if missing).
-    wait : float
-        Seconds to wait for another run to finish before refusing (``0``: refuse at once;
-        ``float("inf")``: wait as long as it takes).
-    pipeline : str
-        Recorded in the lock, for the message another run shows.
-    echo : callable, optional
-        Receives the "waiting for ..." line.
-    poll : float
-        Seconds between attempts while waiting.
-    """
+    """Exclusive use of a workspace by one run (a context manager): waits up to ``wait``
+    seconds (``inf``: forever) for another run, then raises :class:`LockError` naming it;
+    ``pipeline`` is recorded for that message, ``echo`` gets the "waiting" line."""
 
     def __init__(
         self,
@@ -174,7 +152,6 @@ class WorkspaceLock:
         self._fd: int | None = None
         self.path: Path | None = None
 
-    # --- the record ----------------------------------------------------------------
     def _read(self, fd: int) -> dict[str, Any]:
         try:
             os.lseek(fd, 0, os.SEEK_SET)
@@ -198,7 +175,6 @@ class WorkspaceLock:
         os.write(fd, json.dumps(me).encode())
         os.fsync(fd)
 
-    # --- acquiring -----------------------------------------------------------------
     def _try_flock(self, fd: int) -> bool | None:
         """True: locked; False: held by another; None: this filesystem has no flock."""
         try:
@@ -282,11 +258,8 @@ class WorkspaceLock:
 
 
 class Workspace:
-    """A workspace folder as the runner uses it (see the module doc for the layout).
-
-    Every method that deletes or replaces something does so only inside the runner's own
-    marked folder or for a step folder holding a :data:`MANIFEST`.
-    """
+    """A workspace folder as the runner uses it; deletes only inside the runner's marked
+    folder or a step folder holding a :data:`MANIFEST`."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -308,8 +281,7 @@ class Workspace:
                 )
 
     def clean_leftovers(self) -> None:
-        """Remove half-written outputs of an interrupted run (never read, never kept); call
-        only while holding the lock."""
+        """Remove half-written outputs of an interrupted run (call while holding the lock)."""
         remove_owned(self.path, TMP_DIR, TRASH_DIR)
 
     def fingerprint(self, step_id: str) -> str | None:
@@ -380,14 +352,8 @@ def write_table(table: pa.Table, path: Path, provenance: Mapping[str, Any]) -> N
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Write a file atomically: yields a temporary path beside ``path`` (same folder, same
-    suffix, so writers that look at the extension still work); when the block ends without
-    error it is renamed over ``path``, otherwise removed. A reader never sees half a file,
-    and a failed write leaves the previous file as it was. The folder must exist.
-
-    >>> with atomic_path("take.bvh") as tmp:      # doctest: +SKIP
-    ...     write_bvh(motion, tmp)
-    """
+    """Yield a temporary path beside ``path`` (same suffix), renamed over ``path`` when the
+    block succeeds, removed otherwise: never half a file, the old one kept on failure."""
     final = Path(path)
     tmp = final.with_name(f".{final.stem}.{uuid.uuid4().hex[:8]}.tmp{final.suffix}")
     try:

@@ -2,13 +2,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from naive.kinematics import euler_matrix, fk_loop
+from naive.kinematics import euler_matrix, fk_loop, forward_kinematics_numpy
 from scipy.spatial.transform import Rotation
 from synthetic import humanoid, random_motion
 
 from mocapflow.framework import DataError, Motion, MotionDatabase, Skeleton
 from mocapflow.framework import quaternions as quat
-from mocapflow.framework.motion import forward_kinematics_numpy
 from mocapflow.framework.normalize import facing_angles, resample, to_root_frame
 from mocapflow.plugins.relational.body import body_measures, rest_positions
 

@@ -19,9 +19,11 @@ import pytest
 
 from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_manager, hookimpl
 from mocapflow.framework.clip_refs import clip_slices
+from mocapflow.framework.context import map_clips
 from mocapflow.framework.datasets import Dataset
-from mocapflow.framework.executors import LocalExecutor, map_clips, threads_per_worker
+from mocapflow.framework.executors import LocalExecutor
 from mocapflow.framework.runner import run_pipeline
+from mocapflow.framework.threads import threads_per_worker
 
 REPO = Path(__file__).resolve().parent.parent
 CMU = REPO / "examples" / "data" / "cmu"

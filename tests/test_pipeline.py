@@ -292,7 +292,7 @@ def test_yaml_tags_duplicates_and_recursive_aliases_are_config_errors(tmp_path, 
 
 def test_atomic_writes_never_leave_half_a_file(tmp_path):
     from mocapflow.framework import Format
-    from mocapflow.framework.datasets import atomic_path
+    from mocapflow.framework.workspace import atomic_path
 
     target = tmp_path / "take.bvh"
     target.write_text("previous")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from mocapflow.framework.executors import available_cores, limit_threads
+from mocapflow.framework.threads import available_cores, limit_threads
 
 
 class ThreadLimit(WorkerPlugin):

@@ -36,9 +36,10 @@ from typing import Any
 from pydantic import Field
 
 from mocapflow.framework.errors import ConfigError, PipelineError
-from mocapflow.framework.executors import PRELOAD, available_cores, threads_per_worker
+from mocapflow.framework.executors import PRELOAD
 from mocapflow.framework.params import Params
 from mocapflow.framework.progress import progress
+from mocapflow.framework.threads import available_cores, threads_per_worker
 
 ADDRESS_ENV = "MOCAPFLOW_DASK_ADDRESS"
 

@@ -422,7 +422,7 @@ class AmcFormat(Format):
     def write_atomic(self, obj: Any, path: str | Path) -> None:
         """The ASF beside ``path`` and then the AMC, each through a temporary file renamed
         into place (the ASF is named after ``path``, not after the temporary AMC)."""
-        from mocapflow.framework.datasets import atomic_path
+        from mocapflow.framework.workspace import atomic_path
 
         with atomic_path(Path(path).with_suffix(".asf")) as tmp:
             write_asf(obj.skeleton, tmp)

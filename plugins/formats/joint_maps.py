@@ -91,33 +91,8 @@ _BVH_CANDIDATES: dict[str, tuple[str, ...]] = {
 # Order in which canonical joints pick their candidates: the trunk top-down (so that
 # chest takes Spine1/Chest2 before upperback falls back to Spine), clavicles before
 # shoulders (3dsMax-style LeftShoulder is the upper arm only when LeftCollar exists).
-_BVH_PICK_ORDER: tuple[str, ...] = (
-    "root",
-    "chest",
-    "upperback",
-    "lowerback",
-    "neck",
-    "head",
-    "headtop",
-    "lhip",
-    "lknee",
-    "lankle",
-    "ltoes",
-    "rhip",
-    "rknee",
-    "rankle",
-    "rtoes",
-    "lclavicle",
-    "lshoulder",
-    "lelbow",
-    "lwrist",
-    "lfingers",
-    "rclavicle",
-    "rshoulder",
-    "relbow",
-    "rwrist",
-    "rfingers",
-)
+_BVH_TRUNK = ("root", "chest", "upperback", "lowerback", "neck", "head", "headtop")
+_BVH_PICK_ORDER: tuple[str, ...] = (*_BVH_TRUNK, *(j for j in CANONICAL_JOINTS if j not in _BVH_TRUNK))
 
 
 #: Acclaim names, exact (ASF bone names are case-sensitive identifiers).

@@ -76,9 +76,9 @@ class CleanCommand:
     def run(cls, args: argparse.Namespace, pm: Any = None) -> int:
         import pyarrow.parquet as pq
 
-        from mocapflow.framework.datasets import atomic_path
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.plugins import build_registries
+        from mocapflow.framework.workspace import atomic_path
 
         dest = Path(args.output)
         if dest.suffix.lower() not in _OUTPUT_KINDS:

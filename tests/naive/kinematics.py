@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mocapflow.framework import quaternions as quat
+
 
 def fk_loop(parents, offsets, root_translation, rotations):
     """positions (T, J, 3) by an explicit loop over frames and joints."""
@@ -39,3 +41,23 @@ def euler_matrix(angles_deg, order):
             r = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
         m = m @ r
     return m
+
+
+def forward_kinematics_numpy(
+    skeleton,
+    root_translation,
+    rotations,
+    local_translations=None,
+):
+    """positions and world rotations with one batched quaternion operation per joint."""
+    t, j = rotations.shape[:2]
+    pos = np.empty((t, j, 3))
+    glob = np.empty((t, j, 4))
+    pos[:, 0] = root_translation
+    glob[:, 0] = rotations[:, 0]
+    for k in range(1, j):
+        p = skeleton.parents[k]
+        off = skeleton.offsets[k] if local_translations is None else local_translations[:, k]
+        pos[:, k] = pos[:, p] + quat.rotate(glob[:, p], np.broadcast_to(off, (t, 3)))
+        glob[:, k] = quat.mul(glob[:, p], rotations[:, k])
+    return pos, glob

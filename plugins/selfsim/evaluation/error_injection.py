@@ -19,6 +19,7 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
+from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.motion import Motion
 
 from ..calibrated.cues import MIRROR_CHAINS, mirror
@@ -44,24 +45,8 @@ ERROR_RANGES: Ranges = {
 SWAP_CHAINS = MIRROR_CHAINS
 
 #: Joints that single-joint errors pick from (the limbs, spine and head).
-ERROR_JOINTS: tuple[str, ...] = (
-    "lhip",
-    "lknee",
-    "lankle",
-    "rhip",
-    "rknee",
-    "rankle",
-    "lowerback",
-    "chest",
-    "neck",
-    "head",
-    "lshoulder",
-    "lelbow",
-    "lwrist",
-    "rshoulder",
-    "relbow",
-    "rwrist",
-)
+_NOT_ERR = ("root", "ltoes", "rtoes", "upperback", "headtop", "lclavicle", "lfingers", "rclavicle", "rfingers")
+ERROR_JOINTS: tuple[str, ...] = tuple(j for j in CANONICAL_JOINTS if j not in _NOT_ERR)
 
 
 @dataclass(frozen=True)

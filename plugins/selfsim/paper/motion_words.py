@@ -24,37 +24,13 @@ import numpy as np
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import ConfigError, DataError
+from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.normalize import align_facing, resample
 
 #: The paper's "24 most informative joints": the canonical vocabulary without the head top
 #: (an end site that carries no rotation).
-DEFAULT_JOINTS: tuple[str, ...] = (
-    "root",
-    "lhip",
-    "lknee",
-    "lankle",
-    "ltoes",
-    "rhip",
-    "rknee",
-    "rankle",
-    "rtoes",
-    "lowerback",
-    "upperback",
-    "chest",
-    "neck",
-    "head",
-    "lclavicle",
-    "lshoulder",
-    "lelbow",
-    "lwrist",
-    "lfingers",
-    "rclavicle",
-    "rshoulder",
-    "relbow",
-    "rwrist",
-    "rfingers",
-)
+DEFAULT_JOINTS: tuple[str, ...] = tuple(j for j in CANONICAL_JOINTS if j != "headtop")
 
 _SPINE = ("lowerback", "upperback", "chest", "neck", "head")
 _LEFT_ARM = ("lclavicle", "lshoulder", "lelbow", "lwrist", "lfingers")

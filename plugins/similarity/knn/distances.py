@@ -34,30 +34,12 @@ import numpy as np
 from mocapflow.framework import MotionDatabase
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
+from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.motion import Motion
 
 WB_JOINTS = ("lhip", "rhip", "lknee", "rknee", "lshoulder", "rshoulder", "lelbow", "relbow")
-PC_JOINTS = (
-    "root",
-    "lhip",
-    "lknee",
-    "lankle",
-    "ltoes",
-    "rhip",
-    "rknee",
-    "rankle",
-    "rtoes",
-    "lowerback",
-    "chest",
-    "neck",
-    "head",
-    "lshoulder",
-    "lelbow",
-    "lwrist",
-    "rshoulder",
-    "relbow",
-    "rwrist",
-)
+_NOT_PC = ("upperback", "headtop", "lclavicle", "lfingers", "rclavicle", "rfingers")
+PC_JOINTS = tuple(j for j in CANONICAL_JOINTS if j not in _NOT_PC)
 DISTANCE_MEASURES = ("D_quat", "D_euler", "D_pc1", "D_pc11", "D_wb")
 
 

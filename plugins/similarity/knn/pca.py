@@ -21,32 +21,15 @@ from pydantic import Field
 
 from mocapflow.framework import FeatureSet, MotionDatabase, Params
 from mocapflow.framework.errors import DataError
+from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.motion import Motion
 
 from .end_effectors import body_frame_positions
 
 #: Canonical joints whose body-frame positions are compressed (present in CMU, HDM05 and
 #: the common BVH skeletons; the root is the origin and carries no information).
-PCA_JOINTS: tuple[str, ...] = (
-    "lhip",
-    "lknee",
-    "lankle",
-    "ltoes",
-    "rhip",
-    "rknee",
-    "rankle",
-    "rtoes",
-    "lowerback",
-    "chest",
-    "neck",
-    "head",
-    "lshoulder",
-    "lelbow",
-    "lwrist",
-    "rshoulder",
-    "relbow",
-    "rwrist",
-)
+_NOT_PCA = ("root", "upperback", "headtop", "lclavicle", "lfingers", "rclavicle", "rfingers")
+PCA_JOINTS: tuple[str, ...] = tuple(j for j in CANONICAL_JOINTS if j not in _NOT_PCA)
 
 MODEL_FILE = "pca_model.npz"
 
