@@ -52,9 +52,9 @@ def index_figures(n_frames: int, n_queries: int, k: int, tmp: Path) -> dict:
     from corpus import augmented_database
 
     from mocapflow.framework.executors import LocalExecutor
-    from mocapflow.plugins.similarity.end_effectors import EndEffectorFeatures
-    from mocapflow.plugins.similarity.kdtree import KDTreeIndex
-    from mocapflow.plugins.similarity.sharded import ShardedIndex
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
+    from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+    from mocapflow.plugins.similarity.knn.sharded import ShardedIndex
 
     t0 = time.perf_counter()
     db = augmented_database(n_frames, fps=30)

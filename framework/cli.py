@@ -373,7 +373,7 @@ def main(argv: list[str] | None = None) -> int:
         for name in _unknown_blocked(blocked):
             _warn(
                 f"--block {name}: no plugin of that name (built-in plugins are module names, "
-                "e.g. mocapflow.plugins.similarity.kdtree; third-party ones their entry-point names: "
+                "e.g. mocapflow.plugins.similarity.plugin; third-party ones their entry-point names: "
                 "see `mocapflow plugins`)"
             )
         if command in BUILTIN_COMMANDS or (command is None and "--version" in argv):

@@ -9,7 +9,7 @@ The YAML syntax::
       motions: {uses: formats.load, with: {paths: ["../examples/data/cmu/**/*.amc"], fps: 30}}
       fe15:    {uses: features.end_effectors, input: motions}
       tree:    {uses: indexes.kdtree, input: fe15}
-      matches: {uses: matchers.lng, inputs: {database: tree, query: motions}, with: {k: 256}}
+      matches: {uses: matchers.search, inputs: {database: tree, query: motions}, with: {count: 10}}
 
 Step ids are dataset names (letters, digits, ``_`` and ``-``); ``input`` fills a
 component's first input slot, ``inputs`` names slots explicitly.

@@ -1,6 +1,6 @@
 """Kernels of :mod:`.fat_graph`: greedy base-pose selection on capped neighbourhoods.
 
-No validation here; :func:`mocapflow.plugins.similarity.fat_graph.select_base_poses` checks
+No validation here; :func:`mocapflow.plugins.similarity.applications.fat_graph.select_base_poses` checks
 its inputs and calls :func:`greedy_cover`. This module imports numba, so
 :mod:`.fat_graph` imports it only when a computation starts (never at CLI start-up).
 The slow reference is ``tests/naive/fat_graph.py``.

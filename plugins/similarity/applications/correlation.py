@@ -10,7 +10,7 @@ neighbours.
 
 Measures: ``D_quat, D_euler, D_pc1, D_pc11, D_wb`` (:mod:`.distances`) and the feature sets
 ``F_pca<n>`` (fitted on the ``reference`` motions, else on the motions themselves),
-``F_E15/30/39`` and windowed ``F_E<n>x<l>`` (:mod:`mocapflow.plugins.similarity.end_effectors`).
+``F_E15/30/39`` and windowed ``F_E<n>x<l>`` (:mod:`mocapflow.plugins.similarity.knn.end_effectors`).
 
 Outputs: ``data`` (row_measure, col_measure, rho, rho_std, n_samples), a ``matrix`` table
 (one row per row measure, a column per column measure) and ``correlation.png``.
