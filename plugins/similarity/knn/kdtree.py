@@ -251,7 +251,7 @@ class KDTreeIndex(CostModel, Index):
         from . import _knn_kernels as kern
 
         tree, no_seed = targs
-        d2, ids = kern.query_tree(x, k, 0.0, np.inf, *tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
+        d2, ids = kern.query_tree(x, k, 0.0, np.inf, tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
         return np.sqrt(d2).astype(np.float32), ids
 
     def query_rows(
@@ -338,7 +338,7 @@ class KDTreeIndex(CostModel, Index):
                 k,
                 eps,
                 r2,
-                *tree,
+                tree,
                 qg,
                 qf,
                 excl,
