@@ -36,28 +36,10 @@ from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
 
+from .pca import PCA_JOINTS
+
 WB_JOINTS = ("lhip", "rhip", "lknee", "rknee", "lshoulder", "rshoulder", "lelbow", "relbow")
-PC_JOINTS = (
-    "root",
-    "lhip",
-    "lknee",
-    "lankle",
-    "ltoes",
-    "rhip",
-    "rknee",
-    "rankle",
-    "rtoes",
-    "lowerback",
-    "chest",
-    "neck",
-    "head",
-    "lshoulder",
-    "lelbow",
-    "lwrist",
-    "rshoulder",
-    "relbow",
-    "rwrist",
-)
+PC_JOINTS = ("root", *PCA_JOINTS)
 DISTANCE_MEASURES = ("D_quat", "D_euler", "D_pc1", "D_pc11", "D_wb")
 
 

@@ -28,24 +28,9 @@ from .end_effectors import body_frame_positions
 #: Canonical joints whose body-frame positions are compressed (present in CMU, HDM05 and
 #: the common BVH skeletons; the root is the origin and carries no information).
 PCA_JOINTS: tuple[str, ...] = (
-    "lhip",
-    "lknee",
-    "lankle",
-    "ltoes",
-    "rhip",
-    "rknee",
-    "rankle",
-    "rtoes",
-    "lowerback",
-    "chest",
-    "neck",
-    "head",
-    "lshoulder",
-    "lelbow",
-    "lwrist",
-    "rshoulder",
-    "relbow",
-    "rwrist",
+    *(s + j for s in "lr" for j in ("hip", "knee", "ankle", "toes")),
+    *("lowerback", "chest", "neck", "head"),
+    *(s + j for s in "lr" for j in ("shoulder", "elbow", "wrist")),
 )
 
 MODEL_FILE = "pca_model.npz"
