@@ -22,7 +22,7 @@ from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matcher_base import block_boxes_of, block_subspaces_of
+from .matcher_base import block_boxes_of, block_subspaces_of, match_kw
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
@@ -351,16 +351,7 @@ class CertifiedSearch(Matcher):
     settings: ClassVar[CertifiedSettings] = DEFAULT_SETTINGS
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
-        p = self.params
-        return certified_sdtw(
-            query,
-            space,
-            count=p.count,
-            max_cost=p.max_cost,
-            rank_by=p.rank_by,
-            min_span=p.min_span,
-            settings=self.settings,
-        )
+        return certified_sdtw(query, space, **match_kw(self.params), settings=self.settings)
 
     def after_match(self, query_id, query, matches, space, ctx) -> None:
         from .plots import plot_matches
