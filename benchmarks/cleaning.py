@@ -64,8 +64,10 @@ def _sets(items: list[str]) -> dict:
     return out
 
 
-def _f1(r: float, p: float) -> float:
-    return 2 * r * p / (r + p) if r + p > 0 else 0.0
+def _f1s(row: dict) -> list[float]:
+    """F1 of a protocol row: word, (word, joint), cell."""
+    pairs = [(row[f"{k}recall"], row[f"{k}precision"]) for k in ("word_", "wj_", "")]
+    return [2 * r * p / (r + p) if r + p > 0 else 0.0 for r, p in pairs]
 
 
 def speed(args) -> None:
@@ -76,14 +78,13 @@ def speed(args) -> None:
     from mocapflow.framework.normalize import resample
     from mocapflow.plugins.selfsim.cleaner import MDMCleaner
     from mocapflow.plugins.selfsim.paper.knn import ContextTextures, knn_search
-    from mocapflow.plugins.selfsim.paper.mdm import digression_map
 
     path = EXAMPLES / "16" / "16_15.amc" if args.quick else CMU / "14" / "14_02.amc"
     take = resample(_read([path])[0], 24.0)
     take = take.slice(0, min(take.n_frames, 240 if args.quick else 480)).with_arrays(name=path.stem)
-    digression_map(take.slice(0, 40))  # compile the kernels (numba caches them on disk)
+    MDMCleaner().analyse(take.slice(0, 40))  # compile the kernels (numba caches them on disk)
     t0, c0 = time.perf_counter(), time.process_time()
-    res = digression_map(take)
+    res = MDMCleaner().analyse(take)
     t_map, c_map = time.perf_counter() - t0, time.process_time() - c0
     nb = res.neighbours[0]
     ctx = ContextTextures.from_arrays([res.texture.q])
@@ -242,20 +243,14 @@ def protocol(args) -> None:
             f"\nprotocol, {cat}: {rows[0]['n_clips'] if rows else 0} test clips "
             f"({'tuning' if args.tune else 'held-out'}), {time.perf_counter() - t0:.0f} s"
         )
-        best = [
-            max((_f1(r[a], r[b]) for r in rows if r["method"].startswith("baseline")), default=0.0)
-            for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))
-        ]
+        base = [_f1s(r) for r in rows if r["method"].startswith("baseline")] or [[0.0] * 3]
+        best = [max(col) for col in zip(*base, strict=True)]
         print(
             f"  {'method':22s} {'context':7s} {'word R/P':>11s} {'(w,j) R/P':>11s} {'cell R/P':>11s} "
             f"{'F1 / best baseline: word, (w,j), cell':>38s}"
         )
         for r in rows:
-            f = [
-                _f1(r[a], r[b])
-                for a, b in (("word_recall", "word_precision"), ("wj_recall", "wj_precision"), ("recall", "precision"))
-            ]
-            ratio = ", ".join(f"{x / y:.2f}x" if y > 0 else "-" for x, y in zip(f, best, strict=True))
+            ratio = ", ".join(f"{x / y:.2f}x" if y > 0 else "-" for x, y in zip(_f1s(r), best, strict=True))
             print(
                 f"  {r['method']:22s} {r['context']:7s} {r['word_recall']:5.3f}/{r['word_precision']:5.3f} "
                 f"{r['wj_recall']:5.3f}/{r['wj_precision']:5.3f} {r['recall']:5.3f}/{r['precision']:5.3f}   {ratio}"
@@ -353,25 +348,16 @@ def scores(args) -> None:
         runs = []
         for case in corrupted_clips(clips, ev, joints, p.fps, cat):
             res = cleaner.analyse(case.bad, context_clips("small", case.others, ev))
-            lo, tot, cnt = (
-                np.full(res.difference.shape, np.inf),
-                np.zeros(res.difference.shape),
-                np.zeros(res.difference.shape),
-            )
+            shape = res.difference.shape
+            lo, tot, cnt = np.full(shape, np.inf), np.zeros(shape), np.zeros(shape)
             nb, n = res.neighbours[0], p.source_length
-            for g in range(nb.groups.n_groups):
-                jm = nb.groups.mask[g]
-                for si, s in enumerate(nb.starts):
-                    for k in np.flatnonzero(nb.target[g, si] >= 0):
-                        a = (
-                            2.0
-                            * np.arccos(
-                                np.clip(np.abs(np.sum(res.texture.q[s : s + n] * nb.warped[g, si, k], -1)), 0.0, 1.0)
-                            )[:, jm]
-                        )
-                        lo[s : s + n, jm] = np.minimum(lo[s : s + n, jm], a)
-                        tot[s : s + n, jm] += a
-                        cnt[s : s + n, jm] += 1
+            for g, si, k in zip(*np.nonzero(nb.target >= 0), strict=True):
+                s, jm = nb.starts[si], nb.groups.mask[g]
+                dot = np.abs(np.sum(res.texture.q[s : s + n] * nb.warped[g, si, k], -1))
+                a = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))[:, jm]
+                lo[s : s + n, jm] = np.minimum(lo[s : s + n, jm], a)
+                tot[s : s + n, jm] += a
+                cnt[s : s + n, jm] += 1
             runs.append(
                 {
                     "truth": case.truth,

@@ -14,7 +14,6 @@ Usage::
 
     python benchmarks/ingest.py            # full run (corpus at ../shared/data)
     python benchmarks/ingest.py --quick    # the bundled examples/data takes (BVH written from them), one repetition
-    python benchmarks/ingest.py --quick --baseline 263f30c   # readers now against a commit's
 """
 
 from __future__ import annotations
@@ -252,51 +251,9 @@ def bench_corpus(reps: int) -> None:
     print(f"  formats.load step   {rate(frames, dt)}   [read, tables, Parquet; jobs=1]")
 
 
-def bench_baseline(commit: str, amc: list[Path], bvh: list[Path], rounds: int) -> None:
-    """The readers of ``plugins/formats`` at ``commit`` against the working tree's: read only
-    (no FK), process CPU time, interleaved in the same run, best of ``rounds`` x 3."""
-    import importlib
-    import subprocess
-
-    trc = sorted((DATA / "trc").rglob("*.trc"))
-    root = Path(__file__).resolve().parent.parent
-    with tempfile.TemporaryDirectory() as tmp:
-        pkg = Path(tmp) / "baseline_formats"
-        pkg.mkdir()
-        archive = subprocess.run(
-            ["git", "-C", str(root), "archive", commit, "plugins/formats"], check=True, capture_output=True
-        ).stdout
-        subprocess.run(["tar", "-x", "--strip-components=2", "-C", str(pkg)], input=archive, check=True)
-        sys.path.insert(0, tmp)
-        try:
-            old = {m: importlib.import_module(f"baseline_formats.{m}") for m in ("asf_amc", "bvh", "trc")}
-        finally:
-            sys.path.remove(tmp)
-        from mocapflow.plugins.formats import asf_amc as new_amc
-        from mocapflow.plugins.formats import bvh as new_bvh
-        from mocapflow.plugins.formats import trc as new_trc
-
-        print(f"Readers against {commit} (read only, process CPU time, same run, best of {rounds} x 3):")
-        for name, o, n, files in [
-            ("amc", old["asf_amc"].read_amc, new_amc.read_amc, amc),
-            ("bvh", old["bvh"].read_bvh, new_bvh.read_bvh, bvh),
-            ("trc", old["trc"].read_trc, new_trc.read_trc, trc),
-        ]:
-            o(files[0]), n(files[0])  # numba kernels of both loaded (compiled) before timing
-            t_old, t_new = [], []
-            for _ in range(rounds):
-                t_old.append(best_of(lambda o=o, files=files: [o(f) for f in files], 3)[1])  # process CPU time
-                t_new.append(best_of(lambda n=n, files=files: [n(f) for f in files], 3)[1])
-            print(
-                f"  {name}: {len(files)} files   {commit[:8]} {min(t_old) * 1e3:7.1f} ms   now {min(t_new) * 1e3:7.1f} ms"
-                f"   now / {commit[:8]}: {min(t_new) / min(t_old):.3f}"
-            )
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a few files, one repetition")
-    ap.add_argument("--baseline", metavar="COMMIT", help="also time the readers of COMMIT against the working tree's")
     args = ap.parse_args(argv)
     if not args.quick and not DATA.exists():
         print(f"corpus not found at {DATA} (--quick runs on examples/data)", file=sys.stderr)
@@ -321,8 +278,6 @@ def main(argv: list[str] | None = None) -> int:
         _ = read_amc(amc[0]).positions, read_bvh(bvh[0]).positions  # load the numba kernels before timing
         bench_amc(amc, reps)
         bench_bvh(bvh, reps)
-        if args.baseline:
-            bench_baseline(args.baseline, amc, bvh, 3 if args.quick else 5)
         if not args.quick:
             bench_corpus(reps)
     return 0

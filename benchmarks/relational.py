@@ -14,7 +14,7 @@ Prints:
 
 Motion templates and mode auto: ``benchmarks/templates.py``.
 
-    python benchmarks/relational.py [--frames N] [--fps 30] [--tiled]
+    python benchmarks/relational.py [--frames N] [--fps 30]
     python benchmarks/relational.py --quick   # the bundled examples/data takes tiled to 50 k frames, no fidelity
 """
 
@@ -267,12 +267,6 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="the bundled takes tiled to 50 k frames, 50 queries")
     ap.add_argument("--frames", type=int, default=None, help="frames of the augmented database (default 1.3 M)")
     ap.add_argument("--fps", type=float, default=30.0, help="resampling rate (default 30 Hz)")
-    ap.add_argument(
-        "--tiled",
-        action="store_true",
-        help="build the large database by tiling HDM05 (fast) "
-        "instead of benchmarks/corpus.py's augmented CMU + HDM05 corpus",
-    )
     args = ap.parse_args()
     n_frames = args.frames or (50_000 if args.quick else 1_300_000)
     t = time.perf_counter()
@@ -285,7 +279,7 @@ def main() -> None:
     if not args.quick:
         fidelity(db, bits, index)
     t = time.perf_counter()
-    big_pos, big_off, big_meas, how = augmented_positions(db, n_frames, tiled=args.tiled or args.quick)
+    big_pos, big_off, big_meas, how = augmented_positions(db, n_frames, tiled=args.quick)
     print(f"\nlarge database: {how}, built in {time.perf_counter() - t:.1f} s")
     _, big_index = build_bench(big_pos, big_off, big_meas, db.fps, f"augmented ({how})")
     query_bench(big_index, 50 if args.quick else 1000)

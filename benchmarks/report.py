@@ -37,7 +37,7 @@ steps:
   fe15: {{uses: features.end_effectors, input: motions, with: {{joints: 5}}}}
   tree: {{uses: indexes.kdtree, input: fe15}}
   search:
-    uses: matchers.lng
+    uses: matchers.search
     inputs: {{database: tree, query: motions}}
     with: {{queries: ["long_take:1s-2s"], count: 3}}
 """

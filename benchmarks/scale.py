@@ -13,8 +13,7 @@ wall times: they show the work, unlike wall time they hardly depend on the other
    (``client_works: true``) and a pool of 2 while the client waits (``client_works:
    false``, the default with a forked pool); CPU critical paths per batch from
    ``LocalExecutor.batches``;
-2. cleaning the 8 bundled CMU takes (cleaners.mdm, each against all 8), and the same 8
-   against the 103 CMU takes of the corpus as context: same;
+2. cleaning the 8 bundled CMU takes (cleaners.mdm, each against all 8): same;
 3. ``executor: dask`` vs ``--jobs 1`` on both, and its overhead on the quickstart: ``dask``
    starts a LocalCluster of 2 worker processes in each run, ``dask@cluster`` connects by
    address to one LocalCluster (2 workers) started once before the runs and kept (the way a
@@ -27,7 +26,6 @@ wall times: they show the work, unlike wall time they hardly depend on the other
     python benchmarks/scale.py            # everything (about 5 minutes on 2 idle cores)
     python benchmarks/scale.py --quick    # ingest + features of the bundled takes, --jobs 2 vs --jobs 1, once
     python benchmarks/scale.py --only local,index
-    python benchmarks/scale.py --context  # also the cleaning against 103 takes (slow)
 """
 
 from __future__ import annotations
@@ -67,13 +65,6 @@ steps:
   takes: {{uses: formats.load, with: {{paths: ["{repo}/examples/data/cmu/**/*.amc"], fps: 24}}}}
   clean: {{uses: cleaners.mdm, inputs: {{motions: takes, context: takes}}, with: {{heatmaps: false}}}}
 """
-CLEANING_CONTEXT = """
-name: scale-cleaning-context
-steps:
-  takes: {{uses: formats.load, with: {{paths: ["{repo}/examples/data/cmu/**/*.amc"], fps: 24}}}}
-  context: {{uses: formats.load, with: {{paths: ["{data}/cmu/amc/*/*.amc"], fps: 24}}}}
-  clean: {{uses: cleaners.mdm, inputs: {{motions: takes, context: context}}, with: {{heatmaps: false}}}}
-"""
 
 
 def _children_cpu() -> float:
@@ -89,7 +80,7 @@ def run_once(yaml: Path, ws: Path, jobs: int, executor: str = "local") -> dict:
         env["MOCAPFLOW_DASK_ADDRESS"] = _WARM_CLUSTER["address"]
     if executor != "local":  # a copy beside the original, so that its relative paths hold
         p = yaml.parent / f".{yaml.stem}-{executor.replace('@', '-')}-{jobs}.yaml"
-        # local+prestart: LocalExecutor(prestart=True); local+client_works=false: the option set to false
+        # local+client_works=false: that LocalExecutor option set to false
         name, _, opts = executor.partition("+")
         name = name.partition("@")[0]
         key, _, value = opts.partition("=")
@@ -232,17 +223,12 @@ def critical_path(yaml: Path, tmp: Path, jobs: int, options: dict | None = None)
     return out
 
 
-def report_critical_path(
-    name: str, yaml: Path, tmp: Path, repeats: int, prestart: bool = False, extra: dict | None = None
-) -> dict:
+def report_critical_path(name: str, yaml: Path, tmp: Path, repeats: int) -> dict:
     """Best (shortest critical path) of ``repeats`` interleaved child runs of each layout:
     ``--jobs 1``; ``--jobs 2`` with a pool of 2 and the client waiting (``client_works:
-    false``); ``--jobs 2`` with the client as worker 0 and a
-    pool of 1 (the default); optionally the pool started before planning."""
+    false``); ``--jobs 2`` with the client as worker 0 and a pool of 1 (the default)."""
     best: dict = {}
     runs = [("1", 1, {}), ("pool", 2, {"client_works": False}), ("client", 2, {"client_works": True})]
-    runs += [("prestart", 2, {"prestart": True, "client_works": True})] if prestart else []
-    runs = [(k, j, {**(extra or {}), **o} if j > 1 else o) for k, j, o in runs]  # --executor-options
     load0 = _load()
     for _ in range(repeats):
         for key, jobs, opts in runs:
@@ -255,7 +241,6 @@ def report_critical_path(
     labels = {
         "pool": "--jobs 2, pool of 2, client waits",
         "client": "--jobs 2, client is worker 0 + pool of 1",
-        "prestart": "--jobs 2, client is worker 0 + pool of 1 forked before planning",
     }
     for key in [k for k, _, _ in runs[1:]]:
         r = best[key]
@@ -329,22 +314,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="the bundled takes' ingest + features only, once")
     ap.add_argument("--only", default="local,dask,index", help="comma-separated sections: local, dask, index")
     ap.add_argument("--repeats", type=int, default=None)
-    ap.add_argument(
-        "--context", action="store_true", help="also clean the 8 takes against the 103 CMU takes (minutes per run)"
-    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
-    ap.add_argument(
-        "--prestart",
-        action="store_true",
-        help="also --jobs 2 with the pool forked before planning (LocalExecutor(prestart=True))",
-    )
-    ap.add_argument(
-        "--executor-options",
-        type=json.loads,
-        default=None,
-        metavar="JSON",
-        help='more LocalExecutor options for the --jobs 2 CPU runs, e.g. \'{"start_method": "forkserver"}\'',
-    )
     ap.add_argument("--child-run", nargs=3, metavar=("YAML", "WS", "JOBS"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child_run:
@@ -359,10 +329,9 @@ def main() -> None:
     results: dict = {}
     with tempfile.TemporaryDirectory(prefix="mocapflow-scale-") as tmpname:
         tmp = Path(tmpname)
-        feats, clean, cleanctx = tmp / "features.yaml", tmp / "cleaning.yaml", tmp / "cleaning-context.yaml"
+        feats, clean = tmp / "features.yaml", tmp / "cleaning.yaml"
         feats.write_text(FEATURES.format(data=DATA))
         clean.write_text(CLEANING.format(repo=REPO))
-        cleanctx.write_text(CLEANING_CONTEXT.format(repo=REPO, data=DATA))
         quick_yaml = REPO / "pipelines" / "quickstart.yaml"
         try:
             import distributed  # noqa: F401 - only checks that the dask extra is installed
@@ -374,17 +343,12 @@ def main() -> None:
         configs = (
             [("local", 1)]
             + ([("local+client_works=false", 2), ("local+client_works=true", 2)] if "local" in sections else [])
-            + ([("local+prestart", 2)] if "local" in sections and args.prestart else [])
             + ([("dask", 2), ("dask@cluster", 2)] if has_dask else [])
         )
         cluster = start_warm_cluster(2) if has_dask else None
         if len(configs) > 1:
             results["features"] = compare("ingest + features, whole corpus", feats, tmp, configs, repeats)
             results["cleaning"] = compare("cleaning 8 takes (cleaners.mdm)", clean, tmp, configs, repeats)
-            if args.context:
-                results["cleaning_context"] = compare(
-                    "cleaning 8 takes against the 103 CMU takes", cleanctx, tmp, configs, repeats
-                )
         if "local" in sections:
             results["parallel_ceiling"] = c = parallel_ceiling()
             print(
@@ -393,17 +357,8 @@ def main() -> None:
             print(
                 "wall time on a shared machine measures the other load as much as ours; the CPU each process spent does not:"
             )
-            opts = args.executor_options
-            results["features_cpu_path"] = report_critical_path(
-                "ingest + features", feats, tmp, repeats, args.prestart, opts
-            )
-            results["cleaning_cpu_path"] = report_critical_path(
-                "cleaning 8 takes", clean, tmp, repeats, args.prestart, opts
-            )
-            if args.context:
-                results["cleaning_context_cpu_path"] = report_critical_path(
-                    "cleaning against 103 takes", cleanctx, tmp, repeats
-                )
+            results["features_cpu_path"] = report_critical_path("ingest + features", feats, tmp, repeats)
+            results["cleaning_cpu_path"] = report_critical_path("cleaning 8 takes", clean, tmp, repeats)
         if has_dask:
             results["quickstart"] = compare(
                 "quickstart (dask overhead)", quick_yaml, tmp, [("local", 1), ("dask", 2), ("dask@cluster", 2)], repeats

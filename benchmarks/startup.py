@@ -4,16 +4,14 @@
    warm-up (the OS file cache and ``__pycache__`` are warm, as for a user's second command);
    the median wall time is printed with its ratio to ``python -c "import numpy"`` and to a
    bare ``python -c pass``, measured in the same run. Target: every command < 0.5 s.
-2. First run (not with ``--quick``; ``--first-run-steps`` to choose steps): the quickstart in
+2. First run (not with ``--quick``): the quickstart in
    a fresh workspace with an empty numba cache (``NUMBA_CACHE_DIR`` = a new folder), then
    again with ``--force`` on the now warm cache; per step cold seconds, warm seconds and
    their difference (about the compilation), and the kernels in the cache: functions
    (``.nbi``) and variants (``.nbc``, one per signature). Target: a cold quickstart <= 45 s
    on an idle 2-core machine.
 
-``--baseline REV`` exports that revision (``git archive``) and measures its ``mocapflow
---help`` and first run in the same run (ratios against it). ``--search-db WORKSPACE --query
-FILE[:A-B]`` also times ``mocapflow search`` on a finished workspace (target < 1 s per query
+``--search-db WORKSPACE --query FILE[:A-B]`` also times ``mocapflow search`` on a finished workspace (target < 1 s per query
 at 1 M frames): in a fresh process (``--no-server``) and through a search server
 (``--serve``, started and stopped here). ``--build-db N`` first builds such a workspace from
 the cached augmented corpus of ``N`` frames (benchmarks/corpus.py: motions,
@@ -22,7 +20,7 @@ the cached augmented corpus of ``N`` frames (benchmarks/corpus.py: motions,
     python benchmarks/startup.py --quick    # warm start-up, 2 repetitions, a few commands
     python benchmarks/startup.py            # warm start-up (7 repetitions) and the cold first run
     python benchmarks/startup.py --build-db 1038388 --search-db /tmp/ws1m \
-        --query examples/data/cmu/16/16_15.amc:1s-3s --baseline HEAD~1
+        --query examples/data/cmu/16/16_15.amc:1s-3s
 """
 
 from __future__ import annotations
@@ -41,48 +39,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 CLI = "import sys; from mocapflow.framework.cli import main; sys.exit(main())"
 
-QUICK_STEPS = ("motions", "summary", "fe15", "tree", "nearest")
 _STEP = re.compile(r"^\s+(\S+)\s+\S+\s+computed in ([0-9.]+) s")
 
 
-def _source_tree(rev: str, into: Path) -> Path:
-    """``rev`` of this repository, importable as ``mocapflow`` from ``into`` (a PYTHONPATH entry)."""
-    src = into / "src"
-    src.mkdir(parents=True)
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], capture_output=True, check=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(src)], input=archive, check=True)
-    pkg = into / "path" / "mocapflow"
-    pkg.mkdir(parents=True)
-    top = src / "_mocapflow" / "__init__.py"
-    (pkg / "__init__.py").write_text(top.read_text() if top.is_file() else '__version__ = "0"\n')
-    for name in ("framework", "plugins", "pipelines"):
-        (pkg / name).symlink_to(src / name)
-    return into / "path"
-
-
-def _with_inputs(steps: dict, wanted) -> set[str]:
-    """``wanted`` and every step they read from, transitively."""
-    keep, todo = set(), list(wanted)
-    while todo:
-        name = todo.pop()
-        if name in keep:
-            continue
-        if name not in steps:
-            raise SystemExit(f"no step {name!r} in the quickstart: {', '.join(steps)}")
-        keep.add(name)
-        step = steps[name]
-        todo += [step["input"]] if "input" in step else list((step.get("inputs") or {}).values())
-    return keep
-
-
-def _pipeline(src_root: Path, steps: tuple[str, ...] | None, tmp: Path) -> Path:
-    """The quickstart (or some of its steps and their inputs), with the workspace in ``tmp``."""
+def _pipeline(src_root: Path, tmp: Path) -> Path:
+    """The quickstart with the workspace in ``tmp``."""
     import yaml
 
     spec = yaml.safe_load((src_root / "pipelines" / "quickstart.yaml").read_text())
-    if steps:
-        keep = _with_inputs(spec["steps"], steps)
-        spec["steps"] = {k: v for k, v in spec["steps"].items() if k in keep}
     spec["workspace"] = str(tmp / "ws")
     for step in spec["steps"].values():  # paths are relative to the pipeline's folder
         paths = (step.get("with") or {}).get("paths")
@@ -95,18 +59,9 @@ def _pipeline(src_root: Path, steps: tuple[str, ...] | None, tmp: Path) -> Path:
     return out
 
 
-def _run(pipeline: Path, cache: Path, pythonpath: Path | None, force: bool) -> tuple[float, dict[str, float], str]:
+def _run(pipeline: Path, cache: Path, force: bool) -> tuple[float, dict[str, float], str]:
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "MOCAPFLOW_PROGRESS": "0"}
-    if pythonpath is not None:
-        env["PYTHONPATH"] = str(pythonpath)
-    cmd = [
-        sys.executable,
-        "-c",
-        "import sys; from mocapflow.framework.cli import main; sys.exit(main())",
-        "--no-entry-points",
-        "run",
-        str(pipeline),
-    ] + (["--force"] if force else [])
+    cmd = [sys.executable, "-c", CLI, "--no-entry-points", "run", str(pipeline)] + (["--force"] if force else [])
     t0 = time.perf_counter()
     res = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=str(pipeline.parent))
     wall = time.perf_counter() - t0
@@ -124,13 +79,13 @@ def _cache_counts(cache: Path) -> tuple[int, int, list[tuple[str, int]]]:
     return len(nbi), sum(per_fn.values()), dup
 
 
-def measure(label: str, src_root: Path, pythonpath: Path | None, steps: tuple[str, ...] | None) -> dict:
+def measure(label: str, src_root: Path) -> dict:
     with tempfile.TemporaryDirectory(prefix="mocapflow-first-run-") as tmp_s:
         tmp = Path(tmp_s)
-        pipeline = _pipeline(src_root, steps, tmp)
+        pipeline = _pipeline(src_root, tmp)
         cache = tmp / "numba-cache"
-        cold_wall, cold, out = _run(pipeline, cache, pythonpath, force=False)
-        warm_wall, warm, _ = _run(pipeline, cache, pythonpath, force=True)
+        cold_wall, cold, out = _run(pipeline, cache, force=False)
+        warm_wall, warm, _ = _run(pipeline, cache, force=True)
         n_fn, n_var, dup = _cache_counts(cache)
     announced = "compiling numba kernels" in out
     print(
@@ -147,10 +102,8 @@ def measure(label: str, src_root: Path, pythonpath: Path | None, steps: tuple[st
     return {"cold": cold_wall, "warm": warm_wall, "variants": n_var, "functions": n_fn}
 
 
-def _time(cmd: list[str], repeat: int, pythonpath: str | None = None) -> float:
+def _time(cmd: list[str], repeat: int) -> float:
     env = {**os.environ, "MOCAPFLOW_PROGRESS": "0"}
-    if pythonpath:
-        env["PYTHONPATH"] = pythonpath
     subprocess.run(cmd, capture_output=True, env=env)  # warm-up
     times = []
     for _ in range(repeat):
@@ -200,14 +153,6 @@ steps:
     run_pipeline(p, pm=get_plugin_manager(extra=[BenchPlugin()]), echo=lambda m: print(m, file=sys.stderr))
 
 
-def _search_cases(py: str, db: str, query: str, baseline: Path | None) -> dict[str, tuple]:
-    cmd = [py, "-c", CLI, "search", "--db", db, "--query", query]
-    cases = {"mocapflow search (fresh process)": (cmd + ["--no-server"], None)}
-    if baseline is not None:
-        cases["mocapflow search (fresh, baseline)"] = (cmd, str(baseline))
-    return cases
-
-
 def _start_server(py: str, db: str) -> subprocess.Popen:
     env = {**os.environ, "MOCAPFLOW_PROGRESS": "0"}
     proc = subprocess.Popen(
@@ -229,7 +174,7 @@ def _start_server(py: str, db: str) -> subprocess.Popen:
     return proc
 
 
-def warm_startup(args, repeat: int, tmp: Path, baseline: Path | None) -> None:
+def warm_startup(args, repeat: int, tmp: Path) -> None:
     py = sys.executable
     missing = str(tmp / "no-workspace")
     cases = {
@@ -247,15 +192,12 @@ def warm_startup(args, repeat: int, tmp: Path, baseline: Path | None) -> None:
             "mocapflow plan quickstart.yaml": [py, "-c", CLI, "plan", str(ROOT / "pipelines" / "quickstart.yaml")],
         }
     times = {name: _time(cmd, repeat) for name, cmd in cases.items()}
-    if baseline is not None:
-        times[f"mocapflow --help at {args.baseline}"] = _time([py, "-c", CLI, "--help"], repeat, str(baseline))
     if args.search_db:
         db = str(Path(args.search_db).resolve())
-        for name, (cmd, pp) in _search_cases(py, db, args.query, baseline).items():
-            times[name] = _time(cmd, repeat, pp)
+        cmd = [py, "-c", CLI, "search", "--db", db, "--query", args.query]
+        times["mocapflow search (fresh process)"] = _time(cmd + ["--no-server"], repeat)
         server = _start_server(py, db)
         try:
-            cmd = [py, "-c", CLI, "search", "--db", db, "--query", args.query]
             times["mocapflow search (search server)"] = _time(cmd, repeat)
         finally:
             server.terminate()
@@ -275,47 +217,21 @@ def warm_startup(args, repeat: int, tmp: Path, baseline: Path | None) -> None:
         "(`plugins` and `plan` build every registry, i.e. import every plugin: not start-up; "
         "`search (...)` rows: target < 1 s per query)"
     )
-    if baseline is not None:
-        before = times[f"mocapflow --help at {args.baseline}"]
-        print(
-            f"mocapflow --help: {before:.3f} s at {args.baseline} -> {times['mocapflow --help']:.3f} s "
-            f"({before / times['mocapflow --help']:.1f}x faster)"
-        )
 
 
-def first_run(args, tmp: Path, baseline: Path | None) -> None:
-    steps = tuple(args.first_run_steps) if args.first_run_steps else None
-    print(
-        f"\nquickstart{' (' + ', '.join(steps) + ' and their inputs)' if steps else ''}, cold numba cache, "
-        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}"
-    )
-    results = {}
-    if baseline is not None:
-        results["baseline"] = measure(f"baseline {args.baseline}", baseline.parent / "src", baseline, steps)
-    results["this tree"] = measure("this tree", ROOT, None, steps)
-    if "baseline" in results:
-        b, t = results["baseline"], results["this tree"]
-        print(
-            f"\nthis tree vs {args.baseline}: cold first run {b['cold'] / t['cold']:.2f}x faster "
-            f"({b['cold']:.1f} s -> {t['cold']:.1f} s), compiled variants {b['variants']} -> {t['variants']}"
-        )
-    print(f"target: cold first run <= 45 s on an idle 2-core machine (this run: {results['this tree']['cold']:.1f} s)")
+def first_run() -> None:
+    print(f"\nquickstart, cold numba cache, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
+    cold = measure("this tree", ROOT)["cold"]
+    print(f"target: cold first run <= 45 s on an idle 2-core machine (this run: {cold:.1f} s)")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="2 repetitions of a few commands, no first run")
     ap.add_argument("--repeat", type=int, default=None)
-    ap.add_argument("--baseline", metavar="REV", help="also measure this git revision")
     ap.add_argument("--search-db", metavar="WORKSPACE", help="also time `mocapflow search` on this workspace")
     ap.add_argument("--query", default=str(ROOT / "examples/data/cmu/16/16_15.amc") + ":1s-3s")
     ap.add_argument("--build-db", type=int, metavar="FRAMES", help="first build --search-db from the cached corpus")
-    ap.add_argument(
-        "--first-run-steps",
-        nargs="+",
-        metavar="STEP",
-        help=f"first run: only these quickstart steps (and their inputs), e.g. {' '.join(QUICK_STEPS)}",
-    )
     args = ap.parse_args(argv)
     if args.build_db:
         if not args.search_db:
@@ -323,10 +239,9 @@ def main(argv: list[str] | None = None) -> int:
         build_workspace(args.build_db, Path(args.search_db))
     repeat = args.repeat or (2 if args.quick else 7)
     with tempfile.TemporaryDirectory() as tmp:
-        baseline = _source_tree(args.baseline, Path(tmp) / "baseline") if args.baseline else None
-        warm_startup(args, repeat, Path(tmp), baseline)
+        warm_startup(args, repeat, Path(tmp))
         if not args.quick:
-            first_run(args, Path(tmp), baseline)
+            first_run()
     return 0
 
 

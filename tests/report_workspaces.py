@@ -36,7 +36,7 @@ steps:
     uses: indexes.kdtree
     input: fe15
   probe_search:
-    uses: matchers.lng
+    uses: matchers.search
     inputs: {{database: tree, query: probe}}
     with: {{queries: ["35_01:0-30"], count: 3}}
   reconstruction:

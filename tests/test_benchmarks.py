@@ -22,7 +22,6 @@ def test_runner_lists_every_benchmark():
     assert [line.split()[0] for line in out.stdout.splitlines()] == list(BENCHMARKS)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", list(BENCHMARKS))
 def test_benchmark_runs_quick(name, tmp_path):
     script = BENCH / f"{name}.py"

@@ -1,4 +1,4 @@
-"""Paper cuts a new user hits in the CLI (issue 11 §5): --version, --block of an unknown
+"""Paper cuts a new user hits in the CLI: --version, --block of an unknown
 plugin, the choices of Literal parameters, rejected files, the first run's compilation,
 ``sql --output`` into a new folder."""
 
@@ -47,9 +47,9 @@ def test_block_of_an_unknown_plugin_warns(capsys):
 
 def test_plugins_prints_the_choices_of_literal_and_union_parameters(capsys):
     assert format_annotation(typing.Literal["record", "fail"]) == "'record' | 'fail'"
-    assert format_annotation(typing.Optional[typing.Literal["a", "b"]]) == "'a' | 'b' | None"  # noqa: UP045
+    assert format_annotation(typing.Optional[typing.Literal["a", "b"]]) == "'a' | 'b' | None"  # noqa: UP045 - the typing spelling is what is formatted here
     assert format_annotation(int | None) == "int | None"
-    assert format_annotation(typing.Union[int, str]) == "int | str"  # noqa: UP007
+    assert format_annotation(typing.Union[int, str]) == "int | str"  # noqa: UP007 - the typing spelling is what is formatted here
     assert format_annotation(tuple[typing.Literal["x", "y"], ...]) == "tuple['x' | 'y', ...]"
     assert format_annotation(dict[str, float]) == "dict[str, float]"
     assert main(["--no-entry-points", "plugins"]) == 0

@@ -248,7 +248,7 @@ steps:
   fe15x3: {{uses: features.end_effectors, input: motions, with: {{samples: 3}}}}
   relational: {{uses: features.relational, input: motions}}
   tree: {{uses: indexes.kdtree, input: fe15}}
-  search: {{uses: matchers.lng, inputs: {{database: tree, query: motions}}, with: {{k: 32, count: 3, queries: ["16_15:10-40", "02_01:5-30", "02_02:0-25", "35_01:5-30", "16_01:3-33"]}}}}
+  search: {{uses: matchers.search, inputs: {{database: tree, query: motions}}, with: {{count: 3, queries: ["16_15:10-40", "02_01:5-30", "02_02:0-25", "35_01:5-30", "16_01:3-33"]}}}}
   clean: {{uses: cleaners.mdm, inputs: {{motions: motions, context: motions}}, with: {{heatmaps: false}}}}
 """
 

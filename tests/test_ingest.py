@@ -194,7 +194,7 @@ def test_clip_id_collisions_are_resolved_deterministically():
 
 
 def test_rows_built_in_the_workers_equal_motions_to_tables(tmp_path, monkeypatch):
-    """formats.load builds each clip's rows where the file is read (issue 16): the tables are
+    """formats.load builds each clip's rows where the file is read: the tables are
     exactly motions_to_tables of the motions read and checked one by one, and the inputs are
     listed once by the fingerprint, whose listing the run reuses."""
     from mocapflow.framework.motion_tables import motions_to_tables

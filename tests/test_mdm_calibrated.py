@@ -269,6 +269,7 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     from types import SimpleNamespace
 
     from mocapflow.framework.database import MotionDatabase
+    from mocapflow.framework.plugins import default_registries
     from mocapflow.framework.steps import run_cleaner
 
     db = MotionDatabase([synthetic_walk(120, seed=9, name="w")])
@@ -282,7 +283,7 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
             progress=lambda it, **_: it,
             step_id="mdm",
             out_dir=out_dir,
-            registries=None,
+            registries=default_registries(),
             log=SimpleNamespace(info=lambda *_: None),
             map_clips=lambda fn, ds, with_ids=False, **_: [
                 fn(m, int(i)) for i, m in zip(ds.motions().clip_ids, ds.motions().motions, strict=True)

@@ -26,7 +26,7 @@ def _with_offset(motion, joint="lelbow", start=200, stop=206, angle=1.2):
 def corrupted():
     clean = synthetic_walk(360, seed=3)
     bad, j = _with_offset(clean)
-    res = digression_map(bad)
+    res = digression_map(bad, None, MDMParams())
     return clean, bad, j, res
 
 
@@ -119,13 +119,13 @@ def test_contexts():
     with pytest.raises(DataError):
         context_motions(take, "nonsense")
     bad, _ = _with_offset(take, start=100, stop=106)
-    one = digression_map(bad, others)
+    one = digression_map(bad, others, MDMParams())
     c = one.joints.index("lelbow")
     assert one.mdm[100:106, c].min() > 0.5
 
 
 def test_short_clip_has_an_all_zero_map():
-    res = digression_map(synthetic_walk(10))
+    res = digression_map(synthetic_walk(10), None, MDMParams())
     assert res.mdm.shape == (10, 24) and not res.mdm.any()
 
 

@@ -61,9 +61,8 @@ def test_cdtw_matches_naive(n, ln, r):
         d = rng.random((n + 3, ln + 4)).astype(np.float32)
         mean_ref, path_ref = naive_cdtw(d[2 : 2 + n, 1 : 1 + ln], r)
         m = max(ln, 1)
-        cur, prev = np.empty((m, 2 * r + 1)), np.empty((m, 2 * r + 1))
-        lc, lp = np.empty((m, 2 * r + 1), np.int64), np.empty((m, 2 * r + 1), np.int64)
-        c, p = kern.cdtw_cost(d, 2, 1, n, ln, r, cur, prev, lc, lp)
+        work = np.empty((n, m, 2 * r + 1)), np.empty((n, m, 2 * r + 1), np.int64), np.empty((n, m, 2 * r + 1), np.int64)
+        c, p = kern.cdtw(d, 2, 1, n, ln, r, *work)[:2]
         if r == 2:
             assert kern.cdtw_cost_r2(d, 2, 1, n, ln, np.empty((2, 5, m)), np.empty((2, 5, m), np.int64)) == (c, p)
         mean, path = kern.cdtw_path(d, 2, 1, n, ln, r)
@@ -131,13 +130,13 @@ def test_lower_bound_never_exceeds_distance():
         assert np.any(lb[0, w][ok] > 0)  # a bound, not just zeros
 
 
-@pytest.mark.parametrize("self_clip", [0, -1])
-def test_knn_pruned_equals_brute_and_naive(self_clip):
+@pytest.mark.parametrize("self_clip,r", [(0, 2), (-1, 2), (0, 3)])
+def test_knn_pruned_equals_brute_and_naive(self_clip, r):
     _, clips = _toy_context(5)
     src = clips[0]
     ctx = ContextTextures.from_arrays(clips if self_clip == 0 else clips[1:])
     groups = resolve_groups(("a", "b", "c", "d"), [("all", (), 1), ("ab", ("a", "b"), 0)])
-    n, m, r, k = 6, 8, 2, 3
+    n, m, k = 6, 8, 3
     starts = source_word_starts(len(src), n, 4)
     kw = dict(self_clip=self_clip, source_length=n, target_length=m, word_starts=starts, k=k, slope_run=r)
     fast = knn_search(src, ctx, groups, **kw)

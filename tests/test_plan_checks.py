@@ -1,4 +1,4 @@
-"""Validation before anything runs (issue 11 §4): nested component parameters, dataset
+"""Validation before anything runs: nested component parameters, dataset
 kinds of inputs, the executor, and components' own plan-time checks (globs)."""
 
 from __future__ import annotations
@@ -117,10 +117,10 @@ def test_nested_key_may_name_a_sibling_parameter(tmp_path):
         (
             """
      motions: {uses: formats.load, with: {paths: ["AMC"]}}
-     lng: {uses: matchers.lng, inputs: {database: motions, query: motions}}
+     lng: {uses: matchers.search, inputs: {database: motions, query: motions}}
      """,
             4,
-            ["input 'database' of matchers.lng takes an index or features dataset", "writes a motions dataset"],
+            ["input 'database' of matchers.search takes an index or features dataset", "writes a motions dataset"],
         ),
     ],
 )
@@ -149,7 +149,7 @@ def test_undeclared_kinds_are_not_checked(tmp_path):
       motions: {uses: analyses.toy_motions}
       fe: {uses: features.end_effectors, input: motions}
       tree: {uses: indexes.kdtree, input: fe}
-      lng: {uses: matchers.lng, inputs: {database: tree, query: motions}}
+      lng: {uses: matchers.search, inputs: {database: tree, query: motions}}
       summary: {uses: analyses.clip_summary, input: motions}
     """,
     )
@@ -202,8 +202,9 @@ def test_glob_matching_no_file_warns_at_plan_time(tmp_path, caplog, capsys):
 
 
 def test_typos_in_model_typed_parameters_suggest_from_the_nested_model():
-    p = REPO / "pipelines" / "reconstruct.yaml"
+    p = REPO / "pipelines" / "clean.yaml"
     with pytest.raises(
-        ConfigError, match=r"unknown parameter 'reconstruct.kk'.*did you mean 'k'\?\); known: features, feature_params"
+        ConfigError,
+        match=r"unknown parameter 'calibrated.false_alarmm'.*did you mean 'false_alarm'\?\); known: false_alarm",
     ):
-        plan(p, ["evaluation.reconstruct.kk=3"])
+        plan(p, ["mdm.calibrated.false_alarmm=0.01"])

@@ -14,12 +14,12 @@ from mocapflow.framework.database import MotionDatabase
 from mocapflow.framework.errors import ConfigError
 from mocapflow.plugins.relational import primitives as prim
 from mocapflow.plugins.relational.body import body_measures
+from mocapflow.plugins.relational.feature_table import feature_column
 from mocapflow.plugins.relational.features import (
     FEATURE_IDS,
     FEATURES,
     THRESHOLDS,
     RelationalFeatures,
-    feature_column,
     feature_values,
     relational_features,
     set_codes,

@@ -11,7 +11,7 @@ from naive import relational as naive
 
 from mocapflow.framework.errors import ConfigError
 from mocapflow.plugins.relational._match_kernels import banded_dtw
-from mocapflow.plugins.relational.features import FEATURE_IDS, feature_column
+from mocapflow.plugins.relational.feature_table import FEATURE_IDS, feature_column
 from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.matcher import dtw_band
 from mocapflow.plugins.relational.queries import combine, example_query, scene_query

@@ -98,7 +98,7 @@ def test_saved_shards_answer_on_workers_loaded_once_per_process(tmp_path):
             np.testing.assert_array_equal(got[1], ref[1])
             np.testing.assert_array_equal(got[0], ref[0])
         tasks = [
-            _ShardQuery(str(loaded.directory_ / f"shard-{s:03d}"), loaded.shard_key_, loaded._stamp, 3, None, {})
+            _ShardQuery(str(loaded.directory_ / f"shard-{s:03d}"), loaded.shard_cls_, loaded._stamp, 3, None, {})
             for s in range(3)
         ] * 6
         seen: dict[tuple[int, str], set[int]] = {}

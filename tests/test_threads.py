@@ -1,4 +1,4 @@
-"""BLAS sized for the workers before NumPy loads (session 6 of issue 16, docs/scale-out.md):
+"""BLAS sized for the workers before NumPy loads (docs/scale-out.md):
 when a run forks local workers, the client sets the BLAS thread variables before anything
 imports NumPy, so that OpenBLAS loads at a worker's share of the cores instead of being
 limited at run time in every forked worker (which measured slower)."""

@@ -1,4 +1,4 @@
-"""Compare every Parquet table of two workspaces of the same pipeline (issue 12 §3).
+"""Compare every Parquet table of two workspaces of the same pipeline.
 
     python tools/compare_workspaces.py OLD_WORKSPACE NEW_WORKSPACE
 

@@ -11,12 +11,8 @@ class ThreadLimit(WorkerPlugin):
     """Numba/BLAS/OpenMP threads per task, so that the worker threads of one host times
     the numeric threads per task stay within the host's cores.
 
-    Parameters
-    ----------
-    threads : int or None
-        Fixed threads per task; None: host cores // worker threads on that host.
-    host_threads : dict of str to int
-        Worker threads per host address (from the scheduler, when the plugin is registered).
+    ``threads``: fixed threads per task, None: host cores // worker threads on that host
+    (``host_threads``: per host address, from the scheduler when the plugin is registered).
     """
 
     name = "mocapflow-thread-limit"

@@ -59,27 +59,15 @@ def _apply_all(fn: Callable[[Any], Any], chunk: Sequence[Any]) -> list[Any]:
 class DaskExecutor:
     """Runs ``map`` items as tasks on a ``dask.distributed`` cluster.
 
-    Parameters
-    ----------
-    jobs : int
-        Workers of the LocalCluster started when no address is given (0: one per core).
-    address : str, optional
-        Scheduler address (``tcp://host:8786``); default ``$MOCAPFLOW_DASK_ADDRESS``;
-        neither: a LocalCluster of worker processes on 127.0.0.1, closed with the executor.
-    threads : int, optional
-        Numeric (numba/BLAS) threads per task; default: host cores / worker threads on it.
-    retries : int
-        Extra attempts of a task that raised (not of a deterministic error's rerun: a
-        mocapflow error is raised at once, see :meth:`map`).
-    allowed_failures : int, optional
-        LocalCluster only: worker deaths a task may cause before it is declared lost.
-    min_items : int
-        Batches smaller than this run in the client process (no round trip).
-    chunks_per_worker : int
-        A batch goes out as about this many tasks per worker thread, each a contiguous run
-        of items (a task per item costs the scheduler and the comms a round trip each: 201
-        files read one task each took 22.8 s where the local pool took 8.5 s); 0: one task
-        per item.
+    ``address``: the scheduler (``tcp://host:8786``; default ``$MOCAPFLOW_DASK_ADDRESS``;
+    neither: a LocalCluster of ``jobs`` worker processes on 127.0.0.1, 0 = one per core,
+    closed with the executor). ``threads``: numba/BLAS threads per task (default host cores
+    / worker threads on it). ``retries``: extra attempts of a task that raised (a mocapflow
+    error is raised at once, see :meth:`map`). ``allowed_failures``: LocalCluster only,
+    worker deaths a task may cause before it is lost. Batches under ``min_items`` run in the
+    client. ``chunks_per_worker``: tasks per worker thread a batch goes out as, each a
+    contiguous run of items (a task per item, 0, costs a round trip each: 201 files read
+    one task each took 22.8 s where the local pool took 8.5 s).
     """
 
     name = "dask"

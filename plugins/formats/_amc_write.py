@@ -17,15 +17,8 @@ class NotAnAsfSkeleton(DataError, NotImplementedError):
 
 
 def write_amc(motion: Motion, path: str | Path, precision: int = 10) -> None:
-    """Write a motion whose skeleton came from an ASF file as AMC (``:DEGREES``).
-
-    Parameters
-    ----------
-    motion : Motion
-    path : str or Path
-    precision : int
-        Significant digits per value (10 keeps round trips within 1e-6 of the source).
-    """
+    """Write a motion whose skeleton came from an ASF file as AMC (``:DEGREES``), with
+    ``precision`` significant digits per value (10 keeps round trips within 1e-6)."""
     sk = motion.skeleton
     if sk.meta.get("format") != "asf" or sk.axes is None or not sk.channels:
         raise NotAnAsfSkeleton(

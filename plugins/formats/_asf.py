@@ -350,25 +350,10 @@ def build_skeleton(asf: dict[str, Any]) -> Skeleton:
 
 
 def read_asf(path: str | Path) -> Skeleton:
-    """Read an ASF skeleton file.
-
-    Parameters
-    ----------
-    path : str or Path
-
-    Returns
-    -------
-    Skeleton
-        Joints at the start of each ASF bone plus ``<bone>_end`` end sites; offsets in
-        metres; ``axes`` the bones' ASF axis rotations; ``meta["bones"]`` etc. keep the file
-        description for :func:`write_asf`. ``name`` is the file stem (CMU and HDM05 files
-        all say ``:name VICON``; that is kept as ``meta["asf_name"]``).
-
-    Raises
-    ------
-    ParseError
-        Naming the file and 1-based line.
-    """
+    """Read an ASF skeleton file: joints at the start of each bone plus ``<bone>_end`` end
+    sites, offsets in metres, ``axes`` the bones' ASF axis rotations, ``meta["bones"]`` etc.
+    the file description for :func:`write_asf`; ``name`` is the file stem (CMU and HDM05 all
+    say ``:name VICON``, kept as ``meta["asf_name"]``). ParseError names file and line."""
     asf = parse_asf(path)
     asf["path"] = str(path)
     return build_skeleton(asf)
@@ -379,13 +364,8 @@ def _fmt(x: float) -> str:
 
 
 def write_asf(skeleton: Skeleton, path: str | Path) -> None:
-    """Write an ASF file for a skeleton read by :func:`read_asf` (uses ``skeleton.meta``).
-
-    Raises
-    ------
-    DataError
-        If the skeleton did not come from an ASF file.
-    """
+    """Write an ASF file for a skeleton read by :func:`read_asf` (from ``skeleton.meta``;
+    DataError for any other skeleton)."""
     from mocapflow.framework.errors import DataError
 
     meta = skeleton.meta

@@ -11,16 +11,8 @@ from mocapflow.framework.motion import Motion
 
 
 def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_order: str = "zyx") -> None:
-    """Write a motion as BVH (file units: metres divided by the source scale, if any).
-
-    Parameters
-    ----------
-    motion : Motion
-    path : str or Path
-    precision : int
-        Significant digits per value.
-    default_order : str
-        Rotation order for joints whose skeleton did not come from a BVH file.
+    """Write a motion as BVH (file units: metres divided by the source scale, if any), with
+    ``precision`` significant digits per value.
 
     A skeleton read from BVH keeps its channel layout (order and position channels);
     others get ``Xposition Yposition Zposition`` on the root and three rotation channels

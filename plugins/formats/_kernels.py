@@ -21,28 +21,13 @@ def _qmul(aw, ax, ay, az, bw, bx, by, bz):
 
 @njit(cache=True)
 def euler_table_to_quat(table, cols, axis_id, frames, scale, extrinsic):
-    """Joint rotations from a table of Euler angles.
+    """Joint rotations (T, J, 4) from a table (T, W) of Euler angles as read from the file.
 
-    Parameters
-    ----------
-    table : ndarray of shape (T, W)
-        Values as read from the file, one row per frame.
-    cols : ndarray of int64, shape (J, 3)
-        Column of the k-th listed rotation channel of joint j, ``-1`` if the joint has
-        fewer (zero angle).
-    axis_id : ndarray of int64, shape (J, 3)
-        Axis (0=x, 1=y, 2=z) of each listed channel.
-    frames : ndarray of shape (J, 4)
-        Per-joint frame rotation ``C`` (w, x, y, z); the result is ``C M C^-1``.
-    scale : float
-        Radians per table unit (pi/180 for degrees).
-    extrinsic : bool
-        True: channels are rotations about fixed axes in listed order (``M = R3 R2 R1``,
-        Acclaim); False: intrinsic in listed order (``M = R1 R2 R3``, BVH).
-
-    Returns
-    -------
-    ndarray of shape (T, J, 4)
+    ``cols`` (J, 3) int64: column of joint j's k-th listed rotation channel, -1 if it has
+    fewer (zero angle); ``axis_id`` (J, 3): its axis (0=x, 1=y, 2=z); ``frames`` (J, 4):
+    per-joint frame rotation ``C`` (w, x, y, z), the result is ``C M C^-1``; ``scale``:
+    radians per table unit; ``extrinsic``: rotations about fixed axes in listed order
+    (``M = R3 R2 R1``, Acclaim), else intrinsic (``M = R1 R2 R3``, BVH).
     """
     t = table.shape[0]
     nj = cols.shape[0]

@@ -156,29 +156,10 @@ def _tokenize(buf, start, first_line, pow10):
 
 
 def tokenize(buf: np.ndarray, start: int = 0, first_line: int = 1):
-    """Tokens of ``buf[start:]``.
-
-    Parameters
-    ----------
-    buf : ndarray of uint8
-        The file's bytes.
-    start : int
-        Byte offset where tokenizing starts.
-    first_line : int
-        1-based line number of the line containing ``start``.
-
-    Returns
-    -------
-    starts, lens, lines : ndarray of int64, shape (n_tokens,)
-    hashes : ndarray of uint64, shape (n_tokens,)
-        FNV-1a hash of each non-numeric token, 0 for numbers.
-    values : ndarray of float64, shape (n_tokens,)
-        NaN where the token is not a finite decimal number.
-    isnum : ndarray of bool, shape (n_tokens,)
-    bad : int
-        Byte offset of the first control character that is not whitespace (binary
-        garbage), ``-1`` if none; tokenizing stops there.
-    bad_line : int
-        Line number reached (the line of ``bad`` when ``bad >= 0``).
-    """
+    """Tokens of the file's bytes ``buf[start:]`` (uint8), ``first_line`` the 1-based line of
+    ``start``. Returns per token (n_tokens,): ``starts, lens, lines`` int64, ``hashes`` uint64
+    (FNV-1a of non-numeric tokens, 0 for numbers), ``values`` float64 (NaN unless a finite
+    decimal), ``isnum`` bool; then ``bad``, the byte offset of the first non-whitespace
+    control character (binary garbage; tokenizing stops there) or -1, and ``bad_line``, the
+    line reached (that of ``bad`` when ``bad >= 0``)."""
     return _tokenize(buf, start, first_line, _POW10)

@@ -316,28 +316,13 @@ def read_amc(
     skeleton: Skeleton | str | Path | None = None,
     fps: float = AMC_DEFAULT_FPS,
 ) -> Motion:
-    """Read an AMC motion.
+    """Read an AMC motion with ``skeleton`` (from :func:`read_asf`, its ASF path, or ``None``:
+    :func:`find_asf`) at ``fps`` (AMC files carry none; CMU and HDM05 are 120 Hz).
 
-    Parameters
-    ----------
-    path : str or Path
-    skeleton : Skeleton, path or None
-        The skeleton (from :func:`read_asf`) or its ASF path; ``None`` finds it with
-        :func:`find_asf`.
-    fps : float
-        Frame rate (AMC files carry none; CMU and HDM05 are 120 Hz).
-
-    Returns
-    -------
-    Motion
-        ``rotations (T, J, 4)``, ``root_translation (T, 3)`` in metres; metadata ``path``,
-        ``format`` ("amc"), ``subject``, ``checksum`` (sha1 of the bytes), ``source_fps``,
-        ``source_frames``, ``skeleton_path``.
-
-    Raises
-    ------
-    ParseError
-        Naming the file, the 1-based line and what was expected.
+    Returns ``rotations (T, J, 4)``, ``root_translation (T, 3)`` in metres; metadata ``path``,
+    ``format`` ("amc"), ``subject``, ``checksum`` (sha1 of the bytes), ``source_fps``,
+    ``source_frames``, ``skeleton_path``. ParseError names the file, the 1-based line and
+    what was expected.
     """
     from ._text_kernels import tokenize
 

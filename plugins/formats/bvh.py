@@ -278,29 +278,14 @@ def _auto_scale(parents: np.ndarray, offsets: np.ndarray) -> tuple[float, str, f
 
 
 def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse_static_root: bool = True) -> Motion:
-    """Read a BVH motion.
+    """Read a BVH motion. ``scale``: metres per file unit, ``"auto"`` guesses it from the
+    rest-pose size; ``collapse_static_root`` drops a root joint that never moves when its only
+    child carries the translation (Bandai-Namco's ``joint_Root`` above ``Hips``), so that
+    ``root_translation`` and ``rotations[:, 0]`` describe the body (module doc for both).
 
-    Parameters
-    ----------
-    path : str or Path
-    scale : "auto" or float
-        Metres per file unit; ``"auto"`` guesses it from the rest-pose size (module doc).
-    collapse_static_root : bool
-        Drop a root joint that never moves when its only child carries the translation
-        (Bandai-Namco's ``joint_Root`` above ``Hips``), so that ``root_translation`` and
-        ``rotations[:, 0]`` describe the body (module doc).
-
-    Returns
-    -------
-    Motion
-        Positions in metres; metadata ``path``, ``format`` ("bvh"), ``checksum``,
-        ``source_fps``, ``source_frames``, ``frame_time``, ``scale``, ``unit``, ``subject``,
-        ``collapsed_root`` (name of a dropped static root, or None).
-
-    Raises
-    ------
-    ParseError
-        Naming the file, the 1-based line and what was expected.
+    Positions in metres; metadata ``path``, ``format`` ("bvh"), ``checksum``, ``source_fps``,
+    ``source_frames``, ``frame_time``, ``scale``, ``unit``, ``subject``, ``collapsed_root``
+    (a dropped static root, or None). ParseError names the file, line and what was expected.
     """
     from ._kernels import euler_table_to_quat
     from ._text_kernels import tokenize

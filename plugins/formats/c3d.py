@@ -100,28 +100,12 @@ def _points(path: Path, data: bytes, reader) -> np.ndarray:
 
 
 def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
-    """Read the 3D points of a C3D file.
-
-    Parameters
-    ----------
-    path : str or Path
-    y_up : bool
-        Rotate to y-up (see :func:`mocapflow.framework.markers.to_y_up`); default keeps the
-        file's axes and records ``metadata["up_axis"]``.
-
-    Returns
-    -------
-    Markers
-        positions (T, M, 3) metres, NaN for gaps; metadata ``path``, ``format`` ("c3d"),
-        ``checksum``, ``units``, ``first_frame``, ``up_axis``, ``up_axis_source``,
-        ``source_fps``, ``source_frames``.
-
-    Raises
-    ------
-    ParseError
-        Unreadable, non-C3D or truncated files (line ``None``: C3D is binary).
-    MocapflowError
-        If the optional ``c3d`` package is missing.
+    """Read the 3D points of a C3D file, rotated to y-up with ``y_up``
+    (:func:`mocapflow.framework.markers.to_y_up`; default: the file's axes, recorded in
+    ``metadata["up_axis"]``). Positions (T, M, 3) metres, NaN for gaps; metadata ``path``,
+    ``format`` ("c3d"), ``checksum``, ``units``, ``first_frame``, ``up_axis``,
+    ``up_axis_source``, ``source_fps``, ``source_frames``. ParseError for unreadable, non-C3D
+    or truncated files (line ``None``: C3D is binary); MocapflowError without ``c3d``.
     """
     c3d = _import_c3d()
     path = Path(path)

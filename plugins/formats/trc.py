@@ -84,26 +84,12 @@ def _slow_row(path: Path, line: int, text: bytes, width: int) -> list[float]:
 
 
 def read_trc(path: str | Path, y_up: bool = False) -> Markers:
-    """Read a TRC file.
+    """Read a TRC file (``y_up``: rotate z-up data to y-up; default the file's axes).
 
-    Parameters
-    ----------
-    path : str or Path
-    y_up : bool
-        Rotate z-up data to y-up (default: keep the file's axes).
-
-    Returns
-    -------
-    Markers
-        positions (T, M, 3) metres, NaN for gaps; metadata ``path``, ``format`` ("trc"),
-        ``checksum``, ``units``, ``up_axis``, ``first_frame``, ``source_fps``, ``source_frames``.
-
-    Raises
-    ------
-    ParseError
-        Naming the file, the 1-based line and what was expected: also for ``inf`` and
-        values beyond 10 km (the value policy of ``_common``); ``NaN`` and empty fields
-        are gaps.
+    Positions (T, M, 3) metres, NaN for gaps; metadata ``path``, ``format`` ("trc"),
+    ``checksum``, ``units``, ``up_axis``, ``first_frame``, ``source_fps``, ``source_frames``.
+    ParseError names the file, the 1-based line and what was expected, also for ``inf`` and
+    values beyond 10 km (the value policy of ``_common``); ``NaN`` and empty fields are gaps.
     """
     from ._text_kernels import tokenize
 
@@ -187,17 +173,8 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
 
 
 def write_trc(markers: Markers, path: str | Path, units: str = "mm", precision: int = 10) -> None:
-    """Write markers as TRC (gaps as empty fields).
-
-    Parameters
-    ----------
-    markers : Markers
-    path : str or Path
-    units : str
-        Length unit of the file (``mm``, ``cm``, ``m``, ``in``).
-    precision : int
-        Significant digits per value.
-    """
+    """Write markers as TRC (gaps as empty fields) in ``units`` (``mm``, ``cm``, ``m``, ``in``)
+    with ``precision`` significant digits per value."""
     if units not in UNITS_TO_METRES:
         raise DataError(f"units must be one of {sorted(UNITS_TO_METRES)}, got {units!r}")
     t, m = markers.n_frames, markers.n_markers

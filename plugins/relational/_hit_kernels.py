@@ -14,12 +14,7 @@ from numba import njit
 def select_hits(cost, start, threshold, min_gap):  # pragma: no cover - compiled
     """Hits from end-frame costs: local minima with cost <= threshold, cheapest first, a
     candidate dropped when it overlaps an accepted hit by more than ``min_gap`` of the
-    shorter span.
-
-    Returns
-    -------
-    ends : int64 (h,)
-        End frames (inclusive) of the accepted hits, by ascending cost.
+    shorter span. Returns the end frames (h,) int64 (inclusive) by ascending cost.
     """
     n = cost.shape[0]
     lo = np.zeros(1, np.int64)

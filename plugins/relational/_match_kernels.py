@@ -17,22 +17,10 @@ def mismatch_scan(codes, clip, member, allowed, m):  # pragma: no cover - compil
     left to right (the DP state is the mismatch count so far), abandoning a start as soon
     as it exceeds ``m`` or a mismatch falls on a position where none is allowed.
 
-    Parameters
-    ----------
-    codes : int64 (M,)
-        Segment codes.
-    clip : int64 (M,)
-        Clip position of each segment (a hit never spans two clips).
-    member : bool (L, C)
-        ``member[l, c]``: code ``c`` belongs to the query's l-th fuzzy set.
-    allowed : bool (L,)
-        Positions where a mismatch may occur.
-    m : int
-        Maximum number of mismatches.
-
-    Returns
-    -------
-    starts : int64 (n,), mismatches : int64 (n,)
+    ``codes`` (M,) segment codes, ``clip`` (M,) their clip positions (a hit never spans two
+    clips), ``member`` (L, C) bool: code ``c`` is in the query's l-th fuzzy set, ``allowed``
+    (L,) positions where a mismatch may occur, at most ``m``. Returns ``starts, mismatches``
+    (n,) int64.
     """
     n_seg = codes.shape[0]
     n_q = member.shape[0]
@@ -65,13 +53,8 @@ def banded_dtw(a, b, lo, hi):  # pragma: no cover - compiled
     """DTW between ``a (n, d)`` and ``b (m, d)`` restricted to a band.
 
     Row ``i`` may only use columns ``lo[i] <= j < hi[i]``; local cost is the Euclidean
-    distance; steps (1,0), (0,1), (1,1). The path runs from (0, 0) to (n-1, m-1).
-
-    Returns
-    -------
-    cost : float (inf when the band admits no path)
-    path : int64 (P, 2), the warping path (empty when no path)
-    cells : int, number of cost-matrix cells evaluated
+    distance; steps (1,0), (0,1), (1,1) from (0, 0) to (n-1, m-1). Returns the cost (inf when
+    the band admits no path), the path int64 (P, 2) (empty then) and the cells evaluated.
     """
     n, d = a.shape
     m = b.shape[0]
@@ -130,11 +113,7 @@ def adaptive_chain(starts, ends, code, first, member):  # pragma: no cover - com
     Level ``l`` must begin exactly where level ``l-1`` ended, inside the same clip
     (``first[k]`` marks a clip's first segment), and is extended while the codes stay in
     ``V_l`` (``member[l, code]``). Work is proportional to the candidates' run lengths.
-
-    Returns
-    -------
-    bounds : int64 (n, L + 1)
-        Segment boundaries ``k_1 < ... < k_{L+1}`` of each adaptive fuzzy hit.
+    Returns the segment boundaries ``k_1 < ... < k_{L+1}`` (n, L + 1) int64 of each hit.
     """
     n_levels = member.shape[0]
     n_seg = code.shape[0]

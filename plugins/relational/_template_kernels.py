@@ -39,14 +39,8 @@ def _fill_costs(code, table, col, lo, hi):  # pragma: no cover - compiled
 def dtw_path(a, b):  # pragma: no cover - compiled
     """Global DTW between ``a (n, f)`` and ``b (m, f)``, local cost mean |a - b| over features.
 
-    Steps (1,0), (0,1), (1,1); the path runs from (0, 0) to (n-1, m-1).
-
-    Returns
-    -------
-    cost : float
-        Accumulated cost of the optimal path.
-    path : int64 (P, 2)
-        (row of ``a``, row of ``b``) pairs in order.
+    Steps (1,0), (0,1), (1,1) from (0, 0) to (n-1, m-1). Returns the accumulated cost of the
+    optimal path and the path, int64 (P, 2) (row of ``a``, row of ``b``) pairs in order.
     """
     n, f = a.shape
     m = b.shape[0]
@@ -219,22 +213,11 @@ def _sdtw_range_bounded(codes, table, lo_frame, hi_frame, cost, start, bound):  
 def template_sdtw(codes, table, chunk_lo, chunk_hi, cost, start, bound=np.inf):  # pragma: no cover - compiled
     """Subsequence DTW of one template over many clips, in parallel over clip ranges.
 
-    Parameters
-    ----------
-    codes : int64 (N,)
-        31-bit feature code per database frame (bit i = feature column i).
-    table : float32/float64 (6400, K)
-        Per-part local costs (module doc).
-    chunk_lo, chunk_hi : int64 (C,)
-        Frame ranges, each inside one clip (clips, or clip pieces when the caller
-        pre-selects candidate regions).
-    cost : float64 (N,), out
-        ``D[K-1, j] / K`` (mean local cost of the best path ending at frame j); frames
-        outside every range are left untouched.
-    start : int64 (N,), out
-        First database frame of that path.
-    bound : float
-        Early abandoning above this mean cost (:func:`_sdtw_range_bounded`); ``inf``: none.
+    ``codes`` (N,) int64: 31-bit feature code per frame (bit i = column i); ``table``
+    (6400, K): per-part local costs (module doc); ``chunk_lo, chunk_hi`` (C,): frame ranges,
+    each inside one clip. Writes ``cost`` (N,) = ``D[K-1, j] / K``, the mean local cost of the
+    best path ending at frame j, and ``start`` (N,), its first frame (frames outside every
+    range untouched). ``bound``: early abandoning above this mean cost; ``inf``: none.
     """
     for r in prange(chunk_lo.shape[0]):
         if bound < np.inf:

@@ -256,16 +256,3 @@ def auto_dtw_hits(
     keep, checked = mutual_check(query_bits, s, e, db_bits, codes, offsets, background, mutual, ratio, checked_cut)
     keep &= checked | (c <= cut * plain / checked_cut)
     return s[keep], e[keep], c[keep]
-
-
-__all__ = [
-    "auto_dtw_hits",
-    "auto_hits",
-    "auto_template",
-    "mutual_check",
-    "relative_cost_cut",
-    "reverse_costs",
-    "runs",
-    "smooth_runs",
-    "surprise_weights",
-]

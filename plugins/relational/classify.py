@@ -30,15 +30,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 
 def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Per clip and template the least cost on all 31 features, shape (n_clips, n_templates)
-    (inf: no path fits).
-
-    Parameters
-    ----------
-    templates : list of MotionTemplate
-    bits : ndarray of shape (N, 31), 0/1
-    offsets : ndarray of int, shape (n_clips + 1,)
-    """
+    """Per clip of ``bits`` (N, 31) split at ``offsets`` and per template the least cost on all
+    31 features, (n_clips, n_templates) (inf: no path fits)."""
     from .template_cutoff import _all_columns
     from .template_model import clip_min_costs, frame_codes
 

@@ -313,17 +313,3 @@ def feature_set_of(column: int) -> str:
         if sl.start <= column < sl.stop:
             return name
     raise ConfigError(f"feature column {column} out of range 0..30")
-
-
-__all__ = [
-    "FEATURES",
-    "FEATURE_IDS",
-    "FEATURE_NAMES",
-    "OPS",
-    "SETS",
-    "SET_SLICES",
-    "THRESHOLDS",
-    "FeatureDef",
-    "feature_column",
-    "feature_set_of",
-]

@@ -36,15 +36,11 @@ from .body import body_measures
 from .feature_table import (
     _FALLBACK,
     FEATURE_IDS,
-    FEATURE_NAMES,
     FEATURES,
     OPS,
     SET_SLICES,
     SETS,
     THRESHOLDS,
-    FeatureDef,
-    feature_column,
-    feature_set_of,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -63,23 +59,10 @@ def relational_features(
 ) -> np.ndarray:
     """The 31 features of concatenated clips, vectorised over all frames.
 
-    Parameters
-    ----------
-    positions : ndarray of shape (T, 25, 3), metres
-        Canonical positions (:data:`~mocapflow.framework.joints.CANONICAL_JOINTS` order).
-    fps : float
-        Frame rate (speeds are in humerus lengths per second).
-    measures : mapping
-        ``humerus_length``, ``shoulder_width``, ``hip_width`` in metres: scalars or arrays
-        of shape (T,) (one value per frame when clips come from several skeletons).
-    params : RelationalFeatures.Params, optional
-    offsets : ndarray of int, shape (n_clips + 1,), optional
-        Clip offsets; speeds never cross a clip boundary.
-
-    Returns
-    -------
-    ndarray of bool, shape (T, 31)
-        Columns in Table 1 order (:data:`FEATURE_IDS`).
+    ``positions`` (T, 25, 3) canonical joints, metres; speeds in humerus lengths per second
+    at ``fps``; ``measures``: ``humerus_length``, ``shoulder_width``, ``hip_width`` in metres,
+    scalars or (T,) (clips of several skeletons); speeds never cross clip ``offsets``
+    (n_clips + 1,). Returns (T, 31) bool in Table 1 order (:data:`FEATURE_IDS`).
     """
     params = params or RelationalFeatures.Params()
     pos = np.asarray(positions)
@@ -144,17 +127,8 @@ def feature_values(positions: np.ndarray, fps: float, starts: np.ndarray) -> np.
 
 
 def set_codes(bits: np.ndarray, feature_set: str) -> np.ndarray:
-    """Integer code of each frame's feature vector within one set (bit ``i`` = i-th feature).
-
-    Parameters
-    ----------
-    bits : ndarray of shape (T, 31), bool or 0/1
-    feature_set : {"lower", "upper", "mixed"}
-
-    Returns
-    -------
-    ndarray of int32, shape (T,)
-    """
+    """Integer code (T,) int32 of each frame's feature vector (``bits`` (T, 31)) within one
+    set ("lower", "upper" or "mixed"; bit ``i`` = the set's i-th feature)."""
     sl = SET_SLICES[feature_set]
     b = np.asarray(bits[:, sl]) > 0.5
     return (b.astype(np.int32) << np.arange(b.shape[1], dtype=np.int32)).sum(axis=1, dtype=np.int32)
@@ -246,21 +220,3 @@ class RelationalFeatures(FeatureSet):
         return out
 
     feature_ids: ClassVar[tuple[str, ...]] = FEATURE_IDS
-
-
-__all__ = [
-    "FEATURES",
-    "THRESHOLDS",
-    "FEATURE_IDS",
-    "FEATURE_NAMES",
-    "OPS",
-    "SETS",
-    "SET_SLICES",
-    "FeatureDef",
-    "RelationalFeatures",
-    "feature_column",
-    "feature_set_of",
-    "feature_values",
-    "relational_features",
-    "set_codes",
-]

@@ -50,27 +50,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 @dataclass
 class SetIndex:
-    """The inverted lists of one feature set, with the segments they point to.
-
-    Attributes
-    ----------
-    name : str
-        ``lower``, ``upper`` or ``mixed``.
-    columns : ndarray of int, shape (f,)
-        Columns of the 31 relational features in this set (bit ``i`` of a code = ``columns[i]``).
-    seg_start, seg_end : ndarray of int64, shape (M,)
-        Global frame range ``[start, end)`` of each segment.
-    seg_code : ndarray of int64, shape (M,)
-    seg_clip : ndarray of int64, shape (M,)
-        Clip position of each segment.
-    clip_ids : ndarray of int32, shape (n_clips,)
-    clip_offsets : ndarray of int64, shape (n_clips + 1,)
-        Global frame id of each clip's first frame.
-    list_codes : ndarray of int64, shape (n_lists,)
-        Codes with a non-empty list, ascending.
-    list_offsets : ndarray of int64, shape (n_lists + 1,)
-    list_positions : ndarray of int64, shape (M,)
-        Concatenated inverted lists; list ``i`` is ``list_positions[list_offsets[i]:list_offsets[i+1]]``.
+    """The inverted lists of one feature set (``name`` lower, upper or mixed; ``columns`` (f,)
+    of the 31 features, bit ``i`` of a code = ``columns[i]``), with the segments they point
+    to: ``seg_start, seg_end, seg_code, seg_clip`` (M,) int64, the global frame range
+    ``[start, end)``, code and clip position of each; ``clip_offsets`` (n_clips + 1,) the
+    global first frame of each clip; ``list_codes`` (n_lists,) the codes with a non-empty
+    list, ascending; list ``i`` is ``list_positions[list_offsets[i]:list_offsets[i + 1]]``.
     """
 
     name: str
@@ -158,19 +143,9 @@ class SetIndex:
         return self.seg_clip[starts] == self.seg_clip[last]
 
     def exact(self, codes: np.ndarray) -> np.ndarray:
-        """Exact hits ``H(F[Q])`` (eq. 7): intersection of the shifted lists ``L(v_l) - l``.
-
-        Parameters
-        ----------
-        codes : ndarray of int, shape (L,)
-            The query's feature sequence ``v_1 .. v_L`` as codes of this set.
-
-        Returns
-        -------
-        ndarray of int64, shape (n_hits,)
-            Start segment ``k`` of each hit (0-based; the hit covers segments ``k .. k+L-1``
-            of one clip), ascending.
-        """
+        """Exact hits ``H(F[Q])`` (eq. 7) of the query's codes ``v_1 .. v_L`` (L,): intersection
+        of the shifted lists ``L(v_l) - l``. Returns the start segment ``k`` (n_hits,) int64 of
+        each hit, ascending (0-based; the hit covers segments ``k .. k+L-1`` of one clip)."""
         return self._intersect([self.positions(int(c)) for c in codes])
 
     def fuzzy(self, member: np.ndarray) -> np.ndarray:
@@ -200,13 +175,8 @@ class SetIndex:
         return cand[self._same_clip(cand, cand + n_levels - 1)].astype(np.int64)
 
     def runs(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Maximal runs of segments whose code is in ``codes``, never crossing a clip boundary.
-
-        Returns
-        -------
-        start, end : ndarray of int64, shape (n_runs,)
-            Segment range ``[start, end)`` of each run, ascending.
-        """
+        """Maximal runs of segments whose code is in ``codes``, never crossing a clip boundary:
+        ``start, end`` (n_runs,) int64, the segment range ``[start, end)`` of each, ascending."""
         p = self.union(codes)
         if not len(p):
             return p.astype(np.int64), p.astype(np.int64)
@@ -224,17 +194,10 @@ class SetIndex:
         (same clip, code in ``V_l``) and is extended segment by segment, so the work after
         the first level is proportional to the candidates' run lengths, not to the index.
 
-        Parameters
-        ----------
-        member : ndarray of bool, shape (L, 2**f)
-            Fuzzy sets with ``V_l`` and ``V_{l+1}`` disjoint (see ``coarsen_fuzzy``).
-
-        Returns
-        -------
-        ndarray of int64, shape (n_hits, L + 1)
-            Segment boundaries ``k_1 < k_2 < ... < k_{L+1}`` of each hit: level ``l`` covers
-            segments ``[k_l, k_{l+1})`` (the paper's example has ``k = (2, 3, 6, 7)`` for its
-            first hit in 1-based numbering; here 0-based).
+        ``member`` (L, 2**f) bool: fuzzy sets with ``V_l`` and ``V_{l+1}`` disjoint
+        (``coarsen_fuzzy``). Returns (n_hits, L + 1) int64 segment boundaries ``k_1 < ... <
+        k_{L+1}`` per hit, level ``l`` covering ``[k_l, k_{l+1})`` (0-based; the paper's first
+        example hit is ``k = (2, 3, 6, 7)`` 1-based).
         """
         n_levels = len(member)
         if n_levels == 0:
@@ -343,16 +306,8 @@ class InvertedIndex(Index):
         )
 
     def build(self, features: np.ndarray, clip_id: np.ndarray | None = None, fps: float | None = None) -> InvertedIndex:
-        """Build from the 31 relational features of concatenated clips.
-
-        Parameters
-        ----------
-        features : ndarray of shape (T, 31), bool or 0/1
-        clip_id : ndarray of int, shape (T,), optional
-            Clip id of each frame (rows grouped by clip); default one clip with id 0.
-        fps : float, optional
-            Recorded with the index (for reports).
-        """
+        """Build from the 31 relational features (T, 31) of concatenated clips; ``clip_id``
+        (T,) per frame, rows grouped by clip (default one clip, id 0); ``fps`` is recorded."""
         x = np.asarray(features)
         if x.ndim != 2 or x.shape[1] != len(FEATURE_IDS):
             raise DataError(f"inverted index needs the {len(FEATURE_IDS)} relational features, got shape {x.shape}")

@@ -26,7 +26,7 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, PipelineError
 from mocapflow.framework.schema import MATCHES, WARPING_PATH
 
-from .features import FEATURE_IDS, feature_column, feature_set_of
+from .feature_table import FEATURE_IDS, feature_column, feature_set_of
 from .inverted import InvertedIndex
 from .queries import Hits, example_query, scene_query
 
@@ -41,14 +41,9 @@ ExampleMode = Literal["auto", "exact", "fuzzy", "adaptive", "mismatch"]
 def dtw_band(query_levels: np.ndarray, levels: np.ndarray, margin: int) -> tuple[np.ndarray, np.ndarray]:
     """Per query row the admissible database columns ``[lo, hi)`` around matched segments (§7).
 
-    Parameters
-    ----------
-    query_levels : ndarray (L, 2)
-        Query frame range per level, relative to the query's first frame.
-    levels : ndarray (L, 2)
-        Database frame range per level, relative to the hit's first frame.
-    margin : int
-        Frames by which each rectangle is enlarged in both directions.
+    ``query_levels`` (L, 2): query frame range per level, from the query's first frame;
+    ``levels`` (L, 2): database frame range per level, from the hit's first frame; each
+    rectangle is enlarged by ``margin`` frames in both directions.
     """
     n, m = int(query_levels[-1, 1]), int(levels[-1, 1])
     lo = np.full(n, m, np.int64)

@@ -48,21 +48,11 @@ def _k():
 def plane_distance(
     p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray, offset: float | np.ndarray = 0.0
 ) -> np.ndarray:
-    """Signed distance of ``q`` from the oriented plane through ``p1, p2, p3``, minus ``offset``.
-
-    Parameters
-    ----------
-    p1, p2, p3, q : ndarray of shape (..., 3), metres
-    offset : float or ndarray broadcasting to (...,), metres
-        Moves the plane along its normal (the paper moves the "hand in front" plane one
-        humerus length to the front), so the result is ``>= 0`` iff ``q`` lies in front of
-        or on the moved plane.
-
-    Returns
-    -------
-    ndarray of float32, shape (...,), metres
-        NaN where a point is NaN; degenerate planes (collinear points) give ``-offset``.
-    """
+    """Signed distance (..., float32, metres) of ``q`` from the oriented plane through
+    ``p1, p2, p3`` (all (..., 3), metres), minus ``offset`` (metres, broadcasting): the plane
+    moved along its normal (the paper moves "hand in front" one humerus length forward), so
+    the result is ``>= 0`` iff ``q`` lies in front of or on it. NaN where a point is NaN;
+    collinear points give ``-offset``."""
     (a, b, c, d), shape = _points(p1, p2, p3, q)
     out = np.empty(len(a), np.float32)
     _k().plane_distance(a, b, c, d, _scalars(offset, shape), out)
@@ -74,13 +64,8 @@ def normal_plane_distance(
 ) -> np.ndarray:
     """Signed distance of ``q`` from the plane with normal ``b - a`` through ``anchor``, minus ``offset``.
 
-    ``a`` and ``b`` may be joints (shape (..., 3)) or a fixed direction given as
-    ``a = (0, 0, 0), b = direction``.
-
-    Returns
-    -------
-    ndarray of float32, shape (...,), metres
-        Positive on the side the normal points to.
+    ``a`` and ``b`` may be joints (..., 3) or a fixed direction ``a = (0, 0, 0), b = direction``.
+    Returns float32 (...,) metres, positive on the side the normal points to.
     """
     (x, y, z, w), shape = _points(a, b, anchor, q)
     out = np.empty(len(x), np.float32)
@@ -130,16 +115,8 @@ def angle_between(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray
 
 
 def min_height(positions: np.ndarray) -> np.ndarray:
-    """Lowest y coordinate over the joints of each frame, ignoring NaN joints.
-
-    Parameters
-    ----------
-    positions : ndarray of shape (T, J, 3), metres
-
-    Returns
-    -------
-    ndarray of float32, shape (T,) (NaN where every joint is NaN)
-    """
+    """Lowest y (T,) float32 over the joints of each frame of ``positions`` (T, J, 3), metres,
+    ignoring NaN joints (NaN where every joint is NaN)."""
     p = np.asarray(positions)
     if p.ndim != 3 or p.shape[2] != 3:
         raise DataError(f"positions must be (T, J, 3), got {p.shape}")
@@ -167,19 +144,9 @@ def speed(
     Central differences inside a clip, one-sided differences at a clip's first and last
     frame, 0 for one-frame clips.
 
-    Parameters
-    ----------
-    p : ndarray of shape (T, 3), metres
-        Trajectory of all frames of one or several concatenated clips.
-    fps : float
-    offsets : ndarray of int, shape (n_clips + 1,), optional
-        Clip offsets (``MotionDatabase.offsets``); default one clip.
-    reference : ndarray of shape (T, 3), optional
-        Speed relative to this point (``p - reference`` is differentiated).
-
-    Returns
-    -------
-    ndarray of float32, shape (T,), m/s
+    ``p`` (T, 3), metres: the trajectory of one or several concatenated clips, split at
+    ``offsets`` (n_clips + 1,) (default one clip); with ``reference`` (T, 3) the speed of
+    ``p - reference``. Returns (T,) float32, m/s.
     """
     x = np.asarray(p, dtype=np.float32)
     if reference is not None:
@@ -197,17 +164,3 @@ def threshold(value: np.ndarray, thresh: float | np.ndarray, below: bool = False
     """``value >= thresh`` (or ``value < thresh`` when ``below``); NaN gives False."""
     with np.errstate(invalid="ignore"):
         return (value < thresh) if below else (value >= thresh)
-
-
-__all__ = [
-    "angle_between",
-    "clip_starts",
-    "cos_between",
-    "min_height",
-    "normal_plane_distance",
-    "plane_distance",
-    "point_segment_distance",
-    "segment_segment_distance",
-    "speed",
-    "threshold",
-]

@@ -35,7 +35,7 @@ import numpy as np
 
 from mocapflow.framework.errors import ConfigError
 
-from .features import SET_SLICES, feature_column, feature_set_of
+from .feature_table import SET_SLICES, feature_column, feature_set_of
 from .inverted import InvertedIndex, SetIndex
 from .segmentation import segment
 
@@ -105,11 +105,8 @@ def search_set(
     ``member`` (L, 2**f) holds the fuzzy sets; ``mask`` the bits they constrain (derived
     from ``member`` when omitted), used by ``mismatch`` to coarsen the database.
 
-    Returns
-    -------
-    levels : ndarray of int64, shape (n, L, 2)
-        Global database frame range of each query level per hit.
-    n_mismatch : ndarray of int64, shape (n,)
+    Returns ``levels`` (n, L, 2) int64, the global frame range of each query level per hit,
+    and ``n_mismatch`` (n,) int64.
     """
     n_levels = len(member)
     if mode not in ("exact", "fuzzy", "adaptive", "mismatch"):
@@ -168,15 +165,9 @@ def example_query(
 ) -> Hits:
     """Query by example: the query clip's boolean features and a selection of columns.
 
-    Parameters
-    ----------
-    index : InvertedIndex
-    bits : ndarray of shape (T_q, 31), bool or 0/1
-        Features of the query frames.
-    columns : list of int
-        Selected feature columns (0..30).
-    mismatch_positions : tuple of int, optional
-        Query levels (0-based, per set) where ``mismatch`` mode may accept a mismatch.
+    ``bits`` (T_q, 31) are the query frames' features, ``columns`` the selected ones (0..30),
+    ``mismatch_positions`` the query levels (0-based, per set) where ``mismatch`` mode may
+    accept a mismatch.
     """
     parts = []
     for name, sl in SET_SLICES.items():
@@ -261,14 +252,10 @@ def scene_query(
 ) -> Hits:
     """Geometric scene description (§6.3): progressions combined under co-occurrence.
 
-    Parameters
-    ----------
-    progressions : list of lists of ``{feature: 0 or 1}``
-        Each progression is a sequence of constellations over features of one set; a
-        feature left out of a step is unspecified ("*"), and steps whose alternatives
-        intersect are merged (§5.2).
-    overlaps : list of ``(a, i, b, j)``
-        Step ``i`` of progression ``a`` must overlap in time with step ``j`` of ``b``.
+    Each progression is a list of constellations ``{feature: 0 or 1}`` over features of one
+    set (a feature left out of a step is unspecified, "*"; steps whose alternatives
+    intersect are merged, §5.2); an overlap ``(a, i, b, j)`` requires step ``i`` of
+    progression ``a`` to overlap in time with step ``j`` of ``b``.
     """
     per: list[Hits] = []
     for p, prog in enumerate(progressions):

@@ -15,18 +15,8 @@ from mocapflow.framework.errors import DataError
 
 
 def pack_codes(bits: np.ndarray, columns: np.ndarray | list[int] | None = None) -> np.ndarray:
-    """Integer code per frame of the selected boolean columns (bit ``i`` = ``columns[i]``).
-
-    Parameters
-    ----------
-    bits : ndarray of shape (T, f), bool or 0/1
-    columns : sequence of int, optional
-        At most 63 columns; default all.
-
-    Returns
-    -------
-    ndarray of int64, shape (T,)
-    """
+    """Integer code (T,) int64 per frame of the selected columns (at most 63; default all) of
+    ``bits`` (T, f), bool or 0/1: bit ``i`` = ``columns[i]``."""
     b = np.asarray(bits)
     if b.ndim != 2:
         raise DataError(f"feature bits must be (n_frames, n_features), got shape {b.shape}")
@@ -48,17 +38,9 @@ def pack_codes(bits: np.ndarray, columns: np.ndarray | list[int] | None = None) 
 
 @dataclass(frozen=True)
 class Segmentation:
-    """F-segments of concatenated clips.
-
-    Attributes
-    ----------
-    start, end : ndarray of int64, shape (K,)
-        Global frame range ``[start, end)`` of each segment.
-    code : ndarray of int64, shape (K,)
-        The segment's feature vector as an integer (:func:`pack_codes`).
-    clip : ndarray of int64, shape (K,)
-        Clip position (0-based index into the offsets) of each segment.
-    """
+    """F-segments of concatenated clips, each (K,) int64: the global frame range ``[start,
+    end)``, the feature vector as an integer (``code``, :func:`pack_codes`) and the clip
+    position (0-based index into the offsets)."""
 
     start: np.ndarray
     end: np.ndarray
@@ -81,14 +63,8 @@ class Segmentation:
 
 
 def segment_codes(codes: np.ndarray, offsets: np.ndarray | None = None) -> Segmentation:
-    """Maximal runs of equal codes, split at clip boundaries (vectorised, linear time).
-
-    Parameters
-    ----------
-    codes : ndarray of int, shape (T,)
-    offsets : ndarray of int, shape (n_clips + 1,), optional
-        Clip offsets into the frames; default one clip.
-    """
+    """Maximal runs of equal ``codes`` (T,), split at clip ``offsets`` (n_clips + 1,; default
+    one clip); vectorised, linear time."""
     codes = np.asarray(codes, dtype=np.int64)
     t = len(codes)
     offsets = np.array([0, t], dtype=np.int64) if offsets is None else np.asarray(offsets, dtype=np.int64)
@@ -110,21 +86,9 @@ def segment_codes(codes: np.ndarray, offsets: np.ndarray | None = None) -> Segme
 def segment(
     bits: np.ndarray, columns: np.ndarray | list[int] | None = None, offsets: np.ndarray | None = None
 ) -> Segmentation:
-    """F-segmentation for a subset of feature columns.
-
-    Parameters
-    ----------
-    bits : ndarray of shape (T, f), bool or 0/1
-        Feature vectors of concatenated clips.
-    columns : sequence of int, optional
-        The selected features (the combined feature function F); default all.
-    offsets : ndarray of int, shape (n_clips + 1,), optional
-
-    Returns
-    -------
-    Segmentation
-        ``code`` bit ``i`` is feature ``columns[i]``.
-    """
+    """F-segmentation of ``bits`` (T, f) of concatenated clips split at ``offsets``, for the
+    feature ``columns`` (the combined feature function F; default all): ``code`` bit ``i``
+    is feature ``columns[i]``."""
     return segment_codes(pack_codes(bits, columns), offsets)
 
 

@@ -68,19 +68,9 @@ def fit_templates(
     groups: list[str | None] | None = None,
     classes: list[str] | None = None,
 ) -> list[MotionTemplate]:
-    """One template per class from labelled training clips.
-
-    Parameters
-    ----------
-    bits : ndarray of shape (N, 31), 0/1
-    offsets : ndarray of int, shape (n_clips + 1,)
-    labels : list of str or None, one per clip
-    train : ndarray of bool, shape (n_clips,)
-        Training clips.
-    groups : list, optional
-        Group of each clip (e.g. actor) for leave-one-group-out threshold calibration; each
-        threshold is calibrated against the training clips of the other classes too.
-    """
+    """One template per class from the ``train`` clips (n_clips,) of ``bits`` (N, 31) split at
+    ``offsets``, with ``labels`` per clip (or None). ``groups`` (e.g. actor per clip): leave-
+    one-group-out threshold calibration, also against the other classes' training clips."""
     lab = np.array([x if x is not None else "" for x in labels], dtype=object)
     use = np.asarray(train, bool) & (lab != "")
     if not use.any():
@@ -367,7 +357,7 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     plt = pyplot("template plots")
     from matplotlib.patches import Patch
 
-    from .features import FEATURE_IDS, FEATURE_NAMES
+    from .feature_table import FEATURE_IDS, FEATURE_NAMES
 
     k = t.n_frames
     scale = 1.0 / fps if fps else 1.0
@@ -418,17 +408,3 @@ def plot_template(t: MotionTemplate, path: str | Path, fps: float | None = None)
     fig.savefig(out)
     plt.close(fig)
     return out
-
-
-__all__ = [
-    "HDM05_GROUP",
-    "HDM05_LABEL",
-    "TemplateMatcher",
-    "clip_labels",
-    "cutoff_hits",
-    "fit_templates",
-    "plot_template",
-    "search_template",
-    "template_hits_table",
-    "templates_table",
-]

@@ -29,15 +29,8 @@ from .template_model import MotionTemplate
 
 
 def coarse_layout(offsets: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
-    """Every ``step``-th frame of each clip (from its first frame).
-
-    Returns
-    -------
-    frames : ndarray of int64, shape (M,)
-        Full-rate frame of each coarse frame (ascending).
-    coarse_offsets : ndarray of int64, shape (n_clips + 1,)
-        Clip offsets in the coarse sequence.
-    """
+    """Every ``step``-th frame of each clip (from its first frame): the full-rate frame (M,)
+    int64 of each coarse frame, ascending, and the clip offsets (n_clips + 1,) among them."""
     off = np.asarray(offsets, np.int64)
     lens = np.diff(off)
     n = (lens + step - 1) // step

@@ -151,15 +151,10 @@ class RivalTable:
     """Every template's all-feature end costs over one database, for the rival check of
     many queries (module doc).
 
-    Attributes
-    ----------
-    own : ndarray of float32, shape (T, N)
-        All-feature end cost of each template at each frame (inf where no path ends).
-    best, second : ndarray of float32, shape (N,)
-        Per frame the least and second least over templates of ``cover``: the template's
-        least cost over paths ending at the frame or up to ``K - 1`` frames later.
-    arg : ndarray of int32, shape (N,)
-        The template holding ``best``.
+    ``own`` (T, N) float32: all-feature end cost of each template at each frame (inf where
+    no path ends); ``best, second`` (N,): per frame the least and second least over
+    templates of ``cover`` (a template's least cost over paths ending at the frame or up to
+    ``K - 1`` frames later); ``arg`` (N,) int32: the template holding ``best``.
     """
 
     own: np.ndarray

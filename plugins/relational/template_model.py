@@ -35,24 +35,10 @@ MODEL_FILE = "templates.npz"
 
 @dataclass
 class MotionTemplate:
-    """One class template.
-
-    Attributes
-    ----------
-    label : str
-        Class name.
-    mean : ndarray of float32, shape (K, 31)
-        Averaged feature values in [0, 1] per template frame and feature.
-    columns : ndarray of int64, shape (f,)
-        Feature columns (0..30) the template uses; the others are don't care everywhere.
-    delta : float
-        Don't-care band: values in (delta, 1 - delta) are don't care.
-    threshold : float
-        Retrieval threshold on the mean local cost (a hit has cost <= threshold).
-    n_examples : int
-    example_costs : ndarray of float64, shape (n_examples,)
-        Leave-one-out costs of the training examples (calibrate ``threshold``).
-    """
+    """One class template: ``mean`` (K, 31) float32 averaged feature values in [0, 1];
+    ``columns`` (f,) the feature columns used (the others don't care everywhere); values in
+    ``(delta, 1 - delta)`` are don't care; a hit has mean local cost <= ``threshold``;
+    ``example_costs`` (n_examples,) are the leave-one-out costs that calibrated it."""
 
     label: str
     mean: np.ndarray
@@ -165,21 +151,9 @@ def fit_template(
     iterations: int = 2,
     pair: np.ndarray | None = None,
 ) -> MotionTemplate:
-    """Learn one class template from its examples' relational feature matrices.
-
-    Parameters
-    ----------
-    examples : list of ndarray of shape (T_i, 31), 0/1
-        The class examples (at least one; each at least 2 frames).
-    columns : ndarray of int, optional
-        Feature columns used (default all 31).
-    delta : float
-        Don't-care band (values in (delta, 1 - delta)).
-    iterations : int
-        Re-alignment rounds after the first average.
-    pair : ndarray of shape (n, n), optional
-        :func:`pairwise_costs` of the examples (computed when omitted).
-    """
+    """Learn one class template from its examples' 0/1 feature matrices (T_i, 31), each of
+    at least 2 frames: ``columns`` used (default all 31), ``iterations`` re-alignment rounds
+    after the first average, ``pair`` their :func:`pairwise_costs` (computed when omitted)."""
     if not examples:
         raise DataError(f"template {label!r}: no examples")
     xs = [np.asarray(x, np.float64) for x in examples]
@@ -201,23 +175,10 @@ def fit_template(
 
 
 def template_costs(codes: np.ndarray, table: np.ndarray, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """End-frame costs and path starts of subsequence DTW over frame ranges.
-
-    Parameters
-    ----------
-    codes : ndarray of int64, shape (N,)
-        :func:`frame_codes` of the database.
-    table : ndarray (6400, K)
-        :func:`cost_table` of the template.
-    ranges : ndarray of int64, shape (R, 2)
-        Frame ranges ``[lo, hi)``, each inside one clip.
-
-    Returns
-    -------
-    cost : ndarray of float64, shape (N,)
-        Mean local cost of the best path ending at each frame (inf outside the ranges).
-    start : ndarray of int64, shape (N,)
-    """
+    """Subsequence DTW of a template (``table`` (6400, K), :func:`cost_table`) over the
+    database's :func:`frame_codes` (N,) within frame ``ranges`` (R, 2) ``[lo, hi)``, each inside
+    one clip. Returns the mean local cost of the best path ending at each frame (N,) float64
+    (inf outside the ranges) and its start frame (N,) int64."""
     from ._template_kernels import template_sdtw
 
     cost = np.full(len(codes), np.inf)
@@ -418,22 +379,14 @@ def fit_class_template(
     groups: list | None = None,
     negatives: list[np.ndarray] | None = None,
 ) -> MotionTemplate:
-    """A class template with its key features and a calibrated threshold.
+    """A class template retrieving on :func:`key_columns` (``features="key"``, against the
+    per-feature on-fraction ``background`` (31,)) or on all 31, with a calibrated threshold.
 
-    Parameters
-    ----------
-    examples : list of ndarray of shape (T_i, 31), 0/1
-    background : ndarray of shape (31,), optional
-        On-fraction of each feature over the training database (key features).
-    features : "key" or "all"
-        Retrieve on :func:`key_columns` or on all 31 features.
-    calibrate : bool
-        Threshold from held-out costs (:func:`calibrate_threshold`): each group of examples
-        (``groups``, e.g. the actor; default each example) is left out in turn, a template is
-        fitted on the others and the left-out examples' least costs recorded
-        (``example_costs``); ``negatives`` (clips of other classes) give the false-hit side.
-        Without calibration, or with one group, the threshold is ``(1 + margin)`` x 0.08
-        (one cared-for feature wrong in ~10 per frame), a fixed fallback.
+    ``calibrate``: each group of examples (``groups``, e.g. the actor; default each example)
+    is left out in turn, a template fitted on the others and the left-out examples' least
+    costs kept (``example_costs``); ``negatives`` (clips of other classes) give the false-hit
+    side of :func:`calibrate_threshold`. Without calibration, or with one group, the
+    threshold is ``(1 + margin)`` x 0.08 (one cared-for feature wrong in ~10 per frame).
     """
     xs = [np.asarray(x, np.float32) for x in examples]
     bg = np.mean(np.concatenate(xs), axis=0) if background is None else np.asarray(background)
@@ -469,23 +422,3 @@ def fit_class_template(
     else:
         tmpl.threshold = float((1 + margin) * 0.08)
     return tmpl
-
-
-__all__ = [
-    "search_costs",
-    "calibrate_threshold",
-    "pairwise_costs",
-    "clip_min_costs",
-    "fit_class_template",
-    "key_columns",
-    "MODEL_FILE",
-    "MotionTemplate",
-    "align_average",
-    "cost_table",
-    "fit_template",
-    "frame_codes",
-    "load_templates",
-    "save_templates",
-    "template_costs",
-    "template_hits",
-]

@@ -30,20 +30,9 @@ _DTYPES = {"float32": "<f4", "int16": "<i2", "uint8": "u1", "int32": "<i4", "uin
 
 
 def encode_positions(positions: np.ndarray) -> tuple[dict[str, np.ndarray], float]:
-    """Split positions into a float32 root track and int16 root-relative offsets.
-
-    Parameters
-    ----------
-    positions : ndarray of shape (T, J, 3), metres
-        Canonical joint positions, joint 0 the root; NaN where a joint is absent.
-
-    Returns
-    -------
-    parts : dict
-        ``root`` float32 (T, 3) and ``rel`` int16 (T, J, 3).
-    scale : float
-        Metres per int16 unit of ``rel``.
-    """
+    """Split canonical positions (T, J, 3) in metres (joint 0 the root, NaN where absent) into
+    ``parts`` ``root`` float32 (T, 3) and ``rel`` int16 (T, J, 3) offsets, and ``scale``, the
+    metres per int16 unit of ``rel``."""
     pos = np.asarray(positions, np.float64)
     root = np.nan_to_num(pos[:, 0, :]).astype(np.float32)
     rel = pos - root[:, None, :].astype(np.float64)

@@ -16,20 +16,8 @@ DEFAULT_CUE = "MDM above threshold"
 
 
 def apply_edits(motion: Any, edits: pa.Table, clip_id: int) -> Any:
-    """The motion with the edits of one clip applied (the cleaned take).
-
-    Parameters
-    ----------
-    motion : Motion
-        The original take.
-    edits : pyarrow.Table
-        ``clip_id, frame, joint`` (skeleton joint index) and ``new_rotation`` (w, x, y, z).
-    clip_id : int
-
-    Returns
-    -------
-    Motion
-    """
+    """The original take with the ``edits`` (``clip_id, frame, joint`` skeleton joint index,
+    ``new_rotation`` (w, x, y, z)) of ``clip_id`` applied: the cleaned take."""
     sel = edits.filter(pc.equal(edits["clip_id"], clip_id))
     if not sel.num_rows:
         return motion
@@ -46,16 +34,12 @@ def cleaned_positions(motion: Any, edits: pa.Table, clip_id: int) -> np.ndarray:
 
 
 def mdm_grid(mdm: pa.Table, clip_id: int, n_frames: int, threshold: float) -> dict[str, Any] | None:
-    """One clip's MDM as a dense grid for the heatmap.
-
-    Returns
-    -------
-    dict or None
-        ``values`` uint16 (T, m) (the value is ``values * scale``), ``scale``, ``cue`` uint8
-        (T, m) (0 = not flagged, ``i`` = flagged by ``cues[i - 1]``: the ``cue`` column's
-        label, or :data:`DEFAULT_CUE` for a flagged cell without one), ``joints`` (m row
-        names), ``canonical`` (canonical joint index of each row, -1 if none), ``cues``,
-        ``n_flagged`` (cells with a cue); None if the clip has no MDM rows.
+    """One clip's MDM as a dense grid for the heatmap, None if the clip has no MDM rows:
+    ``values`` uint16 (T, m) (the value is ``values * scale``), ``scale``, ``cue`` uint8
+    (T, m) (0 = not flagged, ``i`` = flagged by ``cues[i - 1]``: the ``cue`` column's
+    label, or :data:`DEFAULT_CUE` for a flagged cell without one), ``joints`` (m row
+    names), ``canonical`` (canonical joint index of each row, -1 if none), ``cues``,
+    ``n_flagged`` (cells with a cue).
     """
     sel = mdm.filter(pc.equal(mdm["clip_id"], clip_id))
     if not sel.num_rows:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -37,51 +38,24 @@ from mocapflow.framework.normalize import to_root_frame
 MATCH_COLS = ("query_id", "rank", "clip_id", "start_frame", "end_frame", "cost")
 NEAREST_COLS = ("query_clip_id", "query_frame", "clip_id", "frame", "distance")
 MDM_COLS = ("clip_id", "frame", "joint_name", "value")
-#: Bones of the stick figures, as canonical joint pairs.
-BONES = (
-    ("root", "lhip"),
-    ("lhip", "lknee"),
-    ("lknee", "lankle"),
-    ("lankle", "ltoes"),
-    ("root", "rhip"),
-    ("rhip", "rknee"),
-    ("rknee", "rankle"),
-    ("rankle", "rtoes"),
-    ("root", "lowerback"),
-    ("lowerback", "upperback"),
-    ("upperback", "chest"),
-    ("chest", "neck"),
-    ("neck", "head"),
-    ("head", "headtop"),
-    ("chest", "lclavicle"),
-    ("lclavicle", "lshoulder"),
-    ("lshoulder", "lelbow"),
-    ("lelbow", "lwrist"),
-    ("lwrist", "lfingers"),
-    ("chest", "rclavicle"),
-    ("rclavicle", "rshoulder"),
-    ("rshoulder", "relbow"),
-    ("relbow", "rwrist"),
-    ("rwrist", "rfingers"),
+#: Bones of the stick figures, as canonical joint pairs along these chains.
+_CHAINS = (
+    "root lhip lknee lankle ltoes",
+    "root rhip rknee rankle rtoes",
+    "root lowerback upperback chest neck head headtop",
+    "chest lclavicle lshoulder lelbow lwrist lfingers",
+    "chest rclavicle rshoulder relbow rwrist rfingers",
 )
+BONES = tuple(pair for chain in _CHAINS for pair in pairwise(chain.split()))
 SMALL_TABLE_ROWS = 60
 
 
 @dataclass
 class Model:
-    """The page model and the motion data the site writer must emit.
-
-    Attributes
-    ----------
-    page : dict
-        JSON-serialisable (see ``assets/report.js`` for how it is read).
-    motions : dict
-        ``key -> (T, 25, 3)`` canonical positions in metres, one per played take.
-    fps : dict
-        ``key -> frames per second`` of each of ``motions``.
-    cleaning : dict
-        ``key -> dict`` of arrays for each cleaned clip (cleaned positions, MDM, cues).
-    """
+    """The page model (JSON-serialisable, read by ``assets/report.js``) and the motion data
+    the site writer must emit: ``motions`` key -> (T, 25, 3) canonical positions in metres
+    per played take, ``fps`` their frame rates, ``cleaning`` key -> arrays per cleaned clip
+    (cleaned positions, MDM, cues)."""
 
     page: dict[str, Any]
     motions: dict[str, np.ndarray] = field(default_factory=dict)

@@ -15,14 +15,8 @@ def register_commands() -> list[type]:
 
 
 def workspace_tables(workspace: Path):
-    """Clips (with duration) and rejects of every motions dataset, through the catalog.
-
-    Returns
-    -------
-    datasets : mapping of step id to Dataset
-    clips, rejects : pyarrow.Table
-        With a leading ``step`` column naming the dataset.
-    """
+    """Datasets by step id, and the clips (with duration) and rejects of every motions
+    dataset through the catalog, each table with a leading ``step`` column."""
     import pyarrow as pa
 
     from mocapflow.framework.catalog import Catalog
@@ -55,20 +49,9 @@ def workspace_tables(workspace: Path):
 
 
 def build_report(workspace: str | Path, output: str | Path | None = None) -> dict:
-    """Read a workspace and write its report site.
-
-    Parameters
-    ----------
-    workspace : str or Path
-        A directory written by ``mocapflow run``.
-    output : str or Path or None
-        Site directory (default ``<workspace>/report``).
-
-    Returns
-    -------
-    dict
-        ``index`` (Path of index.html), ``files``, ``bytes``, ``steps``.
-    """
+    """Read a workspace written by ``mocapflow run`` and write its report site to ``output``
+    (default ``<workspace>/report``); returns ``index`` (Path of index.html), ``files``,
+    ``bytes``, ``steps``."""
     from mocapflow.framework.errors import ConfigError
 
     from .model import ModelBuilder

@@ -83,22 +83,9 @@ def write_data(model: Model, out: Path) -> dict[str, dict[str, Any]]:
 
 
 def write_site(model: Model, workspace: Path, dest: Path) -> dict[str, Any]:
-    """Write the site for ``model`` into ``dest`` atomically.
-
-    Parameters
-    ----------
-    model : Model
-    workspace : Path
-        The workspace the model was read from (for the PNG plots).
-    dest : Path
-        Output directory; replaced if it holds an earlier report, refused if it holds
-        anything else.
-
-    Returns
-    -------
-    dict
-        ``index`` (path of index.html), ``files``, ``bytes`` (page weight of everything).
-    """
+    """Write the site for ``model`` (read from ``workspace``, which holds the PNG plots) into
+    ``dest`` atomically: an earlier report there is replaced, anything else refused. Returns
+    ``index`` (path of index.html), ``files`` and ``bytes`` (page weight of everything)."""
     dest = Path(dest)
     if dest.exists() and not (dest / MARKER).is_file() and (not dest.is_dir() or any(dest.iterdir())):
         raise ConfigError(f"{dest} exists and is not a mocapflow report: choose another --output")

@@ -23,39 +23,16 @@ def _plugin_manager(args: argparse.Namespace, pm: Any = None) -> Any:
     )
 
 
-def _read_motion(path: str, regs: Any) -> Any:
-    from mocapflow.framework.errors import ConfigError
-
-    ext = Path(path).suffix.lower()
-    for _, cls in regs["formats"]:
-        if ext in getattr(cls, "extensions", ()):
-            return cls().read(path)
-    raise ConfigError(f"{path}: no registered reader for {ext!r} files")
-
-
 _OUTPUT_KINDS = (".bvh", ".amc")
 
 
-def _atomic(dest: Path, write: Any) -> None:
-    """Write through ``write(tmp_path)`` into a temporary file beside ``dest``, then rename."""
-    from mocapflow.framework.datasets import atomic_path
-
-    with atomic_path(dest) as tmp:
-        write(tmp)
-
-
 def write_cleaned(motion: Any, dest: Path, regs: Any) -> list[Path]:
-    """Write the cleaned take with the registered writer for the extension of ``dest`` (BVH,
-    or AMC with its ASF beside it), atomically, creating the folder. Returns the files written."""
-    from mocapflow.framework.errors import ConfigError
-
-    ext = dest.suffix.lower()
-    writers = [cls for _, cls in regs["formats"] if ext in cls.extensions and cls.can_write()]
-    if not writers:
-        raise ConfigError(f"{dest}: no registered writer for {ext!r} files")
+    """Write the cleaned take with the registered writer for ``dest``'s extension (BVH, or AMC
+    with its ASF beside it), atomically, creating the folder. Returns the files written."""
+    writer = regs.motion_format(dest, writing=True)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    writers[0]().write_atomic(motion, dest)
-    return [dest, dest.with_suffix(".asf")] if ext == ".amc" else [dest]
+    writer.write_atomic(motion, dest)
+    return [dest, dest.with_suffix(".asf")] if dest.suffix.lower() == ".amc" else [dest]
 
 
 class CleanCommand:
@@ -99,6 +76,7 @@ class CleanCommand:
     def run(cls, args: argparse.Namespace, pm: Any = None) -> int:
         import pyarrow.parquet as pq
 
+        from mocapflow.framework.datasets import atomic_path
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.plugins import build_registries
 
@@ -110,12 +88,12 @@ class CleanCommand:
             )
         regs = build_registries(_plugin_manager(args, pm))
         cleaner_cls = regs["cleaners"].get("mdm")
-        take = _read_motion(args.take, regs)
+        take = regs.motion_format(args.take).read(args.take)
         if dest.suffix.lower() == ".amc" and take.skeleton.meta.get("format") != "asf":
             raise ConfigError(
                 f"--output {args.output}: AMC needs an ASF skeleton; {args.take} is not ASF/AMC, write .bvh"
             )
-        context = [_read_motion(p, regs) for p in args.context]
+        context = [regs.motion_format(p).read(p) for p in args.context]
         params: dict[str, Any] = {"write_bvh": False, "heatmaps": bool(args.report)}
         for key in ("mode", "threshold"):
             if getattr(args, key, None) is not None:
@@ -131,9 +109,11 @@ class CleanCommand:
         out = clean_and_write_clip(cleaner, take, context, 0, report, regs)
         write_cleaned(out["cleaned"], dest, regs)
         if report is not None:
-            _atomic(report / "mdm.parquet", lambda t: pq.write_table(out["mdm"], t))
-            _atomic(report / "edits.parquet", lambda t: pq.write_table(out["edits"], t))
-            _atomic(report / "summary.json", lambda t: t.write_text(json.dumps(out["summary"], indent=2)))
+            for name in ("mdm", "edits"):
+                with atomic_path(report / f"{name}.parquet") as tmp:
+                    pq.write_table(out[name], tmp)
+            with atomic_path(report / "summary.json") as tmp:
+                tmp.write_text(json.dumps(out["summary"], indent=2))
         s = out["summary"]
         print(
             f"{take.name}: {s['flagged_cells']} cells flagged, {s['edited_cells']} input cells edited "

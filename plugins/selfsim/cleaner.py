@@ -1,17 +1,7 @@
-"""``cleaners.mdm``: the self-similarity cleaner of Aristidou et al. 2018 and its parameters.
+"""``cleaners.mdm``: the self-similarity cleaner of Aristidou et al. 2018 (docs/cleaning.md).
 
-One clip goes through the paper's analysis (:func:`.paper.mdm.digression_map`: motion
-words, exact KNN, the movement digression map), then a decision and a repair chosen by
-``mode``:
-
-* ``paper``: cells whose MDM exceeds ``threshold`` are repaired from the median KNN word and
-  blended by a Savitzky-Golay filter (§3.4, §4; :mod:`.paper.repair`);
-* ``calibrated`` (default): a detector fitted on the clean context with synthetic errors
-  decides, and a bounded repair acts (:mod:`.calibrated.decision`); its user choices are
-  the nested ``calibrated`` parameters, its measured constants :mod:`.calibrated.constants`.
-
-Both carry the repair from the analysis rate to the input frames
-(:func:`.paper.repair.apply_to_input`).
+The paper's analysis (:func:`.paper.mdm.digression_map`), then by ``mode`` the paper's
+decision and repair (:mod:`.paper.repair`) or the calibrated one (:mod:`.calibrated.decision`).
 """
 
 from __future__ import annotations
@@ -112,28 +102,11 @@ class MDMParams(Params):
 
 @dataclass
 class CleanResult:
-    """One clip through :meth:`MDMCleaner.clean` (analysis rate unless said).
-
-    Attributes
-    ----------
-    analysis : DigressionResult (:mod:`.paper.mdm`)
-    flags : ndarray of bool, shape (T, m)
-        Cells the decision flagged.
-    value : ndarray of shape (T, m), in [0, 1]
-        The map shown and stored (> 0.5 = flagged): the MDM (paper) or ``1 - 2^(-e^2)`` of
-        the evidence (calibrated).
-    cue : ndarray of object, shape (T, m)
-        Name of the cue that flagged each flagged cell (``mdm`` in paper mode, ``mirror``
-        for cells swapped back), None elsewhere.
-    repaired : ndarray of shape (T, m, 4)
-        The repaired texture.
-    edited : ndarray of bool, shape (T, m)
-        Cells whose rotation changed.
-    cleaned : Motion
-        The cleaned clip at the input rate.
-    edits : pyarrow.Table
-        One row per changed input cell (:func:`.paper.repair.edits_table` plus ``edit_deg``, ``cue``).
-    calibration : Calibration or None
+    """One clip through :meth:`MDMCleaner.clean`, (T, m) at the analysis rate: ``flags``
+    (decided), ``value`` (the map, > 0.5 = flagged: the MDM or ``1 - 2^(-e^2)`` of the
+    evidence), ``cue`` (flagging cue name or None), ``repaired`` (T, m, 4), ``edited``; then
+    ``cleaned`` (input rate) and ``edits`` (:func:`.paper.repair.edits_table` plus
+    ``edit_deg``, ``cue``).
     """
 
     analysis: Any
@@ -187,10 +160,7 @@ def clean_motion(
     analysis: Any = None,
     calibration: Any = None,
 ) -> CleanResult:
-    """Analyse, decide and repair one clip.
-
-    ``analysis`` (a :class:`.paper.mdm.DigressionResult` of this clip and context) and
-    ``calibration`` (a :class:`.calibrated.calibration.Calibration` fitted on this context)
+    """Analyse, decide and repair one clip; ``analysis`` and ``calibration`` of this context
     are reused when given (the evaluation runs several decisions on one analysis)."""
     from .paper.repair import apply_to_input, repair_texture
 
@@ -223,7 +193,6 @@ def clean_motion(
             )
         cal = calibration
         flags, value, cue, new24, edited = calibrated_decision(res, cal, c.max_edit)
-    # the calibrated mode never turns an input frame away from its repaired pose (paper/repair.py)
     cleaned, changed = apply_to_input(motion, res.texture, new24, edited, guard=p.mode != "paper")
     return CleanResult(
         res, flags, value, cue, new24, edited, cleaned, _edits(motion, cleaned, changed, res.texture, cue), cal
@@ -231,12 +200,7 @@ def clean_motion(
 
 
 class MDMCleaner(Cleaner):
-    """Self-similarity cleaning with the movement digression map (Aristidou et al. 2018).
-
-    ``detect`` returns the map at the input clip's frames for every skeleton joint (0 for
-    joints outside the texture; > 0.5 = flagged); ``repair`` the cleaned clip and its edits
-    table; ``clean`` everything (:class:`CleanResult`).
-    """
+    """Self-similarity cleaning with the movement digression map (Aristidou et al. 2018)."""
 
     name = "mdm"
     version = "3"
@@ -269,8 +233,7 @@ class MDMCleaner(Cleaner):
     def detect_and_repair(
         self, motion: Motion, context: Any, clip_id: int, out_dir: Any = None, registries: Any = None
     ) -> Any:
-        """The step's hook for one clip (:meth:`Cleaner.detect_and_repair`): one analysis, and the
-        tables, BVH and pictures of :func:`.outputs.clean_and_write_clip`."""
+        """The step's hook for one clip: :func:`.outputs.clean_and_write_clip`."""
         from mocapflow.framework.cleaning import CleanedClip
 
         from .outputs import clean_and_write_clip

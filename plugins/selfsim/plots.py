@@ -1,10 +1,6 @@
-"""Pictures of ``cleaners.mdm``: MDM heatmaps like Fig. 1 of Aristidou 2018 (joints x
-time, flagged cells marked) and before/after plots of the most-edited joints.
-
-Every mark is explained on the figure: the colour bar is the MDM value (dimensionless,
-``1 - exp(-M^2)`` of the joint's normalised rotation difference from its nearest
-neighbours), the white squares are the cells above the threshold (the ones a repair
-changes), named in a legend. matplotlib is imported lazily with the Agg backend.
+"""Pictures of ``cleaners.mdm``: MDM heatmaps like Fig. 1 of Aristidou 2018 (joints x time,
+flagged cells marked, every mark explained on the figure) and before/after plots of the
+most-edited joints. matplotlib is imported lazily with the Agg backend.
 """
 
 from __future__ import annotations
@@ -21,25 +17,8 @@ from mocapflow.framework import quaternions as quat
 def mdm_heatmap(
     mdm: np.ndarray, joints: Sequence[str], path: str | Path, fps: float = 24.0, threshold: float = 0.5, title: str = ""
 ) -> Path:
-    """Write the movement digression map as a PNG.
-
-    Parameters
-    ----------
-    mdm : ndarray of shape (T, m), values in [0, 1]
-    joints : sequence of str, length m
-        Row labels.
-    path : str or Path
-        Output PNG.
-    fps : float
-        Frame rate of ``mdm`` (the x axis is in seconds).
-    threshold : float
-        Cells above it are outlined (the cells a repair would change).
-    title : str
-
-    Returns
-    -------
-    Path
-    """
+    """Write the movement digression map ``mdm`` (T, m) at ``fps`` as a PNG at ``path``, rows
+    labelled ``joints``, cells above ``threshold`` outlined."""
     from mocapflow.framework.plotting import pyplot
 
     plt = pyplot("MDM heatmaps")
@@ -101,24 +80,8 @@ def most_edited(edits: Any, n: int = 4) -> list[tuple[int, str, int]]:
 
 
 def before_after_plot(before: Any, after: Any, edits: Any, path: str | Path, n: int = 4, title: str = "") -> Path:
-    """PNG of the most-edited joints: each joint's rotation angle from its rest pose over
-    time, before (the take) and after cleaning, edited frames shaded.
-
-    Parameters
-    ----------
-    before, after : Motion
-        The take and the cleaned take (same frames and skeleton).
-    edits : pyarrow.Table
-        The edits table (``frame``, ``joint``, ``joint_name``, ``cue``).
-    path : str or Path
-    n : int
-        Joints shown (the most-edited first).
-    title : str
-
-    Returns
-    -------
-    Path
-    """
+    """PNG of the ``n`` most-edited joints (``edits`` table): each joint's rotation angle
+    from rest over time, ``before`` and ``after`` cleaning, edited frames shaded."""
     from mocapflow.framework.plotting import pyplot
 
     plt = pyplot("before/after plots")

@@ -142,10 +142,10 @@ def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r,
         g = gw // n_w
         w = gw % n_w
         dg = d[g]
-        cur = np.empty((m, 2 * r + 1))
-        prev = np.empty((m, 2 * r + 1))
-        lcur = np.empty((m, 2 * r + 1), np.int64)
-        lprev = np.empty((m, 2 * r + 1), np.int64)
+        nr = 0 if r == 2 else n  # cdtw's work arrays, for r != 2 only
+        cum = np.empty((nr, m, 2 * r + 1))
+        plen = np.empty((nr, m, 2 * r + 1), np.int64)
+        back = np.empty((nr, m, 2 * r + 1), np.int64)
         cost2 = np.empty((2, 5, m))
         plen2 = np.empty((2, 5, m), np.int64)
         f = np.full(n_c, np.inf)
@@ -155,7 +155,7 @@ def knn_brute(d, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r,
                 if r == 2:
                     c, p = kern.cdtw_cost_r2(dg, i0, t, n, tlen[t], cost2, plen2)
                 else:
-                    c, p = kern.cdtw_cost(dg, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
+                    c, p, _, _, _ = kern.cdtw(dg, i0, t, n, tlen[t], r, cum, plen, back)
                 f[t] = c / p
         best_d = np.full(k, np.inf)
         best_t = np.full(k, np.int64(2**62))

@@ -1,24 +1,13 @@
 """Repair of the calibrated cleaner: only flagged cells, bounded, never away from consensus.
 
-For the cells the calibrated decision (:mod:`.decision`) flags (analysis rate, texture joints):
-
-1. *Swapped limbs*: on the frames where a left/right chain pair is flagged by the mirror
-   cue, swapping back makes the chains smoother at both ends of the run, and that cue says
-   the limbs are nearer their consensus once exchanged (the summed gain exceeds
-   :data:`.constants.SWAP_GAIN` radians), both chains are swapped back (left <- mirrored right and the
-   reverse), which undoes a marker mislabelling exactly; so are the swaps found by their
-   edges (:mod:`.swaps`), whatever the flags.
-2. *Other flagged runs* (consecutive flagged frames of one joint) take the rotations of
-   the median KNN word (:func:`..paper.repair._propose`, the paper's §4) corrected by a
-   displacement map: the offset between the KNN word and the take at the two frames that
-   bound the run, interpolated (slerp) across it, so the repair joins the take without a
-   jump and keeps the KNN word's shape (this replaces the Savitzky-Golay blend of the
-   paper; ``mode: paper`` keeps that one). Cells the mirror cue flagged whose swap-back
-   did not hold up are left as they are.
-3. *Bounds*: a cell keeps its value when the repair would not bring it nearer its KNN
-   consensus T̄; an edit larger than the cell's digression plus its KNN spread (what the
-   evidence supports) is shortened to that along the geodesic. No cell ends farther from
-   T̄ than it was, so no clip ends farther from its consensus.
+1. Swapped limbs (mirror-cue runs that swapping back makes smoother at both ends, and the
+   swaps found by their edges, :mod:`.swaps`) are swapped back exactly.
+2. Other flagged runs take the median KNN word (:func:`..paper.repair._propose`) corrected
+   by a displacement map slerped between the offsets at the two bounding frames, so the
+   repair joins the take without a jump and keeps the word's shape; runs bounded by two
+   consistent jumps are repaired as offsets (:mod:`.offsets`).
+3. Bounds: a cell keeps its value unless the repair brings it nearer T̄, and an edit beyond
+   the cell's digression plus its KNN spread is shortened along the geodesic.
 """
 
 from __future__ import annotations
@@ -73,14 +62,11 @@ def swap_frames(
     slack: int = 8,
     skip: list | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
-    """(left columns, right columns, start, end) of the runs to swap back.
-
-    Candidates are the runs (gaps of up to ``slack`` frames merged) where the chain-pair
-    mirror gain exceeds ``swap_gain`` radians and a chain cell is flagged. A mislabelling
-    starts and stops with a jump that swapping back removes, so each candidate's ends are
-    moved by up to ``slack`` frames to where the swapped-back chains are smoothest, and the
-    swap is kept only when they are then smoother at both ends than the take (a clean limb
-    that merely resembles its mirror has no jump there; swapping it would create them)."""
+    """(left columns, right columns, start, end) of the runs to swap back: runs (gaps up to
+    ``slack`` merged) of a mirror gain above ``swap_gain`` radians holding a flagged chain
+    cell, their ends moved by up to ``slack`` frames to where the swapped-back chains are
+    smoothest, kept when then smoother at both ends than the take (a mislabelling starts and
+    stops with a jump; a clean limb that resembles its mirror has none)."""
     out = []
     gain = mirror_gain(q, mean_q, joints)
     t = len(q)
@@ -111,30 +97,13 @@ def swap_frames(
 def bounded_repair(
     res, flags: np.ndarray, mirror_flags: np.ndarray, cap: np.ndarray, no_merge: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Repaired texture (T, m, 4), the edited cells, which were swapped and which were
-    repaired as offsets (each (T, m); offsets may lie outside ``flags``: the interval
-    between the jumps).
+    """Repaired texture (T, m, 4), and (T, m) the edited, swapped and offset-repaired cells
+    (offsets may lie outside ``flags``: the interval between the jumps).
 
-    Parameters
-    ----------
-    res : DigressionResult
-        The take's analysis (texture, T̄, spread, KNN).
-    flags : ndarray of bool, shape (T, m)
-        Cells to repair.
-    mirror_flags : ndarray of bool, shape (T, m)
-        Cells the mirror cue flagged: only runs holding one are swapped back
-        (:func:`swap_frames`, where no swap found by its edges, :func:`.swaps.swap_edges`,
-        overlaps them); the others are left as they are.
-    cap : ndarray of shape (T, m)
-        Largest edit per cell, radians (on top of the evidence bound); swaps are not capped.
-    no_merge : ndarray of bool, shape (T, m)
-        Cells no merged gap may include (flags a rule dropped on purpose).
-
-    Flagged runs of one joint at most :data:`.constants.MERGE_GAP` frames apart are repaired
-    as one run (the gap included: a burst of jitter flags its extreme frames only). A run
-    whose two ends are consistent jumps of at least :data:`.constants.OFFSET_LEVEL` typical
-    accelerations of the joint (and 8 degrees) is repaired by taking the offset out over the
-    whole interval between the jumps (:mod:`.offsets`) when that lowers its mean digression.
+    ``mirror_flags``: cells the mirror cue flagged; only runs holding one are swapped back,
+    the others left as they are. ``cap`` (T, m): largest edit per cell, radians (swaps not
+    capped). ``no_merge``: cells no merged gap may include. Flagged runs of one joint at most
+    :data:`.constants.MERGE_GAP` frames apart are one run (a jitter burst flags its extremes).
     """
     from ..paper.repair import _propose
     from .constants import MERGE_GAP, OFFSET_LEVEL, SWAP_GAIN, SWAP_LEVEL, SWAP_MAX

@@ -1,30 +1,18 @@
 """Self-supervised calibration of the cleaner on the user's own clean context.
 
-The paper flags a cell when its row-normalised digression exceeds a fixed level (§3.4, §4).
-On real takes the clean digression of the fastest joints overlaps the errors
-(docs/cleaning.md), so a fixed level either edits clean motion or misses errors. Here the
-detector is fitted, for each take, on material the user already trusts: the clean context.
+A fixed level on the digression either edits clean fast joints or misses errors
+(docs/cleaning.md), so the detector is fitted per take on the clean context:
 
-1. *Calibration clips*: the context clips other than the take (up to ``frames`` frames at
-   the analysis rate, longest first); with no other clip, the take itself.
-2. *Self-supervision*: each calibration clip gets seeded synthetic errors
-   (:func:`~mocapflow.plugins.selfsim.evaluation.error_injection.inject_at_density`, ranges
-   of :data:`.constants.CALIBRATION_RANGES`, wider than the evaluation's) and is analysed
-   against the context without it plus itself (leave-one-clip-out, exactly as the take is).
-3. *Null*: on the cells with nothing injected, each joint's typical digression and
-   acceleration (medians) set the units of its cues (:func:`.cues.cue_values`), and each
-   cue's :data:`.constants.NULL_QUANTILE` per joint is that joint's null level.
-4. *Fusion*: a cell's evidence of cue ``k`` is its value over ``lambda_k`` times the
-   joint's null level; the cell is flagged when its largest evidence exceeds 1, and that
-   cue is reported. The weights ``lambda_k`` are fitted on the injected errors
-   (:func:`.fusion.fit_levels`): a greedy allocation of the false-alarm budget that raises
-   the (word, joint) recall under the constraint that at most ``false_alarm`` of the clean
-   (word, joint) pairs are flagged. No label comes from the user.
-5. *Do no harm on a different take*: the take's own typical values replace the context's
-   where they are larger (a faster take than its context is not an error everywhere), and
-   the digression cue is divided by the frame's median over the joints when that is high.
-
-The result is a :class:`Calibration`; :meth:`Calibration.evidence` applies it to a take.
+1. calibration clips: the longest other context clips (``frames`` in all), else the take;
+2. each gets seeded synthetic errors (:data:`.constants.CALIBRATION_RANGES`) and is analysed
+   leave-one-clip-out, exactly as the take is;
+3. on the cells with nothing injected, each joint's typical digression and acceleration set
+   the units of its cues and each cue's :data:`.constants.NULL_QUANTILE` its null level;
+4. a cell's evidence of cue k is its value over ``lambda_k`` times the null level, flagged
+   above 1; the weights are fitted on the injected errors (:func:`.fusion.fit_levels`)
+   under at most ``false_alarm`` clean (word, joint) pairs flagged;
+5. the take's own typical values replace the context's where larger (a faster take is not
+   an error everywhere).
 """
 
 from __future__ import annotations
@@ -41,25 +29,10 @@ from .fusion import FLOORS, fit_levels, word_joint
 
 @dataclass
 class Calibration:
-    """A fitted detector: per-joint null scales and levels, and the weight of each cue.
-
-    Attributes
-    ----------
-    scales : dict of str -> ndarray (m,)
-        Per-joint typical digression and acceleration on clean calibration cells, radians.
-    levels : ndarray (m, K)
-        Per-joint null level of each cue of :data:`.constants.CUES`.
-    weights : ndarray (K,)
-        ``lambda_k``: a cell is flagged by cue ``k`` above ``lambda_k`` times its null level
-        (inf = cue unused).
-    n_cells, n_error_cells : int
-        Calibration cells used, and how many held an injected error.
-    recall, false_alarm : float
-        (word, joint) recall of the injected errors and share of clean pairs flagged, on
-        the calibration clips.
-    source : str
-        ``context`` (leave-one-clip-out on the context) or ``self`` (the take itself).
-    clips : list of str
+    """A fitted detector: ``scales`` (per-joint typical digression and acceleration, radians,
+    (m,)), ``levels`` (m, K) null level per cue of :data:`.constants.CUES`, ``weights`` (K,)
+    ``lambda_k`` (inf = unused), the calibration's cells, error cells, (word, joint) recall
+    and false alarm, ``source`` (``context`` or ``self``) and clip names.
     """
 
     scales: dict[str, np.ndarray]
@@ -103,10 +76,8 @@ class Calibration:
 
 
 def calibration_clips(take, others: Sequence, frames: int, fps: float) -> tuple[list, str]:
-    """The clips to calibrate on: the longest other context clips up to ``frames`` frames in
-    all at the analysis rate ``fps`` (a clip's length counted in analysis frames, so a
-    120-fps context calibrates on as many seconds as a 24-fps one), or the take itself when
-    there is no other clip."""
+    """The longest other context clips up to ``frames`` analysis frames (lengths counted at
+    ``fps``, so any input rate calibrates on as many seconds), or the take itself alone."""
     if not others:
         return [take], "self"
     chosen, total = [], 0.0
@@ -127,41 +98,17 @@ def calibration_material(
     *,
     frames: int = 600,
     seed: int = 0,
-    texture: Callable | None = None,
 ) -> tuple[list[dict[str, np.ndarray]], list[np.ndarray], list[str], str]:
-    """Inject errors into the calibration clips and analyse them (steps 1-2 of the module doc).
-
-    Parameters
-    ----------
-    take : Motion
-        The take to be cleaned (used only when ``others`` is empty).
-    others : sequence of Motion
-        The context clips other than the take, at any rate.
-    analyse : callable
-        ``analyse(motion, context_list) -> DigressionResult`` (the cleaner's analysis with
-        the clip itself included), so calibration sees exactly what the take will.
-    joints : sequence of str
-        Texture joints.
-    fps : float
-        Analysis rate.
-    frames : int
-        Calibration budget, frames at ``fps``.
-    seed : int
-    texture : callable, optional
-        ``texture(motion) -> Texture``; default :func:`..paper.motion_words.motion_texture`.
-
-    Returns
-    -------
-    raw cues per clip, injected-error masks per clip (T, m), clip names, source
-    """
+    """Raw cues and injected-error masks (T, m) per calibration clip, their names and the
+    source (steps 1-2); ``analyse(motion, others)`` is the cleaner's analysis with the clip
+    itself included."""
     from ..evaluation.error_injection import inject_at_density
     from ..paper.motion_words import motion_texture
 
-    make = texture or (lambda m: motion_texture(m, joints, fps))
     clips, source = calibration_clips(take, others, frames, fps)
     cue_list, truth_list = [], []
     for i, clip in enumerate(clips):
-        tex = make(clip)
+        tex = motion_texture(clip, joints, fps)
         rest = [c for c in others if c is not clip]
         bad, mask, _ = inject_at_density(
             tex.motion, CALIBRATION_DENSITY, CALIBRATION_KINDS, seed=seed + i, ranges=CALIBRATION_RANGES
@@ -182,13 +129,10 @@ def calibrate(
     false_alarm: float = 0.004,
     frames: int = 600,
     seed: int = 0,
-    texture: Callable | None = None,
 ) -> Calibration:
-    """:func:`calibration_material`, then the null scales and levels and the cue weights
-    (steps 3-4 of the module doc); ``false_alarm`` is the target share of clean (word,
-    joint) pairs flagged on the calibration clips."""
+    """:func:`calibration_material`, then the null scales, levels and cue weights (steps 3-4)."""
     cue_list, truth_list, names, source = calibration_material(
-        take, others, analyse, joints, fps, frames=frames, seed=seed, texture=texture
+        take, others, analyse, joints, fps, frames=frames, seed=seed
     )
     clean = [~t for t in truth_list]
     scales = {

@@ -1,11 +1,7 @@
-"""The measured constants of the calibrated cleaner (``mode: calibrated``).
-
-Each value was chosen on the tuning clips of the cleaning protocol (locomotion subjects 02
-and 49, salsa trials 01, 02, 04, 05) and checked on held-out clips; every alternative that
-was measured lost (docs/cleaning.md, "How the default was chosen"). They are constants, not
-parameters: a user chooses ``calibrated.false_alarm``, the calibration budget and seed, and
-the largest edit (:class:`~mocapflow.plugins.selfsim.cleaner.CalibratedParams`).
-Angles in degrees unless the name says otherwise; frames at the 24 fps analysis rate.
+"""The measured constants of the calibrated cleaner (``mode: calibrated``), each chosen on the
+tuning clips and checked on held-out ones (docs/cleaning.md, "How the default was chosen");
+a user chooses only :class:`~mocapflow.plugins.selfsim.cleaner.CalibratedParams`. Angles in
+degrees unless the name says otherwise; frames at the 24 fps analysis rate.
 """
 
 from __future__ import annotations

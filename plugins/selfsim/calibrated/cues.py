@@ -1,28 +1,12 @@
-"""Per-cell evidence of a capture error ("cues") for the calibrated cleaner.
+"""Per-cell evidence of a capture error ("cues") for the calibrated cleaner: (T, m) arrays
+over the analysis texture ``T`` and its KNN consensus ``T̄`` (:mod:`..paper.mdm`), radians
+(or a log ratio) until :func:`cue_values` scales them by the joint's typical clean value.
 
-Every cue is a ``(T, m)`` array over the analysis texture (frames x texture joints),
-computed from the texture ``T`` and its KNN consensus ``T̄`` (:mod:`..paper.mdm`). Raw cues
-are angles in radians (or a log ratio); the calibration (:mod:`.calibration`) measures each
-in units of that joint's typical value on clean cells.
-
-=============  ===========================================================================
-raw cue        what it measures (the error kinds it targets)
-=============  ===========================================================================
-digression     geodesic angle between T and T̄ (§3.4 of the paper; offsets, freezes, swaps)
-acceleration   angle between ``T[t]`` and the midpoint of ``T[t-1]`` and ``T[t+1]`` (spikes,
-               jitter, the edges of offsets and swaps, flips)
-expected_acc   the same on T̄: how much acceleration the neighbours show there (fast joints)
-mirror         how much closer the two limbs of a left/right chain pair are to the *mirrored*
-               consensus of their counterparts than to their own, summed over both chains
-               (swapped limbs)
-hold           length (frames) of the *hold* holding the cell: consecutive frames turning
-               less than :data:`.constants.HOLD_SPEED` (0 elsewhere; frozen joints)
-held_freeze    log of the consensus' mean speed over the take's own speed at the cell
-=============  ===========================================================================
-
-:func:`cue_values` turns them into the cues of the detector (:data:`.constants.CUES`),
-adding *persistence* (the digression must last 3 frames) and *group agreement* (divided by
-the frame's median over the joints).
+Raw cues: ``digression`` (angle T to T̄: offsets, freezes, swaps), ``acceleration`` (angle
+of ``T[t]`` to the midpoint of its neighbours: spikes, jitter, edges), ``expected_acc``
+(the same on T̄), ``mirror`` (gain of swapping a left/right chain pair back: swaps),
+``hold`` (frames of the still run holding the cell: freezes), ``held_freeze`` (log of the
+consensus' speed over the take's).
 """
 
 from __future__ import annotations
@@ -118,24 +102,9 @@ def raw_cues(q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str]) -> dict[s
 
 
 def hold_lengths(v: np.ndarray, still: float = HOLD_SPEED) -> tuple[np.ndarray, np.ndarray]:
-    """Per cell, the length of the hold it lies in, and whether that hold touches an end.
-
-    Parameters
-    ----------
-    v : ndarray of shape (T, m)
-        Frame-to-frame speed, radians per frame (:func:`speed`: ``v[t]`` is the step t -> t+1).
-    still : float
-        Radians per frame below which a step is still.
-
-    Returns
-    -------
-    length : ndarray of shape (T, m), float
-        Frames of the hold holding the cell (a frame is held when the step into it or out of
-        it is still: a held value is the same pose on both sides of a still step), 0 on cells
-        in no hold.
-    edge : ndarray of bool, shape (T, m)
-        Cells of holds that include the first or the last frame.
-    """
+    """Per cell of the speeds ``v`` (T, m) (:func:`speed`), the frames of the hold holding it
+    (a frame is held when the step into or out of it is slower than ``still`` rad/frame; 0
+    outside holds), and whether that hold touches the first or the last frame (bool)."""
     calm = v < still  # step t -> t+1 still (speed() repeats the last step into the last frame)
     held = calm.copy()
     held[1:] |= calm[:-1]
@@ -171,14 +140,9 @@ def typical(cue: dict[str, np.ndarray], clean: np.ndarray | None = None) -> dict
 
 
 def persistent(x: np.ndarray, factor: float) -> np.ndarray:
-    """``x`` (T, m) capped at ``factor`` times the larger of its two neighbours in time.
-
-    An injected spike of amplitude A at frame t shows an acceleration of about A at t and
-    A / 2 at t - 1 and t + 1 (the neighbours' midpoints hold half the spike); a step (the
-    edge of an offset or a swap) shows D / 2 at two consecutive frames; jitter lasts. A
-    clean fast joint's sharp turn (a knee at heel strike) is a kink: large at one frame,
-    little beside it. With ``factor`` 2 a spike keeps its whole value and an isolated kink
-    is cut down to twice its neighbours'."""
+    """``x`` (T, m) capped at ``factor`` times the larger of its two neighbours in time: a
+    spike of amplitude A shows ~A at t and A / 2 beside it and keeps its value with factor 2,
+    while a clean joint's isolated kink (a knee at heel strike) is cut down."""
     if len(x) < 2:
         return x
     nb = np.zeros_like(x)
@@ -192,20 +156,15 @@ def cue_values(
 ) -> np.ndarray:
     """The detector's cues :data:`.constants.CUES`, shape (T, m, 5), unitless.
 
-    * digression: the smallest digression over 3 frames (an error lasts, a clean outlier
-      flickers), in units of the joint's typical digression, divided by the frame's median
-      over the joints when that exceeds 1 (*group agreement*: when every joint digresses,
-      the motion is rare, not broken);
-    * acceleration: the take's acceleration beyond the consensus', in units of the joint's
-      typical acceleration, capped by :func:`persistent` with ``acc_persist`` (None: not;
-      the weights are fitted without the cap and the take is decided with it);
-    * mirror: the chain-pair mirror gain in units of six typical digressions;
-    * freeze: on the cells of a hold of at least :data:`.constants.FREEZE_HOLD` frames, the
-      consensus' speed over the take's own (``held_freeze``), 0 elsewhere: a frozen joint is
-      held, a slow clean one (a stance ankle) still turns;
-    * jitter: the median, over the ``2 JITTER_HALF + 1`` frames centred on the cell, of the
-      acceleration cue (before the cap): high-frequency energy that lasts (jitter,
-      tremor-like noise) where a clean joint has at most an isolated kink.
+    * digression: the least over 3 frames (an error lasts, a clean outlier flickers) in
+      typical digressions, over the frame's median over the joints when > 1 (when every
+      joint digresses the motion is rare, not broken);
+    * acceleration: beyond the consensus', in typical accelerations, capped by
+      :func:`persistent` with ``acc_persist`` (None when the weights are fitted);
+    * mirror: the mirror gain in units of six typical digressions;
+    * freeze: ``held_freeze`` on holds of >= :data:`.constants.FREEZE_HOLD` frames (a frozen
+      joint is held, a slow clean one still turns);
+    * jitter: the windowed median of the uncapped acceleration (noise lasts, a kink does not).
     """
     d = cue["digression"] / scale["digression"]
     group = np.maximum(np.median(d, axis=1, keepdims=True), 1.0)

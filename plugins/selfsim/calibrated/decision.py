@@ -1,21 +1,10 @@
 """The decision rule of ``mode: calibrated``: which cells are errors, and how each is repaired.
 
-:func:`calibrated_decision` takes the take's analysis (texture, KNN consensus T̄, spread),
-fits the detector on the clean context (:func:`.calibration.calibrate`) and then, with the
-measured constants of :mod:`.constants`:
-
-1. flags the cells whose largest cue evidence exceeds 1 (:meth:`.calibration.Calibration.decide`);
-2. drops runs only the digression flagged that no other cue backs (:func:`_agreeing`,
-   ``AGREE``) and the acceleration flags of whole-body jolts (:func:`_body_jolts_dropped`,
-   ``ACC_BODY``), and grows freeze flags over the still interval where the consensus moves
-   (:func:`_freezes_grown`);
-3. fills flagged holds from the consensus (:mod:`.holds`), swaps limbs back, takes offsets
-   out and repairs the other runs from the KNN words within bounds (:mod:`.bounded_repair`;
-   cells only the digression or freeze cue flagged move at most ``max_edit`` degrees);
-4. scales the edit of a weakly evidenced acceleration or jitter run by its evidence
-   (:func:`shrink_weak_runs`, ``SHRINK_FULL``);
-5. reports as flagged only the cells the repair changed by at least ``FLAG_MIN_DEG``
-   (swaps, offsets and fills included): the cleaner makes no claim it does not act on.
+With the measured constants of :mod:`.constants`: flag cells whose largest cue evidence
+exceeds 1; drop digression-only runs no other cue backs and whole-body jolts; grow freeze
+flags over the still interval; fill holds from the consensus (:mod:`.holds`), swap limbs
+back, take offsets out, repair the rest within bounds (:mod:`.bounded_repair`); scale weak
+runs' edits by their evidence; report only cells changed by at least ``FLAG_MIN_DEG``.
 """
 
 from __future__ import annotations
@@ -45,10 +34,9 @@ _DIG, _ACC, _MIRROR, _FREEZE, _JITTER = (
 
 
 def _agreeing(flags: np.ndarray, dom: np.ndarray, ev: np.ndarray, level: float) -> np.ndarray:
-    """``flags`` without the runs of one joint flagged by the digression alone that no other
-    cue backs: no cell of the run (+-1 frame) has acceleration, freeze or jitter evidence
-    above ``level`` (an offset has jumps at its ends, a freeze its stillness; a rare clean
-    pose neither)."""
+    """``flags`` without the digression-only runs of one joint that no acceleration, freeze or
+    jitter evidence above ``level`` backs within +-1 frame (a rare clean pose has neither
+    an offset's jumps nor a freeze's stillness)."""
     out = flags.copy()
     other = np.maximum(np.maximum(ev[..., _ACC], ev[..., _FREEZE]), ev[..., _JITTER])
     for j in np.flatnonzero(flags.any(axis=0)):
@@ -59,11 +47,9 @@ def _agreeing(flags: np.ndarray, dom: np.ndarray, ev: np.ndarray, level: float) 
 
 
 def _body_jolts_dropped(flags: np.ndarray, dom: np.ndarray, least: int) -> np.ndarray:
-    """``flags`` without the acceleration flags of the frames where at least ``least`` joints
-    are flagged by the acceleration cue: a jolt of the whole body (a stumble, a landing, a
-    capture-wide timing glitch) is no joint error, and a KNN word cannot repair it. Swaps,
-    whose edges make six chain joints jump at once, are found by their edges (:mod:`.swaps`),
-    not by these flags."""
+    """``flags`` without the acceleration flags of frames where at least ``least`` joints have
+    them: a whole-body jolt is no joint error and no KNN word repairs it (swaps are found by
+    their edges, :mod:`.swaps`)."""
     acc = flags & (dom == _ACC)
     jolt = acc.sum(axis=1) >= least
     return flags & ~(acc & jolt[:, None])
@@ -77,13 +63,9 @@ def _freezes_grown(
     mean_q: np.ndarray | None = None,
     moving: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Runs flagged by the freeze cue grown over the whole interval where the joint is still
-    (moves less than ``still`` radians per frame): a frozen joint (a marker lost, its last
-    value held) is exactly still from its first frozen frame to its last, and the freeze cue
-    may see only part of it. With ``mean_q`` and ``moving`` (radians per frame), only over
-    the frames where the KNN consensus moves at least that much (its mean speed over +-2
-    frames): where the consensus holds the joint still too, the stillness is the motion's.
-    Returns the grown flags and deciding cues."""
+    """Freeze-cue runs grown over the whole interval where the joint moves less than ``still``
+    rad/frame (a frozen joint is exactly still throughout) and, given ``mean_q``, the
+    consensus moves at least ``moving`` (else the stillness is the motion's). Returns the flags and deciding cues."""
     from .cues import _window_mean, speed
 
     v = speed(q)
@@ -111,15 +93,10 @@ def shrink_weak_runs(
     eligible: np.ndarray,
     full: float,
 ) -> np.ndarray:
-    """``new`` (T, m, 4) with the edit of each weak run scaled by its evidence.
-
-    A run is consecutive cells of one joint in ``edited & ~exclude`` (T, m; swapped-back
-    chains and offsets are excluded: each is verified by its own jumps). When its strongest
-    cell is ``eligible`` (decided by a cue of :data:`.constants.SHRINK_CUES`) and its
-    evidence ``E`` is below ``full``, the edit is scaled along the geodesic by
-    ``(E - 1) / (full - 1)``: a run that barely passes its level (a clean knee's kink at
-    heel strike) moves a little, an error many levels above it fully. The edit size follows
-    the evidence, not the distance to T̄, which a clean fast joint always has.
+    """``new`` (T, m, 4) with the edit of each weak run scaled by its evidence: a run of
+    ``edited & ~exclude`` whose strongest cell is ``eligible`` with evidence ``E < full`` is
+    slerped by ``(E - 1) / (full - 1)`` (a clean knee's kink barely over its level moves a
+    little; the edit follows the evidence, not the distance to T̄ every fast joint has).
     """
     out = new.copy()
     mask = edited & ~exclude
@@ -147,15 +124,9 @@ def cue_of_run(cue: np.ndarray, grown: np.ndarray) -> np.ndarray:
 
 
 def calibrated_decision(res: Any, calibration: Any, max_edit: float) -> tuple[np.ndarray, ...]:
-    """Decide and repair one analysed take (module doc) with a fitted ``calibration``.
-
-    Returns
-    -------
-    flags, value, cue, repaired, edited
-        Flagged cells (T, m), the map value ``1 - 2^(-e^2)`` of the evidence ``e`` (> 0.5 =
-        flagged), the deciding cue's name per flagged cell (None elsewhere), the repaired
-        texture (T, m, 4) and the cells it changed.
-    """
+    """Decide and repair one analysed take with a fitted ``calibration``: flags (T, m), map
+    value ``1 - 2^(-e^2)`` (> 0.5 = flagged), cue name per flagged cell, repaired texture
+    (T, m, 4) and the changed cells."""
     from .bounded_repair import bounded_repair
     from .holds import fill_holds
 

@@ -28,20 +28,10 @@ def fit_levels(
     values: list[np.ndarray], levels: np.ndarray, truth: list[np.ndarray], false_alarm: float, max_steps: int = 40
 ) -> np.ndarray:
     """Per-cue weights ``lambda`` (K,) maximising the (word, joint) recall of the injected
-    errors with at most ``false_alarm`` of the clean (word, joint) pairs flagged.
-
-    Greedy on the false-alarm budget: from every cue off (``lambda`` = inf), each step takes
-    the move (one cue to a lower grid value) with the most newly found erroneous pairs per
-    newly flagged clean pair that stays within the budget, until no move finds more.
-
-    Parameters
-    ----------
-    values : list of ndarray (T, m, K)
-        Cue values of the calibration clips.
-    levels : ndarray (m, K)
-        Per-joint null levels.
-    truth : list of bool ndarray (T, m)
-    """
+    errors ``truth`` (T, m) in the cue ``values`` (T, m, K) over the null ``levels`` (m, K),
+    with at most ``false_alarm`` of the clean pairs flagged. Greedy on the budget: from
+    every cue off (inf), each step takes the move (one cue to a lower grid value) with the
+    most newly found pairs per newly flagged clean pair within budget."""
     wj_truth = [word_joint(t) for t in truth]
     ratio = [v / levels for v in values]
     n_clean = max(sum(int((~w).sum()) for w in wj_truth), 1)

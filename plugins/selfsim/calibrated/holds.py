@@ -1,15 +1,11 @@
 """Frozen joints repaired as gaps: the held frames filled from the KNN consensus joined to
 the two frames that bound the hold.
 
-A frozen joint (a marker lost and its last value held by the capture software, the
-protocol's ``freeze``) is *held*: from its first frozen frame ``a`` (still its true value)
-to the last, it turns less than :data:`.constants.HOLD_SPEED` per frame, and at ``b`` it
-jumps back to the motion. The bounded repair is no good there: the neighbours were chosen
-on the frozen take, so T̄ is nearly still too, and a repair that only moves a cell nearer
-T̄ changes it by a few degrees. The hold is a gap, filled from its two sides: the
-consensus keeps the motion's shape, a displacement map puts it back where the take is at
-``a`` and ``b``. A hold that touches the first or the last frame has one side only and is
-left to the other repairs.
+A frozen joint is still from its first frozen frame ``a`` (its true value) to the last and
+jumps back at ``b``. The bounded repair cannot fix it (the neighbours were chosen on the
+frozen take, so T̄ is nearly still too); the consensus keeps the motion's shape and a
+displacement map joins it to the take at ``a`` and ``b``. A hold touching an end of the take
+has one side only and is left to the other repairs.
 """
 
 from __future__ import annotations
@@ -34,18 +30,10 @@ def consensus_fill(track: np.ndarray, mean: np.ndarray, a: int, b: int) -> np.nd
 def fill_holds(
     q: np.ndarray, seeds: np.ndarray, min_frames: int, mean_q: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The take ``q`` (T, m, 4) with every hold that holds a ``seeds`` cell (the freeze cue's
-    flags) and lasts at least ``min_frames`` frames filled by :func:`consensus_fill` from the
-    consensus ``mean_q``.
-
-    Returns
-    -------
-    new : ndarray (T, m, 4)
-    filled : ndarray of bool (T, m)
-        The cells replaced (the hold's frames after its first).
-    holds : ndarray of bool (T, m)
-        The filled holds, first frame included (the other repairs leave them alone).
-    """
+    """The take ``q`` (T, m, 4) with every hold of at least ``min_frames`` frames holding a
+    ``seeds`` cell (freeze flags) filled by :func:`consensus_fill` from ``mean_q``; returns it,
+    the cells replaced (the hold's frames after its first) and the filled holds (first frame
+    included; the other repairs leave them alone), (T, m) bool."""
     from .cues import hold_lengths, speed
 
     out = q.copy()

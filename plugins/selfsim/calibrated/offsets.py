@@ -1,17 +1,11 @@
 """Constant-offset repair of a flagged run (calibrated cleaner).
 
-A spike (1-3 frames) or an offset burst adds one rotation ``off`` to a joint over an
-interval: ``q[t] = c[t] off`` for ``a <= t < b`` (``c`` the clean track, ``off`` right-
-multiplied as a local-frame error). Its two ends are jumps that predict ``off`` from the
-clean side: continuing the take's own motion one frame forward from ``a - 2, a - 1``
-(``p = q[a-1] (q[a-2]^-1 q[a-1])``) gives ``p^-1 q[a] ~ off``, and backward from ``b + 1,
-b`` at the last corrupted frame the same. When the two estimates agree, the interval is an
-offset and ``q[t] off(t)^-1`` with ``off(t)`` slerped between them restores the clean
-track up to the one-frame prediction error, keeping the take's own motion (the KNN word
-the paper splices in is another performance of the move).
-
-:func:`offset_interval` looks for the two ends around a flagged run, so an offset of
-which the detector flagged only a part is repaired over its whole extent.
+A spike or an offset burst right-multiplies one rotation ``off`` onto a joint over
+``[a, b)``. Continuing the take's own motion one frame forward from ``a - 2, a - 1``
+predicts ``p`` with ``p^-1 q[a] ~ off``, and backward from ``b + 1, b`` the same at the last
+corrupted frame; when the two agree, taking out ``off`` slerped between them restores the
+clean track and keeps the take's own motion (a KNN word is another performance). The ends
+are searched around the run, so a partly flagged offset is repaired whole.
 """
 
 from __future__ import annotations
@@ -44,26 +38,10 @@ def _angle(q: np.ndarray) -> np.ndarray:
 def offset_interval(
     track: np.ndarray, a0: int, b0: int, level: float, window: int = 18, agree: float = 0.35
 ) -> tuple[int, int, np.ndarray, np.ndarray] | None:
-    """The offset interval ``[a, b)`` holding the flagged run ``[a0, b0)`` of one joint, and
-    its end offsets, or None.
-
-    Parameters
-    ----------
-    track : ndarray of shape (T, 4)
-        The joint's texture rotations (sign-continuous).
-    a0, b0 : int
-        Flagged run, half-open.
-    level : float
-        Least jump at both ends, radians (the predicted offset's angle).
-    window : int
-        Frames searched before ``a0`` and after ``b0`` for the ends (inside the run too).
-    agree : float
-        The two end offsets may differ by at most this share of the smaller one.
-
-    Returns
-    -------
-    (a, b, off_a, off_b) or None
-    """
+    """The offset interval ``[a, b)`` holding the flagged run ``[a0, b0)`` of one joint's
+    ``track`` (T, 4) and its end offsets, or None: both ends jump at least ``level`` radians,
+    searched ``window`` frames around the run (inside it too), and their offsets differ by
+    at most ``agree`` times the smaller."""
     t = len(track)
     fwd = _forward_offsets(track)
     bwd = _backward_offsets(track)

@@ -1,29 +1,19 @@
 """Swapped limbs found by their edges (calibrated cleaner).
 
-A left/right mislabelling of a limb (the markers of the two arms or legs exchanged, seen
-as the left chain taking the *mirrored* rotations of the right one and the reverse) starts
-and stops with a jump of every joint of both chains, and swapping the chains back from
-that frame on removes the jump. The *edge benefit* of a frame ``f`` is how much smoother
-the six chain joints become around ``f`` when the frames from ``f`` on are swapped back::
+A left/right mislabelling of a limb (each chain taking the *mirrored* rotations of the
+other) starts and stops with a jump of every joint of both chains that swapping back
+removes. The edge benefit of frame ``f``, how much smoother the six chain joints get when
+the frames from ``f`` on are swapped back::
 
     B(f) = sum_j [acc(x[f-2], x[f-1], x[f]) + acc(x[f-1], x[f], x[f+1])]
          - sum_j [acc(x[f-2], x[f-1], s[f]) + acc(x[f-1], s[f], s[f+1])]
 
-with ``x`` the take's chain rotations, ``s`` the mirrored counterparts
-(:func:`.cues.mirror`) and ``acc(a, b, c)`` the angle between ``b`` and the midpoint of
-``a`` and ``c`` (:func:`.cues.acceleration`). Swapping back is an involution, so the same
-``B`` is large at the start *and* at the end of a swapped interval. ``B`` is measured in
-units of the chains' typical acceleration on the take itself (the sum over the six joints
-of each one's median acceleration), so it needs no context: on the tuning clips
-(locomotion subjects 02, 49; salsa trials 01, 02, 04, 05) true swap edges scored 4.8-64,
-every frame away from an error at most 1.8 and clean takes at most 1.8.
-
-A swap is an interval ``[a, b)`` between two consecutive frames whose benefit exceeds
-``level`` (local maxima), ``min_len <= b - a <= max_len`` apart. This finds swaps the
-digression misses (a mirrored walker's limb is a plausible pose; dancers mirror each
-other's moves, so the KNN consensus adapts to the swapped limb in mid-interval) and gives
-their exact extent. A swap that starts before the take or lasts past its end has one edge
-and is not found here (the mirror cue of :mod:`.bounded_repair` may still find it).
+(``x`` the chain rotations, ``s`` the mirrored counterparts, ``acc`` the angle to the
+neighbours' midpoint) is large at both ends of a swap (an involution). In units of the
+chains' typical acceleration on the take (no context needed), tuning-clip swap edges scored
+4.8-64 and every other frame at most 1.8. A swap is ``[a, b)`` between consecutive peaks
+above ``level``; it finds swaps the digression misses (the consensus adapts to a mirrored
+limb) with their exact extent, but not a swap with one edge in the take.
 """
 
 from __future__ import annotations
@@ -43,16 +33,8 @@ def _acc(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
 
 
 def edge_benefit(q: np.ndarray, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """``B(f)`` of the module doc for one chain pair, radians, shape (T,); -inf where undefined
-    (the first two frames and the last).
-
-    Parameters
-    ----------
-    q : ndarray of shape (T, m, 4)
-        Texture (local rotations, sign-continuous).
-    left, right : ndarray of int
-        Texture columns of the left chain and of its right counterpart (same order).
-    """
+    """``B(f)`` of the module doc for the chain columns ``left``/``right`` of the texture
+    ``q`` (T, m, 4), radians, (T,); -inf where undefined (the first two frames, the last)."""
     cols = np.concatenate([left, right])
     other = np.concatenate([right, left])
     x = q[:, cols]
@@ -79,18 +61,9 @@ def chain_unit(q: np.ndarray, cols: np.ndarray) -> float:
 def swap_edges(
     q: np.ndarray, joints: Sequence[str], level: float = 3.0, min_len: int = 2, max_len: int = 72
 ) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
-    """(left columns, right columns, start, end) of the swapped intervals found by their edges.
-
-    Parameters
-    ----------
-    q : ndarray of shape (T, m, 4)
-    joints : sequence of str
-        Canonical names of the texture columns.
-    level : float
-        Least edge benefit at both ends, in units of :func:`chain_unit`.
-    min_len, max_len : int
-        Interval lengths accepted, frames.
-    """
+    """(left columns, right columns, start, end) of the swapped intervals found by their
+    edges: benefit at least ``level`` :func:`chain_unit` at both ends, ``min_len`` to
+    ``max_len`` frames apart."""
     out = []
     for lc, rc in chain_columns(list(joints)):
         b = edge_benefit(q, lc, rc) / chain_unit(q, np.concatenate([lc, rc]))

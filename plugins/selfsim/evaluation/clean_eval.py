@@ -1,35 +1,12 @@
 """Evaluation harness of the MDM cleaner (Aristidou 2018 §6, Tables 1 and 2): ``analyses.clean_eval``.
 
-Protocol
---------
-For each category (input slots ``locomotion`` and ``dance``, motions datasets ingested at
-24 fps), the test clips are the clips of the *held-out* subjects (locomotion) or trials
-(dance) with at least :data:`MIN_FRAMES` frames (``held_out``; the cleaner was tuned on the
-others). Each is corrupted by :func:`.error_injection.inject_at_density` (seed ``seed +
-clip position``): random errors of the protocol kinds (spikes 30-90 degrees over 1-3
-frames, offset bursts, left/right limb swaps, jitter, freezes) until ``density`` (the
-paper's ~12.5 %) of its 15-frame words hold one. It is analysed against the contexts of
-§6: ``local`` (the clip alone), ``small`` (plus ``small_size`` other clips of the
-category, longest first, never the partner's take of a dance) and ``large`` (plus up to
-``large_size``). Context clips are clean; the calibrated
-cleaner calibrates on them, never on the test clip.
-
-Detection is scored on the texture joints against the ground-truth mask (cells moved more
-than :data:`MIN_ANGLE` degrees) per (frame, joint) cell, per (word, joint) (a joint of a source word
-is erroneous when any of its cells is, flagged when any is; columns ``wj_*``) and per
-word: recall TP/(TP+FN), precision TP/(TP+FP). Methods: ``mdm`` (the configured cleaner,
-by default ``mode: calibrated``), ``mdm[paper]`` (``mode: paper`` on the same analysis) and
-three baselines with limits learned from the clean clips of the category other than the
-test clip: (a) joint-rotation limits (per joint, the range of each component of the
-rotation vector), (b) a threshold on the rotation derivative (per joint, the largest clean
-frame-to-frame angle), (c) either. Repair (eq. 2, Table 2): ``||log(q^-1 q̂)||^2`` per
-cell; *global* = summed over joints per frame and averaged over all frames of the clip,
-*cells* = averaged over the erroneous cells, before (the corrupted clip) and after
-cleaning, with the share of clips whose global error fell (strictly: a clip left exactly as
-it was counts as not lower) and, beside it, the share whose error did not rise
-(``share_global_not_higher``) and that were left exactly as they were. *Clean takes*: each test clip
-is also cleaned uncorrupted: share of its input cells edited and the largest edit. Table
-``kinds``: per error kind, errors found and eq. 2 on their cells before/after.
+The protocol (docs/cleaning.md): held-out test clips (>= :data:`MIN_FRAMES` frames) corrupted
+at ``density`` by :func:`.error_injection.inject_at_density` (seed ``seed + position``),
+analysed against the ``local``, ``small`` and ``large`` contexts of clean clips; detection
+scored per cell, (word, joint) and word against cells moved > :data:`MIN_ANGLE` degrees
+for ``mdm``, ``mdm[paper]`` and three baselines (rotation limits, derivative, either);
+repair by eq. 2 (``||log(q^-1 q̂)||^2``: global per frame, and on the erroneous cells)
+before and after, and what the cleaner does to the uncorrupted clip.
 """
 
 from __future__ import annotations
@@ -84,10 +61,8 @@ class CleaningEvaluationParams(Params):
 
 
 class CleaningEvaluation(Analysis):
-    """Precision/recall of the MDM cleaner and three baselines on injected errors at the
-    paper's density (Table 1), the repair error of eq. 2 (Table 2) and what the cleaner does
-    to clean takes. Tables ``data`` (one row per category, context and method), ``repair``
-    (one row per category, context and method) and ``kinds`` (per error kind)."""
+    """Tables ``data`` (detection), ``repair`` (eq. 2, clean takes) and ``kinds`` (per error
+    kind) of the protocol (module doc), per category, context and method."""
 
     name = "clean_eval"
     inputs: ClassVar[Mapping[str, bool]] = {"locomotion": False, "dance": False}
@@ -136,9 +111,8 @@ def clip_key(name: str, by: str) -> str:
 
 @dataclass(frozen=True)
 class CorruptedClip:
-    """One test clip of the protocol: ``bad`` is ``clean`` with the injected ``errors``;
-    ``truth`` (T, m) marks the erroneous cells on the texture joints; ``others`` are the
-    clips a context may hold (never the clip itself, nor, for dance, its partner's take)."""
+    """A test clip: ``bad`` = ``clean`` with ``errors``; ``truth`` (T, m) the erroneous texture
+    cells; ``others`` the clips a context may hold (not itself nor a dance partner's take)."""
 
     index: int
     clean: Motion

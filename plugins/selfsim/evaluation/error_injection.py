@@ -1,32 +1,13 @@
-"""Seeded, documented capture-error injection with ground-truth masks (cleaning evaluation).
+"""Seeded capture-error injection with ground-truth masks (cleaning evaluation).
 
-Errors are injected into the local joint rotations of a clean clip (normally already at
-the cleaner's 24 fps analysis rate, so masks align with the MDM). Each kind imitates a
-failure seen in optical capture; magnitudes and durations are drawn from the ranges below
-with ``numpy.random.default_rng(seed)`` (frames at 24 fps; angles in degrees). The default
-ranges (:data:`ERROR_RANGES`) are those of the protocol of ``analyses.clean_eval``:
-
-========  ==========================================================  ============  =========
-kind      what                                                        duration      magnitude
-========  ==========================================================  ============  =========
-spike     peaks: the joint jumps away and back                        1-3 frames    30-90
-offset    burst: a constant rotation held                             6-18 frames   20-45
-drift     slow drift: a rotation growing linearly, then snapping back 24-36 frames  30-60 end
-freeze    frozen joint: the rotation at onset is held (gap filled by  12-24 frames  (motion)
-          holding, as after an occlusion)
-noise     heavy jitter: an independent random rotation per frame      8-16 frames   sd 15
-swap      mislabelled markers: a left limb and its right mirror are   12-24 frames  (motion)
-          exchanged (mirror across the sagittal plane)
-========  ==========================================================  ============  =========
-
-:func:`inject_at_density` adds seeded random errors until a target share of the source
-words (the paper's ~12.5 %, §6: about 1,000 of 8,000 words) holds an error, which is the
-protocol of ``analyses.clean_eval``; :data:`PROTOCOL_KINDS` are its kinds (drift is used by
-the calibration's self-supervision, with wider ranges).
-
-The ground-truth mask marks the (frame, joint) cells whose rotation ends up more than
-``min_angle`` (default 10 degrees) from the clean rotation: a drift's first frames and a
-freeze of a joint that hardly moved are not errors anyone could see.
+Errors go into the local joint rotations of a clean clip at the 24 fps analysis rate
+(durations in frames, angles in degrees, :data:`ERROR_RANGES` the protocol's): ``spike``
+(the joint jumps away and back), ``offset`` (a constant rotation held), ``drift`` (growing
+linearly, then snapping back; the calibration's only), ``freeze`` (the onset rotation held,
+as after an occlusion), ``noise`` (a random rotation per frame), ``swap`` (a left limb and
+its right mirror exchanged). :func:`inject_at_density` adds them until a share of the
+source words holds one (the paper's ~12.5 %, §6). The mask marks the cells moved more than
+``min_angle`` (a drift's first frames or a still joint's freeze are invisible).
 """
 
 from __future__ import annotations
@@ -40,7 +21,7 @@ from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
 
-from ..calibrated.cues import mirror
+from ..calibrated.cues import MIRROR_CHAINS, mirror
 
 ERROR_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap")
 
@@ -60,10 +41,7 @@ ERROR_RANGES: Ranges = {
 }
 
 #: Limb chains exchanged by a "swap" error (canonical names).
-SWAP_CHAINS: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
-    (("lshoulder", "lelbow", "lwrist"), ("rshoulder", "relbow", "rwrist")),
-    (("lhip", "lknee", "lankle"), ("rhip", "rknee", "rankle")),
-)
+SWAP_CHAINS = MIRROR_CHAINS
 
 #: Joints that single-joint errors pick from (the limbs, spine and head).
 ERROR_JOINTS: tuple[str, ...] = (
@@ -166,40 +144,14 @@ def inject_at_density(
     margin: int = 4,
     max_tries: int = 200,
 ) -> tuple[Motion, np.ndarray, list[InjectedError]]:
-    """Corrupt a clean clip until about ``density`` of its source words hold an error.
+    """Corrupt a clean ``motion`` (24 fps) until about ``density`` of its source words
+    (``word_length`` frames every ``word_step``) hold an error.
 
-    Errors (kind drawn uniformly from ``kinds``, joints, duration, magnitude and start drawn
-    from ``numpy.random.default_rng(seed)``) are added one at a time at random places that
-    keep ``margin`` frames from every earlier error, while the share of erroneous words
-    (15-frame words every 5 frames, a word being erroneous when any of its cells is in the
-    mask) is below ``density``; at least one error is injected when any fits. Short clips
-    overshoot the density (one error is already several words); the measured share is
-    what the evaluation reports.
-
-    Parameters
-    ----------
-    motion : Motion
-        Clean clip at the rate the durations are meant for (24 fps).
-    density : float
-        Target share of erroneous source words (the paper: ~0.125).
-    kinds : sequence of str
-    seed : int
-    min_angle : float
-        Degrees; cells changed by more are marked in the mask.
-    ranges : dict, optional
-        (duration range, magnitude range) per kind; default :data:`ERROR_RANGES`.
-    word_length, word_step : int
-        The source words the density is counted on (frames).
-    margin : int
-        Frames kept free between errors and at the clip ends.
-    max_tries : int
-        Random placements tried before giving up on reaching the density.
-
-    Returns
-    -------
-    corrupted : Motion
-    mask : ndarray of bool, shape (T, J)
-    errors : list of InjectedError, in time order
+    Errors (kind from ``kinds``; joints, duration, magnitude and start drawn from
+    ``default_rng(seed)``; ``ranges`` over :data:`ERROR_RANGES`) are added one at a time
+    ``margin`` frames from every earlier one and the clip ends, at least one when any fits,
+    up to ``max_tries`` placements; short clips overshoot. Returns the corrupted motion, the
+    mask (T, J) of cells moved more than ``min_angle`` degrees, and the errors in time order.
     """
     from ..paper.motion_words import source_word_starts
 

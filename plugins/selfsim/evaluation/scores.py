@@ -24,13 +24,8 @@ def _log_norm_sq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class RotationBaselines:
-    """Baselines (a) limits and (b) derivative thresholds, learned from clean rotations.
-
-    Parameters
-    ----------
-    clean : list of ndarray (T, m, 4)
-        Clean textures (same joints, same frame rate).
-    """
+    """Baselines (a) limits and (b) derivative thresholds, learned from ``clean`` textures
+    (T, m, 4) of the same joints and rate."""
 
     def __init__(self, clean: list[np.ndarray]) -> None:
         rv = np.concatenate([rotation_vectors(q) for q in clean], 0)
@@ -58,11 +53,9 @@ def scores(
     """Cell, word and (word, joint) true/false positive and false negative counts of
     ``flagged`` against ``truth`` (T, m); ``starts`` are the source words (length ``n``).
 
-    ``moved`` (T, m), optional: the cells the injection changed at all. False positives on
-    cells (pairs, words) that were changed but by no more than the ground truth's
-    ``min_angle`` are also counted apart (``*fp_sub``): e.g. the hip of a swapped leg moved
-    4 degrees, which a swap-back restores exactly. Precision with those left out is the
-    ``*_precision_dc`` ("don't care") figure; the plain precision counts them as false."""
+    ``moved`` (T, m): the cells the injection changed at all; false positives on cells moved
+    below the ground truth's angle (a swapped leg's hip, restored exactly) are also counted
+    apart (``*fp_sub``) for the "don't care" precision ``*_precision_dc``."""
     tp = int((flagged & truth).sum())
     fp = int((flagged & ~truth).sum())
     fn = int((~flagged & truth).sum())
@@ -119,21 +112,13 @@ def source_glitches(
 ) -> np.ndarray:
     """Cells of a "clean" reference that are capture glitches of the source itself, (T, m) bool.
 
-    A joint whose rotation normally stays near its mean pose over the take (median angle
-    to its chordal mean below ``typical`` degrees) but leaves it by more than ``far``
-    degrees: the salsa takes hold ankles turned 160-176 degrees for 0.6-0.9 s (60_01
-    lankle 24-fps frames 143-166 and rankle 161-181, 60_02 lankle 261-275) and wrists out
-    130 degrees and back within 0.1 s (61_05 lwrist 191), reached by steps of up to 110
-    degrees in 1/120 s: no ankle or wrist turns that far, that fast. An excursion counts
-    only when it is entered or left by a step of more than ``step`` degrees in one frame
-    (at the texture's 24 fps; raised arms reach 90 degrees too, but gradually). Each
-    excursion is grown while the angle stays above ``back`` degrees, plus ``pad`` frames.
-    A joint whose median angle to its mean pose is not below ``typical`` and that turns
-    more than ``2 step`` degrees in one frame is a broken track throughout (the head of
-    salsa take 60_06: median 47 degrees from its mean pose, steps of up to 165 degrees in
-    1/24 s) and is marked whole. The protocol
-    scores repairs of these cells apart (the cleaner is right to repair them, and eq. 2
-    against this reference counts that as damage)."""
+    A joint normally near its mean pose (median angle below ``typical`` degrees) that leaves
+    it by more than ``far``, entering or leaving by a step over ``step`` degrees in one
+    24-fps frame (the salsa ankles turned 160-176 degrees for 0.6-0.9 s, wrists out 130
+    degrees within 0.1 s: no joint turns that far that fast), grown while above ``back``
+    plus ``pad`` frames; a joint not near its mean pose that turns over ``2 step`` in a
+    frame is broken throughout (the head of 60_06) and marked whole. The protocol scores
+    repairs of these cells apart (eq. 2 against this reference counts them as damage)."""
     from ..calibrated.bounded_repair import _runs
 
     out = np.zeros(q.shape[:2], bool)

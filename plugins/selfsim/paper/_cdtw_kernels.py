@@ -1,8 +1,6 @@
-"""Compiled constrained DTW over motion-words (Aristidou et al. 2018, Appendix).
-
-Split from :mod:`._mdm_kernels` (which re-exports these names): the full-path variant
-``cdtw``, the cost-only variants ``cdtw_cost`` / ``cdtw_cost_r2`` used inside the KNN
-search, and ``cdtw_path``. No validation here; see ``motion_words.py``.
+"""Compiled constrained DTW over motion-words (Aristidou et al. 2018, Appendix; the
+convention is in :mod:`._mdm_kernels`): ``cdtw`` (any slope run r), ``cdtw_cost_r2``
+(cost only, two rows, the default r = 2) and ``cdtw_path``. No validation here.
 """
 
 from __future__ import annotations
@@ -118,106 +116,10 @@ def cdtw(d, i0, j0, n, ln, r, cum, plen, back):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _better(v, ln_v, bc, bl):  # pragma: no cover - compiled
-    """Whether (cost v, length ln_v) beats the current best (bc, bl): lower cost, then shorter."""
-    return v < bc or (v == bc and ln_v < bl)
-
-
-@njit(cache=True)
-def cdtw_cost(d, i0, j0, n, ln, r, cur, prev, lcur, lprev):  # pragma: no cover - compiled
-    """Cost and length of the optimal constrained-DTW path, keeping two rows only.
-
-    Same recurrence and tie rules as :func:`cdtw` (which also keeps back pointers for the
-    path); work arrays cur, prev (M, 2r+1) float64 and lcur, lprev (M, 2r+1) int64.
-    Returns (cumulative cost, path length).
-    """
-    n_s = 2 * r + 1
-    big = np.int64(2**62)
-    bc_end = _INF
-    bl_end = big
-    for i in range(n):
-        # the slope constraint makes cells with j > (r+1) i + r or i > (r+1) j + r unreachable
-        j_lo = max(0, -((r - i) // (r + 1)))
-        j_hi = min(ln - 1, (r + 1) * i + r)
-        for j in range(ln):
-            if j < j_lo or j > j_hi:
-                for s in range(n_s):
-                    cur[j, s] = _INF
-                    lcur[j, s] = big
-                continue
-            c = np.float64(d[i0 + i, j0 + j])
-            if i == 0 and j == 0:
-                for s in range(n_s):
-                    cur[0, s] = _INF
-                    lcur[0, s] = big
-                cur[0, 0] = c
-                lcur[0, 0] = 1
-            else:
-                # diagonal
-                bc = _INF
-                bl = big
-                if i > 0 and j > 0:
-                    for s in range(n_s):
-                        if _better(prev[j - 1, s], lprev[j - 1, s], bc, bl):
-                            bc = prev[j - 1, s]
-                            bl = lprev[j - 1, s]
-                cur[j, 0] = bc + c
-                lcur[j, 0] = bl + 1
-                # horizontal: from diagonal or vertical states of (i, j-1); runs continue
-                bc = _INF
-                bl = big
-                if j > 0 and i < n - 1:
-                    if _better(cur[j - 1, 0], lcur[j - 1, 0], bc, bl):
-                        bc = cur[j - 1, 0]
-                        bl = lcur[j - 1, 0]
-                    for s in range(r + 1, n_s):
-                        if _better(cur[j - 1, s], lcur[j - 1, s], bc, bl):
-                            bc = cur[j - 1, s]
-                            bl = lcur[j - 1, s]
-                cur[j, 1] = bc + c
-                lcur[j, 1] = bl + 1
-                for s in range(2, r + 1):
-                    if j > 0 and i < n - 1:
-                        cur[j, s] = cur[j - 1, s - 1] + c
-                        lcur[j, s] = lcur[j - 1, s - 1] + 1
-                    else:
-                        cur[j, s] = _INF
-                        lcur[j, s] = big
-                # vertical: from diagonal or horizontal states of (i-1, j)
-                bc = _INF
-                bl = big
-                if i > 0 and j < ln - 1:
-                    for s in range(0, r + 1):
-                        if _better(prev[j, s], lprev[j, s], bc, bl):
-                            bc = prev[j, s]
-                            bl = lprev[j, s]
-                cur[j, r + 1] = bc + c
-                lcur[j, r + 1] = bl + 1
-                for s in range(r + 2, n_s):
-                    if i > 0 and j < ln - 1:
-                        cur[j, s] = prev[j, s - 1] + c
-                        lcur[j, s] = lprev[j, s - 1] + 1
-                    else:
-                        cur[j, s] = _INF
-                        lcur[j, s] = big
-            # end cells: the last row, then the last column (same order as cdtw)
-            if i == n - 1 or j == ln - 1:
-                for s in range(n_s):
-                    if cur[j, s] < _INF and _better(cur[j, s], lcur[j, s], bc_end, bl_end):
-                        bc_end = cur[j, s]
-                        bl_end = lcur[j, s]
-        for j in range(ln):
-            for s in range(n_s):
-                prev[j, s] = cur[j, s]
-                lprev[j, s] = lcur[j, s]
-    return bc_end, bl_end
-
-
-@njit(cache=True)
 def cdtw_cost_r2(d, i0, j0, n, ln, cost, plen):  # pragma: no cover - compiled
-    """:func:`cdtw_cost` specialised to the paper's slope constraint ``r = 2``.
+    """Cost and length of :func:`cdtw` for the paper's slope constraint ``r = 2``.
 
-    Same recurrence, tie rules and result; the five states (diagonal, 1-2 horizontal,
+    Same recurrence, tie rules and result, keeping two rows only; the five states (diagonal, 1-2 horizontal,
     1-2 vertical) live in scalars per cell. Work arrays cost (2, 5, M) float64 and plen
     (2, 5, M) int64 (two rows alternate).
     """
@@ -226,6 +128,7 @@ def cdtw_cost_r2(d, i0, j0, n, ln, cost, plen):  # pragma: no cover - compiled
     bl_end = big
     for i in range(n):
         cr = i & 1
+        # the slope constraint makes cells with j > 3 i + 2 or i > 3 j + 2 unreachable
         pr = 1 - cr
         j_lo = max(0, -((2 - i) // 3))
         j_hi = min(ln - 1, 3 * i + 2)

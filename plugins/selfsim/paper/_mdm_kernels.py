@@ -1,30 +1,21 @@
 """Compiled kernels of the MDM cleaner: pose-distance blocks, constrained DTW, exact KNN.
 
-No validation here; :mod:`.knn` and :mod:`.motion_words` check inputs and call these.
-The constrained DTW kernels themselves are in :mod:`._cdtw_kernels`.
-Each kernel has a slow reference in ``tests/naive/cleaning.py``.
+No validation here (:mod:`.knn` checks inputs); each kernel has a slow reference in
+``tests/naive/cleaning.py``; the cDTW kernels are in :mod:`._cdtw_kernels`.
 
-Constrained DTW (paper Appendix), the convention every kernel shares
---------------------------------------------------------------------
-Source word rows ``i < N``, target word columns ``j < L`` (``L <= M``), cost ``D[i0+i, j0+j]``.
-The path starts at (0, 0) and ends at the *first* cell where ``i == N-1`` or ``j == L-1``
-(either word ends). Steps are (1, 1) "diagonal", (0, 1) "horizontal" (the target advances)
-and (1, 0) "vertical" (the source advances); the slope constraint allows at most ``R``
-consecutive horizontal or vertical steps. The DP state of a cell is how it was entered:
-0 = diagonal (or the start), ``1..R`` = ``r`` horizontal steps in a row, ``R+1..2R`` = ``r``
-vertical steps in a row. The optimal path minimises the cumulative cost over all end cells
-(ties: shorter path, then end cell order); the word distance is cumulative cost / path
-length (mean cost along the path).
+Constrained DTW (paper Appendix): source rows ``i < N``, target columns ``j < L <= M``, cost
+``D[i0+i, j0+j]``; the path starts at (0, 0) and ends at the first cell where either word
+ends. Steps (1, 1), (0, 1), (1, 0), at most ``R`` non-diagonal steps in a row; a cell's DP
+state is how it was entered: 0 diagonal (or the start), ``1..R`` horizontal run length,
+``R+1..2R`` vertical. The optimum minimises the cumulative cost over the end cells (ties:
+shorter path, then end cell order); the word distance is cost / path length.
 
-Lower bound used for pruning
-----------------------------
-A path ending on the last source row visits every row ``i``; rows ``i < N-1`` hold between
-1 and ``R+1`` of its cells (a horizontal run is at most ``R`` long) and the last row exactly
-one. Its mean cost is thus a weighted mean of per-row costs, each at least the row minimum
-``W[i] = min_{j<L} D[i0+i, j0+j]``, with weights in ``[1, R+1]``; the smallest such weighted
-mean (weights ``R+1`` on the rows below the optimum, 1 above: a linear-fractional programme
-over a box) bounds it from below. Paths ending on the last target column are bounded the
-same way with column minima. The word distance is at least the smaller of the two bounds.
+Lower bound: a path ending on the last source row holds 1 to ``R+1`` cells of every other
+row and one of the last, so its mean cost is a weighted mean of the row minima
+``W[i] = min_j D[i0+i, j0+j]`` with weights in ``[1, R+1]``; the least such mean (weights
+``R+1`` on the rows below the optimum, 1 above: a linear-fractional programme over a box)
+bounds it. Column minima bound the paths ending on the last column; the distance is at
+least the smaller bound.
 """
 
 from __future__ import annotations
@@ -34,8 +25,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-# the constrained DTW kernels live in their own module; re-exported for the callers here
-from ._cdtw_kernels import cdtw, cdtw_cost, cdtw_cost_r2, cdtw_path  # noqa: F401 - re-exported: the cleaner calls the cDTW kernels through this module
+from ._cdtw_kernels import cdtw, cdtw_cost_r2, cdtw_path  # noqa: F401 - re-exported for the callers
 
 _INF = np.inf
 
@@ -211,12 +201,12 @@ def _excluded(t, clip_of, self_clip, self_pos, radius):  # pragma: no cover - co
 
 
 @njit(cache=True)
-def _word_distance(d, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo):  # pragma: no cover
+def _word_distance(d, i0, t, n, tlen, r, cum, plen, back, cost2, plen2, memo):  # pragma: no cover
     if math.isnan(memo[t]):
         if r == 2:
             c, p = cdtw_cost_r2(d, i0, t, n, tlen[t], cost2, plen2)
         else:
-            c, p = cdtw_cost(d, i0, t, n, tlen[t], r, cur, prev, lcur, lprev)
+            c, p, _, _, _ = cdtw(d, i0, t, n, tlen[t], r, cum, plen, back)
         memo[t] = c / p
     return memo[t]
 
@@ -247,10 +237,10 @@ def knn_pruned(
         w = gw % n_w
         dg = d[g]
         lbw = lb[g, w]
-        cur = np.empty((m, 2 * r + 1))
-        prev = np.empty((m, 2 * r + 1))
-        lcur = np.empty((m, 2 * r + 1), np.int64)
-        lprev = np.empty((m, 2 * r + 1), np.int64)
+        nr = 0 if r == 2 else n  # cdtw's work arrays, for r != 2 only
+        cum = np.empty((nr, m, 2 * r + 1))
+        plen = np.empty((nr, m, 2 * r + 1), np.int64)
+        back = np.empty((nr, m, 2 * r + 1), np.int64)
         cost2 = np.empty((2, 5, m))
         plen2 = np.empty((2, 5, m), np.int64)
         memo = np.full(n_c, np.nan)
@@ -266,7 +256,7 @@ def knn_pruned(
                 break
             if _excluded(t, clip_of, self_clip, self_pos, radius):
                 continue
-            v = _word_distance(dg, i0, t, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
+            v = _word_distance(dg, i0, t, n, tlen, r, cum, plen, back, cost2, plen2, memo)
             if v > best_d[k - 1]:
                 continue
             u = t - 1
@@ -275,7 +265,7 @@ def knn_pruned(
                 and tlen[u] > 0
                 and clip_of[u] == clip_of[t]
                 and not lbw[u] * slack > v
-                and not v < _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
+                and not v < _word_distance(dg, i0, u, n, tlen, r, cum, plen, back, cost2, plen2, memo)
             ):
                 continue
             u = t + 1
@@ -284,7 +274,7 @@ def knn_pruned(
                 and tlen[u] > 0
                 and clip_of[u] == clip_of[t]
                 and not lbw[u] * slack > v
-                and not v <= _word_distance(dg, i0, u, n, tlen, r, cur, prev, lcur, lprev, cost2, plen2, memo)
+                and not v <= _word_distance(dg, i0, u, n, tlen, r, cum, plen, back, cost2, plen2, memo)
             ):
                 continue
             _insert_topk(best_d, best_t, k, v, t)

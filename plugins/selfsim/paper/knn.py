@@ -1,20 +1,11 @@
 """Fast exact K-nearest motion-words (Aristidou 2018 §3.2-3.3) with lower-bound pruning.
 
-The paper's MATLAB compared every source word with every target word by DTW (140 s for a
-20 s clip, about 3 h for a 600 s context). Here:
-
-1. eq. 1 is computed once per (source frame, context frame) pair and joint group, in
-   blocks of source frames, by a compiled kernel (the per-joint geodesic terms are shared
-   by all groups);
-2. the constrained DTW runs in a compiled kernel on sub-blocks of that matrix;
-3. a lower bound of the DTW word distance (weighted row/column minima, see
-   :mod:`._mdm_kernels`) orders the target starts and stops the search once no remaining
-   start can enter the KNN, so the answer equals the brute-force KNN (its twin in the
-   tests, ``tests/naive/cleaning.py``).
-
-The KNN of a source word are the ``K`` smallest local minima of its distance function over
-the context target starts (per clip), leaving out minima within ``radius`` frames of the
-source word itself.
+Eq. 1 is computed once per (source frame, context frame) pair and joint group in blocks, the
+constrained DTW in compiled kernels, and a lower bound of the word distance
+(:mod:`._mdm_kernels`) orders the target starts and stops the search once no start can
+enter the KNN: the answer equals the brute force (``tests/naive/cleaning.py``). The KNN of
+a source word are the ``K`` smallest local minima of its distance over the context's target
+starts (per clip), minima within ``radius`` frames of the source word itself left out.
 """
 
 from __future__ import annotations
@@ -31,15 +22,8 @@ from .motion_words import JointGroups, target_word_layout
 
 @dataclass(frozen=True)
 class ContextTextures:
-    """Textures of the context clips concatenated frame-wise.
-
-    Attributes
-    ----------
-    q : ndarray of shape (C, m, 4)
-        Sign-continuous texture rotations (continuity restarts at each clip).
-    clip_lengths : ndarray of int64, shape (n_clips,)
-    names : tuple of str
-    """
+    """Textures of the context clips concatenated frame-wise: ``q`` (C, m, 4), sign-continuous
+    within each clip; ``clip_lengths`` (n_clips,) int64; ``names``."""
 
     q: np.ndarray
     clip_lengths: np.ndarray
@@ -64,23 +48,11 @@ class ContextTextures:
 
 @dataclass
 class WordNeighbours:
-    """The KNN of every source word for every joint group.
-
-    Attributes
-    ----------
-    starts : ndarray of int64, shape (S,)
-        Source word start frames.
-    groups : JointGroups
-    target : ndarray of int64, shape (G, S, K)
-        Context frame where each neighbour target word starts, -1 where fewer than K local
-        minima exist.
-    distance : ndarray of float64, shape (G, S, K)
-        Word distances (mean pose distance along the DTW path), ascending; inf where none.
-    warped : ndarray of float64, shape (G, S, K, N, m, 4)
-        Each neighbour's time-warped target word resampled to the source length (all
-        texture joints; the group's joints are the ones that were compared).
-    n_dtw : int
-        DTWs computed (brute force would compute one per word, group and target start).
+    """The KNN of every source word for every joint group: ``starts`` (S,) source word
+    starts; ``target`` (G, S, K) int64 context frame of each neighbour word (-1: fewer than K
+    minima); ``distance`` (G, S, K) mean pose distance along the DTW path, ascending (inf:
+    none); ``warped`` (G, S, K, N, m, 4) each neighbour's warped target word at the source
+    length; ``n_dtw`` DTWs computed.
     """
 
     starts: np.ndarray
@@ -122,34 +94,12 @@ def knn_search(
     radius: int | None = None,
     block_rows: int = 192,
 ) -> WordNeighbours:
-    """K nearest target words of each source word, per joint group.
+    """K nearest target words of each source word of ``source_q`` (T, m, 4), per joint group.
 
-    Parameters
-    ----------
-    source_q : ndarray of shape (T, m, 4)
-        Texture of the clip being cleaned.
-    context : ContextTextures
-        Where to look; may contain the source clip itself (``self_clip``).
-    groups : JointGroups
-    self_clip : int
-        Position of the source clip in ``context`` (-1 if absent): minima within ``radius``
-        frames of a source word in its own clip are discarded.
-    source_length, target_length : int
-        Word lengths N and M, frames.
-    word_starts : ndarray of int64, shape (S,)
-        Source word starts (increasing).
-    k : int
-        Neighbours per word.
-    slope_run : int
-        Most consecutive non-diagonal DTW steps in one direction.
-    radius : int or None
-        Exclusion radius in frames; ``None`` = N // 2 (the paper's N/2).
-    block_rows : int
-        Source frames per eq. 1 block (memory: G * block_rows * C * 4 bytes).
-
-    Returns
-    -------
-    WordNeighbours
+    ``self_clip``: position of the source clip in ``context`` (-1: absent), whose minima
+    within ``radius`` frames (None: N // 2, the paper's N/2) of the source word are left out;
+    ``word_starts`` (S,) increasing; ``slope_run``: most consecutive non-diagonal DTW steps;
+    ``block_rows``: source frames per eq. 1 block (memory G * block_rows * C * 4 bytes).
     """
     from . import _mdm_kernels as kern
 

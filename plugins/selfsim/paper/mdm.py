@@ -1,23 +1,10 @@
 """The movement digression map (MDM) of Aristidou et al. 2018: the analysis of ``cleaners.mdm``.
 
-Pipeline of one clip (paper section in brackets):
-
-1. resample to 24 fps, drop the root translation, align the facing direction, take the
-   texture of the 24 most informative joints (§3.1, §5 Implementation);
-2. source words of 15 frames every 5 frames, target words of 20 frames at every context
-   frame, compared per joint group by constrained DTW over eq. 1 (§3.2, Appendix);
-3. KNN = the K = 5 smallest local minima of each word's distance function, away from the
-   word itself (§3.3), found exactly by :mod:`.knn`;
-4. mean-motion-texture T̄ (chordal quaternion mean of every KNN word covering a cell),
-   ``M = |T - T̄|`` as a geodesic angle, each joint's row divided by its mean (floored at
-   :data:`MEAN_FLOOR`, so a joint the capture never rotates is not scaled up to 1
-   everywhere) and ``MDM = 1 - exp(-M^2)`` (§3.4).
-
-``mode: paper`` repairs the cells above 0.5 from the median KNN word (§4, :mod:`.repair`);
-``mode: calibrated`` decides on the same analysis with a detector fitted on the clean
-context (:mod:`..calibrated`). Contexts (§3.1, §5): ``None`` (the clip itself), a Motion,
-a list of Motions or a :class:`~mocapflow.framework.database.MotionDatabase`; the clip is
-added to its context unless ``include_self`` is off.
+Texture at 24 fps (§3.1, §5), source words of N frames every step against target words of M
+at every context frame per joint group (§3.2), the KNN (:mod:`.knn`, §3.3), the
+mean-motion-texture T̄ (chordal mean of the KNN words covering a cell), ``M = |T - T̄|``
+over its row mean (floored at :data:`MEAN_FLOOR`) and ``MDM = 1 - exp(-M^2)`` (§3.4).
+Contexts: ``None`` (the clip itself), a Motion, a list of Motions or a MotionDatabase.
 """
 
 from __future__ import annotations
@@ -40,30 +27,16 @@ if TYPE_CHECKING:
 
 __all__ = ["DigressionResult", "context_motions", "digression_map"]
 
-#: Floor of the row mean of ``M`` (radians): a joint whose difference is numerically zero
-#: everywhere is not blown up to 1.
+#: Floor of the row mean of ``M`` (radians): a joint never rotated is not blown up to 1.
 MEAN_FLOOR = 0.01
 
 
 @dataclass
 class DigressionResult:
-    """Everything :func:`digression_map` computed for one clip (at the analysis rate).
-
-    Attributes
-    ----------
-    texture : Texture
-    mean_texture : ndarray of shape (T, m, 4)
-        T̄; equal to the texture where no KNN word covers a cell.
-    difference : ndarray of shape (T, m)
-        Geodesic angle between T and T̄, radians (before row normalisation).
-    mdm : ndarray of shape (T, m), values in [0, 1]
-    neighbours : list of WordNeighbours
-        The KNN search (empty when the clip is shorter than one word).
-    seconds : float
-    n_dtw : int
-    spread : ndarray of shape (T, m)
-        Scatter of the KNN samples about T̄ per cell, radians (:func:`knn_spread`).
-    """
+    """Everything :func:`digression_map` computed for one clip, (T, m) at the analysis rate:
+    ``mean_texture`` T̄ (T, m, 4) (the texture where no KNN word covers a cell),
+    ``difference`` (angle T to T̄, radians), ``mdm`` in [0, 1], ``neighbours`` (empty when
+    the clip is shorter than one word), ``spread`` (:func:`knn_spread`)."""
 
     texture: Texture
     mean_texture: np.ndarray
@@ -80,13 +53,8 @@ class DigressionResult:
 
 
 def accumulate(neigh: WordNeighbours, n_frames: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Sum of ``q q^T`` of every KNN word over the cells it covers, and how many.
-
-    Returns
-    -------
-    outer : ndarray of shape (T, m, 4, 4)
-    count : ndarray of shape (T, m), int64
-    """
+    """Sum of ``q q^T`` of every KNN word over the cells it covers (T, m, 4, 4), and how
+    many (T, m) int64."""
     m = neigh.warped.shape[4]
     outer = np.zeros((n_frames, m, 4, 4))
     count = np.zeros((n_frames, m), np.int64)
@@ -107,24 +75,9 @@ def accumulate(neigh: WordNeighbours, n_frames: int, n: int) -> tuple[np.ndarray
 
 
 def knn_spread(outer: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """Scatter of the KNN samples around their chordal mean, per cell (radians).
-
-    The largest eigenvalue of ``sum q q^T`` over ``n`` unit quaternions is ``n`` times the
-    mean of ``cos^2(theta_i / 2)``, ``theta_i`` the rotation angle from the chordal mean to
-    sample ``i``; ``2 arcsin(sqrt(1 - lambda / n))`` is then the RMS-style angle
-    (``sqrt(mean sin^2(theta_i / 2))`` mapped back to an angle) of the samples about T̄, in the
-    convention of :func:`~mocapflow.framework.quaternions.geodesic_angle`.
-
-    Parameters
-    ----------
-    outer : ndarray of shape (T, m, 4, 4)
-    count : ndarray of shape (T, m)
-
-    Returns
-    -------
-    ndarray of shape (T, m)
-        0 where no sample covers the cell.
-    """
+    """Scatter of the KNN samples about their chordal mean per cell, radians (T, m); 0 where
+    none. The largest eigenvalue of ``outer`` over ``count`` is the mean ``cos^2(theta/2)``,
+    so ``2 arcsin(sqrt(1 - lambda / n))`` is the RMS-style angle of the samples about T̄."""
     out = np.zeros(count.shape)
     covered = count > 0
     if covered.any():
@@ -148,24 +101,8 @@ def digression_from_outer(
     return mean_q, diff, spread, 1.0 - np.exp(-(m**2))
 
 
-def digression_map(motion: Motion, context: Any = None, params: MDMParams | None = None) -> DigressionResult:
-    """The MDM of ``motion`` against ``context`` (see module doc).
-
-    Parameters
-    ----------
-    motion : Motion
-    context : None, Motion, list of Motion or MotionDatabase
-    params : MDMParams
-
-    Returns
-    -------
-    DigressionResult
-    """
-    if params is None:
-        from ..cleaner import MDMParams
-
-        params = MDMParams()
-    p = params
+def digression_map(motion: Motion, context: Any, p: MDMParams) -> DigressionResult:
+    """The MDM of ``motion`` against ``context`` (module doc) with the cleaner's parameters."""
     t0 = time.perf_counter()
     clips = context_motions(motion, context, p.include_self)
     joints = tuple(j for j in p.joints if all(j in c.skeleton.canonical for c in clips))

@@ -1,33 +1,16 @@
 """Motion textures, joint groups, the pose distance (eq. 1) and motion-words (Aristidou 2018).
 
-Glossary (this module's terms, used by :mod:`.mdm`, :mod:`.knn` and :mod:`.repair`)
------------------------------------------------------------------------------------
-texture
-    The clip's local joint rotations for ``m`` selected joints at 24 fps, shape
-    ``(T, m, 4)`` unit quaternions (w, x, y, z), sign-continuous in time per joint. Row ``k``
-    of the paper's texture is joint ``k`` here (we keep time first, as every array of the
-    framework does). The root rotation has its heading removed
-    (:func:`mocapflow.framework.normalize.align_facing`) and the root translation is
-    dropped, so poses compare regardless of where and which way the performer stands.
-joint group
-    A named, possibly overlapping subset of the texture joints (whole body, upper, lower,
-    left, right). Motion-words of a group compare only its joints.
-pose distance (eq. 1)
-    ``dist(i, j) = sum_k ||log(q_jk^-1 q_ik)||^2`` over the group's joints ``k``, leaving out
-    the ``drop`` largest terms (3 for the whole body, 1 for sub-groups) to be robust to a
-    few wrong joints. ``||log(q)||`` of a unit quaternion is half its rotation angle,
-    ``arccos |w|`` (sign invariant), so one term is at most ``(pi/2)^2``.
-source word
-    ``N = 15`` frames of the clip being cleaned, starting every ``5`` frames.
-target word
-    Up to ``M = 20`` frames of the context starting at *every* frame, never straddling two
-    clips; a start needs at least ``N`` frames left in its clip.
-rotation difference
-    For the movement digression map we need ``|T - T̄|`` for quaternions. We define it as
-    the geodesic angle (radians, in ``[0, pi]``) between the texture quaternion and the
-    chordal L2 mean of the quaternions the KNN words put on that cell (the principal
-    eigenvector of ``sum q q^T``, Markley et al. 2007), which is sign invariant and a proper
-    mean on the rotation group, unlike averaging Euler angles.
+* texture: local rotations of ``m`` joints at 24 fps, (T, m, 4) unit quaternions (w, x, y,
+  z), sign-continuous per joint, time first; root heading removed
+  (:func:`~mocapflow.framework.normalize.align_facing`) and root translation dropped, so
+  poses compare wherever and whichever way the performer stands.
+* joint group: a named, possibly overlapping subset of the texture joints.
+* eq. 1: ``dist(i, j) = sum_k ||log(q_jk^-1 q_ik)||^2`` over the group's joints without the
+  ``drop`` largest terms (robust to a few wrong joints); a term is ``arccos(|w|)^2``.
+* source words: N frames every step; target words: up to M frames at every context frame,
+  never straddling two clips, at least N frames left in the clip.
+* ``|T - T̄|``: the geodesic angle to the chordal L2 mean of the KNN quaternions of a cell
+  (principal eigenvector of ``sum q q^T``, Markley et al. 2007), sign invariant.
 """
 
 from __future__ import annotations
@@ -92,20 +75,9 @@ DEFAULT_GROUPS: tuple[tuple[str, tuple[str, ...], int], ...] = (
 
 @dataclass(frozen=True)
 class Texture:
-    """A clip's motion texture.
-
-    Attributes
-    ----------
-    q : ndarray of shape (T, m, 4)
-        Local rotations of the texture joints at ``fps``, sign-continuous in time.
-    joints : tuple of str
-        Canonical names of the ``m`` texture joints (column order of ``q``).
-    joint_index : ndarray of int64, shape (m,)
-        Skeleton joint index of each texture joint.
-    fps : float
-    motion : Motion
-        The resampled, facing-aligned motion the texture was taken from.
-    """
+    """A clip's motion texture: ``q`` (T, m, 4) at ``fps``, sign-continuous; ``joints`` the
+    canonical names of its columns; ``joint_index`` (m,) their skeleton indices; ``motion``
+    the resampled, facing-aligned motion it was taken from."""
 
     q: np.ndarray
     joints: tuple[str, ...]
@@ -120,16 +92,8 @@ class Texture:
 
 @dataclass(frozen=True)
 class JointGroups:
-    """Joint groups resolved against a texture's joints.
-
-    Attributes
-    ----------
-    names : tuple of str, length G
-    mask : ndarray of bool, shape (G, m)
-        Which texture joints belong to each group.
-    drop : ndarray of int64, shape (G,)
-        How many of the largest joint terms eq. 1 leaves out per group.
-    """
+    """Joint groups resolved against a texture's joints: ``names`` (G,), ``mask`` (G, m) bool,
+    ``drop`` (G,) largest joint terms eq. 1 leaves out."""
 
     names: tuple[str, ...]
     mask: np.ndarray
@@ -140,27 +104,9 @@ class JointGroups:
         return len(self.names)
 
 
-def present_joints(motion: Motion, joints: Sequence[str]) -> tuple[str, ...]:
-    """The canonical joints of ``joints`` that ``motion``'s skeleton maps."""
-    return tuple(j for j in joints if j in motion.skeleton.canonical)
-
-
 def motion_texture(motion: Motion, joints: Sequence[str] = DEFAULT_JOINTS, fps: float = 24.0) -> Texture:
-    """Resample ``motion`` to ``fps``, remove heading and root translation, take the texture.
-
-    Parameters
-    ----------
-    motion : Motion
-    joints : sequence of str
-        Canonical joint names, all of which the skeleton must map (use
-        :func:`present_joints` to keep only the available ones).
-    fps : float
-        Analysis frame rate (the paper uses 24 fps).
-
-    Returns
-    -------
-    Texture
-    """
+    """Resample ``motion`` to ``fps``, remove heading and root translation, take the texture
+    of ``joints`` (canonical names the skeleton must all map)."""
     missing = [j for j in joints if j not in motion.skeleton.canonical]
     if missing:
         raise DataError(f"motion {motion.name!r}: skeleton lacks texture joints {missing}")
@@ -192,16 +138,8 @@ def resolve_groups(texture_joints: Sequence[str], groups: Sequence[tuple[str, Se
 
 
 def joint_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Squared quaternion log-norm distances ``||log(b^-1 a)||^2`` per joint.
-
-    Parameters
-    ----------
-    a, b : ndarray of shape (..., m, 4)
-
-    Returns
-    -------
-    ndarray of shape (..., m), radians squared (half-angle convention, see module doc).
-    """
+    """Squared quaternion log-norm distances ``||log(b^-1 a)||^2`` (..., m) per joint of
+    ``a``, ``b`` (..., m, 4), radians squared (half-angle convention)."""
     d = np.abs(np.sum(a * b, axis=-1))
     return np.arccos(np.clip(d, 0.0, 1.0)) ** 2
 
@@ -232,16 +170,9 @@ def source_word_starts(n_frames: int, length: int, step: int) -> np.ndarray:
 def target_word_layout(
     clip_lengths: Sequence[int], source_length: int, target_length: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Target-word lengths and clip positions for every frame of a concatenated context.
-
-    Returns
-    -------
-    length : ndarray of int64, shape (sum(clip_lengths),)
-        ``min(target_length, frames left in the clip)`` where at least ``source_length``
-        frames are left, else 0 (no target word starts there).
-    clip : ndarray of int64, same shape
-        Position of the frame's clip in the context.
-    """
+    """Per frame of a concatenated context: the target-word length ``min(target_length,
+    frames left in the clip)`` (0 where fewer than ``source_length`` are left) and the
+    frame's clip position, both int64."""
     lengths, clips = [], []
     for c, n in enumerate(clip_lengths):
         left = n - np.arange(n, dtype=np.int64)

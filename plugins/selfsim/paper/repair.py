@@ -1,23 +1,7 @@
-"""Repair (Aristidou 2018 §4): replace flagged cells from the median KNN word, blend them.
-
-* Cells whose MDM exceeds the threshold (0.5) are erroneous. Each takes its value from the
-  *median* KNN word of the source word around its frame (the word whose centre is nearest;
-  of the joint groups holding the joint, the one whose KNN are closest). "Median" is the
-  medoid: the KNN word with the smallest summed distance to the other neighbours, an
-  actual motion (the paper's reason for not using the mean).
-* With contact constraints (effector joint, frame, position), the KNN word whose effector
-  lands closest to the contact replaces the medoid for the words covering that frame.
-* The replaced track of each joint is smoothed by a quadratic Savitzky-Golay filter and
-  only the flagged cells take the smoothed values, so the amended part blends into the
-  original motion and nothing else changes.
-* The repair is computed at the analysis rate (24 fps) and carried to the input frames as
-  a per-joint correction ``q_in * delta`` interpolated in time, applied only to input
-  frames next to a flagged analysis frame. With ``guard`` (the calibrated mode) an input
-  frame keeps its carried correction only when it lands nearer the repaired pose at that
-  time than the frame was: a correction computed on an analysis sample that caught a glitch
-  shorter than one analysis frame would otherwise turn the clean input frames beside it
-  the other way (CMU 16_15's left arm is broken in its first two 120-fps frames).
-* :func:`sparse_reconstruction`: full body from a subset of joints (§4, Fig. 8).
+"""Repair (Aristidou 2018 §4): flagged cells take the medoid KNN word's value (an actual
+motion, not a mean; with a contact, the word whose effector lands closest), blended by a
+quadratic Savitzky-Golay filter, at the analysis rate; :func:`apply_to_input` carries it to
+the input frames. :func:`sparse_reconstruction`: full body from some joints (Fig. 8).
 """
 
 from __future__ import annotations
@@ -189,23 +173,14 @@ GUARD_SLACK = 1e-6
 def apply_to_input(
     motion: Motion, texture: Any, new24: np.ndarray, flagged: np.ndarray, guard: bool = False
 ) -> tuple[Motion, np.ndarray]:
-    """Carry a repaired texture to the input frames; returns the motion and changed (T_in, J).
+    """Carry a repaired texture (T, m, 4), edited at ``flagged`` (T, m), to the input frames
+    as a per-joint right correction ``q_in * delta`` slerped in time, applied only next to a
+    flagged analysis frame; returns the motion and changed (T_in, J).
 
-    Parameters
-    ----------
-    motion : Motion
-        The input take, ``T_in`` frames at its own rate.
-    texture : Texture
-        Its analysis texture, ``T`` frames of ``m`` joints (``texture.q``, shape (T, m, 4)).
-    new24 : ndarray, shape (T, m, 4)
-        The repaired texture (equal to ``texture.q`` where nothing was edited).
-    flagged : ndarray of bool, shape (T, m)
-        The edited analysis cells.
-    guard : bool
-        Keep an input frame's carried correction only when the frame lands nearer (by
-        :data:`GUARD_SLACK`) the repaired pose interpolated at its time than it was; the
-        other frames stay as they were. At the analysis rate (each input frame an analysis
-        frame) every carried frame *is* the repaired pose, so the guard changes nothing there.
+    ``guard``: keep a frame's correction only when it lands nearer (by :data:`GUARD_SLACK`)
+    the repaired pose at its time than it was; a correction computed on an analysis sample
+    that caught a glitch shorter than one analysis frame would otherwise turn the clean input
+    frames beside it (CMU 16_15's left arm, its first two 120-fps frames).
     """
     q24 = texture.q
     delta = quat.mul(quat.conjugate(q24), new24)  # right correction: new = old * delta
@@ -214,9 +189,7 @@ def apply_to_input(
     i1 = np.minimum(i0 + 1, len(q24) - 1)
     w = x - i0
     rot = motion.rotations.copy()
-    # the input frames in the texture's frame (heading removed from the root), where the
-    # repaired poses live; a right correction commutes with that left turn. Computed (forward
-    # kinematics) at the first guarded joint only.
+    # input frames in the texture's (facing-aligned) frame, where the repaired poses live
     local = None
     changed = np.zeros((motion.n_frames, motion.n_joints), bool)
     for c, j in enumerate(texture.joint_index):
@@ -264,15 +237,11 @@ def edits_table(motion: Motion, cleaned: Motion, changed: np.ndarray, clip_id: i
 
 
 def sparse_reconstruction(sparse: Motion, context: Sequence[Motion], known: Sequence[str], params: Any) -> Motion:
-    """Full-body motion from the rotations of ``known`` joints (§4 "sparse data", Fig. 8).
-
-    Source words of ``sparse`` compared on the known joints only find KNN words in the
-    full-body ``context``; the first word is the nearest neighbour, each later one the
-    candidate whose first frame is closest to the previous word's frame at the same time,
-    and the words' unknown joints are stitched (each word fills the frames up to the next
-    word's start) and smoothed by the quadratic Savitzky-Golay filter. Known joints keep
-    their input rotations. Returns the motion at the analysis rate.
-    """
+    """Full-body motion at the analysis rate from the rotations of ``known`` joints (§4, Fig. 8):
+    source words compared on the known joints find KNN words in the full-body ``context``;
+    the first word is the nearest neighbour, each later one the candidate closest to the
+    previous word at their shared frame; the unknown joints are stitched and smoothed by the
+    Savitzky-Golay filter, the known ones keep their input rotations."""
     joints = tuple(j for j in params.joints if all(j in c.skeleton.canonical for c in [sparse, *context]))
     missing = [j for j in known if j not in joints]
     if missing:
