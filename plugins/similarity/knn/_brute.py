@@ -32,7 +32,6 @@ def brute_knn(
     excl: int,
     ids: np.ndarray | None = None,
     raw_bound: float | None = None,
-    parallel: bool = True,
     cap: int | None = None,
     block_rows: int = 32768,
     block_queries: int = 128,
@@ -55,8 +54,6 @@ def brute_knn(
         :func:`raw_sqnorm_bound` of ``data`` (computed once at build time).
     sqnorm_max : float, optional
         ``sqnorms.max()``, likewise computed once (an O(n) pass per call otherwise).
-    parallel : bool
-        Scan with numba threads (batches) or on the calling thread (single queries).
     cap : int, optional
         Candidate buffer per query (default ``4 k + 256``); queries that overflow it (dense
         neighbourhoods, massive ties) are answered again with a 4x larger one.
@@ -75,7 +72,6 @@ def brute_knn(
     out_i = np.full((m, k), -1, np.int64)
     ymax = sqnorm_max if sqnorm_max is not None else (float(sqnorms.max()) if n else 0.0)
     yraw = raw_bound if raw_bound is not None else (float(raw_sqnorm_bound(data)) if n else 0.0)
-    scan = kern.scan_block if parallel else kern.scan_block_serial
     for q0 in range(0, m, block_queries):
         q_orig = queries[q0 : q0 + block_queries]
         q = q_orig - mean
@@ -96,7 +92,7 @@ def brute_knn(
         for y0 in range(0, n, block_rows):
             g = q @ data[y0 : y0 + block_rows].T
             args = (heap, cand_i, cand_v, cand_n, overflow, tol2, r2 + tol2, excl, groups, frames, qg, qf)
-            scan(g, sqnorms, const, y0, *args)
+            kern.scan_block(g, sqnorms, const, y0, *args)
         keep = (np.arange(cap)[None, :] < cand_n[:, None]) & (cand_v <= (heap[:, 0] + tol2)[:, None])
         cr, col = np.nonzero(keep)
         cc = cand_i[cr, col]
@@ -124,7 +120,7 @@ def brute_knn(
         redo = np.flatnonzero(overflow)
         if redo.size:  # a buffer of n rows never overflows, so this terminates
             args = (q_orig[redo], data, mean, sqnorms, k, r2, groups, frames, qg[redo], qf[redo], excl, ids, yraw)
-            d2, i2 = brute_knn(*args, parallel, min(4 * cap, n + 1), block_rows, block_queries, sqnorm_max=ymax)
+            d2, i2 = brute_knn(*args, min(4 * cap, n + 1), block_rows, block_queries, sqnorm_max=ymax)
             out_d[q0 + redo], out_i[q0 + redo] = d2, i2
     return out_d, out_i
 

@@ -325,7 +325,6 @@ class KDTreeIndex(CostModel, Index):
                     excl,
                     ids=self.perm_,
                     raw_bound=self._raw_bound,
-                    parallel=m >= 4 and kern.threads() > 1,
                     sqnorm_max=self._sqnorm_max,
                 )
             # consecutive queries seed each other's bound (see the module doc): contiguous chunks,
