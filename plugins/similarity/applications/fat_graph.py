@@ -1,38 +1,17 @@
 """``analyses.fat_graph``: base poses of a fat graph in O(n log n) (Krüger et al. 2010, §5.3).
 
-Shin & Oh (2006) cluster a motion collection into "base poses" from a dense distance
-matrix, O(n^2) in the number of frames n. Krüger et al. replace it with kd-tree searches:
+Shin & Oh (2006) cluster frames into base poses from a dense O(n^2) distance matrix;
+Krüger et al. use kd-tree searches: the neighbours of every frame within radius ``r`` (at
+most ``k``), then repeatedly the frame with the most *still uncovered* neighbours becomes a
+base pose and its neighbourhood is covered, until all frames are covered or
+``max_base_poses`` is reached. Counts are updated as frames are covered (O(n k) updates)
+and a lazy heap yields the next base pose (O(n k log n)); ties go to the smaller frame id.
 
-1. search the neighbours of every frame within a fixed radius ``r``, at most ``k`` of them
-   (O(k n log n));
-2. take the frame with the most neighbours as a base pose and remove its neighbourhood;
-   repeat until every frame is covered or ``max_base_poses`` is reached.
-
-Step 2 is run with the counts kept up to date: a frame's count is the number of its
-*still uncovered* neighbours (itself included), as in the repeated clustering of Shin & Oh.
-Every covered frame lowers the counts of the frames that list it (O(n k) updates in all),
-and a lazily updated heap yields the next base pose, so step 2 costs O(n k log n). Ties go to
-the smaller global frame id, which makes the result deterministic.
-
-Tables
-------
-data : one row per frame
-    ``clip_id, frame, cluster`` (position of the covering base pose in ``base_poses``,
-    -1 if the count limit stopped the cover first), ``n_neighbours`` (the capped
-    neighbourhood size, itself included).
-base_poses : one row per base pose, in selection order
-    ``cluster, clip_id, frame, n_neighbours, n_members``.
-segments : maximal runs of one cluster within a clip
-    ``clip_id, start_frame, end_frame`` (half-open), ``cluster`` (runs of uncovered frames
-    have cluster -1), so the segments tile every clip.
-transitions : the graph's edges as they occur along the clips
-    ``clip_id, frame`` (first frame of the new cluster), ``from_cluster, to_cluster``;
-    uncovered frames are skipped.
-edges : the fat graph's edges aggregated
-    ``from_cluster, to_cluster, n_transitions``.
-
-With a ``motions`` input the step also writes ``base_poses.png``: the base poses as stick
-figures in their root frame (matplotlib, Agg backend, imported only then).
+Tables: ``data`` (per frame: ``clip_id, frame, cluster`` (-1: uncovered), ``n_neighbours``),
+``base_poses`` (``cluster, clip_id, frame, n_neighbours, n_members``), ``segments`` (runs of
+one cluster tiling every clip: ``clip_id, start_frame, end_frame, cluster``), ``transitions``
+(``clip_id, frame, from_cluster, to_cluster``), ``edges`` (``from_cluster, to_cluster,
+n_transitions``). With a ``motions`` input also ``base_poses.png`` (stick figures).
 """
 
 from __future__ import annotations

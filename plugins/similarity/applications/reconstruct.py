@@ -1,49 +1,24 @@
 """``analyses.reconstruct``: full-body motion from sparse markers (Krüger et al. 2010, §5.2).
 
-The approach of Chai & Hodgins (2005) with the neighbourhood graph replaced by kNN
-searches in a feature space, run around the *newly synthesised* pose:
+Chai & Hodgins (2005) with kNN searches in a feature space around the *synthesised* pose.
+Per frame ``t``: predict from ``t-1, t-2`` (constant velocity); take the ``k`` nearest
+database poses around the prediction; fit a local linear model (local PCA with the
+neighbours' Gaussian prior, ``_local_model``); solve the small least-squares problem of
+markers + prior + prediction; search again around the result (``iterations``). The first
+frame starts from the database pose nearest its markers (24 headings); the first
+``backward_frames`` frames are solved again backwards.
 
-for every frame ``t`` (in order)
-    1. predict the pose from the synthesised poses ``t-1, t-2`` (constant velocity);
-    2. search the ``k`` nearest database poses around it on the chosen feature set;
-    3. fit a local linear model to them (local PCA with every component and the Gaussian
-       prior of the neighbours' sample covariance, solved in their span, see ``_local_model``);
-    4. take the pose of that model which best explains the markers, the prior and the
-       prediction (temporal smoothness) -- a small linear least-squares problem;
-    5. search again around this synthesised pose and repeat 3-4 (``iterations``).
+A pose is the vector of **root-normalised canonical joint positions** (metres, root at the
+origin facing +z), not one skeleton's rotations: priors come from databases with other
+skeletons (Table 3), the error is measured on positions, and markers are linear in them.
+Heading and ground position come from the markers (2-D Procrustes alternated with the
+solve). A synthesised pose has no clip around it, so its query vector is an affine map of
+the pose fitted on the prior (``feature_fit_r2`` in the summary). The output Motion aims
+the test clip's bones at the reconstructed positions (:func:`retarget.positions_to_motion`;
+``fk_avg_cm`` is its error).
 
-The first frame has no past: it starts from the database pose nearest to its markers
-(over 24 headings) and the first ``backward_frames`` frames are solved once more
-backwards, predicted from the frames after them.
-
-Pose parameterisation (the design choice)
-    A pose is the vector of **root-normalised canonical joint positions** (root at the
-    origin, facing +z; metres), not joint rotations of one skeleton. Table 3 draws priors
-    from another database (HDM05 for CMU clips) and from other CMU subjects, whose ASF
-    skeletons differ in bone lengths and axes; canonical positions are shared by all of
-    them, the error is measured on positions anyway (as in the paper), and sparse marker
-    constraints are linear in them, so step 4 is closed-form. The heading and the ground
-    position come from the markers: the root marker places the pose, and the heading is the
-    yaw that best aligns the model's marker joints with the observed ones (2-D Procrustes,
-    alternated with step 4). The first frame's heading is found by a search over 24 yaws.
-
-Query features
-    The kNN runs on the rows of any registered feature set (``features.end_effectors``,
-    PCA, windowed...). A synthesised pose has positions but no clip around it, so its query
-    vector is an affine map of the pose fitted by least squares on the prior database
-    (exact for the frame-based position feature sets, the best affine stand-in for the
-    windowed ones); ``feature_fit_r2`` in the summary says how well it fits.
-
-Output Motion
-    The reconstructed positions are turned into joint rotations of the *test clip's*
-    skeleton by aiming every bone at its reconstructed canonical descendants (Kabsch per
-    joint, all frames at once), so ``formats.export`` writes them as BVH/AMC. Errors are
-    measured on the reconstructed positions; ``fk_avg_cm`` reports the exported Motion's
-    (:func:`retarget.positions_to_motion`).
-
-Tables: ``data``/``clips``/``skeletons`` (a motions dataset of the reconstructions),
-``errors`` (per clip and canonical joint: ``mean_cm, max_cm``) and ``clip_errors`` (per
-clip: ``avg_cm`` mean over joints and frames, ``max_cm`` largest per-frame mean joint error).
+Tables: ``data``/``clips``/``skeletons`` (the reconstructions), ``errors`` (per clip and
+joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``).
 """
 
 from __future__ import annotations
@@ -411,6 +386,18 @@ def reconstruct_motion(
     }
 
 
+ERROR_COLUMNS = "clip_id:int32 name:string joint:string mean_cm:float64 max_cm:float64"
+CLIP_ERROR_COLUMNS = (
+    "clip_id:int32 name:string n_frames:int32 prior_frames:int64 avg_cm:float64 max_cm:float64 fk_avg_cm:float64 "
+    "frames_per_s:float64"
+)
+
+
+def _schema(columns: str) -> pa.Schema:
+    """``"name:type ..."`` (pyarrow type constructors) as a schema."""
+    return pa.schema([(n, getattr(pa, t)()) for n, t in (c.split(":") for c in columns.split())])
+
+
 class Reconstruct(Analysis):
     """Full-body motion from 6 sparse markers with kNN local linear pose priors (Krüger 2010 §5.2)."""
 
@@ -455,33 +442,8 @@ class Reconstruct(Analysis):
                 }
             )
         tables = motions_to_tables(motions, list(test_db.clip_ids))
-        tables["errors"] = pa.Table.from_pylist(
-            err_rows,
-            schema=pa.schema(
-                [
-                    ("clip_id", pa.int32()),
-                    ("name", pa.string()),
-                    ("joint", pa.string()),
-                    ("mean_cm", pa.float64()),
-                    ("max_cm", pa.float64()),
-                ]
-            ),
-        )
-        tables["clip_errors"] = pa.Table.from_pylist(
-            clip_rows,
-            schema=pa.schema(
-                [
-                    ("clip_id", pa.int32()),
-                    ("name", pa.string()),
-                    ("n_frames", pa.int32()),
-                    ("prior_frames", pa.int64()),
-                    ("avg_cm", pa.float64()),
-                    ("max_cm", pa.float64()),
-                    ("fk_avg_cm", pa.float64()),
-                    ("frames_per_s", pa.float64()),
-                ]
-            ),
-        )
+        tables["errors"] = pa.Table.from_pylist(err_rows, schema=_schema(ERROR_COLUMNS))
+        tables["clip_errors"] = pa.Table.from_pylist(clip_rows, schema=_schema(CLIP_ERROR_COLUMNS))
         frames = sum(r["n_frames"] for r in clip_rows)
         summary = {
             "clips": len(clip_rows),

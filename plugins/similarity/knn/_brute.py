@@ -32,7 +32,6 @@ def brute_knn(
     excl: int,
     ids: np.ndarray | None = None,
     raw_bound: float | None = None,
-    parallel: bool = True,
     cap: int | None = None,
     block_rows: int = 32768,
     block_queries: int = 128,
@@ -55,8 +54,6 @@ def brute_knn(
         :func:`raw_sqnorm_bound` of ``data`` (computed once at build time).
     sqnorm_max : float, optional
         ``sqnorms.max()``, likewise computed once (an O(n) pass per call otherwise).
-    parallel : bool
-        Scan with numba threads (batches) or on the calling thread (single queries).
     cap : int, optional
         Candidate buffer per query (default ``4 k + 256``); queries that overflow it (dense
         neighbourhoods, massive ties) are answered again with a 4x larger one.
@@ -69,28 +66,12 @@ def brute_knn(
     m, d = queries.shape
     n = data.shape[0]
     if n <= lean_max_rows and cap is None:
-        return lean_knn(
-            queries,
-            data,
-            mean,
-            sqnorms,
-            k,
-            r2,
-            groups,
-            frames,
-            qgroups,
-            qframes,
-            excl,
-            ids,
-            raw_bound,
-            parallel=parallel,
-            sqnorm_max=sqnorm_max,
-        )
+        args = (queries, data, mean, sqnorms, k, r2, groups, frames, qgroups, qframes, excl, ids, raw_bound)
+        return lean_knn(*args, sqnorm_max=sqnorm_max)
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     ymax = sqnorm_max if sqnorm_max is not None else (float(sqnorms.max()) if n else 0.0)
     yraw = raw_bound if raw_bound is not None else (float(raw_sqnorm_bound(data)) if n else 0.0)
-    scan = kern.scan_block if parallel else kern.scan_block_serial
     for q0 in range(0, m, block_queries):
         q_orig = queries[q0 : q0 + block_queries]
         q = q_orig - mean
@@ -110,24 +91,8 @@ def brute_knn(
         qf = np.ascontiguousarray(qframes[q0 : q0 + nq])
         for y0 in range(0, n, block_rows):
             g = q @ data[y0 : y0 + block_rows].T
-            scan(
-                g,
-                sqnorms,
-                const,
-                y0,
-                heap,
-                cand_i,
-                cand_v,
-                cand_n,
-                overflow,
-                tol2,
-                r2 + tol2,
-                excl,
-                groups,
-                frames,
-                qg,
-                qf,
-            )
+            args = (heap, cand_i, cand_v, cand_n, overflow, tol2, r2 + tol2, excl, groups, frames, qg, qf)
+            kern.scan_block(g, sqnorms, const, y0, *args)
         keep = (np.arange(cap)[None, :] < cand_n[:, None]) & (cand_v <= (heap[:, 0] + tol2)[:, None])
         cr, col = np.nonzero(keep)
         cc = cand_i[cr, col]
@@ -154,26 +119,8 @@ def brute_knn(
         out_i[q0 : q0 + nq, :w] = rid
         redo = np.flatnonzero(overflow)
         if redo.size:  # a buffer of n rows never overflows, so this terminates
-            d2, i2 = brute_knn(
-                q_orig[redo],
-                data,
-                mean,
-                sqnorms,
-                k,
-                r2,
-                groups,
-                frames,
-                qg[redo],
-                qf[redo],
-                excl,
-                ids=ids,
-                raw_bound=yraw,
-                parallel=parallel,
-                cap=min(4 * cap, n + 1),
-                sqnorm_max=ymax,
-                block_rows=block_rows,
-                block_queries=block_queries,
-            )
+            args = (q_orig[redo], data, mean, sqnorms, k, r2, groups, frames, qg[redo], qf[redo], excl, ids, yraw)
+            d2, i2 = brute_knn(*args, min(4 * cap, n + 1), block_rows, block_queries, sqnorm_max=ymax)
             out_d[q0 + redo], out_i[q0 + redo] = d2, i2
     return out_d, out_i
 
@@ -193,7 +140,6 @@ def lean_knn(
     ids=None,
     raw_bound=None,
     block_queries=None,
-    parallel=False,
     sqnorm_max=None,
 ):
     """:func:`brute_knn` over a small database, with little per-call work.
@@ -203,7 +149,7 @@ def lean_knn(
     approximate k-th and re-ranks the rows within ``2 tol`` of it with exact float64
     distances (summed in dimension order like the kd-tree), ties ordered by id.
     Exact, like :func:`brute_knn`; memory ``block_queries x n`` float32 (default: about
-    16 MB, 16 to 128 queries). ``parallel`` ranks the rows of a block on numba's threads.
+    16 MB, 16 to 128 queries); the rows of a block are ranked on numba's threads.
     """
     m, d = queries.shape
     n = data.shape[0]
@@ -232,29 +178,9 @@ def lean_knn(
         a *= -2.0
         a += sqnorms
         lim = r2 - const + tol2
-        if parallel:
-            kern.lean_rank_rows(
-                a, lim, 2.0 * tol2, k, queries, q0, data, ids, r2, excl, groups, frames, qgroups, qframes, out_d, out_i
-            )
-            continue
-        for r in range(len(qc)):
-            dd, ii = kern.lean_rank(
-                a[r],
-                lim[r],
-                2.0 * tol2[r],
-                k,
-                queries[q0 + r],
-                data,
-                ids,
-                r2,
-                excl,
-                groups,
-                frames,
-                qgroups[q0 + r],
-                qframes[q0 + r],
-            )
-            out_d[q0 + r, : len(dd)] = dd
-            out_i[q0 + r, : len(ii)] = ii
+        kern.lean_rank_rows(
+            a, lim, 2.0 * tol2, k, queries, q0, data, ids, r2, excl, groups, frames, qgroups, qframes, out_d, out_i
+        )
     return out_d, out_i
 
 

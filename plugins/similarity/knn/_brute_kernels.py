@@ -81,18 +81,6 @@ def scan_block(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, 
 
 
 @njit(cache=True)
-def scan_block_serial(
-    g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf
-):
-    """:func:`scan_block` on one thread (few queries: waking threads costs more than it saves)."""
-    for r in range(g.shape[0]):
-        if not overflow[r]:
-            _scan_row(
-                r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf
-            )
-
-
-@njit(cache=True)
 def exact_rank(q, data, cand, ids, k, r2):
     """The ``k`` nearest of the rows ``cand`` to ``q``: exact float64 squared distances
     (summed in dimension order, like the kd-tree's search) and ``ids``, ordered by (distance, id);

@@ -76,40 +76,16 @@ def _box_dist(q, lo, hi, node, d):
 
 
 @njit(cache=True)
-def _search(
-    q,
-    data,
-    perm,
-    start,
-    end,
-    left,
-    right,
-    sdim,
-    sval,
-    blo,
-    bhi,
-    groups,
-    frames,
-    qg,
-    qf,
-    excl,
-    hd,
-    hi_,
-    eps_fac,
-    r2,
-    st_node,
-    st_rd,
-    st_off,
-    cur_off,
-):
+def _search(q, tree, qg, qf, excl, hd, hi_, eps_fac, r2, st_node, st_rd, st_off, cur_off):
     """Depth-first search with an explicit stack (numba cannot cache recursive functions).
 
-    Each stacked far cell carries its incremental-distance vector ``off`` (per-dimension
-    distance from the query to the cell's split-plane rectangle) and its squared lower bound
-    ``rd``. The O(1) incremental bound decides what is stacked; a popped cell is tested again
-    on the exact distance to its points' bounding box (tighter, O(d)) against the current
-    bound, and so is a bucket reached by descending before its points are scanned.
+    ``tree`` is :meth:`.kdtree.KDTreeIndex._tree_args`' tuple. Each stacked far cell carries its
+    incremental-distance vector ``off`` (per-dimension distance from the query to the cell's
+    split-plane rectangle) and its squared lower bound ``rd``. The O(1) incremental bound decides
+    what is stacked; a popped cell is tested again on the exact distance to its points' bounding
+    box (tighter, O(d)) against the current bound, and so is a bucket reached by descending.
     """
+    data, perm, start, end, left, right, sdim, sval, blo, bhi, groups, frames = tree
     d = data.shape[1]
     top = 1
     st_node[0] = 0
@@ -193,33 +169,8 @@ def _seed_bound(q, prev, shift, data, inv, groups, frames, qg, qf, excl):
 
 
 @njit(cache=True)
-def _query_rows(
-    r0,
-    r1,
-    queries,
-    k,
-    eps_fac,
-    r2,
-    data,
-    perm,
-    start,
-    end,
-    left,
-    right,
-    sdim,
-    sval,
-    blo,
-    bhi,
-    groups,
-    frames,
-    qgroups,
-    qframes,
-    excl,
-    max_depth,
-    out_d,
-    out_i,
-    inv,
-):
+def _query_rows(r0, r1, queries, k, eps_fac, r2, tree, qgroups, qframes, excl, max_depth, out_d, out_i, inv):
+    data, groups, frames = tree[0], tree[10], tree[11]
     d = queries.shape[1]
     hd = np.empty(k)
     hi_ = np.empty(k, np.int64)
@@ -239,32 +190,7 @@ def _query_rows(
                 b = _seed_bound(q, out_i[r - 1], shift, data, inv, groups, frames, qgroups[r], qframes[r], excl)
                 if b < bound:
                     bound = b
-        _search(
-            q,
-            data,
-            perm,
-            start,
-            end,
-            left,
-            right,
-            sdim,
-            sval,
-            blo,
-            bhi,
-            groups,
-            frames,
-            qgroups[r],
-            qframes[r],
-            excl,
-            hd,
-            hi_,
-            eps_fac,
-            bound,
-            st_node,
-            st_rd,
-            st_off,
-            cur_off,
-        )
+        _search(q, tree, qgroups[r], qframes[r], excl, hd, hi_, eps_fac, bound, st_node, st_rd, st_off, cur_off)
         order = np.argsort(hd, kind="mergesort")
         for a in range(k):
             out_d[r, a] = hd[order[a]]
@@ -282,98 +208,27 @@ def _query_rows(
 
 
 @njit(cache=True, parallel=True)
-def query_tree(
-    queries,
-    k,
-    eps,
-    r2,
-    data,
-    perm,
-    start,
-    end,
-    left,
-    right,
-    sdim,
-    sval,
-    blo,
-    bhi,
-    groups,
-    frames,
-    qgroups,
-    qframes,
-    excl,
-    max_depth,
-    n_chunks,
-    inv,
-):
+def query_tree(queries, k, eps, r2, tree, qgroups, qframes, excl, max_depth, n_chunks, inv):
     """kNN of every query row; returns squared distances (float64) and row ids, sorted.
 
-    ``n_chunks <= 1`` runs on the calling thread (single queries: no thread wake-up).
-    ``inv`` (input id -> tree position; empty to disable, and it must be empty for
-    ``eps > 0``) lets each query after the first of its chunk start from the bound of
-    :func:`_seed_bound` (exact: consecutive query frames have nearby neighbours).
+    ``tree``: the arrays of :meth:`.kdtree.KDTreeIndex._tree_args`. ``n_chunks <= 1`` runs on
+    the calling thread (single queries: no thread wake-up). ``inv`` (input id -> tree position;
+    empty to disable, and it must be empty for ``eps > 0``) lets each query after the first of
+    its chunk start from the bound of :func:`_seed_bound` (exact: consecutive query frames have
+    nearby neighbours).
     """
     m = queries.shape[0]
     out_d = np.full((m, k), np.inf)
     out_i = np.full((m, k), -1, np.int64)
     eps_fac = (1.0 + eps) * (1.0 + eps)
     if n_chunks <= 1:
-        _query_rows(
-            np.int64(0),
-            m,
-            queries,
-            k,
-            eps_fac,
-            r2,
-            data,
-            perm,
-            start,
-            end,
-            left,
-            right,
-            sdim,
-            sval,
-            blo,
-            bhi,
-            groups,
-            frames,
-            qgroups,
-            qframes,
-            excl,
-            max_depth,
-            out_d,
-            out_i,
-            inv,
-        )
+        _query_rows(np.int64(0), m, queries, k, eps_fac, r2, tree, qgroups, qframes, excl, max_depth, out_d, out_i, inv)
         return out_d, out_i
+    t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11 = tree  # a parallel loop cannot capture a tuple
     for c in prange(n_chunks):
-        _query_rows(
-            c * m // n_chunks,
-            (c + 1) * m // n_chunks,
-            queries,
-            k,
-            eps_fac,
-            r2,
-            data,
-            perm,
-            start,
-            end,
-            left,
-            right,
-            sdim,
-            sval,
-            blo,
-            bhi,
-            groups,
-            frames,
-            qgroups,
-            qframes,
-            excl,
-            max_depth,
-            out_d,
-            out_i,
-            inv,
-        )
+        tr = (t0, t1, t2, t3, t4, t5, t6, t7, t8, t9, t10, t11)
+        a, b = c * m // n_chunks, (c + 1) * m // n_chunks
+        _query_rows(a, b, queries, k, eps_fac, r2, tr, qgroups, qframes, excl, max_depth, out_d, out_i, inv)
     return out_d, out_i
 
 

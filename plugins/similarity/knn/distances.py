@@ -34,12 +34,12 @@ import numpy as np
 from mocapflow.framework import MotionDatabase
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.errors import DataError
-from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.motion import Motion
 
+from .pca import PCA_JOINTS
+
 WB_JOINTS = ("lhip", "rhip", "lknee", "rknee", "lshoulder", "rshoulder", "lelbow", "relbow")
-_NOT_PC = ("upperback", "headtop", "lclavicle", "lfingers", "rclavicle", "rfingers")
-PC_JOINTS = tuple(j for j in CANONICAL_JOINTS if j not in _NOT_PC)
+PC_JOINTS = ("root", *PCA_JOINTS)
 DISTANCE_MEASURES = ("D_quat", "D_euler", "D_pc1", "D_pc11", "D_wb")
 
 

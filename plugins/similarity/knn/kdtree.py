@@ -251,7 +251,7 @@ class KDTreeIndex(CostModel, Index):
         from . import _knn_kernels as kern
 
         tree, no_seed = targs
-        d2, ids = kern.query_tree(x, k, 0.0, np.inf, *tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
+        d2, ids = kern.query_tree(x, k, 0.0, np.inf, tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
         return np.sqrt(d2).astype(np.float32), ids
 
     def query_rows(
@@ -325,7 +325,6 @@ class KDTreeIndex(CostModel, Index):
                     excl,
                     ids=self.perm_,
                     raw_bound=self._raw_bound,
-                    parallel=m >= 4 and kern.threads() > 1,
                     sqnorm_max=self._sqnorm_max,
                 )
             # consecutive queries seed each other's bound (see the module doc): contiguous chunks,
@@ -338,7 +337,7 @@ class KDTreeIndex(CostModel, Index):
                 k,
                 eps,
                 r2,
-                *tree,
+                tree,
                 qg,
                 qf,
                 excl,

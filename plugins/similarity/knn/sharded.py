@@ -1,32 +1,13 @@
 """``indexes.sharded``: an exact kNN index split by clip ranges into shards, queried exactly.
 
-The indexed rows are cut into contiguous ranges at clip boundaries (``shards`` ranges of
-about equal size, or as many as ``max_rows`` per shard needs); each range is an ordinary
-index (``indexes.kdtree`` by default, through its public contract), built on a worker in a
-pipeline and saved in the step's folder (``index/shard-000/`` ...). A query asks every
-shard for its ``k`` best and merges them: the global ``k`` best are among the union, so the
-merge is exact. Ties are broken as the unsharded kd-tree breaks them, by squared float64
-distance (recomputed for the merged candidates in the kd-tree's summation order) and then
-by row id, so the result equals one unsharded index (``tests/test_sharded_index.py``).
-
-Radius and clip exclusion (``exclude``, ``query_groups``, ``query_frames``) are handed to
-every shard; ``query_rows`` takes global row ids. With an executor of several workers
-(``query(..., executor=ex)``, or :meth:`ShardedIndex.attach`) a batch fans out by
-``fan_out``:
-
-* ``queries`` (default): contiguous blocks of the queries, two per worker; each worker
-  holds the whole sharded index (loaded once per process, memory-mapped, so the workers of
-  a host share its pages) and answers its block from every shard, merged there. Measured
-  at 1,038,388 rows (``benchmarks/scale.py``): 2 workers do the batch on 0.37 s of CPU
-  each, against 0.82 s for one process, 2.2x on idle cores.
-* ``shards``: every shard all the queries, one task per shard, merged by the caller. A
-  kd-tree query costs almost as much on half the rows as on all of them (logarithmic
-  descent), so each worker still spends nearly one whole index's time per query: 1.85x on
-  idle cores at best, 0.97x measured under load. It is the layout for shards that do not fit
-  one worker's memory.
-
-Each shard is loaded once per process (:func:`~mocapflow.framework.clip_refs.cached`),
-never once per task.
+Rows are cut at clip boundaries into ``shards`` ranges (or as many as ``max_rows`` needs);
+each is an ordinary index (``indexes.kdtree`` by default), saved as ``index/shard-000/`` ....
+A query merges every shard's ``k`` best; ties break as in the unsharded kd-tree (squared
+float64 distance in its summation order, then row id), so the result equals one index.
+With an executor of several workers a batch fans out by ``fan_out`` (measured:
+docs/knn.md, docs/scale-out.md): ``queries`` sends blocks of queries to workers that each
+hold the whole index (loaded once per process, memory-mapped); ``shards`` sends each shard
+all queries (for shards larger than one worker's memory).
 """
 
 from __future__ import annotations

@@ -1,27 +1,13 @@
 """Certified-exact global matching (``matchers.search``): subsequence DTW's top matches, pruned by an admissible bound.
 
-``certified_sdtw`` returns exactly what :func:`.sdtw.subsequence_dtw` returns (same matches,
-costs, paths; any ``rank_by: cost`` setting) while running the DP only where a lower bound
-cannot rule a path of cost <= ``tau`` out (proof: ``docs/global-matching.md``). How it prunes
-is one frozen :class:`CertifiedSettings` (speed only, never the result):
-
-1. a threshold ``tau`` from real alignments with their exact costs: a given graph's
-   ``count``-th match, else the fine DP over windows around the index's nearest rows of
-   ``seed_frames`` query frames (:func:`_seed_tau`), else over the blocks of lowest coarse
-   bound (:func:`_guess_tau`); capped by ``max_cost``. Any value is safe (step 4);
-2. a coarse subsequence DTW over blocks of consecutive rows, each cell costing the query
-   frame's distance to the block's bounding box, bounds every fine path from below
-   (forward + backward, :func:`._coarse_kernels.coarse_bounds`), level by level (``levels``),
-   each level only over the runs of blocks still alive (bound <= ``tau``) at the level
-   above; where the levels above pruned little (``subspace_from`` of a level's blocks in
-   play), levels with a basis (``subspace``) use *local subspace cells* instead of boxes
-   (:func:`._coarse_kernels.subspace_bounds`), tighter and 1.2-1.5x dearer per cell;
-3. the fine DP (:func:`._dtw_kernels.sdtw_ranges_compact`) runs over the rows still alive;
-   every end row whose best path costs <= ``tau`` gets exactly sDTW's cost, start and length;
-4. the same greedy selection on those candidates yields ``count`` matches, which are then
-   sDTW's; if it yields fewer, ``tau`` is doubled (three times at most), then set to
-   ``max_cost`` (or unbounded: the whole DP, plain sDTW). Below ``direct_cells`` DP cells,
-   and once ``full_from`` of the rows are alive, the whole DP runs at once.
+``certified_sdtw`` returns exactly what :func:`.sdtw.subsequence_dtw` returns while running
+the DP only where a lower bound cannot rule out a path of cost <= ``tau`` (steps and proof:
+docs/global-matching.md): ``tau`` from real alignments (:func:`_seed_tau`,
+:func:`_guess_tau`); coarse bounds level by level over blocks of rows, boxes or subspace
+cells (:mod:`._coarse_kernels`); the fine DP over the rows still alive
+(:func:`._dtw_kernels.sdtw_ranges_compact`); the greedy selection, with ``tau`` doubled
+(then unbounded) if it yields fewer than ``count``. :class:`CertifiedSettings` changes
+speed only, never the result.
 """
 
 from __future__ import annotations
@@ -36,7 +22,7 @@ from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 
-from .matcher_base import block_boxes_of, block_subspaces_of
+from .matcher_base import block_boxes_of, block_subspaces_of, match_kw
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
@@ -365,16 +351,7 @@ class CertifiedSearch(Matcher):
     settings: ClassVar[CertifiedSettings] = DEFAULT_SETTINGS
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
-        p = self.params
-        return certified_sdtw(
-            query,
-            space,
-            count=p.count,
-            max_cost=p.max_cost,
-            rank_by=p.rank_by,
-            min_span=p.min_span,
-            settings=self.settings,
-        )
+        return certified_sdtw(query, space, **match_kw(self.params), settings=self.settings)
 
     def after_match(self, query_id, query, matches, space, ctx) -> None:
         from .plots import plot_matches

@@ -29,6 +29,7 @@ from mocapflow.framework import Matcher
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace
 
 from .graph import build_graph
+from .matcher_base import match_kw
 
 #: gap band of the default graph, in query frames (measured: docs/global-matching.md)
 GAPS = 32
@@ -110,25 +111,9 @@ class LazyNeighborhoodGraph(Matcher):
         if p.exact is not False:
             from .exact import certified_sdtw
 
-            return certified_sdtw(
-                query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span
-            )
-        if p.paper:
-            return lazy_neighborhood_graph(
-                query,
-                space,
-                k=p.k,
-                count=p.count,
-                max_cost=p.max_cost,
-                rank_by=p.rank_by,
-                min_span=p.min_span,
-                propagate=0,
-                gaps=0,
-                fill=False,
-            )
-        return lazy_neighborhood_graph(
-            query, space, k=p.k, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span
-        )
+            return certified_sdtw(query, space, **match_kw(p))
+        paper = {"propagate": 0, "gaps": 0, "fill": False} if p.paper else {}
+        return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p), **paper)
 
     def check_plan(self, base_dir) -> list[str]:
         """The alias's warning at the step's line of the plan (and in the run log)."""

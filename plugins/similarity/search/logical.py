@@ -27,6 +27,7 @@ from mocapflow.framework.matching import IntervalSet, MatchParams, QueryMatches,
 from mocapflow.framework.queries import features_dataset, queries_table, search_space, step_queries, upstream
 
 from .lng import GAPS, PROPAGATE, lazy_neighborhood_graph
+from .matcher_base import match_kw
 
 
 @dataclass
@@ -160,10 +161,7 @@ class LogicalSearch(Matcher):
             max_matches=p.max_matches,
             exclude=exclude,
             k=p.k,
-            count=p.count,
-            max_cost=p.max_cost,
-            rank_by=p.rank_by,
-            min_span=p.min_span,
+            **match_kw(p),
         )
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:

@@ -12,6 +12,11 @@ from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace
 
 
+def match_kw(p) -> dict:
+    """The shared :class:`MatchParams` as keywords of the matching functions."""
+    return {"count": p.count, "max_cost": p.max_cost, "rank_by": p.rank_by, "min_span": p.min_span}
+
+
 def block_boxes_of(space: SearchSpace, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Row blocks of at most ``size`` rows within runs and their feature boxes, cached on
     the space (:func:`._coarse_kernels.block_boxes`; needs ``features``)."""

@@ -18,6 +18,8 @@ from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace, min_frames_of, select_matches
 
+from .matcher_base import match_kw
+
 
 def validate_query(query: np.ndarray, dim: int) -> np.ndarray:
     """``(m, dim)`` float32, finite, at least one frame."""
@@ -113,5 +115,4 @@ class SubsequenceDTW(Matcher):
     Params = MatchParams
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
-        p = self.params
-        return subsequence_dtw(query, space, count=p.count, max_cost=p.max_cost, rank_by=p.rank_by, min_span=p.min_span)
+        return subsequence_dtw(query, space, **match_kw(self.params))
