@@ -40,7 +40,7 @@ from mocapflow.framework.matching import SearchSpace
 from mocapflow.framework.normalize import resample
 from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
-from mocapflow.plugins.similarity.search.exact import ExactStats, certified_sdtw
+from mocapflow.plugins.similarity.search.certified import ExactStats, certified_sdtw
 from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph
 from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 

@@ -16,7 +16,7 @@ from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.search._coarse_kernels import block_boxes, coarse_bounds
 from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_ranges_compact
-from mocapflow.plugins.similarity.search.exact import CertifiedSettings, ExactStats, certified_sdtw
+from mocapflow.plugins.similarity.search.certified import CertifiedSettings, ExactStats, certified_sdtw
 from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -328,7 +328,7 @@ def test_certified_equals_sdtw_on_hdm05():
 def test_matcher_is_exactly_sdtw_on_a_pruned_search():
     # what matchers.search promises: subsequence DTW's matches, here on a database large enough
     # (> direct_cells) that the pruned coarse-to-fine search runs
-    from mocapflow.plugins.similarity.search.exact import DEFAULT_SETTINGS, CertifiedSearch
+    from mocapflow.plugins.similarity.search.certified import DEFAULT_SETTINGS, CertifiedSearch
 
     matcher = CertifiedSearch()
     p = matcher.params
@@ -345,7 +345,7 @@ def test_matcher_is_exactly_sdtw_on_a_pruned_search():
 
 def test_lng_alias_warns_and_equals_search():
     # one release: matchers.lng without exact: false is matchers.search, with a DeprecationWarning
-    from mocapflow.plugins.similarity.search.exact import CertifiedSearch
+    from mocapflow.plugins.similarity.search.certified import CertifiedSearch
     from mocapflow.plugins.similarity.search.lng import LazyNeighborhoodGraph
 
     clip_id, frame, x = make_db([500] * 20, seed=3)
@@ -383,7 +383,7 @@ def test_alive_runs_equals_block_ranges(seed):
     from naive.coarse import naive_alive_runs
 
     from mocapflow.plugins.similarity.search._coarse_kernels import alive_runs
-    from mocapflow.plugins.similarity.search.exact import block_ranges
+    from mocapflow.plugins.similarity.search.certified import block_ranges
 
     rng = np.random.default_rng(seed)
     nb = int(rng.integers(1, 80))

@@ -120,7 +120,7 @@ def test_cycle_finder_finds_a_cycle():
 def test_graph_sees_relative_and_deferred_imports():
     g = import_graph()
     # inside a function of plugins/similarity/search/lng.py
-    assert "mocapflow.plugins.similarity.search.exact" in g["mocapflow.plugins.similarity.search.lng"]
+    assert "mocapflow.plugins.similarity.search.certified" in g["mocapflow.plugins.similarity.search.lng"]
     assert "mocapflow.framework.schema" in g["mocapflow.framework.motion_tables"]
     assert "mocapflow.plugins.similarity.search.lng" in g["mocapflow.plugins.similarity.search.logical"]
 

@@ -15,7 +15,7 @@ from mocapflow.framework.errors import ConfigError
 from mocapflow.framework.matching import MATCH_COLUMNS, SearchSpace
 from mocapflow.framework.queries import parse_query_spec
 from mocapflow.framework.steps import run_step
-from mocapflow.plugins.similarity.search.exact import CertifiedSearch
+from mocapflow.plugins.similarity.search.certified import CertifiedSearch
 from mocapflow.plugins.similarity.search.lng import LazyNeighborhoodGraph
 from mocapflow.plugins.similarity.search.logical import LogicalSearch, logical_search
 from mocapflow.plugins.similarity.search.sdtw import SubsequenceDTW

@@ -38,7 +38,7 @@ def register_indexes() -> list[type]:
 
 @hookimpl
 def register_matchers() -> list[type]:
-    from .search.exact import CertifiedSearch
+    from .search.certified import CertifiedSearch
     from .search.lng import LazyNeighborhoodGraph
     from .search.logical import LogicalSearch
     from .search.sdtw import SubsequenceDTW

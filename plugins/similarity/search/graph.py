@@ -1,7 +1,7 @@
 """The lazy neighborhood graph of one query (Krüger et al. 2010, §4.1): neighbour sets of
 the query frames (kNN, optionally propagated between searched frames), gap cells, and the
 shortest-path search over the graph. :mod:`.lng` ranks its paths into matches; the
-certified exact search (:mod:`.exact`) uses the graph's costs as a first threshold.
+certified exact search (:mod:`.certified`) uses the graph's costs as a first threshold.
 """
 
 from __future__ import annotations

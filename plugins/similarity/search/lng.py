@@ -11,7 +11,7 @@ frames reachable through the neighbour sets the result equals subsequence DTW ex
 By default the graph is gap-tolerant (:data:`GAPS` query frames of *gap cells* around the
 neighbour cells, their cost computed exactly, :mod:`._gap_kernels`), searches the index on
 every :data:`PROPAGATE`-th query frame only (the sets between propagated along the database),
-and falls back to the certified search (:mod:`.exact`) when it holds fewer than ``count``
+and falls back to the certified search (:mod:`.certified`) when it holds fewer than ``count``
 matches; ``paper: true`` is the paper's graph (neighbour cells only, every frame searched,
 no fallback). For one more release ``matchers.lng`` without ``exact: false`` runs the
 certified search (``matchers.search``) and warns.
@@ -64,7 +64,7 @@ def lazy_neighborhood_graph(
     graph = build_graph(query, space, k=k, radius=radius, propagate=propagate, gaps=gaps)
     res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
     if fill and len(res) < count and space.features is not None:
-        from .exact import certified_sdtw
+        from .certified import certified_sdtw
 
         return certified_sdtw(
             query, space, count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span, graph=graph
@@ -109,7 +109,7 @@ class LazyNeighborhoodGraph(Matcher):
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         p = self.params
         if p.exact is not False:
-            from .exact import certified_sdtw
+            from .certified import certified_sdtw
 
             return certified_sdtw(query, space, **match_kw(p))
         paper = {"propagate": 0, "gaps": 0, "fill": False} if p.paper else {}

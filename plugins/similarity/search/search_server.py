@@ -110,7 +110,7 @@ def warm_up(session) -> float:
         matcher.match(np.array(space.features[:30]), space)
         from dataclasses import replace
 
-        from .exact import DEFAULT_SETTINGS, certified_sdtw
+        from .certified import DEFAULT_SETTINGS, certified_sdtw
         from .matcher_base import block_subspaces_of
 
         for size, p in zip(
