@@ -386,16 +386,27 @@ def reconstruct_motion(
     }
 
 
-ERROR_COLUMNS = "clip_id:int32 name:string joint:string mean_cm:float64 max_cm:float64"
-CLIP_ERROR_COLUMNS = (
-    "clip_id:int32 name:string n_frames:int32 prior_frames:int64 avg_cm:float64 max_cm:float64 fk_avg_cm:float64 "
-    "frames_per_s:float64"
+ERRORS = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("name", pa.string()),
+        ("joint", pa.string()),
+        ("mean_cm", pa.float64()),
+        ("max_cm", pa.float64()),
+    ]
 )
-
-
-def _schema(columns: str) -> pa.Schema:
-    """``"name:type ..."`` (pyarrow type constructors) as a schema."""
-    return pa.schema([(n, getattr(pa, t)()) for n, t in (c.split(":") for c in columns.split())])
+CLIP_ERRORS = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("name", pa.string()),
+        ("n_frames", pa.int32()),
+        ("prior_frames", pa.int64()),
+        ("avg_cm", pa.float64()),
+        ("max_cm", pa.float64()),
+        ("fk_avg_cm", pa.float64()),
+        ("frames_per_s", pa.float64()),
+    ]
+)
 
 
 class Reconstruct(Analysis):
@@ -442,8 +453,8 @@ class Reconstruct(Analysis):
                 }
             )
         tables = motions_to_tables(motions, list(test_db.clip_ids))
-        tables["errors"] = pa.Table.from_pylist(err_rows, schema=_schema(ERROR_COLUMNS))
-        tables["clip_errors"] = pa.Table.from_pylist(clip_rows, schema=_schema(CLIP_ERROR_COLUMNS))
+        tables["errors"] = pa.Table.from_pylist(err_rows, schema=ERRORS)
+        tables["clip_errors"] = pa.Table.from_pylist(clip_rows, schema=CLIP_ERRORS)
         frames = sum(r["n_frames"] for r in clip_rows)
         summary = {
             "clips": len(clip_rows),
