@@ -1,18 +1,31 @@
-"""Reconstruction from 6 sparse markers (Krüger et al. 2010 §5.2): speed and Tables 3/4.
+"""Reconstruction from 6 sparse markers (Krüger et al. 2010 §5.2): leave-one-subject-out.
 
-    python benchmarks/reconstruct.py            # Tables 3, 4, size sweep, frames/s
-    python benchmarks/reconstruct.py --quick    # the bundled examples/data clips, 2 test clips, 3 feature sets
+    python benchmarks/reconstruct.py                # LOSO over the CMU subjects of ../shared/data
+    python benchmarks/reconstruct.py --quick        # the bundled examples/data takes (3 subjects)
+    python benchmarks/reconstruct.py --clips-per-subject 2 --seed 1   # another rotation of test clips
 
-Prints frames reconstructed per second (one query per frame and iteration, single thread)
-against a baseline measured in the same run (the bare kNN query rate, i.e. the search's
-share of the cost), then the error tables in the paper's "average (max)" cm-per-joint layout.
-Paper reference: 1.3-3.4 cm average per joint on databases of 380 k (HDM05) to 1 M (CMU)
-frames; our corpus has ~27 k frames at 30 Hz, so larger errors are expected.
+Prior: every take of ../shared/data usable as one (CMU and HDM05 ASF/AMC, the BVH sets:
+cgspeed CMU, Xia styles, PyMO, Bandai-Namco -- read at run time, never copied), each with
+its mirror image, resampled to 30 Hz, built once into ``$MOCAPFLOW_BENCH_CACHE`` and
+memory-mapped. Test: for every CMU subject, ``--clips-per-subject`` of its AMC takes
+(which ones rotates with ``--seed``), the first ``--max-frames`` frames at 30 Hz; the prior
+withholds every take of that subject (AMC and BVH, mirror images too) and is retargeted to
+the subject's bone lengths. Synthetic markers (root, head, wrists, ankles; ±1 mm).
+
+Prints per clip ``avg (worst frame) [worst joint]`` cm, the mean over clips with a
+bootstrap 95 % CI (2000 resamples), the share of clips <= 3.5 cm, the worst single joint
+error of any frame, per-joint means, frames per second (one thread, prior built), the
+prior-size curve (nested random subsets of the prior takes, first test clip of every
+subject), and the same protocol with a baseline measured in the same run: the prior
+retargeted to the median skeleton of the prior instead of the performer's.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -21,106 +34,158 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from corpus import REPO, load_corpus
+from corpus import CACHE, DATA, REPO
 
-from mocapflow.framework import MotionDatabase, load_registries
+from mocapflow.framework import Motion
+from mocapflow.framework.normalize import resample
 from mocapflow.plugins.similarity.applications.reconstruct import (
-    MODEL,
-    PriorDatabase,
+    PosePrior,
+    PriorCache,
     ReconstructParams,
-    prior_index,
     reconstruct_motion,
+    withheld,
 )
-from mocapflow.plugins.similarity.applications.reconstruct_eval import (
-    DEFAULT_TESTS,
-    FEATURE_SETS,
-    size_sweep,
-    table3,
-    table4,
-)
+from mocapflow.plugins.similarity.applications.reconstruct_prior import PriorStore, bone_lengths, build_store
+
+TARGET_CLIP_CM = 3.5
 
 
-def pivot(rows: list[dict], row_key: str, col_key: str, cols: list[str]) -> str:
-    names = list(dict.fromkeys(r[row_key] for r in rows))
-    width = max(len(n) for n in names) + 2
-    out = [f"{'motion':<{width}}" + "".join(f"{c:>16}" for c in cols)]
-    for n in names:
-        cells = {r[col_key]: r["cell"] for r in rows if r[row_key] == n}
-        out.append(f"{n:<{width}}" + "".join(f"{cells.get(c, '-'):>16}" for c in cols))
-    return "\n".join(out)
+def prior_files(data: Path) -> list[Path]:
+    """Every take usable as a prior: ASF/AMC of CMU and HDM05, every BVH set."""
+    amc = sorted(data.glob("cmu/amc/*/*.amc")) + sorted(data.glob("cmu/*/*.amc"))
+    return amc + sorted(data.glob("hdm05/amc/*/*.amc")) + sorted(data.glob("bvh/*/*.bvh"))
 
 
-def examples_db() -> MotionDatabase:
-    from mocapflow.framework.normalize import resample
+def read_take(path: Path) -> Motion:
+    """A take with its performer in ``metadata['subject']`` (cgspeed BVH: the CMU subject)."""
     from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.formats.bvh import read_bvh
 
-    return MotionDatabase([resample(read_amc(f), 30.0) for f in sorted((REPO / "examples/data/cmu").glob("*/*.amc"))])
+    if path.suffix.lower() == ".amc":
+        return read_amc(path)
+    m = read_bvh(path)
+    cmu = re.match(r"(?:cmu_)?(\d+)_\d+", path.stem) if path.parent.name == "cmu_cgspeed" else None
+    subject = cmu.group(1).zfill(2) if cmu else path.parent.name
+    return m.with_arrays(metadata={**m.metadata, "subject": subject, "source": path.parent.name})
+
+
+def load_store(files: list[Path], fps: float = 30.0) -> PriorStore:
+    """The prior store of ``files`` (built once, cached, memory-mapped)."""
+    tag = hashlib.sha1(json.dumps([1, fps, [str(f.relative_to(f.parents[2])) for f in files]]).encode()).hexdigest()[
+        :12
+    ]
+    folder = CACHE / f"reconstruct_prior_{tag}"
+    if not (folder / "clips.json").is_file():
+        t = time.perf_counter()
+        build_store((read_take(f) for f in files), fps=fps).save(folder)
+        print(f"  prior built in {time.perf_counter() - t:.0f} s -> {folder}")
+    return PriorStore.load(folder)
+
+
+def bootstrap_ci(values: np.ndarray, n: int = 2000, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of the mean."""
+    rng = np.random.default_rng(seed)
+    means = values[rng.integers(0, len(values), (n, len(values)))].mean(1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def run_loso(tests: list[Motion], store: PriorStore, lengths: np.ndarray | None = None, verbose: bool = True) -> dict:
+    """Every test clip against the prior without its subject (retargeted to the clip's
+    skeleton, or to bone ``lengths`` if given); the error summary."""
+    cache, params = PriorCache(store), ReconstructParams()
+    rows, frames, seconds, joint_sum = [], 0, 0.0, None
+    for m in tests:
+        if lengths is not None:
+            prior = cache.get(~withheld(store, m, "subject"), lengths)
+        else:
+            prior = cache.for_motion(m, "subject")
+        _, e = reconstruct_motion(m, prior, params)
+        rows.append((m.name, e["avg_cm"], e["max_frame_cm"], e["max_joint_cm"]))
+        frames += m.n_frames
+        seconds += e["seconds"]
+        joint_sum = e["mean_cm"] if joint_sum is None else joint_sum + e["mean_cm"]
+        if verbose:
+            print(f"  {m.name:>8} {e['avg_cm']:6.2f} ({e['max_frame_cm']:6.2f}) [{e['max_joint_cm']:6.1f}]", flush=True)
+    avg = np.array([r[1] for r in rows])
+    return {
+        "rows": rows,
+        "mean": float(avg.mean()),
+        "ci": bootstrap_ci(avg),
+        "share": float((avg <= TARGET_CLIP_CM).mean()),
+        "max_joint": max(r[3] for r in rows),
+        "max_frame": max(r[2] for r in rows),
+        "joints": dict(zip(prior.joints, joint_sum / len(rows), strict=True)),
+        "fps": frames / seconds,
+    }
+
+
+def report(label: str, r: dict) -> None:
+    lo, hi = r["ci"]
+    print(
+        f"{label}: mean {r['mean']:.2f} cm per joint (95 % CI {lo:.2f}-{hi:.2f}), "
+        f"{r['share']:.0%} of {len(r['rows'])} clips <= {TARGET_CLIP_CM} cm, worst frame {r['max_frame']:.1f} cm, "
+        f"worst joint {r['max_joint']:.1f} cm, {r['fps']:.0f} frames/s"
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--clips-per-subject", type=int, default=3)
+    ap.add_argument("--max-frames", type=int, default=450)
+    ap.add_argument("--seed", type=int, default=0, help="rotation of the test clips within each subject")
+    ap.add_argument("--no-sizes", action="store_true", help="skip the prior-size curve")
+    ap.add_argument("--no-baseline", action="store_true", help="skip the median-skeleton baseline")
     args = ap.parse_args()
-    reg = load_registries(entry_points=False)
-    make_index = prior_index
-    make_features = lambda comp, params: reg["features"].get(comp)(params)  # noqa: E731 - a one-line helper local to this function
-    params = ReconstructParams()
+    data = REPO / "examples" / "data" if args.quick else DATA
+    if args.quick:
+        args.clips_per_subject, args.max_frames = 1, 120
 
     t0 = time.perf_counter()
-    db = examples_db() if args.quick else load_corpus(fps=30)
-    cmu_db = MotionDatabase([m for m in db.motions if not m.name.startswith("HDM")])
-    hdm_db = MotionDatabase([m for m in db.motions if m.name.startswith("HDM")]) if not args.quick else None
+    files = prior_files(data)
+    store = load_store(files)
+    test_files = sorted(data.glob("cmu/*/*.amc") if args.quick else data.glob("cmu/amc/*/*.amc"))
+    by_subject: dict[str, list[Path]] = {}
+    for f in test_files:
+        by_subject.setdefault(f.parent.name, []).append(f)
+    rng = np.random.default_rng(args.seed)
+    chosen = [f for s in sorted(by_subject) for f in rng.permutation(by_subject[s])[: args.clips_per_subject]]
+    tests = [resample(read_take(Path(f)), 30.0) for f in chosen]
+    tests = [m.slice(0, min(m.n_frames, args.max_frames)) for m in tests]
     print(
-        f"corpus: CMU {cmu_db.n_frames} frames ({cmu_db.n_clips} clips), HDM05 "
-        f"{hdm_db.n_frames if hdm_db else 0} frames at 30 Hz, loaded in {time.perf_counter() - t0:.1f} s"
+        f"prior: {len(store.clips)} takes (with mirror images), {store.n_frames} frames at {store.fps:g} Hz; "
+        f"test: {len(tests)} clips of {len(by_subject)} subjects, {sum(m.n_frames for m in tests)} frames "
+        f"(loaded in {time.perf_counter() - t0:.0f} s)"
     )
-    tests = ["16_15", "02_01"] if args.quick else list(DEFAULT_TESTS)
-    fsets = ["F_E^15", "F_E^30", "F_pca^8"] if args.quick else list(FEATURE_SETS)
+    warm = tests[0].slice(0, min(tests[0].n_frames, 20))  # compile the kd-tree kernels before timing
+    reconstruct_motion(warm, PosePrior.build(store, bone_lengths(warm.canonical_positions(store.joints), store.joints)))
+    print("per clip: avg (worst frame) [worst joint] cm")
+    res = run_loso(tests, store)
+    report("performer's skeleton", res)
+    print("per joint (mean cm): " + ", ".join(f"{j} {v:.1f}" for j, v in res["joints"].items()))
 
-    fe15 = make_features(*FEATURE_SETS["F_E^15"])
-    cmu = PriorDatabase(cmu_db, fe15)
-    hdm = PriorDatabase(hdm_db, fe15) if hdm_db else None
+    if not args.no_baseline:
+        med = np.median([bone_lengths(m.canonical_positions(store.joints), store.joints) for m in tests], 0)
+        base = run_loso(tests, store, med, verbose=False)
+        report("baseline (median test skeleton)", base)
+        print(f"  ratio performer/baseline: mean error {res['mean'] / base['mean']:.2f}")
 
-    # --- speed: frames per second against the bare kNN query rate ----------------------
-    test = next(m for m in cmu_db.motions if m.name == tests[0])
-    prior = cmu.prior(~cmu.withheld(test, "clip"), make_index())
-    reconstruct_motion(test, prior, params)  # warm-up (numba compile of the index)
-    _, e = reconstruct_motion(test, prior, params)
-    fps = test.n_frames / e["seconds"]
-    q = prior.features[:2000]
-    t = time.perf_counter()
-    for i in range(len(q)):
-        prior.index.query(q[i : i + 1], params.k)
-    qps = len(q) / (time.perf_counter() - t)
-    print(
-        f"\nspeed ({test.name}, {test.n_frames} frames, prior {len(prior.poses)} frames, k={params.k}, "
-        f"{MODEL.iterations} searches/frame):"
-    )
-    print(f"  reconstruction  {fps:9.0f} frames/s")
-    print(f"  kNN query alone {qps:9.0f} queries/s  -> search share {MODEL.iterations * fps / qps:.0%} of the time")
-
-    t = time.perf_counter()
-    rows3, _ = table3(tests, cmu, hdm, cmu_db, hdm_db, make_index, params)
-    print(f"\nTable 3 (F_E^15; avg (max) cm per joint; {time.perf_counter() - t:.0f} s)")
-    print("  HDM: HDM05 without the test clip; CMU-: CMU without the test subject; CMU: CMU without the test clip")
-    print(pivot(rows3, "motion", "prior", ["HDM", "CMU-", "CMU"]))
-    for label in ("HDM", "CMU-", "CMU"):
-        v = [r["avg_cm"] for r in rows3 if r["prior"] == label]
-        print(f"  mean over test clips, {label:>4}: {np.mean(v):.2f} cm")
-
-    t = time.perf_counter()
-    rows4 = table4(tests, cmu_db, hdm_db, fsets, make_features, make_index, params)
-    print(f"\nTable 4 (prior: CMU without the test clip; PCA fitted on HDM05; {time.perf_counter() - t:.0f} s)")
-    print(pivot(rows4, "motion", "feature_set", fsets))
-
-    rows = size_sweep(tests, cmu, cmu_db, hdm_db, (0.1, 0.3, 1.0), make_index, params)
-    print("\nerror vs prior size (CMU clips, nested random subsets)")
-    for frac in (0.1, 0.3, 1.0):
-        sel = [r for r in rows if r["fraction"] == frac]
-        print(
-            f"  {frac:4.0%}: prior {np.mean([r['prior_frames'] for r in sel]):8.0f} frames  "
-            f"avg {np.mean([r['avg_cm'] for r in sel]):.2f} cm  max {np.mean([r['max_cm'] for r in sel]):.2f} cm"
-        )
+    if not args.no_sizes:
+        print("prior size (first test clip of every subject; nested random subsets of the prior takes):")
+        firsts = [next(m for m in tests if m.metadata.get("subject") == s) for s in sorted(by_subject)]
+        order = np.random.default_rng(args.seed).permutation(len(store.clips))
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        for frac in (0.1, 0.3, 1.0):
+            errs, sizes = [], []
+            for m in firsts:
+                keep = ~withheld(store, m, "subject") & (rank < max(1, int(round(frac * len(order)))))
+                lengths = bone_lengths(m.canonical_positions(store.joints), store.joints)
+                prior = PosePrior.build(store, lengths, keep)
+                _, e = reconstruct_motion(m, prior)
+                errs.append(e["avg_cm"])
+                sizes.append(len(prior.poses))
+            print(f"  {frac:4.0%}: prior {np.mean(sizes):8.0f} frames  mean {np.mean(errs):.2f} cm")
 
 
 if __name__ == "__main__":

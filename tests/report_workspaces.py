@@ -42,7 +42,7 @@ steps:
   reconstruction:
     uses: analyses.reconstruct
     inputs: {{prior: motions, test: test}}
-    with: {{features: end_effectors, feature_params: {{joints: 5}}, leave_out: clip, k: 16}}
+    with: {{leave_out: clip, k: 16}}
 """
 
 

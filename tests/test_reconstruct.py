@@ -4,48 +4,51 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from naive.knn import ckdtree_index_class
 
-from mocapflow.framework import FeatureSet, Motion, MotionDatabase
+from mocapflow.framework import DataError, Motion, Skeleton
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.testing import synthetic_skeleton
 from mocapflow.plugins.similarity.applications.reconstruct import (
     PosePrior,
-    PriorDatabase,
+    PriorCache,
     ReconstructModel,
     ReconstructParams,
     joint_errors,
-    local_poses,
     reconstruct_motion,
     reconstruct_positions,
     synthetic_markers,
+    withheld,
+)
+from mocapflow.plugins.similarity.applications.reconstruct_prior import (
+    POSE_JOINTS,
+    PriorStore,
+    bone_lengths,
+    bone_parents,
+    build_store,
+    directions,
+    local_positions,
+    mirror,
 )
 from mocapflow.plugins.similarity.applications.retarget import positions_to_motion
 
-CKDTreeIndex = ckdtree_index_class()
 
-
-class EndEffectors15(FeatureSet):
-    """Test stand-in for F_E^15: head, wrists, ankles in the root frame (15 dims)."""
-
-    name = "fe15_test"
-    joints = ("root", "lhip", "rhip", "head", "lwrist", "rwrist", "lankle", "rankle")
-
-    @property
-    def dim(self):
-        return 15
-
-    def transform_motion(self, motion):
-        p = local_poses(motion.canonical_positions(self.joints), self.joints)
-        return p[:, 3:].reshape(motion.n_frames, 15)
+def scaled_skeleton(scale: float) -> Skeleton:
+    sk = synthetic_skeleton()
+    return Skeleton(sk.names, sk.parents, sk.offsets * scale, canonical=dict(sk.canonical), name=f"synthetic_x{scale}")
 
 
 def periodic_motion(
-    n_frames: int, t0: float = 0.0, amp: float = 1.0, yaw_deg: float = 0.0, name: str = "m", subject: str = "s"
+    n_frames: int,
+    t0: float = 0.0,
+    amp: float = 1.0,
+    yaw_deg: float = 0.0,
+    name: str = "m",
+    subject: str = "s",
+    scale: float = 1.0,
 ) -> Motion:
     """A 1 Hz gait-like cycle: fixed per-joint sines, so every pose recurs each 30 frames."""
-    sk = synthetic_skeleton()
+    sk = scaled_skeleton(scale)
     rng = np.random.default_rng(42)
     amp_j = rng.uniform(5, 35, (sk.n_joints, 3)) * amp
     phase = rng.uniform(0, 2 * np.pi, (sk.n_joints, 3))
@@ -60,15 +63,15 @@ def periodic_motion(
 
 
 @pytest.fixture(scope="module")
-def prior_store():
-    db = MotionDatabase(
+def store():
+    """Prior takes of a performer 15 % larger than the test performers (mirror images too)."""
+    return build_store(
         [
-            periodic_motion(90, 0.0, name="a", subject="s1"),
-            periodic_motion(60, 0.13, amp=0.9, name="b", subject="s1"),
-            periodic_motion(60, 0.31, amp=1.1, name="c", subject="s2"),
+            periodic_motion(90, 0.0, name="a", subject="s1", scale=1.15),
+            periodic_motion(60, 0.13, amp=0.9, name="b", subject="s1", scale=1.15),
+            periodic_motion(60, 0.31, amp=1.1, name="c", subject="s2", scale=1.15),
         ]
     )
-    return PriorDatabase(db, EndEffectors15())
 
 
 def test_synthetic_markers_noise_within_bounds():
@@ -100,54 +103,118 @@ def test_positions_to_motion_round_trip():
     assert np.abs(one.canonical_positions() - pos[:1]).max() < 1e-6
 
 
-def test_feature_map_exact_for_position_features(prior_store):
-    prior = prior_store.prior(np.ones(3, bool), CKDTreeIndex())
-    assert prior.feature_fit_r2 > 0.999999
-    q = prior.query_features(prior.poses[17].astype(np.float64))
-    assert np.abs(q[0] - prior.features[17]).max() < 1e-4
+def test_store_layout_and_mirror(store):
+    assert [c["name"] for c in store.clips] == ["a", "a", "b", "b", "c", "c"]
+    assert [c["mirrored"] for c in store.clips] == [False, True] * 3
+    assert store.n_frames == 2 * 210 and store.clip_rows.tolist() == [0, 90, 180, 240, 300, 360, 420]
+    assert store.prev[90] == 90 and store.prev[91] == 90 and store.prev[5] == 4
+    assert np.allclose(np.linalg.norm(store.dirs[:, 1:], axis=-1), 1.0, atol=1e-5)
+    m = periodic_motion(10, yaw_deg=40)
+    local = local_positions(m.canonical_positions(POSE_JOINTS), POSE_JOINTS)
+    twice = mirror(mirror(local, POSE_JOINTS), POSE_JOINTS)
+    assert np.allclose(twice, local)
+    j = list(POSE_JOINTS)
+    mir = mirror(local, POSE_JOINTS)
+    assert np.allclose(mir[:, j.index("lwrist"), 0], -local[:, j.index("rwrist"), 0])
 
 
-def test_reconstruction_between_database_poses_is_accurate(prior_store):
-    # test poses lie half a frame between prior poses, seen under another heading and path
+def test_retarget_matches_chain_loop_and_round_trips(store):
+    """The vectorised retargeting against a joint-by-joint walk up the chain; with a
+    performer's own lengths it gives back the performer's poses."""
+    rng = np.random.default_rng(3)
+    lengths = rng.uniform(0.05, 0.5, len(POSE_JOINTS))
+    lengths[0] = 0.0
+    rows = np.array([0, 7, 95, 300])
+    fast = store.retarget(lengths, rows)
+    parents = bone_parents(POSE_JOINTS)
+    for n, r in enumerate(rows):
+        for j in range(len(POSE_JOINTS)):
+            want, b = np.zeros(3), j
+            while b > 0:
+                want += lengths[b] * store.dirs[r, b]
+                b = parents[b]
+            assert np.allclose(fast[n, j], want, atol=1e-5)
+    m = periodic_motion(30, 0.0, scale=1.15)
+    local = local_positions(m.canonical_positions(POSE_JOINTS), POSE_JOINTS)
+    own = bone_lengths(m.canonical_positions(POSE_JOINTS), POSE_JOINTS)
+    assert np.abs(store.retarget(own, np.arange(30)) - local).max() < 1e-5
+    d, length = directions(local, parents)
+    assert np.allclose(length[:, 1:], own[1:], atol=1e-6)
+
+
+def test_save_load_memory_maps(store, tmp_path):
+    store.save(tmp_path / "prior")
+    store.save(tmp_path / "prior")  # overwrites atomically
+    back = PriorStore.load(tmp_path / "prior")
+    assert isinstance(back.dirs, np.memmap) and np.array_equal(back.dirs, store.dirs)
+    assert back.clips == store.clips and back.joints == store.joints and back.fps == store.fps
+    with pytest.raises(DataError, match="clips.json"):
+        PriorStore.load(tmp_path)
+
+
+def test_reconstruction_of_another_performer_is_accurate(store):
+    # test poses lie half a frame between prior poses, on a 15 % smaller skeleton, under another heading
     test = periodic_motion(60, 0.5 / 30, yaw_deg=-120, name="t")
-    prior = prior_store.prior(np.ones(3, bool), CKDTreeIndex())
+    cache = PriorCache(store)
+    prior = cache.for_motion(test, "none")
+    assert cache.for_motion(test, "none") is prior
     rec, e = reconstruct_motion(test, prior, ReconstructParams(k=16))
-    assert e["avg_cm"] < 1.0 and e["max_frame_cm"] < 3.0
+    assert e["avg_cm"] < 1.0 and e["max_frame_cm"] < 3.0 and e["max_joint_cm"] < 6.0
     assert rec.n_frames == 60 and rec.skeleton is test.skeleton and e["fk_avg_cm"] < e["avg_cm"] + 0.5
-    # the markers alone placed on the nearest database pose of frame 0 do far worse
+    # without retargeting (the prior on the prior performer's skeleton) it does far worse
+    big = PosePrior.build(
+        store, bone_lengths(periodic_motion(2, scale=1.15).canonical_positions(POSE_JOINTS), POSE_JOINTS)
+    )
+    _, e_big = reconstruct_motion(test, big, ReconstructParams(k=16))
+    assert e_big["avg_cm"] > 2 * e["avg_cm"]
     world, heading = reconstruct_positions(synthetic_markers(test), prior, ReconstructParams(k=16))
     assert np.abs(np.angle(np.exp(1j * (heading - np.deg2rad(-120))))).max() < np.deg2rad(15)
-    frozen = np.repeat(world[:1], 60, 0) - world[:1, :1] + world[:, :1]
-    assert joint_errors(frozen, test.canonical_positions(prior.joints))[2] > 5 * e["avg_cm"]
+    # every bone has the performer's length
+    got = bone_lengths(world, POSE_JOINTS)
+    assert np.allclose(got, prior.lengths, atol=1e-6)
 
 
-def test_leave_out_and_unseen_amplitude(prior_store):
+def test_leave_out_and_unseen_amplitude(store):
     test = periodic_motion(45, 0.2, amp=1.0, yaw_deg=30, name="a", subject="s1")
-    assert prior_store.withheld(test, "clip").tolist() == [True, False, False]
-    assert prior_store.withheld(test, "subject").tolist() == [True, True, False]
-    assert not prior_store.withheld(test, "none").any()
-    prior = prior_store.prior(~prior_store.withheld(test, "clip"), CKDTreeIndex())
-    assert len(prior.poses) == 120
+    assert withheld(store, test, "clip").tolist() == [True, True, False, False, False, False]
+    assert withheld(store, test, "subject").tolist() == [True, True, True, True, False, False]
+    assert not withheld(store, test, "none").any()
+    prior = PriorCache(store).for_motion(test, "clip")
+    assert len(prior.poses) == 240
     _, e = reconstruct_motion(test, prior, ReconstructParams(k=24))
     assert e["avg_cm"] < 3.0  # interpolating between amplitudes 0.9 and 1.1
 
 
-def test_input_validation(prior_store):
-    prior = prior_store.prior(np.ones(3, bool), CKDTreeIndex())
-    from mocapflow.framework import DataError
-
+def test_input_validation(store):
+    prior = PriorCache(store).for_motion(periodic_motion(2), "none")
     with pytest.raises(DataError):
         reconstruct_positions(np.zeros((5, 4, 3)), prior)
     with pytest.raises(DataError):
         reconstruct_positions(np.zeros((5, 2, 3)), prior, model=ReconstructModel(markers=("head", "lwrist")))
+    nan = np.zeros((5, 6, 3))
+    nan[2, 1] = np.nan
+    with pytest.raises(DataError, match="NaN"):
+        reconstruct_positions(nan, prior)
     assert reconstruct_positions(np.zeros((0, 6, 3)), prior)[0].shape == (0, len(prior.joints), 3)
     m = periodic_motion(3, 0.5 / 30)
     for n in (1, 2, 3):  # one-frame clips and clips shorter than the backward pass
         world, _ = reconstruct_positions(synthetic_markers(m.slice(0, n)), prior, ReconstructParams(k=16))
         assert world.shape == (n, len(prior.joints), 3)
         assert joint_errors(world, m.slice(0, n).canonical_positions(prior.joints))[2] < 3.0
-    with pytest.raises(DataError):
-        PosePrior.build(np.zeros((1, 3)), np.zeros((1, 2)), CKDTreeIndex(), ("root",))
+    with pytest.raises(DataError, match="frames left"):
+        PosePrior.build(store, prior.lengths, np.zeros(len(store.clips), bool))
+    with pytest.raises(DataError, match="bone lengths"):
+        PosePrior.build(store, prior.lengths[:3])
+
+
+def test_test_rate_differs_from_prior_rate(store):
+    """A 60 Hz take against the 30 Hz prior: the velocity is taken over the prior's step."""
+    from mocapflow.framework.normalize import resample
+
+    test = resample(periodic_motion(60, 0.5 / 30, yaw_deg=50, name="t"), 60.0)
+    prior = PriorCache(store).for_motion(test, "none")
+    _, e = reconstruct_motion(test, prior, ReconstructParams(k=16))
+    assert e["avg_cm"] < 1.5
 
 
 def test_pipeline_end_to_end(tmp_path):
@@ -163,7 +230,8 @@ def test_pipeline_end_to_end(tmp_path):
     rec = Dataset(tmp_path / "reconstruction")
     clips = rec.table("clip_errors").to_pylist()
     assert sorted(c["name"] for c in clips) == ["02_01", "16_15"]
-    assert all(0 < c["avg_cm"] < 10 and c["max_cm"] >= c["avg_cm"] and c["prior_frames"] < 656 for c in clips)
+    assert all(0 < c["avg_cm"] < 10 and c["max_joint_cm"] >= c["max_cm"] >= c["avg_cm"] for c in clips)
+    assert all(c["prior_frames"] < 2 * 656 for c in clips)  # the other takes, each with its mirror image
     db = rec.motions()
     assert sorted(m.name for m in db.motions) == ["02_01_recon", "16_15_recon"]
     assert sum(m.n_frames for m in db.motions) == sum(c["n_frames"] for c in clips)

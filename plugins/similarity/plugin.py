@@ -50,11 +50,11 @@ def register_matchers() -> list[type]:
 def register_analyses() -> list[type]:
     from .applications.correlation import DistanceCorrelationStudy
     from .applications.fat_graph import FatGraph
-    from .applications.reconstruct import Reconstruct
+    from .applications.reconstruct import Reconstruct, ReconstructionPrior
     from .applications.reconstruct_eval import ReconstructionEval
     from .knn.knn_query import NearestPoses
 
-    return [NearestPoses, DistanceCorrelationStudy, Reconstruct, ReconstructionEval, FatGraph]
+    return [NearestPoses, DistanceCorrelationStudy, ReconstructionPrior, Reconstruct, ReconstructionEval, FatGraph]
 
 
 @hookimpl

@@ -1,24 +1,29 @@
 """``analyses.reconstruct``: full-body motion from sparse markers (Krüger et al. 2010, §5.2).
 
-Chai & Hodgins (2005) with kNN searches in a feature space around the *synthesised* pose.
-Per frame ``t``: predict from ``t-1, t-2`` (constant velocity); take the ``k`` nearest
-database poses around the prediction; fit a local linear model (local PCA with the
-neighbours' Gaussian prior, ``_local_model``); solve the small least-squares problem of
-markers + prior + prediction; search again around the result (``iterations``). The first
-frame starts from the database pose nearest its markers (24 headings); the first
-``backward_frames`` frames are solved again backwards.
+Chai & Hodgins (2005) local linear models on a kNN prior. The prior
+(:mod:`.reconstruct_prior`) holds every take as bone directions; for the performer being
+reconstructed it is **retargeted to the performer's bone lengths** (the output skeleton's),
+so a prior pose and the performer's markers agree in proportions. A pose is the vector of
+root-normalised canonical joint positions (metres, root at the origin facing +z).
 
-A pose is the vector of **root-normalised canonical joint positions** (metres, root at the
-origin facing +z), not one skeleton's rotations: priors come from databases with other
-skeletons (Table 3), the error is measured on positions, and markers are linear in them.
-Heading and ground position come from the markers (2-D Procrustes alternated with the
-solve). A synthesised pose has no clip around it, so its query vector is an affine map of
-the pose fitted on the prior (``feature_fit_r2`` in the summary). The output Motion aims
-the test clip's bones at the reconstructed positions (:func:`retarget.positions_to_motion`;
-``fk_avg_cm`` is its error).
+Per frame ``t``: the query is the control signal itself, as in the paper: the 5 non-root
+markers relative to the root marker in the heading frame (F_E^15) and their velocity
+(``velocity_weight`` seconds times metres/second, over ``1 / prior fps``) -- the temporal
+term. The ``k`` nearest prior poses give a local linear model (local PCA with the
+neighbours' Gaussian prior, :func:`_local_model`); the MAP pose of markers + prior +
+smoothness (deviation from the constant-velocity prediction from ``t-1, t-2``) is one
+``k x k`` solve, alternated with the heading (2-D Procrustes on the markers); the search
+is repeated under the new heading (``iterations``). The result is projected onto the
+performer's bone lengths (directions kept), which bounds every joint to its chain from
+the root marker. The first frame starts from the prior pose nearest its markers (24
+headings); the first ``backward_frames`` frames are solved again backwards.
+
+The output Motion aims the performer's bones at the reconstructed positions
+(:func:`retarget.positions_to_motion`; ``fk_avg_cm`` is its error).
 
 Tables: ``data``/``clips``/``skeletons`` (the reconstructions), ``errors`` (per clip and
-joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``).
+joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``,
+``max_joint_cm``).
 """
 
 from __future__ import annotations
@@ -35,32 +40,20 @@ from pydantic import Field
 from mocapflow.framework import (
     Analysis,
     DataError,
-    FeatureSet,
     Index,
     Motion,
-    MotionDatabase,
     Params,
     StepContext,
     StepOutput,
 )
 from mocapflow.framework.datasets import Dataset
-from mocapflow.framework.joints import CANONICAL_JOINTS
-from mocapflow.framework.normalize import facing_angles, rotate_about_y
+from mocapflow.framework.normalize import rotate_about_y
 
+from .reconstruct_prior import PriorStore, bone_lengths, bone_parents, build_store, chain_matrix
 from .retarget import positions_to_motion
 
 #: The paper's 6 markers: the 4 end effectors, the head and the root.
 DEFAULT_MARKERS: tuple[str, ...] = ("root", "head", "lwrist", "rwrist", "lankle", "rankle")
-
-
-def local_poses(positions: np.ndarray, joints: Sequence[str]) -> np.ndarray:
-    """Root-normalised poses: root at the origin, heading (from the hips) turned to +z.
-
-    positions : (T, P, 3) metres -> (T, P, 3) metres.
-    """
-    j = list(joints)
-    centred = positions - positions[:, j.index("root")][:, None, :]
-    return rotate_about_y(centred, -facing_angles(positions, j))
 
 
 def synthetic_markers(
@@ -81,52 +74,6 @@ def synthetic_markers(
     return pos + rng.uniform(-noise, noise, pos.shape)
 
 
-@dataclass
-class PosePrior:
-    """The prior database as the reconstruction sees it.
-
-    Attributes
-    ----------
-    joints : tuple of str, P canonical joints of the pose vector
-    poses : ndarray of float32, shape (N, P*3), root-normalised positions, metres
-    features : ndarray of float32, shape (N, d), the kNN feature rows
-    index : Index, built on ``features``
-    feature_map : ndarray of shape (P*3 + 1, d), affine map pose -> query features
-    feature_fit_r2 : float, coefficient of determination of that map on the database
-    """
-
-    joints: tuple[str, ...]
-    poses: np.ndarray
-    features: np.ndarray
-    index: Index
-    feature_map: np.ndarray
-    feature_fit_r2: float
-
-    @classmethod
-    def build(cls, poses: np.ndarray, features: np.ndarray, index: Index, joints: Sequence[str]) -> PosePrior:
-        """Fit the query map and build ``index`` on ``features`` (rows aligned with ``poses``)."""
-        poses = np.ascontiguousarray(poses, np.float32).reshape(len(poses), -1)
-        features = np.ascontiguousarray(features, np.float32)
-        if len(poses) != len(features) or len(poses) < 2:
-            raise DataError(f"prior: {len(poses)} poses and {len(features)} feature rows (need equal, >= 2)")
-        if not (np.isfinite(poses).all() and np.isfinite(features).all()):
-            raise DataError("prior: poses or features contain NaN (a prior clip lacks a pose joint?)")
-        x = np.concatenate([poses, np.ones((len(poses), 1), np.float32)], 1).astype(np.float64)
-        f = features.astype(np.float64)
-        gram = x.T @ x
-        gram[np.diag_indices_from(gram)] += 1e-9 * np.trace(gram) / len(gram)  # ridge: poses are rank-deficient
-        fmap = np.linalg.solve(gram, x.T @ f)
-        resid = ((x @ fmap - f) ** 2).sum()
-        total = ((f - f.mean(0)) ** 2).sum()
-        r2 = float(1.0 - resid / total) if total > 0 else 1.0
-        index.build(features)
-        return cls(tuple(joints), poses, features, index, fmap, r2)
-
-    def query_features(self, pose: np.ndarray) -> np.ndarray:
-        """Query vector (1, d) float32 of one pose (P*3,)."""
-        return (pose @ self.feature_map[:-1] + self.feature_map[-1]).astype(np.float32)[None, :]
-
-
 def _yaw_align(model: np.ndarray, observed: np.ndarray) -> float:
     """Yaw (radians) rotating ``model (M,3)`` onto ``observed (M,3)`` best in the ground plane."""
     s = np.sum(observed[:, 0] * model[:, 2] - observed[:, 2] * model[:, 0])
@@ -135,33 +82,34 @@ def _yaw_align(model: np.ndarray, observed: np.ndarray) -> float:
 
 
 class ReconstructParams(Params):
-    features: str = Field("end_effectors", description="features component of the kNN search")
-    feature_params: dict = Field(default_factory=dict, description="parameters of that feature set")
     k: int = Field(64, ge=2, description="neighbours of the local linear model")
     leave_out: Literal["clip", "subject", "none"] = Field(
-        "clip", description="prior clips withheld for each test clip: the same clip (by name), its subject, or none"
+        "clip", description="prior takes withheld for each test clip: the same clip (by name), its subject, or none"
     )
 
 
 @dataclass(frozen=True)
 class ReconstructModel:
-    """The reconstruction's fixed model (the paper's set-up; measured, docs/knn.md).
+    """The reconstruction's fixed model (measured: docs/knn.md, "How the default was chosen").
 
     ``markers``: canonical marker joints (root needed; the paper's 6); ``noise``: uniform
-    marker disturbance, metres (paper: 1 mm), drawn with ``seed``; ``marker_sigma``: marker
-    misfit scale, metres (model error dominates the 1 mm noise); ``smooth_sigma``: allowed
-    deviation from the constant-velocity prediction, metres; ``iterations``: searches per
-    frame (the 2nd around the synthesised pose); ``backward_frames``: first frames solved
-    again backwards (they lack a past). The kNN index is ``indexes.kdtree`` on one thread
-    (one query per frame: threads only add wake-up latency).
+    marker disturbance of synthetic markers, metres (paper: 1 mm), drawn with ``seed``;
+    ``marker_sigma``: marker misfit scale, metres; ``smooth_sigma``: allowed deviation from
+    the constant-velocity prediction, metres; ``velocity_weight``: seconds, weight of the
+    marker velocities in the kNN query; ``iterations``: searches per frame;
+    ``backward_frames``: first frames solved again backwards (they lack a past);
+    ``project``: put the solved pose on the performer's bone lengths. The kNN index is
+    ``indexes.kdtree`` on one thread (one query per search).
     """
 
     markers: tuple[str, ...] = DEFAULT_MARKERS
     noise: float = 0.001
     marker_sigma: float = 0.005
     smooth_sigma: float = 0.02
+    velocity_weight: float = 0.1
     iterations: int = 2
     backward_frames: int = 10
+    project: bool = True
     seed: int = 0
 
 
@@ -175,32 +123,100 @@ def prior_index() -> Index:
     return KDTreeIndex(workers=1)
 
 
+@dataclass
+class PosePrior:
+    """The prior as one performer's reconstruction sees it (retargeted to ``lengths``).
+
+    Attributes
+    ----------
+    joints : tuple of str, P canonical joints of the pose vector
+    lengths : ndarray (P,), the performer's bone lengths, metres
+    fps : float, the prior's frame rate (the velocity's time step)
+    poses : ndarray of float32, shape (N, P*3), root-normalised positions, metres
+    features : ndarray of float32, shape (N, d), the kNN rows: non-root markers, velocities
+    index : Index, built on ``features``
+    """
+
+    joints: tuple[str, ...]
+    lengths: np.ndarray
+    fps: float
+    markers: tuple[str, ...]
+    poses: np.ndarray
+    features: np.ndarray
+    index: Index
+
+    @classmethod
+    def build(
+        cls,
+        store: PriorStore,
+        lengths: np.ndarray,
+        keep: np.ndarray | None = None,
+        index: Index | None = None,
+        model: ReconstructModel = MODEL,
+    ) -> PosePrior:
+        """The takes of ``store`` where ``keep`` (C,) is true, on bone ``lengths`` (P,)."""
+        joints = list(store.joints)
+        if "root" not in model.markers or any(m not in joints for m in model.markers):
+            raise DataError(f"markers {list(model.markers)} must include 'root' and lie in the pose joints {joints}")
+        rows = store.rows(np.ones(len(store.clips), bool) if keep is None else np.asarray(keep, bool))
+        if len(rows) < 2:
+            raise DataError(f"prior: {len(rows)} frames left after leaving out the test takes (need >= 2)")
+        lengths = np.asarray(lengths, np.float64)
+        if lengths.shape != (len(joints),) or not np.isfinite(lengths).all():
+            raise DataError(f"bone lengths must be {len(joints)} finite numbers, got shape {lengths.shape}")
+        poses = store.retarget(lengths, rows)
+        prev = np.searchsorted(rows, np.asarray(store.prev)[rows])
+        cols = [joints.index(m) for m in model.markers if m != "root"]
+        feat = poses[:, cols].reshape(len(rows), -1)
+        vel = model.velocity_weight * store.fps * (feat - feat[prev])
+        features = np.ascontiguousarray(np.concatenate([feat, vel], 1), np.float32)
+        index = index or prior_index()
+        index.build(features)
+        return cls(store.joints, lengths, store.fps, model.markers, poses.reshape(len(rows), -1), features, index)
+
+
 def _local_model(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean (D,), centred neighbours X (K, D) and Gram matrix X X^T (K, K) of poses ``nb``.
 
     The local linear model keeps every principal component of the K neighbours with the
     Gaussian prior of their sample covariance C = X^T X / (K-1). Writing the pose as
     ``y = mu + X^T a`` turns that prior into ``(K-1) |a|^2`` (``X C^+ X^T = (K-1) U U^T``),
-    so the MAP pose is one K x K solve and needs no eigen-decomposition -- which matters:
-    LAPACK's threaded SVD costs 20-40 ms per frame on a loaded 2-core machine.
+    so the MAP pose is one K x K solve and needs no eigen-decomposition.
     """
     mu = nb.mean(0)
     x = nb - mu
     return mu, x, x @ x.T
 
 
+@dataclass
+class _Frames:
+    """Per-take constants of one reconstruction: marker columns, the bone projection."""
+
+    sel: np.ndarray
+    nonroot: np.ndarray
+    parents: np.ndarray
+    chain: np.ndarray
+    lengths: np.ndarray
+
+
 def reconstruct_positions(
-    markers: np.ndarray, prior: PosePrior, params: ReconstructParams | None = None, model: ReconstructModel = MODEL
+    markers: np.ndarray,
+    prior: PosePrior,
+    params: ReconstructParams | None = None,
+    model: ReconstructModel = MODEL,
+    fps: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Reconstruct full poses from marker trajectories.
 
     Parameters
     ----------
     markers : ndarray of shape (T, M, 3), metres
-        World positions of ``model.markers`` (which must include ``root``).
+        World positions of ``model.markers`` (which must include ``root``), y up.
     prior : PosePrior
     params : ReconstructParams
     model : ReconstructModel
+    fps : float, optional
+        Frame rate of ``markers`` (default: the prior's).
 
     Returns
     -------
@@ -209,55 +225,94 @@ def reconstruct_positions(
     heading : ndarray of shape (T,), radians
     """
     p = params or ReconstructParams()
-    mk = model.markers
+    mk = list(model.markers)
     markers = np.asarray(markers, np.float64)
     joints = list(prior.joints)
-    if "root" not in mk or any(m not in joints for m in mk):
-        raise DataError(f"markers {list(mk)} must include 'root' and lie in the pose joints {joints}")
+    if tuple(mk) != prior.markers or "root" not in mk or any(m not in joints for m in mk):
+        raise DataError(f"markers {mk} must include 'root', lie in the pose joints {joints} and be the prior's")
     if markers.ndim != 3 or markers.shape[1:] != (len(mk), 3):
         raise DataError(f"markers must be (T, {len(mk)}, 3), got {markers.shape}")
+    if not np.isfinite(markers).all():
+        raise DataError("markers contain NaN or inf (fill gaps first)")
     t_len, n_j = len(markers), len(joints)
-    sel = np.array([[3 * joints.index(m) + a for a in range(3)] for m in mk]).ravel()
-    root = markers[:, list(mk).index("root")]
+    parents = bone_parents(joints)
+    fr = _Frames(
+        np.array([[3 * joints.index(m) + a for a in range(3)] for m in mk]).ravel(),
+        np.array([i for i, m in enumerate(mk) if m != "root"]),
+        parents,
+        chain_matrix(parents),
+        prior.lengths,
+    )
+    rate = float(fps or prior.fps)
+    lag = max(1, int(round(rate / prior.fps)))
+    vscale = model.velocity_weight * rate / lag
+    root = markers[:, mk.index("root")]
     rel = markers - root[:, None, :]
     out = np.zeros((t_len, n_j * 3))
     heading = np.zeros(t_len)
     if t_len == 0:
         return out.reshape(0, n_j, 3), heading
-    theta, guess = _initial_pose(rel[0], prior.poses, sel)
+
+    def solve(t: int, guess: np.ndarray, theta: float, pred: np.ndarray | None, iters: int) -> None:
+        back = max(t - lag, 0)
+        past = rotate_about_y(rel[back][None], np.array([-heading[back] if back != t else 0.0]))[0]
+        out[t], heading[t] = _solve_frame(
+            rel[t], past, back == t, vscale, guess, theta, pred, prior, fr, p.k, model, iters
+        )
+
+    theta, guess = _initial_pose(rel[0], prior.poses, fr.sel)
+    heading[0] = theta
     # the first frame starts from a database pose and has no temporal context: search more often
-    out[0], heading[0] = _solve_frame(rel[0], guess, theta, None, prior, sel, p.k, model, max(model.iterations, 5))
+    solve(0, guess, theta, None, max(model.iterations, 5))
     for t in range(1, t_len):
         pred = 2 * out[t - 1] - out[t - 2] if t >= 2 else out[t - 1]
-        out[t], heading[t] = _solve_frame(rel[t], pred, heading[t - 1], pred, prior, sel, p.k, model, model.iterations)
+        solve(t, pred, heading[t - 1], pred, model.iterations)
     # then a short backward pass: the first frames again, predicted from the later ones
     for t in range(min(model.backward_frames, t_len - 2) - 1, -1, -1):
         pred = 2 * out[t + 1] - out[t + 2]
-        out[t], heading[t] = _solve_frame(rel[t], pred, heading[t + 1], pred, prior, sel, p.k, model, model.iterations)
+        solve(t, pred, heading[t + 1], pred, model.iterations)
     world = rotate_about_y(out.reshape(t_len, n_j, 3), heading) + root[:, None, :]
     return world, heading
 
 
+def project_bones(pose: np.ndarray, fr: _Frames) -> np.ndarray:
+    """Pose (D,) with every bone put on the performer's length, directions kept."""
+    y = pose.reshape(-1, 3)
+    v = y - y[np.maximum(fr.parents, 0)]
+    n = np.linalg.norm(v, axis=1, keepdims=True)
+    d = np.where(n > 1e-9, v / np.maximum(n, 1e-12), 0.0)
+    d[0] = 0.0
+    return (fr.chain @ (d * fr.lengths[:, None])).ravel()
+
+
 def _solve_frame(
     rel: np.ndarray,
+    past: np.ndarray,
+    still: bool,
+    vscale: float,
     guess: np.ndarray,
     theta: float,
     pred: np.ndarray | None,
     prior: PosePrior,
-    sel: np.ndarray,
+    fr: _Frames,
     k: int,
     model: ReconstructModel,
     iterations: int,
 ) -> tuple[np.ndarray, float]:
-    """One frame: kNN around ``guess``, local model, MAP pose and heading (see module doc).
+    """One frame: kNN of the control signal, local model, MAP pose and heading (module doc).
 
-    rel : (M, 3) markers relative to the root marker; guess, pred : (D,) local poses;
-    returns the pose (D,) and heading (radians).
+    rel : (M, 3) markers relative to the root marker; past : (M, 3) those ``1 / prior fps``
+    earlier in their own heading frame (``still``: no past, zero velocity); guess, pred :
+    (D,) local poses; returns the pose (D,) and heading (radians).
     """
     w_m, w_s = 1.0 / model.marker_sigma**2, 1.0 / model.smooth_sigma**2
     k = min(k, len(prior.poses))
+    sel = fr.sel
     for _ in range(iterations):
-        _, ids = prior.index.query(prior.query_features(guess), k)
+        obs_m = rotate_about_y(rel[None], np.array([-theta]))[0]
+        vel = np.zeros_like(obs_m) if still else vscale * (obs_m - past)
+        q = np.concatenate([obs_m[fr.nonroot].ravel(), vel[fr.nonroot].ravel()]).astype(np.float32)[None]
+        _, ids = prior.index.query(q, k)
         nb = prior.poses[ids[0][ids[0] >= 0]].astype(np.float64)
         mu, x, gram = _local_model(nb)
         xs = x[:, sel]
@@ -271,6 +326,8 @@ def _solve_frame(
                 rhs += w_s * x @ (pred - mu)
             guess = mu + x.T @ np.linalg.solve(lhs, rhs)
             theta = _yaw_align(guess[sel].reshape(-1, 3), rel)
+    if model.project:
+        guess = project_bones(guess, fr)
     return guess, theta
 
 
@@ -300,54 +357,39 @@ def joint_errors(recon: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.n
     return per_joint_mean, per_joint_max, float(np.nanmean(frame_mean)), float(np.nanmax(frame_mean))
 
 
-class PriorDatabase:
-    """Poses and feature rows of candidate prior clips, computed once, so that priors
-    leaving out different clips (Tables 3 and 4) only concatenate and rebuild the index.
+def withheld(store: PriorStore, motion: Motion, leave_out: str) -> np.ndarray:
+    """Mask (C,) of prior takes to leave out for a test clip: same name, same subject, or none
+    (mirror images go with their take)."""
+    if leave_out == "subject":
+        subj = str(motion.metadata.get("subject", ""))
+        return np.array([c["subject"] == subj for c in store.clips])
+    if leave_out == "clip":
+        return np.array([c["name"] == motion.name for c in store.clips])
+    return np.zeros(len(store.clips), bool)
 
-    Parameters
-    ----------
-    db : MotionDatabase
-    feature_set : FeatureSet
-        Fitted if it needs fitting; features are computed clip by clip.
-    joints : sequence of str
-        Pose joints; joints some clip lacks are dropped.
-    """
 
-    def __init__(self, db: MotionDatabase, feature_set: FeatureSet, joints: Sequence[str] = CANONICAL_JOINTS) -> None:
-        present = [j for j in joints if all(j in m.skeleton.canonical for m in db.motions)]
-        self.joints = tuple(present)
-        self.names = [m.name for m in db.motions]
-        self.subjects = [str(m.metadata.get("subject", "")) for m in db.motions]
-        self.poses = [
-            local_poses(m.canonical_positions(self.joints), self.joints).reshape(m.n_frames, -1).astype(np.float32)
-            for m in db.motions
-        ]
-        self.features = [np.asarray(feature_set.transform(m), np.float32) for m in db.motions]
+class PriorCache:
+    """The last :class:`PosePrior` built from ``store``, reused while the kept takes and the
+    performer's bone lengths stay the same (test clips of one performer)."""
 
-    @property
-    def n_frames(self) -> np.ndarray:
-        return np.array([len(p) for p in self.poses])
+    def __init__(self, store: PriorStore, model: ReconstructModel = MODEL) -> None:
+        self.store, self.model = store, model
+        self._key: bytes | None = None
+        self._prior: PosePrior | None = None
 
-    def withheld(self, motion: Motion, leave_out: str) -> np.ndarray:
-        """Mask of clips to leave out for a test clip: same name, same subject, or none."""
-        if leave_out == "subject":
-            subj = str(motion.metadata.get("subject", ""))
-            return np.array([s == subj for s in self.subjects])
-        if leave_out == "clip":
-            return np.array([n == motion.name for n in self.names])
-        return np.zeros(len(self.names), bool)
+    def get(self, keep: np.ndarray, lengths: np.ndarray) -> PosePrior:
+        key = np.asarray(keep, bool).tobytes() + np.round(np.asarray(lengths), 4).tobytes()
+        if key != self._key or self._prior is None:
+            self._prior = PosePrior.build(self.store, lengths, keep, model=self.model)
+            self._key = key
+        return self._prior
 
-    def prior(self, keep: np.ndarray, index: Index) -> PosePrior:
-        """A :class:`PosePrior` of the clips where ``keep`` is true (``index`` is built)."""
-        rows = np.flatnonzero(keep)
-        if len(rows) == 0:
-            raise DataError("prior database is empty after leaving out the test clips")
-        return PosePrior.build(
-            np.concatenate([self.poses[i] for i in rows]),
-            np.concatenate([self.features[i] for i in rows]),
-            index,
-            self.joints,
-        )
+    def for_motion(self, motion: Motion, leave_out: str) -> PosePrior:
+        """The prior for a test clip: its ``leave_out`` takes withheld, its skeleton's bone lengths."""
+        lengths = bone_lengths(motion.canonical_positions(self.store.joints), self.store.joints)
+        if not np.isfinite(lengths).all():
+            raise DataError(f"motion {motion.name!r} lacks pose joints of the prior {list(self.store.joints)}")
+        return self.get(~withheld(self.store, motion, leave_out), lengths)
 
 
 def reconstruct_motion(
@@ -356,13 +398,14 @@ def reconstruct_motion(
     """Reconstruct one clip from its synthetic markers; the result and its errors.
 
     Returns the reconstructed Motion (test clip's skeleton, ``<name>_recon``) and a dict:
-    ``joints``, ``mean_cm``/``max_cm`` per joint, ``avg_cm``, ``max_cm``, ``fk_avg_cm``,
+    ``joints``, ``mean_cm``/``max_cm`` per joint, ``avg_cm``, ``max_frame_cm`` (worst
+    per-frame average), ``max_joint_cm`` (worst joint of any frame), ``fk_avg_cm``,
     ``seconds`` (reconstruction time, excluding the prior).
     """
     p = params or ReconstructParams()
     markers = synthetic_markers(motion, model.markers, model.noise, np.random.default_rng(model.seed))
     t0 = time.perf_counter()
-    world, _ = reconstruct_positions(markers, prior, p, model)
+    world, _ = reconstruct_positions(markers, prior, p, model, fps=motion.fps)
     seconds = time.perf_counter() - t0
     truth = motion.canonical_positions(prior.joints)
     mean, mx, avg, worst = joint_errors(world, truth)
@@ -381,6 +424,7 @@ def reconstruct_motion(
         "max_cm": mx,
         "avg_cm": avg,
         "max_frame_cm": worst,
+        "max_joint_cm": float(np.nanmax(mx)),
         "fk_avg_cm": fk_avg,
         "seconds": seconds,
     }
@@ -403,10 +447,47 @@ CLIP_ERRORS = pa.schema(
         ("prior_frames", pa.int64()),
         ("avg_cm", pa.float64()),
         ("max_cm", pa.float64()),
+        ("max_joint_cm", pa.float64()),
         ("fk_avg_cm", pa.float64()),
         ("frames_per_s", pa.float64()),
     ]
 )
+
+#: Folder of a prior store inside a ``reconstruction_prior`` step's dataset.
+PRIOR_FOLDER = "prior"
+
+
+def open_prior(ds: Dataset, fps: float = 30.0) -> PriorStore:
+    """The prior store of a ``reconstruction_prior`` dataset (memory-mapped), or one built
+    from a motions dataset (resampled to ``fps``, mirrored)."""
+    folder = ds.path / PRIOR_FOLDER
+    if (folder / "clips.json").is_file():
+        return PriorStore.load(folder)
+    return build_store(ds.motions().motions, fps=fps)
+
+
+class ReconstructionPriorParams(Params):
+    fps: float = Field(30.0, gt=0, description="frame rate every prior take is resampled to")
+    mirrored: bool = Field(True, description="add every take's left/right mirror image")
+
+
+class ReconstructionPrior(Analysis):
+    """The reconstruction's prior database, built once: every take as bone directions
+    (:mod:`.reconstruct_prior`), memory-mapped by ``analyses.reconstruct``."""
+
+    name = "reconstruction_prior"
+    inputs: Mapping[str, bool] = {"motions": True}
+    Params = ReconstructionPriorParams
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        p = self.params
+        store = build_store(inputs["motions"].motions().motions, fps=p.fps, mirrored=p.mirrored)
+        store.save(ctx.out_dir / PRIOR_FOLDER)
+        takes = pa.Table.from_pylist(
+            [{**c, "n_frames": int(store.clip_rows[i + 1] - store.clip_rows[i])} for i, c in enumerate(store.clips)]
+        )
+        summary = {"takes": len(store.clips), "frames": store.n_frames, "fps": store.fps, "joints": list(store.joints)}
+        return StepOutput({"data": takes}, summary)
 
 
 class Reconstruct(Analysis):
@@ -420,20 +501,15 @@ class Reconstruct(Analysis):
         from mocapflow.framework.motion_tables import motions_to_tables
 
         p = self.params
-        prior_db, test_db = inputs["prior"].motions(), inputs["test"].motions()
-        fs = ctx.registries["features"].get(p.features)(p.feature_params)
-        if fs.requires_fit:
-            fs.fit(prior_db)
-        store = PriorDatabase(prior_db, fs)
-        motions, err_rows, clip_rows, cache = [], [], [], {}
+        test_db = inputs["test"].motions()
+        store = open_prior(inputs["prior"])
+        cache = PriorCache(store)
+        motions, err_rows, clip_rows = [], [], []
         for cid, m in zip(
             test_db.clip_ids, ctx.progress(test_db.motions, total=test_db.n_clips, desc=ctx.step_id), strict=True
         ):
-            keep = ~store.withheld(m, p.leave_out)
-            key = keep.tobytes()
-            if key not in cache:  # one index per distinct left-out set
-                cache = {key: store.prior(keep, prior_index())}
-            rec, e = reconstruct_motion(m, cache[key], p)
+            prior = cache.for_motion(m, p.leave_out)
+            rec, e = reconstruct_motion(m, prior, p)
             motions.append(rec)
             err_rows += [
                 {"clip_id": int(cid), "name": m.name, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
@@ -445,9 +521,10 @@ class Reconstruct(Analysis):
                     "clip_id": int(cid),
                     "name": m.name,
                     "n_frames": m.n_frames,
-                    "prior_frames": int(store.n_frames[keep].sum()),
+                    "prior_frames": len(prior.poses),
                     "avg_cm": e["avg_cm"],
                     "max_cm": e["max_frame_cm"],
+                    "max_joint_cm": e["max_joint_cm"],
                     "fk_avg_cm": e["fk_avg_cm"],
                     "frames_per_s": m.n_frames / max(e["seconds"], 1e-9),
                 }
@@ -455,12 +532,11 @@ class Reconstruct(Analysis):
         tables = motions_to_tables(motions, list(test_db.clip_ids))
         tables["errors"] = pa.Table.from_pylist(err_rows, schema=ERRORS)
         tables["clip_errors"] = pa.Table.from_pylist(clip_rows, schema=CLIP_ERRORS)
-        frames = sum(r["n_frames"] for r in clip_rows)
         summary = {
             "clips": len(clip_rows),
-            "frames": frames,
+            "frames": sum(r["n_frames"] for r in clip_rows),
             "avg_cm": float(np.mean([r["avg_cm"] for r in clip_rows])) if clip_rows else None,
-            "feature_fit_r2": float(next(iter(cache.values())).feature_fit_r2) if cache else None,
-            "backend": f"features.{p.features} + indexes.kdtree",
+            "prior_takes": len(store.clips),
+            "backend": "retargeted bone-direction prior + indexes.kdtree",
         }
         return StepOutput(tables, summary)
