@@ -39,8 +39,10 @@ from corpus import CACHE, DATA, REPO
 from mocapflow.framework import Motion
 from mocapflow.framework.normalize import resample
 from mocapflow.plugins.similarity.applications.reconstruct import (
+    MODEL,
     PosePrior,
     PriorCache,
+    ReconstructModel,
     ReconstructParams,
     reconstruct_motion,
     withheld,
@@ -89,17 +91,24 @@ def bootstrap_ci(values: np.ndarray, n: int = 2000, seed: int = 0) -> tuple[floa
     return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
-def run_loso(tests: list[Motion], store: PriorStore, lengths: np.ndarray | None = None, verbose: bool = True) -> dict:
+def run_loso(
+    tests: list[Motion],
+    store: PriorStore,
+    lengths: np.ndarray | None = None,
+    verbose: bool = True,
+    model: ReconstructModel = MODEL,
+    params: ReconstructParams | None = None,
+) -> dict:
     """Every test clip against the prior without its subject (retargeted to the clip's
     skeleton, or to bone ``lengths`` if given); the error summary."""
-    cache, params = PriorCache(store), ReconstructParams()
+    cache, params = PriorCache(store, model), params or ReconstructParams()
     rows, frames, seconds, joint_sum = [], 0, 0.0, None
     for m in tests:
         if lengths is not None:
             prior = cache.get(~withheld(store, m, "subject"), lengths)
         else:
             prior = cache.for_motion(m, "subject")
-        _, e = reconstruct_motion(m, prior, params)
+        _, e = reconstruct_motion(m, prior, params, model)
         rows.append((m.name, e["avg_cm"], e["max_frame_cm"], e["max_joint_cm"]))
         frames += m.n_frames
         seconds += e["seconds"]

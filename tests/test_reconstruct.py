@@ -241,3 +241,18 @@ def test_pipeline_end_to_end(tmp_path):
     # the test subject's other takes help: leaving the subject out costs accuracy on average
     by = {p: np.mean([r["avg_cm"] for r in t3 if r["prior"] == p]) for p in ("CMU-", "CMU")}
     assert by["CMU"] <= by["CMU-"]
+
+
+def test_map_pose_kernel_matches_numpy_twin():
+    from mocapflow.plugins.similarity.applications._reconstruct_kernels import map_pose
+    from mocapflow.plugins.similarity.applications.reconstruct import _map_pose_numpy
+
+    rng = np.random.default_rng(5)
+    nb = rng.normal(size=(20, 75))
+    sel = np.arange(18) * 3 % 75
+    rel = rng.normal(size=(6, 3))
+    pred = rng.normal(size=75)
+    for has_pred in (True, False):
+        a, ta = map_pose(nb, sel, rel, 0.3, pred, has_pred, 4e4, 2.5e3, 2)
+        b, tb = _map_pose_numpy(nb, sel, rel, 0.3, pred, has_pred, 4e4, 2.5e3, 2)
+        assert np.allclose(a, b, atol=1e-9) and ta == pytest.approx(tb)

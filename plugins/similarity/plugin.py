@@ -59,6 +59,7 @@ def register_analyses() -> list[type]:
 
 @hookimpl
 def register_commands() -> list[type]:
+    from .applications.reconstruct_command import ReconstructCommand
     from .search.search_command import SearchCommand
 
-    return [SearchCommand]
+    return [SearchCommand, ReconstructCommand]

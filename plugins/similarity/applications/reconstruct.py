@@ -47,7 +47,7 @@ from mocapflow.framework import (
     StepOutput,
 )
 from mocapflow.framework.datasets import Dataset
-from mocapflow.framework.normalize import rotate_about_y
+from mocapflow.framework.normalize import facing_angles, rotate_about_y
 
 from .reconstruct_prior import PriorStore, bone_lengths, bone_parents, build_store, chain_matrix
 from .retarget import positions_to_motion
@@ -74,6 +74,13 @@ def synthetic_markers(
     return pos + rng.uniform(-noise, noise, pos.shape)
 
 
+def synthetic_heading(motion: Motion, noise: float = 0.001, rng: np.random.Generator | None = None) -> np.ndarray:
+    """The root's heading (T,) radians from the hip joints, each coordinate disturbed
+    uniformly in ``±noise`` metres (a pelvis marker cluster's orientation)."""
+    hips = synthetic_markers(motion, ("lhip", "rhip"), noise, rng)
+    return facing_angles(hips, ("lhip", "rhip"))
+
+
 def _yaw_align(model: np.ndarray, observed: np.ndarray) -> float:
     """Yaw (radians) rotating ``model (M,3)`` onto ``observed (M,3)`` best in the ground plane."""
     s = np.sum(observed[:, 0] * model[:, 2] - observed[:, 2] * model[:, 0])
@@ -98,7 +105,9 @@ class ReconstructModel:
     the constant-velocity prediction, metres; ``velocity_weight``: seconds, weight of the
     marker velocities in the kNN query; ``iterations``: searches per frame;
     ``backward_frames``: first frames solved again backwards (they lack a past);
-    ``project``: put the solved pose on the performer's bone lengths. The kNN index is
+    ``project``: put the solved pose on the performer's bone lengths, limbs on their
+    markers; ``root_heading``: the root marker carries its heading (synthetic: from the
+    hips, ±``noise``), else it is estimated from the markers. The kNN index is
     ``indexes.kdtree`` on one thread (one query per search).
     """
 
@@ -110,6 +119,7 @@ class ReconstructModel:
     iterations: int = 2
     backward_frames: int = 10
     project: bool = True
+    root_heading: bool = True
     seed: int = 0
 
 
@@ -197,6 +207,28 @@ class _Frames:
     parents: np.ndarray
     chain: np.ndarray
     lengths: np.ndarray
+    limbs: list[tuple[int, int, int, int, np.ndarray]]
+
+
+#: Two-bone chains (base, middle, end) whose end a marker may pin (:func:`limb_ik`).
+LIMBS: tuple[tuple[str, str, str], ...] = (
+    ("lshoulder", "lelbow", "lwrist"),
+    ("rshoulder", "relbow", "rwrist"),
+    ("lhip", "lknee", "lankle"),
+    ("rhip", "rknee", "rankle"),
+    ("chest", "neck", "head"),
+)
+
+
+def _limbs(joints: list[str], markers: list[str], chain: np.ndarray) -> list[tuple[int, int, int, int, np.ndarray]]:
+    """(base, middle, end, marker, descendants of end) of each limb of :data:`LIMBS` with a marker at its end."""
+    out = []
+    for a, b, c in LIMBS:
+        if c in markers and all(j in joints for j in (a, b, c)):
+            e = joints.index(c)
+            below = np.flatnonzero(chain[:, e] > 0)
+            out.append((joints.index(a), joints.index(b), e, markers.index(c), below[below != e]))
+    return out
 
 
 def reconstruct_positions(
@@ -205,6 +237,7 @@ def reconstruct_positions(
     params: ReconstructParams | None = None,
     model: ReconstructModel = MODEL,
     fps: float | None = None,
+    root_heading: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Reconstruct full poses from marker trajectories.
 
@@ -217,6 +250,10 @@ def reconstruct_positions(
     model : ReconstructModel
     fps : float, optional
         Frame rate of ``markers`` (default: the prior's).
+    root_heading : ndarray of shape (T,), radians, optional
+        The root's heading (facing ``(lhip - rhip) x up``, as :func:`facing_angles`): the
+        root marker as a rigid body (a pelvis cluster), which the paper's root-normalised
+        features presuppose. Without it the heading is estimated from the markers.
 
     Returns
     -------
@@ -234,6 +271,11 @@ def reconstruct_positions(
         raise DataError(f"markers must be (T, {len(mk)}, 3), got {markers.shape}")
     if not np.isfinite(markers).all():
         raise DataError("markers contain NaN or inf (fill gaps first)")
+    fixed = root_heading is not None
+    if root_heading is not None:
+        root_heading = np.asarray(root_heading, np.float64)
+        if root_heading.shape != (len(markers),) or not np.isfinite(root_heading).all():
+            raise DataError(f"root_heading must be {len(markers)} finite angles, got shape {root_heading.shape}")
     t_len, n_j = len(markers), len(joints)
     parents = bone_parents(joints)
     fr = _Frames(
@@ -242,6 +284,7 @@ def reconstruct_positions(
         parents,
         chain_matrix(parents),
         prior.lengths,
+        _limbs(joints, mk, chain_matrix(parents)),
     )
     rate = float(fps or prior.fps)
     lag = max(1, int(round(rate / prior.fps)))
@@ -253,14 +296,18 @@ def reconstruct_positions(
     if t_len == 0:
         return out.reshape(0, n_j, 3), heading
 
+    if root_heading is not None:
+        heading[:] = root_heading
+
     def solve(t: int, guess: np.ndarray, theta: float, pred: np.ndarray | None, iters: int) -> None:
         back = max(t - lag, 0)
         past = rotate_about_y(rel[back][None], np.array([-heading[back] if back != t else 0.0]))[0]
+        theta = heading[t] if fixed else theta
         out[t], heading[t] = _solve_frame(
-            rel[t], past, back == t, vscale, guess, theta, pred, prior, fr, p.k, model, iters
+            rel[t], past, back == t, vscale, guess, theta, pred, prior, fr, p.k, model, iters, fixed
         )
 
-    theta, guess = _initial_pose(rel[0], prior.poses, fr.sel)
+    theta, guess = _initial_pose(rel[0], prior.poses, fr.sel, None if root_heading is None else heading[0])
     heading[0] = theta
     # the first frame starts from a database pose and has no temporal context: search more often
     solve(0, guess, theta, None, max(model.iterations, 5))
@@ -285,6 +332,34 @@ def project_bones(pose: np.ndarray, fr: _Frames) -> np.ndarray:
     return (fr.chain @ (d * fr.lengths[:, None])).ravel()
 
 
+def limb_ik(pose: np.ndarray, obs: np.ndarray, fr: _Frames) -> np.ndarray:
+    """Pose (D,) with each limb's end on its marker (``obs`` (M, 3), heading frame), as
+    far as the performer's bones reach: the middle joint on the circle the two bone lengths
+    allow, on the side of the solved one (analytic two-bone IK); the end's descendants move
+    with it."""
+    y = pose.reshape(-1, 3).copy()
+    for a, b, c, m, below in fr.limbs:
+        l1, l2 = fr.lengths[b], fr.lengths[c]
+        axis = obs[m] - y[a]
+        dist = float(np.linalg.norm(axis))
+        if dist < 1e-9 or l1 + l2 < 1e-9:
+            continue
+        u = axis / dist
+        d = min(max(dist, abs(l1 - l2) + 1e-9), l1 + l2 - 1e-9) if l1 + l2 > 2e-9 else 0.0
+        x = (l1 * l1 - l2 * l2 + d * d) / (2 * d) if d > 0 else 0.0
+        r = np.sqrt(max(l1 * l1 - x * x, 0.0))
+        side = y[b] - y[a] - np.dot(y[b] - y[a], u) * u
+        n = float(np.linalg.norm(side))
+        if n < 1e-9:
+            side = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+            n = float(np.linalg.norm(side))
+        end = y[a] + d * u
+        y[below] += end - y[c]
+        y[b] = y[a] + x * u + r * side / n
+        y[c] = end
+    return y.ravel()
+
+
 def _solve_frame(
     rel: np.ndarray,
     past: np.ndarray,
@@ -298,49 +373,80 @@ def _solve_frame(
     k: int,
     model: ReconstructModel,
     iterations: int,
+    fixed: bool = False,
 ) -> tuple[np.ndarray, float]:
     """One frame: kNN of the control signal, local model, MAP pose and heading (module doc).
 
     rel : (M, 3) markers relative to the root marker; past : (M, 3) those ``1 / prior fps``
     earlier in their own heading frame (``still``: no past, zero velocity); guess, pred :
-    (D,) local poses; returns the pose (D,) and heading (radians).
+    (D,) local poses; returns the pose (D,) and heading (radians, kept if ``fixed``).
     """
+    from ._reconstruct_kernels import map_pose
+
     w_m, w_s = 1.0 / model.marker_sigma**2, 1.0 / model.smooth_sigma**2
     k = min(k, len(prior.poses))
-    sel = fr.sel
+    has_pred = pred is not None
+    pred_v = pred if pred is not None else guess
     for _ in range(iterations):
-        obs_m = rotate_about_y(rel[None], np.array([-theta]))[0]
+        c, s = np.cos(theta), np.sin(theta)
+        obs_m = np.stack([c * rel[:, 0] - s * rel[:, 2], rel[:, 1], s * rel[:, 0] + c * rel[:, 2]], 1)
         vel = np.zeros_like(obs_m) if still else vscale * (obs_m - past)
         q = np.concatenate([obs_m[fr.nonroot].ravel(), vel[fr.nonroot].ravel()]).astype(np.float32)[None]
         _, ids = prior.index.query(q, k)
         nb = prior.poses[ids[0][ids[0] >= 0]].astype(np.float64)
-        mu, x, gram = _local_model(nb)
-        xs = x[:, sel]
-        lhs = w_m * xs @ xs.T + max(len(nb) - 1, 1) * np.eye(len(nb))
-        if pred is not None:
-            lhs += w_s * gram
-        for _ in range(2):  # alternate pose and heading
-            obs = rotate_about_y(rel[None], np.array([-theta]))[0].ravel()
-            rhs = w_m * xs @ (obs - mu[sel])
-            if pred is not None:
-                rhs += w_s * x @ (pred - mu)
-            guess = mu + x.T @ np.linalg.solve(lhs, rhs)
-            theta = _yaw_align(guess[sel].reshape(-1, 3), rel)
+        guess, new_theta = map_pose(nb, fr.sel, rel, theta, pred_v, has_pred, w_m, w_s, 1 if fixed else 2)
+        theta = theta if fixed else new_theta
     if model.project:
-        guess = project_bones(guess, fr)
+        c, s = np.cos(theta), np.sin(theta)
+        obs_m = np.stack([c * rel[:, 0] - s * rel[:, 2], rel[:, 1], s * rel[:, 0] + c * rel[:, 2]], 1)
+        guess = limb_ik(project_bones(guess, fr), obs_m, fr)
+    return guess, float(theta)
+
+
+def _map_pose_numpy(
+    nb: np.ndarray,
+    sel: np.ndarray,
+    rel: np.ndarray,
+    theta: float,
+    pred: np.ndarray,
+    has_pred: bool,
+    w_m: float,
+    w_s: float,
+    alternations: int,
+) -> tuple[np.ndarray, float]:
+    """The MAP pose (D,) and heading of one search (the slow twin of
+    :func:`._reconstruct_kernels.map_pose`): local model of neighbours ``nb`` (K, D), marker
+    term on columns ``sel`` for markers ``rel`` (M, 3) relative to the root, smoothness
+    towards ``pred`` (if ``has_pred``), alternated with the heading."""
+    mu, x, gram = _local_model(nb)
+    xs = x[:, sel]
+    lhs = w_m * xs @ xs.T + max(len(nb) - 1, 1) * np.eye(len(nb))
+    if has_pred:
+        lhs += w_s * gram
+    guess = mu
+    for _ in range(alternations):
+        obs = rotate_about_y(rel[None], np.array([-theta]))[0].ravel()
+        rhs = w_m * xs @ (obs - mu[sel])
+        if has_pred:
+            rhs += w_s * x @ (pred - mu)
+        guess = mu + x.T @ np.linalg.solve(lhs, rhs)
+        theta = _yaw_align(guess[sel].reshape(-1, 3), rel)
     return guess, theta
 
 
-def _initial_pose(rel: np.ndarray, poses: np.ndarray, sel: np.ndarray, n_yaw: int = 24) -> tuple[float, np.ndarray]:
+def _initial_pose(
+    rel: np.ndarray, poses: np.ndarray, sel: np.ndarray, heading: float | None = None, n_yaw: int = 24
+) -> tuple[float, np.ndarray]:
     """Heading and nearest database pose for the first frame: markers (M,3) relative to the
-    root are compared with every database pose's marker joints under ``n_yaw`` headings."""
-    yaws = np.linspace(0, 2 * np.pi, n_yaw, endpoint=False)
+    root are compared with every database pose's marker joints under ``n_yaw`` headings
+    (only ``heading`` if given, which is returned)."""
+    yaws = np.linspace(0, 2 * np.pi, n_yaw, endpoint=False) if heading is None else np.array([heading])
     cand = rotate_about_y(np.broadcast_to(rel, (n_yaw,) + rel.shape), -yaws).reshape(n_yaw, -1)
     db = poses[:, sel].astype(np.float64)
     d2 = (db * db).sum(1)[:, None] - 2 * db @ cand.T + (cand * cand).sum(1)[None, :]
     row, col = np.unravel_index(int(np.argmin(d2)), d2.shape)
     pose = poses[row].astype(np.float64)
-    return _yaw_align(pose[sel].reshape(-1, 3), rel), pose
+    return (_yaw_align(pose[sel].reshape(-1, 3), rel) if heading is None else float(heading)), pose
 
 
 def joint_errors(recon: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -403,9 +509,11 @@ def reconstruct_motion(
     ``seconds`` (reconstruction time, excluding the prior).
     """
     p = params or ReconstructParams()
-    markers = synthetic_markers(motion, model.markers, model.noise, np.random.default_rng(model.seed))
+    rng = np.random.default_rng(model.seed)
+    markers = synthetic_markers(motion, model.markers, model.noise, rng)
+    heading = synthetic_heading(motion, model.noise, rng) if model.root_heading else None
     t0 = time.perf_counter()
-    world, _ = reconstruct_positions(markers, prior, p, model, fps=motion.fps)
+    world, _ = reconstruct_positions(markers, prior, p, model, fps=motion.fps, root_heading=heading)
     seconds = time.perf_counter() - t0
     truth = motion.canonical_positions(prior.joints)
     mean, mx, avg, worst = joint_errors(world, truth)

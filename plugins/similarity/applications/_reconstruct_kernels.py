@@ -1,0 +1,63 @@
+"""Numba kernel of one reconstruction search step (no validation: :mod:`.reconstruct` validates).
+
+:func:`map_pose` is :func:`.reconstruct._map_pose_numpy` compiled: the local linear model of
+the neighbours, the MAP pose of markers + prior + smoothness and the heading, alternated.
+The NumPy function is its slow, obviously correct twin (tests compare them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _yaw(model, observed):
+    s = 0.0
+    c = 0.0
+    for i in range(model.shape[0]):
+        s += observed[i, 0] * model[i, 2] - observed[i, 2] * model[i, 0]
+        c += observed[i, 0] * model[i, 0] + observed[i, 2] * model[i, 2]
+    return np.arctan2(s, c)
+
+
+@njit(cache=True)
+def map_pose(nb, sel, rel, theta, pred, has_pred, w_m, w_s, alternations):
+    """MAP pose (D,) and heading of neighbours ``nb`` (K, D) float64 for markers ``rel``
+    (M, 3) relative to the root; ``sel`` (3M,) marker columns; ``pred`` (D,) the prediction."""
+    k, d = nb.shape
+    mu = np.zeros(d)
+    for i in range(k):
+        mu += nb[i]
+    mu /= k
+    x = nb - mu
+    xs = np.empty((k, sel.shape[0]))
+    for j in range(sel.shape[0]):
+        xs[:, j] = x[:, sel[j]]
+    lhs = w_m * (xs @ xs.T)
+    if has_pred:
+        lhs += w_s * (x @ x.T)
+    for i in range(k):
+        lhs[i, i] += max(k - 1, 1)
+    m = rel.shape[0]
+    obs = np.empty(3 * m)
+    guess = mu.copy()
+    for _ in range(alternations):
+        c, s = np.cos(-theta), np.sin(-theta)
+        for i in range(m):
+            obs[3 * i] = c * rel[i, 0] + s * rel[i, 2]
+            obs[3 * i + 1] = rel[i, 1]
+            obs[3 * i + 2] = -s * rel[i, 0] + c * rel[i, 2]
+        r = np.empty(3 * m)
+        for j in range(3 * m):
+            r[j] = obs[j] - mu[sel[j]]
+        rhs = w_m * (xs @ r)
+        if has_pred:
+            rhs += w_s * (x @ (pred - mu))
+        a = np.linalg.solve(lhs, rhs)
+        guess = mu + x.T @ a
+        model = np.empty((m, 3))
+        for j in range(3 * m):
+            model[j // 3, j % 3] = guess[sel[j]]
+        theta = _yaw(model, rel)
+    return guess, theta

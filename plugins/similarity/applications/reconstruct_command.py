@@ -1,0 +1,133 @@
+"""``mocapflow reconstruct``: a skeleton take (BVH/AMC) from a marker take or a take's end effectors.
+
+    mocapflow reconstruct take.c3d --prior runs/reconstruct/prior --skeleton 16.asf -o take.bvh
+    mocapflow reconstruct take.trc --marker-set opensim --prior "data/**/*.amc" --skeleton s.bvh -o out.amc
+    mocapflow reconstruct 16_15.amc --prior runs/reconstruct/prior -o 16_15_recon.bvh
+
+The input is a C3D/TRC marker take (a marker set maps its labels to the 6 control points,
+:mod:`.reconstruct_markers`) or a BVH/AMC take whose end effectors, head and root are the
+control points. The output skeleton (``--skeleton``: ASF, or the skeleton of a BVH/AMC
+file; default for a skeleton take: its own) gives the bone lengths the prior is retargeted
+to. ``--prior`` is a prior store (a ``reconstruction_prior`` step's folder or its
+``prior`` subfolder, memory-mapped) or motion files (a glob; built in memory). The take is
+reconstructed at its own rate and written atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import time
+from pathlib import Path
+
+
+class ReconstructCommand:
+    """``mocapflow reconstruct INPUT --prior PRIOR -o OUT``: full-body motion from 6 control points."""
+
+    name = "reconstruct"
+    help = "full-body motion (BVH/AMC) from a marker take (C3D/TRC) or a take's end effectors"
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("input", help="C3D/TRC marker take, or a BVH/AMC take (its end effectors are used)")
+        parser.add_argument("--prior", required=True, help="prior store folder, or a glob of motion files")
+        parser.add_argument("-o", "--out", required=True, help="output take (.bvh or .amc)")
+        parser.add_argument("--skeleton", help="output skeleton: .asf, or a .bvh/.amc take (default: the input's)")
+        parser.add_argument("--marker-set", default="auto", help="vicon, opensim, isb or auto (default)")
+        parser.add_argument("-k", type=int, default=64, help="neighbours of the local model (default 64)")
+
+    @classmethod
+    def run(cls, args: argparse.Namespace) -> int:
+        import numpy as np
+
+        from mocapflow.framework import Motion, load_registries
+        from mocapflow.framework.errors import ConfigError, DataError
+
+        from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
+        from .reconstruct_markers import control_from_markers, control_from_motion
+        from .reconstruct_prior import PriorStore, bone_lengths, build_store
+        from .retarget import positions_to_motion
+
+        reg = load_registries(kinds=["formats"], entry_points=False)
+        src, out = Path(args.input), Path(args.out)
+        if not src.is_file():
+            raise ConfigError(f"{src}: no such file")
+        if out.suffix.lower() not in (".bvh", ".amc"):
+            raise ConfigError(f"--out {out}: expected a .bvh or .amc file name")
+        skeleton_take: Motion | None = None
+        if src.suffix.lower() in (".c3d", ".trc"):
+            markers = _read_markers(src)
+            control, set_name, mapping = control_from_markers(markers, args.marker_set)
+            fps, what = (
+                markers.fps,
+                f"marker set {set_name}: " + "; ".join(f"{p} = {'+'.join(v)}" for p, v in mapping.items()),
+            )
+        else:
+            skeleton_take = reg.motion_format(src).read(src)
+            control, fps, what = control_from_motion(skeleton_take), skeleton_take.fps, "end effectors, head and root"
+        if args.skeleton:
+            skeleton = _read_skeleton(Path(args.skeleton), reg)
+        elif skeleton_take is not None:
+            skeleton = skeleton_take.skeleton
+        else:
+            raise ConfigError("a marker take needs --skeleton (an .asf, .bvh or .amc of the performer's skeleton)")
+
+        t0 = time.perf_counter()
+        store = _open_prior(args.prior, reg, PriorStore, build_store)
+        rest = Motion(skeleton, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.n_joints, 1)), fps)
+        lengths = bone_lengths(rest.canonical_positions(store.joints), store.joints)
+        if not np.isfinite(lengths).all():
+            missing = [j for j, v in zip(store.joints, lengths, strict=True) if not np.isfinite(v)]
+            raise DataError(f"skeleton {skeleton.name!r} lacks the prior's pose joints {missing}")
+        prior = PosePrior.build(store, lengths)
+        t1 = time.perf_counter()
+        world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), fps=fps)
+        t2 = time.perf_counter()
+        motion = positions_to_motion(
+            skeleton, world, prior.joints, fps, name=out.stem, metadata={"reconstructed_from": str(src)}
+        )
+        reg.motion_format(out, writing=True).write_atomic(motion, out)
+        fit = (
+            np.linalg.norm(
+                motion.canonical_positions(("root", "head", "lwrist", "rwrist", "lankle", "rankle")) - control, axis=-1
+            )
+            * 100
+        )
+        print(f"{src}: {len(control)} frames at {fps:g} Hz; control points from {what}")
+        print(f"prior: {len(store.clips)} takes, {len(prior.poses)} frames, ready in {t1 - t0:.1f} s")
+        print(f"reconstructed in {t2 - t1:.1f} s ({len(control) / max(t2 - t1, 1e-9):.0f} frames/s)")
+        print(f"control points on the output skeleton: mean {fit.mean():.1f} cm, max {fit.max():.1f} cm off")
+        print(f"wrote {out}")
+        return 0
+
+
+def _read_markers(path: Path):  # type: ignore[no-untyped-def]
+    from mocapflow.plugins.formats.c3d import read_c3d
+    from mocapflow.plugins.formats.trc import read_trc
+
+    return read_c3d(path) if path.suffix.lower() == ".c3d" else read_trc(path)
+
+
+def _read_skeleton(path: Path, reg):  # type: ignore[no-untyped-def]
+    from mocapflow.framework.errors import ConfigError
+
+    if not path.is_file():
+        raise ConfigError(f"--skeleton {path}: no such file")
+    if path.suffix.lower() == ".asf":
+        from mocapflow.plugins.formats.asf_amc import read_asf
+
+        return read_asf(path)
+    return reg.motion_format(path).read(path).skeleton
+
+
+def _open_prior(spec: str, reg, store_cls, build):  # type: ignore[no-untyped-def]
+    from mocapflow.framework.errors import ConfigError
+
+    p = Path(spec)
+    for folder in (p, p / "prior"):
+        if (folder / "clips.json").is_file():
+            return store_cls.load(folder)
+    files = sorted(Path(f) for f in glob.glob(spec, recursive=True) if Path(f).is_file())
+    if not files:
+        raise ConfigError(f"--prior {spec}: neither a prior store (clips.json) nor motion files")
+    return build(reg.motion_format(f).read(f) for f in files)
