@@ -256,3 +256,94 @@ def test_map_pose_kernel_matches_numpy_twin():
         a, ta = map_pose(nb, sel, rel, 0.3, pred, has_pred, 4e4, 2.5e3, 2)
         b, tb = _map_pose_numpy(nb, sel, rel, 0.3, pred, has_pred, 4e4, 2.5e3, 2)
         assert np.allclose(a, b, atol=1e-9) and ta == pytest.approx(tb)
+
+
+def vicon_markers(m: Motion):
+    """Plug-in-Gait style markers around the joints of ``m`` whose means are the control points."""
+    from mocapflow.framework.markers import Markers
+
+    j = {n: m.canonical_positions((n,))[:, 0] for n in ("lhip", "rhip", "head", "lwrist", "rwrist", "lankle", "rankle")}
+    up, fw, side = np.array([0, 0.05, 0]), np.array([0, 0, 0.05]), np.array([0.05, 0, 0])
+    lab = {
+        "LFWT": j["lhip"] + up + fw,
+        "LBWT": j["lhip"] + up - fw,
+        "RFWT": j["rhip"] + up + fw,
+        "RBWT": j["rhip"] + up - fw,
+        "LFHD": j["head"] + side + fw,
+        "RFHD": j["head"] - side + fw,
+        "LBHD": j["head"] + side - fw,
+        "RBHD": j["head"] - side - fw,
+        "LWRA": j["lwrist"] + fw / 2,
+        "LWRB": j["lwrist"] - fw / 2,
+        "RWRA": j["rwrist"] + fw / 2,
+        "RWRB": j["rwrist"] - fw / 2,
+        "LANK": j["lankle"],
+        "RANK": j["rankle"],
+        "CLAV": j["head"] - 3 * up,
+    }
+    return Markers(
+        tuple(f"subj:{k}" for k in lab), np.stack(list(lab.values()), 1), m.fps, name="take", metadata={"up_axis": "+y"}
+    )
+
+
+def test_marker_set_control_points_and_errors():
+    from mocapflow.framework.markers import Markers
+    from mocapflow.plugins.similarity.applications.reconstruct_markers import control_from_markers, control_from_motion
+
+    m = periodic_motion(20, yaw_deg=25)
+    mk = vicon_markers(m)
+    control, heading, name, mapping = control_from_markers(mk)
+    want, want_heading = control_from_motion(m)
+    assert name == "vicon" and mapping["lwrist"] == ("subj:LWRA", "subj:LWRB")
+    assert np.abs(control[:, 1:] - want[:, 1:]).max() < 1e-9 and np.allclose(heading, want_heading)
+    assert np.abs(control[:, 0] - want[:, 0]).max() < 0.01  # the pelvis markers' mean: near the root
+    gappy = mk.positions.copy()
+    gappy[3:6, 12] = np.nan  # LANK missing for 3 frames: interpolated
+    c2, _, _, _ = control_from_markers(Markers(mk.labels, gappy, mk.fps, metadata=mk.metadata))
+    assert np.abs(c2 - control).max() < 0.05 and np.array_equal(c2[:3], control[:3])
+    with pytest.raises(DataError, match="no marker set fits"):
+        control_from_markers(mk.select([lb for lb in mk.labels if "RANK" not in lb]))
+    with pytest.raises(DataError, match="unknown marker set"):
+        control_from_markers(mk, "nope")
+
+
+def test_cli_and_pipeline_from_a_marker_take(tmp_path, store):
+    """``mocapflow reconstruct take.trc`` and the ``reconstruct_markers`` step give the same
+    take, on the performer's skeleton, close to the motion the markers came from."""
+    from mocapflow.framework import Dataset, get_plugin_manager, load_registries
+    from mocapflow.framework.cli import main
+    from mocapflow.framework.runner import run_pipeline
+    from mocapflow.plugins.formats.trc import write_trc
+
+    truth = periodic_motion(45, 0.5 / 30, yaw_deg=-60, name="take")
+    write_trc(vicon_markers(truth), tmp_path / "take.trc")
+    bvh = load_registries(kinds=["formats"], entry_points=False).motion_format(tmp_path / "x.bvh", writing=True)
+    bvh.write(truth, tmp_path / "performer.bvh")
+    store.save(tmp_path / "prior")
+    out = tmp_path / "out.bvh"
+    argv = ["reconstruct", str(tmp_path / "take.trc"), "--prior", str(tmp_path / "prior"), "-o", str(out), "-k", "16"]
+    assert main([*argv, "--skeleton", str(tmp_path / "performer.bvh")]) == 0
+    rec = bvh.read(out)
+    err = joint_errors(rec.canonical_positions(POSE_JOINTS), truth.canonical_positions(POSE_JOINTS))[2]
+    assert rec.n_frames == 45 and err < 2.0
+    assert main(argv) == 2  # a marker take needs the performer's skeleton
+    yaml = tmp_path / "p.yaml"
+    yaml.write_text(
+        f"""name: t
+workspace: {tmp_path / "ws"}
+steps:
+  markers:
+    uses: formats.load_markers
+    with: {{paths: ["{tmp_path / "take.trc"}"]}}
+  recon:
+    uses: analyses.reconstruct_markers
+    inputs: {{prior: prior, markers: markers}}
+    with: {{skeleton: "{tmp_path / "performer.bvh"}", k: 16}}
+  prior:
+    uses: formats.load
+    with: {{paths: ["{tmp_path / "performer.bvh"}"]}}
+"""
+    )
+    run_pipeline(yaml, workspace=tmp_path / "ws", jobs=1, pm=get_plugin_manager(entry_points=False))
+    fit = Dataset(tmp_path / "ws" / "recon").table("fit").to_pylist()
+    assert fit[0]["marker_set"] == "vicon" and fit[0]["n_frames"] == 45 and fit[0]["fit_mean_cm"] < 1.0

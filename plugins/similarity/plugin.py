@@ -52,9 +52,18 @@ def register_analyses() -> list[type]:
     from .applications.fat_graph import FatGraph
     from .applications.reconstruct import Reconstruct, ReconstructionPrior
     from .applications.reconstruct_eval import ReconstructionEval
+    from .applications.reconstruct_markers import ReconstructMarkers
     from .knn.knn_query import NearestPoses
 
-    return [NearestPoses, DistanceCorrelationStudy, ReconstructionPrior, Reconstruct, ReconstructionEval, FatGraph]
+    return [
+        NearestPoses,
+        DistanceCorrelationStudy,
+        ReconstructionPrior,
+        Reconstruct,
+        ReconstructMarkers,
+        ReconstructionEval,
+        FatGraph,
+    ]
 
 
 @hookimpl

@@ -57,16 +57,17 @@ class ReconstructCommand:
         skeleton_take: Motion | None = None
         if src.suffix.lower() in (".c3d", ".trc"):
             markers = _read_markers(src)
-            control, set_name, mapping = control_from_markers(markers, args.marker_set)
+            control, heading, set_name, mapping = control_from_markers(markers, args.marker_set)
             fps, what = (
                 markers.fps,
                 f"marker set {set_name}: " + "; ".join(f"{p} = {'+'.join(v)}" for p, v in mapping.items()),
             )
         else:
             skeleton_take = reg.motion_format(src).read(src)
-            control, fps, what = control_from_motion(skeleton_take), skeleton_take.fps, "end effectors, head and root"
+            control, heading = control_from_motion(skeleton_take)
+            fps, what = skeleton_take.fps, "end effectors, head and root"
         if args.skeleton:
-            skeleton = _read_skeleton(Path(args.skeleton), reg)
+            skeleton = read_skeleton(Path(args.skeleton), reg)
         elif skeleton_take is not None:
             skeleton = skeleton_take.skeleton
         else:
@@ -81,7 +82,7 @@ class ReconstructCommand:
             raise DataError(f"skeleton {skeleton.name!r} lacks the prior's pose joints {missing}")
         prior = PosePrior.build(store, lengths)
         t1 = time.perf_counter()
-        world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), fps=fps)
+        world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), fps=fps, root_heading=heading)
         t2 = time.perf_counter()
         motion = positions_to_motion(
             skeleton, world, prior.joints, fps, name=out.stem, metadata={"reconstructed_from": str(src)}
@@ -108,11 +109,11 @@ def _read_markers(path: Path):  # type: ignore[no-untyped-def]
     return read_c3d(path) if path.suffix.lower() == ".c3d" else read_trc(path)
 
 
-def _read_skeleton(path: Path, reg):  # type: ignore[no-untyped-def]
+def read_skeleton(path: Path, reg):  # type: ignore[no-untyped-def]
     from mocapflow.framework.errors import ConfigError
 
     if not path.is_file():
-        raise ConfigError(f"--skeleton {path}: no such file")
+        raise ConfigError(f"skeleton {path}: no such file")
     if path.suffix.lower() == ".asf":
         from mocapflow.plugins.formats.asf_amc import read_asf
 

@@ -24,17 +24,30 @@ set         takes                                      control points
                                                        USP (or RSP UHE); ankle: FAL TAM
 ==========  =========================================  =====================================
 
-``auto`` picks the first set whose every control point the take has.
+Each set also names the left pelvis markers (``vicon``: LFWT LBWT; ``opensim``: L.ASIS;
+``isb``: L_IAS L_IPS; right: the same with R): the root's heading is the facing of the
+left-right pelvis axis, as the hips give it for a skeleton take. ``auto`` picks the first
+set whose every control point the take has.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import time
+from collections.abc import Mapping
 
-from mocapflow.framework import DataError, Motion
+import numpy as np
+import pyarrow as pa
+from pydantic import Field
+
+from mocapflow.framework import Analysis, DataError, Motion, Params, StepContext, StepOutput
+from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.markers import Markers, to_y_up
+from mocapflow.framework.normalize import facing_angles
 
 from .reconstruct import DEFAULT_MARKERS
+
+#: What a marker set locates: the control points, and the pelvis sides that give the root's heading.
+CONTROL: tuple[str, ...] = (*DEFAULT_MARKERS, "lhip", "rhip")
 
 MarkerSet = dict[str, tuple[tuple[str, ...], ...]]
 
@@ -49,10 +62,11 @@ def _sides(left: tuple[tuple[str, ...], ...]) -> tuple[tuple[tuple[str, ...], ..
     return left, tuple(tuple(flip(x) for x in alt) for alt in left)
 
 
-def _set(root, head, wrist, ankle) -> MarkerSet:
+def _set(root, head, wrist, ankle, pelvis) -> MarkerSet:
     lw, rw = _sides(wrist)
     la, ra = _sides(ankle)
-    return {"root": root, "head": head, "lwrist": lw, "rwrist": rw, "lankle": la, "rankle": ra}
+    lp, rp = _sides(pelvis)
+    return {"root": root, "head": head, "lwrist": lw, "rwrist": rw, "lankle": la, "rankle": ra, "lhip": lp, "rhip": rp}
 
 
 #: Built-in marker sets (module doc).
@@ -62,18 +76,21 @@ MARKER_SETS: dict[str, MarkerSet] = {
         (("LFHD", "RFHD", "LBHD", "RBHD"),),
         (("LWRA", "LWRB"),),
         (("LANK",), ("LANK", "LHEE")),
+        (("LFWT", "LBWT"),),
     ),
     "opensim": _set(
         (("R.ASIS", "L.ASIS", "V.Sacral"),),
         (("R.Temple", "L.Temple"),),
         (("L.Wrist.Med", "L.Wrist.Lat"),),
         (("L.Ankle.Lat", "L.Ankle.Med"), ("L.Heel",)),
+        (("L.ASIS",),),
     ),
     "isb": _set(
         (("L_IAS", "R_IAS", "L_IPS", "R_IPS"),),
         (("L_HDF", "R_HDF", "L_HDB", "R_HDB"),),
         (("L_RSP", "L_USP"), ("L_RSP", "L_UHE")),
         (("L_FAL", "L_TAM"),),
+        (("L_IAS", "L_IPS"),),
     ),
 }
 
@@ -91,7 +108,7 @@ def resolve_marker_set(markers: Markers, name: str = "auto") -> tuple[str, dict[
     missing: dict[str, list[str]] = {}
     for n in names:
         chosen, lacking = {}, []
-        for point in DEFAULT_MARKERS:
+        for point in CONTROL:
             alt = next((a for a in MARKER_SETS[n][point] if all(_key(x) in have for x in a)), None)
             if alt is None:
                 lacking.append(f"{point} ({' or '.join('+'.join(a) for a in MARKER_SETS[n][point])})")
@@ -118,19 +135,115 @@ def fill_gaps(x: np.ndarray, what: str) -> np.ndarray:
     return out
 
 
-def control_from_markers(markers: Markers, marker_set: str = "auto") -> tuple[np.ndarray, str, dict]:
+def control_from_markers(markers: Markers, marker_set: str = "auto") -> tuple[np.ndarray, np.ndarray, str, dict]:
     """Control points (T, 6, 3) y-up metres (:data:`~.reconstruct.DEFAULT_MARKERS` order),
-    the set used and its label mapping; gaps are interpolated."""
+    the root's heading (T,) radians from the pelvis sides, the set used and its label
+    mapping; gaps are interpolated."""
     y_up = to_y_up(markers)
     name, mapping = resolve_marker_set(y_up, marker_set)
-    pos = np.stack([np.mean(y_up.select(list(mapping[p])).positions, axis=1) for p in DEFAULT_MARKERS], 1)
-    return fill_gaps(pos, f"markers {markers.name!r}"), name, mapping
+    pos = np.stack([np.mean(y_up.select(list(mapping[p])).positions, axis=1) for p in CONTROL], 1)
+    pos = fill_gaps(pos, f"markers {markers.name!r}")
+    return pos[:, : len(DEFAULT_MARKERS)], facing_angles(pos, CONTROL), name, mapping
 
 
-def control_from_motion(motion: Motion) -> np.ndarray:
-    """Control points (T, 6, 3) of a skeleton take: its canonical end effectors, head and root."""
-    idx = motion.skeleton.canonical_indices(DEFAULT_MARKERS)
+def control_from_motion(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """Control points (T, 6, 3) of a skeleton take (its canonical end effectors, head and
+    root) and the root's heading (T,) from its hips."""
+    idx = motion.skeleton.canonical_indices(CONTROL)
     if (idx < 0).any():
-        missing = [p for p, i in zip(DEFAULT_MARKERS, idx, strict=True) if i < 0]
+        missing = [p for p, i in zip(CONTROL, idx, strict=True) if i < 0]
         raise DataError(f"motion {motion.name!r}: its skeleton has no joint for {missing}")
-    return motion.canonical_positions(DEFAULT_MARKERS)
+    pos = motion.canonical_positions(CONTROL)
+    return pos[:, : len(DEFAULT_MARKERS)], facing_angles(pos, CONTROL)
+
+
+def dataset_markers(ds: Dataset) -> list[tuple[int, Markers]]:
+    """(clip_id, Markers) of every take of a ``formats.load_markers`` dataset."""
+    clips = ds.table("clips").to_pylist()
+    data = ds.table("data")
+    ids = data.column("clip_id").to_numpy()
+    flat = data.column("positions").combine_chunks()
+    values = flat.values.to_numpy(zero_copy_only=False).astype(np.float64)
+    offsets = flat.offsets.to_numpy()
+    out = []
+    for c in clips:
+        rows = np.flatnonzero(ids == c["clip_id"])
+        m = int(c["n_markers"])
+        pos = np.concatenate([values[offsets[r] : offsets[r + 1]] for r in rows]) if len(rows) else np.zeros(0)
+        meta = {"up_axis": c["up_axis"] or "+y", "path": c["path"], "format": c["format"]}
+        out.append(
+            (int(c["clip_id"]), Markers(tuple(c["labels"]), pos.reshape(len(rows), m, 3), c["fps"], c["name"], meta))
+        )
+    return out
+
+
+class ReconstructMarkersParams(Params):
+    skeleton: str = Field(..., description="the performer's skeleton: an .asf, or a .bvh/.amc take (pipeline-relative)")
+    marker_set: str = Field("auto", description=f"marker set: {', '.join(MARKER_SETS)} or auto")
+    k: int = Field(64, ge=2, description="neighbours of the local linear model")
+
+
+FIT = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("name", pa.string()),
+        ("marker_set", pa.string()),
+        ("n_frames", pa.int32()),
+        ("fit_mean_cm", pa.float64()),
+        ("fit_max_cm", pa.float64()),
+        ("frames_per_s", pa.float64()),
+    ]
+)
+
+
+class ReconstructMarkers(Analysis):
+    """Full-body motion of marker takes (a ``formats.load_markers`` dataset) on the
+    performer's skeleton, with a ``reconstruction_prior``: what ``mocapflow reconstruct`` does.
+
+    Tables: ``data``/``clips``/``skeletons`` (the reconstructions, exportable as BVH/AMC) and
+    ``fit`` (per take: how far the output's control joints are from the control points, cm).
+    """
+
+    name = "reconstruct_markers"
+    inputs: Mapping[str, bool] = {"prior": True, "markers": True}
+    Params = ReconstructMarkersParams
+
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+        from mocapflow.framework.motion_tables import motions_to_tables
+
+        from .reconstruct import PosePrior, ReconstructParams, open_prior, reconstruct_positions
+        from .reconstruct_command import read_skeleton
+        from .reconstruct_prior import bone_lengths
+        from .retarget import positions_to_motion
+
+        p = self.params
+        skeleton = read_skeleton(ctx.resolve(p.skeleton), ctx.registries)
+        store = open_prior(inputs["prior"])
+        rest = Motion(skeleton, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.n_joints, 1)), 30.0)
+        prior = PosePrior.build(store, bone_lengths(rest.canonical_positions(store.joints), store.joints))
+        motions, ids, rows = [], [], []
+        for cid, mk in dataset_markers(inputs["markers"]):
+            control, heading, set_name, _ = control_from_markers(mk, p.marker_set)
+            t0 = time.perf_counter()
+            world, _ = reconstruct_positions(control, prior, ReconstructParams(k=p.k), fps=mk.fps, root_heading=heading)
+            seconds = time.perf_counter() - t0
+            m = positions_to_motion(
+                skeleton, world, prior.joints, mk.fps, name=mk.name, metadata={"reconstructed_from": mk.name}
+            )
+            fit = np.linalg.norm(m.canonical_positions(DEFAULT_MARKERS) - control, axis=-1) * 100
+            motions.append(m)
+            ids.append(cid)
+            rows.append(
+                {
+                    "clip_id": cid,
+                    "name": mk.name,
+                    "marker_set": set_name,
+                    "n_frames": mk.n_frames,
+                    "fit_mean_cm": float(fit.mean()) if fit.size else 0.0,
+                    "fit_max_cm": float(fit.max()) if fit.size else 0.0,
+                    "frames_per_s": mk.n_frames / max(seconds, 1e-9),
+                }
+            )
+        tables = motions_to_tables(motions, ids)
+        tables["fit"] = pa.Table.from_pylist(rows, schema=FIT)
+        return StepOutput(tables, {"takes": len(rows), "prior_frames": len(prior.poses), "skeleton": skeleton.name})
