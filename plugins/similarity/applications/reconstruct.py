@@ -387,7 +387,8 @@ def _solve_frame(
     k = min(k, len(prior.poses))
     has_pred = pred is not None
     pred_v = pred if pred is not None else guess
-    for _ in range(iterations):
+    # a known heading makes the query the same in every search: one is enough
+    for _ in range(1 if fixed else iterations):
         c, s = np.cos(theta), np.sin(theta)
         obs_m = np.stack([c * rel[:, 0] - s * rel[:, 2], rel[:, 1], s * rel[:, 0] + c * rel[:, 2]], 1)
         vel = np.zeros_like(obs_m) if still else vscale * (obs_m - past)
