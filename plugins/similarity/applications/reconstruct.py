@@ -7,9 +7,8 @@ so a prior pose and the performer's markers agree in proportions. A pose is the 
 root-normalised canonical joint positions (metres, root at the origin facing +z).
 
 Per frame ``t``: the query is the control signal itself, as in the paper: the 5 non-root
-markers relative to the root marker in the heading frame (F_E^15) and their velocity
-(``velocity_weight`` seconds times metres/second, over ``1 / prior fps``) -- the temporal
-term. The ``k`` nearest prior poses give a local linear model (local PCA with the
+markers relative to the root marker in the root's heading frame (F_E^15). The ``k``
+nearest prior poses give a local linear model (local PCA with the
 neighbours' Gaussian prior, :func:`_local_model`); the MAP pose of markers + prior +
 smoothness (deviation from the constant-velocity prediction from ``t-1, t-2``) is one
 ``k x k`` solve, alternated with the heading (2-D Procrustes on the markers); the search
@@ -102,8 +101,8 @@ class ReconstructModel:
     ``markers``: canonical marker joints (root needed; the paper's 6); ``noise``: uniform
     marker disturbance of synthetic markers, metres (paper: 1 mm), drawn with ``seed``;
     ``marker_sigma``: marker misfit scale, metres; ``smooth_sigma``: allowed deviation from
-    the constant-velocity prediction, metres; ``velocity_weight``: seconds, weight of the
-    marker velocities in the kNN query; ``iterations``: searches per frame;
+    the constant-velocity prediction, metres; ``iterations``: searches per frame (estimated
+    heading);
     ``backward_frames``: first frames solved again backwards (they lack a past);
     ``project``: put the solved pose on the performer's bone lengths, limbs on their
     markers; ``root_heading``: the root marker carries its heading (synthetic: from the
@@ -113,9 +112,8 @@ class ReconstructModel:
 
     markers: tuple[str, ...] = DEFAULT_MARKERS
     noise: float = 0.001
-    marker_sigma: float = 0.005
-    smooth_sigma: float = 0.02
-    velocity_weight: float = 0.1
+    marker_sigma: float = 0.02
+    smooth_sigma: float = 0.05
     iterations: int = 2
     backward_frames: int = 10
     project: bool = True
@@ -141,7 +139,7 @@ class PosePrior:
     ----------
     joints : tuple of str, P canonical joints of the pose vector
     lengths : ndarray (P,), the performer's bone lengths, metres
-    fps : float, the prior's frame rate (the velocity's time step)
+    fps : float, the prior's frame rate
     poses : ndarray of float32, shape (N, P*3), root-normalised positions, metres
     features : ndarray of float32, shape (N, d), the kNN rows: non-root markers, velocities
     index : Index, built on ``features``
@@ -175,11 +173,9 @@ class PosePrior:
         if lengths.shape != (len(joints),) or not np.isfinite(lengths).all():
             raise DataError(f"bone lengths must be {len(joints)} finite numbers, got shape {lengths.shape}")
         poses = store.retarget(lengths, rows)
-        prev = np.searchsorted(rows, np.asarray(store.prev)[rows])
         cols = [joints.index(m) for m in model.markers if m != "root"]
         feat = poses[:, cols].reshape(len(rows), -1)
-        vel = model.velocity_weight * store.fps * (feat - feat[prev])
-        features = np.ascontiguousarray(np.concatenate([feat, vel], 1), np.float32)
+        features = np.ascontiguousarray(feat, np.float32)
         index = index or prior_index()
         index.build(features)
         return cls(store.joints, lengths, store.fps, model.markers, poses.reshape(len(rows), -1), features, index)
@@ -208,6 +204,7 @@ class _Frames:
     chain: np.ndarray
     lengths: np.ndarray
     limbs: list[tuple[int, int, int, int, np.ndarray]]
+    smooth_sigma: float
 
 
 #: Two-bone chains (base, middle, end) whose end a marker may pin (:func:`limb_ik`).
@@ -218,6 +215,13 @@ LIMBS: tuple[tuple[str, str, str], ...] = (
     ("rhip", "rknee", "rankle"),
     ("chest", "neck", "head"),
 )
+
+
+def smooth_sigma(model: ReconstructModel, prior_fps: float, fps: float) -> float:
+    """The smoothness scale at ``fps``: ``model.smooth_sigma`` holds at the prior's rate; a
+    deviation from the constant-velocity prediction is an acceleration times the frame
+    step squared, so the scale shrinks with the square of the rate."""
+    return model.smooth_sigma * (prior_fps / fps) ** 2
 
 
 def _limbs(joints: list[str], markers: list[str], chain: np.ndarray) -> list[tuple[int, int, int, int, np.ndarray]]:
@@ -285,10 +289,8 @@ def reconstruct_positions(
         chain_matrix(parents),
         prior.lengths,
         _limbs(joints, mk, chain_matrix(parents)),
+        smooth_sigma(model, prior.fps, float(fps or prior.fps)),
     )
-    rate = float(fps or prior.fps)
-    lag = max(1, int(round(rate / prior.fps)))
-    vscale = model.velocity_weight * rate / lag
     root = markers[:, mk.index("root")]
     rel = markers - root[:, None, :]
     out = np.zeros((t_len, n_j * 3))
@@ -300,12 +302,8 @@ def reconstruct_positions(
         heading[:] = root_heading
 
     def solve(t: int, guess: np.ndarray, theta: float, pred: np.ndarray | None, iters: int) -> None:
-        back = max(t - lag, 0)
-        past = rotate_about_y(rel[back][None], np.array([-heading[back] if back != t else 0.0]))[0]
         theta = heading[t] if fixed else theta
-        out[t], heading[t] = _solve_frame(
-            rel[t], past, back == t, vscale, guess, theta, pred, prior, fr, p.k, model, iters, fixed
-        )
+        out[t], heading[t] = _solve_frame(rel[t], guess, theta, pred, prior, fr, p.k, model, iters, fixed)
 
     theta, guess = _initial_pose(rel[0], prior.poses, fr.sel, None if root_heading is None else heading[0])
     heading[0] = theta
@@ -362,9 +360,6 @@ def limb_ik(pose: np.ndarray, obs: np.ndarray, fr: _Frames) -> np.ndarray:
 
 def _solve_frame(
     rel: np.ndarray,
-    past: np.ndarray,
-    still: bool,
-    vscale: float,
     guess: np.ndarray,
     theta: float,
     pred: np.ndarray | None,
@@ -377,13 +372,12 @@ def _solve_frame(
 ) -> tuple[np.ndarray, float]:
     """One frame: kNN of the control signal, local model, MAP pose and heading (module doc).
 
-    rel : (M, 3) markers relative to the root marker; past : (M, 3) those ``1 / prior fps``
-    earlier in their own heading frame (``still``: no past, zero velocity); guess, pred :
+    rel : (M, 3) markers relative to the root marker; guess, pred :
     (D,) local poses; returns the pose (D,) and heading (radians, kept if ``fixed``).
     """
     from ._reconstruct_kernels import map_pose
 
-    w_m, w_s = 1.0 / model.marker_sigma**2, 1.0 / model.smooth_sigma**2
+    w_m, w_s = 1.0 / model.marker_sigma**2, 1.0 / fr.smooth_sigma**2
     k = min(k, len(prior.poses))
     has_pred = pred is not None
     pred_v = pred if pred is not None else guess
@@ -391,8 +385,7 @@ def _solve_frame(
     for _ in range(1 if fixed else iterations):
         c, s = np.cos(theta), np.sin(theta)
         obs_m = np.stack([c * rel[:, 0] - s * rel[:, 2], rel[:, 1], s * rel[:, 0] + c * rel[:, 2]], 1)
-        vel = np.zeros_like(obs_m) if still else vscale * (obs_m - past)
-        q = np.concatenate([obs_m[fr.nonroot].ravel(), vel[fr.nonroot].ravel()]).astype(np.float32)[None]
+        q = obs_m[fr.nonroot].astype(np.float32).reshape(1, -1)
         _, ids = prior.index.query(q, k)
         nb = prior.poses[ids[0][ids[0] >= 0]].astype(np.float64)
         guess, new_theta = map_pose(nb, fr.sel, rel, theta, pred_v, has_pred, w_m, w_s, 1 if fixed else 2)

@@ -11,7 +11,6 @@ is stored with its left/right mirror image; all are resampled to one rate (``fps
 The store is a folder of ``.npy`` arrays (read memory-mapped) plus ``clips.json``:
 
 * ``dirs`` float32 (N, P, 3): bone directions (row 0, the root, is zero)
-* ``prev`` int32 (N,): row of the previous frame of the same take (itself at a take's start)
 * ``clip_rows`` int64 (C + 1,): take ``c`` holds rows ``clip_rows[c]:clip_rows[c+1]``
 * ``clips.json``: ``joints``, ``fps``, and per take ``name``, ``subject``, ``source``, ``mirrored``
 """
@@ -135,7 +134,6 @@ class PriorStore:
     joints: tuple[str, ...]
     fps: float
     dirs: np.ndarray
-    prev: np.ndarray
     clip_rows: np.ndarray
     clips: list[dict]
 
@@ -164,7 +162,6 @@ class PriorStore:
         folder.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=folder.name + ".", dir=folder.parent))
         np.save(tmp / "dirs.npy", np.ascontiguousarray(self.dirs, np.float32))
-        np.save(tmp / "prev.npy", np.ascontiguousarray(self.prev, np.int32))
         np.save(tmp / "clip_rows.npy", np.asarray(self.clip_rows, np.int64))
         meta = {"joints": list(self.joints), "fps": self.fps, "clips": self.clips}
         (tmp / "clips.json").write_text(json.dumps(meta, indent=1))
@@ -187,7 +184,6 @@ class PriorStore:
             tuple(meta["joints"]),
             float(meta["fps"]),
             np.load(folder / "dirs.npy", mmap_mode="r"),
-            np.load(folder / "prev.npy", mmap_mode="r"),
             np.load(folder / "clip_rows.npy"),
             list(meta["clips"]),
         )
@@ -205,7 +201,7 @@ def build_store(
 
     joints = tuple(joints)
     parents = bone_parents(joints)
-    dirs, prev, clips, start = [], [], [], 0
+    dirs, clips = [], []
     for m in motions:
         if any(j not in m.skeleton.canonical for j in joints) or m.n_frames < 2:
             continue
@@ -215,7 +211,6 @@ def build_store(
         for flip in (False, True) if mirrored else (False,):
             d, _ = directions(mirror(local, joints) if flip else local, parents)
             dirs.append(d.astype(np.float32))
-            prev.append(start + np.maximum(np.arange(len(d)) - 1, 0))
             clips.append(
                 {
                     "name": m.name,
@@ -224,8 +219,7 @@ def build_store(
                     "mirrored": flip,
                 }
             )
-            start += len(d)
     if not clips:
         raise DataError(f"no prior take has every pose joint {list(joints)}")
     rows = np.cumsum([0] + [len(d) for d in dirs])
-    return PriorStore(joints, float(fps), np.concatenate(dirs), np.concatenate(prev).astype(np.int32), rows, clips)
+    return PriorStore(joints, float(fps), np.concatenate(dirs), rows, clips)
