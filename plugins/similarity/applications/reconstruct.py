@@ -8,14 +8,16 @@ root-normalised canonical joint positions (metres, root at the origin facing +z)
 
 Per frame ``t``: the query is the control signal itself, as in the paper: the 5 non-root
 markers relative to the root marker in the root's heading frame (F_E^15). The ``k``
-nearest prior poses give a local linear model (local PCA with the
-neighbours' Gaussian prior, :func:`_local_model`); the MAP pose of markers + prior +
-smoothness (deviation from the constant-velocity prediction from ``t-1, t-2``) is one
-``k x k`` solve, alternated with the heading (2-D Procrustes on the markers); the search
-is repeated under the new heading (``iterations``). The result is projected onto the
-performer's bone lengths (directions kept), which bounds every joint to its chain from
-the root marker. The first frame starts from the prior pose nearest its markers (24
-headings); the first ``backward_frames`` frames are solved again backwards.
+nearest prior poses give a local linear model (local PCA with the neighbours' Gaussian
+prior, :func:`_local_model`); the MAP pose of markers + prior + smoothness (deviation from
+the constant-velocity prediction from ``t-1, t-2``) is one ``k x k`` solve. The root's
+heading is part of the control signal when given (a pelvis marker cluster: the paper's
+features are normalised by root position and orientation); otherwise it is alternated
+with the solve (2-D Procrustes on the markers) and the search repeated under the new
+heading (``iterations``). The result is put on the performer's bone lengths (directions
+kept) and each limb's end on its marker by two-bone IK (:func:`limb_ik`), which bounds
+every joint to its chain from the root marker. The first frame starts from the prior pose
+nearest its markers; the first ``backward_frames`` frames are solved again backwards.
 
 The output Motion aims the performer's bones at the reconstructed positions
 (:func:`retarget.positions_to_motion`; ``fk_avg_cm`` is its error).
