@@ -8,12 +8,15 @@ import pytest
 from mocapflow.framework import DataError, Motion, Skeleton
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.joints import CANONICAL_JOINTS
+from mocapflow.framework.normalize import rotate_about_y
 from mocapflow.framework.testing import synthetic_skeleton
 from mocapflow.plugins.similarity.applications.reconstruct import (
     PosePrior,
     PriorCache,
     ReconstructModel,
     ReconstructParams,
+    _local_model,
+    _yaw_align,
     joint_errors,
     reconstruct_motion,
     reconstruct_positions,
@@ -242,9 +245,39 @@ def test_pipeline_end_to_end(tmp_path):
     assert by["CMU"] <= by["CMU-"]
 
 
+def _map_pose_numpy(
+    nb: np.ndarray,
+    sel: np.ndarray,
+    rel: np.ndarray,
+    theta: float,
+    pred: np.ndarray,
+    has_pred: bool,
+    w_m: float,
+    w_s: float,
+    alternations: int,
+) -> tuple[np.ndarray, float]:
+    """The MAP pose (D,) and heading of one search (the slow twin of
+    ``_reconstruct_kernels.map_pose``): local model of neighbours ``nb`` (K, D), marker
+    term on columns ``sel`` for markers ``rel`` (M, 3) relative to the root, smoothness
+    towards ``pred`` (if ``has_pred``), alternated with the heading."""
+    mu, x, gram = _local_model(nb)
+    xs = x[:, sel]
+    lhs = w_m * xs @ xs.T + max(len(nb) - 1, 1) * np.eye(len(nb))
+    if has_pred:
+        lhs += w_s * gram
+    guess = mu
+    for _ in range(alternations):
+        obs = rotate_about_y(rel[None], np.array([-theta]))[0].ravel()
+        rhs = w_m * xs @ (obs - mu[sel])
+        if has_pred:
+            rhs += w_s * x @ (pred - mu)
+        guess = mu + x.T @ np.linalg.solve(lhs, rhs)
+        theta = _yaw_align(guess[sel].reshape(-1, 3), rel)
+    return guess, theta
+
+
 def test_map_pose_kernel_matches_numpy_twin():
     from mocapflow.plugins.similarity.applications._reconstruct_kernels import map_pose
-    from mocapflow.plugins.similarity.applications.reconstruct import _map_pose_numpy
 
     rng = np.random.default_rng(5)
     nb = rng.normal(size=(20, 75))

@@ -50,9 +50,9 @@ def register_matchers() -> list[type]:
 def register_analyses() -> list[type]:
     from .applications.correlation import DistanceCorrelationStudy
     from .applications.fat_graph import FatGraph
-    from .applications.reconstruct import Reconstruct, ReconstructionPrior
     from .applications.reconstruct_eval import ReconstructionEval
     from .applications.reconstruct_markers import ReconstructMarkers
+    from .applications.reconstruct_steps import Reconstruct, ReconstructionPrior
     from .knn.knn_query import NearestPoses
 
     return [

@@ -1,8 +1,8 @@
 """Numba kernel of one reconstruction search step (no validation: :mod:`.reconstruct` validates).
 
-:func:`map_pose` is :func:`.reconstruct._map_pose_numpy` compiled: the local linear model of
-the neighbours, the MAP pose of markers + prior + smoothness and the heading, alternated.
-The NumPy function is its slow, obviously correct twin (tests compare them).
+:func:`map_pose`: the local linear model of the neighbours (:func:`.reconstruct._local_model`),
+the MAP pose of markers + prior + smoothness and the heading, alternated. Its slow,
+obviously correct NumPy twin is ``_map_pose_numpy`` in ``tests/test_reconstruct.py``.
 """
 
 from __future__ import annotations

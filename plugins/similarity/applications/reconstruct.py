@@ -30,27 +30,22 @@ joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``,
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-import pyarrow as pa
 from pydantic import Field
 
 from mocapflow.framework import (
-    Analysis,
     DataError,
     Index,
     Motion,
     Params,
-    StepContext,
-    StepOutput,
 )
-from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.normalize import facing_angles, rotate_about_y
 
-from .reconstruct_prior import PriorStore, bone_lengths, bone_parents, build_store, chain_matrix
+from .reconstruct_prior import PriorStore, bone_lengths, bone_parents, chain_matrix
 from .retarget import positions_to_motion
 
 #: The paper's 6 markers: the 4 end effectors, the head and the root.
@@ -399,37 +394,6 @@ def _solve_frame(
     return guess, float(theta)
 
 
-def _map_pose_numpy(
-    nb: np.ndarray,
-    sel: np.ndarray,
-    rel: np.ndarray,
-    theta: float,
-    pred: np.ndarray,
-    has_pred: bool,
-    w_m: float,
-    w_s: float,
-    alternations: int,
-) -> tuple[np.ndarray, float]:
-    """The MAP pose (D,) and heading of one search (the slow twin of
-    :func:`._reconstruct_kernels.map_pose`): local model of neighbours ``nb`` (K, D), marker
-    term on columns ``sel`` for markers ``rel`` (M, 3) relative to the root, smoothness
-    towards ``pred`` (if ``has_pred``), alternated with the heading."""
-    mu, x, gram = _local_model(nb)
-    xs = x[:, sel]
-    lhs = w_m * xs @ xs.T + max(len(nb) - 1, 1) * np.eye(len(nb))
-    if has_pred:
-        lhs += w_s * gram
-    guess = mu
-    for _ in range(alternations):
-        obs = rotate_about_y(rel[None], np.array([-theta]))[0].ravel()
-        rhs = w_m * xs @ (obs - mu[sel])
-        if has_pred:
-            rhs += w_s * x @ (pred - mu)
-        guess = mu + x.T @ np.linalg.solve(lhs, rhs)
-        theta = _yaw_align(guess[sel].reshape(-1, 3), rel)
-    return guess, theta
-
-
 def _initial_pose(
     rel: np.ndarray, poses: np.ndarray, sel: np.ndarray, heading: float | None = None, n_yaw: int = 24
 ) -> tuple[float, np.ndarray]:
@@ -532,115 +496,3 @@ def reconstruct_motion(
         "fk_avg_cm": fk_avg,
         "seconds": seconds,
     }
-
-
-ERRORS = pa.schema(
-    [
-        ("clip_id", pa.int32()),
-        ("name", pa.string()),
-        ("joint", pa.string()),
-        ("mean_cm", pa.float64()),
-        ("max_cm", pa.float64()),
-    ]
-)
-CLIP_ERRORS = pa.schema(
-    [
-        ("clip_id", pa.int32()),
-        ("name", pa.string()),
-        ("n_frames", pa.int32()),
-        ("prior_frames", pa.int64()),
-        ("avg_cm", pa.float64()),
-        ("max_cm", pa.float64()),
-        ("max_joint_cm", pa.float64()),
-        ("fk_avg_cm", pa.float64()),
-        ("frames_per_s", pa.float64()),
-    ]
-)
-
-#: Folder of a prior store inside a ``reconstruction_prior`` step's dataset.
-PRIOR_FOLDER = "prior"
-
-
-def open_prior(ds: Dataset, fps: float = 30.0) -> PriorStore:
-    """The prior store of a ``reconstruction_prior`` dataset (memory-mapped), or one built
-    from a motions dataset (resampled to ``fps``, mirrored)."""
-    folder = ds.path / PRIOR_FOLDER
-    if (folder / "clips.json").is_file():
-        return PriorStore.load(folder)
-    return build_store(ds.motions().motions, fps=fps)
-
-
-class ReconstructionPriorParams(Params):
-    fps: float = Field(30.0, gt=0, description="frame rate every prior take is resampled to")
-    mirrored: bool = Field(True, description="add every take's left/right mirror image")
-
-
-class ReconstructionPrior(Analysis):
-    """The reconstruction's prior database, built once: every take as bone directions
-    (:mod:`.reconstruct_prior`), memory-mapped by ``analyses.reconstruct``."""
-
-    name = "reconstruction_prior"
-    inputs: Mapping[str, bool] = {"motions": True}
-    Params = ReconstructionPriorParams
-
-    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        p = self.params
-        store = build_store(inputs["motions"].motions().motions, fps=p.fps, mirrored=p.mirrored)
-        store.save(ctx.out_dir / PRIOR_FOLDER)
-        takes = pa.Table.from_pylist(
-            [{**c, "n_frames": int(store.clip_rows[i + 1] - store.clip_rows[i])} for i, c in enumerate(store.clips)]
-        )
-        summary = {"takes": len(store.clips), "frames": store.n_frames, "fps": store.fps, "joints": list(store.joints)}
-        return StepOutput({"data": takes}, summary)
-
-
-class Reconstruct(Analysis):
-    """Full-body motion from 6 sparse markers with kNN local linear pose priors (Krüger 2010 §5.2)."""
-
-    name = "reconstruct"
-    inputs: Mapping[str, bool] = {"prior": True, "test": True}
-    Params = ReconstructParams
-
-    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-        from mocapflow.framework.motion_tables import motions_to_tables
-
-        p = self.params
-        test_db = inputs["test"].motions()
-        store = open_prior(inputs["prior"])
-        cache = PriorCache(store)
-        motions, err_rows, clip_rows = [], [], []
-        for cid, m in zip(
-            test_db.clip_ids, ctx.progress(test_db.motions, total=test_db.n_clips, desc=ctx.step_id), strict=True
-        ):
-            prior = cache.for_motion(m, p.leave_out)
-            rec, e = reconstruct_motion(m, prior, p)
-            motions.append(rec)
-            err_rows += [
-                {"clip_id": int(cid), "name": m.name, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
-                for j, a, b in zip(e["joints"], e["mean_cm"], e["max_cm"], strict=True)
-                if np.isfinite(a)
-            ]
-            clip_rows.append(
-                {
-                    "clip_id": int(cid),
-                    "name": m.name,
-                    "n_frames": m.n_frames,
-                    "prior_frames": len(prior.poses),
-                    "avg_cm": e["avg_cm"],
-                    "max_cm": e["max_frame_cm"],
-                    "max_joint_cm": e["max_joint_cm"],
-                    "fk_avg_cm": e["fk_avg_cm"],
-                    "frames_per_s": m.n_frames / max(e["seconds"], 1e-9),
-                }
-            )
-        tables = motions_to_tables(motions, list(test_db.clip_ids))
-        tables["errors"] = pa.Table.from_pylist(err_rows, schema=ERRORS)
-        tables["clip_errors"] = pa.Table.from_pylist(clip_rows, schema=CLIP_ERRORS)
-        summary = {
-            "clips": len(clip_rows),
-            "frames": sum(r["n_frames"] for r in clip_rows),
-            "avg_cm": float(np.mean([r["avg_cm"] for r in clip_rows])) if clip_rows else None,
-            "prior_takes": len(store.clips),
-            "backend": "retargeted bone-direction prior + indexes.kdtree",
-        }
-        return StepOutput(tables, summary)

@@ -211,9 +211,10 @@ class ReconstructMarkers(Analysis):
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.motion_tables import motions_to_tables
 
-        from .reconstruct import PosePrior, ReconstructParams, open_prior, reconstruct_positions
+        from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
         from .reconstruct_command import read_skeleton
         from .reconstruct_prior import bone_lengths
+        from .reconstruct_steps import open_prior
         from .retarget import positions_to_motion
 
         p = self.params
