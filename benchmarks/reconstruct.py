@@ -167,7 +167,7 @@ def user_runs(store: PriorStore, data: Path) -> None:
         rot = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
         prior = prior_for(truth, "135")
         t = time.perf_counter()
-        world, _ = reconstruct_positions(control[:n], prior, fps=truth.fps, root_heading=heading[:n])
+        world, _ = reconstruct_positions(control[:n], prior, root_heading=heading[:n])
         sec = time.perf_counter() - t
         out = positions_to_motion(read_asf(amc.parent / "135.asf"), world, prior.joints, truth.fps)
         aligned = (out.canonical_positions(prior.joints) - ca) @ rot.T + cb
@@ -187,7 +187,7 @@ def user_runs(store: PriorStore, data: Path) -> None:
         control, heading = control_from_motion(take)
         prior = prior_for(take, str(take.metadata["subject"]))
         t = time.perf_counter()
-        world, _ = reconstruct_positions(control, prior, fps=take.fps, root_heading=heading)
+        world, _ = reconstruct_positions(control, prior, root_heading=heading)
         sec = time.perf_counter() - t
         _, _, avg, worst = joint_errors(world, take.canonical_positions(prior.joints))
         print(

@@ -201,7 +201,6 @@ class _Frames:
     chain: np.ndarray
     lengths: np.ndarray
     limbs: list[tuple[int, int, int, int, np.ndarray]]
-    smooth_sigma: float
 
 
 #: Two-bone chains (base, middle, end) whose end a marker may pin (:func:`limb_ik`).
@@ -212,13 +211,6 @@ LIMBS: tuple[tuple[str, str, str], ...] = (
     ("rhip", "rknee", "rankle"),
     ("chest", "neck", "head"),
 )
-
-
-def smooth_sigma(model: ReconstructModel, prior_fps: float, fps: float) -> float:
-    """The smoothness scale at ``fps``: ``model.smooth_sigma`` holds at the prior's rate; a
-    deviation from the constant-velocity prediction is an acceleration times the frame
-    step squared, so the scale shrinks with the square of the rate."""
-    return model.smooth_sigma * (prior_fps / fps) ** 2
 
 
 def _limbs(joints: list[str], markers: list[str], chain: np.ndarray) -> list[tuple[int, int, int, int, np.ndarray]]:
@@ -237,7 +229,6 @@ def reconstruct_positions(
     prior: PosePrior,
     params: ReconstructParams | None = None,
     model: ReconstructModel = MODEL,
-    fps: float | None = None,
     root_heading: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Reconstruct full poses from marker trajectories.
@@ -249,8 +240,6 @@ def reconstruct_positions(
     prior : PosePrior
     params : ReconstructParams
     model : ReconstructModel
-    fps : float, optional
-        Frame rate of ``markers`` (default: the prior's).
     root_heading : ndarray of shape (T,), radians, optional
         The root's heading (facing ``(lhip - rhip) x up``, as :func:`facing_angles`): the
         root marker as a rigid body (a pelvis cluster), which the paper's root-normalised
@@ -286,7 +275,6 @@ def reconstruct_positions(
         chain_matrix(parents),
         prior.lengths,
         _limbs(joints, mk, chain_matrix(parents)),
-        smooth_sigma(model, prior.fps, float(fps or prior.fps)),
     )
     root = markers[:, mk.index("root")]
     rel = markers - root[:, None, :]
@@ -374,7 +362,7 @@ def _solve_frame(
     """
     from ._reconstruct_kernels import map_pose
 
-    w_m, w_s = 1.0 / model.marker_sigma**2, 1.0 / fr.smooth_sigma**2
+    w_m, w_s = 1.0 / model.marker_sigma**2, 1.0 / model.smooth_sigma**2
     k = min(k, len(prior.poses))
     has_pred = pred is not None
     pred_v = pred if pred is not None else guess
@@ -473,7 +461,7 @@ def reconstruct_motion(
     markers = synthetic_markers(motion, model.markers, model.noise, rng)
     heading = synthetic_heading(motion, model.noise, rng) if model.root_heading else None
     t0 = time.perf_counter()
-    world, _ = reconstruct_positions(markers, prior, p, model, fps=motion.fps, root_heading=heading)
+    world, _ = reconstruct_positions(markers, prior, p, model, root_heading=heading)
     seconds = time.perf_counter() - t0
     truth = motion.canonical_positions(prior.joints)
     mean, mx, avg, worst = joint_errors(world, truth)

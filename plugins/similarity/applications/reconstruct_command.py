@@ -82,7 +82,7 @@ class ReconstructCommand:
             raise DataError(f"skeleton {skeleton.name!r} lacks the prior's pose joints {missing}")
         prior = PosePrior.build(store, lengths)
         t1 = time.perf_counter()
-        world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), fps=fps, root_heading=heading)
+        world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), root_heading=heading)
         t2 = time.perf_counter()
         motion = positions_to_motion(
             skeleton, world, prior.joints, fps, name=out.stem, metadata={"reconstructed_from": str(src)}

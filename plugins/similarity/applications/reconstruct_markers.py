@@ -226,7 +226,7 @@ class ReconstructMarkers(Analysis):
         for cid, mk in dataset_markers(inputs["markers"]):
             control, heading, set_name, _ = control_from_markers(mk, p.marker_set)
             t0 = time.perf_counter()
-            world, _ = reconstruct_positions(control, prior, ReconstructParams(k=p.k), fps=mk.fps, root_heading=heading)
+            world, _ = reconstruct_positions(control, prior, ReconstructParams(k=p.k), root_heading=heading)
             seconds = time.perf_counter() - t0
             m = positions_to_motion(
                 skeleton, world, prior.joints, mk.fps, name=mk.name, metadata={"reconstructed_from": mk.name}
