@@ -87,68 +87,121 @@ def motion_from_nodes(
     ``rest_*``: (N, 3) / (N, 4) / (N,) rest translation, rotation, uniform scale;
     ``t, r, s``: the same per frame, (F, N, ...). Translations in metres, world y-up."""
     n = len(names)
-    n_frames = t.shape[0]
     r = quat.normalize(r)
     rest_r = quat.normalize(rest_r)
-    pos = np.empty((n_frames, n, 3))
-    rot = np.empty((n_frames, n, 4))
-    scl = np.empty((n_frames, n))
     rpos, rrot, rscl = np.empty((n, 3)), np.empty((n, 4)), np.empty(n)
     for k in range(n):
         p = parents[k]
         if p < 0:
-            pos[:, k], rot[:, k], scl[:, k] = t[:, k], r[:, k], s[:, k]
             rpos[k], rrot[k], rscl[k] = rest_t[k], rest_r[k], rest_s[k]
         else:
-            pos[:, k] = pos[:, p] + scl[:, p, None] * quat.rotate(rot[:, p], t[:, k])
-            rot[:, k] = quat.mul(rot[:, p], r[:, k])
-            scl[:, k] = scl[:, p] * s[:, k]
             rpos[k] = rpos[p] + rscl[p] * quat.rotate(rrot[p], rest_t[k])
             rrot[k] = quat.mul(rrot[p], rest_r[k])
             rscl[k] = rscl[p] * rest_s[k]
-    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(rpos))):
-        raise ParseError(path, None, "expected finite joint positions after composing the node transforms")
-    if np.abs(pos).max(initial=0.0) > MAX_METRES or np.abs(rpos).max(initial=0.0) > MAX_METRES:
-        raise ParseError(path, None, f"expected joint positions within {MAX_METRES:g} m, found larger ones")
     j0 = first_joint
-    jn = list(range(j0, n))
-    jparents = np.array([-1] + [int(parents[k]) - j0 for k in jn[1:]], dtype=np.int64)
+    jparents = np.array([-1] + [int(parents[k]) - j0 for k in range(j0 + 1, n)], dtype=np.int64)
     if np.any(jparents[1:] < 0):
         raise ParseError(path, None, "expected the skeleton's joints to descend from one root")
-    # new world rotations W' = W Wrest^-1; local r'_j = W'_p^-1 W'_j
-    wnew = quat.mul(rot[:, j0:], quat.conjugate(rrot[j0:]))
-    loc = np.empty_like(wnew)
-    loc[:, 0] = wnew[:, 0]
-    offsets = np.zeros((len(jn), 3))
-    local_t = None
-    moving: dict[int, np.ndarray] = {}
-    for j in range(1, len(jn)):
-        p = int(jparents[j])
-        loc[:, j] = quat.mul(quat.conjugate(wnew[:, p]), wnew[:, j])
-        offsets[j] = rpos[j0 + j] - rpos[j0 + p]
-        lt = quat.rotate(quat.conjugate(wnew[:, p]), pos[:, j0 + j] - pos[:, j0 + p])
-        if np.abs(lt - offsets[j]).max(initial=0.0) > MOVE_TOL:
-            moving[j] = lt
-    if moving:  # joints whose translation is constant keep their offset
-        local_t = np.broadcast_to(offsets, (n_frames, len(jn), 3)).copy()
-        for j, lt in moving.items():
-            local_t[:, j] = lt
+    still = j0 == 0 or all(np.ptp(x[:, :j0], axis=0).max(initial=0.0) == 0 for x in (t, r, s))
+    if still and np.ptp(s, axis=0).max(initial=0.0) == 0:
+        root_t, loc, offsets, local_t = _linear(rpos, rrot, rscl, parents, j0, t, r)
+    else:
+        root_t, loc, offsets, local_t = _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s)
+    big = max(np.abs(root_t).max(initial=0.0), np.abs(offsets).sum(axis=0).max(initial=0.0))
+    if local_t is not None:
+        big = max(big, np.abs(local_t).max(initial=0.0))
+    if not (np.isfinite(big) and np.all(np.isfinite(loc))):
+        raise ParseError(path, None, "expected finite joint transforms after composing the node transforms")
+    if big > MAX_METRES:
+        raise ParseError(path, None, f"expected joint positions within {MAX_METRES:g} m, found larger ones")
     jnames = tuple(names[j0:])
     skeleton = Skeleton(
         names=jnames,
         parents=jparents,
         offsets=offsets,
         canonical=canonical_map(jnames, None, registered_joint_maps()),  # any dialect: rigs come from any tool
-        rotation_orders=("",) * len(jn),
+        rotation_orders=("",) * len(jnames),
         name=name,
         meta={"format": fmt, "rest_rotations": rrot[j0:].round(12).tolist()},
     )
     return Motion(
         skeleton=skeleton,
-        root_translation=pos[:, j0],
-        rotations=quat.make_continuous(loc),
+        root_translation=root_t,
+        rotations=loc,
         fps=fps,
         name=name,
         metadata=meta,
         local_translations=local_t,
     )
+
+
+def _qmat(q: np.ndarray, right: bool) -> np.ndarray:
+    """4x4 matrices of ``p -> q p`` (``right``: ``p -> p q``) for quaternions (..., 4)."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    if right:
+        rows = [[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]]
+    else:
+        rows = [[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def _linear(rpos, rrot, rscl, parents, j0, t, r):
+    """Constant scales and still ancestors: every output is a constant linear map of the
+    file's local values (``r' = Wrest_p r Wrest_j^-1``, ``t' = s_p Wrest_p t``)."""
+    n = len(parents)
+    jn = np.arange(j0, n)
+    wpar = np.array([rrot[parents[k]] if parents[k] >= 0 else quat.identity() for k in jn])
+    spar = np.array([rscl[parents[k]] if parents[k] >= 0 else 1.0 for k in jn])
+    m = _qmat(wpar, False) @ _qmat(quat.conjugate(rrot[j0:]), True)  # (J, 4, 4)
+    loc = np.einsum("jab,fjb->fja", m, r[:, j0:], optimize=True)
+    a = parents[j0]
+    root_t = t[:, j0] if a < 0 else rpos[a] + rscl[a] * quat.rotate(rrot[a], t[:, j0])
+    offsets = np.zeros((len(jn), 3))
+    offsets[1:] = rpos[j0 + 1 :] - rpos[parents[j0 + 1 :]]
+    moving = [k for k in range(1, len(jn)) if np.ptp(t[:, j0 + k], axis=0).max() > 0]
+    local_t = None
+    if moving:
+        rm = quat.to_matrix(wpar) * spar[:, None, None]
+        lt = {k: t[:, j0 + k] @ rm[k].T for k in moving}
+        lt = {k: v for k, v in lt.items() if np.abs(v - offsets[k]).max() > MOVE_TOL}
+        if lt:
+            local_t = np.broadcast_to(offsets, (t.shape[0], len(jn), 3)).copy()
+            for k, v in lt.items():
+                local_t[:, k] = v
+    return root_t, loc, offsets, local_t
+
+
+def _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s):
+    """Any scales and ancestors: full forward kinematics per frame, then
+    ``W' = W Wrest^-1`` and ``r'_j = W'_p^-1 W'_j``."""
+    n_frames, n = t.shape[0], len(parents)
+    pos = np.empty((n_frames, n, 3))
+    rot = np.empty((n_frames, n, 4))
+    scl = np.empty((n_frames, n))
+    for k in range(n):
+        p = parents[k]
+        if p < 0:
+            pos[:, k], rot[:, k], scl[:, k] = t[:, k], r[:, k], s[:, k]
+        else:
+            pos[:, k] = pos[:, p] + scl[:, p, None] * quat.rotate(rot[:, p], t[:, k])
+            rot[:, k] = quat.mul(rot[:, p], r[:, k])
+            scl[:, k] = scl[:, p] * s[:, k]
+    wnew = quat.mul(rot[:, j0:], quat.conjugate(rrot[j0:]))
+    loc = np.empty_like(wnew)
+    loc[:, 0] = wnew[:, 0]
+    nj = n - j0
+    offsets = np.zeros((nj, 3))
+    moving: dict[int, np.ndarray] = {}
+    for j in range(1, nj):
+        p = int(jparents[j])
+        loc[:, j] = quat.mul(quat.conjugate(wnew[:, p]), wnew[:, j])
+        offsets[j] = rpos[j0 + j] - rpos[j0 + p]
+        lt = quat.rotate(quat.conjugate(wnew[:, p]), pos[:, j0 + j] - pos[:, j0 + p])
+        if np.abs(lt - offsets[j]).max(initial=0.0) > MOVE_TOL:
+            moving[j] = lt
+    local_t = None
+    if moving:  # joints whose translation is constant keep their offset
+        local_t = np.broadcast_to(offsets, (n_frames, nj, 3)).copy()
+        for j, lt in moving.items():
+            local_t[:, j] = lt
+    return pos[:, j0], loc, offsets, local_t

@@ -89,6 +89,7 @@ class _Doc:
         self.doc = doc
         self.glb_bin = glb_bin
         self._buffers: dict[int, bytes] = {}
+        self._accessors: dict[tuple, np.ndarray] = {}
 
     def error(self, msg: str) -> ParseError:
         return ParseError(self.path, None, msg)
@@ -167,7 +168,13 @@ class _Doc:
         return raw
 
     def accessor(self, i: Any, where: str, widths: tuple[int, ...]) -> np.ndarray:
-        """Accessor ``i`` as float64 ``(count, width)`` (normalized integers scaled)."""
+        """Accessor ``i`` as float64 ``(count, width)`` (normalized integers scaled; read once)."""
+        key = (i if isinstance(i, int) and not isinstance(i, bool) else repr(i), widths)
+        if key not in self._accessors:
+            self._accessors[key] = self._accessor(i, where, widths)
+        return self._accessors[key]
+
+    def _accessor(self, i: Any, where: str, widths: tuple[int, ...]) -> np.ndarray:
         a = self.item("accessors", i, where)
         w = f"accessors[{i}]"
         if "sparse" in a:
@@ -352,8 +359,23 @@ def _snap_fps(fps: float) -> float:
     return fps
 
 
-def _sample(times: np.ndarray, vals: np.ndarray, interp: str, grid: np.ndarray, rotation: bool) -> np.ndarray:
-    """Values of one sampler at the ``grid`` times."""
+def _snap(times: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Key times moved onto the frames they lie on (within float32 rounding of the times),
+    and whether there is exactly one key per frame."""
+    if len(grid) < 2 or len(times) < 2:
+        return times, False
+    step = grid[1] - grid[0]
+    kf = np.round((times - grid[0]) / step)
+    if np.abs(times - (grid[0] + kf * step)).max() > 1e-3 * step + 4 * np.finfo(np.float32).eps * np.abs(times).max():
+        return times, False
+    every = len(times) == len(grid) and kf[0] == 0 and bool(np.all(np.diff(kf) == 1))
+    return grid[0] + kf * step, every
+
+
+def _sample(
+    times: np.ndarray, vals: np.ndarray, interp: str, grid: np.ndarray, rotation: bool, every: bool = False
+) -> np.ndarray:
+    """Values of one sampler at the ``grid`` times (``every``: one key per frame)."""
     k = len(times)
     if interp == "CUBICSPLINE":
         tri = vals.reshape(k, 3, -1)
@@ -362,8 +384,8 @@ def _sample(times: np.ndarray, vals: np.ndarray, interp: str, grid: np.ndarray, 
         v = vals
     if k == 1:
         return np.broadcast_to(v[0], (len(grid), v.shape[1])).copy()
-    if k == len(grid) and np.abs(times - grid).max() <= 1e-3 * (grid[1] - grid[0] if len(grid) > 1 else 1.0) + 1e-6:
-        return v.copy()  # keys on the frames (the common case): no interpolation
+    if every:
+        return v  # a key on every frame (the common case): no interpolation
     i = np.clip(np.searchsorted(times, grid, side="right") - 1, 0, k - 2)
     dt = times[i + 1] - times[i]
     u = np.clip((grid - times[i]) / np.where(dt > 0, dt, 1.0), 0.0, 1.0)
@@ -445,19 +467,23 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
     t = np.broadcast_to(rest_t, (n_frames, *rest_t.shape)).copy()
     r = np.broadcast_to(rest_r, (n_frames, *rest_r.shape)).copy()
     s = np.broadcast_to(rest_s, (n_frames, len(order))).copy()
+    snapped: dict[int, tuple[np.ndarray, bool]] = {}  # samplers often share their input accessor
     for node, tpath, interp, times, vals in channels:
         if node not in col:
             continue
         k = col[node]
+        if id(times) not in snapped:
+            snapped[id(times)] = _snap(times, grid)
+        keys, every = snapped[id(times)]
         if tpath == "rotation":
-            v = _sample(times, vals[:, [3, 0, 1, 2]], interp, grid, True)
-            if np.any(np.linalg.norm(v, axis=1) < 1e-6):
-                raise doc.error(f"{aw}: node {raw_names[k]!r} has a zero rotation quaternion")
-            r[:, k] = v
+            r[:, k] = _sample(keys, vals[:, [3, 0, 1, 2]], interp, grid, True, every)
         elif tpath == "translation":
-            t[:, k] = _sample(times, vals, interp, grid, False)
+            t[:, k] = _sample(keys, vals, interp, grid, False, every)
         else:
-            s[:, k] = uniform_scale(path, raw_names[k], _sample(times, vals, interp, grid, False))
+            s[:, k] = uniform_scale(path, raw_names[k], _sample(keys, vals, interp, grid, False, every))
+    bad = np.einsum("fnc,fnc->fn", r, r) < 1e-12
+    if bad.any():
+        raise doc.error(f"{aw}: node {raw_names[int(np.argwhere(bad)[0, 1])]!r} has a zero rotation quaternion")
     par = np.array([col.get(int(parent[n]), -1) for n in order], dtype=np.int64)
     names = unique_names(raw_names)
     meta = file_metadata(path, data, "gltf")
