@@ -420,33 +420,7 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
     aw = f"animations[{k_anim}]"
     samplers = doc.get(anim, "samplers", list, aw)
     parent = _parents(doc)
-    channels = []
-    for c, ch in enumerate(doc.get(anim, "channels", list, aw)):
-        cw = f"{aw}.channels[{c}]"
-        if not isinstance(ch, dict):
-            raise doc.error(f"{cw}: expected a JSON object")
-        target = doc.get(ch, "target", dict, cw)
-        tpath = doc.get(target, "path", str, cw)
-        if tpath not in _PATHS or "node" not in target:
-            continue  # morph-target weights, extension-driven targets: not skeletal
-        node = target["node"]
-        doc.item("nodes", node, f"{cw}.target.node")
-        si = doc.get(ch, "sampler", int, cw)
-        if not 0 <= si < len(samplers) or not isinstance(samplers[si], dict):
-            raise doc.error(f"{cw}: expected a sampler index below {len(samplers)}, found {si}")
-        smp = samplers[si]
-        sw = f"{aw}.samplers[{si}]"
-        interp = doc.get(smp, "interpolation", str, sw, "LINEAR")
-        if interp not in ("LINEAR", "STEP", "CUBICSPLINE"):
-            raise doc.error(f"{sw}: expected interpolation LINEAR, STEP or CUBICSPLINE, found {interp!r}")
-        times = doc.accessor(doc.get(smp, "input", int, sw), f"{sw}.input", (1,))[:, 0]
-        if np.any(np.diff(times) < 0):
-            raise doc.error(f"{sw}.input: expected non-decreasing key times")
-        width = _PATHS[tpath]
-        vals = doc.accessor(doc.get(smp, "output", int, sw), f"{sw}.output", (width,))
-        if len(vals) != len(times) * (3 if interp == "CUBICSPLINE" else 1):
-            raise doc.error(f"{sw}: expected {len(times)} output values for {len(times)} key times, found {len(vals)}")
-        channels.append((int(node), tpath, interp, times, vals))
+    channels = _channels(doc, anim, aw, samplers)
     if not channels:
         raise doc.error(f"{aw}: expected translation, rotation or scale channels on nodes")
     rate, source = _rate(doc, anim, channels, fps)
@@ -515,6 +489,38 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
         name=path.stem,
         meta=meta,
     )
+
+
+def _channels(doc: _Doc, anim: dict, aw: str, samplers: list) -> list[tuple[int, str, str, np.ndarray, np.ndarray]]:
+    """(node, path, interpolation, key times, values) of the animation's TRS channels."""
+    channels = []
+    for c, ch in enumerate(doc.get(anim, "channels", list, aw)):
+        cw = f"{aw}.channels[{c}]"
+        if not isinstance(ch, dict):
+            raise doc.error(f"{cw}: expected a JSON object")
+        target = doc.get(ch, "target", dict, cw)
+        tpath = doc.get(target, "path", str, cw)
+        if tpath not in _PATHS or "node" not in target:
+            continue  # morph-target weights, extension-driven targets: not skeletal
+        node = target["node"]
+        doc.item("nodes", node, f"{cw}.target.node")
+        si = doc.get(ch, "sampler", int, cw)
+        if not 0 <= si < len(samplers) or not isinstance(samplers[si], dict):
+            raise doc.error(f"{cw}: expected a sampler index below {len(samplers)}, found {si}")
+        smp = samplers[si]
+        sw = f"{aw}.samplers[{si}]"
+        interp = doc.get(smp, "interpolation", str, sw, "LINEAR")
+        if interp not in ("LINEAR", "STEP", "CUBICSPLINE"):
+            raise doc.error(f"{sw}: expected interpolation LINEAR, STEP or CUBICSPLINE, found {interp!r}")
+        times = doc.accessor(doc.get(smp, "input", int, sw), f"{sw}.input", (1,))[:, 0]
+        if np.any(np.diff(times) < 0):
+            raise doc.error(f"{sw}.input: expected non-decreasing key times")
+        width = _PATHS[tpath]
+        vals = doc.accessor(doc.get(smp, "output", int, sw), f"{sw}.output", (width,))
+        if len(vals) != len(times) * (3 if interp == "CUBICSPLINE" else 1):
+            raise doc.error(f"{sw}: expected {len(times)} output values for {len(times)} key times, found {len(vals)}")
+        channels.append((int(node), tpath, interp, times, vals))
+    return channels
 
 
 def _rate(doc: _Doc, anim: dict, channels: list, fps: float | str) -> tuple[float, str]:
