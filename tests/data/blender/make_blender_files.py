@@ -6,6 +6,10 @@ with Blender's python (``pip install bpy``)::
 
     python tests/data/blender/make_blender_files.py --blender-python /path/to/bpy-venv/bin/python
 
+``--check-writer`` instead writes clips with mocapflow's glTF writer (``.gltf`` and ``.glb``),
+imports them with Blender's importer and prints the largest joint-position difference
+(nothing is written to the repository).
+
 Stage 2 (Blender): for each clip, a factory-empty scene imports the BVH (``update_scene_fps``)
 and exports it with Blender's own exporters (glTF separate, GLB, binary FBX; settings in
 ``CLIPS``); then a fresh empty scene imports each exported file with Blender's importer
@@ -55,6 +59,53 @@ def stage1(blender_python: str) -> None:
         spec = Path(tmp) / "jobs.json"
         spec.write_text(json.dumps(jobs))
         subprocess.run([blender_python, __file__, "--stage2", str(spec), str(HERE)], check=True)
+
+
+def check_writer(blender_python: str) -> None:
+    import numpy as np
+
+    from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.formats.gltf import read_gltf, write_gltf
+
+    with tempfile.TemporaryDirectory() as tmp:
+        jobs = []
+        sources = [("02/02_01.amc", None), ("16/16_35.amc", None), ("jump_60.glb", "glb")]
+        for k, (take, kind) in enumerate(sources):
+            m = read_gltf(HERE / take) if kind else read_amc(ROOT / "examples" / "data" / "cmu" / take).slice(0, 120)
+            for ext in (".gltf", ".glb"):
+                out = Path(tmp) / f"w{k}{ext}"
+                write_gltf(m, out)
+                ours = read_gltf(out)
+                np.save(out.with_suffix(out.suffix + ".npy"), ours.positions)
+                jobs.append({"path": str(out), "fps": m.fps, "names": list(ours.skeleton.names), "n": ours.n_frames})
+        spec = Path(tmp) / "jobs.json"
+        spec.write_text(json.dumps(jobs))
+        subprocess.run([blender_python, __file__, "--stage-check", str(spec)], check=True)
+
+
+def stage_check(spec: Path) -> None:
+    import bpy
+    import numpy as np
+
+    worst = 0.0
+    for job in json.loads(spec.read_text()):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.fps, scene.render.fps_base = round(job["fps"]), round(job["fps"]) / job["fps"]
+        bpy.ops.import_scene.gltf(filepath=job["path"])
+        arm = next(o for o in scene.objects if o.type == "ARMATURE")
+        f0 = int(round(arm.animation_data.action.frame_range[0]))
+        want = np.load(job["path"] + ".npy")
+        got = np.zeros_like(want)
+        for f in range(job["n"]):
+            scene.frame_set(f0 + f)
+            for j, name in enumerate(job["names"]):
+                v = arm.matrix_world @ arm.pose.bones[name].head
+                got[f, j] = (v[0], v[2], -v[1])
+        err = float(np.abs(got - want).max())
+        worst = max(worst, err)
+        print(f"{Path(job['path']).name}: {job['n']} frames, {len(job['names'])} joints, max |Blender - mocapflow| {err:.2e} m")
+    print(f"writer check (Blender {bpy.app.version_string}): worst {worst:.2e} m")
 
 
 def stage2(spec: Path, out: Path) -> None:
@@ -116,8 +167,14 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--blender-python", default=None)
     ap.add_argument("--stage2", nargs=2, default=None)
+    ap.add_argument("--check-writer", action="store_true")
+    ap.add_argument("--stage-check", default=None)
     a = ap.parse_args()
-    if a.stage2:
+    if a.stage_check:
+        stage_check(Path(a.stage_check))
+    elif a.check_writer:
+        check_writer(a.blender_python or sys.exit("--blender-python is required"))
+    elif a.stage2:
         stage2(Path(a.stage2[0]), Path(a.stage2[1]))
     else:
         stage1(a.blender_python or sys.exit("--blender-python is required"))
