@@ -85,9 +85,9 @@ def motion_from_nodes(
     """The skeleton of nodes ``first_joint..`` (nodes before it are ancestors of
     ``first_joint``; their transforms, animated or not, move the root) as a Motion.
     ``rest_*``: (N, 3) / (N, 4) / (N,) rest translation, rotation, uniform scale;
-    ``t, r, s``: the same per frame, (F, N, ...). Translations in metres, world y-up."""
+    ``t, r, s``: the same per frame, (F, N, ...) (views of node-major arrays are fastest).
+    Translations in metres, world y-up; rotations unit quaternions (w, x, y, z)."""
     n = len(names)
-    r = quat.normalize(r)
     rest_r = quat.normalize(rest_r)
     rpos, rrot, rscl = np.empty((n, 3)), np.empty((n, 4)), np.empty(n)
     for k in range(n):
@@ -153,7 +153,9 @@ def _linear(rpos, rrot, rscl, parents, j0, t, r):
     wpar = np.array([rrot[parents[k]] if parents[k] >= 0 else quat.identity() for k in jn])
     spar = np.array([rscl[parents[k]] if parents[k] >= 0 else 1.0 for k in jn])
     m = _qmat(wpar, False) @ _qmat(quat.conjugate(rrot[j0:]), True)  # (J, 4, 4)
-    loc = np.einsum("jab,fjb->fja", m, r[:, j0:], optimize=True)
+    loc = np.empty((t.shape[0], n - j0, 4))
+    for j in range(n - j0):
+        loc[:, j] = r[:, j0 + j] @ m[j].T
     a = parents[j0]
     root_t = t[:, j0] if a < 0 else rpos[a] + rscl[a] * quat.rotate(rrot[a], t[:, j0])
     offsets = np.zeros((len(jn), 3))
@@ -175,6 +177,7 @@ def _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s):
     """Any scales and ancestors: full forward kinematics per frame, then
     ``W' = W Wrest^-1`` and ``r'_j = W'_p^-1 W'_j``."""
     n_frames, n = t.shape[0], len(parents)
+    r = quat.normalize(r)
     pos = np.empty((n_frames, n, 3))
     rot = np.empty((n_frames, n, 4))
     scl = np.empty((n_frames, n))

@@ -438,9 +438,10 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
     rest_r = np.array([x[1] for x in rest])
     raw_names = [str(nodes[n].get("name") or f"node{n}") for n in order]
     rest_s = np.array([uniform_scale(path, nm, x[2]) for nm, x in zip(raw_names, rest, strict=True)])
-    t = np.broadcast_to(rest_t, (n_frames, *rest_t.shape)).copy()
-    r = np.broadcast_to(rest_r, (n_frames, *rest_r.shape)).copy()
-    s = np.broadcast_to(rest_s, (n_frames, len(order))).copy()
+    # node-major arrays: each node's frames contiguous (passed on as (F, N, ...) views)
+    t = np.broadcast_to(rest_t[:, None], (len(order), n_frames, 3)).copy()
+    r = np.broadcast_to(rest_r[:, None], (len(order), n_frames, 4)).copy()
+    s = np.broadcast_to(rest_s[:, None], (len(order), n_frames)).copy()
     snapped: dict[int, tuple[np.ndarray, bool]] = {}  # samplers often share their input accessor
     for node, tpath, interp, times, vals in channels:
         if node not in col:
@@ -450,14 +451,16 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
             snapped[id(times)] = _snap(times, grid)
         keys, every = snapped[id(times)]
         if tpath == "rotation":
-            r[:, k] = _sample(keys, vals[:, [3, 0, 1, 2]], interp, grid, True, every)
+            r[k] = _sample(keys, vals[:, [3, 0, 1, 2]], interp, grid, True, every)
+            n2 = np.einsum("fc,fc->f", r[k], r[k])
+            if n2.min() < 1e-12:
+                raise doc.error(f"{aw}: node {raw_names[k]!r} has a zero rotation quaternion")
+            if np.abs(n2 - 1.0).max() > 1e-9:  # float32 or quantized keys: unit length again
+                r[k] /= np.sqrt(n2)[:, None]
         elif tpath == "translation":
-            t[:, k] = _sample(keys, vals, interp, grid, False, every)
+            t[k] = _sample(keys, vals, interp, grid, False, every)
         else:
-            s[:, k] = uniform_scale(path, raw_names[k], _sample(keys, vals, interp, grid, False, every))
-    bad = np.einsum("fnc,fnc->fn", r, r) < 1e-12
-    if bad.any():
-        raise doc.error(f"{aw}: node {raw_names[int(np.argwhere(bad)[0, 1])]!r} has a zero rotation quaternion")
+            s[k] = uniform_scale(path, raw_names[k], _sample(keys, vals, interp, grid, False, every))
     par = np.array([col.get(int(parent[n]), -1) for n in order], dtype=np.int64)
     names = unique_names(raw_names)
     meta = file_metadata(path, data, "gltf")
@@ -481,9 +484,9 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
         rest_t=rest_t,
         rest_r=rest_r,
         rest_s=rest_s,
-        t=t,
-        r=r,
-        s=s,
+        t=t.transpose(1, 0, 2),
+        r=r.transpose(1, 0, 2),
+        s=s.T,
         fps=rate,
         fmt="gltf",
         name=path.stem,
