@@ -455,7 +455,7 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
             n2 = np.einsum("fc,fc->f", r[k], r[k])
             if n2.min() < 1e-12:
                 raise doc.error(f"{aw}: node {raw_names[k]!r} has a zero rotation quaternion")
-            if np.abs(n2 - 1.0).max() > 1e-9:  # float32 or quantized keys: unit length again
+            if np.abs(n2 - 1.0).max() > 1e-6:  # quantized or sloppy keys (float32 rounding is below 1e-6)
                 r[k] /= np.sqrt(n2)[:, None]
         elif tpath == "translation":
             t[k] = _sample(keys, vals, interp, grid, False, every)
