@@ -63,6 +63,9 @@ _COMPONENTS: dict[int, tuple[str, float | None]] = {
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _PATHS = {"translation": 3, "rotation": 4, "scale": 3}
 _GLB_MAGIC, _JSON_CHUNK, _BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942
+#: Largest |value| accepted in node transforms and accessors (metres, seconds, factors):
+#: above any real scene, below the overflow of the products that follow.
+_MAX_VALUE = 1.0e7
 
 
 class _Doc:
@@ -214,8 +217,8 @@ class _Doc:
             out = raw.astype(np.float64)
             if normalized and norm is not None:
                 out = np.maximum(out / norm, -1.0)
-        if not np.all(np.isfinite(out)):
-            raise self.error(f"{w} ({where}): expected finite numbers, found nan or inf")
+        if not np.all(np.abs(out) <= _MAX_VALUE):
+            raise self.error(f"{w} ({where}): expected finite numbers within {_MAX_VALUE:g}")
         return out
 
 
@@ -238,8 +241,8 @@ def _node_trs(doc: _Doc, i: int, node: dict) -> tuple[np.ndarray, np.ndarray, np
         if len(m) != 16 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in m):
             raise doc.error(f"{w}: expected 16 numbers in 'matrix'")
         mat = np.array(m, dtype=float).reshape(4, 4).T  # column-major
-        if not np.all(np.isfinite(mat)):
-            raise doc.error(f"{w}: expected finite numbers in 'matrix'")
+        if not np.all(np.abs(mat) <= _MAX_VALUE):
+            raise doc.error(f"{w}: expected finite numbers within {_MAX_VALUE:g} in 'matrix'")
         lin = mat[:3, :3]
         s = np.linalg.norm(lin, axis=0)
         if np.any(s <= 0) or np.linalg.det(lin) <= 0:
@@ -255,8 +258,8 @@ def _node_trs(doc: _Doc, i: int, node: dict) -> tuple[np.ndarray, np.ndarray, np
         if len(v) != len(default) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
             raise doc.error(f"{w}: expected {len(default)} numbers in {key!r}")
         arr = np.array(v, dtype=float)
-        if not np.all(np.isfinite(arr)):
-            raise doc.error(f"{w}: expected finite numbers in {key!r}")
+        if not np.all(np.abs(arr) <= _MAX_VALUE):
+            raise doc.error(f"{w}: expected finite numbers within {_MAX_VALUE:g} in {key!r}")
         vals.append(arr)
     t, r, s = vals
     if np.linalg.norm(r) < 1e-6:
