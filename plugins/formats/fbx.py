@@ -51,6 +51,9 @@ TIME_MODES = {
 }  # fmt: skip
 _ORDERS = {0: "xyz", 1: "xzy", 2: "yzx", 3: "yxz", 4: "zxy", 5: "zyx", 6: "xyz"}
 _CHANNELS = {"Lcl Translation": "t", "Lcl Rotation": "r", "Lcl Scaling": "s"}
+#: Largest |value| of a transform property or key (file units up to millimetres, degrees):
+#: above any real scene, below the overflow of the products that follow.
+_MAX_VALUE = 1.0e9
 
 
 def _props70(node: Node | None) -> dict[str, list[Any]]:
@@ -78,9 +81,11 @@ class _Props:
             arr = np.array([float(x) for x in v[:3]], dtype=float)
         except (TypeError, ValueError):
             arr = np.zeros(0)
-        if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        if arr.shape != (3,) or not np.all(np.abs(arr) <= _MAX_VALUE):
             raise ParseError(
-                self.path, None, f"{self.what}: expected three finite numbers in {key!r}, found {v!r}"[:200]
+                self.path,
+                None,
+                f"{self.what}: expected three numbers within {_MAX_VALUE:g} in {key!r}, found {v!r}"[:200],
             )
         return arr
 
@@ -307,8 +312,8 @@ def _curve(path: Path, obj: tuple[str, str, Node]) -> tuple[np.ndarray, np.ndarr
     if np.any(np.diff(times) <= 0):
         raise ParseError(path, None, f"{what}: expected strictly increasing key times")
     vals = vals.astype(np.float64)
-    if not np.all(np.isfinite(vals)):
-        raise ParseError(path, None, f"{what}: expected finite key values")
+    if not np.all(np.abs(vals) <= _MAX_VALUE):
+        raise ParseError(path, None, f"{what}: expected finite key values within {_MAX_VALUE:g}")
     return times.astype(np.int64), vals
 
 
