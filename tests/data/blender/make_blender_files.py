@@ -104,7 +104,9 @@ def stage_check(spec: Path) -> None:
                 got[f, j] = (v[0], v[2], -v[1])
         err = float(np.abs(got - want).max())
         worst = max(worst, err)
-        print(f"{Path(job['path']).name}: {job['n']} frames, {len(job['names'])} joints, max |Blender - mocapflow| {err:.2e} m")
+        print(
+            f"{Path(job['path']).name}: {job['n']} frames, {len(job['names'])} joints, max |Blender - mocapflow| {err:.2e} m"
+        )
     print(f"writer check (Blender {bpy.app.version_string}): worst {worst:.2e} m")
 
 
