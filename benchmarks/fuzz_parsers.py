@@ -18,6 +18,13 @@ Usage::
     python benchmarks/fuzz_parsers.py                # 100,000 cases, seed 0
     python benchmarks/fuzz_parsers.py --quick        # 100 cases on the bundled examples/data (AMC, BVH)
     python benchmarks/fuzz_parsers.py --cases N --seed S --jobs 2 --timeout 20
+
+The scene formats (glTF, GLB, binary FBX) are fuzzed too (``--scene-cases``, default a tenth
+of ``--cases``), on the Blender-made files of ``tests/data/blender``: truncations, byte flips,
+inserted, deleted and duplicated byte runs, and for glTF JSON values replaced (negative,
+huge, wrong type, null) or keys deleted, and re-indented JSON (content kept: the arrays must
+not change). There is no reference reader to agree with: the reader must return finite
+arrays of consistent shapes or raise ParseError naming the file, within the timeout.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ import contextlib
 import multiprocessing as mp
 import os
 import resource
+import shutil
 import signal
 import sys
 import tempfile
@@ -236,6 +244,129 @@ def report(res: dict, echo=print) -> int:
     return int(any(c[k] for k in (*FAILURES, "fuzzer_error")))
 
 
+SCENE_KINDS = ("truncate", "byte_flip", "insert", "delete", "duplicate", "json_value", "json_key", "json_indent")
+
+
+def _scene_case(src: Path, data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
+    """One mutation of a scene file's bytes (JSON kinds on the JSON of a .gltf only)."""
+    import json
+
+    kinds = SCENE_KINDS if src.suffix == ".gltf" else SCENE_KINDS[:5]
+    kind = kinds[int(rng.integers(0, len(kinds)))]
+    n = len(data)
+    at = int(rng.integers(0, n))
+    run = int(rng.integers(1, 64))
+    if kind == "truncate":
+        return kind, data[:at]
+    if kind == "byte_flip":
+        b = bytearray(data)
+        for _ in range(int(rng.integers(1, 9))):
+            b[int(rng.integers(0, n))] = int(rng.integers(0, 256))
+        return kind, bytes(b)
+    if kind == "insert":
+        return kind, data[:at] + rng.integers(0, 256, run, dtype=np.uint8).tobytes() + data[at:]
+    if kind == "delete":
+        return kind, data[:at] + data[at + run :]
+    if kind == "duplicate":
+        return kind, data[: at + run] + data[at : at + run] + data[at + run :]
+    doc = json.loads(data)
+    if kind == "json_indent":
+        return kind, json.dumps(doc, indent=int(rng.integers(0, 5))).encode()
+    spots: list[tuple[object, object]] = []
+
+    def walk(o: object) -> None:
+        items = o.items() if isinstance(o, dict) else enumerate(o) if isinstance(o, list) else []
+        for k, v in items:
+            spots.append((o, k))
+            walk(v)
+
+    walk(doc)
+    parent, key = spots[int(rng.integers(0, len(spots)))]
+    if kind == "json_key" and isinstance(parent, dict):
+        del parent[key]
+    else:
+        choices = [-1, 0, 1e308, 2**31, 0.5, "x", None, [], {}, True]
+        parent[key] = choices[int(rng.integers(0, len(choices)))]  # type: ignore[index]
+    return kind, json.dumps(doc).encode()
+
+
+def fuzz_scenes(n_cases: int, seed: int, timeout: float, echo=print) -> int:
+    """Fuzz the glTF/GLB/FBX readers on the Blender-made test files (module doc)."""
+    from mocapflow.framework.errors import ParseError
+    from mocapflow.plugins.formats.fbx import read_fbx
+    from mocapflow.plugins.formats.gltf import read_gltf
+
+    sources = sorted(
+        p for p in (ROOT / "tests" / "data" / "blender").iterdir() if p.suffix in (".gltf", ".glb", ".fbx")
+    )
+    counts: Counter = Counter()
+    by_kind: dict[str, Counter] = defaultdict(Counter)
+    examples: dict[str, list[str]] = defaultdict(list)
+    reference = {}
+    t0 = time.time()
+
+    def on_alarm(*_: object) -> None:
+        raise TimeoutError
+
+    old = signal.signal(signal.SIGALRM, on_alarm)
+    with tempfile.TemporaryDirectory() as tmp:
+        for src in sources:
+            shutil.copy(src, Path(tmp) / src.name)
+            if src.with_suffix(".bin").exists():
+                shutil.copy(src.with_suffix(".bin"), Path(tmp) / src.with_suffix(".bin").name)
+        for i in range(n_cases):
+            rng = np.random.default_rng([seed, 7, i])
+            src = sources[int(rng.integers(0, len(sources)))]
+            read = read_fbx if src.suffix == ".fbx" else read_gltf
+            if src not in reference:
+                reference[src] = read(src).positions
+            kind, data = _scene_case(src, src.read_bytes(), rng)
+            case = Path(tmp) / f"case{src.suffix}"
+            case.write_bytes(data)
+            signal.setitimer(signal.ITIMER_REAL, timeout)
+            try:
+                m = read(case)
+                pos = m.positions
+                ok = np.all(np.isfinite(pos)) and pos.shape == (m.n_frames, m.n_joints, 3) and m.fps > 0
+                if kind == "json_indent" and (
+                    pos.shape != reference[src].shape or np.abs(pos - reference[src]).max() > 0
+                ):
+                    outcome, detail = "wrong_accept", "re-indented JSON changed the arrays"
+                else:
+                    outcome, detail = ("accepted", "") if ok else ("wrong_accept", "non-finite or misshapen arrays")
+            except ParseError as exc:
+                bad = exc.path != str(case) or not exc.message.strip()
+                outcome, detail = ("bad_error", str(exc)[:200]) if bad else ("rejected", "")
+                if kind == "json_indent":
+                    outcome, detail = "wrong_reject", str(exc)[:200]
+            except TimeoutError:
+                outcome, detail = "hang", f"over {timeout:g} s"
+            except Exception as exc:
+                outcome, detail = "crash", f"{type(exc).__name__}: {exc}"[:200]
+            finally:
+                signal.setitimer(signal.ITIMER_REAL, 0)
+            counts[outcome] += 1
+            by_kind[f"{src.suffix[1:]}:{kind}"][outcome] += 1
+            if outcome not in ("accepted", "rejected") and len(examples[outcome]) < 5:
+                examples[outcome].append(f"case {i} ({src.name}, {kind}): {detail}")
+    signal.signal(signal.SIGALRM, old)
+    echo(
+        f"\nscene formats (glTF, GLB, FBX): {n_cases:,} cases in {time.time() - t0:.0f} s: accepted "
+        f"{counts['accepted']:,}, rejected (ParseError) {counts['rejected']:,}; crashes {counts['crash']}, hangs "
+        f"{counts['hang']}, wrong acceptances {counts['wrong_accept']}, wrong rejections {counts['wrong_reject']}, "
+        f"bad errors {counts['bad_error']}"
+    )
+    cols = ("accepted", "rejected", *FAILURES)
+    echo(f"{'mutation kind':<18}" + "".join(f"{k:>13}" for k in cols))
+    for key in sorted(by_kind):
+        echo(f"{key:<18}" + "".join(f"{by_kind[key][k]:>13,}" for k in cols))
+    for outcome, lines in examples.items():
+        echo(f"first {outcome} cases:")
+        for ln in lines:
+            echo("  " + ln)
+    return int(any(counts[k] for k in FAILURES))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="100 cases on examples/data")
@@ -243,6 +374,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (at most 2: the machine is shared)")
     ap.add_argument("--timeout", type=float, default=20.0, help="seconds per case before it counts as a hang")
+    ap.add_argument("--scene-cases", type=int, default=None, help="glTF/GLB/FBX cases (default: a tenth of --cases)")
     args = ap.parse_args(argv)
     if not args.quick and not DATA.exists():
         print(f"corpus not found at {DATA} (--quick runs on examples/data)", file=sys.stderr)
@@ -257,7 +389,9 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s"
         )
-        return report(run(n, args.seed, jobs, args.timeout))
+        status = report(run(n, args.seed, jobs, args.timeout))
+    n_scene = args.scene_cases if args.scene_cases is not None else max(n // 10, 40 if args.quick else 0)
+    return status | (fuzz_scenes(n_scene, args.seed, args.timeout) if n_scene else 0)
 
 
 def _example_sources(into: Path) -> Path:

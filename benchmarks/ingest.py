@@ -1,11 +1,13 @@
-"""Read + forward-kinematics throughput of the AMC and BVH readers, and corpus ingest time.
+"""Read + forward-kinematics throughput of the AMC, BVH, glTF and FBX readers, and corpus ingest time.
 
 Compares, on the same files and in the same run:
 
 * mocapflow: ``read_amc`` / ``read_bvh`` followed by ``Motion.positions`` (vectorised FK);
 * a plain reference written here: a line-by-line parser (``str.split`` + ``float``) and
   per-frame forward kinematics with 3x3 matrices (the textbook ASF/BVH algorithm);
-* pybvh (``pip install pybvh``), if installed: ``read_bvh_file`` + ``node_positions()``.
+* pybvh (``pip install pybvh``), if installed: ``read_bvh_file`` + ``node_positions()``;
+* glTF: a 100,000-frame file (20,000 with ``--quick``) written by mocapflow's glTF writer,
+  against the slow per-frame twin of ``tests/naive/gltf.py``; FBX: the Blender-made test files.
 
 Also times reading the whole AMC corpus (169 files, 110,109 frames) and, when the
 pipeline runner is available, the ``formats.load`` ingest step over it (Parquet included).
@@ -229,6 +231,47 @@ def bench_bvh(files: list[Path], reps: int) -> None:
     print(f"  ratio mocapflow / pybvh: {ratio(frames, ours, frames, t)}")
 
 
+def bench_gltf(amc: Path, n_frames: int, tmp: Path, reps: int) -> None:
+    """glTF/GLB read speed on an ``n_frames`` file written by mocapflow's own writer (a CMU
+    take tiled), against the slow per-frame twin of tests/naive/gltf.py on 60 frames; FBX read
+    speed on the Blender-made test files."""
+    from mocapflow.plugins.formats.fbx import read_fbx
+    from mocapflow.plugins.formats.gltf import read_gltf, write_gltf
+
+    src = read_amc(amc)
+    reps_needed = -(-n_frames // src.n_frames)
+    rot = np.concatenate([src.rotations] * reps_needed)[:n_frames]
+    root = np.concatenate([src.root_translation] * reps_needed)[:n_frames]
+    big = src.with_arrays(rotations=rot, root_translation=root)
+    print(f"glTF, {n_frames:,} frames x {src.n_joints} joints (mocapflow's writer, a CMU take tiled)")
+    for ext in (".glb", ".gltf"):
+        path = tmp / f"big{ext}"
+        t_write = best_of(lambda p=path: write_gltf(big, p), 1)
+        size = path.stat().st_size / 1e6
+        t_read = best_of(lambda p=path: read_gltf(p), reps)
+        t_fk = best_of(lambda p=path: read_gltf(p).positions, reps)
+        err = np.abs(read_gltf(path).positions[:600] - big.positions[:600]).max()
+        print(f"  read {ext:<6}         {rate(n_frames, t_read)}   [{size:.1f} MB; max |diff| {err:.1e} m]")
+        print(f"  read+FK {ext:<6}      {rate(n_frames, t_fk)}")
+        print(f"  write {ext:<6}        {rate(n_frames, t_write)}")
+    try:
+        sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+        from naive.gltf import naive_gltf_positions
+    except ImportError:
+        return
+    small = tmp / "small.glb"
+    write_gltf(big.slice(0, 60), small)
+    times = np.arange(60) / big.fps
+    plain = best_of(lambda: naive_gltf_positions(small, times), 1)
+    ours = best_of(lambda: read_gltf(tmp / "big.glb").positions, 1)
+    print(f"  slow twin (naive)   {rate(60, plain)}   [60 frames]")
+    print(f"  ratio mocapflow / naive: {ratio(n_frames, ours, 60, plain)}")
+    fbx = sorted((Path(__file__).resolve().parent.parent / "tests" / "data" / "blender").glob("*.fbx"))
+    for f in fbx:
+        n = read_fbx(f).n_frames
+        print(f"FBX read+FK {f.name:<20} {rate(n, best_of(lambda f=f: read_fbx(f).positions, max(reps, 3)))}")
+
+
 def bench_corpus(reps: int) -> None:
     files = sorted((DATA / "cmu" / "amc").glob("*/*.amc")) + sorted((DATA / "hdm05" / "amc").glob("*/*.amc"))
     frames = sum(read_amc(f).n_frames for f in files)
@@ -278,6 +321,7 @@ def main(argv: list[str] | None = None) -> int:
         _ = read_amc(amc[0]).positions, read_bvh(bvh[0]).positions  # load the numba kernels before timing
         bench_amc(amc, reps)
         bench_bvh(bvh, reps)
+        bench_gltf(sorted(EXAMPLES.glob("cmu/*/*.amc"))[0], 20_000 if args.quick else 100_000, Path(tmp), reps)
         if not args.quick:
             bench_corpus(reps)
     return 0

@@ -1,5 +1,5 @@
 """Registration of the built-in file formats (the ``formats`` package): readers and writers
-``amc`` (Acclaim ASF/AMC), ``bvh``, ``c3d`` and ``trc`` (markers), and the ingest steps that
+``amc`` (Acclaim ASF/AMC), ``bvh``, ``fbx`` (reader), ``gltf`` (``.gltf``/``.glb``), ``c3d`` and ``trc`` (markers), and the ingest steps that
 use them (``formats.load``, ``formats.load_markers``, ``formats.export``), and the skeleton
 naming dialects of :mod:`.joint_maps`.
 numba kernels are imported only when a file is read."""
@@ -14,10 +14,12 @@ def register_formats() -> list[type]:
     from .asf_amc import AmcFormat
     from .bvh import BvhFormat
     from .c3d import C3dFormat
+    from .fbx import FbxFormat
+    from .gltf import GltfFormat
     from .steps import ExportMotions, LoadMarkers, LoadMotions
     from .trc import TrcFormat
 
-    return [AmcFormat, BvhFormat, C3dFormat, TrcFormat, LoadMotions, LoadMarkers, ExportMotions]
+    return [AmcFormat, BvhFormat, C3dFormat, FbxFormat, GltfFormat, TrcFormat, LoadMotions, LoadMarkers, ExportMotions]
 
 
 @hookimpl

@@ -1,0 +1,403 @@
+"""Autodesk FBX skeletal animation (binary FBX 7.x): reader, pure Python + numpy.
+
+* **Container**: :mod:`._fbx_parse` (node records, typed properties, zlib arrays).
+  ASCII FBX is refused with a clear error.
+* **Skeleton**: the ``LimbNode`` models (a file without them: the animated models),
+  closed under their lowest common ancestor; models above the skeleton's root (an
+  armature ``Null``), animated or not, move the root. Model names become joint names.
+* **Transforms**: each model's local transform follows the FBX SDK,
+  ``T Roff Rp Rpre R Rpost^-1 Rp^-1 Soff Sp S Sp^-1``, with ``R`` the ``Lcl Rotation``
+  Euler angles in ``RotationOrder`` and pre/post rotations in XYZ order, both only when
+  ``RotationActive`` (as the FBX SDK and Blender do); property defaults come from the
+  file's ``PropertyTemplate``. Scales must be uniform. Rotations are re-expressed with
+  identity rest rotations (:mod:`._nodes`); positions are the file's exactly.
+* **Animation**: one ``AnimationStack`` (``animation``: index or name, default the first),
+  its first ``AnimationLayer``; ``Lcl Translation/Rotation/Scaling`` curves, interpolated
+  linearly between keys (as Blender's importer does), sampled from the first to the last
+  key at the file's frame rate (``GlobalSettings`` ``TimeMode``, or ``CustomFrameRate``).
+  Key times are KTime ticks: 46,186,158,000 per second (141,120,000 from FBX 8000, or
+  when ``TCDefinition`` is 0).
+* **Units and axes**: ``UnitScaleFactor`` (centimetres per file unit) converts to metres;
+  ``UpAxis``/``FrontAxis``/``CoordAxis`` (and signs) are rotated to mocapflow's y-up with the
+  file's front axis along -z, as Blender's importer followed by its y-up glTF export does
+  (an axis triple that is not right-handed falls back to z-up, y-front, as in Blender).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from mocapflow.framework import quaternions as quat
+from mocapflow.framework.components import Format, Params
+from mocapflow.framework.errors import ParseError
+from mocapflow.framework.motion import Motion
+
+from ._common import MAX_DEGREES, MAX_FPS, MAX_METRES, file_metadata, read_bytes
+from ._fbx_parse import Node, parse_fbx
+from ._nodes import motion_from_nodes, uniform_scale, unique_names
+
+__all__ = ["FbxFormat", "read_fbx"]
+
+KTIME_V7 = 46_186_158_000
+KTIME_V8 = 141_120_000
+#: TimeMode enum -> frames per second (14: CustomFrameRate).
+TIME_MODES = {
+    1: 120.0, 2: 100.0, 3: 60.0, 4: 50.0, 5: 48.0, 6: 30.0, 7: 30.0, 8: 30 / 1.001, 9: 30 / 1.001,
+    10: 25.0, 11: 24.0, 13: 24 / 1.001, 15: 96.0, 16: 72.0, 17: 60 / 1.001, 18: 120 / 1.001,
+}  # fmt: skip
+_ORDERS = {0: "xyz", 1: "xzy", 2: "yzx", 3: "yxz", 4: "zxy", 5: "zyx", 6: "xyz"}
+_CHANNELS = {"Lcl Translation": "t", "Lcl Rotation": "r", "Lcl Scaling": "s"}
+#: Largest |value| of a transform property or key (file units up to millimetres, degrees):
+#: above any real scene, below the overflow of the products that follow.
+_MAX_VALUE = 1.0e9
+
+
+def _props70(node: Node | None) -> dict[str, list[Any]]:
+    out: dict[str, list[Any]] = {}
+    p70 = node.find("Properties70") if node is not None else None
+    for p in p70.children if p70 is not None else []:
+        if p.name == "P" and p.props and isinstance(p.props[0], str):
+            out[p.props[0]] = p.props[4:]
+    return out
+
+
+class _Props:
+    """A model's properties with the file's template as defaults."""
+
+    def __init__(self, path: Path, own: dict, template: dict, what: str) -> None:
+        self.path, self.own, self.template, self.what = path, own, template, what
+
+    def get(self, key: str, default: Any) -> Any:
+        v = self.own.get(key, self.template.get(key))
+        return default if v is None else v
+
+    def vec(self, key: str, default: tuple[float, float, float]) -> np.ndarray:
+        v = self.get(key, default)
+        try:
+            arr = np.array([float(x) for x in v[:3]], dtype=float)
+        except (TypeError, ValueError):
+            arr = np.zeros(0)
+        if arr.shape != (3,) or not np.all(np.abs(arr) <= _MAX_VALUE):
+            raise ParseError(
+                self.path,
+                None,
+                f"{self.what}: expected three numbers within {_MAX_VALUE:g} in {key!r}, found {v!r}"[:200],
+            )
+        return arr
+
+    def num(self, key: str, default: float) -> float:
+        v = self.get(key, [default])
+        if not v or isinstance(v[0], (str, bytes)) or not np.isfinite(float(v[0])):
+            raise ParseError(self.path, None, f"{self.what}: expected a number in {key!r}, found {v!r}"[:200])
+        return float(v[0])
+
+
+def _euler(angles: np.ndarray, order: str) -> np.ndarray:
+    """Quaternion of Euler angles (degrees, ``angles[..., i]`` about axis ``order[i]``)
+    applied in ``order`` (``xyz``: x first, matrix ``Rz Ry Rx``)."""
+    idx = ["xyz".index(a) for a in order]
+    return quat.from_euler(angles[..., idx[::-1]], order[::-1], degrees=True)
+
+
+def _axes(path: Path, gs: _Props) -> np.ndarray:
+    """Rotation (quaternion) from the file's axes to y-up, front along -z."""
+    up = int(gs.num("UpAxis", 1)), int(np.sign(gs.num("UpAxisSign", 1)) or 1)
+    front = int(gs.num("FrontAxis", 2)), int(np.sign(gs.num("FrontAxisSign", 1)) or 1)
+    coord = int(gs.num("CoordAxis", 0)), int(np.sign(gs.num("CoordAxisSign", 1)) or 1)
+    eye = np.eye(3)
+    if not all(0 <= a <= 2 for a, _ in (up, front, coord)):
+        raise ParseError(path, None, f"GlobalSettings: expected axes 0-2, found up {up}, front {front}, coord {coord}")
+    u, f, c = eye[up[0]] * up[1], -eye[front[0]] * front[1], eye[coord[0]] * coord[1]
+    if not np.allclose(np.cross(f, u), c):  # not right-handed: Blender's fallback, z up and y forward
+        u, f, c = eye[2], eye[1], eye[0]
+    return quat.from_matrix(np.stack([c, u, -f]))
+
+
+def _stack(path: Path, objects: dict, animation: int | str) -> tuple[int, str, list[str]]:
+    stacks = [(oid, name) for oid, (kind, name, _n) in objects.items() if kind == "AnimationStack"]
+    names = [n for _, n in stacks]
+    if not stacks:
+        raise ParseError(path, None, "expected an AnimationStack (a take), found none")
+    if isinstance(animation, str):
+        if animation not in names:
+            raise ParseError(path, None, f"expected an animation named {animation!r}, found {names}")
+        k = names.index(animation)
+    elif not 0 <= animation < len(stacks):
+        raise ParseError(path, None, f"expected an animation index below {len(stacks)}, found {animation}")
+    else:
+        k = animation
+    return stacks[k][0], names[k], names
+
+
+def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
+    """Read the skeletal animation of a binary FBX file (module doc). ``animation``:
+    index or name of the AnimationStack.
+
+    Metadata: ``path``, ``format`` ("fbx"), ``checksum``, ``source_fps``, ``source_frames``,
+    ``animation``, ``animations``, ``unit_scale`` (metres per file unit), ``fbx_version``,
+    ``start_time`` (seconds)."""
+    path = Path(path)
+    data = read_bytes(path)
+    version, root = parse_fbx(path, data)
+    gs = _Props(path, _props70(root.find("GlobalSettings")), {}, "GlobalSettings")
+    unit = gs.num("UnitScaleFactor", 1.0) / 100.0
+    if not 0 < unit * 100 <= 1e7:
+        raise ParseError(path, None, f"GlobalSettings: expected a positive UnitScaleFactor, found {unit * 100:g}")
+    mode = int(gs.num("TimeMode", 0))
+    fps = TIME_MODES.get(mode, gs.num("CustomFrameRate", 25.0) if mode in (0, 14) else 0.0)
+    if not 0 < fps <= MAX_FPS:
+        raise ParseError(
+            path, None, f"GlobalSettings: expected a frame rate in (0, {MAX_FPS:g}], found TimeMode {mode}, {fps:g} fps"
+        )
+    ktps = _ktime(root, version)
+    template, objects, parent, owner = _scene(path, root)
+    stack_id, stack_name, stack_names = _stack(path, objects, animation)
+    curves = _curves(path, objects, owner, stack_id)
+    models = {oid: v for oid, v in objects.items() if v[0] == "Model"}
+    if not models:
+        raise ParseError(path, None, "expected Model objects (a skeleton), found none")
+    joints = {oid for oid, (_k, _n, node) in models.items() if node.props[2:3] == ["LimbNode"]}
+    if not joints:
+        joints = {m for m, _ in curves if m in models}
+    if not joints:
+        raise ParseError(path, None, "expected LimbNode models or animated models (a skeleton), found neither")
+    order, first = _order(path, models, parent, joints)
+    keyed = [c for (m, _), axes in curves.items() if m in set(order) for c in axes if c is not None]
+    if keyed:
+        k0 = min(int(c[0][0]) for c in keyed)
+        k1 = max(int(c[0][-1]) for c in keyed)
+    else:
+        k0 = k1 = 0
+    n_frames = int(round((k1 - k0) / ktps * fps)) + 1
+    if n_frames > 10_000_000:
+        raise ParseError(path, None, f"keys span {(k1 - k0) / ktps:g} s at {fps:g} fps: over 10^7 frames")
+    grid = k0 + np.arange(n_frames) * (ktps / fps)
+    names = unique_names(["__fbx_axes__"] + [models[m][1] or f"model{m}" for m in order])
+    n = len(order) + 1
+    rest_t, rest_r, rest_s = np.zeros((n, 3)), np.zeros((n, 4)), np.ones(n)
+    rest_r[0] = _axes(path, gs)
+    rest_s[0] = unit
+    t = np.empty((n_frames, n, 3))
+    r = np.empty((n_frames, n, 4))
+    s = np.empty((n_frames, n))
+    t[:, 0], r[:, 0], s[:, 0] = 0.0, rest_r[0], unit
+    for k, m in enumerate(order, start=1):
+        props = _Props(path, _props70(models[m][2]), template, f"model {names[k]!r}")
+        tr = _transform(props, names[k], m, curves, grid, rest=True)
+        rest_t[k], rest_r[k], rest_s[k] = tr[0][0], tr[1][0], tr[2][0]
+        t[:, k], r[:, k], s[:, k] = _transform(props, names[k], m, curves, grid, rest=False)
+    par = np.array([-1] + [1 + order.index(parent[m]) if parent.get(m) in order else 0 for m in order], dtype=np.int64)
+    meta = file_metadata(path, data, "fbx")
+    meta.update(
+        subject=path.parent.name,
+        source_fps=fps,
+        source_frames=n_frames,
+        animation=stack_name,
+        animations=stack_names,
+        unit_scale=unit,
+        fbx_version=version,
+        start_time=k0 / ktps,
+    )
+    return motion_from_nodes(
+        path,
+        names=names,
+        parents=par,
+        first_joint=first + 1,
+        rest_t=rest_t,
+        rest_r=rest_r,
+        rest_s=rest_s,
+        t=t,
+        r=r,
+        s=s,
+        fps=fps,
+        fmt="fbx",
+        name=path.stem,
+        meta=meta,
+    )
+
+
+_EMPTY = Node("", [], [], 0)
+
+
+def _scene(path: Path, root: Node) -> tuple[dict, dict, dict, dict]:
+    """The Model property template, objects by id (kind, name, node), model parents and
+    connections by parent id."""
+    template: dict = {}
+    for ot in (root.find("Definitions") or _EMPTY).find_all("ObjectType"):
+        if ot.props[:1] == ["Model"]:
+            for pt in ot.find_all("PropertyTemplate"):
+                template.update(_props70(pt))
+    objects: dict[int, tuple[str, str, Node]] = {}
+    for o in (root.find("Objects") or _EMPTY).children:
+        if len(o.props) >= 2 and isinstance(o.props[0], int) and isinstance(o.props[1], str):
+            objects[o.props[0]] = (o.name, o.props[1].split("\x00\x01")[0], o)
+    parent: dict[int, int] = {}
+    owner: dict[int, list[tuple[int, str]]] = {}  # parent id -> [(child id, property)]
+    for c in (root.find("Connections") or _EMPTY).find_all("C"):
+        if len(c.props) < 3 or not all(isinstance(x, int) for x in c.props[1:3]):
+            raise ParseError(path, None, f"Connections: expected 'C' records with two ids, found {c.props[:3]!r}"[:200])
+        kind, child, par = c.props[0], c.props[1], c.props[2]
+        prop = c.props[3] if len(c.props) > 3 and isinstance(c.props[3], str) else ""
+        owner.setdefault(par, []).append((child, prop))
+        if kind == "OO" and objects.get(child, ("",))[0] == "Model" and objects.get(par, ("",))[0] == "Model":
+            if child in parent:
+                raise ParseError(path, None, f"model {objects[child][1]!r} has two parents; expected a tree")
+            parent[child] = par
+    return template, objects, parent, owner
+
+
+def _curves(path: Path, objects: dict, owner: dict, stack_id: int) -> dict[tuple[int, str], list]:
+    """(model id, "t"/"r"/"s") -> per axis (key times, values) or None, from the stack's
+    first layer."""
+    layers = [c for c, _ in owner.get(stack_id, []) if objects.get(c, ("",))[0] == "AnimationLayer"]
+    curves: dict[tuple[int, str], list] = {}
+    for cn, _p in owner.get(layers[0], []) if layers else []:
+        if objects.get(cn, ("",))[0] != "AnimationCurveNode":
+            continue
+        for model, prop in _targets(cn, objects, owner):
+            if prop not in _CHANNELS:
+                continue
+            axes: list = [None, None, None]
+            for cv, cprop in owner.get(cn, []):
+                if objects.get(cv, ("",))[0] == "AnimationCurve" and cprop in ("d|X", "d|Y", "d|Z"):
+                    axes["XYZ".index(cprop[-1])] = _curve(path, objects[cv])
+            curves[(model, _CHANNELS[prop])] = axes
+    return curves
+
+
+def _ktime(root: Node, version: int) -> int:
+    ktps = KTIME_V8 if version >= 8000 else KTIME_V7
+    head = root.find("FBXHeaderExtension")
+    hv = head.find("FBXHeaderVersion") if head is not None else None
+    flags = head.find("OtherFlags") if head is not None else None
+    tcd = flags.find("TCDefinition") if flags is not None else None
+    if (
+        hv is not None
+        and hv.props
+        and isinstance(hv.props[0], int)
+        and hv.props[0] >= 1004
+        and tcd is not None
+        and tcd.props
+    ):
+        ktps = {0: KTIME_V8, 127: KTIME_V7}.get(tcd.props[0], KTIME_V8)
+    return ktps
+
+
+def _targets(cn: int, objects: dict, owner: dict) -> list[tuple[int, str]]:
+    """(model, property) pairs a curve node drives (OP connections child=cn)."""
+    out = []
+    for par, kids in owner.items():
+        for child, prop in kids:
+            if child == cn and objects.get(par, ("",))[0] == "Model":
+                out.append((par, prop))
+    return out
+
+
+def _curve(path: Path, obj: tuple[str, str, Node]) -> tuple[np.ndarray, np.ndarray]:
+    node = obj[2]
+    kt, kv = node.find("KeyTime"), node.find("KeyValueFloat")
+    times = kt.props[0] if kt is not None and kt.props else None
+    vals = kv.props[0] if kv is not None and kv.props else None
+    what = f"AnimationCurve {node.props[0]}"
+    if not isinstance(times, np.ndarray) or not isinstance(vals, np.ndarray):
+        raise ParseError(path, None, f"{what}: expected KeyTime and KeyValueFloat arrays")
+    if len(times) != len(vals) or len(times) == 0:
+        raise ParseError(
+            path, None, f"{what}: expected as many key values as key times (>= 1), found {len(vals)} and {len(times)}"
+        )
+    if np.any(np.diff(times) <= 0):
+        raise ParseError(path, None, f"{what}: expected strictly increasing key times")
+    vals = vals.astype(np.float64)
+    if not np.all(np.abs(vals) <= _MAX_VALUE):
+        raise ParseError(path, None, f"{what}: expected finite key values within {_MAX_VALUE:g}")
+    return times.astype(np.int64), vals
+
+
+def _order(path: Path, models: dict, parent: dict, joints: set[int]) -> tuple[list[int], int]:
+    def chain(m: int) -> list[int]:
+        out, seen = [], set()
+        while m in models:
+            if m in seen:
+                raise ParseError(path, None, f"model {models[m][1]!r}: its parents form a cycle; expected a tree")
+            seen.add(m)
+            out.append(m)
+            m = parent.get(m, 0)
+        return out[::-1]
+
+    chains = [chain(j) for j in sorted(joints)]
+    common = 0
+    while all(len(c) > common and c[common] == chains[0][common] for c in chains):
+        common += 1
+    if common == 0:
+        roots = sorted({models[c[0]][1] for c in chains})
+        raise ParseError(
+            path, None, f"the skeleton's models have no common root (roots {roots[:6]}); expected one skeleton"
+        )
+    members = {m for c in chains for m in c[common - 1 :]}
+    ancestors = chains[0][: common - 1]
+    kids: dict[int, list[int]] = {}
+    for m in models:  # children in the file's order of objects
+        if m in members and parent.get(m) in members:
+            kids.setdefault(parent[m], []).append(m)
+    order, stack = [], [chains[0][common - 1]]
+    while stack:
+        m = stack.pop()
+        order.append(m)
+        stack.extend(reversed(kids.get(m, [])))
+    return ancestors + order, len(ancestors)
+
+
+def _transform(
+    props: _Props, name: str, m: int, curves: dict, grid: np.ndarray, rest: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Translation (F, 3), rotation (F, 4) and uniform scale (F,) of a model's local
+    transform, rest (one frame) or sampled on ``grid``."""
+    n = 1 if rest else len(grid)
+    chan = {}
+    for key, c, default in (
+        ("Lcl Translation", "t", (0.0, 0.0, 0.0)),
+        ("Lcl Rotation", "r", (0.0, 0.0, 0.0)),
+        ("Lcl Scaling", "s", (1.0, 1.0, 1.0)),
+    ):
+        v = np.broadcast_to(props.vec(key, default), (n, 3)).copy()
+        if not rest:
+            for a, cv in enumerate(curves.get((m, c), [None, None, None])):
+                if cv is not None:
+                    v[:, a] = np.interp(grid, cv[0].astype(np.float64), cv[1])
+        chan[c] = v
+    if np.abs(chan["r"]).max(initial=0.0) > MAX_DEGREES:
+        raise ParseError(props.path, None, f"model {name!r}: expected rotations within {MAX_DEGREES:g} degrees")
+    active = props.num("RotationActive", 0.0) != 0
+    order = _ORDERS.get(int(props.num("RotationOrder", 0.0)), "xyz") if active else "xyz"
+    rot = _euler(chan["r"], order)
+    if active:
+        pre = _euler(props.vec("PreRotation", (0.0, 0.0, 0.0)), "xyz")
+        post = _euler(props.vec("PostRotation", (0.0, 0.0, 0.0)), "xyz")
+        rot = quat.mul(quat.mul(pre[None], rot), quat.conjugate(post)[None])
+    scale = uniform_scale(props.path, name, chan["s"])
+    roff, rp = props.vec("RotationOffset", (0.0, 0.0, 0.0)), props.vec("RotationPivot", (0.0, 0.0, 0.0))
+    soff, sp = props.vec("ScalingOffset", (0.0, 0.0, 0.0)), props.vec("ScalingPivot", (0.0, 0.0, 0.0))
+    t = chan["t"] + roff + rp + quat.rotate(rot, -rp + soff + sp - scale[:, None] * sp)
+    if np.abs(t).max(initial=0.0) > MAX_METRES * 1e3:  # file units: up to 10^3 per metre (mm)
+        raise ParseError(
+            props.path, None, f"model {name!r}: expected translations within {MAX_METRES * 1e3:g} file units"
+        )
+    return t, rot, scale
+
+
+class FbxFormat(Format):
+    """Autodesk FBX (binary) skeletal animation: reader."""
+
+    name: ClassVar[str] = "fbx"
+    extensions: ClassVar[tuple[str, ...]] = (".fbx",)
+    produces: ClassVar[str] = "motion"
+
+    class Params(Params):
+        animation: int | str = Field(0, description="which animation stack (take) of the file: index or name")
+
+    def read(self, path: str | Path) -> Motion:
+        return read_fbx(path, animation=self.params.animation)
