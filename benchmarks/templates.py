@@ -57,18 +57,46 @@ def synthetic_cuts(seed: int = 0) -> tuple[np.ndarray, np.ndarray, list[str]]:
     return np.concatenate(clips), offsets, names
 
 
-def hdm05_cuts(fps: float) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def hdm05_cuts(fps: float) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
+    """Relational bits, offsets, names and the numeric default search's F_E^15 features of the HDM05 cuts."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from relational import _measures, load_hdm05
 
     from mocapflow.plugins.relational.features import relational_features
+    from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 
     db = load_hdm05(fps)
     bits = relational_features(db.canonical_positions(), db.fps, _measures(db), None, db.offsets)
-    return bits, np.asarray(db.offsets, np.int64), [m.name for m in db.motions]
+    fe = np.concatenate([EndEffectorFeatures(joints=5).transform_motion(m) for m in db.motions])
+    return bits, np.asarray(db.offsets, np.int64), [m.name for m in db.motions], fe
 
 
-def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
+def synthetic_numeric(bits: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Stand-in F_E^15 features of the synthetic cuts (--quick): a fixed random projection of the bits plus noise."""
+    rng = np.random.default_rng(seed)
+    return (bits @ rng.normal(0, 0.1, (31, 15)) + rng.normal(0, 0.02, (len(bits), 15))).astype(np.float32)
+
+
+def boot_low(fn, n: int, groups: np.ndarray | None = None, reps: int = 1000, seed: int = 0) -> float:
+    """2.5 % quantile of ``fn(sample)`` over bootstrap resamples of the ``n`` items (clips or
+    queries; with ``groups``, resampled within each group so every class keeps its size)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(reps):
+        if groups is None:
+            idx = rng.integers(0, n, n)
+        else:
+            idx = np.concatenate(
+                [rng.choice(np.flatnonzero(groups == g), (groups == g).sum()) for g in np.unique(groups)]
+            )
+        out.append(fn(idx))
+    return float(np.quantile(out, 0.025))
+
+
+def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> dict:
+    """Leave-one-actor-out: templates from two actors, the matcher's reported list and the
+    classification scored on the third actor's cuts, all rotations; per class R / P with the
+    lower bound of the bootstrap 95 % CI over the held-out clips (resampled within class)."""
     cls, act = meta(names)
     classes = sorted(set(cls))
     codes = frame_codes(bits)
@@ -90,9 +118,12 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> N
         sub = np.concatenate([bits[offsets[i] : offsets[i + 1]] for i in te])
         sub_off = np.concatenate([[0], np.cumsum(np.diff(offsets)[te])])
         pred[te] = np.array(classes)[classify_clips(temps, sub, sub_off).argmin(axis=1)]
-    print("\n== templates, leave-one-actor-out ==")
-    print(f"{'class':30s} {'ranking: R at P>=0.8':>21s} {'reported: P':>12s} {'R':>5s} {'hits':>5s}")
-    ok_rank = ok = 0
+    print("\n== templates, leave-one-actor-out (train on two actors, test on the third, every rotation) ==")
+    print(
+        f"{'class':30s} {'ranking: R at P>=0.8':>21s} {'reported: P':>12s} {'(low)':>6s} {'R':>5s} {'(low)':>6s} "
+        f"{'hits':>5s}"
+    )
+    ok_rank = ok = ok_low = 0
     for j, c in enumerate(classes):
         y = cls == c
         order = np.argsort(score[:, j], kind="stable")
@@ -100,41 +131,162 @@ def templates_loao(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> N
         prec, rec = tp / np.arange(1, len(y) + 1), tp / y.sum()
         best_r = float(rec[prec >= 0.8].max()) if np.any(prec >= 0.8) else 0.0
         h = hit[:, j]
-        p, r = (h & y).sum() / max(h.sum(), 1), (h & y).sum() / y.sum()
+
+        def pr(idx, h=h, y=y):
+            return (h[idx] & y[idx]).sum() / max(h[idx].sum(), 1), (h[idx] & y[idx]).sum() / max(y[idx].sum(), 1)
+
+        p, r = pr(np.arange(len(y)))
+        p_lo = boot_low(lambda i, pr=pr: pr(i)[0], len(y), cls)
+        r_lo = boot_low(lambda i, pr=pr: pr(i)[1], len(y), cls)
         ok_rank += best_r >= 0.9
         ok += p >= 0.8 and r >= 0.9
-        print(f"{c:30s} {best_r:21.2f} {p:12.2f} {r:5.2f} {int(h.sum()):5d}")
+        ok_low += p_lo >= 0.8 and r_lo >= 0.9
+        print(f"{c:30s} {best_r:21.2f} {p:12.2f} {p_lo:6.2f} {r:5.2f} {r_lo:6.2f} {int(h.sum()):5d}")
+    acc = float(np.mean(pred == cls))
+    acc_lo = boot_low(lambda i: float(np.mean(pred[i] == cls[i])), len(cls), cls)
     print(
-        f"classes with R >= 0.9 at P >= 0.8: reported list {ok} of {len(classes)}, against the ranking "
-        f"(same run) {ok_rank}; classification accuracy {np.mean(pred == cls):.3f}"
+        f"classes with R >= 0.9 at P >= 0.8: reported list {ok} of {len(classes)} (bootstrap lower bounds: "
+        f"{ok_low}), against the ranking (same run) {ok_rank}; classification accuracy {acc:.3f} (low {acc_lo:.3f})"
     )
+    return {"classes": ok, "accuracy": acc}
 
 
-def auto_queries(bits: np.ndarray, offsets: np.ndarray, names: list[str]) -> None:
-    cls, _ = meta(names)
+def numeric_costs(fe: np.ndarray, offsets: np.ndarray, q: int, db: np.ndarray) -> np.ndarray:
+    """Per clip of ``db`` the rank cost of the numeric default search (``matchers.search``:
+    exact subsequence DTW on F_E^15, accumulated cost, its default ``min_span``): the first
+    match of the clip in the search's ranked, non-overlapping list (inf if none)."""
+    from mocapflow.framework.matching import SearchSpace, min_frames_of, select_matches
+    from mocapflow.plugins.similarity.search.sdtw import sdtw_costs
+
+    sel = np.concatenate([np.arange(offsets[i], offsets[i + 1]) for i in db])
+    cid = np.repeat(np.asarray(db, np.int32), np.diff(offsets)[db])
+    frame = (sel - np.repeat(offsets[db], np.diff(offsets)[db])).astype(np.int32)
+    space = SearchSpace(cid, frame, features=fe[sel])
+    query = fe[offsets[q] : offsets[q + 1]]
+    cost, start, length = sdtw_costs(query, space)
+    ends = np.arange(len(cost), dtype=np.int64)
+    # the search's own selection (as subsequence_dtw / matchers.search), without the paths
+    keep = select_matches(
+        ends,
+        start,
+        cost,
+        length,
+        count=10 * len(db),
+        max_cost=None,
+        rank_by="cost",
+        min_frames=min_frames_of(0.5, len(query)),
+    )
+    out = np.full(len(offsets) - 1, np.inf)
+    for e in keep[::-1]:  # ranked: the first match of a clip wins
+        out[int(cid[e])] = float(cost[e])
+    return out
+
+
+def average_precision(cost: np.ndarray, rel: np.ndarray, pool: np.ndarray) -> float:
+    order = pool[np.argsort(cost[pool], kind="stable")]
+    y = rel[order]
+    tp = np.cumsum(y)
+    return float((tp[y] / (np.flatnonzero(y) + 1)).sum() / max(rel[pool].sum(), 1))
+
+
+def auto_queries(bits: np.ndarray, offsets: np.ndarray, names: list[str], fe: np.ndarray) -> dict:
+    """Query by example as a user asks it: one cut of one actor is the query, the database the
+    other actors' cuts (relevant: their cuts of the query's class), every cut a query. Mode
+    auto with the matcher's defaults (mAP of its ranking, P / R of its reported hits per
+    class with bootstrap lower bounds over the class's queries) against the numeric default
+    search on F_E^15 on the same queries (mAP; its default 10 matches as hits)."""
+    cls, act = meta(names)
     n = len(names)
-    codes, bg = frame_codes(bits), bits.mean(axis=0)
-    aps, pr = [], {c: [] for c in sorted(set(cls))}
+    aps, naps, qcls, pr, npr = [], [], [], [], []
     for q in range(n):
+        db = np.flatnonzero(act != act[q])
+        sub = np.concatenate([bits[offsets[i] : offsets[i + 1]] for i in db])
+        sub_off = np.concatenate([[0], np.cumsum(np.diff(offsets)[db])]).astype(np.int64)
+        codes, bg = frame_codes(sub), sub.mean(axis=0)
         qb = bits[offsets[q] : offsets[q + 1]]
+        rel = cls[db] == cls[q]
         t = auto_template(qb, bg)
-        rel = (cls == cls[q]) & (np.arange(n) != q)
-        cost = np.where(np.arange(n) == q, np.inf, clip_min_costs(codes, offsets, t.table()))
-        order = np.argsort(cost, kind="stable")
-        y = rel[order]
-        tp = np.cumsum(y)
-        aps.append(float((tp[y] / (np.flatnonzero(y) + 1)).sum() / max(rel.sum(), 1)))
-        s, _, _ = auto_dtw_hits(t, qb, bits, codes, offsets, bg)
-        found = set((np.searchsorted(offsets, s, side="right") - 1).tolist()) - {q}
-        good = sum(bool(rel[c]) for c in found)
-        pr[cls[q]].append((good / max(len(found), 1), good / max(rel.sum(), 1)))
-    print(f"\n== mode auto, defaults: {n} queries, mAP {np.mean(aps):.3f} ==")
-    ok = 0
-    for c, v in pr.items():
-        p, r = np.mean(v, axis=0)
-        ok += p >= 0.7 and r >= 0.9
-        print(f"  {c:30s} hits P {p:.2f} R {r:.2f}")
-    print(f"classes with hits P >= 0.7, R >= 0.9: {ok} of {len(pr)}")
+        aps.append(average_precision(clip_min_costs(codes, sub_off, t.table()), rel, np.arange(len(db))))
+        s, _, _ = auto_dtw_hits(t, qb, sub, codes, sub_off, bg)
+        found = np.unique(np.searchsorted(sub_off, s, side="right") - 1)
+        pr.append((rel[found].sum(), len(found), rel.sum()))
+        ncost = numeric_costs(fe, offsets, q, db)[db]
+        naps.append(average_precision(ncost, rel, np.arange(len(db))))
+        top = np.argsort(ncost, kind="stable")[:10]
+        top = top[np.isfinite(ncost[top])]
+        npr.append((rel[top].sum(), len(top), rel.sum()))
+        qcls.append(cls[q])
+    qcls, pr, npr, aps, naps = np.array(qcls), np.array(pr, float), np.array(npr, float), np.array(aps), np.array(naps)
+    m_lo = boot_low(lambda i: aps[i].mean(), n, qcls)
+    nm_lo = boot_low(lambda i: naps[i].mean(), n, qcls)
+    print(
+        f"\n== query by example, other actors' cuts as the database: {n} queries ==\n"
+        f"mode auto mAP {aps.mean():.3f} (low {m_lo:.3f}); numeric default search (F_E^15 sDTW, same queries) "
+        f"mAP {naps.mean():.3f} (low {nm_lo:.3f})"
+    )
+    print(
+        f"{'class':30s} {'auto: AP':>9s} {'hits P':>7s} {'(low)':>6s} {'R':>5s} {'(low)':>6s} | numeric AP  P@10  R@10"
+    )
+    ok = ok_low = 0
+    for c in sorted(set(qcls)):
+        w = np.flatnonzero(qcls == c)
+
+        def p_of(i, a=pr):
+            return float(np.mean(a[i, 0] / np.maximum(a[i, 1], 1)))
+
+        def r_of(i, a=pr):
+            return float(np.mean(a[i, 0] / np.maximum(a[i, 2], 1)))
+
+        p, r = p_of(w), r_of(w)
+        p_lo = boot_low(lambda i, w=w: p_of(w[i]), len(w))
+        r_lo = boot_low(lambda i, w=w: r_of(w[i]), len(w))
+        ok += p >= 0.8 and r >= 0.9
+        ok_low += p_lo >= 0.8 and r_lo >= 0.9
+        print(
+            f"{c:30s} {aps[w].mean():9.2f} {p:7.2f} {p_lo:6.2f} {r:5.2f} {r_lo:6.2f} | {naps[w].mean():10.2f}"
+            f" {p_of(w, npr):5.2f} {r_of(w, npr):5.2f}"
+        )
+    print(f"classes with auto hits P >= 0.8, R >= 0.9: {ok} of {len(set(qcls))} (bootstrap lower bounds: {ok_low})")
+    return {"map": float(aps.mean()), "numeric_map": float(naps.mean()), "classes": ok}
+
+
+def latency(bits: np.ndarray, offsets: np.ndarray, names: list[str], repeats: int = 3) -> None:
+    """Per-query wall time over the whole cut set (the pipelines' setting): every template
+    (learned from all cuts) as a query with the rival table and index built once, and every
+    cut as a mode-auto query with the matcher's defaults; best of ``repeats``, median over queries."""
+    cls, act = meta(names)
+    temps = fit_templates(bits, offsets, list(cls), np.ones(len(names), bool), list(act))
+    codes, bg = frame_codes(bits), bits.mean(axis=0)
+    index = InvertedIndex().build(bits, np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)).astype(np.int32))
+    table = RivalTable.build(temps, codes, offsets)
+    coarse = CoarseCodes(codes, offsets)
+
+    def best(fn):
+        fn()
+        b = np.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            b = min(b, time.perf_counter() - t0)
+        return b
+
+    tt = [
+        best(
+            lambda j=j: cutoff_hits(
+                temps, codes, offsets, index, only=[j], rival_table=table, step="auto", coarse=coarse
+            )
+        )
+        for j in range(len(temps))
+    ]
+    ta = []
+    for q in range(len(names)):
+        qb = bits[offsets[q] : offsets[q + 1]]
+        ta.append(best(lambda qb=qb: auto_dtw_hits(auto_template(qb, bg), qb, bits, codes, offsets, bg)))
+    print(
+        f"\n== per-query latency over the {len(names)} cuts ({len(bits)} frames), best of {repeats}; load "
+        f"{os.getloadavg()[0]:.1f} ==\ntemplate retrieval median {1e3 * np.median(tt):.1f} ms (max {1e3 * max(tt):.1f}); "
+        f"mode auto median {1e3 * np.median(ta):.1f} ms (max {1e3 * max(ta):.1f})"
+    )
 
 
 def tiled(bits: np.ndarray, offsets: np.ndarray, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
@@ -183,15 +335,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="synthetic labelled cuts, 20 k frames, no HDM05 needed")
     ap.add_argument("--frames", type=int, default=None, help="frames of the tiled database (default 1 M)")
     ap.add_argument("--fps", type=float, default=30.0)
+    ap.add_argument("--no-speed", action="store_true", help="skip the large tiled database")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    bits, offsets, names = synthetic_cuts() if args.quick else hdm05_cuts(args.fps)
+    if args.quick:
+        bits, offsets, names = synthetic_cuts()
+        fe = synthetic_numeric(bits)
+    else:
+        bits, offsets, names, fe = hdm05_cuts(args.fps)
     print(
         f"{len(names)} cuts, {len(bits)} frames ({'synthetic' if args.quick else 'HDM05'}), features in "
         f"{time.perf_counter() - t0:.1f} s"
     )
     templates_loao(bits, offsets, names)
-    auto_queries(bits, offsets, names)
+    auto_queries(bits, offsets, names, fe)
+    latency(bits, offsets, names, 1 if args.quick else 3)
+    if args.no_speed:
+        return 0
     speed(bits, offsets, names, args.frames or (20_000 if args.quick else 1_000_000), 1 if args.quick else 3)
     return 0
 

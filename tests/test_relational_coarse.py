@@ -74,21 +74,6 @@ def test_coarse_template_rows_and_steps():
         assert template_step(tk, "auto") == want, k
 
 
-def test_rival_window_minima_matches_definition():
-    from mocapflow.plugins.relational._hit_kernels import rival_window_minima
-
-    rng = np.random.default_rng(1)
-    own, best, second = (rng.random(60).astype(np.float32) for _ in range(3))
-    second = np.maximum(best, second)
-    arg = rng.integers(0, 3, 60).astype(np.int32)
-    lo = rng.integers(0, 60, 25)
-    hi = np.minimum(lo + rng.integers(0, 12, 25), 60)
-    o, r = rival_window_minima(own, best, second, arg, 1, lo, hi)
-    other = np.where(arg == 1, second, best)
-    np.testing.assert_array_equal(o, [own[a:b].min() if b > a else np.inf for a, b in zip(lo, hi, strict=True)])
-    np.testing.assert_array_equal(r, [other[a:b].min() if b > a else np.inf for a, b in zip(lo, hi, strict=True)])
-
-
 def test_cutoff_hits_coarse_step_keeps_the_rival_decision():
     from mocapflow.plugins.relational.template import cutoff_hits
 

@@ -336,16 +336,28 @@ steps:
     assert pq.read_table(ws / "reuse" / "templates.parquet")["label"].to_pylist() == ["kickLFront1Reps", "squat1Reps"]
 
 
-def test_forward_min_matches_naive():
-    from mocapflow.plugins.relational.template_cutoff import forward_min
+def test_short_rival_cannot_silence_a_longer_motion():
+    """A rival rejects only a stretch its path can span (K >= COVER x the hit's frames): a
+    short template fitting a part of a long motion better does not remove the long hit,
+    while a rival as long as the hit does (table and window scans agree)."""
+    from mocapflow.plugins.relational.template import search_template
+    from mocapflow.plugins.relational.template_cutoff import RivalTable, rival_mask
 
-    rng = np.random.default_rng(11)
-    offsets = np.array([0, 7, 8, 30, 64])
-    cost = rng.random(64)
-    cost[rng.random(64) < 0.2] = np.inf
-    for w in (1, 2, 3, 5, 8, 13, 40):
-        want = [cost[j : min(j + w, offsets[np.searchsorted(offsets, j, "right")])].min() for j in range(64)]
-        np.testing.assert_array_equal(forward_min(cost, offsets, w), want)
+    long_ex = [_pattern(n, (0.1, 0.9)) for n in (60, 64, 68)]
+    with7 = [x.copy() for x in long_ex]
+    for x in with7:
+        x[:, 7] = 1  # a feature the long template holds off throughout
+    long_t = fit_class_template("long", long_ex, features="all")
+    short = fit_class_template("short", [x[20:36] for x in with7], features="all")  # a 16-frame part
+    long7 = fit_class_template("long7", with7, features="all")
+    offsets = np.array([0, 64])
+    codes = frame_codes(with7[1])
+    s, e, _ = search_template(long_t, codes, offsets, threshold=0.9)
+    assert len(s) and (e - s).max() > 2 * short.n_frames
+    for rival, kept in ((short, True), (long7, False)):
+        slow = rival_mask([long_t, rival], 0, s, e, codes, offsets)
+        np.testing.assert_array_equal(slow, RivalTable.build([long_t, rival], codes, offsets).mask(0, s, e, offsets))
+        assert bool(slow[np.argmax(e - s)]) == kept
 
 
 def _two_class_setup():

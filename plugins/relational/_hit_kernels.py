@@ -91,22 +91,3 @@ def window_minima(cost, lo, hi):  # pragma: no cover - compiled
                 m = cost[j]
         out[i] = m
     return out
-
-
-@njit(cache=True)
-def rival_window_minima(own, best, second, arg, which, lo, hi):  # pragma: no cover - compiled
-    """Per window ``[lo_i, hi_i)`` the least ``own`` cost and the least rival cost: ``best``
-    where another template holds it (``arg != which``), else ``second``. Both (n,) float64."""
-    out_own = np.full(lo.shape[0], np.inf)
-    out_other = np.full(lo.shape[0], np.inf)
-    for i in range(lo.shape[0]):
-        m, r = np.inf, np.inf
-        for j in range(lo[i], hi[i]):
-            if own[j] < m:
-                m = own[j]
-            v = second[j] if arg[j] == which else best[j]
-            if v < r:
-                r = v
-        out_own[i] = m
-        out_other[i] = r
-    return out_own, out_other

@@ -31,15 +31,20 @@ if TYPE_CHECKING:  # pragma: no cover
 
 def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """Per clip of ``bits`` (N, 31) split at ``offsets`` and per template the least cost on all
-    31 features, (n_clips, n_templates) (inf: no path fits)."""
-    from .template_cutoff import _all_columns
+    31 features, (n_clips, n_templates) (inf: no path fits). A template competes for a clip
+    only if its path can span the clip (``K >= COVER x`` the clip's frames, as the rival
+    check of :mod:`.template_cutoff`: a short template fitting a part of a long motion does
+    not label it); a clip no template can span keeps every template's cost."""
+    from .template_cutoff import COVER, _all_columns
     from .template_model import clip_min_costs, frame_codes
 
     codes = frame_codes(bits)
     out = np.empty((len(offsets) - 1, len(templates)))
     for i, t in enumerate(templates):
         out[:, i] = clip_min_costs(codes, offsets, _all_columns(t).table())
-    return out
+    lengths = np.array([t.n_frames for t in templates])
+    can = lengths[None, :] >= COVER * np.diff(offsets)[:, None]
+    return np.where(can | ~can.any(axis=1, keepdims=True), out, np.inf)
 
 
 def decide(costs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
