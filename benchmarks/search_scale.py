@@ -25,6 +25,7 @@ import sys
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -40,11 +41,10 @@ from mocapflow.plugins.similarity.search.fast import FastSettings, fast_sdtw
 from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 FAST = {
-    "fast gain k64 c3": FastSettings(),
-    "fast gain k64 c10": FastSettings(candidates=10),
-    "fast gain k128 c10": FastSettings(k=128, candidates=10),
-    "fast vote k64 c10": FastSettings(design="vote", candidates=10),
-    "fast seed k64": FastSettings(design="seed"),
+    "fast k64": FastSettings(),
+    "fast k64 eps1": FastSettings(eps=1.0),
+    "fast k128 eps1": FastSettings(k=128, eps=1.0),
+    "fast k128 f24 eps1": FastSettings(k=128, frames=24, eps=1.0),
 }
 
 
@@ -92,6 +92,10 @@ def run_size(n: int, args, base, rng) -> None:
     space = SearchSpace(lib.clip_id, lib.frame, index, lib.features)
     hidden = held_out(subjects_of(files), args.fold)
     qs = queries_of(files, motions, hidden, args.lengths, args.queries, rng)
+    numba.set_num_threads(args.threads)
+    if args.threads > 1:
+        subsequence_dtw(qs[args.lengths[0]][0], space)  # the parallel kernel, compiled outside the timings
+    numba.set_num_threads(1)
     for m in args.lengths:  # compile / load kernels, block boxes, subspace cells: outside the timings
         q0 = qs[m][0]
         certified_sdtw(q0, space)
@@ -115,8 +119,13 @@ def run_size(n: int, args, base, rng) -> None:
             methods.update(
                 {name: (lambda q, st, c=c: fast_sdtw(q, space, settings=c, stats=st)) for name, c in FAST.items()}
             )
+            if args.threads > 1:  # the same three on all cores (numba threads over the database's clips)
+                methods["sDTW, all cores"] = lambda q, st: subsequence_dtw(q, space)
+                methods["exact, all cores"] = methods["exact (certified)"]
+                methods["fast, all cores"] = lambda q, st: fast_sdtw(q, space, stats=st)
             for name, fn in methods.items():
                 st = ExactStats()
+                numba.set_num_threads(args.threads if name.endswith("all cores") else 1)
                 res, t = timed(fn, q, st)
                 r = rows.setdefault(name, {"t": [], "rec": [], "same": [], "cols": [], "fb": 0})
                 r["cols"].append(st.columns)
@@ -143,6 +152,7 @@ def main(argv=None) -> int:
     ap.add_argument("--queries", type=int, default=8, help="queries per length")
     ap.add_argument("--fold", type=int, default=0, help="which quarter of the performers is held out (0-3)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=1, help="also run sDTW and both modes on this many numba threads")
     ap.add_argument("--cache", type=Path, default=None, help="library cache folder (default: the corpus cache)")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(args.seed)

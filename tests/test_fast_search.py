@@ -13,7 +13,7 @@ from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.search import certified
 from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_ranges_compact, sdtw_ranges_parallel
 from mocapflow.plugins.similarity.search.certified import CertifiedSearch, ranges_dp
-from mocapflow.plugins.similarity.search.fast import FastSettings, candidate_windows, fast_sdtw
+from mocapflow.plugins.similarity.search.fast import FastSettings, fast_sdtw, seed_windows
 from mocapflow.plugins.similarity.search.sdtw import sdtw_costs, subsequence_dtw
 
 
@@ -81,7 +81,7 @@ def test_sdtw_costs_on_threads_match_naive(monkeypatch):
 def test_fast_finds_the_planted_copies_with_sdtw_costs():
     space, q = planted()
     ref = subsequence_dtw(q, space, count=5)
-    got = fast_sdtw(q, space, count=5, settings=FastSettings(frames=12, k=16, candidates=2))
+    got = fast_sdtw(q, space, count=5, settings=FastSettings(frames=12, k=16))
     # the four planted copies and the source are sDTW's top-5; the filter finds all of them
     assert len(got) == 5
     for s, e in zip(ref.start.tolist(), ref.end.tolist(), strict=True):
@@ -92,25 +92,29 @@ def test_fast_finds_the_planted_copies_with_sdtw_costs():
     np.testing.assert_array_equal(got.cost[:4], ref.cost[:4])
 
 
-def test_candidate_windows_stay_in_their_clip_and_cover_the_votes():
+def test_seed_windows_stay_in_their_clip_and_hold_every_neighbour():
     space, q = planted()
     m = len(q)
     frames = np.arange(0, m, 3)
-    dist, ids = space.index.query(q[frames], 6)
-    r = candidate_windows(space, m, frames, dist, ids)
-    assert np.all(r[:, 1] > r[:, 0])
+    _, ids = space.index.query(q[frames], 6)
+    r = seed_windows(space, m, frames, ids, 1.3)
+    assert np.all(r[:, 1] > r[:, 0]) and np.all(r[1:, 0] > r[:-1, 1])
     for a, b in r.tolist():  # inside one clip
         assert space.clip_id[a] == space.clip_id[b - 1]
     inside = np.zeros(space.n_rows, bool)
     for a, b in r.tolist():
         inside[a:b] = True
-    assert inside[ids[ids >= 0]].all()  # with room for every vote, every neighbour row is refined
+    assert inside[ids[ids >= 0]].all()
+    # a neighbour of the first query frame opens rows h - 2 .. h + 1.3 (m - 1) + 2 of its clip
+    h = int(ids[0, 0])
+    run_end = np.flatnonzero(space.clip_id == space.clip_id[h])[-1] + 1
+    assert inside[max(h - 2, 0) : min(h + int(1.3 * (m - 1)) + 3, run_end)].all()
 
 
 def test_fast_falls_back_to_exact_when_windows_hold_too_few():
     space, q = planted()
     ref = subsequence_dtw(q, space, count=40, min_span=0.0)
-    got = fast_sdtw(q, space, count=40, min_span=0.0, settings=FastSettings(frames=2, k=1, candidates=1))
+    got = fast_sdtw(q, space, count=40, min_span=0.0, settings=FastSettings(frames=2, k=1))
     np.testing.assert_array_equal(got.end, ref.end)
     np.testing.assert_array_equal(got.cost, ref.cost)
 
