@@ -41,10 +41,8 @@ from mocapflow.plugins.similarity.search.fast import FastSettings, fast_sdtw
 from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 FAST = {
-    "fast k64": FastSettings(),
-    "fast k64 eps1": FastSettings(eps=1.0),
-    "fast k128 eps1": FastSettings(k=128, eps=1.0),
-    "fast k128 f24 eps1": FastSettings(k=128, frames=24, eps=1.0),
+    "fast (default)": FastSettings(),
+    "fast k64 f12": FastSettings(k=64, frames=12),
 }
 
 

@@ -153,3 +153,18 @@ def test_without_sidecars_and_stale_sessions(workspace, capsys, tmp_path):
     assert reply["rc"] == 0 and reply["stdout"] == with_sidecars and box[0] is not first
     req["args"]["index"] = "other"  # a server of another index step declines
     assert _handle(box, json.dumps(req).encode(), lambda: None) == {"rc": None}
+
+
+def test_mode_switch(workspace, capsys):
+    """`--mode exact` is the default search; `--mode fast` answers through the same command."""
+    from conftest import EXAMPLES_DATA
+
+    query = ["--query", f"{EXAMPLES_DATA}/cmu/16/16_15.amc:1s-3s", "--no-server"]
+    assert _search(workspace, *query) == 0
+    default = capsys.readouterr().out
+    assert _search(workspace, *query, "--mode", "exact") == 0
+    assert capsys.readouterr().out == default
+    assert _search(workspace, *query, "--mode", "fast", "--count", "3") == 0
+    assert "search" in capsys.readouterr().out
+    assert _search(workspace, *query, "--matcher", "sdtw", "--mode", "fast") == 2
+    assert "has no parameter 'mode'" in capsys.readouterr().err

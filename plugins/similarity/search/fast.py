@@ -2,7 +2,8 @@
 the database regions the index's neighbours of a few query frames point at.
 
 1. **Filter.** ``frames`` query frames spread over the query (first and last included) each
-   get their ``k`` nearest database rows from the search space's index.
+   get their ``k`` nearest database rows from the search space's index (``eps``-approximate:
+   they only choose where the exact DP runs).
 2. **Refine.** Around a neighbour ``h`` of query frame ``i`` a match that takes between
    ``1 / slope`` and ``slope`` database rows per query frame lies within rows
    ``h - slope i .. h + slope (m - 1 - i)`` of its clip; these windows, merged, get the fine
@@ -35,10 +36,10 @@ class FastSettings:
     eps : the neighbours are ``eps``-approximate where the index can (``"eps" in query_options``)
     """
 
-    frames: int = 12
-    k: int = 64
+    frames: int = 24
+    k: int = 128
     slope: float = 1.3
-    eps: float = 0.0
+    eps: float = 1.0
 
 
 DEFAULT_FAST = FastSettings()
