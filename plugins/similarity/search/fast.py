@@ -75,8 +75,6 @@ def fast_sdtw(
     Parameters as :func:`.certified.certified_sdtw`; ``stats`` (an ``ExactStats``) gets the DP
     rows computed and ``retried`` when the exact search answered.
     """
-    import numba
-
     from ._dtw_kernels import dtw_window_path
     from .certified import certified_sdtw, ranges_dp
     from .sdtw import validate_query
@@ -90,8 +88,8 @@ def fast_sdtw(
     frames = np.unique(np.linspace(0, m - 1, min(cfg.frames, m)).round().astype(np.int64))
     kw = {}
     options = getattr(type(space.index), "query_options", frozenset())
-    if "workers" in options:  # a dozen query frames: the index's threads only at scale
-        kw["workers"] = 1 if space.n_rows < 1_000_000 else max(1, numba.get_num_threads())
+    if "workers" in options:  # a few dozen query frames: waking threads costs more than it saves
+        kw["workers"] = 1
     if "eps" in options and cfg.eps > 0:
         kw["eps"] = cfg.eps
     _, ids = space.index.query(np.ascontiguousarray(q[frames]), min(cfg.k, space.n_rows), **kw)
