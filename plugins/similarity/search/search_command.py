@@ -292,8 +292,9 @@ class SearchSession:
         table = matches_table([0], [res], space)
         names = self.names
         rate = f" at {self.fps:g} fps" if self.fps else ""
+        mode = f" ({matcher.params.mode})" if hasattr(matcher.params, "mode") else ""
         print(
-            f"query {query.name} ({len(query.features)} frames), {matcher.key()} on {self.idx.step!r} "
+            f"query {query.name} ({len(query.features)} frames), {matcher.key()}{mode} on {self.idx.step!r} "
             f"({space.n_rows} frames{rate}): {len(res)} matches",
             file=out,
         )
