@@ -4,7 +4,7 @@
     python benchmarks/search_scale.py --sizes 10000000 --queries 6
     python benchmarks/search_scale.py --quick                      # the bundled takes, a 60 k-row library
 
-The library (``benchmarks/library.py``) is grown from ../shared/data with copies that no two
+The library (``benchmarks/corpus.py``, :func:`build_library`) is grown from ../shared/data with copies that no two
 are alike (mirroring, bone-length and time scaling, style offsets, noise), streamed to a
 memory-mapped F_E^15 table; a quarter of the performers (``--fold``) is held out entirely and
 the queries are random 30-, 64- and 90-frame segments of their takes. Each query runs, in the
@@ -30,8 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from corpus import DATA, REPO
-from library import _base, build_library, held_out, open_library, subjects_of
+from corpus import DATA, REPO, build_library, held_out, load_takes, open_library, subjects_of
 
 from mocapflow.framework.matching import SearchSpace
 from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
@@ -165,7 +164,7 @@ def main(argv=None) -> int:
         import tempfile
 
         files = sorted((REPO / "examples" / "data" / "cmu").glob("*/*.amc"))
-        base = _base(30.0, None, files)
+        base = load_takes(30.0, None, files)
         args.sizes, args.queries, args.lengths = [60_000], 2, [30, 64]
         with tempfile.TemporaryDirectory(prefix="mocapflow-library-") as tmp:
             args.cache = Path(tmp)
@@ -173,7 +172,7 @@ def main(argv=None) -> int:
         return 0
     if not DATA.is_dir():
         raise SystemExit(f"the corpus is not at {DATA} (set MOCAPFLOW_DATA)")
-    base = _base(30.0, DATA)
+    base = load_takes(30.0, DATA)
     if args.cache is None:
         from corpus import CACHE
 
