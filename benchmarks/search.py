@@ -41,12 +41,17 @@ from mocapflow.framework.normalize import resample
 from mocapflow.plugins.similarity.knn.end_effectors import EndEffectorFeatures
 from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 from mocapflow.plugins.similarity.search.certified import ExactStats, certified_sdtw
+from mocapflow.plugins.similarity.search.fast import fast_sdtw
 from mocapflow.plugins.similarity.search.lng import lazy_neighborhood_graph
 from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
 
 def search(q, space, count=10, stats=None):
     return certified_sdtw(q, space, count=count, stats=stats)
+
+
+def fast(q, space, count=10, stats=None):
+    return fast_sdtw(q, space, count=count)
 
 
 def graph(q, space, count=10, stats=None):
@@ -61,7 +66,7 @@ def sdtw(q, space, count=10, stats=None):
     return subsequence_dtw(q, space, count=count)
 
 
-METHODS = {"search (certified)": search, "lng graph": graph, "lng paper": paper}
+METHODS = {"search (certified)": search, "search (fast)": fast, "lng graph": graph, "lng paper": paper}
 
 
 def space_of(x, clip_id, frame) -> SearchSpace:

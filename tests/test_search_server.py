@@ -75,6 +75,9 @@ def test_server_answers_as_the_process_does(workspace, capsys, tmp_path):
     query = ["--query", f"{EXAMPLES_DATA}/cmu/16/16_15.amc:1s-3s"]
     assert _search(workspace, *query, "--no-server") == 0
     local = capsys.readouterr().out
+    assert _search(workspace, *query, "--no-server", "--mode", "fast") == 0
+    fast_local = capsys.readouterr().out
+    assert "matchers.search (fast)" in fast_local and "matchers.search (exact)" in local
     args = Namespace(db=str(workspace), index=None, no_entry_points=True, block=[], idle_timeout=1.0)
     from mocapflow.plugins.similarity.search.search_command import SearchSession
 
@@ -92,6 +95,8 @@ def test_server_answers_as_the_process_does(workspace, capsys, tmp_path):
     try:
         assert _search(workspace, *query) == 0
         served = capsys.readouterr().out
+        assert _search(workspace, *query, "--mode", "fast") == 0  # the mode reaches the server
+        assert capsys.readouterr().out == fast_local
         # relative paths are the client's: --out lands in its working directory
         cwd = os.getcwd()
         os.chdir(tmp_path)
@@ -106,7 +111,7 @@ def test_server_answers_as_the_process_does(workspace, capsys, tmp_path):
     finally:
         search_server.ask = real_ask
         server.join(30)
-    assert calls == [1, 1, 1] and served == local
+    assert calls == [1, 1, 1, 1] and served == local
     assert not server.is_alive() and not sock.exists()  # idle timeout: stopped, socket removed
 
 
@@ -153,3 +158,18 @@ def test_without_sidecars_and_stale_sessions(workspace, capsys, tmp_path):
     assert reply["rc"] == 0 and reply["stdout"] == with_sidecars and box[0] is not first
     req["args"]["index"] = "other"  # a server of another index step declines
     assert _handle(box, json.dumps(req).encode(), lambda: None) == {"rc": None}
+
+
+def test_mode_switch(workspace, capsys):
+    """`--mode exact` is the default search; `--mode fast` answers through the same command."""
+    from conftest import EXAMPLES_DATA
+
+    query = ["--query", f"{EXAMPLES_DATA}/cmu/16/16_15.amc:1s-3s", "--no-server"]
+    assert _search(workspace, *query) == 0
+    default = capsys.readouterr().out
+    assert _search(workspace, *query, "--mode", "exact") == 0
+    assert capsys.readouterr().out == default
+    assert _search(workspace, *query, "--mode", "fast", "--count", "3") == 0
+    assert "matchers.search (fast) on" in capsys.readouterr().out
+    assert _search(workspace, *query, "--matcher", "sdtw", "--mode", "fast") == 2
+    assert "has no parameter 'mode'" in capsys.readouterr().err

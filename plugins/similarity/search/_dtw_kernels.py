@@ -18,7 +18,7 @@ clip boundary. Reference: ``tests/naive/dtw.py``.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 # reassociation lets the distance loops vectorise; no "nnan"/"ninf": the DP relies on inf
 _FAST = {"reassoc", "contract", "nsz", "arcp"}
@@ -263,3 +263,35 @@ def dtw_window_path(q, w):  # pragma: no cover - compiled
         else:
             i -= 1
     return out[:p][::-1].copy(), acc[m - 1, n - 1]
+
+
+@njit(cache=True, fastmath=_FAST, parallel=True)
+def sdtw_ranges_parallel(qt, x, clip_start, ranges, groups):  # pragma: no cover - compiled
+    """:func:`sdtw_ranges_compact` with the ranges of each group ``groups[g] .. groups[g + 1]``
+    on its own numba thread: the same columns, so the same values bit for bit (each range
+    starts afresh in both). ``groups``: int64 (g + 1,), ascending range positions, 0 .. r."""
+    m = qt.shape[1]
+    nr = ranges.shape[0]
+    off = np.zeros(nr + 1, np.int64)
+    for r in range(nr):
+        off[r + 1] = off[r] + ranges[r, 1] - ranges[r, 0]
+    p = off[nr]
+    rows = np.empty(p, np.int64)
+    cost = np.empty(p)
+    start = np.empty(p, np.int64)
+    length = np.empty(p, np.int64)
+    for g in prange(groups.shape[0] - 1):
+        prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col = column_buffers(m)
+        for r in range(groups[g], groups[g + 1]):
+            a = ranges[r, 0]
+            o = off[r]
+            for j in range(a, ranges[r, 1]):
+                rows[o] = j
+                cost[o], start[o], length[o] = sdtw_column(
+                    qt, x, j, j == a or clip_start[j], prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col
+                )
+                o += 1
+                prev_c, cur_c = cur_c, prev_c
+                prev_s, cur_s = cur_s, prev_s
+                prev_l, cur_l = cur_l, prev_l
+    return rows, cost, start, length

@@ -13,7 +13,7 @@ speed only, never the result.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -27,6 +27,8 @@ from .matcher_base import block_boxes_of, block_subspaces_of, match_kw
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
 _SHRINK = 1.0 - 1e-4
+#: below this many DP cells a ranged DP stays on one thread (waking threads costs more)
+_PARALLEL_CELLS = 4_000_000
 
 
 @dataclass(frozen=True)
@@ -117,6 +119,45 @@ def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.stack([lo[first], hi[last]], axis=1).astype(np.int64)
 
 
+def run_starts(space: SearchSpace) -> np.ndarray:
+    """int64 (r + 1,): first row of every run of consecutive rows (clip), then ``n``."""
+    return space.memo(
+        ("similarity.run_starts",), lambda: np.r_[np.flatnonzero(~space.continues), space.n_rows].astype(np.int64)
+    )
+
+
+def ranges_dp(qt: np.ndarray, space: SearchSpace, ranges: np.ndarray, threads: int | None = None):
+    """The fine DP over row ranges (:func:`._dtw_kernels.sdtw_ranges_compact`): ``rows, cost,
+    start, length``. With several numba threads (``threads``, default: numba's) and at least
+    ``_PARALLEL_CELLS`` cells, long ranges are cut at clip starts and groups of ranges of about
+    equal rows run on the threads (:func:`._dtw_kernels.sdtw_ranges_parallel`): the same values."""
+    import numba
+
+    from ._dtw_kernels import sdtw_ranges_compact, sdtw_ranges_parallel
+
+    t = numba.get_num_threads() if threads is None else int(threads)
+    total = int((ranges[:, 1] - ranges[:, 0]).sum())
+    if t <= 1 or total * qt.shape[1] < _PARALLEL_CELLS:
+        return sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
+    parts = 4 * t
+    rs = run_starts(space)
+    share = max(1, total // parts)
+    long = (ranges[:, 1] - ranges[:, 0]) > share
+    if long.any():  # a range longer than its share is cut at clip starts (each piece starts afresh there anyway)
+        pieces = [ranges[~long]]
+        for a, b in ranges[long].tolist():
+            inside = rs[np.searchsorted(rs, a, "right") : np.searchsorted(rs, b, "left")]
+            at = np.unique(np.searchsorted(inside, np.arange(a + share, b, share)))
+            e = np.r_[a, inside[at[at < len(inside)]], b]
+            pieces.append(np.stack([e[:-1], e[1:]], axis=1))
+        ranges = np.concatenate(pieces)
+        ranges = ranges[np.argsort(ranges[:, 0], kind="stable")]
+    cum = np.cumsum(ranges[:, 1] - ranges[:, 0])
+    bounds = np.searchsorted(cum, np.linspace(0, cum[-1], parts + 1)[1:-1], "right")
+    groups = np.unique(np.r_[0, bounds, len(ranges)]).astype(np.int64)
+    return sdtw_ranges_parallel(qt, space.features, clip_starts(space), np.ascontiguousarray(ranges, np.int64), groups)
+
+
 def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: CertifiedSettings) -> float:
     """A threshold from real alignments around the nearest neighbours of a few query frames.
 
@@ -126,8 +167,6 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: Certi
     database frames per query frame, so the fine DP runs over those windows (merged).
     Returns the ``count``-th cost of their selection, or inf when it holds fewer.
     """
-    from ._dtw_kernels import sdtw_ranges_compact
-
     m, n = len(q), space.n_rows
     frames = np.unique(np.linspace(0, m - 1, cfg.seed_frames).round().astype(np.int64))
     kk = min(n, cfg.seed_k * count)
@@ -146,7 +185,7 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: Certi
     ranges = merged_ranges(
         np.maximum(h - (sl * fi).astype(np.int64) - 2, 0), np.minimum(h + (sl * (m - 1 - fi)).astype(np.int64) + 3, n)
     )
-    rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
+    rows, cost, start, length = ranges_dp(qt, space, ranges)
     st.guess_columns += len(rows)
     keep = select_matches(
         rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by, min_frames=min_frames
@@ -162,8 +201,6 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
     matches the last one's cost is returned, else four times more blocks are tried. Any
     value is safe (the caller verifies it); a low one prunes more.
     """
-    from ._dtw_kernels import sdtw_ranges_compact
-
     bstart, _, _, link = blocks[:4]
     nb = len(lb)
     order = np.argsort(lb, kind="stable")
@@ -178,7 +215,7 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
         nxt = nxt[nxt < nb]
         mark[nxt[link[nxt]]] = True  # the linked block after
         br = block_ranges(mark[:nb])
-        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), bstart[br])
+        rows, cost, start, length = ranges_dp(qt, space, bstart[br])
         st.guess_columns += len(rows)
         keep = select_matches(
             rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by, min_frames=min_frames
@@ -235,7 +272,7 @@ def certified_sdtw(
         Filled with what the search did.
     """
     from ._coarse_kernels import alive_runs
-    from ._dtw_kernels import dtw_window_path, sdtw_ranges_compact
+    from ._dtw_kernels import dtw_window_path
     from .sdtw import validate_query
 
     cfg = settings
@@ -279,7 +316,7 @@ def certified_sdtw(
             if (ranges[:, 1] - ranges[:, 0]).sum() >= cfg.full_from * n:
                 tau = ceiling
                 ranges = np.array([[0, n]], np.int64)
-        rows, cost, start, length = sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
+        rows, cost, start, length = ranges_dp(qt, space, ranges)
         st.tau, st.passes = tau, st.passes + 1
         st.columns += len(rows)
         sel = np.flatnonzero(cost <= tau)
@@ -339,6 +376,13 @@ class CertifiedSearch(Matcher):
     needs_features: ClassVar[bool] = True
 
     class Params(MatchParams):
+        mode: Literal["exact", "fast"] = Field(
+            "exact",
+            description=(
+                "exact: subsequence DTW's matches (certified pruning); fast: filter-and-refine, the exact DP only "
+                "where the index's neighbours vote (measured recall: docs/global-matching.md)"
+            ),
+        )
         plots: int = Field(
             0,
             ge=0,
@@ -351,6 +395,10 @@ class CertifiedSearch(Matcher):
     settings: ClassVar[CertifiedSettings] = DEFAULT_SETTINGS
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
+        if self.params.mode == "fast":
+            from .fast import fast_sdtw
+
+            return fast_sdtw(query, space, **match_kw(self.params))
         return certified_sdtw(query, space, **match_kw(self.params), settings=self.settings)
 
     def after_match(self, query_id, query, matches, space, ctx) -> None:

@@ -49,12 +49,19 @@ def sdtw_costs(query: np.ndarray, space: SearchSpace) -> tuple[np.ndarray, np.nd
     length : ndarray of int64, shape (n,)
         Its number of cells.
     """
+    import numba
+
     from ._dtw_kernels import sdtw_forward
+    from .certified import ranges_dp
 
     if space.features is None:
         raise DataError("subsequence DTW needs the database features (SearchSpace.features)")
     q = validate_query(query, space.features.shape[1])
-    return sdtw_forward(np.ascontiguousarray(q.T), space.features, ~space.continues)
+    qt = np.ascontiguousarray(q.T)
+    if numba.get_num_threads() > 1:  # the clips on numba's threads (same values; one thread: one pass)
+        _, cost, start, length = ranges_dp(qt, space, np.array([[0, space.n_rows]], np.int64))
+        return cost, start, length
+    return sdtw_forward(qt, space.features, ~space.continues)
 
 
 def subsequence_dtw(

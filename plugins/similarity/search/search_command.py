@@ -74,6 +74,12 @@ class SearchCommand:
             default=None,
             help="lng: the paper's graph (neighbour cells only, every frame searched, no fallback)",
         )
+        parser.add_argument(
+            "--mode",
+            choices=("fast", "exact"),
+            default=None,
+            help="search: exact (sDTW's matches) or fast (filter-and-refine, measured recall); default: the matcher's",
+        )
         parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
         parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
         parser.add_argument("--out", metavar="FILE", help="also write the matches as .csv or .parquet")
@@ -248,6 +254,7 @@ class SearchSession:
             ("min_span", args.min_span),
             ("rank_by", args.rank_by),
             ("paper", getattr(args, "paper", None)),
+            ("mode", getattr(args, "mode", None)),
         ):
             if val is not None:
                 if key not in fields:
@@ -285,8 +292,9 @@ class SearchSession:
         table = matches_table([0], [res], space)
         names = self.names
         rate = f" at {self.fps:g} fps" if self.fps else ""
+        mode = f" ({matcher.params.mode})" if hasattr(matcher.params, "mode") else ""
         print(
-            f"query {query.name} ({len(query.features)} frames), {matcher.key()} on {self.idx.step!r} "
+            f"query {query.name} ({len(query.features)} frames), {matcher.key()}{mode} on {self.idx.step!r} "
             f"({space.n_rows} frames{rate}): {len(res)} matches",
             file=out,
         )
