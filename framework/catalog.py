@@ -173,7 +173,8 @@ class Catalog:
         it is refused as it grows (DuckDB's own limit does not cover the result)."""
         if self.memory_bytes is None:
             return rel.to_arrow_table()
-        reader = rel.fetch_record_batch(65536)
+        to_reader = getattr(rel, "to_arrow_reader", None) or rel.fetch_record_batch  # duckdb >= 1.4 / older
+        reader = to_reader(65536)
         batches, size = [], 0
         for batch in reader:
             size += batch.nbytes
