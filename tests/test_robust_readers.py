@@ -263,9 +263,10 @@ def test_asf_hierarchy_naming_an_undefined_bone_has_its_line(tmp_path):
     assert err.value.line == k + 2
 
 
-def _character(scale: float, arms_down: bool) -> str:
-    """One character (same bone lengths) with its rest pose as a T-pose or arms down."""
-    arm = [(0, -1, 0)] * 3 if arms_down else [(1, 0, 0)] * 3
+def _character(scale: float, sitting: bool) -> str:
+    """One character (same bone lengths) with its rest pose standing or sitting (shins
+    forward: an exporter that writes a clip's first frame as the rest pose)."""
+    arm = [(1, 0, 0)] * 3
     bones = {
         "Hips": ((0, 0, 0), None),
         "Spine": ((0, 10, 0), "Hips"),
@@ -274,7 +275,7 @@ def _character(scale: float, arms_down: bool) -> str:
         "LFore": (tuple(11 * np.array(arm[0])), "LArm"),
         "LHand": (tuple(10 * np.array(arm[1])), "LFore"),
         "LLeg": ((4, -2, 0), "Hips"),
-        "LShin": ((0, -17, 0), "LLeg"),
+        "LShin": ((0, 0, 17) if sitting else (0, -17, 0), "LLeg"),
         "LFoot": ((0, -16, 0), "LShin"),
     }
     out = ["HIERARCHY"]
@@ -310,11 +311,11 @@ def test_bvh_units_stable_across_a_characters_rest_poses(tmp_path):
     """Sibling clips of one character whose OFFSETs describe different rest poses: the
     rest pose's height put them on both sides of the inch / CMU-unit boundary."""
     got = {}
-    for arms_down in (False, True):
-        p = tmp_path / f"c{arms_down}.bvh"
-        p.write_text(_character(0.55, arms_down))
+    for sitting in (False, True):  # rest-pose heights 53.6 and 39.1 units: the old rule said inch, asf_cmu
+        p = tmp_path / f"c{sitting}.bvh"
+        p.write_text(_character(0.85, sitting))
         m = read_bvh(p)
-        got[arms_down] = (m.metadata["unit"], m.metadata["scale"])
+        got[sitting] = (m.metadata["unit"], m.metadata["scale"])
         assert m.metadata["unit_source"] == "guessed from the bone lengths" and m.metadata["span"] > 0
     assert got[False] == got[True]
     forced = read_bvh(tmp_path / "cFalse.bvh", scale="cm")

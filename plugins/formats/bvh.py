@@ -64,8 +64,8 @@ __all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
 
 #: Candidate units of ``scale="auto"``: name -> metres per file unit.
 BVH_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "asf_cmu": 0.0254 / 0.45}
-#: Typical :func:`skeleton_span` of a person used by ``scale="auto"``, metres (measured on
-#: the corpus, docs/formats.md).
+#: Typical :func:`skeleton_span` of a person used by ``scale="auto"``, metres: the corpus's
+#: 32 BVH files span 1.97-2.38 m in their units (docs/formats.md).
 TYPICAL_SPAN_M = 2.2
 _CHANNELS = {"xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation"}
 _MOTION_RE = re.compile(rb"^[ \t]*MOTION[ \t]*\r?$", re.MULTILINE)
