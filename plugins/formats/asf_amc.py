@@ -327,6 +327,7 @@ def read_amc(
     path = Path(path)
     data = read_bytes(path, lambda head: text_head(path, head, (), "AMC motion"))
     from ._text_kernels import tokenize  # after the header check: a foreign file costs no kernel load
+
     skel_path = None
     if skeleton is None:
         skeleton = skel_path = find_asf(path)

@@ -320,6 +320,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
     )
     from ._kernels import euler_table_to_quat  # after the header check: a foreign file costs no kernel load
     from ._text_kernels import tokenize
+
     body = text_body(data)
     check_text(path, body)
     m = _MOTION_RE.search(body)

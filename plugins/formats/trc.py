@@ -122,6 +122,7 @@ def read_trc(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
         path, lambda head: text_head(path, head, (b"PathFileType",), "a TRC header starting with 'PathFileType'")
     )
     from ._text_kernels import tokenize  # after the header check: a foreign file costs no kernel load
+
     body = text_body(data)
     check_text(path, body)
     head, pos = _lines(body, _HEADER_LINES)

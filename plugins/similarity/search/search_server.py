@@ -240,7 +240,7 @@ def serve(args: argparse.Namespace, session_cls) -> int:
     finally:
         os.umask(old)
     ino = path.stat().st_ino
-    srv.listen(16)
+    srv.listen(128)  # a burst of clients waits in the backlog, never refused
     srv.settimeout(args.idle_timeout or None)
     print(
         f"mocapflow: search server on {path} ({box[0].idx.step!r}, warm in {warm:.2f} s); Ctrl-C stops it",
