@@ -11,7 +11,9 @@ worker processes (``nice``); a case past it is a hang, its worker is replaced.
 
 Prints the cases, crashes (exceptions other than ParseError), hangs, wrong acceptances,
 wrong rejections and bad errors (no file or line), per mutation kind and per format, and
-the first examples of each failure. Exit status 1 if any failure.
+the first examples of each failure. Then the hostile inputs of ``benchmarks/_hostile.py``
+(huge files, YAML alias bombs, hostile plugins, symbolic links, stalled and concurrent
+search-server clients), one line per check. Exit status 1 if any failure.
 
 Usage::
 
@@ -47,6 +49,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("MOCAPFLOW_DATA", ROOT.parent / "shared" / "data"))
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 FAILURES = ("crash", "hang", "wrong_accept", "wrong_reject", "bad_error")
 #: Share of cases per format (C3D only with the optional reader).
@@ -390,6 +393,11 @@ def main(argv: list[str] | None = None) -> int:
             f"fuzzing the format readers: {n:,} cases, seed {args.seed}, {jobs} processes, timeout {args.timeout:g} s"
         )
         status = report(run(n, args.seed, jobs, args.timeout))
+        from _hostile import run_all
+
+        hostile = Path(tmp) / "hostile"
+        hostile.mkdir()
+        status |= int(run_all(hostile) > 0)
     n_scene = args.scene_cases if args.scene_cases is not None else max(n // 10, 40 if args.quick else 0)
     return status | (fuzz_scenes(n_scene, args.seed, args.timeout) if n_scene else 0)
 

@@ -49,6 +49,17 @@ def check_read_only(sql: str) -> None:
             )
 
 
+_SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([KMGT]?)i?B?\s*$", re.IGNORECASE)
+
+
+def parse_size(text: str) -> int:
+    """Bytes of a size such as ``4GB``, ``512MB``, ``1.5GiB`` (1024-based), ``1000000``."""
+    m = _SIZE.match(str(text))
+    if not m or float(m.group(1)) <= 0:
+        raise ConfigError(f"expected a memory size such as 4GB or 512MB, got {text!r}")
+    return int(float(m.group(1)) * 1024 ** " KMGT".index(m.group(2).upper() or " "))
+
+
 class Catalog:
     """Read-only SQL over a workspace.
 
@@ -56,11 +67,18 @@ class Catalog:
     ----------
     workspace : str or Path
         A directory written by ``mocapflow run``.
+    timeout : float, optional
+        Seconds a query may run before it is interrupted (:class:`MocapflowError`); None: no limit.
+    memory_limit : str, optional
+        DuckDB's ``memory_limit`` (``"4GB"``) and the most a query's result may take; None:
+        DuckDB's default (80 % of the RAM) and no bound on the result.
     """
 
-    def __init__(self, workspace: str | Path) -> None:
+    def __init__(self, workspace: str | Path, timeout: float | None = None, memory_limit: str | None = None) -> None:
         import duckdb
 
+        self.timeout = timeout
+        self.memory_bytes = parse_size(memory_limit) if memory_limit is not None else None
         self.workspace = Path(workspace)
         if not self.workspace.is_dir():
             raise ConfigError(f"workspace {self.workspace} does not exist (run a pipeline first)")
@@ -89,6 +107,8 @@ class Catalog:
                     f"the workspace catalog needs duckdb >= 1.2 (allowed_directories), found "
                     f"{duckdb.__version__}: pip install -U duckdb ({exc})"
                 ) from None
+            if self.memory_bytes is not None:
+                self._con.execute(f"SET memory_limit = '{self.memory_bytes // 1024}KiB'")
             self._con.execute("SET enable_external_access = false")
             self._con.execute("SET lock_configuration = true")
             ordered = sorted(self.datasets.values(), key=lambda d: d.manifest.get("created", ""))
@@ -117,20 +137,54 @@ class Catalog:
         (see the module doc) and :class:`MocapflowError` for SQL errors, including reads
         of files outside the workspace's datasets.
         """
+        import threading
+
         import duckdb
 
         check_read_only(sql)
+        timer = None
+        if self.timeout is not None:
+            timer = threading.Timer(self.timeout, self._con.interrupt)
+            timer.daemon = True
+            timer.start()
         try:
             rel = self._con.sql(sql, params=params)
             if rel is None:  # pragma: no cover - every allowed statement returns rows
                 raise MocapflowError("SQL: the statement returned no result")
-            return rel.to_arrow_table()
+            return self._collect(rel)
+        except duckdb.InterruptException:
+            raise MocapflowError(
+                f"SQL: the query ran longer than {self.timeout:g} s and was stopped (--timeout SECONDS, 0: no limit)"
+            ) from None
+        except duckdb.OutOfMemoryException as exc:
+            raise MocapflowError(f"SQL: the query needs more memory than its limit (--memory-limit): {exc}") from None
         except duckdb.PermissionException as exc:
             raise MocapflowError(
                 f"SQL error: {exc} (the catalog reads only the datasets of {self.workspace})"
             ) from None
         except duckdb.Error as exc:
             raise MocapflowError(f"SQL error: {exc}") from None
+        finally:
+            if timer is not None:
+                timer.cancel()
+
+    def _collect(self, rel: Any) -> pa.Table:
+        """The result as Arrow, read in batches: with a memory limit, a result larger than
+        it is refused as it grows (DuckDB's own limit does not cover the result)."""
+        if self.memory_bytes is None:
+            return rel.to_arrow_table()
+        to_reader = getattr(rel, "to_arrow_reader", None) or rel.fetch_record_batch  # duckdb >= 1.4 / older
+        reader = to_reader(65536)
+        batches, size = [], 0
+        for batch in reader:
+            size += batch.nbytes
+            if size > self.memory_bytes:
+                raise MocapflowError(
+                    f"SQL: the result is larger than the memory limit ({self.memory_bytes / 2**20:,.0f} MiB; "
+                    "--memory-limit): select fewer rows or columns, or aggregate"
+                )
+            batches.append(batch)
+        return pa.Table.from_batches(batches, schema=reader.schema)
 
     def relation(self, view: str) -> Any:
         """The DuckDB relation of one view (for the relational API)."""

@@ -58,6 +58,12 @@ def _rejects_warnings(reports: list[StepReport]) -> list[str]:
                 f"{r.step_id}: {what} rejected: see the rejects view "
                 f'(mocapflow sql WORKSPACE "SELECT * FROM {r.step_id.replace("-", "_")}_rejects")'
             )
+        w = (r.summary or {}).get("warnings")
+        if isinstance(w, int) and not isinstance(w, bool) and w > 0:
+            lines.append(
+                f"{r.step_id}: {w} repair{'s' * (w != 1)} of files read (a header the data contradict): see "
+                f'mocapflow sql WORKSPACE "SELECT * FROM {r.step_id.replace("-", "_")}_warnings"'
+            )
     return lines
 
 
@@ -165,15 +171,16 @@ def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
     if not Path(args.workspace).exists():  # the common typo, answered before pyarrow and duckdb load
         raise ConfigError(f"workspace {args.workspace} does not exist (run a pipeline first)")
     from .catalog import Catalog, format_table
-    from .workspace import export_table
+    from .workspace import export_table, refuse_dataset_path
 
     if args.output:  # refuse what cannot be written before the work
         out = Path(args.output)
+        refuse_dataset_path(out, "--output")
         if out.is_dir():
             raise ConfigError(f"--output {out} is a directory: give a file name (e.g. {out / 'result.csv'})")
         if args.format == "table" and out.suffix.lower() not in (".csv", ".parquet", ""):
             raise ConfigError(f"--output {out}: unknown format {out.suffix!r}; use .csv or .parquet, or --format")
-    with Catalog(args.workspace) as cat:
+    with Catalog(args.workspace, timeout=args.timeout or None, memory_limit=args.memory_limit) as cat:
         if not args.query:
             _echo("views: " + ", ".join(sorted(cat.views)))
             return 0
@@ -203,6 +210,8 @@ def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
 def build_parser(plugin_commands: list[type[Any]]) -> argparse.ArgumentParser:
     from mocapflow import __version__
 
+    from .options import SQL_MEMORY_LIMIT, SQL_TIMEOUT_S, float_at_least, int_at_least
+
     parser = argparse.ArgumentParser(prog="mocapflow", description="Searchable, clean motion-capture databases.")
     parser.add_argument("--version", action="version", version=f"mocapflow {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logging")
@@ -217,11 +226,13 @@ def build_parser(plugin_commands: list[type[Any]]) -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a pipeline (steps whose inputs and parameters are unchanged are skipped)")
     common(p)
-    p.add_argument("--jobs", "-j", type=int, default=None, help="worker processes for per-clip work (0 = all cores)")
+    p.add_argument(
+        "--jobs", "-j", type=int_at_least(0), default=None, help="worker processes for per-clip work (0 = all cores)"
+    )
     p.add_argument("--force", action="store_true", help="recompute every step")
     p.add_argument(
         "--wait",
-        type=float,
+        type=float_at_least(0, infinite=True),
         default=0.0,
         metavar="SECONDS",
         help="wait this long for another run holding the workspace (default: refuse at once)",
@@ -241,7 +252,20 @@ def build_parser(plugin_commands: list[type[Any]]) -> argparse.ArgumentParser:
     p.add_argument("--param", action="append", default=[], help="value for a ? placeholder (repeatable)")
     p.add_argument("--format", choices=("table", "csv", "parquet"), default="table")
     p.add_argument("--output", "-o", help="write the result to this file (csv or parquet)")
-    p.add_argument("--max-rows", type=int, default=50)
+    p.add_argument("--max-rows", type=int_at_least(0), default=50)
+    p.add_argument(
+        "--timeout",
+        type=float_at_least(0),
+        default=SQL_TIMEOUT_S,
+        metavar="SECONDS",
+        help=f"stop a query running longer (default {SQL_TIMEOUT_S:g}; 0: no limit)",
+    )
+    p.add_argument(
+        "--memory-limit",
+        default=SQL_MEMORY_LIMIT,
+        metavar="SIZE",
+        help=f"memory a query and its result may take (default {SQL_MEMORY_LIMIT})",
+    )
     p.set_defaults(func=cmd_sql)
 
     for cls in plugin_commands:

@@ -84,20 +84,37 @@ def _yaml_error(exc: yaml.YAMLError, source: str) -> ConfigError:
     return ConfigError(f"{where}: invalid YAML: {problem}")
 
 
+#: Largest number of YAML nodes a document may expand to, aliases counted at every use: a
+#: pipeline has hundreds; a 1 kB "billion laughs" of nested anchors expands to billions.
+MAX_YAML_NODES = 100_000
+
+
+def _too_large(source: str, node: yaml.Node) -> ConfigError:
+    return ConfigError(
+        f"{source}:{node.start_mark.line + 1}: anchors and aliases expand to more than {MAX_YAML_NODES} "
+        "values (nested aliases multiply); write the values out or use fewer aliases"
+    )
+
+
 def _load_with_lines(text: str, source: str) -> tuple[Any, dict[tuple[str, ...], int]]:
     """Parse once; construct plain data only (an unknown or Python tag is a ConfigError at its
     line, never constructed); a key repeated in one mapping is an error too (YAML forbids
-    it; PyYAML would keep the last one silently)."""
+    it; PyYAML would keep the last one silently); aliases expanding past
+    :data:`MAX_YAML_NODES` values are a ConfigError at the line of the node reached."""
     lines: dict[tuple[str, ...], int] = {}
     loader = _LineLoader(text)
     try:
         root = loader.get_single_node()
 
         active: set[int] = set()
+        seen = [0]
 
         def walk(node: yaml.Node, path: tuple[str, ...]) -> None:
             if id(node) in active:
                 raise ConfigError(f"{source}:{node.start_mark.line + 1}: an alias refers to a node that contains it")
+            seen[0] += 1
+            if seen[0] > MAX_YAML_NODES:
+                raise _too_large(source, node)
             active.add(id(node))
             if isinstance(node, yaml.MappingNode):
                 for k, v in node.value:
@@ -209,8 +226,10 @@ def apply_overrides(source: PipelineSource, overrides: list[str] | tuple[str, ..
 
             raise ConfigError(f"--set {item!r}: no step {step!r}{did_you_mean(step, list(steps))}")
         try:
-            value = yaml.safe_load(rhs)
-        except yaml.YAMLError:
+            value = _load_with_lines(rhs, f"--set {item!r}")[0]
+        except ConfigError as exc:
+            if "invalid YAML" not in str(exc):
+                raise
             value = rhs
         target = steps[step].setdefault("with", {})
         *parents, last = key.split(".")

@@ -30,6 +30,18 @@ def builtin_plugin_modules() -> tuple[str, ...]:
     return tuple(BUILTIN_PLUGINS)
 
 
+#: What a plugin may raise at import or in a hook and is isolated like any error (reported by
+#: its name, never ending the process with the plugin's own exit status or a silent stop).
+PLUGIN_ERRORS: tuple[type[BaseException], ...] = (Exception, SystemExit, KeyboardInterrupt)
+
+
+def describe(exc: BaseException) -> str:
+    """``Type: message`` of a plugin's error (``SystemExit(3)``: its exit status said)."""
+    if isinstance(exc, SystemExit):
+        return f"SystemExit (exit status {exc.code!r})"
+    return f"{type(exc).__name__}: {exc}"
+
+
 @dataclass
 class PluginFailure:
     """A plugin that could not be loaded; reported, never fatal to unrelated commands."""
@@ -75,8 +87,8 @@ def get_plugin_manager(
             try:
                 plugin = ep.load()
                 pm.register(plugin, name=ep.name)
-            except Exception as exc:  # a broken third-party plugin must not break the rest
-                _record_failure(pm, ep.name, f"failed to load: {type(exc).__name__}: {exc}")
+            except PLUGIN_ERRORS as exc:  # a broken third-party plugin must not break the rest
+                _record_failure(pm, ep.name, f"failed to load: {describe(exc)}")
     for obj in extra:
         pm.register(obj)
     return pm
@@ -114,8 +126,8 @@ def collect_classes(
                     check(cls, provider)
         except PluginError as exc:
             failed[provider] = f"{hook_name}(): {exc}"
-        except Exception as exc:
-            failed[provider] = f"failed in {hook_name}(): {type(exc).__name__}: {exc}"
+        except PLUGIN_ERRORS as exc:
+            failed[provider] = f"failed in {hook_name}(): {describe(exc)}"
         else:
             results.append((provider, list(classes)))
     return results, failed
@@ -203,15 +215,15 @@ def call_lifecycle(hook_relay: Any, hook_name: str, **kwargs: Any) -> None:
     if any(i.wrapper or i.hookwrapper for i in impls):
         try:
             caller(**kwargs)
-        except Exception as exc:
+        except PLUGIN_ERRORS as exc:
             names = ", ".join(sorted({repr(i.plugin_name) for i in impls}))
-            raise PluginError(f"a plugin failed in {what} (one of {names}): {type(exc).__name__}: {exc}") from exc
+            raise PluginError(f"a plugin failed in {what} (one of {names}): {describe(exc)}") from exc
         return
     for impl in reversed(impls):  # pluggy calls the last registered (and tryfirst) first
         try:
             impl.function(*[kwargs[a] for a in impl.argnames])
-        except Exception as exc:
-            raise PluginError(f"plugin {impl.plugin_name!r} failed in {what}: {type(exc).__name__}: {exc}") from exc
+        except PLUGIN_ERRORS as exc:
+            raise PluginError(f"plugin {impl.plugin_name!r} failed in {what}: {describe(exc)}") from exc
 
 
 def load_registries(*, kinds: Iterable[str] | None = None, **kwargs: Any) -> Registries:

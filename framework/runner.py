@@ -19,7 +19,7 @@ from .context import Executor, StepContext
 from .datasets import Dataset, StepOutput
 from .errors import ConfigError, MocapflowError, PipelineError, PluginError
 from .plan import Plan, PlannedStep, build_plan
-from .plugins import build_registries, call_lifecycle, get_plugin_manager
+from .plugins import build_registries, call_lifecycle, describe, get_plugin_manager
 from .registry import Registries, did_you_mean
 from .steps import run_step
 from .workspace import Workspace
@@ -133,6 +133,8 @@ class Runner:
                     raise PluginError(f"{hook_exc} (while reporting that step {step.step_id!r} failed: {exc})") from exc
             if isinstance(exc, MocapflowError):
                 raise PipelineError(f"step {step.step_id!r} ({step.key}) failed: {exc}") from exc
+            if isinstance(exc, SystemExit):  # a component's sys.exit(): its step failed, our exit status
+                raise PipelineError(f"step {step.step_id!r} ({step.key}) failed: it raised {describe(exc)}") from exc
             raise
         self._notify(
             "after_step",

@@ -16,7 +16,8 @@ How a step's output is written (:meth:`Workspace.write_step`): the component wri
 a temporary folder (``ctx.out_dir``) and returns its tables; the tables are written there
 (:func:`write_table`), then the manifest, and the folder is renamed over ``<workspace>/<step>``
 (:meth:`Workspace.commit`, atomic on one filesystem). A failed step leaves its previous dataset
-as it was. Files written outside a step's folder go through :func:`atomic_path`.
+as it was. Files written outside a step's folder go through :func:`atomic_path`; no command
+but the runner writes inside one (:func:`refuse_dataset_path` checks every output option).
 
 ``.mocapflow/lock`` is an advisory ``flock`` (released by the kernel even on ``kill -9``) on a
 file recording the holder; a holder recorded in a lock nobody holds was killed and is taken
@@ -348,6 +349,24 @@ def write_table(table: pa.Table, path: Path, provenance: Mapping[str, Any]) -> N
         write_statistics=flat or False,
         row_group_size=ROW_GROUP_ROWS,
     )
+
+
+def refuse_dataset_path(path: str | Path, option: str) -> Path:
+    """``path`` (made absolute) if a command other than the runner may write it; a
+    :class:`ConfigError` naming ``option`` when it lies in a workspace's dataset folder (a
+    folder holding a :data:`MANIFEST`, or inside one) or in the runner's own folder: only
+    ``mocapflow run`` writes there, or the next run would take a foreign file for its output.
+    Symbolic links are followed (a link pointing into a dataset is refused too)."""
+    p = Path(path).expanduser().absolute()
+    for cand in dict.fromkeys((p, *p.parents, p.resolve(), *p.resolve().parents)):
+        if (cand / MANIFEST).is_file():
+            raise ConfigError(
+                f"{option} {path}: {cand} is a dataset of a mocapflow workspace; only `mocapflow run` "
+                "writes there: choose a path outside the step folders"
+            )
+        if cand.name == RUNNER_DIR and (cand / MARKER).is_file():
+            raise ConfigError(f"{option} {path}: {cand} is the mocapflow runner's own folder: choose another path")
+    return p
 
 
 @contextlib.contextmanager

@@ -67,9 +67,10 @@ def test_trc_header_checks(tmp_path: Path) -> None:
     bad = list(lines)
     bad[2] = bad[2].replace("\t4\t3\t", "\t5\t3\t")  # NumFrames 5, 4 rows
     (tmp_path / "f.trc").write_text("\n".join(bad) + "\n")
-    with pytest.raises(ParseError) as e:
-        read_trc(tmp_path / "f.trc")
+    with pytest.raises(ParseError) as e:  # strict: refused; by default the 4 rows are read (a warning)
+        read_trc(tmp_path / "f.trc", strict=True)
     assert e.value.line == len(lines) and "NumFrames" in e.value.message
+    assert read_trc(tmp_path / "f.trc").n_frames == 4
     bad = list(lines)
     bad[2] = bad[2].replace("\t4\t3\t", "\t4\t2\t")
     (tmp_path / "m.trc").write_text("\n".join(bad) + "\n")

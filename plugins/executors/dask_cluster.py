@@ -166,19 +166,7 @@ class DaskExecutor:
                     from distributed.utils import get_mp_context
 
                     get_mp_context().set_forkserver_preload(["distributed", *PRELOAD])
-                self._cluster = distributed.LocalCluster(
-                    n_workers=self.jobs,
-                    threads_per_worker=1,
-                    processes=True,
-                    host="127.0.0.1",
-                    dashboard_address="127.0.0.1:0",
-                    silence_logs=40,
-                    # every worker gets its share of the cores for numba/BLAS (set before their imports)
-                    env={
-                        var: str(self.threads or threads_per_worker(self.jobs))
-                        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
-                    },
-                )
+                self._cluster = self._local_cluster(distributed, forkserver)
                 self._client = distributed.Client(self._cluster)
         hosts: dict[str, int] = {}
         for w in self._client.scheduler_info(n_workers=-1)["workers"].values():
@@ -186,6 +174,32 @@ class DaskExecutor:
         from ._dask_worker import ThreadLimit
 
         self._client.register_plugin(ThreadLimit(self.threads, hosts), name=ThreadLimit.name)
+
+    def _local_cluster(self, distributed: Any, forkserver: bool) -> Any:
+        """The LocalCluster of ``jobs`` one-thread worker processes; a cluster that cannot
+        start (a worker's nanny failing: its forkserver killed, no memory, no port) is a
+        :class:`PipelineError` saying so, never an internal error."""
+        try:
+            return distributed.LocalCluster(
+                n_workers=self.jobs,
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                dashboard_address="127.0.0.1:0",
+                silence_logs=40,
+                # every worker gets its share of the cores for numba/BLAS (set before their imports)
+                env={
+                    var: str(self.threads or threads_per_worker(self.jobs))
+                    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+                },
+            )
+        except Exception as exc:
+            how = "forked from a forkserver process, " if forkserver else ""
+            raise PipelineError(
+                f"executor dask: the local cluster of {self.jobs} worker processes ({how}one per job) "
+                f"failed to start: {type(exc).__name__}: {exc}; a worker or its forkserver was killed, "
+                "memory ran out or no port was free: run again, or use the local executor"
+            ) from None
 
     @property
     def workers(self) -> int:
@@ -228,6 +242,13 @@ class DaskExecutor:
                 raise PipelineError(
                     f"dask: the workers running a task of {desc or 'a step'!r} died "
                     f"(killed, out of memory or crashed): {exc}; the step's output was discarded"
+                ) from None
+            if type(exc).__module__.split(".")[0] in ("distributed", "tornado") or "Nanny" in str(exc):
+                # the cluster itself failed (a nanny that cannot restart its worker, a lost
+                # connection): named as the executor's failure, not the task's
+                raise PipelineError(
+                    f"dask: the cluster failed while running {desc or 'a step'!r}: "
+                    f"{type(exc).__name__}: {exc}; the step's output was discarded"
                 ) from None
             raise
         finally:

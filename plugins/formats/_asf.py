@@ -34,7 +34,7 @@ from mocapflow.framework.plugins import registered_joint_maps
 from mocapflow.framework.quaternions import euler_extrinsic
 from mocapflow.framework.skeleton import Skeleton
 
-from ._common import MAX_DEGREES, MAX_METRES, check_text, read_bytes, split_ascii, strict_float, text_body
+from ._common import MAX_DEGREES, MAX_METRES, check_text, read_bytes, split_ascii, strict_float, text_body, text_head
 
 _ROOT_CHANNELS = {"TX", "TY", "TZ", "RX", "RY", "RZ"}
 _DOFS = {"rx", "ry", "rz"}
@@ -78,6 +78,7 @@ class _AsfState:
         self.defined: set[str] = set()
         self.placed: dict[str, int] = {}
         self.name_line: dict[str, int] = {}
+        self.parent_line: dict[str, int] = {}  # a :hierarchy parent -> its first line
 
 
 _SECTIONS = {"units", "documentation", "root", "bonedata", "hierarchy", "name", "version"}
@@ -92,7 +93,7 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
     ``dof``, ``limits``) and ``hierarchy`` (parent -> list of children), all in file units.
     """
     path = Path(path)
-    data = read_bytes(path)
+    data = read_bytes(path, lambda head: text_head(path, head, (), "an ASF skeleton"))
     data = text_body(data)
     check_text(path, data)
     lines = data.decode("latin-1").replace("\r\n", "\n").split("\n")
@@ -142,9 +143,8 @@ def parse_asf(path: str | Path) -> dict[str, Any]:
     for parent, children in asf["hierarchy"].items():
         for n in [parent, *children]:
             if n not in known:
-                raise ParseError(
-                    path, _line_of_word(lines, n), f"hierarchy names bone {n!r}, which :bonedata does not define"
-                )
+                line = st.placed.get(n) or st.parent_line.get(n) or _line_of_word(lines, n) or len(lines)
+                raise ParseError(path, line, f"hierarchy names bone {n!r}, which :bonedata does not define")
     return asf
 
 
@@ -276,6 +276,7 @@ def _hierarchy_line(st: _AsfState, ln: int, words: list[str], text: str) -> None
                 "expected each bone once as a child in :hierarchy",
             )
         st.placed[child] = ln
+    st.parent_line.setdefault(words[0], ln)
     st.asf["hierarchy"].setdefault(words[0], []).extend(words[1:])
 
 

@@ -28,28 +28,72 @@ from __future__ import annotations
 import hashlib
 import math
 import re
+import stat
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from mocapflow.framework.errors import ParseError
 
+#: Largest file a reader accepts, bytes (1 GiB: an hour of 120 Hz BVH with 60 joints is
+#: ~0.6 GB); a larger file is a ParseError before any of it is read.
+MAX_FILE_BYTES = 1 << 30
+#: Bytes a reader's header check sees before the rest of the file is read.
+HEAD_BYTES = 1 << 16
 
-def read_bytes(path: str | Path) -> bytes:
-    """The file's bytes; a ParseError (line ``None``) for a missing file, a directory,
-    an unreadable or an empty file."""
+
+def read_bytes(path: str | Path, check_head: Callable[[bytes], None] | None = None) -> bytes:
+    """The file's bytes; a ParseError (line ``None``) for a missing file, a directory or
+    anything but a regular file, an unreadable or an empty file, and a file larger than
+    :data:`MAX_FILE_BYTES`. ``check_head(head)`` sees the first :data:`HEAD_BYTES` and
+    raises the reader's ParseError before the rest is read: a file that is not of the
+    format costs one small read, whatever its size."""
     p = Path(path)
     try:
-        data = p.read_bytes()
-    except IsADirectoryError:
-        raise ParseError(p, None, "expected a file, found a directory") from None
+        st = p.stat()
+        if stat.S_ISDIR(st.st_mode):
+            raise ParseError(p, None, "expected a file, found a directory")
+        if not stat.S_ISREG(st.st_mode):
+            raise ParseError(p, None, "expected a regular file (found a device, a pipe or a socket)")
+        if st.st_size > MAX_FILE_BYTES:
+            raise ParseError(
+                p,
+                None,
+                f"the file holds {st.st_size / 2**20:,.0f} MiB; a reader accepts at most "
+                f"{MAX_FILE_BYTES / 2**20:,.0f} MiB per file (split the take)",
+            )
+        with open(p, "rb") as f:
+            if check_head is not None:
+                head = f.read(HEAD_BYTES)
+                if head.strip():
+                    check_head(head)
+                f.seek(0)
+            data = f.read(MAX_FILE_BYTES + 1)  # a file that grew since stat: still bounded
     except FileNotFoundError:
         raise ParseError(p, None, "file not found") from None
     except OSError as exc:
         raise ParseError(p, None, f"cannot read the file ({exc.strerror or exc})") from None
+    if len(data) > MAX_FILE_BYTES:
+        raise ParseError(p, None, f"the file grew beyond {MAX_FILE_BYTES / 2**20:,.0f} MiB while being read")
     if not data.strip():
         raise ParseError(p, 1, "the file is empty")
     return data
+
+
+def text_head(path: Path, head: bytes, starts: tuple[bytes, ...], what: str) -> None:
+    """Header check of a text format: ``head`` (the file's first bytes) is text up to its
+    last complete line and, after a BOM and whitespace, starts with one of ``starts``
+    (case-insensitive; empty: any text)."""
+    cut = head.rfind(b"\n") + 1 if len(head) >= HEAD_BYTES else len(head)
+    check_text(path, head, cut or len(head))
+    if starts:
+        text = head[3:] if head.startswith(_BOM) else head
+        first = text.lstrip()[: max(len(s) for s in starts)].upper()
+        if not any(first.startswith(s.upper()) for s in starts):
+            line = line_of(text, len(text) - len(text.lstrip()))
+            found = text.lstrip().split(b"\n", 1)[0][:40].decode("latin-1")
+            raise ParseError(path, line, f"expected {what}, found {found!r}")
 
 
 #: Largest accepted |position| or length after conversion to metres (module doc).

@@ -35,7 +35,7 @@ from mocapflow.framework.skeleton import Skeleton
 from ._amc_write import NotAnAsfSkeleton, write_amc
 from ._asf import read_asf as _read_asf_uncached
 from ._asf import write_asf
-from ._common import MAX_DEGREES, MAX_METRES, check_text, file_metadata, read_bytes, text_body
+from ._common import MAX_DEGREES, MAX_METRES, check_text, file_metadata, read_bytes, text_body, text_head
 
 __all__ = ["AmcFormat", "NotAnAsfSkeleton", "read_amc", "read_asf", "write_amc", "write_asf", "find_asf"]
 
@@ -324,10 +324,10 @@ def read_amc(
     ``source_frames``, ``skeleton_path``. ParseError names the file, the 1-based line and
     what was expected.
     """
-    from ._text_kernels import tokenize
-
     path = Path(path)
-    data = read_bytes(path)
+    data = read_bytes(path, lambda head: text_head(path, head, (), "AMC motion"))
+    from ._text_kernels import tokenize  # after the header check: a foreign file costs no kernel load
+
     skel_path = None
     if skeleton is None:
         skeleton = skel_path = find_asf(path)

@@ -10,12 +10,16 @@
 * Position channels on other joints (Bandai-Namco has 6 channels everywhere): when they
   are constant and equal to the joint's ``OFFSET`` (within 1e-4 file units) they carry
   nothing and ``Motion.local_translations`` stays ``None``; otherwise it holds them.
-* Units: BVH has none. ``scale="auto"`` takes the rest-pose size ``h`` (the largest
-  extent along one axis of the joints, all rotations zero, in file units) and picks the
-  unit among metres, centimetres, millimetres, inches and CMU ASF units (inches * 0.45,
-  the cgspeed CMU conversions) whose implied size ``h * unit`` is closest to 1.7 m on a
-  log scale. The chosen scale (metres per file unit) and unit name are recorded in
-  ``metadata["scale"]`` / ``metadata["unit"]``; pass a float to force it.
+* Units: BVH has none. ``scale="auto"`` takes the skeleton's span ``s`` (the longest path
+  between two joints along the bones, summing bone lengths: fingertip to toe, in file
+  units; :func:`skeleton_span`) and picks the unit among metres, centimetres, millimetres,
+  inches and CMU ASF units (inches * 0.45, the cgspeed CMU conversions) whose implied span
+  ``s * unit`` is closest to :data:`TYPICAL_SPAN_M` on a log scale. The span depends on the
+  bone lengths only, not on the rest pose the OFFSETs describe (T-pose, A-pose, a clip's
+  first frame), so every clip of one character gets the same unit (the rest pose's height
+  did not: sibling clips came out 2.17 m and 1.15 m tall). The chosen scale (metres per
+  file unit), unit name, ``unit_source`` and span are recorded in the clip's metadata;
+  pass a float or a unit name (``"cm"``, ``"inch"``...) to force it.
 * A static root above the real hips (Bandai-Namco: ``joint_Root`` never moves, ``Hips``
   has position channels) is dropped by default (``collapse_static_root``): the hips become
   the root, so ``root_translation`` and ``rotations[:, 0]`` carry the body's motion as
@@ -53,14 +57,16 @@ from ._common import (
     strict_float,
     strict_int,
     text_body,
+    text_head,
 )
 
 __all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
 
 #: Candidate units of ``scale="auto"``: name -> metres per file unit.
 BVH_UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "asf_cmu": 0.0254 / 0.45}
-#: Typical standing height used by ``scale="auto"``, metres.
-TYPICAL_HEIGHT_M = 1.7
+#: Typical :func:`skeleton_span` of a person used by ``scale="auto"``, metres: the corpus's
+#: 32 BVH files span 1.97-2.38 m in their units (docs/formats.md).
+TYPICAL_SPAN_M = 2.2
 _CHANNELS = {"xposition", "yposition", "zposition", "xrotation", "yrotation", "zrotation"}
 _MOTION_RE = re.compile(rb"^[ \t]*MOTION[ \t]*\r?$", re.MULTILINE)
 
@@ -76,6 +82,13 @@ class _Joint:
         self.channels: list[str] = []
 
 
+def _keyword(word: str) -> str:
+    """``word`` upper-cased when it is written in one case (``CHANNELS``, ``channels``) or
+    capitalised (``Channels``, ``End Site``), as exporters write keywords; a mixed case such
+    as ``CHANnELS`` is no keyword (an error where one is expected)."""
+    return word.upper() if word in (word.upper(), word.lower(), word.capitalize()) else ""
+
+
 def _parse_hierarchy(path: Path, text: bytes) -> list[_Joint]:
     # split on ASCII whitespace only, as the tokenizer of the motion section (str.split also
     # splits on NBSP and NEL, so it serves only files without them)
@@ -85,7 +98,7 @@ def _parse_hierarchy(path: Path, text: bytes) -> list[_Joint]:
     words: list[tuple[str, int]] = [
         (w, ln) for ln, line in enumerate(lines, start=1) for w in (line if isinstance(line, list) else line.split())
     ]
-    if not words or words[0][0].upper() != "HIERARCHY":
+    if not words or _keyword(words[0][0]) != "HIERARCHY":
         raise ParseError(path, words[0][1] if words else 1, "expected 'HIERARCHY' at the start of a BVH file")
     return _Hierarchy(path, words).parse()
 
@@ -110,9 +123,9 @@ class _Hierarchy:
         path, words = self.path, self.words
         while self.i < self.n:
             w, ln = words[self.i]
-            key = w.upper()
+            key = _keyword(w)
             if key in ("ROOT", "JOINT") or (
-                key == "END" and self.i + 1 < self.n and words[self.i + 1][0].upper() == "SITE"
+                key == "END" and self.i + 1 < self.n and _keyword(words[self.i + 1][0]) == "SITE"
             ):
                 self.joint(w, key, ln)
             elif key == "OFFSET":
@@ -238,6 +251,10 @@ def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, f
     for key, shown in (("frames:", "Frames:"), ("frame time:", "Frame Time:")):
         end = data.find(b"\n", pos)
         end = len(data) if end < 0 else end
+        while not data[pos:end].strip() and end < len(data):  # blank lines (peers skip them too)
+            pos, line = end + 1, line + 1
+            end = data.find(b"\n", pos)
+            end = len(data) if end < 0 else end
         text = data[pos:end].strip().decode("latin-1")
         if not text.lower().startswith(key) or len(text) == len(key):
             what = "the file ends" if pos >= len(data) else f"found {text[:40]!r}"
@@ -260,38 +277,50 @@ def _motion_header(path: Path, data: bytes, pos: int, line: int) -> tuple[int, f
     return frames, dt, pos, line
 
 
-def _rest_positions(parents: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    pos = np.zeros_like(offsets)
-    for k in range(1, len(parents)):
-        pos[k] = pos[parents[k]] + offsets[k]
-    return pos
+def skeleton_span(parents: np.ndarray, offsets: np.ndarray) -> float:
+    """The longest path between two joints along the bones, summing bone lengths (``|OFFSET|``
+    of every non-root joint): fingertip to toe for a person. It depends on the bone lengths
+    only, never on the directions of the OFFSETs (the rest pose an exporter wrote: T-pose,
+    A-pose, the clip's first frame), so every clip of one character gives the same value."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        length = np.linalg.norm(offsets, axis=1)
+    down = np.zeros(len(parents))  # longest path from a joint down into its subtree
+    best = 0.0
+    for j in range(len(parents) - 1, 0, -1):  # children come after their parents
+        p = parents[j]
+        reach = length[j] + down[j]
+        best = max(best, down[p] + reach)  # through p: its longest branch so far and this one
+        down[p] = max(down[p], reach)
+    return float(best)
 
 
 def _auto_scale(parents: np.ndarray, offsets: np.ndarray) -> tuple[float, str, float | None]:
-    with np.errstate(over="ignore", invalid="ignore"):  # absurd OFFSETs are rejected after scaling
-        rest = _rest_positions(parents, offsets)
-        h = float(np.ptp(rest, axis=0).max())
-    if not 0 < h < np.inf:
-        return 1.0, "m", h
-    unit = min(BVH_UNITS, key=lambda u: abs(np.log(h * BVH_UNITS[u] / TYPICAL_HEIGHT_M)))
-    return BVH_UNITS[unit], unit, h
+    span = skeleton_span(parents, offsets)
+    if not 0 < span < np.inf:
+        return 1.0, "m", span
+    unit = min(BVH_UNITS, key=lambda u: abs(np.log(span * BVH_UNITS[u] / TYPICAL_SPAN_M)))
+    return BVH_UNITS[unit], unit, span
 
 
-def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse_static_root: bool = True) -> Motion:
-    """Read a BVH motion. ``scale``: metres per file unit, ``"auto"`` guesses it from the
-    rest-pose size; ``collapse_static_root`` drops a root joint that never moves when its only
+def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root: bool = True) -> Motion:
+    """Read a BVH motion. ``scale``: metres per file unit, a unit of :data:`BVH_UNITS`, or
+    ``"auto"`` (guessed from the bone lengths, module doc); ``collapse_static_root`` drops a root joint that never moves when its only
     child carries the translation (Bandai-Namco's ``joint_Root`` above ``Hips``), so that
     ``root_translation`` and ``rotations[:, 0]`` describe the body (module doc for both).
 
     Positions in metres; metadata ``path``, ``format`` ("bvh"), ``checksum``, ``source_fps``,
-    ``source_frames``, ``frame_time``, ``scale``, ``unit``, ``subject``, ``collapsed_root``
+    ``source_frames``, ``frame_time``, ``scale``, ``unit``, ``unit_source`` ("guessed from the
+    bone lengths" or "given"), ``span`` (:func:`skeleton_span`, file units, when guessed),
+    ``subject``, ``collapsed_root``
     (a dropped static root, or None). ParseError names the file, line and what was expected.
     """
-    from ._kernels import euler_table_to_quat
+    path = Path(path)
+    data = read_bytes(
+        path, lambda head: text_head(path, head, (b"HIERARCHY",), "'HIERARCHY' at the start of a BVH file")
+    )
+    from ._kernels import euler_table_to_quat  # after the header check: a foreign file costs no kernel load
     from ._text_kernels import tokenize
 
-    path = Path(path)
-    data = read_bytes(path)
     body = text_body(data)
     check_text(path, body)
     m = _MOTION_RE.search(body)
@@ -309,11 +338,14 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
     parents = np.array([j.parent for j in joints])
     offsets = np.array([j.offset for j in joints], dtype=float)
     if scale == "auto":
-        scl, unit, height = _auto_scale(parents, offsets)
+        scl, unit, span = _auto_scale(parents, offsets)
+        unit_source = "guessed from the bone lengths"
+    elif isinstance(scale, str) and scale in BVH_UNITS:
+        scl, unit, span, unit_source = BVH_UNITS[scale], scale, None, "given"
     else:
-        scl, unit, height = float(scale), "given", None
-        if not scl > 0 or not np.isfinite(scl):
-            raise DataError(f"scale must be positive or 'auto', got {scale!r}")
+        if isinstance(scale, str) or not float(scale) > 0 or not np.isfinite(float(scale)):
+            raise DataError(f"scale must be positive, 'auto' or a unit among {sorted(BVH_UNITS)}, got {scale!r}")
+        scl, unit, span, unit_source = float(scale), "given", None, "given"
     _check_bounds(path, joints, offsets, table, frame_lines, scl)
     nj = len(joints)
     cols = np.full((nj, 3), -1, dtype=np.int64)
@@ -386,7 +418,8 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
         frame_time=dt,
         scale=scl,
         unit=unit,
-        rest_size=height,
+        unit_source=unit_source,
+        span=span,
         collapsed_root=collapsed,
     )
     return Motion(
@@ -457,8 +490,8 @@ class BvhFormat(Format):
     produces: ClassVar[str] = "motion"
 
     class Params(Params):
-        scale: float | Literal["auto"] = Field(
-            "auto", description="metres per file unit, or 'auto' (guessed from the rest-pose size)"
+        scale: float | Literal["auto", "m", "cm", "mm", "inch", "asf_cmu"] = Field(
+            "auto", description="metres per file unit, a unit name, or 'auto' (guessed from the bone lengths)"
         )
 
     def read(self, path: str | Path) -> Motion:

@@ -7,10 +7,16 @@ as a ``(T, frame_bytes)`` array whose point part is reinterpreted as float32 or 
 the package's per-frame reader.
 
 * Units: ``POINT:UNITS`` (``mm``, ``cm``, ``m``, ``in``) converted to metres.
-* Gaps: a sample whose fourth word (residual) is negative is NaN. A valid sample whose
+* Gaps: a sample whose fourth word (residual) is negative is NaN (compared as a float in
+  float files: a huge positive residual is a valid sample, never an overflowed cast). A valid sample whose
   coordinates are not finite or lie beyond 10 km is a ParseError (the value policy of
   :mod:`._common`), as is a ``POINT:RATE`` outside (0, 100 kHz].
-* Labels: ``POINT:LABELS`` stripped of padding.
+* Labels: ``POINT:LABELS`` stripped of padding (spaces, NUL); a file without them names its
+  points ``point1``... (with a warning). ``POINT:UNITS`` may be NUL-padded (``mm\0\0``).
+* Frames: the header's first..last frame. When the file holds fewer, but exactly the
+  ``POINT:FRAMES`` it announces too, those are read and ``metadata["warnings"]`` says so
+  (``strict=True``: refused as truncated). A file without 3-D points (analog channels
+  only) is a ParseError, as is anything the ``c3d`` package raises (the file named).
 * Axes: kept as in the file. ``metadata["up_axis"]`` (``"+z"``...) takes its axis from
   ``POINT:Y_SCREEN`` when present, else the axis along which the marker cloud spreads most
   (median over frames; right for people standing or walking); its sign is the side of 0
@@ -53,13 +59,26 @@ def _param(reader, key: str) -> str | None:
     if p is None:
         return None
     try:
-        return p.string_value.strip()
+        return p.string_value.strip(" \t\r\n\x00")  # NUL padding is padding ('mm\x00\x00')
     except Exception:
         return None
 
 
-def _points(path: Path, data: bytes, reader) -> np.ndarray:
-    """Raw point block, shape (T, M, 4): x, y, z in file units and the residual word."""
+def _frames_param(reader) -> int | None:
+    """``POINT:FRAMES``, the number of frames (16-bit unsigned or float), when present."""
+    p = reader.get("POINT:FRAMES")
+    if p is None:
+        return None
+    try:
+        v = float(p.float_value) if p.bytes_per_element == 4 else int(p.uint16_value)
+    except Exception:
+        return None
+    return int(v) if 0 < v < 2**31 and v == int(v) else None
+
+
+def _points(path: Path, data: bytes, reader, strict: bool, warn: list[str]) -> np.ndarray:
+    """Raw point block, shape (T, M, 4): x, y, z in file units and the residual word
+    (negative: an invalid sample)."""
     m = int(reader.point_used)
     t = int(reader.last_frame) - int(reader.first_frame) + 1
     scale = float(reader.point_scale)
@@ -69,16 +88,19 @@ def _points(path: Path, data: bytes, reader) -> np.ndarray:
     point_bytes = 4 * m * word
     stride = point_bytes + int(reader.analog_used) * int(reader.analog_per_frame) * analog_word
     start = (int(reader.header.data_block) - 1) * 512
-    if t <= 0 or m <= 0:
-        return np.zeros((max(t, 0), m, 4))
+    if t <= 0:
+        raise ParseError(
+            path, None, f"expected at least one frame, the header announces {reader.first_frame}..{reader.last_frame}"
+        )
     have = (len(data) - start) // stride if stride else 0
     if have < t:
-        raise ParseError(
-            path,
-            None,
-            f"truncated C3D: the header announces {t} frames "
-            f"({reader.first_frame}..{reader.last_frame}), the file holds {max(have, 0)}",
-        )
+        counted = _frames_param(reader)
+        announced = f"the header announces {t} frames ({reader.first_frame}..{reader.last_frame})"
+        if strict or dtypes_dec(reader, is_float) or counted is None or counted > have:
+            raise ParseError(path, None, f"truncated C3D: {announced}, the file holds {max(have, 0)}")
+        # the data prove POINT:FRAMES right and the header's last frame wrong: read what is there
+        warn.append(f"{announced} but POINT:FRAMES says {counted} and the file holds them: read {counted} frames")
+        t = counted
     dtypes = reader._dtypes  # the package's byte-order description of this file
     if is_float and dtypes.is_dec:
         frames = [p[:, :4].copy() for _, p, _ in reader.read_frames(copy=True, check_nan=False)]
@@ -88,39 +110,72 @@ def _points(path: Path, data: bytes, reader) -> np.ndarray:
     block = np.frombuffer(data, dtype=np.uint8, count=t * stride, offset=start).reshape(t, stride)[:, :point_bytes]
     if is_float:
         vals = np.ascontiguousarray(block).view(dtypes.float32).reshape(t, m, 4).astype(np.float64)
-        resid = vals[..., 3].astype(np.int32)
+        # the residual word compared as a float: a huge positive one (1.7e38) is a valid
+        # sample, never cast to an integer that overflows into a negative "gap"
+        resid = vals[..., 3]
+        valid = ~(resid < 0)
+        low = np.where(valid & (resid < 2.0**31), resid, 0.0).astype(np.int64) & 0xFF
     else:
         raw = np.ascontiguousarray(block).view(dtypes.int16).reshape(t, m, 4)
         vals = raw.astype(np.float64)
         vals[..., :3] *= abs(scale)
-        resid = raw[..., 3].astype(np.int32)
-    out = vals.copy()
-    out[..., 3] = np.where(resid < 0, -1.0, (resid & 0xFF) * abs(scale))
-    return out
+        valid = raw[..., 3] >= 0
+        low = raw[..., 3].astype(np.int64) & 0xFF
+    vals[..., 3] = np.where(valid, low * abs(scale), -1.0)
+    return vals
 
 
-def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
+def dtypes_dec(reader, is_float: bool) -> bool:
+    """Whether the file stores DEC (VAX) floats (read frame by frame by the package)."""
+    return bool(is_float and reader._dtypes.is_dec)
+
+
+def _check_head(path: Path, head: bytes) -> None:
+    if len(head) < 512 or head[1] != 0x50:  # byte 2 of every C3D header is 0x50
+        raise ParseError(path, None, "expected a C3D file (byte 2 of the header must be 0x50)")
+
+
+def read_c3d(path: str | Path, y_up: bool = False, strict: bool = False) -> Markers:
     """Read the 3D points of a C3D file, rotated to y-up with ``y_up``
     (:func:`mocapflow.framework.markers.to_y_up`; default: the file's axes, recorded in
     ``metadata["up_axis"]``). Positions (T, M, 3) metres, NaN for gaps; metadata ``path``,
     ``format`` ("c3d"), ``checksum``, ``units``, ``first_frame``, ``up_axis``,
-    ``up_axis_source``, ``source_fps``, ``source_frames``. ParseError for unreadable, non-C3D
-    or truncated files (line ``None``: C3D is binary); MocapflowError without ``c3d``.
+    ``up_axis_source``, ``source_fps``, ``source_frames``, ``warnings`` (what was repaired).
+    ParseError for unreadable, non-C3D or truncated files (line ``None``: C3D is binary),
+    also for anything the ``c3d`` package raises; ``strict``: a header contradicted by the
+    data is a ParseError too, never repaired. MocapflowError without ``c3d``.
     """
-    c3d = _import_c3d()
     path = Path(path)
-    data = read_bytes(path)
-    if len(data) < 512 or data[1] != 0x50:  # byte 2 of every C3D header is 0x50
-        raise ParseError(path, None, "expected a C3D file (byte 2 of the header must be 0x50)")
+    try:
+        return _read_c3d(path, y_up, strict)
+    except MocapflowError:
+        raise
+    except Exception as exc:  # the package or numpy on a file nobody foresaw: still the file's error
+        raise ParseError(
+            path, None, f"expected a C3D file the reader can decode ({type(exc).__name__}: {str(exc)[:120]})"
+        ) from None
+
+
+def _read_c3d(path: Path, y_up: bool, strict: bool) -> Markers:
+    c3d = _import_c3d()
+    data = read_bytes(path, lambda head: _check_head(path, head))
+    _check_head(path, data)
+    warn: list[str] = []
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             reader = c3d.Reader(io.BytesIO(data))
-            raw = _points(path, data, reader)
-    except ParseError:
-        raise
     except Exception as exc:
-        raise ParseError(path, None, f"expected a valid C3D header and parameter section ({exc})") from None
+        raise ParseError(
+            path, None, f"expected a valid C3D header and parameter section ({type(exc).__name__}: {str(exc)[:120]})"
+        ) from None
+    if int(reader.point_used) <= 0:
+        raise ParseError(
+            path, None, "expected 3-D points (POINT:USED > 0); the file holds none (analog channels only?)"
+        )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        raw = _points(path, data, reader, strict, warn)
     units = (_param(reader, "POINT:UNITS") or "mm").lower()
     if units not in UNITS_TO_METRES:
         raise ParseError(path, None, f"expected POINT:UNITS among {sorted(UNITS_TO_METRES)}, found {units!r}")
@@ -141,7 +196,11 @@ def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
             f"found {pos[f, m].tolist()}",
         )
     pos[gap] = np.nan
-    labels = tuple(str(lb).strip() for lb in reader.point_labels)[: pos.shape[1]]
+    try:
+        labels = tuple(str(lb).strip(" \t\r\n\x00") for lb in reader.point_labels)[: pos.shape[1]]
+    except Exception:  # no POINT:LABELS (or unreadable): every point named by its index
+        labels = ()
+        warn.append("no readable POINT:LABELS: points named point1, point2...")
     # files with fewer POINT:LABELS than points exist; name the rest by index
     labels += tuple(f"point{k + 1}" for k in range(len(labels), pos.shape[1]))
     # Y_SCREEN names the vertical axis, but its sign is unreliable in real files (Qualisys
@@ -158,6 +217,7 @@ def read_c3d(path: str | Path, y_up: bool = False) -> Markers:
         up_axis_source=source,
         source_fps=rate,
         source_frames=int(pos.shape[0]),
+        warnings=warn,
     )
     out = Markers(labels=labels, positions=pos, fps=rate, name=path.stem, metadata=meta)
     return to_y_up(out) if y_up else out
@@ -172,6 +232,7 @@ class C3dFormat(Format):
 
     class Params(Params):
         y_up: bool = Field(False, description="rotate the markers to y-up (default: keep the file's axes)")
+        strict: bool = Field(False, description="refuse a header the data contradict (default: read the data, warn)")
 
     def read(self, path: str | Path) -> Any:
-        return read_c3d(path, y_up=self.params.y_up)
+        return read_c3d(path, y_up=self.params.y_up, strict=self.params.strict)

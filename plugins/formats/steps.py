@@ -97,6 +97,7 @@ def _read_motion_rows(job: tuple[type, dict[str, Any], str, float | None, int]) 
         return motion
     s = motion.skeleton
     return {
+        "warnings": list(motion.metadata.get("warnings") or []),
         "frames": frames_table(clip_id, motion),
         "clip": clip_row(clip_id, motion),
         "skeleton": (s.fingerprint(), s.name, s.n_joints, json.dumps(s.to_dict())),
@@ -214,12 +215,24 @@ class _FileIngest(Format):
             [{"clip_id": c, "path": p, "line": ln, "message": m} for c, p, ln, m in rejects], schema=schema.REJECTS
         )
 
+    @staticmethod
+    def _warnings_table(ids: list[int], paths: list[str], warnings: list[list[str]]) -> pa.Table:
+        """What a reader repaired in a file it accepted (``metadata["warnings"]``: a header
+        the data contradict...), one row per warning, the columns of ``rejects``."""
+        rows = [
+            {"clip_id": c, "path": p, "line": None, "message": w}
+            for c, p, ws in zip(ids, paths, warnings, strict=True)
+            for w in ws
+        ]
+        return pa.Table.from_pylist(rows, schema=schema.REJECTS)
+
 
 class LoadMotions(_FileIngest):
     """Ingest motion files (mixed formats) into a motions dataset.
 
     Tables: ``data`` (one row per frame), ``clips``, ``skeletons``, ``rejects`` (file, line,
-    message of every file that failed; the step goes on unless ``on_error: fail``).
+    message of every file that failed; the step goes on unless ``on_error: fail``),
+    ``warnings`` (the same columns: what a reader repaired in a file it read).
     Files with an extension no motion reader handles are counted as ``skipped_files``.
     """
 
@@ -244,12 +257,16 @@ class LoadMotions(_FileIngest):
             "clips": clips_table([g["clip"] for g in got]),
             "skeletons": pa.Table.from_pylist(list(skeletons.values()), schema=schema.SKELETONS),
             "rejects": self._rejects_table(rejects),
+            "warnings": self._warnings_table(
+                ids, [g["clip"]["path"] for g in got], [g.get("warnings", []) for g in got]
+            ),
         }
         summary = {
             "files": n_files,
             "clips": len(got),
             "frames": int(sum(g["clip"]["n_frames"] for g in got)),
             "rejects": len(rejects),
+            "warnings": tables["warnings"].num_rows,
             "skipped_files": skipped,
         }
         return StepOutput(tables, summary)
@@ -260,7 +277,8 @@ class LoadMarkers(_FileIngest):
 
     Tables: ``data`` (clip_id, frame, ``positions``: the clip's M*3 marker coordinates in
     metres as a list of float32, NaN in gaps), ``clips`` (clip_id, name, path, format, fps,
-    n_frames, n_markers, labels, up_axis) and ``rejects``.
+    n_frames, n_markers, labels, up_axis), ``rejects`` and ``warnings`` (what a reader
+    repaired in a file it read: a ``NumFrames`` or a C3D header the data contradict).
     """
 
     name = "load_markers"
@@ -303,8 +321,19 @@ class LoadMarkers(_FileIngest):
             "data": data,
             "clips": pa.Table.from_pylist(clips, schema=schema.MARKER_CLIPS),
             "rejects": self._rejects_table(rejects),
+            "warnings": self._warnings_table(
+                ids,
+                [str(mk.metadata.get("path", "")) for mk in good],
+                [mk.metadata.get("warnings") or [] for mk in good],
+            ),
         }
-        return StepOutput(tables, {"files": n_files, "clips": len(good), "rejects": len(rejects)})
+        summary = {
+            "files": n_files,
+            "clips": len(good),
+            "rejects": len(rejects),
+            "warnings": tables["warnings"].num_rows,
+        }
+        return StepOutput(tables, summary)
 
 
 class ExportMotions(Format):

@@ -4,7 +4,8 @@ Layout: ``PathFileType`` line; a line of keys (``DataRate CameraRate NumFrames N
 Units ...``) and a line of their values; ``Frame# Time <label> <tab> <tab> <label>...``;
 ``X1 Y1 Z1 X2...``; then one row per frame: frame number, time, 3 values per marker.
 A gap is an empty field or ``NaN``. ``NumFrames`` and ``NumMarkers`` are checked against
-the data. Units (``mm``, ``cm``, ``m``, ``in``) are converted to metres. Axes are kept
+the data; a ``NumFrames`` above the complete rows present is read as those rows, with a
+warning (``strict``: refused). Units (``mm``, ``cm``, ``m``, ``in``) are converted to metres. Axes are kept
 (OpenSim files are y-up); ``metadata["up_axis"]`` is guessed from the data
 (:func:`~mocapflow.framework.markers.guess_up_axis`).
 """
@@ -22,7 +23,17 @@ from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.markers import Markers, guess_up_axis, to_y_up
 
-from ._common import MAX_FPS, MAX_METRES, check_text, file_metadata, read_bytes, strict_float, strict_int, text_body
+from ._common import (
+    MAX_FPS,
+    MAX_METRES,
+    check_text,
+    file_metadata,
+    read_bytes,
+    strict_float,
+    strict_int,
+    text_body,
+    text_head,
+)
 from .c3d import UNITS_TO_METRES
 
 __all__ = ["TrcFormat", "read_trc", "write_trc"]
@@ -83,18 +94,35 @@ def _slow_row(path: Path, line: int, text: bytes, width: int) -> list[float]:
     return row
 
 
-def read_trc(path: str | Path, y_up: bool = False) -> Markers:
-    """Read a TRC file (``y_up``: rotate z-up data to y-up; default the file's axes).
+def _frame_count(path: Path, n_frames: int, rows: np.ndarray, header_end: int, strict: bool, warn: list[str]) -> int:
+    """The frames to read: ``NumFrames``, or the rows present when there are fewer (each
+    complete and checked after; exporters that write the capture's count, not the rows
+    kept), with a warning; ``strict`` or more rows than announced: a ParseError."""
+    if len(rows) == n_frames:
+        return n_frames
+    if strict or not 0 < len(rows) < n_frames:
+        where = int(rows[-1]) if len(rows) else header_end
+        raise ParseError(path, where, f"expected {n_frames} data rows (NumFrames), found {len(rows)}")
+    warn.append(f"line 3: NumFrames says {n_frames}, the file holds {len(rows)} data rows: read {len(rows)}")
+    return len(rows)
+
+
+def read_trc(path: str | Path, y_up: bool = False, strict: bool = False) -> Markers:
+    """Read a TRC file (``y_up``: rotate z-up data to y-up; default the file's axes;
+    ``strict``: refuse a ``NumFrames`` larger than the rows present instead of reading the
+    rows with a warning in ``metadata["warnings"]``).
 
     Positions (T, M, 3) metres, NaN for gaps; metadata ``path``, ``format`` ("trc"),
     ``checksum``, ``units``, ``up_axis``, ``first_frame``, ``source_fps``, ``source_frames``.
     ParseError names the file, the 1-based line and what was expected, also for ``inf`` and
     values beyond 10 km (the value policy of ``_common``); ``NaN`` and empty fields are gaps.
     """
-    from ._text_kernels import tokenize
-
     path = Path(path)
-    data = read_bytes(path)
+    data = read_bytes(
+        path, lambda head: text_head(path, head, (b"PathFileType",), "a TRC header starting with 'PathFileType'")
+    )
+    from ._text_kernels import tokenize  # after the header check: a foreign file costs no kernel load
+
     body = text_body(data)
     check_text(path, body)
     head, pos = _lines(body, _HEADER_LINES)
@@ -128,9 +156,8 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
     if tok[6] >= 0:  # check_text already rejects these; never read a cut-off token stream
         raise ParseError(path, int(tok[7]), "expected text, found a binary control byte")
     rows, first, counts = np.unique(lines, return_index=True, return_counts=True)
-    if len(rows) != n_frames:
-        where = int(rows[-1]) if len(rows) else at(_HEADER_LINES)
-        raise ParseError(path, where, f"expected {n_frames} data rows (NumFrames), found {len(rows)}")
+    warn: list[str] = []
+    n_frames = _frame_count(path, n_frames, rows, at(_HEADER_LINES), strict, warn)
     table = np.full((n_frames, width), np.nan)
     full = counts == width
     if full.all() and isnum.all():
@@ -167,6 +194,7 @@ def read_trc(path: str | Path, y_up: bool = False) -> Markers:
         up_axis_source="guessed from data",
         source_fps=rate,
         source_frames=n_frames,
+        warnings=warn,
     )
     out = Markers(labels=labels, positions=pos3, fps=rate, name=path.stem, metadata=meta)
     return to_y_up(out) if y_up else out
@@ -205,9 +233,10 @@ class TrcFormat(Format):
 
     class Params(Params):
         y_up: bool = Field(False, description="rotate z-up data to y-up (default: keep the file's axes)")
+        strict: bool = Field(False, description="refuse a NumFrames above the rows present (default: read them, warn)")
 
     def read(self, path: str | Path) -> Any:
-        return read_trc(path, y_up=self.params.y_up)
+        return read_trc(path, y_up=self.params.y_up, strict=self.params.strict)
 
     def write(self, obj: Any, path: str | Path) -> None:
         write_trc(obj, path)

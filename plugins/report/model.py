@@ -26,6 +26,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from itertools import pairwise
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,6 +35,23 @@ import pyarrow as pa
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.normalize import to_root_frame
+
+
+def owned_file(root: Path, path: Path) -> bool:
+    """Whether ``path`` is a regular file inside ``root`` reached without a symbolic link:
+    the only files the report copies (a link named ``leak.png`` to ``/etc/passwd`` is not)."""
+    p = Path(path)
+    try:
+        rel = p.relative_to(root)
+    except ValueError:
+        return False
+    cur = Path(root)
+    for part in rel.parts:
+        cur = cur / part
+        if cur.is_symlink():
+            return False
+    return p.is_file()
+
 
 MATCH_COLS = ("query_id", "rank", "clip_id", "start_frame", "end_frame", "cost")
 NEAREST_COLS = ("query_clip_id", "query_frame", "clip_id", "frame", "distance")
@@ -193,7 +211,7 @@ class ModelBuilder:
             "inputs": {k: v.get("step") for k, v in m.get("inputs", {}).items()},
             "input_fingerprints": {k: v.get("fingerprint") for k, v in m.get("inputs", {}).items()},
             "tables": {t: int(n) for t, n in m.get("tables", {}).items()},
-            "images": sorted(str(p.relative_to(ds.path)) for p in ds.path.rglob("*.png")),
+            "images": sorted(str(p.relative_to(ds.path)) for p in ds.path.rglob("*.png") if owned_file(ds.path, p)),
             "views": [],
         }
         names = ds.table_names()

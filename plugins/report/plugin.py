@@ -52,16 +52,14 @@ def build_report(workspace: str | Path, output: str | Path | None = None) -> dic
     """Read a workspace written by ``mocapflow run`` and write its report site to ``output``
     (default ``<workspace>/report``); returns ``index`` (Path of index.html), ``files``,
     ``bytes``, ``steps``."""
-    from mocapflow.framework.errors import ConfigError
+    from mocapflow.framework.workspace import refuse_dataset_path
 
     from .model import ModelBuilder
     from .site import write_site
 
     ws = Path(workspace)
     datasets, clips, rejects = workspace_tables(ws)
-    dest = Path(output) if output is not None else ws / "report"
-    if (dest / "_manifest.json").is_file():
-        raise ConfigError(f"{dest} is a dataset of the workspace: choose another --output")
+    dest = refuse_dataset_path(output, "--output") if output is not None else ws / "report"
     model = ModelBuilder(datasets, clips, rejects).build(title=ws.resolve().name)
     info = write_site(model, ws, dest)
     return {**info, "steps": len(model.page["steps"])}

@@ -27,7 +27,7 @@ from typing import Any
 from mocapflow.framework.errors import ConfigError
 
 from .blobs import encode_positions, write_blob
-from .model import Model
+from .model import Model, owned_file
 
 MARKER = ".mocapflow-report"
 ASSETS = ("report.js", "player.js", "report.css")
@@ -99,9 +99,12 @@ def write_site(model: Model, workspace: Path, dest: Path) -> dict[str, Any]:
         page["workspace"] = str(workspace)
         for step in page["steps"]:
             for rel in step["images"]:
+                src = workspace / step["id"] / rel
+                if not owned_file(workspace / step["id"], src):  # replaced by a link since the model was read
+                    continue
                 target = tmp / "img" / step["id"] / rel
                 target.parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(workspace / step["id"] / rel, target)
+                shutil.copyfile(src, target, follow_symlinks=False)
         for name in ASSETS:
             (tmp / name).write_text(_asset(name), encoding="utf-8")
         html = _asset("index.html").replace("{{title}}", _html_escape(page["title"]))

@@ -78,9 +78,11 @@ class CleanCommand:
 
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.plugins import build_registries
-        from mocapflow.framework.workspace import atomic_path
+        from mocapflow.framework.workspace import atomic_path, refuse_dataset_path
 
-        dest = Path(args.output)
+        dest = refuse_dataset_path(args.output, "--output")
+        if args.report:
+            refuse_dataset_path(args.report, "--report")
         if dest.suffix.lower() not in _OUTPUT_KINDS:
             raise ConfigError(
                 f"--output {args.output}: the cleaned take is written as .bvh or .amc, "

@@ -165,7 +165,17 @@ def _c3d_reference(path: Path, obj) -> str | None:
 
     unit = UNITS_TO_METRES[obj.metadata["units"]]
     want = pts[..., :3] * unit
-    want[pts[..., 3] < 0] = np.nan
+    gap = pts[..., 3] < 0
+    if reader.point_scale < 0 and not reader._dtypes.is_dec:
+        # the package casts a float file's residual word to int32, which overflows for a huge
+        # positive float (1.7e38: a valid sample read as a gap); the float itself decides here
+        data, n = path.read_bytes(), 4 * int(reader.point_used)
+        start = (int(reader.header.data_block) - 1) * 512
+        stride = 4 * (n + int(reader.analog_used) * int(reader.analog_per_frame))
+        for f in range(len(pts)):
+            word = np.frombuffer(data, dtype=reader._dtypes.float32, count=n, offset=start + f * stride)
+            gap[f] = word.reshape(-1, 4)[:, 3] < 0
+    want[gap] = np.nan
     return None if _close(obj.positions, want, 1e-6) else "positions"
 
 

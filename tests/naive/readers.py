@@ -200,14 +200,16 @@ def read_bvh(data: bytes, scale: float = 1.0) -> dict:
         raise Reject(len(lines), "no MOTION line") from None
     words = [(w, k + 1) for k in range(m) for w in lines[k].split()]
     words.append((b"", m + 1))  # end marker
-    if words[0][0].upper() != b"HIERARCHY" or words[1][0].upper() != b"ROOT":
+    if _kw(words[0][0]) != b"HIERARCHY" or _kw(words[1][0]) != b"ROOT":
         raise Reject(words[0][1], "expected HIERARCHY ROOT")
     joints: list[dict] = []
     pos = _bvh_joint(words, 2, -1, False, joints)
     if words[pos][0] != b"":
         raise Reject(words[pos][1], "words after the root joint")
     _name_end_sites(joints)
-    head = [ln.strip() for ln in lines[m + 1 : m + 3]] + [b"", b""]
+    # the Frames: and Frame Time: lines, blank lines before them skipped
+    head_at = [k for k in range(m + 1, len(lines)) if lines[k].strip()][:2]
+    head = [lines[k].strip() for k in head_at] + [b"", b""]
     if not head[0].lower().startswith(b"frames:") or not head[1].lower().startswith(b"frame time:"):
         raise Reject(m + 2, "expected Frames: and Frame Time:")
     frames, dt_word = head[0][7:].strip(), head[1][11:].strip()
@@ -216,7 +218,7 @@ def read_bvh(data: bytes, scale: float = 1.0) -> dict:
         raise Reject(m + 2, "bad Frames or Frame Time")
     n_ch = sum(len(j["channels"]) for j in joints)
     rows = []
-    for k in range(m + 3, len(lines)):
+    for k in range(head_at[1] + 1, len(lines)):
         ws = lines[k].split()
         if not ws:
             continue
@@ -244,6 +246,12 @@ def read_bvh(data: bytes, scale: float = 1.0) -> dict:
     }
 
 
+def _kw(word: bytes) -> bytes:
+    """A BVH keyword in one case or capitalised (``CHANNELS``, ``channels``, ``Channels``);
+    anything else (``CHANnELS``) is no keyword."""
+    return word.upper() if word in (word.upper(), word.lower(), word.capitalize()) else b""
+
+
 def _bvh_joint(words: list[tuple[bytes, int]], pos: int, parent: int, end_site: bool, joints: list[dict]) -> int:
     """Read one joint from ``words[pos]`` (its name, or nothing for an End Site) to its
     closing brace; returns the position after it."""
@@ -261,7 +269,7 @@ def _bvh_joint(words: list[tuple[bytes, int]], pos: int, parent: int, end_site: 
     seen_channels = False
     while True:
         w, ln = words[pos]
-        key = w.upper()
+        key = _kw(w)
         if w == b"}":
             if joint["offset"] is None:
                 raise Reject(ln, "joint without OFFSET")
@@ -288,7 +296,7 @@ def _bvh_joint(words: list[tuple[bytes, int]], pos: int, parent: int, end_site: 
             pos += 2 + int(cnt)
         elif key == b"JOINT" and not end_site:
             pos = _bvh_joint(words, pos + 1, me, False, joints)
-        elif key == b"END" and words[pos + 1][0].upper() == b"SITE" and not end_site:
+        elif key == b"END" and _kw(words[pos + 1][0]) == b"SITE" and not end_site:
             pos = _bvh_joint(words, pos + 2, me, True, joints)
         else:
             raise Reject(ln, f"unexpected {w!r}")
@@ -402,8 +410,9 @@ def read_trc(data: bytes) -> dict:
         ):
             raise Reject(k + 1, "bad frame number or time")
         rows.append(vals)
-    if len(rows) != n_frames:
+    if not 0 < len(rows) <= n_frames:  # fewer complete rows than NumFrames: the rows are read
         raise Reject(len(lines), "row count differs from NumFrames")
+    n_frames = len(rows)
     table = np.array(rows)
     pos = table[:, 2:].reshape(n_frames, n_markers, 3) * TRC_UNITS[units]
     if (np.abs(pos) > MAX_METRES).any():

@@ -22,6 +22,8 @@ from typing import TextIO
 
 #: the registries a search needs: a query file's reader, the feature set, the index, the matcher
 KINDS = ("formats", "features", "indexes", "matchers")
+#: matcher parameter -> the option that sets it (for error messages)
+_OPTIONS = {"count": "--count", "k": "-k", "min_span": "--min-span", "rank_by": "--rank-by", "paper": "--paper"}
 
 
 class SearchCommand:
@@ -41,6 +43,8 @@ class SearchCommand:
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        from mocapflow.framework.options import float_at_least, int_at_least
+
         parser.add_argument("--db", required=True, metavar="WORKSPACE", help="workspace of a run with an index step")
         parser.add_argument(
             "--query",
@@ -54,10 +58,10 @@ class SearchCommand:
             help="matchers.<name>: search (default: certified, exactly sdtw's matches), lng (the lazy "
             "neighbourhood graph), sdtw, logical",
         )
-        parser.add_argument("--count", type=int, default=10, help="matches to show (default 10)")
+        parser.add_argument("--count", type=int_at_least(1), default=10, help="matches to show (default 10)")
         parser.add_argument(
             "--min-span",
-            type=float,
+            type=float_at_least(0),
             default=None,
             metavar="F",
             help="drop matches spanning fewer database frames than F x the query (default 0.5; 0: all)",
@@ -80,7 +84,7 @@ class SearchCommand:
             default=None,
             help="search: exact (sDTW's matches) or fast (filter-and-refine, measured recall); default: the matcher's",
         )
-        parser.add_argument("-k", type=int, default=None, help="neighbours per query frame (lng, logical)")
+        parser.add_argument("-k", type=int_at_least(1), default=None, help="neighbours per query frame (lng, logical)")
         parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
         parser.add_argument("--out", metavar="FILE", help="also write the matches as .csv or .parquet")
         parser.add_argument(
@@ -91,7 +95,7 @@ class SearchCommand:
         )
         parser.add_argument(
             "--idle-timeout",
-            type=float,
+            type=float_at_least(0, above=True),
             default=None,
             metavar="SECONDS",
             help="--serve: stop after this long without a request (default: never)",
@@ -260,7 +264,12 @@ class SearchSession:
                 if key not in fields:
                     raise ConfigError(f"matchers.{args.matcher} has no parameter {key!r}")
                 params[key] = val
-        return matcher_cls(params)
+        try:
+            return matcher_cls(params)
+        except ValueError as exc:  # pydantic's ValidationError: the option named, exit 2
+            from mocapflow.framework.options import options_error
+
+            raise options_error(exc, _OPTIONS, f"matchers.{args.matcher}") from None
 
     def query(self, text: str, cwd: Path):
         """The :class:`~mocapflow.framework.queries.Query` of ``--query`` (files relative to ``cwd``)."""
@@ -284,7 +293,11 @@ class SearchSession:
         """Run the search of ``args`` and print its matches to ``out`` (notes to ``err``)."""
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.matching import matches_table
+        from mocapflow.framework.workspace import refuse_dataset_path
 
+        # refused before the work, also when a server answers for a client (its cwd)
+        out_path = refuse_dataset_path(Path(cwd) / Path(args.out).expanduser(), "--out") if args.out else None
+        plot_path = refuse_dataset_path(Path(cwd) / Path(args.plot).expanduser(), "--plot") if args.plot else None
         matcher = self.matcher(args)
         space = self.space(matcher)
         query = self.query(args.query, cwd)
@@ -317,7 +330,7 @@ class SearchSession:
             table = table.append_column(
                 "clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string())
             )
-            write_atomic(table, Path(cwd) / Path(args.out).expanduser())
+            write_atomic(table, out_path)
         if args.plot:
             if args.matcher not in ("search", "lng") or not len(res):
                 raise ConfigError("--plot draws the lazy neighborhood graph of the best match: --matcher search or lng")
@@ -332,8 +345,7 @@ class SearchSession:
                 propagate=0 if paper else 2,
                 gaps=0 if paper else 32,
             )
-            plot = Path(cwd) / Path(args.plot).expanduser()
-            plot_neighborhood(graph, res, space, plot, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
+            plot_neighborhood(graph, res, space, plot_path, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
             print(f"wrote {args.plot}", file=err)
         return 0
 

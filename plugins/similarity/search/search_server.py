@@ -9,20 +9,28 @@ computed) and answers each request on the Unix socket ``WORKSPACE/.search.sock``
 Protocol: one JSON object per connection each way. Request ``{"args": {...}, "cwd": ...}``
 (the command's options; relative paths are resolved against the client's working
 directory), reply ``{"stdout": ..., "stderr": ..., "rc": ...}``, printed by the client as
-if it had searched itself. The client (:func:`ask`) imports only the standard library. The
-server answers one request at a time, rebuilds its session when the workspace's index,
-features or motions step was recomputed, and removes its socket when it stops. The socket
-is made owner-only (0600): the workspace's owner is the only client.
+if it had searched itself. The client (:func:`ask`) imports only the standard library.
+Each connection is read in its own thread (a client has :data:`REQUEST_TIMEOUT` seconds to
+send its request, :data:`MAX_REQUEST` bytes at most, else it is dropped: one stalled client
+never blocks the others); the searches themselves run one at a time. A request is checked
+(an option of the wrong type is an error, exit 2; one an older client does not send takes
+the CLI's default). The server rebuilds its session when the workspace's index, features
+or motions step was recomputed, and removes its socket when it stops; it deletes only a
+stale socket at its path, never a file of another kind. The socket is made owner-only
+(0600): the workspace's owner is the only client.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import json
 import os
 import socket
+import stat
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -35,13 +43,67 @@ def socket_path(db: str | Path) -> Path:
     return Path(db).resolve() / SOCKET_NAME
 
 
-def _recv_all(conn: socket.socket) -> bytes:
-    chunks = []
+#: options a client may omit (an older client): the CLI's defaults
+_DEFAULTS = {"matcher": "search", "count": 10}
+#: the JSON type of each forwarded option
+_TYPES: dict[str, tuple[type, ...]] = {
+    **{k: (str,) for k in ("query", "index", "matcher", "rank_by", "plot", "out")},
+    "count": (int,),
+    "k": (int,),
+    "min_span": (int, float),
+    "paper": (bool,),
+}
+#: seconds a client may take to send its request (a stalled one is dropped, never waited on)
+REQUEST_TIMEOUT = 10.0
+#: largest request accepted, bytes
+MAX_REQUEST = 1 << 20
+#: connections served at once (each reads its request in its own thread; searches run one at a time)
+MAX_CLIENTS = 32
+
+
+def _recv_all(conn: socket.socket, timeout: float | None = None, limit: int | None = None) -> bytes:
+    """Everything the peer sends until it shuts down writing; ``timeout``: seconds in all
+    (TimeoutError after), ``limit``: bytes (ValueError beyond)."""
+    chunks, size = [], 0
+    deadline = None if timeout is None else time.monotonic() + timeout
     while True:
+        if deadline is not None:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError("request not received in time")
+            conn.settimeout(left)
         b = conn.recv(1 << 16)
         if not b:
             return b"".join(chunks)
+        size += len(b)
+        if limit is not None and size > limit:
+            raise ValueError(f"request larger than {limit} bytes")
         chunks.append(b)
+
+
+def _request(raw: bytes) -> tuple[argparse.Namespace, Path]:
+    """The options and working directory of a request; :class:`ConfigError` for a malformed
+    one (not JSON, wrong shape, an option of the wrong type). An option an older client
+    does not send takes the CLI's default."""
+    from mocapflow.framework.errors import ConfigError
+
+    try:
+        req = json.loads(raw.decode())
+    except (UnicodeDecodeError, ValueError):
+        raise ConfigError("search server: malformed request (expected one JSON object)") from None
+    if not isinstance(req, dict) or not isinstance(req.get("args"), dict) or not isinstance(req.get("cwd"), str):
+        raise ConfigError('search server: malformed request (expected {"args": {...}, "cwd": "..."})')
+    vals = {}
+    for k in _FORWARDED:
+        v = req["args"].get(k)
+        v = _DEFAULTS.get(k) if v is None else v
+        if v is not None and (not isinstance(v, _TYPES[k]) or (isinstance(v, bool) and bool not in _TYPES[k])):
+            want = " or ".join(t.__name__ for t in _TYPES[k])
+            raise ConfigError(f"search server: request option {k!r}: expected {want}, got {v!r}")
+        vals[k] = v
+    if not vals["query"]:
+        raise ConfigError("--query is required (except with --serve)")
+    return argparse.Namespace(**vals), Path(req["cwd"])
 
 
 def ask(args: argparse.Namespace, timeout: float | None = None) -> int | None:
@@ -80,14 +142,12 @@ def _handle(session_box: list, raw: bytes, make_session) -> dict:
 
     out, err = io.StringIO(), io.StringIO()
     try:
-        req = json.loads(raw.decode())
-        # an option the client did not send (an older client) is unset
-        args = argparse.Namespace(**{k: req["args"].get(k) for k in _FORWARDED})
+        args, cwd = _request(raw)
         if args.index and args.index != session_box[0].idx.step:
             return {"rc": None}
         if session_box[0].is_stale():
             session_box[0] = make_session()
-        rc = session_box[0].answer(args, Path(req["cwd"]), out, err)
+        rc = session_box[0].answer(args, cwd, out, err)
     except MocapflowError as exc:
         print(f"mocapflow: error: {exc}", file=err)
         rc = 2 if isinstance(exc, (ConfigError, PluginError)) else 1
@@ -129,6 +189,31 @@ def warm_up(session) -> float:
     return time.perf_counter() - t0
 
 
+def _remove_stale_socket(path: Path) -> None:
+    """Delete ``path`` only when it is a socket nobody answers on (left by a server that
+    died); a live server, or anything that is not a socket, is a :class:`ConfigError`."""
+    from mocapflow.framework.errors import ConfigError
+
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(mode):
+        raise ConfigError(
+            f"--serve: {path} exists and is not a socket (a file of yours?); it is left as it is: "
+            "move it away to start a search server"
+        )
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.connect(str(path))
+    except OSError:
+        path.unlink()  # left by a server that died
+    else:
+        raise ConfigError(f"--serve: a search server already answers on {path}")
+    finally:
+        probe.close()
+
+
 def serve(args: argparse.Namespace, session_cls) -> int:
     """``mocapflow search --db WS --serve``: answer searches on ``WS/.search.sock`` with
     ``session_cls`` (:class:`~.search_command.SearchSession`, passed in: no import cycle)."""
@@ -147,15 +232,7 @@ def serve(args: argparse.Namespace, session_cls) -> int:
         raise ConfigError(f"--serve: socket path {path} is too long for a Unix socket; use a shorter workspace path")
     box = [make_session()]
     warm = warm_up(box[0])
-    if path.exists():
-        probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        try:
-            probe.connect(str(path))
-            raise ConfigError(f"--serve: a search server already answers on {path}")
-        except OSError:
-            path.unlink()  # left by a server that died
-        finally:
-            probe.close()
+    _remove_stale_socket(path)
     srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     old = os.umask(0o177)  # owner-only from the start, not chmod-ed after bind
     try:
@@ -163,20 +240,37 @@ def serve(args: argparse.Namespace, session_cls) -> int:
     finally:
         os.umask(old)
     ino = path.stat().st_ino
-    srv.listen(16)
+    srv.listen(128)  # a burst of clients waits in the backlog, never refused
     srv.settimeout(args.idle_timeout or None)
     print(
         f"mocapflow: search server on {path} ({box[0].idx.step!r}, warm in {warm:.2f} s); Ctrl-C stops it",
         file=sys.stderr,
         flush=True,
     )
-    served = 0
+    served = [0]
+    lock = threading.Lock()  # one search at a time; requests are read concurrently
+    slots = threading.BoundedSemaphore(MAX_CLIENTS)
+
+    def serve_one(conn: socket.socket) -> None:
+        try:
+            with conn:
+                try:
+                    raw = _recv_all(conn, REQUEST_TIMEOUT, MAX_REQUEST)
+                except (OSError, ValueError):  # stalled, gone or oversized: dropped, nobody waits
+                    return
+                with lock:
+                    reply = _handle(box, raw, make_session)
+                    served[0] += 1
+                conn.settimeout(REQUEST_TIMEOUT)
+                with contextlib.suppress(OSError):  # the client went away
+                    conn.sendall(json.dumps(reply).encode())
+        finally:
+            slots.release()
 
     def stop(*_):
         raise KeyboardInterrupt
 
     import signal
-    import threading
 
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):  # also when started in the background (SIGINT ignored)
@@ -188,14 +282,8 @@ def serve(args: argparse.Namespace, session_cls) -> int:
             except TimeoutError:
                 print(f"mocapflow: search server idle for {args.idle_timeout:g} s: stopping", file=sys.stderr)
                 break
-            with conn:
-                conn.settimeout(30.0)
-                try:
-                    reply = _handle(box, _recv_all(conn), make_session)
-                    conn.sendall(json.dumps(reply).encode())
-                except OSError:  # the client went away
-                    continue
-            served += 1
+            slots.acquire()
+            threading.Thread(target=serve_one, args=(conn,), daemon=True).start()
     except KeyboardInterrupt:
         pass
     finally:
@@ -205,5 +293,5 @@ def serve(args: argparse.Namespace, session_cls) -> int:
                 path.unlink()
         except OSError:
             pass
-    print(f"mocapflow: search server stopped after {served} searches", file=sys.stderr)
+    print(f"mocapflow: search server stopped after {served[0]} searches", file=sys.stderr)
     return 0

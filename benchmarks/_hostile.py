@@ -1,0 +1,266 @@
+"""Hostile inputs beyond mutated files, run by ``benchmarks/fuzz_parsers.py``: huge files,
+YAML alias bombs, hostile plugins, symbolic links, concurrent and stalled search-server
+clients. Each check records its outcome (``ok`` or what went wrong), its wall time and,
+for the readers, the peak of traced memory; any outcome but ``ok`` is a failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import threading
+import time
+import tracemalloc
+from pathlib import Path
+from typing import Any
+
+#: A file rejected at its header may cost at most this much memory (the issue's target).
+HEADER_REJECT_MB = 200.0
+
+
+def _peak(fn) -> tuple[Any, float, float]:
+    """``(outcome of fn, seconds, peak traced MB)``."""
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    try:
+        out = fn()
+    finally:
+        sec = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1] / 2**20
+        tracemalloc.stop()
+    return out, sec, peak
+
+
+def _sparse(path: Path, size: int, head: bytes) -> Path:
+    with open(path, "wb") as f:
+        f.write(head)
+        f.truncate(size)
+    return path
+
+
+def huge_files(tmp: Path) -> list[tuple[str, str, float, float]]:
+    """Sparse files of 300 MB and 2 GB per reader, with an invalid first byte or a valid
+    header: each must be a ParseError naming the file, fast and in bounded memory."""
+    from mocapflow.framework.errors import ParseError
+    from mocapflow.plugins.formats.bvh import read_bvh
+    from mocapflow.plugins.formats.trc import read_trc
+
+    readers: dict[str, Any] = {"bvh": read_bvh, "trc": read_trc}
+    heads = {"bvh": (b"\x00HIERARCHY\n", b"HIERARCHY\nROOT a\n"), "trc": (b"\x01Path", b"PathFileType\t4\n")}
+    try:
+        from mocapflow.plugins.formats.c3d import read_c3d
+
+        readers["c3d"] = read_c3d
+        heads["c3d"] = (b"\x02\x00", b"\x02\x50")
+    except ImportError:  # pragma: no cover - the optional reader
+        pass
+    out = []
+    for fmt, read in readers.items():
+        for size in (300 * 2**20, 2 * 2**30):
+            for valid, head in zip((False, True), heads[fmt], strict=True):
+                if valid and size < 2**30:
+                    continue  # a valid header within the limit is read (and refused later): not this class
+                path = _sparse(tmp / f"huge.{fmt}", size, head)
+
+                def go(path=path, read=read):
+                    try:
+                        read(path)
+                    except ParseError as exc:
+                        return "ok" if exc.path == str(path) else "error without the file"
+                    return "accepted"
+
+                outcome, sec, peak = _peak(go)
+                path.unlink()
+                if outcome == "ok" and peak > HEADER_REJECT_MB:
+                    outcome = f"peak {peak:.0f} MB"
+                if outcome == "ok" and sec > 10:
+                    outcome = f"took {sec:.1f} s"
+                what = f"{fmt} {size / 2**20:,.0f} MiB, {'valid header' if valid else 'invalid first byte'}"
+                out.append(("huge file", f"{what}: {outcome}", sec, peak))
+    return out
+
+
+def alias_bombs(tmp: Path) -> list[tuple[str, str, float, float]]:
+    """Nested anchors of 3 to 9 levels (9**9 values from ~1 kB): a ConfigError naming
+    file and line, fast."""
+    from mocapflow.framework.config import load_pipeline
+    from mocapflow.framework.errors import ConfigError
+
+    out = []
+    for levels in (3, 6, 9):
+        lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x]"]
+        lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, levels)]
+        lines.append(f"name: bomb\nsteps:\n  s: {{uses: analyses.summary, with: {{n: *a{levels - 1}}}}}")
+        p = tmp / "bomb.yaml"
+        p.write_text("\n".join(lines) + "\n")
+
+        def go(p=p, levels=levels):
+            try:
+                load_pipeline(p)
+            except ConfigError as exc:
+                expands = 9**levels > 100_000
+                if expands:
+                    return "ok" if "bomb.yaml:" in str(exc) and "expand" in str(exc) else f"other error: {exc}"
+                return "ok"  # small expansions: refused for another reason (unknown parameter) is fine
+            return "ok" if 9**levels <= 100_000 else "accepted"
+
+        outcome, sec, peak = _peak(go)
+        if outcome == "ok" and sec > 10:
+            outcome = f"took {sec:.1f} s"
+        out.append(("alias bomb", f"{levels} levels, {p.stat().st_size} bytes: {outcome}", sec, peak))
+    return out
+
+
+def hostile_plugins(tmp: Path) -> list[tuple[str, str, float, float]]:
+    """Plugins raising Exception, SystemExit or KeyboardInterrupt in a registration or a
+    lifecycle hook: recorded as that plugin's failure (registration) or a PluginError naming
+    it (lifecycle), never ending the process."""
+    from mocapflow.framework import get_plugin_manager
+    from mocapflow.framework.errors import PluginError
+    from mocapflow.framework.plugins import build_registries, call_lifecycle, hookimpl
+
+    out = []
+    for exc in (RuntimeError("boom"), SystemExit(3), KeyboardInterrupt()):
+
+        class Register:
+            @hookimpl
+            def register_analyses(self, exc=exc):
+                raise exc
+
+        class Lifecycle:
+            @hookimpl
+            def before_step(self, step_id, component, workspace, exc=exc):
+                raise exc
+
+        t0 = time.perf_counter()
+        try:
+            pm = get_plugin_manager(entry_points=False, extra=[Register()])
+            build_registries(pm)
+            got = [f for f in pm.failures if type(exc).__name__ in f.error]
+            outcome = "ok" if got else "not recorded"
+            pm = get_plugin_manager(builtins=False, entry_points=False)
+            pm.register(Lifecycle(), name="hostile")
+            try:
+                call_lifecycle(pm.hook, "before_step", step_id="s", component=None, workspace=str(tmp))
+                outcome = "lifecycle error swallowed"
+            except PluginError as err:
+                outcome = outcome if "'hostile'" in str(err) else "plugin not named"
+        except BaseException as escaped:  # what this check looks for
+            outcome = f"escaped: {type(escaped).__name__}"
+        out.append(("hostile plugin", f"{type(exc).__name__}: {outcome}", time.perf_counter() - t0, 0.0))
+    return out
+
+
+def symlinks(tmp: Path) -> list[tuple[str, str, float, float]]:
+    """Output paths reaching a dataset through a link, and report assets that are links
+    (to a file outside, to a folder): refused or skipped."""
+    from mocapflow.framework.errors import ConfigError
+    from mocapflow.framework.workspace import MANIFEST, refuse_dataset_path
+    from mocapflow.plugins.report.model import owned_file
+
+    ws = tmp / "ws"
+    step = ws / "step"
+    step.mkdir(parents=True)
+    (step / MANIFEST).write_text("{}")
+    (tmp / "secret").write_text("x")
+    (tmp / "to_step").symlink_to(step, target_is_directory=True)
+    (step / "leak.png").symlink_to(tmp / "secret")
+    (step / "dir").symlink_to(tmp, target_is_directory=True)
+    (step / "real.png").write_bytes(b"png")
+    out = []
+    t0 = time.perf_counter()
+    for target in (tmp / "to_step" / "data.parquet", step / "data.parquet", ws / ".." / "ws" / "step" / "x.csv"):
+        try:
+            refuse_dataset_path(target, "--out")
+            outcome = "accepted"
+        except ConfigError:
+            outcome = "ok"
+        out.append(("symlink", f"output {target.relative_to(tmp)}: {outcome}", time.perf_counter() - t0, 0.0))
+    for name, want in (("leak.png", False), ("dir/secret", False), ("real.png", True)):
+        got = owned_file(step, step / name)
+        out.append(("symlink", f"report asset {name}: {'ok' if got == want else 'wrong'}", 0.0, 0.0))
+    return out
+
+
+class _Session:
+    idx = argparse.Namespace(step="index")
+
+    def is_stale(self) -> bool:
+        return False
+
+    def answer(self, args, cwd, out, err) -> int:
+        time.sleep(0.01)  # a search
+        print("match", file=out)
+        return 0
+
+
+def concurrent_clients(tmp: Path, stalled: int = 8, good: int = 16) -> list[tuple[str, str, float, float]]:
+    """A search server (a stand-in session: the protocol and the threads are what is
+    measured) with ``stalled`` clients that never finish their request and ``good`` clients
+    asking at once: every good one answered, the slowest within 5 s."""
+    from mocapflow.plugins.similarity.search import search_server as srv
+
+    real_warm = srv.warm_up
+    srv.warm_up = lambda s: 0.0
+    sock = tmp / srv.SOCKET_NAME
+    args = argparse.Namespace(db=str(tmp), index=None, idle_timeout=2.0, no_entry_points=True, block=[])
+    server = threading.Thread(target=srv.serve, args=(args, lambda *a, **k: _Session()), daemon=True)
+    server.start()
+    try:
+        for _ in range(200):
+            if sock.exists():
+                break
+            time.sleep(0.05)
+        hold = []
+        for _ in range(stalled):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.connect(str(sock))
+            s.sendall(b'{"args": ')
+            hold.append(s)
+        took: list[float] = []
+        answers: list[bool] = []
+
+        def ask() -> None:
+            t0 = time.perf_counter()
+            c = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            c.settimeout(30)
+            c.connect(str(sock))
+            c.sendall(json.dumps({"args": {"query": "q.bvh"}, "cwd": str(tmp)}).encode())
+            c.shutdown(socket.SHUT_WR)
+            reply = json.loads(srv._recv_all(c).decode())
+            c.close()
+            took.append(time.perf_counter() - t0)
+            answers.append(reply.get("rc") == 0)
+
+        threads = [threading.Thread(target=ask) for _ in range(good)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        for s in hold:
+            s.close()
+        worst = max(took) if took else float("inf")
+        ok = len(answers) == good and all(answers) and worst < 5.0
+        outcome = "ok" if ok else f"{sum(answers)} of {good} answered, slowest {worst:.1f} s"
+        server.join(10)
+        return [("concurrent clients", f"{stalled} stalled + {good} at once: {outcome}", worst, 0.0)]
+    finally:
+        srv.warm_up = real_warm
+
+
+def run_all(tmp: Path, echo=print) -> int:
+    """Every class; prints one line per check, returns the number of failures."""
+    rows = []
+    for fn in (huge_files, alias_bombs, hostile_plugins, symlinks, concurrent_clients):
+        sub = tmp / fn.__name__
+        sub.mkdir()
+        rows += fn(sub)
+    bad = 0
+    echo(f"\n{'hostile input':<20} {'seconds':>8} {'peak MB':>8}  check")
+    for cls, what, sec, peak in rows:
+        ok = what.endswith(": ok")
+        bad += not ok
+        echo(f"{cls:<20} {sec:>8.2f} {peak:>8.1f}  {what}{'' if ok else '   <-- FAILURE'}")
+    echo(f"hostile inputs: {len(rows)} checks, {bad} failures")
+    return bad
