@@ -19,6 +19,11 @@ def labels_of(motions: Dataset, clip_ids: Sequence[int], names: list[str], patte
         from mocapflow.framework.labels import clip_labels_from_table
 
         return clip_labels_from_table(motions.table("labels"), clip_ids)
-    from .template import clip_labels
+    import re
 
-    return clip_labels(names, pattern)
+    from mocapflow.framework.errors import ConfigError
+
+    rx = re.compile(pattern)
+    if "label" not in rx.groupindex:
+        raise ConfigError(f"pattern {pattern!r} needs a named group (?P<label>...)")
+    return [m.group("label") if (m := rx.search(n)) else None for n in names]
