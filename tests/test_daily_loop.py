@@ -210,3 +210,21 @@ def test_the_python_api_reads_a_folder_and_names_what_it_cannot_read(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(ConfigError, match="no motion file in this folder"):
         api.Database(tmp_path / "empty")
+
+
+def test_heartbeat_moves_for_a_step_without_a_bar_and_yields_to_bars(capsys):
+    import time
+
+    from mocapflow.framework.progress import heartbeat, progress
+
+    with heartbeat("  step", expected=10.0, after=0.1, enabled=True):
+        time.sleep(0.8)
+    err = capsys.readouterr().err
+    assert "  step: [" in err and "left (last run 10 s)" in err and err.endswith("\r\x1b[K")
+    with heartbeat("  quiet", after=0.1, enabled=True):
+        for _ in progress(range(3), desc="own", enabled=True, weights=[1, 1, 1]):  # a bar of its own
+            time.sleep(0.3)
+    assert "quiet" not in capsys.readouterr().err
+    with heartbeat("  off", after=0.0, enabled=False):
+        time.sleep(0.6)
+    assert capsys.readouterr().err == ""
