@@ -287,7 +287,7 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
     ``source_frames``, ``frame_time``, ``scale``, ``unit``, ``subject``, ``collapsed_root``
     (a dropped static root, or None). ParseError names the file, line and what was expected.
     """
-    from ._kernels import euler_table_to_quat
+    from ._kernels import euler_table_to_quat, readonly
     from ._text_kernels import tokenize
 
     path = Path(path)
@@ -330,7 +330,7 @@ def read_bvh(path: str | Path, scale: float | Literal["auto"] = "auto", collapse
             else:
                 pos_cols[j, a] = c
             c += 1
-    rot = euler_table_to_quat(table, cols, axis_id, quat.identity((nj,)), np.pi / 180.0, False)
+    rot = euler_table_to_quat(table, cols, axis_id, readonly(quat.identity((nj,))), np.pi / 180.0, False)
     root_t = np.empty((frames, 3))
     for a in range(3):
         root_t[:, a] = table[:, pos_cols[0, a]] if pos_cols[0, a] >= 0 else offsets[0, a]
