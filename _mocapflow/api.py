@@ -44,7 +44,26 @@ def _motions(motions) -> list:
 
     if isinstance(motions, (Motion, str, Path)):
         motions = [motions]
-    return [m if isinstance(m, Motion) else read(m) for m in motions]
+    out = []
+    for m in motions:
+        if isinstance(m, Motion):
+            out.append(m)
+        elif Path(m).expanduser().is_dir():
+            out.extend(read(f) for f in _motion_files(Path(m).expanduser()))
+        else:
+            out.append(read(m))
+    return out
+
+
+def _motion_files(folder: Path) -> list[Path]:
+    """The files below ``folder`` that a registered motion format reads, in path order."""
+    from mocapflow.framework.errors import ConfigError
+
+    exts = {e for _, c in registries()["formats"] for e in c.extensions if c.produces == "motion"}
+    files = sorted(f for f in folder.rglob("*") if f.suffix.lower() in exts and f.is_file())
+    if not files:
+        raise ConfigError(f"{folder}: no motion file in this folder or below ({', '.join(sorted(exts))})")
+    return files
 
 
 def features(name: str, motions, **params: Any):
@@ -63,8 +82,9 @@ class Database:
 
     Parameters
     ----------
-    motions : sequence of Motion or paths
-        The clips; clip ``i`` gets ``clip_id == i``.
+    motions : sequence of Motion or paths, or a folder
+        The clips (a folder: every motion file below it, in path order); clip ``i`` gets
+        ``clip_id == i``.
     features : str
         Feature set (``features.<name>``); ``feature_params`` go to it.
     index : str

@@ -33,6 +33,7 @@ BENCHMARKS: dict[str, str] = {
     "templates": "motion templates and mode auto: leave-one-actor-out quality, query time against the full-rate search",
     "report": "mocapflow report: page weight and load time in headless Chromium against a JSON baseline",
     "startup": "command start-up against `import numpy`, and the quickstart's cold first run",
+    "first_run": "the first run after an install (empty numba cache) against the warm run: quickstart, clean",
     "scale": "scale-out: --jobs 2 and the Dask executor against --jobs 1, the sharded kNN index",
 }
 

@@ -6,6 +6,14 @@ import numpy as np
 from numba import njit
 
 
+def readonly(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` (no copy): numba compiles one variant per writeable flag, so
+    the arguments a kernel only reads are always passed read-only (Arrow columns are)."""
+    v: np.ndarray = a.view()
+    v.flags.writeable = False
+    return v
+
+
 @njit(cache=True, fastmath=False)
 def fk_kernel(  # pragma: no cover - compiled
     parents: np.ndarray,
@@ -65,11 +73,11 @@ def fk(
         else np.ascontiguousarray(local_translations, dtype=np.float64)
     )
     fk_kernel(
-        np.ascontiguousarray(parents, dtype=np.int64),
-        np.ascontiguousarray(offsets, dtype=np.float64),
-        per_frame,
-        np.ascontiguousarray(root_translation, dtype=np.float64),
-        np.ascontiguousarray(rotations, dtype=np.float64),
+        readonly(np.ascontiguousarray(parents, dtype=np.int64)),
+        readonly(np.ascontiguousarray(offsets, dtype=np.float64)),
+        readonly(per_frame),
+        readonly(np.ascontiguousarray(root_translation, dtype=np.float64)),
+        readonly(np.ascontiguousarray(rotations, dtype=np.float64)),
         pos,
         glob,
     )

@@ -1,7 +1,7 @@
 """A workspace's Parquet datasets as DuckDB views (the only module that imports duckdb).
 
-Views: ``<step>`` (main table), ``<step>_<table>``, ``clips``/``rejects`` of the first
-motions dataset; ``-`` in step ids also as ``_``. Read-only for real: only query statements
+Views: ``<step>`` (main table), ``<step>_<table>``, ``clips`` (the clips of every ingest,
+one row per clip id), ``rejects``/``labels`` of the first dataset that has them; ``-`` in step ids also as ``_``. Read-only for real: only query statements
 run, and DuckDB is opened with external access limited to the datasets' directories and
 its configuration locked (no other file read, no extension loaded).
 """
@@ -112,16 +112,39 @@ class Catalog:
             self._con.execute("SET enable_external_access = false")
             self._con.execute("SET lock_configuration = true")
             ordered = sorted(self.datasets.values(), key=lambda d: d.manifest.get("created", ""))
+            clips: list[Path] = []
             for ds in ordered:
                 for table in ds.table_names():
                     view = ds.step if table == "data" else f"{ds.step}_{table}"
                     path = ds.path / f"{table}.parquet"
                     self._add_view(view, path)
-                    if table in ("clips", "rejects") and table not in self.views:
+                    if table == "clips":
+                        clips.append(path)
+                    if table in ("rejects", "labels") and table not in self.views:
                         self._add_view(table, path)
+            if clips:
+                self._add_clips_view(clips)
         except BaseException:
             shutil.rmtree(self._spill, ignore_errors=True)
             raise
+
+    def _add_clips_view(self, paths: list[Path]) -> None:
+        """``clips``: every ingest's clips, one row per clip id (the first dataset's row),
+        so a step's ``clip_id`` joins whichever ingest it came from (ids are per take)."""
+        if len(paths) == 1:
+            self._add_view("clips", paths[0])
+            return
+        parts = []
+        for i, path in enumerate(paths):
+            quoted = str(path.resolve()).replace("'", "''")
+            parts.append(f"SELECT *, {i} AS _ingest FROM read_parquet('{quoted}', file_row_number = true)")
+        self._con.sql(
+            "SELECT * EXCLUDE (_ingest, file_row_number) FROM ("
+            + " UNION ALL BY NAME ".join(parts)
+            + ") QUALIFY row_number() OVER (PARTITION BY clip_id ORDER BY _ingest, file_row_number) = 1"
+            " ORDER BY _ingest, file_row_number"
+        ).create_view("clips", replace=True)
+        self.views["clips"] = paths[0]
 
     def _add_view(self, name: str, path: Path) -> None:
         rel = self._con.read_parquet(str(path.resolve()))

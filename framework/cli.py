@@ -331,16 +331,22 @@ def _global_options(argv: list[str]) -> tuple[str | None, bool, list[str]]:
     return command, "--no-entry-points" not in argv[: i if command else len(argv)], blocked
 
 
-def _unknown_blocked(blocked: list[str]) -> list[str]:
-    """Names given to ``--block`` that name no built-in plugin module and no entry point."""
+def _check_blocked(blocked: list[str]) -> None:
+    """:class:`ConfigError` for a name given to ``--block`` that names no built-in plugin
+    module and no entry point (a typo would otherwise block nothing, silently)."""
     if not blocked:
-        return []
+        return
     from importlib import metadata
 
     from .plugins import ENTRY_POINT_GROUP, builtin_plugin_modules
+    from .registry import did_you_mean
 
-    known = set(builtin_plugin_modules()) | {ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
-    return [b for b in dict.fromkeys(blocked) if b not in known]
+    known = [*builtin_plugin_modules(), *(ep.name for ep in metadata.entry_points(group=ENTRY_POINT_GROUP))]
+    for name in dict.fromkeys(blocked):
+        if name not in known:
+            raise ConfigError(
+                f"--block {name}: no plugin of that name{did_you_mean(name, known)}; plugins: " + ", ".join(known)
+            )
 
 
 def _plugin_manager(command: str | None, entry_points: bool, blocked: list[str]) -> pluggy.PluginManager | None:
@@ -394,12 +400,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if debug else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         command, entry_points, blocked = _global_options(argv)
-        for name in _unknown_blocked(blocked):
-            _warn(
-                f"--block {name}: no plugin of that name (built-in plugins are module names, "
-                "e.g. mocapflow.plugins.similarity.plugin; third-party ones their entry-point names: "
-                "see `mocapflow plugins`)"
-            )
+        _check_blocked(blocked)
         if command in BUILTIN_COMMANDS or (command is None and "--version" in argv):
             parser = build_parser([])  # the parser of a built-in needs no plugin (`run --help` is quick)
             args = parser.parse_args(argv)

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+from pydantic import ValidationError
 
 from .cleaning import CleanedClip, clip_result
 from .context import StepContext
@@ -25,7 +26,7 @@ from .matching import QueryMatches, SearchSpace, query_files_fingerprint
 from .motion import Motion
 from .params import Params as Params  # re-exported: components declare Params here
 from .params import ParamsOf as ParamsOf
-from .registry import Registries
+from .registry import Registries, params_error
 from .workspace import atomic_path
 
 #: The base of every ``Params`` (a name that the class attribute ``Component.Params`` does not hide).
@@ -53,10 +54,11 @@ class Component:
     test_params: ClassVar[Mapping[str, Any] | None] = None
 
     def __init__(self, params: ParamsModel | Mapping[str, Any] | None = None, **kwargs: Any) -> None:
-        if params is None:
-            params = self.Params(**kwargs)
-        elif isinstance(params, Mapping):
-            params = self.Params(**{**params, **kwargs})
+        if params is None or isinstance(params, Mapping):
+            try:
+                params = self.Params(**{**(params or {}), **kwargs})
+            except ValidationError as exc:  # the component and parameter by name, not pydantic's dump
+                raise ConfigError(params_error(self.key(), exc, self.Params)[1]) from None
         elif kwargs:
             params = params.model_copy(update=kwargs)
         elif not isinstance(params, self.Params):

@@ -94,9 +94,12 @@ class StepContext:
         """:func:`map_clips` on the step's executor."""
         return map_clips(self.executor, fn, motions, desc=desc or self.step_id, with_ids=with_ids)
 
-    def progress(self, items: Iterable[T], total: int | None = None, desc: str = "") -> Iterable[T]:
-        """Wrap a loop that runs in this process with a progress bar."""
-        return progress(items, total=total, desc=desc or self.step_id)
+    def progress(
+        self, items: Iterable[T], total: int | None = None, desc: str = "", weights: Sequence[float] | None = None
+    ) -> Iterable[T]:
+        """Wrap a loop that runs in this process with a progress bar (``weights``: the
+        relative work of each item, for a loop of uneven items)."""
+        return progress(items, total=total, desc=desc or self.step_id, weights=weights)
 
     def resolve(self, path: str | Path) -> Path:
         """A pipeline path (relative to the YAML file unless absolute)."""

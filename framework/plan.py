@@ -20,7 +20,7 @@ from pydantic import BaseModel, ValidationError
 from .components import Component, ParamsOf
 from .config import PipelineSource
 from .errors import ConfigError
-from .registry import Registries, did_you_mean
+from .registry import Registries, did_you_mean, params_error
 
 log = logging.getLogger("mocapflow")
 
@@ -69,15 +69,6 @@ class Plan:
         return out
 
 
-def _model_at(model: type[BaseModel] | None, path: tuple[str, ...]) -> type[BaseModel] | None:
-    """The pydantic model that holds the last key of ``path`` (following model-typed fields)."""
-    for part in path:
-        f = model.model_fields.get(part) if model is not None else None
-        ann = f.annotation if f is not None else None
-        model = ann if isinstance(ann, type) and issubclass(ann, BaseModel) else None
-    return model
-
-
 def _param_error(
     source: PipelineSource,
     step_id: str,
@@ -89,18 +80,8 @@ def _param_error(
 ) -> ConfigError:
     """A ConfigError at the YAML line of the offending key (``prefix``: the path of a nested
     parameter dict, ``model``: its Params, ``what``: whose parameters they are)."""
-    err = exc.errors()[0]
-    inner = tuple(str(p) for p in err["loc"])
-    loc = (*prefix, *inner)
-    key = ".".join(loc) or "with"
     of = f" (parameters of {what})" if what else ""
-    if err["type"] == "extra_forbidden":
-        holder = _model_at(model or cls.Params, inner[:-1])
-        known = list(holder.model_fields) if holder is not None else []
-        msg = f"unknown parameter {key!r} for {cls.key()}{of}{did_you_mean(loc[-1], known)}; known: {', '.join(known) or 'none'}"
-    else:
-        got = err.get("input")
-        msg = f"parameter {key!r} of {cls.key()}{of}: {err['msg']} (got {got!r})"
+    loc, msg = params_error(f"{cls.key()}{of}", exc, model or cls.Params, prefix)
     return source.error(("steps", step_id, "with", *loc), f"step {step_id!r}: {msg}")
 
 

@@ -6,7 +6,9 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-from collections.abc import Callable, Iterable, Iterator
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -20,22 +22,93 @@ def progress_enabled() -> bool:
     return sys.stderr.isatty()
 
 
-def progress(items: Iterable[T], total: int | None = None, desc: str = "", enabled: bool | None = None) -> Iterator[T]:
-    """Iterate with a progress bar (tqdm when installed, a plain counter otherwise)."""
+#: Bars drawing now (the step heartbeat stays quiet while a step shows its own bar).
+_ACTIVE = [0]
+
+
+def progress(
+    items: Iterable[T],
+    total: int | None = None,
+    desc: str = "",
+    enabled: bool | None = None,
+    weights: Sequence[float] | None = None,
+) -> Iterator[T]:
+    """Iterate with a progress bar (tqdm when installed, a plain counter otherwise).
+
+    ``weights`` (one per item): the relative work of each item, so that a loop of uneven
+    items moves its bar and its ETA by work done, not by items counted."""
     if not (progress_enabled() if enabled is None else enabled):
         yield from items
         return
+    _ACTIVE[0] += 1
     try:
-        from tqdm import tqdm
-    except ImportError:  # tqdm is optional: fall back to a one-line counter
-        n = total if total is not None else (len(items) if hasattr(items, "__len__") else None)  # type: ignore[arg-type]
-        for i, item in enumerate(items, 1):
-            sys.stderr.write(f"\r{desc} {i}/{n if n is not None else '?'}")
-            sys.stderr.flush()
-            yield item
-        sys.stderr.write("\n")
+        try:
+            from tqdm import tqdm
+        except ImportError:  # tqdm is optional: fall back to a one-line counter
+            n = total if total is not None else (len(items) if hasattr(items, "__len__") else None)  # type: ignore[arg-type]
+            for i, item in enumerate(items, 1):
+                sys.stderr.write(f"\r{desc} {i}/{n if n is not None else '?'}")
+                sys.stderr.flush()
+                yield item
+            sys.stderr.write("\n")
+            return
+        if weights is None:
+            yield from tqdm(items, total=total, desc=desc, leave=False, file=sys.stderr, dynamic_ncols=True)
+            return
+        w = [float(x) for x in weights]
+        fmt = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]"
+        with tqdm(total=sum(w), desc=desc, leave=False, file=sys.stderr, dynamic_ncols=True, bar_format=fmt) as bar:
+            for item, wi in zip(items, w, strict=False):
+                yield item
+                bar.update(wi)
+    finally:
+        _ACTIVE[0] -= 1
+
+
+@contextlib.contextmanager
+def heartbeat(
+    desc: str, expected: float | None = None, after: float = 2.0, enabled: bool | None = None
+) -> Iterator[None]:
+    """While the block runs longer than ``after`` seconds and no other bar is drawing, a
+    line on stderr that moves every half second: elapsed time and, when ``expected`` (the
+    seconds the same step took last time) is known, a bar and the time left by it."""
+    if not (progress_enabled() if enabled is None else enabled):
+        yield
         return
-    yield from tqdm(items, total=total, desc=desc, leave=False, file=sys.stderr, dynamic_ncols=True)
+    stop = threading.Event()
+    t0 = time.monotonic()
+    drawn = [False]
+
+    def beat() -> None:
+        if stop.wait(after):
+            return
+        spin = "|/-\\"
+        i = 0
+        while not stop.wait(0.5):
+            if _ACTIVE[0]:
+                continue
+            el = time.monotonic() - t0
+            if expected and expected > 0:
+                frac = min(el / expected, 1.0)
+                left = f"~{expected - el:.0f} s left" if el < expected else "longer than last time"
+                line = f"{desc}: [{'#' * int(frac * 20):<20}] {el:.0f} s, {left} (last run {expected:.0f} s)"
+            else:
+                line = f"{desc}: {spin[i % 4]} {el:.0f} s"
+            i += 1
+            sys.stderr.write("\r" + line + "\x1b[K")
+            sys.stderr.flush()
+            drawn[0] = True
+
+    thread = threading.Thread(target=beat, name="mocapflow-heartbeat", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+        if drawn[0]:
+            sys.stderr.write("\r\x1b[K")
+            sys.stderr.flush()
 
 
 COMPILING_MESSAGE = (

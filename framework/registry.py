@@ -21,6 +21,33 @@ def did_you_mean(name: str, candidates: list[str] | tuple[str, ...] | set[str]) 
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+def known_names(names: list[str], limit: int = 12) -> str:
+    """``names`` joined by commas, or, past ``limit`` of them, the first ones and a count
+    (an error message stays readable when a model has dozens of parameters)."""
+    if len(names) <= limit:
+        return ", ".join(names) or "none"
+    return f"{', '.join(names[:limit])}, ... ({len(names)} in all; `mocapflow plugins` lists them)"
+
+
+def params_error(owner: str, exc: Any, model: Any, prefix: tuple[str, ...] = ()) -> tuple[tuple[str, ...], str]:
+    """``(location, message)`` of the first error of a pydantic ``ValidationError`` ``exc``
+    raised by ``model`` (a ``Params``) for component ``owner``: the parameter by name, what
+    was wrong and, for an unknown one, the closest and the known names."""
+    err = exc.errors()[0]
+    inner = tuple(str(p) for p in err["loc"])
+    loc = (*prefix, *inner)
+    key = ".".join(loc) or "with"
+    if err["type"] == "extra_forbidden":
+        holder = model
+        for part in inner[:-1]:  # the nested model that holds the unknown key
+            f = holder.model_fields.get(part) if holder is not None else None
+            ann = f.annotation if f is not None else None
+            holder = ann if isinstance(ann, type) and hasattr(ann, "model_fields") else None
+        known = list(holder.model_fields) if holder is not None else []
+        return loc, f"unknown parameter {key!r} for {owner}{did_you_mean(loc[-1], known)}; known: {known_names(known)}"
+    return loc, f"parameter {key!r} of {owner}: {err['msg']} (got {err.get('input')!r})"
+
+
 @dataclass
 class Registry:
     """Components of one kind by ``name``, with the plugin that provided each (for errors)."""
@@ -113,8 +140,12 @@ class Registries:
         for _, cls in self.by_kind["formats"]:
             if ext in cls.extensions and cls.produces == "motion" and (not writing or cls.can_write()):
                 return cls()
+        exts = sorted({e for _, c in self.by_kind["formats"] for e in c.extensions if c.produces == "motion"})
+        what = f"{ext!r} files" if ext else "a path without a file extension"
+        if Path(path).is_dir():
+            what = "a folder (give a file, or the folder's files: a list or a glob)"
         raise ConfigError(
-            f"{path}: no registered {'writer' if writing else 'reader'} for {ext or 'extensionless'!r} files"
+            f"{path}: no registered {'writer' if writing else 'reader'} for {what}; motion files: {', '.join(exts)}"
         )
 
     def keys(self) -> list[str]:

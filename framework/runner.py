@@ -3,6 +3,7 @@ steps, holding the workspace lock; each output committed atomically with its pro
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import shutil
 import time
@@ -20,6 +21,7 @@ from .datasets import Dataset, StepOutput
 from .errors import ConfigError, MocapflowError, PipelineError, PluginError
 from .plan import Plan, PlannedStep, build_plan
 from .plugins import build_registries, call_lifecycle, describe, get_plugin_manager
+from .progress import heartbeat
 from .registry import Registries, did_you_mean
 from .steps import run_step
 from .workspace import Workspace
@@ -105,9 +107,14 @@ class Runner:
         tmp = ws.temp_dir(step.step_id)
         ctx = StepContext(step.step_id, tmp, self.plan.source.base_dir, ws.path, self.registries, self.executor)
         self.echo(f"  {step.step_id:<16} {step.key:<28} running...")
+        last = ws.path / step.step_id  # the step's previous output: how long it took then
+        expected = None
+        with contextlib.suppress(Exception):  # no or unreadable previous output: no ETA
+            expected = float(Dataset(last).manifest["seconds"])
         t0 = time.perf_counter()
         try:
-            output = run_step(step.component, inputs, ctx)
+            with heartbeat(f"  {step.step_id}", expected):  # a step with no bar of its own still moves
+                output = run_step(step.component, inputs, ctx)
             if not isinstance(output, StepOutput):
                 raise PipelineError(f"{step.key}.run() returned {type(output).__name__}, expected StepOutput")
             seconds = time.perf_counter() - t0

@@ -18,6 +18,7 @@ Conventions, stated once:
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -166,12 +167,32 @@ def motion_frames() -> pa.Schema:
 
 
 def clip_id_of(key: str) -> int:
-    """Stable clip id of a source file: the first 31 bits of SHA-1 of ``key`` (its path
-    relative to the ingest root, POSIX separators), a non-negative int32 (-1 stays free
-    for "not a clip"). Collisions are resolved by :func:`clip_ids_of`."""
+    """Stable clip id of a source file: the first 31 bits of SHA-1 of ``key`` (its
+    :func:`clip_keys` key, e.g. ``02/02_01.amc``), a non-negative int32 (-1 stays free for
+    "not a clip"). Collisions are resolved by :func:`clip_ids_of`."""
     import hashlib
 
     return int.from_bytes(hashlib.sha1(key.encode("utf-8")).digest()[:4], "big") & 0x7FFFFFFF
+
+
+def clip_keys(paths: list[str]) -> list[str]:
+    """The key of each file path for :func:`clip_id_of`: its folder and file name
+    (``02/02_01.amc``, POSIX separators), lengthened by one more folder at a time for the
+    paths whose key would otherwise be shared (``amc/02/02_01.amc`` beside
+    ``bvh/02/02_01.amc``). The key does not depend on where the files lie nor on which
+    pattern found them, so every ingest of a take gives it the same id."""
+    parts = [Path(p).as_posix().split("/") for p in paths]
+    depth = [2] * len(parts)
+    while True:
+        keys = ["/".join(q[-d:]) for q, d in zip(parts, depth, strict=True)]
+        groups: dict[str, list[int]] = {}
+        for i, k in enumerate(keys):
+            groups.setdefault(k, []).append(i)
+        grow = [i for g in groups.values() if len(g) > 1 for i in g if depth[i] < len(parts[i])]
+        if not grow:
+            return keys
+        for i in grow:
+            depth[i] += 1
 
 
 def clip_ids_of(keys: list[str]) -> list[int]:

@@ -1,5 +1,4 @@
-"""Paper cuts a new user hits in the CLI: --version, --block of an unknown
-plugin, the choices of Literal parameters, rejected files, the first run's compilation,
+"""Paper cuts a new user hits in the CLI: --version, the choices of Literal parameters, rejected files, the first run's compilation,
 ``sql --output`` into a new folder."""
 
 from __future__ import annotations
@@ -34,15 +33,6 @@ def test_version_is_single_sourced(capsys):
     assert mocapflow.framework.__version__ == mocapflow.__version__ == metadata.version("mocapflow")
     project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
     assert "version" not in project and "version" in project["dynamic"]  # written once, in the package
-
-
-def test_block_of_an_unknown_plugin_warns(capsys):
-    assert main(["--block", "mocapflow.plugins.no_such_plugin", "--no-entry-points", "plugins"]) == 0
-    err = capsys.readouterr().err
-    assert "--block mocapflow.plugins.no_such_plugin: no plugin of that name" in err
-    assert main(["--block", "mocapflow.plugins.similarity.plugin", "--no-entry-points", "plugins"]) == 0
-    captured = capsys.readouterr()
-    assert "warning" not in captured.err and "indexes.kdtree" not in captured.out
 
 
 def test_plugins_prints_the_choices_of_literal_and_union_parameters(capsys):

@@ -36,3 +36,36 @@ def test_kdtree_query_kernel_compiles_one_variant(tmp_path):
         [sys.executable, "-c", CODE], capture_output=True, text=True, check=True, env=env
     ).stdout.split()
     assert out == ["1", "1"], f"query_tree, _query_rows variants: {out}"
+
+
+READONLY = """
+import numpy as np
+from mocapflow.framework import _fk_kernels as fk
+from mocapflow.plugins.similarity.knn import _knn_kernels as kern, _tree_kernels as tk
+from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
+
+rng = np.random.default_rng(0)
+x = rng.normal(size=(300, 6)).astype(np.float32)
+ro = x.copy()
+ro.flags.writeable = False                                     # as Arrow columns and mmapped features are
+for data in (x, ro):
+    ix = KDTreeIndex(method="kdtree").build(data)
+    ix.query(data[:5], 3, workers=1)
+    ix.query(data[:1], 3, workers=1)
+rot = np.tile([1.0, 0, 0, 0], (4, 3, 1))
+par, off = np.array([-1, 0, 1]), np.ones((3, 3))
+for r in (rot, rot.copy()):
+    r.flags.writeable = r is rot
+    fk.fk(par, off, np.zeros((4, 3)), r, None)
+print(len(tk.build_tree.signatures), len(kern.query_tree.signatures), len(fk.fk_kernel.signatures))
+"""
+
+
+def test_read_only_and_writable_inputs_compile_one_variant(tmp_path):
+    """Features from Arrow are read-only, from NumPy writable: the kd-tree build and query
+    and forward kinematics get read-only views, so one variant compiles for both."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    out = subprocess.run(
+        [sys.executable, "-c", READONLY], capture_output=True, text=True, check=True, env=env
+    ).stdout.split()
+    assert out == ["1", "1", "1"], f"build_tree, query_tree, fk_kernel variants: {out}"

@@ -142,6 +142,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "progress",
         "threads",
         "schema",
+        "labels",
         "quaternions",
         "joints",
         "_fk_kernels",

@@ -158,7 +158,7 @@ def test_clip_ids_are_stable_when_a_file_starts_failing(tmp_path):
     p = pipeline(tmp_path, ["d/*.amc"])
     run_pipeline(p, pm=pm())
     before = {r["name"]: r["clip_id"] for r in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()}
-    assert before["02_02"] == clip_id_of("02_02.amc")  # relative to the patterns' folder, d/
+    assert before["02_02"] == clip_id_of("d/02_02.amc")  # its folder and file name
     assert [c["name"] for c in pq.read_table(tmp_path / "ws" / "motions" / "clips.parquet").to_pylist()] == sorted(
         before
     )
@@ -218,7 +218,7 @@ def test_rows_built_in_the_workers_equal_motions_to_tables(tmp_path, monkeypatch
     by_ext = {e: c for _, c in reg["formats"] if getattr(c, "produces", "") == "motion" for e in c.extensions}
     motions = [steps._read_file((by_ext[f.suffix.lower()], {}, str(f), 30.0)) for f in listed]
     assert files and all(not isinstance(m, tuple) for m in motions)
-    want = motions_to_tables(motions, step.clip_ids(listed, p.parent))
+    want = motions_to_tables(motions, step.clip_ids(listed))
     for name in ("data", "clips", "skeletons"):
         got = pq.read_table(ws / f"{name}.parquet").replace_schema_metadata(None)
         assert got.equals(want[name].replace_schema_metadata(None)), name

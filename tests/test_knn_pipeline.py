@@ -45,8 +45,8 @@ def test_small_knn_pipeline_end_to_end(tmp_path):
     y = tmp_path / "p.yaml"
     from mocapflow.framework.schema import clip_id_of
 
-    # a query by clip id: the stable id of the second take (hash of its path below cmu/02/)
-    cid = clip_id_of(files[1].name)
+    # a query by clip id: the stable id of the second take (hash of its folder and name)
+    cid = clip_id_of(f"02/{files[1].name}")
     y.write_text(SMALL.format(ws=tmp_path / "ws", data=EXAMPLES_DATA, clip=files[0].stem, clip_id=cid))
     run_pipeline(y)
     ws = tmp_path / "ws"

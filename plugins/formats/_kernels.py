@@ -9,6 +9,14 @@ import numpy as np
 from numba import njit
 
 
+def readonly(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` (no copy): numba compiles one variant per writeable flag, so
+    the arguments a kernel only reads are always passed read-only (Arrow columns are)."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 @njit(cache=True)
 def _qmul(aw, ax, ay, az, bw, bx, by, bz):
     return (

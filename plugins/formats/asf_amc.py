@@ -370,7 +370,7 @@ def _to_motion_arrays(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[s
     are ``C M C^-1`` with ``M`` the dof rotations about fixed axes in listed order
     (:func:`._kernels.euler_table_to_quat`).
     """
-    from ._kernels import euler_table_to_quat
+    from ._kernels import euler_table_to_quat, readonly
 
     scale = float(skeleton.meta.get("length_scale", 0.0254 / 0.45))
     n_j = skeleton.n_joints
@@ -392,7 +392,7 @@ def _to_motion_arrays(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[s
         np.ascontiguousarray(table),
         cols,
         axis_id,
-        np.ascontiguousarray(skeleton.axes),
+        readonly(np.ascontiguousarray(skeleton.axes)),
         np.pi / 180.0 if degrees else 1.0,
         True,
     )

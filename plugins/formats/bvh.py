@@ -318,7 +318,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
     data = read_bytes(
         path, lambda head: text_head(path, head, (b"HIERARCHY",), "'HIERARCHY' at the start of a BVH file")
     )
-    from ._kernels import euler_table_to_quat  # after the header check: a foreign file costs no kernel load
+    from ._kernels import euler_table_to_quat, readonly  # after the header check: a foreign file costs no kernel load
     from ._text_kernels import tokenize
 
     body = text_body(data)
@@ -362,7 +362,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
             else:
                 pos_cols[j, a] = c
             c += 1
-    rot = euler_table_to_quat(table, cols, axis_id, quat.identity((nj,)), np.pi / 180.0, False)
+    rot = euler_table_to_quat(table, cols, axis_id, readonly(quat.identity((nj,))), np.pi / 180.0, False)
     root_t = np.empty((frames, 3))
     for a in range(3):
         root_t[:, a] = table[:, pos_cols[0, a]] if pos_cols[0, a] >= 0 else offsets[0, a]

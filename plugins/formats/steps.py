@@ -20,7 +20,7 @@ from pydantic import Field
 
 from mocapflow.framework import Format, Markers, Motion, Params, ParseError, StepContext, StepOutput, schema
 from mocapflow.framework.datasets import Dataset
-from mocapflow.framework.errors import DataError, MocapflowError, PipelineError
+from mocapflow.framework.errors import ConfigError, DataError, MocapflowError, PipelineError
 from mocapflow.framework.joints import missing_required
 from mocapflow.framework.motion_tables import clip_row, clips_table, frames_table
 from mocapflow.framework.normalize import resample
@@ -109,6 +109,7 @@ class _FileIngest(Format):
     ``formats`` registry, per-file fan-out with failures collected as rejects, fingerprints."""
 
     is_step = True
+    version = "2"  # 2: clip ids keyed by folder and file name (schema.clip_keys)
     inputs: Mapping[str, bool] = {}
     #: which readers the step uses: those whose ``produces`` equals this
     reads: ClassVar[str] = "motion"
@@ -122,6 +123,12 @@ class _FileIngest(Format):
         readers: dict[str, dict[str, Any]] = Field(
             default_factory=dict, description="per-format reader parameters, e.g. {amc: {fps: 120}}"
         )
+        labels: str | None = Field(
+            None, description="CSV of clip labels (clip,label[,start,end] in seconds), relative to the pipeline file"
+        )
+        label_pattern: str | None = Field(
+            None, description="regular expression over clip names giving a clip's label (group 'label')"
+        )
 
     def _files(self, base: Path) -> list[Path]:
         """The input files; the listing :meth:`source_fingerprint` made is reused once, by
@@ -133,6 +140,12 @@ class _FileIngest(Format):
         return _expand(self.params.paths, base, self.params.exclude)
 
     def check_plan(self, base_dir: Path) -> list[str]:
+        if self.params.labels is not None and not self._labels_path(base_dir).is_file():
+            raise ConfigError(f"labels file {self._labels_path(base_dir)} does not exist")
+        if self.params.label_pattern is not None:
+            from mocapflow.framework.labels import pattern_labels
+
+            pattern_labels(self.params.label_pattern, [])  # a bad expression fails here, not after reading
         return [
             f"pattern {pat!r} of `paths` matches no file (relative to {base_dir})"
             for pat in self.params.paths
@@ -154,26 +167,30 @@ class _FileIngest(Format):
                     h.update(f"{g}|{st.st_size}|{st.st_mtime_ns}\n".encode())
                 except OSError:
                     h.update(f"{g}|missing\n".encode())
+        if self.params.labels is not None:  # the labels CSV is an input too
+            f = self._labels_path(base_dir)
+            h.update(f.read_bytes() if f.is_file() else b"missing")
         return h.hexdigest()[:24]
 
-    def ingest_root(self, base_dir: Path) -> str:
-        """The folder clip ids are relative to: the common folder of the patterns' literal
-        parts (``../examples/data/cmu`` for ``../examples/data/cmu/**/*.amc``), so that the
-        id of a take is the same whichever pipeline reads it, from wherever."""
-        roots = []
-        for pat in self.params.paths:
-            p = Path(pat).expanduser()
-            parts = (p if p.is_absolute() else base_dir / p).parts
-            lit = next((i for i, part in enumerate(parts) if glob.has_magic(part)), len(parts) - 1)
-            roots.append(os.path.realpath(Path(*parts[:lit]) if lit else Path(parts[0])))
-        return os.path.commonpath(roots)
+    def _labels_path(self, base_dir: Path) -> Path:
+        p = Path(self.params.labels or "").expanduser()
+        return p if p.is_absolute() else base_dir / p
 
-    def clip_ids(self, files: list[Path], base_dir: Path) -> list[int]:
+    def _labels(self, clips: list[dict[str, Any]], base_dir: Path) -> dict[str, pa.Table]:
+        """``{"labels": table}`` from the ``labels`` CSV and ``label_pattern``, or ``{}``."""
+        from mocapflow.framework.labels import labels_table
+
+        csv = self._labels_path(base_dir) if self.params.labels is not None else None
+        table = labels_table(clips, csv, self.params.label_pattern)
+        return {} if table is None else {"labels": table}
+
+    @staticmethod
+    def clip_ids(files: list[Path]) -> list[int]:
         """Stable clip id of each file: :func:`~mocapflow.framework.schema.clip_ids_of` its
-        path relative to :meth:`ingest_root` (POSIX separators, e.g. ``02/02_01.amc``), so the
-        id does not depend on which other files match or parse, nor on where the pipeline is."""
-        root = self.ingest_root(base_dir)
-        return schema.clip_ids_of([Path(os.path.relpath(os.path.realpath(f), root)).as_posix() for f in files])
+        :func:`~mocapflow.framework.schema.clip_keys` key (folder and name, ``02/02_01.amc``),
+        so the id depends neither on which other files match or parse, nor on the patterns
+        or where the pipeline is: two ingests of one take give it one id."""
+        return schema.clip_ids_of(schema.clip_keys([os.path.realpath(f) for f in files]))
 
     def _read_all(
         self, ctx: StepContext, fps: float | None = None, rows: bool = False
@@ -195,7 +212,7 @@ class _FileIngest(Format):
         if not jobs:
             raise PipelineError(f"no {self.reads} file matches {self.params.paths} (relative to {ctx.base_dir})")
         # ids of every readable file before reading: a file that fails keeps its would-be id
-        ids = self.clip_ids([Path(j[2]) for j in jobs], ctx.base_dir)
+        ids = self.clip_ids([Path(j[2]) for j in jobs])
         if rows:
             results = ctx.map(
                 _read_motion_rows, [(*j, c) for j, c in zip(jobs, ids, strict=True)], desc=f"{ctx.step_id}: reading"
@@ -233,6 +250,9 @@ class LoadMotions(_FileIngest):
     Tables: ``data`` (one row per frame), ``clips``, ``skeletons``, ``rejects`` (file, line,
     message of every file that failed; the step goes on unless ``on_error: fail``),
     ``warnings`` (the same columns: what a reader repaired in a file it read).
+    message of every file that failed; the step goes on unless ``on_error: fail``), and
+    ``labels`` (clip or span -> label, :mod:`~mocapflow.framework.labels`) when ``labels``
+    or ``label_pattern`` is given.
     Files with an extension no motion reader handles are counted as ``skipped_files``.
     """
 
@@ -260,6 +280,7 @@ class LoadMotions(_FileIngest):
             "warnings": self._warnings_table(
                 ids, [g["clip"]["path"] for g in got], [g.get("warnings", []) for g in got]
             ),
+            **self._labels([g["clip"] for g in got], ctx.base_dir),
         }
         summary = {
             "files": n_files,
@@ -326,6 +347,7 @@ class LoadMarkers(_FileIngest):
                 [str(mk.metadata.get("path", "")) for mk in good],
                 [mk.metadata.get("warnings") or [] for mk in good],
             ),
+            **self._labels(clips, ctx.base_dir),
         }
         summary = {
             "files": n_files,

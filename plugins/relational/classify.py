@@ -80,7 +80,8 @@ class TemplateClassifier(Analysis):
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.datasets import StepOutput
 
-        from .template import _clip_layout, clip_labels
+        from .labels import labels_of
+        from .template import _clip_layout
         from .template_model import load_templates
 
         tds, fds = inputs["templates"], inputs["features"]
@@ -103,7 +104,12 @@ class TemplateClassifier(Analysis):
         costs = classify_clips(templates, sub_bits, sub_off)
         best, c1, second, conf = decide(costs) if len(templates) else (np.zeros(len(sel), int),) * 4
         labels = [t.label for t in templates]
-        truth = clip_labels([names[i] for i in sel], meta.get("label_pattern", r"(?P<label>$^)"))
+        truth = labels_of(
+            inputs["motions"],
+            [clip_ids[i] for i in sel],
+            [names[i] for i in sel],
+            meta.get("label_pattern", r"(?P<label>$^)"),
+        )
         train = re.compile(meta.get("train", "$^"))
         held = [not bool(train.search(names[i])) for i in sel]
         thr = np.array([t.threshold for t in templates])

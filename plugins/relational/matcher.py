@@ -206,7 +206,8 @@ class RelationalMatcher(Matcher):
         elif self.params.refine:
             raise ConfigError("matchers.relational: refine needs the 'motions' input")
         rows: list[dict] = []
-        for qid, spec in enumerate(self.params.queries):
+        queries = list(enumerate(self.params.queries))
+        for qid, spec in ctx.progress(queries, total=len(queries), desc=f"{ctx.step_id}: queries"):
             cid = spec.clip if isinstance(spec.clip, int) else names.get(spec.clip)
             if cid is None:
                 raise ConfigError(

@@ -10,8 +10,10 @@ templates by naming this step as its ``reference`` input::
                 with: {train: "HDM_(bd|bk)_"}}
     again:     {uses: matchers.template, inputs: {database: other, motions: m2, reference: templates}}
 
-Labels come from clip names (``label_pattern``, a regular expression with a group
-``label``); the training clips are those whose names match ``train``.
+Labels come from the motions' ``labels`` table when the ingest wrote one (``formats.load``
+with ``labels``: a CSV, or ``label_pattern``), else from clip names (``label_pattern`` here,
+a regular expression with a group ``label``); the training clips are those whose names
+match ``train``.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 from mocapflow.framework.schema import MATCHES
 
+from .labels import labels_of
 from .template_model import (
     MotionTemplate,
     fit_class_template,
@@ -195,7 +198,9 @@ class TemplateMatcher(Matcher):
 
     class Params(Params):
         label_pattern: str = Field(
-            HDM05_LABEL, description="regular expression on clip names with a group (?P<label>...)"
+            HDM05_LABEL,
+            description="regular expression on clip names with a group (?P<label>...), "
+            "used when the motions have no labels table",
         )
         train: str = Field(".", description="regular expression: clips whose names match are training examples")
         classes: tuple[str, ...] = Field((), description="labels to learn (default: every label of the training clips)")
@@ -249,7 +254,8 @@ class TemplateMatcher(Matcher):
             rx = re.compile(self.params.train)
             train = np.array([bool(rx.search(n)) for n in names])
             groups = clip_labels(names, self.params.group_pattern, "group") if self.params.group_pattern else None
-            templates = self.fit(bits, offsets, clip_labels(names, self.params.label_pattern), train, groups)
+            labels = labels_of(inputs["motions"], clip_ids, names, self.params.label_pattern)
+            templates = self.fit(bits, offsets, labels, train, groups)
         save_templates(templates, ctx.out_dir, {"label_pattern": self.params.label_pattern, "train": self.params.train})
         codes = frame_codes(bits)
         index = None

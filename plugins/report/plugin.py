@@ -26,11 +26,15 @@ def workspace_tables(workspace: Path):
         datasets = dict(cat.datasets)
         for step, ds in sorted(datasets.items(), key=lambda kv: (kv[1].manifest.get("created", ""), kv[0])):
             if ds.has_table("clips"):
+                rel = cat.relation(f"{step}_clips")
+                # markers clips have no subject nor source rate: null columns, one table layout
+                have = set(rel.columns)
+                types = {"subject": "VARCHAR", "source_fps": "DOUBLE", "source_frames": "INTEGER"}
+                col = {c: c if c in have else f"CAST(NULL AS {t}) AS {c}" for c, t in types.items()}
                 t = (
-                    cat.relation(f"{step}_clips")
-                    .project(
-                        "clip_id, name, subject, format, fps, n_frames, round(n_frames / fps, 3) AS duration_s, "
-                        "source_fps, source_frames, path"
+                    rel.project(
+                        f"clip_id, name, {col['subject']}, format, fps, n_frames, "
+                        f"round(n_frames / fps, 3) AS duration_s, {col['source_fps']}, {col['source_frames']}, path"
                     )
                     .order("path, clip_id")
                     .to_arrow_table()

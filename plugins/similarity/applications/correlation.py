@@ -136,19 +136,29 @@ class DistanceCorrelationStudy(Analysis):
         rho = np.full((len(rows), len(cols)), np.nan)
         std = np.full_like(rho, np.nan)
         count = np.zeros(rho.shape, np.int64)
-        # one unit of progress per (row, neighbours) and (row, column): a row is long
-        # (the neighbours of every sample, then one distance per neighbour and column)
-        units = [(r, c) for r in range(len(rows)) for c in range(-1, len(cols))]
+        # units of progress weighted by distance evaluations, so the bar and its ETA move
+        # evenly: a measure row's neighbours scan every frame per sample (one unit per 32
+        # samples), a feature row's come from a kd-tree, a column is k distances per sample
+        nq, chunk = len(queries), 32
+        units, weights = [], []
+        for r, row in enumerate(rows):
+            parts = [(a, min(a + chunk, nq)) for a in range(0, nq, chunk)] if row not in feats else [(0, nq)]
+            units += [(r, -1, a, b) for a, b in parts]
+            weights += [(b - a) * n if row not in feats else 20.0 * n for a, b in parts]
+            units += [(r, c, 0, 0) for c in range(len(cols))]
+            weights += [float(nq * p.k)] * len(cols)
         desc = f"correlation: {len(rows)} rows x ({len(cols)} columns + neighbours)"
-        for r, c in progress(units, desc=desc) if progress else units:
+        for r, c, a, b in progress(units, desc=desc, weights=weights) if progress else units:
             row = rows[r]
-            if c < 0:  # the row's neighbours
+            if c < 0:  # the row's neighbours (a measure row: samples a..b of them)
                 if row in feats:
                     ix = KDTreeIndex(method="kdtree").build(feats[row], groups=clip_id, frames=frame)
                     nd, nb = ix.query_rows(queries, p.k, exclude=0)
                 else:
-                    nd, nb = self._scan(pm, row, queries, clip_id, frame)
-                per = np.full((len(queries), len(cols)), np.nan)
+                    if a == 0:
+                        nd, nb = np.full((nq, p.k), np.inf), np.full((nq, p.k), -1, np.int64)
+                    nd[a:b], nb[a:b] = self._scan(pm, row, queries[a:b], clip_id, frame)
+                per = np.full((nq, len(cols)), np.nan)
                 ok = (nb >= 0).all(1)
                 continue
             col = cols[c]

@@ -16,7 +16,7 @@ n_transitions``). With a ``motions`` input also ``base_poses.png`` (stick figure
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,23 +80,32 @@ class BasePoses:
         return np.bincount(self.cluster[self.cluster >= 0], minlength=len(self.bases))
 
 
-def radius_neighbours(index: Index, x: np.ndarray, radius: float, k: int, chunk: int = 65536) -> np.ndarray:
+def radius_neighbours(
+    index: Index, x: np.ndarray, radius: float, k: int, chunk: int = 16384, progress: Callable | None = None
+) -> np.ndarray:
     """Ids of up to ``k`` neighbours within ``radius`` of every row of ``x`` (built ``index``).
 
     Queried in chunks so that only the ids are kept (int32 when they fit), shape (n, k),
-    padded with -1.
+    padded with -1; ``progress`` (``ctx.progress``) shows the chunks.
     """
     n = len(x)
     dtype = np.int32 if n < 2**31 - 1 else np.int64
     ids = np.full((n, k), -1, dtype)
-    for s in range(0, n, chunk):
+    starts = range(0, n, chunk)
+    for s in progress(starts, total=len(starts), desc="fat graph: neighbours") if progress else starts:
         _, part = index.query(x[s : s + chunk], k, radius=radius)
         ids[s : s + chunk, : part.shape[1]] = part
     return ids
 
 
 def select_base_poses(
-    x: np.ndarray, radius: float, k: int, index: Index, max_base_poses: int = 0, ids: np.ndarray | None = None
+    x: np.ndarray,
+    radius: float,
+    k: int,
+    index: Index,
+    max_base_poses: int = 0,
+    ids: np.ndarray | None = None,
+    progress: Callable | None = None,
 ) -> BasePoses:
     """Base poses of feature vectors ``x`` (Krüger 2010 §5.3, see the module docstring).
 
@@ -114,6 +123,8 @@ def select_base_poses(
         Stop after this many base poses; 0 covers every frame.
     ids : ndarray of shape (n, k), optional
         Precomputed neighbour rows (skips the search; the benchmark times both apart).
+    progress : callable, optional
+        ``ctx.progress``: a bar over the neighbour search.
     """
     x = np.ascontiguousarray(x, dtype=np.float32)
     if x.ndim != 2:
@@ -125,7 +136,7 @@ def select_base_poses(
         return BasePoses(z, z, z)
     if ids is None:
         index.build(x)
-        ids = radius_neighbours(index, x, radius, k)
+        ids = radius_neighbours(index, x, radius, k, progress=progress)
     from ._fat_graph_kernels import greedy_cover  # numba: imported when work starts
 
     bases, cluster, degree = greedy_cover(ids, max_base_poses)
@@ -225,7 +236,7 @@ class FatGraph(Analysis):
         feats = inputs["features"].features()
         from ..knn.kdtree import KDTreeIndex
 
-        res = select_base_poses(feats.x, p.radius, p.k, KDTreeIndex())
+        res = select_base_poses(feats.x, p.radius, p.k, KDTreeIndex(), progress=ctx.progress)
         clip_id, frame = feats.clip_id, feats.frame
         # clip boundaries of the feature rows (rows are clip-contiguous, in clip order)
         new_clip = np.ones(len(clip_id), bool)

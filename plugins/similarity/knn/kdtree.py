@@ -53,6 +53,16 @@ _ARRAYS = tuple(
     f"{a}_"
     for a in ["data", "perm", "groups", "frames", "sqnorms", "mean", "start", "end", "left", "right", "sdim", "sval"]
 )
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    """A read-only view (no copy): the kernels read features read-only, whether they come from
+    Arrow (read-only) or NumPy (writable), so one variant compiles, not two."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 _ZEROS = np.zeros(4, np.int64)  # query clip/frame ids of interactive queries (never written)
 
 
@@ -141,7 +151,7 @@ class KDTreeIndex(CostModel, Index):
             raise DataError(f"{self.key()}: groups/frames must have shape ({n},)")
         x = np.ascontiguousarray(x)
         perm, start, end, left, right, sdim, sval = (
-            tk.build_tree(x, cfg.leafsize)
+            tk.build_tree(_ro(x), cfg.leafsize)
             if n
             else (
                 np.zeros(0, np.int64),
@@ -251,7 +261,7 @@ class KDTreeIndex(CostModel, Index):
         from . import _knn_kernels as kern
 
         tree, no_seed = targs
-        d2, ids = kern.query_tree(x, k, 0.0, np.inf, tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
+        d2, ids = kern.query_tree(_ro(x), k, 0.0, np.inf, tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
         return np.sqrt(d2).astype(np.float32), ids
 
     def query_rows(
@@ -333,7 +343,7 @@ class KDTreeIndex(CostModel, Index):
             seeded = eps == 0.0 and m > 1
             tree, no_seed = self._tree_args()
             return kern.query_tree(
-                q,
+                _ro(q),
                 k,
                 eps,
                 r2,
