@@ -44,7 +44,7 @@ class ReconstructCommand:
         from mocapflow.framework.errors import ConfigError, DataError
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
-        from .reconstruct_markers import control_from_markers, control_from_motion
+        from .reconstruct_markers import control_from_markers, control_from_motion, read_skeleton
         from .reconstruct_prior import PriorStore, bone_lengths, build_store
         from .retarget import positions_to_motion
 
@@ -107,18 +107,6 @@ def _read_markers(path: Path):  # type: ignore[no-untyped-def]
     from mocapflow.plugins.formats.trc import read_trc
 
     return read_c3d(path) if path.suffix.lower() == ".c3d" else read_trc(path)
-
-
-def read_skeleton(path: Path, reg):  # type: ignore[no-untyped-def]
-    from mocapflow.framework.errors import ConfigError
-
-    if not path.is_file():
-        raise ConfigError(f"skeleton {path}: no such file")
-    if path.suffix.lower() == ".asf":
-        from mocapflow.plugins.formats.asf_amc import read_asf
-
-        return read_asf(path)
-    return reg.motion_format(path).read(path).skeleton
 
 
 def _open_prior(spec: str, reg, store_cls, build):  # type: ignore[no-untyped-def]

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -212,7 +213,6 @@ class ReconstructMarkers(Analysis):
         from mocapflow.framework.motion_tables import motions_to_tables
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
-        from .reconstruct_command import read_skeleton
         from .reconstruct_prior import bone_lengths
         from .reconstruct_steps import open_prior
         from .retarget import positions_to_motion
@@ -248,3 +248,15 @@ class ReconstructMarkers(Analysis):
         tables = motions_to_tables(motions, ids)
         tables["fit"] = pa.Table.from_pylist(rows, schema=FIT)
         return StepOutput(tables, {"takes": len(rows), "prior_frames": len(prior.poses), "skeleton": skeleton.name})
+
+
+def read_skeleton(path: Path, reg):  # type: ignore[no-untyped-def]
+    from mocapflow.framework.errors import ConfigError
+
+    if not path.is_file():
+        raise ConfigError(f"skeleton {path}: no such file")
+    if path.suffix.lower() == ".asf":
+        from mocapflow.plugins.formats.asf_amc import read_asf
+
+        return read_asf(path)
+    return reg.motion_format(path).read(path).skeleton
