@@ -28,7 +28,7 @@ from pathlib import Path
 
 SOCKET_NAME = ".search.sock"
 # request options the server takes from the client (the rest: its own plugin selection)
-_FORWARDED = ("query", "index", "matcher", "count", "min_span", "rank_by", "paper", "k", "plot", "out")
+_FORWARDED = ("query", "index", "matcher", "count", "min_span", "rank_by", "paper", "k", "plot", "out", "exclude_self")
 
 
 def socket_path(db: str | Path) -> Path:
