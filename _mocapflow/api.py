@@ -18,10 +18,6 @@ def registries():
     return default_registries()
 
 
-def _format_for(path: Path, *, writing: bool):
-    return registries().motion_format(path, writing=writing)
-
-
 def read(path: str | Path):
     """Read a motion or marker file with the registered format for its extension (ASF found
     beside AMC).
@@ -41,10 +37,23 @@ def read(path: str | Path):
 
 
 def write(motion, path: str | Path) -> None:
-    """Write ``motion`` with the registered format for the extension of ``path``, atomically."""
+    """Write ``motion`` (a Motion, or Markers to a marker format such as TRC) with the
+    registered format for the extension of ``path``, atomically."""
+    from mocapflow.framework.markers import Markers
+
     path = Path(path).expanduser()
+    produces = "markers" if isinstance(motion, Markers) else "motion"
+    ext = path.suffix.lower()
+    writer = next(
+        (c for _, c in registries()["formats"] if ext in c.extensions and c.produces == produces and c.can_write()),
+        None,
+    )
+    if writer is None:
+        from mocapflow.framework.errors import ConfigError
+
+        raise ConfigError(f"{path}: no registered {produces} writer for {ext or 'extension-less'!r} files")
     path.parent.mkdir(parents=True, exist_ok=True)
-    _format_for(path, writing=True).write_atomic(motion, path)
+    writer().write_atomic(motion, path)
 
 
 def _motions(motions) -> list:
