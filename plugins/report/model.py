@@ -288,6 +288,7 @@ class ModelBuilder:
                     "start": r["start_frame"],
                     "end": r["end_frame"],
                     "cost": _scalar(r["cost"]),
+                    "start_s": round(r["start_frame"] / self.mo.fps(step, r["clip_id"]), 3),
                     "seconds": round((r["end_frame"] - r["start_frame"]) / self.mo.fps(step, r["clip_id"]), 3),
                     "extra": {c: _scalar(r[c]) for c in extra},
                     "path": _relative_path(path, q if q.get("motion") else None),
@@ -296,6 +297,7 @@ class ModelBuilder:
             )
         return {
             "type": "retrieval",
+            "export": export_command(ds),
             "motions": step,
             "query_motions": qstep,
             "cost_label": "cost",
@@ -340,6 +342,7 @@ class ModelBuilder:
             )
         return {
             "type": "retrieval",
+            "export": export_command(ds),
             "motions": step,
             "query_motions": qstep,
             "cost_label": "distance",
@@ -480,3 +483,10 @@ def step_order(datasets: Mapping[str, Dataset]) -> list[Dataset]:
         out.append(first)
         del left[first.step]
     return out
+
+
+def export_command(ds: Dataset) -> str:
+    """The ``mocapflow export`` command line that writes a step's hits as clips."""
+    import shlex
+
+    return f"mocapflow export {shlex.quote(str(ds.path.parent.resolve()))} --step {shlex.quote(ds.step)} --handle 10"
