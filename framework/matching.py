@@ -21,7 +21,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from . import schema
 from .errors import ConfigError, DataError
@@ -345,6 +345,12 @@ class MatchParams(Params):
             "empty: every clip of the query input"
         ),
     )
+
+    @field_validator("exclude_self", mode="before")
+    @classmethod
+    def _yaml_off(cls, v: Any) -> Any:
+        """YAML 1.1 reads an unquoted ``off`` as false: take it as ``"off"``."""
+        return "off" if v is False else v
 
 
 _RANGE = re.compile(r"^(?P<a>\d+(?:\.\d+)?)(?P<ua>s?)-(?P<b>\d+(?:\.\d+)?)(?P<ub>s?)$")

@@ -33,6 +33,7 @@ from .matching import (
     SearchSpace,
     drop_excluded,
     excluding,
+    in_source_units,
     matches_table,
     parse_query_spec,
     self_rows,
@@ -216,10 +217,34 @@ def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: StepContex
             raise PipelineError(f"{matcher.key()}.match returned {type(results[qi]).__name__}, not QueryMatches")
         results[qi] = drop_excluded(results[qi], excluded[qi])
         matcher.after_match(qi, q, results[qi], space, ctx)
+    table = with_source_units(matches_table(list(range(len(queries))), results, space), inputs)
     return StepOutput(
-        {"data": matches_table(list(range(len(queries))), results, space), "queries": queries_table(queries)},
+        {"data": table, "queries": queries_table(queries)},
         {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
     )
+
+
+#: Columns :func:`with_source_units` appends to a step's match table.
+SOURCE_UNIT_COLUMNS = ("source_fps", "source_start_frame", "source_end_frame", "start_s", "end_s")
+
+
+def with_source_units(table: pa.Table, inputs: Mapping[str, Dataset]) -> pa.Table:
+    """The match table (frames at the database rate, as the features) with each hit in its
+    take's own units appended: ``source_fps``, ``source_start_frame``/``source_end_frame``
+    (frames of the source file, half-open) and ``start_s``/``end_s`` (seconds from the take's
+    start), by :func:`~.matching.in_source_units`; unchanged when the database's motions
+    (with their source rates) cannot be found."""
+    mds = upstream(features_dataset(inputs) or inputs["database"], "motions")
+    if mds is None or not mds.has_table("clips") or "source_fps" not in mds.schema("clips").names:
+        return table
+    t = mds.table("clips", columns=["clip_id", "fps", "source_fps", "source_frames"]).to_pylist()
+    rates = {int(r["clip_id"]): (r["fps"], r["source_fps"], r["source_frames"]) for r in t}
+    if not set(table["clip_id"].to_pylist()) <= set(rates):
+        return table
+    conv = in_source_units(table.select(["clip_id", "start_frame", "end_frame"]), rates)
+    for name, col in zip(SOURCE_UNIT_COLUMNS, ("fps", "start_frame", "end_frame", "start_s", "end_s"), strict=True):
+        table = table.append_column(name, conv[col])
+    return table
 
 
 def _database_clip_ids(inputs: Mapping[str, Dataset]) -> dict[int, int]:

@@ -192,6 +192,10 @@ def test_pipeline_search_excludes_the_query_span(search_workspace):
         if r["name"] == "16_15"
     }
     assert t
+    for r in t:  # the hit in the take's own units too: 120-Hz frames of the AMC, seconds
+        assert r["source_fps"] == 120.0 and r["source_start_frame"] == 4 * r["start_frame"]
+        assert r["start_s"] == pytest.approx(r["start_frame"] / 30)
+        assert r["end_s"] == pytest.approx(r["source_end_frame"] / 120)  # the take's end, when clamped
     for r in t:  # query frames [30, 60) at 30 Hz, zone 15 frames each side
         if r["clip_id"] in clip_16:
             assert r["end_frame"] <= 15 or r["start_frame"] >= 75

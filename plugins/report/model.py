@@ -36,6 +36,8 @@ from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.normalize import to_root_frame
 
 MATCH_COLS = ("query_id", "rank", "clip_id", "start_frame", "end_frame", "cost")
+#: the hit in its take's own units (a matcher step appends them); the report shows start and duration
+SOURCE_UNIT_COLS = ("source_fps", "source_start_frame", "source_end_frame", "start_s", "end_s")
 NEAREST_COLS = ("query_clip_id", "query_frame", "clip_id", "frame", "distance")
 MDM_COLS = ("clip_id", "frame", "joint_name", "value")
 #: Bones of the stick figures, as canonical joint pairs along these chains.
@@ -265,7 +267,12 @@ class ModelBuilder:
         t = ds.table("data")
         cols = t.column_names
         extra = [
-            c for c in cols if c not in MATCH_COLS and c != "path" and not pa.types.is_nested(t.schema.field(c).type)
+            c
+            for c in cols
+            if c not in MATCH_COLS
+            and c not in SOURCE_UNIT_COLS
+            and c != "path"
+            and not pa.types.is_nested(t.schema.field(c).type)
         ]
         names, qnames = self.mo.names(step), self.mo.names(qstep)
         queries = {}
