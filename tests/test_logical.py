@@ -219,7 +219,7 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     capsys.readouterr()
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "02_01:0-40", "--count", "3"]) == 0
     out = capsys.readouterr().out
-    assert "02_01" in out.splitlines()[2] and len(out.splitlines()) == 5
+    assert "its own span excluded" in out.splitlines()[0] and len(out.splitlines()) == 5
     query_file = EXAMPLES_DATA / "cmu" / "16" / "16_15.amc"
     args = ["--no-entry-points", "search", "--db", str(ws), "--query", f"{query_file}:1s-3s", "--count", "2"]
     assert main([*args, "--exclude-self", "off"]) == 0
