@@ -271,3 +271,30 @@ def test_cli_errors_name_the_workspace(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
     assert main(["report", str(tmp_path)]) == 2
     assert "no finished dataset" in capsys.readouterr().err
+
+
+def test_export_of_a_cleaning_and_a_search_step(quickstart_workspace, tmp_path):
+    """`mocapflow export` of the cleaner's flagged runs and of the search hits: clips of the
+    source takes at 120 Hz that re-read as those source frames."""
+    import csv
+
+    import mocapflow
+    from mocapflow.framework.cli import main
+
+    for step in ("clean", "search"):
+        out = tmp_path / step
+        assert (
+            main(
+                ["--no-entry-points", "export", str(quickstart_workspace), "--step", step, "--top", "2", "-o", str(out)]
+            )
+            == 0
+        )
+        with open(out / "index.csv") as f:
+            rows = list(csv.DictReader(f))
+        assert rows and all(int(r["rank"]) <= 2 for r in rows)
+        r = rows[0]
+        src, back = mocapflow.read(r["source"]), mocapflow.read(out / r["file"])
+        a, b = int(r["clip_start"]), int(r["clip_end"])
+        assert back.fps == src.fps == 120 and back.skeleton.names == src.skeleton.names
+        np.testing.assert_allclose(back.positions, src.positions[a:b], atol=1e-4, rtol=0)
+    assert {r["query"] for r in rows} == {"16_15.amc:1s-2s"}
