@@ -185,6 +185,8 @@ class Matches:
         self.query = query
 
     def __getattr__(self, name: str):
+        if name.startswith("__") or name in ("table", "database", "query"):  # copy/pickle before __init__
+            raise AttributeError(name)
         return getattr(self.table, name)
 
     def __getitem__(self, key):
