@@ -13,8 +13,8 @@ live in ``framework/`` and ``plugins/``.
 __version__ = "0.1.0"
 
 #: The Python API (:mod:`mocapflow.api`), imported on first use.
-_API = ("read", "write", "features", "Database", "clean", "registries")
-__all__ = [*_API, "Motion", "__version__"]
+_API = ("read", "write", "features", "Database", "Matches", "clean", "registries")
+__all__ = [*_API, "Motion", "Markers", "__version__"]
 
 
 def __getattr__(name: str):
@@ -26,4 +26,8 @@ def __getattr__(name: str):
         from mocapflow.framework.motion import Motion
 
         return Motion
+    if name == "Markers":
+        from mocapflow.framework.markers import Markers
+
+        return Markers
     raise AttributeError(f"module 'mocapflow' has no attribute {name!r}")

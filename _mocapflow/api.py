@@ -18,25 +18,42 @@ def registries():
     return default_registries()
 
 
-def _format_for(path: Path, *, writing: bool):
-    return registries().motion_format(path, writing=writing)
-
-
 def read(path: str | Path):
-    """Read a motion file with the registered format for its extension (ASF found beside AMC).
+    """Read a motion or marker file with the registered format for its extension (ASF found
+    beside AMC).
 
-    Returns a :class:`~mocapflow.framework.Motion` (rotations, metres; ``.positions`` is
-    ``(T, J, 3)`` in metres).
+    Returns a :class:`~mocapflow.framework.Motion` for skeletal files (rotations, metres;
+    ``.positions`` is ``(T, J, 3)`` in metres) and :class:`~mocapflow.framework.Markers` for
+    marker files (C3D, TRC: ``.labels``, ``.positions`` ``(T, M, 3)`` metres, NaN in gaps).
     """
+    from mocapflow.framework.errors import ConfigError
+
     path = Path(path).expanduser()
-    return _format_for(path, writing=False).read(path)
+    ext = path.suffix.lower()
+    for _, cls in registries()["formats"]:
+        if ext in cls.extensions and cls.produces in ("motion", "markers"):
+            return cls().read(path)
+    raise ConfigError(f"{path}: no registered reader for {ext or 'extension-less'!r} files")
 
 
 def write(motion, path: str | Path) -> None:
-    """Write ``motion`` with the registered format for the extension of ``path``, atomically."""
+    """Write ``motion`` (a Motion, or Markers to a marker format such as TRC) with the
+    registered format for the extension of ``path``, atomically."""
+    from mocapflow.framework.markers import Markers
+
     path = Path(path).expanduser()
+    produces = "markers" if isinstance(motion, Markers) else "motion"
+    ext = path.suffix.lower()
+    writer = next(
+        (c for _, c in registries()["formats"] if ext in c.extensions and c.produces == produces and c.can_write()),
+        None,
+    )
+    if writer is None:
+        from mocapflow.framework.errors import ConfigError
+
+        raise ConfigError(f"{path}: no registered {produces} writer for {ext or 'extension-less'!r} files")
     path.parent.mkdir(parents=True, exist_ok=True)
-    _format_for(path, writing=True).write_atomic(motion, path)
+    writer().write_atomic(motion, path)
 
 
 def _motions(motions) -> list:
@@ -109,7 +126,9 @@ class Database:
 
         regs = registries()
         self.fps = fps
-        ms = [resample(m, fps) if fps else m for m in _motions(motions)]
+        #: the clips as given, at their own rates (what :meth:`Matches.export` writes)
+        self.sources = _motions(motions)
+        ms = [resample(m, fps) if fps else m for m in self.sources]
         self.motions = MotionDatabase(ms)
         self.feature_set = regs["features"].get(features)(feature_params or {}).fit(self.motions)
         x = self.feature_set.transform(self.motions)
@@ -118,24 +137,105 @@ class Database:
         self.clip_names = {int(c): m.name for c, m in zip(self.motions.clip_ids, self.motions, strict=True)}
         self.space = SearchSpace(clip_id, frame, self.index, x, clip_names=self.clip_names)
 
-    def search(self, query, matcher: str = "search", count: int = 10, **params: Any):
+    def search(self, query, matcher: str = "search", count: int = 10, exclude_self: str = "span", **params: Any):
         """Segments most similar to ``query`` (a Motion or path, resampled to the database rate).
 
-        Returns the shared match table (pyarrow Table: ``query_id, rank, clip_id, start_frame,
-        end_frame, cost, cost_normalized, path``, frames half-open, plus ``clip`` names).
-        """
-        import pyarrow as pa
+        A query cut from a database clip (same source file) finds no match overlapping its
+        own span widened by half its length on each side (``exclude_self="span"``), none in
+        its clip (``"clip"``), or itself too (``"off"``).
 
-        from mocapflow.framework.matching import matches_table
+        Returns :class:`Matches`: the match table in the clips' own units (``fps``, source
+        frames ``start_frame``/``end_frame`` half-open, ``start_s``/``end_s`` seconds), ready
+        to :meth:`~Matches.export`.
+        """
+        from mocapflow.framework.matching import (
+            drop_excluded,
+            excluding,
+            in_source_units,
+            matches_table,
+            self_rows,
+        )
         from mocapflow.framework.normalize import resample
 
         q = _motions(query)[0]
+        first = int(q.metadata.get("source_start_frame", 0))
+        label = f"{q.name or 'query'}:{first}-{first + q.n_frames}" if "source_start_frame" in q.metadata else q.name
+        rows = self_rows(self.space, *self._own_span(q), exclude_self)
         q = resample(q, self.fps) if self.fps else q
         m = registries()["matchers"].get(matcher)({"count": count, **params})
-        res = m.match(self.feature_set.transform(q), self.space)
+        with excluding(rows):
+            res = drop_excluded(m.match(self.feature_set.transform(q), self.space), rows)
         table = matches_table([0], [res], self.space)
-        return table.append_column(
-            "clip", pa.array([self.clip_names[c] for c in table["clip_id"].to_pylist()], pa.string())
+        rates = {
+            int(c): (a.fps, s.fps, s.n_frames)
+            for c, a, s in zip(self.motions.clip_ids, self.motions, self.sources, strict=True)
+        }
+        table = in_source_units(table, rates)
+        return Matches(table.add_column(3, "clip", pa_names(table, self.clip_names)), self, label or "query")
+
+    def _own_span(self, q) -> tuple[int, int, int]:
+        """``(clip_id, start, end)`` of ``q`` in database frames when it is cut from a clip
+        of the same source file (its ``path``, ``source_start_frame``), else ``(-1, 0, 0)``."""
+        path = q.metadata.get("path")
+        if not path:
+            return -1, 0, 0
+        for c, src, m in zip(self.motions.clip_ids, self.sources, self.motions, strict=True):
+            if src.metadata.get("path") and Path(src.metadata["path"]).resolve() == Path(path).resolve():
+                t0 = (
+                    int(q.metadata.get("source_start_frame", 0)) - int(src.metadata.get("source_start_frame", 0))
+                ) / q.fps
+                a = int(round(t0 * m.fps))
+                return int(c), a, a + max(1, int(round(q.duration * m.fps)))
+        return -1, 0, 0
+
+
+def pa_names(table, names: dict[int, str]):
+    import pyarrow as pa
+
+    return pa.array([names[c] for c in table["clip_id"].to_pylist()], pa.string())
+
+
+class Matches:
+    """The matches of one search (:meth:`Database.search`): ``.table`` (pyarrow) in the clips'
+    own units; table methods (``select``, ``to_pylist``, ``num_rows``...) work on it directly."""
+
+    def __init__(self, table, database: Database, query: str) -> None:
+        self.table = table
+        self.database = database
+        self.query = query
+
+    def __getattr__(self, name: str):
+        if name.startswith("__") or name in ("table", "database", "query"):  # copy/pickle before __init__
+            raise AttributeError(name)
+        return getattr(self.table, name)
+
+    def __getitem__(self, key):
+        return self.table[key]
+
+    def __len__(self) -> int:
+        return self.table.num_rows
+
+    def __repr__(self) -> str:
+        return f"Matches({self.query!r}, {self.table.num_rows} rows)\n{self.table.drop_columns(['analysis_path'])}"
+
+    def export(self, out_dir: str | Path, *, handle: int = 0, format: str | None = None, top: int | None = None):
+        """Write each match as a clip under ``out_dir/<query>/`` in its source's own format
+        (or ``format``: bvh, amc...), rate, skeleton and joint names, widened by ``handle``
+        source frames on each side, plus ``out_dir/index.csv``; returns the index table."""
+        from mocapflow.framework.export import Segment, export_segments
+
+        db = self.database
+        by_id = {int(c): (m, src) for c, m, src in zip(db.motions.clip_ids, db.motions, db.sources, strict=True)}
+        segs, sources = [], {}
+        for r in self.table.select(["rank", "clip_id", "start_frame", "end_frame"]).to_pylist():
+            if top is not None and r["rank"] > top:
+                continue
+            m, src = by_id[r["clip_id"]]
+            key = str(src.metadata.get("path") or f"{src.name or r['clip_id']}.{src.metadata.get('format', 'bvh')}")
+            sources[key] = src
+            segs.append(Segment(self.query, r["rank"], m.name, key, r["start_frame"], r["end_frame"]))
+        return export_segments(
+            segs, Path(out_dir).expanduser(), registries(), handle=handle, format=format, load=sources.__getitem__
         )
 
 

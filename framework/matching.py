@@ -11,7 +11,9 @@ from __future__ import annotations
 import bisect
 import hashlib
 import re
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterator, Mapping
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -19,7 +21,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from . import schema
 from .errors import ConfigError, DataError
@@ -162,6 +164,9 @@ def select_matches(
     cand = np.flatnonzero(ok)
     kept: list[int] = []
     taken = IntervalSet()
+    excluded = _EXCLUDED.get()
+    if excluded is not None:  # the query's own span (see excluding): no match may overlap it
+        taken.add(*excluded)
     chunk = max(64, 32 * count)
     while cand.size and len(kept) < count:
         # the chunk best candidates, in order (argpartition keeps this O(n) for sDTW)
@@ -178,6 +183,88 @@ def select_matches(
             if len(kept) == count:
                 break
     return np.asarray(kept, np.int64)
+
+
+#: Rows ``[lo, hi]`` (closed) no match may overlap while :func:`excluding` is active.
+_EXCLUDED: ContextVar[tuple[int, int] | None] = ContextVar("mocapflow_excluded_rows", default=None)
+
+#: ``exclude_self`` modes: ``span`` the query's span widened by half its length on each side
+#: (the exclusion zone of matrix-profile practice), ``clip`` its whole clip, ``off`` none.
+EXCLUDE_SELF = ("span", "clip", "off")
+
+
+@contextmanager
+def excluding(rows: tuple[int, int] | None) -> Iterator[None]:
+    """Within the block, :func:`select_matches` keeps no match overlapping index rows
+    ``rows = (lo, hi)`` (closed; ``None``: nothing excluded)."""
+    token = _EXCLUDED.set(rows)
+    try:
+        yield
+    finally:
+        _EXCLUDED.reset(token)
+
+
+def self_rows(space: SearchSpace, clip_id: int, start: int, end: int, mode: str) -> tuple[int, int] | None:
+    """Index rows ``(lo, hi)`` a query cut from frames ``[start, end)`` of database clip
+    ``clip_id`` (-1: not in the database) excludes: ``mode`` ``span`` its frames widened by
+    ``ceil(length / 2)`` on each side, ``clip`` the whole clip, ``off`` nothing (None)."""
+    if mode not in EXCLUDE_SELF:
+        raise ConfigError(f"exclude_self must be one of {', '.join(EXCLUDE_SELF)}, got {mode!r}")
+    if mode == "off" or clip_id < 0:
+        return None
+    mask = space.clip_id == clip_id
+    if mode == "span":
+        zone = (end - start + 1) // 2
+        mask &= (space.frame >= start - zone) & (space.frame < end + zone)
+    rows = np.flatnonzero(mask)
+    return (int(rows[0]), int(rows[-1])) if rows.size else None
+
+
+def drop_excluded(res: QueryMatches, rows: tuple[int, int] | None) -> QueryMatches:
+    """``res`` without matches overlapping ``rows`` (for matchers that rank without
+    :func:`select_matches`); ranks close up."""
+    if rows is None or not len(res):
+        return res
+    keep = (np.asarray(res.end) <= rows[0]) | (np.asarray(res.start) > rows[1])
+    if keep.all():
+        return res
+    return QueryMatches(
+        res.start[keep],
+        res.end[keep],
+        res.cost[keep],
+        res.length[keep],
+        [p for p, k in zip(res.paths, keep, strict=False) if k],
+    )
+
+
+def in_source_units(table: pa.Table, clips: Mapping[int, tuple[float, float, int]]) -> pa.Table:
+    """A segment table (``clip_id, start_frame, end_frame`` at the analysis rate) in the
+    units a user reads: ``clips[clip_id] = (analysis fps, source fps, source frames)``.
+
+    ``start_frame``/``end_frame`` become frames of the source file at its own rate
+    (half-open), ``fps`` that rate, ``start_s``/``end_s`` those frames in seconds from the
+    take's start (``end_s - start_s``: the duration); a warping path stays at the analysis rate as
+    ``analysis_path`` with ``analysis_fps``."""
+    cid = table["clip_id"].to_numpy()
+    rates = np.array([clips[int(c)] for c in cid], np.float64).reshape(-1, 3)
+    a_fps, s_fps, n_src = rates[:, 0], rates[:, 1], rates[:, 2]
+    scale = s_fps / np.maximum(a_fps, 1e-12)
+    sf = np.clip(np.round(table["start_frame"].to_numpy() * scale), 0, np.maximum(n_src - 1, 0)).astype(np.int32)
+    ef = np.maximum(np.minimum(np.round(table["end_frame"].to_numpy() * scale), n_src), sf + 1).astype(np.int32)
+    start_s, end_s = sf / s_fps, ef / s_fps
+    t = table
+    for name in ("fps", "start_s", "end_s", "analysis_fps", "analysis_path"):
+        if name in t.column_names:
+            t = t.drop_columns([name])
+    at = t.column_names.index("start_frame")
+    t = t.set_column(at, "start_frame", pa.array(sf)).set_column(at + 1, "end_frame", pa.array(ef))
+    t = t.add_column(at, "fps", pa.array(s_fps)).add_column(at + 3, "start_s", pa.array(start_s))
+    t = t.add_column(at + 4, "end_s", pa.array(end_s))
+    if "path" in t.column_names:
+        path = t["path"]
+        t = t.drop_columns(["path"]).append_column("analysis_fps", pa.array(a_fps))
+        t = t.append_column("analysis_path", path)
+    return t
 
 
 def min_frames_of(min_span: float, query_frames: int) -> int:
@@ -244,6 +331,13 @@ class MatchParams(Params):
             "(default 0.5: no whole query squashed onto a few frames; 0: all, as in the paper)"
         ),
     )
+    exclude_self: Literal["span", "clip", "off"] = Field(
+        "span",
+        description=(
+            "a query cut from a database clip: no match overlapping its span widened by half its "
+            "length on each side (span), none in its clip (clip), or no exclusion (off)"
+        ),
+    )
     queries: list[str] = Field(
         default_factory=list,
         description=(
@@ -251,6 +345,12 @@ class MatchParams(Params):
             "empty: every clip of the query input"
         ),
     )
+
+    @field_validator("exclude_self", mode="before")
+    @classmethod
+    def _yaml_off(cls, v: Any) -> Any:
+        """YAML 1.1 reads an unquoted ``off`` as false: take it as ``"off"``."""
+        return "off" if v is False else v
 
 
 _RANGE = re.compile(r"^(?P<a>\d+(?:\.\d+)?)(?P<ua>s?)-(?P<b>\d+(?:\.\d+)?)(?P<ub>s?)$")

@@ -27,7 +27,17 @@ from .context import StepContext
 from .database import MotionDatabase
 from .datasets import Dataset, StepOutput
 from .errors import ConfigError, DataError, PipelineError
-from .matching import QueryMatches, QuerySpec, SearchSpace, matches_table, parse_query_spec
+from .matching import (
+    QueryMatches,
+    QuerySpec,
+    SearchSpace,
+    drop_excluded,
+    excluding,
+    in_source_units,
+    matches_table,
+    parse_query_spec,
+    self_rows,
+)
 from .motion import Motion
 from .registry import Registries
 
@@ -188,26 +198,78 @@ def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: StepContex
         raise NotImplementedError(f"{matcher.key()} implements neither match(query, space) nor run()")
     space = search_space(matcher, inputs, ctx.registries)
     queries = step_queries(matcher, inputs, ctx)
+    mode = str(getattr(matcher.params, "exclude_self", "off"))
+    own = _database_clip_ids(inputs) if mode != "off" else {}
+    excluded = [self_rows(space, own.get(q.clip_id, -1), q.start_frame, q.end_frame, mode) for q in queries]
     results: list[Any]
     if ctx.executor.workers > 1 and len(queries) > 1:
         # one task per query; each worker loads the search space once, with the run's registries
         refs = {slot: DatasetRef.of(ds) for slot, ds in inputs.items() if slot != "query"}
         task = partial(_match_task, matcher, refs, ctx.registries)
-        results = ctx.map(task, [q.features for q in queries], desc=ctx.step_id)
+        results = ctx.map(task, [(q.features, ex) for q, ex in zip(queries, excluded, strict=True)], desc=ctx.step_id)
     else:
-        results = [matcher.match(q.features, space) for q in ctx.progress(queries, total=len(queries))]
+        results = []
+        for q, ex in zip(ctx.progress(queries, total=len(queries)), excluded, strict=False):
+            with excluding(ex):
+                results.append(matcher.match(q.features, space))
     for qi, q in enumerate(queries):
         if not isinstance(results[qi], QueryMatches):
             raise PipelineError(f"{matcher.key()}.match returned {type(results[qi]).__name__}, not QueryMatches")
+        results[qi] = drop_excluded(results[qi], excluded[qi])
         matcher.after_match(qi, q, results[qi], space, ctx)
+    table = with_source_units(matches_table(list(range(len(queries))), results, space), inputs)
     return StepOutput(
-        {"data": matches_table(list(range(len(queries))), results, space), "queries": queries_table(queries)},
+        {"data": table, "queries": queries_table(queries)},
         {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
     )
 
 
+#: Columns :func:`with_source_units` appends to a step's match table.
+SOURCE_UNIT_COLUMNS = ("source_fps", "source_start_frame", "source_end_frame", "start_s", "end_s")
+
+
+def with_source_units(table: pa.Table, inputs: Mapping[str, Dataset]) -> pa.Table:
+    """The match table (frames at the database rate, as the features) with each hit in its
+    take's own units appended: ``source_fps``, ``source_start_frame``/``source_end_frame``
+    (frames of the source file, half-open) and ``start_s``/``end_s`` (seconds from the take's
+    start), by :func:`~.matching.in_source_units`; unchanged when the database's motions
+    (with their source rates) cannot be found."""
+    mds = upstream(features_dataset(inputs) or inputs["database"], "motions")
+    if mds is None or not mds.has_table("clips") or "source_fps" not in mds.schema("clips").names:
+        return table
+    t = mds.table("clips", columns=["clip_id", "fps", "source_fps", "source_frames"]).to_pylist()
+    rates = {int(r["clip_id"]): (r["fps"], r["source_fps"], r["source_frames"]) for r in t}
+    if not set(table["clip_id"].to_pylist()) <= set(rates):
+        return table
+    conv = in_source_units(table.select(["clip_id", "start_frame", "end_frame"]), rates)
+    for name, col in zip(SOURCE_UNIT_COLUMNS, ("fps", "start_frame", "end_frame", "start_s", "end_s"), strict=True):
+        table = table.append_column(name, conv[col])
+    return table
+
+
+def _database_clip_ids(inputs: Mapping[str, Dataset]) -> dict[int, int]:
+    """Query clip id -> the database clip of the same source file (by path), for the
+    queries that lie inside the database (``exclude_self``)."""
+    qds = inputs["query"]
+    fds = features_dataset(inputs)
+    mds = upstream(fds or inputs["database"], "motions")
+    qclips = qds if qds.has_table("clips") else upstream(qds, "motions")
+    if mds is None or qclips is None or not (mds.has_table("clips") and qclips.has_table("clips")):
+        return {}
+    db = mds.table("clips", columns=["clip_id", "path"]).to_pylist()
+    by_path = {r["path"]: r["clip_id"] for r in db if r["path"]}
+    out = {}
+    for r in qclips.table("clips", columns=["clip_id", "path"]).to_pylist():
+        if r["path"] in by_path:
+            out[int(r["clip_id"])] = int(by_path[r["path"]])
+    return out
+
+
 def _match_task(
-    matcher: Matcher, refs: dict[str, DatasetRef], registries: Registries, features: np.ndarray
+    matcher: Matcher,
+    refs: dict[str, DatasetRef],
+    registries: Registries,
+    job: tuple[np.ndarray, tuple[int, int] | None],
 ) -> QueryMatches:
     """One query of :func:`run_matcher` on a worker (the search space loaded once per process)."""
     key = (
@@ -217,7 +279,9 @@ def _match_task(
         tuple(sorted((s, r.path, r.fingerprint) for s, r in refs.items())),
     )
     space = cached(key, lambda: search_space(matcher, {s: r.dataset() for s, r in refs.items()}, registries))
-    result: QueryMatches = matcher.match(features, space)
+    features, excluded = job
+    with excluding(excluded):
+        result: QueryMatches = matcher.match(features, space)
     return result
 
 

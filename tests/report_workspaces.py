@@ -38,7 +38,7 @@ steps:
   probe_search:
     uses: matchers.search
     inputs: {{database: tree, query: probe}}
-    with: {{queries: ["35_01:0-30"], count: 3}}
+    with: {{queries: ["35_01:0-30"], count: 3, exclude_self: "off"}}
   reconstruction:
     uses: analyses.reconstruct
     inputs: {{prior: motions, test: test}}

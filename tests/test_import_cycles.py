@@ -163,7 +163,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     # what a component, a step's context, an executor and a plugin hook must provide
     "contracts": ("components", "context", "hookspecs"),
     # the default step of each kind
-    "steps": ("queries", "steps"),
+    "steps": ("queries", "steps", "export"),
     # pipelines, plans, plugins, executors, the runner, the catalog and the CLI
     "engine": ("config", "plan", "plugins", "executors", "runner", "catalog", "cli"),
     # what third parties test their components with

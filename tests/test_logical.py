@@ -198,7 +198,9 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     from mocapflow.framework.runner import run_pipeline
 
     ws = tmp_path / "ws"
-    run_pipeline(REPO / "pipelines" / "search.yaml", workspace=ws, echo=lambda s: None)
+    # the queries are cut from database clips: let them find themselves (exclude_self: off)
+    off = ["matches.exclude_self=off", "exact.exclude_self=off"]
+    run_pipeline(REPO / "pipelines" / "search.yaml", workspace=ws, overrides=off, echo=lambda s: None)
     ds = read_datasets(ws)
     lng, exact = ds["matches"].table().to_pylist(), ds["exact"].table().to_pylist()
     # every query is found in its own clip at cost 0, by both matchers
@@ -217,12 +219,16 @@ def test_search_pipeline_and_cli_end_to_end(tmp_path, capsys):
     capsys.readouterr()
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "02_01:0-40", "--count", "3"]) == 0
     out = capsys.readouterr().out
-    assert "02_01" in out.splitlines()[2] and len(out.splitlines()) == 5
+    assert "its own span excluded" in out.splitlines()[0] and len(out.splitlines()) == 5
     query_file = EXAMPLES_DATA / "cmu" / "16" / "16_15.amc"
-    assert main(["--no-entry-points", "search", "--db", str(ws), "--query", f"{query_file}:1s-3s", "--count", "2"]) == 0
+    args = ["--no-entry-points", "search", "--db", str(ws), "--query", f"{query_file}:1s-3s", "--count", "2"]
+    assert main([*args, "--exclude-self", "off"]) == 0
     best = capsys.readouterr().out.splitlines()[2].split()
-    assert best[:4] == ["1", "16_15", "30", "90"]  # read, resampled to 30 Hz, found where it came from
-    assert best[-2:] == ["1.00", "3.00"]  # and the same match in seconds of the database's rate
+    # read, resampled to 30 Hz, found where it came from, in the take's frames (120 Hz) and seconds
+    assert best[:7] == ["1", "16_15", "120", "120", "360", "1.00", "2.00"]
+    assert main(args) == 0  # by default a query file that is a database take does not find itself
+    out = capsys.readouterr().out.splitlines()
+    assert "its own span excluded" in out[0] and out[2].split()[:5] != best[:5]
     assert main(["--no-entry-points", "search", "--db", str(ws), "--query", "nonexistent.amc"]) != 0
     # the default (matchers.search) is subsequence DTW's answer; --out into a folder that does not exist creates it
     capsys.readouterr()

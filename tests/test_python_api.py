@@ -34,7 +34,7 @@ def test_facade_agrees_with_the_components():
     db = MotionDatabase([walk])
     np.testing.assert_array_equal(mocapflow.features("end_effectors", walk, joints=10), fs.fit(db).transform(db))
     q = walk.slice(30, 90)
-    hits = mocapflow.Database([walk], fps=None).search(q, count=3)
+    hits = mocapflow.Database([walk], fps=None).search(q, count=3, exclude_self="off")
     assert hits.column_names[:3] == ["query_id", "rank", "clip_id"] and hits.num_rows >= 1
     best = hits.slice(0, 1).to_pylist()[0]
     assert (best["clip"], best["start_frame"], best["end_frame"]) == ("16_15", 30, 90)

@@ -171,7 +171,10 @@ def test_search_hits_carry_their_warping_path_and_play_real_motion(quickstart_si
     (q,) = view["queries"]
     assert (q["clip"], q["start"], q["end"]) == ("16_15", 30, 60)
     best = view["hits"][0]
-    assert best["clip"] == "16_15" and best["cost"] == 0.0 and best["path"][0] == [0, 30] and len(best["path"]) == 30
+    # the query does not find itself: no hit within half its length (15 frames) of its span
+    assert all(x["clip"] != "16_15" or x["end"] <= 15 or x["start"] >= 75 for x in view["hits"])
+    assert best["cost"] > 0 and best["path"][0] == [0, best["start"]] and best["path"][-1][0] == 29
+    assert best["start_s"] == round(best["start"] / 30, 3) and view["export"].startswith("mocapflow export ")
     # the data file of the query's take decodes to the canonical positions of its stored motion
     from mocapflow.framework.joints import CANONICAL_JOINTS
 
@@ -267,3 +270,30 @@ def test_cli_errors_name_the_workspace(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
     assert main(["report", str(tmp_path)]) == 2
     assert "no finished dataset" in capsys.readouterr().err
+
+
+def test_export_of_a_cleaning_and_a_search_step(quickstart_workspace, tmp_path):
+    """`mocapflow export` of the cleaner's flagged runs and of the search hits: clips of the
+    source takes at 120 Hz that re-read as those source frames."""
+    import csv
+
+    import mocapflow
+    from mocapflow.framework.cli import main
+
+    for step in ("clean", "search"):
+        out = tmp_path / step
+        assert (
+            main(
+                ["--no-entry-points", "export", str(quickstart_workspace), "--step", step, "--top", "2", "-o", str(out)]
+            )
+            == 0
+        )
+        with open(out / "index.csv") as f:
+            rows = list(csv.DictReader(f))
+        assert rows and all(int(r["rank"]) <= 2 for r in rows)
+        r = rows[0]
+        src, back = mocapflow.read(r["source"]), mocapflow.read(out / r["file"])
+        a, b = int(r["clip_start"]), int(r["clip_end"])
+        assert back.fps == src.fps == 120 and back.skeleton.names == src.skeleton.names
+        np.testing.assert_allclose(back.positions, src.positions[a:b], atol=1e-4, rtol=0)
+    assert {r["query"] for r in rows} == {"16_15.amc:1s-2s"}

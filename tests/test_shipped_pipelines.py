@@ -29,12 +29,15 @@ def test_quickstart_end_to_end(tmp_path):
     with Catalog(tmp_path) as cat:
         assert cat.query("SELECT count(*) AS n FROM clips").column("n")[0].as_py() == 8
         assert cat.query("SELECT count(*) AS n FROM rejects").column("n")[0].as_py() == 0
-        best = cat.query(
-            "SELECT c.name, s.start_frame, s.end_frame, s.cost FROM search s JOIN clips c USING (clip_id) "
-            "WHERE s.rank = 1"
+        hits = cat.query(
+            "SELECT c.name, s.start_frame, s.end_frame, s.cost, s.source_fps, s.source_start_frame, s.start_s "
+            "FROM search s JOIN clips c USING (clip_id)"
         ).to_pylist()
-        # the query (16_15, seconds 1-2 at 30 Hz) finds itself first, at zero cost
-        assert best == [{"name": "16_15", "start_frame": 30, "end_frame": 60, "cost": 0.0}]
+        # the query (16_15, seconds 1-2 at 30 Hz) does not find itself (exclude_self: span, zone 15 frames)
+        assert len(hits) == 5 and all(h["cost"] > 0 for h in hits)
+        assert all(h["name"] != "16_15" or h["end_frame"] <= 15 or h["start_frame"] >= 75 for h in hits)
+        # and each hit is also given in its take's own units (120 Hz AMC) and seconds
+        assert all(h["source_fps"] == 120 and h["source_start_frame"] == 4 * h["start_frame"] for h in hits)
         nearest = cat.query("SELECT count(*) AS n FROM nearest").column("n")[0].as_py()
         assert nearest == 3 * 16
         assert cat.query("SELECT min(rank) AS r FROM hits").column("r")[0].as_py() == 1

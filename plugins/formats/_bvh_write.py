@@ -8,6 +8,7 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.motion import Motion
+from mocapflow.framework.skeleton import Skeleton
 
 
 def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_order: str = "zyx") -> None:
@@ -17,8 +18,12 @@ def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_ord
     A skeleton read from BVH keeps its channel layout (order and position channels);
     others get ``Xposition Yposition Zposition`` on the root and three rotation channels
     in ``default_order`` on every other joint, except leaves named ``*_end``, which are
-    written as ``End Site``; other leaves get a zero-offset ``End Site`` below them.
+    written as ``End Site``; other leaves get a zero-offset ``End Site`` below them. A
+    static root the reader dropped (``meta["collapsed_root"]``) is written back above the
+    root, with its own name, offset, channels and values.
     """
+    if motion.skeleton.meta.get("collapsed_root"):
+        motion = restore_collapsed_root(motion)
     sk = motion.skeleton
     from_bvh = sk.meta.get("format") == "bvh" and len(sk.channels) == sk.n_joints
     scl = float(sk.meta.get("scale", 1.0)) if from_bvh else 1.0
@@ -75,3 +80,38 @@ def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_ord
     row = " ".join([g] * table.shape[1])
     body = "\n".join(row % tuple(r) for r in table.tolist())
     Path(path).write_text("\n".join(lines) + "\n" + body + "\n", encoding="latin-1")
+
+
+def restore_collapsed_root(motion: Motion) -> Motion:
+    """The motion with the static root the BVH reader dropped (``skeleton.meta["collapsed_root"]``)
+    put back as joint 0: same world positions, the file's own joint names and count."""
+    sk = motion.skeleton
+    info = sk.meta["collapsed_root"]
+    scl = float(sk.meta.get("scale", 1.0))
+    r0 = np.asarray(info["rotation"], float)
+    t0 = np.asarray(info["translation"], float) * scl
+    n, nj = motion.n_frames, sk.n_joints
+    meta = {k: v for k, v in sk.meta.items() if k != "collapsed_root"}
+    skeleton = Skeleton(
+        names=(str(info["name"]), *sk.names),
+        parents=np.r_[-1, sk.parents + 1],
+        offsets=np.vstack([np.asarray(info["offset"], float) * scl, sk.offsets]),
+        canonical={k: v + 1 for k, v in sk.canonical.items()},
+        rotation_orders=("".join(c[0].lower() for c in info["channels"] if c[1:].lower() == "rotation"),)
+        + tuple(sk.rotation_orders),
+        channels=(tuple(info["channels"]), *sk.channels),
+        name=sk.name,
+        meta=meta,
+    )
+    r0_inv = quat.conjugate(r0)
+    rot = np.concatenate(
+        [np.broadcast_to(r0, (n, 1, 4)), quat.mul(r0_inv, motion.rotations[:, :1]), motion.rotations[:, 1:]], axis=1
+    )
+    lt = np.empty((n, nj + 1, 3))
+    lt[:] = skeleton.offsets
+    if motion.local_translations is not None:
+        lt[:, 2:] = motion.local_translations[:, 1:]
+    lt[:, 1] = quat.rotate(r0_inv, motion.root_translation - t0)
+    return motion.with_arrays(
+        skeleton=skeleton, root_translation=np.broadcast_to(t0, (n, 3)).copy(), rotations=rot, local_translations=lt
+    )

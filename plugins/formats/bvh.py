@@ -24,7 +24,9 @@
   has position channels) is dropped by default (``collapse_static_root``): the hips become
   the root, so ``root_translation`` and ``rotations[:, 0]`` carry the body's motion as
   normalisation and features expect. ``metadata["collapsed_root"]`` names the dropped
-  joint; world positions are unchanged.
+  joint; world positions are unchanged. The skeleton's ``meta["collapsed_root"]`` keeps
+  the dropped joint (name, offset, channels, its constant rotation and translation in
+  file units), and the writer puts it back: a rig that binds by name gets its own root.
 * ``Frame Time`` gives fps (``metadata["frame_time"]`` keeps the exact value).
 """
 
@@ -373,7 +375,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
             v = np.where(pos_cols[j] >= 0, table[:, np.maximum(pos_cols[j], 0)], offsets[j])
             if np.abs(v - offsets[j]).max() > 1e-4 * max(1.0, float(np.abs(offsets[j]).max())):
                 moving[j] = v
-    names, collapsed = tuple(jt.name for jt in joints), None
+    names, collapsed, restore = tuple(jt.name for jt in joints), None, None
     chans = [tuple(jt.channels) for jt in joints]
     if (
         collapse_static_root
@@ -386,6 +388,14 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
         # make the hips the root so that root_translation and rotations[:, 0] carry the motion
         collapsed = names[0]
         r0 = rot[0, 0].copy()
+        # what the writer needs to put it back (a rig that binds by name keeps its root)
+        restore = {
+            "name": collapsed,
+            "offset": offsets[0].tolist(),
+            "channels": list(chans[0]),
+            "rotation": r0.tolist(),
+            "translation": root_t[0].tolist(),
+        }
         root_t = root_t[0] + quat.rotate(r0, moving.pop(1))
         rot = rot[:, 1:].copy()
         rot[:, 0] = quat.mul(r0, rot[:, 0])
@@ -408,7 +418,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
         axes=None,
         channels=tuple(chans),
         name=path.stem,
-        meta={"format": "bvh", "scale": scl, "unit": unit},
+        meta={"format": "bvh", "scale": scl, "unit": unit, **({"collapsed_root": restore} if restore else {})},
     )
     meta = file_metadata(path, data, "bvh")
     meta.update(

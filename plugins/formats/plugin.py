@@ -1,7 +1,7 @@
 """Registration of the built-in file formats (the ``formats`` package): readers and writers
 ``amc`` (Acclaim ASF/AMC), ``bvh``, ``fbx`` (reader), ``gltf`` (``.gltf``/``.glb``), ``c3d`` and ``trc`` (markers), and the ingest steps that
 use them (``formats.load``, ``formats.load_markers``, ``formats.export``), and the skeleton
-naming dialects of :mod:`.joint_maps`.
+naming dialects of :mod:`.joint_maps`, and the ``mocapflow export`` command.
 numba kernels are imported only when a file is read."""
 
 from __future__ import annotations
@@ -27,3 +27,10 @@ def register_joint_maps() -> list:
     from .joint_maps import JOINT_MAPS
 
     return list(JOINT_MAPS)
+
+
+@hookimpl
+def register_commands() -> list[type]:
+    from .export_command import ExportCommand
+
+    return [ExportCommand]

@@ -54,6 +54,8 @@ def owned_file(root: Path, path: Path) -> bool:
 
 
 MATCH_COLS = ("query_id", "rank", "clip_id", "start_frame", "end_frame", "cost")
+#: the hit in its take's own units (a matcher step appends them); the report shows start and duration
+SOURCE_UNIT_COLS = ("source_fps", "source_start_frame", "source_end_frame", "start_s", "end_s")
 NEAREST_COLS = ("query_clip_id", "query_frame", "clip_id", "frame", "distance")
 MDM_COLS = ("clip_id", "frame", "joint_name", "value")
 #: Bones of the stick figures, as canonical joint pairs along these chains.
@@ -283,7 +285,12 @@ class ModelBuilder:
         t = ds.table("data")
         cols = t.column_names
         extra = [
-            c for c in cols if c not in MATCH_COLS and c != "path" and not pa.types.is_nested(t.schema.field(c).type)
+            c
+            for c in cols
+            if c not in MATCH_COLS
+            and c not in SOURCE_UNIT_COLS
+            and c != "path"
+            and not pa.types.is_nested(t.schema.field(c).type)
         ]
         names, qnames = self.mo.names(step), self.mo.names(qstep)
         queries = {}
@@ -306,6 +313,7 @@ class ModelBuilder:
                     "start": r["start_frame"],
                     "end": r["end_frame"],
                     "cost": _scalar(r["cost"]),
+                    "start_s": round(r["start_frame"] / self.mo.fps(step, r["clip_id"]), 3),
                     "seconds": round((r["end_frame"] - r["start_frame"]) / self.mo.fps(step, r["clip_id"]), 3),
                     "extra": {c: _scalar(r[c]) for c in extra},
                     "path": _relative_path(path, q if q.get("motion") else None),
@@ -314,6 +322,7 @@ class ModelBuilder:
             )
         return {
             "type": "retrieval",
+            "export": export_command(ds),
             "motions": step,
             "query_motions": qstep,
             "cost_label": "cost",
@@ -358,6 +367,7 @@ class ModelBuilder:
             )
         return {
             "type": "retrieval",
+            "export": export_command(ds),
             "motions": step,
             "query_motions": qstep,
             "cost_label": "distance",
@@ -498,3 +508,10 @@ def step_order(datasets: Mapping[str, Dataset]) -> list[Dataset]:
         out.append(first)
         del left[first.step]
     return out
+
+
+def export_command(ds: Dataset) -> str:
+    """The ``mocapflow export`` command line that writes a step's hits as clips."""
+    import shlex
+
+    return f"mocapflow export {shlex.quote(str(ds.path.parent.resolve()))} --step {shlex.quote(ds.step)} --handle 10"

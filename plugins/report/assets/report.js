@@ -159,11 +159,16 @@ const MocapReport = (() => {
       player.play();
     }
     box.appendChild(stage);
+    if (v.export) {  // a static page runs nothing: the button copies the command that writes the clips
+      const cmd = h("code", null, v.export);
+      box.appendChild(h("p", { class: "export" }, "Export these hits as clips in each take's own format, rate and rig (one folder per query, index.csv): ", cmd, " ",
+        h("button", { type: "button", class: "export-hits", on: { click: () => navigator.clipboard && navigator.clipboard.writeText(v.export).catch(() => {}) } }, "copy")));
+    }
     for (const q of v.queries) {
       const hits = v.hits.filter((x) => x.query_id === q.id);
       box.appendChild(h("h3", null, `Query ${q.id}: ${q.name}`, q.clip ? h("span", { class: "note" }, ` \u2014 ${q.clip}, frames [${q.start}, ${q.end})`) : null));
-      const t = { columns: ["rank", "clip", "frames", "seconds", v.cost_label].concat(v.extra), n_rows: hits.length,
-        rows: hits.map((x) => [x.rank, x.clip, `[${x.start}, ${x.end})`, x.seconds, x.cost].concat(v.extra.map((c) => x.extra[c]))) };
+      const t = { columns: ["rank", "clip", "frames", "start (s)", "duration (s)", v.cost_label].concat(v.extra), n_rows: hits.length,
+        rows: hits.map((x) => [x.rank, x.clip, `[${x.start}, ${x.end})`, x.start_s, x.seconds, x.cost].concat(v.extra.map((c) => x.extra[c]))) };
       box.appendChild(table(t, { extraHead: "play", extra: (i) => h("button", { type: "button", class: "play-hit", on: { click: () => play(hits[i]).catch(report) } }, "\u25B6") }));
     }
     return box;

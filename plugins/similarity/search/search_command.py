@@ -84,6 +84,13 @@ class SearchCommand:
             default=None,
             help="search: exact (sDTW's matches) or fast (filter-and-refine, measured recall); default: the matcher's",
         )
+        parser.add_argument(
+            "--exclude-self",
+            choices=("span", "clip", "off"),
+            default=None,
+            help="a query cut from a database clip: no match overlapping its span widened by half its length "
+            "(span, default), none in its clip (clip), or none excluded (off)",
+        )
         parser.add_argument("-k", type=int_at_least(1), default=None, help="neighbours per query frame (lng, logical)")
         parser.add_argument("--plot", metavar="PNG", help="write a Fig. 3-style picture of the best match (lng)")
         parser.add_argument("--out", metavar="FILE", help="also write the matches as .csv or .parquet")
@@ -191,8 +198,11 @@ class SearchSession:
         if fds is None or mds is None:
             raise ConfigError(f"{db}: cannot trace index {idx.step!r} back to its features and motions")
         self.idx, self.fds, self.mds = idx, fds, mds
-        clips = mds.table("clips", columns=["clip_id", "name", "fps"])
+        clips = mds.table("clips", columns=["clip_id", "name", "fps", "source_fps", "source_frames", "path"])
         self.names = dict(zip(clips["clip_id"].to_pylist(), clips["name"].to_pylist(), strict=True))
+        #: clip id -> (database fps, source fps, source frames): the table's units (in_source_units)
+        self.rates = {r["clip_id"]: (r["fps"], r["source_fps"], r["source_frames"]) for r in clips.to_pylist()}
+        self.paths = {r["path"]: r["clip_id"] for r in clips.select(["clip_id", "path"]).to_pylist() if r["path"]}
         self.fps = float(clips["fps"][0].as_py()) if clips.num_rows else None
         self._stamp = self.stamp()
         self._index = self._rows = self._feature_set = self._mdb = None
@@ -259,6 +269,7 @@ class SearchSession:
             ("rank_by", args.rank_by),
             ("paper", getattr(args, "paper", None)),
             ("mode", getattr(args, "mode", None)),
+            ("exclude_self", getattr(args, "exclude_self", None)),
         ):
             if val is not None:
                 if key not in fields:
@@ -292,7 +303,7 @@ class SearchSession:
     def answer(self, args: argparse.Namespace, cwd: Path, out: TextIO, err: TextIO) -> int:
         """Run the search of ``args`` and print its matches to ``out`` (notes to ``err``)."""
         from mocapflow.framework.errors import ConfigError
-        from mocapflow.framework.matching import matches_table
+        from mocapflow.framework.matching import drop_excluded, excluding, in_source_units, matches_table, self_rows
         from mocapflow.framework.workspace import refuse_dataset_path
 
         # refused before the work, also when a server answers for a client (its cwd)
@@ -301,34 +312,42 @@ class SearchSession:
         matcher = self.matcher(args)
         space = self.space(matcher)
         query = self.query(args.query, cwd)
-        res = matcher.match(query.features, space)
-        table = matches_table([0], [res], space)
+        own = query.clip_id
+        if own < 0:  # a query file that is one of the database's takes
+            own = self.paths.get(str((Path(cwd) / parse_source(args.query)).resolve()), -1)
+        mode = getattr(matcher.params, "exclude_self", "off")
+        rows = self_rows(space, own, query.start_frame, query.end_frame, mode)
+        with excluding(rows):
+            res = drop_excluded(matcher.match(query.features, space), rows)
+        table = in_source_units(matches_table([0], [res], space), self.rates)
         names = self.names
-        rate = f" at {self.fps:g} fps" if self.fps else ""
-        mode = f" ({matcher.params.mode})" if hasattr(matcher.params, "mode") else ""
+        mode_note = f" ({matcher.params.mode})" if hasattr(matcher.params, "mode") else ""
         print(
-            f"query {query.name} ({len(query.features)} frames), {matcher.key()}{mode} on {self.idx.step!r} "
-            f"({space.n_rows} frames{rate}): {len(res)} matches",
+            f"query {query.name} ({len(query.features)} frames at {self.fps or 0:g} fps), {matcher.key()}{mode_note} on "
+            f"{self.idx.step!r} ({space.n_rows} frames): {len(res)} matches"
+            + (" (its own span excluded)" if rows else ""),
             file=out,
         )
-        fps = self.fps  # database frames (the index's rate), shown in seconds too
+        # frames of each source file at its own rate (fps), and seconds from the take's start
         print(
-            f"{'rank':>4}  {'clip':<32} {'start':>6} {'end':>6} {'cost':>10} {'per cell':>9}"
-            + (f" {'start s':>8} {'end s':>8}" if fps else ""),
+            f"{'rank':>4}  {'clip':<32} {'fps':>6} {'start':>7} {'end':>7} {'start s':>8} {'dur s':>6} "
+            f"{'cost':>10} {'per cell':>9}",
             file=out,
         )
-        for row in table.select(["rank", "clip_id", "start_frame", "end_frame", "cost", "cost_normalized"]).to_pylist():
-            secs = f" {row['start_frame'] / fps:>8.2f} {row['end_frame'] / fps:>8.2f}" if fps else ""
+        for row in table.select(
+            ["rank", "clip_id", "fps", "start_frame", "end_frame", "start_s", "end_s", "cost", "cost_normalized"]
+        ).to_pylist():
             print(
-                f"{row['rank']:>4}  {names.get(row['clip_id'], row['clip_id'])!s:<32.32} {row['start_frame']:>6} "
-                f"{row['end_frame']:>6} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}{secs}",
+                f"{row['rank']:>4}  {names.get(row['clip_id'], row['clip_id'])!s:<32.32} {row['fps']:>6.4g} "
+                f"{row['start_frame']:>7} {row['end_frame']:>7} {row['start_s']:>8.2f} "
+                f"{row['end_s'] - row['start_s']:>6.2f} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}",
                 file=out,
             )
         if args.out:
             import pyarrow as pa
 
-            table = table.append_column(
-                "clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string())
+            table = table.add_column(
+                3, "clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string())
             )
             write_atomic(table, out_path)
         if args.plot:
@@ -366,8 +385,15 @@ def write_atomic(table, out: Path) -> None:
         else:
             import pyarrow.csv as pcsv
 
-            pcsv.write_csv(table.drop_columns(["path"]), tmp)
+            pcsv.write_csv(table.drop_columns([c for c in ("path", "analysis_path") if c in table.column_names]), tmp)
         os.replace(tmp, out)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def parse_source(text: str) -> Path:
+    """The file or clip part of ``--query SOURCE[:START-END]``."""
+    from mocapflow.framework.matching import parse_query_spec
+
+    return Path(parse_query_spec(text).source).expanduser()

@@ -36,7 +36,20 @@ from pathlib import Path
 
 SOCKET_NAME = ".search.sock"
 # request options the server takes from the client (the rest: its own plugin selection)
-_FORWARDED = ("query", "index", "matcher", "count", "min_span", "rank_by", "paper", "mode", "k", "plot", "out")
+_FORWARDED = (
+    "query",
+    "index",
+    "matcher",
+    "count",
+    "min_span",
+    "rank_by",
+    "paper",
+    "mode",
+    "k",
+    "plot",
+    "out",
+    "exclude_self",
+)
 
 
 def socket_path(db: str | Path) -> Path:
@@ -47,7 +60,7 @@ def socket_path(db: str | Path) -> Path:
 _DEFAULTS = {"matcher": "search", "count": 10}
 #: the JSON type of each forwarded option
 _TYPES: dict[str, tuple[type, ...]] = {
-    **{k: (str,) for k in ("query", "index", "matcher", "rank_by", "plot", "out")},
+    **{k: (str,) for k in ("query", "index", "matcher", "rank_by", "plot", "out", "mode", "exclude_self")},
     "count": (int,),
     "k": (int,),
     "min_span": (int, float),
