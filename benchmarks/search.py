@@ -51,7 +51,7 @@ def search(q, space, count=10, stats=None):
 
 
 def fast(q, space, count=10, stats=None):
-    return fast_sdtw(q, space, count=count)
+    return fast_sdtw(q, space, exact_search=certified_sdtw, count=count)
 
 
 def graph(q, space, count=10, stats=None):

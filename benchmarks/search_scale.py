@@ -102,7 +102,7 @@ def run_size(n: int, args, base, rng) -> None:
         if not args.wide:
             certified_sdtw(q0, space)
         for cfg in FAST.values():
-            fast_sdtw(q0, space, settings=cfg)
+            fast_sdtw(q0, space, exact_search=certified_sdtw, settings=cfg)
     subsequence_dtw(q0[:8], space, count=2)
     print(
         f"\n{n:,} rows ({len(np.unique(lib.source))} source takes, {lib.clip_id[-1] + 1:,} copies; held out: "
@@ -119,12 +119,15 @@ def run_size(n: int, args, base, rng) -> None:
             t_ref.append(t)
             methods = {} if args.wide else {"exact (certified)": lambda q, st: certified_sdtw(q, space, stats=st)}
             methods.update(
-                {name: (lambda q, st, c=c: fast_sdtw(q, space, settings=c, stats=st)) for name, c in FAST.items()}
+                {
+                    name: (lambda q, st, c=c: fast_sdtw(q, space, exact_search=certified_sdtw, settings=c, stats=st))
+                    for name, c in FAST.items()
+                }
             )
             if args.threads > 1:  # the same three on all cores (numba threads over the database's clips)
                 methods["sDTW, all cores"] = lambda q, st: subsequence_dtw(q, space)
                 methods["exact, all cores"] = methods["exact (certified)"]
-                methods["fast, all cores"] = lambda q, st: fast_sdtw(q, space, stats=st)
+                methods["fast, all cores"] = lambda q, st: fast_sdtw(q, space, exact_search=certified_sdtw, stats=st)
             for name, fn in methods.items():
                 st = ExactStats()
                 numba.set_num_threads(args.threads if name.endswith("all cores") else 1)

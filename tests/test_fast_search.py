@@ -9,11 +9,13 @@ from naive.dtw import continues_of, naive_subsequence_dtw
 from test_lng import BruteIndex
 from test_sdtw import make_db
 
+from mocapflow.framework.errors import ConfigError
 from mocapflow.framework.matching import SearchSpace
-from mocapflow.plugins.similarity.search import certified
+from mocapflow.plugins.similarity.search import ranges
 from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_ranges_compact, sdtw_ranges_parallel
-from mocapflow.plugins.similarity.search.certified import CertifiedSearch, ranges_dp
+from mocapflow.plugins.similarity.search.certified import CertifiedSearch, certified_sdtw
 from mocapflow.plugins.similarity.search.fast import FastSettings, fast_sdtw, seed_windows
+from mocapflow.plugins.similarity.search.ranges import ranges_dp
 from mocapflow.plugins.similarity.search.sdtw import sdtw_costs, subsequence_dtw
 
 
@@ -45,7 +47,7 @@ def test_parallel_ranged_dp_is_the_one_thread_kernel(groups):
 
 def test_ranges_dp_cut_at_clip_starts_equals_whole_dp(monkeypatch):
     """Whole-database ranges cut into pieces at clip starts on 2 threads: sDTW's arrays bit for bit."""
-    monkeypatch.setattr(certified, "_PARALLEL_CELLS", 0)
+    monkeypatch.setattr(ranges, "_PARALLEL_CELLS", 0)
     clip_id, frame, x = make_db([40, 1, 30, 12, 55, 7, 90], seed=4)
     space = SearchSpace(clip_id, frame, features=x)
     q = (x[50:61] - 0.05).astype(np.float32)
@@ -66,7 +68,7 @@ def test_ranges_dp_cut_at_clip_starts_equals_whole_dp(monkeypatch):
 def test_sdtw_costs_on_threads_match_naive(monkeypatch):
     import numba
 
-    monkeypatch.setattr(certified, "_PARALLEL_CELLS", 0)
+    monkeypatch.setattr(ranges, "_PARALLEL_CELLS", 0)
     monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
     clip_id, frame, x = make_db([20, 1, 15, 7, 33], seed=5)
     q = (x[2:8] + 0.1).astype(np.float32)
@@ -81,7 +83,7 @@ def test_sdtw_costs_on_threads_match_naive(monkeypatch):
 def test_fast_finds_the_planted_copies_with_sdtw_costs():
     space, q = planted()
     ref = subsequence_dtw(q, space, count=5)
-    got = fast_sdtw(q, space, count=5, settings=FastSettings(frames=12, k=16))
+    got = fast_sdtw(q, space, exact_search=certified_sdtw, count=5, settings=FastSettings(frames=12, k=16))
     # the four planted copies and the source are sDTW's top-5; the filter finds all of them
     assert len(got) == 5
     for s, e in zip(ref.start.tolist(), ref.end.tolist(), strict=True):
@@ -114,7 +116,7 @@ def test_seed_windows_stay_in_their_clip_and_hold_every_neighbour():
 def test_fast_falls_back_to_exact_when_windows_hold_too_few():
     space, q = planted()
     ref = subsequence_dtw(q, space, count=40, min_span=0.0)
-    got = fast_sdtw(q, space, count=40, min_span=0.0, settings=FastSettings(frames=2, k=1))
+    got = fast_sdtw(q, space, exact_search=certified_sdtw, count=40, min_span=0.0, settings=FastSettings(frames=2, k=1))
     np.testing.assert_array_equal(got.end, ref.end)
     np.testing.assert_array_equal(got.cost, ref.cost)
 
@@ -126,5 +128,5 @@ def test_matcher_mode_switch():
     ref = subsequence_dtw(q, space, count=5)
     np.testing.assert_array_equal(exact.end, ref.end)
     assert len(fast) == 5
-    with pytest.raises(ValueError):
+    with pytest.raises(ConfigError, match="mode"):
         CertifiedSearch({"mode": "approximate"})

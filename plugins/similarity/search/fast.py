@@ -47,7 +47,7 @@ DEFAULT_FAST = FastSettings()
 
 def seed_windows(space: SearchSpace, m: int, frames: np.ndarray, ids: np.ndarray, slope: float) -> np.ndarray:
     """Merged row ranges (int64 (r, 2)) around the neighbours ``ids`` (len(frames), k) of query frames ``frames``."""
-    from .certified import merged_ranges, run_starts
+    from .ranges import merged_ranges, run_starts
 
     ok = ids >= 0
     h = ids[ok].astype(np.int64)
@@ -68,20 +68,22 @@ def fast_sdtw(
     rank_by: str = "cost",
     min_span: float = 0.5,
     settings: FastSettings = DEFAULT_FAST,
+    exact_search,
     stats=None,
 ) -> QueryMatches:
     """sDTW's matches within the windows around the index's neighbours (module doc).
 
     Parameters as :func:`.certified.certified_sdtw`; ``stats`` (an ``ExactStats``) gets the DP
-    rows computed and ``retried`` when the exact search answered.
+    rows computed and ``retried`` when the exact search answered; ``exact_search`` (the
+    certified search, given by its matcher) answers when the windows cannot.
     """
     from ._dtw_kernels import dtw_window_path
-    from .certified import certified_sdtw, ranges_dp
+    from .ranges import ranges_dp
     from .sdtw import validate_query
 
     exact = {"count": count, "max_cost": max_cost, "rank_by": rank_by, "min_span": min_span}
     if space.index is None or rank_by != "cost" or space.features is None:
-        return certified_sdtw(query, space, **exact)
+        return exact_search(query, space, **exact)
     q = validate_query(query, space.features.shape[1])
     cfg = settings
     m = len(q)
@@ -110,7 +112,7 @@ def fast_sdtw(
     if len(keep) < count and len(rows) < space.n_rows:
         if stats is not None:
             stats.retried = True
-        return certified_sdtw(query, space, **exact)
+        return exact_search(query, space, **exact)
     paths = []
     for e, s in zip(rows[keep].tolist(), start[keep].tolist(), strict=True):
         path, _ = dtw_window_path(q, space.features[s : e + 1])

@@ -52,7 +52,7 @@ def sdtw_costs(query: np.ndarray, space: SearchSpace) -> tuple[np.ndarray, np.nd
     import numba
 
     from ._dtw_kernels import sdtw_forward
-    from .certified import ranges_dp
+    from .ranges import ranges_dp
 
     if space.features is None:
         raise DataError("subsequence DTW needs the database features (SearchSpace.features)")
