@@ -2,7 +2,8 @@
 
 Errors go into the local joint rotations of a clean clip at the 24 fps analysis rate
 (durations in frames, angles in degrees, :data:`ERROR_RANGES` the protocol's): ``spike``
-(the joint jumps away and back), ``offset`` (a constant rotation held), ``drift`` (growing
+(the joint jumps away and back; ``flip``: by 150-175 degrees, as a solver's flipped
+joint), ``offset`` (a constant rotation held), ``drift`` (growing
 linearly, then snapping back; the calibration's only), ``freeze`` (the onset rotation held,
 as after an occlusion), ``noise`` (a random rotation per frame), ``swap`` (a left limb and
 its right mirror exchanged); ``ramp`` (a smooth drifting offset: eased in over a quarter of
@@ -26,7 +27,7 @@ from mocapflow.framework.motion import Motion
 
 from ..calibrated.cues import MIRROR_CHAINS, mirror
 
-ERROR_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap", "ramp")
+ERROR_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap", "ramp", "flip")
 
 #: The kinds of the evaluation protocol at the paper's density.
 PROTOCOL_KINDS: tuple[str, ...] = ("spike", "offset", "freeze", "noise", "swap")
@@ -42,6 +43,7 @@ ERROR_RANGES: Ranges = {
     "noise": ((8, 16), (15.0, 15.0)),
     "swap": ((12, 24), (0.0, 0.0)),
     "ramp": ((8, 32), (20.0, 60.0)),
+    "flip": ((1, 3), (150.0, 175.0)),
 }
 
 #: Limb chains exchanged by a "swap" error (canonical names).
@@ -81,7 +83,7 @@ def apply_error(
     """Write one error into ``rot (T, J, 4)`` in place (see the module table)."""
     span = np.arange(start, end)
     n = len(span)
-    if kind in ("spike", "offset"):
+    if kind in ("spike", "offset", "flip"):
         for j in joints:
             off = quat.from_axis_angle(_random_axis(rng)[0], np.deg2rad(magnitude))
             rot[span, j] = quat.mul(rot[span, j], off)
