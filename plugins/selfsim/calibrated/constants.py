@@ -69,6 +69,10 @@ SWAP_MAX = 72
 #: accelerations of the joint (and 8 degrees) are repaired by taking the offset out.
 OFFSET_LEVEL = 6.0
 
+#: Every joint is searched for offsets (two such agreeing steps, the removal nearer the
+#: consensus) of at most this many frames, flagged or not: spikes and flips are short offsets.
+OFFSET_MAX = 48
+
 #: Flagged runs of one joint at most this many frames apart are repaired as one.
 MERGE_GAP = 3
 

@@ -33,7 +33,7 @@ SWEEP_KINDS: tuple[str, ...] = ("spike", "flip", "offset", "freeze", "noise", "s
 UNTUNED: tuple[str, ...] = ("ramp",)
 #: (duration in 24-fps frames, magnitude in degrees) per kind (noise: per-frame sd).
 SWEEP_RANGES: dict[str, tuple[tuple[int, int], tuple[float, float]]] = {
-    "spike": ((1, 40), (10.0, 90.0)),
+    "spike": ((1, 4), (10.0, 90.0)),
     "flip": ((1, 3), (150.0, 175.0)),
     "offset": ((1, 40), (10.0, 90.0)),
     "freeze": ((1, 40), (0.0, 0.0)),
