@@ -177,13 +177,13 @@ def _scanned_offsets(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, skip: n
     """Take out every offset :func:`.offsets.scan_offsets` finds on a joint (steps of
     :data:`.constants.OFFSET_LEVEL` typical accelerations, as :func:`_offset_run`) that no
     ``skip`` cell overlaps; marks them in ``offset``."""
-    from .constants import OFFSET_LEVEL, OFFSET_MAX
+    from .constants import OFFSET_LEVEL, OFFSET_MAX, OFFSET_SCAN_DEG
     from .cues import acceleration
     from .offsets import remove_offset, scan_offsets
 
     for j in range(q.shape[1]):
         acc = np.median(acceleration(q[:, j : j + 1])[1:-1, 0]) if len(q) > 2 else 0.0
-        level = max(OFFSET_LEVEL * 2.0 * acc, np.deg2rad(8.0))
+        level = max(OFFSET_LEVEL * 2.0 * acc, np.deg2rad(OFFSET_SCAN_DEG))
         for a, b, off_a, off_b in scan_offsets(q[:, j], mean_q[:, j], level, OFFSET_MAX):
             if not skip[a:b, j].any():
                 new[a:b, j] = remove_offset(q[:, j], a, b, off_a, off_b)

@@ -70,8 +70,10 @@ SWAP_MAX = 72
 OFFSET_LEVEL = 6.0
 
 #: Every joint is searched for offsets (two such agreeing steps, the removal nearer the
-#: consensus) of at most this many frames, flagged or not: spikes and flips are short offsets.
+#: consensus) of at most this many frames, flagged or not: spikes and flips are short offsets;
+#: those steps are at least ``OFFSET_SCAN_DEG`` (clean toes and wrists step 8-12 degrees).
 OFFSET_MAX = 48
+OFFSET_SCAN_DEG = 15.0
 
 #: Flagged runs of one joint at most this many frames apart are repaired as one.
 MERGE_GAP = 3
