@@ -415,6 +415,45 @@ def loso_runs(args) -> list[dict]:
     return runs
 
 
+STABILITY_TAKES = {"locomotion": ("16_15", "02_01", "35_01", "09_01"), "dance": ("60_07", "05_10")}
+
+
+def stability(args) -> None:
+    """One clean take against 10 random contexts of 2-8 takes of the other subjects: the share
+    of its input cells edited (any change, and >= 1 degree), the spread over the contexts, and
+    which calibration each used."""
+    from mocapflow.framework import quaternions as quat
+    from mocapflow.plugins.selfsim.cleaner import MDMCleaner
+
+    cleaner = MDMCleaner(**{"write_bvh": False, "heatmaps": False, **_sets(args.set)})
+    for cat in ["locomotion"] if args.quick else args.category or list(LOSO):
+        groups = {"16": ("16_15", "16_35"), "02": ("02_01", "02_03"), "35": ("35_01",)} if args.quick else LOSO[cat]
+        folder = EXAMPLES if args.quick else CMU
+        print(f"\nstability, {cat}: edited share of a clean take over 10 random contexts of 2-8 other takes")
+        for name in ("16_15",) if args.quick else STABILITY_TAKES[cat]:
+            g = name.split("_")[0]
+            pool = [n for h, ns in groups.items() if h != g for n in ns]
+            rng = np.random.default_rng(int(g))
+            take = _crop(_take(name, folder), args.take_s, rng)
+            shares, big, src = [], [], []
+            for _ in range(2 if args.quick else 10):
+                k = int(rng.integers(2, min(8, len(pool)) + 1))
+                ctx = [
+                    _crop(_take(pool[i], folder), 15.0, rng) for i in sorted(rng.choice(len(pool), k, replace=False))
+                ]
+                out = cleaner.clean(take, ctx)
+                cols = out.analysis.texture.joint_index
+                ang = np.degrees(quat.geodesic_angle(take.rotations[:, cols], out.cleaned.rotations[:, cols]))
+                shares.append(out.edits.num_rows / ang.size)
+                big.append(float((ang >= 1.0).mean()))
+                src.append(out.calibration.source if out.calibration is not None else "-")
+            sh = 100 * np.array(shares)
+            print(
+                f"  {name}: edited {sh.min():.2f}-{sh.max():.2f} % (spread {sh.max() - sh.min():.2f} %), >= 1 deg "
+                f"{100 * min(big):.2f}-{100 * max(big):.2f} %; calibration {', '.join(sorted(set(src)))}"
+            )
+
+
 _MAG_BINS = ((10, 25), (25, 45), (45, 90), (90, 181))
 _DUR_BINS = ((1, 1), (2, 3), (4, 8), (9, 20), (21, 40))
 
@@ -567,7 +606,9 @@ def scores(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("part", nargs="?", choices=("speed", "protocol", "native", "scores", "loso"), default=None)
+    ap.add_argument(
+        "part", nargs="?", choices=("speed", "protocol", "native", "scores", "loso", "stability"), default=None
+    )
     ap.add_argument("--quick", action="store_true", help="every part, tiny, on the bundled examples/data")
     ap.add_argument("--category", choices=tuple(SUBJECTS), action="append")
     ap.add_argument("--tune", action="store_true", help="the tuning subjects / trials instead of the held-out ones")
@@ -586,7 +627,14 @@ def main(argv: list[str] | None = None) -> int:
     if not args.quick and not CMU.is_dir():
         print(f"needs the corpus at {CMU} (or --quick)", file=sys.stderr)
         return 2
-    parts = {"speed": speed, "protocol": protocol, "native": native, "scores": scores, "loso": loso}
+    parts = {
+        "speed": speed,
+        "protocol": protocol,
+        "native": native,
+        "scores": scores,
+        "loso": loso,
+        "stability": stability,
+    }
     for name in [args.part] if args.part else (list(parts) if args.quick else ["speed"]):
         parts[name](args)
     return 0

@@ -14,6 +14,11 @@ CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "jitt
 #: Quantile of a cue over a joint's clean calibration cells taken as its null level.
 NULL_QUANTILE = 0.99
 
+#: A context of fewer analysis frames than this and than the take, or holding fewer than this share of the
+#: take's KNN words (unlike the take), cannot support a decision: the take calibrates itself.
+CONTEXT_MIN_FRAMES = 240
+CONTEXT_MIN_SHARE = 0.2
+
 #: Share of the calibration words given a synthetic error.
 CALIBRATION_DENSITY = 0.2
 
@@ -48,6 +53,11 @@ HOLD_SPEED = float(np.deg2rad(0.05))
 
 #: The freeze cue counts only on holds of at least this many frames.
 FREEZE_HOLD = 8
+
+#: Holds of at least ``FREEZE_SCAN`` frames are filled without a freeze flag when the KNN
+#: consensus turns at least ``FREEZE_SCAN_DEG`` degrees over them (:func:`.holds.frozen_holds`).
+FREEZE_SCAN = 3
+FREEZE_SCAN_DEG = 10.0
 
 #: Freeze flags grow only over frames where the KNN consensus moves at least this much per
 #: frame (mean over +-2 frames), radians.

@@ -77,13 +77,14 @@ def remove_offset(track: np.ndarray, a: int, b: int, off_a: np.ndarray, off_b: n
 
 
 def scan_offsets(
-    track: np.ndarray, mean: np.ndarray, level: float, max_len: int, agree: float = 0.35
+    track: np.ndarray, mean: np.ndarray, level: float, max_len: int, agree: float = 0.35, noisy: float = 0.05
 ) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
     """Every offset of one joint's ``track`` (T, 4), flagged or not: a step in at ``a`` and a
     step out at ``b`` (both jumps of at least ``level`` radians off the take's own motion,
     continued one frame), ``b - a <= max_len``, whose offsets agree (:func:`offset_interval`'s
     test) and whose removal brings ``[a, b)`` nearer the KNN consensus ``mean`` (T, 4). A
-    spike or a flip is an offset of a few frames. Returns ``(a, b, off_a, off_b)``,
+    spike or a flip is an offset of a few frames. A joint stepping that much on more than
+    ``noisy`` of its frames (and 8) is not searched. Returns ``(a, b, off_a, off_b)``,
     non-overlapping, strongest first."""
     t = len(track)
     if t < 5:
@@ -92,6 +93,8 @@ def scan_offsets(
     fa, fb = _angle(fwd), _angle(bwd)
     starts = np.flatnonzero(fa > level)
     ends = np.flatnonzero(fb > level) + 1  # b: the first frame after the offset
+    if len(starts) > max(noisy * t, 8):
+        return []  # a joint that jumps this often (a toe the capture barely tracks): no evidence
     found = []
     for a in starts[(starts >= 2) & (starts <= t - 3)].tolist():
         best = None
