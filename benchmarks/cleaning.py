@@ -455,7 +455,7 @@ def stability(args) -> None:
 
 
 _MAG_BINS = ((10, 25), (25, 45), (45, 90), (90, 181))
-_DUR_BINS = ((1, 1), (2, 3), (4, 8), (9, 20), (21, 40))
+_DUR_BINS = ((1, 2), (2, 4), (4, 9), (9, 21), (21, 41))  # 24-fps frames, [lo, hi)
 
 
 def loso(args) -> None:
@@ -509,12 +509,12 @@ def loso(args) -> None:
         print("  per kind, errors >= 25 deg (flip: all), (w, j) R on the flags / output; found = any pair hit")
         for k in kinds:
 
-            def per(lo_deg, hi_deg=999.0, d0=1, d1=40, k=k, rs=rs):
+            def per(lo_deg, hi_deg=999.0, d0=1, d1=41, k=k, rs=rs):
                 es = [
                     [
                         e
                         for e in r["errors"]
-                        if e["kind"] == k and lo_deg <= e["peak"] < hi_deg and d0 <= e["dur24"] <= d1
+                        if e["kind"] == k and lo_deg <= e["peak"] < hi_deg and d0 <= e["dur24"] < d1
                     ]
                     for r in rs
                 ]
@@ -542,7 +542,7 @@ def loso(args) -> None:
         if args.sweep:
             print(
                 "    (sweep rows: peak angle; columns: 24-fps frames "
-                + ", ".join(f"{a}-{b}" for a, b in _DUR_BINS)
+                + ", ".join(f"[{a}, {b})" for a, b in _DUR_BINS)
                 + "; cells: output (w, j) R / errors)"
             )
 
