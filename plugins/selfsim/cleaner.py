@@ -182,7 +182,7 @@ def clean_motion(
         if calibration is None:
             # the calibration analyses each clip with itself included
             others = context_motions(motion, context, True)[1:]
-            why = context_support(res, others, p.fps, p.include_self)
+            why = context_support(res, others, p.fps)
             if why:
                 logging.getLogger("mocapflow.cleaning").warning(
                     "%s: %s; calibrated on the take's own statistics", motion.name, why

@@ -77,24 +77,16 @@ class Calibration:
         }
 
 
-def context_support(res, others: Sequence, fps: float, include_self: bool = True) -> str:
+def context_support(res, others: Sequence, fps: float) -> str:
     """Why the context cannot support a decision on the analysed take ``res`` ("" when it can):
-    fewer analysis frames than the take and :data:`.constants.CONTEXT_MIN_FRAMES`, or fewer than
-    :data:`.constants.CONTEXT_MIN_SHARE` of the take's KNN words found in it (unlike the take:
-    its words are their own nearest)."""
-    from .constants import CONTEXT_MIN_FRAMES, CONTEXT_MIN_SHARE
+    fewer analysis frames than the take and :data:`.constants.CONTEXT_MIN_FRAMES`."""
+    from .constants import CONTEXT_MIN_FRAMES
 
     if not others:
         return ""
     frames = sum(c.n_frames * fps / c.fps for c in others)
     if frames < min(CONTEXT_MIN_FRAMES, res.texture.n_frames):
         return f"context too small ({frames / fps:.1f} s, less than the take and {CONTEXT_MIN_FRAMES / fps:.0f} s)"
-    if include_self and res.neighbours:
-        target = res.neighbours[0].target
-        valid = target >= 0
-        share = float((target[valid] >= res.texture.n_frames).mean()) if valid.any() else 0.0
-        if share < CONTEXT_MIN_SHARE:
-            return f"context unlike the take ({share:.0%} of its nearest words in it < {CONTEXT_MIN_SHARE:.0%})"
     return ""
 
 

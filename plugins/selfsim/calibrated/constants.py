@@ -14,10 +14,9 @@ CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "jitt
 #: Quantile of a cue over a joint's clean calibration cells taken as its null level.
 NULL_QUANTILE = 0.99
 
-#: A context of fewer analysis frames than this and than the take, or holding fewer than this share of the
-#: take's KNN words (unlike the take), cannot support a decision: the take calibrates itself.
+#: A context of fewer analysis frames than this and than the take cannot support a decision:
+#: the take calibrates itself.
 CONTEXT_MIN_FRAMES = 240
-CONTEXT_MIN_SHARE = 0.2
 
 #: Share of the calibration words given a synthetic error.
 CALIBRATION_DENSITY = 0.2
