@@ -309,3 +309,77 @@ def test_calibration_budget_is_counted_at_the_analysis_rate():
     mixed, _ = calibration_clips(take, [fast[0], walks[1], fast[2], walks[3]], 600, 24.0)
     assert [c.name for c in mixed] == ["w0", "w1", "w2"]
     assert calibration_clips(take, [], 600, 24.0) == ([take], "self")
+
+
+def _smooth_track(t: int = 80, seed: int = 0) -> np.ndarray:
+    """One joint turning smoothly (a few degrees a frame about a slowly changing axis), (t, 4)."""
+    rng = np.random.default_rng(seed)
+    ang = np.deg2rad(30.0) * np.sin(np.linspace(0.0, 4.0 * np.pi, t))
+    axis = np.array([1.0, 0.3, 0.0]) + 0.1 * rng.standard_normal(3)
+    return quat.from_axis_angle(np.broadcast_to(axis / np.linalg.norm(axis), (t, 3)), ang)
+
+
+def test_offset_scan_finds_offsets_and_flips_by_their_steps_and_nothing_on_a_smooth_track():
+    from mocapflow.plugins.selfsim.calibrated.offsets import remove_offset, scan_offsets
+
+    clean = _smooth_track(200)
+    level = np.deg2rad(15.0)
+    assert scan_offsets(clean, clean, level, 48) == []
+    bad = clean.copy()
+    off = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.deg2rad(40.0))
+    bad[20:31] = quat.mul(bad[20:31], off)  # an offset held 11 frames
+    flip = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), np.deg2rad(165.0))
+    bad[50] = quat.mul(bad[50], flip)  # a one-frame flip
+    found = scan_offsets(bad, clean, level, 48)
+    assert sorted((a, b) for a, b, *_ in found) == [(20, 31), (50, 51)]
+    for a, b, oa, ob in found:
+        rep = remove_offset(bad, a, b, oa, ob)
+        assert np.degrees(quat.geodesic_angle(rep, clean[a:b])).max() < 1.0
+
+
+def test_frozen_holds_need_a_moving_consensus():
+    from mocapflow.plugins.selfsim.calibrated.cues import hold_lengths, speed
+    from mocapflow.plugins.selfsim.calibrated.holds import frozen_holds
+
+    clean = _smooth_track()[:, None]
+    bad = clean.copy()
+    bad[38:43, 0] = bad[38, 0]  # frozen 5 frames while the consensus (the clean track) turns ~19 degrees
+    v = speed(bad)
+    length, edge = hold_lengths(v)
+    found = frozen_holds(v, length, edge, speed(clean))
+    assert found[38:43, 0].all() and not found[:38].any() and not found[44:].any()
+    assert not frozen_holds(v, length, edge, speed(bad) * 0.0).any()  # a still consensus: no freeze
+
+
+def test_native_edges_snap_to_the_input_frame_that_jumps():
+    from mocapflow.plugins.selfsim.paper.repair import _snap_edges
+
+    t_in, r = 100, 5
+    x = np.arange(t_in) / r  # analysis frame of each input frame (24 fps from 120)
+    track = _smooth_track(t_in)
+    off = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.deg2rad(40.0))
+    bad = track.copy()
+    bad[37:63] = quat.mul(bad[37:63], off)  # starts 2 input frames after sample 7, ends 3 after 12
+    flagged = np.zeros(20, bool)
+    flagged[8:13] = True  # analysis samples 8..12 (input 40..60) hold the offset
+    delta = np.tile(quat.identity(()), (20, 1))
+    delta[flagged] = quat.conjugate(off)
+    d = np.tile(quat.identity(()), (t_in, 1))
+    i0 = np.minimum(np.floor(x).astype(int), 19)
+    i1 = np.minimum(i0 + 1, 19)
+    d = quat.slerp(np.where(flagged[i0][:, None], delta[i0], d), np.where(flagged[i1][:, None], delta[i1], d), x - i0)
+    left = _snap_edges(d, bad, flagged, delta, x)
+    fixed = quat.mul(bad, d)
+    assert np.degrees(quat.geodesic_angle(fixed, track)).max() < 1e-4  # every input frame exact
+    assert left[36] and not left[37] and left[63] and not left[62]
+
+
+def test_a_context_too_small_falls_back_to_the_take_and_says_so(walks, caplog):
+    clean, bad, _ = walks
+    short = synthetic_walk(240, seed=6, name="ctx6")
+    short = short.slice(0, int(5 * short.fps))  # 5 s of context, shorter than the take
+    with caplog.at_level("WARNING", logger="mocapflow.cleaning"):
+        out = MDMCleaner(write_bvh=False, heatmaps=False).clean(bad, [short])
+    assert out.calibration.source == "self" and out.calibration.fallback.startswith("context too small")
+    assert out.calibration.summary()["fallback"] == out.calibration.fallback
+    assert "calibrated on the take's own statistics" in caplog.text

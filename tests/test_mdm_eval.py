@@ -76,7 +76,7 @@ def test_harness_on_synthetic_walks():
     assert kinds and {"kind", "errors", "found"} <= set(kinds[0])
 
 
-def test_clean_pipeline_and_cli(tmp_path):
+def test_clean_pipeline_and_cli(tmp_path, capsys):
     if not (REPO / "examples" / "data" / "cmu" / "16" / "16_15.amc").is_file():
         pytest.skip("bundled example data missing")
     pytest.importorskip("matplotlib")
@@ -118,6 +118,16 @@ def test_clean_pipeline_and_cli(tmp_path):
     from mocapflow.plugins.formats.bvh import read_bvh
 
     assert read_bvh(out).n_frames > 0
+    # one unit in the message and the summary: input frames x joints, and what decided
+    import json
+
+    import pyarrow.parquet as pq
+
+    said = capsys.readouterr().out
+    summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    flagged = int(pq.read_table(tmp_path / "rep" / "mdm.parquet")["flagged"].to_numpy().sum())
+    assert summary["flagged_cells"] == flagged and summary["decided_by"] == "MDM > 0.5"
+    assert f"{flagged} input frames x joints flagged (MDM > 0.5)" in said and " at 120 fps " in said
 
 
 def test_clean_eval_pipeline_plans():

@@ -66,19 +66,26 @@ def test_fills_match_references_and_restore_what_they_can():
     )
 
 
-def test_fill_holds_fills_flagged_interior_holds_only():
+def test_fill_holds_fills_flagged_and_frozen_interior_holds_only():
     t = 60
     q = np.stack([_track(t, rate=0.04), _track(t, axis=(1, 0, 0), rate=0.03), _track(t, rate=0.02)], axis=1)
     bad = q.copy()
     bad[20:35, 0] = q[20, 0]  # an interior hold, flagged
-    bad[40:52, 1] = q[40, 1]  # an interior hold, not flagged
+    bad[40:52, 1] = q[40, 1]  # an interior hold, not flagged: the consensus turns 19 degrees, the joint jumps out
     bad[:12, 2] = q[11, 2]  # a hold from the first frame: one side only
     seeds = np.zeros((t, 3), bool)
     seeds[25, 0] = seeds[45, 2] = seeds[5, 2] = True
     out, filled, held = holds.fill_holds(bad, seeds, 8, q)
-    assert filled[21:35, 0].all() and not filled[20, 0] and filled.sum() == 14 and held[20:35, 0].all()
-    np.testing.assert_array_equal(out[:, 1:], bad[:, 1:])
-    assert quat.geodesic_angle(out[21:35, 0], q[21:35, 0]).max() < 1e-6
+    assert filled[21:35, 0].all() and not filled[20, 0] and held[20:35, 0].all()
+    assert filled[41:52, 1].all() and filled.sum() == 14 + 11 and not filled[:, 2].any()
+    np.testing.assert_array_equal(out[:, 2], bad[:, 2])
+    for c, (a, b) in ((0, (21, 35)), (1, (41, 52))):
+        assert quat.geodesic_angle(out[a:b, c], q[a:b, c]).max() < 1e-6
+    # a still consensus: the unflagged hold is the motion's own and stays
+    still = q.copy()
+    still[:, 1] = q[40, 1]
+    _, filled2, _ = holds.fill_holds(bad, seeds, 8, still)
+    assert not filled2[:, 1].any()
 
 
 def test_calibrated_cleaner_fills_a_frozen_joint():

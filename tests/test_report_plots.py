@@ -84,7 +84,9 @@ def test_mdm_heatmap_labels_its_colour_bar_and_white_squares(tmp_path, saved):
     t = texts(saved[-1])
     assert t["title"][0] == "02_01: map" and t["xlabel"][0] == "time (s)" and t["ylabel"][0] == "joint"
     assert any("MDM value" in y and "dimensionless" in y for y in t["ylabel"][1:])
-    assert t["legend"] == ["white square: MDM > 0.5, cell flagged as erroneous (4 cells; the repair changes these)"]
+    assert t["legend"] == [
+        "white square: MDM > 0.5, cell flagged as erroneous (4 cells at 30 fps; the repair changes these)"
+    ]
 
 
 def test_base_poses_are_labelled_with_clip_frame_and_members(extras_workspace, tmp_path, saved):

@@ -117,9 +117,12 @@ class CleanCommand:
             with atomic_path(report / "summary.json") as tmp:
                 tmp.write_text(json.dumps(out["summary"], indent=2))
         s = out["summary"]
+        cal = s.get("calibration")
         print(
-            f"{take.name}: {s['flagged_cells']} cells flagged, {s['edited_cells']} input cells edited "
-            f"(largest {s['max_edit_deg']:.1f} deg) in {out['seconds']:.2f} s -> {dest}",
+            f"{take.name}: {s['flagged_cells']} input frames x joints flagged ({s['decided_by']}), "
+            f"{s['edited_cells']} edited, of {s['input_cells']} at {take.fps:g} fps "
+            f"(largest edit {s['max_edit_deg']:.1f} deg) in {out['seconds']:.2f} s -> {dest}"
+            + (f"; {cal['fallback']}: calibrated on the take itself" if cal and cal.get("fallback") else ""),
             flush=True,
         )
         return 0

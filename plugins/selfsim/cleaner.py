@@ -6,6 +6,7 @@ decision and repair (:mod:`.paper.repair`) or the calibrated one (:mod:`.calibra
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
@@ -173,7 +174,7 @@ def clean_motion(
         cue[flags] = "mdm"
         value, cal = res.mdm, None
     else:
-        from .calibrated.calibration import calibrate
+        from .calibrated.calibration import calibrate, context_support
         from .calibrated.decision import calibrated_decision
         from .paper.motion_words import context_motions
 
@@ -181,9 +182,14 @@ def clean_motion(
         if calibration is None:
             # the calibration analyses each clip with itself included
             others = context_motions(motion, context, True)[1:]
+            why = context_support(res, others, p.fps)
+            if why:
+                logging.getLogger("mocapflow.cleaning").warning(
+                    "%s: %s; calibrated on the take's own statistics", motion.name, why
+                )
             calibration = calibrate(
                 motion,
-                others,
+                [] if why else others,
                 cleaner.clone(include_self=True).analyse,
                 res.joints,
                 p.fps,
@@ -191,6 +197,7 @@ def clean_motion(
                 frames=c.frames,
                 seed=c.seed,
             )
+            calibration.fallback = why
         cal = calibration
         flags, value, cue, new24, edited = calibrated_decision(res, cal, c.max_edit)
     cleaned, changed = apply_to_input(motion, res.texture, new24, edited, guard=p.mode != "paper")

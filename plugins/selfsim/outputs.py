@@ -13,6 +13,8 @@ import pyarrow as pa
 
 from mocapflow.framework.errors import ConfigError
 
+from .plots import PAPER_SCORE
+
 
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "clip"
@@ -84,6 +86,17 @@ def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
     }
 
 
+def decision_words(mode: str, level: float) -> tuple[str, str]:
+    """What the map's value is (colour bar: name, units) and what flags a cell, by mode."""
+    if mode == "paper":
+        return PAPER_SCORE, f"MDM > {level:g}"
+    return (
+        "calibrated evidence as 1 - 2^(-e^2) (dimensionless): e = largest\ncue over λ x its null level "
+        "on the clean context",
+        "cue evidence e > 1 (value > 0.5), kept when the repair moves it >= 10 deg",
+    )
+
+
 def clean_and_write_clip(
     cleaner: Any, motion: Any, context: Any, clip_id: int, out_dir: Path | None, registries: Any = None
 ) -> dict[str, Any]:
@@ -99,6 +112,7 @@ def clean_and_write_clip(
     edits = out.edits.set_column(0, "clip_id", pa.array(np.full(out.edits.num_rows, clip_id, np.int32)))
     level = p.threshold if p.mode == "paper" else 0.5
     mdm_in = map_to_input(out.map_result(), motion)
+    score, rule = decision_words(p.mode, level)
     files = {}
     if out_dir is not None:
         stem = _safe(motion.name or f"clip{clip_id}")
@@ -110,6 +124,8 @@ def clean_and_write_clip(
                 res.texture.fps,
                 level,
                 title=f"{motion.name}: movement digression map ({p.mode})",
+                score=score,
+                rule=rule,
             )
             files["heatmap"] = f"{stem}.mdm.png"
             if edits.num_rows:
@@ -122,8 +138,9 @@ def clean_and_write_clip(
                 raise ConfigError(f"{cleaner.key()}: write_bvh needs the registries (a format is another package's)")
             registries["formats"].get("bvh")().write(out.cleaned, out_dir / f"{stem}.clean.bvh")
             files["bvh"] = f"{stem}.clean.bvh"
+    table = mdm_table(res, motion, mdm_in, clip_id, level, out.cue)
     return {
-        "mdm": mdm_table(res, motion, mdm_in, clip_id, level, out.cue),
+        "mdm": table,
         "edits": edits,
         "cleaned": out.cleaned,
         "seconds": res.seconds,
@@ -131,8 +148,11 @@ def clean_and_write_clip(
             "clip": motion.name,
             "mode": p.mode,
             "dtw": res.n_dtw,
-            "flagged_cells": int(out.flags.sum()),
+            # counts in input cells (frames at the take's rate x texture joints)
+            "input_cells": int(motion.n_frames * len(res.texture.joint_index)),
+            "flagged_cells": int(table["flagged"].to_numpy().sum()),
             "edited_cells": edits.num_rows,
+            "decided_by": rule,
             **change_report(out, motion),
             **files,
         },

@@ -13,12 +13,22 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 
+PAPER_SCORE = "MDM value (dimensionless): 0 = moves like its\nnearest neighbours, 1 = digresses most"
+
 
 def mdm_heatmap(
-    mdm: np.ndarray, joints: Sequence[str], path: str | Path, fps: float = 24.0, threshold: float = 0.5, title: str = ""
+    mdm: np.ndarray,
+    joints: Sequence[str],
+    path: str | Path,
+    fps: float = 24.0,
+    threshold: float = 0.5,
+    title: str = "",
+    score: str = PAPER_SCORE,
+    rule: str = "",
 ) -> Path:
-    """Write the movement digression map ``mdm`` (T, m) at ``fps`` as a PNG at ``path``, rows
-    labelled ``joints``, cells above ``threshold`` outlined."""
+    """Write the map ``mdm`` (T, m) at ``fps`` as a PNG at ``path``, rows labelled ``joints``,
+    cells above ``threshold`` outlined; ``score`` labels the colour bar (what the value is, its
+    units), ``rule`` the white squares (what decided; default: the paper's MDM > threshold)."""
     from mocapflow.framework.plotting import pyplot
 
     plt = pyplot("MDM heatmaps")
@@ -42,15 +52,13 @@ def mdm_heatmap(
         ax.set_xlabel("time (s)")
         ax.set_title(title or "movement digression map", fontsize=9)
         cb = fig.colorbar(im, ax=ax, fraction=0.03, pad=0.01)
-        cb.set_label(
-            "MDM value (dimensionless): 0 = moves like its\nnearest neighbours, 1 = digresses most", fontsize=7
-        )
+        cb.set_label(score, fontsize=7)
         key = Line2D([], [], ls="none", marker="s", markerfacecolor="none", markeredgecolor="white", markersize=5)
         leg = fig.legend(
             [key],
             [
-                f"white square: MDM > {threshold:g}, cell flagged as erroneous "
-                f"({int(flagged.sum())} cells; the repair changes these)"
+                f"white square: {rule or f'MDM > {threshold:g}'}, cell flagged as erroneous "
+                f"({int(flagged.sum())} cells at {fps:g} fps; the repair changes these)"
             ],
             loc="lower center",
             fontsize=7,

@@ -95,14 +95,21 @@ def swap_frames(
 
 
 def bounded_repair(
-    res, flags: np.ndarray, mirror_flags: np.ndarray, cap: np.ndarray, no_merge: np.ndarray
+    res,
+    flags: np.ndarray,
+    mirror_flags: np.ndarray,
+    cap: np.ndarray,
+    no_merge: np.ndarray,
+    keep: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4), and (T, m) the edited, swapped and offset-repaired cells
     (offsets may lie outside ``flags``: the interval between the jumps).
 
     ``mirror_flags``: cells the mirror cue flagged; only runs holding one are swapped back,
     the others left as they are. ``cap`` (T, m): largest edit per cell, radians (swaps not
-    capped). ``no_merge``: cells no merged gap may include. Flagged runs of one joint at most
+    capped). ``no_merge``: cells no merged gap may include. Every joint is also searched
+    for offsets by their steps (:func:`.offsets.scan_offsets`) outside ``keep`` (T, m; holds
+    being filled). Flagged runs of one joint at most
     :data:`.constants.MERGE_GAP` frames apart are one run (a jitter burst flags its extremes).
     """
     from ..paper.repair import _propose
@@ -116,8 +123,6 @@ def bounded_repair(
     swapped = np.zeros((t_count, m), bool)
     offset = np.zeros((t_count, m), bool)
     edge_swaps = swap_edges(q, res.joints, SWAP_LEVEL, max_len=SWAP_MAX)
-    if not flags.any() and not edge_swaps:
-        return new, np.zeros((t_count, m), bool), swapped, offset
     runs = list(edge_swaps)
     for lc, rc, a, b in swap_frames(q, mean_q, res.joints, mirror_flags, SWAP_GAIN, skip=edge_swaps):
         if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in edge_swaps):
@@ -126,8 +131,10 @@ def bounded_repair(
         new[a:b, lc] = mirror(q[a:b, rc])
         new[a:b, rc] = mirror(q[a:b, lc])
         swapped[a:b, np.concatenate([lc, rc])] = True
+    # offsets (spikes, flips) found by their two steps wherever they are, flagged or not
+    _scanned_offsets(q, mean_q, new, swapped | keep, offset)
     # the mirror flags' evidence was for a swap that did not hold up: leave them
-    rest = flags & ~swapped & ~mirror_flags
+    rest = flags & ~swapped & ~mirror_flags & ~offset
     for j in np.flatnonzero(rest.any(axis=0)):
         for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:], strict=True):
             if a2 - b <= MERGE_GAP and not swapped[b:a2, j].any() and not no_merge[b:a2, j].any():
@@ -164,6 +171,23 @@ def bounded_repair(
         new[over] = quat.slerp(q[over], new[over], frac)
     edited = np.any(new != q, axis=-1)  # exact: an angle test near 0 is rounding noise
     return new, edited, swapped & edited, offset & edited
+
+
+def _scanned_offsets(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, skip: np.ndarray, offset: np.ndarray) -> None:
+    """Take out every offset :func:`.offsets.scan_offsets` finds on a joint (steps of
+    :data:`.constants.OFFSET_LEVEL` typical accelerations, as :func:`_offset_run`) that no
+    ``skip`` cell overlaps; marks them in ``offset``."""
+    from .constants import OFFSET_LEVEL, OFFSET_MAX, OFFSET_SCAN_DEG
+    from .cues import acceleration
+    from .offsets import remove_offset, scan_offsets
+
+    for j in range(q.shape[1]):
+        acc = np.median(acceleration(q[:, j : j + 1])[1:-1, 0]) if len(q) > 2 else 0.0
+        level = max(OFFSET_LEVEL * 2.0 * acc, np.deg2rad(OFFSET_SCAN_DEG))
+        for a, b, off_a, off_b in scan_offsets(q[:, j], mean_q[:, j], level, OFFSET_MAX):
+            if not skip[a:b, j].any():
+                new[a:b, j] = remove_offset(q[:, j], a, b, off_a, off_b)
+                offset[a:b, j] = True
 
 
 def _offset_run(

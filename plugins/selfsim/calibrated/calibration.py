@@ -44,6 +44,7 @@ class Calibration:
     false_alarm: float
     source: str
     clips: list[str] = field(default_factory=list)
+    fallback: str = ""  # why the take calibrated itself although a context was given
 
     def evidence(self, q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str]) -> np.ndarray:
         """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags)."""
@@ -64,6 +65,7 @@ class Calibration:
         """JSON-friendly description (weight per cue, calibration figures, clips)."""
         return {
             "source": self.source,
+            "fallback": self.fallback or None,
             "clips": list(self.clips),
             "cells": self.n_cells,
             "error_cells": self.n_error_cells,
@@ -73,6 +75,19 @@ class Calibration:
                 name: (None if not np.isfinite(w) else float(w)) for name, w in zip(CUES, self.weights, strict=True)
             },
         }
+
+
+def context_support(res, others: Sequence, fps: float) -> str:
+    """Why the context cannot support a decision on the analysed take ``res`` ("" when it can):
+    fewer analysis frames than the take and :data:`.constants.CONTEXT_MIN_FRAMES`."""
+    from .constants import CONTEXT_MIN_FRAMES
+
+    if not others:
+        return ""
+    frames = sum(c.n_frames * fps / c.fps for c in others)
+    if frames < min(CONTEXT_MIN_FRAMES, res.texture.n_frames):
+        return f"context too small ({frames / fps:.1f} s, less than the take and {CONTEXT_MIN_FRAMES / fps:.0f} s)"
+    return ""
 
 
 def calibration_clips(take, others: Sequence, frames: int, fps: float) -> tuple[list, str]:

@@ -14,6 +14,10 @@ CUES: tuple[str, ...] = ("digression", "acceleration", "mirror", "freeze", "jitt
 #: Quantile of a cue over a joint's clean calibration cells taken as its null level.
 NULL_QUANTILE = 0.99
 
+#: A context of fewer analysis frames than this and than the take cannot support a decision:
+#: the take calibrates itself.
+CONTEXT_MIN_FRAMES = 240
+
 #: Share of the calibration words given a synthetic error.
 CALIBRATION_DENSITY = 0.2
 
@@ -49,6 +53,11 @@ HOLD_SPEED = float(np.deg2rad(0.05))
 #: The freeze cue counts only on holds of at least this many frames.
 FREEZE_HOLD = 8
 
+#: Holds of at least ``FREEZE_SCAN`` frames are filled without a freeze flag when the KNN
+#: consensus turns at least ``FREEZE_SCAN_DEG`` degrees over them (:func:`.holds.frozen_holds`).
+FREEZE_SCAN = 3
+FREEZE_SCAN_DEG = 10.0
+
 #: Freeze flags grow only over frames where the KNN consensus moves at least this much per
 #: frame (mean over +-2 frames), radians.
 FREEZE_MOVING = float(np.deg2rad(0.1))
@@ -68,6 +77,12 @@ SWAP_MAX = 72
 #: Flagged runs whose ends are two consistent jumps of at least this many typical
 #: accelerations of the joint (and 8 degrees) are repaired by taking the offset out.
 OFFSET_LEVEL = 6.0
+
+#: Every joint is searched for offsets (two such agreeing steps, the removal nearer the
+#: consensus) of at most this many frames, flagged or not: spikes and flips are short offsets;
+#: those steps are at least ``OFFSET_SCAN_DEG`` (clean toes and wrists step 8-12 degrees).
+OFFSET_MAX = 48
+OFFSET_SCAN_DEG = 15.0
 
 #: Flagged runs of one joint at most this many frames apart are repaired as one.
 MERGE_GAP = 3

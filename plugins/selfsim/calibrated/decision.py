@@ -148,7 +148,7 @@ def calibrated_decision(res: Any, calibration: Any, max_edit: float) -> tuple[np
     # a mirror flag whose swap-back does not hold up is left as it is; no merged run takes it in
     no_merge |= mirror_flags
     cap = np.where(np.isin(dom, [_ACC, _MIRROR]), np.pi, np.deg2rad(max_edit))
-    new24, edited, swapped, offset = bounded_repair(res, flags, mirror_flags, cap, no_merge)
+    new24, edited, swapped, offset = bounded_repair(res, flags, mirror_flags, cap, no_merge, holds)
     eligible = flags & np.isin(dom, [CUES.index(c) for c in SHRINK_CUES])
     new24 = shrink_weak_runs(q, new24, edited, swapped | offset, evidence, eligible, SHRINK_FULL)
     edited = np.any(new24 != q, axis=-1)
@@ -166,6 +166,7 @@ def calibrated_decision(res: Any, calibration: Any, max_edit: float) -> tuple[np
     cue[filled] = "freeze"
     grown = offset & ~flags  # the rest of an offset interval, between its two jumps
     cue[grown] = cue_of_run(cue, grown)
+    cue[grown & (cue == None)] = "steps"  # noqa: E711 - an offset the scan found by its two steps alone
     cue[swapped] = "mirror"
     # a flag whose repair did not hold up (not nearer the consensus, a swap that did not smooth
     # its ends) is no claim the cleaner acts on

@@ -74,3 +74,45 @@ def remove_offset(track: np.ndarray, a: int, b: int, off_a: np.ndarray, off_b: n
     off = quat.slerp(np.broadcast_to(off_a, (b - a, 4)), np.broadcast_to(d1, (b - a, 4)), u)
     out = quat.normalize(quat.mul(track[a:b], quat.conjugate(off)))
     return np.where(np.sum(out * track[a:b], -1, keepdims=True) < 0, -out, out)
+
+
+def scan_offsets(
+    track: np.ndarray, mean: np.ndarray, level: float, max_len: int, agree: float = 0.35, noisy: float = 0.05
+) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """Every offset of one joint's ``track`` (T, 4), flagged or not: a step in at ``a`` and a
+    step out at ``b`` (both jumps of at least ``level`` radians off the take's own motion,
+    continued one frame), ``b - a <= max_len``, whose offsets agree (:func:`offset_interval`'s
+    test) and whose removal brings ``[a, b)`` nearer the KNN consensus ``mean`` (T, 4). A
+    spike or a flip is an offset of a few frames. A joint stepping that much on more than
+    ``noisy`` of its frames (and 8) is not searched. Returns ``(a, b, off_a, off_b)``,
+    non-overlapping, strongest first."""
+    t = len(track)
+    if t < 5:
+        return []
+    fwd, bwd = _forward_offsets(track), _backward_offsets(track)
+    fa, fb = _angle(fwd), _angle(bwd)
+    starts = np.flatnonzero(fa > level)
+    ends = np.flatnonzero(fb > level) + 1  # b: the first frame after the offset
+    if len(starts) > max(noisy * t, 8):
+        return []  # a joint that jumps this often (a toe the capture barely tracks): no evidence
+    found = []
+    for a in starts[(starts >= 2) & (starts <= t - 3)].tolist():
+        best = None
+        for b in ends[(ends > a) & (ends <= min(a + max_len, t - 2))].tolist():
+            d = float(quat.geodesic_angle(fwd[a], bwd[b - 1]))
+            small = min(fa[a], fb[b - 1])
+            if d <= agree * small and (best is None or small - 2.0 * d > best[0]):
+                best = (small - 2.0 * d, b)
+        if best is None:
+            continue
+        b = best[1]
+        rep = remove_offset(track, a, b, fwd[a], bwd[b - 1])
+        if quat.geodesic_angle(rep, mean[a:b]).mean() < quat.geodesic_angle(track[a:b], mean[a:b]).mean():
+            found.append((best[0], a, b))
+    out: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+    taken = np.zeros(t, bool)
+    for _, a, b in sorted(found, key=lambda f: -f[0]):
+        if not taken[a:b].any():
+            taken[a:b] = True
+            out.append((a, b, fwd[a], bwd[b - 1]))
+    return out

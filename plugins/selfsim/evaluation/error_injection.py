@@ -2,10 +2,13 @@
 
 Errors go into the local joint rotations of a clean clip at the 24 fps analysis rate
 (durations in frames, angles in degrees, :data:`ERROR_RANGES` the protocol's): ``spike``
-(the joint jumps away and back), ``offset`` (a constant rotation held), ``drift`` (growing
+(the joint jumps away and back; ``flip``: by 150-175 degrees, as a solver's flipped
+joint), ``offset`` (a constant rotation held), ``drift`` (growing
 linearly, then snapping back; the calibration's only), ``freeze`` (the onset rotation held,
 as after an occlusion), ``noise`` (a random rotation per frame), ``swap`` (a left limb and
-its right mirror exchanged). :func:`inject_at_density` adds them until a share of the
+its right mirror exchanged); ``ramp`` (a smooth drifting offset: eased in over a quarter of
+the span, its axis turning while held, eased out, as a marker sliding off and back; the
+generalization protocol's family the cleaner was never tuned on). :func:`inject_at_density` adds them until a share of the
 source words holds one (the paper's ~12.5 %, §6). The mask marks the cells moved more than
 ``min_angle`` (a drift's first frames or a still joint's freeze are invisible).
 """
@@ -24,7 +27,7 @@ from mocapflow.framework.motion import Motion
 
 from ..calibrated.cues import MIRROR_CHAINS, mirror
 
-ERROR_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap")
+ERROR_KINDS: tuple[str, ...] = ("spike", "offset", "drift", "freeze", "noise", "swap", "ramp", "flip")
 
 #: The kinds of the evaluation protocol at the paper's density.
 PROTOCOL_KINDS: tuple[str, ...] = ("spike", "offset", "freeze", "noise", "swap")
@@ -39,6 +42,8 @@ ERROR_RANGES: Ranges = {
     "freeze": ((12, 24), (0.0, 0.0)),
     "noise": ((8, 16), (15.0, 15.0)),
     "swap": ((12, 24), (0.0, 0.0)),
+    "ramp": ((8, 32), (20.0, 60.0)),
+    "flip": ((1, 3), (150.0, 175.0)),
 }
 
 #: Limb chains exchanged by a "swap" error (canonical names).
@@ -78,7 +83,7 @@ def apply_error(
     """Write one error into ``rot (T, J, 4)`` in place (see the module table)."""
     span = np.arange(start, end)
     n = len(span)
-    if kind in ("spike", "offset"):
+    if kind in ("spike", "offset", "flip"):
         for j in joints:
             off = quat.from_axis_angle(_random_axis(rng)[0], np.deg2rad(magnitude))
             rot[span, j] = quat.mul(rot[span, j], off)
@@ -87,6 +92,16 @@ def apply_error(
             axis = _random_axis(rng)[0]
             ang = np.deg2rad(magnitude) * (np.arange(1, n + 1) / n)
             rot[span, j] = quat.mul(rot[span, j], quat.from_axis_angle(np.broadcast_to(axis, (n, 3)), ang))
+    elif kind == "ramp":
+        r = max(1, n // 4)
+        ease = np.minimum(np.minimum(np.arange(1, n + 1), np.arange(n, 0, -1)) / r, 1.0)
+        ease = ease * ease * (3.0 - 2.0 * ease)  # smoothstep in and out
+        for j in joints:
+            a0, a1 = _random_axis(rng, 2)
+            w = np.linspace(0.0, 0.5, n)[:, None]
+            axis = (1.0 - w) * a0 + w * a1
+            axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+            rot[span, j] = quat.mul(rot[span, j], quat.from_axis_angle(axis, np.deg2rad(magnitude) * ease))
     elif kind == "freeze":
         for j in joints:
             rot[span, j] = rot[start, j]

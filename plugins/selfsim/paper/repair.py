@@ -200,6 +200,7 @@ def apply_to_input(
         d1 = np.where(flagged[i1, c][:, None], delta[i1, c], quat.identity((len(x),)))
         d = quat.slerp(d0, d1, w)
         if guard:
+            hit &= ~_snap_edges(d, motion.rotations[:, j], flagged[:, c], delta[:, c], x)
             if local is None:
                 local = _texture_frame(motion).rotations
             target = quat.slerp(new24[i0[hit], c], new24[i1[hit], c], w[hit])
@@ -209,6 +210,49 @@ def apply_to_input(
         rot[hit, j] = quat.normalize(quat.mul(motion.rotations[hit, j], d[hit]))
         changed[hit, j] = True
     return motion.with_arrays(rotations=rot), changed
+
+
+#: An input frame's step is an edge when it is at least this many times every other step
+#: within one analysis frame of it, and at least ``SNAP_MIN_DEG`` degrees.
+SNAP_RATIO, SNAP_MIN_DEG = 2.0, 3.0
+
+
+def _snap_edges(d: np.ndarray, track: np.ndarray, flagged: np.ndarray, delta: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Move the edges of each edited run of one joint to the input rate, in place on the
+    corrections ``d`` (T_in, 4): between the last clean analysis frame and the first edited
+    one (and the last edited and the first clean), the input frame where ``track`` (T_in, 4)
+    jumps most starts (ends) the error; the frames on its error side take the run's whole
+    end correction and the others none, instead of a correction slerped in time. An edge with
+    no clear jump (:data:`SNAP_RATIO`, :data:`SNAP_MIN_DEG`) keeps the slerp. Returns the
+    input frames now left as they are (T_in,)."""
+    out = np.zeros(len(track), bool)
+    if len(track) < 3:
+        return out
+    step = np.zeros(len(track))
+    step[1:] = quat.geodesic_angle(track[1:], track[:-1])
+    ident = quat.identity(())
+    t24 = len(flagged)
+    edge = np.diff(np.concatenate([[False], flagged, [False]]).astype(np.int8))
+    for f, into in [(int(a), True) for a in np.flatnonzero(edge == 1)] + [
+        (int(b), False) for b in np.flatnonzero(edge == -1)
+    ]:
+        if f == 0 or f >= t24:  # a run touching an end of the take has no outside sample
+            continue
+        span = np.flatnonzero((x > f - 1) & (x <= f))  # the input frames after sample f - 1, up to f
+        if len(span) < 2:
+            continue
+        k = int(span[np.argmax(step[span])])
+        near = np.flatnonzero((x > f - 2) & (x <= f + 1))
+        others = step[near[near != k]]
+        if step[k] < np.deg2rad(SNAP_MIN_DEG) or (len(others) and step[k] < SNAP_RATIO * others.max()):
+            continue
+        inside = span[span >= k] if into else span[span < k]
+        outside = span[span < k] if into else span[span >= k]
+        d[inside] = delta[f] if into else delta[f - 1]
+        d[outside] = ident
+        out[outside] = True
+        out[inside] = False
+    return out
 
 
 def _texture_frame(motion: Motion) -> Motion:
