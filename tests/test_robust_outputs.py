@@ -121,6 +121,14 @@ def test_clean_outputs_refused_inside_a_dataset(workspace, capsys):
     assert _snapshot(workspace) == before
 
 
+def test_export_output_refused_inside_a_dataset(workspace, capsys):
+    before = _snapshot(workspace)
+    out = str(workspace / "summary" / "clips")
+    assert main(["--no-entry-points", "export", str(workspace), "--step", "summary", "--output", out]) == 2
+    assert "dataset" in capsys.readouterr().err
+    assert _snapshot(workspace) == before
+
+
 def test_report_copies_no_symlinked_plot(workspace, tmp_path):
     secret = tmp_path / "secret.txt"
     secret.write_text("root:x:0:0")

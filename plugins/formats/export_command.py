@@ -35,12 +35,15 @@ class ExportCommand:
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.export import export_segments, workspace_segments
         from mocapflow.framework.plugins import build_registries, get_plugin_manager
+        from mocapflow.framework.workspace import refuse_dataset_path
 
         ws = Path(args.workspace)
         if not ws.is_dir():
             raise ConfigError(f"workspace {ws} does not exist (run a pipeline first)")
         if args.handle < 0 or (args.top is not None and args.top < 1):
             raise ConfigError("--handle must be >= 0 and --top >= 1")
+        if args.output:  # refused before any work
+            refuse_dataset_path(args.output, "--output")
         datasets = read_datasets(ws)
         step = args.step or _only_segment_step(datasets, ws)
         if step not in datasets:
@@ -49,7 +52,7 @@ class ExportCommand:
         pm = getattr(args, "plugin_manager", None) or get_plugin_manager()
         regs = build_registries(pm)
         readers = _reader_params(datasets, step)
-        out = Path(args.output) if args.output else ws / "export" / step
+        out = refuse_dataset_path(Path(args.output) if args.output else ws / "export" / step, "--output")
         index = export_segments(segments, out, regs, handle=args.handle, format=args.format, readers=readers)
         queries = len(set(index["query"].to_pylist()))
         print(
