@@ -129,6 +129,16 @@ def test_export_output_refused_inside_a_dataset(workspace, capsys):
     assert _snapshot(workspace) == before
 
 
+def test_reconstruct_output_refused_inside_a_dataset(workspace, tmp_path, capsys):
+    before = _snapshot(workspace)
+    take = tmp_path / "take.trc"
+    take.write_text("not read: the output is refused first")
+    out = str(workspace / "summary" / "take.bvh")
+    assert main(["--no-entry-points", "reconstruct", str(take), "--prior", str(tmp_path), "-o", out]) == 2
+    assert "dataset" in capsys.readouterr().err
+    assert _snapshot(workspace) == before
+
+
 def test_report_copies_no_symlinked_plot(workspace, tmp_path):
     secret = tmp_path / "secret.txt"
     secret.write_text("root:x:0:0")

@@ -42,6 +42,7 @@ class ReconstructCommand:
 
         from mocapflow.framework import Motion, load_registries
         from mocapflow.framework.errors import ConfigError, DataError
+        from mocapflow.framework.workspace import refuse_dataset_path
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
         from .reconstruct_markers import control_from_markers, control_from_motion, read_skeleton
@@ -49,7 +50,7 @@ class ReconstructCommand:
         from .retarget import positions_to_motion
 
         reg = load_registries(kinds=["formats"], entry_points=False)
-        src, out = Path(args.input), Path(args.out)
+        src, out = Path(args.input), refuse_dataset_path(args.out, "--out")
         if not src.is_file():
             raise ConfigError(f"{src}: no such file")
         if out.suffix.lower() not in (".bvh", ".amc"):
