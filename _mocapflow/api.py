@@ -30,10 +30,18 @@ def read(path: str | Path):
 
     path = Path(path).expanduser()
     ext = path.suffix.lower()
-    for _, cls in registries()["formats"]:
-        if ext in cls.extensions and cls.produces in ("motion", "markers"):
+    formats = [cls for _, cls in registries()["formats"] if cls.produces in ("motion", "markers")]
+    for cls in formats:
+        if ext in cls.extensions:
             return cls().read(path)
-    raise ConfigError(f"{path}: no registered reader for {ext or 'extension-less'!r} files")
+    what = f"{ext!r} files" if ext else "a path without a file extension"
+    if path.is_dir():
+        what = "a folder (give a file; Database(folder) reads a folder's takes)"
+    motion = sorted({e for c in formats if c.produces == "motion" for e in c.extensions})
+    markers = sorted({e for c in formats if c.produces == "markers" for e in c.extensions})
+    raise ConfigError(
+        f"{path}: no registered reader for {what}; motion files: {', '.join(motion)}; marker files: {', '.join(markers)}"
+    )
 
 
 def write(motion, path: str | Path) -> None:
@@ -51,7 +59,8 @@ def write(motion, path: str | Path) -> None:
     if writer is None:
         from mocapflow.framework.errors import ConfigError
 
-        raise ConfigError(f"{path}: no registered {produces} writer for {ext or 'extension-less'!r} files")
+        what = f"{ext!r} files" if ext else "a path without a file extension"
+        raise ConfigError(f"{path}: no registered {produces} writer for {what}")
     path.parent.mkdir(parents=True, exist_ok=True)
     writer().write_atomic(motion, path)
 

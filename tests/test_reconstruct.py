@@ -379,3 +379,17 @@ steps:
     run_pipeline(yaml, workspace=tmp_path / "ws", jobs=1, pm=get_plugin_manager(entry_points=False))
     fit = Dataset(tmp_path / "ws" / "recon").table("fit").to_pylist()
     assert fit[0]["marker_set"] == "vicon" and fit[0]["n_frames"] == 45 and fit[0]["fit_mean_cm"] < 1.0
+
+
+def test_output_skeleton_from_an_asf_or_a_take_through_the_format_registry():
+    from pathlib import Path
+
+    from mocapflow.framework import load_registries
+    from mocapflow.plugins.similarity.applications.reconstruct_markers import read_skeleton
+
+    cmu = Path(__file__).resolve().parents[1] / "examples" / "data" / "cmu" / "16"
+    reg = load_registries(kinds=["formats"], entry_points=False)
+    from_asf = read_skeleton(cmu / "16.asf", reg)
+    from_take = read_skeleton(cmu / "16_01.amc", reg)
+    assert isinstance(from_asf, Skeleton) and from_asf.names == from_take.names
+    np.testing.assert_allclose(from_asf.offsets, from_take.offsets)

@@ -60,6 +60,8 @@ def test_lng_plot_names_the_clip_and_explains_every_mark(quickstart_workspace, t
                 "16_15:30-60",
                 "--count",
                 "5",
+                "--exclude-self",
+                "off",  # the query's own clip is the match this plot explains
                 "--plot",
                 str(tmp_path / "lng.png"),
             ]

@@ -399,6 +399,18 @@ def _to_motion_arrays(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[s
     return root_t, rot
 
 
+class AsfFormat(Format):
+    """Acclaim ASF skeletons on their own (a performer's bones: what other plugins, such as
+    reconstruction, take as an output skeleton). Reader only; returns a Skeleton."""
+
+    name: ClassVar[str] = "asf"
+    extensions: ClassVar[tuple[str, ...]] = (".asf",)
+    produces: ClassVar[str] = "skeleton"
+
+    def read(self, path: str | Path) -> Any:
+        return read_asf(path)
+
+
 class AmcFormat(Format):
     """Acclaim AMC motions (with the ASF skeleton beside them): reader and writer."""
 

@@ -11,7 +11,7 @@ from mocapflow.framework.plugins import hookimpl
 
 @hookimpl
 def register_formats() -> list[type]:
-    from .asf_amc import AmcFormat
+    from .asf_amc import AmcFormat, AsfFormat
     from .bvh import BvhFormat
     from .c3d import C3dFormat
     from .fbx import FbxFormat
@@ -19,7 +19,18 @@ def register_formats() -> list[type]:
     from .steps import ExportMotions, LoadMarkers, LoadMotions
     from .trc import TrcFormat
 
-    return [AmcFormat, BvhFormat, C3dFormat, FbxFormat, GltfFormat, TrcFormat, LoadMotions, LoadMarkers, ExportMotions]
+    return [
+        AmcFormat,
+        AsfFormat,
+        BvhFormat,
+        C3dFormat,
+        FbxFormat,
+        GltfFormat,
+        TrcFormat,
+        LoadMotions,
+        LoadMarkers,
+        ExportMotions,
+    ]
 
 
 @hookimpl

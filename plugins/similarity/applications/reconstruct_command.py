@@ -57,7 +57,7 @@ class ReconstructCommand:
             raise ConfigError(f"--out {out}: expected a .bvh or .amc file name")
         skeleton_take: Motion | None = None
         if src.suffix.lower() in (".c3d", ".trc"):
-            markers = _read_markers(src)
+            markers = _read_markers(src, reg)
             control, heading, set_name, mapping = control_from_markers(markers, args.marker_set)
             fps, what = (
                 markers.fps,
@@ -103,11 +103,13 @@ class ReconstructCommand:
         return 0
 
 
-def _read_markers(path: Path):  # type: ignore[no-untyped-def]
-    from mocapflow.plugins.formats.c3d import read_c3d
-    from mocapflow.plugins.formats.trc import read_trc
+def _read_markers(path: Path, reg):  # type: ignore[no-untyped-def]
+    from mocapflow.framework.errors import ConfigError
 
-    return read_c3d(path) if path.suffix.lower() == ".c3d" else read_trc(path)
+    for _, cls in reg.by_kind["formats"]:
+        if path.suffix.lower() in cls.extensions and cls.produces == "markers":
+            return cls().read(path)
+    raise ConfigError(f"{path}: no registered marker reader for {path.suffix!r} files")
 
 
 def _open_prior(spec: str, reg, store_cls, build):  # type: ignore[no-untyped-def]

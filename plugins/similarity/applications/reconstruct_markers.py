@@ -255,8 +255,7 @@ def read_skeleton(path: Path, reg):  # type: ignore[no-untyped-def]
 
     if not path.is_file():
         raise ConfigError(f"skeleton {path}: no such file")
-    if path.suffix.lower() == ".asf":
-        from mocapflow.plugins.formats.asf_amc import read_asf
-
-        return read_asf(path)
+    for _, cls in reg.by_kind["formats"]:  # a skeleton file (ASF) read as it is
+        if path.suffix.lower() in cls.extensions and cls.produces == "skeleton":
+            return cls().read(path)
     return reg.motion_format(path).read(path).skeleton

@@ -275,12 +275,13 @@ class SearchSession:
                 if key not in fields:
                     raise ConfigError(f"matchers.{args.matcher} has no parameter {key!r}")
                 params[key] = val
-        try:
-            return matcher_cls(params)
-        except ValueError as exc:  # pydantic's ValidationError: the option named, exit 2
+        try:  # validated here, where pydantic's error still says which option: exit 2 naming it
+            matcher_cls.Params.model_validate(params)
+        except ValueError as exc:
             from mocapflow.framework.options import options_error
 
             raise options_error(exc, _OPTIONS, f"matchers.{args.matcher}") from None
+        return matcher_cls(params)
 
     def query(self, text: str, cwd: Path):
         """The :class:`~mocapflow.framework.queries.Query` of ``--query`` (files relative to ``cwd``)."""
