@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 import re
 import stat
 from collections.abc import Callable
@@ -79,6 +80,101 @@ def read_bytes(path: str | Path, check_head: Callable[[bytes], None] | None = No
     if not data.strip():
         raise ParseError(p, 1, "the file is empty")
     return data
+
+
+def read_sidecar(owner: Path, name: str, n_bytes: int, budget: int, what: str) -> bytes:
+    """The first ``n_bytes`` of a file a document names beside itself (a glTF buffer
+    ``uri``), confined to the document's own folder: ``name`` is a relative path (already
+    percent-decoded) without ``..``, a drive or a scheme; the file it resolves to, symbolic
+    links followed, lies inside ``owner``'s folder (resolved), is a regular file (a FIFO or
+    a device is refused without blocking: the file is opened non-blocking and checked
+    after opening) and holds at least ``n_bytes``, which must fit in ``budget`` (the bytes
+    the reader may still read for this document). ParseError naming ``owner`` and ``what``
+    otherwise; no other file is opened."""
+
+    def refuse(msg: str) -> ParseError:
+        return ParseError(owner, None, f"{what}: {msg}")
+
+    parts = name.replace("\\", "/").split("/")
+    if (
+        not name
+        or "\x00" in name
+        or name.startswith(("/", "\\"))
+        or (len(name) > 1 and name[1] == ":")
+        or ".." in parts
+        or re.match(r"[A-Za-z][A-Za-z0-9+.-]*:", name)
+    ):
+        raise refuse(f"expected a relative path inside the file's folder, found {name!r:.80}")
+    if n_bytes > budget:
+        raise refuse(
+            f"declares {n_bytes:,} bytes; with the file itself a reader accepts at most "
+            f"{MAX_FILE_BYTES / 2**20:,.0f} MiB per file"
+        )
+    folder = owner.parent.resolve()
+    try:
+        target = (folder / "/".join(p for p in parts if p not in ("", "."))).resolve(strict=True)
+    except FileNotFoundError:
+        raise refuse(f"cannot read {name!r:.80} beside the file (file not found)") from None
+    except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop (Python < 3.13)
+        raise refuse(f"cannot read {name!r:.80} beside the file ({getattr(exc, 'strerror', None) or exc})") from None
+    if target == folder or not target.is_relative_to(folder):
+        raise refuse(f"{name!r:.80} resolves outside the file's folder; expected a file beside it")
+    try:
+        fd = os.open(target, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NOCTTY", 0))
+    except OSError as exc:
+        raise refuse(f"cannot read {name!r:.80} beside the file ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise refuse(f"{name!r:.80} is not a regular file (a device, a pipe or a folder)")
+        if st.st_size < n_bytes:
+            raise refuse(f"expected {n_bytes:,} bytes in {name!r:.80}, found {st.st_size:,}")
+        data = f.read(n_bytes)
+    if len(data) < n_bytes:
+        raise refuse(f"expected {n_bytes:,} bytes in {name!r:.80}, found {len(data):,}")
+    return data
+
+
+#: Frames a scene reader (glTF, FBX) samples beyond its keys: at most this many per distinct
+#: key time plus :data:`TIMELINE_FRAMES_FLOOR`; one far key cannot turn a short take into
+#: millions of frames.
+TIMELINE_FRAMES_PER_KEY = 100
+TIMELINE_FRAMES_FLOOR = 10_000
+#: Node-frames (sampled frames x nodes of the skeleton and its ancestors) a scene reader
+#: builds: at most :data:`NODE_FRAMES_FLOOR` plus one per byte of the file (a take keyed on
+#: every frame stores >= 16 bytes per node-frame), ~250 bytes of memory each.
+NODE_FRAMES_FLOOR = 1 << 20
+
+
+def check_timeline(
+    path: Path, *, n_frames: int, n_nodes: int, key_times: list[np.ndarray], t0: float, t1: float, fps: float, size: int
+) -> None:
+    """Refuse a timeline the file's own data do not support (module constants): more frames
+    than its distinct key times justify (one far key), or more node-frames than its size."""
+    keys = np.unique(np.concatenate([np.asarray(k, dtype=np.float64).ravel() for k in key_times])) if key_times else []
+    allowed = TIMELINE_FRAMES_PER_KEY * len(keys) + TIMELINE_FRAMES_FLOOR
+    if n_frames > allowed:
+        gaps = np.diff(keys) if len(keys) > 1 else np.zeros(1)
+        g = int(np.argmax(gaps))
+        far = (
+            f"; the largest gap between keys is {gaps[g]:g} s (from {keys[g]:g} to {keys[g + 1]:g} s)"
+            if len(keys) > 1
+            else ""
+        )
+        raise ParseError(
+            path,
+            None,
+            f"keys from {t0:g} to {t1:g} s at {fps:g} fps make {n_frames:,} frames from {len(keys):,} distinct key "
+            f"times{far}; expected at most {TIMELINE_FRAMES_PER_KEY} frames per key time + {TIMELINE_FRAMES_FLOOR:,} "
+            "(a far or corrupt key time?)",
+        )
+    if n_frames * n_nodes > NODE_FRAMES_FLOOR + size:
+        raise ParseError(
+            path,
+            None,
+            f"{n_frames:,} frames x {n_nodes:,} nodes = {n_frames * n_nodes:,} node-frames from a file of {size:,} bytes; "
+            f"expected at most {NODE_FRAMES_FLOOR:,} + one per byte of the file",
+        )
 
 
 def text_head(path: Path, head: bytes, starts: tuple[bytes, ...], what: str) -> None:

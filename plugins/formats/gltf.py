@@ -33,6 +33,7 @@ orientations back (``Skeleton.meta["rest_rotations"]``).
 from __future__ import annotations
 
 import base64
+import binascii
 import json
 import struct
 from pathlib import Path
@@ -42,11 +43,14 @@ import numpy as np
 from pydantic import Field
 
 from mocapflow.framework import quaternions as quat
+from mocapflow.framework.bounded_json import JsonDepthError
+from mocapflow.framework.bounded_json import loads as bounded_loads
 from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.motion import Motion
 
-from ._common import MAX_FPS, file_metadata, read_bytes
+from . import _common
+from ._common import MAX_FPS, check_timeline, file_metadata, read_bytes, read_sidecar
 from ._gltf_write import write_gltf
 from ._nodes import motion_from_nodes, uniform_scale, unique_names
 
@@ -66,6 +70,45 @@ _GLB_MAGIC, _JSON_CHUNK, _BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942
 #: Largest |value| accepted in node transforms and accessors (metres, seconds, factors):
 #: above any real scene, below the overflow of the products that follow.
 _MAX_VALUE = 1.0e7
+#: Deepest JSON nesting of a glTF document (the format nests < 10 levels).
+MAX_JSON_DEPTH = 64
+#: Most nodes in a document, and the deepest node hierarchy (a skeleton is < 100 deep).
+MAX_NODES = 1_000_000
+MAX_NODE_DEPTH = 1_000
+#: Elements of an accessor without a bufferView (all zeros by the specification).
+MAX_ZERO_ELEMENTS = 1 << 20
+
+
+def _check_head(path: Path, head: bytes, size: int) -> None:
+    """glTF/GLB header check on the file's first bytes (``size``: the file's size): a GLB
+    container's magic, version, total length and first chunk, or the start of a JSON object
+    (no control bytes in the head): anything else is refused before the body is read."""
+    if head[:4] == b"glTF":
+        if len(head) < 20:
+            raise ParseError(path, None, f"expected a 12-byte GLB header and a JSON chunk, found {len(head)} bytes")
+        _magic, version, length = struct.unpack_from("<III", head)
+        if version != 2:
+            raise ParseError(path, None, f"expected GLB version 2, found {version}")
+        if length != size:
+            raise ParseError(path, None, f"expected {length:,} bytes (GLB header), the file holds {size:,}")
+        n, kind = struct.unpack_from("<II", head, 12)
+        if kind != _JSON_CHUNK:
+            raise ParseError(path, None, "expected a JSON chunk first in the GLB container")
+        if 20 + n > size:
+            raise ParseError(path, None, f"the JSON chunk claims {n:,} bytes, past the end of the file")
+        _json_start(path, head[20 : 20 + n], "the GLB JSON chunk")
+        return
+    _json_start(path, head[3:] if head.startswith(b"\xef\xbb\xbf") else head, "a glTF JSON document or a GLB file")
+
+
+def _json_start(path: Path, head: bytes, what: str) -> None:
+    body = head.lstrip(b" \t\r\n")
+    if not body[:1] == b"{":
+        raise ParseError(path, 1, f"expected {what} starting with '{{', found {body[:16]!r}")
+    bad = head.translate(None, bytes(range(32, 256)) + b"\t\r\n")
+    if bad:
+        off = head.find(bad[:1])
+        raise ParseError(path, head.count(b"\n", 0, off) + 1, f"expected JSON text, found control byte 0x{bad[0]:02x}")
 
 
 class _Doc:
@@ -73,17 +116,21 @@ class _Doc:
 
     def __init__(self, path: Path, data: bytes) -> None:
         self.path = path
-        glb_bin: bytes | None = None
+        glb_bin: memoryview | None = None
         if data[:4] == b"glTF":
             text, glb_bin = self._glb(data)
         else:
-            text = data[3:] if data.startswith(b"\xef\xbb\xbf") else data
+            text = memoryview(data)[3:] if data.startswith(b"\xef\xbb\xbf") else memoryview(data)
         try:
-            doc = json.loads(text.decode("utf-8"))
+            doc = bounded_loads(text, MAX_JSON_DEPTH)
         except UnicodeDecodeError as exc:
             raise self.error(f"expected UTF-8 JSON (or a GLB container), found byte 0x{text[exc.start]:02x}") from None
         except json.JSONDecodeError as exc:
             raise ParseError(path, None if glb_bin is not None else exc.lineno, f"expected JSON: {exc.msg}") from None
+        except JsonDepthError as exc:
+            raise self.error(f"expected a glTF document, found {exc}") from None
+        except ValueError as exc:  # e.g. an integer of more than 4,300 digits
+            raise self.error(f"expected JSON: {str(exc)[:120]}") from None
         if not isinstance(doc, dict):
             raise self.error("expected a JSON object at the top level")
         version = str(self.get(doc, "asset", dict, "asset").get("version", ""))
@@ -91,13 +138,14 @@ class _Doc:
             raise self.error(f"expected glTF version 2.x, found {version!r}")
         self.doc = doc
         self.glb_bin = glb_bin
-        self._buffers: dict[int, bytes] = {}
+        self._budget = _common.MAX_FILE_BYTES - len(data)  # bytes left for buffers beside the file
+        self._buffers: dict[int, bytes | memoryview] = {}
         self._accessors: dict[tuple, np.ndarray] = {}
 
     def error(self, msg: str) -> ParseError:
         return ParseError(self.path, None, msg)
 
-    def _glb(self, data: bytes) -> tuple[bytes, bytes | None]:
+    def _glb(self, data: bytes) -> tuple[memoryview, memoryview | None]:
         if len(data) < 20:
             raise self.error(f"expected a 12-byte GLB header and a JSON chunk, found {len(data)} bytes")
         magic, version, length = struct.unpack_from("<III", data)
@@ -105,7 +153,8 @@ class _Doc:
             raise self.error(f"expected GLB version 2, found {version}")
         if length != len(data):
             raise self.error(f"expected {length} bytes (GLB header), found {len(data)}")
-        chunks: list[tuple[int, bytes]] = []
+        view = memoryview(data)  # chunks are views: no copy of the file's body
+        chunks: list[tuple[int, memoryview]] = []
         pos = 12
         while pos < len(data):
             if pos + 8 > len(data):
@@ -113,7 +162,7 @@ class _Doc:
             n, kind = struct.unpack_from("<II", data, pos)
             if pos + 8 + n > len(data):
                 raise self.error(f"chunk at byte {pos} claims {n} bytes, past the end of the file")
-            chunks.append((kind, data[pos + 8 : pos + 8 + n]))
+            chunks.append((kind, view[pos + 8 : pos + 8 + n]))
             pos += 8 + n
         if not chunks or chunks[0][0] != _JSON_CHUNK:
             raise self.error("expected a JSON chunk first in the GLB container")
@@ -139,36 +188,52 @@ class _Doc:
             raise self.error(f"{key}[{i}]: expected a JSON object")
         return arr[i]
 
-    def buffer(self, i: int) -> bytes:
+    def buffer(self, i: int) -> bytes | memoryview:
+        """Buffer ``i``: the GLB binary chunk, a data URI (its base64 length checked against
+        ``byteLength`` before decoding) or a file beside the document, confined to its
+        folder (:func:`._common.read_sidecar`), its bytes counted in the per-file cap."""
         if i in self._buffers:
             return self._buffers[i]
-        b = self.item("buffers", i, f"buffers[{i}]")
-        uri = self.get(b, "uri", str, f"buffers[{i}]", None)
+        w = f"buffers[{i}]"
+        b = self.item("buffers", i, w)
+        uri = self.get(b, "uri", str, w, None)
+        n = self.get(b, "byteLength", int, w)
+        if not 0 < n <= _common.MAX_FILE_BYTES:
+            raise self.error(f"{w}: expected a byteLength in [1, {_common.MAX_FILE_BYTES:,}], found {n:,}")
+        raw: bytes | memoryview
         if uri is None:
             if i != 0 or self.glb_bin is None:
-                raise self.error(f"buffers[{i}]: expected a 'uri' (or the GLB binary chunk for buffer 0)")
+                raise self.error(f"{w}: expected a 'uri' (or the GLB binary chunk for buffer 0)")
             raw = self.glb_bin
         elif uri.startswith("data:"):
             head, _, payload = uri.partition(",")
             if not head.endswith(";base64"):
-                raise self.error(f"buffers[{i}]: expected a base64 data URI")
+                raise self.error(f"{w}: expected a base64 data URI")
+            if len(payload) > 4 * (n // 3 + 1) + 4:  # more than byteLength needs: refused before decoding
+                raise self.error(
+                    f"{w}: a data URI of {len(payload):,} base64 characters for a byteLength of {n:,}; expected at "
+                    f"most {4 * (n // 3 + 1):,}"
+                )
             try:
                 raw = base64.b64decode(payload, validate=True)
-            except ValueError:
-                raise self.error(f"buffers[{i}]: expected valid base64 in the data URI") from None
+            except (ValueError, binascii.Error):
+                raise self.error(f"{w}: expected valid base64 in the data URI") from None
         else:
             from urllib.parse import unquote
 
-            target = self.path.parent / unquote(uri)
-            try:
-                raw = target.read_bytes()
-            except OSError as exc:
-                raise self.error(f"buffers[{i}]: cannot read {uri!r} beside the file ({exc.strerror or exc})") from None
-        n = self.get(b, "byteLength", int, f"buffers[{i}]")
+            raw = read_sidecar(self.path, unquote(uri), n, self._budget, w)
+            self._budget -= len(raw)
         if len(raw) < n:
-            raise self.error(f"buffers[{i}]: expected {n} bytes, found {len(raw)}")
+            raise self.error(f"{w}: expected {n:,} bytes, found {len(raw):,}")
         self._buffers[i] = raw
         return raw
+
+    def nonneg(self, obj: dict, key: str, where: str, default: Any = ...) -> int:
+        """An integer entry that must be >= 0 (offsets, lengths, strides)."""
+        v = self.get(obj, key, int, where, default)
+        if v < 0:
+            raise self.error(f"{where}: expected {key!r} >= 0, found {v}")
+        return int(v)
 
     def accessor(self, i: Any, where: str, widths: tuple[int, ...]) -> np.ndarray:
         """Accessor ``i`` as float64 ``(count, width)`` (normalized integers scaled; read once)."""
@@ -195,22 +260,36 @@ class _Doc:
             raise self.error(f"{w}: expected count >= 1, found {count}")
         item_size = np.dtype(dtype).itemsize * width
         if "bufferView" not in a:
+            if count * width > MAX_ZERO_ELEMENTS:
+                raise self.error(
+                    f"{w}: {count:,} items without a bufferView (all zeros); expected at most "
+                    f"{MAX_ZERO_ELEMENTS // width:,}"
+                )
             out = np.zeros((count, width))
         else:
             bv = self.item("bufferViews", a["bufferView"], w)
             bw = f"bufferViews[{a['bufferView']}]"
-            buf = self.buffer(self.get(bv, "buffer", int, bw))
-            start = self.get(bv, "byteOffset", int, bw, 0) + self.get(a, "byteOffset", int, w, 0)
-            length = self.get(bv, "byteLength", int, bw)
-            stride = self.get(bv, "byteStride", int, bw, item_size) or item_size
-            if start < 0 or length < 0 or stride < item_size:
-                raise self.error(f"{w}: expected non-negative offsets and a byteStride >= {item_size}")
-            end = start + stride * (count - 1) + item_size
-            limit = self.get(bv, "byteOffset", int, bw, 0) + length
-            if end > min(limit, len(buf)):
+            # declared sizes first: the view inside its buffer's byteLength, the accessor inside its view
+            bi = self.get(bv, "buffer", int, bw)
+            declared = self.get(self.item("buffers", bi, f"{bw}.buffer"), "byteLength", int, f"buffers[{bi}]")
+            view_start = self.nonneg(bv, "byteOffset", bw, 0)
+            length = self.nonneg(bv, "byteLength", bw)
+            acc_offset = self.nonneg(a, "byteOffset", w, 0)
+            stride = self.nonneg(bv, "byteStride", bw, 0) or item_size
+            if stride < item_size or stride > 252 + item_size:
+                raise self.error(f"{bw}: expected a byteStride in [{item_size}, 252] for {w}, found {stride}")
+            if view_start + length > declared:
                 raise self.error(
-                    f"{w}: {count} items need bytes up to {end}, the buffer view ends at {min(limit, len(buf))}"
+                    f"{bw}: bytes {view_start:,}..{view_start + length:,} lie past its buffer's byteLength {declared:,}"
                 )
+            start = view_start + acc_offset
+            end = start + stride * (count - 1) + item_size
+            limit = view_start + length
+            if end > limit:
+                raise self.error(f"{w}: {count:,} items need bytes up to {end:,}, the buffer view ends at {limit:,}")
+            buf = self.buffer(bi)
+            if end > len(buf):
+                raise self.error(f"{w}: {count:,} items need bytes up to {end:,}, the buffer holds {len(buf):,}")
             raw = np.ndarray(
                 (count, width), dtype=dtype, buffer=buf, offset=start, strides=(stride, np.dtype(dtype).itemsize)
             )
@@ -268,9 +347,14 @@ def _node_trs(doc: _Doc, i: int, node: dict) -> tuple[np.ndarray, np.ndarray, np
 
 
 def _parents(doc: _Doc) -> np.ndarray:
+    """Parent of each node (-1: a root), checked to be a forest of at most
+    :data:`MAX_NODES` nodes and :data:`MAX_NODE_DEPTH` levels (iteratively: no recursion,
+    each node visited once)."""
     nodes = doc.doc.get("nodes", [])
     if not isinstance(nodes, list) or not nodes:
         raise doc.error("expected a non-empty 'nodes' array")
+    if len(nodes) > MAX_NODES:
+        raise doc.error(f"expected at most {MAX_NODES:,} nodes, found {len(nodes):,}")
     parent = np.full(len(nodes), -1, dtype=np.int64)
     for i, nd in enumerate(nodes):
         if not isinstance(nd, dict):
@@ -280,12 +364,24 @@ def _parents(doc: _Doc) -> np.ndarray:
             if parent[c] >= 0 or c == i:
                 raise doc.error(f"nodes[{c}] has two parents (nodes {parent[c]} and {i}); expected a tree")
             parent[c] = i
-    for i in range(len(nodes)):  # cycles
-        k, seen = i, 0
-        while k >= 0:
-            k, seen = int(parent[k]), seen + 1
-            if seen > len(nodes):
+    depth = np.full(len(nodes), -1, dtype=np.int64)  # -1: not known yet
+    par = parent.tolist()
+    for i in range(len(nodes)):  # depths, each node once: cycles and too deep hierarchies
+        path, k = [], i
+        while k >= 0 and depth[k] < 0:
+            path.append(k)
+            depth[k] = -2  # on the current path
+            k = par[k]
+            if len(path) > MAX_NODE_DEPTH:
+                raise doc.error(f"nodes[{i}]: more than {MAX_NODE_DEPTH:,} ancestors; expected a shallower hierarchy")
+            if k >= 0 and depth[k] == -2:
                 raise doc.error(f"nodes[{i}]: its ancestors form a cycle; expected a tree")
+        d = int(depth[k]) if k >= 0 else -1
+        for m in reversed(path):
+            d += 1
+            depth[m] = d
+        if d > MAX_NODE_DEPTH:
+            raise doc.error(f"nodes[{i}]: more than {MAX_NODE_DEPTH:,} ancestors; expected a shallower hierarchy")
     return parent
 
 
@@ -417,7 +513,7 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
     ``fps_source`` ("extras", "key times" or "given"), ``animation`` (its name),
     ``animations`` (all names), ``start_time`` (seconds of the first frame)."""
     path = Path(path)
-    data = read_bytes(path)
+    data = read_bytes(path, lambda head: _check_head(path, head, path.stat().st_size))
     doc = _Doc(path, data)
     k_anim, anim = _pick_animation(doc, animation)
     aw = f"animations[{k_anim}]"
@@ -432,8 +528,24 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
     n_frames = int(round((t1 - t0) * rate)) + 1
     if n_frames > 10_000_000:
         raise doc.error(f"{aw}: {t1 - t0:g} s at {rate:g} fps is over 10^7 frames")
-    grid = t0 + np.arange(n_frames) / rate
+    densest = max(len(c[3]) for c in channels)
+    if source == "key times" and n_frames < densest / 2:
+        raise doc.error(
+            f"{aw}: the key spacing implies {rate:g} fps, {n_frames:,} frames from {t0:g} to {t1:g} s for a sampler of "
+            f"{densest:,} keys; expected key times spread over the take (a far or corrupt key time?)"
+        )
     order, first = _select(doc, parent, {c[0] for c in channels})
+    check_timeline(
+        path,
+        n_frames=n_frames,
+        n_nodes=len(order),
+        key_times=[c[3] for c in channels],
+        t0=t0,
+        t1=t1,
+        fps=rate,
+        size=len(data),
+    )
+    grid = t0 + np.arange(n_frames) / rate
     nodes = doc.doc["nodes"]
     col = {n: k for k, n in enumerate(order)}
     rest = [_node_trs(doc, n, nodes[n]) for n in order]

@@ -98,11 +98,14 @@ def _request(raw: bytes) -> tuple[argparse.Namespace, Path]:
     """The options and working directory of a request; :class:`ConfigError` for a malformed
     one (not JSON, wrong shape, an option of the wrong type). An option an older client
     does not send takes the CLI's default."""
+    from mocapflow.framework.bounded_json import JsonDepthError, loads
     from mocapflow.framework.errors import ConfigError
 
     try:
-        req = json.loads(raw.decode())
-    except (UnicodeDecodeError, ValueError):
+        req = loads(raw, max_depth=16)
+    except JsonDepthError as exc:
+        raise ConfigError(f"search server: malformed request ({exc}; expected one flat JSON object)") from None
+    except ValueError:  # not UTF-8, not JSON
         raise ConfigError("search server: malformed request (expected one JSON object)") from None
     if not isinstance(req, dict) or not isinstance(req.get("args"), dict) or not isinstance(req.get("cwd"), str):
         raise ConfigError('search server: malformed request (expected {"args": {...}, "cwd": "..."})')
