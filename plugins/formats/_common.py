@@ -70,7 +70,11 @@ def read_bytes(path: str | Path, check_head: Callable[[bytes], None] | None = No
                 if head.strip():
                     check_head(head)
                 f.seek(0)
-            data = f.read(MAX_FILE_BYTES + 1)  # a file that grew since stat: still bounded
+            # the size stat gave (+1: a file that grew since is seen), never a buffer of the
+            # whole limit up front (read(n) allocates n), and still bounded if it grew
+            data = f.read(min(st.st_size, MAX_FILE_BYTES) + 1)
+            if len(data) > st.st_size:
+                data += f.read(MAX_FILE_BYTES + 1 - len(data))
     except FileNotFoundError:
         raise ParseError(p, None, "file not found") from None
     except OSError as exc:
@@ -123,13 +127,18 @@ def read_sidecar(owner: Path, name: str, n_bytes: int, budget: int, what: str) -
         fd = os.open(target, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NOCTTY", 0))
     except OSError as exc:
         raise refuse(f"cannot read {name!r:.80} beside the file ({exc.strerror or exc})") from None
-    with os.fdopen(fd, "rb") as f:
+    try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise refuse(f"{name!r:.80} is not a regular file (a device, a pipe or a folder)")
         if st.st_size < n_bytes:
             raise refuse(f"expected {n_bytes:,} bytes in {name!r:.80}, found {st.st_size:,}")
-        data = f.read(n_bytes)
+        with os.fdopen(os.dup(fd), "rb") as f:
+            data = f.read(n_bytes)
+    except OSError as exc:
+        raise refuse(f"cannot read {name!r:.80} beside the file ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
     if len(data) < n_bytes:
         raise refuse(f"expected {n_bytes:,} bytes in {name!r:.80}, found {len(data):,}")
     return data
@@ -144,13 +153,23 @@ TIMELINE_FRAMES_FLOOR = 10_000
 #: builds: at most :data:`NODE_FRAMES_FLOOR` plus one per byte of the file (a take keyed on
 #: every frame stores >= 16 bytes per node-frame), ~250 bytes of memory each.
 NODE_FRAMES_FLOOR = 1 << 20
+#: Most nodes in a scene reader's skeleton (its joints and their ancestors): each costs
+#: Python work downstream (~1 ms); real rigs, face rigs included, have fewer than 1,000.
+MAX_SKELETON_NODES = 4096
 
 
 def check_timeline(
     path: Path, *, n_frames: int, n_nodes: int, key_times: list[np.ndarray], t0: float, t1: float, fps: float, size: int
 ) -> None:
     """Refuse a timeline the file's own data do not support (module constants): more frames
-    than its distinct key times justify (one far key), or more node-frames than its size."""
+    than its distinct key times justify (one far key), more node-frames than its size, or
+    more than :data:`MAX_SKELETON_NODES` nodes."""
+    if n_nodes > MAX_SKELETON_NODES:
+        raise ParseError(
+            path,
+            None,
+            f"a skeleton of {n_nodes:,} nodes; expected at most {MAX_SKELETON_NODES:,} (joints and ancestors)",
+        )
     keys = np.unique(np.concatenate([np.asarray(k, dtype=np.float64).ravel() for k in key_times])) if key_times else []
     allowed = TIMELINE_FRAMES_PER_KEY * len(keys) + TIMELINE_FRAMES_FLOOR
     if n_frames > allowed:

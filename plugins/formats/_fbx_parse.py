@@ -26,6 +26,35 @@ _ARRAYS = {b"f": "<f4", b"d": "<f8", b"l": "<i8", b"i": "<i4", b"b": "<u1"}
 #: Largest decompressed array accepted (elements): 2^28, far above any animation curve.
 MAX_ARRAY = 1 << 28
 MAX_DEPTH = 64
+#: Bytes all of a file's zlib arrays may inflate to together: this floor plus
+#: :data:`INFLATE_RATIO` times the file's size (real FBX arrays deflate 2-10x; one 2 MB
+#: array asking for 2 GiB is a bomb). Each array inflates at most to its declared length.
+INFLATE_FLOOR = 32 << 20
+INFLATE_RATIO = 8
+
+
+def check_head(path: Path, head: bytes, size: int) -> None:
+    """Header check on the file's first bytes (``size``: the whole file's): ASCII FBX
+    refused, the binary magic, a version in 7000-9999, and the first node record's end
+    offset within the file; anything else is refused before the body is read."""
+    if head[:5] == b"; FBX" or head.lstrip()[:12] == b"FBXHeaderExt":
+        raise ParseError(path, 1, "ASCII FBX is not supported; expected a binary FBX file (export as binary)")
+    if len(head) < 27 or head[:21] != MAGIC:
+        raise ParseError(path, None, "expected a binary FBX file (header 'Kaydara FBX Binary')")
+    (version,) = struct.unpack_from("<I", head, 23)
+    if not 7000 <= version < 10000:
+        raise ParseError(path, None, f"expected FBX version 7000-9999, found {version}")
+    fmt = "<QQQB" if version >= 7500 else "<IIIB"
+    if len(head) >= 27 + struct.calcsize(fmt):
+        end, n_props, props_len, name_len = struct.unpack_from(fmt, head, 27)
+        if end == n_props == props_len == name_len == 0:
+            raise ParseError(path, None, "at byte 27: expected a node record, found the end of the node list")
+        if not 27 < end <= size or props_len > size:
+            raise ParseError(
+                path,
+                None,
+                f"at byte 27: node record claims to end at byte {end:,}; expected an offset in (27, {size:,}]",
+            )
 
 
 class Node:
@@ -48,13 +77,8 @@ class Node:
 
 def parse_fbx(path: Path, data: bytes) -> tuple[int, Node]:
     """``(version, root)`` of a binary FBX file; ``root.children`` are the top-level nodes."""
-    if data[:5] == b"; FBX" or data.lstrip()[:12] == b"FBXHeaderExt":
-        raise ParseError(path, 1, "ASCII FBX is not supported; expected a binary FBX file (export as binary)")
-    if len(data) < 27 or data[:21] != MAGIC:
-        raise ParseError(path, None, "expected a binary FBX file (header 'Kaydara FBX Binary')")
+    check_head(path, data[:65536], len(data))
     (version,) = struct.unpack_from("<I", data, 23)
-    if not 7000 <= version < 10000:
-        raise ParseError(path, None, f"expected FBX version 7000-9999, found {version}")
     return version, _Reader(path, data, version).top()
 
 
@@ -62,6 +86,7 @@ class _Reader:
     def __init__(self, path: Path, data: bytes, version: int) -> None:
         self.path, self.data, self.wide = path, data, version >= 7500
         self.head = struct.Struct("<QQQB" if self.wide else "<IIIB")
+        self.inflate_left = INFLATE_FLOOR + INFLATE_RATIO * len(data)
 
     def error(self, offset: int, what: str) -> ParseError:
         return ParseError(self.path, None, f"at byte {offset}: {what}")
@@ -137,27 +162,42 @@ class _Reader:
             raw = data[p + 4 : p + 4 + n]
             return (raw.decode("utf-8", "replace") if code == b"S" else raw), p + 4 + n
         if code in _ARRAYS:
-            if p + 12 > limit:
-                raise self.error(p, f"node {owner!r}: expected an array header")
-            count, enc, n = struct.unpack_from("<III", data, p)
-            if p + 12 + n > limit:
-                raise self.error(p, f"node {owner!r}: a {n}-byte array runs past its record")
-            if count > MAX_ARRAY:
-                raise self.error(p, f"node {owner!r}: an array of {count} elements; expected at most {MAX_ARRAY}")
-            raw = data[p + 12 : p + 12 + n]
-            dtype = np.dtype(_ARRAYS[code])
-            if enc == 1:
-                try:
-                    d = zlib.decompressobj()
-                    raw = d.decompress(raw, count * dtype.itemsize + 1)
-                except zlib.error as exc:
-                    raise self.error(p, f"node {owner!r}: expected a zlib-compressed array ({exc})") from None
-            elif enc != 0:
-                raise self.error(p, f"node {owner!r}: expected array encoding 0 or 1, found {enc}")
-            if len(raw) != count * dtype.itemsize:
+            return self.array(code, p, limit, owner)
+        raise self.error(p - 1, f"node {owner!r}: expected a property type code among YCIFDLSRfdlib, found {code!r}")
+
+    def array(self, code: bytes, p: int, limit: int, owner: str) -> tuple[np.ndarray, int]:
+        """An array property (header at ``p``): raw or zlib, inflated at most to its declared
+        length and within the file's inflation budget."""
+        data = self.data
+        if p + 12 > limit:
+            raise self.error(p, f"node {owner!r}: expected an array header")
+        count, enc, n = struct.unpack_from("<III", data, p)
+        if p + 12 + n > limit:
+            raise self.error(p, f"node {owner!r}: a {n}-byte array runs past its record")
+        if count > MAX_ARRAY:
+            raise self.error(p, f"node {owner!r}: an array of {count} elements; expected at most {MAX_ARRAY}")
+        raw = data[p + 12 : p + 12 + n]
+        dtype = np.dtype(_ARRAYS[code])
+        if enc == 1:
+            want = count * dtype.itemsize
+            if want > self.inflate_left:
                 raise self.error(
                     p,
-                    f"node {owner!r}: expected {count} array elements ({count * dtype.itemsize} bytes), found {len(raw)} bytes",
+                    f"node {owner!r}: a compressed array of {n:,} bytes declares {want:,} bytes; the file's arrays "
+                    f"may inflate to {INFLATE_FLOOR >> 20} MiB + {INFLATE_RATIO}x the file's size in all "
+                    f"({self.inflate_left:,} bytes left)",
                 )
-            return np.frombuffer(raw, dtype=dtype).copy(), p + 12 + n
-        raise self.error(p - 1, f"node {owner!r}: expected a property type code among YCIFDLSRfdlib, found {code!r}")
+            try:
+                d = zlib.decompressobj()
+                raw = d.decompress(raw, want + 1)  # never more than the declared length (+1 tells a longer one)
+            except zlib.error as exc:
+                raise self.error(p, f"node {owner!r}: expected a zlib-compressed array ({exc})") from None
+            self.inflate_left -= len(raw)
+        elif enc != 0:
+            raise self.error(p, f"node {owner!r}: expected array encoding 0 or 1, found {enc}")
+        if len(raw) != count * dtype.itemsize:
+            raise self.error(
+                p,
+                f"node {owner!r}: expected {count} array elements ({count * dtype.itemsize} bytes), found {len(raw)} bytes",
+            )
+        return np.frombuffer(raw, dtype=dtype).copy(), p + 12 + n

@@ -19,6 +19,7 @@ identity rest rotations, as every mocapflow motion is (BVH's convention):
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,56 @@ from ._common import MAX_METRES
 #: Relative tolerance of "uniform" scale and of "constant" translation.
 SCALE_TOL = 1e-4
 MOVE_TOL = 1e-6  # metres
+
+
+def common_root(
+    parent_of: Callable[[int], int | None],
+    joints: Iterable[int],
+    max_depth: int,
+    error: Callable[[str], Exception],
+) -> tuple[int, set[int], list[int]] | None:
+    """The lowest common ancestor of ``joints`` in a hierarchy given by ``parent_of``
+    (``None``: no parent), the nodes on the paths from it to the joints (itself included)
+    and its ancestors from the top; ``None`` when the joints have no common ancestor.
+
+    Iterative and linear: the first joint's chain is walked once (at most ``max_depth``
+    nodes), every other walk stops at a node already seen, so each node is visited once
+    whatever the shape (a 100,000-deep chain, 100,000 leaves). A cycle or a chain deeper
+    than ``max_depth`` raises ``error(message)``."""
+    order = sorted(joints)
+    chain: list[int] = []  # the first joint and its ancestors, upwards
+    pos: dict[int, int] = {}
+    m: int | None = order[0]
+    while m is not None:
+        if m in pos:
+            raise error(f"node {m}: its ancestors form a cycle; expected a tree")
+        if len(chain) >= max_depth:
+            raise error(f"node {order[0]}: more than {max_depth:,} ancestors; expected a shallower hierarchy")
+        pos[m] = len(chain)
+        chain.append(m)
+        m = parent_of(m)
+    meets: dict[int, int] = {}  # node below the chain -> index in the chain its ancestors reach
+    top = 0
+    for j in order[1:]:
+        walk: dict[int, None] = {}
+        m = j
+        while True:
+            if m is None:
+                return None
+            if m in pos:
+                e = pos[m]
+                break
+            if m in meets:
+                e = meets[m]
+                break
+            if m in walk:
+                raise error(f"node {m}: its ancestors form a cycle; expected a tree")
+            walk[m] = None
+            m = parent_of(m)
+        for w in walk:
+            meets[w] = e
+        top = max(top, e)
+    return chain[top], set(chain[: top + 1]) | set(meets), chain[top + 1 :][::-1]
 
 
 def unique_names(names: list[str]) -> list[str]:

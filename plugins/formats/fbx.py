@@ -36,9 +36,9 @@ from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import ParseError
 from mocapflow.framework.motion import Motion
 
-from ._common import MAX_DEGREES, MAX_FPS, MAX_METRES, file_metadata, read_bytes
-from ._fbx_parse import Node, parse_fbx
-from ._nodes import motion_from_nodes, uniform_scale, unique_names
+from ._common import MAX_DEGREES, MAX_FPS, MAX_METRES, check_timeline, file_metadata, read_bytes
+from ._fbx_parse import Node, check_head, parse_fbx
+from ._nodes import common_root, motion_from_nodes, uniform_scale, unique_names
 
 __all__ = ["FbxFormat", "read_fbx"]
 
@@ -54,6 +54,12 @@ _CHANNELS = {"Lcl Translation": "t", "Lcl Rotation": "r", "Lcl Scaling": "s"}
 #: Largest |value| of a transform property or key (file units up to millimetres, degrees):
 #: above any real scene, below the overflow of the products that follow.
 _MAX_VALUE = 1.0e9
+#: Deepest model hierarchy (a skeleton is < 100 deep): each joint's chain of ancestors is
+#: walked, so this bounds the work to joints x depth.
+MAX_MODEL_DEPTH = 1_000
+#: Largest |key time| in KTime ticks: 10^7 s (115 days) at the finer v7 tick (no overflow of
+#: int64 differences).
+MAX_KTIME = 10_000_000 * KTIME_V7
 
 
 def _props70(node: Node | None) -> dict[str, list[Any]]:
@@ -141,7 +147,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     ``animation``, ``animations``, ``unit_scale`` (metres per file unit), ``fbx_version``,
     ``start_time`` (seconds)."""
     path = Path(path)
-    data = read_bytes(path)
+    data = read_bytes(path, lambda head: check_head(path, head, path.stat().st_size))
     version, root = parse_fbx(path, data)
     gs = _Props(path, _props70(root.find("GlobalSettings")), {}, "GlobalSettings")
     unit = gs.num("UnitScaleFactor", 1.0) / 100.0
@@ -175,6 +181,16 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     n_frames = int(round((k1 - k0) / ktps * fps)) + 1
     if n_frames > 10_000_000:
         raise ParseError(path, None, f"keys span {(k1 - k0) / ktps:g} s at {fps:g} fps: over 10^7 frames")
+    check_timeline(
+        path,
+        n_frames=n_frames,
+        n_nodes=len(order) + 1,
+        key_times=[c[0] / ktps for c in keyed],
+        t0=k0 / ktps,
+        t1=k1 / ktps,
+        fps=fps,
+        size=len(data),
+    )
     grid = k0 + np.arange(n_frames) * (ktps / fps)
     names = unique_names(["__fbx_axes__"] + [models[m][1] or f"model{m}" for m in order])
     n = len(order) + 1
@@ -255,10 +271,15 @@ def _curves(path: Path, objects: dict, owner: dict, stack_id: int) -> dict[tuple
     first layer."""
     layers = [c for c, _ in owner.get(stack_id, []) if objects.get(c, ("",))[0] == "AnimationLayer"]
     curves: dict[tuple[int, str], list] = {}
+    driven: dict[int, list[tuple[int, str]]] = {}  # curve node -> the (model, property) pairs it drives
+    for par, kids in owner.items():  # one pass over the connections (per curve node: quadratic)
+        if objects.get(par, ("",))[0] == "Model":
+            for child, prop in kids:
+                driven.setdefault(child, []).append((par, prop))
     for cn, _p in owner.get(layers[0], []) if layers else []:
         if objects.get(cn, ("",))[0] != "AnimationCurveNode":
             continue
-        for model, prop in _targets(cn, objects, owner):
+        for model, prop in driven.get(cn, []):
             if prop not in _CHANNELS:
                 continue
             axes: list = [None, None, None]
@@ -287,16 +308,6 @@ def _ktime(root: Node, version: int) -> int:
     return ktps
 
 
-def _targets(cn: int, objects: dict, owner: dict) -> list[tuple[int, str]]:
-    """(model, property) pairs a curve node drives (OP connections child=cn)."""
-    out = []
-    for par, kids in owner.items():
-        for child, prop in kids:
-            if child == cn and objects.get(par, ("",))[0] == "Model":
-                out.append((par, prop))
-    return out
-
-
 def _curve(path: Path, obj: tuple[str, str, Node]) -> tuple[np.ndarray, np.ndarray]:
     node = obj[2]
     kt, kv = node.find("KeyTime"), node.find("KeyValueFloat")
@@ -309,6 +320,10 @@ def _curve(path: Path, obj: tuple[str, str, Node]) -> tuple[np.ndarray, np.ndarr
         raise ParseError(
             path, None, f"{what}: expected as many key values as key times (>= 1), found {len(vals)} and {len(times)}"
         )
+    if times.dtype.kind not in "iu" or len(times) and (times.min() < -MAX_KTIME or times.max() > MAX_KTIME):
+        raise ParseError(
+            path, None, f"{what}: expected integer key times (KTime ticks) within +-{MAX_KTIME:,}, found {times.dtype}"
+        )
     if np.any(np.diff(times) <= 0):
         raise ParseError(path, None, f"{what}: expected strictly increasing key times")
     vals = vals.astype(np.float64)
@@ -318,32 +333,30 @@ def _curve(path: Path, obj: tuple[str, str, Node]) -> tuple[np.ndarray, np.ndarr
 
 
 def _order(path: Path, models: dict, parent: dict, joints: set[int]) -> tuple[list[int], int]:
-    def chain(m: int) -> list[int]:
-        out, seen = [], set()
-        while m in models:
-            if m in seen:
-                raise ParseError(path, None, f"model {models[m][1]!r}: its parents form a cycle; expected a tree")
-            seen.add(m)
-            out.append(m)
-            m = parent.get(m, 0)
-        return out[::-1]
+    def error(msg: str) -> ParseError:
+        return ParseError(path, None, msg)
 
-    chains = [chain(j) for j in sorted(joints)]
-    common = 0
-    while all(len(c) > common and c[common] == chains[0][common] for c in chains):
-        common += 1
-    if common == 0:
-        roots = sorted({models[c[0]][1] for c in chains})
+    def parent_of(m: int) -> int | None:
+        p = parent.get(m)
+        return p if p in models else None
+
+    found = common_root(parent_of, joints, MAX_MODEL_DEPTH, error)
+    if found is None:
+        roots = set()
+        for j in sorted(joints)[:1000]:
+            m, k = j, 0
+            while (up := parent_of(m)) is not None and k < MAX_MODEL_DEPTH:
+                m, k = up, k + 1
+            roots.add(models[m][1])
         raise ParseError(
-            path, None, f"the skeleton's models have no common root (roots {roots[:6]}); expected one skeleton"
+            path, None, f"the skeleton's models have no common root (roots {sorted(roots)[:6]}); expected one skeleton"
         )
-    members = {m for c in chains for m in c[common - 1 :]}
-    ancestors = chains[0][: common - 1]
+    root, members, ancestors = found
     kids: dict[int, list[int]] = {}
     for m in models:  # children in the file's order of objects
         if m in members and parent.get(m) in members:
             kids.setdefault(parent[m], []).append(m)
-    order, stack = [], [chains[0][common - 1]]
+    order, stack = [], [root]
     while stack:
         m = stack.pop()
         order.append(m)

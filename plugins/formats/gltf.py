@@ -52,7 +52,7 @@ from mocapflow.framework.motion import Motion
 from . import _common
 from ._common import MAX_FPS, check_timeline, file_metadata, read_bytes, read_sidecar
 from ._gltf_write import write_gltf
-from ._nodes import motion_from_nodes, uniform_scale, unique_names
+from ._nodes import common_root, motion_from_nodes, uniform_scale, unique_names
 
 __all__ = ["GltfFormat", "read_gltf", "write_gltf"]
 
@@ -385,14 +385,6 @@ def _parents(doc: _Doc) -> np.ndarray:
     return parent
 
 
-def _chain(parent: np.ndarray, i: int) -> list[int]:
-    out = []
-    while i >= 0:
-        out.append(i)
-        i = int(parent[i])
-    return out[::-1]
-
-
 def _select(doc: _Doc, parent: np.ndarray, animated: set[int]) -> tuple[list[int], int]:
     """Nodes of the skeleton in topological order (ancestors of the root first) and the
     index in that list of the skeleton's root."""
@@ -409,14 +401,11 @@ def _select(doc: _Doc, parent: np.ndarray, animated: set[int]) -> tuple[list[int
         joints = set(animated)
     if not joints:
         raise doc.error("expected skins or animated nodes (a skeleton), found neither")
-    chains = [_chain(parent, j) for j in sorted(joints)]
-    common = 0
-    while all(len(c) > common and c[common] == chains[0][common] for c in chains):
-        common += 1
-    if common == 0:
+    par = parent.tolist()
+    found = common_root(lambda m: par[m] if par[m] >= 0 else None, joints, MAX_NODE_DEPTH + 1, doc.error)
+    if found is None:
         raise doc.error(f"the skeleton's nodes {sorted(joints)[:8]} have no common root node; expected one skeleton")
-    root = chains[0][common - 1]
-    members = {n for c in chains for n in c[common - 1 :]}
+    root, members, ancestors = found
     if not from_skin:  # descendants of the animated nodes: end effectors and unanimated joints
         kids: dict[int, list[int]] = {}
         for i, p in enumerate(parent):
@@ -428,7 +417,6 @@ def _select(doc: _Doc, parent: np.ndarray, animated: set[int]) -> tuple[list[int
                 if "mesh" not in nodes[c] and "camera" not in nodes[c]:
                     members.add(c)
                     stack.append(c)
-    ancestors = _chain(parent, root)[:-1]
     order, stack = [], [root]
     while stack:  # depth first, children in the file's order (a BVH-like joint order)
         k = stack.pop()
