@@ -6,14 +6,19 @@ a character's clips."""
 
 from __future__ import annotations
 
+import functools
 import io
+import json
+import os
 import struct
+import sys
 import tracemalloc
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from naive import hostile_scenes as HS
 from test_formats_bvh import REST, tiny_bvh
 
 from mocapflow.framework.errors import ParseError
@@ -22,6 +27,7 @@ from mocapflow.plugins.formats.bvh import read_bvh
 from mocapflow.plugins.formats.trc import read_trc, write_trc
 
 HUGE = 2 * 1024**3
+BLENDER = Path(__file__).resolve().parent / "data" / "blender"
 
 
 def _sparse(path: Path, size: int, head: bytes) -> Path:
@@ -329,3 +335,113 @@ def test_skeleton_span_is_the_longest_bone_path():
     offsets = np.array([[5, 5, 5], [0, 3, 0], [0, 4, 0], [2, 0, 0], [0, 0, 1]], float)
     # 2-1-0-3-4: 4 + 3 + 2 + 1 = 10 (the root's own offset is no bone)
     assert skeleton_span(parents, offsets) == pytest.approx(10.0)
+
+
+# --- glTF, GLB and FBX: hostile files (one case per class, tests/naive/hostile_scenes.py) ------
+_OPENED: list[str] | None = None  # paths opened while a case is read (None: not recording)
+
+
+def _audit(event: str, args: tuple) -> None:
+    if _OPENED is not None and event == "open" and isinstance(args[0], (str, bytes, os.PathLike)):
+        _OPENED.append(os.fsdecode(args[0]))
+
+
+sys.addaudithook(_audit)
+
+_SCENE_CASES = [
+    *HS.GLTF_CASES[:18],
+    functools.partial(HS.node_chain, depth=2_000),
+    functools.partial(HS.node_wide, n=5_000),
+    *HS.GLTF_CASES[20:],
+    *HS.FBX_CASES[:5],
+    functools.partial(HS.fbx_model_chain, depth=5_000),
+    *HS.FBX_CASES[6:],
+    HS.uri_big_sidecar,
+    *(HS.huge_invalid(ext) for ext in ("gltf", "glb", "fbx")),
+    *(HS.huge_valid_head(ext) for ext in ("gltf", "glb", "fbx")),
+]
+
+
+def _case_id(make) -> str:
+    f = make.func if isinstance(make, functools.partial) else make
+    return f.__qualname__.split(".")[0] + ("" if f.__closure__ is None else f"_{f.__closure__[0].cell_contents}")
+
+
+@pytest.mark.parametrize("make", _SCENE_CASES, ids=[_case_id(m) for m in _SCENE_CASES])
+def test_hostile_scene_file_refused_inside_its_folder(tmp_path, make):
+    """Each class: a ParseError naming the file and what was expected, no file opened
+    outside the case's folder, bounded memory; huge files refused at their header."""
+    global _OPENED
+    import mocapflow
+
+    mocapflow.read(BLENDER / "jump_60.glb")  # lazy imports and registries loaded before recording
+    folder = tmp_path / "case"
+    folder.mkdir()
+    case = make(folder)
+    _OPENED = []
+    try:
+        peak = _peak_bytes(lambda: _expect_refused(case))
+        opened = list(_OPENED)
+    finally:
+        _OPENED = None
+    outside = [p for p in opened if not Path(p).resolve().is_relative_to(folder.resolve())]
+    assert not outside, f"{case.name}: opened {outside[:3]}"
+    assert peak < (2**20 if case.big else 300 * 2**20), f"{case.name}: traced peak {peak / 2**20:.0f} MB"
+
+
+def _expect_refused(case) -> None:
+    import mocapflow
+
+    with pytest.raises(ParseError, match=case.expect) as err:
+        mocapflow.read(case.path)
+    assert err.value.path == str(case.path)
+
+
+def test_sidecar_buffers_inside_the_folder_are_read(tmp_path):
+    """The confinement keeps what is legitimate: a buffer in a subfolder, a percent-encoded
+    name, a symbolic link to a file inside the folder; bytes beyond byteLength are not read."""
+    import mocapflow
+
+    doc, buf = HS.gltf_doc()
+    (tmp_path / "sub dir").mkdir()
+    (tmp_path / "sub dir" / "b.bin").write_bytes(buf + b"\0" * 100)
+    ref = mocapflow.read(HS.write_gltf_case(tmp_path, json.loads(json.dumps(doc)), buf, name="ref"))
+    p = HS.write_gltf_case(tmp_path, json.loads(json.dumps(doc)), None, name="x")
+    for uri in ("sub%20dir/b.bin", "./sub dir/b.bin", "link.bin"):
+        if uri == "link.bin":
+            (tmp_path / "link.bin").symlink_to(tmp_path / "sub dir" / "b.bin")
+        d = json.loads(p.read_text())
+        d["buffers"][0]["uri"] = uri
+        p.write_text(json.dumps(d))
+        assert np.array_equal(mocapflow.read(p).positions, ref.positions), uri
+
+
+def test_sidecar_counts_in_the_size_cap(tmp_path, monkeypatch):
+    doc, buf = HS.gltf_doc()
+    p = HS.write_gltf_case(tmp_path, doc, buf)
+    monkeypatch.setattr(_common, "MAX_FILE_BYTES", p.stat().st_size + len(buf) - 1)
+    with pytest.raises(ParseError, match="MiB per file"):
+        from mocapflow.plugins.formats.gltf import read_gltf
+
+        read_gltf(p)
+
+
+def test_fbx_reserialized_reads_as_the_original(tmp_path):
+    """The hostile FBX cases are edits of a faithful re-serialization of a Blender file."""
+    import mocapflow
+
+    a = mocapflow.read(HS.fbx_roundtrip(tmp_path))
+    b = mocapflow.read(HS.WALK_FBX)
+    assert np.array_equal(a.positions, b.positions)
+
+
+def test_far_key_refused_with_its_gap_and_a_timeline_within_the_keys_read(tmp_path):
+    from mocapflow.plugins.formats.gltf import read_gltf
+
+    doc, buf = HS.gltf_doc(61)
+    p = HS.write_gltf_case(tmp_path, json.loads(json.dumps(doc)), HS._far_key(doc, buf, 60.0))
+    m = read_gltf(p)  # 2 s of keys then one key at 60 s: 1,801 frames from 61 keys, within the bound
+    assert m.n_frames == 1801
+    p = HS.write_gltf_case(tmp_path, json.loads(json.dumps(doc)), HS._far_key(doc, buf, 83_000.0))
+    with pytest.raises(ParseError, match="largest gap between keys is 82998 s"):
+        read_gltf(p)
