@@ -507,15 +507,16 @@ BIG_CASES = (
 
 
 # --- search server requests ----------------------------------------------------------------
-def server_requests() -> list[tuple[str, bytes]]:
-    """Hostile requests: each must be a ConfigError (never another exception)."""
+def server_requests() -> list[tuple[str, bytes, bool]]:
+    """Hostile requests ``(name, bytes, valid)``: an invalid one must be a ConfigError
+    (never another exception), a valid one (brackets inside a string) parsed."""
     ok = json.dumps({"args": {"query": "q.bvh"}, "cwd": "/"})
     return [
-        ("nested 100,000 arrays", b"[" * 100_000 + b"]" * 100_000),
-        ("nested 100,000 objects", b'{"a":' * 100_000 + b"1" + b"}" * 100_000),
-        ("nested in args", ok[:-1].encode() + b', "x": ' + b"[" * 50_000 + b"]" * 50_000 + b"}"),
-        ("integer of 100,000 digits", b'{"args": {"k": ' + b"9" * 100_000 + b'}, "cwd": "/"}'),
-        ("not UTF-8", b'{"args": {"query": "\xff"}, "cwd": "/"}'),
-        ("unterminated string", b'{"args": {"query": "[[[[[[[[[[[[[[[[[[[[[[[[[[[[[['),
-        ("brackets in strings", json.dumps({"args": {"query": "[" * 100_000}, "cwd": "/"}).encode()),
+        ("nested 100,000 arrays", b"[" * 100_000 + b"]" * 100_000, False),
+        ("nested 100,000 objects", b'{"a":' * 100_000 + b"1" + b"}" * 100_000, False),
+        ("nested in args", ok[:-1].encode() + b', "x": ' + b"[" * 50_000 + b"]" * 50_000 + b"}", False),
+        ("integer of 100,000 digits", b'{"args": {"k": ' + b"9" * 100_000 + b'}, "cwd": "/"}', False),
+        ("not UTF-8", b'{"args": {"query": "\xff"}, "cwd": "/"}', False),
+        ("unterminated string", b'{"args": {"query": "[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[', False),
+        ("brackets in strings", json.dumps({"args": {"query": "[" * 100_000}, "cwd": "/"}).encode(), True),
     ]
