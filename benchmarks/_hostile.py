@@ -1,7 +1,9 @@
 """Hostile inputs beyond mutated files, run by ``benchmarks/fuzz_parsers.py``: huge files,
 YAML alias bombs, hostile plugins, symbolic links, concurrent and stalled search-server
-clients. Each check records its outcome (``ok`` or what went wrong), its wall time and,
-for the readers, the peak of traced memory; any outcome but ``ok`` is a failure.
+clients, hostile search-server requests, hostile glTF/GLB/FBX files (one per class of
+``tests/naive/hostile_scenes.py``). Each check records its outcome (``ok`` or what went
+wrong), its wall time and, for the readers, the peak of traced memory (scene files: the
+peak resident memory of the process that read it); any outcome but ``ok`` is a failure.
 """
 
 from __future__ import annotations
@@ -249,10 +251,133 @@ def concurrent_clients(tmp: Path, stalled: int = 8, good: int = 16) -> list[tupl
         srv.warm_up = real_warm
 
 
+#: Peak resident memory of a fresh process reading one hostile scene file (imports
+#: included), and of one refusing an invalid 900 MiB file (the issue's targets).
+SCENE_PEAK_MB = 300.0
+SCENE_SECONDS = 10.0
+
+_CHILD = r"""
+import json, os, resource, sys, time
+sys.path[:0] = [{tests!r}]
+from pathlib import Path
+import mocapflow
+from mocapflow.framework.errors import ParseError
+mocapflow.read(Path({tests!r}) / "data" / "blender" / "jump_60.glb")  # lazy imports before recording
+mocapflow.read(Path({tests!r}) / "data" / "blender" / "walk_120.fbx")
+try:
+    import c3d  # the optional C3D reader's package, imported lazily: before recording
+except ImportError:
+    pass
+folder = Path(sys.argv[1]).resolve()
+opened = []
+def audit(event, args):
+    if event == "open" and isinstance(args[0], (str, bytes, os.PathLike)):
+        p = os.path.realpath(os.fsdecode(args[0]))
+        if not p.startswith(str(folder) + os.sep):
+            opened.append(p)
+sys.addaudithook(audit)
+t0 = time.perf_counter()
+try:
+    mocapflow.read(sys.argv[2])
+    out = {{"outcome": "accepted"}}
+except ParseError as exc:
+    out = {{"outcome": "refused", "path": exc.path, "message": exc.message}}
+except BaseException as exc:
+    out = {{"outcome": "crash", "message": f"{{type(exc).__name__}}: {{exc}}"[:300]}}
+out["sec"] = time.perf_counter() - t0
+out["outside"] = opened[:5]
+# VmHWM: this process image's own peak (ru_maxrss keeps the forking parent's across exec)
+hwm = [ln for ln in open("/proc/self/status") if ln.startswith("VmHWM:")]
+out["rss_mb"] = int(hwm[0].split()[1]) / 1024 if hwm else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+print(json.dumps(out))
+"""
+
+
+def scene_files(tmp: Path, cases: list | None = None) -> list[tuple[str, str, float, float]]:
+    """The hostile glTF/GLB/FBX classes of ``tests/naive/hostile_scenes.py`` (uris out of
+    the folder, FIFOs, devices, big sidecars, declared sizes, nested JSON, deep and wide
+    node trees, far keys, zlib bombs, 900 MiB files with an invalid header): each read by
+    a fresh process (``mocapflow.read``, imports warmed) that audits every file opened.
+    A check passes when the file is refused with a ParseError naming it and matching the
+    class, within :data:`SCENE_SECONDS`, at most :data:`SCENE_PEAK_MB` peak resident
+    memory (:data:`HEADER_REJECT_MB` for the 900 MiB files) and nothing opened outside the
+    case's folder. The last column is the process's peak RSS, not traced memory."""
+    import re
+    import subprocess
+    import sys
+
+    tests = Path(__file__).resolve().parent.parent / "tests"
+    sys.path.insert(0, str(tests))
+    from naive import hostile_scenes as hs
+
+    child = _CHILD.format(tests=str(tests))
+    makers = cases if cases is not None else hs.GLTF_CASES + hs.FBX_CASES + hs.BIG_CASES
+    out = []
+    for k, make in enumerate(makers):
+        folder = tmp / f"scene{k}" / "case"
+        folder.mkdir(parents=True)
+        case = make(folder)
+        try:
+            proc = subprocess.run(
+                [sys.executable, "-c", child, str(folder), str(case.path)],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+            res = json.loads(proc.stdout.strip().splitlines()[-1]) if proc.stdout.strip() else None
+        except subprocess.TimeoutExpired:
+            res = {"outcome": "hang", "sec": 60.0, "rss_mb": 0.0, "outside": []}
+        finally:
+            if case.big:
+                for f in folder.iterdir():
+                    if f.is_file() and not f.is_symlink() and f.stat().st_size > 2**27:
+                        f.unlink()
+        if res is None:
+            outcome, res = f"child died: {proc.stderr.strip()[-200:]}", {"sec": 0.0, "rss_mb": 0.0}
+        elif res["outside"]:
+            outcome = f"opened outside its folder: {res['outside']}"
+        elif res["outcome"] != "refused":
+            outcome = f"{res['outcome']} {res.get('message', '')}"
+        elif res["path"] != str(case.path) or not re.search(case.expect, res["message"]):
+            outcome = f"other error: {res['message'][:160]}"
+        elif res["sec"] > SCENE_SECONDS:
+            outcome = f"took {res['sec']:.1f} s"
+        elif res["rss_mb"] > (HEADER_REJECT_MB if case.big else SCENE_PEAK_MB):
+            outcome = f"peak {res['rss_mb']:.0f} MB"
+        else:
+            outcome = "ok"
+        out.append(("scene file", f"{case.name}: {outcome}", res["sec"], res["rss_mb"]))
+    return out
+
+
+def server_requests(tmp: Path) -> list[tuple[str, str, float, float]]:
+    """Hostile search-server requests (100,000-deep JSON, huge integers, bytes that are not
+    UTF-8): a ConfigError answered with exit status 2, never an internal error."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from naive import hostile_scenes as hs
+
+    from mocapflow.plugins.similarity.search.search_server import _handle
+
+    out = []
+    for name, raw, valid in hs.server_requests():
+
+        def go(raw=raw, valid=valid):
+            reply = _handle([_Session()], raw, lambda: _Session())
+            if valid:
+                return "ok" if reply["rc"] == 0 else f"refused: {reply['stderr'][:100]}"
+            return "ok" if reply["rc"] == 2 and "internal" not in reply["stderr"] else f"rc {reply['rc']}"
+
+        outcome, sec, peak = _peak(go)
+        out.append(("server request", f"{name}: {outcome}", sec, peak))
+    return out
+
+
 def run_all(tmp: Path, echo=print) -> int:
     """Every class; prints one line per check, returns the number of failures."""
     rows = []
-    for fn in (huge_files, alias_bombs, hostile_plugins, symlinks, concurrent_clients):
+    for fn in (huge_files, alias_bombs, hostile_plugins, symlinks, concurrent_clients, server_requests, scene_files):
         sub = tmp / fn.__name__
         sub.mkdir()
         rows += fn(sub)
