@@ -248,14 +248,67 @@ def report(res: dict, echo=print) -> int:
 
 
 SCENE_KINDS = ("truncate", "byte_flip", "insert", "delete", "duplicate", "json_value", "json_key", "json_indent")
+#: Values a JSON mutation writes: negative, huge, wrong types, and for strings paths out of
+#: the file's folder, a device, nested arrays.
+_JSON_VALUES = [-1, 0, 1e308, 2**31, 2**62, -(2**62), 0.5, "x", None, [], {}, True]
+_JSON_STRINGS = ["../secret.bin", "/etc/passwd", "/dev/zero", "%2e%2e/secret.bin", "file:///etc/passwd", "data:,"]
+
+
+def _array_headers(data: bytes) -> list[int]:
+    """Offsets of what look like FBX array property headers (type code, count, encoding
+    0/1, byte length within the file): the fields a ``fbx_array`` mutation rewrites."""
+    import re
+    import struct
+
+    out = []
+    for m in re.finditer(rb"[fdlib]", data):
+        p = m.start() + 1
+        if p + 12 <= len(data):
+            count, enc, n = struct.unpack_from("<III", data, p)
+            if enc in (0, 1) and 0 < n <= len(data) - p - 12 and count <= 1 << 24 and (enc == 1 or n >= count):
+                out.append(p)
+    return out
+
+
+_HEADERS: dict[bytes, list[int]] = {}
+
+
+def _glb_json(data: bytes, mutate) -> bytes:
+    """A GLB file with its JSON chunk passed through ``mutate`` (lengths kept consistent)."""
+    import struct
+
+    n = struct.unpack_from("<I", data, 12)[0]
+    text = mutate(data[20 : 20 + n])
+    text += b" " * (-len(text) % 4)
+    rest = data[20 + n :]
+    return (
+        struct.pack("<III", 0x46546C67, 2, 28 + len(text) - 8 + len(rest))
+        + struct.pack("<II", len(text), 0x4E4F534A)
+        + text
+        + rest
+    )
 
 
 def _scene_case(src: Path, data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
-    """One mutation of a scene file's bytes (JSON kinds on the JSON of a .gltf only)."""
-    import json
-
-    kinds = SCENE_KINDS if src.suffix == ".gltf" else SCENE_KINDS[:5]
+    """One mutation of a scene file's bytes (JSON kinds on the JSON of a .gltf or of a GLB's
+    JSON chunk, array-header kinds on FBX)."""
+    extra = {".gltf": SCENE_KINDS[5:], ".glb": ("json_value", "json_key"), ".fbx": ("fbx_array", "fbx_array")}
+    kinds = SCENE_KINDS[:5] + extra.get(src.suffix, ())
     kind = kinds[int(rng.integers(0, len(kinds)))]
+    if src.suffix == ".glb" and kind.startswith("json"):
+        return kind, _glb_json(data, lambda text: _json_mutation(kind, text, rng))
+    if kind == "fbx_array":
+        import struct
+
+        if data not in _HEADERS:
+            _HEADERS[data] = _array_headers(data)
+        heads = _HEADERS[data]
+        p = heads[int(rng.integers(0, len(heads)))]
+        b = bytearray(data)
+        field = int(rng.integers(0, 3))
+        value = [0, 1, 2, 2**31, 2**32 - 1, 1 << 28, int(rng.integers(0, 2**32))][int(rng.integers(0, 7))]
+        struct.pack_into("<I", b, p + 4 * field, value)
+        return kind, bytes(b)
     n = len(data)
     at = int(rng.integers(0, n))
     run = int(rng.integers(1, 64))
@@ -272,9 +325,15 @@ def _scene_case(src: Path, data: bytes, rng: np.random.Generator) -> tuple[str, 
         return kind, data[:at] + data[at + run :]
     if kind == "duplicate":
         return kind, data[: at + run] + data[at : at + run] + data[at + run :]
+    return kind, _json_mutation(kind, data, rng)
+
+
+def _json_mutation(kind: str, data: bytes, rng: np.random.Generator) -> bytes:
+    import json
+
     doc = json.loads(data)
     if kind == "json_indent":
-        return kind, json.dumps(doc, indent=int(rng.integers(0, 5))).encode()
+        return json.dumps(doc, indent=int(rng.integers(0, 5))).encode()
     spots: list[tuple[object, object]] = []
 
     def walk(o: object) -> None:
@@ -288,14 +347,44 @@ def _scene_case(src: Path, data: bytes, rng: np.random.Generator) -> tuple[str, 
     if kind == "json_key" and isinstance(parent, dict):
         del parent[key]
     else:
-        choices = [-1, 0, 1e308, 2**31, 0.5, "x", None, [], {}, True]
-        parent[key] = choices[int(rng.integers(0, len(choices)))]  # type: ignore[index]
-    return kind, json.dumps(doc).encode()
+        old = parent[key]  # type: ignore[index]
+        choices = _JSON_STRINGS if isinstance(old, str) and rng.random() < 0.5 else _JSON_VALUES
+        new = choices[int(rng.integers(0, len(choices)))]
+        if rng.random() < 0.02:
+            new = "NEST"  # replaced by 5,000 nested arrays below
+        parent[key] = new  # type: ignore[index]
+    text = json.dumps(doc)
+    return text.replace('"NEST"', "[" * 5000 + "]" * 5000).encode()
+
+
+def _scene_outcome(read, case: Path, kind: str, reference: np.ndarray, timeout: float) -> tuple[str, str]:
+    """Outcome of reading one mutated scene file (module doc: finite arrays of consistent
+    shapes, or a ParseError naming the file; re-indented JSON must read as the original)."""
+    from mocapflow.framework.errors import ParseError
+
+    signal.setitimer(signal.ITIMER_REAL, timeout)
+    try:
+        m = read(case)
+        pos = m.positions
+        ok = np.all(np.isfinite(pos)) and pos.shape == (m.n_frames, m.n_joints, 3) and m.fps > 0
+        if kind == "json_indent" and (pos.shape != reference.shape or np.abs(pos - reference).max() > 0):
+            return "wrong_accept", "re-indented JSON changed the arrays"
+        return ("accepted", "") if ok else ("wrong_accept", "non-finite or misshapen arrays")
+    except ParseError as exc:
+        if kind == "json_indent":
+            return "wrong_reject", str(exc)[:200]
+        bad = exc.path != str(case) or not exc.message.strip()
+        return ("bad_error", str(exc)[:200]) if bad else ("rejected", "")
+    except TimeoutError:
+        return "hang", f"over {timeout:g} s"
+    except Exception as exc:
+        return "crash", f"{type(exc).__name__}: {exc}"[:200]
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
 
 
 def fuzz_scenes(n_cases: int, seed: int, timeout: float, echo=print) -> int:
     """Fuzz the glTF/GLB/FBX readers on the Blender-made test files (module doc)."""
-    from mocapflow.framework.errors import ParseError
     from mocapflow.plugins.formats.fbx import read_fbx
     from mocapflow.plugins.formats.gltf import read_gltf
 
@@ -312,42 +401,34 @@ def fuzz_scenes(n_cases: int, seed: int, timeout: float, echo=print) -> int:
         raise TimeoutError
 
     old = signal.signal(signal.SIGALRM, on_alarm)
+    outside: list[str] = []
     with tempfile.TemporaryDirectory() as tmp:
-        for src in sources:
+        raw = {src: src.read_bytes() for src in sources}
+        for src in sources:  # references, copies and lazy imports before the audit starts
+            reference[src] = (read_fbx if src.suffix == ".fbx" else read_gltf)(src).positions
             shutil.copy(src, Path(tmp) / src.name)
             if src.with_suffix(".bin").exists():
                 shutil.copy(src.with_suffix(".bin"), Path(tmp) / src.with_suffix(".bin").name)
+        case_dir = str(Path(tmp).resolve()) + os.sep
+
+        def audit(event: str, args: tuple) -> None:  # a reader must open nothing outside the case's folder
+            if event == "open" and isinstance(args[0], (str, bytes, os.PathLike)):
+                p = os.path.realpath(os.fsdecode(args[0]))
+                if not p.startswith(case_dir):
+                    outside.append(p)
+
+        sys.addaudithook(audit)
         for i in range(n_cases):
             rng = np.random.default_rng([seed, 7, i])
             src = sources[int(rng.integers(0, len(sources)))]
             read = read_fbx if src.suffix == ".fbx" else read_gltf
-            if src not in reference:
-                reference[src] = read(src).positions
-            kind, data = _scene_case(src, src.read_bytes(), rng)
+            kind, data = _scene_case(src, raw[src], rng)
             case = Path(tmp) / f"case{src.suffix}"
             case.write_bytes(data)
-            signal.setitimer(signal.ITIMER_REAL, timeout)
-            try:
-                m = read(case)
-                pos = m.positions
-                ok = np.all(np.isfinite(pos)) and pos.shape == (m.n_frames, m.n_joints, 3) and m.fps > 0
-                if kind == "json_indent" and (
-                    pos.shape != reference[src].shape or np.abs(pos - reference[src]).max() > 0
-                ):
-                    outcome, detail = "wrong_accept", "re-indented JSON changed the arrays"
-                else:
-                    outcome, detail = ("accepted", "") if ok else ("wrong_accept", "non-finite or misshapen arrays")
-            except ParseError as exc:
-                bad = exc.path != str(case) or not exc.message.strip()
-                outcome, detail = ("bad_error", str(exc)[:200]) if bad else ("rejected", "")
-                if kind == "json_indent":
-                    outcome, detail = "wrong_reject", str(exc)[:200]
-            except TimeoutError:
-                outcome, detail = "hang", f"over {timeout:g} s"
-            except Exception as exc:
-                outcome, detail = "crash", f"{type(exc).__name__}: {exc}"[:200]
-            finally:
-                signal.setitimer(signal.ITIMER_REAL, 0)
+            outcome, detail = _scene_outcome(read, case, kind, reference[src], timeout)
+            if outside:
+                outcome, detail = "outside_read", f"opened {outside[:3]}"
+                outside.clear()
             counts[outcome] += 1
             by_kind[f"{src.suffix[1:]}:{kind}"][outcome] += 1
             if outcome not in ("accepted", "rejected") and len(examples[outcome]) < 5:
@@ -357,9 +438,10 @@ def fuzz_scenes(n_cases: int, seed: int, timeout: float, echo=print) -> int:
         f"\nscene formats (glTF, GLB, FBX): {n_cases:,} cases in {time.time() - t0:.0f} s: accepted "
         f"{counts['accepted']:,}, rejected (ParseError) {counts['rejected']:,}; crashes {counts['crash']}, hangs "
         f"{counts['hang']}, wrong acceptances {counts['wrong_accept']}, wrong rejections {counts['wrong_reject']}, "
-        f"bad errors {counts['bad_error']}"
+        f"bad errors {counts['bad_error']}, reads outside the folder {counts['outside_read']}; peak RSS of the "
+        f"process {_hwm_mb():.0f} MB"
     )
-    cols = ("accepted", "rejected", *FAILURES)
+    cols = ("accepted", "rejected", *FAILURES, "outside_read")
     echo(f"{'mutation kind':<18}" + "".join(f"{k:>13}" for k in cols))
     for key in sorted(by_kind):
         echo(f"{key:<18}" + "".join(f"{by_kind[key][k]:>13,}" for k in cols))
@@ -367,7 +449,96 @@ def fuzz_scenes(n_cases: int, seed: int, timeout: float, echo=print) -> int:
         echo(f"first {outcome} cases:")
         for ln in lines:
             echo("  " + ln)
-    return int(any(counts[k] for k in FAILURES))
+    return int(any(counts[k] for k in (*FAILURES, "outside_read")))
+
+
+def _hwm_mb() -> float:
+    """Peak resident memory of this process, MB (VmHWM; ru_maxrss elsewhere)."""
+    with contextlib.suppress(OSError):
+        for ln in Path("/proc/self/status").read_text().splitlines():
+            if ln.startswith("VmHWM:"):
+                return int(ln.split()[1]) / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+REQUEST_KINDS = ("truncate", "byte_flip", "insert", "nest", "value", "duplicate")
+
+
+def fuzz_requests(n_cases: int, seed: int, echo=print) -> int:
+    """Fuzz the search server's request parsing (``search_server._request``, the bounded
+    JSON loader): valid requests mutated (truncations, byte flips, inserted bytes and
+    brackets, deep nesting, values of other types and sizes). Each must parse or raise
+    ConfigError; anything else is a crash, over 10 s a hang."""
+    import json
+
+    from mocapflow.framework.errors import ConfigError
+    from mocapflow.plugins.similarity.search.search_server import _request
+
+    bases = [
+        {"args": {"query": "q.bvh"}, "cwd": "/tmp"},
+        {"args": {"query": "a b.bvh", "k": 5, "count": 3, "min_span": 0.5, "paper": True, "plot": "x.png"}, "cwd": "/"},
+        {"args": {"query": "q.fbx", "index": "idx", "matcher": "search", "rank_by": "cost"}, "cwd": "/w"},
+    ]
+    counts: Counter = Counter()
+    by_kind: dict[str, Counter] = defaultdict(Counter)
+    examples: list[str] = []
+    t0 = time.time()
+    slowest = 0.0
+    values = [None, -1, 10**9, 2**70, 1e308, "", "x" * 1000, [], {}, True, [[[[]]]], "[" * 1000]
+    for i in range(n_cases):
+        rng = np.random.default_rng([seed, 11, i])
+        base = bases[int(rng.integers(0, len(bases)))]
+        raw = json.dumps(base).encode()
+        kind = REQUEST_KINDS[int(rng.integers(0, len(REQUEST_KINDS)))]
+        at = int(rng.integers(0, len(raw)))
+        if kind == "truncate":
+            raw = raw[:at]
+        elif kind == "byte_flip":
+            b = bytearray(raw)
+            for _ in range(int(rng.integers(1, 6))):
+                b[int(rng.integers(0, len(b)))] = int(rng.integers(0, 256))
+            raw = bytes(b)
+        elif kind == "insert":
+            ins = rng.choice(
+                [b"[", b"]", b"{", b"}", b'"', b"\\", b",", b":", b"\x00", b"\xff"], int(rng.integers(1, 50))
+            )
+            raw = raw[:at] + b"".join(ins) + raw[at:]
+        elif kind == "nest":
+            d = int(rng.choice([10, 17, 100, 10_000, 200_000]))
+            raw = raw[:-1] + b', "x": ' + b"[" * d + b"]" * d + b"}"
+        elif kind == "value":
+            req = json.loads(raw)
+            key = list(req["args"])[int(rng.integers(0, len(req["args"])))]
+            req["args"][key] = values[int(rng.integers(0, len(values)))]
+            raw = json.dumps(req).encode()
+        else:
+            raw = raw[: at + 8] + raw[at:]
+        t1 = time.perf_counter()
+        try:
+            _request(raw)
+            outcome = "accepted"
+        except ConfigError:
+            outcome = "rejected"
+        except Exception as exc:
+            outcome = "crash"
+            if len(examples) < 5:
+                examples.append(f"case {i} ({kind}): {type(exc).__name__}: {str(exc)[:120]}")
+        took = time.perf_counter() - t1
+        slowest = max(slowest, took)
+        if took > 10:
+            outcome = "hang"
+        counts[outcome] += 1
+        by_kind[kind][outcome] += 1
+    echo(
+        f"\nsearch-server requests: {n_cases:,} cases in {time.time() - t0:.0f} s: accepted {counts['accepted']:,}, "
+        f"rejected (ConfigError) {counts['rejected']:,}; crashes {counts['crash']}, hangs {counts['hang']}; slowest "
+        f"{slowest * 1000:.1f} ms; peak RSS {_hwm_mb():.0f} MB"
+    )
+    for kind in REQUEST_KINDS:
+        echo(f"  {kind:<10}" + "".join(f"{k:>10} {by_kind[kind][k]:>7,}" for k in ("accepted", "rejected", "crash")))
+    for ln in examples:
+        echo("  " + ln)
+    return int(counts["crash"] + counts["hang"] > 0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -378,14 +549,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (at most 2: the machine is shared)")
     ap.add_argument("--timeout", type=float, default=20.0, help="seconds per case before it counts as a hang")
     ap.add_argument("--scene-cases", type=int, default=None, help="glTF/GLB/FBX cases (default: a tenth of --cases)")
+    ap.add_argument("--request-cases", type=int, default=None, help="search-server requests (default: --cases)")
+    ap.add_argument("--only", choices=("scenes", "requests"), help="run only the scene or the request fuzzer")
     args = ap.parse_args(argv)
-    if not args.quick and not DATA.exists():
+    if not args.quick and not args.only and not DATA.exists():
         print(f"corpus not found at {DATA} (--quick runs on examples/data)", file=sys.stderr)
         return 1
     # a terminated run still removes its case folder and its workers
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     n = args.cases or (100 if args.quick else 100_000)
     jobs = max(1, min(args.jobs, 2))
+    n_scene = args.scene_cases if args.scene_cases is not None else max(n // 10, 40 if args.quick else 0)
+    n_req = args.request_cases if args.request_cases is not None else n
+    if args.only == "scenes":
+        return fuzz_scenes(n_scene, args.seed, args.timeout)
+    if args.only == "requests":
+        return fuzz_requests(n_req, args.seed)
     with tempfile.TemporaryDirectory() as tmp:
         if args.quick:
             os.environ["MOCAPFLOW_FUZZ_DATA"] = str(_example_sources(Path(tmp)))
@@ -398,7 +577,7 @@ def main(argv: list[str] | None = None) -> int:
         hostile = Path(tmp) / "hostile"
         hostile.mkdir()
         status |= int(run_all(hostile) > 0)
-    n_scene = args.scene_cases if args.scene_cases is not None else max(n // 10, 40 if args.quick else 0)
+    status |= fuzz_requests(n_req, args.seed) if n_req else 0
     return status | (fuzz_scenes(n_scene, args.seed, args.timeout) if n_scene else 0)
 
 
