@@ -20,8 +20,13 @@ and writer, numpy + json only.
   (``n * 1000 / 1001``) rate within 2e-4; ``metadata["fps_source"]`` says which.
 * **Units and axes**: glTF is metres, y up, +z forward: mocapflow's own convention,
   nothing to convert.
-* Scales must be uniform (a joint cannot shear); data URIs and files beside the
-  ``.gltf`` are read; sparse accessors are refused.
+* Scales must be uniform (a joint cannot shear); sparse accessors are refused.
+* **Hostile files** (docs/formats.md, "Hostile input classes and limits"): buffers are the
+  GLB binary chunk, data URIs (no longer than their ``byteLength`` needs, checked before
+  decoding) or files confined to the document's folder (:func:`._common.read_sidecar`),
+  counted in the 1 GiB per-file cap; every declared offset, length and count is checked
+  before a byte is read; the header is checked before the body; JSON nesting, node counts,
+  hierarchy depth, skeleton size and the sampled timeline are bounded.
 
 The writer (:func:`write_gltf`) writes one node per joint, a skin over them, and one
 animation sampled at the motion's rate (``LINEAR``, float32, key times ``k / fps``,
