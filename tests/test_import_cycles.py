@@ -138,6 +138,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     # what motions, datasets and matches are; the workspace's files; no component, no run
     "data model": (
         "errors",
+        "bounded_json",
         "params",
         "progress",
         "threads",
