@@ -80,6 +80,8 @@ MAX_JSON_DEPTH = 64
 #: Most nodes in a document, and the deepest node hierarchy (a skeleton is < 100 deep).
 MAX_NODES = 1_000_000
 MAX_NODE_DEPTH = 1_000
+#: Largest JSON chunk of a GLB (its data live in the BIN chunk: real ones hold kilobytes).
+MAX_GLB_JSON = 64 << 20
 #: Elements of an accessor without a bufferView (all zeros by the specification).
 MAX_ZERO_ELEMENTS = 1 << 20
 
@@ -101,6 +103,12 @@ def _check_head(path: Path, head: bytes, size: int) -> None:
             raise ParseError(path, None, "expected a JSON chunk first in the GLB container")
         if 20 + n > size:
             raise ParseError(path, None, f"the JSON chunk claims {n:,} bytes, past the end of the file")
+        if n > MAX_GLB_JSON:
+            raise ParseError(
+                path,
+                None,
+                f"the JSON chunk claims {n:,} bytes; expected at most {MAX_GLB_JSON >> 20} MiB (data: BIN chunk)",
+            )
         _json_start(path, head[20 : 20 + n], "the GLB JSON chunk")
         return
     _json_start(path, head[3:] if head.startswith(b"\xef\xbb\xbf") else head, "a glTF JSON document or a GLB file")

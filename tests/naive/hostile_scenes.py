@@ -284,7 +284,7 @@ def huge_valid_head(ext: str) -> Callable[[Path], Case]:
         with open(p, "wb") as f:
             f.write(head)
             f.truncate(size)
-        return Case(f"900 MiB .{ext}, valid header, zero body", p, "expected|control byte", big=True)
+        return Case(f"900 MiB .{ext}, valid header, zero body", p, "expected|control byte|JSON chunk", big=True)
 
     return make
 
