@@ -445,3 +445,16 @@ def test_far_key_refused_with_its_gap_and_a_timeline_within_the_keys_read(tmp_pa
     p = HS.write_gltf_case(tmp_path, json.loads(json.dumps(doc)), HS._far_key(doc, buf, 83_000.0))
     with pytest.raises(ParseError, match="largest gap between keys is 82998 s"):
         read_gltf(p)
+
+
+def test_gltf_top_level_arrays_of_the_wrong_type(tmp_path):
+    """Fuzzer finds (seed 0, cases 12682 and 26256): ``"buffers": 0`` or ``"accessors": true``
+    were a TypeError."""
+    from mocapflow.plugins.formats.gltf import read_gltf
+
+    for key, value in (("buffers", 0), ("accessors", True), ("bufferViews", "x"), ("skins", 5)):
+        doc, buf = HS.gltf_doc()
+        doc[key] = value
+        p = HS.write_gltf_case(tmp_path, doc) if key == "buffers" else HS.write_gltf_case(tmp_path, doc, buf)
+        with pytest.raises(ParseError, match=f"expected '{key}' to be an array|expected 'skins' to be an array"):
+            read_gltf(p)

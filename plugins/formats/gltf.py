@@ -195,7 +195,9 @@ class _Doc:
 
     def item(self, key: str, i: Any, where: str) -> dict:
         arr = self.doc.get(key, [])
-        if not isinstance(arr, list) or isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(arr):
+        if not isinstance(arr, list):
+            raise self.error(f"{where}: expected {key!r} to be an array, found {json.dumps(arr)[:40]}")
+        if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(arr):
             raise self.error(f"{where}: expected an index into {key} (0..{len(arr) - 1}), found {json.dumps(i)[:40]}")
         if not isinstance(arr[i], dict):
             raise self.error(f"{key}[{i}]: expected a JSON object")
@@ -403,7 +405,7 @@ def _select(doc: _Doc, parent: np.ndarray, animated: set[int]) -> tuple[list[int
     index in that list of the skeleton's root."""
     nodes = doc.doc["nodes"]
     joints: set[int] = set()
-    for k, skin in enumerate(doc.doc.get("skins", []) or []):
+    for k, skin in enumerate(doc.get(doc.doc, "skins", list, "the document", []) or []):
         if not isinstance(skin, dict):
             raise doc.error(f"skins[{k}]: expected a JSON object")
         for j in doc.get(skin, "joints", list, f"skins[{k}]"):
