@@ -456,5 +456,5 @@ def test_gltf_top_level_arrays_of_the_wrong_type(tmp_path):
         doc, buf = HS.gltf_doc()
         doc[key] = value
         p = HS.write_gltf_case(tmp_path, doc) if key == "buffers" else HS.write_gltf_case(tmp_path, doc, buf)
-        with pytest.raises(ParseError, match=f"expected '{key}' to be an array|expected 'skins' to be an array"):
+        with pytest.raises(ParseError, match=f"expected '{key}' to be an array"):
             read_gltf(p)
