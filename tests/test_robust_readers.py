@@ -355,7 +355,7 @@ _SCENE_CASES = [
     *HS.GLTF_CASES[20:],
     *HS.FBX_CASES[:5],
     functools.partial(HS.fbx_model_chain, depth=5_000),
-    *HS.FBX_CASES[6:],
+    *HS.FBX_CASES[6:-1],
     HS.uri_big_sidecar,
     *(HS.huge_invalid(ext) for ext in ("gltf", "glb", "fbx")),
     *(HS.huge_valid_head(ext) for ext in ("gltf", "glb", "fbx")),
@@ -458,3 +458,27 @@ def test_gltf_top_level_arrays_of_the_wrong_type(tmp_path):
         p = HS.write_gltf_case(tmp_path, doc) if key == "buffers" else HS.write_gltf_case(tmp_path, doc, buf)
         with pytest.raises(ParseError, match=f"expected '{key}' to be an array"):
             read_gltf(p)
+
+
+def test_fbx_record_cap_and_unread_objects_skipped(tmp_path, monkeypatch):
+    """Records of the kinds the reader parses are capped; other object kinds (meshes) are
+    skipped unparsed, so a zlib bomb inside one is never inflated."""
+    import zlib
+
+    from mocapflow.plugins.formats import _fbx_parse
+    from mocapflow.plugins.formats._fbx_parse import Node
+    from mocapflow.plugins.formats.fbx import read_fbx
+
+    monkeypatch.setattr(_fbx_parse, "MAX_RECORDS", 30_000)
+    case = HS.fbx_record_flood(tmp_path, n=10_000)
+    with pytest.raises(ParseError, match="at most 30,000 node records"):
+        read_fbx(case.path)
+    monkeypatch.setattr(_fbx_parse, "MAX_RECORDS", 500_000)
+    _v, root = HS.walk_fbx()
+    objects = next(c for c in root.children if c.name == "Objects")
+    bomb = HS.Raw(b"d", 1 << 28, 1, zlib.compress(bytes(1 << 24), 9))
+    objects.children.append(Node("Geometry", [1, "mesh\x00\x01Geometry", "Mesh"], [Node("Vertices", [bomb], [], 0)], 0))
+    p = tmp_path / "mesh.fbx"
+    p.write_bytes(HS.fbx_bytes(root))
+    peak = _peak_bytes(lambda: read_fbx(p))
+    assert peak < 50 * 2**20

@@ -30,6 +30,9 @@ MAX_DEPTH = 64
 #: :data:`INFLATE_RATIO` times the file's size (real FBX arrays deflate 2-10x; one 2 MB
 #: array asking for 2 GiB is a bomb). Each array inflates at most to its declared length.
 INFLATE_FLOOR = 32 << 20
+#: Most node records parsed per file (a Python object each, ~250 bytes): real animation
+#: files hold tens of thousands (``walk_120.fbx``: 23,000) of the kinds the reader parses.
+MAX_RECORDS = 500_000
 INFLATE_RATIO = 8
 
 
@@ -75,18 +78,23 @@ class Node:
         return [c for c in self.children if c.name == name]
 
 
-def parse_fbx(path: Path, data: bytes) -> tuple[int, Node]:
-    """``(version, root)`` of a binary FBX file; ``root.children`` are the top-level nodes."""
+def parse_fbx(path: Path, data: bytes, objects: frozenset[str] | None = None) -> tuple[int, Node]:
+    """``(version, root)`` of a binary FBX file; ``root.children`` are the top-level nodes.
+    ``objects``: the kinds of ``Objects`` children to parse (``None``: all); the others stay
+    bare nodes (name and offset: no properties, no children), their content neither parsed
+    nor inflated (meshes, textures, embedded media). At most :data:`MAX_RECORDS` records
+    are parsed."""
     check_head(path, data[:65536], len(data))
     (version,) = struct.unpack_from("<I", data, 23)
-    return version, _Reader(path, data, version).top()
+    return version, _Reader(path, data, version, objects).top()
 
 
 class _Reader:
-    def __init__(self, path: Path, data: bytes, version: int) -> None:
+    def __init__(self, path: Path, data: bytes, version: int, objects: frozenset[str] | None = None) -> None:
         self.path, self.data, self.wide = path, data, version >= 7500
         self.head = struct.Struct("<QQQB" if self.wide else "<IIIB")
         self.inflate_left = INFLATE_FLOOR + INFLATE_RATIO * len(data)
+        self.objects, self.records_left = objects, MAX_RECORDS
 
     def error(self, offset: int, what: str) -> ParseError:
         return ParseError(self.path, None, f"at byte {offset}: {what}")
@@ -104,7 +112,7 @@ class _Reader:
             nodes.append(node)
         return Node("", [], nodes, 0)
 
-    def node(self, pos: int, depth: int) -> tuple[Node | None, int]:
+    def node(self, pos: int, depth: int, parent: str = "") -> tuple[Node | None, int]:
         data = self.data
         if depth > MAX_DEPTH:
             raise self.error(pos, f"expected nodes nested at most {MAX_DEPTH} deep")
@@ -119,6 +127,11 @@ class _Reader:
             )
         p = pos + self.head.size
         name = data[p : p + name_len].decode("latin-1")
+        if self.objects is not None and depth == 1 and parent == "Objects" and name not in self.objects:
+            return Node(name, [], [], pos), end  # an object kind the caller does not read: skipped whole
+        self.records_left -= 1
+        if self.records_left < 0:
+            raise self.error(pos, f"expected at most {MAX_RECORDS:,} node records (of the object kinds read)")
         p += name_len
         props_end = p + props_len
         if props_end > end:
@@ -133,7 +146,7 @@ class _Reader:
             )
         children: list[Node] = []
         while p < end:
-            child, p = self.node(p, depth + 1)
+            child, p = self.node(p, depth + 1, name)
             if child is None:
                 break
             children.append(child)

@@ -148,7 +148,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     ``start_time`` (seconds)."""
     path = Path(path)
     data = read_bytes(path, lambda head: check_head(path, head, path.stat().st_size))
-    version, root = parse_fbx(path, data)
+    version, root = parse_fbx(path, data, _OBJECT_KINDS)
     gs = _Props(path, _props70(root.find("GlobalSettings")), {}, "GlobalSettings")
     unit = gs.num("UnitScaleFactor", 1.0) / 100.0
     if not 0 < unit * 100 <= 1e7:
@@ -237,6 +237,9 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
 
 
 _EMPTY = Node("", [], [], 0)
+#: The kinds of ``Objects`` children the reader uses (others are skipped unparsed: meshes,
+#: materials, embedded media).
+_OBJECT_KINDS = frozenset({"Model", "AnimationStack", "AnimationLayer", "AnimationCurveNode", "AnimationCurve"})
 
 
 def _scene(path: Path, root: Node) -> tuple[dict, dict, dict, dict]:

@@ -464,6 +464,19 @@ def fbx_nested_records(folder: Path) -> Case:
     return Case("FBX records nested 200 deep", p, "nested at most")
 
 
+def fbx_record_flood(folder: Path, n: int = 600_000) -> Case:
+    """``n`` tiny records inside a Model (a kind the reader parses): the record cap."""
+    from mocapflow.plugins.formats._fbx_parse import Node
+
+    _v, root = walk_fbx()
+    objects = next(c for c in root.children if c.name == "Objects")
+    model = next(o for o in objects.children if o.name == "Model")
+    model.children.append(Node("X", [], [Node("P", [1], [], 0) for _ in range(n)], 0))
+    p = folder / "flood.fbx"
+    p.write_bytes(fbx_bytes(root))
+    return Case(f"FBX {n:,} records in a model", p, "node records")
+
+
 GLTF_CASES = [
     uri_absolute,
     uri_etc_passwd,
@@ -498,6 +511,7 @@ FBX_CASES = [
     fbx_float_key_times,
     fbx_model_chain,
     fbx_nested_records,
+    fbx_record_flood,
 ]
 BIG_CASES = (
     [uri_big_sidecar]
