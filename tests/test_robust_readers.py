@@ -469,9 +469,9 @@ def test_fbx_record_cap_and_unread_objects_skipped(tmp_path, monkeypatch):
     from mocapflow.plugins.formats._fbx_parse import Node
     from mocapflow.plugins.formats.fbx import read_fbx
 
-    monkeypatch.setattr(_fbx_parse, "MAX_RECORDS", 30_000)
+    monkeypatch.setattr(_fbx_parse, "MAX_RECORDS", 8_000)
     case = HS.fbx_record_flood(tmp_path, n=10_000)
-    with pytest.raises(ParseError, match="at most 30,000 node records"):
+    with pytest.raises(ParseError, match="at most 8,000 node records"):
         read_fbx(case.path)
     monkeypatch.setattr(_fbx_parse, "MAX_RECORDS", 500_000)
     _v, root = HS.walk_fbx()
