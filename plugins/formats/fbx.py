@@ -1,7 +1,9 @@
 """Autodesk FBX skeletal animation (binary FBX 7.x): reader, pure Python + numpy.
 
 * **Container**: :mod:`._fbx_parse` (node records, typed properties, zlib arrays).
-  ASCII FBX is refused with a clear error.
+  ASCII FBX is refused with a clear error. Only the object kinds read below are parsed
+  (meshes, materials, media are skipped unparsed); header, inflation, record count, key
+  times and timeline are bounded (docs/formats.md, "Hostile input classes and limits").
 * **Skeleton**: the ``LimbNode`` models (a file without them: the animated models),
   closed under their lowest common ancestor; models above the skeleton's root (an
   armature ``Null``), animated or not, move the root. Model names become joint names.
