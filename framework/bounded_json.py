@@ -2,9 +2,9 @@
 
 ``json.loads`` recurses once per nested array or object: 100,000 nested ``[`` raise
 ``RecursionError`` (or worse, exhaust the C stack), which no caller expects. :func:`loads`
-first measures the deepest nesting of the text in one pass of C-speed byte operations
-(strings removed with a regular expression, everything but brackets deleted, a running sum
-of +1/-1 with numpy) and refuses a text nested deeper than ``max_depth`` with
+first measures the deepest nesting of the text in C-speed byte operations (strings
+removed: split on quotes, or with a regular expression when a quote follows a backslash;
+everything but brackets deleted; a running sum of +1/-1 with numpy) and refuses a text nested deeper than ``max_depth`` with
 :class:`JsonDepthError`; only a text within the limit reaches ``json.loads``. Every other
 failure is a :class:`ValueError` (``json.JSONDecodeError`` for syntax, with its line), so a
 caller catches ``ValueError`` and nothing else.
@@ -41,8 +41,9 @@ def nesting_depth(text: bytes | str, limit: int | None = None) -> int:
     data = text.encode("utf-8", "surrogatepass") if isinstance(text, str) else bytes(text)
     if data.count(b"[") + data.count(b"{") <= (limit if limit is not None else -1):
         return data.count(b"[") + data.count(b"{")  # cannot nest deeper than it has brackets
-    if b'"' in data:
-        data = _STRING.sub(b"", data)
+    # strings removed: when no quote follows a backslash every quote opens or closes one (a
+    # split on quotes, fast); otherwise the exact string pattern (4x slower)
+    data = b"".join(data.split(b'"')[0::2]) if b'\\"' not in data else _STRING.sub(b"", data)
     brackets = data.translate(None, _NOT_BRACKETS)
     if not brackets:
         return 0
