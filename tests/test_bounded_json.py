@@ -35,26 +35,31 @@ def slow_depth(text: str) -> int:
     return best
 
 
-def _random_json(rng: np.random.Generator, depth: int = 0):
+def _random_json(rng: np.random.Generator, alphabet: str, depth: int = 0):
     k = int(rng.integers(0, 6 if depth < 12 else 3))
     if k == 0:
-        return "".join(rng.choice(list('ab[]{}"\\:,\n\u00e9'), int(rng.integers(0, 8))))
+        return "".join(rng.choice(list(alphabet), int(rng.integers(0, 8))))
     if k == 1:
         return int(rng.integers(-5, 5))
     if k == 2:
         return None
     if k in (3, 4):
-        return [_random_json(rng, depth + 1) for _ in range(int(rng.integers(0, 4)))]
-    return {f"k{i}[": _random_json(rng, depth + 1) for i in range(int(rng.integers(0, 4)))}
+        return [_random_json(rng, alphabet, depth + 1) for _ in range(int(rng.integers(0, 4)))]
+    return {f"k{i}[": _random_json(rng, alphabet, depth + 1) for i in range(int(rng.integers(0, 4)))}
 
 
 def test_nesting_depth_equals_the_slow_twin():
+    """Both string removals: texts with escaped quotes (the regex) and without (the split)."""
     rng = np.random.default_rng(0)
-    for _ in range(400):
-        text = json.dumps(_random_json(rng), ensure_ascii=bool(rng.integers(0, 2)))
+    paths = set()
+    for i in range(400):
+        alphabet = 'ab[]{}"\\:,\n\u00e9' if i % 2 else "ab[]{}:,\u00e9"
+        text = json.dumps(_random_json(rng, alphabet), ensure_ascii=bool(rng.integers(0, 2)))
+        paths.add('\\"' in text)
         assert nesting_depth(text) == slow_depth(text), text
         assert nesting_depth(text.encode()) == slow_depth(text)
         assert loads(text, max_depth=64) == json.loads(text)
+    assert paths == {True, False}
 
 
 def test_deep_texts_are_refused_before_parsing():
