@@ -36,8 +36,9 @@ class JsonDepthError(ValueError):
 
 
 def nesting_depth(text: bytes | str, limit: int | None = None) -> int:
-    """Deepest nesting of ``[``/``{`` outside strings (an unterminated string counts its
-    brackets: the text is invalid anyway). ``limit``: stop counting once it is exceeded."""
+    """Deepest nesting of ``[``/``{`` outside strings (exact for valid JSON; for a text with
+    an unterminated string, an upper or lower bound: it is invalid anyway). ``limit``:
+    a text with at most ``limit`` brackets in all returns that count at once."""
     data = text.encode("utf-8", "surrogatepass") if isinstance(text, str) else bytes(text)
     if data.count(b"[") + data.count(b"{") <= (limit if limit is not None else -1):
         return data.count(b"[") + data.count(b"{")  # cannot nest deeper than it has brackets
