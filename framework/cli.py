@@ -175,7 +175,7 @@ def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
 
     if args.output:  # refuse what cannot be written before the work
         out = Path(args.output)
-        refuse_dataset_path(out, "--output")
+        refuse_dataset_path(out, "--output", workspaces=[args.workspace])
         if out.is_dir():
             raise ConfigError(f"--output {out} is a directory: give a file name (e.g. {out / 'result.csv'})")
         if args.format == "table" and out.suffix.lower() not in (".csv", ".parquet", ""):
