@@ -170,7 +170,7 @@ def cmd_plugins(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> in
 def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
     if not Path(args.workspace).exists():  # the common typo, answered before pyarrow and duckdb load
         raise ConfigError(f"workspace {args.workspace} does not exist (run a pipeline first)")
-    from .catalog import Catalog, format_table
+    from .catalog import Catalog, format_table, limited_query
     from .workspace import export_table, refuse_dataset_path
 
     if args.output:  # refuse what cannot be written before the work
@@ -180,11 +180,14 @@ def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
             raise ConfigError(f"--output {out} is a directory: give a file name (e.g. {out / 'result.csv'})")
         if args.format == "table" and out.suffix.lower() not in (".csv", ".parquet", ""):
             raise ConfigError(f"--output {out}: unknown format {out.suffix!r}; use .csv or .parquet, or --format")
-    with Catalog(args.workspace, timeout=args.timeout or None, memory_limit=args.memory_limit) as cat:
-        if not args.query:
+    if not args.query:
+        with Catalog(args.workspace) as cat:
             _echo("views: " + ", ".join(sorted(cat.views)))
-            return 0
-        table = cat.query(args.query, args.param or None)
+        return 0
+    # in a child process whose address space is capped and which is killed past --timeout
+    table = limited_query(
+        args.workspace, args.query, args.param or None, timeout=args.timeout or None, memory_limit=args.memory_limit
+    )
     if args.output:
         fmt = args.format if args.format != "table" else Path(args.output).suffix.lstrip(".").lower() or "csv"
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # a new folder is made, as a user expects
