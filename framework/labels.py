@@ -66,6 +66,8 @@ def _seconds(text: str, path: Path, line: int, column: str) -> float:
 def _frame(seconds: float, fps: float, path: Path, line: int, column: str, clip: Mapping[str, Any]) -> int:
     """``seconds`` as a frame of ``clip`` (at ``fps``), checked against the clip's length."""
     frame = seconds * fps
+    if not frame <= _MAX_FRAME:  # inf too
+        raise ParseError(path, line, f"column {column!r}: {seconds:g} s is beyond any clip ({fps:g} fps)")
     n = clip.get("n_frames")
     if n is not None and n != "":
         n = int(n)
@@ -78,8 +80,6 @@ def _frame(seconds: float, fps: float, path: Path, line: int, column: str, clip:
                 f"column {column!r}: {seconds:g} s is past the end of clip {clip.get('name')!r} "
                 f"({n} frames, {n / fps:g} s at {fps:g} fps); expected a time within the clip",
             )
-    if frame > _MAX_FRAME:
-        raise ParseError(path, line, f"column {column!r}: {seconds:g} s is beyond any clip ({fps:g} fps)")
     return int(round(frame))
 
 
@@ -176,12 +176,15 @@ def csv_labels(path: str | Path, clips: Sequence[Mapping[str, Any]]) -> pa.Table
             fps = float(c["fps"])
             start = _frame(start_s, fps, path, line, "start", c) if start_s is not None else None
             end = _frame(end_s, fps, path, line, "end", c) if end_s is not None else None
-            if start is not None and end is not None and end <= start:
-                raise ParseError(
-                    path, line, f"the span {row['start']}-{row['end']} s is shorter than a frame at {fps:g} fps"
-                )
             if (start is None) != (end is None):
                 start, end = start or 0, end if end is not None else int(c.get("n_frames", 0))
+            if start is not None and end is not None and end <= start:
+                raise ParseError(
+                    path,
+                    line,
+                    f"the span {row.get('start') or 0}-{row.get('end') or 'end'} s of clip {c['name']!r} "
+                    f"is shorter than a frame at {fps:g} fps",
+                )
             rows.append(
                 {"clip_id": c["clip_id"], "name": c["name"], "start_frame": start, "end_frame": end, "label": label}
             )

@@ -469,8 +469,18 @@ def refuse_dataset_path(
     - ``directory=True`` (the command writes files *into* ``path``): every entry already in
       the folder is checked the same way (a link inside it into a step folder is refused).
     """
+    if not str(path).strip() or "\x00" in str(path):
+        raise ConfigError(f"{option} {str(path)[:40]!r}: expected a file or folder name")
     p = Path(path).expanduser().absolute()
-    real = p.resolve()
+    try:
+        real = p.resolve()
+        longest = max((len(os.fsencode(part)) for part in real.parts), default=0)
+        if longest > 255:  # the usual file name limit: refused before any work, not when written
+            raise OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG))
+    except (OSError, RuntimeError) as exc:  # a name too long, a loop of links
+        raise ConfigError(
+            f"{option} {str(path)[:80]}: cannot be written ({getattr(exc, 'strerror', None) or exc})"
+        ) from None
     for q in dict.fromkeys((p, real)):
         _refuse_name(q, path, option)
     found: set[Path | None] = {_workspace_of(q) for q in (p, real)}
