@@ -310,11 +310,14 @@ def main() -> int:
     import tempfile
 
     ap = argparse.ArgumentParser(description="labels CSV and search-server request fuzzers")
-    ap.add_argument("--labels", type=int, default=1000)
-    ap.add_argument("--server", type=int, default=200)
+    ap.add_argument("--quick", action="store_true", help="200 labels cases, 100 requests")
+    ap.add_argument("--labels", type=int, default=None, help="labels CSV cases (default 100,000)")
+    ap.add_argument("--server", type=int, default=None, help="search-server requests (default 100,000)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--timeout", type=float, default=10.0)
     a = ap.parse_args()
+    a.labels = a.labels if a.labels is not None else 200 if a.quick else 100_000
+    a.server = a.server if a.server is not None else 100 if a.quick else 100_000
     with tempfile.TemporaryDirectory() as tmp:
         bad = fuzz_labels(a.labels, a.seed, a.timeout, Path(tmp))
         if a.server:

@@ -311,6 +311,7 @@ def limited_query(
     (memory-mapped, removed at once)."""
     import multiprocessing as mp
     import signal
+    import time
 
     memory_bytes = parse_size(memory_limit) if memory_limit is not None else None
     check_read_only(sql)  # refused here, before a process is started
@@ -324,8 +325,13 @@ def limited_query(
     try:
         proc.start()
         send.close()
-        deadline = None if timeout is None else timeout + QUERY_KILL_GRACE_S
-        ready = recv.poll(deadline)
+        deadline = None if timeout is None else time.monotonic() + timeout + QUERY_KILL_GRACE_S
+        ready = False
+        while not ready:  # in slices: a poll of a very long timeout overflows
+            left = 60.0 if deadline is None else min(60.0, deadline - time.monotonic())
+            if left <= 0:
+                break
+            ready = recv.poll(left)
         msg = None
         if ready:
             try:

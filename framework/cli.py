@@ -446,15 +446,30 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"mocapflow: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, (ConfigError, PluginError)) else 1
-    except Exception as exc:  # a bug: say so briefly, full traceback with --debug
+    except OSError as exc:  # a path the user gave that the system refuses (too long, not a folder...)
+        if exc.filename is None:
+            return _internal_error(exc, debug)
         if debug:
             traceback.print_exc()
-        else:
-            print(
-                f"mocapflow: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)",
-                file=sys.stderr,
-            )
-        return 3
+        name = str(exc.filename)
+        print(
+            f"mocapflow: error: {name[:120]}{'...' if len(name) > 120 else ''}: {exc.strerror or exc}", file=sys.stderr
+        )
+        return 1
+    except Exception as exc:  # a bug: say so briefly, full traceback with --debug
+        return _internal_error(exc, debug)
+
+
+def _internal_error(exc: BaseException, debug: bool) -> int:
+    """A bug: said briefly (exit 3), the full traceback with ``--debug``."""
+    if debug:
+        traceback.print_exc()
+    else:
+        print(
+            f"mocapflow: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)",
+            file=sys.stderr,
+        )
+    return 3
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -273,7 +273,10 @@ class Workspace:
         """Refuse, before anything runs, to replace a folder the runner did not write, or to
         write a workspace that lies inside another workspace's dataset or runner folder
         (through links too)."""
-        _refuse_name(self.path.absolute().resolve(), self.path, "workspace")
+        real = self.path.absolute().resolve()
+        if real.exists() and not real.is_dir():
+            raise ConfigError(f"workspace {self.path} exists and is not a folder: choose another workspace")
+        _refuse_name(real, self.path, "workspace")
         for step_id in step_ids:
             out = self.path / step_id
             if (out.exists() or out.is_symlink()) and (
@@ -481,6 +484,10 @@ def refuse_dataset_path(
         raise ConfigError(
             f"{option} {str(path)[:80]}: cannot be written ({getattr(exc, 'strerror', None) or exc})"
         ) from None
+    if not directory and (real.is_dir() or real == real.parent):
+        raise ConfigError(f"{option} {path}: {real} is a directory: give a file name (e.g. {p / 'result'})")
+    if directory and real.exists() and not real.is_dir():
+        raise ConfigError(f"{option} {path}: {real} exists and is not a folder: give a folder name")
     for q in dict.fromkeys((p, real)):
         _refuse_name(q, path, option)
     found: set[Path | None] = {_workspace_of(q) for q in (p, real)}

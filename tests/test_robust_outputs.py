@@ -193,7 +193,7 @@ def test_refuse_dataset_path_by_identity(workspace, tmp_path):
     with pytest.raises(ConfigError, match="dataset"):
         refuse_dataset_path(bad["mid"], "--plot")
     for key in ("dir_link", "dir_dir_link", "dir_hard_link"):
-        refuse_dataset_path(bad[key], "-o")  # a file name beside the links is fine
+        refuse_dataset_path(bad[key] / "new.csv", "-o")  # a new file beside the links is fine
         with pytest.raises(ConfigError, match="-o"):
             refuse_dataset_path(bad[key], "-o", directory=True)
     clean = tmp_path / "clean_dir"
