@@ -1,9 +1,10 @@
 """Hostile inputs beyond mutated files, run by ``benchmarks/fuzz_parsers.py``: huge files,
 YAML alias bombs, hostile plugins, symbolic links, concurrent and stalled search-server
 clients, hostile search-server requests, hostile glTF/GLB/FBX files (one per class of
-``tests/naive/hostile_scenes.py``). Each check records its outcome (``ok`` or what went
-wrong), its wall time and, for the readers, the peak of traced memory (scene files: the
-peak resident memory of the process that read it); any outcome but ``ok`` is a failure.
+``tests/naive/hostile_scenes.py``), outputs aimed at a workspace through links, SQL queries
+past their limits. Each check records its outcome (``ok`` or what went wrong), its wall time
+and, for the readers, the peak of traced memory (scene files: the peak resident memory of the
+process that read it); any outcome but ``ok`` is a failure.
 """
 
 from __future__ import annotations
@@ -371,13 +372,133 @@ def server_requests(tmp: Path) -> list[tuple[str, str, float, float]]:
 
         outcome, sec, peak = _peak(go)
         out.append(("server request", f"{name}: {outcome}", sec, peak))
+
+
+def _toy_workspace(tmp: Path) -> Path:
+    import textwrap
+
+    from toy_components import ToyPlugin
+
+    from mocapflow.framework import get_plugin_manager
+    from mocapflow.framework.runner import run_pipeline
+
+    pipe = tmp / "p.yaml"
+    pipe.write_text(
+        textwrap.dedent("""
+        name: toy
+        workspace: ws
+        steps:
+          motions: {uses: analyses.toy_motions, with: {clips: 2, frames: 20}}
+          summary: {uses: analyses.clip_summary, input: motions}
+        """)
+    )
+    run_pipeline(pipe, pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin()]))
+    return tmp / "ws"
+
+
+def _digest(ws: Path) -> dict[str, str]:
+    import hashlib
+
+    return {str(p.relative_to(ws)): hashlib.sha256(p.read_bytes()).hexdigest() for p in ws.rglob("*") if p.is_file()}
+
+
+def output_links(tmp: Path) -> list[tuple[str, str, float, float]]:
+    """Every writing command aimed at a workspace through another name: a hard link to a
+    dataset file, a symbolic link on the path, a folder holding a link into a step folder.
+    Each must be refused (exit 2) with the workspace byte-identical (SHA-256 of every file)."""
+    import contextlib
+    import io
+
+    from mocapflow.framework.cli import main
+
+    ws = _toy_workspace(tmp)
+    hard = tmp / "hard.bvh"
+    hard.hardlink_to(ws / "summary" / "data.parquet")
+    (tmp / "mid").symlink_to(ws / "summary", target_is_directory=True)
+    folder = tmp / "folder"
+    folder.mkdir()
+    (folder / "index.csv").symlink_to(ws / "summary" / "data.parquet")
+    (folder / "q0").symlink_to(ws / "motions", target_is_directory=True)
+    take = tmp / "take.trc"
+    take.write_text("not read: the output is refused first")
+    cmds = {
+        "sql -o hard link": ["sql", str(ws), "SELECT 1", "--format", "csv", "-o", str(hard)],
+        "sql -o through a link": ["sql", str(ws), "SELECT 1", "--format", "csv", "-o", str(tmp / "mid" / "x.csv")],
+        "export -o folder with links": ["export", str(ws), "--step", "summary", "-o", str(folder)],
+        "report -o folder with links": ["report", str(ws), "-o", str(folder)],
+        "clean --output hard link": ["clean", str(take), "--output", str(hard)],
+        "clean --report folder with links": [
+            "clean",
+            str(take),
+            "--output",
+            str(tmp / "c.bvh"),
+            "--report",
+            str(folder),
+        ],
+        "reconstruct -o hard link": ["reconstruct", str(take), "--prior", str(tmp), "-o", str(hard)],
+        "reconstruct -o through a link": [
+            "reconstruct",
+            str(take),
+            "--prior",
+            str(tmp),
+            "-o",
+            str(tmp / "mid" / "a.bvh"),
+        ],
+    }
+    out = []
+    for what, argv in cmds.items():
+        before = _digest(ws)
+        err = io.StringIO()
+        t0 = time.perf_counter()
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            rc = main(["--no-entry-points", *argv])
+        sec = time.perf_counter() - t0
+        same = _digest(ws) == before
+        ok = rc == 2 and same and "internal error" not in err.getvalue()
+        out.append(("output link", f"{what}: {'ok' if ok else f'exit {rc}, workspace changed: {not same}'}", sec, 0.0))
+    return out
+
+
+def sql_limits(tmp: Path) -> list[tuple[str, str, float, float]]:
+    """Queries past ``--timeout 10 --memory-limit 500MB`` as a user runs them (a fresh
+    process): each ended within timeout + 5 s at a peak <= limit + 500 MB, the message naming
+    the limit."""
+    import resource
+    import subprocess
+    import sys
+
+    ws = _toy_workspace(tmp)
+    queries = {
+        "SELECT length(repeat('x', 2000000000))": "memory",
+        "SELECT list(repeat('x', 1000)) FROM range(10000000)": "memory",
+        "SELECT count(*) FROM range(10000000000000)": "longer than",
+    }
+    out = []
+    for q, want in queries.items():
+        cmd = [sys.executable, "-m", "mocapflow", "sql", str(ws), q, "--timeout", "10", "--memory-limit", "500MB"]
+        t0 = time.perf_counter()
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+        sec = time.perf_counter() - t0
+        peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest child so far
+        ok = r.returncode == 1 and want in r.stderr and sec <= 15 and peak <= 1000
+        out.append(("sql limit", f"{q[:50]}: {'ok' if ok else r.stderr.strip()[-120:]}", sec, peak))
     return out
 
 
 def run_all(tmp: Path, echo=print) -> int:
     """Every class; prints one line per check, returns the number of failures."""
     rows = []
-    for fn in (huge_files, alias_bombs, hostile_plugins, symlinks, concurrent_clients, server_requests, scene_files):
+    for fn in (
+        huge_files,
+        alias_bombs,
+        hostile_plugins,
+        symlinks,
+        concurrent_clients,
+        server_requests,
+        scene_files,
+        output_links,
+        sql_limits,
+    ):
         sub = tmp / fn.__name__
         sub.mkdir()
         rows += fn(sub)

@@ -13,7 +13,10 @@ Prints the cases, crashes (exceptions other than ParseError), hangs, wrong accep
 wrong rejections and bad errors (no file or line), per mutation kind and per format, and
 the first examples of each failure. Then the hostile inputs of ``benchmarks/_hostile.py``
 (huge files, YAML alias bombs, hostile plugins, symbolic links, stalled and concurrent
-search-server clients), one line per check. Exit status 1 if any failure.
+search-server clients, outputs through links into a workspace, SQL past its limits), one line
+per check; then the labels CSV and search-server request fuzzers of
+``benchmarks/_fuzz_inputs.py`` (``--labels-cases``, ``--server-cases``). Exit status 1 if any
+failure.
 
 Usage::
 
@@ -551,6 +554,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scene-cases", type=int, default=None, help="glTF/GLB/FBX cases (default: a tenth of --cases)")
     ap.add_argument("--request-cases", type=int, default=None, help="search-server requests (default: --cases)")
     ap.add_argument("--only", choices=("scenes", "requests"), help="run only the scene or the request fuzzer")
+    ap.add_argument("--labels-cases", type=int, default=None, help="labels CSV cases (default: a tenth of --cases)")
+    ap.add_argument(
+        "--server-cases", type=int, default=None, help="search-server requests (default: a hundredth of --cases)"
+    )
     args = ap.parse_args(argv)
     if not args.quick and not args.only and not DATA.exists():
         print(f"corpus not found at {DATA} (--quick runs on examples/data)", file=sys.stderr)
@@ -577,6 +584,15 @@ def main(argv: list[str] | None = None) -> int:
         hostile = Path(tmp) / "hostile"
         hostile.mkdir()
         status |= int(run_all(hostile) > 0)
+        from _fuzz_inputs import fuzz_labels, fuzz_server
+
+        n_labels = args.labels_cases if args.labels_cases is not None else max(n // 10, 200)
+        n_server = args.server_cases if args.server_cases is not None else max(n // 100, 100)
+        for name, fn, count in (("labels", fuzz_labels, n_labels), ("server", fuzz_server, n_server)):
+            if count:
+                sub = Path(tmp) / f"fuzz-{name}"
+                sub.mkdir()
+                status |= int(fn(count, args.seed, args.timeout, sub) > 0)
     status |= fuzz_requests(n_req, args.seed) if n_req else 0
     return status | (fuzz_scenes(n_scene, args.seed, args.timeout) if n_scene else 0)
 

@@ -245,3 +245,135 @@ def format_table(table: pa.Table, max_rows: int = 50, max_width: int = 40) -> st
     more = table.num_rows - len(shown)
     out.append(f"({table.num_rows} row{'s' if table.num_rows != 1 else ''}{f', {more} not shown' if more > 0 else ''})")
     return "\n".join(out)
+
+
+#: Address space a query process may take beyond what it holds once the catalog is open and
+#: beyond ``--memory-limit``: room for DuckDB's threads, Arrow's buffers and the result file.
+QUERY_HEADROOM_BYTES = 256 * 2**20
+#: Seconds the query process is given past ``--timeout`` to stop on its own (DuckDB's
+#: interrupt) before it is killed.
+QUERY_KILL_GRACE_S = 2.0
+
+
+def _vm_size() -> int:
+    """This process's address space in bytes (``VmSize``; 0 where /proc is missing)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmSize:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def _query_child(
+    conn: Any, workspace: str, sql: str, params: Any, timeout: float | None, memory: str | None, out: str
+) -> None:
+    """The query process: open the catalog, cap its own address space, run, write the result
+    as an Arrow IPC file; report ``(kind, message)`` on ``conn``."""
+    import resource
+
+    try:
+        with Catalog(workspace, timeout=timeout, memory_limit=memory) as cat:
+            if cat.memory_bytes is not None:
+                cap = _vm_size() + cat.memory_bytes + QUERY_HEADROOM_BYTES
+                _, hard = resource.getrlimit(resource.RLIMIT_AS)
+                if hard == resource.RLIM_INFINITY or cap < hard:
+                    resource.setrlimit(resource.RLIMIT_AS, (cap, hard))
+            table = cat.query(sql, params)
+            with pa.OSFile(out, "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
+                writer.write_table(table)
+        conn.send(("ok", ""))
+    except MemoryError:
+        conn.send(("memory", ""))
+    except ConfigError as exc:
+        conn.send(("config", str(exc)))
+    except MocapflowError as exc:
+        conn.send(("error", str(exc)))
+    except BaseException as exc:  # reported to the parent, which names the limit
+        text = f"{type(exc).__name__}: {exc}"
+        conn.send(("memory" if "bad_alloc" in text or "memory" in text.lower() else "internal", text))
+
+
+def limited_query(
+    workspace: str | Path,
+    sql: str,
+    params: list[Any] | dict[str, Any] | None = None,
+    timeout: float | None = None,
+    memory_limit: str | None = None,
+) -> pa.Table:
+    """:meth:`Catalog.query` run in a child process whose limits hold for any query: its
+    address space is capped (``RLIMIT_AS``: what it holds with the catalog open, plus
+    ``memory_limit``, plus :data:`QUERY_HEADROOM_BYTES`) and it is killed
+    :data:`QUERY_KILL_GRACE_S` after ``timeout`` if DuckDB's own interrupt has not stopped it.
+    The error says which limit ended the query. The result comes back as an Arrow file
+    (memory-mapped, removed at once)."""
+    import multiprocessing as mp
+    import signal
+    import time
+
+    memory_bytes = parse_size(memory_limit) if memory_limit is not None else None
+    check_read_only(sql)  # refused here, before a process is started
+    tmp = tempfile.mkdtemp(prefix="mocapflow-sql-")
+    out = str(Path(tmp) / "result.arrow")
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(
+        target=_query_child, args=(send, str(workspace), sql, params, timeout, memory_limit, out), daemon=True
+    )
+    try:
+        proc.start()
+        send.close()
+        deadline = None if timeout is None else time.monotonic() + timeout + QUERY_KILL_GRACE_S
+        ready = False
+        while not ready:  # in slices: a poll of a very long timeout overflows
+            left = 60.0 if deadline is None else min(60.0, deadline - time.monotonic())
+            if left <= 0:
+                break
+            ready = recv.poll(left)
+        msg = None
+        if ready:
+            try:
+                msg = recv.recv()
+            except EOFError:
+                msg = None
+        killed = False
+        if msg is None and proc.is_alive():
+            proc.kill()
+            killed = not ready  # nothing came back before the deadline
+        proc.join()
+        if msg is None:
+            if killed:
+                raise MocapflowError(
+                    f"SQL: the query ran longer than {timeout:g} s and was killed (--timeout SECONDS, 0: no limit)"
+                )
+            code = proc.exitcode or 0
+            how = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit status {code}"
+            if memory_bytes is not None:
+                raise MocapflowError(
+                    f"SQL: the query process ended ({how}) at its memory limit "
+                    f"({memory_bytes / 2**20:,.0f} MiB; --memory-limit SIZE)"
+                )
+            raise MocapflowError(f"SQL: the query process ended unexpectedly ({how})")
+        kind, text = msg
+        if kind == "ok":
+            with pa.memory_map(out) as src:
+                return pa.ipc.open_file(src).read_all()
+        if kind == "memory":
+            limit = f"{memory_bytes / 2**20:,.0f} MiB" if memory_bytes is not None else "none set"
+            raise MocapflowError(
+                f"SQL: the query needs more memory than its limit ({limit}; --memory-limit SIZE)"
+                + (f": {text}" if text else "")
+            )
+        if kind == "config":
+            raise ConfigError(text)
+        if kind == "error":
+            raise MocapflowError(text)
+        raise MocapflowError(f"SQL: the query process failed: {text}")
+    finally:
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+        recv.close()
+        shutil.rmtree(tmp, ignore_errors=True)

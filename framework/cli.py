@@ -170,21 +170,24 @@ def cmd_plugins(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> in
 def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
     if not Path(args.workspace).exists():  # the common typo, answered before pyarrow and duckdb load
         raise ConfigError(f"workspace {args.workspace} does not exist (run a pipeline first)")
-    from .catalog import Catalog, format_table
+    from .catalog import Catalog, format_table, limited_query
     from .workspace import export_table, refuse_dataset_path
 
     if args.output:  # refuse what cannot be written before the work
         out = Path(args.output)
-        refuse_dataset_path(out, "--output")
+        refuse_dataset_path(out, "--output", workspaces=[args.workspace])
         if out.is_dir():
             raise ConfigError(f"--output {out} is a directory: give a file name (e.g. {out / 'result.csv'})")
         if args.format == "table" and out.suffix.lower() not in (".csv", ".parquet", ""):
             raise ConfigError(f"--output {out}: unknown format {out.suffix!r}; use .csv or .parquet, or --format")
-    with Catalog(args.workspace, timeout=args.timeout or None, memory_limit=args.memory_limit) as cat:
-        if not args.query:
+    if not args.query:
+        with Catalog(args.workspace) as cat:
             _echo("views: " + ", ".join(sorted(cat.views)))
-            return 0
-        table = cat.query(args.query, args.param or None)
+        return 0
+    # in a child process whose address space is capped and which is killed past --timeout
+    table = limited_query(
+        args.workspace, args.query, args.param or None, timeout=args.timeout or None, memory_limit=args.memory_limit
+    )
     if args.output:
         fmt = args.format if args.format != "table" else Path(args.output).suffix.lstrip(".").lower() or "csv"
         Path(args.output).parent.mkdir(parents=True, exist_ok=True)  # a new folder is made, as a user expects
@@ -443,15 +446,30 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"mocapflow: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, (ConfigError, PluginError)) else 1
-    except Exception as exc:  # a bug: say so briefly, full traceback with --debug
+    except OSError as exc:  # a path the user gave that the system refuses (too long, not a folder...)
+        if exc.filename is None:
+            return _internal_error(exc, debug)
         if debug:
             traceback.print_exc()
-        else:
-            print(
-                f"mocapflow: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)",
-                file=sys.stderr,
-            )
-        return 3
+        name = str(exc.filename)
+        print(
+            f"mocapflow: error: {name[:120]}{'...' if len(name) > 120 else ''}: {exc.strerror or exc}", file=sys.stderr
+        )
+        return 1
+    except Exception as exc:  # a bug: say so briefly, full traceback with --debug
+        return _internal_error(exc, debug)
+
+
+def _internal_error(exc: BaseException, debug: bool) -> int:
+    """A bug: said briefly (exit 3), the full traceback with ``--debug``."""
+    if debug:
+        traceback.print_exc()
+    else:
+        print(
+            f"mocapflow: internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)",
+            file=sys.stderr,
+        )
+    return 3
 
 
 if __name__ == "__main__":  # pragma: no cover

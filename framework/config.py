@@ -27,6 +27,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from .errors import ConfigError
 
 _STEP_ID = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*$")
+#: The longest step id: it names a folder (``<step>-<8 hex>`` while written), well under the
+#: 255 bytes a file name may take on common filesystems.
+MAX_STEP_ID = 100
 
 
 class StepConfig(BaseModel):
@@ -66,7 +69,13 @@ class PipelineConfig(BaseModel):
         for sid in steps:
             if not _STEP_ID.match(str(sid)):
                 raise ValueError(
-                    f"step id {sid!r} must start with a letter or _ and hold only letters, digits, _ and -"
+                    f"step id {str(sid)[:40]!r}{'...' if len(str(sid)) > 40 else ''} must start with a letter "
+                    "or _ and hold only letters, digits, _ and -"
+                )
+            if len(str(sid)) > MAX_STEP_ID:
+                raise ValueError(
+                    f"step id {str(sid)[:40]!r}... has {len(str(sid))} characters; at most {MAX_STEP_ID} "
+                    "(it names the step's folder)"
                 )
         return steps
 

@@ -9,8 +9,10 @@ rate, half-open; both null for a label of the whole clip).
 from __future__ import annotations
 
 import csv
+import io
+import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -45,46 +47,125 @@ def pattern_labels(pattern: str, clips: Sequence[Mapping[str, Any]]) -> pa.Table
     return pa.Table.from_pylist(rows, schema=LABELS)
 
 
-def _frame(text: str, fps: float, path: Path, line: int, column: str) -> int:
+#: The largest frame a label may name (the ``labels`` table stores int32 frames).
+_MAX_FRAME = 2**31 - 1
+
+
+def _seconds(text: str, path: Path, line: int, column: str) -> float:
     try:
         seconds = float(text)
     except ValueError:
         raise ParseError(path, line, f"column {column!r}: expected seconds (a number), got {text!r}") from None
+    if not math.isfinite(seconds):
+        raise ParseError(path, line, f"column {column!r}: expected seconds (a finite number), got {text!r}")
     if seconds < 0:
         raise ParseError(path, line, f"column {column!r}: expected seconds >= 0, got {text!r}")
-    return int(round(seconds * fps))
+    return seconds
 
 
-def csv_labels(path: str | Path, clips: Sequence[Mapping[str, Any]]) -> pa.Table:
-    """Rows of a labels CSV for the given clips (dicts with ``clip_id, name, path, fps``).
+def _frame(seconds: float, fps: float, path: Path, line: int, column: str, clip: Mapping[str, Any]) -> int:
+    """``seconds`` as a frame of ``clip`` (at ``fps``), checked against the clip's length."""
+    frame = seconds * fps
+    if not frame <= _MAX_FRAME:  # inf too
+        raise ParseError(path, line, f"column {column!r}: {seconds:g} s is beyond any clip ({fps:g} fps)")
+    n = clip.get("n_frames")
+    if n is not None and n != "":
+        n = int(n)
+        # a start must fall inside the clip, an end at most at its end (half-open spans)
+        last = n - 1 if column == "start" else n
+        if round(frame) > last:
+            raise ParseError(
+                path,
+                line,
+                f"column {column!r}: {seconds:g} s is past the end of clip {clip.get('name')!r} "
+                f"({n} frames, {n / fps:g} s at {fps:g} fps); expected a time within the clip",
+            )
+    return int(round(frame))
 
-    Columns (header required): ``clip`` (a clip name, ``02_01``, or the end of its file path,
-    ``02/02_01.amc``), ``label``, and optionally ``start``, ``end`` (seconds; empty or absent:
-    the whole clip). Rows naming a clip this ingest did not read are skipped (one CSV can
-    label a whole corpus); a CSV that labels none of them is an error.
-    """
-    path = Path(path)
+
+def _read_text(path: Path) -> str:
+    """The file as UTF-8 text; a byte that is not UTF-8 is a :class:`ParseError` at its line."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        data = path.read_bytes()
     except OSError as exc:
         raise ConfigError(f"labels file {path}: {exc.strerror or exc}") from None
-    reader = csv.DictReader(text.splitlines())
-    header = [h.strip() for h in reader.fieldnames or []]
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise ParseError(
+            path,
+            line,
+            f"expected UTF-8 text, got byte 0x{data[exc.start]:02x} (a latin-1 or Windows file? save it as UTF-8)",
+        ) from None
+
+
+def _csv_rows(path: Path) -> Iterator[tuple[int, dict[str, str]]]:
+    """``(line, row)`` of each non-blank row of a labels CSV, each with a clip and a label;
+    a :class:`ParseError` for a bad header or row."""
+    reader = csv.reader(io.StringIO(_read_text(path), newline=""), strict=True)
+    try:
+        raw_header = next(reader, [])
+    except csv.Error as exc:
+        raise ParseError(path, reader.line_num or 1, f"expected a CSV header: {exc}") from None
+    header = [h.strip() for h in raw_header]
     missing = [c for c in ("clip", "label") if c not in header]
     if missing:
         raise ParseError(
             path, 1, f"expected a header with columns clip,label[,start,end]; missing {', '.join(missing)}"
         )
+    while True:
+        try:
+            fields = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise ParseError(path, reader.line_num, f"expected a CSV row: {exc}") from None
+        line = reader.line_num
+        if not any(f.strip() for f in fields):
+            continue  # a blank line
+        if len(fields) > len(header):
+            raise ParseError(
+                path,
+                line,
+                f"expected {len(header)} fields ({','.join(header)}), got {len(fields)}: "
+                "quote a value that holds a comma",
+            )
+        row = {k: v.strip() for k, v in zip(header, fields, strict=False)}  # fewer fields: empty
+        row.setdefault("clip", "")
+        row.setdefault("label", "")
+        if not row["clip"] or not row["label"]:
+            raise ParseError(path, line, "expected a clip and a label")
+        bad = next((ch for ch in row["clip"] + row["label"] if not ch.isprintable()), None)
+        if bad is not None:
+            raise ParseError(path, line, f"expected printable text for the clip and label, got {bad!r}")
+        yield line, row
+
+
+def csv_labels(path: str | Path, clips: Sequence[Mapping[str, Any]]) -> pa.Table:
+    """Rows of a labels CSV for the given clips (dicts with ``clip_id, name, path, fps`` and
+    ``n_frames``: spans are checked against it).
+
+    Columns (header required): ``clip`` (a clip name, ``02_01``, or the end of its file path,
+    ``02/02_01.amc``), ``label``, and optionally ``start``, ``end`` (seconds; empty or absent:
+    the whole clip). Rows naming a clip this ingest did not read are skipped (one CSV can
+    label a whole corpus); a CSV that labels none of them is an error. Every bad row is a
+    :class:`ParseError` naming the file, the line and what was expected: a field more than the
+    header has, a time that is not a finite number >= 0, a span that ends before it starts or
+    lies past the clip's end, a byte that is not UTF-8.
+    """
+    path = Path(path)
     by_name: dict[str, list[Mapping[str, Any]]] = {}
     for c in clips:
         by_name.setdefault(str(c["name"]), []).append(c)
         by_name.setdefault(Path(str(c.get("path", ""))).name, []).append(c)
     rows = []
-    for line, raw in enumerate(reader, start=2):
-        row = {(k or "").strip(): (v or "").strip() for k, v in raw.items()}
-        key, label = row.get("clip", ""), row.get("label", "")
-        if not key or not label:
-            raise ParseError(path, line, "expected a clip and a label")
+    for line, row in _csv_rows(path):
+        key, label = row["clip"], row["label"]
+        start_s = _seconds(row["start"], path, line, "start") if row.get("start") else None
+        end_s = _seconds(row["end"], path, line, "end") if row.get("end") else None
+        if start_s is not None and end_s is not None and end_s <= start_s:
+            raise ParseError(path, line, f"end ({row['end']} s) must come after start ({row['start']} s)")
         wanted = key.replace("\\", "/")
         found = [
             c
@@ -93,12 +174,17 @@ def csv_labels(path: str | Path, clips: Sequence[Mapping[str, Any]]) -> pa.Table
         ]
         for c in {id(c): c for c in found}.values():
             fps = float(c["fps"])
-            start = _frame(row["start"], fps, path, line, "start") if row.get("start") else None
-            end = _frame(row["end"], fps, path, line, "end") if row.get("end") else None
-            if start is not None and end is not None and end <= start:
-                raise ParseError(path, line, f"end ({row['end']} s) must come after start ({row['start']} s)")
+            start = _frame(start_s, fps, path, line, "start", c) if start_s is not None else None
+            end = _frame(end_s, fps, path, line, "end", c) if end_s is not None else None
             if (start is None) != (end is None):
                 start, end = start or 0, end if end is not None else int(c.get("n_frames", 0))
+            if start is not None and end is not None and end <= start:
+                raise ParseError(
+                    path,
+                    line,
+                    f"the span {row.get('start') or 0}-{row.get('end') or 'end'} s of clip {c['name']!r} "
+                    f"is shorter than a frame at {fps:g} fps",
+                )
             rows.append(
                 {"clip_id": c["clip_id"], "name": c["name"], "start_frame": start, "end_frame": end, "label": label}
             )

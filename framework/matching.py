@@ -383,8 +383,30 @@ class QuerySpec:
         return f"{self.source}:{int(self.start)}-{int(self.end)}"
 
 
+#: The longest query text, and the longest name between two ``/`` in it (a file name's limit).
+MAX_QUERY_CHARS, MAX_QUERY_NAME_BYTES = 4096, 255
+
+
+def _check_query_source(text: str) -> None:
+    shown = f"{text[:40]!r}{'...' if len(text) > 40 else ''}"
+    if not text.strip():
+        raise ConfigError("query: expected a motion file or a database clip, got an empty string")
+    if "\x00" in text:
+        raise ConfigError(f"query {shown}: a NUL character cannot be in a file or clip name")
+    if len(text) > MAX_QUERY_CHARS:
+        raise ConfigError(f"query {shown}: {len(text)} characters; at most {MAX_QUERY_CHARS}")
+    longest = max(len(part.encode("utf-8", "surrogateescape")) for part in text.split("/"))
+    if longest > MAX_QUERY_NAME_BYTES:
+        raise ConfigError(
+            f"query {shown}: a name of {longest} bytes; a file or clip name has at most {MAX_QUERY_NAME_BYTES}"
+        )
+
+
 def parse_query_spec(text: str) -> QuerySpec:
-    """``"walk.amc:30-120"`` -> ``QuerySpec("walk.amc", 30, 120)``; no range: the whole clip."""
+    """``"walk.amc:30-120"`` -> ``QuerySpec("walk.amc", 30, 120)``; no range: the whole clip.
+    A source that cannot name a file or clip (empty, a NUL character, a name longer than a
+    file name may be) is a :class:`ConfigError`."""
+    _check_query_source(text)
     source, sep, rng = text.rpartition(":")
     m = _RANGE.match(rng) if sep else None
     if not m:

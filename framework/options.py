@@ -23,8 +23,14 @@ SQL_TIMEOUT_S = 300.0
 SQL_MEMORY_LIMIT = "4GB"
 
 
-def int_at_least(lo: int) -> Callable[[str], int]:
-    """An argparse ``type``: an integer >= ``lo``."""
+#: The largest value a numeric option takes (an integer fits a C int; a number of seconds is
+#: 31 years): past it a count or a time is a typo, and the system calls it reaches overflow.
+MAX_INT_OPTION = 2**31 - 1
+MAX_FLOAT_OPTION = 1e9
+
+
+def int_at_least(lo: int, most: int = MAX_INT_OPTION) -> Callable[[str], int]:
+    """An argparse ``type``: an integer >= ``lo`` (and <= ``most``)."""
 
     def parse(text: str) -> int:
         try:
@@ -33,15 +39,19 @@ def int_at_least(lo: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"expected an integer >= {lo}, got {text!r}") from None
         if value < lo:
             raise argparse.ArgumentTypeError(f"expected an integer >= {lo}, got {text!r}")
+        if value > most:
+            raise argparse.ArgumentTypeError(f"expected an integer <= {most}, got {text!r}")
         return value
 
     parse.__name__ = f"integer >= {lo}"
     return parse
 
 
-def float_at_least(lo: float, *, above: bool = False, infinite: bool = False) -> Callable[[str], float]:
-    """An argparse ``type``: a number >= ``lo`` (``above``: > ``lo``; ``infinite``: ``inf``
-    allowed)."""
+def float_at_least(
+    lo: float, *, above: bool = False, infinite: bool = False, most: float = MAX_FLOAT_OPTION
+) -> Callable[[str], float]:
+    """An argparse ``type``: a number >= ``lo`` (``above``: > ``lo``) and <= ``most``
+    (``infinite``: ``inf`` allowed too)."""
     what = f"a number {'>' if above else '>='} {lo:g}"
 
     def parse(text: str) -> float:
@@ -51,6 +61,8 @@ def float_at_least(lo: float, *, above: bool = False, infinite: bool = False) ->
             raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
         if math.isnan(value) or (math.isinf(value) and not infinite) or value < lo or (above and value == lo):
             raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        if value > most and not math.isinf(value):
+            raise argparse.ArgumentTypeError(f"expected {what} and <= {most:g}, got {text!r}")
         return value
 
     parse.__name__ = what

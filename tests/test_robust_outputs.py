@@ -151,3 +151,123 @@ def test_report_copies_no_symlinked_plot(workspace, tmp_path):
     assert copied == {"real.png"}
     assert not any(b"root:x" in p.read_bytes() for p in site.rglob("*") if p.is_file())
     assert (workspace / "summary" / MANIFEST).is_file()
+
+
+# --- outputs checked by identity (issue 39): hard links, links anywhere on the path, links
+# inside an output folder; the workspace stays byte-identical after every refusal
+
+
+def _links(workspace: Path, tmp_path: Path) -> dict[str, Path]:
+    """Hostile output targets: other names of the workspace's files and folders."""
+    out = tmp_path / "hostile"
+    out.mkdir()
+    hard = out / "hard.png"
+    hard.hardlink_to(workspace / "summary" / "data.parquet")
+    (out / "mid").symlink_to(workspace / "summary", target_is_directory=True)
+    folder = out / "dir_with_link"
+    folder.mkdir()
+    (folder / "index.csv").symlink_to(workspace / "summary" / "data.parquet")
+    folder2 = out / "dir_with_dir_link"
+    folder2.mkdir()
+    (folder2 / "q0").symlink_to(workspace / "motions", target_is_directory=True)
+    folder3 = out / "dir_with_hard_link"
+    folder3.mkdir()
+    (folder3 / "index.csv").hardlink_to(workspace / "motions" / MANIFEST)
+    return {
+        "hard": hard,
+        "mid": out / "mid" / "deeper" / "x.png",
+        "dir_link": folder,
+        "dir_dir_link": folder2,
+        "dir_hard_link": folder3,
+    }
+
+
+def test_refuse_dataset_path_by_identity(workspace, tmp_path):
+    from mocapflow.framework.workspace import refuse_dataset_path
+
+    bad = _links(workspace, tmp_path)
+    with pytest.raises(ConfigError, match="data.parquet of a mocapflow workspace under another name"):
+        refuse_dataset_path(bad["hard"], "--plot", workspaces=[workspace])
+    with pytest.raises(ConfigError, match="hard links"):  # the workspace unknown: the link count refuses
+        refuse_dataset_path(bad["hard"], "--plot")
+    with pytest.raises(ConfigError, match="dataset"):
+        refuse_dataset_path(bad["mid"], "--plot")
+    for key in ("dir_link", "dir_dir_link", "dir_hard_link"):
+        refuse_dataset_path(bad[key] / "new.csv", "-o")  # a new file beside the links is fine
+        with pytest.raises(ConfigError, match="-o"):
+            refuse_dataset_path(bad[key], "-o", directory=True)
+    clean = tmp_path / "clean_dir"
+    (clean / "sub").mkdir(parents=True)
+    (clean / "sub" / "a.bvh").write_text("x")
+    (clean / "sub" / "up").symlink_to(clean, target_is_directory=True)  # a loop: visited once
+    assert refuse_dataset_path(clean, "-o", directory=True) == clean
+
+
+@pytest.mark.parametrize("kind", ["hard", "mid"])
+def test_sql_output_through_links_refused(workspace, tmp_path, capsys, kind):
+    bad = _links(workspace, tmp_path)
+    before = _snapshot(workspace)
+    args = ["--no-entry-points", "sql", str(workspace), "SELECT 1 AS x", "--format", "csv", "-o", str(bad[kind])]
+    assert main(args) == 2
+    assert "--output" in capsys.readouterr().err
+    assert _snapshot(workspace) == before
+
+
+@pytest.mark.parametrize("kind", ["hard", "mid"])
+def test_search_plot_and_out_through_links_refused(workspace, tmp_path, kind):
+    from mocapflow.plugins.similarity.search.search_command import SearchSession
+
+    bad = _links(workspace, tmp_path)
+    before = _snapshot(workspace)
+
+    class Session(SearchSession):
+        def __init__(self):
+            self.db = workspace
+            self.idx = argparse.Namespace(step="index")
+
+    for key in ("out", "plot"):
+        args = argparse.Namespace(query="x.bvh", out=None, plot=None)
+        setattr(args, key, str(bad[kind]))
+        with pytest.raises(ConfigError, match=f"--{key}"):
+            Session().answer(args, tmp_path, io.StringIO(), io.StringIO())
+    assert _snapshot(workspace) == before
+
+
+@pytest.mark.parametrize("kind", ["dir_link", "dir_dir_link", "dir_hard_link", "mid"])
+def test_export_and_report_into_a_folder_with_links_refused(workspace, tmp_path, capsys, kind):
+    bad = _links(workspace, tmp_path)
+    before = _snapshot(workspace)
+    out = str(bad[kind])
+    assert main(["--no-entry-points", "export", str(workspace), "--step", "summary", "-o", out]) == 2
+    assert main(["--no-entry-points", "report", str(workspace), "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert err.count("--output") >= 2 and "Traceback" not in err
+    assert _snapshot(workspace) == before
+
+
+@pytest.mark.parametrize("kind", ["hard", "mid"])
+def test_clean_and_reconstruct_through_links_refused(workspace, tmp_path, capsys, kind):
+    bad = _links(workspace, tmp_path)
+    target = bad[kind].with_suffix(".bvh") if kind == "mid" else bad[kind]
+    if kind == "hard":
+        target = target.with_name("hard.bvh")
+        target.hardlink_to(workspace / "summary" / "data.parquet")
+    before = _snapshot(workspace)
+    take = tmp_path / "take.trc"
+    take.write_text("not read: the output is refused first")
+    assert main(["--no-entry-points", "clean", str(take), "--output", str(target)]) == 2
+    assert main(["--no-entry-points", "reconstruct", str(take), "--prior", str(tmp_path), "-o", str(target)]) == 2
+    assert main(["--no-entry-points", "clean", str(take), "--output", "x.bvh", "--report", str(bad["dir_link"])]) == 2
+    capsys.readouterr()
+    assert _snapshot(workspace) == before
+
+
+def test_run_workspace_inside_a_step_folder_refused(workspace, tmp_path):
+    p = tmp_path / "p2.yaml"
+    p.write_text(textwrap.dedent(PIPE))
+    link = tmp_path / "inner"
+    link.symlink_to(workspace / "summary", target_is_directory=True)
+    before = _snapshot(workspace)
+    with pytest.raises(ConfigError, match="dataset"):
+        run_pipeline(p, workspace=link / "ws", pm=get_plugin_manager(entry_points=False, extra=[ToyPlugin()]))
+    assert _snapshot(workspace) == before

@@ -43,7 +43,7 @@ class ExportCommand:
         if args.handle < 0 or (args.top is not None and args.top < 1):
             raise ConfigError("--handle must be >= 0 and --top >= 1")
         if args.output:  # refused before any work
-            refuse_dataset_path(args.output, "--output")
+            refuse_dataset_path(args.output, "--output", workspaces=[ws], directory=True)
         datasets = read_datasets(ws)
         step = args.step or _only_segment_step(datasets, ws)
         if step not in datasets:
@@ -52,7 +52,9 @@ class ExportCommand:
         pm = getattr(args, "plugin_manager", None) or get_plugin_manager()
         regs = build_registries(pm)
         readers = _reader_params(datasets, step)
-        out = refuse_dataset_path(Path(args.output) if args.output else ws / "export" / step, "--output")
+        out = refuse_dataset_path(
+            Path(args.output) if args.output else ws / "export" / step, "--output", workspaces=[ws], directory=True
+        )
         index = export_segments(segments, out, regs, handle=args.handle, format=args.format, readers=readers)
         queries = len(set(index["query"].to_pylist()))
         print(

@@ -62,8 +62,8 @@ def build_report(workspace: str | Path, output: str | Path | None = None) -> dic
     from .site import write_site
 
     ws = Path(workspace)
+    dest = refuse_dataset_path(ws / "report" if output is None else output, "--output", workspaces=[ws], directory=True)
     datasets, clips, rejects = workspace_tables(ws)
-    dest = refuse_dataset_path(output, "--output") if output is not None else ws / "report"
     model = ModelBuilder(datasets, clips, rejects).build(title=ws.resolve().name)
     info = write_site(model, ws, dest)
     return {**info, "steps": len(model.page["steps"])}

@@ -82,7 +82,7 @@ class CleanCommand:
 
         dest = refuse_dataset_path(args.output, "--output")
         if args.report:
-            refuse_dataset_path(args.report, "--report")
+            refuse_dataset_path(args.report, "--report", directory=True)
         if dest.suffix.lower() not in _OUTPUT_KINDS:
             raise ConfigError(
                 f"--output {args.output}: the cleaned take is written as .bvh or .amc, "

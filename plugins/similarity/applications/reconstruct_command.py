@@ -34,7 +34,11 @@ class ReconstructCommand:
         parser.add_argument("-o", "--out", required=True, help="output take (.bvh or .amc)")
         parser.add_argument("--skeleton", help="output skeleton: .asf, or a .bvh/.amc take (default: the input's)")
         parser.add_argument("--marker-set", default="auto", help="vicon, opensim, isb or auto (default)")
-        parser.add_argument("-k", type=int, default=64, help="neighbours of the local model (default 64)")
+        from mocapflow.framework.options import int_at_least
+
+        parser.add_argument(
+            "-k", type=int_at_least(2), default=64, help="neighbours of the local model (default 64; at least 2)"
+        )
 
     @classmethod
     def run(cls, args: argparse.Namespace) -> int:

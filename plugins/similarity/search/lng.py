@@ -31,6 +31,10 @@ from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace
 from .graph import build_graph
 from .matcher_base import match_kw
 
+#: The most neighbours per query frame a graph may ask the index for: k x the query's frames
+#: neighbour ids are held at once (4096 x a 1000-frame query: 33 MB).
+MAX_K = 4096
+
 #: gap band of the default graph, in query frames (measured: docs/global-matching.md)
 GAPS = 32
 #: the default graph searches the index on every this-many-th query frame
@@ -84,7 +88,7 @@ class LazyNeighborhoodGraph(Matcher):
     needs_features: ClassVar[bool] = True
 
     class Params(MatchParams):
-        k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
+        k: int = Field(256, ge=1, le=MAX_K, description="maximum neighbours per query frame (paper: k)")
         paper: bool = Field(
             False,
             description=(

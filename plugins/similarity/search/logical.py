@@ -26,7 +26,7 @@ from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import IntervalSet, MatchParams, QueryMatches, SearchSpace, matches_table
 from mocapflow.framework.queries import features_dataset, queries_table, search_space, step_queries, upstream
 
-from .lng import GAPS, PROPAGATE, lazy_neighborhood_graph
+from .lng import GAPS, MAX_K, PROPAGATE, lazy_neighborhood_graph
 from .matcher_base import match_kw
 
 
@@ -140,7 +140,7 @@ class LogicalSearch(Matcher):
     needs_features: ClassVar[bool] = True
 
     class Params(MatchParams):
-        k: int = Field(256, ge=1, description="maximum neighbours per query frame of each round's graph")
+        k: int = Field(256, ge=1, le=MAX_K, description="maximum neighbours per query frame of each round's graph")
         rounds: int = Field(3, ge=1, description="maximum search rounds (1: numerical search only)")
         max_matches: int = Field(100, ge=1, description="stop once this many distinct segments were found")
         count: int = Field(10, ge=1, description="matches kept per query and round")

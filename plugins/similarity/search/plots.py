@@ -133,7 +133,10 @@ def plot_neighborhood(
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
+    from mocapflow.framework.workspace import atomic_path
+
+    with atomic_path(out) as tmp:  # a new file renamed over the name: never writes through a link
+        fig.savefig(tmp, format=out.suffix.lstrip(".").lower() or "png")
     plt.close(fig)
     return out
 

@@ -308,8 +308,15 @@ class SearchSession:
         from mocapflow.framework.workspace import refuse_dataset_path
 
         # refused before the work, also when a server answers for a client (its cwd)
-        out_path = refuse_dataset_path(Path(cwd) / Path(args.out).expanduser(), "--out") if args.out else None
-        plot_path = refuse_dataset_path(Path(cwd) / Path(args.plot).expanduser(), "--plot") if args.plot else None
+        ws = [self.db] if getattr(self, "db", None) is not None else []
+        out_path = (
+            refuse_dataset_path(Path(cwd) / Path(args.out).expanduser(), "--out", workspaces=ws) if args.out else None
+        )
+        plot_path = (
+            refuse_dataset_path(Path(cwd) / Path(args.plot).expanduser(), "--plot", workspaces=ws)
+            if args.plot
+            else None
+        )
         matcher = self.matcher(args)
         space = self.space(matcher)
         query = self.query(args.query, cwd)

@@ -26,6 +26,7 @@ import argparse
 import contextlib
 import io
 import json
+import math
 import os
 import socket
 import stat
@@ -66,6 +67,9 @@ _TYPES: dict[str, tuple[type, ...]] = {
     "min_span": (int, float),
     "paper": (bool,),
 }
+#: the least value of each numeric option (as the CLI's argparse types); upper bounds are the
+#: components' own (a matcher's ``k``), checked when it is built from the options
+_LEAST = {"count": 1, "k": 1, "min_span": 0}
 #: seconds a client may take to send its request (a stalled one is dropped, never waited on)
 REQUEST_TIMEOUT = 10.0
 #: largest request accepted, bytes
@@ -116,6 +120,10 @@ def _request(raw: bytes) -> tuple[argparse.Namespace, Path]:
         if v is not None and (not isinstance(v, _TYPES[k]) or (isinstance(v, bool) and bool not in _TYPES[k])):
             want = " or ".join(t.__name__ for t in _TYPES[k])
             raise ConfigError(f"search server: request option {k!r}: expected {want}, got {v!r}")
+        if k in _LEAST and v is not None and not (math.isfinite(v) and v >= _LEAST[k]):
+            raise ConfigError(f"search server: request option {k!r}: expected a number >= {_LEAST[k]}, got {v!r}")
+        if isinstance(v, str) and "\x00" in v:
+            raise ConfigError(f"search server: request option {k!r}: a NUL character in {v[:40]!r}")
         vals[k] = v
     if not vals["query"]:
         raise ConfigError("--query is required (except with --serve)")
