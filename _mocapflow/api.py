@@ -151,36 +151,41 @@ class Database:
 
         A query cut from a database clip (same source file) finds no match overlapping its
         own span widened by half its length on each side (``exclude_self="span"``), none in
-        its clip (``"clip"``), or itself too (``"off"``).
+        its clip (``"clip"``), or itself too (``"off"`` or ``False``).
 
         Returns :class:`Matches`: the match table in the clips' own units (``fps``, source
-        frames ``start_frame``/``end_frame`` half-open, ``start_s``/``end_s`` seconds), ready
-        to :meth:`~Matches.export`.
+        frames ``start_frame``/``end_frame`` half-open, ``start_s``/``end_s`` seconds; the
+        analysis-rate frames in ``*_analysis`` columns), ready to :meth:`~Matches.export`;
+        an empty result says why in ``.reason``.
         """
-        from mocapflow.framework.matching import (
-            drop_excluded,
-            excluding,
-            in_source_units,
-            matches_table,
-            self_rows,
-        )
+        from mocapflow.framework.matching import in_source_units, matches_table
         from mocapflow.framework.normalize import resample
+        from mocapflow.framework.queries import Query, exclude_mode, match_query
 
+        mode = exclude_mode(exclude_self)
         q = _motions(query)[0]
         first = int(q.metadata.get("source_start_frame", 0))
         label = f"{q.name or 'query'}:{first}-{first + q.n_frames}" if "source_start_frame" in q.metadata else q.name
-        rows = self_rows(self.space, *self._own_span(q), exclude_self)
+        own, a, b = self._own_span(q)
+        n_src = q.n_frames
         q = resample(q, self.fps) if self.fps else q
-        m = registries()["matchers"].get(matcher)({"count": count, **params})
-        with excluding(rows):
-            res = drop_excluded(m.match(self.feature_set.transform(q), self.space), rows)
-        table = matches_table([0], [res], self.space)
+        cls = registries()["matchers"].get(matcher)
+        if "exclude_self" in cls.Params.model_fields:
+            params["exclude_self"] = mode
+        m = cls({"count": count, **params})
+        x = self.feature_set.transform(q)
+        res = match_query(
+            m, Query(label or "query", x, own, first, first + n_src, a, b), self.space, own, exclude_self=mode
+        )
+        table = matches_table([0], [res.matches], self.space)
         rates = {
-            int(c): (a.fps, s.fps, s.n_frames)
+            int(c): (a.fps, s.metadata.get("source_fps", s.fps), s.metadata.get("source_frames", s.n_frames))
             for c, a, s in zip(self.motions.clip_ids, self.motions, self.sources, strict=True)
         }
         table = in_source_units(table, rates)
-        return Matches(table.add_column(3, "clip", pa_names(table, self.clip_names)), self, label or "query")
+        return Matches(
+            table.add_column(3, "clip", pa_names(table, self.clip_names)), self, label or "query", res.reason
+        )
 
     def _own_span(self, q) -> tuple[int, int, int]:
         """``(clip_id, start, end)`` of ``q`` in database frames when it is cut from a clip
@@ -204,28 +209,47 @@ def pa_names(table, names: dict[int, str]):
     return pa.array([names[c] for c in table["clip_id"].to_pylist()], pa.string())
 
 
+#: Columns of :class:`Matches` renamed when frame columns were unified: old -> new (the old
+#: name still works in ``Matches[...]`` for one release, with a warning).
+RENAMED_COLUMNS = {"analysis_fps": "fps_analysis", "analysis_path": "path_analysis"}
+
+
 class Matches:
     """The matches of one search (:meth:`Database.search`): ``.table`` (pyarrow) in the clips'
     own units; table methods (``select``, ``to_pylist``, ``num_rows``...) work on it directly."""
 
-    def __init__(self, table, database: Database, query: str) -> None:
+    def __init__(self, table, database: Database, query: str, reason: str = "") -> None:
         self.table = table
         self.database = database
         self.query = query
+        #: why there is no match (empty when there are matches)
+        self.reason = reason
 
     def __getattr__(self, name: str):
-        if name.startswith("__") or name in ("table", "database", "query"):  # copy/pickle before __init__
+        if name.startswith("__") or name in ("table", "database", "query", "reason"):  # copy/pickle before __init__
             raise AttributeError(name)
         return getattr(self.table, name)
 
     def __getitem__(self, key):
+        if isinstance(key, str) and key in RENAMED_COLUMNS:
+            import warnings
+
+            warnings.warn(
+                f"Matches[{key!r}] is deprecated; use Matches[{RENAMED_COLUMNS[key]!r}]",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            key = RENAMED_COLUMNS[key]
         return self.table[key]
 
     def __len__(self) -> int:
         return self.table.num_rows
 
     def __repr__(self) -> str:
-        return f"Matches({self.query!r}, {self.table.num_rows} rows)\n{self.table.drop_columns(['analysis_path'])}"
+        head = f"Matches({self.query!r}, {self.table.num_rows} rows)"
+        if self.reason:
+            head += f": no match: {self.reason}"
+        return f"{head}\n{self.table.drop_columns(['path_analysis'])}"
 
     def export(self, out_dir: str | Path, *, handle: int = 0, format: str | None = None, top: int | None = None):
         """Write each match as a clip under ``out_dir/<query>/`` in its source's own format

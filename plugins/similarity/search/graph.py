@@ -44,9 +44,16 @@ class NeighborhoodGraph:
         return int(self.count.sum())
 
     def matches(
-        self, *, count: int = 10, max_cost: float | None = None, rank_by: str = "cost", min_span: float = 0.5
+        self,
+        *,
+        count: int = 10,
+        max_cost: float | None = None,
+        rank_by: str = "cost",
+        min_span: float = 0.5,
+        excluded: tuple[int, int] | None = None,
     ) -> QueryMatches:
-        """Ranked non-overlapping matches ending in the last layer (see :func:`.select_matches`); ``end`` exclusive."""
+        """Ranked non-overlapping matches ending in the last layer, none overlapping the
+        ``excluded`` rows (see :func:`.select_matches`); ``end`` exclusive."""
         from ._lng_kernels import lng_backtrack
 
         last = self.ids.shape[0] - 1
@@ -61,6 +68,7 @@ class NeighborhoodGraph:
             max_cost=max_cost,
             rank_by=rank_by,
             min_frames=min_frames_of(min_span, self.ids.shape[0]),
+            excluded=excluded,
         )
         paths = [lng_backtrack(self.ids, self.pred, last, int(a)) for a in keep]
         return QueryMatches(

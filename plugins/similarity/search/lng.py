@@ -62,7 +62,7 @@ def lazy_neighborhood_graph(
     propagate=0, fill=False, min_span=0``.
     """
     graph = build_graph(query, space, k=k, radius=radius, propagate=propagate, gaps=gaps)
-    res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
+    res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span, excluded=space.excluded)
     if fill and len(res) < count and space.features is not None:
         from .certified import certified_sdtw
 

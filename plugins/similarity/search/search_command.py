@@ -205,7 +205,7 @@ class SearchSession:
         self.paths = {r["path"]: r["clip_id"] for r in clips.select(["clip_id", "path"]).to_pylist() if r["path"]}
         self.fps = float(clips["fps"][0].as_py()) if clips.num_rows else None
         self._stamp = self.stamp()
-        self._index = self._rows = self._feature_set = self._mdb = None
+        self._index = self._feature_set = self._mdb = None
         self._spaces: dict[tuple[bool, bool], object] = {}
 
     def stamp(self) -> tuple:
@@ -226,27 +226,17 @@ class SearchSession:
         """The persisted index, loaded once (memory-mapped by the index class, no rebuild)."""
         if self._index is None:
             self._index = self.idx.index(self.regs)
-            rows = getattr(self._index, "rows", None)
-            self._rows = rows() if rows is not None else None
         return self._index
 
     def space(self, matcher):
-        """The matcher's search space, built once per (index, features) need: from the
-        index's memory-mapped row sidecars when it has them, else the matcher's own."""
-        from mocapflow.framework.matching import SearchSpace
+        """The matcher's search space (the core's :func:`~mocapflow.framework.queries.search_space`
+        over the loaded index), built once per (index, features) need."""
+        from mocapflow.framework.queries import MatchInputs, search_space
 
         key = (bool(matcher.needs_index), bool(matcher.uses_features()))
         if key not in self._spaces:
-            index = self.index()
-            if self._rows is not None:
-                x, clip_id, frame = self._rows
-                self._spaces[key] = SearchSpace(
-                    clip_id, frame, index if key[0] else None, x if key[1] else None, clip_names=self.names
-                )
-            else:
-                from mocapflow.framework.queries import search_space
-
-                self._spaces[key] = search_space(matcher, {"database": self.idx, "features": self.fds}, self.regs)
+            inputs = MatchInputs(self.idx, self.fds, self.mds)
+            self._spaces[key] = search_space(matcher, inputs, self.regs, index=self.index())
         return self._spaces[key]
 
     def feature_set(self):
@@ -304,7 +294,8 @@ class SearchSession:
     def answer(self, args: argparse.Namespace, cwd: Path, out: TextIO, err: TextIO) -> int:
         """Run the search of ``args`` and print its matches to ``out`` (notes to ``err``)."""
         from mocapflow.framework.errors import ConfigError
-        from mocapflow.framework.matching import drop_excluded, excluding, in_source_units, matches_table, self_rows
+        from mocapflow.framework.matching import in_source_units, matches_table
+        from mocapflow.framework.queries import match_query
         from mocapflow.framework.workspace import refuse_dataset_path
 
         # refused before the work, also when a server answers for a client (its cwd)
@@ -316,17 +307,16 @@ class SearchSession:
         own = query.clip_id
         if own < 0:  # a query file that is one of the database's takes
             own = self.paths.get(str((Path(cwd) / parse_source(args.query)).resolve()), -1)
-        mode = getattr(matcher.params, "exclude_self", "off")
-        rows = self_rows(space, own, query.start_frame, query.end_frame, mode)
-        with excluding(rows):
-            res = drop_excluded(matcher.match(query.features, space), rows)
+        found = match_query(matcher, query, space, own)
+        res, rows = found.matches, found.excluded
         table = in_source_units(matches_table([0], [res], space), self.rates)
         names = self.names
         mode_note = f" ({matcher.params.mode})" if hasattr(matcher.params, "mode") else ""
         print(
             f"query {query.name} ({len(query.features)} frames at {self.fps or 0:g} fps), {matcher.key()}{mode_note} on "
             f"{self.idx.step!r} ({space.n_rows} frames): {len(res)} matches"
-            + (" (its own span excluded)" if rows else ""),
+            + (" (its own span excluded)" if rows else "")
+            + (f": {found.reason}" if found.reason else ""),
             file=out,
         )
         # frames of each source file at its own rate (fps), and seconds from the take's start
@@ -384,9 +374,11 @@ def write_atomic(table, out: Path) -> None:
 
             pq.write_table(table, tmp)
         else:
+            import pyarrow as pa
             import pyarrow.csv as pcsv
 
-            pcsv.write_csv(table.drop_columns([c for c in ("path", "analysis_path") if c in table.column_names]), tmp)
+            nested = [c for c in table.column_names if pa.types.is_nested(table.schema.field(c).type)]
+            pcsv.write_csv(table.drop_columns(nested), tmp)
         os.replace(tmp, out)
     finally:
         if os.path.exists(tmp):
