@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import cached_property, partial
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -482,3 +482,56 @@ def queries_table(queries: list[Query]) -> pa.Table:
     file, then the analysis-rate frames."""
     rows = [{"query_id": i, **{k: getattr(q, k) for k in schema.QUERIES.names[1:]}} for i, q in enumerate(queries)]
     return pa.Table.from_pylist(rows, schema=schema.QUERIES)
+
+
+def query_spans_error(
+    component: Any, query_step: str | None, steps: Mapping[str, Any], base_dir: Path, registries: Registries
+) -> str | None:
+    """Plan-time check of a matcher's ``queries`` ranges against their takes: each
+    ``SOURCE:START-END`` naming a file (relative to ``base_dir``) or a take the ``query``
+    input loads (``steps``: planned steps with ``component`` and ``inputs``; the take is found
+    among the files of the first upstream step with a ``paths`` parameter) must lie within
+    the file's own frames. The error, or None (takes not found are checked at run time)."""
+    import glob
+
+    specs = [parse_query_spec(t) for t in getattr(component.params, "queries", []) or [] if isinstance(t, str)]
+    specs = [s for s in specs if s.start is not None]
+    if not specs or not isinstance(component, Matcher):
+        return None
+    files: list[Path] = []
+    todo, seen = [query_step], set()
+    while todo:  # the files the query input is read from: the nearest step with `paths`
+        sid = todo.pop(0)
+        if sid is None or sid in seen or sid not in steps:
+            continue
+        seen.add(sid)
+        paths = getattr(steps[sid].component.params, "paths", None)
+        if isinstance(paths, (list, tuple)) and paths:
+            for pat in paths:
+                p = Path(str(pat)).expanduser()
+                files += [
+                    Path(f) for f in sorted(glob.glob(str(p if p.is_absolute() else base_dir / p), recursive=True))
+                ]
+            break
+        todo += list(steps[sid].inputs.values())
+    for spec in specs:
+        direct = Path(spec.source).expanduser()
+        direct = direct if direct.is_absolute() else base_dir / direct
+        path = direct if direct.is_file() else None
+        for f in files if path is None else ():
+            if spec.source in (f.name, f.stem) or str(f).endswith("/" + spec.source):
+                path = f
+                break
+        if path is None:
+            continue
+        try:
+            motion = registries.motion_format(path).read(path)
+        except Exception:  # an unreadable take is reported by the step that reads it
+            continue
+        if not isinstance(motion, Motion):
+            continue
+        try:
+            query_segment(spec, motion, path.name)
+        except ConfigError as exc:
+            return str(exc)
+    return None
