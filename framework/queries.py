@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property, partial
 from pathlib import Path
 from typing import Any, Literal
@@ -457,6 +457,22 @@ def match_step_table(results: list[QueryMatches], space: SearchSpace, units: Cli
     for old, new in DEPRECATED_MATCH_COLUMNS.items():
         table = table.append_column(old, table[new])
     return table
+
+
+def in_user_units(out: StepOutput, inputs: Mapping[str, Dataset]) -> StepOutput:
+    """The output of a matcher's own ``run`` with its ``data`` table (when it starts with the
+    :data:`~.schema.MATCHES` columns at the analysis rate) in users' units, as the default
+    step's (:func:`~.matching.in_source_units`); other tables unchanged."""
+    table = out.tables.get("data")
+    if not isinstance(table, pa.Table) or "start_frame_analysis" in table.column_names:
+        return out
+    head = pa.schema(list(table.schema)[: len(schema.MATCHES)])
+    if not head.equals(schema.MATCHES):
+        return out
+    units = MatchInputs.of(inputs).units
+    if units is None or not set(table["clip_id"].to_pylist()) <= set(units):
+        return out
+    return replace(out, tables={**out.tables, "data": in_source_units(table, units)})
 
 
 def _match_task(

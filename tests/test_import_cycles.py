@@ -165,7 +165,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
     # the default step of each kind
     "steps": ("queries", "steps", "export"),
     # pipelines, plans, plugins, executors, the runner, the catalog and the CLI
-    "engine": ("options", "config", "plan", "plugins", "executors", "runner", "catalog", "cli"),
+    "engine": ("options", "config", "plan", "plugins", "executors", "runner", "catalog", "commands", "cli"),
     # what third parties test their components with
     "testing": ("synthetic", "conformance", "testing"),
     # the lazy public names of mocapflow.framework

@@ -18,7 +18,11 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
+
+if TYPE_CHECKING:
+    from mocapflow.framework.commands import CommandContext
+    from mocapflow.framework.registry import Registries
 
 #: the registries a search needs: a query file's reader, the feature set, the index, the matcher
 KINDS = ("formats", "features", "indexes", "matchers")
@@ -116,7 +120,7 @@ class SearchCommand:
         )
 
     @classmethod
-    def run(cls, args: argparse.Namespace) -> int:
+    def run(cls, args: argparse.Namespace, ctx: CommandContext) -> int:
         from mocapflow.framework.errors import ConfigError
 
         if args.serve:
@@ -131,12 +135,7 @@ class SearchCommand:
             rc = ask(args)
             if rc is not None:
                 return rc
-        session = SearchSession(
-            args.db,
-            args.index,
-            entry_points=not getattr(args, "no_entry_points", False),
-            blocked=list(getattr(args, "block", None) or []),
-        )
+        session = SearchSession(args.db, args.index, registries=ctx.registries(KINDS))
         return session.answer(args, Path.cwd(), sys.stdout, sys.stderr)
 
 
@@ -153,7 +152,10 @@ class SearchSession:
     index_step : str, optional
         Index step to use when the workspace has several.
     entry_points, blocked
-        Plugin selection, as the global ``--no-entry-points`` / ``--block``.
+        Plugin selection, as the global ``--no-entry-points`` / ``--block`` (when no
+        ``registries`` are given: a server process builds its own).
+    registries : Registries, optional
+        The registries of the command's context (:class:`~mocapflow.framework.commands.CommandContext`).
     """
 
     def __init__(
@@ -163,6 +165,7 @@ class SearchSession:
         *,
         entry_points: bool = True,
         blocked: list[str] | tuple[str, ...] = (),
+        registries: Registries | None = None,
     ) -> None:
         from mocapflow.framework import load_registries
         from mocapflow.framework.datasets import read_datasets
@@ -172,7 +175,11 @@ class SearchSession:
         self.db = Path(db)
         if not self.db.is_dir():
             raise ConfigError(f"--db {db}: the workspace does not exist (run a pipeline with an index step first)")
-        self.regs = regs = load_registries(kinds=KINDS, entry_points=entry_points, blocked=list(blocked))
+        self.regs = regs = (
+            registries
+            if registries is not None
+            else load_registries(kinds=KINDS, entry_points=entry_points, blocked=list(blocked))
+        )
         datasets = read_datasets(self.db)
         # only numeric kNN indexes can serve a similarity search (not inverted lists)
         known = set(regs.keys())
