@@ -13,6 +13,19 @@ import numpy as np
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
 
+#: neighbours per query frame of the default graph (the paper's k)
+K = 256
+#: gap band of the default graph, in query frames (measured: docs/global-matching.md)
+GAPS = 32
+#: the default graph searches the index on every this-many-th query frame
+PROPAGATE = 2
+
+
+def graph_options(paper: bool = False, k: int = K) -> dict[str, int]:
+    """``k``, ``propagate`` and ``gaps`` of :func:`build_graph`: the gap-tolerant default
+    graph, or the paper's (``paper``: neighbour cells only, every query frame searched)."""
+    return {"k": int(k), "propagate": 0 if paper else PROPAGATE, "gaps": 0 if paper else GAPS}
+
 
 @dataclass(frozen=True)
 class NeighborhoodGraph:

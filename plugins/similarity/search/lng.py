@@ -28,13 +28,9 @@ from pydantic import Field
 from mocapflow.framework import Matcher
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace
 
-from .graph import build_graph
+from .graph import GAPS, PROPAGATE, K, build_graph
 from .matcher_base import match_kw
 
-#: gap band of the default graph, in query frames (measured: docs/global-matching.md)
-GAPS = 32
-#: the default graph searches the index on every this-many-th query frame
-PROPAGATE = 2
 DEPRECATED = (
     "matchers.lng runs the certified search for one more release; name matchers.search (same results) "
     "or set exact: false for the lazy neighbourhood graph"
@@ -84,7 +80,7 @@ class LazyNeighborhoodGraph(Matcher):
     needs_features: ClassVar[bool] = True
 
     class Params(MatchParams):
-        k: int = Field(256, ge=1, description="maximum neighbours per query frame (paper: k)")
+        k: int = Field(K, ge=1, description="maximum neighbours per query frame (paper: k)")
         paper: bool = Field(
             False,
             description=(

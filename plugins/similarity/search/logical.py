@@ -22,7 +22,8 @@ from mocapflow.framework import Matcher
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import IntervalSet, MatchParams, QueryMatches, SearchSpace
 
-from .lng import GAPS, PROPAGATE, lazy_neighborhood_graph
+from .graph import GAPS, PROPAGATE
+from .lng import lazy_neighborhood_graph
 from .matcher_base import match_kw
 
 

@@ -351,17 +351,11 @@ class SearchSession:
         if args.plot:
             if args.matcher not in ("search", "lng") or not len(res):
                 raise ConfigError("--plot draws the lazy neighborhood graph of the best match: --matcher search or lng")
-            from .graph import build_graph
+            from .graph import K, build_graph, graph_options
             from .plots import plot_neighborhood
 
             paper = bool(getattr(matcher.params, "paper", False))
-            graph = build_graph(
-                query.features,
-                space,
-                k=getattr(matcher.params, "k", 256),
-                propagate=0 if paper else 2,
-                gaps=0 if paper else 32,
-            )
+            graph = build_graph(query.features, space, **graph_options(paper, getattr(matcher.params, "k", K)))
             plot_neighborhood(graph, res, space, plot_path, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
             print(f"wrote {args.plot}", file=err)
         return 0
