@@ -167,6 +167,8 @@ LAYERS: dict[str, tuple[str, ...]] = {
     "steps": ("queries", "steps", "export"),
     # pipelines, plans, plugins, executors, the runner, the catalog and the CLI
     "engine": ("options", "config", "plan", "plugins", "executors", "runner", "catalog", "commands", "cli"),
+    # the Python API the `mocapflow` package re-exports
+    "python api": ("api",),
     # what third parties test their components with
     "testing": ("synthetic", "conformance", "testing"),
     # the lazy public names of mocapflow.framework
