@@ -151,6 +151,8 @@ def cmd_plugins(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> in
     from .registry import KINDS
 
     regs = build_registries(_needed(pm))
+    if args.count_params:
+        return _count_params(regs)
     by_plugin: dict[str, list[tuple[str, type]]] = {}
     for kind in KINDS:
         for name, cls in regs[kind]:
@@ -163,6 +165,28 @@ def cmd_plugins(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> in
             _echo("\n".join(_param_rows(cls)) or "        (no parameters)")
     for f in getattr(pm, "failures", []):
         _echo(f"BROKEN plugin {f.plugin!r}: {f.error}")
+    return 0
+
+
+def _count_params(regs: Any) -> int:
+    """``mocapflow plugins --count-params``: the parameters each component declares (nested
+    parameter models counted by their fields) and the total (docs: at most 150)."""
+    from pydantic import BaseModel
+
+    from .params import count_parameters
+    from .registry import KINDS
+
+    total, comps = 0, 0
+    for kind in KINDS:
+        for name, cls in regs[kind]:
+            params = getattr(cls, "Params", None)
+            if not (isinstance(params, type) and issubclass(params, BaseModel)):
+                continue
+            n = count_parameters(params)
+            if n:
+                comps, total = comps + 1, total + n
+                _echo(f"{kind}.{name:<28} {n:4d}")
+    _echo(f"{comps} components declare {total} parameters")
     return 0
 
 
@@ -243,6 +267,11 @@ def build_parser(plugin_commands: list[type[Any]]) -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("plugins", help="list plugins, their components and parameters")
+    p.add_argument(
+        "--count-params",
+        action="store_true",
+        help="count the parameters of each component (nested models by their fields) and in all",
+    )
     p.set_defaults(func=cmd_plugins)
 
     p = sub.add_parser("sql", help="query a workspace with DuckDB (one view per dataset, plus clips)")

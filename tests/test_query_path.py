@@ -137,3 +137,38 @@ def test_an_empty_result_says_why_and_exclude_self_false_works():
     assert len(whole) == 0 and "every database frame is the query's own" in whole.reason
     with pytest.warns(DeprecationWarning, match="path_analysis"):
         assert own and hits["analysis_path"] is not None
+
+
+def test_compare_workspaces_reports_renamed_columns_and_changed_frames(ws, tmp_path, capsys):
+    import shutil
+
+    import pyarrow.parquet as pq
+    from compare_workspaces import main as compare
+
+    assert compare([str(ws), str(ws)]) == 0
+    out = capsys.readouterr().out.splitlines()[-1]
+    n = out.split()[0]
+    assert out.startswith(f"{n} of {n} common tables identical")
+    other = tmp_path / "other"
+    shutil.copytree(ws, other)
+    t = pq.read_table(other / "search" / "data.parquet")
+    pq.write_table(
+        t.rename_columns(["path" if c == "path_analysis" else c for c in t.column_names]),
+        other / "search" / "data.parquet",
+    )
+    assert compare([str(ws), str(other)]) == 0
+    out = capsys.readouterr().out
+    assert "search/data.parquet: columns only in old: ['path_analysis']; columns only in new: ['path']" in out
+
+
+def test_the_parameters_stay_within_150():
+    import contextlib
+    import io
+
+    from mocapflow.framework.cli import main
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["--no-entry-points", "plugins", "--count-params"]) == 0
+    total = int(buf.getvalue().strip().splitlines()[-1].split()[3])
+    assert 0 < total <= 150
