@@ -108,8 +108,9 @@ class LazyNeighborhoodGraph(Matcher):
             from .certified import certified_sdtw
 
             return certified_sdtw(query, space, **match_kw(p))
-        paper = {"propagate": 0, "gaps": 0, "fill": False} if p.paper else {}
-        return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p), **paper)
+        if p.paper:  # the paper's graph: neighbour cells only, every query frame searched, no fallback
+            return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p), propagate=0, gaps=0, fill=False)
+        return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p))
 
     def check_plan(self, base_dir) -> list[str]:
         """The alias's warning at the step's line of the plan (and in the run log)."""

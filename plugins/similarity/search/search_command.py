@@ -217,7 +217,7 @@ class SearchSession:
 
     def stamp(self) -> tuple:
         """``(mtime_ns, size)`` of the manifests of the index, features and motions steps."""
-        out = []
+        out: list[tuple[int, int, int] | None] = []
         for ds in (self.idx, self.fds, self.mds):
             try:
                 st = (ds.path / "_manifest.json").stat()
@@ -341,21 +341,22 @@ class SearchSession:
                 f"{row['end_s'] - row['start_s']:>6.2f} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}",
                 file=out,
             )
-        if args.out:
+        if out_path is not None:
             import pyarrow as pa
 
             table = table.add_column(
                 3, "clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string())
             )
             write_atomic(table, out_path)
-        if args.plot:
+        if plot_path is not None:
             if args.matcher not in ("search", "lng") or not len(res):
                 raise ConfigError("--plot draws the lazy neighborhood graph of the best match: --matcher search or lng")
             from .graph import K, build_graph, graph_options
             from .plots import plot_neighborhood
 
             paper = bool(getattr(matcher.params, "paper", False))
-            graph = build_graph(query.features, space, **graph_options(paper, getattr(matcher.params, "k", K)))
+            o = graph_options(paper, getattr(matcher.params, "k", K))
+            graph = build_graph(query.features, space, k=o["k"], propagate=o["propagate"], gaps=o["gaps"])
             plot_neighborhood(graph, res, space, plot_path, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
             print(f"wrote {args.plot}", file=err)
         return 0
