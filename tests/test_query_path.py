@@ -106,6 +106,9 @@ def test_a_printed_hit_is_a_valid_next_query_that_excludes_itself(ws, tmp_path, 
     with open(again) as f:
         for r in csv.DictReader(f):  # nothing overlaps the hit that served as query
             assert r["clip"] != best["clip"] or int(r["end_frame"]) <= a or int(r["start_frame"]) >= b
+    # an empty answer says why
+    assert main(["search", "--db", str(ws), "--query", nxt, "--no-server", "--min-span", "10"]) == 0
+    assert "0 matches" in (said := capsys.readouterr().out) and "shorter than min_span" in said
     argv += ["--exclude-self", "off"]
     assert main(argv) == 0
     capsys.readouterr()
