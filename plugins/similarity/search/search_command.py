@@ -41,9 +41,6 @@ class SearchCommand:
 
     name = "search"
     help = "find the motion segments of a workspace's database most similar to a query"
-    #: the CLI need not import every plugin first: :class:`SearchSession` builds the registries
-    #: of the kinds a search needs, and a server answer needs none
-    loads_plugins = True
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
