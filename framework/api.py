@@ -156,8 +156,8 @@ class Database:
         index_params: dict[str, Any] | None = None,
     ) -> None:
         from .database import MotionDatabase
-        from .matching import SearchSpace
         from .normalize import resample
+        from .queries import memory_space
 
         regs = registries()
         self.fps = fps
@@ -168,9 +168,8 @@ class Database:
         self.feature_set = regs["features"].get(features)(feature_params or {}).fit(self.motions)
         x = self.feature_set.transform(self.motions)
         self.index = regs["indexes"].get(index)(index_params or {}).build(x)
-        clip_id, frame = self.motions.frame_ids
-        self.clip_names = {int(c): m.name for c, m in zip(self.motions.clip_ids, self.motions, strict=True)}
-        self.space = SearchSpace(clip_id, frame, self.index, x, clip_names=self.clip_names)
+        self.space = memory_space(self.motions, x, self.index)
+        self.clip_names: dict[int, str] = self.space.clip_names or {}
 
     def search(
         self,

@@ -293,6 +293,14 @@ def search_space(
     return SearchSpace(clip_id, frame, index if matcher.needs_index else None, x, clip_names=mi.clip_names)
 
 
+def memory_space(motions: MotionDatabase, features: np.ndarray, index: NeighbourIndex | None) -> SearchSpace:
+    """The :class:`SearchSpace` of an in-memory database (the Python facade's): every frame
+    of ``motions`` with its ``features`` rows and the ``index`` built over them."""
+    clip_id, frame = motions.frame_ids
+    names = {int(c): m.name for c, m in zip(motions.clip_ids, motions, strict=True)}
+    return SearchSpace(clip_id, frame, index, features, clip_names=names)
+
+
 def step_queries(matcher: Matcher, inputs: MatchInputs | Mapping[str, Dataset], ctx: StepContext) -> list[Query]:
     """Query features from the ``query`` input and the matcher's ``queries`` parameter."""
     mi = inputs if isinstance(inputs, MatchInputs) else MatchInputs.of(inputs)
