@@ -403,7 +403,7 @@ def main(argv: list[str] | None = None) -> int:
             pm = ctx.plugin_manager
             parser = build_parser(_plugin_commands(pm))
             args = parser.parse_args(argv)
-            args.context = ctx
+            args.command_context = ctx
         if not getattr(args, "func", None):
             parser.print_help()
             return 0

@@ -58,9 +58,9 @@ class CommandContext:
 
 
 def context_of(args: argparse.Namespace) -> CommandContext:
-    """The context the CLI left on ``args`` (``args.context``), or one built from its
+    """The context the CLI left on ``args`` (``args.command_context``), or one built from its
     switches (a command class called directly, as in tests)."""
-    ctx = getattr(args, "context", None)
+    ctx = getattr(args, "command_context", None)
     if isinstance(ctx, CommandContext):
         return ctx
     pm = getattr(args, "plugin_manager", None)
@@ -75,7 +75,7 @@ def run_command(cls: type[Any], args: argparse.Namespace, ctx: CommandContext) -
     """``cls.run(args, ctx)``; a command whose ``run`` takes only ``args`` (the form before
     the context) still runs, with a ``DeprecationWarning``, and finds the plugin manager as
     ``args.plugin_manager``."""
-    args.context, args.plugin_manager = ctx, ctx.plugin_manager
+    args.command_context, args.plugin_manager = ctx, ctx.plugin_manager
     try:
         n = len(inspect.signature(cls.run).parameters)
     except (TypeError, ValueError):

@@ -175,3 +175,16 @@ def test_the_parameters_stay_within_150():
         assert main(["--no-entry-points", "plugins", "--count-params"]) == 0
     total = int(buf.getvalue().strip().splitlines()[-1].split()[3])
     assert 0 < total <= 150
+
+
+@pytest.mark.parametrize("name", ["search", "sdtw", "lng", "logical"])
+def test_builtin_matchers_rank_around_the_excluded_span(name):
+    from mocapflow.framework import load_registries
+    from mocapflow.framework.conformance import rows_of_query, synthetic_space
+
+    cls = load_registries(kinds=["matchers"], entry_points=False)["matchers"].get(name)
+    matcher = cls({"count": 5, **({"exact": False} if name == "lng" else {})})
+    space, query = synthetic_space()
+    lo, hi = rows_of_query(space)
+    res = matcher.match(query, space.excluding((lo, hi)))
+    assert len(res) and not ((res.start <= hi) & (res.end > lo)).any()
