@@ -444,7 +444,7 @@ def run_matcher(matcher: Matcher, inputs: Mapping[str, Dataset], ctx: StepContex
         ]
     for qi, (q, r) in enumerate(zip(queries, results, strict=True)):
         if r.reason:
-            log.info("%s: query %s: no match: %s", ctx.step_id, q.name, r.reason)
+            log.warning("step %r: query %s: no match: %s", ctx.step_id, q.name, r.reason)
         matcher.after_match(qi, q, r.matches, space, ctx)
     table = match_step_table([r.matches for r in results], space, mi.units)
     return StepOutput(
