@@ -20,22 +20,30 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 
-#: name -> what it measures (the script is ``benchmarks/<name>.py``).
-BENCHMARKS: dict[str, str] = {
-    "cleaning": "cleaners.mdm: detection and repair quality on injected errors, and its speed",
-    "search": "the default global search (certified subsequence DTW): query time and exactness against plain sDTW",
-    "knn": "kNN indexes (kd-tree, HNSW, sharded): build and query time, recall against brute force",
-    "reconstruct": "pose reconstruction from sparse markers: error and time per frame",
-    "fat_graph": "fat graph construction and random walks: time and transitions",
-    "ingest": "format readers (AMC, BVH): read + forward kinematics against a plain line-by-line reference",
-    "fuzz_parsers": "mutational fuzzing of the format readers against slow reference readers",
-    "relational": "relational features, inverted indexes and the paper's queries: fidelity, build and query time",
-    "templates": "motion templates and mode auto: leave-one-actor-out quality, query time against the full-rate search",
-    "report": "mocapflow report: page weight and load time in headless Chromium against a JSON baseline",
-    "startup": "command start-up against `import numpy`, and the quickstart's cold first run",
-    "first_run": "the first run after an install (empty numba cache) against the warm run: quickstart, clean",
-    "scale": "scale-out: --jobs 2 and the Dask executor against --jobs 1, the sharded kNN index",
-}
+
+def discover(folder: Path = HERE) -> dict[str, str]:
+    """name -> what it measures (the first paragraph of its docstring), for every script of
+    ``folder`` that runs as a program (``if __name__ == "__main__"``): ``benchmarks/<name>.py``;
+    helper modules (``_*.py``, no main block) and this runner are not benchmarks."""
+    import ast
+
+    out = {}
+    for script in sorted(folder.glob("*.py")):
+        if script.name.startswith("_") or script.name == Path(__file__).name:
+            continue
+        tree = ast.parse(script.read_text(encoding="utf-8"))
+        runs = any(
+            isinstance(node, ast.If) and "__main__" in ast.unparse(node.test) and "__name__" in ast.unparse(node.test)
+            for node in tree.body
+        )
+        if runs:
+            doc = " ".join((ast.get_docstring(tree) or script.stem).split("\n\n")[0].split())
+            out[script.stem] = doc.rstrip(".")
+    return out
+
+
+#: name -> what it measures (the script is ``benchmarks/<name>.py``), discovered.
+BENCHMARKS: dict[str, str] = discover()
 
 
 def run(name: str, args: list[str]) -> int:

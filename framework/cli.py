@@ -13,7 +13,6 @@ listing the commands imports neither NumPy's nor pydantic's world unless those p
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import sys
 import traceback
@@ -152,6 +151,8 @@ def cmd_plugins(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> in
     from .registry import KINDS
 
     regs = build_registries(_needed(pm))
+    if args.count_params:
+        return _count_params(regs)
     by_plugin: dict[str, list[tuple[str, type]]] = {}
     for kind in KINDS:
         for name, cls in regs[kind]:
@@ -164,6 +165,28 @@ def cmd_plugins(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> in
             _echo("\n".join(_param_rows(cls)) or "        (no parameters)")
     for f in getattr(pm, "failures", []):
         _echo(f"BROKEN plugin {f.plugin!r}: {f.error}")
+    return 0
+
+
+def _count_params(regs: Any) -> int:
+    """``mocapflow plugins --count-params``: the parameters each component declares (nested
+    parameter models counted by their fields) and the total (docs: at most 150)."""
+    from pydantic import BaseModel
+
+    from .params import count_parameters
+    from .registry import KINDS
+
+    total, comps = 0, 0
+    for kind in KINDS:
+        for name, cls in regs[kind]:
+            params = getattr(cls, "Params", None)
+            if not (isinstance(params, type) and issubclass(params, BaseModel)):
+                continue
+            n = count_parameters(params)
+            if n:
+                comps, total = comps + 1, total + n
+                _echo(f"{kind}.{name:<28} {n:4d}")
+    _echo(f"{comps} components declare {total} parameters")
     return 0
 
 
@@ -247,6 +270,11 @@ def build_parser(plugin_commands: list[type[Any]]) -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("plugins", help="list plugins, their components and parameters")
+    p.add_argument(
+        "--count-params",
+        action="store_true",
+        help="count the parameters of each component (nested models by their fields) and in all",
+    )
     p.set_defaults(func=cmd_plugins)
 
     p = sub.add_parser("sql", help="query a workspace with DuckDB (one view per dataset, plus clips)")
@@ -276,42 +304,21 @@ def build_parser(plugin_commands: list[type[Any]]) -> argparse.ArgumentParser:
             raise PluginError(f"plugin command {cls.name!r} ({cls.__module__}) clashes with a built-in command")
         p = sub.add_parser(cls.name, help=getattr(cls, "help", ""))
         cls.add_arguments(p)
-        # the command sees the plugin manager built here (--block, --no-entry-points) as args.plugin_manager
+        # the command runs with the context built in main() (--block, --no-entry-points): run(args, ctx)
         p.set_defaults(func=partial(_run_plugin_command, cls), command_cls=cls)
     return parser
 
 
 def _run_plugin_command(cls: type[Any], args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
-    args.plugin_manager = pm
-    code: int = cls.run(args)
-    return code
+    from .commands import context_of, run_command
+
+    return run_command(cls, args, context_of(args))
 
 
 def _plugin_commands(pm: pluggy.PluginManager) -> list[type[Any]]:
     from .plugins import plugin_commands
 
     return plugin_commands(pm)  # a plugin whose hook raises is reported and skipped
-
-
-def command_plugin_modules() -> list[str]:
-    """The built-in plugin modules that provide CLI commands, found without importing them:
-    a module whose source names the ``register_commands`` hook (its hookimpl must be named
-    so; ``tests/test_startup.py`` checks this against the imported modules). A module whose
-    source cannot be read is included."""
-    from importlib.util import find_spec
-
-    from .plugins import builtin_plugin_modules
-
-    out = []
-    for mod in builtin_plugin_modules():
-        spec = find_spec(mod)
-        try:
-            text = Path(spec.origin).read_text(encoding="utf-8") if spec and spec.origin else None
-        except OSError:
-            text = None
-        if text is None or "register_commands" in text:
-            out.append(mod)
-    return out
 
 
 def _global_options(argv: list[str]) -> tuple[str | None, bool, list[str]]:
@@ -361,28 +368,6 @@ def _plugin_manager(command: str | None, entry_points: bool, blocked: list[str])
     return None
 
 
-def _command_plugin_manager(entry_points: bool, blocked: list[str]) -> pluggy.PluginManager:
-    """The plugins that provide commands (``--help``, a plugin command)."""
-    from .plugins import get_plugin_manager
-
-    pm = get_plugin_manager(builtins=False, entry_points=entry_points, blocked=blocked)
-    for mod in command_plugin_modules():
-        if mod not in blocked and not pm.has_plugin(mod):
-            pm.register(importlib.import_module(mod), name=mod)
-    return pm
-
-
-def _register_remaining_builtins(pm: pluggy.PluginManager, blocked: list[str]) -> None:
-    """A plugin command, once chosen, sees every built-in plugin that is not blocked (formats,
-    features, indexes, ...), exactly like ``run``; only ``--help`` stays limited to the
-    plugins that provide commands."""
-    from .plugins import builtin_plugin_modules
-
-    for mod in builtin_plugin_modules():
-        if mod not in blocked and not pm.has_plugin(mod):
-            pm.register(importlib.import_module(mod), name=mod)
-
-
 def _exit_without_a_last_collection() -> None:
     """At exit: the interpreter's last garbage collection walked every object of a run (0.2 s
     of a 2.5 s ingest, docs/scale-out.md); outputs and the lock are closed before."""
@@ -413,20 +398,18 @@ def main(argv: list[str] | None = None) -> int:
                 size_blas_for_workers(workers_on_this_host(args.pipeline, args.jobs))
             pm = _plugin_manager(command, entry_points, blocked)
         else:
-            pm = _command_plugin_manager(entry_points, blocked)
+            # one context for the plugin commands (every built-in plugin module is light to
+            # import; the registries are built when a command asks for them)
+            from .commands import CommandContext
+
+            ctx = CommandContext.from_switches(entry_points=entry_points, blocked=blocked)
+            pm = ctx.plugin_manager
             parser = build_parser(_plugin_commands(pm))
             args = parser.parse_args(argv)
+            args.command_context = ctx
         if not getattr(args, "func", None):
             parser.print_help()
             return 0
-        # a command that builds the registries it needs itself (`loads_plugins = True`, e.g.
-        # `search`, which may only forward the query to a search server) skips the rest
-        if (
-            pm is not None
-            and command not in BUILTIN_COMMANDS
-            and not getattr(getattr(args, "command_cls", None), "loads_plugins", False)
-        ):
-            _register_remaining_builtins(pm, blocked)
         from .progress import announce_compilation
 
         # `run` reports progress on stdout; other commands keep stdout for their results

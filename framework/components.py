@@ -198,8 +198,10 @@ class Matcher(Component):
 
     Segment matchers implement only :meth:`match` and set :attr:`needs_index` /
     :attr:`needs_features`; the default step (:func:`.queries.run_matcher`) builds the
-    space and queries and writes ``data`` (:data:`~.schema.MATCH_TABLE`) and ``queries``.
-    Matchers with other inputs override :meth:`run`.
+    space and queries, runs each through :func:`.queries.match_query` and writes ``data``
+    (the match table in users' units, :func:`.matching.in_source_units`) and ``queries``.
+    Matchers with other inputs override :meth:`run` (a ``data`` table starting with
+    :data:`~.schema.MATCHES` at the analysis rate is converted to users' units after it).
     """
 
     kind = "matchers"
@@ -220,7 +222,9 @@ class Matcher(Component):
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         """Ranked matches (best first, one warping path each) of one query's features
-        float32 (m, d) in ``space``; bad input raises :class:`DataError`/:class:`ConfigError`."""
+        float32 (m, d) in ``space``, none overlapping ``space.excluded`` (the query's own
+        span: pass it to :func:`.matching.select_matches` as ``excluded``; the core drops any
+        overlapping match anyway); bad input raises :class:`DataError`/:class:`ConfigError`."""
         raise NotImplementedError(f"{self.key()} does not implement match(query, space)")
 
     def uses_features(self) -> bool:

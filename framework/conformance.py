@@ -11,7 +11,7 @@ from __future__ import annotations
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -19,6 +19,9 @@ import pyarrow as pa
 from . import schema
 from .components import Analysis, Cleaner, Component, Index, Matcher
 from .errors import DataError, MocapflowError
+
+if TYPE_CHECKING:
+    from .matching import SearchSpace
 
 
 class ReferenceIndex(Index):
@@ -121,6 +124,13 @@ def _same(a: Any, b: Any, who: str) -> None:
     )
 
 
+def rows_of_query(space: SearchSpace) -> tuple[int, int]:
+    """Index rows (closed) of the synthetic query's own span in ``space``."""
+    a, b = QUERY_FRAMES
+    rows = np.flatnonzero(space.clip_id == QUERY_CLIP)[[a, b - 1]]
+    return int(rows[0]), int(rows[1])
+
+
 def check_matcher(cls: type[Component]) -> None:
     """``match(query, space)`` on a synthetic space: valid, found, deterministic, clear errors."""
     from .matching import QueryMatches, matches_table
@@ -148,7 +158,13 @@ def check_matcher(cls: type[Component]) -> None:
         )
         assert np.all(np.diff(p, axis=0) >= 0), f"{who}: path {r} is not monotone"
     table = matches_table([0], [res], space)
-    assert table.schema.equals(schema.MATCH_TABLE), f"{who}: match table schema differs from schema.MATCH_TABLE"
+    head = pa.schema(list(table.schema)[: len(schema.MATCH_TABLE)])
+    assert head.equals(schema.MATCH_TABLE), f"{who}: match table does not start with schema.MATCH_TABLE"
+    # the query's own span excluded (SearchSpace.excluded): still valid matches (a matcher
+    # should rank around it with select_matches(excluded=...); the core drops any overlap)
+    ex = inst.match(query, space.excluding(rows_of_query(space)))
+    assert isinstance(ex, QueryMatches), f"{who}.match returned {type(ex).__name__}, not QueryMatches"
+    ex.validate(space, f"{who} (query span excluded)")
     a, b = QUERY_FRAMES
     rows = np.flatnonzero(space.clip_id == QUERY_CLIP)[[a, b - 1]]
     assert np.any((res.start <= rows[1]) & (res.end > rows[0])), (

@@ -194,6 +194,7 @@ def workspace_segments(ds: Dataset, datasets: Mapping[str, Dataset], *, top: int
     if mds is None:
         raise ConfigError(f"{ds.step}: cannot trace its rows back to the motion files they come from")
     clips = clip_sources(mds)
+    source_units = "start_frame_analysis" in names
     if {"clip_id", "start_frame", "end_frame"} <= set(names):
         cols = [c for c in ("query_id", "rank", "label", "clip_id", "start_frame", "end_frame") if c in names]
         rows = ds.table("data", columns=cols).to_pylist()
@@ -222,7 +223,10 @@ def workspace_segments(ds: Dataset, datasets: Mapping[str, Dataset], *, top: int
         c = clips.get(int(r["clip_id"]))
         if c is None:
             raise DataError(f"{ds.step}: clip {r['clip_id']} is not a clip of {mds.step!r}")
-        sf, ef = source_frames(r["start_frame"], r["end_frame"], c["fps"], c["source_fps"], c["source_frames"])
+        if source_units:  # a matcher step's table: already frames of the take's own file
+            sf, ef = int(r["start_frame"]), int(r["end_frame"])
+        else:
+            sf, ef = source_frames(r["start_frame"], r["end_frame"], c["fps"], c["source_fps"], c["source_frames"])
         out.append(Segment(query, rank, str(c["name"]), str(c["path"]), sf, ef))
     return sorted(out, key=lambda s: (s.query, s.rank))
 

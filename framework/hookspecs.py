@@ -62,8 +62,12 @@ def register_executors() -> list[type]:
 @hookspec
 def register_commands() -> list[type]:
     """Return CLI sub-command classes: ``name``, ``help`` (one line), classmethods
-    ``add_arguments(parser)`` and ``run(args) -> int`` (raise ``MocapflowError`` for user
-    errors: printed without a traceback). Clashing with a built-in is a ``PluginError``."""
+    ``add_arguments(parser)`` and ``run(args, ctx) -> int``, where ``ctx`` is the
+    :class:`~mocapflow.framework.commands.CommandContext` the CLI built (plugin manager and
+    registries honouring ``--block`` and ``--no-entry-points``); raise ``MocapflowError`` for
+    user errors (printed without a traceback). ``run(args)`` still works for one release, with
+    a ``DeprecationWarning``. Clashing with a built-in is a ``PluginError``. The module
+    implementing this hook is imported for ``mocapflow --help``: keep its imports light."""
 
 
 @hookspec

@@ -11,10 +11,8 @@ from __future__ import annotations
 import bisect
 import hashlib
 import re
-from collections.abc import Callable, Hashable, Iterator, Mapping
-from contextlib import contextmanager
-from contextvars import ContextVar
-from dataclasses import dataclass, field
+from collections.abc import Callable, Hashable, Mapping
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -41,13 +39,18 @@ class NeighbourIndex(Protocol):
 class SearchSpace:
     """The searched database: frame id (``clip_id``, ``frame``: int32 (n,)) of every index
     row, optionally a built ``index`` over the rows, their ``features`` float32 (n, d) and
-    ``clip_names`` by clip id (plots). :meth:`memo` keeps arrays derived once per space."""
+    ``clip_names`` by clip id (plots). :meth:`memo` keeps arrays derived once per space.
+
+    ``excluded`` are index rows ``(lo, hi)`` (closed) no match may overlap: the query's own
+    span (:func:`self_rows`), set per query by :meth:`excluding`; a matcher passes it to
+    :func:`select_matches` (and the core drops any match overlapping it anyway)."""
 
     clip_id: np.ndarray
     frame: np.ndarray
     index: NeighbourIndex | None = None
     features: np.ndarray | None = None
     clip_names: dict[int, str] | None = None
+    excluded: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
         cid = np.asarray(self.clip_id, np.int32)
@@ -78,6 +81,16 @@ class SearchSpace:
     def _memo(self) -> dict[Hashable, Any]:
         return {}
 
+    def excluding(self, rows: tuple[int, int] | None) -> SearchSpace:
+        """This space with ``rows`` excluded (:attr:`excluded`); arrays and memo shared."""
+        if rows == self.excluded:
+            return self
+        view = replace(self, excluded=rows)
+        view.__dict__["_memo"] = self._memo  # derived arrays (block boxes...) stay computed once
+        if "continues" in self.__dict__:
+            view.__dict__["continues"] = self.__dict__["continues"]
+        return view
+
     def memo(self, key: Hashable, compute: Callable[[], Any]) -> Any:
         """``compute()`` once per space and ``key`` (an algorithm's derived arrays)."""
         if key not in self._memo:
@@ -105,6 +118,11 @@ class QueryMatches:
 
     def __len__(self) -> int:
         return len(self.cost)
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Matcher-specific columns, one value per match, appended to the match table
+        (none here; a subclass adds its own)."""
+        return {}
 
     def validate(self, space: SearchSpace, what: str = "matches") -> None:
         """Raise :class:`DataError` unless the arrays agree and the rows lie in ``space``."""
@@ -150,10 +168,12 @@ def select_matches(
     max_cost: float | None,
     rank_by: str,
     min_frames: int = 1,
+    excluded: tuple[int, int] | None = None,
 ) -> np.ndarray:
     """Positions (int64, best first) of the greedy ranked, non-overlapping choice among
     candidate path ends: by ascending ``cost`` (or ``cost / length``), each kept when rows
-    ``[start, end]`` overlap no kept match, until ``count`` or ``max_cost``; candidates
+    ``[start, end]`` overlap no kept match nor the ``excluded`` rows (closed; the query's
+    own span, :attr:`SearchSpace.excluded`), until ``count`` or ``max_cost``; candidates
     spanning fewer than ``min_frames`` rows (a query squashed onto a few frames) skipped."""
     key = cost / np.maximum(length, 1) if rank_by == "normalized" else np.asarray(cost, np.float64)
     ok = np.isfinite(key)
@@ -164,8 +184,7 @@ def select_matches(
     cand = np.flatnonzero(ok)
     kept: list[int] = []
     taken = IntervalSet()
-    excluded = _EXCLUDED.get()
-    if excluded is not None:  # the query's own span (see excluding): no match may overlap it
+    if excluded is not None:  # the query's own span: no match may overlap it
         taken.add(*excluded)
     chunk = max(64, 32 * count)
     while cand.size and len(kept) < count:
@@ -185,23 +204,9 @@ def select_matches(
     return np.asarray(kept, np.int64)
 
 
-#: Rows ``[lo, hi]`` (closed) no match may overlap while :func:`excluding` is active.
-_EXCLUDED: ContextVar[tuple[int, int] | None] = ContextVar("mocapflow_excluded_rows", default=None)
-
 #: ``exclude_self`` modes: ``span`` the query's span widened by half its length on each side
 #: (the exclusion zone of matrix-profile practice), ``clip`` its whole clip, ``off`` none.
 EXCLUDE_SELF = ("span", "clip", "off")
-
-
-@contextmanager
-def excluding(rows: tuple[int, int] | None) -> Iterator[None]:
-    """Within the block, :func:`select_matches` keeps no match overlapping index rows
-    ``rows = (lo, hi)`` (closed; ``None``: nothing excluded)."""
-    token = _EXCLUDED.set(rows)
-    try:
-        yield
-    finally:
-        _EXCLUDED.reset(token)
 
 
 def self_rows(space: SearchSpace, clip_id: int, start: int, end: int, mode: str) -> tuple[int, int] | None:
@@ -237,34 +242,87 @@ def drop_excluded(res: QueryMatches, rows: tuple[int, int] | None) -> QueryMatch
     )
 
 
-def in_source_units(table: pa.Table, clips: Mapping[int, tuple[float, float, int]]) -> pa.Table:
-    """A segment table (``clip_id, start_frame, end_frame`` at the analysis rate) in the
-    units a user reads: ``clips[clip_id] = (analysis fps, source fps, source frames)``.
+#: clip id -> ``(analysis fps, source fps, source frames)``: how a clip's analysis-rate rows
+#: map to frames of its own file (:func:`in_source_units`).
+ClipUnits = Mapping[int, tuple[float, float, int]]
 
-    ``start_frame``/``end_frame`` become frames of the source file at its own rate
-    (half-open), ``fps`` that rate, ``start_s``/``end_s`` those frames in seconds from the
-    take's start (``end_s - start_s``: the duration); a warping path stays at the analysis rate as
-    ``analysis_path`` with ``analysis_fps``."""
+#: Columns of a match table in the users' units (:func:`in_source_units`), in order; matcher
+#: specific columns follow.
+USER_MATCH_COLUMNS = (
+    "query_id",
+    "rank",
+    "clip_id",
+    "start_frame",
+    "end_frame",
+    "cost",
+    "cost_normalized",
+    "fps",
+    "start_s",
+    "end_s",
+    "start_frame_analysis",
+    "end_frame_analysis",
+    "fps_analysis",
+    "path_analysis",
+)
+
+
+def source_span(
+    start: np.ndarray, end: np.ndarray, scale: np.ndarray, n_src: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Analysis-rate frames ``[start, end)`` -> frames of the source file (``scale`` = source
+    fps / analysis fps), half-open, at least one frame, within its ``n_src`` frames."""
+    sf = np.clip(np.round(np.asarray(start) * scale), 0, np.maximum(n_src - 1, 0)).astype(np.int32)
+    ef = np.maximum(np.minimum(np.round(np.asarray(end) * scale), n_src), sf + 1).astype(np.int32)
+    return sf, ef
+
+
+def analysis_span(start: int, end: int, source_fps: float, fps: float, n_frames: int) -> tuple[int, int]:
+    """Source-file frames ``[start, end)`` -> analysis-rate frames of a clip of ``n_frames``
+    at ``fps`` (the inverse of :func:`source_span`; at least one frame)."""
+    scale = fps / source_fps if source_fps > 0 else 1.0
+    a = int(np.clip(round(start * scale), 0, max(n_frames - 1, 0)))
+    b = int(max(min(round(end * scale), n_frames), a + 1))
+    return a, b
+
+
+def in_source_units(table: pa.Table, clips: ClipUnits | None) -> pa.Table:
+    """A match table (:data:`~.schema.MATCH_TABLE`: frames at the analysis rate) in the one
+    convention users read (:data:`USER_MATCH_COLUMNS`, then any further columns):
+
+    ``start_frame``/``end_frame`` are frames of the take's own file (half-open), ``fps`` its
+    rate, ``start_s``/``end_s`` seconds from the take's start; the analysis-rate frames stay
+    in ``start_frame_analysis``/``end_frame_analysis`` (rate ``fps_analysis``) and the warping
+    path (query frame, database frame) in ``path_analysis``. A clip missing from ``clips``
+    (no source rates known) keeps its analysis frames, with null rates and seconds."""
     cid = table["clip_id"].to_numpy()
-    rates = np.array([clips[int(c)] for c in cid], np.float64).reshape(-1, 3)
+    known = np.array([clips is not None and int(c) in clips for c in cid], bool)
+    rates = np.array(
+        [clips[int(c)] if k and clips is not None else (np.nan, np.nan, -1) for c, k in zip(cid, known, strict=True)],
+        np.float64,
+    ).reshape(-1, 3)
     a_fps, s_fps, n_src = rates[:, 0], rates[:, 1], rates[:, 2]
-    scale = s_fps / np.maximum(a_fps, 1e-12)
-    sf = np.clip(np.round(table["start_frame"].to_numpy() * scale), 0, np.maximum(n_src - 1, 0)).astype(np.int32)
-    ef = np.maximum(np.minimum(np.round(table["end_frame"].to_numpy() * scale), n_src), sf + 1).astype(np.int32)
-    start_s, end_s = sf / s_fps, ef / s_fps
-    t = table
-    for name in ("fps", "start_s", "end_s", "analysis_fps", "analysis_path"):
-        if name in t.column_names:
-            t = t.drop_columns([name])
-    at = t.column_names.index("start_frame")
-    t = t.set_column(at, "start_frame", pa.array(sf)).set_column(at + 1, "end_frame", pa.array(ef))
-    t = t.add_column(at, "fps", pa.array(s_fps)).add_column(at + 3, "start_s", pa.array(start_s))
-    t = t.add_column(at + 4, "end_s", pa.array(end_s))
-    if "path" in t.column_names:
-        path = t["path"]
-        t = t.drop_columns(["path"]).append_column("analysis_fps", pa.array(a_fps))
-        t = t.append_column("analysis_path", path)
-    return t
+    scale = np.where(known, s_fps / np.maximum(np.nan_to_num(a_fps, nan=1.0), 1e-12), 1.0)
+    n_src = np.where(known, n_src, np.iinfo(np.int32).max)
+    a, b = table["start_frame"].to_numpy(), table["end_frame"].to_numpy()
+    sf, ef = source_span(a, b, scale, n_src)
+    cols: dict[str, Any] = {c: table[c] for c in ("query_id", "rank", "clip_id")}
+    cols["start_frame"], cols["end_frame"] = pa.array(sf), pa.array(ef)
+    cols["cost"] = table["cost"]
+    if "cost_normalized" in table.column_names:
+        cols["cost_normalized"] = table["cost_normalized"]
+    cols["fps"] = pa.array(s_fps, pa.float64(), mask=~known)
+    cols["start_s"] = pa.array(sf / s_fps, pa.float64(), mask=~known)
+    cols["end_s"] = pa.array(ef / s_fps, pa.float64(), mask=~known)
+    cols["start_frame_analysis"] = pa.array(a.astype(np.int32))
+    cols["end_frame_analysis"] = pa.array(b.astype(np.int32))
+    cols["fps_analysis"] = pa.array(a_fps, pa.float64(), mask=~known)
+    if "path" in table.column_names:
+        cols["path_analysis"] = table["path"]
+    done = {"path", "start_frame", "end_frame", *cols}
+    for name in table.column_names:
+        if name not in done:
+            cols[name] = table[name]
+    return pa.table(cols)
 
 
 def min_frames_of(min_span: float, query_frames: int) -> int:
@@ -301,6 +359,10 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
     path = pa.ListArray.from_arrays(
         pa.array(np.asarray(offsets, np.int32)), pa.FixedSizeListArray.from_arrays(pa.array(pairs.reshape(-1)), 2)
     )
+    extra: dict[str, list[np.ndarray]] = {}
+    for r in results:
+        for name, values in r.columns().items():
+            extra.setdefault(name, []).append(np.asarray(values))
     cols = {
         "query_id": pa.array(cat(qid, np.int32)),
         "rank": pa.array(cat(rank, np.int32)),
@@ -311,7 +373,12 @@ def matches_table(query_ids: list[int], results: list[QueryMatches], space: Sear
         "cost_normalized": pa.array(cost / np.maximum(length, 1)),
         "path": path.cast(schema.WARPING_PATH.type),
     }
-    return pa.table(cols, schema=schema.MATCH_TABLE)
+    table = pa.table(cols, schema=schema.MATCH_TABLE)
+    for name, parts in extra.items():
+        if len(parts) != len(results):
+            raise DataError(f"column {name!r}: some results lack it")
+        table = table.append_column(name, pa.array(np.concatenate(parts)))
+    return table
 
 
 class MatchParams(Params):
@@ -365,14 +432,16 @@ class QuerySpec:
     end: float | None = None
     seconds: bool = False
 
-    def frames(self, fps: float, n_frames: int) -> tuple[int, int]:
-        """Half-open frame range within a clip of ``n_frames`` at ``fps``."""
+    def frames(self, fps: float, n_frames: int, units: str = "") -> tuple[int, int]:
+        """Half-open frame range within a clip of ``n_frames`` at ``fps`` (``units`` says
+        which frames, for the error: e.g. "frames of the take's own file at 120 fps")."""
         if self.start is None or self.end is None:
             return 0, n_frames
         scale = fps if self.seconds else 1.0
         a, b = int(round(self.start * scale)), int(round(self.end * scale))
         if not 0 <= a < b <= n_frames:
-            raise ConfigError(f"query {self.text()!r}: frames [{a}, {b}) outside the clip's {n_frames} frames")
+            of = f" ({units}" + (f"; 0s-{n_frames / fps:g}s in seconds)" if fps > 0 and units else ")") if units else ""
+            raise ConfigError(f"query {self.text()!r}: frames [{a}, {b}) outside the clip's {n_frames} frames{of}")
         return a, b
 
     def text(self) -> str:

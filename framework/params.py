@@ -27,3 +27,16 @@ class ParamsOf:
     """
 
     key: str
+
+
+def count_parameters(model: type[BaseModel], nested: bool = True) -> int:
+    """The parameters ``model`` declares: its fields, a nested parameter model counting as
+    its own fields (``nested``) rather than as one (``mocapflow plugins --count-params``)."""
+    n = 0
+    for field in model.model_fields.values():
+        ann = field.annotation
+        if nested and isinstance(ann, type) and issubclass(ann, BaseModel):
+            n += count_parameters(ann, nested)
+        else:
+            n += 1
+    return n

@@ -241,6 +241,14 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
                 done.add(sid)
                 remaining.remove(sid)
                 break
+    from .queries import query_spans_error
+
+    for sid in ordered:  # query ranges past their take's end fail here, not halfway through the run
+        err = query_spans_error(
+            steps[sid].component, steps[sid].inputs.get("query"), steps, source.base_dir, registries
+        )
+        if err:
+            raise source.error(("steps", sid, "with", "queries"), f"step {sid!r}: {err}")
     warnings = []
     for sid in ordered:
         try:

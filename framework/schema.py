@@ -8,7 +8,9 @@ Conventions, stated once:
   file never renumbers another. Ids are sparse and unordered; tables list clips in path
   order, and code that needs a position looks it up (never ``clip_id`` as an array index);
 * every segment or match table has ``clip_id, start_frame, end_frame`` where the range is
-  **half-open**: ``end_frame`` is *exclusive* (``end_frame - start_frame`` frames);
+  **half-open**: ``end_frame`` is *exclusive* (``end_frame - start_frame`` frames); in a
+  matcher step's tables (and everything printed or exported) these count frames of the
+  take's own file, with the analysis-rate frames in columns named ``*_analysis``;
 * feature vectors are fixed-size lists of float32;
 * match tables of every matcher share :data:`MATCHES` (extra matcher-specific columns may
   follow), so SQL composes across matchers; ``rank`` is 1-based per ``query_id`` (1 = best)
@@ -97,7 +99,7 @@ WARPING_PATH = pa.field("path", pa.list_(pa.list_(pa.int32(), 2)))
 MATCH_TABLE = MATCHES.append(pa.field("cost_normalized", pa.float64())).append(WARPING_PATH)
 
 #: Query table beside a match table: where each query came from (``clip_id`` -1: a file;
-#: frames half-open within that clip).
+#: frames half-open within that clip: of the take's own file, then at the analysis rate).
 QUERIES = pa.schema(
     [
         ("query_id", pa.int32()),
@@ -105,6 +107,8 @@ QUERIES = pa.schema(
         ("clip_id", pa.int32()),
         ("start_frame", pa.int32()),
         ("end_frame", pa.int32()),
+        ("start_frame_analysis", pa.int32()),
+        ("end_frame_analysis", pa.int32()),
     ]
 )
 

@@ -22,16 +22,20 @@ from .components import Cleaner, Component, FeatureSet, Index, Matcher
 from .context import StepContext
 from .datasets import Dataset, StepOutput, feature_table, frame_id_table
 from .motion import Motion
-from .queries import run_matcher
+from .queries import in_user_units, run_matcher
 from .registry import Registries
 
 StepFunction = Callable[[Component, Mapping[str, Dataset], StepContext], StepOutput]
 
 
 def run_step(component: Component, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
-    """``component.run`` where the component overrides it, else the default step of its kind."""
+    """``component.run`` where the component overrides it, else the default step of its kind.
+    A matcher's own ``run`` gets its match table in users' units too (:func:`.queries.in_user_units`)."""
     if type(component).run is not Component.run:
-        return component.run(inputs, ctx)
+        out = component.run(inputs, ctx)
+        if isinstance(component, Matcher) and "database" in inputs:
+            out = in_user_units(out, inputs)
+        return out
     if isinstance(component, FeatureSet):
         return run_features(component, inputs, ctx)
     if isinstance(component, Index):

@@ -44,7 +44,15 @@ def test_search_answers_in_the_sources_units_and_excludes_the_query(walk_db):
     hits = walk_db.search(q, count=5)
     assert hits.query == "16_15:120-240"
     rows = hits.to_pylist()
-    assert rows and {"fps", "start_frame", "end_frame", "start_s", "end_s", "analysis_path"} <= set(hits.column_names)
+    assert rows and {
+        "fps",
+        "start_frame",
+        "end_frame",
+        "start_s",
+        "end_s",
+        "path_analysis",
+        "start_frame_analysis",
+    } <= set(hits.column_names)
     for r in rows:
         assert r["fps"] == 120.0  # the take's own rate, not the database's 30 Hz
         assert r["start_s"] == pytest.approx(r["start_frame"] / 120) and r["end_s"] == pytest.approx(
@@ -167,7 +175,7 @@ steps:
   search:
     uses: matchers.search
     inputs: {{database: tree, query: motions}}
-    with: {{queries: ["16_15:30-60"], count: 3}}
+    with: {{queries: ["16_15:120-240"], count: 3}}
 """
 
 
@@ -192,13 +200,19 @@ def test_pipeline_search_excludes_the_query_span(search_workspace):
         if r["name"] == "16_15"
     }
     assert t
-    for r in t:  # the hit in the take's own units too: 120-Hz frames of the AMC, seconds
-        assert r["source_fps"] == 120.0 and r["source_start_frame"] == 4 * r["start_frame"]
-        assert r["start_s"] == pytest.approx(r["start_frame"] / 30)
-        assert r["end_s"] == pytest.approx(r["source_end_frame"] / 120)  # the take's end, when clamped
-    for r in t:  # query frames [30, 60) at 30 Hz, zone 15 frames each side
+    for r in t:  # the hit in the take's own units: 120-Hz frames of the AMC, seconds; 30 Hz in *_analysis
+        assert r["fps"] == 120.0 and r["start_frame"] == 4 * r["start_frame_analysis"]
+        assert r["fps_analysis"] == 30.0 and r["start_s"] == pytest.approx(r["start_frame_analysis"] / 30)
+        assert r["end_s"] == pytest.approx(r["end_frame"] / 120)  # the take's end, when clamped
+        # the deprecated duplicates of one release
+        assert (r["source_fps"], r["source_start_frame"], r["source_end_frame"]) == (
+            r["fps"],
+            r["start_frame"],
+            r["end_frame"],
+        )
+    for r in t:  # query source frames [120, 240) = [30, 60) at 30 Hz, zone 15 frames each side
         if r["clip_id"] in clip_16:
-            assert r["end_frame"] <= 15 or r["start_frame"] >= 75
+            assert r["end_frame_analysis"] <= 15 or r["start_frame_analysis"] >= 75
 
 
 def test_cli_export_and_search_units(search_workspace, tmp_path, capsys):
@@ -208,13 +222,13 @@ def test_cli_export_and_search_units(search_workspace, tmp_path, capsys):
     assert main(["export", str(search_workspace), "--output", str(tmp_path / "clips"), "--handle", "4"]) == 0
     with open(tmp_path / "clips" / "index.csv") as f:
         rows = list(csv.DictReader(f))
-    assert rows and {r["query"] for r in rows} == {"16_15:30-60"}
+    assert rows and {r["query"] for r in rows} == {"16_15:120-240"}
     for r in rows:
         src = mocapflow.read(r["source"])
-        assert float(r["fps"]) == 120.0 and r["file"].startswith("16_15_30-60/")
+        assert float(r["fps"]) == 120.0 and r["file"].startswith("16_15_120-240/")
         _same_clip(tmp_path / "clips" / r["file"], src, int(r["clip_start"]), int(r["clip_end"]))
     out = tmp_path / "hits.csv"
-    argv = ["search", "--db", str(search_workspace), "--query", "16_15:30-60", "--no-server", "--out", str(out)]
+    argv = ["search", "--db", str(search_workspace), "--query", "16_15:120-240", "--no-server", "--out", str(out)]
     assert main(argv) == 0
     assert "its own span excluded" in capsys.readouterr().out
     with open(out) as f:

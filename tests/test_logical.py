@@ -12,7 +12,7 @@ from test_lng import BruteIndex
 from mocapflow.framework import StepContext, load_registries
 from mocapflow.framework.datasets import MANIFEST, Dataset, feature_table, frame_id_table
 from mocapflow.framework.errors import ConfigError
-from mocapflow.framework.matching import MATCH_COLUMNS, SearchSpace
+from mocapflow.framework.matching import USER_MATCH_COLUMNS, SearchSpace
 from mocapflow.framework.queries import parse_query_spec
 from mocapflow.framework.steps import run_step
 from mocapflow.plugins.similarity.search.certified import CertifiedSearch
@@ -125,16 +125,21 @@ def ctx_for(tmp_path, regs, step):
 )
 def test_run_steps_on_datasets(workspace, cls, params):
     tmp_path, regs, feats, tree = workspace
-    matcher = cls({**params, "queries": ["0:8-28", "1:8-28"]})
+    # the queries are cut from the database's own features: logical keeps them excluded, the
+    # others search them too (exclude_self off) and find themselves first
+    own = {} if cls is LogicalSearch else {"exclude_self": "off"}
+    matcher = cls({**params, **own, "queries": ["0:8-28", "1:8-28"]})
     out = run_step(matcher, {"database": tree, "query": feats}, ctx_for(tmp_path, regs, cls.name))
     data, queries = out.tables["data"], out.tables["queries"]
-    assert data.schema.names[: len(MATCH_COLUMNS)] == MATCH_COLUMNS.names
+    assert data.schema.names[: len(USER_MATCH_COLUMNS)] == list(USER_MATCH_COLUMNS)
     assert queries["name"].to_pylist() == ["0:8-28", "1:8-28"]
     rows = data.to_pylist()
     assert rows and all(r["end_frame"] > r["start_frame"] for r in rows)
-    for r in rows:  # paths use within-clip frames inside [start, end)
-        frames = [p[1] for p in r["path"]]
-        assert min(frames) == r["start_frame"] and max(frames) == r["end_frame"] - 1
+    for r in rows:  # paths use within-clip analysis frames inside [start, end)
+        frames = [p[1] for p in r["path_analysis"]]
+        assert min(frames) == r["start_frame_analysis"] and max(frames) == r["end_frame_analysis"] - 1
+        # features without source rates: one frame is one row
+        assert (r["start_frame"], r["end_frame"]) == (r["start_frame_analysis"], r["end_frame_analysis"])
     if cls is LogicalSearch:  # the query's own segment is excluded
         assert all(not (r["query_id"] == 0 and r["clip_id"] == 0 and r["start_frame"] < 28) for r in rows)
         assert set(data["round"].to_pylist()) >= {1, 2}
@@ -150,7 +155,9 @@ def test_run_steps_on_datasets(workspace, cls, params):
 def test_sdtw_runs_on_a_features_dataset_without_index(workspace):
     tmp_path, regs, feats, tree = workspace
     out = run_step(
-        SubsequenceDTW(count=1, queries=["2:8-28"]), {"database": feats, "query": feats}, ctx_for(tmp_path, regs, "s")
+        SubsequenceDTW(count=1, queries=["2:8-28"], exclude_self="off"),
+        {"database": feats, "query": feats},
+        ctx_for(tmp_path, regs, "s"),
     )
     assert out.tables["data"].to_pylist()[0]["clip_id"] == 2
 

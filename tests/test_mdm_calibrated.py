@@ -255,12 +255,12 @@ def test_clean_honours_block(tmp_path, capsys):
 def test_clean_uses_the_plugin_manager_the_cli_built():
     import argparse
 
-    from mocapflow.plugins.selfsim.clean_command import _plugin_manager
+    from mocapflow.framework.commands import context_of
 
     sentinel = object()
-    assert _plugin_manager(argparse.Namespace(plugin_manager=sentinel)) is sentinel
-    pm = _plugin_manager(argparse.Namespace(block=["mocapflow.plugins.matchers.plugin"], no_entry_points=True))
-    assert pm.is_blocked("mocapflow.plugins.matchers.plugin")
+    assert context_of(argparse.Namespace(plugin_manager=sentinel)).plugin_manager is sentinel
+    ctx = context_of(argparse.Namespace(block=["mocapflow.plugins.matchers.plugin"], no_entry_points=True))
+    assert ctx.plugin_manager.is_blocked("mocapflow.plugins.matchers.plugin")
 
 
 def test_cleaner_provenance_is_deterministic(tmp_path):

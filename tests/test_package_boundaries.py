@@ -90,7 +90,7 @@ def test_every_builtin_package_registers_from_its_plugin_module():
 #: add to it), the facades and the plugin manager. Everything else receives the run's
 #: registries (a step's context, a task's arguments), so that ``--block`` holds everywhere.
 REGISTRY_BUILDERS = ("load_registries", "default_registries")
-MAY_BUILD = ("framework/cli.py", "framework/__init__.py", "framework/plugins.py", "_mocapflow/")
+MAY_BUILD = ("framework/cli.py", "framework/__init__.py", "framework/plugins.py", "framework/api.py", "_mocapflow/")
 
 
 def test_registries_are_built_only_by_the_cli_the_facade_and_the_plugin_manager():

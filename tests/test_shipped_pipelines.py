@@ -30,14 +30,17 @@ def test_quickstart_end_to_end(tmp_path):
         assert cat.query("SELECT count(*) AS n FROM clips").column("n")[0].as_py() == 8
         assert cat.query("SELECT count(*) AS n FROM rejects").column("n")[0].as_py() == 0
         hits = cat.query(
-            "SELECT c.name, s.start_frame, s.end_frame, s.cost, s.source_fps, s.source_start_frame, s.start_s "
-            "FROM search s JOIN clips c USING (clip_id)"
+            "SELECT c.name, s.start_frame, s.end_frame, s.cost, s.fps, s.start_frame_analysis, "
+            "s.end_frame_analysis, s.start_s FROM search s JOIN clips c USING (clip_id)"
         ).to_pylist()
         # the query (16_15, seconds 1-2 at 30 Hz) does not find itself (exclude_self: span, zone 15 frames)
         assert len(hits) == 5 and all(h["cost"] > 0 for h in hits)
-        assert all(h["name"] != "16_15" or h["end_frame"] <= 15 or h["start_frame"] >= 75 for h in hits)
-        # and each hit is also given in its take's own units (120 Hz AMC) and seconds
-        assert all(h["source_fps"] == 120 and h["source_start_frame"] == 4 * h["start_frame"] for h in hits)
+        assert all(
+            h["name"] != "16_15" or h["end_frame_analysis"] <= 15 or h["start_frame_analysis"] >= 75 for h in hits
+        )
+        # frames of the take's own file (120 Hz AMC) and seconds; the 30-Hz rows in *_analysis
+        assert all(h["fps"] == 120 and h["start_frame"] == 4 * h["start_frame_analysis"] for h in hits)
+        assert all(h["start_s"] == h["start_frame"] / 120 for h in hits)
         nearest = cat.query("SELECT count(*) AS n FROM nearest").column("n")[0].as_py()
         assert nearest == 3 * 16
         assert cat.query("SELECT min(rank) AS r FROM hits").column("r")[0].as_py() == 1

@@ -86,12 +86,23 @@ def test_sql_loads_no_plugin(tmp_path):
     assert not any(m.startswith("mocapflow.plugins.") for m in mods), sorted(mods)
 
 
-def test_help_finds_every_builtin_command_provider_without_importing():
-    """`mocapflow --help` imports only the built-ins whose source names register_commands:
-    that guess must agree with the hooks the imported modules implement."""
-    from mocapflow.framework import get_plugin_manager
-    from mocapflow.framework.cli import command_plugin_modules
+def test_commands_run_with_one_context_that_honours_block(tmp_path, capsys):
+    """Commands come from the register_commands hook of every plugin that is not blocked, and
+    run with the context the CLI built: a blocked plugin's command and formats are gone."""
+    from mocapflow.framework.cli import main
+    from mocapflow.framework.commands import CommandContext
 
-    pm = get_plugin_manager(entry_points=False)
-    providers = {pm.get_name(impl.plugin) for impl in pm.hook.register_commands.get_hookimpls()}
-    assert providers and providers == set(command_plugin_modules())
+    ctx = CommandContext.from_switches(entry_points=False)
+    names = {c.name for c in ctx.plugin_manager.hook.register_commands() for c in c}
+    assert {"search", "export", "reconstruct", "clean", "report"} <= names
+    blocked = CommandContext.from_switches(entry_points=False, blocked=["mocapflow.plugins.formats.plugin"])
+    assert "export" not in {c.name for cs in blocked.plugin_manager.hook.register_commands() for c in cs}
+    keys = blocked.registries(["formats"]).keys()
+    assert "formats.bvh" not in keys
+    assert blocked.registries(["formats"]) is blocked.registries(["formats"])  # built once
+    # reconstruct reads its input with the context's formats: none when formats are blocked
+    take = tmp_path / "take.bvh"
+    take.write_text("HIERARCHY\n")
+    argv = ["--block", "mocapflow.plugins.formats.plugin", "reconstruct", str(take), "--prior", str(tmp_path)]
+    assert main([*argv, "-o", str(tmp_path / "out.bvh")]) == 2
+    assert "no registered reader" in capsys.readouterr().err

@@ -4,12 +4,13 @@ or a process pool) and ``executor: dask`` (a dask.distributed cluster; the optio
 
 from __future__ import annotations
 
-from mocapflow.framework.executors import LocalExecutor
 from mocapflow.framework.plugins import hookimpl
 
 
 @hookimpl
 def register_executors() -> list[type]:
+    from mocapflow.framework.executors import LocalExecutor
+
     from .dask_cluster import DaskExecutor
 
     return [LocalExecutor, DaskExecutor]

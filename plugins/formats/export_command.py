@@ -7,6 +7,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mocapflow.framework.commands import CommandContext
 
 
 class ExportCommand:
@@ -30,11 +34,10 @@ class ExportCommand:
         )
 
     @classmethod
-    def run(cls, args: argparse.Namespace) -> int:
+    def run(cls, args: argparse.Namespace, ctx: CommandContext) -> int:
         from mocapflow.framework.datasets import read_datasets
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.export import export_segments, workspace_segments
-        from mocapflow.framework.plugins import build_registries, get_plugin_manager
         from mocapflow.framework.workspace import refuse_dataset_path
 
         ws = Path(args.workspace)
@@ -49,8 +52,7 @@ class ExportCommand:
         if step not in datasets:
             raise ConfigError(f"{ws}: no step {step!r} (steps: {', '.join(sorted(datasets)) or 'none'})")
         segments = workspace_segments(datasets[step], datasets, top=args.top)
-        pm = getattr(args, "plugin_manager", None) or get_plugin_manager()
-        regs = build_registries(pm)
+        regs = ctx.registries()
         readers = _reader_params(datasets, step)
         out = refuse_dataset_path(
             Path(args.output) if args.output else ws / "export" / step, "--output", workspaces=[ws], directory=True

@@ -55,7 +55,17 @@ def owned_file(root: Path, path: Path) -> bool:
 
 MATCH_COLS = ("query_id", "rank", "clip_id", "start_frame", "end_frame", "cost")
 #: the hit in its take's own units (a matcher step appends them); the report shows start and duration
-SOURCE_UNIT_COLS = ("source_fps", "source_start_frame", "source_end_frame", "start_s", "end_s")
+SOURCE_UNIT_COLS = (
+    "fps",
+    "start_s",
+    "end_s",
+    "start_frame_analysis",
+    "end_frame_analysis",
+    "fps_analysis",
+    "source_fps",
+    "source_start_frame",
+    "source_end_frame",
+)
 NEAREST_COLS = ("query_clip_id", "query_frame", "clip_id", "frame", "distance")
 MDM_COLS = ("clip_id", "frame", "joint_name", "value")
 #: Bones of the stick figures, as canonical joint pairs along these chains.
@@ -245,12 +255,14 @@ class ModelBuilder:
         names = {v: k for k, v in self.mo.names(step).items()}
         if ds.has_table("queries"):
             rows = ds.table("queries").to_pylist()
+            # start/end: analysis-rate frames (what the player steps through); frames: the take's own
             return {
                 int(r["query_id"]): {
                     "name": r.get("name") or f"query {r['query_id']}",
                     "clip_id": r.get("clip_id"),
-                    "start": r.get("start_frame"),
-                    "end": r.get("end_frame"),
+                    "start": r.get("start_frame_analysis", r.get("start_frame")),
+                    "end": r.get("end_frame_analysis", r.get("end_frame")),
+                    "frames": f"[{r.get('start_frame')}, {r.get('end_frame')})",
                 }
                 for r in rows
             }
@@ -289,9 +301,12 @@ class ModelBuilder:
             for c in cols
             if c not in MATCH_COLS
             and c not in SOURCE_UNIT_COLS
-            and c != "path"
+            and c not in ("path", "path_analysis")
             and not pa.types.is_nested(t.schema.field(c).type)
         ]
+        # a matcher step's table: frames of each take's own file, the analysis-rate ones in *_analysis
+        pcol = "path_analysis" if "path_analysis" in cols else "path"
+        analysis = "start_frame_analysis" in cols
         names, qnames = self.mo.names(step), self.mo.names(qstep)
         queries = {}
         for qid, q in self._query_specs(ds, qstep).items():
@@ -300,21 +315,28 @@ class ModelBuilder:
             if q.get("clip_id") is not None and q.get("start") is not None and int(q["clip_id"]) in qnames:
                 queries[qid].update(clip=qnames[int(q["clip_id"])], motion=self.motion_key(qstep, q["clip_id"]))
         hits = []
-        paths = t["path"].to_pylist() if "path" in cols else [None] * t.num_rows
-        for r, path in zip(t.select([c for c in cols if c != "path"]).to_pylist(), paths, strict=True):
+        paths = t[pcol].to_pylist() if pcol in cols else [None] * t.num_rows
+        for r, path in zip(t.select([c for c in cols if c != pcol]).to_pylist(), paths, strict=True):
             qid = int(r["query_id"])
             q = queries.setdefault(qid, {"id": qid, "name": f"query {qid}", "clip_id": None})
+            a, b = (
+                (r["start_frame_analysis"], r["end_frame_analysis"]) if analysis else (r["start_frame"], r["end_frame"])
+            )
+            fps = self.mo.fps(step, r["clip_id"])
+            start_s = r["start_s"] if analysis and r.get("start_s") is not None else a / fps
+            end_s = r["end_s"] if analysis and r.get("end_s") is not None else b / fps
             hits.append(
                 {
                     "query_id": qid,
                     "rank": r["rank"],
                     "clip_id": r["clip_id"],
                     "clip": names.get(r["clip_id"], str(r["clip_id"])),
-                    "start": r["start_frame"],
-                    "end": r["end_frame"],
+                    "start": a,
+                    "end": b,
+                    "frames": f"[{r['start_frame']}, {r['end_frame']})",
                     "cost": _scalar(r["cost"]),
-                    "start_s": round(r["start_frame"] / self.mo.fps(step, r["clip_id"]), 3),
-                    "seconds": round((r["end_frame"] - r["start_frame"]) / self.mo.fps(step, r["clip_id"]), 3),
+                    "start_s": round(start_s, 3),
+                    "seconds": round(end_s - start_s, 3),
                     "extra": {c: _scalar(r[c]) for c in extra},
                     "path": _relative_path(path, q if q.get("motion") else None),
                     "motion": self.motion_key(step, r["clip_id"]),

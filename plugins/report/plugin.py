@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from mocapflow.framework.plugins import hookimpl
+
+if TYPE_CHECKING:
+    from mocapflow.framework.commands import CommandContext
 
 
 @hookimpl
@@ -81,7 +85,7 @@ class ReportCommand:
         parser.add_argument("--output", "-o", metavar="DIR", help="site directory (default WORKSPACE/report)")
 
     @classmethod
-    def run(cls, args: argparse.Namespace) -> int:
+    def run(cls, args: argparse.Namespace, ctx: CommandContext) -> int:
         info = build_report(args.workspace, args.output)
         print(
             f"wrote {info['index']} ({info['steps']} steps, {info['files']} files, "

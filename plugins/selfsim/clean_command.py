@@ -9,20 +9,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-
-def _plugin_manager(args: argparse.Namespace, pm: Any = None) -> Any:
-    """The plugin manager the CLI built (passed in, or left on ``args`` as ``plugin_manager``);
-    without one, one built with the CLI's own ``--block`` / ``--no-entry-points`` switches."""
-    pm = pm if pm is not None else getattr(args, "plugin_manager", None)
-    if pm is not None:
-        return pm
-    from mocapflow.framework.plugins import get_plugin_manager
-
-    return get_plugin_manager(
-        entry_points=not getattr(args, "no_entry_points", False), blocked=list(getattr(args, "block", None) or [])
-    )
-
-
 _OUTPUT_KINDS = (".bvh", ".amc")
 
 
@@ -73,11 +59,11 @@ class CleanCommand:
         parser.add_argument("--threshold", type=float, default=None, help="paper: MDM threshold (default 0.5)")
 
     @classmethod
-    def run(cls, args: argparse.Namespace, pm: Any = None) -> int:
+    def run(cls, args: argparse.Namespace, ctx: Any = None) -> int:
         import pyarrow.parquet as pq
 
+        from mocapflow.framework.commands import context_of
         from mocapflow.framework.errors import ConfigError
-        from mocapflow.framework.plugins import build_registries
         from mocapflow.framework.workspace import atomic_path, refuse_dataset_path
 
         dest = refuse_dataset_path(args.output, "--output")
@@ -88,7 +74,7 @@ class CleanCommand:
                 f"--output {args.output}: the cleaned take is written as .bvh or .amc, "
                 f"not {dest.suffix or 'a file without extension'!r}"
             )
-        regs = build_registries(_plugin_manager(args, pm))
+        regs = (ctx if ctx is not None else context_of(args)).registries()
         cleaner_cls = regs["cleaners"].get("mdm")
         take = regs.motion_format(args.take).read(args.take)
         if dest.suffix.lower() == ".amc" and take.skeleton.meta.get("format") != "asf":

@@ -153,7 +153,7 @@ const MocapReport = (() => {
         qFrames = Int32Array.from(path, (p) => Math.min((data[1] || data[0]).meta.n_frames - 1, q ? q.start + p[0] : p[0]));
       }
       const anchor = (d, f, dx) => [dx - d.pos[f * nJ * 3], 0, -d.pos[f * nJ * 3 + 2]];
-      const tracks = [{ label: `hit ${hit.rank}: ${hit.clip} [${hit.start}, ${hit.end})`, color: "#c92a2a", pos: data[0].pos, nJ, frames: hFrames, offset: anchor(data[0], hFrames[0], 0.6), highlight: -1 }];
+      const tracks = [{ label: `hit ${hit.rank}: ${hit.clip} ${hit.frames || `[${hit.start}, ${hit.end})`}`, color: "#c92a2a", pos: data[0].pos, nJ, frames: hFrames, offset: anchor(data[0], hFrames[0], 0.6), highlight: -1 }];
       if (data[1]) tracks.unshift({ label: `query: ${q.name}`, color: "#1c4e80", pos: data[1].pos, nJ, frames: qFrames, offset: anchor(data[1], qFrames[0], -0.6), highlight: -1 });
       player.setScene({ tracks, steps, fps: data[0].meta.fps, caption: (s) => `${v.cost_label} ${fmt(hit.cost)}` + (v.poses ? (hFrames[s] === hit.start ? " \u2014 the compared poses" : "") : ` \u2014 path step ${s + 1}: query frame ${qFrames[s]}, hit frame ${hFrames[s]}`) });
       player.play();
@@ -166,9 +166,9 @@ const MocapReport = (() => {
     }
     for (const q of v.queries) {
       const hits = v.hits.filter((x) => x.query_id === q.id);
-      box.appendChild(h("h3", null, `Query ${q.id}: ${q.name}`, q.clip ? h("span", { class: "note" }, ` \u2014 ${q.clip}, frames [${q.start}, ${q.end})`) : null));
+      box.appendChild(h("h3", null, `Query ${q.id}: ${q.name}`, q.clip ? h("span", { class: "note" }, ` \u2014 ${q.clip}, frames ${q.frames || `[${q.start}, ${q.end})`}`) : null));
       const t = { columns: ["rank", "clip", "frames", "start (s)", "duration (s)", v.cost_label].concat(v.extra), n_rows: hits.length,
-        rows: hits.map((x) => [x.rank, x.clip, `[${x.start}, ${x.end})`, x.start_s, x.seconds, x.cost].concat(v.extra.map((c) => x.extra[c]))) };
+        rows: hits.map((x) => [x.rank, x.clip, x.frames || `[${x.start}, ${x.end})`, x.start_s, x.seconds, x.cost].concat(v.extra.map((c) => x.extra[c]))) };
       box.appendChild(table(t, { extraHead: "play", extra: (i) => h("button", { type: "button", class: "play-hit", on: { click: () => play(hits[i]).catch(report) } }, "\u25B6") }));
     }
     return box;

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -22,8 +22,31 @@ from mocapflow.framework.motion import Motion
 from .knn import ContextTextures, WordNeighbours, knn_search
 from .motion_words import Texture, context_motions, motion_texture, resolve_groups, source_word_starts
 
-if TYPE_CHECKING:
-    from ..cleaner import MDMParams
+
+class MDMAnalysis(Protocol):
+    """What the analysis reads of the cleaner's parameters (``cleaner.MDMParams``; declared
+    here, so the analysis does not import the cleaner that calls it)."""
+
+    @property
+    def fps(self) -> float: ...
+    @property
+    def joints(self) -> tuple[str, ...]: ...
+    @property
+    def source_length(self) -> int: ...
+    @property
+    def source_step(self) -> int: ...
+    @property
+    def target_length(self) -> int: ...
+    @property
+    def k(self) -> int: ...
+    @property
+    def slope_run(self) -> int: ...
+    @property
+    def exclusion(self) -> int | None: ...
+    @property
+    def include_self(self) -> bool: ...
+    def groups_tuple(self) -> tuple[tuple[str, tuple[str, ...], int], ...]: ...
+
 
 __all__ = ["DigressionResult", "context_motions", "digression_map"]
 
@@ -101,7 +124,7 @@ def digression_from_outer(
     return mean_q, diff, spread, 1.0 - np.exp(-(m**2))
 
 
-def digression_map(motion: Motion, context: Any, p: MDMParams) -> DigressionResult:
+def digression_map(motion: Motion, context: Any, p: MDMAnalysis) -> DigressionResult:
     """The MDM of ``motion`` against ``context`` (module doc) with the cleaner's parameters."""
     t0 = time.perf_counter()
     clips = context_motions(motion, context, p.include_self)

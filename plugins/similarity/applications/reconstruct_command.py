@@ -19,6 +19,10 @@ import argparse
 import glob
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mocapflow.framework.commands import CommandContext
 
 
 class ReconstructCommand:
@@ -41,10 +45,10 @@ class ReconstructCommand:
         )
 
     @classmethod
-    def run(cls, args: argparse.Namespace) -> int:
+    def run(cls, args: argparse.Namespace, ctx: CommandContext) -> int:
         import numpy as np
 
-        from mocapflow.framework import Motion, load_registries
+        from mocapflow.framework import Motion
         from mocapflow.framework.errors import ConfigError, DataError
         from mocapflow.framework.workspace import refuse_dataset_path
 
@@ -53,7 +57,7 @@ class ReconstructCommand:
         from .reconstruct_prior import PriorStore, bone_lengths, build_store
         from .retarget import positions_to_motion
 
-        reg = load_registries(kinds=["formats"], entry_points=False)
+        reg = ctx.registries(["formats"])  # honours --block; third parties' readers too
         src, out = Path(args.input), refuse_dataset_path(args.out, "--out")
         if not src.is_file():
             raise ConfigError(f"{src}: no such file")

@@ -4,12 +4,9 @@ same method (measured break-evens: docs/knn.md)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .kdtree import TreeSettings
 
 #: ``method: auto`` keeps the kd-tree while the work a k-NN query cannot skip (bucket points
 #: within the k-th neighbour distance, plus nodes) stays below this share of the rows (a tree
@@ -22,10 +19,21 @@ BATCH_BRUTE_FROM_WORK = 7.0
 BATCH_QUERIES = 32
 
 
+class ProbeSettings(Protocol):
+    """What the probe reads of :class:`.kdtree.TreeSettings` (declared here, so this module
+    does not import the kd-tree that mixes it in)."""
+
+    @property
+    def probe_queries(self) -> int: ...
+
+    @property
+    def probe_k(self) -> tuple[int, ...]: ...
+
+
 class CostModel:
     """The method choice of :class:`.kdtree.KDTreeIndex` (a mixin: it reads the built tree)."""
 
-    def _probe(self, cfg: TreeSettings) -> str:
+    def _probe(self, cfg: ProbeSettings) -> str:
         """Choose the method by counting work on a sample of the indexed rows (deterministic).
 
         For each probed ``k``: the exact k-th neighbour distance of ``cfg.probe_queries`` sampled

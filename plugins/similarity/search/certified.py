@@ -132,7 +132,15 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: Certi
     rows, cost, start, length = ranges_dp(qt, space, ranges)
     st.guess_columns += len(rows)
     keep = select_matches(
-        rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by, min_frames=min_frames
+        rows,
+        start,
+        cost,
+        length,
+        count=count,
+        max_cost=max_cost,
+        rank_by=rank_by,
+        min_frames=min_frames,
+        excluded=space.excluded,
     )
     return float(cost[keep[-1]]) if len(keep) == count else np.inf
 
@@ -162,7 +170,15 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
         rows, cost, start, length = ranges_dp(qt, space, bstart[br])
         st.guess_columns += len(rows)
         keep = select_matches(
-            rows, start, cost, length, count=count, max_cost=max_cost, rank_by=rank_by, min_frames=min_frames
+            rows,
+            start,
+            cost,
+            length,
+            count=count,
+            max_cost=max_cost,
+            rank_by=rank_by,
+            min_frames=min_frames,
+            excluded=space.excluded,
         )
         if len(keep) == count:
             return float(cost[keep[-1]])
@@ -236,7 +252,7 @@ def certified_sdtw(
     tau = np.inf
     if rank_by == "cost" and not direct:
         found = (
-            graph.matches(count=count, max_cost=max_cost, rank_by="cost", min_span=min_span)
+            graph.matches(count=count, max_cost=max_cost, rank_by="cost", min_span=min_span, excluded=space.excluded)
             if graph is not None
             else None
         )
@@ -273,6 +289,7 @@ def certified_sdtw(
             max_cost=max_cost,
             rank_by=rank_by,
             min_frames=min_frames,
+            excluded=space.excluded,
         )
         if len(keep) == count or tau >= ceiling:
             break

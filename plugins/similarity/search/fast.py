@@ -108,6 +108,7 @@ def fast_sdtw(
         max_cost=max_cost,
         rank_by=rank_by,
         min_frames=min_frames_of(min_span, m),
+        excluded=space.excluded,
     )
     if len(keep) < count and len(rows) < space.n_rows:
         if stats is not None:

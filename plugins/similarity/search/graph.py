@@ -13,6 +13,19 @@ import numpy as np
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
 
+#: neighbours per query frame of the default graph (the paper's k)
+K = 256
+#: gap band of the default graph, in query frames (measured: docs/global-matching.md)
+GAPS = 32
+#: the default graph searches the index on every this-many-th query frame
+PROPAGATE = 2
+
+
+def graph_options(paper: bool = False, k: int = K) -> dict[str, int]:
+    """``k``, ``propagate`` and ``gaps`` of :func:`build_graph`: the gap-tolerant default
+    graph, or the paper's (``paper``: neighbour cells only, every query frame searched)."""
+    return {"k": int(k), "propagate": 0 if paper else PROPAGATE, "gaps": 0 if paper else GAPS}
+
 
 @dataclass(frozen=True)
 class NeighborhoodGraph:
@@ -44,9 +57,16 @@ class NeighborhoodGraph:
         return int(self.count.sum())
 
     def matches(
-        self, *, count: int = 10, max_cost: float | None = None, rank_by: str = "cost", min_span: float = 0.5
+        self,
+        *,
+        count: int = 10,
+        max_cost: float | None = None,
+        rank_by: str = "cost",
+        min_span: float = 0.5,
+        excluded: tuple[int, int] | None = None,
     ) -> QueryMatches:
-        """Ranked non-overlapping matches ending in the last layer (see :func:`.select_matches`); ``end`` exclusive."""
+        """Ranked non-overlapping matches ending in the last layer, none overlapping the
+        ``excluded`` rows (see :func:`.select_matches`); ``end`` exclusive."""
         from ._lng_kernels import lng_backtrack
 
         last = self.ids.shape[0] - 1
@@ -61,6 +81,7 @@ class NeighborhoodGraph:
             max_cost=max_cost,
             rank_by=rank_by,
             min_frames=min_frames_of(min_span, self.ids.shape[0]),
+            excluded=excluded,
         )
         paths = [lng_backtrack(self.ids, self.pred, last, int(a)) for a in keep]
         return QueryMatches(

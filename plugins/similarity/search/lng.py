@@ -28,17 +28,13 @@ from pydantic import Field
 from mocapflow.framework import Matcher
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace
 
-from .graph import build_graph
+from .graph import GAPS, PROPAGATE, K, build_graph
 from .matcher_base import match_kw
 
 #: The most neighbours per query frame a graph may ask the index for: k x the query's frames
 #: neighbour ids are held at once (4096 x a 1000-frame query: 33 MB).
 MAX_K = 4096
 
-#: gap band of the default graph, in query frames (measured: docs/global-matching.md)
-GAPS = 32
-#: the default graph searches the index on every this-many-th query frame
-PROPAGATE = 2
 DEPRECATED = (
     "matchers.lng runs the certified search for one more release; name matchers.search (same results) "
     "or set exact: false for the lazy neighbourhood graph"
@@ -66,7 +62,7 @@ def lazy_neighborhood_graph(
     propagate=0, fill=False, min_span=0``.
     """
     graph = build_graph(query, space, k=k, radius=radius, propagate=propagate, gaps=gaps)
-    res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span)
+    res = graph.matches(count=count, max_cost=max_cost, rank_by=rank_by, min_span=min_span, excluded=space.excluded)
     if fill and len(res) < count and space.features is not None:
         from .certified import certified_sdtw
 
@@ -88,7 +84,7 @@ class LazyNeighborhoodGraph(Matcher):
     needs_features: ClassVar[bool] = True
 
     class Params(MatchParams):
-        k: int = Field(256, ge=1, le=MAX_K, description="maximum neighbours per query frame (paper: k)")
+        k: int = Field(K, ge=1, le=MAX_K, description="maximum neighbours per query frame (paper: k)")
         paper: bool = Field(
             False,
             description=(
@@ -116,8 +112,9 @@ class LazyNeighborhoodGraph(Matcher):
             from .certified import certified_sdtw
 
             return certified_sdtw(query, space, **match_kw(p))
-        paper = {"propagate": 0, "gaps": 0, "fill": False} if p.paper else {}
-        return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p), **paper)
+        if p.paper:  # the paper's graph: neighbour cells only, every query frame searched, no fallback
+            return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p), propagate=0, gaps=0, fill=False)
+        return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p))
 
     def check_plan(self, base_dir) -> list[str]:
         """The alias's warning at the step's line of the plan (and in the run log)."""

@@ -13,20 +13,17 @@ dropped. The search stops after ``rounds`` rounds, when a round finds no new seg
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import ClassVar, Literal
 
 import numpy as np
-import pyarrow as pa
 from pydantic import Field
 
 from mocapflow.framework import Matcher
-from mocapflow.framework.datasets import StepOutput
 from mocapflow.framework.errors import DataError
-from mocapflow.framework.matching import IntervalSet, MatchParams, QueryMatches, SearchSpace, matches_table
-from mocapflow.framework.queries import features_dataset, queries_table, search_space, step_queries, upstream
+from mocapflow.framework.matching import IntervalSet, MatchParams, QueryMatches, SearchSpace
 
-from .lng import GAPS, MAX_K, PROPAGATE, lazy_neighborhood_graph
+from .graph import GAPS, PROPAGATE
+from .lng import MAX_K, lazy_neighborhood_graph
 from .matcher_base import match_kw
 
 
@@ -41,6 +38,12 @@ class LogicalMatches(QueryMatches):
 
     round: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     source: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """``round`` and ``source_rank`` (rank of the match that served as query; 0: the
+        original query)."""
+        rank_of = np.r_[0, np.arange(1, len(self) + 1)].astype(np.int32)
+        return {"round": np.asarray(self.round, np.int32), "source_rank": rank_of[np.asarray(self.source) + 1]}
 
 
 def logical_search(
@@ -165,40 +168,7 @@ class LogicalSearch(Matcher):
         )
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
-        return self.search(query, space)
-
-    def run(self, inputs, ctx) -> StepOutput:
-        space = search_space(self, inputs, ctx.registries)
-        queries = step_queries(self, inputs, ctx)
-        fds = features_dataset(inputs)
-        qpath = inputs["query"].path.resolve()
-        # query clip ids are database clip ids only when the query input is the database's own
-        same = fds is not None and (
-            fds.path.resolve() == qpath
-            or getattr(upstream(fds, "motions"), "path", Path("/nonexistent")).resolve() == qpath
-        )
-        results = []
-        for q in ctx.progress(queries, total=len(queries), desc=ctx.step_id):
-            results.append(self.search(q.features, space, self._own_rows(q, space) if same else None))
-        table = matches_table(list(range(len(queries))), results, space)
-        rank_of = [np.r_[0, np.arange(1, len(r) + 1)] for r in results]  # source -1 -> rank 0
-        table = table.append_column(
-            "round", pa.array(np.concatenate([r.round for r in results]) if results else np.zeros(0, np.int32))
-        )
-        src = [ro[r.source + 1] for ro, r in zip(rank_of, results, strict=True)]
-        table = table.append_column(
-            "source_rank", pa.array(np.concatenate(src).astype(np.int32) if src else np.zeros(0, np.int32))
-        )
-        return StepOutput(
-            {"data": table, "queries": queries_table(queries)},
-            {"queries": len(queries), "matches": int(sum(len(r) for r in results))},
-        )
-
-    def _own_rows(self, q, space: SearchSpace) -> tuple[int, int] | None:
-        """Rows of the query's own segment when the query input is the database's motions (never reported)."""
-        if q.clip_id < 0:
-            return None
-        hit = np.flatnonzero(
-            (space.clip_id == q.clip_id) & (space.frame >= q.start_frame) & (space.frame < q.end_frame)
-        )
-        return (int(hit[0]), int(hit[-1]) + 1) if hit.size else None
+        """The logical search of ``query``, never reporting the space's excluded rows (the
+        query's own span, :attr:`~mocapflow.framework.SearchSpace.excluded`)."""
+        ex = space.excluded
+        return self.search(query, space, (ex[0], ex[1] + 1) if ex is not None else None)

@@ -151,9 +151,9 @@ def plot_matches(n: int, query_id: int, query, matches: QueryMatches, space: Sea
     (:func:`.graph.build_graph`, the gap-tolerant defaults unless ``graph_kw`` says otherwise)."""
     if not n or query_id >= PLOT_QUERIES or not len(matches):
         return
-    from .graph import build_graph
+    from .graph import build_graph, graph_options
 
-    graph = build_graph(query.features, space, **{"k": 256, "propagate": 2, "gaps": 32, **graph_kw})
+    graph = build_graph(query.features, space, **{**graph_options(), **graph_kw})
     for r in range(min(n, len(matches))):
         plot_neighborhood(
             graph,

@@ -98,6 +98,7 @@ def subsequence_dtw(
         max_cost=max_cost,
         rank_by=rank_by,
         min_frames=min_frames_of(min_span, len(q)),
+        excluded=space.excluded,
     )
     paths = []
     for e in keep:

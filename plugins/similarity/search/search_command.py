@@ -18,7 +18,11 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
+
+if TYPE_CHECKING:
+    from mocapflow.framework.commands import CommandContext
+    from mocapflow.framework.registry import Registries
 
 #: the registries a search needs: a query file's reader, the feature set, the index, the matcher
 KINDS = ("formats", "features", "indexes", "matchers")
@@ -37,9 +41,6 @@ class SearchCommand:
 
     name = "search"
     help = "find the motion segments of a workspace's database most similar to a query"
-    #: the CLI need not import every plugin first: :class:`SearchSession` builds the registries
-    #: of the kinds a search needs, and a server answer needs none
-    loads_plugins = True
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -116,7 +117,7 @@ class SearchCommand:
         )
 
     @classmethod
-    def run(cls, args: argparse.Namespace) -> int:
+    def run(cls, args: argparse.Namespace, ctx: CommandContext) -> int:
         from mocapflow.framework.errors import ConfigError
 
         if args.serve:
@@ -131,12 +132,7 @@ class SearchCommand:
             rc = ask(args)
             if rc is not None:
                 return rc
-        session = SearchSession(
-            args.db,
-            args.index,
-            entry_points=not getattr(args, "no_entry_points", False),
-            blocked=list(getattr(args, "block", None) or []),
-        )
+        session = SearchSession(args.db, args.index, registries=ctx.registries(KINDS))
         return session.answer(args, Path.cwd(), sys.stdout, sys.stderr)
 
 
@@ -153,7 +149,10 @@ class SearchSession:
     index_step : str, optional
         Index step to use when the workspace has several.
     entry_points, blocked
-        Plugin selection, as the global ``--no-entry-points`` / ``--block``.
+        Plugin selection, as the global ``--no-entry-points`` / ``--block`` (when no
+        ``registries`` are given: a server process builds its own).
+    registries : Registries, optional
+        The registries of the command's context (:class:`~mocapflow.framework.commands.CommandContext`).
     """
 
     def __init__(
@@ -163,6 +162,7 @@ class SearchSession:
         *,
         entry_points: bool = True,
         blocked: list[str] | tuple[str, ...] = (),
+        registries: Registries | None = None,
     ) -> None:
         from mocapflow.framework import load_registries
         from mocapflow.framework.datasets import read_datasets
@@ -172,7 +172,11 @@ class SearchSession:
         self.db = Path(db)
         if not self.db.is_dir():
             raise ConfigError(f"--db {db}: the workspace does not exist (run a pipeline with an index step first)")
-        self.regs = regs = load_registries(kinds=KINDS, entry_points=entry_points, blocked=list(blocked))
+        self.regs = regs = (
+            registries
+            if registries is not None
+            else load_registries(kinds=KINDS, entry_points=entry_points, blocked=list(blocked))
+        )
         datasets = read_datasets(self.db)
         # only numeric kNN indexes can serve a similarity search (not inverted lists)
         known = set(regs.keys())
@@ -205,12 +209,12 @@ class SearchSession:
         self.paths = {r["path"]: r["clip_id"] for r in clips.select(["clip_id", "path"]).to_pylist() if r["path"]}
         self.fps = float(clips["fps"][0].as_py()) if clips.num_rows else None
         self._stamp = self.stamp()
-        self._index = self._rows = self._feature_set = self._mdb = None
+        self._index = self._feature_set = self._mdb = None
         self._spaces: dict[tuple[bool, bool], object] = {}
 
     def stamp(self) -> tuple:
         """``(mtime_ns, size)`` of the manifests of the index, features and motions steps."""
-        out = []
+        out: list[tuple[int, int, int] | None] = []
         for ds in (self.idx, self.fds, self.mds):
             try:
                 st = (ds.path / "_manifest.json").stat()
@@ -226,27 +230,17 @@ class SearchSession:
         """The persisted index, loaded once (memory-mapped by the index class, no rebuild)."""
         if self._index is None:
             self._index = self.idx.index(self.regs)
-            rows = getattr(self._index, "rows", None)
-            self._rows = rows() if rows is not None else None
         return self._index
 
     def space(self, matcher):
-        """The matcher's search space, built once per (index, features) need: from the
-        index's memory-mapped row sidecars when it has them, else the matcher's own."""
-        from mocapflow.framework.matching import SearchSpace
+        """The matcher's search space (the core's :func:`~mocapflow.framework.queries.search_space`
+        over the loaded index), built once per (index, features) need."""
+        from mocapflow.framework.queries import MatchInputs, search_space
 
         key = (bool(matcher.needs_index), bool(matcher.uses_features()))
         if key not in self._spaces:
-            index = self.index()
-            if self._rows is not None:
-                x, clip_id, frame = self._rows
-                self._spaces[key] = SearchSpace(
-                    clip_id, frame, index if key[0] else None, x if key[1] else None, clip_names=self.names
-                )
-            else:
-                from mocapflow.framework.queries import search_space
-
-                self._spaces[key] = search_space(matcher, {"database": self.idx, "features": self.fds}, self.regs)
+            inputs = MatchInputs(self.idx, self.fds, self.mds)
+            self._spaces[key] = search_space(matcher, inputs, self.regs, index=self.index())
         return self._spaces[key]
 
     def feature_set(self):
@@ -304,7 +298,8 @@ class SearchSession:
     def answer(self, args: argparse.Namespace, cwd: Path, out: TextIO, err: TextIO) -> int:
         """Run the search of ``args`` and print its matches to ``out`` (notes to ``err``)."""
         from mocapflow.framework.errors import ConfigError
-        from mocapflow.framework.matching import drop_excluded, excluding, in_source_units, matches_table, self_rows
+        from mocapflow.framework.matching import in_source_units, matches_table
+        from mocapflow.framework.queries import match_query
         from mocapflow.framework.workspace import refuse_dataset_path
 
         # refused before the work, also when a server answers for a client (its cwd)
@@ -323,17 +318,16 @@ class SearchSession:
         own = query.clip_id
         if own < 0:  # a query file that is one of the database's takes
             own = self.paths.get(str((Path(cwd) / parse_source(args.query)).resolve()), -1)
-        mode = getattr(matcher.params, "exclude_self", "off")
-        rows = self_rows(space, own, query.start_frame, query.end_frame, mode)
-        with excluding(rows):
-            res = drop_excluded(matcher.match(query.features, space), rows)
+        found = match_query(matcher, query, space, own)
+        res, rows = found.matches, found.excluded
         table = in_source_units(matches_table([0], [res], space), self.rates)
         names = self.names
         mode_note = f" ({matcher.params.mode})" if hasattr(matcher.params, "mode") else ""
         print(
             f"query {query.name} ({len(query.features)} frames at {self.fps or 0:g} fps), {matcher.key()}{mode_note} on "
             f"{self.idx.step!r} ({space.n_rows} frames): {len(res)} matches"
-            + (" (its own span excluded)" if rows else ""),
+            + (" (its own span excluded)" if rows else "")
+            + (f": {found.reason}" if found.reason else ""),
             file=out,
         )
         # frames of each source file at its own rate (fps), and seconds from the take's start
@@ -351,27 +345,22 @@ class SearchSession:
                 f"{row['end_s'] - row['start_s']:>6.2f} {row['cost']:>10.4g} {row['cost_normalized']:>9.4g}",
                 file=out,
             )
-        if args.out:
+        if out_path is not None:
             import pyarrow as pa
 
             table = table.add_column(
                 3, "clip", pa.array([names.get(c) for c in table["clip_id"].to_pylist()], pa.string())
             )
             write_atomic(table, out_path)
-        if args.plot:
+        if plot_path is not None:
             if args.matcher not in ("search", "lng") or not len(res):
                 raise ConfigError("--plot draws the lazy neighborhood graph of the best match: --matcher search or lng")
-            from .graph import build_graph
+            from .graph import K, build_graph, graph_options
             from .plots import plot_neighborhood
 
             paper = bool(getattr(matcher.params, "paper", False))
-            graph = build_graph(
-                query.features,
-                space,
-                k=getattr(matcher.params, "k", 256),
-                propagate=0 if paper else 2,
-                gaps=0 if paper else 32,
-            )
+            o = graph_options(paper, getattr(matcher.params, "k", K))
+            graph = build_graph(query.features, space, k=o["k"], propagate=o["propagate"], gaps=o["gaps"])
             plot_neighborhood(graph, res, space, plot_path, title=f"{query.name}: best match, cost {res.cost[0]:.3g}")
             print(f"wrote {args.plot}", file=err)
         return 0
@@ -391,9 +380,11 @@ def write_atomic(table, out: Path) -> None:
 
             pq.write_table(table, tmp)
         else:
+            import pyarrow as pa
             import pyarrow.csv as pcsv
 
-            pcsv.write_csv(table.drop_columns([c for c in ("path", "analysis_path") if c in table.column_names]), tmp)
+            nested = [c for c in table.column_names if pa.types.is_nested(table.schema.field(c).type)]
+            pcsv.write_csv(table.drop_columns(nested), tmp)
         os.replace(tmp, out)
     finally:
         if os.path.exists(tmp):

@@ -81,7 +81,8 @@ MAX_CLIENTS = 32
 def _recv_all(conn: socket.socket, timeout: float | None = None, limit: int | None = None) -> bytes:
     """Everything the peer sends until it shuts down writing; ``timeout``: seconds in all
     (TimeoutError after), ``limit``: bytes (ValueError beyond)."""
-    chunks, size = [], 0
+    chunks: list[bytes] = []
+    size = 0
     deadline = None if timeout is None else time.monotonic() + timeout
     while True:
         if deadline is not None:

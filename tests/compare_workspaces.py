@@ -1,6 +1,9 @@
 """Compare every Parquet table of two workspaces of the same pipeline.
 
-    python tools/compare_workspaces.py OLD_WORKSPACE NEW_WORKSPACE
+    python tests/compare_workspaces.py OLD_WORKSPACE NEW_WORKSPACE
+
+(how a change is checked to leave shipped pipelines' tables identical; tests/test_query_path.py
+keeps it working)
 
 Clip ids are mapped from old to new through the ``clips`` tables (same ``path``), so that a
 change of id values alone is reported once ("clip ids remapped"), not as a difference in
