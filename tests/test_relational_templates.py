@@ -195,29 +195,87 @@ def test_hit_selection_matches_naive(seed):
             np.testing.assert_array_equal(g, w)
 
 
-def test_prefilter_keeps_every_hit_through_an_anchor():
-    from mocapflow.plugins.relational.inverted import InvertedIndex
-    from mocapflow.plugins.relational.template import search_template
-    from mocapflow.plugins.relational.template_prefilter import candidate_ranges, choose_anchor
+def _admissible_on(templates, bits, offsets):
+    """Every template's per-clip bound (the search's pre-filter) <= K x the DP's least end cost of the clip."""
+    from mocapflow.plugins.relational._template_kernels import _remaining_bound
+    from mocapflow.plugins.relational.template_coarse import CoarseCodes, coarse_template, template_step
+    from mocapflow.plugins.relational.template_cutoff import _all_columns
 
+    cc = CoarseCodes(frame_codes(bits), offsets)
+    checked = 0
+    for t0 in templates:
+        for t in (t0, _all_columns(t0)):
+            for step in sorted({1, template_step(t, "auto")}):
+                codes, off, _ = cc.get(step)
+                ct = coarse_template(t, step)
+                table = ct.table()
+                cost, _ = template_costs(codes, table, np.stack([off[:-1], off[1:]], 1))
+                g = np.zeros(ct.n_frames)
+                for i in range(len(off) - 1):
+                    lb = _remaining_bound(codes, table, off[i], off[i + 1], g)
+                    best = cost[off[i] : off[i + 1]].min() * ct.n_frames
+                    assert lb <= best + 1e-6, (t.label, step, i, lb, best)
+                    checked += 1
+    return checked
+
+
+def test_prefilter_is_a_lower_bound_of_the_dp_on_every_class():
+    """The search's only pre-filter (a clip is skipped when its bound exceeds the acceptance
+    bound) never exceeds the DP's cost: synthetic classes here, HDM05 in the slow test."""
     rng = np.random.default_rng(5)
+    clips, labels = [], []
+    for c in range(3):
+        pattern = np.repeat(rng.random((10, 31)) < 0.25, 4, axis=0)
+        for _ in range(4):
+            n = int(len(pattern) * rng.uniform(0.7, 1.4))
+            x = pattern[np.minimum((np.arange(n) * len(pattern) / n).astype(int), len(pattern) - 1)]
+            clips.append((x ^ (rng.random(x.shape) < 0.03)).astype(np.float32))
+            labels.append(f"c{c}")
+    offsets = np.concatenate([[0], np.cumsum([len(x) for x in clips])]).astype(np.int64)
+    bits = np.concatenate(clips) > 0.5
+    from mocapflow.plugins.relational.template import fit_templates
+
+    temps = fit_templates(bits, offsets, labels, np.ones(len(clips), bool))
+    assert _admissible_on(temps, bits, offsets) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
+def test_prefilter_is_a_lower_bound_of_the_dp_on_hdm05():
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    from templates import hdm05_cuts, meta
+
+    from mocapflow.plugins.relational.template import fit_templates
+
+    bits, offsets, names, _ = hdm05_cuts(30.0)
+    cls, act = meta(names)
+    for held in sorted(set(act)):  # the templates of every leave-one-actor-out fold, every class
+        temps = fit_templates(bits, offsets, list(cls), act != held, list(act))
+        assert _admissible_on(temps, bits, offsets) > 0
+
+
+def test_index_input_is_deprecated_and_changes_nothing():
+    from mocapflow.plugins.relational.inverted import InvertedIndex
+    from mocapflow.plugins.relational.template import cutoff_hits, search_template
+
     ex = [_pattern(n, (0.3, 0.6)) for n in (30, 36, 42)]
     t = fit_class_template("a", ex, features="all")
+    rng = np.random.default_rng(5)
     db = (rng.random((3000, 31)) < 0.002).astype(np.float32)
     for s0, n in ((100, 35), (900, 45), (2500, 30)):
         db[s0 : s0 + n] = _pattern(n, (0.3, 0.6))
     offsets = np.array([0, 1000, 2000, 3000])
     idx = InvertedIndex().build(db, np.repeat([0, 1, 2], 1000).astype(np.int32))
-    name, bits, frac, _ = choose_anchor(t, idx)
-    assert name == "lower" and bits.get(3) == 1 and frac < 0.1  # feature 3 on: the rare stretch of the template
-    ranges, covered = candidate_ranges(t, idx)
-    assert covered < 0.5 and np.all(ranges[:, 1] > ranges[:, 0])
-    assert all(np.searchsorted(offsets, a, "right") == np.searchsorted(offsets, b - 1, "right") for a, b in ranges)
     full = search_template(t, frame_codes(db), offsets)
-    pre = search_template(t, frame_codes(db), offsets, index=idx)
+    with pytest.warns(DeprecationWarning, match="'index' input is ignored"):
+        pre = search_template(t, frame_codes(db), offsets, index=idx)
     for f, p in zip(full, pre, strict=True):
         np.testing.assert_array_equal(f, p)
     assert len(full[0]) == 3
+    with pytest.warns(DeprecationWarning):
+        cutoff_hits([t], frame_codes(db), offsets, idx)
 
 
 @pytest.mark.parametrize("seed", range(4))
