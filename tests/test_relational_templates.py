@@ -152,8 +152,26 @@ def test_templates_save_load_roundtrip(tmp_path):
 def test_decide_confidence():
     costs = np.array([[0.1, 0.2, 0.4], [0.3, np.inf, np.inf], [np.inf, np.inf, np.inf]])
     best, c1, second, conf = decide(costs)
-    assert best.tolist()[:2] == [0, 0] and second[0] == 1
-    assert conf[0] == pytest.approx(0.5) and conf[1] == 1.0 and conf[2] == 0.0
+    assert best.tolist() == [0, -1, -1] and second[0] == 1 and second[1] == -1
+    # no runner-up: unknown with confidence 0, never 1.0 by default
+    assert conf[0] == pytest.approx(0.5) and conf[1] == 0.0 and conf[2] == 0.0
+
+
+def test_a_clip_no_template_can_span_is_scored_at_a_penalty():
+    from mocapflow.plugins.relational.classify import classify_clips, span_fraction
+
+    a = fit_class_template("a", [_pattern(20, (0.2, 0.5)), _pattern(22, (0.2, 0.5))], features="all")
+    other = [_pattern(n, (0.6, 0.9)) for n in (80, 84)]
+    for x in other:  # another motion: half the features the other way round
+        x[:, :16] = 1 - x[:, :16]
+    b = fit_class_template("b", other, features="all")
+    slow = _pattern(60, (0.2, 0.5))  # a performed three times slower: template a (K about 20) cannot span it
+    f = span_fraction(np.array([a.n_frames, b.n_frames]), np.array([60]))
+    assert f[0, 0] < 1.0 and f[0, 1] == 1.0
+    costs = classify_clips([a, b], slow > 0.5, np.array([0, 60]), penalty=0.2)
+    best, _, second, conf = decide(costs)
+    assert np.all(np.isfinite(costs)) and second[0] >= 0 and conf[0] < 1.0
+    assert best[0] == 0  # the best-fitting template wins at the penalty, not the only one long enough
 
 
 @pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
