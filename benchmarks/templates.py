@@ -357,41 +357,61 @@ def auto_queries(bits: np.ndarray, offsets: np.ndarray, names: list[str], fe: np
     return {"map": float(aps.mean()), "numeric_map": float(naps.mean()), "classes": ok}
 
 
+def _anchor_query(temps, j, codes, offsets, index, table, coarse):
+    """The previous default (anchor regions from the inverted lists, not admissible): baseline."""
+    from _template_anchor import candidate_ranges
+
+    from mocapflow.plugins.relational.template_coarse import coarse_search, template_step
+    from mocapflow.plugins.relational.template_cutoff import acceptance_bound
+
+    t = temps[j]
+    s, e, _ = coarse_search(
+        t, coarse, candidate_ranges(t, index)[0], acceptance_bound(t), 0.5, template_step(t, "auto")
+    )
+    return s[table.mask(j, s, e, offsets)]
+
+
+def _best(fn, repeats):
+    fn()
+    b, out = np.inf, None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        b = min(b, time.perf_counter() - t0)
+    return b, out
+
+
 def latency(bits: np.ndarray, offsets: np.ndarray, names: list[str], repeats: int = 3) -> None:
     """Per-query wall time over the whole cut set (the pipelines' setting): every template
-    (learned from all cuts) as a query with the rival table and index built once, and every
-    cut as a mode-auto query with the matcher's defaults; best of ``repeats``, median over queries."""
+    (learned from all cuts) as a query with the rival table built once, the default (every
+    clip, admissible bound) against the previous anchor pre-filter in the same run; every cut
+    as a mode-auto query with the matcher's defaults; best of ``repeats``, median over queries."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
     cls, act = meta(names)
     temps = fit_templates(bits, offsets, list(cls), np.ones(len(names), bool), list(act))
     codes, bg = frame_codes(bits), bits.mean(axis=0)
     index = InvertedIndex().build(bits, np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)).astype(np.int32))
     table = RivalTable.build(temps, codes, offsets)
     coarse = CoarseCodes(codes, offsets)
-
-    def best(fn):
-        fn()
-        b = np.inf
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            fn()
-            b = min(b, time.perf_counter() - t0)
-        return b
-
     tt = [
-        best(
-            lambda j=j: cutoff_hits(
-                temps, codes, offsets, index, only=[j], rival_table=table, step="auto", coarse=coarse
-            )
-        )
+        _best(
+            lambda j=j: cutoff_hits(temps, codes, offsets, only=[j], rival_table=table, step="auto", coarse=coarse),
+            repeats,
+        )[0]
+        for j in range(len(temps))
+    ]
+    tb = [
+        _best(lambda j=j: _anchor_query(temps, j, codes, offsets, index, table, coarse), repeats)[0]
         for j in range(len(temps))
     ]
     ta = []
     for q in range(len(names)):
         qb = bits[offsets[q] : offsets[q + 1]]
-        ta.append(best(lambda qb=qb: auto_dtw_hits(auto_template(qb, bg), qb, bits, codes, offsets, bg)))
+        ta.append(_best(lambda qb=qb: auto_dtw_hits(auto_template(qb, bg), qb, bits, codes, offsets, bg), repeats)[0])
     print(
         f"\n== per-query latency over the {len(names)} cuts ({len(bits)} frames), best of {repeats}; load "
-        f"{os.getloadavg()[0]:.1f} ==\ntemplate retrieval median {1e3 * np.median(tt):.1f} ms (max {1e3 * max(tt):.1f}); "
+        f"{os.getloadavg()[0]:.1f} ==\ntemplate retrieval median {1e3 * np.median(tt):.1f} ms (max {1e3 * max(tt):.1f}) "
+        f"against the anchor pre-filter {1e3 * np.median(tb):.1f} ms (x{np.median(tt) / np.median(tb):.2f}); "
         f"mode auto median {1e3 * np.median(ta):.1f} ms (max {1e3 * max(ta):.1f})"
     )
 
@@ -404,6 +424,10 @@ def tiled(bits: np.ndarray, offsets: np.ndarray, n_frames: int) -> tuple[np.ndar
 
 
 def speed(bits, offsets, names, n_frames: int, repeats: int) -> None:
+    """Template queries on the tiled database: the default (every clip, the kernel's admissible
+    bound, coarse search) against the previous anchor pre-filter (baseline) and the full-rate
+    search, same run; hits lost by the anchors against the default."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
     cls, act = meta(names)
     temps = fit_templates(bits, offsets, list(cls), np.ones(len(names), bool), list(act))
     big, off = tiled(bits, offsets, n_frames)
@@ -411,30 +435,32 @@ def speed(bits, offsets, names, n_frames: int, repeats: int) -> None:
     index = InvertedIndex().build(big, np.repeat(np.arange(len(off) - 1), np.diff(off)).astype(np.int32))
     table = RivalTable.build(temps, codes, off)
     coarse = CoarseCodes(codes, off)
-    cutoff_hits(temps, codes, off, index, only=[0], rival_table=table, step="auto", coarse=coarse)  # compile
-
-    def best(step, j):
-        b = np.inf
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            out = cutoff_hits(temps, codes, off, index, only=[j], rival_table=table, step=step, coarse=coarse)
-            b = min(b, time.perf_counter() - t0)
-        return b, len(out[0][0])
-
     print(
         f"\n== template queries over {len(big):,} frames ({len(off) - 1:,} clips), best of {repeats}; "
         f"load average {os.getloadavg()[0]:.1f} =="
     )
-    ratios = []
+    tf, td, tb = [], [], []
     for j, t in enumerate(temps):
-        t1, h1 = best(1, j)
-        ta, ha = best("auto", j)
-        ratios.append(t1 / ta)
-        print(
-            f"  {t.label:30s} K={t.n_frames:4d}: full rate {t1 * 1e3:7.1f} ms ({h1} hits) | default (step auto) "
-            f"{ta * 1e3:7.1f} ms ({ha} hits): x{t1 / ta:.1f}"
+        t1, h1 = _best(
+            lambda j=j: cutoff_hits(temps, codes, off, only=[j], rival_table=table, step=1, coarse=coarse), repeats
         )
-    print(f"median speed-up of the default over the full-rate search (same run): x{np.median(ratios):.1f}")
+        ta, ha = _best(
+            lambda j=j: cutoff_hits(temps, codes, off, only=[j], rival_table=table, step="auto", coarse=coarse), repeats
+        )
+        t0, h0 = _best(lambda j=j: _anchor_query(temps, j, codes, off, index, table, coarse), repeats)
+        tf.append(t1)
+        td.append(ta)
+        tb.append(t0)
+        lost = len(np.setdiff1d(ha[0][0], h0))
+        print(
+            f"  {t.label:30s} K={t.n_frames:4d}: default {ta * 1e3:7.1f} ms ({len(ha[0][0])} hits) | anchors "
+            f"{t0 * 1e3:7.1f} ms ({len(h0)} hits, {lost} of the default's lost) | full rate {t1 * 1e3:7.1f} ms ({len(h1[0][0])})"
+        )
+    print(
+        f"median per template: default {1e3 * np.median(td):.1f} ms, anchors {1e3 * np.median(tb):.1f} ms "
+        f"(default x{np.median(td) / np.median(tb):.2f} of the anchors; total x{np.sum(td) / np.sum(tb):.2f}), "
+        f"full rate {1e3 * np.median(tf):.1f} ms"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
