@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapflow.plugins.relational.auto import auto_dtw_hits, auto_template
+from mocapflow.plugins.relational.auto import auto_dtw_hits, auto_template, fusion_mask
 from mocapflow.plugins.relational.classify import classify_clips, decide
 from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.template import cutoff_hits, fit_templates
@@ -381,6 +381,98 @@ def _best(fn, repeats):
     return b, out
 
 
+#: Fusion constants tried by the inner folds (None: fusion off).
+FUSIONS = (None, 1.0, 1.3, 1.6, 2.0, 2.5)
+
+
+def _qbe_record(bits, offsets, fe, cls, q, db):
+    """One query by example against the clips ``db``: mode auto's hit clips (global clip
+    numbers), the numeric default search's per-clip costs (over ``db``) and relevance."""
+    sub = np.concatenate([bits[offsets[i] : offsets[i + 1]] for i in db])
+    sub_off = np.concatenate([[0], np.cumsum(np.diff(offsets)[db])]).astype(np.int64)
+    codes, bg = frame_codes(sub), sub.mean(axis=0)
+    qb = bits[offsets[q] : offsets[q + 1]]
+    t = auto_template(qb, bg)
+    s, _, _ = auto_dtw_hits(t, qb, sub, codes, sub_off, bg)
+    found = np.unique(np.searchsorted(sub_off, s, side="right") - 1)
+    return found, numeric_costs(fe, offsets, q, db)[db], cls[db] == cls[q]
+
+
+def _qbe_classes(records, qcls, fusion):
+    """Classes whose queries' fused hits reach P >= 0.8 and R >= 0.9 (class means), mean F1, and per query (tp, hits, rel)."""
+    pr = []
+    for found, ncost, rel in records:
+        keep = found[fusion_mask(found, ncost, fusion)]
+        pr.append((rel[keep].sum(), len(keep), rel.sum()))
+    pr = np.array(pr, float)
+    p = pr[:, 0] / np.maximum(pr[:, 1], 1)
+    r = pr[:, 0] / np.maximum(pr[:, 2], 1)
+    ok, f1 = 0, []
+    for c in sorted(set(qcls)):
+        w = qcls == c
+        ok += p[w].mean() >= 0.8 and r[w].mean() >= 0.9
+        f1.append(2 * p[w].mean() * r[w].mean() / max(p[w].mean() + r[w].mean(), 1e-9))
+    return ok, float(np.mean(f1)), pr
+
+
+def fusion_nested(bits: np.ndarray, offsets: np.ndarray, names: list[str], fe: np.ndarray) -> dict:
+    """Relational + numeric fusion (``fusion`` of ``matchers.relational``), nested leave-one-
+    actor-out: per outer fold the constant is chosen on the inner folds (one training actor's
+    cuts as queries, the other training actor's as the database: classes passing, then mean
+    F1), then the held-out actor's cuts query the training actors' cuts with it."""
+    cls, act = meta(names)
+    actors = sorted(set(act))
+    cache: dict = {}
+
+    def records(qa, da):
+        key = (qa, tuple(da))
+        if key not in cache:
+            db = np.flatnonzero(np.isin(act, da))
+            cache[key] = [_qbe_record(bits, offsets, fe, cls, q, db) for q in np.flatnonzero(act == qa)]
+        return cache[key]
+
+    print("\n== relational + numeric fusion, nested leave-one-actor-out (constant chosen on the inner folds) ==")
+    outer_pr, outer_cls, chosen = {f: [] for f in FUSIONS}, [], {}
+    for held in actors:
+        train = [a for a in actors if a != held]
+        score = []
+        for f in FUSIONS:
+            tot, f1s = 0, []
+            for qa in train:
+                recs = records(qa, [a for a in train if a != qa])
+                ok, f1, _ = _qbe_classes(recs, cls[act == qa], f)
+                tot += ok
+                f1s.append(f1)
+            score.append((int(tot), round(float(np.mean(f1s)), 3)))
+        best = FUSIONS[max(range(len(FUSIONS)), key=lambda i: score[i])]
+        chosen[held] = best
+        print(
+            f"  outer fold {held}: inner (classes, mean F1) per constant {dict(zip(FUSIONS, score, strict=True))} -> {best}"
+        )
+        recs = records(held, train)
+        outer_cls.append(cls[act == held])
+        for f in FUSIONS:
+            outer_pr[f].append(_qbe_classes(recs, cls[act == held], f)[2])
+        outer_pr.setdefault("chosen", []).append(_qbe_classes(recs, cls[act == held], best)[2])
+    qcls = np.concatenate(outer_cls)
+    for f in (*FUSIONS, "chosen"):
+        pr = np.concatenate(outer_pr[f])
+        p, r = pr[:, 0] / np.maximum(pr[:, 1], 1), pr[:, 0] / np.maximum(pr[:, 2], 1)
+        ok = ok_low = 0
+        for c in sorted(set(qcls)):
+            w = np.flatnonzero(qcls == c)
+            pc, rc = p[w].mean(), r[w].mean()
+            ok += pc >= 0.8 and rc >= 0.9
+            p_lo = boot_low(lambda i, w=w, p=p: p[w[i]].mean(), len(w))
+            r_lo = boot_low(lambda i, w=w, r=r: r[w[i]].mean(), len(w))
+            ok_low += p_lo >= 0.8 and r_lo >= 0.9
+        tag = "chosen per fold (nested)" if f == "chosen" else f"fixed {f} (outer view: not a selection)"
+        print(
+            f"  {tag:42s}: classes P >= 0.8, R >= 0.9: {ok} of {len(set(qcls))} (lower bounds {ok_low}); P {p.mean():.2f}, R {r.mean():.2f}"
+        )
+    return {"chosen": chosen}
+
+
 def latency(bits: np.ndarray, offsets: np.ndarray, names: list[str], repeats: int = 3) -> None:
     """Per-query wall time over the whole cut set (the pipelines' setting): every template
     (learned from all cuts) as a query with the rival table built once, the default (every
@@ -486,6 +578,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.no_auto:
         return 0
     auto_queries(bits, offsets, names, fe)
+    fusion_nested(bits, offsets, names, fe)
     latency(bits, offsets, names, 1 if args.quick else 3)
     if args.no_speed:
         return 0

@@ -472,3 +472,35 @@ def test_rival_cutoff_keeps_each_motion_for_its_own_template():
     with_table = cutoff_hits(temps, codes, offsets, threshold=0.6, rival_table=table)
     for a, b in zip(got, with_table, strict=True):
         np.testing.assert_array_equal(a[0], b[0])
+
+
+def test_fusion_keeps_hits_whose_clip_the_numeric_search_supports():
+    from mocapflow.plugins.relational.auto import fusion_mask, relative_cost_cut
+
+    ncost = np.array([0.5, 0.6, 3.0, np.inf, 0.55, 5.0, 4.0, 4.5])
+    hits = np.array([0, 2, 3, 4])
+    cut = relative_cost_cut(ncost, 1.6)
+    keep = fusion_mask(hits, ncost, 1.6)
+    np.testing.assert_array_equal(keep, ncost[hits] <= cut)
+    assert keep.tolist() == [True, False, False, True]
+    assert fusion_mask(hits, ncost, None).all() and len(fusion_mask(np.zeros(0, int), ncost, 1.6)) == 0
+
+
+def test_numeric_input_costs_per_query_and_clip():
+    import pyarrow as pa
+
+    from mocapflow.framework.errors import PipelineError
+    from mocapflow.plugins.relational.matcher import RelationalMatcher
+
+    class _DS:
+        def __init__(self, producer):
+            self.producer = producer
+
+        def table(self, name, columns=None):
+            return pa.table({"query_id": [0, 0, 1, 0], "clip_id": [7, 8, 7, 7], "cost": [2.0, 1.0, 3.0, 1.5]})
+
+    got = RelationalMatcher._numeric_costs(_DS("matchers.search"))
+    assert got == {0: {7: 1.5, 8: 1.0}, 1: {7: 3.0}}
+    assert RelationalMatcher._numeric_costs(None) is None
+    with pytest.raises(PipelineError, match="numeric must be a matcher step"):
+        RelationalMatcher._numeric_costs(_DS("features.relational"))
