@@ -258,103 +258,6 @@ def classification_nested(bits: np.ndarray, offsets: np.ndarray, names: list[str
     return {"accuracy": out[1.0], "slower": out}
 
 
-#: Training variants measured by ``learning_variants`` (docs/templates.md, how the default was chosen).
-VARIANTS = ("default", "warped copies", "variance weights")
-
-
-def _variance_weighted(temps, bits, offsets, cls, act, train):
-    """Each cell's mismatch weighted by how consistently the aligned examples agree there
-    (``|2 mean - 1|``), the leave-one-actor-out example costs recomputed with the weights."""
-    for t in temps:
-        t.weights = np.abs(2.0 * t.mean.astype(np.float64) - 1.0)
-    groups = sorted(set(act[train]))
-    if len(groups) < 2:
-        return temps
-    costs = {t.label: [] for t in temps}
-    for g in groups:
-        sub = fit_templates(bits, offsets, list(cls), train & (act != g), list(act), [t.label for t in temps])
-        for t, st in zip(temps, sub, strict=True):
-            st.weights = np.abs(2.0 * st.mean.astype(np.float64) - 1.0)
-            st.columns = t.columns
-            mine = np.flatnonzero(train & (act == g) & (cls == t.label))
-            if len(mine):
-                costs[t.label].extend(clip_min_costs(frame_codes(bits), offsets, st.table())[mine].tolist())
-    for t in temps:
-        t.example_costs = np.array(costs[t.label])
-    return temps
-
-
-def _fit_variant(variant, bits, offsets, cls, act, train, classes):
-    if variant == "warped copies":  # every training example also 0.75x and 1.33x as fast
-        idx = np.flatnonzero(train)
-        parts, o2, c2, a2 = [bits], list(offsets), list(cls), list(act)
-        for f in (0.75, 1.33):
-            x, off = stretched(bits, offsets, idx, f)
-            parts.append(x)
-            o2 += (off[1:] + o2[-1]).tolist()
-            c2 += list(cls[idx])
-            a2 += list(act[idx])
-        b2 = np.concatenate(parts)
-        tr2 = np.r_[train, np.ones(2 * len(idx), bool)]
-        return fit_templates(b2, np.array(o2, np.int64), c2, tr2, a2, classes)
-    temps = fit_templates(bits, offsets, list(cls), train, list(act), classes)
-    if variant == "variance weights":
-        temps = _variance_weighted(temps, bits, offsets, cls, act, train)
-    return temps
-
-
-def learning_variants(bits: np.ndarray, offsets: np.ndarray, names: list[str], slower: tuple = (1.0, 1.5)) -> dict:
-    """Template learning across performers, outer leave-one-actor-out: templates from two
-    actors (per variant), the reported list over the training actors' cuts plus the held-out
-    actor's cuts played ``f`` times slower; classes with R >= 0.9 at P >= 0.8 on the held-out
-    cuts (and on the bootstrap lower bounds)."""
-    cls, act = meta(names)
-    classes = sorted(set(cls))
-    print("\n== template learning variants, leave-one-actor-out (held-out cuts also played slower) ==")
-    out = {}
-    for variant in VARIANTS:
-        res = []
-        for f in slower:
-            hit = np.zeros((len(names), len(classes)), bool)
-            for held in sorted(set(act)):
-                train = act != held
-                temps = _fit_variant(variant, bits, offsets, cls, act, train, classes)
-                te = np.flatnonzero(~train)
-                tr = np.flatnonzero(train)
-                xs, xo = stretched(bits, offsets, te, f)
-                db = np.concatenate([bits[offsets[i] : offsets[i + 1]] for i in tr] + [xs])
-                dbo = np.concatenate([[0], np.cumsum(np.diff(offsets)[tr])]).astype(np.int64)
-                dbo = np.concatenate([dbo, dbo[-1] + xo[1:]])
-                clip_of = np.r_[tr, te]
-                codes = frame_codes(db)
-                table = RivalTable.build(temps, codes, dbo)
-                for j, (s, _, _, _) in enumerate(cutoff_hits(temps, codes, dbo, rival_table=table, step="auto")):
-                    found = np.zeros(len(names), bool)
-                    found[clip_of[np.searchsorted(dbo, s, side="right") - 1]] = True
-                    hit[te, j] = found[te]
-            ok = ok_low = 0
-            for j, c in enumerate(classes):
-                y, h = cls == c, hit[:, j]
-
-                def pr(idx, h=h, y=y):
-                    return (h[idx] & y[idx]).sum() / max(h[idx].sum(), 1), (h[idx] & y[idx]).sum() / max(
-                        y[idx].sum(), 1
-                    )
-
-                p, r = pr(np.arange(len(y)))
-                ok += p >= 0.8 and r >= 0.9
-                ok_low += (
-                    boot_low(lambda i, pr=pr: pr(i)[0], len(y), cls) >= 0.8
-                    and boot_low(lambda i, pr=pr: pr(i)[1], len(y), cls) >= 0.9
-                )
-            res.append((ok, ok_low))
-            print(
-                f"  {variant:18s} held-out x{f:g}: {ok} of {len(classes)} classes (lower bounds {ok_low})", flush=True
-            )
-        out[variant] = res
-    return out
-
-
 def numeric_costs(fe: np.ndarray, offsets: np.ndarray, q: int, db: np.ndarray) -> np.ndarray:
     """Per clip of ``db`` the rank cost of the numeric default search (``matchers.search``:
     exact subsequence DTW on F_E^15, accumulated cost, its default ``min_span``): the first
@@ -672,7 +575,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     templates_loao(bits, offsets, names)
     classification_nested(bits, offsets, names)
-    learning_variants(bits, offsets, names)
     if args.no_auto:
         return 0
     auto_queries(bits, offsets, names, fe)

@@ -43,7 +43,7 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
     """The template's rows ``0, step, 2 step, ...`` (at least one row)."""
     if step <= 1:
         return t
-    key = (step, t.columns.tobytes(), t.delta, t.mean.shape, None if t.weights is None else id(t.weights))
+    key = (step, t.columns.tobytes(), t.delta, t.mean.shape)
     cached = getattr(t, "_coarse", None)
     if cached is None or cached[0] != key:  # kept on the template: its lookup table is cached on it in turn
         cached = (
@@ -56,7 +56,6 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
                 t.threshold,
                 t.n_examples,
                 t.example_costs,
-                None if t.weights is None else np.ascontiguousarray(t.weights[::step]),
             ),
         )
         t._coarse = cached

@@ -47,7 +47,7 @@ def acceptance_bound(t: MotionTemplate, guard: float = 1.0) -> float:
 
 def _all_columns(t: MotionTemplate) -> MotionTemplate:
     return MotionTemplate(
-        t.label, t.mean, np.arange(t.mean.shape[1]), t.delta, t.threshold, t.n_examples, t.example_costs, t.weights
+        t.label, t.mean, np.arange(t.mean.shape[1]), t.delta, t.threshold, t.n_examples, t.example_costs
     )
 
 
