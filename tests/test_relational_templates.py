@@ -152,8 +152,26 @@ def test_templates_save_load_roundtrip(tmp_path):
 def test_decide_confidence():
     costs = np.array([[0.1, 0.2, 0.4], [0.3, np.inf, np.inf], [np.inf, np.inf, np.inf]])
     best, c1, second, conf = decide(costs)
-    assert best.tolist()[:2] == [0, 0] and second[0] == 1
-    assert conf[0] == pytest.approx(0.5) and conf[1] == 1.0 and conf[2] == 0.0
+    assert best.tolist() == [0, -1, -1] and second[0] == 1 and second[1] == -1
+    # no runner-up: unknown with confidence 0, never 1.0 by default
+    assert conf[0] == pytest.approx(0.5) and conf[1] == 0.0 and conf[2] == 0.0
+
+
+def test_a_clip_no_template_can_span_is_scored_at_a_penalty():
+    from mocapflow.plugins.relational.classify import classify_clips, span_fraction
+
+    a = fit_class_template("a", [_pattern(20, (0.2, 0.5)), _pattern(22, (0.2, 0.5))], features="all")
+    other = [_pattern(n, (0.6, 0.9)) for n in (80, 84)]
+    for x in other:  # another motion: half the features the other way round
+        x[:, :16] = 1 - x[:, :16]
+    b = fit_class_template("b", other, features="all")
+    slow = _pattern(60, (0.2, 0.5))  # a performed three times slower: template a (K about 20) cannot span it
+    f = span_fraction(np.array([a.n_frames, b.n_frames]), np.array([60]))
+    assert f[0, 0] < 1.0 and f[0, 1] == 1.0
+    costs = classify_clips([a, b], slow > 0.5, np.array([0, 60]), penalty=0.2)
+    best, _, second, conf = decide(costs)
+    assert np.all(np.isfinite(costs)) and second[0] >= 0 and conf[0] < 1.0
+    assert best[0] == 0  # the best-fitting template wins at the penalty, not the only one long enough
 
 
 @pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
@@ -195,29 +213,87 @@ def test_hit_selection_matches_naive(seed):
             np.testing.assert_array_equal(g, w)
 
 
-def test_prefilter_keeps_every_hit_through_an_anchor():
-    from mocapflow.plugins.relational.inverted import InvertedIndex
-    from mocapflow.plugins.relational.template import search_template
-    from mocapflow.plugins.relational.template_prefilter import candidate_ranges, choose_anchor
+def _admissible_on(templates, bits, offsets):
+    """Every template's per-clip bound (the search's pre-filter) <= K x the DP's least end cost of the clip."""
+    from mocapflow.plugins.relational._template_kernels import _remaining_bound
+    from mocapflow.plugins.relational.template_coarse import CoarseCodes, coarse_template, template_step
+    from mocapflow.plugins.relational.template_cutoff import _all_columns
 
+    cc = CoarseCodes(frame_codes(bits), offsets)
+    checked = 0
+    for t0 in templates:
+        for t in (t0, _all_columns(t0)):
+            for step in sorted({1, template_step(t, "auto")}):
+                codes, off, _ = cc.get(step)
+                ct = coarse_template(t, step)
+                table = ct.table()
+                cost, _ = template_costs(codes, table, np.stack([off[:-1], off[1:]], 1))
+                g = np.zeros(ct.n_frames)
+                for i in range(len(off) - 1):
+                    lb = _remaining_bound(codes, table, off[i], off[i + 1], g)
+                    best = cost[off[i] : off[i + 1]].min() * ct.n_frames
+                    assert lb <= best + 1e-6, (t.label, step, i, lb, best)
+                    checked += 1
+    return checked
+
+
+def test_prefilter_is_a_lower_bound_of_the_dp_on_every_class():
+    """The search's only pre-filter (a clip is skipped when its bound exceeds the acceptance
+    bound) never exceeds the DP's cost: synthetic classes here, HDM05 in the slow test."""
     rng = np.random.default_rng(5)
+    clips, labels = [], []
+    for c in range(3):
+        pattern = np.repeat(rng.random((10, 31)) < 0.25, 4, axis=0)
+        for _ in range(4):
+            n = int(len(pattern) * rng.uniform(0.7, 1.4))
+            x = pattern[np.minimum((np.arange(n) * len(pattern) / n).astype(int), len(pattern) - 1)]
+            clips.append((x ^ (rng.random(x.shape) < 0.03)).astype(np.float32))
+            labels.append(f"c{c}")
+    offsets = np.concatenate([[0], np.cumsum([len(x) for x in clips])]).astype(np.int64)
+    bits = np.concatenate(clips) > 0.5
+    from mocapflow.plugins.relational.template import fit_templates
+
+    temps = fit_templates(bits, offsets, labels, np.ones(len(clips), bool))
+    assert _admissible_on(temps, bits, offsets) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HDM05.is_dir(), reason="needs the HDM05 cuts in ../shared/data/hdm05")
+def test_prefilter_is_a_lower_bound_of_the_dp_on_hdm05():
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    from templates import hdm05_cuts, meta
+
+    from mocapflow.plugins.relational.template import fit_templates
+
+    bits, offsets, names, _ = hdm05_cuts(30.0)
+    cls, act = meta(names)
+    for held in sorted(set(act)):  # the templates of every leave-one-actor-out fold, every class
+        temps = fit_templates(bits, offsets, list(cls), act != held, list(act))
+        assert _admissible_on(temps, bits, offsets) > 0
+
+
+def test_index_input_is_deprecated_and_changes_nothing():
+    from mocapflow.plugins.relational.inverted import InvertedIndex
+    from mocapflow.plugins.relational.template import cutoff_hits, search_template
+
     ex = [_pattern(n, (0.3, 0.6)) for n in (30, 36, 42)]
     t = fit_class_template("a", ex, features="all")
+    rng = np.random.default_rng(5)
     db = (rng.random((3000, 31)) < 0.002).astype(np.float32)
     for s0, n in ((100, 35), (900, 45), (2500, 30)):
         db[s0 : s0 + n] = _pattern(n, (0.3, 0.6))
     offsets = np.array([0, 1000, 2000, 3000])
     idx = InvertedIndex().build(db, np.repeat([0, 1, 2], 1000).astype(np.int32))
-    name, bits, frac, _ = choose_anchor(t, idx)
-    assert name == "lower" and bits.get(3) == 1 and frac < 0.1  # feature 3 on: the rare stretch of the template
-    ranges, covered = candidate_ranges(t, idx)
-    assert covered < 0.5 and np.all(ranges[:, 1] > ranges[:, 0])
-    assert all(np.searchsorted(offsets, a, "right") == np.searchsorted(offsets, b - 1, "right") for a, b in ranges)
     full = search_template(t, frame_codes(db), offsets)
-    pre = search_template(t, frame_codes(db), offsets, index=idx)
+    with pytest.warns(DeprecationWarning, match="'index' input is ignored"):
+        pre = search_template(t, frame_codes(db), offsets, index=idx)
     for f, p in zip(full, pre, strict=True):
         np.testing.assert_array_equal(f, p)
     assert len(full[0]) == 3
+    with pytest.warns(DeprecationWarning):
+        cutoff_hits([t], frame_codes(db), offsets, idx)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -396,3 +472,35 @@ def test_rival_cutoff_keeps_each_motion_for_its_own_template():
     with_table = cutoff_hits(temps, codes, offsets, threshold=0.6, rival_table=table)
     for a, b in zip(got, with_table, strict=True):
         np.testing.assert_array_equal(a[0], b[0])
+
+
+def test_fusion_keeps_hits_whose_clip_the_numeric_search_supports():
+    from mocapflow.plugins.relational.auto import fusion_mask, relative_cost_cut
+
+    ncost = np.array([0.5, 0.6, 3.0, np.inf, 0.55, 5.0, 4.0, 4.5])
+    hits = np.array([0, 2, 3, 4])
+    cut = relative_cost_cut(ncost, 1.6)
+    keep = fusion_mask(hits, ncost, 1.6)
+    np.testing.assert_array_equal(keep, ncost[hits] <= cut)
+    assert keep.tolist() == [True, False, False, True]
+    assert fusion_mask(hits, ncost, None).all() and len(fusion_mask(np.zeros(0, int), ncost, 1.6)) == 0
+
+
+def test_numeric_input_costs_per_query_and_clip():
+    import pyarrow as pa
+
+    from mocapflow.framework.errors import PipelineError
+    from mocapflow.plugins.relational.matcher import RelationalMatcher
+
+    class _DS:
+        def __init__(self, producer):
+            self.producer = producer
+
+        def table(self, name, columns=None):
+            return pa.table({"query_id": [0, 0, 1, 0], "clip_id": [7, 8, 7, 7], "cost": [2.0, 1.0, 3.0, 1.5]})
+
+    got = RelationalMatcher._numeric_costs(_DS("matchers.search"))
+    assert got == {0: {7: 1.5, 8: 1.0}, 1: {7: 3.0}}
+    assert RelationalMatcher._numeric_costs(None) is None
+    with pytest.raises(PipelineError, match="numeric must be a matcher step"):
+        RelationalMatcher._numeric_costs(_DS("features.relational"))

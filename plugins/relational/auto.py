@@ -233,6 +233,18 @@ def mutual_check(
     return keep, checked
 
 
+def fusion_mask(hit_clips: np.ndarray, numeric_clip_costs: np.ndarray, fusion: float | None) -> np.ndarray:
+    """Relational + numeric fusion of mode auto (``fusion`` of ``matchers.relational``): a hit
+    is kept when the numeric search's cost of its clip (``numeric_clip_costs`` per clip,
+    inf: no match) is at most ``fusion`` x :func:`relative_cost_cut` of those costs (the auto
+    cut's blend, relative cut 1). None: every hit kept."""
+    hit_clips = np.asarray(hit_clips, np.int64)
+    if fusion is None or not len(hit_clips):
+        return np.ones(len(hit_clips), bool)
+    cut = relative_cost_cut(np.asarray(numeric_clip_costs, np.float64), float(fusion))
+    return np.asarray(numeric_clip_costs, np.float64)[hit_clips] <= cut
+
+
 def auto_dtw_hits(
     template,
     query_bits: np.ndarray,

@@ -3,8 +3,10 @@
 For each clip and each template of a ``matchers.template`` step, the least subsequence-DTW
 cost of the template inside the clip (mean local cost over the template, don't-care cells
 ignored; :mod:`mocapflow.plugins.relational.template_model`). The clip gets the label of the
-cheapest template; ``confidence = (c2 - c1) / c2`` is the relative margin to the runner-up
-(0: a tie, 1: only one template fits at all), ``within_threshold`` whether ``c1`` is below
+cheapest template (a template too short to span the clip scores at a penalty,
+:func:`classify_clips`); ``confidence = (c2 - c1) / c2`` is the relative margin to the
+runner-up (0: a tie); a clip with no runner-up is labelled ``unknown`` (confidence 0),
+``within_threshold`` whether ``c1`` is below
 the winning template's retrieval threshold. With clip names matching the templates'
 ``label_pattern`` the true label and ``correct`` are filled in, so accuracy is one query::
 
@@ -29,36 +31,61 @@ if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.datasets import Dataset, StepOutput
 
 
-def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Per clip of ``bits`` (N, 31) split at ``offsets`` and per template the least cost on all
-    31 features, (n_clips, n_templates) (inf: no path fits). A template competes for a clip
-    only if its path can span the clip (``K >= COVER x`` the clip's frames, as the rival
-    check of :mod:`.template_cutoff`: a short template fitting a part of a long motion does
-    not label it); a clip no template can span keeps every template's cost."""
-    from .template_cutoff import COVER, _all_columns
+#: Cost charged per clip frame a template cannot span (``analyses.classify``): a template of
+#: K frames covers at most ``K / COVER`` frames (the steps compress it 2x at most); chosen by
+#: nested leave-one-actor-out in ``benchmarks/templates.py`` (docs/templates.md).
+SPAN_PENALTY = 0.2
+#: Label of a clip with no real competitor (fewer than two templates with a finite score).
+UNKNOWN = "unknown"
+
+
+def span_fraction(lengths: np.ndarray, clip_frames: np.ndarray) -> np.ndarray:
+    """(n_clips, n_templates) share of each clip a template of ``lengths`` frames can span:
+    ``min(1, K / (COVER x n))`` (:mod:`.template_cutoff`'s rule)."""
+    from .template_cutoff import COVER
+
+    n = np.maximum(np.asarray(clip_frames, np.float64), 1.0)
+    return np.minimum(1.0, np.asarray(lengths, np.float64)[None, :] / (COVER * n[:, None]))
+
+
+def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray, penalty: float = SPAN_PENALTY) -> np.ndarray:
+    """Per clip of ``bits`` (N, 31) split at ``offsets`` and per template the score, (n_clips,
+    n_templates): the least subsequence-DTW cost on all 31 features where the template can
+    span the clip (``K >= COVER x`` its frames, the rival check's rule of :mod:`.template_cutoff`);
+    a template that spans only a share ``f`` of it scores ``f x cost + (1 - f) x penalty``
+    (the frames it cannot reach charged ``penalty`` each), so a clip longer than every
+    template (a slow performer) is still labelled by its best-fitting templates, which
+    compete with each other (inf: no path fits at all)."""
+    from .template_cutoff import _all_columns
     from .template_model import clip_min_costs, frame_codes
 
     codes = frame_codes(bits)
     out = np.empty((len(offsets) - 1, len(templates)))
     for i, t in enumerate(templates):
         out[:, i] = clip_min_costs(codes, offsets, _all_columns(t).table())
-    lengths = np.array([t.n_frames for t in templates])
-    can = lengths[None, :] >= COVER * np.diff(offsets)[:, None]
-    return np.where(can | ~can.any(axis=1, keepdims=True), out, np.inf)
+    f = span_fraction(np.array([t.n_frames for t in templates]), np.diff(offsets))
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(out), f * out + (1.0 - f) * float(penalty), np.inf)
 
 
 def decide(costs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Best template, its cost, the runner-up and the confidence ``(c2 - c1) / c2`` per row."""
+    """Best template, its score, the runner-up and the confidence ``(c2 - c1) / c2`` per row.
+
+    Without a real competitor (no second finite score) the best is -1 (label ``unknown``)
+    and the confidence 0: a clip is never won by default."""
     n = costs.shape[1]
+    rows = np.arange(len(costs))
     order = np.argsort(costs, axis=1, kind="stable")
-    best = order[:, 0]
-    c1 = costs[np.arange(len(costs)), best]
-    second = order[:, 1] if n > 1 else np.full(len(costs), -1)
-    c2 = costs[np.arange(len(costs)), second] if n > 1 else np.full(len(costs), np.inf)
+    best = order[:, 0].copy() if n else np.full(len(costs), -1)
+    c1 = costs[rows, best] if n else np.full(len(costs), np.inf)
+    second = order[:, 1].copy() if n > 1 else np.full(len(costs), -1)
+    c2 = costs[rows, second] if n > 1 else np.full(len(costs), np.inf)
+    real = np.isfinite(c1) & np.isfinite(c2)
     with np.errstate(invalid="ignore", divide="ignore"):
-        conf = np.where(np.isinf(c2) & np.isfinite(c1), 1.0, np.where(c2 > 0, (c2 - c1) / c2, 0.0))
-    conf = np.where(np.isfinite(c1), np.nan_to_num(conf, nan=0.0), 0.0)
-    return best, c1, second, conf
+        conf = np.where(real & (c2 > 0), (c2 - c1) / np.where(c2 > 0, c2, 1.0), 0.0)
+    best[~real] = -1
+    second[~np.isfinite(c2)] = -1
+    return best, np.where(real, c1, np.inf), second, conf
 
 
 class TemplateClassifier(Analysis):
@@ -102,7 +129,7 @@ class TemplateClassifier(Analysis):
         sub_off = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
         sub_bits = np.concatenate([bits[offsets[i] : offsets[i + 1]] for i in sel]) if len(sel) else bits[:0]
         costs = classify_clips(templates, sub_bits, sub_off)
-        best, c1, second, conf = decide(costs) if len(templates) else (np.zeros(len(sel), int),) * 4
+        best, c1, second, conf = decide(costs)
         labels = [t.label for t in templates]
         truth = labels_of(
             inputs["motions"],
@@ -117,9 +144,7 @@ class TemplateClassifier(Analysis):
             {
                 "clip_id": pa.array([int(clip_ids[i]) for i in sel], pa.int32()),
                 "name": pa.array([names[i] for i in sel], pa.string()),
-                "label": pa.array(
-                    [labels[b] if np.isfinite(c) else None for b, c in zip(best, c1, strict=True)], pa.string()
-                ),
+                "label": pa.array([labels[b] if b >= 0 else UNKNOWN for b in best], pa.string()),
                 "cost": pa.array([float(c) if np.isfinite(c) else None for c in c1], pa.float64()),
                 "runner_up": pa.array([labels[s] if s >= 0 else None for s in second], pa.string()),
                 "runner_up_cost": pa.array(
@@ -128,14 +153,11 @@ class TemplateClassifier(Analysis):
                 ),
                 "confidence": pa.array([float(x) for x in conf], pa.float64()),
                 "within_threshold": pa.array(
-                    [bool(np.isfinite(c) and c <= thr[b]) for b, c in zip(best, c1, strict=True)], pa.bool_()
+                    [bool(b >= 0 and c <= thr[b]) for b, c in zip(best, c1, strict=True)], pa.bool_()
                 ),
                 "true_label": pa.array(truth, pa.string()),
                 "correct": pa.array(
-                    [
-                        None if t is None else (np.isfinite(c) and labels[b] == t)
-                        for t, b, c in zip(truth, best, c1, strict=True)
-                    ],
+                    [None if t is None else bool(b >= 0 and labels[b] == t) for t, b in zip(truth, best, strict=True)],
                     pa.bool_(),
                 ),
                 "held_out": pa.array(held, pa.bool_()),
@@ -148,8 +170,9 @@ class TemplateClassifier(Analysis):
             "clips": len(sel),
             "templates": len(templates),
             "held_out_accuracy": round(float(np.mean([ok for _, ok in known])), 4) if known else None,
+            "unknown": int((best < 0).sum()),
         }
         return StepOutput({"data": table}, summary)
 
 
-__all__ = ["TemplateClassifier", "classify_clips", "decide"]
+__all__ = ["SPAN_PENALTY", "UNKNOWN", "TemplateClassifier", "classify_clips", "decide", "span_fraction"]

@@ -107,14 +107,16 @@ class RelationalMatcher(Matcher):
 
     Inputs: ``database`` (an ``indexes.inverted`` dataset), ``query`` (a
     ``features.relational`` dataset holding the query clips) and optionally ``motions``
-    (the motions dataset behind both, for clip names and DTW refinement). Output: the
+    (the motions dataset behind both, for clip names and DTW refinement) and ``numeric`` (a
+    matcher step such as ``matchers.search`` run with the same queries in the same order:
+    mode auto keeps only hits its per-clip costs support, ``fusion``). Output: the
     shared match table plus ``mode``, ``feature_sets``, ``n_segments``, ``mismatches``,
     ``dtw_cost`` and, with ``refine``, ``path``.
     """
 
     name = "relational"
-    version = "2"
-    inputs = {"database": True, "query": True, "motions": False}
+    version = "3"
+    inputs = {"database": True, "query": True, "motions": False, "numeric": False}
     #: Conformance (mocapflow.framework.testing): a query by example on synthetic clips.
     test_pipeline = {
         "steps": {
@@ -171,6 +173,14 @@ class RelationalMatcher(Matcher):
         max_hits: int | None = Field(None, ge=1, description="keep the best max_hits per query")
         refine: bool = Field(False, description="DTW refinement of the coarse alignment (§7); needs 'motions'")
         margin: int = Field(4, ge=0, description="frames by which matched segments are enlarged for DTW (§7)")
+        fusion: float | None = Field(
+            1.6,
+            gt=0.0,
+            description="mode auto with a 'numeric' input (a matcher step, e.g. matchers.search, with the same "
+            "queries in the same order and count >= the database's clips): keep a hit only if the numeric "
+            "search's cost of its clip is <= fusion x the auto cut's blend of those costs; None: off "
+            "(docs/templates.md: chosen by nested leave-one-actor-out)",
+        )
 
     def search(self, index: InvertedIndex, bits: np.ndarray, features: tuple[str, ...]) -> Hits:
         """Hits of one query by example (features of the query frames, shape (T, 31))."""
@@ -205,6 +215,7 @@ class RelationalMatcher(Matcher):
                 mdb = inputs["motions"].motions()
         elif self.params.refine:
             raise ConfigError("matchers.relational: refine needs the 'motions' input")
+        self._numeric = self._numeric_costs(inputs.get("numeric"))
         rows: list[dict] = []
         queries = list(enumerate(self.params.queries))
         for qid, spec in ctx.progress(queries, total=len(queries), desc=f"{ctx.step_id}: queries"):
@@ -242,6 +253,23 @@ class RelationalMatcher(Matcher):
             {"data": hits_table(rows, self.params.refine)},
             {"queries": len(self.params.queries) + len(self.params.scenes), "hits": len(rows)},
         )
+
+    @staticmethod
+    def _numeric_costs(nds: Dataset | None) -> dict[int, dict[int, float]] | None:
+        """Per query id the least cost of each clip in a numeric matcher's match table."""
+        if nds is None:
+            return None
+        if not nds.producer.startswith("matchers."):
+            raise PipelineError(
+                f"matchers.relational: numeric must be a matcher step (matchers.search), got {nds.producer}"
+            )
+        t = nds.table("data", columns=["query_id", "clip_id", "cost"])
+        out: dict[int, dict[int, float]] = {}
+        for q, c, v in zip(t["query_id"].to_pylist(), t["clip_id"].to_pylist(), t["cost"].to_pylist(), strict=True):
+            per = out.setdefault(int(q), {})
+            if v is not None and v < per.get(int(c), np.inf):
+                per[int(c)] = float(v)
+        return out
 
     @staticmethod
     def _clip_id(clip: str | int, names: dict[str, int], qid: int) -> int:
@@ -291,6 +319,14 @@ class RelationalMatcher(Matcher):
         s, e, c = auto_dtw_hits(
             t, bits, db_bits, codes, any_set.clip_offsets, background, mutual, pr.relative_cut, pr.mutual_ratio
         )
+        numeric = getattr(self, "_numeric", None)
+        if numeric is not None and pr.fusion is not None:  # relational + numeric fusion (auto.fusion_mask)
+            from .auto import fusion_mask
+
+            per = numeric.get(qid, {})
+            ncost = np.array([per.get(int(c_), np.inf) for c_ in any_set.clip_ids], np.float64)
+            keep = fusion_mask(np.searchsorted(any_set.clip_offsets, s, side="right") - 1, ncost, pr.fusion)
+            s, e, c = s[keep], e[keep], c[keep]
         hits = Hits(
             np.searchsorted(any_set.clip_offsets, s, side="right") - 1,
             s,

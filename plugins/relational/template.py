@@ -109,19 +109,27 @@ def search_template(
     threshold, without the rival check.
 
     ``codes`` (N,) :func:`.template_model.frame_codes`; ``offsets`` (n_clips + 1,) clip
-    offsets; ``index``: an ``InvertedIndex`` of the same frames: only the candidate regions
-    around the template's anchor are searched (:mod:`.template_prefilter`).
+    offsets. Every clip is searched; the kernel skips a clip (and abandons cells) only where a
+    lower bound of the DP's cost exceeds the threshold (admissible: ``sdtw_cost``);
+    ``index``: deprecated, ignored.
     """
-    ranges = _ranges(t, offsets, index)
-    return search_costs(codes, t.table(), ranges, t.threshold if threshold is None else threshold)[:3]
+    _index_shim(index)
+    bound = t.threshold if threshold is None else threshold
+    return search_costs(codes, t.table(), np.stack([offsets[:-1], offsets[1:]], axis=1), bound)[:3]
 
 
-def _ranges(t: MotionTemplate, offsets: np.ndarray, index) -> np.ndarray:
-    if index is None:
-        return np.stack([offsets[:-1], offsets[1:]], axis=1)
-    from .template_prefilter import candidate_ranges
+def _index_shim(index) -> None:
+    """The ``index`` argument (anchor regions from the inverted lists) lost true hits; the
+    search's own pre-filter is admissible and needs no index. Kept one release: warns, otherwise ignored."""
+    if index is not None:
+        import warnings
 
-    return candidate_ranges(t, index)[0]
+        warnings.warn(
+            "matchers.template: the 'index' input is ignored (deprecated, removed next release): the inverted-list "
+            "anchors lost true hits; every clip is searched with the admissible per-clip bound; remove the input",
+            DeprecationWarning,
+            stacklevel=3,
+        )
 
 
 def cutoff_hits(
@@ -144,7 +152,8 @@ def cutoff_hits(
     (indices) only, the others still competing as rivals. ``rival_table``: a
     :class:`.template_cutoff.RivalTable` of the same frames answers the rival check by
     lookups (many queries on one database) instead of scanning the hits' windows.
-    ``index``: candidate regions from the inverted lists (:mod:`.template_prefilter`).
+    ``index``: deprecated, ignored (every clip is searched; the kernel's admissible bound
+    skips clips that cannot hold a hit).
     ``step``: search every ``step``-th frame (``"auto"``: per template,
     :func:`.template_coarse.template_step`), the rival check at the full rate
     (:mod:`.template_coarse`); ``coarse``: a :class:`.template_coarse.CoarseCodes` of
@@ -153,13 +162,14 @@ def cutoff_hits(
     from .template_coarse import CoarseCodes, coarse_search, template_step
     from .template_cutoff import acceptance_bound, rival_mask
 
+    _index_shim(index)
     coarse = coarse if coarse is not None else CoarseCodes(codes, offsets)
     out = []
     for qid, t in enumerate(templates):
         if only is not None and qid not in only:
             continue
         bound = float(threshold) if threshold is not None else acceptance_bound(t)
-        s, e, c = coarse_search(t, coarse, _ranges(t, offsets, index), bound, min_gap, template_step(t, step))
+        s, e, c = coarse_search(t, coarse, None, bound, min_gap, template_step(t, step))
         keep = (
             rival_table.mask(qid, s, e, offsets)
             if rival_table is not None
@@ -174,8 +184,8 @@ class TemplateMatcher(Matcher):
 
     Inputs: ``database`` (a ``features.relational`` dataset: the frames searched and the
     examples), ``motions`` (clip names: labels and training selection) and optionally
-    ``reference`` (a ``matchers.template`` step whose templates are reused) and ``index``
-    (an ``indexes.inverted`` step on the same frames: candidate regions from its lists). Output: the
+    ``reference`` (a ``matchers.template`` step whose templates are reused); ``index`` is
+    deprecated and ignored (one release: every clip is searched with an admissible bound). Output: the
     shared match table (``query_id`` = template number) plus ``label``, ``threshold`` (the
     acceptance bound the hit passed) and ``features``; a ``templates`` table;
     ``templates.npz`` and ``template_<label>.png``. Which hits are reported:
@@ -258,17 +268,8 @@ class TemplateMatcher(Matcher):
             templates = self.fit(bits, offsets, labels, train, groups)
         save_templates(templates, ctx.out_dir, {"label_pattern": self.params.label_pattern, "train": self.params.train})
         codes = frame_codes(bits)
-        index = None
-        if "index" in inputs:
-            from .inverted import InvertedIndex
-
-            if inputs["index"].producer != "indexes.inverted":
-                raise PipelineError(
-                    f"matchers.template: index must be an indexes.inverted step, got {inputs['index'].producer}"
-                )
-            index = InvertedIndex.load(inputs["index"].path / "index")
-            if int(next(iter(index.sets.values())).clip_offsets[-1]) != len(codes):
-                raise PipelineError("matchers.template: the index was built on other frames than 'database'")
+        if "index" in inputs:  # deprecated, one release (_index_shim)
+            _index_shim(inputs["index"])
         rows = []
         prm = self.params
         table = None
@@ -276,7 +277,7 @@ class TemplateMatcher(Matcher):
             from .template_cutoff import RivalTable
 
             table = RivalTable.build(templates, codes, offsets)
-        lists = cutoff_hits(templates, codes, offsets, index, prm.threshold, rival_table=table, step=prm.step)
+        lists = cutoff_hits(templates, codes, offsets, None, prm.threshold, rival_table=table, step=prm.step)
         for qid, (t, (s, e, c, bound)) in enumerate(zip(templates, lists, strict=True)):
             if prm.max_hits:
                 s, e, c = s[: prm.max_hits], e[: prm.max_hits], c[: prm.max_hits]

@@ -8,9 +8,8 @@ frame at the capture rate, 120 Hz, and say nothing about templates), so the rate
 choice, measured in docs/templates.md.
 
 Only the *search* runs at the coarse rate: the template's rows ``0, s, 2s, ...`` against the
-database frames ``offsets[i], offsets[i] + s, ...`` of every clip, with the same candidate
-regions (from the full-rate inverted lists, mapped onto the coarse frames) and the same
-acceptance bound (costs are mean local costs in [0, 1] at either rate). The hits are mapped
+database frames ``offsets[i], offsets[i] + s, ...`` of every clip (the kernel's admissible
+per-clip bound on the coarse frames) and the same acceptance bound (costs are mean local costs in [0, 1] at either rate). The hits are mapped
 back to full-rate frames and the rival check of the ``rivals`` cut-off runs at the full rate
 on them, so which class wins a stretch is decided as before.
 
@@ -93,18 +92,23 @@ class CoarseCodes:
 
 
 def coarse_search(
-    t: MotionTemplate, coarse: CoarseCodes, ranges: np.ndarray, bound: float, min_gap: float, step: int
+    t: MotionTemplate, coarse: CoarseCodes, ranges: np.ndarray | None, bound: float, min_gap: float, step: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end exclusive, cost)`` in full-rate frames of template ``t`` (already on
-    the columns to use) searched at ``step`` over the full-rate ``ranges`` (R, 2)."""
+    the columns to use) searched at ``step`` over the full-rate ``ranges`` (R, 2); None: every
+    clip (the kernel's admissible per-clip bound, ``_template_kernels.sdtw_cost``)."""
     from .template_model import search_costs
 
-    codes, _, frames = coarse.get(step)
-    r = np.asarray(ranges, np.int64).reshape(-1, 2)
-    if step > 1:  # full-rate [lo, hi) -> the coarse frames inside it
-        r = np.stack([np.searchsorted(frames, r[:, 0]), np.searchsorted(frames, r[:, 1])], axis=1)
-        r = r[r[:, 1] > r[:, 0]]
-    s, e, c, _ = search_costs(codes, coarse_template(t, step).table(), r, bound, min_gap)
+    codes, coff, frames = coarse.get(step)
+    ct = coarse_template(t, step)
+    if ranges is None:  # every clip (the kernel skips a clip whose lower bound exceeds the bound)
+        r = np.stack([coff[:-1], coff[1:]], axis=1)
+    else:
+        r = np.asarray(ranges, np.int64).reshape(-1, 2)
+        if step > 1:  # full-rate [lo, hi) -> the coarse frames inside it
+            r = np.stack([np.searchsorted(frames, r[:, 0]), np.searchsorted(frames, r[:, 1])], axis=1)
+            r = r[r[:, 1] > r[:, 0]]
+    s, e, c, _ = search_costs(codes, ct.table(), r, bound, min_gap)
     if step > 1:
         s, e = frames[s], frames[e - 1] + 1
     return s, e, c

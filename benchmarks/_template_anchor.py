@@ -1,14 +1,6 @@
-"""Candidate regions for template retrieval from the inverted lists (``matchers.template`` with an index).
-
-A template's *anchor* is a constellation of one or two of its key features of one feature
-set that holds (cared for, constant) over a stretch ``[a, b]`` of at least ``min_run``
-template frames and is rare in the database: the database frames where it holds are the
-union of the inverted lists of every code agreeing with it (``SetIndex.union``). A path
-advances at most 2 database frames per template frame (step (1,2)), so every path with any
-frame in an anchor segment ``[s, e)`` lies in ``[s - 2 K, e + 2 K)``; only there does
-subsequence DTW run. A match whose anchor frames do not show the anchor is missed
-(``benchmarks/templates.py`` reports the hits lost against the full scan).
-"""
+"""The inverted-list anchor pre-filter that ``matchers.template`` used up to this release (it
+lost true hits: not admissible), kept here only as the same-run speed baseline of
+``benchmarks/templates.py`` (target: the default within 1.5x of it)."""
 
 from __future__ import annotations
 
@@ -16,8 +8,8 @@ from itertools import combinations
 
 import numpy as np
 
-from .features import SET_SLICES
-from .template_model import MotionTemplate
+from mocapflow.plugins.relational.features import SET_SLICES
+from mocapflow.plugins.relational.template_model import MotionTemplate
 
 
 def choose_anchor(
