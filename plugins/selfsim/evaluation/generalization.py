@@ -46,24 +46,32 @@ CHANGED_DEG = 1.0
 STRICT_DEG, STRICT_FRAMES = 15.0, 2
 
 
-def inject_native(motion: Motion, seed: int, density: float = 0.125) -> tuple[Motion, np.ndarray, list[dict]]:
+def inject_native(
+    motion: Motion, seed: int, density: float = 0.125, family: str = "A"
+) -> tuple[Motion, np.ndarray, list[dict]]:
     """Errors at ``density`` of the words, written at the take's own rate (a 24-fps frame is
-    ``fps / 24`` input frames). Returns the corrupted take, the (T, J) mask of cells moved
+    ``fps / 24`` input frames): family ``A`` (:data:`SWEEP_KINDS`) or ``B``
+    (:mod:`.injection_b`). Returns the corrupted take, the (T, J) mask of cells moved
     > :data:`MIN_ANGLE` and one dict per error (kind, joints, input span, 24-fps duration,
     measured peak angle)."""
     r = max(1, int(round(motion.fps / 24.0)))
-    ranges = {k: ((d0 * r, d1 * r), m) for k, ((d0, d1), m) in SWEEP_RANGES.items()}
-    bad, mask, errors = inject_at_density(
-        motion,
-        density,
-        SWEEP_KINDS,
-        seed=seed,
-        min_angle=MIN_ANGLE,
-        ranges=ranges,
-        word_length=15 * r,
-        word_step=5 * r,
-        margin=4 * r,
-    )
+    if family == "B":
+        from .injection_b import inject_b
+
+        bad, mask, errors = inject_b(motion, seed, density, min_angle=MIN_ANGLE)
+    else:
+        ranges = {k: ((d0 * r, d1 * r), m) for k, ((d0, d1), m) in SWEEP_RANGES.items()}
+        bad, mask, errors = inject_at_density(
+            motion,
+            density,
+            SWEEP_KINDS,
+            seed=seed,
+            min_angle=MIN_ANGLE,
+            ranges=ranges,
+            word_length=15 * r,
+            word_step=5 * r,
+            margin=4 * r,
+        )
     ang = np.rad2deg(quat.geodesic_angle(bad.rotations, motion.rotations))
     out = []
     for e in errors:
