@@ -354,10 +354,51 @@ def scores(args) -> None:
             print(f"  {name:34s} best F1 {f1:.3f}, precision at recall 0.8 {p80:.3f}")
 
 
+#: Development takes of the shipped null: subjects no protocol holds out or uses as context.
+NULL_SUBJECTS = ("01", "10", "11", "14", "118", "135")
+
+
+def null(args) -> None:
+    """The null shipped with the package (``calibrated/null.json``): every take of
+    :data:`NULL_SUBJECTS` (cropped to 20 s) analysed against two other takes of them (15 s),
+    the detectors' evidence on its interior cells (:func:`.null.build_shipped`)."""
+    from _cleaning_loso import _crop
+
+    from mocapflow.plugins.selfsim.calibrated.detectors import evidence
+    from mocapflow.plugins.selfsim.calibrated.null import SHIPPED, build_shipped
+    from mocapflow.plugins.selfsim.cleaner import MDMCleaner
+
+    files = sorted(f for s in NULL_SUBJECTS for f in (CMU / s).glob("*.amc"))
+    takes = _read(files)
+    rng = np.random.default_rng(0)
+    cleaner = MDMCleaner(write_bvh=False, heatmaps=False)
+    evs, joints, names = [], [], []
+    for i, take in enumerate(takes):
+        t = _crop(take, 20.0, rng)
+        others = [k for k in range(len(takes)) if k != i and files[k].parent != files[i].parent]
+        ctx = [_crop(takes[k], 15.0, rng) for k in rng.choice(others, 2, replace=False)]
+        res = cleaner.analyse(t, ctx)
+        ev = evidence(res.texture.q, res.mean_texture, res.spread, res.joints)[3:-3]
+        evs.append(ev)
+        joints.append(res.joints)
+        names.append(take.name)
+        print(f"  null: {take.name} {len(ev)} frames", file=sys.stderr, flush=True)
+    data = build_shipped(evs, joints, names)
+    print(f"shipped null: {data['cells']} cells of {len(names)} takes; rate -> threshold:")
+    for a, t in zip(data["alphas"], data["taus"], strict=True):
+        print(f"  {a:8.0e}  {t:8.2f}")
+    if args.write:
+        SHIPPED.write_text(json.dumps(data, indent=1) + "\n")
+        print(f"written {SHIPPED}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
-        "part", nargs="?", choices=("speed", "protocol", "native", "scores", "loso", "stability"), default=None
+        "part",
+        nargs="?",
+        choices=("speed", "protocol", "native", "scores", "loso", "stability", "null"),
+        default=None,
     )
     ap.add_argument("--quick", action="store_true", help="every part, tiny, on the bundled examples/data")
     ap.add_argument("--category", choices=tuple(SUBJECTS), action="append")
@@ -368,11 +409,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, help="protocol: memoise the KNN analyses in this folder")
     ap.add_argument("--json", help="protocol / loso: also write every row / run to this JSON file")
     ap.add_argument("--seeds", type=int, default=10, help="loso: seeds 0..N-1 (unless --seed)")
-    ap.add_argument("--take-s", type=float, default=10.0, help="loso: held-out takes cropped to this, seconds")
+    ap.add_argument("--take-s", type=float, default=0.0, help="loso: held-out takes cropped to this, s (0: full)")
+    ap.add_argument("--family", action="append", choices=("A", "B"), help="loso: injector families (default both)")
+    ap.add_argument("--subjects", nargs="*", help="loso: only these held-out subjects (development subsets)")
     ap.add_argument("--context-n", type=int, default=3, help="loso: context takes from the other subjects")
     ap.add_argument("--density", type=float, default=0.125, help="loso: share of the words given an error")
     ap.add_argument("--sweep", action="store_true", help="loso: also the magnitude x duration table per kind")
     ap.add_argument("--load", action="append", help="loso: print the runs of these JSON files instead of running")
+    ap.add_argument("--write", action="store_true", help="null: write calibrated/null.json")
     args = ap.parse_args(argv)
     if not args.quick and not CMU.is_dir():
         print(f"needs the corpus at {CMU} (or --quick)", file=sys.stderr)
@@ -384,6 +428,7 @@ def main(argv: list[str] | None = None) -> int:
         "scores": scores,
         "loso": loso,
         "stability": stability,
+        "null": null,
     }
     for name in [args.part] if args.part else (list(parts) if args.quick else ["speed"]):
         parts[name](args)

@@ -1,5 +1,6 @@
-"""The calibrated cleaner: cues against naive references, calibration, bounded repair, the
-paper mode kept, the density injector, and what ``mocapflow clean`` writes."""
+"""The calibrated cleaner: kinematic helpers against naive references, bounded repair, the
+paper mode kept, the density injector, and what ``mocapflow clean`` writes (the detectors,
+the null and the test: tests/test_mdm_null.py)."""
 
 from __future__ import annotations
 
@@ -11,16 +12,13 @@ from naive.cleaning import synthetic_walk
 from naive.cleaning_cues import (
     naive_acceleration,
     naive_mirror_gain,
-    naive_persistent,
     naive_window_median,
     naive_window_min,
-    naive_word_joint,
 )
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.plugins.selfsim.calibrated import cues
-from mocapflow.plugins.selfsim.calibrated.constants import CUES
-from mocapflow.plugins.selfsim.calibrated.fusion import fit_levels, word_joint
+from mocapflow.plugins.selfsim.calibrated.detectors import DETECTORS
 from mocapflow.plugins.selfsim.cleaner import MDMCleaner
 from mocapflow.plugins.selfsim.evaluation.error_injection import inject_at_density
 
@@ -45,41 +43,6 @@ def test_cues_match_naive_references():
     )
     for half in (1, 3):
         np.testing.assert_allclose(cues.window_median(x, half), naive_window_median(x, half))
-    for factor in (1.5, 2.0):
-        np.testing.assert_allclose(cues.persistent(x, factor), naive_persistent(x, factor))
-    mask = rng.random((40, 3)) > 0.95
-    for t in (40, 37, 15, 9):
-        np.testing.assert_array_equal(word_joint(mask[:t]), naive_word_joint(mask[:t], 15, 5))
-
-
-def test_persistence_keeps_spikes_and_steps_and_cuts_isolated_kinks():
-    x = np.zeros((30, 3))
-    x[9:12, 0] = [0.5, 1.0, 0.5]  # a spike: half its acceleration on each side
-    x[19:21, 1] = [0.5, 0.5]  # a step (the edge of an offset): two equal frames
-    x[5, 2] = 1.0  # a kink of a clean fast joint: one frame
-    p = cues.persistent(x, 2.0)
-    assert p[10, 0] == 1.0 and np.all(p[19:21, 1] == 0.5) and p[5, 2] == 0.0
-
-
-def test_jitter_cue_lasts_where_a_kink_does_not():
-    rng = np.random.default_rng(3)
-    acc = np.zeros((60, 2))
-    acc[20:34, 0] = rng.uniform(2.0, 4.0, 14)  # jitter: acceleration on every frame
-    acc[40, 1] = 8.0  # an isolated kink
-    zero = np.zeros((60, 2))
-    cue = {
-        "digression": np.full((60, 2), 0.1),
-        "acceleration": acc,
-        "expected_acc": zero,
-        "mirror": zero,
-        "hold": zero,
-        "held_freeze": zero,
-    }
-    scale = {"digression": np.full(2, 0.1), "acceleration": np.ones(2)}
-    v = cues.cue_values(cue, scale)
-    jit = v[..., CUES.index("jitter")]
-    assert jit[24:30, 0].min() >= 2.0 and jit[:, 1].max() == 0.0
-    assert cues.cue_values(cue, scale, 2.0)[40, 1, CUES.index("acceleration")] == 0.0
 
 
 def test_mirror_gain_sees_a_swap_only_where_it_is():
@@ -128,7 +91,8 @@ def test_density_injection_is_seeded_and_reaches_the_density():
     a, mask_a, err_a = inject_at_density(clean, 0.125, seed=3)
     b, mask_b, err_b = inject_at_density(clean, 0.125, seed=3)
     assert np.array_equal(a.rotations, b.rotations) and err_a == err_b and np.array_equal(mask_a, mask_b)
-    share = word_joint(mask_a).any(1).mean()
+    starts = np.arange(0, len(mask_a) - 14, 5)
+    share = np.mean([mask_a[s : s + 15].any() for s in starts])
     assert 0.125 <= share < 0.3
     spans = sorted((e.start, e.end) for e in err_a)
     assert all(s1 >= e0 for (_, e0), (s1, _) in zip(spans, spans[1:], strict=False))  # never overlapping
@@ -137,25 +101,6 @@ def test_density_injection_is_seeded_and_reaches_the_density():
         assert lo <= e.end - e.start <= hi
         if e.kind == "spike":
             assert 30 <= e.magnitude <= 90
-
-
-def test_fit_levels_respects_the_false_alarm_budget():
-    rng = np.random.default_rng(4)
-    values, truth = [], []
-    for _ in range(3):
-        v = rng.random((200, 4, 2))
-        t = np.zeros((200, 4), bool)
-        t[50:53, 1] = True
-        v[50:53, 1, 0] = 5.0  # cue 0 separates this error
-        values.append(v)
-        truth.append(t)
-    levels = np.ones((4, 2))
-    lam = fit_levels(values, levels, truth, false_alarm=0.01)
-    flagged = [word_joint((v / (levels * lam)).max(-1) > 1) for v in values]
-    wt = [word_joint(t) for t in truth]
-    fa = sum((f & ~w).sum() for f, w in zip(flagged, wt, strict=True)) / sum((~w).sum() for w in wt)
-    rec = sum((f & w).sum() for f, w in zip(flagged, wt, strict=True)) / sum(w.sum() for w in wt)
-    assert fa <= 0.01 and rec == 1.0 and np.isfinite(lam[0])
 
 
 @pytest.fixture(scope="module")
@@ -175,12 +120,13 @@ def test_calibrated_cleaner_leaves_a_clean_take_alone_and_repairs_a_spike(walks)
     ok = cleaner.clean(clean, context)
     n_cells = clean.n_frames * len(ok.analysis.joints)
     assert ok.edits.num_rows <= 0.01 * n_cells
-    assert ok.edits.num_rows == 0 or ok.edits["edit_deg"].to_numpy().max() <= 30.0 + 1e-3
+    assert ok.edits.num_rows == 0 or ok.edits["edit_deg"].to_numpy().max() <= 15.0
     out = cleaner.clean(bad, context)
-    assert out.calibration.source == "context" and out.calibration.clips == ["ctx6", "ctx7"]
+    assert out.calibration.source == "context"
+    assert {c.split("[")[0] for c in out.calibration.clips} <= {"ctx6", "ctx7"}
     c = out.analysis.joints.index("lknee")
     assert out.flags[120:122, c].any()
-    assert set(out.cue[out.flags].tolist()) <= set(CUES)
+    assert set(out.cue[out.flags].tolist()) <= set(DETECTORS)
     err0 = quat.geodesic_angle(bad.rotations[120:122, j], clean.rotations[120:122, j])
     err1 = quat.geodesic_angle(out.cleaned.rotations[120:122, j], clean.rotations[120:122, j])
     assert err1.max() < 0.5 * err0.min()
@@ -294,61 +240,12 @@ def test_cleaner_provenance_is_deterministic(tmp_path):
     assert str(tmp_path) not in outs[0]
 
 
-def test_calibration_budget_is_counted_at_the_analysis_rate():
-    # the budget is in analysis frames: the same clips whatever rate the context was read at
-    from mocapflow.framework.normalize import resample
-    from mocapflow.plugins.selfsim.calibrated.calibration import calibration_clips
-
-    walks = [synthetic_walk(n, fps=24.0, seed=s, name=f"w{s}") for s, n in enumerate((300, 260, 200, 120))]
-    take = synthetic_walk(100, seed=9)
-    at24, source = calibration_clips(take, walks, 600, 24.0)
-    assert source == "context" and [c.name for c in at24] == ["w0", "w1", "w2"]  # 300 + 260 < 600 <= 760
-    fast = [resample(w, 120.0) for w in walks]  # five times the frames, the same seconds
-    at120, _ = calibration_clips(take, fast, 600, 24.0)
-    assert [c.name for c in at120] == ["w0", "w1", "w2"]
-    mixed, _ = calibration_clips(take, [fast[0], walks[1], fast[2], walks[3]], 600, 24.0)
-    assert [c.name for c in mixed] == ["w0", "w1", "w2"]
-    assert calibration_clips(take, [], 600, 24.0) == ([take], "self")
-
-
 def _smooth_track(t: int = 80, seed: int = 0) -> np.ndarray:
     """One joint turning smoothly (a few degrees a frame about a slowly changing axis), (t, 4)."""
     rng = np.random.default_rng(seed)
     ang = np.deg2rad(30.0) * np.sin(np.linspace(0.0, 4.0 * np.pi, t))
     axis = np.array([1.0, 0.3, 0.0]) + 0.1 * rng.standard_normal(3)
     return quat.from_axis_angle(np.broadcast_to(axis / np.linalg.norm(axis), (t, 3)), ang)
-
-
-def test_offset_scan_finds_offsets_and_flips_by_their_steps_and_nothing_on_a_smooth_track():
-    from mocapflow.plugins.selfsim.calibrated.offsets import remove_offset, scan_offsets
-
-    clean = _smooth_track(200)
-    level = np.deg2rad(15.0)
-    assert scan_offsets(clean, clean, level, 48) == []
-    bad = clean.copy()
-    off = quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), np.deg2rad(40.0))
-    bad[20:31] = quat.mul(bad[20:31], off)  # an offset held 11 frames
-    flip = quat.from_axis_angle(np.array([0.0, 1.0, 0.0]), np.deg2rad(165.0))
-    bad[50] = quat.mul(bad[50], flip)  # a one-frame flip
-    found = scan_offsets(bad, clean, level, 48)
-    assert sorted((a, b) for a, b, *_ in found) == [(20, 31), (50, 51)]
-    for a, b, oa, ob in found:
-        rep = remove_offset(bad, a, b, oa, ob)
-        assert np.degrees(quat.geodesic_angle(rep, clean[a:b])).max() < 1.0
-
-
-def test_frozen_holds_need_a_moving_consensus():
-    from mocapflow.plugins.selfsim.calibrated.cues import hold_lengths, speed
-    from mocapflow.plugins.selfsim.calibrated.holds import frozen_holds
-
-    clean = _smooth_track()[:, None]
-    bad = clean.copy()
-    bad[38:43, 0] = bad[38, 0]  # frozen 5 frames while the consensus (the clean track) turns ~19 degrees
-    v = speed(bad)
-    length, edge = hold_lengths(v)
-    found = frozen_holds(v, length, edge, speed(clean))
-    assert found[38:43, 0].all() and not found[:38].any() and not found[44:].any()
-    assert not frozen_holds(v, length, edge, speed(bad) * 0.0).any()  # a still consensus: no freeze
 
 
 def test_native_edges_snap_to_the_input_frame_that_jumps():
@@ -374,12 +271,12 @@ def test_native_edges_snap_to_the_input_frame_that_jumps():
     assert left[36] and not left[37] and left[63] and not left[62]
 
 
-def test_a_context_too_small_falls_back_to_the_take_and_says_so(walks, caplog):
+def test_a_context_too_small_or_unlike_falls_back_to_the_shipped_null_and_says_so(walks, caplog):
     clean, bad, _ = walks
     short = synthetic_walk(240, seed=6, name="ctx6")
-    short = short.slice(0, int(5 * short.fps))  # 5 s of context, shorter than the take
+    short = short.slice(0, int(2 * short.fps))  # 2 s of context: too few words like the take
     with caplog.at_level("WARNING", logger="mocapflow.cleaning"):
         out = MDMCleaner(write_bvh=False, heatmaps=False).clean(bad, [short])
-    assert out.calibration.source == "self" and out.calibration.fallback.startswith("context too small")
+    assert out.calibration.source == "shipped" and out.calibration.fallback.startswith("context")
     assert out.calibration.summary()["fallback"] == out.calibration.fallback
-    assert "calibrated on the take's own statistics" in caplog.text
+    assert "take: context" in caplog.text and "null shipped with the package" in caplog.text

@@ -171,8 +171,10 @@ def test_params_reject_unknown_keys_and_keep_paper_defaults():
     p = MDMParams()
     assert (p.fps, p.source_length, p.source_step, p.target_length, p.k, p.threshold) == (24.0, 15, 5, 20, 5, 0.5)
     assert [g.drop for g in p.groups] == [3, 1, 1, 1, 1] and len(p.joints) == 24
-    assert p.mode == "calibrated" and p.calibrated.false_alarm == 0.004
-    assert MDMParams(calibrated={"false_alarm": 0.002}).calibrated.false_alarm == 0.002
+    assert p.mode == "calibrated" and p.calibrated.false_alarm_rate == 2e-3
+    assert MDMParams(calibrated={"false_alarm_rate": 1e-3}).calibrated.false_alarm_rate == 1e-3
+    with pytest.warns(DeprecationWarning, match="false_alarm_rate"):
+        MDMParams(calibrated={"false_alarm": 0.002})
     with pytest.raises(ValidationError):
         MDMParams(word=3)
     with pytest.raises(ValidationError):

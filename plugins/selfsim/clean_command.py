@@ -51,10 +51,17 @@ class CleanCommand:
             help="calibrated (default): detector fitted on the context; paper: MDM > threshold",
         )
         parser.add_argument(
+            "--false-alarm-rate",
+            type=float,
+            default=None,
+            metavar="R",
+            help="calibrated: share of the (frame, joint) cells of a clean take flagged (default 0.002)",
+        )
+        parser.add_argument(
             "--false-alarm",
             type=float,
             default=None,
-            help="calibrated: share of clean (word, joint) pairs that may be flagged (default 0.004)",
+            help="deprecated, ignored: use --false-alarm-rate (a share of cells)",
         )
         parser.add_argument("--threshold", type=float, default=None, help="paper: MDM threshold (default 0.5)")
 
@@ -87,7 +94,17 @@ class CleanCommand:
             if getattr(args, key, None) is not None:
                 params[key] = getattr(args, key)
         if getattr(args, "false_alarm", None) is not None:
-            params["calibrated"] = {"false_alarm": args.false_alarm}
+            import sys
+
+            print(
+                "mocapflow clean: --false-alarm is deprecated and ignored (removed next release); "
+                "use --false-alarm-rate R (the share of a clean take's (frame, joint) cells flagged)",
+                file=sys.stderr,
+            )
+        if getattr(args, "false_alarm_rate", None) is not None:
+            if not 0.0 < args.false_alarm_rate < 1.0:
+                raise ConfigError(f"--false-alarm-rate {args.false_alarm_rate}: a share of cells, in (0, 1)")
+            params["calibrated"] = {"false_alarm_rate": args.false_alarm_rate}
         cleaner = cleaner_cls(params)
         report = Path(args.report) if args.report else None
         if report is not None:
@@ -108,7 +125,11 @@ class CleanCommand:
             f"{take.name}: {s['flagged_cells']} input frames x joints flagged ({s['decided_by']}), "
             f"{s['edited_cells']} edited, of {s['input_cells']} at {take.fps:g} fps "
             f"(largest edit {s['max_edit_deg']:.1f} deg) in {out['seconds']:.2f} s -> {dest}"
-            + (f"; {cal['fallback']}: calibrated on the take itself" if cal and cal.get("fallback") else ""),
+            + (
+                f"; {cal['fallback']}: decided on the null shipped with the package"
+                if cal and cal.get("fallback")
+                else ""
+            ),
             flush=True,
         )
         return 0

@@ -7,18 +7,20 @@ decision and repair (:mod:`.paper.repair`) or the calibrated one (:mod:`.calibra
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from mocapflow.framework import quaternions as quat
 from mocapflow.framework.components import Cleaner, Params
 from mocapflow.framework.motion import Motion
 
+from .calibrated.constants import DEFAULT_RATE
 from .paper.motion_words import DEFAULT_GROUPS, DEFAULT_JOINTS
 
 
@@ -37,26 +39,40 @@ def _default_groups() -> tuple[JointGroup, ...]:
 class CalibratedParams(Params):
     """What a user chooses in ``mode: calibrated`` (the rest is measured: :mod:`.calibrated.constants`)."""
 
-    false_alarm: float = Field(
-        default=0.004,
+    false_alarm_rate: float = Field(
+        default=DEFAULT_RATE,
         gt=0,
         lt=1,
-        description="share of clean (word, joint) pairs of the calibration clips the detector may flag",
+        description="share of the (frame, joint) cells of a clean take the test flags (a conformal "
+        "p-value against clean context words like the take)",
     )
     frames: int = Field(
         default=600,
         ge=15,
-        description="calibration budget: frames (at fps) of the longest context "
-        "clips analysed with synthetic errors (the take itself when there is no other clip)",
+        description="null budget: analysis frames of the context spans most like the take (by its KNN words)",
     )
-    seed: int = Field(default=0, description="seed of the synthetic calibration errors")
-    max_edit: float = Field(
-        default=30.0,
-        gt=0,
-        le=180,
-        description="largest edit, degrees, of a cell only the "
-        "digression or freeze cue flagged (spikes and swaps are bounded by their evidence)",
+    false_alarm: float | None = Field(
+        default=None, gt=0, lt=1, description="deprecated, ignored: use false_alarm_rate (a share of cells)"
     )
+    seed: int | None = Field(default=None, description="deprecated, ignored: the calibration injects nothing")
+    max_edit: float | None = Field(
+        default=None, gt=0, le=180, description="deprecated, ignored: an edit is bounded by its digression"
+    )
+
+    @model_validator(mode="after")
+    def _shims(self) -> CalibratedParams:
+        for old, instead in (
+            ("false_alarm", "calibrated.false_alarm_rate (a share of (frame, joint) cells, not of word pairs)"),
+            ("seed", "nothing: the null is measured on clean context words, no synthetic errors"),
+            ("max_edit", "nothing: an edit is bounded by the cell's digression plus the KNN spread"),
+        ):
+            if getattr(self, old) is not None:
+                warnings.warn(
+                    f"cleaners.mdm: calibrated.{old} is deprecated and ignored (removed next release); use {instead}",
+                    DeprecationWarning,
+                    stacklevel=2,
+                )
+        return self
 
 
 class MDMParams(Params):
@@ -65,8 +81,8 @@ class MDMParams(Params):
 
     mode: Literal["calibrated", "paper"] = Field(
         default="calibrated",
-        description="'calibrated': detector fitted on the clean context (self-supervised, target false_alarm) and "
-        "bounded repair; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)",
+        description="'calibrated': one fused test per (frame, joint) at false_alarm_rate against clean "
+        "context words like the take, repairs only where it fired; 'paper': MDM > threshold, median KNN word, Savitzky-Golay blend (§3.4, §4)",
     )
     fps: float = Field(default=24.0, gt=0, description="analysis frame rate (§5: 120 Hz reduced to 24 fps)")
     joints: tuple[str, ...] = Field(
@@ -104,10 +120,11 @@ class MDMParams(Params):
 @dataclass
 class CleanResult:
     """One clip through :meth:`MDMCleaner.clean`, (T, m) at the analysis rate: ``flags``
-    (decided), ``value`` (the map, > 0.5 = flagged: the MDM or ``1 - 2^(-e^2)`` of the
-    evidence), ``cue`` (flagging cue name or None), ``repaired`` (T, m, 4), ``edited``; then
+    (decided), ``value`` (the map, > 0.5 = flagged: the MDM or ``0.5 S / threshold`` of the
+    fused statistic), ``cue`` (deciding detector name or None), ``repaired`` (T, m, 4), ``edited``; then
     ``cleaned`` (input rate) and ``edits`` (:func:`.paper.repair.edits_table` plus
-    ``edit_deg``, ``cue``).
+    ``edit_deg``, ``cue``); calibrated: ``calibration`` (the take's :class:`.calibrated.null.Null`),
+    ``stat`` (T, m) the fused statistic and ``pvalue`` its conformal p-values.
     """
 
     analysis: Any
@@ -119,6 +136,8 @@ class CleanResult:
     cleaned: Motion
     edits: Any
     calibration: Any = None
+    stat: np.ndarray | None = None
+    pvalue: np.ndarray | None = None
 
     def map_result(self) -> Any:
         """An object :func:`.paper.repair.map_to_input` takes, carrying ``value`` as its map."""
@@ -167,42 +186,55 @@ def clean_motion(
 
     p = cleaner.params
     res = analysis if analysis is not None else cleaner.analyse(motion, context)
+    if p.mode != "paper" and not res.neighbours:
+        logging.getLogger("mocapflow.cleaning").warning(
+            "%s: %d analysis frames, shorter than one motion word (%d): left as it is",
+            motion.name,
+            res.texture.n_frames,
+            p.source_length,
+        )
     if p.mode == "paper" or not res.neighbours:
         flags = res.mdm > p.threshold
         new24, edited = repair_texture(res, p.threshold, p.savgol_window, p.savgol_order, contacts)
         cue = np.full(res.mdm.shape, None, dtype=object)
         cue[flags] = "mdm"
-        value, cal = res.mdm, None
+        value, cal, stat, pv = res.mdm, None, None, None
     else:
-        from .calibrated.calibration import calibrate, context_support
+        from .calibrated.calibration import calibrate
         from .calibrated.decision import calibrated_decision
         from .paper.motion_words import context_motions
 
         c = p.calibrated
         if calibration is None:
-            # the calibration analyses each clip with itself included
             others = context_motions(motion, context, True)[1:]
-            why = context_support(res, others, p.fps)
-            if why:
-                logging.getLogger("mocapflow.cleaning").warning(
-                    "%s: %s; calibrated on the take's own statistics", motion.name, why
-                )
             calibration = calibrate(
+                res,
                 motion,
-                [] if why else others,
+                others,
                 cleaner.clone(include_self=True).analyse,
-                res.joints,
                 p.fps,
-                false_alarm=c.false_alarm,
                 frames=c.frames,
-                seed=c.seed,
+                self_first=p.include_self,
             )
-            calibration.fallback = why
+            if calibration.fallback:
+                logging.getLogger("mocapflow.cleaning").warning(
+                    "%s: %s; decided on the null shipped with the package", motion.name, calibration.fallback
+                )
         cal = calibration
-        flags, value, cue, new24, edited = calibrated_decision(res, cal, c.max_edit)
+        flags, value, cue, new24, edited, pv, stat = calibrated_decision(res, cal, c.false_alarm_rate)
     cleaned, changed = apply_to_input(motion, res.texture, new24, edited, guard=p.mode != "paper")
     return CleanResult(
-        res, flags, value, cue, new24, edited, cleaned, _edits(motion, cleaned, changed, res.texture, cue), cal
+        res,
+        flags,
+        value,
+        cue,
+        new24,
+        edited,
+        cleaned,
+        _edits(motion, cleaned, changed, res.texture, cue),
+        cal,
+        stat,
+        pv,
     )
 
 

@@ -51,6 +51,47 @@ def mdm_table(
     )
 
 
+def glitches(out: Any, motion: Any) -> list[dict[str, Any]]:
+    """The edits above :data:`.calibrated.constants.GLITCH_DEG` named as capture glitches: per
+    joint and run of input frames, its time span, largest edit, deciding detector and the
+    smallest conformal p-value of its flagged analysis cells (calibrated mode)."""
+    from .calibrated.constants import GLITCH_DEG
+
+    ed = out.edits
+    if not ed.num_rows or getattr(out, "pvalue", None) is None:
+        return []
+    deg = ed["edit_deg"].to_numpy()
+    big = deg > GLITCH_DEG
+    if not big.any():
+        return []
+    fr, jn, cu = ed["frame"].to_numpy()[big], np.array(ed["joint_name"].to_pylist(), object)[big], deg[big]
+    cue = np.array(ed["cue"].to_pylist(), object)[big]
+    joints = list(out.analysis.joints)
+    r = out.analysis.texture.fps / motion.fps
+    found = []
+    for name in sorted(set(jn.tolist())):
+        sel = np.flatnonzero(jn == name)
+        f = fr[sel]
+        order = np.argsort(f)
+        cuts = np.flatnonzero(np.diff(f[order]) > 1) + 1
+        for part in np.split(order, cuts):
+            a, b = int(f[part].min()), int(f[part].max())
+            c = joints.index(name) if name in joints else None
+            lo, hi = int(np.floor(a * r)), int(np.ceil(b * r)) + 1
+            p = float(out.pvalue[lo:hi, c].min()) if c is not None and hi > lo else None
+            found.append(
+                {
+                    "joint": name,
+                    "from_s": round(a / motion.fps, 3),
+                    "to_s": round(b / motion.fps, 3),
+                    "max_edit_deg": round(float(cu[sel][part].max()), 2),
+                    "detector": next((x for x in cue[sel][part] if x), None),
+                    "p_value": None if p is None else float(f"{p:.3g}"),
+                }
+            )
+    return found
+
+
 def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
     """What the cleaner changed and why: flagged analysis cells per joint and cue, the
     largest input edits, the calibration (JSON-friendly, deterministic)."""
@@ -78,6 +119,7 @@ def change_report(out: Any, motion: Any, top: int = 10) -> dict[str, Any]:
         ]
     n_cells = int(motion.n_frames * len(out.analysis.texture.joint_index))
     return {
+        "glitches": glitches(out, motion),
         "flagged_per_joint": dict(sorted(per_joint.items())),
         "edited_share": round(ed.num_rows / max(n_cells, 1), 6),
         "max_edit_deg": round(float(ed["edit_deg"].to_numpy().max()), 2) if ed.num_rows else 0.0,
@@ -91,9 +133,9 @@ def decision_words(mode: str, level: float) -> tuple[str, str]:
     if mode == "paper":
         return PAPER_SCORE, f"MDM > {level:g}"
     return (
-        "calibrated evidence as 1 - 2^(-e^2) (dimensionless): e = largest\ncue over λ x its null level "
-        "on the clean context",
-        "cue evidence e > 1 (value > 0.5), kept when the repair moves it >= 10 deg",
+        "calibrated: 0.5 x S / threshold (dimensionless): S = largest detector\nevidence in per-joint "
+        "robust units of clean words like the take",
+        "conformal p-value <= false_alarm_rate (value > 0.5)",
     )
 
 

@@ -70,28 +70,6 @@ def naive_mirror_gain(q: np.ndarray, mean_q: np.ndarray, joints, chains, margin:
     return out
 
 
-def naive_word_joint(mask: np.ndarray, n: int, step: int) -> np.ndarray:
-    """(word, joint) pairs holding a True cell; words every ``step`` frames plus one flush with the end."""
-    t = len(mask)
-    if t < n:
-        return np.zeros((0, mask.shape[1]), bool)
-    starts = list(range(0, t - n + 1, step))
-    if starts[-1] != t - n:
-        starts.append(t - n)
-    return np.array([[bool(mask[s : s + n, j].any()) for j in range(mask.shape[1])] for s in starts])
-
-
-def naive_persistent(x: np.ndarray, factor: float) -> np.ndarray:
-    """Each cell capped at ``factor`` times the larger of its neighbours in time (0 beyond the ends)."""
-    out = np.zeros_like(x)
-    for t in range(x.shape[0]):
-        for j in range(x.shape[1]):
-            prev = x[t - 1, j] if t > 0 else 0.0
-            nxt = x[t + 1, j] if t + 1 < x.shape[0] else 0.0
-            out[t, j] = min(x[t, j], factor * max(prev, nxt))
-    return out
-
-
 def naive_window_median(x: np.ndarray, half: int) -> np.ndarray:
     """Median over ``[t - half, t + half]``, indices beyond the ends reflected (-1 -> 1, T -> T - 2)."""
     n = x.shape[0]

@@ -1,14 +1,5 @@
-"""Repair of the calibrated cleaner: only flagged cells, bounded, never away from consensus.
-
-1. Swapped limbs (mirror-cue runs that swapping back makes smoother at both ends, and the
-   swaps found by their edges, :mod:`.swaps`) are swapped back exactly.
-2. Other flagged runs take the median KNN word (:func:`..paper.repair._propose`) corrected
-   by a displacement map slerped between the offsets at the two bounding frames, so the
-   repair joins the take without a jump and keeps the word's shape; runs bounded by two
-   consistent jumps are repaired as offsets (:mod:`.offsets`).
-3. Bounds: a cell keeps its value unless the repair brings it nearer T̄, and an edit beyond
-   the cell's digression plus its KNN spread is shortened along the geodesic.
-"""
+"""Repair of the calibrated cleaner: only the runs the test flagged, bounded, never away
+from the consensus (:func:`repair_flagged`)."""
 
 from __future__ import annotations
 
@@ -94,51 +85,102 @@ def swap_frames(
     return out
 
 
-def bounded_repair(
-    res,
-    flags: np.ndarray,
-    mirror_flags: np.ndarray,
-    cap: np.ndarray,
-    no_merge: np.ndarray,
-    keep: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Repaired texture (T, m, 4), and (T, m) the edited, swapped and offset-repaired cells
-    (offsets may lie outside ``flags``: the interval between the jumps).
-
-    ``mirror_flags``: cells the mirror cue flagged; only runs holding one are swapped back,
-    the others left as they are. ``cap`` (T, m): largest edit per cell, radians (swaps not
-    capped). ``no_merge``: cells no merged gap may include. Every joint is also searched
-    for offsets by their steps (:func:`.offsets.scan_offsets`) outside ``keep`` (T, m; holds
-    being filled). Flagged runs of one joint at most
-    :data:`.constants.MERGE_GAP` frames apart are one run (a jitter burst flags its extremes).
-    """
-    from ..paper.repair import _propose
-    from .constants import MERGE_GAP, OFFSET_LEVEL, SWAP_GAIN, SWAP_LEVEL, SWAP_MAX
+def _swap_runs(res, swap_flags: np.ndarray) -> list:
+    """Swapped intervals holding a ``swap``-flagged chain cell: found by their edges
+    (:func:`.swaps.swap_edges`) or by the mirror gain (:func:`swap_frames`)."""
+    from .constants import SWAP_GAIN, SWAP_LEVEL, SWAP_MAX
     from .swaps import swap_edges
+
+    q, mean_q = res.texture.q, res.mean_texture
+    swaps = []
+    for lc, rc, a, b in swap_edges(q, res.joints, SWAP_LEVEL, max_len=SWAP_MAX):
+        if swap_flags[a:b][:, np.concatenate([lc, rc])].any():
+            swaps.append((lc, rc, a, b))
+    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, swap_flags, SWAP_GAIN, skip=swaps):
+        if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in swaps):
+            swaps.append((lc, rc, a, b))
+    return swaps
+
+
+def _hold_interval(length: np.ndarray, edge: np.ndarray, a: int, b: int) -> tuple[int, int] | None:
+    """The still interval ``[h0, h1]`` of one joint (hold ``length`` > 0) that the run
+    ``[a, b)`` touches first, when it lies inside the take with a frame on each side."""
+    still = np.flatnonzero(length[a:b] > 0)
+    if not len(still) or edge[a + still[0]]:
+        return None
+    h0 = h1 = a + int(still[0])
+    while h0 > 0 and length[h0 - 1] > 0:
+        h0 -= 1
+    while h1 < len(length) - 1 and length[h1 + 1] > 0:
+        h1 += 1
+    if h0 > 0 and h1 + 1 < len(length) and h1 + 1 - h0 >= 2:
+        return h0, h1
+    return None
+
+
+def _bounded(res, q: np.ndarray, new: np.ndarray, exempt: np.ndarray) -> np.ndarray:
+    """``new`` with every cell outside ``exempt`` kept only nearer the consensus and moved at
+    most its digression plus the KNN spread (shortened along the geodesic)."""
+    mean_q = res.mean_texture
+    before = quat.geodesic_angle(q, mean_q)
+    worse = (quat.geodesic_angle(new, mean_q) >= before - 1e-9) & ~exempt
+    new[worse] = q[worse]
+    edit = quat.geodesic_angle(new, q)
+    limit = before + np.asarray(res.spread if res.spread is not None else 0.0)
+    over = (edit > limit + 1e-9) & ~exempt
+    if over.any():
+        new[over] = quat.slerp(q[over], new[over], limit[over] / edit[over])
+    return new
+
+
+def repair_flagged(res, flags: np.ndarray, det: np.ndarray, stat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Repaired texture (T, m, 4) and the changed cells (T, m): every flagged run (runs of
+    one joint at most :data:`.constants.MERGE_GAP` frames apart merged) repaired by the
+    detector ``det`` (T, m, index of :data:`.detectors.DETECTORS`) of its strongest cell
+    (``stat``): ``swap`` swaps the chain pair back over the swapped interval holding it
+    (:func:`_swap_runs`, kept when the swap-back is smoother at both ends), ``hold`` fills
+    the still interval holding it from the consensus (:func:`.holds.consensus_fill`), others
+    take an offset out when the run's ends are two agreeing jumps (:func:`_offset_run`) or
+    the median KNN word joined at both ends (:func:`_displaced`). Bounds
+    (:func:`_bounded`): a cell moves only nearer the consensus, by at most its digression
+    plus the KNN spread (swaps, holds and offsets are verified by their edges)."""
+    from ..paper.repair import _propose
+    from .constants import MERGE_GAP, OFFSET_LEVEL
+    from .cues import hold_lengths, speed
+    from .detectors import DETECTORS
+    from .holds import consensus_fill
 
     q = res.texture.q
     mean_q = res.mean_texture
     t_count, m = q.shape[:2]
     new = q.copy()
-    swapped = np.zeros((t_count, m), bool)
+    exempt = np.zeros((t_count, m), bool)
     offset = np.zeros((t_count, m), bool)
-    edge_swaps = swap_edges(q, res.joints, SWAP_LEVEL, max_len=SWAP_MAX)
-    runs = list(edge_swaps)
-    for lc, rc, a, b in swap_frames(q, mean_q, res.joints, mirror_flags, SWAP_GAIN, skip=edge_swaps):
-        if not any(lc[0] == l2[0] and a < b2 and a2 < b for l2, _, a2, b2 in edge_swaps):
-            runs.append((lc, rc, a, b))
-    for lc, rc, a, b in runs:
+    if not flags.any():
+        return new, exempt
+    i_swap, i_hold = DETECTORS.index("swap"), DETECTORS.index("hold")
+    runs = []
+    for j in np.flatnonzero(flags.any(axis=0)):
+        for a, b in _merge(_runs(flags[:, j]), MERGE_GAP):
+            k = a + int(np.argmax(np.where(flags[a:b, j], stat[a:b, j], -np.inf)))
+            runs.append((j, a, b, int(det[k, j])))
+    swap_flags = flags & (det == i_swap)
+    for lc, rc, a, b in _swap_runs(res, swap_flags) if swap_flags.any() else []:
         new[a:b, lc] = mirror(q[a:b, rc])
         new[a:b, rc] = mirror(q[a:b, lc])
-        swapped[a:b, np.concatenate([lc, rc])] = True
-    # offsets (spikes, flips) found by their two steps wherever they are, flagged or not
-    _scanned_offsets(q, mean_q, new, swapped | keep, offset)
-    # the mirror flags' evidence was for a swap that did not hold up: leave them
-    rest = flags & ~swapped & ~mirror_flags & ~offset
-    for j in np.flatnonzero(rest.any(axis=0)):
-        for (_, b), (a2, _) in zip(_runs(rest[:, j])[:-1], _runs(rest[:, j])[1:], strict=True):
-            if a2 - b <= MERGE_GAP and not swapped[b:a2, j].any() and not no_merge[b:a2, j].any():
-                rest[b:a2, j] = True
+        exempt[a:b, np.concatenate([lc, rc])] = True
+    length, edge = hold_lengths(speed(q))
+    rest = np.zeros((t_count, m), bool)
+    for j, a, b, d in runs:
+        if exempt[a:b, j].any():
+            continue
+        hold = _hold_interval(length[:, j], edge[:, j], a, b) if d == i_hold else None
+        if hold is not None:
+            h0, h1 = hold
+            new[h0 + 1 : h1 + 1, j] = consensus_fill(q[:, j], mean_q[:, j], h0, h1 + 1)
+            exempt[h0 + 1 : h1 + 1, j] = True
+        else:
+            rest[a:b, j] = True
     if rest.any() and res.neighbours:
         around = rest.copy()
         around[1:] |= rest[:-1]
@@ -151,43 +193,8 @@ def bounded_repair(
             for a, b in _runs(rest[:, j]):
                 if not _offset_run(q, mean_q, new, j, a, b, OFFSET_LEVEL, offset):
                     _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
-    # bounds: nearer the consensus, never more than the evidence
-    before = quat.geodesic_angle(q, mean_q)
-    after = quat.geodesic_angle(new, mean_q)
-    # an edge swap is verified by its jumps, not by T̄ (the consensus adapts to a swapped
-    # limb in mid-interval): kept whole, never shortened cell by cell
-    exempt = np.zeros((t_count, m), bool)
-    for lc, rc, a, b in edge_swaps:
-        exempt[a:b, np.concatenate([lc, rc])] = True
-    exempt |= offset  # verified by its two jumps and its run's mean digression (_offset_run)
-    worse = (after >= before - 1e-9) & ~exempt
-    new[worse] = q[worse]
-    edit = quat.geodesic_angle(new, q)
-    limit = before + np.asarray(res.spread if res.spread is not None else 0.0)
-    limit = np.where(swapped, limit, np.minimum(limit, cap))
-    over = (edit > limit + 1e-9) & ~exempt
-    if over.any():
-        frac = limit[over] / edit[over]
-        new[over] = quat.slerp(q[over], new[over], frac)
-    edited = np.any(new != q, axis=-1)  # exact: an angle test near 0 is rounding noise
-    return new, edited, swapped & edited, offset & edited
-
-
-def _scanned_offsets(q: np.ndarray, mean_q: np.ndarray, new: np.ndarray, skip: np.ndarray, offset: np.ndarray) -> None:
-    """Take out every offset :func:`.offsets.scan_offsets` finds on a joint (steps of
-    :data:`.constants.OFFSET_LEVEL` typical accelerations, as :func:`_offset_run`) that no
-    ``skip`` cell overlaps; marks them in ``offset``."""
-    from .constants import OFFSET_LEVEL, OFFSET_MAX, OFFSET_SCAN_DEG
-    from .cues import acceleration
-    from .offsets import remove_offset, scan_offsets
-
-    for j in range(q.shape[1]):
-        acc = np.median(acceleration(q[:, j : j + 1])[1:-1, 0]) if len(q) > 2 else 0.0
-        level = max(OFFSET_LEVEL * 2.0 * acc, np.deg2rad(OFFSET_SCAN_DEG))
-        for a, b, off_a, off_b in scan_offsets(q[:, j], mean_q[:, j], level, OFFSET_MAX):
-            if not skip[a:b, j].any():
-                new[a:b, j] = remove_offset(q[:, j], a, b, off_a, off_b)
-                offset[a:b, j] = True
+    new = _bounded(res, q, new, exempt | offset)
+    return new, np.any(new != q, axis=-1)
 
 
 def _offset_run(

@@ -1,176 +1,119 @@
-"""Self-supervised calibration of the cleaner on the user's own clean context.
+"""The null of a take, measured on the context words most like it (calibrated cleaner).
 
-A fixed level on the digression either edits clean fast joints or misses errors
-(docs/cleaning.md), so the detector is fitted per take on the clean context:
-
-1. calibration clips: the longest other context clips (``frames`` in all), else the take;
-2. each gets seeded synthetic errors (:data:`.constants.CALIBRATION_RANGES`) and is analysed
-   leave-one-clip-out, exactly as the take is;
-3. on the cells with nothing injected, each joint's typical digression and acceleration set
-   the units of its cues and each cue's :data:`.constants.NULL_QUANTILE` its null level;
-4. a cell's evidence of cue k is its value over ``lambda_k`` times the null level, flagged
-   above 1; the weights are fitted on the injected errors (:func:`.fusion.fit_levels`)
-   under at most ``false_alarm`` clean (word, joint) pairs flagged;
-5. the take's own typical values replace the context's where larger (a faster take is not
-   an error everywhere).
+Which context motion calibrates a take is decided by similarity, not by clip length: the
+take's own KNN words (:mod:`..paper.knn`) point into the context; the frames they cover,
+grown by :data:`.constants.SPAN_PAD` frames and cut into spans, are ranked by how many KNN
+words cover them per frame, and the densest spans up to ``frames`` analysis frames are
+analysed against the rest of the context (their own clip left out) exactly as the take is.
+The detectors' evidence on those spans is the take's null
+(:func:`.null.context_null`). The null shipped with the package is used instead, and the
+reason is returned, when the context holds no other clip, when under
+:data:`.constants.MIN_SIMILAR` of the take's KNN words lie in it (unlike motion), or when the
+spans hold under :data:`.constants.NULL_MIN_FRAMES` frames (a small context).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from .constants import CALIBRATION_DENSITY, CALIBRATION_KINDS, CALIBRATION_RANGES, CUES, NULL_QUANTILE
-from .cues import cue_values, raw_cues, typical
-from .fusion import FLOORS, fit_levels, word_joint
+from .constants import MIN_SIMILAR, NULL_MIN_FRAMES, SPAN_PAD
+from .null import Null, context_null, shipped_null
 
 
-@dataclass
-class Calibration:
-    """A fitted detector: ``scales`` (per-joint typical digression and acceleration, radians,
-    (m,)), ``levels`` (m, K) null level per cue of :data:`.constants.CUES`, ``weights`` (K,)
-    ``lambda_k`` (inf = unused), the calibration's cells, error cells, (word, joint) recall
-    and false alarm, ``source`` (``context`` or ``self``) and clip names.
-    """
-
-    scales: dict[str, np.ndarray]
-    levels: np.ndarray
-    weights: np.ndarray
-    n_cells: int
-    n_error_cells: int
-    recall: float
-    false_alarm: float
-    source: str
-    clips: list[str] = field(default_factory=list)
-    fallback: str = ""  # why the take calibrated itself although a context was given
-
-    def evidence(self, q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str]) -> np.ndarray:
-        """Evidence of every cue (T, m, K): value over weight times null level (> 1 flags)."""
-        cue = raw_cues(q, mean_q, joints)
-        own = typical(cue)
-        scale = {k: np.maximum(v, own[k]) for k, v in self.scales.items()}
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.nan_to_num(cue_values(cue, scale) / (self.levels * self.weights), nan=0.0, posinf=0.0)
-
-    @staticmethod
-    def decide(ev: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Flags (T, m) bool, fused evidence (T, m) and the index of the deciding cue (T, m)
-        from the evidence (T, m, K) of :meth:`evidence`."""
-        best = ev.max(axis=-1)
-        return best > 1.0, best, np.argmax(ev, axis=-1)
-
-    def summary(self) -> dict:
-        """JSON-friendly description (weight per cue, calibration figures, clips)."""
-        return {
-            "source": self.source,
-            "fallback": self.fallback or None,
-            "clips": list(self.clips),
-            "cells": self.n_cells,
-            "error_cells": self.n_error_cells,
-            "recall": round(self.recall, 4),
-            "false_alarm": round(self.false_alarm, 5),
-            "weights": {
-                name: (None if not np.isfinite(w) else float(w)) for name, w in zip(CUES, self.weights, strict=True)
-            },
-        }
+def _cover(res, lengths: np.ndarray, target_length: int) -> tuple[np.ndarray, float]:
+    """KNN-word coverage count per frame of the concatenated context (C,) (clip 0 the take,
+    of length 0 when it was not searched), and the share of the take's KNN words that lie
+    outside the take."""
+    total = int(lengths.sum())
+    cover = np.zeros(total + target_length, np.int64)
+    if not res.neighbours:
+        return cover[:total], 0.0
+    tg = res.neighbours[0].target.ravel()
+    tg = tg[tg >= 0]
+    if len(tg) == 0:
+        return cover[:total], 0.0
+    np.add.at(cover, tg, 1)
+    cover = np.convolve(cover, np.ones(target_length, np.int64))[: total + target_length]
+    share = float((tg >= lengths[0]).mean())
+    return cover[:total], share
 
 
-def context_support(res, others: Sequence, fps: float) -> str:
-    """Why the context cannot support a decision on the analysed take ``res`` ("" when it can):
-    fewer analysis frames than the take and :data:`.constants.CONTEXT_MIN_FRAMES`."""
-    from .constants import CONTEXT_MIN_FRAMES
+def similar_spans(
+    res, others: Sequence, fps: float, frames: int, target_length: int = 20, self_first: bool = True
+) -> tuple[list[tuple[int, int, int, np.ndarray]], float]:
+    """(clip index in ``others``, first, end analysis frame, covered mask) of the densest
+    KNN-covered spans up to ``frames`` analysis frames, and the share of the take's KNN words
+    in ``others``. ``res`` is the take's analysis, with itself first in its context when
+    ``self_first``."""
+    from mocapflow.framework.normalize import resample
 
-    if not others:
-        return ""
-    frames = sum(c.n_frames * fps / c.fps for c in others)
-    if frames < min(CONTEXT_MIN_FRAMES, res.texture.n_frames):
-        return f"context too small ({frames / fps:.1f} s, less than the take and {CONTEXT_MIN_FRAMES / fps:.0f} s)"
-    return ""
-
-
-def calibration_clips(take, others: Sequence, frames: int, fps: float) -> tuple[list, str]:
-    """The longest other context clips up to ``frames`` analysis frames (lengths counted at
-    ``fps``, so any input rate calibrates on as many seconds), or the take itself alone."""
-    if not others:
-        return [take], "self"
-    chosen, total = [], 0.0
-    for c in sorted(others, key=lambda c: -c.n_frames / c.fps):
+    lengths = np.array(
+        [res.texture.n_frames if self_first else 0] + [resample(c, fps).n_frames for c in others], np.int64
+    )
+    cover, share = _cover(res, lengths, target_length)
+    offs = np.concatenate([[0], np.cumsum(lengths)])
+    cands = []
+    for i in range(len(others)):
+        c = cover[offs[i + 1] : offs[i + 2]]
+        hit = c > 0
+        grown = hit.copy()
+        for o in range(1, SPAN_PAD + 1):
+            grown[o:] |= hit[:-o]
+            grown[:-o] |= hit[o:]
+        d = np.diff(np.concatenate([[0], grown.astype(np.int8), [0]]))
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
+            if b - a >= 3 * target_length // 2:
+                cands.append((-float(c[a:b].sum()) / (b - a), i, int(a), int(b), hit[a:b]))
+    chosen, total = [], 0
+    for _, i, a, b, h in sorted(cands, key=lambda x: x[:4]):
         if total >= frames:
             break
-        chosen.append(c)
-        total += c.n_frames * fps / c.fps
-    return chosen, "context"
-
-
-def calibration_material(
-    take,
-    others: Sequence,
-    analyse: Callable,
-    joints: Sequence[str],
-    fps: float,
-    *,
-    frames: int = 600,
-    seed: int = 0,
-) -> tuple[list[dict[str, np.ndarray]], list[np.ndarray], list[str], str]:
-    """Raw cues and injected-error masks (T, m) per calibration clip, their names and the
-    source (steps 1-2); ``analyse(motion, others)`` is the cleaner's analysis with the clip
-    itself included."""
-    from ..evaluation.error_injection import inject_at_density
-    from ..paper.motion_words import motion_texture
-
-    clips, source = calibration_clips(take, others, frames, fps)
-    cue_list, truth_list = [], []
-    for i, clip in enumerate(clips):
-        tex = motion_texture(clip, joints, fps)
-        rest = [c for c in others if c is not clip]
-        bad, mask, _ = inject_at_density(
-            tex.motion, CALIBRATION_DENSITY, CALIBRATION_KINDS, seed=seed + i, ranges=CALIBRATION_RANGES
-        )
-        res = analyse(bad, rest)
-        cue_list.append(raw_cues(res.texture.q, res.mean_texture, joints))
-        truth_list.append(mask[:, tex.joint_index])
-    return cue_list, truth_list, [c.name for c in clips], source
+        chosen.append((i, a, b, h))
+        total += b - a
+    return chosen, share
 
 
 def calibrate(
-    take,
-    others: Sequence,
-    analyse: Callable,
-    joints: Sequence[str],
-    fps: float,
-    *,
-    false_alarm: float = 0.004,
-    frames: int = 600,
-    seed: int = 0,
-) -> Calibration:
-    """:func:`calibration_material`, then the null scales, levels and cue weights (steps 3-4)."""
-    cue_list, truth_list, names, source = calibration_material(
-        take, others, analyse, joints, fps, frames=frames, seed=seed
-    )
-    clean = [~t for t in truth_list]
-    scales = {
-        k: np.median(np.stack([typical(c, ok)[k] for c, ok in zip(cue_list, clean, strict=True)]), axis=0)
-        for k in ("digression", "acceleration")
-    }
-    # fitted without the acceleration cap: with it, the greedy allocation re-spends the freed budget
-    values = [cue_values(c, {k: np.maximum(v, typical(c)[k]) for k, v in scales.items()}, None) for c in cue_list]
-    stacked = np.concatenate([np.where(ok[..., None], v, np.nan) for v, ok in zip(values, clean, strict=True)], 0)
-    levels = np.maximum(np.nan_to_num(np.nanquantile(stacked, NULL_QUANTILE, axis=0), nan=0.0), FLOORS)
-    lam = fit_levels(values, levels, truth_list, false_alarm)
-    wj_t = [word_joint(t) for t in truth_list]
-    wj_f = [word_joint((v / (levels * lam)).max(-1) > 1.0) for v in values]
-    rec = sum(int((f & t).sum()) for f, t in zip(wj_f, wj_t, strict=True)) / max(sum(int(t.sum()) for t in wj_t), 1)
-    fa = sum(int((f & ~t).sum()) for f, t in zip(wj_f, wj_t, strict=True)) / max(sum(int((~t).sum()) for t in wj_t), 1)
-    return Calibration(
-        scales,
-        levels,
-        lam,
-        int(sum(t.size for t in truth_list)),
-        int(sum(t.sum() for t in truth_list)),
-        rec,
-        fa,
-        source,
-        names,
-    )
+    res, take, others: Sequence, analyse: Callable, fps: float, *, frames: int = 600, self_first: bool = True
+) -> Null:
+    """The take's null (module doc) from its analysis ``res`` (the take first in its context
+    when ``self_first``); ``analyse(motion, context)`` is the cleaner's analysis with the clip
+    itself included."""
+    from .detectors import evidence
+
+    joints = res.joints
+    if not others:
+        return shipped_null(joints)
+    spans, share = similar_spans(res, others, fps, frames, self_first=self_first)
+    if share < MIN_SIMILAR:
+        return shipped_null(
+            joints, f"context unlike the take ({share:.0%} of its KNN words in the context, < {MIN_SIMILAR:.0%})"
+        )
+    evs, masks, names = [], [], []
+    for i, a, b, hit in spans:
+        clip = others[i]
+        r = clip.fps / fps
+        crop = clip.slice(int(a * r), min(clip.n_frames, int(np.ceil(b * r)) + 1)).with_arrays(
+            name=f"{clip.name}[{a}:{b}]"
+        )
+        rest = [c for k, c in enumerate(others) if k != i]
+        out = analyse(crop, rest)
+        cols = [list(out.joints).index(j) for j in joints]
+        sp = None if out.spread is None else out.spread[:, cols]
+        ev = evidence(out.texture.q[:, cols], out.mean_texture[:, cols], sp, joints)
+        n = min(len(ev), len(hit))
+        mask = np.zeros(len(ev), bool)
+        mask[:n] = True
+        mask[:2] = mask[-2:] = False  # the span's own ends have no neighbours on one side
+        evs.append(ev)
+        masks.append(mask)
+        names.append(crop.name)
+    n_frames = int(sum(m.sum() for m in masks))
+    if n_frames < NULL_MIN_FRAMES:
+        return shipped_null(
+            joints,
+            f"context too small ({n_frames / fps:.1f} s of words like the take, < {NULL_MIN_FRAMES / fps:.0f} s)",
+        )
+    return context_null(evs, masks, joints, names)

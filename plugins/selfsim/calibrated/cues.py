@@ -1,13 +1,6 @@
-"""Per-cell evidence of a capture error ("cues") for the calibrated cleaner: (T, m) arrays
-over the analysis texture ``T`` and its KNN consensus ``T̄`` (:mod:`..paper.mdm`), radians
-(or a log ratio) until :func:`cue_values` scales them by the joint's typical clean value.
-
-Raw cues: ``digression`` (angle T to T̄: offsets, freezes, swaps), ``acceleration`` (angle
-of ``T[t]`` to the midpoint of its neighbours: spikes, jitter, edges), ``expected_acc``
-(the same on T̄), ``mirror`` (gain of swapping a left/right chain pair back: swaps),
-``hold`` (frames of the still run holding the cell: freezes), ``held_freeze`` (log of the
-consensus' speed over the take's).
-"""
+"""Kinematic helpers of the calibrated cleaner's detectors (:mod:`.detectors`) and repairs:
+speed, acceleration (angle of a frame to its neighbours' midpoint), holds, windowed minima
+and medians, and the left/right mirror of limb chains (swaps)."""
 
 from __future__ import annotations
 
@@ -17,7 +10,7 @@ import numpy as np
 
 from mocapflow.framework import quaternions as quat
 
-from .constants import ACC_PERSIST, FREEZE_HOLD, HOLD_SPEED, JITTER_HALF
+from .constants import HOLD_SPEED
 
 #: Limb chains whose left/right exchange the mirror cue looks for (canonical names).
 MIRROR_CHAINS: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = (
@@ -86,21 +79,6 @@ def mirror_gain(
     return out
 
 
-def raw_cues(q: np.ndarray, mean_q: np.ndarray, joints: Sequence[str]) -> dict[str, np.ndarray]:
-    """Every raw cue of the module doc for one analysed texture ``q`` and its consensus
-    ``mean_q`` (T, m, 4) of the texture joints ``joints``: dict of (T, m) arrays."""
-    floor = np.deg2rad(0.2)
-    v = speed(q)
-    return {
-        "hold": hold_lengths(v)[0],
-        "held_freeze": np.maximum(np.log((_window_mean(speed(mean_q), 4) + floor) / (v + floor)), 0.0),
-        "digression": quat.geodesic_angle(q, mean_q),
-        "acceleration": acceleration(q),
-        "expected_acc": acceleration(mean_q),
-        "mirror": mirror_gain(q, mean_q, joints),
-    }
-
-
 def hold_lengths(v: np.ndarray, still: float = HOLD_SPEED) -> tuple[np.ndarray, np.ndarray]:
     """Per cell of the speeds ``v`` (T, m) (:func:`speed`), the frames of the hold holding it
     (a frame is held when the step into or out of it is slower than ``still`` rad/frame; 0
@@ -126,56 +104,6 @@ def window_min(x: np.ndarray, half: int) -> np.ndarray:
         out[o:] = np.minimum(out[o:], x[:-o])
         out[:-o] = np.minimum(out[:-o], x[o:])
     return out
-
-
-def typical(cue: dict[str, np.ndarray], clean: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Per joint, the median of the digression and acceleration over ``clean`` cells (all
-    cells when None), radians, floored at 0.5 degrees: the scale a cue is measured in."""
-    out = {}
-    for name in ("digression", "acceleration"):
-        x = cue[name] if clean is None else np.where(clean, cue[name], np.nan)
-        med = np.nanmedian(x, axis=0) if np.isfinite(x).any() else np.zeros(x.shape[1])
-        out[name] = np.maximum(np.nan_to_num(med, nan=0.0), np.deg2rad(0.5))
-    return out
-
-
-def persistent(x: np.ndarray, factor: float) -> np.ndarray:
-    """``x`` (T, m) capped at ``factor`` times the larger of its two neighbours in time: a
-    spike of amplitude A shows ~A at t and A / 2 beside it and keeps its value with factor 2,
-    while a clean joint's isolated kink (a knee at heel strike) is cut down."""
-    if len(x) < 2:
-        return x
-    nb = np.zeros_like(x)
-    nb[1:] = x[:-1]
-    nb[:-1] = np.maximum(nb[:-1], x[1:])
-    return np.minimum(x, factor * nb)
-
-
-def cue_values(
-    cue: dict[str, np.ndarray], scale: dict[str, np.ndarray], acc_persist: float | None = ACC_PERSIST
-) -> np.ndarray:
-    """The detector's cues :data:`.constants.CUES`, shape (T, m, 5), unitless.
-
-    * digression: the least over 3 frames (an error lasts, a clean outlier flickers) in
-      typical digressions, over the frame's median over the joints when > 1 (when every
-      joint digresses the motion is rare, not broken);
-    * acceleration: beyond the consensus', in typical accelerations, capped by
-      :func:`persistent` with ``acc_persist`` (None when the weights are fitted);
-    * mirror: the mirror gain in units of six typical digressions;
-    * freeze: ``held_freeze`` on holds of >= :data:`.constants.FREEZE_HOLD` frames (a frozen
-      joint is held, a slow clean one still turns);
-    * jitter: the windowed median of the uncapped acceleration (noise lasts, a kink does not).
-    """
-    d = cue["digression"] / scale["digression"]
-    group = np.maximum(np.median(d, axis=1, keepdims=True), 1.0)
-    dig = window_min(d, 1) / group
-    acc = np.maximum(cue["acceleration"] - cue["expected_acc"], 0.0) / scale["acceleration"]
-    jit = window_median(acc, JITTER_HALF)
-    if acc_persist is not None:
-        acc = persistent(acc, acc_persist)
-    mir = cue["mirror"] / np.maximum(6.0 * np.median(scale["digression"]), 1e-3)
-    frz = np.where(cue["hold"] >= FREEZE_HOLD, cue["held_freeze"], 0.0)
-    return np.stack([dig, acc, mir, frz, jit], axis=-1)
 
 
 def window_median(x: np.ndarray, half: int) -> np.ndarray:

@@ -15,7 +15,7 @@ source words holds one (the paper's ~12.5 %, §6). The mask marks the cells move
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,6 +143,8 @@ def inject_at_density(
     word_step: int = 5,
     margin: int = 4,
     max_tries: int = 200,
+    apply: Callable[..., None] | None = None,
+    known: Sequence[str] = ERROR_KINDS,
 ) -> tuple[Motion, np.ndarray, list[InjectedError]]:
     """Corrupt a clean ``motion`` (24 fps) until about ``density`` of its source words
     (``word_length`` frames every ``word_step``) hold an error.
@@ -150,16 +152,19 @@ def inject_at_density(
     Errors (kind from ``kinds``; joints, duration, magnitude and start drawn from
     ``default_rng(seed)``; ``ranges`` over :data:`ERROR_RANGES`) are added one at a time
     ``margin`` frames from every earlier one and the clip ends, at least one when any fits,
-    up to ``max_tries`` placements; short clips overshoot. Returns the corrupted motion, the
+    up to ``max_tries`` placements; short clips overshoot. ``apply`` (default
+    :func:`apply_error`) writes one error of the ``known`` kinds (another injector family:
+    :mod:`.injection_b`). Returns the corrupted motion, the
     mask (T, J) of cells moved more than ``min_angle`` degrees, and the errors in time order.
     """
     from ..paper.motion_words import source_word_starts
 
     if not kinds:
         raise DataError("inject_at_density needs at least one error kind")
-    unknown = [k for k in kinds if k not in ERROR_KINDS]
+    unknown = [k for k in kinds if k not in known]
     if unknown:
-        raise DataError(f"unknown error kinds {unknown} (known: {', '.join(ERROR_KINDS)})")
+        raise DataError(f"unknown error kinds {unknown} (known: {', '.join(known)})")
+    apply = apply or apply_error
     ranges = {**ERROR_RANGES, **(ranges or {})}
     rng = np.random.default_rng(seed)
     rot = motion.rotations.copy()
@@ -187,7 +192,7 @@ def inject_at_density(
             continue
         mag = float(rng.uniform(amin, amax))
         trial = rot.copy()
-        apply_error(trial, motion, kind, start, start + dur, joints, mag, rng)
+        apply(trial, motion, kind, start, start + dur, joints, mag, rng)
         trial = quat.normalize(trial)
         new_mask = np.rad2deg(quat.geodesic_angle(trial, motion.rotations)) > min_angle
         if not new_mask[start : start + dur].any():
