@@ -14,7 +14,7 @@ import pytest
 from mocapflow.plugins.formats import _fbx_curves as fc
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from naive import fbx_curves as naive  # noqa: E402
+from naive import fbx_curves as naive
 
 KTPS = 46_186_158_000
 FLAG_CHOICES = [
