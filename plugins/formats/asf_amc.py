@@ -32,6 +32,7 @@ from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
+from . import _euler_branch as euler_branch
 from ._amc_write import NotAnAsfSkeleton, write_amc
 from ._asf import read_asf as _read_asf_uncached
 from ._asf import write_asf
@@ -360,7 +361,23 @@ def read_amc(
         skeleton_path=str(skel_path) if skel_path else skeleton.meta.get("path", ""),
         angle_unit="deg" if degrees else "rad",
     )
+    branch = _branch(skeleton, table, bones, degrees)
+    if branch["turns"] or branch["flips"]:
+        meta[euler_branch.KEY] = branch
     return Motion(skeleton=skeleton, root_translation=root_t, rotations=rot, fps=fps, name=path.stem, metadata=meta)
+
+
+def _branch(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool) -> dict:
+    """Where the file's angles leave the principal Euler branch (:mod:`._euler_branch`)."""
+    index = {n: j for j, n in enumerate(skeleton.names)}
+    channels, triples = {}, {}
+    for name, c0, _k in bones:
+        rot = [(c, ch) for c, ch in enumerate(skeleton.channels[index[name]], start=c0) if ch[0] in "Rr"]
+        for c, ch in rot:
+            channels[f"{name}.{ch.lower()}"] = table[:, c]
+        if len(rot) == 3:
+            triples[name] = table[:, rot[1][0]]
+    return euler_branch.record(channels, triples, degrees)
 
 
 def _to_motion_arrays(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool):
