@@ -5,7 +5,7 @@ freed, so it only ever runs in a child process started by :func:`ufbx_positions`
 exits with ``os._exit`` before any object is freed. Used by the FBX parity tests and
 benchmarks; ``ufbx`` is not a dependency of mocapflow.
 
-Child protocol: ``python _ufbx_ref.py IN.json OUT.npz``; ``IN.json`` holds ``path``,
+Child protocol: ``_child(IN.json, OUT.npz)`` in a fresh interpreter; ``IN.json`` holds ``path``,
 ``names`` (node names) and ``times`` (seconds); ``OUT.npz`` gets ``pos`` (F, J, 3) world
 positions in the file's own units and axes (NaN for a name ufbx does not have), ``fps``,
 ``begin``, ``end`` (the stack's time span, seconds), ``seconds`` (load + evaluation time).
@@ -41,8 +41,10 @@ def ufbx_positions(path: str | Path, names: list[str], times: np.ndarray, animat
         src.write_text(
             json.dumps({"path": str(path), "names": names, "times": [float(x) for x in times], "animation": animation})
         )
+        here = str(Path(__file__).resolve().parent)
+        code = f"import sys; sys.path.insert(0, {here!r}); import _ufbx_ref; _ufbx_ref._child(sys.argv[1], sys.argv[2])"
         r = subprocess.run(
-            [sys.executable, __file__, str(src), str(out)], capture_output=True, text=True, timeout=timeout
+            [sys.executable, "-c", code, str(src), str(out)], capture_output=True, text=True, timeout=timeout
         )
         if r.returncode != 0 or not out.exists():
             raise RuntimeError(f"ufbx child failed ({r.returncode}): {r.stderr[-500:]}")
@@ -81,7 +83,3 @@ def _child(src: str, out: str) -> None:
     )
     sys.stdout.flush()
     os._exit(0)  # never free ufbx objects (the 0.0.5 binding may crash doing so)
-
-
-if __name__ == "__main__":
-    _child(sys.argv[1], sys.argv[2])

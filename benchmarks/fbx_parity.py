@@ -55,7 +55,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("paths", nargs="+", type=Path)
     ap.add_argument("--max-frames", type=int, default=400, help="frames compared per file (evenly spaced)")
+    ap.add_argument("--quick", action="store_true", help="20 frames per file")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.max_frames = 20
     files: list[Path] = []
     for p in args.paths:
         files.extend(sorted(p.rglob("*.fbx")) if p.is_dir() else [p])

@@ -36,6 +36,7 @@ from . import _euler_branch as euler_branch
 from ._amc_write import NotAnAsfSkeleton, write_amc
 from ._asf import read_asf as _read_asf_uncached
 from ._asf import write_asf
+from ._asf_convert import asf_motion
 from ._common import MAX_DEGREES, MAX_METRES, check_text, file_metadata, read_bytes, text_body, text_head
 
 __all__ = ["AmcFormat", "NotAnAsfSkeleton", "read_amc", "read_asf", "write_amc", "write_asf", "find_asf"]
@@ -445,7 +446,10 @@ class AmcFormat(Format):
         return read_amc(path, skeleton=self.params.asf, fps=self.params.fps)
 
     def write(self, obj: Any, path: str | Path) -> None:
-        write_amc(obj, path)  # the skeleton beside it (same stem), so that the AMC can be read back
+        """AMC with its ASF beside it (same stem), so that it reads back; a motion from
+        another format gets an ASF made from its skeleton (:mod:`._asf_convert`)."""
+        obj = asf_motion(obj)  # before any file is created: a refusal leaves nothing behind
+        write_amc(obj, path)
         write_asf(obj.skeleton, Path(path).with_suffix(".asf"))
 
     def write_atomic(self, obj: Any, path: str | Path) -> None:
@@ -453,6 +457,7 @@ class AmcFormat(Format):
         into place (the ASF is named after ``path``, not after the temporary AMC)."""
         from mocapflow.framework.workspace import atomic_path
 
+        obj = asf_motion(obj)
         with atomic_path(Path(path).with_suffix(".asf")) as tmp:
             write_asf(obj.skeleton, tmp)
         with atomic_path(path) as tmp:
