@@ -39,9 +39,10 @@ from mocapflow.framework.motion import Motion
 from ._common import MAX_DEGREES, MAX_FPS, MAX_METRES, file_metadata, read_bytes
 from ._fbx_curves import evaluate, read_curve
 from ._fbx_parse import Node, parse_fbx
+from ._fbx_write import write_fbx
 from ._nodes import motion_from_nodes, uniform_scale, unique_names
 
-__all__ = ["FbxFormat", "read_fbx"]
+__all__ = ["FbxFormat", "read_fbx", "write_fbx"]
 
 KTIME_V7 = 46_186_158_000
 KTIME_V8 = 141_120_000
@@ -410,7 +411,7 @@ def _transform(
 
 
 class FbxFormat(Format):
-    """Autodesk FBX (binary) skeletal animation: reader."""
+    """Autodesk FBX (binary) skeletal animation: reader and writer."""
 
     name: ClassVar[str] = "fbx"
     extensions: ClassVar[tuple[str, ...]] = (".fbx",)
@@ -421,3 +422,8 @@ class FbxFormat(Format):
 
     def read(self, path: str | Path) -> Motion:
         return read_fbx(path, animation=self.params.animation)
+
+    def write(self, obj: Any, path: str | Path) -> None:
+        """Binary FBX 7.4: the skeleton as LimbNode models and every frame keyed
+        (:mod:`._fbx_write`)."""
+        write_fbx(obj, path)
