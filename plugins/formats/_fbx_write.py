@@ -9,7 +9,9 @@
   ``CustomFrameRate`` the motion's rate; one ``AnimationStack`` / ``AnimationLayer`` spanning
   the frames.
 * **Skeleton**: one ``Model`` (``LimbNode``, with a ``Skeleton`` node attribute) per joint,
-  parented as the skeleton; rest rotations identity (mocapflow's convention), so
+  parented as the skeleton; rest rotations identity (mocapflow's convention; Blender
+  builds its bones from the rest pose, and a bone rotated at rest comes back up to
+  0.2 mm off along a 2.7 m walk, its bone-roll arithmetic being float32), so
   ``Lcl Translation`` is the joint's offset (or the root translation) and ``Lcl Rotation``
   its local rotation as ``RotationOrder`` 0 (XYZ: ``Rz Ry Rx``) Euler angles in degrees,
   continuous along time (:mod:`._euler_branch`).
@@ -190,7 +192,7 @@ def fbx_bytes(motion: Motion) -> bytes:
                 ("InheritType", "enum", "", "", _Int32(1)),
                 ("DefaultAttributeIndex", "int", "Integer", "", _Int32(0)),
                 ("Lcl Translation", "Lcl Translation", "", "A", *map(float, trans[0])),
-                ("Lcl Rotation", "Lcl Rotation", "", "A", *map(float, rot[0])),
+                ("Lcl Rotation", "Lcl Rotation", "", "A", 0.0, 0.0, 0.0),
                 ("Lcl Scaling", "Lcl Scaling", "", "A", 1.0, 1.0, 1.0),
             )
         )
