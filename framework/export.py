@@ -111,9 +111,8 @@ def export_segments(
         if dest in used:
             raise DataError(f"two segments would both be written to {dest}")
         used.add(dest)
-        folder.mkdir(parents=True, exist_ok=True)
         clip = motion.slice(a, b)
-        writer.write_atomic(clip, dest)
+        _write_into(writer, clip, dest)
         rows.append(
             {
                 "query": seg.query,
@@ -134,6 +133,25 @@ def export_segments(
     out.mkdir(parents=True, exist_ok=True)
     export_table(index, out / "index.csv", "csv")
     return index
+
+
+def _write_into(writer: Any, clip: Motion, dest: Path) -> None:
+    """Write ``clip`` to ``dest``, creating its folder; a writer that refuses leaves no
+    folder this call created behind."""
+    created, d = [], dest.parent
+    while not d.exists():
+        created.append(d)
+        d = d.parent
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        writer.write_atomic(clip, dest)
+    except BaseException:
+        for d in created:  # deepest first; only the empty ones
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise
 
 
 def _read(source: str, registries: Registries, readers: Mapping[str, Mapping[str, Any]]) -> Motion:

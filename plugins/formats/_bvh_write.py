@@ -10,6 +10,8 @@ from mocapflow.framework import quaternions as quat
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
+from . import _euler_branch as euler_branch
+
 
 def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_order: str = "zyx") -> None:
     """Write a motion as BVH (file units: metres divided by the source scale, if any), with
@@ -20,7 +22,8 @@ def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_ord
     in ``default_order`` on every other joint, except leaves named ``*_end``, which are
     written as ``End Site``; other leaves get a zero-offset ``End Site`` below them. A
     static root the reader dropped (``meta["collapsed_root"]``) is written back above the
-    root, with its own name, offset, channels and values.
+    root, with its own name, offset, channels and values. Angles are continuous, and in the
+    source file's Euler branch for a BVH source (:mod:`._euler_branch`).
     """
     if motion.skeleton.meta.get("collapsed_root"):
         motion = restore_collapsed_root(motion)
@@ -44,7 +47,7 @@ def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_ord
     cols: list[np.ndarray] = []
     for j in range(nj):
         rot_ch = [c for c in chans[j] if c[1:].lower() == "rotation"]
-        ang = quat.to_euler(motion.rotations[:, j], "".join(c[0].lower() for c in rot_ch)) if rot_ch else None
+        ang = _angles(motion, j, rot_ch, from_bvh)
         r = 0
         for c in chans[j]:
             a = "xyz".index(c[0].lower())
@@ -80,6 +83,17 @@ def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_ord
     row = " ".join([g] * table.shape[1])
     body = "\n".join(row % tuple(r) for r in table.tolist())
     Path(path).write_text("\n".join(lines) + "\n" + body + "\n", encoding="latin-1")
+
+
+def _angles(motion: Motion, j: int, rot_ch: list[str], from_bvh: bool) -> np.ndarray | None:
+    """Euler angles of joint ``j`` for its rotation channels: continuous, in the source's
+    branch when the source is a BVH file with these channels."""
+    if not rot_ch:
+        return None
+    name = motion.skeleton.names[j]
+    ang = quat.to_euler(motion.rotations[:, j], "".join(c[0].lower() for c in rot_ch))
+    keys = [f"{name}.{c}" for c in rot_ch]
+    return euler_branch.apply(ang, name, keys, motion.metadata if from_bvh else {}, motion.fps)
 
 
 def restore_collapsed_root(motion: Motion) -> Motion:

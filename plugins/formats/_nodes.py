@@ -132,13 +132,18 @@ def motion_from_nodes(
     fmt: str,
     name: str,
     meta: dict,
+    ignore_parent_scale: np.ndarray | None = None,
 ) -> Motion:
     """The skeleton of nodes ``first_joint..`` (nodes before it are ancestors of
     ``first_joint``; their transforms, animated or not, move the root) as a Motion.
     ``rest_*``: (N, 3) / (N, 4) / (N,) rest translation, rotation, uniform scale;
     ``t, r, s``: the same per frame, (F, N, ...) (views of node-major arrays are fastest).
-    Translations in metres, world y-up; rotations unit quaternions (w, x, y, z)."""
+    Translations in metres, world y-up; rotations unit quaternions (w, x, y, z).
+    ``ignore_parent_scale`` (N,) bool: nodes whose rotation and scale do not inherit
+    their parent's own scale (FBX ``InheritType`` Rrs, Maya's segment scale compensate);
+    their translation is still scaled by it."""
     n = len(names)
+    ign = np.zeros(n, dtype=bool) if ignore_parent_scale is None else np.asarray(ignore_parent_scale, dtype=bool)
     rest_r = quat.normalize(rest_r)
     rpos, rrot, rscl = np.empty((n, 3)), np.empty((n, 4)), np.empty(n)
     for k in range(n):
@@ -148,16 +153,16 @@ def motion_from_nodes(
         else:
             rpos[k] = rpos[p] + rscl[p] * quat.rotate(rrot[p], rest_t[k])
             rrot[k] = quat.mul(rrot[p], rest_r[k])
-            rscl[k] = rscl[p] * rest_s[k]
+            rscl[k] = (rscl[p] / rest_s[p] if ign[k] else rscl[p]) * rest_s[k]
     j0 = first_joint
     jparents = np.array([-1] + [int(parents[k]) - j0 for k in range(j0 + 1, n)], dtype=np.int64)
     if np.any(jparents[1:] < 0):
         raise ParseError(path, None, "expected the skeleton's joints to descend from one root")
     still = j0 == 0 or all(np.ptp(x[:, :j0], axis=0).max(initial=0.0) == 0 for x in (t, r, s))
-    if still and np.ptp(s, axis=0).max(initial=0.0) == 0:
+    if still and np.ptp(s, axis=0).max(initial=0.0) == 0 and np.array_equal(s[0], rest_s):
         root_t, loc, offsets, local_t = _linear(rpos, rrot, rscl, parents, j0, t, r)
     else:
-        root_t, loc, offsets, local_t = _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s)
+        root_t, loc, offsets, local_t = _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s, ign)
     big = max(np.abs(root_t).max(initial=0.0), np.abs(offsets).sum(axis=0).max(initial=0.0))
     if local_t is not None:
         big = max(big, np.abs(local_t).max(initial=0.0))
@@ -224,7 +229,7 @@ def _linear(rpos, rrot, rscl, parents, j0, t, r):
     return root_t, loc, offsets, local_t
 
 
-def _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s):
+def _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s, ign):
     """Any scales and ancestors: full forward kinematics per frame, then
     ``W' = W Wrest^-1`` and ``r'_j = W'_p^-1 W'_j``."""
     n_frames, n = t.shape[0], len(parents)
@@ -239,7 +244,7 @@ def _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s):
         else:
             pos[:, k] = pos[:, p] + scl[:, p, None] * quat.rotate(rot[:, p], t[:, k])
             rot[:, k] = quat.mul(rot[:, p], r[:, k])
-            scl[:, k] = scl[:, p] * s[:, k]
+            scl[:, k] = (scl[:, p] / s[:, p] if ign[k] else scl[:, p]) * s[:, k]
     wnew = quat.mul(rot[:, j0:], quat.conjugate(rrot[j0:]))
     loc = np.empty_like(wnew)
     loc[:, 0] = wnew[:, 0]

@@ -32,9 +32,11 @@ from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
 
+from . import _euler_branch as euler_branch
 from ._amc_write import NotAnAsfSkeleton, write_amc
 from ._asf import read_asf as _read_asf_uncached
 from ._asf import write_asf
+from ._asf_convert import asf_motion
 from ._common import MAX_DEGREES, MAX_METRES, check_text, file_metadata, read_bytes, text_body, text_head
 
 __all__ = ["AmcFormat", "NotAnAsfSkeleton", "read_amc", "read_asf", "write_amc", "write_asf", "find_asf"]
@@ -360,7 +362,23 @@ def read_amc(
         skeleton_path=str(skel_path) if skel_path else skeleton.meta.get("path", ""),
         angle_unit="deg" if degrees else "rad",
     )
+    branch = _branch(skeleton, table, bones, degrees)
+    if branch["turns"] or branch["flips"]:
+        meta[euler_branch.KEY] = branch
     return Motion(skeleton=skeleton, root_translation=root_t, rotations=rot, fps=fps, name=path.stem, metadata=meta)
+
+
+def _branch(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool) -> dict:
+    """Where the file's angles leave the principal Euler branch (:mod:`._euler_branch`)."""
+    index = {n: j for j, n in enumerate(skeleton.names)}
+    channels, triples = {}, {}
+    for name, c0, _k in bones:
+        rot = [(c, ch) for c, ch in enumerate(skeleton.channels[index[name]], start=c0) if ch[0] in "Rr"]
+        for c, ch in rot:
+            channels[f"{name}.{ch.lower()}"] = table[:, c]
+        if len(rot) == 3:
+            triples[name] = table[:, rot[1][0]]
+    return euler_branch.record(channels, triples, degrees)
 
 
 def _to_motion_arrays(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool):
@@ -428,7 +446,10 @@ class AmcFormat(Format):
         return read_amc(path, skeleton=self.params.asf, fps=self.params.fps)
 
     def write(self, obj: Any, path: str | Path) -> None:
-        write_amc(obj, path)  # the skeleton beside it (same stem), so that the AMC can be read back
+        """AMC with its ASF beside it (same stem), so that it reads back; a motion from
+        another format gets an ASF made from its skeleton (:mod:`._asf_convert`)."""
+        obj = asf_motion(obj)  # before any file is created: a refusal leaves nothing behind
+        write_amc(obj, path)
         write_asf(obj.skeleton, Path(path).with_suffix(".asf"))
 
     def write_atomic(self, obj: Any, path: str | Path) -> None:
@@ -436,6 +457,7 @@ class AmcFormat(Format):
         into place (the ASF is named after ``path``, not after the temporary AMC)."""
         from mocapflow.framework.workspace import atomic_path
 
+        obj = asf_motion(obj)
         with atomic_path(Path(path).with_suffix(".asf")) as tmp:
             write_asf(obj.skeleton, tmp)
         with atomic_path(path) as tmp:

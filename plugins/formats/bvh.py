@@ -47,6 +47,7 @@ from mocapflow.framework.motion import Motion
 from mocapflow.framework.plugins import registered_joint_maps
 from mocapflow.framework.skeleton import Skeleton
 
+from . import _euler_branch as euler_branch
 from ._bvh_write import write_bvh
 from ._common import (
     MAX_DEGREES,
@@ -421,6 +422,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
         meta={"format": "bvh", "scale": scl, "unit": unit, **({"collapsed_root": restore} if restore else {})},
     )
     meta = file_metadata(path, data, "bvh")
+    meta.update(_branch(joints, table))
     meta.update(
         subject=path.parent.name,
         source_fps=1.0 / dt,
@@ -441,6 +443,23 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
         metadata=meta,
         local_translations=local_t,
     )
+
+
+def _branch(joints: list[_Joint], table: np.ndarray) -> dict[str, dict]:
+    """``{euler_branch: ...}`` where the file's angles leave the principal Euler branch
+    (:mod:`._euler_branch`), else ``{}``."""
+    channels, triples, c = {}, {}, 0
+    for jt in joints:
+        rot = []
+        for ch in jt.channels:
+            if ch[1:].lower() == "rotation":
+                channels[f"{jt.name}.{ch}"] = table[:, c]
+                rot.append(c)
+            c += 1
+        if len(rot) == 3:
+            triples[jt.name] = table[:, rot[1]]
+    branch = euler_branch.record(channels, triples)
+    return {euler_branch.KEY: branch} if branch["turns"] or branch["flips"] else {}
 
 
 def _check_bounds(

@@ -39,18 +39,24 @@ from mocapflow.framework.errors import ParseError
 from mocapflow.framework.motion import Motion
 
 from ._common import MAX_DEGREES, MAX_FPS, MAX_METRES, check_timeline, file_metadata, read_bytes
+from ._fbx_curves import evaluate, read_curve
 from ._fbx_parse import Node, check_head, parse_fbx
+from ._fbx_write import write_fbx
 from ._nodes import common_root, motion_from_nodes, uniform_scale, unique_names
 
-__all__ = ["FbxFormat", "read_fbx"]
+__all__ = ["FbxFormat", "read_fbx", "write_fbx"]
 
 KTIME_V7 = 46_186_158_000
 KTIME_V8 = 141_120_000
 #: TimeMode enum -> frames per second (14: CustomFrameRate).
 TIME_MODES = {
-    1: 120.0, 2: 100.0, 3: 60.0, 4: 50.0, 5: 48.0, 6: 30.0, 7: 30.0, 8: 30 / 1.001, 9: 30 / 1.001,
-    10: 25.0, 11: 24.0, 13: 24 / 1.001, 15: 96.0, 16: 72.0, 17: 60 / 1.001, 18: 120 / 1.001,
+    0: 30.0, 1: 120.0, 2: 100.0, 3: 60.0, 4: 50.0, 5: 48.0, 6: 30.0, 7: 30.0, 8: 30 / 1.001, 9: 30 / 1.001,
+    10: 25.0, 11: 24.0, 12: 1000.0, 13: 24 / 1.001, 15: 96.0, 16: 72.0, 17: 60 / 1.001, 18: 120 / 1.001,
 }  # fmt: skip
+#: InheritType: 0 RrSs (parent scale applied after the child's rotation), 1 RSrs (the
+#: plain matrix product), 2 Rrs (the parent's own scale ignored: Maya's segment scale
+#: compensate). With uniform scales RrSs and RSrs give the same pose.
+INHERIT_RRS = 2
 _ORDERS = {0: "xyz", 1: "xzy", 2: "yzx", 3: "yxz", 4: "zxy", 5: "zyx", 6: "xyz"}
 _CHANNELS = {"Lcl Translation": "t", "Lcl Rotation": "r", "Lcl Scaling": "s"}
 #: Largest |value| of a transform property or key (file units up to millimetres, degrees):
@@ -156,7 +162,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     if not 0 < unit * 100 <= 1e7:
         raise ParseError(path, None, f"GlobalSettings: expected a positive UnitScaleFactor, found {unit * 100:g}")
     mode = int(gs.num("TimeMode", 0))
-    fps = TIME_MODES.get(mode, gs.num("CustomFrameRate", 25.0) if mode in (0, 14) else 0.0)
+    fps = TIME_MODES.get(mode, gs.num("CustomFrameRate", 24.0) if mode == 14 else 0.0)
     if not 0 < fps <= MAX_FPS:
         raise ParseError(
             path, None, f"GlobalSettings: expected a frame rate in (0, {MAX_FPS:g}], found TimeMode {mode}, {fps:g} fps"
@@ -164,7 +170,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     ktps = _ktime(root, version)
     template, objects, parent, owner = _scene(path, root)
     stack_id, stack_name, stack_names = _stack(path, objects, animation)
-    curves = _curves(path, objects, owner, stack_id)
+    curves = _curves(path, objects, owner, stack_id, ktps, data, version)
     models = {oid: v for oid, v in objects.items() if v[0] == "Model"}
     if not models:
         raise ParseError(path, None, "expected Model objects (a skeleton), found none")
@@ -175,28 +181,35 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         raise ParseError(path, None, "expected LimbNode models or animated models (a skeleton), found neither")
     order, first = _order(path, models, parent, joints)
     keyed = [c for (m, _), axes in curves.items() if m in set(order) for c in axes if c is not None]
-    if keyed:
-        k0 = min(int(c[0][0]) for c in keyed)
-        k1 = max(int(c[0][-1]) for c in keyed)
+    span = _span(objects[stack_id][2], _templates(root, "AnimationStack"))
+    if span is not None:
+        k0, k1 = span
+        span_source = "take"
+    elif keyed:
+        k0 = min(int(c.ticks[0]) for c in keyed)
+        k1 = max(int(c.ticks[-1]) for c in keyed)
+        span_source = "keys"
     else:
         k0 = k1 = 0
+        span_source = "keys"
     n_frames = int(round((k1 - k0) / ktps * fps)) + 1
-    if n_frames > 10_000_000:
-        raise ParseError(path, None, f"keys span {(k1 - k0) / ktps:g} s at {fps:g} fps: over 10^7 frames")
+    if not 1 <= n_frames <= 10_000_000:
+        raise ParseError(path, None, f"the take spans {(k1 - k0) / ktps:g} s at {fps:g} fps: expected 1 to 10^7 frames")
     check_timeline(
         path,
         n_frames=n_frames,
         n_nodes=len(order) + 1,
-        key_times=[c[0] / ktps for c in keyed],
+        key_times=[c.ticks / ktps for c in keyed],
         t0=k0 / ktps,
         t1=k1 / ktps,
         fps=fps,
         size=len(data),
     )
-    grid = k0 + np.arange(n_frames) * (ktps / fps)
+    grid = (k0 + np.arange(n_frames) * (ktps / fps)) / ktps  # seconds
     names = unique_names(["__fbx_axes__"] + [models[m][1] or f"model{m}" for m in order])
     n = len(order) + 1
     rest_t, rest_r, rest_s = np.zeros((n, 3)), np.zeros((n, 4)), np.ones(n)
+    ignore_scale = np.zeros(n, dtype=bool)
     rest_r[0] = _axes(path, gs)
     rest_s[0] = unit
     t = np.empty((n_frames, n, 3))
@@ -205,6 +218,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     t[:, 0], r[:, 0], s[:, 0] = 0.0, rest_r[0], unit
     for k, m in enumerate(order, start=1):
         props = _Props(path, _props70(models[m][2]), template, f"model {names[k]!r}")
+        ignore_scale[k] = int(props.num("InheritType", 0.0)) == INHERIT_RRS
         tr = _transform(props, names[k], m, curves, grid, rest=True)
         rest_t[k], rest_r[k], rest_s[k] = tr[0][0], tr[1][0], tr[2][0]
         t[:, k], r[:, k], s[:, k] = _transform(props, names[k], m, curves, grid, rest=False)
@@ -219,6 +233,8 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         unit_scale=unit,
         fbx_version=version,
         start_time=k0 / ktps,
+        span_source=span_source,
+        axes=rest_r[0].tolist(),
     )
     return motion_from_nodes(
         path,
@@ -235,6 +251,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         fmt="fbx",
         name=path.stem,
         meta=meta,
+        ignore_parent_scale=ignore_scale & (par > 0),
     )
 
 
@@ -271,7 +288,31 @@ def _scene(path: Path, root: Node) -> tuple[dict, dict, dict, dict]:
     return template, objects, parent, owner
 
 
-def _curves(path: Path, objects: dict, owner: dict, stack_id: int) -> dict[tuple[int, str], list]:
+def _templates(root: Node, kind: str) -> dict:
+    """The property template of an object type (``Definitions``)."""
+    out: dict = {}
+    for ot in (root.find("Definitions") or _EMPTY).find_all("ObjectType"):
+        if ot.props[:1] == [kind]:
+            for pt in ot.find_all("PropertyTemplate"):
+                out.update(_props70(pt))
+    return out
+
+
+def _span(stack: Node, template: dict) -> tuple[int, int] | None:
+    """The take's time span in ticks: ``LocalStart``/``LocalStop``, else
+    ``ReferenceStart``/``ReferenceStop`` (as the FBX SDK and ufbx read it); None without
+    them or when they are not a forward span."""
+    own = _props70(stack)
+    for a, b in (("LocalStart", "LocalStop"), ("ReferenceStart", "ReferenceStop")):
+        va, vb = own.get(a, template.get(a)), own.get(b, template.get(b))
+        if va and vb and isinstance(va[0], int) and isinstance(vb[0], int):
+            return (va[0], vb[0]) if vb[0] >= va[0] else None
+    return None
+
+
+def _curves(
+    path: Path, objects: dict, owner: dict, stack_id: int, ktps: int, data: bytes, version: int
+) -> dict[tuple[int, str], list]:
     """(model id, "t"/"r"/"s") -> per axis (key times, values) or None, from the stack's
     first layer."""
     layers = [c for c, _ in owner.get(stack_id, []) if objects.get(c, ("",))[0] == "AnimationLayer"]
@@ -290,7 +331,9 @@ def _curves(path: Path, objects: dict, owner: dict, stack_id: int) -> dict[tuple
             axes: list = [None, None, None]
             for cv, cprop in owner.get(cn, []):
                 if objects.get(cv, ("",))[0] == "AnimationCurve" and cprop in ("d|X", "d|Y", "d|Z"):
-                    axes["XYZ".index(cprop[-1])] = _curve(path, objects[cv])
+                    axes["XYZ".index(cprop[-1])] = read_curve(
+                        path, objects[cv][2], ktps, _MAX_VALUE, data, version, max_ticks=MAX_KTIME
+                    )
             curves[(model, _CHANNELS[prop])] = axes
     return curves
 
@@ -313,28 +356,14 @@ def _ktime(root: Node, version: int) -> int:
     return ktps
 
 
-def _curve(path: Path, obj: tuple[str, str, Node]) -> tuple[np.ndarray, np.ndarray]:
-    node = obj[2]
-    kt, kv = node.find("KeyTime"), node.find("KeyValueFloat")
-    times = kt.props[0] if kt is not None and kt.props else None
-    vals = kv.props[0] if kv is not None and kv.props else None
-    what = f"AnimationCurve {node.props[0]}"
-    if not isinstance(times, np.ndarray) or not isinstance(vals, np.ndarray):
-        raise ParseError(path, None, f"{what}: expected KeyTime and KeyValueFloat arrays")
-    if len(times) != len(vals) or len(times) == 0:
-        raise ParseError(
-            path, None, f"{what}: expected as many key values as key times (>= 1), found {len(vals)} and {len(times)}"
-        )
-    if times.dtype.kind not in "iu" or len(times) and (times.min() < -MAX_KTIME or times.max() > MAX_KTIME):
-        raise ParseError(
-            path, None, f"{what}: expected integer key times (KTime ticks) within +-{MAX_KTIME:,}, found {times.dtype}"
-        )
-    if np.any(np.diff(times) <= 0):
-        raise ParseError(path, None, f"{what}: expected strictly increasing key times")
-    vals = vals.astype(np.float64)
-    if not np.all(np.abs(vals) <= _MAX_VALUE):
-        raise ParseError(path, None, f"{what}: expected finite key values within {_MAX_VALUE:g}")
-    return times.astype(np.int64), vals
+def _targets(cn: int, objects: dict, owner: dict) -> list[tuple[int, str]]:
+    """(model, property) pairs a curve node drives (OP connections child=cn)."""
+    out = []
+    for par, kids in owner.items():
+        for child, prop in kids:
+            if child == cn and objects.get(par, ("",))[0] == "Model":
+                out.append((par, prop))
+    return out
 
 
 def _order(path: Path, models: dict, parent: dict, joints: set[int]) -> tuple[list[int], int]:
@@ -385,7 +414,7 @@ def _transform(
         if not rest:
             for a, cv in enumerate(curves.get((m, c), [None, None, None])):
                 if cv is not None:
-                    v[:, a] = np.interp(grid, cv[0].astype(np.float64), cv[1])
+                    v[:, a] = evaluate(cv, grid)
         chan[c] = v
     if np.abs(chan["r"]).max(initial=0.0) > MAX_DEGREES:
         raise ParseError(props.path, None, f"model {name!r}: expected rotations within {MAX_DEGREES:g} degrees")
@@ -408,7 +437,7 @@ def _transform(
 
 
 class FbxFormat(Format):
-    """Autodesk FBX (binary) skeletal animation: reader."""
+    """Autodesk FBX (binary) skeletal animation: reader and writer."""
 
     name: ClassVar[str] = "fbx"
     extensions: ClassVar[tuple[str, ...]] = (".fbx",)
@@ -419,3 +448,8 @@ class FbxFormat(Format):
 
     def read(self, path: str | Path) -> Motion:
         return read_fbx(path, animation=self.params.animation)
+
+    def write(self, obj: Any, path: str | Path) -> None:
+        """Binary FBX 7.4: the skeleton as LimbNode models and every frame keyed
+        (:mod:`._fbx_write`)."""
+        write_fbx(obj, path)

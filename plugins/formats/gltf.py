@@ -16,8 +16,10 @@ and writer, numpy + json only.
   grid from the first to the last key time.
 * **Frame rate**: glTF stores key times in seconds, no rate. ``fps="auto"`` takes
   ``extras.fps`` of the animation when present (this writer's files), else the rate of
-  the most densely keyed sampler (keys per second), snapped to a whole or NTSC
-  (``n * 1000 / 1001``) rate within 2e-4; ``metadata["fps_source"]`` says which.
+  the most densely keyed sampler (keys per second, as read: a whole or NTSC
+  ``n * 1000 / 1001`` rate only when its frame grid holds every key time within float32
+  rounding); ``metadata["fps_source"]`` says which. Frames are the file's own key times
+  when the keys are evenly spaced (no resampling); ``fps=`` resamples.
 * **Units and axes**: glTF is metres, y up, +z forward: mocapflow's own convention,
   nothing to convert.
 * Scales must be uniform (a joint cannot shear); sparse accessors are refused.
@@ -454,10 +456,17 @@ def _pick_animation(doc: _Doc, animation: int | str) -> tuple[int, dict]:
     return k, doc.item("animations", k, f"animation {animation!r}")
 
 
-def _snap_fps(fps: float) -> float:
+def _snap_fps(fps: float, times: np.ndarray) -> float:
+    """``fps`` measured from key spacing, replaced by a whole or NTSC rate only when that
+    rate's frame grid holds every key time within float32 rounding (a rate a writer
+    rounded into its float32 times); otherwise the rate as read (Blender writes keys
+    1/119.9952 s apart: snapping that to 120 drifts 3.3 ms over 10,000 frames)."""
+    tol = 4 * np.finfo(np.float32).eps * max(abs(float(times[-1])), abs(float(times[0])), 1.0)
     for cand in (round(fps), round(fps * 1.001) * 1000 / 1001):
         if cand > 0 and abs(fps - cand) <= 2e-4 * fps:
-            return float(cand)
+            rel = times - times[0]
+            if np.abs(rel - np.round(rel * cand) / cand).max() <= tol:
+                return float(cand)
     return fps
 
 
@@ -665,7 +674,7 @@ def _rate(doc: _Doc, anim: dict, channels: list, fps: float | str) -> tuple[floa
     f = 1.0 / mean if np.abs(steps - mean).max() <= tol else 1.0 / steps[steps > tol].min()
     if not 0 < f <= MAX_FPS:
         raise doc.error(f"key times imply {f:g} fps; expected a rate in (0, {MAX_FPS:g}]")
-    return _snap_fps(f), "key times"
+    return _snap_fps(f, times), "key times"
 
 
 class GltfFormat(Format):

@@ -6,7 +6,7 @@ with Blender's python (``pip install bpy``)::
 
     python tests/data/blender/make_blender_files.py --blender-python /path/to/bpy-venv/bin/python
 
-``--check-writer`` instead writes clips with mocapflow's glTF writer (``.gltf`` and ``.glb``),
+``--check-writer`` instead writes clips with mocapflow's glTF and FBX writers (``.gltf``, ``.glb``, ``.fbx``),
 imports them with Blender's importer and prints the largest joint-position difference
 (nothing is written to the repository).
 
@@ -65,6 +65,7 @@ def check_writer(blender_python: str) -> None:
     import numpy as np
 
     from mocapflow.plugins.formats.asf_amc import read_amc
+    from mocapflow.plugins.formats.fbx import read_fbx, write_fbx
     from mocapflow.plugins.formats.gltf import read_gltf, write_gltf
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -72,10 +73,10 @@ def check_writer(blender_python: str) -> None:
         sources = [("02/02_01.amc", None), ("16/16_35.amc", None), ("jump_60.glb", "glb")]
         for k, (take, kind) in enumerate(sources):
             m = read_gltf(HERE / take) if kind else read_amc(ROOT / "examples" / "data" / "cmu" / take).slice(0, 120)
-            for ext in (".gltf", ".glb"):
+            for ext in (".gltf", ".glb", ".fbx"):
                 out = Path(tmp) / f"w{k}{ext}"
-                write_gltf(m, out)
-                ours = read_gltf(out)
+                (write_fbx if ext == ".fbx" else write_gltf)(m, out)
+                ours = (read_fbx if ext == ".fbx" else read_gltf)(out)
                 np.save(out.with_suffix(out.suffix + ".npy"), ours.positions)
                 jobs.append({"path": str(out), "fps": m.fps, "names": list(ours.skeleton.names), "n": ours.n_frames})
         spec = Path(tmp) / "jobs.json"
@@ -92,7 +93,10 @@ def stage_check(spec: Path) -> None:
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = bpy.context.scene
         scene.render.fps, scene.render.fps_base = round(job["fps"]), round(job["fps"]) / job["fps"]
-        bpy.ops.import_scene.gltf(filepath=job["path"])
+        if job["path"].endswith(".fbx"):
+            bpy.ops.import_scene.fbx(filepath=job["path"])
+        else:
+            bpy.ops.import_scene.gltf(filepath=job["path"])
         arm = next(o for o in scene.objects if o.type == "ARMATURE")
         f0 = int(round(arm.animation_data.action.frame_range[0]))
         want = np.load(job["path"] + ".npy")
