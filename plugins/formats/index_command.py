@@ -143,7 +143,9 @@ class IndexCommand:
                 print(f"    {_names([r['path']], folder)}{where}: {r['message']}")
             if len(rejects) > SHOWN:
                 print(f'    ... see mocapflow sql {args.workspace} "SELECT path, message FROM motions_rejects"')
-        print(f"search it: mocapflow search --db {args.workspace} --query FILE[:START-END]")
+        good = [r["path"] for r in after if not r["rejected"]]
+        example = (Path(args.folder) / Path(good[0]).relative_to(folder)).as_posix() if good else "FILE"
+        print(f"search it: mocapflow search --db {args.workspace} --query {example}:0s-1s")
         return 0
 
 
