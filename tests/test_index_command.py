@@ -110,3 +110,8 @@ def test_index_refuses_a_workspace_inside_the_folder_and_a_missing_folder(takes:
     assert "inside" in capsys.readouterr().err
     assert main(["index", str(tmp_path / "nope"), "-w", str(tmp_path / "lib")]) == 2
     assert "no such folder" in capsys.readouterr().err
+    other = tmp_path / "other" / "motions"
+    other.mkdir(parents=True)
+    (other / "_manifest.json").write_text('{"component": "formats.load", "step": "motions"}')
+    assert main(["index", str(takes), "-w", str(tmp_path / "other")]) == 2
+    assert "another pipeline" in capsys.readouterr().err

@@ -105,6 +105,7 @@ class IndexCommand:
             )
         if ws.exists() and not ws.is_dir():
             raise ConfigError(f"--workspace {args.workspace} exists and is not a folder")
+        _refuse_other_workspace(ws, args.workspace)
         ws.mkdir(parents=True, exist_ok=True)
         pipeline = ws / "library.yaml"
         text = PIPELINE.format(folder=json.dumps(str(folder)), fps=repr(float(args.fps)))
@@ -156,3 +157,22 @@ def _rejects(ws: Path) -> list[dict[str, Any]]:
     import pyarrow.parquet as pq
 
     return pq.read_table(p, columns=["path", "line", "message"]).to_pylist()
+
+
+def _refuse_other_workspace(ws: Path, given: str) -> None:
+    """A workspace another pipeline wrote (its ``motions`` step not a library's) is refused:
+    the library's steps would replace some of its steps and leave the rest stale."""
+    from mocapflow.framework.errors import ConfigError
+
+    if not ws.is_dir():
+        return
+    steps = sorted(p.parent.name for p in ws.glob("*/_manifest.json"))
+    try:
+        component = json.loads((ws / "motions" / "_manifest.json").read_text()).get("component")
+    except (OSError, ValueError):
+        component = None
+    if steps and (component != "formats.library" or not set(steps) <= {"motions", "summary", "fe15", "tree"}):
+        raise ConfigError(
+            f"--workspace {given} holds the outputs of another pipeline (steps: {', '.join(steps)}); "
+            "a library needs a workspace of its own: choose a new folder"
+        )
