@@ -150,11 +150,6 @@ def markers_page(markers_workspace, tmp_path_factory):
         yield b
 
 
-def _drawn(page, player: str) -> np.ndarray:
-    px = canvas_pixels(page, f"{player}.canvas")
-    return px
-
-
 def test_marker_takes_play_their_markers(markers_page):
     page = markers_page
     page.eval("document.querySelector('#step-markers .play-markers').click()")
@@ -176,7 +171,7 @@ def test_marker_takes_play_their_markers(markers_page):
     labels = page.eval("MocapReport.model.steps.find(s => s.id === 'markers').views[0].clips[0].labels")
     y = dict(zip([lb.split(":")[-1] for lb in labels], heights, strict=True))
     assert y["LFHD"] > y["LFWT"] > y["LANK"]
-    px = _drawn(page, player)
+    px = canvas_pixels(page, f"{player}.canvas")
     blue = (px[..., 2] - px[..., 0] > 60).sum()
     assert blue > 100, blue  # the markers are drawn
     assert page.errors == []
@@ -199,7 +194,7 @@ def test_a_reconstruction_plays_beside_its_input_markers(markers_page):
         return Math.hypot(c[0] - root[0], c[2] - root[2]); }})()"""
     )
     assert gap < 0.15, gap
-    px = _drawn(page, player)
+    px = canvas_pixels(page, f"{player}.canvas")
     blue = (px[..., 2] - px[..., 0] > 60).sum()
     red = (px[..., 0] - px[..., 2] > 60).sum()
     assert blue > 100 and red > 50, (blue, red)
