@@ -30,6 +30,7 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(("Motion", "forward_kinematics"), "motion"),
     **dict.fromkeys(("build_registries", "get_plugin_manager", "hookimpl", "load_registries"), "plugins"),
     **dict.fromkeys(("Registries", "Registry"), "registry"),
+    "Removed": "params",
     "Skeleton": "skeleton",
 }
 
@@ -68,6 +69,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; never executed
     from .markers import Markers
     from .matching import MatchParams, QueryMatches, SearchSpace
     from .motion import Motion, forward_kinematics
+    from .params import Removed
     from .plugins import build_registries, get_plugin_manager, hookimpl, load_registries
     from .registry import Registries, Registry
     from .skeleton import Skeleton

@@ -201,8 +201,10 @@ def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
         refuse_dataset_path(out, "--output", workspaces=[args.workspace])
         if out.is_dir():
             raise ConfigError(f"--output {out} is a directory: give a file name (e.g. {out / 'result.csv'})")
-        if args.format == "table" and out.suffix.lower() not in (".csv", ".parquet", ""):
-            raise ConfigError(f"--output {out}: unknown format {out.suffix!r}; use .csv or .parquet, or --format")
+        if args.format == "table" and out.suffix.lower() not in (".csv", ".json", ".parquet", ""):
+            raise ConfigError(
+                f"--output {out}: unknown format {out.suffix!r}; use .csv, .json or .parquet, or --format"
+            )
     if not args.query:
         with Catalog(args.workspace) as cat:
             _echo("views: " + ", ".join(sorted(cat.views)))
@@ -221,11 +223,15 @@ def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
 
         import pyarrow.csv as pacsv
 
-        from .workspace import csv_options
+        from .workspace import csv_options, flat_table
 
         buf = io.BytesIO()
-        pacsv.write_csv(table, buf, csv_options())
+        pacsv.write_csv(flat_table(table), buf, csv_options())  # list and struct columns as JSON text
         sys.stdout.write(buf.getvalue().decode())
+    elif args.format == "json":
+        from .workspace import write_json
+
+        write_json(table, sys.stdout)
     elif args.format == "parquet":
         raise ConfigError("--format parquet needs --output FILE")
     else:
@@ -281,8 +287,13 @@ def build_parser(plugin_commands: list[type[Any]]) -> argparse.ArgumentParser:
     p.add_argument("workspace")
     p.add_argument("query", nargs="?", help="SELECT ... (omit to list the views)")
     p.add_argument("--param", action="append", default=[], help="value for a ? placeholder (repeatable)")
-    p.add_argument("--format", choices=("table", "csv", "parquet"), default="table")
-    p.add_argument("--output", "-o", help="write the result to this file (csv or parquet)")
+    p.add_argument(
+        "--format",
+        choices=("table", "csv", "json", "parquet"),
+        default="table",
+        help="csv: list and struct columns as JSON text; json: an array of row objects",
+    )
+    p.add_argument("--output", "-o", help="write the result to this file (csv, json or parquet)")
     p.add_argument("--max-rows", type=int_at_least(0), default=50)
     p.add_argument(
         "--timeout",

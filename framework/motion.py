@@ -93,6 +93,21 @@ class Motion:
         out[:, ok] = self.positions[:, idx[ok]]
         return out
 
+    def write(self, path: Any) -> None:
+        """Deprecated (one release): ``mocapflow.write(motion, path)``, which this calls.
+
+        Writes with the registered format for the extension of ``path``, atomically."""
+        import importlib
+        import warnings
+
+        warnings.warn(
+            "Motion.write is deprecated and goes in the next release: use mocapflow.write(motion, path)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        # the facade, by name: the data model imports no layer above it (tests/test_import_cycles.py)
+        importlib.import_module("mocapflow").write(self, path)
+
     def slice(self, start: int, stop: int) -> Motion:
         """Frames ``[start, stop)`` as a new clip (metadata records the offset)."""
         meta = dict(self.metadata, source_start_frame=int(self.metadata.get("source_start_frame", 0)) + int(start))

@@ -20,6 +20,7 @@ from pydantic import BaseModel, ValidationError
 from .components import Component, ParamsOf
 from .config import PipelineSource
 from .errors import ConfigError
+from .params import Params
 from .registry import Registries, did_you_mean, params_error
 
 log = logging.getLogger("mocapflow")
@@ -255,7 +256,9 @@ def build_plan(source: PipelineSource, registries: Registries) -> Plan:
             found = steps[sid].component.check_plan(source.base_dir)
         except ConfigError as exc:
             raise source.error(("steps", sid, "with"), f"step {sid!r}: {exc}") from None
-        for w in found or []:
+        params = steps[sid].component.params
+        found = [*(params.deprecations() if isinstance(params, Params) else []), *(found or [])]
+        for w in found:
             warnings.append(f"{source.where('steps', sid, 'with')}: step {sid!r}: {w}")
             log.warning("%s", warnings[-1])
     return Plan(source, [steps[s] for s in ordered], warnings)

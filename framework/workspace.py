@@ -37,7 +37,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import pyarrow as pa
 
@@ -542,23 +542,82 @@ def csv_options() -> Any:
     return pacsv.WriteOptions(quoting_style="needed", quoting_header="none")
 
 
+def _json_value(v: Any) -> Any:
+    """A value of a table row as JSON can hold it: NaN and infinities become null, bytes
+    hex, dates and times ISO 8601, decimals floats; lists and dicts element by element."""
+    import datetime
+    import decimal
+    import math
+
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, (list, tuple)):
+        return [_json_value(x) for x in v]
+    if isinstance(v, dict):
+        return {str(k): _json_value(x) for k, x in v.items()}
+    if isinstance(v, (bytes, bytearray, memoryview)):
+        return bytes(v).hex()
+    if isinstance(v, (datetime.date, datetime.time)):
+        return v.isoformat()
+    if isinstance(v, datetime.timedelta):
+        return v.total_seconds()
+    if isinstance(v, decimal.Decimal):
+        return float(v)
+    return v
+
+
+def _is_nested(t: pa.DataType) -> bool:
+    return bool(
+        pa.types.is_list(t)
+        or pa.types.is_large_list(t)
+        or pa.types.is_fixed_size_list(t)
+        or pa.types.is_struct(t)
+        or pa.types.is_map(t)
+        or pa.types.is_union(t)
+    )
+
+
+def flat_table(table: pa.Table) -> pa.Table:
+    """``table`` with every nested column (list, fixed-size list, struct, map: feature
+    vectors, paths, label lists) as JSON text, so a CSV writer takes it; other columns
+    unchanged. A map becomes a JSON list of ``[key, value]`` pairs, as Arrow gives it."""
+    if not any(_is_nested(f.type) for f in table.schema):
+        return table
+    cols = [
+        pa.array(
+            [None if v is None else json.dumps(_json_value(v), separators=(",", ":")) for v in c.to_pylist()],
+            pa.string(),
+        )
+        if _is_nested(c.type)
+        else c
+        for c in table.columns
+    ]
+    return pa.Table.from_arrays(cols, names=table.column_names)
+
+
+def write_json(table: pa.Table, out: IO[str]) -> None:
+    """``table`` as a JSON array of row objects (column -> value; nested columns as JSON
+    arrays and objects, NaN as null), one row a line."""
+    out.write("[")
+    for i, row in enumerate(table.to_pylist()):
+        out.write(("\n" if i == 0 else ",\n") + json.dumps(_json_value(row), separators=(",", ":")))
+    out.write("\n]\n" if table.num_rows else "]\n")
+
+
 def export_table(table: pa.Table, path: str | Path, fmt: str) -> None:
-    """Write a table (a query result) as CSV or Parquet, atomically; nested columns
-    (feature vectors, paths) go to CSV as their text form."""
+    """Write a table (a query result) as CSV, JSON or Parquet, atomically; nested columns
+    (feature vectors, paths) go to CSV as JSON text (:func:`flat_table`)."""
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    if fmt not in ("csv", "parquet"):
-        raise ConfigError(f"unknown output format {fmt!r}: csv or parquet")
+    if fmt not in ("csv", "json", "parquet"):
+        raise ConfigError(f"unknown output format {fmt!r}: csv, json or parquet")
     with atomic_path(path) as tmp:
         if fmt == "parquet":
             pq.write_table(table, tmp)
             return
-        nested = (pa.types.is_list, pa.types.is_fixed_size_list, pa.types.is_struct)
-        cols = [
-            pa.array([None if v is None else str(v) for v in c.to_pylist()], pa.string())
-            if any(t(c.type) for t in nested)
-            else c
-            for c in table.columns
-        ]
-        pacsv.write_csv(pa.Table.from_arrays(cols, names=table.column_names), tmp, csv_options())
+        if fmt == "json":
+            with open(tmp, "w", encoding="utf-8") as f:
+                write_json(table, f)
+            return
+        pacsv.write_csv(flat_table(table), tmp, csv_options())

@@ -69,3 +69,44 @@ def extras_workspace(tmp_path_factory) -> Path:
     yaml = root / "report-extras.yaml"
     yaml.write_text(EXTRAS.format(ws=ws, cmu=CMU))
     return _run(yaml, ws)
+
+
+MARKERS = """
+name: report-markers
+workspace: {ws}
+steps:
+  markers:
+    uses: formats.load_markers
+    with: {{paths: ["{take}"]}}
+  prior:
+    uses: formats.load
+    with: {{paths: ["{cmu}/16/16_15.amc", "{cmu}/16/16_01.amc"], fps: 30}}
+  recon:
+    uses: analyses.reconstruct_markers
+    inputs: {{prior: prior, markers: markers}}
+    with: {{skeleton: "{cmu}/16/16.asf", k: 16}}
+"""
+
+
+@pytest.fixture(scope="module")
+def markers_workspace(tmp_path_factory) -> Path:
+    """A marker take (Plug-in-Gait-style markers around the joints of a CMU walk, z up as
+    many C3D files are, written as TRC), and its reconstruction from a prior of CMU takes."""
+    import numpy as np
+    from test_reconstruct import vicon_markers
+
+    import mocapflow
+    from mocapflow.framework.markers import Markers
+    from mocapflow.plugins.formats.trc import write_trc
+
+    root = tmp_path_factory.getbasetemp()
+    ws, take = root / "report-markers", root / "report-markers-take.trc"
+    if not take.is_file():
+        walk = mocapflow.read(CMU / "16" / "16_35.amc").slice(0, 120)
+        mk = vicon_markers(walk)
+        p = mk.positions  # y up -> z up (x, -z, y): the reader's up-axis guess turns it back
+        zup = np.stack([p[..., 0], -p[..., 2], p[..., 1]], axis=-1)
+        write_trc(Markers(mk.labels, zup, mk.fps, name="walk_markers", metadata={"up_axis": "+z"}), take)
+    yaml = root / "report-markers.yaml"
+    yaml.write_text(MARKERS.format(ws=ws, take=take, cmu=CMU))
+    return _run(yaml, ws)

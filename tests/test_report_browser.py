@@ -1,5 +1,6 @@
 """The quickstart's report in a real browser: headless Chromium (the Debian package) opens it
-from ``file://``, the player advances frames, the canvas is not blank, no console error.
+from ``file://``, the player advances frames, the canvas is not blank, no console error; a
+marker workspace's report plays its markers, and its reconstruction beside them.
 
 Driven over the DevTools protocol on a pipe (:mod:`mocapflow.plugins.report.browser`);
 skipped when no Chromium is installed. Load times are recorded (``record_property``),
@@ -13,7 +14,7 @@ import time
 
 import numpy as np
 import pytest
-from report_workspaces import quickstart_workspace  # noqa: F401 (fixture)
+from report_workspaces import markers_workspace, quickstart_workspace  # noqa: F401 (fixtures)
 
 from mocapflow.plugins.report.browser import Browser, find_chromium
 
@@ -135,4 +136,66 @@ def test_a_take_longer_than_the_map_is_wide_is_shown_by_its_largest_values(page)
     tip = page.eval("document.getElementById('tooltip').textContent")
     assert "largest at" in tip and tip.startswith("joint root")
     page.eval("document.querySelector('#step-clean .heatmap').style.width = ''")
+    assert page.errors == []
+
+
+@pytest.fixture(scope="module")
+def markers_page(markers_workspace, tmp_path_factory):
+    from mocapflow.plugins.report.plugin import build_report
+
+    info = build_report(markers_workspace, tmp_path_factory.mktemp("browser-markers") / "report")
+    with Browser() as b:
+        b.open(info["index"].resolve().as_uri())
+        b.wait_for("window.MocapReport !== undefined && MocapReport.ready === true")
+        yield b
+
+
+def test_marker_takes_play_their_markers(markers_page):
+    page = markers_page
+    page.eval("document.querySelector('#step-markers .play-markers').click()")
+    page.wait_for("MocapReport.players.length > 0 && MocapReport.players[0].playing")
+    player = "MocapReport.players[0]"
+    assert page.eval(f"{player}.tracks.length") == 1
+    assert page.eval(f"{player}.tracks[0].nJ") == 15 and page.eval(f"{player}.tracks[0].bones.length") == 0
+    assert page.eval(f"{player}.steps") == 120
+    seen = set()
+    for _ in range(10):
+        seen.add(page.eval(f"{player}.step"))
+        time.sleep(0.1)
+    assert len(seen) > 3
+    # y up in the page: the head markers above the ankle markers (the file is z up)
+    heights = page.eval(
+        f"(() => {{ const p = {player}, t = p.tracks[0]; "
+        "return [...Array(t.nJ).keys()].map(j => p.joint(t, p.step, j)[1]); })()"
+    )
+    labels = page.eval("MocapReport.model.steps.find(s => s.id === 'markers').views[0].clips[0].labels")
+    y = dict(zip([lb.split(":")[-1] for lb in labels], heights, strict=True))
+    assert y["LFHD"] > y["LFWT"] > y["LANK"]
+    px = canvas_pixels(page, f"{player}.canvas")
+    blue = (px[..., 2] - px[..., 0] > 60).sum()
+    assert blue > 100, blue  # the markers are drawn
+    assert page.errors == []
+
+
+def test_a_reconstruction_plays_beside_its_input_markers(markers_page):
+    page = markers_page
+    n = page.eval("MocapReport.players.length")
+    page.eval("document.querySelector('#step-recon .play-derived').click()")
+    page.wait_for(f"MocapReport.players.length > {n} && MocapReport.players[{n}].playing")
+    player = f"MocapReport.players[{n}]"
+    labels = page.eval(f"{player}.tracks.map(t => t.label)")
+    assert labels[0].startswith("input markers") and labels[1].startswith("recon")
+    assert page.eval(f"{player}.tracks[0].bones.length") == 0 and page.eval(f"{player}.tracks[0].nJ") == 15
+    # the markers sit on the skeleton: the pelvis markers' mean within 15 cm of the root
+    gap = page.eval(
+        f"""(() => {{ const p = {player}, s = 10, mk = p.tracks[0], sk = p.tracks[1];
+        const root = p.joint(sk, s, 0), pts = [0, 1, 2, 3].map(j => p.joint(mk, s, j));
+        const c = [0, 1, 2].map(i => pts.reduce((a, q) => a + q[i], 0) / 4);
+        return Math.hypot(c[0] - root[0], c[2] - root[2]); }})()"""
+    )
+    assert gap < 0.15, gap
+    px = canvas_pixels(page, f"{player}.canvas")
+    blue = (px[..., 2] - px[..., 0] > 60).sum()
+    red = (px[..., 0] - px[..., 2] > 60).sum()
+    assert blue > 100 and red > 50, (blue, red)
     assert page.errors == []

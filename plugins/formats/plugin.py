@@ -1,7 +1,7 @@
 """Registration of the built-in file formats (the ``formats`` package): readers and writers
 ``amc`` (Acclaim ASF/AMC), ``bvh``, ``fbx`` (reader), ``gltf`` (``.gltf``/``.glb``), ``c3d`` and ``trc`` (markers), and the ingest steps that
-use them (``formats.load``, ``formats.load_markers``, ``formats.export``), and the skeleton
-naming dialects of :mod:`.joint_maps`, and the ``mocapflow export`` command.
+use them (``formats.load``, ``formats.load_markers``, ``formats.library``, ``formats.export``), and the skeleton
+naming dialects of :mod:`.joint_maps`, and the ``mocapflow export`` and ``mocapflow index`` commands.
 numba kernels are imported only when a file is read."""
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ def register_formats() -> list[type]:
     from .c3d import C3dFormat
     from .fbx import FbxFormat
     from .gltf import GltfFormat
+    from .library import LoadLibrary
     from .steps import ExportMotions, LoadMarkers, LoadMotions
     from .trc import TrcFormat
 
@@ -29,6 +30,7 @@ def register_formats() -> list[type]:
         TrcFormat,
         LoadMotions,
         LoadMarkers,
+        LoadLibrary,
         ExportMotions,
     ]
 
@@ -43,5 +45,6 @@ def register_joint_maps() -> list:
 @hookimpl
 def register_commands() -> list[type]:
     from .export_command import ExportCommand
+    from .index_command import IndexCommand
 
-    return [ExportCommand]
+    return [ExportCommand, IndexCommand]

@@ -21,7 +21,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -29,6 +29,7 @@ from pydantic import Field
 
 from mocapflow.framework.components import Matcher, Params
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
+from mocapflow.framework.params import Removed
 from mocapflow.framework.schema import MATCHES
 
 from .labels import labels_of
@@ -230,6 +231,18 @@ class TemplateMatcher(Matcher):
             "auto: K // 7, 1 to 4 (docs/templates.md); 1: the full-rate search",
         )
         plots: bool = Field(True, description="write template_<label>.png per template")
+        removed: ClassVar = {
+            "features": Removed(
+                "retrieval always uses each template's key features (the all-31 mode lost its measurement, "
+                "docs/templates.md); remove the parameter",
+                accepts=("key",),
+            ),
+            "cutoff": Removed(
+                "hits are always cut off by the rival rule of docs/templates.md (the threshold rule lost its "
+                "measurement); remove the parameter",
+                accepts=("rivals",),
+            ),
+        }
 
     def fit(
         self,

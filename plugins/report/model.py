@@ -18,7 +18,11 @@ base poses
     a ``base_poses`` table (``cluster, clip_id, frame, n_members``).
 derived motions
     a non-ingest step that writes motions (``clips``) whose clips are clips of one of its
-    inputs (same id and checksum): reconstruction results, played over the input.
+    inputs (same id and checksum): reconstruction results, played over the input; or of a
+    markers input (same id): reconstructions played with the input markers beside them.
+markers
+    a markers dataset (``clips`` with ``n_markers``, ``data`` with ``positions``): each take's
+    markers played as points (y up).
 """
 
 from __future__ import annotations
@@ -91,6 +95,8 @@ class Model:
     motions: dict[str, np.ndarray] = field(default_factory=dict)
     fps: dict[str, float] = field(default_factory=dict)
     cleaning: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: ``k/<step>/<clip>`` -> (T, M, 3) marker positions in metres, y up, NaN in gaps
+    markers: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _scalar(v: Any) -> Any:
@@ -145,6 +151,44 @@ class _Motions:
         return got
 
 
+#: marker takes a markers view lists (the first, by path)
+MARKER_CLIPS = 200
+
+
+def is_markers(ds: Dataset) -> bool:
+    """A markers dataset: ``clips`` with ``n_markers`` and ``data`` with ``positions``."""
+    return (
+        ds.has_table("clips")
+        and ds.has_table("data")
+        and "n_markers" in _columns(ds, "clips")
+        and "positions" in _columns(ds, "data")
+    )
+
+
+def marker_positions(ds: Dataset) -> dict[int, tuple[dict[str, Any], np.ndarray]]:
+    """clip id -> (its ``clips`` row, positions (T, M, 3) metres, y up, NaN in gaps) of a
+    markers dataset (:func:`~mocapflow.framework.markers.to_y_up` of the file's axes)."""
+    from mocapflow.framework.markers import Markers, to_y_up
+
+    clips = ds.table("clips").to_pylist()
+    data = ds.table("data", columns=["clip_id", "positions"])
+    ids = data.column("clip_id").to_numpy()
+    flat = data.column("positions").combine_chunks()
+    values = flat.values.to_numpy(zero_copy_only=False).astype(np.float32)
+    offsets = flat.offsets.to_numpy()
+    out = {}
+    for c in clips:
+        rows = np.flatnonzero(ids == c["clip_id"])
+        m = int(c["n_markers"])
+        if not len(rows) or not m:
+            continue
+        a, b = offsets[rows[0]], offsets[rows[-1] + 1]  # a clip's rows are contiguous
+        pos = values[a:b].reshape(len(rows), m, 3)
+        mk = Markers(tuple(c["labels"] or ()), pos, float(c["fps"]), c["name"], {"up_axis": c["up_axis"] or "+y"})
+        out[int(c["clip_id"])] = (c, to_y_up(mk).positions.astype(np.float32))
+    return out
+
+
 def motions_input(step: str, datasets: Mapping[str, Dataset]) -> str | None:
     """Step id of the nearest motions dataset (one with ``clips``) at or upstream of ``step``."""
     seen, todo = set(), [step]
@@ -183,6 +227,7 @@ class ModelBuilder:
     def __init__(self, datasets: Mapping[str, Dataset], clips: pa.Table, rejects: pa.Table) -> None:
         self.datasets = datasets
         self.mo = _Motions(datasets)
+        self._markers: dict[str, dict[int, tuple[dict[str, Any], np.ndarray]]] = {}
         self.model = Model(page={})
         self.clips, self.rejects = clips, rejects
 
@@ -237,7 +282,9 @@ class ModelBuilder:
                 out["views"].append(self.cleaning(ds))
             if "base_poses" in names:
                 out["views"].append(self.base_poses(ds))
-            if "clips" in names and ds.producer_kind != "formats":
+            if is_markers(ds):
+                out["views"].append(self.markers(ds))
+            elif "clips" in names and ds.producer_kind != "formats":
                 view = self.derived(ds)
                 if view is not None:
                     out["views"].append(view)
@@ -461,13 +508,61 @@ class ModelBuilder:
             )
         return {"type": "base_poses", "motions": step, "poses": poses, "n_base_poses": len(rows)}
 
+    def marker_key(self, step: str, clip_id: int) -> str:
+        key = f"k/{step}/{int(clip_id)}"
+        if key not in self.model.markers:
+            if step not in self._markers:
+                self._markers[step] = marker_positions(self.datasets[step])
+            row, pos = self._markers[step][int(clip_id)]
+            self.model.markers[key] = pos
+            self.model.fps[key] = float(row["fps"])
+        return key
+
+    def markers(self, ds: Dataset) -> dict[str, Any]:
+        """The takes of a markers dataset, each played as its markers."""
+        self._markers[ds.step] = found = marker_positions(ds)
+        clips = []
+        for cid, (row, pos) in sorted(found.items(), key=lambda kv: (kv[1][0]["path"], kv[0]))[:MARKER_CLIPS]:
+            clips.append(
+                {
+                    "clip_id": cid,
+                    "clip": row["name"],
+                    "n_frames": int(pos.shape[0]),
+                    "n_markers": int(pos.shape[1]),
+                    "fps": float(row["fps"]),
+                    "labels": list(row["labels"] or ()),
+                    "markers": self.marker_key(ds.step, cid),
+                }
+            )
+        return {"type": "markers", "clips": clips, "n_clips": len(found)}
+
     def derived(self, ds: Dataset) -> dict[str, Any] | None:
         cols = ["clip_id", "name", "checksum", "n_frames"]
         mine = ds.table("clips", columns=cols).to_pylist()
         candidates = []
+        marker_pairs = []
         for name, ref in ds.manifest.get("inputs", {}).items():
             other = self.datasets.get(ref["step"])
-            if other is not None and other.has_table("clips"):
+            if other is not None and is_markers(other):
+                # the takes were computed from these markers (same clip id): played beside them
+                if other.step not in self._markers:
+                    self._markers[other.step] = marker_positions(other)
+                theirs_mk = self._markers[other.step]
+                for r in mine:
+                    if r["clip_id"] in theirs_mk:
+                        marker_pairs.append(
+                            {
+                                "clip_id": r["clip_id"],
+                                "clip": r["name"],
+                                "source_clip": theirs_mk[r["clip_id"]][0]["name"],
+                                "source_step": other.step,
+                                "input": name,
+                                "n_frames": r["n_frames"],
+                                "motion": self.motion_key(ds.step, r["clip_id"]),
+                                "markers": self.marker_key(other.step, r["clip_id"]),
+                            }
+                        )
+            elif other is not None and other.has_table("clips"):
                 theirs = {
                     (r["clip_id"], r["checksum"], r["n_frames"]): r["name"]
                     for r in other.table("clips", columns=cols).to_pylist()
@@ -492,6 +587,7 @@ class ModelBuilder:
                             "source_motion": self.motion_key(other.step, r["clip_id"]),
                         }
                     )
+        pairs += [p for p in marker_pairs if not any(q["clip_id"] == p["clip_id"] for q in pairs)]
         return {"type": "derived", "pairs": pairs} if pairs else None
 
 

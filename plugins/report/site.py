@@ -61,6 +61,16 @@ def write_data(model: Model, out: Path) -> dict[str, dict[str, Any]]:
             parts,
         )
         files[key] = {"file": name, "bytes": n}
+    for key, pos in model.markers.items():
+        parts, scale = encode_positions(pos)
+        name = f"data/{_safe(key)}.js"
+        n = write_blob(
+            out / name,
+            key,
+            {"kind": "markers", "scale": scale, "n_frames": len(pos), "fps": model.fps.get(key, 30.0)},
+            parts,
+        )
+        files[key] = {"file": name, "bytes": n}
     for key, c in model.cleaning.items():
         parts, scale = encode_positions(c["positions"])
         name = f"data/{_safe(key)}.js"

@@ -73,7 +73,8 @@ class MocapPlayer {
   }
 
   /* scene: {tracks: [{label, color, pos: Float32Array(T*J*3), nJ, frames: Int32Array(steps),
-   *          offset: [x, y, z], highlight: joint or -1}], fps, steps, caption(step) -> str} */
+   *          offset: [x, y, z], highlight: joint or -1, bones (optional: [] for markers),
+   *          points (optional: point radius)}], fps, steps, caption(step) -> str} */
   setScene(scene) {
     this.pause();
     this.tracks = scene.tracks;
@@ -132,7 +133,12 @@ class MocapPlayer {
 
   camera() {
     let cx = 0, cz = 0, n = 0;
-    for (const t of this.tracks) { const r = this.joint(t, this.step, 0); if (isFinite(r[0])) { cx += r[0]; cz += r[2]; n++; } }
+    for (const t of this.tracks) {
+      // the root (joint 0); a marker track: its first marker seen at this step
+      for (let j = 0; j < (t.bones && !t.bones.length ? t.nJ : 1); j++) {
+        const r = this.joint(t, this.step, j); if (isFinite(r[0])) { cx += r[0]; cz += r[2]; n++; break; }
+      }
+    }
     const target = n ? [cx / n, this.floor + 0.9, cz / n] : [0, 0.9, 0];
     const cp = Math.cos(this.pitch);
     const eye = [target[0] + this.dist * cp * Math.sin(this.yaw), target[1] + this.dist * Math.sin(this.pitch),
@@ -171,10 +177,11 @@ class MocapPlayer {
       for (let j = 0; j < t.nJ; j++) { const q = this.joint(t, this.step, j); pts.push(isFinite(q[0]) ? P(q) : null); }
       ctx.strokeStyle = t.color; ctx.lineWidth = t.width || 3; ctx.lineCap = "round";
       ctx.beginPath();
-      for (const [a, b] of this.bones) if (pts[a] && pts[b]) { ctx.moveTo(pts[a][0], pts[a][1]); ctx.lineTo(pts[b][0], pts[b][1]); }
+      for (const [a, b] of (t.bones || this.bones)) if (pts[a] && pts[b]) { ctx.moveTo(pts[a][0], pts[a][1]); ctx.lineTo(pts[b][0], pts[b][1]); }
       ctx.stroke();
       ctx.fillStyle = t.color;
-      for (const p of pts) if (p) { ctx.beginPath(); ctx.arc(p[0], p[1], 2.5, 0, 2 * Math.PI); ctx.fill(); }
+      const radius = t.points || 2.5;   // markers: bigger points, no bones
+      for (const p of pts) if (p) { ctx.beginPath(); ctx.arc(p[0], p[1], radius, 0, 2 * Math.PI); ctx.fill(); }
       if (t.highlight >= 0 && pts[t.highlight]) {
         const p = pts[t.highlight];
         ctx.strokeStyle = "#e8590c"; ctx.lineWidth = 2; ctx.beginPath(); ctx.arc(p[0], p[1], 9, 0, 2 * Math.PI); ctx.stroke();

@@ -112,7 +112,7 @@ const MocapReport = (() => {
       h("h2", null, `${step.id} `, h("span", { class: "component" }, step.component)), provenance(step));
     if (step.view_error) sec.appendChild(h("p", { class: "error" }, "This step's results could not be shown: " + step.view_error));
     for (const v of step.views) {
-      const fn = { retrieval: retrievalView, cleaning: cleaningView, base_poses: basePosesView, derived: derivedView }[v.type];
+      const fn = { retrieval: retrievalView, cleaning: cleaningView, base_poses: basePosesView, derived: derivedView, markers: markersView }[v.type];
       if (fn) sec.appendChild(fn(v, step));
     }
     if (step.images.length) {
@@ -289,13 +289,39 @@ const MocapReport = (() => {
       box.appendChild(h("button", { type: "button", class: "play-derived", on: { click: () => play(p).catch(report) } }, `\u25B6 ${p.clip} over ${p.source_clip} (${p.source_step})`));
     }
     async function play(p) {
-      const [a, b] = await Promise.all([R.load(p.motion), R.load(p.source_motion)]);
+      // a reconstruction from markers: the input markers (red points) beside the skeleton
+      const [a, b] = await Promise.all([R.load(p.motion), R.load(p.markers || p.source_motion)]);
       if (!player) player = newPlayer(stage);
       const T = Math.min(a.meta.n_frames, b.meta.n_frames), frames = Int32Array.from({ length: T }, (_, i) => i);
-      player.setScene({ steps: T, fps: a.meta.fps, tracks: [
-        { label: `input ${p.source_clip}`, color: "#c92a2a", pos: b.pos, nJ, frames, offset: [0, 0, 0], highlight: -1, width: 4 },
+      const input = p.markers
+        ? { label: `input markers ${p.source_clip}`, color: "#c92a2a", pos: b.pos, nJ: b.pos.length / (3 * b.meta.n_frames), frames, offset: [0, 0, 0], highlight: -1, bones: [], points: 3.5 }
+        : { label: `input ${p.source_clip}`, color: "#c92a2a", pos: b.pos, nJ, frames, offset: [0, 0, 0], highlight: -1, width: 4 };
+      player.setScene({ steps: T, fps: a.meta.fps, tracks: [input,
         { label: `${step.id} ${p.clip}`, color: "#1c7ed6", pos: a.pos, nJ, frames, offset: [0, 0, 0], highlight: -1, width: 2 }],
         caption: (s) => `frame ${s}` });
+      player.play();
+    }
+    box.appendChild(stage);
+    return box;
+  }
+
+  function markersView(v, step) {
+    const box = h("div", { class: "view markers" }, h("h3", null, "Marker takes"),
+      h("p", null, `Each take's markers as points (y up; a marker in a gap is not drawn)` +
+        (v.n_clips > v.clips.length ? `; the first ${v.clips.length} of ${v.n_clips} takes.` : ".")));
+    const stage = h("div", { class: "player" });
+    let player = null;
+    for (const c of v.clips) {
+      box.appendChild(h("button", { type: "button", class: "play-markers", on: { click: () => play(c).catch(report) } },
+        `\u25B6 ${c.clip} (${c.n_markers} markers, ${c.n_frames} frames at ${c.fps} fps)`));
+    }
+    async function play(c) {
+      const d = await R.load(c.markers);
+      if (!player) player = newPlayer(stage);
+      const T = d.meta.n_frames, frames = Int32Array.from({ length: T }, (_, i) => i);
+      player.setScene({ steps: T, fps: d.meta.fps, tracks: [
+        { label: `${c.clip}: ${c.n_markers} markers`, color: "#1c4e80", pos: d.pos, nJ: c.n_markers, frames, offset: [0, 0, 0], highlight: -1, bones: [], points: 3.5 }],
+        caption: (s) => `frame ${s} of ${c.clip}` });
       player.play();
     }
     box.appendChild(stage);

@@ -25,7 +25,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework import Matcher
+from mocapflow.framework import Matcher, Removed
 from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace
 
 from .graph import GAPS, PROPAGATE, K, build_graph
@@ -100,6 +100,12 @@ class LazyNeighborhoodGraph(Matcher):
                 "false: the lazy neighbourhood graph"
             ),
         )
+        removed: ClassVar = {
+            "plots": Removed(
+                "the Fig. 3 pictures are matchers.search's `plots` parameter (same PNGs, plots/q<query>_m<rank>.png); "
+                "matchers.lng still draws them for this release"
+            )
+        }
 
     def __init__(self, params=None, **kw) -> None:
         super().__init__(params, **kw)
@@ -115,6 +121,15 @@ class LazyNeighborhoodGraph(Matcher):
         if p.paper:  # the paper's graph: neighbour cells only, every query frame searched, no fallback
             return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p), propagate=0, gaps=0, fill=False)
         return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p))
+
+    def after_match(self, query_id, query, matches, space, ctx) -> None:
+        """The deprecated ``plots`` (:attr:`Params.removed`): its pictures, of this matcher's graph."""
+        n = int(self.params.removed_values().get("plots") or 0)
+        if n:
+            from .plots import plot_matches
+
+            paper = {"propagate": 0, "gaps": 0} if self.params.paper else {}
+            plot_matches(n, query_id, query, matches, space, ctx, k=self.params.k, **paper)
 
     def check_plan(self, base_dir) -> list[str]:
         """The alias's warning at the step's line of the plan (and in the run log)."""
