@@ -17,10 +17,11 @@ import numpy as np
 import pyarrow as pa
 
 from .cleaning import CleanedClip
-from .clip_refs import DatasetRef
+from .clip_refs import DatasetRef, clip_batches
 from .components import Cleaner, Component, FeatureSet, Index, Matcher
 from .context import StepContext
 from .datasets import Dataset, StepOutput, feature_table, frame_id_table
+from .errors import DataError
 from .motion import Motion
 from .queries import run_matcher
 from .registry import Registries
@@ -54,11 +55,31 @@ def run_features(fs: FeatureSet, inputs: Mapping[str, Dataset], ctx: StepContext
         else:
             fs.fit((ref if ref is not None else motions).motions())
         fs.save_state(ctx.out_dir)
-    # clips go out by reference: each worker reads its own from the Parquet file
-    parts = ctx.map_clips(fs.transform_motion, motions, desc=fs.key())
-    x = np.concatenate([np.asarray(p, np.float32) for p in parts], 0) if parts else np.zeros((0, fs.dim), np.float32)
-    clip_id, frame = motions.frame_ids()
-    return StepOutput({"data": feature_table(clip_id, frame, x)})
+    # clips go out by reference: each worker reads its own from the Parquet file; the table
+    # is written a batch of clips at a time, so the step never holds the whole library
+    clips = motions.table("clips", columns=["clip_id", "n_frames"])
+    ids, lengths = clips["clip_id"].to_numpy(), clips["n_frames"].to_numpy().astype(np.int64)
+    out = None
+    batches = clip_batches(motions)
+    for n, (a, b) in enumerate(batches):
+        desc = fs.key() + (f" ({n + 1}/{len(batches)})" if len(batches) > 1 else "")
+        parts = ctx.map_clips(fs.transform_motion, motions, desc=desc, clips=(a, b))
+        x = np.concatenate([np.asarray(p, np.float32) for p in parts], 0)
+        if x.shape[0] != int(lengths[a:b].sum()):
+            raise DataError(
+                f"{fs.key()}: {x.shape[0]} feature rows for {int(lengths[a:b].sum())} frames of clips {a}..{b}"
+            )
+        clip_id = np.repeat(ids[a:b].astype(np.int32), lengths[a:b])
+        frame = (np.arange(len(clip_id)) - np.repeat(np.cumsum(lengths[a:b]) - lengths[a:b], lengths[a:b])).astype(
+            np.int32
+        )
+        table = feature_table(clip_id, frame, x)
+        if out is None:
+            out = ctx.table_writer("data", table.schema)
+        out.write(table)
+    if out is None:
+        return StepOutput({"data": feature_table(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros((0, fs.dim)))})
+    return StepOutput({"data": out})
 
 
 def run_index(index: Index, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
