@@ -160,9 +160,10 @@ def _empty_frames() -> Any:
 BATCH_FRAMES = 262144
 
 
-def clip_batches(dataset: Dataset, max_frames: int = BATCH_FRAMES) -> list[tuple[int, int]]:
+def clip_batches(dataset: Dataset, max_frames: int | None = None) -> list[tuple[int, int]]:
     """Consecutive clip ranges ``[start, stop)`` (positions in ``clips``) of at most
-    ``max_frames`` frames each (a longer clip is a batch of its own)."""
+    ``max_frames`` frames each (default :data:`BATCH_FRAMES`; a longer clip is a batch of its own)."""
+    max_frames = BATCH_FRAMES if max_frames is None else int(max_frames)
     frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy().astype(np.int64)
     out, a, size = [], 0, 0
     for i, t in enumerate(frames):

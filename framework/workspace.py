@@ -397,10 +397,10 @@ class TableWriter:
     into the step's temporary folder (``ctx.table_writer``). Return it in
     ``StepOutput.tables``; the runner closes it with the provenance (:meth:`close`)."""
 
-    def __init__(self, path: Path, schema: pa.Schema, row_group_rows: int = ROW_GROUP_ROWS) -> None:
+    def __init__(self, path: Path, schema: pa.Schema, row_group_rows: int | None = None) -> None:
         self.path = Path(path)
         self.schema = schema
-        self.row_group_rows = int(row_group_rows)
+        self.row_group_rows = int(ROW_GROUP_ROWS if row_group_rows is None else row_group_rows)
         self.num_rows = 0
         self._pending: list[pa.Table] = []
         self._pending_rows = 0
