@@ -35,6 +35,8 @@ BENCHMARKS: dict[str, str] = {
     "startup": "command start-up against `import numpy`, and the quickstart's cold first run",
     "first_run": "the first run after an install (empty numba cache) against the warm run: quickstart, clean",
     "scale": "scale-out: --jobs 2 and the Dask executor against --jobs 1, the sharded kNN index",
+    "search_scale": "global search at library scale (1 M-10 M rows): exact and fast modes against sDTW, source hidden",
+    "build_scale": "building a large library's workspace (ingest, F_E^15, kd-tree): peak RSS, bytes per frame, minutes",
 }
 
 

@@ -155,9 +155,10 @@ def _empty_frames() -> Any:
     return schema.motion_frames().empty_table()
 
 
-#: Frames per batch of a step that streams its output (:func:`clip_batches`): what the
-#: client holds at once (F_E^15 of 262,144 frames: 16 MB), whatever the library's size.
-BATCH_FRAMES = 262144
+#: Frames per batch of a step that streams its output (:func:`clip_batches`): what a
+#: process holds at once (65,536 frames of 31 joints: 65 MB of float64 rotations while they
+#: are turned into features), whatever the library's size.
+BATCH_FRAMES = 65536
 
 
 def clip_batches(dataset: Dataset, max_frames: int | None = None) -> list[tuple[int, int]]:

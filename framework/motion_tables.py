@@ -77,7 +77,7 @@ def split_bytes(x: np.ndarray) -> bytes:
     return np.ascontiguousarray(np.asarray(x, "<f4").view(np.uint8).reshape(-1, 4).T).tobytes()
 
 
-def join_bytes(raw: bytes) -> np.ndarray:
+def join_bytes(raw: Any) -> np.ndarray:
     """Inverse of :func:`split_bytes`: the float32 values."""
     b = np.frombuffer(raw, np.uint8)
     if len(b) % 4:
@@ -85,7 +85,7 @@ def join_bytes(raw: bytes) -> np.ndarray:
     return np.ascontiguousarray(b.reshape(4, -1).T).view("<f4").reshape(-1)
 
 
-def unpack_rotations(largest: bytes, quats: bytes, n_frames: int, n_joints: int) -> np.ndarray:
+def unpack_rotations(largest: Any, quats: Any, n_frames: int, n_joints: int) -> np.ndarray:
     """Inverse of :func:`pack_rotations`: unit quaternions ``(T, J, 4)`` float64."""
     t, j = int(n_frames), int(n_joints)
     big = np.frombuffer(largest, np.uint8).reshape(j, t).T.astype(np.intp)  # (T, J)
@@ -190,13 +190,15 @@ def _database_v2(clips: pa.Table, skel: dict[str, Skeleton], root: np.ndarray, r
     if int(n_frames.sum()) != root.shape[0]:
         raise DataError(f"clips table counts {int(n_frames.sum())} frames, data table has {root.shape[0]}")
     starts = np.concatenate([[0], np.cumsum(n_frames)]).astype(np.int64)
-    quats, largest = rotations["quats"].to_pylist(), rotations["largest"].to_pylist()
+    # the clips' buffers as they lie in the Arrow arrays (no Python bytes copies)
+    quats, largest = rotations["quats"].combine_chunks(), rotations["largest"].combine_chunks()
+    frames_of, joints_of = rotations["n_frames"].to_numpy(), rotations["n_joints"].to_numpy()
     motions, ids = [], []
     for i, row in enumerate(clips.to_pylist()):
         s, n = skel[row["skeleton"]], int(row["n_frames"])
-        if (int(rotations["n_frames"][i].as_py()), int(rotations["n_joints"][i].as_py())) != (n, s.n_joints):
+        if (int(frames_of[i]), int(joints_of[i])) != (n, s.n_joints):
             raise DataError(f"rotations of clip {row['clip_id']} do not match its clips row and skeleton")
-        rot = unpack_rotations(largest[i], quats[i], n, s.n_joints)
+        rot = unpack_rotations(largest[i].as_buffer(), quats[i].as_buffer(), n, s.n_joints)
         meta = {k: row[k] for k in ("path", "format", "subject", "checksum", "source_fps", "source_frames")}
         motions.append(Motion(s, root[starts[i] : starts[i + 1]], rot, row["fps"], name=row["name"], metadata=meta))
         ids.append(row["clip_id"])

@@ -25,6 +25,7 @@ from .errors import DataError
 from .motion import Motion
 from .queries import run_matcher
 from .registry import Registries
+from .workspace import TableWriter
 
 StepFunction = Callable[[Component, Mapping[str, Dataset], StepContext], StepOutput]
 
@@ -44,9 +45,12 @@ def run_step(component: Component, inputs: Mapping[str, Dataset], ctx: StepConte
     return component.run(inputs, ctx)  # raises: no step of its own, none by default
 
 
-def run_features(fs: FeatureSet, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
+def run_features(fs: FeatureSet, inputs: Mapping[str, Dataset], ctx: StepContext, stream: bool = True) -> StepOutput:
     """Features of every clip of ``motions``; a feature set that ``requires_fit`` is fitted on
-    ``reference`` (motions) or loads the model of ``reference`` (a features dataset)."""
+    ``reference`` (motions) or loads the model of ``reference`` (a features dataset). The
+    ``data`` table is streamed to the step's folder a batch of clips at a time (a
+    :class:`~.workspace.TableWriter`); ``stream=False``: returned as one in-memory table (for
+    a step that derives more tables from it)."""
     motions = inputs["motions"]
     if fs.requires_fit:
         ref = inputs.get("reference")
@@ -59,7 +63,7 @@ def run_features(fs: FeatureSet, inputs: Mapping[str, Dataset], ctx: StepContext
     # is written a batch of clips at a time, so the step never holds the whole library
     clips = motions.table("clips", columns=["clip_id", "n_frames"])
     ids, lengths = clips["clip_id"].to_numpy(), clips["n_frames"].to_numpy().astype(np.int64)
-    out = None
+    out: TableWriter | list[pa.Table] | None = None
     batches = clip_batches(motions)
     for n, (a, b) in enumerate(batches):
         desc = fs.key() + (f" ({n + 1}/{len(batches)})" if len(batches) > 1 else "")
@@ -75,11 +79,14 @@ def run_features(fs: FeatureSet, inputs: Mapping[str, Dataset], ctx: StepContext
         )
         table = feature_table(clip_id, frame, x)
         if out is None:
-            out = ctx.table_writer("data", table.schema)
-        out.write(table)
-    if out is None:
+            out = ctx.table_writer("data", table.schema) if stream else []
+        if isinstance(out, list):
+            out.append(table)
+        else:
+            out.write(table)
+    if not out:
         return StepOutput({"data": feature_table(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros((0, fs.dim)))})
-    return StepOutput({"data": out})
+    return StepOutput({"data": pa.concat_tables(out) if isinstance(out, list) else out})
 
 
 def run_index(index: Index, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
