@@ -90,7 +90,6 @@ class ClipSlice:
     stop: int
 
     def _meta(self) -> tuple[Any, Any, np.ndarray, np.ndarray, np.ndarray | None]:
-        import pyarrow.parquet as pq
 
         from .datasets import Dataset
 
@@ -99,12 +98,13 @@ class ClipSlice:
             clips, skeletons = ds.table("clips"), ds.table("skeletons")
             rows = np.concatenate([[0], np.cumsum(clips["n_frames"].to_numpy().astype(np.int64))])
             rot = ds.path / "rotations.parquet"
-            return clips, skeletons, rows, _groups(ds.path / "data.parquet"), _groups(rot) if rot.is_file() else None
-
-        def _groups(path: Any) -> np.ndarray:
-            md = pq.ParquetFile(path).metadata
-            n = [md.row_group(i).num_rows for i in range(md.num_row_groups)]
-            return np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
+            return (
+                clips,
+                skeletons,
+                rows,
+                row_groups(ds.path / "data.parquet"),
+                row_groups(rot) if rot.is_file() else None,
+            )
 
         return cached(("clip-meta", self.path, self.fingerprint), load)
 
@@ -130,23 +130,38 @@ class ClipSlice:
         return database_from_tables(mine, skeletons.take(keep), frames, rotations)
 
     def _rows(self, table: str, groups: np.ndarray, r0: int, r1: int, columns: list[str] | None) -> Any:
-        """Rows ``[r0, r1)`` of one table, from the row groups that hold them (each decoded
-        once per process); ``None`` for no row."""
-        import pyarrow as pa
-        import pyarrow.parquet as pq
+        return read_rows(self.path, self.fingerprint, table, groups, r0, r1, columns)
 
-        g0 = max(int(np.searchsorted(groups, r0, side="right") - 1), 0)
-        g1 = int(np.searchsorted(groups, r1, side="left"))
-        opened: list[pq.ParquetFile] = []
 
-        def read(g: int) -> Any:
-            if not opened:
-                opened.append(pq.ParquetFile(f"{self.path}/{table}.parquet", memory_map=True))
-            return opened[0].read_row_group(g, columns=columns)
+def row_groups(path: Any) -> np.ndarray:
+    """First row of each row group of a Parquet file, and its row count last."""
+    import pyarrow.parquet as pq
 
-        key = ("row-group", self.path, self.fingerprint, table)
-        parts = [cached((*key, g), partial(read, g), entries=_GROUP_ENTRIES) for g in range(g0, g1)]
-        return pa.concat_tables(parts).slice(r0 - int(groups[g0]), r1 - r0) if parts and r1 > r0 else None
+    md = pq.ParquetFile(path).metadata
+    n = [md.row_group(i).num_rows for i in range(md.num_row_groups)]
+    return np.concatenate([[0], np.cumsum(n)]).astype(np.int64)
+
+
+def read_rows(
+    path: str, fingerprint: str, table: str, groups: np.ndarray, r0: int, r1: int, columns: list[str] | None = None
+) -> Any:
+    """Rows ``[r0, r1)`` of one table of a dataset, from the row groups that hold them (each
+    decoded once per process, :func:`row_groups` ``groups``); ``None`` for no row."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    g0 = max(int(np.searchsorted(groups, r0, side="right") - 1), 0)
+    g1 = int(np.searchsorted(groups, r1, side="left"))
+    opened: list[pq.ParquetFile] = []
+
+    def read(g: int) -> Any:
+        if not opened:
+            opened.append(pq.ParquetFile(f"{path}/{table}.parquet", memory_map=True))
+        return opened[0].read_row_group(g, columns=columns)
+
+    key = ("row-group", path, fingerprint, table, tuple(columns or ()))
+    parts = [cached((*key, g), partial(read, g), entries=_GROUP_ENTRIES) for g in range(g0, g1)]
+    return pa.concat_tables(parts).slice(r0 - int(groups[g0]), r1 - r0) if parts and r1 > r0 else None
 
 
 def _empty_frames() -> Any:

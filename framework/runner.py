@@ -159,6 +159,9 @@ class Runner:
         )
         rows = {name: t.num_rows for name, t in output.tables.items()}
         counts = ", ".join(f"{k}: {v} rows" for k, v in rows.items())
+        reused = output.summary.get("reused_clips")
+        if isinstance(reused, int) and reused:  # a step that computed only what changed says so
+            counts += f"; {reused} unchanged clips copied from the last run, only the rest computed"
         self.echo(f"  {step.step_id:<16} {step.key:<28} computed in {seconds:.2f} s ({counts})")
         return StepReport(step.step_id, step.key, "computed", seconds, rows, output.summary)
 

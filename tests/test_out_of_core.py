@@ -196,3 +196,54 @@ def test_a_full_disk_fails_the_step_with_one_message_and_nothing_half_written(tm
     with pytest.raises(PipelineError, match="cannot write its output"):
         run_pipeline(pipeline(tmp_path, index=False), pm=pm(), jobs=1)
     assert not (ws / "motions").exists()
+
+
+def test_adding_takes_reads_only_the_new_files(tmp_path, monkeypatch):
+    """A library grown by a take: the ingest reads only that file (and one whose bytes
+    changed), copies the others' rows, says so, and writes the tables a full ingest writes."""
+    import shutil
+
+    from mocapflow.plugins.formats import steps
+
+    lib = tmp_path / "lib"
+    shutil.copytree(EXAMPLES_DATA / "cmu" / "02", lib / "02")
+    shutil.copytree(EXAMPLES_DATA / "cmu" / "16", lib / "16")
+    moved = sorted((lib / "16").glob("*.amc"))[-1]
+    held = tmp_path / moved.name
+    moved.rename(held)
+
+    def make(ws: str) -> Path:
+        p = tmp_path / f"{ws}.yaml"
+        step = {"uses": "formats.load", "with": {"paths": [str(lib / "**" / "*.amc")], "fps": 30}}
+        p.write_text(yaml.safe_dump({"name": "inc", "workspace": str(tmp_path / ws), "steps": {"motions": step}}))
+        return p
+
+    run_pipeline(make("ws"), pm=pm(), jobs=1)
+    held.rename(moved)  # the new take
+    read = []
+    real = steps._read_motion_rows
+    monkeypatch.setattr(steps, "_read_motion_rows", lambda job: read.append(Path(job[2]).name) or real(job))
+    lines = []
+    reports = run_pipeline(make("ws"), pm=pm(), jobs=1, echo=lines.append)
+    assert read == [moved.name]
+    n = len(list(lib.glob("**/*.amc")))
+    assert reports[0].summary["reused_clips"] == n - 1 and reports[0].summary["read_files"] == 1
+    assert any("unchanged clips copied" in line for line in lines)
+    monkeypatch.setattr(steps, "_read_motion_rows", real)
+    run_pipeline(make("full"), pm=pm(), jobs=1)
+    for name in ("data", "rotations", "clips", "skeletons", "warnings"):
+        a = pq.read_table(tmp_path / "ws" / "motions" / f"{name}.parquet").replace_schema_metadata(None)
+        b = pq.read_table(tmp_path / "full" / "motions" / f"{name}.parquet").replace_schema_metadata(None)
+        assert a.equals(b), name
+    # a file whose bytes changed is read again; other parameters (fps) read everything
+    edited = sorted((lib / "02").glob("*.amc"))[0]
+    edited.write_text(edited.read_text() + "\n")
+    read.clear()
+    monkeypatch.setattr(steps, "_read_motion_rows", lambda job: read.append(Path(job[2]).name) or real(job))
+    run_pipeline(make("ws"), pm=pm(), jobs=1)
+    assert read == [edited.name]
+    p = make("ws")
+    p.write_text(p.read_text().replace("fps: 30", "fps: 20"))
+    read.clear()
+    run_pipeline(p, pm=pm(), jobs=1)
+    assert len(read) == n

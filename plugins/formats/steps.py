@@ -24,6 +24,7 @@ from mocapflow.framework.errors import ConfigError, DataError, MocapflowError, P
 from mocapflow.framework.joints import missing_required
 from mocapflow.framework.motion_tables import clip_row, clips_table, frames_table, rotations_table
 from mocapflow.framework.normalize import resample
+from mocapflow.framework.workspace import MANIFEST
 
 
 def _glob(pattern: str, base: Path) -> list[str]:
@@ -281,9 +282,17 @@ class LoadMotions(_FileIngest):
         warnings: tuple[list[int], list[str], list[list[str]]] = ([], [], [])
         batches = list(_batches([j[2] for j in jobs], max(1, ctx.executor.workers)))
         pending = 0  # frames in the rotations not yet written as a row group
+        prev = _Previous.of(self, ctx)
+        reused = 0
         for n, (a, b) in enumerate(batches):
             desc = f"{ctx.step_id}: reading" + (f" ({n + 1}/{len(batches)})" if len(batches) > 1 else "")
-            results = ctx.map(_read_motion_rows, [(*j, c) for j, c in zip(jobs[a:b], ids[a:b], strict=True)], desc=desc)
+            kept = {i: prev.rows(jobs[i][2], ids[i]) for i in range(a, b)} if prev is not None else {}
+            fresh = [i for i in range(a, b) if kept.get(i) is None]
+            read = ctx.map(_read_motion_rows, [(*jobs[i], ids[i]) for i in fresh], desc=desc) if fresh else []
+            results = [kept.get(i) for i in range(a, b)]
+            for i, r in zip(fresh, read, strict=True):
+                results[i - a] = r
+            reused += (b - a) - len(fresh)
             got, got_ids, bad = self._split(results, ids[a:b])
             rejects += bad
             for g, cid in zip(got, got_ids, strict=True):
@@ -318,7 +327,78 @@ class LoadMotions(_FileIngest):
             "warnings": tables["warnings"].num_rows,
             "skipped_files": n_files - len(jobs),
         }
+        if prev is not None:
+            # a library grown by a few takes: only the new or changed files were read
+            summary["reused_clips"] = reused
+            summary["read_files"] = len(jobs) - reused
         return StepOutput(tables, summary)
+
+
+class _Previous:
+    """The step's previous dataset in the workspace, when the same ingest (component version
+    and every parameter but the file patterns and labels) wrote it: the rows of a file that
+    did not change since (same path, clip id and SHA-1 of its bytes; for AMC, no ASF beside it
+    newer than that dataset) are copied from it instead of read again."""
+
+    IGNORED = ("paths", "exclude", "labels", "label_pattern")
+
+    def __init__(self, ds: Dataset) -> None:
+        from mocapflow.framework.clip_refs import row_groups
+
+        self.ds = ds
+        clips = ds.table("clips").to_pylist()
+        n = np.array([c["n_frames"] for c in clips], np.int64)
+        starts = np.concatenate([[0], np.cumsum(n)])
+        self.by_path = {c["path"]: (i, c, int(starts[i]), int(starts[i + 1])) for i, c in enumerate(clips)}
+        self.skeletons = {r["skeleton"]: r for r in ds.table("skeletons").to_pylist()}
+        self.warnings: dict[int, list[str]] = {}
+        if ds.has_table("warnings"):
+            for w in ds.table("warnings").to_pylist():
+                self.warnings.setdefault(int(w["clip_id"]), []).append(w["message"])
+        self.groups = {t: row_groups(ds.path / f"{t}.parquet") for t in ("data", "rotations")}
+        self.written = (ds.path / MANIFEST).stat().st_mtime
+
+    @classmethod
+    def of(cls, step: LoadMotions, ctx: StepContext) -> _Previous | None:
+        try:
+            ds = Dataset(ctx.workspace / ctx.step_id)
+            same = (
+                ds.producer == step.key()
+                and str(ds.manifest.get("version")) == step.version
+                and ds.has_table("rotations")
+                and {k: v for k, v in ds.manifest.get("params", {}).items() if k not in cls.IGNORED}
+                == {k: v for k, v in step.get_params().items() if k not in cls.IGNORED}
+            )
+            return cls(ds) if same else None
+        except (PipelineError, OSError, ValueError, KeyError):  # none, or not readable: read every file
+            return None
+
+    def rows(self, path: str, clip_id: int) -> dict[str, Any] | None:
+        """:func:`_read_motion_rows`'s result for ``path`` from the previous dataset, or None."""
+        from mocapflow.framework.clip_refs import read_rows
+
+        found = self.by_path.get(path)
+        if found is None or found[1]["clip_id"] != clip_id:
+            return None
+        pos, clip, r0, r1 = found
+        try:
+            if path.lower().endswith(".amc") and any(
+                a.stat().st_mtime >= self.written for a in Path(path).parent.glob("*.asf")
+            ):
+                return None  # its skeleton may have changed
+            if hashlib.sha1(Path(path).read_bytes()).hexdigest() != clip["checksum"]:
+                return None
+        except OSError:
+            return None
+        sk = self.skeletons[clip["skeleton"]]
+        ref = (str(self.ds.path), self.ds.fingerprint)
+        return {
+            "warnings": self.warnings.get(clip_id, []),
+            "frames": read_rows(*ref, "data", self.groups["data"], r0, r1) or schema.motion_frames().empty_table(),
+            "rotations": read_rows(*ref, "rotations", self.groups["rotations"], pos, pos + 1),
+            "clip": clip,
+            "skeleton": (sk["skeleton"], sk["name"], sk["n_joints"], sk["definition"]),
+        }
 
 
 #: A batch of the ingest reads at most this many bytes of files (and this many files per
