@@ -214,8 +214,11 @@ def test_adding_takes_reads_only_the_new_files(tmp_path, monkeypatch):
 
     def make(ws: str) -> Path:
         p = tmp_path / f"{ws}.yaml"
-        step = {"uses": "formats.load", "with": {"paths": [str(lib / "**" / "*.amc")], "fps": 30}}
-        p.write_text(yaml.safe_dump({"name": "inc", "workspace": str(tmp_path / ws), "steps": {"motions": step}}))
+        steps_ = {
+            "motions": {"uses": "formats.load", "with": {"paths": [str(lib / "**" / "*.amc")], "fps": 30}},
+            "fe15": {"uses": "features.end_effectors", "input": "motions", "with": {"joints": 5}},
+        }
+        p.write_text(yaml.safe_dump({"name": "inc", "workspace": str(tmp_path / ws), "steps": steps_}))
         return p
 
     run_pipeline(make("ws"), pm=pm(), jobs=1)
@@ -228,13 +231,16 @@ def test_adding_takes_reads_only_the_new_files(tmp_path, monkeypatch):
     assert read == [moved.name]
     n = len(list(lib.glob("**/*.amc")))
     assert reports[0].summary["reused_clips"] == n - 1 and reports[0].summary["read_files"] == 1
-    assert any("unchanged clips copied" in line for line in lines)
+    assert reports[1].summary["reused_clips"] == n - 1  # the features of the copied clips copied too
+    assert sum("unchanged clips copied" in line for line in lines) == 2
     monkeypatch.setattr(steps, "_read_motion_rows", real)
     run_pipeline(make("full"), pm=pm(), jobs=1)
-    for name in ("data", "rotations", "clips", "skeletons", "warnings"):
-        a = pq.read_table(tmp_path / "ws" / "motions" / f"{name}.parquet").replace_schema_metadata(None)
-        b = pq.read_table(tmp_path / "full" / "motions" / f"{name}.parquet").replace_schema_metadata(None)
-        assert a.equals(b), name
+    for step, name in [("motions", t) for t in ("data", "rotations", "clips", "skeletons", "warnings")] + [
+        ("fe15", "data")
+    ]:
+        a = pq.read_table(tmp_path / "ws" / step / f"{name}.parquet").replace_schema_metadata(None)
+        b = pq.read_table(tmp_path / "full" / step / f"{name}.parquet").replace_schema_metadata(None)
+        assert a.equals(b), (step, name)
     # a file whose bytes changed is read again; other parameters (fps) read everything
     edited = sorted((lib / "02").glob("*.amc"))[0]
     edited.write_text(edited.read_text() + "\n")
@@ -245,5 +251,5 @@ def test_adding_takes_reads_only_the_new_files(tmp_path, monkeypatch):
     p = make("ws")
     p.write_text(p.read_text().replace("fps: 30", "fps: 20"))
     read.clear()
-    run_pipeline(p, pm=pm(), jobs=1)
-    assert len(read) == n
+    reports = run_pipeline(p, pm=pm(), jobs=1)
+    assert len(read) == n and "reused_clips" not in reports[1].summary

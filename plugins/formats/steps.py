@@ -310,6 +310,9 @@ class LoadMotions(_FileIngest):
                 warnings[0].append(cid)
                 warnings[1].append(g["clip"]["path"])
                 warnings[2].append(g.get("warnings", []))
+        reused_ids = [c["clip_id"] for c in clips if c.get("_reused")]
+        for c in clips:
+            c.pop("_reused", None)
         tables = {
             "data": data,
             "rotations": rotations,
@@ -328,9 +331,12 @@ class LoadMotions(_FileIngest):
             "skipped_files": n_files - len(jobs),
         }
         if prev is not None:
-            # a library grown by a few takes: only the new or changed files were read
+            # a library grown by a few takes: only the new or changed files were read; the
+            # clips copied are listed (`reused`) for the steps downstream to copy theirs too
             summary["reused_clips"] = reused
             summary["read_files"] = len(jobs) - reused
+            summary["reused_from"] = prev.ds.fingerprint
+            tables["reused"] = pa.table({"clip_id": pa.array(reused_ids, pa.int32())})
         return StepOutput(tables, summary)
 
 
@@ -396,7 +402,7 @@ class _Previous:
             "warnings": self.warnings.get(clip_id, []),
             "frames": read_rows(*ref, "data", self.groups["data"], r0, r1) or schema.motion_frames().empty_table(),
             "rotations": read_rows(*ref, "rotations", self.groups["rotations"], pos, pos + 1),
-            "clip": clip,
+            "clip": {**clip, "_reused": True},
             "skeleton": (sk["skeleton"], sk["name"], sk["n_joints"], sk["definition"]),
         }
 
