@@ -373,7 +373,11 @@ class _Previous:
                 and str(ds.manifest.get("version")) == step.version
                 and ds.has_table("rotations")
                 and {k: v for k, v in ds.manifest.get("params", {}).items() if k not in cls.IGNORED}
-                == {k: v for k, v in step.get_params().items() if k not in cls.IGNORED}
+                == {
+                    k: v
+                    for k, v in json.loads(json.dumps(step.get_params(), default=str)).items()
+                    if k not in cls.IGNORED
+                }
             )
             return cls(ds) if same else None
         except (PipelineError, OSError, ValueError, KeyError):  # none, or not readable: read every file
