@@ -14,6 +14,7 @@ from .datasets import Dataset
 from .params import Params
 from .progress import progress
 from .registry import Registries
+from .workspace import TableWriter
 
 T = TypeVar("T")
 
@@ -58,12 +59,14 @@ def map_clips(
     desc: str = "",
     with_ids: bool = False,
     slices_per_worker: int = 4,
+    clips: tuple[int, int] | None = None,
 ) -> list[Any]:
     """``[fn(motion) for motion in dataset]`` (``fn(motion, clip_id)`` with ``with_ids``) on
-    ``executor``, in clip order. Workers get :class:`~.clip_refs.ClipSlice` references
+    ``executor``, in clip order; ``clips``: only the clips at positions ``[start, stop)``
+    (a batch of :func:`~.clip_refs.clip_batches`). Workers get :class:`~.clip_refs.ClipSlice` references
     (``slices_per_worker`` each, balanced by frames) and read their clips from Parquet."""
     workers = max(1, int(executor.workers))
-    pieces = clip_slices(dataset, 1 if workers == 1 else workers * slices_per_worker)
+    pieces = clip_slices(dataset, 1 if workers == 1 else workers * slices_per_worker, clips)
     # largest slices first (a long clip started last would finish alone); results back in clip order
     frames = dataset.table("clips", columns=["n_frames"])["n_frames"].to_numpy()
     order = sorted(range(len(pieces)), key=lambda i: -int(frames[pieces[i].start : pieces[i].stop].sum()))
@@ -90,9 +93,22 @@ class StepContext:
         """``[fn(x) for x in items]`` on the executor, in order, with a progress bar."""
         return self.executor.map(fn, items, desc=desc or self.step_id)
 
-    def map_clips(self, fn: Callable[..., T], motions: Dataset, desc: str = "", with_ids: bool = False) -> list[T]:
-        """:func:`map_clips` on the step's executor."""
-        return map_clips(self.executor, fn, motions, desc=desc or self.step_id, with_ids=with_ids)
+    def map_clips(
+        self,
+        fn: Callable[..., T],
+        motions: Dataset,
+        desc: str = "",
+        with_ids: bool = False,
+        clips: tuple[int, int] | None = None,
+    ) -> list[T]:
+        """:func:`map_clips` on the step's executor (``clips``: a range of clip positions)."""
+        return map_clips(self.executor, fn, motions, desc=desc or self.step_id, with_ids=with_ids, clips=clips)
+
+    def table_writer(self, name: str, schema: Any) -> TableWriter:
+        """A table of this step written in pieces (``writer.write(table)`` per batch of
+        clips), so that no step holds the whole library; return it in ``StepOutput.tables``
+        under ``name``."""
+        return TableWriter(self.out_dir / f"{name}.parquet", schema)
 
     def progress(
         self, items: Iterable[T], total: int | None = None, desc: str = "", weights: Sequence[float] | None = None

@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 from . import schema
 from .errors import DataError, PipelineError
 from .schema import fixed_list, fixed_list_to_numpy
-from .workspace import MANIFEST, Workspace
+from .workspace import MANIFEST, TableWriter, Workspace
 
 if TYPE_CHECKING:
     from .database import MotionDatabase
@@ -33,9 +33,10 @@ if TYPE_CHECKING:
 @dataclass
 class StepOutput:
     """What a component's ``run`` returns: named Arrow tables (``"data"`` is the main one)
-    and a free-form summary (shown by the CLI, stored in the manifest)."""
+    and a free-form summary (shown by the CLI, stored in the manifest). A table may be a
+    :class:`~.workspace.TableWriter` the step streamed in pieces (``ctx.table_writer``)."""
 
-    tables: dict[str, pa.Table] = field(default_factory=dict)
+    tables: dict[str, pa.Table | TableWriter] = field(default_factory=dict)
     summary: dict[str, Any] = field(default_factory=dict)
 
 
@@ -140,9 +141,11 @@ class Dataset:
 
         if not self.has_table("clips"):
             raise PipelineError(f"dataset {self.path.name!r} ({self.producer}) holds no motions")
-        return database_from_tables(
-            self.table("clips"), self.table("skeletons"), self.table("data", columns=list(schema.MOTION_COLUMNS))
-        )
+        if self.has_table("rotations"):
+            frames = self.table("data", columns=list(schema.MOTION_COLUMNS))
+            return database_from_tables(self.table("clips"), self.table("skeletons"), frames, self.table("rotations"))
+        frames = self.table("data", columns=list(schema.MOTION_COLUMNS_V1))  # the first layout
+        return database_from_tables(self.table("clips"), self.table("skeletons"), frames)
 
     def index(self, registries: Registries) -> Any:
         """Load the persisted index of an index dataset (no rebuild) with the class that

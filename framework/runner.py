@@ -4,6 +4,7 @@ steps, holding the workspace lock; each output committed atomically with its pro
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import shutil
 import time
@@ -24,9 +25,12 @@ from .plugins import build_registries, call_lifecycle, describe, get_plugin_mana
 from .progress import heartbeat
 from .registry import Registries, did_you_mean
 from .steps import run_step
-from .workspace import Workspace
+from .workspace import Workspace, write_error
 
 log = logging.getLogger("mocapflow")
+
+#: errnos of a write that found no room: the runner says so instead of a traceback
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
 @dataclass
@@ -133,6 +137,8 @@ class Runner:
             ws.write_step(tmp, step.step_id, output.tables, provenance)
         except BaseException as exc:
             shutil.rmtree(tmp, ignore_errors=True)
+            if isinstance(exc, OSError) and exc.errno in _DISK_FULL:  # while the step streamed its tables
+                exc = write_error(exc)
             if isinstance(exc, Exception):
                 try:
                     self._notify("on_step_error", step_id=step.step_id, component=step.component, error=exc)
@@ -153,6 +159,9 @@ class Runner:
         )
         rows = {name: t.num_rows for name, t in output.tables.items()}
         counts = ", ".join(f"{k}: {v} rows" for k, v in rows.items())
+        reused = output.summary.get("reused_clips")
+        if isinstance(reused, int) and reused:  # a step that computed only what changed says so
+            counts += f"; {reused} unchanged clips copied from the last run, only the rest computed"
         self.echo(f"  {step.step_id:<16} {step.key:<28} computed in {seconds:.2f} s ({counts})")
         return StepReport(step.step_id, step.key, "computed", seconds, rows, output.summary)
 

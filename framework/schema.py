@@ -144,28 +144,53 @@ EDITS = pa.schema(
 
 
 #: Columns of a motions dataset's ``data`` table that rebuild its motions (``frame`` is implied).
-MOTION_COLUMNS = ("clip_id", "root_translation", "rotations")
+MOTION_COLUMNS = ("clip_id", "root_translation")
+#: The same in the layout before ``rotations.parquet`` (rotations per frame in ``data``): still read.
+MOTION_COLUMNS_V1 = ("clip_id", "root_translation", "rotations")
 
 
 def motion_frames() -> pa.Schema:
-    """Schema of a motions dataset's frame table.
-
-    ``rotations`` holds the J*4 local quaternion components (w, x, y, z per joint, joints in
-    the order of the clip's skeleton definition in ``skeletons``; variable length across
-    skeletons). Joint positions are not stored: they are derived by forward kinematics
-    (``Motion.positions``) where a step needs them, so FK runs once per use, from the
-    stored rotations, and not also at ingest.
+    """Schema of a motions dataset's frame table (``data``): one row per frame, the root's
+    translation. The local rotations are in the ``rotations`` table (:func:`motion_rotations`),
+    one row per clip. Joint positions are not stored: they are derived by forward kinematics
+    (``Motion.positions``) where a step needs them.
     """
     return pa.schema(
         [
             ("clip_id", pa.int32()),
             ("frame", pa.int32()),
             pa.field("root_translation", pa.list_(pa.float32(), 3), metadata={"layout": "x,y,z of the root (metres)"}),
-            pa.field(
-                "rotations",
-                pa.list_(pa.float32()),
-                metadata={"layout": "w,x,y,z per joint, in the order of skeletons.definition joints"},
-            ),
+        ]
+    )
+
+
+#: Layout of ``rotations.quats`` (see :func:`motion_rotations`).
+ROTATION_LAYOUT = "smallest-three float32, per joint, per kept component, the clip's frames; bytes split by position"
+
+
+def motion_rotations() -> pa.Schema:
+    """Schema of a motions dataset's ``rotations`` table: one row per clip, in ``clips``
+    order, the clip's local joint rotations (unit quaternions w, x, y, z per joint, joints in
+    the order of the skeleton definition) stored compactly and exactly to float32:
+
+    * ``largest`` (J*T bytes, joint-major): which component (0..3 = w, x, y, z) of the
+      quaternion has the largest magnitude; it is dropped, made positive (q and -q are one
+      rotation) and rebuilt as ``sqrt(1 - sum of the other three squared)`` (>= 0.5, so the
+      rebuild keeps float32 accuracy);
+    * ``quats`` (J*3*T float32 values as bytes): the other three components in w, x, y, z
+      order, laid out per joint, per component, then the frames (each series contiguous in
+      time), the little-endian bytes split by position: byte 0 of every value, then byte 1,
+      2, 3 (byte-stream split: smooth values share their high bytes, which zstd packs).
+      ``motion_tables.unpack_rotations`` reads it back. 0.6-0.8x the bytes of the first
+      layout's per-frame w, x, y, z rows.
+    """
+    return pa.schema(
+        [
+            ("clip_id", pa.int32()),
+            ("n_frames", pa.int32()),
+            ("n_joints", pa.int32()),
+            ("largest", pa.binary()),
+            pa.field("quats", pa.binary(), metadata={"layout": ROTATION_LAYOUT}),
         ]
     )
 

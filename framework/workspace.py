@@ -305,10 +305,22 @@ class Workspace:
         tmp.mkdir(parents=True)
         return tmp
 
-    def write_step(self, tmp: Path, step_id: str, tables: Mapping[str, pa.Table], provenance: dict[str, Any]) -> None:
-        """Write a step's tables and manifest into ``tmp`` and commit it as ``<workspace>/<step_id>``."""
-        for name, table in tables.items():
-            write_table(table, tmp / f"{name}.parquet", provenance)
+    def write_step(
+        self, tmp: Path, step_id: str, tables: Mapping[str, pa.Table | TableWriter], provenance: dict[str, Any]
+    ) -> None:
+        """Write a step's tables and manifest into ``tmp`` and commit it as ``<workspace>/<step_id>``.
+
+        A :class:`TableWriter` value is a table the step already streamed into ``tmp``: it
+        gets the provenance and its footer here. A write that fails (a full disk) raises
+        :class:`~.errors.PipelineError` naming the table; the runner then removes ``tmp``."""
+        try:
+            for name, table in tables.items():
+                if isinstance(table, TableWriter):
+                    table.close(provenance)
+                else:
+                    write_table(table, tmp / f"{name}.parquet", provenance)
+        except OSError as exc:
+            raise write_error(exc) from exc
         manifest = {**provenance, "tables": {name: t.num_rows for name, t in tables.items()}}
         # the manifest is written last: a directory without it is never a dataset
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True, default=str))
@@ -343,18 +355,110 @@ def write_table(table: pa.Table, path: Path, provenance: Mapping[str, Any]) -> N
 
     meta = dict(table.schema.metadata or {})
     meta[b"mocapflow"] = json.dumps(provenance, sort_keys=True, default=str).encode()
-    # dictionaries only pay for strings, statistics only for flat columns (DuckDB prunes row
-    # groups on clip_id/frame); both cost seconds on large nested float columns
-    flat = [f.name for f in table.schema if not pa.types.is_nested(f.type)]
-    strings = [f.name for f in table.schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
     pq.write_table(
-        table.replace_schema_metadata(meta),
-        path,
-        compression="zstd",
-        use_dictionary=strings or False,
-        write_statistics=flat or False,
-        row_group_size=ROW_GROUP_ROWS,
+        table.replace_schema_metadata(meta), path, row_group_size=ROW_GROUP_ROWS, **parquet_options(table.schema)
     )
+
+
+def write_error(exc: OSError) -> Exception:
+    """A failed write of a step's output (a full disk, a quota) as one clear error."""
+    from .errors import PipelineError
+
+    what = exc.strerror or str(exc)
+    err = PipelineError(
+        f"cannot write its output ({what}{f': {exc.filename}' if exc.filename else ''}); nothing of the "
+        "step was kept in the workspace: free space (or choose another workspace) and run again"
+    )
+    err.__cause__ = exc
+    return err
+
+
+def parquet_options(schema: pa.Schema) -> dict[str, Any]:
+    """How the runner writes a table: zstd; dictionaries only for strings and statistics only
+    for flat columns (DuckDB prunes row groups on clip_id/frame; both cost seconds on large
+    nested float columns); byte-stream-split for float columns (the bytes of like magnitude
+    together: 10-25 % smaller time series under zstd)."""
+    flat = [f.name for f in schema if not pa.types.is_nested(f.type)]
+    strings = [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
+    floats = [
+        f.name
+        for f in schema
+        if pa.types.is_floating(f.type)
+        or (
+            (pa.types.is_list(f.type) or pa.types.is_fixed_size_list(f.type) or pa.types.is_large_list(f.type))
+            and pa.types.is_floating(f.type.value_type)
+        )
+    ]
+    return {
+        "compression": "zstd",
+        "use_dictionary": strings or False,
+        "write_statistics": flat or False,
+        "use_byte_stream_split": floats or False,
+    }
+
+
+class TableWriter:
+    """A table a step writes in pieces (bounded memory): ``write(table)`` any number of
+    times, rows buffered up to :data:`ROW_GROUP_ROWS` and written as Parquet row groups
+    into the step's temporary folder (``ctx.table_writer``). Return it in
+    ``StepOutput.tables``; the runner closes it with the provenance (:meth:`close`)."""
+
+    def __init__(self, path: Path, schema: pa.Schema, row_group_rows: int | None = None) -> None:
+        self.path = Path(path)
+        self.schema = schema
+        self.row_group_rows = int(ROW_GROUP_ROWS if row_group_rows is None else row_group_rows)
+        self.num_rows = 0
+        self._pending: list[pa.Table] = []
+        self._pending_rows = 0
+        self._writer: Any = None
+        self._closed = False
+
+    def _open(self) -> Any:
+        import pyarrow.parquet as pq
+
+        if self._writer is None:
+            self._writer = pq.ParquetWriter(self.path, self.schema, **parquet_options(self.schema))
+        return self._writer
+
+    def write(self, table: pa.Table) -> None:
+        """Append rows (the writer's schema; columns cast where only the metadata differs)."""
+        if self._closed:
+            raise ValueError(f"{self.path.name}: written after close")
+        if table.num_rows == 0:
+            return
+        if table.schema != self.schema:
+            table = table.cast(self.schema)
+        self._pending.append(table)
+        self._pending_rows += table.num_rows
+        self.num_rows += table.num_rows
+        if self._pending_rows >= self.row_group_rows:
+            self._flush(final=False)
+
+    def _flush(self, final: bool) -> None:
+        if not self._pending:
+            return
+        data = pa.concat_tables(self._pending)
+        cut = data.num_rows if final else data.num_rows - data.num_rows % self.row_group_rows
+        if cut:
+            self._open().write_table(data.slice(0, cut), row_group_size=self.row_group_rows)
+        rest = data.slice(cut)
+        self._pending = [rest] if rest.num_rows else []
+        self._pending_rows = rest.num_rows
+
+    def flush(self) -> None:
+        """Write what is buffered as a row group now (the end of a batch)."""
+        self._flush(final=True)
+
+    def close(self, provenance: Mapping[str, Any] | None = None) -> None:
+        """Write what is buffered, the provenance (key-value metadata ``mocapflow``) and the footer."""
+        if self._closed:
+            return
+        self._flush(final=True)
+        writer = self._open()  # an empty table still gets its file
+        if provenance is not None:
+            writer.add_key_value_metadata({"mocapflow": json.dumps(provenance, sort_keys=True, default=str)})
+        self._closed = True
+        writer.close()
 
 
 #: How many entries of an existing output folder :func:`refuse_dataset_path` inspects before it

@@ -157,7 +157,7 @@ def test_tables_round_trip_with_sparse_unsorted_clip_ids():
     ids = [2_000_000_000, 7, 123_456]
     t = motions_to_tables(ms, ids)
     assert "positions" not in t["data"].column_names
-    back = database_from_tables(t["clips"], t["skeletons"], t["data"])
+    back = database_from_tables(t["clips"], t["skeletons"], t["data"], t["rotations"])
     assert back.clip_ids.tolist() == ids
     for m, r in zip(ms, back.motions, strict=True):
         np.testing.assert_allclose(r.root_translation, m.root_translation, atol=1e-5)

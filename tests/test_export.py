@@ -144,7 +144,7 @@ def test_bandai_rig_survives_write_tables_and_export(tmp_path):
     motion = mocapflow.read(path)
     assert raw.skeleton.names[0] == "joint_Root" and motion.skeleton.names[0] == "Hips"
     t = motions_to_tables([motion])
-    stored = database_from_tables(t["clips"], t["skeletons"], t["data"]).motions[0]
+    stored = database_from_tables(t["clips"], t["skeletons"], t["data"], t["rotations"]).motions[0]
     mocapflow.write(stored.slice(10, 70), tmp_path / "clip.bvh")
     back = read_bvh(tmp_path / "clip.bvh", collapse_static_root=False)
     assert back.skeleton.names == raw.skeleton.names and back.fps == pytest.approx(raw.fps)

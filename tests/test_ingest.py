@@ -219,6 +219,6 @@ def test_rows_built_in_the_workers_equal_motions_to_tables(tmp_path, monkeypatch
     motions = [steps._read_file((by_ext[f.suffix.lower()], {}, str(f), 30.0)) for f in listed]
     assert files and all(not isinstance(m, tuple) for m in motions)
     want = motions_to_tables(motions, step.clip_ids(listed))
-    for name in ("data", "clips", "skeletons"):
+    for name in ("data", "rotations", "clips", "skeletons"):
         got = pq.read_table(ws / f"{name}.parquet").replace_schema_metadata(None)
         assert got.equals(want[name].replace_schema_metadata(None)), name

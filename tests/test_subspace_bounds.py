@@ -103,3 +103,19 @@ def test_subspace_cells_tighter_than_boxes_on_motion_like_rows():
     box = coarse_bounds(np.ascontiguousarray(q.T), lo, hi, link, np.array([[0, len(lo)]], np.int64), 1.0)
     sub = bounds(q, x, cont, 16, 3)
     assert sub.sum() > box.sum()
+
+
+def test_block_subspaces_on_threads_equal_one_thread():
+    """The cells are computed in chunks on numba's threads: the same values as on one."""
+    import numba
+
+    clip_id, frame, x = make_db([3000, 1, 2500], dim=15, seed=9)
+    bstart = block_boxes(x, continues_of(clip_id, frame), 4)[0]
+    width = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = block_subspaces(x, bstart, 3)
+    finally:
+        numba.set_num_threads(width)
+    for a, b in zip(one, block_subspaces(x, bstart, 3), strict=True):
+        np.testing.assert_array_equal(a, b)

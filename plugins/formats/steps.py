@@ -22,8 +22,9 @@ from mocapflow.framework import Format, Markers, Motion, Params, ParseError, Ste
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.errors import ConfigError, DataError, MocapflowError, PipelineError
 from mocapflow.framework.joints import missing_required
-from mocapflow.framework.motion_tables import clip_row, clips_table, frames_table
+from mocapflow.framework.motion_tables import clip_row, clips_table, frames_table, rotations_table
 from mocapflow.framework.normalize import resample
+from mocapflow.framework.workspace import MANIFEST
 
 
 def _glob(pattern: str, base: Path) -> list[str]:
@@ -99,6 +100,7 @@ def _read_motion_rows(job: tuple[type, dict[str, Any], str, float | None, int]) 
     return {
         "warnings": list(motion.metadata.get("warnings") or []),
         "frames": frames_table(clip_id, motion),
+        "rotations": rotations_table(clip_id, motion),
         "clip": clip_row(clip_id, motion),
         "skeleton": (s.fingerprint(), s.name, s.n_joints, json.dumps(s.to_dict())),
     }
@@ -192,12 +194,8 @@ class _FileIngest(Format):
         or where the pipeline is: two ingests of one take give it one id."""
         return schema.clip_ids_of(schema.clip_keys([os.path.realpath(f) for f in files]))
 
-    def _read_all(
-        self, ctx: StepContext, fps: float | None = None, rows: bool = False
-    ) -> tuple[list[Any], list[int], list[tuple], int, int]:
-        """``(objects, their clip ids, rejects as (clip_id, path, line, message), files read,
-        files skipped)``; raises on the first reject with ``on_error: fail``. With ``rows``
-        (motions) the objects are :func:`_read_motion_rows`'s dataset rows, not motions."""
+    def _jobs(self, ctx: StepContext, fps: float | None) -> tuple[list[tuple], list[int], int]:
+        """``(read jobs, their clip ids, files listed)``: one job per file a reader handles."""
         by_ext: dict[str, type] = {}
         for _, cls in ctx.registries["formats"]:
             if getattr(cls, "produces", "") == self.reads:
@@ -212,19 +210,25 @@ class _FileIngest(Format):
         if not jobs:
             raise PipelineError(f"no {self.reads} file matches {self.params.paths} (relative to {ctx.base_dir})")
         # ids of every readable file before reading: a file that fails keeps its would-be id
-        ids = self.clip_ids([Path(j[2]) for j in jobs])
-        if rows:
-            results = ctx.map(
-                _read_motion_rows, [(*j, c) for j, c in zip(jobs, ids, strict=True)], desc=f"{ctx.step_id}: reading"
-            )
-        else:
-            results = ctx.map(_read_file, jobs, desc=f"{ctx.step_id}: reading")
+        return jobs, self.clip_ids([Path(j[2]) for j in jobs]), len(files)
+
+    def _split(self, results: list[Any], ids: list[int]) -> tuple[list[Any], list[int], list[tuple]]:
         good = [r for r in results if not isinstance(r, tuple)]
         good_ids = [c for c, r in zip(ids, results, strict=True) if not isinstance(r, tuple)]
         rejects = [(c, *r) for c, r in zip(ids, results, strict=True) if isinstance(r, tuple)]
         if rejects and self.params.on_error == "fail":
             raise ParseError(*rejects[0][1:])
-        return good, good_ids, rejects, len(jobs), len(files) - len(jobs)
+        return good, good_ids, rejects
+
+    def _read_all(
+        self, ctx: StepContext, fps: float | None = None
+    ) -> tuple[list[Any], list[int], list[tuple], int, int]:
+        """``(objects, their clip ids, rejects as (clip_id, path, line, message), files read,
+        files skipped)``; raises on the first reject with ``on_error: fail``."""
+        jobs, ids, n_files = self._jobs(ctx, fps)
+        results = ctx.map(_read_file, jobs, desc=f"{ctx.step_id}: reading")
+        good, good_ids, rejects = self._split(results, ids)
+        return good, good_ids, rejects, len(jobs), n_files - len(jobs)
 
     @staticmethod
     def _rejects_table(rejects: list[tuple]) -> pa.Table:
@@ -259,38 +263,175 @@ class LoadMotions(_FileIngest):
     name = "load"
     reads = "motion"
     output_kind = "motions"
+    version = "3"  # 3: rotations in their own table, per clip, smallest-three (schema.motion_rotations)
 
     class Params(_FileIngest.Params):
         fps: float | None = Field(default=None, gt=0, description="resample every clip to this rate (Hz)")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         # the same tables as motions_to_tables(motions, ids), built clip by clip in the workers
-        got, ids, rejects, n_files, skipped = self._read_all(ctx, self.params.fps, rows=True)
+        # and streamed to Parquet a batch of files at a time: the step never holds the library
+        jobs, ids, n_files = self._jobs(ctx, self.params.fps)
         if len(set(ids)) != len(ids):
             raise DataError(f"need {len(ids)} distinct clip ids, got {len(set(ids))} distinct of {len(ids)}")
+        data = ctx.table_writer("data", schema.motion_frames())
+        rotations = ctx.table_writer("rotations", schema.motion_rotations())
         skeletons: dict[str, dict[str, Any]] = {}
-        for g in got:  # first occurrence order, as skeletons_table
-            key, name, n_joints, definition = g["skeleton"]
-            skeletons.setdefault(key, {"skeleton": key, "name": name, "n_joints": n_joints, "definition": definition})
+        clips: list[dict[str, Any]] = []
+        rejects: list[tuple] = []
+        warnings: tuple[list[int], list[str], list[list[str]]] = ([], [], [])
+        batches = list(_batches([j[2] for j in jobs], max(1, ctx.executor.workers)))
+        pending = 0  # frames in the rotations not yet written as a row group
+        prev = _Previous.of(self, ctx)
+        reused = 0
+        for n, (a, b) in enumerate(batches):
+            desc = f"{ctx.step_id}: reading" + (f" ({n + 1}/{len(batches)})" if len(batches) > 1 else "")
+            kept = {i: prev.rows(jobs[i][2], ids[i]) for i in range(a, b)} if prev is not None else {}
+            fresh = [i for i in range(a, b) if kept.get(i) is None]
+            read = ctx.map(_read_motion_rows, [(*jobs[i], ids[i]) for i in fresh], desc=desc) if fresh else []
+            results = [kept.get(i) for i in range(a, b)]
+            for i, r in zip(fresh, read, strict=True):
+                results[i - a] = r
+            reused += (b - a) - len(fresh)
+            got, got_ids, bad = self._split(results, ids[a:b])
+            rejects += bad
+            for g, cid in zip(got, got_ids, strict=True):
+                key, name, n_joints, definition = g["skeleton"]  # first occurrence order, as skeletons_table
+                skeletons.setdefault(
+                    key, {"skeleton": key, "name": name, "n_joints": n_joints, "definition": definition}
+                )
+                data.write(g["frames"])
+                rotations.write(g["rotations"])
+                pending += g["clip"]["n_frames"]
+                if pending >= ROTATION_GROUP_FRAMES:  # a clip slice decodes only the groups it needs
+                    rotations.flush()
+                    pending = 0
+                clips.append(g["clip"])
+                warnings[0].append(cid)
+                warnings[1].append(g["clip"]["path"])
+                warnings[2].append(g.get("warnings", []))
+        reused_ids = [c["clip_id"] for c in clips if c.get("_reused")]
+        for c in clips:
+            c.pop("_reused", None)
         tables = {
-            "data": pa.concat_tables([g["frames"] for g in got]) if got else schema.motion_frames().empty_table(),
-            "clips": clips_table([g["clip"] for g in got]),
+            "data": data,
+            "rotations": rotations,
+            "clips": clips_table(clips),
             "skeletons": pa.Table.from_pylist(list(skeletons.values()), schema=schema.SKELETONS),
             "rejects": self._rejects_table(rejects),
-            "warnings": self._warnings_table(
-                ids, [g["clip"]["path"] for g in got], [g.get("warnings", []) for g in got]
-            ),
-            **self._labels([g["clip"] for g in got], ctx.base_dir),
+            "warnings": self._warnings_table(*warnings),
+            **self._labels(clips, ctx.base_dir),
         }
         summary = {
-            "files": n_files,
-            "clips": len(got),
-            "frames": int(sum(g["clip"]["n_frames"] for g in got)),
+            "files": len(jobs),
+            "clips": len(clips),
+            "frames": int(sum(c["n_frames"] for c in clips)),
             "rejects": len(rejects),
             "warnings": tables["warnings"].num_rows,
-            "skipped_files": skipped,
+            "skipped_files": n_files - len(jobs),
         }
+        if prev is not None:
+            # a library grown by a few takes: only the new or changed files were read; the
+            # clips copied are listed (`reused`) for the steps downstream to copy theirs too
+            summary["reused_clips"] = reused
+            summary["read_files"] = len(jobs) - reused
+            summary["reused_from"] = prev.ds.fingerprint
+            tables["reused"] = pa.table({"clip_id": pa.array(reused_ids, pa.int32())})
         return StepOutput(tables, summary)
+
+
+class _Previous:
+    """The step's previous dataset in the workspace, when the same ingest (component version
+    and every parameter but the file patterns and labels) wrote it: the rows of a file that
+    did not change since (same path, clip id and SHA-1 of its bytes; for AMC, no ASF beside it
+    newer than that dataset) are copied from it instead of read again."""
+
+    IGNORED = ("paths", "exclude", "labels", "label_pattern")
+
+    def __init__(self, ds: Dataset) -> None:
+        from mocapflow.framework.clip_refs import row_groups
+
+        self.ds = ds
+        clips = ds.table("clips").to_pylist()
+        n = np.array([c["n_frames"] for c in clips], np.int64)
+        starts = np.concatenate([[0], np.cumsum(n)])
+        self.by_path = {c["path"]: (i, c, int(starts[i]), int(starts[i + 1])) for i, c in enumerate(clips)}
+        self.skeletons = {r["skeleton"]: r for r in ds.table("skeletons").to_pylist()}
+        self.warnings: dict[int, list[str]] = {}
+        if ds.has_table("warnings"):
+            for w in ds.table("warnings").to_pylist():
+                self.warnings.setdefault(int(w["clip_id"]), []).append(w["message"])
+        self.groups = {t: row_groups(ds.path / f"{t}.parquet") for t in ("data", "rotations")}
+        self.written = (ds.path / MANIFEST).stat().st_mtime
+
+    @classmethod
+    def of(cls, step: LoadMotions, ctx: StepContext) -> _Previous | None:
+        try:
+            ds = Dataset(ctx.workspace / ctx.step_id)
+            same = (
+                ds.producer == step.key()
+                and str(ds.manifest.get("version")) == step.version
+                and ds.has_table("rotations")
+                and {k: v for k, v in ds.manifest.get("params", {}).items() if k not in cls.IGNORED}
+                == {
+                    k: v
+                    for k, v in json.loads(json.dumps(step.get_params(), default=str)).items()
+                    if k not in cls.IGNORED
+                }
+            )
+            return cls(ds) if same else None
+        except (PipelineError, OSError, ValueError, KeyError):  # none, or not readable: read every file
+            return None
+
+    def rows(self, path: str, clip_id: int) -> dict[str, Any] | None:
+        """:func:`_read_motion_rows`'s result for ``path`` from the previous dataset, or None."""
+        from mocapflow.framework.clip_refs import read_rows
+
+        found = self.by_path.get(path)
+        if found is None or found[1]["clip_id"] != clip_id:
+            return None
+        pos, clip, r0, r1 = found
+        try:
+            if path.lower().endswith(".amc") and any(
+                a.stat().st_mtime >= self.written for a in Path(path).parent.glob("*.asf")
+            ):
+                return None  # its skeleton may have changed
+            if hashlib.sha1(Path(path).read_bytes()).hexdigest() != clip["checksum"]:
+                return None
+        except OSError:
+            return None
+        sk = self.skeletons[clip["skeleton"]]
+        ref = (str(self.ds.path), self.ds.fingerprint)
+        return {
+            "warnings": self.warnings.get(clip_id, []),
+            "frames": read_rows(*ref, "data", self.groups["data"], r0, r1) or schema.motion_frames().empty_table(),
+            "rotations": read_rows(*ref, "rotations", self.groups["rotations"], pos, pos + 1),
+            "clip": {**clip, "_reused": True},
+            "skeleton": (sk["skeleton"], sk["name"], sk["n_joints"], sk["definition"]),
+        }
+
+
+#: A batch of the ingest reads at most this many bytes of files (and this many files per
+#: worker): what the client holds at once is one batch's rows, whatever the library's size.
+BATCH_BYTES = 96 << 20
+#: Frames per row group of the ``rotations`` table (one row per clip; a row group ends at the
+#: first clip past this many frames): ~10 MB of a 31-joint skeleton's rotations.
+ROTATION_GROUP_FRAMES = 65536
+BATCH_FILES_PER_WORKER = 64
+
+
+def _batches(paths: list[str], workers: int) -> list[tuple[int, int]]:
+    """Consecutive ``[a, b)`` ranges of ``paths`` of at most :data:`BATCH_BYTES` of files
+    (at least one file) and ``BATCH_FILES_PER_WORKER`` files per worker."""
+    out, a, size = [], 0, 0
+    for i, p in enumerate(paths):
+        size += os.path.getsize(p) if os.path.isfile(p) else 0
+        if size >= BATCH_BYTES or i + 1 - a >= BATCH_FILES_PER_WORKER * workers:
+            out.append((a, i + 1))
+            a, size = i + 1, 0
+    if a < len(paths):
+        out.append((a, len(paths)))
+    return out
 
 
 class LoadMarkers(_FileIngest):

@@ -199,7 +199,7 @@ class RelationalFeatures(FeatureSet):
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.steps import run_features
 
-        out = run_features(self, inputs, ctx)
+        out = run_features(self, inputs, ctx, stream=False)  # the codes are derived from the whole table
         data = out.tables["data"]
         from mocapflow.framework.datasets import fixed_list_to_numpy
 

@@ -293,7 +293,8 @@ class ModelBuilder:
         out["small_tables"] = {
             t: small_table(ds.table(t))
             for t in names
-            if t not in ("clips", "skeletons") and int(m.get("tables", {}).get(t, 10**9)) <= SMALL_TABLE_ROWS
+            if t not in ("clips", "skeletons", "rotations")
+            and int(m.get("tables", {}).get(t, 10**9)) <= SMALL_TABLE_ROWS
         }
         return out
 

@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import Field
 
 from mocapflow.framework import Index, Params
-from mocapflow.framework.errors import ConfigError, DataError
+from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 
 from .cost_model import CostModel
 
@@ -53,6 +53,21 @@ _ARRAYS = tuple(
     f"{a}_"
     for a in ["data", "perm", "groups", "frames", "sqnorms", "mean", "start", "end", "left", "right", "sdim", "sval"]
 )
+
+
+#: What an index saved with ``rows_from`` keeps: the tree, not the rows (read from the features).
+_TREE_ARRAYS = tuple(a for a in _ARRAYS if a not in ("data_", "groups_", "frames_", "sqnorms_"))
+#: 1: every array and rows_*.npy; 2: also ``rows_from`` (the tree only, rows read from the features dataset).
+INDEX_LAYOUT = 2
+
+
+def _sqnorms(data: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """Squared norms of the rows centred on ``mean``, in blocks (no transient centred copy)."""
+    out = np.empty(data.shape[0], np.float32)
+    for a in range(0, data.shape[0], 65536):
+        c = data[a : a + 65536] - mean
+        out[a : a + 65536] = np.einsum("ij,ij->i", c, c)
+    return out
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
@@ -166,10 +181,8 @@ class KDTreeIndex(CostModel, Index):
         self.perm_, self.groups_, self.frames_ = perm, g[perm], f[perm]
         self.start_, self.end_, self.left_, self.right_, self.sdim_, self.sval_ = start, end, left, right, sdim, sval
         self.mean_ = self.data_.mean(0, dtype=np.float64).astype(np.float32) if n else np.zeros(x.shape[1], np.float32)
-        self.sqnorms_ = np.empty(n, np.float32)
-        for a in range(0, n, 65536):  # in blocks: no transient centred copy of the features
-            c = self.data_[a : a + 65536] - self.mean_
-            self.sqnorms_[a : a + 65536] = np.einsum("ij,ij->i", c, c)
+        self.sqnorms_ = _sqnorms(self.data_, self.mean_)
+        self._rows = None
         self.probe_ = {}
         self.method_, self.brute_from_k_, self.large_method_ = self.params.method, None, "brute"
         if self.method_ == "auto":
@@ -408,37 +421,60 @@ class KDTreeIndex(CostModel, Index):
             raise DataError(f"{self.key()}: index not built (call build() or load())")
 
     # --- persistence ------------------------------------------------------------------
-    def save(self, directory: Path) -> None:
-        """Write the index arrays (``.npy``) and ``index.json``; :meth:`load` does not rebuild."""
+    def save(self, directory: Path, rows_from: Dataset | None = None) -> None:
+        """Write the index arrays (``.npy``) and ``index.json``; :meth:`load` does not rebuild.
+
+        ``rows_from``: the finished features dataset the index was built over, in the same
+        workspace (the pipeline step passes its input). Then the features are not copied: the
+        index keeps the tree (nodes and the row permutation, ~5 bytes a row) and :meth:`load`
+        reads the rows from that dataset. Without it (an index saved by hand, a shard) every
+        array is written, the rows also in dataset order (``rows_*.npy``) for :meth:`rows`.
+        """
         self._check_built()
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        for a in _ARRAYS:
-            np.save(d / f"{a.rstrip('_')}.npy", getattr(self, a))
-        # the rows in dataset order (features, clip id, frame) beside the tree: `mocapflow
-        # search` memory-maps them instead of decoding the features Parquet (1 s at 1 M rows)
-        inv = self._inverse_perm()
-        for name, arr in (("rows_features", self.data_), ("rows_clip_id", self.groups_), ("rows_frame", self.frames_)):
-            np.save(d / f"{name}.npy", arr[inv])
+        own = _TREE_ARRAYS if rows_from is not None else _ARRAYS
+        for a in own:
+            arr = getattr(self, a)
+            if a == "perm_" and rows_from is not None and len(arr) < 2**31:
+                arr = arr.astype(np.int32)  # 4 bytes a row on disk; int64 again once loaded
+            np.save(d / f"{a.rstrip('_')}.npy", arr)
+        if rows_from is None:
+            # the rows in dataset order (features, clip id, frame) beside the tree: `mocapflow
+            # search` memory-maps them instead of decoding the features Parquet
+            inv = self._inverse_perm()
+            for name, a in (
+                ("rows_features", self.data_),
+                ("rows_clip_id", self.groups_),
+                ("rows_frame", self.frames_),
+            ):
+                np.save(d / f"{name}.npy", a[inv])
         meta = {
             "component": self.key(),
             "params": self.get_params(),
+            "layout": INDEX_LAYOUT,
             "method": self.method_,
             "brute_from_k": self.brute_from_k_,
             "large_method": getattr(self, "large_method_", "brute"),
             "probe": self.probe_,
         }
+        if rows_from is not None:
+            meta["rows_from"] = {"step": rows_from.step, "fingerprint": rows_from.fingerprint}
         (d / "index.json").write_text(json.dumps(meta, indent=1))
 
     def rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """``(features, clip_id, frame)`` of the indexed rows in dataset order, memory-mapped
-        (copy-on-write) from the sidecar files :meth:`save` writes (``None`` for an index saved
-        before them, or one never saved): what a search space needs, with nothing copied.
+        """``(features, clip_id, frame)`` of the indexed rows in dataset order: read from the
+        features dataset for an index that references it (read once, at load), else
+        memory-mapped (copy-on-write) from the sidecar files :meth:`save` writes (``None`` for
+        an index saved before them, or one never saved): what a search space needs.
 
         Returns
         -------
         tuple of ndarray (n, d) float32, (n,) int32, (n,) int32, or None
         """
+        own = getattr(self, "_rows", None)
+        if own is not None:
+            return own
         d = getattr(self, "_dir", None)
         if d is None or not all((d / f"rows_{n}.npy").is_file() for n in ("features", "clip_id", "frame")):
             return None
@@ -453,17 +489,62 @@ class KDTreeIndex(CostModel, Index):
         if not (d / "index.json").is_file():
             raise DataError(f"{d} holds no saved {cls.name} index (no index.json)")
         meta = json.loads((d / "index.json").read_text())
+        layout = int(meta.get("layout", 1))
+        if layout > INDEX_LAYOUT:
+            raise DataError(
+                f"{d}: index layout {layout} was written by a newer mocapflow (this one reads up to {INDEX_LAYOUT}): "
+                "upgrade mocapflow, or rebuild the index with `mocapflow run PIPELINE --force`"
+            )
+        ref = meta.get("rows_from")
+        arrays = _TREE_ARRAYS if ref else _ARRAYS
+        missing = [f"{a.rstrip('_')}.npy" for a in arrays if not (d / f"{a.rstrip('_')}.npy").is_file()]
+        if missing:
+            raise DataError(
+                f"{d}: index incomplete or built by an older version (missing {', '.join(missing)}): "
+                "rebuild it with `mocapflow run PIPELINE --force`"
+            )
         # parameters that became build settings (leafsize, probe_*) are ignored in older indexes
         self = cls({k: v for k, v in meta["params"].items() if k in cls.Params.model_fields})
-        for a in _ARRAYS:
+        self._inv = self._depth = self._raw_bound = self._boxes = self._targs = None
+        for a in arrays:
             # memory-mapped copy-on-write: nothing is read before a query touches it, and the
             # arrays stay writable ndarrays (the kernels' one signature)
             arr = np.load(d / f"{a.rstrip('_')}.npy", mmap_mode="c")
             setattr(self, a, arr.view(np.ndarray) if isinstance(arr, np.memmap) else arr)
+        if ref:
+            self._attach_rows(d, ref)
         self.method_, self.probe_, self.brute_from_k_ = meta["method"], meta["probe"], meta.get("brute_from_k")
         self.large_method_ = meta.get("large_method", "brute")
         self._dir = d
         return self
+
+    def _attach_rows(self, d: Path, ref: dict) -> None:
+        """The rows of an index saved with ``rows_from``: read from that features dataset (the
+        step ``ref["step"]`` of the index's workspace), checked against its fingerprint."""
+        from mocapflow.framework.datasets import Dataset
+
+        src = d.parent.parent / str(ref["step"])
+        try:
+            ds = Dataset(src)
+            fp = ds.fingerprint
+        except (OSError, ValueError, KeyError, PipelineError):  # a missing or unreadable dataset: one message
+            fp = None
+        if fp != ref.get("fingerprint"):
+            state = "is missing" if fp is None else "has changed since"
+            raise DataError(
+                f"{d}: the index reads its rows from the features dataset {src}, which {state} the index was "
+                "built: rebuild the index with `mocapflow run PIPELINE` (or --force)"
+            )
+        feats = ds.features()
+        perm = np.asarray(self.perm_, np.int64)
+        if len(perm) != feats.x.shape[0]:
+            raise DataError(f"{d}: {len(perm)} indexed rows, features dataset {src} has {feats.x.shape[0]}")
+        self.perm_ = perm
+        self.data_ = feats.x[perm]
+        self.groups_, self.frames_ = feats.clip_id[perm], feats.frame[perm]
+        self.sqnorms_ = _sqnorms(self.data_, self.mean_)
+        x = feats.x if feats.x.flags.writeable else feats.x.copy()  # writable: the kernels' one signature
+        self._rows = (x, feats.clip_id, feats.frame)
 
     # --- pipeline step ----------------------------------------------------------------
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
@@ -471,7 +552,7 @@ class KDTreeIndex(CostModel, Index):
 
         feats = inputs["features"].features()
         self.build(feats.x, groups=feats.clip_id, frames=feats.frame)
-        self.save(ctx.out_dir / "index")
+        self.save(ctx.out_dir / "index", rows_from=inputs["features"])
         summary = {
             "method": self.method_,
             "brute_from_k": self.brute_from_k_,
