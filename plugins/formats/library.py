@@ -95,7 +95,7 @@ class LoadLibrary(Format):
 
     name = "library"
     is_step = True
-    version = "1"
+    version = "2"  # 2: rotations in their own table, per clip (formats.load version 3)
     inputs: Mapping[str, bool] = {}
     output_kind = "motions"
 
@@ -204,7 +204,7 @@ class LoadLibrary(Format):
         fresh: dict[str, Any] = {job[2]: r for job, r in zip(jobs, results, strict=True)}
         kept = _kept_rows(prev, {str(f): (before["clip_id"], ids[f]) for f, before in reuse.items()})
 
-        frames, clips, warnings = [], [], []
+        frames, rotations, clips, warnings = [], [], [], []
         skeletons: dict[str, dict[str, Any]] = {}
         status = {r["path"]: r for r in file_rows}
         for f in motion_files:
@@ -218,6 +218,7 @@ class LoadLibrary(Format):
                 status[p]["rejected"] = True
                 continue
             frames.append(got["frames"])
+            rotations.append(got["rotations"])
             clips.append(got["clip"])
             warnings.extend({"clip_id": ids[f], "path": p, "line": None, "message": w} for w in got["warnings"])
             key, sk_name, n_joints, definition = got["skeleton"]
@@ -227,6 +228,7 @@ class LoadLibrary(Format):
         removed = sorted(set(old) - set(status))
         tables = {
             "data": pa.concat_tables(frames) if frames else schema.motion_frames().empty_table(),
+            "rotations": pa.concat_tables(rotations) if rotations else schema.motion_rotations().empty_table(),
             "clips": clips_table(clips),
             "skeletons": pa.Table.from_pylist(list(skeletons.values()), schema=schema.SKELETONS),
             "rejects": _FileIngest._rejects_table(rejects),
@@ -266,6 +268,9 @@ def _kept_rows(prev: Dataset | None, keep: Mapping[str, tuple[int, int]]) -> dic
     wanted = {old for p, (old, _) in keep.items() if p not in out and old in old_clips}
     if not wanted:
         return out
+    rot = prev.table("rotations")
+    rot = rot.filter(pc.is_in(rot["clip_id"], pa.array(sorted(wanted), pa.int32())))
+    rot_of = {int(c): i for i, c in enumerate(rot["clip_id"].to_pylist())}
     data = prev.table("data")
     data = data.filter(pc.is_in(data["clip_id"], pa.array(sorted(wanted), pa.int32())))
     cid = data["clip_id"].to_numpy()
@@ -278,10 +283,13 @@ def _kept_rows(prev: Dataset | None, keep: Mapping[str, tuple[int, int]]) -> dic
         a, b = np.searchsorted(cid, [old, old + 1])
         rows = data.slice(int(a), int(b - a))
         rows = rows.set_column(0, "clip_id", pa.array(np.full(rows.num_rows, new, np.int32)))
+        r = rot.slice(rot_of[old], 1)
+        r = r.set_column(0, "clip_id", pa.array([new], pa.int32()))
         clip = {**old_clips[old], "clip_id": new}
         s = sk[clip["skeleton"]]
         out[path] = {
             "frames": rows,
+            "rotations": r,
             "clip": clip,
             "warnings": warn.get(path, []),
             "skeleton": (s["skeleton"], s["name"], s["n_joints"], s["definition"]),
