@@ -410,12 +410,19 @@ def fbx_many_bombs(folder: Path) -> Case:
 
 
 def fbx_far_key(folder: Path) -> Case:
-    """One key time of one curve moved to +83,000 s."""
+    """One key time of one curve moved to +83,000 s, and the take's stop with it (a take
+    span is the timeline the reader follows; keys past it are outside the take)."""
     _v, root = walk_fbx()
     curve = _curves(root)[0]
     kt = next(c for c in curve.children if c.name == "KeyTime")
     kt.props[0] = kt.props[0].copy()
     kt.props[0][-1] = 83_000 * 46_186_158_000
+    objects = next(c for c in root.children if c.name == "Objects")
+    stack = [n for n in objects.children if n.name == "AnimationStack"]
+    for p70 in (c for n in stack for c in n.children if c.name == "Properties70"):
+        for prop in p70.children:
+            if prop.props and prop.props[0] in ("LocalStop", "ReferenceStop"):
+                prop.props[-1] = 83_000 * 46_186_158_000
     p = folder / "far.fbx"
     p.write_bytes(fbx_bytes(root))
     return Case("FBX key at +83,000 s", p, "far or corrupt key")
