@@ -681,21 +681,26 @@ def _is_nested(t: pa.DataType) -> bool:
     )
 
 
+def _is_binary(t: pa.DataType) -> bool:
+    return bool(pa.types.is_binary(t) or pa.types.is_large_binary(t) or pa.types.is_fixed_size_binary(t))
+
+
 def flat_table(table: pa.Table) -> pa.Table:
     """``table`` with every nested column (list, fixed-size list, struct, map: feature
-    vectors, paths, label lists) as JSON text, so a CSV writer takes it; other columns
-    unchanged. A map becomes a JSON list of ``[key, value]`` pairs, as Arrow gives it."""
-    if not any(_is_nested(f.type) for f in table.schema):
+    vectors, paths, label lists) as JSON text and every binary column (packed rotations) as
+    hex text, so a CSV writer takes it; other columns unchanged. A map becomes a JSON list
+    of ``[key, value]`` pairs, as Arrow gives it."""
+    if not any(_is_nested(f.type) or _is_binary(f.type) for f in table.schema):
         return table
-    cols = [
-        pa.array(
-            [None if v is None else json.dumps(_json_value(v), separators=(",", ":")) for v in c.to_pylist()],
-            pa.string(),
-        )
-        if _is_nested(c.type)
-        else c
-        for c in table.columns
-    ]
+    cols = []
+    for c in table.columns:
+        if _is_nested(c.type):
+            vals = [None if v is None else json.dumps(_json_value(v), separators=(",", ":")) for v in c.to_pylist()]
+            cols.append(pa.array(vals, pa.string()))
+        elif _is_binary(c.type):
+            cols.append(pa.array([None if v is None else bytes(v).hex() for v in c.to_pylist()], pa.string()))
+        else:
+            cols.append(c)
     return pa.Table.from_arrays(cols, names=table.column_names)
 
 
