@@ -162,7 +162,7 @@ steps:
     q0 = [h for h in hits if h["query_id"] == 0]
     assert q0[0]["rank"] == 1 and clips[q0[0]["clip_id"]] == Path_stem(files[0]) and q0[0]["cost"] == 0.0
     assert all("kick" in clips[h["clip_id"]] for h in q0)
-    assert q0[0]["path"][0] == [q0[0]["start_frame"], q0[0]["start_frame"]]
+    assert q0[0]["path_analysis"][0] == [q0[0]["start_frame_analysis"], q0[0]["start_frame_analysis"]]
     assert {clips[h["clip_id"]] for h in hits if h["query_id"] == 1} == {Path_stem(f) for f in files[:2]}
     segs = pq.read_table(tmp_path / "ws" / "inverted" / "data.parquet")
     assert set(segs.column_names) >= {"feature_set", "clip_id", "start_frame", "end_frame", "code"}
