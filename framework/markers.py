@@ -76,17 +76,24 @@ class Markers:
 
 
 def to_y_up(markers: Markers) -> Markers:
-    """Rotate ``+z``/``-z``-up markers to y-up by -/+90 degrees about x (handedness kept)."""
+    """Rotate markers whose up axis is any of ``+-x``, ``-y``, ``+-z`` to y-up by a proper
+    rotation (handedness kept): -/+90 degrees about x for ``+z``/``-z``, +/-90 degrees about z
+    for ``+x``/``-x``, 180 degrees about z for ``-y``."""
     up = markers.metadata.get("up_axis", "+y")
     if up == "+y":
         return markers
     p = markers.positions
-    if up == "+z":
-        out = np.stack([p[..., 0], p[..., 2], -p[..., 1]], axis=-1)
-    elif up == "-z":  # +90 degrees about x
-        out = np.stack([p[..., 0], -p[..., 2], p[..., 1]], axis=-1)
-    else:
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    rotations = {
+        "+z": (x, z, -y),
+        "-z": (x, -z, y),
+        "+x": (-y, x, z),
+        "-x": (y, -x, z),
+        "-y": (-x, -y, z),
+    }
+    if up not in rotations:
         raise DataError(f"markers {markers.name!r}: cannot convert up axis {up!r} to +y")
+    out = np.stack(rotations[up], axis=-1)
     return replace(markers, positions=out, metadata=dict(markers.metadata, up_axis="+y", converted_from_up_axis=up))
 
 

@@ -165,3 +165,14 @@ def test_c3d_missing_package_message(tmp_path: Path, monkeypatch: pytest.MonkeyP
     (tmp_path / "a.c3d").write_bytes(b"\x02\x50" + bytes(600))
     with pytest.raises(MocapflowError, match=r"pip install mocapflow\[c3d\]"):
         read_c3d(tmp_path / "a.c3d")
+
+
+@pytest.mark.parametrize("up", ["+x", "-x", "-y", "+z", "-z"])
+def test_to_y_up_maps_every_up_axis_to_plus_y_by_a_rotation(up):
+    axis = {"x": 0, "y": 1, "z": 2}[up[1]]
+    basis = np.eye(3)[None]  # one frame, three markers on the unit axes
+    mk = Markers(name="m", labels=("a", "b", "c"), positions=basis.copy(), fps=100.0, metadata={"up_axis": up})
+    out = to_y_up(mk).positions[0]
+    # the up marker lands on +y, and the map is a proper rotation (no mirror)
+    np.testing.assert_allclose(out[axis] * (1 if up[0] == "+" else -1), [0, 1, 0])
+    assert np.isclose(np.linalg.det(out), 1.0)
