@@ -372,6 +372,7 @@ def server_requests(tmp: Path) -> list[tuple[str, str, float, float]]:
 
         outcome, sec, peak = _peak(go)
         out.append(("server request", f"{name}: {outcome}", sec, peak))
+    return out
 
 
 def _toy_workspace(tmp: Path) -> Path:
