@@ -576,7 +576,7 @@ def main(argv: list[str] | None = None) -> int:
 
         hostile = Path(tmp) / "hostile"
         hostile.mkdir()
-        status |= int(run_all(hostile) > 0)
+        status |= int(run_all(hostile, quick=args.quick) > 0)
     status |= fuzz_requests(n_req, args.seed) if n_req else 0
     return status | (fuzz_scenes(n_scene, args.seed, args.timeout) if n_scene else 0)
 
