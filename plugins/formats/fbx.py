@@ -62,8 +62,8 @@ _CHANNELS = {"Lcl Translation": "t", "Lcl Rotation": "r", "Lcl Scaling": "s"}
 #: Largest |value| of a transform property or key (file units up to millimetres, degrees):
 #: above any real scene, below the overflow of the products that follow.
 _MAX_VALUE = 1.0e9
-#: Deepest model hierarchy (a skeleton is < 100 deep): each joint's chain of ancestors is
-#: walked, so this bounds the work to joints x depth.
+#: Deepest model hierarchy (a skeleton is < 100 deep); the common-root search is linear in
+#: the models whatever the shape (:func:`._nodes.common_root`).
 MAX_MODEL_DEPTH = 1_000
 #: Largest |key time| in KTime ticks: 10^7 s (115 days) at the finer v7 tick (no overflow of
 #: int64 differences).

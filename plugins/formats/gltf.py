@@ -133,9 +133,10 @@ class _Doc:
         self.path = path
         glb_bin: memoryview | None = None
         if data[:4] == b"glTF":
-            text, glb_bin = self._glb(data)
+            chunk, glb_bin = self._glb(data)
+            text = bytes(chunk)  # the JSON chunk (small); the BIN chunk stays a view
         else:
-            text = memoryview(data)[3:] if data.startswith(b"\xef\xbb\xbf") else memoryview(data)
+            text = data[3:] if data.startswith(b"\xef\xbb\xbf") else data
         try:
             doc = bounded_loads(text, MAX_JSON_DEPTH)
         except UnicodeDecodeError as exc:
