@@ -44,6 +44,8 @@ WEIGHTED_RIGHT, WEIGHTED_NEXT_LEFT = 0x1000000, 0x2000000
 K_PREV, K_NEXT, K_LINEAR, K_CUBIC = 0, 1, 2, 3
 EXTRAPOLATION = {ord("C"): "constant", ord("K"): "slope", ord("R"): "repeat", ord("A"): "relative", ord("M"): "mirror"}
 _THIRD = np.float32(0.333333)
+#: Seconds within which a sample time is a key's time (a KTime tick is 2.2e-11 s).
+SNAP = 1e-9
 
 
 @dataclass
@@ -301,7 +303,9 @@ def _inside(c: Curve, time: np.ndarray) -> np.ndarray:
     n = len(c.times)
     if n == 1:
         return np.full(time.shape, c.values[0])
-    i = np.clip(np.searchsorted(c.times, time, side="right") - 1, 0, n - 2)
+    # a sample within SNAP of a key is taken at the key (frame times computed in floating
+    # point land a rounding error either side of a key; at a step that decides the value)
+    i = np.clip(np.searchsorted(c.times, time + SNAP, side="right") - 1, 0, n - 2)
     t0, t1 = c.times[i], c.times[i + 1]
     v0, v1 = c.values[i], c.values[i + 1]
     rcp = 1.0 / (t1 - t0)
@@ -322,7 +326,7 @@ def _inside(c: Curve, time: np.ndarray) -> np.ndarray:
         y1 = y0 + c.right_dy[i][cub]
         y2 = y3 - c.left_dy[i + 1][cub]
         out[cub] = w3 * y0 + 3.0 * (w2 * s * y1 + w * s2 * y2) + s3 * y3
-    exact = time == t0
+    exact = np.abs(time - t0) <= SNAP
     out = np.where(exact, v0, out)
     out = np.where(time >= c.times[-1], c.values[-1], out)
     return np.where(time <= c.times[0], c.values[0], out)

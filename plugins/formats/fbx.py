@@ -216,6 +216,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         fbx_version=version,
         start_time=k0 / ktps,
         span_source=span_source,
+        ktime_per_second=ktps,
         axes=rest_r[0].tolist(),
     )
     return motion_from_nodes(
