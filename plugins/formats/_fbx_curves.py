@@ -215,6 +215,8 @@ def prepare(ticks: np.ndarray, values: np.ndarray, flags: np.ndarray, data: np.n
     has_prev = np.arange(n) > 0
     const = (flags & CONSTANT) != 0
     cubic = ~const & ((flags & CUBIC) != 0)
+    if not const.any() and not cubic.any():
+        return _linear(ticks, t, v, ktps)
     linear = ~const & ~cubic
     tcb = cubic & ((flags & TANGENT_TCB) != 0)
     user = cubic & ~tcb & ((flags & TANGENT_USER) != 0)
@@ -283,6 +285,31 @@ def prepare(ticks: np.ndarray, values: np.ndarray, flags: np.ndarray, data: np.n
     )
 
 
+def _linear(ticks: np.ndarray, t: np.ndarray, v: np.ndarray, ktps: int) -> Curve:
+    """:func:`prepare` for a curve of linear keys only (baked takes): tangents along the
+    segments, weights 1/3."""
+    dt = np.diff(t)
+    slope = (np.diff(v) / dt).astype(np.float32)  # key times strictly increase
+    dx = (_THIRD.astype(np.float64) * dt).astype(np.float32)
+    zero = np.zeros(1, dtype=np.float32)
+    right_dx, right_dy = np.r_[dx, zero], np.r_[(dx * slope).astype(np.float32), zero]
+    left_dx = np.r_[np.float32(_THIRD * t[0]) if t[0] > 0 else zero[0], dx].astype(np.float32)
+    left_dy = np.r_[zero, (dx * slope).astype(np.float32)]  # the first key's incoming slope is 0
+    return Curve(
+        ticks=ticks,
+        times=t,
+        values=v,
+        kind=np.full(len(t), K_LINEAR, dtype=np.int8),
+        left_dx=left_dx,
+        left_dy=left_dy,
+        right_dx=right_dx,
+        right_dy=right_dy,
+        pre=("constant", -1),
+        post=("constant", -1),
+        ktps=ktps,
+    )
+
+
 def _bezier_t(p1: np.ndarray, p2: np.ndarray, x0: np.ndarray) -> np.ndarray:
     """Parameter of a cubic Bezier in x (control x 0, p1, p2, 1) reaching ``x0``."""
     a = 3 * p1 - 3 * p2 + 1.0
@@ -335,6 +362,8 @@ def _inside(c: Curve, time: np.ndarray) -> np.ndarray:
 def evaluate(c: Curve, time: np.ndarray) -> np.ndarray:
     """Values of a curve at ``time`` (seconds), extrapolated outside its keys."""
     time = np.asarray(time, dtype=np.float64)
+    if time.shape == c.times.shape and np.abs(time - c.times).max(initial=0.0) <= SNAP:
+        return c.values.copy()  # a key on every sample (baked takes): the keys themselves
     out = _inside(c, time)
     if len(c.times) < 2:
         return out
