@@ -34,7 +34,10 @@ def compare(path: Path, max_frames: int = 400) -> dict:
     n = m.n_frames
     step = max(1, n // max_frames)
     frames = np.arange(0, n, step)
-    times = meta["start_time"] + frames / m.fps
+    # the frames' times as the file's own KTime ticks in seconds (what a key time is), so that
+    # a sample on a key compares equal to it in both readers (a step lands on its key's side)
+    ktps = meta["ktime_per_second"]
+    times = (round(meta["start_time"] * ktps) + np.round(frames * (ktps / m.fps))) / ktps
     names = list(m.skeleton.names)
     ref = ufbx_positions(path, names, times)
     axes = np.asarray(meta["axes"])

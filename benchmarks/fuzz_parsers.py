@@ -584,6 +584,15 @@ def main(argv: list[str] | None = None) -> int:
         hostile = Path(tmp) / "hostile"
         hostile.mkdir()
         status |= int(run_all(hostile, quick=args.quick) > 0)
+        from _fuzz_inputs import fuzz_labels, fuzz_server
+
+        n_labels = args.labels_cases if args.labels_cases is not None else max(n // 10, 200)
+        n_server = args.server_cases if args.server_cases is not None else max(n // 100, 100)
+        for name, fn, count in (("labels", fuzz_labels, n_labels), ("server", fuzz_server, n_server)):
+            if count:
+                sub = Path(tmp) / f"fuzz-{name}"
+                sub.mkdir()
+                status |= int(fn(count, args.seed, args.timeout, sub) > 0)
     status |= fuzz_requests(n_req, args.seed) if n_req else 0
     return status | (fuzz_scenes(n_scene, args.seed, args.timeout) if n_scene else 0)
 

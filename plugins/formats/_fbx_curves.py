@@ -44,6 +44,8 @@ WEIGHTED_RIGHT, WEIGHTED_NEXT_LEFT = 0x1000000, 0x2000000
 K_PREV, K_NEXT, K_LINEAR, K_CUBIC = 0, 1, 2, 3
 EXTRAPOLATION = {ord("C"): "constant", ord("K"): "slope", ord("R"): "repeat", ord("A"): "relative", ord("M"): "mirror"}
 _THIRD = np.float32(0.333333)
+#: Seconds within which a sample time is a key's time (a KTime tick is 2.2e-11 s).
+SNAP = 1e-9
 
 
 @dataclass
@@ -225,6 +227,8 @@ def prepare(ticks: np.ndarray, values: np.ndarray, flags: np.ndarray, data: np.n
     has_prev = np.arange(n) > 0
     const = (flags & CONSTANT) != 0
     cubic = ~const & ((flags & CUBIC) != 0)
+    if not const.any() and not cubic.any():
+        return _linear(ticks, t, v, ktps)
     linear = ~const & ~cubic
     tcb = cubic & ((flags & TANGENT_TCB) != 0)
     user = cubic & ~tcb & ((flags & TANGENT_USER) != 0)
@@ -293,6 +297,31 @@ def prepare(ticks: np.ndarray, values: np.ndarray, flags: np.ndarray, data: np.n
     )
 
 
+def _linear(ticks: np.ndarray, t: np.ndarray, v: np.ndarray, ktps: int) -> Curve:
+    """:func:`prepare` for a curve of linear keys only (baked takes): tangents along the
+    segments, weights 1/3."""
+    dt = np.diff(t)
+    slope = (np.diff(v) / dt).astype(np.float32)  # key times strictly increase
+    dx = (_THIRD.astype(np.float64) * dt).astype(np.float32)
+    zero = np.zeros(1, dtype=np.float32)
+    right_dx, right_dy = np.r_[dx, zero], np.r_[(dx * slope).astype(np.float32), zero]
+    left_dx = np.r_[np.float32(_THIRD * t[0]) if t[0] > 0 else zero[0], dx].astype(np.float32)
+    left_dy = np.r_[zero, (dx * slope).astype(np.float32)]  # the first key's incoming slope is 0
+    return Curve(
+        ticks=ticks,
+        times=t,
+        values=v,
+        kind=np.full(len(t), K_LINEAR, dtype=np.int8),
+        left_dx=left_dx,
+        left_dy=left_dy,
+        right_dx=right_dx,
+        right_dy=right_dy,
+        pre=("constant", -1),
+        post=("constant", -1),
+        ktps=ktps,
+    )
+
+
 def _bezier_t(p1: np.ndarray, p2: np.ndarray, x0: np.ndarray) -> np.ndarray:
     """Parameter of a cubic Bezier in x (control x 0, p1, p2, 1) reaching ``x0``."""
     a = 3 * p1 - 3 * p2 + 1.0
@@ -313,7 +342,9 @@ def _inside(c: Curve, time: np.ndarray) -> np.ndarray:
     n = len(c.times)
     if n == 1:
         return np.full(time.shape, c.values[0])
-    i = np.clip(np.searchsorted(c.times, time, side="right") - 1, 0, n - 2)
+    # a sample within SNAP of a key is taken at the key (frame times computed in floating
+    # point land a rounding error either side of a key; at a step that decides the value)
+    i = np.clip(np.searchsorted(c.times, time + SNAP, side="right") - 1, 0, n - 2)
     t0, t1 = c.times[i], c.times[i + 1]
     v0, v1 = c.values[i], c.values[i + 1]
     rcp = 1.0 / (t1 - t0)
@@ -334,7 +365,7 @@ def _inside(c: Curve, time: np.ndarray) -> np.ndarray:
         y1 = y0 + c.right_dy[i][cub]
         y2 = y3 - c.left_dy[i + 1][cub]
         out[cub] = w3 * y0 + 3.0 * (w2 * s * y1 + w * s2 * y2) + s3 * y3
-    exact = time == t0
+    exact = np.abs(time - t0) <= SNAP
     out = np.where(exact, v0, out)
     out = np.where(time >= c.times[-1], c.values[-1], out)
     return np.where(time <= c.times[0], c.values[0], out)
@@ -343,6 +374,8 @@ def _inside(c: Curve, time: np.ndarray) -> np.ndarray:
 def evaluate(c: Curve, time: np.ndarray) -> np.ndarray:
     """Values of a curve at ``time`` (seconds), extrapolated outside its keys."""
     time = np.asarray(time, dtype=np.float64)
+    if time.shape == c.times.shape and np.abs(time - c.times).max(initial=0.0) <= SNAP:
+        return c.values.copy()  # a key on every sample (baked takes): the keys themselves
     out = _inside(c, time)
     if len(c.times) < 2:
         return out

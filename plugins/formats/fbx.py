@@ -111,10 +111,21 @@ class _Props:
 
 
 def _euler(angles: np.ndarray, order: str) -> np.ndarray:
-    """Quaternion of Euler angles (degrees, ``angles[..., i]`` about axis ``order[i]``)
-    applied in ``order`` (``xyz``: x first, matrix ``Rz Ry Rx``)."""
-    idx = ["xyz".index(a) for a in order]
-    return quat.from_euler(angles[..., idx[::-1]], order[::-1], degrees=True)
+    """Quaternion of Euler angles (degrees, ``angles[..., a]`` about axis ``a`` = x, y, z)
+    applied in ``order`` (``xyz``: x first, matrix ``Rz Ry Rx``): the product
+    ``q_k q_j q_i`` of the three axis rotations written out (its twin, the generic
+    :func:`quat.from_euler`, is compared in ``tests/test_fbx_curves.py``)."""
+    i, j, k = ("xyz".index(a) for a in order[::-1])  # q = q_i q_j q_k, i applied last
+    h = np.deg2rad(np.asarray(angles, dtype=float)) * 0.5
+    c, s = np.cos(h), np.sin(h)
+    c1, c2, c3, s1, s2, s3 = c[..., i], c[..., j], c[..., k], s[..., i], s[..., j], s[..., k]
+    e = 1.0 if (j - i) % 3 == 1 else -1.0  # e_i e_j = e * e_k
+    out = np.empty(h.shape[:-1] + (4,))
+    out[..., 0] = c1 * c2 * c3 - e * s1 * s2 * s3
+    out[..., 1 + i] = s1 * c2 * c3 + e * c1 * s2 * s3
+    out[..., 1 + j] = c1 * s2 * c3 - e * s1 * c2 * s3
+    out[..., 1 + k] = c1 * c2 * s3 + e * s1 * s2 * c3
+    return out
 
 
 def _axes(path: Path, gs: _Props) -> np.ndarray:
@@ -234,6 +245,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         fbx_version=version,
         start_time=k0 / ktps,
         span_source=span_source,
+        ktime_per_second=ktps,
         axes=rest_r[0].tolist(),
     )
     return motion_from_nodes(
@@ -422,13 +434,17 @@ def _transform(
     order = _ORDERS.get(int(props.num("RotationOrder", 0.0)), "xyz") if active else "xyz"
     rot = _euler(chan["r"], order)
     if active:
-        pre = _euler(props.vec("PreRotation", (0.0, 0.0, 0.0)), "xyz")
-        post = _euler(props.vec("PostRotation", (0.0, 0.0, 0.0)), "xyz")
-        rot = quat.mul(quat.mul(pre[None], rot), quat.conjugate(post)[None])
+        pre_a, post_a = props.vec("PreRotation", (0.0, 0.0, 0.0)), props.vec("PostRotation", (0.0, 0.0, 0.0))
+        if pre_a.any():
+            rot = quat.mul(_euler(pre_a, "xyz")[None], rot)
+        if post_a.any():
+            rot = quat.mul(rot, quat.conjugate(_euler(post_a, "xyz"))[None])
     scale = uniform_scale(props.path, name, chan["s"])
     roff, rp = props.vec("RotationOffset", (0.0, 0.0, 0.0)), props.vec("RotationPivot", (0.0, 0.0, 0.0))
     soff, sp = props.vec("ScalingOffset", (0.0, 0.0, 0.0)), props.vec("ScalingPivot", (0.0, 0.0, 0.0))
-    t = chan["t"] + roff + rp + quat.rotate(rot, -rp + soff + sp - scale[:, None] * sp)
+    t = chan["t"] + roff + rp
+    if rp.any() or soff.any() or sp.any():
+        t = t + quat.rotate(rot, -rp + soff + sp - scale[:, None] * sp)
     if np.abs(t).max(initial=0.0) > MAX_METRES * 1e3:  # file units: up to 10^3 per metre (mm)
         raise ParseError(
             props.path, None, f"model {name!r}: expected translations within {MAX_METRES * 1e3:g} file units"
