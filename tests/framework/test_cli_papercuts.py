@@ -16,7 +16,7 @@ import pytest
 from mocapflow.framework.cli import format_annotation, main
 from mocapflow.framework.progress import COMPILING_MESSAGE, announce_compilation
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 CMU = REPO / "examples" / "data" / "cmu" / "35"
 
 

@@ -14,7 +14,7 @@ import pytest
 from mocapflow.framework.cli import main
 from mocapflow.framework.errors import ConfigError
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 CMU = REPO / "examples" / "data" / "cmu"
 
 PIPELINE = """

@@ -25,7 +25,7 @@ from mocapflow.framework.executors import LocalExecutor
 from mocapflow.framework.runner import run_pipeline
 from mocapflow.framework.threads import threads_per_worker
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 CMU = REPO / "examples" / "data" / "cmu"
 
 

@@ -234,7 +234,7 @@ def test_killed_run_resumes_with_the_same_outputs(tmp_path):
       after: {uses: analyses.toy_add, input: slow}
     """
     p = write(tmp_path, body.replace("SECONDS", "60"))
-    tests_dir = Path(__file__).resolve().parent
+    tests_dir = Path(__file__).resolve().parents[1]
     script = (
         f"import sys; sys.path.insert(0, {str(tests_dir)!r})\n"
         "from toy_components import ToyPlugin\n"

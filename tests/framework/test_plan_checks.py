@@ -14,7 +14,7 @@ from mocapflow.framework.cli import main
 from mocapflow.framework.plugins import build_registries
 from mocapflow.framework.runner import plan_pipeline, run_pipeline
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 AMC = sorted((REPO / "examples" / "data" / "cmu").rglob("*.amc"))
 
 

@@ -114,9 +114,9 @@ def test_cli_plugins_plan_run_survive_a_plugin_whose_hooks_raise(monkeypatch, tm
     assert main(["plugins"]) == 0
     cap = capsys.readouterr()
     assert "BROKEN plugin 'raising-ep'" in cap.out and "formats.load" in cap.out
-    src = next((Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu").rglob("*.bvh"), None)
+    src = next((Path(__file__).resolve().parents[2] / "examples" / "data" / "cmu").rglob("*.bvh"), None)
     if src is None:
-        src = next((Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu").rglob("*.amc"))
+        src = next((Path(__file__).resolve().parents[2] / "examples" / "data" / "cmu").rglob("*.amc"))
         for f in src.parent.glob("*.asf"):
             shutil.copy(f, tmp_path)
     shutil.copy(src, tmp_path)
@@ -175,7 +175,7 @@ def test_hook_docs_are_in_step_with_hookspecs():
     import importlib.util
     from pathlib import Path
 
-    docs = Path(__file__).resolve().parent.parent / "docs"
+    docs = Path(__file__).resolve().parents[2] / "docs"
     spec = importlib.util.spec_from_file_location("make_hooks_md", docs / "make_hooks_md.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

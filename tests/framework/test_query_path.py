@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CMU = ROOT / "examples" / "data" / "cmu"
 WALK, OTHER = CMU / "16" / "16_15.amc", CMU / "02" / "02_01.amc"
 

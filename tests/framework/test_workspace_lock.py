@@ -22,7 +22,7 @@ from mocapflow.framework.errors import LockError
 from mocapflow.framework.runner import run_pipeline
 from mocapflow.framework.workspace import WorkspaceLock, holder_alive
 
-TESTS = Path(__file__).resolve().parent
+TESTS = Path(__file__).resolve().parents[1]
 GATED = """
 name: gated
 workspace: ws

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: kernel module (repository path) -> the test modules comparing it with its naive twin
 #: (``tests/naive/*`` or a twin written in the test module itself).

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 README_TEST_COMMAND = 'python -m pip install -e ".[test]" && python -m pytest -q'
 
 

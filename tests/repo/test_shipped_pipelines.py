@@ -11,7 +11,7 @@ from mocapflow.framework.catalog import Catalog
 from mocapflow.framework.plugins import build_registries
 from mocapflow.framework.runner import plan_pipeline, run_pipeline
 
-PIPELINES = sorted((Path(__file__).resolve().parent.parent / "pipelines").glob("*.yaml"))
+PIPELINES = sorted((Path(__file__).resolve().parents[2] / "pipelines").glob("*.yaml"))
 
 
 @pytest.mark.parametrize("path", PIPELINES, ids=[p.stem for p in PIPELINES])

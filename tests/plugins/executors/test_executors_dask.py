@@ -19,7 +19,7 @@ from mocapflow.framework import FeatureSet, Params, PipelineError, get_plugin_ma
 from mocapflow.framework.runner import run_pipeline  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 from mocapflow.plugins.executors.dask_cluster import DaskExecutor  # noqa: E402 - after pytest.importorskip: skip cleanly without the optional extra
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[3]
 CMU = REPO / "examples" / "data" / "cmu"
 
 PIPELINE = f"""

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import SHARED_DATA
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 CMU = ROOT / "examples" / "data" / "cmu"
 WALK, OTHER = CMU / "16" / "16_15.amc", CMU / "02" / "02_01.amc"
 

@@ -22,7 +22,7 @@ from mocapflow.plugins.formats.asf_amc import read_amc
 from mocapflow.plugins.formats.fbx import read_fbx
 from mocapflow.plugins.formats.gltf import read_gltf, write_gltf
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[3]
 BLENDER = ROOT / "tests" / "data" / "blender"
 FILES = sorted(p for p in BLENDER.iterdir() if p.suffix in (".gltf", ".glb", ".fbx"))
 CMU = ROOT / "examples" / "data" / "cmu"

@@ -12,7 +12,7 @@ from mocapflow.plugins.relational.auto import auto_hits, auto_template, runs, sm
 from mocapflow.plugins.relational.inverted import InvertedIndex
 from mocapflow.plugins.relational.template_model import frame_codes
 
-HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
+HDM05 = Path(__file__).resolve().parents[4] / "shared" / "data" / "hdm05" / "amc"
 
 
 def test_smooth_runs_absorbs_short_inner_runs_shortest_first():

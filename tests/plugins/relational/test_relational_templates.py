@@ -23,7 +23,7 @@ from mocapflow.plugins.relational.template_model import (
     template_hits,
 )
 
-HDM05 = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "hdm05" / "amc"
+HDM05 = Path(__file__).resolve().parents[4] / "shared" / "data" / "hdm05" / "amc"
 
 
 def _table_cost(table, codes):
@@ -162,7 +162,7 @@ def test_templates_pipeline_on_hdm05(tmp_path):
     from mocapflow.framework.catalog import Catalog
     from mocapflow.framework.runner import run_pipeline
 
-    path = Path(__file__).resolve().parent.parent / "pipelines" / "templates.yaml"
+    path = Path(__file__).resolve().parents[3] / "pipelines" / "templates.yaml"
     run_pipeline(path, workspace=tmp_path, pm=get_plugin_manager(entry_points=False))
     with Catalog(tmp_path) as cat:
         assert cat.query("SELECT count(*) AS n FROM templates_templates").column("n")[0].as_py() == 11

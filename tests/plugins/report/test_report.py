@@ -1,6 +1,6 @@
 """``mocapflow report``: data encoding, the cleaned takes, the page model, the site on disk.
 
-The browser half (the page in headless Chromium) is tests/test_report_browser.py.
+The browser half (the page in headless Chromium) is tests/plugins/report/test_report_browser.py.
 """
 
 from __future__ import annotations

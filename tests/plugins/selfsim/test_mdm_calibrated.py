@@ -209,7 +209,7 @@ def _cli(tmp_path, *extra):
 
     from mocapflow.framework.cli import main
 
-    repo = Path(__file__).resolve().parent.parent
+    repo = Path(__file__).resolve().parents[3]
     take = repo / "examples" / "data" / "cmu" / "16" / "16_15.amc"
     if not take.is_file():
         pytest.skip("bundled example data missing")
@@ -243,7 +243,7 @@ def test_clean_honours_block(tmp_path, capsys):
 
     from mocapflow.framework.cli import main
 
-    take = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu" / "16" / "16_15.amc"
+    take = Path(__file__).resolve().parents[3] / "examples" / "data" / "cmu" / "16" / "16_15.amc"
     if not take.is_file():
         pytest.skip("bundled example data missing")
     code = main(

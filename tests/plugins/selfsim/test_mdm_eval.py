@@ -13,7 +13,7 @@ from mocapflow.plugins.selfsim.evaluation.clean_eval import CleaningEvaluationPa
 from mocapflow.plugins.selfsim.evaluation.error_injection import ERROR_KINDS, apply_error, mirror
 from mocapflow.plugins.selfsim.evaluation.scores import RotationBaselines, _log_norm_sq, rotation_vectors, scores
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[3]
 
 
 def test_each_kind_touches_only_its_span():

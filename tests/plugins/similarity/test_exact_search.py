@@ -19,7 +19,7 @@ from mocapflow.plugins.similarity.search._dtw_kernels import sdtw_forward, sdtw_
 from mocapflow.plugins.similarity.search.certified import CertifiedSettings, ExactStats, certified_sdtw
 from mocapflow.plugins.similarity.search.sdtw import subsequence_dtw
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data"
 
 
 def pruned(**kw) -> CertifiedSettings:

@@ -387,7 +387,7 @@ def test_output_skeleton_from_an_asf_or_a_take_through_the_format_registry():
     from mocapflow.framework import load_registries
     from mocapflow.plugins.similarity.applications.reconstruct_markers import read_skeleton
 
-    cmu = Path(__file__).resolve().parents[1] / "examples" / "data" / "cmu" / "16"
+    cmu = Path(__file__).resolve().parents[3] / "examples" / "data" / "cmu" / "16"
     reg = load_registries(kinds=["formats"], entry_points=False)
     from_asf = read_skeleton(cmu / "16.asf", reg)
     from_take = read_skeleton(cmu / "16_01.amc", reg)

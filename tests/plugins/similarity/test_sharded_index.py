@@ -14,7 +14,7 @@ from mocapflow.framework.runner import run_pipeline
 from mocapflow.plugins.similarity.knn.kdtree import KDTreeIndex
 from mocapflow.plugins.similarity.knn.sharded import ShardedIndex, _ShardQuery, shard_bounds
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[3]
 CMU = REPO / "examples" / "data" / "cmu"
 
 
