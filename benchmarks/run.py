@@ -6,7 +6,7 @@
 
 Each ``benchmarks/<name>.py`` runs its real measurement on ``../shared/data`` and prints
 ratios against a baseline measured in the same run; with ``--quick`` it runs in about 30 s on
-two cores on the bundled ``examples/data`` or synthetic motion (``tests/test_benchmarks.py``
+two cores on the bundled ``examples/data`` or synthetic motion (``tests/repo/test_benchmarks.py``
 runs every one that way so none rots).
 """
 

@@ -14,7 +14,7 @@ def render() -> str:
         "# Hooks",
         "",
         "Generated from `framework/hookspecs.py` by `docs/make_hooks_md.py` (its docstrings are the "
-        "contract; `tests/test_plugins.py` keeps this page in step).",
+        "contract; `tests/framework/test_plugins.py` keeps this page in step).",
         "",
         textwrap.dedent(hookspecs.__doc__).strip(),
         "",

@@ -5,7 +5,7 @@ Each module listed here is a pluggy plugin using exactly the hooks of
 Built-ins are packaged by capability (one package per paper, plus formats, executors,
 generic analyses and the report); each package registers its components from its own
 ``plugin`` module. To add a built-in package, add its ``plugin`` module here. A package never
-imports another package's modules (``tests/test_package_boundaries.py``): cross-package use
+imports another package's modules (``tests/repo/test_package_boundaries.py``): cross-package use
 goes through :mod:`mocapflow.framework` or the registries.
 """
 

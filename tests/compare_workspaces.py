@@ -2,7 +2,7 @@
 
     python tests/compare_workspaces.py OLD_WORKSPACE NEW_WORKSPACE
 
-(how a change is checked to leave shipped pipelines' tables identical; tests/test_query_path.py
+(how a change is checked to leave shipped pipelines' tables identical; tests/framework/test_query_path.py
 keeps it working)
 
 Clip ids are mapped from old to new through the ``clips`` tables (same ``path``), so that a

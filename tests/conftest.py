@@ -14,6 +14,12 @@ EXAMPLES_DATA = REPO / "examples" / "data"
 
 if str(TESTS) not in sys.path:  # so that `import naive` works under every import mode
     sys.path.insert(0, str(TESTS))
+# test modules live in folders by package (tests/framework, tests/plugins/<capability>,
+# tests/repo); a few import helpers from another module (`from test_formats_bvh import
+# tiny_bvh`), so every test folder is importable by module name, whatever runs first
+for _folder in sorted({p.parent for p in TESTS.rglob("test_*.py")} - {TESTS}):
+    if str(_folder) not in sys.path:
+        sys.path.append(str(_folder))
 
 
 def corpus_path(*parts: str) -> Path:

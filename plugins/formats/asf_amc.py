@@ -11,7 +11,7 @@ once (:mod:`._text_kernels`) and the regular frame layout is validated with nump
 that does not follow the layout of its first frame takes a slower token-by-token path,
 which either reads it (bones in another order per frame) or reports the first bad line.
 
-Checked against the cgspeed BVH conversion of CMU 01_01 (``tests/test_formats_bvh.py``):
+Checked against the cgspeed BVH conversion of CMU 01_01 (``tests/plugins/formats/test_formats_bvh.py``):
 root, legs and trunk agree to < 1e-5 m; joints above the chest differ by the constant
 0.117 m thorax length that the cgspeed skeleton drops, and agree to < 1e-5 m relative to
 the neck (fingers: 0.097 m, the dropped wrist bone). The plain per-frame matrix FK of

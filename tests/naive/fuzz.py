@@ -2,7 +2,7 @@
 against the reference readers of :mod:`naive.readers`.
 
 Driver with ≥ 100,000 cases, timeouts and a report: ``benchmarks/fuzz_parsers.py``; a
-short hypothesis run: ``tests/test_fuzz_parsers.py``.
+short hypothesis run: ``tests/plugins/formats/test_fuzz_parsers.py``.
 
 A case is a base (the first frames of a real AMC, BVH or TRC file, or a whole C3D file)
 and one mutation. Its outcome (:func:`check`):

@@ -1,5 +1,5 @@
 """Slow, obviously correct reference readers of AMC, BVH and TRC files: the oracle of the
-parser fuzzer (``benchmarks/fuzz_parsers.py``, ``tests/test_fuzz_parsers.py``).
+parser fuzzer (``benchmarks/fuzz_parsers.py``, ``tests/plugins/formats/test_fuzz_parsers.py``).
 
 They share no parsing code with ``plugins/formats``: each splits the file into lines
 (LF, CRLF or a lone CR) and words (``bytes.split``), reads numbers with ``float`` after a

@@ -2,7 +2,7 @@
 
 :func:`map_pose`: the local linear model of the neighbours (:func:`.reconstruct._local_model`),
 the MAP pose of markers + prior + smoothness and the heading, alternated. Its slow,
-obviously correct NumPy twin is ``_map_pose_numpy`` in ``tests/test_reconstruct.py``.
+obviously correct NumPy twin is ``_map_pose_numpy`` in ``tests/plugins/similarity/test_reconstruct.py``.
 """
 
 from __future__ import annotations

@@ -158,7 +158,7 @@ def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compil
     Each range ``[a, b)`` of ``ranges`` (int64 (r, 2), ascending and disjoint) starts afresh:
     no path enters it from before. The columns are :func:`sdtw_column`, the
     whole-array DP's, so an end row whose best path lies inside its range gets exactly
-    ``sdtw_forward``'s values (bit for bit; ``tests/test_exact_search.py``). Used by the
+    ``sdtw_forward``'s values (bit for bit; ``tests/plugins/similarity/test_exact_search.py``). Used by the
     certified search (:mod:`.certified`) on the rows its coarse bound keeps. It lives here, in
     ``sdtw_column``'s module, because Numba's cache invalidates on the caller's file only:
     an inlined column edited in another module would leave a stale compiled caller.
