@@ -53,15 +53,12 @@ from ._common import (
     MAX_DEGREES,
     MAX_FPS,
     MAX_METRES,
-    check_text,
-    file_metadata,
     line_of,
-    read_bytes,
     strict_float,
     strict_int,
-    text_body,
     text_head,
 )
+from ._stream import TextBlocks
 
 __all__ = ["BvhFormat", "read_bvh", "write_bvh", "BVH_UNITS"]
 
@@ -318,24 +315,11 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
     (a dropped static root, or None). ParseError names the file, line and what was expected.
     """
     path = Path(path)
-    data = read_bytes(
+    blocks = TextBlocks(
         path, lambda head: text_head(path, head, (b"HIERARCHY",), "'HIERARCHY' at the start of a BVH file")
     )
-    from ._kernels import euler_table_to_quat, readonly  # after the header check: a foreign file costs no kernel load
-    from ._text_kernels import tokenize
-
-    body = text_body(data)
-    check_text(path, body)
-    m = _MOTION_RE.search(body)
-    if m is None:
-        raise ParseError(path, line_of(body, len(body)), "expected a MOTION section")
-    joints = _parse_hierarchy(path, body[: m.start()])
-    mline = line_of(body, m.start())
-    frames, dt, dpos, dline = _motion_header(path, body, m.end() + 1, mline + 1)
-    n_ch = sum(len(j.channels) for j in joints)
-    tok = tokenize(np.frombuffer(body, dtype=np.uint8), dpos, dline)
-    frame_lines = _check_motion(path, tok, frames, n_ch, dline)
-    table = tok[4].reshape(frames, n_ch)
+    joints, frames, dt, table, frame_lines = _read_streaming(path, blocks)
+    from ._kernels import euler_table_to_quat, readonly
 
     names = tuple(j.name for j in joints)
     parents = np.array([j.parent for j in joints])
@@ -421,7 +405,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
         name=path.stem,
         meta={"format": "bvh", "scale": scl, "unit": unit, **({"collapsed_root": restore} if restore else {})},
     )
-    meta = file_metadata(path, data, "bvh")
+    meta = blocks.metadata("bvh")
     meta.update(_branch(joints, table))
     meta.update(
         subject=path.parent.name,
@@ -462,6 +446,92 @@ def _branch(joints: list[_Joint], table: np.ndarray) -> dict[str, dict]:
     return {euler_branch.KEY: branch} if branch["turns"] or branch["flips"] else {}
 
 
+def _header_ready(head: bytes, after: int) -> bool:
+    """Whether ``head`` holds two non-blank lines after byte ``after`` (the MOTION header),
+    each ended by LF: :func:`_motion_header` then reads them as it would in the whole file."""
+    found, pos = 0, after
+    while found < 2:
+        end = head.find(b"\n", pos)
+        if end < 0:
+            return False
+        found += bool(head[pos:end].strip())
+        pos = end + 1
+    return True
+
+
+def _read_streaming(path: Path, blocks: TextBlocks) -> tuple[list[_Joint], int, float, np.ndarray, np.ndarray]:
+    """Joints, frames, frame time, the MOTION table (frames x channels, float64) and the
+    line of each frame, the file read in blocks of lines (:class:`._stream.TextBlocks`):
+    the blocks up to the MOTION header are kept for the hierarchy, the data lines are parsed
+    straight into the table (:func:`._text_kernels.fill_table`). The errors are those of
+    the whole-file parser, in its order: binary bytes anywhere first, then the hierarchy and
+    the header, then the data (a non-number, a line of the wrong count, the frame count)."""
+    it = iter(blocks)
+    parts: list[bytes] = []
+    size = 0
+    m = None
+    start = None
+    last_line = 1
+    for block, line in it:
+        parts.append(block)
+        last_line = line + block.count(b"\n")
+        if m is None:
+            found = _MOTION_RE.search(block)
+            if found is not None:
+                m, start = found, size
+        size += len(block)
+        if m is not None and start is not None and _header_ready(b"".join(parts), start + m.end()):
+            break
+    head = b"".join(parts)
+    del parts
+    pending: ParseError | None = None
+    joints: list[_Joint] = []
+    frames, dt, dpos, dline = 0, 0.0, 0, 0
+    try:
+        if m is None or start is None:
+            raise ParseError(path, last_line, "expected a MOTION section")
+        mstart = start + m.start()
+        joints = _parse_hierarchy(path, head[:mstart])
+        mline = line_of(head, mstart)
+        frames, dt, dpos, dline = _motion_header(path, head, start + m.end() + 1, mline + 1)
+    except ParseError as exc:  # binary bytes later in the file come first, as in the whole-file check
+        pending = exc
+    if pending is not None:
+        for _ in it:
+            pass
+        raise pending
+    from ._text_kernels import fill_table, table_state  # after the header check: a foreign file costs no kernel load
+
+    n_ch = sum(len(j.channels) for j in joints)
+    stat_size = path.stat().st_size
+    rows = min(frames, stat_size // (2 * max(n_ch, 1)) + 1)  # each value takes >= 2 bytes of the file
+    table = np.empty((rows, n_ch))
+    frame_lines = np.zeros(rows, dtype=np.int64)
+    state = table_state()
+    fill_table(np.frombuffer(head, dtype=np.uint8)[dpos:], dline, table, frame_lines, state)
+    del head
+    for block, line in it:
+        if state[5] < 0:
+            fill_table(np.frombuffer(block, dtype=np.uint8), line, table, frame_lines, state)
+    _check_motion(path, state, frames, n_ch, dline)
+    return joints, frames, dt, table, frame_lines
+
+
+def _check_motion(path: Path, state: np.ndarray, frames: int, n_ch: int, first_line: int) -> None:
+    """Every data line held ``n_ch`` finite numbers and there were ``frames`` lines (the
+    ``state`` :func:`._text_kernels.fill_table` left)."""
+    if state[5] >= 0:  # pragma: no cover - the block check refuses binary bytes first
+        raise ParseError(path, int(state[6]), "expected text, found a binary control byte")
+    if state[1] >= 0:
+        raise ParseError(path, int(state[1]), f"expected {n_ch} finite numbers per frame, found a non-number")
+    if state[0] == 0:
+        raise ParseError(path, first_line - 1, f"expected {frames} frame lines (Frames:) after this line, found none")
+    if state[2] >= 0:
+        raise ParseError(path, int(state[2]), f"expected {n_ch} values on this frame line, found {int(state[3])}")
+    if state[0] != frames:
+        raise ParseError(path, int(state[4]), f"expected {frames} frame lines (Frames:), found {int(state[0])}")
+
+
 def _check_bounds(
     path: Path, joints: list[_Joint], offsets: np.ndarray, table: np.ndarray, frame_lines: np.ndarray, scl: float
 ) -> None:
@@ -484,31 +554,6 @@ def _check_bounds(
         ch = [(jt.name, ch) for jt in joints for ch in jt.channels][c]
         what = f"within {MAX_DEGREES:g} degrees" if ch[1][1:].lower() == "rotation" else f"within {MAX_METRES:g} m"
         raise ParseError(path, int(frame_lines[f]), f"expected {ch[0]} {ch[1]} {what}, found {table[f, c]:g}")
-
-
-def _check_motion(path: Path, tok: tuple, frames: int, n_ch: int, first_line: int) -> np.ndarray:
-    """Every data line holds ``n_ch`` finite numbers and there are ``frames`` lines;
-    returns the line number of each frame."""
-    starts, lens, lines, _h, _v, isnum, bad, bad_line = tok
-    if bad >= 0:
-        raise ParseError(path, int(bad_line), "expected text, found a binary control byte")
-    if not isnum.all():
-        k = int(np.argmin(isnum))
-        raise ParseError(path, int(lines[k]), f"expected {n_ch} finite numbers per frame, found a non-number")
-    if len(lines) == 0:
-        raise ParseError(path, first_line - 1, f"expected {frames} frame lines (Frames:) after this line, found none")
-    # tokens come in line order: per-line counts with one bincount, no sort
-    per_line = np.bincount(lines - first_line)
-    uniq = np.flatnonzero(per_line) + first_line
-    counts = per_line[per_line > 0]
-    wrong = np.flatnonzero(counts != n_ch)
-    if wrong.size:
-        k = wrong[0]
-        raise ParseError(path, int(uniq[k]), f"expected {n_ch} values on this frame line, found {int(counts[k])}")
-    if len(uniq) != frames:
-        ln = int(uniq[-1])
-        raise ParseError(path, ln, f"expected {frames} frame lines (Frames:), found {len(uniq)}")
-    return uniq
 
 
 class BvhFormat(Format):

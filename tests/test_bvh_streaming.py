@@ -1,0 +1,90 @@
+"""The streaming BVH MOTION parser (:func:`_text_kernels.fill_table` over line blocks) gives
+the tokenizer's values, line by line, and the whole-file parser's errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapflow.framework.errors import ParseError
+from mocapflow.plugins.formats import _stream
+from mocapflow.plugins.formats._text_kernels import fill_table, table_state, tokenize
+from mocapflow.plugins.formats.bvh import read_bvh
+
+
+def _reference(body: bytes, cols: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of numbers and their lines from :func:`tokenize` (the tokenizer the twin tests check)."""
+    starts, lens, lines, _h, values, isnum, bad, _bl = tokenize(np.frombuffer(body, dtype=np.uint8), 0, 1)
+    assert bad < 0 and isnum.all()
+    uniq = np.unique(lines)
+    return values.reshape(len(uniq), cols), uniq
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_fill_table_equals_the_tokenizer(seed):
+    rng = np.random.default_rng(seed)
+    rows, cols = 40, 7
+    vals = rng.normal(size=(rows, cols)) * 10.0 ** rng.integers(-8, 8, size=(rows, cols))
+    text = "\n".join(
+        (" " * int(rng.integers(3)))
+        + " ".join(np.format_float_positional(v) if rng.random() < 0.5 else f"{v:.17g}" for v in r)
+        + ("\r" if rng.random() < 0.2 else "")
+        + ("\n" if rng.random() < 0.2 else "")
+        for r in vals
+    ).encode()
+    want, want_lines = _reference(text, cols)
+    out, lines, state = np.empty((rows, cols)), np.zeros(rows, np.int64), table_state()
+    # in blocks cut at line ends, as the reader feeds it
+    line, pos = 1, 0
+    while pos < len(text):
+        cut = text.find(b"\n", min(pos + int(rng.integers(1, 200)), len(text) - 1))
+        cut = len(text) if cut < 0 else cut + 1
+        line = fill_table(np.frombuffer(text[pos:cut], dtype=np.uint8), line, out, lines, state)
+        pos = cut
+    assert state[0] == rows and state[1] < 0 and state[2] < 0
+    assert np.array_equal(out, want) and np.array_equal(lines, want_lines)
+
+
+BVH = b"""HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  End Site
+  {
+    OFFSET 0 10 0
+  }
+}
+MOTION
+Frames: 3
+Frame Time: 0.0333333
+"""
+
+
+@pytest.mark.parametrize(
+    ("data", "line", "expected"),
+    [
+        (b"1 2 3 4 5 6\n1 2 3 4 5\n1 2 3 4 5 6\n", 15, "expected 6 values on this frame line, found 5"),
+        (b"1 2 3 4 5 6\n1 2 x 4 5 6\n1 2 3 4 5 6\n", 15, "found a non-number"),
+        (b"1 2 3 4 5 6\n", 14, "expected 3 frame lines (Frames:), found 1"),
+        (b"\n\n", 13, "after this line, found none"),
+        (b"1 2 3 4 5 6\n1 2 3 4 5 6\n1 2 3 4 5 6\n1 2 \x01\n", 17, "binary byte 0x01"),
+    ],
+)
+def test_errors_name_the_line(tmp_path, data, line, expected):
+    f = tmp_path / "a.bvh"
+    f.write_bytes(BVH + data)
+    with pytest.raises(ParseError) as info:
+        read_bvh(f)
+    assert info.value.line == line and expected in str(info.value), str(info.value)
+
+
+def test_small_blocks_give_the_same_motion(tmp_path, monkeypatch):
+    f = tmp_path / "a.bvh"
+    f.write_bytes(BVH.replace(b"Frames: 3", b"Frames: 6000") + b"1 2 3 4 5 6\r\n" * 3000 + b"\n2 3 4 5 6 7\n" * 3000)
+    whole = read_bvh(f)
+    monkeypatch.setattr(_stream, "BLOCK_BYTES", 7)  # after the first 64 KiB: 7-byte reads
+    small = read_bvh(f)
+    assert np.array_equal(whole.rotations, small.rotations)
+    assert np.array_equal(whole.root_translation, small.root_translation)
+    assert whole.metadata == small.metadata
