@@ -21,7 +21,8 @@ import numpy as np
 
 from mocapflow.framework.errors import ParseError
 
-from ._common import _BOM, HEAD_BYTES, MAX_FILE_BYTES, check_text
+from . import _common
+from ._common import _BOM, HEAD_BYTES, check_text
 
 #: Bytes read at a time (a block is these plus the rest of its last line).
 BLOCK_BYTES = 8 << 20
@@ -62,12 +63,12 @@ class TextBlocks:
                 raise ParseError(p, None, "expected a file, found a directory")
             if not stat.S_ISREG(st.st_mode):
                 raise ParseError(p, None, "expected a regular file (found a device, a pipe or a socket)")
-            if st.st_size > MAX_FILE_BYTES:
+            if st.st_size > _common.MAX_FILE_BYTES:  # read at call time (tests lower it)
                 raise ParseError(
                     p,
                     None,
                     f"the file holds {st.st_size / 2**20:,.0f} MiB; a reader accepts at most "
-                    f"{MAX_FILE_BYTES / 2**20:,.0f} MiB per file (split the take)",
+                    f"{_common.MAX_FILE_BYTES / 2**20:,.0f} MiB per file (split the take)",
                 )
             f = open(p, "rb")  # noqa: SIM115 - closed below, also when the consumer stops early
         except FileNotFoundError:
@@ -83,12 +84,14 @@ class TextBlocks:
         p, total, line, rest, first = self.path, 0, 1, b"", True
         while True:
             try:
-                raw = f.read(max(BLOCK_BYTES, HEAD_BYTES) if first else BLOCK_BYTES)
+                raw = f.read(HEAD_BYTES if first else BLOCK_BYTES)  # the head is checked before any more is read
             except OSError as exc:
                 raise ParseError(p, None, f"cannot read the file ({exc.strerror or exc})") from None
             total += len(raw)
-            if total > MAX_FILE_BYTES:
-                raise ParseError(p, None, f"the file grew beyond {MAX_FILE_BYTES / 2**20:,.0f} MiB while being read")
+            if total > _common.MAX_FILE_BYTES:
+                raise ParseError(
+                    p, None, f"the file grew beyond {_common.MAX_FILE_BYTES / 2**20:,.0f} MiB while being read"
+                )
             self.sha1.update(raw)
             if first:
                 first = False

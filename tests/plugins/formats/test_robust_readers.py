@@ -27,7 +27,7 @@ from mocapflow.plugins.formats.bvh import read_bvh
 from mocapflow.plugins.formats.trc import read_trc, write_trc
 
 HUGE = 2 * 1024**3
-BLENDER = Path(__file__).resolve().parent / "data" / "blender"
+BLENDER = Path(__file__).resolve().parents[2] / "data" / "blender"
 
 
 def _sparse(path: Path, size: int, head: bytes) -> Path:
