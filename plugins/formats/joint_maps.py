@@ -96,8 +96,15 @@ _BVH_PICK_ORDER: tuple[str, ...] = (*_BVH_TRUNK, *(j for j in CANONICAL_JOINTS i
 
 
 #: Acclaim names, exact (ASF bone names are case-sensitive identifiers).
+# self-named: an ASF written from another rig (mocapflow's AMC export of a BVH/FBX/glTF take
+# or a canonical skeleton) names its bones by the canonical joints, after any Acclaim bone
 ACCLAIM = JointMap(
-    "acclaim", {c: (s,) for c, s in _ASF.items()}, formats=("amc",), case_sensitive=True, pick_order=CANONICAL_JOINTS
+    "acclaim",
+    {c: (s,) for c, s in _ASF.items()},
+    formats=("amc",),
+    case_sensitive=True,
+    pick_order=CANONICAL_JOINTS,
+    self_named=True,
 )
 
 #: BVH files whose skeleton was written from an ASF, recognised by the Acclaim limb bones.
