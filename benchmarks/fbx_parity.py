@@ -56,12 +56,27 @@ def compare(path: Path, max_frames: int = 400) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("paths", nargs="+", type=Path)
+    ap.add_argument(
+        "paths",
+        nargs="*",
+        type=Path,
+        help="FBX files or folders (default: $MOCAPFLOW_UFBX_DATA, else the Blender-made takes of tests/data/blender)",
+    )
     ap.add_argument("--max-frames", type=int, default=400, help="frames compared per file (evenly spaced)")
     ap.add_argument("--quick", action="store_true", help="20 frames per file")
     args = ap.parse_args(argv)
     if args.quick:
         args.max_frames = 20
+    if not args.paths:
+        import os
+
+        env = os.environ.get("MOCAPFLOW_UFBX_DATA")
+        args.paths = [Path(env)] if env else [Path(__file__).resolve().parents[1] / "tests" / "data" / "blender"]
+    try:
+        import ufbx  # noqa: F401 - the reference; only its presence is checked here
+    except ImportError:
+        print("ufbx is not installed (pip install ufbx): nothing to compare against; skipped")
+        return 0
     files: list[Path] = []
     for p in args.paths:
         files.extend(sorted(p.rglob("*.fbx")) if p.is_dir() else [p])
