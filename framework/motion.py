@@ -105,7 +105,7 @@ class Motion:
             DeprecationWarning,
             stacklevel=2,
         )
-        # the facade, by name: the data model imports no layer above it (tests/test_import_cycles.py)
+        # the facade, by name: the data model imports no layer above it (tests/repo/test_import_cycles.py)
         importlib.import_module("mocapflow").write(self, path)
 
     def slice(self, start: int, stop: int) -> Motion:

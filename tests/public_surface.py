@@ -1,5 +1,5 @@
 """The public surface of mocapflow, and its committed snapshot (the deprecation policy,
-docs/pipelines.md "Deprecation policy"; ``tests/test_public_surface.py`` enforces it).
+docs/pipelines.md "Deprecation policy"; ``tests/repo/test_public_surface.py`` enforces it).
 
     python tests/public_surface.py            # what was removed or added since the snapshot
     python tests/public_surface.py --write    # record the current surface (after adding names)

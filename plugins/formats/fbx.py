@@ -114,7 +114,7 @@ def _euler(angles: np.ndarray, order: str) -> np.ndarray:
     """Quaternion of Euler angles (degrees, ``angles[..., a]`` about axis ``a`` = x, y, z)
     applied in ``order`` (``xyz``: x first, matrix ``Rz Ry Rx``): the product
     ``q_k q_j q_i`` of the three axis rotations written out (its twin, the generic
-    :func:`quat.from_euler`, is compared in ``tests/test_fbx_curves.py``)."""
+    :func:`quat.from_euler`, is compared in ``tests/plugins/formats/test_fbx_curves.py``)."""
     i, j, k = ("xyz".index(a) for a in order[::-1])  # q = q_i q_j q_k, i applied last
     h = np.deg2rad(np.asarray(angles, dtype=float)) * 0.5
     c, s = np.cos(h), np.sin(h)

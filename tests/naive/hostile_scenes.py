@@ -1,5 +1,5 @@
 """Hostile glTF, GLB, FBX files and search-server requests, one per class of attack: the
-generator shared by ``tests/test_robust_readers.py`` (a test per class) and
+generator shared by ``tests/plugins/formats/test_robust_readers.py`` (a test per class) and
 ``benchmarks/_hostile.py`` (the same classes timed, memory-traced and audited for files
 opened outside the case's folder).
 

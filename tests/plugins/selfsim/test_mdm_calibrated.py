@@ -1,6 +1,6 @@
 """The calibrated cleaner: kinematic helpers against naive references, bounded repair, the
 paper mode kept, the density injector, and what ``mocapflow clean`` writes (the detectors,
-the null and the test: tests/test_mdm_null.py)."""
+the null and the test: tests/plugins/selfsim/test_mdm_null.py)."""
 
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ from mocapflow.plugins.formats.asf_amc import read_amc
 from mocapflow.plugins.formats.fbx import read_fbx, write_fbx
 from mocapflow.plugins.formats.gltf import read_gltf
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 CMU = ROOT / "examples" / "data" / "cmu"
 BLENDER = ROOT / "tests" / "data" / "blender"
 

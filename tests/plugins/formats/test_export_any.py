@@ -14,7 +14,7 @@ from mocapflow.framework.export import Segment, export_segments
 from mocapflow.framework.plugins import default_registries as registries
 from mocapflow.plugins.formats.asf_amc import read_amc
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 BLENDER = ROOT / "tests" / "data" / "blender"
 CMU = ROOT / "examples" / "data" / "cmu"
 

@@ -13,7 +13,7 @@ import pytest
 
 from mocapflow.plugins.formats import _fbx_curves as fc
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from naive import fbx_curves as naive
 
 KTPS = 46_186_158_000
@@ -71,7 +71,7 @@ def test_tangents_and_values_equal_the_per_key_twin(seed):
 
 
 def _corpus() -> Path | None:
-    p = Path(os.environ.get("MOCAPFLOW_UFBX_DATA", Path(__file__).parent / "data" / "ufbx"))
+    p = Path(os.environ.get("MOCAPFLOW_UFBX_DATA", Path(__file__).resolve().parents[2] / "data" / "ufbx"))
     return p if p.is_dir() else None
 
 
@@ -99,7 +99,7 @@ def test_reader_equals_ufbx(name):
     corpus = _corpus()
     if corpus is None or not (corpus / name).exists():
         pytest.skip("ufbx test corpus absent (set MOCAPFLOW_UFBX_DATA to github.com/ufbx/ufbx data/)")
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
     import _ufbx_ref
     from fbx_parity import compare
 

@@ -11,7 +11,7 @@ import pytest
 
 from mocapflow.plugins.formats.gltf import read_gltf, write_gltf
 
-BLENDER = Path(__file__).parent / "data" / "blender"
+BLENDER = Path(__file__).resolve().parents[2] / "data" / "blender"
 
 
 def _long_take(n: int, fps: float):

@@ -16,8 +16,8 @@ from mocapflow.plugins.formats.asf_amc import read_amc
 from mocapflow.plugins.formats.bvh import read_bvh
 from mocapflow.plugins.formats.gltf import read_gltf
 
-CMU = Path(__file__).resolve().parent.parent / "examples" / "data" / "cmu" / "02"
-BLENDER = Path(__file__).parent / "data" / "blender"
+CMU = Path(__file__).resolve().parents[3] / "examples" / "data" / "cmu" / "02"
+BLENDER = Path(__file__).resolve().parents[2] / "data" / "blender"
 
 
 def _amc_values(path: Path) -> dict[str, np.ndarray]:

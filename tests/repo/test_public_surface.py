@@ -14,7 +14,7 @@ from pathlib import Path
 import public_surface  # tests/ is on the path (rootdir conftest)
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: components that exist only with an optional dependency: (name prefix, module it needs)
 OPTIONAL = (("indexes.hnsw", "hnswlib"),)

@@ -16,7 +16,7 @@ import pytest
 
 from mocapflow.framework.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 BLENDER = ROOT / "tests" / "data" / "blender"
 
 
