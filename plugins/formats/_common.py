@@ -32,6 +32,7 @@ import re
 import stat
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -170,7 +171,9 @@ def check_timeline(
             None,
             f"a skeleton of {n_nodes:,} nodes; expected at most {MAX_SKELETON_NODES:,} (joints and ancestors)",
         )
-    keys = np.unique(np.concatenate([np.asarray(k, dtype=np.float64).ravel() for k in key_times])) if key_times else []
+    keys: Any = (
+        np.unique(np.concatenate([np.asarray(k, dtype=np.float64).ravel() for k in key_times])) if key_times else []
+    )
     allowed = TIMELINE_FRAMES_PER_KEY * len(keys) + TIMELINE_FRAMES_FLOOR
     if n_frames > allowed:
         gaps = np.diff(keys) if len(keys) > 1 else np.zeros(1)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from mocapflow.framework.commands import CommandContext
@@ -149,7 +149,8 @@ def hits_segments(hits: Path, datasets, ws: Path, *, top: int | None = None) -> 
             clips.update(clip_sources(ds))
     rows = table.to_pylist()
     several = len({r.get("query_id") for r in rows}) > 1
-    out, ranks = [], {}
+    out: list[Any] = []
+    ranks: dict[Any, int] = {}
     for line, r in enumerate(rows, start=2):
         query = str(r.get("query") or (f"{hits.stem}_{r.get('query_id')}" if several else hits.stem))
         rank = int(r.get("rank") or ranks.get(query, 0) + 1)

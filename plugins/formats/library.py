@@ -54,7 +54,7 @@ FILES = pa.schema(
 
 def scan(folder: Path) -> list[Path]:
     """Every file under ``folder`` (recursively, real paths, sorted), hidden names left out."""
-    out = []
+    out: list[str] = []
     for root, dirs, names in os.walk(folder, followlinks=False):
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         out.extend(Path(root) / n for n in names if not n.startswith("."))
@@ -138,8 +138,8 @@ class LoadLibrary(Format):
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         folder = self._folder(ctx.base_dir)
-        readers: dict[str, type] = {}
-        others: dict[str, type] = {}
+        readers: dict[str, Any] = {}  # extension -> format class
+        others: dict[str, Any] = {}
         for _, cls in ctx.registries["formats"]:
             for ext in cls.extensions:
                 target = readers if getattr(cls, "produces", "") == "motion" else others
@@ -204,7 +204,10 @@ class LoadLibrary(Format):
         fresh: dict[str, Any] = {job[2]: r for job, r in zip(jobs, results, strict=True)}
         kept = _kept_rows(prev, {str(f): (before["clip_id"], ids[f]) for f, before in reuse.items()})
 
-        frames, rotations, clips, warnings = [], [], [], []
+        frames: list[pa.Table] = []
+        rotations: list[pa.Table] = []
+        clips: list[dict[str, Any]] = []
+        warnings: list[dict[str, Any]] = []
         skeletons: dict[str, dict[str, Any]] = {}
         status = {r["path"]: r for r in file_rows}
         for f in motion_files:

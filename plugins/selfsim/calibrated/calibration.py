@@ -70,8 +70,8 @@ def similar_spans(
     for _, i, a, b, h in sorted(cands, key=lambda x: x[:4]):
         if total >= frames:
             break
-        chosen.append((i, a, b, h))
-        total += b - a
+        chosen.append((int(i), int(a), int(b), h))
+        total += int(b - a)
     return chosen, share
 
 

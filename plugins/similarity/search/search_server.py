@@ -121,7 +121,7 @@ def _request(raw: bytes) -> tuple[argparse.Namespace, Path]:
         if v is not None and (not isinstance(v, _TYPES[k]) or (isinstance(v, bool) and bool not in _TYPES[k])):
             want = " or ".join(t.__name__ for t in _TYPES[k])
             raise ConfigError(f"search server: request option {k!r}: expected {want}, got {v!r}")
-        if k in _LEAST and v is not None and not (math.isfinite(v) and v >= _LEAST[k]):
+        if k in _LEAST and v is not None and not (math.isfinite(float(v)) and float(v) >= _LEAST[k]):  # type: ignore[arg-type]
             raise ConfigError(f"search server: request option {k!r}: expected a number >= {_LEAST[k]}, got {v!r}")
         if isinstance(v, str) and "\x00" in v:
             raise ConfigError(f"search server: request option {k!r}: a NUL character in {v[:40]!r}")
