@@ -554,6 +554,18 @@ def _check_folder(
                 stack.append(target)
 
 
+def _refuse_kind(real: Path, p: Path, path: str | Path, option: str, directory: bool) -> None:
+    """A file output names no folder and no device, pipe or socket; a folder output no file."""
+    if not directory and (real.is_dir() or real == real.parent):
+        raise ConfigError(f"{option} {path}: {real} is a directory: give a file name (e.g. {p / 'result'})")
+    if directory and real.exists() and not real.is_dir():
+        raise ConfigError(f"{option} {path}: {real} exists and is not a folder: give a folder name")
+    if not directory and real.exists() and not real.is_file():  # a device, a pipe: renaming over it replaces it
+        raise ConfigError(
+            f"{option} {path}: {real} is not a regular file (a device, a pipe or a socket): give a file name"
+        )
+
+
 def refuse_dataset_path(
     path: str | Path,
     option: str,
@@ -588,10 +600,7 @@ def refuse_dataset_path(
         raise ConfigError(
             f"{option} {str(path)[:80]}: cannot be written ({getattr(exc, 'strerror', None) or exc})"
         ) from None
-    if not directory and (real.is_dir() or real == real.parent):
-        raise ConfigError(f"{option} {path}: {real} is a directory: give a file name (e.g. {p / 'result'})")
-    if directory and real.exists() and not real.is_dir():
-        raise ConfigError(f"{option} {path}: {real} exists and is not a folder: give a folder name")
+    _refuse_kind(real, p, path, option, directory)
     for q in dict.fromkeys((p, real)):
         _refuse_name(q, path, option)
     found: set[Path | None] = {_workspace_of(q) for q in (p, real)}

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import os
 import textwrap
 
 import pytest
@@ -71,17 +72,22 @@ def test_absurd_step_ids(capsys, tmp_path):
         ["search", "--db", "WS", "--query", "x" * 300, "--no-server"],
         ["search", "--db", "WS", "--query", "02_01.amc:20-80", "-k", "1000000000", "--matcher", "lng", "--no-server"],
         ["search", "--db", "WS", "--query", "02_01.amc:20-80", "--serve", "--idle-timeout", "1e30"],
-        ["export", "WS", "-o", "/dev/null"],
-        ["run", "P", "--workspace", "/dev/null"],
-        ["clean", "take.bvh", "--output", "c.bvh", "--report", "/dev/null"],
+        ["export", "WS", "-o", "FIFO"],
+        ["run", "P", "--workspace", "FIFO"],
+        ["clean", "take.bvh", "--output", "c.bvh", "--report", "FIFO"],
+        ["sql", "WS", "SELECT 1", "--format", "csv", "-o", "FIFO"],
+        ["search", "--db", "WS", "--query", "02_01:20-80", "--out", "FIFO", "--no-server"],
     ],
 )
 def test_bad_options_are_clear_errors(workspace, capsys, tmp_path, argv):
     p = tmp_path / "p.yaml"
     p.write_text("name: t\nsteps:\n  motions: {uses: formats.load, with: {paths: ['*.amc']}}\n")
-    argv = [str(workspace) if a == "WS" else str(p) if a == "P" else a for a in argv]
+    fifo = tmp_path / "fifo"  # never /dev/null: a command run as root that renamed over it would replace it
+    os.mkfifo(fifo)
+    argv = [str(workspace) if a == "WS" else str(p) if a == "P" else str(fifo) if a == "FIFO" else a for a in argv]
     rc, err = _cli(capsys, *argv)
     assert rc in (1, 2) and err.startswith(("mocapflow: error:", "usage:")), err
+    assert fifo.is_fifo()  # not replaced by a file
 
 
 def test_server_requests_bounded(workspace):
