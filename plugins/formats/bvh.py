@@ -360,6 +360,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
             v = np.where(pos_cols[j] >= 0, table[:, np.maximum(pos_cols[j], 0)], offsets[j])
             if np.abs(v - offsets[j]).max() > 1e-4 * max(1.0, float(np.abs(offsets[j]).max())):
                 moving[j] = v
+    branch = _branch(joints, table)  # the Euler branch of the file's angles, before the table goes
     del table  # the frames x channels table is read: freed before the root is collapsed (a copy of rot)
     names, collapsed, restore = tuple(jt.name for jt in joints), None, None
     chans = [tuple(jt.channels) for jt in joints]
@@ -407,7 +408,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
         meta={"format": "bvh", "scale": scl, "unit": unit, **({"collapsed_root": restore} if restore else {})},
     )
     meta = blocks.metadata("bvh")
-    meta.update(_branch(joints, table))
+    meta.update(branch)
     meta.update(
         subject=path.parent.name,
         source_fps=1.0 / dt,
