@@ -215,6 +215,8 @@ def load_pipeline(path: str | Path) -> PipelineSource:
     """Read and parse a pipeline YAML file."""
     p = Path(path)
     try:
+        if p.exists() and not p.is_file():  # a FIFO would block the read forever
+            raise ConfigError(f"cannot read pipeline {p}: not a regular file")
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"cannot read pipeline {p}: {exc.strerror or exc}") from None

@@ -80,6 +80,8 @@ def workers_on_this_host(pipeline: str, jobs: int | None) -> int:
     try:
         import yaml
 
+        if not os.path.isfile(pipeline):  # a FIFO would block here; the loader says what is wrong
+            return 1
         with open(pipeline, encoding="utf-8") as f:
             doc = yaml.safe_load(f)
         doc = doc if isinstance(doc, dict) else {}

@@ -74,6 +74,7 @@ def test_absurd_step_ids(capsys, tmp_path):
         ["search", "--db", "WS", "--query", "02_01.amc:20-80", "--serve", "--idle-timeout", "1e30"],
         ["export", "WS", "-o", "FIFO"],
         ["run", "P", "--workspace", "FIFO"],
+        ["run", "FIFO"],
         ["clean", "take.bvh", "--output", "c.bvh", "--report", "FIFO"],
         ["sql", "WS", "SELECT 1", "--format", "csv", "-o", "FIFO"],
         ["search", "--db", "WS", "--query", "02_01:20-80", "--out", "FIFO", "--no-server"],
