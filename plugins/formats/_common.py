@@ -41,6 +41,12 @@ from mocapflow.framework.errors import ParseError
 #: Largest file a reader accepts, bytes (1 GiB: an hour of 120 Hz BVH with 60 joints is
 #: ~0.6 GB); a larger file is a ParseError before any of it is read.
 MAX_FILE_BYTES = 1 << 30
+
+#: Largest JSON chunk of a GLB (its data live in the BIN chunk: real ones hold kilobytes),
+#: and largest ``.gltf`` JSON document (buffers embedded as base64 included): the whole text
+#: is parsed at once, so a bigger one (or an endless string behind a valid head) is refused
+#: from its size, before its body is read. Larger takes travel as ``.glb`` or with a ``.bin``.
+MAX_GLB_JSON = 64 << 20
 #: Bytes a reader's header check sees before the rest of the file is read.
 HEAD_BYTES = 1 << 16
 

@@ -112,6 +112,15 @@ def write_gltf(motion: Motion, path: str | Path, binary: bool | None = None) -> 
     }
     blob = b"".join(buf.parts)
     if not binary:
+        from mocapflow.framework.errors import DataError
+
+        from ._common import MAX_GLB_JSON
+
+        if 4 * len(blob) // 3 + 4096 + 64 * len(nodes) > MAX_GLB_JSON:  # before anything is written
+            raise DataError(
+                f"{motion.name or 'the motion'}: {len(blob) / 2**20:,.1f} MiB of animation data is too much to embed "
+                f"in a .gltf (readers take at most {MAX_GLB_JSON >> 20} MiB of JSON): write a .glb"
+            )
         doc["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(blob).decode("ascii")
         path.write_text(json.dumps(doc, separators=(",", ":")), encoding="utf-8")
         return

@@ -57,7 +57,7 @@ from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.motion import Motion
 
 from . import _common
-from ._common import MAX_FPS, check_timeline, file_metadata, read_bytes, read_sidecar
+from ._common import MAX_FPS, MAX_GLB_JSON, check_timeline, file_metadata, read_bytes, read_sidecar
 from ._gltf_write import write_gltf
 from ._nodes import common_root, motion_from_nodes, uniform_scale, unique_names
 
@@ -82,8 +82,6 @@ MAX_JSON_DEPTH = 64
 #: Most nodes in a document, and the deepest node hierarchy (a skeleton is < 100 deep).
 MAX_NODES = 1_000_000
 MAX_NODE_DEPTH = 1_000
-#: Largest JSON chunk of a GLB (its data live in the BIN chunk: real ones hold kilobytes).
-MAX_GLB_JSON = 64 << 20
 #: Elements of an accessor without a bufferView (all zeros by the specification).
 MAX_ZERO_ELEMENTS = 1 << 20
 
@@ -114,6 +112,13 @@ def _check_head(path: Path, head: bytes, size: int) -> None:
         _json_start(path, head[20 : 20 + n], "the GLB JSON chunk")
         return
     _json_start(path, head[3:] if head.startswith(b"\xef\xbb\xbf") else head, "a glTF JSON document or a GLB file")
+    if size > MAX_GLB_JSON:
+        raise ParseError(
+            path,
+            None,
+            f"a glTF JSON document of {size / 2**20:,.1f} MiB; expected at most {MAX_GLB_JSON >> 20} MiB "
+            "(a large take's data belong in a .glb, or in a .bin buffer beside the .gltf)",
+        )
 
 
 def _json_start(path: Path, head: bytes, what: str) -> None:

@@ -482,3 +482,36 @@ def test_fbx_record_cap_and_unread_objects_skipped(tmp_path, monkeypatch):
     p.write_bytes(HS.fbx_bytes(root))
     peak = _peak_bytes(lambda: read_fbx(p))
     assert peak < 50 * 2**20
+
+
+def test_gltf_document_over_the_json_cap_is_refused_from_its_size(tmp_path):
+    """A .gltf whose head is valid JSON text but which is larger than the JSON cap (an endless
+    string behind a valid head, or a huge embedded buffer) is refused before its body is read."""
+    from mocapflow.plugins.formats.gltf import MAX_GLB_JSON, read_gltf
+
+    p = tmp_path / "endless.gltf"
+    with open(p, "wb") as f:
+        f.write(b'{"asset": {"version": "2.0"}, "x": "' + b"a" * (1 << 17))
+        f.truncate(MAX_GLB_JSON + 1)
+
+    def go():
+        with pytest.raises(ParseError, match="at most 64 MiB") as err:
+            read_gltf(p)
+        assert err.value.path == str(p)
+
+    assert _peak_bytes(go) < 2 * _common.HEAD_BYTES + 2**20
+
+
+def test_gltf_writer_refuses_what_its_reader_would(tmp_path, monkeypatch):
+    """The .gltf writer refuses a take whose embedded buffer would pass the JSON cap, before
+    writing anything (the message names .glb)."""
+    from mocapflow.framework.errors import DataError
+    from mocapflow.framework.synthetic import synthetic_motion
+    from mocapflow.plugins.formats import _common
+    from mocapflow.plugins.formats.gltf import write_gltf
+
+    monkeypatch.setattr(_common, "MAX_GLB_JSON", 10_000)
+    with pytest.raises(DataError, match=r"\.glb"):
+        write_gltf(synthetic_motion(200), tmp_path / "big.gltf")
+    assert not (tmp_path / "big.gltf").exists()
+    write_gltf(synthetic_motion(200), tmp_path / "big.glb")  # the container takes it
