@@ -319,7 +319,6 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
         path, lambda head: text_head(path, head, (b"HIERARCHY",), "'HIERARCHY' at the start of a BVH file")
     )
     joints, frames, dt, table, frame_lines = _read_streaming(path, blocks)
-    from ._kernels import euler_table_to_quat, readonly
 
     names = tuple(j.name for j in joints)
     parents = np.array([j.parent for j in joints])
@@ -349,7 +348,6 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
             else:
                 pos_cols[j, a] = c
             c += 1
-    rot = euler_table_to_quat(table, cols, axis_id, readonly(quat.identity((nj,))), np.pi / 180.0, False)
     root_t = np.empty((frames, 3))
     for a in range(3):
         root_t[:, a] = table[:, pos_cols[0, a]] if pos_cols[0, a] >= 0 else offsets[0, a]
@@ -361,20 +359,26 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
             if np.abs(v - offsets[j]).max() > 1e-4 * max(1.0, float(np.abs(offsets[j]).max())):
                 moving[j] = v
     branch = _branch(joints, table)  # the Euler branch of the file's angles, before the table goes
-    del table  # the frames x channels table is read: freed before the root is collapsed (a copy of rot)
-    names, collapsed, restore = tuple(jt.name for jt in joints), None, None
-    chans = [tuple(jt.channels) for jt in joints]
-    if (
+    # the root's rotation alone first (frames x 4): whether it is a static dummy decides which
+    # joints are converted, so the rotations are never copied to drop it
+    rot0 = _rotations([table], cols[:1], axis_id[:1], 1, shrink=False)
+    collapse = bool(
         collapse_static_root
         and 1 in moving
         and (parents == 0).sum() == 1
         and np.ptp(root_t, axis=0).max() <= 1e-9
-        and np.abs(rot[:, 0] - rot[0, 0]).max() <= 1e-12
-    ):
+        and np.abs(rot0[:, 0] - rot0[0, 0]).max() <= 1e-12
+    )
+    held = [table]
+    del table  # the only name left is in `held`: the conversion may shrink it in place
+    rot = _rotations(held, cols[1:], axis_id[1:], nj - 1) if collapse else _rotations(held, cols, axis_id, nj)
+    names, collapsed, restore = tuple(jt.name for jt in joints), None, None
+    chans = [tuple(jt.channels) for jt in joints]
+    if collapse:
         # a static dummy root (Bandai-Namco's joint_Root) above the real, translating hips:
         # make the hips the root so that root_translation and rotations[:, 0] carry the motion
         collapsed = names[0]
-        r0 = rot[0, 0].copy()
+        r0 = rot0[0, 0].copy()
         # what the writer needs to put it back (a rig that binds by name keeps its root)
         restore = {
             "name": collapsed,
@@ -384,8 +388,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
             "translation": root_t[0].tolist(),
         }
         root_t = root_t[0] + quat.rotate(r0, moving.pop(1))
-        rot = rot[:, 1:].copy()
-        rot[:, 0] = quat.mul(r0, rot[:, 0])
+        rot[:, 0] = quat.mul(r0, rot[:, 0])  # rot holds joints 1.. already
         names, chans = names[1:], chans[1:]
         parents = np.maximum(parents[1:] - 1, -1)
         offsets = offsets[1:]
@@ -534,6 +537,41 @@ def _check_motion(path: Path, state: np.ndarray, frames: int, n_ch: int, first_l
         raise ParseError(path, int(state[4]), f"expected {frames} frame lines (Frames:), found {int(state[0])}")
 
 
+#: Rows of the MOTION table converted (and checked) at a time: the temporaries of a block stay
+#: small beside the table (8 MB of values).
+TABLE_BLOCK_VALUES = 1 << 20
+
+
+def _rotations(
+    held: list[np.ndarray], cols: np.ndarray, axis_id: np.ndarray, nj: int, shrink: bool = True
+) -> np.ndarray:
+    """The local rotations (frames, joints, 4) of the MOTION table, converted in blocks of rows
+    from the end, the table shrunk in place behind each block: the table and the rotations do
+    not both stay whole in memory (their pages are released as the table shrinks and the
+    rotations are written). A table that cannot be resized (another reference) is converted
+    the same way without shrinking. ``held``: a list holding the table, emptied (the caller
+    keeps no other name of it); ``shrink=False`` leaves the table whole (a subset of joints)."""
+    from ._kernels import euler_table_to_quat, readonly
+
+    table = held.pop()
+
+    ident = readonly(quat.identity((nj,)))
+    frames, n_ch = table.shape
+    rot = np.empty((frames, nj, 4))
+    step = max(1, TABLE_BLOCK_VALUES // max(n_ch, 1))
+    end = frames
+    while end > 0:
+        a = max(0, end - step)
+        rot[a:end] = euler_table_to_quat(table[a:end], cols, axis_id, ident, np.pi / 180.0, False)
+        if shrink:
+            try:
+                table.resize((a, n_ch), refcheck=True)
+            except (ValueError, SystemError):  # a view or another name holds it: keep it whole
+                shrink = False
+        end = a
+    return rot
+
+
 def _check_bounds(
     path: Path, joints: list[_Joint], offsets: np.ndarray, table: np.ndarray, frame_lines: np.ndarray, scl: float
 ) -> None:
@@ -551,11 +589,15 @@ def _check_bounds(
     limit = np.array(
         [MAX_DEGREES if ch[1:].lower() == "rotation" else MAX_METRES / scl for jt in joints for ch in jt.channels]
     )
-    if table.size and (np.abs(table) > limit).any():
-        f, c = np.argwhere(np.abs(table) > limit)[0]
-        ch = [(jt.name, ch) for jt in joints for ch in jt.channels][c]
-        what = f"within {MAX_DEGREES:g} degrees" if ch[1][1:].lower() == "rotation" else f"within {MAX_METRES:g} m"
-        raise ParseError(path, int(frame_lines[f]), f"expected {ch[0]} {ch[1]} {what}, found {table[f, c]:g}")
+    step = max(1, TABLE_BLOCK_VALUES // max(table.shape[1], 1))
+    for a in range(0, len(table), step):  # in blocks of rows: |table| is never whole in memory
+        block = table[a : a + step]
+        over = np.abs(block) > limit
+        if over.any():
+            f, c = np.argwhere(over)[0]
+            ch = [(jt.name, ch) for jt in joints for ch in jt.channels][c]
+            what = f"within {MAX_DEGREES:g} degrees" if ch[1][1:].lower() == "rotation" else f"within {MAX_METRES:g} m"
+            raise ParseError(path, int(frame_lines[a + f]), f"expected {ch[0]} {ch[1]} {what}, found {block[f, c]:g}")
 
 
 class BvhFormat(Format):

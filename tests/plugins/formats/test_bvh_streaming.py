@@ -88,3 +88,42 @@ def test_small_blocks_give_the_same_motion(tmp_path, monkeypatch):
     assert np.array_equal(whole.rotations, small.rotations)
     assert np.array_equal(whole.root_translation, small.root_translation)
     assert whole.metadata == small.metadata
+
+
+def test_rotations_in_shrinking_blocks_equal_the_whole_table_conversion(monkeypatch):
+    """The block-wise, table-shrinking conversion (bounded memory) gives the rotations of one
+    conversion of the whole table, for any block size, the table emptied behind it."""
+    from mocapflow.framework import quaternions as quat
+    from mocapflow.plugins.formats import bvh
+    from mocapflow.plugins.formats._kernels import euler_table_to_quat, readonly
+
+    rng = np.random.default_rng(3)
+    nj, frames = 4, 37
+    table = rng.uniform(-180, 180, size=(frames, 3 + 3 * nj))
+    cols = np.array([[3 + 3 * j, 4 + 3 * j, 5 + 3 * j] for j in range(nj)], dtype=np.int64)
+    axis = np.array([[2, 0, 1]] * nj, dtype=np.int64)
+    whole = euler_table_to_quat(table, cols, axis, readonly(quat.identity((nj,))), np.pi / 180.0, False)
+    for block_values in (1, 15, 100, 10_000):
+        monkeypatch.setattr(bvh, "TABLE_BLOCK_VALUES", block_values)
+        held = [table.copy()]
+        got = bvh._rotations(held, cols, axis, nj)
+        assert held == []
+        np.testing.assert_array_equal(got, whole)
+
+
+def test_out_of_range_value_in_a_later_block_names_its_line(tmp_path, monkeypatch):
+    """The bounds check runs in blocks of rows: the first bad value is still the one named."""
+    from mocapflow.framework.errors import ParseError
+    from mocapflow.plugins.formats import bvh
+
+    monkeypatch.setattr(bvh, "TABLE_BLOCK_VALUES", 6)  # one row per block
+    rows = ["0 0 0 0 0 0"] * 5 + ["0 0 0 0 1e12 0"] + ["0 0 0 0 0 0"] * 2
+    text = (
+        "HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0 0\n  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n"
+        "  End Site\n  {\n    OFFSET 0 1 0\n  }\n}\nMOTION\nFrames: 8\nFrame Time: 0.01\n" + "\n".join(rows) + "\n"
+    )
+    p = tmp_path / "far.bvh"
+    p.write_text(text)
+    with pytest.raises(ParseError, match="Xrotation within") as err:
+        bvh.read_bvh(p)
+    assert err.value.line == 13 + 6
