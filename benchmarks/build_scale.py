@@ -47,7 +47,7 @@ steps:
   tree: {{uses: indexes.kdtree, input: fe15}}
 """
 
-#: targets of issue 38 (1 M frames; the 10 M ones are checked by extrapolation only)
+#: the build's targets (1 M frames; the 10 M ones are checked by extrapolation only)
 TARGET_RSS_1M = 1.5e9
 TARGET_BYTES = 350.0
 

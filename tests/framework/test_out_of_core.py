@@ -1,4 +1,4 @@
-"""The out-of-core workspace build (issue 38): steps stream their tables in batches, motions'
+"""The out-of-core workspace build: steps stream their tables in batches, motions'
 rotations are stored compactly, the kd-tree keeps no copy of the features; bad input (an
 older index, a changed features dataset, a full disk) gives one clear error and leaves
 nothing half-written."""

@@ -153,7 +153,7 @@ def test_report_copies_no_symlinked_plot(workspace, tmp_path):
     assert (workspace / "summary" / MANIFEST).is_file()
 
 
-# --- outputs checked by identity (issue 39): hard links, links anywhere on the path, links
+# --- outputs checked by identity: hard links, links anywhere on the path, links
 # inside an output folder; the workspace stays byte-identical after every refusal
 
 
