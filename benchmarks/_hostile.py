@@ -159,7 +159,8 @@ def symlinks(tmp: Path) -> list[tuple[str, str, float, float]]:
     """Output paths reaching a dataset through a link, and report assets that are links
     (to a file outside, to a folder): refused or skipped."""
     from mocapflow.framework.errors import ConfigError
-    from mocapflow.framework.workspace import MANIFEST, refuse_dataset_path
+    from mocapflow.framework.output_paths import refuse_dataset_path
+    from mocapflow.framework.workspace import MANIFEST
     from mocapflow.plugins.report.model import owned_file
 
     ws = tmp / "ws"

@@ -194,7 +194,8 @@ def cmd_sql(args: argparse.Namespace, pm: pluggy.PluginManager | None) -> int:
     if not Path(args.workspace).exists():  # the common typo, answered before pyarrow and duckdb load
         raise ConfigError(f"workspace {args.workspace} does not exist (run a pipeline first)")
     from .catalog import Catalog, format_table, limited_query
-    from .workspace import export_table, refuse_dataset_path
+    from .output_paths import refuse_dataset_path
+    from .workspace import export_table
 
     if args.output:  # refuse what cannot be written before the work
         out = Path(args.output)

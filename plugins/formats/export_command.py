@@ -45,7 +45,7 @@ class ExportCommand:
         from mocapflow.framework.datasets import read_datasets
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.export import export_segments, workspace_segments
-        from mocapflow.framework.workspace import refuse_dataset_path
+        from mocapflow.framework.output_paths import refuse_dataset_path
 
         ws = Path(args.workspace)
         if not ws.is_dir():

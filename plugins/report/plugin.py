@@ -60,7 +60,7 @@ def build_report(workspace: str | Path, output: str | Path | None = None) -> dic
     """Read a workspace written by ``mocapflow run`` and write its report site to ``output``
     (default ``<workspace>/report``); returns ``index`` (Path of index.html), ``files``,
     ``bytes``, ``steps``."""
-    from mocapflow.framework.workspace import refuse_dataset_path
+    from mocapflow.framework.output_paths import refuse_dataset_path
 
     from .model import ModelBuilder
     from .site import write_site

@@ -71,7 +71,8 @@ class CleanCommand:
 
         from mocapflow.framework.commands import context_of
         from mocapflow.framework.errors import ConfigError
-        from mocapflow.framework.workspace import atomic_path, refuse_dataset_path
+        from mocapflow.framework.output_paths import refuse_dataset_path
+        from mocapflow.framework.workspace import atomic_path
 
         dest = refuse_dataset_path(args.output, "--output")
         if args.report:

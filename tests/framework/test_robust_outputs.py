@@ -40,7 +40,7 @@ def _snapshot(ws: Path) -> dict[str, bytes]:
 
 
 def test_refuse_dataset_path_covers_step_folders_runner_folder_and_links(workspace, tmp_path):
-    from mocapflow.framework.workspace import refuse_dataset_path
+    from mocapflow.framework.output_paths import refuse_dataset_path
 
     for bad in (
         workspace / "summary" / "data.parquet",
@@ -183,7 +183,7 @@ def _links(workspace: Path, tmp_path: Path) -> dict[str, Path]:
 
 
 def test_refuse_dataset_path_by_identity(workspace, tmp_path):
-    from mocapflow.framework.workspace import refuse_dataset_path
+    from mocapflow.framework.output_paths import refuse_dataset_path
 
     bad = _links(workspace, tmp_path)
     with pytest.raises(ConfigError, match="data.parquet of a mocapflow workspace under another name"):

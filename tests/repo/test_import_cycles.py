@@ -157,6 +157,7 @@ LAYERS: dict[str, tuple[str, ...]] = {
         "matching",
         "registry",
         "workspace",
+        "output_paths",
         "datasets",
         "clip_refs",
         "cleaning",

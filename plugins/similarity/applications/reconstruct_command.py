@@ -50,7 +50,7 @@ class ReconstructCommand:
 
         from mocapflow.framework import Motion
         from mocapflow.framework.errors import ConfigError, DataError
-        from mocapflow.framework.workspace import refuse_dataset_path
+        from mocapflow.framework.output_paths import refuse_dataset_path
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
         from .reconstruct_markers import control_from_markers, control_from_motion, read_skeleton

@@ -299,8 +299,8 @@ class SearchSession:
         """Run the search of ``args`` and print its matches to ``out`` (notes to ``err``)."""
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.matching import in_source_units, matches_table
+        from mocapflow.framework.output_paths import refuse_dataset_path
         from mocapflow.framework.queries import match_query
-        from mocapflow.framework.workspace import refuse_dataset_path
 
         # refused before the work, also when a server answers for a client (its cwd)
         ws = [self.db] if getattr(self, "db", None) is not None else []
