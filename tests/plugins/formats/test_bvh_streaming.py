@@ -94,7 +94,7 @@ def test_rotations_in_shrinking_blocks_equal_the_whole_table_conversion(monkeypa
     """The block-wise, table-shrinking conversion (bounded memory) gives the rotations of one
     conversion of the whole table, for any block size, the table emptied behind it."""
     from mocapflow.framework import quaternions as quat
-    from mocapflow.plugins.formats import bvh
+    from mocapflow.plugins.formats import _bvh_table
     from mocapflow.plugins.formats._kernels import euler_table_to_quat, readonly
 
     rng = np.random.default_rng(3)
@@ -104,9 +104,9 @@ def test_rotations_in_shrinking_blocks_equal_the_whole_table_conversion(monkeypa
     axis = np.array([[2, 0, 1]] * nj, dtype=np.int64)
     whole = euler_table_to_quat(table, cols, axis, readonly(quat.identity((nj,))), np.pi / 180.0, False)
     for block_values in (1, 15, 100, 10_000):
-        monkeypatch.setattr(bvh, "TABLE_BLOCK_VALUES", block_values)
+        monkeypatch.setattr(_bvh_table, "TABLE_BLOCK_VALUES", block_values)
         held = [table.copy()]
-        got = bvh._rotations(held, cols, axis, nj)
+        got = _bvh_table._rotations(held, cols, axis, nj)
         assert held == []
         np.testing.assert_array_equal(got, whole)
 
@@ -114,9 +114,9 @@ def test_rotations_in_shrinking_blocks_equal_the_whole_table_conversion(monkeypa
 def test_out_of_range_value_in_a_later_block_names_its_line(tmp_path, monkeypatch):
     """The bounds check runs in blocks of rows: the first bad value is still the one named."""
     from mocapflow.framework.errors import ParseError
-    from mocapflow.plugins.formats import bvh
+    from mocapflow.plugins.formats import _bvh_table, bvh
 
-    monkeypatch.setattr(bvh, "TABLE_BLOCK_VALUES", 6)  # one row per block
+    monkeypatch.setattr(_bvh_table, "TABLE_BLOCK_VALUES", 6)  # one row per block
     rows = ["0 0 0 0 0 0"] * 5 + ["0 0 0 0 1e12 0"] + ["0 0 0 0 0 0"] * 2
     text = (
         "HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0 0\n  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n"
