@@ -44,18 +44,14 @@ def _rotations(
     rotations are written). A table that cannot be resized (another reference) is converted
     the same way without shrinking. ``held``: a list holding the table, emptied (the caller
     keeps no other name of it); ``shrink=False`` leaves the table whole (a subset of joints)."""
-    from ._kernels import euler_table_to_quat, readonly
-
     table = held.pop()
-
-    ident = readonly(quat.identity((nj,)))
     frames, n_ch = table.shape
     rot = np.empty((frames, nj, 4))
     step = max(1, TABLE_BLOCK_VALUES // max(n_ch, 1))
     end = frames
     while end > 0:
         a = max(0, end - step)
-        rot[a:end] = euler_table_to_quat(table[a:end], cols, axis_id, ident, np.pi / 180.0, False)
+        rot[a:end] = euler_rows_to_quat(table[a:end], cols, axis_id)
         if shrink:
             try:
                 table.resize((a, n_ch), refcheck=True)
@@ -63,6 +59,31 @@ def _rotations(
                 shrink = False
         end = a
     return rot
+
+
+def euler_rows_to_quat(table: np.ndarray, cols: np.ndarray, axis_id: np.ndarray) -> np.ndarray:
+    """Joint rotations (T, J, 4) (w, x, y, z) of BVH Euler channels in degrees: ``table``
+    (T, W); ``cols`` (J, 3) the column of joint j's k-th listed rotation channel (-1: none);
+    ``axis_id`` (J, 3) its axis (0=x, 1=y, 2=z). Intrinsic, in listed order:
+    ``M = R1 R2 R3``. NumPy over the rows (no compiled kernel, module doc of ``_bvh_rows``);
+    the slow twin is ``tests/naive/formats.py``."""
+    t, nj = table.shape[0], cols.shape[0]
+    out = np.zeros((t, nj, 4))
+    out[:, :, 0] = 1.0
+    half = 0.5 * (np.pi / 180.0)
+    for j in range(nj):
+        q = out[:, j]
+        for k in range(3):
+            c = cols[j, k]
+            if c < 0:
+                continue
+            h = half * table[:, c]
+            ew, s = np.cos(h), np.sin(h)
+            e = np.zeros((t, 4))
+            e[:, 0] = ew
+            e[:, 1 + axis_id[j, k]] = s
+            q[:] = quat.mul(q, e)
+    return out
 
 
 def _check_bounds(

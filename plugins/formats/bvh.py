@@ -467,7 +467,7 @@ def _read_streaming(path: Path, blocks: TextBlocks) -> tuple[list[_Joint], int, 
     """Joints, frames, frame time, the MOTION table (frames x channels, float64) and the
     line of each frame, the file read in blocks of lines (:class:`._stream.TextBlocks`):
     the blocks up to the MOTION header are kept for the hierarchy, the data lines are parsed
-    straight into the table (:func:`._text_kernels.fill_table`). The errors are those of
+    straight into the table (:func:`._bvh_rows.parse_rows`). The errors are those of
     the whole-file parser, in its order: binary bytes anywhere first, then the hierarchy and
     the header, then the data (a non-number, a line of the wrong count, the frame count)."""
     it = iter(blocks)
@@ -504,7 +504,7 @@ def _read_streaming(path: Path, blocks: TextBlocks) -> tuple[list[_Joint], int, 
         for _ in it:
             pass
         raise pending
-    from ._text_kernels import fill_table, table_state  # after the header check: a foreign file costs no kernel load
+    from ._bvh_rows import parse_rows, table_state
 
     n_ch = sum(len(j.channels) for j in joints)
     stat_size = path.stat().st_size
@@ -512,11 +512,10 @@ def _read_streaming(path: Path, blocks: TextBlocks) -> tuple[list[_Joint], int, 
     table = np.empty((rows, n_ch))
     frame_lines = np.zeros(rows, dtype=np.int64)
     state = table_state()
-    fill_table(np.frombuffer(head, dtype=np.uint8)[dpos:], dline, table, frame_lines, state)
+    parse_rows(head[dpos:], dline, table, frame_lines, state)
     del head
     for block, line in it:
-        if state[5] < 0:
-            fill_table(np.frombuffer(block, dtype=np.uint8), line, table, frame_lines, state)
+        parse_rows(block, line, table, frame_lines, state)
     _check_motion(path, state, frames, n_ch, dline)
     return joints, frames, dt, table, frame_lines
 

@@ -1,28 +1,32 @@
-"""The streaming BVH MOTION parser (:func:`_text_kernels.fill_table` over line blocks) gives
-the tokenizer's values, line by line, and the whole-file parser's errors."""
+"""The streaming BVH MOTION parser (:func:`_bvh_rows.parse_rows` over line blocks) gives
+the slow tokenizer's values, line by line, and the whole-file parser's errors."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from naive.formats import tokenize
 
 from mocapflow.framework.errors import ParseError
 from mocapflow.plugins.formats import _stream
-from mocapflow.plugins.formats._text_kernels import fill_table, table_state, tokenize
+from mocapflow.plugins.formats._bvh_rows import parse_rows, table_state
 from mocapflow.plugins.formats.bvh import read_bvh
 
 
 def _reference(body: bytes, cols: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of numbers and their lines from :func:`tokenize` (the tokenizer the twin tests check)."""
-    starts, lens, lines, _h, values, isnum, bad, _bl = tokenize(np.frombuffer(body, dtype=np.uint8), 0, 1)
-    assert bad < 0 and isnum.all()
+    """Rows of numbers and their lines from the slow tokenizer (Python's ``split`` and ``float``)."""
+    starts, lens, lines, values, isnum = tokenize(body, 0, 1)
+    assert isnum.all()
     uniq = np.unique(lines)
     return values.reshape(len(uniq), cols), uniq
 
 
 @pytest.mark.parametrize("seed", range(5))
-def test_fill_table_equals_the_tokenizer(seed):
+def test_parse_rows_equals_the_slow_tokenizer(seed, monkeypatch):
+    from mocapflow.plugins.formats import _bvh_rows
+
     rng = np.random.default_rng(seed)
+    monkeypatch.setattr(_bvh_rows, "PIECE_BYTES", [1, 16, 50, 1 << 20, 7][seed])  # pieces cut at line ends
     rows, cols = 40, 7
     vals = rng.normal(size=(rows, cols)) * 10.0 ** rng.integers(-8, 8, size=(rows, cols))
     text = "\n".join(
@@ -39,7 +43,7 @@ def test_fill_table_equals_the_tokenizer(seed):
     while pos < len(text):
         cut = text.find(b"\n", min(pos + int(rng.integers(1, 200)), len(text) - 1))
         cut = len(text) if cut < 0 else cut + 1
-        line = fill_table(np.frombuffer(text[pos:cut], dtype=np.uint8), line, out, lines, state)
+        line = parse_rows(text[pos:cut], line, out, lines, state)
         pos = cut
     assert state[0] == rows and state[1] < 0 and state[2] < 0
     assert np.array_equal(out, want) and np.array_equal(lines, want_lines)
@@ -127,3 +131,71 @@ def test_out_of_range_value_in_a_later_block_names_its_line(tmp_path, monkeypatc
     with pytest.raises(ParseError, match="Xrotation within") as err:
         bvh.read_bvh(p)
     assert err.value.line == 13 + 6
+
+
+@pytest.mark.parametrize(
+    "token",
+    [b"nan", b"-inf", b"Infinity", b"1e400", b"0x1A", b"1_0", b"1-2", b"1e", b"--1", b".", b"1.2.3", b"e5", b"x"],
+)
+def test_parse_rows_refuses_what_the_tokenizer_calls_a_non_number(token):
+    """Every token must be one finite decimal number; the first line holding another names the error,
+    even after a line of the wrong count and in a later block."""
+    out, lines, state = np.empty((4, 3)), np.zeros(4, np.int64), table_state()
+    parse_rows(b"1 2 3\n1 2\n", 10, out, lines, state)
+    parse_rows(b"\n4 5 6\n7 " + token + b" 9\n1 2 3\n", 12, out, lines, state)
+    assert state[2] == 11 and state[3] == 2
+    assert state[1] == 14, (token, state)
+    slow_ok = tokenize(token)[4]
+    assert not slow_ok.all()
+
+
+def test_parse_rows_values_equal_the_slow_parser_on_hard_numbers():
+    """Long mantissas, extreme exponents and subnormals: correctly rounded, as Python's float."""
+    rng = np.random.default_rng(7)
+    words = [
+        "0.1000000000000000055511151231257827",
+        "123456789012345678901234567890",
+        "1e-320",
+        "-4.9e-324",
+        "1.7976931348623157e308",
+        "+.5",
+        "5.",
+        "-0",
+        "0e999",
+        "2.2250738585072011e-308",
+    ] + [repr(float(v)) for v in rng.normal(size=30) * 10.0 ** rng.integers(-300, 300, 30)]
+    text = "\n".join(" ".join(words[i : i + 5]) for i in range(0, 40, 5)).encode() + b"\n"
+    out, lines, state = np.empty((8, 5)), np.zeros(8, np.int64), table_state()
+    parse_rows(text, 1, out, lines, state)
+    want, want_lines = _reference(text, 5)
+    assert state[1] < 0 and state[2] < 0 and state[0] == 8
+    assert np.array_equal(out, want) and np.array_equal(lines, want_lines)
+
+
+def test_euler_rows_equal_the_slow_twin():
+    from naive.formats import euler_table_to_quat as naive_euler
+
+    from mocapflow.framework import quaternions as quat
+    from mocapflow.plugins.formats._bvh_table import euler_rows_to_quat
+
+    rng = np.random.default_rng(11)
+    table = rng.uniform(-720, 720, size=(9, 12))
+    cols = np.array([[0, 1, 2], [5, 3, -1], [6, -1, -1], [11, 9, 10]], dtype=np.int64)
+    axis = np.array([[2, 0, 1], [0, 1, 2], [1, 0, 0], [2, 1, 0]], dtype=np.int64)
+    got = euler_rows_to_quat(table, cols, axis)
+    want = naive_euler(table, cols, axis, quat.identity((4,)), np.pi / 180.0, False)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-13)
+
+
+def test_reading_a_bvh_loads_no_compiled_kernel(tmp_path):
+    """numba's import and kernels cost ~130 MB and a first-run compile: a BVH read needs neither."""
+    import subprocess
+    import sys
+
+    f = tmp_path / "a.bvh"
+    f.write_bytes(BVH + b"1 2 3 4 5 6\n" * 3)
+    code = (
+        f"import sys, mocapflow; m = mocapflow.read({str(f)!r}); assert m.n_frames == 3; print('numba' in sys.modules)"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "False", done.stdout + done.stderr
