@@ -1,9 +1,7 @@
 """Reconstruction onto any skeleton: CMU, HDM05, Bandai-Namco, Xia, cgspeed and PyMO rigs.
 
     python benchmarks/reconstruct_skeletons.py                  # every family, 8 clips each, 5 s per clip
-    python benchmarks/reconstruct_skeletons.py --clips 3 --seconds 3 --no-cli
-    python benchmarks/reconstruct_skeletons.py --prior-without-partial   # the prior without the takes
-                                                                         # that lack a spine joint
+    python benchmarks/reconstruct_skeletons.py --quick          # 2 clips per family, 2 s each
 
 For each skeleton family of ../shared/data, ``--clips`` takes (spread over its subjects,
 chosen by ``--seed``; the first ``--seconds`` of each, at the take's own rate) are
@@ -71,15 +69,14 @@ FAMILIES: dict[str, str] = {
 CUTS: dict[str, tuple[str, ...]] = {"Bandai-like": ("lowerback",), "PyMO-like": ("lowerback", "upperback", "neck")}
 
 
-def load_store(files: list[Path], complete: bool, fps: float = 30.0) -> PriorStore:
-    """The prior store of ``files`` (built once, cached, memory-mapped); ``complete``: takes
-    lacking spine joints enter with them placed by the spine rule."""
+def load_store(files: list[Path], fps: float = 30.0) -> PriorStore:
+    """The prior store of ``files`` (built once, cached, memory-mapped)."""
     rel = [str(f.relative_to(f.parents[2])) for f in files]
-    tag = hashlib.sha1(json.dumps(["skeletons-1", fps, complete, rel]).encode()).hexdigest()[:12]
+    tag = hashlib.sha1(json.dumps(["skeletons-2", fps, rel]).encode()).hexdigest()[:12]
     folder = CACHE / f"reconstruct_prior_skel_{tag}"
     if not (folder / "clips.json").is_file():
         t = time.perf_counter()
-        build_store((read_take(f) for f in files), fps=fps, complete=complete).save(folder)
+        build_store((read_take(f) for f in files), fps=fps).save(folder)
         print(f"  prior built in {time.perf_counter() - t:.0f} s -> {folder}")
     return PriorStore.load(folder)
 
@@ -188,17 +185,19 @@ def cli_run(f: Path, store: PriorStore, tmp: Path) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="2 clips per family, the first 2 s of each")
     ap.add_argument("--clips", type=int, default=8, help="takes per family")
     ap.add_argument("--seconds", type=float, default=5.0, help="first seconds of each take")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--families", default=",".join(FAMILIES))
-    ap.add_argument("--prior-without-partial", action="store_true", help="leave out takes lacking a spine joint")
     ap.add_argument("--no-cli", action="store_true")
     ap.add_argument("--no-cuts", action="store_true", help="skip the composite-bone check on cut CMU skeletons")
     args = ap.parse_args()
+    if args.quick:
+        args.clips, args.seconds = 2, 2.0
 
     t0 = time.perf_counter()
-    store = load_store(prior_files(DATA), complete=not args.prior_without_partial)
+    store = load_store(prior_files(DATA))
     src = {}
     for c in store.clips:
         src[c["source"]] = src.get(c["source"], 0) + (not c["mirrored"])

@@ -355,43 +355,18 @@ class PriorStore:
         )
 
 
-def complete_spine(positions: np.ndarray, joints: Sequence[str]) -> np.ndarray:
-    """Canonical positions (T, P, 3) with missing spine joints placed by the spine rule's
-    arc-length fractions (:data:`SPINE_FRACTIONS`): ``lowerback`` at the root, ``upperback``
-    on root -> chest, ``neck`` on chest -> head. Other missing joints stay NaN."""
-    j = list(joints)
-    pos = np.array(positions, np.float64)
-
-    def gap(name: str) -> bool:
-        return name in j and bool(np.isnan(pos[:, j.index(name)]).any())
-
-    def at(name: str) -> np.ndarray:
-        return pos[:, j.index(name)]
-
-    if gap("lowerback") and "root" in j:
-        pos[:, j.index("lowerback")] = at("root")
-    if gap("upperback") and "root" in j and "chest" in j:
-        f = SPINE_FRACTIONS["upperback"]
-        pos[:, j.index("upperback")] = (1 - f) * at("root") + f * at("chest")
-    if gap("neck") and "chest" in j and "head" in j:
-        f = SPINE_FRACTIONS["neck"]
-        pos[:, j.index("neck")] = (1 - f) * at("chest") + f * at("head")
-    return pos
-
-
 def build_store(
     motions: Iterable[Motion],
     fps: float = 30.0,
     joints: Sequence[str] = POSE_JOINTS,
     mirrored: bool = True,
-    complete: bool = True,
 ) -> PriorStore:
-    """A :class:`PriorStore` of ``motions`` (resampled to ``fps``), each with its mirror image.
+    """A :class:`PriorStore` of ``motions`` (resampled to ``fps``), each with its mirror image
+    and its bone lengths.
 
-    Every skeleton is read through the spine rule (:func:`spine_map`); with ``complete``, a
-    take lacking only spine joints (a Bandai-Namco spine without ``lowerback``, a PyMO
-    spine of one bone) has them placed by :func:`complete_spine`. Takes still lacking a pose
-    joint, or the control joints, are skipped (they are not in ``clips``).
+    Every skeleton is read through the spine rule (:func:`spine_map`). Takes lacking a pose
+    joint (Bandai-Namco and PyMO BVH: spine joints; measured, placing them by the rule does
+    not help: docs/knn.md) or the control joints are skipped (they are not in ``clips``).
     """
     from mocapflow.framework.normalize import resample
 
@@ -405,14 +380,11 @@ def build_store(
             skel, _ = pose_skeleton(m.skeleton)
         except DataError:
             continue
-        lacking = [j for j in joints if j not in skel.canonical]
-        if lacking and not (complete and set(lacking) <= {"lowerback", "upperback", "neck"}):
+        if any(j not in skel.canonical for j in joints):
             continue
         if abs(m.fps - fps) > 1e-6:
             m = resample(m, fps)
-        pos = m.with_arrays(skeleton=skel).canonical_positions(joints)
-        pos = complete_spine(pos, joints) if lacking else pos
-        local = local_positions(pos, joints)
+        local = local_positions(m.with_arrays(skeleton=skel).canonical_positions(joints), joints)
         own = np.median(directions(local, parents)[1], axis=0)
         for flip in (False, True) if mirrored else (False,):
             d, _ = directions(mirror(local, joints) if flip else local, parents)
