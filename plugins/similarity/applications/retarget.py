@@ -65,7 +65,7 @@ def positions_to_motion(
     positions : ndarray of shape (T, P, 3), metres
         World targets of canonical ``joints`` (must include ``root``, the skeleton's joint 0).
     """
-    pos = np.asarray(positions, np.float64)
+    pos = np.array(positions, np.float64)  # a copy: limb middles are moved (two-bone IK)
     t_len = len(pos)
     r = skeleton.canonical.get("root", -1)
     if r < 0 or "root" not in joints:
@@ -75,6 +75,7 @@ def positions_to_motion(
     for j in above:
         aims[j] = []  # joints above the root keep their rest rotation
     dofs = _dofs(skeleton)
+    limbs = _limbs(skeleton, joints)
     glob = np.empty((t_len, skeleton.n_joints, 4))
     world = np.empty((t_len, skeleton.n_joints, 3))
     local = np.empty_like(glob)
@@ -90,6 +91,9 @@ def positions_to_motion(
             glob[:, j] = g_par
         elif len(aims[j]) == 1:
             col, v = aims[j][0]
+            if j in limbs:  # the middle joint moved so that the limb's end reaches its target
+                c_mid, c_end, l1, l2 = limbs[j]
+                pos[:, c_mid] = two_bone_middle(world[:, j], pos[:, c_end], pos[:, c_mid], l1, l2)
             a = quat.rotate(g_par, np.broadcast_to(v, (t_len, 3)))
             glob[:, j] = quat.mul(_between(a, pos[:, col] - world[:, j]), g_par)
             hinge = _hinge_below(skeleton, j, col, aims, dofs, joints)
@@ -113,6 +117,47 @@ def positions_to_motion(
             glob[:, j] = quat.mul(g_par, local[:, j])
     local = quat.make_continuous(quat.normalize(local), axis=0)
     return Motion(skeleton, world[:, 0], local, fps, name=name, metadata=dict(metadata or {}))
+
+
+#: (base, middle, end) canonical chains whose end the output puts on its target by two-bone IK.
+LIMB_CHAINS: tuple[tuple[str, str, str], ...] = (
+    ("lshoulder", "lelbow", "lwrist"),
+    ("rshoulder", "relbow", "rwrist"),
+    ("lhip", "lknee", "lankle"),
+    ("rhip", "rknee", "rankle"),
+)
+
+
+def _limbs(skeleton: Skeleton, joints: Sequence[str]) -> dict[int, tuple[int, int, float, float]]:
+    """Base joint -> (middle column, end column, upper and lower bone lengths) of each
+    :data:`LIMB_CHAINS` chain that the skeleton holds as parent -> child -> grandchild."""
+    out = {}
+    for a, b, c in LIMB_CHAINS:
+        if all(n in skeleton.canonical and n in joints for n in (a, b, c)):
+            ia, ib, ic = (skeleton.canonical[n] for n in (a, b, c))
+            if skeleton.parents[ib] == ia and skeleton.parents[ic] == ib:
+                l1, l2 = (float(np.linalg.norm(skeleton.offsets[i])) for i in (ib, ic))
+                if l1 > 1e-9 and l2 > 1e-9:
+                    out[ia] = (list(joints).index(b), list(joints).index(c), l1, l2)
+    return out
+
+
+def two_bone_middle(base: np.ndarray, end: np.ndarray, hint: np.ndarray, l1: float, l2: float) -> np.ndarray:
+    """Middle joints (T,3) of two-bone chains from ``base`` to ``end`` (T,3) with bones ``l1``,
+    ``l2``: on the circle the lengths allow, on the side of ``hint`` (the solved middle);
+    a target out of reach gets the chain stretched towards it."""
+    axis = end - base
+    dist = np.linalg.norm(axis, axis=1, keepdims=True)
+    u = axis / np.maximum(dist, 1e-12)
+    d = np.clip(dist, abs(l1 - l2) + 1e-9, l1 + l2 - 1e-9)
+    x = (l1 * l1 - l2 * l2 + d * d) / (2 * d)
+    r = np.sqrt(np.maximum(l1 * l1 - x * x, 0.0))
+    side = hint - base
+    side = side - (side * u).sum(1, keepdims=True) * u
+    n = np.linalg.norm(side, axis=1, keepdims=True)
+    fallback = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
+    side = np.where(n > 1e-9, side / np.maximum(n, 1e-12), fallback / np.linalg.norm(fallback, axis=1, keepdims=True))
+    return base + x * u + r * side
 
 
 def _ancestors(skeleton: Skeleton, j: int) -> list[int]:
@@ -255,4 +300,4 @@ def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return quat.normalize(q)
 
 
-__all__ = ["positions_to_motion"]
+__all__ = ["positions_to_motion", "two_bone_middle"]
