@@ -112,8 +112,9 @@ def positions_to_motion(
             rot = np.swapaxes(vt, 1, 2) @ (fix[:, :, None] * np.swapaxes(u, 1, 2))
             glob[:, j] = quat.from_matrix(rot)
         local[:, j] = glob[:, j] if par < 0 else quat.mul(quat.conjugate(g_par), glob[:, j])
-        if par >= 0 and dofs[j] is not None:
-            local[:, j] = _on_dofs(local[:, j], skeleton, j, dofs[j], g_par, world[:, j], pos, aims[j])
+        dof = dofs[j]
+        if par >= 0 and dof is not None:
+            local[:, j] = _on_dofs(local[:, j], skeleton, j, dof, g_par, world[:, j], pos, aims[j])
             glob[:, j] = quat.mul(g_par, local[:, j])
     local = quat.make_continuous(quat.normalize(local), axis=0)
     return Motion(skeleton, world[:, 0], local, fps, name=name, metadata=dict(metadata or {}))
