@@ -106,14 +106,15 @@ def read_subject(f: Path) -> str:
 class Priors:
     """PosePriors per (withheld subject, pose joints, bone lengths), the last one kept."""
 
-    def __init__(self, store: PriorStore) -> None:
-        self.store, self.key, self.prior = store, None, None
+    def __init__(self, store: PriorStore, rig: bool = True) -> None:
+        self.store, self.rig, self.key, self.prior = store, rig, None, None
 
-    def get(self, subject: str, joints: tuple[str, ...], lengths: np.ndarray) -> PosePrior:
-        key = (subject, joints, np.round(lengths, 4).tobytes())
+    def get(self, subject: str, joints: tuple[str, ...], lengths: np.ndarray, rest: np.ndarray) -> PosePrior:
+        key = (subject, joints, np.round(lengths, 4).tobytes(), np.round(rest, 4).tobytes())
         if key != self.key:
             keep = np.array([c["subject"] != subject for c in self.store.clips])
-            self.prior = PosePrior.build(self.store.on_joints(joints), lengths, keep)
+            view = self.store.on_joints(joints, rest if self.rig else None)
+            self.prior = PosePrior.build(view, lengths, keep)
             self.key = key
         assert self.prior is not None
         return self.prior
@@ -128,7 +129,10 @@ def reconstruct_take(m: Motion, priors: Priors, drop: tuple[str, ...] = ()) -> d
     m = m.with_arrays(skeleton=skel)
     truth = m.canonical_positions(joints)
     control, heading = control_from_motion(m)
-    prior = priors.get(str(m.metadata.get("subject", "")), joints, bone_lengths(truth, joints))
+    rest = Motion(skel, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, skel.n_joints, 1)), m.fps)
+    prior = priors.get(
+        str(m.metadata.get("subject", "")), joints, bone_lengths(truth, joints), rest.canonical_positions(joints)[0]
+    )
     t = time.perf_counter()
     world, _ = reconstruct_positions(control, prior, root_heading=heading)
     sec = time.perf_counter() - t
@@ -190,6 +194,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=5.0, help="first seconds of each take")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--families", default=",".join(FAMILIES))
+    ap.add_argument("--no-rig", action="store_true", help="clavicles from the prior's rig, not the skeleton's")
     ap.add_argument("--no-cli", action="store_true")
     ap.add_argument("--no-cuts", action="store_true", help="skip the composite-bone check on cut CMU skeletons")
     args = ap.parse_args()
@@ -205,7 +210,7 @@ def main() -> None:
         f"prior: {len(store.clips)} takes (with mirror images), {store.n_frames} frames at {store.fps:g} Hz "
         f"(takes per source: {', '.join(f'{k} {v}' for k, v in sorted(src.items()))}); loaded in {time.perf_counter() - t0:.0f} s"
     )
-    priors = Priors(store)
+    priors = Priors(store, rig=not args.no_rig)
     # compile the kd-tree and solver kernels before timing
     warm = read_take(sorted(DATA.glob(FAMILIES["CMU"]))[0])
     reconstruct_take(warm.slice(0, 20), priors)

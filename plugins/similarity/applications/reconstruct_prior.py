@@ -241,7 +241,8 @@ class PriorStore:
 
     ``lengths`` (C, P): each take's bone lengths (None: :data:`REFERENCE_LENGTHS`);
     ``tree``: the joints of ``dirs`` when ``joints`` is a subset of them
-    (:meth:`on_joints`; None: the same).
+    (:meth:`on_joints`; None: the same); ``rig``: rest positions (P, 3) of the skeleton the
+    view serves (its clavicles' places on the chest).
     """
 
     joints: tuple[str, ...]
@@ -251,6 +252,7 @@ class PriorStore:
     clips: list[dict]
     lengths: np.ndarray | None = None
     tree: tuple[str, ...] | None = None
+    rig: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -265,19 +267,23 @@ class PriorStore:
             else np.zeros(0, int)
         )
 
-    def on_joints(self, joints: Sequence[str]) -> PriorStore:
+    def on_joints(self, joints: Sequence[str], rest: np.ndarray | None = None) -> PriorStore:
         """The store seen on a subset of its joints (a skeleton's pose joints,
         :func:`pose_skeleton`): :meth:`retarget` gives those joints, a bone whose canonical
-        parent is absent taking the direction of the prior bones it spans."""
+        parent is absent taking the direction of the prior bones it spans. With ``rest``
+        (the skeleton's rest positions of ``joints``, (P, 3)) the clavicles start where that
+        skeleton has them on its chest (:func:`chest_from_rig`)."""
         tree = self.tree or self.joints
         joints = tuple(joints)
-        if joints == tree:
-            return replace(self, joints=tree, tree=None)
+        if joints == tree and rest is None:
+            return replace(self, joints=tree, tree=None, rig=None)
         unknown = [j for j in joints if j not in tree]
         if unknown:
             raise DataError(f"pose joints {unknown} are not in the prior's joints {list(tree)}")
         bone_parents(joints)  # root first, parents first
-        return replace(self, joints=joints, tree=tree)
+        if rest is not None and np.shape(rest) != (len(joints), 3):
+            raise DataError(f"rest positions must be ({len(joints)}, 3), got {np.shape(rest)}")
+        return replace(self, joints=joints, tree=tree, rig=None if rest is None else np.asarray(rest, np.float64))
 
     def take_lengths(self, rows: np.ndarray | None = None) -> np.ndarray:
         """Bone lengths (n, P_tree) of the takes of ``rows`` (all: None)."""
@@ -303,6 +309,8 @@ class PriorStore:
         v[:, 0] = 0.0
         n = np.linalg.norm(v, axis=-1, keepdims=True)
         u = np.where(n > 1e-6, v / np.maximum(n, 1e-12), 0.0).astype(np.float32)
+        if self.rig is not None:
+            chest_from_rig(u, own, self.tree, self.joints, self.rig)
         return np.einsum("jb,nbc->njc", a.astype(np.float32), u, optimize=True).astype(np.float32)
 
     def select(self, keep: np.ndarray) -> PriorStore:
@@ -353,6 +361,49 @@ class PriorStore:
             list(meta["clips"]),
             np.load(lengths) if lengths.is_file() else None,
         )
+
+
+def chest_from_rig(
+    u: np.ndarray, own: np.ndarray, tree: Sequence[str], joints: Sequence[str], rest: np.ndarray
+) -> None:
+    """Clavicle bone directions ``u`` (n, P, 3) of prior poses, in place, from where the
+    served skeleton (``rest`` (P, 3)) starts its clavicles on its chest: their rest offsets
+    in the chest's frame (up: to the neck, or the head; lateral: between the clavicles, or
+    the shoulders where those coincide), put in each prior pose's chest frame (up: its
+    chest -> neck bone; lateral: its shoulders, ``own`` (n, P_tree, 3)). Rigs differ there
+    (CMU clavicles start at the neck's place, Bandai-Namco's a hand's width apart)."""
+    j, t = list(joints), list(tree)
+    up_child = "neck" if "neck" in j else "head"
+    need = ("chest", "lclavicle", "rclavicle", "lshoulder", "rshoulder", up_child)
+    if any(n not in j for n in need) or any(n not in t for n in ("lshoulder", "rshoulder")):
+        return
+    par = bone_parents(j)
+    c = j.index("chest")
+    if par[j.index("lclavicle")] != c or par[j.index("rclavicle")] != c or par[j.index(up_child)] != c:
+        return
+
+    def frame(up: np.ndarray, lat: np.ndarray) -> np.ndarray:
+        up = up / np.maximum(np.linalg.norm(up, axis=-1, keepdims=True), 1e-12)
+        lat = lat - (lat * up).sum(-1, keepdims=True) * up
+        lat = lat / np.maximum(np.linalg.norm(lat, axis=-1, keepdims=True), 1e-12)
+        return np.stack([lat, up, np.cross(lat, up)], -2)  # rows: lateral, up, forward
+
+    rest = np.asarray(rest, np.float64)
+    lat_r = rest[j.index("lclavicle")] - rest[j.index("rclavicle")]
+    if np.linalg.norm(lat_r) < 0.01:
+        lat_r = rest[j.index("lshoulder")] - rest[j.index("rshoulder")]
+    rig = frame(rest[j.index(up_child)] - rest[c], lat_r)
+    if np.linalg.norm(rest[j.index(up_child)] - rest[c]) < 1e-6 or np.linalg.norm(lat_r) < 1e-6:
+        return
+    prior = frame(
+        u[:, j.index(up_child)].astype(np.float64), own[:, t.index("lshoulder")] - own[:, t.index("rshoulder")]
+    )
+    for side in ("lclavicle", "rclavicle"):
+        off = rig @ (rest[j.index(side)] - rest[c])
+        if np.linalg.norm(off) < 1e-6:
+            continue
+        v = np.einsum("k,nkc->nc", off, prior)
+        u[:, j.index(side)] = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
 
 
 def build_store(

@@ -12,6 +12,7 @@ from mocapflow.framework import quaternions as quat
 from mocapflow.plugins.similarity.applications.reconstruct_prior import (
     CONTROL_JOINTS,
     POSE_JOINTS,
+    bone_parents,
     build_store,
     local_positions,
     pose_skeleton,
@@ -36,6 +37,7 @@ def rig(
     floor: bool = False,
     at_root: bool = False,
     names: dict[str, str] | None = None,
+    clavicle: tuple[float, float] = (0.03, 0.08),
 ) -> Skeleton:
     """A synthetic rig whose spine has ``len(spine)`` bones of those lengths (the last joint
     is where the arms branch); only limbs, root, head and the extremities carry canonical
@@ -68,7 +70,7 @@ def rig(
     for s, x in (("L", 1.0), ("R", -1.0)):
         c = s.lower()
         rows += [
-            (f"Clav{s}", chest, (0.03 * x, 0.08, 0), f"{c}clavicle"),
+            (f"Clav{s}", chest, (clavicle[0] * x, clavicle[1], 0), f"{c}clavicle"),
             (f"Arm{s}", f"Clav{s}", (0.15 * x, 0, 0), f"{c}shoulder"),
             (f"Fore{s}", f"Arm{s}", (0.28 * x, 0, 0), f"{c}elbow"),
         ]
@@ -145,8 +147,6 @@ def test_composite_bones_point_along_the_prior_takes_own_joints():
     sub = tuple(j for j in POSE_JOINTS if j not in ("lowerback", "upperback", "neck", "lfingers", "rtoes"))
     view = store.on_joints(sub)
     poses = view.retarget(np.ones(len(sub)))  # unit bones: each bone's vector is its direction
-    from mocapflow.plugins.similarity.applications.reconstruct_prior import bone_parents
-
     par = bone_parents(sub)
     own = local_positions(take.with_arrays(skeleton=pose_skeleton(take.skeleton)[0]).canonical_positions(sub), sub)
     for t in range(0, take.n_frames, 7):
@@ -156,6 +156,38 @@ def test_composite_bones_point_along_the_prior_takes_own_joints():
     assert store.on_joints(POSE_JOINTS).tree is None  # the full set is the store itself
     with pytest.raises(DataError, match="not in the prior"):
         build_store([take], joints=sub).on_joints(POSE_JOINTS)
+
+
+def test_clavicles_start_where_the_served_rig_has_them():
+    """A prior of a rig whose clavicles start at the neck's place, seen by a rig whose
+    clavicles start a hand's width apart: in every retargeted pose the clavicle bone keeps
+    the served rig's angle to the chest -> neck bone and sits on its side."""
+    cmu_like = rig((0.12, 0.12), at_root=True, names={"upperback": "Spine0", "neck": "Neck"}, clavicle=(0.0, 0.12))
+    store = build_store([moving(cmu_like, seed=2)], mirrored=False)
+    other = rig((0.15, 0.1), clavicle=(0.05, 0.1))  # a Bandai-like chest: clavicles 5 cm each side
+    sk, joints = pose_skeleton(other)
+    rest = Motion(sk, np.zeros((1, 3)), np.tile([1.0, 0, 0, 0], (1, sk.n_joints, 1)), 30.0).canonical_positions(joints)[
+        0
+    ]
+    lengths = np.linalg.norm(rest - rest[np.maximum(bone_parents(joints), 0)], axis=1)
+    poses = store.on_joints(joints, rest).retarget(lengths)
+    plain = store.on_joints(joints).retarget(lengths)
+    c, n, lc, rc = (joints.index(j) for j in ("chest", "neck", "lclavicle", "rclavicle"))
+
+    def angle(p: np.ndarray, a: int, b: int) -> np.ndarray:
+        u, v = p[:, a] - p[:, c], p[:, b] - p[:, c]
+        cos = (u * v).sum(-1) / np.linalg.norm(u, axis=-1) / np.linalg.norm(v, axis=-1)
+        return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+    want = angle(rest[None], n, lc)[0]
+    np.testing.assert_allclose(angle(poses, n, lc), want, atol=1e-3)
+    np.testing.assert_allclose(angle(poses, n, rc), want, atol=1e-3)
+    assert want > 15 and angle(plain, n, lc).max() < 5  # without the rig: along the neck, as the prior's rig
+    side = np.cross(
+        poses[:, n] - poses[:, c], poses[:, joints.index("lshoulder")] - poses[:, joints.index("rshoulder")]
+    )
+    lat = poses[:, lc] - poses[:, rc]
+    assert (np.einsum("nc,nc->n", np.cross(poses[:, n] - poses[:, c], lat), side) > 0).all()
 
 
 def test_takes_lacking_a_pose_joint_stay_out_of_the_prior():
