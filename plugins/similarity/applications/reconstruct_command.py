@@ -54,7 +54,7 @@ class ReconstructCommand:
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
         from .reconstruct_markers import control_from_markers, control_from_motion, read_skeleton
-        from .reconstruct_prior import PriorStore, bone_lengths, build_store, pose_skeleton
+        from .reconstruct_prior import PriorStore, build_store, skeleton_view
         from .retarget import positions_to_motion
 
         reg = ctx.registries(["formats"])  # honours --block; third parties' readers too
@@ -85,12 +85,8 @@ class ReconstructCommand:
         t0 = time.perf_counter()
         store = _open_prior(args.prior, reg, PriorStore, build_store)
         # any skeleton: the prior seen on the canonical joints this skeleton has (spine rule, composite bones)
-        skeleton, joints = pose_skeleton(skeleton)
-        joints = tuple(j for j in joints if j in (store.tree or store.joints))
-        rest = Motion(skeleton, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.n_joints, 1)), fps)
-        rest_pos = rest.canonical_positions(joints)
-        lengths = bone_lengths(rest_pos, joints)
-        view = store.on_joints(joints, rest_pos[0])
+        skeleton, view, lengths = skeleton_view(store, skeleton)
+        joints = view.joints
         prior = PosePrior.build(view, lengths)
         t1 = time.perf_counter()
         world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), root_heading=heading)

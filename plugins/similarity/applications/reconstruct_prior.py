@@ -171,6 +171,18 @@ def pose_skeleton(skeleton: Skeleton) -> tuple[Skeleton, tuple[str, ...]]:
     return (skeleton if canon == skeleton.canonical else replace(skeleton, canonical=canon)), joints
 
 
+def skeleton_view(store: PriorStore, skeleton: Skeleton) -> tuple[Skeleton, PriorStore, np.ndarray]:
+    """What a reconstruction onto ``skeleton`` needs from ``store``: the skeleton with the
+    spine rule's canonical map (:func:`pose_skeleton`; write the output on it), the store
+    seen on its pose joints with its clavicles' places (:meth:`PriorStore.on_joints`), and
+    its bone lengths (P,) from its rest pose; ``PosePrior.build(view, lengths, keep)``."""
+    skeleton, joints = pose_skeleton(skeleton)
+    joints = tuple(j for j in joints if j in (store.tree or store.joints))
+    rest = Motion(skeleton, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.n_joints, 1)), 30.0)
+    pos = rest.canonical_positions(joints)
+    return skeleton, store.on_joints(joints, pos[0]), bone_lengths(pos, joints)
+
+
 def bone_parents(joints: Sequence[str]) -> np.ndarray:
     """Index (P,) of each joint's nearest canonical ancestor within ``joints`` (-1: root)."""
     j = list(joints)
