@@ -321,6 +321,14 @@ class PriorStore:
         v[:, 0] = 0.0
         n = np.linalg.norm(v, axis=-1, keepdims=True)
         u = np.where(n > 1e-6, v / np.maximum(n, 1e-12), 0.0).astype(np.float32)
+        # a bone the take's rig does not have (two joints at one place: CMU's lowerback at the
+        # root, cgspeed's neck at the chest) points on along its first child's bone
+        par = bone_parents(self.joints)
+        for j in range(len(self.joints) - 1, 0, -1):
+            kids = np.flatnonzero(par == j)
+            if len(kids):
+                gap = n[:, j, 0] <= 1e-6
+                u[gap, j] = u[gap, kids[0]]
         if self.rig is not None:
             chest_from_rig(u, own, self.tree, self.joints, self.rig)
         return np.einsum("jb,nbc->njc", a.astype(np.float32), u, optimize=True).astype(np.float32)

@@ -112,6 +112,10 @@ def test_spine_rule_keeps_consistent_dialect_names_and_fixes_others():
     assert spine_names(sk) == {"lowerback": "Pelvis", "upperback": "Spine1", "chest": "Spine1", "neck": "Neck"} or (
         spine_names(sk) == {"lowerback": "Pelvis", "upperback": "Spine0", "chest": "Spine1", "neck": "Neck"}
     )
+    # a Mixamo-like dialect whose lowerback sits 10 cm up the spine: kept (the prior's
+    # zero-length lowerback bones then point along the bone above, PriorStore.retarget)
+    mixamo = rig((0.1, 0.12, 0.14), names={"lowerback": "Spine0", "upperback": "Spine1"})
+    assert spine_names(mixamo) == {"lowerback": "Spine0", "upperback": "Spine1", "chest": "Spine2", "neck": "Neck"}
     # a PyMO-like dialect that calls the arms' branch joint "upperback": it is the chest
     pymo = rig((0.3,), neck=False, names={"upperback": "Spine0"})
     assert spine_names(pymo) == {"chest": "Spine0"}
