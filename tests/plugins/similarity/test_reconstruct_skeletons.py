@@ -142,7 +142,7 @@ def moving(sk: Skeleton, n: int = 40, seed: int = 0, name: str = "m") -> Motion:
     return Motion(sk, root, quat.from_euler(ang, "zxy"), 30.0, name=name, metadata={"subject": name})
 
 
-def test_composite_bones_point_along_the_prior_takes_own_joints():
+def test_composite_bones_point_along_the_prior_takes_own_joints(tmp_path):
     """A prior seen on a subset of its joints (a 1-bone spine, no neck, fingers or toes):
     every composite bone of a retargeted pose points where the take's own joints do (loop twin)."""
     take = moving(rig((0.12, 0.12), at_root=True, names={"upperback": "Spine0", "neck": "Neck"}), seed=1)
@@ -158,6 +158,16 @@ def test_composite_bones_point_along_the_prior_takes_own_joints():
             v = own[t, j] - own[t, par[j]]
             np.testing.assert_allclose(poses[t, j] - poses[t, par[j]], v / np.linalg.norm(v), atol=1e-5)
     assert store.on_joints(POSE_JOINTS).tree is None  # the full set is the store itself
+    # saved and loaded with its take lengths; a store written without them uses REFERENCE_LENGTHS
+    from dataclasses import replace
+
+    from mocapflow.plugins.similarity.applications.reconstruct_prior import PriorStore
+
+    back = PriorStore.load(store.save(Path(tmp_path) / "prior"))
+    np.testing.assert_array_equal(back.lengths, store.lengths)
+    old = replace(store, lengths=None).on_joints(sub).retarget(np.ones(len(sub)))
+    steps = np.linalg.norm(old[:, 1:] - old[:, par[1:]], axis=-1)
+    assert np.isfinite(old).all() and np.allclose(steps[steps > 0.5], 1.0, atol=1e-5)
     with pytest.raises(DataError, match="not in the prior"):
         build_store([take], joints=sub).on_joints(POSE_JOINTS)
 
