@@ -121,8 +121,23 @@ def canonical_map(joint_names: Sequence[str], fmt: str | None, maps: Iterable[Jo
     Every dialect of ``maps`` that applies (readers pass
     :func:`~mocapflow.framework.plugins.registered_joint_maps`) is tried; the map with the
     most required joints wins, then one whose signature matched, then the one with the
-    most joints, then the first registered.
+    most joints, then the first registered. Names carrying a namespace prefix
+    (``mixamorig:Hips``, ``Take1:LeftArm``) are also tried without it.
     """
+    maps = list(maps)
+    best = _best_map(joint_names, fmt, maps)
+    bare = [n.rsplit(":", 1)[-1] for n in joint_names]
+    if bare != list(joint_names):
+        alt = _best_map(bare, fmt, maps)
+        if alt is not None and (best is None or alt[0] > best[0]):
+            best = alt
+    return {} if best is None else best[1]
+
+
+def _best_map(
+    joint_names: Sequence[str], fmt: str | None, maps: Sequence[JointMap]
+) -> tuple[tuple[int, int, int, int], dict[str, int]] | None:
+    """The best (score, map) of :func:`canonical_map`'s rule, None if no dialect applies."""
     best: tuple[tuple[int, int, int, int], dict[str, int]] | None = None
     for order, m in enumerate(maps):
         if not m.applies(joint_names, fmt):
@@ -131,7 +146,7 @@ def canonical_map(joint_names: Sequence[str], fmt: str | None, maps: Iterable[Jo
         score = (len(mapped) - len(missing_required(mapped)), bool(m.signature), len(mapped), -order)
         if best is None or score > best[0]:
             best = (score, mapped)
-    return {} if best is None else best[1]
+    return best
 
 
 def missing_required(canonical: Mapping[str, int]) -> list[str]:

@@ -49,12 +49,12 @@ class ReconstructCommand:
         import numpy as np
 
         from mocapflow.framework import Motion
-        from mocapflow.framework.errors import ConfigError, DataError
+        from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.output_paths import refuse_dataset_path
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
         from .reconstruct_markers import control_from_markers, control_from_motion, read_skeleton
-        from .reconstruct_prior import PriorStore, bone_lengths, build_store
+        from .reconstruct_prior import PriorStore, build_store, skeleton_view
         from .retarget import positions_to_motion
 
         reg = ctx.registries(["formats"])  # honours --block; third parties' readers too
@@ -84,12 +84,10 @@ class ReconstructCommand:
 
         t0 = time.perf_counter()
         store = _open_prior(args.prior, reg, PriorStore, build_store)
-        rest = Motion(skeleton, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.n_joints, 1)), fps)
-        lengths = bone_lengths(rest.canonical_positions(store.joints), store.joints)
-        if not np.isfinite(lengths).all():
-            missing = [j for j, v in zip(store.joints, lengths, strict=True) if not np.isfinite(v)]
-            raise DataError(f"skeleton {skeleton.name!r} lacks the prior's pose joints {missing}")
-        prior = PosePrior.build(store, lengths)
+        # any skeleton: the prior seen on the canonical joints this skeleton has (spine rule, composite bones)
+        skeleton, view, lengths = skeleton_view(store, skeleton)
+        joints = view.joints
+        prior = PosePrior.build(view, lengths)
         t1 = time.perf_counter()
         world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), root_heading=heading)
         t2 = time.perf_counter()
@@ -104,11 +102,18 @@ class ReconstructCommand:
             * 100
         )
         print(f"{src}: {len(control)} frames at {fps:g} Hz; control points from {what}")
+        print(f"skeleton {skeleton.name or out.stem}: {len(joints)} pose joints; spine " + _spine_text(skeleton))
         print(f"prior: {len(store.clips)} takes, {len(prior.poses)} frames, ready in {t1 - t0:.1f} s")
         print(f"reconstructed in {t2 - t1:.1f} s ({len(control) / max(t2 - t1, 1e-9):.0f} frames/s)")
         print(f"control points on the output skeleton: mean {fit.mean():.1f} cm, max {fit.max():.1f} cm off")
         print(f"wrote {out}")
         return 0
+
+
+def _spine_text(skeleton) -> str:  # type: ignore[no-untyped-def]
+    """``root > chest (Spine) > ...``: the spine joints the rule found, with the skeleton's names."""
+    chain = ("root", "lowerback", "upperback", "chest", "neck", "head")
+    return " > ".join(f"{j} ({skeleton.names[skeleton.canonical[j]]})" for j in chain if j in skeleton.canonical)
 
 
 def _read_markers(path: Path, reg):  # type: ignore[no-untyped-def]

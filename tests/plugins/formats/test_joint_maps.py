@@ -58,6 +58,13 @@ def test_builtin_dialects():
     assert len(set(m.values())) == len(m)
 
 
+def test_namespace_prefixes_are_tried_without_the_prefix():
+    names = ["Hips", "LeftUpLeg", "LeftLeg", "LeftFoot", "Spine", "Spine1", "Head", "LeftArm", "LeftHand"]
+    bare = canonical_map(names, "bvh", maps=JOINT_MAPS)
+    assert canonical_map(["mixamorig:" + n for n in names], "bvh", maps=JOINT_MAPS) == bare
+    assert canonical_map(["a:b:" + n for n in names], None, maps=JOINT_MAPS) == bare
+
+
 def test_a_plugin_adds_a_dialect(tmp_path, fresh_maps):
     path = _studio_bvh(tmp_path)
     build_registries(get_plugin_manager(entry_points=False))
