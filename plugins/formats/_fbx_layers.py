@@ -49,7 +49,10 @@ class Layer:
     """One animation layer of a take: ``index`` in the take, ``weight`` (0-1, static),
     ``mode`` (``BlendMode``), ``compose_rotation`` / ``compose_scale`` (accumulation modes
     0), ``muted`` / ``solo`` (the flags), ``active`` (evaluated: not skipped by them),
-    ``weight_curve`` an animated weight (percent) as ``(curve or None, default)``."""
+    ``weight_curve`` an animated weight (percent) as ``(curve or None, default)`` (a curve
+    node of this layer on its ``Weight``), ``has_weight`` whether the layer has a ``Weight``
+    property (own or template; without one, an animated weight keyed from another layer
+    reads 0, as in ufbx)."""
 
     name: str
     index: int
@@ -61,6 +64,7 @@ class Layer:
     solo: bool = False
     active: bool = True
     weight_curve: tuple | None = None
+    has_weight: bool = True
 
     @property
     def blended(self) -> bool:

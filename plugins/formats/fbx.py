@@ -342,6 +342,7 @@ def _layers(path: Path, root: Node, objects: dict, owner: dict, stack_id: int) -
                 mode=int(props.num("BlendMode", 0.0)),
                 compose_rotation=int(props.num("RotationAccumulationMode", 0.0)) == 0,
                 compose_scale=int(props.num("ScaleAccumulationMode", 0.0)) == 0,
+                has_weight=props.get("Weight", None) is not None,
                 muted=props.num("Mute", 0.0) != 0,
                 solo=props.num("Solo", 0.0) != 0,
             )
@@ -374,8 +375,11 @@ def _curves(
         if objects.get(par, ("",))[0] in ("Model", "AnimationLayer"):
             for child, prop in kids:
                 driven.setdefault(child, []).append((par, prop))
+    weighted = {m for pairs in driven.values() for m, p in pairs if p == "Weight"}
     curves: dict[tuple[int, str], list] = {}
     for lay, lid in zip(layers, ids, strict=True):
+        if not lay.has_weight and lid in weighted:  # ufbx: an animated Weight the layer lacks is 0 until keyed
+            lay.weight = 0.0
         seen: set[tuple[int, str]] = set()
         for cn, _p in owner.get(lid, []):
             if objects.get(cn, ("",))[0] != "AnimationCurveNode":
