@@ -197,7 +197,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         path,
         n_frames=n_frames,
         n_nodes=len(order) + 1,
-        key_times=[c.ticks / ktps for c in keyed],
+        key_times=[t / ktps for t in {c.ticks.tobytes(): c.ticks for c in keyed}.values()],  # shared key times once
         t0=k0 / ktps,
         t1=k1 / ktps,
         fps=fps,
