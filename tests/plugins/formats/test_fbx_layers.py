@@ -256,6 +256,58 @@ def test_too_many_layers_refused(tmp_path):
         read_fbx(path)
 
 
+@pytest.mark.parametrize(
+    "props",
+    [
+        {"Weight": 1e300, "BlendMode": 1e12, "RotationAccumulationMode": -7},
+        {"Weight": -1e9, "ScaleAccumulationMode": 3, "Mute": 2, "Solo": -1},
+        {"Weight": float("nan")},
+        {"BlendMode": float("inf")},
+    ],
+)
+def test_hostile_layer_properties(tmp_path, props):
+    """Out-of-range layer properties read as ufbx clamps them, or are refused by name."""
+    from mocapflow.framework.errors import ParseError
+
+    rng = np.random.default_rng(5)
+    path = tmp_path / "hostile.fbx"
+    path.write_bytes(_layered_fbx([{"t": _keys(rng, 20)}, {"props": props, "t": _keys(rng, 20), "r": _keys(rng, 90)}]))
+    try:
+        m = read_fbx(path)
+    except ParseError as e:
+        assert "AnimationLayer" in str(e)
+    else:
+        assert np.all(np.isfinite(m.positions))
+
+
+def test_mutated_layered_files_are_read_or_refused(tmp_path):
+    """Byte flips and truncations of a layered take: a finite motion or a ParseError, nothing
+    else (the scene fuzzer's rule, ``benchmarks/fuzz_parsers.py``, on a file with layers)."""
+    from mocapflow.framework.errors import ParseError
+
+    rng = np.random.default_rng(11)
+    base = _layered_fbx(CASES["passthrough by layer then by channel"](rng), 3)
+    path = tmp_path / "case.fbx"
+    outcomes = {"read": 0, "refused": 0}
+    for i in range(150):
+        r = np.random.default_rng([11, i])
+        data = bytearray(base)
+        if i % 5 == 0:
+            data = data[: int(r.integers(30, len(data)))]
+        else:
+            for p in r.integers(27, len(data) - 200, size=int(r.integers(1, 5))):
+                data[p] = int(r.integers(0, 256))
+        path.write_bytes(bytes(data))
+        try:
+            m = read_fbx(path)
+        except ParseError:
+            outcomes["refused"] += 1
+        else:
+            assert np.all(np.isfinite(m.positions)), f"case {i}"
+            outcomes["read"] += 1
+    assert outcomes["read"] and outcomes["refused"]
+
+
 # --- against ufbx ----------------------------------------------------------------------------
 
 
