@@ -11,12 +11,15 @@
   ``T Roff Rp Rpre R Rpost^-1 Rp^-1 Soff Sp S Sp^-1``, with ``R`` the ``Lcl Rotation``
   Euler angles in ``RotationOrder`` and pre/post rotations in XYZ order, both only when
   ``RotationActive`` (as the FBX SDK and Blender do); property defaults come from the
-  file's ``PropertyTemplate``. Scales must be uniform. Rotations are re-expressed with
+  file's ``PropertyTemplate``. Scales must be uniform (a leaf model's need not: it moves
+  no joint). Rotations are re-expressed with
   identity rest rotations (:mod:`._nodes`); positions are the file's exactly.
 * **Animation**: one ``AnimationStack`` (``animation``: index or name, default the first),
-  its first ``AnimationLayer``; ``Lcl Translation/Rotation/Scaling`` curves, interpolated
-  linearly between keys (as Blender's importer does), sampled from the first to the last
-  key at the file's frame rate (``GlobalSettings`` ``TimeMode``, or ``CustomFrameRate``).
+  every ``AnimationLayer`` of it blended as ufbx and the FBX SDK do (:mod:`._fbx_layers`:
+  weights, blend modes, accumulation modes, mute/solo); ``Lcl Translation/Rotation/Scaling``
+  curves (:mod:`._fbx_curves`: the SDK's interpolation, tangents and extrapolation), sampled
+  over the take (``LocalStart``..``LocalStop``, else the keys) at the file's frame rate
+  (``GlobalSettings`` ``TimeMode``, or ``CustomFrameRate``).
   Key times are KTime ticks: 46,186,158,000 per second (141,120,000 from FBX 8000, or
   when ``TCDefinition`` is 0).
 * **Units and axes**: ``UnitScaleFactor`` (centimetres per file unit) converts to metres;
