@@ -7,7 +7,8 @@ benchmarks; ``ufbx`` is not a dependency of mocapflow.
 
 Child protocol: ``_child(IN.json, OUT.npz)`` in a fresh interpreter; ``IN.json`` holds ``path``,
 ``names`` (node names) and ``times`` (seconds); ``OUT.npz`` gets ``pos`` (F, J, 3) world
-positions in the file's own units and axes (NaN for a name ufbx does not have), ``fps``,
+positions in the file's own units and axes (NaN for a name ufbx does not have), ``local``
+(F, J, 10) each node's local translation, rotation (w, x, y, z) and scale, ``fps``,
 ``begin``, ``end`` (the stack's time span, seconds), ``seconds`` (load + evaluation time).
 """
 
@@ -65,17 +66,26 @@ def _child(src: str, out: str) -> None:
     cols = [idx.get(n, -1) for n in job["names"]]
     times = job["times"]
     pos = np.full((len(times), len(cols), 3), np.nan)
+    local = np.full((len(times), len(cols), 10), np.nan)  # translation, rotation (w, x, y, z), scale
+    keep: list = []
     for f, t in enumerate(times):
         ev = ufbx.evaluate_scene(scene, stack.anim, t)
         nodes = ev.nodes
+        keep.append(ev)
         for j, k in enumerate(cols):
             if k >= 0:
-                c3 = nodes[k].node_to_world.c3
+                node = nodes[k]  # one wrapper per node, kept alive: the binding crashes on a dropped one
+                keep.append(node)
+                c3 = node.node_to_world.c3
                 pos[f, j] = (c3.x, c3.y, c3.z)
+                lt = node.local_transform
+                tr, q, sc = lt.translation, lt.rotation, lt.scale
+                local[f, j] = (tr.x, tr.y, tr.z, q.w, q.x, q.y, q.z, sc.x, sc.y, sc.z)
     seconds = time.perf_counter() - t0
     np.savez(
         out,
         pos=pos,
+        local=local,
         fps=scene.settings.frames_per_second,
         begin=stack.time_begin,
         end=stack.time_end,

@@ -11,12 +11,15 @@
   ``T Roff Rp Rpre R Rpost^-1 Rp^-1 Soff Sp S Sp^-1``, with ``R`` the ``Lcl Rotation``
   Euler angles in ``RotationOrder`` and pre/post rotations in XYZ order, both only when
   ``RotationActive`` (as the FBX SDK and Blender do); property defaults come from the
-  file's ``PropertyTemplate``. Scales must be uniform. Rotations are re-expressed with
+  file's ``PropertyTemplate``. Scales must be uniform (a leaf model's need not: it moves
+  no joint). Rotations are re-expressed with
   identity rest rotations (:mod:`._nodes`); positions are the file's exactly.
 * **Animation**: one ``AnimationStack`` (``animation``: index or name, default the first),
-  its first ``AnimationLayer``; ``Lcl Translation/Rotation/Scaling`` curves, interpolated
-  linearly between keys (as Blender's importer does), sampled from the first to the last
-  key at the file's frame rate (``GlobalSettings`` ``TimeMode``, or ``CustomFrameRate``).
+  every ``AnimationLayer`` of it blended as ufbx and the FBX SDK do (:mod:`._fbx_layers`:
+  weights, blend modes, accumulation modes, mute/solo); ``Lcl Translation/Rotation/Scaling``
+  curves (:mod:`._fbx_curves`: the SDK's interpolation, tangents and extrapolation), sampled
+  over the take (``LocalStart``..``LocalStop``, else the keys) at the file's frame rate
+  (``GlobalSettings`` ``TimeMode``, or ``CustomFrameRate``).
   Key times are KTime ticks: 46,186,158,000 per second (141,120,000 from FBX 8000, or
   when ``TCDefinition`` is 0).
 * **Units and axes**: ``UnitScaleFactor`` (centimetres per file unit) converts to metres;
@@ -40,6 +43,8 @@ from mocapflow.framework.motion import Motion
 
 from ._common import MAX_DEGREES, MAX_FPS, MAX_METRES, check_timeline, file_metadata, read_bytes
 from ._fbx_curves import evaluate, read_curve
+from ._fbx_layers import Layer, clamp_weight, combine
+from ._fbx_layers import euler_quat as _euler
 from ._fbx_parse import Node, check_head, parse_fbx
 from ._fbx_write import write_fbx
 from ._nodes import common_root, motion_from_nodes, uniform_scale, unique_names
@@ -65,6 +70,8 @@ _MAX_VALUE = 1.0e9
 #: Deepest model hierarchy (a skeleton is < 100 deep); the common-root search is linear in
 #: the models whatever the shape (:func:`._nodes.common_root`).
 MAX_MODEL_DEPTH = 1_000
+#: Most animation layers in a take (a scene has a handful).
+MAX_LAYERS = 1_000
 #: Largest |key time| in KTime ticks: 10^7 s (115 days) at the finer v7 tick (no overflow of
 #: int64 differences).
 MAX_KTIME = 10_000_000 * KTIME_V7
@@ -108,24 +115,6 @@ class _Props:
         if not v or isinstance(v[0], (str, bytes)) or not np.isfinite(float(v[0])):
             raise ParseError(self.path, None, f"{self.what}: expected a number in {key!r}, found {v!r}"[:200])
         return float(v[0])
-
-
-def _euler(angles: np.ndarray, order: str) -> np.ndarray:
-    """Quaternion of Euler angles (degrees, ``angles[..., a]`` about axis ``a`` = x, y, z)
-    applied in ``order`` (``xyz``: x first, matrix ``Rz Ry Rx``): the product
-    ``q_k q_j q_i`` of the three axis rotations written out (its twin, the generic
-    :func:`quat.from_euler`, is compared in ``tests/plugins/formats/test_fbx_curves.py``)."""
-    i, j, k = ("xyz".index(a) for a in order[::-1])  # q = q_i q_j q_k, i applied last
-    h = np.deg2rad(np.asarray(angles, dtype=float)) * 0.5
-    c, s = np.cos(h), np.sin(h)
-    c1, c2, c3, s1, s2, s3 = c[..., i], c[..., j], c[..., k], s[..., i], s[..., j], s[..., k]
-    e = 1.0 if (j - i) % 3 == 1 else -1.0  # e_i e_j = e * e_k
-    out = np.empty(h.shape[:-1] + (4,))
-    out[..., 0] = c1 * c2 * c3 - e * s1 * s2 * s3
-    out[..., 1 + i] = s1 * c2 * c3 + e * c1 * s2 * s3
-    out[..., 1 + j] = c1 * s2 * c3 - e * s1 * c2 * s3
-    out[..., 1 + k] = c1 * c2 * s3 + e * s1 * s2 * c3
-    return out
 
 
 def _axes(path: Path, gs: _Props) -> np.ndarray:
@@ -181,7 +170,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     ktps = _ktime(root, version)
     template, objects, parent, owner = _scene(path, root)
     stack_id, stack_name, stack_names = _stack(path, objects, animation)
-    curves = _curves(path, objects, owner, stack_id, ktps, data, version)
+    layers, curves = _curves(path, root, objects, owner, stack_id, ktps, data, version)
     models = {oid: v for oid, v in objects.items() if v[0] == "Model"}
     if not models:
         raise ParseError(path, None, "expected Model objects (a skeleton), found none")
@@ -191,7 +180,8 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     if not joints:
         raise ParseError(path, None, "expected LimbNode models or animated models (a skeleton), found neither")
     order, first = _order(path, models, parent, joints)
-    keyed = [c for (m, _), axes in curves.items() if m in set(order) for c in axes if c is not None]
+    members = set(order)
+    keyed = [c for (m, _), driving in curves.items() if m in members for _i, axes, _d in driving for c in axes if c]
     span = _span(objects[stack_id][2], _templates(root, "AnimationStack"))
     if span is not None:
         k0, k1 = span
@@ -210,13 +200,14 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         path,
         n_frames=n_frames,
         n_nodes=len(order) + 1,
-        key_times=[c.ticks / ktps for c in keyed],
+        key_times=[t / ktps for t in {c.ticks.tobytes(): c.ticks for c in keyed}.values()],  # shared key times once
         t0=k0 / ktps,
         t1=k1 / ktps,
         fps=fps,
         size=len(data),
     )
     grid = (k0 + np.arange(n_frames) * (ktps / fps)) / ktps  # seconds
+    weights = _weights(layers, grid)
     names = unique_names(["__fbx_axes__"] + [models[m][1] or f"model{m}" for m in order])
     n = len(order) + 1
     rest_t, rest_r, rest_s = np.zeros((n, 3)), np.zeros((n, 4)), np.ones(n)
@@ -227,12 +218,20 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     r = np.empty((n_frames, n, 4))
     s = np.empty((n_frames, n))
     t[:, 0], r[:, 0], s[:, 0] = 0.0, rest_r[0], unit
+    inner = {parent[m] for m in order if m in parent}  # models with a child in the skeleton
+    scale_ignored: list[str] = []
     for k, m in enumerate(order, start=1):
         props = _Props(path, _props70(models[m][2]), template, f"model {names[k]!r}")
         ignore_scale[k] = int(props.num("InheritType", 0.0)) == INHERIT_RRS
-        tr = _transform(props, names[k], m, curves, grid, rest=True)
+        leaf = m not in inner
+        tr = _transform(props, names[k], m, {}, grid, rest=True, leaf=leaf)
         rest_t[k], rest_r[k], rest_s[k] = tr[0][0], tr[1][0], tr[2][0]
-        t[:, k], r[:, k], s[:, k] = _transform(props, names[k], m, curves, grid, rest=False)
+        t[:, k], r[:, k], s[:, k], odd = _transform(
+            props, names[k], m, curves, grid, rest=False, layers=(layers, weights), leaf=leaf
+        )
+        if odd or tr[3]:  # a leaf's non-uniform scale moves no joint: left out (1)
+            s[:, k] = rest_s[k] = 1.0
+            scale_ignored.append(names[k])
     par = np.array([-1] + [1 + order.index(parent[m]) if parent.get(m) in order else 0 for m in order], dtype=np.int64)
     meta = file_metadata(path, data, "fbx")
     meta.update(
@@ -247,7 +246,10 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         span_source=span_source,
         ktime_per_second=ktps,
         axes=rest_r[0].tolist(),
+        layers=[lay.name for lay in layers if lay.active],
     )
+    if scale_ignored:
+        meta["non_uniform_leaf_scale"] = scale_ignored[:20]
     return motion_from_nodes(
         path,
         names=names,
@@ -322,32 +324,99 @@ def _span(stack: Node, template: dict) -> tuple[int, int] | None:
     return None
 
 
+def _layers(path: Path, root: Node, objects: dict, owner: dict, stack_id: int) -> tuple[list[Layer], list[int]]:
+    """The take's animation layers (and their ids) in the order of its connections
+    (:mod:`._fbx_layers`)."""
+    template = _templates(root, "AnimationLayer")
+    ids: list[int] = []
+    for c, _p in owner.get(stack_id, []):
+        if objects.get(c, ("",))[0] == "AnimationLayer" and c not in ids:
+            ids.append(c)
+            if len(ids) > MAX_LAYERS:
+                raise ParseError(path, None, f"the take has more than {MAX_LAYERS:,} animation layers; expected fewer")
+    layers = []
+    for k, lid in enumerate(ids):
+        props = _Props(path, _props70(objects[lid][2]), template, f"AnimationLayer {objects[lid][1]!r}")
+        layers.append(
+            Layer(
+                name=objects[lid][1],
+                index=k,
+                weight=float(clamp_weight(props.num("Weight", 100.0))),
+                mode=int(props.num("BlendMode", 0.0)),
+                compose_rotation=int(props.num("RotationAccumulationMode", 0.0)) == 0,
+                compose_scale=int(props.num("ScaleAccumulationMode", 0.0)) == 0,
+                has_weight=props.get("Weight", None) is not None,
+                muted=props.num("Mute", 0.0) != 0,
+                solo=props.num("Solo", 0.0) != 0,
+            )
+        )
+    solo = any(lay.solo for lay in layers[1:])
+    for lay in layers[1:]:  # the base layer always counts
+        lay.active = not lay.muted and (lay.solo or not solo)
+    return layers, ids
+
+
 def _curves(
-    path: Path, objects: dict, owner: dict, stack_id: int, ktps: int, data: bytes, version: int
-) -> dict[tuple[int, str], list]:
-    """(model id, "t"/"r"/"s") -> per axis (key times, values) or None, from the stack's
-    first layer."""
-    layers = [c for c, _ in owner.get(stack_id, []) if objects.get(c, ("",))[0] == "AnimationLayer"]
-    curves: dict[tuple[int, str], list] = {}
-    driven: dict[int, list[tuple[int, str]]] = {}  # curve node -> the (model, property) pairs it drives
+    path: Path, root: Node, objects: dict, owner: dict, stack_id: int, ktps: int, data: bytes, version: int
+) -> tuple[list[Layer], dict[tuple[int, str], list]]:
+    """The take's layers and, per (model id, "t"/"r"/"s"), the layers that drive it:
+    ``(layer index, per axis curve or None, the curve node's values (3,))`` in layer order
+    (skipped layers left out). A layer's animated ``Weight`` lands in its ``weight_curve``.
+    Curves attach to a node's axis by name as in ufbx (``Y``/``d|Y``: y, ``Z``/``d|Z``: z,
+    any other: x; in name order, the last one winning)."""
+    layers, ids = _layers(path, root, objects, owner, stack_id)
+    node_template = _templates(root, "AnimationCurveNode")
+    read: dict[int, Any] = {}  # curve id -> Curve (a curve shared by nodes or layers is read once)
+
+    def curve(cv: int) -> Any:
+        if cv not in read:
+            read[cv] = read_curve(path, objects[cv][2], ktps, _MAX_VALUE, data, version, max_ticks=MAX_KTIME)
+        return read[cv]
+
+    driven: dict[int, list[tuple[int, str]]] = {}  # curve node -> the (model/layer, property) pairs it drives
     for par, kids in owner.items():  # one pass over the connections (per curve node: quadratic)
-        if objects.get(par, ("",))[0] == "Model":
+        if objects.get(par, ("",))[0] in ("Model", "AnimationLayer"):
             for child, prop in kids:
                 driven.setdefault(child, []).append((par, prop))
-    for cn, _p in owner.get(layers[0], []) if layers else []:
-        if objects.get(cn, ("",))[0] != "AnimationCurveNode":
-            continue
-        for model, prop in driven.get(cn, []):
-            if prop not in _CHANNELS:
+    weighted = {m for pairs in driven.values() for m, p in pairs if p == "Weight"}
+    curves: dict[tuple[int, str], list] = {}
+    for lay, lid in zip(layers, ids, strict=True):
+        if not lay.has_weight and lid in weighted:  # ufbx: an animated Weight the layer lacks is 0 until keyed
+            lay.weight = 0.0
+        seen: set[tuple[int, str]] = set()
+        for cn, _p in owner.get(lid, []):
+            if objects.get(cn, ("",))[0] != "AnimationCurveNode":
                 continue
-            axes: list = [None, None, None]
-            for cv, cprop in owner.get(cn, []):
-                if objects.get(cv, ("",))[0] == "AnimationCurve" and cprop in ("d|X", "d|Y", "d|Z"):
-                    axes["XYZ".index(cprop[-1])] = read_curve(
-                        path, objects[cv][2], ktps, _MAX_VALUE, data, version, max_ticks=MAX_KTIME
-                    )
-            curves[(model, _CHANNELS[prop])] = axes
-    return curves
+            targets = [(m, p) for m, p in driven.get(cn, []) if p in _CHANNELS or (m == lid and p == "Weight")]
+            if not targets:
+                continue
+            axes, dflt = _curve_node(path, cn, objects, owner, node_template, curve)
+            for m, prop in targets:
+                if m == lid:  # the layer's own weight, animated (percent)
+                    if lay.weight_curve is None:
+                        lay.weight_curve = (axes[0], float(dflt[0]))
+                    continue
+                key = (m, _CHANNELS[prop])
+                if lay.active and key not in seen:  # two nodes on one property in one layer: the first counts
+                    seen.add(key)
+                    curves.setdefault(key, []).append((lay.index, axes, dflt))
+    return layers, curves
+
+
+def _curve_node(path: Path, cn: int, objects: dict, owner: dict, template: dict, curve: Any) -> tuple[list, np.ndarray]:
+    """A curve node's per-axis curves (``curve(id)`` reads one) and values (3,)."""
+    what = f"AnimationCurveNode {objects[cn][1]!r}"
+    cprops = _Props(path, _props70(objects[cn][2]), template, what)
+    dflt = np.array([cprops.num(f"d|{x}", cprops.num(x, 0.0)) for x in "XYZ"])
+    axes: list = [None, None, None]
+    kids = sorted((p, cv) for cv, p in owner.get(cn, []) if objects.get(cv, ("",))[0] == "AnimationCurve")
+    for cprop, cv in kids:
+        a = 1 if cprop in ("Y", "d|Y") else 2 if cprop in ("Z", "d|Z") else 0
+        dflt[a] = cprops.num(cprop, dflt[a]) if cprop else dflt[a]
+        axes[a] = curve(cv)
+    if not np.abs(dflt).max() <= _MAX_VALUE:
+        raise ParseError(path, None, f"{what}: expected values within {_MAX_VALUE:g}, found {dflt.tolist()}")
+    return axes, dflt
 
 
 def _ktime(root: Node, version: int) -> int:
@@ -366,16 +435,6 @@ def _ktime(root: Node, version: int) -> int:
     ):
         ktps = {0: KTIME_V8, 127: KTIME_V7}.get(tcd.props[0], KTIME_V8)
     return ktps
-
-
-def _targets(cn: int, objects: dict, owner: dict) -> list[tuple[int, str]]:
-    """(model, property) pairs a curve node drives (OP connections child=cn)."""
-    out = []
-    for par, kids in owner.items():
-        for child, prop in kids:
-            if child == cn and objects.get(par, ("",))[0] == "Model":
-                out.append((par, prop))
-    return out
 
 
 def _order(path: Path, models: dict, parent: dict, joints: set[int]) -> tuple[list[int], int]:
@@ -410,24 +469,67 @@ def _order(path: Path, models: dict, parent: dict, joints: set[int]) -> tuple[li
     return ancestors + order, len(ancestors)
 
 
+def _weights(layers: list[Layer], grid: np.ndarray) -> list[Any]:
+    """Each layer's weight on ``grid``: its animated ``Weight`` when it has one and blends,
+    else its static weight (:mod:`._fbx_layers`)."""
+    out: list[Any] = []
+    for lay in layers:
+        w: Any = lay.weight
+        if lay.index > 0 and lay.active and lay.blended and lay.weight_curve is not None:
+            cv, default = lay.weight_curve
+            w = clamp_weight(evaluate(cv, grid) if cv is not None else np.full(len(grid), default))
+        out.append(w)
+    return out
+
+
+def _channel(
+    props: _Props, name: str, key: str, c: str, default: tuple, driving: list, grid: np.ndarray, layers: tuple
+) -> np.ndarray:
+    """One transform property (F, 3) on ``grid``: its static value, replaced by the take's
+    first layer and combined with the later ones that drive it (:mod:`._fbx_layers`)."""
+    n = len(grid)
+    v = np.broadcast_to(props.vec(key, default), (n, 3))
+    for index, axes, dflt in driving:
+        val = np.empty((n, 3))
+        for a, cv in enumerate(axes):
+            val[:, a] = evaluate(cv, grid) if cv is not None else dflt[a]
+        if index == 0:
+            v = val
+            continue
+        order = int(props.num("RotationOrder", 0.0))
+        v = combine(v, val, layers[1][index], layers[0][index], c, order if 0 <= order <= 6 else 0)
+        if not np.all(np.abs(v) <= _MAX_VALUE):
+            raise ParseError(
+                props.path, None, f"model {name!r}: {key!r} blended over animation layers leaves {_MAX_VALUE:g}"
+            )
+    return v if v.flags.writeable else v.copy()
+
+
 def _transform(
-    props: _Props, name: str, m: int, curves: dict, grid: np.ndarray, rest: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    props: _Props,
+    name: str,
+    m: int,
+    curves: dict,
+    grid: np.ndarray,
+    rest: bool,
+    layers: tuple = ([], []),
+    leaf: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """Translation (F, 3), rotation (F, 4) and uniform scale (F,) of a model's local
-    transform, rest (one frame) or sampled on ``grid``."""
-    n = 1 if rest else len(grid)
+    transform, rest (one frame, the static values) or sampled on ``grid`` with the take's
+    ``layers`` (their list and weights), and whether the scale was not uniform. A scale must
+    be uniform unless the model is a ``leaf`` (no model below it: its scale moves no joint;
+    its own translation takes the scale per axis)."""
     chan = {}
     for key, c, default in (
         ("Lcl Translation", "t", (0.0, 0.0, 0.0)),
         ("Lcl Rotation", "r", (0.0, 0.0, 0.0)),
         ("Lcl Scaling", "s", (1.0, 1.0, 1.0)),
     ):
-        v = np.broadcast_to(props.vec(key, default), (n, 3)).copy()
-        if not rest:
-            for a, cv in enumerate(curves.get((m, c), [None, None, None])):
-                if cv is not None:
-                    v[:, a] = evaluate(cv, grid)
-        chan[c] = v
+        if rest:
+            chan[c] = props.vec(key, default)[None].copy()
+        else:
+            chan[c] = _channel(props, name, key, c, default, curves.get((m, c), []), grid, layers)
     if np.abs(chan["r"]).max(initial=0.0) > MAX_DEGREES:
         raise ParseError(props.path, None, f"model {name!r}: expected rotations within {MAX_DEGREES:g} degrees")
     active = props.num("RotationActive", 0.0) != 0
@@ -439,17 +541,23 @@ def _transform(
             rot = quat.mul(_euler(pre_a, "xyz")[None], rot)
         if post_a.any():
             rot = quat.mul(rot, quat.conjugate(_euler(post_a, "xyz"))[None])
-    scale = uniform_scale(props.path, name, chan["s"])
+    sv, odd = chan["s"], False
+    try:
+        scale = uniform_scale(props.path, name, sv)
+    except ParseError:
+        if not leaf or not np.all(np.isfinite(sv)):
+            raise
+        scale, odd = np.ones(len(sv)), True
     roff, rp = props.vec("RotationOffset", (0.0, 0.0, 0.0)), props.vec("RotationPivot", (0.0, 0.0, 0.0))
     soff, sp = props.vec("ScalingOffset", (0.0, 0.0, 0.0)), props.vec("ScalingPivot", (0.0, 0.0, 0.0))
     t = chan["t"] + roff + rp
     if rp.any() or soff.any() or sp.any():
-        t = t + quat.rotate(rot, -rp + soff + sp - scale[:, None] * sp)
+        t = t + quat.rotate(rot, -rp + soff + sp - (sv if odd else scale[:, None]) * sp)
     if np.abs(t).max(initial=0.0) > MAX_METRES * 1e3:  # file units: up to 10^3 per metre (mm)
         raise ParseError(
             props.path, None, f"model {name!r}: expected translations within {MAX_METRES * 1e3:g} file units"
         )
-    return t, rot, scale
+    return t, rot, scale, odd
 
 
 class FbxFormat(Format):
