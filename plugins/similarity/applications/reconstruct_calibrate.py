@@ -1,0 +1,247 @@
+"""Per-performer offsets from skin markers to the joint centres of the prior.
+
+A control point of a marker set is the mean of its markers (:mod:`.reconstruct_markers`);
+the joint it stands for sits a constant vector away **in the frame of its segment**: the
+pelvis, the head, the distal forearm, the shank. Each segment frame is made of the take's
+markers on that segment (:data:`SEGMENTS`): ``x`` along the difference of two marker groups,
+``y`` along a second difference made orthogonal to ``x``, ``z = x × y``; origin the control
+point. The calibrated control point of frame ``t`` is ``c_t + R_t o``.
+
+The offset ``o`` is estimated without ground-truth joints, from the markers of a
+calibration window (the take's own first :data:`CALIBRATION_SECONDS`, or a calibration take
+of the same performer) and the performer's skeleton (its bone lengths): the joint lies
+on the line from the proximal joint's landmark (the *anchor*: the elbow marker for a wrist,
+the knee marker for an ankle) through the control point, one skeleton bone length
+(elbow-wrist, knee-ankle) from the anchor; the head joint one head bone (head to headtop)
+below the head markers' centre, along the head frame's down axis. The median of that point
+in the segment frame over the window is ``o``. This puts the control
+point where the skeleton's joint is by *definition* (a CMU ASF ``lwrist`` joint starts the
+distal half of the forearm, 9 cm before the wrist bar) as well as where the skin is.
+The root is not calibrated (the pelvis markers' mean is the root the prior knows, within
+2-3 cm on CMU takes). A control point whose segment or anchor markers a set lacks keeps a
+zero offset (reported as such).
+
+Measured (CMU 135_02, its AMC as truth, calibrated on the first 10 s, evaluated on the
+rest): docs/knn.md, "How the reconstruction's default was chosen".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapflow.framework import DataError
+from mocapflow.framework.markers import Markers
+
+#: Seconds at the start of a take that calibrate it (the whole take when shorter).
+CALIBRATION_SECONDS = 10.0
+#: Fewest frames with every calibration marker seen that a calibration accepts.
+MIN_CALIBRATION_FRAMES = 10
+
+Groups = tuple[tuple[str, ...], tuple[str, ...]]
+
+
+@dataclass(frozen=True)
+class Segment:
+    """How one control point is calibrated: ``x``/``y`` axes as (plus labels, minus labels)
+    mean differences (an empty minus group: the control point itself), the ``anchor``
+    labels (the proximal joint's landmark) and the skeleton bone (canonical parent, joint)
+    whose length separates the anchor from the joint. No anchor (the head): the joint lies
+    the bone's length (head to headtop) along the frame's ``z`` (down) from the control point."""
+
+    x: Groups
+    y: Groups
+    anchor: tuple[str, ...]
+    bone: tuple[str, str]
+
+
+def _flip(label: str) -> str:
+    if label.startswith("L"):
+        return "R" + label[1:]
+    return label
+
+
+def _mirror(seg: Segment) -> Segment:
+    def f(g: tuple[str, ...]) -> tuple[str, ...]:
+        return tuple(_flip(x) for x in g)
+
+    return Segment(
+        (f(seg.x[0]), f(seg.x[1])),
+        (f(seg.y[0]), f(seg.y[1])),
+        f(seg.anchor),
+        (seg.bone[0].replace("l", "r", 1), seg.bone[1].replace("l", "r", 1)),
+    )
+
+
+def _limbs(head: Segment | None, wrist: Segment | None, ankle: Segment | None) -> dict[str, Segment]:
+    out: dict[str, Segment] = {}
+    if head is not None:
+        out["head"] = head
+    if wrist is not None:
+        out["lwrist"], out["rwrist"] = wrist, _mirror(wrist)
+    if ankle is not None:
+        out["lankle"], out["rankle"] = ankle, _mirror(ankle)
+    return out
+
+
+#: Per marker set, the calibrated control points (module doc); the sets of
+#: :data:`.reconstruct_markers.MARKER_SETS`.
+SEGMENTS: dict[str, dict[str, Segment]] = {
+    "vicon": _limbs(
+        Segment((("LFHD", "LBHD"), ("RFHD", "RBHD")), (("LFHD", "RFHD"), ("LBHD", "RBHD")), (), ("head", "headtop")),
+        Segment((("LWRA",), ("LWRB",)), (("LELB",), ()), ("LELB",), ("lelbow", "lwrist")),
+        Segment((("LKNE",), ()), (("LSHN",), ()), ("LKNE",), ("lknee", "lankle")),
+    ),
+    "opensim": _limbs(
+        None,
+        Segment((("L.Wrist.Lat",), ("L.Wrist.Med",)), (("L.Elbow",), ()), ("L.Elbow",), ("lelbow", "lwrist")),
+        None,
+    ),
+    "isb": _limbs(
+        Segment(
+            (("L_HDF", "L_HDB"), ("R_HDF", "R_HDB")), (("L_HDF", "R_HDF"), ("L_HDB", "R_HDB")), (), ("head", "headtop")
+        ),
+        Segment((("L_RSP",), ()), (("L_HLE", "L_HME"), ()), ("L_HLE", "L_HME"), ("lelbow", "lwrist")),
+        Segment((("L_FLE", "L_FME"), ()), (("L_TTC",), ()), ("L_FLE", "L_FME"), ("lknee", "lankle")),
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Offsets (P, 3) metres in each control point's segment frame, per control point of
+    ``points``; ``calibrated`` (P,) whether a point was estimated (else zero), ``frames``
+    the calibration frames used, ``source`` what they came from."""
+
+    points: tuple[str, ...]
+    offsets: np.ndarray
+    calibrated: np.ndarray
+    frames: int
+    source: str
+
+    def rows(self) -> list[dict]:
+        """One row per control point: offsets in cm along the segment axes."""
+        return [
+            {
+                "point": p,
+                "x_cm": float(o[0] * 100),
+                "y_cm": float(o[1] * 100),
+                "z_cm": float(o[2] * 100),
+                "norm_cm": float(np.linalg.norm(o) * 100),
+                "calibrated": bool(c),
+            }
+            for p, o, c in zip(self.points, self.offsets, self.calibrated, strict=True)
+        ]
+
+    def describe(self) -> str:
+        parts = [
+            f"{r['point']} ({r['x_cm']:+.1f}, {r['y_cm']:+.1f}, {r['z_cm']:+.1f}) |{r['norm_cm']:.1f}|"
+            if r["calibrated"]
+            else f"{r['point']} not calibrated"
+            for r in self.rows()
+        ]
+        return f"offsets from {self.source} ({self.frames} frames), cm in the segment frame: " + "; ".join(parts)
+
+
+def _keys(markers: Markers) -> dict[str, int]:
+    return {lb.rsplit(":", 1)[-1].strip().lower(): i for i, lb in enumerate(markers.labels)}
+
+
+def _mean(pos: np.ndarray, keys: dict[str, int], labels: tuple[str, ...]) -> np.ndarray:
+    return np.mean(pos[:, [keys[x.lower()] for x in labels]], axis=1)
+
+
+def segment_frames(pos: np.ndarray, keys: dict[str, int], seg: Segment, centre: np.ndarray) -> np.ndarray:
+    """Rotation (T, 3, 3) of a segment, its columns the segment's x, y, z axes (module doc);
+    NaN where a marker is missing or the axes are degenerate."""
+
+    def axis(g: Groups) -> np.ndarray:
+        plus = _mean(pos, keys, g[0])
+        return plus - (_mean(pos, keys, g[1]) if g[1] else centre)
+
+    x, y = axis(seg.x), axis(seg.y)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        x = x / np.linalg.norm(x, axis=-1, keepdims=True)
+        y = y - np.sum(y * x, axis=-1, keepdims=True) * x
+        y = y / np.linalg.norm(y, axis=-1, keepdims=True)
+    z = np.cross(x, y)
+    rot = np.stack([x, y, z], axis=-1)
+    bad = ~np.isfinite(rot).all(axis=(1, 2)) | (np.abs(np.linalg.det(np.nan_to_num(rot)) - 1) > 1e-3)
+    rot[bad] = np.nan
+    return rot
+
+
+def _segments_of(set_name: str, keys: dict[str, int], points: tuple[str, ...]) -> dict[str, Segment]:
+    """The set's segments whose every marker the take has."""
+    out = {}
+    for p, seg in SEGMENTS.get(set_name, {}).items():
+        labels = (*seg.x[0], *seg.x[1], *seg.y[0], *seg.y[1], *seg.anchor)
+        if p in points and all(x.lower() in keys for x in labels):
+            out[p] = seg
+    return out
+
+
+def calibrate(
+    markers: Markers,
+    centres: np.ndarray,
+    set_name: str,
+    points: tuple[str, ...],
+    lengths: dict[str, float],
+    seconds: float = CALIBRATION_SECONDS,
+    source: str | None = None,
+) -> Calibration:
+    """Offsets of ``points`` from the first ``seconds`` of a take (module doc).
+
+    markers : the take's markers, y up (as the control points)
+    centres : (T, P, 3) the control points (marker means, NaN where unseen), metres
+    lengths : skeleton bone length per canonical joint (from its canonical parent), metres
+    """
+    keys = _keys(markers)
+    n = len(centres) if not np.isfinite(seconds) else min(len(centres), max(1, int(round(seconds * markers.fps))))
+    pos, cen = markers.positions[:n], centres[:n]
+    segs = _segments_of(set_name, keys, points)
+    offsets = np.zeros((len(points), 3))
+    done = np.zeros(len(points), bool)
+    used = n
+    for p, seg in segs.items():
+        i = points.index(p)
+        bone = float(lengths.get(seg.bone[1], np.nan))
+        if not np.isfinite(bone) or bone <= 0:
+            continue
+        rot = segment_frames(pos, keys, seg, cen[:, i])
+        if seg.anchor:
+            anchor = _mean(pos, keys, seg.anchor)
+            d = cen[:, i] - anchor
+            with np.errstate(invalid="ignore", divide="ignore"):
+                joint = anchor + bone * d / np.linalg.norm(d, axis=-1, keepdims=True)
+        else:  # the head: its markers ring the skull at the top; the joint one head bone below
+            joint = cen[:, i] + bone * rot[:, :, 2]
+        local = np.einsum("tij,ti->tj", rot, joint - cen[:, i])
+        ok = np.isfinite(local).all(axis=1)
+        if ok.sum() < MIN_CALIBRATION_FRAMES:
+            raise DataError(
+                f"markers {markers.name!r}: {int(ok.sum())} of the first {n} frames see every marker that "
+                f"calibrates {p} ({', '.join(sorted(set(seg.anchor + seg.x[0] + seg.x[1] + seg.y[0] + seg.y[1])))}); "
+                f"need >= {MIN_CALIBRATION_FRAMES} (give a longer take, a calibration take, or turn calibration off)"
+            )
+        offsets[i] = np.median(local[ok], axis=0)
+        done[i] = True
+        used = min(used, int(ok.sum()))
+    return Calibration(points, offsets, done, used, source or f"the first {n / markers.fps:.1f} s of {markers.name!r}")
+
+
+def apply_offsets(markers: Markers, centres: np.ndarray, set_name: str, calibration: Calibration) -> np.ndarray:
+    """Control points (T, P, 3) moved by the calibration's offsets in each frame's segment
+    frame; NaN where a segment's markers are unseen (fill gaps afterwards)."""
+    keys = _keys(markers)
+    out = np.array(centres, np.float64)
+    segs = _segments_of(set_name, keys, calibration.points)
+    for i, p in enumerate(calibration.points):
+        if not calibration.calibrated[i]:
+            continue
+        if p not in segs:
+            raise DataError(f"markers {markers.name!r}: lack the markers of {p}'s segment that the calibration used")
+        rot = segment_frames(markers.positions, keys, segs[p], out[:, i])
+        out[:, i] = out[:, i] + np.einsum("tij,j->ti", rot, calibration.offsets[i])
+    return out
