@@ -15,7 +15,8 @@ performer's subject. Checks:
   AMC's coordinates is unobservable). Errors per joint and mean: without calibration, with
   the self-calibration of the first ``--cal-seconds`` evaluated on the *rest* of the take,
   and the bound of offsets fitted to the AMC itself on the calibration window (not a
-  calibration: it uses the truth).
+  calibration: it uses the truth), and the floor of six perfect points (the AMC's own control
+  joints and heading).
 * CMU 85_02 C3D (no AMC; reconstructed on 135.asf, not the performer's skeleton): offsets
   calibrated on the first and on the last ``--cal-seconds`` (at most half the take each;
   their difference: consistency)
@@ -58,6 +59,7 @@ from mocapflow.plugins.similarity.applications.reconstruct_calibrate import (
 )
 from mocapflow.plugins.similarity.applications.reconstruct_markers import (
     calibrated_control,
+    control_from_motion,
     resolve_marker_set,
 )
 from mocapflow.plugins.similarity.applications.reconstruct_prior import bone_lengths
@@ -136,9 +138,11 @@ def cmu_135(store, args) -> None:  # type: ignore[no-untyped-def]
         y = truth_j[frames]
         shift = (y - x).reshape(-1, 3).mean(0)
         per, _, avg, worst = joint_errors(x + shift, y)
+        unshifted = joint_errors(x, y)[2]
         ctrl = np.linalg.norm(control @ rot.T + shift - truth_c[frames], axis=-1).mean(0) * 100
         print(
-            f"  {label}: {avg:.2f} cm per joint (worst frame {worst:.1f}); control points off the joints: "
+            f"  {label}: {avg:.2f} cm per joint (worst frame {worst:.1f}; {unshifted:.2f} without the shift "
+            f"{np.round(shift * 100, 1).tolist()} cm); control points off the joints: "
             + ", ".join(f"{p} {v:.1f}" for p, v in zip(CP, ctrl, strict=True))
         )
         print("    per joint: " + ", ".join(f"{j} {v:.1f}" for j, v in zip(su.prior.joints, per, strict=True)))
@@ -171,6 +175,10 @@ def cmu_135(store, args) -> None:  # type: ignore[no-untyped-def]
     out = positions_to_motion(su.skeleton, world, su.prior.joints, mk.fps).canonical_positions(su.prior.joints)
     print("  " + oracle.describe())
     report("bound: offsets fitted to the AMC on the first seconds, frames after", out, control_o[rest], rest)
+    want_c, want_h = control_from_motion(truth)  # the floor: the AMC's own joints as control points
+    world, _ = reconstruct_positions(want_c[rest], su.prior, root_heading=want_h[rest])
+    out = positions_to_motion(su.skeleton, world, su.prior.joints, mk.fps).canonical_positions(su.prior.joints)
+    report("floor: the AMC's own control joints and heading, frames after", out @ rot, want_c[rest] @ rot, rest)
 
 
 def cmu_85(store, args) -> None:  # type: ignore[no-untyped-def]

@@ -1,8 +1,8 @@
 """Per-performer offsets from skin markers to the joint centres of the prior.
 
 A control point of a marker set is the mean of its markers (:mod:`.reconstruct_markers`);
-the joint it stands for sits a constant vector away **in the frame of its segment**: the
-pelvis, the head, the distal forearm, the shank. Each segment frame is made of the take's
+the joint it stands for sits a constant vector away **in the frame of its segment** (the
+distal forearm for a wrist, the shank for an ankle). Each segment frame is made of the take's
 markers on that segment (:data:`SEGMENTS`): ``x`` along the difference of two marker groups,
 ``y`` along a second difference made orthogonal to ``x``, ``z = x × y``; origin the control
 point. The calibrated control point of frame ``t`` is ``c_t + R_t o``.
@@ -12,14 +12,15 @@ calibration window (the take's own first :data:`CALIBRATION_SECONDS`, or a calib
 of the same performer) and the performer's skeleton (its bone lengths): the joint lies
 on the line from the proximal joint's landmark (the *anchor*: the elbow marker for a wrist,
 the knee marker for an ankle) through the control point, one skeleton bone length
-(elbow-wrist, knee-ankle) from the anchor; the head joint one head bone (head to headtop)
-below the head markers' centre, along the head frame's down axis. The median of that point
-in the segment frame over the window is ``o``. This puts the control
+(elbow-wrist, knee-ankle) from the anchor. The median of that point in the segment frame
+over the window is ``o``. This puts the control
 point where the skeleton's joint is by *definition* (a CMU ASF ``lwrist`` joint starts the
 distal half of the forearm, 9 cm before the wrist bar) as well as where the skin is.
-The root is not calibrated (the pelvis markers' mean is the root the prior knows, within
-2-3 cm on CMU takes). A control point whose segment or anchor markers a set lacks keeps a
-zero offset (reported as such).
+The root and the head are not calibrated: the pelvis markers' mean is the root within
+2-3 cm on CMU takes, and a head point moved by a rule (one head bone below the head
+markers, or a neck-head bone from the C7/clavicle markers) lost against the markers' mean
+(measured). A control point whose segment or anchor markers a set lacks keeps a zero offset
+(reported as such).
 
 Measured (CMU 135_02, its AMC as truth, calibrated on the first 10 s, evaluated on the
 rest): docs/knn.md, "How the reconstruction's default was chosen".
@@ -47,8 +48,7 @@ class Segment:
     """How one control point is calibrated: ``x``/``y`` axes as (plus labels, minus labels)
     mean differences (an empty minus group: the control point itself), the ``anchor``
     labels (the proximal joint's landmark) and the skeleton bone (canonical parent, joint)
-    whose length separates the anchor from the joint. No anchor (the head): the joint lies
-    the bone's length (head to headtop) along the frame's ``z`` (down) from the control point."""
+    whose length separates the anchor from the joint."""
 
     x: Groups
     y: Groups
@@ -74,10 +74,8 @@ def _mirror(seg: Segment) -> Segment:
     )
 
 
-def _limbs(head: Segment | None, wrist: Segment | None, ankle: Segment | None) -> dict[str, Segment]:
+def _limbs(wrist: Segment | None, ankle: Segment | None) -> dict[str, Segment]:
     out: dict[str, Segment] = {}
-    if head is not None:
-        out["head"] = head
     if wrist is not None:
         out["lwrist"], out["rwrist"] = wrist, _mirror(wrist)
     if ankle is not None:
@@ -89,19 +87,14 @@ def _limbs(head: Segment | None, wrist: Segment | None, ankle: Segment | None) -
 #: :data:`.reconstruct_markers.MARKER_SETS`.
 SEGMENTS: dict[str, dict[str, Segment]] = {
     "vicon": _limbs(
-        Segment((("LFHD", "LBHD"), ("RFHD", "RBHD")), (("LFHD", "RFHD"), ("LBHD", "RBHD")), (), ("head", "headtop")),
         Segment((("LWRA",), ("LWRB",)), (("LELB",), ()), ("LELB",), ("lelbow", "lwrist")),
         Segment((("LKNE",), ()), (("LSHN",), ()), ("LKNE",), ("lknee", "lankle")),
     ),
     "opensim": _limbs(
-        None,
         Segment((("L.Wrist.Lat",), ("L.Wrist.Med",)), (("L.Elbow",), ()), ("L.Elbow",), ("lelbow", "lwrist")),
         None,
     ),
     "isb": _limbs(
-        Segment(
-            (("L_HDF", "L_HDB"), ("R_HDF", "R_HDB")), (("L_HDF", "R_HDF"), ("L_HDB", "R_HDB")), (), ("head", "headtop")
-        ),
         Segment((("L_RSP",), ()), (("L_HLE", "L_HME"), ()), ("L_HLE", "L_HME"), ("lelbow", "lwrist")),
         Segment((("L_FLE", "L_FME"), ()), (("L_TTC",), ()), ("L_FLE", "L_FME"), ("lknee", "lankle")),
     ),
@@ -210,13 +203,10 @@ def calibrate(
         if not np.isfinite(bone) or bone <= 0:
             continue
         rot = segment_frames(pos, keys, seg, cen[:, i])
-        if seg.anchor:
-            anchor = _mean(pos, keys, seg.anchor)
-            d = cen[:, i] - anchor
-            with np.errstate(invalid="ignore", divide="ignore"):
-                joint = anchor + bone * d / np.linalg.norm(d, axis=-1, keepdims=True)
-        else:  # the head: its markers ring the skull at the top; the joint one head bone below
-            joint = cen[:, i] + bone * rot[:, :, 2]
+        anchor = _mean(pos, keys, seg.anchor)
+        d = cen[:, i] - anchor
+        with np.errstate(invalid="ignore", divide="ignore"):
+            joint = anchor + bone * d / np.linalg.norm(d, axis=-1, keepdims=True)
         local = np.einsum("tij,ti->tj", rot, joint - cen[:, i])
         ok = np.isfinite(local).all(axis=1)
         if ok.sum() < MIN_CALIBRATION_FRAMES:
