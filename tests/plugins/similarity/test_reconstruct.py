@@ -380,6 +380,9 @@ steps:
     run_pipeline(yaml, workspace=tmp_path / "ws", jobs=1, pm=get_plugin_manager(entry_points=False))
     fit = Dataset(tmp_path / "ws" / "recon").table("fit").to_pylist()
     assert fit[0]["marker_set"] == "vicon" and fit[0]["n_frames"] == 45 and fit[0]["fit_mean_cm"] < 1.0
+    offsets = Dataset(tmp_path / "ws" / "recon").table("offsets").to_pylist()
+    assert [r["point"] for r in offsets] == ["root", "head", "lwrist", "rwrist", "lankle", "rankle"]
+    assert not any(r["calibrated"] for r in offsets)  # no elbow/knee markers: nothing to calibrate
 
 
 def test_output_skeleton_from_an_asf_or_a_take_through_the_format_registry():
