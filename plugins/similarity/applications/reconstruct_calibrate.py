@@ -105,13 +105,15 @@ SEGMENTS: dict[str, dict[str, Segment]] = {
 class Calibration:
     """Offsets (P, 3) metres in each control point's segment frame, per control point of
     ``points``; ``calibrated`` (P,) whether a point was estimated (else zero), ``frames``
-    the calibration frames used, ``source`` what they came from."""
+    the calibration frames used, ``source`` what they came from, ``axes`` per point what its
+    segment frame's x and y point along ("" if not calibrated)."""
 
     points: tuple[str, ...]
     offsets: np.ndarray
     calibrated: np.ndarray
     frames: int
     source: str
+    axes: tuple[str, ...] = ()
 
     def rows(self) -> list[dict]:
         """One row per control point: offsets in cm along the segment axes."""
@@ -130,9 +132,10 @@ class Calibration:
     def describe(self) -> str:
         parts = [
             f"{r['point']} ({r['x_cm']:+.1f}, {r['y_cm']:+.1f}, {r['z_cm']:+.1f}) |{r['norm_cm']:.1f}|"
+            + (f" [{a}]" if a else "")
             if r["calibrated"]
             else f"{r['point']} not calibrated"
-            for r in self.rows()
+            for r, a in zip(self.rows(), self.axes or ("",) * len(self.points), strict=True)
         ]
         return f"offsets from {self.source} ({self.frames} frames), cm in the segment frame: " + "; ".join(parts)
 
@@ -218,7 +221,17 @@ def calibrate(
         offsets[i] = np.median(local[ok], axis=0)
         done[i] = True
         used = min(used, int(ok.sum()))
-    return Calibration(points, offsets, done, used, source or f"the first {n / markers.fps:.1f} s of {markers.name!r}")
+    axes = tuple(_axes(segs[p]) if done[i] else "" for i, p in enumerate(points))
+    return Calibration(
+        points, offsets, done, used, source or f"the first {n / markers.fps:.1f} s of {markers.name!r}", axes
+    )
+
+
+def _axes(seg: Segment) -> str:
+    def diff(g: Groups) -> str:
+        return "+".join(g[0]) + "-" + "+".join(g[1]) if g[1] else "to " + "+".join(g[0])
+
+    return f"x {diff(seg.x)}, y {diff(seg.y)}"
 
 
 def apply_offsets(markers: Markers, centres: np.ndarray, set_name: str, calibration: Calibration) -> np.ndarray:
