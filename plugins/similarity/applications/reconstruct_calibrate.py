@@ -194,37 +194,48 @@ def calibrate(
     lengths : skeleton bone length per canonical joint (from its canonical parent), metres
     """
     keys = _keys(markers)
-    n = len(centres) if not np.isfinite(seconds) else min(len(centres), max(1, int(round(seconds * markers.fps))))
-    pos, cen = markers.positions[:n], centres[:n]
+    total = len(centres)
+    n = total if not np.isfinite(seconds) else min(total, max(1, int(round(seconds * markers.fps))))
     segs = _segments_of(set_name, keys, points)
     offsets = np.zeros((len(points), 3))
     done = np.zeros(len(points), bool)
-    used = n
+    used, notes = n, []
     for p, seg in segs.items():
         i = points.index(p)
         bone = float(lengths.get(seg.bone[1], np.nan))
         if not np.isfinite(bone) or bone <= 0:
             continue
-        rot = segment_frames(pos, keys, seg, cen[:, i])
-        anchor = _mean(pos, keys, seg.anchor)
-        d = cen[:, i] - anchor
-        with np.errstate(invalid="ignore", divide="ignore"):
-            joint = anchor + bone * d / np.linalg.norm(d, axis=-1, keepdims=True)
-        local = np.einsum("tij,ti->tj", rot, joint - cen[:, i])
+        local = _rule_offsets(markers.positions[:n], keys, seg, centres[:n, i], bone)
         ok = np.isfinite(local).all(axis=1)
+        if ok.sum() < MIN_CALIBRATION_FRAMES and n < total:  # the window is occluded: the whole take
+            local = _rule_offsets(markers.positions, keys, seg, centres[:, i], bone)
+            ok = np.isfinite(local).all(axis=1)
+            notes.append(p)
         if ok.sum() < MIN_CALIBRATION_FRAMES:
+            labels = ", ".join(sorted(set(seg.anchor + seg.x[0] + seg.x[1] + seg.y[0] + seg.y[1])))
             raise DataError(
-                f"markers {markers.name!r}: {int(ok.sum())} of the first {n} frames see every marker that "
-                f"calibrates {p} ({', '.join(sorted(set(seg.anchor + seg.x[0] + seg.x[1] + seg.y[0] + seg.y[1])))}); "
-                f"need >= {MIN_CALIBRATION_FRAMES} (give a longer take, a calibration take, or turn calibration off)"
+                f"markers {markers.name!r}: {int(ok.sum())} of its {total} frames see every marker that calibrates "
+                f"{p} ({labels}); need >= {MIN_CALIBRATION_FRAMES} (give a longer take or a calibration take, "
+                "or turn calibration off)"
             )
         offsets[i] = np.median(local[ok], axis=0)
         done[i] = True
         used = min(used, int(ok.sum()))
     axes = tuple(_axes(segs[p]) if done[i] else "" for i, p in enumerate(points))
-    return Calibration(
-        points, offsets, done, used, source or f"the first {n / markers.fps:.1f} s of {markers.name!r}", axes
-    )
+    what = source or f"the first {n / markers.fps:.1f} s of {markers.name!r}"
+    if notes:
+        what += f" ({', '.join(notes)}: the whole take, the first seconds lack its markers)"
+    return Calibration(points, offsets, done, used, what, axes)
+
+
+def _rule_offsets(pos: np.ndarray, keys: dict[str, int], seg: Segment, centre: np.ndarray, bone: float) -> np.ndarray:
+    """Per frame (T, 3): the joint by the module's rule, in the segment frame; NaN where unseen."""
+    rot = segment_frames(pos, keys, seg, centre)
+    anchor = _mean(pos, keys, seg.anchor)
+    d = centre - anchor
+    with np.errstate(invalid="ignore", divide="ignore"):
+        joint = anchor + bone * d / np.linalg.norm(d, axis=-1, keepdims=True)
+    return np.einsum("tij,ti->tj", rot, joint - centre)
 
 
 def _axes(seg: Segment) -> str:
@@ -236,7 +247,8 @@ def _axes(seg: Segment) -> str:
 
 def apply_offsets(markers: Markers, centres: np.ndarray, set_name: str, calibration: Calibration) -> np.ndarray:
     """Control points (T, P, 3) moved by the calibration's offsets in each frame's segment
-    frame; NaN where a segment's markers are unseen (fill gaps afterwards)."""
+    frame; where a segment marker is unseen the offset vector is interpolated from the
+    nearest frames that see it (the control point's own gaps stay NaN: fill them afterwards)."""
     keys = _keys(markers)
     out = np.array(centres, np.float64)
     segs = _segments_of(set_name, keys, calibration.points)
@@ -246,5 +258,11 @@ def apply_offsets(markers: Markers, centres: np.ndarray, set_name: str, calibrat
         if p not in segs:
             raise DataError(f"markers {markers.name!r}: lack the markers of {p}'s segment that the calibration used")
         rot = segment_frames(markers.positions, keys, segs[p], out[:, i])
-        out[:, i] = out[:, i] + np.einsum("tij,j->ti", rot, calibration.offsets[i])
+        vec = np.einsum("tij,j->ti", rot, calibration.offsets[i])
+        seen = np.isfinite(vec).all(axis=1)
+        if seen.any() and not seen.all():  # a segment marker unseen: the offset vector interpolated
+            t = np.arange(len(vec))
+            for a in range(3):
+                vec[:, a] = np.interp(t, t[seen], vec[seen, a])
+        out[:, i] = out[:, i] + vec
     return out
