@@ -98,6 +98,8 @@ class ReconstructCommand:
             missing = [j for j, v in zip(store.joints, lengths, strict=True) if not np.isfinite(v)]
             raise DataError(f"skeleton {skeleton.name!r} lacks the prior's pose joints {missing}")
         calibration = None
+        if markers is None and args.calibration not in ("self", "off"):
+            raise ConfigError(f"--calibration {args.calibration}: a calibration take is for a marker take (C3D/TRC)")
         if markers is not None:
             cal_take = None
             if args.calibration not in ("self", "off"):

@@ -163,3 +163,5 @@ def test_cli_reports_offsets_on_a_corpus_c3d(tmp_path, capsys):
     assert "offsets: none" in capsys.readouterr().out
     assert main([*argv, "--calibration", str(tmp_path / "nope.c3d")]) == 2
     assert "--calibration" in capsys.readouterr().err
+    amc = ["reconstruct", str(prior), "--prior", str(prior), "-o", str(out), "--calibration", str(c3d)]
+    assert main(amc) == 2 and "for a marker take" in capsys.readouterr().err
