@@ -16,10 +16,14 @@ the knee marker for an ankle) through the control point, one skeleton bone lengt
 over the window is ``o``. This puts the control
 point where the skeleton's joint is by *definition* (a CMU ASF ``lwrist`` joint starts the
 distal half of the forearm, 9 cm before the wrist bar) as well as where the skin is.
-The root and the head are not calibrated: the pelvis markers' mean is the root within
-2-3 cm on CMU takes, and a head point moved by a rule (one head bone below the head
-markers, or a neck-head bone from the C7/clavicle markers) lost against the markers' mean
-(measured). A control point whose segment or anchor markers a set lacks keeps a zero offset
+The root (pelvis frame from the pelvis markers) is put where the skeleton has it relative
+to its hips: each hip centre is the centre of the sphere the knee marker moves on in the
+pelvis frame (a functional joint centre: least squares over the window; it needs hip motion
+there, else the root keeps the markers' mean, reported), and the root sits the rest pose's
+root - mid-hip vector (:func:`root_from_hips`) from their midpoint, the pelvis markers' frame
+taken for the skeleton's root frame. The head is not calibrated: a head point moved by a
+rule (one head bone below the head markers, or a neck-head bone from the C7/clavicle
+markers) lost against the markers' mean (measured). A control point whose segment or anchor markers a set lacks keeps a zero offset
 (reported as such).
 
 Measured (CMU 135_02, its AMC as truth, calibrated on the first 10 s, evaluated on the
@@ -48,12 +52,14 @@ class Segment:
     """How one control point is calibrated: ``x``/``y`` axes as (plus labels, minus labels)
     mean differences (an empty minus group: the control point itself), the ``anchor``
     labels (the proximal joint's landmark) and the skeleton bone (canonical parent, joint)
-    whose length separates the anchor from the joint."""
+    whose length separates the anchor from the joint. ``hips``: the root's rule instead (module
+    doc): ``anchor`` the left and right knee markers, ``bone`` the canonical hips."""
 
     x: Groups
     y: Groups
     anchor: tuple[str, ...]
     bone: tuple[str, str]
+    hips: bool = False
 
 
 def _flip(label: str) -> str:
@@ -86,18 +92,36 @@ def _limbs(wrist: Segment | None, ankle: Segment | None) -> dict[str, Segment]:
 #: Per marker set, the calibrated control points (module doc); the sets of
 #: :data:`.reconstruct_markers.MARKER_SETS`.
 SEGMENTS: dict[str, dict[str, Segment]] = {
-    "vicon": _limbs(
-        Segment((("LWRA",), ("LWRB",)), (("LELB",), ()), ("LELB",), ("lelbow", "lwrist")),
-        Segment((("LKNE",), ()), (("LSHN",), ()), ("LKNE",), ("lknee", "lankle")),
-    ),
+    "vicon": {
+        "root": Segment(
+            (("LFWT", "LBWT"), ("RFWT", "RBWT")),
+            (("LFWT", "RFWT"), ("LBWT", "RBWT")),
+            ("LKNE", "RKNE"),
+            ("lhip", "rhip"),
+            True,
+        ),
+        **_limbs(
+            Segment((("LWRA",), ("LWRB",)), (("LELB",), ()), ("LELB",), ("lelbow", "lwrist")),
+            Segment((("LKNE",), ()), (("LSHN",), ()), ("LKNE",), ("lknee", "lankle")),
+        ),
+    },
     "opensim": _limbs(
         Segment((("L.Wrist.Lat",), ("L.Wrist.Med",)), (("L.Elbow",), ()), ("L.Elbow",), ("lelbow", "lwrist")),
         None,
     ),
-    "isb": _limbs(
-        Segment((("L_RSP",), ()), (("L_HLE", "L_HME"), ()), ("L_HLE", "L_HME"), ("lelbow", "lwrist")),
-        Segment((("L_FLE", "L_FME"), ()), (("L_TTC",), ()), ("L_FLE", "L_FME"), ("lknee", "lankle")),
-    ),
+    "isb": {
+        "root": Segment(
+            (("L_IAS", "L_IPS"), ("R_IAS", "R_IPS")),
+            (("L_IAS", "R_IAS"), ("L_IPS", "R_IPS")),
+            ("L_FLE", "R_FLE"),
+            ("lhip", "rhip"),
+            True,
+        ),
+        **_limbs(
+            Segment((("L_RSP",), ()), (("L_HLE", "L_HME"), ()), ("L_HLE", "L_HME"), ("lelbow", "lwrist")),
+            Segment((("L_FLE", "L_FME"), ()), (("L_TTC",), ()), ("L_FLE", "L_FME"), ("lknee", "lankle")),
+        ),
+    },
 }
 
 
@@ -186,12 +210,15 @@ def calibrate(
     lengths: dict[str, float],
     seconds: float = CALIBRATION_SECONDS,
     source: str | None = None,
+    root_offset: np.ndarray | None = None,
 ) -> Calibration:
     """Offsets of ``points`` from the first ``seconds`` of a take (module doc).
 
     markers : the take's markers, y up (as the control points)
     centres : (T, P, 3) the control points (marker means, NaN where unseen), metres
     lengths : skeleton bone length per canonical joint (from its canonical parent), metres
+    root_offset : (3,) the skeleton's root - mid-hip vector (:func:`root_from_hips`); None:
+        the root is not calibrated
     """
     keys = _keys(markers)
     total = len(centres)
@@ -202,6 +229,16 @@ def calibrate(
     used, notes = n, []
     for p, seg in segs.items():
         i = points.index(p)
+        if seg.hips:
+            if root_offset is None:
+                continue
+            hips = _hip_centres(markers.positions[:n], keys, seg, centres[:n, i], lengths)
+            if hips is None:
+                notes.append(f"{p}: no hip motion")
+                continue
+            offsets[i] = hips + np.asarray(root_offset, np.float64)
+            done[i] = True
+            continue
         bone = float(lengths.get(seg.bone[1], np.nan))
         if not np.isfinite(bone) or bone <= 0:
             continue
@@ -210,7 +247,7 @@ def calibrate(
         if ok.sum() < MIN_CALIBRATION_FRAMES and n < total:  # the window is occluded: the whole take
             local = _rule_offsets(markers.positions, keys, seg, centres[:, i], bone)
             ok = np.isfinite(local).all(axis=1)
-            notes.append(p)
+            notes.append(f"{p}: the whole take, the first seconds lack its markers")
         if ok.sum() < MIN_CALIBRATION_FRAMES:
             labels = ", ".join(sorted(set(seg.anchor + seg.x[0] + seg.x[1] + seg.y[0] + seg.y[1])))
             raise DataError(
@@ -224,8 +261,59 @@ def calibrate(
     axes = tuple(_axes(segs[p]) if done[i] else "" for i, p in enumerate(points))
     what = source or f"the first {n / markers.fps:.1f} s of {markers.name!r}"
     if notes:
-        what += f" ({', '.join(notes)}: the whole take, the first seconds lack its markers)"
+        what += f" ({'; '.join(notes)})"
     return Calibration(points, offsets, done, used, what, axes)
+
+
+#: A hip centre fit is kept when the knee marker's distances to it scatter less than this (m)
+#: and the sphere's radius is within this factor of the thigh bone.
+HIP_FIT_RESIDUAL, HIP_FIT_RADIUS = 0.02, 1.5
+
+
+def _hip_centres(
+    pos: np.ndarray, keys: dict[str, int], seg: Segment, centre: np.ndarray, lengths: dict[str, float]
+) -> np.ndarray | None:
+    """Midpoint (3,) in the pelvis frame of the two functional hip centres: the centre of the
+    sphere each knee marker moves on in the pelvis frame (linear least squares); None when
+    a fit is ill-posed (too little hip motion, a poor sphere)."""
+    rot = segment_frames(pos, keys, seg, centre)
+    out = []
+    for label, hip in zip(seg.anchor, seg.bone, strict=True):
+        knee = hip.replace("hip", "knee")
+        thigh = float(lengths.get(knee, np.nan))
+        local = np.einsum("tij,ti->tj", rot, pos[:, keys[label.lower()]] - centre)
+        local = local[np.isfinite(local).all(axis=1)]
+        if len(local) < MIN_CALIBRATION_FRAMES or not np.isfinite(thigh):
+            return None
+        a = np.c_[2 * local, np.ones(len(local))]
+        sol, *_ = np.linalg.lstsq(a, (local**2).sum(1), rcond=None)
+        c = sol[:3]
+        r2 = sol[3] + c @ c
+        if not r2 > 0:
+            return None
+        r = float(np.sqrt(r2))
+        spread = np.abs(np.linalg.norm(local - c, axis=1) - r).mean()
+        if spread > HIP_FIT_RESIDUAL or not thigh / HIP_FIT_RADIUS < r < thigh * HIP_FIT_RADIUS:
+            return None
+        if np.linalg.svd(local - local.mean(0), compute_uv=False)[-1] / np.sqrt(len(local)) < 0.01:
+            return None  # the knee marker moved in a plane at best: no sphere
+        out.append(c)
+    return np.mean(out, axis=0)
+
+
+def root_from_hips(rest: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The skeleton's root - mid-hip vector (3,) in the pelvis frame's axes (left, forward,
+    down) from canonical rest positions (``root``, ``lhip``, ``rhip``: the rest pose stands
+    y up); None if a joint is missing."""
+    if any(j not in rest or not np.isfinite(rest[j]).all() for j in ("root", "lhip", "rhip")):
+        return None
+    left = rest["lhip"] - rest["rhip"]
+    left = left / np.linalg.norm(left)
+    up = np.array([0.0, 1.0, 0.0]) - left[1] * left
+    up = up / np.linalg.norm(up)
+    forward = np.cross(left, up)
+    v = rest["root"] - (rest["lhip"] + rest["rhip"]) / 2
+    return np.array([v @ left, v @ forward, -(v @ up)])
 
 
 def _rule_offsets(pos: np.ndarray, keys: dict[str, int], seg: Segment, centre: np.ndarray, bone: float) -> np.ndarray:
@@ -240,7 +328,10 @@ def _rule_offsets(pos: np.ndarray, keys: dict[str, int], seg: Segment, centre: n
 
 def _axes(seg: Segment) -> str:
     def diff(g: Groups) -> str:
-        return "+".join(g[0]) + "-" + "+".join(g[1]) if g[1] else "to " + "+".join(g[0])
+        def one(labels: tuple[str, ...]) -> str:
+            return labels[0] if len(labels) == 1 else "(" + "+".join(labels) + ")"
+
+        return one(g[0]) + "-" + one(g[1]) if g[1] else "to " + "+".join(g[0])
 
     return f"x {diff(seg.x)}, y {diff(seg.y)}"
 

@@ -64,6 +64,7 @@ class ReconstructCommand:
         from mocapflow.framework.output_paths import refuse_dataset_path
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
+        from .reconstruct_calibrate import root_from_hips
         from .reconstruct_markers import calibrated_control, control_from_motion, read_skeleton
         from .reconstruct_prior import PriorStore, bone_lengths, build_store
         from .retarget import positions_to_motion
@@ -108,8 +109,10 @@ class ReconstructCommand:
                     raise ConfigError(f"--calibration {cal_path}: no such file (a C3D/TRC take, 'self' or 'off')")
                 cal_take = _read_markers(cal_path, reg)
             by_joint = None if args.calibration == "off" else dict(zip(store.joints, lengths, strict=True))
+            hips = ("root", "lhip", "rhip")
+            root_offset = root_from_hips(dict(zip(hips, rest.canonical_positions(hips)[0], strict=True)))
             control, heading, set_name, mapping, calibration = calibrated_control(
-                markers, args.marker_set, by_joint, cal_take
+                markers, args.marker_set, by_joint, cal_take, root_offset
             )
             what = f"marker set {set_name}: " + "; ".join(f"{p} = {'+'.join(v)}" for p, v in mapping.items())
         prior = PosePrior.build(store, lengths)

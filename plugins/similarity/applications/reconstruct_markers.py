@@ -155,12 +155,15 @@ def calibrated_control(
     marker_set: str = "auto",
     lengths: Mapping[str, float] | None = None,
     calibration_take: Markers | None = None,
+    root_offset: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, str, dict, Calibration | None]:
     """:func:`control_from_markers` with each control point moved by its offset to the joint
     centre (:mod:`.reconstruct_calibrate`), estimated from the first seconds of the take or
     of ``calibration_take`` (the same performer and marker set) with the skeleton's bone
     ``lengths`` (canonical joint -> metres); ``lengths=None``: no calibration (the marker
-    means). Also returns the calibration."""
+    means); ``root_offset`` the skeleton's root - mid-hip vector
+    (:func:`~.reconstruct_calibrate.root_from_hips`; None: the root keeps the pelvis markers'
+    mean). Also returns the calibration."""
     from .reconstruct_calibrate import apply_offsets, calibrate
 
     y_up = to_y_up(markers)
@@ -172,7 +175,7 @@ def calibrated_control(
     cal = None
     if lengths is not None:
         if calibration_take is None:
-            cal = calibrate(y_up, pos[:, : len(points)], name, points, dict(lengths))
+            cal = calibrate(y_up, pos[:, : len(points)], name, points, dict(lengths), root_offset=root_offset)
         else:
             c_up = to_y_up(calibration_take)
             try:
@@ -187,6 +190,7 @@ def calibrated_control(
                 dict(lengths),
                 seconds=float("inf"),
                 source=f"calibration take {calibration_take.name!r}",
+                root_offset=root_offset,
             )
         pos = np.concatenate([apply_offsets(y_up, pos[:, : len(points)], name, cal), pos[:, len(points) :]], 1)
     pos = fill_gaps(pos, what)
@@ -276,6 +280,7 @@ class ReconstructMarkers(Analysis):
         from mocapflow.framework.motion_tables import motions_to_tables
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
+        from .reconstruct_calibrate import root_from_hips
         from .reconstruct_prior import bone_lengths
         from .reconstruct_steps import open_prior
         from .retarget import positions_to_motion
@@ -287,9 +292,11 @@ class ReconstructMarkers(Analysis):
         prior = PosePrior.build(store, bone_lengths(rest.canonical_positions(store.joints), store.joints))
         motions, ids, rows = [], [], []
         by_joint = dict(zip(store.joints, prior.lengths, strict=True))
+        hips = ("root", "lhip", "rhip")
+        root_offset = root_from_hips(dict(zip(hips, rest.canonical_positions(hips)[0], strict=True)))
         offset_rows: list[dict] = []
         for cid, mk in dataset_markers(inputs["markers"]):
-            control, heading, set_name, _, cal = calibrated_control(mk, p.marker_set, by_joint)
+            control, heading, set_name, _, cal = calibrated_control(mk, p.marker_set, by_joint, None, root_offset)
             if cal is not None:
                 offset_rows += [{"clip_id": cid, "name": mk.name, **r} for r in cal.rows()]
             t0 = time.perf_counter()

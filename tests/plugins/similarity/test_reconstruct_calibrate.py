@@ -11,7 +11,7 @@ from test_reconstruct import periodic_motion
 from mocapflow.framework import DataError
 from mocapflow.framework.markers import Markers
 from mocapflow.plugins.similarity.applications.reconstruct import DEFAULT_MARKERS
-from mocapflow.plugins.similarity.applications.reconstruct_calibrate import apply_offsets, calibrate
+from mocapflow.plugins.similarity.applications.reconstruct_calibrate import apply_offsets, calibrate, root_from_hips
 from mocapflow.plugins.similarity.applications.reconstruct_markers import calibrated_control
 
 JOINTS = (
@@ -39,8 +39,12 @@ def skin_markers(m, noise: float = 0.002, seed: int = 0):  # type: ignore[no-unt
     (wrist bar 9 cm beyond the wrist along the forearm, ankle marker 2 cm beyond the ankle
     along the shank), each coordinate ± ``noise`` metres.
     Returns the markers and the true offsets (P, 3) in the calibration's segment frames."""
+    from mocapflow.framework import quaternions as quat
+
     j = {n: m.canonical_positions((n,))[:, 0] for n in JOINTS}
-    up, fw = np.array([0, 0.05, 0]), np.array([0, 0, 0.05])
+    # pelvis markers fixed to the root: 5 cm above the hips, 5 cm before and behind
+    up = quat.rotate(m.rotations[:, 0], np.array([0.0, 0.05, 0.0]))
+    fw = quat.rotate(m.rotations[:, 0], np.array([0.0, 0.0, 0.05]))
     lab = {
         "LFWT": j["lhip"] + up + fw,
         "LBWT": j["lhip"] + up - fw,
@@ -52,7 +56,8 @@ def skin_markers(m, noise: float = 0.002, seed: int = 0):  # type: ignore[no-unt
     front = np.cross(side, v)  # left x front = down the head bone
     for name, s, f in (("LFHD", 1, 1), ("RFHD", -1, 1), ("LBHD", 1, -1), ("RBHD", -1, -1)):
         lab[name] = j["headtop"] + 0.07 * s * side + 0.09 * f * front
-    truth = {}
+    rest = rest_of(m)
+    truth = {"root": tuple(root_from_hips(rest) + np.array([0.0, 0.0, 0.05]))}  # the markers' mean 5 cm above
     for s in "lr":
         u = unit(j[f"{s}wrist"] - j[f"{s}elbow"])
         p = unit(np.cross(u, [0.0, 1.0, 0.0]))
@@ -73,6 +78,14 @@ def skin_markers(m, noise: float = 0.002, seed: int = 0):  # type: ignore[no-unt
     return Markers(tuple(f"subj:{k}" for k in lab), pos, m.fps, name="take", metadata={"up_axis": "+y"}), off
 
 
+def rest_of(m):  # type: ignore[no-untyped-def]
+    from mocapflow.framework import Motion
+
+    sk = m.skeleton
+    still = Motion(sk, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, sk.n_joints, 1)), m.fps)
+    return {n: still.canonical_positions((n,))[0, 0] for n in ("root", "lhip", "rhip")}
+
+
 def lengths_of(m):  # type: ignore[no-untyped-def]
     from mocapflow.plugins.similarity.applications.reconstruct_prior import CANONICAL_PARENT
 
@@ -83,18 +96,18 @@ def lengths_of(m):  # type: ignore[no-untyped-def]
 def test_calibration_recovers_known_segment_offsets():
     m = periodic_motion(90, yaw_deg=30)
     mk, want = skin_markers(m)
-    control, _, name, _, cal = calibrated_control(mk, "auto", lengths_of(m))
+    control, _, name, _, cal = calibrated_control(mk, "auto", lengths_of(m), None, root_from_hips(rest_of(m)))
     assert name == "vicon" and cal is not None
-    assert list(cal.calibrated) == [False, False, True, True, True, True]
+    assert list(cal.calibrated) == [True, False, True, True, True, True]
     assert np.abs(cal.offsets - want).max() < 0.006, (cal.offsets - want) * 100
     joints = m.canonical_positions(DEFAULT_MARKERS)
     err = np.linalg.norm(control - joints, axis=-1)
-    assert err[:, 2:].max() < 0.015  # calibrated points on the joints
+    assert err[:, [0, 2, 3, 4, 5]].max() < 0.015  # calibrated points on the joints (the root by its hips)
     raw, _, _, _, none = calibrated_control(mk, "auto", None)
     assert none is None and np.linalg.norm(raw - joints, axis=-1)[:, 2:4].min() > 0.07  # the bar 9 cm off
     rows = cal.rows()
     assert [r["point"] for r in rows] == list(DEFAULT_MARKERS) and abs(rows[2]["y_cm"] - 9.0) < 0.6
-    assert "lwrist (" in cal.describe() and "root not calibrated" in cal.describe()
+    assert "lwrist (" in cal.describe() and "head not calibrated" in cal.describe()
 
 
 def test_calibration_take_and_window():
@@ -103,10 +116,10 @@ def test_calibration_take_and_window():
     other, _ = skin_markers(periodic_motion(60, 0.4, yaw_deg=80), seed=2)
     _, _, _, _, cal = calibrated_control(mk, "auto", lengths_of(m), calibration_take=other)
     assert cal is not None and "calibration take" in cal.source and cal.frames == 60
-    assert np.abs(cal.offsets - want).max() < 0.006
+    assert not cal.calibrated[0] and np.abs(cal.offsets - want)[2:].max() < 0.006  # no root_offset: root kept
     centres, _, _, _, _ = calibrated_control(mk, "vicon", None)
     first = calibrate(mk, centres, "vicon", DEFAULT_MARKERS, lengths_of(m), seconds=1.0)
-    assert first.frames == 30 and np.abs(first.offsets - want).max() < 0.006
+    assert first.frames == 30 and np.abs(first.offsets - want)[2:].max() < 0.006
 
 
 def test_occluded_segment_markers():
@@ -119,7 +132,7 @@ def test_occluded_segment_markers():
     occluded = Markers(mk.labels, pos, mk.fps, "take", mk.metadata)
     centres, _, _, _, _ = calibrated_control(occluded, "vicon", None)
     cal = calibrate(occluded, centres, "vicon", DEFAULT_MARKERS, lengths_of(m), seconds=1.0)
-    assert "lwrist: the whole take" in cal.source and np.abs(cal.offsets - want).max() < 0.006
+    assert "lwrist: the whole take" in cal.source and np.abs(cal.offsets - want)[2:].max() < 0.006
     pos = mk.positions.copy()
     pos[50:54, mk.labels.index("subj:LELB")] = np.nan  # a short gap: the vector interpolated
     control, _, _, _, _ = calibrated_control(
@@ -127,6 +140,14 @@ def test_occluded_segment_markers():
     )
     err = np.linalg.norm(control - m.canonical_positions(DEFAULT_MARKERS), axis=-1)
     assert np.isfinite(control).all() and err[:, 2].max() < 0.03
+
+
+def test_root_needs_hip_motion():
+    m = periodic_motion(60, amp=0.0)  # a frozen pose: the knee markers draw no sphere
+    mk, _ = skin_markers(m)
+    _, _, _, _, cal = calibrated_control(mk, "auto", lengths_of(m), None, root_from_hips(rest_of(m)))
+    assert cal is not None and not cal.calibrated[0] and "root: no hip motion" in cal.source
+    assert root_from_hips({"root": np.zeros(3)}) is None
 
 
 def test_calibration_error_paths():
