@@ -19,7 +19,7 @@ distal half of the forearm, 9 cm before the wrist bar) as well as where the skin
 The root (pelvis frame from the pelvis markers) is put where the skeleton has it relative
 to its hips: each hip centre is the centre of the sphere the knee marker moves on in the
 pelvis frame (a functional joint centre: least squares over the window; it needs hip motion
-there, else the root keeps the markers' mean, reported), and the root sits the rest pose's
+there, else the whole take's, else the root keeps the markers' mean, reported), and the root sits the rest pose's
 root - mid-hip vector (:func:`root_from_hips`) from their midpoint, the pelvis markers' frame
 taken for the skeleton's root frame. The head is not calibrated: a head point moved by a
 rule (one head bone below the head markers, or a neck-head bone from the C7/clavicle
@@ -233,6 +233,10 @@ def calibrate(
             if root_offset is None:
                 continue
             hips = _hip_centres(markers.positions[:n], keys, seg, centres[:n, i], lengths)
+            if hips is None and n < total:  # e.g. a T-pose first: the whole take
+                hips = _hip_centres(markers.positions, keys, seg, centres[:, i], lengths)
+                if hips is not None:
+                    notes.append(f"{p}: the whole take, no hip motion in the first seconds")
             if hips is None:
                 notes.append(f"{p}: no hip motion")
                 continue
