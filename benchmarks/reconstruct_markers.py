@@ -196,11 +196,13 @@ def cmu_85(store, args) -> None:  # type: ignore[no-untyped-def]
     tail = mk.slice(max(0, mk.n_frames - n), mk.n_frames)
     _, _, _, _, last = calibrated_control(tail, "auto", su.by_joint, None, su.root_offset)
     diff = np.linalg.norm(first.offsets - last.offsets, axis=1) * 100
+    both = first.calibrated & last.calibrated
     print(f"85_02 ({mk.n_frames} frames at {mk.fps:g} Hz, on 135.asf): {first.describe()}")
+    print(f"  last {n} frames: {last.describe()}")
     print(
-        "  first vs last seconds' offsets differ by "
-        + ", ".join(f"{p} {v:.1f}" for p, v in zip(CP, diff, strict=True))
-        + " cm"
+        "  first vs last offsets differ by "
+        + ", ".join(f"{p} {v:.1f}" for p, v, ok in zip(CP, diff, both, strict=True) if ok)
+        + " cm (points calibrated in both)"
     )
     for cal in (False, True):
         recon, control, _, sec, _ = su.run(mk, cal=cal)
