@@ -2,10 +2,10 @@
 
 A control point of a marker set is the mean of its markers (:mod:`.reconstruct_markers`);
 the joint it stands for sits a constant vector away **in the frame of its segment** (the
-pelvis for the root, the distal forearm for a wrist, the shank for an ankle). Each segment frame is made of the take's
-markers on that segment (:data:`SEGMENTS`): ``x`` along the difference of two marker groups,
-``y`` along a second difference made orthogonal to ``x``, ``z = x × y``; origin the control
-point. The calibrated control point of frame ``t`` is ``c_t + R_t o``.
+pelvis for the root, the distal forearm for a wrist, the shank for an ankle). Each segment
+frame is made of the take's markers on that segment (:data:`SEGMENTS`): ``x`` along the
+difference of two marker groups, ``y`` along a second difference made orthogonal to ``x``,
+``z = x × y``; origin the control point. The calibrated control point of frame ``t`` is ``c_t + R_t o``.
 
 The offset ``o`` is estimated without ground-truth joints, from the markers of a
 calibration window (the take's own first :data:`CALIBRATION_SECONDS`, or a calibration take
