@@ -3,10 +3,14 @@
     mocapflow reconstruct take.c3d --prior runs/reconstruct/prior --skeleton 16.asf -o take.bvh
     mocapflow reconstruct take.trc --marker-set opensim --prior "data/**/*.amc" --skeleton s.bvh -o out.amc
     mocapflow reconstruct 16_15.amc --prior runs/reconstruct/prior -o 16_15_recon.bvh
+    mocapflow reconstruct take.c3d --calibration rom.c3d --prior P --skeleton 16.asf -o take.bvh
 
 The input is a C3D/TRC marker take (a marker set maps its labels to the 6 control points,
 :mod:`.reconstruct_markers`) or a BVH/AMC take whose end effectors, head and root are the
-control points. The output skeleton (``--skeleton``: ASF, or the skeleton of a BVH/AMC
+control points. A marker take's control points are moved onto the joint centres by
+offsets calibrated per performer (:mod:`.reconstruct_calibrate`; ``--calibration``: ``self``,
+the default, from the take's first 10 s; a calibration take of the same performer; ``off``),
+printed per control point in cm in its segment frame. The output skeleton (``--skeleton``: ASF, or the skeleton of a BVH/AMC
 file; default for a skeleton take: its own) gives the bone lengths the prior is retargeted
 to. ``--prior`` is a prior store (a ``reconstruction_prior`` step's folder or its
 ``prior`` subfolder, memory-mapped) or motion files (a glob; built in memory). The take is
@@ -38,6 +42,13 @@ class ReconstructCommand:
         parser.add_argument("-o", "--out", required=True, help="output take (.bvh or .amc)")
         parser.add_argument("--skeleton", help="output skeleton: .asf, or a .bvh/.amc take (default: the input's)")
         parser.add_argument("--marker-set", default="auto", help="vicon, opensim, isb or auto (default)")
+        parser.add_argument(
+            "--calibration",
+            default="self",
+            metavar="TAKE|self|off",
+            help="marker offsets to the joint centres: 'self' (default) from the take's first 10 s, a "
+            "calibration marker take (C3D/TRC) of the same performer, or 'off' (the marker means)",
+        )
         from mocapflow.framework.options import int_at_least
 
         parser.add_argument(
@@ -53,7 +64,8 @@ class ReconstructCommand:
         from mocapflow.framework.output_paths import refuse_dataset_path
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
-        from .reconstruct_markers import control_from_markers, control_from_motion, read_skeleton
+        from .reconstruct_calibrate import root_from_hips
+        from .reconstruct_markers import calibrated_control, control_from_motion, read_skeleton
         from .reconstruct_prior import PriorStore, build_store, skeleton_view
         from .retarget import positions_to_motion
 
@@ -64,13 +76,10 @@ class ReconstructCommand:
         if out.suffix.lower() not in (".bvh", ".amc"):
             raise ConfigError(f"--out {out}: expected a .bvh or .amc file name")
         skeleton_take: Motion | None = None
+        markers = None
         if src.suffix.lower() in (".c3d", ".trc"):
             markers = _read_markers(src, reg)
-            control, heading, set_name, mapping = control_from_markers(markers, args.marker_set)
-            fps, what = (
-                markers.fps,
-                f"marker set {set_name}: " + "; ".join(f"{p} = {'+'.join(v)}" for p, v in mapping.items()),
-            )
+            fps = markers.fps
         else:
             skeleton_take = reg.motion_format(src).read(src)
             control, heading = control_from_motion(skeleton_take)
@@ -87,6 +96,24 @@ class ReconstructCommand:
         # any skeleton: the prior seen on the canonical joints this skeleton has (spine rule, composite bones)
         skeleton, view, lengths = skeleton_view(store, skeleton)
         joints = view.joints
+        calibration = None
+        if markers is None and args.calibration not in ("self", "off"):
+            raise ConfigError(f"--calibration {args.calibration}: a calibration take is for a marker take (C3D/TRC)")
+        if markers is not None:
+            cal_take = None
+            if args.calibration not in ("self", "off"):
+                cal_path = Path(args.calibration)
+                if not cal_path.is_file():
+                    raise ConfigError(f"--calibration {cal_path}: no such file (a C3D/TRC take, 'self' or 'off')")
+                cal_take = _read_markers(cal_path, reg)
+            by_joint = None if args.calibration == "off" else dict(zip(joints, lengths, strict=True))
+            rest = Motion(skeleton, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.n_joints, 1)), fps)
+            hips = ("root", "lhip", "rhip")
+            root_offset = root_from_hips(dict(zip(hips, rest.canonical_positions(hips)[0], strict=True)))
+            control, heading, set_name, mapping, calibration = calibrated_control(
+                markers, args.marker_set, by_joint, cal_take, root_offset
+            )
+            what = f"marker set {set_name}: " + "; ".join(f"{p} = {'+'.join(v)}" for p, v in mapping.items())
         prior = PosePrior.build(view, lengths)
         t1 = time.perf_counter()
         world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), root_heading=heading)
@@ -103,6 +130,8 @@ class ReconstructCommand:
         )
         print(f"{src}: {len(control)} frames at {fps:g} Hz; control points from {what}")
         print(f"skeleton {skeleton.name or out.stem}: {len(joints)} pose joints; spine " + _spine_text(skeleton))
+        if markers is not None:
+            print(calibration.describe() if calibration is not None else "offsets: none (--calibration off)")
         print(f"prior: {len(store.clips)} takes, {len(prior.poses)} frames, ready in {t1 - t0:.1f} s")
         print(f"reconstructed in {t2 - t1:.1f} s ({len(control) / max(t2 - t1, 1e-9):.0f} frames/s)")
         print(f"control points on the output skeleton: mean {fit.mean():.1f} cm, max {fit.max():.1f} cm off")

@@ -3,9 +3,10 @@
 A marker set maps each control point (canonical joint: root, head, wrists, ankles) to the
 markers whose mean stands for it; a control point may list alternatives, the first whose
 markers the take has wins. Labels match case-insensitively after any ``subject:`` prefix.
-Skin markers sit a few centimetres off the joint centres the prior is made of (the wrist
-markers straddle the wrist; the ankle marker is on the lateral malleolus, about 3 cm
-outside the ankle centre): the reconstruction inherits that offset.
+Skin markers sit centimetres off the joint centres the prior is made of (the ankle marker
+is on the lateral malleolus; a CMU ASF wrist joint starts the distal half of the forearm,
+9 cm before the wrist bar the WRA/WRB markers straddle): :func:`calibrated_control` moves
+each control point by an offset calibrated per performer (:mod:`.reconstruct_calibrate`).
 
 Built-in sets (:data:`MARKER_SETS`), covering the marker takes of the development corpus:
 
@@ -46,6 +47,7 @@ from mocapflow.framework.markers import Markers, to_y_up
 from mocapflow.framework.normalize import facing_angles
 
 from .reconstruct import DEFAULT_MARKERS
+from .reconstruct_calibrate import Calibration
 
 #: What a marker set locates: the control points, and the pelvis sides that give the root's heading.
 CONTROL: tuple[str, ...] = (*DEFAULT_MARKERS, "lhip", "rhip")
@@ -139,12 +141,60 @@ def fill_gaps(x: np.ndarray, what: str) -> np.ndarray:
 def control_from_markers(markers: Markers, marker_set: str = "auto") -> tuple[np.ndarray, np.ndarray, str, dict]:
     """Control points (T, 6, 3) y-up metres (:data:`~.reconstruct.DEFAULT_MARKERS` order),
     the root's heading (T,) radians from the pelvis sides, the set used and its label
-    mapping; gaps are interpolated."""
+    mapping; gaps are interpolated. Uncalibrated: the marker means."""
+    control, heading, name, mapping, _ = calibrated_control(markers, marker_set, None)
+    return control, heading, name, mapping
+
+
+def _centres(y_up: Markers, mapping: dict[str, tuple[str, ...]]) -> np.ndarray:
+    return np.stack([np.mean(y_up.select(list(mapping[p])).positions, axis=1) for p in CONTROL], 1)
+
+
+def calibrated_control(
+    markers: Markers,
+    marker_set: str = "auto",
+    lengths: Mapping[str, float] | None = None,
+    calibration_take: Markers | None = None,
+    root_offset: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, str, dict, Calibration | None]:
+    """:func:`control_from_markers` with each control point moved by its offset to the joint
+    centre (:mod:`.reconstruct_calibrate`), estimated from the first seconds of the take or
+    of ``calibration_take`` (the same performer and marker set) with the skeleton's bone
+    ``lengths`` (canonical joint -> metres); ``lengths=None``: no calibration (the marker
+    means); ``root_offset`` the skeleton's root - mid-hip vector
+    (:func:`~.reconstruct_calibrate.root_from_hips`; None: the root keeps the pelvis markers'
+    mean). Also returns the calibration."""
+    from .reconstruct_calibrate import apply_offsets, calibrate
+
     y_up = to_y_up(markers)
     name, mapping = resolve_marker_set(y_up, marker_set)
-    pos = np.stack([np.mean(y_up.select(list(mapping[p])).positions, axis=1) for p in CONTROL], 1)
-    pos = fill_gaps(pos, f"markers {markers.name!r}")
-    return pos[:, : len(DEFAULT_MARKERS)], facing_angles(pos, CONTROL), name, mapping
+    pos = _centres(y_up, mapping)
+    what = f"markers {markers.name!r}"
+    heading = facing_angles(fill_gaps(pos, what), CONTROL)
+    points = tuple(DEFAULT_MARKERS)
+    cal = None
+    if lengths is not None:
+        if calibration_take is None:
+            cal = calibrate(y_up, pos[:, : len(points)], name, points, dict(lengths), root_offset=root_offset)
+        else:
+            c_up = to_y_up(calibration_take)
+            try:
+                _, c_map = resolve_marker_set(c_up, name)
+            except DataError as e:
+                raise DataError(f"calibration take {calibration_take.name!r}: {e}") from None
+            cal = calibrate(
+                c_up,
+                _centres(c_up, c_map)[:, : len(points)],
+                name,
+                points,
+                dict(lengths),
+                seconds=float("inf"),
+                source=f"calibration take {calibration_take.name!r}",
+                root_offset=root_offset,
+            )
+        pos = np.concatenate([apply_offsets(y_up, pos[:, : len(points)], name, cal), pos[:, len(points) :]], 1)
+    pos = fill_gaps(pos, what)
+    return pos[:, : len(points)], heading, name, mapping, cal
 
 
 def control_from_motion(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
@@ -197,12 +247,29 @@ FIT = pa.schema(
 )
 
 
+OFFSETS = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("name", pa.string()),
+        ("point", pa.string()),
+        ("x_cm", pa.float64()),
+        ("y_cm", pa.float64()),
+        ("z_cm", pa.float64()),
+        ("norm_cm", pa.float64()),
+        ("calibrated", pa.bool_()),
+    ]
+)
+
+
 class ReconstructMarkers(Analysis):
     """Full-body motion of marker takes (a ``formats.load_markers`` dataset) on the
     performer's skeleton, with a ``reconstruction_prior``: what ``mocapflow reconstruct`` does.
 
     Tables: ``data``/``clips``/``skeletons`` (the reconstructions, exportable as BVH/AMC) and
-    ``fit`` (per take: how far the output's control joints are from the control points, cm).
+    ``fit`` (per take: how far the output's control joints are from the (calibrated) control
+    points, cm) and ``offsets`` (per take and control point: the calibrated offset from the
+    marker mean to the joint centre, cm in the segment frame, :mod:`.reconstruct_calibrate`;
+    self-calibrated from each take's first seconds).
     """
 
     name = "reconstruct_markers"
@@ -213,18 +280,27 @@ class ReconstructMarkers(Analysis):
         from mocapflow.framework.motion_tables import motions_to_tables
 
         from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
-        from .reconstruct_prior import bone_lengths
+        from .reconstruct_calibrate import root_from_hips
+        from .reconstruct_prior import skeleton_view
         from .reconstruct_steps import open_prior
         from .retarget import positions_to_motion
 
         p = self.params
         skeleton = read_skeleton(ctx.resolve(p.skeleton), ctx.registries)
         store = open_prior(inputs["prior"])
+        # any skeleton: the prior seen on the canonical joints this skeleton has (spine rule, composite bones)
+        skeleton, view, lengths = skeleton_view(store, skeleton)
+        prior = PosePrior.build(view, lengths)
         rest = Motion(skeleton, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.n_joints, 1)), 30.0)
-        prior = PosePrior.build(store, bone_lengths(rest.canonical_positions(store.joints), store.joints))
         motions, ids, rows = [], [], []
+        by_joint = dict(zip(prior.joints, prior.lengths, strict=True))
+        hips = ("root", "lhip", "rhip")
+        root_offset = root_from_hips(dict(zip(hips, rest.canonical_positions(hips)[0], strict=True)))
+        offset_rows: list[dict] = []
         for cid, mk in dataset_markers(inputs["markers"]):
-            control, heading, set_name, _ = control_from_markers(mk, p.marker_set)
+            control, heading, set_name, _, cal = calibrated_control(mk, p.marker_set, by_joint, None, root_offset)
+            if cal is not None:
+                offset_rows += [{"clip_id": cid, "name": mk.name, **r} for r in cal.rows()]
             t0 = time.perf_counter()
             world, _ = reconstruct_positions(control, prior, ReconstructParams(k=p.k), root_heading=heading)
             seconds = time.perf_counter() - t0
@@ -247,6 +323,7 @@ class ReconstructMarkers(Analysis):
             )
         tables = motions_to_tables(motions, ids)
         tables["fit"] = pa.Table.from_pylist(rows, schema=FIT)
+        tables["offsets"] = pa.Table.from_pylist(offset_rows, schema=OFFSETS)
         return StepOutput(tables, {"takes": len(rows), "prior_frames": len(prior.poses), "skeleton": skeleton.name})
 
 

@@ -354,7 +354,8 @@ def test_cli_and_pipeline_from_a_marker_take(tmp_path, store):
     store.save(tmp_path / "prior")
     out = tmp_path / "out.bvh"
     argv = ["reconstruct", str(tmp_path / "take.trc"), "--prior", str(tmp_path / "prior"), "-o", str(out), "-k", "16"]
-    assert main([*argv, "--skeleton", str(tmp_path / "performer.bvh")]) == 0
+    # markers on the joints themselves: nothing to calibrate (reconstruct_calibrate tests that)
+    assert main([*argv, "--skeleton", str(tmp_path / "performer.bvh"), "--calibration", "off"]) == 0
     rec = bvh.read(out)
     err = joint_errors(rec.canonical_positions(POSE_JOINTS), truth.canonical_positions(POSE_JOINTS))[2]
     assert rec.n_frames == 45 and err < 2.0
@@ -379,6 +380,9 @@ steps:
     run_pipeline(yaml, workspace=tmp_path / "ws", jobs=1, pm=get_plugin_manager(entry_points=False))
     fit = Dataset(tmp_path / "ws" / "recon").table("fit").to_pylist()
     assert fit[0]["marker_set"] == "vicon" and fit[0]["n_frames"] == 45 and fit[0]["fit_mean_cm"] < 1.0
+    offsets = Dataset(tmp_path / "ws" / "recon").table("offsets").to_pylist()
+    assert [r["point"] for r in offsets] == ["root", "head", "lwrist", "rwrist", "lankle", "rankle"]
+    assert not any(r["calibrated"] for r in offsets)  # no elbow/knee markers: nothing to calibrate
 
 
 def test_output_skeleton_from_an_asf_or_a_take_through_the_format_registry():
