@@ -1,6 +1,7 @@
 """mocapflow's C3D and TRC readers against peer readers, file by file.
 
-``python benchmarks/c3d_peers.py DIR_OR_FILES... [--list] [--tol 1e-6]``: every ``.c3d`` and
+``python benchmarks/c3d_peers.py DIR_OR_FILES... [--list] [--tol 1e-6]`` (``--quick``: the
+C3D and TRC files of ``../shared/data`` only): every ``.c3d`` and
 ``.trc`` file given (or under a folder) is read by mocapflow and by the peers available:
 
 * C3D: ezc3d (``pip install ezc3d``, C++) and py-c3d (the ``c3d`` package), each in a
@@ -262,6 +263,7 @@ def classify(path: Path, peers: dict[str, dict | str], tol: float) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("paths", nargs="*", type=Path, default=[Path("/work/c3d-corpus40")])
+    ap.add_argument("--quick", action="store_true", help="only the C3D and TRC files of ../shared/data")
     ap.add_argument("--tol", type=float, default=1e-6, help="metres")
     ap.add_argument("--list", action="store_true", help="print every file, not only the failures")
     ap.add_argument("--json", type=Path, help="write the rows here")
@@ -270,6 +272,13 @@ def main() -> None:
     a = ap.parse_args()
     if a.peer:
         _peer_main(a.peer, a.out, [str(p) for p in a.paths])
+        return
+    if a.quick:
+        shared = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+        a.paths = [shared / "c3d", shared / "trc"]
+    a.paths = [p for p in a.paths if p.exists()]
+    if not a.paths:
+        print("no C3D/TRC files found (give folders or files; --quick reads ../shared/data)")
         return
     files = sorted(
         {

@@ -24,6 +24,7 @@ whole frames the file holds. Nothing here raises anything but :class:`C3dError`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -252,11 +253,12 @@ class C3dFile:
         """Raw bytes (T, n*word) -> values (T, n) float64 in the processor's format."""
         t = raw.shape[0]
         raw = np.ascontiguousarray(raw)
-        if float_data:
-            if self.processor == "dec":
-                return dec_to_float(raw.reshape(t, -1, 4)).astype(np.float64)
-            return raw.view(">f4" if self.processor == "mips" else "<f4").astype(np.float64)
-        return raw.view(">i2" if self.processor == "mips" else "<i2").astype(np.float64)
+        with np.errstate(invalid="ignore"):  # signalling NaNs stay NaN, quietly
+            if float_data:
+                if self.processor == "dec":
+                    return dec_to_float(raw.reshape(t, -1, 4)).astype(np.float64)
+                return raw.view(">f4" if self.processor == "mips" else "<f4").astype(np.float64)
+            return raw.view(">i2" if self.processor == "mips" else "<i2").astype(np.float64)
 
     def read_points(self, frames: int) -> np.ndarray:
         """Points (T, M, 4) in file units: x, y, z and the residual (in units, -1 for an
@@ -313,7 +315,7 @@ class C3dFile:
 
 
 def _u16(b: bytes, off: int, processor: str) -> int:
-    return int.from_bytes(b[off : off + 2], "big" if processor == "mips" else "little")
+    return int.from_bytes(b[off : off + 2], "big" if processor == "mips" else "little", signed=False)
 
 
 def _f32(b: bytes, off: int, processor: str) -> float:
@@ -337,7 +339,7 @@ def _parse_params(data: bytes, start: int, end: int, processor: str, warn: list[
     groups: dict[int, str] = {}
     pending: list[tuple[int, str, int, tuple[int, ...], bytes]] = []
     pos = start + 4
-    order = "big" if processor == "mips" else "little"
+    order: Literal["big", "little"] = "big" if processor == "mips" else "little"
     for _ in range(MAX_ENTRIES):
         if pos + 2 > end:
             break
@@ -455,6 +457,9 @@ def parse_c3d(data: bytes) -> C3dFile:
     # count one block too few: Dance.c3d's POINT:LABELS runs into the next block)
     pend = min(len(data), max(pstart + max(n_blocks, 1) * BLOCK, (data_block - 1) * BLOCK))
     params = _parse_params(data, pstart, pend, processor, warn)
+    if warn and not any(k.startswith("POINT:") for k in params):
+        # the walk broke off before any POINT parameter: a garbled section, not a file to guess
+        raise C3dError(f"expected a parameter section with a POINT group at byte {pstart}; {warn[-1]}")
     f = C3dFile(
         data=data,
         processor=processor,
