@@ -7,8 +7,8 @@ C3D and TRC files of ``../shared/data`` only): every ``.c3d`` and
 * C3D: ezc3d (``pip install ezc3d``, C++) and py-c3d (the ``c3d`` package), each in a
   child process (a peer that crashes on a file takes down its child, never this script);
   a sample whose residual is negative is a gap (NaN) for both;
-* TRC: a plain reference reader written here (split on tabs, commas or spaces; an empty
-  field or ``NaN`` is a gap), as no TRC library is installed.
+* TRC: trc-data-reader (``pip install trc-data-reader``) and a plain reference reader
+  written here (split on tabs, commas or spaces; an empty field or ``NaN`` is a gap).
 
 Each file is classified:
 
@@ -166,11 +166,32 @@ def trc_reference(path: Path) -> dict:
         if not ln.strip():
             continue
         f = split(ln)
+        if not any(f):  # a separator-only line (comma files end the header so)
+            continue
         v = [float(x) if x and x.lower() not in ("nan", "-nan") else np.nan for x in f[2 : 2 + 3 * n]]
         v += [np.nan] * (3 * n - len(v))
         rows.append(v)
     xyz = np.array(rows, dtype=np.float64).reshape(len(rows), n, 3)
     return {"xyz": xyz, "units": info.get("Units", "mm").lower(), "rate": float(info.get("DataRate") or 0)}
+
+
+def trc_datareader(path: Path) -> dict:
+    """trc-data-reader (``pip install trc-data-reader``): frames by number, gaps empty."""
+    from trc import TRCData
+
+    d = TRCData()
+    d.load(str(path))
+    n = int(d["NumMarkers"])
+    rows = []
+    for k in d["Frame#"]:
+        _t, pts = d[k]
+        v = np.full((n, 3), np.nan)
+        for j, p in enumerate(pts[:n]):
+            if p is not None and len(p) == 3:
+                v[j] = [np.nan if x in ("", None) else float(x) for x in p]
+        rows.append(v)
+    xyz = np.array(rows, dtype=np.float64).reshape(len(rows), n, 3)
+    return {"xyz": xyz, "units": str(d["Units"]).strip().lower(), "rate": float(d["DataRate"])}
 
 
 # -- comparison --------------------------------------------------------------------------
@@ -302,10 +323,12 @@ def main() -> None:
         if f.suffix.lower() == ".c3d":
             peers = {n: peer_res[n][f] for n in avail}
         else:
-            try:
-                peers = {"trc-ref": trc_reference(f)}
-            except Exception as exc:
-                peers = {"trc-ref": f"{type(exc).__name__}: {exc}"}
+            peers = {}
+            for pname, fn in (("trc-ref", trc_reference), ("trc-data-reader", trc_datareader)):
+                try:
+                    peers[pname] = fn(f)
+                except Exception as exc:  # a peer's failure is a result
+                    peers[pname] = f"{type(exc).__name__}: {str(exc)[:200]}"
         rows.append(classify(f, peers, a.tol))
     counts: dict[str, int] = {}
     for r in rows:

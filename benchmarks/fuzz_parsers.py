@@ -21,7 +21,7 @@ failure.
 Usage::
 
     python benchmarks/fuzz_parsers.py                # 100,000 cases, seed 0
-    python benchmarks/fuzz_parsers.py --quick        # 100 cases on the bundled examples/data (AMC, BVH; C3D with the corpus)
+    python benchmarks/fuzz_parsers.py --quick        # 100 cases on the bundled examples/data (AMC, BVH; C3D, TRC with the corpus)
     python benchmarks/fuzz_parsers.py --cases N --seed S --jobs 2 --timeout 20
 
 The scene formats (glTF, GLB, binary FBX) are fuzzed too (``--scene-cases``, default a tenth
@@ -605,11 +605,11 @@ def _example_sources(into: Path) -> Path:
     (into / "bvh" / "examples").mkdir(parents=True)
     for f in sorted((into / "cmu" / "amc").glob("*/*.amc"))[:2]:
         write_bvh(read_amc(f).slice(0, 120), into / "bvh" / "examples" / f"{f.stem}.bvh")
-    # C3D files of the corpus when it lies beside the repository (none are bundled)
-    for f in sorted(DATA.glob("c3d/*/*.c3d")):
+    # C3D and TRC files of the corpus when it lies beside the repository (none are bundled)
+    for f in sorted(DATA.glob("c3d/*/*.c3d")) + sorted(DATA.glob("trc/*/*.trc")):
         if f.stat().st_size < 1_500_000:
-            (into / "c3d" / f.parent.name).mkdir(parents=True, exist_ok=True)
-            shutil.copy(f, into / "c3d" / f.parent.name / f.name)
+            (into / f.parent.parent.name / f.parent.name).mkdir(parents=True, exist_ok=True)
+            shutil.copy(f, into / f.parent.parent.name / f.parent.name / f.name)
     return into
 
 

@@ -61,6 +61,33 @@ def test_trc_round_trip_with_gaps(tmp_path: Path) -> None:
     np.testing.assert_allclose(read_trc(tmp_path / "m.trc").positions, m.positions, atol=1e-9, equal_nan=True)
 
 
+def test_trc_layouts_of_other_writers(tmp_path: Path) -> None:
+    """Comma-separated (spreadsheet exports, pyomeca's test file), CR CR LF line ends,
+    Motion Analysis rows that end after their last visible marker, fewer labels than
+    NumMarkers: read, each with what it repaired in the warnings."""
+    m = small_markers()
+    write_trc(m, tmp_path / "s.trc")
+    text = (tmp_path / "s.trc").read_text()
+    ref = read_trc(tmp_path / "s.trc")
+    (tmp_path / "comma.trc").write_text(text.replace("\t", ",").replace("\n", ",,,\n"))
+    comma = read_trc(tmp_path / "comma.trc")
+    assert comma.labels == ref.labels
+    np.testing.assert_array_equal(comma.positions, ref.positions)
+    (tmp_path / "crcr.trc").write_bytes(text.replace("\n", "\r\r\n").encode())
+    np.testing.assert_array_equal(read_trc(tmp_path / "crcr.trc").positions, ref.positions)
+    lines = text.splitlines()
+    lines[6] = "\t".join(lines[6].split("\t")[:5])  # frame 1 ends after its first marker
+    (tmp_path / "short.trc").write_text("\n".join(lines) + "\n")
+    short = read_trc(tmp_path / "short.trc")
+    assert np.isnan(short.positions[0, 1:]).all() and np.array_equal(short.positions[0, 0], ref.positions[0, 0])
+    assert "1 data rows end before their last marker (first at line 7)" in short.metadata["warnings"][0]
+    lines = text.splitlines()
+    lines[3] = lines[3].replace("C\t\t", "")
+    (tmp_path / "lab.trc").write_text("\n".join(lines) + "\n")
+    lab = read_trc(tmp_path / "lab.trc")
+    assert lab.labels == ("A", "B.two", "point3") and "2 labels for NumMarkers 3" in lab.metadata["warnings"][0]
+
+
 def test_trc_header_checks(tmp_path: Path) -> None:
     write_trc(small_markers(), tmp_path / "s.trc")
     lines = (tmp_path / "s.trc").read_text().splitlines()
@@ -78,11 +105,15 @@ def test_trc_header_checks(tmp_path: Path) -> None:
         read_trc(tmp_path / "m.trc")
     assert e.value.line == 4
     bad = list(lines)
-    bad[7] = bad[7] + "\t1.0\t2.0"
+    bad[7] = bad[7] + "\t1.0\t2.0"  # an unnamed marker beyond NumMarkers: not read, counted
     (tmp_path / "w.trc").write_text("\n".join(bad) + "\n")
+    w = read_trc(tmp_path / "w.trc")
+    assert "beyond the 3 markers of NumMarkers (first at line 8)" in w.metadata["warnings"][0]
+    bad[-1] = bad[-1].rsplit("\t", 3)[0]  # the last row cut short: a cut file
+    (tmp_path / "c.trc").write_text("\n".join(bad) + "\n")
     with pytest.raises(ParseError, match="fields") as e:
-        read_trc(tmp_path / "w.trc")
-    assert e.value.line == 8
+        read_trc(tmp_path / "c.trc")
+    assert e.value.line == len(bad)
     (tmp_path / "x.trc").write_text("hello\n")
     with pytest.raises(ParseError, match="PathFileType"):
         read_trc(tmp_path / "x.trc")
