@@ -129,6 +129,13 @@ def _read_c3d(path: Path, y_up: bool, strict: bool) -> Markers:
                 f"expected 3-D points; the file holds none, only {n} analog channels at {rate:g} Hz"
                 + (f" ({shown})" if shown else ""),
             )
+        rot = f.get("ROTATION:USED")
+        if rot is not None and rot.kind in (1, 2) and rot.data and int(rot.uint16()[0]) > 0:
+            raise ParseError(
+                path,
+                None,
+                f"expected 3-D points; the file holds none, only {int(rot.uint16()[0])} rotations (ROTATION)",
+            )
         raise ParseError(path, None, "expected 3-D points; the file holds none (POINT:USED 0, no analog channels)")
     if f.processor == "dec" and f.float_data:
         pass  # VAX floats: decoded by the parser

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from mocapflow.framework.errors import ParseError
-from mocapflow.plugins.formats._c3d_parse import dec_to_float
+from mocapflow.plugins.formats._c3d_parse import dec_to_float, parse_c3d
 from mocapflow.plugins.formats.c3d import read_c3d
 
 PROC = {"intel": 84, "dec": 85, "mips": 86}
@@ -129,6 +129,7 @@ def test_every_processor_and_word(tmp_path: Path, proc: str, float_data: bool) -
     assert m.labels == ("M0", "M1", "M2") and m.fps == 100.0 and m.metadata["warnings"] == []
     assert m.metadata["processor"] == proc and m.metadata["analog_channels"] == 2
     assert m.metadata["analog_rate"] == 200.0
+    np.testing.assert_array_equal(parse_c3d(p.read_bytes()).read_analog(20), analog)
 
 
 def test_dec_float_twin() -> None:
