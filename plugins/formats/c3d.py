@@ -74,9 +74,9 @@ def read_c3d(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
         return _read_c3d(path, y_up, strict)
     except MocapflowError:
         raise
-    except Exception as exc:  # numpy on a file nobody foresaw: still the file's error, no foreign text
+    except Exception:  # numpy on a file nobody foresaw: still the file's error, no foreign text
         raise ParseError(
-            path, None, f"expected a C3D file the reader can decode (internal {type(exc).__name__})"
+            path, None, "expected a C3D layout the reader knows; this one it cannot decode (please report the file)"
         ) from None
 
 
