@@ -132,6 +132,23 @@ def _odd_rows(odd: dict[str, list[int]], n_markers: int) -> list[str]:
     return out
 
 
+def _sized_labels(
+    path: Path, line: int, labels: tuple[str, ...], n_markers: int, n_rows: int, n_bytes: int, warn: list[str]
+) -> tuple[str, ...]:
+    """``labels`` named up to ``NumMarkers`` (``pointN``, with a warning), once the table the
+    header implies fits the file: a field costs at least its separator, so ``NumMarkers``
+    beyond what the bytes can hold is refused before anything is allocated."""
+    width = 2 + 3 * n_markers
+    if n_rows * width > 2 * n_bytes + 4096:
+        raise ParseError(
+            path, line, f"NumMarkers {n_markers}: {n_rows} rows of {width} fields cannot fit in {n_bytes:,} bytes"
+        )
+    if len(labels) < n_markers:
+        warn.append(f"line 4: {len(labels)} labels for NumMarkers {n_markers}: the rest named by their index")
+        labels += tuple(f"point{k + 1}" for k in range(len(labels), n_markers))
+    return labels
+
+
 def _frame_count(path: Path, n_frames: int, rows: np.ndarray, header_end: int, strict: bool, warn: list[str]) -> int:
     """The frames to read: ``NumFrames``, or the rows present when there are fewer (each
     complete and checked after; exporters that write the capture's count, not the rows
@@ -187,15 +204,13 @@ def read_trc(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
     warn: list[str] = []
     if len(labels) > n_markers or not labels:
         raise ParseError(path, at(4), f"expected {n_markers} marker labels (NumMarkers), found {len(labels)}")
-    if len(labels) < n_markers:
-        warn.append(f"line 4: {len(labels)} labels for NumMarkers {n_markers}: the rest named by their index")
-        labels += tuple(f"point{k + 1}" for k in range(len(labels), n_markers))
     width = 2 + 3 * n_markers
     tok = tokenize(np.frombuffer(body, dtype=np.uint8), pos, _HEADER_LINES + 1)
     starts, lens, lines, _h, values, isnum = tok[:6]
     if tok[6] >= 0:  # check_text already rejects these; never read a cut-off token stream
         raise ParseError(path, int(tok[7]), "expected text, found a binary control byte")
     rows, first, counts = np.unique(lines, return_index=True, return_counts=True)
+    labels = _sized_labels(path, at(3), labels, n_markers, len(rows), len(body), warn)
     n_frames = _frame_count(path, n_frames, rows, at(_HEADER_LINES), strict, warn)
     table = np.full((n_frames, width), np.nan)
     full = counts == width

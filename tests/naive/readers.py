@@ -396,10 +396,14 @@ def read_trc(data: bytes) -> dict:
         labels = _header_words(head[3])[2:]
     if len(labels) > n_markers or not labels:
         raise Reject(4, "label count differs from NumMarkers")
-    labels += [b"point%d" % (k + 1) for k in range(len(labels), n_markers)]
     width = 2 + 3 * n_markers
     rows = []
     data_lines = [k for k in range(5, len(lines)) if lines[k].split()]
+    body = data.replace(b"\r\r\n", b"\r\n")
+    n_bytes = len(body) - (3 if body.startswith(b"\xef\xbb\xbf") else 0)
+    if len(data_lines) * width > 2 * n_bytes + 4096:  # a field costs at least its separator
+        raise Reject(3, "NumMarkers too large for the file")
+    labels += [b"point%d" % (k + 1) for k in range(len(labels), n_markers)]
     for k in data_lines:
         line = lines[k]
         words = line.split()

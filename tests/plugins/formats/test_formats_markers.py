@@ -86,6 +86,11 @@ def test_trc_layouts_of_other_writers(tmp_path: Path) -> None:
     (tmp_path / "lab.trc").write_text("\n".join(lines) + "\n")
     lab = read_trc(tmp_path / "lab.trc")
     assert lab.labels == ("A", "B.two", "point3") and "2 labels for NumMarkers 3" in lab.metadata["warnings"][0]
+    lines[2] = lines[2].replace("\t4\t3\t", "\t4\t99999999999\t")  # no file of this size holds that
+    (tmp_path / "huge.trc").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ParseError, match="NumMarkers 99999999999: 4 rows .* cannot fit") as e:
+        read_trc(tmp_path / "huge.trc")
+    assert e.value.line == 3
 
 
 def test_trc_header_checks(tmp_path: Path) -> None:
