@@ -88,22 +88,35 @@ def _analog_summary(f: C3dFile) -> tuple[int, float, list[str]]:
     return n, float(rate), f.labels("ANALOG", n)
 
 
-def _frame_count(path: Path, f: C3dFile, strict: bool, warn: list[str]) -> int:
-    """The frames to read: those the header announces, or the whole frames the file holds
-    when it holds fewer (with a warning naming both; ``strict``: a ParseError)."""
-    announced = f.frames_announced()
-    held = f.frames_held()
-    counted = f.point_frames()
-    what = f"the header announces {announced} frames ({f.first_frame}..{f.last_frame})"
-    if announced is None or announced <= 0:
-        raise ParseError(path, None, f"expected at least one frame, {what}")
-    if held >= announced:
-        return announced
-    # the last 512-byte block is padded with zeros: whole frames of zero bytes there are
-    # padding, not samples at the origin
+def _whole_frames(f: C3dFile, held: int) -> int:
+    """``held`` less the trailing frames of zero bytes: the last 512-byte block is padded
+    with zeros, and such frames are padding, not samples at the origin."""
     block = f.frame_block(held)
     while held and not block[held - 1].any():
         held -= 1
+    return held
+
+
+def _frame_count(path: Path, f: C3dFile, strict: bool, warn: list[str]) -> int:
+    """The frames to read: those the header announces, or the whole frames the file holds
+    when it holds fewer (with a warning naming both; ``strict``: a ParseError). A header
+    whose 16-bit frame fields cannot count the frames (last < first, or 65535: takes over
+    65,535 frames) is read through ``TRIAL:ACTUAL_*_FIELD`` or ``POINT:FRAMES``, else as the
+    whole frames held, with a warning."""
+    announced = f.frames_announced()
+    held = f.frames_held()
+    counted = f.point_frames()
+    if announced is None or announced <= 0:
+        whole = _whole_frames(f, held)
+        what = f"the header's frames {f.first_frame}..{f.last_frame} count no frames and no parameter does"
+        if strict or whole == 0:
+            raise ParseError(path, None, f"expected at least one frame: {what}; the file holds {whole} whole frames")
+        warn.append(f"{what}: read the {whole} whole frames the file holds")
+        return whole
+    what = f"the header announces {announced} frames ({f.first_frame}..{f.last_frame})"
+    if held >= announced:
+        return announced
+    held = _whole_frames(f, held)
     if strict or held == 0:
         raise ParseError(path, None, f"truncated C3D: {what}, the file holds {held} whole frames")
     pf = "" if counted is None or counted == announced else f", POINT:FRAMES {counted}"

@@ -20,7 +20,8 @@ PROC = {"intel": 84, "dec": 85, "mips": 86}
 
 
 def _ints(v, proc: str) -> bytes:
-    return np.asarray(v, ">i2" if proc == "mips" else "<i2").tobytes()
+    """16-bit words (negative values as two's complement, counts up to 65535)."""
+    return np.asarray(v, np.float64).astype(np.int64).astype(">u2" if proc == "mips" else "<u2").tobytes()
 
 
 def _floats(v, proc: str) -> bytes:
@@ -161,6 +162,22 @@ def test_header_frames_disagree(tmp_path: Path) -> None:
     assert m.n_frames == 29 and "announces 1149 frames" in m.metadata["warnings"][0]
     np.testing.assert_allclose(m.positions, expected(pts, resid, True), atol=1e-9, equal_nan=True)
     with pytest.raises(ParseError, match="truncated C3D"):
+        read_c3d(p, strict=True)
+
+
+def test_frame_fields_that_cannot_count(tmp_path: Path) -> None:
+    """Takes over 65,535 frames: the header's 16-bit last frame is 65535 (or wraps below the
+    first); POINT:FRAMES counts them, else the whole frames held are read with a warning."""
+    pts, resid = walk(12)
+    p = tmp_path / "long.c3d"
+    p.write_bytes(make_c3d(pts, resid, frames=(1, 65535), point_frames=12))
+    m = read_c3d(p)
+    assert m.n_frames == 12 and m.metadata["warnings"] == []
+    p.write_bytes(make_c3d(pts, resid, frames=(9, 3), point_frames=0))
+    m = read_c3d(p)
+    assert m.n_frames == 12 and "count no frames" in m.metadata["warnings"][0]
+    np.testing.assert_allclose(m.positions, expected(pts, resid, True), atol=1e-9, equal_nan=True)
+    with pytest.raises(ParseError, match="expected at least one frame"):
         read_c3d(p, strict=True)
 
 
