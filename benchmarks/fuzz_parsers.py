@@ -21,7 +21,7 @@ failure.
 Usage::
 
     python benchmarks/fuzz_parsers.py                # 100,000 cases, seed 0
-    python benchmarks/fuzz_parsers.py --quick        # 100 cases on the bundled examples/data (AMC, BVH)
+    python benchmarks/fuzz_parsers.py --quick        # 100 cases on the bundled examples/data (AMC, BVH; C3D, TRC with the corpus)
     python benchmarks/fuzz_parsers.py --cases N --seed S --jobs 2 --timeout 20
 
 The scene formats (glTF, GLB, binary FBX) are fuzzed too (``--scene-cases``, default a tenth
@@ -55,7 +55,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 FAILURES = ("crash", "hang", "wrong_accept", "wrong_reject", "bad_error")
-#: Share of cases per format (C3D only with the optional reader).
+#: Share of cases per format (C3D values checked against the c3d package when installed).
 WEIGHTS = {"amc": 0.42, "bvh": 0.28, "trc": 0.25, "c3d": 0.05}
 C3D_KINDS = ("truncate", "byte_flip", "control_byte")
 
@@ -68,13 +68,7 @@ class Cases:
 
         self.fuzz = fuzz
         self.seed = seed
-        try:
-            import c3d  # noqa: F401 - only checks that the optional reader is installed
-
-            with_c3d = True
-        except ImportError:
-            with_c3d = False
-        self.sources = fuzz.corpus_sources(Path(os.environ.get("MOCAPFLOW_FUZZ_DATA", DATA)), with_c3d)
+        self.sources = fuzz.corpus_sources(Path(os.environ.get("MOCAPFLOW_FUZZ_DATA", DATA)), True)
         w = np.array([WEIGHTS[f] for f in self.sources])
         self.formats, self.weights = list(self.sources), w / w.sum()
         self._loaded: dict[Path, tuple] = {}
@@ -611,6 +605,11 @@ def _example_sources(into: Path) -> Path:
     (into / "bvh" / "examples").mkdir(parents=True)
     for f in sorted((into / "cmu" / "amc").glob("*/*.amc"))[:2]:
         write_bvh(read_amc(f).slice(0, 120), into / "bvh" / "examples" / f"{f.stem}.bvh")
+    # C3D and TRC files of the corpus when it lies beside the repository (none are bundled)
+    for f in sorted(DATA.glob("c3d/*/*.c3d")) + sorted(DATA.glob("trc/*/*.trc")):
+        if f.stat().st_size < 1_500_000:
+            (into / f.parent.parent.name / f.parent.name).mkdir(parents=True, exist_ok=True)
+            shutil.copy(f, into / f.parent.parent.name / f.parent.name / f.name)
     return into
 
 

@@ -26,8 +26,6 @@ the package's per-frame reader.
 
 from __future__ import annotations
 
-import io
-import warnings
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -38,96 +36,21 @@ from mocapflow.framework.components import Format, Params
 from mocapflow.framework.errors import MocapflowError, ParseError
 from mocapflow.framework.markers import Markers, guess_up_axis, to_y_up
 
+from ._c3d_parse import C3dError, C3dFile, parse_c3d
 from ._common import MAX_FPS, MAX_METRES, file_metadata, read_bytes
 
 __all__ = ["C3dFormat", "read_c3d", "UNITS_TO_METRES"]
 
 #: Length units of ``POINT:UNITS`` (lower case) -> metres.
 UNITS_TO_METRES: dict[str, float] = {"mm": 0.001, "cm": 0.01, "m": 1.0, "in": 0.0254, "inch": 0.0254, "dm": 0.1}
-
-
-def _import_c3d():
-    try:
-        import c3d
-    except ImportError:
-        raise MocapflowError("reading C3D files needs the optional 'c3d' package: pip install mocapflow[c3d]") from None
-    return c3d
-
-
-def _param(reader, key: str) -> str | None:
-    p = reader.get(key)
-    if p is None:
-        return None
-    try:
-        return p.string_value.strip(" \t\r\n\x00")  # NUL padding is padding ('mm\x00\x00')
-    except Exception:
-        return None
-
-
-def _frames_param(reader) -> int | None:
-    """``POINT:FRAMES``, the number of frames (16-bit unsigned or float), when present."""
-    p = reader.get("POINT:FRAMES")
-    if p is None:
-        return None
-    try:
-        v = float(p.float_value) if p.bytes_per_element == 4 else int(p.uint16_value)
-    except Exception:
-        return None
-    return int(v) if 0 < v < 2**31 and v == int(v) else None
-
-
-def _points(path: Path, data: bytes, reader, strict: bool, warn: list[str]) -> np.ndarray:
-    """Raw point block, shape (T, M, 4): x, y, z in file units and the residual word
-    (negative: an invalid sample)."""
-    m = int(reader.point_used)
-    t = int(reader.last_frame) - int(reader.first_frame) + 1
-    scale = float(reader.point_scale)
-    is_float = scale < 0
-    word = 4 if is_float else 2
-    analog_word = 4 if is_float else 2
-    point_bytes = 4 * m * word
-    stride = point_bytes + int(reader.analog_used) * int(reader.analog_per_frame) * analog_word
-    start = (int(reader.header.data_block) - 1) * 512
-    if t <= 0:
-        raise ParseError(
-            path, None, f"expected at least one frame, the header announces {reader.first_frame}..{reader.last_frame}"
-        )
-    have = (len(data) - start) // stride if stride else 0
-    if have < t:
-        counted = _frames_param(reader)
-        announced = f"the header announces {t} frames ({reader.first_frame}..{reader.last_frame})"
-        if strict or dtypes_dec(reader, is_float) or counted is None or counted > have:
-            raise ParseError(path, None, f"truncated C3D: {announced}, the file holds {max(have, 0)}")
-        # the data prove POINT:FRAMES right and the header's last frame wrong: read what is there
-        warn.append(f"{announced} but POINT:FRAMES says {counted} and the file holds them: read {counted} frames")
-        t = counted
-    dtypes = reader._dtypes  # the package's byte-order description of this file
-    if is_float and dtypes.is_dec:
-        frames = [p[:, :4].copy() for _, p, _ in reader.read_frames(copy=True, check_nan=False)]
-        raw = np.array(frames, dtype=np.float64)
-        # read_frames already decoded the residual (-1 for invalid samples)
-        return raw
-    block = np.frombuffer(data, dtype=np.uint8, count=t * stride, offset=start).reshape(t, stride)[:, :point_bytes]
-    if is_float:
-        vals = np.ascontiguousarray(block).view(dtypes.float32).reshape(t, m, 4).astype(np.float64)
-        # the residual word compared as a float: a huge positive one (1.7e38) is a valid
-        # sample, never cast to an integer that overflows into a negative "gap"
-        resid = vals[..., 3]
-        valid = ~(resid < 0)
-        low = np.where(valid & (resid < 2.0**31), resid, 0.0).astype(np.int64) & 0xFF
-    else:
-        raw = np.ascontiguousarray(block).view(dtypes.int16).reshape(t, m, 4)
-        vals = raw.astype(np.float64)
-        vals[..., :3] *= abs(scale)
-        valid = raw[..., 3] >= 0
-        low = raw[..., 3].astype(np.int64) & 0xFF
-    vals[..., 3] = np.where(valid, low * abs(scale), -1.0)
-    return vals
-
-
-def dtypes_dec(reader, is_float: bool) -> bool:
-    """Whether the file stores DEC (VAX) floats (read frame by frame by the package)."""
-    return bool(is_float and reader._dtypes.is_dec)
+#: Spelled-out ``POINT:UNITS`` (some writers cut them to the parameter's 4 characters:
+#: ``mete``) -> the unit.
+UNIT_NAMES: dict[str, str] = {
+    **{w: "m" for w in ("mete", "meter", "meters", "metre", "metres")},
+    **{w: "mm" for w in ("mill", "millimeter", "millimeters", "millimetre", "millimetres")},
+    **{w: "cm" for w in ("cent", "centimeter", "centimeters", "centimetre", "centimetres")},
+    "inches": "in",
+}
 
 
 def _check_head(path: Path, head: bytes) -> None:
@@ -140,83 +63,148 @@ def read_c3d(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
     (:func:`mocapflow.framework.markers.to_y_up`; default: the file's axes, recorded in
     ``metadata["up_axis"]``). Positions (T, M, 3) metres, NaN for gaps; metadata ``path``,
     ``format`` ("c3d"), ``checksum``, ``units``, ``first_frame``, ``up_axis``,
-    ``up_axis_source``, ``source_fps``, ``source_frames``, ``warnings`` (what was repaired).
-    ParseError for unreadable, non-C3D or truncated files (line ``None``: C3D is binary),
-    also for anything the ``c3d`` package raises; ``strict``: a header contradicted by the
-    data is a ParseError too, never repaired. MocapflowError without ``c3d``.
+    ``up_axis_source``, ``source_fps``, ``source_frames``, ``processor``,
+    ``analog_channels`` / ``analog_rate`` (what else the file holds), ``warnings`` (what was
+    repaired). ParseError for unreadable, non-C3D, analog-only or empty files (line ``None``:
+    C3D is binary); ``strict``: a header contradicted by the data is a ParseError too,
+    never repaired.
     """
     path = Path(path)
     try:
         return _read_c3d(path, y_up, strict)
     except MocapflowError:
         raise
-    except Exception as exc:  # the package or numpy on a file nobody foresaw: still the file's error
+    except Exception:  # numpy on a file nobody foresaw: still the file's error, no foreign text
         raise ParseError(
-            path, None, f"expected a C3D file the reader can decode ({type(exc).__name__}: {str(exc)[:120]})"
+            path, None, "expected a C3D layout the reader knows; this one it cannot decode (please report the file)"
         ) from None
+
+
+def _analog_summary(f: C3dFile) -> tuple[int, float, list[str]]:
+    n = f.analog_channels
+    rate = f.number("ANALOG:RATE")
+    if rate is None or not np.isfinite(rate) or rate <= 0:
+        rate = f.point_rate * f.analog_per_frame
+    return n, float(rate), f.labels("ANALOG", n)
+
+
+def _whole_frames(f: C3dFile, held: int) -> int:
+    """``held`` less the trailing frames of zero bytes: the last 512-byte block is padded
+    with zeros, and such frames are padding, not samples at the origin."""
+    block = f.frame_block(held)
+    while held and not block[held - 1].any():
+        held -= 1
+    return held
+
+
+def _frame_count(path: Path, f: C3dFile, strict: bool, warn: list[str]) -> int:
+    """The frames to read: those the header announces, or the whole frames the file holds
+    when it holds fewer (with a warning naming both; ``strict``: a ParseError). A header
+    whose 16-bit frame fields cannot count the frames (last < first, or 65535: takes over
+    65,535 frames) is read through ``TRIAL:ACTUAL_*_FIELD`` or ``POINT:FRAMES``, else as the
+    whole frames held, with a warning."""
+    announced = f.frames_announced()
+    held = f.frames_held()
+    counted = f.point_frames()
+    if announced is None or announced <= 0:
+        whole = _whole_frames(f, held)
+        what = f"the header's frames {f.first_frame}..{f.last_frame} count no frames and no parameter does"
+        if strict or whole == 0:
+            raise ParseError(path, None, f"expected at least one frame: {what}; the file holds {whole} whole frames")
+        warn.append(f"{what}: read the {whole} whole frames the file holds")
+        return whole
+    what = f"the header announces {announced} frames ({f.first_frame}..{f.last_frame})"
+    if held >= announced:
+        return announced
+    held = _whole_frames(f, held)
+    if strict or held == 0:
+        raise ParseError(path, None, f"truncated C3D: {what}, the file holds {held} whole frames")
+    pf = "" if counted is None or counted == announced else f", POINT:FRAMES {counted}"
+    warn.append(f"{what}{pf}, the file holds {held} whole frames: read {held}")
+    return held
 
 
 def _read_c3d(path: Path, y_up: bool, strict: bool) -> Markers:
-    c3d = _import_c3d()
     data = read_bytes(path, lambda head: _check_head(path, head))
     _check_head(path, data)
-    warn: list[str] = []
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            reader = c3d.Reader(io.BytesIO(data))
-    except Exception as exc:
-        raise ParseError(
-            path, None, f"expected a valid C3D header and parameter section ({type(exc).__name__}: {str(exc)[:120]})"
-        ) from None
-    if int(reader.point_used) <= 0:
-        raise ParseError(
-            path, None, "expected 3-D points (POINT:USED > 0); the file holds none (analog channels only?)"
-        )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        raw = _points(path, data, reader, strict, warn)
-    units = (_param(reader, "POINT:UNITS") or "mm").lower()
+        f = parse_c3d(data)
+    except C3dError as exc:
+        raise ParseError(path, None, str(exc)) from None
+    warn = list(f.warnings)
+    if f.points <= 0:
+        n, rate, names = _analog_summary(f)
+        if n:
+            shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+            raise ParseError(
+                path,
+                None,
+                f"expected 3-D points; the file holds none, only {n} analog channels at {rate:g} Hz"
+                + (f" ({shown})" if shown else ""),
+            )
+        rot = f.get("ROTATION:USED")
+        if rot is not None and rot.kind in (1, 2) and rot.data and int(rot.uint16()[0]) > 0:
+            raise ParseError(
+                path,
+                None,
+                f"expected 3-D points; the file holds none, only {int(rot.uint16()[0])} rotations (ROTATION)",
+            )
+        raise ParseError(path, None, "expected 3-D points; the file holds none (POINT:USED 0, no analog channels)")
+    if f.processor == "dec" and f.float_data:
+        pass  # VAX floats: decoded by the parser
+    t = _frame_count(path, f, strict, warn)
+    raw = f.read_points(t)
+    units = (f.string("POINT:UNITS") or "mm").lower()
+    units = UNIT_NAMES.get(units, units)
     if units not in UNITS_TO_METRES:
         raise ParseError(path, None, f"expected POINT:UNITS among {sorted(UNITS_TO_METRES)}, found {units!r}")
-    rate = float(reader.point_rate)
+    rate = float(f.point_rate)
     if not 0 < rate <= MAX_FPS:
         raise ParseError(path, None, f"expected a POINT:RATE in (0, {MAX_FPS:g}] Hz, found {rate:g}")
     with np.errstate(over="ignore", invalid="ignore"):
         pos = raw[..., :3] * UNITS_TO_METRES[units]
         gap = raw[..., 3] < 0
+        # NaN coordinates in a float file are how several writers (Vicon Nexus, kinetics
+        # toolkit) mark a missing sample whatever its residual: a gap, counted in a warning
+        nan = ~gap & np.isnan(pos).any(-1) if f.float_data else np.zeros_like(gap)
+    if nan.any():
+        warn.append(f"{int(nan.sum())} samples with NaN coordinates and a valid residual: read as gaps")
+        gap |= nan
+    with np.errstate(over="ignore", invalid="ignore"):
         wrong = ~gap & ~(np.abs(pos) <= MAX_METRES).all(-1)  # non-finite or beyond 10 km
     if wrong.any():
-        f, m = np.argwhere(wrong)[0]
+        fr, m = np.argwhere(wrong)[0]
         raise ParseError(
             path,
             None,
-            f"frame {int(reader.first_frame) + int(f)}, point {int(m) + 1}: expected a "
+            f"frame {f.first_frame + int(fr)}, point {int(m) + 1}: expected a "
             f"finite position within {MAX_METRES:g} m or an invalid sample (negative residual), "
-            f"found {pos[f, m].tolist()}",
+            f"found {pos[fr, m].tolist()}",
         )
     pos[gap] = np.nan
-    try:
-        labels = tuple(str(lb).strip(" \t\r\n\x00") for lb in reader.point_labels)[: pos.shape[1]]
-    except Exception:  # no POINT:LABELS (or unreadable): every point named by its index
-        labels = ()
-        warn.append("no readable POINT:LABELS: points named point1, point2...")
+    labels = tuple(f.labels("POINT", pos.shape[1]))
+    if not labels and f.get("POINT:LABELS") is None:
+        warn.append("no POINT:LABELS: points named point1, point2...")
     # files with fewer POINT:LABELS than points exist; name the rest by index
     labels += tuple(f"point{k + 1}" for k in range(len(labels), pos.shape[1]))
     # Y_SCREEN names the vertical axis, but its sign is unreliable in real files (Qualisys
     # and numediart say "-Z" with the floor at z = 0 and people above it): sign from data
-    y_screen = (_param(reader, "POINT:Y_SCREEN") or "").lower()
+    y_screen = (f.string("POINT:Y_SCREEN") or "").lower()
     letter = y_screen[-1] if y_screen[-1:] in ("x", "y", "z") else None
     up = guess_up_axis(pos, letter)
     source = "POINT:Y_SCREEN axis, sign from data" if letter else "guessed from data"
+    n_analog, analog_rate, _names = _analog_summary(f)
     meta = file_metadata(path, data, "c3d")
     meta.update(
         units=units,
-        first_frame=int(reader.first_frame),
+        first_frame=int(f.first_frame),
         up_axis=up,
         up_axis_source=source,
         source_fps=rate,
         source_frames=int(pos.shape[0]),
+        processor=f.processor,
+        analog_channels=n_analog,
+        analog_rate=analog_rate if n_analog else 0.0,
         warnings=warn,
     )
     out = Markers(labels=labels, positions=pos, fps=rate, name=path.stem, metadata=meta)
@@ -224,7 +212,7 @@ def _read_c3d(path: Path, y_up: bool, strict: bool) -> Markers:
 
 
 class C3dFormat(Format):
-    """C3D marker trajectories (needs the optional ``c3d`` package)."""
+    """C3D marker trajectories (a NumPy parser: Intel, DEC and SGI/MIPS files, int16 or float)."""
 
     name: ClassVar[str] = "c3d"
     extensions: ClassVar[tuple[str, ...]] = (".c3d",)

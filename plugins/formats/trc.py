@@ -1,11 +1,13 @@
-"""TRC marker files (Motion Analysis / OpenSim, tab-separated): reader and writer.
+"""TRC marker files (Motion Analysis / OpenSim, tab- or comma-separated): reader and writer.
 
 Layout: ``PathFileType`` line; a line of keys (``DataRate CameraRate NumFrames NumMarkers
 Units ...``) and a line of their values; ``Frame# Time <label> <tab> <tab> <label>...``;
 ``X1 Y1 Z1 X2...``; then one row per frame: frame number, time, 3 values per marker.
 A gap is an empty field or ``NaN``. ``NumFrames`` and ``NumMarkers`` are checked against
 the data; a ``NumFrames`` above the complete rows present is read as those rows, with a
-warning (``strict``: refused). Units (``mm``, ``cm``, ``m``, ``in``) are converted to metres. Axes are kept
+warning (``strict``: refused); rows that end early or carry unnamed markers beyond
+``NumMarkers`` (Motion Analysis) and fewer labels than ``NumMarkers`` are read with a
+warning; lines ending CR CR LF count once. Units (``mm``, ``cm``, ``m``, ``in``) are converted to metres. Axes are kept
 (OpenSim files are y-up); ``metadata["up_axis"]`` is guessed from the data
 (:func:`~mocapflow.framework.markers.guess_up_axis`).
 """
@@ -78,13 +80,22 @@ def _field(text: bytes) -> float:
     return strict_float(t)
 
 
-def _slow_row(path: Path, line: int, text: bytes, width: int) -> list[float]:
+def _slow_row(path: Path, line: int, text: bytes, width: int, last: bool, odd: dict[str, list[int]]) -> list[float]:
     """Fields of a data row that is not ``width`` plain numbers (gaps, NaN, garbage):
-    tab-separated (an empty field is a gap), or whitespace-separated without tabs."""
+    tab-separated (an empty field is a gap), or whitespace-separated without tabs.
+    Motion Analysis writers end a row after its last visible marker and append unnamed
+    markers beyond ``NumMarkers`` to some rows: a short row (not the file's last: that one
+    is a cut file) reads its missing markers as gaps, a long one keeps its first ``width``
+    fields; both are counted in ``odd`` for the warning."""
     fields = text.split(b"\t") if b"\t" in text else text.split()
-    if len(fields) < width or any(f.strip() for f in fields[width:]):
-        n = len(fields) if len(fields) < width else width + sum(1 for f in fields[width:] if f.strip())
-        raise ParseError(path, line, f"expected {width} fields (frame, time, 3 x NumMarkers), found {n}")
+    extra = sum(1 for f in fields[width:] if f.strip())
+    if len(fields) < width:
+        if last or len(fields) < 2:
+            raise ParseError(path, line, f"expected {width} fields (frame, time, 3 x NumMarkers), found {len(fields)}")
+        odd["short"].append(line)
+        fields = fields + [b""] * (width - len(fields))
+    elif extra:
+        odd["long"].append(line)
     try:
         row = [_field(f) for f in fields[:width]]
     except ValueError as exc:
@@ -92,6 +103,50 @@ def _slow_row(path: Path, line: int, text: bytes, width: int) -> list[float]:
             path, line, f"expected a finite number, an empty field or NaN, found {str(exc)[:40]!r}"
         ) from None
     return row
+
+
+def _body(path: Path, data: bytes) -> tuple[bytes, list[str], int]:
+    """The text parsed (:func:`text_body`; CR CR LF, a Windows double conversion, ends one
+    line; a comma-separated file, as spreadsheets export it, has its commas read as tabs),
+    its header lines and the offset after them."""
+    body = text_body(data.replace(b"\r\r\n", b"\r\n") if b"\r\r\n" in data else data)
+    check_text(path, body)
+    head, pos = _lines(body, _HEADER_LINES)
+    if "," in head[1] and "\t" not in head[1]:
+        body = body.replace(b",", b"\t")
+        head, pos = _lines(body, _HEADER_LINES)
+    return body, head, pos
+
+
+def _odd_rows(odd: dict[str, list[int]], n_markers: int) -> list[str]:
+    out = []
+    if odd["short"]:
+        k = odd["short"]
+        out.append(f"{len(k)} data rows end before their last marker (first at line {k[0]}): read as gaps")
+    if odd["long"]:
+        k = odd["long"]
+        out.append(
+            f"{len(k)} data rows hold values beyond the {n_markers} markers of NumMarkers (first at line "
+            f"{k[0]}): unnamed markers, not read"
+        )
+    return out
+
+
+def _sized_labels(
+    path: Path, line: int, labels: tuple[str, ...], n_markers: int, n_rows: int, n_bytes: int, warn: list[str]
+) -> tuple[str, ...]:
+    """``labels`` named up to ``NumMarkers`` (``pointN``, with a warning), once the table the
+    header implies fits the file: a field costs at least its separator, so ``NumMarkers``
+    beyond what the bytes can hold is refused before anything is allocated."""
+    width = 2 + 3 * n_markers
+    if n_rows * width > 2 * n_bytes + 4096:
+        raise ParseError(
+            path, line, f"NumMarkers {n_markers}: {n_rows} rows of {width} fields cannot fit in {n_bytes:,} bytes"
+        )
+    if len(labels) < n_markers:
+        warn.append(f"line 4: {len(labels)} labels for NumMarkers {n_markers}: the rest named by their index")
+        labels += tuple(f"point{k + 1}" for k in range(len(labels), n_markers))
+    return labels
 
 
 def _frame_count(path: Path, n_frames: int, rows: np.ndarray, header_end: int, strict: bool, warn: list[str]) -> int:
@@ -123,9 +178,7 @@ def read_trc(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
     )
     from ._text_kernels import tokenize  # after the header check: a foreign file costs no kernel load
 
-    body = text_body(data)
-    check_text(path, body)
-    head, pos = _lines(body, _HEADER_LINES)
+    body, head, pos = _body(path, data)
 
     def at(line: int) -> int:  # a header line, or the last line of a file that ends before it
         return min(line, body.count(b"\n") + 1)
@@ -148,7 +201,8 @@ def read_trc(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
     labels = tuple(lb.strip(_SPACE) for lb in head[3].split("\t")[2:] if lb.strip(_SPACE))
     if len(labels) != n_markers and "\t" not in head[3]:
         labels = tuple(_header_fields(head[3])[2:])
-    if len(labels) != n_markers:
+    warn: list[str] = []
+    if len(labels) > n_markers or not labels:
         raise ParseError(path, at(4), f"expected {n_markers} marker labels (NumMarkers), found {len(labels)}")
     width = 2 + 3 * n_markers
     tok = tokenize(np.frombuffer(body, dtype=np.uint8), pos, _HEADER_LINES + 1)
@@ -156,7 +210,7 @@ def read_trc(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
     if tok[6] >= 0:  # check_text already rejects these; never read a cut-off token stream
         raise ParseError(path, int(tok[7]), "expected text, found a binary control byte")
     rows, first, counts = np.unique(lines, return_index=True, return_counts=True)
-    warn: list[str] = []
+    labels = _sized_labels(path, at(3), labels, n_markers, len(rows), len(body), warn)
     n_frames = _frame_count(path, n_frames, rows, at(_HEADER_LINES), strict, warn)
     table = np.full((n_frames, width), np.nan)
     full = counts == width
@@ -168,10 +222,13 @@ def read_trc(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
         idx = lo[:, None] + np.arange(width)
         table[full] = values[idx]
         slow = np.flatnonzero(~full | ~np.logical_and.reduceat(isnum, first))
+    odd: dict[str, list[int]] = {"short": [], "long": []}
     for r in slow:
         s = body.rfind(b"\n", 0, starts[first[r]]) + 1  # the whole line: a leading tab is an empty field
         e = body.find(b"\n", s)
-        table[r] = _slow_row(path, int(rows[r]), body[s : len(body) if e < 0 else e].rstrip(b"\r"), width)
+        text = body[s : len(body) if e < 0 else e].rstrip(b"\r")
+        table[r] = _slow_row(path, int(rows[r]), text, width, r == len(rows) - 1, odd)
+    warn += _odd_rows(odd, n_markers)
     bad_head = ~((np.abs(table[:, 0]) < 1e9) & (table[:, 0] == np.round(table[:, 0])) & (np.abs(table[:, 1]) < 1e9))
     if bad_head.any():
         r = int(np.argmax(bad_head))

@@ -348,11 +348,14 @@ def _header_words(line: bytes) -> list[bytes]:
     return [w for w in re.split(rb"[ \t]+", line.strip(_SPACE)) if w]
 
 
-def _trc_fields(line: bytes, words: list[bytes], width: int, k: int) -> list[float]:
-    """A data row with gaps: empty or NaN fields (tab separated) read as NaN."""
+def _trc_fields(line: bytes, words: list[bytes], width: int, k: int, last: bool) -> list[float]:
+    """A data row with gaps: empty or NaN fields (tab separated) read as NaN; a short row
+    other than the last one padded with gaps, a long one cut to ``width`` fields."""
     fields = line.split(b"\t") if b"\t" in line else words
-    if len(fields) < width or any(f.strip() for f in fields[width:]):
-        raise Reject(k + 1, f"expected {width} fields")
+    if len(fields) < width:
+        if last or len(fields) < 2:
+            raise Reject(k + 1, f"expected {width} fields")
+        fields = fields + [b""] * (width - len(fields))
     vals = []
     for f in fields[:width]:
         f = f.strip()
@@ -368,10 +371,13 @@ def _trc_fields(line: bytes, words: list[bytes], width: int, k: int) -> list[flo
 def read_trc(data: bytes) -> dict:
     """What a TRC file says: ``labels, rate, first_frame, positions (T, M, 3)`` metres,
     NaN for a marker with any empty or NaN coordinate."""
-    lines = text_lines(data)
+    lines = text_lines(data.replace(b"\r\r\n", b"\r\n"))
     head = (lines + [b""] * 5)[:5]
     if not head[0].startswith(b"PathFileType"):
         raise Reject(1, "expected PathFileType")
+    if b"," in head[1] and b"\t" not in head[1]:  # comma-separated
+        lines = [ln.replace(b",", b"\t") for ln in lines]
+        head = (lines + [b""] * 5)[:5]
     keys, vals = _header_words(head[1]), _header_words(head[2])
     if len(keys) != len(vals):
         keys = [k.strip(_SPACE) for k in head[1].split(b"\t")]
@@ -388,18 +394,22 @@ def read_trc(data: bytes) -> dict:
     labels = [lb.strip(_SPACE) for lb in head[3].split(b"\t")[2:] if lb.strip(_SPACE)]
     if len(labels) != n_markers and b"\t" not in head[3]:
         labels = _header_words(head[3])[2:]
-    if len(labels) != n_markers:
+    if len(labels) > n_markers or not labels:
         raise Reject(4, "label count differs from NumMarkers")
     width = 2 + 3 * n_markers
     rows = []
-    for k in range(5, len(lines)):
+    data_lines = [k for k in range(5, len(lines)) if lines[k].split()]
+    body = data.replace(b"\r\r\n", b"\r\n")
+    n_bytes = len(body) - (3 if body.startswith(b"\xef\xbb\xbf") else 0)
+    if len(data_lines) * width > 2 * n_bytes + 4096:  # a field costs at least its separator
+        raise Reject(3, "NumMarkers too large for the file")
+    labels += [b"point%d" % (k + 1) for k in range(len(labels), n_markers)]
+    for k in data_lines:
         line = lines[k]
         words = line.split()
-        if not words:
-            continue
         vals = numbers(words) if len(words) == width else None
         if vals is None:
-            vals = _trc_fields(line, words, width, k)
+            vals = _trc_fields(line, words, width, k, k == data_lines[-1])
         frame, time = vals[0], vals[1]
         if not (
             math.isfinite(frame)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import shutil
 import struct
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -211,26 +210,24 @@ def test_trc_short_row_is_an_error(tmp_path: Path) -> None:
 
 
 def test_c3d_non_finite_valid_sample_is_an_error(tmp_path: Path) -> None:
-    pytest.importorskip("c3d")
+    from mocapflow.plugins.formats._c3d_parse import parse_c3d
     from mocapflow.plugins.formats.c3d import read_c3d
 
     src = corpus_path("c3d", "cmu", "85_02.c3d")
     m = read_c3d(src)
     data = bytearray(src.read_bytes())
-    import io
-
-    import c3d
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        reader = c3d.Reader(io.BytesIO(bytes(data)))
-    assert reader.point_scale < 0, "this test needs a float C3D"
+    c = parse_c3d(bytes(data))
+    assert c.float_data, "this test needs a float C3D"
     f, k = np.argwhere(~np.isnan(m.positions[..., 0]))[0]
-    stride = 4 * 4 * reader.point_used + reader.analog_used * reader.analog_per_frame * 4
-    at = (reader.header.data_block - 1) * 512 + f * stride + k * 16
+    at = c.data_start + f * c.frame_bytes + k * 16
     data[at : at + 4] = struct.pack("<f", np.inf)
     bad = write(tmp_path / "inf.c3d", bytes(data))
     raises_at(read_c3d, bad, None, r"expected a finite position")
+    # NaN coordinates with a valid residual: how Vicon Nexus and kinetics toolkit mark a
+    # missing sample; a gap, counted in a warning
+    data[at : at + 4] = struct.pack("<f", np.nan)
+    nan = read_c3d(write(tmp_path / "nan.c3d", bytes(data)))
+    assert np.isnan(nan.positions[f, k]).all() and "1 samples with NaN coordinates" in nan.metadata["warnings"][0]
 
 
 # --- duplicated names --------------------------------------------------------------------------

@@ -166,7 +166,7 @@ def test_c3d_huge_positive_residual_is_a_valid_sample(tmp_path):
     assert np.isnan(m.positions[2, 0]).all() and np.isfinite(np.delete(m.positions, 2, axis=0)[:, 0]).all()
 
 
-def test_c3d_package_errors_become_parse_errors_naming_the_file(tmp_path):
+def test_c3d_odd_files_read_or_refused_naming_the_file(tmp_path):
     from mocapflow.plugins.formats.c3d import read_c3d
 
     p = tmp_path / "nolabels.c3d"
@@ -182,7 +182,7 @@ def test_c3d_package_errors_become_parse_errors_naming_the_file(tmp_path):
     p = tmp_path / "nul.c3d"
     p.write_bytes(_c3d_bytes(units="mm\x00\x00"))
     assert read_c3d(p).metadata["units"] == "mm"
-    # a parameter section the package chokes on: still the file's ParseError
+    # a garbled parameter section: the file's ParseError
     data = bytearray(_c3d_bytes())
     data[512 + 4 :] = bytes([0xFF]) * (len(data) - 512 - 4)
     p = tmp_path / "garbled.c3d"
@@ -204,10 +204,13 @@ def test_c3d_header_last_frame_contradicted_by_point_frames_and_the_data(tmp_pat
     assert any("POINT:FRAMES" in w for w in m.metadata["warnings"])
     with pytest.raises(ParseError, match="truncated"):
         read_c3d(p, strict=True)
-    cut = tmp_path / "cut.c3d"  # really truncated: POINT:FRAMES says 29 too, the file holds fewer
+    cut = tmp_path / "cut.c3d"  # really truncated: POINT:FRAMES says 29 too, the file holds 10
     cut.write_bytes(bytes(data[: _data_start(bytes(data)) + 10 * 48]))
+    short = read_c3d(cut)  # the whole frames held, with a warning naming both counts
+    assert short.n_frames == 10 and "holds 10 whole frames" in short.metadata["warnings"][0]
+    np.testing.assert_array_equal(short.positions, m.positions[:10])
     with pytest.raises(ParseError, match="truncated"):
-        read_c3d(cut)
+        read_c3d(cut, strict=True)
 
 
 # --- TRC, BVH, ASF --------------------------------------------------------------------------
