@@ -85,7 +85,7 @@ def _yaw_align(model: np.ndarray, observed: np.ndarray) -> float:
 
 
 class ReconstructParams(Params):
-    k: int = Field(64, ge=2, description="neighbours of the local linear model")
+    k: int = Field(128, ge=2, description="neighbours of the local linear model")
     leave_out: Literal["clip", "subject", "none"] = Field(
         "clip", description="prior takes withheld for each test clip: the same clip (by name), its subject, or none"
     )
@@ -112,7 +112,8 @@ class ReconstructModel:
     nearest prior configuration (joint limits), scale ``limit_sigma`` (unit-vector
     distance); the distance from the solve's middle joint, ``swivel_sigma`` metres; the
     middle joint's step between frames, ``swivel_step`` metres per prior frame.
-    ``smooth_pass``: a second pass predicting each frame from both neighbours of the first.
+    ``smooth_passes``: passes after the first, each predicting every frame from both its
+    neighbours of the pass before (a forward-backward smoother).
     Confidence (:class:`Reconstruction`): marker misfit scale ``confidence_misfit`` and
     out-of-reach scale ``confidence_reach``, metres.
     """
@@ -130,7 +131,7 @@ class ReconstructModel:
     limit_sigma: float = 0.1
     swivel_sigma: float = 0.1
     swivel_step: float = 0.05
-    smooth_pass: bool = False
+    smooth_passes: int = 1
     confidence_misfit: float = 0.04
     confidence_reach: float = 0.02
 
@@ -444,7 +445,7 @@ def _passes(
     for t in range(min(model.backward_frames, t_len - 2) - 1, -1, -1):
         pred = 2 * out[t + 1] - out[t + 2]
         solve(t, pred, heading[t + 1], pred, model.iterations)
-    if model.smooth_pass and t_len >= 3:
+    for _ in range(model.smooth_passes if t_len >= 3 else 0):
         first = out.copy()
         for t in range(t_len):
             pred = 0.5 * (first[max(t - 1, 0)] + first[min(t + 1, t_len - 1)])
