@@ -214,19 +214,20 @@ TYPICAL_K = 256
 def typical_distances(features: np.ndarray, groups: np.ndarray, n_sample: int = 128) -> np.ndarray:
     """Median over ``n_sample`` evenly spaced rows of ``features`` (N, d) of the mean
     distance to their first ``k`` nearest rows of *other* ``groups`` (N,), for every ``k``
-    up to :data:`TYPICAL_K` (brute force); ones where no row has another group."""
+    up to :data:`TYPICAL_K` (brute force; beyond the fewest rows of other groups a sampled
+    row has: the last value); ones where a sampled row has no other group."""
     n = len(features)
     sample = np.unique(np.linspace(0, n - 1, min(n_sample, n)).astype(np.int64))
     f = np.asarray(features, np.float64)
     q = f[sample]
     d2 = (q * q).sum(1)[:, None] - 2 * q @ f.T + (f * f).sum(1)[None, :]
-    d2[groups[sample][:, None] == groups[None, :]] = np.inf
-    kmax = min(TYPICAL_K, n)
-    near = np.sqrt(np.maximum(np.sort(np.partition(d2, kmax - 1, axis=1)[:, :kmax], axis=1), 0.0))
-    ok = np.isfinite(near).all(1)
+    other = groups[sample][:, None] != groups[None, :]
+    d2[~other] = np.inf
+    kmax = min(TYPICAL_K, int(other.sum(1).min()))
     out = np.ones(TYPICAL_K)
-    if ok.any():
-        prof = np.median(np.cumsum(near[ok], 1) / np.arange(1, kmax + 1), 0)
+    if kmax > 0:
+        near = np.sqrt(np.maximum(np.sort(np.partition(d2, kmax - 1, axis=1)[:, :kmax], axis=1), 0.0))
+        prof = np.median(np.cumsum(near, 1) / np.arange(1, kmax + 1), 0)
         out[:kmax] = np.maximum(prof, 1e-9)
         out[kmax:] = out[kmax - 1]
     return out
