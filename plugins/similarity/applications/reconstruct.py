@@ -18,13 +18,23 @@ heading (``iterations``). The result is put on the performer's bone lengths (dir
 kept) and each limb's end on its marker by two-bone IK (:func:`limb_ik`), which bounds
 every joint to its chain from the root marker. The first frame starts from the prior pose
 nearest its markers; the first ``backward_frames`` frames are solved again backwards.
+Then ``smooth_passes`` passes solve every frame again with the prediction from both its
+neighbours of the pass before (a forward-backward smoother), and the side of every knee
+and elbow is chosen over the whole take (:func:`consistent_sides`): dynamic programming
+over positions of the middle joint on its IK circle, against the prior's configurations
+of that limb (joint limits), the solve's choice and the joint's step between frames.
+
+:func:`reconstruct` also gives a confidence per frame (:class:`Reconstruction`: how far
+the query lies from the prior, the marker misfit, markers out of reach, joint limits);
+:func:`reconstruct_positions` is its positions and heading.
 
 The output Motion aims the performer's bones at the reconstructed positions
 (:func:`retarget.positions_to_motion`; ``fk_avg_cm`` is its error).
 
 Tables: ``data``/``clips``/``skeletons`` (the reconstructions), ``errors`` (per clip and
 joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``,
-``max_joint_cm``).
+``max_joint_cm``, ``confidence_mean``/``_min``, ``low_confidence_share``), ``confidence``
+(per frame: ``clip_id, frame, confidence, novelty, misfit_cm, reach_cm, limit``).
 """
 
 from __future__ import annotations
