@@ -1,8 +1,12 @@
-"""Numba kernel of one reconstruction search step (no validation: :mod:`.reconstruct` validates).
+"""Numba kernels of the reconstruction (no validation: :mod:`.reconstruct` validates).
 
 :func:`map_pose`: the local linear model of the neighbours (:func:`.reconstruct._local_model`),
 the MAP pose of markers + prior + smoothness and the heading, alternated. Its slow,
 obviously correct NumPy twin is ``_map_pose_numpy`` in ``tests/plugins/similarity/test_reconstruct.py``.
+
+:func:`swivel_path`: the Viterbi path through the knee/elbow swivel states of a take
+(:func:`.reconstruct.consistent_sides`); its twin, scoring every path, is
+``_swivel_path_numpy`` in ``tests/plugins/similarity/test_reconstruct_sides.py``.
 """
 
 from __future__ import annotations
