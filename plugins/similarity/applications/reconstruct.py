@@ -217,6 +217,9 @@ class PosePrior:
         )
 
 
+#: Most neighbour ids (frames x k) one reconstruction keeps for its later passes (~100 MB).
+NEIGHBOUR_CACHE = 8_000_000
+
 #: Neighbour counts covered by :attr:`PosePrior.typical`.
 TYPICAL_K = 256
 
@@ -439,10 +442,15 @@ def _passes(
     misfit, qdist = np.zeros(t_len), np.zeros(t_len)
     k = min(p.k, len(prior.poses))
 
+    # a known heading: every pass queries the same neighbours, kept per frame (about 1.5 kB
+    # a frame at k 128; longer takes query again)
+    reuse = fixed and model.smooth_passes > 0 and t_len * k <= NEIGHBOUR_CACHE
+    caches: list[dict] = [{} for _ in range(t_len)] if reuse else []
+
     def solve(t: int, guess: np.ndarray, theta: float, pred: np.ndarray | None, iters: int) -> None:
         theta = heading[t] if fixed else theta
         out[t], heading[t], misfit[t], qdist[t] = _solve_frame(
-            rel[t], guess, theta, pred, prior, fr, k, model, iters, fixed
+            rel[t], guess, theta, pred, prior, fr, k, model, iters, fixed, caches[t] if reuse else None
         )
 
     theta, guess = _initial_pose(rel[0], prior.poses, fr.sel, heading[0] if fixed else None)
@@ -596,12 +604,15 @@ def _solve_frame(
     model: ReconstructModel,
     iterations: int,
     fixed: bool = False,
+    cache: dict | None = None,
 ) -> tuple[np.ndarray, float, float, float]:
     """One frame: kNN of the control signal, local model, MAP pose and heading (module doc).
 
     rel : (M, 3) markers relative to the root marker; guess, pred :
     (D,) local poses; returns the pose (D,), the heading (radians, kept if ``fixed``), the
     RMS marker misfit of the MAP pose (metres) and the query's mean neighbour distance.
+    ``cache``: with a known heading the query of a frame never changes; its neighbours are
+    kept there under ``"ids"``/``"dist"`` and reused by a later pass.
     """
     from ._reconstruct_kernels import map_pose
 
@@ -613,8 +624,13 @@ def _solve_frame(
     for _ in range(1 if fixed else iterations):
         c, s = np.cos(theta), np.sin(theta)
         obs_m = np.stack([c * rel[:, 0] - s * rel[:, 2], rel[:, 1], s * rel[:, 0] + c * rel[:, 2]], 1)
-        q = obs_m[fr.nonroot].astype(np.float32).reshape(1, -1)
-        dist, ids = prior.index.query(q, k)
+        if cache is not None and "ids" in cache:
+            dist, ids = cache["dist"], cache["ids"]
+        else:
+            q = obs_m[fr.nonroot].astype(np.float32).reshape(1, -1)
+            dist, ids = prior.index.query(q, k)
+            if cache is not None and fixed:
+                cache["dist"], cache["ids"] = dist, ids
         ok = ids[0] >= 0
         qd = float(dist[0][ok].mean())
         nb = prior.poses[ids[0][ok]].astype(np.float64)
