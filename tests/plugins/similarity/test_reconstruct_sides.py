@@ -148,3 +148,15 @@ def test_the_same_motion_at_120_hz_keeps_its_sides(store):
     err_fast = np.linalg.norm(quick.positions - truth_fast, axis=-1).mean() * 100
     err_slow = np.linalg.norm(slow.positions - truth_slow, axis=-1).mean() * 100
     assert err_fast < 1.5 and err_slow < 1.5
+
+
+def test_reused_neighbours_give_the_same_reconstruction(store, monkeypatch):
+    from mocapflow.plugins.similarity.applications import reconstruct as rec_module
+
+    test = periodic_motion(30, 0.5 / 30, yaw_deg=10, name="t")
+    prior = PriorCache(store).for_motion(test, "none")
+    args = (synthetic_markers(test), prior, ReconstructParams(k=16))
+    kept = reconstruct(*args, root_heading=synthetic_heading(test))
+    monkeypatch.setattr(rec_module, "NEIGHBOUR_CACHE", 0)
+    again = reconstruct(*args, root_heading=synthetic_heading(test))
+    assert np.array_equal(kept.positions, again.positions) and np.array_equal(kept.confidence, again.confidence)
