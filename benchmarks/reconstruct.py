@@ -114,7 +114,7 @@ def run_loso(
     skeleton, or to bone ``lengths`` if given); the error summary."""
     cache, params = PriorCache(store, model), params or ReconstructParams()
     rows, frames, seconds = [], 0, 0.0
-    joint_mean, joint_max, conf, frame_cm = [], [], [], []
+    joint_mean, joint_max, conf, frame_cm, frame_max = [], [], [], [], []
     for m in tests:
         if lengths is not None:
             prior = cache.get(~withheld(store, m, "subject"), lengths)
@@ -128,6 +128,7 @@ def run_loso(
         joint_max.append(e["max_cm"])
         conf.append(e["confidence"])
         frame_cm.append(e["frame_cm"])
+        frame_max.append(e["frame_max_cm"])
         if verbose:
             print(
                 f"  {m.name:>8} {m.fps:4.0f} Hz {e['avg_cm']:6.2f} ({e['max_frame_cm']:6.2f}) [{e['max_joint_cm']:6.1f}] "
@@ -149,6 +150,7 @@ def run_loso(
         },
         "confidence": np.concatenate(conf),
         "frame_cm": np.concatenate(frame_cm),
+        "frame_max_cm": np.concatenate(frame_max),
         "fps": frames / seconds,
     }
 
@@ -177,6 +179,14 @@ def report_details(r: dict) -> None:
         f"(mean error {e[low].mean() if low.any() else float('nan'):.2f} cm) vs >= 0.5 "
         f"{e[~low].mean() if (~low).any() else float('nan'):.2f} cm; frames with a joint > 30 cm: "
         f"{', '.join(f'{n}' for n, _, _, w, _ in r['rows'] if w > 30) or 'none'}"
+    )
+    print(
+        "  worst joint of the frames with confidence >= "
+        + ", ".join(
+            f"{c0:g}: {r['frame_max_cm'][c >= c0].max() if (c >= c0).any() else float('nan'):.1f} cm "
+            f"({(c >= c0).mean():.0%} of frames)"
+            for c0 in (0.05, 0.1, 0.2, 0.5)
+        )
     )
 
 

@@ -717,9 +717,9 @@ def reconstruct_motion(
     Returns the reconstructed Motion (test clip's skeleton, ``<name>_recon``) and a dict:
     ``joints``, ``mean_cm``/``max_cm`` per joint, ``avg_cm``, ``max_frame_cm`` (worst
     per-frame average), ``max_joint_cm`` (worst joint of any frame), ``fk_avg_cm``,
-    ``seconds`` (reconstruction time, excluding the prior), ``confidence`` and
-    ``frame_cm`` (T,) (per-frame confidence and mean error), ``reconstruction`` (the
-    :class:`Reconstruction`).
+    ``seconds`` (reconstruction time, excluding the prior), ``confidence``, ``frame_cm``
+    and ``frame_max_cm`` (T,) (per-frame confidence, mean and worst joint error),
+    ``reconstruction`` (the :class:`Reconstruction`).
     """
     p = params or ReconstructParams()
     rng = np.random.default_rng(model.seed)
@@ -751,5 +751,6 @@ def reconstruct_motion(
         "seconds": seconds,
         "confidence": rec.confidence,
         "frame_cm": np.nanmean(np.linalg.norm(world - truth, axis=-1), 1) * 100.0,
+        "frame_max_cm": np.nanmax(np.linalg.norm(world - truth, axis=-1), 1) * 100.0,
         "reconstruction": rec,
     }
