@@ -123,7 +123,8 @@ class ReconstructModel:
     distance); the distance from the solve's middle joint, ``swivel_sigma`` metres; the
     middle joint's step between frames, ``swivel_step`` metres per prior frame.
     ``smooth_passes``: passes after the first, each predicting every frame from both its
-    neighbours of the pass before (a forward-backward smoother).
+    neighbours of the pass before (a forward-backward smoother); an estimated heading is
+    averaged over ``±heading_window`` seconds before them and held (one search per frame).
     Confidence (:class:`Reconstruction`): marker misfit scale ``confidence_misfit`` and
     out-of-reach scale ``confidence_reach``, metres.
     """
@@ -142,6 +143,7 @@ class ReconstructModel:
     swivel_sigma: float = 0.1
     swivel_step: float = 0.05
     smooth_passes: int = 1
+    heading_window: float = 0.25
     confidence_misfit: float = 0.04
     confidence_reach: float = 0.02
 
@@ -466,15 +468,35 @@ def _passes(
         solve(t, pred, heading[t + 1], pred, model.iterations)
     for _ in range(model.smooth_passes if t_len >= 3 else 0):
         first = out.copy()
+        held = fixed
+        if not fixed and model.heading_window > 0:
+            # the estimated heading, averaged over +-heading_window seconds, is held in this pass
+            heading[:] = smooth_heading(heading, max(1, int(round(model.heading_window * (fps or prior.fps)))))
+            held = True
         for t in range(t_len):
             pred = 0.5 * (first[max(t - 1, 0)] + first[min(t + 1, t_len - 1)])
-            solve(t, pred, heading[t], pred, model.iterations)
+            if held and not fixed:
+                out[t], _, misfit[t], qdist[t] = _solve_frame(
+                    rel[t], pred, heading[t], pred, prior, fr, k, model, 1, True
+                )
+            else:
+                solve(t, pred, heading[t], pred, model.iterations)
     local = out.reshape(t_len, n_j, 3)
     limit = np.zeros(t_len)
     if model.swivel_states > 1 and model.project:
         rate = prior.fps / (fps or prior.fps)
         limit = consistent_sides(local, heading, root, prior, model, rate)
     return out, heading, misfit, qdist, limit
+
+
+def smooth_heading(heading: np.ndarray, half: int) -> np.ndarray:
+    """Headings (T,) radians averaged (unwrapped) over ``2 * half + 1`` frames, the ends
+    padded with their first/last value."""
+    h = np.unwrap(np.asarray(heading, np.float64))
+    if len(h) == 0 or half < 1:
+        return h
+    pad = np.r_[np.full(half, h[0]), h, np.full(half, h[-1])]
+    return np.convolve(pad, np.ones(2 * half + 1) / (2 * half + 1), mode="valid")
 
 
 #: The limbs whose middle joint's side :func:`consistent_sides` chooses.

@@ -160,3 +160,20 @@ def test_reused_neighbours_give_the_same_reconstruction(store, monkeypatch):
     monkeypatch.setattr(rec_module, "NEIGHBOUR_CACHE", 0)
     again = reconstruct(*args, root_heading=synthetic_heading(test))
     assert np.array_equal(kept.positions, again.positions) and np.array_equal(kept.confidence, again.confidence)
+
+
+def test_smooth_heading_averages_across_the_wrap():
+    from mocapflow.plugins.similarity.applications.reconstruct import smooth_heading
+
+    h = np.array([3.1, -3.1, 3.1, -3.1, 3.1])  # jitter about +-pi
+    out = smooth_heading(h, 1)
+    loop = [
+        np.mean(
+            np.unwrap(h)[max(i - 1, 0) : i + 2].tolist()
+            + ([np.unwrap(h)[0]] if i == 0 else [])
+            + ([np.unwrap(h)[-1]] if i == 4 else [])
+        )
+        for i in range(5)
+    ]
+    assert np.allclose(out, loop) and np.abs(np.angle(np.exp(1j * (out - np.pi)))).max() < 0.1
+    assert np.allclose(smooth_heading(h, 0), np.unwrap(h)) and len(smooth_heading(np.zeros(0), 2)) == 0
