@@ -23,7 +23,7 @@ TWINS: dict[str, tuple[str, ...]] = {
     "plugins/selfsim/paper/_cdtw_kernels.py": ("test_mdm_kernels.py",),
     "plugins/selfsim/paper/_mdm_kernels.py": ("test_mdm_kernels.py",),
     "plugins/similarity/applications/_fat_graph_kernels.py": ("test_fat_graph.py",),
-    "plugins/similarity/applications/_reconstruct_kernels.py": ("test_reconstruct.py",),
+    "plugins/similarity/applications/_reconstruct_kernels.py": ("test_reconstruct.py", "test_reconstruct_sides.py"),
     "plugins/similarity/knn/_brute_kernels.py": ("test_kdtree.py", "test_kdtree_boxes.py"),
     "plugins/similarity/knn/_knn_kernels.py": ("test_kdtree.py", "test_kdtree_boxes.py"),
     "plugins/similarity/knn/_tree_kernels.py": ("test_kdtree.py",),

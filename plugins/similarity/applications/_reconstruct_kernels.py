@@ -1,8 +1,12 @@
-"""Numba kernel of one reconstruction search step (no validation: :mod:`.reconstruct` validates).
+"""Numba kernels of the reconstruction (no validation: :mod:`.reconstruct` validates).
 
 :func:`map_pose`: the local linear model of the neighbours (:func:`.reconstruct._local_model`),
 the MAP pose of markers + prior + smoothness and the heading, alternated. Its slow,
 obviously correct NumPy twin is ``_map_pose_numpy`` in ``tests/plugins/similarity/test_reconstruct.py``.
+
+:func:`swivel_path`: the Viterbi path through the knee/elbow swivel states of a take
+(:func:`.reconstruct.consistent_sides`); its twin, scoring every path, is
+``_swivel_path_numpy`` in ``tests/plugins/similarity/test_reconstruct_sides.py``.
 """
 
 from __future__ import annotations
@@ -61,3 +65,40 @@ def map_pose(nb, sel, rel, theta, pred, has_pred, w_m, w_s, alternations):
             model[j // 3, j % 3] = guess[sel[j]]
         theta = _yaw(model, rel)
     return guess, theta
+
+
+@njit(cache=True)
+def swivel_path(unary, pts, w_t):
+    """Viterbi path (T,) int64 through ``S`` candidate states per frame: ``unary`` (T, S)
+    costs, ``pts`` (T, S, 3) each state's joint position, transition cost
+    ``w_t * |pts[t, s] - pts[t - 1, r]|^2``; the path of least total cost (ties: lowest state)."""
+    t_len, n_s = unary.shape
+    path = np.zeros(t_len, np.int64)
+    if t_len == 0:
+        return path
+    back = np.zeros((t_len, n_s), np.int64)
+    cost = unary[0].copy()
+    for t in range(1, t_len):
+        new = np.empty(n_s)
+        for s in range(n_s):
+            best, arg = np.inf, 0
+            for r in range(n_s):
+                d = 0.0
+                for a in range(3):
+                    e = pts[t, s, a] - pts[t - 1, r, a]
+                    d += e * e
+                c = cost[r] + w_t * d
+                if c < best:
+                    best, arg = c, r
+            new[s] = best + unary[t, s]
+            back[t, s] = arg
+        cost = new
+    s = 0
+    for r in range(1, n_s):
+        if cost[r] < cost[s]:
+            s = r
+    path[t_len - 1] = s
+    for t in range(t_len - 1, 0, -1):
+        s = back[t, s]
+        path[t - 1] = s
+    return path

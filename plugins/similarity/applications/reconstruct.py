@@ -18,20 +18,30 @@ heading (``iterations``). The result is put on the performer's bone lengths (dir
 kept) and each limb's end on its marker by two-bone IK (:func:`limb_ik`), which bounds
 every joint to its chain from the root marker. The first frame starts from the prior pose
 nearest its markers; the first ``backward_frames`` frames are solved again backwards.
+Then ``smooth_passes`` passes solve every frame again with the prediction from both its
+neighbours of the pass before (a forward-backward smoother), and the side of every knee
+and elbow is chosen over the whole take (:func:`consistent_sides`): dynamic programming
+over positions of the middle joint on its IK circle, against the prior's configurations
+of that limb (joint limits), the solve's choice and the joint's step between frames.
+
+:func:`reconstruct` also gives a confidence per frame (:class:`Reconstruction`: how far
+the query lies from the prior, the marker misfit, markers out of reach, joint limits);
+:func:`reconstruct_positions` is its positions and heading.
 
 The output Motion aims the performer's bones at the reconstructed positions
 (:func:`retarget.positions_to_motion`; ``fk_avg_cm`` is its error).
 
 Tables: ``data``/``clips``/``skeletons`` (the reconstructions), ``errors`` (per clip and
 joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``,
-``max_joint_cm``).
+``max_joint_cm``, ``confidence_mean``/``_min``, ``low_confidence_share``), ``confidence``
+(per frame: ``clip_id, frame, confidence, novelty, misfit_cm, reach_cm, limit``).
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -85,7 +95,7 @@ def _yaw_align(model: np.ndarray, observed: np.ndarray) -> float:
 
 
 class ReconstructParams(Params):
-    k: int = Field(64, ge=2, description="neighbours of the local linear model")
+    k: int = Field(128, ge=2, description="neighbours of the local linear model")
     leave_out: Literal["clip", "subject", "none"] = Field(
         "clip", description="prior takes withheld for each test clip: the same clip (by name), its subject, or none"
     )
@@ -105,6 +115,18 @@ class ReconstructModel:
     markers; ``root_heading``: the root marker carries its heading (synthetic: from the
     hips, ±``noise``), else it is estimated from the markers. The kNN index is
     ``indexes.kdtree`` on one thread (one query per search).
+
+    Side of the knees and elbows (:func:`consistent_sides`; 0 ``swivel_states``: off):
+    ``swivel_states`` candidate positions of the middle joint on its IK circle, chosen
+    per limb over the take by dynamic programming; costs: the limb's distance to the
+    nearest prior configuration (joint limits), scale ``limit_sigma`` (unit-vector
+    distance); the distance from the solve's middle joint, ``swivel_sigma`` metres; the
+    middle joint's step between frames, ``swivel_step`` metres per prior frame.
+    ``smooth_passes``: passes after the first, each predicting every frame from both its
+    neighbours of the pass before (a forward-backward smoother); an estimated heading is
+    averaged over ``±heading_window`` seconds before them and held (one search per frame).
+    Confidence (:class:`Reconstruction`): marker misfit scale ``confidence_misfit`` and
+    out-of-reach scale ``confidence_reach``, metres.
     """
 
     markers: tuple[str, ...] = DEFAULT_MARKERS
@@ -116,6 +138,14 @@ class ReconstructModel:
     project: bool = True
     root_heading: bool = True
     seed: int = 0
+    swivel_states: int = 12
+    limit_sigma: float = 0.1
+    swivel_sigma: float = 0.1
+    swivel_step: float = 0.05
+    smooth_passes: int = 1
+    heading_window: float = 0.25
+    confidence_misfit: float = 0.04
+    confidence_reach: float = 0.02
 
 
 MODEL = ReconstructModel()
@@ -138,8 +168,12 @@ class PosePrior:
     lengths : ndarray (P,), the performer's bone lengths, metres
     fps : float, the prior's frame rate
     poses : ndarray of float32, shape (N, P*3), root-normalised positions, metres
-    features : ndarray of float32, shape (N, d), the kNN rows: non-root markers, velocities
+    features : ndarray of float32, shape (N, d), the kNN rows: the non-root markers
     index : Index, built on ``features``
+    typical : ndarray (KMAX,), the prior's typical mean distance of a query to its first
+        ``k`` neighbours (entry ``k - 1``): the median over sampled prior rows, each
+        searched among the other subjects' rows (:func:`typical_distances`)
+    limits : dict, the joint-limit indexes of the limbs (built on first use)
     """
 
     joints: tuple[str, ...]
@@ -149,6 +183,8 @@ class PosePrior:
     poses: np.ndarray
     features: np.ndarray
     index: Index
+    typical: np.ndarray = field(default_factory=lambda: np.ones(TYPICAL_K))
+    limits: dict = field(default_factory=dict)
 
     @classmethod
     def build(
@@ -175,7 +211,41 @@ class PosePrior:
         features = np.ascontiguousarray(feat, np.float32)
         index = index or prior_index()
         index.build(features)
-        return cls(store.joints, lengths, store.fps, model.markers, poses.reshape(len(rows), -1), features, index)
+        subject = np.array([c["subject"] or c["name"] for c in store.clips])
+        owner = np.repeat(np.arange(len(store.clips)), np.diff(store.clip_rows))[rows]
+        typical = typical_distances(features, np.unique(subject, return_inverse=True)[1][owner])
+        return cls(
+            store.joints, lengths, store.fps, model.markers, poses.reshape(len(rows), -1), features, index, typical
+        )
+
+
+#: Most neighbour ids (frames x k) one reconstruction keeps for its later passes (~100 MB).
+NEIGHBOUR_CACHE = 8_000_000
+
+#: Neighbour counts covered by :attr:`PosePrior.typical`.
+TYPICAL_K = 256
+
+
+def typical_distances(features: np.ndarray, groups: np.ndarray, n_sample: int = 128) -> np.ndarray:
+    """Median over ``n_sample`` evenly spaced rows of ``features`` (N, d) of the mean
+    distance to their first ``k`` nearest rows of *other* ``groups`` (N,), for every ``k``
+    up to :data:`TYPICAL_K` (brute force; beyond the fewest rows of other groups a sampled
+    row has: the last value); ones where a sampled row has no other group."""
+    n = len(features)
+    sample = np.unique(np.linspace(0, n - 1, min(n_sample, n)).astype(np.int64))
+    f = np.asarray(features, np.float64)
+    q = f[sample]
+    d2 = (q * q).sum(1)[:, None] - 2 * q @ f.T + (f * f).sum(1)[None, :]
+    other = groups[sample][:, None] != groups[None, :]
+    d2[~other] = np.inf
+    kmax = min(TYPICAL_K, int(other.sum(1).min()))
+    out = np.ones(TYPICAL_K)
+    if kmax > 0:
+        near = np.sqrt(np.maximum(np.sort(np.partition(d2, kmax - 1, axis=1)[:, :kmax], axis=1), 0.0))
+        prof = np.median(np.cumsum(near, 1) / np.arange(1, kmax + 1), 0)
+        out[:kmax] = np.maximum(prof, 1e-9)
+        out[kmax:] = out[kmax - 1]
+    return out
 
 
 def _local_model(nb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -224,14 +294,61 @@ def _limbs(joints: list[str], markers: list[str], chain: np.ndarray) -> list[tup
     return out
 
 
+@dataclass
+class Reconstruction:
+    """The result of :func:`reconstruct`.
+
+    Attributes
+    ----------
+    positions : ndarray (T, P, 3), metres, world positions of ``joints``
+    heading : ndarray (T,), radians, the root's heading
+    confidence : ndarray (T,) in [0, 1]: ``1 / (1 + s)`` with
+        ``s = max(novelty - 1, 0)^2 + (misfit / confidence_misfit)^2 + (reach / confidence_reach)^2
+        + limit^2`` (1: the frame looks like the prior and every term is small)
+    novelty : ndarray (T,), the query's mean distance to its ``k`` neighbours over the
+        prior's typical one (:attr:`PosePrior.typical`; 1 typical, larger: unlike any prior pose)
+    misfit : ndarray (T,), metres, RMS distance of the local model's MAP pose from the
+        non-root markers (before the limbs are put on them)
+    reach : ndarray (T,), metres, RMS distance left between the limb ends and their markers
+        (markers beyond the performer's reach)
+    limit : ndarray (T,), the worst limb's distance to its nearest prior configuration over
+        ``limit_sigma`` (0 where the sides are not chosen)
+    joints : tuple of str
+    """
+
+    positions: np.ndarray
+    heading: np.ndarray
+    confidence: np.ndarray
+    novelty: np.ndarray
+    misfit: np.ndarray
+    reach: np.ndarray
+    limit: np.ndarray
+    joints: tuple[str, ...]
+
+
 def reconstruct_positions(
     markers: np.ndarray,
     prior: PosePrior,
     params: ReconstructParams | None = None,
     model: ReconstructModel = MODEL,
     root_heading: np.ndarray | None = None,
+    fps: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Reconstruct full poses from marker trajectories.
+    """Reconstruct full poses from marker trajectories: :func:`reconstruct`'s positions
+    (T, P, 3) metres and heading (T,) radians."""
+    r = reconstruct(markers, prior, params, model, root_heading, fps)
+    return r.positions, r.heading
+
+
+def reconstruct(
+    markers: np.ndarray,
+    prior: PosePrior,
+    params: ReconstructParams | None = None,
+    model: ReconstructModel = MODEL,
+    root_heading: np.ndarray | None = None,
+    fps: float | None = None,
+) -> Reconstruction:
+    """Reconstruct full poses from marker trajectories, with a confidence per frame.
 
     Parameters
     ----------
@@ -244,12 +361,13 @@ def reconstruct_positions(
         The root's heading (facing ``(lhip - rhip) x up``, as :func:`facing_angles`): the
         root marker as a rigid body (a pelvis cluster), which the paper's root-normalised
         features presuppose. Without it the heading is estimated from the markers.
+    fps : float, optional
+        The take's frame rate (default: the prior's); scales the knee/elbow side's
+        temporal term so that it means the same at any rate.
 
     Returns
     -------
-    positions : ndarray of shape (T, P, 3), metres
-        World positions of ``prior.joints``.
-    heading : ndarray of shape (T,), radians
+    Reconstruction
     """
     p = params or ReconstructParams()
     mk = list(model.markers)
@@ -261,6 +379,8 @@ def reconstruct_positions(
         raise DataError(f"markers must be (T, {len(mk)}, 3), got {markers.shape}")
     if not np.isfinite(markers).all():
         raise DataError("markers contain NaN or inf (fill gaps first)")
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise DataError(f"fps must be a positive number, got {fps}")
     fixed = root_heading is not None
     if root_heading is not None:
         root_heading = np.asarray(root_heading, np.float64)
@@ -278,19 +398,64 @@ def reconstruct_positions(
     )
     root = markers[:, mk.index("root")]
     rel = markers - root[:, None, :]
-    out = np.zeros((t_len, n_j * 3))
     heading = np.zeros(t_len)
     if t_len == 0:
-        return out.reshape(0, n_j, 3), heading
+        z = np.zeros(0)
+        return Reconstruction(np.zeros((0, n_j, 3)), heading, z, z, z, z, z, prior.joints)
 
     if root_heading is not None:
         heading[:] = root_heading
+    from threadpoolctl import threadpool_limits
+
+    # the solves are small (k x k): a BLAS thread pool only adds wake-ups (6 ms instead of
+    # 0.3 ms per solve on a busy machine)
+    with threadpool_limits(1, user_api="blas"):
+        out, heading, misfit, qdist, limit = _passes(rel, root, heading, fixed, prior, fr, p, model, fps)
+    world = rotate_about_y(out.reshape(t_len, n_j, 3), heading) + root[:, None, :]
+
+    # how far the limb ends stayed from their markers (beyond the performer's reach)
+    ends = [joints.index(m) for m in mk if m != "root"]
+    reach = np.sqrt(np.mean(np.sum((world[:, ends] - markers[:, fr.nonroot]) ** 2, -1), 1))
+    novelty = qdist / prior.typical[min(p.k, len(prior.poses), TYPICAL_K) - 1]
+    s = (
+        np.maximum(novelty - 1.0, 0.0) ** 2
+        + (misfit / model.confidence_misfit) ** 2
+        + (reach / model.confidence_reach) ** 2
+        + limit**2
+    )
+    return Reconstruction(world, heading, 1.0 / (1.0 + s), novelty, misfit, reach, limit, prior.joints)
+
+
+def _passes(
+    rel: np.ndarray,
+    root: np.ndarray,
+    heading: np.ndarray,
+    fixed: bool,
+    prior: PosePrior,
+    fr: _Frames,
+    p: ReconstructParams,
+    model: ReconstructModel,
+    fps: float | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The solves of :func:`reconstruct`: heading-frame poses (T, D), heading, marker
+    misfit, mean neighbour distance and limit cost per frame."""
+    t_len, n_j = len(rel), len(prior.joints)
+    out = np.zeros((t_len, n_j * 3))
+    misfit, qdist = np.zeros(t_len), np.zeros(t_len)
+    k = min(p.k, len(prior.poses))
+
+    # a known heading: every pass queries the same neighbours, kept per frame (about 1.5 kB
+    # a frame at k 128; longer takes query again)
+    reuse = fixed and model.smooth_passes > 0 and t_len * k <= NEIGHBOUR_CACHE
+    caches: list[dict] = [{} for _ in range(t_len)] if reuse else []
 
     def solve(t: int, guess: np.ndarray, theta: float, pred: np.ndarray | None, iters: int) -> None:
         theta = heading[t] if fixed else theta
-        out[t], heading[t] = _solve_frame(rel[t], guess, theta, pred, prior, fr, p.k, model, iters, fixed)
+        out[t], heading[t], misfit[t], qdist[t] = _solve_frame(
+            rel[t], guess, theta, pred, prior, fr, k, model, iters, fixed, caches[t] if reuse else None
+        )
 
-    theta, guess = _initial_pose(rel[0], prior.poses, fr.sel, None if root_heading is None else heading[0])
+    theta, guess = _initial_pose(rel[0], prior.poses, fr.sel, heading[0] if fixed else None)
     heading[0] = theta
     # the first frame starts from a database pose and has no temporal context: search more often
     solve(0, guess, theta, None, max(model.iterations, 5))
@@ -301,8 +466,115 @@ def reconstruct_positions(
     for t in range(min(model.backward_frames, t_len - 2) - 1, -1, -1):
         pred = 2 * out[t + 1] - out[t + 2]
         solve(t, pred, heading[t + 1], pred, model.iterations)
-    world = rotate_about_y(out.reshape(t_len, n_j, 3), heading) + root[:, None, :]
-    return world, heading
+    for _ in range(model.smooth_passes if t_len >= 3 else 0):
+        first = out.copy()
+        held = fixed
+        if not fixed and model.heading_window > 0:
+            # the estimated heading, averaged over +-heading_window seconds, is held in this pass
+            heading[:] = smooth_heading(heading, max(1, int(round(model.heading_window * (fps or prior.fps)))))
+            held = True
+        for t in range(t_len):
+            pred = 0.5 * (first[max(t - 1, 0)] + first[min(t + 1, t_len - 1)])
+            if held and not fixed:
+                out[t], _, misfit[t], qdist[t] = _solve_frame(
+                    rel[t], pred, heading[t], pred, prior, fr, k, model, 1, True
+                )
+            else:
+                solve(t, pred, heading[t], pred, model.iterations)
+    local = out.reshape(t_len, n_j, 3)
+    limit = np.zeros(t_len)
+    if model.swivel_states > 1 and model.project:
+        rate = prior.fps / (fps or prior.fps)
+        limit = consistent_sides(local, heading, root, prior, model, rate)
+    return out, heading, misfit, qdist, limit
+
+
+def smooth_heading(heading: np.ndarray, half: int) -> np.ndarray:
+    """Headings (T,) radians averaged (unwrapped) over ``2 * half + 1`` frames, the ends
+    padded with their first/last value."""
+    h = np.unwrap(np.asarray(heading, np.float64))
+    if len(h) == 0 or half < 1:
+        return h
+    pad = np.r_[np.full(half, h[0]), h, np.full(half, h[-1])]
+    return np.convolve(pad, np.ones(2 * half + 1) / (2 * half + 1), mode="valid")
+
+
+#: The limbs whose middle joint's side :func:`consistent_sides` chooses.
+SWIVEL_LIMBS: tuple[tuple[str, str, str], ...] = LIMBS[:4]
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(n > 1e-12, v / np.maximum(n, 1e-12), 0.0)
+
+
+def limb_configurations(poses: np.ndarray, a: int, b: int, c: int) -> np.ndarray:
+    """Joint-limit features (..., 6) of poses (..., P, 3): the unit vectors from joint ``a``
+    to ``b`` and from ``b`` to ``c`` (upper and lower limb) in the root's heading frame."""
+    return np.concatenate([_unit(poses[..., b, :] - poses[..., a, :]), _unit(poses[..., c, :] - poses[..., b, :])], -1)
+
+
+def limit_index(prior: PosePrior, a: int, b: int, c: int) -> Index:
+    """The kNN index of the prior's configurations of the limb ``a, b, c`` (built once per prior)."""
+    key = (a, b, c)
+    if key not in prior.limits:
+        y = prior.poses.reshape(len(prior.poses), -1, 3)
+        index = prior_index()
+        index.build(np.ascontiguousarray(limb_configurations(y, a, b, c), np.float32))
+        prior.limits[key] = index
+    return prior.limits[key]
+
+
+def swivel_candidates(local: np.ndarray, a: int, b: int, c: int, n_states: int) -> np.ndarray:
+    """Positions (T, S, 3) of the middle joint ``b`` of poses (T, P, 3) at ``S`` swivel
+    angles about the line from ``a`` to ``c`` (lengths kept; state 0: where it is)."""
+    base, mid, end = local[:, a], local[:, b], local[:, c]
+    u = _unit(end - base)
+    v = mid - base
+    along = np.sum(v * u, -1, keepdims=True)
+    side = v - along * u
+    r = np.linalg.norm(side, axis=-1, keepdims=True)
+    ref = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    fallback = _unit(np.cross(u, ref))
+    s0 = np.where(r > 1e-9, side / np.maximum(r, 1e-12), fallback)
+    w0 = np.cross(u, s0)
+    phi = 2 * np.pi * np.arange(n_states) / n_states
+    rot = np.cos(phi)[None, :, None] * s0[:, None] + np.sin(phi)[None, :, None] * w0[:, None]
+    return (base + along * u)[:, None] + r[:, None] * rot
+
+
+def consistent_sides(
+    local: np.ndarray, heading: np.ndarray, root: np.ndarray, prior: PosePrior, model: ReconstructModel, rate: float
+) -> np.ndarray:
+    """Choose each knee's and elbow's side (in place on heading-frame poses ``local``
+    (T, P, 3)) by dynamic programming over ``model.swivel_states`` positions on its IK
+    circle: joint-limit cost (distance to the nearest prior configuration of the limb over
+    ``limit_sigma``, squared) + distance from the solved position (``swivel_sigma``) per
+    frame, weighted by ``rate`` (prior rate / take rate), + the middle joint's world step
+    between frames (``swivel_step`` per prior frame) over ``rate``. Returns the worst limb's
+    limit cost (T,) (distance over ``limit_sigma``) of the chosen poses."""
+    from ._reconstruct_kernels import swivel_path
+
+    joints = list(prior.joints)
+    t_len, n_s = len(local), model.swivel_states
+    worst = np.zeros(t_len)
+    for names in SWIVEL_LIMBS:
+        if not all(j in joints for j in names):
+            continue
+        a, b, c = (joints.index(j) for j in names)
+        mids = swivel_candidates(local, a, b, c, n_s)
+        cand = np.repeat(local[:, None], n_s, 1)
+        cand[:, :, b] = mids
+        feats = limb_configurations(cand, a, b, c).reshape(-1, 6).astype(np.float32)
+        dist, _ = limit_index(prior, a, b, c).query(feats, 1)
+        lim = (dist[:, 0].astype(np.float64) / model.limit_sigma).reshape(t_len, n_s)
+        dev = np.sum((mids - mids[:, :1]) ** 2, -1) / model.swivel_sigma**2
+        world = rotate_about_y(mids, heading) + root[:, None, :]
+        path = swivel_path(rate * (lim**2 + dev), world, 1.0 / (rate * model.swivel_step**2))
+        rows = np.arange(t_len)
+        local[:, b] = mids[rows, path]
+        worst = np.maximum(worst, lim[rows, path])
+    return worst
 
 
 def project_bones(pose: np.ndarray, fr: _Frames) -> np.ndarray:
@@ -354,32 +626,45 @@ def _solve_frame(
     model: ReconstructModel,
     iterations: int,
     fixed: bool = False,
-) -> tuple[np.ndarray, float]:
+    cache: dict | None = None,
+) -> tuple[np.ndarray, float, float, float]:
     """One frame: kNN of the control signal, local model, MAP pose and heading (module doc).
 
     rel : (M, 3) markers relative to the root marker; guess, pred :
-    (D,) local poses; returns the pose (D,) and heading (radians, kept if ``fixed``).
+    (D,) local poses; returns the pose (D,), the heading (radians, kept if ``fixed``), the
+    RMS marker misfit of the MAP pose (metres) and the query's mean neighbour distance.
+    ``cache``: with a known heading the query of a frame never changes; its neighbours are
+    kept there under ``"ids"``/``"dist"`` and reused by a later pass.
     """
     from ._reconstruct_kernels import map_pose
 
     w_m, w_s = 1.0 / model.marker_sigma**2, 1.0 / model.smooth_sigma**2
-    k = min(k, len(prior.poses))
     has_pred = pred is not None
     pred_v = pred if pred is not None else guess
+    qd = 0.0
     # a known heading makes the query the same in every search: one is enough
     for _ in range(1 if fixed else iterations):
         c, s = np.cos(theta), np.sin(theta)
         obs_m = np.stack([c * rel[:, 0] - s * rel[:, 2], rel[:, 1], s * rel[:, 0] + c * rel[:, 2]], 1)
-        q = obs_m[fr.nonroot].astype(np.float32).reshape(1, -1)
-        _, ids = prior.index.query(q, k)
-        nb = prior.poses[ids[0][ids[0] >= 0]].astype(np.float64)
+        if cache is not None and "ids" in cache:
+            dist, ids = cache["dist"], cache["ids"]
+        else:
+            q = obs_m[fr.nonroot].astype(np.float32).reshape(1, -1)
+            dist, ids = prior.index.query(q, k)
+            if cache is not None and fixed:
+                cache["dist"], cache["ids"] = dist, ids
+        ok = ids[0] >= 0
+        qd = float(dist[0][ok].mean())
+        nb = prior.poses[ids[0][ok]].astype(np.float64)
         guess, new_theta = map_pose(nb, fr.sel, rel, theta, pred_v, has_pred, w_m, w_s, 1 if fixed else 2)
         theta = theta if fixed else new_theta
+    c, s = np.cos(theta), np.sin(theta)
+    obs_m = np.stack([c * rel[:, 0] - s * rel[:, 2], rel[:, 1], s * rel[:, 0] + c * rel[:, 2]], 1)
+    gap = guess[fr.sel].reshape(-1, 3)[fr.nonroot] - obs_m[fr.nonroot]
+    misfit = float(np.sqrt(np.mean(np.sum(gap * gap, 1))))
     if model.project:
-        c, s = np.cos(theta), np.sin(theta)
-        obs_m = np.stack([c * rel[:, 0] - s * rel[:, 2], rel[:, 1], s * rel[:, 0] + c * rel[:, 2]], 1)
         guess = limb_ik(project_bones(guess, fr), obs_m, fr)
-    return guess, float(theta)
+    return guess, float(theta), misfit, qd
 
 
 def _initial_pose(
@@ -454,14 +739,17 @@ def reconstruct_motion(
     Returns the reconstructed Motion (test clip's skeleton, ``<name>_recon``) and a dict:
     ``joints``, ``mean_cm``/``max_cm`` per joint, ``avg_cm``, ``max_frame_cm`` (worst
     per-frame average), ``max_joint_cm`` (worst joint of any frame), ``fk_avg_cm``,
-    ``seconds`` (reconstruction time, excluding the prior).
+    ``seconds`` (reconstruction time, excluding the prior), ``confidence``, ``frame_cm``
+    and ``frame_max_cm`` (T,) (per-frame confidence, mean and worst joint error),
+    ``reconstruction`` (the :class:`Reconstruction`).
     """
     p = params or ReconstructParams()
     rng = np.random.default_rng(model.seed)
     markers = synthetic_markers(motion, model.markers, model.noise, rng)
     heading = synthetic_heading(motion, model.noise, rng) if model.root_heading else None
     t0 = time.perf_counter()
-    world, _ = reconstruct_positions(markers, prior, p, model, root_heading=heading)
+    rec = reconstruct(markers, prior, p, model, root_heading=heading, fps=motion.fps)
+    world = rec.positions
     seconds = time.perf_counter() - t0
     truth = motion.canonical_positions(prior.joints)
     mean, mx, avg, worst = joint_errors(world, truth)
@@ -483,4 +771,8 @@ def reconstruct_motion(
         "max_joint_cm": float(np.nanmax(mx)),
         "fk_avg_cm": fk_avg,
         "seconds": seconds,
+        "confidence": rec.confidence,
+        "frame_cm": np.nanmean(np.linalg.norm(world - truth, axis=-1), 1) * 100.0,
+        "frame_max_cm": np.nanmax(np.linalg.norm(world - truth, axis=-1), 1) * 100.0,
+        "reconstruction": rec,
     }

@@ -145,7 +145,7 @@ class ReconstructionEvalParams(Params):
     fractions: tuple[float, ...] = Field(
         (0.1, 0.3, 1.0), description="prior sizes of the size sweep (fractions of CMU takes)"
     )
-    k: int = Field(64, ge=2, description="neighbours of the local linear model")
+    k: int = Field(128, ge=2, description="neighbours of the local linear model")
 
 
 class ReconstructionEval(Analysis):

@@ -13,7 +13,7 @@ from pydantic import Field
 from mocapflow.framework import Analysis, Params, StepContext, StepOutput
 from mocapflow.framework.datasets import Dataset
 
-from .reconstruct import PriorCache, ReconstructParams, reconstruct_motion
+from .reconstruct import PriorCache, Reconstruction, ReconstructParams, reconstruct_motion
 from .reconstruct_prior import PriorStore, build_store
 
 ERRORS = pa.schema(
@@ -36,8 +36,43 @@ CLIP_ERRORS = pa.schema(
         ("max_joint_cm", pa.float64()),
         ("fk_avg_cm", pa.float64()),
         ("frames_per_s", pa.float64()),
+        ("confidence_mean", pa.float64()),
+        ("confidence_min", pa.float64()),
+        ("low_confidence_share", pa.float64()),
     ]
 )
+#: Per frame of every reconstruction: its confidence and the terms behind it (:class:`.reconstruct.Reconstruction`).
+CONFIDENCE = pa.schema(
+    [
+        ("clip_id", pa.int32()),
+        ("frame", pa.int32()),
+        ("confidence", pa.float64()),
+        ("novelty", pa.float64()),
+        ("misfit_cm", pa.float64()),
+        ("reach_cm", pa.float64()),
+        ("limit", pa.float64()),
+    ]
+)
+#: Frames below this confidence count as low in ``clip_errors.low_confidence_share``.
+LOW_CONFIDENCE = 0.5
+
+
+def confidence_table(clip_id: int, rec: Reconstruction) -> pa.Table:
+    """The per-frame ``confidence`` table of one reconstruction (schema :data:`CONFIDENCE`)."""
+    n = len(rec.confidence)
+    return pa.Table.from_arrays(
+        [
+            pa.array(np.full(n, clip_id, np.int32)),
+            pa.array(np.arange(n, dtype=np.int32)),
+            pa.array(rec.confidence),
+            pa.array(rec.novelty),
+            pa.array(rec.misfit * 100.0),
+            pa.array(rec.reach * 100.0),
+            pa.array(rec.limit),
+        ],
+        schema=CONFIDENCE,
+    )
+
 
 #: Folder of a prior store inside a ``reconstruction_prior`` step's dataset.
 PRIOR_FOLDER = "prior"
@@ -90,13 +125,15 @@ class Reconstruct(Analysis):
         test_db = inputs["test"].motions()
         store = open_prior(inputs["prior"])
         cache = PriorCache(store)
-        motions, err_rows, clip_rows = [], [], []
+        motions, err_rows, clip_rows, conf_tables = [], [], [], []
         for cid, m in zip(
             test_db.clip_ids, ctx.progress(test_db.motions, total=test_db.n_clips, desc=ctx.step_id), strict=True
         ):
             prior = cache.for_motion(m, p.leave_out)
             rec, e = reconstruct_motion(m, prior, p)
             motions.append(rec)
+            conf = e["confidence"]
+            conf_tables.append(confidence_table(int(cid), e["reconstruction"]))
             err_rows += [
                 {"clip_id": int(cid), "name": m.name, "joint": j, "mean_cm": float(a), "max_cm": float(b)}
                 for j, a, b in zip(e["joints"], e["mean_cm"], e["max_cm"], strict=True)
@@ -113,11 +150,15 @@ class Reconstruct(Analysis):
                     "max_joint_cm": e["max_joint_cm"],
                     "fk_avg_cm": e["fk_avg_cm"],
                     "frames_per_s": m.n_frames / max(e["seconds"], 1e-9),
+                    "confidence_mean": float(conf.mean()) if len(conf) else None,
+                    "confidence_min": float(conf.min()) if len(conf) else None,
+                    "low_confidence_share": float((conf < LOW_CONFIDENCE).mean()) if len(conf) else None,
                 }
             )
         tables = motions_to_tables(motions, list(test_db.clip_ids))
         tables["errors"] = pa.Table.from_pylist(err_rows, schema=ERRORS)
         tables["clip_errors"] = pa.Table.from_pylist(clip_rows, schema=CLIP_ERRORS)
+        tables["confidence"] = pa.concat_tables(conf_tables) if conf_tables else CONFIDENCE.empty_table()
         summary = {
             "clips": len(clip_rows),
             "frames": sum(r["n_frames"] for r in clip_rows),

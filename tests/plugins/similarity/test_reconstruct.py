@@ -237,6 +237,9 @@ def test_pipeline_end_to_end(tmp_path):
     db = rec.motions()
     assert sorted(m.name for m in db.motions) == ["02_01_recon", "16_15_recon"]
     assert sum(m.n_frames for m in db.motions) == sum(c["n_frames"] for c in clips)
+    conf = rec.table("confidence").to_pylist()
+    assert len(conf) == sum(c["n_frames"] for c in clips) and all(0 < r["confidence"] <= 1 for r in conf)
+    assert all(0 < c["confidence_min"] <= c["confidence_mean"] <= 1 for c in clips)
     assert len(list((tmp_path / "bvh").glob("*.bvh"))) == 2
     t3 = Dataset(tmp_path / "evaluation").table("table3").to_pylist()
     assert {r["prior"] for r in t3} == {"CMU-", "CMU"}
