@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -52,7 +53,12 @@ class ReconstructCommand:
         from mocapflow.framework.options import int_at_least
 
         parser.add_argument(
-            "-k", type=int_at_least(2), default=64, help="neighbours of the local model (default 64; at least 2)"
+            "-k", type=int_at_least(2), default=128, help="neighbours of the local model (default 128; at least 2)"
+        )
+        parser.add_argument(
+            "--confidence",
+            metavar="FILE.csv",
+            help="also write the per-frame confidence (frame, time_s, confidence, novelty, misfit_cm, reach_cm, limit)",
         )
 
     @classmethod
@@ -63,7 +69,7 @@ class ReconstructCommand:
         from mocapflow.framework.errors import ConfigError
         from mocapflow.framework.output_paths import refuse_dataset_path
 
-        from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
+        from .reconstruct import PosePrior, ReconstructParams, reconstruct
         from .reconstruct_calibrate import root_from_hips
         from .reconstruct_markers import calibrated_control, control_from_motion, read_skeleton
         from .reconstruct_prior import PriorStore, build_store, skeleton_view
@@ -75,6 +81,9 @@ class ReconstructCommand:
             raise ConfigError(f"{src}: no such file")
         if out.suffix.lower() not in (".bvh", ".amc"):
             raise ConfigError(f"--out {out}: expected a .bvh or .amc file name")
+        conf_out = refuse_dataset_path(args.confidence, "--confidence") if args.confidence else None
+        if conf_out is not None and conf_out.suffix.lower() != ".csv":
+            raise ConfigError(f"--confidence {conf_out}: expected a .csv file name")
         skeleton_take: Motion | None = None
         markers = None
         if src.suffix.lower() in (".c3d", ".trc"):
@@ -116,7 +125,8 @@ class ReconstructCommand:
             what = f"marker set {set_name}: " + "; ".join(f"{p} = {'+'.join(v)}" for p, v in mapping.items())
         prior = PosePrior.build(view, lengths)
         t1 = time.perf_counter()
-        world, _ = reconstruct_positions(control, prior, ReconstructParams(k=args.k), root_heading=heading)
+        rec = reconstruct(control, prior, ReconstructParams(k=args.k), root_heading=heading, fps=fps)
+        world = rec.positions
         t2 = time.perf_counter()
         motion = positions_to_motion(
             skeleton, world, prior.joints, fps, name=out.stem, metadata={"reconstructed_from": str(src)}
@@ -135,8 +145,47 @@ class ReconstructCommand:
         print(f"prior: {len(store.clips)} takes, {len(prior.poses)} frames, ready in {t1 - t0:.1f} s")
         print(f"reconstructed in {t2 - t1:.1f} s ({len(control) / max(t2 - t1, 1e-9):.0f} frames/s)")
         print(f"control points on the output skeleton: mean {fit.mean():.1f} cm, max {fit.max():.1f} cm off")
+        low = np.flatnonzero(rec.confidence < 0.5)
+        print(
+            f"confidence: mean {rec.confidence.mean():.2f}, {len(low)} of {len(rec.confidence)} frames below 0.5"
+            + (f" (first at frame {int(low[0])})" if len(low) else "")
+        )
+        if len(low) > 0.25 * len(rec.confidence):
+            print(
+                f"warning: {len(low) / len(rec.confidence):.0%} of the frames have a confidence below 0.5: the prior "
+                "holds few poses like these (see --confidence for which frames)",
+                file=sys.stderr,
+            )
         print(f"wrote {out}")
+        if conf_out is not None:
+            _write_confidence(conf_out, rec, fps)
+            print(f"wrote {conf_out}")
         return 0
+
+
+def _write_confidence(path: Path, rec, fps: float) -> None:  # type: ignore[no-untyped-def]
+    """The per-frame confidence as CSV, written atomically (a temporary file renamed)."""
+    import os
+    import tempfile
+
+    import numpy as np
+
+    n = len(rec.confidence)
+    cols = np.column_stack(
+        [np.arange(n), np.arange(n) / fps, rec.confidence, rec.novelty, rec.misfit * 100, rec.reach * 100, rec.limit]
+    )
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write("frame,time_s,confidence,novelty,misfit_cm,reach_cm,limit\n")
+            for row in cols:
+                f.write(
+                    f"{int(row[0])},{row[1]:.6f},{row[2]:.4f},{row[3]:.4f},{row[4]:.3f},{row[5]:.3f},{row[6]:.4f}\n"
+                )
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
 
 
 def _spine_text(skeleton) -> str:  # type: ignore[no-untyped-def]

@@ -231,7 +231,7 @@ def dataset_markers(ds: Dataset) -> list[tuple[int, Markers]]:
 class ReconstructMarkersParams(Params):
     skeleton: str = Field(..., description="the performer's skeleton: an .asf, or a .bvh/.amc take (pipeline-relative)")
     marker_set: str = Field("auto", description=f"marker set: {', '.join(MARKER_SETS)} or auto")
-    k: int = Field(64, ge=2, description="neighbours of the local linear model")
+    k: int = Field(128, ge=2, description="neighbours of the local linear model")
 
 
 FIT = pa.schema(
@@ -243,6 +243,9 @@ FIT = pa.schema(
         ("fit_mean_cm", pa.float64()),
         ("fit_max_cm", pa.float64()),
         ("frames_per_s", pa.float64()),
+        ("confidence_mean", pa.float64()),
+        ("confidence_min", pa.float64()),
+        ("low_confidence_share", pa.float64()),
     ]
 )
 
@@ -279,10 +282,10 @@ class ReconstructMarkers(Analysis):
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.motion_tables import motions_to_tables
 
-        from .reconstruct import PosePrior, ReconstructParams, reconstruct_positions
+        from .reconstruct import PosePrior, ReconstructParams, reconstruct
         from .reconstruct_calibrate import root_from_hips
         from .reconstruct_prior import skeleton_view
-        from .reconstruct_steps import open_prior
+        from .reconstruct_steps import CONFIDENCE, confidence_table, open_prior
         from .retarget import positions_to_motion
 
         p = self.params
@@ -297,12 +300,15 @@ class ReconstructMarkers(Analysis):
         hips = ("root", "lhip", "rhip")
         root_offset = root_from_hips(dict(zip(hips, rest.canonical_positions(hips)[0], strict=True)))
         offset_rows: list[dict] = []
+        confidences: list[pa.Table] = []
         for cid, mk in dataset_markers(inputs["markers"]):
             control, heading, set_name, _, cal = calibrated_control(mk, p.marker_set, by_joint, None, root_offset)
             if cal is not None:
                 offset_rows += [{"clip_id": cid, "name": mk.name, **r} for r in cal.rows()]
             t0 = time.perf_counter()
-            world, _ = reconstruct_positions(control, prior, ReconstructParams(k=p.k), root_heading=heading)
+            rec = reconstruct(control, prior, ReconstructParams(k=p.k), root_heading=heading, fps=mk.fps)
+            world = rec.positions
+            confidences.append(confidence_table(cid, rec))
             seconds = time.perf_counter() - t0
             m = positions_to_motion(
                 skeleton, world, prior.joints, mk.fps, name=mk.name, metadata={"reconstructed_from": mk.name}
@@ -319,11 +325,15 @@ class ReconstructMarkers(Analysis):
                     "fit_mean_cm": float(fit.mean()) if fit.size else 0.0,
                     "fit_max_cm": float(fit.max()) if fit.size else 0.0,
                     "frames_per_s": mk.n_frames / max(seconds, 1e-9),
+                    "confidence_mean": float(rec.confidence.mean()) if len(rec.confidence) else 0.0,
+                    "confidence_min": float(rec.confidence.min()) if len(rec.confidence) else 0.0,
+                    "low_confidence_share": float((rec.confidence < 0.5).mean()) if len(rec.confidence) else 0.0,
                 }
             )
         tables = motions_to_tables(motions, ids)
         tables["fit"] = pa.Table.from_pylist(rows, schema=FIT)
         tables["offsets"] = pa.Table.from_pylist(offset_rows, schema=OFFSETS)
+        tables["confidence"] = pa.concat_tables(confidences) if confidences else CONFIDENCE.empty_table()
         return StepOutput(tables, {"takes": len(rows), "prior_frames": len(prior.poses), "skeleton": skeleton.name})
 
 

@@ -358,7 +358,15 @@ def test_cli_and_pipeline_from_a_marker_take(tmp_path, store):
     out = tmp_path / "out.bvh"
     argv = ["reconstruct", str(tmp_path / "take.trc"), "--prior", str(tmp_path / "prior"), "-o", str(out), "-k", "16"]
     # markers on the joints themselves: nothing to calibrate (reconstruct_calibrate tests that)
-    assert main([*argv, "--skeleton", str(tmp_path / "performer.bvh"), "--calibration", "off"]) == 0
+    conf = tmp_path / "conf.csv"
+    skel = ["--skeleton", str(tmp_path / "performer.bvh"), "--calibration", "off"]
+    assert main([*argv, *skel, "--confidence", str(conf)]) == 0
+    rows = conf.read_text().splitlines()
+    assert rows[0] == "frame,time_s,confidence,novelty,misfit_cm,reach_cm,limit" and len(rows) == 46
+    values = np.array([[float(v) for v in r.split(",")] for r in rows[1:]])
+    assert np.all((values[:, 2] >= 0) & (values[:, 2] <= 1)) and values[1, 1] == pytest.approx(1 / truth.fps, abs=1e-6)
+    assert main([*argv, *skel, "--confidence", str(tmp_path / "conf.txt")]) == 2  # named .csv, refused before work
+    assert not (tmp_path / "conf.txt").exists()
     rec = bvh.read(out)
     err = joint_errors(rec.canonical_positions(POSE_JOINTS), truth.canonical_positions(POSE_JOINTS))[2]
     assert rec.n_frames == 45 and err < 2.0
@@ -383,6 +391,9 @@ steps:
     run_pipeline(yaml, workspace=tmp_path / "ws", jobs=1, pm=get_plugin_manager(entry_points=False))
     fit = Dataset(tmp_path / "ws" / "recon").table("fit").to_pylist()
     assert fit[0]["marker_set"] == "vicon" and fit[0]["n_frames"] == 45 and fit[0]["fit_mean_cm"] < 1.0
+    assert 0 <= fit[0]["confidence_min"] <= fit[0]["confidence_mean"] <= 1
+    conf_rows = Dataset(tmp_path / "ws" / "recon").table("confidence")
+    assert conf_rows.num_rows == 45 and conf_rows.column("frame").to_pylist() == list(range(45))
     offsets = Dataset(tmp_path / "ws" / "recon").table("offsets").to_pylist()
     assert [r["point"] for r in offsets] == ["root", "head", "lwrist", "rwrist", "lankle", "rankle"]
     assert not any(r["calibrated"] for r in offsets)  # no elbow/knee markers: nothing to calibrate
