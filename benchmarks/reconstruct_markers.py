@@ -264,6 +264,13 @@ def main() -> None:
     args = ap.parse_args()
     if args.quick:
         args.max_frames = args.max_frames or 1200
+    if not (DATA / "c3d").is_dir():
+        # the marker takes (C3D/TRC) are not bundled with the repository
+        msg = f"corpus absent at {DATA} (set MOCAPFLOW_DATA): no marker take to measure"
+        if args.quick:
+            print(msg)
+            return
+        raise SystemExit(msg)
     store = load_store(prior_files(DATA))
     cmu_135(store, args)
     cmu_85(store, args)

@@ -42,7 +42,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from corpus import CACHE, DATA
+from corpus import CACHE, DATA, REPO
 from reconstruct import bootstrap_ci, prior_files, read_take
 
 from mocapflow.framework import Motion
@@ -201,8 +201,14 @@ def main() -> None:
     if args.quick:
         args.clips, args.seconds = 2, 2.0
 
+    data, families = DATA, dict(FAMILIES)
+    if not any(DATA.glob(FAMILIES["CMU"])):
+        if not args.quick:
+            raise SystemExit(f"corpus absent at {DATA} (set MOCAPFLOW_DATA)")
+        data, families = REPO / "examples" / "data", {"CMU": "cmu/*/*.amc"}
+        print(f"corpus absent at {DATA}: the bundled CMU takes of {data} only (prior and tests, subjects held out)")
     t0 = time.perf_counter()
-    store = load_store(prior_files(DATA))
+    store = load_store(prior_files(data))
     src = {}
     for c in store.clips:
         src[c["source"]] = src.get(c["source"], 0) + (not c["mirrored"])
@@ -212,14 +218,14 @@ def main() -> None:
     )
     priors = Priors(store, rig=not args.no_rig)
     # compile the kd-tree and solver kernels before timing
-    warm = read_take(sorted(DATA.glob(FAMILIES["CMU"]))[0])
+    warm = read_take(sorted(data.glob(families["CMU"]))[0])
     reconstruct_take(warm.slice(0, 20), priors)
     cmu_tests: list[Motion] = []
     with tempfile.TemporaryDirectory() as tmp:
         for fam in args.families.split(","):
-            files = sorted(DATA.glob(FAMILIES[fam]))
+            files = sorted(data.glob(families[fam])) if fam in families else []
             if not files:
-                print(f"{fam:>8}: no takes in {DATA}")
+                print(f"{fam:>8}: no takes in {data}")
                 continue
             rows = []
             for f in pick(files, args.clips, args.seed):
