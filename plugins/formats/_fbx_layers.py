@@ -36,6 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocapflow.framework import quaternions as quat
+
 ADDITIVE, OVERRIDE, PASSTHROUGH = 0, 1, 2
 #: ufbx's clamp: a weight above this float32 is 1.
 _NEAR_ONE = float(np.float32(0.99999))
@@ -131,20 +133,6 @@ def slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.where(same[..., None], a, r)
 
 
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = (a[..., n] for n in range(4))
-    bw, bx, by, bz = (b[..., n] for n in range(4))
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
 def _pow_abs(v: np.ndarray, e: np.ndarray) -> np.ndarray:
     """``sign(v) |v|^e``; 1 for ``e <= 0``, ``v`` for ``e >= 1`` (ufbx's ``ufbxi_pow_abs``)."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -184,7 +172,7 @@ def combine(
         if layer.mode == ADDITIVE:
             one = np.zeros_like(b)
             one[:, 0] = 1.0
-            q = _qmul(a, slerp(one, b, w))
+            q = quat.mul(a, slerp(one, b, w))
         else:
             q = slerp(a, b, w)
         return _to_euler(q, order)
