@@ -1,4 +1,4 @@
-"""Fast whitespace tokenizer and float parser for text motion files (AMC, BVH, TRC).
+"""Fast whitespace tokenizer and float parser for text motion files (AMC, TRC; BVH tables: ``_bvh_rows``).
 
 This is a kernel module: no validation, no error messages. It imports numba at module
 level, so the readers import it lazily (never at CLI start-up). The slow, obviously
@@ -163,69 +163,3 @@ def tokenize(buf: np.ndarray, start: int = 0, first_line: int = 1):
     control character (binary garbage; tokenizing stops there) or -1, and ``bad_line``, the
     line reached (that of ``bad`` when ``bad >= 0``)."""
     return _tokenize(buf, start, first_line, _POW10)
-
-
-@njit(cache=True)
-def _fill_table(buf, line, out, frame_lines, state, pow10):
-    """One block of complete lines of a numeric table (``buf`` uint8, LF line ends, CR is
-    whitespace; ``line``: the 1-based line of ``buf[0]``) parsed straight into ``out``
-    (rows x columns, preallocated): the i-th non-blank line fills row i while rows last and
-    its first ``out.shape[1]`` numbers fill the row. ``state`` (int64, carried from block
-    to block) records the rows seen (0), the first line holding a non-number (1) and the
-    first whose count of values is wrong (2) with that count (3), the last non-blank line
-    (4), and the offset (5) and line (6) of a control byte (parsing stops there; -1: none).
-    Returns the line after the block."""
-    n = buf.size
-    rows, cols = out.shape
-    count = 0
-    i = 0
-    while i <= n:
-        c = buf[i] if i < n else np.uint8(10)  # a last line without LF ends with the block
-        if c == 10:
-            if count > 0:
-                r = state[0]
-                if count != cols and state[2] < 0:
-                    state[2] = line
-                    state[3] = count
-                if r < rows:
-                    frame_lines[r] = line
-                state[0] = r + 1
-                state[4] = line
-                count = 0
-            line += 1
-            i += 1
-            continue
-        if c == 32 or c == 9 or c == 13 or c == 11 or c == 12:
-            i += 1
-            continue
-        if c < 32 or c == 127:
-            state[5] = i
-            state[6] = line
-            return line
-        s = i
-        ok, v, i = _parse_number(buf, s, n, pow10)
-        if i < n and not (buf[i] <= 32 or buf[i] == 127):
-            ok = False
-            while i < n:
-                c = buf[i]
-                if c <= 32 or c == 127:
-                    break
-                i += 1
-        if not ok:
-            if state[1] < 0:
-                state[1] = line
-        elif state[0] < rows and count < cols:
-            out[state[0], count] = v
-        count += 1
-    return line - 1  # the virtual LF after the block is not a line
-
-
-def table_state() -> np.ndarray:
-    """A fresh ``state`` for :func:`fill_table`."""
-    return np.array([0, -1, -1, 0, -1, -1, -1], dtype=np.int64)
-
-
-def fill_table(buf: np.ndarray, line: int, out: np.ndarray, frame_lines: np.ndarray, state: np.ndarray) -> int:
-    """Parse one block of complete lines of numbers into ``out`` (see :func:`_fill_table`;
-    the values are those :func:`tokenize` gives); returns the line after the block."""
-    return int(_fill_table(buf, line, out, frame_lines, state, _POW10))
