@@ -46,16 +46,9 @@ from corpus import CACHE, DATA, REPO
 
 from mocapflow.framework import Motion
 from mocapflow.framework.normalize import resample
-from mocapflow.plugins.similarity.applications.reconstruct import (
-    MODEL,
-    PosePrior,
-    PriorCache,
-    ReconstructModel,
-    ReconstructParams,
-    reconstruct_motion,
-    withheld,
-)
+from mocapflow.plugins.similarity.applications.reconstruct import MODEL, PosePrior, ReconstructModel, ReconstructParams
 from mocapflow.plugins.similarity.applications.reconstruct_prior import PriorStore, bone_lengths, build_store
+from mocapflow.plugins.similarity.applications.reconstruct_synthetic import PriorCache, reconstruct_motion, withheld
 
 TARGET_CLIP_CM = 3.5
 #: The model before the knee/elbow sides and the smoothing pass (speed and accuracy baseline).
@@ -198,8 +191,9 @@ def user_runs(store: PriorStore, data: Path) -> None:
     and cgspeed BVH takes from their own end effectors, compared with themselves."""
     from mocapflow.plugins.formats.asf_amc import read_amc, read_asf
     from mocapflow.plugins.formats.c3d import read_c3d
-    from mocapflow.plugins.similarity.applications.reconstruct import joint_errors, reconstruct_positions
+    from mocapflow.plugins.similarity.applications.reconstruct import reconstruct_positions
     from mocapflow.plugins.similarity.applications.reconstruct_markers import control_from_markers, control_from_motion
+    from mocapflow.plugins.similarity.applications.reconstruct_synthetic import joint_errors
     from mocapflow.plugins.similarity.applications.retarget import positions_to_motion
 
     def prior_for(skeleton_take: Motion, subject: str) -> PosePrior:

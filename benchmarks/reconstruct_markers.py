@@ -46,12 +46,7 @@ from mocapflow.framework import DataError, Motion
 from mocapflow.framework.markers import to_y_up
 from mocapflow.plugins.formats.asf_amc import read_amc, read_asf
 from mocapflow.plugins.formats.c3d import read_c3d
-from mocapflow.plugins.similarity.applications.reconstruct import (
-    DEFAULT_MARKERS,
-    PosePrior,
-    joint_errors,
-    reconstruct_positions,
-)
+from mocapflow.plugins.similarity.applications.reconstruct import DEFAULT_MARKERS, PosePrior, reconstruct_positions
 from mocapflow.plugins.similarity.applications.reconstruct_calibrate import (
     SEGMENTS,
     Calibration,
@@ -65,6 +60,7 @@ from mocapflow.plugins.similarity.applications.reconstruct_markers import (
     resolve_marker_set,
 )
 from mocapflow.plugins.similarity.applications.reconstruct_prior import bone_lengths
+from mocapflow.plugins.similarity.applications.reconstruct_synthetic import joint_errors
 from mocapflow.plugins.similarity.applications.retarget import positions_to_motion
 
 CP = DEFAULT_MARKERS

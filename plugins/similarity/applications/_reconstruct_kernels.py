@@ -5,7 +5,7 @@ the MAP pose of markers + prior + smoothness and the heading, alternated. Its sl
 obviously correct NumPy twin is ``_map_pose_numpy`` in ``tests/plugins/similarity/test_reconstruct.py``.
 
 :func:`swivel_path`: the Viterbi path through the knee/elbow swivel states of a take
-(:func:`.reconstruct.consistent_sides`); its twin, scoring every path, is
+(:func:`.reconstruct_sides.consistent_sides`); its twin, scoring every path, is
 ``_swivel_path_numpy`` in ``tests/plugins/similarity/test_reconstruct_sides.py``.
 """
 

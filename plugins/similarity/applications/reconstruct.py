@@ -39,8 +39,6 @@ joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``,
 
 from __future__ import annotations
 
-import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -50,41 +48,15 @@ from pydantic import Field
 from mocapflow.framework import (
     DataError,
     Index,
-    Motion,
     Params,
 )
-from mocapflow.framework.normalize import facing_angles, rotate_about_y
+from mocapflow.framework.normalize import rotate_about_y
 
-from .reconstruct_prior import PriorStore, bone_lengths, bone_parents, chain_matrix
-from .retarget import positions_to_motion
+from .reconstruct_prior import PriorStore, bone_parents, chain_matrix, prior_index
+from .reconstruct_sides import consistent_sides
 
 #: The paper's 6 markers: the 4 end effectors, the head and the root.
 DEFAULT_MARKERS: tuple[str, ...] = ("root", "head", "lwrist", "rwrist", "lankle", "rankle")
-
-
-def synthetic_markers(
-    motion: Motion,
-    markers: Sequence[str] = DEFAULT_MARKERS,
-    noise: float = 0.001,
-    rng: np.random.Generator | None = None,
-) -> np.ndarray:
-    """Marker positions from a motion, each coordinate disturbed uniformly in ``±noise`` metres.
-
-    Returns ndarray of shape (T, len(markers), 3), metres (the paper: ±1 mm).
-    """
-    rng = np.random.default_rng(0) if rng is None else rng
-    pos = motion.canonical_positions(tuple(markers))
-    if np.isnan(pos).any():
-        missing = [m for m, i in zip(markers, motion.skeleton.canonical_indices(tuple(markers)), strict=True) if i < 0]
-        raise DataError(f"motion {motion.name!r} lacks marker joints {missing}")
-    return pos + rng.uniform(-noise, noise, pos.shape)
-
-
-def synthetic_heading(motion: Motion, noise: float = 0.001, rng: np.random.Generator | None = None) -> np.ndarray:
-    """The root's heading (T,) radians from the hip joints, each coordinate disturbed
-    uniformly in ``±noise`` metres (a pelvis marker cluster's orientation)."""
-    hips = synthetic_markers(motion, ("lhip", "rhip"), noise, rng)
-    return facing_angles(hips, ("lhip", "rhip"))
 
 
 def _yaw_align(model: np.ndarray, observed: np.ndarray) -> float:
@@ -149,13 +121,6 @@ class ReconstructModel:
 
 
 MODEL = ReconstructModel()
-
-
-def prior_index() -> Index:
-    """The kNN index of a prior database: an exact kd-tree, one thread."""
-    from ..knn.kdtree import KDTreeIndex
-
-    return KDTreeIndex(workers=1)
 
 
 @dataclass
@@ -499,84 +464,6 @@ def smooth_heading(heading: np.ndarray, half: int) -> np.ndarray:
     return np.convolve(pad, np.ones(2 * half + 1) / (2 * half + 1), mode="valid")
 
 
-#: The limbs whose middle joint's side :func:`consistent_sides` chooses.
-SWIVEL_LIMBS: tuple[tuple[str, str, str], ...] = LIMBS[:4]
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.where(n > 1e-12, v / np.maximum(n, 1e-12), 0.0)
-
-
-def limb_configurations(poses: np.ndarray, a: int, b: int, c: int) -> np.ndarray:
-    """Joint-limit features (..., 6) of poses (..., P, 3): the unit vectors from joint ``a``
-    to ``b`` and from ``b`` to ``c`` (upper and lower limb) in the root's heading frame."""
-    return np.concatenate([_unit(poses[..., b, :] - poses[..., a, :]), _unit(poses[..., c, :] - poses[..., b, :])], -1)
-
-
-def limit_index(prior: PosePrior, a: int, b: int, c: int) -> Index:
-    """The kNN index of the prior's configurations of the limb ``a, b, c`` (built once per prior)."""
-    key = (a, b, c)
-    if key not in prior.limits:
-        y = prior.poses.reshape(len(prior.poses), -1, 3)
-        index = prior_index()
-        index.build(np.ascontiguousarray(limb_configurations(y, a, b, c), np.float32))
-        prior.limits[key] = index
-    return prior.limits[key]
-
-
-def swivel_candidates(local: np.ndarray, a: int, b: int, c: int, n_states: int) -> np.ndarray:
-    """Positions (T, S, 3) of the middle joint ``b`` of poses (T, P, 3) at ``S`` swivel
-    angles about the line from ``a`` to ``c`` (lengths kept; state 0: where it is)."""
-    base, mid, end = local[:, a], local[:, b], local[:, c]
-    u = _unit(end - base)
-    v = mid - base
-    along = np.sum(v * u, -1, keepdims=True)
-    side = v - along * u
-    r = np.linalg.norm(side, axis=-1, keepdims=True)
-    ref = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    fallback = _unit(np.cross(u, ref))
-    s0 = np.where(r > 1e-9, side / np.maximum(r, 1e-12), fallback)
-    w0 = np.cross(u, s0)
-    phi = 2 * np.pi * np.arange(n_states) / n_states
-    rot = np.cos(phi)[None, :, None] * s0[:, None] + np.sin(phi)[None, :, None] * w0[:, None]
-    return (base + along * u)[:, None] + r[:, None] * rot
-
-
-def consistent_sides(
-    local: np.ndarray, heading: np.ndarray, root: np.ndarray, prior: PosePrior, model: ReconstructModel, rate: float
-) -> np.ndarray:
-    """Choose each knee's and elbow's side (in place on heading-frame poses ``local``
-    (T, P, 3)) by dynamic programming over ``model.swivel_states`` positions on its IK
-    circle: joint-limit cost (distance to the nearest prior configuration of the limb over
-    ``limit_sigma``, squared) + distance from the solved position (``swivel_sigma``) per
-    frame, weighted by ``rate`` (prior rate / take rate), + the middle joint's world step
-    between frames (``swivel_step`` per prior frame) over ``rate``. Returns the worst limb's
-    limit cost (T,) (distance over ``limit_sigma``) of the chosen poses."""
-    from ._reconstruct_kernels import swivel_path
-
-    joints = list(prior.joints)
-    t_len, n_s = len(local), model.swivel_states
-    worst = np.zeros(t_len)
-    for names in SWIVEL_LIMBS:
-        if not all(j in joints for j in names):
-            continue
-        a, b, c = (joints.index(j) for j in names)
-        mids = swivel_candidates(local, a, b, c, n_s)
-        cand = np.repeat(local[:, None], n_s, 1)
-        cand[:, :, b] = mids
-        feats = limb_configurations(cand, a, b, c).reshape(-1, 6).astype(np.float32)
-        dist, _ = limit_index(prior, a, b, c).query(feats, 1)
-        lim = (dist[:, 0].astype(np.float64) / model.limit_sigma).reshape(t_len, n_s)
-        dev = np.sum((mids - mids[:, :1]) ** 2, -1) / model.swivel_sigma**2
-        world = rotate_about_y(mids, heading) + root[:, None, :]
-        path = swivel_path(rate * (lim**2 + dev), world, 1.0 / (rate * model.swivel_step**2))
-        rows = np.arange(t_len)
-        local[:, b] = mids[rows, path]
-        worst = np.maximum(worst, lim[rows, path])
-    return worst
-
-
 def project_bones(pose: np.ndarray, fr: _Frames) -> np.ndarray:
     """Pose (D,) with every bone put on the performer's length, directions kept."""
     y = pose.reshape(-1, 3)
@@ -680,99 +567,3 @@ def _initial_pose(
     row, col = np.unravel_index(int(np.argmin(d2)), d2.shape)
     pose = poses[row].astype(np.float64)
     return (_yaw_align(pose[sel].reshape(-1, 3), rel) if heading is None else float(heading)), pose
-
-
-def joint_errors(recon: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """Per-joint mean and max error (P,), overall average and max per-frame mean, all in cm.
-
-    recon, truth : (T, P, 3) metres; NaN joints of ``truth`` are ignored.
-    """
-    err = np.linalg.norm(recon - truth, axis=-1) * 100.0
-    ok = ~np.isnan(err)
-    with np.errstate(invalid="ignore"):
-        per_joint_mean = np.nanmean(np.where(ok, err, np.nan), 0)
-        per_joint_max = np.nanmax(np.where(ok, err, np.nan), 0)
-        frame_mean = np.nanmean(np.where(ok, err, np.nan), 1)
-    return per_joint_mean, per_joint_max, float(np.nanmean(frame_mean)), float(np.nanmax(frame_mean))
-
-
-def withheld(store: PriorStore, motion: Motion, leave_out: str) -> np.ndarray:
-    """Mask (C,) of prior takes to leave out for a test clip: same name, same subject, or none
-    (mirror images go with their take)."""
-    if leave_out == "subject":
-        subj = str(motion.metadata.get("subject", ""))
-        return np.array([c["subject"] == subj for c in store.clips])
-    if leave_out == "clip":
-        return np.array([c["name"] == motion.name for c in store.clips])
-    return np.zeros(len(store.clips), bool)
-
-
-class PriorCache:
-    """The last :class:`PosePrior` built from ``store``, reused while the kept takes and the
-    performer's bone lengths stay the same (test clips of one performer)."""
-
-    def __init__(self, store: PriorStore, model: ReconstructModel = MODEL) -> None:
-        self.store, self.model = store, model
-        self._key: bytes | None = None
-        self._prior: PosePrior | None = None
-
-    def get(self, keep: np.ndarray, lengths: np.ndarray) -> PosePrior:
-        key = np.asarray(keep, bool).tobytes() + np.round(np.asarray(lengths), 4).tobytes()
-        if key != self._key or self._prior is None:
-            self._prior = PosePrior.build(self.store, lengths, keep, model=self.model)
-            self._key = key
-        return self._prior
-
-    def for_motion(self, motion: Motion, leave_out: str) -> PosePrior:
-        """The prior for a test clip: its ``leave_out`` takes withheld, its skeleton's bone lengths."""
-        lengths = bone_lengths(motion.canonical_positions(self.store.joints), self.store.joints)
-        if not np.isfinite(lengths).all():
-            raise DataError(f"motion {motion.name!r} lacks pose joints of the prior {list(self.store.joints)}")
-        return self.get(~withheld(self.store, motion, leave_out), lengths)
-
-
-def reconstruct_motion(
-    motion: Motion, prior: PosePrior, params: ReconstructParams | None = None, model: ReconstructModel = MODEL
-) -> tuple[Motion, dict]:
-    """Reconstruct one clip from its synthetic markers; the result and its errors.
-
-    Returns the reconstructed Motion (test clip's skeleton, ``<name>_recon``) and a dict:
-    ``joints``, ``mean_cm``/``max_cm`` per joint, ``avg_cm``, ``max_frame_cm`` (worst
-    per-frame average), ``max_joint_cm`` (worst joint of any frame), ``fk_avg_cm``,
-    ``seconds`` (reconstruction time, excluding the prior), ``confidence``, ``frame_cm``
-    and ``frame_max_cm`` (T,) (per-frame confidence, mean and worst joint error),
-    ``reconstruction`` (the :class:`Reconstruction`).
-    """
-    p = params or ReconstructParams()
-    rng = np.random.default_rng(model.seed)
-    markers = synthetic_markers(motion, model.markers, model.noise, rng)
-    heading = synthetic_heading(motion, model.noise, rng) if model.root_heading else None
-    t0 = time.perf_counter()
-    rec = reconstruct(markers, prior, p, model, root_heading=heading, fps=motion.fps)
-    world = rec.positions
-    seconds = time.perf_counter() - t0
-    truth = motion.canonical_positions(prior.joints)
-    mean, mx, avg, worst = joint_errors(world, truth)
-    out = positions_to_motion(
-        motion.skeleton,
-        world,
-        prior.joints,
-        motion.fps,
-        name=f"{motion.name}_recon",
-        metadata={**motion.metadata, "reconstructed_from": motion.name},
-    )
-    _, _, fk_avg, _ = joint_errors(out.canonical_positions(prior.joints), truth)
-    return out, {
-        "joints": prior.joints,
-        "mean_cm": mean,
-        "max_cm": mx,
-        "avg_cm": avg,
-        "max_frame_cm": worst,
-        "max_joint_cm": float(np.nanmax(mx)),
-        "fk_avg_cm": fk_avg,
-        "seconds": seconds,
-        "confidence": rec.confidence,
-        "frame_cm": np.nanmean(np.linalg.norm(world - truth, axis=-1), 1) * 100.0,
-        "frame_max_cm": np.nanmax(np.linalg.norm(world - truth, axis=-1), 1) * 100.0,
-        "reconstruction": rec,
-    }

@@ -39,8 +39,9 @@ from mocapflow.framework import (
 )
 from mocapflow.framework.datasets import Dataset
 
-from .reconstruct import PosePrior, ReconstructParams, reconstruct_motion, withheld
+from .reconstruct import PosePrior, ReconstructParams
 from .reconstruct_prior import PriorStore, bone_lengths, build_store
+from .reconstruct_synthetic import reconstruct_motion, withheld
 
 #: Default test clips: two CMU subjects with many clips, two HDM05 takes of actor bk.
 DEFAULT_TESTS: tuple[str, ...] = (

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapflow.framework import DataError, Motion, Skeleton
+from mocapflow.framework import DataError, Index, Motion, Skeleton
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.normalize import facing_angles, rotate_about_y
 
@@ -473,3 +473,10 @@ def build_store(
         raise DataError(f"no prior take has every pose joint {list(joints)}")
     rows = np.cumsum([0] + [len(d) for d in dirs])
     return PriorStore(joints, float(fps), np.concatenate(dirs), rows, clips, np.stack(lengths))
+
+
+def prior_index() -> Index:
+    """The kNN index of a prior database: an exact kd-tree, one thread."""
+    from ..knn.kdtree import KDTreeIndex
+
+    return KDTreeIndex(workers=1)

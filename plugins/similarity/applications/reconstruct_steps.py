@@ -13,8 +13,9 @@ from pydantic import Field
 from mocapflow.framework import Analysis, Params, StepContext, StepOutput
 from mocapflow.framework.datasets import Dataset
 
-from .reconstruct import PriorCache, Reconstruction, ReconstructParams, reconstruct_motion
+from .reconstruct import Reconstruction, ReconstructParams
 from .reconstruct_prior import PriorStore, build_store
+from .reconstruct_synthetic import PriorCache, reconstruct_motion
 
 ERRORS = pa.schema(
     [

@@ -12,16 +12,11 @@ from mocapflow.framework.normalize import rotate_about_y
 from mocapflow.framework.testing import synthetic_skeleton
 from mocapflow.plugins.similarity.applications.reconstruct import (
     PosePrior,
-    PriorCache,
     ReconstructModel,
     ReconstructParams,
     _local_model,
     _yaw_align,
-    joint_errors,
-    reconstruct_motion,
     reconstruct_positions,
-    synthetic_markers,
-    withheld,
 )
 from mocapflow.plugins.similarity.applications.reconstruct_prior import (
     POSE_JOINTS,
@@ -32,6 +27,13 @@ from mocapflow.plugins.similarity.applications.reconstruct_prior import (
     directions,
     local_positions,
     mirror,
+)
+from mocapflow.plugins.similarity.applications.reconstruct_synthetic import (
+    PriorCache,
+    joint_errors,
+    reconstruct_motion,
+    synthetic_markers,
+    withheld,
 )
 from mocapflow.plugins.similarity.applications.retarget import positions_to_motion
 

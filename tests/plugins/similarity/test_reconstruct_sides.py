@@ -13,17 +13,18 @@ from test_reconstruct import periodic_motion
 from mocapflow.framework import DataError
 from mocapflow.plugins.similarity.applications.reconstruct import (
     MODEL,
-    PriorCache,
     ReconstructParams,
-    consistent_sides,
     reconstruct,
     reconstruct_positions,
-    swivel_candidates,
-    synthetic_heading,
-    synthetic_markers,
     typical_distances,
 )
 from mocapflow.plugins.similarity.applications.reconstruct_prior import build_store, local_positions
+from mocapflow.plugins.similarity.applications.reconstruct_sides import consistent_sides, swivel_candidates
+from mocapflow.plugins.similarity.applications.reconstruct_synthetic import (
+    PriorCache,
+    synthetic_heading,
+    synthetic_markers,
+)
 
 
 @pytest.fixture(scope="module")
