@@ -164,28 +164,24 @@ class ReconstructCommand:
 
 
 def _write_confidence(path: Path, rec, fps: float) -> None:  # type: ignore[no-untyped-def]
-    """The per-frame confidence as CSV, written atomically (a temporary file renamed)."""
-    import os
-    import tempfile
-
+    """The per-frame confidence as CSV, written atomically (:func:`~mocapflow.framework.workspace.atomic_path`)."""
     import numpy as np
+
+    from mocapflow.framework.workspace import atomic_path
 
     n = len(rec.confidence)
     cols = np.column_stack(
         [np.arange(n), np.arange(n) / fps, rec.confidence, rec.novelty, rec.misfit * 100, rec.reach * 100, rec.limit]
     )
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write("frame,time_s,confidence,novelty,misfit_cm,reach_cm,limit\n")
-            for row in cols:
-                f.write(
-                    f"{int(row[0])},{row[1]:.6f},{row[2]:.4f},{row[3]:.4f},{row[4]:.3f},{row[5]:.3f},{row[6]:.4f}\n"
-                )
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:
+        np.savetxt(
+            tmp,
+            cols,
+            fmt=["%d", "%.6f", "%.4f", "%.4f", "%.3f", "%.3f", "%.4f"],
+            delimiter=",",
+            header="frame,time_s,confidence,novelty,misfit_cm,reach_cm,limit",
+            comments="",
+        )
 
 
 def _spine_text(skeleton) -> str:  # type: ignore[no-untyped-def]
