@@ -253,19 +253,29 @@ def serve(args: argparse.Namespace, session_cls) -> int:
         )
 
     path = socket_path(args.db)
-    if len(str(path).encode()) > 100:  # sun_path holds 104-108 bytes
+    if len(str(path).encode()) > 88:  # sun_path holds 104-108 bytes, less the private suffix below
         raise ConfigError(f"--serve: socket path {path} is too long for a Unix socket; use a shorter workspace path")
     box = [make_session()]
     warm = warm_up(box[0])
     _remove_stale_socket(path)
     srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    # bound and listening under a private name, then renamed into place: a client that sees
+    # the socket can always connect (bind-then-listen on the public name refused the early ones)
+    pending = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident() % 10**6}")
     old = os.umask(0o177)  # owner-only from the start, not chmod-ed after bind
     try:
-        srv.bind(str(path))
+        srv.bind(str(pending))
     finally:
         os.umask(old)
+    try:
+        srv.listen(128)  # a burst of clients waits in the backlog, never refused
+        os.rename(pending, path)
+    except BaseException:
+        srv.close()
+        with contextlib.suppress(OSError):
+            pending.unlink()
+        raise
     ino = path.stat().st_ino
-    srv.listen(128)  # a burst of clients waits in the backlog, never refused
     srv.settimeout(args.idle_timeout or None)
     print(
         f"mocapflow: search server on {path} ({box[0].idx.step!r}, warm in {warm:.2f} s); Ctrl-C stops it",
