@@ -37,7 +37,7 @@ from pydantic import Field
 
 from mocapflow.framework.errors import ConfigError, PipelineError
 from mocapflow.framework.executors import PRELOAD
-from mocapflow.framework.params import Params
+from mocapflow.framework.params import Params as BaseParams
 from mocapflow.framework.progress import progress
 from mocapflow.framework.threads import available_cores, threads_per_worker
 
@@ -73,7 +73,7 @@ class DaskExecutor:
 
     name = "dask"
 
-    class Params(Params):
+    class Params(BaseParams):
         jobs: int = Field(0, ge=0)
         address: str | None = None
         threads: int | None = Field(None, ge=1)
@@ -168,12 +168,14 @@ class DaskExecutor:
                     get_mp_context().set_forkserver_preload(["distributed", *PRELOAD])
                 self._cluster = self._local_cluster(distributed, forkserver)
                 self._client = distributed.Client(self._cluster)
+        client = self._client
+        assert client is not None  # set just above, or start() raised
         hosts: dict[str, int] = {}
-        for w in self._client.scheduler_info(n_workers=-1)["workers"].values():
+        for w in client.scheduler_info(n_workers=-1)["workers"].values():
             hosts[w["host"]] = hosts.get(w["host"], 0) + int(w["nthreads"])
         from ._dask_worker import ThreadLimit
 
-        self._client.register_plugin(ThreadLimit(self.threads, hosts), name=ThreadLimit.name)
+        client.register_plugin(ThreadLimit(self.threads, hosts), name=ThreadLimit.name)
 
     def _local_cluster(self, distributed: Any, forkserver: bool) -> Any:
         """The LocalCluster of ``jobs`` one-thread worker processes; a cluster that cannot

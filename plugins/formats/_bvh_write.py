@@ -52,6 +52,7 @@ def write_bvh(motion: Motion, path: str | Path, precision: int = 10, default_ord
         for c in chans[j]:
             a = "xyz".index(c[0].lower())
             if c[1:].lower() == "rotation":
+                assert ang is not None  # a joint with rotation channels has their angles
                 cols.append(ang[:, r])
                 r += 1
             elif j == 0:

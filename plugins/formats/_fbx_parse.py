@@ -100,7 +100,8 @@ class _Reader:
         return ParseError(self.path, None, f"at byte {offset}: {what}")
 
     def top(self) -> Node:
-        nodes, pos = [], 27
+        nodes: list[Node] = []
+        pos = 27
         while True:
             if pos + self.head.size > len(self.data):
                 if nodes:  # files that end without the final null record (some writers)

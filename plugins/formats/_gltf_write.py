@@ -6,6 +6,7 @@ import base64
 import json
 import struct
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -97,7 +98,7 @@ def write_gltf(motion: Motion, path: str | Path, binary: bool | None = None) -> 
         node["translation"] = (motion.root_translation[0] if j == 0 else trans[j]).tolist()
         node["rotation"] = _xyzw(rest_local[j]).tolist()
         nodes.append(node)
-    doc = {
+    doc: dict[str, Any] = {
         "asset": {"version": "2.0", "generator": "mocapflow"},
         "scene": 0,
         "scenes": [{"nodes": [0]}],

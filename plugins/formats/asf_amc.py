@@ -27,7 +27,8 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework.components import Format, Params
+from mocapflow.framework.components import Format
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.skeleton import Skeleton
@@ -333,39 +334,41 @@ def read_amc(
     skel_path = None
     if skeleton is None:
         skeleton = skel_path = find_asf(path)
-    if not isinstance(skeleton, Skeleton):
+    if isinstance(skeleton, Skeleton):
+        skel = skeleton
+    else:
         skel_path = Path(skeleton)
-        skeleton = read_asf(skel_path)
-    if not skeleton.channels or skeleton.axes is None:
-        raise DataError(f"skeleton {skeleton.name!r} has no ASF channels/axes; read it with read_asf")
+        skel = read_asf(skel_path)
+    if not skel.channels or skel.axes is None:
+        raise DataError(f"skeleton {skel.name!r} has no ASF channels/axes; read it with read_asf")
     body = text_body(data)
     check_text(path, body)
     start, first_line, unit, full = _header(path, body)
-    degrees = (unit or skeleton.meta.get("units", {}).get("angle", "deg")) == "deg"
+    degrees = (unit or skel.meta.get("units", {}).get("angle", "deg")) == "deg"
     buf = np.frombuffer(body, dtype=np.uint8)
     tok = tokenize(buf, start, first_line)
     if tok[6] >= 0:  # check_text already rejects these; never read a cut-off token stream
         raise ParseError(path, int(tok[7]), "expected text, found a binary control byte")
-    bones, width = _layout(path, body, tok, skeleton)
+    bones, width = _layout(path, body, tok, skel)
     fast = _fast_values(body, tok, bones, width)
     table, line_table, t = fast if fast is not None else _slow_values(path, body, tok, bones)
     if full:
-        _check_complete(path, skeleton, bones, int(line_table[0, -1]))
-    scale = float(skeleton.meta.get("length_scale", 0.0254 / 0.45))
-    _check_bounds(path, skeleton, table, line_table, bones, degrees, scale)
-    root_t, rot = _to_motion_arrays(skeleton, table, bones, degrees)
+        _check_complete(path, skel, bones, int(line_table[0, -1]))
+    scale = float(skel.meta.get("length_scale", 0.0254 / 0.45))
+    _check_bounds(path, skel, table, line_table, bones, degrees, scale)
+    root_t, rot = _to_motion_arrays(skel, table, bones, degrees)
     meta = file_metadata(path, data, "amc")
     meta.update(
         subject=_subject(path),
         source_fps=float(fps),
         source_frames=int(t),
-        skeleton_path=str(skel_path) if skel_path else skeleton.meta.get("path", ""),
+        skeleton_path=str(skel_path) if skel_path else skel.meta.get("path", ""),
         angle_unit="deg" if degrees else "rad",
     )
-    branch = _branch(skeleton, table, bones, degrees)
+    branch = _branch(skel, table, bones, degrees)
     if branch["turns"] or branch["flips"]:
         meta[euler_branch.KEY] = branch
-    return Motion(skeleton=skeleton, root_translation=root_t, rotations=rot, fps=fps, name=path.stem, metadata=meta)
+    return Motion(skeleton=skel, root_translation=root_t, rotations=rot, fps=fps, name=path.stem, metadata=meta)
 
 
 def _branch(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool) -> dict:
@@ -436,7 +439,7 @@ class AmcFormat(Format):
     extensions: ClassVar[tuple[str, ...]] = (".amc",)
     produces: ClassVar[str] = "motion"
 
-    class Params(Params):
+    class Params(BaseParams):
         fps: float = Field(
             AMC_DEFAULT_FPS, gt=0, description="frame rate of the AMC files (they carry none; CMU/HDM05: 120)"
         )

@@ -40,7 +40,8 @@ import numpy as np
 from pydantic import Field
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.framework.components import Format, Params
+from mocapflow.framework.components import Format
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.joints import canonical_map
 from mocapflow.framework.motion import Motion
@@ -91,7 +92,7 @@ def _keyword(word: str) -> str:
 def _parse_hierarchy(path: Path, text: bytes) -> list[_Joint]:
     # split on ASCII whitespace only, as the tokenizer of the motion section (str.split also
     # splits on NBSP and NEL, so it serves only files without them)
-    lines = text.decode("latin-1").split("\n")
+    lines: list[Any] = text.decode("latin-1").split("\n")
     if b"\xa0" in text or b"\x85" in text:
         lines = [[w.decode("latin-1") for w in ln.split()] for ln in text.split(b"\n")]
     words: list[tuple[str, int]] = [
@@ -436,7 +437,9 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
 def _branch(joints: list[_Joint], table: np.ndarray) -> dict[str, dict]:
     """``{euler_branch: ...}`` where the file's angles leave the principal Euler branch
     (:mod:`._euler_branch`), else ``{}``."""
-    channels, triples, c = {}, {}, 0
+    channels: dict[str, np.ndarray] = {}
+    triples: dict[str, np.ndarray] = {}
+    c = 0
     for jt in joints:
         rot = []
         for ch in jt.channels:
@@ -445,7 +448,7 @@ def _branch(joints: list[_Joint], table: np.ndarray) -> dict[str, dict]:
                 rot.append(c)
             c += 1
         if len(rot) == 3:
-            triples[jt.name] = table[:, rot[1]]
+            triples[str(jt.name)] = table[:, rot[1]]
     branch = euler_branch.record(channels, triples)
     return {euler_branch.KEY: branch} if branch["turns"] or branch["flips"] else {}
 
@@ -527,7 +530,7 @@ class BvhFormat(Format):
     extensions: ClassVar[tuple[str, ...]] = (".bvh",)
     produces: ClassVar[str] = "motion"
 
-    class Params(Params):
+    class Params(BaseParams):
         scale: float | Literal["auto", "m", "cm", "mm", "inch", "asf_cmu"] = Field(
             "auto", description="metres per file unit, a unit name, or 'auto' (guessed from the bone lengths)"
         )

@@ -32,7 +32,8 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework.components import Format, Params
+from mocapflow.framework.components import Format
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import MocapflowError, ParseError
 from mocapflow.framework.markers import Markers, guess_up_axis, to_y_up
 
@@ -218,7 +219,7 @@ class C3dFormat(Format):
     extensions: ClassVar[tuple[str, ...]] = (".c3d",)
     produces: ClassVar[str] = "markers"
 
-    class Params(Params):
+    class Params(BaseParams):
         y_up: bool = Field(False, description="rotate the markers to y-up (default: keep the file's axes)")
         strict: bool = Field(False, description="refuse a header the data contradict (default: read the data, warn)")
 

@@ -37,7 +37,8 @@ import numpy as np
 from pydantic import Field
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.framework.components import Format, Params
+from mocapflow.framework.components import Format
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import ParseError
 from mocapflow.framework.motion import Motion
 
@@ -567,7 +568,7 @@ class FbxFormat(Format):
     extensions: ClassVar[tuple[str, ...]] = (".fbx",)
     produces: ClassVar[str] = "motion"
 
-    class Params(Params):
+    class Params(BaseParams):
         animation: int | str = Field(0, description="which animation stack (take) of the file: index or name")
 
     def read(self, path: str | Path) -> Motion:

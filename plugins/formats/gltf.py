@@ -46,7 +46,8 @@ import numpy as np
 from pydantic import Field
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.framework.components import Format, Params
+from mocapflow.framework.components import Format
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
 
@@ -414,7 +415,7 @@ class GltfFormat(Format):
     extensions: ClassVar[tuple[str, ...]] = (".gltf", ".glb")
     produces: ClassVar[str] = "motion"
 
-    class Params(Params):
+    class Params(BaseParams):
         animation: int | str = Field(0, description="which animation of the file: index or name")
         fps: float | Literal["auto"] = Field(
             "auto", description="sampling rate, or 'auto' (the file's extras.fps, else its key spacing)"

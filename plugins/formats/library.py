@@ -30,7 +30,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from pydantic import Field
 
-from mocapflow.framework import Format, Params, StepContext, StepOutput, schema
+from mocapflow.framework import Format, StepContext, StepOutput, schema
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.errors import ConfigError, PipelineError
 from mocapflow.framework.motion_tables import clips_table
@@ -54,7 +55,7 @@ FILES = pa.schema(
 
 def scan(folder: Path) -> list[Path]:
     """Every file under ``folder`` (recursively, real paths, sorted), hidden names left out."""
-    out: list[str] = []
+    out: list[Path] = []
     for root, dirs, names in os.walk(folder, followlinks=False):
         dirs[:] = sorted(d for d in dirs if not d.startswith("."))
         out.extend(Path(root) / n for n in names if not n.startswith("."))
@@ -99,7 +100,7 @@ class LoadLibrary(Format):
     inputs: Mapping[str, bool] = {}
     output_kind = "motions"
 
-    class Params(Params):
+    class Params(BaseParams):
         folder: str = Field(description="folder of takes, read recursively; relative to the pipeline file")
         fps: float | None = Field(default=30.0, gt=0, description="resample every clip to this rate (Hz)")
 

@@ -18,7 +18,8 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework import Format, Markers, Motion, Params, ParseError, StepContext, StepOutput, schema
+from mocapflow.framework import Format, Markers, Motion, ParseError, StepContext, StepOutput, schema
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.errors import ConfigError, DataError, MocapflowError, PipelineError
 from mocapflow.framework.joints import missing_required
@@ -65,7 +66,9 @@ def _prepare_motion(motion: Motion, path: str, fps: float | None) -> Motion | tu
     return resample(motion, fps) if fps else motion
 
 
-def _read_file(job: tuple[type, dict[str, Any], str, float | None]) -> Motion | Markers | tuple[str, int | None, str]:
+def _read_file(
+    job: tuple[type[Format], dict[str, Any], str, float | None],
+) -> Motion | Markers | tuple[str, int | None, str]:
     """Read one file (motions are also checked and resampled to ``fps``); a failure comes
     back as ``(path, line, message)``. Module-level so that process pools can pickle it."""
     cls, params, path, fps = job
@@ -83,7 +86,7 @@ def _read_file(job: tuple[type, dict[str, Any], str, float | None]) -> Motion | 
         return (path, None, f"{type(exc).__name__}: {exc}")
 
 
-def _read_motion_rows(job: tuple[type, dict[str, Any], str, float | None, int]) -> tuple | dict[str, Any]:
+def _read_motion_rows(job: tuple[type[Format], dict[str, Any], str, float | None, int]) -> tuple | dict[str, Any]:
     """Read one motion file and turn it into its rows of the motions dataset, in the worker:
     ``{"frames": its frame rows (Arrow, float32), "clip": its clips row, "skeleton": (key,
     name, n_joints, JSON definition)}``, or a reject ``(path, line, message)``.
@@ -92,8 +95,8 @@ def _read_motion_rows(job: tuple[type, dict[str, Any], str, float | None, int]) 
     a pickled float64 motion), and the client only concatenates: building the tables (0.42 s
     of the client's serial time for the corpus) runs in the workers.
     """
-    *read, clip_id = job
-    motion = _read_file(tuple(read))
+    cls, params, path, fps, clip_id = job
+    motion = _read_file((cls, params, path, fps))
     if isinstance(motion, tuple):
         return motion
     s = motion.skeleton
@@ -116,7 +119,7 @@ class _FileIngest(Format):
     #: which readers the step uses: those whose ``produces`` equals this
     reads: ClassVar[str] = "motion"
 
-    class Params(Params):
+    class Params(BaseParams):
         paths: list[str] = Field(
             min_length=1, description="glob patterns (** recursive), relative to the pipeline file"
         )
@@ -196,7 +199,7 @@ class _FileIngest(Format):
 
     def _jobs(self, ctx: StepContext, fps: float | None) -> tuple[list[tuple], list[int], int]:
         """``(read jobs, their clip ids, files listed)``: one job per file a reader handles."""
-        by_ext: dict[str, type] = {}
+        by_ext: dict[str, type[Format]] = {}
         for _, cls in ctx.registries["formats"]:
             if getattr(cls, "produces", "") == self.reads:
                 for ext in cls.extensions:
@@ -506,7 +509,7 @@ class ExportMotions(Format):
     is_step = True
     inputs: Mapping[str, bool] = {"motions": True}
 
-    class Params(Params):
+    class Params(BaseParams):
         format: str = Field("bvh", description="registry name of a writer format (bvh, amc...)")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:

@@ -21,7 +21,8 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework.components import Format, Params
+from mocapflow.framework.components import Format
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import DataError, ParseError
 from mocapflow.framework.markers import Markers, guess_up_axis, to_y_up
 
@@ -231,9 +232,11 @@ def read_trc(path: str | Path, y_up: bool = False, strict: bool = False) -> Mark
     warn += _odd_rows(odd, n_markers)
     bad_head = ~((np.abs(table[:, 0]) < 1e9) & (table[:, 0] == np.round(table[:, 0])) & (np.abs(table[:, 1]) < 1e9))
     if bad_head.any():
-        r = int(np.argmax(bad_head))
+        bad = int(np.argmax(bad_head))
         raise ParseError(
-            path, int(rows[r]), f"expected an integer frame number and a time, found {table[r, 0]:g} {table[r, 1]:g}"
+            path,
+            int(rows[bad]),
+            f"expected an integer frame number and a time, found {table[bad, 0]:g} {table[bad, 1]:g}",
         )
     pos3 = table[:, 2:].reshape(n_frames, n_markers, 3) * UNITS_TO_METRES[units]
     far = np.abs(pos3) > MAX_METRES
@@ -288,7 +291,7 @@ class TrcFormat(Format):
     extensions: ClassVar[tuple[str, ...]] = (".trc",)
     produces: ClassVar[str] = "markers"
 
-    class Params(Params):
+    class Params(BaseParams):
         y_up: bool = Field(False, description="rotate z-up data to y-up (default: keep the file's axes)")
         strict: bool = Field(False, description="refuse a NumFrames above the rows present (default: read them, warn)")
 

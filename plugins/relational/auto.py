@@ -54,8 +54,8 @@ def smooth_runs(x: np.ndarray, min_run: int) -> np.ndarray:
     last runs of the sequence are kept when shorter (the clip may cut them), unless the whole
     sequence is shorter than ``min_run``.
     """
-    vals, lens = runs(np.asarray(x, bool))
-    vals, lens = list(vals), list(lens)
+    run_vals, run_lens = runs(np.asarray(x, bool))
+    vals, lens = list(run_vals), list(run_lens)
     while len(lens) > 2:
         inner = range(1, len(lens) - 1)
         i = min(inner, key=lambda r: lens[r])

@@ -23,7 +23,8 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework.components import Analysis, Params
+from mocapflow.framework.components import Analysis
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import PipelineError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -101,7 +102,7 @@ class TemplateClassifier(Analysis):
     version = "1"
     inputs = {"templates": True, "features": True, "motions": True}
 
-    class Params(Params):
+    class Params(BaseParams):
         clips: str = Field(".", description="regular expression: classify the clips whose names match")
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:

@@ -27,7 +27,8 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field, field_validator
 
-from mocapflow.framework.components import FeatureSet, Params
+from mocapflow.framework.components import FeatureSet
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, DataError
 from mocapflow.framework.joints import CANONICAL_JOINTS
 
@@ -145,7 +146,7 @@ class RelationalFeatures(FeatureSet):
     name = "relational"
     version = "1"
 
-    class Params(Params):
+    class Params(BaseParams):
         thresholds: dict[str, float] = Field(
             default_factory=dict,
             description="decision thresholds overriding "

@@ -37,7 +37,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pydantic import Field
 
-from mocapflow.framework.components import Index, Params
+from mocapflow.framework.components import Index
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 
 from .features import FEATURE_IDS, SET_SLICES, SETS
@@ -300,7 +301,7 @@ class InvertedIndex(Index):
     version = "1"
     set_names: ClassVar[tuple[str, ...]] = tuple(s[0] for s in SETS)
 
-    class Params(Params):
+    class Params(BaseParams):
         feature_sets: tuple[str, ...] = Field(
             ("lower", "upper", "mixed"), description="feature sets to index (paper: all three)"
         )

@@ -8,10 +8,14 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+
     from mocapflow.framework.datasets import Dataset
 
 
-def labels_of(motions: Dataset, clip_ids: Sequence[int], names: list[str], pattern: str) -> list[str | None]:
+def labels_of(
+    motions: Dataset, clip_ids: Sequence[int] | np.ndarray, names: list[str], pattern: str
+) -> list[str | None]:
     """Label of each clip (``clip_ids`` with their ``names``): from ``motions``' ``labels``
     table if the ingest wrote one (``formats.load`` with ``labels``/``label_pattern``), else
     the ``label`` group of ``pattern`` in the name (None where it does not match)."""

@@ -23,6 +23,7 @@ import pyarrow as pa
 from pydantic import Field
 
 from mocapflow.framework.components import Matcher, Params
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, PipelineError
 from mocapflow.framework.schema import MATCHES, WARPING_PATH
 
@@ -128,7 +129,7 @@ class RelationalMatcher(Matcher):
         "bad_inputs": {"database": "feat", "query": "feat", "motions": "motions"},
     }
 
-    class Params(Params):
+    class Params(BaseParams):
         queries: tuple[ExampleQuery, ...] = Field((), description="queries by example")
         scenes: tuple[SceneQuery, ...] = Field(
             (), description="scene descriptions (query ids follow the example queries)"

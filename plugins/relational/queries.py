@@ -28,6 +28,7 @@ refines them). Component code is in ``matcher.py``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -220,16 +221,17 @@ def combine(a: Hits, b: Hits, min_overlap: float = 0.5) -> Hits:
     """Hits of two indexes that co-occur: same clip, spans overlapping by ``min_overlap``
     of the shorter span. The result spans the union; its cost is the mean; per-level
     correspondences of the part with more levels are kept for refinement."""
-    ia, ib = [], []
+    parts_a: list[np.ndarray] = []
+    parts_b: list[np.ndarray] = []
     for c in np.intersect1d(a.clip, b.clip):
         xa, xb = np.flatnonzero(a.clip == c), np.flatnonzero(b.clip == c)
         ov = np.minimum(a.end[xa, None], b.end[None, xb]) - np.maximum(a.start[xa, None], b.start[None, xb])
         shorter = np.minimum((a.end - a.start)[xa, None], (b.end - b.start)[None, xb])
         r, s = np.nonzero(ov >= np.maximum(min_overlap * shorter, 1))
-        ia.append(xa[r])
-        ib.append(xb[s])
-    ia = np.concatenate(ia) if ia else np.zeros(0, np.int64)
-    ib = np.concatenate(ib) if ib else np.zeros(0, np.int64)
+        parts_a.append(xa[r])
+        parts_b.append(xb[s])
+    ia = np.concatenate(parts_a) if parts_a else np.zeros(0, np.int64)
+    ib = np.concatenate(parts_b) if parts_b else np.zeros(0, np.int64)
     keep, kidx = (a, ia) if a.n_levels >= b.n_levels else (b, ib)
     return Hits(
         a.clip[ia],
@@ -248,7 +250,7 @@ def combine(a: Hits, b: Hits, min_overlap: float = 0.5) -> Hits:
 
 
 def scene_query(
-    index: InvertedIndex, progressions: list[list[dict[str, int]]], overlaps: list[tuple[int, int, int, int]] = ()
+    index: InvertedIndex, progressions: list[list[dict[str, int]]], overlaps: Sequence[tuple[int, int, int, int]] = ()
 ) -> Hits:
     """Geometric scene description (§6.3): progressions combined under co-occurrence.
 
@@ -304,8 +306,10 @@ def scene_query(
             rb = np.flatnonzero(hb.clip == c)
             ok = np.ones((len(ra), len(rb)), bool)
             for a, i, j in cons:
-                la = per[a].levels[combos[a][ra], i]
-                lb = hb.levels[rb, j]
+                la_all, lb_all = per[a].levels, hb.levels
+                assert la_all is not None and lb_all is not None  # scene hits carry their levels
+                la = la_all[combos[a][ra], i]
+                lb = lb_all[rb, j]
                 ok &= np.minimum(la[:, None, 1], lb[None, :, 1]) > np.maximum(la[:, None, 0], lb[None, :, 0])
             r, q = np.nonzero(ok)
             new_a.append(ra[r])

@@ -27,7 +27,8 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework.components import Matcher, Params
+from mocapflow.framework.components import Matcher
+from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 from mocapflow.framework.params import Removed
 from mocapflow.framework.schema import MATCHES
@@ -207,7 +208,7 @@ class TemplateMatcher(Matcher):
         "bad_inputs": {"database": "inv", "motions": "motions"},
     }
 
-    class Params(Params):
+    class Params(BaseParams):
         label_pattern: str = Field(
             HDM05_LABEL,
             description="regular expression on clip names with a group (?P<label>...), "

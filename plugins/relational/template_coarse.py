@@ -44,7 +44,7 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
     if step <= 1:
         return t
     key = (step, t.columns.tobytes(), t.delta, t.mean.shape)
-    cached = getattr(t, "_coarse", None)
+    cached = t._coarse
     if cached is None or cached[0] != key:  # kept on the template: its lookup table is cached on it in turn
         cached = (
             key,

@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -51,6 +52,8 @@ class MotionTemplate:
     #: :func:`.auto.surprise_weights`); None: every cared-for cell counts 1. Not stored by
     #: :func:`save_templates` (class templates are unweighted).
     weights: np.ndarray | None = None
+    #: :func:`.template_coarse.coarse_template`'s cache: (key, the coarse template)
+    _coarse: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def n_frames(self) -> int:
@@ -283,13 +286,14 @@ def save_templates(templates: list[MotionTemplate], directory: Path, meta: dict 
     """Write the templates to ``directory / templates.npz`` (one archive, JSON header)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
-    arrays = {}
-    header = {"meta": meta or {}, "templates": []}
+    arrays: dict[str, Any] = {}
+    templates_json: list[dict[str, Any]] = []
+    header = {"meta": meta or {}, "templates": templates_json}
     for i, t in enumerate(templates):
         arrays[f"mean_{i}"] = t.mean
         arrays[f"columns_{i}"] = t.columns
         arrays[f"costs_{i}"] = t.example_costs
-        header["templates"].append(
+        templates_json.append(
             {"label": t.label, "delta": t.delta, "threshold": t.threshold, "n_examples": t.n_examples}
         )
     np.savez(d / MODEL_FILE, header=np.array(json.dumps(header)), **arrays)

@@ -63,9 +63,10 @@ class Browser:
     def __init__(
         self, executable: str | None = None, width: int = 1280, height: int = 1600, timeout: float = 60.0
     ) -> None:
-        self.executable = executable or find_chromium()
-        if not self.executable:
+        found = executable or find_chromium()
+        if not found:
             raise BrowserError("no Chromium found (apt-get install chromium, or set MOCAPFLOW_CHROMIUM)")
+        self.executable: str = found
         self.size, self.timeout = (width, height), timeout
         self.errors: list[str] = []
         self.events: list[dict[str, Any]] = []

@@ -312,7 +312,8 @@ class ModelBuilder:
     def nearest(self, ds: Dataset) -> dict[str, Any]:
         step, qstep = self._steps(ds)
         names, qnames = self.mo.names(step), self.mo.names(qstep)
-        queries, hits = {}, []
+        queries: dict[Any, Any] = {}
+        hits: list[Any] = []
         for r in ds.table("data").to_pylist():
             qid = int(r.get("query_id", len(queries)))
             qc, qf = int(r["query_clip_id"]), int(r["query_frame"])
@@ -478,7 +479,7 @@ class ModelBuilder:
                 }
                 hits = sum((r["clip_id"], r["checksum"], r["n_frames"]) in theirs for r in mine)
                 candidates.append((-hits, len(theirs), name, other, theirs))
-        pairs = []
+        pairs: list[dict[str, Any]] = []
         # the input that holds most of these clips and least else (the test takes, not the prior)
         for _, _, name, other, theirs in sorted(candidates, key=lambda c: c[:3]):
             for r in mine:

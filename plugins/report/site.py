@@ -34,7 +34,7 @@ ASSETS = ("report.js", "player.js", "report.css")
 
 
 def _asset(name: str) -> str:
-    return resources.files("mocapflow.plugins.report").joinpath("assets", name).read_text(encoding="utf-8")
+    return resources.files("mocapflow.plugins.report").joinpath("assets").joinpath(name).read_text(encoding="utf-8")
 
 
 def _safe(key: str) -> str:

@@ -79,6 +79,8 @@ def swap_frames(
                     after = _edge_roughness(back, np.arange(len(cols)), a - lo, b - lo)
                     if best is None or after < best[0]:
                         best = (after, a, b)
+            if best is None:  # no window fits (cannot happen for a0 < b0 <= t)
+                continue
             after, a, b = best
             if after < _edge_roughness(q, cols, a, b):
                 out.append((lc, rc, a, b))
@@ -191,7 +193,7 @@ def repair_flagged(res, flags: np.ndarray, det: np.ndarray, stat: np.ndarray) ->
             _propose(neigh, n, q, around, proposal, res, ())
         for j in np.flatnonzero(rest.any(axis=0)):
             for a, b in _runs(rest[:, j]):
-                if not _offset_run(q, mean_q, new, j, a, b, OFFSET_LEVEL, offset):
+                if not _offset_run(q, mean_q, new, int(j), a, b, OFFSET_LEVEL, offset):
                     _displaced(q[:, j], proposal[:, j], new[:, j], a, b)
     new = _bounded(res, q, new, exempt | offset)
     return new, np.any(new != q, axis=-1)

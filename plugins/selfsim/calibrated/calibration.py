@@ -67,11 +67,11 @@ def similar_spans(
             if b - a >= 3 * target_length // 2:
                 cands.append((-float(c[a:b].sum()) / (b - a), i, int(a), int(b), hit[a:b]))
     chosen, total = [], 0
-    for _, i, a, b, h in sorted(cands, key=lambda x: x[:4]):
+    for _, ci, ca, cb, h in sorted(cands, key=lambda x: x[:4]):
         if total >= frames:
             break
-        chosen.append((int(i), int(a), int(b), h))
-        total += int(b - a)
+        chosen.append((int(ci), int(ca), int(cb), h))
+        total += int(cb - ca)
     return chosen, share
 
 

@@ -195,7 +195,7 @@ def evaluate_category(
     counts: dict[tuple[str, str], dict[str, int]] = {}
     times: dict[str, list[float]] = {}
     repair: dict[tuple[str, str], list[dict]] = {}
-    kinds: dict[tuple[str, str, str], dict[str, float]] = {}
+    kinds: dict[tuple[str, str, str, str], dict[str, float]] = {}
     cases = list(corrupted_clips(clips, p, joints, cp.fps, category))
     it = progress(cases, len(cases), f"clean_eval {category}") if progress else cases
     for case in it:
@@ -260,13 +260,13 @@ def evaluate_category(
             log(f"clean_eval {category} clip {case.clean.name} context {context}: {times[context][-1]:.2f} s")
     n = len(cases)
     rows = []
-    for (method, context), c in counts.items():
-        sec = float(np.mean(times[context])) if context in times else float("nan")
+    for (method_name, context_name), c in counts.items():
+        sec = float(np.mean(times[context_name])) if context_name in times else float("nan")
         rows.append(
             {
                 "category": category,
-                "method": method,
-                "context": context,
+                "method": method_name,
+                "context": context_name,
                 **_ratios(c),
                 **c,
                 "seconds_per_clip": sec,
@@ -274,13 +274,13 @@ def evaluate_category(
             }
         )
     rep = []
-    for (method, context), vals in repair.items():
+    for (method_name, context_name), vals in repair.items():
         col = {k: np.array([v[k] for v in vals]) for k in vals[0]}
         rep.append(
             {
                 "category": category,
-                "method": method,
-                "context": context,
+                "method": method_name,
+                "context": context_name,
                 "n_clips": len(vals),
                 "global_before": float(col["global_before"].mean()),
                 "global_after": float(col["global_after"].mean()),

@@ -113,8 +113,8 @@ def apply_error(
         half = len(joints) // 2
         left, right = list(joints[:half]), list(joints[half:])
         lq, rq = rot[span][:, left].copy(), rot[span][:, right].copy()
-        rot[np.ix_(span, left)] = mirror(rq)
-        rot[np.ix_(span, right)] = mirror(lq)
+        rot[np.ix_(span, np.asarray(left))] = mirror(rq)
+        rot[np.ix_(span, np.asarray(right))] = mirror(lq)
     else:
         raise DataError(f"unknown error kind {kind!r} (known: {', '.join(ERROR_KINDS)})")
 

@@ -49,7 +49,7 @@ class RotationBaselines:
 
 def scores(
     flagged: np.ndarray, truth: np.ndarray, starts: np.ndarray, n: int, moved: np.ndarray | None = None
-) -> dict[str, float]:
+) -> dict[str, int]:
     """Cell, word and (word, joint) true/false positive and false negative counts of
     ``flagged`` against ``truth`` (T, m); ``starts`` are the source words (length ``n``).
 

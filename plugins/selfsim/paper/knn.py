@@ -160,7 +160,8 @@ def knn_search(
 
 def _word_chunks(starts: np.ndarray, n: int, block_rows: int) -> list[np.ndarray]:
     """Consecutive runs of words whose rows span at most ``max(block_rows, n)`` frames."""
-    chunks, cur = [], []
+    chunks: list[np.ndarray] = []
+    cur: list[int] = []
     for w, s in enumerate(starts):
         if cur and s + n - starts[cur[0]] > max(block_rows, n):
             chunks.append(np.array(cur, np.int64))

@@ -144,7 +144,7 @@ def source_word_starts(n_frames: int, length: int, step: int) -> np.ndarray:
 
 
 def target_word_layout(
-    clip_lengths: Sequence[int], source_length: int, target_length: int
+    clip_lengths: Sequence[int] | np.ndarray, source_length: int, target_length: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per frame of a concatenated context: the target-word length ``min(target_length,
     frames left in the clip)`` (0 where fewer than ``source_length`` are left) and the

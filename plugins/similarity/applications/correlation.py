@@ -26,7 +26,8 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework import Analysis, MotionDatabase, Params
+from mocapflow.framework import Analysis, MotionDatabase
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.errors import ConfigError
 
 from ..knn.distances import DISTANCE_MEASURES, PoseMeasures
@@ -97,7 +98,7 @@ class DistanceCorrelationStudy(Analysis):
     name: ClassVar[str] = "distance_correlation"
     inputs: ClassVar[Mapping[str, bool]] = {"motions": True, "reference": False}
 
-    class Params(Params):
+    class Params(BaseParams):
         samples: int = Field(1024, ge=1, description="random query frames (paper: 1024)")
         k: int = Field(256, ge=2, description="nearest neighbours per query and row measure (paper: 256)")
         measures: tuple[str, ...] = Field(FIG2_MEASURES, min_length=1, description="the measures, in order")
@@ -131,6 +132,7 @@ class DistanceCorrelationStudy(Analysis):
             if measure in feats:
                 diff = feats[measure][js].astype(np.float64) - feats[measure][i]
                 return np.sqrt((diff * diff).sum(1))
+            assert pm is not None  # D_ measures exist when one is asked for
             return pm.distance(measure, i, js)
 
         rho = np.full((len(rows), len(cols)), np.nan)
@@ -157,9 +159,10 @@ class DistanceCorrelationStudy(Analysis):
                 else:
                     if a == 0:
                         nd, nb = np.full((nq, p.k), np.inf), np.full((nq, p.k), -1, np.int64)
+                    assert pm is not None  # a row that is no feature is a D_ measure
                     nd[a:b], nb[a:b] = self._scan(pm, row, queries[a:b], clip_id, frame)
                 per = np.full((nq, len(cols)), np.nan)
-                ok = (nb >= 0).all(1)
+                ok = np.asarray((nb >= 0).all(1))
                 continue
             col = cols[c]
             if col == row:

@@ -91,8 +91,8 @@ def brute_knn(
         qf = np.ascontiguousarray(qframes[q0 : q0 + nq])
         for y0 in range(0, n, block_rows):
             g = q @ data[y0 : y0 + block_rows].T
-            args = (heap, cand_i, cand_v, cand_n, overflow, tol2, r2 + tol2, excl, groups, frames, qg, qf)
-            kern.scan_block(g, sqnorms, const, y0, *args)
+            state = (heap, cand_i, cand_v, cand_n, overflow, tol2, r2 + tol2, excl, groups, frames, qg, qf)
+            kern.scan_block(g, sqnorms, const, y0, *state)  # type: ignore[call-arg]  # numba's Dispatcher stub
         keep = (np.arange(cap)[None, :] < cand_n[:, None]) & (cand_v <= (heap[:, 0] + tol2)[:, None])
         cr, col = np.nonzero(keep)
         cc = cand_i[cr, col]

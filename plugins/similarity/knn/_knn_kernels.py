@@ -235,11 +235,8 @@ def query_tree(queries, k, eps, r2, tree, qgroups, qframes, excl, max_depth, n_c
 def set_threads(workers: int | None) -> int:
     """Set numba's thread count for the next parallel call; returns the previous one."""
     prev = numba.get_num_threads()
-    n = (
-        numba.config.NUMBA_NUM_THREADS
-        if workers is None or workers < 1
-        else min(workers, numba.config.NUMBA_NUM_THREADS)
-    )
+    most = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import, absent from its stub
+    n = most if workers is None or workers < 1 else min(workers, most)
     if n != prev:  # setting takes locks: skip it on the (usual) unchanged path
         numba.set_num_threads(n)
     return prev

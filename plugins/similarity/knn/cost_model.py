@@ -4,7 +4,8 @@ same method (measured break-evens: docs/knn.md)."""
 
 from __future__ import annotations
 
-from typing import Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -32,6 +33,17 @@ class ProbeSettings(Protocol):
 
 class CostModel:
     """The method choice of :class:`.kdtree.KDTreeIndex` (a mixin: it reads the built tree)."""
+
+    # what the mixin reads and sets on the tree it is mixed into (KDTreeIndex.fit / load)
+    params: Any
+    data_: np.ndarray
+    probe_: dict[str, float]
+    method_: str
+    brute_from_k_: int | None
+    large_method_: str
+    _tree_args: Callable[[], tuple[tuple, np.ndarray]]
+    _search: Callable[..., tuple[np.ndarray, np.ndarray]]
+    _max_depth: Callable[[], int]
 
     def _probe(self, cfg: ProbeSettings) -> str:
         """Choose the method by counting work on a sample of the indexed rows (deterministic).

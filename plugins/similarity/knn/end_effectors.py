@@ -29,7 +29,8 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework import FeatureSet, Params
+from mocapflow.framework import FeatureSet
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
 from mocapflow.framework.normalize import to_root_frame
@@ -97,7 +98,7 @@ class EndEffectorFeatures(FeatureSet):
     name: ClassVar[str] = "end_effectors"
     inputs: ClassVar = {"motions": True}
 
-    class Params(Params):
+    class Params(BaseParams):
         joints: Literal[5, 10, 13] = Field(5, description="5, 10 or 13 joints: F_E^15, F_E^30, F_E^39")
         samples: int = Field(1, ge=1, le=32, description="samples per window (1 = pose only; paper: 3 or 5)")
         window: float = Field(0.3, gt=0, le=10, description="window length in seconds (paper: 0.3)")

@@ -23,7 +23,8 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework import Index, Params
+from mocapflow.framework import Index
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, DataError
 
 
@@ -41,7 +42,7 @@ class HNSWIndex(Index):
     name: ClassVar[str] = "hnsw"
     query_options: ClassVar[frozenset[str]] = frozenset({"workers"})
 
-    class Params(Params):
+    class Params(BaseParams):
         m: int = Field(16, ge=2, le=128, description="graph degree M (links per node and layer)")
         ef_construction: int = Field(200, ge=8, description="search breadth while building (quality of the graph)")
         ef: int = Field(512, ge=1, description="search breadth of a query (at least k is used); recall grows with it")

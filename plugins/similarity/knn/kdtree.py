@@ -15,12 +15,13 @@ import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework import Index, Params
+from mocapflow.framework import Index
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 
 from .cost_model import CostModel
@@ -117,7 +118,16 @@ class KDTreeIndex(CostModel, Index):
     query_options: ClassVar[frozenset[str]] = frozenset({"eps", "exclude", "query_groups", "query_frames", "workers"})
     build_options: ClassVar[frozenset[str]] = frozenset({"groups", "frames"})
 
-    class Params(Params):
+    # caches filled on first use, None until then (reset by fit and load)
+    _inv: np.ndarray | None
+    _depth: int | None
+    _raw_bound: Any
+    _boxes: tuple[np.ndarray, np.ndarray] | None
+    _targs: tuple[tuple, np.ndarray] | None
+    #: the rows in dataset order (features, clip id, frame) when loaded beside their dataset
+    _rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+
+    class Params(BaseParams):
         method: Literal["auto", "kdtree", "brute"] = Field(
             "auto",
             description=(
@@ -405,16 +415,18 @@ class KDTreeIndex(CostModel, Index):
         """
         from . import _tree_kernels as tk
 
-        if getattr(self, "_boxes", None) is None:
-            self._boxes = tk.node_boxes(self.data_, self.start_, self.end_, self.left_, self.right_)
-        return self._boxes
+        boxes = getattr(self, "_boxes", None)
+        if boxes is None:
+            boxes = self._boxes = tk.node_boxes(self.data_, self.start_, self.end_, self.left_, self.right_)
+        return boxes
 
     def _max_depth(self) -> int:
         from . import _tree_kernels as tk
 
-        if getattr(self, "_depth", None) is None:
-            self._depth = int(tk.tree_depth(self.left_, self.right_))
-        return self._depth
+        depth = getattr(self, "_depth", None)
+        if depth is None:
+            depth = self._depth = int(tk.tree_depth(self.left_, self.right_))
+        return depth
 
     def _check_built(self) -> None:
         if not hasattr(self, "data_"):
@@ -443,12 +455,12 @@ class KDTreeIndex(CostModel, Index):
             # the rows in dataset order (features, clip id, frame) beside the tree: `mocapflow
             # search` memory-maps them instead of decoding the features Parquet
             inv = self._inverse_perm()
-            for name, a in (
+            for name, rows in (
                 ("rows_features", self.data_),
                 ("rows_clip_id", self.groups_),
                 ("rows_frame", self.frames_),
             ):
-                np.save(d / f"{name}.npy", a[inv])
+                np.save(d / f"{name}.npy", rows[inv])
         meta = {
             "component": self.key(),
             "params": self.get_params(),

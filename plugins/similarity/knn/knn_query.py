@@ -16,7 +16,8 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework import Analysis, Params
+from mocapflow.framework import Analysis
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -29,7 +30,7 @@ class NearestPoses(Analysis):
     name: ClassVar[str] = "nearest_poses"
     inputs: ClassVar[Mapping[str, bool]] = {"index": True, "motions": False}
 
-    class Params(Params):
+    class Params(BaseParams):
         queries: list[str] = Field(min_length=1, description='query frames "<clip name or id>:<frame>"')
         k: int = Field(16, ge=1, description="neighbours per query")
         exclude_frames: int | None = Field(

@@ -19,7 +19,8 @@ from typing import ClassVar
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework import FeatureSet, MotionDatabase, Params
+from mocapflow.framework import FeatureSet, MotionDatabase
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.joints import CANONICAL_JOINTS
 from mocapflow.framework.motion import Motion
@@ -48,7 +49,7 @@ class PosePCA(FeatureSet):
     name: ClassVar[str] = "pca"
     requires_fit: ClassVar[bool] = True
 
-    class Params(Params):
+    class Params(BaseParams):
         n_components: int = Field(16, ge=1, description="principal components kept (paper: 8, 16, 25)")
         joints: tuple[str, ...] = Field(
             PCA_JOINTS, min_length=1, description="canonical joints whose positions are compressed"

@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
-from mocapflow.framework import Index, Params
+from mocapflow.framework import Index
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, DataError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -74,7 +75,7 @@ def _import_class(path: str) -> type:
     return getattr(importlib.import_module(module), name)
 
 
-def _load_shard(cls: type, directory: Path) -> Index:
+def _load_shard(cls: type[Index], directory: Path) -> Index:
     """``cls.load`` memory-mapped where the index supports it (``mmap_mode``)."""
     if "mmap_mode" in getattr(cls, "load_options", ()):
         return cls.load(directory, mmap_mode="r")
@@ -96,7 +97,7 @@ class _ShardQuery:
     """One shard's answer to a batch of queries, on a worker (the shard loaded once there)."""
 
     directory: str
-    index_cls: type
+    index_cls: type[Index]
     stamp: str
     k: int
     radius: float | None
@@ -132,7 +133,7 @@ class ShardedIndex(Index):
     query_options: ClassVar[frozenset[str]] = frozenset({"eps", "exclude", "query_groups", "query_frames", "executor"})
     build_options: ClassVar[frozenset[str]] = frozenset({"groups", "frames"})
 
-    class Params(Params):
+    class Params(BaseParams):
         shards: int = Field(2, ge=1, description="number of shards (clip ranges of about equal rows)")
         max_rows: int | None = Field(
             None, ge=1, description="at most this many rows per shard (memory budget): more shards if needed"
@@ -178,18 +179,18 @@ class ShardedIndex(Index):
         self._finish(cls, x.shape[1])
         return self
 
-    def _build_one(self, cls: type, x: np.ndarray, g: np.ndarray, f: np.ndarray) -> Index:
+    def _build_one(self, cls: type[Index], x: np.ndarray, g: np.ndarray, f: np.ndarray) -> Index:
         shard = cls(self.params.index_params)
         if "groups" in shard.build_options:
             return shard.build(x, groups=g, frames=f)
         return shard.build(x)
 
-    def _finish(self, cls: type, dim: int) -> None:
+    def _finish(self, cls: type[Index], dim: int) -> None:
         self.shard_key_ = cls.key()
         self.shard_cls_ = cls
         self.dim_ = int(dim)
         self.method_ = "sharded: " + ", ".join(str(getattr(s, "method_", cls.name)) for s in self.shards_)
-        self.directory_ = None
+        self.directory_: Path | None = None
         self._executor = None
         self._inv: dict[int, np.ndarray] = {}
 
@@ -245,7 +246,7 @@ class ShardedIndex(Index):
         workers = int(getattr(ex, "workers", 1)) if ex is not None else 1
         if workers > 1 and self.directory_ is not None and self.params.fan_out == "queries" and len(q) > 1:
             return self._query_blocks(ex, workers, q, int(k), radius, kw)
-        if workers > 1 and self.directory_ is not None and len(self.shards_) > 1:
+        if ex is not None and workers > 1 and self.directory_ is not None and len(self.shards_) > 1:
             tasks = [
                 _ShardQuery(str(self.directory_ / f"shard-{s:03d}"), self.shard_cls_, self._stamp, int(k), radius, kw)
                 for s in range(len(self.shards_))
@@ -432,7 +433,7 @@ class _ShardBuild:
     features: Any  # DatasetRef
     start: int
     stop: int
-    index_cls: type
+    index_cls: type[Index]
     index_params: dict
     directory: str
 

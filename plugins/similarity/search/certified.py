@@ -13,7 +13,7 @@ speed only, never the result.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -114,8 +114,8 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: Certi
     m, n = len(q), space.n_rows
     frames = np.unique(np.linspace(0, m - 1, cfg.seed_frames).round().astype(np.int64))
     kk = min(n, cfg.seed_k * count)
-    kw = {}
-    options = getattr(type(space.index), "query_options", frozenset())
+    kw: dict[str, Any] = {}
+    options: frozenset[str] = getattr(type(space.index), "query_options", frozenset())
     if "workers" in options:  # a few queries: waking threads costs more than it saves
         kw["workers"] = 1
     if "eps" in options and cfg.seed_eps > 0:  # any tau is safe: approximate neighbours only seed it
@@ -197,7 +197,7 @@ def _level_bounds(qt, space, level, branges, sub_from=np.inf) -> np.ndarray:
 
     bstart, lo, hi, link, size, p = level
     if p > 0 and int((branges[:, 1] - branges[:, 0]).sum()) >= sub_from * len(lo):
-        return subspace_bounds(qt, *block_subspaces_of(space, size, p), link, branges, _SHRINK)
+        return subspace_bounds(qt, *block_subspaces_of(space, size, p), link, branges, _SHRINK)  # type: ignore[call-arg]  # numba's Dispatcher stub
     return coarse_bounds(qt, lo, hi, link, branges, _SHRINK)
 
 

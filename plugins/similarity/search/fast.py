@@ -18,6 +18,7 @@ the database regions the index's neighbours of a few query frames point at.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -88,8 +89,8 @@ def fast_sdtw(
     cfg = settings
     m = len(q)
     frames = np.unique(np.linspace(0, m - 1, min(cfg.frames, m)).round().astype(np.int64))
-    kw = {}
-    options = getattr(type(space.index), "query_options", frozenset())
+    kw: dict[str, Any] = {}
+    options: frozenset[str] = getattr(type(space.index), "query_options", frozenset())
     if "workers" in options:  # a few dozen query frames: waking threads costs more than it saves
         kw["workers"] = 1
     if "eps" in options and cfg.eps > 0:
