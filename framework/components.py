@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 from pydantic import ValidationError
@@ -31,6 +31,8 @@ from .workspace import atomic_path
 
 #: The base of every ``Params`` (a name that the class attribute ``Component.Params`` does not hide).
 ParamsModel = Params
+#: a component class, for methods that return an instance of the caller's class
+_C = TypeVar("_C", bound="Component")
 
 
 class Component:
@@ -73,7 +75,7 @@ class Component:
         """Parameters as a plain dict (JSON-compatible)."""
         return self.params.model_dump(mode="json")
 
-    def clone(self, **changes: Any) -> Component:
+    def clone(self: _C, **changes: Any) -> _C:
         """An unfitted copy with some parameters changed."""
         return type(self)(self.params.model_copy(update=changes) if changes else self.params)
 

@@ -16,6 +16,7 @@ joint_rom : one row per (clip, canonical joint)
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -49,7 +50,7 @@ class ClipSummary(Analysis):
     """Duration, frame count, root path length and per-joint range of motion of every clip."""
 
     name = "clip_summary"
-    inputs: Mapping[str, bool] = {"motions": True}
+    inputs: ClassVar[Mapping[str, bool]] = {"motions": True}
     output_kind = "table"
     input_kinds = {"motions": ("motions",)}
 

@@ -82,6 +82,8 @@ class DaskExecutor:
         min_items: int = Field(1, ge=0)
         chunks_per_worker: int = Field(4, ge=0)
 
+    params: Params
+
     def __init__(
         self,
         jobs: int = 0,

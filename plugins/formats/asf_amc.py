@@ -445,6 +445,8 @@ class AmcFormat(Format):
         )
         asf: str | None = Field(None, description="ASF skeleton path; default: the .asf beside each AMC file")
 
+    params: Params
+
     def read(self, path: str | Path) -> Motion:
         return read_amc(path, skeleton=self.params.asf, fps=self.params.fps)
 

@@ -320,7 +320,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
     )
     joints, frames, dt, table, frame_lines = _read_streaming(path, blocks)
 
-    names = tuple(j.name for j in joints)
+    names = tuple(str(j.name) for j in joints)  # End Sites are named by now
     parents = np.array([j.parent for j in joints])
     offsets = np.array([j.offset for j in joints], dtype=float)
     if scale == "auto":
@@ -372,7 +372,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
     held = [table]
     del table  # the only name left is in `held`: the conversion may shrink it in place
     rot = _rotations(held, cols[1:], axis_id[1:], nj - 1) if collapse else _rotations(held, cols, axis_id, nj)
-    names, collapsed, restore = tuple(jt.name for jt in joints), None, None
+    names, collapsed, restore = tuple(str(jt.name) for jt in joints), None, None
     chans = [tuple(jt.channels) for jt in joints]
     if collapse:
         # a static dummy root (Bandai-Namco's joint_Root) above the real, translating hips:
@@ -534,6 +534,8 @@ class BvhFormat(Format):
         scale: float | Literal["auto", "m", "cm", "mm", "inch", "asf_cmu"] = Field(
             "auto", description="metres per file unit, a unit name, or 'auto' (guessed from the bone lengths)"
         )
+
+    params: Params
 
     def read(self, path: str | Path) -> Motion:
         return read_bvh(path, scale=self.params.scale)

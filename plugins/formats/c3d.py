@@ -223,5 +223,7 @@ class C3dFormat(Format):
         y_up: bool = Field(False, description="rotate the markers to y-up (default: keep the file's axes)")
         strict: bool = Field(False, description="refuse a header the data contradict (default: read the data, warn)")
 
+    params: Params
+
     def read(self, path: str | Path) -> Any:
         return read_c3d(path, y_up=self.params.y_up, strict=self.params.strict)

@@ -571,6 +571,8 @@ class FbxFormat(Format):
     class Params(BaseParams):
         animation: int | str = Field(0, description="which animation stack (take) of the file: index or name")
 
+    params: Params
+
     def read(self, path: str | Path) -> Motion:
         return read_fbx(path, animation=self.params.animation)
 

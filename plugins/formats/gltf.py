@@ -421,6 +421,8 @@ class GltfFormat(Format):
             "auto", description="sampling rate, or 'auto' (the file's extras.fps, else its key spacing)"
         )
 
+    params: Params
+
     def read(self, path: str | Path) -> Motion:
         return read_gltf(path, animation=self.params.animation, fps=self.params.fps)
 

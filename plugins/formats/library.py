@@ -23,7 +23,7 @@ import hashlib
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -97,12 +97,14 @@ class LoadLibrary(Format):
     name = "library"
     is_step = True
     version = "2"  # 2: rotations in their own table, per clip (formats.load version 3)
-    inputs: Mapping[str, bool] = {}
+    inputs: ClassVar[Mapping[str, bool]] = {}
     output_kind = "motions"
 
     class Params(BaseParams):
         folder: str = Field(description="folder of takes, read recursively; relative to the pipeline file")
         fps: float | None = Field(default=30.0, gt=0, description="resample every clip to this rate (Hz)")
+
+    params: Params
 
     def _folder(self, base_dir: Path) -> Path:
         p = Path(self.params.folder).expanduser()
@@ -141,10 +143,10 @@ class LoadLibrary(Format):
         folder = self._folder(ctx.base_dir)
         readers: dict[str, Any] = {}  # extension -> format class
         others: dict[str, Any] = {}
-        for _, cls in ctx.registries["formats"]:
-            for ext in cls.extensions:
-                target = readers if getattr(cls, "produces", "") == "motion" else others
-                target.setdefault(ext.lower(), cls)
+        for _, fmt in ctx.registries["formats"]:
+            for ext in fmt.extensions:
+                target = readers if getattr(fmt, "produces", "") == "motion" else others
+                target.setdefault(ext.lower(), fmt)
         files = scan(folder)
         prev = self._previous(ctx)
         old = {r["path"]: r for r in prev.table("files").to_pylist()} if prev is not None else {}

@@ -99,6 +99,7 @@ def _read_motion_rows(job: tuple[type[Format], dict[str, Any], str, float | None
     motion = _read_file((cls, params, path, fps))
     if isinstance(motion, tuple):
         return motion
+    assert isinstance(motion, Motion)  # a motion reader's (_read_file checked what it produced)
     s = motion.skeleton
     return {
         "warnings": list(motion.metadata.get("warnings") or []),
@@ -115,7 +116,7 @@ class _FileIngest(Format):
 
     is_step = True
     version = "2"  # 2: clip ids keyed by folder and file name (schema.clip_keys)
-    inputs: Mapping[str, bool] = {}
+    inputs: ClassVar[Mapping[str, bool]] = {}
     #: which readers the step uses: those whose ``produces`` equals this
     reads: ClassVar[str] = "motion"
 
@@ -134,6 +135,8 @@ class _FileIngest(Format):
         label_pattern: str | None = Field(
             None, description="regular expression over clip names giving a clip's label (group 'label')"
         )
+
+    params: Params
 
     def _files(self, base: Path) -> list[Path]:
         """The input files; the listing :meth:`source_fingerprint` made is reused once, by
@@ -271,6 +274,8 @@ class LoadMotions(_FileIngest):
     class Params(_FileIngest.Params):
         fps: float | None = Field(default=None, gt=0, description="resample every clip to this rate (Hz)")
 
+    params: Params
+
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         # the same tables as motions_to_tables(motions, ids), built clip by clip in the workers
         # and streamed to Parquet a batch of files at a time: the step never holds the library
@@ -292,7 +297,7 @@ class LoadMotions(_FileIngest):
             kept = {i: prev.rows(jobs[i][2], ids[i]) for i in range(a, b)} if prev is not None else {}
             fresh = [i for i in range(a, b) if kept.get(i) is None]
             read = ctx.map(_read_motion_rows, [(*jobs[i], ids[i]) for i in fresh], desc=desc) if fresh else []
-            results = [kept.get(i) for i in range(a, b)]
+            results: list[Any] = [kept.get(i) for i in range(a, b)]
             for i, r in zip(fresh, read, strict=True):
                 results[i - a] = r
             reused += (b - a) - len(fresh)
@@ -507,10 +512,12 @@ class ExportMotions(Format):
 
     name = "export"
     is_step = True
-    inputs: Mapping[str, bool] = {"motions": True}
+    inputs: ClassVar[Mapping[str, bool]] = {"motions": True}
 
     class Params(BaseParams):
         format: str = Field("bvh", description="registry name of a writer format (bvh, amc...)")
+
+    params: Params
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         writer_cls = ctx.registries["formats"].get(self.params.format)

@@ -295,6 +295,8 @@ class TrcFormat(Format):
         y_up: bool = Field(False, description="rotate z-up data to y-up (default: keep the file's axes)")
         strict: bool = Field(False, description="refuse a NumFrames above the rows present (default: read them, warn)")
 
+    params: Params
+
     def read(self, path: str | Path) -> Any:
         return read_trc(path, y_up=self.params.y_up, strict=self.params.strict)
 

@@ -105,6 +105,8 @@ class TemplateClassifier(Analysis):
     class Params(BaseParams):
         clips: str = Field(".", description="regular expression: classify the clips whose names match")
 
+    params: Params
+
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.datasets import StepOutput
 

@@ -162,6 +162,8 @@ class RelationalFeatures(FeatureSet):
                 raise ValueError(f"unknown thresholds {unknown}; known: {', '.join(THRESHOLDS)}")
             return v
 
+    params: Params
+
     @property
     def dim(self) -> int:
         return len(FEATURES)
@@ -202,6 +204,7 @@ class RelationalFeatures(FeatureSet):
 
         out = run_features(self, inputs, ctx, stream=False)  # the codes are derived from the whole table
         data = out.tables["data"]
+        assert isinstance(data, pa.Table)  # stream=False: the whole table
         from mocapflow.framework.datasets import fixed_list_to_numpy
 
         bits = fixed_list_to_numpy(data["features"]) > 0.5

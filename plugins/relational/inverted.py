@@ -306,6 +306,8 @@ class InvertedIndex(Index):
             ("lower", "upper", "mixed"), description="feature sets to index (paper: all three)"
         )
 
+    params: Params
+
     def build(self, features: np.ndarray, clip_id: np.ndarray | None = None, fps: float | None = None) -> InvertedIndex:
         """Build from the 31 relational features (T, 31) of concatenated clips; ``clip_id``
         (T,) per frame, rows grouped by clip (default one clip, id 0); ``fps`` is recorded."""

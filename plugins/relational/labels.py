@@ -22,7 +22,7 @@ def labels_of(
     if motions.has_table("labels"):
         from mocapflow.framework.labels import clip_labels_from_table
 
-        return clip_labels_from_table(motions.table("labels"), clip_ids)
+        return clip_labels_from_table(motions.table("labels"), [int(c) for c in clip_ids])
     import re
 
     from mocapflow.framework.errors import ConfigError

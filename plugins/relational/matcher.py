@@ -183,14 +183,21 @@ class RelationalMatcher(Matcher):
             "(docs/templates.md: chosen by nested leave-one-actor-out)",
         )
 
+    params: Params
+
     def search(self, index: InvertedIndex, bits: np.ndarray, features: tuple[str, ...]) -> Hits:
         """Hits of one query by example (features of the query frames, shape (T, 31))."""
         cols = sorted({feature_column(f) for f in features})
+        mode = self.params.mode
+        if mode == "auto":
+            raise ConfigError(
+                f"{self.key()}: search() runs one feature selection; mode auto chooses its own (run the step)"
+            )
         return example_query(
             index,
             bits,
             cols,
-            self.params.mode,
+            mode,
             self.params.mismatches,
             self.params.mismatch_positions,
             self.params.min_overlap,

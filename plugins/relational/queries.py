@@ -250,7 +250,7 @@ def combine(a: Hits, b: Hits, min_overlap: float = 0.5) -> Hits:
 
 
 def scene_query(
-    index: InvertedIndex, progressions: list[list[dict[str, int]]], overlaps: Sequence[tuple[int, int, int, int]] = ()
+    index: InvertedIndex, progressions: list[list[dict[str, int]]], overlaps: Sequence[tuple[int, ...]] = ()
 ) -> Hits:
     """Geometric scene description (§6.3): progressions combined under co-occurrence.
 

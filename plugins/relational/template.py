@@ -245,6 +245,8 @@ class TemplateMatcher(Matcher):
             ),
         }
 
+    params: Params
+
     def fit(
         self,
         bits: np.ndarray,

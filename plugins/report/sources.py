@@ -17,7 +17,7 @@ class _Motions:
 
     def __init__(self, datasets: Mapping[str, Dataset]) -> None:
         self.datasets = datasets
-        self._pos: dict[str, dict[int, np.ndarray]] = {}
+        self._pos: dict[str, dict[int, Any]] = {}  # a Motion until its FK is asked for, then (T, 25, 3)
         self._names: dict[str, dict[int, str]] = {}
         self._fps: dict[str, dict[int, float]] = {}
 

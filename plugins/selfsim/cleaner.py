@@ -244,6 +244,7 @@ class MDMCleaner(Cleaner):
     name = "mdm"
     version = "3"
     Params: ClassVar[type[Params]] = MDMParams
+    params: MDMParams
 
     def analyse(self, motion: Motion, context: Any = None) -> Any:
         """The full analysis at the analysis rate (texture, T̄, MDM, neighbours)."""

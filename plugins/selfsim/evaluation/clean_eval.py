@@ -67,6 +67,7 @@ class CleaningEvaluation(Analysis):
     name = "clean_eval"
     inputs: ClassVar[Mapping[str, bool]] = {"locomotion": False, "dance": False}
     Params: ClassVar[type[Params]] = CleaningEvaluationParams
+    params: CleaningEvaluationParams
 
     def run(self, inputs, ctx):
         from mocapflow.framework.datasets import StepOutput

@@ -103,6 +103,8 @@ class DistanceCorrelationStudy(Analysis):
         k: int = Field(256, ge=2, description="nearest neighbours per query and row measure (paper: 256)")
         measures: tuple[str, ...] = Field(FIG2_MEASURES, min_length=1, description="the measures, in order")
 
+    params: Params
+
     def study(
         self,
         db: MotionDatabase,

@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -228,8 +229,9 @@ class FatGraph(Analysis):
     """Base poses, per-frame clusters and cluster transitions of a fat graph (Krüger 2010 §5.3)."""
 
     name = "fat_graph"
-    inputs: Mapping[str, bool] = {"features": True, "motions": False}
+    inputs: ClassVar[Mapping[str, bool]] = {"features": True, "motions": False}
     Params = FatGraphParams
+    params: FatGraphParams
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         p = self.params

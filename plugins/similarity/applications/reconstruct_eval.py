@@ -23,6 +23,7 @@ signal, F_E^15 plus its velocity (:mod:`.reconstruct`).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -153,8 +154,9 @@ class ReconstructionEval(Analysis):
     """Reconstruction errors in the layout of Krüger 2010 Table 3, plus error vs prior size."""
 
     name = "reconstruction_eval"
-    inputs: Mapping[str, bool] = {"cmu": True, "hdm05": False}
+    inputs: ClassVar[Mapping[str, bool]] = {"cmu": True, "hdm05": False}
     Params = ReconstructionEvalParams
+    params: ReconstructionEvalParams
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         p = self.params

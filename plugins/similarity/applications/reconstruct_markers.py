@@ -36,6 +36,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -276,8 +277,9 @@ class ReconstructMarkers(Analysis):
     """
 
     name = "reconstruct_markers"
-    inputs: Mapping[str, bool] = {"prior": True, "markers": True}
+    inputs: ClassVar[Mapping[str, bool]] = {"prior": True, "markers": True}
     Params = ReconstructMarkersParams
+    params: ReconstructMarkersParams
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.motion_tables import motions_to_tables

@@ -5,6 +5,7 @@ the model is :mod:`.reconstruct`, marker takes :mod:`.reconstruct_markers`."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -98,8 +99,9 @@ class ReconstructionPrior(Analysis):
     (:mod:`.reconstruct_prior`), memory-mapped by ``analyses.reconstruct``."""
 
     name = "reconstruction_prior"
-    inputs: Mapping[str, bool] = {"motions": True}
+    inputs: ClassVar[Mapping[str, bool]] = {"motions": True}
     Params = ReconstructionPriorParams
+    params: ReconstructionPriorParams
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         p = self.params
@@ -116,8 +118,9 @@ class Reconstruct(Analysis):
     """Full-body motion from 6 sparse markers with kNN local linear pose priors (Krüger 2010 §5.2)."""
 
     name = "reconstruct"
-    inputs: Mapping[str, bool] = {"prior": True, "test": True}
+    inputs: ClassVar[Mapping[str, bool]] = {"prior": True, "test": True}
     Params = ReconstructParams
+    params: ReconstructParams
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.motion_tables import motions_to_tables

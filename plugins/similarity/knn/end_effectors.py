@@ -103,6 +103,8 @@ class EndEffectorFeatures(FeatureSet):
         samples: int = Field(1, ge=1, le=32, description="samples per window (1 = pose only; paper: 3 or 5)")
         window: float = Field(0.3, gt=0, le=10, description="window length in seconds (paper: 0.3)")
 
+    params: Params
+
     @property
     def dim(self) -> int:
         return 3 * self.params.joints * self.params.samples

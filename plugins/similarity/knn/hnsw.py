@@ -51,6 +51,8 @@ class HNSWIndex(Index):
             1, ge=0, description="build threads (1: deterministic; 0: all cores, faster, not reproducible)"
         )
 
+    params: Params
+
     def build(self, features: np.ndarray) -> HNSWIndex:
         """Index ``features`` (n, d) (converted to float32 once)."""
         hnswlib = _hnswlib()

@@ -126,6 +126,8 @@ class KDTreeIndex(CostModel, Index):
     _targs: tuple[tuple, np.ndarray] | None
     #: the rows in dataset order (features, clip id, frame) when loaded beside their dataset
     _rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    #: the folder the index was loaded from (None: built in memory)
+    _dir: Path | None
 
     class Params(BaseParams):
         method: Literal["auto", "kdtree", "brute"] = Field(
@@ -136,6 +138,8 @@ class KDTreeIndex(CostModel, Index):
             ),
         )
         workers: int = Field(0, ge=0, description="threads for batched queries, 0 = all cores")
+
+    params: Params
 
     # --- building ---------------------------------------------------------------------
     def build(

@@ -37,6 +37,8 @@ class NearestPoses(Analysis):
             None, ge=0, description="skip neighbours of the query's own clip within this many frames (0 = itself)"
         )
 
+    params: Params
+
     def _rows(self, clip_id: np.ndarray, frame: np.ndarray, names: dict[str, int]) -> np.ndarray:
         rows = []
         for q in self.params.queries:

@@ -55,6 +55,8 @@ class PosePCA(FeatureSet):
             PCA_JOINTS, min_length=1, description="canonical joints whose positions are compressed"
         )
 
+    params: Params
+
     @property
     def dim(self) -> int:
         return self.params.n_components

@@ -75,7 +75,7 @@ def _import_class(path: str) -> type:
     return getattr(importlib.import_module(module), name)
 
 
-def _load_shard(cls: type[Index], directory: Path) -> Index:
+def _load_shard(cls: Any, directory: Path) -> Index:
     """``cls.load`` memory-mapped where the index supports it (``mmap_mode``)."""
     if "mmap_mode" in getattr(cls, "load_options", ()):
         return cls.load(directory, mmap_mode="r")
@@ -146,6 +146,8 @@ class ShardedIndex(Index):
             "(each worker asks every shard, loaded once per process) or send each shard all the queries",
         )
 
+    params: Params
+
     # --- building ---------------------------------------------------------------------
     def _shard_class(self, registries=None) -> type:
         key = self.params.index if "." in self.params.index else f"indexes.{self.params.index}"
@@ -179,11 +181,15 @@ class ShardedIndex(Index):
         self._finish(cls, x.shape[1])
         return self
 
-    def _build_one(self, cls: type[Index], x: np.ndarray, g: np.ndarray, f: np.ndarray) -> Index:
+    def _build_one(self, cls: Any, x: np.ndarray, g: np.ndarray, f: np.ndarray) -> Index:
         shard = cls(self.params.index_params)
         if "groups" in shard.build_options:
             return shard.build(x, groups=g, frames=f)
         return shard.build(x)
+
+    #: the saved index's modification stamp (set by load): a process answering from the folder
+    #: checks it reads the same index
+    _stamp: str
 
     def _finish(self, cls: type[Index], dim: int) -> None:
         self.shard_key_ = cls.key()
@@ -331,7 +337,8 @@ class ShardedIndex(Index):
     def _inverse(self, j: int) -> np.ndarray:
         inv = self._inv.get(j)
         if inv is None:
-            perm = self.shards_[j].perm_
+            shard: Any = self.shards_[j]  # a kd-tree shard (checked above)
+            perm = shard.perm_
             inv = np.empty_like(perm)
             inv[perm] = np.arange(len(perm))
             self._inv[j] = inv

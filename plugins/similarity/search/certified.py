@@ -353,6 +353,8 @@ class CertifiedSearch(Matcher):
             ),
         )
 
+    params: Params
+
     settings: ClassVar[CertifiedSettings] = DEFAULT_SETTINGS
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:

@@ -107,6 +107,8 @@ class LazyNeighborhoodGraph(Matcher):
             )
         }
 
+    params: Params
+
     def __init__(self, params=None, **kw) -> None:
         super().__init__(params, **kw)
         if self.params.exact is not False:

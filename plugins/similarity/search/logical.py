@@ -155,6 +155,8 @@ class LogicalSearch(Matcher):
             description=("rank by accumulated cost or by cost per path cell (comparable across query lengths)"),
         )
 
+    params: Params
+
     def search(self, query: np.ndarray, space: SearchSpace, exclude: tuple[int, int] | None = None) -> LogicalMatches:
         p = self.params
         return logical_search(

@@ -87,7 +87,9 @@ def subsequence_dtw(
     from ._dtw_kernels import dtw_window_path
 
     cost, start, length = sdtw_costs(query, space)
-    q = validate_query(query, space.features.shape[1])
+    feats = space.features
+    assert feats is not None  # sdtw_costs refused a space without them
+    q = validate_query(query, feats.shape[1])
     ends = np.arange(len(cost), dtype=np.int64)
     keep = select_matches(
         ends,
@@ -103,7 +105,7 @@ def subsequence_dtw(
     paths = []
     for e in keep:
         s = int(start[e])
-        path, _ = dtw_window_path(q, space.features[s : e + 1])
+        path, _ = dtw_window_path(q, feats[s : e + 1])
         path[:, 1] += s
         paths.append(path)
     return QueryMatches(start[keep], ends[keep] + 1, cost[keep], length[keep].astype(np.int64), paths)
@@ -121,6 +123,7 @@ class SubsequenceDTW(Matcher):
     needs_features: ClassVar[bool] = True
 
     Params = MatchParams
+    params: MatchParams
 
     def match(self, query: np.ndarray, space: SearchSpace) -> QueryMatches:
         return subsequence_dtw(query, space, **match_kw(self.params))

@@ -18,10 +18,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 if TYPE_CHECKING:
     from mocapflow.framework.commands import CommandContext
+    from mocapflow.framework.components import FeatureSet
+    from mocapflow.framework.database import MotionDatabase
     from mocapflow.framework.registry import Registries
 
 #: the registries a search needs: a query file's reader, the feature set, the index, the matcher
@@ -209,7 +211,9 @@ class SearchSession:
         self.paths = {r["path"]: r["clip_id"] for r in clips.select(["clip_id", "path"]).to_pylist() if r["path"]}
         self.fps = float(clips["fps"][0].as_py()) if clips.num_rows else None
         self._stamp = self.stamp()
-        self._index = self._feature_set = self._mdb = None
+        self._index: Any = None
+        self._feature_set: FeatureSet | None = None
+        self._mdb: MotionDatabase | None = None
         self._spaces: dict[tuple[bool, bool], object] = {}
 
     def stamp(self) -> tuple:
@@ -303,7 +307,7 @@ class SearchSession:
         from mocapflow.framework.queries import match_query
 
         # refused before the work, also when a server answers for a client (its cwd)
-        ws = [self.db] if getattr(self, "db", None) is not None else []
+        ws: list[str | Path] = [self.db] if getattr(self, "db", None) is not None else []
         out_path = (
             refuse_dataset_path(Path(cwd) / Path(args.out).expanduser(), "--out", workspaces=ws) if args.out else None
         )
