@@ -8,12 +8,14 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import ClassVar
 
 import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from mocapflow.framework import FeatureSet, Matcher, Motion, Params, StepContext, StepOutput, hookimpl
+from mocapflow.framework import FeatureSet, Matcher, Motion, StepContext, StepOutput, hookimpl
+from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.datasets import Dataset
 from mocapflow.framework.errors import ConfigError
 from mocapflow.framework.schema import MATCHES
@@ -26,8 +28,10 @@ class JointSpeed(FeatureSet):
 
     name = "joint_speed"
 
-    class Params(Params):
+    class Params(BaseParams):
         joints: tuple[str, ...] = Field(END_EFFECTORS, min_length=1, description="canonical joints")
+
+    params: Params  # for type checkers: this component's own fields
 
     @property
     def dim(self) -> int:
@@ -46,9 +50,9 @@ class SlidingWindow(Matcher):
     """Best windows of the database for one query clip (brute force, mean feature distance)."""
 
     name = "sliding_window"
-    inputs: Mapping[str, bool] = {"database": True, "query": True}
+    inputs: ClassVar[Mapping[str, bool]] = {"database": True, "query": True}
 
-    class Params(Params):
+    class Params(BaseParams):
         query_clip: int = Field(
             0,
             ge=0,
@@ -56,6 +60,8 @@ class SlidingWindow(Matcher):
             "(0: its first clip; clip ids are stable hashes of the file paths)",
         )
         top: int = Field(5, ge=1, description="number of matches")
+
+    params: Params
 
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         db = inputs["database"].features()
