@@ -40,8 +40,16 @@ def limit_threads(n: int) -> int:
     """Size every numeric thread pool of this process to ``n`` threads (environment for
     later loads, threadpoolctl, numba); returns ``n``. Each worker calls it first."""
     n = max(1, int(n))
+    launched = False
+    if "numba" in sys.modules:
+        from numba.np.ufunc import parallel
+
+        launched = bool(parallel._is_initialized)
     for var in THREAD_ENV:
-        os.environ[var] = str(n)
+        # numba re-reads its environment at every compile and raises once its pool runs with
+        # another size: a launched pool keeps its variable, set_num_threads limits it below
+        if not (launched and var == "NUMBA_NUM_THREADS"):
+            os.environ[var] = str(n)
     if "numba" in sys.modules:
         import numba
         from numba.np.ufunc import parallel

@@ -108,3 +108,34 @@ def test_main_called_from_python_leaves_the_callers_exit_alone():
     out = _exit_state("cli.main(['--version'])")
     assert "rc 0" in out
     assert "frozen False" in out
+
+
+COMPILE_AFTER_LIMIT = """
+import numba, numpy as np
+from mocapflow.framework.threads import limit_threads
+
+@numba.njit(parallel=True, cache=False)
+def total(x):
+    s = 0.0
+    for i in numba.prange(len(x)):
+        s += x[i]
+    return s
+
+total(np.ones(64))  # numba's pool now runs, sized at import
+limit_threads(1)  # a worker's share, as the client takes while it works a batch
+
+@numba.njit(cache=False)
+def plus_one(x):
+    return x + 1
+
+print(plus_one(1), numba.get_num_threads())
+"""
+
+
+def test_a_kernel_compiles_after_the_threads_are_limited_on_a_running_pool():
+    """numba re-reads NUMBA_NUM_THREADS at every compile and raises once its threads run with
+    another count: a cold cache compiling a kernel after limit_threads crashed a jobs=2 run."""
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
+    r = subprocess.run([sys.executable, "-c", COMPILE_AFTER_LIMIT], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["2", "1"]

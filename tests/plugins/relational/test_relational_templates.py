@@ -262,7 +262,7 @@ def test_prefilter_is_a_lower_bound_of_the_dp_on_every_class():
 def test_prefilter_is_a_lower_bound_of_the_dp_on_hdm05():
     import sys
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
     from templates import hdm05_cuts, meta
 
     from mocapflow.plugins.relational.template import fit_templates
