@@ -284,6 +284,7 @@ class KDTreeIndex(CostModel, Index):
         from . import _knn_kernels as kern
 
         tree, no_seed = targs
+        assert self._depth is not None  # set with _targs (_tree_args)
         d2, ids = kern.query_tree(_ro(x), k, 0.0, np.inf, tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
         return np.sqrt(d2).astype(np.float32), ids
 
@@ -365,6 +366,7 @@ class KDTreeIndex(CostModel, Index):
             chunks = 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads())
             seeded = eps == 0.0 and m > 1
             tree, no_seed = self._tree_args()
+            assert self._depth is not None  # set by _tree_args
             return kern.query_tree(
                 _ro(q),
                 k,

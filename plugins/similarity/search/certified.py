@@ -197,7 +197,7 @@ def _level_bounds(qt, space, level, branges, sub_from=np.inf) -> np.ndarray:
 
     bstart, lo, hi, link, size, p = level
     if p > 0 and int((branges[:, 1] - branges[:, 0]).sum()) >= sub_from * len(lo):
-        return subspace_bounds(qt, *block_subspaces_of(space, size, p), link, branges, _SHRINK)  # type: ignore[call-arg]  # numba's Dispatcher stub
+        return subspace_bounds(qt, *block_subspaces_of(space, size, p), link, branges, _SHRINK)
     return coarse_bounds(qt, lo, hi, link, branges, _SHRINK)
 
 

@@ -31,7 +31,9 @@ def block_boxes_of(space: SearchSpace, size: int) -> tuple[np.ndarray, np.ndarra
     return space.memo(("similarity.block_boxes", int(size)), compute)
 
 
-def block_subspaces_of(space: SearchSpace, size: int, p: int) -> tuple[np.ndarray, ...]:
+def block_subspaces_of(
+    space: SearchSpace, size: int, p: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local subspace cells ``(cen, basis, alo, ahi, rad)`` of the blocks of
     :func:`block_boxes_of` ``(space, size)`` with a basis of ``p`` directions, cached on the
     space (:func:`._subspace_kernels.block_subspaces`)."""
