@@ -257,7 +257,9 @@ class KDTreeIndex(CostModel, Index):
         )
         return np.sqrt(d2).astype(np.float32), ids
 
-    def _interactive(self, x, k, radius, eps, exclude) -> tuple[np.ndarray, np.ndarray] | None:
+    def _interactive(
+        self, x: np.ndarray, k: int, radius: float | None, eps: float, exclude: int | None
+    ) -> tuple[np.ndarray, np.ndarray] | None:
         """The common interactive call (one float32 query row, plain exact kNN on the kd-tree
         path) with no per-call numpy work: a 16-NN query in 8-d takes ~20 microseconds, so
         the checks and conversions of the general path would add a third. None: not that call."""
@@ -322,7 +324,18 @@ class KDTreeIndex(CostModel, Index):
             self._inv = inv
         return inv
 
-    def _search(self, q, k, radius, eps, exclude, qg, qf, workers, method):
+    def _search(
+        self,
+        q: np.ndarray,
+        k: int,
+        radius: float | None,
+        eps: float,
+        exclude: int | None,
+        qg: np.ndarray | None,
+        qf: np.ndarray | None,
+        workers: int | None,
+        method: str,
+    ) -> tuple[np.ndarray, np.ndarray]:
         from . import _knn_kernels as kern
 
         m, n = len(q), self.data_.shape[0]
