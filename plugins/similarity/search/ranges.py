@@ -35,7 +35,9 @@ def run_starts(space: SearchSpace) -> np.ndarray:
     )
 
 
-def ranges_dp(qt: np.ndarray, space: SearchSpace, ranges: np.ndarray, threads: int | None = None):
+def ranges_dp(
+    qt: np.ndarray, space: SearchSpace, ranges: np.ndarray, threads: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The fine DP over row ranges (:func:`._dtw_kernels.sdtw_ranges_compact`): ``rows, cost,
     start, length``. With several numba threads (``threads``, default: numba's) and at least
     ``_PARALLEL_CELLS`` cells, long ranges are cut at clip starts and groups of ranges of about
