@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from mocapflow.framework.threads import available_cores, limit_threads
@@ -21,6 +23,6 @@ class ThreadLimit(WorkerPlugin):
         self.threads = threads
         self.host_threads = host_threads
 
-    def setup(self, worker) -> None:
+    def setup(self, worker: Any) -> None:
         busy = self.host_threads.get(worker.ip, worker.state.nthreads)
         limit_threads(self.threads or max(1, available_cores() // max(1, busy)))

@@ -44,7 +44,7 @@ from mocapflow.framework.threads import available_cores, threads_per_worker
 ADDRESS_ENV = "MOCAPFLOW_DASK_ADDRESS"
 
 
-def _require_distributed():
+def _require_distributed() -> Any:
     try:
         import distributed
     except ImportError:  # the optional extra
@@ -133,7 +133,7 @@ class DaskExecutor:
                 raise err
 
     @property
-    def client(self):
+    def client(self) -> Any:
         """The ``distributed.Client`` (connects or starts the LocalCluster on first use, or
         waits for :meth:`start`)."""
         self._wait_started()

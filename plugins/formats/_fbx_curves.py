@@ -164,7 +164,18 @@ def read_curve(
     return curve
 
 
-def _auto(pt, t, nt, pv, v, nv, wl, wr, bias, flags):
+def _auto(
+    pt: np.ndarray,
+    t: np.ndarray,
+    nt: np.ndarray,
+    pv: np.ndarray,
+    v: np.ndarray,
+    nv: np.ndarray,
+    wl: np.ndarray,
+    wr: np.ndarray,
+    bias: np.ndarray,
+    flags: np.ndarray,
+) -> np.ndarray:
     """Auto tangent slope of interior keys (arrays), the SDK's rule."""
     slope = (nv - pv) / (nt - pt)
     dep = (flags & TIME_INDEPENDENT) == 0
@@ -196,7 +207,7 @@ def _auto(pt, t, nt, pv, v, nv, wl, wr, bias, flags):
     return np.where(clamp, 0.0, slope).astype(np.float32)
 
 
-def _auto_edge(d0, d1, dv, bias, flags):
+def _auto_edge(d0: np.ndarray, d1: np.ndarray, dv: np.ndarray, bias: np.ndarray, flags: np.ndarray) -> np.ndarray:
     """Auto tangent slope of a first or last key: the slope to its one neighbour."""
     with np.errstate(divide="ignore", invalid="ignore"):
         slope = dv / (d1 - d0)

@@ -18,7 +18,9 @@ def readonly(a: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _qmul(aw, ax, ay, az, bw, bx, by, bz):
+def _qmul(
+    aw: float, ax: float, ay: float, az: float, bw: float, bx: float, by: float, bz: float
+) -> tuple[float, float, float, float]:
     return (
         aw * bw - ax * bx - ay * by - az * bz,
         aw * bx + ax * bw + ay * bz - az * by,
@@ -28,7 +30,9 @@ def _qmul(aw, ax, ay, az, bw, bx, by, bz):
 
 
 @njit(cache=True)
-def euler_table_to_quat(table, cols, axis_id, frames, scale, extrinsic):
+def euler_table_to_quat(
+    table: np.ndarray, cols: np.ndarray, axis_id: np.ndarray, frames: np.ndarray, scale: float, extrinsic: bool
+) -> np.ndarray:
     """Joint rotations (T, J, 4) from a table (T, W) of Euler angles as read from the file.
 
     ``cols`` (J, 3) int64: column of joint j's k-th listed rotation channel, -1 if it has

@@ -201,7 +201,9 @@ def _qmat(q: np.ndarray, right: bool) -> np.ndarray:
     return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
 
 
-def _linear(rpos, rrot, rscl, parents, j0, t, r):
+def _linear(
+    rpos: np.ndarray, rrot: np.ndarray, rscl: np.ndarray, parents: np.ndarray, j0: int, t: np.ndarray, r: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Constant scales and still ancestors: every output is a constant linear map of the
     file's local values (``r' = Wrest_p r Wrest_j^-1``, ``t' = s_p Wrest_p t``)."""
     n = len(parents)
@@ -229,7 +231,18 @@ def _linear(rpos, rrot, rscl, parents, j0, t, r):
     return root_t, loc, offsets, local_t
 
 
-def _general(rpos, rrot, rscl, parents, jparents, j0, t, r, s, ign):
+def _general(
+    rpos: np.ndarray,
+    rrot: np.ndarray,
+    rscl: np.ndarray,
+    parents: np.ndarray,
+    jparents: np.ndarray,
+    j0: int,
+    t: np.ndarray,
+    r: np.ndarray,
+    s: np.ndarray,
+    ign: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Any scales and ancestors: full forward kinematics per frame, then
     ``W' = W Wrest^-1`` and ``r'_j = W'_p^-1 W'_j``."""
     n_frames, n = t.shape[0], len(parents)

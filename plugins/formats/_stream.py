@@ -16,6 +16,7 @@ import hashlib
 import stat
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -80,7 +81,7 @@ class TextBlocks:
         finally:
             f.close()
 
-    def _blocks(self, f) -> Iterator[tuple[bytes, int]]:  # type: ignore[no-untyped-def]
+    def _blocks(self, f: BinaryIO) -> Iterator[tuple[bytes, int]]:
         p, total, line, rest, first = self.path, 0, 1, b"", True
         while True:
             try:

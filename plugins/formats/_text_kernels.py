@@ -31,7 +31,7 @@ def fnv1a(token: bytes) -> int:
 
 
 @njit(cache=True)
-def _parse_number(buf, s, e, pow10):
+def _parse_number(buf: np.ndarray, s: int, e: int, pow10: np.ndarray) -> tuple[bool, float, int]:
     """Parse the decimal number starting at ``buf[s]`` (not beyond ``e``).
 
     Returns (ok, value, j): ``j`` is where the number's characters end; ``ok`` says that
@@ -105,7 +105,9 @@ def _parse_number(buf, s, e, pow10):
 
 
 @njit(cache=True)
-def _tokenize(buf, start, first_line, pow10):
+def _tokenize(
+    buf: np.ndarray, start: int, first_line: int, pow10: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
     n = buf.size
     cap = (n - start) // 2 + 1
     starts = np.empty(cap, np.int64)
@@ -155,7 +157,9 @@ def _tokenize(buf, start, first_line, pow10):
     return starts[:k], lens[:k], lines[:k], hashes[:k], values[:k], isnum[:k], bad, line
 
 
-def tokenize(buf: np.ndarray, start: int = 0, first_line: int = 1):
+def tokenize(
+    buf: np.ndarray, start: int = 0, first_line: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
     """Tokens of the file's bytes ``buf[start:]`` (uint8), ``first_line`` the 1-based line of
     ``start``. Returns per token (n_tokens,): ``starts, lens, lines`` int64, ``hashes`` uint64
     (FNV-1a of non-numeric tokens, 0 for numbers), ``values`` float64 (NaN unless a finite

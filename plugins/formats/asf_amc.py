@@ -124,7 +124,9 @@ def _header(path: Path, data: bytes) -> tuple[int, int, str | None, bool]:
     raise ParseError(path, ln - 1, "expected frame blocks after the header, found none")
 
 
-def _layout(path, data, tok, skeleton):
+def _layout(
+    path: Path, data: bytes, tok: tuple[Any, ...], skeleton: Skeleton
+) -> tuple[list[tuple[str, int, int]], int]:
     """Bone names and value columns of the first frame (the layout every frame should follow).
 
     Returns ``[(name, first value column, count)]`` and the table width (frame number
@@ -169,7 +171,9 @@ def _check_complete(path: Path, skeleton: Skeleton, bones: list[tuple[str, int, 
         )
 
 
-def _fast_values(data, tok, bones, width):
+def _fast_values(
+    data: bytes, tok: tuple[Any, ...], bones: list[tuple[str, int, int]], width: int
+) -> tuple[np.ndarray, np.ndarray, int] | None:
     """``(table (T, width), token lines (T, width), T)`` if every frame follows the first
     frame's layout exactly (names, numbers, one line per bone and per frame number,
     consecutive frame numbers), else None."""
@@ -201,7 +205,9 @@ def _fast_values(data, tok, bones, width):
     return vals, lines.reshape(t, width), t
 
 
-def _slow_values(path, data, tok, bones):
+def _slow_values(
+    path: Path, data: bytes, tok: tuple[Any, ...], bones: list[tuple[str, int, int]]
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Token-by-token reading with exact error lines; accepts any bone order per frame.
 
     Returns ``(table (T, width), token lines (T, width), T)`` in the first frame's layout.
@@ -384,7 +390,9 @@ def _branch(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, i
     return euler_branch.record(channels, triples, degrees)
 
 
-def _to_motion_arrays(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool):
+def _to_motion_arrays(
+    skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """Root translation (T, 3) metres and local rotations (T, J, 4) from the frame table.
 
     ``bones`` lists (name, first column, count) of the table's bone values. Rotations

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -81,7 +82,7 @@ class ExportCommand:
         return 0
 
 
-def _segment_steps(datasets) -> list[str]:
+def _segment_steps(datasets: Mapping[str, Any]) -> list[str]:
     out = []
     for step, ds in datasets.items():
         try:
@@ -93,7 +94,7 @@ def _segment_steps(datasets) -> list[str]:
     return sorted(out)
 
 
-def _only_segment_step(datasets, ws: Path) -> str:
+def _only_segment_step(datasets: Mapping[str, Any], ws: Path) -> str:
     from mocapflow.framework.errors import ConfigError
 
     steps = _segment_steps(datasets)
@@ -105,7 +106,7 @@ def _only_segment_step(datasets, ws: Path) -> str:
     return steps[0]
 
 
-def _reader_params(datasets, step: str) -> dict:
+def _reader_params(datasets: Mapping[str, Any], step: str) -> dict:
     """The ``readers`` parameters of the ingest step the exported rows come from."""
     from mocapflow.framework.export import motions_of
 
@@ -113,7 +114,7 @@ def _reader_params(datasets, step: str) -> dict:
     return dict(mds.manifest.get("params", {}).get("readers", {})) if mds is not None else {}
 
 
-def hits_segments(hits: Path, datasets, ws: Path, *, top: int | None = None) -> list:
+def hits_segments(hits: Path, datasets: Mapping[str, Any], ws: Path, *, top: int | None = None) -> list:
     """Segments of the matches file ``mocapflow search --out`` wrote (``clip_id``, ``rank``,
     ``start_frame``/``end_frame`` in frames of each take's own file), traced to their source
     files through the workspace's motions datasets. One query per ``query_id`` (named after

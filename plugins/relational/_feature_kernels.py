@@ -17,7 +17,9 @@ _FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
-def _psd(qx, qy, qz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
+def _psd(
+    qx: float, qy: float, qz: float, ax: float, ay: float, az: float, bx: float, by: float, bz: float
+) -> float:  # pragma: no cover - compiled
     ux, uy, uz = bx - ax, by - ay, bz - az
     uu = ux * ux + uy * uy + uz * uz
     t = ((qx - ax) * ux + (qy - ay) * uy + (qz - az) * uz) / max(uu, _EPS)
@@ -27,7 +29,9 @@ def _psd(qx, qy, qz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def plane_distance(p1, p2, p3, q, offset, out):  # pragma: no cover - compiled
+def plane_distance(
+    p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, q: np.ndarray, offset: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
     for i in range(q.shape[0]):
         ux, uy, uz = p2[i, 0] - p1[i, 0], p2[i, 1] - p1[i, 1], p2[i, 2] - p1[i, 2]
         vx, vy, vz = p3[i, 0] - p1[i, 0], p3[i, 1] - p1[i, 1], p3[i, 2] - p1[i, 2]
@@ -37,7 +41,9 @@ def plane_distance(p1, p2, p3, q, offset, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def normal_plane_distance(a, b, anchor, q, offset, out):  # pragma: no cover - compiled
+def normal_plane_distance(
+    a: np.ndarray, b: np.ndarray, anchor: np.ndarray, q: np.ndarray, offset: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
     for i in range(q.shape[0]):
         nx, ny, nz = b[i, 0] - a[i, 0], b[i, 1] - a[i, 1], b[i, 2] - a[i, 2]
         norm = max(math.sqrt(nx * nx + ny * ny + nz * nz), _EPS)
@@ -47,13 +53,17 @@ def normal_plane_distance(a, b, anchor, q, offset, out):  # pragma: no cover - c
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def point_segment_distance(q, a, b, out):  # pragma: no cover - compiled
+def point_segment_distance(
+    q: np.ndarray, a: np.ndarray, b: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
     for i in range(q.shape[0]):
         out[i] = _psd(q[i, 0], q[i, 1], q[i, 2], a[i, 0], a[i, 1], a[i, 2], b[i, 0], b[i, 1], b[i, 2])
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def segment_segment_distance(a0, a1, b0, b1, out):  # pragma: no cover - compiled
+def segment_segment_distance(
+    a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
     for i in range(a0.shape[0]):
         out[i] = _segseg(
             a0[i, 0],
@@ -72,7 +82,9 @@ def segment_segment_distance(a0, a1, b0, b1, out):  # pragma: no cover - compile
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def cos_between(a0, a1, b0, b1, out):  # pragma: no cover - compiled
+def cos_between(
+    a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
     # the cosine, not the angle: thresholding cos against cos(theta) avoids an acos per frame
     for i in range(a0.shape[0]):
         ux, uy, uz = a1[i, 0] - a0[i, 0], a1[i, 1] - a0[i, 1], a1[i, 2] - a0[i, 2]
@@ -83,7 +95,7 @@ def cos_between(a0, a1, b0, b1, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def speed(x, starts, fps, out):  # pragma: no cover - compiled
+def speed(x: np.ndarray, starts: np.ndarray, fps: float, out: np.ndarray) -> None:  # pragma: no cover - compiled
     n = x.shape[0]
     for i in range(n):
         first = starts[i]
@@ -99,7 +111,7 @@ def speed(x, starts, fps, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def min_height(positions, out):  # pragma: no cover - compiled
+def min_height(positions: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """Lowest y over the joints of each frame, ignoring NaN (NaN if all are)."""
     for i in range(positions.shape[0]):
         best = np.inf
@@ -116,7 +128,9 @@ OP_PLANE, OP_NPLANE, OP_PSEG, OP_SEGSEG, OP_COS, OP_HEIGHT, OP_SPEED = 0, 1, 2, 
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
-def _joint(pos, i, j, fallback):  # pragma: no cover - compiled
+def _joint(
+    pos: np.ndarray, i: int, j: int, fallback: np.ndarray
+) -> tuple[float, float, float]:  # pragma: no cover - compiled
     # substitute a missing joint (NaN) by its fallback (toes -> ankle...), per frame
     while j >= 0 and math.isnan(pos[i, j, 0]) and fallback[j] >= 0:
         j = fallback[j]
@@ -124,7 +138,19 @@ def _joint(pos, i, j, fallback):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
-def _value(pos, i, lo, hi, miny, fps, op, joints, f, n_terms, fallback):  # pragma: no cover - compiled
+def _value(
+    pos: np.ndarray,
+    i: int,
+    lo: int,
+    hi: int,
+    miny: float,
+    fps: float,
+    op: int,
+    joints: np.ndarray,
+    f: int,
+    n_terms: int,
+    fallback: np.ndarray,
+) -> float:  # pragma: no cover - compiled
     """Value of feature ``f`` at frame ``i``: min over its terms of the op."""
     best = np.inf
     # index the full arrays (no slices: a slice per call costs a reference count)
@@ -178,7 +204,7 @@ def _value(pos, i, lo, hi, miny, fps, op, joints, f, n_terms, fallback):  # prag
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
-def _frame(pos, starts, i):  # pragma: no cover - compiled
+def _frame(pos: np.ndarray, starts: np.ndarray, i: int) -> tuple[int, int, float]:  # pragma: no cover - compiled
     # prange indices are unsigned: keep the arithmetic in int64
     i = np.int64(i)
     n = np.int64(pos.shape[0])
@@ -193,7 +219,16 @@ def _frame(pos, starts, i):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def feature_values(pos, starts, fps, ops, joints, n_terms, fallback, out):  # pragma: no cover - compiled
+def feature_values(
+    pos: np.ndarray,
+    starts: np.ndarray,
+    fps: float,
+    ops: np.ndarray,
+    joints: np.ndarray,
+    n_terms: np.ndarray,
+    fallback: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
     """Raw values ``out (T, F)`` of every feature (distances m, speeds m/s, angles as cosines).
 
     ``pos`` (T, J, 3); ``starts`` (T,) first frame of each clip; ``ops`` (F,) op codes;
@@ -208,8 +243,19 @@ def feature_values(pos, starts, fps, ops, joints, n_terms, fallback, out):  # pr
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def feature_bits(
-    pos, starts, fps, ops, joints, n_terms, fallback, unit, scale, thr, below, out
-):  # pragma: no cover - compiled
+    pos: np.ndarray,
+    starts: np.ndarray,
+    fps: float,
+    ops: np.ndarray,
+    joints: np.ndarray,
+    n_terms: np.ndarray,
+    fallback: np.ndarray,
+    unit: np.ndarray,
+    scale: np.ndarray,
+    thr: np.ndarray,
+    below: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
     """Thresholded features in the same pass: ``out[i, f] = value (>= | <) thr[f] * scale[i, unit[f]]``;
     NaN gives False."""
     for i in range(pos.shape[0]):
@@ -224,7 +270,20 @@ def feature_bits(
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=_FAST)
-def _segseg(a0x, a0y, a0z, a1x, a1y, a1z, b0x, b0y, b0z, b1x, b1y, b1z):  # pragma: no cover - compiled
+def _segseg(
+    a0x: float,
+    a0y: float,
+    a0z: float,
+    a1x: float,
+    a1y: float,
+    a1z: float,
+    b0x: float,
+    b0y: float,
+    b0z: float,
+    b1x: float,
+    b1y: float,
+    b1z: float,
+) -> float:  # pragma: no cover - compiled
     ux, uy, uz = a1x - a0x, a1y - a0y, a1z - a0z
     vx, vy, vz = b1x - b0x, b1y - b0y, b1z - b0z
     wx, wy, wz = a0x - b0x, a0y - b0y, a0z - b0z

@@ -11,7 +11,9 @@ from numba import njit
 
 
 @njit(cache=True)
-def select_hits(cost, start, threshold, min_gap):  # pragma: no cover - compiled
+def select_hits(
+    cost: np.ndarray, start: np.ndarray, threshold: float, min_gap: float
+) -> np.ndarray:  # pragma: no cover - compiled
     """Hits from end-frame costs: local minima with cost <= threshold, cheapest first, a
     candidate dropped when it overlaps an accepted hit by more than ``min_gap`` of the
     shorter span. Returns the end frames (h,) int64 (inclusive) by ascending cost.
@@ -23,7 +25,9 @@ def select_hits(cost, start, threshold, min_gap):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def range_minima(cost, lo, hi, threshold):  # pragma: no cover - compiled
+def range_minima(
+    cost: np.ndarray, lo: np.ndarray, hi: np.ndarray, threshold: float
+) -> np.ndarray:  # pragma: no cover - compiled
     """Frames ``j`` inside the ranges ``[lo, hi)`` with ``cost[j] <= threshold``, not above
     the previous frame and below the next (frames outside the range count as inf)."""
     total = 0
@@ -46,7 +50,9 @@ def range_minima(cost, lo, hi, threshold):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def greedy_hits(cand, cost, start, min_gap, n):  # pragma: no cover - compiled
+def greedy_hits(
+    cand: np.ndarray, cost: np.ndarray, start: np.ndarray, min_gap: float, n: int
+) -> np.ndarray:  # pragma: no cover - compiled
     """The greedy overlap suppression of :func:`select_hits` over given candidate ends
     (ascending frames); ``n`` frames in all. Returns the accepted ends by ascending cost."""
     m = cand.shape[0]
@@ -81,7 +87,7 @@ def greedy_hits(cand, cost, start, min_gap, n):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def window_minima(cost, lo, hi):  # pragma: no cover - compiled
+def window_minima(cost: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """Least ``cost`` over each frame window ``[lo_i, hi_i)`` (inf for an empty one), (n,)."""
     out = np.full(lo.shape[0], np.inf)
     for i in range(lo.shape[0]):

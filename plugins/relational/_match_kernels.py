@@ -10,7 +10,9 @@ from numba import njit
 
 
 @njit(cache=True)
-def mismatch_scan(codes, clip, member, allowed, m):  # pragma: no cover - compiled
+def mismatch_scan(
+    codes: np.ndarray, clip: np.ndarray, member: np.ndarray, allowed: np.ndarray, m: int
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """m-mismatch hits by dynamic programming over the segment sequence.
 
     For every start ``k`` the number of unsatisfied equalities ``w_{k+l} in V_l`` is counted
@@ -49,7 +51,9 @@ def mismatch_scan(codes, clip, member, allowed, m):  # pragma: no cover - compil
 
 
 @njit(cache=True)
-def banded_dtw(a, b, lo, hi):  # pragma: no cover - compiled
+def banded_dtw(
+    a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[float, np.ndarray, int]:  # pragma: no cover - compiled
     """DTW between ``a (n, d)`` and ``b (m, d)`` restricted to a band.
 
     Row ``i`` may only use columns ``lo[i] <= j < hi[i]``; local cost is the Euclidean
@@ -107,7 +111,9 @@ def banded_dtw(a, b, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def adaptive_chain(starts, ends, code, first, member):  # pragma: no cover - compiled
+def adaptive_chain(
+    starts: np.ndarray, ends: np.ndarray, code: np.ndarray, first: np.ndarray, member: np.ndarray
+) -> np.ndarray:  # pragma: no cover - compiled
     """Extend maximal runs of ``V_1`` (``[starts, ends)``) through ``V_2 .. V_L`` (§5.2).
 
     Level ``l`` must begin exactly where level ``l-1`` ended, inside the same clip

@@ -26,7 +26,7 @@ TABLE_ROWS = 6400
 
 
 @njit(cache=True, inline="always")
-def _fill_costs(code, table, col, lo, hi):  # pragma: no cover - compiled
+def _fill_costs(code: int, table: np.ndarray, col: np.ndarray, lo: int, hi: int) -> None:  # pragma: no cover - compiled
     """Local costs ``col[k]`` of template rows ``lo <= k < hi`` for one frame code (module doc)."""
     a = code & 2047
     b = 2048 + ((code >> 11) & 4095)
@@ -36,7 +36,7 @@ def _fill_costs(code, table, col, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def dtw_path(a, b):  # pragma: no cover - compiled
+def dtw_path(a: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray]:  # pragma: no cover - compiled
     """Global DTW between ``a (n, f)`` and ``b (m, f)``, local cost mean |a - b| over features.
 
     Steps (1,0), (0,1), (1,1) from (0, 0) to (n-1, m-1). Returns the accumulated cost of the
@@ -87,7 +87,9 @@ def dtw_path(a, b):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _best_step(a, sa, b, sb, c, sc):  # pragma: no cover - compiled
+def _best_step(
+    a: float, sa: int, b: float, sb: int, c: float, sc: int
+) -> tuple[float, int]:  # pragma: no cover - compiled
     """The least of three step costs with its path start; the first wins a tie (the
     order of the module doc's steps: (1,1), (2,1), (1,2))."""
     best, bs = a, sa
@@ -99,7 +101,15 @@ def _best_step(a, sa, b, sb, c, sc):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start, base=0):  # pragma: no cover - compiled
+def _sdtw_range(
+    codes: np.ndarray,
+    table: np.ndarray,
+    lo_frame: int,
+    hi_frame: int,
+    cost: np.ndarray,
+    start: np.ndarray,
+    base: int = 0,
+) -> None:  # pragma: no cover - compiled
     """Subsequence DTW over the frames ``[lo_frame, hi_frame)`` of one clip (module doc);
     the results of frame ``j`` go to ``cost[j - base]`` and ``start[j - base]``.
 
@@ -144,7 +154,15 @@ def _sdtw_range(codes, table, lo_frame, hi_frame, cost, start, base=0):  # pragm
 
 
 @njit(cache=True)
-def _sdtw_range_bounded(codes, table, lo_frame, hi_frame, cost, start, bound):  # pragma: no cover - compiled
+def _sdtw_range_bounded(
+    codes: np.ndarray,
+    table: np.ndarray,
+    lo_frame: int,
+    hi_frame: int,
+    cost: np.ndarray,
+    start: np.ndarray,
+    bound: float,
+) -> None:  # pragma: no cover - compiled
     """:func:`_sdtw_range` with early abandoning (the results of frame ``j`` go to
     ``cost[j]`` and ``start[j]``). ``bound`` (mean cost, ``inf``: none): cells above
     ``bound * K`` are abandoned and each column is computed only up to the highest row the
@@ -210,7 +228,15 @@ def _sdtw_range_bounded(codes, table, lo_frame, hi_frame, cost, start, bound):  
 
 
 @njit(cache=True, parallel=True)
-def template_sdtw(codes, table, chunk_lo, chunk_hi, cost, start, bound=np.inf):  # pragma: no cover - compiled
+def template_sdtw(
+    codes: np.ndarray,
+    table: np.ndarray,
+    chunk_lo: np.ndarray,
+    chunk_hi: np.ndarray,
+    cost: np.ndarray,
+    start: np.ndarray,
+    bound: float = np.inf,
+) -> None:  # pragma: no cover - compiled
     """Subsequence DTW of one template over many clips, in parallel over clip ranges.
 
     ``codes`` (N,) int64: 31-bit feature code per frame (bit i = column i); ``table``
@@ -227,7 +253,9 @@ def template_sdtw(codes, table, chunk_lo, chunk_hi, cost, start, bound=np.inf): 
 
 
 @njit(cache=True)
-def _remaining_bound(codes, table, lo, hi, g):  # pragma: no cover - compiled
+def _remaining_bound(
+    codes: np.ndarray, table: np.ndarray, lo: int, hi: int, g: np.ndarray
+) -> float:  # pragma: no cover - compiled
     """Lower bounds of the cost still to come for the frames ``[lo, hi)`` of one range.
 
     ``m[k]`` = least local cost of template row ``k`` over the codes of the range; ``g[k]``
@@ -264,7 +292,9 @@ def _remaining_bound(codes, table, lo, hi, g):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _cost_range_plain(codes, table, lo, hi, cost):  # pragma: no cover - compiled
+def _cost_range_plain(
+    codes: np.ndarray, table: np.ndarray, lo: int, hi: int, cost: np.ndarray
+) -> None:  # pragma: no cover - compiled
     """:func:`sdtw_cost` of one range without a bound: every row of every column, branch-free."""
     n_rows = table.shape[1]
     d0 = np.empty(n_rows)
@@ -289,7 +319,14 @@ def _cost_range_plain(codes, table, lo, hi, cost):  # pragma: no cover - compile
 
 
 @njit(cache=True, parallel=True)
-def sdtw_cost(codes, table, chunk_lo, chunk_hi, cost, bounds):  # pragma: no cover - compiled
+def sdtw_cost(
+    codes: np.ndarray,
+    table: np.ndarray,
+    chunk_lo: np.ndarray,
+    chunk_hi: np.ndarray,
+    cost: np.ndarray,
+    bounds: np.ndarray,
+) -> None:  # pragma: no cover - compiled
     """End-frame costs only (no path starts), branch-free minima, early abandoning: the
     fast first pass of a search. Same recurrence as :func:`template_sdtw`.
 

@@ -22,9 +22,14 @@ the paper's adaptive and m-mismatch hits on features chosen from the example.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from mocapflow.framework.errors import DataError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .template_model import MotionTemplate
 
 #: Runs shorter than this (frames) are flicker.
 MIN_RUN = 4
@@ -89,13 +94,13 @@ def auto_template(
     examples: list[np.ndarray] | None = None,
     min_run: int = MIN_RUN,
     weighting: float = WEIGHTING,
-):
+) -> MotionTemplate:
     """The smoothed query as a motion template on all 31 features, or (with examples) a
     template fitted on query and examples (don't care where they disagree), its local cost
     weighted by :func:`surprise_weights` to the power ``weighting``."""
     from .template_model import MotionTemplate, fit_class_template
 
-    def smooth(x):
+    def smooth(x: np.ndarray) -> np.ndarray:
         return np.stack([smooth_runs(np.asarray(c) > 0.5, min_run) for c in np.asarray(x).T], axis=1)
 
     sm = smooth(bits)
@@ -126,7 +131,7 @@ def relative_cost_cut(per_clip: np.ndarray, relative_cut: float = PLAIN_CUT) -> 
 
 
 def auto_hits(
-    template, codes: np.ndarray, offsets: np.ndarray, relative_cut: float = PLAIN_CUT
+    template: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, relative_cut: float = PLAIN_CUT
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Hits ``(start, end, cost)`` of an auto template below :func:`relative_cost_cut` of
     each clip's least cost, and that cut."""
@@ -179,7 +184,17 @@ def reverse_costs(
     return float(own.min()) if len(own) else float("inf"), per_range
 
 
-def _reverse_finds_query(rev_bits, lo, hi, q_codes, codes, offsets, background, relative_cut, max_clips) -> bool:
+def _reverse_finds_query(
+    rev_bits: np.ndarray,
+    lo: int,
+    hi: int,
+    q_codes: np.ndarray,
+    codes: np.ndarray,
+    offsets: np.ndarray,
+    background: np.ndarray,
+    relative_cut: float,
+    max_clips: int | None,
+) -> bool:
     """Whether the reverse query (:func:`reverse_costs`) finds the query: its least cost <=
     the :func:`relative_cost_cut` of the per-range costs."""
     own, per_range = reverse_costs(rev_bits, lo, hi, q_codes, codes, offsets, background, max_clips)
@@ -246,7 +261,7 @@ def fusion_mask(hit_clips: np.ndarray, numeric_clip_costs: np.ndarray, fusion: f
 
 
 def auto_dtw_hits(
-    template,
+    template: MotionTemplate,
     query_bits: np.ndarray,
     db_bits: np.ndarray,
     codes: np.ndarray,

@@ -31,6 +31,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.context import StepContext
     from mocapflow.framework.datasets import Dataset, StepOutput
 
+    from .template_model import MotionTemplate
+
 
 #: Cost charged per clip frame a template cannot span (``analyses.classify``): a template of
 #: K frames covers at most ``K / COVER`` frames (the steps compress it 2x at most); chosen by
@@ -49,7 +51,9 @@ def span_fraction(lengths: np.ndarray, clip_frames: np.ndarray) -> np.ndarray:
     return np.minimum(1.0, np.asarray(lengths, np.float64)[None, :] / (COVER * n[:, None]))
 
 
-def classify_clips(templates, bits: np.ndarray, offsets: np.ndarray, penalty: float = SPAN_PENALTY) -> np.ndarray:
+def classify_clips(
+    templates: list[MotionTemplate], bits: np.ndarray, offsets: np.ndarray, penalty: float = SPAN_PENALTY
+) -> np.ndarray:
     """Per clip of ``bits`` (N, 31) split at ``offsets`` and per template the score, (n_clips,
     n_templates): the least subsequence-DTW cost on all 31 features where the template can
     span the clip (``K >= COVER x`` its frames, the rival check's rule of :mod:`.template_cutoff`);

@@ -16,7 +16,7 @@ the DTW cost per path step to ``dtw_cost``.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -349,7 +349,9 @@ class RelationalMatcher(Matcher):
             r.update(mode="auto", features=ids, dtw_cost=r["cost"])
         return rows
 
-    def _rows(self, qid: int, index: InvertedIndex, hits: Hits, mdb, query_clip) -> list[dict]:
+    def _rows(
+        self, qid: int, index: InvertedIndex, hits: Hits, mdb: Any, query_clip: tuple[int, int] | None
+    ) -> list[dict]:
         any_set = next(iter(index.sets.values()))
         order = np.lexsort((hits.start, hits.clip, hits.cost))
         # several combinations (scene progressions, combined indexes) can give one span: keep the best
@@ -378,11 +380,20 @@ class RelationalMatcher(Matcher):
                 "features": hits.sets,
             }
             if mdb is not None and query_clip is not None and hits.levels is not None:
+                assert hits.query_levels is not None  # set with hits.levels (single-set hits)
                 row.update(self._refine(mdb, query_clip, pos, hits.levels[h] - first, hits.query_levels, index))
             out.append(row)
         return out
 
-    def _refine(self, mdb, query_clip, pos, levels, query_levels, index) -> dict:
+    def _refine(
+        self,
+        mdb: Any,
+        query_clip: tuple[int, int],
+        pos: int,
+        levels: np.ndarray,
+        query_levels: np.ndarray,
+        index: InvertedIndex,
+    ) -> dict:
         any_set = next(iter(index.sets.values()))
         where = {int(c): i for i, c in enumerate(mdb.clip_ids)}
         qm = mdb.motions[where[query_clip[0]]]

@@ -19,6 +19,8 @@ plane given by a normal
 
 from __future__ import annotations
 
+from types import ModuleType
+
 import numpy as np
 
 from mocapflow.framework.errors import DataError
@@ -38,7 +40,7 @@ def _scalars(x: float | np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=np.float32), shape)).reshape(-1)
 
 
-def _k():
+def _k() -> ModuleType:
     # numba is imported lazily, on the first feature computation, never at start-up
     from . import _feature_kernels as _relational_kernels
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -46,6 +46,9 @@ from .template_model import (
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.context import StepContext
     from mocapflow.framework.datasets import Dataset, StepOutput
+
+    from .template_coarse import CoarseCodes
+    from .template_cutoff import RivalTable
 
 #: HDM05 cut names ``HDM_<actor>_<class>_<nnn>_<rate>``.
 HDM05_LABEL = r"^HDM_[A-Za-z]+_(?P<label>[A-Za-z0-9]+)_\d+"
@@ -105,7 +108,7 @@ def feature_ids(columns: np.ndarray) -> str:
 
 
 def search_template(
-    t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None, index=None
+    t: MotionTemplate, codes: np.ndarray, offsets: np.ndarray, threshold: float | None = None, index: object = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hits ``(start, end, cost)`` (global frames, ascending cost) of one template below its
     threshold, without the rival check.
@@ -120,7 +123,7 @@ def search_template(
     return search_costs(codes, t.table(), np.stack([offsets[:-1], offsets[1:]], axis=1), bound)[:3]
 
 
-def _index_shim(index) -> None:
+def _index_shim(index: object) -> None:
     """The ``index`` argument (anchor regions from the inverted lists) lost true hits; the
     search's own pre-filter is admissible and needs no index. Kept one release: warns, otherwise ignored."""
     if index is not None:
@@ -138,13 +141,13 @@ def cutoff_hits(
     templates: list[MotionTemplate],
     codes: np.ndarray,
     offsets: np.ndarray,
-    index=None,
+    index: object = None,
     threshold: float | None = None,
     min_gap: float = 0.5,
     only: list[int] | None = None,
-    rival_table=None,
+    rival_table: RivalTable | None = None,
     step: int | str = 1,
-    coarse=None,
+    coarse: CoarseCodes | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """The hits the matcher reports, per template ``(start, end, cost, bound)`` (global
     frames, ascending cost): key-feature cost <= the template's acceptance bound and no
@@ -334,7 +337,7 @@ def _fps(motions: Dataset) -> float | None:
         return None
 
 
-def _clip_layout(feats) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _clip_layout(feats: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frames grouped by clip (in the order they appear): bits (N, 31), clip ids, offsets."""
     cid = np.asarray(feats.clip_id)
     # clips in order of first appearance (clip ids are hashes: sorting by id would reorder

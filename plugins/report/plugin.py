@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from mocapflow.framework.plugins import hookimpl
 
 if TYPE_CHECKING:
+    import pyarrow as pa
+
     from mocapflow.framework.commands import CommandContext
 
 
@@ -18,7 +20,7 @@ def register_commands() -> list[type]:
     return [ReportCommand]
 
 
-def workspace_tables(workspace: Path):
+def workspace_tables(workspace: Path) -> tuple[dict[str, Any], pa.Table, pa.Table]:
     """Datasets by step id, and the clips (with duration) and rejects of every motions
     dataset through the catalog, each table with a leading ``step`` column."""
     import pyarrow as pa

@@ -3,6 +3,9 @@ from the consensus (:func:`repair_flagged`)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 
 from mocapflow.framework import quaternions as quat
@@ -47,7 +50,7 @@ def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
 def swap_frames(
     q: np.ndarray,
     mean_q: np.ndarray,
-    joints,
+    joints: Sequence[str],
     flags: np.ndarray,
     swap_gain: float,
     slack: int = 8,
@@ -87,7 +90,7 @@ def swap_frames(
     return out
 
 
-def _swap_runs(res, swap_flags: np.ndarray) -> list:
+def _swap_runs(res: Any, swap_flags: np.ndarray) -> list:
     """Swapped intervals holding a ``swap``-flagged chain cell: found by their edges
     (:func:`.swaps.swap_edges`) or by the mirror gain (:func:`swap_frames`)."""
     from .constants import SWAP_GAIN, SWAP_LEVEL, SWAP_MAX
@@ -120,7 +123,7 @@ def _hold_interval(length: np.ndarray, edge: np.ndarray, a: int, b: int) -> tupl
     return None
 
 
-def _bounded(res, q: np.ndarray, new: np.ndarray, exempt: np.ndarray) -> np.ndarray:
+def _bounded(res: Any, q: np.ndarray, new: np.ndarray, exempt: np.ndarray) -> np.ndarray:
     """``new`` with every cell outside ``exempt`` kept only nearer the consensus and moved at
     most its digression plus the KNN spread (shortened along the geodesic)."""
     mean_q = res.mean_texture
@@ -135,7 +138,7 @@ def _bounded(res, q: np.ndarray, new: np.ndarray, exempt: np.ndarray) -> np.ndar
     return new
 
 
-def repair_flagged(res, flags: np.ndarray, det: np.ndarray, stat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def repair_flagged(res: Any, flags: np.ndarray, det: np.ndarray, stat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Repaired texture (T, m, 4) and the changed cells (T, m): every flagged run (runs of
     one joint at most :data:`.constants.MERGE_GAP` frames apart merged) repaired by the
     detector ``det`` (T, m, index of :data:`.detectors.DETECTORS`) of its strongest cell

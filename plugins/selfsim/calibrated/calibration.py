@@ -15,14 +15,18 @@ spans hold under :data:`.constants.NULL_MIN_FRAMES` frames (a small context).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .constants import MIN_SIMILAR, NULL_MIN_FRAMES, SPAN_PAD
 from .null import Null, context_null, shipped_null
 
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework.motion import Motion
 
-def _cover(res, lengths: np.ndarray, target_length: int) -> tuple[np.ndarray, float]:
+
+def _cover(res: Any, lengths: np.ndarray, target_length: int) -> tuple[np.ndarray, float]:
     """KNN-word coverage count per frame of the concatenated context (C,) (clip 0 the take,
     of length 0 when it was not searched), and the share of the take's KNN words that lie
     outside the take."""
@@ -41,7 +45,7 @@ def _cover(res, lengths: np.ndarray, target_length: int) -> tuple[np.ndarray, fl
 
 
 def similar_spans(
-    res, others: Sequence, fps: float, frames: int, target_length: int = 20, self_first: bool = True
+    res: Any, others: Sequence, fps: float, frames: int, target_length: int = 20, self_first: bool = True
 ) -> tuple[list[tuple[int, int, int, np.ndarray]], float]:
     """(clip index in ``others``, first, end analysis frame, covered mask) of the densest
     KNN-covered spans up to ``frames`` analysis frames, and the share of the take's KNN words
@@ -76,7 +80,14 @@ def similar_spans(
 
 
 def calibrate(
-    res, take, others: Sequence, analyse: Callable, fps: float, *, frames: int = 600, self_first: bool = True
+    res: Any,
+    take: Motion,
+    others: Sequence,
+    analyse: Callable,
+    fps: float,
+    *,
+    frames: int = 600,
+    self_first: bool = True,
 ) -> Null:
     """The take's null (module doc) from its analysis ``res`` (the take first in its context
     when ``self_first``); ``analyse(motion, context)`` is the cleaner's analysis with the clip

@@ -21,6 +21,7 @@ similar to the take, and the conformal test that holds a stated false-alarm rate
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -140,7 +141,7 @@ def robust_units(ev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return center, np.maximum(np.quantile(ev, 0.95, axis=0) - center, SCALE_FLOOR)
 
 
-def shipped_null(joints, fallback: str = "") -> Null:
+def shipped_null(joints: Sequence[str], fallback: str = "") -> Null:
     """The null shipped with the package for the texture ``joints`` (a joint it lacks takes
     the median units over its joints)."""
     d = _shipped_data()
@@ -161,7 +162,7 @@ def shipped_null(joints, fallback: str = "") -> Null:
     )
 
 
-def context_null(evs: list[np.ndarray], masks: list[np.ndarray], joints, clips: list[str]) -> Null:
+def context_null(evs: list[np.ndarray], masks: list[np.ndarray], joints: Sequence[str], clips: list[str]) -> Null:
     """The null of the evidence ``evs`` (T_i, m, K) on the cells ``masks`` (T_i,) of the
     context spans (module doc), with the shipped table for small rates."""
     pool = np.concatenate([e[m] for e, m in zip(evs, masks, strict=True)], axis=0)  # (n, m, K)

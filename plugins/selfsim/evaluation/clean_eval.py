@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -25,6 +25,10 @@ from mocapflow.framework.motion import Motion
 
 from .error_injection import PROTOCOL_KINDS, inject_at_density
 from .scores import RotationBaselines, _log_norm_sq, _ratios, scores, source_glitches
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework.context import StepContext
+    from mocapflow.framework.datasets import Dataset, StepOutput
 
 #: What ``held_out`` names per category: the clip name before '_' (subject) or after it (trial).
 GROUP_BY: dict[str, str] = {"locomotion": "subject", "dance": "trial"}
@@ -69,7 +73,7 @@ class CleaningEvaluation(Analysis):
     Params: ClassVar[type[Params]] = CleaningEvaluationParams
     params: CleaningEvaluationParams
 
-    def run(self, inputs, ctx):
+    def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:
         from mocapflow.framework.datasets import StepOutput
 
         rows, rep, kinds = [], [], []

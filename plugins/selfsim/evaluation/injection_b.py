@@ -19,6 +19,9 @@ injection rate, angles in degrees):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from mocapflow.framework import quaternions as quat
@@ -26,6 +29,9 @@ from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion
 
 from .error_injection import Ranges, _random_axis, inject_at_density
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .error_injection import InjectedError
 
 KINDS_B: tuple[str, ...] = ("gapfill", "pop", "lag", "overshoot", "tremor")
 
@@ -46,7 +52,7 @@ def apply_error_b(
     kind: str,
     start: int,
     end: int,
-    joints,
+    joints: Sequence[int],
     magnitude: float,
     rng: np.random.Generator,
 ) -> None:
@@ -85,7 +91,9 @@ def apply_error_b(
             raise DataError(f"unknown family-B error kind {kind!r} (known: {', '.join(KINDS_B)})")
 
 
-def inject_b(motion: Motion, seed: int, density: float = 0.125, min_angle: float = 5.0):
+def inject_b(
+    motion: Motion, seed: int, density: float = 0.125, min_angle: float = 5.0
+) -> tuple[Motion, np.ndarray, list[InjectedError]]:
     """Family-B errors at ``density`` of the words of ``motion`` at its own rate (a 24-fps
     frame is ``fps / 24`` input frames): the corrupted motion, the (T, J) mask of cells
     moved more than ``min_angle`` degrees and the :class:`.error_injection.InjectedError` list."""

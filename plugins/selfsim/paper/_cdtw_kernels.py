@@ -12,7 +12,9 @@ _INF = np.inf
 
 
 @njit(cache=True)
-def cdtw(d, i0, j0, n, ln, r, cum, plen, back):  # pragma: no cover - compiled
+def cdtw(
+    d: np.ndarray, i0: int, j0: int, n: int, ln: int, r: int, cum: np.ndarray, plen: np.ndarray, back: np.ndarray
+) -> tuple[float, int, int, int, int]:  # pragma: no cover - compiled
     """Constrained DTW of the source word at row ``i0`` against the target word at column
     ``j0`` (see module doc). Work arrays cum (n, M, 2r+1) float64, plen and back int64.
 
@@ -116,7 +118,9 @@ def cdtw(d, i0, j0, n, ln, r, cum, plen, back):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def cdtw_cost_r2(d, i0, j0, n, ln, cost, plen):  # pragma: no cover - compiled
+def cdtw_cost_r2(
+    d: np.ndarray, i0: int, j0: int, n: int, ln: int, cost: np.ndarray, plen: np.ndarray
+) -> tuple[float, int]:  # pragma: no cover - compiled
     """Cost and length of :func:`cdtw` for the paper's slope constraint ``r = 2``.
 
     Same recurrence, tie rules and result, keeping two rows only; the five states (diagonal, 1-2 horizontal,
@@ -215,7 +219,9 @@ def cdtw_cost_r2(d, i0, j0, n, ln, cost, plen):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def cdtw_path(d, i0, j0, n, ln, r):  # pragma: no cover - compiled
+def cdtw_path(
+    d: np.ndarray, i0: int, j0: int, n: int, ln: int, r: int
+) -> tuple[float, np.ndarray]:  # pragma: no cover - compiled
     """Constrained DTW with the optimal path.
 
     Returns (mean cost, path (p, 2) int64 of (source row, target column) pairs).

@@ -31,7 +31,9 @@ _INF = np.inf
 
 
 @njit(cache=True, parallel=True)
-def pose_distance_block(src, ctx, mask, drop, out):  # pragma: no cover - compiled
+def pose_distance_block(
+    src: np.ndarray, ctx: np.ndarray, mask: np.ndarray, drop: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled
     """Eq. 1 for every (source frame, context frame) pair and every group.
 
     src (S, m, 4), ctx (C, m, 4) float64; mask (G, m) uint8; drop (G,) int64;
@@ -83,7 +85,7 @@ def pose_distance_block(src, ctx, mask, drop, out):  # pragma: no cover - compil
 
 
 @njit(cache=True, parallel=True)
-def sliding_row_min(d, tlen, out):  # pragma: no cover - compiled
+def sliding_row_min(d: np.ndarray, tlen: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """out[g, i, t] = min_{j < tlen[t]} d[g, i, t + j] (inf where tlen[t] == 0); d (G, rows, C)."""
     n_g, n_r, n_c = d.shape
     for gi in prange(n_g * n_r):
@@ -103,7 +105,7 @@ def sliding_row_min(d, tlen, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True, parallel=True)
-def word_column_min(d, starts, n, out):  # pragma: no cover - compiled
+def word_column_min(d: np.ndarray, starts: np.ndarray, n: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """out[g, w, c] = min_{i < n} d[g, starts[w] + i, c]; d (G, rows, C)."""
     n_g = d.shape[0]
     n_w = starts.shape[0]
@@ -122,7 +124,7 @@ def word_column_min(d, starts, n, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _min_weighted_mean(vals, n_free, last, wmax):  # pragma: no cover - compiled
+def _min_weighted_mean(vals: np.ndarray, n_free: int, last: float, wmax: float) -> float:  # pragma: no cover - compiled
     """min over w_i in [1, wmax] of (sum w_i vals_i + last) / (sum w_i + 1); vals[:n_free]
     is sorted in place."""
     # insertion sort (n_free <= 20)
@@ -149,7 +151,16 @@ def _min_weighted_mean(vals, n_free, last, wmax):  # pragma: no cover - compiled
 
 
 @njit(cache=True, parallel=True)
-def lower_bounds(w_rows, v_cols, starts, row0, n, tlen, r, out):  # pragma: no cover - compiled
+def lower_bounds(
+    w_rows: np.ndarray,
+    v_cols: np.ndarray,
+    starts: np.ndarray,
+    row0: int,
+    n: int,
+    tlen: np.ndarray,
+    r: int,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
     """Lower bound of the word distance for every (group, word, target start).
 
     w_rows (G, rows, C): sliding row minima of the block whose first row is source frame
@@ -182,7 +193,9 @@ def lower_bounds(w_rows, v_cols, starts, row0, n, tlen, r, out):  # pragma: no c
 
 
 @njit(cache=True)
-def _insert_topk(best_d, best_t, k, v, t):  # pragma: no cover - compiled
+def _insert_topk(
+    best_d: np.ndarray, best_t: np.ndarray, k: int, v: float, t: int
+) -> None:  # pragma: no cover - compiled
     """Insert (v, t) into the sorted top-k lists (ordered by value, then start)."""
     if v > best_d[k - 1] or (v == best_d[k - 1] and t >= best_t[k - 1]):
         return
@@ -196,12 +209,27 @@ def _insert_topk(best_d, best_t, k, v, t):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _excluded(t, clip_of, self_clip, self_pos, radius):  # pragma: no cover - compiled
+def _excluded(
+    t: int, clip_of: np.ndarray, self_clip: int, self_pos: int, radius: int
+) -> bool:  # pragma: no cover - compiled
     return self_clip >= 0 and clip_of[t] == self_clip and abs(t - self_pos) <= radius
 
 
 @njit(cache=True)
-def _word_distance(d, i0, t, n, tlen, r, cum, plen, back, cost2, plen2, memo):  # pragma: no cover
+def _word_distance(
+    d: np.ndarray,
+    i0: int,
+    t: int,
+    n: int,
+    tlen: np.ndarray,
+    r: int,
+    cum: np.ndarray,
+    plen: np.ndarray,
+    back: np.ndarray,
+    cost2: np.ndarray,
+    plen2: np.ndarray,
+    memo: np.ndarray,
+) -> float:  # pragma: no cover
     if math.isnan(memo[t]):
         if r == 2:
             c, p = cdtw_cost_r2(d, i0, t, n, tlen[t], cost2, plen2)
@@ -213,8 +241,22 @@ def _word_distance(d, i0, t, n, tlen, r, cum, plen, back, cost2, plen2, memo):  
 
 @njit(cache=True, parallel=True)
 def knn_pruned(
-    d, lb, starts, row0, n, tlen, clip_of, self_clip, self_off, radius, r, k, out_t, out_d, out_n
-):  # pragma: no cover
+    d: np.ndarray,
+    lb: np.ndarray,
+    starts: np.ndarray,
+    row0: int,
+    n: int,
+    tlen: np.ndarray,
+    clip_of: np.ndarray,
+    self_clip: int,
+    self_off: int,
+    radius: int,
+    r: int,
+    k: int,
+    out_t: np.ndarray,
+    out_d: np.ndarray,
+    out_n: np.ndarray,
+) -> None:  # pragma: no cover
     """Exact KNN with lower-bound pruning; same answer as the brute force (``knn_brute`` in
     ``tests/naive/cleaning.py``).
 

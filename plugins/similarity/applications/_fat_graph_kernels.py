@@ -13,7 +13,7 @@ from numba import njit
 
 
 @njit(cache=True)
-def _sift_down(heap, size, i):
+def _sift_down(heap: np.ndarray, size: int, i: int) -> None:
     while True:
         left = 2 * i + 1
         if left >= size:
@@ -29,7 +29,7 @@ def _sift_down(heap, size, i):
 
 
 @njit(cache=True)
-def _sift_up(heap, i):
+def _sift_up(heap: np.ndarray, i: int) -> None:
     while i > 0:
         parent = (i - 1) // 2
         if heap[i] < heap[parent]:
@@ -40,7 +40,7 @@ def _sift_up(heap, i):
 
 
 @njit(cache=True)
-def _greedy(ids, max_base):
+def _greedy(ids: np.ndarray, max_base: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n, k = ids.shape
     # neighbourhood N(f) = {f} + valid ids of row f other than f (self always included,
     # also when more than k exact duplicates pushed it out of the capped row)

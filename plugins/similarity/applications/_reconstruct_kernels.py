@@ -16,7 +16,7 @@ from numba import njit
 
 
 @njit(cache=True)
-def _yaw(model, observed):
+def _yaw(model: np.ndarray, observed: np.ndarray) -> float:
     s = 0.0
     c = 0.0
     for i in range(model.shape[0]):
@@ -26,7 +26,17 @@ def _yaw(model, observed):
 
 
 @njit(cache=True)
-def map_pose(nb, sel, rel, theta, pred, has_pred, w_m, w_s, alternations):
+def map_pose(
+    nb: np.ndarray,
+    sel: np.ndarray,
+    rel: np.ndarray,
+    theta: float,
+    pred: np.ndarray,
+    has_pred: bool,
+    w_m: float,
+    w_s: float,
+    alternations: int,
+) -> tuple[np.ndarray, float]:
     """MAP pose (D,) and heading of neighbours ``nb`` (K, D) float64 for markers ``rel``
     (M, 3) relative to the root; ``sel`` (3M,) marker columns; ``pred`` (D,) the prediction."""
     k, d = nb.shape
@@ -68,7 +78,7 @@ def map_pose(nb, sel, rel, theta, pred, has_pred, w_m, w_s, alternations):
 
 
 @njit(cache=True)
-def swivel_path(unary, pts, w_t):
+def swivel_path(unary: np.ndarray, pts: np.ndarray, w_t: float) -> np.ndarray:
     """Viterbi path (T,) int64 through ``S`` candidate states per frame: ``unary`` (T, S)
     costs, ``pts`` (T, S, 3) each state's joint position, transition cost
     ``w_t * |pts[t, s] - pts[t - 1, r]|^2``; the path of least total cost (ties: lowest state)."""

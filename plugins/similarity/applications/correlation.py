@@ -19,8 +19,8 @@ Outputs: ``data`` (row_measure, col_measure, rho, rho_std, n_samples), a ``matri
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, ClassVar
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -109,9 +109,9 @@ class DistanceCorrelationStudy(Analysis):
         self,
         db: MotionDatabase,
         reference: MotionDatabase | None = None,
-        progress=None,
+        progress: Callable[..., Any] | None = None,
         rows: tuple[str, ...] | None = None,
-    ):
+    ) -> tuple[tuple[str, ...], tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]:
         """Run the study; returns ``(rows, cols, rho (R, C), rho_std (R, C), n (R, C))`` (``rows``:
         the neighbour sources, default every measure)."""
         from ..knn.kdtree import KDTreeIndex
@@ -179,7 +179,15 @@ class DistanceCorrelationStudy(Analysis):
                 count[r] = np.isfinite(per).sum(0)
         return rows, cols, rho, std, count
 
-    def _scan(self, pm: PoseMeasures, row: str, queries, clip_id, frame, chunk: int = 65536):
+    def _scan(
+        self,
+        pm: PoseMeasures,
+        row: str,
+        queries: np.ndarray,
+        clip_id: np.ndarray,
+        frame: np.ndarray,
+        chunk: int = 65536,
+    ) -> tuple[np.ndarray, np.ndarray]:
         k, n = self.params.k, len(clip_id)
         nd = np.full((len(queries), k), np.inf)
         nb = np.full((len(queries), k), -1, np.int64)
@@ -221,7 +229,7 @@ class DistanceCorrelationStudy(Analysis):
         )
 
 
-def plot_heatmap(rows, cols, rho: np.ndarray, path: Path, title: str = "") -> Path | None:
+def plot_heatmap(rows: Sequence[str], cols: Sequence[str], rho: np.ndarray, path: Path, title: str = "") -> Path | None:
     """Write the correlation matrix as an annotated heatmap PNG (needs matplotlib: extra ``plots``)."""
     from mocapflow.framework.errors import ConfigError
     from mocapflow.framework.plotting import pyplot

@@ -23,11 +23,19 @@ import argparse
 import glob
 import sys
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from mocapflow.framework import Motion
     from mocapflow.framework.commands import CommandContext
+    from mocapflow.framework.markers import Markers
+    from mocapflow.framework.registry import Registries
+    from mocapflow.framework.skeleton import Skeleton
+
+    from .reconstruct import Reconstruction
+    from .reconstruct_prior import PriorStore
 
 
 class ReconstructCommand:
@@ -163,7 +171,7 @@ class ReconstructCommand:
         return 0
 
 
-def _write_confidence(path: Path, rec, fps: float) -> None:  # type: ignore[no-untyped-def]
+def _write_confidence(path: Path, rec: Reconstruction, fps: float) -> None:
     """The per-frame confidence as CSV, written atomically (:func:`~mocapflow.framework.workspace.atomic_path`)."""
     import numpy as np
 
@@ -184,13 +192,13 @@ def _write_confidence(path: Path, rec, fps: float) -> None:  # type: ignore[no-u
         )
 
 
-def _spine_text(skeleton) -> str:  # type: ignore[no-untyped-def]
+def _spine_text(skeleton: Skeleton) -> str:
     """``root > chest (Spine) > ...``: the spine joints the rule found, with the skeleton's names."""
     chain = ("root", "lowerback", "upperback", "chest", "neck", "head")
     return " > ".join(f"{j} ({skeleton.names[skeleton.canonical[j]]})" for j in chain if j in skeleton.canonical)
 
 
-def _read_markers(path: Path, reg):  # type: ignore[no-untyped-def]
+def _read_markers(path: Path, reg: Registries) -> Markers:
     from mocapflow.framework.errors import ConfigError
 
     for _, cls in reg.by_kind["formats"]:
@@ -199,7 +207,9 @@ def _read_markers(path: Path, reg):  # type: ignore[no-untyped-def]
     raise ConfigError(f"{path}: no registered marker reader for {path.suffix!r} files")
 
 
-def _open_prior(spec: str, reg, store_cls, build):  # type: ignore[no-untyped-def]
+def _open_prior(
+    spec: str, reg: Registries, store_cls: type[PriorStore], build: Callable[[Iterable[Motion]], PriorStore]
+) -> PriorStore:
     from mocapflow.framework.errors import ConfigError
 
     p = Path(spec)

@@ -36,7 +36,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -49,6 +49,9 @@ from mocapflow.framework.normalize import facing_angles
 
 from .reconstruct import DEFAULT_MARKERS
 from .reconstruct_calibrate import Calibration
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework.skeleton import Skeleton
 
 #: What a marker set locates: the control points, and the pelvis sides that give the root's heading.
 CONTROL: tuple[str, ...] = (*DEFAULT_MARKERS, "lhip", "rhip")
@@ -66,7 +69,13 @@ def _sides(left: tuple[tuple[str, ...], ...]) -> tuple[tuple[tuple[str, ...], ..
     return left, tuple(tuple(flip(x) for x in alt) for alt in left)
 
 
-def _set(root, head, wrist, ankle, pelvis) -> MarkerSet:
+def _set(
+    root: tuple[tuple[str, ...], ...],
+    head: tuple[tuple[str, ...], ...],
+    wrist: tuple[tuple[str, ...], ...],
+    ankle: tuple[tuple[str, ...], ...],
+    pelvis: tuple[tuple[str, ...], ...],
+) -> MarkerSet:
     lw, rw = _sides(wrist)
     la, ra = _sides(ankle)
     lp, rp = _sides(pelvis)
@@ -339,7 +348,7 @@ class ReconstructMarkers(Analysis):
         return StepOutput(tables, {"takes": len(rows), "prior_frames": len(prior.poses), "skeleton": skeleton.name})
 
 
-def read_skeleton(path: Path, reg):  # type: ignore[no-untyped-def]
+def read_skeleton(path: Path, reg: Any) -> Skeleton:
     from mocapflow.framework.errors import ConfigError
 
     if not path.is_file():

@@ -126,22 +126,22 @@ def brute_knn(
 
 
 def lean_knn(
-    queries,
-    data,
-    mean,
-    sqnorms,
-    k,
-    r2,
-    groups,
-    frames,
-    qgroups,
-    qframes,
-    excl,
-    ids=None,
-    raw_bound=None,
-    block_queries=None,
-    sqnorm_max=None,
-):
+    queries: np.ndarray,
+    data: np.ndarray,
+    mean: np.ndarray,
+    sqnorms: np.ndarray,
+    k: int,
+    r2: float,
+    groups: np.ndarray,
+    frames: np.ndarray,
+    qgroups: np.ndarray,
+    qframes: np.ndarray,
+    excl: int,
+    ids: np.ndarray | None = None,
+    raw_bound: float | None = None,
+    block_queries: int | None = None,
+    sqnorm_max: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`brute_knn` over a small database, with little per-call work.
 
     One GEMM per block of queries gives the approximate squared distances of all rows (same

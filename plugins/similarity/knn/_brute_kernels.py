@@ -14,7 +14,7 @@ from numba import njit, prange
 
 
 @njit(cache=True)
-def _maxheap_replace(h, v):
+def _maxheap_replace(h: np.ndarray, v: float) -> None:
     k = h.shape[0]
     pos = 0
     while True:
@@ -32,7 +32,25 @@ def _maxheap_replace(h, v):
 
 
 @njit(cache=True)
-def _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf):
+def _scan_row(
+    r: int,
+    g: np.ndarray,
+    sqn: np.ndarray,
+    const: np.ndarray,
+    y0: int,
+    heap: np.ndarray,
+    cand_i: np.ndarray,
+    cand_v: np.ndarray,
+    cand_n: np.ndarray,
+    overflow: np.ndarray,
+    tol2: np.ndarray,
+    r2tol: np.ndarray,
+    excl: int,
+    groups: np.ndarray,
+    frames: np.ndarray,
+    qg: np.ndarray,
+    qf: np.ndarray,
+) -> None:
     b = g.shape[1]
     cap = cand_i.shape[1]
     h = heap[r]
@@ -64,7 +82,24 @@ def _scan_row(r, g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2
 
 
 @njit(cache=True, parallel=True)
-def scan_block(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, r2tol, excl, groups, frames, qg, qf):
+def scan_block(
+    g: np.ndarray,
+    sqn: np.ndarray,
+    const: np.ndarray,
+    y0: int,
+    heap: np.ndarray,
+    cand_i: np.ndarray,
+    cand_v: np.ndarray,
+    cand_n: np.ndarray,
+    overflow: np.ndarray,
+    tol2: np.ndarray,
+    r2tol: np.ndarray,
+    excl: int,
+    groups: np.ndarray,
+    frames: np.ndarray,
+    qg: np.ndarray,
+    qf: np.ndarray,
+) -> None:
     """One data block of the blocked brute force (see :mod:`._brute`), fused in one pass.
 
     ``g (nq, B)`` holds ``q_c . y`` for rows ``y0 .. y0 + B``; the approximate squared
@@ -81,7 +116,9 @@ def scan_block(g, sqn, const, y0, heap, cand_i, cand_v, cand_n, overflow, tol2, 
 
 
 @njit(cache=True)
-def exact_rank(q, data, cand, ids, k, r2):
+def exact_rank(
+    q: np.ndarray, data: np.ndarray, cand: np.ndarray, ids: np.ndarray, k: int, r2: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` nearest of the rows ``cand`` to ``q``: exact float64 squared distances
     (summed in dimension order, like the kd-tree's search) and ``ids``, ordered by (distance, id);
     rows beyond ``r2`` dropped. Returns arrays of length ``min(k, number kept)``."""
@@ -115,7 +152,7 @@ def exact_rank(q, data, cand, ids, k, r2):
 
 
 @njit(cache=True)
-def _kth_smallest(vals, c, k):
+def _kth_smallest(vals: np.ndarray, c: int, k: int) -> float:
     """The ``k``-th smallest of ``vals[:c]`` by a bounded max-heap, float64 (inf when ``c < k``)."""
     h = np.full(k, np.inf)
     for t in range(c):
@@ -126,7 +163,21 @@ def _kth_smallest(vals, c, k):
 
 
 @njit(cache=True)
-def lean_rank(a, lim, slack, k, q, data, ids, r2, excl, groups, frames, qg, qf):
+def lean_rank(
+    a: np.ndarray,
+    lim: float,
+    slack: float,
+    k: int,
+    q: np.ndarray,
+    data: np.ndarray,
+    ids: np.ndarray,
+    r2: float,
+    excl: int,
+    groups: np.ndarray,
+    frames: np.ndarray,
+    qg: int,
+    qf: int,
+) -> tuple[np.ndarray, np.ndarray]:
     """Exact top ``k`` of one query from approximate squared distances ``a`` (n,), float32.
 
     Excluded rows are set to +inf. The approximate k-th value is then found without a heap
@@ -199,7 +250,22 @@ def lean_rank(a, lim, slack, k, q, data, ids, r2, excl, groups, frames, qg, qf):
 
 
 @njit(cache=True)
-def lean_query(q, data, mean, sqnorms, ymax, yraw, k, r2, excl, groups, frames, qg, qf, ids):
+def lean_query(
+    q: np.ndarray,
+    data: np.ndarray,
+    mean: np.ndarray,
+    sqnorms: np.ndarray,
+    ymax: float,
+    yraw: float,
+    k: int,
+    r2: float,
+    excl: int,
+    groups: np.ndarray,
+    frames: np.ndarray,
+    qg: int,
+    qf: int,
+    ids: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """One query of :func:`._brute.lean_knn` in one call (the per-call work is the point).
 
     The same arithmetic as the batched path: centred query, float32 matrix-vector product
@@ -225,7 +291,24 @@ def lean_query(q, data, mean, sqnorms, ymax, yraw, k, r2, excl, groups, frames, 
 
 
 @njit(cache=True, parallel=True)
-def lean_rank_rows(a, lim, slack, k, queries, q0, data, ids, r2, excl, groups, frames, qgroups, qframes, out_d, out_i):
+def lean_rank_rows(
+    a: np.ndarray,
+    lim: np.ndarray,
+    slack: np.ndarray,
+    k: int,
+    queries: np.ndarray,
+    q0: int,
+    data: np.ndarray,
+    ids: np.ndarray,
+    r2: float,
+    excl: int,
+    groups: np.ndarray,
+    frames: np.ndarray,
+    qgroups: np.ndarray,
+    qframes: np.ndarray,
+    out_d: np.ndarray,
+    out_i: np.ndarray,
+) -> None:
     """:func:`lean_rank` of every row of a GEMM block ``a`` (b, n), rows spread over threads;
     results go to ``out_d / out_i[q0 + r]``."""
     for r in prange(a.shape[0]):

@@ -29,12 +29,12 @@ _IMAX = np.iinfo(np.int64).max
 
 
 @njit(cache=True, inline="always")
-def _before(d1, i1, d2, i2):
+def _before(d1: float, i1: int, d2: float, i2: int) -> bool:
     return d1 < d2 or (d1 == d2 and i1 < i2)
 
 
 @njit(cache=True)
-def _heap_replace(hd, hi, dist, idx):
+def _heap_replace(hd: np.ndarray, hi: np.ndarray, dist: float, idx: int) -> None:
     """Replace the root of a max-heap on (dist, id) and sift down."""
     k = hd.shape[0]
     pos = 0
@@ -55,7 +55,7 @@ def _heap_replace(hd, hi, dist, idx):
 
 
 @njit(cache=True, inline="always")
-def _box_dist(q, lo, hi, node, d):
+def _box_dist(q: np.ndarray, lo: np.ndarray, hi: np.ndarray, node: int, d: int) -> float:
     """Squared distance from ``q`` to the box of ``node``, summed in dimension order.
 
     Each per-dimension gap is at most that of any point in the box and the float64 rounding
@@ -76,7 +76,21 @@ def _box_dist(q, lo, hi, node, d):
 
 
 @njit(cache=True)
-def _search(q, tree, qg, qf, excl, hd, hi_, eps_fac, r2, st_node, st_rd, st_off, cur_off):
+def _search(
+    q: np.ndarray,
+    tree: tuple[np.ndarray, ...],
+    qg: int,
+    qf: int,
+    excl: int,
+    hd: np.ndarray,
+    hi_: np.ndarray,
+    eps_fac: float,
+    r2: float,
+    st_node: np.ndarray,
+    st_rd: np.ndarray,
+    st_off: np.ndarray,
+    cur_off: np.ndarray,
+) -> None:
     """Depth-first search with an explicit stack (numba cannot cache recursive functions).
 
     ``tree`` is :meth:`.kdtree.KDTreeIndex._tree_args`' tuple. Each stacked far cell carries its
@@ -143,7 +157,18 @@ def _search(q, tree, qg, qf, excl, hd, hi_, eps_fac, r2, st_node, st_rd, st_off,
 
 
 @njit(cache=True)
-def _seed_bound(q, prev, shift, data, inv, groups, frames, qg, qf, excl):
+def _seed_bound(
+    q: np.ndarray,
+    prev: np.ndarray,
+    shift: int,
+    data: np.ndarray,
+    inv: np.ndarray,
+    groups: np.ndarray,
+    frames: np.ndarray,
+    qg: int,
+    qf: int,
+    excl: int,
+) -> float:
     """Largest squared distance from ``q`` to the rows ``prev + shift`` (input ids), or inf.
 
     ``prev`` holds the k distinct neighbours of the previous query; if all ``k`` shifted
@@ -169,7 +194,22 @@ def _seed_bound(q, prev, shift, data, inv, groups, frames, qg, qf, excl):
 
 
 @njit(cache=True)
-def _query_rows(r0, r1, queries, k, eps_fac, r2, tree, qgroups, qframes, excl, max_depth, out_d, out_i, inv):
+def _query_rows(
+    r0: int,
+    r1: int,
+    queries: np.ndarray,
+    k: int,
+    eps_fac: float,
+    r2: float,
+    tree: tuple[np.ndarray, ...],
+    qgroups: np.ndarray,
+    qframes: np.ndarray,
+    excl: int,
+    max_depth: int,
+    out_d: np.ndarray,
+    out_i: np.ndarray,
+    inv: np.ndarray,
+) -> None:
     data, groups, frames = tree[0], tree[10], tree[11]
     d = queries.shape[1]
     hd = np.empty(k)
@@ -208,7 +248,19 @@ def _query_rows(r0, r1, queries, k, eps_fac, r2, tree, qgroups, qframes, excl, m
 
 
 @njit(cache=True, parallel=True)
-def query_tree(queries, k, eps, r2, tree, qgroups, qframes, excl, max_depth, n_chunks, inv):
+def query_tree(
+    queries: np.ndarray,
+    k: int,
+    eps: float,
+    r2: float,
+    tree: tuple[np.ndarray, ...],
+    qgroups: np.ndarray,
+    qframes: np.ndarray,
+    excl: int,
+    max_depth: int,
+    n_chunks: int,
+    inv: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """kNN of every query row; returns squared distances (float64) and row ids, sorted.
 
     ``tree``: the arrays of :meth:`.kdtree.KDTreeIndex._tree_args`. ``n_chunks <= 1`` runs on
@@ -247,7 +299,17 @@ def threads() -> int:
 
 
 @njit(cache=True)
-def tree_work(queries, r2, start, end, left, right, blo, bhi, max_depth):  # pragma: no cover - compiled
+def tree_work(
+    queries: np.ndarray,
+    r2: np.ndarray,
+    start: np.ndarray,
+    end: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    blo: np.ndarray,
+    bhi: np.ndarray,
+    max_depth: int,
+) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Work a search with known k-th distances cannot avoid: per query, the nodes whose
     bounding box lies within ``r2[q]`` (the squared k-th neighbour distance) and the points
     of the buckets among them.

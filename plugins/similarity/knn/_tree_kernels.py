@@ -11,7 +11,7 @@ from numba import njit
 
 
 @njit(cache=True, inline="always")
-def _partition(data, perm, s, e, dim, cut):
+def _partition(data: np.ndarray, perm: np.ndarray, s: int, e: int, dim: int, cut: float) -> int:
     """Reorder ``perm[s:e]`` into rows with ``data[:, dim] < cut`` then the others; returns
     the first position of the second part."""
     i, k = s, e - 1
@@ -25,7 +25,9 @@ def _partition(data, perm, s, e, dim, cut):
 
 
 @njit(cache=True)
-def build_tree(data, leafsize):
+def build_tree(
+    data: np.ndarray, leafsize: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sliding-midpoint kd-tree over ``data (n, d)`` float32.
 
     Returns ``perm`` (row of the input at each tree position) and the node arrays
@@ -106,7 +108,9 @@ def build_tree(data, leafsize):
 
 
 @njit(cache=True)
-def node_boxes(data, start, end, left, right):
+def node_boxes(
+    data: np.ndarray, start: np.ndarray, end: np.ndarray, left: np.ndarray, right: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Tight bounding box ``(lo, hi)`` of each node's points, shape (n_nodes, d) float32.
 
     Derived from the stored tree (children are created after their parent, so a reverse
@@ -137,7 +141,7 @@ def node_boxes(data, start, end, left, right):
 
 
 @njit(cache=True)
-def tree_depth(left, right):
+def tree_depth(left: np.ndarray, right: np.ndarray) -> int:
     """Depth of the deepest node (children are always created after their parent)."""
     depth = np.zeros(left.shape[0], np.int64)
     best = 0

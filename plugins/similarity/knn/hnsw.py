@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import Field
@@ -28,7 +28,7 @@ from mocapflow.framework import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, DataError
 
 
-def _hnswlib():
+def _hnswlib() -> Any:
     try:
         import hnswlib
     except ImportError as exc:

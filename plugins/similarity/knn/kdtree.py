@@ -261,7 +261,9 @@ class KDTreeIndex(CostModel, Index):
         )
         return np.sqrt(d2).astype(np.float32), ids
 
-    def _interactive(self, x, k, radius, eps, exclude) -> tuple[np.ndarray, np.ndarray] | None:
+    def _interactive(
+        self, x: np.ndarray, k: int, radius: float | None, eps: float, exclude: int | None
+    ) -> tuple[np.ndarray, np.ndarray] | None:
         """The common interactive call (one float32 query row, plain exact kNN on the kd-tree
         path) with no per-call numpy work: a 16-NN query in 8-d takes ~20 microseconds, so
         the checks and conversions of the general path would add a third. None: not that call."""
@@ -288,6 +290,7 @@ class KDTreeIndex(CostModel, Index):
         from . import _knn_kernels as kern
 
         tree, no_seed = targs
+        assert self._depth is not None  # set with _targs (_tree_args)
         d2, ids = kern.query_tree(_ro(x), k, 0.0, np.inf, tree, _ZEROS[:1], _ZEROS[:1], -1, self._depth, 1, no_seed)
         return np.sqrt(d2).astype(np.float32), ids
 
@@ -325,7 +328,18 @@ class KDTreeIndex(CostModel, Index):
             self._inv = inv
         return inv
 
-    def _search(self, q, k, radius, eps, exclude, qg, qf, workers, method):
+    def _search(
+        self,
+        q: np.ndarray,
+        k: int,
+        radius: float | None,
+        eps: float,
+        exclude: int | None,
+        qg: np.ndarray | None,
+        qf: np.ndarray | None,
+        workers: int | None,
+        method: str,
+    ) -> tuple[np.ndarray, np.ndarray]:
         from . import _knn_kernels as kern
 
         m, n = len(q), self.data_.shape[0]
@@ -369,6 +383,7 @@ class KDTreeIndex(CostModel, Index):
             chunks = 1 if m < 4 or kern.threads() == 1 else min(m, 4 * kern.threads())
             seeded = eps == 0.0 and m > 1
             tree, no_seed = self._tree_args()
+            assert self._depth is not None  # set by _tree_args
             return kern.query_tree(
                 _ro(q),
                 k,

@@ -106,7 +106,7 @@ class _ShardQuery:
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from mocapflow.framework.clip_refs import cached
 
-        def load():
+        def load() -> Index:
             return _load_shard(self.index_cls, Path(self.directory))
 
         shard = cached(("index-shard", self.directory, self.stamp), load)
@@ -149,7 +149,7 @@ class ShardedIndex(Index):
     params: Params
 
     # --- building ---------------------------------------------------------------------
-    def _shard_class(self, registries=None) -> type:
+    def _shard_class(self, registries: Any = None) -> type:
         key = self.params.index if "." in self.params.index else f"indexes.{self.params.index}"
         if key == self.key():
             raise ConfigError(f"{self.key()}: a shard cannot itself be sharded")
@@ -161,7 +161,7 @@ class ShardedIndex(Index):
         *,
         groups: np.ndarray | None = None,
         frames: np.ndarray | None = None,
-        registries=None,
+        registries: Any = None,
     ) -> ShardedIndex:
         """Index ``features`` (n, d) in shards; ``groups`` (clip ids) decide where shards may be cut."""
         x = np.asarray(features)
@@ -200,7 +200,7 @@ class ShardedIndex(Index):
         self._executor = None
         self._inv: dict[int, np.ndarray] = {}
 
-    def attach(self, executor) -> ShardedIndex:
+    def attach(self, executor: Any) -> ShardedIndex:
         """Answer batched queries shard by shard on ``executor`` (needs a saved or loaded index)."""
         self._executor = executor
         return self
@@ -220,7 +220,7 @@ class ShardedIndex(Index):
         exclude: int | None = None,
         query_groups: np.ndarray | None = None,
         query_frames: np.ndarray | None = None,
-        executor=None,
+        executor: Any = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` nearest rows over all shards (see :meth:`.KDTreeIndex.query`).
 
@@ -263,7 +263,7 @@ class ShardedIndex(Index):
         return self._merge(q, int(k), answers)
 
     def _query_blocks(
-        self, ex, workers: int, q: np.ndarray, k: int, radius: float | None, kw: dict[str, Any]
+        self, ex: Any, workers: int, q: np.ndarray, k: int, radius: float | None, kw: dict[str, Any]
     ) -> tuple[np.ndarray, np.ndarray]:
         """``fan_out: queries``: contiguous blocks of the queries (2 per worker, so that a
         slow block does not finish alone), each answered by every shard and merged on the
@@ -497,5 +497,5 @@ class _Apply:
 
     q: np.ndarray
 
-    def __call__(self, task: _ShardQuery):
+    def __call__(self, task: _ShardQuery) -> tuple[np.ndarray, np.ndarray]:
         return task(self.q)

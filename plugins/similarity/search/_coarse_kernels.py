@@ -25,7 +25,9 @@ from ._dtw_kernels import _FAST  # the fine DP's fastmath flags: the same float3
 
 
 @njit(cache=True)
-def block_boxes(x, continues, size):  # pragma: no cover - compiled
+def block_boxes(
+    x: np.ndarray, continues: np.ndarray, size: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Blocks of at most ``size`` consecutive rows within runs, and their boxes.
 
     Returns
@@ -70,7 +72,9 @@ def block_boxes(x, continues, size):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FAST)
-def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - compiled
+def coarse_bounds(
+    qt: np.ndarray, lo: np.ndarray, hi: np.ndarray, link: np.ndarray, branges: np.ndarray, shrink: float
+) -> np.ndarray:  # pragma: no cover - compiled
     """Lower bound ``min_i F(i, b) + G(i, b) - c(i, b)`` of every path through block ``b``.
 
     Over the block ranges ``[a, b)`` of ``branges`` only, each started afresh (its first
@@ -103,7 +107,17 @@ def coarse_bounds(qt, lo, hi, link, branges, shrink):  # pragma: no cover - comp
 
 
 @njit(cache=True, fastmath=_FAST)
-def subspace_bounds(qt, cen, basis, alo, ahi, rad, link, branges, shrink):  # pragma: no cover - compiled
+def subspace_bounds(
+    qt: np.ndarray,
+    cen: np.ndarray,
+    basis: np.ndarray,
+    alo: np.ndarray,
+    ahi: np.ndarray,
+    rad: np.ndarray,
+    link: np.ndarray,
+    branges: np.ndarray,
+    shrink: float,
+) -> np.ndarray:  # pragma: no cover - compiled
     """:func:`coarse_bounds` with each block's *local subspace cell* in place of its box.
 
     A block is described by its centre ``c`` (the rows' mean), an orthonormal basis ``U``
@@ -144,7 +158,9 @@ _NO_RAD = np.zeros((0, 2), np.float32)
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
-def _box_costs(qp, lo, hi, b, sh, out, acc):  # pragma: no cover - compiled
+def _box_costs(
+    qp: np.ndarray, lo: np.ndarray, hi: np.ndarray, b: int, sh: np.float32, out: np.ndarray, acc: np.ndarray
+) -> None:  # pragma: no cover - compiled
     """Block ``b``'s box cell costs of every (padded) query frame into ``out``.
 
     The dimensions are taken five at a time, so that the accumulator is loaded and stored
@@ -185,7 +201,21 @@ def _box_costs(qp, lo, hi, b, sh, out, acc):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
-def _subspace_costs(qp, cen, basis, alo, ahi, rad, b, sh, out, rr, aa, mu, kappa):  # pragma: no cover - compiled
+def _subspace_costs(
+    qp: np.ndarray,
+    cen: np.ndarray,
+    basis: np.ndarray,
+    alo: np.ndarray,
+    ahi: np.ndarray,
+    rad: np.ndarray,
+    b: int,
+    sh: np.float32,
+    out: np.ndarray,
+    rr: np.ndarray,
+    aa: np.ndarray,
+    mu: np.float32,
+    kappa: np.float32,
+) -> None:  # pragma: no cover - compiled
     """Block ``b``'s subspace cell costs of every (padded) query frame into ``out`` (see :func:`subspace_bounds`).
 
     Vectorised over the query frames, as the box costs; the dimensions are taken five at a
@@ -267,7 +297,7 @@ def _subspace_costs(qp, cen, basis, alo, ahi, rad, b, sh, out, rr, aa, mu, kappa
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
-def _through(f, g, c, b, m):  # pragma: no cover - compiled
+def _through(f: np.ndarray, g: np.ndarray, c: np.ndarray, b: int, m: int) -> np.float32:  # pragma: no cover - compiled
     """``min_i F(i, b) + G(i, b) - c(i, b)``: block ``b``'s bound from its two chains."""
     low = np.float32(np.inf)
     for i in range(m):
@@ -276,7 +306,20 @@ def _through(f, g, c, b, m):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FAST)
-def _coarse(qt, lo, hi, cen, basis, alo, ahi, rad, link, branges, shrink, sub):  # pragma: no cover - compiled
+def _coarse(
+    qt: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    cen: np.ndarray,
+    basis: np.ndarray,
+    alo: np.ndarray,
+    ahi: np.ndarray,
+    rad: np.ndarray,
+    link: np.ndarray,
+    branges: np.ndarray,
+    shrink: float,
+    sub: bool,
+) -> np.ndarray:  # pragma: no cover - compiled
     """The bound of :func:`coarse_bounds` (``sub`` false: box cells) or :func:`subspace_bounds`."""
     d, m = qt.shape
     mp = -(-m // 16) * 16  # query frames padded to whole vectors: no scalar remainder loops
@@ -399,7 +442,9 @@ def _coarse(qt, lo, hi, cen, basis, alo, ahi, rad, link, branges, shrink, sub): 
 
 
 @njit(cache=True)
-def alive_runs(lb, branges, scale, tau):  # pragma: no cover - compiled
+def alive_runs(
+    lb: np.ndarray, branges: np.ndarray, scale: float, tau: float
+) -> np.ndarray:  # pragma: no cover - compiled
     """Maximal runs ``[a, b)`` (int64 (r, 2)) of blocks with ``lb * scale <= tau``, inside ``branges``.
 
     What ``exact.block_ranges(lb * scale <= tau)`` returns when ``lb`` is inf outside the

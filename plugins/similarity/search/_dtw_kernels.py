@@ -25,7 +25,11 @@ _FAST = {"reassoc", "contract", "nsz", "arcp"}
 
 
 @njit(cache=True, inline="always")
-def column_buffers(m):  # pragma: no cover - compiled
+def column_buffers(
+    m: int,
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray
+]:  # pragma: no cover - compiled
     """The two DP columns of :func:`sdtw_column` and its distance scratch, for a query of ``m`` frames.
 
     Returns ``prev_c, prev_s, prev_l`` (column ``j - 1``: inf, as before the first row),
@@ -44,7 +48,19 @@ def column_buffers(m):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
-def sdtw_column(qt, x, j, fresh, prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, col):  # pragma: no cover - compiled
+def sdtw_column(
+    qt: np.ndarray,
+    x: np.ndarray,
+    j: int,
+    fresh: bool,
+    prev_c: np.ndarray,
+    prev_s: np.ndarray,
+    prev_l: np.ndarray,
+    cur_c: np.ndarray,
+    cur_s: np.ndarray,
+    cur_l: np.ndarray,
+    col: np.ndarray,
+) -> tuple[float, int, int]:  # pragma: no cover - compiled
     """One column of the DP: database row ``j`` from column ``j - 1`` (the recurrence above).
 
     Shared by :func:`sdtw_forward` and :func:`._coarse_kernels.sdtw_ranges_compact`, so the
@@ -114,7 +130,9 @@ def sdtw_column(qt, x, j, fresh, prev_c, prev_s, prev_l, cur_c, cur_s, cur_l, co
 
 
 @njit(cache=True, fastmath=_FAST)
-def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
+def sdtw_forward(
+    qt: np.ndarray, x: np.ndarray, clip_start: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Accumulated cost of the best path ending in every database row.
 
     Parameters
@@ -152,7 +170,9 @@ def sdtw_forward(qt, x, clip_start):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FAST)
-def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compiled
+def sdtw_ranges_compact(
+    qt: np.ndarray, x: np.ndarray, clip_start: np.ndarray, ranges: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """The fine DP over row ranges, returning only the rows inside them (no O(n) arrays).
 
     Each range ``[a, b)`` of ``ranges`` (int64 (r, 2), ascending and disjoint) starts afresh:
@@ -194,7 +214,7 @@ def sdtw_ranges_compact(qt, x, clip_start, ranges):  # pragma: no cover - compil
 
 
 @njit(cache=True)
-def dtw_window_path(q, w):  # pragma: no cover - compiled
+def dtw_window_path(q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:  # pragma: no cover - compiled
     """Warping path of the best alignment of ``q`` onto all of ``w``.
 
     The path starts in cell (0, 0) and ends in cell (m-1, L-1) of the window; the
@@ -266,7 +286,9 @@ def dtw_window_path(q, w):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FAST, parallel=True)
-def sdtw_ranges_parallel(qt, x, clip_start, ranges, groups):  # pragma: no cover - compiled
+def sdtw_ranges_parallel(
+    qt: np.ndarray, x: np.ndarray, clip_start: np.ndarray, ranges: np.ndarray, groups: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """:func:`sdtw_ranges_compact` with the ranges of each group ``groups[g] .. groups[g + 1]``
     on its own numba thread: the same columns, so the same values bit for bit (each range
     starts afresh in both). ``groups``: int64 (g + 1,), ascending range positions, 0 .. r."""

@@ -23,7 +23,16 @@ from numba import njit
 
 
 @njit(cache=True)
-def _step_rows(rows, depth, n_in, gaps, continues, forward, out_rows, out_depth):  # pragma: no cover - compiled
+def _step_rows(
+    rows: np.ndarray,
+    depth: np.ndarray,
+    n_in: int,
+    gaps: int,
+    continues: np.ndarray,
+    forward: bool,
+    out_rows: np.ndarray,
+    out_depth: np.ndarray,
+) -> int:  # pragma: no cover - compiled
     """Rows one query frame after (``forward``) or before a layer, with their depth.
 
     Every row ``h`` of depth < ``gaps`` gives ``h .. h + 2`` (forward) or ``h - 2 .. h``
@@ -70,7 +79,16 @@ def _step_rows(rows, depth, n_in, gaps, continues, forward, out_rows, out_depth)
 
 
 @njit(cache=True)
-def _merge(ra, da, na, rb, db, nb, out_rows, out_depth):  # pragma: no cover - compiled
+def _merge(
+    ra: np.ndarray,
+    da: np.ndarray,
+    na: int,
+    rb: np.ndarray,
+    db: np.ndarray,
+    nb: int,
+    out_rows: np.ndarray,
+    out_depth: np.ndarray,
+) -> int:  # pragma: no cover - compiled
     """Union of two ascending row lists, smaller depth on common rows; returns its size."""
     a = 0
     b = 0
@@ -94,7 +112,9 @@ def _merge(ra, da, na, rb, db, nb, out_rows, out_depth):  # pragma: no cover - c
 
 
 @njit(cache=True)
-def _band(ids, count, gaps, continues, forward):  # pragma: no cover - compiled
+def _band(
+    ids: np.ndarray, count: np.ndarray, gaps: int, continues: np.ndarray, forward: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Neighbour rows plus the forward (or backward) band of every layer, flat.
 
     Returns ``(rows, depth, offsets)``: layer ``i`` is ``rows[offsets[i]:offsets[i+1]]``
@@ -151,7 +171,15 @@ def _band(ids, count, gaps, continues, forward):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def gap_layers(query, ids, dist, count, x, continues, gaps):  # pragma: no cover - compiled
+def gap_layers(
+    query: np.ndarray,
+    ids: np.ndarray,
+    dist: np.ndarray,
+    count: np.ndarray,
+    x: np.ndarray,
+    continues: np.ndarray,
+    gaps: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:  # pragma: no cover - compiled
     """Layers of the gap-tolerant graph: neighbour cells plus the forward and backward bands.
 
     Parameters

@@ -23,7 +23,9 @@ from numba import njit
 
 
 @njit(cache=True)
-def lng_forward(ids, dist, count, continues):  # pragma: no cover - compiled
+def lng_forward(
+    ids: np.ndarray, dist: np.ndarray, count: np.ndarray, continues: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Shortest paths from the super-source to every node.
 
     Parameters
@@ -93,7 +95,9 @@ def lng_forward(ids, dist, count, continues):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def lng_backtrack(ids, pred, i_end, a_end):  # pragma: no cover - compiled
+def lng_backtrack(
+    ids: np.ndarray, pred: np.ndarray, i_end: int, a_end: int
+) -> np.ndarray:  # pragma: no cover - compiled
     """Warping path ending in node ``(i_end, a_end)``: int64 (p, 2) of (query frame, row)."""
     m, k = ids.shape
     out = np.empty((m * k, 2), np.int64)
@@ -110,7 +114,17 @@ def lng_backtrack(ids, pred, i_end, a_end):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def propagate_layer(q, prev_ids, prev_count, x, continues, k, r2, out_ids, out_dist):  # pragma: no cover - compiled
+def propagate_layer(
+    q: np.ndarray,
+    prev_ids: np.ndarray,
+    prev_count: np.ndarray,
+    x: np.ndarray,
+    continues: np.ndarray,
+    k: int,
+    r2: float,
+    out_ids: np.ndarray,
+    out_dist: np.ndarray,
+) -> int:  # pragma: no cover - compiled
     """Approximate ``S(q_i)`` from ``S(q_{i-1})``: the ``k`` nearest of the candidate rows
     ``h - 1, h, h + 1, h + 2`` for every ``h`` of the previous layer (within ``h``'s clip),
     within squared radius ``r2``; ties by ascending row.
@@ -188,7 +202,16 @@ def propagate_layer(q, prev_ids, prev_count, x, continues, k, r2, out_ids, out_d
 
 
 @njit(cache=True)
-def propagate_sets(query, ids, dist, count, every, x, continues, r2):  # pragma: no cover - compiled
+def propagate_sets(
+    query: np.ndarray,
+    ids: np.ndarray,
+    dist: np.ndarray,
+    count: np.ndarray,
+    every: int,
+    x: np.ndarray,
+    continues: np.ndarray,
+    r2: float,
+) -> None:  # pragma: no cover - compiled
     """Fill the layers ``i`` with ``i % every != 0`` of ``ids / dist / count`` (m, k) by
     :func:`propagate_layer` from layer ``i - 1`` (the others hold the index's sets)."""
     m, k = ids.shape

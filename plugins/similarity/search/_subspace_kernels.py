@@ -22,7 +22,7 @@ ITERATIONS = 4
 
 
 @njit(cache=True, inline="always")
-def _project_off(v, w):  # pragma: no cover - compiled
+def _project_off(v: np.ndarray, w: np.ndarray) -> None:  # pragma: no cover - compiled
     """``v -= (w . v) w`` in place (``w`` a unit vector): ``v``'s part orthogonal to ``w``."""
     dot = 0.0
     for k in range(v.shape[0]):
@@ -36,7 +36,9 @@ CHUNK = 2048
 
 
 @njit(cache=True, parallel=True)
-def block_subspaces(x, bstart, p):  # pragma: no cover - compiled
+def block_subspaces(
+    x: np.ndarray, bstart: np.ndarray, p: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Centre, basis, coordinate box and radii of every block ``bstart[b] .. bstart[b+1] - 1``.
 
     Parameters
@@ -85,7 +87,23 @@ def block_subspaces(x, bstart, p):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _one_block(x, j0, nr, p, s, res, w, u, c, r, cen, basis, alo, ahi, rad):  # pragma: no cover - compiled
+def _one_block(
+    x: np.ndarray,
+    j0: int,
+    nr: int,
+    p: int,
+    s: np.ndarray,
+    res: np.ndarray,
+    w: np.ndarray,
+    u: np.ndarray,
+    c: np.ndarray,
+    r: np.ndarray,
+    cen: np.ndarray,
+    basis: np.ndarray,
+    alo: np.ndarray,
+    ahi: np.ndarray,
+    rad: np.ndarray,
+) -> None:  # pragma: no cover - compiled
     """One block's cell into ``cen, basis, alo, ahi, rad`` (its rows of the outputs), with the
     caller's scratch ``s, res`` (rows x d), ``w`` (rows x 3), ``u`` (3 x d), ``c, r`` (d)."""
     d = x.shape[1]

@@ -12,8 +12,9 @@ speed only, never the result.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -24,6 +25,11 @@ from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace,
 
 from .matcher_base import block_boxes_of, block_subspaces_of, match_kw
 from .ranges import merged_ranges, ranges_dp
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework import StepContext
+
+    from .graph import NeighborhoodGraph
 
 #: box distances are shrunk by this relative margin: the fine DP's float32 distances may
 #: round below the exact ones, and the bound must stay below them
@@ -102,7 +108,17 @@ def block_ranges(mask: np.ndarray) -> np.ndarray:
     return np.stack([np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)], axis=1).astype(np.int64)
 
 
-def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: CertifiedSettings) -> float:
+def _seed_tau(
+    q: np.ndarray,
+    qt: np.ndarray,
+    space: SearchSpace,
+    count: int,
+    max_cost: float | None,
+    rank_by: str,
+    min_frames: int,
+    st: ExactStats,
+    cfg: CertifiedSettings,
+) -> float:
     """A threshold from real alignments around the nearest neighbours of a few query frames.
 
     ``cfg.seed_frames`` query frames spread over the query (first and last included) get
@@ -111,16 +127,18 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: Certi
     database frames per query frame, so the fine DP runs over those windows (merged).
     Returns the ``count``-th cost of their selection, or inf when it holds fewer.
     """
+    index = space.index
+    assert index is not None  # the caller seeds only a space with an index
     m, n = len(q), space.n_rows
     frames = np.unique(np.linspace(0, m - 1, cfg.seed_frames).round().astype(np.int64))
     kk = min(n, cfg.seed_k * count)
     kw: dict[str, Any] = {}
-    options: frozenset[str] = getattr(type(space.index), "query_options", frozenset())
+    options: frozenset[str] = getattr(type(index), "query_options", frozenset())
     if "workers" in options:  # a few queries: waking threads costs more than it saves
         kw["workers"] = 1
     if "eps" in options and cfg.seed_eps > 0:  # any tau is safe: approximate neighbours only seed it
         kw["eps"] = cfg.seed_eps
-    _, ids = space.index.query(np.ascontiguousarray(q[frames]), kk, **kw)
+    _, ids = index.query(np.ascontiguousarray(q[frames]), kk, **kw)
     ids = np.asarray(ids, np.int64)
     fi = np.broadcast_to(frames[:, None], ids.shape)
     ok = ids >= 0
@@ -145,7 +163,17 @@ def _seed_tau(q, qt, space, count, max_cost, rank_by, min_frames, st, cfg: Certi
     return float(cost[keep[-1]]) if len(keep) == count else np.inf
 
 
-def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) -> float:
+def _guess_tau(
+    qt: np.ndarray,
+    space: SearchSpace,
+    lb: np.ndarray,
+    blocks: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int],
+    count: int,
+    max_cost: float | None,
+    rank_by: str,
+    min_frames: int,
+    st: ExactStats,
+) -> float:
     """A threshold from real alignments: the fine DP over the blocks of lowest bound.
 
     The ``count`` blocks of lowest bound (with their linked neighbours, so that a match
@@ -187,7 +215,13 @@ def _guess_tau(qt, space, lb, blocks, count, max_cost, rank_by, min_frames, st) 
         take *= 4
 
 
-def _level_bounds(qt, space, level, branges, sub_from=np.inf) -> np.ndarray:
+def _level_bounds(
+    qt: np.ndarray,
+    space: SearchSpace,
+    level: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int],
+    branges: np.ndarray,
+    sub_from: float = np.inf,
+) -> np.ndarray:
     """The coarse bound of the blocks of ``branges`` at one level (``block_boxes_of`` plus a basis size).
 
     Local subspace cells (:func:`._coarse_kernels.subspace_bounds`) when the level has a basis
@@ -197,7 +231,7 @@ def _level_bounds(qt, space, level, branges, sub_from=np.inf) -> np.ndarray:
 
     bstart, lo, hi, link, size, p = level
     if p > 0 and int((branges[:, 1] - branges[:, 0]).sum()) >= sub_from * len(lo):
-        return subspace_bounds(qt, *block_subspaces_of(space, size, p), link, branges, _SHRINK)  # type: ignore[call-arg]  # numba's Dispatcher stub
+        return subspace_bounds(qt, *block_subspaces_of(space, size, p), link, branges, _SHRINK)
     return coarse_bounds(qt, lo, hi, link, branges, _SHRINK)
 
 
@@ -210,7 +244,7 @@ def certified_sdtw(
     rank_by: str = "cost",
     min_span: float = 0.5,
     settings: CertifiedSettings = DEFAULT_SETTINGS,
-    graph=None,
+    graph: NeighborhoodGraph | None = None,
     stats: ExactStats | None = None,
 ) -> QueryMatches:
     """Exactly :func:`.sdtw.subsequence_dtw`'s matches, by the pruned DP (see module doc).
@@ -305,7 +339,16 @@ def certified_sdtw(
     return QueryMatches(start[keep], out_end + 1, cost[keep], length[keep].astype(np.int64), paths)
 
 
-def _alive_ranges(qt, space, levels, lb_top, tau, cfg, st, alive_runs) -> tuple[np.ndarray, np.ndarray]:
+def _alive_ranges(
+    qt: np.ndarray,
+    space: SearchSpace,
+    levels: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]],
+    lb_top: np.ndarray | None,
+    tau: float,
+    cfg: CertifiedSettings,
+    st: ExactStats,
+    alive_runs: Callable[..., np.ndarray],
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Row ranges ``[a, b)`` still alive at ``tau`` after every level, and the first level's
     bound over all its blocks (``lb_top``, reused when given: a retry needs it again)."""
     br = None  # block ranges of the current level still in play (None: all)
@@ -364,7 +407,9 @@ class CertifiedSearch(Matcher):
             return fast_sdtw(query, space, **match_kw(self.params), exact_search=certified_sdtw)
         return certified_sdtw(query, space, **match_kw(self.params), settings=self.settings)
 
-    def after_match(self, query_id, query, matches, space, ctx) -> None:
+    def after_match(
+        self, query_id: int, query: Any, matches: QueryMatches, space: SearchSpace, ctx: StepContext
+    ) -> None:
         from .plots import plot_matches
 
         plot_matches(self.params.plots, query_id, query, matches, space, ctx)

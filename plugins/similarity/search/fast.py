@@ -17,6 +17,7 @@ the database regions the index's neighbours of a few query frames point at.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -69,8 +70,8 @@ def fast_sdtw(
     rank_by: str = "cost",
     min_span: float = 0.5,
     settings: FastSettings = DEFAULT_FAST,
-    exact_search,
-    stats=None,
+    exact_search: Callable[..., QueryMatches],
+    stats: Any = None,
 ) -> QueryMatches:
     """sDTW's matches within the windows around the index's neighbours (module doc).
 

@@ -7,11 +7,15 @@ certified exact search (:mod:`.certified`) uses the graph's costs as a first thr
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import QueryMatches, SearchSpace, min_frames_of, select_matches
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework.matching import NeighbourIndex
 
 #: neighbours per query frame of the default graph (the paper's k)
 K = 256
@@ -94,7 +98,12 @@ class NeighborhoodGraph:
 
 
 def neighbor_sets(
-    query: np.ndarray, index, k: int, radius: float | None, propagate: int = 0, space: SearchSpace | None = None
+    query: np.ndarray,
+    index: NeighbourIndex,
+    k: int,
+    radius: float | None,
+    propagate: int = 0,
+    space: SearchSpace | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``S(q_i)`` from the index, re-sorted by row id: ``(ids, dist, count)`` (see :class:`NeighborhoodGraph`).
 
@@ -123,7 +132,7 @@ def neighbor_sets(
 
 
 def propagated_sets(
-    query: np.ndarray, index, k: int, radius: float | None, every: int, space: SearchSpace | None
+    query: np.ndarray, index: NeighbourIndex, k: int, radius: float | None, every: int, space: SearchSpace | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Approximate neighbour sets by temporal propagation (our extension, not in the paper).
 

@@ -20,7 +20,7 @@ certified search (``matchers.search``) and warns.
 from __future__ import annotations
 
 import warnings
-from typing import ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from pydantic import Field
@@ -30,6 +30,11 @@ from mocapflow.framework.matching import MatchParams, QueryMatches, SearchSpace
 
 from .graph import GAPS, PROPAGATE, K, build_graph
 from .matcher_base import match_kw
+
+if TYPE_CHECKING:  # pragma: no cover
+    from pathlib import Path
+
+    from mocapflow.framework import StepContext
 
 #: The most neighbours per query frame a graph may ask the index for: k x the query's frames
 #: neighbour ids are held at once (4096 x a 1000-frame query: 33 MB).
@@ -109,7 +114,7 @@ class LazyNeighborhoodGraph(Matcher):
 
     params: Params
 
-    def __init__(self, params=None, **kw) -> None:
+    def __init__(self, params: Any = None, **kw: Any) -> None:
         super().__init__(params, **kw)
         if self.params.exact is not False:
             warnings.warn(DEPRECATED, DeprecationWarning, stacklevel=2)
@@ -124,7 +129,9 @@ class LazyNeighborhoodGraph(Matcher):
             return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p), propagate=0, gaps=0, fill=False)
         return lazy_neighborhood_graph(query, space, k=p.k, **match_kw(p))
 
-    def after_match(self, query_id, query, matches, space, ctx) -> None:
+    def after_match(
+        self, query_id: int, query: Any, matches: QueryMatches, space: SearchSpace, ctx: StepContext
+    ) -> None:
         """The deprecated ``plots`` (:attr:`Params.removed`): its pictures, of this matcher's graph."""
         n = int(self.params.removed_values().get("plots") or 0)
         if n:
@@ -133,6 +140,6 @@ class LazyNeighborhoodGraph(Matcher):
             paper = {"propagate": 0, "gaps": 0} if self.params.paper else {}
             plot_matches(n, query_id, query, matches, space, ctx, k=self.params.k, **paper)
 
-    def check_plan(self, base_dir) -> list[str]:
+    def check_plan(self, base_dir: Path) -> list[str]:
         """The alias's warning at the step's line of the plan (and in the run log)."""
         return [DEPRECATED] if self.params.exact is not False else []

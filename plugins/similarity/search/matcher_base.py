@@ -6,13 +6,18 @@ space, queries, match table) is the core's default
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.matching import SearchSpace
 
+if TYPE_CHECKING:  # pragma: no cover
+    from mocapflow.framework.matching import MatchParams
 
-def match_kw(p) -> dict:
+
+def match_kw(p: MatchParams) -> dict:
     """The shared :class:`MatchParams` as keywords of the matching functions."""
     return {"count": p.count, "max_cost": p.max_cost, "rank_by": p.rank_by, "min_span": p.min_span}
 
@@ -20,25 +25,31 @@ def match_kw(p) -> dict:
 def block_boxes_of(space: SearchSpace, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Row blocks of at most ``size`` rows within runs and their feature boxes, cached on
     the space (:func:`._coarse_kernels.block_boxes`; needs ``features``)."""
-    if space.features is None:
+    feats = space.features
+    if feats is None:
         raise DataError("block boxes need the database features (SearchSpace.features)")
 
-    def compute():
+    def compute() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         from ._coarse_kernels import block_boxes
 
-        return block_boxes(space.features, space.continues, int(size))
+        return block_boxes(feats, space.continues, int(size))
 
     return space.memo(("similarity.block_boxes", int(size)), compute)
 
 
-def block_subspaces_of(space: SearchSpace, size: int, p: int) -> tuple[np.ndarray, ...]:
+def block_subspaces_of(
+    space: SearchSpace, size: int, p: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The local subspace cells ``(cen, basis, alo, ahi, rad)`` of the blocks of
     :func:`block_boxes_of` ``(space, size)`` with a basis of ``p`` directions, cached on the
     space (:func:`._subspace_kernels.block_subspaces`)."""
 
-    def compute():
+    boxes = block_boxes_of(space, size)  # refuses a space without features
+
+    def compute() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         from ._subspace_kernels import block_subspaces
 
-        return block_subspaces(space.features, block_boxes_of(space, size)[0], int(p))
+        assert space.features is not None
+        return block_subspaces(space.features, boxes[0], int(p))
 
     return space.memo(("similarity.block_subspaces", int(size), int(p)), compute)

@@ -11,7 +11,7 @@ the database clip is named, not numbered. Needs matplotlib, imported lazily.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +19,8 @@ from mocapflow.framework.errors import ConfigError
 from mocapflow.framework.matching import QueryMatches, SearchSpace
 
 if TYPE_CHECKING:  # annotations only: lng.py imports this module (lazily)
+    from mocapflow.framework import StepContext
+
     from .graph import NeighborhoodGraph
 
 
@@ -145,7 +147,9 @@ def plot_neighborhood(
 PLOT_QUERIES = 16
 
 
-def plot_matches(n: int, query_id: int, query, matches: QueryMatches, space: SearchSpace, ctx, **graph_kw) -> None:
+def plot_matches(
+    n: int, query_id: int, query: Any, matches: QueryMatches, space: SearchSpace, ctx: StepContext, **graph_kw: Any
+) -> None:
     """``plots/q<query>_m<rank>.png`` for the top ``n`` matches of one of the first
     :data:`PLOT_QUERIES` queries: the kNN cells of the query's lazy neighbourhood graph
     (:func:`.graph.build_graph`, the gap-tolerant defaults unless ``graph_kw`` says otherwise)."""

@@ -35,7 +35,9 @@ def run_starts(space: SearchSpace) -> np.ndarray:
     )
 
 
-def ranges_dp(qt: np.ndarray, space: SearchSpace, ranges: np.ndarray, threads: int | None = None):
+def ranges_dp(
+    qt: np.ndarray, space: SearchSpace, ranges: np.ndarray, threads: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The fine DP over row ranges (:func:`._dtw_kernels.sdtw_ranges_compact`): ``rows, cost,
     start, length``. With several numba threads (``threads``, default: numba's) and at least
     ``_PARALLEL_CELLS`` cells, long ranges are cut at clip starts and groups of ranges of about
@@ -44,10 +46,15 @@ def ranges_dp(qt: np.ndarray, space: SearchSpace, ranges: np.ndarray, threads: i
 
     from ._dtw_kernels import sdtw_ranges_compact, sdtw_ranges_parallel
 
+    feats = space.features
+    if feats is None:
+        from mocapflow.framework.errors import DataError
+
+        raise DataError("the DP over row ranges needs the database features (SearchSpace.features)")
     t = numba.get_num_threads() if threads is None else int(threads)
     total = int((ranges[:, 1] - ranges[:, 0]).sum())
     if t <= 1 or total * qt.shape[1] < _PARALLEL_CELLS:
-        return sdtw_ranges_compact(qt, space.features, clip_starts(space), ranges)
+        return sdtw_ranges_compact(qt, feats, clip_starts(space), ranges)
     parts = 4 * t
     rs = run_starts(space)
     share = max(1, total // parts)
@@ -64,4 +71,4 @@ def ranges_dp(qt: np.ndarray, space: SearchSpace, ranges: np.ndarray, threads: i
     cum = np.cumsum(ranges[:, 1] - ranges[:, 0])
     bounds = np.searchsorted(cum, np.linspace(0, cum[-1], parts + 1)[1:-1], "right")
     groups = np.unique(np.r_[0, bounds, len(ranges)]).astype(np.int64)
-    return sdtw_ranges_parallel(qt, space.features, clip_starts(space), np.ascontiguousarray(ranges, np.int64), groups)
+    return sdtw_ranges_parallel(qt, feats, clip_starts(space), np.ascontiguousarray(ranges, np.int64), groups)

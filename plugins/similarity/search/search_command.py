@@ -21,9 +21,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 if TYPE_CHECKING:
+    import pyarrow as pa
+
+    from mocapflow.framework import FeatureSet, Index, Matcher, SearchSpace
     from mocapflow.framework.commands import CommandContext
-    from mocapflow.framework.components import FeatureSet
     from mocapflow.framework.database import MotionDatabase
+    from mocapflow.framework.queries import Query
     from mocapflow.framework.registry import Registries
 
 #: the registries a search needs: a query file's reader, the feature set, the index, the matcher
@@ -214,7 +217,7 @@ class SearchSession:
         self._index: Any = None
         self._feature_set: FeatureSet | None = None
         self._mdb: MotionDatabase | None = None
-        self._spaces: dict[tuple[bool, bool], object] = {}
+        self._spaces: dict[tuple[bool, bool], SearchSpace] = {}
 
     def stamp(self) -> tuple:
         """``(mtime_ns, size)`` of the manifests of the index, features and motions steps."""
@@ -230,13 +233,13 @@ class SearchSession:
     def is_stale(self) -> bool:
         return self.stamp() != self._stamp
 
-    def index(self):
+    def index(self) -> Index:
         """The persisted index, loaded once (memory-mapped by the index class, no rebuild)."""
         if self._index is None:
             self._index = self.idx.index(self.regs)
         return self._index
 
-    def space(self, matcher):
+    def space(self, matcher: Matcher) -> SearchSpace:
         """The matcher's search space (the core's :func:`~mocapflow.framework.queries.search_space`
         over the loaded index), built once per (index, features) need."""
         from mocapflow.framework.queries import MatchInputs, search_space
@@ -247,14 +250,14 @@ class SearchSession:
             self._spaces[key] = search_space(matcher, inputs, self.regs, index=self.index())
         return self._spaces[key]
 
-    def feature_set(self):
+    def feature_set(self) -> FeatureSet:
         if self._feature_set is None:
             from mocapflow.framework.queries import feature_set_of
 
             self._feature_set = feature_set_of(self.fds, self.regs)
         return self._feature_set
 
-    def matcher(self, args: argparse.Namespace):
+    def matcher(self, args: argparse.Namespace) -> Matcher:
         """The matcher of ``args`` (``--matcher`` and its options; ``lng`` is the graph)."""
         from mocapflow.framework.errors import ConfigError
 
@@ -281,7 +284,7 @@ class SearchSession:
             raise options_error(exc, _OPTIONS, f"matchers.{args.matcher}") from None
         return matcher_cls(params)
 
-    def query(self, text: str, cwd: Path):
+    def query(self, text: str, cwd: Path) -> Query:
         """The :class:`~mocapflow.framework.queries.Query` of ``--query`` (files relative to ``cwd``)."""
         from mocapflow.framework.database import MotionDatabase
         from mocapflow.framework.queries import motion_queries, parse_query_spec
@@ -370,7 +373,7 @@ class SearchSession:
         return 0
 
 
-def write_atomic(table, out: Path) -> None:
+def write_atomic(table: pa.Table, out: Path) -> None:
     """Write ``table`` as ``.parquet`` (with paths) or CSV (without), creating the folder; atomic (temp + rename)."""
     import os
     import tempfile

@@ -33,7 +33,9 @@ import stat
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, NoReturn
 
 SOCKET_NAME = ".search.sock"
 # request options the server takes from the client (the rest: its own plugin selection)
@@ -161,7 +163,7 @@ def ask(args: argparse.Namespace, timeout: float | None = None) -> int | None:
     return int(reply["rc"])
 
 
-def _handle(session_box: list, raw: bytes, make_session) -> dict:
+def _handle(session_box: list, raw: bytes, make_session: Callable[[], Any]) -> dict:
     """One request -> reply (errors become what the CLI would print, with its exit status)."""
     from mocapflow.framework.errors import ConfigError, MocapflowError, PluginError
 
@@ -182,7 +184,7 @@ def _handle(session_box: list, raw: bytes, make_session) -> dict:
     return {"stdout": out.getvalue(), "stderr": err.getvalue(), "rc": rc}
 
 
-def warm_up(session) -> float:
+def warm_up(session: Any) -> float:
     """Load the kernels a default search runs (one query cut from the database itself), the
     search space's block boxes and its subspace cells; returns the seconds it took."""
     import numpy as np
@@ -239,12 +241,12 @@ def _remove_stale_socket(path: Path) -> None:
         probe.close()
 
 
-def serve(args: argparse.Namespace, session_cls) -> int:
+def serve(args: argparse.Namespace, session_cls: Callable[..., Any]) -> int:
     """``mocapflow search --db WS --serve``: answer searches on ``WS/.search.sock`` with
     ``session_cls`` (:class:`~.search_command.SearchSession`, passed in: no import cycle)."""
     from mocapflow.framework.errors import ConfigError
 
-    def make_session():
+    def make_session() -> Any:
         return session_cls(
             args.db,
             args.index,
@@ -302,7 +304,7 @@ def serve(args: argparse.Namespace, session_cls) -> int:
         finally:
             slots.release()
 
-    def stop(*_):
+    def stop(*_: object) -> NoReturn:
         raise KeyboardInterrupt
 
     import signal
