@@ -34,7 +34,45 @@ _EXPORTS: dict[str, str] = {
     "Skeleton": "skeleton",
 }
 
-__all__ = sorted([*_EXPORTS, "__version__"])
+# a literal list, so type checkers take these names as exported (tests check it against _EXPORTS)
+__all__ = [
+    "Analysis",
+    "CANONICAL_JOINTS",
+    "CleanedClip",
+    "Cleaner",
+    "Component",
+    "ConfigError",
+    "DataError",
+    "Dataset",
+    "FeatureMatrix",
+    "FeatureSet",
+    "Format",
+    "Index",
+    "Markers",
+    "MatchParams",
+    "Matcher",
+    "MocapflowError",
+    "Motion",
+    "MotionDatabase",
+    "Params",
+    "ParseError",
+    "PipelineError",
+    "PluginError",
+    "QueryMatches",
+    "Registries",
+    "Registry",
+    "Removed",
+    "SearchSpace",
+    "Skeleton",
+    "StepContext",
+    "StepOutput",
+    "__version__",
+    "build_registries",
+    "forward_kinematics",
+    "get_plugin_manager",
+    "hookimpl",
+    "load_registries",
+]
 
 
 def __getattr__(name: str) -> Any:

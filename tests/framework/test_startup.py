@@ -66,6 +66,7 @@ def test_importing_the_framework_is_cheap_and_every_name_resolves():
     import mocapflow
     import mocapflow.framework as fw
 
+    assert sorted(fw.__all__) == sorted([*fw._EXPORTS, "__version__"])  # the literal list type checkers read
     for name in fw.__all__:  # the lazy facade gives every public name
         assert getattr(fw, name) is not None, name
     assert fw.__version__ == mocapflow.__version__
