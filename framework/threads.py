@@ -118,7 +118,10 @@ def _client_threads(n: int) -> Iterator[None]:
     limiter = threadpool_limits(n)
     try:
         for var in THREAD_ENV:
-            os.environ[var] = str(n)
+            # not numba's: it re-reads its variable at every compile and raises once its pool
+            # runs with another size (set_num_threads limits it here)
+            if var != "NUMBA_NUM_THREADS":
+                os.environ[var] = str(n)
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
         yield
     finally:

@@ -112,7 +112,7 @@ def test_main_called_from_python_leaves_the_callers_exit_alone():
 
 COMPILE_AFTER_LIMIT = """
 import numba, numpy as np
-from mocapflow.framework.threads import limit_threads
+from mocapflow.framework.threads import _client_threads, limit_threads
 
 @numba.njit(parallel=True, cache=False)
 def total(x):
@@ -121,21 +121,30 @@ def total(x):
         s += x[i]
     return s
 
+def compile_and_run():
+    @numba.njit(cache=False)
+    def plus_one(x):
+        return x + 1
+
+    print(plus_one(1), numba.get_num_threads())
+
 total(np.ones(64))  # numba's pool now runs, sized at import
-limit_threads(1)  # a worker's share, as the client takes while it works a batch
-
-@numba.njit(cache=False)
-def plus_one(x):
-    return x + 1
-
-print(plus_one(1), numba.get_num_threads())
 """
 
 
-def test_a_kernel_compiles_after_the_threads_are_limited_on_a_running_pool():
+@pytest.mark.parametrize(
+    "limited",
+    [
+        "limit_threads(1)\ncompile_and_run()",  # a worker's share, as each worker takes first
+        "with _client_threads(1):\n    compile_and_run()",  # the client's share while it works chunks
+    ],
+    ids=["limit_threads", "client_threads"],
+)
+def test_a_kernel_compiles_after_the_threads_are_limited_on_a_running_pool(limited):
     """numba re-reads NUMBA_NUM_THREADS at every compile and raises once its threads run with
-    another count: a cold cache compiling a kernel after limit_threads crashed a jobs=2 run."""
+    another count: a cold cache compiling a kernel after the threads were limited (a worker, or
+    the client working chunks) crashed a jobs=2 run."""
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_NUM_THREADS"}
-    r = subprocess.run([sys.executable, "-c", COMPILE_AFTER_LIMIT], capture_output=True, text=True, env=env)
+    r = subprocess.run([sys.executable, "-c", COMPILE_AFTER_LIMIT + limited], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.split() == ["2", "1"]
