@@ -33,6 +33,7 @@ ufbx's C is ``tests/naive/fbx_layers.py``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -65,7 +66,7 @@ class Layer:
     muted: bool = False
     solo: bool = False
     active: bool = True
-    weight_curve: tuple | None = None
+    weight_curve: tuple[Any, ...] | None = None
     has_weight: bool = True
 
     @property

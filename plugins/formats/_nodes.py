@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -131,7 +132,7 @@ def motion_from_nodes(
     fps: float,
     fmt: str,
     name: str,
-    meta: dict,
+    meta: dict[str, Any],
     ignore_parent_scale: np.ndarray | None = None,
 ) -> Motion:
     """The skeleton of nodes ``first_joint..`` (nodes before it are ancestors of

@@ -60,7 +60,7 @@ from ._nodes import common_root, motion_from_nodes, uniform_scale, unique_names
 __all__ = ["GltfFormat", "read_gltf", "write_gltf"]
 
 
-def _node_trs(doc: _Doc, i: int, node: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _node_trs(doc: _Doc, i: int, node: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rest translation, rotation (w, x, y, z) and scale of a node."""
     w = f"nodes[{i}]"
     if "matrix" in node:
@@ -173,7 +173,7 @@ def _select(doc: _Doc, parent: np.ndarray, animated: set[int]) -> tuple[list[int
     return ancestors + order, len(ancestors)
 
 
-def _pick_animation(doc: _Doc, animation: int | str) -> tuple[int, dict]:
+def _pick_animation(doc: _Doc, animation: int | str) -> tuple[int, dict[str, Any]]:
     anims = doc.doc.get("animations", [])
     if not isinstance(anims, list) or not anims:
         raise doc.error("expected at least one animation in 'animations'")
@@ -352,7 +352,9 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
     )
 
 
-def _channels(doc: _Doc, anim: dict, aw: str, samplers: list) -> list[tuple[int, str, str, np.ndarray, np.ndarray]]:
+def _channels(
+    doc: _Doc, anim: dict[str, Any], aw: str, samplers: list[Any]
+) -> list[tuple[int, str, str, np.ndarray, np.ndarray]]:
     """(node, path, interpolation, key times, values) of the animation's TRS channels."""
     channels = []
     for c, ch in enumerate(doc.get(anim, "channels", list, aw)):
@@ -384,7 +386,7 @@ def _channels(doc: _Doc, anim: dict, aw: str, samplers: list) -> list[tuple[int,
     return channels
 
 
-def _rate(doc: _Doc, anim: dict, channels: list, fps: float | str) -> tuple[float, str]:
+def _rate(doc: _Doc, anim: dict[str, Any], channels: list[Any], fps: float | str) -> tuple[float, str]:
     if fps != "auto":
         if not 0 < float(fps) <= MAX_FPS:
             raise DataError(f"fps must be in (0, {MAX_FPS:g}] or 'auto', got {fps!r}")

@@ -350,7 +350,7 @@ def _clip_layout(feats: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return bits, cid[brk], np.append(brk, len(cid)).astype(np.int64)
 
 
-def template_hits_table(rows: list[dict]) -> pa.Table:
+def template_hits_table(rows: list[dict[str, Any]]) -> pa.Table:
     fields = list(MATCHES) + [
         pa.field("label", pa.string()),
         pa.field("threshold", pa.float64()),

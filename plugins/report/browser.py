@@ -71,7 +71,7 @@ class Browser:
         self.errors: list[str] = []
         self.events: list[dict[str, Any]] = []
         self._id = 0
-        self._replies: dict[int, queue.Queue] = {}
+        self._replies: dict[int, queue.Queue[Any]] = {}
         self._lock = threading.Lock()
 
     # --- process and transport ------------------------------------------------------------
@@ -187,7 +187,7 @@ class Browser:
         with self._lock:
             self._id += 1
             mid = self._id
-            q: queue.Queue = queue.Queue()
+            q: queue.Queue[Any] = queue.Queue()
             self._replies[mid] = q
         msg = {"id": mid, "method": method, "params": params or {}}
         if session:

@@ -33,6 +33,7 @@ rest): docs/knn.md, "How the reconstruction's default was chosen".
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -139,7 +140,7 @@ class Calibration:
     source: str
     axes: tuple[str, ...] = ()
 
-    def rows(self) -> list[dict]:
+    def rows(self) -> list[dict[str, Any]]:
         """One row per control point: offsets in cm along the segment axes."""
         return [
             {

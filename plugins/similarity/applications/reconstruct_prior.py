@@ -37,6 +37,7 @@ import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -261,7 +262,7 @@ class PriorStore:
     fps: float
     dirs: np.ndarray
     clip_rows: np.ndarray
-    clips: list[dict]
+    clips: list[dict[str, Any]]
     lengths: np.ndarray | None = None
     tree: tuple[str, ...] | None = None
     rig: np.ndarray | None = None

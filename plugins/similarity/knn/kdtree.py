@@ -123,7 +123,7 @@ class KDTreeIndex(CostModel, Index):
     _depth: int | None
     _raw_bound: Any
     _boxes: tuple[np.ndarray, np.ndarray] | None
-    _targs: tuple[tuple, np.ndarray] | None
+    _targs: tuple[tuple[Any, ...], np.ndarray] | None
     #: the rows in dataset order (features, clip id, frame) when loaded beside their dataset
     _rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     #: the folder the index was loaded from (None: built in memory)
@@ -401,7 +401,7 @@ class KDTreeIndex(CostModel, Index):
             if prev is not None:
                 kern.set_threads(prev)
 
-    def _tree_args(self) -> tuple[tuple, np.ndarray]:
+    def _tree_args(self) -> tuple[tuple[Any, ...], np.ndarray]:
         """The tree's arrays in :func:`._knn_kernels.query_tree` order (cached: a single query
         is a few tens of microseconds, so per-call attribute work shows)."""
         args = getattr(self, "_targs", None)
@@ -549,7 +549,7 @@ class KDTreeIndex(CostModel, Index):
         self._dir = d
         return self
 
-    def _attach_rows(self, d: Path, ref: dict) -> None:
+    def _attach_rows(self, d: Path, ref: dict[str, Any]) -> None:
         """The rows of an index saved with ``rows_from``: read from that features dataset (the
         step ``ref["step"]`` of the index's workspace), checked against its fingerprint."""
         from mocapflow.framework.datasets import Dataset

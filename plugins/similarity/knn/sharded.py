@@ -101,7 +101,7 @@ class _ShardQuery:
     stamp: str
     k: int
     radius: float | None
-    kwargs: dict
+    kwargs: dict[str, Any]
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from mocapflow.framework.clip_refs import cached
@@ -441,7 +441,7 @@ class _ShardBuild:
     start: int
     stop: int
     index_cls: type[Index]
-    index_params: dict
+    index_params: dict[str, Any]
     directory: str
 
 
@@ -479,7 +479,7 @@ class _BlockQuery:
     k: int
     radius: float | None
     q: np.ndarray
-    kwargs: dict
+    kwargs: dict[str, Any]
 
 
 def _answer_block(task: _BlockQuery) -> tuple[np.ndarray, np.ndarray]:

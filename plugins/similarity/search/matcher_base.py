@@ -6,7 +6,7 @@ space, queries, match table) is the core's default
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.matching import MatchParams
 
 
-def match_kw(p: MatchParams) -> dict:
+def match_kw(p: MatchParams) -> dict[str, Any]:
     """The shared :class:`MatchParams` as keywords of the matching functions."""
     return {"count": p.count, "max_cost": p.max_cost, "rank_by": p.rank_by, "min_span": p.min_span}
 

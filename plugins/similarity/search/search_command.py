@@ -219,7 +219,7 @@ class SearchSession:
         self._mdb: MotionDatabase | None = None
         self._spaces: dict[tuple[bool, bool], SearchSpace] = {}
 
-    def stamp(self) -> tuple:
+    def stamp(self) -> tuple[Any, ...]:
         """``(mtime_ns, size)`` of the manifests of the index, features and motions steps."""
         out: list[tuple[int, int, int] | None] = []
         for ds in (self.idx, self.fds, self.mds):
