@@ -33,7 +33,7 @@ ufbx's C is ``tests/naive/fbx_layers.py``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -163,11 +163,11 @@ def combine(
     ``"s"`` (module doc)."""
     w = np.broadcast_to(np.asarray(weight, dtype=np.float64), result.shape[:1])
     if not layer.blended:
-        return value.copy()
+        return cast("np.ndarray", value.copy())
     if channel == "s" and layer.compose_scale:
         if layer.mode == ADDITIVE:
-            return result * _pow_abs(value, w[:, None])
-        return _pow_abs(result, 1.0 - w[:, None]) * _pow_abs(value, w[:, None])
+            return cast("np.ndarray", result * _pow_abs(value, w[:, None]))
+        return cast("np.ndarray", _pow_abs(result, 1.0 - w[:, None]) * _pow_abs(value, w[:, None]))
     if channel == "r" and layer.compose_rotation:
         a, b = _to_quat(result, order), _to_quat(value, order)
         if layer.mode == ADDITIVE:

@@ -10,7 +10,7 @@ import binascii
 import json
 import struct
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -167,7 +167,7 @@ class _Doc:
             raise self.error(f"{where}: expected an index into {key} (0..{len(arr) - 1}), found {json.dumps(i)[:40]}")
         if not isinstance(arr[i], dict):
             raise self.error(f"{key}[{i}]: expected a JSON object")
-        return arr[i]
+        return cast("dict[str, Any]", arr[i])
 
     def buffer(self, i: int) -> bytes | memoryview:
         """Buffer ``i``: the GLB binary chunk, a data URI (its base64 length checked against
@@ -286,7 +286,7 @@ def _kind_name(kind: Any) -> str:
     names = {dict: "an object", list: "an array", str: "a string", int: "an integer", bool: "true/false"}
     if isinstance(kind, tuple):
         return " or ".join(names.get(k, k.__name__) for k in kind)
-    return names.get(kind, kind.__name__)
+    return cast("str", names.get(kind, kind.__name__))
 
 
 def _type_names(widths: tuple[int, ...]) -> list[str]:

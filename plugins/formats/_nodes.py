@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -114,7 +114,7 @@ def uniform_scale(path: Path, name: str, s: np.ndarray) -> np.ndarray:
     ):
         bad = s.reshape(-1, 3)[0] if s.ndim > 1 else s
         raise ParseError(path, None, f"node {name!r}: expected a positive uniform scale, found {bad.tolist()}")
-    return m
+    return cast("np.ndarray", m)
 
 
 def motion_from_nodes(

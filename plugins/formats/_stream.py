@@ -16,7 +16,7 @@ import hashlib
 import stat
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, cast
 
 import numpy as np
 
@@ -42,7 +42,7 @@ def _lone_cr_to_lf(block: bytes, final: bool) -> bytes:
         return block
     out = buf.copy()
     out[cr[lone]] = 10
-    return out.tobytes()
+    return cast("bytes", out.tobytes())
 
 
 class TextBlocks:

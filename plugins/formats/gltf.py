@@ -40,7 +40,7 @@ orientations back (``Skeleton.meta["rest_rotations"]``).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, cast
 
 import numpy as np
 from pydantic import Field
@@ -225,7 +225,7 @@ def _sample(
     else:
         v = vals
     if k == 1:
-        return np.broadcast_to(v[0], (len(grid), v.shape[1])).copy()
+        return cast("np.ndarray", np.broadcast_to(v[0], (len(grid), v.shape[1])).copy())
     if every:
         return v  # a key on every frame (the common case): no interpolation
     i = np.clip(np.searchsorted(times, grid, side="right") - 1, 0, k - 2)
@@ -245,7 +245,7 @@ def _sample(
         return quat.normalize(out) if rotation else out
     if rotation:
         return quat.slerp(v[i], v[i + 1], u)
-    return v[i] + u[:, None] * (v[i + 1] - v[i])
+    return cast("np.ndarray", v[i] + u[:, None] * (v[i + 1] - v[i]))
 
 
 def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["auto"] = "auto") -> Motion:

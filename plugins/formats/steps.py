@@ -12,7 +12,7 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, cast
 
 import numpy as np
 import pyarrow as pa
@@ -146,7 +146,7 @@ class _FileIngest(Format):
         the files read are the files fingerprinted, and a run lists its inputs once."""
         listed = self.__dict__.pop("_listed", None)
         if listed is not None and listed[0] == str(base):
-            return listed[1]
+            return cast("list[Path]", listed[1])
         return _expand(self.params.paths, base, self.params.exclude)
 
     def check_plan(self, base_dir: Path) -> list[str]:

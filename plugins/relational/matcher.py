@@ -16,7 +16,7 @@ the DTW cost per path step to ``dtw_cost``.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
 import pyarrow as pa
@@ -73,7 +73,7 @@ def pose_features(positions: np.ndarray) -> np.ndarray:
     from mocapflow.framework.normalize import to_root_frame
 
     p = to_root_frame(positions).reshape(len(positions), -1)
-    return np.nan_to_num(p).astype(np.float64)
+    return cast("np.ndarray", np.nan_to_num(p).astype(np.float64))
 
 
 class ExampleQuery(Params):

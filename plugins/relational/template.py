@@ -102,7 +102,7 @@ def fit_templates(
 
 
 def feature_ids(columns: np.ndarray) -> str:
-    from .features import FEATURE_IDS
+    from .feature_table import FEATURE_IDS
 
     return ",".join(FEATURE_IDS[int(c)] for c in columns)
 

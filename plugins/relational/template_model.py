@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -114,7 +114,7 @@ def cost_table(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
 def frame_codes(bits: np.ndarray) -> np.ndarray:
     """31-bit code per frame (bit i = column i) of a (T, 31) 0/1 matrix, int64."""
     b = np.asarray(bits) > 0.5
-    return (b.astype(np.int64) << np.arange(b.shape[1], dtype=np.int64)).sum(axis=1)
+    return cast("np.ndarray", (b.astype(np.int64) << np.arange(b.shape[1], dtype=np.int64)).sum(axis=1))
 
 
 def align_average(template: np.ndarray, example: np.ndarray) -> tuple[np.ndarray, float]:

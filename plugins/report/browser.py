@@ -19,7 +19,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from mocapflow.framework.errors import MocapflowError
 
@@ -205,7 +205,7 @@ class Browser:
                 self._replies.pop(mid, None)
         if "error" in reply:
             raise BrowserError(f"{method}: {reply['error'].get('message')}")
-        return reply.get("result", {})
+        return cast("dict[str, Any]", reply.get("result", {}))
 
     # --- page -------------------------------------------------------------------------------
     def open(self, url: str) -> float:

@@ -4,7 +4,7 @@ from the consensus (:func:`repair_flagged`)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -34,7 +34,7 @@ def _swapped(q: np.ndarray, lc: np.ndarray, rc: np.ndarray, a: int, b: int) -> n
     back = q.copy()
     back[a:b, lc] = mirror(q[a:b, rc])
     back[a:b, rc] = mirror(q[a:b, lc])
-    return back
+    return cast("np.ndarray", back)
 
 
 def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:

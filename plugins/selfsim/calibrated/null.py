@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -132,7 +132,7 @@ def shipped_threshold(alphas: np.ndarray, taus: np.ndarray, rate: float) -> floa
 
 @lru_cache(maxsize=1)
 def _shipped_data() -> dict[str, Any]:
-    return json.loads(SHIPPED.read_text())
+    return cast("dict[str, Any]", json.loads(SHIPPED.read_text()))
 
 
 def robust_units(ev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -266,7 +266,10 @@ class FatGraph(Analysis):
     @staticmethod
     def tables(res: BasePoses, clip_id: np.ndarray, frame: np.ndarray, offsets: np.ndarray) -> dict[str, pa.Table]:
         """The step's tables (see the module docstring) from global-row results."""
-        i32 = lambda a: pa.array(np.asarray(a, np.int32))  # noqa: E731 - a one-line helper local to this function
+
+        def i32(a: Any) -> pa.Array:
+            return pa.array(np.asarray(a, np.int32))
+
         cl = res.cluster
         data = pa.table(
             {"clip_id": i32(clip_id), "frame": i32(frame), "cluster": i32(cl), "n_neighbours": i32(res.degree)}

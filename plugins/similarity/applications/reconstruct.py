@@ -40,7 +40,7 @@ joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from pydantic import Field
@@ -471,7 +471,7 @@ def project_bones(pose: np.ndarray, fr: _Frames) -> np.ndarray:
     n = np.linalg.norm(v, axis=1, keepdims=True)
     d = np.where(n > 1e-9, v / np.maximum(n, 1e-12), 0.0)
     d[0] = 0.0
-    return (fr.chain @ (d * fr.lengths[:, None])).ravel()
+    return cast("np.ndarray", (fr.chain @ (d * fr.lengths[:, None])).ravel())
 
 
 def limb_ik(pose: np.ndarray, obs: np.ndarray, fr: _Frames) -> np.ndarray:
@@ -499,7 +499,7 @@ def limb_ik(pose: np.ndarray, obs: np.ndarray, fr: _Frames) -> np.ndarray:
         y[below] += end - y[c]
         y[b] = y[a] + x * u + r * side / n
         y[c] = end
-    return y.ravel()
+    return cast("np.ndarray", y.ravel())
 
 
 def _solve_frame(

@@ -36,7 +36,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 import numpy as np
 import pyarrow as pa
@@ -357,5 +357,5 @@ def read_skeleton(path: Path, reg: Any) -> Skeleton:
         raise ConfigError(f"skeleton {path}: no such file")
     for _, cls in reg.by_kind["formats"]:  # a skeleton file (ASF) read as it is
         if path.suffix.lower() in cls.extensions and cls.produces == "skeleton":
-            return cls().read(path)
-    return reg.motion_format(path).read(path).skeleton
+            return cast("Skeleton", cls().read(path))
+    return cast("Skeleton", reg.motion_format(path).read(path).skeleton)

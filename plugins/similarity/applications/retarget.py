@@ -17,7 +17,7 @@ bones below aim from where it leaves them).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -159,7 +159,7 @@ def two_bone_middle(base: np.ndarray, end: np.ndarray, hint: np.ndarray, l1: flo
     n = np.linalg.norm(side, axis=1, keepdims=True)
     fallback = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
     side = np.where(n > 1e-9, side / np.maximum(n, 1e-12), fallback / np.linalg.norm(fallback, axis=1, keepdims=True))
-    return base + x * u + r * side
+    return cast("np.ndarray", base + x * u + r * side)
 
 
 def _ancestors(skeleton: Skeleton, j: int) -> list[int]:

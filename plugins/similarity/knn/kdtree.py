@@ -15,7 +15,7 @@ import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, cast
 
 import numpy as np
 from pydantic import Field
@@ -76,7 +76,7 @@ def _ro(a: np.ndarray) -> np.ndarray:
     Arrow (read-only) or NumPy (writable), so one variant compiles, not two."""
     v = a.view()
     v.flags.writeable = False
-    return v
+    return cast("np.ndarray", v)
 
 
 _ZEROS = np.zeros(4, np.int64)  # query clip/frame ids of interactive queries (never written)
@@ -505,7 +505,7 @@ class KDTreeIndex(CostModel, Index):
         """
         own = getattr(self, "_rows", None)
         if own is not None:
-            return own
+            return cast("tuple[np.ndarray, np.ndarray, np.ndarray] | None", own)
         d = getattr(self, "_dir", None)
         if d is None or not all((d / f"rows_{n}.npy").is_file() for n in ("features", "clip_id", "frame")):
             return None

@@ -6,7 +6,7 @@ space, queries, match table) is the core's default
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -34,7 +34,10 @@ def block_boxes_of(space: SearchSpace, size: int) -> tuple[np.ndarray, np.ndarra
 
         return block_boxes(feats, space.continues, int(size))
 
-    return space.memo(("similarity.block_boxes", int(size)), compute)
+    return cast(
+        "tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]",
+        space.memo(("similarity.block_boxes", int(size)), compute),
+    )
 
 
 def block_subspaces_of(
@@ -52,4 +55,7 @@ def block_subspaces_of(
         assert space.features is not None
         return block_subspaces(space.features, boxes[0], int(p))
 
-    return space.memo(("similarity.block_subspaces", int(size), int(p)), compute)
+    return cast(
+        "tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]",
+        space.memo(("similarity.block_subspaces", int(size), int(p)), compute),
+    )
