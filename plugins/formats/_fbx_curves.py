@@ -339,14 +339,14 @@ def _bezier_t(p1: np.ndarray, p2: np.ndarray, x0: np.ndarray) -> np.ndarray:
     a = 3 * p1 - 3 * p2 + 1.0
     b = 3 * p2 - 6 * p1
     c = 3 * p1
-    t = x0.copy()
+    t: np.ndarray = x0.copy()
     for _ in range(11):
         x1 = ((a * t + b) * t + c) * t - x0
         d = (3 * a * t + 2 * b) * t + c
         with np.errstate(divide="ignore", invalid="ignore"):
             step = np.where(d != 0, x1 / d, 0.0)
         t = t - step
-    return cast("np.ndarray", t)
+    return t
 
 
 def _inside(c: Curve, time: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -106,7 +106,7 @@ def uniform_scale(path: Path, name: str, s: np.ndarray) -> np.ndarray:
     """The uniform factor of scale vectors ``(..., 3)``; ParseError for a non-uniform or
     non-positive scale (a skeleton's joints cannot shear)."""
     s = np.asarray(s, dtype=float)
-    m = s.mean(axis=-1)
+    m: np.ndarray = s.mean(axis=-1)
     if (
         not np.all(np.isfinite(s))
         or np.any(m <= 0)
@@ -114,7 +114,7 @@ def uniform_scale(path: Path, name: str, s: np.ndarray) -> np.ndarray:
     ):
         bad = s.reshape(-1, 3)[0] if s.ndim > 1 else s
         raise ParseError(path, None, f"node {name!r}: expected a positive uniform scale, found {bad.tolist()}")
-    return cast("np.ndarray", m)
+    return m
 
 
 def motion_from_nodes(

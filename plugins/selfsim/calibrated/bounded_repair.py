@@ -4,7 +4,7 @@ from the consensus (:func:`repair_flagged`)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -31,10 +31,10 @@ def _edge_roughness(q: np.ndarray, cols: np.ndarray, a: int, b: int) -> float:
 
 
 def _swapped(q: np.ndarray, lc: np.ndarray, rc: np.ndarray, a: int, b: int) -> np.ndarray:
-    back = q.copy()
+    back: np.ndarray = q.copy()
     back[a:b, lc] = mirror(q[a:b, rc])
     back[a:b, rc] = mirror(q[a:b, lc])
-    return cast("np.ndarray", back)
+    return back
 
 
 def _merge(runs: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:

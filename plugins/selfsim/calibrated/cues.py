@@ -100,11 +100,11 @@ def hold_lengths(v: np.ndarray, still: float = HOLD_SPEED) -> tuple[np.ndarray, 
 
 def window_min(x: np.ndarray, half: int) -> np.ndarray:
     """Smallest value over ``[t - half, t + half]`` along time (shrunk at the ends)."""
-    out = x.copy()
+    out: np.ndarray = x.copy()
     for o in range(1, half + 1):
         out[o:] = np.minimum(out[o:], x[:-o])
         out[:-o] = np.minimum(out[:-o], x[o:])
-    return cast("np.ndarray", out)
+    return out
 
 
 def window_median(x: np.ndarray, half: int) -> np.ndarray:

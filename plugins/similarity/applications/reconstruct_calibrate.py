@@ -303,7 +303,7 @@ def _hip_centres(
         if np.linalg.svd(local - local.mean(0), compute_uv=False)[-1] / np.sqrt(len(local)) < 0.01:
             return None  # the knee marker moved in a plane at best: no sphere
         out.append(c)
-    return cast("np.ndarray | None", np.mean(out, axis=0))
+    return cast("np.ndarray", np.mean(out, axis=0))
 
 
 def root_from_hips(rest: dict[str, np.ndarray]) -> np.ndarray | None:

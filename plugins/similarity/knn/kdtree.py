@@ -74,9 +74,9 @@ def _sqnorms(data: np.ndarray, mean: np.ndarray) -> np.ndarray:
 def _ro(a: np.ndarray) -> np.ndarray:
     """A read-only view (no copy): the kernels read features read-only, whether they come from
     Arrow (read-only) or NumPy (writable), so one variant compiles, not two."""
-    v = a.view()
+    v: np.ndarray = a.view()
     v.flags.writeable = False
-    return cast("np.ndarray", v)
+    return v
 
 
 _ZEROS = np.zeros(4, np.int64)  # query clip/frame ids of interactive queries (never written)
