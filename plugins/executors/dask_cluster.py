@@ -167,7 +167,8 @@ class DaskExecutor:
                 if forkserver:
                     from distributed.utils import get_mp_context
 
-                    get_mp_context().set_forkserver_preload(["distributed", *PRELOAD])
+                    # distributed.utils.get_mp_context has no annotations
+                    get_mp_context().set_forkserver_preload(["distributed", *PRELOAD])  # type: ignore[no-untyped-call]
                 self._cluster = self._local_cluster(distributed, forkserver)
                 self._client = distributed.Client(self._cluster)
         client = self._client

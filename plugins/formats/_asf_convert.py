@@ -20,6 +20,7 @@ the ``<bone>_end`` sites the ASF reader adds, so positions compare by joint name
 from __future__ import annotations
 
 import re
+from typing import Any
 
 import numpy as np
 
@@ -71,7 +72,7 @@ def asf_motion(motion: Motion) -> Motion:
             same = [d for d in cs if np.abs(offsets[d] - offsets[c]).max() <= _SAME]
             groups[c] = len(same)
         vec[j] = offsets[max(cs, key=lambda c: groups[c])]  # the offset most children share
-    bones: list[dict] = []
+    bones: list[dict[str, Any]] = []
     hierarchy: dict[str, list[str]] = {}
 
     def add_bone(name: str, v: np.ndarray, dof: list[str]) -> None:

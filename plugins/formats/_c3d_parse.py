@@ -24,7 +24,7 @@ whole frames the file holds. Nothing here raises anything but :class:`C3dError`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 
@@ -48,7 +48,7 @@ def dec_to_float(raw: np.ndarray) -> np.ndarray:
     v = b.view("<f4").reshape(raw.shape[:-1])
     bits = b.view("<u4").reshape(raw.shape[:-1])
     with np.errstate(over="ignore", invalid="ignore"):
-        return np.where((bits & 0x7F800000) == 0, np.float32(0), v / np.float32(4))
+        return cast("np.ndarray", np.where((bits & 0x7F800000) == 0, np.float32(0), v / np.float32(4)))
 
 
 @dataclass
@@ -311,7 +311,7 @@ class C3dFile:
         if not self.float_data and (self.string("ANALOG:FORMAT") or "").upper().startswith("UNSIGNED"):
             raw = np.where(raw < 0, raw + 65536, raw)
         offset, scale = self.analog_offsets_scales(n)
-        return (raw - offset) * scale
+        return cast("np.ndarray", (raw - offset) * scale)
 
 
 def _u16(b: bytes, off: int, processor: str) -> int:

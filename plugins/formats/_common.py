@@ -295,6 +295,6 @@ def check_text(path: str | Path, data: bytes, upto: int | None = None) -> None:
         raise ParseError(path, line_of(data, off), f"expected text, found binary byte 0x{bad[0]:02x}")
 
 
-def file_metadata(path: str | Path, data: bytes, fmt: str) -> dict:
+def file_metadata(path: str | Path, data: bytes, fmt: str) -> dict[str, Any]:
     """Metadata every reader records: path, format and the sha1 of the file bytes."""
     return {"path": str(path), "format": fmt, "checksum": hashlib.sha1(data).hexdigest()}

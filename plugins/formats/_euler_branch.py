@@ -44,7 +44,9 @@ def _series(runs: Sequence[Sequence[int]], start: int, n: int) -> np.ndarray:
     return out
 
 
-def record(channels: Mapping[str, np.ndarray], triples: Mapping[str, np.ndarray], degrees: bool = True) -> dict:
+def record(
+    channels: Mapping[str, np.ndarray], triples: Mapping[str, np.ndarray], degrees: bool = True
+) -> dict[str, Any]:
     """Branch information of a file's angles: ``channels`` maps a channel key
     (``"joint.rx"``) to its values (T,), ``triples`` a three-axis joint to its middle
     angle (T,). Returns ``{"turns": {key: runs}, "flips": {joint: runs}}`` with only the
@@ -65,7 +67,7 @@ def record(channels: Mapping[str, np.ndarray], triples: Mapping[str, np.ndarray]
     return {"turns": turns, "flips": flips, "degrees": degrees}
 
 
-def _info(meta: Mapping[str, Any], fps: float) -> tuple[dict, int]:
+def _info(meta: Mapping[str, Any], fps: float) -> tuple[dict[str, Any], int]:
     info = meta.get(KEY)
     src_fps = meta.get("source_fps")
     if not isinstance(info, dict) or (src_fps is not None and abs(float(src_fps) - fps) > 1e-9 * fps):

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -338,7 +339,7 @@ def _bezier_t(p1: np.ndarray, p2: np.ndarray, x0: np.ndarray) -> np.ndarray:
     a = 3 * p1 - 3 * p2 + 1.0
     b = 3 * p2 - 6 * p1
     c = 3 * p1
-    t = x0.copy()
+    t: np.ndarray = x0.copy()
     for _ in range(11):
         x1 = ((a * t + b) * t + c) * t - x0
         d = (3 * a * t + 2 * b) * t + c
@@ -386,7 +387,7 @@ def evaluate(c: Curve, time: np.ndarray) -> np.ndarray:
     """Values of a curve at ``time`` (seconds), extrapolated outside its keys."""
     time = np.asarray(time, dtype=np.float64)
     if time.shape == c.times.shape and np.abs(time - c.times).max(initial=0.0) <= SNAP:
-        return c.values.copy()  # a key on every sample (baked takes): the keys themselves
+        return cast("np.ndarray", c.values.copy())  # a key on every sample (baked takes): the keys themselves
     out = _inside(c, time)
     if len(c.times) < 2:
         return out
@@ -406,7 +407,7 @@ def _extrapolate(c: Curve, time: np.ndarray, pre: bool) -> np.ndarray:
         dx, dy = (c.right_dx[0], c.right_dy[0]) if pre else (c.left_dx[-1], c.left_dy[-1])
         if dx == 0:
             return np.full(time.shape, np.nan if dy != 0 else value)
-        return value + float(dy) * ((time - c.times[k]) / float(dx))
+        return cast("np.ndarray", value + float(dy) * ((time - c.times[k]) / float(dx)))
     if count == 0:
         return np.full(time.shape, value)
     scale = float(c.ktps)

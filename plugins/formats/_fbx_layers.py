@@ -33,6 +33,7 @@ ufbx's C is ``tests/naive/fbx_layers.py``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, cast
 
 import numpy as np
 
@@ -65,7 +66,7 @@ class Layer:
     muted: bool = False
     solo: bool = False
     active: bool = True
-    weight_curve: tuple | None = None
+    weight_curve: tuple[Any, ...] | None = None
     has_weight: bool = True
 
     @property
@@ -162,11 +163,11 @@ def combine(
     ``"s"`` (module doc)."""
     w = np.broadcast_to(np.asarray(weight, dtype=np.float64), result.shape[:1])
     if not layer.blended:
-        return value.copy()
+        return cast("np.ndarray", value.copy())
     if channel == "s" and layer.compose_scale:
         if layer.mode == ADDITIVE:
-            return result * _pow_abs(value, w[:, None])
-        return _pow_abs(result, 1.0 - w[:, None]) * _pow_abs(value, w[:, None])
+            return cast("np.ndarray", result * _pow_abs(value, w[:, None]))
+        return cast("np.ndarray", _pow_abs(result, 1.0 - w[:, None]) * _pow_abs(value, w[:, None]))
     if channel == "r" and layer.compose_rotation:
         a, b = _to_quat(result, order), _to_quat(value, order)
         if layer.mode == ADDITIVE:

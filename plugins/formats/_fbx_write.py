@@ -109,7 +109,7 @@ def _record(n: _N, offset: int) -> bytes:
     return struct.pack("<IIIB", end, len(n.props), len(props), len(name)) + name + props + bytes(body)
 
 
-def _p70(*entries: tuple) -> _N:
+def _p70(*entries: tuple[Any, ...]) -> _N:
     p = _N("Properties70")
     for e in entries:
         p.add("P", *e)

@@ -10,7 +10,7 @@ import binascii
 import json
 import struct
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -119,7 +119,7 @@ class _Doc:
         self.glb_bin = glb_bin
         self._budget = _common.MAX_FILE_BYTES - len(data)  # bytes left for buffers beside the file
         self._buffers: dict[int, bytes | memoryview] = {}
-        self._accessors: dict[tuple, np.ndarray] = {}
+        self._accessors: dict[tuple[Any, ...], np.ndarray] = {}
 
     def error(self, msg: str) -> ParseError:
         return ParseError(self.path, None, msg)
@@ -148,7 +148,7 @@ class _Doc:
         binary = chunks[1][1] if len(chunks) > 1 and chunks[1][0] == _BIN_CHUNK else None
         return chunks[0][1], binary
 
-    def get(self, obj: dict, key: str, kind: type | tuple[type, ...], where: str, default: Any = ...) -> Any:
+    def get(self, obj: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str, default: Any = ...) -> Any:
         """``obj[key]`` checked to be of ``kind`` (error names the JSON location)."""
         if key not in obj:
             if default is ...:
@@ -159,7 +159,7 @@ class _Doc:
             raise self.error(f"{where}: expected {key!r} to be {_kind_name(kind)}, found {json.dumps(v)[:60]}")
         return v
 
-    def item(self, key: str, i: Any, where: str) -> dict:
+    def item(self, key: str, i: Any, where: str) -> dict[str, Any]:
         arr = self.doc.get(key, [])
         if not isinstance(arr, list):
             raise self.error(f"{where}: expected {key!r} to be an array, found {json.dumps(arr)[:40]}")
@@ -167,7 +167,7 @@ class _Doc:
             raise self.error(f"{where}: expected an index into {key} (0..{len(arr) - 1}), found {json.dumps(i)[:40]}")
         if not isinstance(arr[i], dict):
             raise self.error(f"{key}[{i}]: expected a JSON object")
-        return arr[i]
+        return cast("dict[str, Any]", arr[i])
 
     def buffer(self, i: int) -> bytes | memoryview:
         """Buffer ``i``: the GLB binary chunk, a data URI (its base64 length checked against
@@ -209,7 +209,7 @@ class _Doc:
         self._buffers[i] = raw
         return raw
 
-    def nonneg(self, obj: dict, key: str, where: str, default: Any = ...) -> int:
+    def nonneg(self, obj: dict[str, Any], key: str, where: str, default: Any = ...) -> int:
         """An integer entry that must be >= 0 (offsets, lengths, strides)."""
         v = self.get(obj, key, int, where, default)
         if v < 0:
@@ -286,7 +286,7 @@ def _kind_name(kind: Any) -> str:
     names = {dict: "an object", list: "an array", str: "a string", int: "an integer", bool: "true/false"}
     if isinstance(kind, tuple):
         return " or ".join(names.get(k, k.__name__) for k in kind)
-    return names.get(kind, kind.__name__)
+    return cast("str", names.get(kind, kind.__name__))
 
 
 def _type_names(widths: tuple[int, ...]) -> list[str]:

@@ -20,8 +20,8 @@ class _Buffer:
     def __init__(self) -> None:
         self.parts: list[bytes] = []
         self.size = 0
-        self.views: list[dict] = []
-        self.accessors: list[dict] = []
+        self.views: list[dict[str, Any]] = []
+        self.accessors: list[dict[str, Any]] = []
 
     def add(self, arr: np.ndarray, kind: str, minmax: bool = False) -> int:
         a = np.ascontiguousarray(arr, dtype="<f4")
@@ -69,8 +69,8 @@ def write_gltf(motion: Motion, path: str | Path, binary: bool | None = None) -> 
     buf = _Buffer()
     times = np.arange(n, dtype=np.float64) / motion.fps
     t_acc = buf.add(times[:, None], "SCALAR", minmax=True)
-    samplers: list[dict] = []
-    channels: list[dict] = []
+    samplers: list[dict[str, Any]] = []
+    channels: list[dict[str, Any]] = []
 
     def channel(node: int, what: str, values: np.ndarray, kind: str) -> None:
         samplers.append({"input": t_acc, "output": buf.add(values, kind), "interpolation": "LINEAR"})
@@ -91,7 +91,7 @@ def write_gltf(motion: Motion, path: str | Path, binary: bool | None = None) -> 
     ibm_acc = buf.add(ibm.transpose(0, 2, 1).reshape(nj, 16), "MAT4")  # column-major
     nodes = []
     for j in range(nj):
-        node: dict = {"name": sk.names[j]}
+        node: dict[str, Any] = {"name": sk.names[j]}
         kids = sk.children(j)
         if kids:
             node["children"] = kids

@@ -12,7 +12,7 @@ from numba import njit
 def readonly(a: np.ndarray) -> np.ndarray:
     """A read-only view of ``a`` (no copy): numba compiles one variant per writeable flag, so
     the arguments a kernel only reads are always passed read-only (Arrow columns are)."""
-    v = a.view()
+    v: np.ndarray = a.view()
     v.flags.writeable = False
     return v
 

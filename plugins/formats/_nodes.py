@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -105,7 +106,7 @@ def uniform_scale(path: Path, name: str, s: np.ndarray) -> np.ndarray:
     """The uniform factor of scale vectors ``(..., 3)``; ParseError for a non-uniform or
     non-positive scale (a skeleton's joints cannot shear)."""
     s = np.asarray(s, dtype=float)
-    m = s.mean(axis=-1)
+    m: np.ndarray = s.mean(axis=-1)
     if (
         not np.all(np.isfinite(s))
         or np.any(m <= 0)
@@ -131,7 +132,7 @@ def motion_from_nodes(
     fps: float,
     fmt: str,
     name: str,
-    meta: dict,
+    meta: dict[str, Any],
     ignore_parent_scale: np.ndarray | None = None,
 ) -> Motion:
     """The skeleton of nodes ``first_joint..`` (nodes before it are ancestors of

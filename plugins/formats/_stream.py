@@ -16,7 +16,7 @@ import hashlib
 import stat
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO, cast
 
 import numpy as np
 
@@ -42,7 +42,7 @@ def _lone_cr_to_lf(block: bytes, final: bool) -> bytes:
         return block
     out = buf.copy()
     out[cr[lone]] = 10
-    return out.tobytes()
+    return cast("bytes", out.tobytes())
 
 
 class TextBlocks:
@@ -122,6 +122,6 @@ class TextBlocks:
                     raise ParseError(p, 1, "the file is empty")
                 return
 
-    def metadata(self, fmt: str) -> dict:
+    def metadata(self, fmt: str) -> dict[str, Any]:
         """What :func:`._common.file_metadata` records, from the bytes read."""
         return {"path": str(self.path), "format": fmt, "checksum": self.sha1.hexdigest()}

@@ -377,7 +377,7 @@ def read_amc(
     return Motion(skeleton=skel, root_translation=root_t, rotations=rot, fps=fps, name=path.stem, metadata=meta)
 
 
-def _branch(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool) -> dict:
+def _branch(skeleton: Skeleton, table: np.ndarray, bones: list[tuple[str, int, int]], degrees: bool) -> dict[str, Any]:
     """Where the file's angles leave the principal Euler branch (:mod:`._euler_branch`)."""
     index = {n: j for j, n in enumerate(skeleton.names)}
     channels, triples = {}, {}

@@ -434,7 +434,7 @@ def read_bvh(path: str | Path, scale: float | str = "auto", collapse_static_root
     )
 
 
-def _branch(joints: list[_Joint], table: np.ndarray) -> dict[str, dict]:
+def _branch(joints: list[_Joint], table: np.ndarray) -> dict[str, dict[str, Any]]:
     """``{euler_branch: ...}`` where the file's angles leave the principal Euler branch
     (:mod:`._euler_branch`), else ``{}``."""
     channels: dict[str, np.ndarray] = {}

@@ -106,7 +106,7 @@ def _only_segment_step(datasets: Mapping[str, Any], ws: Path) -> str:
     return steps[0]
 
 
-def _reader_params(datasets: Mapping[str, Any], step: str) -> dict:
+def _reader_params(datasets: Mapping[str, Any], step: str) -> dict[str, Any]:
     """The ``readers`` parameters of the ingest step the exported rows come from."""
     from mocapflow.framework.export import motions_of
 
@@ -114,7 +114,7 @@ def _reader_params(datasets: Mapping[str, Any], step: str) -> dict:
     return dict(mds.manifest.get("params", {}).get("readers", {})) if mds is not None else {}
 
 
-def hits_segments(hits: Path, datasets: Mapping[str, Any], ws: Path, *, top: int | None = None) -> list:
+def hits_segments(hits: Path, datasets: Mapping[str, Any], ws: Path, *, top: int | None = None) -> list[Any]:
     """Segments of the matches file ``mocapflow search --out`` wrote (``clip_id``, ``rank``,
     ``start_frame``/``end_frame`` in frames of each take's own file), traced to their source
     files through the workspace's motions datasets. One query per ``query_id`` (named after
@@ -144,7 +144,7 @@ def hits_segments(hits: Path, datasets: Mapping[str, Any], ws: Path, *, top: int
             f"--hits {hits}: needs the columns clip_id, start_frame, end_frame (as mocapflow search --out writes); "
             f"has {', '.join(table.column_names)}"
         )
-    clips: dict = {}
+    clips: dict[int, Any] = {}
     for ds in datasets.values():
         if ds.has_table("clips") and "source_fps" in ds.schema("clips").names:
             clips.update(clip_sources(ds))

@@ -90,7 +90,7 @@ def _props70(node: Node | None) -> dict[str, list[Any]]:
 class _Props:
     """A model's properties with the file's template as defaults."""
 
-    def __init__(self, path: Path, own: dict, template: dict, what: str) -> None:
+    def __init__(self, path: Path, own: dict[str, Any], template: dict[str, Any], what: str) -> None:
         self.path, self.own, self.template, self.what = path, own, template, what
 
     def get(self, key: str, default: Any) -> Any:
@@ -132,7 +132,7 @@ def _axes(path: Path, gs: _Props) -> np.ndarray:
     return quat.from_matrix(np.stack([c, u, -f]))
 
 
-def _stack(path: Path, objects: dict, animation: int | str) -> tuple[int, str, list[str]]:
+def _stack(path: Path, objects: dict[int, tuple[str, str, Node]], animation: int | str) -> tuple[int, str, list[str]]:
     stacks = [(oid, name) for oid, (kind, name, _n) in objects.items() if kind == "AnimationStack"]
     names = [n for _, n in stacks]
     if not stacks:
@@ -276,10 +276,12 @@ _EMPTY = Node("", [], [], 0)
 _OBJECT_KINDS = frozenset({"Model", "AnimationStack", "AnimationLayer", "AnimationCurveNode", "AnimationCurve"})
 
 
-def _scene(path: Path, root: Node) -> tuple[dict, dict, dict, dict]:
+def _scene(
+    path: Path, root: Node
+) -> tuple[dict[str, Any], dict[int, tuple[str, str, Node]], dict[int, int], dict[int, list[tuple[int, str]]]]:
     """The Model property template, objects by id (kind, name, node), model parents and
     connections by parent id."""
-    template: dict = {}
+    template: dict[str, Any] = {}
     for ot in (root.find("Definitions") or _EMPTY).find_all("ObjectType"):
         if ot.props[:1] == ["Model"]:
             for pt in ot.find_all("PropertyTemplate"):
@@ -303,9 +305,9 @@ def _scene(path: Path, root: Node) -> tuple[dict, dict, dict, dict]:
     return template, objects, parent, owner
 
 
-def _templates(root: Node, kind: str) -> dict:
+def _templates(root: Node, kind: str) -> dict[str, Any]:
     """The property template of an object type (``Definitions``)."""
-    out: dict = {}
+    out: dict[str, Any] = {}
     for ot in (root.find("Definitions") or _EMPTY).find_all("ObjectType"):
         if ot.props[:1] == [kind]:
             for pt in ot.find_all("PropertyTemplate"):
@@ -313,7 +315,7 @@ def _templates(root: Node, kind: str) -> dict:
     return out
 
 
-def _span(stack: Node, template: dict) -> tuple[int, int] | None:
+def _span(stack: Node, template: dict[str, Any]) -> tuple[int, int] | None:
     """The take's time span in ticks: ``LocalStart``/``LocalStop``, else
     ``ReferenceStart``/``ReferenceStop`` (as the FBX SDK and ufbx read it); None without
     them or when they are not a forward span."""
@@ -325,7 +327,13 @@ def _span(stack: Node, template: dict) -> tuple[int, int] | None:
     return None
 
 
-def _layers(path: Path, root: Node, objects: dict, owner: dict, stack_id: int) -> tuple[list[Layer], list[int]]:
+def _layers(
+    path: Path,
+    root: Node,
+    objects: dict[int, tuple[str, str, Node]],
+    owner: dict[int, list[tuple[int, str]]],
+    stack_id: int,
+) -> tuple[list[Layer], list[int]]:
     """The take's animation layers (and their ids) in the order of its connections
     (:mod:`._fbx_layers`)."""
     template = _templates(root, "AnimationLayer")
@@ -358,8 +366,15 @@ def _layers(path: Path, root: Node, objects: dict, owner: dict, stack_id: int) -
 
 
 def _curves(
-    path: Path, root: Node, objects: dict, owner: dict, stack_id: int, ktps: int, data: bytes, version: int
-) -> tuple[list[Layer], dict[tuple[int, str], list]]:
+    path: Path,
+    root: Node,
+    objects: dict[int, tuple[str, str, Node]],
+    owner: dict[int, list[tuple[int, str]]],
+    stack_id: int,
+    ktps: int,
+    data: bytes,
+    version: int,
+) -> tuple[list[Layer], dict[tuple[int, str], list[Any]]]:
     """The take's layers and, per (model id, "t"/"r"/"s"), the layers that drive it:
     ``(layer index, per axis curve or None, the curve node's values (3,))`` in layer order
     (skipped layers left out). A layer's animated ``Weight`` lands in its ``weight_curve``.
@@ -380,7 +395,7 @@ def _curves(
             for child, prop in kids:
                 driven.setdefault(child, []).append((par, prop))
     weighted = {m for pairs in driven.values() for m, p in pairs if p == "Weight"}
-    curves: dict[tuple[int, str], list] = {}
+    curves: dict[tuple[int, str], list[Any]] = {}
     for lay, lid in zip(layers, ids, strict=True):
         if not lay.has_weight and lid in weighted:  # ufbx: an animated Weight the layer lacks is 0 until keyed
             lay.weight = 0.0
@@ -404,12 +419,19 @@ def _curves(
     return layers, curves
 
 
-def _curve_node(path: Path, cn: int, objects: dict, owner: dict, template: dict, curve: Any) -> tuple[list, np.ndarray]:
+def _curve_node(
+    path: Path,
+    cn: int,
+    objects: dict[int, tuple[str, str, Node]],
+    owner: dict[int, list[tuple[int, str]]],
+    template: dict[str, Any],
+    curve: Any,
+) -> tuple[list[Any], np.ndarray]:
     """A curve node's per-axis curves (``curve(id)`` reads one) and values (3,)."""
     what = f"AnimationCurveNode {objects[cn][1]!r}"
     cprops = _Props(path, _props70(objects[cn][2]), template, what)
     dflt = np.array([cprops.num(f"d|{x}", cprops.num(x, 0.0)) for x in "XYZ"])
-    axes: list = [None, None, None]
+    axes: list[Any] = [None, None, None]
     kids = sorted((p, cv) for cv, p in owner.get(cn, []) if objects.get(cv, ("",))[0] == "AnimationCurve")
     for cprop, cv in kids:
         a = 1 if cprop in ("Y", "d|Y") else 2 if cprop in ("Z", "d|Z") else 0
@@ -438,7 +460,9 @@ def _ktime(root: Node, version: int) -> int:
     return ktps
 
 
-def _order(path: Path, models: dict, parent: dict, joints: set[int]) -> tuple[list[int], int]:
+def _order(
+    path: Path, models: dict[int, tuple[str, str, Node]], parent: dict[int, int], joints: set[int]
+) -> tuple[list[int], int]:
     def error(msg: str) -> ParseError:
         return ParseError(path, None, msg)
 
@@ -484,7 +508,14 @@ def _weights(layers: list[Layer], grid: np.ndarray) -> list[Any]:
 
 
 def _channel(
-    props: _Props, name: str, key: str, c: str, default: tuple, driving: list, grid: np.ndarray, layers: tuple
+    props: _Props,
+    name: str,
+    key: str,
+    c: str,
+    default: tuple[Any, ...],
+    driving: list[Any],
+    grid: np.ndarray,
+    layers: tuple[Any, ...],
 ) -> np.ndarray:
     """One transform property (F, 3) on ``grid``: its static value, replaced by the take's
     first layer and combined with the later ones that drive it (:mod:`._fbx_layers`)."""
@@ -510,10 +541,10 @@ def _transform(
     props: _Props,
     name: str,
     m: int,
-    curves: dict,
+    curves: dict[tuple[int, str], list[Any]],
     grid: np.ndarray,
     rest: bool,
-    layers: tuple = ([], []),
+    layers: tuple[Any, ...] = ([], []),
     leaf: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """Translation (F, 3), rotation (F, 4) and uniform scale (F,) of a model's local

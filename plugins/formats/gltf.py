@@ -40,7 +40,7 @@ orientations back (``Skeleton.meta["rest_rotations"]``).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, cast
 
 import numpy as np
 from pydantic import Field
@@ -60,7 +60,7 @@ from ._nodes import common_root, motion_from_nodes, uniform_scale, unique_names
 __all__ = ["GltfFormat", "read_gltf", "write_gltf"]
 
 
-def _node_trs(doc: _Doc, i: int, node: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _node_trs(doc: _Doc, i: int, node: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rest translation, rotation (w, x, y, z) and scale of a node."""
     w = f"nodes[{i}]"
     if "matrix" in node:
@@ -173,7 +173,7 @@ def _select(doc: _Doc, parent: np.ndarray, animated: set[int]) -> tuple[list[int
     return ancestors + order, len(ancestors)
 
 
-def _pick_animation(doc: _Doc, animation: int | str) -> tuple[int, dict]:
+def _pick_animation(doc: _Doc, animation: int | str) -> tuple[int, dict[str, Any]]:
     anims = doc.doc.get("animations", [])
     if not isinstance(anims, list) or not anims:
         raise doc.error("expected at least one animation in 'animations'")
@@ -225,7 +225,7 @@ def _sample(
     else:
         v = vals
     if k == 1:
-        return np.broadcast_to(v[0], (len(grid), v.shape[1])).copy()
+        return cast("np.ndarray", np.broadcast_to(v[0], (len(grid), v.shape[1])).copy())
     if every:
         return v  # a key on every frame (the common case): no interpolation
     i = np.clip(np.searchsorted(times, grid, side="right") - 1, 0, k - 2)
@@ -245,7 +245,7 @@ def _sample(
         return quat.normalize(out) if rotation else out
     if rotation:
         return quat.slerp(v[i], v[i + 1], u)
-    return v[i] + u[:, None] * (v[i + 1] - v[i])
+    return cast("np.ndarray", v[i] + u[:, None] * (v[i + 1] - v[i]))
 
 
 def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["auto"] = "auto") -> Motion:
@@ -352,7 +352,9 @@ def read_gltf(path: str | Path, animation: int | str = 0, fps: float | Literal["
     )
 
 
-def _channels(doc: _Doc, anim: dict, aw: str, samplers: list) -> list[tuple[int, str, str, np.ndarray, np.ndarray]]:
+def _channels(
+    doc: _Doc, anim: dict[str, Any], aw: str, samplers: list[Any]
+) -> list[tuple[int, str, str, np.ndarray, np.ndarray]]:
     """(node, path, interpolation, key times, values) of the animation's TRS channels."""
     channels = []
     for c, ch in enumerate(doc.get(anim, "channels", list, aw)):
@@ -384,7 +386,7 @@ def _channels(doc: _Doc, anim: dict, aw: str, samplers: list) -> list[tuple[int,
     return channels
 
 
-def _rate(doc: _Doc, anim: dict, channels: list, fps: float | str) -> tuple[float, str]:
+def _rate(doc: _Doc, anim: dict[str, Any], channels: list[Any], fps: float | str) -> tuple[float, str]:
     if fps != "auto":
         if not 0 < float(fps) <= MAX_FPS:
             raise DataError(f"fps must be in (0, {MAX_FPS:g}] or 'auto', got {fps!r}")

@@ -15,7 +15,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 if TYPE_CHECKING:
     from mocapflow.framework.commands import CommandContext
@@ -63,7 +63,7 @@ def _files_table(ws: Path) -> list[dict[str, Any]]:
         return []
     import pyarrow.parquet as pq
 
-    return pq.read_table(p).to_pylist()
+    return cast("list[dict[str, Any]]", pq.read_table(p).to_pylist())
 
 
 class IndexCommand:
@@ -157,7 +157,7 @@ def _rejects(ws: Path) -> list[dict[str, Any]]:
         return []
     import pyarrow.parquet as pq
 
-    return pq.read_table(p, columns=["path", "line", "message"]).to_pylist()
+    return cast("list[dict[str, Any]]", pq.read_table(p, columns=["path", "line", "message"]).to_pylist())
 
 
 def _refuse_other_workspace(ws: Path, given: str) -> None:

@@ -154,8 +154,8 @@ class LoadLibrary(Format):
         motion_files = [f for f in files if f.suffix.lower() in readers]
         ids = dict(zip(motion_files, _FileIngest.clip_ids(motion_files), strict=True)) if motion_files else {}
         file_rows: list[dict[str, Any]] = []
-        rejects: list[tuple] = []
-        jobs: list[tuple] = []
+        rejects: list[tuple[Any, ...]] = []
+        jobs: list[tuple[Any, ...]] = []
         reuse: dict[Path, dict[str, Any]] = {}  # file -> its old files row (rows kept)
         for f in files:
             ext = f.suffix.lower()

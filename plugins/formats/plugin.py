@@ -6,6 +6,8 @@ numba kernels are imported only when a file is read."""
 
 from __future__ import annotations
 
+from typing import Any
+
 from mocapflow.framework.plugins import hookimpl
 
 
@@ -36,7 +38,7 @@ def register_formats() -> list[type]:
 
 
 @hookimpl
-def register_joint_maps() -> list:
+def register_joint_maps() -> list[Any]:
     from .joint_maps import JOINT_MAPS
 
     return list(JOINT_MAPS)

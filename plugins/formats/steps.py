@@ -12,7 +12,7 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, cast
 
 import numpy as np
 import pyarrow as pa
@@ -86,7 +86,9 @@ def _read_file(
         return (path, None, f"{type(exc).__name__}: {exc}")
 
 
-def _read_motion_rows(job: tuple[type[Format], dict[str, Any], str, float | None, int]) -> tuple | dict[str, Any]:
+def _read_motion_rows(
+    job: tuple[type[Format], dict[str, Any], str, float | None, int],
+) -> tuple[Any, ...] | dict[str, Any]:
     """Read one motion file and turn it into its rows of the motions dataset, in the worker:
     ``{"frames": its frame rows (Arrow, float32), "clip": its clips row, "skeleton": (key,
     name, n_joints, JSON definition)}``, or a reject ``(path, line, message)``.
@@ -144,7 +146,7 @@ class _FileIngest(Format):
         the files read are the files fingerprinted, and a run lists its inputs once."""
         listed = self.__dict__.pop("_listed", None)
         if listed is not None and listed[0] == str(base):
-            return listed[1]
+            return cast("list[Path]", listed[1])
         return _expand(self.params.paths, base, self.params.exclude)
 
     def check_plan(self, base_dir: Path) -> list[str]:
@@ -200,7 +202,7 @@ class _FileIngest(Format):
         or where the pipeline is: two ingests of one take give it one id."""
         return schema.clip_ids_of(schema.clip_keys([os.path.realpath(f) for f in files]))
 
-    def _jobs(self, ctx: StepContext, fps: float | None) -> tuple[list[tuple], list[int], int]:
+    def _jobs(self, ctx: StepContext, fps: float | None) -> tuple[list[tuple[Any, ...]], list[int], int]:
         """``(read jobs, their clip ids, files listed)``: one job per file a reader handles."""
         by_ext: dict[str, type[Format]] = {}
         for _, cls in ctx.registries["formats"]:
@@ -218,7 +220,7 @@ class _FileIngest(Format):
         # ids of every readable file before reading: a file that fails keeps its would-be id
         return jobs, self.clip_ids([Path(j[2]) for j in jobs]), len(files)
 
-    def _split(self, results: list[Any], ids: list[int]) -> tuple[list[Any], list[int], list[tuple]]:
+    def _split(self, results: list[Any], ids: list[int]) -> tuple[list[Any], list[int], list[tuple[Any, ...]]]:
         good = [r for r in results if not isinstance(r, tuple)]
         good_ids = [c for c, r in zip(ids, results, strict=True) if not isinstance(r, tuple)]
         rejects = [(c, *r) for c, r in zip(ids, results, strict=True) if isinstance(r, tuple)]
@@ -228,7 +230,7 @@ class _FileIngest(Format):
 
     def _read_all(
         self, ctx: StepContext, fps: float | None = None
-    ) -> tuple[list[Any], list[int], list[tuple], int, int]:
+    ) -> tuple[list[Any], list[int], list[tuple[Any, ...]], int, int]:
         """``(objects, their clip ids, rejects as (clip_id, path, line, message), files read,
         files skipped)``; raises on the first reject with ``on_error: fail``."""
         jobs, ids, n_files = self._jobs(ctx, fps)
@@ -237,7 +239,7 @@ class _FileIngest(Format):
         return good, good_ids, rejects, len(jobs), n_files - len(jobs)
 
     @staticmethod
-    def _rejects_table(rejects: list[tuple]) -> pa.Table:
+    def _rejects_table(rejects: list[tuple[Any, ...]]) -> pa.Table:
         return pa.Table.from_pylist(
             [{"clip_id": c, "path": p, "line": ln, "message": m} for c, p, ln, m in rejects], schema=schema.REJECTS
         )
@@ -286,7 +288,7 @@ class LoadMotions(_FileIngest):
         rotations = ctx.table_writer("rotations", schema.motion_rotations())
         skeletons: dict[str, dict[str, Any]] = {}
         clips: list[dict[str, Any]] = []
-        rejects: list[tuple] = []
+        rejects: list[tuple[Any, ...]] = []
         warnings: tuple[list[int], list[str], list[list[str]]] = ([], [], [])
         batches = list(_batches([j[2] for j in jobs], max(1, ctx.executor.workers)))
         pending = 0  # frames in the rotations not yet written as a row group

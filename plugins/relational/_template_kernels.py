@@ -285,7 +285,7 @@ def _remaining_bound(
         g[n_rows - 2] = m[n_rows - 1]
     for k in range(n_rows - 3, -1, -1):
         g[k] = min(m[k + 1] + g[k + 1], 2.0 * m[k + 2] + g[k + 2])
-    total = m[0] + g[0]
+    total: float = m[0] + g[0]
     if n_rows > 1:
         total = min(total, 2.0 * m[1] + g[1])
     return total

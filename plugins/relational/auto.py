@@ -22,7 +22,7 @@ the paper's adaptive and m-mismatch hits on features chosen from the example.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -257,7 +257,7 @@ def fusion_mask(hit_clips: np.ndarray, numeric_clip_costs: np.ndarray, fusion: f
     if fusion is None or not len(hit_clips):
         return np.ones(len(hit_clips), bool)
     cut = relative_cost_cut(np.asarray(numeric_clip_costs, np.float64), float(fusion))
-    return np.asarray(numeric_clip_costs, np.float64)[hit_clips] <= cut
+    return cast("np.ndarray", np.asarray(numeric_clip_costs, np.float64)[hit_clips] <= cut)
 
 
 def auto_dtw_hits(

@@ -4,6 +4,8 @@ the rest pose."""
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from mocapflow.framework import quaternions as quat
@@ -15,7 +17,7 @@ from mocapflow.framework.skeleton import Skeleton
 def rest_positions(skeleton: Skeleton) -> np.ndarray:
     """Joint positions of the rest pose (all identity rotations), shape (J, 3), metres."""
     pos, _ = forward_kinematics(skeleton, np.zeros((1, 3)), quat.identity((1, skeleton.n_joints)))
-    return pos[0]
+    return cast("np.ndarray", pos[0])
 
 
 def body_measures(skeleton: Skeleton) -> dict[str, float]:

@@ -21,7 +21,7 @@ parameter overrides them by name.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, cast
 
 import numpy as np
 import pyarrow as pa
@@ -132,7 +132,7 @@ def set_codes(bits: np.ndarray, feature_set: str) -> np.ndarray:
     set ("lower", "upper" or "mixed"; bit ``i`` = the set's i-th feature)."""
     sl = SET_SLICES[feature_set]
     b = np.asarray(bits[:, sl]) > 0.5
-    return (b.astype(np.int32) << np.arange(b.shape[1], dtype=np.int32)).sum(axis=1, dtype=np.int32)
+    return cast("np.ndarray", (b.astype(np.int32) << np.arange(b.shape[1], dtype=np.int32)).sum(axis=1, dtype=np.int32))
 
 
 class RelationalFeatures(FeatureSet):
@@ -205,7 +205,7 @@ class RelationalFeatures(FeatureSet):
         out = run_features(self, inputs, ctx, stream=False)  # the codes are derived from the whole table
         data = out.tables["data"]
         assert isinstance(data, pa.Table)  # stream=False: the whole table
-        from mocapflow.framework.datasets import fixed_list_to_numpy
+        from mocapflow.framework.schema import fixed_list_to_numpy
 
         bits = fixed_list_to_numpy(data["features"]) > 0.5
         cols = {"clip_id": data["clip_id"], "frame": data["frame"]}

@@ -30,7 +30,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, cast
 
 import numpy as np
 import pyarrow as pa
@@ -41,7 +41,7 @@ from mocapflow.framework.components import Index
 from mocapflow.framework.components import Params as BaseParams
 from mocapflow.framework.errors import ConfigError, DataError, PipelineError
 
-from .features import FEATURE_IDS, SET_SLICES, SETS
+from .feature_table import FEATURE_IDS, SET_SLICES, SETS
 from .segmentation import offsets_from_clip_ids, pack_codes, segment_codes
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -141,7 +141,7 @@ class SetIndex:
 
     # --- hits (§5.1, §5.2) -------------------------------------------------------
     def _same_clip(self, starts: np.ndarray, last: np.ndarray) -> np.ndarray:
-        return self.seg_clip[starts] == self.seg_clip[last]
+        return cast("np.ndarray", self.seg_clip[starts] == self.seg_clip[last])
 
     def exact(self, codes: np.ndarray) -> np.ndarray:
         """Exact hits ``H(F[Q])`` (eq. 7) of the query's codes ``v_1 .. v_L`` (L,): intersection
@@ -173,7 +173,7 @@ class SetIndex:
             ok[ok] = other[j[ok]] == cand[ok] + i
             cand = cand[ok]
         cand = cand[(cand >= 0) & (cand + n_levels - 1 < self.n_segments)]
-        return cand[self._same_clip(cand, cand + n_levels - 1)].astype(np.int64)
+        return cast("np.ndarray", cand[self._same_clip(cand, cand + n_levels - 1)].astype(np.int64))
 
     def runs(self, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Maximal runs of segments whose code is in ``codes``, never crossing a clip boundary:

@@ -16,7 +16,7 @@ the DTW cost per path step to ``dtw_cost``.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
 import pyarrow as pa
@@ -73,7 +73,7 @@ def pose_features(positions: np.ndarray) -> np.ndarray:
     from mocapflow.framework.normalize import to_root_frame
 
     p = to_root_frame(positions).reshape(len(positions), -1)
-    return np.nan_to_num(p).astype(np.float64)
+    return cast("np.ndarray", np.nan_to_num(p).astype(np.float64))
 
 
 class ExampleQuery(Params):
@@ -224,7 +224,7 @@ class RelationalMatcher(Matcher):
         elif self.params.refine:
             raise ConfigError("matchers.relational: refine needs the 'motions' input")
         self._numeric = self._numeric_costs(inputs.get("numeric"))
-        rows: list[dict] = []
+        rows: list[dict[str, Any]] = []
         queries = list(enumerate(self.params.queries))
         for qid, spec in ctx.progress(queries, total=len(queries), desc=f"{ctx.step_id}: queries"):
             cid = spec.clip if isinstance(spec.clip, int) else names.get(spec.clip)
@@ -296,7 +296,7 @@ class RelationalMatcher(Matcher):
         spec: ExampleQuery,
         examples: list[np.ndarray],
         whole: bool = True,
-    ) -> list[dict]:
+    ) -> list[dict[str, Any]]:
         """Mode auto: the example as a weighted all-feature template (:mod:`.auto`).
         ``whole``: the example covers (at least 80 % of) its clip; ``auto_mutual: auto`` checks
         hits only then, since a piece of a take is no cut whose clip could be compared with
@@ -351,7 +351,7 @@ class RelationalMatcher(Matcher):
 
     def _rows(
         self, qid: int, index: InvertedIndex, hits: Hits, mdb: Any, query_clip: tuple[int, int] | None
-    ) -> list[dict]:
+    ) -> list[dict[str, Any]]:
         any_set = next(iter(index.sets.values()))
         order = np.lexsort((hits.start, hits.clip, hits.cost))
         # several combinations (scene progressions, combined indexes) can give one span: keep the best
@@ -393,7 +393,7 @@ class RelationalMatcher(Matcher):
         levels: np.ndarray,
         query_levels: np.ndarray,
         index: InvertedIndex,
-    ) -> dict:
+    ) -> dict[str, Any]:
         any_set = next(iter(index.sets.values()))
         where = {int(c): i for i, c in enumerate(mdb.clip_ids)}
         qm = mdb.motions[where[query_clip[0]]]
@@ -406,7 +406,7 @@ class RelationalMatcher(Matcher):
         return {"dtw_cost": cost if np.isfinite(cost) else None, "path": path.tolist()}
 
 
-def hits_table(rows: list[dict], with_path: bool = False) -> pa.Table:
+def hits_table(rows: list[dict[str, Any]], with_path: bool = False) -> pa.Table:
     """Rows -> a match table (:data:`~mocapflow.framework.schema.MATCHES` + relational columns)."""
     fields = list(MATCHES) + [
         pa.field("mode", pa.string()),

@@ -20,6 +20,7 @@ plane given by a normal
 from __future__ import annotations
 
 from types import ModuleType
+from typing import cast
 
 import numpy as np
 
@@ -113,7 +114,7 @@ def angle_between(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray
 
     The knee angle is ``angle_between(knee, hip, knee, ankle)``: 180 for a straight leg.
     """
-    return np.degrees(np.arccos(cos_between(a0, a1, b0, b1)))
+    return cast("np.ndarray", np.degrees(np.arccos(cos_between(a0, a1, b0, b1))))
 
 
 def min_height(positions: np.ndarray) -> np.ndarray:

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 
@@ -85,7 +85,7 @@ def coarsen_fuzzy(member: np.ndarray) -> np.ndarray:
 def subset_member(values: np.ndarray, mask: int, n_bits: int) -> np.ndarray:
     """Fuzzy sets ``V_l = {c : c & mask == values[l]}`` as a (L, 2**n_bits) boolean table."""
     codes = np.arange(1 << n_bits, dtype=np.int64)
-    return (codes[None, :] & mask) == np.asarray(values, np.int64)[:, None]
+    return cast("np.ndarray", (codes[None, :] & mask) == np.asarray(values, np.int64)[:, None])
 
 
 def _level_frames(idx: SetIndex, bounds: np.ndarray) -> np.ndarray:

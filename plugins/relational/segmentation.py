@@ -8,6 +8,7 @@ boundary. Segments are half-open frame ranges ``[start, end)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -52,7 +53,7 @@ class Segmentation:
 
     @property
     def lengths(self) -> np.ndarray:
-        return self.end - self.start
+        return cast("np.ndarray", self.end - self.start)
 
     @property
     def clip_first(self) -> np.ndarray:

@@ -102,7 +102,7 @@ def fit_templates(
 
 
 def feature_ids(columns: np.ndarray) -> str:
-    from .features import FEATURE_IDS
+    from .feature_table import FEATURE_IDS
 
     return ",".join(FEATURE_IDS[int(c)] for c in columns)
 
@@ -350,7 +350,7 @@ def _clip_layout(feats: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return bits, cid[brk], np.append(brk, len(cid)).astype(np.int64)
 
 
-def template_hits_table(rows: list[dict]) -> pa.Table:
+def template_hits_table(rows: list[dict[str, Any]]) -> pa.Table:
     fields = list(MATCHES) + [
         pa.field("label", pa.string()),
         pa.field("threshold", pa.float64()),

@@ -22,6 +22,8 @@ at the full rate), so ``auto`` inherits that.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from .template_model import MotionTemplate
@@ -59,7 +61,7 @@ def coarse_template(t: MotionTemplate, step: int) -> MotionTemplate:
             ),
         )
         t._coarse = cached
-    return cached[1]
+    return cast("MotionTemplate", cached[1])
 
 
 #: ``step="auto"``: template frames per coarse template frame, and the largest step.

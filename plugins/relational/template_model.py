@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -53,7 +53,7 @@ class MotionTemplate:
     #: :func:`save_templates` (class templates are unweighted).
     weights: np.ndarray | None = None
     #: :func:`.template_coarse.coarse_template`'s cache: (key, the coarse template)
-    _coarse: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _coarse: tuple[Any, ...] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def n_frames(self) -> int:
@@ -114,7 +114,7 @@ def cost_table(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
 def frame_codes(bits: np.ndarray) -> np.ndarray:
     """31-bit code per frame (bit i = column i) of a (T, 31) 0/1 matrix, int64."""
     b = np.asarray(bits) > 0.5
-    return (b.astype(np.int64) << np.arange(b.shape[1], dtype=np.int64)).sum(axis=1)
+    return cast("np.ndarray", (b.astype(np.int64) << np.arange(b.shape[1], dtype=np.int64)).sum(axis=1))
 
 
 def align_average(template: np.ndarray, example: np.ndarray) -> tuple[np.ndarray, float]:
@@ -282,7 +282,7 @@ def template_hits(
     return np.asarray(start)[ends].astype(np.int64), ends + 1, c[ends]
 
 
-def save_templates(templates: list[MotionTemplate], directory: Path, meta: dict | None = None) -> None:
+def save_templates(templates: list[MotionTemplate], directory: Path, meta: dict[str, Any] | None = None) -> None:
     """Write the templates to ``directory / templates.npz`` (one archive, JSON header)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
@@ -299,7 +299,7 @@ def save_templates(templates: list[MotionTemplate], directory: Path, meta: dict 
     np.savez(d / MODEL_FILE, header=np.array(json.dumps(header)), **arrays)
 
 
-def load_templates(directory: Path) -> tuple[list[MotionTemplate], dict]:
+def load_templates(directory: Path) -> tuple[list[MotionTemplate], dict[str, Any]]:
     """Read templates written by :func:`save_templates`; returns (templates, meta)."""
     p = Path(directory) / MODEL_FILE
     if not p.is_file():
@@ -380,7 +380,7 @@ def fit_class_template(
     iterations: int = 2,
     calibrate: bool = True,
     margin: float = 0.25,
-    groups: list | None = None,
+    groups: list[Any] | None = None,
     negatives: list[np.ndarray] | None = None,
 ) -> MotionTemplate:
     """A class template retrieving on :func:`key_columns` (``features="key"``, against the

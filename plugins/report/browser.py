@@ -19,7 +19,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from mocapflow.framework.errors import MocapflowError
 
@@ -71,7 +71,7 @@ class Browser:
         self.errors: list[str] = []
         self.events: list[dict[str, Any]] = []
         self._id = 0
-        self._replies: dict[int, queue.Queue] = {}
+        self._replies: dict[int, queue.Queue[Any]] = {}
         self._lock = threading.Lock()
 
     # --- process and transport ------------------------------------------------------------
@@ -187,7 +187,7 @@ class Browser:
         with self._lock:
             self._id += 1
             mid = self._id
-            q: queue.Queue = queue.Queue()
+            q: queue.Queue[Any] = queue.Queue()
             self._replies[mid] = q
         msg = {"id": mid, "method": method, "params": params or {}}
         if session:
@@ -205,7 +205,7 @@ class Browser:
                 self._replies.pop(mid, None)
         if "error" in reply:
             raise BrowserError(f"{method}: {reply['error'].get('message')}")
-        return reply.get("result", {})
+        return cast("dict[str, Any]", reply.get("result", {}))
 
     # --- page -------------------------------------------------------------------------------
     def open(self, url: str) -> float:

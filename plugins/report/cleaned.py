@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from mocapflow.framework.datasets import fixed_list_to_numpy
 from mocapflow.framework.joints import CANONICAL_JOINTS
+from mocapflow.framework.schema import fixed_list_to_numpy
 
 #: Cue shown for a flagged cell when the cleaner's table has no ``cue`` column.
 DEFAULT_CUE = "MDM above threshold"
@@ -30,7 +30,7 @@ def apply_edits(motion: Any, edits: pa.Table, clip_id: int) -> Any:
 
 def cleaned_positions(motion: Any, edits: pa.Table, clip_id: int) -> np.ndarray:
     """Canonical positions ``(T, 25, 3)`` in metres of the cleaned take."""
-    return apply_edits(motion, edits, clip_id).canonical_positions(CANONICAL_JOINTS)
+    return cast("np.ndarray", apply_edits(motion, edits, clip_id).canonical_positions(CANONICAL_JOINTS))
 
 
 def mdm_grid(mdm: pa.Table, clip_id: int, n_frames: int, threshold: float) -> dict[str, Any] | None:

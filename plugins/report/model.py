@@ -501,7 +501,7 @@ class ModelBuilder:
         return {"type": "derived", "pairs": pairs} if pairs else None
 
 
-def _relative_path(path: list | None, query: dict[str, Any] | None) -> list[list[int]] | None:
+def _relative_path(path: list[Any] | None, query: dict[str, Any] | None) -> list[list[int]] | None:
     """Warping path with query frames relative to the query's first frame.
 
     Matchers differ: LNG and subsequence DTW give query frames from 0, relational DTW

@@ -58,7 +58,7 @@ def workspace_tables(workspace: Path) -> tuple[dict[str, Any], pa.Table, pa.Tabl
     )
 
 
-def build_report(workspace: str | Path, output: str | Path | None = None) -> dict:
+def build_report(workspace: str | Path, output: str | Path | None = None) -> dict[str, Any]:
     """Read a workspace written by ``mocapflow run`` and write its report site to ``output``
     (default ``<workspace>/report``); returns ``index`` (Path of index.html), ``files``,
     ``bytes``, ``steps``."""

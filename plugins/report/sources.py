@@ -4,7 +4,7 @@ shown clip), marker takes, and the motions dataset behind a step's input slot.""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -42,7 +42,7 @@ class _Motions:
         got = self._pos[step][int(clip_id)]
         if not isinstance(got, np.ndarray):  # FK only of the clips the report shows
             got = self._pos[step][int(clip_id)] = got.canonical_positions(CANONICAL_JOINTS).astype(np.float32)
-        return got
+        return cast("np.ndarray", got)
 
 
 #: marker takes a markers view lists (the first, by path)
@@ -119,4 +119,4 @@ def columns_of(ds: Dataset, table: str) -> list[str]:
     """Column names of one of a dataset's tables, from its Parquet footer (no data read)."""
     import pyarrow.parquet as pq
 
-    return pq.ParquetFile(ds.path / f"{table}.parquet").schema_arrow.names
+    return cast("list[str]", pq.ParquetFile(ds.path / f"{table}.parquet").schema_arrow.names)

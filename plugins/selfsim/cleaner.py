@@ -146,7 +146,7 @@ class CleanResult:
         return SimpleNamespace(mdm=self.value, texture=self.analysis.texture)
 
 
-def _input_cues(motion: Motion, texture: Any, cue: np.ndarray, frames: np.ndarray, joints: np.ndarray) -> list:
+def _input_cues(motion: Motion, texture: Any, cue: np.ndarray, frames: np.ndarray, joints: np.ndarray) -> list[Any]:
     """Cue of the analysis cell nearest each edited input cell (frame, skeleton joint)."""
     col = {int(j): c for c, j in enumerate(texture.joint_index)}
     x = np.rint(frames * (texture.fps / motion.fps)).astype(np.int64).clip(0, len(cue) - 1)

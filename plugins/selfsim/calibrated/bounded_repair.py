@@ -31,7 +31,7 @@ def _edge_roughness(q: np.ndarray, cols: np.ndarray, a: int, b: int) -> float:
 
 
 def _swapped(q: np.ndarray, lc: np.ndarray, rc: np.ndarray, a: int, b: int) -> np.ndarray:
-    back = q.copy()
+    back: np.ndarray = q.copy()
     back[a:b, lc] = mirror(q[a:b, rc])
     back[a:b, rc] = mirror(q[a:b, lc])
     return back
@@ -54,7 +54,7 @@ def swap_frames(
     flags: np.ndarray,
     swap_gain: float,
     slack: int = 8,
-    skip: list | None = None,
+    skip: list[Any] | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray, int, int]]:
     """(left columns, right columns, start, end) of the runs to swap back: runs (gaps up to
     ``slack`` merged) of a mirror gain above ``swap_gain`` radians holding a flagged chain
@@ -90,7 +90,7 @@ def swap_frames(
     return out
 
 
-def _swap_runs(res: Any, swap_flags: np.ndarray) -> list:
+def _swap_runs(res: Any, swap_flags: np.ndarray) -> list[Any]:
     """Swapped intervals holding a ``swap``-flagged chain cell: found by their edges
     (:func:`.swaps.swap_edges`) or by the mirror gain (:func:`swap_frames`)."""
     from .constants import SWAP_GAIN, SWAP_LEVEL, SWAP_MAX

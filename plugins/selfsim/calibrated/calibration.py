@@ -45,7 +45,7 @@ def _cover(res: Any, lengths: np.ndarray, target_length: int) -> tuple[np.ndarra
 
 
 def similar_spans(
-    res: Any, others: Sequence, fps: float, frames: int, target_length: int = 20, self_first: bool = True
+    res: Any, others: Sequence[Any], fps: float, frames: int, target_length: int = 20, self_first: bool = True
 ) -> tuple[list[tuple[int, int, int, np.ndarray]], float]:
     """(clip index in ``others``, first, end analysis frame, covered mask) of the densest
     KNN-covered spans up to ``frames`` analysis frames, and the share of the take's KNN words
@@ -82,8 +82,8 @@ def similar_spans(
 def calibrate(
     res: Any,
     take: Motion,
-    others: Sequence,
-    analyse: Callable,
+    others: Sequence[Any],
+    analyse: Callable[..., Any],
     fps: float,
     *,
     frames: int = 600,

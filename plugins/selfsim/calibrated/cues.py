@@ -5,6 +5,7 @@ and medians, and the left/right mirror of limb chains (swaps)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import cast
 
 import numpy as np
 
@@ -40,7 +41,7 @@ def _window_mean(x: np.ndarray, half: int) -> np.ndarray:
     c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
     t = np.arange(len(x))
     lo, hi = np.maximum(t - half, 0), np.minimum(t + half + 1, len(x))
-    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    return cast("np.ndarray", (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1)))
 
 
 def speed(q: np.ndarray) -> np.ndarray:
@@ -99,7 +100,7 @@ def hold_lengths(v: np.ndarray, still: float = HOLD_SPEED) -> tuple[np.ndarray, 
 
 def window_min(x: np.ndarray, half: int) -> np.ndarray:
     """Smallest value over ``[t - half, t + half]`` along time (shrunk at the ends)."""
-    out = x.copy()
+    out: np.ndarray = x.copy()
     for o in range(1, half + 1):
         out[o:] = np.minimum(out[o:], x[:-o])
         out[:-o] = np.minimum(out[:-o], x[o:])
@@ -109,7 +110,7 @@ def window_min(x: np.ndarray, half: int) -> np.ndarray:
 def window_median(x: np.ndarray, half: int) -> np.ndarray:
     """Median over ``[t - half, t + half]`` along time, (T, m); the ends padded by reflection."""
     if len(x) <= half:
-        return np.median(x, axis=0, keepdims=True).repeat(len(x), 0)
+        return cast("np.ndarray", np.median(x, axis=0, keepdims=True).repeat(len(x), 0))
     pad = np.concatenate([x[half:0:-1], x, x[-2 : -half - 2 : -1]], axis=0)
     win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half + 1, axis=0)
-    return np.median(win, axis=-1)
+    return cast("np.ndarray", np.median(win, axis=-1))

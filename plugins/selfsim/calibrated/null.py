@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -106,7 +107,7 @@ class Null:
         lo = MIN_EXCEEDANCES / (n + 1.0)
         return np.where(p < lo, np.minimum(p, np.exp(tail)), p) if n else np.exp(tail)
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         return {
             "source": self.source,
             "fallback": self.fallback or None,
@@ -130,8 +131,8 @@ def shipped_threshold(alphas: np.ndarray, taus: np.ndarray, rate: float) -> floa
 
 
 @lru_cache(maxsize=1)
-def _shipped_data() -> dict:
-    return json.loads(SHIPPED.read_text())
+def _shipped_data() -> dict[str, Any]:
+    return cast("dict[str, Any]", json.loads(SHIPPED.read_text()))
 
 
 def robust_units(ev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -176,12 +177,12 @@ def context_null(evs: list[np.ndarray], masks: list[np.ndarray], joints: Sequenc
 ALPHAS = np.array([0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5])
 
 
-def build_shipped(evs: list[np.ndarray], joints_list: list, takes: list[str]) -> dict:
+def build_shipped(evs: list[np.ndarray], joints_list: list[Any], takes: list[str]) -> dict[str, Any]:
     """The shipped null (JSON-friendly) from the evidence (T_i, m_i, K) of clean development
     takes of the texture joints ``joints_list[i]``: per joint the median units over the
     takes' robust units, and the rate table of the pooled fused statistic, each take
     standardised on its own cells."""
-    per: dict[str, list] = {}
+    per: dict[str, list[Any]] = {}
     stats = []
     for ev, joints in zip(evs, joints_list, strict=True):
         c, s = robust_units(ev)

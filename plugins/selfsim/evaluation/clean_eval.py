@@ -124,7 +124,7 @@ class CorruptedClip:
     others: list[Motion]
     bad: Motion
     truth: np.ndarray
-    errors: list
+    errors: list[Any]
     clean_texture: Any
 
 
@@ -183,7 +183,7 @@ def _eq2(clean: np.ndarray, other: np.ndarray, truth: np.ndarray) -> tuple[float
 
 def evaluate_category(
     category: str, clips: list[Motion], p: CleaningEvaluationParams, log: Any = print, progress: Any = None
-) -> tuple[list[dict], list[dict], list[dict]]:
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
     """Run the protocol (module doc) on one category's clips; returns (rows, repair rows, kind rows)."""
     import time
 
@@ -199,7 +199,7 @@ def evaluate_category(
     textures = [motion_texture(c, joints, cp.fps).q for c in clips]
     counts: dict[tuple[str, str], dict[str, int]] = {}
     times: dict[str, list[float]] = {}
-    repair: dict[tuple[str, str], list[dict]] = {}
+    repair: dict[tuple[str, str], list[dict[str, Any]]] = {}
     kinds: dict[tuple[str, str, str, str], dict[str, float]] = {}
     cases = list(corrupted_clips(clips, p, joints, cp.fps, category))
     it = progress(cases, len(cases), f"clean_eval {category}") if progress else cases
@@ -316,7 +316,14 @@ def evaluate_category(
     return rows, rep, kind_rows
 
 
-def _kind_rows(acc: dict, category: str, method: str, context: str, case: CorruptedClip, out: Any) -> None:
+def _kind_rows(
+    acc: dict[tuple[str, str, str, str], dict[str, float]],
+    category: str,
+    method: str,
+    context: str,
+    case: CorruptedClip,
+    out: Any,
+) -> None:
     """Per error kind: errors injected, found (a flagged cell among its erroneous cells), and eq. 2 on its cells."""
     col = {int(j): c for c, j in enumerate(case.clean_texture.joint_index)}
     for e in case.errors:
@@ -337,7 +344,7 @@ def _kind_rows(acc: dict, category: str, method: str, context: str, case: Corrup
         r["eq2_after"] += float(_log_norm_sq(q0, out.repaired[e.start : e.end][:, cols][t]).sum())
 
 
-def _add(acc: dict, key: tuple[str, str], c: Mapping[str, int]) -> None:
+def _add(acc: dict[tuple[str, str], dict[str, int]], key: tuple[str, str], c: Mapping[str, int]) -> None:
     cur = acc.setdefault(key, {k: 0 for k in c})
     for k, v in c.items():
         cur[k] += v

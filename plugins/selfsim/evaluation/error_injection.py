@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -67,7 +68,7 @@ class InjectedError:
 
 def _random_axis(rng: np.random.Generator, n: int = 1) -> np.ndarray:
     v = rng.standard_normal((n, 3))
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
+    return cast("np.ndarray", v / np.linalg.norm(v, axis=1, keepdims=True))
 
 
 def apply_error(

@@ -54,7 +54,7 @@ CURVE_RATES: tuple[float, ...] = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2)
 
 def inject_native(
     motion: Motion, seed: int, density: float = 0.125, family: str = "A"
-) -> tuple[Motion, np.ndarray, list[dict]]:
+) -> tuple[Motion, np.ndarray, list[dict[str, Any]]]:
     """Errors at ``density`` of the words, written at the take's own rate (a 24-fps frame is
     ``fps / 24`` input frames): family ``A`` (:data:`SWEEP_KINDS`) or ``B``
     (:mod:`.injection_b`). Returns the corrupted take, the (T, J) mask of cells moved
@@ -118,7 +118,7 @@ def _starts(t: int, n: int, step: int) -> np.ndarray:
     return source_word_starts(t, n, step)
 
 
-def score_run(clean: Motion, bad: Motion, errors: list[dict], out: Any, clean_out: Any) -> dict:
+def score_run(clean: Motion, bad: Motion, errors: list[dict[str, Any]], out: Any, clean_out: Any) -> dict[str, Any]:
     """Counts of one run (module doc): ``flags`` / ``output`` (word, joint) and cell counts,
     eq. 2 global and on the erroneous cells, the clean take's edits, one row per error."""
     tex = out.analysis.texture

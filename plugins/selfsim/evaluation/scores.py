@@ -4,6 +4,7 @@ and the source glitches of the "clean" references."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import cast
 
 import numpy as np
 
@@ -20,7 +21,7 @@ def rotation_vectors(q: np.ndarray) -> np.ndarray:
 
 def _log_norm_sq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """||log(a^-1 b)||^2 per quaternion pair (half-angle convention of eq. 1/2)."""
-    return np.arccos(np.clip(np.abs(np.sum(a * b, -1)), 0.0, 1.0)) ** 2
+    return cast("np.ndarray", np.arccos(np.clip(np.abs(np.sum(a * b, -1)), 0.0, 1.0)) ** 2)
 
 
 class RotationBaselines:
@@ -36,7 +37,7 @@ class RotationBaselines:
 
     def limits(self, q: np.ndarray) -> np.ndarray:
         rv = rotation_vectors(q)
-        return np.any((rv < self.low_) | (rv > self.high_), axis=-1)
+        return cast("np.ndarray", np.any((rv < self.low_) | (rv > self.high_), axis=-1))
 
     def derivative(self, q: np.ndarray) -> np.ndarray:
         out = np.zeros(q.shape[:2], bool)

@@ -25,7 +25,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._cdtw_kernels import cdtw, cdtw_cost_r2, cdtw_path  # noqa: F401 - re-exported for the callers
+# re-exported for the callers (explicitly: `x as x`)
+from ._cdtw_kernels import cdtw as cdtw
+from ._cdtw_kernels import cdtw_cost_r2 as cdtw_cost_r2
+from ._cdtw_kernels import cdtw_path as cdtw_path
 
 _INF = np.inf
 
@@ -236,7 +239,8 @@ def _word_distance(
         else:
             c, p, _, _, _ = cdtw(d, i0, t, n, tlen[t], r, cum, plen, back)
         memo[t] = c / p
-    return memo[t]
+    mean: float = memo[t]
+    return mean
 
 
 @njit(cache=True, parallel=True)

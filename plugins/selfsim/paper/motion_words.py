@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -117,14 +117,14 @@ def joint_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Squared quaternion log-norm distances ``||log(b^-1 a)||^2`` (..., m) per joint of
     ``a``, ``b`` (..., m, 4), radians squared (half-angle convention)."""
     d = np.abs(np.sum(a * b, axis=-1))
-    return np.arccos(np.clip(d, 0.0, 1.0)) ** 2
+    return cast("np.ndarray", np.arccos(np.clip(d, 0.0, 1.0)) ** 2)
 
 
 def trimmed_sum(terms: np.ndarray, mask: np.ndarray, drop: int) -> np.ndarray:
     """Sum of ``terms[..., mask]`` without its ``drop`` largest entries (eq. 1)."""
     t = np.sort(terms[..., mask], axis=-1)
     keep = t.shape[-1] - drop
-    return t[..., :keep].sum(axis=-1)
+    return cast("np.ndarray", t[..., :keep].sum(axis=-1))
 
 
 def pose_distance(a: np.ndarray, b: np.ndarray, mask: np.ndarray, drop: int) -> np.ndarray:

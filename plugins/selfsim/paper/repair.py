@@ -14,9 +14,9 @@ import numpy as np
 import pyarrow as pa
 
 from mocapflow.framework import quaternions as quat
-from mocapflow.framework.datasets import fixed_list
 from mocapflow.framework.errors import DataError
 from mocapflow.framework.motion import Motion, forward_kinematics
+from mocapflow.framework.schema import fixed_list
 
 from .knn import ContextTextures, WordNeighbours, knn_search
 from .motion_words import motion_texture, resolve_groups, source_word_starts

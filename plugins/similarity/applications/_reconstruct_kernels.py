@@ -22,7 +22,8 @@ def _yaw(model: np.ndarray, observed: np.ndarray) -> float:
     for i in range(model.shape[0]):
         s += observed[i, 0] * model[i, 2] - observed[i, 2] * model[i, 0]
         c += observed[i, 0] * model[i, 0] + observed[i, 2] * model[i, 2]
-    return np.arctan2(s, c)
+    yaw: float = np.arctan2(s, c)
+    return yaw
 
 
 @njit(cache=True)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 import numpy as np
 import pyarrow as pa
@@ -133,7 +133,7 @@ class DistanceCorrelationStudy(Analysis):
         def dist(measure: str, i: int, js: np.ndarray) -> np.ndarray:
             if measure in feats:
                 diff = feats[measure][js].astype(np.float64) - feats[measure][i]
-                return np.sqrt((diff * diff).sum(1))
+                return cast("np.ndarray", np.sqrt((diff * diff).sum(1)))
             assert pm is not None  # D_ measures exist when one is asked for
             return pm.distance(measure, i, js)
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -82,7 +82,7 @@ class BasePoses:
 
 
 def radius_neighbours(
-    index: Index, x: np.ndarray, radius: float, k: int, chunk: int = 16384, progress: Callable | None = None
+    index: Index, x: np.ndarray, radius: float, k: int, chunk: int = 16384, progress: Callable[..., Any] | None = None
 ) -> np.ndarray:
     """Ids of up to ``k`` neighbours within ``radius`` of every row of ``x`` (built ``index``).
 
@@ -106,7 +106,7 @@ def select_base_poses(
     index: Index,
     max_base_poses: int = 0,
     ids: np.ndarray | None = None,
-    progress: Callable | None = None,
+    progress: Callable[..., Any] | None = None,
 ) -> BasePoses:
     """Base poses of feature vectors ``x`` (Krüger 2010 §5.3, see the module docstring).
 
@@ -266,7 +266,10 @@ class FatGraph(Analysis):
     @staticmethod
     def tables(res: BasePoses, clip_id: np.ndarray, frame: np.ndarray, offsets: np.ndarray) -> dict[str, pa.Table]:
         """The step's tables (see the module docstring) from global-row results."""
-        i32 = lambda a: pa.array(np.asarray(a, np.int32))  # noqa: E731 - a one-line helper local to this function
+
+        def i32(a: Any) -> pa.Array:
+            return pa.array(np.asarray(a, np.int32))
+
         cl = res.cluster
         data = pa.table(
             {"clip_id": i32(clip_id), "frame": i32(frame), "cluster": i32(cl), "n_neighbours": i32(res.degree)}

@@ -40,7 +40,7 @@ joint: ``mean_cm, max_cm``), ``clip_errors`` (per clip: ``avg_cm``, ``max_cm``,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 from pydantic import Field
@@ -149,7 +149,7 @@ class PosePrior:
     features: np.ndarray
     index: Index
     typical: np.ndarray = field(default_factory=lambda: np.ones(TYPICAL_K))
-    limits: dict = field(default_factory=dict)
+    limits: dict[tuple[int, int, int], Index] = field(default_factory=dict)
 
     @classmethod
     def build(
@@ -412,7 +412,7 @@ def _passes(
     # a known heading: every pass queries the same neighbours, kept per frame (about 1.5 kB
     # a frame at k 128; longer takes query again)
     reuse = fixed and model.smooth_passes > 0 and t_len * k <= NEIGHBOUR_CACHE
-    caches: list[dict] = [{} for _ in range(t_len)] if reuse else []
+    caches: list[dict[str, Any]] = [{} for _ in range(t_len)] if reuse else []
 
     def solve(t: int, guess: np.ndarray, theta: float, pred: np.ndarray | None, iters: int) -> None:
         theta = heading[t] if fixed else theta
@@ -471,7 +471,7 @@ def project_bones(pose: np.ndarray, fr: _Frames) -> np.ndarray:
     n = np.linalg.norm(v, axis=1, keepdims=True)
     d = np.where(n > 1e-9, v / np.maximum(n, 1e-12), 0.0)
     d[0] = 0.0
-    return (fr.chain @ (d * fr.lengths[:, None])).ravel()
+    return cast("np.ndarray", (fr.chain @ (d * fr.lengths[:, None])).ravel())
 
 
 def limb_ik(pose: np.ndarray, obs: np.ndarray, fr: _Frames) -> np.ndarray:
@@ -499,7 +499,7 @@ def limb_ik(pose: np.ndarray, obs: np.ndarray, fr: _Frames) -> np.ndarray:
         y[below] += end - y[c]
         y[b] = y[a] + x * u + r * side / n
         y[c] = end
-    return y.ravel()
+    return cast("np.ndarray", y.ravel())
 
 
 def _solve_frame(
@@ -513,7 +513,7 @@ def _solve_frame(
     model: ReconstructModel,
     iterations: int,
     fixed: bool = False,
-    cache: dict | None = None,
+    cache: dict[str, Any] | None = None,
 ) -> tuple[np.ndarray, float, float, float]:
     """One frame: kNN of the control signal, local model, MAP pose and heading (module doc).
 

@@ -33,6 +33,7 @@ rest): docs/knn.md, "How the reconstruction's default was chosen".
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, cast
 
 import numpy as np
 
@@ -139,7 +140,7 @@ class Calibration:
     source: str
     axes: tuple[str, ...] = ()
 
-    def rows(self) -> list[dict]:
+    def rows(self) -> list[dict[str, Any]]:
         """One row per control point: offsets in cm along the segment axes."""
         return [
             {
@@ -169,7 +170,7 @@ def _keys(markers: Markers) -> dict[str, int]:
 
 
 def _mean(pos: np.ndarray, keys: dict[str, int], labels: tuple[str, ...]) -> np.ndarray:
-    return np.mean(pos[:, [keys[x.lower()] for x in labels]], axis=1)
+    return cast("np.ndarray", np.mean(pos[:, [keys[x.lower()] for x in labels]], axis=1))
 
 
 def segment_frames(pos: np.ndarray, keys: dict[str, int], seg: Segment, centre: np.ndarray) -> np.ndarray:
@@ -178,7 +179,7 @@ def segment_frames(pos: np.ndarray, keys: dict[str, int], seg: Segment, centre: 
 
     def axis(g: Groups) -> np.ndarray:
         plus = _mean(pos, keys, g[0])
-        return plus - (_mean(pos, keys, g[1]) if g[1] else centre)
+        return cast("np.ndarray", plus - (_mean(pos, keys, g[1]) if g[1] else centre))
 
     x, y = axis(seg.x), axis(seg.y)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -302,7 +303,7 @@ def _hip_centres(
         if np.linalg.svd(local - local.mean(0), compute_uv=False)[-1] / np.sqrt(len(local)) < 0.01:
             return None  # the knee marker moved in a plane at best: no sphere
         out.append(c)
-    return np.mean(out, axis=0)
+    return cast("np.ndarray", np.mean(out, axis=0))
 
 
 def root_from_hips(rest: dict[str, np.ndarray]) -> np.ndarray | None:
@@ -327,7 +328,7 @@ def _rule_offsets(pos: np.ndarray, keys: dict[str, int], seg: Segment, centre: n
     d = centre - anchor
     with np.errstate(invalid="ignore", divide="ignore"):
         joint = anchor + bone * d / np.linalg.norm(d, axis=-1, keepdims=True)
-    return np.einsum("tij,ti->tj", rot, joint - centre)
+    return cast("np.ndarray", np.einsum("tij,ti->tj", rot, joint - centre))
 
 
 def _axes(seg: Segment) -> str:

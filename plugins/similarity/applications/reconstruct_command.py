@@ -25,7 +25,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 if TYPE_CHECKING:
     from mocapflow.framework import Motion
@@ -203,7 +203,7 @@ def _read_markers(path: Path, reg: Registries) -> Markers:
 
     for _, cls in reg.by_kind["formats"]:
         if path.suffix.lower() in cls.extensions and cls.produces == "markers":
-            return cls().read(path)
+            return cast("Markers", cls().read(path))
     raise ConfigError(f"{path}: no registered marker reader for {path.suffix!r} files")
 
 

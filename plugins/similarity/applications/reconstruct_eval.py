@@ -23,7 +23,7 @@ signal, F_E^15 plus its velocity (:mod:`.reconstruct`).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import pyarrow as pa
@@ -67,7 +67,7 @@ def _find(dbs: Sequence[MotionDatabase | None], name: str) -> Motion:
     raise DataError(f"test clip {name!r} is in neither database")
 
 
-def _run(test: Motion, store: PriorStore, keep: np.ndarray, params: ReconstructParams) -> tuple[dict, int]:
+def _run(test: Motion, store: PriorStore, keep: np.ndarray, params: ReconstructParams) -> tuple[dict[str, Any], int]:
     prior = PosePrior.build(store, bone_lengths(test.canonical_positions(store.joints), store.joints), keep)
     _, e = reconstruct_motion(test, prior, params)
     return e, len(prior.poses)
@@ -80,7 +80,7 @@ def table3(
     cmu_db: MotionDatabase,
     hdm_db: MotionDatabase | None,
     params: ReconstructParams,
-) -> tuple[list[dict], list[dict]]:
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Rows of Table 3 (and its per-joint errors) for the named test clips."""
     rows, joints = [], []
     for name in tests:
@@ -118,7 +118,7 @@ def size_sweep(
     fractions: Sequence[float],
     params: ReconstructParams,
     seed: int = 0,
-) -> list[dict]:
+) -> list[dict[str, Any]]:
     """Error versus prior size: random take subsets (nested: 10 % within 30 % within 100 %)."""
     order = np.random.default_rng(seed).permutation(len(cmu.clips))
     rank = np.empty_like(order)
@@ -174,7 +174,7 @@ class ReconstructionEval(Analysis):
             "joint_errors": pa.Table.from_pylist(joints),
         }
         tables["data"] = tables["table3"]
-        summary: dict = {
+        summary: dict[str, Any] = {
             "cmu_frames": cmu_db.n_frames,
             "hdm05_frames": hdm_db.n_frames if hdm_db else 0,
             "table3_avg_cm": {},

@@ -36,7 +36,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 import numpy as np
 import pyarrow as pa
@@ -148,7 +148,9 @@ def fill_gaps(x: np.ndarray, what: str) -> np.ndarray:
     return out
 
 
-def control_from_markers(markers: Markers, marker_set: str = "auto") -> tuple[np.ndarray, np.ndarray, str, dict]:
+def control_from_markers(
+    markers: Markers, marker_set: str = "auto"
+) -> tuple[np.ndarray, np.ndarray, str, dict[str, Any]]:
     """Control points (T, 6, 3) y-up metres (:data:`~.reconstruct.DEFAULT_MARKERS` order),
     the root's heading (T,) radians from the pelvis sides, the set used and its label
     mapping; gaps are interpolated. Uncalibrated: the marker means."""
@@ -166,7 +168,7 @@ def calibrated_control(
     lengths: Mapping[str, float] | None = None,
     calibration_take: Markers | None = None,
     root_offset: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, str, dict, Calibration | None]:
+) -> tuple[np.ndarray, np.ndarray, str, dict[str, Any], Calibration | None]:
     """:func:`control_from_markers` with each control point moved by its offset to the joint
     centre (:mod:`.reconstruct_calibrate`), estimated from the first seconds of the take or
     of ``calibration_take`` (the same performer and marker set) with the skeleton's bone
@@ -310,7 +312,7 @@ class ReconstructMarkers(Analysis):
         by_joint = dict(zip(prior.joints, prior.lengths, strict=True))
         hips = ("root", "lhip", "rhip")
         root_offset = root_from_hips(dict(zip(hips, rest.canonical_positions(hips)[0], strict=True)))
-        offset_rows: list[dict] = []
+        offset_rows: list[dict[str, Any]] = []
         confidences: list[pa.Table] = []
         for cid, mk in dataset_markers(inputs["markers"]):
             control, heading, set_name, _, cal = calibrated_control(mk, p.marker_set, by_joint, None, root_offset)
@@ -355,5 +357,5 @@ def read_skeleton(path: Path, reg: Any) -> Skeleton:
         raise ConfigError(f"skeleton {path}: no such file")
     for _, cls in reg.by_kind["formats"]:  # a skeleton file (ASF) read as it is
         if path.suffix.lower() in cls.extensions and cls.produces == "skeleton":
-            return cls().read(path)
-    return reg.motion_format(path).read(path).skeleton
+            return cast("Skeleton", cls().read(path))
+    return cast("Skeleton", reg.motion_format(path).read(path).skeleton)

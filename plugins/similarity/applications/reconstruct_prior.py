@@ -37,6 +37,7 @@ import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -230,7 +231,7 @@ def bone_lengths(positions: np.ndarray, joints: Sequence[str]) -> np.ndarray:
     """A skeleton's bone lengths (P,) metres: the median over frames of each joint's distance
     to its canonical parent (constant for rigid chains; the median for chains that bend)."""
     _, length = directions(np.asarray(positions, np.float64), bone_parents(joints))
-    return np.median(length, axis=0)
+    return cast("np.ndarray", np.median(length, axis=0))
 
 
 def mirror_partners(joints: Sequence[str]) -> np.ndarray:
@@ -244,7 +245,7 @@ def mirror_partners(joints: Sequence[str]) -> np.ndarray:
 
 def mirror(local: np.ndarray, joints: Sequence[str]) -> np.ndarray:
     """Mirror image (x -> -x, left and right swapped) of heading-frame poses (T, P, 3)."""
-    return local[:, mirror_partners(joints)] * np.array([-1.0, 1.0, 1.0])
+    return cast("np.ndarray", local[:, mirror_partners(joints)] * np.array([-1.0, 1.0, 1.0]))
 
 
 @dataclass
@@ -261,7 +262,7 @@ class PriorStore:
     fps: float
     dirs: np.ndarray
     clip_rows: np.ndarray
-    clips: list[dict]
+    clips: list[dict[str, Any]]
     lengths: np.ndarray | None = None
     tree: tuple[str, ...] | None = None
     rig: np.ndarray | None = None
@@ -312,7 +313,9 @@ class PriorStore:
         d = self.dirs if rows is None else self.dirs[rows]
         a = chain_matrix(bone_parents(self.joints)) * np.asarray(lengths, np.float64)[None, :]
         if self.tree is None:
-            return np.einsum("jb,nbc->njc", a.astype(np.float32), d, optimize=True).astype(np.float32)
+            return cast(
+                "np.ndarray", np.einsum("jb,nbc->njc", a.astype(np.float32), d, optimize=True).astype(np.float32)
+            )
         # composite bones: the take's own pose on the full tree, then its vectors between the pose joints
         full = chain_matrix(bone_parents(self.tree)).astype(np.float32)
         own = np.einsum("jb,nbc->njc", full, d * self.take_lengths(rows)[..., None], optimize=True)
@@ -331,7 +334,7 @@ class PriorStore:
                 u[gap, j] = u[gap, kids[0]]
         if self.rig is not None:
             chest_from_rig(u, own, self.tree, self.joints, self.rig)
-        return np.einsum("jb,nbc->njc", a.astype(np.float32), u, optimize=True).astype(np.float32)
+        return cast("np.ndarray", np.einsum("jb,nbc->njc", a.astype(np.float32), u, optimize=True).astype(np.float32))
 
     def select(self, keep: np.ndarray) -> PriorStore:
         """A store of the takes where ``keep`` (C,) is true (arrays copied)."""

@@ -10,7 +10,7 @@ the solved position, and the middle joint's world step between frames.
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 
@@ -91,7 +91,7 @@ def swivel_candidates(local: np.ndarray, a: int, b: int, c: int, n_states: int) 
     w0 = np.cross(u, s0)
     phi = 2 * np.pi * np.arange(n_states) / n_states
     rot = np.cos(phi)[None, :, None] * s0[:, None] + np.sin(phi)[None, :, None] * w0[:, None]
-    return (base + along * u)[:, None] + r[:, None] * rot
+    return cast("np.ndarray", (base + along * u)[:, None] + r[:, None] * rot)
 
 
 def consistent_sides(

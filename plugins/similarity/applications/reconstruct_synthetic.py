@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -98,7 +99,7 @@ class PriorCache:
 
 def reconstruct_motion(
     motion: Motion, prior: PosePrior, params: ReconstructParams | None = None, model: ReconstructModel = MODEL
-) -> tuple[Motion, dict]:
+) -> tuple[Motion, dict[str, Any]]:
     """Reconstruct one clip from its synthetic markers; the result and its errors.
 
     Returns the reconstructed Motion (test clip's skeleton, ``<name>_recon``) and a dict:

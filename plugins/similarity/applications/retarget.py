@@ -17,6 +17,7 @@ bones below aim from where it leaves them).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any, cast
 
 import numpy as np
 
@@ -50,7 +51,7 @@ def positions_to_motion(
     joints: Sequence[str],
     fps: float,
     name: str = "",
-    metadata: dict | None = None,
+    metadata: dict[str, Any] | None = None,
 ) -> Motion:
     """Joint rotations of ``skeleton`` that place its bones along target positions.
 
@@ -158,7 +159,7 @@ def two_bone_middle(base: np.ndarray, end: np.ndarray, hint: np.ndarray, l1: flo
     n = np.linalg.norm(side, axis=1, keepdims=True)
     fallback = np.cross(u, np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]]))
     side = np.where(n > 1e-9, side / np.maximum(n, 1e-12), fallback / np.linalg.norm(fallback, axis=1, keepdims=True))
-    return base + x * u + r * side
+    return cast("np.ndarray", base + x * u + r * side)
 
 
 def _ancestors(skeleton: Skeleton, j: int) -> list[int]:
@@ -191,7 +192,7 @@ def _axis(skeleton: Skeleton, j: int, dof: str) -> np.ndarray:
 
 
 def _hinge_below(
-    skeleton: Skeleton, j: int, col: int, aims: list, dofs: list[str | None], joints: Sequence[str]
+    skeleton: Skeleton, j: int, col: int, aims: list[Any], dofs: list[str | None], joints: Sequence[str]
 ) -> tuple[int, int, np.ndarray] | None:
     """(hinge joint, its target column, its rest vector) when ``j`` aims straight at a one-dof
     child that aims at one target (an ASF humerus above its elbow), else None."""
@@ -241,7 +242,7 @@ def _on_dofs(
     g_par: np.ndarray,
     origin: np.ndarray,
     pos: np.ndarray,
-    aims: list,
+    aims: list[Any],
 ) -> np.ndarray:
     """Local rotations ``q`` (T,4) of joint ``j`` restricted to its ASF dofs: identity for
     none; for one dof aiming at one target, the angle about the axis that turns the bone

@@ -92,7 +92,7 @@ def brute_knn(
         for y0 in range(0, n, block_rows):
             g = q @ data[y0 : y0 + block_rows].T
             state = (heap, cand_i, cand_v, cand_n, overflow, tol2, r2 + tol2, excl, groups, frames, qg, qf)
-            kern.scan_block(g, sqnorms, const, y0, *state)  # type: ignore[call-arg]  # numba's Dispatcher stub
+            kern.scan_block(g, sqnorms, const, y0, *state)
         keep = (np.arange(cap)[None, :] < cand_n[:, None]) & (cand_v <= (heap[:, 0] + tol2)[:, None])
         cr, col = np.nonzero(keep)
         cc = cand_i[cr, col]

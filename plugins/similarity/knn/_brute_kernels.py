@@ -159,7 +159,8 @@ def _kth_smallest(vals: np.ndarray, c: int, k: int) -> float:
         v = np.float64(vals[t])
         if v < h[0]:
             _maxheap_replace(h, v)
-    return h[0]
+    kth: float = h[0]
+    return kth
 
 
 @njit(cache=True)

@@ -41,7 +41,7 @@ class CostModel:
     method_: str
     brute_from_k_: int | None
     large_method_: str
-    _tree_args: Callable[[], tuple[tuple, np.ndarray]]
+    _tree_args: Callable[[], tuple[tuple[Any, ...], np.ndarray]]
     _search: Callable[..., tuple[np.ndarray, np.ndarray]]
     _max_depth: Callable[[], int]
 

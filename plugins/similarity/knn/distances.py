@@ -28,6 +28,7 @@ Each measure compares one frame ``i`` of a :class:`PoseMeasures` database with m
 from __future__ import annotations
 
 import re
+from typing import cast
 
 import numpy as np
 
@@ -129,13 +130,13 @@ class PoseMeasures:
         """Distances of frame ``i`` to frames ``js``, shape (len(js),), float64."""
         js = np.asarray(js, np.int64)
         if measure == "D_quat":
-            return np.sqrt((quat.geodesic_angle(self.quats[i][None], self.quats[js]) ** 2).sum(1))
+            return cast("np.ndarray", np.sqrt((quat.geodesic_angle(self.quats[i][None], self.quats[js]) ** 2).sum(1)))
         if measure == "D_euler":
-            return np.linalg.norm(self.euler[js] - self.euler[i][None], axis=1)
+            return cast("np.ndarray", np.linalg.norm(self.euler[js] - self.euler[i][None], axis=1))
         if measure == "D_wb":
             ang = (quat.geodesic_angle(self.wb_quats[i][None], self.wb_quats[js]) ** 2).sum(1)
             vel = ((self.wb_vel[js] - self.wb_vel[i][None]) ** 2).sum((1, 2))
-            return np.sqrt(ang + self.velocity_weight * vel)
+            return cast("np.ndarray", np.sqrt(ang + self.velocity_weight * vel))
         m = re.fullmatch(r"D_pc(\d+)", measure)
         if m:
             n = int(m.group(1))
@@ -168,4 +169,4 @@ def point_cloud_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     # min_phi sum |ca - e^{i phi} cb|^2 = sum |ca|^2 + sum |cb|^2 - 2 |sum ca conj(cb)|
     plane = (np.abs(ca) ** 2).sum(-1) + (np.abs(cb) ** 2).sum(-1) - 2.0 * np.abs(s)
     height = ((a[..., 1] - b[..., 1]) ** 2).sum(-1)
-    return np.sqrt(np.maximum(plane + height, 0.0))
+    return cast("np.ndarray", np.sqrt(np.maximum(plane + height, 0.0)))

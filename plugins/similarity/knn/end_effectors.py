@@ -24,7 +24,7 @@ the instants are clamped to the first/last frame: a window never straddles two c
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import ClassVar, Literal, cast
 
 import numpy as np
 from pydantic import Field
@@ -84,7 +84,7 @@ def sample_window(frames: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     i1 = np.minimum(i0 + 1, t - 1)
     w = (at - i0)[..., None]
     out = (1.0 - w) * frames[i0] + w * frames[i1]  # (T, l, n)
-    return out.reshape(t, -1)
+    return cast("np.ndarray", out.reshape(t, -1))
 
 
 class EndEffectorFeatures(FeatureSet):

@@ -15,7 +15,7 @@ import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, cast
 
 import numpy as np
 from pydantic import Field
@@ -74,7 +74,7 @@ def _sqnorms(data: np.ndarray, mean: np.ndarray) -> np.ndarray:
 def _ro(a: np.ndarray) -> np.ndarray:
     """A read-only view (no copy): the kernels read features read-only, whether they come from
     Arrow (read-only) or NumPy (writable), so one variant compiles, not two."""
-    v = a.view()
+    v: np.ndarray = a.view()
     v.flags.writeable = False
     return v
 
@@ -123,7 +123,7 @@ class KDTreeIndex(CostModel, Index):
     _depth: int | None
     _raw_bound: Any
     _boxes: tuple[np.ndarray, np.ndarray] | None
-    _targs: tuple[tuple, np.ndarray] | None
+    _targs: tuple[tuple[Any, ...], np.ndarray] | None
     #: the rows in dataset order (features, clip id, frame) when loaded beside their dataset
     _rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     #: the folder the index was loaded from (None: built in memory)
@@ -401,7 +401,7 @@ class KDTreeIndex(CostModel, Index):
             if prev is not None:
                 kern.set_threads(prev)
 
-    def _tree_args(self) -> tuple[tuple, np.ndarray]:
+    def _tree_args(self) -> tuple[tuple[Any, ...], np.ndarray]:
         """The tree's arrays in :func:`._knn_kernels.query_tree` order (cached: a single query
         is a few tens of microseconds, so per-call attribute work shows)."""
         args = getattr(self, "_targs", None)
@@ -505,7 +505,7 @@ class KDTreeIndex(CostModel, Index):
         """
         own = getattr(self, "_rows", None)
         if own is not None:
-            return own
+            return cast("tuple[np.ndarray, np.ndarray, np.ndarray] | None", own)
         d = getattr(self, "_dir", None)
         if d is None or not all((d / f"rows_{n}.npy").is_file() for n in ("features", "clip_id", "frame")):
             return None
@@ -549,7 +549,7 @@ class KDTreeIndex(CostModel, Index):
         self._dir = d
         return self
 
-    def _attach_rows(self, d: Path, ref: dict) -> None:
+    def _attach_rows(self, d: Path, ref: dict[str, Any]) -> None:
         """The rows of an index saved with ``rows_from``: read from that features dataset (the
         step ``ref["step"]`` of the index's workspace), checked against its fingerprint."""
         from mocapflow.framework.datasets import Dataset

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, cast
 
 import numpy as np
 from pydantic import Field
@@ -93,7 +93,7 @@ class PosePCA(FeatureSet):
     def transform_motion(self, motion: Motion) -> np.ndarray:
         if not hasattr(self, "components_"):
             raise DataError(f"{self.key()}: not fitted (fit() on a reference database or load_state())")
-        return ((self._poses(motion) - self.mean_) @ self.components_.T).astype(np.float32)
+        return cast("np.ndarray", ((self._poses(motion) - self.mean_) @ self.components_.T).astype(np.float32))
 
     def save_state(self, directory: Path) -> None:
         d = Path(directory)

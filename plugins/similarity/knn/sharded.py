@@ -16,7 +16,7 @@ import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, cast
 
 import numpy as np
 from pydantic import Field
@@ -72,14 +72,14 @@ def _import_class(path: str) -> type:
     import importlib
 
     module, _, name = path.partition(":")
-    return getattr(importlib.import_module(module), name)
+    return cast("type", getattr(importlib.import_module(module), name))
 
 
 def _load_shard(cls: Any, directory: Path) -> Index:
     """``cls.load`` memory-mapped where the index supports it (``mmap_mode``)."""
     if "mmap_mode" in getattr(cls, "load_options", ()):
-        return cls.load(directory, mmap_mode="r")
-    return cls.load(directory)
+        return cast("Index", cls.load(directory, mmap_mode="r"))
+    return cast("Index", cls.load(directory))
 
 
 def _exact_sqdist(q: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -101,7 +101,7 @@ class _ShardQuery:
     stamp: str
     k: int
     radius: float | None
-    kwargs: dict
+    kwargs: dict[str, Any]
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from mocapflow.framework.clip_refs import cached
@@ -153,7 +153,7 @@ class ShardedIndex(Index):
         key = self.params.index if "." in self.params.index else f"indexes.{self.params.index}"
         if key == self.key():
             raise ConfigError(f"{self.key()}: a shard cannot itself be sharded")
-        return _registries(registries).resolve(key)
+        return cast("type", _registries(registries).resolve(key))
 
     def build(
         self,
@@ -184,8 +184,8 @@ class ShardedIndex(Index):
     def _build_one(self, cls: Any, x: np.ndarray, g: np.ndarray, f: np.ndarray) -> Index:
         shard = cls(self.params.index_params)
         if "groups" in shard.build_options:
-            return shard.build(x, groups=g, frames=f)
-        return shard.build(x)
+            return cast("Index", shard.build(x, groups=g, frames=f))
+        return cast("Index", shard.build(x))
 
     #: the saved index's modification stamp (set by load): a process answering from the folder
     #: checks it reads the same index
@@ -441,7 +441,7 @@ class _ShardBuild:
     start: int
     stop: int
     index_cls: type[Index]
-    index_params: dict
+    index_params: dict[str, Any]
     directory: str
 
 
@@ -449,7 +449,7 @@ def _build_task(t: _ShardBuild) -> dict[str, Any]:
     """Read rows ``[start, stop)`` of a features dataset, build one shard, save it."""
     import pyarrow.parquet as pq
 
-    from mocapflow.framework.datasets import fixed_list_to_numpy
+    from mocapflow.framework.schema import fixed_list_to_numpy
 
     f = pq.ParquetFile(f"{t.features.path}/data.parquet", memory_map=True)
     sizes = [f.metadata.row_group(i).num_rows for i in range(f.metadata.num_row_groups)]
@@ -479,7 +479,7 @@ class _BlockQuery:
     k: int
     radius: float | None
     q: np.ndarray
-    kwargs: dict
+    kwargs: dict[str, Any]
 
 
 def _answer_block(task: _BlockQuery) -> tuple[np.ndarray, np.ndarray]:

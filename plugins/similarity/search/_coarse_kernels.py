@@ -299,7 +299,7 @@ def _subspace_costs(
 @njit(cache=True, fastmath=_FAST, inline="always")
 def _through(f: np.ndarray, g: np.ndarray, c: np.ndarray, b: int, m: int) -> np.float32:  # pragma: no cover - compiled
     """``min_i F(i, b) + G(i, b) - c(i, b)``: block ``b``'s bound from its two chains."""
-    low = np.float32(np.inf)
+    low: np.float32 = np.float32(np.inf)
     for i in range(m):
         low = min(low, f[b, i] + g[b, i] - c[b, i])
     return low
@@ -474,4 +474,5 @@ def alive_runs(
                     k += 1
             else:
                 j += 1
-    return out[:k].copy()
+    runs: np.ndarray = out[:k].copy()
+    return runs

@@ -110,7 +110,8 @@ def lng_backtrack(
         out[p, 1] = ids[i, a]
         p += 1
         node = pred[i, a]
-    return out[:p][::-1].copy()
+    path: np.ndarray = out[:p][::-1].copy()
+    return path
 
 
 @njit(cache=True)

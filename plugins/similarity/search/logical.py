@@ -13,7 +13,7 @@ dropped. The search stops after ``rounds`` rounds, when a round finds no new seg
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -83,7 +83,15 @@ def logical_search(
     found = IntervalSet()
     if exclude is not None:
         found.add(exclude[0], exclude[1] - 1)
-    rows: dict[str, list] = {"start": [], "end": [], "cost": [], "length": [], "paths": [], "round": [], "source": []}
+    rows: dict[str, list[Any]] = {
+        "start": [],
+        "end": [],
+        "cost": [],
+        "length": [],
+        "paths": [],
+        "round": [],
+        "source": [],
+    }
     frontier: list[tuple[np.ndarray, int]] = [(np.asarray(query, np.float32), -1)]
     for r in range(1, rounds + 1):
         new: list[tuple[np.ndarray, int]] = []

@@ -6,7 +6,7 @@ space, queries, match table) is the core's default
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework.matching import MatchParams
 
 
-def match_kw(p: MatchParams) -> dict:
+def match_kw(p: MatchParams) -> dict[str, Any]:
     """The shared :class:`MatchParams` as keywords of the matching functions."""
     return {"count": p.count, "max_cost": p.max_cost, "rank_by": p.rank_by, "min_span": p.min_span}
 
@@ -34,7 +34,10 @@ def block_boxes_of(space: SearchSpace, size: int) -> tuple[np.ndarray, np.ndarra
 
         return block_boxes(feats, space.continues, int(size))
 
-    return space.memo(("similarity.block_boxes", int(size)), compute)
+    return cast(
+        "tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]",
+        space.memo(("similarity.block_boxes", int(size)), compute),
+    )
 
 
 def block_subspaces_of(
@@ -52,4 +55,7 @@ def block_subspaces_of(
         assert space.features is not None
         return block_subspaces(space.features, boxes[0], int(p))
 
-    return space.memo(("similarity.block_subspaces", int(size), int(p)), compute)
+    return cast(
+        "tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]",
+        space.memo(("similarity.block_subspaces", int(size), int(p)), compute),
+    )

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from mocapflow.framework.matching import SearchSpace
@@ -13,7 +15,7 @@ _PARALLEL_CELLS = 4_000_000
 
 def clip_starts(space: SearchSpace) -> np.ndarray:
     """bool (n,): row ``j`` starts a clip (``~space.continues``), computed once per space."""
-    return space.memo(("similarity.clip_starts",), lambda: ~space.continues)
+    return cast("np.ndarray", space.memo(("similarity.clip_starts",), lambda: ~space.continues))
 
 
 def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -30,8 +32,11 @@ def merged_ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 def run_starts(space: SearchSpace) -> np.ndarray:
     """int64 (r + 1,): first row of every run of consecutive rows (clip), then ``n``."""
-    return space.memo(
-        ("similarity.run_starts",), lambda: np.r_[np.flatnonzero(~space.continues), space.n_rows].astype(np.int64)
+    return cast(
+        "np.ndarray",
+        space.memo(
+            ("similarity.run_starts",), lambda: np.r_[np.flatnonzero(~space.continues), space.n_rows].astype(np.int64)
+        ),
     )
 
 

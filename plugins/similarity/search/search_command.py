@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO, cast
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -219,7 +219,7 @@ class SearchSession:
         self._mdb: MotionDatabase | None = None
         self._spaces: dict[tuple[bool, bool], SearchSpace] = {}
 
-    def stamp(self) -> tuple:
+    def stamp(self) -> tuple[Any, ...]:
         """``(mtime_ns, size)`` of the manifests of the index, features and motions steps."""
         out: list[tuple[int, int, int] | None] = []
         for ds in (self.idx, self.fds, self.mds):
@@ -237,7 +237,7 @@ class SearchSession:
         """The persisted index, loaded once (memory-mapped by the index class, no rebuild)."""
         if self._index is None:
             self._index = self.idx.index(self.regs)
-        return self._index
+        return cast("Index", self._index)
 
     def space(self, matcher: Matcher) -> SearchSpace:
         """The matcher's search space (the core's :func:`~mocapflow.framework.queries.search_space`
@@ -282,12 +282,13 @@ class SearchSession:
             from mocapflow.framework.options import options_error
 
             raise options_error(exc, _OPTIONS, f"matchers.{args.matcher}") from None
-        return matcher_cls(params)
+        return cast("Matcher", matcher_cls(params))
 
     def query(self, text: str, cwd: Path) -> Query:
         """The :class:`~mocapflow.framework.queries.Query` of ``--query`` (files relative to ``cwd``)."""
         from mocapflow.framework.database import MotionDatabase
-        from mocapflow.framework.queries import motion_queries, parse_query_spec
+        from mocapflow.framework.matching import parse_query_spec
+        from mocapflow.framework.queries import motion_queries
 
         spec = parse_query_spec(text)
 

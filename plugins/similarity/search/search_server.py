@@ -163,7 +163,7 @@ def ask(args: argparse.Namespace, timeout: float | None = None) -> int | None:
     return int(reply["rc"])
 
 
-def _handle(session_box: list, raw: bytes, make_session: Callable[[], Any]) -> dict:
+def _handle(session_box: list[Any], raw: bytes, make_session: Callable[[], Any]) -> dict[str, Any]:
     """One request -> reply (errors become what the CLI would print, with its exit status)."""
     from mocapflow.framework.errors import ConfigError, MocapflowError, PluginError
 
