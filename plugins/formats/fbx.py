@@ -47,13 +47,24 @@ from ._fbx_curves import evaluate, read_curve
 from ._fbx_layers import Layer, clamp_weight, combine
 from ._fbx_layers import euler_quat as _euler
 from ._fbx_parse import Node, check_head, parse_fbx
+from ._fbx_scene import (
+    KTIME_V7,
+    MAX_VALUE,
+    OBJECT_KINDS,
+    Props,
+    file_axes,
+    ktime,
+    props70,
+    scene,
+    take_span,
+    take_stack,
+    templates,
+)
 from ._fbx_write import write_fbx
 from ._nodes import common_root, motion_from_nodes, uniform_scale, unique_names
 
 __all__ = ["FbxFormat", "read_fbx", "write_fbx"]
 
-KTIME_V7 = 46_186_158_000
-KTIME_V8 = 141_120_000
 #: TimeMode enum -> frames per second (14: CustomFrameRate).
 TIME_MODES = {
     0: 30.0, 1: 120.0, 2: 100.0, 3: 60.0, 4: 50.0, 5: 48.0, 6: 30.0, 7: 30.0, 8: 30 / 1.001, 9: 30 / 1.001,
@@ -65,9 +76,6 @@ TIME_MODES = {
 INHERIT_RRS = 2
 _ORDERS = {0: "xyz", 1: "xzy", 2: "yzx", 3: "yxz", 4: "zxy", 5: "zyx", 6: "xyz"}
 _CHANNELS = {"Lcl Translation": "t", "Lcl Rotation": "r", "Lcl Scaling": "s"}
-#: Largest |value| of a transform property or key (file units up to millimetres, degrees):
-#: above any real scene, below the overflow of the products that follow.
-_MAX_VALUE = 1.0e9
 #: Deepest model hierarchy (a skeleton is < 100 deep); the common-root search is linear in
 #: the models whatever the shape (:func:`._nodes.common_root`).
 MAX_MODEL_DEPTH = 1_000
@@ -76,76 +84,6 @@ MAX_LAYERS = 1_000
 #: Largest |key time| in KTime ticks: 10^7 s (115 days) at the finer v7 tick (no overflow of
 #: int64 differences).
 MAX_KTIME = 10_000_000 * KTIME_V7
-
-
-def _props70(node: Node | None) -> dict[str, list[Any]]:
-    out: dict[str, list[Any]] = {}
-    p70 = node.find("Properties70") if node is not None else None
-    for p in p70.children if p70 is not None else []:
-        if p.name == "P" and p.props and isinstance(p.props[0], str):
-            out[p.props[0]] = p.props[4:]
-    return out
-
-
-class _Props:
-    """A model's properties with the file's template as defaults."""
-
-    def __init__(self, path: Path, own: dict[str, Any], template: dict[str, Any], what: str) -> None:
-        self.path, self.own, self.template, self.what = path, own, template, what
-
-    def get(self, key: str, default: Any) -> Any:
-        v = self.own.get(key, self.template.get(key))
-        return default if v is None else v
-
-    def vec(self, key: str, default: tuple[float, float, float]) -> np.ndarray:
-        v = self.get(key, default)
-        try:
-            arr = np.array([float(x) for x in v[:3]], dtype=float)
-        except (TypeError, ValueError):
-            arr = np.zeros(0)
-        if arr.shape != (3,) or not np.all(np.abs(arr) <= _MAX_VALUE):
-            raise ParseError(
-                self.path,
-                None,
-                f"{self.what}: expected three numbers within {_MAX_VALUE:g} in {key!r}, found {v!r}"[:200],
-            )
-        return arr
-
-    def num(self, key: str, default: float) -> float:
-        v = self.get(key, [default])
-        if not v or isinstance(v[0], (str, bytes)) or not np.isfinite(float(v[0])):
-            raise ParseError(self.path, None, f"{self.what}: expected a number in {key!r}, found {v!r}"[:200])
-        return float(v[0])
-
-
-def _axes(path: Path, gs: _Props) -> np.ndarray:
-    """Rotation (quaternion) from the file's axes to y-up, front along -z."""
-    up = int(gs.num("UpAxis", 1)), int(np.sign(gs.num("UpAxisSign", 1)) or 1)
-    front = int(gs.num("FrontAxis", 2)), int(np.sign(gs.num("FrontAxisSign", 1)) or 1)
-    coord = int(gs.num("CoordAxis", 0)), int(np.sign(gs.num("CoordAxisSign", 1)) or 1)
-    eye = np.eye(3)
-    if not all(0 <= a <= 2 for a, _ in (up, front, coord)):
-        raise ParseError(path, None, f"GlobalSettings: expected axes 0-2, found up {up}, front {front}, coord {coord}")
-    u, f, c = eye[up[0]] * up[1], -eye[front[0]] * front[1], eye[coord[0]] * coord[1]
-    if not np.allclose(np.cross(f, u), c):  # not right-handed: Blender's fallback, z up and y forward
-        u, f, c = eye[2], eye[1], eye[0]
-    return quat.from_matrix(np.stack([c, u, -f]))
-
-
-def _stack(path: Path, objects: dict[int, tuple[str, str, Node]], animation: int | str) -> tuple[int, str, list[str]]:
-    stacks = [(oid, name) for oid, (kind, name, _n) in objects.items() if kind == "AnimationStack"]
-    names = [n for _, n in stacks]
-    if not stacks:
-        raise ParseError(path, None, "expected an AnimationStack (a take), found none")
-    if isinstance(animation, str):
-        if animation not in names:
-            raise ParseError(path, None, f"expected an animation named {animation!r}, found {names}")
-        k = names.index(animation)
-    elif not 0 <= animation < len(stacks):
-        raise ParseError(path, None, f"expected an animation index below {len(stacks)}, found {animation}")
-    else:
-        k = animation
-    return stacks[k][0], names[k], names
 
 
 def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
@@ -157,8 +95,8 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     ``start_time`` (seconds)."""
     path = Path(path)
     data = read_bytes(path, lambda head: check_head(path, head, path.stat().st_size))
-    version, root = parse_fbx(path, data, _OBJECT_KINDS)
-    gs = _Props(path, _props70(root.find("GlobalSettings")), {}, "GlobalSettings")
+    version, root = parse_fbx(path, data, OBJECT_KINDS)
+    gs = Props(path, props70(root.find("GlobalSettings")), {}, "GlobalSettings")
     unit = gs.num("UnitScaleFactor", 1.0) / 100.0
     if not 0 < unit * 100 <= 1e7:
         raise ParseError(path, None, f"GlobalSettings: expected a positive UnitScaleFactor, found {unit * 100:g}")
@@ -168,9 +106,9 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
         raise ParseError(
             path, None, f"GlobalSettings: expected a frame rate in (0, {MAX_FPS:g}], found TimeMode {mode}, {fps:g} fps"
         )
-    ktps = _ktime(root, version)
-    template, objects, parent, owner = _scene(path, root)
-    stack_id, stack_name, stack_names = _stack(path, objects, animation)
+    ktps = ktime(root, version)
+    template, objects, parent, owner = scene(path, root)
+    stack_id, stack_name, stack_names = take_stack(path, objects, animation)
     layers, curves = _curves(path, root, objects, owner, stack_id, ktps, data, version)
     models = {oid: v for oid, v in objects.items() if v[0] == "Model"}
     if not models:
@@ -183,7 +121,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     order, first = _order(path, models, parent, joints)
     members = set(order)
     keyed = [c for (m, _), driving in curves.items() if m in members for _i, axes, _d in driving for c in axes if c]
-    span = _span(objects[stack_id][2], _templates(root, "AnimationStack"))
+    span = take_span(objects[stack_id][2], templates(root, "AnimationStack"))
     if span is not None:
         k0, k1 = span
         span_source = "take"
@@ -213,7 +151,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     n = len(order) + 1
     rest_t, rest_r, rest_s = np.zeros((n, 3)), np.zeros((n, 4)), np.ones(n)
     ignore_scale = np.zeros(n, dtype=bool)
-    rest_r[0] = _axes(path, gs)
+    rest_r[0] = file_axes(path, gs)
     rest_s[0] = unit
     t = np.empty((n_frames, n, 3))
     r = np.empty((n_frames, n, 4))
@@ -222,7 +160,7 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     inner = {parent[m] for m in order if m in parent}  # models with a child in the skeleton
     scale_ignored: list[str] = []
     for k, m in enumerate(order, start=1):
-        props = _Props(path, _props70(models[m][2]), template, f"model {names[k]!r}")
+        props = Props(path, props70(models[m][2]), template, f"model {names[k]!r}")
         ignore_scale[k] = int(props.num("InheritType", 0.0)) == INHERIT_RRS
         leaf = m not in inner
         tr = _transform(props, names[k], m, {}, grid, rest=True, leaf=leaf)
@@ -270,63 +208,6 @@ def read_fbx(path: str | Path, animation: int | str = 0) -> Motion:
     )
 
 
-_EMPTY = Node("", [], [], 0)
-#: The kinds of ``Objects`` children the reader uses (others are skipped unparsed: meshes,
-#: materials, embedded media).
-_OBJECT_KINDS = frozenset({"Model", "AnimationStack", "AnimationLayer", "AnimationCurveNode", "AnimationCurve"})
-
-
-def _scene(
-    path: Path, root: Node
-) -> tuple[dict[str, Any], dict[int, tuple[str, str, Node]], dict[int, int], dict[int, list[tuple[int, str]]]]:
-    """The Model property template, objects by id (kind, name, node), model parents and
-    connections by parent id."""
-    template: dict[str, Any] = {}
-    for ot in (root.find("Definitions") or _EMPTY).find_all("ObjectType"):
-        if ot.props[:1] == ["Model"]:
-            for pt in ot.find_all("PropertyTemplate"):
-                template.update(_props70(pt))
-    objects: dict[int, tuple[str, str, Node]] = {}
-    for o in (root.find("Objects") or _EMPTY).children:
-        if len(o.props) >= 2 and isinstance(o.props[0], int) and isinstance(o.props[1], str):
-            objects[o.props[0]] = (o.name, o.props[1].split("\x00\x01")[0], o)
-    parent: dict[int, int] = {}
-    owner: dict[int, list[tuple[int, str]]] = {}  # parent id -> [(child id, property)]
-    for c in (root.find("Connections") or _EMPTY).find_all("C"):
-        if len(c.props) < 3 or not all(isinstance(x, int) for x in c.props[1:3]):
-            raise ParseError(path, None, f"Connections: expected 'C' records with two ids, found {c.props[:3]!r}"[:200])
-        kind, child, par = c.props[0], c.props[1], c.props[2]
-        prop = c.props[3] if len(c.props) > 3 and isinstance(c.props[3], str) else ""
-        owner.setdefault(par, []).append((child, prop))
-        if kind == "OO" and objects.get(child, ("",))[0] == "Model" and objects.get(par, ("",))[0] == "Model":
-            if child in parent:
-                raise ParseError(path, None, f"model {objects[child][1]!r} has two parents; expected a tree")
-            parent[child] = par
-    return template, objects, parent, owner
-
-
-def _templates(root: Node, kind: str) -> dict[str, Any]:
-    """The property template of an object type (``Definitions``)."""
-    out: dict[str, Any] = {}
-    for ot in (root.find("Definitions") or _EMPTY).find_all("ObjectType"):
-        if ot.props[:1] == [kind]:
-            for pt in ot.find_all("PropertyTemplate"):
-                out.update(_props70(pt))
-    return out
-
-
-def _span(stack: Node, template: dict[str, Any]) -> tuple[int, int] | None:
-    """The take's time span in ticks: ``LocalStart``/``LocalStop``, else
-    ``ReferenceStart``/``ReferenceStop`` (as the FBX SDK and ufbx read it); None without
-    them or when they are not a forward span."""
-    own = _props70(stack)
-    for a, b in (("LocalStart", "LocalStop"), ("ReferenceStart", "ReferenceStop")):
-        va, vb = own.get(a, template.get(a)), own.get(b, template.get(b))
-        if va and vb and isinstance(va[0], int) and isinstance(vb[0], int):
-            return (va[0], vb[0]) if vb[0] >= va[0] else None
-    return None
-
-
 def _layers(
     path: Path,
     root: Node,
@@ -336,7 +217,7 @@ def _layers(
 ) -> tuple[list[Layer], list[int]]:
     """The take's animation layers (and their ids) in the order of its connections
     (:mod:`._fbx_layers`)."""
-    template = _templates(root, "AnimationLayer")
+    template = templates(root, "AnimationLayer")
     ids: list[int] = []
     for c, _p in owner.get(stack_id, []):
         if objects.get(c, ("",))[0] == "AnimationLayer" and c not in ids:
@@ -345,7 +226,7 @@ def _layers(
                 raise ParseError(path, None, f"the take has more than {MAX_LAYERS:,} animation layers; expected fewer")
     layers = []
     for k, lid in enumerate(ids):
-        props = _Props(path, _props70(objects[lid][2]), template, f"AnimationLayer {objects[lid][1]!r}")
+        props = Props(path, props70(objects[lid][2]), template, f"AnimationLayer {objects[lid][1]!r}")
         layers.append(
             Layer(
                 name=objects[lid][1],
@@ -381,12 +262,12 @@ def _curves(
     Curves attach to a node's axis by name as in ufbx (``Y``/``d|Y``: y, ``Z``/``d|Z``: z,
     any other: x; in name order, the last one winning)."""
     layers, ids = _layers(path, root, objects, owner, stack_id)
-    node_template = _templates(root, "AnimationCurveNode")
+    node_template = templates(root, "AnimationCurveNode")
     read: dict[int, Any] = {}  # curve id -> Curve (a curve shared by nodes or layers is read once)
 
     def curve(cv: int) -> Any:
         if cv not in read:
-            read[cv] = read_curve(path, objects[cv][2], ktps, _MAX_VALUE, data, version, max_ticks=MAX_KTIME)
+            read[cv] = read_curve(path, objects[cv][2], ktps, MAX_VALUE, data, version, max_ticks=MAX_KTIME)
         return read[cv]
 
     driven: dict[int, list[tuple[int, str]]] = {}  # curve node -> the (model/layer, property) pairs it drives
@@ -429,7 +310,7 @@ def _curve_node(
 ) -> tuple[list[Any], np.ndarray]:
     """A curve node's per-axis curves (``curve(id)`` reads one) and values (3,)."""
     what = f"AnimationCurveNode {objects[cn][1]!r}"
-    cprops = _Props(path, _props70(objects[cn][2]), template, what)
+    cprops = Props(path, props70(objects[cn][2]), template, what)
     dflt = np.array([cprops.num(f"d|{x}", cprops.num(x, 0.0)) for x in "XYZ"])
     axes: list[Any] = [None, None, None]
     kids = sorted((p, cv) for cv, p in owner.get(cn, []) if objects.get(cv, ("",))[0] == "AnimationCurve")
@@ -437,27 +318,9 @@ def _curve_node(
         a = 1 if cprop in ("Y", "d|Y") else 2 if cprop in ("Z", "d|Z") else 0
         dflt[a] = cprops.num(cprop, dflt[a]) if cprop else dflt[a]
         axes[a] = curve(cv)
-    if not np.abs(dflt).max() <= _MAX_VALUE:
-        raise ParseError(path, None, f"{what}: expected values within {_MAX_VALUE:g}, found {dflt.tolist()}")
+    if not np.abs(dflt).max() <= MAX_VALUE:
+        raise ParseError(path, None, f"{what}: expected values within {MAX_VALUE:g}, found {dflt.tolist()}")
     return axes, dflt
-
-
-def _ktime(root: Node, version: int) -> int:
-    ktps = KTIME_V8 if version >= 8000 else KTIME_V7
-    head = root.find("FBXHeaderExtension")
-    hv = head.find("FBXHeaderVersion") if head is not None else None
-    flags = head.find("OtherFlags") if head is not None else None
-    tcd = flags.find("TCDefinition") if flags is not None else None
-    if (
-        hv is not None
-        and hv.props
-        and isinstance(hv.props[0], int)
-        and hv.props[0] >= 1004
-        and tcd is not None
-        and tcd.props
-    ):
-        ktps = {0: KTIME_V8, 127: KTIME_V7}.get(tcd.props[0], KTIME_V8)
-    return ktps
 
 
 def _order(
@@ -508,7 +371,7 @@ def _weights(layers: list[Layer], grid: np.ndarray) -> list[Any]:
 
 
 def _channel(
-    props: _Props,
+    props: Props,
     name: str,
     key: str,
     c: str,
@@ -530,15 +393,15 @@ def _channel(
             continue
         order = int(props.num("RotationOrder", 0.0))
         v = combine(v, val, layers[1][index], layers[0][index], c, order if 0 <= order <= 6 else 0)
-        if not np.all(np.abs(v) <= _MAX_VALUE):
+        if not np.all(np.abs(v) <= MAX_VALUE):
             raise ParseError(
-                props.path, None, f"model {name!r}: {key!r} blended over animation layers leaves {_MAX_VALUE:g}"
+                props.path, None, f"model {name!r}: {key!r} blended over animation layers leaves {MAX_VALUE:g}"
             )
     return v if v.flags.writeable else v.copy()
 
 
 def _transform(
-    props: _Props,
+    props: Props,
     name: str,
     m: int,
     curves: dict[tuple[int, str], list[Any]],

@@ -22,9 +22,10 @@ from pydantic import Field
 
 from mocapflow.framework import Index
 from mocapflow.framework import Params as BaseParams
-from mocapflow.framework.errors import ConfigError, DataError, PipelineError
+from mocapflow.framework.errors import ConfigError, DataError
 
 from .cost_model import CostModel
+from .kdtree_store import ARRAYS, INDEX_LAYOUT, TREE_ARRAYS, read_meta, rows_from_dataset, sqnorms
 
 if TYPE_CHECKING:  # pragma: no cover
     from mocapflow.framework import Dataset, StepContext, StepOutput
@@ -49,26 +50,6 @@ class TreeSettings:
 
 
 TREE = TreeSettings()
-
-_ARRAYS = tuple(
-    f"{a}_"
-    for a in ["data", "perm", "groups", "frames", "sqnorms", "mean", "start", "end", "left", "right", "sdim", "sval"]
-)
-
-
-#: What an index saved with ``rows_from`` keeps: the tree, not the rows (read from the features).
-_TREE_ARRAYS = tuple(a for a in _ARRAYS if a not in ("data_", "groups_", "frames_", "sqnorms_"))
-#: 1: every array and rows_*.npy; 2: also ``rows_from`` (the tree only, rows read from the features dataset).
-INDEX_LAYOUT = 2
-
-
-def _sqnorms(data: np.ndarray, mean: np.ndarray) -> np.ndarray:
-    """Squared norms of the rows centred on ``mean``, in blocks (no transient centred copy)."""
-    out = np.empty(data.shape[0], np.float32)
-    for a in range(0, data.shape[0], 65536):
-        c = data[a : a + 65536] - mean
-        out[a : a + 65536] = np.einsum("ij,ij->i", c, c)
-    return out
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
@@ -195,7 +176,7 @@ class KDTreeIndex(CostModel, Index):
         self.perm_, self.groups_, self.frames_ = perm, g[perm], f[perm]
         self.start_, self.end_, self.left_, self.right_, self.sdim_, self.sval_ = start, end, left, right, sdim, sval
         self.mean_ = self.data_.mean(0, dtype=np.float64).astype(np.float32) if n else np.zeros(x.shape[1], np.float32)
-        self.sqnorms_ = _sqnorms(self.data_, self.mean_)
+        self.sqnorms_ = sqnorms(self.data_, self.mean_)
         self._rows = None
         self.probe_ = {}
         self.method_, self.brute_from_k_, self.large_method_ = self.params.method, None, "brute"
@@ -464,7 +445,7 @@ class KDTreeIndex(CostModel, Index):
         self._check_built()
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        own = _TREE_ARRAYS if rows_from is not None else _ARRAYS
+        own = TREE_ARRAYS if rows_from is not None else ARRAYS
         for a in own:
             arr = getattr(self, a)
             if a == "perm_" and rows_from is not None and len(arr) < 2**31:
@@ -517,23 +498,8 @@ class KDTreeIndex(CostModel, Index):
     @classmethod
     def load(cls, directory: Path) -> KDTreeIndex:
         d = Path(directory)
-        if not (d / "index.json").is_file():
-            raise DataError(f"{d} holds no saved {cls.name} index (no index.json)")
-        meta = json.loads((d / "index.json").read_text())
-        layout = int(meta.get("layout", 1))
-        if layout > INDEX_LAYOUT:
-            raise DataError(
-                f"{d}: index layout {layout} was written by a newer mocapflow (this one reads up to {INDEX_LAYOUT}): "
-                "upgrade mocapflow, or rebuild the index with `mocapflow run PIPELINE --force`"
-            )
+        meta, arrays = read_meta(d, cls.name)
         ref = meta.get("rows_from")
-        arrays = _TREE_ARRAYS if ref else _ARRAYS
-        missing = [f"{a.rstrip('_')}.npy" for a in arrays if not (d / f"{a.rstrip('_')}.npy").is_file()]
-        if missing:
-            raise DataError(
-                f"{d}: index incomplete or built by an older version (missing {', '.join(missing)}): "
-                "rebuild it with `mocapflow run PIPELINE --force`"
-            )
         # parameters that became build settings (leafsize, probe_*) are ignored in older indexes
         self = cls({k: v for k, v in meta["params"].items() if k in cls.Params.model_fields})
         self._inv = self._depth = self._raw_bound = self._boxes = self._targs = None
@@ -550,32 +516,13 @@ class KDTreeIndex(CostModel, Index):
         return self
 
     def _attach_rows(self, d: Path, ref: dict[str, Any]) -> None:
-        """The rows of an index saved with ``rows_from``: read from that features dataset (the
-        step ``ref["step"]`` of the index's workspace), checked against its fingerprint."""
-        from mocapflow.framework.datasets import Dataset
-
-        src = d.parent.parent / str(ref["step"])
-        try:
-            ds = Dataset(src)
-            fp = ds.fingerprint
-        except (OSError, ValueError, KeyError, PipelineError):  # a missing or unreadable dataset: one message
-            fp = None
-        if fp != ref.get("fingerprint"):
-            state = "is missing" if fp is None else "has changed since"
-            raise DataError(
-                f"{d}: the index reads its rows from the features dataset {src}, which {state} the index was "
-                "built: rebuild the index with `mocapflow run PIPELINE` (or --force)"
-            )
-        feats = ds.features()
-        perm = np.asarray(self.perm_, np.int64)
-        if len(perm) != feats.x.shape[0]:
-            raise DataError(f"{d}: {len(perm)} indexed rows, features dataset {src} has {feats.x.shape[0]}")
+        """The rows of an index saved with ``rows_from`` (:func:`.kdtree_store.rows_from_dataset`)."""
+        perm, self._rows = rows_from_dataset(d, ref, self.perm_)
+        x, groups, frames = self._rows
         self.perm_ = perm
-        self.data_ = feats.x[perm]
-        self.groups_, self.frames_ = feats.clip_id[perm], feats.frame[perm]
-        self.sqnorms_ = _sqnorms(self.data_, self.mean_)
-        x = feats.x if feats.x.flags.writeable else feats.x.copy()  # writable: the kernels' one signature
-        self._rows = (x, feats.clip_id, feats.frame)
+        self.data_ = x[perm]
+        self.groups_, self.frames_ = groups[perm], frames[perm]
+        self.sqnorms_ = sqnorms(self.data_, self.mean_)
 
     # --- pipeline step ----------------------------------------------------------------
     def run(self, inputs: Mapping[str, Dataset], ctx: StepContext) -> StepOutput:

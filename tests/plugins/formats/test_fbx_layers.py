@@ -387,13 +387,13 @@ def test_layered_local_transforms_equal_ufbx(name):
     file has six cubes in the six rotation orders, blended by quaternions)."""
     path = _corpus_file(name)
     ref = _ufbx()
-    from mocapflow.plugins.formats import fbx
+    from mocapflow.plugins.formats import _fbx_scene, fbx
 
     data = path.read_bytes()
-    version, root = fbx.parse_fbx(path, data, fbx._OBJECT_KINDS)
-    template, objects, parent, owner = fbx._scene(path, root)
-    stack, _n, _names = fbx._stack(path, objects, 0)
-    ktps = fbx._ktime(root, version)
+    version, root = fbx.parse_fbx(path, data, _fbx_scene.OBJECT_KINDS)
+    template, objects, parent, owner = _fbx_scene.scene(path, root)
+    stack, _n, _names = _fbx_scene.take_stack(path, objects, 0)
+    ktps = _fbx_scene.ktime(root, version)
     layers, curves = fbx._curves(path, root, objects, owner, stack, ktps, data, version)
     models = sorted({m for m, _c in curves})
     names = [objects[m][1] for m in models]
@@ -401,7 +401,7 @@ def test_layered_local_transforms_equal_ufbx(name):
     r = ref.ufbx_positions(path, names, times)["local"]
     weights = fbx._weights(layers, times)
     for j, m in enumerate(models):
-        props = fbx._Props(path, fbx._props70(objects[m][2]), template, names[j])
+        props = _fbx_scene.Props(path, _fbx_scene.props70(objects[m][2]), template, names[j])
         chan = {
             c: fbx._channel(props, names[j], key, c, d, curves.get((m, c), []), times, (layers, weights))
             for key, c, d in (
