@@ -36,25 +36,34 @@ def threads_per_worker(workers: int, cores: int | None = None) -> int:
     return max(1, (cores or available_cores()) // max(1, workers))
 
 
+def _numba_pool_running() -> bool:
+    """Whether numba's threading layer has started in this process (its size is fixed then)."""
+    if "numba" not in sys.modules:
+        return False
+    from numba.np.ufunc import parallel
+
+    return bool(parallel._is_initialized)
+
+
+def _set_thread_env(n: int) -> None:
+    """:data:`THREAD_ENV` to ``n`` for the pools that load later. Not numba's variable once its
+    pool runs: numba re-reads it at every compile and raises when it differs from the running
+    pool's size (``set_num_threads`` limits a running pool instead)."""
+    running = _numba_pool_running()
+    for var in THREAD_ENV:
+        if not (running and var == "NUMBA_NUM_THREADS"):
+            os.environ[var] = str(n)
+
+
 def limit_threads(n: int) -> int:
     """Size every numeric thread pool of this process to ``n`` threads (environment for
     later loads, threadpoolctl, numba); returns ``n``. Each worker calls it first."""
     n = max(1, int(n))
-    launched = False
-    if "numba" in sys.modules:
-        from numba.np.ufunc import parallel
-
-        launched = bool(parallel._is_initialized)
-    for var in THREAD_ENV:
-        # numba re-reads its environment at every compile and raises once its pool runs with
-        # another size: a launched pool keeps its variable, set_num_threads limits it below
-        if not (launched and var == "NUMBA_NUM_THREADS"):
-            os.environ[var] = str(n)
+    _set_thread_env(n)
     if "numba" in sys.modules:
         import numba
-        from numba.np.ufunc import parallel
 
-        if not parallel._is_initialized:
+        if not _numba_pool_running():
             numba.config.reload_config()  # what numba.config.NUMBA_NUM_THREADS (and kd-trees) read
         # numba's pool was sized at import; limit the threads this (task-running) thread uses
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
@@ -117,11 +126,7 @@ def _client_threads(n: int) -> Iterator[None]:
 
     limiter = threadpool_limits(n)
     try:
-        for var in THREAD_ENV:
-            # not numba's: it re-reads its variable at every compile and raises once its pool
-            # runs with another size (set_num_threads limits it here)
-            if var != "NUMBA_NUM_THREADS":
-                os.environ[var] = str(n)
+        _set_thread_env(n)  # the pool runs (get_num_threads above started it): numba's is kept
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
         yield
     finally:
